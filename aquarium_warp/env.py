@@ -1,0 +1,448 @@
+"""`BatchedAquarium`: many independent Aquarium worlds stepped at once by Warp kernels.
+
+The step is a fixed sequence of kernel launches (MODEL.md steps 1-10) with no allocation and no host
+synchronisation, replayed as a CUDA graph on GPU. Inputs and outputs are torch tensors that share
+memory with the simulation (zero copy): returned tensors are overwritten by the next `step()`, so
+clone what you keep.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import Mapping
+
+import numpy as np
+import torch
+import warp as wp
+
+from .config import AquariumConfig
+from .state import AGENT_FIELDS, WORLD_FIELDS, SimulationState, bytes_per_slot
+from .kernels import capture, grid as grid_kernels, motion, observation, population, spawn
+from .kernels.common import AgentType, WorldParams
+
+TYPES = ("prey", "predator")
+_warp_ready = False
+
+
+def _init_warp() -> None:
+    global _warp_ready
+    if not _warp_ready:
+        wp.config.log_level = wp.LOG_WARNING if hasattr(wp, "LOG_WARNING") else wp.config.log_level
+        wp.config.quiet = True
+        wp.init()
+        _warp_ready = True
+
+
+def resolve_device(device) -> str:
+    """Warp device name for `device`: None picks "cuda:0" when CUDA is present, else "cpu"."""
+    _init_warp()
+    if device is None:
+        return "cuda:0" if wp.is_cuda_available() else "cpu"
+    if isinstance(device, torch.device):
+        device = str(device) if device.type == "cpu" or device.index is not None else f"{device.type}:0"
+    if not isinstance(device, str):
+        raise ValueError(f"device={device!r} must be None, a string like 'cpu' or 'cuda:0', or a torch.device")
+    if device == "cuda":
+        device = "cuda:0"
+    names = [d.alias for d in wp.get_devices()]
+    if device not in names:
+        raise ValueError(f"device={device!r} is not available; available devices: {names}")
+    return device
+
+
+def _seed_key(seed) -> int:
+    if isinstance(seed, (bool, float)) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed={seed!r} must be a non-negative integer")
+    seed = int(seed)
+    key = 0
+    while True:  # fold every 32-bit word of the seed into the key
+        key = (key * 0x9E3779B1 + (seed & 0xFFFFFFFF)) & 0xFFFFFFFF
+        seed >>= 32
+        if seed == 0:
+            return key
+
+
+def _grid_dims(cfg: AquariumConfig) -> tuple[int, int]:
+    """Cells per axis. Cells slightly wider than the typical query radius let most queries finish
+    within one ring; at most about 4 cells per agent slot keep the table small in sparse worlds."""
+    contact = max(2 * cfg.prey.radius, 2 * cfg.predator.radius, cfg.prey.radius + cfg.predator.radius)
+    if cfg.grid_cell_size is not None:
+        target = cfg.grid_cell_size
+    else:
+        finite_views = [v for v in (cfg.prey.view_distance, cfg.predator.view_distance) if math.isfinite(v)]
+        target = 1.01 * max([contact] + ([min(finite_views)] if finite_views else []))
+        max_cells = max(64, 4 * cfg.capacity)
+        target = max(target, math.sqrt(cfg.width * cfg.height / max_cells))
+    return max(1, int(cfg.width // target)), max(1, int(cfg.height // target))
+
+
+def _type_params(cfg: AquariumConfig, t) -> AgentType:
+    p = AgentType()
+    p.max_speed = t.max_speed
+    p.max_steering_force = t.max_steering_force
+    p.max_acceleration = t.max_acceleration
+    p.mass = t.mass
+    p.radius = t.radius
+    p.view_distance = t.view_distance
+    p.distance_norm = min(t.view_distance, cfg.max_torus_distance)
+    p.cos_half_fov = math.cos(math.radians(t.fov_angle / 2.0)) if t.fov_angle < 360 else -2.0
+    p.bounce_strength = t.bounce_strength
+    p.predator_slots = t.predator_slots
+    p.prey_slots = t.prey_slots
+    return p
+
+
+class BatchedAquarium:
+    """`num_worlds` independent Aquarium worlds on one device.
+
+    Observations: `{"prey": [W, prey_capacity, L_prey], "predator": [W, predator_count, L_pred]}`
+    float32; `observation_mask` says which neighbour slots are filled. Actions: integer tensors
+    `{"prey": [W, prey_capacity], "predator": [W, predator_count]}` on the env's device; actions of
+    dead slots are ignored. A world whose episode ends resets itself inside `step()`.
+    """
+
+    def __init__(self, config: AquariumConfig | None = None, num_worlds: int = 1, device=None, seed: int = 0):
+        if config is None:
+            config = AquariumConfig()
+        if not isinstance(config, AquariumConfig):
+            raise ValueError(f"config must be an AquariumConfig, got {type(config).__name__}")
+        if isinstance(num_worlds, bool) or not isinstance(num_worlds, (int, np.integer)) or num_worlds < 1:
+            raise ValueError(f"num_worlds={num_worlds!r} must be an integer >= 1")
+        self.config = cfg = config
+        self.num_worlds = W = int(num_worlds)
+        self.device = resolve_device(device)
+        self.torch_device = torch.device(self.device)
+        _seed_key(seed)
+        self.seed = int(seed)
+        self.prey_capacity = cfg.prey_capacity
+        self.predator_count = cfg.predator_count
+        self.capacity = C = cfg.capacity
+        self.observation_size = {"prey": cfg.prey.observation_size, "predator": cfg.predator.observation_size}
+        self.observed_slots = {t: getattr(cfg, t).predator_slots + getattr(cfg, t).prey_slots for t in TYPES}
+
+        dims_x, dims_y = _grid_dims(cfg)
+        cells = dims_x * dims_y
+        if W * C * 2 >= 2**31 or W * cells + 1 >= 2**31:
+            raise ValueError(f"num_worlds={W} x capacity={C} (cells per world {cells}) exceeds the 32-bit "
+                             "index range of the cell lists; use fewer worlds or agents")
+        self._check_memory(cells)
+
+        self._world_params = self._make_world_params(_seed_key(seed))
+        types = [None, None]
+        types[0] = _type_params(cfg, cfg.predator)  # index = type code: predator 0, prey 1
+        types[1] = _type_params(cfg, cfg.prey)
+        self._types = wp.array(types, dtype=AgentType, device=self.device)
+
+        self.state = SimulationState(W, C, cfg.prey_capacity, cfg.predator_count,
+                                     self.observation_size["prey"], self.observation_size["predator"],
+                                     self.observed_slots["prey"], self.observed_slots["predator"], self.device)
+        self._grid = self._make_grid(dims_x, dims_y)
+        max_slots = max(1, max(getattr(cfg, t).predator_slots for t in TYPES),
+                        max(getattr(cfg, t).prey_slots for t in TYPES))
+        self._observe_kernel = observation.observation_kernel(max_slots)
+        self._graph = None
+        self._build_views()
+        self.reset()
+
+    # ------------------------------------------------------------------ construction helpers
+    def _make_world_params(self, seed_key: int) -> WorldParams:
+        cfg = self.config
+        p = WorldParams()
+        p.width = cfg.width
+        p.height = cfg.height
+        p.prey_capacity = cfg.prey_capacity
+        p.capacity = cfg.capacity
+        p.prey_count = cfg.prey_count
+        p.predator_count = cfg.predator_count
+        p.action_count = cfg.action_count
+        p.max_steps = cfg.max_steps
+        p.fov_enabled = int(cfg.fov_enabled)
+        p.respawn_captured_prey = int(cfg.respawn_captured_prey)
+        p.prey_reward = cfg.prey_reward
+        p.prey_capture_penalty = cfg.prey_capture_penalty
+        p.predator_reward = cfg.predator_reward
+        p.catch_share_radius = cfg.catch_share_radius
+        p.predator_starvation_steps = cfg.predator_starvation_steps
+        p.max_prey = cfg.max_prey
+        p.replication_age_min = math.ceil(0.75 * cfg.prey_replication_age)
+        p.replication_age_max = math.floor(1.25 * cfg.prey_replication_age)
+        p.signed_observations = int(cfg.observation_range == "-1..1")
+        p.seed = seed_key
+        return p
+
+    def _make_grid(self, dims_x: int, dims_y: int) -> grid_kernels.CellLists:
+        cfg, n = self.config, self.num_worlds * self.capacity
+        g = grid_kernels.CellLists()
+        g.dims_x, g.dims_y = dims_x, dims_y
+        g.cells_per_world = dims_x * dims_y
+        g.inv_cell_width = dims_x / cfg.width
+        g.inv_cell_height = dims_y / cfg.height
+        g.reach = min(cfg.width / dims_x, cfg.height / dims_y)
+        g.cell_start = wp.zeros(self.num_worlds * g.cells_per_world, dtype=int, device=self.device)
+        g.cell_end = wp.zeros(self.num_worlds * g.cells_per_world, dtype=int, device=self.device)
+        g.key = wp.zeros(2 * n, dtype=int, device=self.device)
+        g.agent = wp.zeros(2 * n, dtype=int, device=self.device)
+        g.position = wp.zeros(n, dtype=wp.vec2, device=self.device)
+        g.speed = wp.zeros(n, dtype=float, device=self.device)
+        return g
+
+    def _check_memory(self, cells_per_world: int) -> None:
+        cfg = self.config
+        obs = max(cfg.prey.observation_size, cfg.predator.observation_size)
+        need = self.num_worlds * (self.capacity * bytes_per_slot(obs, max(self.observed_slots.values()))
+                                  + cells_per_world * 8 + 64)
+        dev = wp.get_device(self.device)
+        if dev.is_cuda:
+            available = dev.free_memory
+        else:
+            available = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES")
+        if need > 0.9 * available:
+            raise ValueError(f"num_worlds={self.num_worlds} with capacity {self.capacity} needs about "
+                             f"{need / 2**30:.2f} GiB on {self.device}, but only {available / 2**30:.2f} GiB "
+                             "is free; use fewer worlds or agents")
+
+    def _build_views(self) -> None:
+        t, Pc = self.state.torch, self.prey_capacity
+        self.observations = {"prey": t.obs_prey, "predator": t.obs_predator}
+        self.observation_mask = {"prey": t.mask_prey, "predator": t.mask_predator}
+        self._rewards = {"prey": t.reward[:, :Pc], "predator": t.reward[:, Pc:]}
+        self._terminated = {"prey": t.terminated[:, :Pc], "predator": t.terminated[:, Pc:]}
+        self._truncated = {"prey": t.truncated[:, :Pc], "predator": t.truncated[:, Pc:]}
+        self.alive = {"prey": t.alive[:, :Pc], "predator": t.alive[:, Pc:]}
+        self._actions = {"prey": t.prey_action, "predator": t.predator_action}
+        self._info = {
+            "captures": t.captures,
+            "episode_ended": t.episode_ended,
+            "episode_length": t.ended_length,
+            "episode_captures": t.ended_captures,
+            "episode_return": {"prey": t.ended_return[:, 1], "predator": t.ended_return[:, 0]},
+            "alive": self.alive,
+            "observation_mask": self.observation_mask,
+        }
+
+    # ------------------------------------------------------------------ kernel sequences
+    def _rebuild_grid(self) -> None:
+        s = self.state
+        grid_kernels.build_cell_lists(self._world_params, self._grid, s.position, s.velocity, s.alive,
+                                      self.num_worlds, self.device)
+
+    def _observe(self) -> None:
+        s = self.state
+        self._rebuild_grid()
+        wp.launch(self._observe_kernel, dim=self.num_worlds * self.capacity,
+                  inputs=[self._world_params, self._types, self._grid, s.alive, s.heading],
+                  outputs=[s.obs_prey, s.obs_predator, s.mask_prey, s.mask_predator], device=self.device)
+
+    def _step_launches(self) -> None:
+        """MODEL.md steps 1-10 for every world: a fixed launch sequence, no sync, no allocation."""
+        s, g, world, types = self.state, self._grid, self._world_params, self._types
+        W, C, Pc, P = self.num_worlds, self.capacity, self.prey_capacity, self.predator_count
+        dev = self.device
+        for a in (s.reward, s.terminated, s.truncated, s.captured, s.captures):
+            a.zero_()
+        # 1-4: motion, reading neighbours from the cell lists of the start-of-step positions.
+        wp.launch(motion.integrate_motion, dim=W * C,
+                  inputs=[world, types, g, s.prey_action, s.predator_action, s.alive],
+                  outputs=[s.position, s.velocity, s.acceleration, s.heading], device=dev)
+        # 5: captures on the moved positions.
+        self._rebuild_grid()
+        wp.launch(capture.detect_captures, dim=(W, Pc),
+                  inputs=[world, types, g, s.world_step, s.episode],
+                  outputs=[s.alive, s.position, s.velocity, s.acceleration, s.heading, s.age,
+                           s.replication_age, s.starvation, s.captured, s.share_count, s.reward,
+                           s.terminated, s.captures, s.prey_alive_count], device=dev)
+        wp.launch(capture.share_capture_rewards, dim=(W, P),
+                  inputs=[world, types, g, s.alive, s.position, s.captured, s.share_count],
+                  outputs=[s.reward, s.starvation], device=dev)
+        # 6-7: starvation and reproduction.
+        wp.launch(population.starve_predators, dim=(W, P), inputs=[world],
+                  outputs=[s.alive, s.starvation, s.terminated, s.predator_alive_count], device=dev)
+        if self.config.prey_reproduction:
+            wp.launch(population.reproduce_prey, dim=W, inputs=[world, s.world_step, s.episode, s.captured],
+                      outputs=[s.alive, s.position, s.velocity, s.acceleration, s.heading, s.age,
+                               s.replication_age, s.starvation, s.prey_alive_count], device=dev)
+        # 8-9: rewards, episode end, auto-reset of ended worlds.
+        wp.launch(population.collect_rewards, dim=(W, C), inputs=[world, s.alive],
+                  outputs=[s.reward, s.episode_return], device=dev)
+        wp.launch(population.finish_world_step, dim=W, inputs=[world, s.captures, s.episode_return],
+                  outputs=[s.world_step, s.episode, s.episode_captures, s.prey_alive_count,
+                           s.predator_alive_count, s.episode_ended, s.ended_length, s.ended_captures,
+                           s.ended_return], device=dev)
+        wp.launch(population.truncate_ended_episodes, dim=(W, C), inputs=[s.episode_ended, s.alive],
+                  outputs=[s.truncated, s.episode_return], device=dev)
+        self._spawn(only_ended=True)
+        # 10: observations of the final state (its cell lists serve the next step's contacts).
+        self._observe()
+
+    def _spawn(self, only_ended: bool) -> None:
+        s = self.state
+        wp.launch(spawn.spawn_episode, dim=(self.num_worlds, self.capacity),
+                  inputs=[self._world_params, s.episode, int(only_ended), s.episode_ended],
+                  outputs=[s.alive, s.position, s.velocity, s.acceleration, s.heading, s.age,
+                           s.replication_age, s.starvation], device=self.device)
+
+    def _run_step(self) -> None:
+        if not wp.get_device(self.device).is_cuda:
+            self._step_launches()
+            return
+        stream = wp.stream_from_torch(torch.cuda.current_stream(self.torch_device))
+        with wp.ScopedStream(stream):
+            if self._graph is None:
+                # One eager step compiles and loads every kernel; the next one is captured.
+                self._step_launches()
+                with wp.ScopedCapture(device=self.device, stream=stream) as capture_scope:
+                    self._step_launches()
+                self._graph = capture_scope.graph
+                return
+            wp.capture_launch(self._graph, stream=stream)
+
+    # ------------------------------------------------------------------ public API
+    def reset(self, seed: int | None = None) -> dict[str, torch.Tensor]:
+        """Start a new episode in every world; with `seed`, reseed first. Returns the observations."""
+        if seed is not None:
+            _seed_key(seed)
+            self.seed = int(seed)
+            self._world_params = self._make_world_params(_seed_key(seed))
+            self._graph = None  # the seed is baked into captured launches
+        s = self.state
+        for name in WORLD_FIELDS:
+            getattr(s, name).zero_()
+        s.episode_return.zero_()
+        s.episode_ended.zero_()
+        self._spawn(only_ended=False)
+        s.torch.prey_alive_count.fill_(self.config.prey_count)
+        s.torch.predator_alive_count.fill_(self.config.predator_count)
+        self._observe()
+        return self.observations
+
+    def step(self, actions: Mapping[str, torch.Tensor], validate: bool = True):
+        """Advance every world by one step.
+
+        Returns `(obs, rewards, terminated, truncated, info)`: dicts of torch tensors keyed by agent
+        type ("prey" [W, prey_capacity], "predator" [W, predator_count]); `info` holds per-world
+        "captures" this step, "episode_ended" and, valid where it is set, "episode_length",
+        "episode_captures" and "episode_return" (summed over the type's agents), plus "alive" and
+        "observation_mask" of the returned observations. Worlds whose episode ended were reset, so
+        their observations are the new episode's first ones.
+        """
+        if validate:
+            self._validate_actions(actions)
+        for t in TYPES:
+            self._actions[t].copy_(actions[t] if isinstance(actions[t], torch.Tensor) else torch.as_tensor(actions[t]))
+        self._run_step()
+        return self.observations, self._rewards, self._terminated, self._truncated, self._info
+
+    def _validate_actions(self, actions) -> None:
+        if not isinstance(actions, Mapping):
+            raise ValueError(f"actions must be a dict with keys {TYPES}, got {type(actions).__name__}")
+        missing = [t for t in TYPES if t not in actions]
+        extra = [k for k in actions if k not in TYPES]
+        if missing or extra:
+            raise ValueError(f"actions must have exactly the keys {TYPES}; missing {missing}, unknown {extra}")
+        n = self.config.action_count
+        for t in TYPES:
+            a = actions[t]
+            expected = tuple(self._actions[t].shape)
+            if isinstance(a, np.ndarray):
+                if self.torch_device.type != "cpu":
+                    raise ValueError(f"actions[{t!r}] is a numpy array; pass a torch tensor on {self.device}")
+                a = torch.from_numpy(a)
+            if not isinstance(a, torch.Tensor):
+                raise ValueError(f"actions[{t!r}] must be a torch tensor, got {type(a).__name__}")
+            if a.dtype.is_floating_point or a.dtype.is_complex or a.dtype == torch.bool:
+                raise ValueError(f"actions[{t!r}] must have an integer dtype, got {a.dtype}")
+            if tuple(a.shape) != expected:
+                raise ValueError(f"actions[{t!r}] must have shape {list(expected)} "
+                                 f"(num_worlds, {t} slots), got {list(a.shape)}")
+            if a.device != self.torch_device:
+                raise ValueError(f"actions[{t!r}] is on {a.device}, but the env runs on {self.device}")
+            bad = ((a < 0) | (a >= n)) & self.alive[t]
+            if bool(bad.any()):
+                w, i = (int(x) for x in torch.nonzero(bad)[0])
+                raise ValueError(f"actions[{t!r}][{w}, {i}]={int(a[w, i])} is out of range: live agents' "
+                                 f"actions must be in [0, {n - 1}] (action_count={n})")
+
+    # ------------------------------------------------------------------ state access
+    def set_state(self, world: int | None = None, **fields) -> dict[str, torch.Tensor]:
+        """Overwrite part of the state and recompute everything derived from it (counts, cell lists,
+        observations). Fields: the agent fields of `AGENT_FIELDS` shaped `[C, ...]` (one world) or
+        `[W, C, ...]` (all worlds, `world=None`), and `world_step` / `episode` (a scalar for one world,
+        `[W]` for all). Headings must be unit vectors. Returns the observations of the new state."""
+        cfg, t = self.config, self.state.torch
+        unknown = [k for k in fields if k not in AGENT_FIELDS and k not in ("world_step", "episode")]
+        if unknown:
+            raise ValueError(f"unknown state fields {unknown}; settable: {list(AGENT_FIELDS)} + ['world_step', 'episode']")
+        if world is not None and not (isinstance(world, (int, np.integer)) and 0 <= world < self.num_worlds):
+            raise ValueError(f"world={world!r} must be None or an integer in [0, {self.num_worlds - 1}]")
+        sel = slice(None) if world is None else int(world)
+        staged = {}
+        for name, value in fields.items():
+            target = getattr(t, name)[sel]
+            value = torch.as_tensor(value, dtype=target.dtype, device="cpu")
+            if name in ("world_step", "episode") and world is None and value.dim() == 0:
+                value = value.expand(target.shape)
+            if tuple(value.shape) != tuple(target.shape):
+                raise ValueError(f"{name} must have shape {list(target.shape)}, got {list(value.shape)}")
+            staged[name] = value
+        self._check_state_values(staged, sel)
+        for name, value in staged.items():
+            getattr(t, name)[sel].copy_(value.to(self.torch_device))
+        alive = t.alive
+        t.prey_alive_count.copy_(alive[:, : self.prey_capacity].sum(dim=1).to(torch.int32))
+        t.predator_alive_count.copy_(alive[:, self.prey_capacity:].sum(dim=1).to(torch.int32))
+        self._observe()
+        return self.observations
+
+    def _check_state_values(self, staged: dict, sel) -> None:
+        cfg = self.config
+        if "position" in staged:
+            p = staged["position"]
+            if not torch.isfinite(p).all():
+                raise ValueError("position must be finite")
+            if (p[..., 0] < 0).any() or (p[..., 0] >= cfg.width).any() or (p[..., 1] < 0).any() or (p[..., 1] >= cfg.height).any():
+                raise ValueError(f"position must lie in [0, {cfg.width}) x [0, {cfg.height})")
+        for name in ("velocity", "acceleration", "heading"):
+            if name in staged and not torch.isfinite(staged[name]).all():
+                raise ValueError(f"{name} must be finite")
+        if "heading" in staged:
+            norm = torch.linalg.vector_norm(staged["heading"].double(), dim=-1)
+            if ((norm - 1.0).abs() > 1e-4).any():
+                raise ValueError("heading must hold unit vectors (|heading| = 1 within 1e-4)")
+        for name in ("age", "replication_age", "starvation", "world_step", "episode"):
+            if name in staged and (staged[name] < 0).any():
+                raise ValueError(f"{name} must be >= 0")
+        if "world_step" in staged and (staged["world_step"] >= cfg.max_steps).any():
+            raise ValueError(f"world_step must be in [0, {cfg.max_steps - 1}] (max_steps={cfg.max_steps})")
+
+    def state_dict(self) -> dict:
+        """A copy of the whole simulation state (CPU tensors) plus the config and seed."""
+        t = self.state.torch
+        names = list(AGENT_FIELDS) + list(WORLD_FIELDS) + ["episode_return"]
+        return {
+            "config": self.config.to_dict(),
+            "num_worlds": self.num_worlds,
+            "seed": self.seed,
+            "tensors": {n: getattr(t, n).detach().cpu().clone() for n in names},
+        }
+
+    def load_state_dict(self, state: dict) -> dict[str, torch.Tensor]:
+        """Restore a `state_dict()` taken from an env with the same config and number of worlds."""
+        if state.get("config") != self.config.to_dict() or state.get("num_worlds") != self.num_worlds:
+            raise ValueError("state_dict was taken from an env with another config or num_worlds")
+        if state.get("seed") != self.seed:
+            self.seed = int(state["seed"])
+            self._world_params = self._make_world_params(_seed_key(self.seed))
+            self._graph = None
+        t = self.state.torch
+        for name, value in state["tensors"].items():
+            target = getattr(t, name)
+            if tuple(value.shape) != tuple(target.shape):
+                raise ValueError(f"state_dict tensor {name} has shape {list(value.shape)}, expected {list(target.shape)}")
+            target.copy_(value.to(self.torch_device))
+        self._observe()
+        return self.observations
+
+    def close(self) -> None:
+        """Release the CUDA graph; the arrays go with the object."""
+        self._graph = None

@@ -1,0 +1,141 @@
+"""Shared parameter structs and device functions: agent types, torus geometry, random streams.
+
+Conventions used by every kernel:
+- A world has `capacity` agent slots: prey in `[0, prey_capacity)`, predators after them.
+- Type codes follow the observation's type value: `PREDATOR = 0`, `PREY = 1`; per-type parameters live
+  in a 2-element `wp.array(dtype=AgentType)` indexed by that code, so one kernel serves both types.
+- Positions are px in `[0, width) x [0, height)`, velocities px/step, headings unit vectors.
+"""
+
+import warp as wp
+
+wp.set_module_options({"enable_backward": False})
+
+PREDATOR = wp.constant(0)
+PREY = wp.constant(1)
+
+# Purposes of random draws: each draw is keyed by (seed, world, episode, step, slot, purpose).
+PURPOSE_SPAWN = wp.constant(1)
+PURPOSE_RESPAWN = wp.constant(2)
+PURPOSE_NEWBORN = wp.constant(3)
+PURPOSE_POLICY = wp.constant(4)
+
+
+@wp.struct
+class AgentType:
+    """Per-type parameters (MODEL.md's per-type table), with derived values precomputed on the host."""
+
+    max_speed: float  # s, px/step
+    max_steering_force: float  # f
+    max_acceleration: float  # k, px/step^2
+    mass: float  # m
+    radius: float  # r, px (hit box)
+    view_distance: float  # v, px; +inf means unlimited
+    distance_norm: float  # min(v, largest torus distance): scales observed distances into [0, 1]
+    cos_half_fov: float  # cos(alpha / 2)
+    bounce_strength: float  # b, px/step
+    predator_slots: int  # observed predator slots
+    prey_slots: int  # observed prey slots
+
+
+@wp.struct
+class WorldParams:
+    """World-wide parameters shared by all worlds of a batch."""
+
+    width: float
+    height: float
+    prey_capacity: int
+    capacity: int
+    prey_count: int  # live prey at the start of an episode
+    predator_count: int
+    action_count: int
+    max_steps: int
+    fov_enabled: int
+    respawn_captured_prey: int
+    prey_reward: float
+    prey_capture_penalty: float
+    predator_reward: float
+    catch_share_radius: float
+    predator_starvation_steps: int
+    max_prey: int
+    replication_age_min: int  # ceil(0.75 * prey_replication_age)
+    replication_age_max: int  # floor(1.25 * prey_replication_age)
+    signed_observations: int  # 1: observation range "-1..1"
+    seed: wp.uint32
+
+
+@wp.func
+def slot_type(world: WorldParams, slot: int) -> int:
+    if slot < world.prey_capacity:
+        return PREY
+    return PREDATOR
+
+
+@wp.func
+def torus_delta(d: float, length: float) -> float:
+    """Shortest signed difference on a circle of `length`, for `d` in (-length, length)."""
+    if d > 0.5 * length:
+        return d - length
+    if d < -0.5 * length:
+        return d + length
+    return d
+
+
+@wp.func
+def torus_displacement(world: WorldParams, a: wp.vec2, b: wp.vec2) -> wp.vec2:
+    """Torus-shortest displacement from `a` to `b`."""
+    return wp.vec2(torus_delta(b[0] - a[0], world.width), torus_delta(b[1] - a[1], world.height))
+
+
+@wp.func
+def wrap_coordinate(x: float, length: float) -> float:
+    """Modulo into [0, length) for x in (-length, 2 length) (one move is shorter than the world).
+    A tiny negative x rounds up to `length` on the first add; that point is 0 on the circle."""
+    y = x
+    if y < 0.0:
+        y = y + length
+    if y >= length:
+        y = y - length
+    return y
+
+
+@wp.func
+def angle_value(v: wp.vec2) -> float:
+    """The reference's angle -atan2(y, x) in degrees, mapped from [-180, 180] to [0, 1]."""
+    return 0.5 - wp.atan2(v[1], v[0]) / (2.0 * wp.pi)
+
+
+@wp.func
+def action_direction(action: int, action_count: int) -> wp.vec2:
+    """Unit desired direction of an action: clockwise on screen from "up" (paper eq. 6)."""
+    theta = 2.0 * wp.pi * float(action) / float(action_count)
+    return wp.vec2(wp.sin(theta), -wp.cos(theta))
+
+
+_MIX_1 = wp.constant(wp.uint32(0x85EBCA6B))
+_MIX_2 = wp.constant(wp.uint32(0xC2B2AE35))
+_GOLDEN = wp.constant(wp.uint32(0x9E3779B9))
+
+
+@wp.func
+def mix32(h: wp.uint32) -> wp.uint32:
+    """Murmur3 finaliser: a bijective avalanche of 32 bits."""
+    h = h ^ (h >> wp.uint32(16))
+    h = h * _MIX_1
+    h = h ^ (h >> wp.uint32(13))
+    h = h * _MIX_2
+    h = h ^ (h >> wp.uint32(16))
+    return h
+
+
+@wp.func
+def random_stream(seed: wp.uint32, world: int, episode: int, step: int, slot: int, purpose: int) -> wp.uint32:
+    """State of a counter-based random stream keyed by (seed, world, episode, step, slot, purpose):
+    integer arithmetic only, so CPU and GPU draw the same numbers."""
+    h = mix32(seed ^ _GOLDEN)
+    h = mix32(h ^ wp.uint32(world))
+    h = mix32(h ^ wp.uint32(episode))
+    h = mix32(h ^ wp.uint32(step))
+    h = mix32(h ^ wp.uint32(slot))
+    h = mix32(h ^ wp.uint32(purpose))
+    return h

@@ -1,0 +1,203 @@
+"""MODEL.md step 10: field-of-view observations.
+
+Per live agent: the own 5-tuple, then its nearest visible predators and nearest visible prey, each
+block sorted by (distance, slot), packed as 6-tuples; unused slots are zero and a boolean mask marks
+the filled ones. Candidates come from a ring-by-ring search of the cell lists that stops as soon as
+no unseen agent can be visible (beyond the view distance) or closer than the K-th kept one, so an
+unlimited view distance still costs about K neighbours' worth of cells, not the whole world.
+
+The kernel is generated per `max_slots` (the largest slot count of any block), so the top-K lists
+are fixed-size registers.
+"""
+
+import functools
+
+import warp as wp
+
+from .common import PREDATOR, PREY, AgentType, WorldParams, angle_value, slot_type, torus_displacement
+from .grid import CellLists, cell_coords, last_ring, ring_cell, ring_size, searched_radius
+
+wp.set_module_options({"enable_backward": False})
+
+
+@wp.func
+def put_value(
+    obs_prey: wp.array3d(dtype=float),
+    obs_predator: wp.array3d(dtype=float),
+    is_prey: bool,
+    w: int,
+    row: int,
+    col: int,
+    value: float,
+):
+    if is_prey:
+        obs_prey[w, row, col] = value
+    else:
+        obs_predator[w, row, col] = value
+
+
+@wp.func
+def put_mask(
+    mask_prey: wp.array3d(dtype=wp.bool),
+    mask_predator: wp.array3d(dtype=wp.bool),
+    is_prey: bool,
+    w: int,
+    row: int,
+    col: int,
+    value: bool,
+):
+    if is_prey:
+        mask_prey[w, row, col] = value
+    else:
+        mask_predator[w, row, col] = value
+
+
+@wp.func
+def scaled(x: float, signed: int) -> float:
+    if signed != 0:
+        return 2.0 * x - 1.0
+    return x
+
+
+@wp.func
+def ranks_before(d2: float, slot: int, other_d2: float, other_slot: int) -> bool:
+    """Neighbour order: nearer first, ties to the lower slot."""
+    return d2 < other_d2 or (d2 == other_d2 and slot < other_slot)
+
+
+@functools.cache
+def observation_kernel(max_slots: int):
+    """The observation kernel for blocks of at most `max_slots` slots (compiled once per value)."""
+    listed = 2 * max_slots  # predator list in [0, max_slots), prey list in [max_slots, 2 max_slots)
+    FloatList = wp.types.vector(length=listed, dtype=float)
+    IntList = wp.types.vector(length=listed, dtype=int)
+
+    def observe(
+        world: WorldParams,
+        types: wp.array(dtype=AgentType),
+        grid: CellLists,
+        alive: wp.array2d(dtype=wp.bool),
+        heading: wp.array2d(dtype=wp.vec2),
+        obs_prey: wp.array3d(dtype=float),
+        obs_predator: wp.array3d(dtype=float),
+        mask_prey: wp.array3d(dtype=wp.bool),
+        mask_predator: wp.array3d(dtype=wp.bool),
+    ):
+        k = wp.tid()  # sorted entry; dead slots sort last and only get zeros
+        idx = grid.agent[k]
+        w = idx // world.capacity
+        i = idx - w * world.capacity
+        t = slot_type(world, i)
+        p = types[t]
+        is_prey = t == PREY
+        row = i
+        if not is_prey:
+            row = i - world.prey_capacity
+        slots = p.predator_slots + p.prey_slots
+        if not alive[w, i]:
+            for col in range(5 + 6 * slots):
+                put_value(obs_prey, obs_predator, is_prey, w, row, col, 0.0)
+            for s in range(slots):
+                put_mask(mask_prey, mask_predator, is_prey, w, row, s, False)
+            return
+
+        pos = grid.position[k]
+        h = heading[w, i]
+        signed = world.signed_observations
+        put_value(obs_prey, obs_predator, is_prey, w, row, 0, scaled(float(t), signed))
+        put_value(obs_prey, obs_predator, is_prey, w, row, 1, scaled(pos[0] / world.width, signed))
+        put_value(obs_prey, obs_predator, is_prey, w, row, 2, scaled(pos[1] / world.height, signed))
+        put_value(obs_prey, obs_predator, is_prey, w, row, 3, scaled(angle_value(h), signed))
+        # Clamped speeds are <= s up to one rounding step; keep the scaled value inside [0, 1].
+        own_speed = wp.min(grid.speed[k] / p.max_speed, 1.0)
+        put_value(obs_prey, obs_predator, is_prey, w, row, 4, scaled(own_speed, signed))
+
+        # Ring-by-ring search for the nearest visible agents of each type.
+        kept_d2 = FloatList()
+        kept_entry = IntList()
+        kept_slot = IntList()
+        wanted = wp.vec2i(p.predator_slots, p.prey_slots)  # indexed by type code
+        kept = wp.vec2i(0, 0)
+        v = p.view_distance
+        v2 = v * v
+        center = cell_coords(grid, pos)
+        base = w * world.capacity
+        last = last_ring(grid)
+        r = int(0)
+        searching = slots > 0
+        while searching:
+            for q in range(ring_size(r)):
+                c = ring_cell(grid, w, center, r, q)
+                if c >= 0:
+                    for k2 in range(grid.cell_start[c], grid.cell_end[c]):
+                        j = grid.agent[k2] - base
+                        jt = slot_type(world, j)
+                        n_wanted = wanted[jt]
+                        if k2 != k and n_wanted > 0:
+                            d = torus_displacement(world, pos, grid.position[k2])
+                            d2 = wp.dot(d, d)
+                            visible = d2 <= v2
+                            if visible and world.fov_enabled != 0 and d2 > 0.0:
+                                visible = wp.dot(h, d) >= wp.sqrt(d2) * p.cos_half_fov
+                            offset = jt * max_slots
+                            n = kept[jt]
+                            last_kept = offset + n_wanted - 1
+                            if visible and (n < n_wanted or ranks_before(d2, j, kept_d2[last_kept], kept_slot[last_kept])):
+                                at = offset + wp.min(n, n_wanted - 1)
+                                while at > offset and ranks_before(d2, j, kept_d2[at - 1], kept_slot[at - 1]):
+                                    kept_d2[at] = kept_d2[at - 1]
+                                    kept_entry[at] = kept_entry[at - 1]
+                                    kept_slot[at] = kept_slot[at - 1]
+                                    at -= 1
+                                kept_d2[at] = d2
+                                kept_entry[at] = k2
+                                kept_slot[at] = j
+                                if n < n_wanted:
+                                    kept[jt] = n + 1
+            if r >= last:
+                searching = False
+            else:
+                reach = searched_radius(grid, r)
+                if reach > v:
+                    searching = False
+                else:
+                    reach2 = reach * reach
+                    done = True
+                    for tt in range(2):
+                        if wanted[tt] > 0:
+                            if kept[tt] < wanted[tt] or kept_d2[tt * max_slots + wanted[tt] - 1] >= reach2:
+                                done = False
+                    searching = not done
+            r += 1
+
+        # Pack the kept neighbours: predator block first, then prey block.
+        for block in range(2):
+            jt = PREDATOR
+            first = 0
+            if block == 1:
+                jt = PREY
+                first = p.predator_slots
+            for s in range(wanted[jt]):
+                col = 5 + 6 * (first + s)
+                if s < kept[jt]:
+                    at = jt * max_slots + s
+                    k2 = kept_entry[at]
+                    d = torus_displacement(world, pos, grid.position[k2])
+                    dist = wp.sqrt(kept_d2[at])
+                    neighbour_speed = wp.min(grid.speed[k2] / types[jt].max_speed, 1.0)
+                    put_value(obs_prey, obs_predator, is_prey, w, row, col + 0, scaled(float(jt), signed))
+                    put_value(obs_prey, obs_predator, is_prey, w, row, col + 1,
+                              scaled(grid.position[k2][0] / world.width, signed))
+                    put_value(obs_prey, obs_predator, is_prey, w, row, col + 2,
+                              scaled(grid.position[k2][1] / world.height, signed))
+                    put_value(obs_prey, obs_predator, is_prey, w, row, col + 3,
+                              scaled(wp.min(dist / p.distance_norm, 1.0), signed))
+                    put_value(obs_prey, obs_predator, is_prey, w, row, col + 4, scaled(angle_value(d), signed))
+                    put_value(obs_prey, obs_predator, is_prey, w, row, col + 5, scaled(neighbour_speed, signed))
+                    put_mask(mask_prey, mask_predator, is_prey, w, row, first + s, True)
+                else:
+                    for e in range(6):
+                        put_value(obs_prey, obs_predator, is_prey, w, row, col + e, 0.0)
+                    put_mask(mask_prey, mask_predator, is_prey, w, row, first + s, False)
+
+    return wp.kernel(enable_backward=False, module="unique")(observe)

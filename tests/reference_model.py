@@ -1,0 +1,521 @@
+"""Independent plain-numpy, float64 reference implementation of MODEL.md for ONE world.
+
+This module is the test oracle for the Warp kernels. It is written for clarity, not speed: every
+neighbour search is a brute-force loop over the world's slots, every quantity is float64.
+
+Conventions (see MODEL.md and the project's decisions):
+
+* ``cfg`` is anything with the attributes of ``aquarium_warp.AquariumConfig`` (a frozen dataclass or a
+  ``types.SimpleNamespace``). Only attributes are read: width, height, prey_count, predator_count,
+  action_count, max_steps, fov_enabled, respawn_captured_prey, prey_reward, prey_capture_penalty,
+  predator_reward, catch_share_radius, predator_starvation_steps, prey_reproduction, max_prey,
+  observation_range, prey_capacity, capacity, and per type (cfg.prey / cfg.predator): max_speed,
+  max_steering_force, max_acceleration, mass, radius, view_distance, fov_angle (degrees),
+  bounce_strength, predator_slots, prey_slots.
+* Slots ``[0, prey_capacity)`` are prey, ``[prey_capacity, capacity)`` are predators.
+* A world state is a dict of numpy arrays (see ``FIELDS``); dead slots are ignored everywhere.
+* Type code in observations: predator 0, prey 1.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping
+
+import numpy as np
+
+PREDATOR_TYPE = 0.0
+PREY_TYPE = 1.0
+OWN_SIZE = 5
+TUPLE_SIZE = 6
+
+VECTOR_FIELDS = ("position", "velocity", "acceleration", "heading")
+INT_FIELDS = ("age", "replication_age", "starvation")
+FIELDS = VECTOR_FIELDS + ("alive",) + INT_FIELDS
+
+FRESH_PREY_VELOCITY = (-1.0, 0.0)
+FRESH_PREY_HEADING = (-1.0, 0.0)
+NEWBORN_HEADING = (-1.0, 0.0)
+
+
+# --------------------------------------------------------------------------------------------------
+# Slots, types, state containers
+# --------------------------------------------------------------------------------------------------
+def prey_capacity(cfg) -> int:
+    return int(cfg.prey_capacity)
+
+
+def capacity(cfg) -> int:
+    return int(cfg.capacity)
+
+
+def is_prey(cfg, slot: int) -> bool:
+    return 0 <= slot < prey_capacity(cfg)
+
+
+def type_cfg(cfg, slot: int):
+    return cfg.prey if is_prey(cfg, slot) else cfg.predator
+
+
+def type_code(cfg, slot: int) -> float:
+    return PREY_TYPE if is_prey(cfg, slot) else PREDATOR_TYPE
+
+
+def prey_slots(cfg) -> range:
+    return range(0, prey_capacity(cfg))
+
+
+def predator_slots(cfg) -> range:
+    return range(prey_capacity(cfg), capacity(cfg))
+
+
+def same_type_slots(cfg, slot: int) -> range:
+    return prey_slots(cfg) if is_prey(cfg, slot) else predator_slots(cfg)
+
+
+def observation_length(type_config) -> int:
+    return OWN_SIZE + TUPLE_SIZE * (int(type_config.predator_slots) + int(type_config.prey_slots))
+
+
+def empty_state(cfg) -> dict:
+    """All slots dead, every field zero."""
+    c = capacity(cfg)
+    return {
+        "position": np.zeros((c, 2), np.float64),
+        "velocity": np.zeros((c, 2), np.float64),
+        "acceleration": np.zeros((c, 2), np.float64),
+        "heading": np.zeros((c, 2), np.float64),
+        "alive": np.zeros(c, bool),
+        "age": np.zeros(c, np.int64),
+        "replication_age": np.zeros(c, np.int64),
+        "starvation": np.zeros(c, np.int64),
+    }
+
+
+def as_state(cfg, state: Mapping[str, Any]) -> dict:
+    """Copy of ``state`` as float64 / bool / int64 numpy arrays (accepts numpy or CPU torch tensors).
+
+    Missing fields are filled with zeros (``alive``: False)."""
+    out = empty_state(cfg)
+    c = capacity(cfg)
+    for name in FIELDS:
+        if name not in state or state[name] is None:
+            continue
+        value = state[name]
+        if hasattr(value, "detach"):
+            value = value.detach().cpu().numpy()
+        value = np.array(value, copy=True)
+        expected = (c, 2) if name in VECTOR_FIELDS else (c,)
+        if value.shape != expected:
+            raise ValueError(f"state[{name!r}] has shape {value.shape}, expected {expected}")
+        out[name] = value.astype(out[name].dtype)
+    return out
+
+
+def copy_state(state: Mapping[str, np.ndarray]) -> dict:
+    return {k: np.array(v, copy=True) for k, v in state.items()}
+
+
+# --------------------------------------------------------------------------------------------------
+# Geometry
+# --------------------------------------------------------------------------------------------------
+def torus_axis_delta(d: float, length: float) -> float:
+    """Minimum-image displacement on one axis: if d > L/2: d -= L; elif d < -L/2: d += L."""
+    if d > length / 2.0:
+        d -= length
+    elif d < -length / 2.0:
+        d += length
+    return d
+
+
+def torus_delta(cfg, a, b) -> np.ndarray:
+    """Torus-shortest displacement from point ``a`` to point ``b``."""
+    dx = float(b[0]) - float(a[0])
+    dy = float(b[1]) - float(a[1])
+    return np.array(
+        [torus_axis_delta(dx, float(cfg.width)), torus_axis_delta(dy, float(cfg.height))], np.float64
+    )
+
+
+def norm(v) -> float:
+    x, y = float(v[0]), float(v[1])
+    return math.sqrt(x * x + y * y)
+
+
+def torus_distance(cfg, a, b) -> float:
+    return norm(torus_delta(cfg, a, b))
+
+
+def wrap_axis(x: float, length: float) -> float:
+    """True modulo into [0, L)."""
+    r = math.fmod(x, length)
+    if r < 0.0:
+        r += length
+    if r >= length:  # r + L rounded up to L for a tiny negative r
+        r -= length
+    return r
+
+
+def wrap(cfg, p) -> np.ndarray:
+    return np.array([wrap_axis(float(p[0]), float(cfg.width)), wrap_axis(float(p[1]), float(cfg.height))])
+
+
+def clamp_length(v, max_length: float) -> np.ndarray:
+    v = np.asarray(v, np.float64)
+    n = norm(v)
+    if n > max_length:
+        return v * (max_length / n)
+    return v.copy()
+
+
+def desired_velocity(action: int, action_count: int, max_speed: float) -> np.ndarray:
+    """theta = 2 pi a / n (clockwise on screen from 'up'); D = s (sin theta, -cos theta)."""
+    theta = 2.0 * math.pi * int(action) / int(action_count)
+    return np.array([max_speed * math.sin(theta), -max_speed * math.cos(theta)], np.float64)
+
+
+def angle_value(dx: float, dy: float) -> float:
+    """The reference's angle convention -atan2(dy, dx) in degrees, mapped from [-180, 180] to [0, 1]."""
+    return (-math.degrees(math.atan2(dy, dx)) + 180.0) / 360.0
+
+
+def distance_normaliser(cfg, observer_type) -> float:
+    half_diagonal = math.sqrt((cfg.width / 2.0) ** 2 + (cfg.height / 2.0) ** 2)
+    return min(float(observer_type.view_distance), half_diagonal)
+
+
+# --------------------------------------------------------------------------------------------------
+# Motion (MODEL.md steps 1-4; everyone reads the start-of-step state)
+# --------------------------------------------------------------------------------------------------
+def contact_partner(cfg, state: Mapping[str, np.ndarray], i: int):
+    """Nearest live same-type agent j != i with torus distance < r_i + r_j (ties: lower slot); None if none."""
+    best = None
+    best_d = math.inf
+    r_i = float(type_cfg(cfg, i).radius)
+    for j in same_type_slots(cfg, i):
+        if j == i or not state["alive"][j]:
+            continue
+        d = torus_distance(cfg, state["position"][i], state["position"][j])
+        if d < r_i + float(type_cfg(cfg, j).radius) and d < best_d:  # strict '<': lower slot wins ties
+            best, best_d = j, d
+    return best
+
+
+def steering_acceleration(cfg, state, i: int, action: int) -> np.ndarray:
+    """Steps 1-2: F = clamp(D - V, f); A' = normalize(A + F/m) * k (zero if A + F/m is exactly zero)."""
+    t = type_cfg(cfg, i)
+    desired = desired_velocity(action, cfg.action_count, float(t.max_speed))
+    force = clamp_length(desired - state["velocity"][i], float(t.max_steering_force))
+    raw = state["acceleration"][i] + force / float(t.mass)
+    n = norm(raw)
+    if n == 0.0:
+        return np.zeros(2)
+    return raw / n * float(t.max_acceleration)
+
+
+def motion(cfg, state: Mapping[str, np.ndarray], actions) -> dict:
+    """Steps 1-4 for every live agent. Returns a new state; alive/age/... are unchanged."""
+    start = as_state(cfg, state)
+    actions = np.asarray(actions).astype(np.int64)
+    new = copy_state(start)
+    for i in range(capacity(cfg)):
+        if not start["alive"][i]:
+            continue
+        t = type_cfg(cfg, i)
+        acc = steering_acceleration(cfg, start, i, int(actions[i]))
+        v = start["velocity"][i]
+        partner = contact_partner(cfg, start, i)
+        if partner is None:
+            v_new = v + acc
+        else:
+            away = torus_delta(cfg, start["position"][partner], start["position"][i])  # from j to i
+            d = norm(away)
+            v_new = v.copy() if d == 0.0 else v + float(t.bounce_strength) * (away / d)
+        v_new = clamp_length(v_new, float(t.max_speed))
+        speed = norm(v_new)
+        new["acceleration"][i] = acc
+        new["velocity"][i] = v_new
+        new["position"][i] = wrap(cfg, start["position"][i] + v_new)
+        new["heading"][i] = v_new / speed if speed > 0.0 else start["heading"][i]
+    return new
+
+
+# --------------------------------------------------------------------------------------------------
+# Observations
+# --------------------------------------------------------------------------------------------------
+def is_visible(cfg, state: Mapping[str, np.ndarray], i: int, j: int) -> bool:
+    """Can observer i see agent j? Distance <= v_i (inclusive) and, with the FOV on and d > 0,
+    the angle between heading_i and the displacement i->j is <= fov_i / 2 (inclusive)."""
+    if i == j or not state["alive"][i] or not state["alive"][j]:
+        return False
+    t = type_cfg(cfg, i)
+    delta = torus_delta(cfg, state["position"][i], state["position"][j])
+    d = norm(delta)
+    if not d <= float(t.view_distance):
+        return False
+    if not cfg.fov_enabled or d == 0.0:
+        return True
+    h = state["heading"][i]
+    cross = float(h[0]) * float(delta[1]) - float(h[1]) * float(delta[0])
+    dot = float(h[0]) * float(delta[0]) + float(h[1]) * float(delta[1])
+    angle = math.degrees(math.atan2(abs(cross), dot))  # in [0, 180]
+    return angle <= float(t.fov_angle) / 2.0
+
+
+def visible_sorted(cfg, state, i: int, candidates) -> list:
+    """Visible agents among ``candidates`` as (distance, slot), sorted by (distance, slot)."""
+    out = []
+    for j in candidates:
+        if is_visible(cfg, state, i, j):
+            out.append((torus_distance(cfg, state["position"][i], state["position"][j]), j))
+    out.sort()
+    return out
+
+
+def observe_agent(cfg, state: Mapping[str, np.ndarray], i: int):
+    """Observation vector and slot mask of one observer (zeros / False when dead).
+
+    Returns (vector, mask, slots) where ``slots`` lists the observed slot index per observation slot
+    (-1 for unused), handy for error messages."""
+    t = type_cfg(cfg, i)
+    k_pred, k_prey = int(t.predator_slots), int(t.prey_slots)
+    vec = np.zeros(observation_length(t), np.float64)
+    mask = np.zeros(k_pred + k_prey, bool)
+    slots = np.full(k_pred + k_prey, -1, np.int64)
+    if not state["alive"][i]:
+        return vec, mask, slots
+    signed = str(cfg.observation_range) == "-1..1"
+    if not signed and str(cfg.observation_range) != "0..1":
+        raise ValueError(f"unknown observation_range {cfg.observation_range!r}")
+
+    def emit(values):
+        values = np.asarray(values, np.float64)
+        return 2.0 * values - 1.0 if signed else values
+
+    w, h = float(cfg.width), float(cfg.height)
+    p = state["position"][i]
+    hd = state["heading"][i]
+    own_speed = norm(state["velocity"][i]) / float(t.max_speed)
+    vec[:OWN_SIZE] = emit(
+        [type_code(cfg, i), p[0] / w, p[1] / h, angle_value(float(hd[0]), float(hd[1])), own_speed]
+    )
+    dist_norm = distance_normaliser(cfg, t)
+    blocks = ((predator_slots(cfg), k_pred, 0), (prey_slots(cfg), k_prey, k_pred))
+    for candidates, k, first_slot in blocks:
+        for n, (d, j) in enumerate(visible_sorted(cfg, state, i, candidates)[:k]):
+            tj = type_cfg(cfg, j)
+            pj = state["position"][j]
+            delta = torus_delta(cfg, p, pj)
+            bearing = 0.5 if d == 0.0 else angle_value(float(delta[0]), float(delta[1]))
+            tup = [
+                type_code(cfg, j),
+                pj[0] / w,
+                pj[1] / h,
+                d / dist_norm,
+                bearing,
+                norm(state["velocity"][j]) / float(tj.max_speed),
+            ]
+            s = first_slot + n
+            vec[OWN_SIZE + TUPLE_SIZE * s : OWN_SIZE + TUPLE_SIZE * (s + 1)] = emit(tup)
+            mask[s] = True
+            slots[s] = j
+    return vec, mask, slots
+
+
+def observe(cfg, state: Mapping[str, np.ndarray], with_slots: bool = False):
+    """Observations of every slot of one world.
+
+    Returns (obs, mask) with obs = {"prey": (Pc, Lprey), "predator": (P, Lpred)} and
+    mask = {"prey": (Pc, slots_prey), "predator": (P, slots_pred)}; with ``with_slots`` also a third dict of
+    the observed slot indices (-1 where unused)."""
+    state = as_state(cfg, state)
+    obs, mask, who = {}, {}, {}
+    for key, slots, t in (("prey", prey_slots(cfg), cfg.prey), ("predator", predator_slots(cfg), cfg.predator)):
+        k = int(t.predator_slots) + int(t.prey_slots)
+        obs[key] = np.zeros((len(slots), observation_length(t)), np.float64)
+        mask[key] = np.zeros((len(slots), k), bool)
+        who[key] = np.full((len(slots), k), -1, np.int64)
+        for row, i in enumerate(slots):
+            obs[key][row], mask[key][row], who[key][row] = observe_agent(cfg, state, i)
+    if with_slots:
+        return obs, mask, who
+    return obs, mask
+
+
+# --------------------------------------------------------------------------------------------------
+# Capture, starvation, ageing, reproduction, rewards, episode end (steps 5-10)
+# --------------------------------------------------------------------------------------------------
+def find_captures(cfg, state: Mapping[str, np.ndarray]) -> dict:
+    """{prey slot: [capturing predator slots]} for every live prey overlapped by a live predator."""
+    out = {}
+    for i in prey_slots(cfg):
+        if not state["alive"][i]:
+            continue
+        capturers = [
+            p
+            for p in predator_slots(cfg)
+            if state["alive"][p]
+            and torus_distance(cfg, state["position"][i], state["position"][p])
+            < float(cfg.prey.radius) + float(cfg.predator.radius)
+        ]
+        if capturers:
+            out[i] = capturers
+    return out
+
+
+def capture_sharers(cfg, state: Mapping[str, np.ndarray], prey: int, capturers) -> list:
+    """Predators strictly within catch_share_radius of the prey, plus all capturers (slot order)."""
+    near = {
+        p
+        for p in predator_slots(cfg)
+        if state["alive"][p]
+        and torus_distance(cfg, state["position"][prey], state["position"][p]) < float(cfg.catch_share_radius)
+    }
+    return sorted(near | set(capturers))
+
+
+def _lookup(source, slot: int, what: str):
+    if source is None:
+        raise ValueError(f"the reference needs {what} for slot {slot} but none was given")
+    if isinstance(source, Mapping):
+        if slot not in source:
+            raise ValueError(f"the reference needs {what} for slot {slot}; given only for {sorted(source)}")
+        return source[slot]
+    if hasattr(source, "detach"):
+        source = source.detach().cpu().numpy()
+    return np.asarray(source)[slot]
+
+
+def fresh_prey(state: dict, slot: int, position, replication_age: int) -> None:
+    state["position"][slot] = np.asarray(position, np.float64)
+    state["velocity"][slot] = FRESH_PREY_VELOCITY
+    state["acceleration"][slot] = 0.0
+    state["heading"][slot] = FRESH_PREY_HEADING
+    state["alive"][slot] = True
+    state["age"][slot] = 0
+    state["replication_age"][slot] = int(replication_age)
+    state["starvation"][slot] = 0
+
+
+def step(
+    cfg,
+    state: Mapping[str, np.ndarray],
+    actions,
+    world_step: int,
+    respawn_position=None,
+    respawn_replication_age=None,
+    newborn_replication_age=None,
+):
+    """One full step of one world.
+
+    ``world_step``: steps taken this episode BEFORE this step. The random draws belong to the kernels, so they
+    are inputs here: ``respawn_position`` / ``respawn_replication_age`` (for respawned prey) and
+    ``newborn_replication_age`` (for children), each a mapping slot -> value or an array indexed by slot
+    (e.g. the kernel's post-step position / replication_age arrays). Only the needed slots are read; a missing
+    one raises ValueError.
+
+    Returns (new_state, rewards (C,), terminated (C,), truncated (C,), captured (C,), info)."""
+    start = as_state(cfg, state)
+    c = capacity(cfg)
+    moved = motion(cfg, start, actions)
+    new = copy_state(moved)
+
+    rewards = np.zeros(c, np.float64)
+    terminated = np.zeros(c, bool)
+    captured = np.zeros(c, bool)
+
+    # 5. capture (positions after the move)
+    captures = find_captures(cfg, moved)
+    all_capturers = set()
+    sharers_of = {}
+    for prey, capturers in captures.items():
+        captured[prey] = True
+        rewards[prey] -= float(cfg.prey_capture_penalty)
+        sharers = capture_sharers(cfg, moved, prey, capturers)
+        sharers_of[prey] = sharers
+        for p in sharers:
+            rewards[p] += float(cfg.predator_reward) / len(sharers)
+        all_capturers.update(capturers)
+    respawned = []
+    for prey in sorted(captures):
+        if cfg.respawn_captured_prey:
+            pos = np.asarray(_lookup(respawn_position, prey, "a respawn position"), np.float64)
+            rep = int(_lookup(respawn_replication_age, prey, "a respawn replication age"))
+            fresh_prey(new, prey, pos, rep)
+            respawned.append(prey)
+        else:
+            new["alive"][prey] = False
+            terminated[prey] = True
+
+    # 6. starvation
+    starved = []
+    for p in all_capturers:
+        new["starvation"][p] = 0
+    for p in predator_slots(cfg):
+        if not new["alive"][p]:
+            continue
+        new["starvation"][p] += 1
+        if new["starvation"][p] > int(cfg.predator_starvation_steps):
+            new["alive"][p] = False
+            terminated[p] = True
+            starved.append(p)
+
+    # ageing: every live prey not captured this step
+    for i in prey_slots(cfg):
+        if new["alive"][i] and not captured[i]:
+            new["age"][i] += 1
+
+    # 7. reproduction
+    births = []
+    if cfg.prey_reproduction:
+        free = [i for i in prey_slots(cfg) if not start["alive"][i]]
+        live = int(sum(bool(new["alive"][i]) for i in prey_slots(cfg)))
+        for parent in prey_slots(cfg):
+            if not (start["alive"][parent] and new["alive"][parent]):
+                continue  # newborns of this step are not parents; removed prey neither
+            if new["age"][parent] < new["replication_age"][parent]:
+                continue
+            if live + len(births) >= int(cfg.max_prey) or not free:
+                continue
+            child = free.pop(0)
+            rep = int(_lookup(newborn_replication_age, child, "a newborn replication age"))
+            new["position"][child] = new["position"][parent]
+            new["velocity"][child] = 0.0
+            new["acceleration"][child] = 0.0
+            new["heading"][child] = NEWBORN_HEADING
+            new["alive"][child] = True
+            new["age"][child] = 0
+            new["replication_age"][child] = rep
+            new["starvation"][child] = 0
+            new["age"][parent] = 0
+            births.append((parent, child))
+
+    # 8. survival reward for every prey alive at the end of the step
+    for i in prey_slots(cfg):
+        if new["alive"][i]:
+            rewards[i] += float(cfg.prey_reward)
+
+    # 9. episode end
+    new_world_step = int(world_step) + 1
+    live_prey = int(new["alive"][: prey_capacity(cfg)].sum())
+    live_pred = int(new["alive"][prey_capacity(cfg) :].sum())
+    episode_over = new_world_step >= int(cfg.max_steps) or live_prey == 0 or live_pred == 0
+    truncated = new["alive"].copy() if episode_over else np.zeros(c, bool)
+
+    # 10. observations at the end-of-step state
+    obs, mask, observed = observe(cfg, new, with_slots=True)
+    info = {
+        "world_step": new_world_step,
+        "episode_over": episode_over,
+        "captures": len(captures),
+        "capturers": {k: list(v) for k, v in captures.items()},
+        "sharers": sharers_of,
+        "respawned": respawned,
+        "births": births,
+        "starved": starved,
+        "moved": moved,
+        "observations": obs,
+        "observation_mask": mask,
+        "observed_slots": observed,
+    }
+    return new, rewards, terminated, truncated, captured, info

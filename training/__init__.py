@@ -1,0 +1,1 @@
+"""Training on top of `BatchedAquarium` (rsl-rl adapter and trainer)."""
