@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import os
+from concurrent.futures import ThreadPoolExecutor
 from typing import Mapping
 
 import numpy as np
@@ -18,10 +19,13 @@ import warp as wp
 
 from .config import AquariumConfig
 from .state import AGENT_FIELDS, WORLD_FIELDS, SimulationState, bytes_per_slot
-from .kernels import capture, grid as grid_kernels, motion, observation, population, spawn
-from .kernels.common import AgentType, WorldParams
+from .kernels import observation
+from .kernels.common import AgentType
+from .shard import WorldShard
 
 TYPES = ("prey", "predator")
+# Below this many worlds per thread, the thread hand-off costs more than the second core gives.
+MIN_WORLDS_PER_THREAD = 32
 _warp_ready = False
 
 
@@ -63,6 +67,14 @@ def _seed_key(seed) -> int:
             return key
 
 
+def _cpu_threads(cpu_threads) -> int:
+    if cpu_threads is None:
+        return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    if isinstance(cpu_threads, bool) or not isinstance(cpu_threads, int) or cpu_threads < 1:
+        raise ValueError(f"cpu_threads={cpu_threads!r} must be None or an integer >= 1")
+    return cpu_threads
+
+
 def _grid_dims(cfg: AquariumConfig) -> tuple[int, int]:
     """Cells per axis. Cells slightly wider than the typical query radius let most queries finish
     within one ring; at most about 4 cells per agent slot keep the table small in sparse worlds."""
@@ -102,7 +114,8 @@ class BatchedAquarium:
     dead slots are ignored. A world whose episode ends resets itself inside `step()`.
     """
 
-    def __init__(self, config: AquariumConfig | None = None, num_worlds: int = 1, device=None, seed: int = 0):
+    def __init__(self, config: AquariumConfig | None = None, num_worlds: int = 1, device=None, seed: int = 0,
+                 cpu_threads: int | None = None):
         if config is None:
             config = AquariumConfig()
         if not isinstance(config, AquariumConfig):
@@ -128,65 +141,28 @@ class BatchedAquarium:
                              "index range of the cell lists; use fewer worlds or agents")
         self._check_memory(cells)
 
-        self._world_params = self._make_world_params(_seed_key(seed))
-        types = [None, None]
-        types[0] = _type_params(cfg, cfg.predator)  # index = type code: predator 0, prey 1
-        types[1] = _type_params(cfg, cfg.prey)
+        self._dims = (dims_x, dims_y)
+        types = [_type_params(cfg, cfg.predator), _type_params(cfg, cfg.prey)]  # index = type code
         self._types = wp.array(types, dtype=AgentType, device=self.device)
-
+        angles = 2.0 * np.pi * np.arange(cfg.action_count) / cfg.action_count
+        directions = np.stack([np.sin(angles), -np.cos(angles)], axis=1).astype(np.float32)
+        self._action_direction = wp.array(directions, dtype=wp.vec2, device=self.device)
         self.state = SimulationState(W, C, cfg.prey_capacity, cfg.predator_count,
                                      self.observation_size["prey"], self.observation_size["predator"],
                                      self.observed_slots["prey"], self.observed_slots["predator"], self.device)
-        self._grid = self._make_grid(dims_x, dims_y)
         max_slots = max(1, max(getattr(cfg, t).predator_slots for t in TYPES),
                         max(getattr(cfg, t).prey_slots for t in TYPES))
         self._observe_kernel = observation.observation_kernel(max_slots)
-        self._graph = None
+        threads = _cpu_threads(cpu_threads) if not wp.get_device(self.device).is_cuda else 1
+        shards = max(1, min(threads, W // MIN_WORLDS_PER_THREAD))
+        bounds = [W * k // shards for k in range(shards + 1)]
+        self._shard_ranges = list(zip(bounds[:-1], bounds[1:]))
+        self._pool = ThreadPoolExecutor(max_workers=shards) if shards > 1 else None
+        self._make_shards(_seed_key(seed))
         self._build_views()
         self.reset()
 
     # ------------------------------------------------------------------ construction helpers
-    def _make_world_params(self, seed_key: int) -> WorldParams:
-        cfg = self.config
-        p = WorldParams()
-        p.width = cfg.width
-        p.height = cfg.height
-        p.prey_capacity = cfg.prey_capacity
-        p.capacity = cfg.capacity
-        p.prey_count = cfg.prey_count
-        p.predator_count = cfg.predator_count
-        p.action_count = cfg.action_count
-        p.max_steps = cfg.max_steps
-        p.fov_enabled = int(cfg.fov_enabled)
-        p.respawn_captured_prey = int(cfg.respawn_captured_prey)
-        p.prey_reward = cfg.prey_reward
-        p.prey_capture_penalty = cfg.prey_capture_penalty
-        p.predator_reward = cfg.predator_reward
-        p.catch_share_radius = cfg.catch_share_radius
-        p.predator_starvation_steps = cfg.predator_starvation_steps
-        p.max_prey = cfg.max_prey
-        p.replication_age_min = math.ceil(0.75 * cfg.prey_replication_age)
-        p.replication_age_max = math.floor(1.25 * cfg.prey_replication_age)
-        p.signed_observations = int(cfg.observation_range == "-1..1")
-        p.seed = seed_key
-        return p
-
-    def _make_grid(self, dims_x: int, dims_y: int) -> grid_kernels.CellLists:
-        cfg, n = self.config, self.num_worlds * self.capacity
-        g = grid_kernels.CellLists()
-        g.dims_x, g.dims_y = dims_x, dims_y
-        g.cells_per_world = dims_x * dims_y
-        g.inv_cell_width = dims_x / cfg.width
-        g.inv_cell_height = dims_y / cfg.height
-        g.reach = min(cfg.width / dims_x, cfg.height / dims_y)
-        g.cell_start = wp.zeros(self.num_worlds * g.cells_per_world, dtype=int, device=self.device)
-        g.cell_end = wp.zeros(self.num_worlds * g.cells_per_world, dtype=int, device=self.device)
-        g.key = wp.zeros(2 * n, dtype=int, device=self.device)
-        g.agent = wp.zeros(2 * n, dtype=int, device=self.device)
-        g.position = wp.zeros(n, dtype=wp.vec2, device=self.device)
-        g.speed = wp.zeros(n, dtype=float, device=self.device)
-        return g
-
     def _check_memory(self, cells_per_world: int) -> None:
         cfg = self.config
         obs = max(cfg.prey.observation_size, cfg.predator.observation_size)
@@ -206,6 +182,7 @@ class BatchedAquarium:
         t, Pc = self.state.torch, self.prey_capacity
         self.observations = {"prey": t.obs_prey, "predator": t.obs_predator}
         self.observation_mask = {"prey": t.mask_prey, "predator": t.mask_predator}
+        self.observed_slot = {"prey": t.slot_prey, "predator": t.slot_predator}
         self._rewards = {"prey": t.reward[:, :Pc], "predator": t.reward[:, Pc:]}
         self._terminated = {"prey": t.terminated[:, :Pc], "predator": t.terminated[:, Pc:]}
         self._truncated = {"prey": t.truncated[:, :Pc], "predator": t.truncated[:, Pc:]}
@@ -221,99 +198,45 @@ class BatchedAquarium:
             "observation_mask": self.observation_mask,
         }
 
-    # ------------------------------------------------------------------ kernel sequences
-    def _rebuild_grid(self) -> None:
-        s = self.state
-        grid_kernels.build_cell_lists(self._world_params, self._grid, s.position, s.velocity, s.alive,
-                                      self.num_worlds, self.device)
+    # ------------------------------------------------------------------ running the shards
+    def _make_shards(self, seed_key: int) -> None:
+        self._shards = [
+            WorldShard(self.config, self.state, w0, w1, self._dims, self._types, self._action_direction,
+                       self._observe_kernel, seed_key, self.device)
+            for w0, w1 in self._shard_ranges
+        ]
+        self._graph = None
 
-    def _observe(self) -> None:
-        s = self.state
-        self._rebuild_grid()
-        wp.launch(self._observe_kernel, dim=self.num_worlds * self.capacity,
-                  inputs=[self._world_params, self._types, self._grid, s.alive, s.heading],
-                  outputs=[s.obs_prey, s.obs_predator, s.mask_prey, s.mask_predator], device=self.device)
-
-    def _step_launches(self) -> None:
-        """MODEL.md steps 1-10 for every world: a fixed launch sequence, no sync, no allocation."""
-        s, g, world, types = self.state, self._grid, self._world_params, self._types
-        W, C, Pc, P = self.num_worlds, self.capacity, self.prey_capacity, self.predator_count
-        dev = self.device
-        for a in (s.reward, s.terminated, s.truncated, s.captured, s.captures):
-            a.zero_()
-        # 1-4: motion, reading neighbours from the cell lists of the start-of-step positions.
-        wp.launch(motion.integrate_motion, dim=W * C,
-                  inputs=[world, types, g, s.prey_action, s.predator_action, s.alive],
-                  outputs=[s.position, s.velocity, s.acceleration, s.heading], device=dev)
-        # 5: captures on the moved positions.
-        self._rebuild_grid()
-        wp.launch(capture.detect_captures, dim=(W, Pc),
-                  inputs=[world, types, g, s.world_step, s.episode],
-                  outputs=[s.alive, s.position, s.velocity, s.acceleration, s.heading, s.age,
-                           s.replication_age, s.starvation, s.captured, s.share_count, s.reward,
-                           s.terminated, s.captures, s.prey_alive_count], device=dev)
-        wp.launch(capture.share_capture_rewards, dim=(W, P),
-                  inputs=[world, types, g, s.alive, s.position, s.captured, s.share_count],
-                  outputs=[s.reward, s.starvation], device=dev)
-        # 6-7: starvation and reproduction.
-        wp.launch(population.starve_predators, dim=(W, P), inputs=[world],
-                  outputs=[s.alive, s.starvation, s.terminated, s.predator_alive_count], device=dev)
-        if self.config.prey_reproduction:
-            wp.launch(population.reproduce_prey, dim=W, inputs=[world, s.world_step, s.episode, s.captured],
-                      outputs=[s.alive, s.position, s.velocity, s.acceleration, s.heading, s.age,
-                               s.replication_age, s.starvation, s.prey_alive_count], device=dev)
-        # 8-9: rewards, episode end, auto-reset of ended worlds.
-        wp.launch(population.collect_rewards, dim=(W, C), inputs=[world, s.alive],
-                  outputs=[s.reward, s.episode_return], device=dev)
-        wp.launch(population.finish_world_step, dim=W, inputs=[world, s.captures, s.episode_return],
-                  outputs=[s.world_step, s.episode, s.episode_captures, s.prey_alive_count,
-                           s.predator_alive_count, s.episode_ended, s.ended_length, s.ended_captures,
-                           s.ended_return], device=dev)
-        wp.launch(population.truncate_ended_episodes, dim=(W, C), inputs=[s.episode_ended, s.alive],
-                  outputs=[s.truncated, s.episode_return], device=dev)
-        self._spawn(only_ended=True)
-        # 10: observations of the final state (its cell lists serve the next step's contacts).
-        self._observe()
-
-    def _spawn(self, only_ended: bool) -> None:
-        s = self.state
-        wp.launch(spawn.spawn_episode, dim=(self.num_worlds, self.capacity),
-                  inputs=[self._world_params, s.episode, int(only_ended), s.episode_ended],
-                  outputs=[s.alive, s.position, s.velocity, s.acceleration, s.heading, s.age,
-                           s.replication_age, s.starvation], device=self.device)
-
-    def _run_step(self) -> None:
+    def _run(self, program: str) -> None:
+        """Run a shard program ("step", "observe" or "reset") on every shard: shards in parallel
+        threads on CPU (Warp's CPU kernels release the GIL), one CUDA graph per program on GPU."""
+        if self._pool is not None:
+            list(self._pool.map(lambda shard: shard.run(program), self._shards))
+            return
+        shard = self._shards[0]
         if not wp.get_device(self.device).is_cuda:
-            self._step_launches()
+            shard.run(program)
             return
         stream = wp.stream_from_torch(torch.cuda.current_stream(self.torch_device))
         with wp.ScopedStream(stream):
-            if self._graph is None:
-                # One eager step compiles and loads every kernel; the next one is captured.
-                self._step_launches()
+            if program != "step":
+                shard.run(program)
+            elif self._graph is None:
+                shard.run(program)  # loads every module before capture
                 with wp.ScopedCapture(device=self.device, stream=stream) as capture_scope:
-                    self._step_launches()
+                    shard.run(program)
                 self._graph = capture_scope.graph
-                return
-            wp.capture_launch(self._graph, stream=stream)
+            else:
+                wp.capture_launch(self._graph, stream=stream)
 
     # ------------------------------------------------------------------ public API
     def reset(self, seed: int | None = None) -> dict[str, torch.Tensor]:
         """Start a new episode in every world; with `seed`, reseed first. Returns the observations."""
         if seed is not None:
-            _seed_key(seed)
+            key = _seed_key(seed)
             self.seed = int(seed)
-            self._world_params = self._make_world_params(_seed_key(seed))
-            self._graph = None  # the seed is baked into captured launches
-        s = self.state
-        for name in WORLD_FIELDS:
-            getattr(s, name).zero_()
-        s.episode_return.zero_()
-        s.episode_ended.zero_()
-        self._spawn(only_ended=False)
-        s.torch.prey_alive_count.fill_(self.config.prey_count)
-        s.torch.predator_alive_count.fill_(self.config.predator_count)
-        self._observe()
+            self._make_shards(key)  # the seed is baked into recorded launches and graphs
+        self._run("reset")
         return self.observations
 
     def step(self, actions: Mapping[str, torch.Tensor], validate: bool = True):
@@ -330,7 +253,7 @@ class BatchedAquarium:
             self._validate_actions(actions)
         for t in TYPES:
             self._actions[t].copy_(actions[t] if isinstance(actions[t], torch.Tensor) else torch.as_tensor(actions[t]))
-        self._run_step()
+        self._run("step")
         return self.observations, self._rewards, self._terminated, self._truncated, self._info
 
     def _validate_actions(self, actions) -> None:
@@ -391,7 +314,7 @@ class BatchedAquarium:
         alive = t.alive
         t.prey_alive_count.copy_(alive[:, : self.prey_capacity].sum(dim=1).to(torch.int32))
         t.predator_alive_count.copy_(alive[:, self.prey_capacity:].sum(dim=1).to(torch.int32))
-        self._observe()
+        self._run("observe")
         return self.observations
 
     def _check_state_values(self, staged: dict, sel) -> None:
@@ -432,17 +355,19 @@ class BatchedAquarium:
             raise ValueError("state_dict was taken from an env with another config or num_worlds")
         if state.get("seed") != self.seed:
             self.seed = int(state["seed"])
-            self._world_params = self._make_world_params(_seed_key(self.seed))
-            self._graph = None
+            self._make_shards(_seed_key(self.seed))
         t = self.state.torch
         for name, value in state["tensors"].items():
             target = getattr(t, name)
             if tuple(value.shape) != tuple(target.shape):
                 raise ValueError(f"state_dict tensor {name} has shape {list(value.shape)}, expected {list(target.shape)}")
             target.copy_(value.to(self.torch_device))
-        self._observe()
+        self._run("observe")
         return self.observations
 
     def close(self) -> None:
-        """Release the CUDA graph; the arrays go with the object."""
+        """Release the CUDA graph and the worker threads; the arrays go with the object."""
         self._graph = None
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None

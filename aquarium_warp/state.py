@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import warp as wp
 
-# name: (dtype, components, doc)  -- the agent fields a user may read and set
+# name: (dtype, doc) -- the agent fields a user may read and set
 AGENT_FIELDS = {
     "position": (wp.vec2, "[W, C, 2] float32, px, in [0, width) x [0, height)"),
     "velocity": (wp.vec2, "[W, C, 2] float32, px/step"),
@@ -47,6 +47,8 @@ class SimulationState:
         self.terminated = zeros((W, C), wp.bool)
         self.truncated = zeros((W, C), wp.bool)
         self.captured = zeros((W, C), wp.bool)  # prey captured this step
+        self.contact_partner = zeros((W, C), wp.int32)  # slot of the overlapping same-type agent, or -1
+        self.contact_offset = zeros((W, C), wp.vec2)  # torus displacement from that partner, px
         self.share_count = zeros((W, C), wp.int32)  # predators sharing each capture
         self.episode_return = zeros((W, C), float)  # reward summed over the episode, per slot
         self.captures = zeros(W, wp.int32)  # captures this step
@@ -60,6 +62,8 @@ class SimulationState:
         self.obs_predator = zeros((W, predator_count, predator_obs_size), float)
         self.mask_prey = zeros((W, prey_capacity, prey_mask_size), wp.bool)
         self.mask_predator = zeros((W, predator_count, predator_mask_size), wp.bool)
+        self.slot_prey = zeros((W, prey_capacity, prey_mask_size), wp.int32)  # observed agents' slots, -1 empty
+        self.slot_predator = zeros((W, predator_count, predator_mask_size), wp.int32)
         self.torch = TorchViews(self)
 
 

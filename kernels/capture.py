@@ -1,15 +1,15 @@
 """MODEL.md step 5: captures after the move, reward sharing, respawn or removal of captured prey.
 
-Two passes keep every sum deterministic (no float atomics): the prey pass decides captures and counts
-each capture's sharers; the predator pass sums its shares over the captured prey it is near, in the
-grid's fixed order. Both read positions from cell lists built after the move, so the prey pass can
-respawn a captured prey in place without the predator pass seeing the new position.
+Three passes keep every sum deterministic (no float atomics): predators mark the prey they overlap;
+each captured prey counts its sharers, then respawns or is removed; each predator sums its shares
+over the captured prey near it, in the grid's fixed order. All read neighbour positions from cell
+lists built after the move, so a prey respawned in place is not seen at its new position.
 """
 
 import warp as wp
 
 from .common import PREDATOR, PREY, PURPOSE_RESPAWN, AgentType, WorldParams, random_stream, slot_type, torus_displacement
-from .grid import CellLists, cell_coords, ring_cell, ring_size, rings_for_radius
+from .grid import CellLists, cell_coords, row_base, rings_for_radius, square_extent, wrap_cell
 from .spawn import make_fresh_prey, uniform_position
 
 wp.set_module_options({"enable_backward": False})
@@ -20,8 +20,41 @@ def detect_captures(
     world: WorldParams,
     types: wp.array(dtype=AgentType),
     grid: CellLists,
+    alive: wp.array2d(dtype=wp.bool),
+    position: wp.array2d(dtype=wp.vec2),
+    captured: wp.array2d(dtype=wp.bool),
+):
+    """Predators mark the prey they overlap (predators are few, so this pass is cheap; concurrent
+    writes of True to one flag agree)."""
+    w, p = wp.tid()  # predator slots only
+    i = world.prey_capacity + p
+    if not alive[w, i]:
+        return
+    pos = position[w, i]
+    contact = types[PREY].radius + types[PREDATOR].radius
+    center = cell_coords(grid, pos)
+    base = w * world.capacity
+    box = square_extent(grid, rings_for_radius(grid, contact))
+    for oy in range(box[2], box[3] + 1):
+        row = row_base(grid, w, center, oy)
+        for ox in range(box[0], box[1] + 1):
+            c = row + wrap_cell(center[0] + ox, grid.dims_x)
+            for k2 in range(grid.cell_start[c], grid.cell_end[c]):
+                j = grid.agent[k2] - base
+                if slot_type(world, j) == PREY:
+                    d = torus_displacement(world, pos, grid.position[k2])
+                    if wp.dot(d, d) < contact * contact:
+                        captured[w, j] = True
+
+
+@wp.kernel
+def resolve_captures(
+    world: WorldParams,
+    types: wp.array(dtype=AgentType),
+    grid: CellLists,
     world_step: wp.array(dtype=wp.int32),
     episode: wp.array(dtype=wp.int32),
+    captured: wp.array2d(dtype=wp.bool),
     alive: wp.array2d(dtype=wp.bool),
     position: wp.array2d(dtype=wp.vec2),
     velocity: wp.array2d(dtype=wp.vec2),
@@ -30,46 +63,43 @@ def detect_captures(
     age: wp.array2d(dtype=wp.int32),
     replication_age: wp.array2d(dtype=wp.int32),
     starvation: wp.array2d(dtype=wp.int32),
-    captured: wp.array2d(dtype=wp.bool),
     share_count: wp.array2d(dtype=wp.int32),
     reward: wp.array2d(dtype=float),
     terminated: wp.array2d(dtype=wp.bool),
     captures: wp.array(dtype=wp.int32),
     prey_alive_count: wp.array(dtype=wp.int32),
 ):
+    """Each captured prey counts its sharers, takes the penalty and respawns or is removed; the
+    others age by one step."""
     w, i = wp.tid()  # prey slots only
     if not alive[w, i]:
+        return
+    if not captured[w, i]:
+        age[w, i] = age[w, i] + 1
         return
     pos = position[w, i]
     contact = types[PREY].radius + types[PREDATOR].radius
     share = wp.max(world.catch_share_radius, contact)
-    is_captured = bool(False)
     sharers = int(0)
     center = cell_coords(grid, pos)
     base = w * world.capacity
-    for r in range(rings_for_radius(grid, share) + 1):
-        for q in range(ring_size(r)):
-            c = ring_cell(grid, w, center, r, q)
-            if c >= 0:
-                for k2 in range(grid.cell_start[c], grid.cell_end[c]):
-                    j = grid.agent[k2] - base
-                    if slot_type(world, j) == PREDATOR:
-                        d = torus_displacement(world, pos, grid.position[k2])
-                        d2 = wp.dot(d, d)
-                        if d2 < contact * contact:
-                            is_captured = True
-                            sharers += 1
-                        elif d2 < world.catch_share_radius * world.catch_share_radius:
-                            sharers += 1
-    if not is_captured:
-        age[w, i] = age[w, i] + 1
-        return
-    captured[w, i] = True
+    box = square_extent(grid, rings_for_radius(grid, share))
+    for oy in range(box[2], box[3] + 1):
+        row = row_base(grid, w, center, oy)
+        for ox in range(box[0], box[1] + 1):
+            c = row + wrap_cell(center[0] + ox, grid.dims_x)
+            for k2 in range(grid.cell_start[c], grid.cell_end[c]):
+                j = grid.agent[k2] - base
+                if slot_type(world, j) == PREDATOR:
+                    d = torus_displacement(world, pos, grid.position[k2])
+                    d2 = wp.dot(d, d)
+                    if d2 < contact * contact or d2 < world.catch_share_radius * world.catch_share_radius:
+                        sharers += 1
     share_count[w, i] = sharers
     reward[w, i] = -world.prey_capture_penalty
     wp.atomic_add(captures, w, 1)
     if world.respawn_captured_prey != 0:
-        rng = random_stream(world.seed, w, episode[w], world_step[w] + 1, i, PURPOSE_RESPAWN)
+        rng = random_stream(world.seed, world.world_offset + w, episode[w], world_step[w] + 1, i, PURPOSE_RESPAWN)
         make_fresh_prey(world, w, i, uniform_position(world, rng, 0.0), rng, alive, position, velocity,
                         acceleration, heading, age, replication_age, starvation)
     else:
@@ -101,21 +131,22 @@ def share_capture_rewards(
     is_capturer = bool(False)
     center = cell_coords(grid, pos)
     base = w * world.capacity
-    for r in range(rings_for_radius(grid, share) + 1):
-        for q in range(ring_size(r)):
-            c = ring_cell(grid, w, center, r, q)
-            if c >= 0:
-                for k2 in range(grid.cell_start[c], grid.cell_end[c]):
-                    j = grid.agent[k2] - base
-                    if slot_type(world, j) == PREY:
-                        if captured[w, j]:
-                            d = torus_displacement(world, pos, grid.position[k2])
-                            d2 = wp.dot(d, d)
-                            inside_share = d2 < world.catch_share_radius * world.catch_share_radius
-                            if d2 < contact * contact:
-                                is_capturer = True
-                            if inside_share or d2 < contact * contact:
-                                total += world.predator_reward / float(share_count[w, j])
+    box = square_extent(grid, rings_for_radius(grid, share))
+    for oy in range(box[2], box[3] + 1):
+        row = row_base(grid, w, center, oy)
+        for ox in range(box[0], box[1] + 1):
+            c = row + wrap_cell(center[0] + ox, grid.dims_x)
+            for k2 in range(grid.cell_start[c], grid.cell_end[c]):
+                j = grid.agent[k2] - base
+                if slot_type(world, j) == PREY:
+                    if captured[w, j]:
+                        d = torus_displacement(world, pos, grid.position[k2])
+                        d2 = wp.dot(d, d)
+                        inside_share = d2 < world.catch_share_radius * world.catch_share_radius
+                        if d2 < contact * contact:
+                            is_capturer = True
+                        if inside_share or d2 < contact * contact:
+                            total += world.predator_reward / float(share_count[w, j])
     reward[w, i] = total
     if is_capturer:
         starvation[w, i] = 0

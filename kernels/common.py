@@ -62,6 +62,7 @@ class WorldParams:
     replication_age_max: int  # floor(1.25 * prey_replication_age)
     signed_observations: int  # 1: observation range "-1..1"
     seed: wp.uint32
+    world_offset: int  # global index of this batch's world 0 (batches of worlds may run on threads)
 
 
 @wp.func
@@ -103,13 +104,6 @@ def wrap_coordinate(x: float, length: float) -> float:
 def angle_value(v: wp.vec2) -> float:
     """The reference's angle -atan2(y, x) in degrees, mapped from [-180, 180] to [0, 1]."""
     return 0.5 - wp.atan2(v[1], v[0]) / (2.0 * wp.pi)
-
-
-@wp.func
-def action_direction(action: int, action_count: int) -> wp.vec2:
-    """Unit desired direction of an action: clockwise on screen from "up" (paper eq. 6)."""
-    theta = 2.0 * wp.pi * float(action) / float(action_count)
-    return wp.vec2(wp.sin(theta), -wp.cos(theta))
 
 
 _MIX_1 = wp.constant(wp.uint32(0x85EBCA6B))

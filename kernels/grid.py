@@ -6,8 +6,10 @@ wrap modulo the dims and the grid is a torus like the world. Live agents are sor
 from it) is deterministic on CPU and GPU; dead slots get a key past the last cell and sort last.
 Positions and speeds are gathered into that order for coalesced neighbour reads.
 
-Queries visit rings of cells around the query cell: ring 0 is the cell itself, ring r the 8r cells
-at Chebyshev cell distance r. After rings 0..r every agent closer than `r * reach` (reach = the
+Queries visit the cells around the query cell by rings: ring 0 is the cell itself, ring r the 8r
+cells at Chebyshev cell distance r. A query loops over row offsets `oy`, clipped to [-lo_y, hi_y],
+then over column offsets `ox` clipped to [-lo_x, hi_x] (a fixed radius visits the whole square, a
+ring walk only the ring, see `column_step`). After rings 0..r every agent closer than `r * reach` (reach = the
 smaller cell side, less a rounding margin) has been seen, which bounds fixed-radius queries and lets
 k-nearest queries stop early. On a small torus, offsets are limited to one representative per
 column and row, so no cell is visited twice.
@@ -30,6 +32,11 @@ class CellLists:
     inv_cell_width: float  # 1/px
     inv_cell_height: float
     reach: float  # px of guaranteed search radius gained per ring
+    # On a torus of `dims` cells, offsets in [-lo, hi] name every column (row) exactly once.
+    lo_x: int  # (dims_x - 1) // 2
+    hi_x: int  # dims_x // 2
+    lo_y: int
+    hi_y: int
     cell_start: wp.array(dtype=int)  # [num_worlds * cells_per_world], first entry k of each cell
     cell_end: wp.array(dtype=int)  # [num_worlds * cells_per_world], one past the last entry
     key: wp.array(dtype=int)  # [2N] sort keys (second half is radix-sort scratch)
@@ -46,47 +53,40 @@ def cell_coords(grid: CellLists, p: wp.vec2) -> wp.vec2i:
 
 
 @wp.func
-def ring_size(r: int) -> int:
-    if r == 0:
+def wrap_cell(c: int, dims: int) -> int:
+    """Cell index modulo `dims`, for c in [-dims, 2 dims)."""
+    if c < 0:
+        return c + dims
+    if c >= dims:
+        return c - dims
+    return c
+
+
+@wp.func
+def row_base(grid: CellLists, world: int, center: wp.vec2i, oy: int) -> int:
+    """Global index of cell (0, center_y + oy) of `world`."""
+    return world * grid.cells_per_world + wrap_cell(center[1] + oy, grid.dims_y) * grid.dims_x
+
+
+@wp.func
+def square_extent(grid: CellLists, rings: int) -> wp.vec4i:
+    """Offsets (x_first, x_last, y_first, y_last) of the square of rings 0..rings, clipped to the torus."""
+    return wp.vec4i(-wp.min(rings, grid.lo_x), wp.min(rings, grid.hi_x), -wp.min(rings, grid.lo_y),
+                    wp.min(rings, grid.hi_y))
+
+
+@wp.func
+def column_step(r: int, oy: int) -> int:
+    """Ring r's cells in row offset oy: the whole row at |oy| = r, else only the two ends."""
+    if r == 0 or oy == -r or oy == r:
         return 1
-    return 8 * r
-
-
-@wp.func
-def ring_offset(r: int, t: int) -> wp.vec2i:
-    """The t-th cell offset of ring r, walking its four sides clockwise."""
-    if r == 0:
-        return wp.vec2i(0, 0)
-    side = 2 * r
-    u = t % side
-    seg = t // side
-    if seg == 0:
-        return wp.vec2i(-r + u, -r)
-    if seg == 1:
-        return wp.vec2i(r, -r + u)
-    if seg == 2:
-        return wp.vec2i(r - u, r)
-    return wp.vec2i(-r, r - u)
-
-
-@wp.func
-def ring_cell(grid: CellLists, world: int, center: wp.vec2i, r: int, t: int) -> int:
-    """Global cell index of the t-th cell of ring r around `center`, or -1 when that offset is not
-    the representative of its column/row on this torus (it was or will be visited as another one)."""
-    o = ring_offset(r, t)
-    if o[0] < -((grid.dims_x - 1) // 2) or o[0] > grid.dims_x // 2:
-        return -1
-    if o[1] < -((grid.dims_y - 1) // 2) or o[1] > grid.dims_y // 2:
-        return -1
-    cx = (center[0] + o[0] + grid.dims_x) % grid.dims_x
-    cy = (center[1] + o[1] + grid.dims_y) % grid.dims_y
-    return world * grid.cells_per_world + cy * grid.dims_x + cx
+    return 2 * r
 
 
 @wp.func
 def last_ring(grid: CellLists) -> int:
     """Ring after which every cell of the world has been visited."""
-    return wp.max(grid.dims_x // 2, grid.dims_y // 2)
+    return wp.max(grid.hi_x, grid.hi_y)
 
 
 @wp.func

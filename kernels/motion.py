@@ -1,13 +1,13 @@
 """MODEL.md steps 1-4: steering, acceleration with memory, same-type contact, speed clamp, wrap.
 
-All agents read the start-of-step state: neighbour positions come from the cell lists (built on the
-start-of-step positions), and each thread writes only its own slot.
+All agents read the start-of-step state; each thread writes only its own slot. The contact partner
+(step 3) comes precomputed from the neighbour pass in `observation.py`, which runs on the same
+start-of-step positions at the end of the previous step (or after a reset or `set_state`).
 """
 
 import warp as wp
 
-from .common import PREY, AgentType, WorldParams, action_direction, slot_type, torus_displacement, wrap_coordinate
-from .grid import CellLists, cell_coords, ring_cell, ring_size, rings_for_radius
+from .common import PREY, AgentType, WorldParams, slot_type, wrap_coordinate
 
 wp.set_module_options({"enable_backward": False})
 
@@ -24,19 +24,18 @@ def clamp_length(v: wp.vec2, limit: float) -> wp.vec2:
 def integrate_motion(
     world: WorldParams,
     types: wp.array(dtype=AgentType),
-    grid: CellLists,
+    action_direction: wp.array(dtype=wp.vec2),
     prey_action: wp.array2d(dtype=wp.int32),
     predator_action: wp.array2d(dtype=wp.int32),
     alive: wp.array2d(dtype=wp.bool),
+    contact_partner: wp.array2d(dtype=wp.int32),
+    contact_offset: wp.array2d(dtype=wp.vec2),
     position: wp.array2d(dtype=wp.vec2),
     velocity: wp.array2d(dtype=wp.vec2),
     acceleration: wp.array2d(dtype=wp.vec2),
     heading: wp.array2d(dtype=wp.vec2),
 ):
-    k = wp.tid()  # sorted entry: neighbours of consecutive threads share cells
-    idx = grid.agent[k]
-    w = idx // world.capacity
-    i = idx - w * world.capacity
+    w, i = wp.tid()
     if not alive[w, i]:
         return
     t = slot_type(world, i)
@@ -48,7 +47,7 @@ def integrate_motion(
         action = int(prey_action[w, i])
     else:
         action = int(predator_action[w, i - world.prey_capacity])
-    desired = action_direction(action, world.action_count) * p.max_speed
+    desired = action_direction[action] * p.max_speed
     v = velocity[w, i]
     steering_force = clamp_length(desired - v, p.max_steering_force)
 
@@ -57,36 +56,18 @@ def integrate_motion(
     if acc[0] != 0.0 or acc[1] != 0.0:
         acc = acc * (p.max_acceleration / wp.length(acc))
 
-    # 3. Same-type contact: the nearest overlapping agent of the same type pushes this one away.
-    pos = grid.position[k]
-    contact = 2.0 * p.radius
-    best_d2 = contact * contact
-    best_slot = int(-1)
-    best_disp = wp.vec2(0.0, 0.0)
-    center = cell_coords(grid, pos)
-    base = w * world.capacity
-    for r in range(rings_for_radius(grid, contact) + 1):
-        for q in range(ring_size(r)):
-            c = ring_cell(grid, w, center, r, q)
-            if c >= 0:
-                for k2 in range(grid.cell_start[c], grid.cell_end[c]):
-                    j = grid.agent[k2] - base
-                    if k2 != k and slot_type(world, j) == t:
-                        d = torus_displacement(world, grid.position[k2], pos)
-                        d2 = wp.dot(d, d)
-                        closer = d2 < best_d2 or (d2 == best_d2 and j < best_slot)
-                        if d2 < contact * contact and (best_slot < 0 or closer):
-                            best_d2 = d2
-                            best_slot = j
-                            best_disp = d
+    # 3. Same-type contact: the nearest overlapping agent of the same type pushes this one away. The
+    # partner was found by the observation pass on these same start-of-step positions.
     v_new = v + acc
-    if best_slot >= 0:
+    if contact_partner[w, i] >= 0:
+        offset = contact_offset[w, i]
         v_new = v
-        if best_d2 > 0.0:
-            v_new = v + best_disp * (p.bounce_strength / wp.sqrt(best_d2))
+        if offset[0] != 0.0 or offset[1] != 0.0:
+            v_new = v + wp.normalize(offset) * p.bounce_strength
 
     # 4. Speed clamp (paper eq. 3) and wrap onto the torus (eq. 4).
     v_new = clamp_length(v_new, p.max_speed)
+    pos = position[w, i]
     position[w, i] = wp.vec2(wrap_coordinate(pos[0] + v_new[0], world.width),
                              wrap_coordinate(pos[1] + v_new[1], world.height))
     velocity[w, i] = v_new
@@ -94,10 +75,3 @@ def integrate_motion(
     speed = wp.length(v_new)
     if speed > 0.0:
         heading[w, i] = v_new / speed
-
-
-def launch_integrate_motion(world, types, grid, prey_action, predator_action, state, count, device, record=False):
-    return wp.launch(integrate_motion, dim=count,
-                     inputs=[world, types, grid, prey_action, predator_action, state.alive],
-                     outputs=[state.position, state.velocity, state.acceleration, state.heading],
-                     device=device, record_cmd=record)

@@ -1,10 +1,13 @@
-"""MODEL.md step 10: field-of-view observations.
+"""MODEL.md step 10: field-of-view observations (and the contact partners of step 3).
 
 Per live agent: the own 5-tuple, then its nearest visible predators and nearest visible prey, each
 block sorted by (distance, slot), packed as 6-tuples; unused slots are zero and a boolean mask marks
 the filled ones. Candidates come from a ring-by-ring search of the cell lists that stops as soon as
 no unseen agent can be visible (beyond the view distance) or closer than the K-th kept one, so an
 unlimited view distance still costs about K neighbours' worth of cells, not the whole world.
+
+The same neighbour pass also finds each agent's contact partner for the next step's motion (MODEL.md
+step 3 reads start-of-step positions, which are exactly these), so motion needs no search of its own.
 
 The kernel is generated per `max_slots` (the largest slot count of any block), so the top-K lists
 are fixed-size registers.
@@ -15,7 +18,8 @@ import functools
 import warp as wp
 
 from .common import PREDATOR, PREY, AgentType, WorldParams, angle_value, slot_type, torus_displacement
-from .grid import CellLists, cell_coords, last_ring, ring_cell, ring_size, searched_radius
+from .grid import (CellLists, cell_coords, column_step, last_ring, rings_for_radius, row_base, searched_radius,
+                   square_extent, wrap_cell)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -37,19 +41,24 @@ def put_value(
 
 
 @wp.func
-def put_mask(
+def put_neighbour(
     mask_prey: wp.array3d(dtype=wp.bool),
     mask_predator: wp.array3d(dtype=wp.bool),
+    slot_prey: wp.array3d(dtype=wp.int32),
+    slot_predator: wp.array3d(dtype=wp.int32),
     is_prey: bool,
     w: int,
     row: int,
     col: int,
-    value: bool,
+    slot: int,
 ):
+    """Record which agent slot fills observation slot `col` (-1: empty)."""
     if is_prey:
-        mask_prey[w, row, col] = value
+        mask_prey[w, row, col] = slot >= 0
+        slot_prey[w, row, col] = slot
     else:
-        mask_predator[w, row, col] = value
+        mask_predator[w, row, col] = slot >= 0
+        slot_predator[w, row, col] = slot
 
 
 @wp.func
@@ -82,6 +91,10 @@ def observation_kernel(max_slots: int):
         obs_predator: wp.array3d(dtype=float),
         mask_prey: wp.array3d(dtype=wp.bool),
         mask_predator: wp.array3d(dtype=wp.bool),
+        slot_prey: wp.array3d(dtype=wp.int32),
+        slot_predator: wp.array3d(dtype=wp.int32),
+        contact_partner: wp.array2d(dtype=wp.int32),
+        contact_offset: wp.array2d(dtype=wp.vec2),
     ):
         k = wp.tid()  # sorted entry; dead slots sort last and only get zeros
         idx = grid.agent[k]
@@ -98,7 +111,8 @@ def observation_kernel(max_slots: int):
             for col in range(5 + 6 * slots):
                 put_value(obs_prey, obs_predator, is_prey, w, row, col, 0.0)
             for s in range(slots):
-                put_mask(mask_prey, mask_predator, is_prey, w, row, s, False)
+                put_neighbour(mask_prey, mask_predator, slot_prey, slot_predator, is_prey, w, row, s, -1)
+            contact_partner[w, i] = -1
             return
 
         pos = grid.position[k]
@@ -112,7 +126,8 @@ def observation_kernel(max_slots: int):
         own_speed = wp.min(grid.speed[k] / p.max_speed, 1.0)
         put_value(obs_prey, obs_predator, is_prey, w, row, 4, scaled(own_speed, signed))
 
-        # Ring-by-ring search for the nearest visible agents of each type.
+        # Ring-by-ring search for the nearest visible agents of each type, and for the nearest
+        # overlapping agent of the own type (the contact partner of the next step's motion).
         kept_d2 = FloatList()
         kept_entry = IntList()
         kept_slot = IntList()
@@ -120,43 +135,57 @@ def observation_kernel(max_slots: int):
         kept = wp.vec2i(0, 0)
         v = p.view_distance
         v2 = v * v
+        contact = 2.0 * p.radius
+        contact2 = contact * contact
+        contact_rings = rings_for_radius(grid, contact)
+        partner_d2 = contact2
+        partner_slot = int(-1)
+        partner_disp = wp.vec2(0.0, 0.0)
         center = cell_coords(grid, pos)
         base = w * world.capacity
         last = last_ring(grid)
         r = int(0)
-        searching = slots > 0
+        searching = bool(True)
         while searching:
-            for q in range(ring_size(r)):
-                c = ring_cell(grid, w, center, r, q)
-                if c >= 0:
-                    for k2 in range(grid.cell_start[c], grid.cell_end[c]):
-                        j = grid.agent[k2] - base
-                        jt = slot_type(world, j)
-                        n_wanted = wanted[jt]
-                        if k2 != k and n_wanted > 0:
-                            d = torus_displacement(world, pos, grid.position[k2])
-                            d2 = wp.dot(d, d)
-                            visible = d2 <= v2
-                            if visible and world.fov_enabled != 0 and d2 > 0.0:
-                                visible = wp.dot(h, d) >= wp.sqrt(d2) * p.cos_half_fov
-                            offset = jt * max_slots
-                            n = kept[jt]
-                            last_kept = offset + n_wanted - 1
-                            if visible and (n < n_wanted or ranks_before(d2, j, kept_d2[last_kept], kept_slot[last_kept])):
-                                at = offset + wp.min(n, n_wanted - 1)
-                                while at > offset and ranks_before(d2, j, kept_d2[at - 1], kept_slot[at - 1]):
-                                    kept_d2[at] = kept_d2[at - 1]
-                                    kept_entry[at] = kept_entry[at - 1]
-                                    kept_slot[at] = kept_slot[at - 1]
-                                    at -= 1
-                                kept_d2[at] = d2
-                                kept_entry[at] = k2
-                                kept_slot[at] = j
-                                if n < n_wanted:
-                                    kept[jt] = n + 1
+            box = square_extent(grid, r)
+            for oy in range(box[2], box[3] + 1):
+                row_cells = row_base(grid, w, center, oy)
+                for ox in range(-r, r + 1, column_step(r, oy)):
+                    if ox >= box[0] and ox <= box[1]:
+                        c = row_cells + wrap_cell(center[0] + ox, grid.dims_x)
+                        for k2 in range(grid.cell_start[c], grid.cell_end[c]):
+                            j = grid.agent[k2] - base
+                            jt = slot_type(world, j)
+                            if k2 != k:
+                                d = torus_displacement(world, pos, grid.position[k2])
+                                d2 = wp.dot(d, d)
+                                if jt == t and d2 < contact2:
+                                    if partner_slot < 0 or ranks_before(d2, j, partner_d2, partner_slot):
+                                        partner_d2 = d2
+                                        partner_slot = j
+                                        partner_disp = d
+                                n_wanted = wanted[jt]
+                                visible = n_wanted > 0 and d2 <= v2
+                                if visible and world.fov_enabled != 0 and d2 > 0.0:
+                                    visible = wp.dot(h, d) >= wp.sqrt(d2) * p.cos_half_fov
+                                offset = jt * max_slots
+                                n = kept[jt]
+                                last_kept = offset + wp.max(n_wanted, 1) - 1
+                                if visible and (n < n_wanted or ranks_before(d2, j, kept_d2[last_kept], kept_slot[last_kept])):
+                                    at = offset + wp.min(n, n_wanted - 1)
+                                    while at > offset and ranks_before(d2, j, kept_d2[at - 1], kept_slot[at - 1]):
+                                        kept_d2[at] = kept_d2[at - 1]
+                                        kept_entry[at] = kept_entry[at - 1]
+                                        kept_slot[at] = kept_slot[at - 1]
+                                        at -= 1
+                                    kept_d2[at] = d2
+                                    kept_entry[at] = k2
+                                    kept_slot[at] = j
+                                    if n < n_wanted:
+                                        kept[jt] = n + 1
             if r >= last:
                 searching = False
-            else:
+            elif r >= contact_rings:
                 reach = searched_radius(grid, r)
                 if reach > v:
                     searching = False
@@ -169,6 +198,8 @@ def observation_kernel(max_slots: int):
                                 done = False
                     searching = not done
             r += 1
+        contact_partner[w, i] = partner_slot
+        contact_offset[w, i] = -partner_disp  # from the partner to this agent
 
         # Pack the kept neighbours: predator block first, then prey block.
         for block in range(2):
@@ -194,10 +225,11 @@ def observation_kernel(max_slots: int):
                               scaled(wp.min(dist / p.distance_norm, 1.0), signed))
                     put_value(obs_prey, obs_predator, is_prey, w, row, col + 4, scaled(angle_value(d), signed))
                     put_value(obs_prey, obs_predator, is_prey, w, row, col + 5, scaled(neighbour_speed, signed))
-                    put_mask(mask_prey, mask_predator, is_prey, w, row, first + s, True)
+                    put_neighbour(mask_prey, mask_predator, slot_prey, slot_predator, is_prey, w, row, first + s,
+                                  kept_slot[at])
                 else:
                     for e in range(6):
                         put_value(obs_prey, obs_predator, is_prey, w, row, col + e, 0.0)
-                    put_mask(mask_prey, mask_predator, is_prey, w, row, first + s, False)
+                    put_neighbour(mask_prey, mask_predator, slot_prey, slot_predator, is_prey, w, row, first + s, -1)
 
     return wp.kernel(enable_backward=False, module="unique")(observe)

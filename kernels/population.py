@@ -61,7 +61,7 @@ def reproduce_prey(
                 free += 1
             if free < world.prey_capacity:
                 child = free
-                rng = random_stream(world.seed, w, episode[w], world_step[w] + 1, child, PURPOSE_NEWBORN)
+                rng = random_stream(world.seed, world.world_offset + w, episode[w], world_step[w] + 1, child, PURPOSE_NEWBORN)
                 make_fresh_prey(world, w, child, position[w, parent], rng, alive, position, velocity,
                                 acceleration, heading, age, replication_age, starvation)
                 velocity[w, child] = wp.vec2(0.0, 0.0)

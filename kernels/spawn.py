@@ -75,7 +75,7 @@ def spawn_episode(
     w, i = wp.tid()
     if only_ended != 0 and not episode_ended[w]:
         return
-    rng = random_stream(world.seed, w, episode[w], 0, i, PURPOSE_SPAWN)
+    rng = random_stream(world.seed, world.world_offset + w, episode[w], 0, i, PURPOSE_SPAWN)
     if slot_type(world, i) == PREY:
         if i < world.prey_count:
             pos = uniform_position(world, rng, 20.0)
