@@ -98,7 +98,9 @@ def _type_params(cfg: AquariumConfig, t) -> AgentType:
     p.radius = t.radius
     p.view_distance = t.view_distance
     p.distance_norm = min(t.view_distance, cfg.max_torus_distance)
-    p.cos_half_fov = math.cos(math.radians(t.fov_angle / 2.0)) if t.fov_angle < 360 else -2.0
+    cos_half_fov = math.cos(math.radians(t.fov_angle / 2.0))
+    # cos(90 deg) is 6e-17 in floats: it would exclude the inclusive boundary of a 180-degree cone.
+    p.cos_half_fov = -2.0 if t.fov_angle >= 360 else (0.0 if abs(cos_half_fov) < 1e-12 else cos_half_fov)
     p.bounce_strength = t.bounce_strength
     p.predator_slots = t.predator_slots
     p.prey_slots = t.prey_slots
@@ -145,7 +147,11 @@ class BatchedAquarium:
         types = [_type_params(cfg, cfg.predator), _type_params(cfg, cfg.prey)]  # index = type code
         self._types = wp.array(types, dtype=AgentType, device=self.device)
         angles = 2.0 * np.pi * np.arange(cfg.action_count) / cfg.action_count
-        directions = np.stack([np.sin(angles), -np.cos(angles)], axis=1).astype(np.float32)
+        directions = np.stack([np.sin(angles), -np.cos(angles)], axis=1)
+        # Quarter turns are exact axes (sin(pi) is 1.2e-16 in floats, which would steer a prey that
+        # already moves exactly along its desired direction).
+        directions[np.abs(directions) < 1e-12] = 0.0
+        directions = directions.astype(np.float32)
         self._action_direction = wp.array(directions, dtype=wp.vec2, device=self.device)
         self.state = SimulationState(W, C, cfg.prey_capacity, cfg.predator_count,
                                      self.observation_size["prey"], self.observation_size["predator"],
@@ -296,13 +302,20 @@ class BatchedAquarium:
         unknown = [k for k in fields if k not in AGENT_FIELDS and k not in ("world_step", "episode")]
         if unknown:
             raise ValueError(f"unknown state fields {unknown}; settable: {list(AGENT_FIELDS)} + ['world_step', 'episode']")
-        if world is not None and not (isinstance(world, (int, np.integer)) and 0 <= world < self.num_worlds):
+        if world is not None and (isinstance(world, bool) or not isinstance(world, (int, np.integer))
+                                  or not 0 <= world < self.num_worlds):
             raise ValueError(f"world={world!r} must be None or an integer in [0, {self.num_worlds - 1}]")
         sel = slice(None) if world is None else int(world)
         staged = {}
         for name, value in fields.items():
             target = getattr(t, name)[sel]
-            value = torch.as_tensor(value, dtype=target.dtype, device="cpu")
+            value = torch.as_tensor(np.asarray(value) if not isinstance(value, torch.Tensor) else value).cpu()
+            if target.dtype == torch.bool and not value.dtype == torch.bool and not ((value == 0) | (value == 1)).all():
+                raise ValueError(f"{name} must hold booleans (or 0/1)")
+            if target.dtype == torch.int32 and (value.dtype.is_floating_point or value.dtype == torch.bool):
+                if value.dtype == torch.bool or not (torch.isfinite(value) & (value == value.round())).all():
+                    raise ValueError(f"{name} must hold integers")
+            value = value.to(target.dtype)
             if name in ("world_step", "episode") and world is None and value.dim() == 0:
                 value = value.expand(target.shape)
             if tuple(value.shape) != tuple(target.shape):

@@ -51,6 +51,8 @@ def cell_lists(cfg: AquariumConfig, num_worlds: int, dims: tuple[int, int], devi
     g = grid_kernels.CellLists()
     g.dims_x, g.dims_y = dims_x, dims_y
     g.cells_per_world = dims_x * dims_y
+    g.cell_width = cfg.width / dims_x
+    g.cell_height = cfg.height / dims_y
     g.inv_cell_width = dims_x / cfg.width
     g.inv_cell_height = dims_y / cfg.height
     g.reach = min(cfg.width / dims_x, cfg.height / dims_y)

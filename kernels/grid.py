@@ -29,6 +29,8 @@ class CellLists:
     dims_x: int
     dims_y: int
     cells_per_world: int
+    cell_width: float  # px
+    cell_height: float
     inv_cell_width: float  # 1/px
     inv_cell_height: float
     reach: float  # px of guaranteed search radius gained per ring
@@ -81,6 +83,20 @@ def column_step(r: int, oy: int) -> int:
     if r == 0 or oy == -r or oy == r:
         return 1
     return 2 * r
+
+
+@wp.func
+def cell_gap(offset: int, inside: float, size: float, dims: int) -> float:
+    """Distance along one axis from a point `inside` px into its cell to the cell `offset` cells away,
+    the shorter way round the torus."""
+    if offset == 0:
+        return 0.0
+    ahead = offset
+    behind = offset - dims
+    if offset < 0:
+        ahead = offset + dims
+        behind = offset
+    return wp.min(float(ahead) * size - inside, inside + float(-behind - 1) * size)
 
 
 @wp.func

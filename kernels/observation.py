@@ -18,7 +18,7 @@ import functools
 import warp as wp
 
 from .common import PREDATOR, PREY, AgentType, WorldParams, angle_value, slot_type, torus_displacement
-from .grid import (CellLists, cell_coords, column_step, last_ring, rings_for_radius, row_base, searched_radius,
+from .grid import (CellLists, cell_coords, cell_gap, column_step, last_ring, rings_for_radius, row_base, searched_radius,
                    square_extent, wrap_cell)
 
 wp.set_module_options({"enable_backward": False})
@@ -146,12 +146,18 @@ def observation_kernel(max_slots: int):
         last = last_ring(grid)
         r = int(0)
         searching = bool(True)
+        # Where the observer lies inside its cell: cells farther than any wanted agent are skipped.
+        inside_x = pos[0] - float(center[0]) * grid.cell_width
+        inside_y = pos[1] - float(center[1]) * grid.cell_height
+        bound2 = wp.max(v2, contact2)
         while searching:
             box = square_extent(grid, r)
             for oy in range(box[2], box[3] + 1):
                 row_cells = row_base(grid, w, center, oy)
+                gap_y = cell_gap(oy, inside_y, grid.cell_height, grid.dims_y)
                 for ox in range(-r, r + 1, column_step(r, oy)):
-                    if ox >= box[0] and ox <= box[1]:
+                    gap_x = cell_gap(ox, inside_x, grid.cell_width, grid.dims_x)
+                    if ox >= box[0] and ox <= box[1] and gap_x * gap_x + gap_y * gap_y <= bound2:
                         c = row_cells + wrap_cell(center[0] + ox, grid.dims_x)
                         for k2 in range(grid.cell_start[c], grid.cell_end[c]):
                             j = grid.agent[k2] - base
@@ -192,11 +198,19 @@ def observation_kernel(max_slots: int):
                 else:
                     reach2 = reach * reach
                     done = True
+                    farthest = float(0.0)  # squared distance of the farthest agent still wanted
                     for tt in range(2):
                         if wanted[tt] > 0:
-                            if kept[tt] < wanted[tt] or kept_d2[tt * max_slots + wanted[tt] - 1] >= reach2:
+                            if kept[tt] < wanted[tt]:
                                 done = False
+                                farthest = v2
+                            else:
+                                kth = kept_d2[tt * max_slots + wanted[tt] - 1]
+                                farthest = wp.max(farthest, kth)
+                                if kth >= reach2:
+                                    done = False
                     searching = not done
+                    bound2 = wp.max(wp.min(farthest, v2), contact2)
             r += 1
         contact_partner[w, i] = partner_slot
         contact_offset[w, i] = -partner_disp  # from the partner to this agent

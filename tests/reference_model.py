@@ -168,10 +168,23 @@ def clamp_length(v, max_length: float) -> np.ndarray:
     return v.copy()
 
 
+# (sin, cos) of the quarter turns 0, 90, 180, 270 degrees, exactly
+_QUARTER_TURNS = ((0.0, 1.0), (1.0, 0.0), (0.0, -1.0), (-1.0, 0.0))
+
+
 def desired_velocity(action: int, action_count: int, max_speed: float) -> np.ndarray:
-    """theta = 2 pi a / n (clockwise on screen from 'up'); D = s (sin theta, -cos theta)."""
-    theta = 2.0 * math.pi * int(action) / int(action_count)
-    return np.array([max_speed * math.sin(theta), -max_speed * math.cos(theta)], np.float64)
+    """theta = 2 pi a / n (clockwise on screen from 'up'); D = s (sin theta, -cos theta).
+
+    Quarter turns (up, right, down, left) are exact: float sin/cos leave residues like cos(pi/2) = 6e-17, and
+    a fresh prey (V = (-1, 0), A = 0) sent right would get V' = (0, +-1e-16) and a heading decided by
+    rounding noise instead of V' = 0 (heading kept)."""
+    a, n = int(action), int(action_count)
+    if (4 * a) % n == 0:
+        sin_t, cos_t = _QUARTER_TURNS[((4 * a) // n) % 4]
+    else:
+        theta = 2.0 * math.pi * a / n
+        sin_t, cos_t = math.sin(theta), math.cos(theta)
+    return np.array([max_speed * sin_t, -max_speed * cos_t], np.float64)
 
 
 def angle_value(dx: float, dy: float) -> float:

@@ -153,6 +153,25 @@ def test_desired_velocity_clockwise_from_up(action, expected):
     np.testing.assert_allclose(ref.desired_velocity(action, 16, 4.0), expected, atol=1e-12)
 
 
+@pytest.mark.parametrize("action, n, expected", [(0, 16, (0.0, -4.0)), (4, 16, (4.0, 0.0)), (8, 16, (0.0, 4.0)),
+                                                 (12, 16, (-4.0, 0.0)), (3, 12, (4.0, 0.0)), (1, 4, (4.0, 0.0))])
+def test_quarter_turns_are_exact(action, n, expected):
+    assert tuple(ref.desired_velocity(action, n, 4.0)) == expected
+
+
+@pytest.mark.parametrize("action, velocity, heading", [(4, (-1.0, 0.0), (-1.0, 0.0)), (8, (0.0, -1.0), (0.0, -1.0))])
+def test_fresh_prey_cancelled_by_a_quarter_turn_stops_and_keeps_heading(action, velocity, heading):
+    """V = -(unit action direction), A = 0: A' = k * unit(F) = (unit direction) for prey (k = 1), V' = 0 exactly."""
+    cfg = make_cfg(prey_count=1, predator_count=1)
+    st = make_world(cfg, prey=[agent((100.0, 100.0), vel=velocity, heading=heading)], predators=[agent((500.0, 500.0))])
+    actions = zeros_actions(cfg)
+    actions[0] = action
+    new = ref.motion(cfg, st, actions)
+    assert tuple(new["velocity"][0]) == (0.0, 0.0)
+    assert tuple(new["heading"][0]) == heading
+    assert tuple(new["position"][0]) == (100.0, 100.0)
+
+
 # --------------------------------------------------------------------------------------------------
 # Motion
 # --------------------------------------------------------------------------------------------------
@@ -614,7 +633,7 @@ def test_observation_values_slot_order_and_ties():
         0.0, 700 / 800, 700 / 800, math.sqrt(2) * 300 / half_diag, 135.0 / 360.0, 0.0,
         # prey slot 1 (north): 90 deg -> 0.75, speed 3/4
         1.0, 0.5, 390 / 800, 10 / half_diag, 0.75, 0.75,
-        # prey slot 3 (west): 180 deg -> ... -atan2(0, -10) = -180 -> 0
+        # prey slot 3 (west): -atan2(0, -10) = -180 deg -> 0
         1.0, 390 / 800, 0.5, 10 / half_diag, 0.0, 1.0,
         # prey slot 0 (south): -atan2(30, 0) = -90 -> 0.25, speed 2/4
         1.0, 0.5, 430 / 800, 30 / half_diag, 0.25, 0.5,

@@ -1,0 +1,147 @@
+"""Agent-steps per second of `BatchedAquarium.step()` (random actions, observations on), with the
+original marl-aquarium 0.1.10 measured in the same run.
+
+Points: the default config with 1, 64 and 1024 worlds; one world of about 1k, 10k and 100k agents at
+the default density (16 prey per predator, 17 agents per 800 x 800 px); the same with
+`fov_enabled=False`, and with `fov_enabled=False` plus unlimited view distance.
+Each point: warm-up, then `--repeats` timed runs of at least `--seconds`; the median is reported
+(on CUDA the step is a graph and timing is synchronised).
+
+    python benchmarks/bench_step.py [--device cpu] [--seconds 2] [--repeats 5] [--no-original]
+
+Prints a table and writes benchmarks/results/step_<device>.json. Targets (issue 2): at least 1000x the
+original's agent-steps/s at 1024 default worlds, and per-agent time within 1.5x from 1k to 100k agents.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import torch
+import warp as wp
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from aquarium_warp import AquariumConfig, BatchedAquarium  # noqa: E402
+
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def density_config(agents: int, **changes) -> AquariumConfig:
+    """About `agents` agents (16 prey per predator) at the default density of 17 per 800 x 800 px."""
+    predators = max(1, round(agents / 17))
+    prey = agents - predators
+    side = 800.0 * math.sqrt((prey + predators) / 17.0)
+    return AquariumConfig(prey_count=prey, predator_count=predators, width=side, height=side, **changes)
+
+
+def unlimited(cfg: AquariumConfig) -> AquariumConfig:
+    return dataclasses.replace(cfg, fov_enabled=False,
+                               prey=dataclasses.replace(cfg.prey, view_distance=math.inf),
+                               predator=dataclasses.replace(cfg.predator, view_distance=math.inf))
+
+
+def measure(cfg: AquariumConfig, worlds: int, device: str, seconds: float, repeats: int) -> dict:
+    env = BatchedAquarium(cfg, num_worlds=worlds, device=device, seed=0)
+    gen = torch.Generator(device=env.torch_device).manual_seed(0)
+    pool = [{"prey": torch.randint(0, cfg.action_count, (worlds, env.prey_capacity), generator=gen, device=env.torch_device),
+             "predator": torch.randint(0, cfg.action_count, (worlds, env.predator_count), generator=gen, device=env.torch_device)}
+            for _ in range(8)]
+    sync = torch.cuda.synchronize if env.torch_device.type == "cuda" else (lambda: None)
+    for i in range(5):
+        env.step(pool[i % 8], validate=False)
+    sync()
+    per_step = []
+    for _ in range(repeats):
+        steps, start = 0, time.perf_counter()
+        while True:
+            env.step(pool[steps % 8], validate=False)
+            steps += 1
+            if steps % 8 == 0:
+                sync()
+                if time.perf_counter() - start >= seconds:
+                    break
+        per_step.append((time.perf_counter() - start) / steps)
+    step_time = statistics.median(per_step)
+    agents = worlds * cfg.capacity
+    env.close()
+    return {"worlds": worlds, "agents_per_world": cfg.capacity, "agents": agents,
+            "step_ms": step_time * 1e3, "agent_steps_per_s": agents / step_time,
+            "ns_per_agent_step": step_time / agents * 1e9, "runs_step_ms": [t * 1e3 for t in per_step]}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--seconds", type=float, default=2.0)
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--max-agents", type=int, default=100_000)
+    parser.add_argument("--no-original", action="store_true", help="skip the original marl-aquarium")
+    parser.add_argument("--out", default=None)
+    args = parser.parse_args(argv)
+
+    points = [("default", AquariumConfig(), w) for w in (1, 64, 1024)]
+    for label, make in (("density", density_config), ("density fov off", lambda n: density_config(n, fov_enabled=False)),
+                        ("density fov off, unlimited view", lambda n: unlimited(density_config(n)))):
+        points += [(label, make(n), 1) for n in (1_000, 10_000, 100_000) if n <= args.max_agents]
+    rows = []
+    for label, cfg, worlds in points:
+        row = {"config": label, **measure(cfg, worlds, args.device, args.seconds, args.repeats)}
+        rows.append(row)
+        print(f"{label:34s} {row['worlds']:6d} x {row['agents_per_world']:7d}  {row['step_ms']:9.3f} ms  "
+              f"{row['agent_steps_per_s']:11.3e} agent-steps/s  {row['ns_per_agent_step']:8.1f} ns/agent", flush=True)
+
+    original = None
+    if not args.no_original:
+        from original_aquarium import measure_original  # noqa: E402  (same folder)
+        original = measure_original(seconds=max(5.0, args.seconds * 2), repeats=3, which="raw")
+        print(f"{'original marl-aquarium 0.1.10':34s} {1:6d} x {17:7d}  "
+              f"{1e3 / original['env_steps_per_s']:9.3f} ms  {original['agent_steps_per_s']:11.3e} agent-steps/s")
+
+    checks = {}
+    by = {(r["config"], r["worlds"], r["agents_per_world"]): r for r in rows}
+    if original:
+        big = by[("default", 1024, 17)]["agent_steps_per_s"]
+        checks["speedup_1024_worlds_vs_original"] = big / original["agent_steps_per_s"]
+        checks["speedup_1024_worlds_target"] = 1000.0
+    for label in ("density", "density fov off", "density fov off, unlimited view"):
+        series = [r for r in rows if r["config"] == label]
+        if len(series) >= 2:
+            checks[f"per_agent_ratio_{label}"] = series[-1]["ns_per_agent_step"] / series[0]["ns_per_agent_step"]
+    print("\nchecks:")
+    for key, value in checks.items():
+        print(f"  {key}: {value:.2f}")
+
+    device = wp.get_device(args.device)
+    result = {
+        "device": args.device, "device_name": device.name if device.is_cuda else platform.processor() or platform.machine(),
+        "cpu_count": os.cpu_count(), "python": platform.python_version(), "warp": wp.__version__,
+        "torch": torch.__version__, "git_commit": _git_commit(), "seconds": args.seconds, "repeats": args.repeats,
+        "rows": rows, "original": original, "checks": checks,
+    }
+    out = Path(args.out) if args.out else RESULTS / f"step_{args.device.replace(':', '')}.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=2))
+    print(f"wrote {out}")
+    return 0
+
+
+def _git_commit() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
+                              cwd=Path(__file__).parent).stdout.strip()
+    except OSError:
+        return "unknown"
+
+
+if __name__ == "__main__":
+    sys.exit(main())

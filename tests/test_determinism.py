@@ -1,0 +1,235 @@
+"""Bit-for-bit reproducibility: same seed and actions give identical trajectories (auto-resets included),
+different seeds differ, the CPU thread split does not matter, reset/reseed and state_dict round trips
+resume exactly."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from aquarium_warp import AquariumConfig, BatchedAquarium
+
+TYPES = ("prey", "predator")
+# A small world so that captures happen; max_steps 50 so that every world auto-resets several times.
+CFG = AquariumConfig(width=400.0, height=360.0, prey_count=12, predator_count=2, max_steps=50)
+# Respawn off and a short starvation limit: episodes also end early, at different steps per world.
+CFG_EARLY_ENDS = AquariumConfig(width=300.0, height=300.0, prey_count=8, predator_count=2, max_steps=50,
+                                respawn_captured_prey=False, predator_starvation_steps=12)
+
+
+def make(cfg=CFG, num_worlds=8, seed=0, **kw) -> BatchedAquarium:
+    return BatchedAquarium(cfg, num_worlds=num_worlds, device="cpu", seed=seed, **kw)
+
+
+def action_sequence(env, steps: int, seed: int) -> list[dict]:
+    gen = torch.Generator().manual_seed(seed)
+    n = env.config.action_count
+    return [{"prey": torch.randint(0, n, (env.num_worlds, env.prey_capacity), generator=gen),
+             "predator": torch.randint(0, n, (env.num_worlds, env.predator_count), generator=gen)}
+            for _ in range(steps)]
+
+
+def snapshot(env, out=None) -> dict:
+    """Everything observable after a step (or reset), cloned."""
+    t = env.state.torch
+    snap = {"position": t.position.clone(), "velocity": t.velocity.clone(), "acceleration": t.acceleration.clone(),
+            "heading": t.heading.clone(), "alive": t.alive.clone(), "world_step": t.world_step.clone(),
+            "episode": t.episode.clone()}
+    for k in TYPES:
+        snap[f"obs_{k}"] = env.observations[k].clone()
+        snap[f"mask_{k}"] = env.observation_mask[k].clone()
+        snap[f"slot_{k}"] = env.observed_slot[k].clone()
+    if out is not None:
+        _, rewards, terminated, truncated, info = out
+        ended = info["episode_ended"]
+        # The episode statistics are documented as valid only where "episode_ended" is set (elsewhere
+        # they hold the last ended episode's values, which a reset does not clear).
+        for k in TYPES:
+            snap[f"reward_{k}"] = rewards[k].clone()
+            snap[f"terminated_{k}"] = terminated[k].clone()
+            snap[f"truncated_{k}"] = truncated[k].clone()
+            snap[f"return_{k}"] = torch.where(ended, info["episode_return"][k], 0.0)
+        snap["captures"] = info["captures"].clone()
+        snap["episode_ended"] = ended.clone()
+        for k in ("episode_length", "episode_captures"):
+            snap[k] = torch.where(ended, info[k], 0)
+    return snap
+
+
+def rollout(env, actions) -> list[dict]:
+    return [snapshot(env, env.step(a)) for a in actions]
+
+
+def assert_identical(a, b, where="") -> None:
+    if isinstance(a, list):
+        assert len(a) == len(b)
+        for i, (x, y) in enumerate(zip(a, b)):
+            assert_identical(x, y, f"{where}step {i}: ")
+        return
+    assert a.keys() == b.keys()
+    for k in a:
+        assert a[k].dtype == b[k].dtype and torch.equal(a[k], b[k]), f"{where}{k} differs"
+
+
+def assert_state_dicts_identical(a: dict, b: dict) -> None:
+    assert a["config"] == b["config"] and a["num_worlds"] == b["num_worlds"] and a["seed"] == b["seed"]
+    assert_identical(a["tensors"], b["tensors"])
+
+
+@pytest.fixture(scope="module")
+def reference_run():
+    """200 steps of 8 worlds from seed 0 (the trajectory other tests compare against)."""
+    env = make()
+    actions = action_sequence(env, 200, seed=1)
+    initial = snapshot(env)
+    traj = rollout(env, actions)
+    env.close()
+    return actions, initial, traj
+
+
+def test_reference_run_exercises_resets_and_captures(reference_run):
+    _, _, traj = reference_run
+    ended = torch.stack([s["episode_ended"] for s in traj])
+    assert int(ended.sum()) >= 8 * 3  # every world auto-reset several times
+    assert int(torch.stack([s["captures"] for s in traj]).sum()) > 0
+
+
+def test_same_seed_same_actions_bit_identical(reference_run):
+    actions, initial, traj = reference_run
+    env = make()
+    try:
+        assert_identical(snapshot(env), initial)
+        assert_identical(rollout(env, actions), traj)
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize("cfg", [CFG_EARLY_ENDS, CFG.replace(prey_reproduction=True, max_prey=16,
+                                                             prey_replication_age=8, respawn_captured_prey=False)],
+                         ids=["early_ends", "reproduction"])
+def test_same_seed_bit_identical_other_configs(cfg):
+    a, b = make(cfg, seed=42), make(cfg, seed=42)
+    try:
+        actions = action_sequence(a, 120, seed=3)
+        ta = rollout(a, actions)
+        tb = rollout(b, actions)
+        assert_identical(ta, tb)
+        assert int(torch.stack([s["episode_ended"] for s in ta]).sum()) > 0
+    finally:
+        a.close()
+        b.close()
+
+
+def test_different_seeds_differ(reference_run):
+    actions, initial, traj = reference_run
+    env = make(seed=1)
+    try:
+        start = snapshot(env)
+        # every world starts elsewhere
+        for w in range(env.num_worlds):
+            assert not torch.equal(start["position"][w], initial["position"][w])
+        other = rollout(env, actions[:60])
+        assert not torch.equal(other[-1]["position"], traj[59]["position"])
+        assert not torch.equal(other[-1]["obs_prey"], traj[59]["obs_prey"])
+        # worlds of one batch differ from each other too
+        assert not torch.equal(start["position"][0], start["position"][1])
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize("cfg", [CFG, CFG_EARLY_ENDS], ids=["default_like", "early_ends"])
+def test_thread_split_does_not_matter(cfg):
+    one = make(cfg, num_worlds=64, seed=9, cpu_threads=1)
+    two = make(cfg, num_worlds=64, seed=9, cpu_threads=2)
+    try:
+        assert len(one._shard_ranges) == 1
+        assert len(two._shard_ranges) == 2  # the split really happens (>= 32 worlds per thread)
+        assert_identical(snapshot(one), snapshot(two))
+        actions = action_sequence(one, 80, seed=4)
+        assert_identical(rollout(one, actions), rollout(two, actions))
+        # reseeding and resetting keep the split irrelevant
+        one.reset(seed=10)
+        two.reset(seed=10)
+        assert_identical(rollout(one, actions[:20]), rollout(two, actions[:20]))
+    finally:
+        one.close()
+        two.close()
+
+
+def test_reset_twice_same_initial_state(reference_run):
+    actions, initial, _ = reference_run
+    env = make()
+    try:
+        first = env.state_dict()
+        rollout(env, actions[:70])  # past an auto-reset: episode counters moved on
+        env.reset()
+        second = env.state_dict()
+        assert_state_dicts_identical(first, second)
+        assert_identical(snapshot(env), initial)
+        env.reset()
+        assert_state_dicts_identical(first, env.state_dict())
+    finally:
+        env.close()
+
+
+def test_reset_with_seed_equals_fresh_env(reference_run):
+    actions, _, _ = reference_run
+    env = make(seed=3)
+    fresh = make(seed=7)
+    try:
+        rollout(env, actions[:30])
+        obs = env.reset(seed=7)
+        assert env.seed == 7
+        assert obs["prey"] is env.observations["prey"]
+        assert_state_dicts_identical(env.state_dict(), fresh.state_dict())
+        assert_identical(snapshot(env), snapshot(fresh))
+        assert_identical(rollout(env, actions[:80]), rollout(fresh, actions[:80]))
+        # and reseeding back to the original seed reproduces the original run
+        env.reset(seed=0)
+        _, initial, traj = reference_run
+        assert_identical(snapshot(env), initial)
+        assert_identical(rollout(env, actions[:60]), traj[:60])
+    finally:
+        env.close()
+        fresh.close()
+
+
+@pytest.mark.parametrize("cfg", [CFG, CFG_EARLY_ENDS], ids=["default_like", "early_ends"])
+def test_state_dict_round_trip_resumes_bit_identically(cfg):
+    env = make(cfg, seed=5)
+    try:
+        actions = action_sequence(env, 60, seed=6)
+        rollout(env, actions[:30])
+        saved = env.state_dict()
+        saved_snap = snapshot(env)
+        first = rollout(env, actions[30:])  # crosses the auto-reset at step 50
+        assert int(torch.stack([s["episode_ended"] for s in first]).sum()) > 0
+        env.load_state_dict(saved)
+        assert_identical(snapshot(env), saved_snap)
+        assert_identical(rollout(env, actions[30:]), first)
+
+        # the saved state is a copy: stepping did not change it, and it loads into another env too,
+        # even one built with another seed (the state's seed is adopted)
+        other = make(cfg, seed=99)
+        try:
+            other.load_state_dict(saved)
+            assert other.seed == 5
+            assert_identical(snapshot(other), saved_snap)
+            assert_identical(rollout(other, actions[30:]), first)
+        finally:
+            other.close()
+    finally:
+        env.close()
+
+
+def test_load_state_dict_refuses_other_config():
+    env = make(num_worlds=2)
+    other = make(CFG.replace(prey_count=11), num_worlds=2)
+    try:
+        before = env.state_dict()
+        with pytest.raises(ValueError, match="another config or num_worlds"):
+            env.load_state_dict(other.state_dict())
+        assert_state_dicts_identical(before, env.state_dict())
+    finally:
+        env.close()
+        other.close()

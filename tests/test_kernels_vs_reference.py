@@ -1,0 +1,764 @@
+"""The Warp kernels (aquarium_warp.BatchedAquarium; CPU, or AQUARIUM_TEST_DEVICE) against the float64 numpy
+reference of tests/reference_model.py.
+
+Every test sets several worlds at once, each to its own random state (positions on a 0.5 grid, so that
+squared distances at the start of a step are exact in float32 and ties are ties in both), with injected
+edge cases: exact overlaps, agents across the seams, zero velocities, exact distance ties, agents exactly at
+contact distance and at view distance, displacements of exactly half the world. The kernel's float32 inputs
+are fed to the reference as float64. Random draws (respawn positions, replication ages of respawned and
+newborn prey) belong to the kernels: the reference reads them from the kernel's post-step state.
+
+Tolerances: 1e-5 for positions (as fractions of width/height, torus-aware), velocities, accelerations,
+headings and observation values; angle values (own heading, bearing) are compared on the circle, because
+-atan2 jumps from 180 to -180 degrees at "exactly west", where float32 and float64 may fall on either side.
+A heading is V'/|V'|, so its float32 error grows as 1/|V'|: its tolerance does too, and it is not compared at
+all where |V'| < 1e-4 (the direction of a rounding residue). Observations after a step are checked against the
+reference's observe() of the kernel's own post-step state (same inputs, no float32 drift), after the state
+itself was checked against the reference's step. Rollouts re-sync the reference to the kernel's state each step.
+
+Known disagreements have one strict test each (test_quarter_turn_actions_are_exact,
+test_fov_boundary_is_inclusive_at_exactly_90_degrees); the random states avoid their triggers where they are
+artificial (A = 0 with V exactly equal to an axis-aligned D).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import sys
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+aquarium_warp = pytest.importorskip("aquarium_warp")
+from aquarium_warp import AquariumConfig, BatchedAquarium  # noqa: E402
+
+sys.path.insert(0, os.path.dirname(__file__))
+import reference_model as ref  # noqa: E402
+
+TOL = 1e-5
+NUM_WORLDS = 4
+DEVICE = os.environ.get("AQUARIUM_TEST_DEVICE", "cpu")  # as in conftest.py: CPU unless a GPU is named
+MAX_REPORTED = 25
+
+
+# --------------------------------------------------------------------------------------------------
+# Configurations
+# --------------------------------------------------------------------------------------------------
+def make_config(prey=None, predator=None, **world) -> AquariumConfig:
+    base = AquariumConfig()
+    return AquariumConfig(
+        prey=dataclasses.replace(base.prey, **(prey or {})),
+        predator=dataclasses.replace(base.predator, **(predator or {})),
+        **world,
+    )
+
+
+CONFIGS = {
+    # MODEL.md defaults in a small, crowded world (predator view 200 > half diagonal 198.5)
+    "defaults_dense": make_config(width=300.0, height=260.0, prey_count=14, predator_count=2),
+    # FOV off, infinite view distances, more observed slots of other agents
+    "fov_off_inf_view": make_config(
+        width=300.0,
+        height=220.0,
+        prey_count=12,
+        predator_count=3,
+        fov_enabled=False,
+        prey=dict(view_distance=math.inf, predator_slots=2, prey_slots=2),
+        predator=dict(view_distance=math.inf, predator_slots=2, prey_slots=3),
+    ),
+    # "-1..1" range, several predators, unusual slot counts, a FOV wider than 180 and a full 360 one
+    "signed_slots_wide_fov": make_config(
+        width=260.0,
+        height=250.0,
+        prey_count=10,
+        predator_count=4,
+        observation_range="-1..1",
+        prey=dict(view_distance=80.0, fov_angle=200.0, predator_slots=3, prey_slots=1),
+        predator=dict(view_distance=150.0, fov_angle=360.0, predator_slots=0, prey_slots=3),
+    ),
+    # permanent removal of captured prey, short starvation limit, smaller share radius, narrow FOV
+    "respawn_off_starvation": make_config(
+        width=220.0,
+        height=180.0,
+        prey_count=12,
+        predator_count=3,
+        respawn_captured_prey=False,
+        catch_share_radius=70.0,
+        predator_starvation_steps=6,
+        prey=dict(fov_angle=60.0),
+    ),
+    # reproduction with a cap that binds; replication ages 3..5
+    "reproduction": make_config(
+        width=240.0,
+        height=200.0,
+        prey_count=6,
+        predator_count=2,
+        prey_reproduction=True,
+        max_prey=12,
+        prey_replication_age=4,
+        predator_starvation_steps=40,
+    ),
+}
+
+_ENVS: dict = {}
+
+
+def get_env(name: str) -> BatchedAquarium:
+    if name not in _ENVS:
+        _ENVS[name] = BatchedAquarium(CONFIGS[name], num_worlds=NUM_WORLDS, device=DEVICE, seed=0)
+    return _ENVS[name]
+
+
+# --------------------------------------------------------------------------------------------------
+# Random world states with edge cases
+# --------------------------------------------------------------------------------------------------
+def _f32(x):
+    return np.asarray(x, np.float64).astype(np.float32)
+
+
+def _grid_wrap(cfg, p):
+    return np.array([p[0] % cfg.width, p[1] % cfg.height], np.float64)
+
+
+def _random_unit(rng):
+    a = rng.uniform(0, 2 * math.pi)
+    return np.array([math.cos(a), math.sin(a)])
+
+
+def random_world(rng, cfg, world_step_range=(0, 40)) -> dict:
+    """One world's state as float32 / bool / int32 numpy arrays, shaped [C, ...]."""
+    C, Pc = cfg.capacity, cfg.prey_capacity
+    W, H = cfg.width, cfg.height
+    pos = np.stack([rng.integers(0, int(2 * W), C) / 2.0, rng.integers(0, int(2 * H), C) / 2.0], axis=1)
+    alive = rng.random(C) < 0.85
+    if cfg.prey_reproduction:
+        alive[: cfg.prey_count] = rng.random(cfg.prey_count) < 0.9
+        alive[cfg.prey_count : Pc] = rng.random(Pc - cfg.prey_count) < 0.6
+    alive[rng.integers(0, Pc)] = True
+    alive[Pc + rng.integers(0, C - Pc)] = True
+
+    def same_type_live(slot):
+        rng_slots = range(0, Pc) if slot < Pc else range(Pc, C)
+        return [j for j in rng_slots if alive[j] and j != slot]
+
+    def radius(slot):
+        return ref.type_cfg(cfg, slot).radius
+
+    live = np.flatnonzero(alive)
+    # exact overlaps (same type and across types)
+    for _ in range(2):
+        a, b = rng.choice(live, 2, replace=False)
+        pos[b] = pos[a]
+    # agents on / across the seams
+    for _ in range(3):
+        a = rng.choice(live)
+        pos[a, rng.integers(0, 2)] = rng.choice([0.0, 0.5, W - 0.5 if rng.random() < 0.5 else H - 0.5])
+    pos[:, 0] %= W
+    pos[:, 1] %= H
+    # exactly at contact distance (= r_i + r_j, not a contact) and just inside (a contact), often across a seam
+    for inside in (False, True):
+        a = rng.choice(live)
+        others = same_type_live(a)
+        if others:
+            b = rng.choice(others)
+            r = radius(a) + radius(b)
+            d = np.array([0.6 * r, 0.8 * r]) * rng.choice([-1.0, 1.0], 2)
+            if rng.random() < 0.5:
+                d = d[::-1]
+            if inside:
+                d = d - np.sign(d) * 0.5
+            if rng.random() < 0.5:
+                pos[a] = [rng.choice([0.0, W - 0.5]), pos[a, 1]]
+            pos[b] = _grid_wrap(cfg, pos[a] + d)
+    # distance ties around an agent: (3,4)*k, (-4,3)*k, (0,-5)*k
+    a = rng.choice(live)
+    k = rng.choice([2.0, 4.0, 6.0, 10.0])
+    for off in ((3.0, 4.0), (-4.0, 3.0), (0.0, -5.0)):
+        b = rng.choice(live)
+        if b != a:
+            pos[b] = _grid_wrap(cfg, pos[a] + k * np.array(off))
+    # exactly half the world apart on one axis
+    if (W / 2) % 0.5 == 0:
+        a, b = rng.choice(live, 2, replace=False)
+        pos[b] = _grid_wrap(cfg, pos[a] + np.array([W / 2, 0.0]))
+    # exactly at view distance of an observer (inclusive)
+    a = rng.choice(live)
+    v = ref.type_cfg(cfg, a).view_distance
+    if math.isfinite(v) and 2 * v == int(2 * v):
+        b = rng.choice(live)
+        if b != a:
+            pos[b] = _grid_wrap(cfg, pos[a] + np.array([0.6 * v, -0.8 * v]))
+
+    vel = np.zeros((C, 2))
+    acc = np.zeros((C, 2))
+    heading = np.zeros((C, 2))
+    for i in range(C):
+        t = ref.type_cfg(cfg, i)
+        u = rng.random()
+        if u < 0.15:
+            vel[i] = 0.0
+        elif u < 0.3:
+            vel[i] = t.max_speed * np.array([(1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0)][rng.integers(0, 4)])
+        else:
+            vel[i] = _random_unit(rng) * t.max_speed * rng.uniform(0.0, 1.0)
+        u = rng.random()
+        axis_full_speed = np.count_nonzero(vel[i]) == 1 and np.linalg.norm(vel[i]) == t.max_speed
+        if u < 0.15 and not axis_full_speed:  # A = 0 with V = D exactly: see test_quarter_turn_actions_are_exact
+            acc[i] = 0.0
+        else:
+            acc[i] = _random_unit(rng) * t.max_acceleration * (1.0 if u < 0.8 else rng.uniform(0.0, 1.5))
+        sp = np.linalg.norm(vel[i])
+        heading[i] = vel[i] / sp if sp > 0 and rng.random() < 0.8 else _random_unit(rng)
+    # some pairs moving identically (they stay overlapped after the move)
+    a, b = rng.choice(live, 2, replace=False)
+    if (a < Pc) == (b < Pc):
+        pos[b], vel[b], acc[b], heading[b] = pos[a], vel[a], acc[a], heading[a]
+    heading[~alive] = (-1.0, 0.0)
+
+    if cfg.prey_reproduction:
+        lo = math.ceil(0.75 * cfg.prey_replication_age)
+        hi = math.floor(1.25 * cfg.prey_replication_age)
+        rep = rng.integers(lo, hi + 1, C)
+        age = rep - rng.integers(-1, 3, C)
+        age = np.maximum(age, 0)
+    else:
+        rep = rng.integers(150, 251, C)
+        age = rng.integers(0, 300, C)
+    limit = cfg.predator_starvation_steps
+    starvation = np.where(rng.random(C) < 0.3, limit, rng.integers(0, limit + 1, C))
+    starvation[:Pc] = 0
+    rep[Pc:] = 0
+    age[Pc:] = 0
+    for arr in (vel, acc, age, rep, starvation):
+        arr[~alive] = 0
+    return {
+        "position": _f32(pos),
+        "velocity": _f32(vel),
+        "acceleration": _f32(acc),
+        "heading": _f32(heading),
+        "alive": alive.astype(bool),
+        "age": age.astype(np.int32),
+        "replication_age": rep.astype(np.int32),
+        "starvation": starvation.astype(np.int32),
+        "world_step": int(rng.integers(*world_step_range)),
+    }
+
+
+def stack_worlds(worlds: list) -> dict:
+    out = {name: np.stack([w[name] for w in worlds]) for name in ref.FIELDS}
+    out["world_step"] = np.array([w["world_step"] for w in worlds], np.int32)
+    return out
+
+
+def set_worlds(env, worlds: list) -> None:
+    env.set_state(world=None, **stack_worlds(worlds))
+
+
+def state_views(env):
+    return env.state.torch if hasattr(env.state, "torch") else env.state
+
+
+def read_worlds(env) -> list:
+    """The kernel's state per world as numpy arrays (float32 / bool / int32)."""
+    t = state_views(env)
+    fields = {name: getattr(t, name).detach().cpu().numpy().copy() for name in ref.FIELDS}
+    steps = t.world_step.detach().cpu().numpy().copy()
+    out = []
+    for w in range(env.num_worlds):
+        d = {name: fields[name][w] for name in ref.FIELDS}
+        d["world_step"] = int(steps[w])
+        out.append(d)
+    return out
+
+
+def random_actions(rng, cfg, n_worlds) -> np.ndarray:
+    return rng.integers(0, cfg.action_count, (n_worlds, cfg.capacity))
+
+
+def kernel_step(env, actions: np.ndarray):
+    Pc = env.config.prey_capacity
+    a = torch.as_tensor(actions, dtype=torch.int64).to(getattr(env, "torch_device", "cpu"))
+    return env.step({"prey": a[:, :Pc].contiguous(), "predator": a[:, Pc:].contiguous()})
+
+
+# --------------------------------------------------------------------------------------------------
+# Comparison helpers (collect every mismatch, then fail with all of them)
+# --------------------------------------------------------------------------------------------------
+def slot_name(cfg, slot: int) -> str:
+    Pc = cfg.prey_capacity
+    return f"slot {slot} (prey #{slot})" if slot < Pc else f"slot {slot} (predator #{slot - Pc})"
+
+
+def fmt(x) -> str:
+    return np.array2string(np.asarray(x), precision=7, floatmode="maxprec", separator=", ")
+
+
+def fail_if(errors: list, context: str) -> None:
+    if errors:
+        shown = "\n  ".join(errors[:MAX_REPORTED])
+        more = f"\n  ... and {len(errors) - MAX_REPORTED} more" if len(errors) > MAX_REPORTED else ""
+        pytest.fail(f"{context}: {len(errors)} mismatch(es) between kernel and reference:\n  {shown}{more}", pytrace=False)
+
+
+def describe_world(cfg, start: dict) -> str:
+    lines = []
+    for i in range(cfg.capacity):
+        if start["alive"][i]:
+            lines.append(
+                f"{slot_name(cfg, i)}: p={fmt(start['position'][i])} v={fmt(start['velocity'][i])} "
+                f"a={fmt(start['acceleration'][i])} h={fmt(start['heading'][i])}"
+            )
+    return "; ".join(lines)
+
+
+def ill_conditioned_heading(reference: dict, i: int, kernel: dict | None = None) -> bool:
+    """V' so close to zero (in either implementation, but not exactly zero in both) that its direction is
+    rounding noise. The systematic case of this (a quarter-turn action cancelling a velocity exactly) has its
+    own strict test, test_fresh_prey_sent_right_stops_and_keeps_its_heading."""
+    r = float(np.linalg.norm(reference["velocity"][i]))
+    k = r if kernel is None else float(np.linalg.norm(np.asarray(kernel["velocity"][i], np.float64)))
+    return max(r, k) < 1e-4 and not (r == 0.0 and k == 0.0)
+
+
+def compare_state(cfg, where: str, kernel: dict, reference: dict, errors: list) -> None:
+    for i in range(cfg.capacity):
+        if bool(kernel["alive"][i]) != bool(reference["alive"][i]):
+            errors.append(f"{where} {slot_name(cfg, i)} alive: kernel={kernel['alive'][i]} reference={reference['alive'][i]}")
+            continue
+        if not reference["alive"][i]:
+            continue
+        k = kernel["position"][i].astype(np.float64)
+        r = reference["position"][i]
+        frac = (k - r) / np.array([cfg.width, cfg.height])
+        frac -= np.round(frac)
+        if np.any(np.abs(frac) > TOL) or not (0 <= k[0] < cfg.width and 0 <= k[1] < cfg.height):
+            errors.append(f"{where} {slot_name(cfg, i)} position: kernel={fmt(k)} reference={fmt(r)}")
+        for name in ("velocity", "acceleration", "heading"):
+            tol = TOL
+            if name == "heading":
+                if ill_conditioned_heading(reference, i, kernel):
+                    continue
+                # the heading is V' / |V'|: float32 errors of V' (~1e-6) grow by 1 / |V'|
+                tol = TOL + 2e-6 / float(np.linalg.norm(reference["velocity"][i]) or 1.0)
+            k = kernel[name][i].astype(np.float64)
+            r = reference[name][i]
+            if np.any(np.abs(k - r) > tol):
+                errors.append(f"{where} {slot_name(cfg, i)} {name}: kernel={fmt(k)} reference={fmt(r)}")
+        names = ("age", "replication_age") if i < cfg.prey_capacity else ("starvation",)
+        for name in names:
+            if int(kernel[name][i]) != int(reference[name][i]):
+                errors.append(f"{where} {slot_name(cfg, i)} {name}: kernel={kernel[name][i]} reference={reference[name][i]}")
+
+
+def angle_columns(type_config) -> set:
+    k = type_config.predator_slots + type_config.prey_slots
+    return {3} | {ref.OWN_SIZE + ref.TUPLE_SIZE * s + 4 for s in range(k)}
+
+
+def compare_observations(cfg, where: str, k_obs: dict, k_mask: dict, r_obs: dict, r_mask: dict, r_slots: dict, errors):
+    period = 2.0 if cfg.observation_range == "-1..1" else 1.0
+    Pc = cfg.prey_capacity
+    for key, t, first in (("prey", cfg.prey, 0), ("predator", cfg.predator, Pc)):
+        ko = np.asarray(k_obs[key], np.float64)
+        km = np.asarray(k_mask[key], bool)
+        if ko.shape != r_obs[key].shape or km.shape != r_mask[key].shape:
+            errors.append(
+                f"{where} {key} observation shape: kernel={ko.shape}/{km.shape} reference={r_obs[key].shape}/{r_mask[key].shape}"
+            )
+            continue
+        angles = sorted(angle_columns(t))
+        for row in range(ko.shape[0]):
+            slot = first + row
+            diff = np.abs(ko[row] - r_obs[key][row])
+            diff[angles] = np.minimum(diff[angles], np.abs(period - diff[angles]))
+            if not np.array_equal(km[row], r_mask[key][row]):
+                errors.append(
+                    f"{where} observer {slot_name(cfg, slot)} mask: kernel={km[row].astype(int).tolist()} "
+                    f"reference={r_mask[key][row].astype(int).tolist()} (reference sees slots {r_slots[key][row].tolist()})"
+                )
+            bad = np.flatnonzero(diff > TOL)
+            if bad.size:
+                parts = []
+                for c in bad[:6]:
+                    if c < ref.OWN_SIZE:
+                        label = f"own[{c}]"
+                    else:
+                        s, e = divmod(c - ref.OWN_SIZE, ref.TUPLE_SIZE)
+                        label = f"obs-slot {s} (agent {r_slots[key][row][s]})[{e}]"
+                    parts.append(f"{label} kernel={ko[row][c]:.7g} reference={r_obs[key][row][c]:.7g}")
+                errors.append(
+                    f"{where} observer {slot_name(cfg, slot)} values: " + "; ".join(parts)
+                    + f" (reference sees slots {r_slots[key][row].tolist()})"
+                )
+
+
+def compare_flags(cfg, where, name, kernel: dict, reference: np.ndarray, errors, tol=None):
+    k = np.concatenate([np.asarray(kernel["prey"]), np.asarray(kernel["predator"])])
+    for i in range(cfg.capacity):
+        if tol is None:
+            ok = bool(k[i]) == bool(reference[i])
+        else:
+            ok = abs(float(k[i]) - float(reference[i])) <= tol * max(1.0, abs(float(reference[i])))
+        if not ok:
+            errors.append(f"{where} {slot_name(cfg, i)} {name}: kernel={k[i]} reference={reference[i]}")
+
+
+def check_step(name: str, cfg, env, starts: list, actions: np.ndarray, errors: list, step_label: str = "") -> list:
+    """Step the kernel env (already holding ``starts``) and compare every world with the reference.
+    Returns the kernel's post-step worlds."""
+    obs, rewards, terminated, truncated, info = kernel_step(env, actions)
+    k_obs = {k: v.detach().cpu().numpy().copy() for k, v in obs.items()}
+    k_mask = {k: v.detach().cpu().numpy().copy() for k, v in env.observation_mask.items()}
+    k_rew = {k: v.detach().cpu().numpy().copy() for k, v in rewards.items()}
+    k_term = {k: v.detach().cpu().numpy().copy() for k, v in terminated.items()}
+    k_trunc = {k: v.detach().cpu().numpy().copy() for k, v in truncated.items()}
+    k_caps = info["captures"].detach().cpu().numpy().copy()
+    after = read_worlds(env)
+    for w in range(env.num_worlds):
+        where = f"[{name}{step_label} world {w}]"
+        start = starts[w]
+        r_new, r_rew, r_term, r_trunc, r_cap, r_info = ref.step(
+            cfg,
+            start,
+            actions[w],
+            start["world_step"],
+            respawn_position=after[w]["position"],
+            respawn_replication_age=after[w]["replication_age"],
+            newborn_replication_age=after[w]["replication_age"],
+        )
+        n_before = len(errors)
+        pick = lambda d: {k: v[w] for k, v in d.items()}  # noqa: E731
+        compare_flags(cfg, where, "reward", pick(k_rew), r_rew, errors, tol=1e-6)
+        compare_flags(cfg, where, "terminated", pick(k_term), r_term, errors)
+        compare_flags(cfg, where, "truncated", pick(k_trunc), r_trunc, errors)
+        if int(k_caps[w]) != r_info["captures"]:
+            errors.append(f"{where} captures: kernel={int(k_caps[w])} reference={r_info['captures']} {r_info['capturers']}")
+        if r_info["episode_over"]:
+            if after[w]["world_step"] != 0:
+                errors.append(f"{where} the episode ended but the world did not auto-reset (world_step={after[w]['world_step']})")
+        else:
+            if after[w]["world_step"] != r_info["world_step"]:
+                errors.append(f"{where} world_step: kernel={after[w]['world_step']} reference={r_info['world_step']}")
+            compare_state(cfg, where, after[w], r_new, errors)
+            lo = math.ceil(0.75 * cfg.prey_replication_age)
+            hi = math.floor(1.25 * cfg.prey_replication_age)
+            for slot in r_info["respawned"] + [child for _, child in r_info["births"]]:
+                if not lo <= int(after[w]["replication_age"][slot]) <= hi:
+                    errors.append(f"{where} {slot_name(cfg, slot)} new replication_age {after[w]['replication_age'][slot]} not in [{lo}, {hi}]")
+            r_obs, r_mask, r_slots = ref.observe(cfg, after[w], with_slots=True)
+            compare_observations(cfg, where, pick(k_obs), pick(k_mask), r_obs, r_mask, r_slots, errors)
+            for key, first in (("prey", 0), ("predator", cfg.prey_capacity)):
+                for row in range(r_mask[key].shape[0]):
+                    if ill_conditioned_heading(r_new, first + row, after[w]):
+                        continue
+                    if not np.array_equal(r_mask[key][row], r_info["observation_mask"][key][row]):
+                        errors.append(
+                            f"{where} observer {slot_name(cfg, first + row)}: the mask from the kernel's state "
+                            f"{r_mask[key][row].astype(int).tolist()} differs from the reference's own step "
+                            f"{r_info['observation_mask'][key][row].astype(int).tolist()} (a near-threshold case?)"
+                        )
+        if len(errors) > n_before:
+            errors.append(
+                f"{where} start of step (world_step {start['world_step']}, actions {actions[w].tolist()}, "
+                f"alive {start['alive'].astype(int).tolist()}): {describe_world(cfg, start)}"
+            )
+    return after
+
+
+# --------------------------------------------------------------------------------------------------
+# Tests
+# --------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", list(CONFIGS))
+def test_observations_after_set_state(name):
+    cfg, env = CONFIGS[name], get_env(name)
+    rng = np.random.default_rng(1000 + list(CONFIGS).index(name))
+    errors = []
+    for rep in range(3):
+        worlds = [random_world(rng, cfg) for _ in range(env.num_worlds)]
+        set_worlds(env, worlds)
+        after = read_worlds(env)
+        for w in range(env.num_worlds):
+            where = f"[{name} set_state #{rep} world {w}]"
+            for field in ref.FIELDS:
+                if not np.array_equal(after[w][field][worlds[w]["alive"]], worlds[w][field][worlds[w]["alive"]]):
+                    errors.append(f"{where} set_state did not store {field}")
+            r_obs, r_mask, r_slots = ref.observe(cfg, worlds[w], with_slots=True)
+            k_obs = {k: v[w].detach().cpu().numpy() for k, v in env.observations.items()}
+            k_mask = {k: v[w].detach().cpu().numpy() for k, v in env.observation_mask.items()}
+            n_before = len(errors)
+            compare_observations(cfg, where, k_obs, k_mask, r_obs, r_mask, r_slots, errors)
+            if len(errors) > n_before:
+                errors.append(f"{where} state: alive {worlds[w]['alive'].astype(int).tolist()} {describe_world(cfg, worlds[w])}")
+    fail_if(errors, name)
+
+
+@pytest.mark.parametrize("name", list(CONFIGS))
+def test_single_step_from_random_states(name):
+    cfg, env = CONFIGS[name], get_env(name)
+    rng = np.random.default_rng(2000 + list(CONFIGS).index(name))
+    errors = []
+    for rep in range(3):
+        worlds = [random_world(rng, cfg) for _ in range(env.num_worlds)]
+        set_worlds(env, worlds)
+        check_step(name, cfg, env, worlds, random_actions(rng, cfg, env.num_worlds), errors, f" #{rep}")
+    fail_if(errors, name)
+
+
+@pytest.mark.parametrize("name", list(CONFIGS))
+def test_rollout_resynced_each_step(name):
+    """Several steps in a row; each step's reference input is the kernel's state (no float32 drift).
+    Worlds whose episode ends auto-reset and go on from their new episode."""
+    cfg, env = CONFIGS[name], get_env(name)
+    rng = np.random.default_rng(3000 + list(CONFIGS).index(name))
+    errors = []
+    worlds = [random_world(rng, cfg) for _ in range(env.num_worlds)]
+    set_worlds(env, worlds)
+    starts = read_worlds(env)
+    for k in range(6):
+        actions = random_actions(rng, cfg, env.num_worlds)
+        # steer half of the agents with one action per world so that they keep turning the same way
+        actions[:, ::2] = rng.integers(0, cfg.action_count, (env.num_worlds, 1))
+        starts = check_step(name, cfg, env, starts, actions, errors, f" step {k}")
+        if errors:
+            break
+    fail_if(errors, name)
+
+
+def _world_from_agents(cfg, prey, predators, world_step=0):
+    """Hand-built world: lists of dicts with pos, vel, acc, heading, age, rep, starve (None = dead slot)."""
+    C, Pc = cfg.capacity, cfg.prey_capacity
+    st = {
+        "position": np.zeros((C, 2), np.float32),
+        "velocity": np.zeros((C, 2), np.float32),
+        "acceleration": np.zeros((C, 2), np.float32),
+        "heading": np.tile(np.array([-1.0, 0.0], np.float32), (C, 1)),
+        "alive": np.zeros(C, bool),
+        "age": np.zeros(C, np.int32),
+        "replication_age": np.zeros(C, np.int32),
+        "starvation": np.zeros(C, np.int32),
+        "world_step": world_step,
+    }
+    for slot, a in [(i, a) for i, a in enumerate(prey)] + [(Pc + i, a) for i, a in enumerate(predators)]:
+        if a is None:
+            continue
+        st["position"][slot] = a["pos"]
+        st["velocity"][slot] = a.get("vel", (0.0, 0.0))
+        st["acceleration"][slot] = a.get("acc", (0.0, 0.0))
+        v = np.asarray(st["velocity"][slot], np.float64)
+        h = a.get("heading")
+        st["heading"][slot] = h if h is not None else (v / np.linalg.norm(v) if np.linalg.norm(v) > 0 else (-1.0, 0.0))
+        st["alive"][slot] = True
+        st["age"][slot] = a.get("age", 0)
+        st["replication_age"][slot] = a.get("rep", 200 if slot < Pc else 0)
+        st["starvation"][slot] = a.get("starve", 0)
+    return st
+
+
+def test_hand_built_worlds_defaults():
+    """Deterministic scenarios (defaults, 800 x 800): shared capture, bounce across the seam, exact overlap,
+    contact ties, a target across the seam in the view cone."""
+    cfg = make_config(prey_count=5, predator_count=3, predator_starvation_steps=10)
+    env = BatchedAquarium(cfg, num_worlds=4, device=DEVICE, seed=3)
+    up_prey = dict(vel=(0.0, -4.0), acc=(0.0, -1.0))
+    up_pred = dict(vel=(0.0, -5.0), acc=(0.0, -0.6))
+    worlds = [
+        # capture shared by two predators (one capturer, one within 100), a third too far; prey 1 and 2 bounce
+        # across the x seam; prey 3 exactly overlaps prey 4 (no push)
+        _world_from_agents(
+            cfg,
+            [dict(pos=(400.0, 400.0), **up_prey), dict(pos=(5.0, 100.0)), dict(pos=(785.0, 100.0)),
+             dict(pos=(600.0, 600.0), vel=(1.0, 0.5)), dict(pos=(600.0, 600.0), vel=(0.0, 2.0))],
+            [dict(pos=(400.0, 445.0), starve=9, **up_pred), dict(pos=(480.0, 405.0), starve=10, **up_pred),
+             dict(pos=(400.0, 250.0), starve=3, **up_pred)],
+            world_step=17,
+        ),
+        # two capturers of one prey; predators at exactly contact distance 60 (no bounce) and a tie of prey
+        # bounce partners at 30 (the lower slot wins)
+        _world_from_agents(
+            cfg,
+            [dict(pos=(500.0, 400.0), **up_prey), dict(pos=(100.0, 100.0)), dict(pos=(130.0, 100.0)),
+             dict(pos=(70.0, 100.0)), None],
+            [dict(pos=(470.0, 411.0), **up_pred), dict(pos=(530.0, 411.0), **up_pred),
+             dict(pos=(200.0, 700.0), heading=(1.0, 0.0))],
+            world_step=3,
+        ),
+        # observers looking across the seams: prey 0 at the right edge heading east sees prey 1 across the seam
+        # (30 deg off) but not prey 2 (75 deg off); the predator sees the prey at the top-left across the corner
+        _world_from_agents(
+            cfg,
+            [dict(pos=(790.0, 400.0), vel=(2.0, 0.0)), dict(pos=(30.0, 380.0)), dict(pos=(10.0, 340.0)),
+             dict(pos=(5.0, 5.0)), None],
+            [dict(pos=(760.0, 770.0), vel=(1.0, 1.0)), None, dict(pos=(300.0, 300.0), vel=(0.0, 0.0), heading=(0.0, 1.0))],
+        ),
+        # starvation at the limit: one dies (counter 10 -> 11), one survives (9 -> 10)
+        _world_from_agents(
+            cfg,
+            [dict(pos=(100.0, 700.0), **up_prey), None, None, None, None],
+            [dict(pos=(700.0, 100.0), starve=10), dict(pos=(500.0, 100.0), starve=9), None],
+        ),
+    ]
+    set_worlds(env, worlds)
+    errors = []
+    actions = np.zeros((4, cfg.capacity), np.int64)
+    actions[2] = [4, 0, 0, 0, 0, 6, 0, 8]
+    check_step("hand_built", cfg, env, worlds, actions, errors)
+    fail_if(errors, "hand-built worlds")
+    # the headline numbers of the reference (which the kernel matched), spelled out
+    _, r0, *_ , info0 = ref.step(cfg, worlds[0], actions[0], 17, respawn_position={0: (1.0, 1.0)}, respawn_replication_age={0: 200})
+    assert r0[0] == -999.0 and r0[cfg.prey_capacity :].tolist() == [5.0, 5.0, 0.0]
+    assert info0["capturers"] == {0: [5]} and info0["sharers"] == {0: [5, 6]}
+    _, r1, *_ , info1 = ref.step(cfg, worlds[1], actions[1], 3, respawn_position={0: (1.0, 1.0)}, respawn_replication_age={0: 200})
+    assert info1["capturers"] == {0: [5, 6]} and r1[cfg.prey_capacity :].tolist() == [5.0, 5.0, 0.0]
+    new3, _, term3, *_ = ref.step(cfg, worlds[3], actions[3], 0)
+    assert term3[cfg.prey_capacity :].tolist() == [True, False, False] and new3["starvation"][6] == 10
+
+
+def test_episode_end_truncation_and_auto_reset():
+    """World 0 reaches max_steps; world 1's last predator starves; world 2 (respawn off) loses its last prey;
+    world 3 goes on."""
+    cfg = make_config(prey_count=3, predator_count=2, max_steps=50, predator_starvation_steps=5, respawn_captured_prey=False)
+    env = BatchedAquarium(cfg, num_worlds=4, device=DEVICE, seed=7)
+    worlds = [
+        _world_from_agents(cfg, [dict(pos=(100.0, 100.0)), dict(pos=(300.0, 100.0)), None],
+                           [dict(pos=(600.0, 600.0)), dict(pos=(600.0, 300.0))], world_step=49),
+        _world_from_agents(cfg, [dict(pos=(100.0, 100.0)), dict(pos=(300.0, 100.0)), dict(pos=(500.0, 100.0))],
+                           [dict(pos=(600.0, 600.0), starve=5), None], world_step=20),
+        _world_from_agents(cfg, [None, dict(pos=(300.0, 300.0), vel=(0.0, -4.0), acc=(0.0, -1.0)), None],
+                           [dict(pos=(300.0, 330.0), vel=(0.0, -5.0), acc=(0.0, -0.6)), dict(pos=(700.0, 700.0))], world_step=30),
+        _world_from_agents(cfg, [dict(pos=(100.0, 100.0)), None, None],
+                           [dict(pos=(600.0, 600.0), starve=4), dict(pos=(600.0, 100.0), starve=5)], world_step=48),
+    ]
+    set_worlds(env, worlds)
+    errors = []
+    after = check_step("episode_end", cfg, env, worlds, np.zeros((4, cfg.capacity), np.int64), errors)
+    fail_if(errors, "episode end")
+    assert [a["world_step"] for a in after] == [0, 0, 0, 49]
+    # the reset worlds hold a fresh episode
+    for w in range(3):
+        assert after[w]["alive"][: cfg.prey_count].all() and after[w]["alive"][cfg.prey_capacity :].all()
+
+
+def test_quarter_turn_actions_are_exact():
+    """Actions whose direction is up / right / down / left must give an exact desired velocity D (no sin/cos
+    residue such as cos(pi/2) = -4e-8 in float32). The residue matters where a quantity cancels exactly:
+
+    * prey 0, fresh (V = (-1, 0), A = 0, heading (-1, 0)), action "right": F = (5, 0) clamped to (0.6, 0),
+      A' = (1, 0), V' = (0, 0) exactly, so the heading stays (-1, 0). With the residue V' = (0, +-eps) and the
+      heading becomes (0, +-1), decided by rounding noise (possibly differently on CPU and GPU). Every fresh or
+      respawned prey whose first action is "right" (1 in 16) hits this.
+    * prey 1: V = (0, -1), action "down": the same, vertically.
+    * prey 2 and the predator: V = D exactly (full speed along an axis), A = 0, same action: F = 0, A + F/m = 0
+      exactly, A' = 0 (MODEL.md: A' stays zero). With the residue A' becomes a full-length k vector pointing
+      along the residue, perpendicular to the motion."""
+    cfg = make_config(prey_count=3, predator_count=1)
+    env = BatchedAquarium(cfg, num_worlds=1, device=DEVICE, seed=0)
+    world = _world_from_agents(
+        cfg,
+        [dict(pos=(100.0, 100.0), vel=(-1.0, 0.0)), dict(pos=(300.0, 300.0), vel=(0.0, -1.0)),
+         dict(pos=(500.0, 100.0), vel=(4.0, 0.0))],
+        [dict(pos=(600.0, 600.0), vel=(0.0, 5.0))],
+    )
+    set_worlds(env, [world])
+    actions = np.array([[4, 8, 4, 8]])
+    kernel_step(env, actions)
+    after = read_worlds(env)[0]
+    r_new, *_ = ref.step(cfg, world, actions[0], 0)
+    errors = []
+    for i in range(cfg.capacity):
+        for name in ("velocity", "acceleration", "heading"):
+            k, r = after[name][i].astype(np.float64), r_new[name][i]
+            if np.any(np.abs(k - r) > 1e-12):
+                errors.append(f"{slot_name(cfg, i)} {name}: kernel={fmt(k)} reference={fmt(r)}")
+    fail_if(errors, "quarter-turn actions (exact desired velocity)")
+
+
+def test_exact_capture_and_share_boundaries_after_the_move():
+    """Post-move distances that are exact in float32 too: two predators overlapping at distance 0 with zero
+    velocity stay exactly in place (no push, V' = V = 0), and a prey cruising up at full speed moves exactly
+    (0, -4). Prey 0 ends 20 from predators A, B (captured by both); predators C, D end exactly 100 from it
+    (catch_share_radius is strict: no share); prey 1 ends exactly 50 = r_prey + r_pred from A, B (not captured)."""
+    cfg = make_config(prey_count=2, predator_count=4)
+    env = BatchedAquarium(cfg, num_worlds=1, device=DEVICE, seed=0)
+    P = np.array([400.0, 400.0])
+    cruise = dict(vel=(0.0, -4.0), acc=(0.0, -1.0))
+    world = _world_from_agents(
+        cfg,
+        [dict(pos=tuple(P + (0.0, 24.0)), **cruise), dict(pos=tuple(P + (30.0, -36.0)), **cruise)],
+        [dict(pos=tuple(P), heading=(0.0, 1.0)), dict(pos=tuple(P), heading=(0.0, 1.0)),
+         dict(pos=tuple(P + (60.0, 100.0))), dict(pos=tuple(P + (60.0, 100.0)))],
+    )
+    set_worlds(env, [world])
+    errors = []
+    check_step("exact_boundaries", cfg, env, [world], np.zeros((1, cfg.capacity), np.int64), errors)
+    fail_if(errors, "exact capture / share boundaries")
+    r_new, r_rew, r_term, r_trunc, r_cap, r_info = ref.step(
+        cfg, world, np.zeros(cfg.capacity, np.int64), 0, respawn_position={0: (0.0, 0.0)}, respawn_replication_age={0: 200}
+    )
+    assert r_info["capturers"] == {0: [2, 3]} and r_info["sharers"] == {0: [2, 3]}
+    assert r_rew.tolist() == [-999.0, 1.0, 5.0, 5.0, 0.0, 0.0]
+
+
+def test_fov_boundary_is_inclusive_at_exactly_90_degrees():
+    """fov_angle 180: a target exactly perpendicular to the heading (dot product exactly 0) is on the cone's
+    boundary and visible (MODEL.md: the angle limit includes its boundary). A test with cos(radians(90)) =
+    6e-17 > 0 would reject it. fov_angle 360: a target exactly behind is visible."""
+    cfg = make_config(
+        prey_count=4, predator_count=2, prey=dict(fov_angle=180.0), predator=dict(fov_angle=360.0)
+    )
+    env = BatchedAquarium(cfg, num_worlds=1, device=DEVICE, seed=0)
+    world = _world_from_agents(
+        cfg,
+        [dict(pos=(400.0, 400.0), heading=(1.0, 0.0)), dict(pos=(400.0, 350.0)), dict(pos=(400.0, 470.0)),
+         dict(pos=(399.5, 450.0))],
+        [dict(pos=(600.0, 600.0), heading=(1.0, 0.0)), dict(pos=(500.0, 600.0))],
+    )
+    set_worlds(env, [world])
+    errors = []
+    r_obs, r_mask, r_slots = ref.observe(cfg, world, with_slots=True)
+    assert r_slots["prey"][0].tolist() == [-1, 1, 2, -1]  # straight up and straight down; not the one behind
+    assert r_slots["predator"][0].tolist() == [5, -1, -1, -1]  # exactly behind, 100 away
+    k_obs = {k: v[0].detach().cpu().numpy() for k, v in env.observations.items()}
+    k_mask = {k: v[0].detach().cpu().numpy() for k, v in env.observation_mask.items()}
+    compare_observations(cfg, "[fov boundary]", k_obs, k_mask, r_obs, r_mask, r_slots, errors)
+    fail_if(errors, "FOV boundary at exactly 90 degrees")
+
+
+def test_reproduction_cap_counts_prey_after_captures():
+    """max_prey (5) below prey_count (6), so free slots outnumber what the cap allows.
+    World 0: 5 prey alive, prey 0 is captured and removed (respawn off): 4 live after captures, so parent 1 gets
+    a child (in slot 5, the only slot free at the start). Its capturer is outside catch_share_radius (10) and
+    still gets the whole predator_reward.
+    World 1: 3 prey alive and due, slots 3-5 free: children for parents 0 and 1 (slots 3, 4), then 3 + 2 = 5
+    reaches the cap and parent 2 keeps its age."""
+    cfg = make_config(
+        prey_count=6, predator_count=1, prey_reproduction=True, max_prey=5, prey_replication_age=4,
+        respawn_captured_prey=False, catch_share_radius=10.0,
+    )
+    assert cfg.prey_capacity == 6
+    env = BatchedAquarium(cfg, num_worlds=2, device=DEVICE, seed=0)
+    due = dict(age=3, rep=4)
+    worlds = [
+        _world_from_agents(
+            cfg,
+            [dict(pos=(100.0, 100.0), age=0, rep=5), dict(pos=(300.0, 100.0), **due), dict(pos=(500.0, 100.0), age=0, rep=5),
+             dict(pos=(100.0, 400.0), age=1, rep=5), dict(pos=(300.0, 400.0), age=2, rep=5), None],
+            [dict(pos=(100.0, 120.0))],
+        ),
+        _world_from_agents(
+            cfg,
+            [dict(pos=(100.0, 100.0), **due), dict(pos=(300.0, 100.0), **due), dict(pos=(500.0, 100.0), **due),
+             None, None, None],
+            [dict(pos=(700.0, 700.0))],
+        ),
+    ]
+    set_worlds(env, worlds)
+    errors = []
+    after = check_step("reproduction_cap", cfg, env, worlds, np.zeros((2, cfg.capacity), np.int64), errors)
+    fail_if(errors, "reproduction cap")
+    r0 = ref.step(cfg, worlds[0], np.zeros(cfg.capacity, np.int64), 0, newborn_replication_age=after[0]["replication_age"])
+    assert r0[5]["births"] == [(1, 5)] and r0[5]["sharers"] == {0: [6]} and r0[1][6] == 10.0
+    r1 = ref.step(cfg, worlds[1], np.zeros(cfg.capacity, np.int64), 0, newborn_replication_age=after[1]["replication_age"])
+    assert r1[5]["births"] == [(0, 3), (1, 4)] and r1[0]["age"][:3].tolist() == [0, 0, 4]
