@@ -223,7 +223,11 @@ class BatchedAquarium:
         if not wp.get_device(self.device).is_cuda:
             shard.run(program)
             return
-        stream = wp.stream_from_torch(torch.cuda.current_stream(self.torch_device))
+        # Warp works on its own stream (torch's legacy default stream cannot be captured), ordered
+        # after the torch work that produced the inputs and before the torch work that reads outputs.
+        torch_stream = wp.stream_from_torch(torch.cuda.current_stream(self.torch_device))
+        stream = wp.get_stream(self.device)
+        stream.wait_stream(torch_stream)
         with wp.ScopedStream(stream):
             if program != "step":
                 shard.run(program)
@@ -234,6 +238,7 @@ class BatchedAquarium:
                 self._graph = capture_scope.graph
             else:
                 wp.capture_launch(self._graph, stream=stream)
+        torch_stream.wait_stream(stream)
 
     # ------------------------------------------------------------------ public API
     def reset(self, seed: int | None = None) -> dict[str, torch.Tensor]:

@@ -86,13 +86,16 @@ def main(argv=None) -> int:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--max-agents", type=int, default=100_000)
     parser.add_argument("--no-original", action="store_true", help="skip the original marl-aquarium")
+    parser.add_argument("--large", action="store_true",
+                        help="add GPU-sized points: 4096 and 65536 default worlds, one world of 1M agents")
     parser.add_argument("--out", default=None)
     args = parser.parse_args(argv)
 
-    points = [("default", AquariumConfig(), w) for w in (1, 64, 1024)]
+    points = [("default", AquariumConfig(), w) for w in ((1, 64, 1024, 4096, 65536) if args.large else (1, 64, 1024))]
     for label, make in (("density", density_config), ("density fov off", lambda n: density_config(n, fov_enabled=False)),
                         ("density fov off, unlimited view", lambda n: unlimited(density_config(n)))):
-        points += [(label, make(n), 1) for n in (1_000, 10_000, 100_000) if n <= args.max_agents]
+        sizes = (1_000, 10_000, 100_000) + ((1_000_000,) if args.large else ())
+        points += [(label, make(n), 1) for n in sizes if n <= args.max_agents]
     rows = []
     for label, cfg, worlds in points:
         row = {"config": label, **measure(cfg, worlds, args.device, args.seconds, args.repeats)}

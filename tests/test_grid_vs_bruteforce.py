@@ -106,16 +106,16 @@ def test_observed_slots_and_contacts_match_brute_force(device, name):
     env = BatchedAquarium(cfg, num_worlds=NUM_WORLDS, device=device, seed=1)
     pos, heading, alive = random_state(rng, cfg, NUM_WORLDS, axis_headings=name != "unlimited")
     env.set_state(position=pos.astype(np.float32), heading=heading.astype(np.float32), alive=alive)
-    expected_slots, expected_partner = brute_force(cfg, pos, env.state.torch.heading.numpy().astype(np.float64), alive)
+    expected_slots, expected_partner = brute_force(cfg, pos, env.state.torch.heading.cpu().numpy().astype(np.float64), alive)
     Pc = cfg.prey_capacity
-    got = {"prey": env.observed_slot["prey"].numpy(), "predator": env.observed_slot["predator"].numpy()}
+    got = {"prey": env.observed_slot["prey"].cpu().numpy(), "predator": env.observed_slot["predator"].cpu().numpy()}
     for type_name, rows in (("prey", slice(0, Pc)), ("predator", slice(Pc, None))):
         want = expected_slots[:, rows, :got[type_name].shape[2]]
         mismatch = np.argwhere((got[type_name] != want).any(-1))
         assert len(mismatch) == 0, (f"{name}: {len(mismatch)} {type_name} observers differ, first world/row "
                                     f"{mismatch[0]}: kernel {got[type_name][tuple(mismatch[0])]} "
                                     f"brute force {want[tuple(mismatch[0])]}")
-    partner = env.state.torch.contact_partner.numpy()
+    partner = env.state.torch.contact_partner.cpu().numpy()
     partner = np.where(alive, partner, -1)
     bad = np.argwhere(partner != expected_partner)
     assert len(bad) == 0, f"{name}: contact partners differ at {bad[:5].tolist()}"
@@ -135,9 +135,9 @@ def test_capture_pairs_match_brute_force(device):
     env.set_state(position=pos.astype(np.float32), heading=heading.astype(np.float32), alive=alive,
                   velocity=zero, acceleration=zero)
     import torch
-    actions = {"prey": torch.zeros(W, cfg.prey_capacity, dtype=torch.int64),
-               "predator": torch.zeros(W, cfg.predator_count, dtype=torch.int64)}
-    before_alive = env.state.torch.alive.clone().numpy()
+    actions = {"prey": torch.zeros(W, cfg.prey_capacity, dtype=torch.int64, device=env.torch_device),
+               "predator": torch.zeros(W, cfg.predator_count, dtype=torch.int64, device=env.torch_device)}
+    before_alive = env.state.torch.alive.clone().cpu().numpy()
     # Positions after the move are what captures use: read them back from a copy of the env's motion.
     _, _, terminated, _, info = env.step(actions)
     # Rebuild the moved positions by hand: from rest, action UP moves prey by k=1 and predators by 0.6
@@ -163,7 +163,7 @@ def test_capture_pairs_match_brute_force(device):
     expected = ((d2m[:, :Pc, Pc:] < contact) & pred_alive[:, None, :]).any(-1) & before_alive[:, :Pc]
     # Skip worlds where a distance is within float rounding of the capture threshold.
     near = (np.abs(d2m[:, :Pc, Pc:] - contact) < 1e-2).any((1, 2))
-    got = terminated["prey"].numpy()
+    got = terminated["prey"].cpu().numpy()
     assert expected[~near].any(), "no captures generated: the test would not catch a miss"
     np.testing.assert_array_equal(got[~near], expected[~near])
-    np.testing.assert_array_equal(info["captures"].numpy()[~near], expected[~near].sum(1))
+    np.testing.assert_array_equal(info["captures"].cpu().numpy()[~near], expected[~near].sum(1))

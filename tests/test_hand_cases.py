@@ -38,12 +38,13 @@ def place(env: BatchedAquarium, positions, velocities=None, accelerations=None, 
 
 
 def act(env: BatchedAquarium, prey, predator):
-    actions = {"prey": torch.tensor([prey], dtype=torch.int64), "predator": torch.tensor([predator], dtype=torch.int64)}
+    actions = {"prey": torch.tensor([prey], dtype=torch.int64, device=env.torch_device),
+               "predator": torch.tensor([predator], dtype=torch.int64, device=env.torch_device)}
     return env.step(actions)
 
 
 def state(env, name, slot):
-    return getattr(env.state.torch, name)[0, slot].numpy().astype(np.float64)
+    return getattr(env.state.torch, name)[0, slot].cpu().numpy().astype(np.float64)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -157,8 +158,8 @@ def test_capture_shared_by_two_predators(device):
     # Prey at (400, 399); A at (430, 399.4): d = 30.0 < 50; B at (400, 479.4): d = 80.4 < 100;
     # C at (520, 399.4): d = 120 > 100.
     assert int(info["captures"][0]) == 1
-    np.testing.assert_allclose(rewards["predator"][0].numpy(), [5.0, 5.0, 0.0], atol=1e-6)
-    np.testing.assert_allclose(rewards["prey"][0].numpy(), [1.0 - 1000.0, 1.0])
+    np.testing.assert_allclose(rewards["predator"][0].cpu().numpy(), [5.0, 5.0, 0.0], atol=1e-6)
+    np.testing.assert_allclose(rewards["prey"][0].cpu().numpy(), [1.0 - 1000.0, 1.0])
     np.testing.assert_array_equal(state(env, "starvation", 2 + 0), 1)  # A captured: 0, then +1
     np.testing.assert_array_equal(state(env, "starvation", 2 + 1), 8)  # B only shared
     np.testing.assert_array_equal(state(env, "starvation", 2 + 2), 8)
@@ -176,10 +177,10 @@ def test_two_captures_add_up_and_permanent_capture_removes_the_prey(device):
     place(env, positions, [[0.0, 0.0]] * 4)
     _, rewards, terminated, _, info = act(env, [UP, UP, UP], [UP])
     assert int(info["captures"][0]) == 2
-    np.testing.assert_allclose(rewards["predator"][0].numpy(), [20.0])
-    np.testing.assert_allclose(rewards["prey"][0].numpy(), [-1000.0, -1000.0, 1.0])
-    np.testing.assert_array_equal(terminated["prey"][0].numpy(), [True, True, False])
-    np.testing.assert_array_equal(env.alive["prey"][0].numpy(), [False, False, True])
+    np.testing.assert_allclose(rewards["predator"][0].cpu().numpy(), [20.0])
+    np.testing.assert_allclose(rewards["prey"][0].cpu().numpy(), [-1000.0, -1000.0, 1.0])
+    np.testing.assert_array_equal(terminated["prey"][0].cpu().numpy(), [True, True, False])
+    np.testing.assert_array_equal(env.alive["prey"][0].cpu().numpy(), [False, False, True])
     assert int(env.state.torch.prey_alive_count[0]) == 1
 
 
@@ -188,11 +189,11 @@ def test_starvation_at_exactly_the_limit(device):
     place(env, [[100.0, 100.0], [400.0, 400.0], [700.0, 700.0]], [[0.0, 0.0]] * 3,
           starvation=np.array([0, 4, 3], np.int32))
     _, _, terminated, _, _ = act(env, [UP], [UP, UP])
-    np.testing.assert_array_equal(env.state.torch.starvation[0, 1:].numpy(), [5, 4])  # 5 is not > 5
+    np.testing.assert_array_equal(env.state.torch.starvation[0, 1:].cpu().numpy(), [5, 4])  # 5 is not > 5
     assert not terminated["predator"].any()
     _, _, terminated, truncated, info = act(env, [UP], [UP, UP])
-    np.testing.assert_array_equal(terminated["predator"][0].numpy(), [True, False])
-    np.testing.assert_array_equal(env.alive["predator"][0].numpy(), [False, True])
+    np.testing.assert_array_equal(terminated["predator"][0].cpu().numpy(), [True, False])
+    np.testing.assert_array_equal(env.alive["predator"][0].cpu().numpy(), [False, True])
     assert not bool(info["episode_ended"][0]) and not truncated["predator"].any()
 
 
@@ -219,16 +220,16 @@ def test_reproduction_up_to_the_cap(device):
     positions = [[100.0, 100.0], [300.0, 100.0], [500.0, 100.0], [0.0, 0.0], [0.0, 0.0], [700.0, 700.0]]
     place(env, positions, [[0.0, 0.0]] * 6, alive=alive, age=age, replication_age=repl)
     _, rewards, *_ = act(env, [UP] * 5, [UP])
-    np.testing.assert_array_equal(env.alive["prey"][0].numpy(), [True] * 5)
-    np.testing.assert_array_equal(env.state.torch.age[0, :5].numpy(), [0, 0, 160, 0, 0])
+    np.testing.assert_array_equal(env.alive["prey"][0].cpu().numpy(), [True] * 5)
+    np.testing.assert_array_equal(env.state.torch.age[0, :5].cpu().numpy(), [0, 0, 160, 0, 0])
     # Children at their parents' moved positions (moved up by 1 px), zero velocity, fresh heading.
     np.testing.assert_allclose(state(env, "position", 3), [100.0, 99.0], atol=1e-5)
     np.testing.assert_allclose(state(env, "position", 4), [300.0, 99.0], atol=1e-5)
     np.testing.assert_array_equal(state(env, "velocity", 3), [0.0, 0.0])
     np.testing.assert_array_equal(state(env, "heading", 4), [-1.0, 0.0])
-    repl_child = env.state.torch.replication_age[0, 3:5].numpy()
+    repl_child = env.state.torch.replication_age[0, 3:5].cpu().numpy()
     assert ((repl_child >= 150) & (repl_child <= 250)).all()
-    np.testing.assert_allclose(rewards["prey"][0].numpy(), [1.0] * 5)  # newborns earn their first step
+    np.testing.assert_allclose(rewards["prey"][0].cpu().numpy(), [1.0] * 5)  # newborns earn their first step
     assert int(env.state.torch.prey_alive_count[0]) == 5
 
 
@@ -243,16 +244,16 @@ def test_view_cone_across_the_seam(device, angle_deg, visible):
     dy = dx * math.tan(math.radians(angle_deg))
     observer, target = np.array([790.0, 400.0]), np.array([(790.0 + dx) % 800.0, 400.0 + dy])
     obs = place(env, [observer, target, [100.0, 100.0]], [[2.0, 0.0], [4.0, 0.0], [0.0, -1.0]])
-    mask = env.observation_mask["prey"][0, 0].numpy()
+    mask = env.observation_mask["prey"][0, 0].cpu().numpy()
     assert mask[1] == visible  # first prey slot (after one predator slot)
     if visible:
         dist = math.hypot(dx, dy)
         bearing = (-math.degrees(math.atan2(dy, dx)) + 180.0) / 360.0
         expected = [1.0, target[0] / 800.0, target[1] / 800.0, dist / 100.0, bearing, 1.0]
-        np.testing.assert_allclose(obs["prey"][0, 0, 11:17].numpy(), expected, atol=1e-6)
-        np.testing.assert_allclose(obs["prey"][0, 0, :5].numpy(), [1.0, 790 / 800, 0.5, 0.5, 0.5], atol=1e-6)
+        np.testing.assert_allclose(obs["prey"][0, 0, 11:17].cpu().numpy(), expected, atol=1e-6)
+        np.testing.assert_allclose(obs["prey"][0, 0, :5].cpu().numpy(), [1.0, 790 / 800, 0.5, 0.5, 0.5], atol=1e-6)
     else:
-        np.testing.assert_array_equal(obs["prey"][0, 0, 11:17].numpy(), np.zeros(6))
+        np.testing.assert_array_equal(obs["prey"][0, 0, 11:17].cpu().numpy(), np.zeros(6))
 
 
 @pytest.mark.parametrize("distance, visible", [(99.5, True), (100.0, True), (100.5, False)])
@@ -280,13 +281,13 @@ def test_slots_hold_the_nearest_sorted_with_ties_to_the_lower_slot(device):
 def test_zero_distance_neighbour_is_visible_with_bearing_one_half(device):
     env = make_env(device, prey_count=2)
     obs = place(env, [[400.0, 400.0], [400.0, 400.0], [100.0, 100.0]], [[-1.0, 0.0], [1.0, 0.0], [0.0, -1.0]])
-    np.testing.assert_allclose(obs["prey"][0, 0, 11:17].numpy(), [1.0, 0.5, 0.5, 0.0, 0.5, 0.25], atol=1e-7)
+    np.testing.assert_allclose(obs["prey"][0, 0, 11:17].cpu().numpy(), [1.0, 0.5, 0.5, 0.0, 0.5, 0.25], atol=1e-7)
 
 
 def test_signed_observation_range_maps_used_values_only(device):
     env = make_env(device, prey_count=2, observation_range="-1..1")
     obs = place(env, [[400.0, 400.0], [420.0, 400.0], [100.0, 100.0]], [[1.0, 0.0], [0.0, 0.0], [0.0, -1.0]])
-    row = obs["prey"][0, 0].numpy()
+    row = obs["prey"][0, 0].cpu().numpy()
     np.testing.assert_allclose(row[:5], [1.0, 0.0, 0.0, 0.0, -0.5], atol=1e-6)  # 2x - 1 of [1, .5, .5, .5, .25]
     np.testing.assert_array_equal(row[5:11], np.zeros(6))  # no predator visible: slot stays 0
     np.testing.assert_allclose(row[11:17], [1.0, 2 * 420 / 800 - 1, 0.0, 2 * 0.2 - 1, 0.0, -1.0], atol=1e-6)
