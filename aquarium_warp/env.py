@@ -113,17 +113,21 @@ class BatchedAquarium:
     Observations: `{"prey": [W, prey_capacity, L_prey], "predator": [W, predator_count, L_pred]}`
     float32; `observation_mask` says which neighbour slots are filled. Actions: integer tensors
     `{"prey": [W, prey_capacity], "predator": [W, predator_count]}` on the env's device; actions of
-    dead slots are ignored. A world whose episode ends resets itself inside `step()`.
+    dead slots are ignored. A world whose episode ends resets itself inside `step()`; with
+    `auto_reset=False` it stays as it ended until `reset()` (single-world wrappers use this).
     """
 
     def __init__(self, config: AquariumConfig | None = None, num_worlds: int = 1, device=None, seed: int = 0,
-                 cpu_threads: int | None = None):
+                 cpu_threads: int | None = None, auto_reset: bool = True):
         if config is None:
             config = AquariumConfig()
         if not isinstance(config, AquariumConfig):
             raise ValueError(f"config must be an AquariumConfig, got {type(config).__name__}")
         if isinstance(num_worlds, bool) or not isinstance(num_worlds, (int, np.integer)) or num_worlds < 1:
             raise ValueError(f"num_worlds={num_worlds!r} must be an integer >= 1")
+        if not isinstance(auto_reset, bool):
+            raise ValueError(f"auto_reset={auto_reset!r} must be True or False")
+        self.auto_reset = auto_reset
         self.config = cfg = config
         self.num_worlds = W = int(num_worlds)
         self.device = resolve_device(device)
@@ -208,7 +212,7 @@ class BatchedAquarium:
     def _make_shards(self, seed_key: int) -> None:
         self._shards = [
             WorldShard(self.config, self.state, w0, w1, self._dims, self._types, self._action_direction,
-                       self._observe_kernel, seed_key, self.device)
+                       self._observe_kernel, seed_key, self.device, self.auto_reset)
             for w0, w1 in self._shard_ranges
         ]
         self._graph = None

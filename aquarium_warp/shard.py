@@ -19,7 +19,7 @@ from .kernels import grid as grid_kernels
 from .kernels.common import WorldParams
 
 
-def world_params(cfg: AquariumConfig, seed_key: int, world_offset: int) -> WorldParams:
+def world_params(cfg: AquariumConfig, seed_key: int, world_offset: int, auto_reset: bool) -> WorldParams:
     p = WorldParams()
     p.width = cfg.width
     p.height = cfg.height
@@ -42,6 +42,7 @@ def world_params(cfg: AquariumConfig, seed_key: int, world_offset: int) -> World
     p.signed_observations = int(cfg.observation_range == "-1..1")
     p.seed = seed_key
     p.world_offset = world_offset
+    p.auto_reset = int(auto_reset)
     return p
 
 
@@ -71,10 +72,11 @@ class WorldShard:
     """Worlds `[w0, w1)` of a batch: MODEL.md's step as a fixed list of recorded launches."""
 
     def __init__(self, cfg: AquariumConfig, state, w0: int, w1: int, dims, types, action_direction,
-                 observe_kernel, seed_key: int, device):
+                 observe_kernel, seed_key: int, device, auto_reset: bool = True):
         self.cfg, self.device = cfg, device
         self.num_worlds = W = w1 - w0
-        self.world = world_params(cfg, seed_key, w0)
+        self.auto_reset = auto_reset
+        self.world = world_params(cfg, seed_key, w0, auto_reset)
         self.grid = cell_lists(cfg, W, dims, device)
         self.types = types
         self.action_direction = action_direction
@@ -169,6 +171,7 @@ class WorldShard:
                                      s.ended_return]))
         program.append(self._launch(population.truncate_ended_episodes, (W, C), [s.episode_ended, s.alive],
                                     [s.truncated, s.episode_return]))
-        program.append(self._spawn(only_ended=True))
+        if self.auto_reset:
+            program.append(self._spawn(only_ended=True))
         # 10: observations of the final state, and the contact partners of the next step's motion.
         return program + self._observe_program()

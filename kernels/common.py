@@ -62,6 +62,7 @@ class WorldParams:
     replication_age_max: int  # floor(1.25 * prey_replication_age)
     signed_observations: int  # 1: observation range "-1..1"
     seed: wp.uint32
+    auto_reset: int  # 1: a world whose episode ended starts the next one inside the same step
     world_offset: int  # global index of this batch's world 0 (batches of worlds may run on threads)
 
 

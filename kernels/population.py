@@ -123,6 +123,11 @@ def finish_world_step(
             predator_sum += episode_return[w, i]
     ended_return[w, 0] = predator_sum
     ended_return[w, 1] = prey_sum
+    if world.auto_reset == 0:
+        # The world stays as it ended (an explicit reset starts the next episode).
+        world_step[w] = step
+        episode_captures[w] = total_captures
+        return
     world_step[w] = 0
     episode[w] = episode[w] + 1
     episode_captures[w] = 0

@@ -291,3 +291,23 @@ def test_signed_observation_range_maps_used_values_only(device):
     np.testing.assert_allclose(row[:5], [1.0, 0.0, 0.0, 0.0, -0.5], atol=1e-6)  # 2x - 1 of [1, .5, .5, .5, .25]
     np.testing.assert_array_equal(row[5:11], np.zeros(6))  # no predator visible: slot stays 0
     np.testing.assert_allclose(row[11:17], [1.0, 2 * 420 / 800 - 1, 0.0, 2 * 0.2 - 1, 0.0, -1.0], atol=1e-6)
+
+
+def test_without_auto_reset_an_ended_world_stays_as_it_ended(device):
+    cfg = AquariumConfig(prey_count=2, predator_count=1, max_steps=3)
+    env = BatchedAquarium(cfg, num_worlds=2, device=device, seed=0, auto_reset=False)
+    actions = {"prey": torch.zeros(2, 2, dtype=torch.int64, device=env.torch_device),
+               "predator": torch.zeros(2, 1, dtype=torch.int64, device=env.torch_device)}
+    for _ in range(2):
+        _, _, _, truncated, info = env.step(actions)
+        assert not info["episode_ended"].any()
+    position_before = env.state.torch.position.clone()
+    obs, _, _, truncated, info = env.step(actions)
+    assert info["episode_ended"].all() and truncated["prey"].all()
+    assert (info["episode_length"] == 3).all()
+    # The last observations belong to the ended episode: the positions moved on from the last step.
+    moved = torch.linalg.vector_norm(env.state.torch.position - position_before, dim=-1)
+    assert (moved > 0).all() and (moved < 5.01).all()
+    np.testing.assert_array_equal(env.state.torch.episode.cpu().numpy(), [0, 0])
+    env.reset()
+    assert (env.state.torch.world_step == 0).all()
