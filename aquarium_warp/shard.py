@@ -99,6 +99,10 @@ class WorldShard:
         """Cell lists of the current positions (no allocation, no host sync)."""
         s, g, W, C = self.s, self.grid, self.num_worlds, self.cfg.capacity
         count = W * C
+        if not wp.get_device(self.device).is_cuda:
+            return [self._launch(grid_kernels.sort_into_cells_serially, 1,
+                                 [self.world, g, s.position, s.velocity, s.alive, W],
+                                 [g.key, g.cell_start, g.cell_end, g.agent, g.position, g.speed])]
         return [
             self._launch(grid_kernels.compute_cell_keys, (W, C), [self.world, g, s.position, s.alive, W],
                          [g.key, g.agent]),

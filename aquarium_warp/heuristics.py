@@ -1,0 +1,173 @@
+"""The paper's baseline policies (MODEL.md "Heuristic policies") for every world of a `BatchedAquarium`.
+
+```python
+from aquarium_warp.heuristics import heuristic_actions, make_policy
+
+prey = make_policy("turnaway", env, "prey")            # or "random"
+predator = make_policy("naivchase", env, "predator")   # or "random"; confusion=False: the nearest prey
+obs, rewards, terminated, truncated, info = env.step({"prey": prey(), "predator": predator()})
+# or, in one call:
+env.step(heuristic_actions(env, prey="turnaway", predator="naivchase"))
+```
+
+A policy decides from the env's current state (the one whose observations `reset()` / `step()` /
+`set_state()` returned last) with one kernel launch per shard, no host synchronisation. It returns an
+int32 tensor `[num_worlds, slots of its type]` on the env's device that is overwritten by its next
+call (clone what you keep); dead slots get action 0. Random draws come from the counter-based stream
+(seed, world, episode, step, slot, PURPOSE_POLICY): reproducible, the same on CPU and GPU.
+"""
+
+from __future__ import annotations
+
+import weakref
+
+import numpy as np
+import torch
+import warp as wp
+
+from .env import TYPES, BatchedAquarium, _seed_key
+from .kernels import heuristics as kernels
+
+# Policies allowed for each agent type.
+POLICIES = {"prey": ("random", "turnaway"), "predator": ("random", "naivchase")}
+
+
+def _normalise_name(name) -> str:
+    if not isinstance(name, str):
+        raise ValueError(f"policy name {name!r} must be a string: one of {sorted(set(sum(POLICIES.values(), ())))}")
+    return name.lower().replace("_", "").replace("-", "")
+
+
+class HeuristicPolicy:
+    """One heuristic policy for the agents of one type in every world of `env`.
+
+    Calling it returns `actions`: an int32 tensor `[num_worlds, prey_capacity]` (prey) or
+    `[num_worlds, predator_count]` (predators) on the env's device, written by a kernel into a buffer
+    allocated once (so the next call overwrites it).
+    """
+
+    def __init__(self, name: str, env: BatchedAquarium, agent_type: str, seed: int | None = None,
+                 confusion: bool | None = None):
+        if not isinstance(env, BatchedAquarium):
+            raise ValueError(f"env must be a BatchedAquarium, got {type(env).__name__}")
+        if agent_type not in TYPES:
+            raise ValueError(f"agent_type={agent_type!r} must be one of {TYPES}")
+        key = _normalise_name(name)
+        if key not in POLICIES[agent_type]:
+            raise ValueError(f"policy {name!r} is not available for {agent_type}: allowed {POLICIES[agent_type]}")
+        if confusion is not None and key != "naivchase":
+            raise ValueError(f"confusion={confusion!r} applies only to 'naivchase', not {key!r}")
+        if confusion is not None and not isinstance(confusion, bool):
+            raise ValueError(f"confusion={confusion!r} must be True or False")
+        if seed is not None:
+            _seed_key(seed)  # validates
+        self.name, self.env, self.agent_type, self.seed = key, env, agent_type, seed
+        self.confusion = (confusion is not False) if key == "naivchase" else None
+        if key == "random":
+            self._code = kernels.POLICY_RANDOM
+        elif key == "turnaway":
+            self._code = kernels.POLICY_TURN_AWAY
+        else:
+            self._code = kernels.POLICY_CHASE_CONFUSED if self.confusion else kernels.POLICY_CHASE_NEAREST
+        self._first_slot = 0 if agent_type == "prey" else env.prey_capacity
+        slots = env.prey_capacity if agent_type == "prey" else env.predator_count
+        self._buffer = wp.zeros((env.num_worlds, slots), dtype=wp.int32, device=env.device)
+        self.actions = wp.to_torch(self._buffer)
+        self._recorded = None  # (shards, seed key, recorded launches)
+
+    def __repr__(self) -> str:
+        extra = f", confusion={self.confusion}" if self.confusion is not None else ""
+        return f"HeuristicPolicy({self.name!r}, {self.agent_type!r}, seed={self.seed}{extra})"
+
+    def _launches(self) -> list:
+        """Recorded launches, one per shard; re-recorded when the env rebuilt its shards (a reseed)."""
+        env = self.env
+        seed_key = _seed_key(env.seed if self.seed is None else self.seed)
+        shards = env._shards
+        if self._recorded is None or self._recorded[0] is not shards or self._recorded[1] != seed_key:
+            launches = []
+            for shard, (w0, w1) in zip(shards, env._shard_ranges):
+                s = shard.s
+                launches.append(kernels.launch_policy(
+                    shard.world, env._types, shard.grid, env._action_direction, s.alive, s.position, s.heading,
+                    s.world_step, s.episode, seed_key, self._code, self._first_slot, self._buffer[w0:w1],
+                    env.device, record=True))
+            self._recorded = (shards, seed_key, launches)
+        return self._recorded[2]
+
+    def __call__(self) -> torch.Tensor:
+        env = self.env
+        launches = self._launches()
+        if not wp.get_device(env.device).is_cuda:
+            pool = env._pool
+            if pool is not None and len(launches) > 1:
+                list(pool.map(lambda launch: launch.launch(), launches))
+            else:
+                for launch in launches:
+                    launch.launch()
+            return self.actions
+        # As in the env: Warp's stream runs after the torch work that produced the state and before
+        # the torch work that reads the actions.
+        torch_stream = wp.stream_from_torch(torch.cuda.current_stream(env.torch_device))
+        stream = wp.get_stream(env.device)
+        stream.wait_stream(torch_stream)
+        with wp.ScopedStream(stream):
+            for launch in launches:
+                launch.launch()
+        torch_stream.wait_stream(stream)
+        return self.actions
+
+
+def make_policy(name: str, env: BatchedAquarium, agent_type: str, seed: int | None = None,
+                confusion: bool | None = None) -> HeuristicPolicy:
+    """A heuristic policy for the `agent_type` agents ("prey" or "predator") of every world of `env`.
+
+    `name`: "random" (either type), "turnaway" (prey) or "naivchase" (predators); case, "_" and "-"
+    are ignored. `seed`: keys the policy's random stream (None: the env's current seed).
+    `confusion` (naivchase only, default True): with several prey visible, chase a uniformly random
+    one each step; False chases the nearest (ties: lower slot).
+    """
+    return HeuristicPolicy(name, env, agent_type, seed=seed, confusion=confusion)
+
+
+# Policies made by `heuristic_actions`, kept per env so that repeated calls reuse their buffers.
+_cached: "weakref.WeakKeyDictionary[BatchedAquarium, dict]" = weakref.WeakKeyDictionary()
+
+
+def heuristic_actions(env: BatchedAquarium, prey: str = "turnaway", predator: str = "naivchase",
+                      seed: int | None = None, confusion: bool = True) -> dict[str, torch.Tensor]:
+    """Actions of both types for `env.step`: `{"prey": [W, prey_capacity], "predator": [W, predator_count]}`
+    int32 tensors (overwritten by the next call with the same arguments). `confusion` applies to a
+    "naivchase" predator policy only."""
+    policies = _cached.setdefault(env, {})
+    actions = {}
+    for agent_type, name in (("prey", prey), ("predator", predator)):
+        chase = isinstance(name, str) and _normalise_name(name) == "naivchase"
+        key = (agent_type, _normalise_name(name), seed, confusion if chase else None)
+        if key not in policies:
+            policies[key] = make_policy(name, env, agent_type, seed=seed, confusion=confusion if chase else None)
+        actions[agent_type] = policies[key]()
+    return actions
+
+
+def action_directions(action_count: int) -> np.ndarray:
+    """`[action_count, 2]` float32 unit desired-velocity directions (sin theta, -cos theta), as the env uses."""
+    angles = 2.0 * np.pi * np.arange(action_count) / action_count
+    directions = np.stack([np.sin(angles), -np.cos(angles)], axis=1)
+    directions[np.abs(directions) < 1e-12] = 0.0  # exact axes at quarter turns, as in the env
+    return directions.astype(np.float32)
+
+
+def nearest_action(direction, heading, action_count: int) -> np.ndarray:
+    """The action whose desired direction makes the smallest angle with `direction` (ties: the lower
+    action); where `direction` is zero, with `heading` instead. Shapes `[..., 2]` -> `[...]` int64
+    (a plain int for a single vector). Brute force over all actions in float64 (a reference for the
+    kernel, which may differ only at near-ties within float32 rounding)."""
+    d = np.asarray(direction, dtype=np.float64)
+    h = np.broadcast_to(np.asarray(heading, dtype=np.float64), d.shape)
+    zero = np.all(d == 0.0, axis=-1, keepdims=True)
+    d = np.where(zero, h, d)
+    # The dot product with unit directions ranks the actions by angle (|d| is common to all of them).
+    dots = d @ action_directions(action_count).astype(np.float64).T  # [..., n]
+    best = np.argmax(dots, axis=-1)  # first maximum: ties to the lower action
+    return int(best) if best.ndim == 0 else best

@@ -1,0 +1,188 @@
+"""The paper's baseline policies (MODEL.md "Heuristic policies") as one kernel over every world.
+
+Random, TurnAway (flee the nearest visible agent of the other type) and NaivChase (chase a visible
+agent of the other type, with "confusion" a uniformly random one, else the nearest; with none in
+sight the nearest one in the world). Visibility is the observation's rule (distance <= v, and with
+`fov_enabled` within alpha/2 of the heading; distance 0 is visible). Targets come from a ring-by-ring
+search of the cell lists built on the state the decision is made from, which stops as soon as no
+unseen agent can change the answer, so no search is all-pairs.
+
+Random draws use the stream (seed, world, episode, step, slot, PURPOSE_POLICY) of the deciding agent,
+so actions are reproducible and equal on CPU and GPU, and do not depend on how worlds are sharded.
+"""
+
+import warp as wp
+
+from .common import PURPOSE_POLICY, AgentType, WorldParams, mix32, random_stream, slot_type, torus_displacement
+from .grid import CellLists, cell_coords, column_step, last_ring, row_base, searched_radius, square_extent, wrap_cell
+
+wp.set_module_options({"enable_backward": False})
+
+# Policy codes (host and device).
+POLICY_RANDOM = wp.constant(0)
+POLICY_TURN_AWAY = wp.constant(1)  # flee the nearest visible agent of the other type
+POLICY_CHASE_CONFUSED = wp.constant(2)  # chase a uniformly random visible one (else the nearest in the world)
+POLICY_CHASE_NEAREST = wp.constant(3)  # chase the nearest visible one (else the nearest in the world)
+
+
+@wp.func
+def nearest_action(action_direction: wp.array(dtype=wp.vec2), action_count: int, direction: wp.vec2,
+                   heading: wp.vec2) -> int:
+    """The action whose desired direction makes the smallest angle with `direction` (ties: lower action);
+    a zero direction falls back to `heading`. The angle's rounding picks a guess, and the exact test
+    (largest dot product with the unit action directions) decides between it and its two neighbours,
+    so the cost does not grow with `action_count`."""
+    d = direction
+    if d[0] == 0.0 and d[1] == 0.0:
+        d = heading
+    # Action a points at theta = 2 pi a / n clockwise from "up": (sin theta, -cos theta).
+    theta = wp.atan2(d[0], -d[1])
+    guess = int(wp.floor(theta * float(action_count) / (2.0 * wp.pi) + 0.5))
+    best = int(-1)
+    best_dot = float(0.0)
+    for offset in range(-1, 2):
+        a = guess + offset
+        while a < 0:
+            a += action_count
+        while a >= action_count:
+            a -= action_count
+        dot = wp.dot(d, action_direction[a])
+        if best < 0 or dot > best_dot or (dot == best_dot and a < best):
+            best = a
+            best_dot = dot
+    return best
+
+
+@wp.func
+def precedes(d2: float, slot: int, other_d2: float, other_slot: int) -> bool:
+    """Nearer first, ties to the lower slot (a missing candidate has slot -1)."""
+    return other_slot < 0 or d2 < other_d2 or (d2 == other_d2 and slot < other_slot)
+
+
+@wp.kernel
+def heuristic_policy(
+    world: WorldParams,
+    types: wp.array(dtype=AgentType),
+    grid: CellLists,
+    action_direction: wp.array(dtype=wp.vec2),
+    alive: wp.array2d(dtype=wp.bool),
+    position: wp.array2d(dtype=wp.vec2),
+    heading: wp.array2d(dtype=wp.vec2),
+    world_step: wp.array(dtype=wp.int32),
+    episode: wp.array(dtype=wp.int32),
+    seed: wp.uint32,
+    policy: int,
+    first_slot: int,
+    action: wp.array2d(dtype=wp.int32),
+):
+    """Actions of agent slots `[first_slot, first_slot + action.shape[1])` (all of one type) in every
+    world of the batch: `action[w, a]` for slot `first_slot + a`; dead slots get 0.
+    `grid` must hold the cell lists of `position` (the observation pass builds them)."""
+    w, a = wp.tid()
+    i = first_slot + a
+    if not alive[w, i]:
+        action[w, a] = 0
+        return
+    n = world.action_count
+    rng = random_stream(seed, world.world_offset + w, episode[w], world_step[w], i, PURPOSE_POLICY)
+    if policy == POLICY_RANDOM:
+        action[w, a] = wp.randi(rng, 0, n)
+        return
+
+    t = slot_type(world, i)
+    target_type = 1 - t  # the other type: predators for TurnAway prey, prey for NaivChase predators
+    p = types[t]
+    pos = position[w, i]
+    h = heading[w, i]
+    v = p.view_distance
+    v2 = v * v
+    all_visible = policy == POLICY_CHASE_CONFUSED  # every visible target is a candidate
+    in_world = policy != POLICY_TURN_AWAY  # with none visible, fall back to the nearest in the world
+
+    visible_count = int(0)
+    near_d2 = float(0.0)  # nearest visible target
+    near_slot = int(-1)
+    near_disp = wp.vec2(0.0, 0.0)
+    pick_key = wp.uint32(0)  # visible target of the lowest random priority (confusion)
+    pick_slot = int(-1)
+    pick_disp = wp.vec2(0.0, 0.0)
+    any_d2 = float(0.0)  # nearest target in the world, visible or not
+    any_slot = int(-1)
+    any_disp = wp.vec2(0.0, 0.0)
+
+    center = cell_coords(grid, pos)
+    base = w * world.capacity
+    last = last_ring(grid)
+    r = int(0)
+    searching = bool(True)
+    while searching:
+        box = square_extent(grid, r)
+        for oy in range(box[2], box[3] + 1):
+            row_cells = row_base(grid, w, center, oy)
+            for ox in range(-r, r + 1, column_step(r, oy)):
+                if ox >= box[0] and ox <= box[1]:
+                    c = row_cells + wrap_cell(center[0] + ox, grid.dims_x)
+                    for k2 in range(grid.cell_start[c], grid.cell_end[c]):
+                        j = grid.agent[k2] - base
+                        if slot_type(world, j) == target_type:
+                            d = torus_displacement(world, pos, grid.position[k2])
+                            d2 = wp.dot(d, d)
+                            if precedes(d2, j, any_d2, any_slot):
+                                any_d2 = d2
+                                any_slot = j
+                                any_disp = d
+                            # The observation's visibility rule, with the same float expressions.
+                            visible = d2 <= v2
+                            if visible and world.fov_enabled != 0 and d2 > 0.0:
+                                visible = wp.dot(h, d) >= wp.sqrt(d2) * p.cos_half_fov
+                            if visible:
+                                visible_count += 1
+                                if precedes(d2, j, near_d2, near_slot):
+                                    near_d2 = d2
+                                    near_slot = j
+                                    near_disp = d
+                                # Each candidate's priority is a bijective hash of its slot under the
+                                # agent's stream: distinct, and the lowest is a uniform pick that does
+                                # not depend on the order in which cells are visited.
+                                key = mix32(rng ^ wp.uint32(j))
+                                if pick_slot < 0 or key < pick_key:
+                                    pick_key = key
+                                    pick_slot = j
+                                    pick_disp = d
+        # Every agent within `reach` of the observer has been seen after rings 0..r.
+        if r >= last:
+            searching = False
+        else:
+            reach = searched_radius(grid, r)
+            reach2 = reach * reach
+            visible_done = reach > v or (not all_visible and near_slot >= 0 and near_d2 < reach2)
+            if visible_done:
+                if near_slot >= 0 or not in_world:
+                    searching = False
+                elif any_slot >= 0 and any_d2 < reach2:
+                    searching = False
+        r += 1
+
+    direction = wp.vec2(0.0, 0.0)  # zero: keep the heading
+    if policy == POLICY_TURN_AWAY:
+        if near_slot >= 0:
+            direction = -near_disp
+    elif visible_count > 0:
+        if all_visible:
+            direction = pick_disp
+        else:
+            direction = near_disp
+    elif any_slot >= 0:
+        direction = any_disp
+    action[w, a] = nearest_action(action_direction, n, direction, h)
+
+
+def launch_policy(world: WorldParams, types, grid: CellLists, action_direction, alive, position, heading,
+                  world_step, episode, seed: int, policy: int, first_slot: int, action, device, record=False):
+    """Launch `heuristic_policy` over `action`'s `[num_worlds, slots]`; the state arrays are `[num_worlds,
+    capacity]` views of the same worlds as `grid` (`world.world_offset` their first global index).
+    With `record`, returns a recorded launch to replay with `.launch()`."""
+    return wp.launch(heuristic_policy, dim=action.shape,
+                     inputs=[world, types, grid, action_direction, alive, position, heading, world_step, episode,
+                             wp.uint32(seed), int(policy), int(first_slot)],
+                     outputs=[action], device=device, record_cmd=record)
