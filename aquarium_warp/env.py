@@ -220,13 +220,14 @@ class BatchedAquarium:
     def _run(self, program: str) -> None:
         """Run a shard program ("step", "observe" or "reset") on every shard: shards in parallel
         threads on CPU (Warp's CPU kernels release the GIL), one CUDA graph per program on GPU."""
-        if self._pool is not None:
-            list(self._pool.map(lambda shard: shard.run(program), self._shards))
+        if not wp.get_device(self.device).is_cuda:
+            if self._pool is not None:
+                list(self._pool.map(lambda shard: shard.run(program), self._shards))
+            else:
+                for shard in self._shards:
+                    shard.run(program)
             return
         shard = self._shards[0]
-        if not wp.get_device(self.device).is_cuda:
-            shard.run(program)
-            return
         # Warp works on its own stream (torch's legacy default stream cannot be captured), ordered
         # after the torch work that produced the inputs and before the torch work that reads outputs.
         torch_stream = wp.stream_from_torch(torch.cuda.current_stream(self.torch_device))
@@ -390,6 +391,9 @@ class BatchedAquarium:
     def close(self) -> None:
         """Release the CUDA graph and the worker threads; the arrays go with the object."""
         self._graph = None
-        if self._pool is not None:
-            self._pool.shutdown()
-            self._pool = None
+        pool, self._pool = getattr(self, "_pool", None), None
+        if pool is not None:
+            pool.shutdown(wait=False)
+
+    def __del__(self) -> None:
+        self.close()
