@@ -1,6 +1,7 @@
 """Bit-for-bit reproducibility: same seed and actions give identical trajectories (auto-resets included),
 different seeds differ, the CPU thread split does not matter, reset/reseed and state_dict round trips
-resume exactly."""
+resume exactly. Everything runs on the `device` fixture's device (bit-identical there too: no float atomics,
+deterministic sort), except the CPU thread-split test, which only exists on the CPU."""
 
 from __future__ import annotations
 
@@ -17,20 +18,21 @@ CFG_EARLY_ENDS = AquariumConfig(width=300.0, height=300.0, prey_count=8, predato
                                 respawn_captured_prey=False, predator_starvation_steps=12)
 
 
-def make(cfg=CFG, num_worlds=8, seed=0, **kw) -> BatchedAquarium:
-    return BatchedAquarium(cfg, num_worlds=num_worlds, device="cpu", seed=seed, **kw)
+def make(device, cfg=CFG, num_worlds=8, seed=0, **kw) -> BatchedAquarium:
+    return BatchedAquarium(cfg, num_worlds=num_worlds, device=device, seed=seed, **kw)
 
 
 def action_sequence(env, steps: int, seed: int) -> list[dict]:
+    """Random actions drawn on the CPU (the same numbers on every device), placed on the env's device."""
     gen = torch.Generator().manual_seed(seed)
     n = env.config.action_count
-    return [{"prey": torch.randint(0, n, (env.num_worlds, env.prey_capacity), generator=gen),
-             "predator": torch.randint(0, n, (env.num_worlds, env.predator_count), generator=gen)}
+    return [{"prey": torch.randint(0, n, (env.num_worlds, env.prey_capacity), generator=gen).to(env.torch_device),
+             "predator": torch.randint(0, n, (env.num_worlds, env.predator_count), generator=gen).to(env.torch_device)}
             for _ in range(steps)]
 
 
 def snapshot(env, out=None) -> dict:
-    """Everything observable after a step (or reset), cloned."""
+    """Everything observable after a step (or reset), cloned (on the env's device)."""
     t = env.state.torch
     snap = {"position": t.position.clone(), "velocity": t.velocity.clone(), "acceleration": t.acceleration.clone(),
             "heading": t.heading.clone(), "alive": t.alive.clone(), "world_step": t.world_step.clone(),
@@ -68,6 +70,7 @@ def assert_identical(a, b, where="") -> None:
         return
     assert a.keys() == b.keys()
     for k in a:
+        assert a[k].device == b[k].device, f"{where}{k}: {a[k].device} vs {b[k].device}"
         assert a[k].dtype == b[k].dtype and torch.equal(a[k], b[k]), f"{where}{k} differs"
 
 
@@ -77,9 +80,9 @@ def assert_state_dicts_identical(a: dict, b: dict) -> None:
 
 
 @pytest.fixture(scope="module")
-def reference_run():
+def reference_run(device):
     """200 steps of 8 worlds from seed 0 (the trajectory other tests compare against)."""
-    env = make()
+    env = make(device)
     actions = action_sequence(env, 200, seed=1)
     initial = snapshot(env)
     traj = rollout(env, actions)
@@ -94,9 +97,9 @@ def test_reference_run_exercises_resets_and_captures(reference_run):
     assert int(torch.stack([s["captures"] for s in traj]).sum()) > 0
 
 
-def test_same_seed_same_actions_bit_identical(reference_run):
+def test_same_seed_same_actions_bit_identical(device, reference_run):
     actions, initial, traj = reference_run
-    env = make()
+    env = make(device)
     try:
         assert_identical(snapshot(env), initial)
         assert_identical(rollout(env, actions), traj)
@@ -107,8 +110,8 @@ def test_same_seed_same_actions_bit_identical(reference_run):
 @pytest.mark.parametrize("cfg", [CFG_EARLY_ENDS, CFG.replace(prey_reproduction=True, max_prey=16,
                                                              prey_replication_age=8, respawn_captured_prey=False)],
                          ids=["early_ends", "reproduction"])
-def test_same_seed_bit_identical_other_configs(cfg):
-    a, b = make(cfg, seed=42), make(cfg, seed=42)
+def test_same_seed_bit_identical_other_configs(device, cfg):
+    a, b = make(device, cfg, seed=42), make(device, cfg, seed=42)
     try:
         actions = action_sequence(a, 120, seed=3)
         ta = rollout(a, actions)
@@ -120,9 +123,9 @@ def test_same_seed_bit_identical_other_configs(cfg):
         b.close()
 
 
-def test_different_seeds_differ(reference_run):
+def test_different_seeds_differ(device, reference_run):
     actions, initial, traj = reference_run
-    env = make(seed=1)
+    env = make(device, seed=1)
     try:
         start = snapshot(env)
         # every world starts elsewhere
@@ -138,9 +141,11 @@ def test_different_seeds_differ(reference_run):
 
 
 @pytest.mark.parametrize("cfg", [CFG, CFG_EARLY_ENDS], ids=["default_like", "early_ends"])
-def test_thread_split_does_not_matter(cfg):
-    one = make(cfg, num_worlds=64, seed=9, cpu_threads=1)
-    two = make(cfg, num_worlds=64, seed=9, cpu_threads=2)
+def test_thread_split_does_not_matter(device, cfg):
+    if torch.device(device).type != "cpu":
+        pytest.skip(f"cpu_threads only splits CPU runs (a GPU env is one shard); the CPU run covers it, not {device}")
+    one = make("cpu", cfg, num_worlds=64, seed=9, cpu_threads=1)
+    two = make("cpu", cfg, num_worlds=64, seed=9, cpu_threads=2)
     try:
         assert len(one._shard_ranges) == 1
         assert len(two._shard_ranges) == 2  # the split really happens (>= 32 worlds per thread)
@@ -156,9 +161,9 @@ def test_thread_split_does_not_matter(cfg):
         two.close()
 
 
-def test_reset_twice_same_initial_state(reference_run):
+def test_reset_twice_same_initial_state(device, reference_run):
     actions, initial, _ = reference_run
-    env = make()
+    env = make(device)
     try:
         first = env.state_dict()
         rollout(env, actions[:70])  # past an auto-reset: episode counters moved on
@@ -172,10 +177,10 @@ def test_reset_twice_same_initial_state(reference_run):
         env.close()
 
 
-def test_reset_with_seed_equals_fresh_env(reference_run):
+def test_reset_with_seed_equals_fresh_env(device, reference_run):
     actions, _, _ = reference_run
-    env = make(seed=3)
-    fresh = make(seed=7)
+    env = make(device, seed=3)
+    fresh = make(device, seed=7)
     try:
         rollout(env, actions[:30])
         obs = env.reset(seed=7)
@@ -195,8 +200,8 @@ def test_reset_with_seed_equals_fresh_env(reference_run):
 
 
 @pytest.mark.parametrize("cfg", [CFG, CFG_EARLY_ENDS], ids=["default_like", "early_ends"])
-def test_state_dict_round_trip_resumes_bit_identically(cfg):
-    env = make(cfg, seed=5)
+def test_state_dict_round_trip_resumes_bit_identically(device, cfg):
+    env = make(device, cfg, seed=5)
     try:
         actions = action_sequence(env, 60, seed=6)
         rollout(env, actions[:30])
@@ -210,7 +215,7 @@ def test_state_dict_round_trip_resumes_bit_identically(cfg):
 
         # the saved state is a copy: stepping did not change it, and it loads into another env too,
         # even one built with another seed (the state's seed is adopted)
-        other = make(cfg, seed=99)
+        other = make(device, cfg, seed=99)
         try:
             other.load_state_dict(saved)
             assert other.seed == 5
@@ -222,9 +227,9 @@ def test_state_dict_round_trip_resumes_bit_identically(cfg):
         env.close()
 
 
-def test_load_state_dict_refuses_other_config():
-    env = make(num_worlds=2)
-    other = make(CFG.replace(prey_count=11), num_worlds=2)
+def test_load_state_dict_refuses_other_config(device):
+    env = make(device, num_worlds=2)
+    other = make(device, CFG.replace(prey_count=11), num_worlds=2)
     try:
         before = env.state_dict()
         with pytest.raises(ValueError, match="another config or num_worlds"):

@@ -6,7 +6,8 @@ and every filled neighbour slot consistent with the state (slot index, type, pos
 speed, visibility, nearest-first order), unused slots exactly zero with a false mask, dead agents' rows all
 zero. Rewards: only the allowed values; each capture's predator reward adds up to `predator_reward`.
 Flags: terminated only on the step an agent dies, truncated for every live agent exactly when the episode
-ended; episode statistics in `info` agree with what the test accumulates itself."""
+ended; episode statistics in `info` agree with what the test accumulates itself. The envs run on the
+`device` fixture's device and every check runs there too (the checker's own tensors live on the env's device)."""
 
 from __future__ import annotations
 
@@ -97,7 +98,7 @@ def torus_displacement(cfg, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     out = []
     for axis, length in ((0, cfg.width), (1, cfg.height)):
         x = d[..., axis]
-        L = torch.tensor(length, dtype=torch.float32)
+        L = torch.tensor(length, dtype=torch.float32, device=d.device)
         x = torch.where(x > 0.5 * L, x - L, x)
         x = torch.where(x < -0.5 * L, x + L, x)
         out.append(x)
@@ -122,9 +123,10 @@ class Checker:
         self.W, self.C, self.Pc, self.P = env.num_worlds, env.capacity, env.prey_capacity, env.predator_count
         self.signed = cfg.observation_range == "-1..1"
         self.lo = -1.0 if self.signed else 0.0
-        self.steps = torch.zeros(self.W, dtype=torch.int64)
-        self.captures = torch.zeros(self.W, dtype=torch.int64)
-        self.returns = {t: torch.zeros(self.W, dtype=torch.float64) for t in TYPES}
+        self.dev = dev = env.torch_device  # every tensor the checker makes lives with the env's tensors
+        self.steps = torch.zeros(self.W, dtype=torch.int64, device=dev)
+        self.captures = torch.zeros(self.W, dtype=torch.int64, device=dev)
+        self.returns = {t: torch.zeros(self.W, dtype=torch.float64, device=dev) for t in TYPES}
         self.events = dict.fromkeys(("time_limit", "captures", "starved", "extinct", "prey_terminated", "births",
                                      "ended"), 0)
 
@@ -160,7 +162,7 @@ class Checker:
         obs, mask, slot = env.observations[kind], env.observation_mask[kind], env.observed_slot[kind]
         N = obs.shape[1]
         assert obs.shape == (W, N, 5 + 6 * S) and mask.shape == (W, N, S) and slot.shape == (W, N, S)
-        own_slots = torch.arange(N) + (0 if kind == "prey" else Pc)  # agent slot of each row
+        own_slots = torch.arange(N, device=self.dev) + (0 if kind == "prey" else Pc)  # agent slot of each row
         alive = t.alive[:, own_slots]  # [W, N]
 
         assert torch.isfinite(obs).all()
@@ -193,7 +195,7 @@ class Checker:
             return
         # neighbour slots: right type, alive, not self, no repeats
         idx = slot.clamp(min=0).long()
-        wi = torch.arange(W)[:, None, None].expand_as(idx)
+        wi = torch.arange(W, device=self.dev)[:, None, None].expand_as(idx)
         assert (slot[..., :Kd][mask[..., :Kd]] >= Pc).all(), "non-predator in the predator block"
         assert (slot[..., Kd:][mask[..., Kd:]] < Pc).all(), "non-prey in the prey block"
         assert t.alive[wi, idx][mask].all(), "dead agent observed"
@@ -203,7 +205,7 @@ class Checker:
 
         nu = unscale(nb, self.signed)
         m = mask
-        block_type = torch.tensor([0] * Kd + [1] * Ky, dtype=obs.dtype).expand(W, N, S)
+        block_type = torch.tensor([0] * Kd + [1] * Ky, dtype=obs.dtype, device=self.dev).expand(W, N, S)
         assert (nu[..., 0][m] == block_type[m]).all()
         npos = t.position[wi, idx]  # [W, N, S, 2]
         assert ((nu[..., 1] - npos[..., 0] / cfg.width).abs()[m] <= 1e-5).all()
@@ -214,7 +216,8 @@ class Checker:
         assert ((nu[..., 3].double() * norm - dist).abs()[m] <= 1e-4 * norm + 1e-3).all(), "observed distance"
         assert (dist[m] <= tcfg.view_distance + 1e-3).all(), "observed beyond the view distance"
         assert (circle_gap(nu[..., 4], angle_value(disp))[m] <= 1e-4).all(), "observed bearing"
-        max_speed = torch.tensor([cfg.predator.max_speed] * Kd + [cfg.prey.max_speed] * Ky, dtype=torch.float64)
+        max_speed = torch.tensor([cfg.predator.max_speed] * Kd + [cfg.prey.max_speed] * Ky, dtype=torch.float64,
+                                 device=self.dev)
         nspeed = torch.linalg.vector_norm(t.velocity[wi, idx].double(), dim=-1) / max_speed
         assert ((nu[..., 5].double() - nspeed.clamp(max=1.0)).abs()[m] <= 1e-5).all(), "observed speed"
         if cfg.fov_enabled and tcfg.fov_angle < 360:
@@ -245,7 +248,7 @@ class Checker:
         rp, rq = rewards["prey"], rewards["predator"]
         assert rp.shape == (self.W, Pc) and rq.shape == (self.W, self.P)
         assert torch.isfinite(rp).all() and torch.isfinite(rq).all()
-        f32 = lambda v: torch.tensor(v, dtype=torch.float32)  # noqa: E731
+        f32 = lambda v: torch.tensor(v, dtype=torch.float32, device=self.dev)  # noqa: E731
         v_live, v_caught_respawned = f32(R), f32(-Pen) + f32(R)
         v_caught_removed, v_zero = f32(-Pen), f32(0.0)
         allowed = (rp == v_live) | (rp == v_caught_respawned) | (rp == v_caught_removed) | (rp == v_zero)
@@ -345,19 +348,20 @@ class Checker:
 
 
 @pytest.mark.parametrize("name", list(CASES))
-def test_random_rollout_invariants(name):
+def test_random_rollout_invariants(device, name):
     case = CASES[name]
-    env = BatchedAquarium(case.cfg, num_worlds=case.num_worlds, device="cpu", seed=1234)
+    env = BatchedAquarium(case.cfg, num_worlds=case.num_worlds, device=device, seed=1234)
     try:
         checker = Checker(env)
         checker.check_state()
         for kind in TYPES:
             checker.check_observations(kind)
-        gen = torch.Generator().manual_seed(7)
+        gen = torch.Generator().manual_seed(7)  # drawn on the CPU (same actions on every device), then moved
         n = case.cfg.action_count
         for _ in range(case.steps):
             actions = {"prey": torch.randint(0, n, (env.num_worlds, env.prey_capacity), generator=gen),
                        "predator": torch.randint(0, n, (env.num_worlds, env.predator_count), generator=gen)}
+            actions = {k: a.to(env.torch_device) for k, a in actions.items()}
             checker.step(actions)
         for event in case.expect:
             assert checker.events[event] > 0, f"the rollout never exercised {event!r}: {checker.events}"
@@ -365,18 +369,18 @@ def test_random_rollout_invariants(name):
         env.close()
 
 
-def test_reset_mid_episode_restarts_the_statistics():
+def test_reset_mid_episode_restarts_the_statistics(device):
     """A manual reset() starts every world's episode anew: the next ending reports only the new episode."""
     cfg = AquariumConfig(width=300.0, height=300.0, max_steps=40)
-    env = BatchedAquarium(cfg, num_worlds=2, device="cpu", seed=3)
+    env = BatchedAquarium(cfg, num_worlds=2, device=device, seed=3)
     try:
         checker = Checker(env)
         gen = torch.Generator().manual_seed(1)
         n = cfg.action_count
 
         def actions():
-            return {"prey": torch.randint(0, n, (2, env.prey_capacity), generator=gen),
-                    "predator": torch.randint(0, n, (2, env.predator_count), generator=gen)}
+            return {"prey": torch.randint(0, n, (2, env.prey_capacity), generator=gen).to(env.torch_device),
+                    "predator": torch.randint(0, n, (2, env.predator_count), generator=gen).to(env.torch_device)}
 
         for _ in range(25):
             checker.step(actions())
