@@ -55,7 +55,8 @@ def resolve_device(device) -> str:
     return device
 
 
-def _seed_key(seed) -> int:
+def seed_key(seed) -> int:
+    """The 32-bit key of the random streams for a non-negative integer `seed`."""
     if isinstance(seed, (bool, float)) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed={seed!r} must be a non-negative integer")
     seed = int(seed)
@@ -132,7 +133,7 @@ class BatchedAquarium:
         self.num_worlds = W = int(num_worlds)
         self.device = resolve_device(device)
         self.torch_device = torch.device(self.device)
-        _seed_key(seed)
+        seed_key(seed)
         self.seed = int(seed)
         self.prey_capacity = cfg.prey_capacity
         self.predator_count = cfg.predator_count
@@ -168,7 +169,7 @@ class BatchedAquarium:
         bounds = [W * k // shards for k in range(shards + 1)]
         self._shard_ranges = list(zip(bounds[:-1], bounds[1:]))
         self._pool = ThreadPoolExecutor(max_workers=shards) if shards > 1 else None
-        self._make_shards(_seed_key(seed))
+        self._make_shards(seed_key(seed))
         self._build_views()
         self.reset()
 
@@ -217,39 +218,64 @@ class BatchedAquarium:
         ]
         self._graph = None
 
-    def _run(self, program: str) -> None:
-        """Run a shard program ("step", "observe" or "reset") on every shard: shards in parallel
-        threads on CPU (Warp's CPU kernels release the GIL), one CUDA graph per program on GPU."""
+    def run_on_shards(self, work) -> None:
+        """Call `work(shard)` for every `WorldShard` the way the env runs its own programs: shards
+        in parallel threads on CPU (Warp's CPU kernels release the GIL); on GPU on Warp's stream,
+        ordered after the torch work that produced the inputs and before the torch work that reads
+        the outputs (torch's legacy default stream cannot be captured into a graph)."""
         if not wp.get_device(self.device).is_cuda:
             if self._pool is not None:
-                list(self._pool.map(lambda shard: shard.run(program), self._shards))
+                list(self._pool.map(work, self._shards))
             else:
                 for shard in self._shards:
-                    shard.run(program)
+                    work(shard)
             return
-        shard = self._shards[0]
-        # Warp works on its own stream (torch's legacy default stream cannot be captured), ordered
-        # after the torch work that produced the inputs and before the torch work that reads outputs.
         torch_stream = wp.stream_from_torch(torch.cuda.current_stream(self.torch_device))
         stream = wp.get_stream(self.device)
         stream.wait_stream(torch_stream)
         with wp.ScopedStream(stream):
-            if program != "step":
-                shard.run(program)
-            elif self._graph is None:
+            for shard in self._shards:
+                work(shard)
+        torch_stream.wait_stream(stream)
+
+    @property
+    def shards(self) -> tuple:
+        """The `WorldShard`s (blocks of worlds with their cell lists and parameter structs); their
+        cell lists hold the positions of the last returned observations."""
+        return tuple(self._shards)
+
+    @property
+    def agent_types(self) -> wp.array:
+        """Per-type parameters (`kernels.common.AgentType`), indexed by type code (predator 0, prey 1)."""
+        return self._types
+
+    @property
+    def action_directions(self) -> wp.array:
+        """[action_count] vec2: unit desired direction of each action."""
+        return self._action_direction
+
+    def _run(self, program: str) -> None:
+        """Run a shard program ("step", "observe" or "reset"); the step is one CUDA graph on GPU."""
+        if program != "step" or not wp.get_device(self.device).is_cuda:
+            self.run_on_shards(lambda shard: shard.run(program))
+            return
+
+        def step_graph(shard):
+            if self._graph is None:
                 shard.run(program)  # loads every module before capture
-                with wp.ScopedCapture(device=self.device, stream=stream) as capture_scope:
+                with wp.ScopedCapture(device=self.device, stream=wp.get_stream(self.device)) as capture_scope:
                     shard.run(program)
                 self._graph = capture_scope.graph
             else:
-                wp.capture_launch(self._graph, stream=stream)
-        torch_stream.wait_stream(stream)
+                wp.capture_launch(self._graph, stream=wp.get_stream(self.device))
+
+        self.run_on_shards(step_graph)
 
     # ------------------------------------------------------------------ public API
     def reset(self, seed: int | None = None) -> dict[str, torch.Tensor]:
         """Start a new episode in every world; with `seed`, reseed first. Returns the observations."""
         if seed is not None:
-            key = _seed_key(seed)
+            key = seed_key(seed)
             self.seed = int(seed)
             self._make_shards(key)  # the seed is baked into recorded launches and graphs
         self._run("reset")
@@ -378,7 +404,7 @@ class BatchedAquarium:
             raise ValueError("state_dict was taken from an env with another config or num_worlds")
         if state.get("seed") != self.seed:
             self.seed = int(state["seed"])
-            self._make_shards(_seed_key(self.seed))
+            self._make_shards(seed_key(self.seed))
         t = self.state.torch
         for name, value in state["tensors"].items():
             target = getattr(t, name)

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 import warp as wp
 
-from .env import TYPES, BatchedAquarium, _seed_key
+from .env import TYPES, BatchedAquarium, seed_key
 from .kernels import heuristics as kernels
 
 # Policies allowed for each agent type.
@@ -60,8 +60,10 @@ class HeuristicPolicy:
         if confusion is not None and not isinstance(confusion, bool):
             raise ValueError(f"confusion={confusion!r} must be True or False")
         if seed is not None:
-            _seed_key(seed)  # validates
-        self.name, self.env, self.agent_type, self.seed = key, env, agent_type, seed
+            seed_key(seed)  # validates
+        # A weak reference: the policies cached by `heuristic_actions` must not keep their env alive.
+        self._env = weakref.ref(env)
+        self.name, self.agent_type, self.seed = key, agent_type, seed
         self.confusion = (confusion is not False) if key == "naivchase" else None
         if key == "random":
             self._code = kernels.POLICY_RANDOM
@@ -75,46 +77,37 @@ class HeuristicPolicy:
         self.actions = wp.to_torch(self._buffer)
         self._recorded = None  # (shards, seed key, recorded launches)
 
+    @property
+    def env(self) -> BatchedAquarium:
+        env = self._env()
+        if env is None:
+            raise ValueError("the env of this policy no longer exists")
+        return env
+
     def __repr__(self) -> str:
         extra = f", confusion={self.confusion}" if self.confusion is not None else ""
         return f"HeuristicPolicy({self.name!r}, {self.agent_type!r}, seed={self.seed}{extra})"
 
-    def _launches(self) -> list:
+    def _launches(self) -> dict:
         """Recorded launches, one per shard; re-recorded when the env rebuilt its shards (a reseed)."""
         env = self.env
-        seed_key = _seed_key(env.seed if self.seed is None else self.seed)
-        shards = env._shards
-        if self._recorded is None or self._recorded[0] is not shards or self._recorded[1] != seed_key:
-            launches = []
-            for shard, (w0, w1) in zip(shards, env._shard_ranges):
+        key = seed_key(env.seed if self.seed is None else self.seed)
+        shards = env.shards
+        if self._recorded is None or self._recorded[0] != shards or self._recorded[1] != key:
+            launches = {}
+            for shard in shards:
                 s = shard.s
-                launches.append(kernels.launch_policy(
-                    shard.world, env._types, shard.grid, env._action_direction, s.alive, s.position, s.heading,
-                    s.world_step, s.episode, seed_key, self._code, self._first_slot, self._buffer[w0:w1],
-                    env.device, record=True))
-            self._recorded = (shards, seed_key, launches)
+                launches[id(shard)] = kernels.launch_policy(
+                    shard.world, env.agent_types, shard.grid, env.action_directions, s.alive, s.position,
+                    s.heading, s.world_step, s.episode, key, self._code, self._first_slot,
+                    self._buffer[shard.w0:shard.w1], env.device, record=True)
+            self._recorded = (shards, key, launches)
         return self._recorded[2]
 
     def __call__(self) -> torch.Tensor:
         env = self.env
         launches = self._launches()
-        if not wp.get_device(env.device).is_cuda:
-            pool = env._pool
-            if pool is not None and len(launches) > 1:
-                list(pool.map(lambda launch: launch.launch(), launches))
-            else:
-                for launch in launches:
-                    launch.launch()
-            return self.actions
-        # As in the env: Warp's stream runs after the torch work that produced the state and before
-        # the torch work that reads the actions.
-        torch_stream = wp.stream_from_torch(torch.cuda.current_stream(env.torch_device))
-        stream = wp.get_stream(env.device)
-        stream.wait_stream(torch_stream)
-        with wp.ScopedStream(stream):
-            for launch in launches:
-                launch.launch()
-        torch_stream.wait_stream(stream)
+        env.run_on_shards(lambda shard: launches[id(shard)].launch())
         return self.actions
 
 

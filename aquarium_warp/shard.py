@@ -74,6 +74,7 @@ class WorldShard:
     def __init__(self, cfg: AquariumConfig, state, w0: int, w1: int, dims, types, action_direction,
                  observe_kernel, seed_key: int, device, auto_reset: bool = True):
         self.cfg, self.device = cfg, device
+        self.w0, self.w1 = w0, w1
         self.num_worlds = W = w1 - w0
         self.auto_reset = auto_reset
         self.world = world_params(cfg, seed_key, w0, auto_reset)

@@ -7,4 +7,5 @@
 - `capture`: step 5 (captures, reward sharing, respawn/removal)
 - `population`: steps 6-9 (starvation, reproduction, rewards, episode end)
 - `observation`: step 10 (field-of-view observations)
+- `heuristics`: the paper's baseline policies (Random, TurnAway, NaivChase)
 """
