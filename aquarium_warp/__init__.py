@@ -3,5 +3,16 @@
 from .config import AgentTypeConfig, AquariumConfig
 from .env import BatchedAquarium
 
-__all__ = ["AgentTypeConfig", "AquariumConfig", "BatchedAquarium"]
+__all__ = ["AgentTypeConfig", "AquariumConfig", "BatchedAquarium", "aquarium_v1"]
 __version__ = "0.1.0"
+
+
+def __getattr__(name):
+    # `from aquarium_warp import aquarium_v1` imports the PettingZoo module on first use only.
+    if name == "aquarium_v1":
+        import importlib
+
+        module = importlib.import_module(".aquarium_v1", __name__)
+        globals()[name] = module
+        return module
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
