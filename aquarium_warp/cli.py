@@ -1,4 +1,4 @@
-"""Command line: `aquarium-warp demo` (more subcommands join as the project grows)."""
+"""Command line: `aquarium-warp demo` (speed) and `aquarium-warp video` (an MP4 of heuristic policies)."""
 
 from __future__ import annotations
 
@@ -39,6 +39,27 @@ def _demo(args) -> int:
     return 0
 
 
+def _video(args) -> int:
+    from . import AquariumConfig, BatchedAquarium
+    from .heuristics import make_policy
+    from .video import record
+
+    cfg = AquariumConfig(width=args.width, height=args.height, prey_count=args.prey,
+                         predator_count=args.predators)
+    env = BatchedAquarium(cfg, num_worlds=1, device=args.device, seed=args.seed)
+    prey = make_policy(args.prey_policy, env, "prey", seed=args.seed)
+    predator = make_policy(args.predator_policy, env, "predator", seed=args.seed)
+    print(f"aquarium-warp video: {args.prey} prey ({args.prey_policy}) and {args.predators} predators "
+          f"({args.predator_policy}) on {env.device}, {args.steps} steps -> {args.out}")
+    start = time.perf_counter()
+    frames = record(env, lambda obs: {"prey": prey(), "predator": predator()}, args.steps, args.out,
+                    fps=args.fps, progress=not args.no_progress, width_px=args.frame_width,
+                    height_px=args.frame_height, view_cones=args.view_cones, hit_boxes=args.hit_boxes,
+                    velocities=args.velocities)
+    print(f"wrote {frames} frames to {args.out} in {time.perf_counter() - start:.1f} s")
+    return 0
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="aquarium-warp", description="Aquarium predator-prey worlds on Warp")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -51,6 +72,26 @@ def main(argv=None) -> int:
     demo.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
     demo.add_argument("--seed", type=int, default=0)
     demo.set_defaults(run=_demo)
+    video = sub.add_parser("video", help="record one world driven by heuristic policies as an MP4 video")
+    video.add_argument("--prey-policy", default="turnaway", help="'turnaway' or 'random'")
+    video.add_argument("--predator-policy", default="naivchase", help="'naivchase' or 'random'")
+    video.add_argument("--steps", type=int, default=600, help="steps to record (frames: steps + 1)")
+    video.add_argument("--out", default="aquarium.mp4", help="output MP4 file")
+    video.add_argument("--prey", type=int, default=16)
+    video.add_argument("--predators", type=int, default=1)
+    video.add_argument("--width", type=float, default=800.0, help="world width, px")
+    video.add_argument("--height", type=float, default=800.0, help="world height, px")
+    video.add_argument("--frame-width", type=int, default=None,
+                       help="frame width in pixels (default: the world's, long side at most 1024)")
+    video.add_argument("--frame-height", type=int, default=None, help="frame height in pixels")
+    video.add_argument("--fps", type=float, default=30.0)
+    video.add_argument("--seed", type=int, default=0)
+    video.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
+    video.add_argument("--view-cones", action="store_true", help="draw each agent's field of view")
+    video.add_argument("--hit-boxes", action="store_true", help="draw each agent's hit-box circle")
+    video.add_argument("--velocities", action="store_true", help="draw velocity arrows (10 steps long)")
+    video.add_argument("--no-progress", action="store_true", help="no progress bar")
+    video.set_defaults(run=_video)
     args = parser.parse_args(argv)
     try:
         return args.run(args)

@@ -8,4 +8,5 @@
 - `population`: steps 6-9 (starvation, reproduction, rewards, episode end)
 - `observation`: step 10 (field-of-view observations)
 - `heuristics`: the paper's baseline policies (Random, TurnAway, NaivChase)
+- `render`: the rasteriser behind `aquarium_warp.render`
 """

@@ -3,19 +3,22 @@
 Two kernels per frame, no per-agent Python:
 1. `splat_agents`, one thread per agent slot of the rendered world. Each live agent visits the pixels
    of its bounding box (wrapped around the torus) and
-   - writes `slot + 1` into `body_key` with `atomic_max` where its fish/shark shape covers the pixel
-     centre: the highest slot wins, whatever the thread order, so overlaps are deterministic
-     (predators, whose slots follow the prey's, lie on top);
+   - writes `slot + 1` into `body_key` with `atomic_max` where its fish/shark shape covers any of the
+     pixel's 2 x 2 sub-samples: the highest slot wins, whatever the thread order, so overlaps are
+     deterministic (predators, whose slots follow the prey's, lie on top);
    - with view cones, adds 1 to `cone_count[type]` where the pixel lies in its view sector (a count
      blends order-independently: alpha_n = 1 - (1 - alpha)^n);
    - with hit boxes / velocities, sets bits of `overlay` with `atomic_or` (same result in any order).
-2. `compose_image`, one thread per pixel: background, cone tint, the winning agent's shape part
-   (recomputed from its slot, so the splat needs no colour buffer), hit-box rings, velocity arrows.
+2. `compose_image`, one thread per pixel, bottom to top: background, cone tint, velocity arrows (so
+   they leave the body at the nose), the winning agent's shape (its parts recomputed from its slot, so
+   the splat needs no colour buffer; sub-samples outside the shape show the layers beneath, not an
+   agent beneath: a faint seam where agents overlap), hit-box rings.
 
 Pixel (row i, column j) has its centre at world ((j + 0.5) * pixel_width, (i + 0.5) * pixel_height):
 x right, y down, row 0 at the top. Each pixel test uses the torus-shortest displacement from the agent
-to the pixel centre, so an agent near an edge also appears across the seam. An agent smaller than a
-pixel still marks the pixel under its centre, so worlds of a million agents show every agent.
+to the pixel centre, so an agent near an edge also appears across the seam. Shapes are anti-aliased
+with 2 x 2 sub-samples per pixel. An agent whose radius is under `DOT_RADIUS_PX` image pixels is drawn
+as the one pixel under its centre, so a zoomed-out world of a million agents shows every agent, cheaply.
 """
 
 import warp as wp
@@ -30,12 +33,18 @@ PART_BODY = wp.constant(1)
 PART_FIN = wp.constant(2)
 PART_EYE = wp.constant(3)
 PART_OUTLINE = wp.constant(4)
-PART_STRIPE = wp.constant(5)
+PART_STRIPE = wp.constant(5)  # dorsal marking
 
 # Bits of the overlay buffer.
 BIT_HIT_BOX_PREDATOR = wp.constant(1)
 BIT_HIT_BOX_PREY = wp.constant(2)
 BIT_VELOCITY = wp.constant(4)
+
+# A shape whose radius is under this many image pixels is drawn as one pixel (its details would not show).
+DOT_RADIUS_PX = wp.constant(0.75)
+# Under this radius in image pixels a shape is drawn as a plain oval along the heading (fins and eyes
+# would be sub-pixel), which keeps crowded zoomed-out frames cheap.
+DETAIL_RADIUS_PX = wp.constant(3.0)
 
 
 @wp.struct
@@ -53,7 +62,6 @@ class RenderParams:
     radius: wp.vec2  # hit-box radius per type, px
     cone_radius: wp.vec2  # view distance per type, clipped to the world's half diagonal, px
     cos_half_fov: wp.vec2  # cos(fov / 2) per type; -2 for a full circle
-    min_radius_px: float  # shapes are drawn at least this many image pixels in radius
     outline: float  # outline thickness, world px
     ring: float  # half thickness of hit-box rings, world px
     line_px: float  # half thickness of velocity lines, image pixels
@@ -143,82 +151,121 @@ def in_triangle(p: wp.vec2, a: wp.vec2, b: wp.vec2, c: wp.vec2) -> int:
 
 @wp.func
 def prey_part(u: float, v: float, edge: float) -> int:
-    """Fish seen from above, nose at +u: oval body, forked tail, two eyes, a dorsal stripe.
-    (u, v) and `edge` (outline thickness) are in units of the hit-box radius; the shape fits in the
-    unit circle."""
+    """Fish seen from above, nose at +u: oval body, narrowing tail stalk, forked tail fin, small
+    pectoral fins and two eyes. (u, v) and `edge` (outline thickness) are in units of the hit-box
+    radius; the shape fits in the unit circle."""
     av = wp.abs(v)
+    q = wp.vec2(u, av)
     # eyes near the nose, one each side
-    du = u - 0.42
-    dv = av - 0.17
-    if du * du + dv * dv <= 0.075 * 0.075:
+    du = u - 0.4
+    dv = av - 0.14
+    if du * du + dv * dv <= 0.07 * 0.07:
         return PART_EYE
-    if in_ellipse(u, av, 0.1, 0.62, 0.36) == 1:
-        if in_ellipse(u, av, 0.1, wp.max(0.62 - edge, 1e-3), wp.max(0.36 - edge, 1e-3)) == 0:
+    if in_ellipse(u, av, 0.14, 0.56, 0.3) == 1:
+        if in_ellipse(u, av, 0.14, wp.max(0.56 - edge, 1e-3), wp.max(0.3 - edge, 1e-3)) == 0:
             return PART_OUTLINE
-        # a darker dorsal stripe on the back half
-        if av < 0.05 and u < 0.25 and u > -0.4:
-            return PART_STRIPE
         return PART_BODY
-    # forked tail: a wedge from the body's back to u = -0.93, with a notch cut into its trailing edge
-    if in_triangle(wp.vec2(u, av), wp.vec2(-0.4, 0.0), wp.vec2(-0.93, 0.36), wp.vec2(-0.93, 0.0)) == 1:
-        if in_triangle(wp.vec2(u, av), wp.vec2(-0.74, 0.0), wp.vec2(-0.94, 0.2), wp.vec2(-0.94, 0.0)) == 0:
+    # tail stalk, narrowing from the body to the fin
+    if in_triangle(q, wp.vec2(-0.3, 0.0), wp.vec2(-0.3, 0.17), wp.vec2(-0.66, 0.07)) == 1 or (
+        u >= -0.66 and u <= -0.3 and av <= 0.07
+    ):
+        return PART_BODY
+    # forked tail fin: a fan behind the stalk with a notch cut into its trailing edge
+    if in_triangle(q, wp.vec2(-0.6, 0.0), wp.vec2(-0.95, 0.34), wp.vec2(-0.95, 0.0)) == 1:
+        if in_triangle(q, wp.vec2(-0.82, 0.0), wp.vec2(-0.96, 0.14), wp.vec2(-0.96, 0.0)) == 0:
             return PART_FIN
-    # small pectoral fins behind the eyes
-    if in_triangle(wp.vec2(u, av), wp.vec2(0.2, 0.3), wp.vec2(-0.05, 0.33), wp.vec2(-0.12, 0.52)) == 1:
+    # pectoral fins behind the eyes, swept back
+    if in_triangle(q, wp.vec2(0.18, 0.24), wp.vec2(-0.06, 0.27), wp.vec2(-0.16, 0.46)) == 1:
         return PART_FIN
     return PART_NONE
 
 
 @wp.func
 def predator_part(u: float, v: float, edge: float) -> int:
-    """Shark seen from above, nose at +u: slim pointed body, swept pectoral fins, a crescent tail,
-    a dorsal fin along the spine, eyes on the snout. Units as in `prey_part`."""
+    """Shark seen from above, nose at +u: slim body with a pointed snout, broad swept pectoral fins,
+    a crescent tail, the dorsal fin as a dark wedge on the spine, eyes on the snout.
+    Units as in `prey_part`."""
     av = wp.abs(v)
-    du = u - 0.58
+    q = wp.vec2(u, av)
+    du = u - 0.56
     dv = av - 0.1
-    if du * du + dv * dv <= 0.045 * 0.045:
+    if du * du + dv * dv <= 0.035 * 0.035:
         return PART_EYE
-    # body: an ellipse, sharpened towards the snout by narrowing it ahead of u = 0.3
-    half = 0.24
+    # body: an ellipse, narrowed ahead of u = 0.3 into a pointed snout
+    half = 0.23
     if u > 0.3:
-        half = 0.24 * (1.0 - 0.35 * (u - 0.3) / 0.6)
+        half = 0.23 * (1.0 - 0.45 * (u - 0.3) / 0.6)
     if in_ellipse(u, av, 0.05, 0.85, half) == 1:
         if in_ellipse(u, av, 0.05, wp.max(0.85 - edge, 1e-3), wp.max(half - edge, 1e-3)) == 0:
             return PART_OUTLINE
         # dorsal fin seen from above: a narrow darker wedge on the spine
-        if in_triangle(wp.vec2(u, av), wp.vec2(0.2, 0.0), wp.vec2(-0.15, 0.07), wp.vec2(-0.3, 0.0)) == 1:
+        if in_triangle(q, wp.vec2(0.18, 0.0), wp.vec2(-0.12, 0.07), wp.vec2(-0.3, 0.0)) == 1:
             return PART_STRIPE
         return PART_BODY
-    # pectoral fins: swept-back triangles on both sides
-    if in_triangle(wp.vec2(u, av), wp.vec2(0.32, 0.15), wp.vec2(0.02, 0.18), wp.vec2(-0.3, 0.66)) == 1:
+    # pectoral fins: broad swept-back triangles on both sides
+    if in_triangle(q, wp.vec2(0.34, 0.15), wp.vec2(-0.06, 0.2), wp.vec2(-0.2, 0.6)) == 1:
         return PART_FIN
-    # small pelvic fins
-    if in_triangle(wp.vec2(u, av), wp.vec2(-0.42, 0.12), wp.vec2(-0.55, 0.1), wp.vec2(-0.62, 0.26)) == 1:
-        return PART_FIN
-    # crescent tail: two lobes meeting on the tail stalk
-    if in_triangle(wp.vec2(u, av), wp.vec2(-0.7, 0.0), wp.vec2(-0.92, 0.38), wp.vec2(-0.86, 0.0)) == 1:
+    # crescent tail: two lobes swept back from the tail stalk
+    if in_triangle(q, wp.vec2(-0.6, 0.07), wp.vec2(-0.96, 0.28), wp.vec2(-0.8, 0.0)) == 1:
         return PART_FIN
     return PART_NONE
 
 
 @wp.func
-def shape_part(agent_type: int, d: wp.vec2, heading: wp.vec2, radius: float, edge: float) -> int:
+def shape_part(p: RenderParams, agent_type: int, d: wp.vec2, heading: wp.vec2) -> int:
     """Part of an agent's shape at displacement d (world px) from its centre, 0 if outside."""
     h = heading
     if wp.length_sq(h) < 1e-12:
         h = wp.vec2(0.0, -1.0)  # no heading recorded: point up
-    inv_r = 1.0 / radius
+    r = p.radius[agent_type]
+    inv_r = 1.0 / r
     u = (d[0] * h[0] + d[1] * h[1]) * inv_r
     v = (d[1] * h[0] - d[0] * h[1]) * inv_r
+    if r < DETAIL_RADIUS_PX * wp.max(p.pixel_width, p.pixel_height):
+        # too small for fins and eyes to show: a plain oval along the heading, five times cheaper
+        if in_ellipse(u, v, -0.1, 0.9, 0.4) == 1:
+            return PART_BODY
+        return PART_NONE
     if agent_type == PREY:
-        return prey_part(u, v, edge * inv_r)
-    return predator_part(u, v, edge * inv_r)
+        return prey_part(u, v, p.outline * inv_r)
+    return predator_part(u, v, p.outline * inv_r)
 
 
 @wp.func
-def draw_radius(p: RenderParams, agent_type: int) -> float:
-    """Radius the shape is drawn at: the hit box, but at least `min_radius_px` image pixels."""
-    return wp.max(p.radius[agent_type], p.min_radius_px * wp.max(p.pixel_width, p.pixel_height))
+def sample_offset(p: RenderParams, k: int) -> wp.vec2:
+    """Offset of sub-sample k (0..3) from a pixel centre, world px: a 2 x 2 grid for anti-aliasing."""
+    sx = 0.25 * p.pixel_width
+    sy = 0.25 * p.pixel_height
+    if k == 0:
+        return wp.vec2(-sx, -sy)
+    if k == 1:
+        return wp.vec2(sx, -sy)
+    if k == 2:
+        return wp.vec2(-sx, sy)
+    return wp.vec2(sx, sy)
+
+
+@wp.func
+def is_dot(p: RenderParams, agent_type: int) -> int:
+    """1 if the type's shape is too small to show (radius under DOT_RADIUS_PX image pixels): such
+    agents are drawn as the single pixel under their centre, in their body colour."""
+    if p.radius[agent_type] < DOT_RADIUS_PX * wp.max(p.pixel_width, p.pixel_height):
+        return 1
+    return 0
+
+
+@wp.func
+def covers(p: RenderParams, agent_type: int, d: wp.vec2, heading: wp.vec2) -> int:
+    """1 if the shape covers any of the 2 x 2 sub-samples of the pixel at displacement d (world px)
+    from the agent; the centre is tried first, since it decides most pixels inside the shape."""
+    if shape_part(p, agent_type, d, heading) != PART_NONE:
+        return 1
+    k = int(0)
+    while k < 4:
+        if shape_part(p, agent_type, d + sample_offset(p, k), heading) != PART_NONE:
+            return 1
+        k = k + 1
+    return 0
 
 
 @wp.func
@@ -254,7 +301,8 @@ def splat_agents(
     c = position[w, slot]
     h = heading[w, slot]
     key = slot + 1
-    r = draw_radius(p, t)
+    r = p.radius[t]
+    dot = is_dot(p, t)
     inv_pw = 1.0 / p.pixel_width
     inv_ph = 1.0 / p.pixel_height
 
@@ -264,9 +312,12 @@ def splat_agents(
     wp.atomic_max(body_key, ci, cj, key)
 
     # body (and the hit-box ring, which reaches `ring` beyond the radius)
-    reach = r
+    reach = r + 0.5 * wp.max(p.pixel_width, p.pixel_height)  # sub-samples lie up to 0.36 px out
     if p.hit_boxes != 0:
-        reach = wp.max(r, p.radius[t] + p.ring)
+        reach = reach + p.ring
+    elif dot == 1:
+        reach = -1.0  # nothing more to draw: skip the loop
+    reach_sq = reach * reach
     i0 = first_pixel(c[1] - reach, inv_ph)
     i1 = span(i0, last_pixel(c[1] + reach, inv_ph), p.height_px)
     j0 = first_pixel(c[0] - reach, inv_pw)
@@ -276,8 +327,11 @@ def splat_agents(
         for jj in range(j0, j1 + 1):
             j = wrap_index(jj, p.width_px)
             d = pixel_offset(p, i, j, c)
-            if shape_part(t, d, h, r, p.outline) != PART_NONE:
-                wp.atomic_max(body_key, i, j, key)
+            if wp.length_sq(d) > reach_sq:
+                continue  # a corner of the bounding box
+            if dot == 0:
+                if covers(p, t, d, h) == 1:
+                    wp.atomic_max(body_key, i, j, key)
             if p.hit_boxes != 0:
                 if wp.abs(wp.length(d) - p.radius[t]) <= p.ring:
                     bit = BIT_HIT_BOX_PREY
@@ -387,6 +441,10 @@ def compose_image(
         n_prey = cone_count[PREY, i, j]
         if n_prey > 0:
             colour = blend(colour, pal.prey_cone, 1.0 - wp.pow(1.0 - pal.cone_alpha[PREY], float(n_prey)))
+    bits = overlay[i, j]
+    # velocity arrows under the bodies: they start from the agent's centre
+    if (bits & BIT_VELOCITY) != 0:
+        colour = pal.velocity
     key = body_key[i, j]
     if key > 0:
         slot = key - 1
@@ -394,16 +452,29 @@ def compose_image(
         if slot >= p.prey_capacity:
             t = PREDATOR
         d = pixel_offset(p, i, j, position[p.world, slot])
-        part = shape_part(t, d, heading[p.world, slot], draw_radius(p, t), p.outline)
-        # part 0: the pixel was only marked as the centre of an agent smaller than a pixel
-        colour = part_colour(pal, t, part)
-    bits = overlay[i, j]
+        h = heading[p.world, slot]
+        if is_dot(p, t) == 1:
+            colour = part_colour(pal, t, PART_BODY)
+        else:
+            # anti-aliasing: average the 2 x 2 sub-samples, uncovered ones showing what lies beneath
+            below = colour
+            total = wp.vec3(0.0, 0.0, 0.0)
+            covered = int(0)
+            for k in range(4):
+                part = shape_part(p, t, d + sample_offset(p, k), h)
+                if part != PART_NONE:
+                    total = total + part_colour(pal, t, part)
+                    covered = covered + 1
+                else:
+                    total = total + below
+            colour = total * 0.25
+            if covered == 0:
+                # marked only as the pixel under the centre of a shape thinner than the sub-samples
+                colour = part_colour(pal, t, PART_BODY)
     if (bits & BIT_HIT_BOX_PREY) != 0:
         colour = pal.prey_hit_box
     if (bits & BIT_HIT_BOX_PREDATOR) != 0:
         colour = pal.predator_hit_box
-    if (bits & BIT_VELOCITY) != 0:
-        colour = pal.velocity
     image[i, j, 0] = wp.uint8(wp.clamp(colour[0] + 0.5, 0.0, 255.0))
     image[i, j, 1] = wp.uint8(wp.clamp(colour[1] + 0.5, 0.0, 255.0))
     image[i, j, 2] = wp.uint8(wp.clamp(colour[2] + 0.5, 0.0, 255.0))

@@ -1,0 +1,128 @@
+"""MP4 videos of Aquarium worlds, written through imageio-ffmpeg (its bundled ffmpeg; nothing else to
+install). Needs the `video` extra: `pip install 'aquarium-warp[video]'`.
+
+```python
+from aquarium_warp.video import record, write_video
+record(env, lambda obs: {"prey": prey(), "predator": predator()}, steps=600, path="demo.mp4",
+       view_cones=True)
+write_video(list_of_frames, "frames.mp4", fps=30)
+```
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Callable, Iterable
+
+import numpy as np
+
+from .render import Renderer
+
+
+def _frame_iter(frames, num_frames):
+    if callable(frames):
+        if num_frames is None:
+            raise ValueError("a callable `frames` needs num_frames (it is called as frames(i), i < num_frames)")
+        for i in range(num_frames):
+            frame = frames(i)
+            if frame is None:  # the callable may end the video early
+                return
+            yield frame
+    else:
+        for i, frame in enumerate(frames):
+            if num_frames is not None and i >= num_frames:
+                return
+            yield frame
+
+
+def _check_frame(frame, expected_shape) -> np.ndarray:
+    frame = np.asarray(frame)
+    if frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3:
+        raise ValueError(f"video frames must be uint8 [H, W, 3] RGB arrays, got {frame.dtype} {list(frame.shape)}")
+    if expected_shape is not None and frame.shape != expected_shape:
+        raise ValueError(f"video frames must all have one shape: got {list(frame.shape)} after {list(expected_shape)}")
+    return frame
+
+
+def write_video(frames: Iterable[np.ndarray] | Callable[[int], np.ndarray | None], path, fps: float = 30,
+                progress: bool = True, num_frames: int | None = None, quality: float = 7) -> int:
+    """Write RGB uint8 frames `[H, W, 3]` to an H.264 MP4 file at `path`; returns the frame count.
+
+    `frames` is an iterable of frames, or a callable called as `frames(i)` for `i < num_frames` (it may
+    return None to stop early). `num_frames` also caps an iterable and sizes the progress bar (tqdm,
+    when installed and `progress`). Frames of odd width or height are padded by one edge pixel (the
+    yuv420p format most players need works on 2 x 2 blocks). `quality`: 0 (smallest) to 10 (best).
+    """
+    try:
+        import imageio_ffmpeg
+    except ImportError as error:  # an optional dependency
+        raise ImportError("write_video needs imageio-ffmpeg: pip install 'aquarium-warp[video]'") from error
+    if not (isinstance(fps, (int, float)) and not isinstance(fps, bool) and fps > 0):
+        raise ValueError(f"fps={fps!r} must be a number > 0")
+    if num_frames is not None and (isinstance(num_frames, bool) or not isinstance(num_frames, int) or num_frames < 0):
+        raise ValueError(f"num_frames={num_frames!r} must be None or an integer >= 0")
+    folder = os.path.dirname(os.path.abspath(str(path)))
+    if not os.path.isdir(folder):
+        raise ValueError(f"cannot write {path}: folder {folder} does not exist")
+    iterator = _frame_iter(frames, num_frames)
+    if progress:
+        try:
+            from tqdm import tqdm
+
+            total = num_frames if num_frames is not None else (len(frames) if hasattr(frames, "__len__") else None)
+            iterator = tqdm(iterator, total=total, unit="frame", desc=os.path.basename(str(path)))
+        except ImportError:
+            pass
+    writer = None
+    shape = None
+    count = 0
+    try:
+        for frame in iterator:
+            frame = _check_frame(frame, shape)
+            shape = frame.shape
+            h, w = shape[:2]
+            pad = ((0, h % 2), (0, w % 2), (0, 0))
+            if writer is None:
+                writer = imageio_ffmpeg.write_frames(
+                    str(path), (w + w % 2, h + h % 2), fps=fps, quality=quality, codec="libx264",
+                    pix_fmt_in="rgb24", pix_fmt_out="yuv420p", macro_block_size=1)
+                writer.send(None)  # start ffmpeg
+            if h % 2 or w % 2:
+                frame = np.pad(frame, pad, mode="edge")
+            writer.send(np.ascontiguousarray(frame).tobytes())
+            count += 1
+    finally:
+        if writer is not None:
+            writer.close()
+        if hasattr(iterator, "close"):
+            iterator.close()
+    if count == 0:
+        raise ValueError("write_video got no frames")
+    return count
+
+
+def record(env, policy_fn: Callable, steps: int, path, world: int = 0, *, fps: float = 30,
+           progress: bool = True, width_px: int | None = None, height_px: int | None = None,
+           view_cones: bool = False, hit_boxes: bool = False, velocities: bool = False,
+           quality: float = 7) -> int:
+    """Step `env` `steps` times with `policy_fn` and write world `world` as an MP4 video at `path`.
+
+    `policy_fn(observations)` gets the env's current observations dict and returns the actions dict
+    for `env.step` (`{"prey": [W, prey_capacity], "predator": [W, predator_count]}` int tensors).
+    The env is not reset: the video starts from its current state. Writes `steps + 1` frames (the
+    current state, then the state after each step) and returns that count. A world whose episode ends
+    resets itself inside `step()`, so the video then continues with the new episode.
+    """
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
+        raise ValueError(f"steps={steps!r} must be an integer >= 0")
+    renderer = Renderer(env, width_px, height_px)
+    overlays = dict(view_cones=view_cones, hit_boxes=hit_boxes, velocities=velocities)
+    renderer.render_device(world, **overlays)  # checks `world` before ffmpeg starts
+
+    def frames():
+        yield renderer.render(world, **overlays)
+        for _ in range(steps):
+            env.step(policy_fn(env.observations))
+            yield renderer.render(world, **overlays)
+
+    return write_video(frames(), path, fps=fps, progress=progress, num_frames=steps + 1, quality=quality)
