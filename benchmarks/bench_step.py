@@ -9,8 +9,10 @@ Each point: warm-up, then `--repeats` timed runs of at least `--seconds`; the me
 
     python benchmarks/bench_step.py [--device cpu] [--seconds 2] [--repeats 5] [--no-original]
 
-Prints a table and writes benchmarks/results/step_<device>.json. Targets (issue 2): at least 1000x the
-original's agent-steps/s at 1024 default worlds, and per-agent time within 1.5x from 1k to 100k agents.
+On the CPU it also times the PettingZoo `aquarium_v1.parallel_env` (one default world).
+Prints a table and writes benchmarks/results/step_<device>.json. Targets: at least 1000x the
+original's agent-steps/s at 1024 default worlds, per-agent time within 1.5x from 1k to 100k agents,
+and the PettingZoo env at least 20x the original's env-steps/s.
 """
 
 from __future__ import annotations
@@ -103,6 +105,13 @@ def main(argv=None) -> int:
         print(f"{label:34s} {row['worlds']:6d} x {row['agents_per_world']:7d}  {row['step_ms']:9.3f} ms  "
               f"{row['agent_steps_per_s']:11.3e} agent-steps/s  {row['ns_per_agent_step']:8.1f} ns/agent", flush=True)
 
+    pettingzoo = None
+    if args.device == "cpu":
+        from bench_pettingzoo import measure_ours  # noqa: E402  (same folder)
+        pettingzoo = measure_ours("parallel", seconds=max(2.0, args.seconds), repeats=3, warmup=1.0)
+        print(f"{'aquarium_v1.parallel_env (PettingZoo)':34s} {1:6d} x {17:7d}  "
+              f"{1e3 / pettingzoo['env_steps_per_s']:9.3f} ms  {pettingzoo['agent_steps_per_s']:11.3e} agent-steps/s")
+
     original = None
     if not args.no_original:
         from original_aquarium import measure_original  # noqa: E402  (same folder)
@@ -116,6 +125,10 @@ def main(argv=None) -> int:
         big = by[("default", 1024, 17)]["agent_steps_per_s"]
         checks["speedup_1024_worlds_vs_original"] = big / original["agent_steps_per_s"]
         checks["speedup_1024_worlds_target"] = 1000.0
+        if pettingzoo:
+            checks["pettingzoo_env_steps_speedup_vs_original"] = (pettingzoo["env_steps_per_s"]
+                                                                 / original["env_steps_per_s"])
+            checks["pettingzoo_env_steps_speedup_target"] = 20.0
     for label in ("density", "density fov off", "density fov off, unlimited view"):
         series = [r for r in rows if r["config"] == label]
         if len(series) >= 2:
@@ -129,7 +142,7 @@ def main(argv=None) -> int:
         "device": args.device, "device_name": device.name if device.is_cuda else platform.processor() or platform.machine(),
         "cpu_count": os.cpu_count(), "python": platform.python_version(), "warp": wp.__version__,
         "torch": torch.__version__, "git_commit": _git_commit(), "seconds": args.seconds, "repeats": args.repeats,
-        "rows": rows, "original": original, "checks": checks,
+        "rows": rows, "pettingzoo_parallel_env": pettingzoo, "original": original, "checks": checks,
     }
     out = Path(args.out) if args.out else RESULTS / f"step_{args.device.replace(':', '')}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
