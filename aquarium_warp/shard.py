@@ -65,6 +65,8 @@ def cell_lists(cfg: AquariumConfig, num_worlds: int, dims: tuple[int, int], devi
     g.agent = wp.zeros(2 * n, dtype=int, device=device)
     g.position = wp.zeros(n, dtype=wp.vec2, device=device)
     g.speed = wp.zeros(n, dtype=float, device=device)
+    g.heading = wp.zeros(n, dtype=wp.vec2, device=device)
+    g.entry = wp.zeros(n, dtype=int, device=device)
     return g
 
 
@@ -102,8 +104,8 @@ class WorldShard:
         count = W * C
         if not wp.get_device(self.device).is_cuda:
             return [self._launch(grid_kernels.sort_into_cells_serially, 1,
-                                 [self.world, g, s.position, s.velocity, s.alive, W],
-                                 [g.key, g.cell_start, g.cell_end, g.agent, g.position, g.speed])]
+                                 [self.world, g, s.position, s.velocity, s.heading, s.alive, W],
+                                 [g.key, g.cell_start, g.cell_end, g.agent, g.position, g.speed, g.heading])]
         return [
             self._launch(grid_kernels.compute_cell_keys, (W, C), [self.world, g, s.position, s.alive, W],
                          [g.key, g.agent]),
@@ -111,15 +113,16 @@ class WorldShard:
             g.cell_start.zero_,
             g.cell_end.zero_,
             self._launch(grid_kernels.find_cell_ranges, count,
-                         [self.world, g, s.position, s.velocity, count, W * g.cells_per_world],
-                         [g.cell_start, g.cell_end, g.position, g.speed]),
+                         [self.world, g, s.position, s.velocity, s.heading, count, W * g.cells_per_world],
+                         [g.cell_start, g.cell_end, g.position, g.speed, g.heading]),
         ]
 
     def _observe_program(self) -> list:
         """MODEL.md step 10 (and the contact partners of the next step's step 3)."""
         s, W, C = self.s, self.num_worlds, self.cfg.capacity
         return self._build_grid_program() + [
-            self._launch(self.observe_kernel, W * C, [self.world, self.types, self.grid, s.alive, s.heading],
+            self._launch(self.observe_kernel, W * C,
+                         [self.world, self.types, self.grid, s.alive, int(wp.get_device(self.device).is_cuda)],
                          [s.obs_prey, s.obs_predator, s.mask_prey, s.mask_predator, s.slot_prey,
                           s.slot_predator, s.contact_partner, s.contact_offset]),
         ]

@@ -47,6 +47,8 @@ class CellLists:
     agent: wp.array(dtype=int)  # [2N] flat slot index world * capacity + slot, in sorted order
     position: wp.array(dtype=wp.vec2)  # [N] px, gathered in sorted order
     speed: wp.array(dtype=float)  # [N] px/step, gathered in sorted order
+    heading: wp.array(dtype=wp.vec2)  # [N] unit vectors, gathered in sorted order
+    entry: wp.array(dtype=int)  # [N] sorted entry k of each flat slot index (inverse of `agent`)
 
 
 @wp.func
@@ -148,12 +150,14 @@ def find_cell_ranges(
     grid: CellLists,
     position: wp.array2d(dtype=wp.vec2),
     velocity: wp.array2d(dtype=wp.vec2),
+    heading: wp.array2d(dtype=wp.vec2),
     count: int,
     sentinel: int,
     cell_start: wp.array(dtype=int),
     cell_end: wp.array(dtype=int),
     sorted_position: wp.array(dtype=wp.vec2),
     sorted_speed: wp.array(dtype=float),
+    sorted_heading: wp.array(dtype=wp.vec2),
 ):
     k = wp.tid()
     idx = grid.agent[k]
@@ -161,6 +165,8 @@ def find_cell_ranges(
     i = idx - w * world.capacity
     sorted_position[k] = position[w, i]
     sorted_speed[k] = wp.length(velocity[w, i])
+    sorted_heading[k] = heading[w, i]
+    grid.entry[idx] = k
     key = grid.key[k]
     if key == sentinel:
         return
@@ -176,6 +182,7 @@ def sort_into_cells_serially(
     grid: CellLists,
     position: wp.array2d(dtype=wp.vec2),
     velocity: wp.array2d(dtype=wp.vec2),
+    heading: wp.array2d(dtype=wp.vec2),
     alive: wp.array2d(dtype=wp.bool),
     num_worlds: int,
     key: wp.array(dtype=int),
@@ -184,6 +191,7 @@ def sort_into_cells_serially(
     agent: wp.array(dtype=int),
     sorted_position: wp.array(dtype=wp.vec2),
     sorted_speed: wp.array(dtype=float),
+    sorted_heading: wp.array(dtype=wp.vec2),
 ):
     """The same cell lists as the radix-sort path, by one counting sort in one thread: on the CPU
     (where Warp runs kernels on one thread anyway) this avoids the sort's fixed cost, which
@@ -218,3 +226,5 @@ def sort_into_cells_serially(
             agent[at] = k
             sorted_position[at] = position[w, i]
             sorted_speed[at] = wp.length(velocity[w, i])
+            sorted_heading[at] = heading[w, i]
+            grid.entry[k] = at

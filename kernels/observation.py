@@ -86,7 +86,7 @@ def observation_kernel(max_slots: int):
         types: wp.array(dtype=AgentType),
         grid: CellLists,
         alive: wp.array2d(dtype=wp.bool),
-        heading: wp.array2d(dtype=wp.vec2),
+        in_cell_order: int,
         obs_prey: wp.array3d(dtype=float),
         obs_predator: wp.array3d(dtype=float),
         mask_prey: wp.array3d(dtype=wp.bool),
@@ -96,8 +96,14 @@ def observation_kernel(max_slots: int):
         contact_partner: wp.array2d(dtype=wp.int32),
         contact_offset: wp.array2d(dtype=wp.vec2),
     ):
-        k = wp.tid()  # sorted entry; dead slots sort last and only get zeros
-        idx = grid.agent[k]
+        # One thread per agent, in slot order (sequential output writes: best on the CPU) or in
+        # cell order (neighbouring threads read neighbouring cells: best on the GPU).
+        t = wp.tid()
+        idx = t
+        k = grid.entry[t]
+        if in_cell_order != 0:
+            k = t
+            idx = grid.agent[t]
         w = idx // world.capacity
         i = idx - w * world.capacity
         t = slot_type(world, i)
@@ -116,7 +122,7 @@ def observation_kernel(max_slots: int):
             return
 
         pos = grid.position[k]
-        h = heading[w, i]
+        h = grid.heading[k]
         signed = world.signed_observations
         put_value(obs_prey, obs_predator, is_prey, w, row, 0, scaled(float(t), signed))
         put_value(obs_prey, obs_predator, is_prey, w, row, 1, scaled(pos[0] / world.width, signed))
