@@ -4,16 +4,16 @@ Each world is tiled by `dims_x x dims_y` cells whose size divides the world exac
 wrap modulo the dims and the grid is a torus like the world. Live agents are sorted by the key
 `world * cells_per_world + cell` with a stable radix sort, so the order (and every result derived
 from it) is deterministic on CPU and GPU; dead slots get a key past the last cell and sort last.
-Positions and speeds are gathered into that order for coalesced neighbour reads. On the CPU one
-serial counting sort (`sort_into_cells_serially`) builds the same lists without the radix sort's
-fixed cost.
+Positions, speeds and headings are gathered into that order for coalesced neighbour reads, and
+`entry` maps each slot to its sorted entry. On the CPU one serial counting sort
+(`sort_into_cells_serially`) builds the same lists without the radix sort's fixed cost.
 
 Queries visit the cells around the query cell by rings: ring 0 is the cell itself, ring r the 8r
 cells at Chebyshev cell distance r. A query loops over row offsets `oy`, clipped to [-lo_y, hi_y],
 then over column offsets `ox` clipped to [-lo_x, hi_x] (a fixed radius visits the whole square, a
-ring walk only the ring, see `column_step`). After rings 0..r every agent closer than `r * reach` (reach = the
-smaller cell side, less a rounding margin) has been seen, which bounds fixed-radius queries and lets
-k-nearest queries stop early. On a small torus, offsets are limited to one representative per
+ring walk only the ring, see `column_step`). After rings 0..r every agent closer than `r * reach`
+(reach = the smaller cell side, less a rounding margin) has been seen, which bounds fixed-radius
+queries and lets k-nearest queries stop early. On a small torus, offsets are limited to one representative per
 column and row, so no cell is visited twice.
 """
 

@@ -98,12 +98,13 @@ def observation_kernel(max_slots: int):
     ):
         # One thread per agent, in slot order (sequential output writes: best on the CPU) or in
         # cell order (neighbouring threads read neighbouring cells: best on the GPU).
-        t = wp.tid()
-        idx = t
-        k = grid.entry[t]
+        thread = wp.tid()
+        k = thread  # sorted entry
+        idx = thread  # flat slot index
         if in_cell_order != 0:
-            k = t
-            idx = grid.agent[t]
+            idx = grid.agent[thread]
+        else:
+            k = grid.entry[thread]
         w = idx // world.capacity
         i = idx - w * world.capacity
         t = slot_type(world, i)

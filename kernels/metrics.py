@@ -1,0 +1,423 @@
+"""Swarm metrics of every world on the device: polarization, cohesion, nearest-neighbour distances,
+groups (connected components), distance to the nearest predator, populations.
+
+All metrics are about the live prey of a world; distances are torus-shortest, in px. Neighbour
+queries read the cell lists that the observation pass built on the current state, so no metric does
+all-pairs work:
+- nearest prey: a ring-by-ring search that stops once no unseen prey can be nearer;
+- nearest predator: the same search, or, when predators are few, a loop over the predator slots
+  (cost per prey `predator_count`; a ring search would walk every prey entry between a prey and a
+  far-away lone predator);
+- groups: a parallel union-find over the pairs of live prey closer than the linking distance, found
+  by a fixed-radius search. Roots are hooked under the smaller slot index with an atomic
+  compare-and-swap, so every parent index is below its child's and the final root of a component
+  is its smallest prey slot, whatever order the threads ran in: the labels are deterministic.
+
+Sums over the prey of a world run in two deterministic stages (no float atomics): per chunk of
+`CHUNK` slots in slot order, then over the chunks in order. Integer counters (histogram bins,
+group sizes) use integer atomics, whose result does not depend on the order.
+
+Launch order per shard (see `aquarium_warp.metrics.SwarmMetrics`): zero the integer counters,
+`prey_distances`, `link_groups`, `resolve_groups`, `prey_partial_sums`, `finish_prey_sums`,
+`centroid_partial_sums`, `finish_cohesion`.
+"""
+
+import warp as wp
+
+from .common import PREY, WorldParams, slot_type, torus_displacement
+from .grid import (CellLists, cell_coords, column_step, last_ring, row_base, rings_for_radius, searched_radius,
+                   square_extent, wrap_cell)
+
+wp.set_module_options({"enable_backward": False})
+
+# Prey slots summed per partial sum (first stage of the two-stage reductions).
+CHUNK = wp.constant(256)
+
+# Columns of the per-world result matrix `values` [W, NUM_VALUES] (float32).
+POLARIZATION = wp.constant(0)  # |mean unit heading| of live prey, in [0, 1]
+COHESION = wp.constant(1)  # mean torus distance of live prey to their centroid, px
+CENTROID_X = wp.constant(2)  # circular-mean centroid of live prey, px in [0, width)
+CENTROID_Y = wp.constant(3)  # px in [0, height)
+NN_MEAN = wp.constant(4)  # mean over live prey of the distance to the nearest other live prey, px
+GROUPS = wp.constant(5)  # connected components of live prey (links: distance < linking distance)
+LARGEST_GROUP = wp.constant(6)  # live prey in the largest group / live prey, in (0, 1]
+PREDATOR_DISTANCE = wp.constant(7)  # mean over live prey of the distance to the nearest live predator, px
+PREY_ALIVE = wp.constant(8)  # live prey
+PREDATOR_ALIVE = wp.constant(9)  # live predators
+CAPTURES = wp.constant(10)  # captures in the last step
+NUM_VALUES = wp.constant(11)
+VALUE_NAMES = ("polarization", "cohesion", "centroid_x", "centroid_y", "nn_mean", "groups", "largest_group",
+               "predator_distance", "prey_alive", "predator_alive", "captures")
+
+# Columns of the first-stage partial sums [W, chunks, NUM_PARTIALS].
+_P_COUNT = wp.constant(0)  # live prey
+_P_HEAD_X = wp.constant(1)  # sum of unit headings
+_P_HEAD_Y = wp.constant(2)
+_P_COS_X = wp.constant(3)  # sum of cos / sin of 2 pi x / width (circular mean of x)
+_P_SIN_X = wp.constant(4)
+_P_COS_Y = wp.constant(5)
+_P_SIN_Y = wp.constant(6)
+_P_NN_SUM = wp.constant(7)  # nearest-prey distances, px, and how many prey have one
+_P_NN_COUNT = wp.constant(8)
+_P_PRED_SUM = wp.constant(9)  # nearest-predator distances, px, and how many prey have one
+_P_PRED_COUNT = wp.constant(10)
+_P_LARGEST = wp.constant(11)  # largest group size among the roots of the chunk
+_P_ROOTS = wp.constant(12)  # groups (roots) in the chunk
+NUM_PARTIALS = wp.constant(13)
+
+TWO_PI = wp.constant(6.283185307179586)
+
+
+@wp.func
+def find_root(parent: wp.array(dtype=wp.int32), base: int, x: int) -> int:
+    """Root of prey slot `x` in the union-find forest `parent[base + slot]`, halving the path on the
+    way (each write replaces a parent by a grandparent: benign when threads race)."""
+    r = x
+    p = int(parent[base + r])
+    while p != r:
+        g = int(parent[base + p])
+        if g != p:
+            parent[base + r] = wp.int32(g)
+        r = p
+        p = g
+    return r
+
+
+@wp.func
+def unite(parent: wp.array(dtype=wp.int32), base: int, a: int, b: int):
+    """Merge the trees of slots `a` and `b`: the larger root is hooked under the smaller one by an
+    atomic compare-and-swap; if it stopped being a root meanwhile, retry from where it now points."""
+    ra = find_root(parent, base, a)
+    rb = find_root(parent, base, b)
+    while ra != rb:
+        hi = wp.max(ra, rb)
+        lo = wp.min(ra, rb)
+        old = int(wp.atomic_cas(parent, base + hi, wp.int32(hi), wp.int32(lo)))
+        if old == hi:
+            ra = lo
+            rb = lo
+        else:
+            ra = find_root(parent, base, old)
+            rb = find_root(parent, base, lo)
+
+
+@wp.kernel
+def prey_distances(
+    world: WorldParams,
+    grid: CellLists,
+    alive: wp.array2d(dtype=wp.bool),
+    position: wp.array2d(dtype=wp.vec2),
+    predators_by_grid: int,
+    bin_width: float,
+    nearest_prey: wp.array2d(dtype=float),
+    nearest_predator: wp.array2d(dtype=float),
+    nn_histogram: wp.array2d(dtype=wp.int32),
+    parent: wp.array(dtype=wp.int32),
+):
+    """Per prey slot `(w, i)`, i < prey_capacity: torus distance (px) to the nearest other live prey
+    and to the nearest live predator (-1 where there is none, or the slot is dead); the nearest-prey
+    distance is counted in `nn_histogram[w, bin]` (bin = floor(d / bin_width), the last bin also
+    holds everything beyond). Also starts the union-find: `parent[w * prey_capacity + i] = i`.
+    `predators_by_grid` 1: ring search for the nearest predator, 0: loop over the predator slots.
+    `grid` must hold the cell lists of `position`; `nn_histogram` must be zero."""
+    w, i = wp.tid()
+    parent[w * world.prey_capacity + i] = wp.int32(i)
+    if not alive[w, i]:
+        nearest_prey[w, i] = -1.0
+        nearest_predator[w, i] = -1.0
+        return
+    pos = position[w, i]
+    base = w * world.capacity
+    prey_d2 = float(0.0)
+    prey_found = bool(False)
+    pred_d2 = float(0.0)
+    pred_found = bool(False)
+
+    if predators_by_grid == 0:
+        for j in range(world.prey_capacity, world.capacity):
+            if alive[w, j]:
+                d = torus_displacement(world, pos, position[w, j])
+                d2 = wp.dot(d, d)
+                if not pred_found or d2 < pred_d2:
+                    pred_d2 = d2
+                    pred_found = True
+
+    center = cell_coords(grid, pos)
+    last = last_ring(grid)
+    want_pred = predators_by_grid != 0
+    r = int(0)
+    searching = bool(True)
+    while searching:
+        box = square_extent(grid, r)
+        for oy in range(box[2], box[3] + 1):
+            row_cells = row_base(grid, w, center, oy)
+            for ox in range(-r, r + 1, column_step(r, oy)):
+                if ox >= box[0] and ox <= box[1]:
+                    c = row_cells + wrap_cell(center[0] + ox, grid.dims_x)
+                    for k2 in range(grid.cell_start[c], grid.cell_end[c]):
+                        j = grid.agent[k2] - base
+                        if j != i:
+                            d = torus_displacement(world, pos, grid.position[k2])
+                            d2 = wp.dot(d, d)
+                            if slot_type(world, j) == PREY:
+                                if not prey_found or d2 < prey_d2:
+                                    prey_d2 = d2
+                                    prey_found = True
+                            elif want_pred:
+                                if not pred_found or d2 < pred_d2:
+                                    pred_d2 = d2
+                                    pred_found = True
+        # After rings 0..r every agent within `reach` has been seen.
+        if r >= last:
+            searching = False
+        else:
+            reach = searched_radius(grid, r)
+            reach2 = reach * reach
+            prey_done = prey_found and prey_d2 < reach2
+            pred_done = (not want_pred) or (pred_found and pred_d2 < reach2)
+            if prey_done and pred_done:
+                searching = False
+        r += 1
+
+    nearest_prey[w, i] = -1.0
+    if prey_found:
+        dist = wp.sqrt(prey_d2)
+        nearest_prey[w, i] = dist
+        bins = nn_histogram.shape[1]
+        b = bins - 1
+        if dist < float(bins) * bin_width:
+            b = wp.min(int(dist / bin_width), bins - 1)
+        wp.atomic_add(nn_histogram, w, b, wp.int32(1))
+    nearest_predator[w, i] = -1.0
+    if pred_found:
+        nearest_predator[w, i] = wp.sqrt(pred_d2)
+
+
+@wp.kernel
+def link_groups(
+    world: WorldParams,
+    grid: CellLists,
+    alive: wp.array2d(dtype=wp.bool),
+    position: wp.array2d(dtype=wp.vec2),
+    linking_distance: float,
+    parent: wp.array(dtype=wp.int32),
+):
+    """Per prey slot `(w, i)`: unite `i` with every live prey `j > i` at torus distance
+    `< linking_distance` (px), found by a fixed-radius search of the cell lists.
+    `parent[w * prey_capacity + i]` must start as `i` (set by `prey_distances`)."""
+    w, i = wp.tid()
+    if not alive[w, i]:
+        return
+    pos = position[w, i]
+    base = w * world.capacity
+    forest = w * world.prey_capacity
+    link2 = linking_distance * linking_distance
+    center = cell_coords(grid, pos)
+    box = square_extent(grid, rings_for_radius(grid, linking_distance))
+    for oy in range(box[2], box[3] + 1):
+        row_cells = row_base(grid, w, center, oy)
+        for ox in range(box[0], box[1] + 1):
+            c = row_cells + wrap_cell(center[0] + ox, grid.dims_x)
+            for k2 in range(grid.cell_start[c], grid.cell_end[c]):
+                j = grid.agent[k2] - base
+                if j > i and slot_type(world, j) == PREY:
+                    d = torus_displacement(world, pos, grid.position[k2])
+                    if wp.dot(d, d) < link2:
+                        unite(parent, forest, i, j)
+
+
+@wp.kernel
+def resolve_groups(
+    world: WorldParams,
+    alive: wp.array2d(dtype=wp.bool),
+    parent: wp.array(dtype=wp.int32),
+    group_label: wp.array2d(dtype=wp.int32),
+    group_size: wp.array2d(dtype=wp.int32),
+):
+    """Per prey slot `(w, i)`: `group_label[w, i]` = the smallest prey slot of its group (-1 if dead),
+    and `group_size[w, root]` counts the group's members. `group_size` must be zero."""
+    w, i = wp.tid()
+    if not alive[w, i]:
+        group_label[w, i] = -1
+        return
+    root = find_root(parent, w * world.prey_capacity, i)
+    group_label[w, i] = wp.int32(root)
+    wp.atomic_add(group_size, w, root, wp.int32(1))
+
+
+@wp.kernel
+def prey_partial_sums(
+    world: WorldParams,
+    alive: wp.array2d(dtype=wp.bool),
+    position: wp.array2d(dtype=wp.vec2),
+    heading: wp.array2d(dtype=wp.vec2),
+    nearest_prey: wp.array2d(dtype=float),
+    nearest_predator: wp.array2d(dtype=float),
+    group_label: wp.array2d(dtype=wp.int32),
+    group_size: wp.array2d(dtype=wp.int32),
+    partial: wp.array3d(dtype=float),
+):
+    """First stage of the per-world sums: chunk `c` of world `w` sums prey slots
+    `[c * CHUNK, (c + 1) * CHUNK)` in slot order into `partial[w, c, :]` (columns `_P_*`)."""
+    w, c = wp.tid()
+    count = float(0.0)
+    head = wp.vec2(0.0, 0.0)
+    cos_x = float(0.0)
+    sin_x = float(0.0)
+    cos_y = float(0.0)
+    sin_y = float(0.0)
+    nn_sum = float(0.0)
+    nn_count = float(0.0)
+    pred_sum = float(0.0)
+    pred_count = float(0.0)
+    largest = int(0)
+    roots = int(0)
+    first = c * CHUNK
+    end = wp.min(first + CHUNK, world.prey_capacity)
+    for i in range(first, end):
+        if alive[w, i]:
+            count += 1.0
+            head = head + heading[w, i]
+            p = position[w, i]
+            ax = TWO_PI * p[0] / world.width
+            ay = TWO_PI * p[1] / world.height
+            cos_x += wp.cos(ax)
+            sin_x += wp.sin(ax)
+            cos_y += wp.cos(ay)
+            sin_y += wp.sin(ay)
+            nn = nearest_prey[w, i]
+            if nn >= 0.0:
+                nn_sum += nn
+                nn_count += 1.0
+            pd = nearest_predator[w, i]
+            if pd >= 0.0:
+                pred_sum += pd
+                pred_count += 1.0
+            if group_label[w, i] == i:
+                roots += 1
+                largest = wp.max(largest, int(group_size[w, i]))
+    partial[w, c, _P_COUNT] = count
+    partial[w, c, _P_HEAD_X] = head[0]
+    partial[w, c, _P_HEAD_Y] = head[1]
+    partial[w, c, _P_COS_X] = cos_x
+    partial[w, c, _P_SIN_X] = sin_x
+    partial[w, c, _P_COS_Y] = cos_y
+    partial[w, c, _P_SIN_Y] = sin_y
+    partial[w, c, _P_NN_SUM] = nn_sum
+    partial[w, c, _P_NN_COUNT] = nn_count
+    partial[w, c, _P_PRED_SUM] = pred_sum
+    partial[w, c, _P_PRED_COUNT] = pred_count
+    partial[w, c, _P_LARGEST] = float(largest)
+    partial[w, c, _P_ROOTS] = float(roots)
+
+
+@wp.func
+def circular_mean(cos_sum: float, sin_sum: float, length: float) -> float:
+    """Circular mean (px in [0, length)) of coordinates given by the sums of cos and sin of their angles
+    2 pi x / length; 0 where the sums vanish (no preferred position)."""
+    x = wp.atan2(sin_sum, cos_sum) * length / TWO_PI
+    if x < 0.0:
+        x = x + length
+    if x >= length:
+        x = x - length
+    return x
+
+
+@wp.kernel
+def finish_prey_sums(
+    world: WorldParams,
+    partial: wp.array3d(dtype=float),
+    predator_alive_count: wp.array(dtype=wp.int32),
+    captures: wp.array(dtype=wp.int32),
+    values: wp.array2d(dtype=float),
+):
+    """Second stage per world `w`: sums the chunks in order and writes every column of `values[w]`
+    except COHESION. Undefined means (no live prey; fewer than two for NN_MEAN; no predator for
+    PREDATOR_DISTANCE) are NaN."""
+    w = wp.tid()
+    n = float(0.0)
+    head_x = float(0.0)
+    head_y = float(0.0)
+    cos_x = float(0.0)
+    sin_x = float(0.0)
+    cos_y = float(0.0)
+    sin_y = float(0.0)
+    nn_sum = float(0.0)
+    nn_count = float(0.0)
+    pred_sum = float(0.0)
+    pred_count = float(0.0)
+    largest = float(0.0)
+    groups = float(0.0)
+    for c in range(partial.shape[1]):
+        n += partial[w, c, _P_COUNT]
+        head_x += partial[w, c, _P_HEAD_X]
+        head_y += partial[w, c, _P_HEAD_Y]
+        cos_x += partial[w, c, _P_COS_X]
+        sin_x += partial[w, c, _P_SIN_X]
+        cos_y += partial[w, c, _P_COS_Y]
+        sin_y += partial[w, c, _P_SIN_Y]
+        nn_sum += partial[w, c, _P_NN_SUM]
+        nn_count += partial[w, c, _P_NN_COUNT]
+        pred_sum += partial[w, c, _P_PRED_SUM]
+        pred_count += partial[w, c, _P_PRED_COUNT]
+        largest = wp.max(largest, partial[w, c, _P_LARGEST])
+        groups += partial[w, c, _P_ROOTS]
+    nan = wp.nan
+    values[w, GROUPS] = groups
+    values[w, PREY_ALIVE] = n
+    values[w, PREDATOR_ALIVE] = float(predator_alive_count[w])
+    values[w, CAPTURES] = float(captures[w])
+    if n > 0.0:
+        values[w, POLARIZATION] = wp.length(wp.vec2(head_x, head_y)) / n
+        values[w, CENTROID_X] = circular_mean(cos_x, sin_x, world.width)
+        values[w, CENTROID_Y] = circular_mean(cos_y, sin_y, world.height)
+        values[w, LARGEST_GROUP] = largest / n
+    else:
+        values[w, POLARIZATION] = nan
+        values[w, CENTROID_X] = nan
+        values[w, CENTROID_Y] = nan
+        values[w, LARGEST_GROUP] = nan
+    values[w, NN_MEAN] = nan
+    if nn_count > 0.0:
+        values[w, NN_MEAN] = nn_sum / nn_count
+    values[w, PREDATOR_DISTANCE] = nan
+    if pred_count > 0.0:
+        values[w, PREDATOR_DISTANCE] = pred_sum / pred_count
+
+
+@wp.kernel
+def centroid_partial_sums(
+    world: WorldParams,
+    alive: wp.array2d(dtype=wp.bool),
+    position: wp.array2d(dtype=wp.vec2),
+    values: wp.array2d(dtype=float),
+    partial: wp.array3d(dtype=float),
+):
+    """First stage of the cohesion sum: chunk `c` of world `w` sums the torus distances (px) of its
+    live prey to the centroid in `values[w]` into `partial[w, c, 0]`."""
+    w, c = wp.tid()
+    total = float(0.0)
+    if values[w, PREY_ALIVE] > 0.0:
+        centroid = wp.vec2(values[w, CENTROID_X], values[w, CENTROID_Y])
+        end = wp.min(c * CHUNK + CHUNK, world.prey_capacity)
+        for i in range(c * CHUNK, end):
+            if alive[w, i]:
+                total += wp.length(torus_displacement(world, centroid, position[w, i]))
+    partial[w, c, 0] = total
+
+
+@wp.kernel
+def finish_cohesion(
+    partial: wp.array3d(dtype=float),
+    values: wp.array2d(dtype=float),
+):
+    """Second stage per world: `values[w, COHESION]` = mean distance to the centroid (NaN without prey)."""
+    w = wp.tid()
+    n = values[w, PREY_ALIVE]
+    if n > 0.0:
+        total = float(0.0)
+        for c in range(partial.shape[1]):
+            total += partial[w, c, 0]
+        values[w, COHESION] = total / n
+    else:
+        values[w, COHESION] = wp.nan
