@@ -9,7 +9,7 @@ lists built after the move, so a prey respawned in place is not seen at its new 
 import warp as wp
 
 from .common import PREDATOR, PREY, PURPOSE_RESPAWN, AgentType, WorldParams, random_stream, slot_type, torus_displacement
-from .grid import CellLists, cell_coords, row_base, rings_for_radius, square_extent, wrap_cell
+from .grid import CellLists, cell_coords, rings_for_radius, square_cell, square_cell_count, square_extent
 from .spawn import make_fresh_prey, uniform_position
 
 wp.set_module_options({"enable_backward": False})
@@ -35,16 +35,14 @@ def detect_captures(
     center = cell_coords(grid, pos)
     base = w * world.capacity
     box = square_extent(grid, rings_for_radius(grid, contact))
-    for oy in range(box[2], box[3] + 1):
-        row = row_base(grid, w, center, oy)
-        for ox in range(box[0], box[1] + 1):
-            c = row + wrap_cell(center[0] + ox, grid.dims_x)
-            for k2 in range(grid.cell_start[c], grid.cell_end[c]):
-                j = grid.agent[k2] - base
-                if slot_type(world, j) == PREY:
-                    d = torus_displacement(world, pos, grid.position[k2])
-                    if wp.dot(d, d) < contact * contact:
-                        captured[w, j] = True
+    for q in range(square_cell_count(box)):
+        c = square_cell(grid, w, center, box, q)
+        for k2 in range(grid.cell_start[c], grid.cell_end[c]):
+            j = grid.agent[k2] - base
+            if slot_type(world, j) == PREY:
+                d = torus_displacement(world, pos, grid.position[k2])
+                if wp.dot(d, d) < contact * contact:
+                    captured[w, j] = True
 
 
 @wp.kernel
@@ -84,17 +82,15 @@ def resolve_captures(
     center = cell_coords(grid, pos)
     base = w * world.capacity
     box = square_extent(grid, rings_for_radius(grid, share))
-    for oy in range(box[2], box[3] + 1):
-        row = row_base(grid, w, center, oy)
-        for ox in range(box[0], box[1] + 1):
-            c = row + wrap_cell(center[0] + ox, grid.dims_x)
-            for k2 in range(grid.cell_start[c], grid.cell_end[c]):
-                j = grid.agent[k2] - base
-                if slot_type(world, j) == PREDATOR:
-                    d = torus_displacement(world, pos, grid.position[k2])
-                    d2 = wp.dot(d, d)
-                    if d2 < contact * contact or d2 < world.catch_share_radius * world.catch_share_radius:
-                        sharers += 1
+    for q in range(square_cell_count(box)):
+        c = square_cell(grid, w, center, box, q)
+        for k2 in range(grid.cell_start[c], grid.cell_end[c]):
+            j = grid.agent[k2] - base
+            if slot_type(world, j) == PREDATOR:
+                d = torus_displacement(world, pos, grid.position[k2])
+                d2 = wp.dot(d, d)
+                if d2 < contact * contact or d2 < world.catch_share_radius * world.catch_share_radius:
+                    sharers += 1
     share_count[w, i] = sharers
     reward[w, i] = -world.prey_capture_penalty
     wp.atomic_add(captures, w, 1)
@@ -132,21 +128,19 @@ def share_capture_rewards(
     center = cell_coords(grid, pos)
     base = w * world.capacity
     box = square_extent(grid, rings_for_radius(grid, share))
-    for oy in range(box[2], box[3] + 1):
-        row = row_base(grid, w, center, oy)
-        for ox in range(box[0], box[1] + 1):
-            c = row + wrap_cell(center[0] + ox, grid.dims_x)
-            for k2 in range(grid.cell_start[c], grid.cell_end[c]):
-                j = grid.agent[k2] - base
-                if slot_type(world, j) == PREY:
-                    if captured[w, j]:
-                        d = torus_displacement(world, pos, grid.position[k2])
-                        d2 = wp.dot(d, d)
-                        inside_share = d2 < world.catch_share_radius * world.catch_share_radius
-                        if d2 < contact * contact:
-                            is_capturer = True
-                        if inside_share or d2 < contact * contact:
-                            total += world.predator_reward / float(share_count[w, j])
+    for q in range(square_cell_count(box)):
+        c = square_cell(grid, w, center, box, q)
+        for k2 in range(grid.cell_start[c], grid.cell_end[c]):
+            j = grid.agent[k2] - base
+            if slot_type(world, j) == PREY:
+                if captured[w, j]:
+                    d = torus_displacement(world, pos, grid.position[k2])
+                    d2 = wp.dot(d, d)
+                    inside_share = d2 < world.catch_share_radius * world.catch_share_radius
+                    if d2 < contact * contact:
+                        is_capturer = True
+                    if inside_share or d2 < contact * contact:
+                        total += world.predator_reward / float(share_count[w, j])
     reward[w, i] = total
     if is_capturer:
         starvation[w, i] = 0

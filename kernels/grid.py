@@ -82,6 +82,21 @@ def square_extent(grid: CellLists, rings: int) -> wp.vec4i:
 
 
 @wp.func
+def square_cell_count(box: wp.vec4i) -> int:
+    return (box[1] - box[0] + 1) * (box[3] - box[2] + 1)
+
+
+@wp.func
+def square_cell(grid: CellLists, world: int, center: wp.vec2i, box: wp.vec4i, q: int) -> int:
+    """Global index of the q-th cell (row by row) of the square `box` of offsets around `center`."""
+    width = box[1] - box[0] + 1
+    row = q // width
+    oy = box[2] + row
+    ox = box[0] + q - row * width
+    return row_base(grid, world, center, oy) + wrap_cell(center[0] + ox, grid.dims_x)
+
+
+@wp.func
 def column_step(r: int, oy: int) -> int:
     """Ring r's cells in row offset oy: the whole row at |oy| = r, else only the two ends."""
     if r == 0 or oy == -r or oy == r:
