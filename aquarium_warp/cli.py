@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 
@@ -60,6 +61,93 @@ def _video(args) -> int:
     return 0
 
 
+def _add_train(sub) -> None:
+    """`aquarium-warp train`: PPO with rsl-rl (arguments and handler in `training/cli.py`)."""
+    from .training.cli import add_train_arguments, run_train
+
+    train = sub.add_parser("train", help="train one team with PPO (rsl-rl) against heuristic or trained opponents")
+    add_train_arguments(train)
+    train.set_defaults(run=run_train)
+
+
+def _add_eval(sub) -> None:
+    """`aquarium-warp eval`: the paper's evaluation protocol and figures (in `training/cli.py`)."""
+    from .training.cli import add_eval_arguments, run_eval
+
+    evaluate = sub.add_parser("eval", help="evaluate trained and heuristic policies (paper protocol), write CSV/JSON/figures")
+    add_eval_arguments(evaluate)
+    evaluate.set_defaults(run=run_eval)
+
+
+def _study_swarm_size(args) -> int:
+    """`aquarium-warp study swarm-size`: captures, polarization and groups vs the number of prey."""
+    from .study import SwarmSizeStudy, parse_list, parse_world_size, replot_study, run_swarm_size_study
+
+    if args.replot:
+        summary = replot_study(args.out, device=args.device)
+        print(f"redrew {len(summary['figures'])} figures in {args.out} from swarm_size.json")
+        return 0
+    study = SwarmSizeStudy(
+        prey=[int(n) for n in parse_list(args.prey, int, "--prey")], seeds=args.seeds,
+        episodes_per_seed=args.episodes_per_seed, episode_steps=args.episode_steps,
+        prey_policy=args.prey_policy, predator_policy=args.predator_policy, confusion=not args.no_confusion,
+        predators=args.predators,
+        fov_angles=parse_list(args.fov_angle, float, "--fov-angle") if args.fov_angle else None,
+        view_distances=parse_list(args.view_distance, float, "--view-distance") if args.view_distance else None,
+        world_size=parse_world_size(args.world_size), constant_density=args.constant_density,
+        reference_prey=args.reference_prey, linking_distance=args.linking_distance,
+        metrics_every=args.metrics_every, respawn=not args.no_respawn, reproduction=args.reproduction,
+        starvation_steps=args.starvation_steps, device=args.device, seed=args.seed, jobs=args.jobs,
+        out=args.out, figures=not args.no_figures)
+    print(f"aquarium-warp study swarm-size: prey {study.prey}, {study.seeds} seeds x {study.episodes_per_seed} "
+          f"episode(s) of {study.episode_steps} steps, {study.prey_policy} vs {study.predator_policy} -> {study.out}")
+    summary = run_swarm_size_study(study, progress=not args.no_progress)
+    print(f"wrote {os.path.join(study.out, 'swarm_size.csv')}, swarm_size.json and {len(summary.get('figures', []))} "
+          f"figures in {summary['wall_time_s']:.1f} s on {summary['machine']['device_name']}")
+    return 0
+
+
+def _add_study(sub) -> None:
+    """`aquarium-warp study swarm-size` (code in `aquarium_warp/study.py`)."""
+    study = sub.add_parser("study", help="parameter studies of collective behaviour (swarm-size)")
+    kinds = study.add_subparsers(dest="study", required=True)
+    p = kinds.add_parser("swarm-size", help="captures per prey (dilution), polarization and groups vs prey count",
+                         description="Run every prey count and seed as batched worlds, one episode each, and "
+                                     "write swarm_size.csv/json and figures into --out.")
+    p.add_argument("--prey", default="4,8,...,4096",
+                   help="prey counts: a comma list; '...' continues the progression (default 4,8,...,4096)")
+    p.add_argument("--seeds", type=int, default=5, help="independent runs per setting (default 5)")
+    p.add_argument("--episodes-per-seed", type=int, default=1, help="episodes per seed, run as more worlds")
+    p.add_argument("--episode-steps", type=int, default=3000, help="steps per episode (default 3000, the paper's)")
+    p.add_argument("--prey-policy", default="turnaway", help="'turnaway', 'random' or a trained policy file")
+    p.add_argument("--predator-policy", default="naivchase", help="'naivchase', 'random' or a trained policy file")
+    p.add_argument("--no-confusion", action="store_true", help="NaivChase chases the nearest visible prey "
+                   "instead of a random one each step")
+    p.add_argument("--predators", type=int, default=1)
+    p.add_argument("--fov-angle", default=None, help="prey field-of-view angles to sweep, degrees (list; default 120)")
+    p.add_argument("--view-distance", default=None, help="prey view distances to sweep, px (list; default 100)")
+    p.add_argument("--world-size", default="800x800", help="arena WIDTHxHEIGHT px, fixed for every N (default "
+                   "800x800: density grows with N)")
+    p.add_argument("--constant-density", action="store_true", help="scale the arena with N instead, keeping the "
+                   "density of --reference-prey prey in --world-size")
+    p.add_argument("--reference-prey", type=int, default=16)
+    p.add_argument("--linking-distance", type=float, default=None,
+                   help="px; prey closer than this form one group (default 2.5 prey radii = 50)")
+    p.add_argument("--metrics-every", type=int, default=10, help="sample the swarm metrics every K steps")
+    p.add_argument("--no-respawn", action="store_true", help="captured prey are removed (populations shrink)")
+    p.add_argument("--reproduction", action="store_true", help="prey reproduce (up to 2 N)")
+    p.add_argument("--starvation-steps", type=int, default=None, help="predator starvation limit (default 3000)")
+    p.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--jobs", type=int, default=None,
+                   help="settings run at once in threads (default: CPU cores on the CPU, 1 on a GPU)")
+    p.add_argument("--out", default="swarm_size", help="output directory")
+    p.add_argument("--no-figures", action="store_true")
+    p.add_argument("--replot", action="store_true", help="only redraw the figures from --out's swarm_size.json")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(run=_study_swarm_size)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="aquarium-warp", description="Aquarium predator-prey worlds on Warp")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -92,6 +180,9 @@ def main(argv=None) -> int:
     video.add_argument("--velocities", action="store_true", help="draw velocity arrows (10 steps long)")
     video.add_argument("--no-progress", action="store_true", help="no progress bar")
     video.set_defaults(run=_video)
+    _add_train(sub)
+    _add_eval(sub)
+    _add_study(sub)
     args = parser.parse_args(argv)
     try:
         return args.run(args)

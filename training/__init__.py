@@ -1,1 +1,39 @@
-"""Training on top of `BatchedAquarium` (rsl-rl adapter and trainer)."""
+"""Training on top of `BatchedAquarium`: PPO with rsl-rl (unmodified, as a dependency).
+
+- `vec_env.AquariumVecEnv`: the rsl-rl VecEnv adapter (one learning team, the other driven inside `step()`).
+- `distribution.CategoricalDistribution`: discrete actions for rsl-rl's `MLPModel`.
+- `models.IndividualMLPModel`: Individual Learning, per-slot parameters in one batched network.
+- `ppo.AquariumPPO`: separate actor/critic learning rates, grouped mini-batches.
+- `config`: presets (`default`, `paper`, `tiny`) and the rsl-rl runner config.
+- `trainer.Trainer`: training, checkpoints, bit-exact resume, export.
+- `export.load_policy`: exported policies (TorchScript, ONNX) or checkpoints -> callable obs -> actions.
+- `evaluate`: the paper's evaluation protocol and figures.
+
+Submodules import rsl_rl lazily; this package's names resolve on first use.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from . import _rsl  # noqa: F401
+
+_EXPORTS = {
+    "AquariumVecEnv": "vec_env", "TrainedOpponent": "vec_env",
+    "CategoricalDistribution": "distribution",
+    "IndividualMLPModel": "models", "BatchedMLP": "models",
+    "AquariumPPO": "ppo",
+    "make_config": "config", "PRESETS": "config", "env_config": "config",
+    "Trainer": "trainer", "make_opponent": "trainer", "latest_checkpoint": "trainer",
+    "export_policy": "export", "load_policy": "export", "LoadedPolicy": "export",
+    "evaluate_policies": "evaluate",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        module = importlib.import_module(f".{_EXPORTS[name]}", __name__)
+        return getattr(module, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,0 +1,240 @@
+"""Arguments and handlers of `aquarium-warp train` and `aquarium-warp eval` (wired in `aquarium_warp/cli.py`).
+
+Heavy imports (torch, rsl_rl, matplotlib) happen inside the handlers, so `aquarium-warp --help`
+stays fast and works without the training extras.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+PRESET_NAMES = ("default", "paper", "tiny")
+
+
+def _hidden_dims(text: str) -> list[int]:
+    try:
+        dims = [int(x) for x in text.replace(" ", "").split(",") if x]
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(f"hidden dims {text!r}: expected comma-separated integers") from error
+    if not dims or min(dims) < 1:
+        raise argparse.ArgumentTypeError(f"hidden dims {text!r}: expected positive integers")
+    return dims
+
+
+# --------------------------------------------------------------------------------------------- train
+def add_train_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--preset", choices=PRESET_NAMES, default=None,
+                   help="base configuration (default: 'default'; 'paper': section 5 of the paper)")
+    p.add_argument("--config", default=None, help="JSON or YAML file with sections env / train / runner "
+                                                  "(and optionally 'preset'); flags override it")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override any config entry, e.g. runner.algorithm.num_mini_batches=8 (repeatable)")
+    g = p.add_argument_group("run")
+    g.add_argument("--team", choices=("prey", "predator"), default=None, help="the learning team")
+    g.add_argument("--predator-policy", default=None,
+                   help="predators when training prey: 'naivchase' (default), 'random' or a policy file")
+    g.add_argument("--prey-policy", default=None,
+                   help="prey when training predators: 'random' (default), 'turnaway' or a policy file")
+    g.add_argument("--sharing", choices=("parameter", "individual"), default=None,
+                   help="Parameter Sharing (one network, default) or Individual Learning (one per slot)")
+    g.add_argument("--num-worlds", type=int, default=None)
+    g.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
+    g.add_argument("--seed", type=int, default=None)
+    g.add_argument("--iterations", type=int, default=None, help="total PPO iterations of the run")
+    g.add_argument("--episodes", type=float, default=None,
+                   help="total world episodes instead of --iterations (the paper: 4000)")
+    g.add_argument("--log-dir", default=None, help="run directory (default: runs/<team>_<sharing>_<time>)")
+    g.add_argument("--resume", default=None, metavar="PATH",
+                   help="continue a run from a checkpoint model_<i>.pt or the newest one in a run directory")
+    g.add_argument("--export", default=None, help="formats exported after training: 'jit,onnx' (default), 'none'")
+    g.add_argument("--quiet", action="store_true", default=None,
+                   help="a progress bar instead of rsl-rl's per-iteration report")
+    g.add_argument("--no-random-ep-len", action="store_true",
+                   help="start every world at step 0 (default: spread the worlds' truncations)")
+    e = p.add_argument_group("environment")
+    e.add_argument("--prey", type=int, default=None, help="prey per world")
+    e.add_argument("--predators", type=int, default=None, help="predators per world")
+    e.add_argument("--max-steps", type=int, default=None, help="episode length")
+    e.add_argument("--width", type=float, default=None)
+    e.add_argument("--height", type=float, default=None)
+    a = p.add_argument_group("PPO")
+    a.add_argument("--num-steps-per-env", type=int, default=None, help="rollout length per iteration")
+    a.add_argument("--save-interval", type=int, default=None, help="checkpoint every N iterations")
+    a.add_argument("--learning-rate", "--actor-lr", dest="actor_lr", type=float, default=None)
+    a.add_argument("--critic-lr", type=float, default=None,
+                   help="critic learning rate (applied as a factor critic_lr/actor_lr on the critic's group)")
+    a.add_argument("--gamma", type=float, default=None)
+    a.add_argument("--lam", type=float, default=None)
+    a.add_argument("--clip", type=float, default=None, help="PPO clip parameter")
+    a.add_argument("--entropy", type=float, default=None, help="entropy coefficient")
+    a.add_argument("--value-loss-coef", type=float, default=None)
+    a.add_argument("--epochs", type=int, default=None, help="learning epochs per iteration")
+    a.add_argument("--minibatches", type=int, default=None, help="mini-batches per epoch")
+    a.add_argument("--max-grad-norm", type=float, default=None)
+    a.add_argument("--schedule", choices=("fixed", "adaptive"), default=None)
+    a.add_argument("--desired-kl", type=float, default=None)
+    a.add_argument("--hidden-dims", type=_hidden_dims, default=None, help="e.g. 64,64 (actor and critic)")
+    a.add_argument("--activation", default=None, help="e.g. tanh, elu, relu")
+    a.add_argument("--reward-scale", type=float, default=None, help="factor on the rewards PPO sees")
+
+
+def _train_changes(args) -> dict:
+    """The config changes given by flags (None where a flag was not given)."""
+    train = {"team": args.team, "sharing": args.sharing, "num_worlds": args.num_worlds, "device": args.device,
+             "seed": args.seed, "iterations": args.iterations, "episodes": args.episodes,
+             "actor_lr": args.actor_lr, "critic_lr": args.critic_lr, "reward_scale": args.reward_scale,
+             "export": args.export, "quiet": args.quiet}
+    if args.no_random_ep_len:
+        train["init_at_random_ep_len"] = False
+    env = {"prey_count": args.prey, "predator_count": args.predators, "max_steps": args.max_steps,
+           "width": args.width, "height": args.height}
+    alg = {"gamma": args.gamma, "lam": args.lam, "clip_param": args.clip, "entropy_coef": args.entropy,
+           "value_loss_coef": args.value_loss_coef, "num_learning_epochs": args.epochs,
+           "num_mini_batches": args.minibatches, "max_grad_norm": args.max_grad_norm,
+           "schedule": args.schedule, "desired_kl": args.desired_kl}
+    runner = {"num_steps_per_env": args.num_steps_per_env, "save_interval": args.save_interval,
+              "algorithm": {k: v for k, v in alg.items() if v is not None}}
+    models = {k: v for k, v in {"hidden_dims": args.hidden_dims, "activation": args.activation}.items() if v is not None}
+    if models:
+        runner["actor"] = dict(models)
+        runner["critic"] = dict(models)
+    changes = {"train": {k: v for k, v in train.items() if v is not None},
+               "env": {k: v for k, v in env.items() if v is not None},
+               "runner": {k: v for k, v in runner.items() if v not in (None, {})}}
+    if args.iterations is not None and args.episodes is None:
+        changes["train"]["episodes"] = None  # an explicit iteration count wins over a preset's episodes
+    return {k: v for k, v in changes.items() if v}
+
+
+def _opponent_change(args, team: str) -> dict:
+    if team == "prey" and args.prey_policy is not None:
+        raise ValueError("--prey-policy sets the prey when training predators; with --team prey use --predator-policy")
+    if team == "predator" and args.predator_policy is not None:
+        raise ValueError("--predator-policy sets the predators when training prey; with --team predator use --prey-policy")
+    spec = args.predator_policy if team == "prey" else args.prey_policy
+    return {"train": {"opponent": spec}} if spec is not None else {}
+
+
+def run_train(args) -> int:
+    from .config import deep_update, load_config_file, make_config, parse_assignment, total_iterations
+    from .trainer import Trainer
+
+    changes = _train_changes(args)
+    sets = [parse_assignment(s) for s in args.set]
+    if args.resume:
+        given = {k: v for k, v in changes.items() if k != "train"}
+        given_train = {k for k in changes.get("train", {}) if k not in ("iterations", "episodes", "export", "quiet")}
+        if given or given_train or sets or args.config or args.preset or args.prey_policy or args.predator_policy:
+            raise ValueError("--resume continues a run with its saved config: only --iterations, --episodes, "
+                             "--export and --quiet may be given with it")
+        trainer = Trainer.resume(args.resume, log_dir=args.log_dir, changes={"train": changes.get("train", {})})
+        print(f"aquarium-warp train: resumed {args.resume} at iteration {trainer.iteration} of "
+              f"{trainer.total_iterations} (log dir {trainer.log_dir})")
+    else:
+        file_cfg = load_config_file(args.config) if args.config else {}
+        preset = args.preset or file_cfg.pop("preset", None) or "default"
+        file_cfg.pop("preset", None)
+        merged = deep_update(deep_update({}, file_cfg), changes)
+        for s in sets:
+            deep_update(merged, s)
+        team = merged.get("train", {}).get("team") or make_config(preset)["train"]["team"]
+        deep_update(merged, _opponent_change(args, team))
+        config = make_config(preset, merged)
+        log_dir = args.log_dir or os.path.join(
+            "runs", f"{config['train']['team']}_{config['train']['sharing']}_{time.strftime('%Y%m%d-%H%M%S')}")
+        trainer = Trainer(config, log_dir=log_dir)
+        print(f"aquarium-warp train: {config['train']['team']} ({config['train']['sharing']} sharing) vs "
+              f"{trainer.config['train']['opponent']} on {trainer.env.device}, {trainer.env.num_worlds} worlds x "
+              f"{trainer.vec_env.slots} slots, {total_iterations(config)} iterations -> {log_dir}")
+    start = time.perf_counter()
+    trainer.train()
+    paths = trainer.export() if trainer.config["train"]["export"] else {}
+    print(f"aquarium-warp train: {trainer.iteration} iterations done in {time.perf_counter() - start:.1f} s; "
+          f"checkpoints, progress.csv and TensorBoard logs in {trainer.log_dir}")
+    for fmt, path in paths.items():
+        print(f"  exported {fmt}: {path}")
+    trainer.close()
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------- eval
+def add_eval_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--prey", nargs="*", default=None, metavar="SPEC",
+                   help="prey policies: 'random', 'turnaway', or policy files (exported or checkpoints), "
+                        "optionally LABEL=SPEC; specs sharing a label are pooled (default: random turnaway)")
+    p.add_argument("--predator", nargs="*", default=None, metavar="SPEC",
+                   help="predator policies: 'naivchase', 'random' or policy files (default: naivchase)")
+    p.add_argument("--episodes", type=int, default=200, help="episodes per seed (paper: 200)")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="evaluation seeds (paper: 5)")
+    p.add_argument("--preset", choices=PRESET_NAMES, default=None,
+                   help="take the world from a preset (default: a trained policy's own world, else MODEL.md's)")
+    p.add_argument("--set", action="append", default=[], metavar="env.KEY=VALUE", help="override a world setting")
+    p.add_argument("--prey-count", type=int, default=None)
+    p.add_argument("--predator-count", type=int, default=None)
+    p.add_argument("--max-steps", type=int, default=None, help="episode length (paper: 3000)")
+    p.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
+    p.add_argument("--max-worlds", type=int, default=1024, help="episodes run in parallel at most")
+    p.add_argument("--stochastic", action="store_true", help="trained policies sample actions (default: argmax)")
+    p.add_argument("--out", default="eval_results", help="output directory (CSV, JSON, figures)")
+    p.add_argument("--curves", nargs="*", default=[], metavar="LABEL=RUNDIR_GLOB",
+                   help="also plot training curves of these runs (mean and std band over runs per label)")
+    p.add_argument("--smooth", type=int, default=1, metavar="N",
+                   help="training curves: moving average over N iterations (default 1: none)")
+    p.add_argument("--no-figures", action="store_true", help="no matplotlib figures")
+
+
+def run_eval(args) -> int:
+    from ..config import AquariumConfig
+    from .config import deep_update, env_config, make_config, parse_assignment
+    from .evaluate import evaluate_policies, plot_distributions, plot_training_curves, policy_env, write_results
+
+    os.makedirs(args.out, exist_ok=True)
+    outputs = []
+    curves: dict[str, list[str]] = {}
+    for item in args.curves:
+        label, _, pattern = item.partition("=") if "=" in item else (os.path.basename(item.rstrip("/")), "", item)
+        curves.setdefault(label, []).append(pattern)
+    evaluate = args.prey != [] and args.predator != [] and not (args.curves and args.prey is None and args.predator is None)
+    if evaluate:
+        prey = args.prey if args.prey is not None else ["random", "turnaway"]
+        predator = args.predator if args.predator is not None else ["naivchase"]
+        if args.preset:
+            base = env_config(make_config(args.preset))
+        else:
+            base = policy_env(prey + predator, AquariumConfig())
+        env_changes = {}
+        for s in args.set:
+            change = parse_assignment(s)
+            if set(change) != {"env"}:
+                raise ValueError(f"--set {s!r}: eval takes env.* settings only")
+            deep_update(env_changes, change["env"])
+        for key, value in (("prey_count", args.prey_count), ("predator_count", args.predator_count),
+                           ("max_steps", args.max_steps)):
+            if value is not None:
+                env_changes[key] = value
+        env = env_config({"env": deep_update(base.to_dict(), env_changes)})
+        print(f"aquarium-warp eval: {len(prey)} prey x {len(predator)} predator policies, {args.episodes} episodes "
+              f"x {len(args.seeds)} seeds, {env.prey_count} prey, {env.predator_count} predators, "
+              f"{env.max_steps} steps")
+        start = time.perf_counter()
+        result = evaluate_policies(prey, predator, env, episodes=args.episodes, seeds=args.seeds,
+                                   device=args.device, max_worlds=args.max_worlds,
+                                   deterministic=not args.stochastic, progress=lambda m: print("  " + m))
+        paths = write_results(result, args.out)
+        outputs += list(paths.values())
+        print(f"{'prey':>16} {'predator':>12} {'captures/prey':>20} {'reward/prey':>22}")
+        for row in result["summary"]:
+            print(f"{row['prey_policy']:>16} {row['predator_policy']:>12} "
+                  f"{row['captures_per_prey_mean']:10.3f} +- {row['captures_per_prey_std']:6.3f} "
+                  f"{row['reward_per_prey_mean']:12.1f} +- {row['reward_per_prey_std']:6.1f}")
+        print(f"  ({time.perf_counter() - start:.1f} s; mean +- std over seeds of the per-seed means)")
+        if not args.no_figures:
+            outputs.append(plot_distributions(result, os.path.join(args.out, "distributions.png")))
+    if curves and not args.no_figures:
+        outputs.append(plot_training_curves(curves, os.path.join(args.out, "training_curves.png"),
+                                            smooth=args.smooth))
+    for path in outputs:
+        print(f"  wrote {path}")
+    return 0

@@ -1,0 +1,255 @@
+"""Training configurations: presets, file loading, overrides, and the rsl-rl runner config built from them.
+
+A run configuration is a dict with three sections:
+
+- `env`: `AquariumConfig` fields that differ from MODEL.md's defaults (`prey` / `predator` may hold
+  a dict of per-type fields).
+- `train`: what this package adds around rsl-rl (see `TRAIN_DEFAULTS`).
+- `runner`: rsl-rl's `OnPolicyRunner` config (num_steps_per_env, save_interval, algorithm, actor,
+  critic, ...). The class names, the categorical distribution's size, Individual Learning's per-slot
+  models and the learning-rate ratio are filled in by `runner_config()`.
+
+Presets (`PRESETS`): `default`, `paper` (section 5 of the paper), `tiny` (small CPU runs and tests).
+Every preset is the default config deep-updated with the preset's entries.
+
+The paper's two learning rates. rsl-rl has one optimizer and one learning rate. `train.actor_lr` is
+rsl-rl's `learning_rate`; `train.critic_lr` becomes `algorithm.critic_lr_scale = critic_lr / actor_lr`,
+a per-group factor of `AquariumPPO`'s optimizer (see `ppo.py`: scaling the value-loss coefficient
+instead would not work with Adam, which cancels constant gradient factors).
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+
+from ..config import AquariumConfig
+
+DISTRIBUTION = "aquarium_warp.training.distribution:CategoricalDistribution"
+PPO_CLASS = "aquarium_warp.training.ppo:AquariumPPO"
+MLP_MODEL = "MLPModel"
+IL_MODEL = "aquarium_warp.training.models:IndividualMLPModel"
+SHARING = ("parameter", "individual")
+
+TRAIN_DEFAULTS = {
+    "team": "prey",                 # the learning team: "prey" or "predator"
+    "opponent": None,               # the other team: a heuristic name or a policy file; None: naivchase / random
+    "opponent_deterministic": True,  # trained opponents: argmax (True) or sampled actions
+    "num_worlds": 1024,
+    "device": None,                 # None: "cuda:0" when CUDA is available, else "cpu"
+    "seed": 0,
+    "iterations": 300,              # total PPO iterations of the run (a resumed run continues up to it)
+    "episodes": None,               # if set: iterations = ceil(episodes * max_steps / (worlds * steps per env))
+    "sharing": "parameter",         # "parameter" (one shared network) or "individual" (one per agent slot)
+    "actor_lr": 1e-3,
+    "critic_lr": None,              # None: the actor's rate
+    "reward_scale": 0.01,           # rewards given to PPO are scaled; logged episode rewards are not
+    "init_at_random_ep_len": True,  # spread the worlds' truncations (episode_length_buf setter)
+    "export": ["jit", "onnx"],      # formats exported at the end of training: "jit", "onnx"
+    "quiet": False,                 # tqdm progress bar instead of rsl-rl's per-iteration print
+}
+
+RUNNER_DEFAULTS = {
+    "num_steps_per_env": 32,
+    "save_interval": 50,
+    "check_for_nan": False,
+    "logger": "tensorboard",
+    "obs_groups": {"actor": ["policy"], "critic": ["policy"]},
+    "algorithm": {
+        "class_name": PPO_CLASS,
+        "num_learning_epochs": 5,
+        "num_mini_batches": 4,
+        "clip_param": 0.2,
+        "gamma": 0.99,
+        "lam": 0.95,
+        "value_loss_coef": 1.0,
+        "entropy_coef": 0.01,
+        "max_grad_norm": 1.0,
+        "use_clipped_value_loss": False,
+        "schedule": "fixed",
+        "desired_kl": 0.01,
+        "normalize_advantage_per_mini_batch": False,
+    },
+    "actor": {
+        "class_name": MLP_MODEL,
+        "hidden_dims": [64, 64],
+        "activation": "tanh",
+        "obs_normalization": False,
+        "distribution_cfg": {"class_name": DISTRIBUTION, "init_logit_scale": 0.01},
+    },
+    "critic": {
+        "class_name": MLP_MODEL,
+        "hidden_dims": [64, 64],
+        "activation": "tanh",
+        "obs_normalization": False,
+    },
+}
+
+PRESETS = {
+    "default": {},
+    # Section 5: prey trained with PPO against one NaivChase predator; MODEL.md's world otherwise.
+    # From the paper's table: gamma, lambda, clip, entropy weight, actor/critic learning rates; 4000
+    # episodes of 3000 steps. Not given by the paper (our choices): the networks (two tanh layers of
+    # 64, separate actor and critic), epochs, mini-batches, gradient clipping, the reward scale, and
+    # the batch: many worlds in parallel instead of its 2048-sample batches.
+    "paper": {
+        "env": {"prey_count": 6, "predator_count": 1},
+        "train": {"team": "prey", "opponent": "naivchase", "num_worlds": 1024, "episodes": 4000,
+                  "actor_lr": 1e-3, "critic_lr": 3e-3},
+        "runner": {"algorithm": {"gamma": 0.99, "lam": 0.95, "clip_param": 0.1, "entropy_coef": 0.001,
+                                 "num_learning_epochs": 5, "num_mini_batches": 4, "schedule": "fixed",
+                                 "max_grad_norm": 0.5}},
+    },
+    # A small world for CPU runs and the tests: 4 prey and a NaivChase predator on 400 x 400 px.
+    "tiny": {
+        "env": {"width": 400.0, "height": 400.0, "prey_count": 4, "predator_count": 1, "max_steps": 200},
+        "train": {"num_worlds": 32, "iterations": 100, "actor_lr": 3e-3, "device": "cpu"},
+        "runner": {"num_steps_per_env": 32, "save_interval": 25,
+                   "algorithm": {"num_learning_epochs": 4, "num_mini_batches": 4, "entropy_coef": 0.003}},
+    },
+}
+
+
+def deep_update(base: dict, changes: dict) -> dict:
+    """`base` updated in place with `changes`, recursing into dicts present in both."""
+    for key, value in changes.items():
+        if isinstance(value, dict) and isinstance(base.get(key), dict):
+            deep_update(base[key], value)
+        else:
+            base[key] = copy.deepcopy(value)
+    return base
+
+
+def default_config() -> dict:
+    return {"env": {}, "train": copy.deepcopy(TRAIN_DEFAULTS), "runner": copy.deepcopy(RUNNER_DEFAULTS)}
+
+
+def make_config(preset: str = "default", *overrides: dict) -> dict:
+    """The `preset` config deep-updated with each of `overrides` in turn (validated)."""
+    if preset not in PRESETS:
+        raise ValueError(f"preset={preset!r} is unknown: choose one of {sorted(PRESETS)}")
+    config = deep_update(default_config(), PRESETS[preset])
+    for changes in overrides:
+        if changes:
+            deep_update(config, changes)
+    validate(config)
+    return config
+
+
+def load_config_file(path: str) -> dict:
+    """A (partial) config from a JSON or YAML file (YAML needs PyYAML)."""
+    with open(path, encoding="utf-8") as f:
+        text = f.read()
+    if path.endswith((".yaml", ".yml")):
+        import yaml
+
+        data = yaml.safe_load(text)
+    else:
+        data = json.loads(text)
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: a config file must hold a mapping with sections env / train / runner")
+    unknown = [k for k in data if k not in ("env", "train", "runner", "preset")]
+    if unknown:
+        raise ValueError(f"{path}: unknown sections {unknown}; allowed: env, train, runner, preset")
+    return data
+
+
+def parse_assignment(text: str) -> dict:
+    """`"runner.algorithm.gamma=0.98"` -> `{"runner": {"algorithm": {"gamma": 0.98}}}` (value parsed
+    as JSON where possible, else kept as a string)."""
+    if "=" not in text:
+        raise ValueError(f"--set {text!r}: expected KEY.PATH=VALUE")
+    key, raw = text.split("=", 1)
+    try:
+        value = json.loads(raw)
+    except json.JSONDecodeError:
+        value = raw
+    parts = [p for p in key.strip().split(".") if p]
+    if not parts or parts[0] not in ("env", "train", "runner"):
+        raise ValueError(f"--set {text!r}: the key must start with env., train. or runner.")
+    out: dict = {}
+    node = out
+    for p in parts[:-1]:
+        node = node.setdefault(p, {})
+    node[parts[-1]] = value
+    return out
+
+
+def env_config(config: dict) -> AquariumConfig:
+    """The `AquariumConfig` of a run config (MODEL.md defaults updated with `config["env"]`)."""
+    data = AquariumConfig().to_dict()
+    deep_update(data, config.get("env", {}))
+    return AquariumConfig.from_dict(data)
+
+
+def validate(config: dict) -> None:
+    train = config["train"]
+    unknown = [k for k in train if k not in TRAIN_DEFAULTS]
+    if unknown:
+        raise ValueError(f"unknown train settings {unknown}; known: {sorted(TRAIN_DEFAULTS)}")
+    env_config(config)  # validates the env section
+    if train["team"] not in ("prey", "predator"):
+        raise ValueError(f"train.team={train['team']!r} must be 'prey' or 'predator'")
+    if train["sharing"] not in SHARING:
+        raise ValueError(f"train.sharing={train['sharing']!r} must be one of {SHARING}")
+    for name in ("num_worlds", "iterations"):
+        v = train[name]
+        if isinstance(v, bool) or not isinstance(v, int) or v < (1 if name == "num_worlds" else 0):
+            raise ValueError(f"train.{name}={v!r} must be an integer >= {1 if name == 'num_worlds' else 0}")
+    if train["episodes"] is not None and (not isinstance(train["episodes"], (int, float)) or train["episodes"] <= 0):
+        raise ValueError(f"train.episodes={train['episodes']!r} must be None or a number > 0")
+    for name in ("actor_lr", "reward_scale"):
+        if not isinstance(train[name], (int, float)) or not train[name] > 0:
+            raise ValueError(f"train.{name}={train[name]!r} must be a number > 0")
+    if train["critic_lr"] is not None and (not isinstance(train["critic_lr"], (int, float)) or not train["critic_lr"] > 0):
+        raise ValueError(f"train.critic_lr={train['critic_lr']!r} must be None or a number > 0")
+    export = train["export"]
+    if isinstance(export, str):
+        train["export"] = export = [] if export in ("", "none") else [e.strip() for e in export.split(",")]
+    bad = [e for e in export if e not in ("jit", "onnx")]
+    if bad:
+        raise ValueError(f"train.export has unknown formats {bad}; allowed: jit, onnx")
+    runner = config["runner"]
+    for name in ("num_steps_per_env", "save_interval"):
+        v = runner.get(name)
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            raise ValueError(f"runner.{name}={v!r} must be an integer >= 1")
+
+
+def default_opponent(team: str) -> str:
+    return "naivchase" if team == "prey" else "random"
+
+
+def total_iterations(config: dict) -> int:
+    """`train.iterations`, or the iterations that cover `train.episodes` world episodes."""
+    train = config["train"]
+    if train.get("episodes") is None:
+        return int(train["iterations"])
+    steps = train["episodes"] * env_config(config).max_steps
+    per_iteration = train["num_worlds"] * config["runner"]["num_steps_per_env"]
+    return max(1, math.ceil(steps / per_iteration))
+
+
+def runner_config(config: dict, slots: int, action_count: int) -> dict:
+    """rsl-rl's runner config for a run config, given the learning team's slots per world and the
+    number of discrete actions."""
+    train = config["train"]
+    runner = copy.deepcopy(config["runner"])
+    alg = runner.setdefault("algorithm", {})
+    alg.setdefault("class_name", PPO_CLASS)
+    alg["learning_rate"] = float(train["actor_lr"])
+    critic_lr = train["critic_lr"] if train["critic_lr"] is not None else train["actor_lr"]
+    if "critic_lr_scale" not in alg:
+        alg["critic_lr_scale"] = float(critic_lr) / float(train["actor_lr"])
+    actor, critic = runner["actor"], runner["critic"]
+    dist = actor.setdefault("distribution_cfg", {"class_name": DISTRIBUTION})
+    dist.setdefault("class_name", DISTRIBUTION)
+    dist["num_categories"] = int(action_count)
+    if train["sharing"] == "individual":
+        for model in (actor, critic):
+            if model.get("class_name", MLP_MODEL) in (MLP_MODEL, "rsl_rl.models:MLPModel"):
+                model["class_name"] = IL_MODEL
+            model["num_agents"] = int(slots)
+        alg["minibatch_group_size"] = int(slots)
+    return runner

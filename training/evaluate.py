@@ -1,0 +1,315 @@
+"""The paper's evaluation protocol and figures.
+
+Protocol (paper, section 6): every policy pair plays `episodes` episodes of `max_steps` steps for each
+of several seeds; for each prey agent, captures per episode and the undiscounted reward per episode
+are collected, averaged over the prey of the episode, then over the episodes of a seed; the table
+reports the mean and the standard deviation of these per-seed means over the seeds.
+
+```python
+from aquarium_warp.training.evaluate import evaluate_policies
+result = evaluate_policies(prey=["random", "turnaway", "PS=runs/ps/exported/policy.pt"],
+                           predator=["naivchase"], env=AquariumConfig(prey_count=6),
+                           episodes=200, seeds=[0, 1, 2, 3, 4], device="cuda:0")
+result["summary"]    # one row per (prey, predator) pair: means and stds over seeds
+```
+
+A policy spec is a heuristic name ("random", "turnaway" for prey, "naivchase" for predators), the
+path of an exported policy or training checkpoint, optionally labelled `LABEL=SPEC`. Specs with the
+same label are pooled (e.g. one trained policy per training seed): their per-seed means together
+give the mean and std.
+
+The episodes run as parallel worlds (at most `max_worlds` at once; more episodes continue in the
+same worlds, whose random streams differ per episode). Each world's episodes are recorded when they
+end, so extinction (respawn off) is handled too.
+
+Figures (matplotlib, imported only here): `plot_distributions` (per-episode values per policy) and
+`plot_training_curves` (from `progress.csv` or TensorBoard events of several runs, mean and std band
+over the runs of each label, against world episodes).
+"""
+
+from __future__ import annotations
+
+import csv
+import glob
+import json
+import math
+import os
+import warnings
+
+import numpy as np
+import torch
+
+from ..config import AquariumConfig
+from ..env import BatchedAquarium
+from .trainer import is_heuristic, make_opponent
+
+METRICS = ("captures_per_prey", "reward_per_prey", "reward_per_predator")
+
+
+def parse_spec(spec: str) -> tuple[str, str]:
+    """`"LABEL=SPEC"` -> `(label, spec)`; a bare spec is its own label (a file: its run directory's name)."""
+    if "=" in spec and not os.path.exists(spec):
+        label, value = spec.split("=", 1)
+        return label, value
+    if is_heuristic(spec):
+        return spec.lower(), spec
+    path = os.path.normpath(spec)
+    parts = path.split(os.sep)
+    label = parts[-3] if len(parts) >= 3 and parts[-2] == "exported" else os.path.splitext(parts[-1])[0]
+    return label, spec
+
+
+def policy_env(specs, fallback: AquariumConfig) -> AquariumConfig:
+    """The env of the first trained policy among `specs` (from its metadata), else `fallback`."""
+    from .config import env_config
+    from .export import load_policy
+
+    for spec in specs:
+        _, value = parse_spec(spec)
+        if not is_heuristic(value):
+            meta = load_policy(value).meta
+            return env_config({"env": meta.get("env", {})})
+    return fallback
+
+
+def run_episodes(env_cfg: AquariumConfig, prey: str, predator: str, episodes: int, seed: int, device=None,
+                 max_worlds: int = 1024, deterministic: bool = True) -> list[dict]:
+    """Play `episodes` episodes of `prey` vs `predator` specs; one dict per episode with per-slot
+    prey captures and rewards, predator rewards, the world's captures and length."""
+    W = max(1, min(episodes, max_worlds))
+    env = BatchedAquarium(env_cfg, num_worlds=W, device=device, seed=seed)
+    drivers = {"prey": make_opponent(prey, env, "prey", deterministic=deterministic, seed=seed),
+               "predator": make_opponent(predator, env, "predator", deterministic=deterministic, seed=seed + 1)}
+    dev = env.torch_device
+    Pc, P = env.prey_capacity, env.predator_count
+    prey_captures = torch.zeros(W, Pc, dtype=torch.int32, device=dev)
+    prey_reward = torch.zeros(W, Pc, dtype=torch.float64, device=dev)
+    predator_reward = torch.zeros(W, P, dtype=torch.float64, device=dev)
+    captured = env.state.torch.captured[:, :Pc]
+    per_world = math.ceil(episodes / W)
+    done_count = np.zeros(W, dtype=np.int64)
+    records: list[tuple[int, int, dict]] = []
+    max_total_steps = per_world * env_cfg.max_steps
+    steps = 0
+    while done_count.min() < per_world:
+        if steps >= max_total_steps + env_cfg.max_steps:  # pragma: no cover - defensive
+            raise RuntimeError("evaluation did not finish its episodes")
+        actions = {t: drivers[t]() for t in ("prey", "predator")}
+        _, rewards, _, _, info = env.step(actions, validate=False)
+        steps += 1
+        prey_captures += captured
+        prey_reward += rewards["prey"]
+        predator_reward += rewards["predator"]
+        ended = info["episode_ended"]
+        if not bool(ended.any()):
+            continue
+        idx = torch.nonzero(ended).flatten()
+        pc, pr, dr = (prey_captures[idx].cpu().numpy(), prey_reward[idx].cpu().numpy(),
+                      predator_reward[idx].cpu().numpy())
+        caps = info["episode_captures"][idx].cpu().numpy()
+        lengths = info["episode_length"][idx].cpu().numpy()
+        for k, w in enumerate(idx.cpu().numpy().tolist()):
+            if done_count[w] < per_world:
+                records.append((int(done_count[w]), w, {
+                    "prey_captures": pc[k].tolist(), "prey_rewards": pr[k].tolist(),
+                    "predator_rewards": dr[k].tolist(), "captures": int(caps[k]), "length": int(lengths[k])}))
+            done_count[w] += 1
+        prey_captures[idx] = 0
+        prey_reward[idx] = 0
+        predator_reward[idx] = 0
+    env.close()
+    records.sort(key=lambda r: (r[0], r[1]))
+    out = []
+    prey_n, pred_n = env_cfg.prey_count, env_cfg.predator_count
+    for i, (_, _, rec) in enumerate(records[:episodes]):
+        rec["episode"] = i
+        # Per prey agent of the episode (the team's initial size: reproduction slots add to the sums).
+        rec["captures_per_prey"] = float(sum(rec["prey_captures"])) / prey_n
+        rec["reward_per_prey"] = float(sum(rec["prey_rewards"])) / prey_n
+        rec["reward_per_predator"] = float(sum(rec["predator_rewards"])) / pred_n
+        out.append(rec)
+    return out
+
+
+def summarize(values_per_seed: list[list[float]]) -> dict:
+    """Mean and std over seeds of the per-seed means, plus the std over all episodes."""
+    seed_means = [float(np.mean(v)) for v in values_per_seed if len(v)]
+    flat = [x for v in values_per_seed for x in v]
+    return {"mean": float(np.mean(seed_means)) if seed_means else float("nan"),
+            "std_over_seeds": float(np.std(seed_means)) if seed_means else float("nan"),
+            "std_over_episodes": float(np.std(flat)) if flat else float("nan"),
+            "seed_means": seed_means}
+
+
+def evaluate_policies(prey, predator, env: AquariumConfig | None = None, episodes: int = 200, seeds=(0,),
+                      device=None, max_worlds: int = 1024, deterministic: bool = True, progress=None) -> dict:
+    """Evaluate every (prey spec, predator spec) pair; see the module doc. Returns
+    `{"summary": [rows], "episodes": [per-episode records]}`."""
+    prey = [prey] if isinstance(prey, str) else list(prey)
+    predator = [predator] if isinstance(predator, str) else list(predator)
+    env = env if env is not None else AquariumConfig()
+    groups: dict[tuple[str, str], dict[str, list]] = {}
+    episodes_out = []
+    for prey_spec in prey:
+        prey_label, prey_value = parse_spec(prey_spec)
+        for pred_spec in predator:
+            pred_label, pred_value = parse_spec(pred_spec)
+            key = (prey_label, pred_label)
+            group = groups.setdefault(key, {m: [] for m in METRICS})
+            for seed in seeds:
+                if progress is not None:
+                    progress(f"prey={prey_label} ({prey_value}) vs predator={pred_label} ({pred_value}), seed {seed}")
+                records = run_episodes(env, prey_value, pred_value, episodes, int(seed), device=device,
+                                       max_worlds=max_worlds, deterministic=deterministic)
+                for m in METRICS:
+                    group[m].append([r[m] for r in records])
+                for r in records:
+                    r.update({"prey_policy": prey_label, "prey_spec": prey_value, "predator_policy": pred_label,
+                              "predator_spec": pred_value, "seed": int(seed)})
+                episodes_out.extend(records)
+    summary = []
+    for (prey_label, pred_label), group in groups.items():
+        row = {"prey_policy": prey_label, "predator_policy": pred_label, "seeds": len(group[METRICS[0]]),
+               "episodes_per_seed": episodes}
+        for m in METRICS:
+            s = summarize(group[m])
+            row[f"{m}_mean"], row[f"{m}_std"] = s["mean"], s["std_over_seeds"]
+            row[f"{m}_episode_std"] = s["std_over_episodes"]
+        summary.append(row)
+    return {"summary": summary, "episodes": episodes_out,
+            "protocol": {"episodes": episodes, "seeds": [int(s) for s in seeds], "max_steps": env.max_steps,
+                         "deterministic": deterministic, "env": env.to_dict()}}
+
+
+def write_results(result: dict, out_dir: str) -> dict[str, str]:
+    """`summary.csv`, `summary.json` (summary + protocol) and `episodes.json` into `out_dir`."""
+    os.makedirs(out_dir, exist_ok=True)
+    paths = {"csv": os.path.join(out_dir, "summary.csv"), "json": os.path.join(out_dir, "summary.json"),
+             "episodes": os.path.join(out_dir, "episodes.json")}
+    rows = result["summary"]
+    if rows:
+        with open(paths["csv"], "w", newline="", encoding="utf-8") as f:
+            writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+            writer.writeheader()
+            writer.writerows(rows)
+    with open(paths["json"], "w", encoding="utf-8") as f:
+        json.dump({"summary": rows, "protocol": result["protocol"]}, f, indent=1)
+    with open(paths["episodes"], "w", encoding="utf-8") as f:
+        json.dump(result["episodes"], f)
+    return paths
+
+
+# ---------------------------------------------------------------------------------------------- figures
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_distributions(result: dict, path: str) -> str:
+    """Box plots of the per-episode captures and rewards per prey for every policy pair."""
+    plt = _pyplot()
+    pairs = list(dict.fromkeys((r["prey_policy"], r["predator_policy"]) for r in result["episodes"]))
+    predators = {p for _, p in pairs}
+    labels = [a if len(predators) == 1 else f"{a}\nvs {b}" for a, b in pairs]
+    fig, axes = plt.subplots(1, 2, figsize=(max(6.0, 1.6 * len(pairs) + 3), 4.2))
+    for ax, metric, title in ((axes[0], "captures_per_prey", "captures per prey per episode"),
+                              (axes[1], "reward_per_prey", "reward per prey per episode")):
+        data = [[r[metric] for r in result["episodes"] if (r["prey_policy"], r["predator_policy"]) == pair]
+                for pair in pairs]
+        ax.boxplot(data, showmeans=True)
+        ax.set_xticks(range(1, len(labels) + 1), labels)
+        ax.set_title(title)
+        ax.grid(alpha=0.3)
+    fig.suptitle(f"{result['protocol']['episodes']} episodes x {len(result['protocol']['seeds'])} seeds, "
+                 f"{result['protocol']['max_steps']} steps")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def read_run_curve(run_dir: str) -> dict[str, np.ndarray]:
+    """Training curve of one run: columns of `progress.csv`, or (without it) the Episode/* scalars of
+    its TensorBoard events. Keys: world_episodes, captures_per_prey, reward_per_agent."""
+    csv_path = os.path.join(run_dir, "progress.csv")
+    if os.path.isfile(csv_path):
+        with open(csv_path, newline="", encoding="utf-8") as f:
+            rows = list(csv.DictReader(f))
+
+        def col(name):
+            return np.array([float(r[name]) if r.get(name) not in (None, "") else np.nan for r in rows])
+
+        return {"iteration": col("iteration"), "world_episodes": col("world_episodes"),
+                "captures_per_prey": col("captures_per_prey"), "reward_per_agent": col("reward_per_agent")}
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    acc = EventAccumulator(run_dir)
+    acc.Reload()
+    tags = set(acc.Tags().get("scalars", []))
+    if "Episode/captures_per_prey" not in tags:
+        raise ValueError(f"{run_dir}: no progress.csv and no Episode/captures_per_prey in TensorBoard events")
+    config_path = os.path.join(run_dir, "config.json")
+    scale = None
+    if os.path.isfile(config_path):
+        with open(config_path, encoding="utf-8") as f:
+            saved = json.load(f)
+        cfg = saved["config"]
+        from .config import env_config
+
+        scale = cfg["train"]["num_worlds"] * cfg["runner"]["num_steps_per_env"] / env_config(cfg).max_steps
+    caps = acc.Scalars("Episode/captures_per_prey")
+    rews = {e.step: e.value for e in acc.Scalars("Episode/reward_per_agent")} if "Episode/reward_per_agent" in tags else {}
+    it = np.array([e.step for e in caps], dtype=float)
+    return {"iteration": it, "world_episodes": (it + 1) * scale if scale else it,
+            "captures_per_prey": np.array([e.value for e in caps]),
+            "reward_per_agent": np.array([rews.get(e.step, np.nan) for e in caps])}
+
+
+def _moving_average(y: np.ndarray, window: int) -> np.ndarray:
+    """NaN-aware trailing moving average over `window` entries (iterations without episodes are NaN)."""
+    if window <= 1:
+        return y
+    ok = ~np.isnan(y)
+    values = np.where(ok, y, 0.0).cumsum()
+    counts = ok.astype(float).cumsum()
+    values[window:] = values[window:] - values[:-window]
+    counts[window:] = counts[window:] - counts[:-window]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(counts > 0, values / np.maximum(counts, 1), np.nan)
+
+
+def plot_training_curves(curves: dict[str, list[str]], path: str, smooth: int = 1) -> str:
+    """`curves`: label -> run directories (glob patterns allowed). Mean and std band over the runs of
+    each label, per iteration, against world episodes; each run's curve is first smoothed by a
+    trailing moving average over `smooth` iterations."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    for label, patterns in curves.items():
+        runs = sorted({d for p in patterns for d in (glob.glob(p) or [p]) if os.path.isdir(d)})
+        if not runs:
+            raise ValueError(f"curves {label!r}: no run directory matches {patterns}")
+        data = [read_run_curve(d) for d in runs]
+        n = min(len(d["iteration"]) for d in data)
+        x = data[0]["world_episodes"][:n]
+        for ax, metric in ((axes[0], "captures_per_prey"), (axes[1], "reward_per_agent")):
+            ys = np.stack([_moving_average(d[metric][:n], smooth) for d in data])
+            with warnings.catch_warnings():  # all-NaN columns (no episode ended yet) stay NaN
+                warnings.simplefilter("ignore", category=RuntimeWarning)
+                mean, std = np.nanmean(ys, axis=0), np.nanstd(ys, axis=0)
+            ok = ~np.isnan(mean)
+            line, = ax.plot(x[ok], mean[ok], label=f"{label} ({len(runs)} run{'s' if len(runs) > 1 else ''})")
+            ax.fill_between(x[ok], (mean - std)[ok], (mean + std)[ok], color=line.get_color(), alpha=0.2)
+    axes[0].set_title("captures per prey per episode")
+    axes[1].set_title("reward per agent per episode (learning team)")
+    for ax in axes:
+        ax.set_xlabel("world episodes")
+        ax.grid(alpha=0.3)
+        ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

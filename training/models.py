@@ -1,0 +1,103 @@
+"""Individual Learning: one set of network parameters per agent slot, computed as ONE batched network.
+
+`IndividualMLPModel` is an rsl-rl `MLPModel` whose MLP is a `BatchedMLP`: every layer holds a weight
+tensor `[S, in, out]` (S = agent slots of the learning team) and runs as one `baddbmm` over the slot
+dimension, so the S networks cost one kernel per layer and no Python loop over agents. Plug it in as
+the actor's and the critic's `class_name` ("aquarium_warp.training.models:IndividualMLPModel") with
+`num_agents=S`.
+
+Row layout. The model needs no agent id: it relies on the adapter's world-major row order (row
+`w * S + s` is slot `s` of world `w`), so any batch whose size is a multiple of S and that holds whole
+worlds in slot order maps row `k` to network `k % S`. Rollout batches have this layout; for the PPO
+update, `AquariumPPO(minibatch_group_size=S)` shuffles whole (step, world) groups instead of single
+rows, which keeps it (and gives every slot's network the same number of samples per mini-batch).
+Exported policies keep the same contract: observations `[W * S, L]` in world-major slot order.
+
+The observation normaliser (if enabled) stays shared across slots.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn as nn
+from tensordict import TensorDict
+
+from . import _rsl  # noqa: F401
+from rsl_rl.models import MLPModel
+from rsl_rl.utils import resolve_nn_activation
+
+
+class BatchedLinear(nn.Module):
+    """S independent linear layers: `weight [S, in, out]`, `bias [S, out]`, applied to `x [S, G, in]`.
+
+    Initialised slot by slot like `nn.Linear` (uniform in +-1/sqrt(in) for weight and bias)."""
+
+    def __init__(self, groups: int, in_features: int, out_features: int) -> None:
+        super().__init__()
+        self.groups, self.in_features, self.out_features = groups, in_features, out_features
+        self.weight = nn.Parameter(torch.empty(groups, in_features, out_features))
+        self.bias = nn.Parameter(torch.empty(groups, out_features))
+        bound = 1.0 / math.sqrt(in_features) if in_features > 0 else 0.0
+        nn.init.uniform_(self.weight, -bound, bound)
+        nn.init.uniform_(self.bias, -bound, bound)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.baddbmm(self.bias.unsqueeze(1), x, self.weight)
+
+    def extra_repr(self) -> str:
+        return f"groups={self.groups}, in_features={self.in_features}, out_features={self.out_features}"
+
+
+class BatchedMLP(nn.Module):
+    """S MLPs of identical shape evaluated at once. Input `[B, L]` with `B = G * S` rows in world-major
+    slot order (row `k` uses network `k % S`); output `[B, out]` (or `[B, *out]` for a shaped output)."""
+
+    def __init__(self, groups: int, input_dim: int, output_dim, hidden_dims, activation: str = "elu") -> None:
+        super().__init__()
+        if isinstance(groups, bool) or not isinstance(groups, int) or groups < 1:
+            raise ValueError(f"num_agents={groups!r} must be an integer >= 1")
+        self.groups = groups
+        self.input_dim = input_dim
+        hidden = [input_dim if d == -1 else int(d) for d in hidden_dims]
+        self.output_shape = [int(output_dim)] if isinstance(output_dim, int) else [int(d) for d in output_dim]
+        out_total = 1
+        for d in self.output_shape:
+            out_total *= d
+        dims = [input_dim] + hidden + [out_total]
+        self.layers = nn.ModuleList([BatchedLinear(groups, a, b) for a, b in zip(dims[:-1], dims[1:])])
+        self.activation = resolve_nn_activation(activation)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        rows = x.shape[0]
+        if rows % self.groups != 0:
+            raise ValueError(f"Individual-Learning model: batch of {rows} rows is not a multiple of the "
+                             f"{self.groups} agent slots (rows must be whole worlds in slot order)")
+        h = x.reshape(rows // self.groups, self.groups, x.shape[-1]).transpose(0, 1)  # [S, G, L]
+        last = len(self.layers) - 1
+        for i, layer in enumerate(self.layers):
+            h = layer(h)
+            if i < last:
+                h = self.activation(h)
+        out = h.transpose(0, 1).reshape([rows] + self.output_shape)
+        return out
+
+
+class IndividualMLPModel(MLPModel):
+    """rsl-rl `MLPModel` with separate parameters per agent slot (Individual Learning); see the module doc.
+
+    Extra argument: `num_agents` (S, the learning team's slots per world). Everything else (observation
+    groups, normalisation, distribution, export through `as_jit` / `as_onnx`) is `MLPModel`'s."""
+
+    def __init__(self, obs: TensorDict, obs_groups: dict[str, list[str]], obs_set: str, output_dim: int,
+                 num_agents: int = 1, hidden_dims=(256, 256, 256), activation: str = "elu",
+                 obs_normalization: bool = False, distribution_cfg: dict | None = None) -> None:
+        super().__init__(obs, obs_groups, obs_set, output_dim, hidden_dims=hidden_dims, activation=activation,
+                         obs_normalization=obs_normalization, distribution_cfg=distribution_cfg)
+        self.num_agents = num_agents
+        head = self.distribution.input_dim if self.distribution is not None else output_dim
+        # Replaces the shared MLP that MLPModel built (its parameters are discarded).
+        self.mlp = BatchedMLP(num_agents, self._get_latent_dim(), head, hidden_dims, activation)
+        if self.distribution is not None:
+            self.distribution.init_mlp_weights(self.mlp)

@@ -1,0 +1,381 @@
+"""PPO training of one team with rsl-rl's `OnPolicyRunner` over `AquariumVecEnv`.
+
+```python
+from aquarium_warp.training import Trainer, make_config
+
+trainer = Trainer(make_config("paper", {"train": {"device": "cuda:0"}}), log_dir="runs/paper_ps_s0")
+trainer.train()                    # up to the config's total iterations; checkpoints every save_interval
+trainer.export()                   # runs/paper_ps_s0/exported/policy.pt, policy.onnx, policy.json
+# later, or after a crash:
+Trainer.resume("runs/paper_ps_s0").train()     # continues from the newest checkpoint
+```
+
+The log directory receives rsl-rl's TensorBoard events, `config.json`, `progress.csv` (one row per
+iteration: episode statistics, losses, speed) and checkpoints `model_<i>.pt`, which hold the state
+after iteration i (0-based; the runner's `iter` entry is the next iteration, `i + 1`).
+
+A checkpoint holds, besides rsl-rl's (actor, critic, optimizer, iteration), under `infos["aquarium"]`:
+the run config, the simulation's `state_dict` (every world's agents and step counters, i.e. the
+adapter's `episode_length_buf`), the adapter's row activity and statistics mask, the opponent's own
+state (a heuristic's random streams are keyed by the simulation state and its seed), the torch (CPU
+and CUDA), numpy and Python RNG states, and the logger's running sums. Resuming on the CPU continues
+bit-exactly: the parameters after `n + m` uninterrupted iterations equal those after `n`, save,
+resume, `m`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import csv
+import glob
+import io
+import json
+import os
+import random
+import re
+import statistics
+from collections import deque
+
+import numpy as np
+import torch
+
+from . import _rsl  # noqa: F401
+from rsl_rl.runners import OnPolicyRunner
+from rsl_rl.utils.logger import Logger
+
+from ..env import BatchedAquarium
+from ..heuristics import POLICIES, make_policy
+from .config import default_opponent, env_config, make_config, runner_config, total_iterations, validate
+from .export import export_policy, load_policy, policy_meta
+from .vec_env import OTHER, AquariumVecEnv, TrainedOpponent
+
+CSV_FIELDS = ["iteration", "agent_steps", "world_steps", "world_episodes", "episodes_logged", "captures",
+              "captures_per_prey", "reward_per_agent", "opponent_reward_per_agent", "episode_length",
+              "mean_row_reward", "value_loss", "surrogate_loss", "entropy", "learning_rate", "fps",
+              "collect_time", "learn_time"]
+
+
+def is_heuristic(name) -> bool:
+    return isinstance(name, str) and name.lower().replace("_", "").replace("-", "") in \
+        {p for names in POLICIES.values() for p in names}
+
+
+def make_opponent(spec, env: BatchedAquarium, agent_type: str, deterministic: bool = True, seed: int = 0):
+    """The other team's driver: a heuristic name ("random", "turnaway", "naivchase") or the path of a
+    trained policy (exported file or checkpoint)."""
+    if is_heuristic(spec):
+        return make_policy(spec, env, agent_type)
+    if isinstance(spec, str) and os.path.isfile(spec):
+        policy = load_policy(spec, device=env.torch_device, deterministic=deterministic, seed=seed)
+        return TrainedOpponent(policy, env, agent_type)
+    raise ValueError(f"opponent {spec!r} is neither a heuristic ({sorted(POLICIES[agent_type])}) nor a policy file")
+
+
+class AquariumLogger(Logger):
+    """rsl-rl's logger plus a CSV row per iteration and an optional tqdm bar instead of the print."""
+
+    def __init__(self, *args, csv_path: str | None = None, slots: int = 1, max_steps: int = 1,
+                 quiet: bool = False, total_iterations: int | None = None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.csv_path, self.slots, self.max_steps, self.quiet = csv_path, slots, max_steps, quiet
+        self.total_iterations = total_iterations
+        self._bar = None
+
+    def log(self, it, start_it, total_it, collect_time, learn_time, loss_dict, learning_rate, action_std,
+            rnd_weight, print_minimal=False, width=80, pad=40):
+        if self.writer is None:
+            return
+        means, counts = {}, {}
+        for key in dict.fromkeys(k for info in self.ep_extras for k in info):
+            values = [torch.as_tensor(info[key], dtype=torch.float32).reshape(-1).cpu()
+                      for info in self.ep_extras if key in info]
+            cat = torch.cat(values)
+            means[key], counts[key] = float(cat.mean()), int(cat.numel())
+        mean_row_reward = statistics.mean(self.rewbuffer) if len(self.rewbuffer) else float("nan")
+        if self.quiet:
+            with contextlib.redirect_stdout(io.StringIO()):
+                super().log(it, start_it, total_it, collect_time, learn_time, loss_dict, learning_rate,
+                            action_std, rnd_weight, print_minimal, width, pad)
+        else:
+            super().log(it, start_it, total_it, collect_time, learn_time, loss_dict, learning_rate, action_std,
+                        rnd_weight, print_minimal, width, pad)
+        world_steps = self.tot_timesteps // self.slots
+        row = {
+            "iteration": it, "agent_steps": self.tot_timesteps, "world_steps": world_steps,
+            "world_episodes": world_steps / self.max_steps,
+            "episodes_logged": counts.get("Episode/captures", 0),
+            "captures": means.get("Episode/captures", ""),
+            "captures_per_prey": means.get("Episode/captures_per_prey", ""),
+            "reward_per_agent": means.get("Episode/reward_per_agent", ""),
+            "opponent_reward_per_agent": means.get("Episode/opponent_reward_per_agent", ""),
+            "episode_length": means.get("Episode/length", ""),
+            "mean_row_reward": mean_row_reward,
+            "value_loss": loss_dict.get("value", ""), "surrogate_loss": loss_dict.get("surrogate", ""),
+            "entropy": loss_dict.get("entropy", ""), "learning_rate": learning_rate,
+            "fps": int(self.cfg["num_steps_per_env"] * self.num_envs / max(1e-9, collect_time + learn_time)),
+            "collect_time": collect_time, "learn_time": learn_time,
+        }
+        if self.csv_path is not None:
+            new = not os.path.isfile(self.csv_path)
+            with open(self.csv_path, "a", newline="", encoding="utf-8") as f:
+                writer = csv.DictWriter(f, fieldnames=CSV_FIELDS)
+                if new:
+                    writer.writeheader()
+                writer.writerow(row)
+        if self.quiet:
+            self._progress(it, total_it, row)
+
+    def _progress(self, it, total_it, row) -> None:
+        try:
+            from tqdm import tqdm
+        except ImportError:  # pragma: no cover
+            return
+        if self._bar is None:
+            self._bar = tqdm(total=total_it, initial=it, unit="it", dynamic_ncols=True)
+        self._bar.update(1)
+        post = {}
+        if row["captures_per_prey"] != "":
+            post["capt/prey"] = f"{row['captures_per_prey']:.3f}"
+            post["rew/agent"] = f"{row['reward_per_agent']:.1f}"
+        post["fps"] = row["fps"]
+        self._bar.set_postfix(post, refresh=False)
+
+    def close_progress(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
+
+    def state_dict(self) -> dict:
+        return {"tot_timesteps": self.tot_timesteps, "tot_time": self.tot_time,
+                "rewbuffer": list(self.rewbuffer), "lenbuffer": list(self.lenbuffer),
+                "cur_reward_sum": self.cur_reward_sum.cpu().clone(),
+                "cur_episode_length": self.cur_episode_length.cpu().clone()}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.tot_timesteps, self.tot_time = state["tot_timesteps"], state["tot_time"]
+        self.rewbuffer = deque(state["rewbuffer"], maxlen=self.rewbuffer.maxlen)
+        self.lenbuffer = deque(state["lenbuffer"], maxlen=self.lenbuffer.maxlen)
+        self.cur_reward_sum.copy_(state["cur_reward_sum"].to(self.cur_reward_sum.device))
+        self.cur_episode_length.copy_(state["cur_episode_length"].to(self.cur_episode_length.device))
+
+
+class AquariumRunner(OnPolicyRunner):
+    """`OnPolicyRunner` whose checkpoints carry the whole training state (see the module doc) and whose
+    iteration counter means "iterations completed" between `learn()` calls."""
+
+    def __init__(self, env: AquariumVecEnv, train_cfg: dict, log_dir: str | None = None, device: str = "cpu",
+                 trainer: "Trainer | None" = None, quiet: bool = False, total_iterations: int | None = None):
+        super().__init__(env, train_cfg, log_dir=log_dir, device=device)
+        self.trainer = trainer
+        self.logger = AquariumLogger(
+            log_dir=log_dir, cfg=self.cfg, env_cfg=self.env.cfg, num_envs=self.env.num_envs,
+            is_distributed=self.is_distributed, gpu_world_size=self.gpu_world_size,
+            gpu_global_rank=self.gpu_global_rank, device=self.device,
+            csv_path=os.path.join(log_dir, "progress.csv") if log_dir else None,
+            slots=env.slots, max_steps=env.max_episode_length, quiet=quiet, total_iterations=total_iterations)
+        self._in_learn = False
+
+    def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False) -> None:
+        if num_learning_iterations <= 0:
+            return
+        self._in_learn = True
+        try:
+            super().learn(num_learning_iterations, init_at_random_ep_len=init_at_random_ep_len)
+        finally:
+            self._in_learn = False
+            self.logger.close_progress()
+        self.current_learning_iteration += 1  # iterations completed
+
+    def completed_iterations(self) -> int:
+        return self.current_learning_iteration + 1 if self._in_learn else self.current_learning_iteration
+
+    def save(self, path: str, infos: dict | None = None) -> None:
+        saved = self.alg.save()
+        saved["iter"] = self.completed_iterations()
+        infos = dict(infos or {})
+        if self.trainer is not None:
+            infos["aquarium"] = self.trainer.extra_state()
+        saved["infos"] = infos
+        torch.save(saved, path)
+        self.logger.save_model(path, self.current_learning_iteration)
+
+    def load(self, path: str, load_cfg: dict | None = None, strict: bool = True, map_location=None) -> dict:
+        loaded = torch.load(path, weights_only=False, map_location=map_location)
+        if self.alg.load(loaded, load_cfg, strict):
+            self.current_learning_iteration = loaded["iter"]
+        infos = loaded.get("infos") or {}
+        if self.trainer is not None and "aquarium" in infos and (load_cfg is None or load_cfg.get("iteration")):
+            self.trainer.load_extra_state(infos["aquarium"])
+        return infos
+
+
+def _rng_state(device: torch.device) -> dict:
+    state = {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()}
+    if device.type == "cuda":
+        state["cuda"] = torch.cuda.get_rng_state(device)
+    return state
+
+
+def _set_rng_state(state: dict, device: torch.device) -> None:
+    # RNG states are CPU byte tensors (a checkpoint loaded with map_location="cuda" moved them).
+    torch.set_rng_state(state["torch"].cpu())
+    np.random.set_state(state["numpy"])
+    random.setstate(state["python"])
+    if device.type == "cuda" and "cuda" in state:
+        torch.cuda.set_rng_state(state["cuda"].cpu(), device)
+
+
+def latest_checkpoint(run_dir: str) -> str:
+    """The checkpoint `model_<i>.pt` with the largest i in `run_dir`."""
+    paths = glob.glob(os.path.join(run_dir, "model_*.pt"))
+    numbered = [(int(m.group(1)), p) for p in paths if (m := re.search(r"model_(\d+)\.pt$", p))]
+    if not numbered:
+        raise ValueError(f"no checkpoint model_<i>.pt in {run_dir!r}")
+    return max(numbered)[1]
+
+
+class Trainer:
+    """Builds the simulator, the opponent, the adapter and the rsl-rl runner of a run config; trains,
+    checkpoints, resumes and exports. `log_dir=None`: no TensorBoard, CSV or checkpoints."""
+
+    def __init__(self, config: dict, log_dir: str | None = None):
+        config = copy.deepcopy(config)
+        validate(config)
+        train = config["train"]
+        if train["opponent"] is None:
+            train["opponent"] = default_opponent(train["team"])
+        self.config = config
+        self.log_dir = log_dir
+        rank = int(os.environ.get("RANK", "0"))
+        world_size = int(os.environ.get("WORLD_SIZE", "1"))
+        if world_size > 1:  # torchrun: one process per GPU, each with its own worlds and seed
+            device = f"cuda:{int(os.environ.get('LOCAL_RANK', '0'))}"
+        else:
+            device = train["device"]
+        self.seed = int(train["seed"]) + rank
+        torch.manual_seed(self.seed)
+        np.random.seed(self.seed % 2**32)
+        random.seed(self.seed)
+
+        self.env = BatchedAquarium(env_config(config), num_worlds=train["num_worlds"], device=device,
+                                   seed=self.seed)
+        self.device = self.env.torch_device
+        team = train["team"]
+        self.opponent = make_opponent(train["opponent"], self.env, OTHER[team],
+                                      deterministic=train["opponent_deterministic"], seed=self.seed)
+        self.vec_env = AquariumVecEnv(self.env, team, self.opponent, reward_scale=train["reward_scale"],
+                                      cfg=config)
+        self.runner_cfg = runner_config(config, self.vec_env.slots, self.vec_env.action_count)
+        self.total_iterations = total_iterations(config)
+        if log_dir is not None and rank == 0:
+            os.makedirs(log_dir, exist_ok=True)
+            with open(os.path.join(log_dir, "config.json"), "w", encoding="utf-8") as f:
+                json.dump({"config": config, "runner_cfg": self.runner_cfg,
+                           "total_iterations": self.total_iterations}, f, indent=1, default=str)
+        with contextlib.redirect_stdout(io.StringIO()) if train["quiet"] else contextlib.nullcontext():
+            self.runner = AquariumRunner(self.vec_env, copy.deepcopy(self.runner_cfg), log_dir=log_dir,
+                                         device=str(self.device), trainer=self, quiet=train["quiet"],
+                                         total_iterations=self.total_iterations)
+        if log_dir is not None:
+            import aquarium_warp
+
+            self.runner.add_git_repo_to_log(aquarium_warp.__file__)
+
+    # ------------------------------------------------------------------ construction from checkpoints
+    @classmethod
+    def resume(cls, path: str, log_dir: str | None = None, changes: dict | None = None) -> "Trainer":
+        """A trainer restored from a checkpoint, or from the newest checkpoint of a run directory.
+        `changes` may alter train settings that do not affect the state (iterations, episodes,
+        quiet, export); the log directory defaults to the checkpoint's."""
+        checkpoint_path = latest_checkpoint(path) if os.path.isdir(path) else path
+        checkpoint = torch.load(checkpoint_path, map_location="cpu", weights_only=False)
+        state = (checkpoint.get("infos") or {}).get("aquarium")
+        if not state:
+            raise ValueError(f"{checkpoint_path}: not a checkpoint of aquarium_warp.training")
+        config = copy.deepcopy(state["config"])
+        if changes:
+            allowed = {"iterations", "episodes", "quiet", "export"}
+            bad = [k for k in changes.get("train", {}) if k not in allowed] + \
+                  [k for k in changes if k != "train"]
+            if bad:
+                raise ValueError(f"a resumed run keeps its config; only train.{sorted(allowed)} may change, not {bad}")
+            config["train"].update(changes.get("train", {}))
+        trainer = cls(config, log_dir=log_dir if log_dir is not None else os.path.dirname(os.path.abspath(checkpoint_path)))
+        trainer.load(checkpoint_path)
+        return trainer
+
+    # ------------------------------------------------------------------ state
+    def extra_state(self) -> dict:
+        meta = policy_meta(self.config, self.vec_env.slots, self.vec_env.observation_size, self.vec_env.action_count)
+        return {
+            "config": self.config,
+            "runner_cfg": self.runner_cfg,
+            "policy_meta": meta,
+            "vec_env": self.vec_env.state_dict(),
+            "rng": _rng_state(self.device),
+            "logger": self.runner.logger.state_dict(),
+        }
+
+    def load_extra_state(self, state: dict) -> None:
+        self.vec_env.load_state_dict(state["vec_env"])
+        self.runner.logger.load_state_dict(state["logger"])
+        _set_rng_state(state["rng"], self.device)
+
+    def load(self, path: str) -> None:
+        """Restore the whole training state from a checkpoint of this run's config."""
+        self.runner.load(path, map_location=str(self.device))
+        csv_path = os.path.join(self.log_dir, "progress.csv") if self.log_dir else None
+        if csv_path and os.path.isfile(csv_path):  # drop rows logged after the checkpoint
+            done = self.runner.current_learning_iteration
+            with open(csv_path, newline="", encoding="utf-8") as f:
+                rows = [r for r in csv.DictReader(f) if int(r["iteration"]) < done]
+            with open(csv_path, "w", newline="", encoding="utf-8") as f:
+                writer = csv.DictWriter(f, fieldnames=CSV_FIELDS)
+                writer.writeheader()
+                writer.writerows(rows)
+
+    @property
+    def iteration(self) -> int:
+        """Iterations completed."""
+        return self.runner.current_learning_iteration
+
+    # ------------------------------------------------------------------ training
+    def train(self, iterations: int | None = None) -> None:
+        """Run `iterations` more iterations (default: up to the config's total)."""
+        if iterations is None:
+            iterations = self.total_iterations - self.iteration
+        fresh = self.iteration == 0
+        self.runner.learn(iterations, init_at_random_ep_len=fresh and bool(self.config["train"]["init_at_random_ep_len"]))
+
+    def save(self, path: str) -> None:
+        self.runner.save(path)
+
+    @property
+    def actor(self):
+        return self.runner.alg.get_policy()
+
+    def policy_meta(self) -> dict:
+        return policy_meta(self.config, self.vec_env.slots, self.vec_env.observation_size, self.vec_env.action_count)
+
+    def export(self, out_dir: str | None = None, formats=None) -> dict[str, str]:
+        """Export the current policy (default: `<log_dir>/exported`, the config's formats)."""
+        if out_dir is None:
+            if self.log_dir is None:
+                raise ValueError("export needs out_dir when the trainer has no log_dir")
+            out_dir = os.path.join(self.log_dir, "exported")
+        formats = self.config["train"]["export"] if formats is None else formats
+        return export_policy(self.actor, self.policy_meta(), out_dir, formats)
+
+    def close(self) -> None:
+        self.vec_env.close()
+
+
+def train_from_config(config: dict, log_dir: str | None) -> Trainer:
+    trainer = Trainer(config, log_dir)
+    trainer.train()
+    return trainer
+
+
+__all__ = ["Trainer", "AquariumRunner", "AquariumLogger", "make_opponent", "latest_checkpoint",
+           "make_config", "train_from_config"]

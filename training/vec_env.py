@@ -1,0 +1,277 @@
+"""rsl-rl `VecEnv` adapter over `BatchedAquarium`: one learning team, the other team driven inside `step()`.
+
+Rows. Every slot of the learning team in every world is one row, world-major: row `w * S + s` is slot
+`s` of world `w` (S = `env.prey_capacity` for prey, `env.predator_count` for predators), so
+`num_envs = W * S`, `num_actions = 1` (one discrete action, a float category index as rsl-rl stores it).
+
+Outputs of `step(actions [N, 1])`:
+- observations: a `TensorDict({"policy": [N, L] float32})`. Two buffers alternate: PPO keeps a
+  reference to the TensorDict it acted on and copies it into its storage only after the next
+  `step()`, so each step writes into the buffer it did not return last time.
+- rewards `[N]` float32: the env's reward times `reward_scale` (rows inactive at the start of the
+  step get 0).
+- dones `[N]` int64 and `extras["time_outs"]` `[N]` bool (truncations only, which PPO bootstraps).
+  A row's episode is the life of the agent in its slot:
+  * a captured prey is a termination (done, no time-out), whether it respawns (a fresh agent in the
+    same slot starts the row's next episode) or is removed; a starved predator likewise;
+  * the end of its world's episode (`max_steps`) is a time-out for every live agent;
+  * inactive rows (a dead slot: respawn off, starvation, or an empty reproduction slot) get reward 0
+    and done 0 while they stay empty, and done 1 (no time-out) at the step their slot is filled again
+    (birth, or the world's reset). Their observation is the env's all-zero one, so the critic learns
+    a value of 0 for it and their advantages vanish; the stretch forms one zero-reward "episode" in
+    rsl-rl's own episode statistics (which therefore count them where slots can be empty).
+- `extras["log"]`: only on steps where at least one world's episode ended, per ended world (that
+  started its episode at step 0; see `episode_length_buf`): `Episode/captures` (captures in the
+  world's episode), `Episode/captures_per_prey` (that / prey_count), `Episode/reward_per_agent` (the
+  learning team's undiscounted, unscaled episode reward summed over its slots / the team's initial
+  agent count), `Episode/opponent_reward_per_agent`, `Episode/length`. rsl-rl's logger concatenates
+  every such entry of an iteration and averages: the mean over the episodes that ended.
+
+The other team acts inside `step()` through `opponent()`, a callable returning its int actions
+`[W, slots]` on the env's device, decided from the state before the step (a heuristic from
+`aquarium_warp.heuristics.make_policy`, or `TrainedOpponent` around a loaded policy).
+
+Host synchronisation. `step()` makes none when the world episodes can only end by truncation
+(respawn on and a starvation limit of at least `max_steps - 1`: the paper's setting): a host copy of
+every world's step counter says when episodes end. Otherwise it reads one flag per step
+(`episode_ended.any()`). rsl-rl's own logger syncs each step anyway when a log directory is set.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from tensordict import TensorDict
+
+from . import _rsl  # noqa: F401
+from rsl_rl.env import VecEnv
+
+from ..env import TYPES, BatchedAquarium
+
+OTHER = {"prey": "predator", "predator": "prey"}
+
+
+class TrainedOpponent:
+    """Drives one team of `env` with a policy mapping observations `[N, L]` -> actions `[N]`
+    (e.g. `load_policy(...)`); returns int32 actions `[W, slots]` on the env's device."""
+
+    def __init__(self, policy, env: BatchedAquarium, agent_type: str):
+        if agent_type not in TYPES:
+            raise ValueError(f"agent_type={agent_type!r} must be one of {TYPES}")
+        self.policy, self.env, self.agent_type = policy, env, agent_type
+        obs = env.observations[agent_type]
+        self._slots, self._obs_size = obs.shape[1], obs.shape[2]
+        check = getattr(policy, "check_compatible", None)
+        if check is not None:
+            check(agent_type, self._obs_size, env.config.action_count, self._slots)
+        self.actions = torch.zeros(obs.shape[:2], dtype=torch.int32, device=env.torch_device)
+
+    def __call__(self) -> torch.Tensor:
+        obs = self.env.observations[self.agent_type].reshape(-1, self._obs_size)
+        with torch.inference_mode():
+            act = self.policy(obs)
+        self.actions.copy_(act.reshape(self.actions.shape))
+        return self.actions
+
+    def state_dict(self) -> dict:
+        state = getattr(self.policy, "rng_state", None)
+        return {"policy_rng": state()} if state is not None else {}
+
+    def load_state_dict(self, state: dict) -> None:
+        if "policy_rng" in state:
+            self.policy.set_rng_state(state["policy_rng"])
+
+
+class AquariumVecEnv(VecEnv):
+    """rsl-rl VecEnv over a `BatchedAquarium` (created with `auto_reset=True`); see the module doc.
+
+    Args:
+        env: the batched simulator.
+        team: the learning team, "prey" or "predator".
+        opponent: callable returning the other team's actions `[W, slots]` (int, on the env's device).
+        reward_scale: factor on the rewards returned to PPO (episode statistics stay unscaled).
+        cfg: the run configuration (rsl-rl's logger stores it); defaults to the env config's dict.
+    """
+
+    def __init__(self, env: BatchedAquarium, team: str = "prey", opponent=None, reward_scale: float = 1.0,
+                 cfg: dict | None = None):
+        if not isinstance(env, BatchedAquarium):
+            raise ValueError(f"env must be a BatchedAquarium, got {type(env).__name__}")
+        if team not in TYPES:
+            raise ValueError(f"team={team!r} must be one of {TYPES}")
+        if not env.auto_reset:
+            raise ValueError("AquariumVecEnv needs a BatchedAquarium with auto_reset=True")
+        if opponent is None or not callable(opponent):
+            raise ValueError("opponent must be a callable returning the other team's actions [W, slots]")
+        self.env, self.team, self.other = env, team, OTHER[team]
+        self.opponent = opponent
+        self.reward_scale = float(reward_scale)
+        ecfg = env.config
+        self.cfg = cfg if cfg is not None else {"env": ecfg.to_dict()}
+        self.num_worlds = W = env.num_worlds
+        self.slots = S = env.prey_capacity if team == "prey" else env.predator_count
+        self.team_count = ecfg.prey_count if team == "prey" else ecfg.predator_count
+        self.other_count = ecfg.predator_count if team == "prey" else ecfg.prey_count
+        self.num_envs = W * S
+        self.num_actions = 1
+        self.action_count = ecfg.action_count
+        self.observation_size = L = env.observation_size[team]
+        self.max_episode_length = ecfg.max_steps
+        self.device = env.torch_device
+        dev = self.device
+
+        t = env.state.torch
+        Pc = env.prey_capacity
+        self._rewards_in = env._rewards[team]
+        self._terminated_in = env._terminated[team]
+        self._truncated_in = env._truncated[team]
+        self._alive = env.alive[team]
+        self._captured_in = t.captured[:, :Pc] if team == "prey" else None
+        info = env._info
+        self._episode_ended = info["episode_ended"]
+        self._ended_length = info["episode_length"]
+        self._ended_captures = info["episode_captures"]
+        self._ended_return = info["episode_return"][team]
+        self._ended_return_other = info["episode_return"][self.other]
+
+        self._obs = [torch.zeros(W * S, L, dtype=torch.float32, device=dev) for _ in range(2)]
+        self._obs_td = [TensorDict({"policy": o}, batch_size=[W * S], device=dev) for o in self._obs]
+        self._current = 0
+        self._rewards = torch.zeros(W * S, dtype=torch.float32, device=dev)
+        self._dones = torch.zeros(W * S, dtype=torch.long, device=dev)
+        self._time_outs = torch.zeros(W * S, dtype=torch.bool, device=dev)
+        self._actions = torch.zeros(W, S, dtype=torch.int32, device=dev)
+        self._active = torch.zeros(W, S, dtype=torch.bool, device=dev)
+        self._ended = torch.zeros(W, S, dtype=torch.bool, device=dev)
+        self._done_bool = torch.zeros(W, S, dtype=torch.bool, device=dev)
+        self._scratch = torch.zeros(W, S, dtype=torch.bool, device=dev)
+        self.extras: dict = {"time_outs": self._time_outs}
+
+        starvation_ok = ecfg.predator_starvation_steps >= ecfg.max_steps - 1
+        self.predictable_ends = bool(ecfg.respawn_captured_prey and starvation_ok)
+        self._sync_from_env()
+
+    # ------------------------------------------------------------------ internal state
+    def _sync_from_env(self) -> None:
+        """Take rows' activity, the host step counters and the current observations from the env
+        (after construction, `load_state_dict` or a change of the step counters)."""
+        self._active.copy_(self._alive)
+        # Host copy of the worlds' step counters (kept up to date only where episodes end predictably).
+        self._host_step = self.env.state.torch.world_step.cpu().numpy().astype(np.int64)
+        # A world's episode statistics are logged only if the episode started at step 0.
+        self._host_full = self._host_step == 0
+        self._obs[self._current].view(self.num_worlds, self.slots, -1).copy_(self.env.observations[self.team])
+
+    # ------------------------------------------------------------------ VecEnv API
+    def get_observations(self) -> TensorDict:
+        return self._obs_td[self._current]
+
+    @property
+    def episode_length_buf(self) -> torch.Tensor:
+        """Per row: its world's step counter in the current world episode (`[N]` int32, a copy)."""
+        return self.env.state.torch.world_step.repeat_interleave(self.slots)
+
+    @episode_length_buf.setter
+    def episode_length_buf(self, value: torch.Tensor) -> None:
+        """Set every world's step counter (rsl-rl's `init_at_random_ep_len` spreads the worlds'
+        truncations this way); the first slot's row of each world is used, clamped to
+        `[0, max_steps - 1]`. Worlds set to a non-zero step are left out of the episode statistics
+        until their next episode."""
+        value = torch.as_tensor(value).reshape(self.num_worlds, self.slots)[:, 0]
+        steps = value.to(torch.int64).clamp(0, self.max_episode_length - 1).to(torch.int32).cpu()
+        self.env.set_state(world_step=steps)
+        self._sync_from_env()
+
+    def step(self, actions: torch.Tensor):
+        W, S = self.num_worlds, self.slots
+        self._actions.copy_(actions.reshape(W, S))  # float category indices -> int32 (exact)
+        other_actions = self.opponent()
+        self.env.step({self.team: self._actions, self.other: other_actions}, validate=False)
+
+        # Life ends: captured (prey), terminated (removed or starved), truncated (world episode end).
+        ended, active, alive = self._ended, self._active, self._alive
+        torch.logical_or(self._terminated_in, self._truncated_in, out=ended)
+        if self._captured_in is not None:
+            ended.logical_or_(self._captured_in)
+        # Active rows end with their life; inactive rows end when their slot is filled again.
+        torch.where(active, ended, alive, out=self._done_bool)
+        self._dones.copy_(self._done_bool.view(-1))
+        # Time-outs: active rows truncated by the world's end and not terminated/captured that step.
+        scratch = self._scratch
+        if self._captured_in is not None:
+            torch.logical_or(self._terminated_in, self._captured_in, out=scratch)
+        else:
+            scratch.copy_(self._terminated_in)
+        scratch.logical_not_().logical_and_(self._truncated_in).logical_and_(active)
+        self._time_outs.copy_(scratch.view(-1))
+        torch.mul(self._rewards_in.reshape(-1), active.view(-1), out=self._rewards)
+        if self.reward_scale != 1.0:
+            self._rewards.mul_(self.reward_scale)
+        active.copy_(alive)
+
+        self._current ^= 1
+        obs = self._obs[self._current]
+        obs.view(W, S, -1).copy_(self.env.observations[self.team])
+
+        self.extras = {"time_outs": self._time_outs}
+        log = self._episode_log()
+        if log is not None:
+            self.extras["log"] = log
+        return self._obs_td[self._current], self._rewards, self._dones, self.extras
+
+    def _episode_log(self) -> dict | None:
+        """Statistics of the world episodes that ended this step (None when none did)."""
+        if self.predictable_ends:
+            self._host_step += 1
+            ended = self._host_step >= self.max_episode_length
+            if not ended.any():
+                return None
+            self._host_step[ended] = 0
+        else:
+            if not bool(self._episode_ended.any()):  # the one host sync of this mode
+                return None
+            ended = self._episode_ended.cpu().numpy()
+        report = ended & self._host_full
+        self._host_full |= ended
+        if not report.any():
+            return None
+        if report.all():
+            index = None
+        else:
+            index = torch.from_numpy(np.flatnonzero(report)).to(self.device)
+
+        def pick(x: torch.Tensor) -> torch.Tensor:
+            return (x if index is None else x.index_select(0, index)).to(torch.float32, copy=True)
+
+        captures = pick(self._ended_captures)
+        prey_count = self.team_count if self.team == "prey" else self.other_count
+        return {
+            "Episode/captures": captures,
+            "Episode/captures_per_prey": captures / prey_count,
+            "Episode/reward_per_agent": pick(self._ended_return) / self.team_count,
+            "Episode/opponent_reward_per_agent": pick(self._ended_return_other) / self.other_count,
+            "Episode/length": pick(self._ended_length),
+        }
+
+    # ------------------------------------------------------------------ checkpoints
+    def state_dict(self) -> dict:
+        """Everything needed to continue bit-exactly: the simulation, row activity, host counters and
+        the opponent's own state (a heuristic's random streams are keyed by the simulation state)."""
+        opponent_state = self.opponent.state_dict() if hasattr(self.opponent, "state_dict") else {}
+        return {
+            "env": self.env.state_dict(),
+            "active": self._active.cpu().clone(),
+            "host_full": self._host_full.copy(),
+            "opponent": opponent_state,
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        self.env.load_state_dict(state["env"])
+        self._sync_from_env()
+        self._active.copy_(state["active"].to(self.device))
+        self._host_full = np.asarray(state["host_full"], dtype=bool).copy()
+        if state.get("opponent") and hasattr(self.opponent, "load_state_dict"):
+            self.opponent.load_state_dict(state["opponent"])
+
+    def close(self) -> None:
+        self.env.close()
