@@ -1,0 +1,342 @@
+"""Swarm metrics of every world of a `BatchedAquarium`, computed on the device without host sync.
+
+```python
+from aquarium_warp.metrics import SwarmMetrics, EpisodeMetrics, rollout_metrics
+
+metrics = SwarmMetrics(env, linking_distance=50.0)
+values = metrics.compute()          # {"polarization": [W], "groups": [W], ..., "nn_histogram": [W, bins]}
+
+episodes = EpisodeMetrics(env, every=10)    # per-episode means, for training logs and evaluation
+env.reset(); episodes.begin()
+for _ in range(steps):
+    obs, rewards, terminated, truncated, info = env.step(actions)
+    episodes.update(info)
+episodes.result()                   # per world: mean over its completed episodes ([W] tensors)
+episodes.log_values()               # {"swarm/polarization": float, ...}: means since the last call
+```
+
+Definitions (all over the live prey of a world; distances are torus-shortest, in px):
+- `polarization`: length of the mean unit heading, in [0, 1] (1: all aligned; about
+  `0.886 / sqrt(n)` for n independent random headings).
+- `centroid_x`, `centroid_y`: the swarm's centroid on the torus, each axis by its circular mean
+  (`x = atan2(mean sin(2 pi x / W), mean cos(2 pi x / W)) * W / (2 pi)`, in [0, W)).
+- `cohesion`: mean torus distance of the prey to that centroid, px (small: a compact swarm).
+- `nn_mean`: mean over prey of the distance to the nearest other live prey, px (NaN with < 2 prey);
+  `nn_histogram` `[W, bins]` int32 counts those distances per bin of `nn_range / bins` px (the last bin
+  also holds everything beyond `nn_range`).
+- `groups`: connected components of the graph linking prey closer than `linking_distance`;
+  `largest_group`: the largest component's share of the live prey.
+- `predator_distance`: mean over prey of the distance to the nearest live predator, px.
+- `prey_alive`, `predator_alive`: populations; `captures`: captures in the last step.
+Undefined values (no live prey) are NaN.
+
+`compute()` launches the kernels of `kernels/metrics.py` on every shard (threads on the CPU, Warp's
+stream ordered with torch's on GPU) and returns views of buffers that the next `compute()`
+overwrites; the per-prey arrays behind them are `nearest_neighbour`, `nearest_predator` and
+`group_label` (`[W, prey_capacity]`, -1 for dead slots). Results are deterministic: float sums run
+in a fixed order, group labels are the smallest prey slot of each group.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from typing import Callable, Iterable, Mapping
+
+import torch
+import warp as wp
+
+from .env import BatchedAquarium
+from .kernels import metrics as kernels
+
+SCALAR_METRICS = kernels.VALUE_NAMES
+# Metrics averaged over the sampled states of an episode by `EpisodeMetrics` (the centroid is not:
+# its average over time means nothing on a torus; captures come from the env's episode counters).
+EPISODE_METRICS = ("polarization", "cohesion", "nn_mean", "groups", "largest_group", "predator_distance",
+                   "prey_alive", "predator_alive")
+
+
+def default_linking_distance(env: BatchedAquarium) -> float:
+    """2.5 prey hit-box radii (50 px by default): prey whose hit boxes are less than half a radius apart."""
+    return 2.5 * env.config.prey.radius
+
+
+class SwarmMetrics:
+    """Per-world swarm metrics of `env`'s current state (the one its last observations show).
+
+    Args:
+        env: the batched simulator.
+        linking_distance: px; prey closer than this are linked into one group (default
+            `default_linking_distance(env)`, 2.5 prey radii).
+        nn_bins: bins of the nearest-neighbour histogram.
+        nn_range: px covered by the histogram's bins (default: 2 x the prey view distance, or the
+            largest torus distance if smaller or the view is unlimited).
+    """
+
+    def __init__(self, env: BatchedAquarium, linking_distance: float | None = None, nn_bins: int = 50,
+                 nn_range: float | None = None):
+        if not isinstance(env, BatchedAquarium):
+            raise ValueError(f"env must be a BatchedAquarium, got {type(env).__name__}")
+        cfg = env.config
+        if linking_distance is None:
+            linking_distance = default_linking_distance(env)
+        if isinstance(linking_distance, bool) or not isinstance(linking_distance, (int, float)) \
+                or not math.isfinite(linking_distance) or linking_distance <= 0:
+            raise ValueError(f"linking_distance={linking_distance!r} must be a finite number > 0 (px)")
+        if isinstance(nn_bins, bool) or not isinstance(nn_bins, int) or nn_bins < 1:
+            raise ValueError(f"nn_bins={nn_bins!r} must be an integer >= 1")
+        if nn_range is None:
+            nn_range = min(2.0 * cfg.prey.view_distance, cfg.max_torus_distance)
+        if isinstance(nn_range, bool) or not isinstance(nn_range, (int, float)) or not math.isfinite(nn_range) \
+                or nn_range <= 0:
+            raise ValueError(f"nn_range={nn_range!r} must be a finite number > 0 (px)")
+        self._env = env
+        self.linking_distance = float(linking_distance)
+        self.nn_bins = nn_bins
+        self.nn_range = float(nn_range)
+        self.bin_width = self.nn_range / nn_bins
+        W, Pc, P = env.num_worlds, env.prey_capacity, env.predator_count
+        dev = env.device
+        # A lone predator (or a few) is found faster by looping over the predator slots than by a ring
+        # search, which walks every prey entry on the way to it.
+        self.predators_by_grid = int(P > 32 and P * P > 4 * Pc)
+        self._chunks = (Pc + kernels.CHUNK - 1) // kernels.CHUNK
+        self._values = wp.zeros((W, kernels.NUM_VALUES), dtype=float, device=dev)
+        self._nearest_prey = wp.zeros((W, Pc), dtype=float, device=dev)
+        self._nearest_predator = wp.zeros((W, Pc), dtype=float, device=dev)
+        self._histogram = wp.zeros((W, nn_bins), dtype=wp.int32, device=dev)
+        self._parent = wp.zeros(W * Pc, dtype=wp.int32, device=dev)
+        self._label = wp.zeros((W, Pc), dtype=wp.int32, device=dev)
+        self._group_size = wp.zeros((W, Pc), dtype=wp.int32, device=dev)
+        self._partial = wp.zeros((W, self._chunks, kernels.NUM_PARTIALS), dtype=float, device=dev)
+        values = wp.to_torch(self._values)
+        self.values = values  # [W, len(SCALAR_METRICS)] float32, columns in SCALAR_METRICS order
+        self.nn_histogram = wp.to_torch(self._histogram)
+        self.nearest_neighbour = wp.to_torch(self._nearest_prey)
+        self.nearest_predator = wp.to_torch(self._nearest_predator)
+        self.group_label = wp.to_torch(self._label)
+        self._result = {name: values[:, k] for k, name in enumerate(SCALAR_METRICS)}
+        self._result["nn_histogram"] = self.nn_histogram
+        self._recorded = None
+
+    @property
+    def env(self) -> BatchedAquarium:
+        return self._env
+
+    @property
+    def bin_edges(self) -> torch.Tensor:
+        """`[bins + 1]` px: edges of the histogram's bins (the last bin also counts distances beyond)."""
+        return torch.linspace(0.0, self.nn_range, self.nn_bins + 1)
+
+    def _shard_program(self, shard) -> list:
+        env, s, g, world = self._env, shard.s, shard.grid, shard.world
+        W, Pc = shard.num_worlds, env.prey_capacity
+        w0, w1 = shard.w0, shard.w1
+        nearest_prey, nearest_predator = self._nearest_prey[w0:w1], self._nearest_predator[w0:w1]
+        histogram, parent = self._histogram[w0:w1], self._parent[w0 * Pc:w1 * Pc]
+        label, group_size = self._label[w0:w1], self._group_size[w0:w1]
+        partial, values = self._partial[w0:w1], self._values[w0:w1]
+
+        def launch(kernel, dim, inputs, outputs):
+            return wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=env.device,
+                             record_cmd=True).launch
+
+        return [
+            histogram.zero_,
+            group_size.zero_,
+            launch(kernels.prey_distances, (W, Pc),
+                   [world, g, s.alive, s.position, self.predators_by_grid, self.bin_width],
+                   [nearest_prey, nearest_predator, histogram, parent]),
+            launch(kernels.link_groups, (W, Pc), [world, g, s.alive, s.position, self.linking_distance], [parent]),
+            launch(kernels.resolve_groups, (W, Pc), [world, s.alive, parent], [label, group_size]),
+            launch(kernels.prey_partial_sums, (W, self._chunks),
+                   [world, s.alive, s.position, s.heading, nearest_prey, nearest_predator, label, group_size],
+                   [partial]),
+            launch(kernels.finish_prey_sums, W, [world, partial, s.predator_alive_count, s.captures], [values]),
+            launch(kernels.centroid_partial_sums, (W, self._chunks), [world, s.alive, s.position, values],
+                   [partial]),
+            launch(kernels.finish_cohesion, W, [partial], [values]),
+        ]
+
+    def _programs(self) -> dict:
+        shards = self._env.shards
+        if self._recorded is None or self._recorded[0] != shards:  # the env rebuilds its shards on reseed
+            self._recorded = (shards, {id(shard): self._shard_program(shard) for shard in shards})
+        return self._recorded[1]
+
+    def compute(self) -> dict[str, torch.Tensor]:
+        """Metrics of the current state of every world: `{name: [W] float32}` for the names in
+        `SCALAR_METRICS`, plus `"nn_histogram"` `[W, bins]` int32; on the env's device, no host sync.
+        The tensors are views overwritten by the next `compute()`: clone what you keep."""
+        programs = self._programs()
+
+        def run(shard):
+            for command in programs[id(shard)]:
+                command()
+
+        self._env.run_on_shards(run)
+        return self._result
+
+
+class EpisodeMetrics:
+    """Per-episode averages of `SwarmMetrics` for every world, accumulated on the device.
+
+    Call `begin()` after `env.reset()` and `update(info)` after every `env.step()`. The state is
+    sampled every `every` steps (the first state of an episode, then every `every`-th): an episode's
+    value of a metric is its mean over the episode's sampled states, skipping NaN samples. When a
+    world's episode ends (`info["episode_ended"]`, the env resets it), its episode values, its
+    captures (`info["episode_captures"]`), `captures_per_prey` (captures / `prey_count`, the initial
+    prey) and `episode_length` are added to the completed totals. Nothing synchronises with the host
+    but `log_values()`/`summary()`.
+
+    `trace` names metrics of `SCALAR_METRICS` to record at every sample (e.g. `("prey_alive",
+    "predator_alive")` for population dynamics with reproduction and starvation): `traces()` returns
+    them as `[samples, W]` tensors, with `trace_steps` the step count of each sample.
+    """
+
+    def __init__(self, env: BatchedAquarium, metrics: SwarmMetrics | None = None, every: int = 1,
+                 trace: Iterable[str] = (), **metric_kwargs):
+        if metrics is None:
+            metrics = SwarmMetrics(env, **metric_kwargs)
+        elif metric_kwargs:
+            raise ValueError(f"pass either metrics= or SwarmMetrics arguments, not both: {sorted(metric_kwargs)}")
+        if metrics.env is not env:
+            raise ValueError("metrics was made for another env")
+        if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+            raise ValueError(f"every={every!r} must be an integer >= 1")
+        trace = tuple(trace)
+        unknown = [name for name in trace if name not in SCALAR_METRICS]
+        if unknown:
+            raise ValueError(f"unknown trace metrics {unknown}; choose from {SCALAR_METRICS}")
+        self.env, self.metrics, self.every, self.trace_names = env, metrics, every, trace
+        W, dev = env.num_worlds, env.torch_device
+        self._columns = torch.tensor([SCALAR_METRICS.index(n) for n in EPISODE_METRICS], device=dev)
+        self._trace_columns = [SCALAR_METRICS.index(n) for n in trace]
+        K, B = len(EPISODE_METRICS), metrics.nn_bins
+        zeros = functools.partial(torch.zeros, device=dev, dtype=torch.float64)
+        # Current episode: sums over samples, and how many samples were not NaN.
+        self._sum, self._count = zeros(W, K), zeros(W, K)
+        self._hist = zeros(W, B)
+        # Completed episodes: sums of episode values and how many episodes gave a value.
+        self._done_sum, self._done_count = zeros(W, K), zeros(W, K)
+        self._done_hist = zeros(W, B)
+        self._done_captures, self._done_length, self._episodes = zeros(W), zeros(W), zeros(W)
+        self._steps = 0
+        self._trace: list[torch.Tensor] = []
+        self.trace_steps: list[int] = []
+
+    def begin(self) -> None:
+        """Forget everything and sample the current state as step 0 (call right after `env.reset()`)."""
+        for t in (self._sum, self._count, self._hist, self._done_sum, self._done_count, self._done_hist,
+                  self._done_captures, self._done_length, self._episodes):
+            t.zero_()
+        self._trace.clear()
+        self.trace_steps.clear()
+        self._steps = 0
+        self._sample()
+
+    def _sample(self) -> None:
+        values = self.metrics.compute()
+        x = self.metrics.values.index_select(1, self._columns).double()
+        valid = ~torch.isnan(x)
+        self._sum += torch.where(valid, x, 0.0)
+        self._count += valid
+        self._hist += values["nn_histogram"]
+        if self._trace_columns:
+            self._trace.append(self.metrics.values[:, self._trace_columns].clone())
+            self.trace_steps.append(self._steps)
+
+    def update(self, info: Mapping) -> None:
+        """Account for one `env.step()`: close the episodes that ended in it, then sample the new state
+        if the step count is a multiple of `every` (for worlds that were reset, the state is the next
+        episode's first, and belongs to it)."""
+        ended = info["episode_ended"]
+        done = ended.unsqueeze(1)
+        mean = self._sum / self._count  # NaN where no valid sample
+        has = done & (self._count > 0)
+        self._done_sum += torch.where(has, mean, 0.0)
+        self._done_count += has
+        hist_total = self._hist.sum(dim=1, keepdim=True)
+        self._done_hist += torch.where(done & (hist_total > 0), self._hist / hist_total, 0.0)
+        self._done_captures += torch.where(ended, info["episode_captures"].double(), 0.0)
+        self._done_length += torch.where(ended, info["episode_length"].double(), 0.0)
+        self._episodes += ended
+        keep = (~done).double()
+        self._sum *= keep
+        self._count *= keep
+        self._hist *= keep
+        self._steps += 1
+        if self._steps % self.every == 0:
+            self._sample()
+
+    def result(self) -> dict[str, torch.Tensor]:
+        """Per world, the mean over its completed episodes (NaN where none): `[W]` float64 tensors for
+        `EPISODE_METRICS`, `captures`, `captures_per_prey`, `episode_length`, plus `episodes` (count)
+        and `nn_distribution` `[W, bins]` (the histogram normalised per episode, then averaged)."""
+        episodes = self._episodes
+        out = {name: self._done_sum[:, k] / self._done_count[:, k] for k, name in enumerate(EPISODE_METRICS)}
+        out["captures"] = self._done_captures / episodes
+        out["captures_per_prey"] = out["captures"] / self.env.config.prey_count
+        out["episode_length"] = self._done_length / episodes
+        out["episodes"] = episodes.clone()
+        out["nn_distribution"] = self._done_hist / episodes.unsqueeze(1)
+        return out
+
+    def summary(self) -> dict[str, float]:
+        """Means over every completed episode of every world (host sync); `episodes`: their number."""
+        episodes = float(self._episodes.sum())
+        out = {}
+        for k, name in enumerate(EPISODE_METRICS):
+            n = float(self._done_count[:, k].sum())
+            out[name] = float(self._done_sum[:, k].sum()) / n if n else math.nan
+        out["captures"] = float(self._done_captures.sum()) / episodes if episodes else math.nan
+        out["captures_per_prey"] = out["captures"] / self.env.config.prey_count
+        out["episode_length"] = float(self._done_length.sum()) / episodes if episodes else math.nan
+        out["episodes"] = episodes
+        return out
+
+    def log_values(self, prefix: str = "swarm/") -> dict[str, float]:
+        """`summary()` of the episodes completed since the last call, keys prefixed for a logger
+        (empty when none completed); then forgets those episodes (the running ones carry on)."""
+        summary = self.summary()
+        for t in (self._done_sum, self._done_count, self._done_hist, self._done_captures, self._done_length,
+                  self._episodes):
+            t.zero_()
+        if not summary["episodes"]:
+            return {}
+        return {prefix + k: v for k, v in summary.items()}
+
+    def traces(self) -> dict[str, torch.Tensor]:
+        """`{name: [samples, W]}` of the metrics named in `trace` (float32), at steps `trace_steps`."""
+        if not self._trace:
+            return {name: torch.zeros(0, self.env.num_worlds) for name in self.trace_names}
+        stacked = torch.stack(self._trace)
+        return {name: stacked[:, :, k] for k, name in enumerate(self.trace_names)}
+
+
+def rollout_metrics(env: BatchedAquarium, act: Callable[[Mapping], Mapping], steps: int, every: int = 1,
+                    reset: bool = True, trace: Iterable[str] = (), progress: bool = False,
+                    **metric_kwargs) -> dict[str, torch.Tensor]:
+    """Run `steps` steps of `env` with `actions = act(obs)` and return `EpisodeMetrics.result()`
+    (per world, means over the episodes completed in the run), plus the traces when `trace` names some.
+
+    For evaluation: `rollout_metrics(env, lambda obs: heuristic_actions(env), steps=env.config.max_steps)`
+    gives one episode per world. `metric_kwargs` go to `SwarmMetrics` (e.g. `linking_distance`)."""
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+        raise ValueError(f"steps={steps!r} must be an integer >= 1")
+    episodes = EpisodeMetrics(env, every=every, trace=trace, **metric_kwargs)
+    obs = env.reset() if reset else env.observations
+    episodes.begin()
+    iterator = range(steps)
+    if progress:
+        from tqdm import tqdm
+
+        iterator = tqdm(iterator, desc="rollout", unit="step")
+    for _ in iterator:
+        obs, _, _, _, info = env.step(act(obs), validate=False)
+        episodes.update(info)
+    out = episodes.result()
+    if trace:
+        out.update({f"trace_{k}": v for k, v in episodes.traces().items()})
+        out["trace_steps"] = torch.tensor(episodes.trace_steps)
+    return out

@@ -1,0 +1,685 @@
+"""Swarm-size study: how captures, polarization and grouping change with the number of prey.
+
+`aquarium-warp study swarm-size` (see `aquarium_warp.cli`) runs, for every prey count N (and every
+prey field-of-view angle and view distance of the sweeps), one `BatchedAquarium` whose worlds are
+all seeds x episodes of that setting, stepped together for exactly one episode of `episode_steps`
+steps. Seed `s` is the block of worlds `[s * E, (s + 1) * E)` (E episodes per seed): the env's
+counter-based random streams are keyed by the world index, so the blocks are independent runs.
+Metrics (`aquarium_warp.metrics`) are sampled every `metrics_every` steps on the device and averaged
+per episode, then per seed; the spread in the figures is the standard deviation over seeds.
+
+Outputs in `out`: `swarm_size.csv` (one row per setting and seed), `swarm_size.json` (the
+configuration, the machine, timings, per-setting means/std/sem over seeds, nearest-neighbour
+distributions, population traces when populations change) and PNG figures:
+`captures_vs_size.png` (dilution), `polarization_groups_vs_size.png`, `spacing_vs_size.png`,
+`nn_distribution.png` and, with population dynamics, `population.png`.
+
+```python
+from aquarium_warp.study import SwarmSizeStudy, run_swarm_size_study
+results = run_swarm_size_study(SwarmSizeStudy(prey=[4, 8, 16], seeds=2, episode_steps=200, out="out"))
+```
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+import os
+import platform
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from .config import AquariumConfig
+from .env import BatchedAquarium, resolve_device
+from .heuristics import POLICIES, make_policy
+from .metrics import EPISODE_METRICS, EpisodeMetrics, SwarmMetrics
+
+# Per-seed columns of the CSV, in order.
+RESULT_METRICS = ("captures", "captures_per_prey") + EPISODE_METRICS + ("episode_length",)
+POPULATION_TRACES = ("prey_alive", "predator_alive")
+
+
+def parse_list(text: str, kind=float, name: str = "list") -> list:
+    """`"4,8,16"` -> [4, 8, 16]; an ellipsis continues the progression of the terms before it up to
+    the last term: `"4,8,...,4096"` doubles (geometric when the first terms have a constant ratio
+    above 1), `"30,60,...,180"` adds 30."""
+    parts = [p.strip() for p in str(text).split(",") if p.strip()]
+    if not parts:
+        raise ValueError(f"{name}={text!r} is empty")
+    if "..." in parts:
+        at = parts.index("...")
+        if parts.count("...") != 1 or at < 2 or at != len(parts) - 2:
+            raise ValueError(f"{name}={text!r}: write at least two terms, '...', then the last term")
+        head = [kind(p) for p in parts[:at]]
+        last = kind(parts[-1])
+        ratios = [b / a for a, b in zip(head[:-1], head[1:])] if all(a > 0 for a in head) else []
+        steps = [b - a for a, b in zip(head[:-1], head[1:])]
+        candidates = []
+        if ratios and ratios[0] > 1 and all(math.isclose(r, ratios[0]) for r in ratios):
+            candidates.append(lambda x: kind(x * ratios[0]))
+        if steps[0] > 0 and all(math.isclose(d, steps[0]) for d in steps):
+            candidates.append(lambda x: kind(x + steps[0]))
+        for advance in candidates:  # geometric first: "4,8,...,4096" doubles; "30,60,...,180" adds
+            values = list(head)
+            while values[-1] < last and not math.isclose(values[-1], last):
+                values.append(advance(values[-1]))
+            if math.isclose(values[-1], last):
+                return values
+        raise ValueError(f"{name}={text!r}: the terms before '...' must grow by a constant ratio or step "
+                         f"that reaches {parts[-1]}")
+    try:
+        return [kind(p) for p in parts]
+    except ValueError:
+        raise ValueError(f"{name}={text!r} must be a comma-separated list of numbers") from None
+
+
+def parse_world_size(text) -> tuple[float, float]:
+    """`"800"` or `"800x600"` -> (width, height) px."""
+    parts = str(text).lower().replace("*", "x").split("x")
+    try:
+        values = [float(p) for p in parts]
+    except ValueError:
+        raise ValueError(f"world size {text!r} must be WIDTH or WIDTHxHEIGHT in px") from None
+    if len(values) == 1:
+        values = values * 2
+    if len(values) != 2:
+        raise ValueError(f"world size {text!r} must be WIDTH or WIDTHxHEIGHT in px")
+    return values[0], values[1]
+
+
+@dataclass
+class SwarmSizeStudy:
+    """Settings of a swarm-size study (the CLI's options)."""
+
+    prey: list[int] = field(default_factory=lambda: [4 * 2 ** k for k in range(11)])  # 4 .. 4096
+    seeds: int = 5
+    episodes_per_seed: int = 1
+    episode_steps: int = 3000
+    prey_policy: str = "turnaway"
+    predator_policy: str = "naivchase"
+    confusion: bool = True  # NaivChase: a random visible prey each step (False: the nearest)
+    predators: int = 1
+    fov_angles: list[float] | None = None  # prey field of view, degrees (None: the config's, 120)
+    view_distances: list[float] | None = None  # prey view distance, px (None: the config's, 100)
+    world_size: tuple[float, float] = (800.0, 800.0)
+    constant_density: bool = False  # scale the arena with N so that N / area stays that of reference_prey
+    reference_prey: int = 16
+    linking_distance: float | None = None  # px (None: 2.5 prey radii)
+    metrics_every: int = 10
+    respawn: bool = True
+    reproduction: bool = False
+    max_prey_factor: float = 2.0  # with reproduction: max_prey = factor x N
+    starvation_steps: int | None = None  # None: the config's (3000)
+    device: str | None = None
+    seed: int = 0
+    jobs: int | None = None  # settings run at once (threads); None: CPU cores on the CPU, 1 on GPU
+    out: str = "swarm_size"
+    figures: bool = True
+
+    def validate(self) -> None:
+        def positive_int(name, value):
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name}={value!r} must be an integer >= 1")
+
+        if not self.prey:
+            raise ValueError("prey must list at least one prey count")
+        for n in self.prey:
+            positive_int("prey count", n)
+        for name in ("seeds", "episodes_per_seed", "episode_steps", "predators", "metrics_every", "reference_prey"):
+            positive_int(name.replace("_", "-"), getattr(self, name))
+        if self.jobs is not None:
+            positive_int("jobs", self.jobs)
+        for name in ("fov_angles", "view_distances"):
+            values = getattr(self, name)
+            if values is not None and not values:
+                raise ValueError(f"{name} must list at least one value")
+        if self.max_prey_factor < 1:
+            raise ValueError(f"max_prey_factor={self.max_prey_factor!r} must be >= 1")
+
+    def settings(self) -> list[dict]:
+        """One dict per (fov angle, view distance, prey count), with its `AquariumConfig`."""
+        base = AquariumConfig()
+        fovs = self.fov_angles or [base.prey.fov_angle]
+        views = self.view_distances or [base.prey.view_distance]
+        out = []
+        for fov in fovs:
+            for view in views:
+                for n in self.prey:
+                    width, height = self.world_size
+                    if self.constant_density:
+                        scale = math.sqrt(n / self.reference_prey)
+                        width, height = width * scale, height * scale
+                    changes = dict(width=float(width), height=float(height), prey_count=int(n),
+                                   predator_count=self.predators, max_steps=self.episode_steps,
+                                   respawn_captured_prey=self.respawn,
+                                   prey=dataclasses.replace(base.prey, fov_angle=float(fov), view_distance=float(view)))
+                    if self.reproduction:
+                        changes.update(prey_reproduction=True, max_prey=max(int(n), int(round(self.max_prey_factor * n))))
+                    if self.starvation_steps is not None:
+                        changes["predator_starvation_steps"] = self.starvation_steps
+                    out.append({"prey": int(n), "fov_angle": float(fov), "view_distance": float(view),
+                                "width": float(width), "height": float(height), "config": base.replace(**changes)})
+        return out
+
+    @property
+    def population_changes(self) -> bool:
+        """Whether populations can change within an episode (then population traces are recorded)."""
+        starve = self.starvation_steps if self.starvation_steps is not None else AquariumConfig().predator_starvation_steps
+        return (not self.respawn) or self.reproduction or starve < self.episode_steps
+
+
+# --------------------------------------------------------------------------------------------------
+# Policies
+# --------------------------------------------------------------------------------------------------
+class TrainedPolicy:
+    """A trained policy (`aquarium_warp.training.export.load_policy`) acting for one agent type of every
+    world: `policy()` -> int32 actions `[W, slots]` from the env's current observations."""
+
+    def __init__(self, path: str, env: BatchedAquarium, agent_type: str):
+        try:
+            from .training.export import load_policy
+        except ImportError as error:
+            raise ValueError(f"trained policies need aquarium_warp.training (importing it failed: {error})") from error
+        self.env, self.agent_type = env, agent_type
+        self.policy = load_policy(path, device=env.device)
+        obs = env.observations[agent_type]
+        self._size = obs.shape[2]
+        check = getattr(self.policy, "check_compatible", None)
+        if check is not None:
+            check(agent_type, obs.shape[2], env.config.action_count, obs.shape[1])
+        self.actions = torch.zeros(obs.shape[:2], dtype=torch.int32, device=env.torch_device)
+
+    def __call__(self) -> torch.Tensor:
+        obs = self.env.observations[self.agent_type].reshape(-1, self._size)
+        with torch.inference_mode():
+            actions = self.policy(obs)
+        self.actions.copy_(actions.reshape(self.actions.shape))
+        return self.actions
+
+
+def is_heuristic(name: str, agent_type: str) -> bool:
+    return isinstance(name, str) and name.lower().replace("_", "").replace("-", "") in POLICIES[agent_type]
+
+
+def make_study_policy(name: str, env: BatchedAquarium, agent_type: str, confusion: bool = True):
+    """A heuristic by name (see `aquarium_warp.heuristics`), else a trained policy file."""
+    if is_heuristic(name, agent_type):
+        chase = name.lower().replace("_", "").replace("-", "") == "naivchase"
+        return make_policy(name, env, agent_type, confusion=confusion if chase else None)
+    if not os.path.isfile(name):
+        raise ValueError(f"{agent_type} policy {name!r} is neither a heuristic ({', '.join(POLICIES[agent_type])}) "
+                         "nor an existing policy file (exported .pt/.onnx or a training checkpoint)")
+    return TrainedPolicy(name, env, agent_type)
+
+
+def check_policies(study: SwarmSizeStudy) -> None:
+    """Fail early (before any simulation) on policy names that are neither heuristics nor files."""
+    for agent_type, name in (("prey", study.prey_policy), ("predator", study.predator_policy)):
+        if not is_heuristic(name, agent_type) and not os.path.isfile(name):
+            raise ValueError(f"{agent_type} policy {name!r} is neither a heuristic "
+                             f"({', '.join(POLICIES[agent_type])}) nor an existing policy file")
+
+
+# --------------------------------------------------------------------------------------------------
+# Running
+# --------------------------------------------------------------------------------------------------
+def run_setting(study: SwarmSizeStudy, setting: dict, device: str, progress=None) -> dict:
+    """Run one setting: `seeds x episodes_per_seed` worlds for one episode. Returns per-seed metrics
+    (numpy arrays `[seeds]`), the mean nearest-neighbour distribution and, with population dynamics,
+    the mean population traces."""
+    cfg = setting["config"]
+    E = study.episodes_per_seed
+    worlds = study.seeds * E
+    start = time.perf_counter()
+    env = BatchedAquarium(cfg, num_worlds=worlds, device=device, seed=study.seed)
+    prey = make_study_policy(study.prey_policy, env, "prey", study.confusion)
+    predator = make_study_policy(study.predator_policy, env, "predator", study.confusion)
+    metrics = SwarmMetrics(env, linking_distance=study.linking_distance)
+    trace = POPULATION_TRACES if study.population_changes else ()
+    episodes = EpisodeMetrics(env, metrics=metrics, every=study.metrics_every, trace=trace)
+    env.reset()
+    episodes.begin()
+    chunk = 0
+    for _ in range(study.episode_steps):
+        _, _, _, _, info = env.step({"prey": prey(), "predator": predator()}, validate=False)
+        episodes.update(info)
+        chunk += 1
+        if progress is not None and chunk == 25:
+            progress(chunk)
+            chunk = 0
+    if progress is not None and chunk:
+        progress(chunk)
+    result = {k: v.detach().cpu().double().numpy() for k, v in episodes.result().items()}
+    # Every world finishes its episode at the last step, or earlier if it ran out of prey or predators
+    # (then it restarts, and the restarted episode, unfinished, is not counted).
+    if (result["episodes"] < 1).any():
+        raise RuntimeError(f"N={setting['prey']}: a world finished no episode ({result['episodes']})")
+    per_seed = {name: result[name].reshape(study.seeds, E).mean(axis=1) for name in RESULT_METRICS}
+    out = {"per_seed": per_seed, "nn_distribution": result["nn_distribution"].mean(axis=0),
+           "nn_bin_edges": metrics.bin_edges.numpy(), "linking_distance": metrics.linking_distance}
+    if trace:
+        traces = episodes.traces()
+        out["population"] = {"step": list(episodes.trace_steps)[:-1]}
+        for name in trace:  # the last sample is the next episode's first state
+            out["population"][name] = traces[name][:-1].double().mean(dim=1).cpu().numpy()
+    out["wall_s"] = time.perf_counter() - start
+    out["agent_steps"] = worlds * cfg.capacity * study.episode_steps
+    env.close()
+    return out
+
+
+BASELINE_METRICS = ("polarization", "cohesion", "nn_mean", "groups", "largest_group", "predator_distance")
+
+
+def uniform_baseline(cfg: AquariumConfig, worlds: int, linking_distance: float | None, device: str,
+                     seed: int) -> dict[str, float]:
+    """The metrics of `worlds` snapshots of uniformly random prey and predators with uniformly random
+    headings (prey that ignore each other and the predator), in `cfg`'s arena, by the same kernels:
+    the reference each measured curve is read against. Means over the snapshots."""
+    cfg = cfg.replace(prey_reproduction=False) if cfg.prey_reproduction else cfg
+    env = BatchedAquarium(cfg, num_worlds=worlds, device=device, seed=0)
+    W, C = env.num_worlds, env.capacity
+    gen = torch.Generator().manual_seed(int(seed))
+    size = torch.tensor([cfg.width, cfg.height], dtype=torch.float32)
+    position = torch.minimum(torch.rand(W, C, 2, generator=gen) * size, torch.nextafter(size, torch.zeros(2)))
+    angle = torch.rand(W, C, generator=gen, dtype=torch.float64) * (2 * math.pi)
+    heading = torch.stack([torch.cos(angle), torch.sin(angle)], dim=-1).float()
+    env.set_state(position=position, velocity=heading, heading=heading, alive=torch.ones(W, C, dtype=torch.bool))
+    values = SwarmMetrics(env, linking_distance=linking_distance).compute()
+    out = {name: float(torch.nanmean(values[name].double()).cpu()) for name in BASELINE_METRICS}
+    env.close()
+    return out
+
+
+def add_uniform_baselines(summary: dict, study: SwarmSizeStudy, device: str) -> None:
+    """Store `uniform_baseline` in every entry of `summary["results"]` (snapshots of about 65k prey in
+    all, at least one per seed, at most 256)."""
+    settings = {(s["prey"], s["fov_angle"], s["view_distance"]): s for s in study.settings()}
+    cache: dict[tuple, dict] = {}
+    for entry in summary["results"]:
+        s = settings[(entry["prey"], entry["fov_angle"], entry["view_distance"])]
+        key = (s["prey"], s["width"], s["height"])  # the baseline depends on the arena and N only
+        if key not in cache:
+            snapshots = min(256, max(study.seeds, -(-65536 // s["prey"])))  # about 64k prey in all
+            cache[key] = uniform_baseline(s["config"], snapshots, study.linking_distance, device,
+                                          seed=study.seed * 1_000_003 + s["prey"])
+        entry["uniform_baseline"] = cache[key]
+
+
+def _warm_up(study: SwarmSizeStudy, device: str) -> None:
+    """Load every kernel module once before settings run on parallel threads."""
+    cfg = study.settings()[0]["config"].replace(prey_count=2, max_steps=2)
+    if cfg.prey_reproduction:
+        cfg = cfg.replace(max_prey=4)
+    env = BatchedAquarium(cfg, num_worlds=1, device=device, seed=0)
+    prey = make_study_policy(study.prey_policy, env, "prey", study.confusion)
+    predator = make_study_policy(study.predator_policy, env, "predator", study.confusion)
+    metrics = SwarmMetrics(env, linking_distance=study.linking_distance)
+    metrics.compute()
+    env.step({"prey": prey(), "predator": predator()}, validate=False)
+    env.close()
+
+
+def machine_info(device: str) -> dict:
+    import warp as wp
+
+    info = {"platform": platform.platform(), "python": platform.python_version(), "torch": torch.__version__,
+            "warp": wp.__version__, "cpu_count": os.cpu_count(), "device": device,
+            "device_name": wp.get_device(device).name}
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    info["cpu"] = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    return info
+
+
+def _stats(values: np.ndarray) -> dict:
+    v = np.asarray(values, dtype=np.float64)
+    ok = v[~np.isnan(v)]
+    n = len(ok)
+    mean = float(ok.mean()) if n else math.nan
+    std = float(ok.std(ddof=1)) if n > 1 else (0.0 if n == 1 else math.nan)
+    return {"mean": mean, "std": std, "sem": std / math.sqrt(n) if n > 1 else math.nan, "n": n,
+            "seeds": [None if math.isnan(x) else float(x) for x in v]}
+
+
+def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True) -> dict:
+    """Run every setting of `study`, write the CSV, JSON and figures into `study.out`, and return the
+    JSON's content."""
+    study.validate()
+    check_policies(study)
+    device = resolve_device(study.device)
+    settings = study.settings()
+    os.makedirs(study.out, exist_ok=True)
+    import warp as wp
+
+    on_gpu = wp.get_device(device).is_cuda
+    jobs = study.jobs if study.jobs is not None else (1 if on_gpu else (os.cpu_count() or 1))
+    jobs = max(1, min(jobs, len(settings)))
+    start = time.perf_counter()
+    _warm_up(study, device)
+
+    bar = None
+    lock = threading.Lock()
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(settings) * study.episode_steps, unit="step", desc="swarm-size study", dynamic_ncols=True)
+
+    def advance(steps: int, label: str) -> None:
+        if bar is not None:
+            with lock:
+                bar.set_postfix_str(label, refresh=False)
+                bar.update(steps)
+
+    def job(index: int) -> dict:
+        s = settings[index]
+        label = f"N={s['prey']} fov={s['fov_angle']:g} view={s['view_distance']:g}"
+        return run_setting(study, s, device, progress=lambda n: advance(n, label))
+
+    # Largest settings first, so parallel threads finish together.
+    order = sorted(range(len(settings)), key=lambda i: -settings[i]["config"].capacity)
+    results: dict[int, dict] = {}
+    try:
+        if jobs == 1:
+            for i in order:
+                results[i] = job(i)
+        else:
+            with ThreadPoolExecutor(max_workers=jobs) as pool:
+                for i, r in zip(order, pool.map(job, order)):
+                    results[i] = r
+    finally:
+        if bar is not None:
+            bar.close()
+    wall = time.perf_counter() - start
+
+    rows, entries = [], []
+    for i, s in enumerate(settings):
+        r = results[i]
+        for seed in range(study.seeds):
+            row = {"prey": s["prey"], "fov_angle": s["fov_angle"], "view_distance": s["view_distance"],
+                   "world_width": s["width"], "world_height": s["height"], "seed": seed,
+                   "episodes": study.episodes_per_seed}
+            row.update({name: float(r["per_seed"][name][seed]) for name in RESULT_METRICS})
+            rows.append(row)
+        entry = {"prey": s["prey"], "fov_angle": s["fov_angle"], "view_distance": s["view_distance"],
+                 "world_width": s["width"], "world_height": s["height"],
+                 "worlds": study.seeds * study.episodes_per_seed, "wall_s": round(r["wall_s"], 3),
+                 "agent_steps_per_s": r["agent_steps"] / r["wall_s"],
+                 "metrics": {name: _stats(r["per_seed"][name]) for name in RESULT_METRICS},
+                 "nn_distribution": [round(float(x), 6) for x in r["nn_distribution"]]}
+        if "population" in r:
+            entry["population"] = {k: [round(float(x), 4) for x in v] for k, v in r["population"].items()}
+        entries.append(entry)
+
+    config = {k: v for k, v in dataclasses.asdict(study).items()}
+    config["world_size"] = list(study.world_size)
+    config["linking_distance"] = results[0]["linking_distance"]
+    config["jobs"] = jobs
+    config["prey_radius"] = settings[0]["config"].prey.radius
+    summary = {
+        "study": "swarm-size",
+        "config": config,
+        "definitions": {
+            "seed": "seed s = worlds [s*E, (s+1)*E) of one batch per setting (independent random streams); "
+                    "E = episodes_per_seed; env seed = config.seed",
+            "captures": "captures per episode (all predators), per seed the mean over its episodes",
+            "captures_per_prey": "captures per episode / initial prey count",
+            "sampled metrics": f"mean over an episode's states sampled every {study.metrics_every} steps "
+                               "(aquarium_warp.metrics), then over the seed's episodes",
+            "predator_distance": "mean over live prey of the torus distance to the nearest live predator, px",
+            "groups": "connected components of prey closer than linking_distance px",
+            "spread": "std and sem over seeds",
+            "uniform_baseline": "the same metrics for uniformly random prey and predator positions and headings "
+                                "(same arena and N; mean over snapshots of about 65k prey in all)",
+        },
+        "nn_bin_edges": [float(x) for x in results[0]["nn_bin_edges"]],
+        "machine": machine_info(device),
+        "wall_time_s": round(wall, 2),
+        "results": entries,
+    }
+    add_uniform_baselines(summary, study, device)
+    write_csv(os.path.join(study.out, "swarm_size.csv"), rows)
+    with open(os.path.join(study.out, "swarm_size.json"), "w", encoding="utf-8") as f:
+        json.dump(_clean(summary), f, indent=1)
+    if study.figures:
+        summary["figures"] = plot_study(summary, study.out)
+    return summary
+
+
+def study_from_config(config: dict) -> SwarmSizeStudy:
+    """The `SwarmSizeStudy` recorded in a `swarm_size.json`'s "config"."""
+    names = {f.name for f in dataclasses.fields(SwarmSizeStudy)}
+    kwargs = {k: v for k, v in config.items() if k in names}
+    kwargs["world_size"] = tuple(kwargs.get("world_size", (800.0, 800.0)))
+    return SwarmSizeStudy(**kwargs)
+
+
+def replot_study(out: str, device=None) -> dict:
+    """Redraw the figures of the study in `out` from its `swarm_size.json` (no simulation), first adding
+    the uniform-random baselines if the file lacks them. Returns the summary."""
+    path = os.path.join(out, "swarm_size.json")
+    if not os.path.isfile(path):
+        raise ValueError(f"{path} does not exist: run the study first")
+    with open(path, encoding="utf-8") as f:
+        summary = json.load(f)
+    if not all("uniform_baseline" in e for e in summary["results"]):
+        study = study_from_config(summary["config"])
+        add_uniform_baselines(summary, study, resolve_device(device))
+        summary["definitions"]["uniform_baseline"] = ("the same metrics for uniformly random prey and predator "
+                                                      "positions and headings (same arena and N; mean over "
+                                                      "snapshots of about 65k prey in all)")
+        with open(path, "w", encoding="utf-8") as f:
+            json.dump(_clean(summary), f, indent=1)
+    summary["figures"] = plot_study(summary, out)
+    return summary
+
+
+def _clean(x):
+    """JSON-safe: NaN -> None, numpy scalars -> Python."""
+    if isinstance(x, dict):
+        return {k: _clean(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_clean(v) for v in x]
+    if isinstance(x, (np.floating, float)):
+        return None if math.isnan(float(x)) else float(x)
+    if isinstance(x, np.integer):
+        return int(x)
+    return x
+
+
+def write_csv(path: str, rows: list[dict]) -> None:
+    with open(path, "w", newline="", encoding="utf-8") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
+
+
+# --------------------------------------------------------------------------------------------------
+# Figures
+# --------------------------------------------------------------------------------------------------
+def _curves(summary: dict) -> list[tuple[str, list[dict]]]:
+    """Results grouped into one curve per (fov angle, view distance), each sorted by prey count."""
+    groups: dict[tuple, list] = {}
+    for e in summary["results"]:
+        groups.setdefault((e["fov_angle"], e["view_distance"]), []).append(e)
+    several = len(groups) > 1
+    out = []
+    for (fov, view), entries in groups.items():
+        label = f"prey FOV {fov:g}°, view {view:g} px" if several else None
+        out.append((label, sorted(entries, key=lambda e: e["prey"])))
+    return out
+
+
+def _band(ax, entries, metric, label, color, log_y=False):
+    n = np.array([e["prey"] for e in entries], dtype=float)
+    mean = np.array([np.nan if e["metrics"][metric]["mean"] is None else e["metrics"][metric]["mean"]
+                     for e in entries], dtype=float)
+    std = np.array([0.0 if e["metrics"][metric]["std"] in (None,) else e["metrics"][metric]["std"]
+                    for e in entries], dtype=float)
+    std = np.nan_to_num(std)
+    lo, hi = mean - std, mean + std
+    if log_y:
+        floor = np.nanmin(mean[mean > 0]) / 10 if np.any(mean > 0) else 1e-6
+        lo = np.maximum(lo, floor)
+    ax.plot(n, mean, "o-", color=color, label=label, ms=4, lw=1.5)
+    ax.fill_between(n, lo, hi, color=color, alpha=0.2, lw=0)
+    return n, mean
+
+
+def _baseline(ax, entries, metric, label="uniform random prey (same N)"):
+    """Dotted line of the uniform-random reference of `metric`, where the entries have one."""
+    if not all("uniform_baseline" in e for e in entries):
+        return
+    n = np.array([e["prey"] for e in entries], dtype=float)
+    values = np.array([np.nan if e["uniform_baseline"].get(metric) is None else e["uniform_baseline"][metric]
+                       for e in entries], dtype=float)
+    ax.plot(n, values, "k:", lw=1.2, label=label)
+
+
+def plot_study(summary: dict, out: str) -> list[str]:
+    """Draw the study's figures into `out`; returns their paths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cfg = summary["config"]
+    curves = _curves(summary)
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    policies = f"{cfg['prey_policy']} prey vs {cfg['predator_policy']}"
+    if cfg["predator_policy"].lower() == "naivchase":
+        policies += " (confusion)" if cfg["confusion"] else " (nearest)"
+    arena = (f"constant density ({cfg['reference_prey']} prey per {cfg['world_size'][0]:g}x{cfg['world_size'][1]:g})"
+             if cfg["constant_density"] else f"fixed {cfg['world_size'][0]:g}x{cfg['world_size'][1]:g} arena")
+    subtitle = (f"{policies}; {arena}; {cfg['predators']} predator(s); episodes of {cfg['episode_steps']} steps; "
+                f"mean ± std over {cfg['seeds']} seeds")
+    paths = []
+
+    def finish(fig, name, title):
+        fig.suptitle(f"{title}\n{subtitle}", fontsize=9)
+        fig.tight_layout()
+        path = os.path.join(out, name)
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        paths.append(path)
+
+    def legend(ax, extra=False):
+        if extra or any(label for label, _ in curves):
+            ax.legend(fontsize=7, frameon=False)
+
+    # 1. Dilution: captures per episode and per prey.
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    for k, (label, entries) in enumerate(curves):
+        c = colors[k % len(colors)]
+        _band(axes[0], entries, "captures", label, c, log_y=True)
+        n, per_prey = _band(axes[1], entries, "captures_per_prey", label, c, log_y=True)
+        if k == 0 and np.isfinite(per_prey[0]) and per_prey[0] > 0:
+            axes[1].plot(n, per_prey[0] * n[0] / n, "k--", lw=1, label="∝ 1/N (constant total: pure dilution)")
+    axes[0].set_ylabel("captures per episode")
+    axes[1].set_ylabel("captures per prey per episode")
+    for ax in axes:
+        ax.set_xscale("log", base=2)
+        ax.set_yscale("log")
+        ax.set_xlabel("prey N")
+        ax.grid(True, which="both", alpha=0.3)
+    legend(axes[0])
+    legend(axes[1], extra=True)
+    finish(fig, "captures_vs_size.png", "Captures vs swarm size (dilution / many eyes)")
+
+    # 2. Polarization and groups.
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    for k, (label, entries) in enumerate(curves):
+        c = colors[k % len(colors)]
+        n, _ = _band(axes[0], entries, "polarization", label, c)
+        _band(axes[1], entries, "groups", label, c, log_y=True)
+        if k == 0:
+            _baseline(axes[0], entries, "polarization", "random headings (same N)")
+            _baseline(axes[1], entries, "groups")
+            axes[1].plot(n, n, color="0.6", ls="--", lw=1, label="every prey alone (N)")
+    axes[0].set_ylabel("polarization |mean heading|")
+    axes[0].set_ylim(0, 1.02)
+    axes[1].set_ylabel(f"groups (links < {cfg['linking_distance']:g} px)")
+    axes[1].set_yscale("log")
+    for ax in axes:
+        ax.set_xscale("log", base=2)
+        ax.set_xlabel("prey N")
+        ax.grid(True, which="both", alpha=0.3)
+        legend(ax, extra=True)
+    finish(fig, "polarization_groups_vs_size.png", "Polarization and number of groups vs swarm size")
+
+    # 3. Spacing: nearest neighbour, cohesion, distance to the predator, largest group.
+    fig, axes = plt.subplots(2, 2, figsize=(10, 7))
+    panels = [("nn_mean", "nearest-neighbour distance (px)", True),
+              ("cohesion", "mean distance to swarm centroid (px)", False),
+              ("predator_distance", "distance to nearest predator (px)", False),
+              ("largest_group", "largest group / live prey", False)]
+    for k, (label, entries) in enumerate(curves):
+        c = colors[k % len(colors)]
+        for ax, (metric, _, log_y) in zip(axes.flat, panels):
+            n, _ = _band(ax, entries, metric, label, c, log_y=log_y)
+        if k == 0:
+            for ax, (metric, _, _) in zip(axes.flat, panels):
+                _baseline(ax, entries, metric)
+    for ax, (_, ylabel, log_y) in zip(axes.flat, panels):
+        ax.set_xscale("log", base=2)
+        if log_y:
+            ax.set_yscale("log")
+        ax.set_xlabel("prey N")
+        ax.set_ylabel(ylabel)
+        ax.grid(True, which="both", alpha=0.3)
+    for ax in axes.flat:
+        legend(ax, extra=True)
+    finish(fig, "spacing_vs_size.png", "Spacing and cohesion vs swarm size")
+
+    # 4. Nearest-neighbour distance distributions.
+    edges = np.array(summary["nn_bin_edges"])
+    centers = 0.5 * (edges[:-1] + edges[1:])
+    label0, entries0 = curves[0]
+    fig, ax = plt.subplots(figsize=(10, 4.5))
+    cmap = plt.get_cmap("viridis")
+    for k, e in enumerate(entries0):
+        dist = np.array(e["nn_distribution"], dtype=float)
+        beyond = f", {dist[-1]:.0%} beyond" if dist[-1] >= 0.005 else ""
+        ax.plot(centers[:-1], dist[:-1] / (edges[1] - edges[0]), color=cmap(k / max(1, len(entries0) - 1)),
+                lw=1.3, label=f"N={e['prey']}{beyond}")
+    contact = 2 * cfg["prey_radius"]
+    ax.axvline(contact, color="k", ls=":", lw=1)
+    ax.text(contact + 1, ax.get_ylim()[1] * 0.97, "hit boxes touch", fontsize=7, va="top")
+    ax.set_xlabel(f"nearest-neighbour distance (px; bins of {edges[1] - edges[0]:g} px, last bin: beyond {edges[-2]:g})")
+    ax.set_ylabel("probability density (1/px)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=7, frameon=False, loc="center left", bbox_to_anchor=(1.01, 0.5))
+    finish(fig, "nn_distribution.png", "Nearest-neighbour distance distribution"
+           + (f" ({label0})" if label0 else ""))
+
+    # 5. Populations over time (only when they can change).
+    if any("population" in e for e in summary["results"]):
+        fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+        for k, e in enumerate(entries0):
+            if "population" not in e:
+                continue
+            c = cmap(k / max(1, len(entries0) - 1))
+            steps = e["population"]["step"]
+            axes[0].plot(steps, np.array(e["population"]["prey_alive"]) / e["prey"], color=c, label=f"N={e['prey']}")
+            axes[1].plot(steps, e["population"]["predator_alive"], color=c, label=f"N={e['prey']}")
+        axes[0].set_ylabel("live prey / initial prey")
+        axes[1].set_ylabel("live predators")
+        for ax in axes:
+            ax.set_xlabel("step")
+            ax.grid(True, alpha=0.3)
+        axes[0].legend(fontsize=6, frameon=False, ncol=2)
+        finish(fig, "population.png", "Populations over the episode (mean over worlds)")
+    return paths
