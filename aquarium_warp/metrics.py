@@ -253,6 +253,9 @@ class EpisodeMetrics:
         ended = info["episode_ended"]
         done = ended.unsqueeze(1)
         mean = self._sum / self._count  # NaN where no valid sample
+        # [W, len(EPISODE_METRICS)]: the episode values of the worlds whose episode just ended (NaN
+        # elsewhere), for callers that record every episode.
+        self.ended_values = torch.where(done, mean, math.nan)
         has = done & (self._count > 0)
         self._done_sum += torch.where(has, mean, 0.0)
         self._done_count += has

@@ -21,6 +21,7 @@ from tensordict import TensorDict  # noqa: E402
 
 from aquarium_warp import AquariumConfig, BatchedAquarium  # noqa: E402
 from aquarium_warp.heuristics import make_policy  # noqa: E402
+from aquarium_warp.metrics import EPISODE_METRICS  # noqa: E402
 from aquarium_warp.training.config import PRESETS, make_config, runner_config, total_iterations  # noqa: E402
 from aquarium_warp.training.distribution import CategoricalDistribution  # noqa: E402
 from aquarium_warp.training.export import load_policy  # noqa: E402
@@ -113,7 +114,11 @@ def test_adapter_time_outs_log_and_episode_ends():
             logs += 1
             log = extras["log"]
             assert set(log) == {"Episode/captures", "Episode/captures_per_prey", "Episode/reward_per_agent",
-                                "Episode/opponent_reward_per_agent", "Episode/length"}
+                                "Episode/opponent_reward_per_agent", "Episode/length"} | {
+                                    f"Swarm/{name}" for name in EPISODE_METRICS}
+            # Swarm metrics of the ended episodes: finite, polarization in [0, 1], all prey alive.
+            assert torch.all((log["Swarm/polarization"] >= 0) & (log["Swarm/polarization"] <= 1))
+            assert torch.all(log["Swarm/prey_alive"] == 3.0)
             assert torch.equal(log["Episode/captures"], env._info["episode_captures"].float())
             assert torch.allclose(log["Episode/captures_per_prey"], env._info["episode_captures"].float() / 3)
             assert torch.allclose(log["Episode/reward_per_agent"], env._info["episode_return"]["prey"] / 3)
@@ -400,6 +405,10 @@ def test_cli_train_resume_eval(tmp_path, one_thread):
         rows = list(csv.DictReader(f))
     assert [r["prey_policy"] for r in rows] == ["random", "trained"]
     assert all(int(r["seeds"]) == 2 for r in rows)
+    # Swarm metrics are averaged per episode in the evaluation too.
+    for r in rows:
+        assert 0.0 <= float(r["swarm_polarization_mean"]) <= 1.0
+        assert float(r["swarm_groups_mean"]) >= 1.0 and float(r["swarm_prey_alive_mean"]) > 0
     summary = json.loads(open(os.path.join(out, "summary.json")).read())
     assert summary["protocol"]["max_steps"] == 20  # the world comes from the trained policy
     if not figures:

@@ -41,9 +41,11 @@ import torch
 
 from ..config import AquariumConfig
 from ..env import BatchedAquarium
+from ..metrics import EPISODE_METRICS, EpisodeMetrics
 from .trainer import is_heuristic, make_opponent
 
-METRICS = ("captures_per_prey", "reward_per_prey", "reward_per_predator")
+METRICS = ("captures_per_prey", "reward_per_prey", "reward_per_predator") + tuple(
+    f"swarm_{name}" for name in EPISODE_METRICS)
 
 
 def parse_spec(spec: str) -> tuple[str, str]:
@@ -73,9 +75,10 @@ def policy_env(specs, fallback: AquariumConfig) -> AquariumConfig:
 
 
 def run_episodes(env_cfg: AquariumConfig, prey: str, predator: str, episodes: int, seed: int, device=None,
-                 max_worlds: int = 1024, deterministic: bool = True) -> list[dict]:
+                 max_worlds: int = 1024, deterministic: bool = True, metrics_every: int = 10) -> list[dict]:
     """Play `episodes` episodes of `prey` vs `predator` specs; one dict per episode with per-slot
-    prey captures and rewards, predator rewards, the world's captures and length."""
+    prey captures and rewards, predator rewards, the world's captures and length, and the episode's
+    swarm metrics (`swarm_<name>`: means over states sampled every `metrics_every` steps)."""
     W = max(1, min(episodes, max_worlds))
     env = BatchedAquarium(env_cfg, num_worlds=W, device=device, seed=seed)
     drivers = {"prey": make_opponent(prey, env, "prey", deterministic=deterministic, seed=seed),
@@ -86,6 +89,8 @@ def run_episodes(env_cfg: AquariumConfig, prey: str, predator: str, episodes: in
     prey_reward = torch.zeros(W, Pc, dtype=torch.float64, device=dev)
     predator_reward = torch.zeros(W, P, dtype=torch.float64, device=dev)
     captured = env.state.torch.captured[:, :Pc]
+    swarm = EpisodeMetrics(env, every=metrics_every)  # per-episode swarm metrics (aquarium_warp.metrics)
+    swarm.begin()
     per_world = math.ceil(episodes / W)
     done_count = np.zeros(W, dtype=np.int64)
     records: list[tuple[int, int, dict]] = []
@@ -96,6 +101,7 @@ def run_episodes(env_cfg: AquariumConfig, prey: str, predator: str, episodes: in
             raise RuntimeError("evaluation did not finish its episodes")
         actions = {t: drivers[t]() for t in ("prey", "predator")}
         _, rewards, _, _, info = env.step(actions, validate=False)
+        swarm.update(info)
         steps += 1
         prey_captures += captured
         prey_reward += rewards["prey"]
@@ -107,12 +113,14 @@ def run_episodes(env_cfg: AquariumConfig, prey: str, predator: str, episodes: in
         pc, pr, dr = (prey_captures[idx].cpu().numpy(), prey_reward[idx].cpu().numpy(),
                       predator_reward[idx].cpu().numpy())
         caps = info["episode_captures"][idx].cpu().numpy()
+        swarm_values = swarm.ended_values[idx].cpu().numpy()
         lengths = info["episode_length"][idx].cpu().numpy()
         for k, w in enumerate(idx.cpu().numpy().tolist()):
             if done_count[w] < per_world:
                 records.append((int(done_count[w]), w, {
                     "prey_captures": pc[k].tolist(), "prey_rewards": pr[k].tolist(),
-                    "predator_rewards": dr[k].tolist(), "captures": int(caps[k]), "length": int(lengths[k])}))
+                    "predator_rewards": dr[k].tolist(), "captures": int(caps[k]), "length": int(lengths[k]),
+                    **{f"swarm_{name}": float(swarm_values[k, m]) for m, name in enumerate(EPISODE_METRICS)}}))
             done_count[w] += 1
         prey_captures[idx] = 0
         prey_reward[idx] = 0

@@ -47,6 +47,7 @@ from . import _rsl  # noqa: F401
 from rsl_rl.env import VecEnv
 
 from ..env import TYPES, BatchedAquarium
+from ..metrics import EPISODE_METRICS, EpisodeMetrics
 
 OTHER = {"prey": "predator", "predator": "prey"}
 
@@ -94,7 +95,7 @@ class AquariumVecEnv(VecEnv):
     """
 
     def __init__(self, env: BatchedAquarium, team: str = "prey", opponent=None, reward_scale: float = 1.0,
-                 cfg: dict | None = None):
+                 cfg: dict | None = None, metrics_every: int = 10):
         if not isinstance(env, BatchedAquarium):
             raise ValueError(f"env must be a BatchedAquarium, got {type(env).__name__}")
         if team not in TYPES:
@@ -149,6 +150,9 @@ class AquariumVecEnv(VecEnv):
 
         starvation_ok = ecfg.predator_starvation_steps >= ecfg.max_steps - 1
         self.predictable_ends = bool(ecfg.respawn_captured_prey and starvation_ok)
+        # Swarm metrics (aquarium_warp.metrics) sampled every `metrics_every` steps and logged per
+        # ended episode as "Swarm/<name>"; 0 turns them off.
+        self.swarm = EpisodeMetrics(env, every=metrics_every) if metrics_every else None
         self._sync_from_env()
 
     # ------------------------------------------------------------------ internal state
@@ -161,6 +165,8 @@ class AquariumVecEnv(VecEnv):
         # A world's episode statistics are logged only if the episode started at step 0.
         self._host_full = self._host_step == 0
         self._obs[self._current].view(self.num_worlds, self.slots, -1).copy_(self.env.observations[self.team])
+        if self.swarm is not None:
+            self.swarm.begin()
 
     # ------------------------------------------------------------------ VecEnv API
     def get_observations(self) -> TensorDict:
@@ -186,7 +192,9 @@ class AquariumVecEnv(VecEnv):
         W, S = self.num_worlds, self.slots
         self._actions.copy_(actions.reshape(W, S))  # float category indices -> int32 (exact)
         other_actions = self.opponent()
-        self.env.step({self.team: self._actions, self.other: other_actions}, validate=False)
+        *_, info = self.env.step({self.team: self._actions, self.other: other_actions}, validate=False)
+        if self.swarm is not None:
+            self.swarm.update(info)
 
         # Life ends: captured (prey), terminated (removed or starved), truncated (world episode end).
         ended, active, alive = self._ended, self._active, self._alive
@@ -245,7 +253,12 @@ class AquariumVecEnv(VecEnv):
 
         captures = pick(self._ended_captures)
         prey_count = self.team_count if self.team == "prey" else self.other_count
+        swarm = {}
+        if self.swarm is not None:
+            values = pick(self.swarm.ended_values)
+            swarm = {f"Swarm/{name}": values[:, m] for m, name in enumerate(EPISODE_METRICS)}
         return {
+            **swarm,
             "Episode/captures": captures,
             "Episode/captures_per_prey": captures / prey_count,
             "Episode/reward_per_agent": pick(self._ended_return) / self.team_count,
