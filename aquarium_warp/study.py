@@ -119,7 +119,7 @@ class SwarmSizeStudy:
     starvation_steps: int | None = None  # None: the config's (3000)
     device: str | None = None
     seed: int = 0
-    jobs: int | None = None  # settings run at once (threads); None: CPU cores on the CPU, 1 on GPU
+    jobs: int | None = None  # settings run at once on the CPU (threads); None: the CPU's cores; GPU: 1
     out: str = "swarm_size"
     figures: bool = True
 
@@ -365,7 +365,9 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True) -> dict:
     import warp as wp
 
     on_gpu = wp.get_device(device).is_cuda
-    jobs = study.jobs if study.jobs is not None else (1 if on_gpu else (os.cpu_count() or 1))
+    # On a GPU settings run one after another: the batch already fills the device, and a CUDA graph
+    # being captured in one thread must not see another thread's launches.
+    jobs = 1 if on_gpu else (study.jobs if study.jobs is not None else (os.cpu_count() or 1))
     jobs = max(1, min(jobs, len(settings)))
     start = time.perf_counter()
     _warm_up(study, device)
