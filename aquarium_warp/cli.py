@@ -40,16 +40,30 @@ def _demo(args) -> int:
     return 0
 
 
+def _policy_driver(spec: str, env, agent_type: str, seed: int):
+    """A heuristic by name, or a trained policy file (needs the `training` extra): a callable that
+    returns the team's actions `[W, slots]` for the env's current observations."""
+    from .heuristics import POLICIES, make_policy
+
+    if spec.lower().replace("_", "").replace("-", "") in POLICIES[agent_type]:
+        return make_policy(spec, env, agent_type, seed=seed)
+    try:
+        from .training.trainer import make_opponent
+    except ImportError as error:
+        raise ValueError(f"{agent_type} policy {spec!r} is not a heuristic {POLICIES[agent_type]}; trained "
+                         f"policy files need the training extra ({error})") from error
+    return make_opponent(spec, env, agent_type, seed=seed)
+
+
 def _video(args) -> int:
     from . import AquariumConfig, BatchedAquarium
-    from .heuristics import make_policy
     from .video import record
 
     cfg = AquariumConfig(width=args.width, height=args.height, prey_count=args.prey,
                          predator_count=args.predators)
     env = BatchedAquarium(cfg, num_worlds=1, device=args.device, seed=args.seed)
-    prey = make_policy(args.prey_policy, env, "prey", seed=args.seed)
-    predator = make_policy(args.predator_policy, env, "predator", seed=args.seed)
+    prey = _policy_driver(args.prey_policy, env, "prey", args.seed)
+    predator = _policy_driver(args.predator_policy, env, "predator", args.seed)
     print(f"aquarium-warp video: {args.prey} prey ({args.prey_policy}) and {args.predators} predators "
           f"({args.predator_policy}) on {env.device}, {args.steps} steps -> {args.out}")
     start = time.perf_counter()
@@ -161,8 +175,9 @@ def main(argv=None) -> int:
     demo.add_argument("--seed", type=int, default=0)
     demo.set_defaults(run=_demo)
     video = sub.add_parser("video", help="record one world driven by heuristic policies as an MP4 video")
-    video.add_argument("--prey-policy", default="turnaway", help="'turnaway' or 'random'")
-    video.add_argument("--predator-policy", default="naivchase", help="'naivchase' or 'random'")
+    video.add_argument("--prey-policy", default="turnaway", help="'turnaway', 'random' or a trained policy file")
+    video.add_argument("--predator-policy", default="naivchase",
+                       help="'naivchase', 'random' or a trained policy file")
     video.add_argument("--steps", type=int, default=600, help="steps to record (frames: steps + 1)")
     video.add_argument("--out", default="aquarium.mp4", help="output MP4 file")
     video.add_argument("--prey", type=int, default=16)

@@ -10,6 +10,7 @@ import json
 import math
 import os
 
+import numpy as np
 import pytest
 
 os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
@@ -384,6 +385,28 @@ def test_export_load_policy_round_trip(tmp_path, one_thread):
     assert torch.equal(opponent_run.opponent().long().reshape(-1), load_policy(paths["jit"])(prey_obs))
     with pytest.raises(ValueError):
         TrainedOpponent(load_policy(paths["jit"]), env, "predator")  # a prey policy cannot drive predators
+    # The exported policy drives the PettingZoo env's prey ...
+    from aquarium_warp import aquarium_v1
+    from aquarium_warp.cli import main
+
+    meta = load_policy(paths["jit"]).meta["env"]
+    pz = aquarium_v1.parallel_env(config=AquariumConfig.from_dict(meta), render_mode="rgb_array")
+    observations, _ = pz.reset(seed=3)
+    policy = load_policy(paths["jit"])
+    for _ in range(5):
+        prey_obs = {a: o for a, o in observations.items() if a.startswith("prey")}
+        actions = policy.act(prey_obs)
+        want = policy(torch.from_numpy(np.stack(list(prey_obs.values())))).tolist()
+        assert list(actions.values()) == want and set(actions) == set(prey_obs)
+        actions.update({a: 0 for a in pz.agents if a.startswith("predator")})
+        observations, *_ = pz.step(actions)
+    pz.close()
+    # ... and `aquarium-warp video` (same world as the policy's).
+    out = str(tmp_path / "trained.mp4")
+    assert main(["video", "--prey-policy", paths["jit"], "--steps", "3", "--out", out, "--no-progress",
+                 "--prey", str(meta["prey_count"]), "--predators", str(meta["predator_count"]),
+                 "--width", str(meta["width"]), "--height", str(meta["height"])]) == 0
+    assert os.path.getsize(out) > 0
 
 
 def test_cli_train_resume_eval(tmp_path, one_thread):

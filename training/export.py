@@ -171,6 +171,19 @@ class LoadedPolicy:
             actions = torch.multinomial(probs, 1, replacement=True, generator=self._generator).squeeze(-1)
         return actions.to(out_device)
 
+    def act(self, observations) -> dict[str, int]:
+        """Actions for one team's PettingZoo observations (`{"prey_0": obs, ...}`, e.g. from
+        `aquarium_v1.parallel_env`): `{name: action}`. Individual-Learning policies need every slot
+        of the team, in slot order (one world)."""
+        names = list(observations)
+        if not names:
+            return {}
+        if self.group_size > 1 and len(names) != self.group_size:
+            raise ValueError(f"an Individual-Learning policy acts for exactly {self.group_size} agents "
+                             f"(every slot, in order), got {len(names)}")
+        actions = self(np.stack([np.asarray(observations[name], dtype=np.float32) for name in names]))
+        return dict(zip(names, actions.cpu().tolist()))
+
     def rng_state(self):
         return None if self._generator is None else self._generator.get_state()
 
