@@ -9,9 +9,8 @@ Positions, speeds and headings are gathered into that order for coalesced neighb
 (`sort_into_cells_serially`) builds the same lists without the radix sort's fixed cost.
 
 Queries visit the cells around the query cell by rings: ring 0 is the cell itself, ring r the 8r
-cells at Chebyshev cell distance r. A query loops over row offsets `oy`, clipped to [-lo_y, hi_y],
-then over column offsets `ox` clipped to [-lo_x, hi_x] (a fixed radius visits the whole square, a
-ring walk only the ring, see `column_step`). After rings 0..r every agent closer than `r * reach`
+cells at Chebyshev cell distance r (`ring_offset`, side by side); a fixed radius visits the whole square of rings
+at once (`square_cell`). Offsets are clipped to [-lo, hi] per axis (`offset_cell`). After rings 0..r every agent closer than `r * reach`
 (reach = the smaller cell side, less a rounding margin) has been seen, which bounds fixed-radius
 queries and lets k-nearest queries stop early. On a small torus, offsets are limited to one representative per
 column and row, so no cell is visited twice.
@@ -91,17 +90,46 @@ def square_cell(grid: CellLists, world: int, center: wp.vec2i, box: wp.vec4i, q:
     """Global index of the q-th cell (row by row) of the square `box` of offsets around `center`."""
     width = box[1] - box[0] + 1
     row = q // width
-    oy = box[2] + row
-    ox = box[0] + q - row * width
-    return row_base(grid, world, center, oy) + wrap_cell(center[0] + ox, grid.dims_x)
+    return offset_cell(grid, world, center, wp.vec2i(box[0] + q - row * width, box[2] + row))
 
 
 @wp.func
-def column_step(r: int, oy: int) -> int:
-    """Ring r's cells in row offset oy: the whole row at |oy| = r, else only the two ends."""
-    if r == 0 or oy == -r or oy == r:
+def ring_sides(r: int) -> int:
+    """Ring r is walked as `ring_sides(r)` sides of `ring_side_length(r)` cells (ring 0: one cell)."""
+    if r == 0:
+        return 1
+    return 4
+
+
+@wp.func
+def ring_side_length(r: int) -> int:
+    if r == 0:
         return 1
     return 2 * r
+
+
+@wp.func
+def ring_offset(r: int, side: int, u: int) -> wp.vec2i:
+    """Cell offset of the u-th cell of a side of ring r (the 8r cells at Chebyshev distance r,
+    walked clockwise from the top left corner)."""
+    if r == 0:
+        return wp.vec2i(0, 0)
+    if side == 0:
+        return wp.vec2i(-r + u, -r)
+    if side == 1:
+        return wp.vec2i(r, -r + u)
+    if side == 2:
+        return wp.vec2i(r - u, r)
+    return wp.vec2i(-r, r - u)
+
+
+@wp.func
+def offset_cell(grid: CellLists, world: int, center: wp.vec2i, o: wp.vec2i) -> int:
+    """Global index of the cell at offset `o` from `center`, or -1 where `o` is not the offset this
+    torus names that cell by (it is visited under its representative offset instead)."""
+    if o[0] < -grid.lo_x or o[0] > grid.hi_x or o[1] < -grid.lo_y or o[1] > grid.hi_y:
+        return -1
+    return row_base(grid, world, center, o[1]) + wrap_cell(center[0] + o[0], grid.dims_x)
 
 
 @wp.func

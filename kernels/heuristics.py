@@ -14,7 +14,8 @@ so actions are reproducible and equal on CPU and GPU, and do not depend on how w
 import warp as wp
 
 from .common import PURPOSE_POLICY, AgentType, WorldParams, mix32, random_stream, slot_type, torus_displacement
-from .grid import CellLists, cell_coords, column_step, last_ring, row_base, searched_radius, square_extent, wrap_cell
+from .grid import (CellLists, cell_coords, last_ring, offset_cell, ring_offset, ring_side_length, ring_sides,
+                   searched_radius)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -116,12 +117,10 @@ def heuristic_policy(
     r = int(0)
     searching = bool(True)
     while searching:
-        box = square_extent(grid, r)
-        for oy in range(box[2], box[3] + 1):
-            row_cells = row_base(grid, w, center, oy)
-            for ox in range(-r, r + 1, column_step(r, oy)):
-                if ox >= box[0] and ox <= box[1]:
-                    c = row_cells + wrap_cell(center[0] + ox, grid.dims_x)
+        for side in range(ring_sides(r)):
+            for u in range(ring_side_length(r)):
+                c = offset_cell(grid, w, center, ring_offset(r, side, u))
+                if c >= 0:
                     for k2 in range(grid.cell_start[c], grid.cell_end[c]):
                         j = grid.agent[k2] - base
                         if slot_type(world, j) == target_type:

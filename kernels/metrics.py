@@ -25,8 +25,8 @@ Launch order per shard (see `aquarium_warp.metrics.SwarmMetrics`): zero the inte
 import warp as wp
 
 from .common import PREY, WorldParams, slot_type, torus_displacement
-from .grid import (CellLists, cell_coords, column_step, last_ring, row_base, rings_for_radius, searched_radius,
-                   square_extent, wrap_cell)
+from .grid import (CellLists, cell_coords, last_ring, offset_cell, ring_offset, ring_side_length, ring_sides,
+                   rings_for_radius, searched_radius, square_cell, square_cell_count, square_extent)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -148,12 +148,10 @@ def prey_distances(
     r = int(0)
     searching = bool(True)
     while searching:
-        box = square_extent(grid, r)
-        for oy in range(box[2], box[3] + 1):
-            row_cells = row_base(grid, w, center, oy)
-            for ox in range(-r, r + 1, column_step(r, oy)):
-                if ox >= box[0] and ox <= box[1]:
-                    c = row_cells + wrap_cell(center[0] + ox, grid.dims_x)
+        for side in range(ring_sides(r)):
+            for u in range(ring_side_length(r)):
+                c = offset_cell(grid, w, center, ring_offset(r, side, u))
+                if c >= 0:
                     for k2 in range(grid.cell_start[c], grid.cell_end[c]):
                         j = grid.agent[k2] - base
                         if j != i:
@@ -214,16 +212,14 @@ def link_groups(
     link2 = linking_distance * linking_distance
     center = cell_coords(grid, pos)
     box = square_extent(grid, rings_for_radius(grid, linking_distance))
-    for oy in range(box[2], box[3] + 1):
-        row_cells = row_base(grid, w, center, oy)
-        for ox in range(box[0], box[1] + 1):
-            c = row_cells + wrap_cell(center[0] + ox, grid.dims_x)
-            for k2 in range(grid.cell_start[c], grid.cell_end[c]):
-                j = grid.agent[k2] - base
-                if j > i and slot_type(world, j) == PREY:
-                    d = torus_displacement(world, pos, grid.position[k2])
-                    if wp.dot(d, d) < link2:
-                        unite(parent, forest, i, j)
+    for q in range(square_cell_count(box)):
+        c = square_cell(grid, w, center, box, q)
+        for k2 in range(grid.cell_start[c], grid.cell_end[c]):
+            j = grid.agent[k2] - base
+            if j > i and slot_type(world, j) == PREY:
+                d = torus_displacement(world, pos, grid.position[k2])
+                if wp.dot(d, d) < link2:
+                    unite(parent, forest, i, j)
 
 
 @wp.kernel

@@ -18,8 +18,8 @@ import functools
 import warp as wp
 
 from .common import PREDATOR, PREY, AgentType, WorldParams, angle_value, slot_type, torus_displacement
-from .grid import (CellLists, cell_coords, cell_gap, column_step, last_ring, rings_for_radius, row_base, searched_radius,
-                   square_extent, wrap_cell)
+from .grid import (CellLists, cell_coords, cell_gap, last_ring, offset_cell, ring_offset, ring_side_length,
+                   ring_sides, rings_for_radius, searched_radius)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -158,14 +158,13 @@ def observation_kernel(max_slots: int):
         inside_y = pos[1] - float(center[1]) * grid.cell_height
         bound2 = wp.max(v2, contact2)
         while searching:
-            box = square_extent(grid, r)
-            for oy in range(box[2], box[3] + 1):
-                row_cells = row_base(grid, w, center, oy)
-                gap_y = cell_gap(oy, inside_y, grid.cell_height, grid.dims_y)
-                for ox in range(-r, r + 1, column_step(r, oy)):
-                    gap_x = cell_gap(ox, inside_x, grid.cell_width, grid.dims_x)
-                    if ox >= box[0] and ox <= box[1] and gap_x * gap_x + gap_y * gap_y <= bound2:
-                        c = row_cells + wrap_cell(center[0] + ox, grid.dims_x)
+            for side in range(ring_sides(r)):
+                for u in range(ring_side_length(r)):
+                    o = ring_offset(r, side, u)
+                    c = offset_cell(grid, w, center, o)
+                    gap_x = cell_gap(o[0], inside_x, grid.cell_width, grid.dims_x)
+                    gap_y = cell_gap(o[1], inside_y, grid.cell_height, grid.dims_y)
+                    if c >= 0 and gap_x * gap_x + gap_y * gap_y <= bound2:
                         for k2 in range(grid.cell_start[c], grid.cell_end[c]):
                             j = grid.agent[k2] - base
                             jt = slot_type(world, j)
