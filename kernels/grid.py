@@ -9,11 +9,11 @@ Positions, speeds and headings are gathered into that order for coalesced neighb
 (`sort_into_cells_serially`) builds the same lists without the radix sort's fixed cost.
 
 Queries visit the cells around the query cell by rings: ring 0 is the cell itself, ring r the 8r
-cells at Chebyshev cell distance r (`ring_offset`, side by side); a fixed radius visits the whole square of rings
-at once (`square_cell`). Offsets are clipped to [-lo, hi] per axis (`offset_cell`). After rings 0..r every agent closer than `r * reach`
+cells at Chebyshev cell distance r (`ring_offset`, side by side); a fixed radius visits the whole
+square of rings at once (`square_cell`). Offsets are clipped to [-lo, hi] per axis (`offset_cell`),
+so on a small torus no cell is visited twice. After rings 0..r every agent closer than `r * reach`
 (reach = the smaller cell side, less a rounding margin) has been seen, which bounds fixed-radius
-queries and lets k-nearest queries stop early. On a small torus, offsets are limited to one representative per
-column and row, so no cell is visited twice.
+queries and lets k-nearest queries stop early.
 """
 
 import warp as wp
