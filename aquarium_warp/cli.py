@@ -1,4 +1,5 @@
-"""Command line: `aquarium-warp demo` (speed) and `aquarium-warp video` (an MP4 of heuristic policies)."""
+"""Command line: `aquarium-warp demo` (speed), `aquarium-warp video` (an MP4 of heuristic policies) and
+`aquarium-warp bench` (the scaling benchmark suite), plus train, eval and study."""
 
 from __future__ import annotations
 
@@ -162,6 +163,18 @@ def _add_study(sub) -> None:
     p.set_defaults(run=_study_swarm_size)
 
 
+def _add_bench(sub) -> None:
+    """`aquarium-warp bench`: the scaling benchmark suite (code in `aquarium_warp/bench.py`)."""
+    from .bench import add_arguments, run_from_args
+
+    bench = sub.add_parser("bench", help="scaling benchmark: agent-steps/s, stage times, memory and bandwidth vs "
+                                         "agents and worlds, with the original and VMAS as peers",
+                           description="Sweep agents per world and worlds; print a table and write "
+                                       "scaling_<device>.json and log-log figures into --out-dir.")
+    add_arguments(bench)
+    bench.set_defaults(run=run_from_args)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="aquarium-warp", description="Aquarium predator-prey worlds on Warp")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -198,6 +211,7 @@ def main(argv=None) -> int:
     _add_train(sub)
     _add_eval(sub)
     _add_study(sub)
+    _add_bench(sub)
     args = parser.parse_args(argv)
     try:
         return args.run(args)
