@@ -426,8 +426,10 @@ def array_bytes(env) -> int:
     return total
 
 
-def _timed_runs(step, sync, seconds: float, repeats: int, step_s: float, min_steps: int = 3) -> list[float]:
-    """Seconds per step of `repeats` runs of at least `seconds` and `min_steps` steps each."""
+def timed_runs(step, sync, seconds: float, repeats: int, step_s: float, min_steps: int = 3) -> list[float]:
+    """Seconds per step of `repeats` runs of at least `seconds` and `min_steps` steps each: `step(i)`
+    advances one step, `sync()` waits for the device (every step when a step takes more than 1/20 of
+    `seconds`, else every 8), `step_s` is a first estimate of a step's time."""
     sync_every = 1 if step_s > seconds / 20 else 8
     per_step = []
     for _ in range(repeats):
@@ -546,7 +548,7 @@ def measure_point(series: str, cfg, worlds: int, device: str, settings: BenchSet
                                     "and graph capture" if cuda else "")}
         row["memory"]["bytes_per_agent"] = row["memory"]["arrays_bytes"] / agents
 
-        runs = _timed_runs(lambda k: env.step(pool[k % 8], validate=False), sync, settings.seconds,
+        runs = timed_runs(lambda k: env.step(pool[k % 8], validate=False), sync, settings.seconds,
                            settings.repeats, step_s)
         step_time = statistics.median(runs)
         row.update({"step_ms": step_time * 1e3, "agent_steps_per_s": agents / step_time,
@@ -565,7 +567,7 @@ def measure_point(series: str, cfg, worlds: int, device: str, settings: BenchSet
 
             eager(0)
             sync()
-            eruns = _timed_runs(eager, sync, settings.seconds, settings.repeats, step_s)
+            eruns = timed_runs(eager, sync, settings.seconds, settings.repeats, step_s)
             e = statistics.median(eruns)
             row["eager"] = {"step_ms": e * 1e3, "agent_steps_per_s": agents / e, "runs_step_ms": [t * 1e3 for t in eruns]}
             row["graph_speedup"] = e / step_time

@@ -334,7 +334,7 @@ class BatchedAquarium:
         observations). Fields: the agent fields of `AGENT_FIELDS` shaped `[C, ...]` (one world) or
         `[W, C, ...]` (all worlds, `world=None`), and `world_step` / `episode` (a scalar for one world,
         `[W]` for all). Headings must be unit vectors. Returns the observations of the new state."""
-        cfg, t = self.config, self.state.torch
+        t = self.state.torch
         unknown = [k for k in fields if k not in AGENT_FIELDS and k not in ("world_step", "episode")]
         if unknown:
             raise ValueError(f"unknown state fields {unknown}; settable: {list(AGENT_FIELDS)} + ['world_step', 'episode']")

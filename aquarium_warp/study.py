@@ -27,7 +27,6 @@ import dataclasses
 import json
 import math
 import os
-import platform
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -36,6 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from .bench import machine_info
 from .config import AquariumConfig
 from .env import BatchedAquarium, resolve_device
 from .heuristics import POLICIES, make_policy
@@ -325,23 +325,6 @@ def _warm_up(study: SwarmSizeStudy, device: str) -> None:
     metrics.compute()
     env.step({"prey": prey(), "predator": predator()}, validate=False)
     env.close()
-
-
-def machine_info(device: str) -> dict:
-    import warp as wp
-
-    info = {"platform": platform.platform(), "python": platform.python_version(), "torch": torch.__version__,
-            "warp": wp.__version__, "cpu_count": os.cpu_count(), "device": device,
-            "device_name": wp.get_device(device).name}
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    info["cpu"] = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    return info
 
 
 def _stats(values: np.ndarray) -> dict:

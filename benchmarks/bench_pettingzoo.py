@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import statistics
 import subprocess
 import sys
@@ -40,6 +39,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 from aquarium_warp import aquarium_v1  # noqa: E402
+from aquarium_warp.bench import machine_info  # noqa: E402
 
 RESULTS = HERE / "results"
 TARGET_SPEEDUP = 20.0
@@ -185,19 +185,6 @@ def breakdown(steps: int = 20000) -> dict:
     return out
 
 
-def _machine() -> dict:
-    info = {"platform": platform.platform(), "cpu_count": os.cpu_count(), "python": platform.python_version()}
-    try:
-        with open("/proc/cpuinfo") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    info["cpu_model"] = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    return info
-
-
 def _loadavg():
     try:
         return list(os.getloadavg())
@@ -282,7 +269,7 @@ def main(argv=None) -> int:
                    "original": "benchmarks/original_aquarium.measure_original (fresh process per run)",
                    "resets_included": True, "statistic": "median over runs",
                    "aec_env_step": "one underlying ParallelEnv step (a full cycle of the live agents)"},
-        "machine": _machine(), "loadavg_before": load_before, "loadavg_after": load_after, "versions": _versions(),
+        "machine": machine_info("cpu"), "loadavg_before": load_before, "loadavg_after": load_after, "versions": _versions(),
         "ours": ours, "breakdown_us_per_parallel_step": parts, "original": original or None,
         "original_error": original_error, "checks": checks,
     }

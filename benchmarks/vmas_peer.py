@@ -22,6 +22,10 @@ import json
 import statistics
 import sys
 import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from aquarium_warp.bench import timed_runs  # noqa: E402
 
 SCENARIO = "simple_tag"
 
@@ -84,22 +88,14 @@ def measure_vmas(agents_per_env: int, envs: int, device: str = "cpu", seconds: f
     if budget_s is not None and first_step_s * min_steps * repeats > budget_s:
         runs_made = max(1, int(budget_s // max(first_step_s * min_steps, 1e-9)))
         runs_made = min(runs_made, repeats)
-    sync_every = 1 if first_step_s > seconds / 20 else 8
-    per_step = []
-    for _ in range(runs_made):
-        steps, start = 0, time.perf_counter()
-        while True:
-            env.step(pool[steps % 8])
-            steps += 1
-            if steps % sync_every == 0:
-                sync()
-                if steps >= min_steps and time.perf_counter() - start >= seconds:
-                    break
-        per_step.append((time.perf_counter() - start) / steps)
+    def advance(i, step=env.step, actions=pool):
+        step(actions[i % 8])
+
+    per_step = timed_runs(advance, sync, seconds, runs_made, first_step_s, min_steps)
     step_s = statistics.median(per_step)
     agents = envs * agents_per_env
     name = torch.cuda.get_device_name(torch_device) if cuda else "cpu"
-    del env, pool
+    del env, pool, advance
     if cuda:
         torch.cuda.empty_cache()
     return {
