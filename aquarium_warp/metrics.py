@@ -309,6 +309,20 @@ class EpisodeMetrics:
             return {}
         return {prefix + k: v for k, v in summary.items()}
 
+    _STATE = ("_sum", "_count", "_hist", "_done_sum", "_done_count", "_done_hist", "_done_captures",
+              "_done_length", "_episodes")
+
+    def state_dict(self) -> dict:
+        """The accumulators (CPU copies), so that a resumed run reports the same episode values."""
+        state = {name: getattr(self, name).cpu().clone() for name in self._STATE}
+        state["steps"] = self._steps
+        return state
+
+    def load_state_dict(self, state: dict) -> None:
+        for name in self._STATE:
+            getattr(self, name).copy_(state[name])
+        self._steps = int(state["steps"])
+
     def traces(self) -> dict[str, torch.Tensor]:
         """`{name: [samples, W]}` of the metrics named in `trace` (float32), at steps `trace_steps`."""
         if not self._trace:

@@ -329,6 +329,8 @@ def _same_state(a: Trainer, b: Trainer) -> None:
             assert torch.equal(v, opt_b["state"][k][n])
     ta, tb = a.env.state_dict()["tensors"], b.env.state_dict()["tensors"]
     assert all(torch.equal(ta[n], tb[n]) for n in ta)
+    ma, mb = a.vec_env.swarm.state_dict(), b.vec_env.swarm.state_dict()  # swarm-metric accumulators too
+    assert ma["steps"] == mb["steps"] and all(torch.equal(ma[n], mb[n]) for n in ma if n != "steps")
     assert a.iteration == b.iteration
 
 

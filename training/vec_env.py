@@ -276,6 +276,7 @@ class AquariumVecEnv(VecEnv):
             "active": self._active.cpu().clone(),
             "host_full": self._host_full.copy(),
             "opponent": opponent_state,
+            "swarm": self.swarm.state_dict() if self.swarm is not None else None,
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -285,6 +286,8 @@ class AquariumVecEnv(VecEnv):
         self._host_full = np.asarray(state["host_full"], dtype=bool).copy()
         if state.get("opponent") and hasattr(self.opponent, "load_state_dict"):
             self.opponent.load_state_dict(state["opponent"])
+        if self.swarm is not None and state.get("swarm") is not None:
+            self.swarm.load_state_dict(state["swarm"])
 
     def close(self) -> None:
         self.env.close()
