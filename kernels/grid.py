@@ -5,8 +5,9 @@ wrap modulo the dims and the grid is a torus like the world. Live agents are sor
 `world * cells_per_world + cell` with a stable radix sort, so the order (and every result derived
 from it) is deterministic on CPU and GPU; dead slots get a key past the last cell and sort last.
 Positions, speeds and headings are gathered into that order for coalesced neighbour reads, and
-`entry` maps each slot to its sorted entry. On the CPU one serial counting sort
-(`sort_into_cells_serially`) builds the same lists without the radix sort's fixed cost.
+`entry` maps each slot to its sorted entry. Small worlds (and every world on the CPU) are sorted
+instead by one counting sort per world (`sort_into_cells_per_world`), which gives live agents the
+same order without the global sort's cost.
 
 Queries visit the cells around the query cell by rings: ring 0 is the cell itself, ring r the 8r
 cells at Chebyshev cell distance r (`ring_offset`, side by side); a fixed radius visits the whole
@@ -220,14 +221,13 @@ def find_cell_ranges(
 
 
 @wp.kernel
-def sort_into_cells_serially(
+def sort_into_cells_per_world(
     world: WorldParams,
     grid: CellLists,
     position: wp.array2d(dtype=wp.vec2),
     velocity: wp.array2d(dtype=wp.vec2),
     heading: wp.array2d(dtype=wp.vec2),
     alive: wp.array2d(dtype=wp.bool),
-    num_worlds: int,
     key: wp.array(dtype=int),
     cell_start: wp.array(dtype=int),
     cell_end: wp.array(dtype=int),
@@ -236,38 +236,39 @@ def sort_into_cells_serially(
     sorted_speed: wp.array(dtype=float),
     sorted_heading: wp.array(dtype=wp.vec2),
 ):
-    """The same cell lists as the radix-sort path, by one counting sort in one thread: on the CPU
-    (where Warp runs kernels on one thread anyway) this avoids the sort's fixed cost, which
-    dominates small batches. Stable, so the order is the radix sort's."""
-    cells = num_worlds * grid.cells_per_world
-    for c in range(cells):
-        cell_end[c] = 0
-    for w in range(num_worlds):
-        for i in range(world.capacity):
-            k = w * world.capacity + i
-            key[k] = cells
-            if alive[w, i]:
-                cc = cell_coords(grid, position[w, i])
-                key[k] = w * grid.cells_per_world + cc[1] * grid.dims_x + cc[0]
-                cell_end[key[k]] = cell_end[key[k]] + 1
-    total = int(0)
-    for c in range(cells):
-        count = cell_end[c]
-        cell_start[c] = total
-        cell_end[c] = total  # becomes the write cursor, and ends as the cell's end
+    """The cell lists of one world by a counting sort in one thread: for small worlds (and on the
+    CPU, where Warp runs kernels on one thread anyway) this avoids the global radix sort's cost.
+    Stable, so live agents get the radix sort's order; a world's dead slots follow its live ones in
+    its own block of entries (the radix sort puts them after every world: no query reads them)."""
+    w = wp.tid()
+    capacity = world.capacity
+    first_cell = w * grid.cells_per_world
+    for c in range(grid.cells_per_world):
+        cell_end[first_cell + c] = 0
+    for i in range(capacity):
+        k = w * capacity + i
+        key[k] = -1
+        if alive[w, i]:
+            cc = cell_coords(grid, position[w, i])
+            key[k] = first_cell + cc[1] * grid.dims_x + cc[0]
+            cell_end[key[k]] = cell_end[key[k]] + 1
+    total = w * capacity
+    for c in range(grid.cells_per_world):
+        count = cell_end[first_cell + c]
+        cell_start[first_cell + c] = total
+        cell_end[first_cell + c] = total  # becomes the write cursor, and ends as the cell's end
         total += count
     dead = total
-    for w in range(num_worlds):
-        for i in range(world.capacity):
-            k = w * world.capacity + i
-            at = dead
-            if key[k] < cells:
-                at = cell_end[key[k]]
-                cell_end[key[k]] = at + 1
-            else:
-                dead += 1
-            agent[at] = k
-            sorted_position[at] = position[w, i]
-            sorted_speed[at] = wp.length(velocity[w, i])
-            sorted_heading[at] = heading[w, i]
-            grid.entry[k] = at
+    for i in range(capacity):
+        k = w * capacity + i
+        at = dead
+        if key[k] >= 0:
+            at = cell_end[key[k]]
+            cell_end[key[k]] = at + 1
+        else:
+            dead += 1
+        agent[at] = k
+        sorted_position[at] = position[w, i]
+        sorted_speed[at] = wp.length(velocity[w, i])
+        sorted_heading[at] = heading[w, i]
+        grid.entry[k] = at
