@@ -212,9 +212,7 @@ def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True)
 
     # Grid build (cell lists), run twice per step: on the moved positions (for captures) and on the
     # final ones (for observations).
-    from .shard import PER_WORLD_SORT_MAX_CAPACITY
-
-    if cuda and C > PER_WORLD_SORT_MAX_CAPACITY:
+    if cuda:
         # compute_cell_keys: read position, alive; write key, agent index.
         keys = {"read": VEC2 + BOOL, "write": I32 + I32}
         # radix_sort_pairs (CUB onesweep, 32 key bits): histogram pass reads keys; 4 digit passes
@@ -229,7 +227,7 @@ def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True)
                   "write": VEC2 + F32 + VEC2 + I32 + 2 * I32 * min(cells, 1.0)}
         build = [keys, sort, clear, ranges]
     else:
-        # sort_into_cells_per_world (a counting sort per world): clear the counts (a pass over cells);
+        # sort_into_cells_per_world (the CPU's counting sort): clear the counts (a pass over cells);
         # per agent read alive and position, write its key and count it (read-modify-write of the
         # cell's count); a prefix sum over the cells (read count, write start and end); per agent
         # read the key, position, velocity, heading and the cell's cursor, write the sorted agent

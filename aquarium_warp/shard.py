@@ -19,11 +19,6 @@ from .kernels import grid as grid_kernels
 from .kernels.common import WorldParams
 
 
-# Worlds up to this capacity build their cell lists with one thread each on the GPU (a counting sort
-# per world); larger ones use the global radix sort, which parallelises within a world.
-PER_WORLD_SORT_MAX_CAPACITY = 256
-
-
 def world_params(cfg: AquariumConfig, seed_key: int, world_offset: int, auto_reset: bool) -> WorldParams:
     p = WorldParams()
     p.width = cfg.width
@@ -107,7 +102,7 @@ class WorldShard:
         """Cell lists of the current positions (no allocation, no host sync)."""
         s, g, W, C = self.s, self.grid, self.num_worlds, self.cfg.capacity
         count = W * C
-        if not wp.get_device(self.device).is_cuda or C <= PER_WORLD_SORT_MAX_CAPACITY:
+        if not wp.get_device(self.device).is_cuda:
             return [self._launch(grid_kernels.sort_into_cells_per_world, W,
                                  [self.world, g, s.position, s.velocity, s.heading, s.alive],
                                  [g.key, g.cell_start, g.cell_end, g.agent, g.position, g.speed, g.heading])]

@@ -5,9 +5,10 @@ wrap modulo the dims and the grid is a torus like the world. Live agents are sor
 `world * cells_per_world + cell` with a stable radix sort, so the order (and every result derived
 from it) is deterministic on CPU and GPU; dead slots get a key past the last cell and sort last.
 Positions, speeds and headings are gathered into that order for coalesced neighbour reads, and
-`entry` maps each slot to its sorted entry. Small worlds (and every world on the CPU) are sorted
-instead by one counting sort per world (`sort_into_cells_per_world`), which gives live agents the
-same order without the global sort's cost.
+`entry` maps each slot to its sorted entry. On the CPU a counting sort per world
+(`sort_into_cells_per_world`) gives live agents the same order without the radix sort's fixed cost
+(on an H200 it was slower than the radix sort for 65,536 worlds of 17: one thread per world is
+latency-bound).
 
 Queries visit the cells around the query cell by rings: ring 0 is the cell itself, ring r the 8r
 cells at Chebyshev cell distance r (`ring_offset`, side by side); a fixed radius visits the whole
@@ -236,10 +237,10 @@ def sort_into_cells_per_world(
     sorted_speed: wp.array(dtype=float),
     sorted_heading: wp.array(dtype=wp.vec2),
 ):
-    """The cell lists of one world by a counting sort in one thread: for small worlds (and on the
-    CPU, where Warp runs kernels on one thread anyway) this avoids the global radix sort's cost.
-    Stable, so live agents get the radix sort's order; a world's dead slots follow its live ones in
-    its own block of entries (the radix sort puts them after every world: no query reads them)."""
+    """The cell lists of one world by a counting sort in one thread (the CPU path: Warp runs CPU
+    kernels on one thread anyway, and this avoids the radix sort's fixed cost). Stable, so live agents
+    get the radix sort's order; a world's dead slots follow its live ones in its own block of entries
+    (the radix sort puts them after every world: no query reads them)."""
     w = wp.tid()
     capacity = world.capacity
     first_cell = w * grid.cells_per_world

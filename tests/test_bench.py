@@ -51,11 +51,8 @@ def test_byte_model_counts_every_stage():
         assert model["stages"]["observations"]["write"] >= 4 * 29
         # Motion reads and writes the state's four vec2 fields.
         assert model["stages"]["motion"]["write"] == 4 * 8
-    # Small worlds use the per-world counting sort on both devices; the radix sort that large worlds
-    # use on CUDA moves more.
-    assert gpu["stages"]["grid"] == cpu["stages"]["grid"]
-    big = bench.density_config(10_000)
-    assert step_byte_model(big, cuda=True)["stages"]["grid"]["read"] > step_byte_model(big, cuda=False)["stages"]["grid"]["read"]
+    # The radix sort of the CUDA path moves more than the CPU's counting sort.
+    assert gpu["stages"]["grid"]["read"] > cpu["stages"]["grid"]["read"]
     assert gpu["stages"]["observations"] == cpu["stages"]["observations"]
     # More grid cells per agent clear more cell ranges; reproduction reads the prey's ages.
     assert step_byte_model(cfg, (20, 20))["total"] > step_byte_model(cfg, (5, 5))["total"]
