@@ -122,7 +122,7 @@ class WorldShard:
         s, W, C = self.s, self.num_worlds, self.cfg.capacity
         return self._build_grid_program() + [
             self._launch(self.observe_kernel, W * C,
-                         [self.world, self.types, self.grid, s.alive, int(wp.get_device(self.device).is_cuda)],
+                         [self.world, self.types, self.grid, s.alive, W],
                          [s.obs_prey, s.obs_predator, s.mask_prey, s.mask_predator, s.slot_prey,
                           s.slot_predator, s.contact_partner, s.contact_offset]),
         ]

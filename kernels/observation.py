@@ -86,7 +86,7 @@ def observation_kernel(max_slots: int):
         types: wp.array(dtype=AgentType),
         grid: CellLists,
         alive: wp.array2d(dtype=wp.bool),
-        in_cell_order: int,
+        num_worlds: int,
         obs_prey: wp.array3d(dtype=float),
         obs_predator: wp.array3d(dtype=float),
         mask_prey: wp.array3d(dtype=wp.bool),
@@ -96,17 +96,22 @@ def observation_kernel(max_slots: int):
         contact_partner: wp.array2d(dtype=wp.int32),
         contact_offset: wp.array2d(dtype=wp.vec2),
     ):
-        # One thread per agent, in slot order (sequential output writes: best on the CPU) or in
-        # cell order (neighbouring threads read neighbouring cells: best on the GPU).
+        # One thread per agent: every world's prey first, then every world's predators. Threads of
+        # one type run side by side (on a GPU a warp does not wait for the longer searches of the
+        # other type), and each type's output rows are written in order.
         thread = wp.tid()
-        k = thread  # sorted entry
-        idx = thread  # flat slot index
-        if in_cell_order != 0:
-            idx = grid.agent[thread]
+        prey_threads = num_worlds * world.prey_capacity
+        w = int(0)
+        i = int(0)
+        if thread < prey_threads:
+            w = thread // world.prey_capacity
+            i = thread - w * world.prey_capacity
         else:
-            k = grid.entry[thread]
-        w = idx // world.capacity
-        i = idx - w * world.capacity
+            u = thread - prey_threads
+            w = u // world.predator_count
+            i = world.prey_capacity + u - w * world.predator_count
+        idx = w * world.capacity + i
+        k = grid.entry[idx]  # sorted entry
         t = slot_type(world, i)
         p = types[t]
         is_prey = t == PREY
