@@ -274,6 +274,29 @@ def span(lo_px: int, hi_px: int, n: int) -> int:
     return wp.min(hi_px, lo_px + n - 1)
 
 
+@wp.func
+def pixel_box(p: RenderParams, lo: wp.vec2, hi: wp.vec2) -> wp.vec4i:
+    """Unwrapped pixel rows (i0, i1) and columns (j0, j1) covering the world box lo..hi, at most one
+    image wide each way (so no pixel twice)."""
+    i0 = first_pixel(lo[1], 1.0 / p.pixel_height)
+    j0 = first_pixel(lo[0], 1.0 / p.pixel_width)
+    return wp.vec4i(i0, span(i0, last_pixel(hi[1], 1.0 / p.pixel_height), p.height_px),
+                    j0, span(j0, last_pixel(hi[0], 1.0 / p.pixel_width), p.width_px))
+
+
+@wp.func
+def box_pixel_count(box: wp.vec4i) -> int:
+    return (box[1] - box[0] + 1) * (box[3] - box[2] + 1)
+
+
+@wp.func
+def box_pixel(p: RenderParams, box: wp.vec4i, q: int) -> wp.vec2i:
+    """Wrapped (row, column) of the q-th pixel (row by row) of `box`."""
+    width = box[3] - box[2] + 1
+    row = q // width
+    return wp.vec2i(wrap_index(box[0] + row, p.height_px), wrap_index(box[2] + q - row * width, p.width_px))
+
+
 @wp.kernel
 def splat_agents(
     p: RenderParams,
@@ -318,43 +341,35 @@ def splat_agents(
     elif dot == 1:
         reach = -1.0  # nothing more to draw: skip the loop
     reach_sq = reach * reach
-    i0 = first_pixel(c[1] - reach, inv_ph)
-    i1 = span(i0, last_pixel(c[1] + reach, inv_ph), p.height_px)
-    j0 = first_pixel(c[0] - reach, inv_pw)
-    j1 = span(j0, last_pixel(c[0] + reach, inv_pw), p.width_px)
-    for ii in range(i0, i1 + 1):
-        i = wrap_index(ii, p.height_px)
-        for jj in range(j0, j1 + 1):
-            j = wrap_index(jj, p.width_px)
-            d = pixel_offset(p, i, j, c)
-            if wp.length_sq(d) > reach_sq:
-                continue  # a corner of the bounding box
-            if dot == 0:
-                if covers(p, t, d, h) == 1:
-                    wp.atomic_max(body_key, i, j, key)
-            if p.hit_boxes != 0:
-                if wp.abs(wp.length(d) - p.radius[t]) <= p.ring:
-                    bit = BIT_HIT_BOX_PREY
-                    if t == PREDATOR:
-                        bit = BIT_HIT_BOX_PREDATOR
-                    wp.atomic_or(overlay, i, j, bit)
+    box = pixel_box(p, c - wp.vec2(reach, reach), c + wp.vec2(reach, reach))
+    for n in range(box_pixel_count(box)):
+        ij = box_pixel(p, box, n)
+        i = ij[0]
+        j = ij[1]
+        d = pixel_offset(p, i, j, c)
+        if wp.length_sq(d) > reach_sq:
+            continue  # a corner of the bounding box
+        if dot == 0:
+            if covers(p, t, d, h) == 1:
+                wp.atomic_max(body_key, i, j, key)
+        if p.hit_boxes != 0:
+            if wp.abs(wp.length(d) - p.radius[t]) <= p.ring:
+                bit = BIT_HIT_BOX_PREY
+                if t == PREDATOR:
+                    bit = BIT_HIT_BOX_PREDATOR
+                wp.atomic_or(overlay, i, j, bit)
 
     # view cone: the sector of radius view_distance and angle fov around the heading
     if p.view_cones != 0:
         vd = p.cone_radius[t]
         cos_half = p.cos_half_fov[t]
-        i0 = first_pixel(c[1] - vd, inv_ph)
-        i1 = span(i0, last_pixel(c[1] + vd, inv_ph), p.height_px)
-        j0 = first_pixel(c[0] - vd, inv_pw)
-        j1 = span(j0, last_pixel(c[0] + vd, inv_pw), p.width_px)
-        for ii in range(i0, i1 + 1):
-            i = wrap_index(ii, p.height_px)
-            for jj in range(j0, j1 + 1):
-                j = wrap_index(jj, p.width_px)
-                d = pixel_offset(p, i, j, c)
-                dist = wp.length(d)
-                if dist <= vd and wp.dot(d, h) >= cos_half * dist:
-                    wp.atomic_add(cone_count, t, i, j, 1)
+        box = pixel_box(p, c - wp.vec2(vd, vd), c + wp.vec2(vd, vd))
+        for n in range(box_pixel_count(box)):
+            ij = box_pixel(p, box, n)
+            d = pixel_offset(p, ij[0], ij[1], c)
+            dist = wp.length(d)
+            if dist <= vd and wp.dot(d, h) >= cos_half * dist:
+                wp.atomic_add(cone_count, t, ij[0], ij[1], 1)
 
     # velocity arrow from the centre along velocity * velocity_scale, measured in image pixels so
     # it stays a thin line at any zoom
@@ -370,26 +385,21 @@ def splat_agents(
             hi_x = c[0] + wp.max(v[0], 0.0) + pad * p.pixel_width
             lo_y = c[1] + wp.min(v[1], 0.0) - pad * p.pixel_height
             hi_y = c[1] + wp.max(v[1], 0.0) + pad * p.pixel_height
-            i0 = first_pixel(lo_y, inv_ph)
-            i1 = span(i0, last_pixel(hi_y, inv_ph), p.height_px)
-            j0 = first_pixel(lo_x, inv_pw)
-            j1 = span(j0, last_pixel(hi_x, inv_pw), p.width_px)
-            for ii in range(i0, i1 + 1):
-                i = wrap_index(ii, p.height_px)
-                for jj in range(j0, j1 + 1):
-                    j = wrap_index(jj, p.width_px)
-                    d = pixel_offset(p, i, j, c)
-                    q = wp.vec2(d[0] * inv_pw, d[1] * inv_ph)  # image pixels from the centre
-                    along = wp.dot(q, axis)
-                    across = wp.abs(q[0] * axis[1] - q[1] * axis[0])
-                    hit = 0
-                    if along >= 0.0 and along <= length - head and across <= p.line_px:
-                        hit = 1  # shaft
-                    if along > length - head and along <= length:
-                        if across <= 0.5 * (length - along) + p.line_px * 0.5:
-                            hit = 1  # arrowhead, a triangle of half width head / 2 at its base
-                    if hit == 1:
-                        wp.atomic_or(overlay, i, j, BIT_VELOCITY)
+            box = pixel_box(p, wp.vec2(lo_x, lo_y), wp.vec2(hi_x, hi_y))
+            for n in range(box_pixel_count(box)):
+                ij = box_pixel(p, box, n)
+                d = pixel_offset(p, ij[0], ij[1], c)
+                e = wp.vec2(d[0] * inv_pw, d[1] * inv_ph)  # image pixels from the centre
+                along = wp.dot(e, axis)
+                across = wp.abs(e[0] * axis[1] - e[1] * axis[0])
+                hit = 0
+                if along >= 0.0 and along <= length - head and across <= p.line_px:
+                    hit = 1  # shaft
+                if along > length - head and along <= length:
+                    if across <= 0.5 * (length - along) + p.line_px * 0.5:
+                        hit = 1  # arrowhead, a triangle of half width head / 2 at its base
+                if hit == 1:
+                    wp.atomic_or(overlay, ij[0], ij[1], BIT_VELOCITY)
 
 
 @wp.func
