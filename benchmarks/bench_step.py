@@ -24,7 +24,6 @@ import math
 import os
 import platform
 import statistics
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -34,16 +33,9 @@ import warp as wp
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from aquarium_warp import AquariumConfig, BatchedAquarium  # noqa: E402
+from aquarium_warp.bench import density_config, git_info, timed_runs  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
-
-
-def density_config(agents: int, **changes) -> AquariumConfig:
-    """About `agents` agents (16 prey per predator) at the default density of 17 per 800 x 800 px."""
-    predators = max(1, round(agents / 17))
-    prey = agents - predators
-    side = 800.0 * math.sqrt((prey + predators) / 17.0)
-    return AquariumConfig(prey_count=prey, predator_count=predators, width=side, height=side, **changes)
 
 
 def unlimited(cfg: AquariumConfig) -> AquariumConfig:
@@ -62,17 +54,11 @@ def measure(cfg: AquariumConfig, worlds: int, device: str, seconds: float, repea
     for i in range(5):
         env.step(pool[i % 8], validate=False)
     sync()
-    per_step = []
-    for _ in range(repeats):
-        steps, start = 0, time.perf_counter()
-        while True:
-            env.step(pool[steps % 8], validate=False)
-            steps += 1
-            if steps % 8 == 0:
-                sync()
-                if time.perf_counter() - start >= seconds:
-                    break
-        per_step.append((time.perf_counter() - start) / steps)
+    start = time.perf_counter()
+    env.step(pool[0], validate=False)
+    sync()
+    first = time.perf_counter() - start
+    per_step = timed_runs(lambda i: env.step(pool[i % 8], validate=False), sync, seconds, repeats, first)
     step_time = statistics.median(per_step)
     agents = worlds * cfg.capacity
     env.close()
@@ -141,7 +127,7 @@ def main(argv=None) -> int:
     result = {
         "device": args.device, "device_name": device.name if device.is_cuda else platform.processor() or platform.machine(),
         "cpu_count": os.cpu_count(), "python": platform.python_version(), "warp": wp.__version__,
-        "torch": torch.__version__, "git_commit": _git_commit(), "seconds": args.seconds, "repeats": args.repeats,
+        "torch": torch.__version__, "git_commit": git_info()["commit"], "seconds": args.seconds, "repeats": args.repeats,
         "rows": rows, "pettingzoo_parallel_env": pettingzoo, "original": original, "checks": checks,
     }
     out = Path(args.out) if args.out else RESULTS / f"step_{args.device.replace(':', '')}.json"
@@ -149,14 +135,6 @@ def main(argv=None) -> int:
     out.write_text(json.dumps(result, indent=2))
     print(f"wrote {out}")
     return 0
-
-
-def _git_commit() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
-                              cwd=Path(__file__).parent).stdout.strip()
-    except OSError:
-        return "unknown"
 
 
 if __name__ == "__main__":

@@ -12,15 +12,12 @@ import argparse
 import statistics
 import sys
 import time
-from pathlib import Path
 
 import torch
 import warp as wp
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_step import density_config  # noqa: E402
-
-from aquarium_warp import AquariumConfig, BatchedAquarium  # noqa: E402
+from aquarium_warp import AquariumConfig, BatchedAquarium
+from aquarium_warp.bench import density_config
 
 
 def command_name(command) -> str:
