@@ -173,13 +173,6 @@ VEC2 = 8  # wp.vec2 (two float32)
 BOOL = 1
 
 
-def _rings(radius: float, cell: float, last: int) -> int:
-    """`grid.rings_for_radius`: rings of cells a fixed-radius query visits."""
-    if radius >= last * cell:
-        return last
-    return min(int(radius / cell + 1.0e-3) + 1, last)
-
-
 def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True) -> dict:
     """Bytes one `step()` must move per agent slot, stage by stage (reads and writes of DRAM).
 
