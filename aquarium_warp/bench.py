@@ -58,8 +58,9 @@ KERNEL_STAGES = {
     "integrate_motion": "motion",
     "compute_cell_keys": "grid", "radix_sort_pairs": "grid", "find_cell_ranges": "grid",
     "sort_into_cells_per_world": "grid",
-    "detect_captures": "captures", "resolve_captures": "captures", "share_capture_rewards": "captures",
-    "starve_predators": "captures",
+    "rank_into_cells_per_world": "grid",
+    "detect_captures": "captures", "count_capture_sharers": "captures", "share_capture_rewards": "captures",
+    "respawn_captured_prey": "captures",
     "reproduce_prey": "population", "collect_rewards": "population", "finish_world_step": "population",
     "truncate_ended_episodes": "population", "spawn_episode": "population",
 }
@@ -186,6 +187,7 @@ def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True)
     Returns `{"stages": {stage: {"read": B, "write": B}}, "read", "write", "total"}` per agent slot.
     """
     from .env import _grid_dims
+    from .shard import RANK_SORT_MAX_CAPACITY
 
     C, P, Pc = cfg.capacity, cfg.predator_count, cfg.prey_capacity
     dims_x, dims_y = dims if dims is not None else _grid_dims(cfg)
@@ -200,12 +202,23 @@ def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True)
 
     # motion.integrate_motion, (W, C) threads. Reads: alive, action, contact partner and offset
     # (found by the last observation pass), position, velocity, acceleration. Writes: position,
-    # velocity, acceleration, heading.
-    stages["motion"] = {"read": BOOL + I32 + I32 + VEC2 + 3 * VEC2, "write": 4 * VEC2}
+    # velocity, acceleration, heading, and clears the step's reward, terminated, truncated and
+    # captured flags (and the world's capture count).
+    stages["motion"] = {"read": BOOL + I32 + I32 + VEC2 + 3 * VEC2,
+                        "write": 4 * VEC2 + F32 + 3 * BOOL + per_world * I32}
 
-    # Grid build (cell lists), run twice per step: on the moved positions (for captures) and on the
-    # final ones (for observations).
-    if cuda:
+    # Grid build (cell lists of the final positions), once per step: captures search the cell lists
+    # of the start-of-step positions, which are the last step's.
+    ranked = cuda and C <= RANK_SORT_MAX_CAPACITY
+    if ranked:
+        # cell_start.zero_ and cell_end.zero_; rank_into_cells_per_world: per slot read alive,
+        # position, velocity, heading (the rest of its world is read through the cache); write the
+        # sorted agent index, position, speed, heading, the slot's entry and its cell's range (the
+        # first agent of a cell).
+        build = [{"read": 0.0, "write": 2 * I32 * cells},
+                 {"read": BOOL + 3 * VEC2,
+                  "write": I32 + VEC2 + F32 + VEC2 + I32 + 2 * I32 * min(cells, 1.0)}]
+    elif cuda:
         # compute_cell_keys: read position, alive; write key, agent index.
         keys = {"read": VEC2 + BOOL, "write": I32 + I32}
         # radix_sort_pairs (CUB onesweep, 32 key bits): histogram pass reads keys; 4 digit passes
@@ -229,25 +242,24 @@ def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True)
                  {"read": BOOL + VEC2 + I32, "write": I32 + I32},
                  {"read": 4 * cells, "write": 8 * cells},
                  {"read": I32 + 3 * VEC2 + I32, "write": I32 + VEC2 + F32 + VEC2 + I32 + I32}]
-    one = {"read": sum(b["read"] for b in build), "write": sum(b["write"] for b in build)}
-    stages["grid"] = {"read": 2 * one["read"], "write": 2 * one["write"]}
+    stages["grid"] = {"read": sum(b["read"] for b in build), "write": sum(b["write"] for b in build)}
 
-    # Captures. detect_captures and share_capture_rewards, one thread per predator: read alive and
-    # position (the neighbour walk is a gather); share writes the predator's reward.
-    # resolve_captures, one thread per prey slot: read alive and captured, read-modify-write age.
-    # starve_predators: read alive, read-modify-write starvation.
+    # Captures and starvation. detect_captures, one thread per predator: read alive and position
+    # (the neighbour walk is a gather). count_capture_sharers, one thread per prey slot: read alive
+    # and captured, read-modify-write age. share_capture_rewards, one thread per predator: read alive
+    # and position, read-modify-write starvation, write reward. respawn_captured_prey, one thread per
+    # prey slot: read captured.
     stages["captures"] = {
-        "read": pred * (BOOL + VEC2) + pred * (BOOL + VEC2) + prey * (BOOL + BOOL + I32) + pred * (BOOL + I32),
-        "write": pred * F32 + prey * I32 + pred * I32,
+        "read": pred * (BOOL + VEC2) + prey * (BOOL + BOOL + I32) + pred * (BOOL + VEC2 + I32) + prey * BOOL,
+        "write": prey * I32 + pred * (F32 + I32),
     }
-    # Population, rewards, episode end. Memsets of reward, terminated, truncated, captured (per slot)
-    # and captures (per world); collect_rewards reads reward, alive and episode return and writes
-    # reward and episode return; finish_world_step reads the world's step, captures, episode
+    # Population, rewards, episode end. collect_rewards reads reward, alive and episode return and
+    # writes reward and episode return; finish_world_step reads the world's step, captures, episode
     # captures and both alive counts and writes episode_ended, step and episode captures;
     # truncate_ended_episodes and spawn_episode read episode_ended once per world.
     stages["population"] = {
         "read": (F32 + BOOL + F32) + per_world * (5 * I32 + 2 * BOOL),
-        "write": (F32 + 3 * BOOL) + per_world * I32 + (F32 + F32) + per_world * (BOOL + 2 * I32),
+        "write": (F32 + F32) + per_world * (BOOL + 2 * I32),
     }
     if cfg.prey_reproduction:
         # reproduce_prey, one thread per world: reads alive, age and replication age of each prey slot.
@@ -264,7 +276,8 @@ def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True)
     read = sum(s["read"] for s in stages.values())
     write = sum(s["write"] for s in stages.values())
     return {"stages": stages, "read": read, "write": write, "total": read + write,
-            "cells_per_world": dims_x * dims_y, "grid_path": "radix sort (CUDA)" if cuda else "counting sort (CPU)"}
+            "cells_per_world": dims_x * dims_y,
+            "grid_path": ("rank per slot (CUDA)" if ranked else "radix sort (CUDA)") if cuda else "counting sort (CPU)"}
 
 
 # --------------------------------------------------------------------------------------- machine

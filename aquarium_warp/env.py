@@ -26,6 +26,8 @@ from .shard import WorldShard
 TYPES = ("prey", "predator")
 # Below this many worlds per thread, the thread hand-off costs more than the second core gives.
 MIN_WORLDS_PER_THREAD = 32
+OBSERVATION_BLOCK = 128  # threads per block of the GPU observation kernel
+SINGLE_CELL_CAPACITY = 64  # worlds of at most this many slots are searched as one cell
 _warp_ready = False
 
 
@@ -77,11 +79,15 @@ def _cpu_threads(cpu_threads) -> int:
 
 
 def _grid_dims(cfg: AquariumConfig) -> tuple[int, int]:
-    """Cells per axis. Cells slightly wider than the typical query radius let most queries finish
-    within one ring; at most about 4 cells per agent slot keep the table small in sparse worlds."""
+    """Cells per axis. A world of at most SINGLE_CELL_CAPACITY slots is one cell: checking every
+    agent of the world costs less than visiting the cells around each agent. Otherwise cells slightly
+    wider than the typical query radius let most queries finish within one ring; at most about 4
+    cells per agent slot keep the table small in sparse worlds."""
     contact = max(2 * cfg.prey.radius, 2 * cfg.predator.radius, cfg.prey.radius + cfg.predator.radius)
     if cfg.grid_cell_size is not None:
         target = cfg.grid_cell_size
+    elif cfg.capacity <= SINGLE_CELL_CAPACITY:
+        return 1, 1
     else:
         finite_views = [v for v in (cfg.prey.view_distance, cfg.predator.view_distance) if math.isfinite(v)]
         target = 1.01 * max([contact] + ([min(finite_views)] if finite_views else []))
@@ -161,9 +167,12 @@ class BatchedAquarium:
         self.state = SimulationState(W, C, cfg.prey_capacity, cfg.predator_count,
                                      self.observation_size["prey"], self.observation_size["predator"],
                                      self.observed_slots["prey"], self.observed_slots["predator"], self.device)
-        max_slots = max(1, max(getattr(cfg, t).predator_slots for t in TYPES),
-                        max(getattr(cfg, t).prey_slots for t in TYPES))
-        self._observe_kernel = observation.observation_kernel(max_slots)
+        # One observation kernel per observer type's slot counts; rows are staged by blocks of
+        # OBSERVATION_BLOCK threads on a GPU (tile kernels run one thread per block on the CPU).
+        block = OBSERVATION_BLOCK if wp.get_device(self.device).is_cuda else 1
+        self._observe_kernels = {t: observation.observation_kernel(getattr(cfg, t).predator_slots,
+                                                                   getattr(cfg, t).prey_slots, block)
+                                 for t in TYPES}
         threads = _cpu_threads(cpu_threads) if not wp.get_device(self.device).is_cuda else 1
         shards = max(1, min(threads, W // MIN_WORLDS_PER_THREAD))
         bounds = [W * k // shards for k in range(shards + 1)]
@@ -213,7 +222,7 @@ class BatchedAquarium:
     def _make_shards(self, seed_key: int) -> None:
         self._shards = [
             WorldShard(self.config, self.state, w0, w1, self._dims, self._types, self._action_direction,
-                       self._observe_kernel, seed_key, self.device, self.auto_reset)
+                       self._observe_kernels, seed_key, self.device, self.auto_reset)
             for w0, w1 in self._shard_ranges
         ]
         self._graph = None

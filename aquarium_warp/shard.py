@@ -16,7 +16,12 @@ import warp as wp
 from .config import AquariumConfig
 from .kernels import capture, motion, population, spawn
 from .kernels import grid as grid_kernels
-from .kernels.common import WorldParams
+from .kernels.common import PREDATOR, PREY, WorldParams
+
+TYPE_CODES = {"prey": int(PREY), "predator": int(PREDATOR)}
+# Largest world whose GPU cell lists are built by ranking each slot over its world instead of a radix
+# sort of all worlds (each thread reads its whole world, so the cost per agent grows with the world).
+RANK_SORT_MAX_CAPACITY = 128
 
 
 def world_params(cfg: AquariumConfig, seed_key: int, world_offset: int, auto_reset: bool) -> WorldParams:
@@ -74,7 +79,7 @@ class WorldShard:
     """Worlds `[w0, w1)` of a batch: MODEL.md's step as a fixed list of recorded launches."""
 
     def __init__(self, cfg: AquariumConfig, state, w0: int, w1: int, dims, types, action_direction,
-                 observe_kernel, seed_key: int, device, auto_reset: bool = True):
+                 observe_kernels, seed_key: int, device, auto_reset: bool = True):
         self.cfg, self.device = cfg, device
         self.w0, self.w1 = w0, w1
         self.num_worlds = W = w1 - w0
@@ -83,7 +88,8 @@ class WorldShard:
         self.grid = cell_lists(cfg, W, dims, device)
         self.types = types
         self.action_direction = action_direction
-        self.observe_kernel = observe_kernel
+        self.observe_kernels = observe_kernels  # {"prey": kernel, "predator": kernel}
+        self._views = []  # arrays viewing state memory with another dtype (kept alive with the shard)
         self.s = SimpleNamespace(**{name: value[w0:w1] for name, value in vars(state).items()
                                     if isinstance(value, wp.array)})
         self.programs = {"step": self._step_program(), "observe": self._observe_program(),
@@ -97,6 +103,11 @@ class WorldShard:
         return wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=self.device,
                          record_cmd=True).launch
 
+    def _launch_blocks(self, kernel, blocks: int, block_dim: int, inputs, outputs):
+        """A tile kernel: `blocks` blocks of `block_dim` threads, `block, lane = wp.tid()`."""
+        return wp.launch(kernel, dim=(blocks, block_dim), block_dim=block_dim, inputs=inputs, outputs=outputs,
+                         device=self.device, record_cmd=True).launch
+
     # Programs ------------------------------------------------------------------------------------
     def _build_grid_program(self) -> list:
         """Cell lists of the current positions (no allocation, no host sync)."""
@@ -106,6 +117,11 @@ class WorldShard:
             return [self._launch(grid_kernels.sort_into_cells_per_world, W,
                                  [self.world, g, s.position, s.velocity, s.heading, s.alive],
                                  [g.key, g.cell_start, g.cell_end, g.agent, g.position, g.speed, g.heading])]
+        if C <= RANK_SORT_MAX_CAPACITY:
+            return [g.cell_start.zero_, g.cell_end.zero_,
+                    self._launch(grid_kernels.rank_into_cells_per_world, (W, C),
+                                 [self.world, g, s.position, s.velocity, s.heading, s.alive],
+                                 [g.cell_start, g.cell_end, g.agent, g.position, g.speed, g.heading])]
         return [
             self._launch(grid_kernels.compute_cell_keys, (W, C), [self.world, g, s.position, s.alive, W],
                          [g.key, g.agent]),
@@ -117,15 +133,30 @@ class WorldShard:
                          [g.cell_start, g.cell_end, g.position, g.speed, g.heading]),
         ]
 
+    def _observe_launch(self, type_name: str):
+        """The observation kernel over every row of one observer type (None if the type has no slots)."""
+        s, W = self.s, self.num_worlds
+        kernel = self.observe_kernels[type_name]
+        per_world = self.cfg.prey_capacity if type_name == "prey" else self.cfg.predator_count
+        rows = W * per_world
+        if rows == 0:
+            return None
+        obs = getattr(s, f"obs_{type_name}")
+        slots = obs.shape[2] // 6  # 5 + 6 * slots values per row
+        # The [W, per_world, L] observations as [W * per_world] rows of L floats (same memory).
+        obs_rows = wp.array(ptr=obs.ptr, dtype=kernel.row_type, shape=(rows,), device=obs.device)
+        self._views.append(obs_rows)
+        block = kernel.block_dim
+        return self._launch_blocks(
+            kernel, (rows + block - 1) // block, block,
+            [self.world, self.types, self.grid, s.alive, TYPE_CODES[type_name], rows],
+            [obs_rows, getattr(s, f"mask_{type_name}").reshape((rows, slots)),
+             getattr(s, f"slot_{type_name}").reshape((rows, slots)), s.contact_partner, s.contact_offset])
+
     def _observe_program(self) -> list:
         """MODEL.md step 10 (and the contact partners of the next step's step 3)."""
-        s, W, C = self.s, self.num_worlds, self.cfg.capacity
-        return self._build_grid_program() + [
-            self._launch(self.observe_kernel, W * C,
-                         [self.world, self.types, self.grid, s.alive, W],
-                         [s.obs_prey, s.obs_predator, s.mask_prey, s.mask_predator, s.slot_prey,
-                          s.slot_predator, s.contact_partner, s.contact_offset]),
-        ]
+        launches = [self._observe_launch(t) for t in ("prey", "predator")]
+        return self._build_grid_program() + [launch for launch in launches if launch is not None]
 
     def _spawn(self, only_ended: bool):
         s = self.s
@@ -145,27 +176,27 @@ class WorldShard:
         """MODEL.md steps 1-10 for every world of the shard."""
         s, g, world, types, cfg = self.s, self.grid, self.world, self.types, self.cfg
         W, C, Pc, P = self.num_worlds, cfg.capacity, cfg.prey_capacity, cfg.predator_count
-        program = [a.zero_ for a in (s.reward, s.terminated, s.truncated, s.captured, s.captures)]
-        # 1-4: motion; contact partners were found by the last observation pass.
-        program.append(self._launch(motion.integrate_motion, (W, C),
-                                    [world, types, self.action_direction, s.prey_action, s.predator_action,
-                                     s.alive, s.contact_partner, s.contact_offset],
-                                    [s.position, s.velocity, s.acceleration, s.heading]))
-        # 5: captures on the moved positions.
-        program += self._build_grid_program()
+        # 1-4: motion (which also clears this step's rewards and flags); contact partners were found
+        # by the last observation pass.
+        program = [self._launch(motion.integrate_motion, (W, C),
+                                [world, types, self.action_direction, s.prey_action, s.predator_action,
+                                 s.alive, s.contact_partner, s.contact_offset],
+                                [s.position, s.velocity, s.acceleration, s.heading, s.reward, s.terminated,
+                                 s.truncated, s.captured, s.captures])]
+        # 5-6: captures on the moved positions, searched in the start-of-step cell lists; starvation.
         program.append(self._launch(capture.detect_captures, (W, P), [world, types, g, s.alive, s.position],
                                     [s.captured]))
-        program.append(self._launch(capture.resolve_captures, (W, Pc),
-                                    [world, types, g, s.world_step, s.episode, s.captured],
-                                    [s.alive, s.position, s.velocity, s.acceleration, s.heading, s.age,
-                                     s.replication_age, s.starvation, s.share_count, s.reward, s.terminated,
-                                     s.captures, s.prey_alive_count]))
+        program.append(self._launch(capture.count_capture_sharers, (W, Pc),
+                                    [world, types, g, s.alive, s.position, s.captured],
+                                    [s.age, s.share_count, s.reward, s.captures]))
         program.append(self._launch(capture.share_capture_rewards, (W, P),
-                                    [world, types, g, s.alive, s.position, s.captured, s.share_count],
-                                    [s.reward, s.starvation]))
-        # 6-7: starvation and reproduction.
-        program.append(self._launch(population.starve_predators, (W, P), [world],
-                                    [s.alive, s.starvation, s.terminated, s.predator_alive_count]))
+                                    [world, types, g, s.position, s.captured, s.share_count],
+                                    [s.alive, s.reward, s.starvation, s.terminated, s.predator_alive_count]))
+        program.append(self._launch(capture.respawn_captured_prey, (W, Pc),
+                                    [world, s.world_step, s.episode, s.captured],
+                                    [s.alive, s.position, s.velocity, s.acceleration, s.heading, s.age,
+                                     s.replication_age, s.starvation, s.terminated, s.prey_alive_count]))
+        # 7: reproduction.
         if cfg.prey_reproduction:
             program.append(self._launch(population.reproduce_prey, W, [world, s.world_step, s.episode, s.captured],
                                         [s.alive, s.position, s.velocity, s.acceleration, s.heading, s.age,

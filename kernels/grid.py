@@ -5,10 +5,10 @@ wrap modulo the dims and the grid is a torus like the world. Live agents are sor
 `world * cells_per_world + cell` with a stable radix sort, so the order (and every result derived
 from it) is deterministic on CPU and GPU; dead slots get a key past the last cell and sort last.
 Positions, speeds and headings are gathered into that order for coalesced neighbour reads, and
-`entry` maps each slot to its sorted entry. On the CPU a counting sort per world
-(`sort_into_cells_per_world`) gives live agents the same order without the radix sort's fixed cost
-(on an H200 it was slower than the radix sort for 65,536 worlds of 17: one thread per world is
-latency-bound).
+`entry` maps each slot to its sorted entry. Small worlds skip the radix sort, with the same order
+for live agents: on the CPU a counting sort per world (`sort_into_cells_per_world`, one thread per
+world; on an H200 that was latency-bound and slower than the radix sort for 65,536 worlds of 17),
+on a GPU a rank per slot counted over its world (`rank_into_cells_per_world`, one thread per slot).
 
 Queries visit the cells around the query cell by rings: ring 0 is the cell itself, ring r the 8r
 cells at Chebyshev cell distance r (`ring_offset`, side by side); a fixed radius visits the whole
@@ -57,6 +57,13 @@ def cell_coords(grid: CellLists, p: wp.vec2) -> wp.vec2i:
     cx = wp.min(int(p[0] * grid.inv_cell_width), grid.dims_x - 1)
     cy = wp.min(int(p[1] * grid.inv_cell_height), grid.dims_y - 1)
     return wp.vec2i(cx, cy)
+
+
+@wp.func
+def cell_in_world(grid: CellLists, p: wp.vec2) -> int:
+    """Index of the cell holding `p` within its world."""
+    c = cell_coords(grid, p)
+    return c[1] * grid.dims_x + c[0]
 
 
 @wp.func
@@ -182,8 +189,7 @@ def compute_cell_keys(
     w, i = wp.tid()
     k = w * world.capacity + i
     if alive[w, i]:
-        c = cell_coords(grid, position[w, i])
-        key[k] = w * grid.cells_per_world + c[1] * grid.dims_x + c[0]
+        key[k] = w * grid.cells_per_world + cell_in_world(grid, position[w, i])
     else:
         key[k] = num_worlds * grid.cells_per_world
     agent[k] = k
@@ -222,6 +228,64 @@ def find_cell_ranges(
 
 
 @wp.kernel
+def rank_into_cells_per_world(
+    world: WorldParams,
+    grid: CellLists,
+    position: wp.array2d(dtype=wp.vec2),
+    velocity: wp.array2d(dtype=wp.vec2),
+    heading: wp.array2d(dtype=wp.vec2),
+    alive: wp.array2d(dtype=wp.bool),
+    cell_start: wp.array(dtype=int),
+    cell_end: wp.array(dtype=int),
+    agent: wp.array(dtype=int),
+    sorted_position: wp.array(dtype=wp.vec2),
+    sorted_speed: wp.array(dtype=float),
+    sorted_heading: wp.array(dtype=wp.vec2),
+):
+    """The cell lists of small worlds on a GPU, one thread per slot: a slot's entry is its rank by
+    (cell, slot) among its world's live agents, counted over the world's slots (O(capacity) per
+    thread, no sort). Live agents get the radix sort's order; dead slots follow them, as in
+    `sort_into_cells_per_world`. The cell ranges must be zero beforehand (empty cells stay empty)."""
+    w, i = wp.tid()
+    capacity = world.capacity
+    first = w * capacity
+    k = first + i
+    at = int(0)
+    if alive[w, i]:
+        cell = cell_in_world(grid, position[w, i])
+        before = int(0)  # live agents in lower cells
+        ahead = int(0)  # live agents in the same cell with a lower slot
+        same = int(0)
+        for j in range(capacity):
+            if alive[w, j]:
+                other = cell_in_world(grid, position[w, j])
+                if other < cell:
+                    before += 1
+                elif other == cell:
+                    same += 1
+                    if j < i:
+                        ahead += 1
+        at = first + before + ahead
+        if ahead == 0:
+            cell_start[w * grid.cells_per_world + cell] = first + before
+            cell_end[w * grid.cells_per_world + cell] = first + before + same
+    else:
+        live = int(0)
+        dead_ahead = int(0)
+        for j in range(capacity):
+            if alive[w, j]:
+                live += 1
+            elif j < i:
+                dead_ahead += 1
+        at = first + live + dead_ahead
+    agent[at] = k
+    sorted_position[at] = position[w, i]
+    sorted_speed[at] = wp.length(velocity[w, i])
+    sorted_heading[at] = heading[w, i]
+    grid.entry[k] = at
+
+
+@wp.kernel
 def sort_into_cells_per_world(
     world: WorldParams,
     grid: CellLists,
@@ -250,8 +314,7 @@ def sort_into_cells_per_world(
         k = w * capacity + i
         key[k] = -1
         if alive[w, i]:
-            cc = cell_coords(grid, position[w, i])
-            key[k] = first_cell + cc[1] * grid.dims_x + cc[0]
+            key[k] = first_cell + cell_in_world(grid, position[w, i])
             cell_end[key[k]] = cell_end[key[k]] + 1
     total = w * capacity
     for c in range(grid.cells_per_world):

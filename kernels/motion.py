@@ -34,8 +34,20 @@ def integrate_motion(
     velocity: wp.array2d(dtype=wp.vec2),
     acceleration: wp.array2d(dtype=wp.vec2),
     heading: wp.array2d(dtype=wp.vec2),
+    reward: wp.array2d(dtype=float),
+    terminated: wp.array2d(dtype=wp.bool),
+    truncated: wp.array2d(dtype=wp.bool),
+    captured: wp.array2d(dtype=wp.bool),
+    captures: wp.array(dtype=wp.int32),
 ):
     w, i = wp.tid()
+    # This step's outputs start cleared (here rather than in separate memsets).
+    reward[w, i] = 0.0
+    terminated[w, i] = False
+    truncated[w, i] = False
+    captured[w, i] = False
+    if i == 0:
+        captures[w] = 0
     if not alive[w, i]:
         return
     t = slot_type(world, i)

@@ -1,4 +1,5 @@
-"""MODEL.md steps 6-9: starvation, reproduction, survival rewards, episode end and auto-reset.
+"""MODEL.md steps 7-9: reproduction, survival rewards, episode end and auto-reset (starvation, step 6,
+is counted in `capture.py`'s share pass, which already visits every predator).
 
 Per-world counts change through integer atomics (exact in any order); per-world float sums are
 taken by one thread per world in slot order, so they are deterministic too.
@@ -10,26 +11,6 @@ from .common import PREY, PURPOSE_NEWBORN, WorldParams, random_stream, slot_type
 from .spawn import make_fresh_prey
 
 wp.set_module_options({"enable_backward": False})
-
-
-@wp.kernel
-def starve_predators(
-    world: WorldParams,
-    alive: wp.array2d(dtype=wp.bool),
-    starvation: wp.array2d(dtype=wp.int32),
-    terminated: wp.array2d(dtype=wp.bool),
-    predator_alive_count: wp.array(dtype=wp.int32),
-):
-    w, p = wp.tid()  # predator slots only
-    i = world.prey_capacity + p
-    if not alive[w, i]:
-        return
-    hunger = starvation[w, i] + 1
-    starvation[w, i] = hunger
-    if hunger > world.predator_starvation_steps:
-        alive[w, i] = False
-        terminated[w, i] = True
-        wp.atomic_add(predator_alive_count, w, -1)
 
 
 @wp.kernel

@@ -49,17 +49,24 @@ def test_byte_model_counts_every_stage():
         assert all(s["read"] >= 0 and s["write"] >= 0 for s in model["stages"].values())
         # Observation rows must be written: 29 float32 per agent in the default config, plus masks.
         assert model["stages"]["observations"]["write"] >= 4 * 29
-        # Motion reads and writes the state's four vec2 fields.
-        assert model["stages"]["motion"]["write"] == 4 * 8
-    # The radix sort of the CUDA path moves more than the CPU's counting sort.
-    assert gpu["stages"]["grid"]["read"] > cpu["stages"]["grid"]["read"]
+        # Motion writes the state's four vec2 fields and clears the step's reward and three flags
+        # per slot and the capture count per world.
+        assert model["stages"]["motion"]["write"] == pytest.approx(4 * 8 + 4 + 3 + 4 / cfg.capacity)
     assert gpu["stages"]["observations"] == cpu["stages"]["observations"]
+    # Small worlds are ranked per slot on a GPU; large ones take the radix sort, which moves more
+    # than ranking or the CPU's counting sort.
+    assert gpu["grid_path"] == "rank per slot (CUDA)" and cpu["grid_path"] == "counting sort (CPU)"
+    large = bench.density_config(10_000)
+    radix = step_byte_model(large, cuda=True)
+    assert radix["grid_path"] == "radix sort (CUDA)"
+    assert radix["stages"]["grid"]["read"] > step_byte_model(large, cuda=False)["stages"]["grid"]["read"]
+    assert radix["stages"]["grid"]["read"] > gpu["stages"]["grid"]["read"]
     # More grid cells per agent clear more cell ranges; reproduction reads the prey's ages.
     assert step_byte_model(cfg, (20, 20))["total"] > step_byte_model(cfg, (5, 5))["total"]
     assert (step_byte_model(AquariumConfig(prey_reproduction=True, max_prey=32))["stages"]["population"]["read"]
             > gpu["stages"]["population"]["read"])
     # A one-world config at the default density models the same order of bytes as the default world.
-    assert 0.5 < step_byte_model(bench.density_config(10_000))["total"] / gpu["total"] < 2.0
+    assert 0.5 < radix["total"] / gpu["total"] < 2.0
 
 
 def test_tiny_sweep_writes_json_and_figures(tmp_path):

@@ -96,15 +96,24 @@ CASES = {
     "more-slots": with_types(AquariumConfig(width=400.0, height=400.0, prey_count=14, predator_count=4),
                              predator_slots=3, prey_slots=5),
     "tiny-cells": AquariumConfig(width=800.0, height=800.0, prey_count=14, predator_count=3, grid_cell_size=45.0),
+    # Worlds this small are one cell by default; the same worlds cut into cells exercise the ring search.
+    "dense-cells": AquariumConfig(width=300.0, height=240.0, prey_count=14, predator_count=3, grid_cell_size=70.0),
+    "unlimited-fov-cells": with_types(AquariumConfig(width=700.0, height=700.0, prey_count=10, predator_count=2,
+                                                     grid_cell_size=90.0), view_distance=math.inf),
+    # More slots than SINGLE_CELL_CAPACITY: cells chosen automatically (fewer worlds: the brute force is slow).
+    "crowd": AquariumConfig(width=1200.0, height=900.0, prey_count=72, predator_count=6),
 }
+WORLDS = {"crowd": 100}
 
 
 @pytest.mark.parametrize("name", list(CASES))
 def test_observed_slots_and_contacts_match_brute_force(device, name):
     cfg = CASES[name]
+    W = WORLDS.get(name, NUM_WORLDS)
     rng = np.random.default_rng(zlib.crc32(name.encode()))
-    env = BatchedAquarium(cfg, num_worlds=NUM_WORLDS, device=device, seed=1)
-    pos, heading, alive = random_state(rng, cfg, NUM_WORLDS, axis_headings=name != "unlimited")
+    env = BatchedAquarium(cfg, num_worlds=W, device=device, seed=1)
+    assert (env._dims == (1, 1)) == (cfg.capacity <= 64 and cfg.grid_cell_size is None)
+    pos, heading, alive = random_state(rng, cfg, W, axis_headings=name != "unlimited")
     env.set_state(position=pos.astype(np.float32), heading=heading.astype(np.float32), alive=alive)
     expected_slots, expected_partner = brute_force(cfg, pos, env.state.torch.heading.cpu().numpy().astype(np.float64), alive)
     Pc = cfg.prey_capacity

@@ -102,6 +102,11 @@ CONFIGS = {
         predator_starvation_steps=40,
     ),
 }
+# These worlds are one cell each by default (SINGLE_CELL_CAPACITY); the same worlds cut into cells
+# exercise the ring search and the capture searches across cell borders.
+CONFIGS["defaults_dense_cells"] = dataclasses.replace(CONFIGS["defaults_dense"], grid_cell_size=40.0)
+CONFIGS["respawn_off_starvation_cells"] = dataclasses.replace(CONFIGS["respawn_off_starvation"], grid_cell_size=45.0)
+CONFIGS["reproduction_cells"] = dataclasses.replace(CONFIGS["reproduction"], grid_cell_size=50.0)
 
 _ENVS: dict = {}
 
