@@ -1,10 +1,17 @@
 """`aquarium-warp bench`: the scaling benchmark suite (library and command line).
 
-Two sweeps, random actions and observations on:
+Up to three sweeps, random actions and observations on:
 
 * **agents**: one world of N agents at the default density (16 prey per predator, 17 agents per
   800 x 800 px; `density_config`), N from `--agents` (default 16, 64, ..., 1,000,000);
-* **worlds**: W default worlds of 17 agents, W from `--worlds` (default 1, 16, ..., 65,536).
+* **worlds**: W default worlds of 17 agents, W from `--worlds` (default 1, 16, ..., 65,536);
+* **load** (with `--load-agents L`, off by default): N agents per world (default density) for N from
+  `--agents` up to L, in W = max(1, round(L / N)) worlds, so that about L agents are in flight at
+  every point. One small world leaves a GPU idle (its step is bound by kernel launches), so per-agent
+  time along the agents series mixes launch overhead with the cost of larger worlds; the load series
+  keeps the device equally busy and shows how per-agent time changes with the size of a world alone.
+  The summary's `<series>_per_agent_time_ratio` (max / min ns per agent-step from ~1,000 agents per
+  world to the largest world) says how flat it is.
 
 For every point: agent-steps per second of `env.step()` (median of `--repeats` timed runs of at least
 `--seconds` after warm-up, synchronised timers; on CUDA the step replays a CUDA graph); the same for
@@ -18,13 +25,16 @@ device-to-device copy bandwidth measured in the same run.
 
 Peers measured in the same run: the original marl-aquarium 0.1.10 (CPU, default config, through
 `benchmarks/original_aquarium.py`) and, with `--vmas`, VMAS's predator-prey scenario `simple_tag`
-at the same agent counts on the same device (`benchmarks/vmas_peer.py`). Ratios are reported.
+at the agent counts of the agents and worlds series on the same device (`benchmarks/vmas_peer.py`).
+Ratios are reported.
 
 Output: a printed table, `<out-dir>/scaling_<device>.json` and log-log figures
-`<out-dir>/scaling_<device>_throughput.png` (agent-steps/s vs agents),
-`..._per_agent.png` (ns per agent-step vs agents) and `..._stages.png` (share of each stage).
+`<out-dir>/scaling_<device>_throughput.png` (agent-steps/s vs agents in flight; the load series vs
+agents per world), `..._per_agent.png` (ns per agent-step, the same axes) and `..._stages.png` (share
+of each stage).
 
     aquarium-warp bench --device cuda:0 --agents 16,64,...,1000000 --worlds 1,16,...,65536 --vmas
+    aquarium-warp bench --device cuda:0 --agents 1000,4000,...,1000000 --worlds 1 --load-agents 4000000
     python benchmarks/bench_scaling.py --device cpu --agents 16,64,...,100000 --worlds 1,16,...,4096
 """
 
@@ -62,7 +72,7 @@ KERNEL_STAGES = {
     "detect_captures": "captures", "count_capture_sharers": "captures", "share_capture_rewards": "captures",
     "respawn_captured_prey": "captures",
     "reproduce_prey": "population", "collect_rewards": "population", "finish_world_step": "population",
-    "truncate_ended_episodes": "population", "spawn_episode": "population",
+    "close_ended_episodes": "population",
 }
 
 
@@ -114,6 +124,9 @@ class BenchSettings:
     device: str | None = None  # None: cuda:0 when present, else cpu
     agents: list = dataclasses.field(default_factory=lambda: parse_counts("16,64,...,1000000"))
     worlds: list = dataclasses.field(default_factory=lambda: parse_counts("1,16,...,65536"))
+    # The load series: each N of `agents` up to this many, in max(1, round(load_agents / N)) worlds
+    # (about load_agents agents in flight at every point); None: no load series.
+    load_agents: int | None = None
     seconds: float = 1.0  # each timed run lasts at least this long
     repeats: int = 5  # timed runs per point (the median is reported)
     warmup_steps: int = 5
@@ -141,6 +154,10 @@ class BenchSettings:
     def __post_init__(self):
         self.agents = parse_counts(self.agents, "agents")
         self.worlds = parse_counts(self.worlds, "worlds")
+        if self.load_agents is not None:
+            self.load_agents = int(self.load_agents)
+            if self.load_agents < 1:
+                raise ValueError(f"load_agents={self.load_agents} must be >= 1 (or None: no load series)")
         if self.seconds <= 0 or self.repeats < 1 or self.stage_repeats < 1 or self.warmup_steps < 1:
             raise ValueError("seconds must be > 0, repeats, stage_repeats and warmup_steps >= 1")
 
@@ -159,12 +176,22 @@ def density_config(agents: int, **changes):
     return AquariumConfig(prey_count=prey, predator_count=predators, width=side, height=side, **changes)
 
 
+def load_worlds(agents_per_world: int, load_agents: int) -> int:
+    """Worlds of the load series' point: about `load_agents` agents in flight, at least one world."""
+    return max(1, round(load_agents / agents_per_world))
+
+
 def sweep_points(settings: BenchSettings) -> list[tuple[str, object, int]]:
-    """(series, config, worlds) of every point: the agents sweep (one world), then the worlds sweep."""
+    """(series, config, worlds) of every point: the agents sweep (one world), the worlds sweep, then
+    the load sweep (with `settings.load_agents`: each N of `settings.agents` up to it, in
+    `load_worlds(N, load_agents)` worlds)."""
     from .config import AquariumConfig
 
     points = [("agents", density_config(n), 1) for n in settings.agents]
     points += [("worlds", AquariumConfig(), w) for w in settings.worlds]
+    if settings.load_agents is not None:
+        points += [("load", density_config(n), load_worlds(n, settings.load_agents))
+                   for n in settings.agents if n <= settings.load_agents]
     return points
 
 
@@ -174,7 +201,7 @@ VEC2 = 8  # wp.vec2 (two float32)
 BOOL = 1
 
 
-def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True) -> dict:
+def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True, worlds: int = 1) -> dict:
     """Bytes one `step()` must move per agent slot, stage by stage (reads and writes of DRAM).
 
     Counted: every array element that a kernel thread reads or writes for its own agent (or cell, or
@@ -187,7 +214,7 @@ def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True)
     Returns `{"stages": {stage: {"read": B, "write": B}}, "read", "write", "total"}` per agent slot.
     """
     from .env import _grid_dims
-    from .shard import RANK_SORT_MAX_CAPACITY
+    from .shard import RANK_SORT_MAX_CAPACITY, sort_key_bits
 
     C, P, Pc = cfg.capacity, cfg.predator_count, cfg.prey_capacity
     dims_x, dims_y = dims if dims is not None else _grid_dims(cfg)
@@ -221,9 +248,10 @@ def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True)
     elif cuda:
         # compute_cell_keys: read position, alive; write key, agent index.
         keys = {"read": VEC2 + BOOL, "write": I32 + I32}
-        # radix_sort_pairs (CUB onesweep, 32 key bits): histogram pass reads keys; 4 digit passes
-        # read and write (key, value) pairs.
-        sort = {"read": I32 + 4 * (I32 + I32), "write": 4 * (I32 + I32)}
+        # radix_sort_pairs (CUB onesweep over the key bits in use): histogram pass reads keys; one
+        # pass per 8-bit digit reads and writes (key, value) pairs.
+        passes = math.ceil(sort_key_bits(worlds, dims_x * dims_y) / 8)
+        sort = {"read": I32 + passes * (I32 + I32), "write": passes * (I32 + I32)}
         # cell_start.zero_ and cell_end.zero_: two int32 per cell.
         clear = {"read": 0.0, "write": 2 * I32 * cells}
         # find_cell_ranges: read sorted agent index and key (neighbouring keys hit cache), position,
@@ -256,7 +284,7 @@ def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True)
     # Population, rewards, episode end. collect_rewards reads reward, alive and episode return and
     # writes reward and episode return; finish_world_step reads the world's step, captures, episode
     # captures and both alive counts and writes episode_ended, step and episode captures;
-    # truncate_ended_episodes and spawn_episode read episode_ended once per world.
+    # close_ended_episodes reads episode_ended once per world (it truncates and respawns ended worlds).
     stages["population"] = {
         "read": (F32 + BOOL + F32) + per_world * (5 * I32 + 2 * BOOL),
         "write": (F32 + F32) + per_world * (BOOL + 2 * I32),
@@ -594,7 +622,7 @@ def measure_point(series: str, cfg, worlds: int, device: str, settings: BenchSet
             row["heuristics_ms"] = statistics.median(samples) * 1e3
             row["heuristics_ns_per_agent"] = row["heuristics_ms"] * 1e6 / agents
 
-        model = step_byte_model(cfg, dims, cuda=cuda)
+        model = step_byte_model(cfg, dims, cuda=cuda, worlds=worlds)
         row["bytes_per_agent_step"] = model["total"]
         row["bytes_model"] = {s: v["read"] + v["write"] for s, v in model["stages"].items()}
         row["achieved_bytes_per_s"] = model["total"] * row["agent_steps_per_s"]
@@ -855,7 +883,38 @@ def add_ratios(points: list, original: dict, vmas: dict) -> None:
         row["ratios"] = ratios
 
 
-def summary(points: list, original: dict, vmas: dict) -> dict:
+SERIES = ("agents", "worlds", "load")
+RATIO_FROM_AGENTS_PER_WORLD = 1000  # per-agent time ratios run from this world size (or the next above)
+
+
+def per_agent_time_ratio(points: list, series: str,
+                         from_agents_per_world: int = RATIO_FROM_AGENTS_PER_WORLD) -> dict | None:
+    """How flat per-agent time is along one series, from the smallest world of at least
+    `from_agents_per_world` agents to the largest world: the two points' agents per world and ns per
+    agent-step, and ratio = max / min ns per agent-step over the series' measured points between them
+    (inclusive). None when the series has no measured world of that size below its largest."""
+    pts = [p for p in points if p.get("status") == "ok" and p["series"] == series]
+    start = [p["agents_per_world"] for p in pts if p["agents_per_world"] >= from_agents_per_world]
+    if not start:
+        return None
+    lo, hi = min(start), max(p["agents_per_world"] for p in pts)
+    if lo >= hi:
+        return None
+    span = [p for p in pts if lo <= p["agents_per_world"] <= hi]
+    ns = [p["ns_per_agent_step"] for p in span]
+
+    def at(n):  # the point of that world size (the first, should a size repeat)
+        return next(p for p in span if p["agents_per_world"] == n)
+
+    return {"agents_per_world": [lo, hi], "worlds": [at(lo)["worlds"], at(hi)["worlds"]],
+            "ns_per_agent_step": [at(lo)["ns_per_agent_step"], at(hi)["ns_per_agent_step"]],
+            "ratio": max(ns) / min(ns), "points": len(span)}
+
+
+def summary(points: list, original: dict, vmas: dict,
+            from_agents_per_world: int = RATIO_FROM_AGENTS_PER_WORLD) -> dict:
+    """Headline numbers. `<series>_per_agent_time_ratio` (`per_agent_time_ratio`) for every series
+    with measured worlds from `from_agents_per_world` agents up to a larger one."""
     ok = [p for p in points if p.get("status") == "ok"]
     out = {}
     if ok:
@@ -864,10 +923,14 @@ def summary(points: list, original: dict, vmas: dict) -> dict:
         fractions = [p["fraction_of_copy_bandwidth"] for p in ok if "fraction_of_copy_bandwidth" in p]
         if fractions:
             out["max_fraction_of_copy_bandwidth"] = max(fractions)
-        for series in ("agents", "worlds"):
+        for series in SERIES:
             s = [p for p in ok if p["series"] == series]
             if len(s) >= 2:
                 out[f"{series}_ns_per_agent_first_last"] = [s[0]["ns_per_agent_step"], s[-1]["ns_per_agent_step"]]
+        for series in SERIES:
+            flat = per_agent_time_ratio(ok, series, from_agents_per_world)
+            if flat is not None:
+                out[f"{series}_per_agent_time_ratio"] = flat
         ratios = [p["ratios"]["vs_vmas"] for p in ok if "vs_vmas" in p.get("ratios", {})]
         if ratios:
             out["vs_vmas_min_max"] = [min(ratios), max(ratios)]
@@ -938,13 +1001,25 @@ def format_table(result: dict) -> str:
         if v.get("status") == "ok":
             lines.append(f"VMAS {v['scenario']} {v['series']:6s} {v['envs']:6d} envs x {v['agents_per_env']:5d}: "
                          f"{v['step_ms']:10.3f} ms  {v['agent_steps_per_s']:.3e} agent-steps/s")
+    load = (result.get("settings") or {}).get("load_agents")
+    if load and any(p["series"] == "load" for p in result["points"]):
+        lines.append(f"load series: worlds = max(1, round({load:,} / agents per world)), ~{load:,} agents in flight")
+    summ = result.get("summary") or {}
+    for series in SERIES:
+        flat = summ.get(f"{series}_per_agent_time_ratio")
+        if flat:
+            (lo, hi), (ns_lo, ns_hi) = flat["agents_per_world"], flat["ns_per_agent_step"]
+            lines.append(f"per-agent time flatness, {series} series: {lo:,} -> {hi:,} agents per world: "
+                         f"{ns_lo:.3g} -> {ns_hi:.3g} ns/agent-step, max/min {flat['ratio']:.2f} "
+                         f"over {flat['points']} points")
     return "\n".join(lines)
 
 
 # --------------------------------------------------------------------------------------- figures
 def plot_results(result: dict, stem) -> list[Path]:
-    """Log-log figures next to the JSON: agent-steps/s and ns per agent-step vs agents (one line per
-    series), and the share of each stage of the step."""
+    """Log-log figures next to the JSON: agent-steps/s and ns per agent-step vs agents in flight (one
+    line per series; the load series, whose agents in flight hardly change, vs agents per world), and
+    the share of each stage of the step."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -959,6 +1034,12 @@ def plot_results(result: dict, stem) -> list[Path]:
     ok = [p for p in result["points"] if p.get("status") == "ok"]
     series = {"agents": ("aquarium-warp: 1 world of N agents", "tab:blue", "o"),
               "worlds": ("aquarium-warp: W worlds x 17 agents", "tab:orange", "s")}
+    load_pts = [p for p in ok if p["series"] == "load"]
+    if load_pts:
+        load = (result.get("settings") or {}).get("load_agents") or round(statistics.median(p["agents"] for p in load_pts))
+        series["load"] = (f"load: ~{load:,} agents in flight (round({load:,} / N) worlds of N agents; "
+                          "x: N agents per world)", "tab:purple", "D")
+    x_key = {"load": "agents_per_world"}  # the other series: agents in flight
     vmas = [v for v in result["peers"]["vmas"].get("points", []) if v.get("status") == "ok"]
     original = result["peers"]["original"]
     bw = result["copy_bandwidth"]["bytes_per_s"]
@@ -970,9 +1051,10 @@ def plot_results(result: dict, stem) -> list[Path]:
             pts = [p for p in ok if p["series"] == key]
             if not pts:
                 continue
-            xs = [p["agents"] for p in pts]
+            x = x_key.get(key, "agents")
+            xs = [p[x] for p in pts]
             ax.plot(xs, [value(p["agent_steps_per_s"]) for p in pts], marker=marker, color=color, label=label)
-            eager = [(p["agents"], p["eager"]["agent_steps_per_s"]) for p in pts if p.get("eager")]
+            eager = [(p[x], p["eager"]["agent_steps_per_s"]) for p in pts if p.get("eager")]
             if eager:
                 ax.plot(*zip(*[(x, value(y)) for x, y in eager]), marker=marker, color=color, linestyle="--",
                         alpha=0.6, label=label + " (eager, no graph)")
@@ -990,7 +1072,8 @@ def plot_results(result: dict, stem) -> list[Path]:
                     linestyle="none", label="original marl-aquarium (CPU, 17 agents)")
         ax.set_xscale("log")
         ax.set_yscale("log")
-        ax.set_xlabel("agents stepped at once (worlds x agents per world)")
+        ax.set_xlabel("agents stepped at once (worlds x agents per world)"
+                      + ("; load series: agents per world" if load_pts else ""))
         ax.set_ylabel("agent-steps per second" if kind == "throughput" else "ns per agent-step")
         ax.set_title(("Throughput" if kind == "throughput" else "Time per agent-step") + f" on {where}\n{stamp}",
                      fontsize=10)
@@ -1004,10 +1087,11 @@ def plot_results(result: dict, stem) -> list[Path]:
 
     staged = [p for p in ok if p.get("stages_ms")]
     if staged:
-        fig, axes = plt.subplots(1, 2, figsize=(11, 4.5), sharey=True)
+        panels = ("agents", "worlds") + (("load",) if any(p["series"] == "load" for p in staged) else ())
+        fig, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 4.5), sharey=True)
         names = list(STAGES) + ["heuristics"]
         colors = plt.get_cmap("tab10").colors
-        for ax, key in zip(axes, ("agents", "worlds")):
+        for ax, key in zip(axes, panels):
             pts = [p for p in staged if p["series"] == key]
             if not pts:
                 ax.set_visible(False)
@@ -1023,9 +1107,9 @@ def plot_results(result: dict, stem) -> list[Path]:
                        hatch="//" if name == "heuristics" else None)
                 bottom = [b + s for b, s in zip(bottom, share)]
             ax.set_xticks(xs)
-            ax.set_xticklabels([f"{p['agents']:,}" if key == "agents" else f"{p['worlds']:,}x17" for p in pts],
-                               rotation=45, ha="right", fontsize=8)
-            ax.set_title(series[key][0], fontsize=10)
+            ax.set_xticklabels([f"{p['agents']:,}" if key == "agents" else f"{p['worlds']:,}x{p['agents_per_world']:,}"
+                                for p in pts], rotation=45, ha="right", fontsize=8)
+            ax.set_title(series[key][0].split(" (")[0], fontsize=10)
             ax.set_xlabel("agents" if key == "agents" else "worlds x agents")
         axes[0].set_ylabel("share of step + heuristics time, %")
         handles, labels = next(a for a in axes if a.get_visible()).get_legend_handles_labels()
@@ -1043,9 +1127,14 @@ def plot_results(result: dict, stem) -> list[Path]:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", default=None, help="'cpu' or 'cuda:0' (default: CUDA when present)")
     parser.add_argument("--agents", default="16,64,...,1000000",
-                        help="agents of the one-world sweep, default density; '...' continues the progression "
+                        help="agents of the one-world sweep (and agents per world of the load series), default "
+                             "density; '...' continues the progression "
                              "(default 16,64,...,1000000)")
     parser.add_argument("--worlds", default="1,16,...,65536", help="worlds of 17 agents (default 1,16,...,65536)")
+    parser.add_argument("--load-agents", type=int, default=None, metavar="L",
+                        help="add the load series: each N of --agents up to L in max(1, round(L / N)) worlds, "
+                             "about L agents in flight at every point, so that per-agent time compares across "
+                             "world sizes at equal load (default: off)")
     parser.add_argument("--seconds", type=float, default=1.0, help="length of each timed run (default 1)")
     parser.add_argument("--repeats", type=int, default=5, help="timed runs per point; the median is reported")
     parser.add_argument("--warmup-steps", type=int, default=5)
@@ -1078,7 +1167,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def settings_from_args(args) -> BenchSettings:
     return BenchSettings(
-        device=args.device, agents=args.agents, worlds=args.worlds, seconds=args.seconds, repeats=args.repeats,
+        device=args.device, agents=args.agents, worlds=args.worlds, load_agents=args.load_agents,
+        seconds=args.seconds, repeats=args.repeats,
         warmup_steps=args.warmup_steps, stage_repeats=args.stage_repeats,
         max_agents_in_flight=args.max_agents_in_flight, eager=not args.no_eager, stages=not args.no_stages,
         heuristics=not args.no_heuristics, original=not args.no_original, original_json=args.original_json,

@@ -80,9 +80,10 @@ def _cpu_threads(cpu_threads) -> int:
 
 def _grid_dims(cfg: AquariumConfig) -> tuple[int, int]:
     """Cells per axis. A world of at most SINGLE_CELL_CAPACITY slots is one cell: checking every
-    agent of the world costs less than visiting the cells around each agent. Otherwise cells slightly
-    wider than the typical query radius let most queries finish within one ring; at most about 4
-    cells per agent slot keep the table small in sparse worlds."""
+    agent of the world costs less than visiting the cells around each agent. Otherwise cells at least
+    slightly wider than the typical query radius let most queries finish within one ring, and at
+    most about one cell per agent slot keeps the cell table small (at the default density that is
+    about 190 px: on an H200, one world of 1M agents stepped 9% faster than with 101 px cells)."""
     contact = max(2 * cfg.prey.radius, 2 * cfg.predator.radius, cfg.prey.radius + cfg.predator.radius)
     if cfg.grid_cell_size is not None:
         target = cfg.grid_cell_size
@@ -91,7 +92,7 @@ def _grid_dims(cfg: AquariumConfig) -> tuple[int, int]:
     else:
         finite_views = [v for v in (cfg.prey.view_distance, cfg.predator.view_distance) if math.isfinite(v)]
         target = 1.01 * max([contact] + ([min(finite_views)] if finite_views else []))
-        max_cells = max(64, 4 * cfg.capacity)
+        max_cells = max(64, cfg.capacity)
         target = max(target, math.sqrt(cfg.width * cfg.height / max_cells))
     return max(1, int(cfg.width // target)), max(1, int(cfg.height // target))
 

@@ -51,6 +51,11 @@ def world_params(cfg: AquariumConfig, seed_key: int, world_offset: int, auto_res
     return p
 
 
+def sort_key_bits(num_worlds: int, cells_per_world: int) -> int:
+    """Bits of the largest cell-list sort key (the dead-slot sentinel `num_worlds * cells_per_world`)."""
+    return max(1, (num_worlds * cells_per_world).bit_length())
+
+
 def cell_lists(cfg: AquariumConfig, num_worlds: int, dims: tuple[int, int], device) -> grid_kernels.CellLists:
     dims_x, dims_y = dims
     n = num_worlds * cfg.capacity
@@ -125,7 +130,8 @@ class WorldShard:
         return [
             self._launch(grid_kernels.compute_cell_keys, (W, C), [self.world, g, s.position, s.alive, W],
                          [g.key, g.agent]),
-            functools.partial(wp.utils.radix_sort_pairs, g.key, g.agent, count),
+            # Keys are below W * cells + 1: the sort skips the always-zero high bits (fewer digit passes).
+            functools.partial(wp.utils.radix_sort_pairs, g.key, g.agent, count, 0, sort_key_bits(W, g.cells_per_world)),
             g.cell_start.zero_,
             g.cell_end.zero_,
             self._launch(grid_kernels.find_cell_ranges, count,
@@ -158,10 +164,9 @@ class WorldShard:
         launches = [self._observe_launch(t) for t in ("prey", "predator")]
         return self._build_grid_program() + [launch for launch in launches if launch is not None]
 
-    def _spawn(self, only_ended: bool):
+    def _spawn(self):
         s = self.s
-        return self._launch(spawn.spawn_episode, (self.num_worlds, self.cfg.capacity),
-                            [self.world, s.episode, int(only_ended), s.episode_ended],
+        return self._launch(spawn.spawn_episode, (self.num_worlds, self.cfg.capacity), [self.world, s.episode],
                             [s.alive, s.position, s.velocity, s.acceleration, s.heading, s.age,
                              s.replication_age, s.starvation])
 
@@ -170,7 +175,7 @@ class WorldShard:
         return [s.world_step.zero_, s.episode.zero_, s.episode_captures.zero_, s.episode_return.zero_,
                 s.episode_ended.zero_, functools.partial(s.prey_alive_count.fill_, cfg.prey_count),
                 functools.partial(s.predator_alive_count.fill_, cfg.predator_count),
-                self._spawn(only_ended=False)] + self._observe_program()
+                self._spawn()] + self._observe_program()
 
     def _step_program(self) -> list:
         """MODEL.md steps 1-10 for every world of the shard."""
@@ -208,9 +213,8 @@ class WorldShard:
                                     [s.world_step, s.episode, s.episode_captures, s.prey_alive_count,
                                      s.predator_alive_count, s.episode_ended, s.ended_length, s.ended_captures,
                                      s.ended_return]))
-        program.append(self._launch(population.truncate_ended_episodes, (W, C), [s.episode_ended, s.alive],
-                                    [s.truncated, s.episode_return]))
-        if self.auto_reset:
-            program.append(self._spawn(only_ended=True))
+        program.append(self._launch(population.close_ended_episodes, (W, C), [world, s.episode, s.episode_ended],
+                                    [s.alive, s.position, s.velocity, s.acceleration, s.heading, s.age,
+                                     s.replication_age, s.starvation, s.truncated, s.episode_return]))
         # 10: observations of the final state, and the contact partners of the next step's motion.
         return program + self._observe_program()

@@ -9,6 +9,7 @@ whole step replayed as a graph. A profiling aid for the step's cost breakdown.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import statistics
 import sys
 import time
@@ -33,8 +34,11 @@ def main(argv=None) -> int:
     parser.add_argument("--worlds", type=int, default=1024)
     parser.add_argument("--agents", type=int, default=17, help="agents per world at the default density")
     parser.add_argument("--repeats", type=int, default=20)
+    parser.add_argument("--cell-size", type=float, default=None, help="grid_cell_size (default: chosen by the env)")
     args = parser.parse_args(argv)
     cfg = AquariumConfig() if args.agents == 17 else density_config(args.agents)
+    if args.cell_size is not None:
+        cfg = dataclasses.replace(cfg, grid_cell_size=args.cell_size)
     env = BatchedAquarium(cfg, num_worlds=args.worlds, device=args.device, seed=0, cpu_threads=1)
     cuda = wp.get_device(env.device).is_cuda
     gen = torch.Generator(device=env.torch_device).manual_seed(0)
@@ -59,21 +63,23 @@ def main(argv=None) -> int:
                 times[i].append((time.perf_counter() - t) * 1e3)
     agents = args.worlds * cfg.capacity
     total = 0.0
-    print(f"{args.worlds} worlds x {cfg.capacity} agents on {env.device}")
+    print(f"{args.worlds} worlds x {cfg.capacity} agents on {env.device}, {env._dims[0]} x {env._dims[1]} cells per world")
     for command, samples in zip(program, times):
         ms = statistics.median(samples)
         total += ms
         print(f"  {command_name(command):40s} {ms:8.4f} ms  {ms * 1e6 / agents:7.3f} ns/agent")
     print(f"  {'sum of commands':40s} {total:8.4f} ms")
     if cuda:
-        steps = []
-        for _ in range(args.repeats):
+        runs = []  # runs of `repeats` back-to-back steps (as the graph replays them), one sync per run
+        for _ in range(5):
             torch.cuda.synchronize()
             t = time.perf_counter()
-            env.step(actions, validate=False)
+            for _ in range(args.repeats):
+                env.step(actions, validate=False)
             torch.cuda.synchronize()
-            steps.append((time.perf_counter() - t) * 1e3)
-        print(f"  {'step() as a CUDA graph':40s} {statistics.median(steps):8.4f} ms")
+            runs.append((time.perf_counter() - t) * 1e3 / args.repeats)
+        ms = statistics.median(runs)
+        print(f"  {'step() as a CUDA graph':40s} {ms:8.4f} ms  {agents / ms * 1e3:.3e} agent-steps/s")
     return 0
 
 

@@ -8,7 +8,7 @@ taken by one thread per world in slot order, so they are deterministic too.
 import warp as wp
 
 from .common import PREY, PURPOSE_NEWBORN, WorldParams, random_stream, slot_type
-from .spawn import make_fresh_prey
+from .spawn import make_fresh_prey, spawn_slot
 
 wp.set_module_options({"enable_backward": False})
 
@@ -117,16 +117,29 @@ def finish_world_step(
 
 
 @wp.kernel
-def truncate_ended_episodes(
+def close_ended_episodes(
+    world: WorldParams,
+    episode: wp.array(dtype=wp.int32),
     episode_ended: wp.array(dtype=wp.bool),
     alive: wp.array2d(dtype=wp.bool),
+    position: wp.array2d(dtype=wp.vec2),
+    velocity: wp.array2d(dtype=wp.vec2),
+    acceleration: wp.array2d(dtype=wp.vec2),
+    heading: wp.array2d(dtype=wp.vec2),
+    age: wp.array2d(dtype=wp.int32),
+    replication_age: wp.array2d(dtype=wp.int32),
+    starvation: wp.array2d(dtype=wp.int32),
     truncated: wp.array2d(dtype=wp.bool),
     episode_return: wp.array2d(dtype=float),
 ):
-    """Every agent still alive when its world's episode ends is truncated; the slot's sums restart."""
+    """Every agent still alive when its world's episode ends is truncated and the slot's sums
+    restart; with auto-reset the world's next episode starts here."""
     w, i = wp.tid()
     if not episode_ended[w]:
         return
     if alive[w, i]:
         truncated[w, i] = True
     episode_return[w, i] = 0.0
+    if world.auto_reset != 0:
+        spawn_slot(world, w, i, episode[w], alive, position, velocity, acceleration, heading, age,
+                   replication_age, starvation)

@@ -54,12 +54,12 @@ def uniform_position(world: WorldParams, rng: wp.uint32, margin: float) -> wp.ve
     return wp.vec2(x, y)
 
 
-@wp.kernel
-def spawn_episode(
+@wp.func
+def spawn_slot(
     world: WorldParams,
-    episode: wp.array(dtype=wp.int32),
-    only_ended: int,
-    episode_ended: wp.array(dtype=wp.bool),
+    w: int,
+    i: int,
+    episode: int,
     alive: wp.array2d(dtype=wp.bool),
     position: wp.array2d(dtype=wp.vec2),
     velocity: wp.array2d(dtype=wp.vec2),
@@ -69,13 +69,9 @@ def spawn_episode(
     replication_age: wp.array2d(dtype=wp.int32),
     starvation: wp.array2d(dtype=wp.int32),
 ):
-    """Initial state of a world's episode: prey uniform 20 px inside the edges moving west, predators
-    uniform anywhere moving north, zero acceleration; prey slots past `prey_count` start empty.
-    With `only_ended` set, only worlds flagged in `episode_ended` are touched (auto-reset)."""
-    w, i = wp.tid()
-    if only_ended != 0 and not episode_ended[w]:
-        return
-    rng = random_stream(world.seed, world.world_offset + w, episode[w], 0, i, PURPOSE_SPAWN)
+    """Slot i of world w at the start of an episode: prey uniform 20 px inside the edges moving west,
+    predators uniform anywhere moving north, zero acceleration; prey slots past `prey_count` empty."""
+    rng = random_stream(world.seed, world.world_offset + w, episode, 0, i, PURPOSE_SPAWN)
     if slot_type(world, i) == PREY:
         if i < world.prey_count:
             pos = uniform_position(world, rng, 20.0)
@@ -99,3 +95,23 @@ def spawn_episode(
         age[w, i] = 0
         replication_age[w, i] = 0
         starvation[w, i] = 0
+
+
+@wp.kernel
+def spawn_episode(
+    world: WorldParams,
+    episode: wp.array(dtype=wp.int32),
+    alive: wp.array2d(dtype=wp.bool),
+    position: wp.array2d(dtype=wp.vec2),
+    velocity: wp.array2d(dtype=wp.vec2),
+    acceleration: wp.array2d(dtype=wp.vec2),
+    heading: wp.array2d(dtype=wp.vec2),
+    age: wp.array2d(dtype=wp.int32),
+    replication_age: wp.array2d(dtype=wp.int32),
+    starvation: wp.array2d(dtype=wp.int32),
+):
+    """Initial state of every world's episode (`spawn_slot`); auto-reset inside a step goes through
+    `population.close_ended_episodes`."""
+    w, i = wp.tid()
+    spawn_slot(world, w, i, episode[w], alive, position, velocity, acceleration, heading, age, replication_age,
+               starvation)

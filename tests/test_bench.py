@@ -54,12 +54,13 @@ def test_byte_model_counts_every_stage():
         assert model["stages"]["motion"]["write"] == pytest.approx(4 * 8 + 4 + 3 + 4 / cfg.capacity)
     assert gpu["stages"]["observations"] == cpu["stages"]["observations"]
     # Small worlds are ranked per slot on a GPU; large ones take the radix sort, which moves more
-    # than ranking or the CPU's counting sort.
+    # than ranking, the more so the more key bits it sorts.
     assert gpu["grid_path"] == "rank per slot (CUDA)" and cpu["grid_path"] == "counting sort (CPU)"
     large = bench.density_config(10_000)
     radix = step_byte_model(large, cuda=True)
     assert radix["grid_path"] == "radix sort (CUDA)"
-    assert radix["stages"]["grid"]["read"] > step_byte_model(large, cuda=False)["stages"]["grid"]["read"]
+    many = step_byte_model(large, cuda=True, worlds=4096)
+    assert many["stages"]["grid"]["read"] > radix["stages"]["grid"]["read"]
     assert radix["stages"]["grid"]["read"] > gpu["stages"]["grid"]["read"]
     # More grid cells per agent clear more cell ranges; reproduction reads the prey's ages.
     assert step_byte_model(cfg, (20, 20))["total"] > step_byte_model(cfg, (5, 5))["total"]
@@ -118,6 +119,100 @@ def test_tiny_sweep_writes_json_and_figures(tmp_path):
         (tmp_path / name).unlink()
     assert sorted(f.name for f in bench.replot(path)) == names
     assert all((tmp_path / name).exists() for name in names)
+
+
+def test_sweep_points_load_series():
+    base = dict(agents=[16, 64, 100, 300, 1000], worlds=[1, 4])
+    assert [s for s, _, _ in bench.sweep_points(BenchSettings(**base))] == ["agents"] * 5 + ["worlds"] * 2
+    points = bench.sweep_points(BenchSettings(**base, load_agents=250))
+    load = [(cfg.capacity, worlds) for series, cfg, worlds in points if series == "load"]
+    # Worlds of N agents hold about 250 agents in all; N > 250 is left out.
+    assert load == [(16, round(250 / 16)), (64, round(250 / 64)), (100, round(250 / 100))] == [(16, 16), (64, 4),
+                                                                                              (100, 2)]
+    assert [s for s, _, _ in points] == ["agents"] * 5 + ["worlds"] * 2 + ["load"] * 3
+    for series, cfg, _ in points:  # the load series' worlds are the agents series' (default density)
+        if series == "load":
+            ref = bench.density_config(cfg.capacity)
+            assert (cfg.prey_count, cfg.predator_count, cfg.width) == (ref.prey_count, ref.predator_count, ref.width)
+    # At least one world: N = L and N just below L both give one world.
+    one = bench.sweep_points(BenchSettings(agents=[16, 64, 100], worlds=[1], load_agents=100))
+    assert [(cfg.capacity, w) for s, cfg, w in one if s == "load"] == [(16, 6), (64, 2), (100, 1)]
+    assert bench.load_worlds(99, 100) == 1 and bench.load_worlds(1000, 100) == 1
+    # A load below every N: no load points.
+    assert not [s for s, _, _ in bench.sweep_points(BenchSettings(agents=[16], worlds=[1], load_agents=8)) if s == "load"]
+    with pytest.raises(ValueError):
+        BenchSettings(agents=[16], worlds=[1], load_agents=0)
+    # The command line's --load-agents (default off).
+    import argparse
+
+    parser = argparse.ArgumentParser()
+    bench.add_arguments(parser)
+    assert bench.settings_from_args(parser.parse_args([])).load_agents is None
+    assert bench.settings_from_args(parser.parse_args(["--load-agents", "4000000"])).load_agents == 4_000_000
+
+
+def test_per_agent_time_ratio_summary():
+    def pt(series, n, ns, worlds=1, status="ok"):
+        return {"series": series, "worlds": worlds, "agents_per_world": n, "agents": worlds * n, "status": status,
+                "ns_per_agent_step": ns, "agent_steps_per_s": 1e9 / ns}
+
+    points = ([pt("agents", n, ns) for n, ns in ((256, 90.0), (1024, 40.0), (4096, 12.0), (65536, 10.0))]
+              + [pt("worlds", 17, ns, w) for w, ns in ((1, 300.0), (16, 30.0))]
+              + [pt("load", n, ns, 4096 // n) for n, ns in ((16, 20.0), (512, 9.0), (1000, 8.0), (2048, 11.0),
+                                                             (4096, 10.0))]
+              + [pt("load", 8192, 1.0, status="skipped")])
+    s = bench.summary(points, {}, {})
+    # Agents: from 1024 (the nearest world >= 1000) to 65536; max / min over 1024, 4096, 65536.
+    assert s["agents_per_agent_time_ratio"] == {"agents_per_world": [1024, 65536], "worlds": [1, 1],
+                                                "ns_per_agent_step": [40.0, 10.0], "ratio": 4.0, "points": 3}
+    # Load: from 1000 exactly to 4096 (the skipped 8192 does not count); the peak is in between.
+    assert s["load_per_agent_time_ratio"] == {"agents_per_world": [1000, 4096], "worlds": [4, 1],
+                                              "ns_per_agent_step": [8.0, 10.0], "ratio": 11.0 / 8.0, "points": 3}
+    assert "worlds_per_agent_time_ratio" not in s  # 17 agents per world: no world of 1000
+    # The existing keys stay as they were.
+    assert s["agents_ns_per_agent_first_last"] == [90.0, 10.0] and s["worlds_ns_per_agent_first_last"] == [300.0, 30.0]
+    assert s["best"]["agents_per_world"] == 1000 and s["best"]["series"] == "load"
+    # The only world >= 1000 is the largest: nothing to compare.
+    assert "agents_per_agent_time_ratio" not in bench.summary(points[:1] + points[-2:-1], {}, {})
+    assert bench.per_agent_time_ratio(points, "agents", 100_000) is None
+    assert bench.per_agent_time_ratio(points, "agents", 16)["agents_per_world"] == [256, 65536]
+
+
+def test_tiny_load_sweep(tmp_path):
+    result = run_bench(tiny(tmp_path, agents="16,64", worlds=[1], load_agents=128, seconds=0.01, repeats=1,
+                            warmup_steps=1, stage_repeats=1, heuristics=False))
+    points = {(p["series"], p["worlds"], p["agents_per_world"]): p for p in result["points"]}
+    assert set(points) == {("agents", 1, 16), ("agents", 1, 64), ("worlds", 1, 17), ("load", 8, 16), ("load", 2, 64)}
+    load = [p for p in result["points"] if p["series"] == "load"]
+    assert [(p["worlds"], p["agents_per_world"], p["agents"]) for p in load] == [(8, 16, 128), (2, 64, 128)]
+    for p in load:
+        assert p["status"] == "ok", p
+        assert p["ns_per_agent_step"] == pytest.approx(1e9 / p["agent_steps_per_s"])
+        assert p["prey_per_world"] + p["predators_per_world"] == p["agents_per_world"]
+    data = json.loads((tmp_path / "scaling_cpu.json").read_text())
+    assert data["settings"]["load_agents"] == 128
+    # No world of 1000 agents: no ratio at the default threshold; from 16 agents per world, the
+    # ratio spans both load points.
+    assert "load_per_agent_time_ratio" not in result["summary"]
+    assert result["summary"]["load_ns_per_agent_first_last"] == [p["ns_per_agent_step"] for p in load]
+    s = bench.summary(result["points"], {}, {}, from_agents_per_world=16)
+    ns = [p["ns_per_agent_step"] for p in load]
+    assert s["load_per_agent_time_ratio"] == {"agents_per_world": [16, 64], "worlds": [8, 2],
+                                              "ns_per_agent_step": ns, "ratio": pytest.approx(max(ns) / min(ns)),
+                                              "points": 2}
+    assert s["load_per_agent_time_ratio"]["ratio"] >= 1.0
+    # The table prints the load rows, the load and the ratio lines.
+    table = bench.format_table({**result, "summary": s})
+    rows = [line for line in table.splitlines() if line.startswith("load   ")]
+    assert len(rows) == 2 and "8 x 16" in rows[0] and "2 x 64" in rows[1]
+    assert "~128 agents in flight" in table
+    assert "per-agent time flatness, load series: 16 -> 64 agents per world" in table
+    assert "per-agent time flatness" not in bench.format_table(result)
+    # The figures include the load series (a third stages panel).
+    names = sorted(Path(f).name for f in data["figures"])
+    assert names == ["scaling_cpu_per_agent.png", "scaling_cpu_stages.png", "scaling_cpu_throughput.png"]
+    for name in names:
+        assert (tmp_path / name).read_bytes().startswith(PNG_MAGIC)
 
 
 def test_failures_and_memory_guard_skip_points(tmp_path, monkeypatch):

@@ -6,7 +6,6 @@ with numbers computed here in plain Python.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
