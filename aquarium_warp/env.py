@@ -27,7 +27,9 @@ TYPES = ("prey", "predator")
 # Below this many worlds per thread, the thread hand-off costs more than the second core gives.
 MIN_WORLDS_PER_THREAD = 32
 OBSERVATION_BLOCK = 128  # threads per block of the GPU observation kernel
-SINGLE_CELL_CAPACITY = 64  # worlds of at most this many slots are searched as one cell
+# Worlds of at most this many slots are searched as one cell (H200, ~1M agents in flight: worlds of 64
+# stepped 14% faster with cells than as one cell).
+SINGLE_CELL_CAPACITY = 32
 _warp_ready = False
 
 
