@@ -1037,8 +1037,7 @@ def plot_results(result: dict, stem) -> list[Path]:
     load_pts = [p for p in ok if p["series"] == "load"]
     if load_pts:
         load = (result.get("settings") or {}).get("load_agents") or round(statistics.median(p["agents"] for p in load_pts))
-        series["load"] = (f"load: ~{load:,} agents in flight (round({load:,} / N) worlds of N agents; "
-                          "x: N agents per world)", "tab:purple", "D")
+        series["load"] = (f"aquarium-warp: ~{load:,} agents in flight as worlds of N (x = N)", "tab:purple", "D")
     x_key = {"load": "agents_per_world"}  # the other series: agents in flight
     vmas = [v for v in result["peers"]["vmas"].get("points", []) if v.get("status") == "ok"]
     original = result["peers"]["original"]
@@ -1081,7 +1080,7 @@ def plot_results(result: dict, stem) -> list[Path]:
         ax.legend(fontsize=7.5, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=2, frameon=False)
         fig.tight_layout()
         path = stem.parent / f"{stem.name}_{kind}.png"
-        fig.savefig(path, dpi=110)
+        fig.savefig(path, dpi=110, bbox_inches="tight")
         plt.close(fig)
         paths.append(path)
 
@@ -1117,7 +1116,7 @@ def plot_results(result: dict, stem) -> list[Path]:
         fig.suptitle(f"Where the step's time goes on {where}\n{stamp}", fontsize=10)
         fig.tight_layout(rect=(0, 0.12, 1, 0.93))
         path = stem.parent / f"{stem.name}_stages.png"
-        fig.savefig(path, dpi=110)
+        fig.savefig(path, dpi=110, bbox_inches="tight")
         plt.close(fig)
         paths.append(path)
     return paths
