@@ -140,7 +140,7 @@ class WorldShard:
         ]
 
     def _observe_launch(self, type_name: str):
-        """The observation kernel over every row of one observer type (None if the type has no slots)."""
+        """The observation kernel over every row of one observer type (None if the type has no agents)."""
         s, W = self.s, self.num_worlds
         kernel = self.observe_kernels[type_name]
         per_world = self.cfg.prey_capacity if type_name == "prey" else self.cfg.predator_count
