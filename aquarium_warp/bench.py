@@ -236,15 +236,19 @@ def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True,
 
     # Grid build (cell lists of the final positions), once per step: captures search the cell lists
     # of the start-of-step positions, which are the last step's.
+    whole_world = (dims_x, dims_y) == (1, 1)
     ranked = cuda and C <= RANK_SORT_MAX_CAPACITY
-    if ranked:
+    if whole_world:
+        # One cell per world: the lists are fixed and the searches read the state itself.
+        build = []
+    elif ranked:
         # cell_start.zero_ and cell_end.zero_; rank_into_cells_per_world: per slot read alive,
         # position, velocity, heading (the rest of its world is read through the cache); write the
-        # sorted agent index, position, speed, heading, the slot's entry and its cell's range (the
+        # sorted agent index, position, velocity, heading, the slot's entry and its cell's range (the
         # first agent of a cell).
         build = [{"read": 0.0, "write": 2 * I32 * cells},
                  {"read": BOOL + 3 * VEC2,
-                  "write": I32 + VEC2 + F32 + VEC2 + I32 + 2 * I32 * min(cells, 1.0)}]
+                  "write": I32 + 3 * VEC2 + I32 + 2 * I32 * min(cells, 1.0)}]
     elif cuda:
         # compute_cell_keys: read position, alive; write key, agent index.
         keys = {"read": VEC2 + BOOL, "write": I32 + I32}
@@ -255,21 +259,21 @@ def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True,
         # cell_start.zero_ and cell_end.zero_: two int32 per cell.
         clear = {"read": 0.0, "write": 2 * I32 * cells}
         # find_cell_ranges: read sorted agent index and key (neighbouring keys hit cache), position,
-        # velocity, heading; write sorted position, speed, heading, the slot's entry, and the start
+        # velocity, heading; write sorted position, velocity, heading, the slot's entry, and the start
         # and end of each occupied cell (at most one cell per agent).
         ranges = {"read": I32 + I32 + 3 * VEC2,
-                  "write": VEC2 + F32 + VEC2 + I32 + 2 * I32 * min(cells, 1.0)}
+                  "write": 3 * VEC2 + I32 + 2 * I32 * min(cells, 1.0)}
         build = [keys, sort, clear, ranges]
     else:
         # sort_into_cells_per_world (the CPU's counting sort): clear the counts (a pass over cells);
         # per agent read alive and position, write its key and count it (read-modify-write of the
         # cell's count); a prefix sum over the cells (read count, write start and end); per agent
         # read the key, position, velocity, heading and the cell's cursor, write the sorted agent
-        # index, position, speed, heading, the slot's entry and the cursor.
+        # index, position, velocity, heading, the slot's entry and the cursor.
         build = [{"read": 4 * cells, "write": 4 * cells},
                  {"read": BOOL + VEC2 + I32, "write": I32 + I32},
                  {"read": 4 * cells, "write": 8 * cells},
-                 {"read": I32 + 3 * VEC2 + I32, "write": I32 + VEC2 + F32 + VEC2 + I32 + I32}]
+                 {"read": I32 + 3 * VEC2 + I32, "write": I32 + 3 * VEC2 + I32 + I32}]
     stages["grid"] = {"read": sum(b["read"] for b in build), "write": sum(b["write"] for b in build)}
 
     # Captures and starvation. detect_captures, one thread per predator: read alive and position
@@ -293,19 +297,28 @@ def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True,
         # reproduce_prey, one thread per world: reads alive, age and replication age of each prey slot.
         stages["population"]["read"] += prey * (BOOL + 2 * I32)
 
-    # Observations: the observation kernel, one thread per slot: read the slot's sorted entry (or the
-    # entry's slot), alive, its sorted position, heading and speed; write its observation row
+    # Observations: the observation kernel, one thread per slot: read the slot's sorted entry (none
+    # with whole-world lists), alive, its sorted position, heading and velocity; write its observation row
     # (float32), the mask and slot of each neighbour slot, and the contact partner and offset.
     obs_floats = prey * cfg.prey.observation_size + pred * cfg.predator.observation_size
     slots = (prey * (cfg.prey.predator_slots + cfg.prey.prey_slots)
              + pred * (cfg.predator.predator_slots + cfg.predator.prey_slots))
-    stages["observations"] = {"read": I32 + BOOL + VEC2 + VEC2 + F32,
+    stages["observations"] = {"read": (0 if whole_world else I32) + BOOL + 3 * VEC2,
                               "write": F32 * obs_floats + slots * (BOOL + I32) + I32 + VEC2}
     read = sum(s["read"] for s in stages.values())
     write = sum(s["write"] for s in stages.values())
     return {"stages": stages, "read": read, "write": write, "total": read + write,
             "cells_per_world": dims_x * dims_y,
-            "grid_path": ("rank per slot (CUDA)" if ranked else "radix sort (CUDA)") if cuda else "counting sort (CPU)"}
+            "grid_path": grid_path(whole_world, ranked, cuda)}
+
+
+def grid_path(whole_world: bool, ranked: bool, cuda: bool) -> str:
+    """How the step's cell lists are made (the byte model's name for it)."""
+    if whole_world:
+        return "whole-world lists (no build)"
+    if cuda:
+        return "rank per slot (CUDA)" if ranked else "radix sort (CUDA)"
+    return "counting sort (CPU)"
 
 
 # --------------------------------------------------------------------------------------- machine
@@ -455,8 +468,11 @@ def array_bytes(env) -> int:
 
     total = sum(size(a) for a in vars(env.state).values() if isinstance(a, wp.array))
     for shard in env.shards:
-        total += sum(size(getattr(shard.grid, f)) for f in ("cell_start", "cell_end", "key", "agent",
-                                                              "position", "speed", "heading", "entry"))
+        g = shard.grid
+        owned = ("cell_start", "cell_end", "key", "agent", "entry")
+        if not g.whole_world:  # whole-world lists view the state's own position, velocity and heading
+            owned += ("position", "velocity", "heading")
+        total += sum(size(getattr(g, f)) for f in owned)
     return total
 
 

@@ -27,8 +27,8 @@ TYPES = ("prey", "predator")
 # Below this many worlds per thread, the thread hand-off costs more than the second core gives.
 MIN_WORLDS_PER_THREAD = 32
 OBSERVATION_BLOCK = 128  # threads per block of the GPU observation kernel
-# Worlds of at most this many slots are searched as one cell (H200, ~1M agents in flight: worlds of 64
-# stepped 14% faster with cells than as one cell).
+# Worlds of at most this many slots are one cell, whose fixed whole-world lists need no build per step
+# (H200, ~1M agents in flight: worlds of 64 stepped 14% faster with cells than as one cell).
 SINGLE_CELL_CAPACITY = 32
 _warp_ready = False
 
@@ -82,7 +82,7 @@ def _cpu_threads(cpu_threads) -> int:
 
 def _grid_dims(cfg: AquariumConfig) -> tuple[int, int]:
     """Cells per axis. A world of at most SINGLE_CELL_CAPACITY slots is one cell: checking every
-    agent of the world costs less than visiting the cells around each agent. Otherwise cells at least
+    agent of the world costs less than building cell lists and visiting the cells around each agent. Otherwise cells at least
     slightly wider than the typical query radius let most queries finish within one ring, and at
     most about one cell per agent slot keeps the cell table small (at the default density that is
     about 190 px: on an H200, one world of 1M agents stepped 9% faster than with 101 px cells)."""

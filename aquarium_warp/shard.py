@@ -11,6 +11,7 @@ import functools
 import math
 from types import SimpleNamespace
 
+import numpy as np
 import warp as wp
 
 from .config import AquariumConfig
@@ -56,7 +57,9 @@ def sort_key_bits(num_worlds: int, cells_per_world: int) -> int:
     return max(1, (num_worlds * cells_per_world).bit_length())
 
 
-def cell_lists(cfg: AquariumConfig, num_worlds: int, dims: tuple[int, int], device) -> grid_kernels.CellLists:
+def cell_lists(cfg: AquariumConfig, num_worlds: int, dims: tuple[int, int], device, state=None) -> grid_kernels.CellLists:
+    """Cell lists of `num_worlds` worlds of `dims` cells. Worlds of one cell get whole-world lists over
+    the `state` arrays (views of `[num_worlds, capacity]` arrays), which never need a build."""
     dims_x, dims_y = dims
     n = num_worlds * cfg.capacity
     g = grid_kernels.CellLists()
@@ -69,14 +72,24 @@ def cell_lists(cfg: AquariumConfig, num_worlds: int, dims: tuple[int, int], devi
     g.reach = min(cfg.width / dims_x, cfg.height / dims_y)
     g.lo_x, g.hi_x = (dims_x - 1) // 2, dims_x // 2
     g.lo_y, g.hi_y = (dims_y - 1) // 2, dims_y // 2
+    g.whole_world = int(state is not None and dims == (1, 1))
+    if g.whole_world:
+        first = np.arange(num_worlds, dtype=np.int32) * cfg.capacity
+        g.cell_start = wp.array(first, dtype=int, device=device)
+        g.cell_end = wp.array(first + cfg.capacity, dtype=int, device=device)
+        g.key = g.agent = g.entry = wp.empty(0, dtype=int, device=device)
+        g.position, g.velocity, g.heading, g.alive = (state.position.flatten(), state.velocity.flatten(),
+                                                      state.heading.flatten(), state.alive.flatten())
+        return g
     g.cell_start = wp.zeros(num_worlds * g.cells_per_world, dtype=int, device=device)
     g.cell_end = wp.zeros(num_worlds * g.cells_per_world, dtype=int, device=device)
     g.key = wp.zeros(2 * n, dtype=int, device=device)
     g.agent = wp.zeros(2 * n, dtype=int, device=device)
     g.position = wp.zeros(n, dtype=wp.vec2, device=device)
-    g.speed = wp.zeros(n, dtype=float, device=device)
+    g.velocity = wp.zeros(n, dtype=wp.vec2, device=device)
     g.heading = wp.zeros(n, dtype=wp.vec2, device=device)
     g.entry = wp.zeros(n, dtype=int, device=device)
+    g.alive = wp.empty(0, dtype=wp.bool, device=device)
     return g
 
 
@@ -90,13 +103,13 @@ class WorldShard:
         self.num_worlds = W = w1 - w0
         self.auto_reset = auto_reset
         self.world = world_params(cfg, seed_key, w0, auto_reset)
-        self.grid = cell_lists(cfg, W, dims, device)
         self.types = types
         self.action_direction = action_direction
         self.observe_kernels = observe_kernels  # {"prey": kernel, "predator": kernel}
         self._views = []  # arrays viewing state memory with another dtype (kept alive with the shard)
         self.s = SimpleNamespace(**{name: value[w0:w1] for name, value in vars(state).items()
                                     if isinstance(value, wp.array)})
+        self.grid = cell_lists(cfg, W, dims, device, self.s)
         self.programs = {"step": self._step_program(), "observe": self._observe_program(),
                          "reset": self._reset_program()}
 
@@ -118,15 +131,17 @@ class WorldShard:
         """Cell lists of the current positions (no allocation, no host sync)."""
         s, g, W, C = self.s, self.grid, self.num_worlds, self.cfg.capacity
         count = W * C
+        if g.whole_world:
+            return []  # the lists are fixed and read the state itself
         if not wp.get_device(self.device).is_cuda:
             return [self._launch(grid_kernels.sort_into_cells_per_world, W,
                                  [self.world, g, s.position, s.velocity, s.heading, s.alive],
-                                 [g.key, g.cell_start, g.cell_end, g.agent, g.position, g.speed, g.heading])]
+                                 [g.key, g.cell_start, g.cell_end, g.agent, g.position, g.velocity, g.heading])]
         if C <= RANK_SORT_MAX_CAPACITY:
             return [g.cell_start.zero_, g.cell_end.zero_,
                     self._launch(grid_kernels.rank_into_cells_per_world, (W, C),
                                  [self.world, g, s.position, s.velocity, s.heading, s.alive],
-                                 [g.cell_start, g.cell_end, g.agent, g.position, g.speed, g.heading])]
+                                 [g.cell_start, g.cell_end, g.agent, g.position, g.velocity, g.heading])]
         return [
             self._launch(grid_kernels.compute_cell_keys, (W, C), [self.world, g, s.position, s.alive, W],
                          [g.key, g.agent]),
@@ -136,7 +151,7 @@ class WorldShard:
             g.cell_end.zero_,
             self._launch(grid_kernels.find_cell_ranges, count,
                          [self.world, g, s.position, s.velocity, s.heading, count, W * g.cells_per_world],
-                         [g.cell_start, g.cell_end, g.position, g.speed, g.heading]),
+                         [g.cell_start, g.cell_end, g.position, g.velocity, g.heading]),
         ]
 
     def _observe_launch(self, type_name: str):

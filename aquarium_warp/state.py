@@ -80,5 +80,5 @@ def bytes_per_slot(prey_obs_size: int, mask_size: int) -> int:
     """Device bytes per agent slot: state, outputs, cell lists and observations (an estimate)."""
     state = 4 * 8 + 1 + 3 * 4  # vec2 fields, alive, int fields
     outputs = 4 + 1 + 1 + 1 + 4 + 4 + 4  # reward, flags, share count, episode return, action
-    grid = 2 * 4 + 2 * 4 + 8 + 4  # keys and agents (with sort scratch), sorted position and speed
+    grid = 2 * 4 + 2 * 4 + 3 * 8 + 4  # keys, agents (with sort scratch), sorted position, velocity, heading, entry
     return state + outputs + grid + 4 * prey_obs_size + mask_size

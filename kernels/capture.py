@@ -16,7 +16,8 @@ cell-list build per step.
 import warp as wp
 
 from .common import PREDATOR, PREY, PURPOSE_RESPAWN, AgentType, WorldParams, random_stream, slot_type, torus_displacement
-from .grid import CellLists, cell_coords, rings_for_radius, square_cell, square_cell_count, square_extent
+from .grid import (CellLists, cell_coords, listed_slot, rings_for_radius, square_cell, square_cell_count,
+                   square_extent)
 from .spawn import make_fresh_prey, uniform_position
 
 wp.set_module_options({"enable_backward": False})
@@ -53,8 +54,8 @@ def detect_captures(
     for q in range(square_cell_count(box)):
         c = square_cell(grid, w, center, box, q)
         for k2 in range(grid.cell_start[c], grid.cell_end[c]):
-            j = grid.agent[k2] - base
-            if slot_type(world, j) == PREY:
+            j = listed_slot(grid, k2, base)
+            if j >= 0 and slot_type(world, j) == PREY:
                 d = torus_displacement(world, pos, position[w, j])
                 if wp.dot(d, d) < contact * contact:
                     captured[w, j] = True
@@ -90,8 +91,8 @@ def count_capture_sharers(
     for q in range(square_cell_count(box)):
         c = square_cell(grid, w, center, box, q)
         for k2 in range(grid.cell_start[c], grid.cell_end[c]):
-            j = grid.agent[k2] - base
-            if slot_type(world, j) == PREDATOR:
+            j = listed_slot(grid, k2, base)
+            if j >= 0 and slot_type(world, j) == PREDATOR:
                 d = torus_displacement(world, pos, position[w, j])
                 d2 = wp.dot(d, d)
                 if d2 < contact * contact or d2 < world.catch_share_radius * world.catch_share_radius:
@@ -132,8 +133,8 @@ def share_capture_rewards(
     for q in range(square_cell_count(box)):
         c = square_cell(grid, w, center, box, q)
         for k2 in range(grid.cell_start[c], grid.cell_end[c]):
-            j = grid.agent[k2] - base
-            if slot_type(world, j) == PREY:
+            j = listed_slot(grid, k2, base)
+            if j >= 0 and slot_type(world, j) == PREY:
                 if captured[w, j]:
                     d = torus_displacement(world, pos, position[w, j])
                     d2 = wp.dot(d, d)

@@ -4,8 +4,11 @@ Each world is tiled by `dims_x x dims_y` cells whose size divides the world exac
 wrap modulo the dims and the grid is a torus like the world. Live agents are sorted by the key
 `world * cells_per_world + cell` with a stable radix sort, so the order (and every result derived
 from it) is deterministic on CPU and GPU; dead slots get a key past the last cell and sort last.
-Positions, speeds and headings are gathered into that order for coalesced neighbour reads, and
-`entry` maps each slot to its sorted entry. Small worlds skip the radix sort, with the same order
+Positions, velocities and headings are gathered into that order for coalesced neighbour reads, and
+`entry` maps each slot to its sorted entry. A world that is one cell needs no build at all: its
+lists are "whole-world" lists (`whole_world`), fixed at construction, in which cell w holds every
+slot of world w in slot order, dead ones included (`listed_slot` skips those), and the gathered
+arrays are the state's own arrays. Other small worlds skip the radix sort, with the same order
 for live agents: on the CPU a counting sort per world (`sort_into_cells_per_world`, one thread per
 world; on an H200 that was latency-bound and slower than the radix sort for 65,536 worlds of 17),
 on a GPU a rank per slot counted over its world (`rank_into_cells_per_world`, one thread per slot).
@@ -27,11 +30,16 @@ wp.set_module_options({"enable_backward": False})
 
 @wp.struct
 class CellLists:
-    """Cell lists of all worlds. N = num_worlds * capacity; arrays indexed by sorted entry k."""
+    """Cell lists of all worlds. N = num_worlds * capacity; arrays indexed by sorted entry k.
+
+    With `whole_world` = 1 each world is one cell listing all its slots (entry k = flat slot index,
+    dead slots included): `key`, `agent` and `entry` are empty, and `position`, `velocity`, `heading`
+    and `alive` are flat views of the state's arrays."""
 
     dims_x: int
     dims_y: int
     cells_per_world: int
+    whole_world: int  # 1: each world is one cell of all its slots, nothing is built (see above)
     cell_width: float  # px
     cell_height: float
     inv_cell_width: float  # 1/px
@@ -47,9 +55,29 @@ class CellLists:
     key: wp.array(dtype=int)  # [2N] sort keys (second half is radix-sort scratch)
     agent: wp.array(dtype=int)  # [2N] flat slot index world * capacity + slot, in sorted order
     position: wp.array(dtype=wp.vec2)  # [N] px, gathered in sorted order
-    speed: wp.array(dtype=float)  # [N] px/step, gathered in sorted order
+    velocity: wp.array(dtype=wp.vec2)  # [N] px/step, gathered in sorted order
     heading: wp.array(dtype=wp.vec2)  # [N] unit vectors, gathered in sorted order
     entry: wp.array(dtype=int)  # [N] sorted entry k of each flat slot index (inverse of `agent`)
+    alive: wp.array(dtype=wp.bool)  # [N] whole-world lists only: the state's alive flags (else empty)
+
+
+@wp.func
+def listed_slot(grid: CellLists, k: int, base: int) -> int:
+    """Slot (within its world, whose first flat slot index is `base`) of sorted entry k, or -1 for a
+    dead slot, which only whole-world lists hold."""
+    if grid.whole_world != 0:
+        if grid.alive[k]:
+            return k - base
+        return -1
+    return grid.agent[k] - base
+
+
+@wp.func
+def entry_of(grid: CellLists, flat_slot: int) -> int:
+    """Sorted entry of a flat slot index (world * capacity + slot) of a live agent."""
+    if grid.whole_world != 0:
+        return flat_slot
+    return grid.entry[flat_slot]
 
 
 @wp.func
@@ -207,7 +235,7 @@ def find_cell_ranges(
     cell_start: wp.array(dtype=int),
     cell_end: wp.array(dtype=int),
     sorted_position: wp.array(dtype=wp.vec2),
-    sorted_speed: wp.array(dtype=float),
+    sorted_velocity: wp.array(dtype=wp.vec2),
     sorted_heading: wp.array(dtype=wp.vec2),
 ):
     k = wp.tid()
@@ -215,7 +243,7 @@ def find_cell_ranges(
     w = idx // world.capacity
     i = idx - w * world.capacity
     sorted_position[k] = position[w, i]
-    sorted_speed[k] = wp.length(velocity[w, i])
+    sorted_velocity[k] = velocity[w, i]
     sorted_heading[k] = heading[w, i]
     grid.entry[idx] = k
     key = grid.key[k]
@@ -239,7 +267,7 @@ def rank_into_cells_per_world(
     cell_end: wp.array(dtype=int),
     agent: wp.array(dtype=int),
     sorted_position: wp.array(dtype=wp.vec2),
-    sorted_speed: wp.array(dtype=float),
+    sorted_velocity: wp.array(dtype=wp.vec2),
     sorted_heading: wp.array(dtype=wp.vec2),
 ):
     """The cell lists of small worlds on a GPU, one thread per slot: a slot's entry is its rank by
@@ -280,7 +308,7 @@ def rank_into_cells_per_world(
         at = first + live + dead_ahead
     agent[at] = k
     sorted_position[at] = position[w, i]
-    sorted_speed[at] = wp.length(velocity[w, i])
+    sorted_velocity[at] = velocity[w, i]
     sorted_heading[at] = heading[w, i]
     grid.entry[k] = at
 
@@ -298,7 +326,7 @@ def sort_into_cells_per_world(
     cell_end: wp.array(dtype=int),
     agent: wp.array(dtype=int),
     sorted_position: wp.array(dtype=wp.vec2),
-    sorted_speed: wp.array(dtype=float),
+    sorted_velocity: wp.array(dtype=wp.vec2),
     sorted_heading: wp.array(dtype=wp.vec2),
 ):
     """The cell lists of one world by a counting sort in one thread (the CPU path: Warp runs CPU
@@ -333,6 +361,6 @@ def sort_into_cells_per_world(
             dead += 1
         agent[at] = k
         sorted_position[at] = position[w, i]
-        sorted_speed[at] = wp.length(velocity[w, i])
+        sorted_velocity[at] = velocity[w, i]
         sorted_heading[at] = heading[w, i]
         grid.entry[k] = at

@@ -14,8 +14,8 @@ so actions are reproducible and equal on CPU and GPU, and do not depend on how w
 import warp as wp
 
 from .common import PURPOSE_POLICY, AgentType, WorldParams, mix32, random_stream, slot_type, torus_displacement
-from .grid import (CellLists, cell_coords, last_ring, offset_cell, ring_offset, ring_side_length, ring_sides,
-                   searched_radius)
+from .grid import (CellLists, cell_coords, last_ring, listed_slot, offset_cell, ring_offset, ring_side_length,
+                   ring_sides, searched_radius)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -122,8 +122,8 @@ def heuristic_policy(
                 c = offset_cell(grid, w, center, ring_offset(r, side, u))
                 if c >= 0:
                     for k2 in range(grid.cell_start[c], grid.cell_end[c]):
-                        j = grid.agent[k2] - base
-                        if slot_type(world, j) == target_type:
+                        j = listed_slot(grid, k2, base)
+                        if j >= 0 and slot_type(world, j) == target_type:
                             d = torus_displacement(world, pos, grid.position[k2])
                             d2 = wp.dot(d, d)
                             if precedes(d2, j, any_d2, any_slot):

@@ -25,8 +25,8 @@ Launch order per shard (see `aquarium_warp.metrics.SwarmMetrics`): zero the inte
 import warp as wp
 
 from .common import PREY, WorldParams, slot_type, torus_displacement
-from .grid import (CellLists, cell_coords, last_ring, offset_cell, ring_offset, ring_side_length, ring_sides,
-                   rings_for_radius, searched_radius, square_cell, square_cell_count, square_extent)
+from .grid import (CellLists, cell_coords, last_ring, listed_slot, offset_cell, ring_offset, ring_side_length,
+                   ring_sides, rings_for_radius, searched_radius, square_cell, square_cell_count, square_extent)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -153,11 +153,11 @@ def prey_distances(
                 c = offset_cell(grid, w, center, ring_offset(r, side, u))
                 if c >= 0:
                     for k2 in range(grid.cell_start[c], grid.cell_end[c]):
-                        j = grid.agent[k2] - base
-                        if j != i:
+                        j = listed_slot(grid, k2, base)
+                        if j >= 0 and j != i:
                             d = torus_displacement(world, pos, grid.position[k2])
                             d2 = wp.dot(d, d)
-                            if slot_type(world, j) == PREY:
+                            if j >= 0 and slot_type(world, j) == PREY:
                                 if not prey_found or d2 < prey_d2:
                                     prey_d2 = d2
                                     prey_found = True
@@ -215,8 +215,8 @@ def link_groups(
     for q in range(square_cell_count(box)):
         c = square_cell(grid, w, center, box, q)
         for k2 in range(grid.cell_start[c], grid.cell_end[c]):
-            j = grid.agent[k2] - base
-            if j > i and slot_type(world, j) == PREY:
+            j = listed_slot(grid, k2, base)
+            if j > i and slot_type(world, j) == PREY:  # j > i >= 0: a live slot
                 d = torus_displacement(world, pos, grid.position[k2])
                 if wp.dot(d, d) < link2:
                     unite(parent, forest, i, j)

@@ -22,8 +22,8 @@ import functools
 import warp as wp
 
 from .common import PREDATOR, PREY, AgentType, WorldParams, angle_value, slot_type, torus_displacement
-from .grid import (CellLists, cell_coords, cell_gap, last_ring, offset_cell, ring_offset, ring_side_length,
-                   ring_sides, rings_for_radius, searched_radius)
+from .grid import (CellLists, cell_coords, cell_gap, entry_of, last_ring, listed_slot, offset_cell, ring_offset,
+                   ring_side_length, ring_sides, rings_for_radius, searched_radius)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -120,7 +120,7 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int):
                     observed_slot[r, s] = -1
                 contact_partner[w, i] = -1
             else:
-                k = grid.entry[w * world.capacity + i]  # sorted entry
+                k = entry_of(grid, w * world.capacity + i)  # sorted entry
                 p = types[t]
                 pos = grid.position[k]
                 h = grid.heading[k]
@@ -159,9 +159,9 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int):
                             gap_y = cell_gap(o[1], inside_y, grid.cell_height, grid.dims_y)
                             if c >= 0 and gap_x * gap_x + gap_y * gap_y <= bound2:
                                 for k2 in range(grid.cell_start[c], grid.cell_end[c]):
-                                    j = grid.agent[k2] - base
-                                    jt = slot_type(world, j)
-                                    if k2 != k:
+                                    j = listed_slot(grid, k2, base)
+                                    if j >= 0 and k2 != k:
+                                        jt = slot_type(world, j)
                                         d = torus_displacement(world, pos, grid.position[k2])
                                         d2 = wp.dot(d, d)
                                         if jt == t and d2 < contact2:
@@ -228,14 +228,14 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int):
                 row[1] = scaled(pos[0] / world.width, signed)
                 row[2] = scaled(pos[1] / world.height, signed)
                 row[3] = scaled(angle_value(h), signed)
-                row[4] = scaled(wp.min(grid.speed[k] / p.max_speed, 1.0), signed)
+                row[4] = scaled(wp.min(wp.length(grid.velocity[k]) / p.max_speed, 1.0), signed)
                 for e in range(wp.static(slots)):
                     if kept_slot[e] != NO_SLOT:
                         jt = wp.where(e < predator_slots, PREDATOR, PREY)
                         k2 = kept_entry[e]
                         neighbour = neighbour_tuple(world, p, types[jt], jt, kept_d2[e],
                                                     torus_displacement(world, pos, grid.position[k2]),
-                                                    grid.position[k2], grid.speed[k2])
+                                                    grid.position[k2], wp.length(grid.velocity[k2]))
                         for q in range(6):
                             row[5 + 6 * e + q] = neighbour[q]
                         mask[r, e] = True

@@ -53,15 +53,23 @@ def test_byte_model_counts_every_stage():
         # per slot and the capture count per world.
         assert model["stages"]["motion"]["write"] == pytest.approx(4 * 8 + 4 + 3 + 4 / cfg.capacity)
     assert gpu["stages"]["observations"] == cpu["stages"]["observations"]
-    # Small worlds are ranked per slot on a GPU; large ones take the radix sort, which moves more
-    # than ranking, the more so the more key bits it sorts.
-    assert gpu["grid_path"] == "rank per slot (CUDA)" and cpu["grid_path"] == "counting sort (CPU)"
+    # A default world is one cell: its whole-world lists need no build on either device.
+    assert gpu["grid_path"] == cpu["grid_path"] == "whole-world lists (no build)"
+    assert gpu["stages"]["grid"] == cpu["stages"]["grid"] == {"read": 0, "write": 0}
+    # Small worlds of several cells are ranked per slot on a GPU; large ones take the radix sort,
+    # which moves more than ranking, the more so the more key bits it sorts.
+    ranked = step_byte_model(cfg, (3, 3), cuda=True)
+    assert ranked["grid_path"] == "rank per slot (CUDA)"
+    assert step_byte_model(cfg, (3, 3), cuda=False)["grid_path"] == "counting sort (CPU)"
+    assert ranked["stages"]["grid"]["write"] > 0
+    # Reading each slot's sorted entry is an observation read that whole-world lists do not need.
+    assert ranked["stages"]["observations"]["read"] == gpu["stages"]["observations"]["read"] + 4
     large = bench.density_config(10_000)
     radix = step_byte_model(large, cuda=True)
     assert radix["grid_path"] == "radix sort (CUDA)"
     many = step_byte_model(large, cuda=True, worlds=4096)
     assert many["stages"]["grid"]["read"] > radix["stages"]["grid"]["read"]
-    assert radix["stages"]["grid"]["read"] > gpu["stages"]["grid"]["read"]
+    assert radix["stages"]["grid"]["read"] > ranked["stages"]["grid"]["read"]
     # More grid cells per agent clear more cell ranges; reproduction reads the prey's ages.
     assert step_byte_model(cfg, (20, 20))["total"] > step_byte_model(cfg, (5, 5))["total"]
     assert (step_byte_model(AquariumConfig(prey_reproduction=True, max_prey=32))["stages"]["population"]["read"]
@@ -99,7 +107,8 @@ def test_tiny_sweep_writes_json_and_figures(tmp_path):
         for stage in bench.STAGES[1:]:
             assert p["stages_ms"][stage] == pytest.approx(
                 sum(c["ms"] for c in p["commands_ms"] if c["stage"] == stage))
-            assert p["stages_ms"][stage] > 0
+            # One-cell worlds have fixed whole-world cell lists: the step builds nothing.
+            assert (p["stages_ms"][stage] == 0) == (stage == "grid" and p["cells_per_world"] == 1)
         assert not [c for c in p["commands_ms"] if c["stage"] == "other"]
         assert p["heuristics_ms"] > 0
         assert p["memory"]["arrays_bytes"] > 0 and p["memory"]["device_bytes"] is None
