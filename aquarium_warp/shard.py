@@ -154,30 +154,44 @@ class WorldShard:
                          [g.cell_start, g.cell_end, g.position, g.velocity, g.heading]),
         ]
 
-    def _observe_launch(self, type_name: str):
-        """The observation kernel over every row of one observer type (None if the type has no agents)."""
-        s, W = self.s, self.num_worlds
-        kernel = self.observe_kernels[type_name]
-        per_world = self.cfg.prey_capacity if type_name == "prey" else self.cfg.predator_count
-        rows = W * per_world
-        if rows == 0:
-            return None
+    def _observation_outputs(self, type_name: str, kernel) -> list:
+        """One observer type's observation rows, masks and observed slots, as the kernel takes them."""
+        s = self.s
         obs = getattr(s, f"obs_{type_name}")
+        rows = obs.shape[0] * obs.shape[1]
         slots = obs.shape[2] // 6  # 5 + 6 * slots values per row
         # The [W, per_world, L] observations as [W * per_world] rows of L floats (same memory).
         obs_rows = wp.array(ptr=obs.ptr, dtype=kernel.row_type, shape=(rows,), device=obs.device)
         self._views.append(obs_rows)
-        block = kernel.block_dim
-        return self._launch_blocks(
-            kernel, (rows + block - 1) // block, block,
-            [self.world, self.types, self.grid, s.alive, TYPE_CODES[type_name], rows],
-            [obs_rows, getattr(s, f"mask_{type_name}").reshape((rows, slots)),
-             getattr(s, f"slot_{type_name}").reshape((rows, slots)), s.contact_partner, s.contact_offset])
+        return [obs_rows, getattr(s, f"mask_{type_name}").reshape((rows, slots)),
+                getattr(s, f"slot_{type_name}").reshape((rows, slots))]
+
+    def _observe_launches(self) -> list:
+        """MODEL.md step 10 (and the contact partners of the next step's step 3): one launch for both
+        observer types when one kernel serves both, else one per type."""
+        s, W, cfg = self.s, self.num_worlds, self.cfg
+        rows = {"prey": W * cfg.prey_capacity, "predator": W * cfg.predator_count}
+        kernels = self.observe_kernels
+        groups = [("prey", "predator")] if kernels["prey"] is kernels["predator"] else [("prey",), ("predator",)]
+        launches = []
+        for group in groups:
+            kernel, block = kernels[group[0]], kernels[group[0]].block_dim
+            first, second = group[0], group[1] if len(group) == 2 else None
+            first_blocks = (rows[first] + block - 1) // block
+            second_rows = rows[second] if second else 0
+            first_outputs = self._observation_outputs(first, kernel)
+            # A type alone passes its own outputs again for the (empty) second range.
+            second_outputs = self._observation_outputs(second, kernel) if second else first_outputs
+            launches.append(self._launch_blocks(
+                kernel, first_blocks + (second_rows + block - 1) // block, block,
+                [self.world, self.types, self.grid, s.alive, TYPE_CODES[first], rows[first], first_blocks,
+                 second_rows],
+                first_outputs + second_outputs + [s.contact_partner, s.contact_offset]))
+        return launches
 
     def _observe_program(self) -> list:
-        """MODEL.md step 10 (and the contact partners of the next step's step 3)."""
-        launches = [self._observe_launch(t) for t in ("prey", "predator")]
-        return self._build_grid_program() + [launch for launch in launches if launch is not None]
+        """Cell lists of the current state, then the observations of every agent."""
+        return self._build_grid_program() + self._observe_launches()
 
     def _spawn(self):
         s = self.s

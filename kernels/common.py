@@ -75,12 +75,10 @@ def slot_type(world: WorldParams, slot: int) -> int:
 
 @wp.func
 def torus_delta(d: float, length: float) -> float:
-    """Shortest signed difference on a circle of `length`, for `d` in (-length, length)."""
-    if d > 0.5 * length:
-        return d - length
-    if d < -0.5 * length:
-        return d + length
-    return d
+    """Shortest signed difference on a circle of `length`, for `d` in (-length, length). Selects, not
+    branches: neighbour searches call this for every candidate, and a warp's threads disagree."""
+    half = 0.5 * length
+    return wp.where(d > half, d - length, wp.where(d < -half, d + length, d))
 
 
 @wp.func

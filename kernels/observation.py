@@ -10,8 +10,11 @@ The same neighbour pass also finds each agent's contact partner for the next ste
 step 3 reads start-of-step positions, which are exactly these), so motion needs no search of its own.
 
 The kernel is generated per observer slot counts (so the top-K lists and the observation row are
-fixed-size registers) and per block size, and launched once per agent type: one thread per row of
-that type's observation array. A block assembles its rows in shared memory and stores them as one
+fixed-size registers) and per block size: one thread per row of an observation array. One launch
+serves both agent types when they observe the same slot counts (the first blocks take one type's
+rows, the rest the other's; a type alone takes a launch of its own otherwise), so the few predators'
+blocks run beside the prey's instead of in a small launch of their own, which would leave most of
+the GPU idle while its threads walk their neighbours. A block assembles its rows in shared memory and stores them as one
 contiguous run (on a GPU, one thread writing a 29-float row alone would scatter 29 stores 116 bytes
 apart across the warp). On the CPU (block size 1) each thread stores its row itself: Warp's CPU tile
 arena is not released between the blocks of one launch.
@@ -92,20 +95,37 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int):
         types: wp.array(dtype=AgentType),
         grid: CellLists,
         alive: wp.array2d(dtype=wp.bool),
-        observer_type: int,
-        rows: int,
-        obs_rows: wp.array(dtype=Row),
-        mask: wp.array2d(dtype=wp.bool),
-        observed_slot: wp.array2d(dtype=wp.int32),
+        first_type: int,
+        first_rows: int,
+        first_blocks: int,
+        second_rows: int,
+        first_obs: wp.array(dtype=Row),
+        first_mask: wp.array2d(dtype=wp.bool),
+        first_observed: wp.array2d(dtype=wp.int32),
+        second_obs: wp.array(dtype=Row),
+        second_mask: wp.array2d(dtype=wp.bool),
+        second_observed: wp.array2d(dtype=wp.int32),
         contact_partner: wp.array2d(dtype=wp.int32),
         contact_offset: wp.array2d(dtype=wp.vec2),
     ):
-        # Row r of the observer type's [worlds * agents of the type] rows; every thread of a block
-        # reaches the shared store at the end, also past the last row.
+        # Blocks [0, first_blocks) take the `first_rows` rows of `first_type`'s [worlds * agents of
+        # the type] rows, the blocks after them the other type's `second_rows` rows. Every thread of
+        # a block reaches the shared store at the end, also past the last row.
         block, lane = wp.tid()
+        t = first_type
+        rows = first_rows
+        obs_rows = first_obs
+        mask = first_mask
+        observed_slot = first_observed
+        if block >= first_blocks:
+            block = block - first_blocks
+            t = PREY + PREDATOR - first_type
+            rows = second_rows
+            obs_rows = second_obs
+            mask = second_mask
+            observed_slot = second_observed
         r = block * block_dim + lane
         row = Row()
-        t = observer_type
         per_world = world.prey_capacity
         first_slot = int(0)
         if t == PREDATOR:
