@@ -176,14 +176,18 @@ class WorldShard:
         launches = []
         for group in groups:
             kernel, block = kernels[group[0]], kernels[group[0]].block_dim
+            assert kernel.whole_world == bool(self.grid.whole_world), "observation kernel built for other lists"
             first, second = group[0], group[1] if len(group) == 2 else None
             first_blocks = (rows[first] + block - 1) // block
             second_rows = rows[second] if second else 0
             first_outputs = self._observation_outputs(first, kernel)
             # A type alone passes its own outputs again for the (empty) second range.
             second_outputs = self._observation_outputs(second, kernel) if second else first_outputs
+            blocks = first_blocks + (second_rows + block - 1) // block
+            if kernel.cell_order:  # one thread per sorted entry of both types
+                blocks = (rows[first] + second_rows + block - 1) // block
             launches.append(self._launch_blocks(
-                kernel, first_blocks + (second_rows + block - 1) // block, block,
+                kernel, blocks, block,
                 [self.world, self.types, self.grid, s.alive, TYPE_CODES[first], rows[first], first_blocks,
                  second_rows],
                 first_outputs + second_outputs + [s.contact_partner, s.contact_offset]))

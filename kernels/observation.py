@@ -25,8 +25,8 @@ import functools
 import warp as wp
 
 from .common import PREDATOR, PREY, AgentType, WorldParams, angle_value, slot_type, torus_displacement
-from .grid import (CellLists, cell_coords, cell_gap, entry_of, last_ring, listed_slot, offset_cell, ring_offset,
-                   ring_side_length, ring_sides, rings_for_radius, searched_radius)
+from .grid import (CellLists, cell_coords, cell_gap, last_ring, offset_cell, ring_offset, ring_side_length,
+                   ring_sides, rings_for_radius, searched_radius)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -77,9 +77,12 @@ def neighbour_tuple(
 
 
 @functools.cache
-def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int):
+def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, whole_world: bool,
+                       cell_order: bool):
     """The observation kernel for observers with `predator_slots` and `prey_slots` slots, launched with
-    `dim=(blocks, block_dim)` and `block_dim` (compiled once per combination)."""
+    `dim=(blocks, block_dim)` and `block_dim`, on whole-world cell lists or not (compiled once per
+    combination: the kind of lists is fixed at compile time here, as `listed_slot` and `entry_of` would
+    test it for every candidate), with threads in row order or in cell order (sorted entries)."""
     slots = predator_slots + prey_slots
     # The nearest visible agents found so far, one list: predators in [0, predator_slots), prey after
     # them; each block sorted by (distance, slot), unfilled entries (inf, NO_SLOT). Every index into
@@ -88,7 +91,8 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int):
     KeptInt = wp.types.vector(length=max(slots, 1), dtype=int)
     last_predator = max(predator_slots - 1, 0)  # last entry of each block (unused if the block is empty)
     last_prey = max(slots - 1, 0)
-    Row = wp.types.vector(length=5 + 6 * slots, dtype=float)
+    row_length = 5 + 6 * slots
+    Row = wp.types.vector(length=row_length, dtype=float)
 
     def observe(
         world: WorldParams,
@@ -108,39 +112,65 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int):
         contact_partner: wp.array2d(dtype=wp.int32),
         contact_offset: wp.array2d(dtype=wp.vec2),
     ):
-        # Blocks [0, first_blocks) take the `first_rows` rows of `first_type`'s [worlds * agents of
-        # the type] rows, the blocks after them the other type's `second_rows` rows. Every thread of
-        # a block reaches the shared store at the end, also past the last row.
+        # Row order: blocks [0, first_blocks) take the `first_rows` rows of `first_type`'s [worlds *
+        # agents of the type] rows, the blocks after them the other type's `second_rows` rows. Cell
+        # order: thread k takes sorted entry k of all `first_rows + second_rows` (both types share
+        # the kernel), so a warp's observers sit in neighbouring cells and share their reads. Every
+        # thread of a block reaches the shared stores at the end, also past the last row.
         block, lane = wp.tid()
         t = first_type
+        w = int(0)
+        i = int(0)
+        k = int(0)  # the observer's sorted entry
+        valid = bool(False)
+        if wp.static(cell_order):
+            k = block * block_dim + lane
+            if k < first_rows + second_rows:
+                valid = True
+                flat = grid.agent[k]
+                w = flat // world.capacity
+                i = flat - w * world.capacity
+                t = slot_type(world, i)
         rows = first_rows
         obs_rows = first_obs
         mask = first_mask
         observed_slot = first_observed
-        if block >= first_blocks:
-            block = block - first_blocks
-            t = PREY + PREDATOR - first_type
+        second = t != first_type
+        if wp.static(not cell_order):
+            second = block >= first_blocks
+            if second:
+                block = block - first_blocks
+                t = PREY + PREDATOR - first_type
+        if second:
             rows = second_rows
             obs_rows = second_obs
             mask = second_mask
             observed_slot = second_observed
-        r = block * block_dim + lane
-        row = Row()
         per_world = world.prey_capacity
         first_slot = int(0)
         if t == PREDATOR:
             per_world = world.predator_count
             first_slot = world.prey_capacity
-        w = r // per_world
-        i = first_slot + r - w * per_world
-        if r < rows:
+        r = int(0)  # the observer's row in its type's observation array
+        if wp.static(cell_order):
+            r = w * per_world + i - first_slot
+        else:
+            r = block * block_dim + lane
+            valid = r < rows
+            w = r // per_world
+            i = first_slot + r - w * per_world
+        row = Row()
+        if valid:
             if not alive[w, i]:
                 for s in range(wp.static(slots)):
                     mask[r, s] = False
                     observed_slot[r, s] = -1
                 contact_partner[w, i] = -1
             else:
-                k = entry_of(grid, w * world.capacity + i)  # sorted entry
+                if wp.static(not cell_order):
+                    k = w * world.capacity + i  # entry_of, resolved at compile time
+                    if wp.static(not whole_world):
+                        k = grid.entry[k]
                 p = types[t]
                 pos = grid.position[k]
                 h = grid.heading[k]
@@ -173,49 +203,61 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int):
                 while searching:
                     for side in range(ring_sides(ring)):
                         for u in range(ring_side_length(ring)):
-                            o = ring_offset(ring, side, u)
-                            c = offset_cell(grid, w, center, o)
-                            gap_x = cell_gap(o[0], inside_x, grid.cell_width, grid.dims_x)
-                            gap_y = cell_gap(o[1], inside_y, grid.cell_height, grid.dims_y)
-                            if c >= 0 and gap_x * gap_x + gap_y * gap_y <= bound2:
-                                for k2 in range(grid.cell_start[c], grid.cell_end[c]):
-                                    j = listed_slot(grid, k2, base)
-                                    if j >= 0 and k2 != k:
-                                        jt = slot_type(world, j)
-                                        d = torus_displacement(world, pos, grid.position[k2])
-                                        d2 = wp.dot(d, d)
-                                        if jt == t and d2 < contact2:
-                                            if partner_slot < 0 or ranks_before(d2, j, partner_d2, partner_slot):
-                                                partner_d2 = d2
-                                                partner_slot = j
-                                                partner_disp = d
-                                        visible = d2 <= v2
-                                        if visible and world.fov_enabled != 0 and d2 > 0.0:
-                                            visible = wp.dot(h, d) >= wp.sqrt(d2) * p.cos_half_fov
-                                        # Insert into the type's block if it ranks before the block's last
-                                        # entry: the candidate sinks past every entry it ranks before,
-                                        # carrying the displaced one along.
-                                        last_d2 = wp.where(jt == PREDATOR, kept_d2[last_predator], kept_d2[last_prey])
-                                        last_slot = wp.where(jt == PREDATOR, kept_slot[last_predator],
-                                                             kept_slot[last_prey])
-                                        if visible and ranks_before(d2, j, last_d2, last_slot):
-                                            carry_d2 = d2
-                                            carry_slot = j
-                                            carry_entry = k2
-                                            for e in range(wp.static(slots)):
-                                                in_block = (e < predator_slots) == (jt == PREDATOR)
-                                                if in_block and ranks_before(carry_d2, carry_slot, kept_d2[e],
-                                                                             kept_slot[e]):
-                                                    swap_d2 = kept_d2[e]
-                                                    swap_slot = kept_slot[e]
-                                                    swap_entry = kept_entry[e]
-                                                    kept_d2[e] = carry_d2
-                                                    kept_slot[e] = carry_slot
-                                                    kept_entry[e] = carry_entry
-                                                    carry_d2 = swap_d2
-                                                    carry_slot = swap_slot
-                                                    carry_entry = swap_entry
-                    if ring >= last:
+                            # The entries of this ring cell, if it may hold a wanted agent; whole-world
+                            # lists: the world's one cell, its slots (ring 0 only).
+                            first_entry = base
+                            end_entry = base + world.capacity
+                            if wp.static(not whole_world):
+                                o = ring_offset(ring, side, u)
+                                c = offset_cell(grid, w, center, o)
+                                gap_x = cell_gap(o[0], inside_x, grid.cell_width, grid.dims_x)
+                                gap_y = cell_gap(o[1], inside_y, grid.cell_height, grid.dims_y)
+                                end_entry = first_entry
+                                if c >= 0 and gap_x * gap_x + gap_y * gap_y <= bound2:
+                                    first_entry = grid.cell_start[c]
+                                    end_entry = grid.cell_end[c]
+                            for k2 in range(first_entry, end_entry):
+                                # listed_slot, resolved at compile time
+                                if wp.static(whole_world):
+                                    j = wp.where(grid.alive[k2], k2 - base, -1)
+                                else:
+                                    j = grid.agent[k2] - base
+                                if j >= 0 and k2 != k:
+                                    jt = slot_type(world, j)
+                                    d = torus_displacement(world, pos, grid.position[k2])
+                                    d2 = wp.dot(d, d)
+                                    if jt == t and d2 < contact2:
+                                        if partner_slot < 0 or ranks_before(d2, j, partner_d2, partner_slot):
+                                            partner_d2 = d2
+                                            partner_slot = j
+                                            partner_disp = d
+                                    visible = d2 <= v2
+                                    if visible and world.fov_enabled != 0 and d2 > 0.0:
+                                        visible = wp.dot(h, d) >= wp.sqrt(d2) * p.cos_half_fov
+                                    # Insert into the type's block if it ranks before the block's last
+                                    # entry: the candidate sinks past every entry it ranks before,
+                                    # carrying the displaced one along.
+                                    last_d2 = wp.where(jt == PREDATOR, kept_d2[last_predator], kept_d2[last_prey])
+                                    last_slot = wp.where(jt == PREDATOR, kept_slot[last_predator],
+                                                         kept_slot[last_prey])
+                                    if visible and ranks_before(d2, j, last_d2, last_slot):
+                                        carry_d2 = d2
+                                        carry_slot = j
+                                        carry_entry = k2
+                                        for e in range(wp.static(slots)):
+                                            in_block = (e < predator_slots) == (jt == PREDATOR)
+                                            if in_block and ranks_before(carry_d2, carry_slot, kept_d2[e],
+                                                                         kept_slot[e]):
+                                                swap_d2 = kept_d2[e]
+                                                swap_slot = kept_slot[e]
+                                                swap_entry = kept_entry[e]
+                                                kept_d2[e] = carry_d2
+                                                kept_slot[e] = carry_slot
+                                                kept_entry[e] = carry_entry
+                                                carry_d2 = swap_d2
+                                                carry_slot = swap_slot
+                                                carry_entry = swap_entry
+                    if wp.static(whole_world) or ring >= last:
                         searching = False
                     elif ring >= contact_rings:
                         reach = searched_radius(grid, ring)
@@ -266,11 +308,30 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int):
         if wp.static(block_dim > 1):
             staged = wp.tile_empty(shape=block_dim, dtype=Row, storage="shared")
             wp.tile_scatter_masked(staged, lane, row, True)
-            wp.tile_store(obs_rows, staged, offset=block * block_dim)
-        elif r < rows:
+            if wp.static(cell_order):
+                # The block's rows go to scattered places: written row after row, consecutive threads
+                # taking consecutive values (a row's 116 bytes in one or two stores of a warp).
+                target = wp.tile_empty(shape=block_dim, dtype=int, storage="shared")
+                wp.tile_scatter_masked(target, lane, wp.where(valid, 2 * r + int(second), -1), True)
+                for q in range(wp.static(row_length)):
+                    f = q * block_dim + lane
+                    staged_row = f // row_length
+                    c = f - staged_row * row_length
+                    to = wp.tile_extract(target, staged_row)
+                    value = wp.tile_extract(staged, staged_row, c)
+                    if to >= 0:
+                        if to % 2 == 0:
+                            first_obs[to // 2][c] = value
+                        else:
+                            second_obs[to // 2][c] = value
+            else:
+                wp.tile_store(obs_rows, staged, offset=block * block_dim)
+        elif valid:
             obs_rows[r] = row
 
     kernel = wp.kernel(enable_backward=False, module="unique", cuda_max_registers=MAX_REGISTERS)(observe)
     kernel.row_type = Row  # dtype of the `obs_rows` argument
     kernel.block_dim = block_dim
+    kernel.whole_world = whole_world
+    kernel.cell_order = cell_order
     return kernel
