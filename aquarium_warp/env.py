@@ -173,12 +173,9 @@ class BatchedAquarium:
         # One observation kernel per observer type's slot counts; rows are staged by blocks of
         # OBSERVATION_BLOCK threads on a GPU (tile kernels run one thread per block on the CPU).
         block = OBSERVATION_BLOCK if wp.get_device(self.device).is_cuda else 1
-        # Whole-world lists are in slot order already; sorted lists are walked in cell order when one
-        # kernel serves both types (both observe the same slot counts).
-        whole_world = self._dims == (1, 1)
-        layouts = {t: (getattr(cfg, t).predator_slots, getattr(cfg, t).prey_slots) for t in TYPES}
-        cell_order = not whole_world and layouts["prey"] == layouts["predator"]
-        self._observe_kernels = {t: observation.observation_kernel(*layouts[t], block, whole_world, cell_order)
+        whole_world = self._dims == (1, 1)  # the shards' cell lists are whole-world lists
+        self._observe_kernels = {t: observation.observation_kernel(getattr(cfg, t).predator_slots,
+                                                                   getattr(cfg, t).prey_slots, block, whole_world)
                                  for t in TYPES}
         threads = _cpu_threads(cpu_threads) if not wp.get_device(self.device).is_cuda else 1
         shards = max(1, min(threads, W // MIN_WORLDS_PER_THREAD))

@@ -183,11 +183,8 @@ class WorldShard:
             first_outputs = self._observation_outputs(first, kernel)
             # A type alone passes its own outputs again for the (empty) second range.
             second_outputs = self._observation_outputs(second, kernel) if second else first_outputs
-            blocks = first_blocks + (second_rows + block - 1) // block
-            if kernel.cell_order:  # one thread per sorted entry of both types
-                blocks = (rows[first] + second_rows + block - 1) // block
             launches.append(self._launch_blocks(
-                kernel, blocks, block,
+                kernel, first_blocks + (second_rows + block - 1) // block, block,
                 [self.world, self.types, self.grid, s.alive, TYPE_CODES[first], rows[first], first_blocks,
                  second_rows],
                 first_outputs + second_outputs + [s.contact_partner, s.contact_offset]))

@@ -77,12 +77,11 @@ def neighbour_tuple(
 
 
 @functools.cache
-def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, whole_world: bool,
-                       cell_order: bool):
+def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, whole_world: bool):
     """The observation kernel for observers with `predator_slots` and `prey_slots` slots, launched with
     `dim=(blocks, block_dim)` and `block_dim`, on whole-world cell lists or not (compiled once per
     combination: the kind of lists is fixed at compile time here, as `listed_slot` and `entry_of` would
-    test it for every candidate), with threads in row order or in cell order (sorted entries)."""
+    test it for every candidate)."""
     slots = predator_slots + prey_slots
     # The nearest visible agents found so far, one list: predators in [0, predator_slots), prey after
     # them; each block sorted by (distance, slot), unfilled entries (inf, NO_SLOT). Every index into
@@ -91,8 +90,7 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
     KeptInt = wp.types.vector(length=max(slots, 1), dtype=int)
     last_predator = max(predator_slots - 1, 0)  # last entry of each block (unused if the block is empty)
     last_prey = max(slots - 1, 0)
-    row_length = 5 + 6 * slots
-    Row = wp.types.vector(length=row_length, dtype=float)
+    Row = wp.types.vector(length=5 + 6 * slots, dtype=float)
 
     def observe(
         world: WorldParams,
@@ -112,36 +110,18 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
         contact_partner: wp.array2d(dtype=wp.int32),
         contact_offset: wp.array2d(dtype=wp.vec2),
     ):
-        # Row order: blocks [0, first_blocks) take the `first_rows` rows of `first_type`'s [worlds *
-        # agents of the type] rows, the blocks after them the other type's `second_rows` rows. Cell
-        # order: thread k takes sorted entry k of all `first_rows + second_rows` (both types share
-        # the kernel), so a warp's observers sit in neighbouring cells and share their reads. Every
-        # thread of a block reaches the shared stores at the end, also past the last row.
+        # Blocks [0, first_blocks) take the `first_rows` rows of `first_type`'s [worlds * agents of
+        # the type] rows, the blocks after them the other type's `second_rows` rows. Every thread of
+        # a block reaches the shared store at the end, also past the last row.
         block, lane = wp.tid()
         t = first_type
-        w = int(0)
-        i = int(0)
-        k = int(0)  # the observer's sorted entry
-        valid = bool(False)
-        if wp.static(cell_order):
-            k = block * block_dim + lane
-            if k < first_rows + second_rows:
-                valid = True
-                flat = grid.agent[k]
-                w = flat // world.capacity
-                i = flat - w * world.capacity
-                t = slot_type(world, i)
         rows = first_rows
         obs_rows = first_obs
         mask = first_mask
         observed_slot = first_observed
-        second = t != first_type
-        if wp.static(not cell_order):
-            second = block >= first_blocks
-            if second:
-                block = block - first_blocks
-                t = PREY + PREDATOR - first_type
-        if second:
+        if block >= first_blocks:
+            block = block - first_blocks
+            t = PREY + PREDATOR - first_type
             rows = second_rows
             obs_rows = second_obs
             mask = second_mask
@@ -151,26 +131,20 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
         if t == PREDATOR:
             per_world = world.predator_count
             first_slot = world.prey_capacity
-        r = int(0)  # the observer's row in its type's observation array
-        if wp.static(cell_order):
-            r = w * per_world + i - first_slot
-        else:
-            r = block * block_dim + lane
-            valid = r < rows
-            w = r // per_world
-            i = first_slot + r - w * per_world
+        r = block * block_dim + lane
+        w = r // per_world
+        i = first_slot + r - w * per_world
         row = Row()
-        if valid:
+        if r < rows:
             if not alive[w, i]:
                 for s in range(wp.static(slots)):
                     mask[r, s] = False
                     observed_slot[r, s] = -1
                 contact_partner[w, i] = -1
             else:
-                if wp.static(not cell_order):
-                    k = w * world.capacity + i  # entry_of, resolved at compile time
-                    if wp.static(not whole_world):
-                        k = grid.entry[k]
+                k = w * world.capacity + i  # sorted entry (entry_of, resolved at compile time)
+                if wp.static(not whole_world):
+                    k = grid.entry[k]
                 p = types[t]
                 pos = grid.position[k]
                 h = grid.heading[k]
@@ -308,30 +282,12 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
         if wp.static(block_dim > 1):
             staged = wp.tile_empty(shape=block_dim, dtype=Row, storage="shared")
             wp.tile_scatter_masked(staged, lane, row, True)
-            if wp.static(cell_order):
-                # The block's rows go to scattered places: written row after row, consecutive threads
-                # taking consecutive values (a row's 116 bytes in one or two stores of a warp).
-                target = wp.tile_empty(shape=block_dim, dtype=int, storage="shared")
-                wp.tile_scatter_masked(target, lane, wp.where(valid, 2 * r + int(second), -1), True)
-                for q in range(wp.static(row_length)):
-                    f = q * block_dim + lane
-                    staged_row = f // row_length
-                    c = f - staged_row * row_length
-                    to = wp.tile_extract(target, staged_row)
-                    value = wp.tile_extract(staged, staged_row, c)
-                    if to >= 0:
-                        if to % 2 == 0:
-                            first_obs[to // 2][c] = value
-                        else:
-                            second_obs[to // 2][c] = value
-            else:
-                wp.tile_store(obs_rows, staged, offset=block * block_dim)
-        elif valid:
+            wp.tile_store(obs_rows, staged, offset=block * block_dim)
+        elif r < rows:
             obs_rows[r] = row
 
     kernel = wp.kernel(enable_backward=False, module="unique", cuda_max_registers=MAX_REGISTERS)(observe)
     kernel.row_type = Row  # dtype of the `obs_rows` argument
     kernel.block_dim = block_dim
     kernel.whole_world = whole_world
-    kernel.cell_order = cell_order
     return kernel
