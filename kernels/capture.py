@@ -10,7 +10,8 @@ The passes search the cell lists of the start-of-step positions (built by the la
 pass), not cell lists of the moved ones: every agent moved by at most its max speed since, so a
 search radius widened by the max speeds (`start_of_step_radius`) finds every pair that is within
 the capture or share radius now, and the exact test uses the moved positions. This saves a second
-cell-list build per step.
+cell-list build per step. (Whole-world lists hold every slot of the world, so there the widening
+changes nothing.)
 """
 
 import warp as wp

@@ -88,6 +88,17 @@ def torus_displacement(world: WorldParams, a: wp.vec2, b: wp.vec2) -> wp.vec2:
 
 
 @wp.func
+def in_view(world: WorldParams, heading: wp.vec2, d: wp.vec2, d2: float, v2: float, cos_half_fov: float) -> bool:
+    """Visibility of an agent at displacement `d` (squared length `d2`): within the view distance
+    (squared: `v2`) and, with the field of view on, inside the cone of half-angle cos^-1(cos_half_fov)
+    around the unit `heading`; an agent at the observer's own position is visible."""
+    visible = d2 <= v2
+    if visible and world.fov_enabled != 0 and d2 > 0.0:
+        visible = wp.dot(heading, d) >= wp.sqrt(d2) * cos_half_fov
+    return visible
+
+
+@wp.func
 def wrap_coordinate(x: float, length: float) -> float:
     """Modulo into [0, length) for x in (-length, 2 length) (one move is shorter than the world).
     A tiny negative x rounds up to `length` on the first add; that point is 0 on the circle."""

@@ -13,7 +13,8 @@ so actions are reproducible and equal on CPU and GPU, and do not depend on how w
 
 import warp as wp
 
-from .common import PURPOSE_POLICY, AgentType, WorldParams, mix32, random_stream, slot_type, torus_displacement
+from .common import (PURPOSE_POLICY, AgentType, WorldParams, in_view, mix32, random_stream, slot_type,
+                     torus_displacement)
 from .grid import (CellLists, cell_coords, last_ring, listed_slot, offset_cell, ring_offset, ring_side_length,
                    ring_sides, searched_radius)
 
@@ -130,10 +131,7 @@ def heuristic_policy(
                                 any_d2 = d2
                                 any_slot = j
                                 any_disp = d
-                            # The observation's visibility rule, with the same float expressions.
-                            visible = d2 <= v2
-                            if visible and world.fov_enabled != 0 and d2 > 0.0:
-                                visible = wp.dot(h, d) >= wp.sqrt(d2) * p.cos_half_fov
+                            visible = in_view(world, h, d, d2, v2, p.cos_half_fov)  # the observation's rule
                             if visible:
                                 visible_count += 1
                                 if precedes(d2, j, near_d2, near_slot):

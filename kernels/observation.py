@@ -24,7 +24,8 @@ import functools
 
 import warp as wp
 
-from .common import PREDATOR, PREY, AgentType, WorldParams, angle_value, slot_type, torus_displacement
+from .common import (PREDATOR, PREY, AgentType, WorldParams, angle_value, in_view, slot_type,
+                     torus_displacement)
 from .grid import (CellLists, cell_coords, cell_gap, last_ring, offset_cell, ring_offset, ring_side_length,
                    ring_sides, rings_for_radius, searched_radius)
 
@@ -205,9 +206,7 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
                                             partner_d2 = d2
                                             partner_slot = j
                                             partner_disp = d
-                                    visible = d2 <= v2
-                                    if visible and world.fov_enabled != 0 and d2 > 0.0:
-                                        visible = wp.dot(h, d) >= wp.sqrt(d2) * p.cos_half_fov
+                                    visible = in_view(world, h, d, d2, v2, p.cos_half_fov)
                                     # Insert into the type's block if it ranks before the block's last
                                     # entry: the candidate sinks past every entry it ranks before,
                                     # carrying the displaced one along.
