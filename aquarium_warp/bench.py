@@ -449,13 +449,11 @@ def command_stage(command, shard) -> str:
 def estimate_bytes(cfg, worlds: int) -> int:
     """Memory a point needs, about: the env's own estimate plus the sort's scratch and the action pool."""
     from .env import _grid_dims
-    from .state import bytes_per_slot
+    from .state import estimate_bytes as env_bytes
 
     dims = _grid_dims(cfg)
-    obs = max(cfg.prey.observation_size, cfg.predator.observation_size)
-    slots = max(p.predator_slots + p.prey_slots for p in (cfg.prey, cfg.predator))
     n = worlds * cfg.capacity
-    env = worlds * (cfg.capacity * bytes_per_slot(obs, slots) + dims[0] * dims[1] * 8 + 64)
+    env = env_bytes(cfg, worlds, dims[0] * dims[1])
     return int(1.25 * env + 8 * 4 * n + 16 * n)  # margin, 8 action sets (int32), sort scratch
 
 

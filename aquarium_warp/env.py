@@ -18,7 +18,7 @@ import torch
 import warp as wp
 
 from .config import AquariumConfig
-from .state import AGENT_FIELDS, WORLD_FIELDS, SimulationState, bytes_per_slot
+from .state import AGENT_FIELDS, WORLD_FIELDS, SimulationState, estimate_bytes
 from .kernels import observation
 from .kernels.common import AgentType
 from .shard import WorldShard
@@ -188,10 +188,7 @@ class BatchedAquarium:
 
     # ------------------------------------------------------------------ construction helpers
     def _check_memory(self, cells_per_world: int) -> None:
-        cfg = self.config
-        obs = max(cfg.prey.observation_size, cfg.predator.observation_size)
-        need = self.num_worlds * (self.capacity * bytes_per_slot(obs, max(self.observed_slots.values()))
-                                  + cells_per_world * 8 + 64)
+        need = estimate_bytes(self.config, self.num_worlds, cells_per_world)
         dev = wp.get_device(self.device)
         if dev.is_cuda:
             available = dev.free_memory

@@ -73,14 +73,6 @@ def listed_slot(grid: CellLists, k: int, base: int) -> int:
 
 
 @wp.func
-def entry_of(grid: CellLists, flat_slot: int) -> int:
-    """Sorted entry of a flat slot index (world * capacity + slot) of a live agent."""
-    if grid.whole_world != 0:
-        return flat_slot
-    return grid.entry[flat_slot]
-
-
-@wp.func
 def cell_coords(grid: CellLists, p: wp.vec2) -> wp.vec2i:
     cx = wp.min(int(p[0] * grid.inv_cell_width), grid.dims_x - 1)
     cy = wp.min(int(p[1] * grid.inv_cell_height), grid.dims_y - 1)

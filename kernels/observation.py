@@ -81,8 +81,8 @@ def neighbour_tuple(
 def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, whole_world: bool):
     """The observation kernel for observers with `predator_slots` and `prey_slots` slots, launched with
     `dim=(blocks, block_dim)` and `block_dim`, on whole-world cell lists or not (compiled once per
-    combination: the kind of lists is fixed at compile time here, as `listed_slot` and `entry_of` would
-    test it for every candidate)."""
+    combination: the kind of lists is fixed at compile time here, where `listed_slot` would test it for
+    every candidate)."""
     slots = predator_slots + prey_slots
     # The nearest visible agents found so far, one list: predators in [0, predator_slots), prey after
     # them; each block sorted by (distance, slot), unfilled entries (inf, NO_SLOT). Every index into
@@ -143,7 +143,7 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
                     observed_slot[r, s] = -1
                 contact_partner[w, i] = -1
             else:
-                k = w * world.capacity + i  # sorted entry (entry_of, resolved at compile time)
+                k = w * world.capacity + i  # sorted entry: the flat slot index in whole-world lists
                 if wp.static(not whole_world):
                     k = grid.entry[k]
                 p = types[t]
