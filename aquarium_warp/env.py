@@ -99,6 +99,16 @@ def _grid_dims(cfg: AquariumConfig) -> tuple[int, int]:
     return max(1, int(cfg.width // target)), max(1, int(cfg.height // target))
 
 
+def action_directions(action_count: int) -> np.ndarray:
+    """`[action_count, 2]` float32 unit desired-velocity directions (sin theta, -cos theta) of the actions."""
+    angles = 2.0 * np.pi * np.arange(action_count) / action_count
+    directions = np.stack([np.sin(angles), -np.cos(angles)], axis=1)
+    # Quarter turns are exact axes (sin(pi) is 1.2e-16 in floats, which would steer a prey that
+    # already moves exactly along its desired direction).
+    directions[np.abs(directions) < 1e-12] = 0.0
+    return directions.astype(np.float32)
+
+
 def _type_params(cfg: AquariumConfig, t) -> AgentType:
     p = AgentType()
     p.max_speed = t.max_speed
@@ -160,13 +170,7 @@ class BatchedAquarium:
         self._dims = (dims_x, dims_y)
         types = [_type_params(cfg, cfg.predator), _type_params(cfg, cfg.prey)]  # index = type code
         self._types = wp.array(types, dtype=AgentType, device=self.device)
-        angles = 2.0 * np.pi * np.arange(cfg.action_count) / cfg.action_count
-        directions = np.stack([np.sin(angles), -np.cos(angles)], axis=1)
-        # Quarter turns are exact axes (sin(pi) is 1.2e-16 in floats, which would steer a prey that
-        # already moves exactly along its desired direction).
-        directions[np.abs(directions) < 1e-12] = 0.0
-        directions = directions.astype(np.float32)
-        self._action_direction = wp.array(directions, dtype=wp.vec2, device=self.device)
+        self._action_direction = wp.array(action_directions(cfg.action_count), dtype=wp.vec2, device=self.device)
         self.state = SimulationState(W, C, cfg.prey_capacity, cfg.predator_count,
                                      self.observation_size["prey"], self.observation_size["predator"],
                                      self.observed_slots["prey"], self.observed_slots["predator"], self.device)

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 import warp as wp
 
-from .env import TYPES, BatchedAquarium, seed_key
+from .env import TYPES, BatchedAquarium, action_directions, seed_key
 from .kernels import heuristics as kernels
 
 # Policies allowed for each agent type.
@@ -135,20 +135,13 @@ def heuristic_actions(env: BatchedAquarium, prey: str = "turnaway", predator: st
     policies = _cached.setdefault(env, {})
     actions = {}
     for agent_type, name in (("prey", prey), ("predator", predator)):
-        chase = isinstance(name, str) and _normalise_name(name) == "naivchase"
-        key = (agent_type, _normalise_name(name), seed, confusion if chase else None)
+        normal = _normalise_name(name)
+        chase = normal == "naivchase"
+        key = (agent_type, normal, seed, confusion if chase else None)
         if key not in policies:
             policies[key] = make_policy(name, env, agent_type, seed=seed, confusion=confusion if chase else None)
         actions[agent_type] = policies[key]()
     return actions
-
-
-def action_directions(action_count: int) -> np.ndarray:
-    """`[action_count, 2]` float32 unit desired-velocity directions (sin theta, -cos theta), as the env uses."""
-    angles = 2.0 * np.pi * np.arange(action_count) / action_count
-    directions = np.stack([np.sin(angles), -np.cos(angles)], axis=1)
-    directions[np.abs(directions) < 1e-12] = 0.0  # exact axes at quarter turns, as in the env
-    return directions.astype(np.float32)
 
 
 def nearest_action(direction, heading, action_count: int) -> np.ndarray:

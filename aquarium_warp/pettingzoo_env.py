@@ -67,9 +67,8 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from .config import AgentTypeConfig, AquariumConfig
-from .env import BatchedAquarium
+from .env import TYPES, BatchedAquarium
 
-TYPES = ("prey", "predator")
 # Above this many extra (refill) names, possible_agents grows on demand instead of listing them all.
 MAX_EXTRA_NAMES = 10_000
 # Values per agent slot in `state()`.

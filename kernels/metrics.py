@@ -24,7 +24,7 @@ Launch order per shard (see `aquarium_warp.metrics.SwarmMetrics`): zero the inte
 
 import warp as wp
 
-from .common import PREY, WorldParams, slot_type, torus_displacement
+from .common import PREY, WorldParams, slot_type, torus_displacement, wrap_coordinate
 from .grid import (CellLists, cell_coords, last_ring, listed_slot, offset_cell, ring_offset, ring_side_length,
                    ring_sides, rings_for_radius, searched_radius, square_cell, square_cell_count, square_extent)
 
@@ -157,7 +157,7 @@ def prey_distances(
                         if j >= 0 and j != i:
                             d = torus_displacement(world, pos, grid.position[k2])
                             d2 = wp.dot(d, d)
-                            if j >= 0 and slot_type(world, j) == PREY:
+                            if slot_type(world, j) == PREY:
                                 if not prey_found or d2 < prey_d2:
                                     prey_d2 = d2
                                     prey_found = True
@@ -311,12 +311,7 @@ def prey_partial_sums(
 def circular_mean(cos_sum: float, sin_sum: float, length: float) -> float:
     """Circular mean (px in [0, length)) of coordinates given by the sums of cos and sin of their angles
     2 pi x / length; 0 where the sums vanish (no preferred position)."""
-    x = wp.atan2(sin_sum, cos_sum) * length / TWO_PI
-    if x < 0.0:
-        x = x + length
-    if x >= length:
-        x = x - length
-    return x
+    return wrap_coordinate(wp.atan2(sin_sum, cos_sum) * length / TWO_PI, length)
 
 
 @wp.kernel
