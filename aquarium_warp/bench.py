@@ -60,7 +60,7 @@ BENCHMARKS = REPO / "benchmarks"
 DEFAULT_OUT = BENCHMARKS / "results"
 STAGES = ("actions", "motion", "grid", "captures", "population", "observations")
 STAGE_LABELS = {"actions": "action copy-in", "motion": "motion (steering, acceleration, contact, integration)",
-                "grid": "grid build (keys, sort, ranges) x2", "captures": "captures (detect, resolve, share, starve)",
+                "grid": "grid build (cell lists, once per step)", "captures": "captures (detect, resolve, share, starve)",
                 "population": "population, rewards, episode end", "observations": "observations",
                 "heuristics": "heuristic policies (not in the step)"}
 # Kernel name -> stage (commands of `WorldShard._step_program`).
@@ -160,18 +160,30 @@ class BenchSettings:
                 raise ValueError(f"load_agents={self.load_agents} must be >= 1 (or None: no load series)")
         if self.seconds <= 0 or self.repeats < 1 or self.stage_repeats < 1 or self.warmup_steps < 1:
             raise ValueError("seconds must be > 0, repeats, stage_repeats and warmup_steps >= 1")
+        # Checked up front, naming the flag: later, a bad value would fail every point (or the copy test).
+        if min(self.agents) < 2:  # density_config needs one prey and one predator
+            raise ValueError(f"--agents: every count must be >= 2, got {min(self.agents)}")
+        if self.cpu_threads is not None and self.cpu_threads < 1:
+            raise ValueError(f"--cpu-threads={self.cpu_threads} must be >= 1")
+        if self.copy_bytes is not None and self.copy_bytes <= 0:
+            raise ValueError(f"--copy-mib must be >= 1 (copy_bytes={self.copy_bytes} must be > 0)")
 
 
 # --------------------------------------------------------------------------------------- configs
+def split_agents(agents: int) -> tuple[int, int]:
+    """(prey, predators) for `agents` agents: about one predator per 16 prey, at least one of each
+    (also how `benchmarks/vmas_peer.py` splits VMAS's agents)."""
+    if agents < 2:
+        raise ValueError(f"agents={agents} must be >= 2 (at least one prey and one predator)")
+    predators = max(1, round(agents / 17))
+    return agents - predators, predators
+
+
 def density_config(agents: int, **changes):
-    """About `agents` agents (16 prey per predator) at the default density of 17 per 800 x 800 px
-    (the same as `benchmarks/bench_step.density_config`)."""
+    """About `agents` agents (16 prey per predator) at the default density of 17 per 800 x 800 px."""
     from .config import AquariumConfig
 
-    if agents < 2:
-        raise ValueError(f"agents={agents} must be >= 2")
-    predators = max(1, round(agents / 17))
-    prey = agents - predators
+    prey, predators = split_agents(agents)
     side = 800.0 * math.sqrt((prey + predators) / 17.0)
     return AquariumConfig(prey_count=prey, predator_count=predators, width=side, height=side, **changes)
 
@@ -205,9 +217,11 @@ def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True,
     """Bytes one `step()` must move per agent slot, stage by stage (reads and writes of DRAM).
 
     Counted: every array element that a kernel thread reads or writes for its own agent (or cell, or
-    world, divided among the world's slots), once per launch; the radix sort as Warp calls CUB
-    (32-bit keys and 32-bit values, all 32 key bits: a histogram pass reading the keys, then four
-    8-bit digit passes that each read and write keys and values). Not counted: gathers of other
+    world, divided among the world's slots), once per launch. The grid stage follows the step's path
+    (`grid_path`): whole-world lists (one-cell worlds, no build), rank per slot (small worlds on
+    CUDA), radix sort (larger worlds on CUDA: Warp's CUB sort of 32-bit keys and values over the
+    `sort_key_bits` in use, a histogram pass reading the keys, then ceil(bits / 8) 8-bit digit passes
+    that each read and write keys and values) or counting sort (the CPU). Not counted: gathers of other
     agents' data during neighbour searches (cell ranges, neighbours' positions, speeds, slots), which
     the cell-ordered layout keeps in cache, rare events (captures, respawns, episode ends), and the
     per-type parameter structs. A lower bound for this algorithm, not for any algorithm.
@@ -265,12 +279,12 @@ def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True,
                   "write": 3 * VEC2 + I32 + 2 * I32 * min(cells, 1.0)}
         build = [keys, sort, clear, ranges]
     else:
-        # sort_into_cells_per_world (the CPU's counting sort): clear the counts (a pass over cells);
+        # sort_into_cells_per_world (the CPU's counting sort): clear the counts (a pass writing cells);
         # per agent read alive and position, write its key and count it (read-modify-write of the
         # cell's count); a prefix sum over the cells (read count, write start and end); per agent
         # read the key, position, velocity, heading and the cell's cursor, write the sorted agent
         # index, position, velocity, heading, the slot's entry and the cursor.
-        build = [{"read": 4 * cells, "write": 4 * cells},
+        build = [{"read": 0.0, "write": I32 * cells},
                  {"read": BOOL + VEC2 + I32, "write": I32 + I32},
                  {"read": 4 * cells, "write": 8 * cells},
                  {"read": I32 + 3 * VEC2 + I32, "write": I32 + 3 * VEC2 + I32 + I32}]
@@ -342,10 +356,8 @@ def machine_info(device: str) -> dict:
     import torch
     import warp as wp
 
-    sys.path.insert(0, str(BENCHMARKS))
     try:
-        from vmas_peer import vmas_version
-        vmas = vmas_version()
+        vmas = _benchmarks_module("vmas_peer").vmas_version()
     except ImportError:
         vmas = None
     dev = wp.get_device(device)

@@ -28,7 +28,6 @@ import argparse
 import json
 import os
 import statistics
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -39,7 +38,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 from aquarium_warp import aquarium_v1  # noqa: E402
-from aquarium_warp.bench import machine_info  # noqa: E402
+from aquarium_warp.bench import git_info, machine_info  # noqa: E402
 
 RESULTS = HERE / "results"
 TARGET_SPEEDUP = 20.0
@@ -170,10 +169,9 @@ def breakdown(steps: int = 20000) -> dict:
     aq = env.aquarium
     aq.step = timer.inner
     bare_actions = env._act_tensors
-    aq.reset()
     t2 = time.perf_counter()
     for i in range(steps):
-        if i % (aq.config.max_steps - 1) == 0:
+        if i % (aq.config.max_steps - 1) == 0:  # i = 0 included: the loop starts from a fresh reset
             aq.reset()
         aq.step(bare_actions, validate=False)
     bare = time.perf_counter() - t2
@@ -204,13 +202,6 @@ def _versions() -> dict:
     return out
 
 
-def _git_commit() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, cwd=HERE).stdout.strip()
-    except OSError:
-        return "unknown"
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=5.0, help="timed window per run (s)")
@@ -219,6 +210,8 @@ def main(argv=None) -> int:
     parser.add_argument("--no-original", action="store_true", help="skip the original marl-aquarium")
     parser.add_argument("--out", default=str(RESULTS / "pettingzoo_cpu.json"))
     args = parser.parse_args(argv)
+    if args.repeats < 1:
+        parser.error(f"--repeats must be >= 1, got {args.repeats}")
 
     load_before = _loadavg()
     ours = {w: measure_ours(w, args.seconds, args.repeats, args.warmup) for w in ("parallel", "aec")}
@@ -263,7 +256,7 @@ def main(argv=None) -> int:
         "benchmark": "aquarium_v1 PettingZoo env vs original marl-aquarium 0.1.10, CPU, default config, "
                      "random actions, no rendering",
         "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-        "git_commit": _git_commit(),
+        "git_commit": git_info()["commit"],
         "method": {"seconds": args.seconds, "repeats": args.repeats, "warmup_s_min": args.warmup, "min_steps": 3,
                    "ours": "in this process, one fresh env per run, seed=run, actions numpy default_rng(run)",
                    "original": "benchmarks/original_aquarium.measure_original (fresh process per run)",

@@ -47,10 +47,13 @@ def unlimited(cfg: AquariumConfig) -> AquariumConfig:
 def measure(cfg: AquariumConfig, worlds: int, device: str, seconds: float, repeats: int) -> dict:
     env = BatchedAquarium(cfg, num_worlds=worlds, device=device, seed=0)
     gen = torch.Generator(device=env.torch_device).manual_seed(0)
-    pool = [{"prey": torch.randint(0, cfg.action_count, (worlds, env.prey_capacity), generator=gen, device=env.torch_device),
-             "predator": torch.randint(0, cfg.action_count, (worlds, env.predator_count), generator=gen, device=env.torch_device)}
+    # int32, the env's action dtype (as bench.measure_point): timed steps copy the actions without converting.
+    pool = [{"prey": torch.randint(0, cfg.action_count, (worlds, env.prey_capacity), generator=gen, device=env.torch_device,
+                                   dtype=torch.int32),
+             "predator": torch.randint(0, cfg.action_count, (worlds, env.predator_count), generator=gen,
+                                       device=env.torch_device, dtype=torch.int32)}
             for _ in range(8)]
-    sync = torch.cuda.synchronize if env.torch_device.type == "cuda" else (lambda: None)
+    sync = (lambda: torch.cuda.synchronize(env.torch_device)) if env.torch_device.type == "cuda" else (lambda: None)
     for i in range(5):
         env.step(pool[i % 8], validate=False)
     sync()
@@ -78,6 +81,8 @@ def main(argv=None) -> int:
                         help="add GPU-sized points: 4096 and 65536 default worlds, one world of 1M agents")
     parser.add_argument("--out", default=None)
     args = parser.parse_args(argv)
+    if args.repeats < 1:
+        parser.error(f"--repeats must be >= 1, got {args.repeats}")
 
     points = [("default", AquariumConfig(), w) for w in ((1, 64, 1024, 4096, 65536) if args.large else (1, 64, 1024))]
     for label, make in (("density", density_config), ("density fov off", lambda n: density_config(n, fov_enabled=False)),

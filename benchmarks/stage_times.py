@@ -17,15 +17,8 @@ import time
 import torch
 import warp as wp
 
-from aquarium_warp import AquariumConfig, BatchedAquarium
-from aquarium_warp.bench import density_config
-
-
-def command_name(command) -> str:
-    launch = getattr(command, "__self__", None)
-    if launch is not None and hasattr(launch, "kernel"):
-        return launch.kernel.key
-    return getattr(getattr(command, "func", command), "__name__", "command")
+from aquarium_warp import BatchedAquarium
+from aquarium_warp.bench import command_name, density_config
 
 
 def main(argv=None) -> int:
@@ -36,25 +29,32 @@ def main(argv=None) -> int:
     parser.add_argument("--repeats", type=int, default=20)
     parser.add_argument("--cell-size", type=float, default=None, help="grid_cell_size (default: chosen by the env)")
     args = parser.parse_args(argv)
-    cfg = AquariumConfig() if args.agents == 17 else density_config(args.agents)
+    if args.worlds < 1:
+        parser.error(f"--worlds must be >= 1, got {args.worlds}")
+    if args.repeats < 1:
+        parser.error(f"--repeats must be >= 1, got {args.repeats}")
+    cfg = density_config(args.agents)  # 17 agents: the default config
     if args.cell_size is not None:
         cfg = dataclasses.replace(cfg, grid_cell_size=args.cell_size)
     env = BatchedAquarium(cfg, num_worlds=args.worlds, device=args.device, seed=0, cpu_threads=1)
     cuda = wp.get_device(env.device).is_cuda
     gen = torch.Generator(device=env.torch_device).manual_seed(0)
-    actions = {"prey": torch.randint(0, 16, (args.worlds, env.prey_capacity), generator=gen, device=env.torch_device),
-               "predator": torch.randint(0, 16, (args.worlds, env.predator_count), generator=gen, device=env.torch_device)}
+    # int32, the env's own action dtype: timed steps copy the actions without a conversion.
+    actions = {t: torch.randint(0, cfg.action_count, (args.worlds, n), generator=gen, device=env.torch_device,
+                                dtype=torch.int32)
+               for t, n in (("prey", env.prey_capacity), ("predator", env.predator_count))}
     for _ in range(3):
         env.step(actions, validate=False)
     program = env.shards[0].programs["step"]
     times = [[] for _ in program]
+    stream = wp.get_stream(env.device) if cuda else None  # the recorded launches run on the env device's stream
     for _ in range(args.repeats):
         for i, command in enumerate(program):
             if cuda:
-                start, end = wp.Event(enable_timing=True), wp.Event(enable_timing=True)
-                wp.record_event(start)
+                start, end = wp.Event(env.device, enable_timing=True), wp.Event(env.device, enable_timing=True)
+                stream.record_event(start)
                 command()
-                wp.record_event(end)
+                stream.record_event(end)
                 wp.synchronize_device(env.device)
                 times[i].append(wp.get_event_elapsed_time(start, end))
             else:
@@ -72,11 +72,11 @@ def main(argv=None) -> int:
     if cuda:
         runs = []  # runs of `repeats` back-to-back steps (as the graph replays them), one sync per run
         for _ in range(5):
-            torch.cuda.synchronize()
+            torch.cuda.synchronize(env.torch_device)
             t = time.perf_counter()
             for _ in range(args.repeats):
                 env.step(actions, validate=False)
-            torch.cuda.synchronize()
+            torch.cuda.synchronize(env.torch_device)
             runs.append((time.perf_counter() - t) * 1e3 / args.repeats)
         ms = statistics.median(runs)
         print(f"  {'step() as a CUDA graph':40s} {ms:8.4f} ms  {agents / ms * 1e3:.3e} agent-steps/s")

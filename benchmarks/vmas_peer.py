@@ -25,7 +25,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from aquarium_warp.bench import timed_runs  # noqa: E402
+from aquarium_warp.bench import split_agents, timed_runs  # noqa: E402,F401  (split_agents: re-exported)
 
 SCENARIO = "simple_tag"
 
@@ -37,14 +37,6 @@ def vmas_version() -> str | None:
     except Exception:  # noqa: BLE001  (any import failure means "not available")
         return None
     return getattr(vmas, "__version__", "unknown")
-
-
-def split_agents(agents: int) -> tuple[int, int]:
-    """(prey, predators) for `agents` agents, as `aquarium_warp.bench.density_config` splits them."""
-    if agents < 2:
-        raise ValueError(f"agents={agents} must be >= 2 (at least one prey and one predator)")
-    predators = max(1, round(agents / 17))
-    return agents - predators, predators
 
 
 def measure_vmas(agents_per_env: int, envs: int, device: str = "cpu", seconds: float = 1.0, repeats: int = 3,
@@ -85,9 +77,9 @@ def measure_vmas(agents_per_env: int, envs: int, device: str = "cpu", seconds: f
         first_step_s = time.perf_counter() - start
         obs_floats = sum(int(o.shape[-1]) for o in obs)
     runs_made = repeats
-    if budget_s is not None and first_step_s * min_steps * repeats > budget_s:
-        runs_made = max(1, int(budget_s // max(first_step_s * min_steps, 1e-9)))
-        runs_made = min(runs_made, repeats)
+    per_run = max(seconds, first_step_s * min_steps)  # a run lasts `seconds` and `min_steps` steps at least
+    if budget_s is not None and per_run * repeats > budget_s:
+        runs_made = min(repeats, max(1, int(budget_s // max(per_run, 1e-9))))
     def advance(i, step=env.step, actions=pool):
         step(actions[i % 8])
 
@@ -123,6 +115,8 @@ def main(argv=None) -> int:
     parser.add_argument("--budget", type=float, default=None, help="seconds of timed runs per point at most")
     parser.add_argument("--out", default=None, help="write the points as JSON here")
     args = parser.parse_args(argv)
+    if args.repeats < 1:
+        parser.error(f"--repeats must be >= 1, got {args.repeats}")
     if vmas_version() is None:
         print("vmas is not importable: pip install vmas", file=sys.stderr)
         return 2
