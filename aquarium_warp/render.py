@@ -144,17 +144,18 @@ class Renderer:
     def env(self):
         return self._env() if isinstance(self._env, weakref.ref) else self._env
 
-    @property
-    def shape(self) -> tuple[int, int, int]:
-        return self.height_px, self.width_px, 3
+    def check_world(self, world) -> None:
+        """Raise ValueError unless `world` is an index of one of the env's worlds."""
+        n = self.env.num_worlds
+        if isinstance(world, bool) or not isinstance(world, (int, np.integer)) or not 0 <= world < n:
+            raise ValueError(f"world={world!r} must be an integer in [0, {n - 1}]")
 
     def render_device(self, world: int = 0, *, view_cones: bool = False, hit_boxes: bool = False,
                       velocities: bool = False) -> wp.array:
         """Draw `world` into the renderer's device image and return it: a Warp array
         `[height_px, width_px, 3]` uint8 on the env's device, overwritten by the next frame."""
+        self.check_world(world)
         env = self.env
-        if isinstance(world, bool) or not isinstance(world, (int, np.integer)) or not 0 <= world < env.num_worlds:
-            raise ValueError(f"world={world!r} must be an integer in [0, {env.num_worlds - 1}]")
         p = self._params
         p.world = int(world)
         p.view_cones, p.hit_boxes, p.velocities = int(bool(view_cones)), int(bool(hit_boxes)), int(bool(velocities))
@@ -203,11 +204,17 @@ def render_world(env, world: int = 0, *, width_px: int | None = None, height_px:
     return renderer.render(world, view_cones=view_cones, hit_boxes=hit_boxes, velocities=velocities)
 
 
+def check_frame(frame, name: str = "frame") -> np.ndarray:
+    """`frame` as a numpy array; ValueError (naming it `name`) unless it is RGB uint8 `[H, W, 3]`."""
+    frame = np.asarray(frame)
+    if frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3:
+        raise ValueError(f"{name} must be a uint8 [H, W, 3] RGB array, got {frame.dtype} {list(frame.shape)}")
+    return frame
+
+
 def save_png(frame: np.ndarray, path) -> None:
     """Write an RGB uint8 `[H, W, 3]` frame as a PNG file (zlib only, no imaging library)."""
-    frame = np.ascontiguousarray(frame)
-    if frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3:
-        raise ValueError(f"frame must be uint8 [H, W, 3], got {frame.dtype} {list(frame.shape)}")
+    frame = np.ascontiguousarray(check_frame(frame))
     h, w, _ = frame.shape
     raw = np.concatenate([np.zeros((h, 1), np.uint8), frame.reshape(h, w * 3)], axis=1)  # filter 0 per row
 

@@ -44,6 +44,9 @@ from .metrics import EPISODE_METRICS, EpisodeMetrics, SwarmMetrics
 # Per-seed columns of the CSV, in order.
 RESULT_METRICS = ("captures", "captures_per_prey") + EPISODE_METRICS + ("episode_length",)
 POPULATION_TRACES = ("prey_alive", "predator_alive")
+# The "definitions" entry of swarm_size.json for the baselines (written by the study and by replot).
+UNIFORM_BASELINE_DEFINITION = ("the same metrics for uniformly random prey and predator positions and headings "
+                               "(same arena and N; mean over snapshots of about 65k prey in all)")
 
 
 def parse_list(text: str, kind=float, name: str = "list") -> list:
@@ -53,12 +56,17 @@ def parse_list(text: str, kind=float, name: str = "list") -> list:
     parts = [p.strip() for p in str(text).split(",") if p.strip()]
     if not parts:
         raise ValueError(f"{name}={text!r} is empty")
-    if "..." in parts:
+    progression = "..." in parts
+    if progression:
         at = parts.index("...")
         if parts.count("...") != 1 or at < 2 or at != len(parts) - 2:
             raise ValueError(f"{name}={text!r}: write at least two terms, '...', then the last term")
-        head = [kind(p) for p in parts[:at]]
-        last = kind(parts[-1])
+    try:
+        terms = [kind(p) for p in parts if p != "..."]
+    except ValueError:
+        raise ValueError(f"{name}={text!r} must be a comma-separated list of numbers") from None
+    if progression:
+        head, last = terms[:-1], terms[-1]
         ratios = [b / a for a, b in zip(head[:-1], head[1:])] if all(a > 0 for a in head) else []
         steps = [b - a for a, b in zip(head[:-1], head[1:])]
         candidates = []
@@ -74,10 +82,7 @@ def parse_list(text: str, kind=float, name: str = "list") -> list:
                 return values
         raise ValueError(f"{name}={text!r}: the terms before '...' must grow by a constant ratio or step "
                          f"that reaches {parts[-1]}")
-    try:
-        return [kind(p) for p in parts]
-    except ValueError:
-        raise ValueError(f"{name}={text!r} must be a comma-separated list of numbers") from None
+    return terms
 
 
 def parse_world_size(text) -> tuple[float, float]:
@@ -178,30 +183,16 @@ class SwarmSizeStudy:
 # --------------------------------------------------------------------------------------------------
 # Policies
 # --------------------------------------------------------------------------------------------------
-class TrainedPolicy:
-    """A trained policy (`aquarium_warp.training.export.load_policy`) acting for one agent type of every
-    world: `policy()` -> int32 actions `[W, slots]` from the env's current observations."""
-
-    def __init__(self, path: str, env: BatchedAquarium, agent_type: str):
-        try:
-            from .training.export import load_policy
-        except ImportError as error:
-            raise ValueError(f"trained policies need aquarium_warp.training (importing it failed: {error})") from error
-        self.env, self.agent_type = env, agent_type
-        self.policy = load_policy(path, device=env.device)
-        obs = env.observations[agent_type]
-        self._size = obs.shape[2]
-        check = getattr(self.policy, "check_compatible", None)
-        if check is not None:
-            check(agent_type, obs.shape[2], env.config.action_count, obs.shape[1])
-        self.actions = torch.zeros(obs.shape[:2], dtype=torch.int32, device=env.torch_device)
-
-    def __call__(self) -> torch.Tensor:
-        obs = self.env.observations[self.agent_type].reshape(-1, self._size)
-        with torch.inference_mode():
-            actions = self.policy(obs)
-        self.actions.copy_(actions.reshape(self.actions.shape))
-        return self.actions
+def trained_policy(path: str, env: BatchedAquarium, agent_type: str):
+    """The trained policy file at `path` (`aquarium_warp.training.export.load_policy`) acting for one agent
+    type of every world: a `TrainedOpponent`, whose call returns int32 actions `[W, slots]` from the
+    env's current observations."""
+    try:  # the training extra is optional (vec_env also needs its rsl-rl and tensordict)
+        from .training.export import load_policy
+        from .training.vec_env import TrainedOpponent
+    except ImportError as error:
+        raise ValueError(f"trained policies need aquarium_warp.training (importing it failed: {error})") from error
+    return TrainedOpponent(load_policy(path, device=env.device), env, agent_type)
 
 
 def is_heuristic(name: str, agent_type: str) -> bool:
@@ -216,7 +207,7 @@ def make_study_policy(name: str, env: BatchedAquarium, agent_type: str, confusio
     if not os.path.isfile(name):
         raise ValueError(f"{agent_type} policy {name!r} is neither a heuristic ({', '.join(POLICIES[agent_type])}) "
                          "nor an existing policy file (exported .pt/.onnx or a training checkpoint)")
-    return TrainedPolicy(name, env, agent_type)
+    return trained_policy(name, env, agent_type)
 
 
 def check_policies(study: SwarmSizeStudy) -> None:
@@ -426,8 +417,7 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True) -> dict:
             "predator_distance": "mean over live prey of the torus distance to the nearest live predator, px",
             "groups": "connected components of prey closer than linking_distance px",
             "spread": "std and sem over seeds",
-            "uniform_baseline": "the same metrics for uniformly random prey and predator positions and headings "
-                                "(same arena and N; mean over snapshots of about 65k prey in all)",
+            "uniform_baseline": UNIFORM_BASELINE_DEFINITION,
         },
         "nn_bin_edges": [float(x) for x in results[0]["nn_bin_edges"]],
         "machine": machine_info(device),
@@ -462,9 +452,7 @@ def replot_study(out: str, device=None) -> dict:
     if not all("uniform_baseline" in e for e in summary["results"]):
         study = study_from_config(summary["config"])
         add_uniform_baselines(summary, study, resolve_device(device))
-        summary["definitions"]["uniform_baseline"] = ("the same metrics for uniformly random prey and predator "
-                                                      "positions and headings (same arena and N; mean over "
-                                                      "snapshots of about 65k prey in all)")
+        summary["definitions"]["uniform_baseline"] = UNIFORM_BASELINE_DEFINITION
         with open(path, "w", encoding="utf-8") as f:
             json.dump(_clean(summary), f, indent=1)
     summary["figures"] = plot_study(summary, out)
@@ -512,7 +500,7 @@ def _band(ax, entries, metric, label, color, log_y=False):
     n = np.array([e["prey"] for e in entries], dtype=float)
     mean = np.array([np.nan if e["metrics"][metric]["mean"] is None else e["metrics"][metric]["mean"]
                      for e in entries], dtype=float)
-    std = np.array([0.0 if e["metrics"][metric]["std"] in (None,) else e["metrics"][metric]["std"]
+    std = np.array([0.0 if e["metrics"][metric]["std"] is None else e["metrics"][metric]["std"]
                     for e in entries], dtype=float)
     std = np.nan_to_num(std)
     lo, hi = mean - std, mean + std

@@ -11,12 +11,13 @@ write_video(list_of_frames, "frames.mp4", fps=30)
 
 from __future__ import annotations
 
+import math
 import os
 from typing import Callable, Iterable
 
 import numpy as np
 
-from .render import Renderer
+from .render import Renderer, check_frame
 
 
 def _frame_iter(frames, num_frames):
@@ -36,9 +37,7 @@ def _frame_iter(frames, num_frames):
 
 
 def _check_frame(frame, expected_shape) -> np.ndarray:
-    frame = np.asarray(frame)
-    if frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3:
-        raise ValueError(f"video frames must be uint8 [H, W, 3] RGB arrays, got {frame.dtype} {list(frame.shape)}")
+    frame = check_frame(frame, "video frame")
     if expected_shape is not None and frame.shape != expected_shape:
         raise ValueError(f"video frames must all have one shape: got {list(frame.shape)} after {list(expected_shape)}")
     return frame
@@ -51,14 +50,19 @@ def write_video(frames: Iterable[np.ndarray] | Callable[[int], np.ndarray | None
     `frames` is an iterable of frames, or a callable called as `frames(i)` for `i < num_frames` (it may
     return None to stop early). `num_frames` also caps an iterable and sizes the progress bar (tqdm,
     when installed and `progress`). Frames of odd width or height are padded by one edge pixel (the
-    yuv420p format most players need works on 2 x 2 blocks). `quality`: 0 (smallest) to 10 (best).
+    yuv420p format most players need works on 2 x 2 blocks). `quality`: 1 (smallest) to 10 (best), or
+    None for ffmpeg's default.
     """
     try:
         import imageio_ffmpeg
     except ImportError as error:  # an optional dependency
         raise ImportError("write_video needs imageio-ffmpeg: pip install 'aquarium-warp[video]'") from error
-    if not (isinstance(fps, (int, float)) and not isinstance(fps, bool) and fps > 0):
-        raise ValueError(f"fps={fps!r} must be a number > 0")
+    if not (isinstance(fps, (int, float)) and not isinstance(fps, bool) and math.isfinite(fps) and fps > 0):
+        raise ValueError(f"fps={fps!r} must be a finite number > 0")
+    # imageio-ffmpeg asserts this range; checked here to fail with a ValueError before ffmpeg starts
+    if quality is not None and not (isinstance(quality, (int, float)) and not isinstance(quality, bool)
+                                    and 1 <= quality <= 10):
+        raise ValueError(f"quality={quality!r} must be None or a number in [1, 10]")
     if num_frames is not None and (isinstance(num_frames, bool) or not isinstance(num_frames, int) or num_frames < 0):
         raise ValueError(f"num_frames={num_frames!r} must be None or an integer >= 0")
     folder = os.path.dirname(os.path.abspath(str(path)))
@@ -117,7 +121,7 @@ def record(env, policy_fn: Callable, steps: int, path, world: int = 0, *, fps: f
         raise ValueError(f"steps={steps!r} must be an integer >= 0")
     renderer = Renderer(env, width_px, height_px)
     overlays = dict(view_cones=view_cones, hit_boxes=hit_boxes, velocities=velocities)
-    renderer.render_device(world, **overlays)  # checks `world` before ffmpeg starts
+    renderer.check_world(world)  # before ffmpeg starts
 
     def frames():
         yield renderer.render(world, **overlays)

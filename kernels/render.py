@@ -353,7 +353,7 @@ def splat_agents(
             if covers(p, t, d, h) == 1:
                 wp.atomic_max(body_key, i, j, key)
         if p.hit_boxes != 0:
-            if wp.abs(wp.length(d) - p.radius[t]) <= p.ring:
+            if wp.abs(wp.length(d) - r) <= p.ring:
                 bit = BIT_HIT_BOX_PREY
                 if t == PREDATOR:
                     bit = BIT_HIT_BOX_PREDATOR
