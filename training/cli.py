@@ -134,8 +134,9 @@ def run_train(args) -> int:
               f"{trainer.total_iterations} (log dir {trainer.log_dir})")
     else:
         file_cfg = load_config_file(args.config) if args.config else {}
-        preset = args.preset or file_cfg.pop("preset", None) or "default"
-        file_cfg.pop("preset", None)
+        # Popped whether or not --preset overrides it: "preset" is no config section.
+        file_preset = file_cfg.pop("preset", None)
+        preset = args.preset or file_preset or "default"
         merged = deep_update(deep_update({}, file_cfg), changes)
         for s in sets:
             deep_update(merged, s)

@@ -24,7 +24,7 @@ import copy
 import json
 import math
 
-from ..config import AquariumConfig
+from ..config import AquariumConfig, _is_int, _is_real
 
 DISTRIBUTION = "aquarium_warp.training.distribution:CategoricalDistribution"
 PPO_CLASS = "aquarium_warp.training.ppo:AquariumPPO"
@@ -195,26 +195,35 @@ def validate(config: dict) -> None:
         raise ValueError(f"train.sharing={train['sharing']!r} must be one of {SHARING}")
     for name in ("num_worlds", "iterations"):
         v = train[name]
-        if isinstance(v, bool) or not isinstance(v, int) or v < (1 if name == "num_worlds" else 0):
+        if not _is_int(v) or v < (1 if name == "num_worlds" else 0):
             raise ValueError(f"train.{name}={v!r} must be an integer >= {1 if name == 'num_worlds' else 0}")
-    if train["episodes"] is not None and (not isinstance(train["episodes"], (int, float)) or train["episodes"] <= 0):
+    if not _is_int(train["seed"]):
+        raise ValueError(f"train.seed={train['seed']!r} must be an integer")
+    if train["episodes"] is not None and (not _is_real(train["episodes"]) or train["episodes"] <= 0):
         raise ValueError(f"train.episodes={train['episodes']!r} must be None or a number > 0")
     for name in ("actor_lr", "reward_scale"):
-        if not isinstance(train[name], (int, float)) or not train[name] > 0:
+        if not _is_real(train[name]) or not train[name] > 0:
             raise ValueError(f"train.{name}={train[name]!r} must be a number > 0")
-    if train["critic_lr"] is not None and (not isinstance(train["critic_lr"], (int, float)) or not train["critic_lr"] > 0):
+    if train["critic_lr"] is not None and (not _is_real(train["critic_lr"]) or not train["critic_lr"] > 0):
         raise ValueError(f"train.critic_lr={train['critic_lr']!r} must be None or a number > 0")
     export = train["export"]
     if isinstance(export, str):
         train["export"] = export = [] if export in ("", "none") else [e.strip() for e in export.split(",")]
+    elif not isinstance(export, (list, tuple)):
+        raise ValueError(f"train.export={export!r} must be a comma-separated string or a list of formats (jit, onnx)")
     bad = [e for e in export if e not in ("jit", "onnx")]
     if bad:
         raise ValueError(f"train.export has unknown formats {bad}; allowed: jit, onnx")
     runner = config["runner"]
     for name in ("num_steps_per_env", "save_interval"):
         v = runner.get(name)
-        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+        if not _is_int(v) or v < 1:
             raise ValueError(f"runner.{name}={v!r} must be an integer >= 1")
+    # Checked here: rsl-rl would only fail on 0 (ZeroDivisionError) after the first rollout.
+    for name in ("num_learning_epochs", "num_mini_batches"):
+        v = runner.get("algorithm", {}).get(name)
+        if not _is_int(v) or v < 1:
+            raise ValueError(f"runner.algorithm.{name}={v!r} must be an integer >= 1")
 
 
 def default_opponent(team: str) -> str:

@@ -39,7 +39,7 @@ import warnings
 import numpy as np
 import torch
 
-from ..config import AquariumConfig
+from ..config import AquariumConfig, _is_int
 from ..env import BatchedAquarium
 from ..metrics import EPISODE_METRICS, EpisodeMetrics
 from .trainer import is_heuristic, make_opponent
@@ -153,6 +153,12 @@ def evaluate_policies(prey, predator, env: AquariumConfig | None = None, episode
                       device=None, max_worlds: int = 1024, deterministic: bool = True, progress=None) -> dict:
     """Evaluate every (prey spec, predator spec) pair; see the module doc. Returns
     `{"summary": [rows], "episodes": [per-episode records]}`."""
+    for name, value in (("episodes", episodes), ("max_worlds", max_worlds)):
+        if not _is_int(value) or value < 1:
+            raise ValueError(f"{name}={value!r} must be an integer >= 1")
+    seeds = list(seeds)
+    if not seeds:
+        raise ValueError(f"seeds={seeds!r} must hold at least one seed")
     prey = [prey] if isinstance(prey, str) else list(prey)
     predator = [predator] if isinstance(predator, str) else list(predator)
     env = env if env is not None else AquariumConfig()

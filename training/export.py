@@ -217,13 +217,18 @@ def load_policy(path: str, device="cpu", deterministic: bool = True, seed: int =
             module = torch.jit.load(path, map_location=device, _extra_files=extra)
         module.eval()
         meta = json.loads(extra[META_NAME]) if extra[META_NAME] else _sidecar_meta(path)
-
-        def logits_fn(obs: torch.Tensor) -> torch.Tensor:
-            with torch.inference_mode():
-                return module.logits(obs.to(device))
-
-        return LoadedPolicy(logits_fn, meta, "jit", device, deterministic, seed, module=module)
+        return LoadedPolicy(_module_logits(module, device), meta, "jit", device, deterministic, seed, module=module)
     return _load_checkpoint(path, device, deterministic, seed)
+
+
+def _module_logits(module, device: torch.device):
+    """`obs -> logits` of a TorchScript or `ExportablePolicy` module on `device`."""
+
+    def logits_fn(obs: torch.Tensor) -> torch.Tensor:
+        with torch.inference_mode():
+            return module.logits(obs.to(device))
+
+    return logits_fn
 
 
 def _sidecar_meta(path: str) -> dict:
@@ -277,9 +282,5 @@ def _load_checkpoint(path: str, device: torch.device, deterministic: bool, seed:
         raise ValueError(f"{path}: not a training checkpoint (no actor_state_dict)")
     actor, meta = actor_from_checkpoint(checkpoint, device)
     module = ExportablePolicy(actor).to(device)
-
-    def logits_fn(obs: torch.Tensor) -> torch.Tensor:
-        with torch.inference_mode():
-            return module.logits(obs.to(device))
-
-    return LoadedPolicy(logits_fn, meta, "checkpoint", device, deterministic, seed, module=module)
+    return LoadedPolicy(_module_logits(module, device), meta, "checkpoint", device, deterministic, seed,
+                        module=module)

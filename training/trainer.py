@@ -76,10 +76,9 @@ class AquariumLogger(Logger):
     """rsl-rl's logger plus a CSV row per iteration and an optional tqdm bar instead of the print."""
 
     def __init__(self, *args, csv_path: str | None = None, slots: int = 1, max_steps: int = 1,
-                 quiet: bool = False, total_iterations: int | None = None, **kwargs):
+                 quiet: bool = False, **kwargs):
         super().__init__(*args, **kwargs)
         self.csv_path, self.slots, self.max_steps, self.quiet = csv_path, slots, max_steps, quiet
-        self.total_iterations = total_iterations
         self._bar = None
 
     def log(self, it, start_it, total_it, collect_time, learn_time, loss_dict, learning_rate, action_std,
@@ -93,11 +92,7 @@ class AquariumLogger(Logger):
             cat = torch.cat(values)
             means[key], counts[key] = float(cat.mean()), int(cat.numel())
         mean_row_reward = statistics.mean(self.rewbuffer) if len(self.rewbuffer) else float("nan")
-        if self.quiet:
-            with contextlib.redirect_stdout(io.StringIO()):
-                super().log(it, start_it, total_it, collect_time, learn_time, loss_dict, learning_rate,
-                            action_std, rnd_weight, print_minimal, width, pad)
-        else:
+        with contextlib.redirect_stdout(io.StringIO()) if self.quiet else contextlib.nullcontext():
             super().log(it, start_it, total_it, collect_time, learn_time, loss_dict, learning_rate, action_std,
                         rnd_weight, print_minimal, width, pad)
         world_steps = self.tot_timesteps // self.slots
@@ -165,7 +160,7 @@ class AquariumRunner(OnPolicyRunner):
     iteration counter means "iterations completed" between `learn()` calls."""
 
     def __init__(self, env: AquariumVecEnv, train_cfg: dict, log_dir: str | None = None, device: str = "cpu",
-                 trainer: "Trainer | None" = None, quiet: bool = False, total_iterations: int | None = None):
+                 trainer: "Trainer | None" = None, quiet: bool = False):
         super().__init__(env, train_cfg, log_dir=log_dir, device=device)
         self.trainer = trainer
         self.logger = AquariumLogger(
@@ -173,7 +168,7 @@ class AquariumRunner(OnPolicyRunner):
             is_distributed=self.is_distributed, gpu_world_size=self.gpu_world_size,
             gpu_global_rank=self.gpu_global_rank, device=self.device,
             csv_path=os.path.join(log_dir, "progress.csv") if log_dir else None,
-            slots=env.slots, max_steps=env.max_episode_length, quiet=quiet, total_iterations=total_iterations)
+            slots=env.slots, max_steps=env.max_episode_length, quiet=quiet)
         self._in_learn = False
 
     def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False) -> None:
@@ -275,8 +270,7 @@ class Trainer:
                            "total_iterations": self.total_iterations}, f, indent=1, default=str)
         with contextlib.redirect_stdout(io.StringIO()) if train["quiet"] else contextlib.nullcontext():
             self.runner = AquariumRunner(self.vec_env, copy.deepcopy(self.runner_cfg), log_dir=log_dir,
-                                         device=str(self.device), trainer=self, quiet=train["quiet"],
-                                         total_iterations=self.total_iterations)
+                                         device=str(self.device), trainer=self, quiet=train["quiet"])
         if log_dir is not None:
             import aquarium_warp
 
@@ -307,11 +301,10 @@ class Trainer:
 
     # ------------------------------------------------------------------ state
     def extra_state(self) -> dict:
-        meta = policy_meta(self.config, self.vec_env.slots, self.vec_env.observation_size, self.vec_env.action_count)
         return {
             "config": self.config,
             "runner_cfg": self.runner_cfg,
-            "policy_meta": meta,
+            "policy_meta": self.policy_meta(),
             "vec_env": self.vec_env.state_dict(),
             "rng": _rng_state(self.device),
             "logger": self.runner.logger.state_dict(),
@@ -371,11 +364,5 @@ class Trainer:
         self.vec_env.close()
 
 
-def train_from_config(config: dict, log_dir: str | None) -> Trainer:
-    trainer = Trainer(config, log_dir)
-    trainer.train()
-    return trainer
-
-
 __all__ = ["Trainer", "AquariumRunner", "AquariumLogger", "make_opponent", "latest_checkpoint",
-           "make_config", "train_from_config"]
+           "make_config"]

@@ -197,22 +197,21 @@ class AquariumVecEnv(VecEnv):
             self.swarm.update(info)
 
         # Life ends: captured (prey), terminated (removed or starved), truncated (world episode end).
-        ended, active, alive = self._ended, self._active, self._alive
-        torch.logical_or(self._terminated_in, self._truncated_in, out=ended)
-        if self._captured_in is not None:
-            ended.logical_or_(self._captured_in)
-        # Active rows end with their life; inactive rows end when their slot is filled again.
-        torch.where(active, ended, alive, out=self._done_bool)
-        self._dones.copy_(self._done_bool.view(-1))
-        # Time-outs: active rows truncated by the world's end and not terminated/captured that step.
-        scratch = self._scratch
+        ended, active, alive, scratch = self._ended, self._active, self._alive, self._scratch
         if self._captured_in is not None:
             torch.logical_or(self._terminated_in, self._captured_in, out=scratch)
         else:
             scratch.copy_(self._terminated_in)
+        torch.logical_or(scratch, self._truncated_in, out=ended)
+        # Active rows end with their life; inactive rows end when their slot is filled again.
+        torch.where(active, ended, alive, out=self._done_bool)
+        self._dones.copy_(self._done_bool.view(-1))
+        # Time-outs: active rows truncated by the world's end and not terminated/captured that step.
         scratch.logical_not_().logical_and_(self._truncated_in).logical_and_(active)
         self._time_outs.copy_(scratch.view(-1))
-        torch.mul(self._rewards_in.reshape(-1), active.view(-1), out=self._rewards)
+        # Into the [W, S] view of the flat output: the env's rewards are a strided slice, which
+        # reshape(-1) would copy every step.
+        torch.mul(self._rewards_in, active, out=self._rewards.view(W, S))
         if self.reward_scale != 1.0:
             self._rewards.mul_(self.reward_scale)
         active.copy_(alive)
