@@ -66,7 +66,7 @@ STAGE_LABELS = {"actions": "action copy-in", "motion": "motion (steering, accele
 # Kernel name -> stage (commands of `WorldShard._step_program`).
 KERNEL_STAGES = {
     "integrate_motion": "motion",
-    "compute_cell_keys": "grid", "radix_sort_pairs": "grid", "find_cell_ranges": "grid",
+    "compute_cell_keys": "grid", "radix_sort_pairs": "grid", "array_scan": "grid", "gather_sorted_agents": "grid",
     "sort_into_cells_per_world": "grid",
     "rank_into_cells_per_world": "grid",
     "detect_captures": "captures", "count_capture_sharers": "captures", "share_capture_rewards": "captures",
@@ -228,7 +228,7 @@ def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True,
     Returns `{"stages": {stage: {"read": B, "write": B}}, "read", "write", "total"}` per agent slot.
     """
     from .env import _grid_dims
-    from .shard import RANK_SORT_MAX_CAPACITY, sort_key_bits
+    from .shard import grid_build, sort_key_bits
 
     C, P, Pc = cfg.capacity, cfg.predator_count, cfg.prey_capacity
     dims_x, dims_y = dims if dims is not None else _grid_dims(cfg)
@@ -250,34 +250,32 @@ def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True,
 
     # Grid build (cell lists of the final positions), once per step: captures search the cell lists
     # of the start-of-step positions, which are the last step's.
-    whole_world = (dims_x, dims_y) == (1, 1)
-    ranked = cuda and C <= RANK_SORT_MAX_CAPACITY
+    path = grid_build(cfg, (dims_x, dims_y), cuda)
+    whole_world = path == "whole-world"
     if whole_world:
         # One cell per world: the lists are fixed and the searches read the state itself.
         build = []
-    elif ranked:
-        # cell_start.zero_ and cell_end.zero_; rank_into_cells_per_world: per slot read alive,
-        # position, velocity, heading (the rest of its world is read through the cache); write the
-        # sorted agent index, position, velocity, heading, the slot's entry and its cell's range (the
-        # first agent of a cell).
-        build = [{"read": 0.0, "write": 2 * I32 * cells},
-                 {"read": BOOL + 3 * VEC2,
-                  "write": I32 + 3 * VEC2 + I32 + 2 * I32 * min(cells, 1.0)}]
-    elif cuda:
-        # compute_cell_keys: read position, alive; write key, agent index.
-        keys = {"read": VEC2 + BOOL, "write": I32 + I32}
+    elif path == "rank":
+        # rank_into_cells_per_world: per slot read alive, position, velocity, heading (the rest of its
+        # world is read through the cache); write the sorted agent index, position, velocity, heading
+        # and the slot's entry; and the range of every cell, empty ones included.
+        build = [{"read": BOOL + 3 * VEC2, "write": I32 + 3 * VEC2 + I32 + 2 * I32 * cells}]
+    elif path == "radix":
+        # cell_count.zero_: one int32 per cell.
+        clear = {"read": 0.0, "write": I32 * cells}
+        # compute_cell_keys: read position, alive; write key, agent index; count the cell (an atomic
+        # read-modify-write of its count).
+        keys = {"read": VEC2 + BOOL + I32, "write": I32 + I32 + I32}
         # radix_sort_pairs (CUB onesweep over the key bits in use): histogram pass reads keys; one
         # pass per 8-bit digit reads and writes (key, value) pairs.
         passes = math.ceil(sort_key_bits(worlds, dims_x * dims_y) / 8)
         sort = {"read": I32 + passes * (I32 + I32), "write": passes * (I32 + I32)}
-        # cell_start.zero_ and cell_end.zero_: two int32 per cell.
-        clear = {"read": 0.0, "write": 2 * I32 * cells}
-        # find_cell_ranges: read sorted agent index and key (neighbouring keys hit cache), position,
-        # velocity, heading; write sorted position, velocity, heading, the slot's entry, and the start
-        # and end of each occupied cell (at most one cell per agent).
-        ranges = {"read": I32 + I32 + 3 * VEC2,
-                  "write": 3 * VEC2 + I32 + 2 * I32 * min(cells, 1.0)}
-        build = [keys, sort, clear, ranges]
+        # array_scan of the counts into the cell ends: read and write one int32 per cell.
+        scan = {"read": I32 * cells, "write": I32 * cells}
+        # gather_sorted_agents: read sorted agent index, position, velocity, heading; write sorted
+        # position, velocity, heading and the slot's entry.
+        gather = {"read": I32 + 3 * VEC2, "write": 3 * VEC2 + I32}
+        build = [clear, keys, sort, scan, gather]
     else:
         # sort_into_cells_per_world (the CPU's counting sort): clear the counts (a pass writing cells);
         # per agent read alive and position, write its key and count it (read-modify-write of the
@@ -323,16 +321,12 @@ def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True,
     write = sum(s["write"] for s in stages.values())
     return {"stages": stages, "read": read, "write": write, "total": read + write,
             "cells_per_world": dims_x * dims_y,
-            "grid_path": grid_path(whole_world, ranked, cuda)}
+            "grid_path": GRID_PATHS[path]}
 
 
-def grid_path(whole_world: bool, ranked: bool, cuda: bool) -> str:
-    """How the step's cell lists are made (the byte model's name for it)."""
-    if whole_world:
-        return "whole-world lists (no build)"
-    if cuda:
-        return "rank per slot (CUDA)" if ranked else "radix sort (CUDA)"
-    return "counting sort (CPU)"
+# The byte model's name for each way of making the step's cell lists (`shard.grid_build`).
+GRID_PATHS = {"whole-world": "whole-world lists (no build)", "rank": "rank per slot (CUDA)",
+              "radix": "radix sort (CUDA)", "counting": "counting sort (CPU)"}
 
 
 # --------------------------------------------------------------------------------------- machine
@@ -450,7 +444,7 @@ def command_stage(command, shard) -> str:
     owner = getattr(command, "__self__", None)
     if name in ("zero_", "fill_"):
         grid = shard.grid
-        return "grid" if owner is grid.cell_start or owner is grid.cell_end else "population"
+        return "grid" if owner is grid.cell_count else "population"
     if name in KERNEL_STAGES:
         return KERNEL_STAGES[name]
     if "observ" in name:
@@ -479,7 +473,9 @@ def array_bytes(env) -> int:
     total = sum(size(a) for a in vars(env.state).values() if isinstance(a, wp.array))
     for shard in env.shards:
         g = shard.grid
-        owned = ("cell_start", "cell_end", "key", "agent", "entry")
+        owned = ("cell_start", "cell_end", "cell_count", "key", "agent", "entry")
+        if g.cell_end.ptr == g.cell_start.ptr + 4:  # radix builds: both are views of one bounds array
+            owned = tuple(f for f in owned if f != "cell_end")
         if not g.whole_world:  # whole-world lists view the state's own position, velocity and heading
             owned += ("position", "velocity", "heading")
         total += sum(size(getattr(g, f)) for f in owned)

@@ -57,9 +57,21 @@ def sort_key_bits(num_worlds: int, cells_per_world: int) -> int:
     return max(1, (num_worlds * cells_per_world).bit_length())
 
 
-def cell_lists(cfg: AquariumConfig, num_worlds: int, dims: tuple[int, int], device, state=None) -> grid_kernels.CellLists:
-    """Cell lists of `num_worlds` worlds of `dims` cells. Worlds of one cell get whole-world lists over
-    the `state` arrays (views of `[num_worlds, capacity]` arrays), which never need a build."""
+def grid_build(cfg: AquariumConfig, dims: tuple[int, int], cuda: bool) -> str:
+    """How the cell lists of worlds of `cfg` with `dims` cells are built: "whole-world" (one cell, no
+    build), "counting" (CPU counting sort per world), "rank" (GPU, rank per slot) or "radix" (GPU)."""
+    if tuple(dims) == (1, 1):
+        return "whole-world"
+    if not cuda:
+        return "counting"
+    return "rank" if cfg.capacity <= RANK_SORT_MAX_CAPACITY else "radix"
+
+
+def cell_lists(cfg: AquariumConfig, num_worlds: int, dims: tuple[int, int], device, state=None,
+               build: str | None = None) -> grid_kernels.CellLists:
+    """Cell lists of `num_worlds` worlds of `dims` cells, for the `build` that `grid_build` names (or the
+    one given). Worlds of one cell get whole-world lists over the `state` arrays (views of
+    `[num_worlds, capacity]` arrays), which never need a build."""
     dims_x, dims_y = dims
     n = num_worlds * cfg.capacity
     g = grid_kernels.CellLists()
@@ -73,16 +85,25 @@ def cell_lists(cfg: AquariumConfig, num_worlds: int, dims: tuple[int, int], devi
     g.lo_x, g.hi_x = (dims_x - 1) // 2, dims_x // 2
     g.lo_y, g.hi_y = (dims_y - 1) // 2, dims_y // 2
     g.whole_world = int(state is not None and dims == (1, 1))
+    cells = num_worlds * g.cells_per_world
     if g.whole_world:
         first = np.arange(num_worlds, dtype=np.int32) * cfg.capacity
         g.cell_start = wp.array(first, dtype=int, device=device)
         g.cell_end = wp.array(first + cfg.capacity, dtype=int, device=device)
-        g.key = g.agent = g.entry = wp.empty(0, dtype=int, device=device)
+        g.key = g.agent = g.entry = g.cell_count = wp.empty(0, dtype=int, device=device)
         g.position, g.velocity, g.heading, g.alive = (state.position.flatten(), state.velocity.flatten(),
                                                       state.heading.flatten(), state.alive.flatten())
         return g
-    g.cell_start = wp.zeros(num_worlds * g.cells_per_world, dtype=int, device=device)
-    g.cell_end = wp.zeros(num_worlds * g.cells_per_world, dtype=int, device=device)
+    if (build or grid_build(cfg, dims, wp.get_device(device).is_cuda)) == "radix":
+        # Live agents are packed in key order over all worlds, so each cell ends where the next one
+        # starts: one array of bounds (its first entry stays 0) serves as both.
+        bounds = wp.zeros(cells + 1, dtype=int, device=device)
+        g.cell_start, g.cell_end = bounds[:cells], bounds[1:]
+        g.cell_count = wp.zeros(cells, dtype=int, device=device)
+    else:
+        g.cell_start = wp.zeros(cells, dtype=int, device=device)
+        g.cell_end = wp.zeros(cells, dtype=int, device=device)
+        g.cell_count = wp.empty(0, dtype=int, device=device)
     g.key = wp.zeros(2 * n, dtype=int, device=device)
     g.agent = wp.zeros(2 * n, dtype=int, device=device)
     g.position = wp.zeros(n, dtype=wp.vec2, device=device)
@@ -131,27 +152,27 @@ class WorldShard:
         """Cell lists of the current positions (no allocation, no host sync)."""
         s, g, W, C = self.s, self.grid, self.num_worlds, self.cfg.capacity
         count = W * C
+        build = grid_build(self.cfg, (g.dims_x, g.dims_y), wp.get_device(self.device).is_cuda)
         if g.whole_world:
             return []  # the lists are fixed and read the state itself
-        if not wp.get_device(self.device).is_cuda:
+        if build == "counting":
             return [self._launch(grid_kernels.sort_into_cells_per_world, W,
                                  [self.world, g, s.position, s.velocity, s.heading, s.alive],
                                  [g.key, g.cell_start, g.cell_end, g.agent, g.position, g.velocity, g.heading])]
-        if C <= RANK_SORT_MAX_CAPACITY:
-            return [g.cell_start.zero_, g.cell_end.zero_,
-                    self._launch(grid_kernels.rank_into_cells_per_world, (W, C),
+        if build == "rank":
+            return [self._launch(grid_kernels.rank_into_cells_per_world, (W, C),
                                  [self.world, g, s.position, s.velocity, s.heading, s.alive],
                                  [g.cell_start, g.cell_end, g.agent, g.position, g.velocity, g.heading])]
         return [
+            g.cell_count.zero_,
             self._launch(grid_kernels.compute_cell_keys, (W, C), [self.world, g, s.position, s.alive, W],
-                         [g.key, g.agent]),
+                         [g.key, g.agent, g.cell_count]),
             # Keys are below W * cells + 1: the sort skips the always-zero high bits (fewer digit passes).
             functools.partial(wp.utils.radix_sort_pairs, g.key, g.agent, count, 0, sort_key_bits(W, g.cells_per_world)),
-            g.cell_start.zero_,
-            g.cell_end.zero_,
-            self._launch(grid_kernels.find_cell_ranges, count,
-                         [self.world, g, s.position, s.velocity, s.heading, count, W * g.cells_per_world],
-                         [g.cell_start, g.cell_end, g.position, g.velocity, g.heading]),
+            # Every cell's end is the running count of live agents (its start the previous cell's end).
+            functools.partial(wp.utils.array_scan, g.cell_count, g.cell_end, True),
+            self._launch(grid_kernels.gather_sorted_agents, count, [self.world, g, s.position, s.velocity, s.heading],
+                         [g.position, g.velocity, g.heading]),
         ]
 
     def _observation_outputs(self, type_name: str, kernel) -> list:

@@ -17,7 +17,7 @@ changes nothing.)
 import warp as wp
 
 from .common import PREDATOR, PREY, PURPOSE_RESPAWN, AgentType, WorldParams, random_stream, slot_type, torus_displacement
-from .grid import (CellLists, cell_coords, listed_slot, rings_for_radius, square_cell, square_cell_count,
+from .grid import (CellLists, cell_coords, listed_slot, rings_for_radius, row_run_entries, run_entry, run_length,
                    square_extent)
 from .spawn import make_fresh_prey, uniform_position
 
@@ -52,9 +52,10 @@ def detect_captures(
     center = cell_coords(grid, pos)
     base = w * world.capacity
     box = square_extent(grid, rings_for_radius(grid, start_of_step_radius(world, contact, types[PREY].max_speed)))
-    for q in range(square_cell_count(box)):
-        c = square_cell(grid, w, center, box, q)
-        for k2 in range(grid.cell_start[c], grid.cell_end[c]):
+    for oy in range(box[2], box[3] + 1):
+        runs = row_run_entries(grid, w, center, oy, box[0], box[1])
+        for n in range(run_length(runs)):
+            k2 = run_entry(runs, n)
             j = listed_slot(grid, k2, base)
             if j >= 0 and slot_type(world, j) == PREY:
                 d = torus_displacement(world, pos, position[w, j])
@@ -89,9 +90,10 @@ def count_capture_sharers(
     center = cell_coords(grid, pos)
     base = w * world.capacity
     box = square_extent(grid, rings_for_radius(grid, start_of_step_radius(world, share, types[PREDATOR].max_speed)))
-    for q in range(square_cell_count(box)):
-        c = square_cell(grid, w, center, box, q)
-        for k2 in range(grid.cell_start[c], grid.cell_end[c]):
+    for oy in range(box[2], box[3] + 1):
+        runs = row_run_entries(grid, w, center, oy, box[0], box[1])
+        for n in range(run_length(runs)):
+            k2 = run_entry(runs, n)
             j = listed_slot(grid, k2, base)
             if j >= 0 and slot_type(world, j) == PREDATOR:
                 d = torus_displacement(world, pos, position[w, j])
@@ -131,9 +133,10 @@ def share_capture_rewards(
     center = cell_coords(grid, pos)
     base = w * world.capacity
     box = square_extent(grid, rings_for_radius(grid, start_of_step_radius(world, share, types[PREY].max_speed)))
-    for q in range(square_cell_count(box)):
-        c = square_cell(grid, w, center, box, q)
-        for k2 in range(grid.cell_start[c], grid.cell_end[c]):
+    for oy in range(box[2], box[3] + 1):
+        runs = row_run_entries(grid, w, center, oy, box[0], box[1])
+        for n in range(run_length(runs)):
+            k2 = run_entry(runs, n)
             j = listed_slot(grid, k2, base)
             if j >= 0 and slot_type(world, j) == PREY:
                 if captured[w, j]:

@@ -4,6 +4,10 @@ Each world is tiled by `dims_x x dims_y` cells whose size divides the world exac
 wrap modulo the dims and the grid is a torus like the world. Live agents are sorted by the key
 `world * cells_per_world + cell` with a stable radix sort, so the order (and every result derived
 from it) is deterministic on CPU and GPU; dead slots get a key past the last cell and sort last.
+Every cell, empty ones included, has a range of entries, and in a world the cells follow each
+other: a cell's range ends where the next cell's begins. So a run of cells along a row is one range
+of entries (`row_run_entries`; two where the run crosses the seam), which searches read as such.
+The radix-sorted lists take their ranges from a prefix sum of per-cell counts.
 Positions, velocities and headings are gathered into that order for coalesced neighbour reads, and
 `entry` maps each slot to its sorted entry. A world that is one cell needs no build at all: its
 lists are "whole-world" lists (`whole_world`), fixed at construction, in which cell w holds every
@@ -15,7 +19,7 @@ on a GPU a rank per slot counted over its world (`rank_into_cells_per_world`, on
 
 Queries visit the cells around the query cell by rings: ring 0 is the cell itself, ring r the 8r
 cells at Chebyshev cell distance r (`ring_offset`, side by side); a fixed radius visits the whole
-square of rings at once (`square_cell`). Offsets are clipped to [-lo, hi] per axis (`offset_cell`),
+square of rings at once, row by row (`square_extent`, `row_run_entries`). Offsets are clipped to [-lo, hi] per axis (`offset_cell`),
 so on a small torus no cell is visited twice. After rings 0..r every agent closer than `r * reach`
 (reach = the smaller cell side, less a rounding margin) has been seen, which bounds fixed-radius
 queries and lets k-nearest queries stop early.
@@ -52,6 +56,7 @@ class CellLists:
     hi_y: int
     cell_start: wp.array(dtype=int)  # [num_worlds * cells_per_world], first entry k of each cell
     cell_end: wp.array(dtype=int)  # [num_worlds * cells_per_world], one past the last entry
+    cell_count: wp.array(dtype=int)  # [num_worlds * cells_per_world] live agents per cell (radix builds; else empty)
     key: wp.array(dtype=int)  # [2N] sort keys (second half is radix-sort scratch)
     agent: wp.array(dtype=int)  # [2N] flat slot index world * capacity + slot, in sorted order
     position: wp.array(dtype=wp.vec2)  # [N] px, gathered in sorted order
@@ -110,16 +115,40 @@ def square_extent(grid: CellLists, rings: int) -> wp.vec4i:
 
 
 @wp.func
-def square_cell_count(box: wp.vec4i) -> int:
-    return (box[1] - box[0] + 1) * (box[3] - box[2] + 1)
+def row_run_entries(grid: CellLists, world: int, center: wp.vec2i, oy: int, x_first: int, x_last: int) -> wp.vec4i:
+    """Entries of the cells at offsets (x_first..x_last, oy) from `center`, offsets within the torus's
+    [-lo, hi]: the range [first0, end0), then [first1, end1) where the run crosses the seam (else empty);
+    all empty if x_first > x_last."""
+    if x_first > x_last:
+        return wp.vec4i(0, 0, 0, 0)
+    base = row_base(grid, world, center, oy)
+    a = center[0] + x_first
+    b = center[0] + x_last
+    dims = grid.dims_x
+    if b < 0 or a >= dims:  # the whole run lies across the seam
+        shift = wp.where(b < 0, dims, -dims)
+        return wp.vec4i(grid.cell_start[base + a + shift], grid.cell_end[base + b + shift], 0, 0)
+    if a < 0:  # the run's left part lies at the row's far end
+        return wp.vec4i(grid.cell_start[base + a + dims], grid.cell_end[base + dims - 1], grid.cell_start[base],
+                        grid.cell_end[base + b])
+    if b >= dims:  # its right part lies at the row's start
+        return wp.vec4i(grid.cell_start[base + a], grid.cell_end[base + dims - 1], grid.cell_start[base],
+                        grid.cell_end[base + b - dims])
+    return wp.vec4i(grid.cell_start[base + a], grid.cell_end[base + b], 0, 0)
 
 
 @wp.func
-def square_cell(grid: CellLists, world: int, center: wp.vec2i, box: wp.vec4i, q: int) -> int:
-    """Global index of the q-th cell (row by row) of the square `box` of offsets around `center`."""
-    width = box[1] - box[0] + 1
-    row = q // width
-    return offset_cell(grid, world, center, wp.vec2i(box[0] + q - row * width, box[2] + row))
+def run_length(runs: wp.vec4i) -> int:
+    return runs[1] - runs[0] + runs[3] - runs[2]
+
+
+@wp.func
+def run_entry(runs: wp.vec4i, n: int) -> int:
+    """The n-th entry of the ranges of `row_run_entries`."""
+    first_part = runs[1] - runs[0]
+    if n < first_part:
+        return runs[0] + n
+    return runs[2] + n - first_part
 
 
 @wp.func
@@ -150,6 +179,53 @@ def ring_offset(r: int, side: int, u: int) -> wp.vec2i:
     if side == 2:
         return wp.vec2i(r - u, r)
     return wp.vec2i(-r, r - u)
+
+
+@wp.func
+def sq(x: float) -> float:
+    return x * x
+
+
+@wp.func
+def walk_segments(ring: int, first_ring: int) -> int:
+    """Row runs of one step of a widening search: the first step visits the square of rings
+    0..first_ring (one run per row), each later step the ring `ring` alone (its top and bottom rows,
+    and the left and right cell of each row between)."""
+    if ring == first_ring:
+        return 2 * ring + 1
+    return 4 * ring
+
+
+@wp.func
+def walk_segment(ring: int, first_ring: int, s: int) -> wp.vec3i:
+    """The s-th row run (oy, x_first, x_last) of the step at `ring` (see `walk_segments`)."""
+    if ring == first_ring:
+        return wp.vec3i(s - ring, -ring, ring)
+    if s < 2:
+        oy = wp.where(s == 0, -ring, ring)
+        return wp.vec3i(oy, -ring, ring)
+    q = s - 2
+    x = wp.where(q % 2 == 0, -ring, ring)
+    return wp.vec3i(-ring + 1 + q // 2, x, x)
+
+
+@wp.func
+def clip_run(grid: CellLists, run: wp.vec3i, inside_x: float, inside_y: float, bound2: float) -> wp.vec3i:
+    """The row run (oy, x_first, x_last) cut to the torus's representative offsets and to the cells
+    within sqrt(bound2) of a point `inside_x`, `inside_y` px into its cell: x_first > x_last if none."""
+    oy = run[0]
+    if oy < -grid.lo_y or oy > grid.hi_y:
+        return wp.vec3i(oy, 1, 0)
+    gap_y = cell_gap(oy, inside_y, grid.cell_height, grid.dims_y)
+    gap_y2 = gap_y * gap_y
+    x_first = wp.max(run[1], -grid.lo_x)
+    x_last = wp.min(run[2], grid.hi_x)
+    # Gaps grow away from offset 0, so the cells in reach form one interval.
+    while x_first <= x_last and sq(cell_gap(x_first, inside_x, grid.cell_width, grid.dims_x)) + gap_y2 > bound2:
+        x_first += 1
+    while x_last >= x_first and sq(cell_gap(x_last, inside_x, grid.cell_width, grid.dims_x)) + gap_y2 > bound2:
+        x_last -= 1
+    return wp.vec3i(oy, x_first, x_last)
 
 
 @wp.func
@@ -205,31 +281,32 @@ def compute_cell_keys(
     num_worlds: int,
     key: wp.array(dtype=int),
     agent: wp.array(dtype=int),
+    cell_count: wp.array(dtype=int),
 ):
+    """Sort keys of the radix-sort build, and the live agents per cell (zero beforehand): their
+    prefix sum gives every cell its range (integer sums, so deterministic)."""
     w, i = wp.tid()
     k = w * world.capacity + i
     if alive[w, i]:
         key[k] = w * grid.cells_per_world + cell_in_world(grid, position[w, i])
+        wp.atomic_add(cell_count, key[k], 1)
     else:
         key[k] = num_worlds * grid.cells_per_world
     agent[k] = k
 
 
 @wp.kernel
-def find_cell_ranges(
+def gather_sorted_agents(
     world: WorldParams,
     grid: CellLists,
     position: wp.array2d(dtype=wp.vec2),
     velocity: wp.array2d(dtype=wp.vec2),
     heading: wp.array2d(dtype=wp.vec2),
-    count: int,
-    sentinel: int,
-    cell_start: wp.array(dtype=int),
-    cell_end: wp.array(dtype=int),
     sorted_position: wp.array(dtype=wp.vec2),
     sorted_velocity: wp.array(dtype=wp.vec2),
     sorted_heading: wp.array(dtype=wp.vec2),
 ):
+    """Positions, velocities and headings in sorted order, and each slot's entry (radix-sort build)."""
     k = wp.tid()
     idx = grid.agent[k]
     w = idx // world.capacity
@@ -238,13 +315,6 @@ def find_cell_ranges(
     sorted_velocity[k] = velocity[w, i]
     sorted_heading[k] = heading[w, i]
     grid.entry[idx] = k
-    key = grid.key[k]
-    if key == sentinel:
-        return
-    if k == 0 or grid.key[k - 1] != key:
-        cell_start[key] = k
-    if k == count - 1 or grid.key[k + 1] != key:
-        cell_end[key] = k + 1
 
 
 @wp.kernel
@@ -265,30 +335,34 @@ def rank_into_cells_per_world(
     """The cell lists of small worlds on a GPU, one thread per slot: a slot's entry is its rank by
     (cell, slot) among its world's live agents, counted over the world's slots (O(capacity) per
     thread, no sort). Live agents get the radix sort's order; dead slots follow them, as in
-    `sort_into_cells_per_world`. The cell ranges must be zero beforehand (empty cells stay empty)."""
+    `sort_into_cells_per_world`. Thread i also writes the ranges of cells i, i + capacity, ...,
+    empty cells included (each counted over the world's slots too)."""
     w, i = wp.tid()
     capacity = world.capacity
     first = w * capacity
     k = first + i
-    at = int(0)
-    if alive[w, i]:
-        cell = cell_in_world(grid, position[w, i])
+    for cell in range(i, grid.cells_per_world, capacity):
         before = int(0)  # live agents in lower cells
-        ahead = int(0)  # live agents in the same cell with a lower slot
-        same = int(0)
+        inside = int(0)
         for j in range(capacity):
             if alive[w, j]:
                 other = cell_in_world(grid, position[w, j])
                 if other < cell:
                     before += 1
                 elif other == cell:
-                    same += 1
-                    if j < i:
-                        ahead += 1
-        at = first + before + ahead
-        if ahead == 0:
-            cell_start[w * grid.cells_per_world + cell] = first + before
-            cell_end[w * grid.cells_per_world + cell] = first + before + same
+                    inside += 1
+        cell_start[w * grid.cells_per_world + cell] = first + before
+        cell_end[w * grid.cells_per_world + cell] = first + before + inside
+    at = int(0)
+    if alive[w, i]:
+        cell = cell_in_world(grid, position[w, i])
+        before = int(0)  # live agents in lower cells, or in the same cell with a lower slot
+        for j in range(capacity):
+            if alive[w, j]:
+                other = cell_in_world(grid, position[w, j])
+                if other < cell or (other == cell and j < i):
+                    before += 1
+        at = first + before
     else:
         live = int(0)
         dead_ahead = int(0)

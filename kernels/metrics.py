@@ -26,7 +26,8 @@ import warp as wp
 
 from .common import PREY, WorldParams, slot_type, torus_displacement, wrap_coordinate
 from .grid import (CellLists, cell_coords, last_ring, listed_slot, offset_cell, ring_offset, ring_side_length,
-                   ring_sides, rings_for_radius, searched_radius, square_cell, square_cell_count, square_extent)
+                   ring_sides, rings_for_radius, row_run_entries, run_entry, run_length, searched_radius,
+                   square_extent)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -212,9 +213,10 @@ def link_groups(
     link2 = linking_distance * linking_distance
     center = cell_coords(grid, pos)
     box = square_extent(grid, rings_for_radius(grid, linking_distance))
-    for q in range(square_cell_count(box)):
-        c = square_cell(grid, w, center, box, q)
-        for k2 in range(grid.cell_start[c], grid.cell_end[c]):
+    for oy in range(box[2], box[3] + 1):
+        runs = row_run_entries(grid, w, center, oy, box[0], box[1])
+        for n in range(run_length(runs)):
+            k2 = run_entry(runs, n)
             j = listed_slot(grid, k2, base)
             if j > i and slot_type(world, j) == PREY:  # j > i >= 0: a live slot
                 d = torus_displacement(world, pos, grid.position[k2])

@@ -26,8 +26,8 @@ import warp as wp
 
 from .common import (PREDATOR, PREY, AgentType, WorldParams, angle_value, in_view, slot_type,
                      torus_displacement)
-from .grid import (CellLists, cell_coords, cell_gap, last_ring, offset_cell, ring_offset, ring_side_length,
-                   ring_sides, rings_for_radius, searched_radius)
+from .grid import (CellLists, cell_coords, clip_run, last_ring, rings_for_radius, row_run_entries, run_entry,
+                   run_length, searched_radius, walk_segment, walk_segments)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -35,6 +35,9 @@ NO_SLOT = wp.constant(2147483647)  # slot of an unfilled list entry: ranks after
 # Registers per GPU thread: the compiler's own choice (96) allows 31% occupancy and the pass waits on
 # memory; capped at 64 it ran 18% (65,536 x 17) and 12% (1M agents) faster on an H200, 48 or 56 slower.
 MAX_REGISTERS = 64
+# The search starts with the square of rings 0..2 at most (row runs: one range of entries per row),
+# which holds the whole search at the default sizes; wider searches go on ring by ring.
+FIRST_SQUARE_RINGS = 2
 
 
 @wp.func
@@ -169,67 +172,65 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
                 center = cell_coords(grid, pos)
                 base = w * world.capacity
                 last = last_ring(grid)
-                ring = int(0)
+                # The first step visits the square of rings 0..first_ring as row runs (usually the
+                # whole search), later steps one ring each.
+                first_ring = wp.min(rings_for_radius(grid, wp.max(v, contact)), wp.max(contact_rings, FIRST_SQUARE_RINGS))
+                if wp.static(whole_world):
+                    first_ring = 0
+                ring = int(first_ring)
                 searching = bool(True)
                 # Where the observer lies inside its cell: cells farther than any wanted agent are skipped.
                 inside_x = pos[0] - float(center[0]) * grid.cell_width
                 inside_y = pos[1] - float(center[1]) * grid.cell_height
                 bound2 = wp.max(v2, contact2)
                 while searching:
-                    for side in range(ring_sides(ring)):
-                        for u in range(ring_side_length(ring)):
-                            # The entries of this ring cell, if it may hold a wanted agent; whole-world
-                            # lists: the world's one cell, its slots (ring 0 only).
-                            first_entry = base
-                            end_entry = base + world.capacity
-                            if wp.static(not whole_world):
-                                o = ring_offset(ring, side, u)
-                                c = offset_cell(grid, w, center, o)
-                                gap_x = cell_gap(o[0], inside_x, grid.cell_width, grid.dims_x)
-                                gap_y = cell_gap(o[1], inside_y, grid.cell_height, grid.dims_y)
-                                end_entry = first_entry
-                                if c >= 0 and gap_x * gap_x + gap_y * gap_y <= bound2:
-                                    first_entry = grid.cell_start[c]
-                                    end_entry = grid.cell_end[c]
-                            for k2 in range(first_entry, end_entry):
-                                # listed_slot, resolved at compile time
-                                if wp.static(whole_world):
-                                    j = wp.where(grid.alive[k2], k2 - base, -1)
-                                else:
-                                    j = grid.agent[k2] - base
-                                if j >= 0 and k2 != k:
-                                    jt = slot_type(world, j)
-                                    d = torus_displacement(world, pos, grid.position[k2])
-                                    d2 = wp.dot(d, d)
-                                    if jt == t and d2 < contact2:
-                                        if partner_slot < 0 or ranks_before(d2, j, partner_d2, partner_slot):
-                                            partner_d2 = d2
-                                            partner_slot = j
-                                            partner_disp = d
-                                    visible = in_view(world, h, d, d2, v2, p.cos_half_fov)
-                                    # Insert into the type's block if it ranks before the block's last
-                                    # entry: the candidate sinks past every entry it ranks before,
-                                    # carrying the displaced one along.
-                                    last_d2 = wp.where(jt == PREDATOR, kept_d2[last_predator], kept_d2[last_prey])
-                                    last_slot = wp.where(jt == PREDATOR, kept_slot[last_predator],
-                                                         kept_slot[last_prey])
-                                    if visible and ranks_before(d2, j, last_d2, last_slot):
-                                        carry_d2 = d2
-                                        carry_slot = j
-                                        carry_entry = k2
-                                        for e in range(wp.static(slots)):
-                                            in_block = (e < predator_slots) == (jt == PREDATOR)
-                                            if in_block and ranks_before(carry_d2, carry_slot, kept_d2[e],
-                                                                         kept_slot[e]):
-                                                swap_d2 = kept_d2[e]
-                                                swap_slot = kept_slot[e]
-                                                swap_entry = kept_entry[e]
-                                                kept_d2[e] = carry_d2
-                                                kept_slot[e] = carry_slot
-                                                kept_entry[e] = carry_entry
-                                                carry_d2 = swap_d2
-                                                carry_slot = swap_slot
-                                                carry_entry = swap_entry
+                    for s in range(walk_segments(ring, first_ring)):
+                        # The entries of this row run's cells that may hold a wanted agent (one or
+                        # two ranges); whole-world lists: the world's one cell, its slots.
+                        runs = wp.vec4i(base, base + world.capacity, 0, 0)
+                        if wp.static(not whole_world):
+                            run = clip_run(grid, walk_segment(ring, first_ring, s), inside_x, inside_y, bound2)
+                            runs = row_run_entries(grid, w, center, run[0], run[1], run[2])
+                        for n in range(run_length(runs)):
+                            k2 = run_entry(runs, n)
+                            # listed_slot, resolved at compile time
+                            if wp.static(whole_world):
+                                j = wp.where(grid.alive[k2], k2 - base, -1)
+                            else:
+                                j = grid.agent[k2] - base
+                            if j >= 0 and k2 != k:
+                                jt = slot_type(world, j)
+                                d = torus_displacement(world, pos, grid.position[k2])
+                                d2 = wp.dot(d, d)
+                                if jt == t and d2 < contact2:
+                                    if partner_slot < 0 or ranks_before(d2, j, partner_d2, partner_slot):
+                                        partner_d2 = d2
+                                        partner_slot = j
+                                        partner_disp = d
+                                visible = in_view(world, h, d, d2, v2, p.cos_half_fov)
+                                # Insert into the type's block if it ranks before the block's last
+                                # entry: the candidate sinks past every entry it ranks before,
+                                # carrying the displaced one along.
+                                last_d2 = wp.where(jt == PREDATOR, kept_d2[last_predator], kept_d2[last_prey])
+                                last_slot = wp.where(jt == PREDATOR, kept_slot[last_predator],
+                                                     kept_slot[last_prey])
+                                if visible and ranks_before(d2, j, last_d2, last_slot):
+                                    carry_d2 = d2
+                                    carry_slot = j
+                                    carry_entry = k2
+                                    for e in range(wp.static(slots)):
+                                        in_block = (e < predator_slots) == (jt == PREDATOR)
+                                        if in_block and ranks_before(carry_d2, carry_slot, kept_d2[e],
+                                                                     kept_slot[e]):
+                                            swap_d2 = kept_d2[e]
+                                            swap_slot = kept_slot[e]
+                                            swap_entry = kept_entry[e]
+                                            kept_d2[e] = carry_d2
+                                            kept_slot[e] = carry_slot
+                                            kept_entry[e] = carry_entry
+                                            carry_d2 = swap_d2
+                                            carry_slot = swap_slot
+                                            carry_entry = swap_entry
                     if wp.static(whole_world) or ring >= last:
                         searching = False
                     elif ring >= contact_rings:

@@ -1,7 +1,7 @@
 """The three ways of building the cell lists give every cell the same agents in the same order.
 
 `sort_into_cells_per_world` (CPU), `rank_into_cells_per_world` (GPU, small worlds) and keys + radix
-sort + `find_cell_ranges` (GPU, large worlds) must agree, since neighbour order (and so every tie)
+sort + a prefix sum of the cell counts + `gather_sorted_agents` (GPU, large worlds) must agree, since neighbour order (and so every tie)
 follows the cell lists. Each build is checked against a numpy stable sort by (world, cell, slot) on
 random worlds with dead slots, agents on cell borders and on the seam, for one cell per world and
 for several.
@@ -20,7 +20,7 @@ from aquarium_warp.shard import cell_lists, world_params
 
 def build(method: str, cfg, dims, position, velocity, heading, alive, device):
     W, C = alive.shape
-    g = cell_lists(cfg, W, dims, device)
+    g = cell_lists(cfg, W, dims, device, build=method)
     world = world_params(cfg, 0, 0, True)
     arrays = [wp.array(position, dtype=wp.vec2, device=device), wp.array(velocity, dtype=wp.vec2, device=device),
               wp.array(heading, dtype=wp.vec2, device=device)]
@@ -34,10 +34,10 @@ def build(method: str, cfg, dims, position, velocity, heading, alive, device):
                   outputs=outputs, device=device)
     else:
         wp.launch(grid_kernels.compute_cell_keys, (W, C), inputs=[world, g, arrays[0], alive_wp, W],
-                  outputs=[g.key, g.agent], device=device)
+                  outputs=[g.key, g.agent, g.cell_count], device=device)
         wp.utils.radix_sort_pairs(g.key, g.agent, W * C)
-        wp.launch(grid_kernels.find_cell_ranges, W * C,
-                  inputs=[world, g, *arrays, W * C, W * g.cells_per_world], outputs=outputs[:2] + outputs[3:],
+        wp.utils.array_scan(g.cell_count, g.cell_end, inclusive=True)
+        wp.launch(grid_kernels.gather_sorted_agents, W * C, inputs=[world, g, *arrays], outputs=outputs[3:],
                   device=device)
     return {name: getattr(g, name).numpy() for name in ("cell_start", "cell_end", "agent", "position", "velocity",
                                                          "heading", "entry")}
@@ -81,8 +81,59 @@ def test_cell_list_builds_agree(device, dims):
         empty = np.ones(W * dims[0] * dims[1], bool)
         empty[list(want)] = False
         assert (got["cell_start"][empty] == got["cell_end"][empty]).all(), f"{method}: an empty cell has agents"
+        # Searches read a run of cells along a row as one range: in a world, every cell (empty ones
+        # too) ends where the next one starts.
+        per_world = dims[0] * dims[1]
+        starts = got["cell_start"].reshape(W, per_world)
+        ends = got["cell_end"].reshape(W, per_world)
+        assert (ends[:, :-1] == starts[:, 1:]).all(), f"{method}: cell ranges do not follow each other"
+        assert (starts <= ends).all(), f"{method}: a cell range is reversed"
         live = np.flatnonzero(alive.reshape(-1))
         entry = got["entry"][live]
         assert (got["agent"][entry] == live).all(), f"{method}: entry is not the inverse of agent"
         assert (got["position"][entry] == flat_position[live]).all(), f"{method}: gathered positions differ"
         assert (got["velocity"][entry] == velocity.reshape(-1, 2)[live]).all(), f"{method}: velocities differ"
+
+
+@wp.kernel
+def runs_of_rows(grid: grid_kernels.CellLists, cases: wp.array(dtype=wp.vec4i), runs: wp.array(dtype=wp.vec4i)):
+    q = wp.tid()
+    case = cases[q]  # center x, center y, oy, (x_first + 50) * 100 + x_last + 50
+    runs[q] = grid_kernels.row_run_entries(grid, 1, wp.vec2i(case[0], case[1]), case[2], case[3] // 100 - 50,
+                                           case[3] % 100 - 50)
+
+
+@pytest.mark.parametrize("dims", [(5, 3), (4, 4), (1, 2)])
+def test_row_runs_cover_the_run_cells_once(device, dims):
+    """`row_run_entries` gives exactly the entries of the cells of a run, also where the run crosses
+    the seam partly (two ranges) or wholly (one range at the row's far end), and nothing for an empty
+    run: compared with the cells' own ranges, for every center and every run within [-lo, hi]."""
+    cfg = AquariumConfig(width=300.0, height=200.0, prey_count=30, predator_count=2)
+    W, C = 2, cfg.capacity
+    rng = np.random.default_rng(7)
+    position = np.stack([rng.random((W, C)) * 300.0, rng.random((W, C)) * 200.0], -1).astype(np.float32)
+    alive = rng.random((W, C)) < 0.9
+    velocity = np.zeros((W, C, 2), np.float32)
+    got = build("counting", cfg, dims, position, velocity, velocity, alive, device)
+    g = cell_lists(cfg, W, dims, device, build="counting")
+    g.cell_start = wp.array(got["cell_start"], dtype=int, device=device)
+    g.cell_end = wp.array(got["cell_end"], dtype=int, device=device)
+    dx, dy = dims
+    lo_x, hi_x, lo_y, hi_y = (dx - 1) // 2, dx // 2, (dy - 1) // 2, dy // 2
+    cases, want = [], []
+    for cx in range(dx):
+        for cy in range(dy):
+            for oy in range(-lo_y, hi_y + 1):
+                for a in range(-lo_x, hi_x + 1):
+                    for b in range(a - 1, hi_x + 1):  # b = a - 1: an empty run
+                        cases.append((cx, cy, oy, (a + 50) * 100 + b + 50))
+                        row = (cy + oy) % dy
+                        cells = [dx * dy + row * dx + (cx + x) % dx for x in range(a, b + 1)]
+                        want.append(sorted(e for c in cells for e in range(got["cell_start"][c], got["cell_end"][c])))
+    cases_wp = wp.array(np.array(cases, np.int32), dtype=wp.vec4i, device=device)
+    runs = wp.zeros(len(cases), dtype=wp.vec4i, device=device)
+    wp.launch(runs_of_rows, len(cases), inputs=[g, cases_wp], outputs=[runs], device=device)
+    for case, r, w in zip(cases, runs.numpy(), want):
+        entries = list(range(r[0], r[1])) + list(range(r[2], r[3]))
+        assert sorted(entries) == w, f"case {case}: entries {entries}, want {w}"
+        assert len(set(entries)) == len(entries)
