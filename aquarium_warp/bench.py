@@ -66,7 +66,7 @@ STAGE_LABELS = {"actions": "action copy-in", "motion": "motion (steering, accele
 # Kernel name -> stage (commands of `WorldShard._step_program`).
 KERNEL_STAGES = {
     "integrate_motion": "motion",
-    "compute_cell_keys": "grid", "radix_sort_pairs": "grid", "array_scan": "grid", "gather_sorted_agents": "grid",
+    "compute_cell_keys": "grid", "array_scan": "grid", "drop_into_cells": "grid", "order_cells": "grid",
     "sort_into_cells_per_world": "grid",
     "rank_into_cells_per_world": "grid",
     "detect_captures": "captures", "count_capture_sharers": "captures", "share_capture_rewards": "captures",
@@ -213,22 +213,20 @@ VEC2 = 8  # wp.vec2 (two float32)
 BOOL = 1
 
 
-def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True, worlds: int = 1) -> dict:
+def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True) -> dict:
     """Bytes one `step()` must move per agent slot, stage by stage (reads and writes of DRAM).
 
     Counted: every array element that a kernel thread reads or writes for its own agent (or cell, or
     world, divided among the world's slots), once per launch. The grid stage follows the step's path
     (`grid_path`): whole-world lists (one-cell worlds, no build), rank per slot (small worlds on
-    CUDA), radix sort (larger worlds on CUDA: Warp's CUB sort of 32-bit keys and values over the
-    `sort_key_bits` in use, a histogram pass reading the keys, then ceil(bits / 8) 8-bit digit passes
-    that each read and write keys and values) or counting sort (the CPU). Not counted: gathers of other
+    CUDA), cell counts and their prefix sum (larger worlds on CUDA) or counting sort (the CPU). Not counted: gathers of other
     agents' data during neighbour searches (cell ranges, neighbours' positions, speeds, slots), which
     the cell-ordered layout keeps in cache, rare events (captures, respawns, episode ends), and the
     per-type parameter structs. A lower bound for this algorithm, not for any algorithm.
     Returns `{"stages": {stage: {"read": B, "write": B}}, "read", "write", "total"}` per agent slot.
     """
     from .env import _grid_dims
-    from .shard import grid_build, sort_key_bits
+    from .shard import grid_build
 
     C, P, Pc = cfg.capacity, cfg.predator_count, cfg.prey_capacity
     dims_x, dims_y = dims if dims is not None else _grid_dims(cfg)
@@ -260,22 +258,21 @@ def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True,
         # world is read through the cache); write the sorted agent index, position, velocity, heading
         # and the slot's entry; and the range of every cell, empty ones included.
         build = [{"read": BOOL + 3 * VEC2, "write": I32 + 3 * VEC2 + I32 + 2 * I32 * cells}]
-    elif path == "radix":
+    elif path == "count":
         # cell_count.zero_: one int32 per cell.
         clear = {"read": 0.0, "write": I32 * cells}
-        # compute_cell_keys: read position, alive; write key, agent index; count the cell (an atomic
-        # read-modify-write of its count).
+        # compute_cell_keys: read position, alive; write the key and the arrival order (an atomic
+        # read-modify-write of the cell's count).
         keys = {"read": VEC2 + BOOL + I32, "write": I32 + I32 + I32}
-        # radix_sort_pairs (CUB onesweep over the key bits in use): histogram pass reads keys; one
-        # pass per 8-bit digit reads and writes (key, value) pairs.
-        passes = math.ceil(sort_key_bits(worlds, dims_x * dims_y) / 8)
-        sort = {"read": I32 + passes * (I32 + I32), "write": passes * (I32 + I32)}
         # array_scan of the counts into the cell ends: read and write one int32 per cell.
         scan = {"read": I32 * cells, "write": I32 * cells}
-        # gather_sorted_agents: read sorted agent index, position, velocity, heading; write sorted
-        # position, velocity, heading and the slot's entry.
-        gather = {"read": I32 + 3 * VEC2, "write": 3 * VEC2 + I32}
-        build = [clear, keys, sort, scan, gather]
+        # drop_into_cells: read key, arrival order and the cell's start; write the scratch entry.
+        drop = {"read": 3 * I32, "write": I32}
+        # order_cells: read the scratch entry, its key, its cell's range and the cell's other scratch
+        # entries (cached), position, velocity, heading; write the entry, position, velocity, heading
+        # and the slot's entry.
+        order = {"read": 3 * I32 + 3 * VEC2, "write": I32 + 3 * VEC2 + I32}
+        build = [clear, keys, scan, drop, order]
     else:
         # sort_into_cells_per_world (the CPU's counting sort): clear the counts (a pass writing cells);
         # per agent read alive and position, write its key and count it (read-modify-write of the
@@ -326,7 +323,7 @@ def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True,
 
 # The byte model's name for each way of making the step's cell lists (`shard.grid_build`).
 GRID_PATHS = {"whole-world": "whole-world lists (no build)", "rank": "rank per slot (CUDA)",
-              "radix": "radix sort (CUDA)", "counting": "counting sort (CPU)"}
+              "count": "cell counts + prefix sum (CUDA)", "counting": "counting sort (CPU)"}
 
 
 # --------------------------------------------------------------------------------------- machine
@@ -474,7 +471,7 @@ def array_bytes(env) -> int:
     for shard in env.shards:
         g = shard.grid
         owned = ("cell_start", "cell_end", "cell_count", "key", "agent", "entry")
-        if g.cell_end.ptr == g.cell_start.ptr + 4:  # radix builds: both are views of one bounds array
+        if g.cell_end.ptr == g.cell_start.ptr + 4:  # count builds: both are views of one bounds array
             owned = tuple(f for f in owned if f != "cell_end")
         if not g.whole_world:  # whole-world lists view the state's own position, velocity and heading
             owned += ("position", "velocity", "heading")
@@ -644,7 +641,7 @@ def measure_point(series: str, cfg, worlds: int, device: str, settings: BenchSet
             row["heuristics_ms"] = statistics.median(samples) * 1e3
             row["heuristics_ns_per_agent"] = row["heuristics_ms"] * 1e6 / agents
 
-        model = step_byte_model(cfg, dims, cuda=cuda, worlds=worlds)
+        model = step_byte_model(cfg, dims, cuda=cuda)
         row["bytes_per_agent_step"] = model["total"]
         row["bytes_model"] = {s: v["read"] + v["write"] for s, v in model["stages"].items()}
         row["achieved_bytes_per_s"] = model["total"] * row["agent_steps_per_s"]

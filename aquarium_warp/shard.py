@@ -20,8 +20,8 @@ from .kernels import grid as grid_kernels
 from .kernels.common import PREDATOR, PREY, WorldParams
 
 TYPE_CODES = {"prey": int(PREY), "predator": int(PREDATOR)}
-# Largest world whose GPU cell lists are built by ranking each slot over its world instead of a radix
-# sort of all worlds (each thread reads its whole world, so the cost per agent grows with the world).
+# Largest world whose GPU cell lists are built by ranking each slot over its world instead of counting
+# the agents of every cell (each thread reads its whole world, so the cost per agent grows with the world).
 RANK_SORT_MAX_CAPACITY = 128
 
 
@@ -52,19 +52,15 @@ def world_params(cfg: AquariumConfig, seed_key: int, world_offset: int, auto_res
     return p
 
 
-def sort_key_bits(num_worlds: int, cells_per_world: int) -> int:
-    """Bits of the largest cell-list sort key (the dead-slot sentinel `num_worlds * cells_per_world`)."""
-    return max(1, (num_worlds * cells_per_world).bit_length())
-
-
 def grid_build(cfg: AquariumConfig, dims: tuple[int, int], cuda: bool) -> str:
     """How the cell lists of worlds of `cfg` with `dims` cells are built: "whole-world" (one cell, no
-    build), "counting" (CPU counting sort per world), "rank" (GPU, rank per slot) or "radix" (GPU)."""
+    build), "counting" (CPU counting sort per world), "rank" (GPU, rank per slot) or "count" (GPU,
+    cell counts and their prefix sum)."""
     if tuple(dims) == (1, 1):
         return "whole-world"
     if not cuda:
         return "counting"
-    return "rank" if cfg.capacity <= RANK_SORT_MAX_CAPACITY else "radix"
+    return "rank" if cfg.capacity <= RANK_SORT_MAX_CAPACITY else "count"
 
 
 def cell_lists(cfg: AquariumConfig, num_worlds: int, dims: tuple[int, int], device, state=None,
@@ -94,7 +90,7 @@ def cell_lists(cfg: AquariumConfig, num_worlds: int, dims: tuple[int, int], devi
         g.position, g.velocity, g.heading, g.alive = (state.position.flatten(), state.velocity.flatten(),
                                                       state.heading.flatten(), state.alive.flatten())
         return g
-    if (build or grid_build(cfg, dims, wp.get_device(device).is_cuda)) == "radix":
+    if (build or grid_build(cfg, dims, wp.get_device(device).is_cuda)) == "count":
         # Live agents are packed in key order over all worlds, so each cell ends where the next one
         # starts: one array of bounds (its first entry stays 0) serves as both.
         bounds = wp.zeros(cells + 1, dtype=int, device=device)
@@ -165,14 +161,13 @@ class WorldShard:
                                  [g.cell_start, g.cell_end, g.agent, g.position, g.velocity, g.heading])]
         return [
             g.cell_count.zero_,
-            self._launch(grid_kernels.compute_cell_keys, (W, C), [self.world, g, s.position, s.alive, W],
-                         [g.key, g.agent, g.cell_count]),
-            # Keys are below W * cells + 1: the sort skips the always-zero high bits (fewer digit passes).
-            functools.partial(wp.utils.radix_sort_pairs, g.key, g.agent, count, 0, sort_key_bits(W, g.cells_per_world)),
+            self._launch(grid_kernels.compute_cell_keys, (W, C), [self.world, g, s.position, s.alive],
+                         [g.key, g.cell_count]),
             # Every cell's end is the running count of live agents (its start the previous cell's end).
             functools.partial(wp.utils.array_scan, g.cell_count, g.cell_end, True),
-            self._launch(grid_kernels.gather_sorted_agents, count, [self.world, g, s.position, s.velocity, s.heading],
-                         [g.position, g.velocity, g.heading]),
+            self._launch(grid_kernels.drop_into_cells, count, [self.world, g], [g.agent]),
+            self._launch(grid_kernels.order_cells, count, [self.world, g, s.position, s.velocity, s.heading],
+                         [g.agent, g.position, g.velocity, g.heading]),
         ]
 
     def _observation_outputs(self, type_name: str, kernel) -> list:

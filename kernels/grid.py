@@ -1,21 +1,23 @@
 """Spatial hash grid over (world, cell), rebuilt every step; and ring-by-ring neighbour search.
 
 Each world is tiled by `dims_x x dims_y` cells whose size divides the world exactly, so cell indices
-wrap modulo the dims and the grid is a torus like the world. Live agents are sorted by the key
-`world * cells_per_world + cell` with a stable radix sort, so the order (and every result derived
-from it) is deterministic on CPU and GPU; dead slots get a key past the last cell and sort last.
-Every cell, empty ones included, has a range of entries, and in a world the cells follow each
-other: a cell's range ends where the next cell's begins. So a run of cells along a row is one range
-of entries (`row_run_entries`; two where the run crosses the seam), which searches read as such.
-The radix-sorted lists take their ranges from a prefix sum of per-cell counts.
-Positions, velocities and headings are gathered into that order for coalesced neighbour reads, and
-`entry` maps each slot to its sorted entry. A world that is one cell needs no build at all: its
-lists are "whole-world" lists (`whole_world`), fixed at construction, in which cell w holds every
-slot of world w in slot order, dead ones included (`listed_slot` skips those), and the gathered
-arrays are the state's own arrays. Other small worlds skip the radix sort, with the same order
-for live agents: on the CPU a counting sort per world (`sort_into_cells_per_world`, one thread per
-world; on an H200 that was latency-bound and slower than the radix sort for 65,536 worlds of 17),
-on a GPU a rank per slot counted over its world (`rank_into_cells_per_world`, one thread per slot).
+wrap modulo the dims and the grid is a torus like the world. Live agents are listed by the key
+`world * cells_per_world + cell`, and within a cell by slot, so the order (and every result derived
+from it) is deterministic on CPU and GPU. Every cell, empty ones included, has a range of entries,
+and in a world the cells follow each other: a cell's range ends where the next cell's begins. So a
+run of cells along a row is one range of entries (`row_run_entries`; two where the run crosses the
+seam), which searches read as such. Positions, velocities and headings are gathered into that order
+for coalesced neighbour reads, and `entry` maps each live slot to its entry.
+
+Four builds give the same lists. A world that is one cell needs none: its lists are "whole-world"
+lists (`whole_world`), fixed at construction, in which cell w holds every slot of world w in slot
+order, dead ones included (`listed_slot` skips those), and the gathered arrays are the state's own
+arrays. On the CPU, a counting sort per world (`sort_into_cells_per_world`, one thread per world).
+On a GPU, small worlds rank each slot over its world (`rank_into_cells_per_world`, one thread per
+slot), and large ones count the agents of each cell (`compute_cell_keys`), take a prefix sum of the
+counts as the cell ranges, drop each agent into its cell in any order (`drop_into_cells`) and then
+order each cell by slot (`order_cells`, each entry counting the lower slots of its cell): no sort
+of all keys. Dead slots get no entry in the built lists.
 
 Queries visit the cells around the query cell by rings: ring 0 is the cell itself, ring r the 8r
 cells at Chebyshev cell distance r (`ring_offset`, side by side); a fixed radius visits the whole
@@ -56,9 +58,9 @@ class CellLists:
     hi_y: int
     cell_start: wp.array(dtype=int)  # [num_worlds * cells_per_world], first entry k of each cell
     cell_end: wp.array(dtype=int)  # [num_worlds * cells_per_world], one past the last entry
-    cell_count: wp.array(dtype=int)  # [num_worlds * cells_per_world] live agents per cell (radix builds; else empty)
-    key: wp.array(dtype=int)  # [2N] sort keys (second half is radix-sort scratch)
-    agent: wp.array(dtype=int)  # [2N] flat slot index world * capacity + slot, in sorted order
+    cell_count: wp.array(dtype=int)  # [num_worlds * cells_per_world] live agents per cell (count builds; else empty)
+    key: wp.array(dtype=int)  # [2N] key of each flat slot (-1: dead), then its arrival order in its cell
+    agent: wp.array(dtype=int)  # [2N] flat slot index world * capacity + slot, in list order; then scratch
     position: wp.array(dtype=wp.vec2)  # [N] px, gathered in sorted order
     velocity: wp.array(dtype=wp.vec2)  # [N] px/step, gathered in sorted order
     heading: wp.array(dtype=wp.vec2)  # [N] unit vectors, gathered in sorted order
@@ -278,43 +280,71 @@ def compute_cell_keys(
     grid: CellLists,
     position: wp.array2d(dtype=wp.vec2),
     alive: wp.array2d(dtype=wp.bool),
-    num_worlds: int,
     key: wp.array(dtype=int),
-    agent: wp.array(dtype=int),
     cell_count: wp.array(dtype=int),
 ):
-    """Sort keys of the radix-sort build, and the live agents per cell (zero beforehand): their
-    prefix sum gives every cell its range (integer sums, so deterministic)."""
+    """Count build, step 1: each live agent's key, and its arrival order among its cell's agents
+    (`cell_count` zero beforehand counts them; the order varies from run to run, `order_cells`
+    replaces it by slot order)."""
     w, i = wp.tid()
+    n = grid.entry.shape[0]
     k = w * world.capacity + i
     if alive[w, i]:
-        key[k] = w * grid.cells_per_world + cell_in_world(grid, position[w, i])
-        wp.atomic_add(cell_count, key[k], 1)
+        cell = w * grid.cells_per_world + cell_in_world(grid, position[w, i])
+        key[k] = cell
+        key[n + k] = wp.atomic_add(cell_count, cell, 1)
     else:
-        key[k] = num_worlds * grid.cells_per_world
-    agent[k] = k
+        key[k] = -1
 
 
 @wp.kernel
-def gather_sorted_agents(
+def drop_into_cells(
+    world: WorldParams,
+    grid: CellLists,
+    agent: wp.array(dtype=int),
+):
+    """Count build, step 3 (after the prefix sum of the counts into the cell ends): each live agent
+    takes the place of its arrival order in its cell's range of the scratch list."""
+    k = wp.tid()
+    n = grid.entry.shape[0]
+    cell = grid.key[k]
+    if cell >= 0:
+        agent[n + grid.cell_start[cell] + grid.key[n + k]] = k
+
+
+@wp.kernel
+def order_cells(
     world: WorldParams,
     grid: CellLists,
     position: wp.array2d(dtype=wp.vec2),
     velocity: wp.array2d(dtype=wp.vec2),
     heading: wp.array2d(dtype=wp.vec2),
+    agent: wp.array(dtype=int),
     sorted_position: wp.array(dtype=wp.vec2),
     sorted_velocity: wp.array(dtype=wp.vec2),
     sorted_heading: wp.array(dtype=wp.vec2),
 ):
-    """Positions, velocities and headings in sorted order, and each slot's entry (radix-sort build)."""
+    """Count build, step 4: the agent at scratch entry k moves to its cell's start plus the number of
+    lower slots in its cell (O(agents of the cell) per thread, like the searches that read the cell),
+    and its position, velocity and heading are gathered there."""
     k = wp.tid()
-    idx = grid.agent[k]
+    n = grid.entry.shape[0]
+    if k >= grid.cell_end[grid.cell_end.shape[0] - 1]:  # past the last live agent
+        return
+    idx = agent[n + k]
+    cell = grid.key[idx]
+    first = grid.cell_start[cell]
+    at = first
+    for q in range(first, grid.cell_end[cell]):
+        if agent[n + q] < idx:
+            at += 1
     w = idx // world.capacity
     i = idx - w * world.capacity
-    sorted_position[k] = position[w, i]
-    sorted_velocity[k] = velocity[w, i]
-    sorted_heading[k] = heading[w, i]
-    grid.entry[idx] = k
+    agent[at] = idx
+    sorted_position[at] = position[w, i]
+    sorted_velocity[at] = velocity[w, i]
+    sorted_heading[at] = heading[w, i]
+    grid.entry[idx] = at
 
 
 @wp.kernel
@@ -334,35 +364,45 @@ def rank_into_cells_per_world(
 ):
     """The cell lists of small worlds on a GPU, one thread per slot: a slot's entry is its rank by
     (cell, slot) among its world's live agents, counted over the world's slots (O(capacity) per
-    thread, no sort). Live agents get the radix sort's order; dead slots follow them, as in
-    `sort_into_cells_per_world`. Thread i also writes the ranges of cells i, i + capacity, ...,
-    empty cells included (each counted over the world's slots too)."""
+    thread, no sort). Live agents get the count build's order; dead slots follow them, as in
+    `sort_into_cells_per_world`. The first agent of each occupied cell writes its cell's range and
+    those of the empty cells between it and the occupied cell below (and above, for the last one)."""
     w, i = wp.tid()
     capacity = world.capacity
     first = w * capacity
+    first_cell = w * grid.cells_per_world
     k = first + i
-    for cell in range(i, grid.cells_per_world, capacity):
+    at = int(0)
+    if alive[w, i]:
+        cell = cell_in_world(grid, position[w, i])
         before = int(0)  # live agents in lower cells
+        ahead = int(0)  # live agents in the same cell with a lower slot
         inside = int(0)
+        below = int(-1)  # the highest occupied cell below this one
+        above = bool(False)  # any occupied cell above this one
         for j in range(capacity):
             if alive[w, j]:
                 other = cell_in_world(grid, position[w, j])
                 if other < cell:
                     before += 1
+                    below = wp.max(below, other)
                 elif other == cell:
                     inside += 1
-        cell_start[w * grid.cells_per_world + cell] = first + before
-        cell_end[w * grid.cells_per_world + cell] = first + before + inside
-    at = int(0)
-    if alive[w, i]:
-        cell = cell_in_world(grid, position[w, i])
-        before = int(0)  # live agents in lower cells, or in the same cell with a lower slot
-        for j in range(capacity):
-            if alive[w, j]:
-                other = cell_in_world(grid, position[w, j])
-                if other < cell or (other == cell and j < i):
-                    before += 1
-        at = first + before
+                    if j < i:
+                        ahead += 1
+                else:
+                    above = True
+        at = first + before + ahead
+        if ahead == 0:
+            for c in range(below + 1, cell):
+                cell_start[first_cell + c] = first + before
+                cell_end[first_cell + c] = first + before
+            cell_start[first_cell + cell] = first + before
+            cell_end[first_cell + cell] = first + before + inside
+            if not above:
+                for c in range(cell + 1, grid.cells_per_world):
+                    cell_start[first_cell + c] = first + before + inside
+                    cell_end[first_cell + c] = first + before + inside
     else:
         live = int(0)
         dead_ahead = int(0)
@@ -372,6 +412,10 @@ def rank_into_cells_per_world(
             elif j < i:
                 dead_ahead += 1
         at = first + live + dead_ahead
+        if live == 0 and i == 0:  # no live agent: every cell is empty
+            for c in range(grid.cells_per_world):
+                cell_start[first_cell + c] = first
+                cell_end[first_cell + c] = first
     agent[at] = k
     sorted_position[at] = position[w, i]
     sorted_velocity[at] = velocity[w, i]

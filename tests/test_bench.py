@@ -56,8 +56,8 @@ def test_byte_model_counts_every_stage():
     # A default world is one cell: its whole-world lists need no build on either device.
     assert gpu["grid_path"] == cpu["grid_path"] == "whole-world lists (no build)"
     assert gpu["stages"]["grid"] == cpu["stages"]["grid"] == {"read": 0, "write": 0}
-    # Small worlds of several cells are ranked per slot on a GPU; large ones take the radix sort,
-    # which moves more than ranking, the more so the more key bits it sorts.
+    # Small worlds of several cells are ranked per slot on a GPU; large ones count the agents of each
+    # cell, which moves more than ranking.
     ranked = step_byte_model(cfg, (3, 3), cuda=True)
     assert ranked["grid_path"] == "rank per slot (CUDA)"
     assert step_byte_model(cfg, (3, 3), cuda=False)["grid_path"] == "counting sort (CPU)"
@@ -65,17 +65,15 @@ def test_byte_model_counts_every_stage():
     # Reading each slot's sorted entry is an observation read that whole-world lists do not need.
     assert ranked["stages"]["observations"]["read"] == gpu["stages"]["observations"]["read"] + 4
     large = bench.density_config(10_000)
-    radix = step_byte_model(large, cuda=True)
-    assert radix["grid_path"] == "radix sort (CUDA)"
-    many = step_byte_model(large, cuda=True, worlds=4096)
-    assert many["stages"]["grid"]["read"] > radix["stages"]["grid"]["read"]
-    assert radix["stages"]["grid"]["read"] > ranked["stages"]["grid"]["read"]
+    counted = step_byte_model(large, cuda=True)
+    assert counted["grid_path"] == "cell counts + prefix sum (CUDA)"
+    assert counted["stages"]["grid"]["read"] > ranked["stages"]["grid"]["read"]
     # More grid cells per agent clear more cell ranges; reproduction reads the prey's ages.
     assert step_byte_model(cfg, (20, 20))["total"] > step_byte_model(cfg, (5, 5))["total"]
     assert (step_byte_model(AquariumConfig(prey_reproduction=True, max_prey=32))["stages"]["population"]["read"]
             > gpu["stages"]["population"]["read"])
     # A one-world config at the default density models the same order of bytes as the default world.
-    assert 0.5 < radix["total"] / gpu["total"] < 2.0
+    assert 0.5 < counted["total"] / gpu["total"] < 2.0
 
 
 def test_tiny_sweep_writes_json_and_figures(tmp_path):

@@ -1,8 +1,9 @@
 """The three ways of building the cell lists give every cell the same agents in the same order.
 
-`sort_into_cells_per_world` (CPU), `rank_into_cells_per_world` (GPU, small worlds) and keys + radix
-sort + a prefix sum of the cell counts + `gather_sorted_agents` (GPU, large worlds) must agree, since neighbour order (and so every tie)
-follows the cell lists. Each build is checked against a numpy stable sort by (world, cell, slot) on
+`sort_into_cells_per_world` (CPU), `rank_into_cells_per_world` (GPU, small worlds) and the count
+build (GPU, large worlds: cell counts, their prefix sum, agents dropped into their cells in arrival
+order, then each cell ordered by slot) must agree, since neighbour order (and so every tie) follows
+the cell lists. Each build is checked against a numpy stable sort by (world, cell, slot) on
 random worlds with dead slots, agents on cell borders and on the seam, for one cell per world and
 for several.
 """
@@ -33,11 +34,18 @@ def build(method: str, cfg, dims, position, velocity, heading, alive, device):
         wp.launch(grid_kernels.rank_into_cells_per_world, (W, C), inputs=[world, g, *arrays, alive_wp],
                   outputs=outputs, device=device)
     else:
-        wp.launch(grid_kernels.compute_cell_keys, (W, C), inputs=[world, g, arrays[0], alive_wp, W],
-                  outputs=[g.key, g.agent, g.cell_count], device=device)
-        wp.utils.radix_sort_pairs(g.key, g.agent, W * C)
+        wp.launch(grid_kernels.compute_cell_keys, (W, C), inputs=[world, g, arrays[0], alive_wp],
+                  outputs=[g.key, g.cell_count], device=device)
+        # On a GPU the arrival order in a cell varies from run to run; the CPU's is slot order. Reverse
+        # it in every cell, so that ordering the cells by slot has work to do here too.
+        key = g.key.numpy()
+        n = W * C
+        live = key[:n] >= 0
+        key[n:][live] = g.cell_count.numpy()[key[:n][live]] - 1 - key[n:][live]
+        g.key.assign(key)
         wp.utils.array_scan(g.cell_count, g.cell_end, inclusive=True)
-        wp.launch(grid_kernels.gather_sorted_agents, W * C, inputs=[world, g, *arrays], outputs=outputs[3:],
+        wp.launch(grid_kernels.drop_into_cells, W * C, inputs=[world, g], outputs=[g.agent], device=device)
+        wp.launch(grid_kernels.order_cells, W * C, inputs=[world, g, *arrays], outputs=[g.agent] + outputs[3:],
                   device=device)
     return {name: getattr(g, name).numpy() for name in ("cell_start", "cell_end", "agent", "position", "velocity",
                                                          "heading", "entry")}
@@ -74,7 +82,7 @@ def test_cell_list_builds_agree(device, dims):
     alive[5] = True
     want = expected_cells(cfg, dims, position, alive)
     flat_position = position.reshape(-1, 2)
-    for method in ("counting", "rank", "radix"):
+    for method in ("counting", "rank", "count"):
         got = build(method, cfg, dims, position, velocity, heading, alive, device)
         occupied = {c: list(got["agent"][got["cell_start"][c]:got["cell_end"][c]]) for c in want}
         assert occupied == want, f"{method}: cells differ"
