@@ -254,10 +254,10 @@ def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True)
         # One cell per world: the lists are fixed and the searches read the state itself.
         build = []
     elif path == "rank":
-        # rank_into_cells_per_world: per slot read alive, position, velocity, heading (the rest of its
-        # world is read through the cache); write the sorted agent index, position, velocity, heading
-        # and the slot's entry; and the range of every cell, empty ones included.
-        build = [{"read": BOOL + 3 * VEC2, "write": I32 + 3 * VEC2 + I32 + 2 * I32 * cells}]
+        # rank_into_cells_per_world: per slot read alive and position (the rest of its world is read
+        # through the cache); write the sorted agent index and position; and the range of every cell,
+        # empty ones included.
+        build = [{"read": BOOL + VEC2, "write": I32 + VEC2 + 2 * I32 * cells}]
     elif path == "count":
         # cell_count.zero_: one int32 per cell.
         clear = {"read": 0.0, "write": I32 * cells}
@@ -269,20 +269,19 @@ def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True)
         # drop_into_cells: read key, arrival order and the cell's start; write the scratch entry.
         drop = {"read": 3 * I32, "write": I32}
         # order_cells: read the scratch entry, its key, its cell's range and the cell's other scratch
-        # entries (cached), position, velocity, heading; write the entry, position, velocity, heading
-        # and the slot's entry.
-        order = {"read": 3 * I32 + 3 * VEC2, "write": I32 + 3 * VEC2 + I32}
+        # entries (cached) and the position; write the entry and the position.
+        order = {"read": 3 * I32 + VEC2, "write": I32 + VEC2}
         build = [clear, keys, scan, drop, order]
     else:
         # sort_into_cells_per_world (the CPU's counting sort): clear the counts (a pass writing cells);
         # per agent read alive and position, write its key and count it (read-modify-write of the
         # cell's count); a prefix sum over the cells (read count, write start and end); per agent
-        # read the key, position, velocity, heading and the cell's cursor, write the sorted agent
-        # index, position, velocity, heading, the slot's entry and the cursor.
+        # read the key, position and the cell's cursor, write the sorted agent index, position and
+        # the cursor.
         build = [{"read": 0.0, "write": I32 * cells},
                  {"read": BOOL + VEC2 + I32, "write": I32 + I32},
                  {"read": 4 * cells, "write": 8 * cells},
-                 {"read": I32 + 3 * VEC2 + I32, "write": I32 + 3 * VEC2 + I32 + I32}]
+                 {"read": I32 + VEC2 + I32, "write": I32 + VEC2 + I32}]
     stages["grid"] = {"read": sum(b["read"] for b in build), "write": sum(b["write"] for b in build)}
 
     # Captures and starvation. detect_captures, one thread per predator: read alive and position
@@ -306,13 +305,13 @@ def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True)
         # reproduce_prey, one thread per world: reads alive, age and replication age of each prey slot.
         stages["population"]["read"] += prey * (BOOL + 2 * I32)
 
-    # Observations: the observation kernel, one thread per slot: read the slot's sorted entry (none
-    # with whole-world lists), alive, its sorted position, heading and velocity; write its observation row
+    # Observations: the observation kernel, one thread per slot: read alive, its position, heading
+    # and velocity (from the state, by slot); write its observation row
     # (float32), the mask and slot of each neighbour slot, and the contact partner and offset.
     obs_floats = prey * cfg.prey.observation_size + pred * cfg.predator.observation_size
     slots = (prey * (cfg.prey.predator_slots + cfg.prey.prey_slots)
              + pred * (cfg.predator.predator_slots + cfg.predator.prey_slots))
-    stages["observations"] = {"read": (0 if whole_world else I32) + BOOL + 3 * VEC2,
+    stages["observations"] = {"read": BOOL + 3 * VEC2,
                               "write": F32 * obs_floats + slots * (BOOL + I32) + I32 + VEC2}
     read = sum(s["read"] for s in stages.values())
     write = sum(s["write"] for s in stages.values())
@@ -470,11 +469,11 @@ def array_bytes(env) -> int:
     total = sum(size(a) for a in vars(env.state).values() if isinstance(a, wp.array))
     for shard in env.shards:
         g = shard.grid
-        owned = ("cell_start", "cell_end", "cell_count", "key", "agent", "entry")
+        owned = ("cell_start", "cell_end", "cell_count", "key", "agent")
         if g.cell_end.ptr == g.cell_start.ptr + 4:  # count builds: both are views of one bounds array
             owned = tuple(f for f in owned if f != "cell_end")
-        if not g.whole_world:  # whole-world lists view the state's own position, velocity and heading
-            owned += ("position", "velocity", "heading")
+        if not g.whole_world:  # whole-world lists view the state's own positions
+            owned += ("position",)
         total += sum(size(getattr(g, f)) for f in owned)
     return total
 

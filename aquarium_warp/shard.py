@@ -86,9 +86,8 @@ def cell_lists(cfg: AquariumConfig, num_worlds: int, dims: tuple[int, int], devi
         first = np.arange(num_worlds, dtype=np.int32) * cfg.capacity
         g.cell_start = wp.array(first, dtype=int, device=device)
         g.cell_end = wp.array(first + cfg.capacity, dtype=int, device=device)
-        g.key = g.agent = g.entry = g.cell_count = wp.empty(0, dtype=int, device=device)
-        g.position, g.velocity, g.heading, g.alive = (state.position.flatten(), state.velocity.flatten(),
-                                                      state.heading.flatten(), state.alive.flatten())
+        g.key = g.agent = g.cell_count = wp.empty(0, dtype=int, device=device)
+        g.position, g.alive = state.position.flatten(), state.alive.flatten()
         return g
     if (build or grid_build(cfg, dims, wp.get_device(device).is_cuda)) == "count":
         # Live agents are packed in key order over all worlds, so each cell ends where the next one
@@ -103,9 +102,6 @@ def cell_lists(cfg: AquariumConfig, num_worlds: int, dims: tuple[int, int], devi
     g.key = wp.zeros(2 * n, dtype=int, device=device)
     g.agent = wp.zeros(2 * n, dtype=int, device=device)
     g.position = wp.zeros(n, dtype=wp.vec2, device=device)
-    g.velocity = wp.zeros(n, dtype=wp.vec2, device=device)
-    g.heading = wp.zeros(n, dtype=wp.vec2, device=device)
-    g.entry = wp.zeros(n, dtype=int, device=device)
     g.alive = wp.empty(0, dtype=wp.bool, device=device)
     return g
 
@@ -152,13 +148,11 @@ class WorldShard:
         if g.whole_world:
             return []  # the lists are fixed and read the state itself
         if build == "counting":
-            return [self._launch(grid_kernels.sort_into_cells_per_world, W,
-                                 [self.world, g, s.position, s.velocity, s.heading, s.alive],
-                                 [g.key, g.cell_start, g.cell_end, g.agent, g.position, g.velocity, g.heading])]
+            return [self._launch(grid_kernels.sort_into_cells_per_world, W, [self.world, g, s.position, s.alive],
+                                 [g.key, g.cell_start, g.cell_end, g.agent, g.position])]
         if build == "rank":
-            return [self._launch(grid_kernels.rank_into_cells_per_world, (W, C),
-                                 [self.world, g, s.position, s.velocity, s.heading, s.alive],
-                                 [g.cell_start, g.cell_end, g.agent, g.position, g.velocity, g.heading])]
+            return [self._launch(grid_kernels.rank_into_cells_per_world, (W, C), [self.world, g, s.position, s.alive],
+                                 [g.cell_start, g.cell_end, g.agent, g.position])]
         return [
             g.cell_count.zero_,
             self._launch(grid_kernels.compute_cell_keys, (W, C), [self.world, g, s.position, s.alive],
@@ -166,8 +160,7 @@ class WorldShard:
             # Every cell's end is the running count of live agents (its start the previous cell's end).
             functools.partial(wp.utils.array_scan, g.cell_count, g.cell_end, True),
             self._launch(grid_kernels.drop_into_cells, count, [self.world, g], [g.agent]),
-            self._launch(grid_kernels.order_cells, count, [self.world, g, s.position, s.velocity, s.heading],
-                         [g.agent, g.position, g.velocity, g.heading]),
+            self._launch(grid_kernels.order_cells, count, [self.world, g, s.position], [g.agent, g.position]),
         ]
 
     def _observation_outputs(self, type_name: str, kernel) -> list:
@@ -201,8 +194,8 @@ class WorldShard:
             second_outputs = self._observation_outputs(second, kernel) if second else first_outputs
             launches.append(self._launch_blocks(
                 kernel, first_blocks + (second_rows + block - 1) // block, block,
-                [self.world, self.types, self.grid, s.alive, TYPE_CODES[first], rows[first], first_blocks,
-                 second_rows],
+                [self.world, self.types, self.grid, s.alive, s.position, s.velocity, s.heading, TYPE_CODES[first],
+                 rows[first], first_blocks, second_rows],
                 first_outputs + second_outputs + [s.contact_partner, s.contact_offset]))
         return launches
 

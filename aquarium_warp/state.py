@@ -80,12 +80,12 @@ def estimate_bytes(cfg, num_worlds: int, cells_per_world: int) -> int:
     """Device bytes of a batch of `num_worlds` worlds of `cfg` (state, outputs, cell lists), about."""
     obs = max(cfg.prey.observation_size, cfg.predator.observation_size)
     slots = max(p.predator_slots + p.prey_slots for p in (cfg.prey, cfg.predator))
-    return num_worlds * (cfg.capacity * bytes_per_slot(obs, slots) + cells_per_world * 8 + 64)
+    return num_worlds * (cfg.capacity * bytes_per_slot(obs, slots) + cells_per_world * 12 + 64)
 
 
 def bytes_per_slot(prey_obs_size: int, mask_size: int) -> int:
     """Device bytes per agent slot: state, outputs, cell lists and observations (an estimate)."""
     state = 4 * 8 + 1 + 3 * 4  # vec2 fields, alive, int fields
     outputs = 4 + 1 + 1 + 1 + 4 + 4 + 4  # reward, flags, share count, episode return, action
-    grid = 2 * 4 + 2 * 4 + 3 * 8 + 4  # keys, agents (with sort scratch), sorted position, velocity, heading, entry
+    grid = 2 * 4 + 2 * 4 + 8  # keys (with arrival orders), agents (with scratch), sorted position
     return state + outputs + grid + 4 * prey_obs_size + mask_size

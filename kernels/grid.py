@@ -6,13 +6,13 @@ wrap modulo the dims and the grid is a torus like the world. Live agents are lis
 from it) is deterministic on CPU and GPU. Every cell, empty ones included, has a range of entries,
 and in a world the cells follow each other: a cell's range ends where the next cell's begins. So a
 run of cells along a row is one range of entries (`row_run_entries`; two where the run crosses the
-seam), which searches read as such. Positions, velocities and headings are gathered into that order
-for coalesced neighbour reads, and `entry` maps each live slot to its entry.
+seam), which searches read as such. Positions are gathered into that order for coalesced neighbour
+reads (a search reads every candidate's position; other fields only of the few it keeps, which it
+reads from the state by slot).
 
 Four builds give the same lists. A world that is one cell needs none: its lists are "whole-world"
 lists (`whole_world`), fixed at construction, in which cell w holds every slot of world w in slot
-order, dead ones included (`listed_slot` skips those), and the gathered arrays are the state's own
-arrays. On the CPU, a counting sort per world (`sort_into_cells_per_world`, one thread per world).
+order, dead ones included (`listed_slot` skips those), and the positions are the state's own. On the CPU, a counting sort per world (`sort_into_cells_per_world`, one thread per world).
 On a GPU, small worlds rank each slot over its world (`rank_into_cells_per_world`, one thread per
 slot), and large ones count the agents of each cell (`compute_cell_keys`), take a prefix sum of the
 counts as the cell ranges, drop each agent into its cell in any order (`drop_into_cells`) and then
@@ -39,8 +39,8 @@ class CellLists:
     """Cell lists of all worlds. N = num_worlds * capacity; arrays indexed by sorted entry k.
 
     With `whole_world` = 1 each world is one cell listing all its slots (entry k = flat slot index,
-    dead slots included): `key`, `agent` and `entry` are empty, and `position`, `velocity`, `heading`
-    and `alive` are flat views of the state's arrays."""
+    dead slots included): `key` and `agent` are empty, and `position` and `alive` are flat views of
+    the state's arrays."""
 
     dims_x: int
     dims_y: int
@@ -62,9 +62,6 @@ class CellLists:
     key: wp.array(dtype=int)  # [2N] key of each flat slot (-1: dead), then its arrival order in its cell
     agent: wp.array(dtype=int)  # [2N] flat slot index world * capacity + slot, in list order; then scratch
     position: wp.array(dtype=wp.vec2)  # [N] px, gathered in sorted order
-    velocity: wp.array(dtype=wp.vec2)  # [N] px/step, gathered in sorted order
-    heading: wp.array(dtype=wp.vec2)  # [N] unit vectors, gathered in sorted order
-    entry: wp.array(dtype=int)  # [N] sorted entry k of each flat slot index (inverse of `agent`)
     alive: wp.array(dtype=wp.bool)  # [N] whole-world lists only: the state's alive flags (else empty)
 
 
@@ -287,7 +284,7 @@ def compute_cell_keys(
     (`cell_count` zero beforehand counts them; the order varies from run to run, `order_cells`
     replaces it by slot order)."""
     w, i = wp.tid()
-    n = grid.entry.shape[0]
+    n = grid.position.shape[0]
     k = w * world.capacity + i
     if alive[w, i]:
         cell = w * grid.cells_per_world + cell_in_world(grid, position[w, i])
@@ -306,7 +303,7 @@ def drop_into_cells(
     """Count build, step 3 (after the prefix sum of the counts into the cell ends): each live agent
     takes the place of its arrival order in its cell's range of the scratch list."""
     k = wp.tid()
-    n = grid.entry.shape[0]
+    n = grid.position.shape[0]
     cell = grid.key[k]
     if cell >= 0:
         agent[n + grid.cell_start[cell] + grid.key[n + k]] = k
@@ -317,18 +314,14 @@ def order_cells(
     world: WorldParams,
     grid: CellLists,
     position: wp.array2d(dtype=wp.vec2),
-    velocity: wp.array2d(dtype=wp.vec2),
-    heading: wp.array2d(dtype=wp.vec2),
     agent: wp.array(dtype=int),
     sorted_position: wp.array(dtype=wp.vec2),
-    sorted_velocity: wp.array(dtype=wp.vec2),
-    sorted_heading: wp.array(dtype=wp.vec2),
 ):
     """Count build, step 4: the agent at scratch entry k moves to its cell's start plus the number of
     lower slots in its cell (O(agents of the cell) per thread, like the searches that read the cell),
-    and its position, velocity and heading are gathered there."""
+    and its position is gathered there."""
     k = wp.tid()
-    n = grid.entry.shape[0]
+    n = grid.position.shape[0]
     if k >= grid.cell_end[grid.cell_end.shape[0] - 1]:  # past the last live agent
         return
     idx = agent[n + k]
@@ -342,9 +335,6 @@ def order_cells(
     i = idx - w * world.capacity
     agent[at] = idx
     sorted_position[at] = position[w, i]
-    sorted_velocity[at] = velocity[w, i]
-    sorted_heading[at] = heading[w, i]
-    grid.entry[idx] = at
 
 
 @wp.kernel
@@ -352,15 +342,11 @@ def rank_into_cells_per_world(
     world: WorldParams,
     grid: CellLists,
     position: wp.array2d(dtype=wp.vec2),
-    velocity: wp.array2d(dtype=wp.vec2),
-    heading: wp.array2d(dtype=wp.vec2),
     alive: wp.array2d(dtype=wp.bool),
     cell_start: wp.array(dtype=int),
     cell_end: wp.array(dtype=int),
     agent: wp.array(dtype=int),
     sorted_position: wp.array(dtype=wp.vec2),
-    sorted_velocity: wp.array(dtype=wp.vec2),
-    sorted_heading: wp.array(dtype=wp.vec2),
 ):
     """The cell lists of small worlds on a GPU, one thread per slot: a slot's entry is its rank by
     (cell, slot) among its world's live agents, counted over the world's slots (O(capacity) per
@@ -418,9 +404,6 @@ def rank_into_cells_per_world(
                 cell_end[first_cell + c] = first
     agent[at] = k
     sorted_position[at] = position[w, i]
-    sorted_velocity[at] = velocity[w, i]
-    sorted_heading[at] = heading[w, i]
-    grid.entry[k] = at
 
 
 @wp.kernel
@@ -428,16 +411,12 @@ def sort_into_cells_per_world(
     world: WorldParams,
     grid: CellLists,
     position: wp.array2d(dtype=wp.vec2),
-    velocity: wp.array2d(dtype=wp.vec2),
-    heading: wp.array2d(dtype=wp.vec2),
     alive: wp.array2d(dtype=wp.bool),
     key: wp.array(dtype=int),
     cell_start: wp.array(dtype=int),
     cell_end: wp.array(dtype=int),
     agent: wp.array(dtype=int),
     sorted_position: wp.array(dtype=wp.vec2),
-    sorted_velocity: wp.array(dtype=wp.vec2),
-    sorted_heading: wp.array(dtype=wp.vec2),
 ):
     """The cell lists of one world by a counting sort in one thread (the CPU path: Warp runs CPU
     kernels on one thread anyway, and this avoids the radix sort's fixed cost). Stable, so live agents
@@ -471,6 +450,3 @@ def sort_into_cells_per_world(
             dead += 1
         agent[at] = k
         sorted_position[at] = position[w, i]
-        sorted_velocity[at] = velocity[w, i]
-        sorted_heading[at] = heading[w, i]
-        grid.entry[k] = at

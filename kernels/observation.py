@@ -101,6 +101,9 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
         types: wp.array(dtype=AgentType),
         grid: CellLists,
         alive: wp.array2d(dtype=wp.bool),
+        position: wp.array2d(dtype=wp.vec2),
+        velocity: wp.array2d(dtype=wp.vec2),
+        heading: wp.array2d(dtype=wp.vec2),
         first_type: int,
         first_rows: int,
         first_blocks: int,
@@ -146,12 +149,9 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
                     observed_slot[r, s] = -1
                 contact_partner[w, i] = -1
             else:
-                k = w * world.capacity + i  # sorted entry: the flat slot index in whole-world lists
-                if wp.static(not whole_world):
-                    k = grid.entry[k]
                 p = types[t]
-                pos = grid.position[k]
-                h = grid.heading[k]
+                pos = position[w, i]
+                h = heading[w, i]
 
                 # Ring-by-ring search for the nearest visible agents of each type, and for the nearest
                 # overlapping agent of the own type (the contact partner of the next step's motion).
@@ -198,7 +198,7 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
                                 j = wp.where(grid.alive[k2], k2 - base, -1)
                             else:
                                 j = grid.agent[k2] - base
-                            if j >= 0 and k2 != k:
+                            if j >= 0 and j != i:
                                 jt = slot_type(world, j)
                                 d = torus_displacement(world, pos, grid.position[k2])
                                 d2 = wp.dot(d, d)
@@ -264,14 +264,14 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
                 row[1] = scaled(pos[0] / world.width, signed)
                 row[2] = scaled(pos[1] / world.height, signed)
                 row[3] = scaled(angle_value(h), signed)
-                row[4] = scaled(wp.min(wp.length(grid.velocity[k]) / p.max_speed, 1.0), signed)
+                row[4] = scaled(wp.min(wp.length(velocity[w, i]) / p.max_speed, 1.0), signed)
                 for e in range(wp.static(slots)):
                     if kept_slot[e] != NO_SLOT:
                         jt = wp.where(e < predator_slots, PREDATOR, PREY)
                         k2 = kept_entry[e]
                         neighbour = neighbour_tuple(world, p, types[jt], jt, kept_d2[e],
                                                     torus_displacement(world, pos, grid.position[k2]),
-                                                    grid.position[k2], wp.length(grid.velocity[k2]))
+                                                    grid.position[k2], wp.length(velocity[w, kept_slot[e]]))
                         for q in range(6):
                             row[5 + 6 * e + q] = neighbour[q]
                         mask[r, e] = True

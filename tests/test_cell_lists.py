@@ -19,22 +19,21 @@ from aquarium_warp.kernels import grid as grid_kernels
 from aquarium_warp.shard import cell_lists, world_params
 
 
-def build(method: str, cfg, dims, position, velocity, heading, alive, device):
+def build(method: str, cfg, dims, position, alive, device):
     W, C = alive.shape
     g = cell_lists(cfg, W, dims, device, build=method)
     world = world_params(cfg, 0, 0, True)
-    arrays = [wp.array(position, dtype=wp.vec2, device=device), wp.array(velocity, dtype=wp.vec2, device=device),
-              wp.array(heading, dtype=wp.vec2, device=device)]
+    position_wp = wp.array(position, dtype=wp.vec2, device=device)
     alive_wp = wp.array(alive, dtype=wp.bool, device=device)
-    outputs = [g.cell_start, g.cell_end, g.agent, g.position, g.velocity, g.heading]
+    outputs = [g.cell_start, g.cell_end, g.agent, g.position]
     if method == "counting":
-        wp.launch(grid_kernels.sort_into_cells_per_world, W, inputs=[world, g, *arrays, alive_wp],
+        wp.launch(grid_kernels.sort_into_cells_per_world, W, inputs=[world, g, position_wp, alive_wp],
                   outputs=[g.key] + outputs, device=device)
     elif method == "rank":
-        wp.launch(grid_kernels.rank_into_cells_per_world, (W, C), inputs=[world, g, *arrays, alive_wp],
+        wp.launch(grid_kernels.rank_into_cells_per_world, (W, C), inputs=[world, g, position_wp, alive_wp],
                   outputs=outputs, device=device)
     else:
-        wp.launch(grid_kernels.compute_cell_keys, (W, C), inputs=[world, g, arrays[0], alive_wp],
+        wp.launch(grid_kernels.compute_cell_keys, (W, C), inputs=[world, g, position_wp, alive_wp],
                   outputs=[g.key, g.cell_count], device=device)
         # On a GPU the arrival order in a cell varies from run to run; the CPU's is slot order. Reverse
         # it in every cell, so that ordering the cells by slot has work to do here too.
@@ -45,10 +44,9 @@ def build(method: str, cfg, dims, position, velocity, heading, alive, device):
         g.key.assign(key)
         wp.utils.array_scan(g.cell_count, g.cell_end, inclusive=True)
         wp.launch(grid_kernels.drop_into_cells, W * C, inputs=[world, g], outputs=[g.agent], device=device)
-        wp.launch(grid_kernels.order_cells, W * C, inputs=[world, g, *arrays], outputs=[g.agent] + outputs[3:],
+        wp.launch(grid_kernels.order_cells, W * C, inputs=[world, g, position_wp], outputs=[g.agent, g.position],
                   device=device)
-    return {name: getattr(g, name).numpy() for name in ("cell_start", "cell_end", "agent", "position", "velocity",
-                                                         "heading", "entry")}
+    return {name: getattr(g, name).numpy() for name in ("cell_start", "cell_end", "agent", "position")}
 
 
 def expected_cells(cfg, dims, position, alive):
@@ -75,15 +73,13 @@ def test_cell_list_builds_agree(device, dims):
     border = rng.random((W, C)) < 0.2
     position[border, 0] = (rng.integers(0, dims[0], border.sum()) * (300.0 / dims[0]))
     position = position.astype(np.float32)
-    velocity = rng.normal(size=(W, C, 2)).astype(np.float32)
-    heading = (velocity / np.linalg.norm(velocity, axis=-1, keepdims=True)).astype(np.float32)
     alive = rng.random((W, C)) < 0.8
     alive[3] = False  # a world with no live agent
     alive[5] = True
     want = expected_cells(cfg, dims, position, alive)
     flat_position = position.reshape(-1, 2)
     for method in ("counting", "rank", "count"):
-        got = build(method, cfg, dims, position, velocity, heading, alive, device)
+        got = build(method, cfg, dims, position, alive, device)
         occupied = {c: list(got["agent"][got["cell_start"][c]:got["cell_end"][c]]) for c in want}
         assert occupied == want, f"{method}: cells differ"
         empty = np.ones(W * dims[0] * dims[1], bool)
@@ -96,11 +92,9 @@ def test_cell_list_builds_agree(device, dims):
         ends = got["cell_end"].reshape(W, per_world)
         assert (ends[:, :-1] == starts[:, 1:]).all(), f"{method}: cell ranges do not follow each other"
         assert (starts <= ends).all(), f"{method}: a cell range is reversed"
-        live = np.flatnonzero(alive.reshape(-1))
-        entry = got["entry"][live]
-        assert (got["agent"][entry] == live).all(), f"{method}: entry is not the inverse of agent"
-        assert (got["position"][entry] == flat_position[live]).all(), f"{method}: gathered positions differ"
-        assert (got["velocity"][entry] == velocity.reshape(-1, 2)[live]).all(), f"{method}: velocities differ"
+        listed = np.concatenate([np.arange(got["cell_start"][c], got["cell_end"][c]) for c in want])
+        assert (got["position"][listed] == flat_position[got["agent"][listed]]).all(), \
+            f"{method}: gathered positions differ"
 
 
 @wp.kernel
@@ -121,8 +115,7 @@ def test_row_runs_cover_the_run_cells_once(device, dims):
     rng = np.random.default_rng(7)
     position = np.stack([rng.random((W, C)) * 300.0, rng.random((W, C)) * 200.0], -1).astype(np.float32)
     alive = rng.random((W, C)) < 0.9
-    velocity = np.zeros((W, C, 2), np.float32)
-    got = build("counting", cfg, dims, position, velocity, velocity, alive, device)
+    got = build("counting", cfg, dims, position, alive, device)
     g = cell_lists(cfg, W, dims, device, build="counting")
     g.cell_start = wp.array(got["cell_start"], dtype=int, device=device)
     g.cell_end = wp.array(got["cell_end"], dtype=int, device=device)
