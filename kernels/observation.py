@@ -33,8 +33,9 @@ wp.set_module_options({"enable_backward": False})
 
 NO_SLOT = wp.constant(2147483647)  # slot of an unfilled list entry: ranks after every agent
 # Registers per GPU thread: the compiler's own choice (96) allows 31% occupancy and the pass waits on
-# memory; capped at 64 it ran 18% (65,536 x 17) and 12% (1M agents) faster on an H200, 48 or 56 slower.
-MAX_REGISTERS = 64
+# memory. On an H200 (graph step, row-run search): cap 72: 0.491 ms for one world of 1M agents and
+# 0.294 ms for 65,536 x 17; cap 64: 0.516 / 0.306 ms; 56: 0.553 ms (1M); 80: 0.499 ms (1M).
+MAX_REGISTERS = 72
 # The search starts with the square of rings 0..2 at most (row runs: one range of entries per row),
 # which holds the whole search at the default sizes; wider searches go on ring by ring.
 FIRST_SQUARE_RINGS = 2
