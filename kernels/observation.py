@@ -2,9 +2,13 @@
 
 Per live agent: the own 5-tuple, then its nearest visible predators and nearest visible prey, each
 block sorted by (distance, slot), packed as 6-tuples; unused slots are zero and a boolean mask marks
-the filled ones. Candidates come from a ring-by-ring search of the cell lists that stops as soon as
-no unseen agent can be visible (beyond the view distance) or closer than the K-th kept one, so an
-unlimited view distance still costs about K neighbours' worth of cells, not the whole world.
+the filled ones. Candidates come from a search of the cell lists that widens ring by ring and stops
+as soon as no unseen agent can be visible (beyond the view distance) or closer than the K-th kept
+one, so an unlimited view distance still costs about K neighbours' worth of cells, not the whole
+world. It reads cells a row run at a time (the cells of a row within reach are one range of entries):
+first the square of rings 0..2 at most, which at the default sizes is the whole search, then one
+ring per step. Observers read their own fields, and their kept neighbours' velocities, from the
+state by slot; the cell lists give the candidates' slots and positions.
 
 The same neighbour pass also finds each agent's contact partner for the next step's motion (MODEL.md
 step 3 reads start-of-step positions, which are exactly these), so motion needs no search of its own.
