@@ -12,13 +12,14 @@ reads from the state by slot).
 
 Four builds give the same lists. A world that is one cell needs none: its lists are "whole-world"
 lists (`whole_world`), fixed at construction, in which cell w holds every slot of world w in slot
-order, dead ones included (`listed_slot` skips those), and the positions are the state's own. On
-the CPU, a counting sort per world (`sort_into_cells_per_world`, one thread per world). On a GPU, small worlds rank each slot over its world (`rank_into_cells_per_world`, one thread per
-slot), and large ones count the agents of each cell (`compute_cell_keys`), take a prefix sum of the
-counts as the cell ranges, drop each agent into its cell in any order (`drop_into_cells`) and then
-order each cell by slot (`order_cells`, each entry counting the lower slots of its cell): no sort
-of all keys. Dead slots lie outside every cell: the count build lists none, the per-world builds list
-them after their world's live agents.
+order, dead ones included (`listed_slot` skips those), and the positions are the state's own. On the
+CPU, a counting sort per world (`sort_into_cells_per_world`, one thread per world). On a GPU, small
+worlds rank each slot over its world (`rank_into_cells_per_world`, one thread per slot), and large
+ones count the agents of each cell (`compute_cell_keys`), take a prefix sum of the counts as the
+cell ranges, drop each agent into its cell in any order (`drop_into_cells`) and then order each cell
+by slot (`order_cells`, each entry counting the lower slots of its cell): no sort of all keys. Dead
+slots lie outside every cell: the count build lists none, the per-world builds list them after their
+world's live agents.
 
 Queries visit the cells around the query cell by rings: ring 0 is the cell itself, ring r the 8r
 cells at Chebyshev cell distance r (`ring_offset`, side by side); a fixed radius visits the whole
