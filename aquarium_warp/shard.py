@@ -159,7 +159,7 @@ class WorldShard:
                          [g.key, g.cell_count]),
             # Every cell's end is the running count of live agents (its start the previous cell's end).
             functools.partial(wp.utils.array_scan, g.cell_count, g.cell_end, True),
-            self._launch(grid_kernels.drop_into_cells, count, [self.world, g], [g.agent]),
+            self._launch(grid_kernels.drop_into_cells, count, [g], [g.agent]),
             self._launch(grid_kernels.order_cells, count, [self.world, g, s.position], [g.agent, g.position]),
         ]
 

@@ -23,10 +23,10 @@ world's live agents.
 
 Queries visit the cells around the query cell by rings: ring 0 is the cell itself, ring r the 8r
 cells at Chebyshev cell distance r (`ring_offset`, side by side); a fixed radius visits the whole
-square of rings at once, row by row (`square_extent`, `row_run_entries`). Offsets are clipped to [-lo, hi] per axis (`offset_cell`),
-so on a small torus no cell is visited twice. After rings 0..r every agent closer than `r * reach`
-(reach = the smaller cell side, less a rounding margin) has been seen, which bounds fixed-radius
-queries and lets k-nearest queries stop early.
+square of rings at once, row by row (`square_extent`, `row_run_entries`). Offsets are clipped to
+[-lo, hi] per axis (`offset_cell`), so on a small torus no cell is visited twice. After rings 0..r
+every agent closer than `r * reach` (reach = the smaller cell side, less a rounding margin) has been
+seen, which bounds fixed-radius queries and lets k-nearest queries stop early.
 """
 
 import warp as wp
@@ -298,7 +298,6 @@ def compute_cell_keys(
 
 @wp.kernel
 def drop_into_cells(
-    world: WorldParams,
     grid: CellLists,
     agent: wp.array(dtype=int),
 ):
@@ -337,6 +336,15 @@ def order_cells(
     i = idx - w * world.capacity
     agent[at] = idx
     sorted_position[at] = position[w, i]
+
+
+@wp.func
+def set_empty_cells(cell_start: wp.array(dtype=int), cell_end: wp.array(dtype=int), first: int, last: int,
+                    entry: int):
+    """Cells [first, last) hold no agent: their ranges are empty, at `entry`."""
+    for c in range(first, last):
+        cell_start[c] = entry
+        cell_end[c] = entry
 
 
 @wp.kernel
@@ -382,15 +390,12 @@ def rank_into_cells_per_world(
                     above = True
         at = first + before + ahead
         if ahead == 0:
-            for c in range(below + 1, cell):
-                cell_start[first_cell + c] = first + before
-                cell_end[first_cell + c] = first + before
+            set_empty_cells(cell_start, cell_end, first_cell + below + 1, first_cell + cell, first + before)
             cell_start[first_cell + cell] = first + before
             cell_end[first_cell + cell] = first + before + inside
             if not above:
-                for c in range(cell + 1, grid.cells_per_world):
-                    cell_start[first_cell + c] = first + before + inside
-                    cell_end[first_cell + c] = first + before + inside
+                set_empty_cells(cell_start, cell_end, first_cell + cell + 1, first_cell + grid.cells_per_world,
+                                first + before + inside)
     else:
         live = int(0)
         dead_ahead = int(0)
@@ -401,9 +406,7 @@ def rank_into_cells_per_world(
                 dead_ahead += 1
         at = first + live + dead_ahead
         if live == 0 and i == 0:  # no live agent: every cell is empty
-            for c in range(grid.cells_per_world):
-                cell_start[first_cell + c] = first
-                cell_end[first_cell + c] = first
+            set_empty_cells(cell_start, cell_end, first_cell, first_cell + grid.cells_per_world, first)
     agent[at] = k
     sorted_position[at] = position[w, i]
 

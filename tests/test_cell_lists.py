@@ -43,7 +43,7 @@ def build(method: str, cfg, dims, position, alive, device):
         key[n:][live] = g.cell_count.numpy()[key[:n][live]] - 1 - key[n:][live]
         g.key.assign(key)
         wp.utils.array_scan(g.cell_count, g.cell_end, inclusive=True)
-        wp.launch(grid_kernels.drop_into_cells, W * C, inputs=[world, g], outputs=[g.agent], device=device)
+        wp.launch(grid_kernels.drop_into_cells, W * C, inputs=[g], outputs=[g.agent], device=device)
         wp.launch(grid_kernels.order_cells, W * C, inputs=[world, g, position_wp], outputs=[g.agent, g.position],
                   device=device)
     return {name: getattr(g, name).numpy() for name in ("cell_start", "cell_end", "agent", "position")}
