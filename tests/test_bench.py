@@ -288,3 +288,49 @@ def test_vmas_peer_harness():
     assert r["agents"] == 34 and r["prey_per_env"] == 16 and r["predators_per_env"] == 1
     assert r["agent_steps_per_s"] > 0 and math.isclose(r["agent_steps_per_s"], 34 / (r["step_ms"] / 1e3))
     assert r["observation_floats_per_env"] > 0
+
+
+def _profile_step_module():
+    import importlib.util
+
+    path = Path(__file__).resolve().parent.parent / "benchmarks" / "profile_step.py"
+    spec = importlib.util.spec_from_file_location("profile_step", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_profile_step_reads_ncu_csv():
+    """The Nsight Compute summary: metric units scaled, Warp and CUB kernel names shortened, and the
+    step totals per agent (a hand-made two-kernel CSV in the layout of `ncu --csv --page raw`)."""
+    profile = _profile_step_module()
+    metrics = list(profile.METRICS)
+    units = {"gpu__time_duration.sum": "us", "dram__bytes_read.sum": "Mbyte", "dram__bytes_write.sum": "Kbyte",
+             "lts__t_bytes.sum": "byte"}
+    values = [{"gpu__time_duration.sum": "2", "dram__bytes_read.sum": "1.5", "dram__bytes_write.sum": "500",
+               "lts__t_bytes.sum": "4,000,000", "smsp__inst_executed.sum": "1,000"},
+              {"gpu__time_duration.sum": "6", "dram__bytes_read.sum": "0.5", "dram__bytes_write.sum": "1,500",
+               "lts__t_bytes.sum": "0", "smsp__inst_executed.sum": "3,000"}]
+    names = ["observation_kernel__locals__observe_98279985_cuda_kernel_forward",
+             "void cub::DeviceScanKernel<cub::policy_hub<int>, int *>(int *)"]
+    quote = lambda row: ",".join(f'"{x}"' for x in row)  # noqa: E731
+    lines = ["==PROF== Connected to process", quote(["ID", "Kernel Name"] + metrics),
+             quote(["", ""] + [units.get(m, "") for m in metrics])]
+    for k, (name, v) in enumerate(zip(names, values)):
+        lines.append(quote([str(k), name] + [v.get(m, "50") for m in metrics]))
+    kernels = profile.parse_ncu_csv("\n".join(lines))
+    assert [k["kernel"] for k in kernels] == ["observation_kernel__locals__observe", "DeviceScanKernel"]
+    assert kernels[0]["time_ns"] == 2000 and kernels[0]["dram_read_bytes"] == 1.5e6
+    assert kernels[0]["dram_write_bytes"] == 5e5 and kernels[0]["l2_bytes"] == 4e6
+    totals = profile.summarize(kernels, agents=1000, model_bytes=2000.0, copy_bandwidth=1e12)
+    # 8 us of kernels moving 1.5 + 0.5 + 0.5 + 1.5 = 4 MB: 4000 B per agent, 2x the model, 0.5 TB/s.
+    assert totals["kernel_time_ms"] == pytest.approx(0.008)
+    assert totals["dram_bytes_per_agent_step"] == pytest.approx(4000.0)
+    assert totals["dram_over_model"] == pytest.approx(2.0)
+    assert totals["dram_bandwidth_tb_s"] == pytest.approx(0.5)
+    assert totals["dram_fraction_of_copy"] == pytest.approx(0.5)
+    assert totals["warp_instructions_per_agent_step"] == pytest.approx(4.0)
+    table = profile.format_table(kernels, totals, 1000)
+    assert "DeviceScanKernel" in table and "4000 B per agent-step" in table
+    with pytest.raises(RuntimeError, match="no kernel"):
+        profile.parse_ncu_csv("==PROF== nothing")
