@@ -284,8 +284,8 @@ def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True)
                  {"read": I32 + VEC2 + I32, "write": I32 + VEC2 + I32}]
     stages["grid"] = {"read": sum(b["read"] for b in build), "write": sum(b["write"] for b in build)}
 
-    # Captures and starvation. detect_captures, one thread per predator: read alive and position
-    # (the neighbour walk is a gather). count_capture_sharers, one thread per prey slot: read alive
+    # Captures and starvation. detect_captures, a few threads per predator (rows of its search
+    # square): read alive and position (the neighbour walk is a gather). count_capture_sharers, one thread per prey slot: read alive
     # and captured, read-modify-write age. share_capture_rewards, one thread per predator: read alive
     # and position, read-modify-write starvation, write reward. respawn_captured_prey, one thread per
     # prey slot: read captured.

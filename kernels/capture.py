@@ -32,6 +32,12 @@ def start_of_step_radius(world: WorldParams, radius: float, moved: float) -> flo
     return radius + moved * (1.0 + 1.0e-5) + 1.0e-6 * (world.width + world.height)
 
 
+# Threads per predator in `detect_captures`, each taking every CAPTURE_ROW_THREADS-th row of the
+# predator's search square (3 rows at the default sizes): predators are few, so one thread each would
+# leave most of a GPU idle while they wait on their candidates' positions.
+CAPTURE_ROW_THREADS = 3
+
+
 @wp.kernel
 def detect_captures(
     world: WorldParams,
@@ -41,9 +47,9 @@ def detect_captures(
     position: wp.array2d(dtype=wp.vec2),
     captured: wp.array2d(dtype=wp.bool),
 ):
-    """Predators mark the prey they overlap (predators are few, so this pass is cheap; concurrent
-    writes of True to one flag agree)."""
-    w, p = wp.tid()  # predator slots only
+    """Predators mark the prey they overlap, launched with `(worlds, predators, CAPTURE_ROW_THREADS)`
+    threads (concurrent writes of True to one flag agree, so the rows need no combining)."""
+    w, p, row_thread = wp.tid()  # predator slots only
     i = world.prey_capacity + p
     if not alive[w, i]:
         return
@@ -52,7 +58,7 @@ def detect_captures(
     center = cell_coords(grid, pos)
     base = w * world.capacity
     box = square_extent(grid, rings_for_radius(grid, start_of_step_radius(world, contact, types[PREY].max_speed)))
-    for oy in range(box[2], box[3] + 1):
+    for oy in range(box[2] + row_thread, box[3] + 1, CAPTURE_ROW_THREADS):
         runs = row_run_entries(grid, w, center, oy, box[0], box[1])
         for n in range(run_length(runs)):
             k2 = run_entry(runs, n)
