@@ -228,8 +228,9 @@ class WorldShard:
                                 [s.position, s.velocity, s.acceleration, s.heading, s.reward, s.terminated,
                                  s.truncated, s.captured, s.captures])]
         # 5-6: captures on the moved positions, searched in the start-of-step cell lists; starvation.
-        program.append(self._launch(capture.detect_captures, (W, P, capture.CAPTURE_ROW_THREADS),
-                                    [world, types, g, s.alive, s.position], [s.captured]))
+        row_threads = 1 if g.whole_world else capture.CAPTURE_ROW_THREADS
+        program.append(self._launch(capture.detect_captures, (W, P, row_threads),
+                                    [world, types, g, s.alive, s.position, row_threads], [s.captured]))
         program.append(self._launch(capture.count_capture_sharers, (W, Pc),
                                     [world, types, g, s.alive, s.position, s.captured],
                                     [s.age, s.share_count, s.reward, s.captures]))
