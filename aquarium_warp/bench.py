@@ -221,7 +221,8 @@ def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True)
     (`grid_path`): whole-world lists (one-cell worlds, no build), rank per slot (small worlds on
     CUDA), cell counts and their prefix sum (larger worlds on CUDA) or counting sort (the CPU). Not counted: gathers of other
     agents' data during neighbour searches (cell ranges, neighbours' positions, speeds, slots), which
-    the cell-ordered layout keeps in cache, rare events (captures, respawns, episode ends), and the
+    small worlds keep in cache (one world of 1M agents does not: Nsight Compute measures 1.5x the
+    model's total there, `benchmarks/profile_step.py`), rare events (captures, respawns, episode ends), and the
     per-type parameter structs. A lower bound for this algorithm, not for any algorithm.
     Returns `{"stages": {stage: {"read": B, "write": B}}, "read", "write", "total"}` per agent slot.
     """
