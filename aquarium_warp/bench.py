@@ -193,6 +193,15 @@ def load_worlds(agents_per_world: int, load_agents: int) -> int:
     return max(1, round(load_agents / agents_per_world))
 
 
+def random_actions(cfg, worlds: int, generator, device) -> dict:
+    """One random action per slot of both types, as int32 (the env's own action dtype: a timed step
+    copies them in without a conversion)."""
+    import torch
+
+    return {t: torch.randint(0, cfg.action_count, (worlds, n), generator=generator, device=device, dtype=torch.int32)
+            for t, n in (("prey", cfg.prey_capacity), ("predator", cfg.predator_count))}
+
+
 def sweep_points(settings: BenchSettings) -> list[tuple[str, object, int]]:
     """(series, config, worlds) of every point: the agents sweep (one world), the worlds sweep, then
     the load sweep (with `settings.load_agents`: each N of `settings.agents` up to it, in
@@ -577,10 +586,7 @@ def measure_point(series: str, cfg, worlds: int, device: str, settings: BenchSet
     try:
         tdev = torch.device(device)
         gen = torch.Generator(device=tdev).manual_seed(0)
-        pool = [{"prey": torch.randint(0, cfg.action_count, (worlds, cfg.prey_capacity), generator=gen, device=tdev,
-                                       dtype=torch.int32),
-                 "predator": torch.randint(0, cfg.action_count, (worlds, cfg.predator_count), generator=gen,
-                                           device=tdev, dtype=torch.int32)} for _ in range(8)]
+        pool = [random_actions(cfg, worlds, gen, tdev) for _ in range(8)]
         if cuda:
             torch.cuda.synchronize(tdev)
         free_before = _available_bytes(device)

@@ -33,7 +33,7 @@ import warp as wp
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from aquarium_warp import AquariumConfig, BatchedAquarium  # noqa: E402
-from aquarium_warp.bench import density_config, git_info, timed_runs  # noqa: E402
+from aquarium_warp.bench import density_config, git_info, random_actions, timed_runs  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -47,12 +47,7 @@ def unlimited(cfg: AquariumConfig) -> AquariumConfig:
 def measure(cfg: AquariumConfig, worlds: int, device: str, seconds: float, repeats: int) -> dict:
     env = BatchedAquarium(cfg, num_worlds=worlds, device=device, seed=0)
     gen = torch.Generator(device=env.torch_device).manual_seed(0)
-    # int32, the env's action dtype (as bench.measure_point): timed steps copy the actions without converting.
-    pool = [{"prey": torch.randint(0, cfg.action_count, (worlds, env.prey_capacity), generator=gen, device=env.torch_device,
-                                   dtype=torch.int32),
-             "predator": torch.randint(0, cfg.action_count, (worlds, env.predator_count), generator=gen,
-                                       device=env.torch_device, dtype=torch.int32)}
-            for _ in range(8)]
+    pool = [random_actions(cfg, worlds, gen, env.torch_device) for _ in range(8)]
     sync = (lambda: torch.cuda.synchronize(env.torch_device)) if env.torch_device.type == "cuda" else (lambda: None)
     for i in range(5):
         env.step(pool[i % 8], validate=False)

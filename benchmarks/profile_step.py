@@ -43,14 +43,12 @@ def child(args) -> int:
     import warp as wp
 
     from aquarium_warp import BatchedAquarium
-    from aquarium_warp.bench import density_config
+    from aquarium_warp.bench import density_config, random_actions
 
     cfg = density_config(args.agents)
     env = BatchedAquarium(cfg, num_worlds=args.worlds, device=args.device, seed=0, cpu_threads=1)
     gen = torch.Generator(device=env.torch_device).manual_seed(0)
-    actions = {t: torch.randint(0, cfg.action_count, (args.worlds, n), generator=gen, device=env.torch_device,
-                                dtype=torch.int32)
-               for t, n in (("prey", env.prey_capacity), ("predator", env.predator_count))}
+    actions = random_actions(cfg, args.worlds, gen, env.torch_device)
     for _ in range(3):
         env.step(actions, validate=False)
     wp.synchronize_device(env.device)

@@ -18,7 +18,7 @@ import torch
 import warp as wp
 
 from aquarium_warp import BatchedAquarium
-from aquarium_warp.bench import command_name, density_config
+from aquarium_warp.bench import command_name, density_config, random_actions
 
 
 def main(argv=None) -> int:
@@ -39,10 +39,7 @@ def main(argv=None) -> int:
     env = BatchedAquarium(cfg, num_worlds=args.worlds, device=args.device, seed=0, cpu_threads=1)
     cuda = wp.get_device(env.device).is_cuda
     gen = torch.Generator(device=env.torch_device).manual_seed(0)
-    # int32, the env's own action dtype: timed steps copy the actions without a conversion.
-    actions = {t: torch.randint(0, cfg.action_count, (args.worlds, n), generator=gen, device=env.torch_device,
-                                dtype=torch.int32)
-               for t, n in (("prey", env.prey_capacity), ("predator", env.predator_count))}
+    actions = random_actions(cfg, args.worlds, gen, env.torch_device)
     for _ in range(3):
         env.step(actions, validate=False)
     program = env.shards[0].programs["step"]
