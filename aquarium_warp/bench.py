@@ -233,7 +233,8 @@ def step_byte_model(cfg, dims: tuple[int, int] | None = None, cuda: bool = True)
     small worlds keep in cache (one world of 1M agents does not: Nsight Compute measures 1.5x the
     model's total there, `benchmarks/profile_step.py`), rare events (captures, respawns, episode ends), and the
     per-type parameter structs. A lower bound for this algorithm, not for any algorithm.
-    Returns `{"stages": {stage: {"read": B, "write": B}}, "read", "write", "total"}` per agent slot.
+    Returns `{"stages": {stage: {"read": B, "write": B}}, "read", "write", "total"}` per agent slot,
+    with `cells_per_world` and `grid_path` (the build's description).
     """
     from .env import _grid_dims
     from .shard import grid_build
@@ -989,7 +990,7 @@ def format_row(row: dict) -> str:
         return f"{head}  {row['status']}: {row.get('note')}"
     eager = f"{row['graph_speedup']:.2f}x" if row.get("graph_speedup") else "n/a"
     return (f"{head}  {row['step_ms']:9.3f} ms  {row['agent_steps_per_s']:10.3e} agent-steps/s  "
-            f"{row['ns_per_agent_step']:9.2f} ns/agent  graph/eager {eager}")
+            f"{row['ns_per_agent_step']:9.2f} ns/agent  eager/graph {eager}")
 
 
 def format_table(result: dict) -> str:

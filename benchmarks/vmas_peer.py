@@ -25,7 +25,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from aquarium_warp.bench import split_agents, timed_runs  # noqa: E402,F401  (split_agents: re-exported)
+from aquarium_warp.bench import split_agents, timed_runs  # noqa: E402
 
 SCENARIO = "simple_tag"
 
