@@ -1,4 +1,4 @@
-"""Command line: `aquarium-warp demo` (speed), `aquarium-warp video` (an MP4 of heuristic policies) and
+"""Command line: `aquarium-warp demo` (speed), `aquarium-warp video` (an MP4 of heuristic or trained policies) and
 `aquarium-warp bench` (the scaling benchmark suite), plus train, eval and study."""
 
 from __future__ import annotations
@@ -187,7 +187,7 @@ def main(argv=None) -> int:
     demo.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
     demo.add_argument("--seed", type=int, default=0)
     demo.set_defaults(run=_demo)
-    video = sub.add_parser("video", help="record one world driven by heuristic policies as an MP4 video")
+    video = sub.add_parser("video", help="record one world driven by heuristic or trained policies as an MP4 video")
     video.add_argument("--prey-policy", default="turnaway", help="'turnaway', 'random' or a trained policy file")
     video.add_argument("--predator-policy", default="naivchase",
                        help="'naivchase', 'random' or a trained policy file")

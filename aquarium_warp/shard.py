@@ -114,7 +114,6 @@ class WorldShard:
         self.cfg, self.device = cfg, device
         self.w0, self.w1 = w0, w1
         self.num_worlds = W = w1 - w0
-        self.auto_reset = auto_reset
         self.world = world_params(cfg, seed_key, w0, auto_reset)
         self.types = types
         self.action_direction = action_direction
