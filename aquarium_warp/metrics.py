@@ -250,6 +250,12 @@ class EpisodeMetrics:
         """Account for one `env.step()`: close the episodes that ended in it, then sample the new state
         if the step count is a multiple of `every` (for worlds that were reset, the state is the next
         episode's first, and belongs to it)."""
+        self.close_episodes(info)
+        self.advance()
+
+    def close_episodes(self, info: Mapping) -> None:
+        """The first half of `update()`: tensor work only (no host sync, no allocation outside torch's
+        allocator), so it can be captured in a CUDA graph; `advance()` must follow it."""
         ended = info["episode_ended"]
         done = ended.unsqueeze(1)
         mean = self._sum / self._count  # NaN where no valid sample
@@ -268,6 +274,9 @@ class EpisodeMetrics:
         self._sum *= keep
         self._count *= keep
         self._hist *= keep
+
+    def advance(self) -> None:
+        """The second half of `update()`: count the step and sample the state every `every` steps."""
         self._steps += 1
         if self._steps % self.every == 0:
             self._sample()

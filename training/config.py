@@ -47,8 +47,11 @@ TRAIN_DEFAULTS = {
     "reward_scale": 0.01,           # rewards given to PPO are scaled; logged episode rewards are not
     "init_at_random_ep_len": True,  # spread the worlds' truncations (episode_length_buf setter)
     "export": ["jit", "onnx"],      # formats exported at the end of training: "jit", "onnx"
-    "quiet": False,                 # tqdm progress bar instead of rsl-rl's per-iteration print
+    "quiet": False,                 # tqdm progress bar instead of the per-iteration line
+    "loop": "fast",                 # "fast": training/loop.py (no host syncs; CUDA graphs); "rsl-rl": its runner's loop
+    "cuda_graphs": True,            # the fast loop replays CUDA graphs on CUDA devices where the model allows
 }
+LOOPS = ("fast", "rsl-rl")
 
 RUNNER_DEFAULTS = {
     "num_steps_per_env": 32,
@@ -206,6 +209,10 @@ def validate(config: dict) -> None:
             raise ValueError(f"train.{name}={train[name]!r} must be a number > 0")
     if train["critic_lr"] is not None and (not _is_real(train["critic_lr"]) or not train["critic_lr"] > 0):
         raise ValueError(f"train.critic_lr={train['critic_lr']!r} must be None or a number > 0")
+    if train["loop"] not in LOOPS:
+        raise ValueError(f"train.loop={train['loop']!r} must be one of {LOOPS}")
+    if not isinstance(train["cuda_graphs"], bool):
+        raise ValueError(f"train.cuda_graphs={train['cuda_graphs']!r} must be true or false")
     export = train["export"]
     if isinstance(export, str):
         train["export"] = export = [] if export in ("", "none") else [e.strip() for e in export.split(",")]
@@ -240,13 +247,17 @@ def total_iterations(config: dict) -> int:
     return max(1, math.ceil(steps / per_iteration))
 
 
-def runner_config(config: dict, slots: int, action_count: int) -> dict:
-    """rsl-rl's runner config for a run config, given the learning team's slots per world and the
-    number of discrete actions."""
+def runner_config(config: dict, slots: int, action_count: int, device_type: str = "cpu") -> dict:
+    """rsl-rl's runner config for a run config, given the learning team's slots per world, the
+    number of discrete actions and the device type ("cpu" or "cuda")."""
     train = config["train"]
     runner = copy.deepcopy(config["runner"])
     alg = runner.setdefault("algorithm", {})
     alg.setdefault("class_name", PPO_CLASS)
+    if device_type == "cuda" and train["loop"] == "fast":
+        # The fast loop captures the optimizer step in a CUDA graph (also built so without graphs, so
+        # that both run the same optimizer arithmetic).
+        alg["capturable_optimizer"] = True
     alg["learning_rate"] = float(train["actor_lr"])
     critic_lr = train["critic_lr"] if train["critic_lr"] is not None else train["actor_lr"]
     if "critic_lr_scale" not in alg:

@@ -11,6 +11,13 @@
 2. `minibatch_group_size=G`: mini-batches are drawn as whole groups of G consecutive rows (one world's
    agent slots at one step) instead of single rows. Individual Learning needs this (see
    `models.IndividualMLPModel`); with G=1 the update is rsl-rl's exactly.
+3. `update_on_device(indices)`: rsl-rl's `PPO.update` for feed-forward models, the same operations in
+   the same order, with the mini-batch indices drawn beforehand (`mini_batch_indices()`, the same random
+   draw as the storage's generator) and the mean losses kept on the device instead of `.item()` after
+   every mini-batch. Without host synchronisation the whole update (fixed learning-rate schedule) can
+   be captured as one CUDA graph (`training/loop.py`); `capturable_optimizer=True` builds the optimizer
+   with `capturable=True` for that. On the CPU the parameters it produces equal rsl-rl's bit for bit
+   (`tests/test_training_loop.py`).
 """
 
 from __future__ import annotations
@@ -18,6 +25,7 @@ from __future__ import annotations
 from collections.abc import Generator
 
 import torch
+import torch.nn as nn
 
 from . import _rsl  # noqa: F401
 from rsl_rl.algorithms import PPO
@@ -43,6 +51,27 @@ def _scaled_optimizer_class(base: type) -> type:
     return GroupScaled
 
 
+def mini_batch_size(storage: RolloutStorage, num_mini_batches: int, group_size: int = 1) -> int:
+    """Samples per mini-batch: whole groups of `group_size` rows, as many as fit `num_mini_batches` times."""
+    groups = storage.num_envs * storage.num_transitions_per_env // group_size
+    if groups // num_mini_batches < 1:
+        raise ValueError(f"{groups} row groups cannot fill {num_mini_batches} mini-batches")
+    return groups // num_mini_batches * group_size
+
+
+def mini_batch_indices(storage: RolloutStorage, num_mini_batches: int, group_size: int = 1) -> tuple[torch.Tensor, int]:
+    """`(indices, mini_batch_size)`: the shuffled sample indices of one update (mini-batch `i` is
+    `indices[i * size:(i + 1) * size]`, every epoch), drawn in whole groups of `group_size` consecutive
+    rows. With `group_size=1` this is the one `randperm` of rsl-rl's `mini_batch_generator`."""
+    G = group_size
+    groups_per_batch = mini_batch_size(storage, num_mini_batches, G) // G
+    perm = torch.randperm(num_mini_batches * groups_per_batch, requires_grad=False, device=storage.device)
+    if G == 1:
+        return perm, groups_per_batch
+    indices = (perm.unsqueeze(1) * G + torch.arange(G, device=storage.device)).reshape(-1)
+    return indices, groups_per_batch * G
+
+
 class GroupedRolloutStorage(RolloutStorage):
     """Rollout storage whose feed-forward mini-batches hold whole groups of `group_size` consecutive rows."""
 
@@ -53,14 +82,7 @@ class GroupedRolloutStorage(RolloutStorage):
         self.group_size = group_size
 
     def mini_batch_generator(self, num_mini_batches: int, num_epochs: int = 8) -> Generator:
-        G = self.group_size
-        groups = self.num_envs * self.num_transitions_per_env // G
-        groups_per_batch = groups // num_mini_batches
-        if groups_per_batch < 1:
-            raise ValueError(f"{groups} row groups cannot fill {num_mini_batches} mini-batches")
-        perm = torch.randperm(num_mini_batches * groups_per_batch, requires_grad=False, device=self.device)
-        indices = (perm.unsqueeze(1) * G + torch.arange(G, device=self.device)).reshape(-1)
-        mini_batch_size = groups_per_batch * G
+        indices, mini_batch_size = mini_batch_indices(self, num_mini_batches, self.group_size)
 
         observations = self.observations.flatten(0, 1)
         actions = self.actions.flatten(0, 1)
@@ -91,7 +113,8 @@ class AquariumPPO(PPO):
     `minibatch_group_size` (default 1: rsl-rl's row shuffling)."""
 
     def __init__(self, actor, critic, storage, critic_lr_scale: float = 1.0, minibatch_group_size: int = 1,
-                 optimizer: str = "adam", learning_rate: float = 0.001, **kwargs) -> None:
+                 optimizer: str = "adam", learning_rate: float = 0.001, capturable_optimizer: bool = False,
+                 **kwargs) -> None:
         super().__init__(actor, critic, storage, optimizer=optimizer, learning_rate=learning_rate, **kwargs)
         if not (isinstance(critic_lr_scale, (int, float)) and critic_lr_scale > 0):
             raise ValueError(f"critic_lr_scale={critic_lr_scale!r} must be a number > 0")
@@ -106,9 +129,112 @@ class AquariumPPO(PPO):
         self.optimizer = optimizer_class([
             {"params": list(self.actor.parameters()), "lr_scale": 1.0, "name": "actor"},
             {"params": list(self.critic.parameters()), "lr_scale": self.critic_lr_scale, "name": "critic"},
-        ], lr=learning_rate)
+        ], lr=learning_rate, **({"capturable": True} if capturable_optimizer else {}))
+        self.capturable_optimizer = bool(capturable_optimizer)
         if minibatch_group_size > 1:
             old = self.storage
             self.storage = GroupedRolloutStorage(
                 minibatch_group_size, old.training_type, old.num_envs, old.num_transitions_per_env,
                 old.observations[0], old.actions_shape, old.device)
+
+    def load(self, loaded_dict: dict, load_cfg: dict | None, strict: bool) -> bool:
+        loaded = super().load(loaded_dict, load_cfg, strict)
+        if self.capturable_optimizer:  # a loaded optimizer state carries the saver's flag and step placement
+            for group in self.optimizer.param_groups:
+                group["capturable"] = True
+            for state in self.optimizer.state.values():
+                if "step" in state and isinstance(state["step"], torch.Tensor):
+                    state["step"] = state["step"].to(self.device, torch.float32)
+        return loaded
+
+    # ------------------------------------------------------------------ update without host syncs
+    @property
+    def graphable(self) -> bool:
+        """Whether `update_on_device` makes no host synchronisation (so it can be captured): feed-forward
+        models, no RND / symmetry / multi-GPU, and a fixed learning-rate schedule."""
+        return (not (self.actor.is_recurrent or self.critic.is_recurrent) and self.rnd is None
+                and self.symmetry is None and not self.is_multi_gpu
+                and not (self.desired_kl is not None and self.schedule == "adaptive"))
+
+    def mini_batch_indices(self) -> tuple[torch.Tensor, int]:
+        """The indices of the next update (see `mini_batch_indices`); call once per update."""
+        return mini_batch_indices(self.storage, self.num_mini_batches, self.minibatch_group_size)
+
+    def update_on_device(self, indices: torch.Tensor, mini_batch_size: int) -> torch.Tensor:
+        """rsl-rl's `PPO.update` (feed-forward models) over the mini-batches of `indices`; returns the
+        mean value, surrogate and entropy losses as a `[3]` float64 tensor on the device. The
+        normalisers' update and `storage.clear()` are left to `finish_update()`, which may synchronise.
+        The adaptive schedule works too, with one host sync per mini-batch (as in rsl-rl)."""
+        if self.actor.is_recurrent or self.critic.is_recurrent or self.rnd or self.symmetry:
+            raise ValueError("update_on_device serves feed-forward models without RND or symmetry")
+        st = self.storage
+        observations = st.observations.flatten(0, 1)
+        actions = st.actions.flatten(0, 1)
+        values = st.values.flatten(0, 1)
+        returns = st.returns.flatten(0, 1)
+        old_actions_log_prob = st.actions_log_prob.flatten(0, 1)
+        advantages = st.advantages.flatten(0, 1)
+        old_distribution_params = tuple(p.flatten(0, 1) for p in st.distribution_params)
+        losses = torch.zeros(3, dtype=torch.float64, device=self.device)
+        for _ in range(self.num_learning_epochs):
+            for i in range(self.num_mini_batches):
+                batch_idx = indices[i * mini_batch_size:(i + 1) * mini_batch_size]
+                losses += self._mini_batch_step(
+                    observations[batch_idx], actions[batch_idx], values[batch_idx], advantages[batch_idx],
+                    returns[batch_idx], old_actions_log_prob[batch_idx],
+                    tuple(p[batch_idx] for p in old_distribution_params))
+        return losses / (self.num_learning_epochs * self.num_mini_batches)
+
+    def finish_update(self) -> None:
+        """What rsl-rl's `update()` does after its mini-batches: the observation normalisers learn
+        from the rollout, and the storage is cleared."""
+        obs = self.storage.observations.flatten(0, 1)
+        self.actor.update_normalization(obs)
+        self.critic.update_normalization(obs)
+        self.storage.clear()
+
+    def _mini_batch_step(self, observations, actions, old_values, advantages, returns, old_actions_log_prob,
+                         old_distribution_params) -> torch.Tensor:
+        """One mini-batch of rsl-rl 5.5.1's `PPO.update` (same operations, same order); returns the
+        detached `[value loss, surrogate loss, entropy]`."""
+        original_batch_size = observations.batch_size[0]
+        if self.normalize_advantage_per_mini_batch:
+            with torch.no_grad():
+                advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+        with torch.amp.autocast(device_type=torch.device(self.device).type, enabled=self.use_mixed_precision,
+                                dtype=torch.bfloat16):
+            self.actor(observations, masks=None, hidden_state=None, stochastic_output=True)
+            actions_log_prob = self.actor.get_output_log_prob(actions)
+            values = self.critic(observations, masks=None, hidden_state=None)
+            distribution_params = tuple(p[:original_batch_size] for p in self.actor.output_distribution_params)
+            entropy = self.actor.output_entropy[:original_batch_size]
+            if self.desired_kl is not None and self.schedule == "adaptive":
+                with torch.inference_mode():
+                    kl = self.actor.get_kl_divergence(old_distribution_params, distribution_params)
+                    kl_mean = torch.mean(kl)
+                    if kl_mean > self.desired_kl * 2.0:
+                        self.learning_rate = max(1e-5, self.learning_rate / 1.5)
+                    elif kl_mean < self.desired_kl / 2.0 and kl_mean > 0.0:
+                        self.learning_rate = min(1e-2, self.learning_rate * 1.5)
+                    for param_group in self.optimizer.param_groups:
+                        param_group["lr"] = self.learning_rate
+            ratio = torch.exp(actions_log_prob - torch.squeeze(old_actions_log_prob))
+            surrogate = -torch.squeeze(advantages) * ratio
+            surrogate_clipped = -torch.squeeze(advantages) * torch.clamp(ratio, 1.0 - self.clip_param,
+                                                                         1.0 + self.clip_param)
+            surrogate_loss = torch.max(surrogate, surrogate_clipped).mean()
+            if self.use_clipped_value_loss:
+                value_clipped = old_values + (values - old_values).clamp(-self.clip_param, self.clip_param)
+                value_losses = (values - returns).pow(2)
+                value_losses_clipped = (value_clipped - returns).pow(2)
+                value_loss = torch.max(value_losses, value_losses_clipped).mean()
+            else:
+                value_loss = (returns - values).pow(2).mean()
+            entropy_mean = entropy.mean()
+            loss = surrogate_loss + self.value_loss_coef * value_loss - self.entropy_coef * entropy_mean
+        self.optimizer.zero_grad()
+        loss.backward()
+        nn.utils.clip_grad_norm_(self.actor.parameters(), self.max_grad_norm)
+        nn.utils.clip_grad_norm_(self.critic.parameters(), self.max_grad_norm)
+        self.optimizer.step()
+        return torch.stack([value_loss.detach(), surrogate_loss.detach(), entropy_mean.detach()]).double()

@@ -28,6 +28,7 @@ from __future__ import annotations
 import contextlib
 import copy
 import csv
+import datetime
 import glob
 import io
 import json
@@ -47,6 +48,7 @@ from rsl_rl.utils.logger import Logger
 from ..env import BatchedAquarium
 from ..heuristics import POLICIES, make_policy
 from .config import default_opponent, env_config, make_config, runner_config, total_iterations, validate
+from .loop import TrainingLoop
 from .export import export_policy, load_policy, policy_meta
 from .vec_env import OTHER, AquariumVecEnv, TrainedOpponent
 
@@ -111,6 +113,11 @@ class AquariumLogger(Logger):
             "fps": int(self.cfg["num_steps_per_env"] * self.num_envs / max(1e-9, collect_time + learn_time)),
             "collect_time": collect_time, "learn_time": learn_time,
         }
+        self._write_row(row)
+        if self.quiet:
+            self._progress(it, total_it, row)
+
+    def _write_row(self, row: dict) -> None:
         if self.csv_path is not None:
             new = not os.path.isfile(self.csv_path)
             with open(self.csv_path, "a", newline="", encoding="utf-8") as f:
@@ -118,8 +125,54 @@ class AquariumLogger(Logger):
                 if new:
                     writer.writeheader()
                 writer.writerow(row)
+
+    def log_iteration(self, it: int, start_it: int, total_it: int, collect_time: float, learn_time: float,
+                      losses: dict, learning_rate: float, episode_means: dict, episodes: int,
+                      mean_row_reward: float) -> None:
+        """The training loop's log of one iteration (`loop.py`): TensorBoard scalars under rsl-rl's
+        names, the CSV row, and one console line (or the progress bar when quiet) with what matters
+        for this task: captures per prey, the team's reward per agent, agent-steps/s, time left."""
+        if self.writer is None:
+            return
+        collection_size = self.cfg["num_steps_per_env"] * self.num_envs * self.gpu_world_size
+        iteration_time = collect_time + learn_time
+        self.tot_timesteps += collection_size
+        self.tot_time += iteration_time
+        fps = int(collection_size / max(1e-9, iteration_time))
+        for key, value in episode_means.items():
+            self.writer.add_scalar(key, value, it)
+        for key, value in losses.items():
+            self.writer.add_scalar(f"Loss/{key}", value, it)
+        self.writer.add_scalar("Loss/learning_rate", learning_rate, it)
+        self.writer.add_scalar("Perf/total_fps", fps, it)
+        self.writer.add_scalar("Perf/collection_time", collect_time, it)
+        self.writer.add_scalar("Perf/learning_time", learn_time, it)
+        if mean_row_reward == mean_row_reward:  # not NaN: some row episodes ended
+            self.writer.add_scalar("Train/mean_reward", mean_row_reward, it)
+        world_steps = self.tot_timesteps // self.slots
+        row = {
+            "iteration": it, "agent_steps": self.tot_timesteps, "world_steps": world_steps,
+            "world_episodes": world_steps / self.max_steps, "episodes_logged": episodes,
+            "mean_row_reward": mean_row_reward if mean_row_reward == mean_row_reward else "",
+            "value_loss": losses["value"], "surrogate_loss": losses["surrogate"], "entropy": losses["entropy"],
+            "learning_rate": learning_rate, "fps": fps, "collect_time": collect_time, "learn_time": learn_time,
+        }
+        for field in ("captures", "captures_per_prey", "reward_per_agent", "opponent_reward_per_agent"):
+            row[field] = episode_means.get(f"Episode/{field}", "")
+        row["episode_length"] = episode_means.get("Episode/length", "")
+        self._write_row(row)
         if self.quiet:
             self._progress(it, total_it, row)
+            return
+        done = it + 1 - start_it
+        eta = self.tot_time / max(1, done) * (total_it - start_it - done) if done else 0.0
+        parts = [f"it {it + 1}/{total_it}"]
+        if row["captures_per_prey"] != "":
+            parts += [f"captures/prey {row['captures_per_prey']:.3f}", f"reward/agent {row['reward_per_agent']:.1f}",
+                      f"opponent reward/agent {row['opponent_reward_per_agent']:.1f}"]
+        parts += [f"value loss {losses['value']:.4f}", f"entropy {losses['entropy']:.3f}",
+                  f"{fps:.3g} agent-steps/s", f"left {datetime.timedelta(seconds=int(eta))}"]
+        print(" | ".join(parts), flush=True)
 
     def _progress(self, it, total_it, row) -> None:
         try:
@@ -170,17 +223,50 @@ class AquariumRunner(OnPolicyRunner):
             csv_path=os.path.join(log_dir, "progress.csv") if log_dir else None,
             slots=env.slots, max_steps=env.max_episode_length, quiet=quiet)
         self._in_learn = False
+        train = trainer.config["train"] if trainer is not None else {}
+        self.loop_kind = train.get("loop", "fast")
+        self.cuda_graphs = bool(train.get("cuda_graphs", True))
+        self.loop: TrainingLoop | None = None
 
     def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False) -> None:
         if num_learning_iterations <= 0:
             return
         self._in_learn = True
         try:
-            super().learn(num_learning_iterations, init_at_random_ep_len=init_at_random_ep_len)
+            if self.loop_kind == "rsl-rl":
+                super().learn(num_learning_iterations, init_at_random_ep_len=init_at_random_ep_len)
+            else:
+                self._learn_fast(num_learning_iterations, init_at_random_ep_len)
         finally:
             self._in_learn = False
             self.logger.close_progress()
         self.current_learning_iteration += 1  # iterations completed
+
+    def _learn_fast(self, num_learning_iterations: int, init_at_random_ep_len: bool) -> None:
+        """`OnPolicyRunner.learn` with `TrainingLoop` doing each iteration (see `loop.py`): the same
+        calls in the same order, logging once per iteration."""
+        if init_at_random_ep_len:
+            self.env.episode_length_buf = torch.randint_like(
+                self.env.episode_length_buf, high=int(self.env.max_episode_length))
+        if self.loop is None:
+            self.loop = TrainingLoop(self.alg, self.env, self.cfg["num_steps_per_env"], graphs=self.cuda_graphs)
+        self.alg.train_mode()
+        self.logger.init_logging_writer()
+        start_it = self.current_learning_iteration
+        total_it = start_it + num_learning_iterations
+        for it in range(start_it, total_it):
+            losses, (collect_time, learn_time) = self.loop.iteration()
+            self.current_learning_iteration = it
+            value, surrogate, entropy = losses.tolist()
+            means, episodes, row_reward = self.env.take_episode_stats()
+            self.logger.log_iteration(it, start_it, total_it, collect_time, learn_time,
+                                      {"value": value, "surrogate": surrogate, "entropy": entropy},
+                                      self.alg.learning_rate, means, episodes, row_reward)
+            if self.logger.writer is not None and it % self.cfg["save_interval"] == 0:
+                self.save(os.path.join(self.logger.log_dir, f"model_{it}.pt"))
+        if self.logger.writer is not None:
+            self.save(os.path.join(self.logger.log_dir, f"model_{self.current_learning_iteration}.pt"))
+            self.logger.stop_logging_writer()
 
     def completed_iterations(self) -> int:
         return self.current_learning_iteration + 1 if self._in_learn else self.current_learning_iteration
@@ -261,7 +347,7 @@ class Trainer:
                                       deterministic=train["opponent_deterministic"], seed=self.seed)
         self.vec_env = AquariumVecEnv(self.env, team, self.opponent, reward_scale=train["reward_scale"],
                                       cfg=config)
-        self.runner_cfg = runner_config(config, self.vec_env.slots, self.vec_env.action_count)
+        self.runner_cfg = runner_config(config, self.vec_env.slots, self.vec_env.action_count, self.device.type)
         self.total_iterations = total_iterations(config)
         if log_dir is not None and rank == 0:
             os.makedirs(log_dir, exist_ok=True)
@@ -289,7 +375,7 @@ class Trainer:
             raise ValueError(f"{checkpoint_path}: not a checkpoint of aquarium_warp.training")
         config = copy.deepcopy(state["config"])
         if changes:
-            allowed = {"iterations", "episodes", "quiet", "export"}
+            allowed = {"iterations", "episodes", "quiet", "export", "loop", "cuda_graphs"}
             bad = [k for k in changes.get("train", {}) if k not in allowed] + \
                   [k for k in changes if k != "train"]
             if bad:

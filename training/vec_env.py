@@ -50,6 +50,8 @@ from ..env import TYPES, BatchedAquarium
 from ..metrics import EPISODE_METRICS, EpisodeMetrics
 
 OTHER = {"prey": "predator", "predator": "prey"}
+EPISODE_KEYS = ["Episode/captures", "Episode/captures_per_prey", "Episode/reward_per_agent",
+                "Episode/opponent_reward_per_agent", "Episode/length"]
 
 
 class TrainedOpponent:
@@ -128,7 +130,7 @@ class AquariumVecEnv(VecEnv):
         self._truncated_in = env._truncated[team]
         self._alive = env.alive[team]
         self._captured_in = t.captured[:, :Pc] if team == "prey" else None
-        info = env._info
+        self._info = info = env._info
         self._episode_ended = info["episode_ended"]
         self._ended_length = info["episode_length"]
         self._ended_captures = info["episode_captures"]
@@ -153,6 +155,16 @@ class AquariumVecEnv(VecEnv):
         # Swarm metrics (aquarium_warp.metrics) sampled every `metrics_every` steps and logged per
         # ended episode as "Swarm/<name>"; 0 turns them off.
         self.swarm = EpisodeMetrics(env, every=metrics_every) if metrics_every else None
+        # Device-side episode statistics (`accumulate_episode_stats`, used by the training loop of
+        # `loop.py`): per world "its episode started at step 0", sums and counts of the logged values.
+        self.device_stats = False
+        self._full = torch.zeros(W, dtype=torch.bool, device=dev)
+        self._stat_names = EPISODE_KEYS + ([f"Swarm/{n}" for n in EPISODE_METRICS] if self.swarm else [])
+        self._stat_sum = torch.zeros(len(self._stat_names), dtype=torch.float64, device=dev)
+        self._stat_count = torch.zeros(len(self._stat_names), dtype=torch.float64, device=dev)
+        # Rows' running reward sums and, over the row episodes (agent lives) that ended, their total and count.
+        self._row_return = torch.zeros(W * S, dtype=torch.float32, device=dev)
+        self._row_stats = torch.zeros(2, dtype=torch.float64, device=dev)
         self._sync_from_env()
 
     # ------------------------------------------------------------------ internal state
@@ -164,7 +176,8 @@ class AquariumVecEnv(VecEnv):
         self._host_step = self.env.state.torch.world_step.cpu().numpy().astype(np.int64)
         # A world's episode statistics are logged only if the episode started at step 0.
         self._host_full = self._host_step == 0
-        self._obs[self._current].view(self.num_worlds, self.slots, -1).copy_(self.env.observations[self.team])
+        self._full.copy_(torch.from_numpy(self._host_full))
+        self.copy_observations()
         if self.swarm is not None:
             self.swarm.begin()
 
@@ -189,13 +202,47 @@ class AquariumVecEnv(VecEnv):
         self._sync_from_env()
 
     def step(self, actions: torch.Tensor):
-        W, S = self.num_worlds, self.slots
-        self._actions.copy_(actions.reshape(W, S))  # float category indices -> int32 (exact)
-        other_actions = self.opponent()
-        *_, info = self.env.step({self.team: self._actions, self.other: other_actions}, validate=False)
+        self.step_simulation(actions)
         if self.swarm is not None:
-            self.swarm.update(info)
+            self.swarm.update(self._info)
+        self.row_outcomes()
+        self._current ^= 1
+        self.copy_observations()
+        self.extras = {"time_outs": self._time_outs}
+        log = self._episode_log()
+        if log is not None:
+            self.extras["log"] = log
+        return self._obs_td[self._current], self._rewards, self._dones, self.extras
 
+    # The parts of `step()`, which the training loop of `loop.py` calls separately: the tensor-only
+    # parts (`row_outcomes`, `copy_observations`, `accumulate_episode_stats`) can be captured in a CUDA
+    # graph; `step_simulation` launches Warp work (the env's own graph) and stays outside.
+    def step_simulation(self, actions: torch.Tensor | None = None) -> None:
+        """The other team acts and every world steps; `actions [N, 1]` (float category indices) are
+        the learning team's, or None when they were already written into `actions_buffer`."""
+        if actions is not None:
+            self._actions.copy_(actions.reshape(self.num_worlds, self.slots))  # float -> int32 (exact)
+        other_actions = self.opponent()
+        self.env.step({self.team: self._actions, self.other: other_actions}, validate=False)
+
+    @property
+    def actions_buffer(self) -> torch.Tensor:
+        """`[W, S]` int32: the learning team's actions that `step_simulation(None)` applies."""
+        return self._actions
+
+    @property
+    def outputs(self) -> tuple[torch.Tensor, torch.Tensor, dict]:
+        """`(rewards [N], dones [N], {"time_outs": [N]})`: the buffers `row_outcomes()` writes."""
+        return self._rewards, self._dones, {"time_outs": self._time_outs}
+
+    @property
+    def info(self) -> dict:
+        """The env's per-world step outputs (views; see `BatchedAquarium.step`)."""
+        return self._info
+
+    def row_outcomes(self) -> None:
+        """Rows' rewards, dones and time-outs of the last simulation step (see the module doc)."""
+        W, S = self.num_worlds, self.slots
         # Life ends: captured (prey), terminated (removed or starved), truncated (world episode end).
         ended, active, alive, scratch = self._ended, self._active, self._alive, self._scratch
         if self._captured_in is not None:
@@ -216,15 +263,45 @@ class AquariumVecEnv(VecEnv):
             self._rewards.mul_(self.reward_scale)
         active.copy_(alive)
 
-        self._current ^= 1
-        obs = self._obs[self._current]
-        obs.view(W, S, -1).copy_(self.env.observations[self.team])
+    def copy_observations(self) -> None:
+        """The learning team's observations after the last step into the current buffer."""
+        self._obs[self._current].view(self.num_worlds, self.slots, -1).copy_(self.env.observations[self.team])
 
-        self.extras = {"time_outs": self._time_outs}
-        log = self._episode_log()
-        if log is not None:
-            self.extras["log"] = log
-        return self._obs_td[self._current], self._rewards, self._dones, self.extras
+    def accumulate_episode_stats(self) -> None:
+        """Device-side counterpart of the `extras["log"]` statistics (no host sync): adds the world
+        episodes that ended in the last step (those that started at step 0) and the rows' ended lives
+        to running sums, which `take_episode_stats()` reads and clears."""
+        ended = self._episode_ended
+        report = ended & self._full
+        self._full |= ended
+        prey_count = self.team_count if self.team == "prey" else self.other_count
+        captures = self._ended_captures.to(torch.float64)
+        columns = [captures, captures / prey_count, self._ended_return.to(torch.float64) / self.team_count,
+                   self._ended_return_other.to(torch.float64) / self.other_count,
+                   self._ended_length.to(torch.float64)]
+        values = torch.stack(columns, dim=1)
+        if self.swarm is not None:
+            values = torch.cat([values, self.swarm.ended_values], dim=1)
+        counted = report.unsqueeze(1) & ~torch.isnan(values)  # a swarm value is NaN without samples
+        self._stat_sum += torch.where(counted, values, 0.0).sum(dim=0)
+        self._stat_count += counted.sum(dim=0)
+        # Row episodes, as rsl-rl's logger counts them (its "Mean reward"): reward sums up to a done.
+        self._row_return += self._rewards
+        done = self._dones.bool()
+        self._row_stats[0] += torch.where(done, self._row_return, 0.0).sum(dtype=torch.float64)
+        self._row_stats[1] += done.sum()
+        self._row_return.masked_fill_(done, 0.0)
+
+    def take_episode_stats(self) -> tuple[dict[str, float], int, float]:
+        """Since the last call: `({name: mean over the ended world episodes}, how many ended, the mean
+        reward of the rows' ended lives (NaN if none))`; one host sync. Clears the sums."""
+        sums, counts = self._stat_sum.tolist(), self._stat_count.tolist()
+        row_total, row_count = self._row_stats.tolist()
+        self._stat_sum.zero_()
+        self._stat_count.zero_()
+        self._row_stats.zero_()
+        means = {name: s / c for name, s, c in zip(self._stat_names, sums, counts) if c > 0}
+        return means, int(counts[0]), (row_total / row_count if row_count else float("nan"))
 
     def _episode_log(self) -> dict | None:
         """Statistics of the world episodes that ended this step (None when none did)."""
@@ -273,7 +350,8 @@ class AquariumVecEnv(VecEnv):
         return {
             "env": self.env.state_dict(),
             "active": self._active.cpu().clone(),
-            "host_full": self._host_full.copy(),
+            "host_full": self._full.cpu().numpy() if self.device_stats else self._host_full.copy(),
+            "row_return": self._row_return.cpu().clone(),
             "opponent": opponent_state,
             "swarm": self.swarm.state_dict() if self.swarm is not None else None,
         }
@@ -283,6 +361,9 @@ class AquariumVecEnv(VecEnv):
         self._sync_from_env()
         self._active.copy_(state["active"].to(self.device))
         self._host_full = np.asarray(state["host_full"], dtype=bool).copy()
+        self._full.copy_(torch.from_numpy(self._host_full))
+        if "row_return" in state:
+            self._row_return.copy_(state["row_return"].to(self.device))
         if state.get("opponent") and hasattr(self.opponent, "load_state_dict"):
             self.opponent.load_state_dict(state["opponent"])
         if self.swarm is not None and state.get("swarm") is not None:

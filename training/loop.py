@@ -1,0 +1,183 @@
+"""The training loop of `aquarium-warp train`: rsl-rl's PPO (its actor, critic, rollout storage and
+optimizer, unmodified) driven from our own loop so that nothing in an iteration waits for the host.
+
+rsl-rl's `OnPolicyRunner.learn` spends most of an iteration in Python and host synchronisation around
+small networks: its logger reads the done flags back every step, and its update reads three losses
+back after every mini-batch. This loop makes the same calls in the same order, and on CUDA replays
+them as CUDA graphs:
+
+- step `t` of a rollout is graph `act[t]` (`PPO.act`: actor, sampling, critic, log-probabilities,
+  and the actions into the adapter's int32 buffer), then the Warp work outside any torch graph (the
+  other team's policy and the simulation step, itself one CUDA graph), then graph `after[t]` (rows'
+  rewards, dones and time-outs, `PPO.process_env_step` into the storage, per-world episode statistics
+  on the device, the next observations);
+- after the rollout, graph `learn`: `PPO.compute_returns` (GAE) and `AquariumPPO.update_on_device`
+  (every mini-batch of every epoch: forward, losses, backward, gradient clipping, Adam), reading the
+  mini-batch indices drawn just before it by the same `randperm` as rsl-rl's generator;
+- once per iteration the host reads the losses and the episode statistics (one synchronisation).
+
+One observation buffer serves the whole loop: `after[t]` stores the observations the actor saw before
+it overwrites them with the next ones, so the storage receives exactly what rsl-rl's loop stores.
+
+On the CPU (or where a graph cannot serve: recurrent models, the adaptive learning-rate schedule, RND)
+the same functions run eagerly. On the CPU this loop and `OnPolicyRunner.learn` produce the same
+parameters bit for bit (`tests/test_training_loop.py`), so `train.loop = "rsl-rl"` (rsl-rl's own
+runner) remains as the reference and for the benchmark's before/after.
+
+CUDA graphs are captured after one eager warm-up iteration, in the order they replay, from one memory
+pool; they replay the same memory addresses, which is why every buffer they touch is allocated once.
+"""
+
+from __future__ import annotations
+
+import time
+
+import torch
+
+from .ppo import mini_batch_size
+from .vec_env import AquariumVecEnv
+
+
+class PhaseTimer:
+    """Wall time of the rollout and the update of an iteration. On CUDA, events on the stream measure
+    the GPU's time without synchronising until `times()`, which the loop calls when it reads the
+    iteration's statistics anyway."""
+
+    def __init__(self, device: torch.device):
+        self.cuda = device.type == "cuda"
+        if self.cuda:
+            self._events = [torch.cuda.Event(enable_timing=True) for _ in range(3)]
+
+    def mark(self, i: int) -> None:
+        if self.cuda:
+            self._events[i].record()
+        else:
+            setattr(self, f"_t{i}", time.perf_counter())
+
+    def times(self) -> tuple[float, float]:
+        """(collect, learn) seconds between marks 0-1 and 1-2."""
+        if self.cuda:
+            self._events[2].synchronize()
+            e = self._events
+            return e[0].elapsed_time(e[1]) / 1e3, e[1].elapsed_time(e[2]) / 1e3
+        return self._t1 - self._t0, self._t2 - self._t1
+
+
+class TrainingLoop:
+    """Runs iterations of rollout + PPO update for `alg` (an `AquariumPPO`) over `env`; see the module doc.
+
+    `graphs=True` captures CUDA graphs where the device is CUDA and the algorithm allows it
+    (`alg.graphable`); `self.graphs` says whether they are in use.
+    """
+
+    def __init__(self, alg, env: AquariumVecEnv, num_steps: int, graphs: bool = True):
+        self.alg, self.env, self.num_steps = alg, env, int(num_steps)
+        self.device = torch.device(alg.device)
+        self.graphs = bool(graphs) and self.device.type == "cuda" and alg.graphable
+        if self.graphs and not getattr(alg, "capturable_optimizer", False):
+            raise ValueError("CUDA graphs need the algorithm built with capturable_optimizer=True")
+        env.device_stats = True
+        self.obs = env.get_observations()
+        self.timer = PhaseTimer(self.device)
+        self._warm = False
+        self._act_graphs: list = []
+        self._after_graphs: list = []
+        self._learn_graph = None
+        self._indices = None
+        self._losses = None
+
+    # ------------------------------------------------------------------ the stages (captured or eager)
+    def _act(self) -> None:
+        actions = self.alg.act(self.obs)
+        self.env.actions_buffer.copy_(actions.view(self.env.actions_buffer.shape))
+
+    def _after_step(self) -> None:
+        env = self.env
+        env.row_outcomes()
+        rewards, dones, extras = env.outputs
+        # The storage copies `self.obs` (still the observations the actor saw) before they are replaced.
+        self.alg.process_env_step(self.obs, rewards, dones, extras)
+        if env.swarm is not None:
+            env.swarm.close_episodes(env.info)
+        env.accumulate_episode_stats()
+        env.copy_observations()
+
+    def _advance_metrics(self) -> None:
+        if self.env.swarm is not None:
+            self.env.swarm.advance()
+
+    def _learn(self, indices: torch.Tensor, mini_batch_size: int) -> torch.Tensor:
+        with torch.inference_mode():
+            self.alg.compute_returns(self.obs)
+        return self.alg.update_on_device(indices, mini_batch_size)
+
+    # ------------------------------------------------------------------ one iteration
+    def iteration(self) -> tuple[torch.Tensor, tuple[float, float]]:
+        """One rollout of `num_steps` steps and one PPO update. Returns the mean losses `[3]` (value,
+        surrogate, entropy; on the device) and the (collect, learn) times in seconds."""
+        if self.graphs and self._warm and self._learn_graph is None:
+            self._capture()
+        if self.graphs and not self._warm:
+            # Warm-up on a side stream, as torch asks before a capture (lazy initialisations).
+            stream = torch.cuda.Stream(self.device)
+            stream.wait_stream(torch.cuda.current_stream(self.device))
+            with torch.cuda.stream(stream):
+                result = self._eager_iteration()
+            torch.cuda.current_stream(self.device).wait_stream(stream)
+            self._warm = True
+            return result
+        if self._learn_graph is not None:
+            return self._graph_iteration()
+        return self._eager_iteration()
+
+    def _eager_iteration(self):
+        self.timer.mark(0)
+        with torch.inference_mode():
+            for _ in range(self.num_steps):
+                self._act()
+                self.env.step_simulation()
+                self._after_step()
+                self._advance_metrics()
+        self.timer.mark(1)
+        indices, size = self.alg.mini_batch_indices()
+        losses = self._learn(indices, size)
+        self.alg.finish_update()
+        self.timer.mark(2)
+        return losses, self.timer.times()
+
+    def _graph_iteration(self):
+        self.timer.mark(0)
+        for t in range(self.num_steps):
+            self._act_graphs[t].replay()
+            self.env.step_simulation()
+            self._after_graphs[t].replay()
+            self._advance_metrics()
+        self.timer.mark(1)
+        indices, _ = self.alg.mini_batch_indices()
+        self._indices.copy_(indices)
+        self._learn_graph.replay()
+        self.alg.finish_update()
+        self.timer.mark(2)
+        return self._losses, self.timer.times()
+
+    def _capture(self) -> None:
+        """Record `act[t]`, `after[t]` and `learn` in replay order, from one memory pool. Capturing
+        runs nothing: the storage's step counter advances as if it had and is reset afterwards."""
+        pool = torch.cuda.graph_pool_handle()
+        storage = self.alg.storage
+        torch.cuda.synchronize(self.device)
+        with torch.inference_mode():
+            for _ in range(self.num_steps):
+                for stage, graphs in ((self._act, self._act_graphs), (self._after_step, self._after_graphs)):
+                    graph = torch.cuda.CUDAGraph()
+                    with torch.cuda.graph(graph, pool=pool):
+                        stage()
+                    graphs.append(graph)
+        # The indices are drawn before each replay; capturing must not draw (it would shift the stream).
+        size = mini_batch_size(storage, self.alg.num_mini_batches, self.alg.minibatch_group_size)
+        self._indices = torch.arange(size * self.alg.num_mini_batches, device=self.device)
+        graph = torch.cuda.CUDAGraph()
+        with torch.cuda.graph(graph, pool=pool):
+            self._losses = self._learn(self._indices, size)
+        self._learn_graph = graph
+        storage.clear()
