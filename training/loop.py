@@ -160,6 +160,53 @@ class TrainingLoop:
         self.timer.mark(2)
         return self._losses, self.timer.times()
 
+    def phase_times(self) -> dict[str, float]:
+        """One more iteration (it trains like any other), timed stage by stage: seconds spent in the
+        policy (`act`), the env (other team + simulation), the storage (`after`: outcomes, storage
+        writes, statistics) and the update (returns + mini-batches). For the benchmark: on CUDA the
+        stages are bracketed by events, which adds no synchronisation."""
+        if self.graphs and self._learn_graph is None:
+            self.iteration()  # warm-up or capture first
+            if self._learn_graph is None:
+                self.iteration()
+        cuda = self.device.type == "cuda"
+        marks: list = []
+
+        def mark(phase: str) -> None:
+            if cuda:
+                event = torch.cuda.Event(enable_timing=True)
+                event.record()
+                marks.append((phase, event))
+            else:
+                marks.append((phase, time.perf_counter()))
+
+        graphs = self._learn_graph is not None
+        mark("start")
+        with torch.inference_mode():
+            for t in range(self.num_steps):
+                self._act_graphs[t].replay() if graphs else self._act()
+                mark("policy")
+                self.env.step_simulation()
+                mark("env")
+                self._after_graphs[t].replay() if graphs else self._after_step()
+                self._advance_metrics()
+                mark("storage")
+        indices, size = self.alg.mini_batch_indices()
+        if graphs:
+            self._indices.copy_(indices)
+            self._learn_graph.replay()
+        else:
+            self._learn(indices, size)
+        self.alg.finish_update()
+        mark("update")
+        if cuda:
+            marks[-1][1].synchronize()
+        times = dict.fromkeys(("policy", "env", "storage", "update"), 0.0)
+        for (_, a), (phase, b) in zip(marks[:-1], marks[1:]):
+            times[phase] += a.elapsed_time(b) / 1e3 if cuda else b - a
+        self.env.take_episode_stats()  # this iteration's statistics are not logged
+        return times
+
     def _capture(self) -> None:
         """Record `act[t]`, `after[t]` and `learn` in replay order, from one memory pool. Capturing
         runs nothing: the storage's step counter advances as if it had and is reset afterwards."""

@@ -342,6 +342,8 @@ class Trainer:
         self.env = BatchedAquarium(env_config(config), num_worlds=train["num_worlds"], device=device,
                                    seed=self.seed)
         self.device = self.env.torch_device
+        if train["tf32"] and self.device.type == "cuda":
+            torch.backends.cuda.matmul.allow_tf32 = True  # a process-wide switch of torch's
         team = train["team"]
         self.opponent = make_opponent(train["opponent"], self.env, OTHER[team],
                                       deterministic=train["opponent_deterministic"], seed=self.seed)
@@ -375,7 +377,7 @@ class Trainer:
             raise ValueError(f"{checkpoint_path}: not a checkpoint of aquarium_warp.training")
         config = copy.deepcopy(state["config"])
         if changes:
-            allowed = {"iterations", "episodes", "quiet", "export", "loop", "cuda_graphs"}
+            allowed = {"iterations", "episodes", "quiet", "export", "loop", "cuda_graphs", "tf32"}
             bad = [k for k in changes.get("train", {}) if k not in allowed] + \
                   [k for k in changes if k != "train"]
             if bad:

@@ -1,0 +1,199 @@
+"""End-to-end PPO training speed: agent-steps per second of `aquarium-warp train` (rollout + update),
+the fast loop (`training/loop.py`) beside rsl-rl's own runner loop, measured in the same run.
+
+The task is the paper preset's (6 prey learning against one NaivChase predator, two tanh layers of 64,
+32 steps per iteration, 5 epochs x 4 mini-batches); `--worlds` varies the batch. Every point: a
+trainer is built, `--warmup` iterations run (the first of the fast loop on CUDA is eager, the second
+captures its graphs), then `--iterations` timed iterations (synchronised at the end). Agent-steps are
+learning-team rows x steps, as the paper counts prey-steps. The fast loop's time is then split into
+policy / env / storage / update by one more iteration bracketed by CUDA events (or host timers).
+
+    python benchmarks/bench_training.py --device cuda:0 --worlds 256,1024,4096,16384,65536
+    python benchmarks/bench_training.py --device cpu --worlds 64,256 --iterations 3
+
+Prints a table, writes `training_<device>.json` (and `.png` with `--plot`) into `--out-dir`
+(default: the current directory).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
+
+import torch  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from aquarium_warp.bench import git_info  # noqa: E402
+from aquarium_warp.training import Trainer, make_config  # noqa: E402
+
+
+def sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+# Options measured beside the default (`--variants`): TF32 matrix products, and rsl-rl's own
+# `torch_compile_mode` (torch.compile of the actor and critic, fusing their elementwise work).
+VARIANTS = {"default": {}, "tf32": {"train": {"tf32": True}},
+            "compile": {"runner": {"torch_compile_mode": "default"}},
+            "tf32+compile": {"train": {"tf32": True}, "runner": {"torch_compile_mode": "default"}}}
+
+
+def measure(device: str, worlds: int, sharing: str, loop: str, warmup: int, iterations: int,
+            variant: str = "default") -> dict:
+    changes = {"train": {"num_worlds": worlds, "device": device, "sharing": sharing, "loop": loop,
+                         "quiet": True, "export": [], "iterations": warmup + iterations + 1}}
+    cfg = make_config("paper", changes, VARIANTS[variant])
+    torch.backends.cuda.matmul.allow_tf32 = False  # process-wide: a TF32 variant must not leak into the next
+    trainer = Trainer(cfg)
+    dev = trainer.device
+    rows = trainer.vec_env.num_envs
+    steps = trainer.runner_cfg["num_steps_per_env"]
+    start = time.perf_counter()
+    trainer.train(warmup)
+    sync(dev)
+    warmup_time = time.perf_counter() - start
+    start = time.perf_counter()
+    trainer.train(iterations)
+    sync(dev)
+    elapsed = time.perf_counter() - start
+    point = {"worlds": worlds, "rows": rows, "sharing": sharing, "loop": loop, "variant": variant,
+             "graphs": bool(loop == "fast" and trainer.runner.loop.graphs),
+             "iterations": iterations, "seconds": elapsed, "warmup_seconds": warmup_time,
+             "iteration_ms": 1e3 * elapsed / iterations,
+             "agent_steps_per_s": rows * steps * iterations / elapsed}
+    if loop == "fast":
+        phases = trainer.runner.loop.phase_times()
+        point["phase_ms"] = {k: 1e3 * v for k, v in phases.items()}
+    trainer.close()
+    del trainer
+    if dev.type == "cuda":
+        torch.cuda.empty_cache()
+    return point
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--device", default="cuda:0" if torch.cuda.is_available() else "cpu")
+    p.add_argument("--worlds", default="256,1024,4096,16384,65536", help="comma-separated world counts")
+    p.add_argument("--sharing", default="parameter,individual", help="parameter and/or individual")
+    p.add_argument("--loops", default="fast,rsl-rl", help="fast and/or rsl-rl")
+    p.add_argument("--variants", default="default",
+                   help=f"fast-loop variants, comma-separated: {', '.join(VARIANTS)}")
+    p.add_argument("--rsl-rl-max-worlds", type=int, default=65536,
+                   help="measure rsl-rl's loop only up to this many worlds")
+    p.add_argument("--warmup", type=int, default=2, help="untimed iterations first")
+    p.add_argument("--iterations", type=int, default=10, help="timed iterations")
+    p.add_argument("--commit", default=None, help="commit to record where git is not available")
+    p.add_argument("--out-dir", default=".", help="where the JSON (and plot) go")
+    p.add_argument("--plot", action="store_true", help="also write a PNG plot")
+    args = p.parse_args(argv)
+    try:
+        worlds = [int(w) for w in args.worlds.split(",") if w]
+    except ValueError:
+        p.error(f"--worlds {args.worlds!r}: expected comma-separated integers")
+    if not worlds or min(worlds) < 1:
+        p.error("--worlds: expected positive integers")
+    for name, value in (("--warmup", args.warmup), ("--iterations", args.iterations)):
+        if value < (0 if name == "--warmup" else 1):
+            p.error(f"{name} must be >= {0 if name == '--warmup' else 1}")
+    sharings = [s for s in args.sharing.split(",") if s]
+    loops = [s for s in args.loops.split(",") if s]
+    if not set(sharings) <= {"parameter", "individual"} or not set(loops) <= {"fast", "rsl-rl"}:
+        p.error("--sharing takes parameter,individual and --loops takes fast,rsl-rl")
+    variants = [v for v in args.variants.split(",") if v]
+    if not variants or not set(variants) <= set(VARIANTS):
+        p.error(f"--variants takes {', '.join(VARIANTS)}")
+
+    points = []
+    header = (f"{'worlds':>7} {'rows':>8} {'sharing':>10} {'loop':>7} {'variant':>12} {'ms/it':>9} "
+              f"{'agent-steps/s':>14}  phases (ms)")
+    print(header)
+    for w in worlds:
+        for sharing in sharings:
+            runs = [("fast", v) for v in variants if "fast" in loops]
+            if "rsl-rl" in loops and w <= args.rsl_rl_max_worlds:
+                runs.append(("rsl-rl", "default"))
+            for loop, variant in runs:
+                try:
+                    pt = measure(args.device, w, sharing, loop, args.warmup, args.iterations, variant)
+                except Exception as error:  # a variant that does not run here is reported, not fatal
+                    print(f"{w:>7} {'':>8} {sharing:>10} {loop:>7} {variant:>12} failed: {error!r}"[:400])
+                    points.append({"worlds": w, "sharing": sharing, "loop": loop, "variant": variant,
+                                   "error": repr(error)[:2000]})
+                    continue
+                points.append(pt)
+                phases = " ".join(f"{k} {v:.2f}" for k, v in pt.get("phase_ms", {}).items())
+                print(f"{w:>7} {pt['rows']:>8} {sharing:>10} {loop:>7} {variant:>12} {pt['iteration_ms']:>9.2f} "
+                      f"{pt['agent_steps_per_s']:>14.3e}  {phases}", flush=True)
+    points_ok = [q for q in points if "error" not in q]
+    speedups = []
+    for fast in (q for q in points_ok if q["loop"] == "fast" and q["variant"] == "default"):
+        ref = [q for q in points_ok if q["loop"] == "rsl-rl" and q["worlds"] == fast["worlds"]
+               and q["sharing"] == fast["sharing"]]
+        if ref:
+            speedups.append({"worlds": fast["worlds"], "sharing": fast["sharing"],
+                             "speedup": fast["agent_steps_per_s"] / ref[0]["agent_steps_per_s"]})
+    for s in speedups:
+        print(f"speed-up fast / rsl-rl loop: {s['worlds']:>6} worlds {s['sharing']:>10}: {s['speedup']:.1f}x")
+
+    import rsl_rl  # noqa: F401
+    import warp as wp
+    from importlib.metadata import version
+
+    dev = torch.device(args.device)
+    result = {
+        "benchmark": "bench_training", "task": "paper preset (6 prey vs NaivChase, 2x64 tanh, T=32, 5x4)",
+        "device": args.device,
+        "device_name": torch.cuda.get_device_name(dev) if dev.type == "cuda" else platform.processor() or platform.machine(),
+        "cpu_count": os.cpu_count(), "python": platform.python_version(), "torch": torch.__version__,
+        "warp": wp.__version__, "rsl_rl": version("rsl-rl-lib"), "git": git_info(args.commit),
+        "command": " ".join([Path(sys.argv[0]).name] + (argv if argv is not None else sys.argv[1:])),
+        "points": points, "speedups": speedups,
+    }
+    out_dir = Path(args.out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    stem = f"training_{args.device.replace(':', '')}"
+    (out_dir / f"{stem}.json").write_text(json.dumps(result, indent=2))
+    print(f"wrote {out_dir / (stem + '.json')}")
+    if args.plot:
+        plot(result, out_dir / f"{stem}.png")
+    return 0
+
+
+def plot(result: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    for loop, style in (("fast", "-"), ("rsl-rl", "--")):
+        for sharing, marker in (("parameter", "o"), ("individual", "s")):
+            pts = [q for q in result["points"] if q["loop"] == loop and q["sharing"] == sharing
+                   and q.get("variant", "default") == "default" and "error" not in q]
+            if pts:
+                ax.plot([q["worlds"] for q in pts], [q["agent_steps_per_s"] for q in pts], style, marker=marker,
+                        label=f"{'fast loop' if loop == 'fast' else 'rsl-rl runner'}, "
+                              f"{'PS' if sharing == 'parameter' else 'IL'}")
+    ax.set_xscale("log", base=2)
+    ax.set_yscale("log")
+    ax.set_xlabel("worlds (6 learning prey each)")
+    ax.set_ylabel("agent-steps per second, end to end")
+    ax.set_title(f"PPO training speed, {result['device_name']}")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
