@@ -14,7 +14,8 @@ them as CUDA graphs:
 - after the rollout, graph `learn`: `PPO.compute_returns` (GAE) and `AquariumPPO.update_on_device`
   (every mini-batch of every epoch: forward, losses, backward, gradient clipping, Adam), reading the
   mini-batch indices drawn just before it by the same `randperm` as rsl-rl's generator;
-- once per iteration the host reads the losses and the episode statistics (one synchronisation).
+- once per iteration the losses and episode statistics are copied to pinned host memory without
+  blocking; the trainer logs iteration `i` while the GPU runs iteration `i + 1`.
 
 One observation buffer serves the whole loop: `after[t]` stores the observations the actor saw before
 it overwrites them with the next ones, so the storage receives exactly what rsl-rl's loop stores.
@@ -38,29 +39,45 @@ from .ppo import mini_batch_size
 from .vec_env import AquariumVecEnv
 
 
-class PhaseTimer:
-    """Wall time of the rollout and the update of an iteration. On CUDA, events on the stream measure
-    the GPU's time without synchronising until `times()`, which the loop calls when it reads the
-    iteration's statistics anyway."""
+class IterationRecord:
+    """What an iteration reports: mean losses, episode statistics and phase times, copied to the host
+    without blocking. `read()` waits for this iteration's work only, so the trainer can log iteration
+    `i` while the GPU already runs iteration `i + 1`."""
 
     def __init__(self, device: torch.device):
         self.cuda = device.type == "cuda"
+        self._host = None
         if self.cuda:
             self._events = [torch.cuda.Event(enable_timing=True) for _ in range(3)]
+        self._times = [0.0, 0.0, 0.0]
 
     def mark(self, i: int) -> None:
+        """Phase boundaries: 0 before the rollout, 1 after it, 2 after the update."""
         if self.cuda:
             self._events[i].record()
         else:
-            setattr(self, f"_t{i}", time.perf_counter())
+            self._times[i] = time.perf_counter()
 
-    def times(self) -> tuple[float, float]:
-        """(collect, learn) seconds between marks 0-1 and 1-2."""
+    def finish(self, values: torch.Tensor) -> None:
+        """Copy `values` (losses and statistics, on the device) to the host after the iteration."""
         if self.cuda:
-            self._events[2].synchronize()
+            if self._host is None or self._host.shape != values.shape:
+                self._host = torch.empty(values.shape, dtype=values.dtype, pin_memory=True)
+            self._host.copy_(values, non_blocking=True)
+        else:
+            self._host = values.clone()
+        self.mark(2)
+
+    def read(self) -> tuple[list[float], tuple[float, float]]:
+        """`(values, (collect seconds, learn seconds))`, waiting for the iteration to finish."""
+        if self.cuda:
             e = self._events
-            return e[0].elapsed_time(e[1]) / 1e3, e[1].elapsed_time(e[2]) / 1e3
-        return self._t1 - self._t0, self._t2 - self._t1
+            e[2].synchronize()
+            times = e[0].elapsed_time(e[1]) / 1e3, e[1].elapsed_time(e[2]) / 1e3
+        else:
+            t = self._times
+            times = t[1] - t[0], t[2] - t[1]
+        return self._host.tolist(), times
 
 
 class TrainingLoop:
@@ -78,7 +95,9 @@ class TrainingLoop:
             raise ValueError("CUDA graphs need the algorithm built with capturable_optimizer=True")
         env.device_stats = True
         self.obs = env.get_observations()
-        self.timer = PhaseTimer(self.device)
+        # Two records alternate: the trainer reads one while the next iteration fills the other.
+        self._records = [IterationRecord(self.device), IterationRecord(self.device)]
+        self._record_index = 0
         self._warm = False
         self._act_graphs: list = []
         self._after_graphs: list = []
@@ -112,9 +131,10 @@ class TrainingLoop:
         return self.alg.update_on_device(indices, mini_batch_size)
 
     # ------------------------------------------------------------------ one iteration
-    def iteration(self) -> tuple[torch.Tensor, tuple[float, float]]:
-        """One rollout of `num_steps` steps and one PPO update. Returns the mean losses `[3]` (value,
-        surrogate, entropy; on the device) and the (collect, learn) times in seconds."""
+    def iteration(self) -> IterationRecord:
+        """One rollout of `num_steps` steps and one PPO update, enqueued (on CUDA nothing waits). The
+        record's `read()` gives `[value loss, surrogate loss, entropy, *episode statistics]` (see
+        `AquariumVecEnv.decode_episode_stats` for the tail) and the (collect, learn) seconds."""
         if self.graphs and self._warm and self._learn_graph is None:
             self._capture()
         if self.graphs and not self._warm:
@@ -130,35 +150,43 @@ class TrainingLoop:
             return self._graph_iteration()
         return self._eager_iteration()
 
+    def _record(self) -> IterationRecord:
+        self._record_index ^= 1
+        return self._records[self._record_index]
+
+    def _finish(self, record: IterationRecord, losses: torch.Tensor) -> IterationRecord:
+        record.finish(torch.cat([losses, self.env.episode_stats_snapshot()]))
+        return record
+
     def _eager_iteration(self):
-        self.timer.mark(0)
+        record = self._record()
+        record.mark(0)
         with torch.inference_mode():
             for _ in range(self.num_steps):
                 self._act()
                 self.env.step_simulation()
                 self._after_step()
                 self._advance_metrics()
-        self.timer.mark(1)
+        record.mark(1)
         indices, size = self.alg.mini_batch_indices()
         losses = self._learn(indices, size)
         self.alg.finish_update()
-        self.timer.mark(2)
-        return losses, self.timer.times()
+        return self._finish(record, losses)
 
     def _graph_iteration(self):
-        self.timer.mark(0)
+        record = self._record()
+        record.mark(0)
         for t in range(self.num_steps):
             self._act_graphs[t].replay()
             self.env.step_simulation()
             self._after_graphs[t].replay()
             self._advance_metrics()
-        self.timer.mark(1)
+        record.mark(1)
         indices, _ = self.alg.mini_batch_indices()
         self._indices.copy_(indices)
         self._learn_graph.replay()
         self.alg.finish_update()
-        self.timer.mark(2)
-        return self._losses, self.timer.times()
+        return self._finish(record, self._losses)
 
     def phase_times(self) -> dict[str, float]:
         """One more iteration (it trains like any other), timed stage by stage: seconds spent in the
@@ -204,7 +232,7 @@ class TrainingLoop:
         times = dict.fromkeys(("policy", "env", "storage", "update"), 0.0)
         for (_, a), (phase, b) in zip(marks[:-1], marks[1:]):
             times[phase] += a.elapsed_time(b) / 1e3 if cuda else b - a
-        self.env.take_episode_stats()  # this iteration's statistics are not logged
+        self.env.episode_stats_snapshot()  # this iteration's statistics are not logged
         return times
 
     def _capture(self) -> None:

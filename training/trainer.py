@@ -254,16 +254,27 @@ class AquariumRunner(OnPolicyRunner):
         self.logger.init_logging_writer()
         start_it = self.current_learning_iteration
         total_it = start_it + num_learning_iterations
-        for it in range(start_it, total_it):
-            losses, (collect_time, learn_time) = self.loop.iteration()
-            self.current_learning_iteration = it
-            value, surrogate, entropy = losses.tolist()
-            means, episodes, row_reward = self.env.take_episode_stats()
-            self.logger.log_iteration(it, start_it, total_it, collect_time, learn_time,
-                                      {"value": value, "surrogate": surrogate, "entropy": entropy},
+
+        def log(it: int, record) -> None:
+            values, (collect_time, learn_time) = record.read()
+            means, episodes, row_reward = self.env.decode_episode_stats(values[3:])
+            losses = dict(zip(("value", "surrogate", "entropy"), values[:3]))
+            self.logger.log_iteration(it, start_it, total_it, collect_time, learn_time, losses,
                                       self.alg.learning_rate, means, episodes, row_reward)
+
+        pending = None  # the previous iteration, logged while this one runs on the device
+        for it in range(start_it, total_it):
+            record = self.loop.iteration()
+            self.current_learning_iteration = it
+            if pending is not None:
+                log(*pending)
+            pending = (it, record)
             if self.logger.writer is not None and it % self.cfg["save_interval"] == 0:
+                log(*pending)  # a checkpoint's progress.csv holds its own iteration
+                pending = None
                 self.save(os.path.join(self.logger.log_dir, f"model_{it}.pt"))
+        if pending is not None:
+            log(*pending)
         if self.logger.writer is not None:
             self.save(os.path.join(self.logger.log_dir, f"model_{self.current_learning_iteration}.pt"))
             self.logger.stop_logging_writer()

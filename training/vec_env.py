@@ -270,7 +270,7 @@ class AquariumVecEnv(VecEnv):
     def accumulate_episode_stats(self) -> None:
         """Device-side counterpart of the `extras["log"]` statistics (no host sync): adds the world
         episodes that ended in the last step (those that started at step 0) and the rows' ended lives
-        to running sums, which `take_episode_stats()` reads and clears."""
+        to running sums, which `episode_stats_snapshot()` takes and clears."""
         ended = self._episode_ended
         report = ended & self._full
         self._full |= ended
@@ -292,14 +292,21 @@ class AquariumVecEnv(VecEnv):
         self._row_stats[1] += done.sum()
         self._row_return.masked_fill_(done, 0.0)
 
-    def take_episode_stats(self) -> tuple[dict[str, float], int, float]:
-        """Since the last call: `({name: mean over the ended world episodes}, how many ended, the mean
-        reward of the rows' ended lives (NaN if none))`; one host sync. Clears the sums."""
-        sums, counts = self._stat_sum.tolist(), self._stat_count.tolist()
-        row_total, row_count = self._row_stats.tolist()
+    def episode_stats_snapshot(self) -> torch.Tensor:
+        """The running sums of `accumulate_episode_stats` as one new device tensor (for
+        `decode_episode_stats`), then cleared: device work only, no host sync."""
+        snapshot = torch.cat([self._stat_sum, self._stat_count, self._row_stats])
         self._stat_sum.zero_()
         self._stat_count.zero_()
         self._row_stats.zero_()
+        return snapshot
+
+    def decode_episode_stats(self, snapshot) -> tuple[dict[str, float], int, float]:
+        """From a snapshot's values: `({name: mean over the ended world episodes}, how many ended, the
+        mean reward of the rows' ended lives (NaN if none))`."""
+        values = [float(v) for v in snapshot]
+        k = len(self._stat_names)
+        sums, counts, (row_total, row_count) = values[:k], values[k:2 * k], values[2 * k:]
         means = {name: s / c for name, s, c in zip(self._stat_names, sums, counts) if c > 0}
         return means, int(counts[0]), (row_total / row_count if row_count else float("nan"))
 
