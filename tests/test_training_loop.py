@@ -32,12 +32,16 @@ def _train(loop: str, log_dir=None, device="cpu", **changes):
     return params, alg.learning_rate
 
 
+NORMALISED = {"runner": {"actor": {"obs_normalization": True}, "critic": {"obs_normalization": True}}}
+
+
 CASES = [
     ("parameter sharing", {}),
     ("individual learning", {"train": {"sharing": "individual"}}),
     ("adaptive schedule", {"runner": {"algorithm": {"schedule": "adaptive", "desired_kl": 0.002}}}),
     ("per-mini-batch advantages, clipped value loss",
      {"runner": {"algorithm": {"normalize_advantage_per_mini_batch": True, "use_clipped_value_loss": True}}}),
+    ("observation normalisation", NORMALISED),
     ("permanent capture (inactive rows), predators learn",
      {"env": {"respawn_captured_prey": False}, "train": {"team": "predator", "opponent": "turnaway"}}),
 ]
@@ -88,11 +92,15 @@ def test_device_episode_statistics_equal_rsl_rl_logger(tmp_path):
 
 @pytest.mark.skipif(not os.environ.get("AQUARIUM_TEST_DEVICE", "").startswith("cuda"),
                     reason="CUDA graphs need AQUARIUM_TEST_DEVICE=cuda:N")
-def test_cuda_graph_loop_matches_eager_loop():
+@pytest.mark.parametrize("changes", [{}, NORMALISED], ids=["plain", "observation normalisation"])
+def test_cuda_graph_loop_matches_eager_loop(changes):
     """Replayed graphs run the eager loop's kernels, and torch's generator gives a replayed kernel the
-    offset the eager call would have had: the same parameters after iterations 2-4 (graphs)."""
+    offset the eager call would have had: the same parameters after iterations 2-4 (graphs). With
+    observation normalisation the graphs must see the statistics updated after every iteration."""
+    import copy
+
     device = os.environ["AQUARIUM_TEST_DEVICE"]
-    eager, _ = _train("fast", device=device, train={"cuda_graphs": False, "iterations": 4})
-    graphed, _ = _train("fast", device=device, train={"cuda_graphs": True, "iterations": 4})
+    eager, _ = _train("fast", device=device, train={"cuda_graphs": False, "iterations": 4}, **copy.deepcopy(changes))
+    graphed, _ = _train("fast", device=device, train={"cuda_graphs": True, "iterations": 4}, **copy.deepcopy(changes))
     differing = {k: float((eager[k] - graphed[k]).abs().max()) for k in eager if not torch.equal(eager[k], graphed[k])}
     assert not differing, differing

@@ -198,8 +198,14 @@ class AquariumPPO(PPO):
         """What rsl-rl's `update()` does after its mini-batches: the observation normalisers learn
         from the rollout, and the storage is cleared."""
         obs = self.storage.observations.flatten(0, 1)
-        self.actor.update_normalization(obs)
-        self.critic.update_normalization(obs)
+        for model in (self.actor, self.critic):
+            normalizer = getattr(model, "obs_normalizer", None)
+            std = getattr(normalizer, "_std", None)
+            model.update_normalization(obs)
+            # rsl-rl's normaliser rebinds `_std` to a new tensor; captured graphs read the old one.
+            if isinstance(std, torch.Tensor) and normalizer._std is not std:
+                std.copy_(normalizer._std)
+                normalizer._std = std
         self.storage.clear()
 
     def _mini_batch_step(self, observations, actions, old_values, advantages, returns, old_actions_log_prob,
