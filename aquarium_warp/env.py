@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from typing import Mapping
 
@@ -31,15 +32,20 @@ OBSERVATION_BLOCK = 128  # threads per block of the GPU observation kernel
 # (H200, ~1M agents in flight: worlds of 64 stepped 14% faster with cells than as one cell).
 SINGLE_CELL_CAPACITY = 32
 _warp_ready = False
+# Warp's initialisation, kernel registration and module loading (compiling) are not thread-safe: two
+# threads building envs at once crashed the process. Everything that may load a module (recording a
+# launch loads its kernel's module) holds this lock; stepping built envs in parallel needs no lock.
+WARP_SETUP_LOCK = threading.RLock()
 
 
 def _init_warp() -> None:
     global _warp_ready
-    if not _warp_ready:
-        wp.config.log_level = wp.LOG_WARNING if hasattr(wp, "LOG_WARNING") else wp.config.log_level
-        wp.config.quiet = True
-        wp.init()
-        _warp_ready = True
+    with WARP_SETUP_LOCK:
+        if not _warp_ready:
+            wp.config.log_level = wp.LOG_WARNING if hasattr(wp, "LOG_WARNING") else wp.config.log_level
+            wp.config.quiet = True
+            wp.init()
+            _warp_ready = True
 
 
 def resolve_device(device) -> str:
@@ -167,28 +173,29 @@ class BatchedAquarium:
                              "index range of the cell lists; use fewer worlds or agents")
         self._check_memory(cells)
 
-        self._dims = (dims_x, dims_y)
-        types = [_type_params(cfg, cfg.predator), _type_params(cfg, cfg.prey)]  # index = type code
-        self._types = wp.array(types, dtype=AgentType, device=self.device)
-        self._action_direction = wp.array(action_directions(cfg.action_count), dtype=wp.vec2, device=self.device)
-        self.state = SimulationState(W, C, cfg.prey_capacity, cfg.predator_count,
-                                     self.observation_size["prey"], self.observation_size["predator"],
-                                     self.observed_slots["prey"], self.observed_slots["predator"], self.device)
-        # One observation kernel per observer type's slot counts; rows are staged by blocks of
-        # OBSERVATION_BLOCK threads on a GPU (tile kernels run one thread per block on the CPU).
-        block = OBSERVATION_BLOCK if wp.get_device(self.device).is_cuda else 1
-        whole_world = self._dims == (1, 1)  # the shards' cell lists are whole-world lists
-        self._observe_kernels = {t: observation.observation_kernel(getattr(cfg, t).predator_slots,
-                                                                   getattr(cfg, t).prey_slots, block, whole_world)
-                                 for t in TYPES}
-        threads = _cpu_threads(cpu_threads) if not wp.get_device(self.device).is_cuda else 1
-        shards = max(1, min(threads, W // MIN_WORLDS_PER_THREAD))
-        bounds = [W * k // shards for k in range(shards + 1)]
-        self._shard_ranges = list(zip(bounds[:-1], bounds[1:]))
-        self._pool = ThreadPoolExecutor(max_workers=shards) if shards > 1 else None
-        self._make_shards(seed_key(seed))
-        self._build_views()
-        self.reset()
+        with WARP_SETUP_LOCK:  # arrays of structs, kernels and recorded launches (see the lock)
+            self._dims = (dims_x, dims_y)
+            types = [_type_params(cfg, cfg.predator), _type_params(cfg, cfg.prey)]  # index = type code
+            self._types = wp.array(types, dtype=AgentType, device=self.device)
+            self._action_direction = wp.array(action_directions(cfg.action_count), dtype=wp.vec2, device=self.device)
+            self.state = SimulationState(W, C, cfg.prey_capacity, cfg.predator_count,
+                                         self.observation_size["prey"], self.observation_size["predator"],
+                                         self.observed_slots["prey"], self.observed_slots["predator"], self.device)
+            # One observation kernel per observer type's slot counts; rows are staged by blocks of
+            # OBSERVATION_BLOCK threads on a GPU (tile kernels run one thread per block on the CPU).
+            block = OBSERVATION_BLOCK if wp.get_device(self.device).is_cuda else 1
+            whole_world = self._dims == (1, 1)  # the shards' cell lists are whole-world lists
+            self._observe_kernels = {t: observation.observation_kernel(getattr(cfg, t).predator_slots,
+                                                                       getattr(cfg, t).prey_slots, block, whole_world)
+                                     for t in TYPES}
+            threads = _cpu_threads(cpu_threads) if not wp.get_device(self.device).is_cuda else 1
+            shards = max(1, min(threads, W // MIN_WORLDS_PER_THREAD))
+            bounds = [W * k // shards for k in range(shards + 1)]
+            self._shard_ranges = list(zip(bounds[:-1], bounds[1:]))
+            self._pool = ThreadPoolExecutor(max_workers=shards) if shards > 1 else None
+            self._make_shards(seed_key(seed))
+            self._build_views()
+            self.reset()
 
     # ------------------------------------------------------------------ construction helpers
     def _check_memory(self, cells_per_world: int) -> None:
@@ -225,11 +232,12 @@ class BatchedAquarium:
 
     # ------------------------------------------------------------------ running the shards
     def _make_shards(self, seed_key: int) -> None:
-        self._shards = [
-            WorldShard(self.config, self.state, w0, w1, self._dims, self._types, self._action_direction,
-                       self._observe_kernels, seed_key, self.device, self.auto_reset)
-            for w0, w1 in self._shard_ranges
-        ]
+        with WARP_SETUP_LOCK:  # recording launches loads modules
+            self._shards = [
+                WorldShard(self.config, self.state, w0, w1, self._dims, self._types, self._action_direction,
+                           self._observe_kernels, seed_key, self.device, self.auto_reset)
+                for w0, w1 in self._shard_ranges
+            ]
         self._graph = None
 
     def run_on_shards(self, work) -> None:
