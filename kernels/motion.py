@@ -11,6 +11,10 @@ from .common import PREY, AgentType, WorldParams, slot_type, wrap_coordinate
 
 wp.set_module_options({"enable_backward": False})
 
+# Vector lengths below this have squares (< 1e-36) near float32's subnormal range (< 1.2e-38), where
+# squaring loses precision or gives 0.
+SHORTEST_SQUARABLE = wp.constant(1.0e-18)
+
 
 @wp.func
 def clamp_length(v: wp.vec2, limit: float) -> wp.vec2:
@@ -59,14 +63,27 @@ def integrate_motion(
         action = int(prey_action[w, i])
     else:
         action = int(predator_action[w, i - world.prey_capacity])
+    # `step(validate=False)` skips the host's range check: a clamp (no branch) keeps any action index
+    # inside the direction table, so a bad action steers to the nearest end of the range instead of
+    # reading out of bounds.
+    action = wp.clamp(action, 0, world.action_count - 1)
     desired = action_direction[action] * p.max_speed
     v = velocity[w, i]
     steering_force = clamp_length(desired - v, p.max_steering_force)
 
     # 2. Acceleration with memory: the running sum is renormalised to k (paper eq. 2).
     acc = acceleration[w, i] + steering_force / p.mass
-    if acc[0] != 0.0 or acc[1] != 0.0:
-        acc = acc * (p.max_acceleration / wp.length(acc))
+    n = wp.length(acc)
+    if n < SHORTEST_SQUARABLE:
+        # Its square is subnormal (or 0) in float32, so `n` is inexact (or 0 for a non-zero vector):
+        # scale by the larger component first (exact zero stays zero). Rare: a fresh agent with a tiny
+        # steering force, or a near-exact cancellation.
+        largest = wp.max(wp.abs(acc[0]), wp.abs(acc[1]))
+        if largest > 0.0:
+            acc = acc / largest
+            n = wp.length(acc)
+    if n > 0.0:
+        acc = acc * (p.max_acceleration / n)
 
     # 3. Same-type contact: the nearest overlapping agent of the same type pushes this one away. The
     # partner was found by the observation pass on these same start-of-step positions.

@@ -42,3 +42,29 @@ def test_envs_built_on_two_threads_at_once():
     """)
     assert result.returncode == 0, result.stderr[-2000:]
     assert "built 2" in result.stdout
+
+
+def test_unvalidated_actions_are_clamped_in_the_kernel():
+    """Case 4: `step(actions, validate=False)` with an action of 10**6 segfaulted, 16 or -5 read out of
+    bounds. The motion kernel clamps the index into [0, action_count - 1]: the same trajectory as a
+    twin stepped with the clamped actions through the validated path."""
+    result = run_python("""
+        import torch
+        from aquarium_warp import AquariumConfig, BatchedAquarium
+        cfg = AquariumConfig(prey_count=6, predator_count=2, max_steps=50)
+        env = BatchedAquarium(cfg, num_worlds=3, device="cpu", seed=4)
+        twin = BatchedAquarium(cfg, num_worlds=3, device="cpu", seed=4)
+        gen = torch.Generator().manual_seed(1)
+        for _ in range(8):
+            prey = torch.randint(-10**6, 10**6, (3, 6), generator=gen)
+            prey[0, :3] = torch.tensor([16, -5, 2**31 - 1])
+            predator = torch.randint(-40, 40, (3, 2), generator=gen, dtype=torch.int32)
+            env.step({"prey": prey, "predator": predator}, validate=False)
+            twin.step({"prey": prey.clamp(0, 15), "predator": predator.clamp(0, 15)})
+            for name, value in env.state_dict()["tensors"].items():
+                assert torch.equal(value, twin.state_dict()["tensors"][name]), name
+            assert torch.equal(env.observations["prey"], twin.observations["prey"])
+        print("clamped")
+    """)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "clamped" in result.stdout
