@@ -68,3 +68,31 @@ def test_unvalidated_actions_are_clamped_in_the_kernel():
     """)
     assert result.returncode == 0, result.stderr[-2000:]
     assert "clamped" in result.stdout
+
+
+def test_far_position_in_a_state_dict_is_refused_and_the_env_steps_on():
+    """Case 3: `load_state_dict` with one position of (1e9, -1e9) in a 64-prey world segfaulted on the
+    next step; it is now refused naming the tensor and the allowed range, and the env steps on as if
+    the call had not happened."""
+    result = run_python("""
+        import torch
+        from aquarium_warp import AquariumConfig, BatchedAquarium
+        cfg = AquariumConfig(prey_count=64)
+        env = BatchedAquarium(cfg, num_worlds=2, device="cpu", seed=3)
+        twin = BatchedAquarium(cfg, num_worlds=2, device="cpu", seed=3)
+        bad = env.state_dict()
+        bad["tensors"]["position"][0, 5] = torch.tensor([1e9, -1e9])
+        try:
+            env.load_state_dict(bad)
+        except ValueError as error:
+            print("refused:", error)
+        actions = {"prey": torch.zeros(2, 64, dtype=torch.int64), "predator": torch.zeros(2, 1, dtype=torch.int64)}
+        for _ in range(3):
+            env.step(actions)
+            twin.step(actions)
+        assert torch.equal(env.state.torch.position, twin.state.torch.position)
+        print("stepped")
+    """)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "refused: state_dict tensor position must lie in [0, 800.0) x [0, 800.0)" in result.stdout
+    assert "stepped" in result.stdout
