@@ -80,6 +80,14 @@ def seed_key(seed) -> int:
             return key
 
 
+def _action_tensor(actions) -> torch.Tensor:
+    """Actions as a tensor (numpy arrays of any byte order are read as they are, without a copy when
+    native)."""
+    if isinstance(actions, np.ndarray) and not actions.dtype.isnative:
+        actions = actions.astype(actions.dtype.newbyteorder("="))
+    return actions if isinstance(actions, torch.Tensor) else torch.as_tensor(actions)
+
+
 def _cpu_tensor(name: str, value) -> torch.Tensor:
     """`value` (a tensor, array, number or nested list) as a CPU tensor; a clear error naming `name`
     for what torch cannot hold (strings, objects, mixed types)."""
@@ -187,6 +195,10 @@ class BatchedAquarium:
 
         dims_x, dims_y = _grid_dims(cfg)
         cells = dims_x * dims_y
+        if cells >= 2**31:
+            smallest = math.sqrt(cfg.width * cfg.height / 2**30)
+            raise ValueError(f"grid_cell_size={cfg.grid_cell_size!r} gives more than 2**31 cells per world (32-bit "
+                             f"cell indices): must be None or at least about {smallest:.3g} px")
         if W * C * 2 >= 2**31 or W * cells + 1 >= 2**31:
             raise ValueError(f"num_worlds={W} x capacity={C} (cells per world {cells}) exceeds the 32-bit "
                              "index range of the cell lists; use fewer worlds or agents")
@@ -335,7 +347,7 @@ class BatchedAquarium:
         if validate:
             self._validate_actions(actions)
         for t in TYPES:
-            self._actions[t].copy_(actions[t] if isinstance(actions[t], torch.Tensor) else torch.as_tensor(actions[t]))
+            self._actions[t].copy_(_action_tensor(actions[t]))
         self._run("step")
         return self.observations, self._rewards, self._terminated, self._truncated, self._info
 
@@ -353,7 +365,9 @@ class BatchedAquarium:
             if isinstance(a, np.ndarray):
                 if self.torch_device.type != "cpu":
                     raise ValueError(f"actions[{t!r}] is a numpy array; pass a torch tensor on {self.device}")
-                a = torch.from_numpy(a)
+                if a.dtype.kind not in "biufc":
+                    raise ValueError(f"actions[{t!r}] must have an integer dtype, got numpy {a.dtype}")
+                a = _action_tensor(a)
             if not isinstance(a, torch.Tensor):
                 raise ValueError(f"actions[{t!r}] must be a torch tensor, got {type(a).__name__}")
             if a.dtype.is_floating_point or a.dtype.is_complex or a.dtype == torch.bool:

@@ -96,3 +96,42 @@ def test_far_position_in_a_state_dict_is_refused_and_the_env_steps_on():
     assert result.returncode == 0, result.stderr[-2000:]
     assert "refused: state_dict tensor position must lie in [0, 800.0) x [0, 800.0)" in result.stdout
     assert "stepped" in result.stdout
+
+
+def test_tiny_grid_cell_size_is_blamed_by_name():
+    """Case 10: grid_cell_size=1e-45 reported a 96-digit cell count under `num_worlds`."""
+    from aquarium_warp import AquariumConfig, BatchedAquarium
+
+    with pytest.raises(ValueError) as err:
+        BatchedAquarium(AquariumConfig(grid_cell_size=1e-45), device="cpu")
+    message = str(err.value)
+    assert message.startswith("grid_cell_size=1e-45 ") and "at least about 0.0244 px" in message, message
+    assert len(message) < 200
+
+
+@pytest.mark.parametrize("dtype,error", [(">i8", None), (">i2", None), ("object", "numpy object"),
+                                         ("<U2", "numpy <U2"), (">f4", "integer dtype")])
+def test_numpy_actions_of_any_byte_order_or_dtype(dtype, error):
+    """Case 10: big-endian or object numpy actions gave torch's message without the action key. Big-endian
+    integers are integers (the same step as native ones); other dtypes are refused naming the key."""
+    import numpy as np
+    import torch
+
+    from aquarium_warp import AquariumConfig, BatchedAquarium
+
+    cfg = AquariumConfig(prey_count=4, max_steps=20)
+    env = BatchedAquarium(cfg, num_worlds=2, device="cpu", seed=1)
+    twin = BatchedAquarium(cfg, num_worlds=2, device="cpu", seed=1)
+    native = np.arange(8).reshape(2, 4) % cfg.action_count
+    predator = np.zeros((2, 1), dtype=np.int64)
+    actions = {"prey": native.astype(dtype), "predator": predator}
+    if error is None:
+        env.step(actions)
+        twin.step({"prey": torch.as_tensor(native), "predator": torch.as_tensor(predator)})
+        assert torch.equal(env.state.torch.position, twin.state.torch.position)
+    else:
+        before = env.state_dict()["tensors"]["position"]
+        with pytest.raises(ValueError) as err:
+            env.step(actions)
+        assert "actions['prey']" in str(err.value) and error in str(err.value), str(err.value)
+        assert torch.equal(env.state.torch.position, before)
