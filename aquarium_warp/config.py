@@ -253,8 +253,20 @@ class AquariumConfig:
 
     @classmethod
     def from_dict(cls, data: dict) -> "AquariumConfig":
+        """The config of `to_dict()`'s form; unknown keys are refused by name (ValueError)."""
+        if not isinstance(data, dict):
+            raise ValueError(f"an AquariumConfig dict must be a dict, got {type(data).__name__}")
         data = dict(data)
+        _check_keys(data, cls, "")
         for name in ("prey", "predator"):
             if isinstance(data.get(name), dict):
+                _check_keys(data[name], AgentTypeConfig, f"{name}.")
                 data[name] = AgentTypeConfig(**data[name])
         return cls(**data)
+
+
+def _check_keys(data: dict, cls, prefix: str) -> None:
+    known = [f.name for f in dataclasses.fields(cls)]
+    unknown = [f"{prefix}{k}" for k in data if k not in known]
+    if unknown:
+        raise ValueError(f"unknown config fields {unknown}; known {prefix[:-1] or 'world'} fields: {known}")

@@ -202,10 +202,10 @@ def validate(config: dict) -> None:
     if train["episodes"] is not None and (not _is_real(train["episodes"]) or train["episodes"] <= 0):
         raise ValueError(f"train.episodes={train['episodes']!r} must be None or a number > 0")
     for name in ("actor_lr", "reward_scale"):
-        if not _is_real(train[name]) or not train[name] > 0:
-            raise ValueError(f"train.{name}={train[name]!r} must be a number > 0")
-    if train["critic_lr"] is not None and (not _is_real(train["critic_lr"]) or not train["critic_lr"] > 0):
-        raise ValueError(f"train.critic_lr={train['critic_lr']!r} must be None or a number > 0")
+        if not _is_real(train[name]) or not 0 < train[name] < math.inf:
+            raise ValueError(f"train.{name}={train[name]!r} must be a finite number > 0")
+    if train["critic_lr"] is not None and (not _is_real(train["critic_lr"]) or not 0 < train["critic_lr"] < math.inf):
+        raise ValueError(f"train.critic_lr={train['critic_lr']!r} must be None or a finite number > 0")
     export = train["export"]
     if isinstance(export, str):
         train["export"] = export = [] if export in ("", "none") else [e.strip() for e in export.split(",")]
@@ -220,10 +220,29 @@ def validate(config: dict) -> None:
         if not _is_int(v) or v < 1:
             raise ValueError(f"runner.{name}={v!r} must be an integer >= 1")
     # Checked here: rsl-rl would only fail on 0 (ZeroDivisionError) after the first rollout.
+    algorithm = runner.get("algorithm", {})
     for name in ("num_learning_epochs", "num_mini_batches"):
-        v = runner.get("algorithm", {}).get(name)
+        v = algorithm.get(name)
         if not _is_int(v) or v < 1:
             raise ValueError(f"runner.algorithm.{name}={v!r} must be an integer >= 1")
+    # NaN or out-of-range coefficients fail only deep inside sampling or the update (or not at all).
+    for name, allowed, ok in ALGORITHM_RANGES:
+        if name == "desired_kl" and algorithm.get(name) is None:
+            continue  # rsl-rl's "no KL target" (the fixed schedule)
+        if name in algorithm and (not _is_real(algorithm[name]) or not ok(algorithm[name])):
+            raise ValueError(f"runner.algorithm.{name}={algorithm[name]!r} must be {allowed}")
+
+
+# PPO coefficients (absent ones take rsl-rl's defaults): name, allowed range, test of a real value.
+ALGORITHM_RANGES = (
+    ("gamma", "a number in [0, 1]", lambda v: 0 <= v <= 1),
+    ("lam", "a number in [0, 1]", lambda v: 0 <= v <= 1),
+    ("clip_param", "a number in (0, 1]", lambda v: 0 < v <= 1),
+    ("entropy_coef", "a finite number >= 0", lambda v: 0 <= v < math.inf),
+    ("value_loss_coef", "a finite number >= 0", lambda v: 0 <= v < math.inf),
+    ("max_grad_norm", "a finite number > 0", lambda v: 0 < v < math.inf),
+    ("desired_kl", "a finite number > 0", lambda v: 0 < v < math.inf),
+)
 
 
 def default_opponent(team: str) -> str:
