@@ -17,6 +17,17 @@ SHORTEST_SQUARABLE = wp.constant(1.0e-18)
 
 
 @wp.func
+def rescaled(v: wp.vec2) -> wp.vec2:
+    """`v` divided by its larger component's magnitude (exact zero stays zero): the same direction with
+    a length in [1, sqrt(2)], which squares exactly, for vectors shorter than SHORTEST_SQUARABLE, whose
+    length is inexact (or 0) in float32."""
+    largest = wp.max(wp.abs(v[0]), wp.abs(v[1]))
+    if largest > 0.0:
+        return v / largest
+    return v
+
+
+@wp.func
 def clamp_length(v: wp.vec2, limit: float) -> wp.vec2:
     n = wp.length(v)
     if n > limit:
@@ -74,14 +85,9 @@ def integrate_motion(
     # 2. Acceleration with memory: the running sum is renormalised to k (paper eq. 2).
     acc = acceleration[w, i] + steering_force / p.mass
     n = wp.length(acc)
-    if n < SHORTEST_SQUARABLE:
-        # Its square is subnormal (or 0) in float32, so `n` is inexact (or 0 for a non-zero vector):
-        # scale by the larger component first (exact zero stays zero). Rare: a fresh agent with a tiny
-        # steering force, or a near-exact cancellation.
-        largest = wp.max(wp.abs(acc[0]), wp.abs(acc[1]))
-        if largest > 0.0:
-            acc = acc / largest
-            n = wp.length(acc)
+    if n < SHORTEST_SQUARABLE:  # rare: a fresh agent's tiny steering force, or a near-exact cancellation
+        acc = rescaled(acc)
+        n = wp.length(acc)
     if n > 0.0:
         acc = acc * (p.max_acceleration / n)
 
@@ -102,5 +108,10 @@ def integrate_motion(
     velocity[w, i] = v_new
     acceleration[w, i] = acc
     speed = wp.length(v_new)
-    if speed > 0.0:
+    if speed >= SHORTEST_SQUARABLE:
         heading[w, i] = v_new / speed
+    else:  # rare: a tiny velocity kept by a contact with bounce strength 0 (or set so)
+        direction = rescaled(v_new)
+        n_direction = wp.length(direction)
+        if n_direction > 0.0:
+            heading[w, i] = direction / n_direction

@@ -135,3 +135,88 @@ def test_numpy_actions_of_any_byte_order_or_dtype(dtype, error):
             env.step(actions)
         assert "actions['prey']" in str(err.value) and error in str(err.value), str(err.value)
         assert torch.equal(env.state.torch.position, before)
+
+
+def _one_world(cfg, **fields):
+    import torch
+
+    from aquarium_warp import BatchedAquarium
+
+    env = BatchedAquarium(cfg, num_worlds=1, device="cpu", seed=0)
+    env.set_state(world=0, **{k: torch.as_tensor(v, dtype=getattr(env.state.torch, k).dtype) for k, v in fields.items()})
+    return env
+
+
+def test_tiny_steering_acceleration_is_normalised_exactly():
+    """Case 2: a steering force of 1e-30 (now refused), or the smallest allowed force on the heaviest
+    allowed mass, gives F / m ~ 1e-30, whose square underflows in float32: the acceleration was NaN.
+    From a zero acceleration, MODEL.md step 2 gives A' = k * unit(F) (computed here in float64)."""
+    import dataclasses
+
+    import numpy as np
+    import torch
+
+    from aquarium_warp import AquariumConfig
+    from aquarium_warp.config import default_prey
+    from aquarium_warp.env import action_directions
+
+    prey = dataclasses.replace(default_prey(), max_steering_force=1e-15, mass=1e15, max_acceleration=0.5)
+    cfg = AquariumConfig(prey_count=2, prey=prey, width=800.0, height=800.0)
+    position = [[100.0, 100.0], [500.0, 500.0], [300.0, 700.0]]
+    velocity = [[-1.0, 0.0], [0.3, -0.2], [0.0, -1.0]]
+    env = _one_world(cfg, position=position, velocity=velocity, acceleration=np.zeros((3, 2)))
+    env.step({"prey": torch.tensor([[5, 11]]), "predator": torch.tensor([[0]])})
+    directions = action_directions(16).astype(np.float64)
+    for slot, action in ((0, 5), (1, 11)):
+        force = directions[action] * prey.max_speed - np.array(velocity[slot])
+        expected = 0.5 * force / np.linalg.norm(force)
+        got = env.state.torch.acceleration[0, slot].double().numpy()
+        np.testing.assert_allclose(got, expected, rtol=1e-6, atol=1e-7)
+    assert torch.isfinite(env.state.torch.position).all()
+
+
+def test_tiny_velocity_gives_a_unit_heading():
+    """A velocity too short to square in float32, kept by a contact with bounce strength 0, still gives
+    a unit heading along it (the heading was off by up to tens of percent, or NaN-prone)."""
+    import dataclasses
+
+    import numpy as np
+    import torch
+
+    from aquarium_warp import AquariumConfig
+    from aquarium_warp.config import default_prey
+
+    prey = dataclasses.replace(default_prey(), bounce_strength=0.0)
+    cfg = AquariumConfig(prey_count=2, prey=prey)
+    env = _one_world(cfg, position=[[100.0, 100.0], [110.0, 100.0], [600.0, 600.0]],
+                     velocity=[[3e-22, 4e-22], [0.0, -7e-30], [0.0, -1.0]])
+    env.step({"prey": torch.tensor([[0, 0]]), "predator": torch.tensor([[0]])})
+    heading = env.state.torch.heading[0].double().numpy()
+    np.testing.assert_allclose(heading[0], [0.6, 0.8], rtol=1e-6)
+    np.testing.assert_allclose(heading[1], [0.0, -1.0], rtol=1e-6)
+
+
+def test_int32_edges_do_not_overflow():
+    """Case 5: max_steps=2**31 ended every episode after one step, predator_starvation_steps=2**31
+    likewise, and prey_replication_age=2**31-1 filled max_prey within 5 steps (all now refused). At
+    the largest allowed values nothing ends, starves or reproduces early."""
+    import math
+
+    import torch
+
+    from aquarium_warp import AquariumConfig, BatchedAquarium
+
+    age = 1717986917
+    cfg = AquariumConfig(prey_count=8, max_prey=12, prey_reproduction=True, prey_replication_age=age,
+                         max_steps=2**31 - 1, predator_starvation_steps=2**31 - 2)
+    env = BatchedAquarium(cfg, num_worlds=2, device="cpu", seed=9)
+    replication = env.state.torch.replication_age[:, :8]
+    assert int(replication.min()) >= math.ceil(0.75 * age) and int(replication.max()) <= 2**31 - 2
+    for _ in range(6):
+        actions = {"prey": torch.zeros(2, env.prey_capacity, dtype=torch.int64),
+                   "predator": torch.zeros(2, 1, dtype=torch.int64)}
+        _, _, terminated, truncated, info = env.step(actions)
+        assert not info["episode_ended"].any() and not terminated["predator"].any()
+    assert (env.state.torch.world_step == 6).all()
+    assert torch.equal(env.state.torch.prey_alive_count, torch.tensor([8, 8], dtype=torch.int32))
+    assert not env.alive["prey"][:, 8:].any()
