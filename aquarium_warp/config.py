@@ -138,8 +138,8 @@ class AquariumConfig:
     performance setting only (None picks one from the interaction radii); results do not depend on it.
     Numpy scalars are accepted (and stored as Python numbers).
 
-    Allowed ranges: `width`, `height` in (40, 1e7] px; counts integers >= 1 with at most 2**30 agent
-    slots per world; `action_count` in [1, 65536]; `max_steps` in [1, 2**31 - 1] and
+    Allowed ranges: `width`, `height` in (40, 1e7] px; counts (and `max_prey`) integers >= 1 with at
+    most 2**30 agent slots per world; `action_count` in [1, 65536]; `max_steps` in [1, 2**31 - 1] and
     `predator_starvation_steps` in [0, 2**31 - 2] (int32 counters on the device);
     `prey_replication_age` in [1, 1717986917] (its 1.25x drawn ages must fit in int32);
     `catch_share_radius` 0 or in [1e-15, 1e15]; the three rewards finite with
@@ -199,7 +199,9 @@ class AquariumConfig:
         _check("prey_replication_age", self.prey_replication_age,
                _is_int(self.prey_replication_age) and 1 <= self.prey_replication_age <= max_replication_age,
                f"an integer >= 1 and <= {max_replication_age} (its 1.25x drawn ages are int32)")
-        _check("max_prey", self.max_prey, _is_int(self.max_prey) and self.max_prey >= 1, "an integer >= 1")
+        # Unused without reproduction, but still an int32 kernel parameter.
+        _check("max_prey", self.max_prey, _is_int(self.max_prey) and 1 <= self.max_prey <= 2**30,
+               "an integer >= 1 and <= 2**30 (the agent slots' limit)")
         _check("observation_range", self.observation_range,
                isinstance(self.observation_range, str) and self.observation_range in OBSERVATION_RANGES,
                f"one of {OBSERVATION_RANGES}")
@@ -216,7 +218,9 @@ class AquariumConfig:
             g = self.grid_cell_size
             _check("grid_cell_size", g, _is_real(g) and math.isfinite(g) and g > 0,
                    "None or a finite number > 0")
-        _check("capacity", self.capacity, self.capacity <= 2**30, "at most 2**30 agent slots per world")
+        _check("capacity", self.capacity, self.capacity <= 2**30,
+               "at most 2**30 agent slots per world: prey_count (with reproduction max(prey_count, max_prey)) "
+               "+ predator_count")
         reward_limit = RETURN_LIMIT / (self.max_steps * self.prey_capacity)
         for name in ("prey_reward", "prey_capture_penalty", "predator_reward"):
             value = getattr(self, name)
