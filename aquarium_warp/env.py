@@ -81,8 +81,8 @@ def seed_key(seed) -> int:
 
 
 def _action_tensor(actions) -> torch.Tensor:
-    """Actions as a tensor (numpy arrays of any byte order are read as they are, without a copy when
-    native)."""
+    """Actions as a tensor; numpy arrays of the other byte order are converted first (torch reads only
+    native ones)."""
     if isinstance(actions, np.ndarray) and not actions.dtype.isnative:
         actions = actions.astype(actions.dtype.newbyteorder("="))
     return actions if isinstance(actions, torch.Tensor) else torch.as_tensor(actions)
