@@ -44,6 +44,21 @@ def test_envs_built_on_two_threads_at_once():
     assert "built 2" in result.stdout
 
 
+def test_study_settings_built_on_parallel_threads(tmp_path):
+    """Case 1: `aquarium-warp study swarm-size --prey 1024,2048,4096 ...` with the default --jobs
+    segfaulted on 2 cores: settings built on parallel threads loaded Warp modules at once. Here, in a
+    fresh interpreter, settings of one-cell and cell-list worlds (different observation kernels than
+    the study's warm-up loads) are built by 2 threads."""
+    result = run_python(f"""
+        from aquarium_warp.study import SwarmSizeStudy, run_swarm_size_study
+        study = SwarmSizeStudy(prey=[8, 40, 48], seeds=1, episode_steps=5, metrics_every=5, device="cpu",
+                               out={str(tmp_path)!r}, jobs=2, figures=False)
+        summary = run_swarm_size_study(study, progress=False)
+        print("settings", len(summary["results"]), "jobs", summary["config"]["jobs"])
+    """)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "settings 3 jobs 2" in result.stdout
+
 def test_unvalidated_actions_are_clamped_in_the_kernel():
     """Case 4: `step(actions, validate=False)` with an action of 10**6 segfaulted, 16 or -5 read out of
     bounds. The motion kernel clamps the index into [0, action_count - 1]: the same trajectory as a
@@ -220,3 +235,12 @@ def test_int32_edges_do_not_overflow():
     assert (env.state.torch.world_step == 6).all()
     assert torch.equal(env.state.torch.prey_alive_count, torch.tensor([8, 8], dtype=torch.int32))
     assert not env.alive["prey"][:, 8:].any()
+
+
+@pytest.mark.parametrize("mass", [1e-45, 1e30])
+def test_pettingzoo_env_with_a_crashing_mass_is_refused(mass):
+    """Case 2: `aquarium_v1.parallel_env(prey_count=64, prey_mass=1e-45)` crashed the first step."""
+    from aquarium_warp import aquarium_v1
+
+    with pytest.raises(ValueError, match=r"^prey\.mass=.*\[1e-15, 1e\+15\]"):
+        aquarium_v1.parallel_env(prey_count=64, prey_mass=mass)
