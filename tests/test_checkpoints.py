@@ -137,6 +137,7 @@ def test_cli_option_out_of_range_is_an_argparse_error(capsys, argv, option, allo
     (["train", "--set", "runner.algorithm.clip_param=0"], "runner.algorithm.clip_param=0 must be a number in (0, 1]"),
     (["train", "--set", "runner.algorithm.entropy_coef=-1"], "entropy_coef=-1 must be a finite number >= 0"),
     (["train", "--set", "train.actor_lr=Infinity"], "train.actor_lr=inf must be a finite number > 0"),
+    (["train", "--seed", "99999999999999999999"], "train.seed=99999999999999999999 must be an integer in [0, 2**63"),
     (["video", "--out", "noext", "--steps", "1", "--device", "cpu", "--no-progress"], "must end in .mp4"),
 ])
 def test_cli_value_errors_are_one_line(capsys, argv, expected):

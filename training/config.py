@@ -197,8 +197,9 @@ def validate(config: dict) -> None:
         v = train[name]
         if not _is_int(v) or v < (1 if name == "num_worlds" else 0):
             raise ValueError(f"train.{name}={v!r} must be an integer >= {1 if name == 'num_worlds' else 0}")
-    if not _is_int(train["seed"]):
-        raise ValueError(f"train.seed={train['seed']!r} must be an integer")
+    if not _is_int(train["seed"]) or not 0 <= train["seed"] < 2**63 - 2**16:
+        # torch seeds are 64-bit, and distributed runs add their rank
+        raise ValueError(f"train.seed={train['seed']!r} must be an integer in [0, 2**63 - 2**16)")
     if train["episodes"] is not None and (not _is_real(train["episodes"]) or train["episodes"] <= 0):
         raise ValueError(f"train.episodes={train['episodes']!r} must be None or a number > 0")
     for name in ("actor_lr", "reward_scale"):
