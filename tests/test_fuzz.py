@@ -1,7 +1,8 @@
 """Fuzz test of issue 15: configs drawn from the whole field space, edges included, are either refused
 with a `ValueError` that names a field that was set, or built and stepped; every stepped state must be
-finite and respect the model's invariants. Steps mix valid actions with unvalidated out-of-range ones,
-and some cases first set velocities, accelerations and positions to the edges `set_state` allows.
+finite and respect the model's invariants. Steps mix valid actions with unvalidated out-of-range ones;
+some cases first set velocities, accelerations and positions to the edges `set_state` allows, or load
+a state dict with one entry changed to an edge value (refused whole, naming it, or taken and stepped).
 
 The cases run in a subprocess (this file run as a script), so a crash fails the test instead of
 ending the test run; each case is printed before it runs, so the last one printed names a crash.
@@ -44,6 +45,7 @@ def test_fuzz_configs_in_a_subprocess():
     # Both outcomes are exercised in earnest, not one of them vacuously.
     assert counts["refused"] >= 0.2 * ran and counts["stepped"] >= 0.2 * ran, lines[-1]
     assert counts["states_set"] >= 0.05 * ran and counts["unvalidated_steps"] >= 0.05 * ran, lines[-1]
+    assert counts["states_loaded"] >= 0.01 * ran and counts["loads_refused"] >= 0.01 * ran, lines[-1]
 
 
 # ------------------------------------------------------------------------------------------ the worker
@@ -169,8 +171,11 @@ def run_cases(cases: int) -> None:
     names = sorted(space)
     # "drawn" counts Hypothesis's attempts, some of which it abandons while drawing; the outcomes of
     # the cases that ran are "refused", "config_only" (valid, too large to step) and "stepped".
-    counts = {"drawn": 0, "refused": 0, "config_only": 0, "stepped": 0, "states_set": 0, "unvalidated_steps": 0}
+    counts = {"drawn": 0, "refused": 0, "config_only": 0, "stepped": 0, "states_set": 0, "states_loaded": 0,
+              "loads_refused": 0, "unvalidated_steps": 0}
     vector_edges = [0.0, 1.4e-45, -1.4e-45, 1e-30, -1e-20, 1e-18, 1.0, -3.0, LARGEST, -LARGEST]
+    state_dict_edges_float = [math.nan, math.inf, -1e9, 1e9, -1.0, 1e-45, 0.5, 40.0, LARGEST, 1e16]
+    state_dict_edges_int = [-2**31, -1, 0, 1, 2, 2**31 - 1]
 
     @settings(max_examples=cases, derandomize=True, deadline=None, database=None,
               phases=(Phase.explicit, Phase.generate), suppress_health_check=list(HealthCheck))
@@ -216,6 +221,26 @@ def run_cases(cases: int) -> None:
             state["position"] = np.where(rng.random((worlds, C, 2)) < 0.3, rng.choice([0.0, 1.0], (worlds, C, 2)) * top,
                                          rng.random((worlds, C, 2)) * top).astype(np.float32)
             env.set_state(**state)
+            check_state(env, stepped=False)
+        if data.draw(st.integers(0, 3)) == 0:  # a state dict with one entry changed to an edge value
+            saved = env.state_dict()
+            changed = {**saved, "tensors": {k: v.clone() for k, v in saved["tensors"].items()}}
+            name = data.draw(st.sampled_from(sorted(changed["tensors"])))
+            flat = changed["tensors"][name].view(-1)
+            entry = data.draw(st.integers(0, flat.numel() - 1))
+            if flat.dtype == torch.bool:
+                flat[entry] = not bool(flat[entry])
+            else:
+                pool = state_dict_edges_float if flat.dtype.is_floating_point else state_dict_edges_int
+                flat[entry] = data.draw(st.sampled_from(pool))
+            try:
+                env.load_state_dict(changed)
+                counts["states_loaded"] += 1
+            except ValueError as error:
+                assert name in str(error), f"error does not name {name}: {error}"
+                after = env.state_dict()["tensors"]
+                assert all(torch.equal(after[k], v) for k, v in saved["tensors"].items()), "refused load changed state"
+                counts["loads_refused"] += 1
             check_state(env, stepped=False)
         n = cfg.action_count
         extremes = np.array([-2**31, -10**6, -5, -1, n, 16, 10**6, 2**31 - 1])
