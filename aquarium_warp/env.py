@@ -343,6 +343,10 @@ class BatchedAquarium:
         "episode_captures" and "episode_return" (summed over the type's agents), plus "alive" and
         "observation_mask" of the returned observations. Worlds whose episode ended were reset, so
         their observations are the new episode's first ones.
+
+        `validate=False` skips the host-side checks of the actions (and their device sync); an action
+        outside [0, action_count - 1] is then clamped into that range by the motion kernel, so no value
+        reads or writes out of bounds.
         """
         if validate:
             self._validate_actions(actions)
