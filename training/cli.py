@@ -11,6 +11,8 @@ import math
 import os
 import time
 
+from .config import ALGORITHM_RANGES
+
 PRESET_NAMES = ("default", "paper", "tiny")
 
 
@@ -37,11 +39,12 @@ def _number(allowed: str, ok):
     return parse
 
 
-# The ranges that `config.validate` enforces for the same settings (named once, there).
-UNIT = _number("a number in [0, 1]", lambda v: 0 <= v <= 1)
-CLIP = _number("a number in (0, 1]", lambda v: 0 < v <= 1)
-NON_NEGATIVE = _number("a finite number >= 0", lambda v: 0 <= v < math.inf)
 POSITIVE = _number("a finite number > 0", lambda v: 0 < v < math.inf)
+
+
+def _algorithm(name: str):
+    """argparse type of the PPO coefficient `name`: the range `config.validate` checks."""
+    return _number(*ALGORITHM_RANGES[name])
 
 
 def _integer(minimum: int):
@@ -98,16 +101,16 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     a.add_argument("--learning-rate", "--actor-lr", dest="actor_lr", type=POSITIVE, default=None)
     a.add_argument("--critic-lr", type=POSITIVE, default=None,
                    help="critic learning rate (applied as a factor critic_lr/actor_lr on the critic's group)")
-    a.add_argument("--gamma", type=UNIT, default=None, help="discount factor, in [0, 1]")
-    a.add_argument("--lam", type=UNIT, default=None, help="GAE lambda, in [0, 1]")
-    a.add_argument("--clip", type=CLIP, default=None, help="PPO clip parameter, in (0, 1]")
-    a.add_argument("--entropy", type=NON_NEGATIVE, default=None, help="entropy coefficient, >= 0")
-    a.add_argument("--value-loss-coef", type=NON_NEGATIVE, default=None)
+    a.add_argument("--gamma", type=_algorithm("gamma"), default=None, help="discount factor, in [0, 1]")
+    a.add_argument("--lam", type=_algorithm("lam"), default=None, help="GAE lambda, in [0, 1]")
+    a.add_argument("--clip", type=_algorithm("clip_param"), default=None, help="PPO clip parameter, in (0, 1]")
+    a.add_argument("--entropy", type=_algorithm("entropy_coef"), default=None, help="entropy coefficient, >= 0")
+    a.add_argument("--value-loss-coef", type=_algorithm("value_loss_coef"), default=None)
     a.add_argument("--epochs", type=_integer(1), default=None, help="learning epochs per iteration")
     a.add_argument("--minibatches", type=_integer(1), default=None, help="mini-batches per epoch")
-    a.add_argument("--max-grad-norm", type=POSITIVE, default=None)
+    a.add_argument("--max-grad-norm", type=_algorithm("max_grad_norm"), default=None)
     a.add_argument("--schedule", choices=("fixed", "adaptive"), default=None)
-    a.add_argument("--desired-kl", type=POSITIVE, default=None)
+    a.add_argument("--desired-kl", type=_algorithm("desired_kl"), default=None)
     a.add_argument("--hidden-dims", type=_hidden_dims, default=None, help="e.g. 64,64 (actor and critic)")
     a.add_argument("--activation", default=None, help="e.g. tanh, elu, relu")
     a.add_argument("--reward-scale", type=POSITIVE, default=None, help="factor on the rewards PPO sees")

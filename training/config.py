@@ -227,23 +227,24 @@ def validate(config: dict) -> None:
         if not _is_int(v) or v < 1:
             raise ValueError(f"runner.algorithm.{name}={v!r} must be an integer >= 1")
     # NaN or out-of-range coefficients fail only deep inside sampling or the update (or not at all).
-    for name, allowed, ok in ALGORITHM_RANGES:
+    for name, (allowed, ok) in ALGORITHM_RANGES.items():
         if name == "desired_kl" and algorithm.get(name) is None:
             continue  # rsl-rl's "no KL target" (the fixed schedule)
         if name in algorithm and (not _is_real(algorithm[name]) or not ok(algorithm[name])):
             raise ValueError(f"runner.algorithm.{name}={algorithm[name]!r} must be {allowed}")
 
 
-# PPO coefficients (absent ones take rsl-rl's defaults): name, allowed range, test of a real value.
-ALGORITHM_RANGES = (
-    ("gamma", "a number in [0, 1]", lambda v: 0 <= v <= 1),
-    ("lam", "a number in [0, 1]", lambda v: 0 <= v <= 1),
-    ("clip_param", "a number in (0, 1]", lambda v: 0 < v <= 1),
-    ("entropy_coef", "a finite number >= 0", lambda v: 0 <= v < math.inf),
-    ("value_loss_coef", "a finite number >= 0", lambda v: 0 <= v < math.inf),
-    ("max_grad_norm", "a finite number > 0", lambda v: 0 < v < math.inf),
-    ("desired_kl", "a finite number > 0", lambda v: 0 < v < math.inf),
-)
+# PPO coefficients (absent ones take rsl-rl's defaults): {name: (allowed range, test of a real value)};
+# the train command's options check the same ranges.
+ALGORITHM_RANGES = {
+    "gamma": ("a number in [0, 1]", lambda v: 0 <= v <= 1),
+    "lam": ("a number in [0, 1]", lambda v: 0 <= v <= 1),
+    "clip_param": ("a number in (0, 1]", lambda v: 0 < v <= 1),
+    "entropy_coef": ("a finite number >= 0", lambda v: 0 <= v < math.inf),
+    "value_loss_coef": ("a finite number >= 0", lambda v: 0 <= v < math.inf),
+    "max_grad_norm": ("a finite number > 0", lambda v: 0 < v < math.inf),
+    "desired_kl": ("a finite number > 0", lambda v: 0 < v < math.inf),
+}
 
 
 def default_opponent(team: str) -> str:
