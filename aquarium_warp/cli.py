@@ -4,19 +4,55 @@
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import time
+
+
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid value {text!r}: must be an integer >= 1") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"invalid value {text!r}: must be an integer >= 1")
+    return value
+
+
+def non_negative_int(text: str) -> int:
+    """argparse type: an integer >= 0 (seeds: any size)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid value {text!r}: must be an integer >= 0") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"invalid value {text!r}: must be an integer >= 0")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid value {text!r}: must be a finite number > 0") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"invalid value {text!r}: must be a finite number > 0")
+    return value
 
 
 def _demo(args) -> int:
     import torch
 
     from . import AquariumConfig, BatchedAquarium
+    from .env import seed_key
 
     cfg = AquariumConfig(prey_count=args.prey, predator_count=args.predators, max_steps=args.max_steps)
     env = BatchedAquarium(cfg, num_worlds=args.worlds, device=args.device, seed=args.seed)
-    gen = torch.Generator(device=env.torch_device).manual_seed(args.seed)
+    # torch seeds are 64-bit: fold a larger seed as the env does (seeds below 2**32 are unchanged)
+    gen = torch.Generator(device=env.torch_device).manual_seed(seed_key(args.seed))
     shapes = {"prey": (args.worlds, env.prey_capacity), "predator": (args.worlds, env.predator_count)}
     print(f"aquarium-warp demo: {args.worlds} worlds x {cfg.capacity} agents on {env.device}, "
           f"random actions, {args.steps} steps")
@@ -58,7 +94,9 @@ def _policy_driver(spec: str, env, agent_type: str, seed: int):
 
 def _video(args) -> int:
     from . import AquariumConfig, BatchedAquarium
-    from .video import record
+    from .video import check_video_path, record
+
+    check_video_path(args.out)  # before the world is built
 
     cfg = AquariumConfig(width=args.width, height=args.height, prey_count=args.prey,
                          predator_count=args.predators)
@@ -153,8 +191,8 @@ def _add_study(sub) -> None:
     p.add_argument("--reproduction", action="store_true", help="prey reproduce (up to 2 N)")
     p.add_argument("--starvation-steps", type=int, default=None, help="predator starvation limit (default 3000)")
     p.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--jobs", type=int, default=None,
+    p.add_argument("--seed", type=non_negative_int, default=0)
+    p.add_argument("--jobs", type=positive_int, default=None,
                    help="settings run at once in threads (default: CPU cores on the CPU, 1 on a GPU)")
     p.add_argument("--out", default="swarm_size", help="output directory")
     p.add_argument("--no-figures", action="store_true")
@@ -179,20 +217,20 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="aquarium-warp", description="Aquarium predator-prey worlds on Warp")
     sub = parser.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="step a batch of worlds with random actions and report speed and captures")
-    demo.add_argument("--worlds", type=int, default=64)
-    demo.add_argument("--steps", type=int, default=500)
+    demo.add_argument("--worlds", type=positive_int, default=64)
+    demo.add_argument("--steps", type=positive_int, default=500)
     demo.add_argument("--prey", type=int, default=16)
     demo.add_argument("--predators", type=int, default=1)
     demo.add_argument("--max-steps", type=int, default=3000, help="episode length")
     demo.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
-    demo.add_argument("--seed", type=int, default=0)
+    demo.add_argument("--seed", type=non_negative_int, default=0)
     demo.set_defaults(run=_demo)
     video = sub.add_parser("video", help="record one world driven by heuristic or trained policies as an MP4 video")
     video.add_argument("--prey-policy", default="turnaway", help="'turnaway', 'random' or a trained policy file")
     video.add_argument("--predator-policy", default="naivchase",
                        help="'naivchase', 'random' or a trained policy file")
-    video.add_argument("--steps", type=int, default=600, help="steps to record (frames: steps + 1)")
-    video.add_argument("--out", default="aquarium.mp4", help="output MP4 file")
+    video.add_argument("--steps", type=non_negative_int, default=600, help="steps to record (frames: steps + 1)")
+    video.add_argument("--out", default="aquarium.mp4", help="output MP4 file (name ending in .mp4)")
     video.add_argument("--prey", type=int, default=16)
     video.add_argument("--predators", type=int, default=1)
     video.add_argument("--width", type=float, default=800.0, help="world width, px")
@@ -200,8 +238,8 @@ def main(argv=None) -> int:
     video.add_argument("--frame-width", type=int, default=None,
                        help="frame width in pixels (default: the world's, long side at most 1024)")
     video.add_argument("--frame-height", type=int, default=None, help="frame height in pixels")
-    video.add_argument("--fps", type=float, default=30.0)
-    video.add_argument("--seed", type=int, default=0)
+    video.add_argument("--fps", type=positive_float, default=30.0)
+    video.add_argument("--seed", type=non_negative_int, default=0)
     video.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
     video.add_argument("--view-cones", action="store_true", help="draw each agent's field of view")
     video.add_argument("--hit-boxes", action="store_true", help="draw each agent's hit-box circle")

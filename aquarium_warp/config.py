@@ -11,11 +11,26 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 
+import numpy as np
+
 OBSERVATION_RANGES = ("0..1", "-1..1")
 
 # Slots per observation block are unrolled in registers by the observation kernel; 16 per block is
 # far beyond any setting in the paper and keeps the kernel small.
 MAX_OBSERVED_SLOTS = 16
+
+# Ranges that keep the kernels' float32 arithmetic finite and exact to float32 for any reachable
+# state. The kernels square lengths (distances, vector lengths) and add per-step rates to velocities,
+# so every length, speed, force, acceleration and mass lies in [SMALLEST, LARGEST]: a square, and a
+# sum of a few squares, of such values stays inside float32's normal range [1.2e-38, 3.4e38] with a
+# wide margin (no overflow to inf, no underflow to a subnormal or to 0). Worlds are at most 1e7 px.
+SMALLEST = 1e-15
+LARGEST = 1e15
+# Episode returns add every reward of a world's slots over an episode in float32: the largest
+# per-step reward magnitude x max_steps x prey slots must stay below this (float32's max is 3.4e38).
+RETURN_LIMIT = 1e38
+# Counters (steps, ages, starvation) are int32 on the device.
+INT32_MAX = 2**31 - 1
 
 
 def _check(name: str, value, ok: bool, allowed: str) -> None:
@@ -24,17 +39,43 @@ def _check(name: str, value, ok: bool, allowed: str) -> None:
 
 
 def _is_int(value) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool)
+    """Python or numpy integers (not bools)."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
 
 
 def _is_real(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and not math.isnan(value)
+    return (isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+            and not math.isnan(value))
+
+
+def _in_range(value, lo: float, hi: float) -> bool:
+    return _is_real(value) and lo <= value <= hi
+
+
+def _normalise(obj, ints: tuple, reals: tuple, bools: tuple = ()) -> None:
+    """Store numpy scalars of a frozen dataclass as Python ones (after validation), so configs compare,
+    hash and serialise alike."""
+    for name in ints:
+        object.__setattr__(obj, name, int(getattr(obj, name)))
+    for name in reals:
+        value = getattr(obj, name)
+        if isinstance(value, (np.integer, np.floating)):
+            object.__setattr__(obj, name, float(value) if isinstance(value, np.floating) else int(value))
+    for name in bools:
+        object.__setattr__(obj, name, bool(getattr(obj, name)))
 
 
 @dataclass(frozen=True)
 class AgentTypeConfig:
     """Parameters of one agent type (MODEL.md, per-type table). Lengths in px, angles in degrees,
-    speeds in px/step."""
+    speeds in px/step. Numpy scalars are accepted (and stored as Python numbers).
+
+    Allowed ranges (float32-safe, see `SMALLEST` / `LARGEST`): `max_speed` in [1e-15, half the
+    world's smaller side); `max_steering_force`, `max_acceleration`, `mass` and `radius` in
+    [1e-15, 1e15], with `min(max_steering_force, 2 max_speed) / mass` (the largest steering
+    acceleration) at most 1e15; `view_distance` in [1e-15, 1e15] or `math.inf` (unlimited);
+    `fov_angle` in (0, 360]; `bounce_strength` 0 or in [1e-15, 1e15]; slots in [0, 16].
+    """
 
     max_speed: float
     max_steering_force: float
@@ -48,22 +89,30 @@ class AgentTypeConfig:
     prey_slots: int = 3
 
     def validate(self, prefix: str) -> None:
-        positive = ("max_speed", "max_steering_force", "max_acceleration", "mass", "radius")
-        for name in positive:
+        bounded = f"a finite number > 0, in [{SMALLEST:g}, {LARGEST:g}] (float32-safe)"
+        for name in ("max_speed", "max_steering_force", "max_acceleration", "mass", "radius"):
             value = getattr(self, name)
-            _check(f"{prefix}.{name}", value, _is_real(value) and math.isfinite(value) and value > 0,
-                   "a finite number > 0")
+            _check(f"{prefix}.{name}", value, _in_range(value, SMALLEST, LARGEST), bounded)
+        steering = min(self.max_steering_force, 2.0 * self.max_speed) / self.mass
+        _check(f"{prefix}.mass", self.mass, steering <= LARGEST,
+               f"at least min(max_steering_force, 2 max_speed) / {LARGEST:g} = "
+               f"{min(self.max_steering_force, 2.0 * self.max_speed) / LARGEST:g} (a finite number > 0: the "
+               "largest steering acceleration, force / mass, must stay float32-safe)")
         v = self.view_distance
-        _check(f"{prefix}.view_distance", v, _is_real(v) and v > 0, "a number > 0 (math.inf for unlimited)")
+        _check(f"{prefix}.view_distance", v, _in_range(v, SMALLEST, LARGEST) or v == math.inf,
+               f"a number > 0 (math.inf for unlimited): math.inf or in [{SMALLEST:g}, {LARGEST:g}]")
         a = self.fov_angle
         _check(f"{prefix}.fov_angle", a, _is_real(a) and 0 < a <= 360, "in (0, 360] degrees")
         b = self.bounce_strength
-        _check(f"{prefix}.bounce_strength", b, _is_real(b) and math.isfinite(b) and b >= 0,
-               "a finite number >= 0")
+        _check(f"{prefix}.bounce_strength", b, _is_real(b) and (b == 0 or SMALLEST <= b <= LARGEST),
+               f"a finite number >= 0: 0 or in [{SMALLEST:g}, {LARGEST:g}] (float32-safe)")
         for name in ("predator_slots", "prey_slots"):
             value = getattr(self, name)
             _check(f"{prefix}.{name}", value, _is_int(value) and 0 <= value <= MAX_OBSERVED_SLOTS,
                    f"an integer in [0, {MAX_OBSERVED_SLOTS}]")
+        _normalise(self, ("predator_slots", "prey_slots"),
+                   ("max_speed", "max_steering_force", "max_acceleration", "mass", "radius", "view_distance",
+                    "fov_angle", "bounce_strength"))
 
     @property
     def observation_size(self) -> int:
@@ -87,6 +136,16 @@ class AquariumConfig:
 
     `respawn_captured_prey` is the reference's `keep_prey_count_constant`. `grid_cell_size` is a
     performance setting only (None picks one from the interaction radii); results do not depend on it.
+    Numpy scalars are accepted (and stored as Python numbers).
+
+    Allowed ranges: `width`, `height` in (40, 1e7] px; counts (and `max_prey`) integers >= 1 with at
+    most 2**30 agent slots per world; `action_count` in [1, 65536]; `max_steps` in [1, 2**31 - 1] and
+    `predator_starvation_steps` in [0, 2**31 - 2] (int32 counters on the device);
+    `prey_replication_age` in [1, 1717986917] (its 1.25x drawn ages must fit in int32);
+    `catch_share_radius` 0 or in [1e-15, 1e15]; the three rewards finite with
+    |reward| x max_steps x prey slots at most 1e38, so that episode returns (float32 sums over an
+    episode) stay finite; `grid_cell_size` None or a finite number > 0. Per-type ranges: see
+    `AgentTypeConfig`.
     """
 
     width: float = 800.0
@@ -121,24 +180,30 @@ class AquariumConfig:
                _is_int(self.predator_count) and self.predator_count >= 1, "an integer >= 1")
         _check("action_count", self.action_count,
                _is_int(self.action_count) and 1 <= self.action_count <= 65536, "an integer in [1, 65536]")
-        _check("max_steps", self.max_steps, _is_int(self.max_steps) and self.max_steps >= 1,
-               "an integer >= 1")
+        _check("max_steps", self.max_steps, _is_int(self.max_steps) and 1 <= self.max_steps <= INT32_MAX,
+               "an integer >= 1 and <= 2**31 - 1 (an int32 step counter)")
         for name in ("fov_enabled", "respawn_captured_prey", "prey_reproduction"):
             value = getattr(self, name)
-            _check(name, value, isinstance(value, bool), "True or False")
-        for name in ("prey_reward", "prey_capture_penalty", "predator_reward"):
-            value = getattr(self, name)
-            _check(name, value, _is_real(value) and math.isfinite(value), "a finite number")
+            _check(name, value, isinstance(value, (bool, np.bool_)), "True or False")
         _check("catch_share_radius", self.catch_share_radius,
-               _is_real(self.catch_share_radius) and math.isfinite(self.catch_share_radius)
-               and self.catch_share_radius >= 0, "a finite number >= 0")
+               _is_real(self.catch_share_radius) and (self.catch_share_radius == 0
+                                                     or SMALLEST <= self.catch_share_radius <= LARGEST),
+               f"a finite number >= 0: 0 or in [{SMALLEST:g}, {LARGEST:g}] px (float32-safe)")
+        # A starving predator's counter reaches predator_starvation_steps + 1 (int32).
         _check("predator_starvation_steps", self.predator_starvation_steps,
-               _is_int(self.predator_starvation_steps) and self.predator_starvation_steps >= 0,
-               "an integer >= 0")
+               _is_int(self.predator_starvation_steps) and 0 <= self.predator_starvation_steps <= INT32_MAX - 1,
+               "an integer >= 0 and <= 2**31 - 2 (an int32 counter)")
+        # Replication ages are drawn up to floor(1.25 R), and the draw's exclusive bound, one more, is
+        # int32: the largest R with floor(5 R / 4) + 1 <= 2**31 - 1.
+        max_replication_age = (4 * INT32_MAX - 1) // 5
         _check("prey_replication_age", self.prey_replication_age,
-               _is_int(self.prey_replication_age) and self.prey_replication_age >= 1, "an integer >= 1")
-        _check("max_prey", self.max_prey, _is_int(self.max_prey) and self.max_prey >= 1, "an integer >= 1")
-        _check("observation_range", self.observation_range, self.observation_range in OBSERVATION_RANGES,
+               _is_int(self.prey_replication_age) and 1 <= self.prey_replication_age <= max_replication_age,
+               f"an integer >= 1 and <= {max_replication_age} (its 1.25x drawn ages are int32)")
+        # Unused without reproduction, but still an int32 kernel parameter.
+        _check("max_prey", self.max_prey, _is_int(self.max_prey) and 1 <= self.max_prey <= 2**30,
+               "an integer >= 1 and <= 2**30 (the agent slots' limit)")
+        _check("observation_range", self.observation_range,
+               isinstance(self.observation_range, str) and self.observation_range in OBSERVATION_RANGES,
                f"one of {OBSERVATION_RANGES}")
         for name in ("prey", "predator"):
             value = getattr(self, name)
@@ -153,7 +218,20 @@ class AquariumConfig:
             g = self.grid_cell_size
             _check("grid_cell_size", g, _is_real(g) and math.isfinite(g) and g > 0,
                    "None or a finite number > 0")
-        _check("capacity", self.capacity, self.capacity <= 2**30, "at most 2**30 agent slots per world")
+        _check("capacity", self.capacity, self.capacity <= 2**30,
+               "at most 2**30 agent slots per world: prey_count (with reproduction max(prey_count, max_prey)) "
+               "+ predator_count")
+        reward_limit = RETURN_LIMIT / (self.max_steps * self.prey_capacity)
+        for name in ("prey_reward", "prey_capture_penalty", "predator_reward"):
+            value = getattr(self, name)
+            _check(name, value, _is_real(value) and math.isfinite(value) and abs(value) <= reward_limit,
+                   f"a finite number with |{name}| <= 1e38 / (max_steps x prey slots) = {reward_limit:.3g} "
+                   "(episode returns are float32 sums)")
+        _normalise(self, ("prey_count", "predator_count", "action_count", "max_steps", "predator_starvation_steps",
+                          "prey_replication_age", "max_prey"),
+                   ("width", "height", "prey_reward", "prey_capture_penalty", "predator_reward", "catch_share_radius",
+                    "grid_cell_size"),
+                   ("fov_enabled", "respawn_captured_prey", "prey_reproduction"))
 
     # Derived sizes -------------------------------------------------------------------------------
     @property
@@ -179,8 +257,20 @@ class AquariumConfig:
 
     @classmethod
     def from_dict(cls, data: dict) -> "AquariumConfig":
+        """The config of `to_dict()`'s form; unknown keys are refused by name (ValueError)."""
+        if not isinstance(data, dict):
+            raise ValueError(f"an AquariumConfig dict must be a dict, got {type(data).__name__}")
         data = dict(data)
+        _check_keys(data, cls, "")
         for name in ("prey", "predator"):
             if isinstance(data.get(name), dict):
+                _check_keys(data[name], AgentTypeConfig, f"{name}.")
                 data[name] = AgentTypeConfig(**data[name])
         return cls(**data)
+
+
+def _check_keys(data: dict, cls, prefix: str) -> None:
+    known = [f.name for f in dataclasses.fields(cls)]
+    unknown = [f"{prefix}{k}" for k in data if k not in known]
+    if unknown:
+        raise ValueError(f"unknown config fields {unknown}; known {prefix[:-1] or 'world'} fields: {known}")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from typing import Mapping
 
@@ -17,13 +18,15 @@ import numpy as np
 import torch
 import warp as wp
 
-from .config import AquariumConfig
+from .config import INT32_MAX, LARGEST, AquariumConfig
 from .state import AGENT_FIELDS, WORLD_FIELDS, SimulationState, estimate_bytes
 from .kernels import observation
 from .kernels.common import AgentType
 from .shard import WorldShard
 
 TYPES = ("prey", "predator")
+# The tensors of `state_dict()`: the whole simulation state.
+STATE_DICT_FIELDS = tuple(AGENT_FIELDS) + tuple(WORLD_FIELDS) + ("episode_return",)
 # Below this many worlds per thread, the thread hand-off costs more than the second core gives.
 MIN_WORLDS_PER_THREAD = 32
 OBSERVATION_BLOCK = 128  # threads per block of the GPU observation kernel
@@ -31,15 +34,20 @@ OBSERVATION_BLOCK = 128  # threads per block of the GPU observation kernel
 # (H200, ~1M agents in flight: worlds of 64 stepped 14% faster with cells than as one cell).
 SINGLE_CELL_CAPACITY = 32
 _warp_ready = False
+# Warp's initialisation, kernel registration and module loading (compiling) are not thread-safe: two
+# threads building envs at once crashed the process. Everything that may load a module (recording a
+# launch loads its kernel's module) holds this lock; stepping built envs in parallel needs no lock.
+WARP_SETUP_LOCK = threading.RLock()
 
 
 def _init_warp() -> None:
     global _warp_ready
-    if not _warp_ready:
-        wp.config.log_level = wp.LOG_WARNING if hasattr(wp, "LOG_WARNING") else wp.config.log_level
-        wp.config.quiet = True
-        wp.init()
-        _warp_ready = True
+    with WARP_SETUP_LOCK:
+        if not _warp_ready:
+            wp.config.log_level = wp.LOG_WARNING if hasattr(wp, "LOG_WARNING") else wp.config.log_level
+            wp.config.quiet = True
+            wp.init()
+            _warp_ready = True
 
 
 def resolve_device(device) -> str:
@@ -70,6 +78,31 @@ def seed_key(seed) -> int:
         seed >>= 32
         if seed == 0:
             return key
+
+
+def _action_tensor(actions) -> torch.Tensor:
+    """Actions as a tensor; numpy arrays of the other byte order are converted first (torch reads only
+    native ones)."""
+    if isinstance(actions, np.ndarray) and not actions.dtype.isnative:
+        actions = actions.astype(actions.dtype.newbyteorder("="))
+    return actions if isinstance(actions, torch.Tensor) else torch.as_tensor(actions)
+
+
+def _cpu_tensor(name: str, value) -> torch.Tensor:
+    """`value` (a tensor, array, number or nested list) as a CPU tensor; a clear error naming `name`
+    for what torch cannot hold (strings, objects, mixed types)."""
+    try:
+        if not isinstance(value, torch.Tensor):
+            value = np.asarray(value)
+            if value.dtype.kind not in "biuf":
+                raise TypeError(f"dtype {value.dtype}")
+            value = torch.as_tensor(value.astype(value.dtype.newbyteorder("=")))
+        if value.dtype in (torch.uint16, torch.uint32, torch.uint64):
+            value = value.to(torch.float64)  # torch's wide unsigned types support little arithmetic
+        return value.detach().cpu()
+    except (TypeError, ValueError, RuntimeError, NotImplementedError) as error:
+        raise ValueError(f"{name} must hold numbers (a tensor or array of booleans, integers or reals): "
+                         f"{error}") from None
 
 
 def _cpu_threads(cpu_threads) -> int:
@@ -162,33 +195,38 @@ class BatchedAquarium:
 
         dims_x, dims_y = _grid_dims(cfg)
         cells = dims_x * dims_y
+        if cells >= 2**31:
+            smallest = math.sqrt(cfg.width * cfg.height / 2**30)
+            raise ValueError(f"grid_cell_size={cfg.grid_cell_size!r} gives more than 2**31 cells per world (32-bit "
+                             f"cell indices): must be None or at least about {smallest:.3g} px")
         if W * C * 2 >= 2**31 or W * cells + 1 >= 2**31:
             raise ValueError(f"num_worlds={W} x capacity={C} (cells per world {cells}) exceeds the 32-bit "
                              "index range of the cell lists; use fewer worlds or agents")
         self._check_memory(cells)
 
-        self._dims = (dims_x, dims_y)
-        types = [_type_params(cfg, cfg.predator), _type_params(cfg, cfg.prey)]  # index = type code
-        self._types = wp.array(types, dtype=AgentType, device=self.device)
-        self._action_direction = wp.array(action_directions(cfg.action_count), dtype=wp.vec2, device=self.device)
-        self.state = SimulationState(W, C, cfg.prey_capacity, cfg.predator_count,
-                                     self.observation_size["prey"], self.observation_size["predator"],
-                                     self.observed_slots["prey"], self.observed_slots["predator"], self.device)
-        # One observation kernel per observer type's slot counts; rows are staged by blocks of
-        # OBSERVATION_BLOCK threads on a GPU (tile kernels run one thread per block on the CPU).
-        block = OBSERVATION_BLOCK if wp.get_device(self.device).is_cuda else 1
-        whole_world = self._dims == (1, 1)  # the shards' cell lists are whole-world lists
-        self._observe_kernels = {t: observation.observation_kernel(getattr(cfg, t).predator_slots,
-                                                                   getattr(cfg, t).prey_slots, block, whole_world)
-                                 for t in TYPES}
-        threads = _cpu_threads(cpu_threads) if not wp.get_device(self.device).is_cuda else 1
-        shards = max(1, min(threads, W // MIN_WORLDS_PER_THREAD))
-        bounds = [W * k // shards for k in range(shards + 1)]
-        self._shard_ranges = list(zip(bounds[:-1], bounds[1:]))
-        self._pool = ThreadPoolExecutor(max_workers=shards) if shards > 1 else None
-        self._make_shards(seed_key(seed))
-        self._build_views()
-        self.reset()
+        with WARP_SETUP_LOCK:  # arrays of structs, kernels and recorded launches (see the lock)
+            self._dims = (dims_x, dims_y)
+            types = [_type_params(cfg, cfg.predator), _type_params(cfg, cfg.prey)]  # index = type code
+            self._types = wp.array(types, dtype=AgentType, device=self.device)
+            self._action_direction = wp.array(action_directions(cfg.action_count), dtype=wp.vec2, device=self.device)
+            self.state = SimulationState(W, C, cfg.prey_capacity, cfg.predator_count,
+                                         self.observation_size["prey"], self.observation_size["predator"],
+                                         self.observed_slots["prey"], self.observed_slots["predator"], self.device)
+            # One observation kernel per observer type's slot counts; rows are staged by blocks of
+            # OBSERVATION_BLOCK threads on a GPU (tile kernels run one thread per block on the CPU).
+            block = OBSERVATION_BLOCK if wp.get_device(self.device).is_cuda else 1
+            whole_world = self._dims == (1, 1)  # the shards' cell lists are whole-world lists
+            self._observe_kernels = {t: observation.observation_kernel(getattr(cfg, t).predator_slots,
+                                                                       getattr(cfg, t).prey_slots, block, whole_world)
+                                     for t in TYPES}
+            threads = _cpu_threads(cpu_threads) if not wp.get_device(self.device).is_cuda else 1
+            shards = max(1, min(threads, W // MIN_WORLDS_PER_THREAD))
+            bounds = [W * k // shards for k in range(shards + 1)]
+            self._shard_ranges = list(zip(bounds[:-1], bounds[1:]))
+            self._pool = ThreadPoolExecutor(max_workers=shards) if shards > 1 else None
+            self._make_shards(seed_key(seed))
+            self._build_views()
+            self.reset()
 
     # ------------------------------------------------------------------ construction helpers
     def _check_memory(self, cells_per_world: int) -> None:
@@ -225,11 +263,12 @@ class BatchedAquarium:
 
     # ------------------------------------------------------------------ running the shards
     def _make_shards(self, seed_key: int) -> None:
-        self._shards = [
-            WorldShard(self.config, self.state, w0, w1, self._dims, self._types, self._action_direction,
-                       self._observe_kernels, seed_key, self.device, self.auto_reset)
-            for w0, w1 in self._shard_ranges
-        ]
+        with WARP_SETUP_LOCK:  # recording launches loads modules
+            self._shards = [
+                WorldShard(self.config, self.state, w0, w1, self._dims, self._types, self._action_direction,
+                           self._observe_kernels, seed_key, self.device, self.auto_reset)
+                for w0, w1 in self._shard_ranges
+            ]
         self._graph = None
 
     def run_on_shards(self, work) -> None:
@@ -304,11 +343,15 @@ class BatchedAquarium:
         "episode_captures" and "episode_return" (summed over the type's agents), plus "alive" and
         "observation_mask" of the returned observations. Worlds whose episode ended were reset, so
         their observations are the new episode's first ones.
+
+        `validate=False` skips the host-side checks of the actions (and their device sync); an action
+        outside [0, action_count - 1] is then clamped into that range by the motion kernel, so no value
+        reads or writes out of bounds.
         """
         if validate:
             self._validate_actions(actions)
         for t in TYPES:
-            self._actions[t].copy_(actions[t] if isinstance(actions[t], torch.Tensor) else torch.as_tensor(actions[t]))
+            self._actions[t].copy_(_action_tensor(actions[t]))
         self._run("step")
         return self.observations, self._rewards, self._terminated, self._truncated, self._info
 
@@ -326,7 +369,9 @@ class BatchedAquarium:
             if isinstance(a, np.ndarray):
                 if self.torch_device.type != "cpu":
                     raise ValueError(f"actions[{t!r}] is a numpy array; pass a torch tensor on {self.device}")
-                a = torch.from_numpy(a)
+                if a.dtype.kind not in "biufc":
+                    raise ValueError(f"actions[{t!r}] must have an integer dtype, got numpy {a.dtype}")
+                a = _action_tensor(a)
             if not isinstance(a, torch.Tensor):
                 raise ValueError(f"actions[{t!r}] must be a torch tensor, got {type(a).__name__}")
             if a.dtype.is_floating_point or a.dtype.is_complex or a.dtype == torch.bool:
@@ -347,7 +392,8 @@ class BatchedAquarium:
         """Overwrite part of the state and recompute everything derived from it (counts, cell lists,
         observations). Fields: the agent fields of `AGENT_FIELDS` shaped `[C, ...]` (one world) or
         `[W, C, ...]` (all worlds, `world=None`), and `world_step` / `episode` (a scalar for one world,
-        `[W]` for all). Headings must be unit vectors. Returns the observations of the new state."""
+        `[W]` for all). Every value is checked (see `state_value_ranges`) before anything is written:
+        a bad call raises `ValueError` and changes nothing. Returns the observations of the new state."""
         t = self.state.torch
         unknown = [k for k in fields if k not in AGENT_FIELDS and k not in ("world_step", "episode")]
         if unknown:
@@ -359,19 +405,12 @@ class BatchedAquarium:
         staged = {}
         for name, value in fields.items():
             target = getattr(t, name)[sel]
-            value = torch.as_tensor(np.asarray(value) if not isinstance(value, torch.Tensor) else value).cpu()
-            if target.dtype == torch.bool and not value.dtype == torch.bool and not ((value == 0) | (value == 1)).all():
-                raise ValueError(f"{name} must hold booleans (or 0/1)")
-            if target.dtype == torch.int32 and (value.dtype.is_floating_point or value.dtype == torch.bool):
-                if value.dtype == torch.bool or not (torch.isfinite(value) & (value == value.round())).all():
-                    raise ValueError(f"{name} must hold integers")
-            value = value.to(target.dtype)
+            value = _cpu_tensor(name, value)
             if name in ("world_step", "episode") and world is None and value.dim() == 0:
                 value = value.expand(target.shape)
             if tuple(value.shape) != tuple(target.shape):
                 raise ValueError(f"{name} must have shape {list(target.shape)}, got {list(value.shape)}")
-            staged[name] = value
-        self._check_state_values(staged, sel)
+            staged[name] = self._checked_state_value(name, value, target.dtype)
         for name, value in staged.items():
             getattr(t, name)[sel].copy_(value.to(self.torch_device))
         alive = t.alive
@@ -380,51 +419,132 @@ class BatchedAquarium:
         self._run("observe")
         return self.observations
 
-    def _check_state_values(self, staged: dict, sel) -> None:
+    def state_value_ranges(self) -> dict[str, str]:
+        """The values `set_state` and `load_state_dict` accept, per field. Integer counters are int32 on
+        the device and must not overflow within an episode; vectors must keep the kernels' float32
+        arithmetic finite (`config.LARGEST`)."""
         cfg = self.config
-        if "position" in staged:
-            p = staged["position"]
-            if not torch.isfinite(p).all():
-                raise ValueError("position must be finite")
-            if (p[..., 0] < 0).any() or (p[..., 0] >= cfg.width).any() or (p[..., 1] < 0).any() or (p[..., 1] >= cfg.height).any():
-                raise ValueError(f"position must lie in [0, {cfg.width}) x [0, {cfg.height})")
-        for name in ("velocity", "acceleration", "heading"):
-            if name in staged and not torch.isfinite(staged[name]).all():
-                raise ValueError(f"{name} must be finite")
-        if "heading" in staged:
-            norm = torch.linalg.vector_norm(staged["heading"].double(), dim=-1)
+        return {name: text for name, (_, _, text) in self._integer_ranges().items()} | {
+            "position": f"finite, in [0, {cfg.width}) x [0, {cfg.height}) (as float32)",
+            "velocity": f"finite, each component in [-{LARGEST:g}, {LARGEST:g}] px/step",
+            "acceleration": f"finite, each component in [-{LARGEST:g}, {LARGEST:g}] px/step^2",
+            "heading": "finite unit vectors (|heading| = 1 within 1e-4)",
+            "alive": "booleans (or 0/1)",
+            "episode_return": "finite float32",
+        }
+
+    def _integer_ranges(self) -> dict[str, tuple[int, int, str]]:
+        steps = self.config.max_steps
+        return {
+            # A prey's age grows by one per step for up to max_steps steps of an episode.
+            "age": (0, INT32_MAX - steps, f"2**31 - 1 - max_steps: ages grow by one per step for up to "
+                                          f"max_steps={steps} steps (int32)"),
+            "replication_age": (0, INT32_MAX, "int32"),
+            "starvation": (0, INT32_MAX - 1, "int32, grows by one per step"),
+            "world_step": (0, steps - 1, f"below max_steps={steps}"),
+            "episode": (0, INT32_MAX - 1, "int32, grows by one per episode"),
+            "episode_captures": (0, INT32_MAX, "int32"),
+            "prey_alive_count": (0, self.prey_capacity, "live prey slots"),
+            "predator_alive_count": (0, self.predator_count, "live predator slots"),
+        }
+
+    def _checked_state_value(self, name: str, value: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
+        """`value` (a CPU tensor of the field's shape) as `dtype`, after checking that it holds values the
+        field may take; the range check runs on the given values, before a cast could wrap them."""
+        cfg = self.config
+        if value.dtype.is_complex:
+            raise ValueError(f"{name} has dtype {value.dtype}; expected real numbers ({dtype})")
+        if dtype == torch.bool:
+            if value.dtype != torch.bool and not ((value == 0) | (value == 1)).all():
+                raise ValueError(f"{name} must hold booleans (or 0/1)")
+            return value.to(torch.bool)
+        if dtype == torch.int32:
+            if value.dtype == torch.bool or value.dtype.is_floating_point and \
+                    not (torch.isfinite(value) & (value == value.round())).all():
+                raise ValueError(f"{name} must hold integers")
+            lo, hi, why = self._integer_ranges()[name]
+            wide = value.double() if value.dtype.is_floating_point else value.to(torch.int64)
+            if value.numel() and (wide.min() < lo or wide.max() > hi):
+                bad = wide[(wide < lo) | (wide > hi)][0].item()
+                raise ValueError(f"{name} holds {bad:.0f}, out of range: must be >= {lo} and <= {hi}, "
+                                 f"i.e. in [{lo}, {hi}] ({why})")
+            return value.to(torch.int32)
+        if value.dtype == torch.bool:
+            raise ValueError(f"{name} must hold real numbers, got booleans")
+        value = value.to(torch.float32)  # a value beyond float32's range becomes inf here and is refused
+        if not torch.isfinite(value).all():
+            raise ValueError(f"{name} must be finite (as float32)")
+        if name == "position":
+            x, y = value[..., 0], value[..., 1]
+            if (x < 0).any() or (x >= cfg.width).any() or (y < 0).any() or (y >= cfg.height).any():
+                raise ValueError(f"position must lie in [0, {cfg.width}) x [0, {cfg.height}) (as float32)")
+        elif name in ("velocity", "acceleration") and (value.abs() > LARGEST).any():
+            raise ValueError(f"{name} components must be in [-{LARGEST:g}, {LARGEST:g}] (float32-safe)")
+        elif name == "heading":
+            norm = torch.linalg.vector_norm(value.double(), dim=-1)
             if ((norm - 1.0).abs() > 1e-4).any():
                 raise ValueError("heading must hold unit vectors (|heading| = 1 within 1e-4)")
-        for name in ("age", "replication_age", "starvation", "world_step", "episode"):
-            if name in staged and (staged[name] < 0).any():
-                raise ValueError(f"{name} must be >= 0")
-        if "world_step" in staged and (staged["world_step"] >= cfg.max_steps).any():
-            raise ValueError(f"world_step must be in [0, {cfg.max_steps - 1}] (max_steps={cfg.max_steps})")
+        return value
 
     def state_dict(self) -> dict:
         """A copy of the whole simulation state (CPU tensors) plus the config and seed."""
         t = self.state.torch
-        names = list(AGENT_FIELDS) + list(WORLD_FIELDS) + ["episode_return"]
         return {
             "config": self.config.to_dict(),
             "num_worlds": self.num_worlds,
             "seed": self.seed,
-            "tensors": {n: getattr(t, n).detach().cpu().clone() for n in names},
+            "tensors": {n: getattr(t, n).detach().cpu().clone() for n in STATE_DICT_FIELDS},
         }
 
-    def load_state_dict(self, state: dict) -> dict[str, torch.Tensor]:
-        """Restore a `state_dict()` taken from an env with the same config and number of worlds."""
-        if state.get("config") != self.config.to_dict() or state.get("num_worlds") != self.num_worlds:
+    def load_state_dict(self, state: Mapping) -> dict[str, torch.Tensor]:
+        """Restore a `state_dict()` taken from an env with the same config and number of worlds. All or
+        nothing: every tensor's presence, shape, dtype and values (ranges, finiteness, live counts
+        matching the alive flags) and the seed are checked before anything changes."""
+        if not isinstance(state, Mapping):
+            raise ValueError(f"state_dict must be a dict, got {type(state).__name__}")
+        missing = [k for k in ("config", "num_worlds", "seed", "tensors") if k not in state]
+        if missing:
+            raise ValueError(f"state_dict lacks {missing}; expected a BatchedAquarium.state_dict()")
+        if state["config"] != self.config.to_dict() or state["num_worlds"] != self.num_worlds:
             raise ValueError("state_dict was taken from an env with another config or num_worlds")
-        if state.get("seed") != self.seed:
-            self.seed = int(state["seed"])
-            self._make_shards(seed_key(self.seed))
+        try:
+            key = seed_key(state["seed"])
+        except ValueError as error:
+            raise ValueError(f"state_dict {error}") from None
+        tensors = state["tensors"]
+        if not isinstance(tensors, Mapping):
+            raise ValueError(f"state_dict tensors must be a dict of tensors, got {type(tensors).__name__}")
+        missing = [n for n in STATE_DICT_FIELDS if n not in tensors]
+        unknown = [n for n in tensors if n not in STATE_DICT_FIELDS]
+        if missing or unknown:
+            raise ValueError(f"state_dict tensors must be exactly {list(STATE_DICT_FIELDS)}; missing {missing}, "
+                             f"unknown {unknown}")
         t = self.state.torch
-        for name, value in state["tensors"].items():
-            target = getattr(t, name)
+        staged = {}
+        for name in STATE_DICT_FIELDS:
+            value, target = tensors[name], getattr(t, name)
+            if not isinstance(value, torch.Tensor):
+                raise ValueError(f"state_dict tensor {name} must be a torch tensor, got {type(value).__name__}")
             if tuple(value.shape) != tuple(target.shape):
                 raise ValueError(f"state_dict tensor {name} has shape {list(value.shape)}, expected {list(target.shape)}")
-            target.copy_(value.to(self.torch_device))
+            if value.dtype != target.dtype:
+                raise ValueError(f"state_dict tensor {name} has dtype {value.dtype}, expected {target.dtype}")
+            try:
+                staged[name] = self._checked_state_value(name, value.detach().cpu(), target.dtype)
+            except ValueError as error:
+                raise ValueError(f"state_dict tensor {error}") from None
+        alive = staged["alive"]
+        for kind, slots in (("prey", slice(0, self.prey_capacity)), ("predator", slice(self.prey_capacity, None))):
+            count = staged[f"{kind}_alive_count"]
+            if not torch.equal(count, alive[:, slots].sum(dim=1).to(torch.int32)):
+                w = int(torch.nonzero(count != alive[:, slots].sum(dim=1))[0])
+                raise ValueError(f"state_dict tensor {kind}_alive_count[{w}]={int(count[w])} does not match the "
+                                 f"{int(alive[w, slots].sum())} live {kind} slots of world {w}")
+        if int(state["seed"]) != self.seed:
+            self.seed = int(state["seed"])
+            self._make_shards(key)
+        for name, value in staged.items():
+            getattr(t, name).copy_(value.to(self.torch_device))
         self._run("observe")
         return self.observations
 

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 import warp as wp
 
-from .env import TYPES, BatchedAquarium, action_directions, seed_key
+from .env import TYPES, WARP_SETUP_LOCK, BatchedAquarium, action_directions, seed_key
 from .kernels import heuristics as kernels
 
 # Policies allowed for each agent type.
@@ -95,12 +95,13 @@ class HeuristicPolicy:
         shards = env.shards
         if self._recorded is None or self._recorded[0] != shards or self._recorded[1] != key:
             launches = {}
-            for shard in shards:
-                s = shard.s
-                launches[id(shard)] = kernels.launch_policy(
-                    shard.world, env.agent_types, shard.grid, env.action_directions, s.alive, s.position,
-                    s.heading, s.world_step, s.episode, key, self._code, self._first_slot,
-                    self._buffer[shard.w0:shard.w1], env.device, record=True)
+            with WARP_SETUP_LOCK:  # recording a launch loads the module
+                for shard in shards:
+                    s = shard.s
+                    launches[id(shard)] = kernels.launch_policy(
+                        shard.world, env.agent_types, shard.grid, env.action_directions, s.alive, s.position,
+                        s.heading, s.world_step, s.episode, key, self._code, self._first_slot,
+                        self._buffer[shard.w0:shard.w1], env.device, record=True)
             self._recorded = (shards, key, launches)
         return self._recorded[2]
 

@@ -46,7 +46,7 @@ from typing import Callable, Iterable, Mapping
 import torch
 import warp as wp
 
-from .env import BatchedAquarium
+from .env import WARP_SETUP_LOCK, BatchedAquarium
 from .kernels import metrics as kernels
 
 SCALAR_METRICS = kernels.VALUE_NAMES
@@ -161,7 +161,8 @@ class SwarmMetrics:
     def _programs(self) -> dict:
         shards = self._env.shards
         if self._recorded is None or self._recorded[0] != shards:  # the env rebuilds its shards on reseed
-            self._recorded = (shards, {id(shard): self._shard_program(shard) for shard in shards})
+            with WARP_SETUP_LOCK:  # recording a launch loads the module
+                self._recorded = (shards, {id(shard): self._shard_program(shard) for shard in shards})
         return self._recorded[1]
 
     def compute(self) -> dict[str, torch.Tensor]:

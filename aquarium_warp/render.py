@@ -30,6 +30,7 @@ import zlib
 import numpy as np
 import warp as wp
 
+from .env import WARP_SETUP_LOCK
 from .kernels import render as rk
 from .kernels.common import PREDATOR, PREY
 
@@ -119,6 +120,8 @@ class Renderer:
         self._overlay = wp.zeros((H, Wp), dtype=wp.int32, device=self.device)
         self._image = wp.zeros((H, Wp, 3), dtype=wp.uint8, device=self.device)
         self._palette = _palette(palette)
+        with WARP_SETUP_LOCK:  # load the kernels here, not at the first launch, which may run on any thread
+            wp.load_module(rk, device=self.device)
 
         p = rk.RenderParams()
         p.world_width, p.world_height = float(cfg.width), float(cfg.height)

@@ -43,6 +43,13 @@ def _check_frame(frame, expected_shape) -> np.ndarray:
     return frame
 
 
+def check_video_path(path) -> None:
+    """ffmpeg picks the container from the file name's extension, and fails only after it started
+    without one: refuse a name that does not end in .mp4 up front."""
+    if os.path.splitext(str(path))[1].lower() != ".mp4":
+        raise ValueError(f"cannot write {path}: the file name must end in .mp4 (an H.264 MP4 video)")
+
+
 def write_video(frames: Iterable[np.ndarray] | Callable[[int], np.ndarray | None], path, fps: float = 30,
                 progress: bool = True, num_frames: int | None = None, quality: float = 7) -> int:
     """Write RGB uint8 frames `[H, W, 3]` to an H.264 MP4 file at `path`; returns the frame count.
@@ -65,6 +72,7 @@ def write_video(frames: Iterable[np.ndarray] | Callable[[int], np.ndarray | None
         raise ValueError(f"quality={quality!r} must be None or a number in [1, 10]")
     if num_frames is not None and (isinstance(num_frames, bool) or not isinstance(num_frames, int) or num_frames < 0):
         raise ValueError(f"num_frames={num_frames!r} must be None or an integer >= 0")
+    check_video_path(path)
     folder = os.path.dirname(os.path.abspath(str(path)))
     if not os.path.isdir(folder):
         raise ValueError(f"cannot write {path}: folder {folder} does not exist")

@@ -11,6 +11,21 @@ from .common import PREY, AgentType, WorldParams, slot_type, wrap_coordinate
 
 wp.set_module_options({"enable_backward": False})
 
+# Vector lengths below this have squares (< 1e-36) near float32's subnormal range (< 1.2e-38), where
+# squaring loses precision or gives 0.
+SHORTEST_SQUARABLE = wp.constant(1.0e-18)
+
+
+@wp.func
+def rescaled(v: wp.vec2) -> wp.vec2:
+    """`v` divided by its larger component's magnitude (exact zero stays zero): the same direction with
+    a length in [1, sqrt(2)], which squares exactly, for vectors shorter than SHORTEST_SQUARABLE, whose
+    length is inexact (or 0) in float32."""
+    largest = wp.max(wp.abs(v[0]), wp.abs(v[1]))
+    if largest > 0.0:
+        return v / largest
+    return v
+
 
 @wp.func
 def clamp_length(v: wp.vec2, limit: float) -> wp.vec2:
@@ -59,14 +74,22 @@ def integrate_motion(
         action = int(prey_action[w, i])
     else:
         action = int(predator_action[w, i - world.prey_capacity])
+    # `step(validate=False)` skips the host's range check: a clamp (no branch) keeps any action index
+    # inside the direction table, so a bad action steers to the nearest end of the range instead of
+    # reading out of bounds.
+    action = wp.clamp(action, 0, world.action_count - 1)
     desired = action_direction[action] * p.max_speed
     v = velocity[w, i]
     steering_force = clamp_length(desired - v, p.max_steering_force)
 
     # 2. Acceleration with memory: the running sum is renormalised to k (paper eq. 2).
     acc = acceleration[w, i] + steering_force / p.mass
-    if acc[0] != 0.0 or acc[1] != 0.0:
-        acc = acc * (p.max_acceleration / wp.length(acc))
+    n = wp.length(acc)
+    if n < SHORTEST_SQUARABLE:  # rare: a fresh agent's tiny steering force, or a near-exact cancellation
+        acc = rescaled(acc)
+        n = wp.length(acc)
+    if n > 0.0:
+        acc = acc * (p.max_acceleration / n)
 
     # 3. Same-type contact: the nearest overlapping agent of the same type pushes this one away. The
     # partner was found by the observation pass on these same start-of-step positions.
@@ -85,5 +108,10 @@ def integrate_motion(
     velocity[w, i] = v_new
     acceleration[w, i] = acc
     speed = wp.length(v_new)
-    if speed > 0.0:
+    if speed >= SHORTEST_SQUARABLE:
         heading[w, i] = v_new / speed
+    else:  # rare: a tiny velocity kept by a contact with bounce strength 0 (or set so)
+        direction = rescaled(v_new)
+        n_direction = wp.length(direction)
+        if n_direction > 0.0:
+            heading[w, i] = direction / n_direction

@@ -303,3 +303,76 @@ def test_index_range_overflow_refused_up_front():
         BatchedAquarium(AquariumConfig(prey_count=1000), num_worlds=10**7, device="cpu")
     assert_names_field(str(err.value), "num_worlds")
     assert _peak_rss_bytes() - rss_before < 512 * 2**20
+
+
+# --------------------------------------------------------------------------------------------------
+# float32-safe ranges (issue 15): values validation used to accept that crashed the first step, gave
+# NaN state or infinite rewards, or overflowed the int32 counters. Edges: the bound itself is accepted,
+# the next value out is refused.
+# --------------------------------------------------------------------------------------------------
+FLOAT32_CASES = [
+    # (field, refused value, accepted edge, text of the allowed range)
+    ("max_steps", 2**31, 2**31 - 1, "<= 2**31 - 1"),
+    ("max_steps", 2**32 + 10, 2**31 - 1, "<= 2**31 - 1"),
+    ("predator_starvation_steps", 2**31 - 1, 2**31 - 2, "<= 2**31 - 2"),
+    ("predator_starvation_steps", 2**31, 2**31 - 2, "<= 2**31 - 2"),
+    ("prey_replication_age", 2**31 - 1, 1717986917, "<= 1717986917"),
+    ("prey_replication_age", 1717986918, 1717986917, "<= 1717986917"),
+    ("catch_share_radius", 0.99e-15, 1e-15, "0 or in [1e-15, 1e+15]"),
+    ("catch_share_radius", 1.01e15, 1e15, "0 or in [1e-15, 1e+15]"),
+    # |reward| x max_steps (3000) x prey slots (16) <= 1e38
+    ("prey_reward", 1e39, 1e38 / 48000, "1e38 / (max_steps x prey slots)"),
+    ("prey_capture_penalty", -1e39, -1e38 / 48000, "1e38 / (max_steps x prey slots)"),
+    ("predator_reward", 2.1e33, 2.08e33, "1e38 / (max_steps x prey slots)"),
+]
+for _kind in ("prey", "predator"):
+    for _f in ("max_steering_force", "max_acceleration", "radius"):
+        FLOAT32_CASES += [(f"{_kind}.{_f}", 0.99e-15, 1e-15, "in [1e-15, 1e+15]"),
+                          (f"{_kind}.{_f}", 1.01e15, 1e15, "in [1e-15, 1e+15]")]
+    FLOAT32_CASES += [
+        (f"{_kind}.max_speed", 0.99e-15, 1e-15, "in [1e-15, 1e+15]"),
+        (f"{_kind}.mass", 1e-45, 1e-15, "in [1e-15, 1e+15]"),  # 0.6 / 1e-45 is inf in float32
+        (f"{_kind}.mass", 0.99e-15, 1.0, "in [1e-15, 1e+15]"),
+        (f"{_kind}.mass", 1e25, 1e15, "in [1e-15, 1e+15]"),
+        (f"{_kind}.mass", 1e30, 1e15, "in [1e-15, 1e+15]"),
+        (f"{_kind}.max_acceleration", 1e38, 1e15, "in [1e-15, 1e+15]"),
+        (f"{_kind}.bounce_strength", 1e39, 1e15, "0 or in [1e-15, 1e+15]"),
+        (f"{_kind}.bounce_strength", 1e-30, 1e-15, "0 or in [1e-15, 1e+15]"),
+        (f"{_kind}.max_steering_force", 1e-30, 1e-15, "in [1e-15, 1e+15]"),
+        (f"{_kind}.view_distance", 1.01e15, 1e15, "math.inf or in [1e-15, 1e+15]"),
+        (f"{_kind}.view_distance", 1e-30, 1e-15, "math.inf or in [1e-15, 1e+15]"),
+    ]
+
+
+@pytest.mark.parametrize("field,bad,edge,allowed", FLOAT32_CASES,
+                         ids=[f"{f}={b!r}" for f, b, _, _ in FLOAT32_CASES])
+def test_float32_and_int32_ranges(field, bad, edge, allowed):
+    with pytest.raises(ValueError) as err:
+        build(field, bad)
+    assert_names_field(str(err.value), field)
+    assert allowed in str(err.value), str(err.value)
+    cfg = build(field, edge)
+    kind, _, name = field.rpartition(".")
+    assert getattr(getattr(cfg, kind) if kind else cfg, name) == edge
+
+
+def test_mass_against_the_steering_force():
+    # With mass 1e-15 the default steering force gives 0.6 / 1e-15 = 6e14 px/step^2, within 1e15; a
+    # steering force of 1e6 (limited by 2 max_speed = 8) gives 8e15, too much.
+    build("prey.mass", 1e-15)
+    with pytest.raises(ValueError, match=r"^prey\.mass=.*at least min\(max_steering_force, 2 max_speed\) / 1e\+15 = 8e-15"):
+        AquariumConfig(prey=dataclasses.replace(default_prey(), mass=1e-15, max_steering_force=1e6))
+
+
+@pytest.mark.parametrize("field,value", [
+    ("prey_count", np.int64(16)), ("predator_count", np.int32(2)), ("max_steps", np.uint16(100)),
+    ("width", np.float32(500.0)), ("prey_reward", np.float64(2.0)), ("fov_enabled", np.bool_(False)),
+    ("prey.prey_slots", np.int8(2)), ("prey.radius", np.float32(10.0)),
+])
+def test_numpy_scalars_accepted_as_python_numbers(field, value):
+    # Issue 15: prey_count=np.int64(16) said "out of range"; numpy integers are integers.
+    cfg = build(field, value)
+    kind, _, name = field.rpartition(".")
+    stored = getattr(getattr(cfg, kind) if kind else cfg, name)
+    assert stored == value and type(stored) in (int, float, bool)
+    assert AquariumConfig.from_dict(cfg.to_dict()) == cfg

@@ -7,8 +7,11 @@ stays fast and works without the training extras.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import time
+
+from .config import ALGORITHM_RANGES
 
 PRESET_NAMES = ("default", "paper", "tiny")
 
@@ -21,6 +24,39 @@ def _hidden_dims(text: str) -> list[int]:
     if not dims or min(dims) < 1:
         raise argparse.ArgumentTypeError(f"hidden dims {text!r}: expected positive integers")
     return dims
+
+
+def _number(allowed: str, ok):
+    """argparse type: a float for which `ok(value)` holds (NaN never does); `allowed` names the range."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"invalid value {text!r}: must be {allowed}") from None
+        if math.isnan(value) or not ok(value):
+            raise argparse.ArgumentTypeError(f"invalid value {text!r}: must be {allowed}")
+        return value
+    return parse
+
+
+POSITIVE = _number("a finite number > 0", lambda v: 0 < v < math.inf)
+
+
+def _algorithm(name: str):
+    """argparse type of the PPO coefficient `name`: the range `config.validate` checks."""
+    return _number(*ALGORITHM_RANGES[name])
+
+
+def _integer(minimum: int):
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"invalid value {text!r}: must be an integer >= {minimum}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"invalid value {text!r}: must be an integer >= {minimum}")
+        return value
+    return parse
 
 
 # --------------------------------------------------------------------------------------------- train
@@ -39,11 +75,11 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
                    help="prey when training predators: 'random' (default), 'turnaway' or a policy file")
     g.add_argument("--sharing", choices=("parameter", "individual"), default=None,
                    help="Parameter Sharing (one network, default) or Individual Learning (one per slot)")
-    g.add_argument("--num-worlds", type=int, default=None)
+    g.add_argument("--num-worlds", type=_integer(1), default=None)
     g.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
-    g.add_argument("--seed", type=int, default=None)
-    g.add_argument("--iterations", type=int, default=None, help="total PPO iterations of the run")
-    g.add_argument("--episodes", type=float, default=None,
+    g.add_argument("--seed", type=_integer(0), default=None)
+    g.add_argument("--iterations", type=_integer(0), default=None, help="total PPO iterations of the run")
+    g.add_argument("--episodes", type=POSITIVE, default=None,
                    help="total world episodes instead of --iterations (the paper: 4000)")
     g.add_argument("--log-dir", default=None, help="run directory (default: runs/<team>_<sharing>_<time>)")
     g.add_argument("--resume", default=None, metavar="PATH",
@@ -60,24 +96,24 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     e.add_argument("--width", type=float, default=None)
     e.add_argument("--height", type=float, default=None)
     a = p.add_argument_group("PPO")
-    a.add_argument("--num-steps-per-env", type=int, default=None, help="rollout length per iteration")
-    a.add_argument("--save-interval", type=int, default=None, help="checkpoint every N iterations")
-    a.add_argument("--learning-rate", "--actor-lr", dest="actor_lr", type=float, default=None)
-    a.add_argument("--critic-lr", type=float, default=None,
+    a.add_argument("--num-steps-per-env", type=_integer(1), default=None, help="rollout length per iteration")
+    a.add_argument("--save-interval", type=_integer(1), default=None, help="checkpoint every N iterations")
+    a.add_argument("--learning-rate", "--actor-lr", dest="actor_lr", type=POSITIVE, default=None)
+    a.add_argument("--critic-lr", type=POSITIVE, default=None,
                    help="critic learning rate (applied as a factor critic_lr/actor_lr on the critic's group)")
-    a.add_argument("--gamma", type=float, default=None)
-    a.add_argument("--lam", type=float, default=None)
-    a.add_argument("--clip", type=float, default=None, help="PPO clip parameter")
-    a.add_argument("--entropy", type=float, default=None, help="entropy coefficient")
-    a.add_argument("--value-loss-coef", type=float, default=None)
-    a.add_argument("--epochs", type=int, default=None, help="learning epochs per iteration")
-    a.add_argument("--minibatches", type=int, default=None, help="mini-batches per epoch")
-    a.add_argument("--max-grad-norm", type=float, default=None)
+    a.add_argument("--gamma", type=_algorithm("gamma"), default=None, help="discount factor, in [0, 1]")
+    a.add_argument("--lam", type=_algorithm("lam"), default=None, help="GAE lambda, in [0, 1]")
+    a.add_argument("--clip", type=_algorithm("clip_param"), default=None, help="PPO clip parameter, in (0, 1]")
+    a.add_argument("--entropy", type=_algorithm("entropy_coef"), default=None, help="entropy coefficient, >= 0")
+    a.add_argument("--value-loss-coef", type=_algorithm("value_loss_coef"), default=None)
+    a.add_argument("--epochs", type=_integer(1), default=None, help="learning epochs per iteration")
+    a.add_argument("--minibatches", type=_integer(1), default=None, help="mini-batches per epoch")
+    a.add_argument("--max-grad-norm", type=_algorithm("max_grad_norm"), default=None)
     a.add_argument("--schedule", choices=("fixed", "adaptive"), default=None)
-    a.add_argument("--desired-kl", type=float, default=None)
+    a.add_argument("--desired-kl", type=_algorithm("desired_kl"), default=None)
     a.add_argument("--hidden-dims", type=_hidden_dims, default=None, help="e.g. 64,64 (actor and critic)")
     a.add_argument("--activation", default=None, help="e.g. tanh, elu, relu")
-    a.add_argument("--reward-scale", type=float, default=None, help="factor on the rewards PPO sees")
+    a.add_argument("--reward-scale", type=POSITIVE, default=None, help="factor on the rewards PPO sees")
 
 
 def _train_changes(args) -> dict:

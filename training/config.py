@@ -201,15 +201,16 @@ def validate(config: dict) -> None:
         v = train[name]
         if not _is_int(v) or v < (1 if name == "num_worlds" else 0):
             raise ValueError(f"train.{name}={v!r} must be an integer >= {1 if name == 'num_worlds' else 0}")
-    if not _is_int(train["seed"]):
-        raise ValueError(f"train.seed={train['seed']!r} must be an integer")
+    if not _is_int(train["seed"]) or not 0 <= train["seed"] < 2**63 - 2**16:
+        # torch seeds are 64-bit, and distributed runs add their rank
+        raise ValueError(f"train.seed={train['seed']!r} must be an integer in [0, 2**63 - 2**16)")
     if train["episodes"] is not None and (not _is_real(train["episodes"]) or train["episodes"] <= 0):
         raise ValueError(f"train.episodes={train['episodes']!r} must be None or a number > 0")
     for name in ("actor_lr", "reward_scale"):
-        if not _is_real(train[name]) or not train[name] > 0:
-            raise ValueError(f"train.{name}={train[name]!r} must be a number > 0")
-    if train["critic_lr"] is not None and (not _is_real(train["critic_lr"]) or not train["critic_lr"] > 0):
-        raise ValueError(f"train.critic_lr={train['critic_lr']!r} must be None or a number > 0")
+        if not _is_real(train[name]) or not 0 < train[name] < math.inf:
+            raise ValueError(f"train.{name}={train[name]!r} must be a finite number > 0")
+    if train["critic_lr"] is not None and (not _is_real(train["critic_lr"]) or not 0 < train["critic_lr"] < math.inf):
+        raise ValueError(f"train.critic_lr={train['critic_lr']!r} must be None or a finite number > 0")
     if train["loop"] not in LOOPS:
         raise ValueError(f"train.loop={train['loop']!r} must be one of {LOOPS}")
     if not isinstance(train["tf32"], bool):
@@ -230,10 +231,30 @@ def validate(config: dict) -> None:
         if not _is_int(v) or v < 1:
             raise ValueError(f"runner.{name}={v!r} must be an integer >= 1")
     # Checked here: rsl-rl would only fail on 0 (ZeroDivisionError) after the first rollout.
+    algorithm = runner.get("algorithm", {})
     for name in ("num_learning_epochs", "num_mini_batches"):
-        v = runner.get("algorithm", {}).get(name)
+        v = algorithm.get(name)
         if not _is_int(v) or v < 1:
             raise ValueError(f"runner.algorithm.{name}={v!r} must be an integer >= 1")
+    # NaN or out-of-range coefficients fail only deep inside sampling or the update (or not at all).
+    for name, (allowed, ok) in ALGORITHM_RANGES.items():
+        if name == "desired_kl" and algorithm.get(name) is None:
+            continue  # rsl-rl's "no KL target" (the fixed schedule)
+        if name in algorithm and (not _is_real(algorithm[name]) or not ok(algorithm[name])):
+            raise ValueError(f"runner.algorithm.{name}={algorithm[name]!r} must be {allowed}")
+
+
+# PPO coefficients (absent ones take rsl-rl's defaults): {name: (allowed range, test of a real value)};
+# the train command's options check the same ranges.
+ALGORITHM_RANGES = {
+    "gamma": ("a number in [0, 1]", lambda v: 0 <= v <= 1),
+    "lam": ("a number in [0, 1]", lambda v: 0 <= v <= 1),
+    "clip_param": ("a number in (0, 1]", lambda v: 0 < v <= 1),
+    "entropy_coef": ("a finite number >= 0", lambda v: 0 <= v < math.inf),
+    "value_loss_coef": ("a finite number >= 0", lambda v: 0 <= v < math.inf),
+    "max_grad_norm": ("a finite number > 0", lambda v: 0 < v < math.inf),
+    "desired_kl": ("a finite number > 0", lambda v: 0 < v < math.inf),
+}
 
 
 def default_opponent(team: str) -> str:

@@ -36,6 +36,7 @@ import os
 import random
 import re
 import statistics
+import warnings
 from collections import deque
 
 import numpy as np
@@ -289,7 +290,18 @@ class AquariumRunner(OnPolicyRunner):
         if self.trainer is not None:
             infos["aquarium"] = self.trainer.extra_state()
         saved["infos"] = infos
-        torch.save(saved, path)
+        # Atomic: written to a temporary file in the same folder, then renamed over `path`, so an
+        # interrupted save never leaves a truncated checkpoint under a checkpoint's name.
+        partial = f"{path}.{os.getpid()}.partial"
+        try:
+            with open(partial, "wb") as f:
+                torch.save(saved, f)
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(partial, path)
+        finally:
+            if os.path.exists(partial):
+                os.remove(partial)
         self.logger.save_model(path, self.current_learning_iteration)
 
     def load(self, path: str, load_cfg: dict | None = None, strict: bool = True, map_location=None) -> dict:
@@ -319,12 +331,40 @@ def _set_rng_state(state: dict, device: torch.device) -> None:
 
 
 def latest_checkpoint(run_dir: str) -> str:
-    """The checkpoint `model_<i>.pt` with the largest i in `run_dir`."""
+    """The readable checkpoint `model_<i>.pt` with the largest i in `run_dir`; newer ones that cannot be
+    read (empty, truncated, corrupt) are skipped with a warning."""
+    return _newest_readable_checkpoint(run_dir)[0]
+
+
+def _newest_readable_checkpoint(run_dir: str) -> tuple[str, dict]:
     paths = glob.glob(os.path.join(run_dir, "model_*.pt"))
-    numbered = [(int(m.group(1)), p) for p in paths if (m := re.search(r"model_(\d+)\.pt$", p))]
+    numbered = sorted(((int(m.group(1)), p) for p in paths if (m := re.search(r"model_(\d+)\.pt$", p))),
+                      reverse=True)
     if not numbered:
         raise ValueError(f"no checkpoint model_<i>.pt in {run_dir!r}")
-    return max(numbered)[1]
+    for _, path in numbered:
+        try:
+            return path, _read_checkpoint(path)
+        except ValueError as error:
+            warnings.warn(f"skipping {error}", stacklevel=3)
+    raise ValueError(f"no readable checkpoint model_<i>.pt in {run_dir!r} ({len(numbered)} found, all broken)")
+
+
+def _read_checkpoint(path: str) -> dict:
+    """A training checkpoint of this package; a one-line ValueError for a missing, empty, truncated,
+    corrupt or foreign file."""
+    if not os.path.isfile(path):
+        raise ValueError(f"checkpoint {path!r} does not exist")
+    try:
+        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as error:  # torch raises many kinds for a damaged file (EOF, unpickling, zip)
+        reason = (str(error).strip().splitlines() or [""])[0][:200]
+        raise ValueError(f"{path}: not a readable checkpoint (empty, truncated or another format: "
+                         f"{type(error).__name__}: {reason})") from None
+    state = (checkpoint.get("infos") or {}).get("aquarium") if isinstance(checkpoint, dict) else None
+    if not isinstance(state, dict) or "config" not in state:
+        raise ValueError(f"{path}: not a checkpoint of aquarium_warp.training")
+    return checkpoint
 
 
 class Trainer:
@@ -381,12 +421,11 @@ class Trainer:
         """A trainer restored from a checkpoint, or from the newest checkpoint of a run directory.
         `changes` may alter train settings that do not affect the state (iterations, episodes,
         quiet, export); the log directory defaults to the checkpoint's."""
-        checkpoint_path = latest_checkpoint(path) if os.path.isdir(path) else path
-        checkpoint = torch.load(checkpoint_path, map_location="cpu", weights_only=False)
-        state = (checkpoint.get("infos") or {}).get("aquarium")
-        if not state:
-            raise ValueError(f"{checkpoint_path}: not a checkpoint of aquarium_warp.training")
-        config = copy.deepcopy(state["config"])
+        if os.path.isdir(path):
+            checkpoint_path, checkpoint = _newest_readable_checkpoint(path)
+        else:
+            checkpoint_path, checkpoint = path, _read_checkpoint(path)
+        config = copy.deepcopy(checkpoint["infos"]["aquarium"]["config"])
         if changes:
             allowed = {"iterations", "episodes", "quiet", "export", "loop", "cuda_graphs", "tf32"}
             bad = [k for k in changes.get("train", {}) if k not in allowed] + \
