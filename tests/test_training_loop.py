@@ -42,6 +42,8 @@ CASES = [
     ("per-mini-batch advantages, clipped value loss",
      {"runner": {"algorithm": {"normalize_advantage_per_mini_batch": True, "use_clipped_value_loss": True}}}),
     ("observation normalisation", NORMALISED),
+    ("recurrent models (rsl-rl's own update)",
+     {"runner": {"actor": {"class_name": "RNNModel"}, "critic": {"class_name": "RNNModel"}}}),
     ("permanent capture (inactive rows), predators learn",
      {"env": {"respawn_captured_prey": False}, "train": {"team": "predator", "opponent": "turnaway"}}),
 ]

@@ -21,7 +21,7 @@ One observation buffer serves the whole loop: `after[t]` stores the observations
 it overwrites them with the next ones, so the storage receives exactly what rsl-rl's loop stores.
 
 On the CPU (or where a graph cannot serve: recurrent models, the adaptive learning-rate schedule, RND)
-the same functions run eagerly. On the CPU this loop and `OnPolicyRunner.learn` produce the same
+the same functions run eagerly; recurrent models are updated by rsl-rl's own `PPO.update`. On the CPU this loop and `OnPolicyRunner.learn` produce the same
 parameters bit for bit (`tests/test_training_loop.py`), so `train.loop = "rsl-rl"` (rsl-rl's own
 runner) remains as the reference and for the benchmark's before/after.
 
@@ -125,10 +125,23 @@ class TrainingLoop:
         if self.env.swarm is not None:
             self.env.swarm.advance()
 
-    def _learn(self, indices: torch.Tensor, mini_batch_size: int) -> torch.Tensor:
+    def _learn(self, indices: torch.Tensor | None, mini_batch_size: int) -> torch.Tensor:
         with torch.inference_mode():
             self.alg.compute_returns(self.obs)
-        return self.alg.update_on_device(indices, mini_batch_size)
+        if indices is not None:
+            return self.alg.update_on_device(indices, mini_batch_size)
+        # Recurrent models: rsl-rl's own update (its trajectory mini-batches), which also does what
+        # `finish_update` does.
+        losses = self.alg.update()
+        return torch.tensor([losses["value"], losses["surrogate"], losses["entropy"]], dtype=torch.float64,
+                            device=self.device)
+
+    def _draw_indices(self) -> tuple[torch.Tensor | None, int]:
+        return self.alg.mini_batch_indices() if self.alg.feed_forward else (None, 0)
+
+    def _finish_update(self) -> None:
+        if self.alg.feed_forward:
+            self.alg.finish_update()
 
     # ------------------------------------------------------------------ one iteration
     def iteration(self) -> IterationRecord:
@@ -168,9 +181,9 @@ class TrainingLoop:
                 self._after_step()
                 self._advance_metrics()
         record.mark(1)
-        indices, size = self.alg.mini_batch_indices()
+        indices, size = self._draw_indices()
         losses = self._learn(indices, size)
-        self.alg.finish_update()
+        self._finish_update()
         return self._finish(record, losses)
 
     def _graph_iteration(self):
@@ -219,13 +232,13 @@ class TrainingLoop:
                 self._after_graphs[t].replay() if graphs else self._after_step()
                 self._advance_metrics()
                 mark("storage")
-        indices, size = self.alg.mini_batch_indices()
+        indices, size = self._draw_indices()
         if graphs:
             self._indices.copy_(indices)
             self._learn_graph.replay()
         else:
             self._learn(indices, size)
-        self.alg.finish_update()
+        self._finish_update()
         mark("update")
         if cuda:
             marks[-1][1].synchronize()

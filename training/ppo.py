@@ -158,6 +158,11 @@ class AquariumPPO(PPO):
 
     # ------------------------------------------------------------------ update without host syncs
     @property
+    def feed_forward(self) -> bool:
+        """Neither model is recurrent (so `update_on_device` serves)."""
+        return not (self.actor.is_recurrent or self.critic.is_recurrent)
+
+    @property
     def graphable(self) -> bool:
         """Whether `update_on_device` makes no host synchronisation (so it can be captured): feed-forward
         models, no RND / symmetry / multi-GPU, and a fixed learning-rate schedule."""
