@@ -7,6 +7,7 @@ stays fast and works without the training extras.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import os
 import time
 
@@ -39,9 +40,9 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
                    help="prey when training predators: 'random' (default), 'turnaway' or a policy file")
     g.add_argument("--sharing", choices=("parameter", "individual"), default=None,
                    help="Parameter Sharing (one network, default) or Individual Learning (one per slot)")
-    g.add_argument("--num-worlds", type=int, default=None)
+    g.add_argument("--num-worlds", type=int, default=None, help="worlds stepped in parallel (default 1024)")
     g.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
-    g.add_argument("--seed", type=int, default=None)
+    g.add_argument("--seed", type=int, default=None, help="seed of the worlds and the networks")
     g.add_argument("--iterations", type=int, default=None, help="total PPO iterations of the run")
     g.add_argument("--episodes", type=float, default=None,
                    help="total world episodes instead of --iterations (the paper: 4000)")
@@ -57,24 +58,26 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     e.add_argument("--prey", type=int, default=None, help="prey per world")
     e.add_argument("--predators", type=int, default=None, help="predators per world")
     e.add_argument("--max-steps", type=int, default=None, help="episode length")
-    e.add_argument("--width", type=float, default=None)
-    e.add_argument("--height", type=float, default=None)
+    e.add_argument("--width", type=float, default=None, help="world width, px")
+    e.add_argument("--height", type=float, default=None, help="world height, px")
     a = p.add_argument_group("PPO")
     a.add_argument("--num-steps-per-env", type=int, default=None, help="rollout length per iteration")
     a.add_argument("--save-interval", type=int, default=None, help="checkpoint every N iterations")
-    a.add_argument("--learning-rate", "--actor-lr", dest="actor_lr", type=float, default=None)
+    a.add_argument("--learning-rate", "--actor-lr", dest="actor_lr", type=float, default=None,
+                   help="actor learning rate (rsl-rl's learning_rate)")
     a.add_argument("--critic-lr", type=float, default=None,
                    help="critic learning rate (applied as a factor critic_lr/actor_lr on the critic's group)")
-    a.add_argument("--gamma", type=float, default=None)
-    a.add_argument("--lam", type=float, default=None)
+    a.add_argument("--gamma", type=float, default=None, help="discount factor")
+    a.add_argument("--lam", type=float, default=None, help="GAE lambda")
     a.add_argument("--clip", type=float, default=None, help="PPO clip parameter")
     a.add_argument("--entropy", type=float, default=None, help="entropy coefficient")
-    a.add_argument("--value-loss-coef", type=float, default=None)
+    a.add_argument("--value-loss-coef", type=float, default=None, help="weight of the value loss")
     a.add_argument("--epochs", type=int, default=None, help="learning epochs per iteration")
     a.add_argument("--minibatches", type=int, default=None, help="mini-batches per epoch")
-    a.add_argument("--max-grad-norm", type=float, default=None)
-    a.add_argument("--schedule", choices=("fixed", "adaptive"), default=None)
-    a.add_argument("--desired-kl", type=float, default=None)
+    a.add_argument("--max-grad-norm", type=float, default=None, help="gradient norm clip")
+    a.add_argument("--schedule", choices=("fixed", "adaptive"), default=None,
+                   help="learning rate: fixed, or adapted to keep the KL near --desired-kl")
+    a.add_argument("--desired-kl", type=float, default=None, help="KL target of the adaptive schedule")
     a.add_argument("--hidden-dims", type=_hidden_dims, default=None, help="e.g. 64,64 (actor and critic)")
     a.add_argument("--activation", default=None, help="e.g. tanh, elu, relu")
     a.add_argument("--reward-scale", type=float, default=None, help="factor on the rewards PPO sees")
@@ -117,6 +120,13 @@ def _opponent_change(args, team: str) -> dict:
     return {"train": {"opponent": spec}} if spec is not None else {}
 
 
+def _check_logger_package(logger) -> None:
+    """rsl-rl needs the wandb package only when the run writes its first log: say so before the run."""
+    name = logger.get("class_name", "") if isinstance(logger, dict) else str(logger)
+    if "wandb" in name.lower() and importlib.util.find_spec("wandb") is None:
+        raise ValueError(f"runner.logger={logger!r} needs the wandb package: pip install 'aquarium-warp[wandb]'")
+
+
 def run_train(args) -> int:
     from .config import deep_update, load_config_file, make_config, parse_assignment, total_iterations
     from .trainer import Trainer
@@ -130,6 +140,7 @@ def run_train(args) -> int:
             raise ValueError("--resume continues a run with its saved config: only --iterations, --episodes, "
                              "--export and --quiet may be given with it")
         trainer = Trainer.resume(args.resume, log_dir=args.log_dir, changes={"train": changes.get("train", {})})
+        _check_logger_package(trainer.config["runner"]["logger"])
         print(f"aquarium-warp train: resumed {args.resume} at iteration {trainer.iteration} of "
               f"{trainer.total_iterations} (log dir {trainer.log_dir})")
     else:
@@ -145,6 +156,7 @@ def run_train(args) -> int:
         config = make_config(preset, merged)
         log_dir = args.log_dir or os.path.join(
             "runs", f"{config['train']['team']}_{config['train']['sharing']}_{time.strftime('%Y%m%d-%H%M%S')}")
+        _check_logger_package(config["runner"]["logger"])
         trainer = Trainer(config, log_dir=log_dir)
         print(f"aquarium-warp train: {config['train']['team']} ({config['train']['sharing']} sharing) vs "
               f"{trainer.config['train']['opponent']} on {trainer.env.device}, {trainer.env.num_worlds} worlds x "
@@ -172,8 +184,8 @@ def add_eval_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--preset", choices=PRESET_NAMES, default=None,
                    help="take the world from a preset (default: a trained policy's own world, else MODEL.md's)")
     p.add_argument("--set", action="append", default=[], metavar="env.KEY=VALUE", help="override a world setting")
-    p.add_argument("--prey-count", type=int, default=None)
-    p.add_argument("--predator-count", type=int, default=None)
+    p.add_argument("--prey-count", type=int, default=None, help="prey per world (default: the world's)")
+    p.add_argument("--predator-count", type=int, default=None, help="predators per world (default: the world's)")
     p.add_argument("--max-steps", type=int, default=None, help="episode length (paper: 3000)")
     p.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
     p.add_argument("--max-worlds", type=int, default=1024, help="episodes run in parallel at most")
