@@ -17,11 +17,13 @@ group: `observation` [W, slots, L] float32, `action_mask` [W, slots, action_coun
 [W, slots] categorical (what BenchMARL's discrete algorithms sample), `reward`, `done`, `terminated`,
 `truncated` [W, slots, 1]. At the root: `done` / `terminated` / `truncated` [W, 1] per world.
 
-Deaths and respawns: an agent is `terminated` in the step it leaves the episode (caught with respawn
-off, starved), and so is a slot that held no live agent when the action was taken (its transition is
-void); a captured prey that respawns carries on. `truncated` marks the agents still alive when the
-episode ends. The action mask allows every action of a live agent and only action 0 of an empty
-slot (whose action the simulation ignores), so masked policies always have an action to sample.
+Deaths and respawns: an agent is `terminated` (and `done`) in the step it leaves the episode (caught
+with respawn off, starved); a captured prey that respawns carries on. `truncated` marks the agents
+still alive when the episode ends (a prey born in that very step has not acted and is not). A slot that holds no live agent (before a birth, after a removal)
+is never done, so TorchRL does not reset or cut anything for it: its reward is 0 and its action mask
+allows only action 0 (which the simulation ignores), so its transitions give the policy no gradient
+and masked policies always have an action to sample. A newborn prey starts acting in its slot in the
+step after its birth.
 
 Resets: the simulation resets an ended world inside `step()` (`BatchedAquarium`'s auto-reset), so
 the next observation of the step that ends an episode is already the new episode's first one, and
@@ -46,10 +48,16 @@ class AquariumTorchRLEnv(EnvBase):
     """`num_worlds` Aquarium worlds as one batched TorchRL env with a "prey" and a "predator" group.
 
     Args: `config` (an `AquariumConfig`, default MODEL.md's), `num_worlds`, `device` (None: CUDA when
-    present), `seed`, `cpu_threads`, or `aquarium=` an existing `BatchedAquarium` (with auto-reset)."""
+    present), `seed`, `cpu_threads`, or `aquarium=` an existing `BatchedAquarium` (with auto-reset).
+    `validate_actions=False` skips `BatchedAquarium.step`'s check of the live agents' actions (and
+    its host synchronisation); out-of-range actions are then undefined behaviour."""
 
     def __init__(self, config: AquariumConfig | None = None, num_worlds: int = 1, device=None, seed: int = 0,
-                 cpu_threads: int | None = None, aquarium: BatchedAquarium | None = None):
+                 cpu_threads: int | None = None, aquarium: BatchedAquarium | None = None,
+                 validate_actions: bool = True):
+        if not isinstance(validate_actions, bool):
+            raise ValueError(f"validate_actions={validate_actions!r} must be True or False")
+        self.validate_actions = validate_actions
         if aquarium is None:
             aquarium = BatchedAquarium(config, num_worlds=num_worlds, device=device, seed=seed,
                                        cpu_threads=cpu_threads)
@@ -115,17 +123,16 @@ class AquariumTorchRLEnv(EnvBase):
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         aq = self.aquarium
-        alive_before = {t: aq.alive[t].clone() for t in TYPES}
+        acted = {t: aq.alive[t].clone() for t in TYPES}  # the agents whose actions this step takes
         actions = {t: tensordict.get((t, "action")) for t in TYPES}
-        # Dead slots may hold any action (the simulation ignores them); live ones are checked.
-        _, rewards, terminated, truncated, info = aq.step(
-            {t: torch.where(alive_before[t], a, 0) for t, a in actions.items()}, validate=True)
+        _, rewards, terminated, truncated, info = aq.step(actions, validate=self.validate_actions)
         out = self._observations()
         for t in TYPES:
-            term = terminated[t] | ~alive_before[t]
-            trunc = truncated[t] & alive_before[t]
-            out[t].update(reward=rewards[t].unsqueeze(-1).clone(), terminated=term.unsqueeze(-1),
-                          truncated=trunc.unsqueeze(-1), done=(term | trunc).unsqueeze(-1))
+            # A prey born in the step that ends the episode is truncated by the simulation, but it never
+            # acted: only agents that acted end a trajectory.
+            term, trunc = (terminated[t] & acted[t]).unsqueeze(-1), (truncated[t] & acted[t]).unsqueeze(-1)
+            out[t].update(reward=rewards[t].unsqueeze(-1).clone(), terminated=term, truncated=trunc,
+                          done=term | trunc)
         ended = info["episode_ended"].unsqueeze(-1).clone()
         truncated_world = ended & (aq.state.torch.ended_length == aq.config.max_steps).unsqueeze(-1)
         out.update(done=ended, truncated=truncated_world, terminated=ended & ~truncated_world)
