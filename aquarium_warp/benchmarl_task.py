@@ -6,13 +6,20 @@ from benchmarl.experiment import Experiment, ExperimentConfig
 from benchmarl.models.mlp import MlpConfig
 from aquarium_warp.benchmarl_task import AquariumTask
 
-task = AquariumTask.PREDATOR_PREY.get_task()       # TaskConfig's defaults; or get_task(config={...})
+task = AquariumTask.PREDATOR_PREY.get_task(config={"max_steps": 100})  # AquariumConfig fields; others default
+config = ExperimentConfig.get_from_yaml()
+config.sampling_device = config.train_device = config.buffer_device = "cpu"
+config.on_policy_n_envs_per_worker = 20               # worlds of one BatchedAquarium
+config.on_policy_collected_frames_per_batch = 2000    # 20 worlds x 100 steps per iteration
+config.on_policy_n_minibatch_iters = 5
+config.max_n_iters = 3
+config.loggers = ["csv"]                              # the default also has wandb
 Experiment(task=task, algorithm_config=MappoConfig.get_from_yaml(), model_config=MlpConfig.get_from_yaml(),
-           critic_model_config=MlpConfig.get_from_yaml(), seed=0, config=ExperimentConfig.get_from_yaml()).run()
+           critic_model_config=MlpConfig.get_from_yaml(), seed=0, config=config).run()
 ```
 
-The groups are the teams ("prey", "predator"), so MAPPO, IPPO, MADDPG's discrete variants or QMIX
-learn both teams at once, each with its own networks. The worlds of a batch are BenchMARL's
+The groups are the teams ("prey", "predator"): BenchMARL's algorithms for discrete actions (MAPPO is
+tested) learn both teams at once, each with its own networks. The worlds of a batch are BenchMARL's
 `num_envs` (one `BatchedAquarium`, stepped by Warp kernels). Actions are discrete only.
 """
 
@@ -33,7 +40,8 @@ from .torchrl_env import AquariumTorchRLEnv
 @dataclasses.dataclass
 class TaskConfig:
     """The task's settings: the world (`AquariumConfig` fields) and the simulation's CPU threads.
-    Defaults are MODEL.md's world, as `AquariumConfig()`."""
+    Defaults are MODEL.md's world, as `AquariumConfig()`; a config given to `get_task` may name any
+    `AquariumConfig` field, and the fields it leaves out keep `AquariumConfig`'s defaults."""
 
     width: float = 800.0
     height: float = 800.0
@@ -71,7 +79,7 @@ class AquariumClass(TaskClass):
         return False
 
     def max_steps(self, env: EnvBase) -> int:
-        return self.config["max_steps"]
+        return env.aquarium.config.max_steps
 
     def group_map(self, env: EnvBase) -> dict[str, list[str]]:
         return env.group_map

@@ -71,7 +71,6 @@ class AquariumTorchRLEnv(EnvBase):
 
     def _make_specs(self) -> None:
         W, dev, n = self.aquarium.num_worlds, self.device, self.aquarium.config.action_count
-        low = -1.0 if self.aquarium.config.observation_range == "-1..1" else 0.0
         obs, act, rew, done = {}, {}, {}, {}
         for t, slots in self.slots.items():
             shape = (W, slots)
@@ -86,7 +85,6 @@ class AquariumTorchRLEnv(EnvBase):
                                shape=shape, device=dev)
             done[t] = Composite({k: Categorical(n=2, shape=(*shape, 1), dtype=torch.bool, device=dev)
                                  for k in ("done", "terminated", "truncated")}, shape=shape, device=dev)
-        self._obs_low = low
         self.observation_spec = Composite(obs, shape=(W,), device=dev)
         self.action_spec = Composite(act, shape=(W,), device=dev)
         self.reward_spec = Composite(rew, shape=(W,), device=dev)
