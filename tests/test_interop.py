@@ -258,7 +258,7 @@ def test_stable_baselines3_ppo_trains_on_the_supersuit_env():
         ss.pettingzoo_env_to_vec_env_v1(aquarium_v1.parallel_env(prey_count=6, max_cycles=40)),
         2, num_cpus=2, base_class="stable_baselines3")
     try:
-        # SuperSuit's SB3 wrapper forwards seeds to a seed() its vector envs lack: seed the inner
+        # PPO(seed=...) would call a seed() that SuperSuit's multiprocess vector env lacks: seed the inner
         # vector env instead (later unseeded resets continue from it), and torch through SB3.
         sb3.common.utils.set_random_seed(0)
         vec.venv.reset(seed=0)
