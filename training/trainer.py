@@ -252,7 +252,8 @@ class AquariumRunner(OnPolicyRunner):
         if self.loop is None:
             self.loop = TrainingLoop(self.alg, self.env, self.cfg["num_steps_per_env"], graphs=self.cuda_graphs)
         self.alg.train_mode()
-        self.logger.init_logging_writer()
+        with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl reports storing git state (under git/)
+            self.logger.init_logging_writer()
         start_it = self.current_learning_iteration
         total_it = start_it + num_learning_iterations
 
@@ -407,7 +408,7 @@ class Trainer:
             with open(os.path.join(log_dir, "config.json"), "w", encoding="utf-8") as f:
                 json.dump({"config": config, "runner_cfg": self.runner_cfg,
                            "total_iterations": self.total_iterations}, f, indent=1, default=str)
-        with contextlib.redirect_stdout(io.StringIO()) if train["quiet"] else contextlib.nullcontext():
+        with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints the networks (config.json has them)
             self.runner = AquariumRunner(self.vec_env, copy.deepcopy(self.runner_cfg), log_dir=log_dir,
                                          device=str(self.device), trainer=self, quiet=train["quiet"])
         if log_dir is not None:
