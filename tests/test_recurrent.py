@@ -76,3 +76,65 @@ def test_recurrent_resume_is_bit_exact(tmp_path, one_thread, rnn_type):
 def test_individual_learning_with_recurrent_model_is_refused():
     with pytest.raises(ValueError, match=r"train.sharing='individual'.*runner.actor.class_name='RNNModel'"):
         rnn_config(sharing="individual")
+
+
+@pytest.mark.parametrize("rnn_type", ["lstm", "gru"])
+def test_recurrent_export_reload_and_evaluate(tmp_path, one_thread, rnn_type):
+    """TorchScript, ONNX and the checkpoint of a GRU or LSTM policy act like rsl-rl's own `RNNModel` over a
+    rollout, hidden state per row and reset where rows are done; `RecurrentOpponent` finds the same
+    dones as the training adapter; the evaluation protocol runs it."""
+    trainer = Trainer(rnn_config(rnn_type, iterations=1, export=["jit", "onnx"]), str(tmp_path / "run"))
+    trainer.train()
+    paths = trainer.export()
+    kinds = {"jit": paths["jit"], "checkpoint": str(tmp_path / "run" / "model_0.pt")}
+    try:
+        import onnxruntime  # noqa: F401
+
+        kinds["onnx"] = paths["onnx"]
+    except ImportError:
+        pass
+    policies = {kind: load_policy(path) for kind, path in kinds.items()}
+    assert all(p.recurrent == {"rnn_type": rnn_type, "num_layers": 1, "hidden_size": 8} for p in policies.values())
+    driven = load_policy(paths["jit"])  # inside RecurrentOpponent, which finds the dones itself
+    from aquarium_warp.training.export import RecurrentOpponent
+
+    vec, actor = trainer.vec_env, trainer.actor
+    opponent = RecurrentOpponent(driven, vec.env, "prey")
+    actor.eval()
+    actor.reset()
+    done_steps = 0
+    for _ in range(45):  # max_steps 30: every row's episode ends at least once
+        obs = vec.get_observations()
+        with torch.no_grad():  # not inference_mode: rsl-rl resets its hidden state in place
+            expected = actor(obs).squeeze(-1).long()  # rsl-rl's deterministic output, its own RNN state
+        for kind, policy in policies.items():
+            assert torch.equal(policy(obs["policy"]), expected), kind
+            reference = actor.get_hidden_state()
+            for mine, ref in zip(policy.hidden_state, reference if rnn_type == "lstm" else (reference,)):
+                torch.testing.assert_close(mine, ref, rtol=1e-5, atol=1e-6)  # ONNX Runtime's float rounding
+        acted = opponent()
+        assert torch.equal(acted.reshape(-1).long(), expected)
+        reference = actor.get_hidden_state()
+        assert torch.equal(driven.hidden_state[0], reference[0] if rnn_type == "lstm" else reference)
+        _, _, dones, _ = vec.step(expected.unsqueeze(-1).float())
+        done_steps += int(dones.any())
+        actor.reset(dones)
+        for policy in policies.values():
+            policy.reset(dones)
+    assert done_steps >= 2  # captures and the world's end reset rows
+    with pytest.raises(ValueError, match="call reset"):
+        policies["jit"](obs["policy"][:3])
+    policies["jit"].reset()
+    assert policies["jit"](obs["policy"][:3]).shape == (3,)
+
+    if rnn_type == "gru":
+        return  # the evaluation below does not depend on the RNN type
+    from aquarium_warp.training.evaluate import evaluate_policies, policy_env
+
+    env = policy_env([paths["jit"]], None)
+    runs = {kind: evaluate_policies(prey=[f"{kind}={path}"], predator=["naivchase"], env=env, episodes=2,
+                                    seeds=[0], device="cpu")["episodes"] for kind, path in kinds.items()}
+    assert len(runs["jit"]) == 2 and all(r["length"] == 30 for r in runs["jit"])
+    strip = [{k: v for k, v in r.items() if k not in ("prey_policy", "prey_spec")} for r in runs["jit"]]
+    for kind, records in runs.items():  # the same actions in every format: the same episodes
+        assert [{k: v for k, v in r.items() if k not in ("prey_policy", "prey_spec")} for r in records] == strip, kind

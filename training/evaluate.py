@@ -42,7 +42,9 @@ import torch
 from ..config import AquariumConfig, _is_int
 from ..env import BatchedAquarium
 from ..metrics import EPISODE_METRICS, EpisodeMetrics
+from .export import RecurrentOpponent
 from .trainer import is_heuristic, make_opponent
+from .vec_env import TrainedOpponent
 
 METRICS = ("captures_per_prey", "reward_per_prey", "reward_per_predator") + tuple(
     f"swarm_{name}" for name in EPISODE_METRICS)
@@ -74,6 +76,15 @@ def policy_env(specs, fallback: AquariumConfig) -> AquariumConfig:
     return fallback
 
 
+def make_driver(spec: str, env: BatchedAquarium, agent_type: str, deterministic: bool = True, seed: int = 0):
+    """`make_opponent`, with a recurrent trained policy wrapped in `RecurrentOpponent` (its rows' hidden
+    states reset where their episodes end): one team's driver for evaluation and videos."""
+    driver = make_opponent(spec, env, agent_type, deterministic=deterministic, seed=seed)
+    if isinstance(driver, TrainedOpponent) and getattr(driver.policy, "recurrent", None) is not None:
+        return RecurrentOpponent(driver.policy, env, agent_type)
+    return driver
+
+
 def run_episodes(env_cfg: AquariumConfig, prey: str, predator: str, episodes: int, seed: int, device=None,
                  max_worlds: int = 1024, deterministic: bool = True, metrics_every: int = 10) -> list[dict]:
     """Play `episodes` episodes of `prey` vs `predator` specs; one dict per episode with per-slot
@@ -81,8 +92,8 @@ def run_episodes(env_cfg: AquariumConfig, prey: str, predator: str, episodes: in
     swarm metrics (`swarm_<name>`: means over states sampled every `metrics_every` steps)."""
     W = max(1, min(episodes, max_worlds))
     env = BatchedAquarium(env_cfg, num_worlds=W, device=device, seed=seed)
-    drivers = {"prey": make_opponent(prey, env, "prey", deterministic=deterministic, seed=seed),
-               "predator": make_opponent(predator, env, "predator", deterministic=deterministic, seed=seed + 1)}
+    drivers = {"prey": make_driver(prey, env, "prey", deterministic=deterministic, seed=seed),
+               "predator": make_driver(predator, env, "predator", deterministic=deterministic, seed=seed + 1)}
     dev = env.torch_device
     Pc, P = env.prey_capacity, env.predator_count
     prey_captures = torch.zeros(W, Pc, dtype=torch.int32, device=dev)
