@@ -85,25 +85,59 @@ def _policy_driver(spec: str, env, agent_type: str, seed: int):
     if spec.lower().replace("_", "").replace("-", "") in POLICIES[agent_type]:
         return make_policy(spec, env, agent_type, seed=seed)
     try:
-        from .training.trainer import make_opponent
+        from .training.evaluate import make_driver
     except ImportError as error:
         raise ValueError(f"{agent_type} policy {spec!r} is not a heuristic {POLICIES[agent_type]}; trained "
                          f"policy files need the training extra ({error})") from error
-    return make_opponent(spec, env, agent_type, seed=seed)
+    return make_driver(spec, env, agent_type, seed=seed)
+
+
+def _is_heuristic(spec: str, agent_type: str) -> bool:
+    from .heuristics import POLICIES
+
+    return spec.lower().replace("_", "").replace("-", "") in POLICIES[agent_type]
+
+
+def _video_config(args):
+    """The world to film: a trained policy's own (from its metadata, as `eval` takes it), else MODEL.md's
+    (16 prey, 1 predator, 800 x 800); `--prey`, `--predators`, `--width`, `--height` override either."""
+    from . import AquariumConfig
+
+    worlds = {}
+    for option, spec, agent_type in (("--prey-policy", args.prey_policy, "prey"),
+                                     ("--predator-policy", args.predator_policy, "predator")):
+        if _is_heuristic(spec, agent_type):
+            continue
+        try:
+            from .training.config import env_config
+            from .training.export import load_policy
+        except ImportError as error:
+            raise ValueError(f"{option} {spec!r} is not a heuristic; trained policy files need the training "
+                             f"extra ({error})") from error
+        worlds[option] = env_config({"env": load_policy(spec).meta.get("env", {})}).to_dict()
+    if len(worlds) == 2 and worlds["--prey-policy"] != worlds["--predator-policy"]:
+        a, b = worlds["--prey-policy"], worlds["--predator-policy"]
+        differ = ", ".join(f"{k} {a.get(k)!r} vs {b.get(k)!r}" for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k))
+        raise ValueError(f"--prey-policy and --predator-policy were trained in different worlds ({differ})")
+    data = next(iter(worlds.values())) if worlds else AquariumConfig().to_dict()
+    for key, value in (("prey_count", args.prey), ("predator_count", args.predators), ("width", args.width),
+                       ("height", args.height)):
+        if value is not None:
+            data[key] = value
+    return AquariumConfig.from_dict(data)
 
 
 def _video(args) -> int:
-    from . import AquariumConfig, BatchedAquarium
+    from . import BatchedAquarium
     from .video import check_video_path, record
 
     check_video_path(args.out)  # before the world is built
 
-    cfg = AquariumConfig(width=args.width, height=args.height, prey_count=args.prey,
-                         predator_count=args.predators)
+    cfg = _video_config(args)
     env = BatchedAquarium(cfg, num_worlds=1, device=args.device, seed=args.seed)
     prey = _policy_driver(args.prey_policy, env, "prey", args.seed)
     predator = _policy_driver(args.predator_policy, env, "predator", args.seed)
-    print(f"aquarium-warp video: {args.prey} prey ({args.prey_policy}) and {args.predators} predators "
+    print(f"aquarium-warp video: {cfg.prey_count} prey ({args.prey_policy}) and {cfg.predator_count} predators "
           f"({args.predator_policy}) on {env.device}, {args.steps} steps -> {args.out}")
     start = time.perf_counter()
     frames = record(env, lambda obs: {"prey": prey(), "predator": predator()}, args.steps, args.out,
@@ -231,10 +265,14 @@ def main(argv=None) -> int:
                        help="'naivchase', 'random' or a trained policy file")
     video.add_argument("--steps", type=non_negative_int, default=600, help="steps to record (frames: steps + 1)")
     video.add_argument("--out", default="aquarium.mp4", help="output MP4 file (name ending in .mp4)")
-    video.add_argument("--prey", type=int, default=16)
-    video.add_argument("--predators", type=int, default=1)
-    video.add_argument("--width", type=float, default=800.0, help="world width, px")
-    video.add_argument("--height", type=float, default=800.0, help="world height, px")
+    video.add_argument("--prey", type=int, default=None,
+                       help="prey count (default: a trained policy's world, else 16)")
+    video.add_argument("--predators", type=int, default=None,
+                       help="predator count (default: a trained policy's world, else 1)")
+    video.add_argument("--width", type=float, default=None,
+                       help="world width, px (default: a trained policy's world, else 800)")
+    video.add_argument("--height", type=float, default=None,
+                       help="world height, px (default: a trained policy's world, else 800)")
     video.add_argument("--frame-width", type=int, default=None,
                        help="frame width in pixels (default: the world's, long side at most 1024)")
     video.add_argument("--frame-height", type=int, default=None, help="frame height in pixels")
