@@ -82,7 +82,7 @@ def _policy_driver(spec: str, env, agent_type: str, seed: int):
     returns the team's actions `[W, slots]` for the env's current observations."""
     from .heuristics import POLICIES, make_policy
 
-    if spec.lower().replace("_", "").replace("-", "") in POLICIES[agent_type]:
+    if _is_heuristic(spec, agent_type):
         return make_policy(spec, env, agent_type, seed=seed)
     try:
         from .training.evaluate import make_driver
@@ -99,27 +99,21 @@ def _is_heuristic(spec: str, agent_type: str) -> bool:
 
 
 def _video_config(args):
-    """The world to film: a trained policy's own (from its metadata, as `eval` takes it), else MODEL.md's
-    (16 prey, 1 predator, 800 x 800); `--prey`, `--predators`, `--width`, `--height` override either."""
+    """The world to film: the trained policies' own (from their metadata, as `eval` takes it; prey and
+    predator files must agree), else MODEL.md's (16 prey, 1 predator, 800 x 800); `--prey`,
+    `--predators`, `--width`, `--height` override either."""
     from . import AquariumConfig
 
-    worlds = {}
-    for option, spec, agent_type in (("--prey-policy", args.prey_policy, "prey"),
-                                     ("--predator-policy", args.predator_policy, "predator")):
-        if _is_heuristic(spec, agent_type):
-            continue
+    files = [spec for spec, agent_type in ((args.prey_policy, "prey"), (args.predator_policy, "predator"))
+             if not _is_heuristic(spec, agent_type)]
+    data = AquariumConfig().to_dict()
+    if files:
         try:
-            from .training.config import env_config
-            from .training.export import load_policy
+            from .training.evaluate import common_policy_env
         except ImportError as error:
-            raise ValueError(f"{option} {spec!r} is not a heuristic; trained policy files need the training "
+            raise ValueError(f"policies {files} are not heuristics; trained policy files need the training "
                              f"extra ({error})") from error
-        worlds[option] = env_config({"env": load_policy(spec).meta.get("env", {})}).to_dict()
-    if len(worlds) == 2 and worlds["--prey-policy"] != worlds["--predator-policy"]:
-        a, b = worlds["--prey-policy"], worlds["--predator-policy"]
-        differ = ", ".join(f"{k} {a.get(k)!r} vs {b.get(k)!r}" for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k))
-        raise ValueError(f"--prey-policy and --predator-policy were trained in different worlds ({differ})")
-    data = next(iter(worlds.values())) if worlds else AquariumConfig().to_dict()
+        data = common_policy_env(files, AquariumConfig()).to_dict()
     for key, value in (("prey_count", args.prey), ("predator_count", args.predators), ("width", args.width),
                        ("height", args.height)):
         if value is not None:

@@ -129,9 +129,9 @@ def test_recurrent_export_reload_and_evaluate(tmp_path, one_thread, rnn_type):
 
     if rnn_type == "gru":
         return  # the evaluation below does not depend on the RNN type
-    from aquarium_warp.training.evaluate import evaluate_policies, policy_env
+    from aquarium_warp.training.evaluate import common_policy_env, evaluate_policies
 
-    env = policy_env([paths["jit"]], None)
+    env = common_policy_env([paths["jit"]], None)
     runs = {kind: evaluate_policies(prey=[f"{kind}={path}"], predator=["naivchase"], env=env, episodes=2,
                                     seeds=[0], device="cpu")["episodes"] for kind, path in kinds.items()}
     assert len(runs["jit"]) == 2 and all(r["length"] == 30 for r in runs["jit"])

@@ -75,5 +75,5 @@ def test_video_uses_the_trained_policys_world(tmp_path, filmed, capsys):
     assert main(["video", "--prey-policy", policy, "--predator-policy", other, "--steps", "1", "--out", out,
                  "--no-progress"]) == 2
     err = capsys.readouterr().err
-    assert "--prey-policy and --predator-policy were trained in different worlds (prey_count 4 vs 6)" in err
+    assert f"policies {policy!r} and {other!r} were trained in different worlds (prey_count 4 vs 6)" in err
     assert len(err.strip().splitlines()) == 1 and len(filmed) == count
