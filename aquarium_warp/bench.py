@@ -23,17 +23,18 @@ the drop in the device's free memory); and a bandwidth check: the bytes one step
 agent (`step_byte_model`, written out per kernel below) times agent-steps/s, as a fraction of the
 device-to-device copy bandwidth measured in the same run.
 
-Peers measured in the same run: the original marl-aquarium 0.1.10 (CPU, default config, through
-`benchmarks/original_aquarium.py`) and, with `--vmas`, VMAS's predator-prey scenario `simple_tag`
+Peers measured in the same run when asked: with `--original`, the original marl-aquarium 0.1.10 (CPU,
+default config, through `benchmarks/original_aquarium.py`, which installs it from the package index
+into a throwaway virtual environment) and, with `--vmas`, VMAS's predator-prey scenario `simple_tag`
 at the agent counts of the agents and worlds series on the same device (`benchmarks/vmas_peer.py`).
 Ratios are reported.
 
-Output: a printed table, `<out-dir>/scaling_<device>.json` and log-log figures
+Output (`--out-dir`, default: the current directory): a printed table, `<out-dir>/scaling_<device>.json` and log-log figures
 `<out-dir>/scaling_<device>_throughput.png` (agent-steps/s vs agents in flight; the load series vs
 agents per world), `..._per_agent.png` (ns per agent-step, the same axes) and `..._stages.png` (share
 of each stage).
 
-    aquarium-warp bench --device cuda:0 --agents 16,64,...,1000000 --worlds 1,16,...,65536 --vmas
+    aquarium-warp bench --device cuda:0 --agents 16,64,...,1000000 --worlds 1,16,...,65536 --vmas --original
     aquarium-warp bench --device cuda:0 --agents 1000,4000,...,1000000 --worlds 1 --load-agents 4000000
     python benchmarks/bench_scaling.py --device cpu --agents 16,64,...,100000 --worlds 1,16,...,4096
 """
@@ -57,7 +58,6 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
 BENCHMARKS = REPO / "benchmarks"
-DEFAULT_OUT = BENCHMARKS / "results"
 STAGES = ("actions", "motion", "grid", "captures", "population", "observations")
 STAGE_LABELS = {"actions": "action copy-in", "motion": "motion (steering, acceleration, contact, integration)",
                 "grid": "grid build (cell lists, once per step)", "captures": "captures (detect, resolve, share, starve)",
@@ -136,7 +136,7 @@ class BenchSettings:
     eager: bool = True  # also time the eager step on CUDA
     stages: bool = True
     heuristics: bool = True
-    original: bool = True  # measure the original marl-aquarium (CPU)
+    original: bool = False  # measure the original marl-aquarium (CPU; installs it into a throwaway venv)
     original_json: str | None = None  # or reuse a stored measurement (benchmarks/results/original_cpu.json)
     original_seconds: float = 3.0
     vmas: bool = False
@@ -144,7 +144,7 @@ class BenchSettings:
     vmas_max_envs: int = 65536
     vmas_budget_s: float = 20.0  # timed seconds per VMAS point at most
     budget_s: float | None = None  # skip the remaining points (with a note) once the suite ran this long
-    out_dir: str = str(DEFAULT_OUT)
+    out_dir: str = "."
     plots: bool = True
     git_commit: str | None = None  # default: `git rev-parse HEAD` of the repository
     copy_bytes: int | None = None  # buffer size of the copy-bandwidth test (default 1 GiB CUDA, 256 MiB CPU)
@@ -749,7 +749,7 @@ def measure_original_peer(settings: BenchSettings) -> dict:
         except (OSError, KeyError, ValueError) as error:
             return {"status": "skipped", "note": f"could not read {settings.original_json}: {error}"}
     if not settings.original:
-        return {"status": "skipped", "note": "not asked for (--no-original)"}
+        return {"status": "skipped", "note": "not asked for (--original)"}
     try:
         module = _benchmarks_module("original_aquarium")
     except ImportError as error:
@@ -1162,30 +1162,34 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "world sizes at equal load (default: off)")
     parser.add_argument("--seconds", type=float, default=1.0, help="length of each timed run (default 1)")
     parser.add_argument("--repeats", type=int, default=5, help="timed runs per point; the median is reported")
-    parser.add_argument("--warmup-steps", type=int, default=5)
+    parser.add_argument("--warmup-steps", type=int, default=5, help="untimed steps before each point's timing")
     parser.add_argument("--stage-repeats", type=int, default=10, help="steps timed command by command")
     parser.add_argument("--max-agents-in-flight", type=int, default=4_194_304,
                         help="skip points with more agents than this (default 4,194,304)")
     parser.add_argument("--no-eager", action="store_true", help="do not time the eager step (CUDA)")
     parser.add_argument("--no-stages", action="store_true", help="no per-stage timing")
     parser.add_argument("--no-heuristics", action="store_true", help="do not time the heuristic policies")
-    parser.add_argument("--no-original", action="store_true", help="do not measure the original marl-aquarium")
+    parser.add_argument("--original", action=argparse.BooleanOptionalAction, default=False,
+                        help="measure the original marl-aquarium 0.1.10 on the CPU; it is installed from the package "
+                             "index into a throwaway virtual environment (default: not measured)")
     parser.add_argument("--original-json", default=None,
                         help="use a stored measurement of the original (e.g. benchmarks/results/original_cpu.json) "
                              "instead of measuring it")
-    parser.add_argument("--original-seconds", type=float, default=3.0)
+    parser.add_argument("--original-seconds", type=float, default=3.0, help="length of each timed run of the original")
     parser.add_argument("--vmas", action="store_true", help="measure VMAS simple_tag at the same agent counts")
-    parser.add_argument("--vmas-max-agents-per-env", type=int, default=256)
-    parser.add_argument("--vmas-max-envs", type=int, default=65536)
+    parser.add_argument("--vmas-max-agents-per-env", type=int, default=256,
+                        help="skip VMAS points with more agents per env (its per-agent Python loops are slow)")
+    parser.add_argument("--vmas-max-envs", type=int, default=65536, help="skip VMAS points with more envs")
     parser.add_argument("--vmas-budget", type=float, default=20.0, help="timed seconds per VMAS point at most")
     parser.add_argument("--budget", type=float, default=None,
                         help="seconds; once the suite ran this long, the remaining points are skipped (noted)")
-    parser.add_argument("--out-dir", default=str(DEFAULT_OUT), help="where the JSON and figures go")
-    parser.add_argument("--no-plots", action="store_true")
+    parser.add_argument("--out-dir", default=".", help="where the JSON and figures go (default: the current "
+                                                       "directory; the committed results are in benchmarks/results)")
+    parser.add_argument("--no-plots", action="store_true", help="write the JSON only, no figures")
     parser.add_argument("--git-commit", default=None, help="commit to record (default: git rev-parse HEAD)")
     parser.add_argument("--copy-mib", type=int, default=None, help="MiB of the copy-bandwidth test")
-    parser.add_argument("--cpu-threads", type=int, default=None)
-    parser.add_argument("--quiet", action="store_true")
+    parser.add_argument("--cpu-threads", type=int, default=None, help="CPU threads of the env (default: all cores)")
+    parser.add_argument("--quiet", action="store_true", help="print nothing (the JSON and figures are still written)")
     parser.add_argument("--replot", default=None, metavar="JSON",
                         help="only redraw the figures of an existing scaling_<device>.json, next to it")
 
@@ -1196,7 +1200,7 @@ def settings_from_args(args) -> BenchSettings:
         seconds=args.seconds, repeats=args.repeats,
         warmup_steps=args.warmup_steps, stage_repeats=args.stage_repeats,
         max_agents_in_flight=args.max_agents_in_flight, eager=not args.no_eager, stages=not args.no_stages,
-        heuristics=not args.no_heuristics, original=not args.no_original, original_json=args.original_json,
+        heuristics=not args.no_heuristics, original=args.original, original_json=args.original_json,
         original_seconds=args.original_seconds, vmas=args.vmas, vmas_max_agents_per_env=args.vmas_max_agents_per_env,
         vmas_max_envs=args.vmas_max_envs, vmas_budget_s=args.vmas_budget, budget_s=args.budget, out_dir=args.out_dir,
         plots=not args.no_plots, git_commit=args.git_commit,

@@ -204,14 +204,15 @@ def _add_study(sub) -> None:
     p.add_argument("--predator-policy", default="naivchase", help="'naivchase', 'random' or a trained policy file")
     p.add_argument("--no-confusion", action="store_true", help="NaivChase chases the nearest visible prey "
                    "instead of a random one each step")
-    p.add_argument("--predators", type=int, default=1)
+    p.add_argument("--predators", type=int, default=1, help="predators per world (default 1)")
     p.add_argument("--fov-angle", default=None, help="prey field-of-view angles to sweep, degrees (list; default 120)")
     p.add_argument("--view-distance", default=None, help="prey view distances to sweep, px (list; default 100)")
     p.add_argument("--world-size", default="800x800", help="arena WIDTHxHEIGHT px, fixed for every N (default "
                    "800x800: density grows with N)")
     p.add_argument("--constant-density", action="store_true", help="scale the arena with N instead, keeping the "
                    "density of --reference-prey prey in --world-size")
-    p.add_argument("--reference-prey", type=int, default=16)
+    p.add_argument("--reference-prey", type=int, default=16,
+                   help="with --constant-density: the prey count that --world-size is sized for (default 16)")
     p.add_argument("--linking-distance", type=float, default=None,
                    help="px; prey closer than this form one group (default 2.5 prey radii = 50)")
     p.add_argument("--metrics-every", type=int, default=10, help="sample the swarm metrics every K steps")
@@ -219,11 +220,11 @@ def _add_study(sub) -> None:
     p.add_argument("--reproduction", action="store_true", help="prey reproduce (up to 2 N)")
     p.add_argument("--starvation-steps", type=int, default=None, help="predator starvation limit (default 3000)")
     p.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
-    p.add_argument("--seed", type=non_negative_int, default=0)
+    p.add_argument("--seed", type=non_negative_int, default=0, help="seed of the batched worlds (the --seeds runs are worlds of one env)")
     p.add_argument("--jobs", type=positive_int, default=None,
                    help="settings run at once in threads (default: CPU cores on the CPU, 1 on a GPU)")
     p.add_argument("--out", default="swarm_size", help="output directory")
-    p.add_argument("--no-figures", action="store_true")
+    p.add_argument("--no-figures", action="store_true", help="write CSV/JSON only, no figures")
     p.add_argument("--replot", action="store_true", help="only redraw the figures from --out's swarm_size.json")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(run=_study_swarm_size)
@@ -241,17 +242,23 @@ def _add_bench(sub) -> None:
     bench.set_defaults(run=run_from_args)
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The `aquarium-warp` parser with every subcommand (`python -m aquarium_warp` is the same)."""
+    from . import __version__
+
     parser = argparse.ArgumentParser(prog="aquarium-warp", description="Aquarium predator-prey worlds on Warp")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
-    demo = sub.add_parser("demo", help="step a batch of worlds with random actions and report speed and captures")
-    demo.add_argument("--worlds", type=positive_int, default=64)
-    demo.add_argument("--steps", type=positive_int, default=500)
-    demo.add_argument("--prey", type=int, default=16)
-    demo.add_argument("--predators", type=int, default=1)
+    demo = sub.add_parser("demo", help="step a batch of worlds with random actions and report speed and captures",
+                          description="Step a batch of worlds with random actions; print steps/s, agent-steps/s "
+                                      "and captures.")
+    demo.add_argument("--worlds", type=positive_int, default=64, help="worlds stepped at once (default 64)")
+    demo.add_argument("--steps", type=positive_int, default=500, help="steps to time (default 500)")
+    demo.add_argument("--prey", type=int, default=16, help="prey per world (default 16)")
+    demo.add_argument("--predators", type=int, default=1, help="predators per world (default 1)")
     demo.add_argument("--max-steps", type=int, default=3000, help="episode length")
     demo.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
-    demo.add_argument("--seed", type=non_negative_int, default=0)
+    demo.add_argument("--seed", type=non_negative_int, default=0, help="seed of the worlds and the random actions")
     demo.set_defaults(run=_demo)
     video = sub.add_parser("video", help="record one world driven by heuristic or trained policies as an MP4 video")
     video.add_argument("--prey-policy", default="turnaway", help="'turnaway', 'random' or a trained policy file")
@@ -260,9 +267,9 @@ def main(argv=None) -> int:
     video.add_argument("--steps", type=non_negative_int, default=600, help="steps to record (frames: steps + 1)")
     video.add_argument("--out", default="aquarium.mp4", help="output MP4 file (name ending in .mp4)")
     video.add_argument("--prey", type=int, default=None,
-                       help="prey count (default: a trained policy's world, else 16)")
+                       help="prey in the world (default: a trained policy's world, else 16)")
     video.add_argument("--predators", type=int, default=None,
-                       help="predator count (default: a trained policy's world, else 1)")
+                       help="predators in the world (default: a trained policy's world, else 1)")
     video.add_argument("--width", type=float, default=None,
                        help="world width, px (default: a trained policy's world, else 800)")
     video.add_argument("--height", type=float, default=None,
@@ -270,8 +277,8 @@ def main(argv=None) -> int:
     video.add_argument("--frame-width", type=int, default=None,
                        help="frame width in pixels (default: the world's, long side at most 1024)")
     video.add_argument("--frame-height", type=int, default=None, help="frame height in pixels")
-    video.add_argument("--fps", type=positive_float, default=30.0)
-    video.add_argument("--seed", type=non_negative_int, default=0)
+    video.add_argument("--fps", type=positive_float, default=30.0, help="frames per second of the video (default 30)")
+    video.add_argument("--seed", type=non_negative_int, default=0, help="seed of the world and the policies")
     video.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
     video.add_argument("--view-cones", action="store_true", help="draw each agent's field of view")
     video.add_argument("--hit-boxes", action="store_true", help="draw each agent's hit-box circle")
@@ -282,6 +289,11 @@ def main(argv=None) -> int:
     _add_eval(sub)
     _add_study(sub)
     _add_bench(sub)
+    return parser
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
     args = parser.parse_args(argv)
     try:
         return args.run(args)

@@ -11,6 +11,8 @@ from __future__ import annotations
 import math
 import os
 import threading
+import sys
+import tempfile
 from concurrent.futures import ThreadPoolExecutor
 from typing import Mapping
 
@@ -40,19 +42,52 @@ _warp_ready = False
 WARP_SETUP_LOCK = threading.RLock()
 
 
-def _init_warp() -> None:
-    global _warp_ready
+# What Warp's native library prints during init on a machine without the NVIDIA driver.
+_NO_DRIVER_WARNING = "Could not find or load the NVIDIA CUDA driver"
+_init_messages = ""  # what init printed while silenced
+
+
+def _wants_cuda(device) -> bool:
+    return (device.type == "cuda") if isinstance(device, torch.device) else (
+        isinstance(device, str) and device.startswith("cuda"))
+
+
+def _init_warp(device=None) -> None:
+    """Initialise Warp once. Its native library warns on stderr when no CUDA driver is found, also
+    for users who never asked for CUDA; unless `device` names CUDA, that warning is held back (kept
+    for the error that `resolve_device` raises if CUDA is asked for later) and anything else printed
+    during init is passed on."""
     with WARP_SETUP_LOCK:
         if not _warp_ready:
-            wp.config.log_level = wp.LOG_WARNING if hasattr(wp, "LOG_WARNING") else wp.config.log_level
-            wp.config.quiet = True
-            wp.init()
-            _warp_ready = True
+            _init_warp_once(device)
+
+
+def _init_warp_once(device) -> None:
+    global _warp_ready, _init_messages
+    wp.config.log_level = wp.LOG_WARNING  # no banner
+    if _wants_cuda(device):
+        wp.init()
+    else:
+        sys.stderr.flush()
+        saved = os.dup(2)
+        with tempfile.TemporaryFile(mode="w+b") as captured:
+            os.dup2(captured.fileno(), 2)
+            try:
+                wp.init()
+            finally:
+                os.dup2(saved, 2)
+                os.close(saved)
+            captured.seek(0)
+            _init_messages = captured.read().decode(errors="replace")
+        others = [line for line in _init_messages.splitlines(keepends=True) if _NO_DRIVER_WARNING not in line]
+        if others:
+            sys.stderr.write("".join(others))
+    _warp_ready = True
 
 
 def resolve_device(device) -> str:
     """Warp device name for `device`: None picks "cuda:0" when CUDA is present, else "cpu"."""
-    _init_warp()
+    _init_warp(device)
     if device is None:
         return "cuda:0" if wp.is_cuda_available() else "cpu"
     if isinstance(device, torch.device):
@@ -63,7 +98,8 @@ def resolve_device(device) -> str:
         device = "cuda:0"
     names = [d.alias for d in wp.get_devices()]
     if device not in names:
-        raise ValueError(f"device={device!r} is not available; available devices: {names}")
+        driver = f" ({_init_messages.strip()})" if _NO_DRIVER_WARNING in _init_messages and _wants_cuda(device) else ""
+        raise ValueError(f"device={device!r} is not available; available devices: {names}{driver}")
     return device
 
 
@@ -547,6 +583,36 @@ class BatchedAquarium:
             getattr(t, name).copy_(value.to(self.torch_device))
         self._run("observe")
         return self.observations
+
+    # ------------------------------------------------------------------ pickling and copying
+    # Outputs of the last step that `load_state_dict` does not recompute: carried so that a copy's
+    # buffers hold what the original's last `step()` returned, not only the state.
+    _CARRIED_OUTPUTS = ("reward", "terminated", "truncated", "captures", "episode_ended", "ended_length",
+                        "ended_captures", "ended_return", "prey_action", "predator_action")
+
+    def __getstate__(self) -> dict:
+        """Pickle and `copy.deepcopy` carry the constructor's arguments, `state_dict()` and the last
+        step's outputs; Warp arrays, kernels, threads and CUDA graphs cannot travel and are rebuilt
+        by `__setstate__`, so the copy continues the same trajectory."""
+        t = self.state.torch
+        return {
+            "config": self.config,
+            "num_worlds": self.num_worlds,
+            "device": self.device,
+            "cpu_threads": len(self._shard_ranges),  # the same split of worlds over threads
+            "auto_reset": self.auto_reset,
+            "state": self.state_dict(),
+            "outputs": {n: getattr(t, n).detach().cpu().clone() for n in self._CARRIED_OUTPUTS},
+        }
+
+    def __setstate__(self, saved: dict) -> None:
+        state = saved["state"]
+        self.__init__(saved["config"], num_worlds=saved["num_worlds"], device=saved["device"], seed=state["seed"],
+                      cpu_threads=saved["cpu_threads"], auto_reset=saved["auto_reset"])
+        self.load_state_dict(state)
+        t = self.state.torch
+        for name, value in saved["outputs"].items():
+            getattr(t, name).copy_(value.to(self.torch_device))
 
     def close(self) -> None:
         """Release the CUDA graph and the worker threads; the arrays go with the object."""

@@ -318,6 +318,26 @@ class AquariumParallelEnv(ParallelEnv):
         if self._on_cpu:
             self._views = tuple(x.numpy() for x in self._src)  # zero copy: always the current values
 
+    # Attributes rebuilt after unpickling: views of the simulation's buffers, and the render window.
+    _UNPICKLED = ("_act_tensors", "_act_prey", "_act_pred", "_src", "_views", "_on_cpu", "_window")
+
+    def __getstate__(self) -> dict:
+        """Pickle and `copy.deepcopy` carry the options, names, seeding generators, spaces and the
+        simulation (`BatchedAquarium` pickles its own state); buffer views and any pygame window are
+        rebuilt or left closed on the other side."""
+        state = {k: v for k, v in self.__dict__.items() if k not in self._UNPICKLED}
+        state["_act_values"] = {t: a.clone() for t, a in self._act_tensors.items()}
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        state = dict(state)
+        actions = state.pop("_act_values")
+        self.__dict__.update(state)
+        self._window = None
+        self._bind_buffers()
+        for t, a in actions.items():
+            self._act_tensors[t].copy_(a)
+
     def _host(self):
         """(obs_prey [Pc, L], obs_predator [P, L], reward [C], terminated [C], truncated [C], alive [C],
         episode_ended [1]) as numpy: views of the buffers on the CPU, copies on a GPU."""

@@ -6,9 +6,10 @@
 Sweeps agents per world (one world at the default density) and worlds (17 agents each) with random
 actions and observations on; per point: agent-steps/s (median of timed runs), eager vs CUDA graph,
 time per stage, heuristics, memory, bytes per agent-step and the achieved fraction of the measured
-copy bandwidth; peers: the original marl-aquarium (CPU) and, with --vmas, VMAS simple_tag
-(benchmarks/vmas_peer.py). Writes benchmarks/results/scaling_<device>.json and
-scaling_<device>_{throughput,per_agent,stages}.png. `--help` lists every option.
+copy bandwidth; peers: with --original, the original marl-aquarium (CPU) and, with --vmas, VMAS
+simple_tag (benchmarks/vmas_peer.py). Writes scaling_<device>.json and
+scaling_<device>_{throughput,per_agent,stages}.png into --out-dir (default: the current directory;
+the committed results are in benchmarks/results). `--help` lists every option.
 """
 
 from __future__ import annotations

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import importlib.util
 import os
 import time
 
@@ -75,9 +76,9 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
                    help="prey when training predators: 'random' (default), 'turnaway' or a policy file")
     g.add_argument("--sharing", choices=("parameter", "individual"), default=None,
                    help="Parameter Sharing (one network, default) or Individual Learning (one per slot)")
-    g.add_argument("--num-worlds", type=_integer(1), default=None)
+    g.add_argument("--num-worlds", type=_integer(1), default=None, help="worlds stepped in parallel (default 1024)")
     g.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
-    g.add_argument("--seed", type=_integer(0), default=None)
+    g.add_argument("--seed", type=_integer(0), default=None, help="seed of the worlds and the networks")
     g.add_argument("--iterations", type=_integer(0), default=None, help="total PPO iterations of the run")
     g.add_argument("--episodes", type=POSITIVE, default=None,
                    help="total world episodes instead of --iterations (the paper: 4000)")
@@ -93,24 +94,28 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     e.add_argument("--prey", type=int, default=None, help="prey per world")
     e.add_argument("--predators", type=int, default=None, help="predators per world")
     e.add_argument("--max-steps", type=int, default=None, help="episode length")
-    e.add_argument("--width", type=float, default=None)
-    e.add_argument("--height", type=float, default=None)
+    e.add_argument("--width", type=float, default=None, help="world width, px")
+    e.add_argument("--height", type=float, default=None, help="world height, px")
     a = p.add_argument_group("PPO")
     a.add_argument("--num-steps-per-env", type=_integer(1), default=None, help="rollout length per iteration")
     a.add_argument("--save-interval", type=_integer(1), default=None, help="checkpoint every N iterations")
-    a.add_argument("--learning-rate", "--actor-lr", dest="actor_lr", type=POSITIVE, default=None)
+    a.add_argument("--learning-rate", "--actor-lr", dest="actor_lr", type=POSITIVE, default=None,
+                   help="actor learning rate (rsl-rl's learning_rate)")
     a.add_argument("--critic-lr", type=POSITIVE, default=None,
                    help="critic learning rate (applied as a factor critic_lr/actor_lr on the critic's group)")
     a.add_argument("--gamma", type=_algorithm("gamma"), default=None, help="discount factor, in [0, 1]")
     a.add_argument("--lam", type=_algorithm("lam"), default=None, help="GAE lambda, in [0, 1]")
     a.add_argument("--clip", type=_algorithm("clip_param"), default=None, help="PPO clip parameter, in (0, 1]")
     a.add_argument("--entropy", type=_algorithm("entropy_coef"), default=None, help="entropy coefficient, >= 0")
-    a.add_argument("--value-loss-coef", type=_algorithm("value_loss_coef"), default=None)
+    a.add_argument("--value-loss-coef", type=_algorithm("value_loss_coef"), default=None,
+                   help="weight of the value loss")
     a.add_argument("--epochs", type=_integer(1), default=None, help="learning epochs per iteration")
     a.add_argument("--minibatches", type=_integer(1), default=None, help="mini-batches per epoch")
-    a.add_argument("--max-grad-norm", type=_algorithm("max_grad_norm"), default=None)
-    a.add_argument("--schedule", choices=("fixed", "adaptive"), default=None)
-    a.add_argument("--desired-kl", type=_algorithm("desired_kl"), default=None)
+    a.add_argument("--max-grad-norm", type=_algorithm("max_grad_norm"), default=None, help="gradient norm clip")
+    a.add_argument("--schedule", choices=("fixed", "adaptive"), default=None,
+                   help="learning rate: fixed, or adapted to keep the KL near --desired-kl")
+    a.add_argument("--desired-kl", type=_algorithm("desired_kl"), default=None,
+                   help="KL target of the adaptive schedule")
     a.add_argument("--hidden-dims", type=_hidden_dims, default=None, help="e.g. 64,64 (actor and critic)")
     a.add_argument("--activation", default=None, help="e.g. tanh, elu, relu")
     a.add_argument("--reward-scale", type=POSITIVE, default=None, help="factor on the rewards PPO sees")
@@ -153,6 +158,13 @@ def _opponent_change(args, team: str) -> dict:
     return {"train": {"opponent": spec}} if spec is not None else {}
 
 
+def _check_logger_package(logger) -> None:
+    """rsl-rl needs the wandb package only when the run writes its first log: say so before the run."""
+    name = logger.get("class_name", "") if isinstance(logger, dict) else str(logger)
+    if "wandb" in name.lower() and importlib.util.find_spec("wandb") is None:
+        raise ValueError(f"runner.logger={logger!r} needs the wandb package: pip install 'aquarium-warp[wandb]'")
+
+
 def run_train(args) -> int:
     from .config import deep_update, load_config_file, make_config, parse_assignment, total_iterations
     from .trainer import Trainer
@@ -166,6 +178,7 @@ def run_train(args) -> int:
             raise ValueError("--resume continues a run with its saved config: only --iterations, --episodes, "
                              "--export and --quiet may be given with it")
         trainer = Trainer.resume(args.resume, log_dir=args.log_dir, changes={"train": changes.get("train", {})})
+        _check_logger_package(trainer.config["runner"]["logger"])
         print(f"aquarium-warp train: resumed {args.resume} at iteration {trainer.iteration} of "
               f"{trainer.total_iterations} (log dir {trainer.log_dir})")
     else:
@@ -181,6 +194,7 @@ def run_train(args) -> int:
         config = make_config(preset, merged)
         log_dir = args.log_dir or os.path.join(
             "runs", f"{config['train']['team']}_{config['train']['sharing']}_{time.strftime('%Y%m%d-%H%M%S')}")
+        _check_logger_package(config["runner"]["logger"])
         trainer = Trainer(config, log_dir=log_dir)
         print(f"aquarium-warp train: {config['train']['team']} ({config['train']['sharing']} sharing) vs "
               f"{trainer.config['train']['opponent']} on {trainer.env.device}, {trainer.env.num_worlds} worlds x "
@@ -208,8 +222,8 @@ def add_eval_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--preset", choices=PRESET_NAMES, default=None,
                    help="take the world from a preset (default: a trained policy's own world, else MODEL.md's)")
     p.add_argument("--set", action="append", default=[], metavar="env.KEY=VALUE", help="override a world setting")
-    p.add_argument("--prey-count", type=int, default=None)
-    p.add_argument("--predator-count", type=int, default=None)
+    p.add_argument("--prey-count", type=int, default=None, help="prey per world (default: the world's)")
+    p.add_argument("--predator-count", type=int, default=None, help="predators per world (default: the world's)")
     p.add_argument("--max-steps", type=int, default=None, help="episode length (paper: 3000)")
     p.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
     p.add_argument("--max-worlds", type=int, default=1024, help="episodes run in parallel at most")

@@ -29,6 +29,34 @@ from rsl_rl.models import MLPModel
 from rsl_rl.utils import resolve_nn_activation
 
 
+# Rows per product in the weight gradient (see `_BatchedLinearFunction`).
+WEIGHT_GRAD_CHUNK = 512
+
+
+class _BatchedLinearFunction(torch.autograd.Function):
+    """`baddbmm(bias, x, weight)` whose weight gradient is summed over chunks of rows. The plain
+    gradient `x^T @ grad` is one product per slot with a long reduction (all G rows) and a tiny
+    output, which cuBLAS runs on a handful of thread blocks (the H200 spent half of an IL update
+    there); chunks of `WEIGHT_GRAD_CHUNK` rows give it S x G / 512 products to spread, then a sum."""
+
+    @staticmethod
+    def forward(ctx, x, weight, bias):
+        ctx.save_for_backward(x, weight)
+        return torch.baddbmm(bias.unsqueeze(1), x, weight)
+
+    @staticmethod
+    def backward(ctx, grad):
+        x, weight = ctx.saved_tensors
+        S, G, n_in = x.shape
+        n_out = grad.shape[-1]
+        grad_x = torch.bmm(grad, weight.transpose(1, 2))
+        chunks = G // WEIGHT_GRAD_CHUNK if G % WEIGHT_GRAD_CHUNK == 0 and G > WEIGHT_GRAD_CHUNK else 1
+        rows = G // chunks
+        grad_weight = torch.bmm(x.reshape(S * chunks, rows, n_in).transpose(1, 2),
+                                grad.reshape(S * chunks, rows, n_out)).view(S, chunks, n_in, n_out).sum(dim=1)
+        return grad_x, grad_weight, grad.sum(dim=1)
+
+
 class BatchedLinear(nn.Module):
     """S independent linear layers: `weight [S, in, out]`, `bias [S, out]`, applied to `x [S, G, in]`.
 
@@ -44,7 +72,13 @@ class BatchedLinear(nn.Module):
         nn.init.uniform_(self.bias, -bound, bound)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return torch.baddbmm(self.bias.unsqueeze(1), x, self.weight)
+        if torch.jit.is_scripting() or not torch.is_grad_enabled():
+            return torch.baddbmm(self.bias.unsqueeze(1), x, self.weight)
+        return self._forward_with_chunked_backward(x)
+
+    @torch.jit.unused
+    def _forward_with_chunked_backward(self, x: torch.Tensor) -> torch.Tensor:
+        return _BatchedLinearFunction.apply(x, self.weight, self.bias)
 
     def extra_repr(self) -> str:
         return f"groups={self.groups}, in_features={self.in_features}, out_features={self.out_features}"
