@@ -216,7 +216,8 @@ def add_eval_arguments(p: argparse.ArgumentParser) -> None:
                    help="prey policies: 'random', 'turnaway', or policy files (exported or checkpoints), "
                         "optionally LABEL=SPEC; specs sharing a label are pooled (default: random turnaway)")
     p.add_argument("--predator", nargs="*", default=None, metavar="SPEC",
-                   help="predator policies: 'naivchase', 'random' or policy files (default: naivchase)")
+                   help="predator policies: 'naivchase', 'naivchase-noconfusion' (chases the nearest prey), "
+                        "'random' or policy files (default: naivchase)")
     p.add_argument("--episodes", type=int, default=200, help="episodes per seed (paper: 200)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="evaluation seeds (paper: 5)")
     p.add_argument("--preset", choices=PRESET_NAMES, default=None,
@@ -318,11 +319,14 @@ def run_cross_play(args) -> int:
     outputs = list(write_cross_play(result, args.out).values())
     cp = result["cross_play"]
     print("captures per prey per episode (mean over seeds; rows: prey, columns: predators)")
-    print(" " * 24 + "".join(f"{b[:14]:>15}" for b in cp["predator"]) + f"{'rating':>9}")
+    first = max(len(a) for a in cp["prey"] + ["rating"])
+    widths = [max(10, len(b) + 2) for b in cp["predator"]]
+    print(" " * first + "".join(f"{b:>{w}}" for b, w in zip(cp["predator"], widths)) + f"{'rating':>9}")
     for i, a in enumerate(cp["prey"]):
-        cells = "".join(f"{v:15.3f}" for v in cp["matrices"]["captures_per_prey"]["mean"][i])
-        print(f"{a[:23]:>23} {cells}{result['rating']['prey'][a]:9.0f}")
-    print(f"{'rating':>23} " + "".join(f"{result['rating']['predator'][b]:15.0f}" for b in cp["predator"]))
+        cells = "".join(f"{v:{w}.3f}" for v, w in zip(cp["matrices"]["captures_per_prey"]["mean"][i], widths))
+        print(f"{a:>{first}}{cells}{result['rating']['prey'][a]:9.0f}")
+    print(f"{'rating':>{first}}" + "".join(f"{result['rating']['predator'][b]:{w}.0f}"
+                                            for b, w in zip(cp["predator"], widths)))
     print(f"  ({time.perf_counter() - start:.1f} s; Elo ratings from the prey survival matrix)")
     if not args.no_figures:
         for metric in ("captures_per_prey", "prey_survival"):
