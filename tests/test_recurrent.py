@@ -122,6 +122,10 @@ def test_recurrent_export_reload_and_evaluate(tmp_path, one_thread, rnn_type):
         for policy in policies.values():
             policy.reset(dones)
     assert done_steps >= 2  # captures and the world's end reset rows
+    # A RecurrentOpponent restored from another's state_dict continues exactly like it.
+    restored = RecurrentOpponent(load_policy(paths["jit"]), vec.env, "prey")
+    restored.load_state_dict(opponent.state_dict())
+    assert torch.equal(restored(), opponent()) and torch.equal(restored.policy.hidden_state[0], driven.hidden_state[0])
     with pytest.raises(ValueError, match="call reset"):
         policies["jit"](obs["policy"][:3])
     policies["jit"].reset()

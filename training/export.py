@@ -299,8 +299,13 @@ class LoadedPolicy:
 
     @property
     def hidden_state(self) -> tuple[torch.Tensor, torch.Tensor] | None:
-        """Recurrent policies: the rows' `(h, c)` `[layers, N, H]` after the last call (None before)."""
+        """Recurrent policies: the rows' `(h, c)` `[layers, N, H]` after the last call (None before);
+        assignable (e.g. from a checkpoint)."""
         return self._state
+
+    @hidden_state.setter
+    def hidden_state(self, state) -> None:
+        self._state = None if state is None else tuple(torch.as_tensor(x).to(self.device) for x in state)
 
     def __call__(self, obs) -> torch.Tensor:
         out_device = obs.device if isinstance(obs, torch.Tensor) else torch.device("cpu")
@@ -361,10 +366,16 @@ class RecurrentOpponent:
         return self.driver()
 
     def state_dict(self) -> dict:
-        return self.driver.state_dict()
+        """The sampling stream, the rows' hidden states and which rows were alive (for bit-exact resumes)."""
+        hidden = self.policy.hidden_state
+        return {**self.driver.state_dict(),
+                "hidden_state": None if hidden is None else tuple(x.cpu().clone() for x in hidden),
+                "active": None if self._active is None else self._active.cpu().clone()}
 
     def load_state_dict(self, state: dict) -> None:
         self.driver.load_state_dict(state)
+        self.policy.hidden_state = state.get("hidden_state")
+        self._active = None if state.get("active") is None else state["active"].to(self._alive.device)
 
 
 def _is_torchscript(path: str) -> bool:
