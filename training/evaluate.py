@@ -13,16 +13,26 @@ result = evaluate_policies(prey=["random", "turnaway", "PS=runs/ps/exported/poli
 result["summary"]    # one row per (prey, predator) pair: means and stds over seeds
 ```
 
-A policy spec is a heuristic name ("random", "turnaway" for prey, "naivchase" for predators), the
-path of an exported policy or training checkpoint, optionally labelled `LABEL=SPEC`. Specs with the
-same label are pooled (e.g. one trained policy per training seed): their per-seed means together
-give the mean and std.
+A policy spec is a heuristic name ("random", "turnaway" for prey, "naivchase" or
+"naivchase-noconfusion" (chasing the nearest visible prey) for predators), the path of an exported
+policy or training checkpoint, optionally labelled `LABEL=SPEC`. Specs with the same label are pooled
+(e.g. one trained policy per training seed): their per-seed means together give the mean and std.
+Recurrent policies act through `RecurrentOpponent` (hidden state per agent slot, reset where the
+slot's episode ends).
+
+Cross-play (`cross_play`, `aquarium-warp eval --cross-play`): every prey spec against every predator
+spec, globs such as `run/model_*.pt` expanded to every checkpoint in training order; the pairs run
+through `evaluate_policies`, and the result adds `[prey][predator]` matrices (mean and std over
+seeds) of captures per prey, reward per prey and per predator, and prey survival (the fraction of
+prey not captured in an episode), Elo ratings fitted to the survival matrix (`elo_ratings`),
+`write_cross_play` (CSV/JSON) and `plot_cross_play` (heatmap).
 
 The episodes run as parallel worlds (at most `max_worlds` at once; more episodes continue in the
 same worlds, whose random streams differ per episode). Each world's episodes are recorded when they
 end, so extinction (respawn off) is handled too.
 
-Figures (matplotlib, imported only here): `plot_distributions` (per-episode values per policy) and
+Figures (matplotlib, imported only here): `plot_distributions` (per-episode values per policy),
+`plot_cross_play` and
 `plot_training_curves` (from `progress.csv` or TensorBoard events of several runs, mean and std band
 over the runs of each label, against world episodes).
 """
