@@ -111,7 +111,10 @@ def test_recurrent_export_reload_and_evaluate(tmp_path, one_thread, rnn_type):
             assert torch.equal(policy(obs["policy"]), expected), kind
             reference = actor.get_hidden_state()
             for mine, ref in zip(policy.hidden_state, reference if rnn_type == "lstm" else (reference,)):
-                torch.testing.assert_close(mine, ref, rtol=1e-5, atol=1e-6)  # ONNX Runtime's float rounding
+                if kind == "onnx":  # ONNX Runtime's own kernels round differently
+                    torch.testing.assert_close(mine, ref, rtol=1e-5, atol=1e-6)
+                else:  # the same torch operations as rsl-rl's
+                    assert torch.equal(mine, ref), kind
         acted = opponent()
         assert torch.equal(acted.reshape(-1).long(), expected)
         reference = actor.get_hidden_state()
