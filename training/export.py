@@ -144,7 +144,7 @@ class _OnnxGRUPolicy(nn.Module):
         self.policy = policy
 
     def forward(self, obs: torch.Tensor, h_in: torch.Tensor):
-        logits, h, _ = self.policy.step(obs, h_in, h_in)
+        logits, h, _ = self.policy.step(obs, h_in, h_in)  # a GRU has no cell state: `c` goes unused
         return torch.argmax(logits, dim=-1), logits, h
 
 
@@ -348,8 +348,7 @@ class RecurrentOpponent:
     def __init__(self, policy: LoadedPolicy, env, agent_type: str):
         from .vec_env import TrainedOpponent
 
-        self.driver = TrainedOpponent(policy, env, agent_type)
-        self.policy, self.env, self.agent_type = policy, env, agent_type
+        self.driver, self.policy = TrainedOpponent(policy, env, agent_type), policy
         self._terminated, self._truncated = env._terminated[agent_type], env._truncated[agent_type]
         self._captured = env.state.torch.captured[:, :env.prey_capacity] if agent_type == "prey" else None
         self._alive = env.alive[agent_type]
