@@ -307,6 +307,8 @@ def run_cross_play(args) -> int:
     """`aquarium-warp eval --cross-play`: the matrix, its files, rating and heatmaps."""
     from .evaluate import NO_CONFUSION, cross_play, expand_specs, plot_cross_play, write_cross_play
 
+    if args.curves:
+        raise ValueError("--curves is not drawn with --cross-play: run eval --curves on its own")
     prey = expand_specs(args.prey or ["random", "turnaway"])
     predator = expand_specs(args.predator or ["naivchase", NO_CONFUSION, "random"])
     env = _eval_world(args, prey + predator)

@@ -269,7 +269,7 @@ def expand_specs(specs) -> list[str]:
     out = []
     for spec in specs:
         label, value = parse_spec(spec)
-        if is_heuristic_spec(value) or not glob.has_magic(value):
+        if is_heuristic_spec(value) or os.path.exists(value) or not glob.has_magic(value):
             out.append(spec)
             continue
         paths = glob.glob(value)
@@ -317,7 +317,7 @@ def cross_play(prey, predator, env: AquariumConfig | None = None, episodes: int 
                 if metric == "prey_survival":
                     s = summarize(list(survival[(a, b)].values()))
                     mean[i, j], std[i, j] = s["mean"], s["std_over_seeds"]
-                    by_pair[(a, b)]["prey_survival_mean"], by_pair[(a, b)]["prey_survival_std"] = s["mean"], s["std_over_seeds"]
+                    by_pair[(a, b)].update(prey_survival_mean=s["mean"], prey_survival_std=s["std_over_seeds"])
                 else:
                     mean[i, j], std[i, j] = by_pair[(a, b)][f"{metric}_mean"], by_pair[(a, b)][f"{metric}_std"]
         matrices[metric] = {"mean": mean.tolist(), "std": std.tolist()}
@@ -373,10 +373,11 @@ def write_cross_play(result: dict, out_dir: str) -> dict[str, str]:
     paths["cross_play_json"] = os.path.join(out_dir, "cross_play.json")
     with open(paths["cross_play_csv"], "w", newline="", encoding="utf-8") as f:
         writer = csv.writer(f)
-        writer.writerow(["prey_policy", "predator_policy"] + [f"{m}_{s}" for m in CROSS_PLAY_METRICS for s in ("mean", "std")])
+        columns = [(m, s) for m in CROSS_PLAY_METRICS for s in ("mean", "std")]
+        writer.writerow(["prey_policy", "predator_policy"] + [f"{m}_{s}" for m, s in columns])
         for i, a in enumerate(cp["prey"]):
             for j, b in enumerate(cp["predator"]):
-                writer.writerow([a, b] + [cp["matrices"][m][s][i][j] for m in CROSS_PLAY_METRICS for s in ("mean", "std")])
+                writer.writerow([a, b] + [cp["matrices"][m][s][i][j] for m, s in columns])
     with open(paths["cross_play_json"], "w", encoding="utf-8") as f:
         json.dump({**cp, "rating": result.get("rating"), "protocol": result["protocol"]}, f, indent=1)
     return paths

@@ -449,8 +449,8 @@ class Trainer:
             "rng": _rng_state(self.device),
             "logger": self.runner.logger.state_dict(),
             # Recurrent models carry each row's GRU/LSTM state from one iteration into the next.
-            "hidden_states": {name: hidden_state_to(model.get_hidden_state(), "cpu")
-                              for name, model in (("actor", self.runner.alg.actor), ("critic", self.runner.alg.critic))},
+            "hidden_states": {name: hidden_state_to(getattr(self.runner.alg, name).get_hidden_state(), "cpu")
+                              for name in ("actor", "critic")},
         }
 
     def load_extra_state(self, state: dict) -> None:
