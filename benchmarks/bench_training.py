@@ -79,7 +79,34 @@ def measure(device: str, worlds: int, sharing: str, loop: str, warmup: int, iter
     return point
 
 
+def measure_in_subprocess(args, worlds: int, sharing: str, loop: str, variant: str) -> dict:
+    """`measure` in a fresh process, as a user's run would be: no allocator, cuBLAS or graph state
+    carried over from the previous point, and a failed point cannot disturb the next."""
+    import subprocess
+
+    point = json.dumps({"device": args.device, "worlds": worlds, "sharing": sharing, "loop": loop,
+                        "warmup": args.warmup, "iterations": args.iterations, "variant": variant,
+                        "blas": args.blas})
+    done = subprocess.run([sys.executable, __file__, "--point", point], capture_output=True, text=True)
+    lines = [line for line in done.stdout.splitlines() if line.startswith("POINT ")]
+    if done.returncode != 0 or not lines:
+        raise RuntimeError(f"exit {done.returncode}: {(done.stderr or done.stdout).strip()[-1500:]}")
+    return json.loads(lines[-1][len("POINT "):])
+
+
+def run_point(text: str) -> int:
+    spec = json.loads(text)
+    blas = spec.pop("blas")
+    if blas is not None:
+        torch.backends.cuda.preferred_blas_library(blas)
+    print("POINT " + json.dumps(measure(**spec)), flush=True)
+    return 0
+
+
 def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if len(argv) == 2 and argv[0] == "--point":
+        return run_point(argv[1])
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--device", default="cuda:0" if torch.cuda.is_available() else "cpu")
     p.add_argument("--worlds", default="256,1024,4096,16384,65536", help="comma-separated world counts")
@@ -91,6 +118,8 @@ def main(argv=None) -> int:
                    help="measure rsl-rl's loop only up to this many worlds")
     p.add_argument("--warmup", type=int, default=2, help="untimed iterations first")
     p.add_argument("--iterations", type=int, default=10, help="timed iterations")
+    p.add_argument("--blas", choices=("cublas",), default=None,
+                   help="torch.backends.cuda.preferred_blas_library for every point (default: torch's choice)")
     p.add_argument("--commit", default=None, help="commit to record where git is not available")
     p.add_argument("--out-dir", default=".", help="where the JSON (and plot) go")
     p.add_argument("--plot", action="store_true", help="also write a PNG plot")
@@ -123,8 +152,8 @@ def main(argv=None) -> int:
                 runs.append(("rsl-rl", "default"))
             for loop, variant in runs:
                 try:
-                    pt = measure(args.device, w, sharing, loop, args.warmup, args.iterations, variant)
-                except Exception as error:  # a variant that does not run here is reported, not fatal
+                    pt = measure_in_subprocess(args, w, sharing, loop, variant)
+                except Exception as error:  # a point that does not run here is reported, not fatal
                     print(f"{w:>7} {'':>8} {sharing:>10} {loop:>7} {variant:>12} failed: {error!r}"[:400])
                     points.append({"worlds": w, "sharing": sharing, "loop": loop, "variant": variant,
                                    "error": repr(error)[:2000]})
@@ -155,7 +184,7 @@ def main(argv=None) -> int:
         "device_name": torch.cuda.get_device_name(dev) if dev.type == "cuda" else platform.processor() or platform.machine(),
         "cpu_count": os.cpu_count(), "python": platform.python_version(), "torch": torch.__version__,
         "warp": wp.__version__, "rsl_rl": version("rsl-rl-lib"), "git": git_info(args.commit),
-        "command": " ".join([Path(sys.argv[0]).name] + (argv if argv is not None else sys.argv[1:])),
+        "command": " ".join([Path(sys.argv[0]).name] + argv),
         "points": points, "speedups": speedups,
     }
     out_dir = Path(args.out_dir)

@@ -99,6 +99,7 @@ class TrainingLoop:
         self._records = [IterationRecord(self.device), IterationRecord(self.device)]
         self._record_index = 0
         self._warm = False
+        self._capture_stream = torch.cuda.Stream(self.device) if self.graphs else None
         self._act_graphs: list = []
         self._after_graphs: list = []
         self._learn_graph = None
@@ -151,8 +152,9 @@ class TrainingLoop:
         if self.graphs and self._warm and self._learn_graph is None:
             self._capture()
         if self.graphs and not self._warm:
-            # Warm-up on a side stream, as torch asks before a capture (lazy initialisations).
-            stream = torch.cuda.Stream(self.device)
+            # Warm-up on the side stream that will capture, as torch asks: lazy initialisations (cuBLAS
+            # workspaces are per stream) must not happen during a capture.
+            stream = self._capture_stream
             stream.wait_stream(torch.cuda.current_stream(self.device))
             with torch.cuda.stream(stream):
                 result = self._eager_iteration()
@@ -258,14 +260,14 @@ class TrainingLoop:
             for _ in range(self.num_steps):
                 for stage, graphs in ((self._act, self._act_graphs), (self._after_step, self._after_graphs)):
                     graph = torch.cuda.CUDAGraph()
-                    with torch.cuda.graph(graph, pool=pool):
+                    with torch.cuda.graph(graph, pool=pool, stream=self._capture_stream):
                         stage()
                     graphs.append(graph)
         # The indices are drawn before each replay; capturing must not draw (it would shift the stream).
         size = mini_batch_size(storage, self.alg.num_mini_batches, self.alg.minibatch_group_size)
         self._indices = torch.arange(size * self.alg.num_mini_batches, device=self.device)
         graph = torch.cuda.CUDAGraph()
-        with torch.cuda.graph(graph, pool=pool):
+        with torch.cuda.graph(graph, pool=pool, stream=self._capture_stream):
             self._losses = self._learn(self._indices, size)
         self._learn_graph = graph
         storage.clear()
