@@ -82,28 +82,56 @@ def _policy_driver(spec: str, env, agent_type: str, seed: int):
     returns the team's actions `[W, slots]` for the env's current observations."""
     from .heuristics import POLICIES, make_policy
 
-    if spec.lower().replace("_", "").replace("-", "") in POLICIES[agent_type]:
+    if _is_heuristic(spec, agent_type):
         return make_policy(spec, env, agent_type, seed=seed)
     try:
-        from .training.trainer import make_opponent
+        from .training.evaluate import make_driver
     except ImportError as error:
         raise ValueError(f"{agent_type} policy {spec!r} is not a heuristic {POLICIES[agent_type]}; trained "
                          f"policy files need the training extra ({error})") from error
-    return make_opponent(spec, env, agent_type, seed=seed)
+    return make_driver(spec, env, agent_type, seed=seed)
+
+
+def _is_heuristic(spec: str, agent_type: str) -> bool:
+    from .heuristics import POLICIES
+
+    return spec.lower().replace("_", "").replace("-", "") in POLICIES[agent_type]
+
+
+def _video_config(args):
+    """The world to film: the trained policies' own (from their metadata, as `eval` takes it; prey and
+    predator files must agree), else MODEL.md's (16 prey, 1 predator, 800 x 800); `--prey`,
+    `--predators`, `--width`, `--height` override either."""
+    from . import AquariumConfig
+
+    files = [spec for spec, agent_type in ((args.prey_policy, "prey"), (args.predator_policy, "predator"))
+             if not _is_heuristic(spec, agent_type)]
+    data = AquariumConfig().to_dict()
+    if files:
+        try:
+            from .training.evaluate import common_policy_env
+        except ImportError as error:
+            raise ValueError(f"policies {files} are not heuristics; trained policy files need the training "
+                             f"extra ({error})") from error
+        data = common_policy_env(files, AquariumConfig()).to_dict()
+    for key, value in (("prey_count", args.prey), ("predator_count", args.predators), ("width", args.width),
+                       ("height", args.height)):
+        if value is not None:
+            data[key] = value
+    return AquariumConfig.from_dict(data)
 
 
 def _video(args) -> int:
-    from . import AquariumConfig, BatchedAquarium
+    from . import BatchedAquarium
     from .video import check_video_path, record
 
     check_video_path(args.out)  # before the world is built
 
-    cfg = AquariumConfig(width=args.width, height=args.height, prey_count=args.prey,
-                         predator_count=args.predators)
+    cfg = _video_config(args)
     env = BatchedAquarium(cfg, num_worlds=1, device=args.device, seed=args.seed)
     prey = _policy_driver(args.prey_policy, env, "prey", args.seed)
     predator = _policy_driver(args.predator_policy, env, "predator", args.seed)
-    print(f"aquarium-warp video: {args.prey} prey ({args.prey_policy}) and {args.predators} predators "
+    print(f"aquarium-warp video: {cfg.prey_count} prey ({args.prey_policy}) and {cfg.predator_count} predators "
           f"({args.predator_policy}) on {env.device}, {args.steps} steps -> {args.out}")
     start = time.perf_counter()
     frames = record(env, lambda obs: {"prey": prey(), "predator": predator()}, args.steps, args.out,
@@ -238,10 +266,14 @@ def build_parser() -> argparse.ArgumentParser:
                        help="'naivchase', 'random' or a trained policy file")
     video.add_argument("--steps", type=non_negative_int, default=600, help="steps to record (frames: steps + 1)")
     video.add_argument("--out", default="aquarium.mp4", help="output MP4 file (name ending in .mp4)")
-    video.add_argument("--prey", type=int, default=16, help="prey in the world (default 16)")
-    video.add_argument("--predators", type=int, default=1, help="predators in the world (default 1)")
-    video.add_argument("--width", type=float, default=800.0, help="world width, px")
-    video.add_argument("--height", type=float, default=800.0, help="world height, px")
+    video.add_argument("--prey", type=int, default=None,
+                       help="prey in the world (default: a trained policy's world, else 16)")
+    video.add_argument("--predators", type=int, default=None,
+                       help="predators in the world (default: a trained policy's world, else 1)")
+    video.add_argument("--width", type=float, default=None,
+                       help="world width, px (default: a trained policy's world, else 800)")
+    video.add_argument("--height", type=float, default=None,
+                       help="world height, px (default: a trained policy's world, else 800)")
     video.add_argument("--frame-width", type=int, default=None,
                        help="frame width in pixels (default: the world's, long side at most 1024)")
     video.add_argument("--frame-height", type=int, default=None, help="frame height in pixels")

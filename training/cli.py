@@ -216,7 +216,8 @@ def add_eval_arguments(p: argparse.ArgumentParser) -> None:
                    help="prey policies: 'random', 'turnaway', or policy files (exported or checkpoints), "
                         "optionally LABEL=SPEC; specs sharing a label are pooled (default: random turnaway)")
     p.add_argument("--predator", nargs="*", default=None, metavar="SPEC",
-                   help="predator policies: 'naivchase', 'random' or policy files (default: naivchase)")
+                   help="predator policies: 'naivchase', 'naivchase-noconfusion' (chases the nearest prey), "
+                        "'random' or policy files (default: naivchase)")
     p.add_argument("--episodes", type=int, default=200, help="episodes per seed (paper: 200)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="evaluation seeds (paper: 5)")
     p.add_argument("--preset", choices=PRESET_NAMES, default=None,
@@ -234,13 +235,17 @@ def add_eval_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--smooth", type=int, default=1, metavar="N",
                    help="training curves: moving average over N iterations (default 1: none)")
     p.add_argument("--no-figures", action="store_true", help="no matplotlib figures")
+    p.add_argument("--cross-play", action="store_true",
+                   help="every prey policy against every predator policy (globs such as 'run/model_*.pt' "
+                        "expand to every checkpoint; default predators: naivchase naivchase-noconfusion "
+                        "random): cross_play.csv/json, an Elo rating and heatmaps")
 
 
 def run_eval(args) -> int:
-    from ..config import AquariumConfig
-    from .config import deep_update, env_config, make_config, parse_assignment
-    from .evaluate import evaluate_policies, plot_distributions, plot_training_curves, policy_env, write_results
+    from .evaluate import evaluate_policies, plot_distributions, plot_training_curves, write_results
 
+    if args.cross_play:
+        return run_cross_play(args)
     os.makedirs(args.out, exist_ok=True)
     outputs = []
     curves: dict[str, list[str]] = {}
@@ -251,21 +256,7 @@ def run_eval(args) -> int:
     if evaluate:
         prey = args.prey if args.prey is not None else ["random", "turnaway"]
         predator = args.predator if args.predator is not None else ["naivchase"]
-        if args.preset:
-            base = env_config(make_config(args.preset))
-        else:
-            base = policy_env(prey + predator, AquariumConfig())
-        env_changes = {}
-        for s in args.set:
-            change = parse_assignment(s)
-            if set(change) != {"env"}:
-                raise ValueError(f"--set {s!r}: eval takes env.* settings only")
-            deep_update(env_changes, change["env"])
-        for key, value in (("prey_count", args.prey_count), ("predator_count", args.predator_count),
-                           ("max_steps", args.max_steps)):
-            if value is not None:
-                env_changes[key] = value
-        env = env_config({"env": deep_update(base.to_dict(), env_changes)})
+        env = _eval_world(args, prey + predator)
         print(f"aquarium-warp eval: {len(prey)} prey x {len(predator)} predator policies, {args.episodes} episodes "
               f"x {len(args.seeds)} seeds, {env.prey_count} prey, {env.predator_count} predators, "
               f"{env.max_steps} steps")
@@ -286,6 +277,62 @@ def run_eval(args) -> int:
     if curves and not args.no_figures:
         outputs.append(plot_training_curves(curves, os.path.join(args.out, "training_curves.png"),
                                             smooth=args.smooth))
+    for path in outputs:
+        print(f"  wrote {path}")
+    return 0
+
+
+def _eval_world(args, specs):
+    """`eval`'s world: `--preset`, else the policies' (`common_policy_env`), with `--set` and the count
+    options applied."""
+    from ..config import AquariumConfig
+    from .config import deep_update, env_config, make_config, parse_assignment
+    from .evaluate import common_policy_env
+
+    base = env_config(make_config(args.preset)) if args.preset else common_policy_env(specs, AquariumConfig())
+    changes = {}
+    for s in args.set:
+        change = parse_assignment(s)
+        if set(change) != {"env"}:
+            raise ValueError(f"--set {s!r}: eval takes env.* settings only")
+        deep_update(changes, change["env"])
+    for key, value in (("prey_count", args.prey_count), ("predator_count", args.predator_count),
+                       ("max_steps", args.max_steps)):
+        if value is not None:
+            changes[key] = value
+    return env_config({"env": deep_update(base.to_dict(), changes)})
+
+
+def run_cross_play(args) -> int:
+    """`aquarium-warp eval --cross-play`: the matrix, its files, rating and heatmaps."""
+    from .evaluate import NO_CONFUSION, cross_play, expand_specs, plot_cross_play, write_cross_play
+
+    if args.curves:
+        raise ValueError("--curves is not drawn with --cross-play: run eval --curves on its own")
+    prey = expand_specs(args.prey or ["random", "turnaway"])
+    predator = expand_specs(args.predator or ["naivchase", NO_CONFUSION, "random"])
+    env = _eval_world(args, prey + predator)
+    print(f"aquarium-warp eval --cross-play: {len(prey)} prey x {len(predator)} predator policies, "
+          f"{args.episodes} episodes x {len(args.seeds)} seeds, {env.prey_count} prey, {env.predator_count} "
+          f"predators, {env.max_steps} steps")
+    start = time.perf_counter()
+    result = cross_play(prey, predator, env, episodes=args.episodes, seeds=args.seeds, device=args.device,
+                        max_worlds=args.max_worlds, deterministic=not args.stochastic)
+    outputs = list(write_cross_play(result, args.out).values())
+    cp = result["cross_play"]
+    print("captures per prey per episode (mean over seeds; rows: prey, columns: predators)")
+    first = max(len(a) for a in cp["prey"] + ["rating"])
+    widths = [max(10, len(b) + 2) for b in cp["predator"]]
+    print(" " * first + "".join(f"{b:>{w}}" for b, w in zip(cp["predator"], widths)) + f"{'rating':>9}")
+    for i, a in enumerate(cp["prey"]):
+        cells = "".join(f"{v:{w}.3f}" for v, w in zip(cp["matrices"]["captures_per_prey"]["mean"][i], widths))
+        print(f"{a:>{first}}{cells}{result['rating']['prey'][a]:9.0f}")
+    print(f"{'rating':>{first}}" + "".join(f"{result['rating']['predator'][b]:{w}.0f}"
+                                            for b, w in zip(cp["predator"], widths)))
+    print(f"  ({time.perf_counter() - start:.1f} s; Elo ratings from the prey survival matrix)")
+    if not args.no_figures:
+        for metric in ("captures_per_prey", "prey_survival"):
+            outputs.append(plot_cross_play(result, os.path.join(args.out, f"cross_play_{metric}.png"), metric))
     for path in outputs:
         print(f"  wrote {path}")
     return 0

@@ -226,6 +226,12 @@ def validate(config: dict) -> None:
     if bad:
         raise ValueError(f"train.export has unknown formats {bad}; allowed: jit, onnx")
     runner = config["runner"]
+    if train["sharing"] == "individual":
+        for part in ("actor", "critic"):
+            if _is_recurrent_model(runner.get(part, {}).get("class_name", MLP_MODEL)):
+                raise ValueError(f"train.sharing='individual' does not support recurrent models "
+                                 f"(runner.{part}.class_name={runner[part]['class_name']!r}): use "
+                                 f"train.sharing='parameter' or a feed-forward model")
     for name in ("num_steps_per_env", "save_interval"):
         v = runner.get(name)
         if not _is_int(v) or v < 1:
@@ -242,6 +248,19 @@ def validate(config: dict) -> None:
             continue  # rsl-rl's "no KL target" (the fixed schedule)
         if name in algorithm and (not _is_real(algorithm[name]) or not ok(algorithm[name])):
             raise ValueError(f"runner.algorithm.{name}={algorithm[name]!r} must be {allowed}")
+
+
+def _is_recurrent_model(class_name) -> bool:
+    """Whether an rsl-rl model class (a class, or a name rsl-rl resolves) is recurrent; a name that
+    does not resolve is left for rsl-rl to report."""
+    from . import _rsl  # noqa: F401
+    from rsl_rl.utils import resolve_callable
+
+    try:
+        model_class = resolve_callable(class_name)
+    except Exception:  # noqa: BLE001 - any failure to resolve is rsl-rl's to report, with its message
+        return False
+    return bool(getattr(model_class, "is_recurrent", False))
 
 
 # PPO coefficients (absent ones take rsl-rl's defaults): {name: (allowed range, test of a real value)};

@@ -13,16 +13,26 @@ result = evaluate_policies(prey=["random", "turnaway", "PS=runs/ps/exported/poli
 result["summary"]    # one row per (prey, predator) pair: means and stds over seeds
 ```
 
-A policy spec is a heuristic name ("random", "turnaway" for prey, "naivchase" for predators), the
-path of an exported policy or training checkpoint, optionally labelled `LABEL=SPEC`. Specs with the
-same label are pooled (e.g. one trained policy per training seed): their per-seed means together
-give the mean and std.
+A policy spec is a heuristic name ("random", "turnaway" for prey, "naivchase" or
+"naivchase-noconfusion" (chasing the nearest visible prey) for predators), the path of an exported
+policy or training checkpoint, optionally labelled `LABEL=SPEC`. Specs with the same label are pooled
+(e.g. one trained policy per training seed): their per-seed means together give the mean and std.
+Recurrent policies act through `RecurrentOpponent` (hidden state per agent slot, reset where the
+slot's episode ends).
+
+Cross-play (`cross_play`, `aquarium-warp eval --cross-play`): every prey spec against every predator
+spec, globs such as `run/model_*.pt` expanded to every checkpoint in training order; the pairs run
+through `evaluate_policies`, and the result adds `[prey][predator]` matrices (mean and std over
+seeds) of captures per prey, reward per prey and per predator, and prey survival (the fraction of
+prey not captured in an episode), Elo ratings fitted to the survival matrix (`elo_ratings`),
+`write_cross_play` (CSV/JSON) and `plot_cross_play` (heatmap).
 
 The episodes run as parallel worlds (at most `max_worlds` at once; more episodes continue in the
 same worlds, whose random streams differ per episode). Each world's episodes are recorded when they
 end, so extinction (respawn off) is handled too.
 
-Figures (matplotlib, imported only here): `plot_distributions` (per-episode values per policy) and
+Figures (matplotlib, imported only here): `plot_distributions` (per-episode values per policy),
+`plot_cross_play` and
 `plot_training_curves` (from `progress.csv` or TensorBoard events of several runs, mean and std band
 over the runs of each label, against world episodes).
 """
@@ -34,6 +44,7 @@ import glob
 import json
 import math
 import os
+import re
 import warnings
 
 import numpy as np
@@ -41,11 +52,26 @@ import torch
 
 from ..config import AquariumConfig, _is_int
 from ..env import BatchedAquarium
+from ..heuristics import make_policy
 from ..metrics import EPISODE_METRICS, EpisodeMetrics
+from .export import RecurrentOpponent
 from .trainer import is_heuristic, make_opponent
+from .vec_env import TrainedOpponent
 
 METRICS = ("captures_per_prey", "reward_per_prey", "reward_per_predator") + tuple(
     f"swarm_{name}" for name in EPISODE_METRICS)
+
+
+NO_CONFUSION = "naivchase-noconfusion"  # NaivChase chasing the nearest visible prey (make_policy(confusion=False))
+
+
+def _normalise(spec: str) -> str:
+    return spec.lower().replace("_", "").replace("-", "")
+
+
+def is_heuristic_spec(spec) -> bool:
+    """A heuristic name of `make_opponent`, or `NO_CONFUSION`."""
+    return is_heuristic(spec) or (isinstance(spec, str) and _normalise(spec) == _normalise(NO_CONFUSION))
 
 
 def parse_spec(spec: str) -> tuple[str, str]:
@@ -53,7 +79,7 @@ def parse_spec(spec: str) -> tuple[str, str]:
     if "=" in spec and not os.path.exists(spec):
         label, value = spec.split("=", 1)
         return label, value
-    if is_heuristic(spec):
+    if is_heuristic_spec(spec):
         return spec.lower(), spec
     path = os.path.normpath(spec)
     parts = path.split(os.sep)
@@ -61,17 +87,36 @@ def parse_spec(spec: str) -> tuple[str, str]:
     return label, spec
 
 
-def policy_env(specs, fallback: AquariumConfig) -> AquariumConfig:
-    """The env of the first trained policy among `specs` (from its metadata), else `fallback`."""
+def common_policy_env(specs, fallback: AquariumConfig) -> AquariumConfig:
+    """The world every trained policy among `specs` was trained in (`fallback` if none is trained);
+    a `ValueError` names two specs whose worlds differ."""
     from .config import env_config
     from .export import load_policy
 
+    first = None
     for spec in specs:
         _, value = parse_spec(spec)
-        if not is_heuristic(value):
-            meta = load_policy(value).meta
-            return env_config({"env": meta.get("env", {})})
-    return fallback
+        if is_heuristic_spec(value):
+            continue
+        world = env_config({"env": load_policy(value).meta.get("env", {})})
+        if first is None:
+            first = (spec, world)
+        elif world.to_dict() != first[1].to_dict():
+            a, b = first[1].to_dict(), world.to_dict()
+            differ = ", ".join(f"{k} {a[k]!r} vs {b[k]!r}" for k in a if a[k] != b[k])
+            raise ValueError(f"policies {first[0]!r} and {spec!r} were trained in different worlds ({differ})")
+    return first[1] if first is not None else fallback
+
+
+def make_driver(spec: str, env: BatchedAquarium, agent_type: str, deterministic: bool = True, seed: int = 0):
+    """`make_opponent`, plus `NO_CONFUSION`, with a recurrent trained policy wrapped in `RecurrentOpponent`
+    (its rows' hidden states reset where their episodes end): one team's driver for evaluation and videos."""
+    if isinstance(spec, str) and _normalise(spec) == _normalise(NO_CONFUSION):
+        return make_policy("naivchase", env, agent_type, confusion=False)
+    driver = make_opponent(spec, env, agent_type, deterministic=deterministic, seed=seed)
+    if isinstance(driver, TrainedOpponent) and getattr(driver.policy, "recurrent", None) is not None:
+        return RecurrentOpponent(driver.policy, env, agent_type)
+    return driver
 
 
 def run_episodes(env_cfg: AquariumConfig, prey: str, predator: str, episodes: int, seed: int, device=None,
@@ -81,8 +126,8 @@ def run_episodes(env_cfg: AquariumConfig, prey: str, predator: str, episodes: in
     swarm metrics (`swarm_<name>`: means over states sampled every `metrics_every` steps)."""
     W = max(1, min(episodes, max_worlds))
     env = BatchedAquarium(env_cfg, num_worlds=W, device=device, seed=seed)
-    drivers = {"prey": make_opponent(prey, env, "prey", deterministic=deterministic, seed=seed),
-               "predator": make_opponent(predator, env, "predator", deterministic=deterministic, seed=seed + 1)}
+    drivers = {"prey": make_driver(prey, env, "prey", deterministic=deterministic, seed=seed),
+               "predator": make_driver(predator, env, "predator", deterministic=deterministic, seed=seed + 1)}
     dev = env.torch_device
     Pc, P = env.prey_capacity, env.predator_count
     prey_captures = torch.zeros(W, Pc, dtype=torch.int32, device=dev)
@@ -213,6 +258,131 @@ def write_results(result: dict, out_dir: str) -> dict[str, str]:
     return paths
 
 
+# ---------------------------------------------------------------------------------------------- cross-play
+CROSS_PLAY_METRICS = ("captures_per_prey", "reward_per_prey", "reward_per_predator", "prey_survival")
+
+
+def expand_specs(specs) -> list[str]:
+    """Specs with glob patterns (e.g. `run/model_*.pt`, optionally `LABEL=run/model_*.pt`) replaced by
+    the files they match, in natural order (model_2 before model_10), each labelled by its file name
+    (`LABEL/model_2` under a label). Other specs stay as they are."""
+    out = []
+    for spec in specs:
+        label, value = parse_spec(spec)
+        if is_heuristic_spec(value) or os.path.exists(value) or not glob.has_magic(value):
+            out.append(spec)
+            continue
+        paths = glob.glob(value)
+        if not paths:
+            raise ValueError(f"policy spec {spec!r}: no file matches the pattern")
+
+        def natural(path):
+            return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", os.path.basename(path))]
+
+        for path in sorted(paths, key=natural):
+            name = os.path.splitext(os.path.basename(path))[0]
+            out.append(f"{label}/{name}={path}" if spec != value else f"{name}={path}")
+    return out
+
+
+def cross_play(prey, predator, env: AquariumConfig | None = None, episodes: int = 200, seeds=(0,), device=None,
+               max_worlds: int = 1024, deterministic: bool = True, progress=None, rating: bool = True) -> dict:
+    """Every prey spec against every predator spec (globs expanded by `expand_specs`) under the
+    evaluation protocol of `evaluate_policies` (which plays the pairs). `env=None`: the common world of
+    the trained policies (`common_policy_env`), else MODEL.md's.
+
+    Returns `evaluate_policies`' result plus `"cross_play"`: the row (prey) and column (predator)
+    labels and, per metric of `CROSS_PLAY_METRICS`, `[prey][predator]` matrices of the mean and std over
+    seeds of the per-seed means. `prey_survival` is the fraction of the `prey_count` first prey slots
+    not captured in an episode. With `rating`, `"rating"`: `elo_ratings` of that survival matrix."""
+    prey, predator = expand_specs([prey] if isinstance(prey, str) else prey), \
+        expand_specs([predator] if isinstance(predator, str) else predator)
+    if env is None:
+        env = common_policy_env(prey + predator, AquariumConfig())
+    result = evaluate_policies(prey, predator, env, episodes=episodes, seeds=seeds, device=device,
+                               max_worlds=max_worlds, deterministic=deterministic, progress=progress)
+    rows = list(dict.fromkeys(parse_spec(p)[0] for p in prey))
+    cols = list(dict.fromkeys(parse_spec(p)[0] for p in predator))
+    by_pair = {(r["prey_policy"], r["predator_policy"]): r for r in result["summary"]}
+    survival: dict[tuple[str, str], dict[int, list[float]]] = {}
+    for record in result["episodes"]:
+        alive = [c == 0 for c in record["prey_captures"][:env.prey_count]]
+        survival.setdefault((record["prey_policy"], record["predator_policy"]), {}).setdefault(
+            record["seed"], []).append(sum(alive) / len(alive))
+    matrices = {}
+    for metric in CROSS_PLAY_METRICS:
+        mean, std = np.zeros((len(rows), len(cols))), np.zeros((len(rows), len(cols)))
+        for i, a in enumerate(rows):
+            for j, b in enumerate(cols):
+                if metric == "prey_survival":
+                    s = summarize(list(survival[(a, b)].values()))
+                    mean[i, j], std[i, j] = s["mean"], s["std_over_seeds"]
+                    by_pair[(a, b)].update(prey_survival_mean=s["mean"], prey_survival_std=s["std_over_seeds"])
+                else:
+                    mean[i, j], std[i, j] = by_pair[(a, b)][f"{metric}_mean"], by_pair[(a, b)][f"{metric}_std"]
+        matrices[metric] = {"mean": mean.tolist(), "std": std.tolist()}
+    result["cross_play"] = {"prey": rows, "predator": cols, "matrices": matrices}
+    if rating:
+        games = len(result["protocol"]["seeds"]) * episodes * env.prey_count
+        prey_r, pred_r = elo_ratings(np.array(matrices["prey_survival"]["mean"]), games)
+        result["rating"] = {"basis": "prey_survival", "games_per_pair": games,
+                            "prey": dict(zip(rows, prey_r.tolist())), "predator": dict(zip(cols, pred_r.tolist()))}
+    return result
+
+
+def elo_ratings(score: np.ndarray, games, mean: float = 1500.0, iterations: int = 100) -> tuple[np.ndarray, np.ndarray]:
+    """Elo-scale ratings of row players (prey) and column players (predators) from `score[i, j]`, the
+    row player's expected score against column player j (here: prey survival), each pair over `games`
+    games (a number or a matrix). Maximum likelihood of the Elo model `score = 1 / (1 + 10 **
+    ((R_col - R_row) / 400))` (Bradley-Terry with soft outcomes) by Newton's method; only rating
+    differences are identified, so the ratings are shifted to average `mean`. Scores of exactly 0 or 1
+    are moved half a game inward, which keeps the ratings finite."""
+    score = np.asarray(score, dtype=np.float64)
+    if score.ndim != 2 or score.size == 0 or not np.all((score >= 0) & (score <= 1)):
+        raise ValueError(f"score must be a non-empty matrix of values in [0, 1], got shape {score.shape}")
+    n = np.broadcast_to(np.asarray(games, dtype=np.float64), score.shape)
+    if not np.all(n > 0):
+        raise ValueError("games must be > 0 for every pair")
+    score = np.clip(score, 0.5 / n, 1 - 0.5 / n)
+    P, Q = score.shape
+    k = math.log(10) / 400
+    signs = np.zeros((P, Q, P + Q))  # d(R_row - R_col) / dR
+    signs[np.arange(P)[:, None], np.arange(Q)[None, :], np.arange(P)[:, None]] = 1
+    signs[np.arange(P)[:, None], np.arange(Q)[None, :], P + np.arange(Q)[None, :]] = -1
+    r = np.zeros(P + Q)
+    for _ in range(iterations):
+        expected = 1 / (1 + np.exp(-k * (signs @ r)))
+        gradient = k * np.einsum("pq,pqr->r", n * (score - expected), signs)
+        weight = k * k * n * expected * (1 - expected)
+        hessian = np.einsum("pq,pqr,pqs->rs", weight, signs, signs)
+        # The Hessian is singular along the common shift; the least-norm step leaves that shift alone.
+        step = np.linalg.lstsq(hessian, gradient, rcond=None)[0]
+        r += step
+        if np.max(np.abs(step)) < 1e-9:
+            break
+    r += mean - r.mean()
+    return r[:P], r[P:]
+
+
+def write_cross_play(result: dict, out_dir: str) -> dict[str, str]:
+    """`write_results`' files plus `cross_play.csv` (one row per prey/predator pair: means and stds over
+    seeds) and `cross_play.json` (labels, matrices, rating, protocol) into `out_dir`."""
+    paths = write_results(result, out_dir)
+    cp = result["cross_play"]
+    paths["cross_play_csv"] = os.path.join(out_dir, "cross_play.csv")
+    paths["cross_play_json"] = os.path.join(out_dir, "cross_play.json")
+    with open(paths["cross_play_csv"], "w", newline="", encoding="utf-8") as f:
+        writer = csv.writer(f)
+        columns = [(m, s) for m in CROSS_PLAY_METRICS for s in ("mean", "std")]
+        writer.writerow(["prey_policy", "predator_policy"] + [f"{m}_{s}" for m, s in columns])
+        for i, a in enumerate(cp["prey"]):
+            for j, b in enumerate(cp["predator"]):
+                writer.writerow([a, b] + [cp["matrices"][m][s][i][j] for m, s in columns])
+    with open(paths["cross_play_json"], "w", encoding="utf-8") as f:
+        json.dump({**cp, "rating": result.get("rating"), "protocol": result["protocol"]}, f, indent=1)
+    return paths
+
+
 # ---------------------------------------------------------------------------------------------- figures
 def _pyplot():
     import matplotlib
@@ -240,6 +410,31 @@ def plot_distributions(result: dict, path: str) -> str:
         ax.grid(alpha=0.3)
     fig.suptitle(f"{result['protocol']['episodes']} episodes x {len(result['protocol']['seeds'])} seeds, "
                  f"{result['protocol']['max_steps']} steps")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def plot_cross_play(result: dict, path: str, metric: str = "captures_per_prey") -> str:
+    """Heatmap of a cross-play matrix (prey rows, predator columns), each cell `mean +- std` over seeds."""
+    plt = _pyplot()
+    cp = result["cross_play"]
+    mean, std = np.array(cp["matrices"][metric]["mean"]), np.array(cp["matrices"][metric]["std"])
+    fig, ax = plt.subplots(figsize=(1.8 * len(cp["predator"]) + 3, 0.6 * len(cp["prey"]) + 2.2))
+    image = ax.imshow(mean, cmap="viridis", aspect="auto")
+    fig.colorbar(image, ax=ax, label=metric.replace("_", " "))
+    ax.set_xticks(range(len(cp["predator"])), cp["predator"], rotation=30, ha="right")
+    ax.set_yticks(range(len(cp["prey"])), cp["prey"])
+    ax.set_xlabel("predator policy")
+    ax.set_ylabel("prey policy")
+    middle = (np.nanmax(mean) + np.nanmin(mean)) / 2
+    for i in range(mean.shape[0]):
+        for j in range(mean.shape[1]):
+            ax.text(j, i, f"{mean[i, j]:.3g}\n± {std[i, j]:.2g}", ha="center", va="center", fontsize=8,
+                    color="black" if mean[i, j] > middle else "white")
+    protocol = result["protocol"]
+    ax.set_title(f"{metric.replace('_', ' ')}: {protocol['episodes']} episodes x {len(protocol['seeds'])} seeds")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)

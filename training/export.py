@@ -14,6 +14,16 @@ Exported files (written by `export_policy`, next to a `policy.json` with the sam
 - `policy.onnx`: input `obs` `[N, L]`, outputs `actions` `[N]` int64 and `logits` `[N, action_count]`,
   the metadata in the model's `metadata_props`; `load_policy` runs it with onnxruntime (on the CPU).
 
+Recurrent policies (rsl-rl's `RNNModel`, GRU or LSTM; `meta["recurrent"]` holds its type and sizes)
+are exported as a step function with explicit states, as rsl-rl's ONNX export of them: `policy.pt`'s
+`step(obs [N, L], h [layers, N, H], c [layers, N, H]) -> (logits, h, c)` (`c` is unused and returned
+unchanged for a GRU), `forward(obs, h, c) -> (actions, h, c)` and `initial_state(obs) -> (h, c)` (zeros);
+`policy.onnx` has inputs `obs`, `h_in` (and `c_in` for an LSTM) and outputs `actions`, `logits`,
+`h_out` (and `c_out`). `load_policy` keeps the state of each row between calls (each call is one
+step; the first starts from zeros, as rsl-rl's rollouts do) and `policy.reset(dones)` zeroes the rows
+whose episode ended (`reset()`: all rows, e.g. after an env reset). `RecurrentOpponent` does those
+resets for a team of a `BatchedAquarium` (evaluation, `aquarium-warp video`).
+
 Individual Learning policies (`group_size` S > 1) take rows in world-major slot order: N must be a
 multiple of S, row `k` acting for slot `k % S` (one world of the PettingZoo env: its S agents in
 slot order).
@@ -56,6 +66,68 @@ class ExportablePolicy(nn.Module):
         return torch.argmax(self.logits(obs), dim=-1)
 
 
+class _RecurrentPolicy(nn.Module):
+    """The actor's observation normaliser, GRU/LSTM and MLP as a step function with explicit per-row
+    states (see the module doc); `_GRUPolicy` / `_LSTMPolicy` differ in how the RNN takes its state."""
+
+    def __init__(self, actor: nn.Module) -> None:
+        super().__init__()
+        self.obs_normalizer = copy.deepcopy(actor.obs_normalizer).cpu()
+        self.rnn = copy.deepcopy(actor.rnn.rnn).cpu()  # the torch module inside rsl-rl's RNN wrapper
+        self.mlp = copy.deepcopy(actor.mlp).cpu()
+        self.num_layers, self.hidden_size = int(self.rnn.num_layers), int(self.rnn.hidden_size)
+        self.eval()
+
+    @torch.jit.export
+    def initial_state(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Zero states `(h, c)` `[layers, N, H]` for the rows of `obs` `[N, L]`, on its device."""
+        h = torch.zeros(self.num_layers, obs.shape[0], self.hidden_size, device=obs.device)
+        return h, torch.zeros_like(h)
+
+    def _rnn(self, x: torch.Tensor, h: torch.Tensor, c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        raise NotImplementedError
+
+    @torch.jit.export
+    def step(self, obs: torch.Tensor, h: torch.Tensor, c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        y, h, c = self._rnn(self.obs_normalizer(obs).unsqueeze(0), h, c)
+        return self.mlp(y.squeeze(0)), h, c
+
+    def forward(self, obs: torch.Tensor, h: torch.Tensor, c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        logits, h, c = self.step(obs, h, c)
+        return torch.argmax(logits, dim=-1), h, c
+
+
+class _GRUPolicy(_RecurrentPolicy):
+    def _rnn(self, x: torch.Tensor, h: torch.Tensor, c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        y, h = self.rnn(x, h)
+        return y, h, c
+
+
+class _LSTMPolicy(_RecurrentPolicy):
+    def _rnn(self, x: torch.Tensor, h: torch.Tensor, c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        y, (h, c) = self.rnn(x, (h, c))
+        return y, h, c
+
+
+def recurrent_meta(actor: nn.Module) -> dict | None:
+    """`{"rnn_type", "num_layers", "hidden_size"}` of a recurrent rsl-rl actor, None for a feed-forward one."""
+    if not getattr(actor, "is_recurrent", False):
+        return None
+    rnn = actor.rnn.rnn
+    if not isinstance(rnn, (nn.GRU, nn.LSTM)):
+        raise ValueError(f"recurrent actor with a {type(rnn).__name__}: only GRU and LSTM can be exported")
+    return {"rnn_type": "lstm" if isinstance(rnn, nn.LSTM) else "gru", "num_layers": int(rnn.num_layers),
+            "hidden_size": int(rnn.hidden_size)}
+
+
+def exportable(actor: nn.Module) -> nn.Module:
+    """The CPU module that `export_policy` scripts: `ExportablePolicy` or a recurrent step function."""
+    info = recurrent_meta(actor)
+    if info is None:
+        return ExportablePolicy(actor)
+    return (_LSTMPolicy if info["rnn_type"] == "lstm" else _GRUPolicy)(actor)
+
+
 class _OnnxPolicy(nn.Module):
     def __init__(self, policy: ExportablePolicy) -> None:
         super().__init__()
@@ -64,6 +136,26 @@ class _OnnxPolicy(nn.Module):
     def forward(self, obs: torch.Tensor):
         logits = self.policy.logits(obs)
         return torch.argmax(logits, dim=-1), logits
+
+
+class _OnnxGRUPolicy(nn.Module):
+    def __init__(self, policy: _GRUPolicy) -> None:
+        super().__init__()
+        self.policy = policy
+
+    def forward(self, obs: torch.Tensor, h_in: torch.Tensor):
+        logits, h, _ = self.policy.step(obs, h_in, h_in)  # a GRU has no cell state: `c` goes unused
+        return torch.argmax(logits, dim=-1), logits, h
+
+
+class _OnnxLSTMPolicy(nn.Module):
+    def __init__(self, policy: _LSTMPolicy) -> None:
+        super().__init__()
+        self.policy = policy
+
+    def forward(self, obs: torch.Tensor, h_in: torch.Tensor, c_in: torch.Tensor):
+        logits, h, c = self.policy.step(obs, h_in, c_in)
+        return torch.argmax(logits, dim=-1), logits, h, c
 
 
 def policy_meta(config: dict, slots: int, observation_size: int, action_count: int) -> dict:
@@ -85,7 +177,8 @@ def export_policy(actor: nn.Module, meta: dict, out_dir: str, formats=("jit", "o
     """Write the actor as `policy.pt` (TorchScript) and/or `policy.onnx` plus `policy.json` into
     `out_dir`; returns `{format: path}`."""
     os.makedirs(out_dir, exist_ok=True)
-    module = ExportablePolicy(actor)
+    module = exportable(actor)
+    meta = {**meta, "recurrent": recurrent_meta(actor)}
     meta_text = json.dumps(meta, indent=1, default=str)
     with open(os.path.join(out_dir, "policy.json"), "w", encoding="utf-8") as f:
         f.write(meta_text)
@@ -102,19 +195,33 @@ def export_policy(actor: nn.Module, meta: dict, out_dir: str, formats=("jit", "o
     return paths
 
 
-def _export_onnx(module: ExportablePolicy, meta: dict, meta_text: str, path: str) -> str:
+def _export_onnx(module: nn.Module, meta: dict, meta_text: str, path: str) -> str:
     import onnx
 
-    wrapper = _OnnxPolicy(module).eval()
     group = int(meta.get("group_size", 1))
     L = int(meta["observation_size"])
     dummy = torch.zeros(2 * group, L)
     batch = torch.export.Dim("worlds", min=1) * group if group > 1 else torch.export.Dim("rows", min=1)
+    if isinstance(module, _RecurrentPolicy):
+        state = module.initial_state(dummy)
+        if isinstance(module, _LSTMPolicy):
+            wrapper, args, names = _OnnxLSTMPolicy(module), (dummy, *state), ["h_in", "c_in"]
+        else:
+            wrapper, args, names = _OnnxGRUPolicy(module), (dummy, state[0]), ["h_in"]
+        inputs = ["obs"] + names
+        outputs = ["actions", "logits"] + [n.replace("_in", "_out") for n in names]
+        dynamic = {"obs": {0: batch}, **{n: {1: batch} for n in names}}
+    else:
+        wrapper, args, inputs, outputs = _OnnxPolicy(module), (dummy,), ["obs"], ["actions", "logits"]
+        dynamic = {"obs": {0: batch}}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", FutureWarning)
-        torch.onnx.export(wrapper, (dummy,), path, input_names=["obs"], output_names=["actions", "logits"],
-                          dynamic_shapes={"obs": {0: batch}}, opset_version=18, dynamo=True,
-                          external_data=False, verbose=False)
+        # torch.export's notes on the RNN's flat weights and on the shared row axis: harmless here.
+        warnings.filterwarnings("ignore", message="The tensor attributes", category=UserWarning)
+        warnings.filterwarnings("ignore", message="# The axis name", category=UserWarning)
+        torch.onnx.export(wrapper.eval(), args, path, input_names=inputs, output_names=outputs,
+                          dynamic_shapes=dynamic, opset_version=18, dynamo=True, external_data=False,
+                          verbose=False)
     model = onnx.load(path)
     entry = model.metadata_props.add()
     entry.key, entry.value = META_NAME, meta_text
@@ -123,7 +230,10 @@ def _export_onnx(module: ExportablePolicy, meta: dict, meta_text: str, path: str
 
 
 class LoadedPolicy:
-    """A policy loaded by `load_policy`: `policy(obs [N, L]) -> actions [N]` (int64, on obs' device)."""
+    """A policy loaded by `load_policy`: `policy(obs [N, L]) -> actions [N]` (int64, on obs' device).
+
+    `logits_fn(obs) -> logits`, or for a recurrent policy `logits_fn(obs, (h, c)) -> (logits, (h, c))`
+    with the states `[layers, N, H]` that this object keeps between calls (see the module doc)."""
 
     def __init__(self, logits_fn, meta: dict, kind: str, device: torch.device, deterministic: bool = True,
                  seed: int = 0, module=None):
@@ -134,6 +244,8 @@ class LoadedPolicy:
         self.observation_size = int(meta["observation_size"])
         self.action_count = int(meta["action_count"])
         self.group_size = int(meta.get("group_size", 1))
+        self.recurrent = meta.get("recurrent")  # None, or {"rnn_type", "num_layers", "hidden_size"}
+        self._state: tuple[torch.Tensor, torch.Tensor] | None = None  # per-row (h, c) of a recurrent policy
         self._generator = None
         if not deterministic:
             self._generator = torch.Generator(device=self.device if self.kind != "onnx" else "cpu")
@@ -156,10 +268,44 @@ class LoadedPolicy:
                              f"env has {slots} {team} slots per world")
 
     def logits(self, obs) -> torch.Tensor:
+        """Logits `[N, action_count]`; for a recurrent policy this is one step (it advances the state)."""
         obs = torch.as_tensor(obs, dtype=torch.float32)
         if obs.dim() != 2 or obs.shape[1] != self.observation_size:
             raise ValueError(f"observations must be [N, {self.observation_size}], got {list(obs.shape)}")
-        return self._logits_fn(obs)
+        if self.recurrent is None:
+            return self._logits_fn(obs)
+        rows = obs.shape[0]
+        if self._state is None:  # a fresh episode for every row, as rsl-rl's rollouts start
+            shape = (int(self.recurrent["num_layers"]), rows, int(self.recurrent["hidden_size"]))
+            self._state = (torch.zeros(shape, device=self.device), torch.zeros(shape, device=self.device))
+        elif self._state[0].shape[1] != rows:
+            raise ValueError(f"recurrent policy holds hidden states for {self._state[0].shape[1]} rows, got "
+                             f"{rows}: call reset() first to start over with other rows")
+        logits, self._state = self._logits_fn(obs, self._state)
+        return logits
+
+    def reset(self, dones=None) -> None:
+        """Recurrent policies: zero the hidden state of the rows where `dones [N]` is true (their agent's
+        episode ended), or forget every row's state (`dones=None`). Feed-forward policies: nothing."""
+        if self._state is None:
+            return
+        if dones is None:
+            self._state = None
+            return
+        mask = torch.as_tensor(dones).to(self._state[0].device).reshape(-1).bool()
+        if mask.numel() != self._state[0].shape[1]:
+            raise ValueError(f"dones must have one entry per row ({self._state[0].shape[1]}), got {mask.numel()}")
+        self._state = tuple(torch.where(mask.view(1, -1, 1), 0.0, x) for x in self._state)
+
+    @property
+    def hidden_state(self) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """Recurrent policies: the rows' `(h, c)` `[layers, N, H]` after the last call (None before);
+        assignable (e.g. from a checkpoint)."""
+        return self._state
+
+    @hidden_state.setter
+    def hidden_state(self, state) -> None:
+        self._state = None if state is None else tuple(torch.as_tensor(x).to(self.device) for x in state)
 
     def __call__(self, obs) -> torch.Tensor:
         out_device = obs.device if isinstance(obs, torch.Tensor) else torch.device("cpu")
@@ -192,6 +338,45 @@ class LoadedPolicy:
             self._generator.set_state(state.cpu())
 
 
+class RecurrentOpponent:
+    """Drives one team of a `BatchedAquarium` with a recurrent `LoadedPolicy`, as `TrainedOpponent`
+    does, and before acting resets the hidden state of the rows whose episode ended in the step since
+    its last call: the agent's life ended (captured, removed, starved, or its world's episode ended) or
+    its empty slot was filled again, the row dones of the training adapter (`vec_env.py`). Call it
+    once per env step."""
+
+    def __init__(self, policy: LoadedPolicy, env, agent_type: str):
+        from .vec_env import TrainedOpponent
+
+        self.driver, self.policy = TrainedOpponent(policy, env, agent_type), policy
+        self._terminated, self._truncated = env._terminated[agent_type], env._truncated[agent_type]
+        self._captured = env.state.torch.captured[:, :env.prey_capacity] if agent_type == "prey" else None
+        self._alive = env.alive[agent_type]
+        self._active: torch.Tensor | None = None  # rows alive when the policy last acted
+        policy.reset()  # every row starts from zero states, as rsl-rl's rollouts do
+
+    def __call__(self) -> torch.Tensor:
+        if self._active is not None:
+            ended = self._terminated | self._truncated
+            if self._captured is not None:
+                ended = ended | self._captured
+            self.policy.reset(torch.where(self._active, ended, self._alive).reshape(-1))
+        self._active = self._alive.clone()
+        return self.driver()
+
+    def state_dict(self) -> dict:
+        """The sampling stream, the rows' hidden states and which rows were alive (for bit-exact resumes)."""
+        hidden = self.policy.hidden_state
+        return {**self.driver.state_dict(),
+                "hidden_state": None if hidden is None else tuple(x.cpu().clone() for x in hidden),
+                "active": None if self._active is None else self._active.cpu().clone()}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.driver.load_state_dict(state)
+        self.policy.hidden_state = state.get("hidden_state")
+        self._active = None if state.get("active") is None else state["active"].to(self._alive.device)
+
+
 def _is_torchscript(path: str) -> bool:
     if not zipfile.is_zipfile(path):
         return False
@@ -217,12 +402,20 @@ def load_policy(path: str, device="cpu", deterministic: bool = True, seed: int =
             module = torch.jit.load(path, map_location=device, _extra_files=extra)
         module.eval()
         meta = json.loads(extra[META_NAME]) if extra[META_NAME] else _sidecar_meta(path)
-        return LoadedPolicy(_module_logits(module, device), meta, "jit", device, deterministic, seed, module=module)
+        return LoadedPolicy(_module_logits(module, device, meta), meta, "jit", device, deterministic, seed,
+                            module=module)
     return _load_checkpoint(path, device, deterministic, seed)
 
 
-def _module_logits(module, device: torch.device):
-    """`obs -> logits` of a TorchScript or `ExportablePolicy` module on `device`."""
+def _module_logits(module, device: torch.device, meta: dict):
+    """`LoadedPolicy`'s `logits_fn` of a TorchScript or `exportable()` module on `device`."""
+    if meta.get("recurrent") is not None:
+        def step_fn(obs: torch.Tensor, state):
+            with torch.inference_mode():
+                logits, h, c = module.step(obs.to(device), *state)
+            return logits, (h, c)
+
+        return step_fn
 
     def logits_fn(obs: torch.Tensor) -> torch.Tensor:
         with torch.inference_mode():
@@ -249,12 +442,25 @@ def _load_onnx(path: str, deterministic: bool, seed: int) -> LoadedPolicy:
     custom = session.get_modelmeta().custom_metadata_map
     meta = json.loads(custom[META_NAME]) if META_NAME in custom else _sidecar_meta(path)
 
+    def numpy(x: torch.Tensor) -> np.ndarray:
+        return x.detach().to("cpu", torch.float32).contiguous().numpy()
+
     def logits_fn(obs: torch.Tensor) -> torch.Tensor:
-        x = obs.detach().to("cpu", torch.float32).contiguous().numpy()
-        logits = session.run(["logits"], {"obs": x})[0]
+        logits = session.run(["logits"], {"obs": numpy(obs)})[0]
         return torch.from_numpy(np.asarray(logits))
 
-    return LoadedPolicy(logits_fn, meta, "onnx", torch.device("cpu"), deterministic, seed, module=session)
+    def step_fn(obs: torch.Tensor, state):
+        inputs = {"obs": numpy(obs), "h_in": numpy(state[0])}
+        if lstm:
+            inputs["c_in"] = numpy(state[1])
+        outputs = session.run(["logits", "h_out"] + (["c_out"] if lstm else []), inputs)
+        logits, h = (torch.from_numpy(np.asarray(o)) for o in outputs[:2])
+        return logits, (h, torch.from_numpy(np.asarray(outputs[2])) if lstm else state[1])
+
+    recurrent = meta.get("recurrent")
+    lstm = recurrent is not None and recurrent["rnn_type"] == "lstm"
+    return LoadedPolicy(logits_fn if recurrent is None else step_fn, meta, "onnx", torch.device("cpu"),
+                        deterministic, seed, module=session)
 
 
 def actor_from_checkpoint(checkpoint: dict, device="cpu") -> tuple[nn.Module, dict]:
@@ -281,6 +487,7 @@ def _load_checkpoint(path: str, device: torch.device, deterministic: bool, seed:
     if not isinstance(checkpoint, dict) or "actor_state_dict" not in checkpoint:
         raise ValueError(f"{path}: not a training checkpoint (no actor_state_dict)")
     actor, meta = actor_from_checkpoint(checkpoint, device)
-    module = ExportablePolicy(actor).to(device)
-    return LoadedPolicy(_module_logits(module, device), meta, "checkpoint", device, deterministic, seed,
+    module = exportable(actor).to(device)
+    meta = {**meta, "recurrent": recurrent_meta(actor)}
+    return LoadedPolicy(_module_logits(module, device, meta), meta, "checkpoint", device, deterministic, seed,
                         module=module)

@@ -135,3 +135,13 @@ class IndividualMLPModel(MLPModel):
         self.mlp = BatchedMLP(num_agents, self._get_latent_dim(), head, hidden_dims, activation)
         if self.distribution is not None:
             self.distribution.init_mlp_weights(self.mlp)
+
+
+def hidden_state_to(hidden, device):
+    """A copy of an rsl-rl `HiddenState` (None, a GRU tensor or an LSTM `(h, c)` tuple) on `device`,
+    detached: checkpoints store it on the CPU and the trainer restores it onto its device."""
+    if hidden is None:
+        return None
+    if isinstance(hidden, (tuple, list)):
+        return tuple(h.detach().to(device, copy=True) for h in hidden)
+    return hidden.detach().to(device, copy=True)

@@ -440,6 +440,8 @@ class Trainer:
 
     # ------------------------------------------------------------------ state
     def extra_state(self) -> dict:
+        from .models import hidden_state_to
+
         return {
             "config": self.config,
             "runner_cfg": self.runner_cfg,
@@ -447,12 +449,21 @@ class Trainer:
             "vec_env": self.vec_env.state_dict(),
             "rng": _rng_state(self.device),
             "logger": self.runner.logger.state_dict(),
+            # Recurrent models carry each row's GRU/LSTM state from one iteration into the next.
+            "hidden_states": {name: hidden_state_to(getattr(self.runner.alg, name).get_hidden_state(), "cpu")
+                              for name in ("actor", "critic")},
         }
 
     def load_extra_state(self, state: dict) -> None:
+        from .models import hidden_state_to
+
         self.vec_env.load_state_dict(state["vec_env"])
         self.runner.logger.load_state_dict(state["logger"])
         _set_rng_state(state["rng"], self.device)
+        for name, hidden in state.get("hidden_states", {}).items():
+            model = getattr(self.runner.alg, name)
+            if model.is_recurrent:  # reset(hidden_state=None) clears it, as before the first step
+                model.reset(hidden_state=hidden_state_to(hidden, self.device))
 
     def load(self, path: str) -> None:
         """Restore the whole training state from a checkpoint of this run's config."""
