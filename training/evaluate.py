@@ -54,9 +54,7 @@ from ..config import AquariumConfig, _is_int
 from ..env import BatchedAquarium
 from ..heuristics import make_policy
 from ..metrics import EPISODE_METRICS, EpisodeMetrics
-from .export import RecurrentOpponent
 from .trainer import is_heuristic, make_opponent
-from .vec_env import TrainedOpponent
 
 METRICS = ("captures_per_prey", "reward_per_prey", "reward_per_predator") + tuple(
     f"swarm_{name}" for name in EPISODE_METRICS)
@@ -109,14 +107,10 @@ def common_policy_env(specs, fallback: AquariumConfig) -> AquariumConfig:
 
 
 def make_driver(spec: str, env: BatchedAquarium, agent_type: str, deterministic: bool = True, seed: int = 0):
-    """`make_opponent`, plus `NO_CONFUSION`, with a recurrent trained policy wrapped in `RecurrentOpponent`
-    (its rows' hidden states reset where their episodes end): one team's driver for evaluation and videos."""
+    """`make_opponent`, plus `NO_CONFUSION`: one team's driver for evaluation and videos."""
     if isinstance(spec, str) and _normalise(spec) == _normalise(NO_CONFUSION):
         return make_policy("naivchase", env, agent_type, confusion=False)
-    driver = make_opponent(spec, env, agent_type, deterministic=deterministic, seed=seed)
-    if isinstance(driver, TrainedOpponent) and getattr(driver.policy, "recurrent", None) is not None:
-        return RecurrentOpponent(driver.policy, env, agent_type)
-    return driver
+    return make_opponent(spec, env, agent_type, deterministic=deterministic, seed=seed)
 
 
 def run_episodes(env_cfg: AquariumConfig, prey: str, predator: str, episodes: int, seed: int, device=None,

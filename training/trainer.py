@@ -50,7 +50,7 @@ from ..env import BatchedAquarium
 from ..heuristics import POLICIES, make_policy
 from .config import default_opponent, env_config, make_config, runner_config, total_iterations, validate
 from .loop import TrainingLoop
-from .export import export_policy, load_policy, policy_meta
+from .export import RecurrentOpponent, export_policy, load_policy, policy_meta
 from .vec_env import OTHER, AquariumVecEnv, TrainedOpponent
 
 CSV_FIELDS = ["iteration", "agent_steps", "world_steps", "world_episodes", "episodes_logged", "captures",
@@ -66,11 +66,14 @@ def is_heuristic(name) -> bool:
 
 def make_opponent(spec, env: BatchedAquarium, agent_type: str, deterministic: bool = True, seed: int = 0):
     """The other team's driver: a heuristic name ("random", "turnaway", "naivchase") or the path of a
-    trained policy (exported file or checkpoint)."""
+    trained policy (exported file or checkpoint); a recurrent one resets its rows' hidden states where
+    their episodes end (`RecurrentOpponent`)."""
     if is_heuristic(spec):
         return make_policy(spec, env, agent_type)
     if isinstance(spec, str) and os.path.isfile(spec):
         policy = load_policy(spec, device=env.torch_device, deterministic=deterministic, seed=seed)
+        if getattr(policy, "recurrent", None) is not None:
+            return RecurrentOpponent(policy, env, agent_type)
         return TrainedOpponent(policy, env, agent_type)
     raise ValueError(f"opponent {spec!r} is neither a heuristic ({sorted(POLICIES[agent_type])}) nor a policy file")
 
