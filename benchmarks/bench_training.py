@@ -173,7 +173,6 @@ def main(argv=None) -> int:
     for s in speedups:
         print(f"speed-up fast / rsl-rl loop: {s['worlds']:>6} worlds {s['sharing']:>10}: {s['speedup']:.1f}x")
 
-    import rsl_rl  # noqa: F401
     import warp as wp
     from importlib.metadata import version
 

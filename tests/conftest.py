@@ -15,3 +15,14 @@ os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
 def device() -> str:
     """Device the env tests run on: CPU in CI, a GPU when AQUARIUM_TEST_DEVICE names one."""
     return os.environ.get("AQUARIUM_TEST_DEVICE", "cpu")
+
+
+@pytest.fixture
+def one_thread():
+    """Small networks run fastest (and reproducibly) on one torch thread."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)

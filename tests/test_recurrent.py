@@ -18,13 +18,6 @@ from aquarium_warp.training.export import load_policy  # noqa: E402
 from aquarium_warp.training.trainer import Trainer  # noqa: E402
 
 
-@pytest.fixture
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
 
 def rnn_config(rnn_type="lstm", **train):
     model = {"class_name": "RNNModel", "rnn_type": rnn_type, "rnn_hidden_dim": 8, "hidden_dims": [16]}

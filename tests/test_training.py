@@ -32,14 +32,6 @@ from aquarium_warp.training.trainer import Trainer  # noqa: E402
 from aquarium_warp.training.vec_env import AquariumVecEnv, TrainedOpponent  # noqa: E402
 
 
-@pytest.fixture
-def one_thread():
-    """Small networks run fastest (and reproducibly) on one torch thread."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
 
 class Recorder:
     """Wraps a heuristic and records every action tensor it returns."""

@@ -51,6 +51,14 @@ def _scaled_optimizer_class(base: type) -> type:
     return GroupScaled
 
 
+def flat_samples(storage: RolloutStorage) -> tuple:
+    """The rollout's samples as rsl-rl's mini-batch generator flattens them (step-major): observations,
+    actions, values, returns, action log-probabilities, advantages, distribution parameters."""
+    return (storage.observations.flatten(0, 1), storage.actions.flatten(0, 1), storage.values.flatten(0, 1),
+            storage.returns.flatten(0, 1), storage.actions_log_prob.flatten(0, 1),
+            storage.advantages.flatten(0, 1), tuple(p.flatten(0, 1) for p in storage.distribution_params))
+
+
 def mini_batch_size(storage: RolloutStorage, num_mini_batches: int, group_size: int = 1) -> int:
     """Samples per mini-batch: whole groups of `group_size` rows, as many as fit `num_mini_batches` times."""
     groups = storage.num_envs * storage.num_transitions_per_env // group_size
@@ -92,14 +100,8 @@ class GroupedRolloutStorage(RolloutStorage):
 
     def mini_batch_generator(self, num_mini_batches: int, num_epochs: int = 8) -> Generator:
         indices, mini_batch_size = mini_batch_indices(self, num_mini_batches, self.group_size)
-
-        observations = self.observations.flatten(0, 1)
-        actions = self.actions.flatten(0, 1)
-        values = self.values.flatten(0, 1)
-        returns = self.returns.flatten(0, 1)
-        old_actions_log_prob = self.actions_log_prob.flatten(0, 1)
-        advantages = self.advantages.flatten(0, 1)
-        old_distribution_params = tuple(p.flatten(0, 1) for p in self.distribution_params)
+        (observations, actions, values, returns, old_actions_log_prob, advantages,
+         old_distribution_params) = flat_samples(self)
 
         for _ in range(num_epochs):
             for i in range(num_mini_batches):
@@ -181,14 +183,8 @@ class AquariumPPO(PPO):
         The adaptive schedule works too, with one host sync per mini-batch (as in rsl-rl)."""
         if self.actor.is_recurrent or self.critic.is_recurrent or self.rnd or self.symmetry:
             raise ValueError("update_on_device serves feed-forward models without RND or symmetry")
-        st = self.storage
-        observations = st.observations.flatten(0, 1)
-        actions = st.actions.flatten(0, 1)
-        values = st.values.flatten(0, 1)
-        returns = st.returns.flatten(0, 1)
-        old_actions_log_prob = st.actions_log_prob.flatten(0, 1)
-        advantages = st.advantages.flatten(0, 1)
-        old_distribution_params = tuple(p.flatten(0, 1) for p in st.distribution_params)
+        (observations, actions, values, returns, old_actions_log_prob, advantages,
+         old_distribution_params) = flat_samples(self.storage)
         losses = torch.zeros(3, dtype=torch.float64, device=self.device)
         for _ in range(self.num_learning_epochs):
             for i in range(self.num_mini_batches):
