@@ -69,11 +69,12 @@ def _rows(path):
         return list(csv.DictReader(f))
 
 
-def test_device_episode_statistics_equal_rsl_rl_logger(tmp_path):
+@pytest.mark.parametrize("metrics_every", [10, 0], ids=["swarm metrics", "no swarm metrics"])
+def test_device_episode_statistics_equal_rsl_rl_logger(tmp_path, metrics_every):
     """captures, rewards and lengths of the ended world episodes, logged per iteration: the fast loop's
     device sums against rsl-rl's logger averaging the adapter's per-step `extras["log"]`. Short episodes
     (max_steps 40) so that several iterations log episodes, some with partial first episodes."""
-    changes = {"env": {"max_steps": 40}, "train": {"iterations": 6}}
+    changes = {"env": {"max_steps": 40}, "train": {"iterations": 6, "metrics_every": metrics_every}}
     _train("rsl-rl", log_dir=str(tmp_path / "ref"), **changes)
     _train("fast", log_dir=str(tmp_path / "fast"), **changes)
     ref, fast = _rows(tmp_path / "ref" / "progress.csv"), _rows(tmp_path / "fast" / "progress.csv")
@@ -90,6 +91,13 @@ def test_device_episode_statistics_equal_rsl_rl_logger(tmp_path):
         for field in ("value_loss", "surrogate_loss", "entropy"):  # float32 sums vs rsl-rl's float64 .item()
             assert float(b[field]) == pytest.approx(float(a[field]), rel=1e-5, abs=1e-7), field
     assert logged >= 10  # the comparison saw real episodes
+    with open(tmp_path / "fast" / "progress.csv", encoding="utf-8") as f:
+        header = f.readline()
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    tags = EventAccumulator(str(tmp_path / "fast")).Reload().Tags()["scalars"]
+    assert any(t.startswith("Swarm/") for t in tags) == (metrics_every > 0), tags
+    assert "captures_per_prey" in header
 
 
 @pytest.mark.skipif(not os.environ.get("AQUARIUM_TEST_DEVICE", "").startswith("cuda"),

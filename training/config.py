@@ -50,6 +50,7 @@ TRAIN_DEFAULTS = {
     "quiet": False,                 # tqdm progress bar instead of the per-iteration line
     "loop": "fast",                 # "fast": training/loop.py (no host syncs; CUDA graphs); "rsl-rl": its runner's loop
     "cuda_graphs": True,            # the fast loop replays CUDA graphs on CUDA devices where the model allows
+    "metrics_every": 10,            # swarm metrics (Swarm/* in the log) sampled every N steps; 0: none
     "tf32": False,                  # CUDA matrix products in TF32 (faster for large batches, ~1e-3 relative error)
 }
 LOOPS = ("fast", "rsl-rl")
@@ -213,6 +214,8 @@ def validate(config: dict) -> None:
         raise ValueError(f"train.critic_lr={train['critic_lr']!r} must be None or a finite number > 0")
     if train["loop"] not in LOOPS:
         raise ValueError(f"train.loop={train['loop']!r} must be one of {LOOPS}")
+    if not _is_int(train["metrics_every"]) or not 0 <= train["metrics_every"] <= 2**31 - 1:
+        raise ValueError(f"train.metrics_every={train['metrics_every']!r} must be an integer in [0, 2**31 - 1] (0: no swarm metrics)")
     if not isinstance(train["tf32"], bool):
         raise ValueError(f"train.tf32={train['tf32']!r} must be true or false")
     if not isinstance(train["cuda_graphs"], bool):

@@ -50,8 +50,9 @@ from ..env import TYPES, BatchedAquarium
 from ..metrics import EPISODE_METRICS, EpisodeMetrics
 
 OTHER = {"prey": "predator", "predator": "prey"}
-EPISODE_KEYS = ["Episode/captures", "Episode/captures_per_prey", "Episode/reward_per_agent",
-                "Episode/opponent_reward_per_agent", "Episode/length"]
+# The device-side sums' columns (`accumulate_episode_stats`); captures per prey is derived on the host.
+EPISODE_KEYS = ["Episode/captures", "Episode/reward_per_agent", "Episode/opponent_reward_per_agent",
+                "Episode/length"]
 
 
 class TrainedOpponent:
@@ -270,27 +271,27 @@ class AquariumVecEnv(VecEnv):
     def accumulate_episode_stats(self) -> None:
         """Device-side counterpart of the `extras["log"]` statistics (no host sync): adds the world
         episodes that ended in the last step (those that started at step 0) and the rows' ended lives
-        to running sums, which `episode_stats_snapshot()` takes and clears."""
+        to running sums, which `episode_stats_snapshot()` takes and clears. Few kernels: it runs in
+        every step's graph, though episodes end rarely. Sums are of the raw per-world values; the
+        divisions by team sizes happen in `decode_episode_stats`."""
         ended = self._episode_ended
-        report = ended & self._full
+        report = (ended & self._full).to(torch.float64)  # [W]
         self._full |= ended
-        prey_count = self.team_count if self.team == "prey" else self.other_count
-        captures = self._ended_captures.to(torch.float64)
-        columns = [captures, captures / prey_count, self._ended_return.to(torch.float64) / self.team_count,
-                   self._ended_return_other.to(torch.float64) / self.other_count,
-                   self._ended_length.to(torch.float64)]
-        values = torch.stack(columns, dim=1)
-        if self.swarm is not None:
-            values = torch.cat([values, self.swarm.ended_values], dim=1)
-        counted = report.unsqueeze(1) & ~torch.isnan(values)  # a swarm value is NaN without samples
-        self._stat_sum += torch.where(counted, values, 0.0).sum(dim=0)
-        self._stat_count += counted.sum(dim=0)
+        values = torch.stack([self._ended_captures.to(torch.float32), self._ended_return,
+                              self._ended_return_other, self._ended_length.to(torch.float32)], dim=1)
+        k = values.shape[1]
+        self._stat_sum[:k] += report @ values.to(torch.float64)
+        self._stat_count[:k] += report.sum()
+        if self.swarm is not None:  # a swarm value is NaN where its episode had no valid sample
+            swarm = self.swarm.ended_values  # [W, M] float64, NaN outside ended worlds
+            counted = report.unsqueeze(1) * (~torch.isnan(swarm))
+            self._stat_sum[k:] += torch.nansum(swarm * counted, dim=0)
+            self._stat_count[k:] += counted.sum(dim=0)
         # Row episodes, as rsl-rl's logger counts them (its "Mean reward"): reward sums up to a done.
         self._row_return += self._rewards
-        done = self._dones.bool()
-        self._row_stats[0] += torch.where(done, self._row_return, 0.0).sum(dtype=torch.float64)
-        self._row_stats[1] += done.sum()
-        self._row_return.masked_fill_(done, 0.0)
+        done = self._dones.to(torch.float32)
+        self._row_stats += torch.stack([(self._row_return * done).sum(dtype=torch.float64), done.sum(dtype=torch.float64)])
+        self._row_return *= 1.0 - done
 
     def episode_stats_snapshot(self) -> torch.Tensor:
         """The running sums of `accumulate_episode_stats` as one new device tensor (for
@@ -308,6 +309,11 @@ class AquariumVecEnv(VecEnv):
         k = len(self._stat_names)
         sums, counts, (row_total, row_count) = values[:k], values[k:2 * k], values[2 * k:]
         means = {name: s / c for name, s, c in zip(self._stat_names, sums, counts) if c > 0}
+        prey_count = self.team_count if self.team == "prey" else self.other_count
+        if "Episode/captures" in means:  # per-world sums -> the logged per-agent values
+            means["Episode/captures_per_prey"] = means["Episode/captures"] / prey_count
+            means["Episode/reward_per_agent"] /= self.team_count
+            means["Episode/opponent_reward_per_agent"] /= self.other_count
         return means, int(counts[0]), (row_total / row_count if row_count else float("nan"))
 
     def _episode_log(self) -> dict | None:
