@@ -251,7 +251,7 @@ def test_gymnasium_async_vector_env_runs_pickled_copies():
         asyn.close()
 
 
-def test_stable_baselines3_ppo_trains_on_the_supersuit_env():
+def test_stable_baselines3_ppo_trains_on_the_supersuit_env(tmp_path):
     ss = supersuit()
     sb3 = pytest.importorskip("stable_baselines3", reason="needs the interop extra: pip install -e '.[interop]'")
     vec = ss.concat_vec_envs_v1(
@@ -263,6 +263,7 @@ def test_stable_baselines3_ppo_trains_on_the_supersuit_env():
         sb3.common.utils.set_random_seed(0)
         vec.venv.reset(seed=0)
         model = sb3.PPO("MlpPolicy", vec, n_steps=32, batch_size=112, n_epochs=2, device="cpu")
+        model.set_logger(sb3.common.logger.configure(str(tmp_path), []))  # not a folder in /tmp per run
         before = [p.detach().clone() for p in model.policy.parameters()]
         model.learn(total_timesteps=2 * 32 * vec.num_envs)
         assert model.num_timesteps == 2 * 32 * vec.num_envs
