@@ -44,10 +44,14 @@ def main(argv=None) -> int:
     p.add_argument("--iterations", type=int, default=10, help="BenchMARL iterations")
     p.add_argument("--prey", type=int, default=16, help="prey per world")
     p.add_argument("--predators", type=int, default=2, help="predators per world")
+    p.add_argument("--epochs", type=int, default=5,
+                   help="passes over each iteration's frames (BenchMARL's on_policy_n_minibatch_iters; its default "
+                        "45 with 400-frame mini-batches makes 28,800 optimizer steps per 128,000 frames)")
+    p.add_argument("--minibatch-size", type=int, default=4096, help="frames per mini-batch")
     p.add_argument("--seed", type=int, default=0, help="experiment seed")
     p.add_argument("--out-dir", default=".", help="where the JSON (and plot) go")
     args = p.parse_args(argv)
-    for name in ("worlds", "max_steps", "iterations", "prey", "predators"):
+    for name in ("worlds", "max_steps", "iterations", "prey", "predators", "epochs", "minibatch_size"):
         if getattr(args, name) < 1:
             p.error(f"--{name.replace('_', '-')} must be >= 1")
 
@@ -64,6 +68,8 @@ def main(argv=None) -> int:
     config.sampling_device = config.train_device = config.buffer_device = args.device
     config.on_policy_n_envs_per_worker = args.worlds
     config.on_policy_collected_frames_per_batch = args.worlds * args.max_steps
+    config.on_policy_n_minibatch_iters = args.epochs
+    config.on_policy_minibatch_size = min(args.minibatch_size, args.worlds * args.max_steps)
     config.max_n_iters = args.iterations
     config.evaluation = False
     config.loggers = ["csv"]
