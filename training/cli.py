@@ -12,6 +12,7 @@ import importlib.util
 import os
 import time
 
+from ..cli import _int_at_least
 from .config import ALGORITHM_RANGES
 
 PRESET_NAMES = ("default", "paper", "tiny")
@@ -48,16 +49,6 @@ def _algorithm(name: str):
     return _number(*ALGORITHM_RANGES[name])
 
 
-def _integer(minimum: int):
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"invalid value {text!r}: must be an integer >= {minimum}") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"invalid value {text!r}: must be an integer >= {minimum}")
-        return value
-    return parse
 
 
 # --------------------------------------------------------------------------------------------- train
@@ -76,10 +67,10 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
                    help="prey when training predators: 'random' (default), 'turnaway' or a policy file")
     g.add_argument("--sharing", choices=("parameter", "individual"), default=None,
                    help="Parameter Sharing (one network, default) or Individual Learning (one per slot)")
-    g.add_argument("--num-worlds", type=_integer(1), default=None, help="worlds stepped in parallel (default 1024)")
+    g.add_argument("--num-worlds", type=_int_at_least(1), default=None, help="worlds stepped in parallel (default 1024)")
     g.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
-    g.add_argument("--seed", type=_integer(0), default=None, help="seed of the worlds and the networks")
-    g.add_argument("--iterations", type=_integer(0), default=None, help="total PPO iterations of the run")
+    g.add_argument("--seed", type=_int_at_least(0), default=None, help="seed of the worlds and the networks")
+    g.add_argument("--iterations", type=_int_at_least(0), default=None, help="total PPO iterations of the run")
     g.add_argument("--episodes", type=POSITIVE, default=None,
                    help="total world episodes instead of --iterations (the paper: 4000)")
     g.add_argument("--log-dir", default=None, help="run directory (default: runs/<team>_<sharing>_<time>)")
@@ -97,8 +88,8 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     e.add_argument("--width", type=float, default=None, help="world width, px")
     e.add_argument("--height", type=float, default=None, help="world height, px")
     a = p.add_argument_group("PPO")
-    a.add_argument("--num-steps-per-env", type=_integer(1), default=None, help="rollout length per iteration")
-    a.add_argument("--save-interval", type=_integer(1), default=None, help="checkpoint every N iterations")
+    a.add_argument("--num-steps-per-env", type=_int_at_least(1), default=None, help="rollout length per iteration")
+    a.add_argument("--save-interval", type=_int_at_least(1), default=None, help="checkpoint every N iterations")
     a.add_argument("--learning-rate", "--actor-lr", dest="actor_lr", type=POSITIVE, default=None,
                    help="actor learning rate (rsl-rl's learning_rate)")
     a.add_argument("--critic-lr", type=POSITIVE, default=None,
@@ -109,8 +100,8 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     a.add_argument("--entropy", type=_algorithm("entropy_coef"), default=None, help="entropy coefficient, >= 0")
     a.add_argument("--value-loss-coef", type=_algorithm("value_loss_coef"), default=None,
                    help="weight of the value loss")
-    a.add_argument("--epochs", type=_integer(1), default=None, help="learning epochs per iteration")
-    a.add_argument("--minibatches", type=_integer(1), default=None, help="mini-batches per epoch")
+    a.add_argument("--epochs", type=_int_at_least(1), default=None, help="learning epochs per iteration")
+    a.add_argument("--minibatches", type=_int_at_least(1), default=None, help="mini-batches per epoch")
     a.add_argument("--max-grad-norm", type=_algorithm("max_grad_norm"), default=None, help="gradient norm clip")
     a.add_argument("--schedule", choices=("fixed", "adaptive"), default=None,
                    help="learning rate: fixed, or adapted to keep the KL near --desired-kl")
