@@ -157,13 +157,11 @@ class TrainingLoop:
             stream = self._capture_stream
             stream.wait_stream(torch.cuda.current_stream(self.device))
             with torch.cuda.stream(stream):
-                result = self._eager_iteration()
+                result = self._run(self._record())
             torch.cuda.current_stream(self.device).wait_stream(stream)
             self._warm = True
             return result
-        if self._learn_graph is not None:
-            return self._graph_iteration()
-        return self._eager_iteration()
+        return self._run(self._record())
 
     def _record(self) -> IterationRecord:
         self._record_index ^= 1
@@ -173,45 +171,39 @@ class TrainingLoop:
         record.finish(torch.cat([losses, self.env.episode_stats_snapshot()]))
         return record
 
-    def _eager_iteration(self):
-        record = self._record()
+    def _run(self, record: IterationRecord, mark=lambda phase: None) -> IterationRecord:
+        """One rollout and update, eagerly or by replaying the captured graphs; `mark(phase)` is called
+        after each stage ("policy", "env", "storage", "update") for `phase_times`."""
+        graphs = self._learn_graph is not None
         record.mark(0)
         with torch.inference_mode():
-            for _ in range(self.num_steps):
-                self._act()
+            for t in range(self.num_steps):
+                self._act_graphs[t].replay() if graphs else self._act()
+                mark("policy")
                 self.env.step_simulation()
-                self._after_step()
+                mark("env")
+                self._after_graphs[t].replay() if graphs else self._after_step()
                 self._advance_metrics()
+                mark("storage")
         record.mark(1)
         indices, size = self._draw_indices()
-        losses = self._learn(indices, size)
+        if graphs:
+            self._indices.copy_(indices)
+            self._learn_graph.replay()
+            losses = self._losses
+        else:
+            losses = self._learn(indices, size)
         self._finish_update()
+        mark("update")
         return self._finish(record, losses)
-
-    def _graph_iteration(self):
-        record = self._record()
-        record.mark(0)
-        for t in range(self.num_steps):
-            self._act_graphs[t].replay()
-            self.env.step_simulation()
-            self._after_graphs[t].replay()
-            self._advance_metrics()
-        record.mark(1)
-        indices, _ = self.alg.mini_batch_indices()
-        self._indices.copy_(indices)
-        self._learn_graph.replay()
-        self.alg.finish_update()
-        return self._finish(record, self._losses)
 
     def phase_times(self) -> dict[str, float]:
         """One more iteration (it trains like any other), timed stage by stage: seconds spent in the
         policy (`act`), the env (other team + simulation), the storage (`after`: outcomes, storage
         writes, statistics) and the update (returns + mini-batches). For the benchmark: on CUDA the
         stages are bracketed by events, which adds no synchronisation."""
-        if self.graphs and self._learn_graph is None:
-            self.iteration()  # warm-up or capture first
-            if self._learn_graph is None:
-                self.iteration()
+        while self.graphs and self._learn_graph is None:
+            self.iteration()  # warm-up, then capture
         cuda = self.device.type == "cuda"
         marks: list = []
 
@@ -223,25 +215,8 @@ class TrainingLoop:
             else:
                 marks.append((phase, time.perf_counter()))
 
-        graphs = self._learn_graph is not None
         mark("start")
-        with torch.inference_mode():
-            for t in range(self.num_steps):
-                self._act_graphs[t].replay() if graphs else self._act()
-                mark("policy")
-                self.env.step_simulation()
-                mark("env")
-                self._after_graphs[t].replay() if graphs else self._after_step()
-                self._advance_metrics()
-                mark("storage")
-        indices, size = self._draw_indices()
-        if graphs:
-            self._indices.copy_(indices)
-            self._learn_graph.replay()
-        else:
-            self._learn(indices, size)
-        self._finish_update()
-        mark("update")
+        self._run(self._record(), mark)
         if cuda:
             marks[-1][1].synchronize()
         times = dict.fromkeys(("policy", "env", "storage", "update"), 0.0)
