@@ -71,6 +71,7 @@ def main(argv=None) -> int:
     config.on_policy_n_minibatch_iters = args.epochs
     config.on_policy_minibatch_size = min(args.minibatch_size, args.worlds * args.max_steps)
     config.max_n_iters = args.iterations
+    config.max_n_frames = args.iterations * config.on_policy_collected_frames_per_batch  # default 3e6 stops early
     config.evaluation = False
     config.loggers = ["csv"]
     config.checkpoint_at_end = False
@@ -84,7 +85,6 @@ def main(argv=None) -> int:
     curves = reward_curves(config.save_folder)
 
     import torch
-    from importlib.metadata import version
 
     dev = torch.device(args.device)
     result = {
@@ -92,7 +92,7 @@ def main(argv=None) -> int:
         "settings": vars(args), "frames": experiment.total_frames, "iterations": experiment.n_iters_performed,
         "wall_seconds": wall, "frames_per_second": experiment.total_frames / wall,
         "device_name": torch.cuda.get_device_name(dev) if dev.type == "cuda" else platform.processor() or platform.machine(),
-        "versions": {name: version(name) for name in ("torch", "torchrl", "tensordict", "benchmarl", "warp-lang")},
+        "versions": {name: _version(name) for name in ("torch", "torchrl", "tensordict", "benchmarl", "warp-lang")},
         "curves": curves,
     }
     out = Path(args.out_dir)
@@ -110,6 +110,18 @@ def main(argv=None) -> int:
     return 0
 
 
+def _version(distribution: str) -> str:
+    """The installed version; the module's `__version__` where the package was copied in without metadata
+    (warp on the lent GPU machines)."""
+    from importlib import import_module
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(distribution)
+    except PackageNotFoundError:
+        return getattr(import_module(distribution.split("-")[0]), "__version__", "unknown")
+
+
 def plot(result: dict, path: Path) -> None:
     import matplotlib
 
@@ -122,7 +134,8 @@ def plot(result: dict, path: Path) -> None:
     s = result["settings"]
     ax.set_xlabel("BenchMARL iteration")
     ax.set_ylabel("mean episode reward per agent")
-    ax.set_title(f"MAPPO on aquarium/predator_prey: {s['worlds']} worlds, {s['prey']} prey, {s['predators']} predators")
+    ax.set_title(f"BenchMARL MAPPO on aquarium/predator_prey\n{s['worlds']} worlds, {s['prey']} prey, "
+                 f"{s['predators']} predators, {result['device_name']}", fontsize=10)
     ax.grid(True, alpha=0.3)
     ax.legend()
     fig.tight_layout()
