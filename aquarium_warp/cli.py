@@ -159,7 +159,8 @@ def _add_eval(sub) -> None:
 
 def _study_swarm_size(args) -> int:
     """`aquarium-warp study swarm-size`: captures, polarization and groups vs the number of prey."""
-    from .study import SwarmSizeStudy, parse_list, parse_world_size, replot_study, run_swarm_size_study
+    from .number_lists import parse_list
+    from .study import SwarmSizeStudy, parse_world_size, replot_study, run_swarm_size_study
 
     if args.replot:
         summary = replot_study(args.out, device=args.device)
@@ -186,7 +187,7 @@ def _study_swarm_size(args) -> int:
 
 
 def _add_study(sub) -> None:
-    """`aquarium-warp study swarm-size` (code in `aquarium_warp/study.py`)."""
+    """`aquarium-warp study swarm-size` (code in `aquarium_warp/study.py`, figures in `study_plots.py`)."""
     study = sub.add_parser("study", help="parameter studies of collective behaviour (swarm-size)")
     kinds = study.add_subparsers(dest="study", required=True)
     p = kinds.add_parser("swarm-size", help="captures per prey (dilution), polarization and groups vs prey count",
@@ -228,7 +229,7 @@ def _add_study(sub) -> None:
 
 
 def _add_bench(sub) -> None:
-    """`aquarium-warp bench`: the scaling benchmark suite (code in `aquarium_warp/bench.py`)."""
+    """`aquarium-warp bench`: the scaling benchmark suite (code in `aquarium_warp/bench/`)."""
     from .bench import add_arguments, run_from_args
 
     bench = sub.add_parser("bench", help="scaling benchmark: agent-steps/s, stage times, memory and bandwidth vs "

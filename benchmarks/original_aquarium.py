@@ -41,6 +41,7 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))  # aquarium_warp without an install
 CHILD_SCRIPT = HERE / "_original_aquarium_child.py"
 RESULT_MARKER = "ORIGINAL_AQUARIUM_RESULT_JSON:"  # must match the child script
 DEFAULT_VENV = Path(os.path.expanduser("~/.cache/aquarium-warp/original-venv"))
@@ -309,6 +310,8 @@ def measure_original(
 
 
 def _machine_info() -> dict:
+    from aquarium_warp.bench.machine import cpu_model
+
     info = {
         "platform": platform.platform(),
         "processor": platform.processor() or platform.machine(),
@@ -319,14 +322,9 @@ def _machine_info() -> dict:
         info["loadavg_1_5_15"] = list(os.getloadavg())
     except OSError:
         pass
-    try:
-        with open("/proc/cpuinfo") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    info["cpu_model"] = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
+    model = cpu_model()
+    if model is not None:
+        info["cpu_model"] = model
     return info
 
 

@@ -14,6 +14,7 @@ from aquarium_warp import bench
 from aquarium_warp.bench import BenchSettings, parse_counts, run_bench, step_byte_model
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
 
 
 def tiny(tmp_path, **changes) -> BenchSettings:
@@ -277,7 +278,7 @@ def test_cli_bench(tmp_path):
 
 
 def test_vmas_peer_harness():
-    sys.path.insert(0, str(bench.BENCHMARKS))
+    sys.path.insert(0, str(BENCHMARKS))
     import vmas_peer
 
     assert vmas_peer.split_agents(17) == (16, 1)
@@ -293,7 +294,7 @@ def test_vmas_peer_harness():
 def _profile_step_module():
     import importlib.util
 
-    path = Path(__file__).resolve().parent.parent / "benchmarks" / "profile_step.py"
+    path = BENCHMARKS / "profile_step.py"
     spec = importlib.util.spec_from_file_location("profile_step", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
