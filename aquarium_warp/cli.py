@@ -65,12 +65,12 @@ def _demo(args) -> int:
         _, _, _, _, info = env.step(actions, validate=False)
         captures += info["captures"].sum()
         ended += info["episode_ended"].sum()
-    captures, ended = int(captures), int(ended)  # waits for the last step
+    captured, episodes_ended = int(captures), int(ended)  # waits for the last step
     elapsed = time.perf_counter() - start
     agent_steps = args.steps * args.worlds * cfg.capacity
     print(f"{'steps/s':>12} {'agent-steps/s':>15} {'captures':>10} {'captures/world-step':>20} {'episodes ended':>15}")
-    print(f"{args.steps / elapsed:12.1f} {agent_steps / elapsed:15.3e} {captures:10d} "
-          f"{captures / (args.steps * args.worlds):20.5f} {ended:15d}")
+    print(f"{args.steps / elapsed:12.1f} {agent_steps / elapsed:15.3e} {captured:10d} "
+          f"{captured / (args.steps * args.worlds):20.5f} {episodes_ended:15d}")
     return 0
 
 
@@ -152,7 +152,8 @@ def _add_eval(sub) -> None:
     """`aquarium-warp eval`: the paper's evaluation protocol and figures (in `training/cli.py`)."""
     from .training.cli import add_eval_arguments, run_eval
 
-    evaluate = sub.add_parser("eval", help="evaluate trained and heuristic policies (paper protocol), write CSV/JSON/figures")
+    evaluate = sub.add_parser("eval", help="evaluate trained and heuristic policies (paper protocol), "
+                                           "write CSV/JSON/figures")
     add_eval_arguments(evaluate)
     evaluate.set_defaults(run=run_eval)
 
@@ -218,7 +219,8 @@ def _add_study(sub) -> None:
     p.add_argument("--reproduction", action="store_true", help="prey reproduce (up to 2 N)")
     p.add_argument("--starvation-steps", type=int, default=None, help="predator starvation limit (default 3000)")
     p.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
-    p.add_argument("--seed", type=non_negative_int, default=0, help="seed of the batched worlds (the --seeds runs are worlds of one env)")
+    p.add_argument("--seed", type=non_negative_int, default=0,
+                   help="seed of the batched worlds (the --seeds runs are worlds of one env)")
     p.add_argument("--jobs", type=positive_int, default=None,
                    help="settings run at once in threads (default: CPU cores on the CPU, 1 on a GPU)")
     p.add_argument("--out", default="swarm_size", help="output directory")

@@ -133,7 +133,8 @@ class SwarmSizeStudy:
                                    respawn_captured_prey=self.respawn,
                                    prey=dataclasses.replace(base.prey, fov_angle=float(fov), view_distance=float(view)))
                     if self.reproduction:
-                        changes.update(prey_reproduction=True, max_prey=max(int(n), int(round(self.max_prey_factor * n))))
+                        changes.update(prey_reproduction=True,
+                                       max_prey=max(int(n), int(round(self.max_prey_factor * n))))
                     if self.starvation_steps is not None:
                         changes["predator_starvation_steps"] = self.starvation_steps
                     out.append({"prey": int(n), "fov_angle": float(fov), "view_distance": float(view),
@@ -143,7 +144,8 @@ class SwarmSizeStudy:
     @property
     def population_changes(self) -> bool:
         """Whether populations can change within an episode (then population traces are recorded)."""
-        starve = self.starvation_steps if self.starvation_steps is not None else AquariumConfig().predator_starvation_steps
+        starve = (self.starvation_steps if self.starvation_steps is not None
+                  else AquariumConfig().predator_starvation_steps)
         return (not self.respawn) or self.reproduction or starve < self.episode_steps
 
 
@@ -366,7 +368,7 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True) -> dict:
             entry["population"] = {k: [round(float(x), 4) for x in v] for k, v in r["population"].items()}
         entries.append(entry)
 
-    config = {k: v for k, v in dataclasses.asdict(study).items()}
+    config = dataclasses.asdict(study)
     config["world_size"] = list(study.world_size)
     config["linking_distance"] = results[0]["linking_distance"]
     config["jobs"] = jobs

@@ -9,7 +9,7 @@ import os
 import numpy as np
 
 
-def _curves(summary: dict) -> list[tuple[str, list[dict]]]:
+def _curves(summary: dict) -> list[tuple[str | None, list[dict]]]:
     """Results grouped into one curve per (fov angle, view distance), each sorted by prey count."""
     groups: dict[tuple, list] = {}
     for e in summary["results"]:
@@ -157,7 +157,8 @@ def plot_study(summary: dict, out: str) -> list[str]:
     contact = 2 * cfg["prey_radius"]
     ax.axvline(contact, color="k", ls=":", lw=1)
     ax.text(contact + 1, ax.get_ylim()[1] * 0.97, "hit boxes touch", fontsize=7, va="top")
-    ax.set_xlabel(f"nearest-neighbour distance (px; bins of {edges[1] - edges[0]:g} px, last bin: beyond {edges[-2]:g})")
+    ax.set_xlabel(f"nearest-neighbour distance (px; bins of {edges[1] - edges[0]:g} px, "
+                  f"last bin: beyond {edges[-2]:g})")
     ax.set_ylabel("probability density (1/px)")
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=7, frameon=False, loc="center left", bbox_to_anchor=(1.01, 0.5))

@@ -155,11 +155,6 @@ def ensure_original_venv(venv: Path | str = DEFAULT_VENV, *, verbose: bool = Tru
             "setup_s": time.perf_counter() - t0,
         }
 
-    if sys.version_info < (3, 10):
-        raise OriginalSetupError(
-            "marl-aquarium 0.1.10 needs Python >= 3.10 (it evaluates `X | None` annotations); "
-            f"this is {sys.version.split()[0]}"
-        )
     if venv.exists():
         if verbose:
             print(f"[original] existing venv at {venv} is broken/incomplete; recreating", file=sys.stderr)
@@ -384,7 +379,7 @@ def main(argv: list[str] | None = None) -> int:
     hdr = f"{'entry point':<40} {'env-steps/s':>12} {'agent-steps/s':>14} {'runs (env-steps/s)':>28} {'RSS MB':>7}"
     print(hdr)
     print("-" * len(hdr))
-    for w, r in results.items():
+    for r in results.values():
         per_run = ", ".join(f"{x['env_steps_per_s']:.1f}" for x in r["runs"])
         print(
             f"{r['entry_point']:<40} {r['env_steps_per_s']:>12.1f} {r['agent_steps_per_s']:>14.0f} "

@@ -9,8 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from aquarium_warp import AquariumConfig
-from aquarium_warp import bench
+from aquarium_warp import AquariumConfig, bench
 from aquarium_warp.bench import BenchSettings, parse_counts, run_bench, step_byte_model
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -147,7 +146,8 @@ def test_sweep_points_load_series():
     assert [(cfg.capacity, w) for s, cfg, w in one if s == "load"] == [(16, 6), (64, 2), (100, 1)]
     assert bench.load_worlds(99, 100) == 1 and bench.load_worlds(1000, 100) == 1
     # A load below every N: no load points.
-    assert not [s for s, _, _ in bench.sweep_points(BenchSettings(agents=[16], worlds=[1], load_agents=8)) if s == "load"]
+    below = bench.sweep_points(BenchSettings(agents=[16], worlds=[1], load_agents=8))
+    assert not [s for s, _, _ in below if s == "load"]
     with pytest.raises(ValueError):
         BenchSettings(agents=[16], worlds=[1], load_agents=0)
     # The command line's --load-agents (default off).

@@ -32,12 +32,13 @@ the agents and worlds series on the same device (`benchmarks/vmas_peer.py`). `aq
 can read a stored measurement of the original (`--original-json`). Ratios are reported.
 
 Output (`--out-dir`, default: the current directory): a printed table, `<out-dir>/scaling_<device>.json`
-and log-log figures `<out-dir>/scaling_<device>_throughput.png` (agent-steps/s vs agents in flight; the load series vs
-agents per world), `..._per_agent.png` (ns per agent-step, the same axes) and `..._stages.png` (share
-of each stage).
+and log-log figures `<out-dir>/scaling_<device>_throughput.png` (agent-steps/s vs agents in flight;
+the load series vs agents per world), `..._per_agent.png` (ns per agent-step, the same axes) and
+`..._stages.png` (share of each stage).
 
     aquarium-warp bench --device cuda:0 --agents 1000,4000,...,1000000 --worlds 1 --load-agents 4000000
-    python benchmarks/bench_scaling.py --device cuda:0 --agents 16,64,...,1000000 --worlds 1,16,...,65536 --vmas --original
+    python benchmarks/bench_scaling.py --device cuda:0 --agents 16,64,...,1000000 --worlds 1,16,...,65536 \
+        --vmas --original
 
 One module a job: `settings` (what a run measures), `sweeps` (configurations and their points),
 `point` (one point measured), `timing` (timers), `stages` (the step's stages, timed command by

@@ -8,6 +8,7 @@ from ..config import AquariumConfig
 F32 = I32 = 4  # float32 and int32 (Warp's `int`), bytes
 VEC2 = 8  # wp.vec2 (two float32)
 BOOL = 1
+Traffic = dict[str, float]  # {"read": bytes, "write": bytes} per agent slot
 
 
 def step_byte_model(cfg: AquariumConfig, dims: tuple[int, int] | None = None, cuda: bool = True) -> dict:
@@ -16,11 +17,12 @@ def step_byte_model(cfg: AquariumConfig, dims: tuple[int, int] | None = None, cu
     Counted: every array element that a kernel thread reads or writes for its own agent (or cell, or
     world, divided among the world's slots), once per launch. The grid stage follows the step's path
     (`grid_path`): whole-world lists (one-cell worlds, no build), rank per slot (small worlds on
-    CUDA), cell counts and their prefix sum (larger worlds on CUDA) or counting sort (the CPU). Not counted: gathers of other
-    agents' data during neighbour searches (cell ranges, neighbours' positions, speeds, slots), which
-    small worlds keep in cache (one world of 1M agents does not: Nsight Compute measures 1.5x the
-    model's total there, `benchmarks/profile_step.py`), rare events (captures, respawns, episode ends), and the
-    per-type parameter structs. A lower bound for this algorithm, not for any algorithm.
+    CUDA), cell counts and their prefix sum (larger worlds on CUDA) or counting sort (the CPU). Not
+    counted: gathers of other agents' data during neighbour searches (cell ranges, neighbours'
+    positions, speeds, slots), which small worlds keep in cache (one world of 1M agents does not:
+    Nsight Compute measures 1.5x the model's total there, `benchmarks/profile_step.py`), rare events
+    (captures, respawns, episode ends), and the per-type parameter structs. A lower bound for this
+    algorithm, not for any algorithm.
     Returns `{"stages": {stage: {"read": B, "write": B}}, "read", "write", "total"}` per agent slot,
     with `cells_per_world` and `grid_path` (the build's description).
     """
@@ -33,7 +35,7 @@ def step_byte_model(cfg: AquariumConfig, dims: tuple[int, int] | None = None, cu
     pred = P / C  # share of slots that are predators
     prey = Pc / C
     per_world = 1.0 / C
-    stages: dict[str, dict[str, float]] = {}
+    stages: dict[str, Traffic] = {}
 
     # Action copy-in (env.step): int32 action of every slot copied from the caller's tensor.
     stages["actions"] = {"read": I32, "write": I32}
@@ -48,8 +50,8 @@ def step_byte_model(cfg: AquariumConfig, dims: tuple[int, int] | None = None, cu
     # Grid build (cell lists of the final positions), once per step: captures search the cell lists
     # of the start-of-step positions, which are the last step's.
     path = grid_build(cfg, (dims_x, dims_y), cuda)
-    whole_world = path == "whole-world"
-    if whole_world:
+    build: list[Traffic]
+    if path == "whole-world":
         # One cell per world: the lists are fixed and the searches read the state itself.
         build = []
     elif path == "rank":
@@ -59,17 +61,17 @@ def step_byte_model(cfg: AquariumConfig, dims: tuple[int, int] | None = None, cu
         build = [{"read": BOOL + VEC2, "write": I32 + VEC2 + 2 * I32 * cells}]
     elif path == "count":
         # cell_count.zero_: one int32 per cell.
-        clear = {"read": 0.0, "write": I32 * cells}
+        clear: Traffic = {"read": 0.0, "write": I32 * cells}
         # compute_cell_keys: read position, alive; write the key and the arrival order (an atomic
         # read-modify-write of the cell's count).
-        keys = {"read": VEC2 + BOOL + I32, "write": I32 + I32 + I32}
+        keys: Traffic = {"read": VEC2 + BOOL + I32, "write": I32 + I32 + I32}
         # array_scan of the counts into the cell ends: read and write one int32 per cell.
-        scan = {"read": I32 * cells, "write": I32 * cells}
+        scan: Traffic = {"read": I32 * cells, "write": I32 * cells}
         # drop_into_cells: read key, arrival order and the cell's start; write the scratch entry.
-        drop = {"read": 3 * I32, "write": I32}
+        drop: Traffic = {"read": 3 * I32, "write": I32}
         # order_cells: read the scratch entry, its key, its cell's range and the cell's other scratch
         # entries (cached) and the position; write the entry and the position.
-        order = {"read": 3 * I32 + VEC2, "write": I32 + VEC2}
+        order: Traffic = {"read": 3 * I32 + VEC2, "write": I32 + VEC2}
         build = [clear, keys, scan, drop, order]
     else:
         # sort_into_cells_per_world (the CPU's counting sort): clear the counts (a pass writing cells);
@@ -84,10 +86,10 @@ def step_byte_model(cfg: AquariumConfig, dims: tuple[int, int] | None = None, cu
     stages["grid"] = {"read": sum(b["read"] for b in build), "write": sum(b["write"] for b in build)}
 
     # Captures and starvation. detect_captures, a few threads per predator (rows of its search
-    # square): read alive and position (the neighbour walk is a gather). count_capture_sharers, one thread per prey slot: read alive
-    # and captured, read-modify-write age. share_capture_rewards, one thread per predator: read alive
-    # and position, read-modify-write starvation, write reward. respawn_captured_prey, one thread per
-    # prey slot: read captured.
+    # square): read alive and position (the neighbour walk is a gather). count_capture_sharers, one
+    # thread per prey slot: read alive and captured, read-modify-write age. share_capture_rewards, one
+    # thread per predator: read alive and position, read-modify-write starvation, write reward.
+    # respawn_captured_prey, one thread per prey slot: read captured.
     stages["captures"] = {
         "read": pred * (BOOL + VEC2) + prey * (BOOL + BOOL + I32) + pred * (BOOL + VEC2 + I32) + prey * BOOL,
         "write": prey * I32 + pred * (F32 + I32),

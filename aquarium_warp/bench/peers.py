@@ -79,7 +79,8 @@ def measure_original_peer(settings: BenchSettings, harness: OriginalHarness | No
         result = harness.measure_original(seconds=settings.original_seconds, repeats=3, which="raw", warmup=1.0)
     except Exception as error:  # noqa: BLE001  (no network for the venv, a failing child, ...)
         return {"status": "skipped", "note": f"{type(error).__name__}: {str(error)[:400]}"}
-    return {"status": "ok", "agent_steps_per_s": result["agent_steps_per_s"], "env_steps_per_s": result["env_steps_per_s"],
+    return {"status": "ok", "agent_steps_per_s": result["agent_steps_per_s"],
+            "env_steps_per_s": result["env_steps_per_s"],
             "runs": [r["agent_steps_per_s"] for r in result["runs"]], "seconds": result["seconds"],
             "repeats": result["repeats"], "versions": result.get("versions"), "entry_point": result["entry_point"],
             "agents": 17, "config": "default (16 prey, 1 predator, 800 x 800 px)"}
@@ -106,8 +107,8 @@ def measure_vmas_peer(settings: BenchSettings, device: str, log: Callable[[str],
             points.append({**base, "status": "skipped", "note": "suite time budget spent"})
             continue
         if n > settings.vmas_max_agents_per_env:
-            points.append({**base, "status": "skipped",
-                           "note": f"{n} agents per env > --vmas-max-agents-per-env {settings.vmas_max_agents_per_env}"})
+            points.append({**base, "status": "skipped", "note": f"{n} agents per env > --vmas-max-agents-per-env "
+                                                                 f"{settings.vmas_max_agents_per_env}"})
             continue
         if envs > settings.vmas_max_envs or n * envs > settings.max_agents_in_flight:
             points.append({**base, "status": "skipped", "note": "over --vmas-max-envs or --max-agents-in-flight"})

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from .stages import STAGE_LABELS, STAGES
 
+
 def plot_results(result: dict, stem: str | Path) -> list[Path]:
     """Log-log figures next to the JSON: agent-steps/s and ns per agent-step vs agents in flight (one
     line per series; the load series, whose agents in flight hardly change, vs agents per world), and
@@ -28,7 +29,8 @@ def plot_results(result: dict, stem: str | Path) -> list[Path]:
               "worlds": ("aquarium-warp: W worlds x 17 agents", "tab:orange", "s")}
     load_pts = [p for p in ok if p["series"] == "load"]
     if load_pts:
-        load = (result.get("settings") or {}).get("load_agents") or round(statistics.median(p["agents"] for p in load_pts))
+        load = ((result.get("settings") or {}).get("load_agents")
+                or round(statistics.median(p["agents"] for p in load_pts)))
         series["load"] = (f"aquarium-warp: ~{load:,} agents in flight as worlds of N (x = N)", "tab:purple", "D")
     x_key = {"load": "agents_per_world"}  # the other series: agents in flight
     vmas = [v for v in result["peers"]["vmas"].get("points", []) if v.get("status") == "ok"]
@@ -81,7 +83,7 @@ def plot_results(result: dict, stem: str | Path) -> list[Path]:
         panels = ("agents", "worlds") + (("load",) if any(p["series"] == "load" for p in staged) else ())
         fig, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 4.5), sharey=True)
         names = list(STAGES) + ["heuristics"]
-        colors = plt.get_cmap("tab10").colors
+        colors = plt.get_cmap("tab10").colors  # type: ignore[attr-defined]  # a ListedColormap
         for ax, key in zip(axes, panels):
             pts = [p for p in staged if p["series"] == key]
             if not pts:

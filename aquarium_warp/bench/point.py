@@ -168,6 +168,7 @@ def _time_env(env: BatchedAquarium, pool: list[ActionSet], row: dict[str, Any], 
         heuristic_actions(env)  # records the policies' launches
         sync()
         timer = DeviceTimer(device)
-        samples = [timer(lambda: heuristic_actions(env)) for _ in range(repeats_within(settings.stage_repeats, step_time))]
+        reps = repeats_within(settings.stage_repeats, step_time)
+        samples = [timer(lambda: heuristic_actions(env)) for _ in range(reps)]
         row["heuristics_ms"] = statistics.median(samples) * 1e3
         row["heuristics_ns_per_agent"] = row["heuristics_ms"] * 1e6 / agents

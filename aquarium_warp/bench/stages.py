@@ -20,7 +20,8 @@ if TYPE_CHECKING:
 
 STAGES = ("actions", "motion", "grid", "captures", "population", "observations")
 STAGE_LABELS = {"actions": "action copy-in", "motion": "motion (steering, acceleration, contact, integration)",
-                "grid": "grid build (cell lists, once per step)", "captures": "captures (detect, resolve, share, starve)",
+                "grid": "grid build (cell lists, once per step)",
+                "captures": "captures (detect, resolve, share, starve)",
                 "population": "population, rewards, episode end", "observations": "observations",
                 "heuristics": "heuristic policies (not in the step)"}
 # Kernel name -> stage (commands of `WorldShard._step_program`).

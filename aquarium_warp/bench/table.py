@@ -5,6 +5,7 @@ from __future__ import annotations
 from .stages import STAGES
 from .summary import SERIES
 
+
 def _si(x: float | None) -> str:
     return "-" if x is None else f"{x:.3g}"
 
@@ -45,7 +46,8 @@ def format_table(result: dict) -> str:
                          *(_ns_per_agent(st.get(s), p["agents"]) for s in STAGES),
                          _ns_per_agent(p.get("heuristics_ms"), p["agents"]),
                          _si(p["memory"]["arrays_bytes"] / 2**20), p["bytes_per_agent_step"],
-                         p.get("fraction_of_copy_bandwidth", float("nan")), _si(r.get("vs_vmas")), _si(r.get("vs_original"))))
+                         p.get("fraction_of_copy_bandwidth", float("nan")), _si(r.get("vs_vmas")),
+                         _si(r.get("vs_original"))))
     bw = result["copy_bandwidth"]
     lines.append(f"copy bandwidth {bw['bytes_per_s'] / 1e9:.1f} GB/s (read + write); graph = eager/graph step time; "
                  "B/agent: byte model; BW frac: achieved / copy bandwidth")
