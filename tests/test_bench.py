@@ -76,6 +76,7 @@ def test_byte_model_counts_every_stage():
     assert 0.5 < counted["total"] / gpu["total"] < 2.0
 
 
+@pytest.mark.slow
 def test_tiny_sweep_writes_json_and_figures(tmp_path):
     result = run_bench(tiny(tmp_path, max_agents_in_flight=40))
     path = tmp_path / "scaling_cpu.json"
@@ -186,6 +187,7 @@ def test_per_agent_time_ratio_summary():
     assert bench.per_agent_time_ratio(points, "agents", 16)["agents_per_world"] == [256, 65536]
 
 
+@pytest.mark.slow
 def test_tiny_load_sweep(tmp_path):
     result = run_bench(tiny(tmp_path, agents="16,64", worlds=[1], load_agents=128, seconds=0.01, repeats=1,
                             warmup_steps=1, stage_repeats=1, heuristics=False))
@@ -223,6 +225,7 @@ def test_tiny_load_sweep(tmp_path):
         assert (tmp_path / name).read_bytes().startswith(PNG_MAGIC)
 
 
+@pytest.mark.slow
 def test_failures_and_memory_guard_skip_points(tmp_path, monkeypatch):
     import aquarium_warp.env as env_module
 
@@ -264,6 +267,7 @@ def test_stored_original_measurement(tmp_path):
     assert bench.measure_original_peer(tiny(tmp_path))["status"] == "skipped"
 
 
+@pytest.mark.slow
 def test_cli_bench(tmp_path):
     from aquarium_warp.cli import main
 
