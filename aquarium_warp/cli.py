@@ -235,9 +235,11 @@ def _add_bench(sub) -> None:
     from .bench import add_arguments, run_from_args
 
     bench = sub.add_parser("bench", help="scaling benchmark: agent-steps/s, stage times, memory and bandwidth vs "
-                                         "agents and worlds, with the original and VMAS as peers",
+                                         "agents and worlds",
                            description="Sweep agents per world and worlds; print a table and write "
-                                       "scaling_<device>.json and log-log figures into --out-dir.")
+                                       "scaling_<device>.json and log-log figures into --out-dir. The peers "
+                                       "(--original, --vmas) are measured by the source tree's "
+                                       "benchmarks/bench_scaling.py (same options).")
     add_arguments(bench)
     bench.set_defaults(run=run_from_args)
 

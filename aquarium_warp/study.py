@@ -10,7 +10,7 @@ per episode, then per seed; the spread in the figures is the standard deviation 
 
 Outputs in `out`: `swarm_size.csv` (one row per setting and seed), `swarm_size.json` (the
 configuration, the machine, timings, per-setting means/std/sem over seeds, nearest-neighbour
-distributions, population traces when populations change) and PNG figures:
+distributions, population traces when populations change) and PNG figures (`aquarium_warp.study_plots`):
 `captures_vs_size.png` (dilution), `polarization_groups_vs_size.png`, `spacing_vs_size.png`,
 `nn_distribution.png` and, with population dynamics, `population.png`.
 
