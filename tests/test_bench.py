@@ -6,6 +6,7 @@ import json
 import math
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -268,6 +269,37 @@ def test_stored_original_measurement(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.slow
+def test_peers_are_measured_by_the_harnesses_passed_in(tmp_path):
+    """The package measures no peer itself: `run_bench` calls the harnesses that
+    benchmarks/bench_scaling.py passes (here stand-ins), and refuses --vmas or --original without them
+    before measuring anything."""
+    calls = []
+
+    def measure_vmas(agents_per_env, envs, device, seconds, repeats, budget_s):
+        calls.append(("vmas", agents_per_env, envs, device))
+        return {"scenario": "simple_tag", "step_ms": 1.0, "agent_steps_per_s": 1e3 * agents_per_env * envs}
+
+    def measure_original(seconds, repeats, which, warmup):
+        calls.append(("original", which))
+        return {"agent_steps_per_s": 100.0, "env_steps_per_s": 6.0, "runs": [{"agent_steps_per_s": 100.0}],
+                "seconds": seconds, "repeats": repeats, "entry_point": "raw_env"}
+
+    vmas = SimpleNamespace(SCENARIO="simple_tag", vmas_version=lambda: "0.0", measure_vmas=measure_vmas)
+    peers = bench.Peers(original=SimpleNamespace(measure_original=measure_original), vmas=vmas)
+    settings = tiny(tmp_path, agents=[16], worlds=[1], vmas=True, original=True, plots=False, stages=False,
+                    heuristics=False)
+    result = run_bench(settings, peers)
+    assert calls == [("original", "raw"), ("vmas", 16, 1, "cpu"), ("vmas", 17, 1, "cpu")]
+    assert [p["status"] for p in result["peers"]["vmas"]["points"]] == ["ok", "ok"]
+    ours = result["points"][1]["agent_steps_per_s"]
+    assert result["points"][1]["ratios"] == {"vs_original": ours / 100.0, "vs_vmas": ours / 17e3}
+    for flag in ("vmas", "original"):
+        with pytest.raises(ValueError, match=f"bench_scaling.py --{flag}"):
+            run_bench(tiny(tmp_path / flag, **{flag: True}))
+        assert not (tmp_path / flag).exists()
+
+
 def test_cli_bench(tmp_path):
     from aquarium_warp.cli import main
 
