@@ -65,12 +65,12 @@ def _demo(args) -> int:
         _, _, _, _, info = env.step(actions, validate=False)
         captures += info["captures"].sum()
         ended += info["episode_ended"].sum()
-    captures, ended = int(captures), int(ended)  # waits for the last step
+    captured, episodes_ended = int(captures), int(ended)  # waits for the last step
     elapsed = time.perf_counter() - start
     agent_steps = args.steps * args.worlds * cfg.capacity
     print(f"{'steps/s':>12} {'agent-steps/s':>15} {'captures':>10} {'captures/world-step':>20} {'episodes ended':>15}")
-    print(f"{args.steps / elapsed:12.1f} {agent_steps / elapsed:15.3e} {captures:10d} "
-          f"{captures / (args.steps * args.worlds):20.5f} {ended:15d}")
+    print(f"{args.steps / elapsed:12.1f} {agent_steps / elapsed:15.3e} {captured:10d} "
+          f"{captured / (args.steps * args.worlds):20.5f} {episodes_ended:15d}")
     return 0
 
 
@@ -152,14 +152,16 @@ def _add_eval(sub) -> None:
     """`aquarium-warp eval`: the paper's evaluation protocol and figures (in `training/cli.py`)."""
     from .training.cli import add_eval_arguments, run_eval
 
-    evaluate = sub.add_parser("eval", help="evaluate trained and heuristic policies (paper protocol), write CSV/JSON/figures")
+    evaluate = sub.add_parser("eval", help="evaluate trained and heuristic policies (paper protocol), "
+                                           "write CSV/JSON/figures")
     add_eval_arguments(evaluate)
     evaluate.set_defaults(run=run_eval)
 
 
 def _study_swarm_size(args) -> int:
     """`aquarium-warp study swarm-size`: captures, polarization and groups vs the number of prey."""
-    from .study import SwarmSizeStudy, parse_list, parse_world_size, replot_study, run_swarm_size_study
+    from .number_lists import parse_list
+    from .study import SwarmSizeStudy, parse_world_size, replot_study, run_swarm_size_study
 
     if args.replot:
         summary = replot_study(args.out, device=args.device)
@@ -186,7 +188,7 @@ def _study_swarm_size(args) -> int:
 
 
 def _add_study(sub) -> None:
-    """`aquarium-warp study swarm-size` (code in `aquarium_warp/study.py`)."""
+    """`aquarium-warp study swarm-size` (code in `aquarium_warp/study.py`, figures in `study_plots.py`)."""
     study = sub.add_parser("study", help="parameter studies of collective behaviour (swarm-size)")
     kinds = study.add_subparsers(dest="study", required=True)
     p = kinds.add_parser("swarm-size", help="captures per prey (dilution), polarization and groups vs prey count",
@@ -217,7 +219,8 @@ def _add_study(sub) -> None:
     p.add_argument("--reproduction", action="store_true", help="prey reproduce (up to 2 N)")
     p.add_argument("--starvation-steps", type=int, default=None, help="predator starvation limit (default 3000)")
     p.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
-    p.add_argument("--seed", type=non_negative_int, default=0, help="seed of the batched worlds (the --seeds runs are worlds of one env)")
+    p.add_argument("--seed", type=non_negative_int, default=0,
+                   help="seed of the batched worlds (the --seeds runs are worlds of one env)")
     p.add_argument("--jobs", type=positive_int, default=None,
                    help="settings run at once in threads (default: CPU cores on the CPU, 1 on a GPU)")
     p.add_argument("--out", default="swarm_size", help="output directory")
@@ -228,13 +231,15 @@ def _add_study(sub) -> None:
 
 
 def _add_bench(sub) -> None:
-    """`aquarium-warp bench`: the scaling benchmark suite (code in `aquarium_warp/bench.py`)."""
+    """`aquarium-warp bench`: the scaling benchmark suite (code in `aquarium_warp/bench/`)."""
     from .bench import add_arguments, run_from_args
 
     bench = sub.add_parser("bench", help="scaling benchmark: agent-steps/s, stage times, memory and bandwidth vs "
-                                         "agents and worlds, with the original and VMAS as peers",
+                                         "agents and worlds",
                            description="Sweep agents per world and worlds; print a table and write "
-                                       "scaling_<device>.json and log-log figures into --out-dir.")
+                                       "scaling_<device>.json and log-log figures into --out-dir. The peers "
+                                       "(--original, --vmas) are measured by the source tree's "
+                                       "benchmarks/bench_scaling.py (same options).")
     add_arguments(bench)
     bench.set_defaults(run=run_from_args)
 

@@ -10,7 +10,7 @@ per episode, then per seed; the spread in the figures is the standard deviation 
 
 Outputs in `out`: `swarm_size.csv` (one row per setting and seed), `swarm_size.json` (the
 configuration, the machine, timings, per-setting means/std/sem over seeds, nearest-neighbour
-distributions, population traces when populations change) and PNG figures:
+distributions, population traces when populations change) and PNG figures (`aquarium_warp.study_plots`):
 `captures_vs_size.png` (dilution), `polarization_groups_vs_size.png`, `spacing_vs_size.png`,
 `nn_distribution.png` and, with population dynamics, `population.png`.
 
@@ -35,11 +35,14 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from .bench import machine_info
+from .bench.machine import machine_info
 from .config import AquariumConfig
 from .env import BatchedAquarium, resolve_device
 from .heuristics import POLICIES, make_policy
+from .json_records import json_safe
 from .metrics import EPISODE_METRICS, EpisodeMetrics, SwarmMetrics
+from .number_lists import parse_list as parse_list  # re-exported: the study's list options use it
+from .study_plots import plot_study
 
 # Per-seed columns of the CSV, in order.
 RESULT_METRICS = ("captures", "captures_per_prey") + EPISODE_METRICS + ("episode_length",)
@@ -47,42 +50,6 @@ POPULATION_TRACES = ("prey_alive", "predator_alive")
 # The "definitions" entry of swarm_size.json for the baselines (written by the study and by replot).
 UNIFORM_BASELINE_DEFINITION = ("the same metrics for uniformly random prey and predator positions and headings "
                                "(same arena and N; mean over snapshots of about 65k prey in all)")
-
-
-def parse_list(text: str, kind=float, name: str = "list") -> list:
-    """`"4,8,16"` -> [4, 8, 16]; an ellipsis continues the progression of the terms before it up to
-    the last term: `"4,8,...,4096"` doubles (geometric when the first terms have a constant ratio
-    above 1), `"30,60,...,180"` adds 30."""
-    parts = [p.strip() for p in str(text).split(",") if p.strip()]
-    if not parts:
-        raise ValueError(f"{name}={text!r} is empty")
-    progression = "..." in parts
-    if progression:
-        at = parts.index("...")
-        if parts.count("...") != 1 or at < 2 or at != len(parts) - 2:
-            raise ValueError(f"{name}={text!r}: write at least two terms, '...', then the last term")
-    try:
-        terms = [kind(p) for p in parts if p != "..."]
-    except ValueError:
-        raise ValueError(f"{name}={text!r} must be a comma-separated list of numbers") from None
-    if progression:
-        head, last = terms[:-1], terms[-1]
-        ratios = [b / a for a, b in zip(head[:-1], head[1:])] if all(a > 0 for a in head) else []
-        steps = [b - a for a, b in zip(head[:-1], head[1:])]
-        candidates = []
-        if ratios and ratios[0] > 1 and all(math.isclose(r, ratios[0]) for r in ratios):
-            candidates.append(lambda x: kind(x * ratios[0]))
-        if steps[0] > 0 and all(math.isclose(d, steps[0]) for d in steps):
-            candidates.append(lambda x: kind(x + steps[0]))
-        for advance in candidates:  # geometric first: "4,8,...,4096" doubles; "30,60,...,180" adds
-            values = list(head)
-            while values[-1] < last and not math.isclose(values[-1], last):
-                values.append(advance(values[-1]))
-            if math.isclose(values[-1], last):
-                return values
-        raise ValueError(f"{name}={text!r}: the terms before '...' must grow by a constant ratio or step "
-                         f"that reaches {parts[-1]}")
-    return terms
 
 
 def parse_world_size(text) -> tuple[float, float]:
@@ -166,7 +133,8 @@ class SwarmSizeStudy:
                                    respawn_captured_prey=self.respawn,
                                    prey=dataclasses.replace(base.prey, fov_angle=float(fov), view_distance=float(view)))
                     if self.reproduction:
-                        changes.update(prey_reproduction=True, max_prey=max(int(n), int(round(self.max_prey_factor * n))))
+                        changes.update(prey_reproduction=True,
+                                       max_prey=max(int(n), int(round(self.max_prey_factor * n))))
                     if self.starvation_steps is not None:
                         changes["predator_starvation_steps"] = self.starvation_steps
                     out.append({"prey": int(n), "fov_angle": float(fov), "view_distance": float(view),
@@ -176,7 +144,8 @@ class SwarmSizeStudy:
     @property
     def population_changes(self) -> bool:
         """Whether populations can change within an episode (then population traces are recorded)."""
-        starve = self.starvation_steps if self.starvation_steps is not None else AquariumConfig().predator_starvation_steps
+        starve = (self.starvation_steps if self.starvation_steps is not None
+                  else AquariumConfig().predator_starvation_steps)
         return (not self.respawn) or self.reproduction or starve < self.episode_steps
 
 
@@ -399,7 +368,7 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True) -> dict:
             entry["population"] = {k: [round(float(x), 4) for x in v] for k, v in r["population"].items()}
         entries.append(entry)
 
-    config = {k: v for k, v in dataclasses.asdict(study).items()}
+    config = dataclasses.asdict(study)
     config["world_size"] = list(study.world_size)
     config["linking_distance"] = results[0]["linking_distance"]
     config["jobs"] = jobs
@@ -427,7 +396,7 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True) -> dict:
     add_uniform_baselines(summary, study, device)
     write_csv(os.path.join(study.out, "swarm_size.csv"), rows)
     with open(os.path.join(study.out, "swarm_size.json"), "w", encoding="utf-8") as f:
-        json.dump(_clean(summary), f, indent=1)
+        json.dump(json_safe(summary), f, indent=1)
     if study.figures:
         summary["figures"] = plot_study(summary, study.out)
     return summary
@@ -454,22 +423,9 @@ def replot_study(out: str, device=None) -> dict:
         add_uniform_baselines(summary, study, resolve_device(device))
         summary["definitions"]["uniform_baseline"] = UNIFORM_BASELINE_DEFINITION
         with open(path, "w", encoding="utf-8") as f:
-            json.dump(_clean(summary), f, indent=1)
+            json.dump(json_safe(summary), f, indent=1)
     summary["figures"] = plot_study(summary, out)
     return summary
-
-
-def _clean(x):
-    """JSON-safe: NaN -> None, numpy scalars -> Python."""
-    if isinstance(x, dict):
-        return {k: _clean(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_clean(v) for v in x]
-    if isinstance(x, (np.floating, float)):
-        return None if math.isnan(float(x)) else float(x)
-    if isinstance(x, np.integer):
-        return int(x)
-    return x
 
 
 def write_csv(path: str, rows: list[dict]) -> None:
@@ -478,181 +434,3 @@ def write_csv(path: str, rows: list[dict]) -> None:
         writer.writeheader()
         for row in rows:
             writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
-
-
-# --------------------------------------------------------------------------------------------------
-# Figures
-# --------------------------------------------------------------------------------------------------
-def _curves(summary: dict) -> list[tuple[str, list[dict]]]:
-    """Results grouped into one curve per (fov angle, view distance), each sorted by prey count."""
-    groups: dict[tuple, list] = {}
-    for e in summary["results"]:
-        groups.setdefault((e["fov_angle"], e["view_distance"]), []).append(e)
-    several = len(groups) > 1
-    out = []
-    for (fov, view), entries in groups.items():
-        label = f"prey FOV {fov:g}°, view {view:g} px" if several else None
-        out.append((label, sorted(entries, key=lambda e: e["prey"])))
-    return out
-
-
-def _band(ax, entries, metric, label, color, log_y=False):
-    n = np.array([e["prey"] for e in entries], dtype=float)
-    mean = np.array([np.nan if e["metrics"][metric]["mean"] is None else e["metrics"][metric]["mean"]
-                     for e in entries], dtype=float)
-    std = np.array([0.0 if e["metrics"][metric]["std"] is None else e["metrics"][metric]["std"]
-                    for e in entries], dtype=float)
-    std = np.nan_to_num(std)
-    lo, hi = mean - std, mean + std
-    if log_y:
-        floor = np.nanmin(mean[mean > 0]) / 10 if np.any(mean > 0) else 1e-6
-        lo = np.maximum(lo, floor)
-    ax.plot(n, mean, "o-", color=color, label=label, ms=4, lw=1.5)
-    ax.fill_between(n, lo, hi, color=color, alpha=0.2, lw=0)
-    return n, mean
-
-
-def _baseline(ax, entries, metric, label="uniform random prey (same N)"):
-    """Dotted line of the uniform-random reference of `metric`, where the entries have one."""
-    if not all("uniform_baseline" in e for e in entries):
-        return
-    n = np.array([e["prey"] for e in entries], dtype=float)
-    values = np.array([np.nan if e["uniform_baseline"].get(metric) is None else e["uniform_baseline"][metric]
-                       for e in entries], dtype=float)
-    ax.plot(n, values, "k:", lw=1.2, label=label)
-
-
-def plot_study(summary: dict, out: str) -> list[str]:
-    """Draw the study's figures into `out`; returns their paths."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    cfg = summary["config"]
-    curves = _curves(summary)
-    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    policies = f"{cfg['prey_policy']} prey vs {cfg['predator_policy']}"
-    if cfg["predator_policy"].lower() == "naivchase":
-        policies += " (confusion)" if cfg["confusion"] else " (nearest)"
-    arena = (f"constant density ({cfg['reference_prey']} prey per {cfg['world_size'][0]:g}x{cfg['world_size'][1]:g})"
-             if cfg["constant_density"] else f"fixed {cfg['world_size'][0]:g}x{cfg['world_size'][1]:g} arena")
-    subtitle = (f"{policies}; {arena}; {cfg['predators']} predator(s); episodes of {cfg['episode_steps']} steps; "
-                f"mean ± std over {cfg['seeds']} seeds")
-    paths = []
-
-    def finish(fig, name, title):
-        fig.suptitle(f"{title}\n{subtitle}", fontsize=9)
-        fig.tight_layout()
-        path = os.path.join(out, name)
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        paths.append(path)
-
-    def legend(ax, extra=False):
-        if extra or any(label for label, _ in curves):
-            ax.legend(fontsize=7, frameon=False)
-
-    # 1. Dilution: captures per episode and per prey.
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-    for k, (label, entries) in enumerate(curves):
-        c = colors[k % len(colors)]
-        _band(axes[0], entries, "captures", label, c, log_y=True)
-        n, per_prey = _band(axes[1], entries, "captures_per_prey", label, c, log_y=True)
-        if k == 0 and np.isfinite(per_prey[0]) and per_prey[0] > 0:
-            axes[1].plot(n, per_prey[0] * n[0] / n, "k--", lw=1, label="∝ 1/N (constant total: pure dilution)")
-    axes[0].set_ylabel("captures per episode")
-    axes[1].set_ylabel("captures per prey per episode")
-    for ax in axes:
-        ax.set_xscale("log", base=2)
-        ax.set_yscale("log")
-        ax.set_xlabel("prey N")
-        ax.grid(True, which="both", alpha=0.3)
-    legend(axes[0])
-    legend(axes[1], extra=True)
-    finish(fig, "captures_vs_size.png", "Captures vs swarm size (dilution / many eyes)")
-
-    # 2. Polarization and groups.
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-    for k, (label, entries) in enumerate(curves):
-        c = colors[k % len(colors)]
-        n, _ = _band(axes[0], entries, "polarization", label, c)
-        _band(axes[1], entries, "groups", label, c, log_y=True)
-        if k == 0:
-            _baseline(axes[0], entries, "polarization", "random headings (same N)")
-            _baseline(axes[1], entries, "groups")
-            axes[1].plot(n, n, color="0.6", ls="--", lw=1, label="every prey alone (N)")
-    axes[0].set_ylabel("polarization |mean heading|")
-    axes[0].set_ylim(0, 1.02)
-    axes[1].set_ylabel(f"groups (links < {cfg['linking_distance']:g} px)")
-    axes[1].set_yscale("log")
-    for ax in axes:
-        ax.set_xscale("log", base=2)
-        ax.set_xlabel("prey N")
-        ax.grid(True, which="both", alpha=0.3)
-        legend(ax, extra=True)
-    finish(fig, "polarization_groups_vs_size.png", "Polarization and number of groups vs swarm size")
-
-    # 3. Spacing: nearest neighbour, cohesion, distance to the predator, largest group.
-    fig, axes = plt.subplots(2, 2, figsize=(10, 7))
-    panels = [("nn_mean", "nearest-neighbour distance (px)", True),
-              ("cohesion", "mean distance to swarm centroid (px)", False),
-              ("predator_distance", "distance to nearest predator (px)", False),
-              ("largest_group", "largest group / live prey", False)]
-    for k, (label, entries) in enumerate(curves):
-        c = colors[k % len(colors)]
-        for ax, (metric, _, log_y) in zip(axes.flat, panels):
-            n, _ = _band(ax, entries, metric, label, c, log_y=log_y)
-        if k == 0:
-            for ax, (metric, _, _) in zip(axes.flat, panels):
-                _baseline(ax, entries, metric)
-    for ax, (_, ylabel, log_y) in zip(axes.flat, panels):
-        ax.set_xscale("log", base=2)
-        if log_y:
-            ax.set_yscale("log")
-        ax.set_xlabel("prey N")
-        ax.set_ylabel(ylabel)
-        ax.grid(True, which="both", alpha=0.3)
-    for ax in axes.flat:
-        legend(ax, extra=True)
-    finish(fig, "spacing_vs_size.png", "Spacing and cohesion vs swarm size")
-
-    # 4. Nearest-neighbour distance distributions.
-    edges = np.array(summary["nn_bin_edges"])
-    centers = 0.5 * (edges[:-1] + edges[1:])
-    label0, entries0 = curves[0]
-    fig, ax = plt.subplots(figsize=(10, 4.5))
-    cmap = plt.get_cmap("viridis")
-    for k, e in enumerate(entries0):
-        dist = np.array(e["nn_distribution"], dtype=float)
-        beyond = f", {dist[-1]:.0%} beyond" if dist[-1] >= 0.005 else ""
-        ax.plot(centers[:-1], dist[:-1] / (edges[1] - edges[0]), color=cmap(k / max(1, len(entries0) - 1)),
-                lw=1.3, label=f"N={e['prey']}{beyond}")
-    contact = 2 * cfg["prey_radius"]
-    ax.axvline(contact, color="k", ls=":", lw=1)
-    ax.text(contact + 1, ax.get_ylim()[1] * 0.97, "hit boxes touch", fontsize=7, va="top")
-    ax.set_xlabel(f"nearest-neighbour distance (px; bins of {edges[1] - edges[0]:g} px, last bin: beyond {edges[-2]:g})")
-    ax.set_ylabel("probability density (1/px)")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=7, frameon=False, loc="center left", bbox_to_anchor=(1.01, 0.5))
-    finish(fig, "nn_distribution.png", "Nearest-neighbour distance distribution"
-           + (f" ({label0})" if label0 else ""))
-
-    # 5. Populations over time (only when they can change).
-    if any("population" in e for e in summary["results"]):
-        fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-        for k, e in enumerate(entries0):
-            if "population" not in e:
-                continue
-            c = cmap(k / max(1, len(entries0) - 1))
-            steps = e["population"]["step"]
-            axes[0].plot(steps, np.array(e["population"]["prey_alive"]) / e["prey"], color=c, label=f"N={e['prey']}")
-            axes[1].plot(steps, e["population"]["predator_alive"], color=c, label=f"N={e['prey']}")
-        axes[0].set_ylabel("live prey / initial prey")
-        axes[1].set_ylabel("live predators")
-        for ax in axes:
-            ax.set_xlabel("step")
-            ax.grid(True, alpha=0.3)
-        axes[0].legend(fontsize=6, frameon=False, ncol=2)
-        finish(fig, "population.png", "Populations over the episode (mean over worlds)")
-    return paths

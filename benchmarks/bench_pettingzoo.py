@@ -163,7 +163,7 @@ def breakdown(steps: int = 20000) -> dict:
     t1 = time.perf_counter()
     for _ in range(steps):
         draws = rng.random(len(agents))
-        {a: int(d * n_actions) for a, d in zip(agents, draws)}  # noqa: B018
+        {a: int(d * n_actions) for a, d in zip(agents, draws)}
     actions = time.perf_counter() - t1
     # The bare simulator step, for reference (1 world, no validation, fixed actions).
     aq = env.aquarium
@@ -232,7 +232,8 @@ def main(argv=None) -> int:
     base = original.get("raw", {}).get("env_steps_per_s")
     print(f"\nPettingZoo env, default config (16 prey + 1 predator), CPU, random actions, no rendering "
           f"({args.repeats} runs x {args.seconds:g} s, median)")
-    header = f"{'entry point':44s} {'env-steps/s':>12s} {'agent-steps/s':>14s} {'vs original raw':>16s}  runs (env-steps/s)"
+    header = (f"{'entry point':44s} {'env-steps/s':>12s} {'agent-steps/s':>14s} {'vs original raw':>16s}  "
+              "runs (env-steps/s)")
     print(header)
     print("-" * len(header))
     for name, r in rows:
@@ -262,7 +263,8 @@ def main(argv=None) -> int:
                    "original": "benchmarks/original_aquarium.measure_original (fresh process per run)",
                    "resets_included": True, "statistic": "median over runs",
                    "aec_env_step": "one underlying ParallelEnv step (a full cycle of the live agents)"},
-        "machine": machine_info("cpu"), "loadavg_before": load_before, "loadavg_after": load_after, "versions": _versions(),
+        "machine": machine_info("cpu"), "loadavg_before": load_before, "loadavg_after": load_after,
+        "versions": _versions(),
         "ours": ours, "breakdown_us_per_parallel_step": parts, "original": original or None,
         "original_error": original_error, "checks": checks,
     }

@@ -1,15 +1,19 @@
-"""Scaling benchmark of aquarium-warp: a thin wrapper of `aquarium_warp.bench` (same as `aquarium-warp bench`).
+"""The scaling benchmark with its peers: `aquarium-warp bench` (the package's suite, same options)
+plus the peers that only the source tree can measure, in the same run:
+
+* `--original`: the original marl-aquarium 0.1.10 on the CPU (`original_aquarium.py` installs it
+  from the package index into a throwaway virtual environment);
+* `--vmas`: VMAS's predator-prey scenario `simple_tag` at the agent counts of the agents and worlds
+  series, on the same device (`vmas_peer.py`; `pip install vmas`).
 
     python benchmarks/bench_scaling.py --device cuda:0 --agents 16,64,...,1000000 --worlds 1,16,...,65536 --vmas
-    python benchmarks/bench_scaling.py --device cpu --agents 16,64,...,100000 --worlds 1,16,...,4096
+    python benchmarks/bench_scaling.py --device cpu --agents 16,64,...,100000 --worlds 1,16,...,4096 --original
 
-Sweeps agents per world (one world at the default density) and worlds (17 agents each) with random
-actions and observations on; per point: agent-steps/s (median of timed runs), eager vs CUDA graph,
-time per stage, heuristics, memory, bytes per agent-step and the achieved fraction of the measured
-copy bandwidth; peers: with --original, the original marl-aquarium (CPU) and, with --vmas, VMAS
-simple_tag (benchmarks/vmas_peer.py). Writes scaling_<device>.json and
-scaling_<device>_{throughput,per_agent,stages}.png into --out-dir (default: the current directory;
-the committed results are in benchmarks/results). `--help` lists every option.
+Per point: agent-steps/s (median of timed runs), eager vs CUDA graph, time per stage, heuristics,
+memory, bytes per agent-step and the achieved fraction of the measured copy bandwidth; ratios to the
+peers. Writes scaling_<device>.json and scaling_<device>_{throughput,per_agent,stages}.png into
+--out-dir (default: the current directory; the committed results are in benchmarks/results).
+`--help` lists every option.
 """
 
 from __future__ import annotations
@@ -18,7 +22,10 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from aquarium_warp.bench import main  # noqa: E402
+import original_aquarium
+import vmas_peer
+
+from aquarium_warp.bench import Peers, main
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main(peers=Peers(original=original_aquarium, vmas=vmas_peer), prog="bench_scaling.py"))

@@ -32,8 +32,8 @@ import torch
 import warp as wp
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from aquarium_warp import AquariumConfig, BatchedAquarium  # noqa: E402
-from aquarium_warp.bench import density_config, git_info, random_actions, timed_runs  # noqa: E402
+from aquarium_warp import AquariumConfig, BatchedAquarium
+from aquarium_warp.bench import density_config, git_info, random_actions, timed_runs
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -80,7 +80,8 @@ def main(argv=None) -> int:
         parser.error(f"--repeats must be >= 1, got {args.repeats}")
 
     points = [("default", AquariumConfig(), w) for w in ((1, 64, 1024, 4096, 65536) if args.large else (1, 64, 1024))]
-    for label, make in (("density", density_config), ("density fov off", lambda n: density_config(n, fov_enabled=False)),
+    for label, make in (("density", density_config),
+                        ("density fov off", lambda n: density_config(n, fov_enabled=False)),
                         ("density fov off, unlimited view", lambda n: unlimited(density_config(n)))):
         sizes = (1_000, 10_000, 100_000) + ((1_000_000,) if args.large else ())
         points += [(label, make(n), 1) for n in sizes if n <= args.max_agents]
@@ -93,14 +94,14 @@ def main(argv=None) -> int:
 
     pettingzoo = None
     if args.device == "cpu":
-        from bench_pettingzoo import measure_ours  # noqa: E402  (same folder)
+        from bench_pettingzoo import measure_ours
         pettingzoo = measure_ours("parallel", seconds=max(2.0, args.seconds), repeats=3, warmup=1.0)
         print(f"{'aquarium_v1.parallel_env (PettingZoo)':34s} {1:6d} x {17:7d}  "
               f"{1e3 / pettingzoo['env_steps_per_s']:9.3f} ms  {pettingzoo['agent_steps_per_s']:11.3e} agent-steps/s")
 
     original = None
     if not args.no_original:
-        from original_aquarium import measure_original  # noqa: E402  (same folder)
+        from original_aquarium import measure_original
         original = measure_original(seconds=max(5.0, args.seconds * 2), repeats=3, which="raw")
         print(f"{'original marl-aquarium 0.1.10':34s} {1:6d} x {17:7d}  "
               f"{1e3 / original['env_steps_per_s']:9.3f} ms  {original['agent_steps_per_s']:11.3e} agent-steps/s")
@@ -125,9 +126,11 @@ def main(argv=None) -> int:
 
     device = wp.get_device(args.device)
     result = {
-        "device": args.device, "device_name": device.name if device.is_cuda else platform.processor() or platform.machine(),
+        "device": args.device,
+        "device_name": device.name if device.is_cuda else platform.processor() or platform.machine(),
         "cpu_count": os.cpu_count(), "python": platform.python_version(), "warp": wp.__version__,
-        "torch": torch.__version__, "git_commit": git_info()["commit"], "seconds": args.seconds, "repeats": args.repeats,
+        "torch": torch.__version__, "git_commit": git_info()["commit"], "seconds": args.seconds,
+        "repeats": args.repeats,
         "rows": rows, "pettingzoo_parallel_env": pettingzoo, "original": original, "checks": checks,
     }
     out = Path(args.out) if args.out else RESULTS / f"step_{args.device.replace(':', '')}.json"

@@ -27,11 +27,11 @@ from pathlib import Path
 
 os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
 
-import torch  # noqa: E402
+import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from aquarium_warp.bench import git_info  # noqa: E402
-from aquarium_warp.training import Trainer, make_config  # noqa: E402
+from aquarium_warp.bench import git_info, parse_counts
+from aquarium_warp.training import Trainer, make_config
 
 
 def sync(device: torch.device) -> None:
@@ -109,7 +109,8 @@ def main(argv=None) -> int:
         return run_point(argv[1])
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--device", default="cuda:0" if torch.cuda.is_available() else "cpu")
-    p.add_argument("--worlds", default="256,1024,4096,16384,65536", help="comma-separated world counts")
+    p.add_argument("--worlds", default="256,1024,4096,16384,65536",
+                   help="world counts, a comma list; '...' continues the progression")
     p.add_argument("--sharing", default="parameter,individual", help="parameter and/or individual")
     p.add_argument("--loops", default="fast,rsl-rl", help="fast and/or rsl-rl")
     p.add_argument("--variants", default="default",
@@ -125,11 +126,9 @@ def main(argv=None) -> int:
     p.add_argument("--plot", action="store_true", help="also write a PNG plot")
     args = p.parse_args(argv)
     try:
-        worlds = [int(w) for w in args.worlds.split(",") if w]
-    except ValueError:
-        p.error(f"--worlds {args.worlds!r}: expected comma-separated integers")
-    if not worlds or min(worlds) < 1:
-        p.error("--worlds: expected positive integers")
+        worlds = parse_counts(args.worlds, "--worlds")
+    except ValueError as error:
+        p.error(str(error))
     for name, value in (("--warmup", args.warmup), ("--iterations", args.iterations)):
         if value < (0 if name == "--warmup" else 1):
             p.error(f"{name} must be >= {0 if name == '--warmup' else 1}")
@@ -153,7 +152,7 @@ def main(argv=None) -> int:
             for loop, variant in runs:
                 try:
                     pt = measure_in_subprocess(args, w, sharing, loop, variant)
-                except Exception as error:  # a point that does not run here is reported, not fatal
+                except Exception as error:  # noqa: BLE001  (a point that does not run here is reported, not fatal)
                     print(f"{w:>7} {'':>8} {sharing:>10} {loop:>7} {variant:>12} failed: {error!r}"[:400])
                     points.append({"worlds": w, "sharing": sharing, "loop": loop, "variant": variant,
                                    "error": repr(error)[:2000]})
@@ -173,14 +172,16 @@ def main(argv=None) -> int:
     for s in speedups:
         print(f"speed-up fast / rsl-rl loop: {s['worlds']:>6} worlds {s['sharing']:>10}: {s['speedup']:.1f}x")
 
-    import warp as wp
     from importlib.metadata import version
+
+    import warp as wp
 
     dev = torch.device(args.device)
     result = {
         "benchmark": "bench_training", "task": "paper preset (6 prey vs NaivChase, 2x64 tanh, T=32, 5x4)",
         "device": args.device,
-        "device_name": torch.cuda.get_device_name(dev) if dev.type == "cuda" else platform.processor() or platform.machine(),
+        "device_name": (torch.cuda.get_device_name(dev) if dev.type == "cuda"
+                        else platform.processor() or platform.machine()),
         "cpu_count": os.cpu_count(), "python": platform.python_version(), "torch": torch.__version__,
         "warp": wp.__version__, "rsl_rl": version("rsl-rl-lib"), "git": git_info(args.commit),
         "command": " ".join([Path(sys.argv[0]).name] + argv),

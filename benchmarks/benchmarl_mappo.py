@@ -91,7 +91,8 @@ def main(argv=None) -> int:
         "benchmark": "benchmarl_mappo", "task": "aquarium/predator_prey", "algorithm": "MAPPO (BenchMARL defaults)",
         "settings": vars(args), "frames": experiment.total_frames, "iterations": experiment.n_iters_performed,
         "wall_seconds": wall, "frames_per_second": experiment.total_frames / wall,
-        "device_name": torch.cuda.get_device_name(dev) if dev.type == "cuda" else platform.processor() or platform.machine(),
+        "device_name": (torch.cuda.get_device_name(dev) if dev.type == "cuda"
+                        else platform.processor() or platform.machine()),
         "versions": {name: _version(name) for name in ("torch", "torchrl", "tensordict", "benchmarl", "warp-lang")},
         "curves": curves,
     }

@@ -41,6 +41,7 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))  # aquarium_warp without an install
 CHILD_SCRIPT = HERE / "_original_aquarium_child.py"
 RESULT_MARKER = "ORIGINAL_AQUARIUM_RESULT_JSON:"  # must match the child script
 DEFAULT_VENV = Path(os.path.expanduser("~/.cache/aquarium-warp/original-venv"))
@@ -154,11 +155,6 @@ def ensure_original_venv(venv: Path | str = DEFAULT_VENV, *, verbose: bool = Tru
             "setup_s": time.perf_counter() - t0,
         }
 
-    if sys.version_info < (3, 10):
-        raise OriginalSetupError(
-            "marl-aquarium 0.1.10 needs Python >= 3.10 (it evaluates `X | None` annotations); "
-            f"this is {sys.version.split()[0]}"
-        )
     if venv.exists():
         if verbose:
             print(f"[original] existing venv at {venv} is broken/incomplete; recreating", file=sys.stderr)
@@ -309,6 +305,8 @@ def measure_original(
 
 
 def _machine_info() -> dict:
+    from aquarium_warp.bench.machine import cpu_model
+
     info = {
         "platform": platform.platform(),
         "processor": platform.processor() or platform.machine(),
@@ -319,14 +317,9 @@ def _machine_info() -> dict:
         info["loadavg_1_5_15"] = list(os.getloadavg())
     except OSError:
         pass
-    try:
-        with open("/proc/cpuinfo") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    info["cpu_model"] = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
+    model = cpu_model()
+    if model is not None:
+        info["cpu_model"] = model
     return info
 
 
@@ -386,7 +379,7 @@ def main(argv: list[str] | None = None) -> int:
     hdr = f"{'entry point':<40} {'env-steps/s':>12} {'agent-steps/s':>14} {'runs (env-steps/s)':>28} {'RSS MB':>7}"
     print(hdr)
     print("-" * len(hdr))
-    for w, r in results.items():
+    for r in results.values():
         per_run = ", ".join(f"{x['env_steps_per_s']:.1f}" for x in r["runs"])
         print(
             f"{r['entry_point']:<40} {r['env_steps_per_s']:>12.1f} {r['agent_steps_per_s']:>14.0f} "

@@ -12,7 +12,8 @@ resets are timed.
     python benchmarks/vmas_peer.py --device cpu --agents 17 --envs 1,16,256 [--seconds 1] [--repeats 3]
 
 VMAS is not a dependency of aquarium-warp: `pip install vmas` (1.5.x) to use this. `measure_vmas`
-is what `aquarium-warp bench --vmas` calls.
+is what `python benchmarks/bench_scaling.py --vmas` calls (this module is its VMAS harness,
+`aquarium_warp.bench.VmasHarness`).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from aquarium_warp.bench import split_agents, timed_runs  # noqa: E402
+from aquarium_warp.bench import parse_counts, split_agents, timed_runs
 
 SCENARIO = "simple_tag"
 
@@ -101,14 +102,11 @@ def measure_vmas(agents_per_env: int, envs: int, device: str = "cpu", seconds: f
     }
 
 
-def _ints(text: str) -> list[int]:
-    return [int(x) for x in text.split(",") if x.strip()]
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default="cpu")
-    parser.add_argument("--agents", default="17", help="agents per environment, a comma list (default 17)")
+    parser.add_argument("--agents", default="17",
+                        help="agents per environment, a comma list; '...' continues the progression (default 17)")
     parser.add_argument("--envs", default="1", help="parallel environments, a comma list (default 1)")
     parser.add_argument("--seconds", type=float, default=1.0)
     parser.add_argument("--repeats", type=int, default=3)
@@ -117,12 +115,16 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     if args.repeats < 1:
         parser.error(f"--repeats must be >= 1, got {args.repeats}")
+    try:
+        agents, envs = parse_counts(args.agents, "--agents"), parse_counts(args.envs, "--envs")
+    except ValueError as error:
+        parser.error(str(error))
     if vmas_version() is None:
         print("vmas is not importable: pip install vmas", file=sys.stderr)
         return 2
     rows = []
-    for n in _ints(args.agents):
-        for e in _ints(args.envs):
+    for n in agents:
+        for e in envs:
             row = measure_vmas(n, e, args.device, args.seconds, args.repeats, budget_s=args.budget)
             rows.append(row)
             print(f"VMAS {SCENARIO} {e:6d} envs x {n:5d} agents on {args.device}: {row['step_ms']:10.3f} ms/step  "

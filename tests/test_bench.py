@@ -6,14 +6,15 @@ import json
 import math
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
-from aquarium_warp import AquariumConfig
-from aquarium_warp import bench
+from aquarium_warp import AquariumConfig, bench
 from aquarium_warp.bench import BenchSettings, parse_counts, run_bench, step_byte_model
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
 
 
 def tiny(tmp_path, **changes) -> BenchSettings:
@@ -76,6 +77,7 @@ def test_byte_model_counts_every_stage():
     assert 0.5 < counted["total"] / gpu["total"] < 2.0
 
 
+@pytest.mark.slow
 def test_tiny_sweep_writes_json_and_figures(tmp_path):
     result = run_bench(tiny(tmp_path, max_agents_in_flight=40))
     path = tmp_path / "scaling_cpu.json"
@@ -146,7 +148,8 @@ def test_sweep_points_load_series():
     assert [(cfg.capacity, w) for s, cfg, w in one if s == "load"] == [(16, 6), (64, 2), (100, 1)]
     assert bench.load_worlds(99, 100) == 1 and bench.load_worlds(1000, 100) == 1
     # A load below every N: no load points.
-    assert not [s for s, _, _ in bench.sweep_points(BenchSettings(agents=[16], worlds=[1], load_agents=8)) if s == "load"]
+    below = bench.sweep_points(BenchSettings(agents=[16], worlds=[1], load_agents=8))
+    assert not [s for s, _, _ in below if s == "load"]
     with pytest.raises(ValueError):
         BenchSettings(agents=[16], worlds=[1], load_agents=0)
     # The command line's --load-agents (default off).
@@ -185,6 +188,7 @@ def test_per_agent_time_ratio_summary():
     assert bench.per_agent_time_ratio(points, "agents", 16)["agents_per_world"] == [256, 65536]
 
 
+@pytest.mark.slow
 def test_tiny_load_sweep(tmp_path):
     result = run_bench(tiny(tmp_path, agents="16,64", worlds=[1], load_agents=128, seconds=0.01, repeats=1,
                             warmup_steps=1, stage_repeats=1, heuristics=False))
@@ -222,6 +226,7 @@ def test_tiny_load_sweep(tmp_path):
         assert (tmp_path / name).read_bytes().startswith(PNG_MAGIC)
 
 
+@pytest.mark.slow
 def test_failures_and_memory_guard_skip_points(tmp_path, monkeypatch):
     import aquarium_warp.env as env_module
 
@@ -263,6 +268,38 @@ def test_stored_original_measurement(tmp_path):
     assert bench.measure_original_peer(tiny(tmp_path))["status"] == "skipped"
 
 
+@pytest.mark.slow
+@pytest.mark.slow
+def test_peers_are_measured_by_the_harnesses_passed_in(tmp_path):
+    """The package measures no peer itself: `run_bench` calls the harnesses that
+    benchmarks/bench_scaling.py passes (here stand-ins), and refuses --vmas or --original without them
+    before measuring anything."""
+    calls = []
+
+    def measure_vmas(agents_per_env, envs, device, seconds, repeats, budget_s):
+        calls.append(("vmas", agents_per_env, envs, device))
+        return {"scenario": "simple_tag", "step_ms": 1.0, "agent_steps_per_s": 1e3 * agents_per_env * envs}
+
+    def measure_original(seconds, repeats, which, warmup):
+        calls.append(("original", which))
+        return {"agent_steps_per_s": 100.0, "env_steps_per_s": 6.0, "runs": [{"agent_steps_per_s": 100.0}],
+                "seconds": seconds, "repeats": repeats, "entry_point": "raw_env"}
+
+    vmas = SimpleNamespace(SCENARIO="simple_tag", vmas_version=lambda: "0.0", measure_vmas=measure_vmas)
+    peers = bench.Peers(original=SimpleNamespace(measure_original=measure_original), vmas=vmas)
+    settings = tiny(tmp_path, agents=[16], worlds=[1], vmas=True, original=True, plots=False, stages=False,
+                    heuristics=False)
+    result = run_bench(settings, peers)
+    assert calls == [("original", "raw"), ("vmas", 16, 1, "cpu"), ("vmas", 17, 1, "cpu")]
+    assert [p["status"] for p in result["peers"]["vmas"]["points"]] == ["ok", "ok"]
+    ours = result["points"][1]["agent_steps_per_s"]
+    assert result["points"][1]["ratios"] == {"vs_original": ours / 100.0, "vs_vmas": ours / 17e3}
+    for flag in ("vmas", "original"):
+        with pytest.raises(ValueError, match=f"bench_scaling.py --{flag}"):
+            run_bench(tiny(tmp_path / flag, **{flag: True}))
+        assert not (tmp_path / flag).exists()
+
+
 def test_cli_bench(tmp_path):
     from aquarium_warp.cli import main
 
@@ -277,7 +314,7 @@ def test_cli_bench(tmp_path):
 
 
 def test_vmas_peer_harness():
-    sys.path.insert(0, str(bench.BENCHMARKS))
+    sys.path.insert(0, str(BENCHMARKS))
     import vmas_peer
 
     assert vmas_peer.split_agents(17) == (16, 1)
@@ -293,7 +330,7 @@ def test_vmas_peer_harness():
 def _profile_step_module():
     import importlib.util
 
-    path = Path(__file__).resolve().parent.parent / "benchmarks" / "profile_step.py"
+    path = BENCHMARKS / "profile_step.py"
     spec = importlib.util.spec_from_file_location("profile_step", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

@@ -52,6 +52,7 @@ def test_version_matches_the_installed_distribution(capsys):
     assert capsys.readouterr().out.strip() == f"aquarium-warp {importlib.metadata.version('aquarium-warp')}"
 
 
+@pytest.mark.slow
 def test_python_m_runs_the_command_line_quietly_on_the_cpu():
     """`python -m aquarium_warp` is the CLI; on the CPU nothing is printed to stderr (the Warp
     no-driver warning included, also when the device is left to the default)."""
@@ -65,6 +66,7 @@ def test_python_m_runs_the_command_line_quietly_on_the_cpu():
     assert result.returncode == 0 and result.stdout.startswith("usage: aquarium-warp")
 
 
+@pytest.mark.slow
 def test_asking_for_cuda_without_a_driver_says_why():
     probe = subprocess.run([sys.executable, "-c", "import warp as wp; wp.config.log_level = wp.LOG_WARNING; "
                             "wp.init(); print(wp.is_cuda_available())"], capture_output=True, text=True, timeout=300)
@@ -75,6 +77,7 @@ def test_asking_for_cuda_without_a_driver_says_why():
     assert "device='cuda:0' is not available" in result.stderr and "NVIDIA CUDA driver" in result.stderr
 
 
+@pytest.mark.slow
 def test_bench_writes_to_the_current_directory_without_the_original(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert main(["bench", "--device", "cpu", "--agents", "16", "--worlds", "1", "--seconds", "0.01",

@@ -14,13 +14,20 @@ import pytest
 os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
 pytest.importorskip("rsl_rl")
 
-import torch  # noqa: E402
+import torch
 
-from aquarium_warp import BatchedAquarium  # noqa: E402
-from aquarium_warp.training.config import env_config, make_config  # noqa: E402
-from aquarium_warp.training.evaluate import (CROSS_PLAY_METRICS, cross_play, elo_ratings, evaluate_policies,  # noqa: E402
-                                             expand_specs, make_driver, run_episodes)
-from aquarium_warp.training.trainer import Trainer  # noqa: E402
+from aquarium_warp import BatchedAquarium
+from aquarium_warp.training.config import env_config, make_config
+from aquarium_warp.training.evaluate import (
+    CROSS_PLAY_METRICS,
+    cross_play,
+    elo_ratings,
+    evaluate_policies,
+    expand_specs,
+    make_driver,
+    run_episodes,
+)
+from aquarium_warp.training.trainer import Trainer
 
 
 def test_elo_ratings_recover_hand_made_ratings():
@@ -43,6 +50,7 @@ def test_elo_ratings_recover_hand_made_ratings():
         elo_ratings(np.array([[1.5]]), games=1)
 
 
+@pytest.mark.slow
 def test_cross_play_matrix_equals_single_evaluations(tmp_path):
     threads = torch.get_num_threads()
     torch.set_num_threads(1)

@@ -366,6 +366,7 @@ def captures_per_world(device, prey_policy: str, worlds=256, steps=300) -> np.nd
     return total.cpu().numpy().astype(np.float64)
 
 
+@pytest.mark.slow
 def test_turnaway_prey_are_captured_far_less_than_random_prey(device):
     """Default world, one NaivChase predator, 16 prey, 256 worlds x 300 steps per prey policy.
 

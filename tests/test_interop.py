@@ -199,6 +199,7 @@ def test_supersuit_in_process_vector_env_matches_the_env():
         vec.close()
 
 
+@pytest.mark.slow
 def test_supersuit_multiprocess_vector_env_matches_the_env():
     vec = supersuit_vec(num_cpus=2)  # two processes of two worlds, each a pickled copy of the env
     try:
@@ -223,11 +224,13 @@ class PredatorView(gymnasium.Env):
         return obs["predator_0"], {}
 
     def step(self, action):
-        actions = {a: (int(action) if a == "predator_0" else self.env.action_space(a).sample()) for a in self.env.agents}
+        actions = {a: (int(action) if a == "predator_0" else self.env.action_space(a).sample())
+                   for a in self.env.agents}
         obs, rewards, terminations, truncations, _ = self.env.step(actions)
         return obs["predator_0"], rewards["predator_0"], terminations["predator_0"], truncations["predator_0"], {}
 
 
+@pytest.mark.slow
 def test_gymnasium_async_vector_env_runs_pickled_copies():
     template = PredatorView(aquarium_v1.parallel_env(prey_count=6, max_cycles=20))
     # Every worker gets the template pickled ("spawn" pickles it; "fork" would inherit it).
@@ -251,6 +254,7 @@ def test_gymnasium_async_vector_env_runs_pickled_copies():
         asyn.close()
 
 
+@pytest.mark.slow
 def test_stable_baselines3_ppo_trains_on_the_supersuit_env(tmp_path):
     ss = supersuit()
     sb3 = pytest.importorskip("stable_baselines3", reason="needs the interop extra: pip install -e '.[interop]'")

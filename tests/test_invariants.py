@@ -348,6 +348,7 @@ class Checker:
 
 
 @pytest.mark.parametrize("name", list(CASES))
+@pytest.mark.slow
 def test_random_rollout_invariants(device, name):
     case = CASES[name]
     env = BatchedAquarium(case.cfg, num_worlds=case.num_worlds, device=device, seed=1234)

@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 from gymnasium import spaces
 from pettingzoo import AECEnv, ParallelEnv
-from pettingzoo.test import (api_test, max_cycles_test, parallel_api_test, parallel_seed_test, render_test,
-                             seed_test)
+from pettingzoo.test import api_test, max_cycles_test, parallel_api_test, parallel_seed_test, render_test, seed_test
 from pettingzoo.test.state_test import state_test
 
 from aquarium_warp import AgentTypeConfig, AquariumConfig, aquarium_v1
@@ -54,6 +53,7 @@ def test_parallel_api_full_episodes():
 
 
 @pytest.mark.parametrize("name", CONFIGS)
+@pytest.mark.slow
 def test_aec_api(name):
     api_test(aquarium_v1.env(**CONFIGS[name]), num_cycles=CYCLES)
 
@@ -310,9 +310,9 @@ def test_episode_ends_after_max_time_steps():
 def test_actions_checked():
     env = aquarium_v1.parallel_env(prey_count=3)
     env.reset(seed=0)
-    actions = {a: 1 for a in env.agents}
+    actions = dict.fromkeys(env.agents, 1)
     with pytest.raises(ValueError, match="missing"):
-        env.step({a: 1 for a in env.agents[1:]})
+        env.step(dict.fromkeys(env.agents[1:], 1))
     with pytest.raises(ValueError, match="prey_1"):
         env.step({**actions, "prey_1": 16})
     with pytest.raises(ValueError, match="prey_2"):
@@ -341,7 +341,7 @@ def test_capture_rewards_and_names():
         env = aquarium_v1.parallel_env(keep_prey_count_constant=respawn)
         env.reset(seed=0)
         _place(env, [[400.0, 600.0]] + far[1:] + [[400.0, 600.0]])
-        obs, rewards, terminations, truncations, _ = env.step({a: 0 for a in env.agents})
+        obs, rewards, terminations, truncations, _ = env.step(dict.fromkeys(env.agents, 0))
         assert rewards["prey_0"] == pytest.approx(-1000.0 + (1.0 if respawn else 0.0))
         assert rewards["predator_0"] == pytest.approx(10.0)
         assert all(rewards[f"prey_{j}"] == 1.0 for j in range(1, 16))
@@ -349,7 +349,7 @@ def test_capture_rewards_and_names():
         assert ("prey_0" in env.agents) is respawn and len(env.agents) == 17 - (not respawn)
         if not respawn:
             assert not obs["prey_0"].any()  # a removed agent's last observation is empty (zeros)
-            obs, rewards, *_ = env.step({a: 0 for a in env.agents})
+            obs, rewards, *_ = env.step(dict.fromkeys(env.agents, 0))
             assert "prey_0" not in obs and "prey_0" not in rewards
 
 

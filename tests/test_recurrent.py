@@ -11,12 +11,11 @@ import pytest
 os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
 pytest.importorskip("rsl_rl")
 
-import torch  # noqa: E402
+import torch
 
-from aquarium_warp.training.config import make_config  # noqa: E402
-from aquarium_warp.training.export import load_policy  # noqa: E402
-from aquarium_warp.training.trainer import Trainer  # noqa: E402
-
+from aquarium_warp.training.config import make_config
+from aquarium_warp.training.export import load_policy
+from aquarium_warp.training.trainer import Trainer
 
 
 def rnn_config(rnn_type="lstm", **train):
@@ -33,6 +32,7 @@ def _hidden(model):
 
 
 @pytest.mark.parametrize("rnn_type", ["lstm", "gru"])
+@pytest.mark.slow
 def test_recurrent_resume_is_bit_exact(tmp_path, one_thread, rnn_type):
     config = rnn_config(rnn_type)
     full = Trainer(config, str(tmp_path / "full"))
@@ -72,6 +72,7 @@ def test_individual_learning_with_recurrent_model_is_refused():
 
 
 @pytest.mark.parametrize("rnn_type", ["lstm", "gru"])
+@pytest.mark.slow
 def test_recurrent_export_reload_and_evaluate(tmp_path, one_thread, rnn_type):
     """TorchScript, ONNX and the checkpoint of a GRU or LSTM policy act like rsl-rl's own `RNNModel` over a
     rollout, hidden state per row and reset where rows are done; `RecurrentOpponent` finds the same

@@ -20,6 +20,7 @@ def run_python(code: str, timeout: float = 240) -> subprocess.CompletedProcess:
                           text=True, timeout=timeout)
 
 
+@pytest.mark.slow
 def test_envs_built_on_two_threads_at_once():
     """Case 1: two threads constructing envs at the same moment (each loading Warp's modules) crashed
     with a segfault in 5 of 5 runs; construction is now serialised inside the package."""
@@ -44,6 +45,7 @@ def test_envs_built_on_two_threads_at_once():
     assert "built 2" in result.stdout
 
 
+@pytest.mark.slow
 def test_study_settings_built_on_parallel_threads(tmp_path):
     """Case 1: `aquarium-warp study swarm-size --prey 1024,2048,4096 ...` with the default --jobs
     segfaulted on 2 cores: settings built on parallel threads loaded Warp modules at once. Here, in a
@@ -59,6 +61,7 @@ def test_study_settings_built_on_parallel_threads(tmp_path):
     assert result.returncode == 0, result.stderr[-2000:]
     assert "settings 3 jobs 2" in result.stdout
 
+@pytest.mark.slow
 def test_unvalidated_actions_are_clamped_in_the_kernel():
     """Case 4: `step(actions, validate=False)` with an action of 10**6 segfaulted, 16 or -5 read out of
     bounds. The motion kernel clamps the index into [0, action_count - 1]: the same trajectory as a
@@ -85,6 +88,7 @@ def test_unvalidated_actions_are_clamped_in_the_kernel():
     assert "clamped" in result.stdout
 
 
+@pytest.mark.slow
 def test_far_position_in_a_state_dict_is_refused_and_the_env_steps_on():
     """Case 3: `load_state_dict` with one position of (1e9, -1e9) in a 64-prey world segfaulted on the
     next step; it is now refused naming the tensor and the allowed range, and the env steps on as if
@@ -158,7 +162,8 @@ def _one_world(cfg, **fields):
     from aquarium_warp import BatchedAquarium
 
     env = BatchedAquarium(cfg, num_worlds=1, device="cpu", seed=0)
-    env.set_state(world=0, **{k: torch.as_tensor(v, dtype=getattr(env.state.torch, k).dtype) for k, v in fields.items()})
+    env.set_state(world=0, **{k: torch.as_tensor(v, dtype=getattr(env.state.torch, k).dtype)
+                              for k, v in fields.items()})
     return env
 
 

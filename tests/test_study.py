@@ -14,8 +14,7 @@ import torch
 
 from aquarium_warp import AquariumConfig, BatchedAquarium
 from aquarium_warp.cli import main
-from aquarium_warp.study import (SwarmSizeStudy, make_study_policy, parse_list, parse_world_size,
-                                 run_swarm_size_study)
+from aquarium_warp.study import SwarmSizeStudy, make_study_policy, parse_list, parse_world_size, run_swarm_size_study
 
 
 def read_csv(path):
@@ -34,6 +33,7 @@ def test_parse_lists():
             parse_list(bad, int)
 
 
+@pytest.mark.slow
 def test_cli_tiny_sweep_writes_csv_json_and_figures(device, tmp_path, capsys):
     out = tmp_path / "study"
     rc = main(["study", "swarm-size", "--prey", "4,8", "--seeds", "2", "--episode-steps", "30",
@@ -66,6 +66,7 @@ def test_cli_tiny_sweep_writes_csv_json_and_figures(device, tmp_path, capsys):
     assert (out / "captures_vs_size.png").exists()
 
 
+@pytest.mark.slow
 def test_fov_and_view_sweep_constant_density_and_populations(device, tmp_path):
     study = SwarmSizeStudy(prey=[4, 16], seeds=2, episode_steps=25, metrics_every=5, fov_angles=[90.0, 240.0],
                            view_distances=[150.0], constant_density=True, respawn=False, device=device,

@@ -17,20 +17,19 @@ os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
 pytest.importorskip("rsl_rl")
 pytest.importorskip("tensordict")
 
-import torch  # noqa: E402
-from tensordict import TensorDict  # noqa: E402
+import torch
+from tensordict import TensorDict
 
-from aquarium_warp import AquariumConfig, BatchedAquarium  # noqa: E402
-from aquarium_warp.heuristics import make_policy  # noqa: E402
-from aquarium_warp.metrics import EPISODE_METRICS  # noqa: E402
-from aquarium_warp.training.config import PRESETS, make_config, runner_config, total_iterations  # noqa: E402
-from aquarium_warp.training.distribution import CategoricalDistribution  # noqa: E402
-from aquarium_warp.training.export import load_policy  # noqa: E402
-from aquarium_warp.training.models import IndividualMLPModel  # noqa: E402
-from aquarium_warp.training.ppo import AquariumPPO, GroupedRolloutStorage  # noqa: E402
-from aquarium_warp.training.trainer import Trainer  # noqa: E402
-from aquarium_warp.training.vec_env import AquariumVecEnv, TrainedOpponent  # noqa: E402
-
+from aquarium_warp import AquariumConfig, BatchedAquarium
+from aquarium_warp.heuristics import make_policy
+from aquarium_warp.metrics import EPISODE_METRICS
+from aquarium_warp.training.config import PRESETS, make_config, runner_config, total_iterations
+from aquarium_warp.training.distribution import CategoricalDistribution
+from aquarium_warp.training.export import load_policy
+from aquarium_warp.training.models import IndividualMLPModel
+from aquarium_warp.training.ppo import AquariumPPO, GroupedRolloutStorage
+from aquarium_warp.training.trainer import Trainer
+from aquarium_warp.training.vec_env import AquariumVecEnv, TrainedOpponent
 
 
 class Recorder:
@@ -327,12 +326,14 @@ def _same_state(a: Trainer, b: Trainer) -> None:
 
 
 @pytest.mark.parametrize("sharing", ["parameter", "individual"])
+@pytest.mark.slow
 def test_resume_is_bit_exact(tmp_path, one_thread, sharing):
     config = tiny_config(sharing=sharing)
     full = Trainer(config, str(tmp_path / "full"))
     full.train()
     assert full.iteration == 4
-    assert {"config.json", "progress.csv", "model_0.pt", "model_2.pt", "model_3.pt"} <= set(os.listdir(tmp_path / "full"))
+    saved = set(os.listdir(tmp_path / "full"))
+    assert {"config.json", "progress.csv", "model_0.pt", "model_2.pt", "model_3.pt"} <= saved
     part = Trainer(config, str(tmp_path / "part"))
     part.train(2)  # "interrupted" after 2 iterations: model_1.pt holds the state after iteration 1
     resumed = Trainer.resume(str(tmp_path / "part"))
@@ -344,6 +345,7 @@ def test_resume_is_bit_exact(tmp_path, one_thread, sharing):
     assert [int(r["iteration"]) for r in rows] == [0, 1, 2, 3]
 
 
+@pytest.mark.slow
 def test_export_load_policy_round_trip(tmp_path, one_thread):
     trainer = Trainer(tiny_config(iterations=1, export=["jit", "onnx"]), str(tmp_path / "run"))
     trainer.train()
@@ -403,6 +405,7 @@ def test_export_load_policy_round_trip(tmp_path, one_thread):
     assert os.path.getsize(out) > 0
 
 
+@pytest.mark.slow
 def test_cli_train_resume_eval(tmp_path, one_thread):
     from aquarium_warp.cli import main
 
@@ -443,6 +446,7 @@ def _has_matplotlib() -> bool:
 
 # ------------------------------------------------------------------------------------------------ learning
 @pytest.mark.skipif(os.environ.get("AQUARIUM_SKIP_LEARNING_TEST") == "1", reason="AQUARIUM_SKIP_LEARNING_TEST=1")
+@pytest.mark.slow
 def test_learning_trained_prey_evade_naivchase(tmp_path, one_thread):
     """PPO (Parameter Sharing) prey must be captured clearly less often than random prey.
 

@@ -11,10 +11,10 @@ import os
 
 os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
 
-import pytest  # noqa: E402
-import torch  # noqa: E402
+import pytest
+import torch
 
-from aquarium_warp.training import Trainer, make_config  # noqa: E402
+from aquarium_warp.training import Trainer, make_config
 
 
 def _train(loop: str, log_dir=None, device="cpu", **changes):
@@ -50,6 +50,7 @@ CASES = [
 
 
 @pytest.mark.parametrize("name,changes", CASES, ids=[c[0] for c in CASES])
+@pytest.mark.slow
 def test_fast_loop_equals_rsl_rl_runner_bit_for_bit(name, changes):
     import copy
 
@@ -70,6 +71,7 @@ def _rows(path):
 
 
 @pytest.mark.parametrize("metrics_every", [10, 0], ids=["swarm metrics", "no swarm metrics"])
+@pytest.mark.slow
 def test_device_episode_statistics_equal_rsl_rl_logger(tmp_path, metrics_every):
     """captures, rewards and lengths of the ended world episodes, logged per iteration: the fast loop's
     device sums against rsl-rl's logger averaging the adapter's per-step `extras["log"]`. Short episodes

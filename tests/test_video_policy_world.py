@@ -11,14 +11,14 @@ import pytest
 os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
 pytest.importorskip("rsl_rl")
 
-import torch  # noqa: E402
+import torch
 
-import aquarium_warp.video  # noqa: E402
-from aquarium_warp import AquariumConfig  # noqa: E402
-from aquarium_warp.cli import main  # noqa: E402
-from aquarium_warp.training.config import env_config, make_config  # noqa: E402
-from aquarium_warp.training.export import export_policy  # noqa: E402
-from aquarium_warp.training.trainer import Trainer  # noqa: E402
+import aquarium_warp.video
+from aquarium_warp import AquariumConfig
+from aquarium_warp.cli import main
+from aquarium_warp.training.config import env_config, make_config
+from aquarium_warp.training.export import export_policy
+from aquarium_warp.training.trainer import Trainer
 
 
 @pytest.fixture
@@ -29,13 +29,14 @@ def filmed(monkeypatch):
 
     def spy(env, *args, **kwargs):
         frames = real(env, *args, **kwargs)
-        calls.append((env.config, env.prey_capacity, dict((t, o.shape) for t, o in env.observations.items()), frames))
+        calls.append((env.config, env.prey_capacity, {t: o.shape for t, o in env.observations.items()}, frames))
         return frames
 
     monkeypatch.setattr(aquarium_warp.video, "record", spy)
     return calls
 
 
+@pytest.mark.slow
 def test_video_uses_the_trained_policys_world(tmp_path, filmed, capsys):
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
