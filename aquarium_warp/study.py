@@ -18,6 +18,9 @@ distributions, population traces when populations change) and PNG figures (`aqua
 from aquarium_warp.study import SwarmSizeStudy, run_swarm_size_study
 results = run_swarm_size_study(SwarmSizeStudy(prey=[4, 8, 16], seeds=2, episode_steps=200, out="out"))
 ```
+
+With `ray=RayOptions(...)` (`aquarium_warp.ray_tasks`; `--ray` on the command line) every setting is a
+Ray task calling the same `run_setting`, and the files are the same.
 """
 
 from __future__ import annotations
