@@ -77,8 +77,8 @@ def _ray_options(args):
                                              ("max_retries", args.max_retries)) if value is not None}
     if args.ray is None:
         if given:
-            options = ", ".join("--" + name.replace("_", "-") for name in given)
-            raise ValueError(f"{options} set the Ray tasks: give --ray too")
+            names = ", ".join("--" + name.replace("_", "-") for name in given)
+            raise ValueError(f"{names} set the Ray tasks: give --ray too")
         return None
     options = RayOptions(address=args.ray or None, **given)
     options.validate()
