@@ -99,7 +99,6 @@ def train_run(train_args: argparse.Namespace, run: TrainingRun) -> dict:
     args.seed, args.log_dir, args.set = run.seed, run.run_dir, list(train_args.set) + list(run.sets)
     options = json.loads(json.dumps({k: v for k, v in vars(args).items() if k not in NOT_THE_RUN}))
     path = os.path.join(run.run_dir, RUN_RECORD)
-    record = None
     if os.path.isfile(path):
         with open(path, encoding="utf-8") as f:
             record = json.load(f)
