@@ -1,5 +1,5 @@
 """Command line: `aquarium-warp demo` (speed), `aquarium-warp video` (an MP4 of heuristic or trained policies) and
-`aquarium-warp bench` (the scaling benchmark suite), plus train, eval and study."""
+`aquarium-warp bench` (the scaling benchmark suite), plus train, eval, study and sweep (training sweeps)."""
 
 from __future__ import annotations
 
@@ -38,6 +38,51 @@ def positive_float(text: str) -> float:
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"invalid value {text!r}: must be a finite number > 0")
     return value
+
+
+def non_negative_float(text: str) -> float:
+    """argparse type: a finite number >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid value {text!r}: must be a finite number >= 0") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"invalid value {text!r}: must be a finite number >= 0")
+    return value
+
+
+def _add_ray_arguments(parser: argparse.ArgumentParser, what: str) -> None:
+    """`--ray [ADDRESS]` and what each Ray task holds (`aquarium_warp/ray_tasks.py`)."""
+    g = parser.add_argument_group("Ray", f"run each {what} as a Ray task, on one machine or a cluster "
+                                         "(pip install 'aquarium-warp[distributed]')")
+    g.add_argument("--ray", nargs="?", const="", default=None, metavar="ADDRESS",
+                   help=f"run each {what} as a Ray task: on the cluster at ADDRESS ('auto': the one `ray start` "
+                        "started on this machine; 'ray://HOST:10001': Ray Client), without ADDRESS on "
+                        "$RAY_ADDRESS's cluster or else a new one on this machine")
+    g.add_argument("--gpus-per-task", type=non_negative_float, default=None, metavar="G",
+                   help="GPUs each task holds: a fraction in [0, 1] (0.25: four tasks share a GPU) or a whole "
+                        "number (default 1 where the cluster has GPUs and --device is not 'cpu', else 0)")
+    g.add_argument("--cpus-per-task", type=positive_float, default=None, metavar="C",
+                   help="CPU cores each task holds (default 1)")
+    g.add_argument("--max-retries", type=non_negative_int, default=None, metavar="R",
+                   help="reruns of a task whose worker died (default 3)")
+
+
+def _ray_options(args):
+    """The `RayOptions` of `_add_ray_arguments`' options, or None without --ray."""
+    from .ray_tasks import RayOptions
+
+    given = {name: value for name, value in (("gpus_per_task", args.gpus_per_task),
+                                             ("cpus_per_task", args.cpus_per_task),
+                                             ("max_retries", args.max_retries)) if value is not None}
+    if args.ray is None:
+        if given:
+            names = ", ".join("--" + name.replace("_", "-") for name in given)
+            raise ValueError(f"{names} set the Ray tasks: give --ray too")
+        return None
+    options = RayOptions(address=args.ray or None, **given)
+    options.validate()
+    return options
 
 
 def _demo(args) -> int:
@@ -167,6 +212,10 @@ def _study_swarm_size(args) -> int:
         summary = replot_study(args.out, device=args.device)
         print(f"redrew {len(summary['figures'])} figures in {args.out} from swarm_size.json")
         return 0
+    ray = _ray_options(args)
+    if ray is not None and args.jobs is not None:
+        raise ValueError("--jobs sets the threads of a run on this machine; with --ray each setting is a task "
+                         "(--cpus-per-task, --gpus-per-task)")
     study = SwarmSizeStudy(
         prey=[int(n) for n in parse_list(args.prey, int, "--prey")], seeds=args.seeds,
         episodes_per_seed=args.episodes_per_seed, episode_steps=args.episode_steps,
@@ -181,9 +230,12 @@ def _study_swarm_size(args) -> int:
         out=args.out, figures=not args.no_figures)
     print(f"aquarium-warp study swarm-size: prey {study.prey}, {study.seeds} seeds x {study.episodes_per_seed} "
           f"episode(s) of {study.episode_steps} steps, {study.prey_policy} vs {study.predator_policy} -> {study.out}")
-    summary = run_swarm_size_study(study, progress=not args.no_progress)
+    summary = run_swarm_size_study(study, progress=not args.no_progress, ray=ray)
+    where = summary["machine"]["device_name"]
+    if ray is not None:
+        where = f"Ray ({len(summary['ray']['nodes'])} machine(s), {summary['ray']['settings_kept']} setting(s) kept)"
     print(f"wrote {os.path.join(study.out, 'swarm_size.csv')}, swarm_size.json and {len(summary.get('figures', []))} "
-          f"figures in {summary['wall_time_s']:.1f} s on {summary['machine']['device_name']}")
+          f"figures in {summary['wall_time_s']:.1f} s on {where}")
     return 0
 
 
@@ -227,7 +279,56 @@ def _add_study(sub) -> None:
     p.add_argument("--no-figures", action="store_true", help="write CSV/JSON only, no figures")
     p.add_argument("--replot", action="store_true", help="only redraw the figures from --out's swarm_size.json")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _add_ray_arguments(p, "setting (prey count, FOV angle and view distance)")
     p.set_defaults(run=_study_swarm_size)
+
+
+def _sweep_train(args) -> int:
+    """`aquarium-warp sweep train`: one training run per seed and setting (`aquarium_warp/sweep.py`)."""
+    from .number_lists import parse_list
+    from .sweep import TrainingSweep, parse_vary, run_training_sweep
+    from .training.cli import add_train_arguments
+
+    train = argparse.ArgumentParser()
+    add_train_arguments(train)
+    train_args = argparse.Namespace(**{name: getattr(args, name) for name in vars(train.parse_args([]))})
+    sweep = TrainingSweep(seeds=tuple(parse_list(args.seeds, int, "--seeds", minimum=0)),
+                          vary=tuple(parse_vary(text) for text in args.vary),
+                          out=args.out or os.path.join("runs", f"sweep_{time.strftime('%Y%m%d-%H%M%S')}"))
+    sweep.validate()
+    ray = _ray_options(args)
+    print(f"aquarium-warp sweep train: {len(sweep.runs())} runs ({len(sweep.seeds)} seeds"
+          f"{''.join(f' x {len(v)} {k}' for k, v in sweep.vary)}) {'as Ray tasks' if ray else 'one after another'} "
+          f"-> {sweep.out}")
+    summary = run_training_sweep(sweep, train_args, ray)
+    kept = sum(r["kept"] for r in summary["runs"])
+    print(f"aquarium-warp sweep train: {len(summary['runs'])} runs ({kept} kept from before) in "
+          f"{summary['wall_time_s']:.1f} s; {os.path.join(sweep.out, 'sweep.json')} lists them")
+    return 0
+
+
+def _add_sweep(sub) -> None:
+    """`aquarium-warp sweep train` (code in `aquarium_warp/sweep.py`, Ray tasks in `ray_tasks.py`)."""
+    from .training.cli import add_train_arguments
+
+    sweep = sub.add_parser("sweep", help="many training runs: seeds x settings, here or as Ray tasks")
+    kinds = sweep.add_subparsers(dest="sweep", required=True)
+    p = kinds.add_parser("train", help="one `aquarium-warp train` run per seed and setting",
+                         description="Train every combination of a seed (--seeds) and the varied settings "
+                                     "(--vary) in a run directory of its own, --out/<setting>/seed<s>, one after "
+                                     "another or as Ray tasks (--ray). A rerun with the same --out keeps the "
+                                     "finished runs and resumes the started ones from their newest checkpoint. "
+                                     "Every option of `aquarium-warp train` applies to each run (not --seed, "
+                                     "--log-dir, --resume).")
+    p.add_argument("--seeds", default="0", help="seeds: a comma list, '...' continues it (default 0)")
+    p.add_argument("--vary", action="append", default=[], metavar="KEY=V1,V2,...",
+                   help="a setting to sweep, as `train --set KEY=VALUE` takes it, e.g. "
+                        "train.sharing=parameter,individual (repeatable: every combination)")
+    p.add_argument("--out", default=None, help="the sweep's directory: sweep.json and one directory per run "
+                                               "(default runs/sweep_<time>; on Ray one that every machine sees)")
+    add_train_arguments(p)
+    _add_ray_arguments(p, "training run")
+    p.set_defaults(run=_sweep_train)
 
 
 def _add_bench(sub) -> None:
@@ -290,6 +391,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_train(sub)
     _add_eval(sub)
     _add_study(sub)
+    _add_sweep(sub)
     _add_bench(sub)
     return parser
 

@@ -18,6 +18,9 @@ distributions, population traces when populations change) and PNG figures (`aqua
 from aquarium_warp.study import SwarmSizeStudy, run_swarm_size_study
 results = run_swarm_size_study(SwarmSizeStudy(prey=[4, 8, 16], seeds=2, episode_steps=200, out="out"))
 ```
+
+With `ray=RayOptions(...)` (`aquarium_warp.ray_tasks`; `--ray` on the command line) every setting is a
+Ray task calling the same `run_setting`, and the files are the same.
 """
 
 from __future__ import annotations
@@ -27,6 +30,8 @@ import dataclasses
 import json
 import math
 import os
+import platform
+import shutil
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -42,6 +47,7 @@ from .heuristics import POLICIES, make_policy
 from .json_records import json_safe
 from .metrics import EPISODE_METRICS, EpisodeMetrics, SwarmMetrics
 from .number_lists import parse_list as parse_list  # re-exported: the study's list options use it
+from .ray_tasks import RayOptions, placement, run_tasks
 from .study_plots import plot_study
 
 # Per-seed columns of the CSV, in order.
@@ -297,14 +303,9 @@ def _stats(values: np.ndarray) -> dict:
             "seeds": [None if math.isnan(x) else float(x) for x in v]}
 
 
-def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True) -> dict:
-    """Run every setting of `study`, write the CSV, JSON and figures into `study.out`, and return the
-    JSON's content."""
-    study.validate()
-    check_policies(study)
-    device = resolve_device(study.device)
-    settings = study.settings()
-    os.makedirs(study.out, exist_ok=True)
+def _run_here(study: SwarmSizeStudy, settings: list[dict], device: str, advance) -> tuple[dict[int, dict], int]:
+    """`run_setting` of every setting on this machine: on the CPU several at once on threads (`study.jobs`),
+    on a GPU one after another. Returns the results by setting index and the number of threads."""
     import warp as wp
 
     on_gpu = wp.get_device(device).is_cuda
@@ -312,8 +313,113 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True) -> dict:
     # being captured in one thread must not see another thread's launches.
     jobs = 1 if on_gpu else (study.jobs if study.jobs is not None else (os.cpu_count() or 1))
     jobs = max(1, min(jobs, len(settings)))
-    start = time.perf_counter()
     _warm_up(study, device)
+
+    def job(index: int) -> dict:
+        s = settings[index]
+        label = f"N={s['prey']} fov={s['fov_angle']:g} view={s['view_distance']:g}"
+        return run_setting(study, s, device, progress=lambda n: advance(n, label))
+
+    order = _largest_first(settings)
+    results: dict[int, dict] = {}
+    if jobs == 1:
+        for i in order:
+            results[i] = job(i)
+    else:
+        with ThreadPoolExecutor(max_workers=jobs) as pool:
+            for i, r in zip(order, pool.map(job, order)):
+                results[i] = r
+    return results, jobs
+
+
+def _largest_first(settings: list[dict]) -> list[int]:
+    """Setting indices, largest worlds first, so that settings run side by side (threads, Ray tasks) finish
+    together."""
+    return sorted(range(len(settings)), key=lambda i: -settings[i]["config"].capacity)
+
+
+# --------------------------------------------------------------------------------------------------
+# Ray: one task per setting
+# --------------------------------------------------------------------------------------------------
+# Settings finished on Ray, one JSON file each, kept in the study's `out` until swarm_size.json is
+# written: a rerun of the same study skips them (after the driver died, say).
+KEPT_DIR = "ray_settings"
+
+
+def _setting_on_worker(study: SwarmSizeStudy, setting: dict, device: str) -> dict:
+    """A Ray task: `run_setting` on the worker's `device`, with the worker's machine and host name."""
+    result = run_setting(study, setting, device)
+    result["machine"] = machine_info(device)
+    result["node"] = platform.node()
+    return result
+
+
+def _baselines_on_worker(summary: dict, study: SwarmSizeStudy, device: str) -> dict:
+    """A Ray task: `add_uniform_baselines` on a worker's `device` (this machine may have no GPU)."""
+    add_uniform_baselines(summary, study, device)
+    return summary
+
+
+def _kept_path(study: SwarmSizeStudy, setting: dict) -> str:
+    name = f"prey{setting['prey']}_fov{setting['fov_angle']:g}_view{setting['view_distance']:g}.json"
+    return os.path.join(study.out, KEPT_DIR, name)
+
+
+def _kept_key(study: SwarmSizeStudy, device: str) -> dict:
+    """What a kept result must have been run with: the study's settings (not where it writes) and device."""
+    config = {k: v for k, v in dataclasses.asdict(study).items() if k not in ("out", "jobs", "figures", "device")}
+    return json.loads(json.dumps({"study": config, "device": device}))  # as read back from a file
+
+
+def _arrays_as_lists(value):
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, dict):
+        return {k: _arrays_as_lists(v) for k, v in value.items()}
+    return value
+
+
+def _run_on_ray(study: SwarmSizeStudy, settings: list[dict], ray: RayOptions, device: str,
+                advance) -> tuple[dict[int, dict], dict]:
+    """`run_setting` of every setting as a Ray task (`ray` placed, on `device`), kept settings
+    skipped. Returns the results by setting index and the record of the run for swarm_size.json."""
+    key = _kept_key(study, device)
+    results: dict[int, dict] = {}
+    for i, s in enumerate(settings):
+        path = _kept_path(study, s)
+        if os.path.isfile(path):
+            with open(path, encoding="utf-8") as f:
+                kept = json.load(f)
+            if kept["key"] == key:
+                results[i] = kept["result"]
+                advance(study.episode_steps, f"N={s['prey']} kept")
+    kept_count = len(results)
+    todo = [i for i in _largest_first(settings) if i not in results]
+    os.makedirs(os.path.join(study.out, KEPT_DIR), exist_ok=True)
+
+    def finished(k: int, result: dict) -> None:
+        i = todo[k]
+        # JSON writes a float's shortest repr, which reads back as the same float: kept equals fresh.
+        with open(_kept_path(study, settings[i]), "w", encoding="utf-8") as f:
+            json.dump({"key": key, "result": _arrays_as_lists(result)}, f)
+        results[i] = result
+        advance(study.episode_steps, f"N={settings[i]['prey']} done")
+
+    run_tasks(_setting_on_worker, [(study, settings[i], device) for i in todo], ray, on_result=finished)
+    record = {"address": ray.address, "gpus_per_task": ray.gpus_per_task, "cpus_per_task": ray.cpus_per_task,
+              "max_retries": ray.max_retries, "device": device, "settings_kept": kept_count,
+              "nodes": sorted({results[i]["node"] for i in results})}
+    return results, record
+
+
+def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayOptions | None = None) -> dict:
+    """Run every setting of `study`, write the CSV, JSON and figures into `study.out`, and return the
+    JSON's content. `ray`: run each setting as a Ray task (`_run_on_ray`) instead of on this machine."""
+    study.validate()
+    check_policies(study)
+    settings = study.settings()
+    os.makedirs(study.out, exist_ok=True)
+    start = time.perf_counter()
 
     bar = None
     lock = threading.Lock()
@@ -328,22 +434,15 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True) -> dict:
                 bar.set_postfix_str(label, refresh=False)
                 bar.update(steps)
 
-    def job(index: int) -> dict:
-        s = settings[index]
-        label = f"N={s['prey']} fov={s['fov_angle']:g} view={s['view_distance']:g}"
-        return run_setting(study, s, device, progress=lambda n: advance(n, label))
-
-    # Largest settings first, so parallel threads finish together.
-    order = sorted(range(len(settings)), key=lambda i: -settings[i]["config"].capacity)
-    results: dict[int, dict] = {}
     try:
-        if jobs == 1:
-            for i in order:
-                results[i] = job(i)
+        if ray is None:
+            device = resolve_device(study.device)
+            results, jobs = _run_here(study, settings, device, advance)
+            machine = machine_info(device)
         else:
-            with ThreadPoolExecutor(max_workers=jobs) as pool:
-                for i, r in zip(order, pool.map(job, order)):
-                    results[i] = r
+            ray, device = placement(ray, study.device)
+            results, ray_record = _run_on_ray(study, settings, ray, device, advance)
+            jobs, machine = None, results[0]["machine"]
     finally:
         if bar is not None:
             bar.close()
@@ -389,14 +488,20 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True) -> dict:
             "uniform_baseline": UNIFORM_BASELINE_DEFINITION,
         },
         "nn_bin_edges": [float(x) for x in results[0]["nn_bin_edges"]],
-        "machine": machine_info(device),
+        "machine": machine,
         "wall_time_s": round(wall, 2),
         "results": entries,
     }
-    add_uniform_baselines(summary, study, device)
+    if ray is None:
+        add_uniform_baselines(summary, study, device)
+    else:
+        summary["ray"] = ray_record
+        summary = run_tasks(_baselines_on_worker, [(summary, study, device)], ray)[0]
     write_csv(os.path.join(study.out, "swarm_size.csv"), rows)
     with open(os.path.join(study.out, "swarm_size.json"), "w", encoding="utf-8") as f:
         json.dump(json_safe(summary), f, indent=1)
+    if ray is not None:  # swarm_size.json now holds every setting
+        shutil.rmtree(os.path.join(study.out, KEPT_DIR), ignore_errors=True)
     if study.figures:
         summary["figures"] = plot_study(summary, study.out)
     return summary
