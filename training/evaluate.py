@@ -81,7 +81,12 @@ def parse_spec(spec: str) -> tuple[str, str]:
         return spec.lower(), spec
     path = os.path.normpath(spec)
     parts = path.split(os.sep)
-    label = parts[-3] if len(parts) >= 3 and parts[-2] == "exported" else os.path.splitext(parts[-1])[0]
+    if len(parts) >= 3 and parts[-2] == "exported":  # run/exported/policy.pt: the run's name
+        label = parts[-3]
+    elif len(parts) >= 4 and parts[-3] == "exported":  # run/exported/<team>/policy.pt (both teams learned)
+        label = f"{parts[-4]}-{parts[-2]}"
+    else:
+        label = os.path.splitext(parts[-1])[0]
     return label, spec
 
 
@@ -89,14 +94,14 @@ def common_policy_env(specs, fallback: AquariumConfig) -> AquariumConfig:
     """The world every trained policy among `specs` was trained in (`fallback` if none is trained);
     a `ValueError` names two specs whose worlds differ."""
     from .config import env_config
-    from .export import load_policy
+    from .export import policy_world
 
     first = None
     for spec in specs:
         _, value = parse_spec(spec)
         if is_heuristic_spec(value):
             continue
-        world = env_config({"env": load_policy(value).meta.get("env", {})})
+        world = env_config({"env": policy_world(value)})
         if first is None:
             first = (spec, world)
         elif world.to_dict() != first[1].to_dict():

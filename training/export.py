@@ -476,13 +476,15 @@ def _load_onnx(path: str, deterministic: bool, seed: int) -> LoadedPolicy:
                         deterministic, seed, module=session)
 
 
-def checkpoint_teams(checkpoint: dict) -> tuple[str, ...]:
-    """The learning teams whose policies a training checkpoint holds (two for `train.team = "both"`)."""
-    learners = checkpoint.get("learners")
-    if isinstance(learners, dict):
-        return tuple(learners)
-    state = (checkpoint.get("infos") or {}).get("aquarium") or {}
-    return (state["policy_meta"]["team"],) if "policy_meta" in state else ()
+def policy_world(path: str) -> dict:
+    """The `env` settings (the run config's section) a policy file was trained in; for a checkpoint of
+    both teams no team needs naming (both share the world)."""
+    if not path.endswith(".onnx") and os.path.isfile(path) and not _is_torchscript(path):
+        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+        state = (checkpoint.get("infos") or {}).get("aquarium") if isinstance(checkpoint, dict) else None
+        if isinstance(state, dict) and "config" in state:
+            return state["config"].get("env", {})
+    return load_policy(path).meta.get("env", {})
 
 
 def actor_from_checkpoint(checkpoint: dict, device="cpu", team: str | None = None) -> tuple[nn.Module, dict]:
