@@ -328,6 +328,26 @@ def test_video_logging_frames(tmp_path, one_thread):
     assert (images[0].width, images[0].height) == (width, height)
 
 
+@pytest.mark.skipif(not os.environ.get("AQUARIUM_TEST_DEVICE", "").startswith("cuda"),
+                    reason="CUDA graphs need AQUARIUM_TEST_DEVICE=cuda:N")
+def test_cuda_graphs_of_two_learners_match_eager():
+    """Both teams, pool, Individual Learning, a normaliser and turns of two iterations: the prey's
+    update graph is captured in iteration 1, the predators' after their first (eager) update in
+    iteration 2, replayed in 3; the graphs give the eager loop's state bit for bit after 5 iterations."""
+    import copy
+
+    def run(graphs: bool) -> dict:
+        trainer = Trainer(both_config(device=os.environ["AQUARIUM_TEST_DEVICE"], cuda_graphs=graphs, iterations=5,
+                                      update_schedule="alternating", alternate_every=2, **copy.deepcopy(POOLED)), None)
+        trainer.train()
+        assert trainer.runner.loop.graphs == graphs
+        state = {k: v.cpu() for k, v in training_state(trainer).items()}
+        trainer.close()
+        return state
+
+    assert_same(run(False), run(True))
+
+
 def test_cli_both_teams_and_bad_input(tmp_path, capsys, one_thread):
     run = str(tmp_path / "cli")
     common = ["--preset", "tiny", "--team", "both", "--num-worlds", "4", "--max-steps", "20", "--predators", "2",

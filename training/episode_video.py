@@ -64,18 +64,24 @@ class EpisodeVideo:
         self.env.close()
 
 
-def gif_summary(tag: str, frames: np.ndarray, fps: float):
-    """A TensorBoard image summary holding `frames` `[T, H, W, 3]` uint8 as an animated GIF."""
+def gif_bytes(frames: np.ndarray, fps: float) -> bytes:
+    """`frames` `[T, H, W, 3]` uint8 as an animated GIF (Pillow), looping."""
     from PIL import Image
-    from tensorboard.compat.proto.summary_pb2 import Summary
 
     images = [Image.fromarray(frame) for frame in frames]
     buffer = io.BytesIO()
     images[0].save(buffer, format="GIF", save_all=True, append_images=images[1:],
                    duration=round(1000 / fps), loop=0)
+    return buffer.getvalue()
+
+
+def gif_summary(tag: str, frames: np.ndarray, fps: float):
+    """A TensorBoard image summary holding `frames` `[T, H, W, 3]` uint8 as an animated GIF."""
+    from tensorboard.compat.proto.summary_pb2 import Summary
+
     T, H, W, C = frames.shape
-    image = Summary.Image(height=H, width=W, colorspace=C, encoded_image_string=buffer.getvalue())
+    image = Summary.Image(height=H, width=W, colorspace=C, encoded_image_string=gif_bytes(frames, fps))
     return Summary(value=[Summary.Value(tag=tag, image=image)])
 
 
-__all__ = ["EpisodeVideo", "gif_summary", "TAG"]
+__all__ = ["EpisodeVideo", "gif_bytes", "gif_summary", "TAG"]
