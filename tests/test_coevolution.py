@@ -29,7 +29,7 @@ import torch  # noqa: E402
 
 from aquarium_warp import AquariumConfig, aquarium_v1  # noqa: E402
 from aquarium_warp.cli import main  # noqa: E402
-from aquarium_warp.pettingzoo_env import world_state  # noqa: E402
+from aquarium_warp.pettingzoo_env import WorldState  # noqa: E402
 from aquarium_warp.render import frame_size  # noqa: E402
 from aquarium_warp.training import Trainer, make_config  # noqa: E402
 from aquarium_warp.training.export import load_policy  # noqa: E402
@@ -287,13 +287,13 @@ def test_centralised_critic_observation_groups(critic, one_thread):
         W, S, L = vec.num_worlds, vec.slots, vec.observation_size
         obs = vec.get_observations()
         assert list(obs.keys()) == ["policy", critic]
-        extra = world_state(env).unsqueeze(1).expand(W, S, -1) if critic == "world" else \
+        extra = WorldState(env)().unsqueeze(1).expand(W, S, -1) if critic == "world" else \
             env.observations[team].reshape(W, 1, S * L).expand(W, S, S * L)
         assert obs[critic].shape == (W * S, extra.shape[-1])
         assert torch.equal(obs[critic].view(W, S, -1), extra * env.alive[team].unsqueeze(-1))
         assert learner.alg.actor.obs_dim == L and learner.alg.critic.obs_dim == L + extra.shape[-1]
         assert learner.cfg["obs_groups"] == {"actor": ["policy"], "critic": ["policy", critic]}
-    assert world_state(env).shape == (6, 7 * env.config.capacity + 1)
+    assert WorldState(env)().shape == (6, 7 * env.config.capacity + 1)
     trainer.train(1)  # the update runs with the wider critic
     trainer.close()
     one_team = Trainer(make_config("tiny", {"train": {"num_worlds": 4, "critic": critic, "iterations": 1,

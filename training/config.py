@@ -71,7 +71,7 @@ LOOPS = ("fast", "rsl-rl")
 TEAMS = ("prey", "predator")
 # What the critic sees besides the agent's own observation (rsl-rl's "critic" observation set):
 # "local": nothing (the actor's input); "team": the team's joint observation (every slot of the
-# world, slot order); "world": the world state (`pettingzoo_env.world_state`). Actors stay local.
+# world, slot order); "world": the world state (`pettingzoo_env.WorldState`). Actors stay local.
 CRITICS = ("local", "team", "world")
 UPDATE_SCHEDULES = ("simultaneous", "alternating")
 POOL_SAMPLING = ("uniform", "latest")

@@ -10,7 +10,7 @@ Outputs of `step(actions [N, 1])`:
   `step()`, so each step writes into the buffer it did not return last time. A centralised critic
   (`critic="team"` or `"world"`, the MAPPO setting) adds one group for rsl-rl's "critic" observation
   set: `"team"` `[N, S * L]`, the team's joint observation (every slot of the row's world, slot
-  order), or `"world"` `[N, 7 * capacity + 1]`, the world state (`pettingzoo_env.world_state`); it is
+  order), or `"world"` `[N, 7 * capacity + 1]`, the world state (`pettingzoo_env.WorldState`); it is
   zero for inactive rows, like their own observation.
 - rewards `[N]` float32: the env's reward times `reward_scale` (rows inactive at the start of the
   step get 0).
@@ -59,7 +59,7 @@ from rsl_rl.env import VecEnv
 
 from ..env import TYPES, BatchedAquarium
 from ..metrics import EPISODE_METRICS, EpisodeMetrics
-from ..pettingzoo_env import world_state
+from ..pettingzoo_env import WorldState
 
 OTHER = {"prey": "predator", "predator": "prey"}
 # The device-side sums' columns (`accumulate_episode_stats`); captures per prey is derived on the host.
@@ -170,8 +170,9 @@ class AquariumVecEnv(VecEnv):
         # The centralised critic's group (None: the critic sees the actor's observation only).
         self.critic_group = None if critic == "local" else critic
         self._critic_obs = [None, None]
+        self._world_state = WorldState(env) if critic == "world" else None
         if self.critic_group is not None:
-            size = S * L if critic == "team" else world_state(env).shape[1]
+            size = S * L if critic == "team" else self._world_state.length
             self._critic_obs = [torch.zeros(W * S, size, dtype=torch.float32, device=dev) for _ in range(2)]
         self._obs_td = [TensorDict({"policy": o, **({critic: c} if self.critic_group else {})},
                                    batch_size=[W * S], device=dev) for o, c in zip(self._obs, self._critic_obs)]
@@ -329,7 +330,7 @@ class AquariumVecEnv(VecEnv):
             obs.mul_(self._active.unsqueeze(-1))
         if self.critic_group is not None:
             critic = self._critic_obs[self._current].view(W, S, -1)
-            joint = obs.reshape(W, 1, -1) if self.critic_group == "team" else world_state(self.env).unsqueeze(1)
+            joint = obs.reshape(W, 1, -1) if self.critic_group == "team" else self._world_state().unsqueeze(1)
             torch.mul(joint, self._active.unsqueeze(-1), out=critic)
 
     def accumulate_episode_stats(self) -> None:
