@@ -234,7 +234,8 @@ def test_pool_snapshots_act_in_their_worlds(one_thread):
 
 def test_export_and_reload_both_policies(both_run, tmp_path, one_thread):
     """One policy file per team (TorchScript), equal to the live actors' argmax; checkpoints
-    of both teams load by team; the PettingZoo env, `video` and `eval --cross-play` accept them."""
+    of both teams load by team; the PettingZoo env, `video` and `eval --cross-play` accept them, and
+    `eval --curves` each team's progress CSV."""
     trainer, run, paths = both_run
     assert set(paths) == {"prey", "predator"}
     checkpoint = os.path.join(run, "model_3.pt")
@@ -274,6 +275,10 @@ def test_export_and_reload_both_policies(both_run, tmp_path, one_thread):
     result = json.loads(open(os.path.join(cross, "cross_play.json")).read())
     assert result["prey"] == ["model_0", "model_2", "model_3"]
     assert result["predator"] == ["model_0", "model_2", "model_3", "random"]
+    # Each team's training curve from its progress CSV.
+    assert main(["eval", "--curves", f"prey={run}/progress_prey.csv", f"predator={run}/progress_predator.csv",
+                 "--out", cross]) == 0
+    assert os.path.getsize(os.path.join(cross, "training_curves.png")) > 0
 
 
 @pytest.mark.parametrize("critic", ["team", "world"])

@@ -259,7 +259,8 @@ def add_eval_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--stochastic", action="store_true", help="trained policies sample actions (default: argmax)")
     p.add_argument("--out", default="eval_results", help="output directory (CSV, JSON, figures)")
     p.add_argument("--curves", nargs="*", default=[], metavar="LABEL=RUNDIR_GLOB",
-                   help="also plot training curves of these runs (mean and std band over runs per label)")
+                   help="also plot training curves of these runs (mean and std band over runs per label); a run "
+                        "of both teams: its run/progress_prey.csv or run/progress_predator.csv")
     p.add_argument("--smooth", type=int, default=1, metavar="N",
                    help="training curves: moving average over N iterations (default 1: none)")
     p.add_argument("--no-figures", action="store_true", help="no matplotlib figures")

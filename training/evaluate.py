@@ -441,9 +441,10 @@ def plot_cross_play(result: dict, path: str, metric: str = "captures_per_prey") 
 
 
 def read_run_curve(run_dir: str) -> dict[str, np.ndarray]:
-    """Training curve of one run: columns of `progress.csv`, or (without it) the Episode/* scalars of
-    its TensorBoard events. Keys: world_episodes, captures_per_prey, reward_per_agent."""
-    csv_path = os.path.join(run_dir, "progress.csv")
+    """Training curve of one run: columns of `progress.csv` (or of the progress CSV file given, e.g. one
+    team's `progress_<team>.csv` of a run of both teams), or (without it) the Episode/* scalars of its
+    TensorBoard events. Keys: world_episodes, captures_per_prey, reward_per_agent."""
+    csv_path = run_dir if run_dir.endswith(".csv") else os.path.join(run_dir, "progress.csv")
     if os.path.isfile(csv_path):
         with open(csv_path, newline="", encoding="utf-8") as f:
             rows = list(csv.DictReader(f))
@@ -491,13 +492,14 @@ def _moving_average(y: np.ndarray, window: int) -> np.ndarray:
 
 
 def plot_training_curves(curves: dict[str, list[str]], path: str, smooth: int = 1) -> str:
-    """`curves`: label -> run directories (glob patterns allowed). Mean and std band over the runs of
+    """`curves`: label -> run directories or progress CSV files (glob patterns allowed). Mean and std band over the runs of
     each label, per iteration, against world episodes; each run's curve is first smoothed by a
     trailing moving average over `smooth` iterations."""
     plt = _pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     for label, patterns in curves.items():
-        runs = sorted({d for p in patterns for d in (glob.glob(p) or [p]) if os.path.isdir(d)})
+        runs = sorted({d for p in patterns for d in (glob.glob(p) or [p])
+                       if os.path.isdir(d) or (d.endswith(".csv") and os.path.isfile(d))})
         if not runs:
             raise ValueError(f"curves {label!r}: no run directory matches {patterns}")
         data = [read_run_curve(d) for d in runs]
