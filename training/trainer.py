@@ -21,6 +21,11 @@ state (a heuristic's random streams are keyed by the simulation state and its se
 and CUDA), numpy and Python RNG states, and the logger's running sums. Resuming on the CPU continues
 bit-exactly: the parameters after `n + m` uninterrupted iterations equal those after `n`, save,
 resume, `m`.
+
+Both teams (`train.team = "both"`): one learner per team (`Learner`: adapter, rsl-rl config, PPO,
+logger) in the same worlds, driven together by `TrainingLoop`; `progress_<team>.csv`; checkpoints hold
+`learners: {team: rsl-rl state}`, and under `infos["aquarium"]["teams"]` each learner's part of the
+above, plus the opponent pool (`pool.py`); `export()` writes one policy per team.
 """
 
 from __future__ import annotations
