@@ -378,7 +378,8 @@ def test_cli_both_teams_and_bad_input(tmp_path, capsys, one_thread):
             (["train", "--set", "teams.shark.sharing=individual"], "must map team names"),
             (["train", "--team", "both", "--pool-every", "1", "--set", "runner.actor.class_name=RNNModel"],
              "train.pool_every > 0 needs feed-forward actors")):
-        assert main(argv) == 2, argv
+        # (a run that wrongly starts stops at once and writes into tmp_path)
+        assert main(argv + ["--iterations", "0", "--log-dir", str(tmp_path / "refused")]) == 2, argv
         err = capsys.readouterr().err.strip()
         assert "Traceback" not in err and len(err.splitlines()) == 1 and expected in err, (argv, err)
     with pytest.raises(SystemExit):
