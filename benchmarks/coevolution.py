@@ -15,8 +15,8 @@ steps; the iterations are the fewest that reach `--agent-steps`.
 Steps:
 1. speed: `--speed-iterations` timed iterations (after 2 untimed ones: warm-up and graph capture) of
    the same world with (a) one team learning (prey against NaivChase predators, the paper's setting),
-   (b) both teams learning, (c) both teams with the pool; agent-steps/s of all agents and of the
-   learning rows;
+   (b) both teams learning, (c) both teams with the pool, each in a process of its own; agent-steps/s
+   of all agents and of the learning rows;
 2. the co-evolution run, checkpoints every `iterations / --generations` iterations (`run/`);
 3. cross-play (`aquarium_warp.training.evaluate.cross_play`): every prey generation (and Random,
    TurnAway) against every predator generation (and Random, NaivChase), `--eval-episodes` x
@@ -38,6 +38,7 @@ import json
 import math
 import os
 import platform
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -77,6 +78,24 @@ def pool_settings(args) -> dict:
     return {"train": {"pool_every": args.pool_every, "pool_size": args.pool_size, "pool_fraction": args.pool_fraction}}
 
 
+def speed_paths(args) -> dict[str, tuple[str, list[dict]]]:
+    """The paths whose speed is compared: `{key: (name, config changes)}`, same world for all."""
+    both = {"train": {"team": "both"}}
+    return {"one": ("one team (prey vs NaivChase)", [{"train": {"team": "prey", "opponent": "naivchase"}}]),
+            "both": ("both teams", [both]), "pool": ("both teams + pool", [both, pool_settings(args)])}
+
+
+def measure_speed_in_subprocess(key: str, argv: list[str]) -> dict:
+    """`measure_speed` of one path in a process of its own: several graph-capturing trainers built one
+    after another in one process once failed a capture (training/README.md), and each process frees
+    its graphs' memory when it ends."""
+    done = subprocess.run([sys.executable, __file__, *argv, "--speed-path", key], capture_output=True, text=True)
+    lines = [line for line in done.stdout.splitlines() if line.startswith("SPEED ")]
+    if done.returncode != 0 or not lines:
+        raise RuntimeError(f"speed of {key!r} failed:\n{done.stdout[-2000:]}\n{done.stderr[-4000:]}")
+    return json.loads(lines[-1][len("SPEED "):])
+
+
 def measure_speed(args, name: str, *changes: dict) -> dict:
     """Agent-steps per second of `--speed-iterations` iterations after 2 untimed ones."""
     config = make_config("default", settings(args), *changes)
@@ -95,9 +114,6 @@ def measure_speed(args, name: str, *changes: dict) -> dict:
              "iterations": args.speed_iterations, "seconds": seconds,
              "agent_steps_per_s": agents * steps / seconds, "learning_rows_per_s": rows * steps / seconds}
     trainer.close()
-    del trainer
-    if device.type == "cuda":
-        torch.cuda.empty_cache()
     return point
 
 
@@ -123,7 +139,7 @@ def plot_curves(scalars: dict, steps_per_iteration: int, path: str) -> str:
         for tag in tags:
             if tag in scalars:
                 x, y = zip(*scalars[tag])
-                ax.plot(np.array(x) * steps_per_iteration, y, label=tag.split("/")[0] if len(tags) > 1 else None)
+                ax.plot((np.array(x) + 1) * steps_per_iteration, y, label=tag.split("/")[0] if len(tags) > 1 else None)
         ax.set_title(title)
         ax.set_xlabel("agent-steps")
         if len(tags) > 1:
@@ -183,6 +199,9 @@ def main(argv=None) -> int:
     p.add_argument("--eval-seeds", type=int, nargs="+", default=[0, 1], help="cross-play seeds")
     p.add_argument("--seed", type=int, default=0, help="training seed")
     p.add_argument("--keep-checkpoints", action="store_true", help="keep run/model_*.pt")
+    p.add_argument("--speed-path", choices=("one", "both", "pool"), default=None,
+                   help="(internal) measure the speed of one path and print it as JSON")
+    argv = sys.argv[1:] if argv is None else list(argv)
     args = p.parse_args(argv)
     defaults = dict(worlds=(16, 4096), prey=(8, 32), predators=(2, 4), max_steps=(100, 500), agent_steps=(2e5, 1e9),
                     generations=(3, 6), pool_every=(2, 20), speed_iterations=(2, 10), eval_episodes=(4, 64))
@@ -193,6 +212,10 @@ def main(argv=None) -> int:
         args.device = "cpu"
     if args.device == "cpu":
         torch.set_num_threads(1)  # the small networks run fastest on one thread (as in the tests)
+    if args.speed_path is not None:
+        name, changes = speed_paths(args)[args.speed_path]
+        print("SPEED " + json.dumps(measure_speed(args, name, *changes)))
+        return 0
     out = Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     run_dir = str(out / "run")
@@ -205,9 +228,7 @@ def main(argv=None) -> int:
           f"agent-steps, device {args.device or 'default'}", flush=True)
 
     # 1. speed of the one-team path against the two-learner path, same world
-    speed = [measure_speed(args, "one team (prey vs NaivChase)", {"train": {"team": "prey", "opponent": "naivchase"}}),
-             measure_speed(args, "both teams", {"train": {"team": "both"}}),
-             measure_speed(args, "both teams + pool", {"train": {"team": "both"}}, pool_settings(args))]
+    speed = [measure_speed_in_subprocess(key, argv) for key in ("one", "both", "pool")]
     for point in speed:
         print(f"  speed {point['path']:>30}: {point['agent_steps_per_s']:.3g} agent-steps/s "
               f"({point['learning_rows_per_s']:.3g} learning rows/s)", flush=True)
