@@ -180,7 +180,8 @@ def write_csv(rows: list[dict], path: str) -> str:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--device", default=None, help="'cuda:0' (default when present) or 'cpu'")
     p.add_argument("--out-dir", default="coevolution_results", help="output folder")
     p.add_argument("--tiny", action="store_true", help="a CPU-sized run of every step (400 x 400 px, 16 worlds)")
@@ -194,7 +195,8 @@ def main(argv=None) -> int:
     p.add_argument("--pool-every", type=int, default=None, help="pool snapshot interval (default 20; tiny 2)")
     p.add_argument("--pool-size", type=int, default=4, help="snapshots kept per team")
     p.add_argument("--pool-fraction", type=float, default=0.2, help="worlds per team against the other's snapshots")
-    p.add_argument("--speed-iterations", type=int, default=None, help="timed iterations per speed point (default 10; tiny 2)")
+    p.add_argument("--speed-iterations", type=int, default=None,
+                   help="timed iterations per speed point (default 10; tiny 2)")
     p.add_argument("--eval-episodes", type=int, default=None, help="cross-play episodes per seed (default 64; tiny 4)")
     p.add_argument("--eval-seeds", type=int, nargs="+", default=[0, 1], help="cross-play seeds")
     p.add_argument("--seed", type=int, default=0, help="training seed")
@@ -331,7 +333,8 @@ def main(argv=None) -> int:
         print(f"\n{'generation':>12} {'prev/prev':>10} {'new prey':>10} {'new pred':>10} {'prey better':>12} "
               f"{'pred better':>12}")
         for g in generations:
-            print(f"{g['generation']:>12} {g['previous_vs_previous']:10.3f} {g['new_prey_vs_previous_predators']:10.3f} "
+            print(f"{g['generation']:>12} {g['previous_vs_previous']:10.3f} "
+                  f"{g['new_prey_vs_previous_predators']:10.3f} "
                   f"{g['previous_prey_vs_new_predators']:10.3f} {str(g['prey_improved']):>12} "
                   f"{str(g['predators_improved']):>12}")
     print("\nswarm metrics, first -> last logged value: " + ", ".join(

@@ -95,7 +95,8 @@ def test_both_teams_resume_bit_exact_and_videos_change_nothing(both_run, tmp_pat
 
     full, run, _ = both_run
     assert full.iteration == 4 and full.pool.count == 4
-    assert {"progress_prey.csv", "progress_predator.csv", "model_0.pt", "model_2.pt", "model_3.pt"} <= set(os.listdir(run))
+    expected = {"progress_prey.csv", "progress_predator.csv", "model_0.pt", "model_2.pt", "model_3.pt"}
+    assert expected <= set(os.listdir(run))
     part = Trainer(both_config(video_every=1, video_steps=3, **copy.deepcopy(POOLED)), str(tmp_path / "part"))
     part.train(2)
     part.close()

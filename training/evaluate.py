@@ -492,9 +492,9 @@ def _moving_average(y: np.ndarray, window: int) -> np.ndarray:
 
 
 def plot_training_curves(curves: dict[str, list[str]], path: str, smooth: int = 1) -> str:
-    """`curves`: label -> run directories or progress CSV files (glob patterns allowed). Mean and std band over the runs of
-    each label, per iteration, against world episodes; each run's curve is first smoothed by a
-    trailing moving average over `smooth` iterations."""
+    """`curves`: label -> run directories or progress CSV files (glob patterns allowed). Mean and std
+    band over the runs of each label, per iteration, against world episodes; each run's curve is first
+    smoothed by a trailing moving average over `smooth` iterations."""
     plt = _pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     for label, patterns in curves.items():

@@ -31,7 +31,7 @@ import torch.nn as nn
 from torch.func import functional_call
 
 from .config import POOL_SAMPLING
-from .vec_env import AquariumVecEnv
+from .vec_env import OTHER, AquariumVecEnv
 
 # The actor's parts that a snapshot keeps: its observation normaliser, then its MLP (logits).
 ACTOR_PARTS = ("obs_normalizer", "mlp")
@@ -60,10 +60,12 @@ class OpponentPool:
         self.num_worlds, self.device = env.num_worlds, env.device
         W, dev = self.num_worlds, self.device
         # Team t is played by snapshots where the OTHER team plays against the past.
-        other = {"prey": "predator", "predator": "prey"}
-        self.snapshot_share = {t: float(fractions[other[t]]) for t in self.teams}
-        self._threshold = {"predator": float(fractions["prey"]), "prey": float(fractions["prey"] + fractions["predator"])}
+        self.snapshot_share = {t: float(fractions[OTHER[t]]) for t in self.teams}
+        # A world's uniform `role` draw: [0, f_prey) predators are a snapshot, [f_prey, f_prey + f_predator)
+        # the prey are, the rest is live.
         self._low = {"predator": 0.0, "prey": float(fractions["prey"])}
+        self._threshold = {"predator": float(fractions["prey"]),
+                           "prey": float(fractions["prey"] + fractions["predator"])}
         self._templates = {}
         self._stacked: dict[str, dict[str, torch.Tensor]] = {}
         for team in self.teams:

@@ -499,7 +499,8 @@ class Trainer:
         with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints the networks (config.json has them)
             self.runner = AquariumRunner(
                 self.vec_env, copy.deepcopy(self.runner_cfg), log_dir=log_dir, device=str(self.device), trainer=self,
-                quiet=train["quiet"], others=[(self.vec_envs[t], copy.deepcopy(self.runner_cfgs[t])) for t in self.teams[1:]])
+                quiet=train["quiet"],
+                others=[(self.vec_envs[t], copy.deepcopy(self.runner_cfgs[t])) for t in self.teams[1:]])
         self.learners = {learner.team: learner for learner in self.runner.learners}
         self.pool = None
         if train["pool_every"]:
