@@ -3,7 +3,7 @@ for at least 1e9 agent-steps; then a cross-play matrix over the run's checkpoint
 along training, one video, and the end-to-end speed of the two-learner path against the one-team path.
 
     python benchmarks/coevolution.py --device cuda:0 --out-dir benchmarks/results/coevolution_h100
-    python benchmarks/coevolution.py --tiny --out-dir /tmp/coevolution_tiny          # CPU, about 2 minutes
+    python benchmarks/coevolution.py --tiny --out-dir /tmp/coevolution_tiny          # CPU, about a minute
 
 The run (defaults): 4096 worlds of 32 prey and 4 predators in MODEL.md's 800 x 800 px world, 500-step
 episodes, both teams Parameter Sharing with the trainer's default PPO (two tanh layers of 64, 32 steps
