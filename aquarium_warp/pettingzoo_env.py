@@ -74,6 +74,38 @@ MAX_EXTRA_NAMES = 10_000
 # Values per agent slot in `state()`.
 STATE_FIELDS = ("alive", "x", "y", "vx", "vy", "heading_x", "heading_y")
 
+
+class WorldState:
+    """The global state of every world of a `BatchedAquarium`: calling it gives `[W, 7 * capacity + 1]`
+    float32 on the env's device (the PettingZoo env's `state()`, and the centralised critic's "world"
+    input in training, where it runs inside CUDA graphs: its constants are made once, here).
+
+    Per agent slot, predators first, then prey slots (`possible_agents`' order):
+    `[alive, x / width, y / height, vx / max_speed, vy / max_speed, heading_x, heading_y]` (`alive` 0 or
+    1, positions in [0, 1], velocities and the heading unit vector in [-1, 1]; all zeros for an empty
+    slot), then the episode's progress `world_step / max_steps` in [0, 1]. Computed in float64 and
+    rounded once."""
+
+    def __init__(self, aquarium):
+        cfg, Pc = aquarium.config, aquarium.prey_capacity
+        self.aquarium, self.max_steps = aquarium, cfg.max_steps
+        dev = aquarium.torch_device
+        self.order = torch.cat([torch.arange(Pc, cfg.capacity, device=dev), torch.arange(Pc, device=dev)])
+        self.speed = torch.tensor([cfg.predator.max_speed] * (cfg.capacity - Pc) + [cfg.prey.max_speed] * Pc,
+                                  dtype=torch.float64, device=dev).unsqueeze(-1)
+        self.size = torch.tensor([cfg.width, cfg.height], dtype=torch.float64, device=dev)
+        self.length = len(STATE_FIELDS) * cfg.capacity + 1
+
+    def __call__(self) -> torch.Tensor:
+        t, order = self.aquarium.state.torch, self.order
+        alive = t.alive[:, order]
+        fields = torch.cat([alive.unsqueeze(-1).double(), (t.position[:, order].double() / self.size).clamp(0.0, 1.0),
+                            (t.velocity[:, order].double() / self.speed).clamp(-1.0, 1.0),
+                            t.heading[:, order].clamp(-1.0, 1.0).double()], dim=-1)
+        fields = torch.where(alive.unsqueeze(-1), fields, 0.0)
+        progress = (t.world_step.double() / self.max_steps).clamp(max=1.0)
+        return torch.cat([fields.flatten(1), progress.unsqueeze(1)], dim=1).float()
+
 # Environment options (not part of the simulation's config) and their defaults.
 ENV_OPTIONS = {
     "render_mode": "human",  # marl-aquarium's default; nothing is drawn until render() is called
@@ -528,29 +560,9 @@ class AquariumParallelEnv(ParallelEnv):
 
     # ------------------------------------------------------------------ state
     def state(self) -> np.ndarray:
-        """Global state: a flat float32 vector of `7 * capacity + 1` values in `state_space`.
-
-        Per agent slot, in `possible_agents`' slot order (predators, then prey slots):
-        `[alive, x / width, y / height, vx / max_speed, vy / max_speed, heading_x, heading_y]`
-        (`alive` 0 or 1, positions in [0, 1], velocities and the heading unit vector in [-1, 1];
-        all zeros for an empty slot), then the episode's progress `world_step / max_steps` in [0, 1].
-        """
-        cfg, t, Pc = self.config, self.aquarium.state.torch, self._Pc
-        order = np.r_[Pc:cfg.capacity, 0:Pc]
-        alive = t.alive[0].cpu().numpy()[order]
-        pos = t.position[0].cpu().numpy()[order].astype(np.float64)
-        vel = t.velocity[0].cpu().numpy()[order].astype(np.float64)
-        head = t.heading[0].cpu().numpy()[order]
-        speed = np.array([cfg.predator.max_speed] * self._P + [cfg.prey.max_speed] * Pc)[:, None]
-        out = np.zeros((cfg.capacity, len(STATE_FIELDS)), np.float32)
-        out[:, 0] = alive
-        out[:, 1] = np.clip(pos[:, 0] / cfg.width, 0.0, 1.0)
-        out[:, 2] = np.clip(pos[:, 1] / cfg.height, 0.0, 1.0)
-        out[:, 3:5] = np.clip(vel / speed, -1.0, 1.0)
-        out[:, 5:7] = np.clip(head, -1.0, 1.0)
-        out[~alive] = 0.0
-        progress = min(1.0, int(t.world_step[0]) / cfg.max_steps)
-        return np.append(out.reshape(-1), np.float32(progress))
+        """Global state: a flat float32 vector of `7 * capacity + 1` values in `state_space` (the
+        layout of `WorldState`, which computes it for every world of a `BatchedAquarium`)."""
+        return WorldState(self.aquarium)()[0].cpu().numpy()
 
     # ------------------------------------------------------------------ rendering
     def render(self):

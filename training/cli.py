@@ -58,9 +58,12 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", default=None, help="JSON or YAML file with sections env / train / runner "
                                                   "(and optionally 'preset'); flags override it")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="override any config entry, e.g. runner.algorithm.num_mini_batches=8 (repeatable)")
+                   help="override any config entry, e.g. runner.algorithm.num_mini_batches=8 (repeatable); "
+                        "one team's learner: teams.<prey|predator>.<sharing|actor_lr|critic_lr|reward_scale|"
+                        "critic|pool_fraction>=V or teams.<team>.runner.<algorithm|actor|critic>.KEY=V")
     g = p.add_argument_group("run")
-    g.add_argument("--team", choices=("prey", "predator"), default=None, help="the learning team")
+    g.add_argument("--team", choices=("prey", "predator", "both"), default=None,
+                   help="the learning team; 'both': one PPO learner per team in the same worlds")
     g.add_argument("--predator-policy", default=None,
                    help="predators when training prey: 'naivchase' (default), 'random' or a policy file")
     g.add_argument("--prey-policy", default=None,
@@ -81,6 +84,30 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
                    help="a progress bar instead of rsl-rl's per-iteration report")
     g.add_argument("--no-random-ep-len", action="store_true",
                    help="start every world at step 0 (default: spread the worlds' truncations)")
+    g.add_argument("--critic", choices=("local", "team", "world"), default=None,
+                   help="what each learner's critic sees besides the agent's observation (MAPPO's centralised "
+                        "critic; actors stay local): nothing (local, default), the team's joint observation "
+                        "(team) or the world state (world)")
+    g.add_argument("--video-every", type=_int_at_least(0), default=None, metavar="N",
+                   help="every N iterations a rendered evaluation episode of one world into the log "
+                        "(TensorBoard Video/episode; default 0: none)")
+    g.add_argument("--video-steps", type=_int_at_least(1), default=None, help="steps of that episode (default 200)")
+    b = p.add_argument_group("both teams learning (--team both)")
+    b.add_argument("--update-schedule", choices=("simultaneous", "alternating"), default=None,
+                   help="both learners update every iteration (simultaneous, default), or take turns while "
+                        "the other is frozen (alternating)")
+    b.add_argument("--alternate-every", type=_int_at_least(1), default=None, metavar="K",
+                   help="alternating: iterations per turn, prey first (default 10)")
+    b.add_argument("--pool-every", type=_int_at_least(0), default=None, metavar="N",
+                   help="snapshot each team's actor into its opponent pool every N iterations "
+                        "(fictitious self-play; default 0: no pool)")
+    b.add_argument("--pool-size", type=_int_at_least(1), default=None, help="snapshots kept per team (default 8)")
+    b.add_argument("--pool-sampling", choices=("uniform", "latest"), default=None,
+                   help="which snapshot a world draws when its episode ends: uniform, or latest-biased "
+                        "(weights 1..n from the oldest to the newest)")
+    b.add_argument("--pool-fraction", type=_number("a number in [0, 0.5]", lambda v: 0 <= v <= 0.5), default=None,
+                   help="fraction of worlds in which each team plays against the other team's snapshots "
+                        "(default 0.2; per team: --set teams.<team>.pool_fraction=F, both at most 1)")
     e = p.add_argument_group("environment")
     e.add_argument("--prey", type=int, default=None, help="prey per world")
     e.add_argument("--predators", type=int, default=None, help="predators per world")
@@ -117,7 +144,10 @@ def _train_changes(args) -> dict:
     train = {"team": args.team, "sharing": args.sharing, "num_worlds": args.num_worlds, "device": args.device,
              "seed": args.seed, "iterations": args.iterations, "episodes": args.episodes,
              "actor_lr": args.actor_lr, "critic_lr": args.critic_lr, "reward_scale": args.reward_scale,
-             "export": args.export, "quiet": args.quiet}
+             "export": args.export, "quiet": args.quiet, "critic": args.critic, "video_every": args.video_every,
+             "video_steps": args.video_steps, "update_schedule": args.update_schedule,
+             "alternate_every": args.alternate_every, "pool_every": args.pool_every, "pool_size": args.pool_size,
+             "pool_sampling": args.pool_sampling, "pool_fraction": args.pool_fraction}
     if args.no_random_ep_len:
         train["init_at_random_ep_len"] = False
     env = {"prey_count": args.prey, "predator_count": args.predators, "max_steps": args.max_steps,
@@ -141,6 +171,9 @@ def _train_changes(args) -> dict:
 
 
 def _opponent_change(args, team: str) -> dict:
+    if team == "both" and (args.prey_policy is not None or args.predator_policy is not None):
+        raise ValueError("--prey-policy / --predator-policy set the other team of a one-team run; with --team both "
+                         "both teams learn")
     if team == "prey" and args.prey_policy is not None:
         raise ValueError("--prey-policy sets the prey when training predators; with --team prey use --predator-policy")
     if team == "predator" and args.predator_policy is not None:
@@ -157,17 +190,18 @@ def _check_logger_package(logger) -> None:
 
 
 def run_train(args) -> int:
-    from .config import deep_update, load_config_file, make_config, parse_assignment, total_iterations
+    from .config import deep_update, load_config_file, make_config, parse_assignment, team_settings, total_iterations
     from .trainer import Trainer
 
     changes = _train_changes(args)
     sets = [parse_assignment(s) for s in args.set]
     if args.resume:
         given = {k: v for k, v in changes.items() if k != "train"}
-        given_train = {k for k in changes.get("train", {}) if k not in ("iterations", "episodes", "export", "quiet")}
+        given_train = {k for k in changes.get("train", {})
+                       if k not in ("iterations", "episodes", "export", "quiet", "video_every", "video_steps")}
         if given or given_train or sets or args.config or args.preset or args.prey_policy or args.predator_policy:
             raise ValueError("--resume continues a run with its saved config: only --iterations, --episodes, "
-                             "--export and --quiet may be given with it")
+                             "--export, --quiet, --video-every and --video-steps may be given with it")
         trainer = Trainer.resume(args.resume, log_dir=args.log_dir, changes={"train": changes.get("train", {})})
         _check_logger_package(trainer.config["runner"]["logger"])
         print(f"aquarium-warp train: resumed {args.resume} at iteration {trainer.iteration} of "
@@ -187,16 +221,19 @@ def run_train(args) -> int:
             "runs", f"{config['train']['team']}_{config['train']['sharing']}_{time.strftime('%Y%m%d-%H%M%S')}")
         _check_logger_package(config["runner"]["logger"])
         trainer = Trainer(config, log_dir=log_dir)
-        print(f"aquarium-warp train: {config['train']['team']} ({config['train']['sharing']} sharing) vs "
-              f"{trainer.config['train']['opponent']} on {trainer.env.device}, {trainer.env.num_worlds} worlds x "
-              f"{trainer.vec_env.slots} slots, {total_iterations(config)} iterations -> {log_dir}")
+        learners = " and ".join(f"{t} ({team_settings(config, t)['sharing']} sharing, {trainer.vec_envs[t].slots} "
+                                f"slots)" for t in trainer.teams)
+        against = "" if trainer.opponent is None else f" vs {trainer.config['train']['opponent']}"
+        print(f"aquarium-warp train: {learners}{against} on {trainer.env.device}, {trainer.env.num_worlds} worlds, "
+              f"{total_iterations(config)} iterations -> {log_dir}")
     start = time.perf_counter()
     trainer.train()
     paths = trainer.export() if trainer.config["train"]["export"] else {}
     print(f"aquarium-warp train: {trainer.iteration} iterations done in {time.perf_counter() - start:.1f} s; "
-          f"checkpoints, progress.csv and TensorBoard logs in {trainer.log_dir}")
-    for fmt, path in paths.items():
-        print(f"  exported {fmt}: {path}")
+          f"checkpoints, progress CSV and TensorBoard logs in {trainer.log_dir}")
+    for key, value in paths.items():
+        for fmt, path in (value.items() if isinstance(value, dict) else [(key, value)]):
+            print(f"  exported {fmt}: {path}")
     trainer.close()
     return 0
 
@@ -222,7 +259,8 @@ def add_eval_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--stochastic", action="store_true", help="trained policies sample actions (default: argmax)")
     p.add_argument("--out", default="eval_results", help="output directory (CSV, JSON, figures)")
     p.add_argument("--curves", nargs="*", default=[], metavar="LABEL=RUNDIR_GLOB",
-                   help="also plot training curves of these runs (mean and std band over runs per label)")
+                   help="also plot training curves of these runs (mean and std band over runs per label); a run "
+                        "of both teams: its run/progress_prey.csv or run/progress_predator.csv")
     p.add_argument("--smooth", type=int, default=1, metavar="N",
                    help="training curves: moving average over N iterations (default 1: none)")
     p.add_argument("--no-figures", action="store_true", help="no matplotlib figures")

@@ -8,6 +8,10 @@ A run configuration is a dict with three sections:
 - `runner`: rsl-rl's `OnPolicyRunner` config (num_steps_per_env, save_interval, algorithm, actor,
   critic, ...). The class names, the categorical distribution's size, Individual Learning's per-slot
   models and the learning-rate ratio are filled in by `runner_config()`.
+- `teams` (optional): per-team blocks `{"prey": {...}, "predator": {...}}` that override, for that
+  team's learner, the `train` settings of `TEAM_KEYS` (sharing, learning rates, reward scale, critic,
+  pool fraction) and, under `runner`, its `algorithm` / `actor` / `critic` entries. With
+  `train.team = "both"` each team has its own learner (own PPO, storage, optimizer, normaliser).
 
 Presets (`PRESETS`): `default`, `paper` (section 5 of the paper), `tiny` (small CPU runs and tests).
 Every preset is the default config deep-updated with the preset's entries.
@@ -33,7 +37,7 @@ IL_MODEL = "aquarium_warp.training.models:IndividualMLPModel"
 SHARING = ("parameter", "individual")
 
 TRAIN_DEFAULTS = {
-    "team": "prey",                 # the learning team: "prey" or "predator"
+    "team": "prey",                 # the learning team: "prey", "predator" or "both" (one learner per team)
     "opponent": None,               # the other team: a heuristic name or a policy file; None: naivchase / random
     "opponent_deterministic": True,  # trained opponents: argmax (True) or sampled actions
     "num_worlds": 1024,
@@ -52,8 +56,28 @@ TRAIN_DEFAULTS = {
     "cuda_graphs": True,            # the fast loop replays CUDA graphs on CUDA devices where the model allows
     "metrics_every": 10,            # swarm metrics (Swarm/* in the log) sampled every N steps; 0: none
     "tf32": False,                  # CUDA matrix products in TF32 (faster for large batches, ~1e-3 relative error)
+    "critic": "local",              # the critic's input (MAPPO): "local", "team" or "world" (see CRITICS)
+    # Both teams learning (team "both"):
+    "update_schedule": "simultaneous",  # "simultaneous", or "alternating": one team learns, the other is frozen
+    "alternate_every": 10,          # alternating: iterations per turn (prey first)
+    "pool_every": 0,                # snapshot each team's actor into its opponent pool every N iterations; 0: no pool
+    "pool_size": 8,                 # snapshots kept per team (the oldest is replaced)
+    "pool_sampling": "uniform",     # which snapshot a world draws: "uniform" or "latest" (weights 1..size by age)
+    "pool_fraction": 0.2,           # fraction of worlds in which a team plays against the other team's snapshots
+    "video_every": 0,               # every N iterations a rendered evaluation episode into the log (0: none)
+    "video_steps": 200,             # steps of that episode
 }
 LOOPS = ("fast", "rsl-rl")
+TEAMS = ("prey", "predator")
+# What the critic sees besides the agent's own observation (rsl-rl's "critic" observation set):
+# "local": nothing (the actor's input); "team": the team's joint observation (every slot of the
+# world, slot order); "world": the world state (`pettingzoo_env.WorldState`). Actors stay local.
+CRITICS = ("local", "team", "world")
+UPDATE_SCHEDULES = ("simultaneous", "alternating")
+POOL_SAMPLING = ("uniform", "latest")
+# `train` settings a `teams.<team>` block may override for that team's learner, and its runner entries.
+TEAM_KEYS = ("sharing", "actor_lr", "critic_lr", "reward_scale", "critic", "pool_fraction", "runner")
+TEAM_RUNNER_KEYS = ("algorithm", "actor", "critic")
 
 RUNNER_DEFAULTS = {
     "num_steps_per_env": 32,
@@ -153,10 +177,10 @@ def load_config_file(path: str) -> dict:
     else:
         data = json.loads(text)
     if not isinstance(data, dict):
-        raise ValueError(f"{path}: a config file must hold a mapping with sections env / train / runner")
-    unknown = [k for k in data if k not in ("env", "train", "runner", "preset")]
+        raise ValueError(f"{path}: a config file must hold a mapping with sections env / train / runner / teams")
+    unknown = [k for k in data if k not in ("env", "train", "runner", "teams", "preset")]
     if unknown:
-        raise ValueError(f"{path}: unknown sections {unknown}; allowed: env, train, runner, preset")
+        raise ValueError(f"{path}: unknown sections {unknown}; allowed: env, train, runner, teams, preset")
     return data
 
 
@@ -171,8 +195,8 @@ def parse_assignment(text: str) -> dict:
     except json.JSONDecodeError:
         value = raw
     parts = [p for p in key.strip().split(".") if p]
-    if not parts or parts[0] not in ("env", "train", "runner"):
-        raise ValueError(f"--set {text!r}: the key must start with env., train. or runner.")
+    if not parts or parts[0] not in ("env", "train", "runner", "teams"):
+        raise ValueError(f"--set {text!r}: the key must start with env., train., runner. or teams.")
     out: dict = {}
     node = out
     for p in parts[:-1]:
@@ -188,16 +212,87 @@ def env_config(config: dict) -> AquariumConfig:
     return AquariumConfig.from_dict(data)
 
 
+def learning_teams(config: dict) -> tuple[str, ...]:
+    """The teams that learn: `("prey", "predator")` for `train.team = "both"`, else the one team."""
+    team = config["train"]["team"]
+    return TEAMS if team == "both" else (team,)
+
+
+def team_settings(config: dict, team: str) -> dict:
+    """The `train` settings of `team`'s learner: `train` with its `teams.<team>` block's overrides
+    (without the block's `runner` entries, see `team_runner`)."""
+    block = (config.get("teams") or {}).get(team) or {}
+    return {**config["train"], **{k: v for k, v in block.items() if k != "runner"}}
+
+
+def team_runner(config: dict, team: str) -> dict:
+    """The `runner` section for `team`'s learner: `runner` deep-updated with `teams.<team>.runner`."""
+    block = (config.get("teams") or {}).get(team) or {}
+    return deep_update(copy.deepcopy(config["runner"]), block.get("runner") or {})
+
+
+def _validate_team_settings(settings: dict, where: str) -> None:
+    """The per-team `train` settings (`TEAM_KEYS`) present in `settings`; errors name `where.<key>`."""
+    if "sharing" in settings and settings["sharing"] not in SHARING:
+        raise ValueError(f"{where}.sharing={settings['sharing']!r} must be one of {SHARING}")
+    for name in ("actor_lr", "reward_scale"):
+        if name in settings and (not _is_real(settings[name]) or not 0 < settings[name] < math.inf):
+            raise ValueError(f"{where}.{name}={settings[name]!r} must be a finite number > 0")
+    lr = settings.get("critic_lr")
+    if lr is not None and (not _is_real(lr) or not 0 < lr < math.inf):
+        raise ValueError(f"{where}.critic_lr={lr!r} must be None or a finite number > 0")
+    if "critic" in settings and settings["critic"] not in CRITICS:
+        raise ValueError(f"{where}.critic={settings['critic']!r} must be one of {CRITICS}")
+    fraction = settings.get("pool_fraction", 0.0)
+    if not _is_real(fraction) or not 0 <= fraction <= 1:
+        raise ValueError(f"{where}.pool_fraction={fraction!r} must be a number in [0, 1]")
+
+
+def _validate_algorithm(algorithm: dict, where: str) -> None:
+    """PPO settings present in `algorithm` (`where`: "runner.algorithm" or a team block's)."""
+    # Checked here: rsl-rl would only fail on 0 (ZeroDivisionError) after the first rollout.
+    for name in ("num_learning_epochs", "num_mini_batches"):
+        if name in algorithm and (not _is_int(algorithm[name]) or algorithm[name] < 1):
+            raise ValueError(f"{where}.{name}={algorithm[name]!r} must be an integer >= 1")
+    # NaN or out-of-range coefficients fail only deep inside sampling or the update (or not at all).
+    for name, (allowed, ok) in ALGORITHM_RANGES.items():
+        if name == "desired_kl" and algorithm.get(name) is None:
+            continue  # rsl-rl's "no KL target" (the fixed schedule)
+        if name in algorithm and (not _is_real(algorithm[name]) or not ok(algorithm[name])):
+            raise ValueError(f"{where}.{name}={algorithm[name]!r} must be {allowed}")
+
+
+def _validate_teams_section(config: dict) -> None:
+    teams = config.get("teams")
+    if teams is None:
+        return
+    if not isinstance(teams, dict) or any(t not in TEAMS for t in teams):
+        raise ValueError(f"teams={teams!r} must map team names {TEAMS} to settings blocks")
+    for team, block in teams.items():
+        if block is None:
+            continue
+        if not isinstance(block, dict):
+            raise ValueError(f"teams.{team}={block!r} must be a mapping of settings {TEAM_KEYS}")
+        unknown = [k for k in block if k not in TEAM_KEYS]
+        if unknown:
+            raise ValueError(f"unknown teams.{team} settings {unknown}; known: {list(TEAM_KEYS)}")
+        _validate_team_settings(block, f"teams.{team}")
+        runner = block.get("runner") or {}
+        if not isinstance(runner, dict) or any(k not in TEAM_RUNNER_KEYS for k in runner):
+            raise ValueError(f"teams.{team}.runner={runner!r} may set only {list(TEAM_RUNNER_KEYS)} "
+                             f"(the rollout length and checkpoints are common: set them under runner)")
+        _validate_algorithm(runner.get("algorithm") or {}, f"teams.{team}.runner.algorithm")
+
+
 def validate(config: dict) -> None:
     train = config["train"]
     unknown = [k for k in train if k not in TRAIN_DEFAULTS]
     if unknown:
         raise ValueError(f"unknown train settings {unknown}; known: {sorted(TRAIN_DEFAULTS)}")
     env_config(config)  # validates the env section
-    if train["team"] not in ("prey", "predator"):
-        raise ValueError(f"train.team={train['team']!r} must be 'prey' or 'predator'")
-    if train["sharing"] not in SHARING:
-        raise ValueError(f"train.sharing={train['sharing']!r} must be one of {SHARING}")
+    if train["team"] not in TEAMS + ("both",):
+        raise ValueError(f"train.team={train['team']!r} must be 'prey', 'predator' or 'both'")
+    _validate_team_settings(train, "train")
     for name in ("num_worlds", "iterations"):
         v = train[name]
         if not _is_int(v) or v < (1 if name == "num_worlds" else 0):
@@ -207,19 +302,20 @@ def validate(config: dict) -> None:
         raise ValueError(f"train.seed={train['seed']!r} must be an integer in [0, 2**63 - 2**16)")
     if train["episodes"] is not None and (not _is_real(train["episodes"]) or train["episodes"] <= 0):
         raise ValueError(f"train.episodes={train['episodes']!r} must be None or a number > 0")
-    for name in ("actor_lr", "reward_scale"):
-        if not _is_real(train[name]) or not 0 < train[name] < math.inf:
-            raise ValueError(f"train.{name}={train[name]!r} must be a finite number > 0")
-    if train["critic_lr"] is not None and (not _is_real(train["critic_lr"]) or not 0 < train["critic_lr"] < math.inf):
-        raise ValueError(f"train.critic_lr={train['critic_lr']!r} must be None or a finite number > 0")
     if train["loop"] not in LOOPS:
         raise ValueError(f"train.loop={train['loop']!r} must be one of {LOOPS}")
-    if not _is_int(train["metrics_every"]) or not 0 <= train["metrics_every"] <= 2**31 - 1:
-        raise ValueError(f"train.metrics_every={train['metrics_every']!r} must be an integer in [0, 2**31 - 1] (0: no swarm metrics)")
-    if not isinstance(train["tf32"], bool):
-        raise ValueError(f"train.tf32={train['tf32']!r} must be true or false")
-    if not isinstance(train["cuda_graphs"], bool):
-        raise ValueError(f"train.cuda_graphs={train['cuda_graphs']!r} must be true or false")
+    for name, low, meaning in (("metrics_every", 0, " (0: no swarm metrics)"), ("alternate_every", 1, ""),
+                               ("pool_every", 0, " (0: no opponent pool)"), ("pool_size", 1, ""),
+                               ("video_every", 0, " (0: no videos)"), ("video_steps", 1, "")):
+        if not _is_int(train[name]) or not low <= train[name] <= 2**31 - 1:
+            raise ValueError(f"train.{name}={train[name]!r} must be an integer in [{low}, 2**31 - 1]{meaning}")
+    for name in ("tf32", "cuda_graphs"):
+        if not isinstance(train[name], bool):
+            raise ValueError(f"train.{name}={train[name]!r} must be true or false")
+    if train["update_schedule"] not in UPDATE_SCHEDULES:
+        raise ValueError(f"train.update_schedule={train['update_schedule']!r} must be one of {UPDATE_SCHEDULES}")
+    if train["pool_sampling"] not in POOL_SAMPLING:
+        raise ValueError(f"train.pool_sampling={train['pool_sampling']!r} must be one of {POOL_SAMPLING}")
     export = train["export"]
     if isinstance(export, str):
         train["export"] = export = [] if export in ("", "none") else [e.strip() for e in export.split(",")]
@@ -228,29 +324,51 @@ def validate(config: dict) -> None:
     bad = [e for e in export if e not in ("jit", "onnx")]
     if bad:
         raise ValueError(f"train.export has unknown formats {bad}; allowed: jit, onnx")
+    _validate_teams_section(config)
     runner = config["runner"]
-    if train["sharing"] == "individual":
-        for part in ("actor", "critic"):
-            if _is_recurrent_model(runner.get(part, {}).get("class_name", MLP_MODEL)):
-                raise ValueError(f"train.sharing='individual' does not support recurrent models "
-                                 f"(runner.{part}.class_name={runner[part]['class_name']!r}): use "
-                                 f"train.sharing='parameter' or a feed-forward model")
     for name in ("num_steps_per_env", "save_interval"):
         v = runner.get(name)
         if not _is_int(v) or v < 1:
             raise ValueError(f"runner.{name}={v!r} must be an integer >= 1")
-    # Checked here: rsl-rl would only fail on 0 (ZeroDivisionError) after the first rollout.
     algorithm = runner.get("algorithm", {})
     for name in ("num_learning_epochs", "num_mini_batches"):
-        v = algorithm.get(name)
-        if not _is_int(v) or v < 1:
-            raise ValueError(f"runner.algorithm.{name}={v!r} must be an integer >= 1")
-    # NaN or out-of-range coefficients fail only deep inside sampling or the update (or not at all).
-    for name, (allowed, ok) in ALGORITHM_RANGES.items():
-        if name == "desired_kl" and algorithm.get(name) is None:
-            continue  # rsl-rl's "no KL target" (the fixed schedule)
-        if name in algorithm and (not _is_real(algorithm[name]) or not ok(algorithm[name])):
-            raise ValueError(f"runner.algorithm.{name}={algorithm[name]!r} must be {allowed}")
+        if not _is_int(algorithm.get(name)):  # required (a team block may only override them)
+            raise ValueError(f"runner.algorithm.{name}={algorithm.get(name)!r} must be an integer >= 1")
+    _validate_algorithm(algorithm, "runner.algorithm")
+    both = train["team"] == "both"
+    if both and train["loop"] != "fast":
+        raise ValueError("train.team='both' needs train.loop='fast' (rsl-rl's runner drives one learner)")
+    if both and train["opponent"] is not None:
+        raise ValueError(f"train.opponent={train['opponent']!r} sets the other team of a one-team run; with "
+                         f"train.team='both' every team learns")
+    if train["pool_every"] and not both:
+        raise ValueError("train.pool_every > 0 (an opponent pool of past snapshots) needs train.team='both'")
+    teams = learning_teams(config)
+    if train["pool_every"] and sum(team_settings(config, t)["pool_fraction"] for t in teams) > 1:
+        raise ValueError("the pool fractions of both teams (train.pool_fraction or teams.<team>.pool_fraction) "
+                         "must add up to at most 1: a world plays at most one team's snapshots")
+    for team in teams:
+        _validate_team_models(config, team)
+
+
+def _validate_team_models(config: dict, team: str) -> None:
+    """Individual Learning and the opponent pool need feed-forward models; errors name the settings."""
+    block = (config.get("teams") or {}).get(team) or {}
+    runner = team_runner(config, team)
+    settings = team_settings(config, team)
+    for part in ("actor", "critic"):
+        class_name = runner.get(part, {}).get("class_name", MLP_MODEL)
+        if not _is_recurrent_model(class_name):
+            continue
+        model = f"teams.{team}.runner.{part}" if part in (block.get("runner") or {}) else f"runner.{part}"
+        if settings["sharing"] == "individual":
+            sharing = f"teams.{team}.sharing" if "sharing" in block else "train.sharing"
+            raise ValueError(f"{sharing}='individual' does not support recurrent models "
+                             f"({model}.class_name={class_name!r}): use {sharing}='parameter' or a "
+                             f"feed-forward model")
+        if part == "actor" and config["train"]["pool_every"]:
+            raise ValueError(f"train.pool_every > 0 needs feed-forward actors (snapshots act without hidden "
+                             f"states), not {model}.class_name={class_name!r}")
 
 
 def _is_recurrent_model(class_name) -> bool:
@@ -293,11 +411,14 @@ def total_iterations(config: dict) -> int:
     return max(1, math.ceil(steps / per_iteration))
 
 
-def runner_config(config: dict, slots: int, action_count: int, device_type: str = "cpu") -> dict:
-    """rsl-rl's runner config for a run config, given the learning team's slots per world, the
-    number of discrete actions and the device type ("cpu" or "cuda")."""
-    train = config["train"]
-    runner = copy.deepcopy(config["runner"])
+def runner_config(config: dict, slots: int, action_count: int, device_type: str = "cpu",
+                  team: str | None = None) -> dict:
+    """rsl-rl's runner config of `team`'s learner (default: the one learning team) for a run config,
+    given that team's slots per world, the number of discrete actions and the device type ("cpu" or
+    "cuda")."""
+    team = config["train"]["team"] if team is None else team
+    train = team_settings(config, team)
+    runner = team_runner(config, team)
     alg = runner.setdefault("algorithm", {})
     alg.setdefault("class_name", PPO_CLASS)
     if device_type == "cuda" and train["loop"] == "fast":
@@ -308,6 +429,8 @@ def runner_config(config: dict, slots: int, action_count: int, device_type: str 
     critic_lr = train["critic_lr"] if train["critic_lr"] is not None else train["actor_lr"]
     if "critic_lr_scale" not in alg:
         alg["critic_lr_scale"] = float(critic_lr) / float(train["actor_lr"])
+    if train["critic"] != "local":  # the centralised critic: own observation + the team's or world's
+        runner["obs_groups"] = {"actor": ["policy"], "critic": ["policy", train["critic"]]}
     actor, critic = runner["actor"], runner["critic"]
     dist = actor.setdefault("distribution_cfg", {"class_name": DISTRIBUTION})
     dist.setdefault("class_name", DISTRIBUTION)

@@ -81,7 +81,12 @@ def parse_spec(spec: str) -> tuple[str, str]:
         return spec.lower(), spec
     path = os.path.normpath(spec)
     parts = path.split(os.sep)
-    label = parts[-3] if len(parts) >= 3 and parts[-2] == "exported" else os.path.splitext(parts[-1])[0]
+    if len(parts) >= 3 and parts[-2] == "exported":  # run/exported/policy.pt: the run's name
+        label = parts[-3]
+    elif len(parts) >= 4 and parts[-3] == "exported":  # run/exported/<team>/policy.pt (both teams learned)
+        label = f"{parts[-4]}-{parts[-2]}"
+    else:
+        label = os.path.splitext(parts[-1])[0]
     return label, spec
 
 
@@ -89,14 +94,14 @@ def common_policy_env(specs, fallback: AquariumConfig) -> AquariumConfig:
     """The world every trained policy among `specs` was trained in (`fallback` if none is trained);
     a `ValueError` names two specs whose worlds differ."""
     from .config import env_config
-    from .export import load_policy
+    from .export import policy_world
 
     first = None
     for spec in specs:
         _, value = parse_spec(spec)
         if is_heuristic_spec(value):
             continue
-        world = env_config({"env": load_policy(value).meta.get("env", {})})
+        world = env_config({"env": policy_world(value)})
         if first is None:
             first = (spec, world)
         elif world.to_dict() != first[1].to_dict():
@@ -436,9 +441,10 @@ def plot_cross_play(result: dict, path: str, metric: str = "captures_per_prey") 
 
 
 def read_run_curve(run_dir: str) -> dict[str, np.ndarray]:
-    """Training curve of one run: columns of `progress.csv`, or (without it) the Episode/* scalars of
-    its TensorBoard events. Keys: world_episodes, captures_per_prey, reward_per_agent."""
-    csv_path = os.path.join(run_dir, "progress.csv")
+    """Training curve of one run: columns of `progress.csv` (or of the progress CSV file given, e.g. one
+    team's `progress_<team>.csv` of a run of both teams), or (without it) the Episode/* scalars of its
+    TensorBoard events. Keys: world_episodes, captures_per_prey, reward_per_agent."""
+    csv_path = run_dir if run_dir.endswith(".csv") else os.path.join(run_dir, "progress.csv")
     if os.path.isfile(csv_path):
         with open(csv_path, newline="", encoding="utf-8") as f:
             rows = list(csv.DictReader(f))
@@ -486,13 +492,14 @@ def _moving_average(y: np.ndarray, window: int) -> np.ndarray:
 
 
 def plot_training_curves(curves: dict[str, list[str]], path: str, smooth: int = 1) -> str:
-    """`curves`: label -> run directories (glob patterns allowed). Mean and std band over the runs of
-    each label, per iteration, against world episodes; each run's curve is first smoothed by a
-    trailing moving average over `smooth` iterations."""
+    """`curves`: label -> run directories or progress CSV files (glob patterns allowed). Mean and std
+    band over the runs of each label, per iteration, against world episodes; each run's curve is first
+    smoothed by a trailing moving average over `smooth` iterations."""
     plt = _pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     for label, patterns in curves.items():
-        runs = sorted({d for p in patterns for d in (glob.glob(p) or [p]) if os.path.isdir(d)})
+        runs = sorted({d for p in patterns for d in (glob.glob(p) or [p])
+                       if os.path.isdir(d) or (d.endswith(".csv") and os.path.isfile(d))})
         if not runs:
             raise ValueError(f"curves {label!r}: no run directory matches {patterns}")
         data = [read_run_curve(d) for d in runs]

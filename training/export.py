@@ -158,12 +158,15 @@ class _OnnxLSTMPolicy(nn.Module):
         return torch.argmax(logits, dim=-1), logits, h, c
 
 
-def policy_meta(config: dict, slots: int, observation_size: int, action_count: int) -> dict:
-    """Metadata stored with an exported policy."""
-    train = config["train"]
+def policy_meta(config: dict, slots: int, observation_size: int, action_count: int, team: str | None = None) -> dict:
+    """Metadata stored with an exported policy of `team` (default: the run's one learning team)."""
+    from .config import team_settings
+
+    team = config["train"]["team"] if team is None else team
+    train = team_settings(config, team)
     return {
         "format_version": 1,
-        "team": train["team"],
+        "team": team,
         "observation_size": int(observation_size),
         "action_count": int(action_count),
         "sharing": train["sharing"],
@@ -384,17 +387,21 @@ def _is_torchscript(path: str) -> bool:
         return any(name.endswith("constants.pkl") or "/code/" in name for name in z.namelist())
 
 
-def load_policy(path: str, device="cpu", deterministic: bool = True, seed: int = 0) -> LoadedPolicy:
+def load_policy(path: str, device="cpu", deterministic: bool = True, seed: int = 0,
+                team: str | None = None) -> LoadedPolicy:
     """Load an exported policy (`.pt` TorchScript, `.onnx`) or a training checkpoint (`model_N.pt`).
 
     Returns a `LoadedPolicy`: call it on observations `[N, L]` to get actions `[N]` (int64). TorchScript
     and checkpoints run on `device`; ONNX runs with onnxruntime on the CPU (inputs are moved there and
-    the actions moved back)."""
+    the actions moved back). `team` picks one learner of a checkpoint of both teams (required there);
+    for any other file it must be the policy's own team, if given."""
     if not os.path.isfile(path):
         raise ValueError(f"policy file {path!r} does not exist")
+    if team is not None and team not in ("prey", "predator"):
+        raise ValueError(f"team={team!r} must be 'prey', 'predator' or None")
     device = torch.device(device)
     if path.endswith(".onnx"):
-        return _load_onnx(path, deterministic, seed)
+        return _checked_team(_load_onnx(path, deterministic, seed), team, path)
     if _is_torchscript(path):
         extra = {META_NAME: ""}
         with warnings.catch_warnings():
@@ -402,9 +409,15 @@ def load_policy(path: str, device="cpu", deterministic: bool = True, seed: int =
             module = torch.jit.load(path, map_location=device, _extra_files=extra)
         module.eval()
         meta = json.loads(extra[META_NAME]) if extra[META_NAME] else _sidecar_meta(path)
-        return LoadedPolicy(_module_logits(module, device, meta), meta, "jit", device, deterministic, seed,
-                            module=module)
-    return _load_checkpoint(path, device, deterministic, seed)
+        return _checked_team(LoadedPolicy(_module_logits(module, device, meta), meta, "jit", device, deterministic,
+                                          seed, module=module), team, path)
+    return _checked_team(_load_checkpoint(path, device, deterministic, seed, team), team, path)
+
+
+def _checked_team(policy: LoadedPolicy, team: str | None, path: str) -> LoadedPolicy:
+    if team is not None and policy.team is not None and policy.team != team:
+        raise ValueError(f"{path}: policy was trained for {policy.team!r}, not {team!r}")
+    return policy
 
 
 def _module_logits(module, device: torch.device, meta: dict):
@@ -463,31 +476,58 @@ def _load_onnx(path: str, deterministic: bool, seed: int) -> LoadedPolicy:
                         deterministic, seed, module=session)
 
 
-def actor_from_checkpoint(checkpoint: dict, device="cpu") -> tuple[nn.Module, dict]:
-    """Rebuild the actor of a training checkpoint (written by `Trainer`); returns `(actor, meta)`."""
+def policy_world(path: str) -> dict:
+    """The `env` settings (the run config's section) a policy file was trained in; for a checkpoint of
+    both teams no team needs naming (both share the world)."""
+    if not path.endswith(".onnx") and os.path.isfile(path) and not _is_torchscript(path):
+        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+        state = (checkpoint.get("infos") or {}).get("aquarium") if isinstance(checkpoint, dict) else None
+        if isinstance(state, dict) and "config" in state:
+            return state["config"].get("env", {})
+    return load_policy(path).meta.get("env", {})
+
+
+def actor_from_checkpoint(checkpoint: dict, device="cpu", team: str | None = None) -> tuple[nn.Module, dict]:
+    """Rebuild the actor of a training checkpoint (written by `Trainer`); returns `(actor, meta)`.
+    `team` picks the learner of a checkpoint of both teams (required there)."""
     from rsl_rl.utils import resolve_class
     from tensordict import TensorDict
 
     state = (checkpoint.get("infos") or {}).get("aquarium")
-    if not state or "config" not in state or "runner_cfg" not in state:
+    if not state or "config" not in state or ("runner_cfg" not in state and "teams" not in state):
         raise ValueError("checkpoint was not written by aquarium_warp.training (no run config in it)")
+    saved = checkpoint
+    if "teams" in state:  # both teams learned: one entry per team
+        if team not in state["teams"]:
+            raise ValueError(f"the checkpoint holds the policies of {sorted(state['teams'])}: name one as team=")
+        state, saved = state["teams"][team], checkpoint["learners"][team]
     meta = state["policy_meta"]
     obs = TensorDict({"policy": torch.zeros(1, meta["observation_size"])}, batch_size=[1])
     actor_class, actor_cfg = resolve_class(state["runner_cfg"]["actor"])
     actor = actor_class(obs, {"actor": ["policy"], "critic": ["policy"]}, "actor", 1, **actor_cfg)
-    actor.load_state_dict(checkpoint["actor_state_dict"])
+    actor.load_state_dict(saved["actor_state_dict"])
     return actor.to(device).eval(), meta
 
 
-def _load_checkpoint(path: str, device: torch.device, deterministic: bool, seed: int) -> LoadedPolicy:
-    try:
-        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as error:
-        raise ValueError(f"{path}: neither a TorchScript policy nor a training checkpoint ({error})") from error
-    if not isinstance(checkpoint, dict) or "actor_state_dict" not in checkpoint:
-        raise ValueError(f"{path}: not a training checkpoint (no actor_state_dict)")
-    actor, meta = actor_from_checkpoint(checkpoint, device)
+def policy_from_actor(actor: nn.Module, meta: dict, device, deterministic: bool = True, seed: int = 0) -> LoadedPolicy:
+    """A `LoadedPolicy` acting with a copy of a trained rsl-rl actor (e.g. the live one of a run)."""
+    device = torch.device(device)
     module = exportable(actor).to(device)
     meta = {**meta, "recurrent": recurrent_meta(actor)}
     return LoadedPolicy(_module_logits(module, device, meta), meta, "checkpoint", device, deterministic, seed,
                         module=module)
+
+
+def _load_checkpoint(path: str, device: torch.device, deterministic: bool, seed: int,
+                     team: str | None = None) -> LoadedPolicy:
+    try:
+        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as error:
+        raise ValueError(f"{path}: neither a TorchScript policy nor a training checkpoint ({error})") from error
+    if not isinstance(checkpoint, dict) or ("actor_state_dict" not in checkpoint and "learners" not in checkpoint):
+        raise ValueError(f"{path}: not a training checkpoint (no actor_state_dict)")
+    try:
+        actor, meta = actor_from_checkpoint(checkpoint, device, team)
+    except ValueError as error:
+        raise ValueError(f"{path}: {error}") from None
+    return policy_from_actor(actor, meta, device, deterministic, seed)

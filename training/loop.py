@@ -25,17 +25,25 @@ the same functions run eagerly; recurrent models are updated by rsl-rl's own `PP
 parameters bit for bit (`tests/test_training_loop.py`), so `train.loop = "rsl-rl"` (rsl-rl's own
 runner) remains as the reference and for the benchmark's before/after.
 
-CUDA graphs are captured after one eager warm-up iteration, in the order they replay, from one memory
-pool; they replay the same memory addresses, which is why every buffer they touch is allocated once.
+Several learners (`train.team = "both"`: one PPO learner per team, acting in the same worlds): `act[t]`
+runs every learner's `PPO.act` (and the opponent pool's snapshots, `pool.py`), one simulation step
+follows, and `after[t]` runs every learner's `process_env_step` and statistics; each learner has its
+own update graph. A learner may be frozen for an iteration (the alternating schedule): it acts as
+usual, but its rollout is dropped instead of learned from. With one learner the calls and their order
+are exactly those above.
+
+CUDA graphs are captured after one eager warm-up iteration (the rollout's), and a learner's update
+graph after its first, eager, update (its optimizer state must exist first), from one memory pool;
+they replay the same memory addresses, which is why every buffer they touch is allocated once.
 """
 
 from __future__ import annotations
 
+import contextlib
 import time
 
 import torch
 
-from .ppo import mini_batch_size
 from .vec_env import AquariumVecEnv
 
 
@@ -81,100 +89,134 @@ class IterationRecord:
 
 
 class TrainingLoop:
-    """Runs iterations of rollout + PPO update for `alg` (an `AquariumPPO`) over `env`; see the module doc.
+    """Runs iterations of rollout + PPO update for one or more learners over the same worlds; see the
+    module doc.
 
-    `graphs=True` captures CUDA graphs where the device is CUDA and the algorithm allows it
-    (`alg.graphable`); `self.graphs` says whether they are in use.
+    `learners`: `(alg, env)` pairs (an `AquariumPPO` and its `AquariumVecEnv`), one per learning team.
+    The first adapter steps the worlds; the other learners' actions reach it through its opponent
+    (`LearnerActions`). `pool`: an `OpponentPool` whose snapshots play some worlds. `graphs=True`
+    captures CUDA graphs where the device is CUDA and every algorithm allows it (`alg.graphable`);
+    `self.graphs` says whether they are in use.
     """
 
-    def __init__(self, alg, env: AquariumVecEnv, num_steps: int, graphs: bool = True):
-        self.alg, self.env, self.num_steps = alg, env, int(num_steps)
-        self.device = torch.device(alg.device)
-        self.graphs = bool(graphs) and self.device.type == "cuda" and alg.graphable
-        if self.graphs and not getattr(alg, "capturable_optimizer", False):
-            raise ValueError("CUDA graphs need the algorithm built with capturable_optimizer=True")
-        env.device_stats = True
-        self.obs = env.get_observations()
+    def __init__(self, learners, num_steps: int, graphs: bool = True, pool=None):
+        self.learners = [(alg, env) for alg, env in learners]
+        if not self.learners:
+            raise ValueError("a training loop needs at least one learner")
+        self.algs = [alg for alg, _ in self.learners]
+        self.envs: list[AquariumVecEnv] = [env for _, env in self.learners]
+        self.env = self.envs[0]
+        self.num_steps = int(num_steps)
+        self.pool = pool
+        self.device = torch.device(self.algs[0].device)
+        self.graphs = bool(graphs) and self.device.type == "cuda" and all(alg.graphable for alg in self.algs)
+        if self.graphs and not all(getattr(alg, "capturable_optimizer", False) for alg in self.algs):
+            raise ValueError("CUDA graphs need the algorithms built with capturable_optimizer=True")
+        for env in self.envs:
+            env.device_stats = True
+        self.obs = [env.get_observations() for env in self.envs]
         # Two records alternate: the trainer reads one while the next iteration fills the other.
         self._records = [IterationRecord(self.device), IterationRecord(self.device)]
         self._record_index = 0
         self._warm = False
         self._capture_stream = torch.cuda.Stream(self.device) if self.graphs else None
+        self._pool_handle = None
         self._act_graphs: list = []
         self._after_graphs: list = []
-        self._learn_graph = None
-        self._indices = None
-        self._losses = None
+        n = len(self.learners)
+        # Per learner: its update graph, the indices it reads, the losses it writes, and whether the
+        # learner has updated once eagerly (its optimizer state exists: only then can a graph hold it).
+        self._learn_graphs: list = [None] * n
+        self._indices: list = [None] * n
+        self._losses: list = [None] * n
+        self._updated = [False] * n
+        self._frozen_losses = torch.full((3,), float("nan"), dtype=torch.float64, device=self.device)
 
     # ------------------------------------------------------------------ the stages (captured or eager)
     def _act(self) -> None:
-        actions = self.alg.act(self.obs)
-        self.env.actions_buffer.copy_(actions.view(self.env.actions_buffer.shape))
+        for alg, env, obs in zip(self.algs, self.envs, self.obs):
+            actions = alg.act(obs)
+            env.actions_buffer.copy_(actions.view(env.actions_buffer.shape))
+        if self.pool is not None:
+            self.pool.act()
 
     def _after_step(self) -> None:
-        env = self.env
-        env.row_outcomes()
-        rewards, dones, extras = env.outputs
-        # The storage copies `self.obs` (still the observations the actor saw) before they are replaced.
-        self.alg.process_env_step(self.obs, rewards, dones, extras)
-        if env.swarm is not None:
-            env.swarm.close_episodes(env.info)
-        env.accumulate_episode_stats()
-        env.copy_observations()
+        if self.pool is not None:
+            self.pool.resample()
+        for alg, env, obs in zip(self.algs, self.envs, self.obs):
+            env.row_outcomes()
+            rewards, dones, extras = env.outputs
+            # The storage copies `obs` (still the observations the actor saw) before they are replaced.
+            alg.process_env_step(obs, rewards, dones, extras)
+            if env.swarm is not None:
+                env.swarm.close_episodes(env.info)
+            env.accumulate_episode_stats()
+            env.copy_observations()
 
     def _advance_metrics(self) -> None:
-        if self.env.swarm is not None:
-            self.env.swarm.advance()
+        for env in self.envs:
+            if env.swarm is not None:
+                env.swarm.advance()
 
-    def _learn(self, indices: torch.Tensor | None, mini_batch_size: int) -> torch.Tensor:
+    def _learn(self, i: int, indices: torch.Tensor | None, mini_batch_size: int) -> torch.Tensor:
+        alg = self.algs[i]
         with torch.inference_mode():
-            self.alg.compute_returns(self.obs)
+            alg.compute_returns(self.obs[i])
         if indices is not None:
-            return self.alg.update_on_device(indices, mini_batch_size)
+            return alg.update_on_device(indices, mini_batch_size)
         # Recurrent models: rsl-rl's own update (its trajectory mini-batches), which also does what
         # `finish_update` does.
-        losses = self.alg.update()
+        losses = alg.update()
         return torch.tensor([losses["value"], losses["surrogate"], losses["entropy"]], dtype=torch.float64,
                             device=self.device)
 
-    def _draw_indices(self) -> tuple[torch.Tensor | None, int]:
-        return self.alg.mini_batch_indices() if self.alg.feed_forward else (None, 0)
-
-    def _finish_update(self) -> None:
-        if self.alg.feed_forward:
-            self.alg.finish_update()
-
     # ------------------------------------------------------------------ one iteration
-    def iteration(self) -> IterationRecord:
-        """One rollout of `num_steps` steps and one PPO update, enqueued (on CUDA nothing waits). The
-        record's `read()` gives `[value loss, surrogate loss, entropy, *episode statistics]` (see
-        `AquariumVecEnv.decode_episode_stats` for the tail) and the (collect, learn) seconds."""
-        if self.graphs and self._warm and self._learn_graph is None:
-            self._capture()
+    def iteration(self, learning=None) -> IterationRecord:
+        """One rollout of `num_steps` steps and the PPO updates of the learners flagged in `learning`
+        (default: all; a frozen learner acts but does not learn, its rollout is dropped), enqueued (on
+        CUDA nothing waits). The record's `read()` gives, per learner in order, `[value loss, surrogate
+        loss, entropy (NaN when frozen), *episode statistics]` (`split` cuts it; see
+        `AquariumVecEnv.decode_episode_stats` for the statistics) and the (collect, learn) seconds."""
+        learning = [True] * len(self.learners) if learning is None else [bool(x) for x in learning]
+        if len(learning) != len(self.learners):
+            raise ValueError(f"learning has {len(learning)} flags for {len(self.learners)} learners")
+        if self.graphs and self._warm and not self._act_graphs:
+            self._capture_rollout()
         if self.graphs and not self._warm:
             # Warm-up on the side stream that will capture, as torch asks: lazy initialisations (cuBLAS
             # workspaces are per stream) must not happen during a capture.
-            stream = self._capture_stream
-            stream.wait_stream(torch.cuda.current_stream(self.device))
-            with torch.cuda.stream(stream):
-                result = self._run(self._record())
-            torch.cuda.current_stream(self.device).wait_stream(stream)
+            with self._on_capture_stream():
+                result = self._run(self._record(), learning)
             self._warm = True
             return result
-        return self._run(self._record())
+        return self._run(self._record(), learning)
+
+    def split(self, values: list[float]) -> list[tuple[list[float], list[float]]]:
+        """A record's values cut per learner: `[(losses [3], episode statistics), ...]`."""
+        out, start = [], 0
+        for env in self.envs:
+            end = start + 3 + env.episode_stats_size
+            out.append((values[start:start + 3], values[start + 3:end]))
+            start = end
+        return out
+
+    @contextlib.contextmanager
+    def _on_capture_stream(self):
+        """Run eager work on the capturing stream, ordered with the current stream on both sides."""
+        stream = self._capture_stream
+        stream.wait_stream(torch.cuda.current_stream(self.device))
+        with torch.cuda.stream(stream):
+            yield
+        torch.cuda.current_stream(self.device).wait_stream(stream)
 
     def _record(self) -> IterationRecord:
         self._record_index ^= 1
         return self._records[self._record_index]
 
-    def _finish(self, record: IterationRecord, losses: torch.Tensor) -> IterationRecord:
-        record.finish(torch.cat([losses, self.env.episode_stats_snapshot()]))
-        return record
-
-    def _run(self, record: IterationRecord, mark=lambda phase: None) -> IterationRecord:
+    def _run(self, record: IterationRecord, learning: list[bool], mark=lambda phase: None) -> IterationRecord:
         """One rollout and update, eagerly or by replaying the captured graphs; `mark(phase)` is called
         after each stage ("policy", "env", "storage", "update") for `phase_times`."""
-        graphs = self._learn_graph is not None
+        graphs = bool(self._act_graphs)
         record.mark(0)
         with torch.inference_mode():
             for t in range(self.num_steps):
@@ -186,23 +228,45 @@ class TrainingLoop:
                 self._advance_metrics()
                 mark("storage")
         record.mark(1)
-        indices, size = self._draw_indices()
-        if graphs:
-            self._indices.copy_(indices)
-            self._learn_graph.replay()
-            losses = self._losses
-        else:
-            losses = self._learn(indices, size)
-        self._finish_update()
+        values = []
+        for i, alg in enumerate(self.algs):
+            if learning[i]:
+                values.append(self._update(i))
+            else:
+                alg.storage.clear()  # a frozen learner: its parameters, optimizer and normaliser stay
+                values.append(self._frozen_losses)
+            values.append(self.envs[i].episode_stats_snapshot())
         mark("update")
-        return self._finish(record, losses)
+        record.finish(torch.cat(values))
+        return record
+
+    def _update(self, i: int) -> torch.Tensor:
+        """Learner `i`'s update: its captured graph, captured now if it has updated eagerly before, or
+        eagerly (the first time, on the capturing stream when graphs are in use)."""
+        alg = self.algs[i]
+        indices, size = alg.mini_batch_indices() if alg.feed_forward else (None, 0)
+        if self.graphs and self._updated[i] and self._learn_graphs[i] is None:
+            self._capture_learn(i, size)
+        if self._learn_graphs[i] is not None:
+            self._indices[i].copy_(indices)
+            self._learn_graphs[i].replay()
+            losses = self._losses[i]
+        elif self.graphs and self._warm:
+            with self._on_capture_stream():
+                losses = self._learn(i, indices, size)
+        else:
+            losses = self._learn(i, indices, size)
+        self._updated[i] = True
+        if alg.feed_forward:
+            alg.finish_update()
+        return losses
 
     def phase_times(self) -> dict[str, float]:
-        """One more iteration (it trains like any other), timed stage by stage: seconds spent in the
-        policy (`act`), the env (other team + simulation), the storage (`after`: outcomes, storage
-        writes, statistics) and the update (returns + mini-batches). For the benchmark: on CUDA the
-        stages are bracketed by events, which adds no synchronisation."""
-        while self.graphs and self._learn_graph is None:
+        """One more iteration (it trains like any other, every learner learning), timed stage by stage:
+        seconds spent in the policy (`act`), the env (other team + simulation), the storage (`after`:
+        outcomes, storage writes, statistics) and the update (returns + mini-batches). For the
+        benchmark: on CUDA the stages are bracketed by events, which adds no synchronisation."""
+        while self.graphs and not all(g is not None for g in self._learn_graphs):
             self.iteration()  # warm-up, then capture
         cuda = self.device.type == "cuda"
         marks: list = []
@@ -216,33 +280,40 @@ class TrainingLoop:
                 marks.append((phase, time.perf_counter()))
 
         mark("start")
-        self._run(self._record(), mark)
+        self._run(self._record(), [True] * len(self.learners), mark)
         if cuda:
             marks[-1][1].synchronize()
         times = dict.fromkeys(("policy", "env", "storage", "update"), 0.0)
         for (_, a), (phase, b) in zip(marks[:-1], marks[1:]):
             times[phase] += a.elapsed_time(b) / 1e3 if cuda else b - a
-        self.env.episode_stats_snapshot()  # this iteration's statistics are not logged
         return times
 
-    def _capture(self) -> None:
-        """Record `act[t]`, `after[t]` and `learn` in replay order, from one memory pool. Capturing
-        runs nothing: the storage's step counter advances as if it had and is reset afterwards."""
-        pool = torch.cuda.graph_pool_handle()
-        storage = self.alg.storage
+    def _graph_pool(self):
+        if self._pool_handle is None:
+            self._pool_handle = torch.cuda.graph_pool_handle()
+        return self._pool_handle
+
+    def _capture_rollout(self) -> None:
+        """Record `act[t]` and `after[t]` in replay order, from the loop's memory pool. Capturing runs
+        nothing: the storages' step counters advance as if it had and are reset afterwards."""
         torch.cuda.synchronize(self.device)
         with torch.inference_mode():
             for _ in range(self.num_steps):
                 for stage, graphs in ((self._act, self._act_graphs), (self._after_step, self._after_graphs)):
                     graph = torch.cuda.CUDAGraph()
-                    with torch.cuda.graph(graph, pool=pool, stream=self._capture_stream):
+                    with torch.cuda.graph(graph, pool=self._graph_pool(), stream=self._capture_stream):
                         stage()
                     graphs.append(graph)
-        # The indices are drawn before each replay; capturing must not draw (it would shift the stream).
-        size = mini_batch_size(storage, self.alg.num_mini_batches, self.alg.minibatch_group_size)
-        self._indices = torch.arange(size * self.alg.num_mini_batches, device=self.device)
+        for alg in self.algs:
+            alg.storage.clear()
+
+    def _capture_learn(self, i: int, size: int) -> None:
+        """Record learner `i`'s update (GAE, every mini-batch of every epoch) without running it; the
+        indices are drawn before each replay (capturing must not draw: it would shift the stream)."""
+        alg = self.algs[i]
+        torch.cuda.synchronize(self.device)
+        self._indices[i] = torch.arange(size * alg.num_mini_batches, device=self.device)
         graph = torch.cuda.CUDAGraph()
-        with torch.cuda.graph(graph, pool=pool, stream=self._capture_stream):
-            self._losses = self._learn(self._indices, size)
-        self._learn_graph = graph
-        storage.clear()
+        with torch.cuda.graph(graph, pool=self._graph_pool(), stream=self._capture_stream):
+            self._losses[i] = self._learn(i, self._indices[i], size)
+        self._learn_graphs[i] = graph

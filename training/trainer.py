@@ -21,6 +21,11 @@ state (a heuristic's random streams are keyed by the simulation state and its se
 and CUDA), numpy and Python RNG states, and the logger's running sums. Resuming on the CPU continues
 bit-exactly: the parameters after `n + m` uninterrupted iterations equal those after `n`, save,
 resume, `m`.
+
+Both teams (`train.team = "both"`): one learner per team (`Learner`: adapter, rsl-rl config, PPO,
+logger) in the same worlds, driven together by `TrainingLoop`; `progress_<team>.csv`; checkpoints hold
+`learners: {team: rsl-rl state}`, and under `infos["aquarium"]["teams"]` each learner's part of the
+above, plus the opponent pool (`pool.py`); `export()` writes one policy per team.
 """
 
 from __future__ import annotations
@@ -44,14 +49,16 @@ import torch
 
 from . import _rsl  # noqa: F401
 from rsl_rl.runners import OnPolicyRunner
+from rsl_rl.utils import resolve_callable
 from rsl_rl.utils.logger import Logger
 
 from ..env import BatchedAquarium
 from ..heuristics import POLICIES, make_policy
-from .config import default_opponent, env_config, make_config, runner_config, total_iterations, validate
+from .config import (TEAMS, default_opponent, env_config, learning_teams, make_config, runner_config, team_settings,
+                     total_iterations, validate)
 from .loop import TrainingLoop
-from .export import RecurrentOpponent, export_policy, load_policy, policy_meta
-from .vec_env import OTHER, AquariumVecEnv, TrainedOpponent
+from .export import RecurrentOpponent, export_policy, load_policy, policy_from_actor, policy_meta
+from .vec_env import OTHER, AquariumVecEnv, LearnerActions, TrainedOpponent
 
 CSV_FIELDS = ["iteration", "agent_steps", "world_steps", "world_episodes", "episodes_logged", "captures",
               "captures_per_prey", "reward_per_agent", "opponent_reward_per_agent", "episode_length",
@@ -66,26 +73,38 @@ def is_heuristic(name) -> bool:
 
 def make_opponent(spec, env: BatchedAquarium, agent_type: str, deterministic: bool = True, seed: int = 0):
     """The other team's driver: a heuristic name ("random", "turnaway", "naivchase") or the path of a
-    trained policy (exported file or checkpoint); a recurrent one resets its rows' hidden states where
-    their episodes end (`RecurrentOpponent`)."""
+    trained policy (exported file or checkpoint; of a checkpoint of both teams, its `agent_type`
+    learner); a recurrent one resets its rows' hidden states where their episodes end
+    (`RecurrentOpponent`)."""
     if is_heuristic(spec):
         return make_policy(spec, env, agent_type)
     if isinstance(spec, str) and os.path.isfile(spec):
-        policy = load_policy(spec, device=env.torch_device, deterministic=deterministic, seed=seed)
-        if getattr(policy, "recurrent", None) is not None:
-            return RecurrentOpponent(policy, env, agent_type)
-        return TrainedOpponent(policy, env, agent_type)
+        return policy_driver(load_policy(spec, device=env.torch_device, deterministic=deterministic, seed=seed,
+                                         team=agent_type), env, agent_type)
     raise ValueError(f"opponent {spec!r} is neither a heuristic ({sorted(POLICIES[agent_type])}) nor a policy file")
 
 
+def policy_driver(policy, env: BatchedAquarium, agent_type: str):
+    """`TrainedOpponent` around a loaded policy, or `RecurrentOpponent` for a recurrent one."""
+    if getattr(policy, "recurrent", None) is not None:
+        return RecurrentOpponent(policy, env, agent_type)
+    return TrainedOpponent(policy, env, agent_type)
+
+
 class AquariumLogger(Logger):
-    """rsl-rl's logger plus a CSV row per iteration and an optional tqdm bar instead of the print."""
+    """rsl-rl's logger plus a CSV row per iteration and an optional tqdm bar instead of the print.
+    With several learners each has one (`team`: its scalars are logged as `<team>/...`, the swarm
+    metrics of the worlds once, unprefixed), sharing the first one's writer."""
 
     def __init__(self, *args, csv_path: str | None = None, slots: int = 1, max_steps: int = 1,
-                 quiet: bool = False, **kwargs):
+                 quiet: bool = False, team: str | None = None, bar: bool = True, **kwargs):
         super().__init__(*args, **kwargs)
         self.csv_path, self.slots, self.max_steps, self.quiet = csv_path, slots, max_steps, quiet
+        self.team, self.bar = team, bar
         self._bar = None
+
+    def _tag(self, key: str) -> str:
+        return key if self.team is None or key.startswith("Swarm/") else f"{self.team}/{key}"
 
     def log(self, it, start_it, total_it, collect_time, learn_time, loss_dict, learning_rate, action_std,
             rnd_weight, print_minimal=False, width=80, pad=40):
@@ -131,11 +150,12 @@ class AquariumLogger(Logger):
                 writer.writerow(row)
 
     def log_iteration(self, it: int, start_it: int, total_it: int, collect_time: float, learn_time: float,
-                      losses: dict, learning_rate: float, episode_means: dict, episodes: int,
+                      losses: dict | None, learning_rate: float, episode_means: dict, episodes: int,
                       mean_row_reward: float) -> None:
         """The training loop's log of one iteration (`loop.py`): TensorBoard scalars under rsl-rl's
         names, the CSV row, and one console line (or the progress bar when quiet) with what matters
-        for this task: captures per prey, the team's reward per agent, agent-steps/s, time left."""
+        for this task: captures per prey, the team's reward per agent, agent-steps/s, time left.
+        `losses` is None for a learner frozen in this iteration (alternating schedule)."""
         if self.writer is None:
             return
         collection_size = self.cfg["num_steps_per_env"] * self.num_envs * self.gpu_world_size
@@ -144,16 +164,17 @@ class AquariumLogger(Logger):
         self.tot_time += iteration_time
         fps = int(collection_size / max(1e-9, iteration_time))
         for key, value in episode_means.items():
-            self.writer.add_scalar(key, value, it)
-        for key, value in losses.items():
-            self.writer.add_scalar(f"Loss/{key}", value, it)
-        self.writer.add_scalar("Loss/learning_rate", learning_rate, it)
-        self.writer.add_scalar("Perf/total_fps", fps, it)
-        self.writer.add_scalar("Perf/collection_time", collect_time, it)
-        self.writer.add_scalar("Perf/learning_time", learn_time, it)
+            self.writer.add_scalar(self._tag(key), value, it)
+        for key, value in (losses or {}).items():
+            self.writer.add_scalar(self._tag(f"Loss/{key}"), value, it)
+        self.writer.add_scalar(self._tag("Loss/learning_rate"), learning_rate, it)
+        self.writer.add_scalar(self._tag("Perf/total_fps"), fps, it)
+        self.writer.add_scalar(self._tag("Perf/collection_time"), collect_time, it)
+        self.writer.add_scalar(self._tag("Perf/learning_time"), learn_time, it)
         if mean_row_reward == mean_row_reward:  # not NaN: some row episodes ended
-            self.writer.add_scalar("Train/mean_reward", mean_row_reward, it)
+            self.writer.add_scalar(self._tag("Train/mean_reward"), mean_row_reward, it)
         world_steps = self.tot_timesteps // self.slots
+        losses = losses or dict.fromkeys(("value", "surrogate", "entropy"), "")
         row = {
             "iteration": it, "agent_steps": self.tot_timesteps, "world_steps": world_steps,
             "world_episodes": world_steps / self.max_steps, "episodes_logged": episodes,
@@ -166,16 +187,20 @@ class AquariumLogger(Logger):
         row["episode_length"] = episode_means.get("Episode/length", "")
         self._write_row(row)
         if self.quiet:
-            self._progress(it, total_it, row)
+            if self.bar:
+                self._progress(it, total_it, row)
             return
         done = it + 1 - start_it
         eta = self.tot_time / max(1, done) * (total_it - start_it - done) if done else 0.0
-        parts = [f"it {it + 1}/{total_it}"]
+        parts = [f"it {it + 1}/{total_it}"] + ([self.team] if self.team is not None else [])
         if row["captures_per_prey"] != "":
             parts += [f"captures/prey {row['captures_per_prey']:.3f}", f"reward/agent {row['reward_per_agent']:.1f}",
                       f"opponent reward/agent {row['opponent_reward_per_agent']:.1f}"]
-        parts += [f"value loss {losses['value']:.4f}", f"entropy {losses['entropy']:.3f}",
-                  f"{fps:.3g} agent-steps/s", f"left {datetime.timedelta(seconds=int(eta))}"]
+        if losses["value"] != "":
+            parts += [f"value loss {losses['value']:.4f}", f"entropy {losses['entropy']:.3f}"]
+        else:
+            parts += ["frozen"]
+        parts += [f"{fps:.3g} agent-steps/s", f"left {datetime.timedelta(seconds=int(eta))}"]
         print(" | ".join(parts), flush=True)
 
     def _progress(self, it, total_it, row) -> None:
@@ -212,20 +237,44 @@ class AquariumLogger(Logger):
         self.cur_episode_length.copy_(state["cur_episode_length"].to(self.cur_episode_length.device))
 
 
+class Learner:
+    """One learning team of a run: its adapter, rsl-rl runner config, algorithm (PPO) and logger."""
+
+    def __init__(self, team: str, vec_env: AquariumVecEnv, cfg: dict, alg, logger: AquariumLogger):
+        self.team, self.vec_env, self.cfg, self.alg, self.logger = team, vec_env, cfg, alg, logger
+
+
 class AquariumRunner(OnPolicyRunner):
     """`OnPolicyRunner` whose checkpoints carry the whole training state (see the module doc) and whose
-    iteration counter means "iterations completed" between `learn()` calls."""
+    iteration counter means "iterations completed" between `learn()` calls.
+
+    `others`: `(vec_env, cfg)` of further learners in the same worlds (`train.team = "both"`); each
+    gets its own algorithm (built by rsl-rl's `construct_algorithm`, as the runner builds its own),
+    storage, optimizer and logger. `self.learners` lists them all, this runner's own first."""
 
     def __init__(self, env: AquariumVecEnv, train_cfg: dict, log_dir: str | None = None, device: str = "cpu",
-                 trainer: "Trainer | None" = None, quiet: bool = False):
+                 trainer: "Trainer | None" = None, quiet: bool = False, others=()):
         super().__init__(env, train_cfg, log_dir=log_dir, device=device)
         self.trainer = trainer
-        self.logger = AquariumLogger(
-            log_dir=log_dir, cfg=self.cfg, env_cfg=self.env.cfg, num_envs=self.env.num_envs,
-            is_distributed=self.is_distributed, gpu_world_size=self.gpu_world_size,
-            gpu_global_rank=self.gpu_global_rank, device=self.device,
-            csv_path=os.path.join(log_dir, "progress.csv") if log_dir else None,
-            slots=env.slots, max_steps=env.max_episode_length, quiet=quiet)
+        several = bool(others)
+
+        def logger(vec_env: AquariumVecEnv, cfg: dict, first: bool) -> AquariumLogger:
+            name = f"progress_{vec_env.team}.csv" if several else "progress.csv"
+            return AquariumLogger(
+                log_dir=log_dir, cfg=cfg, env_cfg=vec_env.cfg, num_envs=vec_env.num_envs,
+                is_distributed=self.is_distributed, gpu_world_size=self.gpu_world_size,
+                gpu_global_rank=self.gpu_global_rank, device=self.device,
+                csv_path=os.path.join(log_dir, name) if log_dir else None, slots=vec_env.slots,
+                max_steps=vec_env.max_episode_length, quiet=quiet, team=vec_env.team if several else None,
+                bar=first)
+
+        self.logger = logger(env, self.cfg, True)
+        self.learners = [Learner(env.team, env, self.cfg, self.alg, self.logger)]
+        for vec_env, cfg in others:
+            cfg["multi_gpu"] = self.cfg["multi_gpu"]
+            alg_class = resolve_callable(cfg["algorithm"]["class_name"])
+            alg = alg_class.construct_algorithm(vec_env.get_observations(), vec_env, cfg, self.device)
+            self.learners.append(Learner(vec_env.team, vec_env, cfg, alg, logger(vec_env, cfg, False)))
         self._in_learn = False
         train = trainer.config["train"] if trainer is not None else {}
         self.loop_kind = train.get("loop", "fast")
@@ -252,25 +301,36 @@ class AquariumRunner(OnPolicyRunner):
         if init_at_random_ep_len:
             self.env.episode_length_buf = torch.randint_like(
                 self.env.episode_length_buf, high=int(self.env.max_episode_length))
+            for learner in self.learners[1:]:  # the worlds' step counters changed under them too
+                learner.vec_env._sync_from_env()
         if self.loop is None:
-            self.loop = TrainingLoop(self.alg, self.env, self.cfg["num_steps_per_env"], graphs=self.cuda_graphs)
-        self.alg.train_mode()
+            self.loop = TrainingLoop([(learner.alg, learner.vec_env) for learner in self.learners],
+                                     self.cfg["num_steps_per_env"], graphs=self.cuda_graphs,
+                                     pool=self.trainer.pool if self.trainer is not None else None)
+        for learner in self.learners:
+            learner.alg.train_mode()
         with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl reports storing git state (under git/)
             self.logger.init_logging_writer()
+        for learner in self.learners[1:]:
+            learner.logger.writer = self.logger.writer
         start_it = self.current_learning_iteration
         total_it = start_it + num_learning_iterations
 
         def log(it: int, record) -> None:
             values, (collect_time, learn_time) = record.read()
-            means, episodes, row_reward = self.env.decode_episode_stats(values[3:])
-            losses = dict(zip(("value", "surrogate", "entropy"), values[:3]))
-            self.logger.log_iteration(it, start_it, total_it, collect_time, learn_time, losses,
-                                      self.alg.learning_rate, means, episodes, row_reward)
+            for learner, (losses, stats) in zip(self.learners, self.loop.split(values)):
+                means, episodes, row_reward = learner.vec_env.decode_episode_stats(stats)
+                frozen = losses[0] != losses[0]  # NaN: the learner did not learn in this iteration
+                learner.logger.log_iteration(it, start_it, total_it, collect_time, learn_time,
+                                             None if frozen else dict(zip(("value", "surrogate", "entropy"), losses)),
+                                             learner.alg.learning_rate, means, episodes, row_reward)
 
         pending = None  # the previous iteration, logged while this one runs on the device
         for it in range(start_it, total_it):
-            record = self.loop.iteration()
+            record = self.loop.iteration(self.trainer.learning(it) if self.trainer is not None else None)
             self.current_learning_iteration = it
+            if self.trainer is not None:
+                self.trainer.after_iteration(it)
             if pending is not None:
                 log(*pending)
             pending = (it, record)
@@ -288,7 +348,10 @@ class AquariumRunner(OnPolicyRunner):
         return self.current_learning_iteration + 1 if self._in_learn else self.current_learning_iteration
 
     def save(self, path: str, infos: dict | None = None) -> None:
-        saved = self.alg.save()
+        if len(self.learners) == 1:
+            saved = self.alg.save()
+        else:  # one rsl-rl state per team
+            saved = {"learners": {learner.team: learner.alg.save() for learner in self.learners}}
         saved["iter"] = self.completed_iterations()
         infos = dict(infos or {})
         if self.trainer is not None:
@@ -310,7 +373,12 @@ class AquariumRunner(OnPolicyRunner):
 
     def load(self, path: str, load_cfg: dict | None = None, strict: bool = True, map_location=None) -> dict:
         loaded = torch.load(path, weights_only=False, map_location=map_location)
-        if self.alg.load(loaded, load_cfg, strict):
+        if len(self.learners) == 1:
+            load_iteration = self.alg.load(loaded, load_cfg, strict)
+        else:
+            load_iteration = [learner.alg.load(loaded["learners"][learner.team], load_cfg, strict)
+                              for learner in self.learners][0]
+        if load_iteration:
             self.current_learning_iteration = loaded["iter"]
         infos = loaded.get("infos") or {}
         if self.trainer is not None and "aquarium" in infos and (load_cfg is None or load_cfg.get("iteration")):
@@ -372,14 +440,17 @@ def _read_checkpoint(path: str) -> dict:
 
 
 class Trainer:
-    """Builds the simulator, the opponent, the adapter and the rsl-rl runner of a run config; trains,
-    checkpoints, resumes and exports. `log_dir=None`: no TensorBoard, CSV or checkpoints."""
+    """Builds the simulator, the opponent (or, with `train.team = "both"`, a learner per team and the
+    opponent pool), the adapters and the rsl-rl runner of a run config; trains, checkpoints, resumes
+    and exports. `log_dir=None`: no TensorBoard, CSV or checkpoints."""
 
     def __init__(self, config: dict, log_dir: str | None = None):
         config = copy.deepcopy(config)
         validate(config)
         train = config["train"]
-        if train["opponent"] is None:
+        self.teams = learning_teams(config)
+        both = len(self.teams) == 2
+        if train["opponent"] is None and not both:
             train["opponent"] = default_opponent(train["team"])
         self.config = config
         self.log_dir = log_dir
@@ -399,21 +470,50 @@ class Trainer:
         self.device = self.env.torch_device
         if train["tf32"] and self.device.type == "cuda":
             torch.backends.cuda.matmul.allow_tf32 = True  # a process-wide switch of torch's
-        team = train["team"]
-        self.opponent = make_opponent(train["opponent"], self.env, OTHER[team],
-                                      deterministic=train["opponent_deterministic"], seed=self.seed)
-        self.vec_env = AquariumVecEnv(self.env, team, self.opponent, reward_scale=train["reward_scale"],
-                                      cfg=config, metrics_every=int(train["metrics_every"]))
-        self.runner_cfg = runner_config(config, self.vec_env.slots, self.vec_env.action_count, self.device.type)
+        if both:  # each team's opponent is the other learner, whose actions the training loop writes
+            self.opponent = None
+            opponents = {team: LearnerActions() for team in TEAMS}
+        else:
+            self.opponent = make_opponent(train["opponent"], self.env, OTHER[train["team"]],
+                                          deterministic=train["opponent_deterministic"], seed=self.seed)
+            opponents = {train["team"]: self.opponent}
+        # The first team's adapter steps the worlds and samples the swarm metrics (one per world is enough).
+        self.vec_envs = {team: AquariumVecEnv(self.env, team, opponents[team],
+                                              reward_scale=team_settings(config, team)["reward_scale"], cfg=config,
+                                              metrics_every=int(train["metrics_every"]) if i == 0 else 0,
+                                              critic=team_settings(config, team)["critic"])
+                         for i, team in enumerate(self.teams)}
+        if both:
+            for team in TEAMS:
+                opponents[team].vec_env = self.vec_envs[OTHER[team]]
+        self.vec_env = self.vec_envs[self.teams[0]]
+        self.runner_cfgs = {team: runner_config(config, v.slots, v.action_count, self.device.type, team=team)
+                            for team, v in self.vec_envs.items()}
+        self.runner_cfg = self.runner_cfgs[self.teams[0]]
         self.total_iterations = total_iterations(config)
         if log_dir is not None and rank == 0:
             os.makedirs(log_dir, exist_ok=True)
             with open(os.path.join(log_dir, "config.json"), "w", encoding="utf-8") as f:
-                json.dump({"config": config, "runner_cfg": self.runner_cfg,
+                json.dump({"config": config, "runner_cfg": self.runner_cfg if not both else self.runner_cfgs,
                            "total_iterations": self.total_iterations}, f, indent=1, default=str)
         with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints the networks (config.json has them)
-            self.runner = AquariumRunner(self.vec_env, copy.deepcopy(self.runner_cfg), log_dir=log_dir,
-                                         device=str(self.device), trainer=self, quiet=train["quiet"])
+            self.runner = AquariumRunner(
+                self.vec_env, copy.deepcopy(self.runner_cfg), log_dir=log_dir, device=str(self.device), trainer=self,
+                quiet=train["quiet"],
+                others=[(self.vec_envs[t], copy.deepcopy(self.runner_cfgs[t])) for t in self.teams[1:]])
+        self.learners = {learner.team: learner for learner in self.runner.learners}
+        self.pool = None
+        if train["pool_every"]:
+            from .pool import OpponentPool
+
+            self.pool = OpponentPool({t: (l.alg.get_policy(), l.vec_env) for t, l in self.learners.items()},
+                                     size=int(train["pool_size"]), sampling=train["pool_sampling"],
+                                     fractions={t: float(team_settings(config, t)["pool_fraction"]) for t in TEAMS})
+        self.video = None
+        if train["video_every"]:
+            from .episode_video import EpisodeVideo
+
+            self.video = EpisodeVideo(env_config(config), self.device, self.seed, int(train["video_steps"]))
         if log_dir is not None:
             import aquarium_warp
 
@@ -424,14 +524,15 @@ class Trainer:
     def resume(cls, path: str, log_dir: str | None = None, changes: dict | None = None) -> "Trainer":
         """A trainer restored from a checkpoint, or from the newest checkpoint of a run directory.
         `changes` may alter train settings that do not affect the state (iterations, episodes,
-        quiet, export); the log directory defaults to the checkpoint's."""
+        quiet, export, videos); the log directory defaults to the checkpoint's."""
         if os.path.isdir(path):
             checkpoint_path, checkpoint = _newest_readable_checkpoint(path)
         else:
             checkpoint_path, checkpoint = path, _read_checkpoint(path)
         config = copy.deepcopy(checkpoint["infos"]["aquarium"]["config"])
         if changes:
-            allowed = {"iterations", "episodes", "quiet", "export", "loop", "cuda_graphs", "tf32"}
+            allowed = {"iterations", "episodes", "quiet", "export", "loop", "cuda_graphs", "tf32", "video_every",
+                       "video_steps"}
             bad = [k for k in changes.get("train", {}) if k not in allowed] + \
                   [k for k in changes if k != "train"]
             if bad:
@@ -442,44 +543,63 @@ class Trainer:
         return trainer
 
     # ------------------------------------------------------------------ state
-    def extra_state(self) -> dict:
+    def _learner_state(self, learner: Learner, with_env: bool) -> dict:
         from .models import hidden_state_to
 
         return {
-            "config": self.config,
-            "runner_cfg": self.runner_cfg,
-            "policy_meta": self.policy_meta(),
-            "vec_env": self.vec_env.state_dict(),
-            "rng": _rng_state(self.device),
-            "logger": self.runner.logger.state_dict(),
+            "runner_cfg": self.runner_cfgs[learner.team],
+            "policy_meta": self.policy_meta(learner.team),
+            "vec_env": learner.vec_env.state_dict(with_env=with_env),
+            "logger": learner.logger.state_dict(),
             # Recurrent models carry each row's GRU/LSTM state from one iteration into the next.
-            "hidden_states": {name: hidden_state_to(getattr(self.runner.alg, name).get_hidden_state(), "cpu")
+            "hidden_states": {name: hidden_state_to(getattr(learner.alg, name).get_hidden_state(), "cpu")
                               for name in ("actor", "critic")},
         }
 
-    def load_extra_state(self, state: dict) -> None:
+    def _load_learner_state(self, learner: Learner, state: dict) -> None:
         from .models import hidden_state_to
 
-        self.vec_env.load_state_dict(state["vec_env"])
-        self.runner.logger.load_state_dict(state["logger"])
-        _set_rng_state(state["rng"], self.device)
+        learner.vec_env.load_state_dict(state["vec_env"])
+        learner.logger.load_state_dict(state["logger"])
         for name, hidden in state.get("hidden_states", {}).items():
-            model = getattr(self.runner.alg, name)
+            model = getattr(learner.alg, name)
             if model.is_recurrent:  # reset(hidden_state=None) clears it, as before the first step
                 model.reset(hidden_state=hidden_state_to(hidden, self.device))
+
+    def extra_state(self) -> dict:
+        """The trainer's part of a checkpoint: run config, RNG states and, per learner, its adapter
+        (the simulation once), logger and hidden states; both teams: under `teams`, with the pool."""
+        state = {"config": self.config, "rng": _rng_state(self.device)}
+        learners = self.runner.learners
+        if len(learners) == 1:
+            return {**state, **self._learner_state(learners[0], with_env=True)}
+        return {**state, "pool": self.pool.state_dict() if self.pool is not None else None,
+                "teams": {l.team: self._learner_state(l, with_env=i == 0) for i, l in enumerate(learners)}}
+
+    def load_extra_state(self, state: dict) -> None:
+        if self.pool is not None:  # first: the adapters' rows depend on which worlds the learners drive
+            self.pool.load_state_dict(state["pool"])
+        learners = self.runner.learners
+        if len(learners) == 1:
+            self._load_learner_state(learners[0], state)
+        else:
+            for learner in learners:  # the first one restores the simulation
+                self._load_learner_state(learner, state["teams"][learner.team])
+        _set_rng_state(state["rng"], self.device)
 
     def load(self, path: str) -> None:
         """Restore the whole training state from a checkpoint of this run's config."""
         self.runner.load(path, map_location=str(self.device))
-        csv_path = os.path.join(self.log_dir, "progress.csv") if self.log_dir else None
-        if csv_path and os.path.isfile(csv_path):  # drop rows logged after the checkpoint
-            done = self.runner.current_learning_iteration
-            with open(csv_path, newline="", encoding="utf-8") as f:
-                rows = [r for r in csv.DictReader(f) if int(r["iteration"]) < done]
-            with open(csv_path, "w", newline="", encoding="utf-8") as f:
-                writer = csv.DictWriter(f, fieldnames=CSV_FIELDS)
-                writer.writeheader()
-                writer.writerows(rows)
+        done = self.runner.current_learning_iteration
+        for learner in self.runner.learners:  # drop rows logged after the checkpoint
+            csv_path = learner.logger.csv_path
+            if self.log_dir and csv_path and os.path.isfile(csv_path):
+                with open(csv_path, newline="", encoding="utf-8") as f:
+                    rows = [r for r in csv.DictReader(f) if int(r["iteration"]) < done]
+                with open(csv_path, "w", newline="", encoding="utf-8") as f:
+                    writer = csv.DictWriter(f, fieldnames=CSV_FIELDS)
+                    writer.writeheader()
+                    writer.writerows(rows)
 
     @property
     def iteration(self) -> int:
@@ -494,26 +614,65 @@ class Trainer:
         fresh = self.iteration == 0
         self.runner.learn(iterations, init_at_random_ep_len=fresh and bool(self.config["train"]["init_at_random_ep_len"]))
 
+    def learning(self, iteration: int) -> list[bool] | None:
+        """Which learners update in `iteration` (None: all). Alternating schedule: the teams take turns
+        of `train.alternate_every` iterations, prey first; the other team is frozen meanwhile."""
+        train = self.config["train"]
+        if len(self.teams) == 1 or train["update_schedule"] == "simultaneous":
+            return None
+        turn = (iteration // int(train["alternate_every"])) % len(self.teams)
+        return [i == turn for i in range(len(self.teams))]
+
+    def after_iteration(self, iteration: int) -> None:
+        """Between iterations (`iteration` done): the pool's snapshots and the log's video, when due."""
+        train = self.config["train"]
+        if self.pool is not None and (iteration + 1) % int(train["pool_every"]) == 0:
+            self.pool.snapshot()
+        writer = self.runner.logger.writer
+        if self.video is not None and writer is not None and (iteration + 1) % int(train["video_every"]) == 0:
+            self.video.log(writer, self.video.record(self.video_drivers), iteration, self.log_dir)
+
+    def video_drivers(self, env: BatchedAquarium) -> dict:
+        """Every team's driver in a video's world: the learners' current actors (argmax), and for a
+        one-team run the opponent as in training."""
+        train = self.config["train"]
+        drivers = {team: policy_driver(policy_from_actor(self.learners[team].alg.get_policy(), self.policy_meta(team),
+                                                         self.device), env, team) for team in self.teams}
+        if self.opponent is not None:
+            other = OTHER[train["team"]]
+            drivers[other] = make_opponent(train["opponent"], env, other,
+                                           deterministic=train["opponent_deterministic"], seed=self.seed)
+        return drivers
+
     def save(self, path: str) -> None:
         self.runner.save(path)
 
     @property
     def actor(self):
+        """The (first) learner's actor."""
         return self.runner.alg.get_policy()
 
-    def policy_meta(self) -> dict:
-        return policy_meta(self.config, self.vec_env.slots, self.vec_env.observation_size, self.vec_env.action_count)
+    def policy_meta(self, team: str | None = None) -> dict:
+        """Metadata of `team`'s exported policy (default: the first learner's)."""
+        vec = self.vec_envs[team or self.teams[0]]
+        return policy_meta(self.config, vec.slots, vec.observation_size, vec.action_count, team=vec.team)
 
-    def export(self, out_dir: str | None = None, formats=None) -> dict[str, str]:
-        """Export the current policy (default: `<log_dir>/exported`, the config's formats)."""
+    def export(self, out_dir: str | None = None, formats=None) -> dict:
+        """Export the current policy (default: `<log_dir>/exported`, the config's formats): `{format:
+        path}`. Both teams: one policy per team in `<out_dir>/<team>/`, `{team: {format: path}}`."""
         if out_dir is None:
             if self.log_dir is None:
                 raise ValueError("export needs out_dir when the trainer has no log_dir")
             out_dir = os.path.join(self.log_dir, "exported")
         formats = self.config["train"]["export"] if formats is None else formats
-        return export_policy(self.actor, self.policy_meta(), out_dir, formats)
+        if len(self.teams) == 1:
+            return export_policy(self.actor, self.policy_meta(), out_dir, formats)
+        return {team: export_policy(self.learners[team].alg.get_policy(), self.policy_meta(team),
+                                    os.path.join(out_dir, team), formats) for team in self.teams}
 
     def close(self) -> None:
+        if self.video is not None:
+            self.video.close()
         self.vec_env.close()
 
 

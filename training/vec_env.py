@@ -7,7 +7,11 @@ Rows. Every slot of the learning team in every world is one row, world-major: ro
 Outputs of `step(actions [N, 1])`:
 - observations: a `TensorDict({"policy": [N, L] float32})`. Two buffers alternate: PPO keeps a
   reference to the TensorDict it acted on and copies it into its storage only after the next
-  `step()`, so each step writes into the buffer it did not return last time.
+  `step()`, so each step writes into the buffer it did not return last time. A centralised critic
+  (`critic="team"` or `"world"`, the MAPPO setting) adds one group for rsl-rl's "critic" observation
+  set: `"team"` `[N, S * L]`, the team's joint observation (every slot of the row's world, slot
+  order), or `"world"` `[N, 7 * capacity + 1]`, the world state (`pettingzoo_env.WorldState`); it is
+  zero for inactive rows, like their own observation.
 - rewards `[N]` float32: the env's reward times `reward_scale` (rows inactive at the start of the
   step get 0).
 - dones `[N]` int64 and `extras["time_outs"]` `[N]` bool (truncations only, which PPO bootstraps).
@@ -29,7 +33,14 @@ Outputs of `step(actions [N, 1])`:
 
 The other team acts inside `step()` through `opponent()`, a callable returning its int actions
 `[W, slots]` on the env's device, decided from the state before the step (a heuristic from
-`aquarium_warp.heuristics.make_policy`, or `TrainedOpponent` around a loaded policy).
+`aquarium_warp.heuristics.make_policy`, `TrainedOpponent` around a loaded policy, or, when both teams
+learn, `LearnerActions`: the other learner's action buffer, written by the training loop before the
+first adapter steps the worlds).
+
+Worlds the learner does not drive. With an opponent pool (`pool.OpponentPool`) a team may be played
+by one of its own past snapshots in some worlds (`set_driven(mask [W])`); there its rows are inactive
+for its learner (zero observation and reward, as empty slots), their episodes ending where the world's
+episode ends.
 
 Host synchronisation. `step()` makes none when the world episodes can only end by truncation
 (respawn on and a starvation limit of at least `max_steps - 1`: the paper's setting): a host copy of
@@ -48,6 +59,7 @@ from rsl_rl.env import VecEnv
 
 from ..env import TYPES, BatchedAquarium
 from ..metrics import EPISODE_METRICS, EpisodeMetrics
+from ..pettingzoo_env import WorldState
 
 OTHER = {"prey": "predator", "predator": "prey"}
 # The device-side sums' columns (`accumulate_episode_stats`); captures per prey is derived on the host.
@@ -86,6 +98,18 @@ class TrainedOpponent:
             self.policy.set_rng_state(state["policy_rng"])
 
 
+class LearnerActions:
+    """The other team's actions when it learns too (`train.team = "both"`): the action buffer of its
+    adapter (`vec_env`, set once both adapters exist), which the training loop fills before the
+    first adapter steps the worlds."""
+
+    def __init__(self, vec_env: "AquariumVecEnv | None" = None):
+        self.vec_env = vec_env
+
+    def __call__(self) -> torch.Tensor:
+        return self.vec_env.actions_buffer
+
+
 class AquariumVecEnv(VecEnv):
     """rsl-rl VecEnv over a `BatchedAquarium` (created with `auto_reset=True`); see the module doc.
 
@@ -95,10 +119,12 @@ class AquariumVecEnv(VecEnv):
         opponent: callable returning the other team's actions `[W, slots]` (int, on the env's device).
         reward_scale: factor on the rewards returned to PPO (episode statistics stay unscaled).
         cfg: the run configuration (rsl-rl's logger stores it); defaults to the env config's dict.
+        metrics_every: swarm metrics sampled every N steps (0: none; one adapter of a world is enough).
+        critic: "local", or the extra observation group of a centralised critic, "team" or "world".
     """
 
     def __init__(self, env: BatchedAquarium, team: str = "prey", opponent=None, reward_scale: float = 1.0,
-                 cfg: dict | None = None, metrics_every: int = 10):
+                 cfg: dict | None = None, metrics_every: int = 10, critic: str = "local"):
         if not isinstance(env, BatchedAquarium):
             raise ValueError(f"env must be a BatchedAquarium, got {type(env).__name__}")
         if team not in TYPES:
@@ -107,6 +133,8 @@ class AquariumVecEnv(VecEnv):
             raise ValueError("AquariumVecEnv needs a BatchedAquarium with auto_reset=True")
         if opponent is None or not callable(opponent):
             raise ValueError("opponent must be a callable returning the other team's actions [W, slots]")
+        if critic not in ("local", "team", "world"):
+            raise ValueError(f"critic={critic!r} must be 'local', 'team' or 'world'")
         self.env, self.team, self.other = env, team, OTHER[team]
         self.opponent = opponent
         self.reward_scale = float(reward_scale)
@@ -139,7 +167,15 @@ class AquariumVecEnv(VecEnv):
         self._ended_return_other = info["episode_return"][self.other]
 
         self._obs = [torch.zeros(W * S, L, dtype=torch.float32, device=dev) for _ in range(2)]
-        self._obs_td = [TensorDict({"policy": o}, batch_size=[W * S], device=dev) for o in self._obs]
+        # The centralised critic's group (None: the critic sees the actor's observation only).
+        self.critic_group = None if critic == "local" else critic
+        self._critic_obs = [None, None]
+        self._world_state = WorldState(env) if critic == "world" else None
+        if self.critic_group is not None:
+            size = S * L if critic == "team" else self._world_state.length
+            self._critic_obs = [torch.zeros(W * S, size, dtype=torch.float32, device=dev) for _ in range(2)]
+        self._obs_td = [TensorDict({"policy": o, **({critic: c} if self.critic_group else {})},
+                                   batch_size=[W * S], device=dev) for o, c in zip(self._obs, self._critic_obs)]
         self._current = 0
         self._rewards = torch.zeros(W * S, dtype=torch.float32, device=dev)
         self._dones = torch.zeros(W * S, dtype=torch.long, device=dev)
@@ -149,6 +185,9 @@ class AquariumVecEnv(VecEnv):
         self._ended = torch.zeros(W, S, dtype=torch.bool, device=dev)
         self._done_bool = torch.zeros(W, S, dtype=torch.bool, device=dev)
         self._scratch = torch.zeros(W, S, dtype=torch.bool, device=dev)
+        # Worlds whose team this learner drives (`set_driven`; None: all) and the rows live in them.
+        self.driven: torch.Tensor | None = None
+        self._live = torch.zeros(W, S, dtype=torch.bool, device=dev)
         self.extras: dict = {"time_outs": self._time_outs}
 
         starvation_ok = ecfg.predator_starvation_steps >= ecfg.max_steps - 1
@@ -172,7 +211,7 @@ class AquariumVecEnv(VecEnv):
     def _sync_from_env(self) -> None:
         """Take rows' activity, the host step counters and the current observations from the env
         (after construction, `load_state_dict` or a change of the step counters)."""
-        self._active.copy_(self._alive)
+        self._active.copy_(self._live_rows())
         # Host copy of the worlds' step counters (kept up to date only where episodes end predictably).
         self._host_step = self.env.state.torch.world_step.cpu().numpy().astype(np.int64)
         # A world's episode statistics are logged only if the episode started at step 0.
@@ -181,6 +220,23 @@ class AquariumVecEnv(VecEnv):
         self.copy_observations()
         if self.swarm is not None:
             self.swarm.begin()
+
+    def _live_rows(self) -> torch.Tensor:
+        """`[W, S]`: rows whose slot holds a live agent that this learner drives."""
+        if self.driven is None:
+            return self._alive
+        return torch.logical_and(self._alive, self.driven.unsqueeze(1), out=self._live)
+
+    def set_driven(self, driven: torch.Tensor | None) -> None:
+        """`driven [W]` bool (a buffer its owner updates in place): the worlds in which this learner
+        drives its team; elsewhere its rows are inactive (see the module doc). None: every world."""
+        self.driven = driven
+        self._sync_from_env()
+
+    @property
+    def episode_stats_size(self) -> int:
+        """Length of `episode_stats_snapshot()`."""
+        return 2 * len(self._stat_names) + 2
 
     # ------------------------------------------------------------------ VecEnv API
     def get_observations(self) -> TensorDict:
@@ -245,7 +301,7 @@ class AquariumVecEnv(VecEnv):
         """Rows' rewards, dones and time-outs of the last simulation step (see the module doc)."""
         W, S = self.num_worlds, self.slots
         # Life ends: captured (prey), terminated (removed or starved), truncated (world episode end).
-        ended, active, alive, scratch = self._ended, self._active, self._alive, self._scratch
+        ended, active, alive, scratch = self._ended, self._active, self._live_rows(), self._scratch
         if self._captured_in is not None:
             torch.logical_or(self._terminated_in, self._captured_in, out=scratch)
         else:
@@ -265,8 +321,17 @@ class AquariumVecEnv(VecEnv):
         active.copy_(alive)
 
     def copy_observations(self) -> None:
-        """The learning team's observations after the last step into the current buffer."""
-        self._obs[self._current].view(self.num_worlds, self.slots, -1).copy_(self.env.observations[self.team])
+        """The learning team's observations after the last step into the current buffer (and the
+        centralised critic's group); zero for rows inactive in worlds this learner does not drive."""
+        W, S = self.num_worlds, self.slots
+        obs = self._obs[self._current].view(W, S, -1)
+        obs.copy_(self.env.observations[self.team])
+        if self.driven is not None:
+            obs.mul_(self._active.unsqueeze(-1))
+        if self.critic_group is not None:
+            critic = self._critic_obs[self._current].view(W, S, -1)
+            joint = obs.reshape(W, 1, -1) if self.critic_group == "team" else self._world_state().unsqueeze(1)
+            torch.mul(joint, self._active.unsqueeze(-1), out=critic)
 
     def accumulate_episode_stats(self) -> None:
         """Device-side counterpart of the `extras["log"]` statistics (no host sync): adds the world
@@ -356,12 +421,13 @@ class AquariumVecEnv(VecEnv):
         }
 
     # ------------------------------------------------------------------ checkpoints
-    def state_dict(self) -> dict:
-        """Everything needed to continue bit-exactly: the simulation, row activity, host counters and
-        the opponent's own state (a heuristic's random streams are keyed by the simulation state)."""
+    def state_dict(self, with_env: bool = True) -> dict:
+        """Everything needed to continue bit-exactly: the simulation (unless `with_env=False`: another
+        adapter of the same worlds saves it), row activity, host counters and the opponent's own state
+        (a heuristic's random streams are keyed by the simulation state)."""
         opponent_state = self.opponent.state_dict() if hasattr(self.opponent, "state_dict") else {}
         return {
-            "env": self.env.state_dict(),
+            **({"env": self.env.state_dict()} if with_env else {}),
             "active": self._active.cpu().clone(),
             "host_full": self._full.cpu().numpy() if self.device_stats else self._host_full.copy(),
             "row_return": self._row_return.cpu().clone(),
@@ -370,7 +436,8 @@ class AquariumVecEnv(VecEnv):
         }
 
     def load_state_dict(self, state: dict) -> None:
-        self.env.load_state_dict(state["env"])
+        if "env" in state:
+            self.env.load_state_dict(state["env"])
         self._sync_from_env()
         self._active.copy_(state["active"].to(self.device))
         self._host_full = np.asarray(state["host_full"], dtype=bool).copy()
