@@ -45,15 +45,15 @@ from pathlib import Path
 
 os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
 
-import numpy as np  # noqa: E402
-import torch  # noqa: E402
+import numpy as np
+import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from aquarium_warp.bench import git_info  # noqa: E402
-from aquarium_warp.training import Trainer, make_config  # noqa: E402
-from aquarium_warp.training.config import env_config  # noqa: E402
-from aquarium_warp.training.episode_video import EpisodeVideo, gif_bytes  # noqa: E402
-from aquarium_warp.training.evaluate import cross_play, plot_cross_play, write_cross_play  # noqa: E402
+from aquarium_warp.bench import git_info
+from aquarium_warp.training import Trainer, make_config
+from aquarium_warp.training.config import env_config
+from aquarium_warp.training.episode_video import EpisodeVideo, gif_bytes
+from aquarium_warp.training.evaluate import cross_play, plot_cross_play, write_cross_play
 
 SWARM = ("polarization", "groups", "cohesion", "nn_mean")
 
@@ -94,6 +94,17 @@ def measure_speed_in_subprocess(key: str, argv: list[str]) -> dict:
     if done.returncode != 0 or not lines:
         raise RuntimeError(f"speed of {key!r} failed:\n{done.stdout[-2000:]}\n{done.stderr[-4000:]}")
     return json.loads(lines[-1][len("SPEED "):])
+
+
+def _number(text: str):
+    """A CSV cell as the number it was written from (the text where it is not one)."""
+    try:
+        return int(text)
+    except ValueError:
+        try:
+            return float(text)
+        except ValueError:
+            return text
 
 
 def measure_speed(args, name: str, *changes: dict) -> dict:
@@ -201,6 +212,10 @@ def main(argv=None) -> int:
     p.add_argument("--eval-seeds", type=int, nargs="+", default=[0, 1], help="cross-play seeds")
     p.add_argument("--seed", type=int, default=0, help="training seed")
     p.add_argument("--keep-checkpoints", action="store_true", help="keep run/model_*.pt")
+    p.add_argument("--speed-only", action="store_true", help="measure step 1 only and write speed.csv")
+    p.add_argument("--speed-from", default=None,
+                   help="a speed.csv written earlier (same settings): step 1 reads it instead of measuring, so the "
+                        "speed points and the run can go in separate calls of a time-limited machine")
     p.add_argument("--speed-path", choices=("one", "both", "pool"), default=None,
                    help="(internal) measure the speed of one path and print it as JSON")
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -230,10 +245,19 @@ def main(argv=None) -> int:
           f"agent-steps, device {args.device or 'default'}", flush=True)
 
     # 1. speed of the one-team path against the two-learner path, same world
-    speed = [measure_speed_in_subprocess(key, argv) for key in ("one", "both", "pool")]
+    if args.speed_from:
+        with open(args.speed_from, newline="", encoding="utf-8") as f:
+            speed = [{k: _number(v) for k, v in row.items()} for row in csv.DictReader(f)]
+    else:
+        speed = [measure_speed_in_subprocess(key, [a for a in argv if a != "--speed-only"])
+                 for key in ("one", "both", "pool")]
     for point in speed:
         print(f"  speed {point['path']:>30}: {point['agent_steps_per_s']:.3g} agent-steps/s "
               f"({point['learning_rows_per_s']:.3g} learning rows/s)", flush=True)
+
+    if args.speed_only:
+        write_csv(speed, str(out / "speed.csv"))
+        return 0
 
     # 2. the co-evolution run
     config = make_config("default", settings(args), pool_settings(args),
