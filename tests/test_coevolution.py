@@ -237,6 +237,7 @@ def test_export_and_reload_both_policies(both_run, tmp_path, one_thread):
     """One policy file per team (TorchScript), equal to the live actors' argmax; checkpoints
     of both teams load by team; the PettingZoo env, `video` and `eval --cross-play` accept them, and
     `eval --curves` each team's progress CSV."""
+    pytest.importorskip("imageio_ffmpeg", reason="`video` writes an MP4 (the [video] extra)")
     trainer, run, paths = both_run
     assert set(paths) == {"prey", "predator"}
     checkpoint = os.path.join(run, "model_3.pt")
