@@ -13,10 +13,10 @@ import sys
 import pytest
 import torch
 
-from aquarium_warp.training import Trainer
+from aquarium_warp.cli import main
+from aquarium_warp.training import Trainer, distributed
 
 WORKER = os.path.join(os.path.dirname(__file__), "distributed_worker.py")
-pytestmark = pytest.mark.slow
 
 
 def torchrun(out: str, team: str, iterations: int, tag: str, resume: bool = False) -> list[dict]:
@@ -56,6 +56,7 @@ def check_reduced_logs(run_dir: str, records: list[dict], team: str, csv_name: s
     return with_episodes
 
 
+@pytest.mark.slow
 def test_two_ranks_agree_log_sums_and_keep_their_states(tmp_path):
     records = torchrun(str(tmp_path), "prey", 3, "run")
     run_dir = os.path.join(tmp_path, "run")
@@ -76,6 +77,7 @@ def test_two_ranks_agree_log_sums_and_keep_their_states(tmp_path):
         Trainer.resume(run_dir)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("team", ["prey", "both"])
 def test_stop_and_resume_continues_exactly_on_every_rank(tmp_path, team):
     straight, split = str(tmp_path / "straight"), str(tmp_path / "split")
@@ -93,3 +95,30 @@ def test_stop_and_resume_continues_exactly_on_every_rank(tmp_path, team):
     for name in teams:
         csv_name = f"progress_{name}.csv" if team == "both" else "progress.csv"
         check_reduced_logs(os.path.join(straight, "run"), whole, name, csv_name)
+
+
+@pytest.mark.parametrize("env, message", [
+    ({"WORLD_SIZE": "two"}, "WORLD_SIZE='two' must be an integer"),
+    ({"WORLD_SIZE": "0"}, "WORLD_SIZE=0 must be >= 1"),
+    ({"WORLD_SIZE": "2", "RANK": "2"}, r"RANK=2 must be in \[0, WORLD_SIZE=2\)"),
+    ({"WORLD_SIZE": "2", "LOCAL_RANK": "-1"}, r"LOCAL_RANK=-1 must be in \[0, WORLD_SIZE=2\)"),
+])
+def test_bad_torchrun_environment_is_named(monkeypatch, env, message):
+    for name, value in env.items():
+        monkeypatch.setenv(name, value)
+    with pytest.raises(ValueError, match=message):
+        distributed.world()
+
+
+def test_rank_devices():
+    assert distributed.rank_device("cpu", 1) == "cpu"
+    with pytest.raises(ValueError, match="train.device='mps'"):
+        distributed.rank_device("mps", 0)
+    with pytest.raises(ValueError, match="LOCAL_RANK=99"):
+        distributed.rank_device("cuda:0", 99)
+
+
+def test_torchrun_needs_a_log_dir(monkeypatch, capsys):
+    monkeypatch.setenv("WORLD_SIZE", "2")
+    assert main(["train", "--preset", "tiny", "--device", "cpu"]) == 2
+    assert "--log-dir is required under torchrun" in capsys.readouterr().err
