@@ -189,6 +189,10 @@ def _check_logger_package(logger) -> None:
         raise ValueError(f"runner.logger={logger!r} needs the wandb package: pip install 'aquarium-warp[wandb]'")
 
 
+def _silent(*args, **kwargs) -> None:
+    """`print` on the ranks other than 0 of a torchrun run."""
+
+
 def run_train(args) -> int:
     from .config import deep_update, load_config_file, make_config, parse_assignment, team_settings, total_iterations
     from .trainer import Trainer
@@ -204,8 +208,9 @@ def run_train(args) -> int:
                              "--export, --quiet, --video-every and --video-steps may be given with it")
         trainer = Trainer.resume(args.resume, log_dir=args.log_dir, changes={"train": changes.get("train", {})})
         _check_logger_package(trainer.config["runner"]["logger"])
-        print(f"aquarium-warp train: resumed {args.resume} at iteration {trainer.iteration} of "
-              f"{trainer.total_iterations} (log dir {trainer.log_dir})")
+        say = print if trainer.rank == 0 else _silent
+        say(f"aquarium-warp train: resumed {args.resume} at iteration {trainer.iteration} of "
+            f"{trainer.total_iterations} (log dir {trainer.log_dir})")
     else:
         file_cfg = load_config_file(args.config) if args.config else {}
         # Popped whether or not --preset overrides it: "preset" is no config section.
@@ -217,6 +222,8 @@ def run_train(args) -> int:
         team = merged.get("train", {}).get("team") or make_config(preset)["train"]["team"]
         deep_update(merged, _opponent_change(args, team))
         config = make_config(preset, merged)
+        if args.log_dir is None and int(os.environ.get("WORLD_SIZE", "1")) > 1:
+            raise ValueError("--log-dir is required under torchrun: every process must name the same run directory")
         log_dir = args.log_dir or os.path.join(
             "runs", f"{config['train']['team']}_{config['train']['sharing']}_{time.strftime('%Y%m%d-%H%M%S')}")
         _check_logger_package(config["runner"]["logger"])
@@ -224,16 +231,19 @@ def run_train(args) -> int:
         learners = " and ".join(f"{t} ({team_settings(config, t)['sharing']} sharing, {trainer.vec_envs[t].slots} "
                                 f"slots)" for t in trainer.teams)
         against = "" if trainer.opponent is None else f" vs {trainer.config['train']['opponent']}"
-        print(f"aquarium-warp train: {learners}{against} on {trainer.env.device}, {trainer.env.num_worlds} worlds, "
-              f"{total_iterations(config)} iterations -> {log_dir}")
+        say = print if trainer.rank == 0 else _silent
+        ranks = f" (x{trainer.world_size} processes)" if trainer.world_size > 1 else ""
+        say(f"aquarium-warp train: {learners}{against} on {trainer.env.device}, {trainer.env.num_worlds} "
+            f"worlds{ranks}, {total_iterations(config)} iterations -> {log_dir}")
     start = time.perf_counter()
     trainer.train()
-    paths = trainer.export() if trainer.config["train"]["export"] else {}
-    print(f"aquarium-warp train: {trainer.iteration} iterations done in {time.perf_counter() - start:.1f} s; "
-          f"checkpoints, progress CSV and TensorBoard logs in {trainer.log_dir}")
+    # torchrun: the ranks hold the same parameters; rank 0 exports them.
+    paths = trainer.export() if trainer.config["train"]["export"] and trainer.rank == 0 else {}
+    say(f"aquarium-warp train: {trainer.iteration} iterations done in {time.perf_counter() - start:.1f} s; "
+        f"checkpoints, progress CSV and TensorBoard logs in {trainer.log_dir}")
     for key, value in paths.items():
         for fmt, path in (value.items() if isinstance(value, dict) else [(key, value)]):
-            print(f"  exported {fmt}: {path}")
+            say(f"  exported {fmt}: {path}")
     trainer.close()
     return 0
 

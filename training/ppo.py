@@ -12,7 +12,8 @@
    agent slots at one step) instead of single rows. Individual Learning needs this (see
    `models.IndividualMLPModel`); with G=1 the update is rsl-rl's exactly.
 3. `update_on_device(indices)`: rsl-rl's `PPO.update` for feed-forward models, the same operations in
-   the same order, with the mini-batch indices drawn beforehand (`mini_batch_indices()`, the same random
+   the same order (with several ranks, its gradient all-reduce and rank 0's adaptive learning rate),
+   with the mini-batch indices drawn beforehand (`mini_batch_indices()`, the same random
    draw as the storage's generator) and the mean losses kept on the device instead of `.item()` after
    every mini-batch. Without host synchronisation the whole update (fixed learning-rate schedule) can
    be captured as one CUDA graph (`training/loop.py`); `capturable_optimizer=True` builds the optimizer
@@ -228,10 +229,18 @@ class AquariumPPO(PPO):
                 with torch.inference_mode():
                     kl = self.actor.get_kl_divergence(old_distribution_params, distribution_params)
                     kl_mean = torch.mean(kl)
-                    if kl_mean > self.desired_kl * 2.0:
-                        self.learning_rate = max(1e-5, self.learning_rate / 1.5)
-                    elif kl_mean < self.desired_kl / 2.0 and kl_mean > 0.0:
-                        self.learning_rate = min(1e-2, self.learning_rate * 1.5)
+                    if self.is_multi_gpu:  # several ranks: rank 0 decides on the mean KL of all
+                        torch.distributed.all_reduce(kl_mean, op=torch.distributed.ReduceOp.SUM)
+                        kl_mean /= self.gpu_world_size
+                    if self.gpu_global_rank == 0:
+                        if kl_mean > self.desired_kl * 2.0:
+                            self.learning_rate = max(1e-5, self.learning_rate / 1.5)
+                        elif kl_mean < self.desired_kl / 2.0 and kl_mean > 0.0:
+                            self.learning_rate = min(1e-2, self.learning_rate * 1.5)
+                    if self.is_multi_gpu:
+                        lr_tensor = torch.tensor(self.learning_rate, device=self.device)
+                        torch.distributed.broadcast(lr_tensor, src=0)
+                        self.learning_rate = lr_tensor.item()
                     for param_group in self.optimizer.param_groups:
                         param_group["lr"] = self.learning_rate
             ratio = torch.exp(actions_log_prob - torch.squeeze(old_actions_log_prob))
@@ -250,6 +259,8 @@ class AquariumPPO(PPO):
             loss = surrogate_loss + self.value_loss_coef * value_loss - self.entropy_coef * entropy_mean
         self.optimizer.zero_grad()
         loss.backward()
+        if self.is_multi_gpu:  # rsl-rl's average of the gradients over the ranks
+            self.reduce_parameters()
         nn.utils.clip_grad_norm_(self.actor.parameters(), self.max_grad_norm)
         nn.utils.clip_grad_norm_(self.critic.parameters(), self.max_grad_norm)
         self.optimizer.step()

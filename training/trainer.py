@@ -26,6 +26,12 @@ Both teams (`train.team = "both"`): one learner per team (`Learner`: adapter, rs
 logger) in the same worlds, driven together by `TrainingLoop`; `progress_<team>.csv`; checkpoints hold
 `learners: {team: rsl-rl state}`, and under `infos["aquarium"]["teams"]` each learner's part of the
 above, plus the opponent pool (`pool.py`); `export()` writes one policy per team.
+
+Several processes (`torchrun`, see `distributed.py`): each rank trains on its own device and worlds with
+seed `train.seed + RANK` (listed in `config.json` under `distributed`); rank 0 logs the episode
+statistics and swarm metrics summed over all ranks (losses: their mean) and writes the checkpoints,
+which hold rank 0's state as above plus `world_size` and the other ranks' states under `ranks`; on
+resume each rank restores its own (the same number of processes is required).
 """
 
 from __future__ import annotations
@@ -48,6 +54,7 @@ import numpy as np
 import torch
 
 from . import _rsl  # noqa: F401
+from . import distributed
 from rsl_rl.runners import OnPolicyRunner
 from rsl_rl.utils import resolve_callable
 from rsl_rl.utils.logger import Logger
@@ -281,6 +288,21 @@ class AquariumRunner(OnPolicyRunner):
         self.cuda_graphs = bool(train.get("cuda_graphs", True))
         self.loop: TrainingLoop | None = None
 
+    def _configure_multi_gpu(self) -> None:
+        """rsl-rl's setup of a several-process run (torchrun), with the backend chosen by the device:
+        NCCL for `cuda:LOCAL_RANK`, gloo for the CPU (rsl-rl's own accepts CUDA and NCCL only)."""
+        self.gpu_global_rank, self.gpu_local_rank, self.gpu_world_size = distributed.world()
+        self.is_distributed = self.gpu_world_size > 1
+        if not self.is_distributed:
+            self.cfg["multi_gpu"] = None
+            return
+        if self.device not in ("cpu", f"cuda:{self.gpu_local_rank}"):
+            raise ValueError(f"device {self.device!r} of rank {self.gpu_global_rank}: a torchrun run trains on "
+                             f"'cpu' or 'cuda:{self.gpu_local_rank}' (LOCAL_RANK)")
+        self.cfg["multi_gpu"] = {"global_rank": self.gpu_global_rank, "local_rank": self.gpu_local_rank,
+                                 "world_size": self.gpu_world_size}
+        distributed.init(self.device, self.gpu_global_rank, self.gpu_world_size)
+
     def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False) -> None:
         if num_learning_iterations <= 0:
             return
@@ -309,6 +331,8 @@ class AquariumRunner(OnPolicyRunner):
                                      pool=self.trainer.pool if self.trainer is not None else None)
         for learner in self.learners:
             learner.alg.train_mode()
+            if self.is_distributed:  # every rank starts from rank 0's parameters
+                learner.alg.broadcast_parameters()
         with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl reports storing git state (under git/)
             self.logger.init_logging_writer()
         for learner in self.learners[1:]:
@@ -318,13 +342,18 @@ class AquariumRunner(OnPolicyRunner):
 
         def log(it: int, record) -> None:
             values, (collect_time, learn_time) = record.read()
+            if self.is_distributed:  # episode statistics are sums and counts; losses: their mean over ranks
+                values = distributed.sum_over_ranks(values)
             for learner, (losses, stats) in zip(self.learners, self.loop.split(values)):
+                losses = [loss / self.gpu_world_size for loss in losses]
                 means, episodes, row_reward = learner.vec_env.decode_episode_stats(stats)
                 frozen = losses[0] != losses[0]  # NaN: the learner did not learn in this iteration
                 learner.logger.log_iteration(it, start_it, total_it, collect_time, learn_time,
                                              None if frozen else dict(zip(("value", "surrogate", "entropy"), losses)),
                                              learner.alg.learning_rate, means, episodes, row_reward)
 
+        # Every rank takes part in a save (rank 0 gathers their states), only rank 0 has a writer.
+        saves = self.logger.log_dir is not None
         pending = None  # the previous iteration, logged while this one runs on the device
         for it in range(start_it, total_it):
             record = self.loop.iteration(self.trainer.learning(it) if self.trainer is not None else None)
@@ -334,14 +363,15 @@ class AquariumRunner(OnPolicyRunner):
             if pending is not None:
                 log(*pending)
             pending = (it, record)
-            if self.logger.writer is not None and it % self.cfg["save_interval"] == 0:
+            if saves and it % self.cfg["save_interval"] == 0:
                 log(*pending)  # a checkpoint's progress.csv holds its own iteration
                 pending = None
                 self.save(os.path.join(self.logger.log_dir, f"model_{it}.pt"))
         if pending is not None:
             log(*pending)
-        if self.logger.writer is not None:
+        if saves:
             self.save(os.path.join(self.logger.log_dir, f"model_{self.current_learning_iteration}.pt"))
+        if self.logger.writer is not None:
             self.logger.stop_logging_writer()
 
     def completed_iterations(self) -> int:
@@ -356,6 +386,13 @@ class AquariumRunner(OnPolicyRunner):
         infos = dict(infos or {})
         if self.trainer is not None:
             infos["aquarium"] = self.trainer.extra_state()
+            if self.is_distributed:  # every rank's worlds and random streams, in rank 0's one file
+                states = distributed.gather_on_first(distributed.to_cpu(infos["aquarium"]))
+                if states is None:
+                    return
+                infos["aquarium"] = {**states[0], "world_size": self.gpu_world_size, "ranks": states[1:]}
+        elif self.is_distributed and self.gpu_global_rank != 0:
+            return
         saved["infos"] = infos
         # Atomic: written to a temporary file in the same folder, then renamed over `path`, so an
         # interrupted save never leaves a truncated checkpoint under a checkpoint's name.
@@ -454,13 +491,12 @@ class Trainer:
             train["opponent"] = default_opponent(train["team"])
         self.config = config
         self.log_dir = log_dir
-        rank = int(os.environ.get("RANK", "0"))
-        world_size = int(os.environ.get("WORLD_SIZE", "1"))
-        if world_size > 1:  # torchrun: one process per GPU, each with its own worlds and seed
-            device = f"cuda:{int(os.environ.get('LOCAL_RANK', '0'))}"
-        else:
-            device = train["device"]
-        self.seed = int(train["seed"]) + rank
+        # torchrun: one process (rank) per GPU or CPU share, each with its own worlds and seed.
+        self.rank, local_rank, self.world_size = distributed.world()
+        if self.world_size > 1 and train["loop"] == "rsl-rl":
+            raise ValueError("train.loop='rsl-rl' runs in one process; a torchrun run needs train.loop='fast'")
+        device = distributed.rank_device(train["device"], local_rank) if self.world_size > 1 else train["device"]
+        self.seed = int(train["seed"]) + self.rank
         torch.manual_seed(self.seed)
         np.random.seed(self.seed % 2**32)
         random.seed(self.seed)
@@ -491,11 +527,15 @@ class Trainer:
                             for team, v in self.vec_envs.items()}
         self.runner_cfg = self.runner_cfgs[self.teams[0]]
         self.total_iterations = total_iterations(config)
-        if log_dir is not None and rank == 0:
+        if log_dir is not None and self.rank == 0:
             os.makedirs(log_dir, exist_ok=True)
+            record = {"config": config, "runner_cfg": self.runner_cfg if not both else self.runner_cfgs,
+                      "total_iterations": self.total_iterations}
+            if self.world_size > 1:  # rank r simulates with seed train.seed + r
+                record["distributed"] = {"world_size": self.world_size,
+                                         "seeds": [int(train["seed"]) + r for r in range(self.world_size)]}
             with open(os.path.join(log_dir, "config.json"), "w", encoding="utf-8") as f:
-                json.dump({"config": config, "runner_cfg": self.runner_cfg if not both else self.runner_cfgs,
-                           "total_iterations": self.total_iterations}, f, indent=1, default=str)
+                json.dump(record, f, indent=1, default=str)
         with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints the networks (config.json has them)
             self.runner = AquariumRunner(
                 self.vec_env, copy.deepcopy(self.runner_cfg), log_dir=log_dir, device=str(self.device), trainer=self,
@@ -569,7 +609,7 @@ class Trainer:
     def extra_state(self) -> dict:
         """The trainer's part of a checkpoint: run config, RNG states and, per learner, its adapter
         (the simulation once), logger and hidden states; both teams: under `teams`, with the pool."""
-        state = {"config": self.config, "rng": _rng_state(self.device)}
+        state = {"config": self.config, "seed": self.seed, "rng": _rng_state(self.device)}
         learners = self.runner.learners
         if len(learners) == 1:
             return {**state, **self._learner_state(learners[0], with_env=True)}
@@ -577,6 +617,14 @@ class Trainer:
                 "teams": {l.team: self._learner_state(l, with_env=i == 0) for i, l in enumerate(learners)}}
 
     def load_extra_state(self, state: dict) -> None:
+        """Restore `extra_state()`; of a torchrun run's checkpoint (`world_size`, the other ranks'
+        states under `ranks`), this rank's own part."""
+        saved_size = int(state.get("world_size", 1))
+        if saved_size != self.world_size:
+            raise ValueError(f"the checkpoint holds the state of {saved_size} process(es) (torchrun's WORLD_SIZE), "
+                             f"this run has {self.world_size}: resume with the same number of processes")
+        if self.rank > 0:
+            state = state["ranks"][self.rank - 1]
         if self.pool is not None:  # first: the adapters' rows depend on which worlds the learners drive
             self.pool.load_state_dict(state["pool"])
         learners = self.runner.learners
@@ -593,7 +641,7 @@ class Trainer:
         done = self.runner.current_learning_iteration
         for learner in self.runner.learners:  # drop rows logged after the checkpoint
             csv_path = learner.logger.csv_path
-            if self.log_dir and csv_path and os.path.isfile(csv_path):
+            if self.log_dir and self.rank == 0 and csv_path and os.path.isfile(csv_path):
                 with open(csv_path, newline="", encoding="utf-8") as f:
                     rows = [r for r in csv.DictReader(f) if int(r["iteration"]) < done]
                 with open(csv_path, "w", newline="", encoding="utf-8") as f:
@@ -674,6 +722,8 @@ class Trainer:
         if self.video is not None:
             self.video.close()
         self.vec_env.close()
+        if self.world_size > 1:
+            distributed.close()
 
 
 __all__ = ["Trainer", "AquariumRunner", "AquariumLogger", "make_opponent", "latest_checkpoint",

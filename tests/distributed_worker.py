@@ -1,0 +1,88 @@
+"""One rank of a tiny torchrun training run for tests/test_distributed.py.
+
+`torchrun --nproc_per_node=2 tests/distributed_worker.py OUT TEAM ITERATIONS TAG [resume]` trains (or
+resumes) the run in `OUT/run` and writes `OUT/<TAG>_rank<r>.json`: this rank's seed, a hash of every
+learner's parameters after each iteration, each adapter's episode-statistics snapshots (sums and counts
+before the reduction over ranks) and hashes of the final simulation state and parameters.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import sys
+
+import numpy as np
+import torch
+
+from aquarium_warp.training import Trainer, make_config
+
+
+def digest(obj) -> str:
+    """SHA-256 of every tensor and array in `obj` (dicts in key order)."""
+    h = hashlib.sha256()
+
+    def walk(x) -> None:
+        if isinstance(x, torch.Tensor):
+            h.update(x.detach().cpu().contiguous().numpy().tobytes())
+        elif isinstance(x, np.ndarray):
+            h.update(x.tobytes())
+        elif isinstance(x, dict):
+            for key in sorted(x):
+                h.update(str(key).encode())
+                walk(x[key])
+        elif isinstance(x, (list, tuple)):
+            for item in x:
+                walk(item)
+        else:
+            h.update(repr(x).encode())
+
+    walk(obj)
+    return h.hexdigest()
+
+
+def parameters(trainer: Trainer) -> dict:
+    """Each learner's actor and critic state (parameters and normaliser statistics)."""
+    return {team: {"actor": learner.alg.actor.state_dict(), "critic": learner.alg.critic.state_dict()}
+            for team, learner in trainer.learners.items()}
+
+
+def main() -> None:
+    out, team, iterations, tag = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4]
+    run_dir = os.path.join(out, "run")
+    if sys.argv[5:] == ["resume"]:
+        trainer = Trainer.resume(run_dir)
+    else:
+        config = make_config("tiny", {"env": {"max_steps": 20},
+                                      "train": {"team": team, "num_worlds": 4, "iterations": 4, "export": []},
+                                      "runner": {"num_steps_per_env": 16, "save_interval": 100}})
+        trainer = Trainer(config, log_dir=run_dir)
+    record: dict = {"rank": trainer.rank, "seed": trainer.seed, "params": {}, "stats": {}}
+    for name, learner in trainer.learners.items():
+        take = learner.vec_env.episode_stats_snapshot
+        record["stats"][name] = []
+
+        def snapshot(take=take, name=name) -> torch.Tensor:
+            values = take()
+            record["stats"][name].append(values.tolist())
+            return values
+
+        learner.vec_env.episode_stats_snapshot = snapshot
+    after = trainer.after_iteration
+
+    def after_iteration(iteration: int) -> None:
+        after(iteration)
+        record["params"][iteration] = digest(parameters(trainer))
+
+    trainer.after_iteration = after_iteration
+    trainer.train(iterations)
+    record["final_params"] = digest(parameters(trainer))
+    record["final_sim"] = digest(trainer.env.state_dict()["tensors"])
+    with open(os.path.join(out, f"{tag}_rank{trainer.rank}.json"), "w", encoding="utf-8") as f:
+        json.dump(record, f)
+    trainer.close()
+
+
+if __name__ == "__main__":
+    main()

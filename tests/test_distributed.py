@@ -1,0 +1,124 @@
+"""Training over two processes (`torchrun --nproc_per_node=2`, gloo on the CPU): the ranks hold the same
+parameters after every update, rank 0 logs the episode statistics summed over the ranks, and a run
+stopped and resumed continues exactly on every rank (tests/distributed_worker.py is each rank)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from aquarium_warp.cli import main
+from aquarium_warp.training import Trainer, distributed
+
+WORKER = os.path.join(os.path.dirname(__file__), "distributed_worker.py")
+
+
+def torchrun(out: str, team: str, iterations: int, tag: str, resume: bool = False) -> list[dict]:
+    """Run the worker on two CPU ranks; each rank's record."""
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "GIT_PYTHON_REFRESH": "quiet"}
+    env.pop("WORLD_SIZE", None)
+    command = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2", WORKER,
+               out, team, str(iterations), tag] + (["resume"] if resume else [])
+    result = subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    records = []
+    for rank in range(2):
+        with open(os.path.join(out, f"{tag}_rank{rank}.json"), encoding="utf-8") as f:
+            records.append(json.load(f))
+    return records
+
+
+def check_reduced_logs(run_dir: str, records: list[dict], team: str, csv_name: str) -> int:
+    """Rank 0's progress rows equal the statistics combined from both ranks' sums and counts; how many
+    iterations had ended episodes."""
+    with open(os.path.join(run_dir, csv_name), newline="", encoding="utf-8") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == len(records[0]["stats"][team])
+    with_episodes = 0
+    for it, row in enumerate(rows):
+        both = [sum(values) for values in zip(*(r["stats"][team][it] for r in records))]
+        k = (len(both) - 2) // 2  # snapshot: k sums, k counts, row reward total and row count
+        sums, counts = both[:k], both[k:2 * k]
+        assert int(row["episodes_logged"]) == int(counts[0])
+        assert float(row["mean_row_reward"]) == pytest.approx(both[-2] / both[-1], rel=1e-12)
+        if counts[0]:
+            with_episodes += 1
+            assert float(row["captures"]) == pytest.approx(sums[0] / counts[0], rel=1e-12)
+            assert float(row["episode_length"]) == pytest.approx(sums[3] / counts[3], rel=1e-12)
+        else:
+            assert row["captures"] == ""
+    return with_episodes
+
+
+@pytest.mark.slow
+def test_two_ranks_agree_log_sums_and_keep_their_states(tmp_path):
+    records = torchrun(str(tmp_path), "prey", 3, "run")
+    run_dir = os.path.join(tmp_path, "run")
+    assert [r["seed"] for r in records] == [0, 1]
+    with open(os.path.join(run_dir, "config.json"), encoding="utf-8") as f:
+        assert json.load(f)["distributed"] == {"world_size": 2, "seeds": [0, 1]}
+    # the same parameters after every update, different worlds
+    assert sorted(records[0]["params"]) == ["0", "1", "2"]
+    assert records[0]["params"] == records[1]["params"]
+    assert records[0]["final_sim"] != records[1]["final_sim"]
+    assert check_reduced_logs(run_dir, records, "prey", "progress.csv") >= 1
+    # one file holds both ranks' simulations (each with its own seed)
+    state = torch.load(os.path.join(run_dir, "model_2.pt"), weights_only=False)["infos"]["aquarium"]
+    assert state["world_size"] == 2 and len(state["ranks"]) == 1
+    assert [state["seed"], state["ranks"][0]["seed"]] == [0, 1]
+    assert state["vec_env"]["env"]["seed"] == 0 and state["ranks"][0]["vec_env"]["env"]["seed"] == 1
+    with pytest.raises(ValueError, match="2 process.*WORLD_SIZE.*this run has 1"):
+        Trainer.resume(run_dir)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("team", ["prey", "both"])
+def test_stop_and_resume_continues_exactly_on_every_rank(tmp_path, team):
+    straight, split = str(tmp_path / "straight"), str(tmp_path / "split")
+    os.makedirs(straight)
+    os.makedirs(split)
+    whole = torchrun(straight, team, 4, "whole")
+    torchrun(split, team, 2, "first")
+    resumed = torchrun(split, team, 2, "resumed", resume=True)
+    teams = ["prey", "predator"] if team == "both" else ["prey"]
+    for rank in range(2):
+        assert resumed[rank]["params"] == {k: v for k, v in whole[rank]["params"].items() if int(k) >= 2}
+        assert resumed[rank]["final_params"] == whole[rank]["final_params"]
+        assert resumed[rank]["final_sim"] == whole[rank]["final_sim"]
+    assert whole[0]["params"] == whole[1]["params"]
+    for name in teams:
+        csv_name = f"progress_{name}.csv" if team == "both" else "progress.csv"
+        check_reduced_logs(os.path.join(straight, "run"), whole, name, csv_name)
+
+
+@pytest.mark.parametrize("env, message", [
+    ({"WORLD_SIZE": "two"}, "WORLD_SIZE='two' must be an integer"),
+    ({"WORLD_SIZE": "0"}, "WORLD_SIZE=0 must be >= 1"),
+    ({"WORLD_SIZE": "2", "RANK": "2"}, r"RANK=2 must be in \[0, WORLD_SIZE=2\)"),
+    ({"WORLD_SIZE": "2", "LOCAL_RANK": "-1"}, r"LOCAL_RANK=-1 must be in \[0, WORLD_SIZE=2\)"),
+])
+def test_bad_torchrun_environment_is_named(monkeypatch, env, message):
+    for name, value in env.items():
+        monkeypatch.setenv(name, value)
+    with pytest.raises(ValueError, match=message):
+        distributed.world()
+
+
+def test_rank_devices():
+    assert distributed.rank_device("cpu", 1) == "cpu"
+    with pytest.raises(ValueError, match="train.device='mps'"):
+        distributed.rank_device("mps", 0)
+    with pytest.raises(ValueError, match="LOCAL_RANK=99"):
+        distributed.rank_device("cuda:0", 99)
+
+
+def test_torchrun_needs_a_log_dir(monkeypatch, capsys):
+    monkeypatch.setenv("WORLD_SIZE", "2")
+    assert main(["train", "--preset", "tiny", "--device", "cpu"]) == 2
+    assert "--log-dir is required under torchrun" in capsys.readouterr().err
