@@ -180,7 +180,7 @@ def test_a_started_training_run_resumes_from_its_newest_checkpoint(tmp_path, one
     (["sweep", "train", "--seeds", "0,0"], "each once"),
     (["sweep", "train", "--seeds", "0", "--seed", "1"], "--seeds"),
     (["sweep", "train", "--vary", "train.sharing"], "--vary"),
-    (["sweep", "train", "--vary", "sharing=parameter"], "env., train. or runner."),
+    (["sweep", "train", "--vary", "sharing=parameter"], "env., train., runner. or teams."),
 ])
 def test_bad_sweep_options_are_one_line_errors(capsys, argv, expected):
     assert main(argv) == 2
