@@ -1,4 +1,4 @@
-"""Spatial hash grid over (world, cell), rebuilt every step; and ring-by-ring neighbour search.
+"""Spatial hash grid over (world, cell), rebuilt every step; and the walks of neighbour searches.
 
 Each world is tiled by `dims_x x dims_y` cells whose size divides the world exactly, so cell indices
 wrap modulo the dims and the grid is a torus like the world. Live agents are listed by the key
@@ -21,17 +21,23 @@ by slot (`order_cells`, each entry counting the lower slots of its cell): no sor
 slots lie outside every cell: the count build lists none, the per-world builds list them after their
 world's live agents.
 
-Queries visit the cells around the query cell by rings: ring 0 is the cell itself, ring r the 8r
-cells at Chebyshev cell distance r (`ring_offset`, side by side); a fixed radius visits the whole
-square of rings at once, row by row (`square_extent`, `row_run_entries`). Offsets are clipped to
-[-lo, hi] per axis (`offset_cell`), so on a small torus no cell is visited twice. After rings 0..r
-every agent closer than `r * reach` (reach = the smaller cell side, less a rounding margin) has been
-seen, which bounds fixed-radius queries and lets k-nearest queries stop early.
+Searches walk the cells around a point by rings: ring 0 is the cell itself, ring r the 8r cells at
+Chebyshev cell distance r. Every search goes through one iterator, `CellWalk`, in one of two walk
+styles: a fixed-radius search visits the square of rings that holds the radius at once
+(`square_walk`); a search for the nearest agents visits a first square, then one ring per step,
+until no unseen agent can matter (`widening_walk`, `next_ring`). Both read a row of the square, or
+the two rows and two columns of a ring, as row runs of cells (`walk_segment`, `row_run_entries`),
+and skip the cells wholly beyond a distance bound (`clip_run`); a kernel's loop is
+`while next_entry(grid, walk)` over `walk.entry` / `walk.slot`. Offsets are clipped to [-lo, hi] per
+axis, so on a small torus no cell is visited twice. After rings 0..r every agent closer than
+`r * reach` (reach = the smaller cell side, less a rounding margin) has been seen, which bounds
+fixed-radius queries and lets nearest-agent queries stop early.
 """
 
 import warp as wp
 
 from .common import WorldParams
+from .state import Agents
 
 wp.set_module_options({"enable_backward": False})
 
@@ -109,13 +115,6 @@ def row_base(grid: CellLists, world: int, center: wp.vec2i, oy: int) -> int:
 
 
 @wp.func
-def square_extent(grid: CellLists, rings: int) -> wp.vec4i:
-    """Offsets (x_first, x_last, y_first, y_last) of the square of rings 0..rings, clipped to the torus."""
-    return wp.vec4i(-wp.min(rings, grid.lo_x), wp.min(rings, grid.hi_x), -wp.min(rings, grid.lo_y),
-                    wp.min(rings, grid.hi_y))
-
-
-@wp.func
 def row_run_entries(grid: CellLists, world: int, center: wp.vec2i, oy: int, x_first: int, x_last: int) -> wp.vec4i:
     """Entries of the cells at offsets (x_first..x_last, oy) from `center`, offsets within the torus's
     [-lo, hi]: the range [first0, end0), then [first1, end1) where the run crosses the seam (else empty);
@@ -150,36 +149,6 @@ def run_entry(runs: wp.vec4i, n: int) -> int:
     if n < first_part:
         return runs[0] + n
     return runs[2] + n - first_part
-
-
-@wp.func
-def ring_sides(r: int) -> int:
-    """Ring r is walked as `ring_sides(r)` sides of `ring_side_length(r)` cells (ring 0: one cell)."""
-    if r == 0:
-        return 1
-    return 4
-
-
-@wp.func
-def ring_side_length(r: int) -> int:
-    if r == 0:
-        return 1
-    return 2 * r
-
-
-@wp.func
-def ring_offset(r: int, side: int, u: int) -> wp.vec2i:
-    """Cell offset of the u-th cell of a side of ring r (the 8r cells at Chebyshev distance r,
-    walked clockwise from the top left corner)."""
-    if r == 0:
-        return wp.vec2i(0, 0)
-    if side == 0:
-        return wp.vec2i(-r + u, -r)
-    if side == 1:
-        return wp.vec2i(r, -r + u)
-    if side == 2:
-        return wp.vec2i(r - u, r)
-    return wp.vec2i(-r, r - u)
 
 
 @wp.func
@@ -230,15 +199,6 @@ def clip_run(grid: CellLists, run: wp.vec3i, inside_x: float, inside_y: float, b
 
 
 @wp.func
-def offset_cell(grid: CellLists, world: int, center: wp.vec2i, o: wp.vec2i) -> int:
-    """Global index of the cell at offset `o` from `center`, or -1 where `o` is not the offset this
-    torus names that cell by (it is visited under its representative offset instead)."""
-    if o[0] < -grid.lo_x or o[0] > grid.hi_x or o[1] < -grid.lo_y or o[1] > grid.hi_y:
-        return -1
-    return row_base(grid, world, center, o[1]) + wrap_cell(center[0] + o[0], grid.dims_x)
-
-
-@wp.func
 def cell_gap(offset: int, inside: float, size: float, dims: int) -> float:
     """Distance along one axis from a point `inside` px into its cell to the cell `offset` cells away,
     the shorter way round the torus."""
@@ -273,51 +233,119 @@ def rings_for_radius(grid: CellLists, radius: float) -> int:
     return wp.min(int(radius / grid.reach + 1.0e-3) + 1, last)
 
 
+@wp.struct
+class CellWalk:
+    """A walk over the cell-list entries around a point, a row run of cells at a time (see the module
+    docstring). Made by `square_walk` or `widening_walk`, advanced by `next_entry` (and `next_ring`)."""
+
+    world: int  # the world's index in the lists
+    base: int  # flat slot index of the world's slot 0
+    center: wp.vec2i  # the point's cell
+    inside: wp.vec2  # px: where the point lies inside its cell
+    bound2: float  # px^2: cells wholly farther than sqrt(bound2) from the point are skipped
+    first_ring: int  # the first step visits the square of rings 0..first_ring; each later step one ring
+    ring: int  # the current step's ring
+    segment: int  # the current step's next row run (`walk_segment`)
+    segments: int  # row runs of the current step
+    segment_stride: int  # row runs taken: segment, segment + segment_stride, ...
+    runs: wp.vec4i  # entries of the current row run (`row_run_entries`)
+    n: int  # next entry of `runs`
+    entry: int  # the entry `next_entry` went to: grid.position[entry] is its position
+    slot: int  # its slot in the world, -1 for a dead slot (`listed_slot`)
+
+
+@wp.func
+def cell_walk(grid: CellLists, w: int, capacity: int, p: wp.vec2, first_ring: int, bound2: float, first_segment: int,
+              segment_stride: int) -> CellWalk:
+    walk = CellWalk()
+    walk.world = w
+    walk.base = w * capacity
+    walk.center = cell_coords(grid, p)
+    walk.inside = wp.vec2(p[0] - float(walk.center[0]) * grid.cell_width, p[1] - float(walk.center[1]) * grid.cell_height)
+    walk.bound2 = bound2
+    walk.first_ring = first_ring
+    walk.ring = first_ring
+    walk.segment = first_segment
+    walk.segments = walk_segments(first_ring, first_ring)
+    walk.segment_stride = segment_stride
+    walk.runs = wp.vec4i(0, 0, 0, 0)
+    walk.n = 0
+    return walk
+
+
+@wp.func
+def square_walk(grid: CellLists, w: int, capacity: int, p: wp.vec2, radius: float, row: int, row_stride: int) -> CellWalk:
+    """Fixed-radius walk: the entries of the square of cells that holds every agent of world `w` within
+    `radius` of `p` (a world of `capacity` slots), row by row; rows `row`, `row + row_stride`, ... of
+    the square only (a search split over `row_stride` threads), all rows with (0, 1)."""
+    return cell_walk(grid, w, capacity, p, rings_for_radius(grid, radius), wp.inf, row, row_stride)
+
+
+@wp.func
+def widening_walk(grid: CellLists, w: int, capacity: int, p: wp.vec2, first_ring: int, bound2: float) -> CellWalk:
+    """Widening walk: first the square of rings 0..first_ring around `p`'s cell, then, after each
+    `next_ring`, the next ring; cells wholly farther than sqrt(`walk.bound2`) are skipped (a search
+    may lower the bound as it goes). After the step of ring r every agent within
+    `searched_radius(grid, r)` has been visited."""
+    return cell_walk(grid, w, capacity, p, first_ring, bound2, 0, 1)
+
+
+@wp.func
+def next_entry(grid: CellLists, walk: wp.ref[CellWalk]) -> bool:
+    """Move `walk` to the next entry of its current step (`walk.entry`, `walk.slot`); False once the
+    step is done."""
+    while walk.n >= run_length(walk.runs):
+        if walk.segment >= walk.segments:
+            return False
+        run = clip_run(grid, walk_segment(walk.ring, walk.first_ring, walk.segment), walk.inside[0], walk.inside[1],
+                       walk.bound2)
+        walk.runs = row_run_entries(grid, walk.world, walk.center, run[0], run[1], run[2])
+        walk.segment += walk.segment_stride
+        walk.n = 0
+    walk.entry = run_entry(walk.runs, walk.n)
+    walk.n += 1
+    walk.slot = listed_slot(grid, walk.entry, walk.base)
+    return True
+
+
+@wp.func
+def next_ring(walk: wp.ref[CellWalk]):
+    """Make the ring after the current step's the walk's next step."""
+    walk.ring += 1
+    walk.segment = 0
+    walk.segments = walk_segments(walk.ring, walk.first_ring)
+    walk.segment_stride = 1
+
+
 @wp.kernel
-def compute_cell_keys(
-    world: WorldParams,
-    grid: CellLists,
-    position: wp.array2d(dtype=wp.vec2),
-    alive: wp.array2d(dtype=wp.bool),
-    key: wp.array(dtype=int),
-    cell_count: wp.array(dtype=int),
-):
+def compute_cell_keys(world: WorldParams, agents: Agents, grid: CellLists):
     """Count build, step 1: each live agent's key, and its arrival order among its cell's agents
     (`cell_count` zero beforehand counts them; the order varies from run to run, `order_cells`
     replaces it by slot order)."""
     w, i = wp.tid()
     n = grid.position.shape[0]
     k = w * world.capacity + i
-    if alive[w, i]:
-        cell = w * grid.cells_per_world + cell_in_world(grid, position[w, i])
-        key[k] = cell
-        key[n + k] = wp.atomic_add(cell_count, cell, 1)
+    if agents.alive[w, i]:
+        cell = w * grid.cells_per_world + cell_in_world(grid, agents.position[w, i])
+        grid.key[k] = cell
+        grid.key[n + k] = wp.atomic_add(grid.cell_count, cell, 1)
     else:
-        key[k] = -1
+        grid.key[k] = -1
 
 
 @wp.kernel
-def drop_into_cells(
-    grid: CellLists,
-    agent: wp.array(dtype=int),
-):
+def drop_into_cells(grid: CellLists):
     """Count build, step 3 (after the prefix sum of the counts into the cell ends): each live agent
     takes the place of its arrival order in its cell's range of the scratch list."""
     k = wp.tid()
     n = grid.position.shape[0]
     cell = grid.key[k]
     if cell >= 0:
-        agent[n + grid.cell_start[cell] + grid.key[n + k]] = k
+        grid.agent[n + grid.cell_start[cell] + grid.key[n + k]] = k
 
 
 @wp.kernel
-def order_cells(
-    world: WorldParams,
-    grid: CellLists,
-    position: wp.array2d(dtype=wp.vec2),
-    agent: wp.array(dtype=int),
-    sorted_position: wp.array(dtype=wp.vec2),
-):
+def order_cells(world: WorldParams, agents: Agents, grid: CellLists):
     """Count build, step 4: the agent at scratch entry k moves to its cell's start plus the number of
     lower slots in its cell (O(agents of the cell) per thread, like the searches that read the cell),
     and its position is gathered there."""
@@ -325,17 +353,17 @@ def order_cells(
     n = grid.position.shape[0]
     if k >= grid.cell_end[grid.cell_end.shape[0] - 1]:  # past the last live agent
         return
-    idx = agent[n + k]
+    idx = grid.agent[n + k]
     cell = grid.key[idx]
     first = grid.cell_start[cell]
     at = first
     for q in range(first, grid.cell_end[cell]):
-        if agent[n + q] < idx:
+        if grid.agent[n + q] < idx:
             at += 1
     w = idx // world.capacity
     i = idx - w * world.capacity
-    agent[at] = idx
-    sorted_position[at] = position[w, i]
+    grid.agent[at] = idx
+    grid.position[at] = agents.position[w, i]
 
 
 @wp.func
@@ -348,16 +376,7 @@ def set_empty_cells(cell_start: wp.array(dtype=int), cell_end: wp.array(dtype=in
 
 
 @wp.kernel
-def rank_into_cells_per_world(
-    world: WorldParams,
-    grid: CellLists,
-    position: wp.array2d(dtype=wp.vec2),
-    alive: wp.array2d(dtype=wp.bool),
-    cell_start: wp.array(dtype=int),
-    cell_end: wp.array(dtype=int),
-    agent: wp.array(dtype=int),
-    sorted_position: wp.array(dtype=wp.vec2),
-):
+def rank_into_cells_per_world(world: WorldParams, agents: Agents, grid: CellLists):
     """The cell lists of small worlds on a GPU, one thread per slot: a slot's entry is its rank by
     (cell, slot) among its world's live agents, counted over the world's slots (O(capacity) per
     thread, no sort). Live agents get the count build's order; dead slots follow them, as in
@@ -369,16 +388,16 @@ def rank_into_cells_per_world(
     first_cell = w * grid.cells_per_world
     k = first + i
     at = int(0)
-    if alive[w, i]:
-        cell = cell_in_world(grid, position[w, i])
+    if agents.alive[w, i]:
+        cell = cell_in_world(grid, agents.position[w, i])
         before = int(0)  # live agents in lower cells
         ahead = int(0)  # live agents in the same cell with a lower slot
         inside = int(0)
         below = int(-1)  # the highest occupied cell below this one
         above = bool(False)  # any occupied cell above this one
         for j in range(capacity):
-            if alive[w, j]:
-                other = cell_in_world(grid, position[w, j])
+            if agents.alive[w, j]:
+                other = cell_in_world(grid, agents.position[w, j])
                 if other < cell:
                     before += 1
                     below = wp.max(below, other)
@@ -390,39 +409,29 @@ def rank_into_cells_per_world(
                     above = True
         at = first + before + ahead
         if ahead == 0:
-            set_empty_cells(cell_start, cell_end, first_cell + below + 1, first_cell + cell, first + before)
-            cell_start[first_cell + cell] = first + before
-            cell_end[first_cell + cell] = first + before + inside
+            set_empty_cells(grid.cell_start, grid.cell_end, first_cell + below + 1, first_cell + cell, first + before)
+            grid.cell_start[first_cell + cell] = first + before
+            grid.cell_end[first_cell + cell] = first + before + inside
             if not above:
-                set_empty_cells(cell_start, cell_end, first_cell + cell + 1, first_cell + grid.cells_per_world,
+                set_empty_cells(grid.cell_start, grid.cell_end, first_cell + cell + 1, first_cell + grid.cells_per_world,
                                 first + before + inside)
     else:
         live = int(0)
         dead_ahead = int(0)
         for j in range(capacity):
-            if alive[w, j]:
+            if agents.alive[w, j]:
                 live += 1
             elif j < i:
                 dead_ahead += 1
         at = first + live + dead_ahead
         if live == 0 and i == 0:  # no live agent: every cell is empty
-            set_empty_cells(cell_start, cell_end, first_cell, first_cell + grid.cells_per_world, first)
-    agent[at] = k
-    sorted_position[at] = position[w, i]
+            set_empty_cells(grid.cell_start, grid.cell_end, first_cell, first_cell + grid.cells_per_world, first)
+    grid.agent[at] = k
+    grid.position[at] = agents.position[w, i]
 
 
 @wp.kernel
-def sort_into_cells_per_world(
-    world: WorldParams,
-    grid: CellLists,
-    position: wp.array2d(dtype=wp.vec2),
-    alive: wp.array2d(dtype=wp.bool),
-    key: wp.array(dtype=int),
-    cell_start: wp.array(dtype=int),
-    cell_end: wp.array(dtype=int),
-    agent: wp.array(dtype=int),
-    sorted_position: wp.array(dtype=wp.vec2),
-):
+def sort_into_cells_per_world(world: WorldParams, agents: Agents, grid: CellLists):
     """The cell lists of one world by a counting sort in one thread (the CPU path: Warp runs CPU
     kernels on one thread anyway). Stable, so live agents get the GPU builds' order; a world's dead
     slots follow its live ones in its own block of entries (no query reads them)."""
@@ -430,27 +439,27 @@ def sort_into_cells_per_world(
     capacity = world.capacity
     first_cell = w * grid.cells_per_world
     for c in range(grid.cells_per_world):
-        cell_end[first_cell + c] = 0
+        grid.cell_end[first_cell + c] = 0
     for i in range(capacity):
         k = w * capacity + i
-        key[k] = -1
-        if alive[w, i]:
-            key[k] = first_cell + cell_in_world(grid, position[w, i])
-            cell_end[key[k]] = cell_end[key[k]] + 1
+        grid.key[k] = -1
+        if agents.alive[w, i]:
+            grid.key[k] = first_cell + cell_in_world(grid, agents.position[w, i])
+            grid.cell_end[grid.key[k]] = grid.cell_end[grid.key[k]] + 1
     total = w * capacity
     for c in range(grid.cells_per_world):
-        count = cell_end[first_cell + c]
-        cell_start[first_cell + c] = total
-        cell_end[first_cell + c] = total  # becomes the write cursor, and ends as the cell's end
+        count = grid.cell_end[first_cell + c]
+        grid.cell_start[first_cell + c] = total
+        grid.cell_end[first_cell + c] = total  # becomes the write cursor, and ends as the cell's end
         total += count
     dead = total
     for i in range(capacity):
         k = w * capacity + i
         at = dead
-        if key[k] >= 0:
-            at = cell_end[key[k]]
-            cell_end[key[k]] = at + 1
+        if grid.key[k] >= 0:
+            at = grid.cell_end[grid.key[k]]
+            grid.cell_end[grid.key[k]] = at + 1
         else:
             dead += 1
-        agent[at] = k
-        sorted_position[at] = position[w, i]
+        grid.agent[at] = k
+        grid.position[at] = agents.position[w, i]

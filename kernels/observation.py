@@ -30,8 +30,8 @@ import warp as wp
 
 from .common import (PREDATOR, PREY, AgentType, WorldParams, angle_value, in_view, slot_type,
                      torus_displacement)
-from .grid import (CellLists, cell_coords, clip_run, last_ring, rings_for_radius, row_run_entries, run_entry,
-                   run_length, searched_radius, walk_segment, walk_segments)
+from .grid import CellLists, last_ring, next_entry, next_ring, rings_for_radius, searched_radius, widening_walk
+from .state import Agents, Scratch
 
 wp.set_module_options({"enable_backward": False})
 
@@ -86,11 +86,9 @@ def neighbour_tuple(
 
 
 @functools.cache
-def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, whole_world: bool):
+def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int):
     """The observation kernel for observers with `predator_slots` and `prey_slots` slots, launched with
-    `dim=(blocks, block_dim)` and `block_dim`, on whole-world cell lists or not (compiled once per
-    combination: the kind of lists is fixed at compile time here, where `listed_slot` would test it for
-    every candidate)."""
+    `dim=(blocks, block_dim)` and `block_dim` (compiled once per combination)."""
     slots = predator_slots + prey_slots
     # The nearest visible agents found so far, one list: predators in [0, predator_slots), prey after
     # them; each block sorted by (distance, slot), unfilled entries (inf, NO_SLOT). Every index into
@@ -101,26 +99,27 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
     last_prey = max(slots - 1, 0)
     Row = wp.types.vector(length=5 + 6 * slots, dtype=float)
 
+    # One observer type's outputs: the `Observations` arrays of the type, its rows as `Row` values (the
+    # row type depends on the slot counts, so this struct is made with the kernel, in a module of its own).
+    class ObservedRows:
+        obs: wp.array(dtype=Row)  # [rows] rows of the [W, per_world, L] observations (same memory)
+        mask: wp.array2d(dtype=wp.bool)  # [rows, K]
+        observed_slot: wp.array2d(dtype=wp.int32)  # [rows, K]
+
+    ObservedRows = wp.struct(ObservedRows, module="unique")
+
     def observe(
         world: WorldParams,
         types: wp.array(dtype=AgentType),
         grid: CellLists,
-        alive: wp.array2d(dtype=wp.bool),
-        position: wp.array2d(dtype=wp.vec2),
-        velocity: wp.array2d(dtype=wp.vec2),
-        heading: wp.array2d(dtype=wp.vec2),
+        agents: Agents,
         first_type: int,
         first_rows: int,
         first_blocks: int,
         second_rows: int,
-        first_obs: wp.array(dtype=Row),
-        first_mask: wp.array2d(dtype=wp.bool),
-        first_observed: wp.array2d(dtype=wp.int32),
-        second_obs: wp.array(dtype=Row),
-        second_mask: wp.array2d(dtype=wp.bool),
-        second_observed: wp.array2d(dtype=wp.int32),
-        contact_partner: wp.array2d(dtype=wp.int32),
-        contact_offset: wp.array2d(dtype=wp.vec2),
+        first: ObservedRows,
+        second: ObservedRows,
+        scratch: Scratch,
     ):
         # Blocks [0, first_blocks) take the `first_rows` rows of `first_type`'s [worlds * agents of
         # the type] rows, the blocks after them the other type's `second_rows` rows. Every thread of
@@ -128,16 +127,12 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
         block, lane = wp.tid()
         t = first_type
         rows = first_rows
-        obs_rows = first_obs
-        mask = first_mask
-        observed_slot = first_observed
+        out = first
         if block >= first_blocks:
             block = block - first_blocks
             t = PREY + PREDATOR - first_type
             rows = second_rows
-            obs_rows = second_obs
-            mask = second_mask
-            observed_slot = second_observed
+            out = second
         per_world = world.prey_capacity
         first_slot = int(0)
         if t == PREDATOR:
@@ -148,15 +143,15 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
         i = first_slot + r - w * per_world
         row = Row()
         if r < rows:
-            if not alive[w, i]:
+            if not agents.alive[w, i]:
                 for s in range(wp.static(slots)):
-                    mask[r, s] = False
-                    observed_slot[r, s] = -1
-                contact_partner[w, i] = -1
+                    out.mask[r, s] = False
+                    out.observed_slot[r, s] = -1
+                scratch.contact_partner[w, i] = -1
             else:
                 p = types[t]
-                pos = position[w, i]
-                h = heading[w, i]
+                pos = agents.position[w, i]
+                h = agents.heading[w, i]
 
                 # Ring-by-ring search for the nearest visible agents of each type, and for the nearest
                 # overlapping agent of the own type (the contact partner of the next step's motion).
@@ -174,72 +169,51 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
                 partner_d2 = contact2
                 partner_slot = int(-1)
                 partner_disp = wp.vec2(0.0, 0.0)
-                center = cell_coords(grid, pos)
-                base = w * world.capacity
                 last = last_ring(grid)
-                # The first step visits the square of rings 0..first_ring as row runs (usually the
-                # whole search), later steps one ring each.
+                # The first step visits the square of rings 0..first_ring (usually the whole search),
+                # later steps one ring each; cells farther than any wanted agent are skipped.
                 first_ring = wp.min(rings_for_radius(grid, wp.max(v, contact)), wp.max(contact_rings, FIRST_SQUARE_RINGS))
-                if wp.static(whole_world):
-                    first_ring = 0
-                ring = int(first_ring)
+                walk = widening_walk(grid, w, world.capacity, pos, first_ring, wp.max(v2, contact2))
                 searching = bool(True)
-                # Where the observer lies inside its cell: cells farther than any wanted agent are skipped.
-                inside_x = pos[0] - float(center[0]) * grid.cell_width
-                inside_y = pos[1] - float(center[1]) * grid.cell_height
-                bound2 = wp.max(v2, contact2)
                 while searching:
-                    for s in range(walk_segments(ring, first_ring)):
-                        # The entries of this row run's cells that may hold a wanted agent (one or
-                        # two ranges); whole-world lists: the world's one cell, its slots.
-                        runs = wp.vec4i(base, base + world.capacity, 0, 0)
-                        if wp.static(not whole_world):
-                            run = clip_run(grid, walk_segment(ring, first_ring, s), inside_x, inside_y, bound2)
-                            runs = row_run_entries(grid, w, center, run[0], run[1], run[2])
-                        for n in range(run_length(runs)):
-                            k2 = run_entry(runs, n)
-                            # listed_slot, resolved at compile time
-                            if wp.static(whole_world):
-                                j = wp.where(grid.alive[k2], k2 - base, -1)
-                            else:
-                                j = grid.agent[k2] - base
-                            if j >= 0 and j != i:
-                                jt = slot_type(world, j)
-                                d = torus_displacement(world, pos, grid.position[k2])
-                                d2 = wp.dot(d, d)
-                                if jt == t and d2 < contact2:
-                                    if partner_slot < 0 or ranks_before(d2, j, partner_d2, partner_slot):
-                                        partner_d2 = d2
-                                        partner_slot = j
-                                        partner_disp = d
-                                visible = in_view(world, h, d, d2, v2, p.cos_half_fov)
-                                # Insert into the type's block if it ranks before the block's last
-                                # entry: the candidate sinks past every entry it ranks before,
-                                # carrying the displaced one along.
-                                last_d2 = wp.where(jt == PREDATOR, kept_d2[last_predator], kept_d2[last_prey])
-                                last_slot = wp.where(jt == PREDATOR, kept_slot[last_predator],
-                                                     kept_slot[last_prey])
-                                if visible and ranks_before(d2, j, last_d2, last_slot):
-                                    carry_d2 = d2
-                                    carry_slot = j
-                                    carry_entry = k2
-                                    for e in range(wp.static(slots)):
-                                        in_block = (e < predator_slots) == (jt == PREDATOR)
-                                        if in_block and ranks_before(carry_d2, carry_slot, kept_d2[e],
-                                                                     kept_slot[e]):
-                                            swap_d2 = kept_d2[e]
-                                            swap_slot = kept_slot[e]
-                                            swap_entry = kept_entry[e]
-                                            kept_d2[e] = carry_d2
-                                            kept_slot[e] = carry_slot
-                                            kept_entry[e] = carry_entry
-                                            carry_d2 = swap_d2
-                                            carry_slot = swap_slot
-                                            carry_entry = swap_entry
-                    if wp.static(whole_world) or ring >= last:
+                    while next_entry(grid, walk):
+                        j = walk.slot
+                        if j >= 0 and j != i:
+                            k2 = walk.entry
+                            jt = slot_type(world, j)
+                            d = torus_displacement(world, pos, grid.position[k2])
+                            d2 = wp.dot(d, d)
+                            if jt == t and d2 < contact2:
+                                if partner_slot < 0 or ranks_before(d2, j, partner_d2, partner_slot):
+                                    partner_d2 = d2
+                                    partner_slot = j
+                                    partner_disp = d
+                            visible = in_view(world, h, d, d2, v2, p.cos_half_fov)
+                            # Insert into the type's block if it ranks before the block's last
+                            # entry: the candidate sinks past every entry it ranks before,
+                            # carrying the displaced one along.
+                            last_d2 = wp.where(jt == PREDATOR, kept_d2[last_predator], kept_d2[last_prey])
+                            last_slot = wp.where(jt == PREDATOR, kept_slot[last_predator], kept_slot[last_prey])
+                            if visible and ranks_before(d2, j, last_d2, last_slot):
+                                carry_d2 = d2
+                                carry_slot = j
+                                carry_entry = k2
+                                for e in range(wp.static(slots)):
+                                    in_block = (e < predator_slots) == (jt == PREDATOR)
+                                    if in_block and ranks_before(carry_d2, carry_slot, kept_d2[e], kept_slot[e]):
+                                        swap_d2 = kept_d2[e]
+                                        swap_slot = kept_slot[e]
+                                        swap_entry = kept_entry[e]
+                                        kept_d2[e] = carry_d2
+                                        kept_slot[e] = carry_slot
+                                        kept_entry[e] = carry_entry
+                                        carry_d2 = swap_d2
+                                        carry_slot = swap_slot
+                                        carry_entry = swap_entry
+                    if walk.ring >= last:
                         searching = False
-                    elif ring >= contact_rings:
-                        reach = searched_radius(grid, ring)
+                    elif walk.ring >= contact_rings:
+                        reach = searched_radius(grid, walk.ring)
                         if reach > v:
                             searching = False
                         else:
@@ -257,10 +231,10 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
                                         if kth >= reach2:
                                             done = False
                             searching = not done
-                            bound2 = wp.max(wp.min(farthest, v2), contact2)
-                    ring += 1
-                contact_partner[w, i] = partner_slot
-                contact_offset[w, i] = -partner_disp  # from the partner to this agent
+                            walk.bound2 = wp.max(wp.min(farthest, v2), contact2)
+                    next_ring(walk)
+                scratch.contact_partner[w, i] = partner_slot
+                scratch.contact_offset[w, i] = -partner_disp  # from the partner to this agent
 
                 # The own 5-tuple, then the kept neighbours: predator block first, then prey block (slot
                 # loops unrolled, so the row stays in registers).
@@ -269,30 +243,30 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
                 row[1] = scaled(pos[0] / world.width, signed)
                 row[2] = scaled(pos[1] / world.height, signed)
                 row[3] = scaled(angle_value(h), signed)
-                row[4] = scaled(wp.min(wp.length(velocity[w, i]) / p.max_speed, 1.0), signed)
+                row[4] = scaled(wp.min(wp.length(agents.velocity[w, i]) / p.max_speed, 1.0), signed)
                 for e in range(wp.static(slots)):
                     if kept_slot[e] != NO_SLOT:
                         jt = wp.where(e < predator_slots, PREDATOR, PREY)
                         k2 = kept_entry[e]
                         neighbour = neighbour_tuple(world, p, types[jt], jt, kept_d2[e],
                                                     torus_displacement(world, pos, grid.position[k2]),
-                                                    grid.position[k2], wp.length(velocity[w, kept_slot[e]]))
+                                                    grid.position[k2], wp.length(agents.velocity[w, kept_slot[e]]))
                         for q in range(6):
                             row[5 + 6 * e + q] = neighbour[q]
-                        mask[r, e] = True
-                        observed_slot[r, e] = kept_slot[e]
+                        out.mask[r, e] = True
+                        out.observed_slot[r, e] = kept_slot[e]
                     else:
-                        mask[r, e] = False
-                        observed_slot[r, e] = -1
+                        out.mask[r, e] = False
+                        out.observed_slot[r, e] = -1
         if wp.static(block_dim > 1):
             staged = wp.tile_empty(shape=block_dim, dtype=Row, storage="shared")
             wp.tile_scatter_masked(staged, lane, row, True)
-            wp.tile_store(obs_rows, staged, offset=block * block_dim)
+            wp.tile_store(out.obs, staged, offset=block * block_dim)
         elif r < rows:
-            obs_rows[r] = row
+            out.obs[r] = row
 
     kernel = wp.kernel(enable_backward=False, module="unique", cuda_max_registers=MAX_REGISTERS)(observe)
-    kernel.row_type = Row  # dtype of the `obs_rows` argument
+    kernel.rows_type = ObservedRows  # type of the `first` and `second` arguments
+    kernel.row_type = Row  # dtype of their `obs`
     kernel.block_dim = block_dim
-    kernel.whole_world = whole_world
     return kernel
