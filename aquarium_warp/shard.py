@@ -200,6 +200,7 @@ class WorldShard:
         commands = []
         for group in groups:
             kernel, block = kernels[group[0]], kernels[group[0]].block_dim
+            assert kernel.whole_world == bool(self.grid.whole_world), "observation kernel built for other lists"
             first, second = group[0], group[1] if len(group) == 2 else None
             first_blocks = (rows[first] + block - 1) // block
             second_rows = rows[second] if second else 0
@@ -301,8 +302,9 @@ class ShardSet:
         # One observation kernel per observer type's slot counts; rows are staged by blocks of
         # OBSERVATION_BLOCK threads on a GPU (tile kernels run one thread per block on the CPU).
         block = OBSERVATION_BLOCK if self.cuda else 1
+        whole_world = tuple(dims) == (1, 1)  # the shards' cell lists are whole-world lists
         observe_kernels = {t: observation.observation_kernel(getattr(cfg, t).predator_slots,
-                                                             getattr(cfg, t).prey_slots, block)
+                                                             getattr(cfg, t).prey_slots, block, whole_world)
                            for t in ("prey", "predator")}
         self.shards = tuple(WorldShard(cfg, state, k, w0, w1, dims, types, action_direction, observe_kernels, device,
                                        auto_reset) for k, (w0, w1) in enumerate(zip(bounds[:-1], bounds[1:])))

@@ -60,7 +60,7 @@ def main(argv=None) -> int:
                 times[i].append((time.perf_counter() - t) * 1e3)
     agents = args.worlds * cfg.capacity
     total = 0.0
-    print(f"{args.worlds} worlds x {cfg.capacity} agents on {env.device}, {env._dims[0]} x {env._dims[1]} cells per world")
+    print(f"{args.worlds} worlds x {cfg.capacity} agents on {env.device}, {env.grid_dims[0]} x {env.grid_dims[1]} cells per world")
     for command, samples in zip(program, times):
         ms = statistics.median(samples)
         total += ms

@@ -17,7 +17,7 @@ changes nothing.)
 import warp as wp
 
 from .common import PREDATOR, PREY, PURPOSE_RESPAWN, AgentType, WorldParams, random_stream, slot_type, torus_displacement
-from .grid import CellLists, next_entry, square_walk
+from .grid import CellLists, listed_slot, next_run, run_entry, run_length, square_walk
 from .spawn import make_fresh_prey, uniform_position
 from .state import Agents, Scratch, StepOutputs, WorldCounters
 
@@ -59,12 +59,14 @@ def detect_captures(
     contact = types[PREY].radius + types[PREDATOR].radius
     walk = square_walk(grid, w, world.capacity, pos, start_of_step_radius(world, contact, types[PREY].max_speed),
                        row_thread, row_threads)
-    while next_entry(grid, walk):
-        j = walk.slot
-        if j >= 0 and slot_type(world, j) == PREY:
-            d = torus_displacement(world, pos, agents.position[w, j])
-            if wp.dot(d, d) < contact * contact:
-                scratch.captured[w, j] = True
+    while next_run(grid, walk):
+        for n in range(run_length(walk.runs)):
+            k2 = run_entry(walk.runs, n)
+            j = listed_slot(grid, k2, walk.base)
+            if j >= 0 and slot_type(world, j) == PREY:
+                d = torus_displacement(world, pos, agents.position[w, j])
+                if wp.dot(d, d) < contact * contact:
+                    scratch.captured[w, j] = True
 
 
 @wp.kernel
@@ -89,13 +91,15 @@ def count_capture_sharers(
     share = wp.max(world.catch_share_radius, contact)
     sharers = int(0)
     walk = square_walk(grid, w, world.capacity, pos, start_of_step_radius(world, share, types[PREDATOR].max_speed), 0, 1)
-    while next_entry(grid, walk):
-        j = walk.slot
-        if j >= 0 and slot_type(world, j) == PREDATOR:
-            d = torus_displacement(world, pos, agents.position[w, j])
-            d2 = wp.dot(d, d)
-            if d2 < contact * contact or d2 < world.catch_share_radius * world.catch_share_radius:
-                sharers += 1
+    while next_run(grid, walk):
+        for n in range(run_length(walk.runs)):
+            k2 = run_entry(walk.runs, n)
+            j = listed_slot(grid, k2, walk.base)
+            if j >= 0 and slot_type(world, j) == PREDATOR:
+                d = torus_displacement(world, pos, agents.position[w, j])
+                d2 = wp.dot(d, d)
+                if d2 < contact * contact or d2 < world.catch_share_radius * world.catch_share_radius:
+                    sharers += 1
     scratch.share_count[w, i] = sharers
     outputs.reward[w, i] = -world.prey_capture_penalty
     wp.atomic_add(outputs.captures, w, 1)
@@ -123,17 +127,19 @@ def share_capture_rewards(
     total = float(0.0)
     is_capturer = bool(False)
     walk = square_walk(grid, w, world.capacity, pos, start_of_step_radius(world, share, types[PREY].max_speed), 0, 1)
-    while next_entry(grid, walk):
-        j = walk.slot
-        if j >= 0 and slot_type(world, j) == PREY:
-            if scratch.captured[w, j]:
-                d = torus_displacement(world, pos, agents.position[w, j])
-                d2 = wp.dot(d, d)
-                inside_share = d2 < world.catch_share_radius * world.catch_share_radius
-                if d2 < contact * contact:
-                    is_capturer = True
-                if inside_share or d2 < contact * contact:
-                    total += world.predator_reward / float(scratch.share_count[w, j])
+    while next_run(grid, walk):
+        for n in range(run_length(walk.runs)):
+            k2 = run_entry(walk.runs, n)
+            j = listed_slot(grid, k2, walk.base)
+            if j >= 0 and slot_type(world, j) == PREY:
+                if scratch.captured[w, j]:
+                    d = torus_displacement(world, pos, agents.position[w, j])
+                    d2 = wp.dot(d, d)
+                    inside_share = d2 < world.catch_share_radius * world.catch_share_radius
+                    if d2 < contact * contact:
+                        is_capturer = True
+                    if inside_share or d2 < contact * contact:
+                        total += world.predator_reward / float(scratch.share_count[w, j])
     outputs.reward[w, i] = total
     hunger = agents.starvation[w, i] + 1
     if is_capturer:

@@ -15,7 +15,7 @@ import warp as wp
 
 from .common import (PURPOSE_POLICY, AgentType, WorldParams, in_view, mix32, random_stream, slot_type,
                      torus_displacement)
-from .grid import CellLists, last_ring, next_entry, next_ring, searched_radius, widening_walk
+from .grid import CellLists, last_ring, listed_slot, next_ring, next_run, run_entry, run_length, searched_radius, widening_walk
 from .state import Agents, WorldCounters
 
 wp.set_module_options({"enable_backward": False})
@@ -83,10 +83,10 @@ def heuristic_policy(
     if not agents.alive[w, i]:
         action[w, a] = 0
         return
-    n = world.action_count
+    action_count = world.action_count
     rng = random_stream(seed[w], world.world_offset + w, counters.episode[w], counters.world_step[w], i, PURPOSE_POLICY)
     if policy == POLICY_RANDOM:
-        action[w, a] = wp.randi(rng, 0, n)
+        action[w, a] = wp.randi(rng, 0, action_count)
         return
 
     t = slot_type(world, i)
@@ -115,30 +115,32 @@ def heuristic_policy(
     last = last_ring(grid)
     searching = bool(True)
     while searching:
-        while next_entry(grid, walk):
-            j = walk.slot
-            if j >= 0 and slot_type(world, j) == target_type:
-                d = torus_displacement(world, pos, grid.position[walk.entry])
-                d2 = wp.dot(d, d)
-                if precedes(d2, j, any_d2, any_slot):
-                    any_d2 = d2
-                    any_slot = j
-                    any_disp = d
-                visible = in_view(world, h, d, d2, v2, p.cos_half_fov)  # the observation's rule
-                if visible:
-                    visible_count += 1
-                    if precedes(d2, j, near_d2, near_slot):
-                        near_d2 = d2
-                        near_slot = j
-                        near_disp = d
-                    # Each candidate's priority is a bijective hash of its slot under the agent's
-                    # stream: distinct, and the lowest is a uniform pick that does not depend on the
-                    # order in which cells are visited.
-                    key = mix32(rng ^ wp.uint32(j))
-                    if pick_slot < 0 or key < pick_key:
-                        pick_key = key
-                        pick_slot = j
-                        pick_disp = d
+        while next_run(grid, walk):
+            for n in range(run_length(walk.runs)):
+                k2 = run_entry(walk.runs, n)
+                j = listed_slot(grid, k2, walk.base)
+                if j >= 0 and slot_type(world, j) == target_type:
+                    d = torus_displacement(world, pos, grid.position[k2])
+                    d2 = wp.dot(d, d)
+                    if precedes(d2, j, any_d2, any_slot):
+                        any_d2 = d2
+                        any_slot = j
+                        any_disp = d
+                    visible = in_view(world, h, d, d2, v2, p.cos_half_fov)  # the observation's rule
+                    if visible:
+                        visible_count += 1
+                        if precedes(d2, j, near_d2, near_slot):
+                            near_d2 = d2
+                            near_slot = j
+                            near_disp = d
+                        # Each candidate's priority is a bijective hash of its slot under the agent's
+                        # stream: distinct, and the lowest is a uniform pick that does not depend on the
+                        # order in which cells are visited.
+                        key = mix32(rng ^ wp.uint32(j))
+                        if pick_slot < 0 or key < pick_key:
+                            pick_key = key
+                            pick_slot = j
+                            pick_disp = d
         # Every agent within `reach` of the observer has been seen after rings 0..r.
         if walk.ring >= last:
             searching = False
@@ -164,5 +166,5 @@ def heuristic_policy(
             direction = near_disp
     elif any_slot >= 0:
         direction = any_disp
-    action[w, a] = nearest_action(action_direction, n, direction, h)
+    action[w, a] = nearest_action(action_direction, action_count, direction, h)
 

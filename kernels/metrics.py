@@ -25,7 +25,7 @@ Launch order per shard (see `aquarium_warp.metrics.SwarmMetrics`): zero the inte
 import warp as wp
 
 from .common import PREY, WorldParams, slot_type, torus_displacement, wrap_coordinate
-from .grid import CellLists, last_ring, next_entry, next_ring, searched_radius, square_walk, widening_walk
+from .grid import CellLists, last_ring, listed_slot, next_ring, next_run, run_entry, run_length, searched_radius, square_walk, widening_walk
 from .state import Agents, StepOutputs, WorldCounters
 
 wp.set_module_options({"enable_backward": False})
@@ -165,19 +165,21 @@ def prey_distances(
     want_pred = predators_by_grid != 0
     searching = bool(True)
     while searching:
-        while next_entry(grid, walk):
-            j = walk.slot
-            if j >= 0 and j != i:
-                d = torus_displacement(world, pos, grid.position[walk.entry])
-                d2 = wp.dot(d, d)
-                if slot_type(world, j) == PREY:
-                    if not prey_found or d2 < prey_d2:
-                        prey_d2 = d2
-                        prey_found = True
-                elif want_pred:
-                    if not pred_found or d2 < pred_d2:
-                        pred_d2 = d2
-                        pred_found = True
+        while next_run(grid, walk):
+            for n in range(run_length(walk.runs)):
+                k2 = run_entry(walk.runs, n)
+                j = listed_slot(grid, k2, walk.base)
+                if j >= 0 and j != i:
+                    d = torus_displacement(world, pos, grid.position[k2])
+                    d2 = wp.dot(d, d)
+                    if slot_type(world, j) == PREY:
+                        if not prey_found or d2 < prey_d2:
+                            prey_d2 = d2
+                            prey_found = True
+                    elif want_pred:
+                        if not pred_found or d2 < pred_d2:
+                            pred_d2 = d2
+                            pred_found = True
         # After rings 0..r every agent within `reach` has been seen.
         if walk.ring >= last:
             searching = False
@@ -216,12 +218,14 @@ def link_groups(world: WorldParams, grid: CellLists, agents: Agents, linking_dis
     forest = w * world.prey_capacity
     link2 = linking_distance * linking_distance
     walk = square_walk(grid, w, world.capacity, pos, linking_distance, 0, 1)
-    while next_entry(grid, walk):
-        j = walk.slot
-        if j > i and slot_type(world, j) == PREY:  # j > i >= 0: a live slot
-            d = torus_displacement(world, pos, grid.position[walk.entry])
-            if wp.dot(d, d) < link2:
-                unite(swarm.parent, forest, i, j)
+    while next_run(grid, walk):
+        for n in range(run_length(walk.runs)):
+            k2 = run_entry(walk.runs, n)
+            j = listed_slot(grid, k2, walk.base)
+            if j > i and slot_type(world, j) == PREY:  # j > i >= 0: a live slot
+                d = torus_displacement(world, pos, grid.position[k2])
+                if wp.dot(d, d) < link2:
+                    unite(swarm.parent, forest, i, j)
 
 
 @wp.kernel

@@ -30,7 +30,7 @@ import warp as wp
 
 from .common import (PREDATOR, PREY, AgentType, WorldParams, angle_value, in_view, slot_type,
                      torus_displacement)
-from .grid import CellLists, last_ring, next_entry, next_ring, rings_for_radius, searched_radius, widening_walk
+from .grid import CellLists, last_ring, next_ring, next_run, run_entry, run_length, rings_for_radius, searched_radius, widening_walk
 from .state import Agents, Scratch
 
 wp.set_module_options({"enable_backward": False})
@@ -86,9 +86,11 @@ def neighbour_tuple(
 
 
 @functools.cache
-def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int):
+def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, whole_world: bool):
     """The observation kernel for observers with `predator_slots` and `prey_slots` slots, launched with
-    `dim=(blocks, block_dim)` and `block_dim` (compiled once per combination)."""
+    `dim=(blocks, block_dim)` and `block_dim`, on whole-world cell lists or not (compiled once per
+    combination: the kind of lists is fixed at compile time here, where `listed_slot` would test it for
+    every candidate)."""
     slots = predator_slots + prey_slots
     # The nearest visible agents found so far, one list: predators in [0, predator_slots), prey after
     # them; each block sorted by (distance, slot), unfilled entries (inf, NO_SLOT). Every index into
@@ -172,44 +174,56 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int):
                 last = last_ring(grid)
                 # The first step visits the square of rings 0..first_ring (usually the whole search),
                 # later steps one ring each; cells farther than any wanted agent are skipped.
-                first_ring = wp.min(rings_for_radius(grid, wp.max(v, contact)), wp.max(contact_rings, FIRST_SQUARE_RINGS))
+                first_ring = int(0)  # whole-world lists: the world's one cell
+                if wp.static(not whole_world):
+                    first_ring = wp.min(rings_for_radius(grid, wp.max(v, contact)), wp.max(contact_rings, FIRST_SQUARE_RINGS))
                 walk = widening_walk(grid, w, world.capacity, pos, first_ring, wp.max(v2, contact2))
                 searching = bool(True)
                 while searching:
-                    while next_entry(grid, walk):
-                        j = walk.slot
-                        if j >= 0 and j != i:
-                            k2 = walk.entry
-                            jt = slot_type(world, j)
-                            d = torus_displacement(world, pos, grid.position[k2])
-                            d2 = wp.dot(d, d)
-                            if jt == t and d2 < contact2:
-                                if partner_slot < 0 or ranks_before(d2, j, partner_d2, partner_slot):
-                                    partner_d2 = d2
-                                    partner_slot = j
-                                    partner_disp = d
-                            visible = in_view(world, h, d, d2, v2, p.cos_half_fov)
-                            # Insert into the type's block if it ranks before the block's last
-                            # entry: the candidate sinks past every entry it ranks before,
-                            # carrying the displaced one along.
-                            last_d2 = wp.where(jt == PREDATOR, kept_d2[last_predator], kept_d2[last_prey])
-                            last_slot = wp.where(jt == PREDATOR, kept_slot[last_predator], kept_slot[last_prey])
-                            if visible and ranks_before(d2, j, last_d2, last_slot):
-                                carry_d2 = d2
-                                carry_slot = j
-                                carry_entry = k2
-                                for e in range(wp.static(slots)):
-                                    in_block = (e < predator_slots) == (jt == PREDATOR)
-                                    if in_block and ranks_before(carry_d2, carry_slot, kept_d2[e], kept_slot[e]):
-                                        swap_d2 = kept_d2[e]
-                                        swap_slot = kept_slot[e]
-                                        swap_entry = kept_entry[e]
-                                        kept_d2[e] = carry_d2
-                                        kept_slot[e] = carry_slot
-                                        kept_entry[e] = carry_entry
-                                        carry_d2 = swap_d2
-                                        carry_slot = swap_slot
-                                        carry_entry = swap_entry
+                    while next_run(grid, walk):
+                        runs = walk.runs
+                        if wp.static(whole_world):
+                            # The world's slots, as a range the compiler knows (a run read from the lists
+                            # cost this pass 10% on the CPU).
+                            runs = wp.vec4i(walk.base, walk.base + world.capacity, 0, 0)
+                        for n in range(run_length(runs)):
+                            k2 = run_entry(runs, n)
+                            # listed_slot, resolved at compile time
+                            if wp.static(whole_world):
+                                j = wp.where(grid.alive[k2], k2 - walk.base, -1)
+                            else:
+                                j = grid.agent[k2] - walk.base
+                            if j >= 0 and j != i:
+                                jt = slot_type(world, j)
+                                d = torus_displacement(world, pos, grid.position[k2])
+                                d2 = wp.dot(d, d)
+                                if jt == t and d2 < contact2:
+                                    if partner_slot < 0 or ranks_before(d2, j, partner_d2, partner_slot):
+                                        partner_d2 = d2
+                                        partner_slot = j
+                                        partner_disp = d
+                                visible = in_view(world, h, d, d2, v2, p.cos_half_fov)
+                                # Insert into the type's block if it ranks before the block's last
+                                # entry: the candidate sinks past every entry it ranks before,
+                                # carrying the displaced one along.
+                                last_d2 = wp.where(jt == PREDATOR, kept_d2[last_predator], kept_d2[last_prey])
+                                last_slot = wp.where(jt == PREDATOR, kept_slot[last_predator], kept_slot[last_prey])
+                                if visible and ranks_before(d2, j, last_d2, last_slot):
+                                    carry_d2 = d2
+                                    carry_slot = j
+                                    carry_entry = k2
+                                    for e in range(wp.static(slots)):
+                                        in_block = (e < predator_slots) == (jt == PREDATOR)
+                                        if in_block and ranks_before(carry_d2, carry_slot, kept_d2[e], kept_slot[e]):
+                                            swap_d2 = kept_d2[e]
+                                            swap_slot = kept_slot[e]
+                                            swap_entry = kept_entry[e]
+                                            kept_d2[e] = carry_d2
+                                            kept_slot[e] = carry_slot
+                                            kept_entry[e] = carry_entry
+                                            carry_d2 = swap_d2
+                                            carry_slot = swap_slot
+                                            carry_entry = swap_entry
                     if walk.ring >= last:
                         searching = False
                     elif walk.ring >= contact_rings:
@@ -269,4 +283,5 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int):
     kernel.rows_type = ObservedRows  # type of the `first` and `second` arguments
     kernel.row_type = Row  # dtype of their `obs`
     kernel.block_dim = block_dim
+    kernel.whole_world = whole_world
     return kernel
