@@ -61,8 +61,7 @@ def detect_captures(
                        row_thread, row_threads)
     while next_run(grid, walk):
         for n in range(run_length(walk.runs)):
-            k2 = run_entry(walk.runs, n)
-            j = listed_slot(grid, k2, walk.base)
+            j = listed_slot(grid, run_entry(walk.runs, n), walk.base)
             if j >= 0 and slot_type(world, j) == PREY:
                 d = torus_displacement(world, pos, agents.position[w, j])
                 if wp.dot(d, d) < contact * contact:
@@ -93,8 +92,7 @@ def count_capture_sharers(
     walk = square_walk(grid, w, world.capacity, pos, start_of_step_radius(world, share, types[PREDATOR].max_speed), 0, 1)
     while next_run(grid, walk):
         for n in range(run_length(walk.runs)):
-            k2 = run_entry(walk.runs, n)
-            j = listed_slot(grid, k2, walk.base)
+            j = listed_slot(grid, run_entry(walk.runs, n), walk.base)
             if j >= 0 and slot_type(world, j) == PREDATOR:
                 d = torus_displacement(world, pos, agents.position[w, j])
                 d2 = wp.dot(d, d)
@@ -129,8 +127,7 @@ def share_capture_rewards(
     walk = square_walk(grid, w, world.capacity, pos, start_of_step_radius(world, share, types[PREY].max_speed), 0, 1)
     while next_run(grid, walk):
         for n in range(run_length(walk.runs)):
-            k2 = run_entry(walk.runs, n)
-            j = listed_slot(grid, k2, walk.base)
+            j = listed_slot(grid, run_entry(walk.runs, n), walk.base)
             if j >= 0 and slot_type(world, j) == PREY:
                 if scratch.captured[w, j]:
                     d = torus_displacement(world, pos, agents.position[w, j])

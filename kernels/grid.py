@@ -304,6 +304,15 @@ def next_run(grid: CellLists, walk: wp.ref[CellWalk]) -> bool:
     return True
 
 
+@wp.func
+def seen_radius(grid: CellLists, walk: CellWalk) -> float:
+    """px within which a widening walk has visited every agent, once its current step is done; +inf
+    once it has visited the whole world."""
+    if walk.ring >= last_ring(grid):
+        return wp.inf
+    return searched_radius(grid, walk.ring)
+
+
 @wp.func(inline=True)
 def next_ring(walk: wp.ref[CellWalk]):
     """Make the ring after the current step's the walk's next step."""

@@ -15,7 +15,7 @@ import warp as wp
 
 from .common import (PURPOSE_POLICY, AgentType, WorldParams, in_view, mix32, random_stream, slot_type,
                      torus_displacement)
-from .grid import CellLists, last_ring, listed_slot, next_ring, next_run, run_entry, run_length, searched_radius, widening_walk
+from .grid import CellLists, listed_slot, next_ring, next_run, run_entry, run_length, seen_radius, widening_walk
 from .state import Agents, WorldCounters
 
 wp.set_module_options({"enable_backward": False})
@@ -112,7 +112,6 @@ def heuristic_policy(
 
     # Ring by ring from the agent's own cell (every choice below is independent of the visiting order).
     walk = widening_walk(grid, w, world.capacity, pos, 0, wp.inf)
-    last = last_ring(grid)
     searching = bool(True)
     while searching:
         while next_run(grid, walk):
@@ -141,11 +140,10 @@ def heuristic_policy(
                             pick_key = key
                             pick_slot = j
                             pick_disp = d
-        # Every agent within `reach` of the observer has been seen after rings 0..r.
-        if walk.ring >= last:
+        reach = seen_radius(grid, walk)  # every agent closer than this has been seen
+        if reach == wp.inf:
             searching = False
         else:
-            reach = searched_radius(grid, walk.ring)
             reach2 = reach * reach
             visible_done = reach > v or (not all_visible and near_slot >= 0 and near_d2 < reach2)
             if visible_done:

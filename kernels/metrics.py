@@ -25,7 +25,8 @@ Launch order per shard (see `aquarium_warp.metrics.SwarmMetrics`): zero the inte
 import warp as wp
 
 from .common import PREY, WorldParams, slot_type, torus_displacement, wrap_coordinate
-from .grid import CellLists, last_ring, listed_slot, next_ring, next_run, run_entry, run_length, searched_radius, square_walk, widening_walk
+from .grid import (CellLists, listed_slot, next_ring, next_run, run_entry, run_length, seen_radius, square_walk,
+                   widening_walk)
 from .state import Agents, StepOutputs, WorldCounters
 
 wp.set_module_options({"enable_backward": False})
@@ -161,7 +162,6 @@ def prey_distances(
 
     # Ring by ring from the prey's own cell (a minimum does not depend on the visiting order).
     walk = widening_walk(grid, w, world.capacity, pos, 0, wp.inf)
-    last = last_ring(grid)
     want_pred = predators_by_grid != 0
     searching = bool(True)
     while searching:
@@ -180,16 +180,11 @@ def prey_distances(
                         if not pred_found or d2 < pred_d2:
                             pred_d2 = d2
                             pred_found = True
-        # After rings 0..r every agent within `reach` has been seen.
-        if walk.ring >= last:
-            searching = False
-        else:
-            reach = searched_radius(grid, walk.ring)
-            reach2 = reach * reach
-            prey_done = prey_found and prey_d2 < reach2
-            pred_done = (not want_pred) or (pred_found and pred_d2 < reach2)
-            if prey_done and pred_done:
-                searching = False
+        reach = seen_radius(grid, walk)  # every agent closer than this has been seen
+        reach2 = reach * reach
+        prey_done = prey_found and prey_d2 < reach2
+        pred_done = (not want_pred) or (pred_found and pred_d2 < reach2)
+        searching = reach != wp.inf and not (prey_done and pred_done)
         next_ring(walk)
 
     swarm.nearest_prey[w, i] = -1.0

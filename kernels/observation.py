@@ -30,7 +30,7 @@ import warp as wp
 
 from .common import (PREDATOR, PREY, AgentType, WorldParams, angle_value, in_view, slot_type,
                      torus_displacement)
-from .grid import CellLists, last_ring, next_ring, next_run, run_entry, run_length, rings_for_radius, searched_radius, widening_walk
+from .grid import CellLists, next_ring, next_run, rings_for_radius, run_entry, run_length, seen_radius, widening_walk
 from .state import Agents, Scratch
 
 wp.set_module_options({"enable_backward": False})
@@ -171,12 +171,9 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
                 partner_d2 = contact2
                 partner_slot = int(-1)
                 partner_disp = wp.vec2(0.0, 0.0)
-                last = last_ring(grid)
                 # The first step visits the square of rings 0..first_ring (usually the whole search),
                 # later steps one ring each; cells farther than any wanted agent are skipped.
-                first_ring = int(0)  # whole-world lists: the world's one cell
-                if wp.static(not whole_world):
-                    first_ring = wp.min(rings_for_radius(grid, wp.max(v, contact)), wp.max(contact_rings, FIRST_SQUARE_RINGS))
+                first_ring = wp.min(rings_for_radius(grid, wp.max(v, contact)), wp.max(contact_rings, FIRST_SQUARE_RINGS))
                 walk = widening_walk(grid, w, world.capacity, pos, first_ring, wp.max(v2, contact2))
                 searching = bool(True)
                 while searching:
@@ -224,10 +221,10 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
                                             carry_d2 = swap_d2
                                             carry_slot = swap_slot
                                             carry_entry = swap_entry
-                    if walk.ring >= last:
+                    reach = seen_radius(grid, walk)  # every agent closer than this has been seen
+                    if reach == wp.inf:
                         searching = False
                     elif walk.ring >= contact_rings:
-                        reach = searched_radius(grid, walk.ring)
                         if reach > v:
                             searching = False
                         else:
