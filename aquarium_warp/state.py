@@ -31,9 +31,14 @@ class SimulationState:
     (`Observations`); `torch` (a namespace of torch views of every field, by field name) on the
     state that owns the memory."""
 
-    def __init__(self, **groups):
-        for name, group in groups.items():
-            setattr(self, name, group)
+    def __init__(self, actions, agents, worlds, scratch, outputs, observations):
+        self.actions = actions
+        self.agents = agents
+        self.worlds = worlds
+        self.scratch = scratch
+        self.outputs = outputs
+        self.observations = observations
+        self.torch: TorchViews | None = None
 
     @classmethod
     def allocate(cls, num_worlds: int, capacity: int, prey_capacity: int, predator_count: int,
@@ -59,10 +64,6 @@ class SimulationState:
         state = cls(**groups)
         state.torch = TorchViews(state)
         return state
-
-    def groups(self) -> dict:
-        """Group name -> group instance."""
-        return {name: getattr(self, name) for name in GROUPS}
 
     def arrays(self) -> dict[str, wp.array]:
         """Field name -> Warp array, over every group."""
