@@ -89,7 +89,8 @@ def count_capture_sharers(
     contact = types[PREY].radius + types[PREDATOR].radius
     share = wp.max(world.catch_share_radius, contact)
     sharers = int(0)
-    walk = square_walk(grid, w, world.capacity, pos, start_of_step_radius(world, share, types[PREDATOR].max_speed), 0, 1)
+    radius = start_of_step_radius(world, share, types[PREDATOR].max_speed)
+    walk = square_walk(grid, w, world.capacity, pos, radius, 0, 1)
     while next_run(grid, walk):
         for n in range(run_length(walk.runs)):
             j = listed_slot(grid, run_entry(walk.runs, n), walk.base)
@@ -156,8 +157,8 @@ def respawn_captured_prey(world: WorldParams, scratch: Scratch, counters: WorldC
     if not scratch.captured[w, i]:
         return
     if world.respawn_captured_prey != 0:
-        rng = random_stream(counters.seed[w], world.world_offset + w, counters.episode[w], counters.world_step[w] + 1, i,
-                            PURPOSE_RESPAWN)
+        rng = random_stream(counters.seed[w], world.world_offset + w, counters.episode[w],
+                            counters.world_step[w] + 1, i, PURPOSE_RESPAWN)
         make_fresh_prey(world, w, i, uniform_position(world, rng, 0.0), rng, agents)
     else:
         agents.alive[w, i] = False

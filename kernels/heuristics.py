@@ -15,7 +15,7 @@ import warp as wp
 
 from .common import (PURPOSE_POLICY, AgentType, WorldParams, in_view, mix32, random_stream, slot_type,
                      torus_displacement)
-from .grid import CellLists, listed_slot, next_ring, next_run, run_entry, run_length, seen_radius, widening_walk
+from .grid import CellLists, listed_slot, next_cell, next_ring, ring_walk, seen_radius
 from .state import Agents, WorldCounters
 
 wp.set_module_options({"enable_backward": False})
@@ -111,12 +111,11 @@ def heuristic_policy(
     any_disp = wp.vec2(0.0, 0.0)
 
     # Ring by ring from the agent's own cell (every choice below is independent of the visiting order).
-    walk = widening_walk(grid, w, world.capacity, pos, 0, wp.inf)
+    walk = ring_walk(grid, w, world.capacity, pos)
     searching = bool(True)
     while searching:
-        while next_run(grid, walk):
-            for n in range(run_length(walk.runs)):
-                k2 = run_entry(walk.runs, n)
+        while next_cell(grid, walk):
+            for k2 in range(grid.cell_start[walk.cell], grid.cell_end[walk.cell]):
                 j = listed_slot(grid, k2, walk.base)
                 if j >= 0 and slot_type(world, j) == target_type:
                     d = torus_displacement(world, pos, grid.position[k2])
@@ -140,7 +139,7 @@ def heuristic_policy(
                             pick_key = key
                             pick_slot = j
                             pick_disp = d
-        reach = seen_radius(grid, walk)  # every agent closer than this has been seen
+        reach = seen_radius(grid, walk.ring)  # every agent closer than this has been seen
         if reach == wp.inf:
             searching = False
         else:

@@ -25,8 +25,8 @@ Launch order per shard (see `aquarium_warp.metrics.SwarmMetrics`): zero the inte
 import warp as wp
 
 from .common import PREY, WorldParams, slot_type, torus_displacement, wrap_coordinate
-from .grid import (CellLists, listed_slot, next_ring, next_run, run_entry, run_length, seen_radius, square_walk,
-                   widening_walk)
+from .grid import (CellLists, listed_slot, next_cell, next_ring, next_run, ring_walk, run_entry, run_length,
+                   seen_radius, square_walk)
 from .state import Agents, StepOutputs, WorldCounters
 
 wp.set_module_options({"enable_backward": False})
@@ -161,13 +161,12 @@ def prey_distances(
                     pred_found = True
 
     # Ring by ring from the prey's own cell (a minimum does not depend on the visiting order).
-    walk = widening_walk(grid, w, world.capacity, pos, 0, wp.inf)
+    walk = ring_walk(grid, w, world.capacity, pos)
     want_pred = predators_by_grid != 0
     searching = bool(True)
     while searching:
-        while next_run(grid, walk):
-            for n in range(run_length(walk.runs)):
-                k2 = run_entry(walk.runs, n)
+        while next_cell(grid, walk):
+            for k2 in range(grid.cell_start[walk.cell], grid.cell_end[walk.cell]):
                 j = listed_slot(grid, k2, walk.base)
                 if j >= 0 and j != i:
                     d = torus_displacement(world, pos, grid.position[k2])
@@ -180,7 +179,7 @@ def prey_distances(
                         if not pred_found or d2 < pred_d2:
                             pred_d2 = d2
                             pred_found = True
-        reach = seen_radius(grid, walk)  # every agent closer than this has been seen
+        reach = seen_radius(grid, walk.ring)  # every agent closer than this has been seen
         reach2 = reach * reach
         prey_done = prey_found and prey_d2 < reach2
         pred_done = (not want_pred) or (pred_found and pred_d2 < reach2)

@@ -221,7 +221,7 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
                                             carry_d2 = swap_d2
                                             carry_slot = swap_slot
                                             carry_entry = swap_entry
-                    reach = seen_radius(grid, walk)  # every agent closer than this has been seen
+                    reach = seen_radius(grid, walk.ring)  # every agent closer than this has been seen
                     if reach == wp.inf:
                         searching = False
                     elif walk.ring >= contact_rings:
