@@ -20,7 +20,7 @@ import warp as wp
 
 from .config import INT32_MAX, LARGEST, AquariumConfig
 from .kernels.common import AgentType
-from .kernels.state import Actions, Agents, StepOutputs, WorldCounters
+from .kernels.state import Agents, WorldCounters
 from .shard import WARP_SETUP_LOCK, Program, ShardSet
 from .state import SimulationState, estimate_bytes
 

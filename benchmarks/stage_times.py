@@ -2,7 +2,7 @@
 
     python benchmarks/stage_times.py --device cuda:0 --worlds 65536 [--agents 17]
 
-Prints one line per command of `WorldShard._step_program` (median over `--repeats` steps) and the
+Prints one line per command of `WorldShard.step_program` (median over `--repeats` steps) and the
 whole step replayed as a graph. A profiling aid for the step's cost breakdown.
 """
 

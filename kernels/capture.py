@@ -16,7 +16,8 @@ changes nothing.)
 
 import warp as wp
 
-from .common import PREDATOR, PREY, PURPOSE_RESPAWN, AgentType, WorldParams, random_stream, slot_type, torus_displacement
+from .common import (PREDATOR, PREY, PURPOSE_RESPAWN, AgentType, WorldParams, random_stream, slot_type,
+                     torus_displacement)
 from .grid import CellLists, listed_slot, next_run, run_entry, run_length, square_walk
 from .spawn import make_fresh_prey, uniform_position
 from .state import Agents, Scratch, StepOutputs, WorldCounters

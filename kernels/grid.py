@@ -25,14 +25,14 @@ Searches walk the cells around a point by rings: ring 0 is the cell itself, ring
 Chebyshev cell distance r. Offsets are clipped to [-lo, hi] per axis, so on a small torus no cell is
 visited twice, and after rings 0..r every agent closer than `r * reach` (reach = the smaller cell
 side, less a rounding margin) has been seen (`seen_radius`), which bounds fixed-radius searches and
-lets nearest-agent searches stop early. There are two walk styles, one iterator each:
-- row runs (`CellWalk`): a row of the square, or a row or column of a ring, is read as a run of cells
+lets nearest-agent searches stop early. One iterator, `CellWalk`, serves the two walk styles:
+- row runs: a row of the square, or a row or column of a ring, is read as a run of cells
   (`walk_segment`, `row_run_entries`), cells wholly beyond a distance bound skipped (`clip_run`).
   `square_walk` visits the square that holds a fixed radius (captures, group links);
   `widening_walk` a first square, then one ring per `next_ring`, under a bound the search lowers as
   it goes (observations). A search loops `while next_run(grid, walk)` and, inside, over the run's
   entries (`run_length`, `run_entry`, `listed_slot`).
-- cells (`RingWalk`): `ring_walk` visits one cell at a time, ring by ring (`next_cell`, `next_ring`),
+- cells: `ring_walk` visits one cell at a time, ring by ring (`next_cell`, `next_ring`),
   for searches of the nearest agent anywhere in the world (heuristic policies, nearest-neighbour
   metrics), which mostly end within rings 0 and 1: there the row-run walk cost them 20% on the CPU.
 """
@@ -279,8 +279,9 @@ def rings_for_radius(grid: CellLists, radius: float) -> int:
 
 @wp.struct
 class CellWalk:
-    """A walk over the cells around a point, a row run of cells at a time (see the module docstring).
-    Made by `square_walk` or `widening_walk`, advanced by `next_run` (and `next_ring`)."""
+    """A walk over the cells around a point (see the module docstring): a row run of cells at a time
+    (made by `square_walk` or `widening_walk`, advanced by `next_run`) or one cell at a time (made by
+    `ring_walk`, advanced by `next_cell`); `next_ring` starts the next ring."""
 
     world: int  # the world's index in the lists
     base: int  # flat slot index of the world's slot 0: an entry's slot is listed_slot(grid, entry, base)
@@ -293,13 +294,16 @@ class CellWalk:
     segments: int  # row runs of the current step
     segment_stride: int  # row runs taken: segment, segment + segment_stride, ...
     runs: wp.vec4i  # entries of the current row run (`row_run_entries`)
+    side: int  # a cell walk's next cell: the u-th of side `side` of the current ring (`ring_offset`)
+    u: int
+    cell: int  # global index of the cell `next_cell` went to
 
 
 @wp.func(inline=True)
 def cell_walk(grid: CellLists, w: int, capacity: int, p: wp.vec2, first_ring: int, bound2: float, first_segment: int,
               segment_stride: int) -> CellWalk:
-    """The walk of `square_walk` and `widening_walk`: its first step is the square of rings
-    0..first_ring, of which it takes the row runs first_segment, first_segment + segment_stride, ..."""
+    """A walk whose first step is the square of rings 0..first_ring, of which a run walk takes the row
+    runs first_segment, first_segment + segment_stride, ..."""
     walk = CellWalk()
     walk.world = w
     walk.base = w * capacity
@@ -313,6 +317,8 @@ def cell_walk(grid: CellLists, w: int, capacity: int, p: wp.vec2, first_ring: in
     walk.segments = walk_segments(first_ring, first_ring)
     walk.segment_stride = segment_stride
     walk.runs = wp.vec4i(0, 0, 0, 0)
+    walk.side = 0
+    walk.u = 0
     return walk
 
 
@@ -367,37 +373,19 @@ def next_ring(walk: wp.ref[CellWalk]):
     walk.segment = 0
     walk.segments = walk_segments(walk.ring, walk.first_ring)
     walk.segment_stride = 1
-
-
-@wp.struct
-class RingWalk:
-    """A walk over the cells around a point one cell at a time, ring by ring (ring 0: the point's cell).
-    Made by `ring_walk`, advanced by `next_cell` and `next_ring`."""
-
-    world: int  # the world's index in the lists
-    base: int  # flat slot index of the world's slot 0: an entry's slot is listed_slot(grid, entry, base)
-    center: wp.vec2i  # the point's cell
-    ring: int  # the current ring
-    side: int  # the current ring's side and cell on it of the next cell (`ring_offset`)
-    u: int
-    cell: int  # global index of the cell `next_cell` went to
-
-
-@wp.func(inline=True)
-def ring_walk(grid: CellLists, w: int, capacity: int, p: wp.vec2) -> RingWalk:
-    """Walk of the cells around `p` in world `w` (of `capacity` slots), ring by ring from `p`'s cell."""
-    walk = RingWalk()
-    walk.world = w
-    walk.base = w * capacity
-    walk.center = cell_coords(grid, p)
-    walk.ring = 0
     walk.side = 0
     walk.u = 0
-    return walk
 
 
 @wp.func(inline=True)
-def next_cell(grid: CellLists, walk: wp.ref[RingWalk]) -> bool:
+def ring_walk(grid: CellLists, w: int, capacity: int, p: wp.vec2) -> CellWalk:
+    """Cell walk: the cells around `p` in world `w` (of `capacity` slots) one at a time (`next_cell`),
+    ring by ring (`next_ring`) from `p`'s cell."""
+    return cell_walk(grid, w, capacity, p, 0, wp.inf, 0, 1)
+
+
+@wp.func(inline=True)
+def next_cell(grid: CellLists, walk: wp.ref[CellWalk]) -> bool:
     """Move `walk` to the next cell of its current ring (`walk.cell`), skipping offsets that name a cell
     this torus names otherwise; False once the ring is done."""
     while walk.side < ring_sides(walk.ring):
@@ -411,13 +399,6 @@ def next_cell(grid: CellLists, walk: wp.ref[RingWalk]) -> bool:
             return True
     return False
 
-
-@wp.func(inline=True)
-def next_ring(walk: wp.ref[RingWalk]):
-    """Make the next ring the walk's current one."""
-    walk.ring += 1
-    walk.side = 0
-    walk.u = 0
 
 
 @wp.kernel

@@ -173,7 +173,8 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
                 partner_disp = wp.vec2(0.0, 0.0)
                 # The first step visits the square of rings 0..first_ring (usually the whole search),
                 # later steps one ring each; cells farther than any wanted agent are skipped.
-                first_ring = wp.min(rings_for_radius(grid, wp.max(v, contact)), wp.max(contact_rings, FIRST_SQUARE_RINGS))
+                first_ring = wp.min(rings_for_radius(grid, wp.max(v, contact)),
+                                    wp.max(contact_rings, FIRST_SQUARE_RINGS))
                 walk = widening_walk(grid, w, world.capacity, pos, first_ring, wp.max(v2, contact2))
                 searching = bool(True)
                 while searching:
