@@ -10,36 +10,29 @@ from __future__ import annotations
 
 import math
 import os
-import threading
 import sys
 import tempfile
-from concurrent.futures import ThreadPoolExecutor
-from typing import Mapping
+from typing import Mapping, NamedTuple
 
 import numpy as np
 import torch
 import warp as wp
 
 from .config import INT32_MAX, LARGEST, AquariumConfig
-from .state import AGENT_FIELDS, WORLD_FIELDS, SimulationState, estimate_bytes
-from .kernels import observation
 from .kernels.common import AgentType
-from .shard import WorldShard
+from .kernels.state import Agents, WorldCounters
+from .shard import WARP_SETUP_LOCK, Program, ShardSet
+from .state import SimulationState, estimate_bytes
 
 TYPES = ("prey", "predator")
-# The tensors of `state_dict()`: the whole simulation state.
-STATE_DICT_FIELDS = tuple(AGENT_FIELDS) + tuple(WORLD_FIELDS) + ("episode_return",)
-# Below this many worlds per thread, the thread hand-off costs more than the second core gives.
-MIN_WORLDS_PER_THREAD = 32
-OBSERVATION_BLOCK = 128  # threads per block of the GPU observation kernel
+# The agent fields a user may read and set (`set_state`), and the tensors of `state_dict()`: the
+# whole simulation state (the seed travels as an integer).
+AGENT_FIELDS = tuple(Agents.vars)
+STATE_DICT_FIELDS = AGENT_FIELDS + tuple(name for name in WorldCounters.vars if name != "seed")
 # Worlds of at most this many slots are one cell, whose fixed whole-world lists need no build per step
 # (H200, ~1M agents in flight: worlds of 64 stepped 14% faster with cells than as one cell).
 SINGLE_CELL_CAPACITY = 32
 _warp_ready = False
-# Warp's initialisation, kernel registration and module loading (compiling) are not thread-safe: two
-# threads building envs at once crashed the process. Everything that may load a module (recording a
-# launch loads its kernel's module) holds this lock; stepping built envs in parallel needs no lock.
-WARP_SETUP_LOCK = threading.RLock()
 
 
 # What Warp's native library prints during init on a machine without the NVIDIA driver.
@@ -149,7 +142,7 @@ def _cpu_threads(cpu_threads) -> int:
     return cpu_threads
 
 
-def _grid_dims(cfg: AquariumConfig) -> tuple[int, int]:
+def grid_dims(cfg: AquariumConfig) -> tuple[int, int]:
     """Cells per axis. A world of at most SINGLE_CELL_CAPACITY slots is one cell: checking every
     agent of the world costs less than building cell lists and visiting the cells around each agent. Otherwise cells at least
     slightly wider than the typical query radius let most queries finish within one ring, and at
@@ -166,6 +159,9 @@ def _grid_dims(cfg: AquariumConfig) -> tuple[int, int]:
         max_cells = max(64, cfg.capacity)
         target = max(target, math.sqrt(cfg.width * cfg.height / max_cells))
     return max(1, int(cfg.width // target)), max(1, int(cfg.height // target))
+
+
+_grid_dims = grid_dims  # the name aquarium_warp/bench.py still imports
 
 
 def action_directions(action_count: int) -> np.ndarray:
@@ -194,6 +190,30 @@ def _type_params(cfg: AquariumConfig, t) -> AgentType:
     p.predator_slots = t.predator_slots
     p.prey_slots = t.prey_slots
     return p
+
+
+class StepResult(NamedTuple):
+    """What `BatchedAquarium.step()` returns, and `BatchedAquarium.outputs` holds: a frozen record of
+    the env's output buffers (torch tensors sharing memory with the simulation, overwritten by the
+    next `step()`, `reset()` or `set_state()`: clone what you keep). Unpacks as the tuple
+    `(observations, rewards, terminated, truncated, info)`.
+
+    - `observations`: `{"prey": [W, prey_capacity, L_prey], "predator": [W, predator_count, L_predator]}`
+      float32, the observations of the state after the step (MODEL.md step 10).
+    - `rewards`: `{"prey": [W, prey_capacity], "predator": [W, predator_count]}` float32, this step's.
+    - `terminated`, `truncated`: the same shapes, bool: the agent died in this step (captured without
+      respawn, or starved); the agent was alive when its world's episode ended in this step.
+    - `info`: per world `"captures"` `[W]` int32 (this step's), `"episode_ended"` `[W]` bool and, valid
+      where that is set, `"episode_length"`, `"episode_captures"` `[W]` int32 and `"episode_return"`
+      (`{"prey": [W], "predator": [W]}` float32, summed over the type's agents); plus `"alive"` and
+      `"observation_mask"` (per type, as `env.alive` and `env.observation_mask`) of the observations.
+    """
+
+    observations: dict[str, torch.Tensor]
+    rewards: dict[str, torch.Tensor]
+    terminated: dict[str, torch.Tensor]
+    truncated: dict[str, torch.Tensor]
+    info: dict
 
 
 class BatchedAquarium:
@@ -229,7 +249,7 @@ class BatchedAquarium:
         self.observation_size = {"prey": cfg.prey.observation_size, "predator": cfg.predator.observation_size}
         self.observed_slots = {t: getattr(cfg, t).predator_slots + getattr(cfg, t).prey_slots for t in TYPES}
 
-        dims_x, dims_y = _grid_dims(cfg)
+        dims_x, dims_y = grid_dims(cfg)
         cells = dims_x * dims_y
         if cells >= 2**31:
             smallest = math.sqrt(cfg.width * cfg.height / 2**30)
@@ -241,26 +261,17 @@ class BatchedAquarium:
         self._check_memory(cells)
 
         with WARP_SETUP_LOCK:  # arrays of structs, kernels and recorded launches (see the lock)
-            self._dims = (dims_x, dims_y)
+            self._grid_dims = (dims_x, dims_y)
             types = [_type_params(cfg, cfg.predator), _type_params(cfg, cfg.prey)]  # index = type code
             self._types = wp.array(types, dtype=AgentType, device=self.device)
             self._action_direction = wp.array(action_directions(cfg.action_count), dtype=wp.vec2, device=self.device)
-            self.state = SimulationState(W, C, cfg.prey_capacity, cfg.predator_count,
-                                         self.observation_size["prey"], self.observation_size["predator"],
-                                         self.observed_slots["prey"], self.observed_slots["predator"], self.device)
-            # One observation kernel per observer type's slot counts; rows are staged by blocks of
-            # OBSERVATION_BLOCK threads on a GPU (tile kernels run one thread per block on the CPU).
-            block = OBSERVATION_BLOCK if wp.get_device(self.device).is_cuda else 1
-            whole_world = self._dims == (1, 1)  # the shards' cell lists are whole-world lists
-            self._observe_kernels = {t: observation.observation_kernel(getattr(cfg, t).predator_slots,
-                                                                       getattr(cfg, t).prey_slots, block, whole_world)
-                                     for t in TYPES}
-            threads = _cpu_threads(cpu_threads) if not wp.get_device(self.device).is_cuda else 1
-            shards = max(1, min(threads, W // MIN_WORLDS_PER_THREAD))
-            bounds = [W * k // shards for k in range(shards + 1)]
-            self._shard_ranges = list(zip(bounds[:-1], bounds[1:]))
-            self._pool = ThreadPoolExecutor(max_workers=shards) if shards > 1 else None
-            self._make_shards(seed_key(seed))
+            self.state = SimulationState.allocate(W, C, cfg.prey_capacity, cfg.predator_count,
+                                                  self.observation_size["prey"], self.observation_size["predator"],
+                                                  self.observed_slots["prey"], self.observed_slots["predator"],
+                                                  self.device)
+            self.state.worlds.seed.fill_(seed_key(seed))
+            self._shards = ShardSet(cfg, self.state, self._grid_dims, self._types, self._action_direction, self.device,
+                                    auto_reset, _cpu_threads(cpu_threads))
             self._build_views()
             self.reset()
 
@@ -282,12 +293,9 @@ class BatchedAquarium:
         self.observations = {"prey": t.obs_prey, "predator": t.obs_predator}
         self.observation_mask = {"prey": t.mask_prey, "predator": t.mask_predator}
         self.observed_slot = {"prey": t.slot_prey, "predator": t.slot_predator}
-        self._rewards = {"prey": t.reward[:, :Pc], "predator": t.reward[:, Pc:]}
-        self._terminated = {"prey": t.terminated[:, :Pc], "predator": t.terminated[:, Pc:]}
-        self._truncated = {"prey": t.truncated[:, :Pc], "predator": t.truncated[:, Pc:]}
         self.alive = {"prey": t.alive[:, :Pc], "predator": t.alive[:, Pc:]}
         self._actions = {"prey": t.prey_action, "predator": t.predator_action}
-        self._info = {
+        info = {
             "captures": t.captures,
             "episode_ended": t.episode_ended,
             "episode_length": t.ended_length,
@@ -296,42 +304,34 @@ class BatchedAquarium:
             "alive": self.alive,
             "observation_mask": self.observation_mask,
         }
+        self._outputs = StepResult(self.observations, {"prey": t.reward[:, :Pc], "predator": t.reward[:, Pc:]},
+                                   {"prey": t.terminated[:, :Pc], "predator": t.terminated[:, Pc:]},
+                                   {"prey": t.truncated[:, :Pc], "predator": t.truncated[:, Pc:]}, info)
 
-    # ------------------------------------------------------------------ running the shards
-    def _make_shards(self, seed_key: int) -> None:
-        with WARP_SETUP_LOCK:  # recording launches loads modules
-            self._shards = [
-                WorldShard(self.config, self.state, w0, w1, self._dims, self._types, self._action_direction,
-                           self._observe_kernels, seed_key, self.device, self.auto_reset)
-                for w0, w1 in self._shard_ranges
-            ]
-        self._graph = None
-
+    # ------------------------------------------------------------------ shards and programs
     def run_on_shards(self, work) -> None:
-        """Call `work(shard)` for every `WorldShard` the way the env runs its own programs: shards
-        in parallel threads on CPU (Warp's CPU kernels release the GIL); on GPU on Warp's stream,
-        ordered after the torch work that produced the inputs and before the torch work that reads
-        the outputs (torch's legacy default stream cannot be captured into a graph)."""
-        if not wp.get_device(self.device).is_cuda:
-            if self._pool is not None:
-                list(self._pool.map(work, self._shards))
-            else:
-                for shard in self._shards:
-                    work(shard)
-            return
-        torch_stream = wp.stream_from_torch(torch.cuda.current_stream(self.torch_device))
-        stream = wp.get_stream(self.device)
-        stream.wait_stream(torch_stream)
-        with wp.ScopedStream(stream):
-            for shard in self._shards:
-                work(shard)
-        torch_stream.wait_stream(stream)
+        """Call `work(shard)` for every `WorldShard` the way the env runs its own programs (see
+        `ShardSet.run`)."""
+        self._shards.run(work)
+
+    def record_program(self, build) -> Program:
+        """A launch program recorded once and run by `program.run()` on every shard, as the env runs its
+        own: `build(shard)` returns the shard's commands, made with `shard.record(kernel, dim, inputs,
+        outputs)` from the shard's `state` groups, `grid`, `world` and `types`. The seed and the episode
+        counters are device data, so a program never needs recording again (heuristics and metrics
+        record theirs this way)."""
+        return self._shards.record(build)
 
     @property
     def shards(self) -> tuple:
         """The `WorldShard`s (blocks of worlds with their cell lists and parameter structs); their
         cell lists hold the positions of the last returned observations."""
-        return tuple(self._shards)
+        return self._shards.shards
+
+    @property
+    def grid_dims(self) -> tuple[int, int]:
+        """Cells per axis of each world's cell lists (`grid_dims(config)`)."""
+        return self._grid_dims
 
     @property
     def agent_types(self) -> wp.array:
@@ -344,52 +344,64 @@ class BatchedAquarium:
         return self._action_direction
 
     def _run(self, program: str) -> None:
-        """Run a shard program ("step", "observe" or "reset"); the step is one CUDA graph on GPU."""
-        if program != "step" or not wp.get_device(self.device).is_cuda:
-            self.run_on_shards(lambda shard: shard.run(program))
-            return
-
-        def step_graph(shard):
-            if self._graph is None:
-                shard.run(program)  # loads every module before capture
-                with wp.ScopedCapture(device=self.device, stream=wp.get_stream(self.device)) as capture_scope:
-                    shard.run(program)
-                self._graph = capture_scope.graph
-            else:
-                wp.capture_launch(self._graph, stream=wp.get_stream(self.device))
-
-        self.run_on_shards(step_graph)
+        """Run one of the env's programs: "step", "observe" or "reset"."""
+        self._shards.programs[program].run()
 
     # ------------------------------------------------------------------ public API
     def reset(self, seed: int | None = None) -> dict[str, torch.Tensor]:
-        """Start a new episode in every world; with `seed`, reseed first. Returns the observations."""
+        """Start a new episode in every world; with `seed`, reseed first (a write of the seed's key into
+        the device counters: nothing is rebuilt or recorded again). Returns the observations."""
         if seed is not None:
             key = seed_key(seed)
             self.seed = int(seed)
-            self._make_shards(key)  # the seed is baked into recorded launches and graphs
+            self.state.worlds.seed.fill_(key)
         self._run("reset")
         return self.observations
 
-    def step(self, actions: Mapping[str, torch.Tensor], validate: bool = True):
-        """Advance every world by one step.
+    @property
+    def actions(self) -> dict[str, torch.Tensor]:
+        """The step's input buffers: `{"prey": [W, prey_capacity], "predator": [W, predator_count]}` int32
+        tensors on the env's device. `step(actions)` copies into them; writing into them and calling
+        `step()` with no actions skips that copy."""
+        return self._actions
 
-        Returns `(obs, rewards, terminated, truncated, info)`: dicts of torch tensors keyed by agent
-        type ("prey" [W, prey_capacity], "predator" [W, predator_count]); `info` holds per-world
-        "captures" this step, "episode_ended" and, valid where it is set, "episode_length",
-        "episode_captures" and "episode_return" (summed over the type's agents), plus "alive" and
-        "observation_mask" of the returned observations. Worlds whose episode ended were reset, so
-        their observations are the new episode's first ones.
+    @property
+    def outputs(self) -> StepResult:
+        """The outputs of the last `step()` (observations: of the last `step()`, `reset()` or
+        `set_state()`), as the `StepResult` that `step()` returns: the same buffers, always current."""
+        return self._outputs
+
+    def set_actions(self, actions: Mapping[str, torch.Tensor], validate: bool = True) -> None:
+        """Copy `actions` (see `step`) into the input buffers `actions`, checked first unless `validate`
+        is False."""
+        if validate:
+            self._validate_actions(actions)
+        for t in TYPES:
+            self._actions[t].copy_(_action_tensor(actions[t]))
+
+    def step(self, actions: Mapping[str, torch.Tensor] | None = None, validate: bool = True) -> StepResult:
+        """Advance every world by one step with `actions` (integer tensors `{"prey": [W, prey_capacity],
+        "predator": [W, predator_count]}` on the env's device), or, with None, with the actions already
+        in the `actions` buffers.
+
+        Returns a `StepResult`, which unpacks as `(obs, rewards, terminated, truncated, info)`: dicts of
+        torch tensors keyed by agent type; `info` holds per-world "captures" this step,
+        "episode_ended" and, valid where it is set, "episode_length", "episode_captures" and
+        "episode_return" (summed over the type's agents), plus "alive" and "observation_mask" of the
+        returned observations. Worlds whose episode ended were reset, so their observations are the
+        new episode's first ones.
 
         `validate=False` skips the host-side checks of the actions (and their device sync); an action
         outside [0, action_count - 1] is then clamped into that range by the motion kernel, so no value
         reads or writes out of bounds.
         """
-        if validate:
-            self._validate_actions(actions)
-        for t in TYPES:
-            self._actions[t].copy_(_action_tensor(actions[t]))
+        if actions is None:
+            if validate:
+                self._validate_actions(self._actions)
+        else:
+            self.set_actions(actions, validate)
         self._run("step")
-        return self.observations, self._rewards, self._terminated, self._truncated, self._info
+        return self._outputs
 
     def _validate_actions(self, actions) -> None:
         if not isinstance(actions, Mapping):
@@ -576,9 +588,8 @@ class BatchedAquarium:
                 w = int(torch.nonzero(count != alive[:, slots].sum(dim=1))[0])
                 raise ValueError(f"state_dict tensor {kind}_alive_count[{w}]={int(count[w])} does not match the "
                                  f"{int(alive[w, slots].sum())} live {kind} slots of world {w}")
-        if int(state["seed"]) != self.seed:
-            self.seed = int(state["seed"])
-            self._make_shards(key)
+        self.seed = int(state["seed"])
+        self.state.worlds.seed.fill_(key)
         for name, value in staged.items():
             getattr(t, name).copy_(value.to(self.torch_device))
         self._run("observe")
@@ -599,7 +610,7 @@ class BatchedAquarium:
             "config": self.config,
             "num_worlds": self.num_worlds,
             "device": self.device,
-            "cpu_threads": len(self._shard_ranges),  # the same split of worlds over threads
+            "cpu_threads": len(self.shards),  # the same split of worlds over threads
             "auto_reset": self.auto_reset,
             "state": self.state_dict(),
             "outputs": {n: getattr(t, n).detach().cpu().clone() for n in self._CARRIED_OUTPUTS},
@@ -616,10 +627,9 @@ class BatchedAquarium:
 
     def close(self) -> None:
         """Release the CUDA graph and the worker threads; the arrays go with the object."""
-        self._graph = None
-        pool, self._pool = getattr(self, "_pool", None), None
-        if pool is not None:
-            pool.shutdown(wait=False)
+        shards = getattr(self, "_shards", None)  # absent if the constructor failed
+        if shards is not None:
+            shards.close()
 
     def __del__(self) -> None:
         self.close()

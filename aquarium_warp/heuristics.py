@@ -25,7 +25,7 @@ import numpy as np
 import torch
 import warp as wp
 
-from .env import TYPES, WARP_SETUP_LOCK, BatchedAquarium, action_directions, seed_key
+from .env import TYPES, BatchedAquarium, action_directions, seed_key
 from .kernels import heuristics as kernels
 
 # Policies allowed for each agent type.
@@ -59,8 +59,7 @@ class HeuristicPolicy:
             raise ValueError(f"confusion={confusion!r} applies only to 'naivchase', not {key!r}")
         if confusion is not None and not isinstance(confusion, bool):
             raise ValueError(f"confusion={confusion!r} must be True or False")
-        if seed is not None:
-            seed_key(seed)  # validates
+        own_seed = None if seed is None else seed_key(seed)  # validates
         # A weak reference: the policies cached by `heuristic_actions` must not keep their env alive.
         self._env = weakref.ref(env)
         self.name, self.agent_type, self.seed = key, agent_type, seed
@@ -75,7 +74,15 @@ class HeuristicPolicy:
         slots = env.prey_capacity if agent_type == "prey" else env.predator_count
         self._buffer = wp.zeros((env.num_worlds, slots), dtype=wp.int32, device=env.device)
         self.actions = wp.to_torch(self._buffer)
-        self._recorded = None  # (shards, seed key, recorded launches)
+        # The streams' keys: the env's seed (device data, so a reseed reaches the recorded launches),
+        # or the policy's own.
+        seeds = env.state.worlds.seed
+        if own_seed is not None:
+            seeds = wp.full(env.num_worlds, own_seed, dtype=wp.uint32, device=env.device)
+        self._program = env.record_program(lambda shard: [shard.record(
+            kernels.heuristic_policy, (shard.num_worlds, slots),
+            [shard.world, env.agent_types, shard.grid, env.action_directions, shard.state.agents, shard.state.worlds,
+             seeds[shard.w0:shard.w1], self._code, self._first_slot], [self._buffer[shard.w0:shard.w1]])])
 
     @property
     def env(self) -> BatchedAquarium:
@@ -88,27 +95,9 @@ class HeuristicPolicy:
         extra = f", confusion={self.confusion}" if self.confusion is not None else ""
         return f"HeuristicPolicy({self.name!r}, {self.agent_type!r}, seed={self.seed}{extra})"
 
-    def _launches(self) -> dict:
-        """Recorded launches, one per shard; re-recorded when the env rebuilt its shards (a reseed)."""
-        env = self.env
-        key = seed_key(env.seed if self.seed is None else self.seed)
-        shards = env.shards
-        if self._recorded is None or self._recorded[0] != shards or self._recorded[1] != key:
-            launches = {}
-            with WARP_SETUP_LOCK:  # recording a launch loads the module
-                for shard in shards:
-                    s = shard.s
-                    launches[id(shard)] = kernels.launch_policy(
-                        shard.world, env.agent_types, shard.grid, env.action_directions, s.alive, s.position,
-                        s.heading, s.world_step, s.episode, key, self._code, self._first_slot,
-                        self._buffer[shard.w0:shard.w1], env.device, record=True)
-            self._recorded = (shards, key, launches)
-        return self._recorded[2]
-
     def __call__(self) -> torch.Tensor:
-        env = self.env
-        launches = self._launches()
-        env.run_on_shards(lambda shard: launches[id(shard)].launch())
+        _ = self.env  # raises once the env is gone
+        self._program.run()
         return self.actions
 
 

@@ -46,7 +46,7 @@ from typing import Callable, Iterable, Mapping
 import torch
 import warp as wp
 
-from .env import WARP_SETUP_LOCK, BatchedAquarium
+from .env import BatchedAquarium
 from .kernels import metrics as kernels
 
 SCALAR_METRICS = kernels.VALUE_NAMES
@@ -101,23 +101,24 @@ class SwarmMetrics:
         # search, which walks every prey entry on the way to it.
         self.predators_by_grid = int(P > 32 and P * P > 4 * Pc)
         self._chunks = (Pc + kernels.CHUNK - 1) // kernels.CHUNK
-        self._values = wp.zeros((W, kernels.NUM_VALUES), dtype=float, device=dev)
-        self._nearest_prey = wp.zeros((W, Pc), dtype=float, device=dev)
-        self._nearest_predator = wp.zeros((W, Pc), dtype=float, device=dev)
-        self._histogram = wp.zeros((W, nn_bins), dtype=wp.int32, device=dev)
-        self._parent = wp.zeros(W * Pc, dtype=wp.int32, device=dev)
-        self._label = wp.zeros((W, Pc), dtype=wp.int32, device=dev)
-        self._group_size = wp.zeros((W, Pc), dtype=wp.int32, device=dev)
-        self._partial = wp.zeros((W, self._chunks, kernels.NUM_PARTIALS), dtype=float, device=dev)
-        values = wp.to_torch(self._values)
+        a = self._arrays = kernels.SwarmArrays()
+        a.nearest_prey = wp.zeros((W, Pc), dtype=float, device=dev)
+        a.nearest_predator = wp.zeros((W, Pc), dtype=float, device=dev)
+        a.nn_histogram = wp.zeros((W, nn_bins), dtype=wp.int32, device=dev)
+        a.parent = wp.zeros(W * Pc, dtype=wp.int32, device=dev)
+        a.group_label = wp.zeros((W, Pc), dtype=wp.int32, device=dev)
+        a.group_size = wp.zeros((W, Pc), dtype=wp.int32, device=dev)
+        a.partial = wp.zeros((W, self._chunks, kernels.NUM_PARTIALS), dtype=float, device=dev)
+        a.values = wp.zeros((W, kernels.NUM_VALUES), dtype=float, device=dev)
+        values = wp.to_torch(a.values)
         self.values = values  # [W, len(SCALAR_METRICS)] float32, columns in SCALAR_METRICS order
-        self.nn_histogram = wp.to_torch(self._histogram)
-        self.nearest_neighbour = wp.to_torch(self._nearest_prey)
-        self.nearest_predator = wp.to_torch(self._nearest_predator)
-        self.group_label = wp.to_torch(self._label)
+        self.nn_histogram = wp.to_torch(a.nn_histogram)
+        self.nearest_neighbour = wp.to_torch(a.nearest_prey)
+        self.nearest_predator = wp.to_torch(a.nearest_predator)
+        self.group_label = wp.to_torch(a.group_label)
         self._result = {name: values[:, k] for k, name in enumerate(SCALAR_METRICS)}
         self._result["nn_histogram"] = self.nn_histogram
-        self._recorded = None
+        self._program = env.record_program(self._shard_commands)
 
     @property
     def env(self) -> BatchedAquarium:
@@ -128,54 +129,31 @@ class SwarmMetrics:
         """`[bins + 1]` px: edges of the histogram's bins (the last bin also counts distances beyond)."""
         return torch.linspace(0.0, self.nn_range, self.nn_bins + 1)
 
-    def _shard_program(self, shard) -> list:
-        env, s, g, world = self._env, shard.s, shard.grid, shard.world
-        W, Pc = shard.num_worlds, env.prey_capacity
-        w0, w1 = shard.w0, shard.w1
-        nearest_prey, nearest_predator = self._nearest_prey[w0:w1], self._nearest_predator[w0:w1]
-        histogram, parent = self._histogram[w0:w1], self._parent[w0 * Pc:w1 * Pc]
-        label, group_size = self._label[w0:w1], self._group_size[w0:w1]
-        partial, values = self._partial[w0:w1], self._values[w0:w1]
-
-        def launch(kernel, dim, inputs, outputs):
-            return wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=env.device,
-                             record_cmd=True).launch
-
+    def _shard_commands(self, shard) -> list:
+        s, g, world, Pc = shard.state, shard.grid, shard.world, self._env.prey_capacity
+        W, w0, w1 = shard.num_worlds, shard.w0, shard.w1
+        arrays = kernels.SwarmArrays()  # the shard's worlds of every buffer
+        for name in kernels.SwarmArrays.vars:
+            rows = slice(w0 * Pc, w1 * Pc) if name == "parent" else slice(w0, w1)  # parent: [W * Pc]
+            setattr(arrays, name, getattr(self._arrays, name)[rows])
         return [
-            histogram.zero_,
-            group_size.zero_,
-            launch(kernels.prey_distances, (W, Pc),
-                   [world, g, s.alive, s.position, self.predators_by_grid, self.bin_width],
-                   [nearest_prey, nearest_predator, histogram, parent]),
-            launch(kernels.link_groups, (W, Pc), [world, g, s.alive, s.position, self.linking_distance], [parent]),
-            launch(kernels.resolve_groups, (W, Pc), [world, s.alive, parent], [label, group_size]),
-            launch(kernels.prey_partial_sums, (W, self._chunks),
-                   [world, s.alive, s.position, s.heading, nearest_prey, nearest_predator, label, group_size],
-                   [partial]),
-            launch(kernels.finish_prey_sums, W, [world, partial, s.predator_alive_count, s.captures], [values]),
-            launch(kernels.centroid_partial_sums, (W, self._chunks), [world, s.alive, s.position, values],
-                   [partial]),
-            launch(kernels.finish_cohesion, W, [partial], [values]),
+            arrays.nn_histogram.zero_,
+            arrays.group_size.zero_,
+            shard.record(kernels.prey_distances, (W, Pc),
+                         [world, g, s.agents, self.predators_by_grid, self.bin_width], [arrays]),
+            shard.record(kernels.link_groups, (W, Pc), [world, g, s.agents, self.linking_distance], [arrays]),
+            shard.record(kernels.resolve_groups, (W, Pc), [world, s.agents], [arrays]),
+            shard.record(kernels.prey_partial_sums, (W, self._chunks), [world, s.agents], [arrays]),
+            shard.record(kernels.finish_prey_sums, W, [world, s.worlds, s.outputs], [arrays]),
+            shard.record(kernels.centroid_partial_sums, (W, self._chunks), [world, s.agents], [arrays]),
+            shard.record(kernels.finish_cohesion, W, [], [arrays]),
         ]
-
-    def _programs(self) -> dict:
-        shards = self._env.shards
-        if self._recorded is None or self._recorded[0] != shards:  # the env rebuilds its shards on reseed
-            with WARP_SETUP_LOCK:  # recording a launch loads the module
-                self._recorded = (shards, {id(shard): self._shard_program(shard) for shard in shards})
-        return self._recorded[1]
 
     def compute(self) -> dict[str, torch.Tensor]:
         """Metrics of the current state of every world: `{name: [W] float32}` for the names in
         `SCALAR_METRICS`, plus `"nn_histogram"` `[W, bins]` int32; on the env's device, no host sync.
         The tensors are views overwritten by the next `compute()`: clone what you keep."""
-        programs = self._programs()
-
-        def run(shard):
-            for command in programs[id(shard)]:
-                command()
-
-        self._env.run_on_shards(run)
+        self._program.run()
         return self._result
 
 

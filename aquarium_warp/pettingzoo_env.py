@@ -463,11 +463,7 @@ class AquariumParallelEnv(ParallelEnv):
     def reset(self, seed: int | None = None, options: dict | None = None):
         """Start a new episode (`seed`: a non-negative integer; the same seed gives the same
         episode). `options` is accepted and unused. Returns `(observations, infos)`."""
-        sim_seed = self._next_sim_seed(seed)
-        if sim_seed == self.aquarium.seed:
-            self.aquarium.reset()
-        else:
-            self.aquarium.reset(seed=sim_seed)
+        self.aquarium.reset(seed=self._next_sim_seed(seed))  # reseeding writes the seed's key: no rebuild
         self._start_episode()
         obs_prey, obs_pred = self._host()[:2]
         obs = dict(zip(self._pred_live_names, obs_pred[self._pred_rows]))
@@ -584,29 +580,21 @@ class AquariumParallelEnv(ParallelEnv):
         return None
 
     def _show(self, frame: np.ndarray) -> None:
-        try:
-            import pygame
-        except ImportError as error:
-            raise gymnasium.error.DependencyNotInstalled(
-                "render_mode='human' needs pygame: pip install 'aquarium-warp[video]'") from error
+        from .render import Window
+
         if self._window is None:
-            pygame.display.init()
-            screen = pygame.display.set_mode((frame.shape[1], frame.shape[0]))
-            pygame.display.set_caption(str(self._options["caption"]))
-            self._window = (pygame, screen, pygame.time.Clock())
-        pygame, screen, clock = self._window
-        for event in pygame.event.get():
-            if event.type == pygame.QUIT:
-                self._close_window()
-                return
-        surface = pygame.surfarray.make_surface(np.ascontiguousarray(frame.transpose(1, 0, 2)))
-        screen.blit(surface, (0, 0))
-        pygame.display.flip()
-        clock.tick(self.metadata["render_fps"])
+            try:
+                self._window = Window(frame.shape[1], frame.shape[0], str(self._options["caption"]),
+                                      fps=self.metadata["render_fps"])
+            except ImportError as error:
+                raise gymnasium.error.DependencyNotInstalled(
+                    "render_mode='human' needs pygame: pip install 'aquarium-warp[video]'") from error
+        if not self._window.show(frame):  # the user closed the window
+            self._window = None
 
     def _close_window(self) -> None:
         if self._window is not None:
-            self._window[0].display.quit()
+            self._window.close()
             self._window = None
 
     def close(self) -> None:

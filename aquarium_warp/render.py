@@ -30,7 +30,7 @@ import zlib
 import numpy as np
 import warp as wp
 
-from .env import WARP_SETUP_LOCK
+from .shard import WARP_SETUP_LOCK
 from .kernels import render as rk
 from .kernels.common import PREDATOR, PREY
 
@@ -162,7 +162,7 @@ class Renderer:
         p = self._params
         p.world = int(world)
         p.view_cones, p.hit_boxes, p.velocities = int(bool(view_cones)), int(bool(hit_boxes)), int(bool(velocities))
-        s = env.state
+        agents = env.state.agents
         if wp.get_device(self.device).is_cuda:
             # The state may have been written by torch on its current stream: order the frame after it
             # (the env's own steps already run on this Warp stream).
@@ -173,10 +173,9 @@ class Renderer:
         self._overlay.zero_()
         if view_cones:
             self._cone_count.zero_()
-        rk.launch_splat(p, s.position, s.heading, s.velocity, s.alive, self._body_key, self._cone_count,
-                        self._overlay, env.capacity, self.device)
-        rk.launch_compose(p, self._palette, s.position, s.heading, self._body_key, self._cone_count,
-                          self._overlay, self._image, self.device)
+        rk.launch_splat(p, agents, self._body_key, self._cone_count, self._overlay, env.capacity, self.device)
+        rk.launch_compose(p, self._palette, agents, self._body_key, self._cone_count, self._overlay, self._image,
+                          self.device)
         return self._image
 
     def render(self, world: int = 0, *, view_cones: bool = False, hit_boxes: bool = False,

@@ -1,31 +1,51 @@
-"""`WorldShard`: a contiguous block of worlds with its own cell lists and pre-recorded launch programs.
+"""Shards and launch programs: how a batch's kernels are recorded and run.
 
-Worlds never interact, so a batch can be split into shards that run in parallel threads on the CPU
-(on GPU one shard holds every world). Each shard sees views of the batch's arrays; random streams are
-keyed by the global world index, so results do not depend on how the batch is split.
+Worlds never interact, so a batch is split into shards, contiguous blocks of worlds that run in
+parallel threads on the CPU (on a GPU one shard holds every world). A `WorldShard` holds views of the
+batch's state groups for its worlds and its own cell lists; random streams are keyed by the global
+world index, so results do not depend on the split.
+
+A launch program is a fixed list of recorded launches per shard (no allocation, no host sync), made
+once: every value that changes between runs (the seed, the episode and step counters) is device
+data that the kernels read. `ShardSet` is the one owner of programs: it records the env's own
+(`step`, `observe`, `reset`) and those that heuristics and metrics ask for (`ShardSet.record`), and
+runs them (`Program.run`); on a GPU the step runs as one CUDA graph, captured on its first run.
 """
 
 from __future__ import annotations
 
 import functools
 import math
-from types import SimpleNamespace
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from typing import Callable
 
 import numpy as np
+import torch
 import warp as wp
 
 from .config import AquariumConfig
-from .kernels import capture, motion, population, spawn
+from .kernels import capture, motion, observation, population, spawn
 from .kernels import grid as grid_kernels
 from .kernels.common import PREDATOR, PREY, WorldParams
+from .kernels.state import Agents
+from .state import SimulationState
 
 TYPE_CODES = {"prey": int(PREY), "predator": int(PREDATOR)}
 # Largest world whose GPU cell lists are built by ranking each slot over its world instead of counting
 # the agents of every cell (each thread reads its whole world, so the cost per agent grows with the world).
 RANK_SORT_MAX_CAPACITY = 128
+# Below this many worlds per thread, the thread hand-off costs more than the second core gives.
+MIN_WORLDS_PER_THREAD = 32
+OBSERVATION_BLOCK = 128  # threads per block of the GPU observation kernel
+# Warp's initialisation, kernel registration and module loading (compiling) are not thread-safe: two
+# threads building envs at once crashed the process. Everything that may load a module (recording a
+# launch loads its kernel's module) holds this lock; stepping built envs in parallel needs no lock.
+WARP_SETUP_LOCK = threading.RLock()
 
 
-def world_params(cfg: AquariumConfig, seed_key: int, world_offset: int, auto_reset: bool) -> WorldParams:
+def world_params(cfg: AquariumConfig, world_offset: int, auto_reset: bool) -> WorldParams:
+    """The `WorldParams` of worlds of `cfg` whose first global index is `world_offset`."""
     p = WorldParams()
     p.width = cfg.width
     p.height = cfg.height
@@ -46,7 +66,6 @@ def world_params(cfg: AquariumConfig, seed_key: int, world_offset: int, auto_res
     p.replication_age_min = math.ceil(0.75 * cfg.prey_replication_age)
     p.replication_age_max = math.floor(1.25 * cfg.prey_replication_age)
     p.signed_observations = int(cfg.observation_range == "-1..1")
-    p.seed = seed_key
     p.world_offset = world_offset
     p.auto_reset = int(auto_reset)
     return p
@@ -63,10 +82,10 @@ def grid_build(cfg: AquariumConfig, dims: tuple[int, int], cuda: bool) -> str:
     return "rank" if cfg.capacity <= RANK_SORT_MAX_CAPACITY else "count"
 
 
-def cell_lists(cfg: AquariumConfig, num_worlds: int, dims: tuple[int, int], device, state=None,
+def cell_lists(cfg: AquariumConfig, num_worlds: int, dims: tuple[int, int], device, agents: Agents | None = None,
                build: str | None = None) -> grid_kernels.CellLists:
     """Cell lists of `num_worlds` worlds of `dims` cells, for the `build` that `grid_build` names (or the
-    one given). Worlds of one cell get whole-world lists over the `state` arrays (views of
+    one given). Worlds of one cell get whole-world lists over the `agents` arrays (views of
     `[num_worlds, capacity]` arrays), which never need a build."""
     dims_x, dims_y = dims
     n = num_worlds * cfg.capacity
@@ -80,14 +99,14 @@ def cell_lists(cfg: AquariumConfig, num_worlds: int, dims: tuple[int, int], devi
     g.reach = min(cfg.width / dims_x, cfg.height / dims_y)
     g.lo_x, g.hi_x = (dims_x - 1) // 2, dims_x // 2
     g.lo_y, g.hi_y = (dims_y - 1) // 2, dims_y // 2
-    g.whole_world = int(state is not None and dims == (1, 1))
+    g.whole_world = int(agents is not None and dims == (1, 1))
     cells = num_worlds * g.cells_per_world
     if g.whole_world:
         first = np.arange(num_worlds, dtype=np.int32) * cfg.capacity
         g.cell_start = wp.array(first, dtype=int, device=device)
         g.cell_end = wp.array(first + cfg.capacity, dtype=int, device=device)
         g.key = g.agent = g.cell_count = wp.empty(0, dtype=int, device=device)
-        g.position, g.alive = state.position.flatten(), state.alive.flatten()
+        g.position, g.alive = agents.position.flatten(), agents.alive.flatten()
         return g
     if (build or grid_build(cfg, dims, wp.get_device(device).is_cuda)) == "count":
         # Live agents are packed in key order over all worlds, so each cell ends where the next one
@@ -107,153 +126,224 @@ def cell_lists(cfg: AquariumConfig, num_worlds: int, dims: tuple[int, int], devi
 
 
 class WorldShard:
-    """Worlds `[w0, w1)` of a batch: MODEL.md's step as a fixed list of recorded launches."""
+    """Worlds `[w0, w1)` of a batch: `state` (the batch's groups viewed for these worlds), `grid` (their
+    cell lists), `world` (their `WorldParams`), and `programs`, the env's launch programs as recorded
+    for this shard (name -> list of commands; MODEL.md's step is `programs["step"]`)."""
 
-    def __init__(self, cfg: AquariumConfig, state, w0: int, w1: int, dims, types, action_direction,
-                 observe_kernels, seed_key: int, device, auto_reset: bool = True):
+    def __init__(self, cfg: AquariumConfig, state: SimulationState, index: int, w0: int, w1: int, dims, types,
+                 action_direction, observe_kernels, device, auto_reset: bool = True):
         self.cfg, self.device = cfg, device
+        self.index = index
         self.w0, self.w1 = w0, w1
-        self.num_worlds = W = w1 - w0
-        self.world = world_params(cfg, seed_key, w0, auto_reset)
+        self.num_worlds = w1 - w0
+        self.world = world_params(cfg, w0, auto_reset)
         self.types = types
         self.action_direction = action_direction
         self.observe_kernels = observe_kernels  # {"prey": kernel, "predator": kernel}
+        self.state = state.rows(w0, w1)
+        self.grid = cell_lists(cfg, self.num_worlds, dims, device, self.state.agents)
         self._views = []  # arrays viewing state memory with another dtype (kept alive with the shard)
-        self.s = SimpleNamespace(**{name: value[w0:w1] for name, value in vars(state).items()
-                                    if isinstance(value, wp.array)})
-        self.grid = cell_lists(cfg, W, dims, device, self.s)
-        self.programs = {"step": self._step_program(), "observe": self._observe_program(),
-                         "reset": self._reset_program()}
+        self.programs: dict[str, list] = {}
 
     def run(self, program: str) -> None:
+        """Run one of the env's programs ("step", "observe" or "reset") on this shard."""
         for command in self.programs[program]:
             command()
 
-    def _launch(self, kernel, dim, inputs, outputs):
-        return wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=self.device,
-                         record_cmd=True).launch
+    def record(self, kernel, dim, inputs, outputs=(), block_dim: int | None = None):
+        """A recorded launch of `kernel` over `dim` threads (blocks of `block_dim` for a tile kernel),
+        as a command: calling it replays the launch."""
+        options = {} if block_dim is None else {"block_dim": block_dim}
+        return wp.launch(kernel, dim=dim, inputs=list(inputs), outputs=list(outputs), device=self.device,
+                         record_cmd=True, **options).launch
 
-    def _launch_blocks(self, kernel, blocks: int, block_dim: int, inputs, outputs):
-        """A tile kernel: `blocks` blocks of `block_dim` threads, `block, lane = wp.tid()`."""
-        return wp.launch(kernel, dim=(blocks, block_dim), block_dim=block_dim, inputs=inputs, outputs=outputs,
-                         device=self.device, record_cmd=True).launch
-
-    # Programs ------------------------------------------------------------------------------------
-    def _build_grid_program(self) -> list:
+    # The env's programs -------------------------------------------------------------------------
+    def build_grid_commands(self) -> list:
         """Cell lists of the current positions (no allocation, no host sync)."""
-        s, g, W, C = self.s, self.grid, self.num_worlds, self.cfg.capacity
-        count = W * C
+        agents, g, W, C = self.state.agents, self.grid, self.num_worlds, self.cfg.capacity
         build = grid_build(self.cfg, (g.dims_x, g.dims_y), wp.get_device(self.device).is_cuda)
         if g.whole_world:
             return []  # the lists are fixed and read the state itself
         if build == "counting":
-            return [self._launch(grid_kernels.sort_into_cells_per_world, W, [self.world, g, s.position, s.alive],
-                                 [g.key, g.cell_start, g.cell_end, g.agent, g.position])]
+            return [self.record(grid_kernels.sort_into_cells_per_world, W, [self.world, agents, g])]
         if build == "rank":
-            return [self._launch(grid_kernels.rank_into_cells_per_world, (W, C), [self.world, g, s.position, s.alive],
-                                 [g.cell_start, g.cell_end, g.agent, g.position])]
+            return [self.record(grid_kernels.rank_into_cells_per_world, (W, C), [self.world, agents, g])]
         return [
             g.cell_count.zero_,
-            self._launch(grid_kernels.compute_cell_keys, (W, C), [self.world, g, s.position, s.alive],
-                         [g.key, g.cell_count]),
+            self.record(grid_kernels.compute_cell_keys, (W, C), [self.world, agents, g]),
             # Every cell's end is the running count of live agents (its start the previous cell's end).
             functools.partial(wp.utils.array_scan, g.cell_count, g.cell_end, True),
-            self._launch(grid_kernels.drop_into_cells, count, [g], [g.agent]),
-            self._launch(grid_kernels.order_cells, count, [self.world, g, s.position], [g.agent, g.position]),
+            self.record(grid_kernels.drop_into_cells, W * C, [g]),
+            self.record(grid_kernels.order_cells, W * C, [self.world, agents, g]),
         ]
 
-    def _observation_outputs(self, type_name: str, kernel) -> list:
+    def _observed_rows(self, type_name: str, kernel):
         """One observer type's observation rows, masks and observed slots, as the kernel takes them."""
-        s = self.s
-        obs = getattr(s, f"obs_{type_name}")
+        observations = self.state.observations
+        obs = getattr(observations, f"obs_{type_name}")
         rows = obs.shape[0] * obs.shape[1]
-        slots = obs.shape[2] // 6  # 5 + 6 * slots values per row
+        out = kernel.rows_type()
         # The [W, per_world, L] observations as [W * per_world] rows of L floats (same memory).
-        obs_rows = wp.array(ptr=obs.ptr, dtype=kernel.row_type, shape=(rows,), device=obs.device)
-        self._views.append(obs_rows)
-        return [obs_rows, getattr(s, f"mask_{type_name}").reshape((rows, slots)),
-                getattr(s, f"slot_{type_name}").reshape((rows, slots))]
+        out.obs = wp.array(ptr=obs.ptr, dtype=kernel.row_type, shape=(rows,), device=obs.device)
+        self._views.append(out.obs)
+        out.mask = getattr(observations, f"mask_{type_name}").reshape((rows, -1))
+        out.observed_slot = getattr(observations, f"slot_{type_name}").reshape((rows, -1))
+        return out
 
-    def _observe_launches(self) -> list:
+    def observe_commands(self) -> list:
         """MODEL.md step 10 (and the contact partners of the next step's step 3): one launch for both
         observer types when one kernel serves both, else one per type."""
-        s, W, cfg = self.s, self.num_worlds, self.cfg
+        W, cfg = self.num_worlds, self.cfg
         rows = {"prey": W * cfg.prey_capacity, "predator": W * cfg.predator_count}
         kernels = self.observe_kernels
         groups = [("prey", "predator")] if kernels["prey"] is kernels["predator"] else [("prey",), ("predator",)]
-        launches = []
+        commands = []
         for group in groups:
             kernel, block = kernels[group[0]], kernels[group[0]].block_dim
             assert kernel.whole_world == bool(self.grid.whole_world), "observation kernel built for other lists"
             first, second = group[0], group[1] if len(group) == 2 else None
             first_blocks = (rows[first] + block - 1) // block
             second_rows = rows[second] if second else 0
-            first_outputs = self._observation_outputs(first, kernel)
+            first_out = self._observed_rows(first, kernel)
             # A type alone passes its own outputs again for the (empty) second range.
-            second_outputs = self._observation_outputs(second, kernel) if second else first_outputs
-            launches.append(self._launch_blocks(
-                kernel, first_blocks + (second_rows + block - 1) // block, block,
-                [self.world, self.types, self.grid, s.alive, s.position, s.velocity, s.heading, TYPE_CODES[first],
-                 rows[first], first_blocks, second_rows],
-                first_outputs + second_outputs + [s.contact_partner, s.contact_offset]))
-        return launches
+            second_out = self._observed_rows(second, kernel) if second else first_out
+            commands.append(self.record(
+                kernel, (first_blocks + (second_rows + block - 1) // block, block),
+                [self.world, self.types, self.grid, self.state.agents, TYPE_CODES[first], rows[first], first_blocks,
+                 second_rows], [first_out, second_out, self.state.scratch], block_dim=block))
+        return commands
 
-    def _observe_program(self) -> list:
+    def observe_program(self) -> list:
         """Cell lists of the current state, then the observations of every agent."""
-        return self._build_grid_program() + self._observe_launches()
+        return self.build_grid_commands() + self.observe_commands()
 
-    def _spawn(self):
-        s = self.s
-        return self._launch(spawn.spawn_episode, (self.num_worlds, self.cfg.capacity), [self.world, s.episode],
-                            [s.alive, s.position, s.velocity, s.acceleration, s.heading, s.age,
-                             s.replication_age, s.starvation])
+    def reset_program(self) -> list:
+        """Every world's first episode: counters and agents (`spawn_episode`), then observations."""
+        s = self.state
+        return [self.record(spawn.spawn_episode, (self.num_worlds, self.cfg.capacity), [self.world],
+                            [s.worlds, s.outputs, s.agents])] + self.observe_program()
 
-    def _reset_program(self) -> list:
-        s, cfg = self.s, self.cfg
-        return [s.world_step.zero_, s.episode.zero_, s.episode_captures.zero_, s.episode_return.zero_,
-                s.episode_ended.zero_, functools.partial(s.prey_alive_count.fill_, cfg.prey_count),
-                functools.partial(s.predator_alive_count.fill_, cfg.predator_count),
-                self._spawn()] + self._observe_program()
-
-    def _step_program(self) -> list:
+    def step_program(self) -> list:
         """MODEL.md steps 1-10 for every world of the shard."""
-        s, g, world, types, cfg = self.s, self.grid, self.world, self.types, self.cfg
+        s, g, world, types, cfg = self.state, self.grid, self.world, self.types, self.cfg
         W, C, Pc, P = self.num_worlds, cfg.capacity, cfg.prey_capacity, cfg.predator_count
         # 1-4: motion (which also clears this step's rewards and flags); contact partners were found
         # by the last observation pass.
-        program = [self._launch(motion.integrate_motion, (W, C),
-                                [world, types, self.action_direction, s.prey_action, s.predator_action,
-                                 s.alive, s.contact_partner, s.contact_offset],
-                                [s.position, s.velocity, s.acceleration, s.heading, s.reward, s.terminated,
-                                 s.truncated, s.captured, s.captures])]
+        program = [self.record(motion.integrate_motion, (W, C), [world, types, self.action_direction, s.actions],
+                               [s.agents, s.scratch, s.outputs])]
         # 5-6: captures on the moved positions, searched in the start-of-step cell lists; starvation.
         row_threads = 1 if g.whole_world else capture.CAPTURE_ROW_THREADS
-        program.append(self._launch(capture.detect_captures, (W, P, row_threads),
-                                    [world, types, g, s.alive, s.position, row_threads], [s.captured]))
-        program.append(self._launch(capture.count_capture_sharers, (W, Pc),
-                                    [world, types, g, s.alive, s.position, s.captured],
-                                    [s.age, s.share_count, s.reward, s.captures]))
-        program.append(self._launch(capture.share_capture_rewards, (W, P),
-                                    [world, types, g, s.position, s.captured, s.share_count],
-                                    [s.alive, s.reward, s.starvation, s.terminated, s.predator_alive_count]))
-        program.append(self._launch(capture.respawn_captured_prey, (W, Pc),
-                                    [world, s.world_step, s.episode, s.captured],
-                                    [s.alive, s.position, s.velocity, s.acceleration, s.heading, s.age,
-                                     s.replication_age, s.starvation, s.terminated, s.prey_alive_count]))
+        program += [
+            self.record(capture.detect_captures, (W, P, row_threads), [world, types, g, s.agents, row_threads],
+                        [s.scratch]),
+            self.record(capture.count_capture_sharers, (W, Pc), [world, types, g], [s.agents, s.scratch, s.outputs]),
+            self.record(capture.share_capture_rewards, (W, P), [world, types, g, s.scratch],
+                        [s.agents, s.outputs, s.worlds]),
+            self.record(capture.respawn_captured_prey, (W, Pc), [world, s.scratch], [s.worlds, s.agents, s.outputs]),
+        ]
         # 7: reproduction.
         if cfg.prey_reproduction:
-            program.append(self._launch(population.reproduce_prey, W, [world, s.world_step, s.episode, s.captured],
-                                        [s.alive, s.position, s.velocity, s.acceleration, s.heading, s.age,
-                                         s.replication_age, s.starvation, s.prey_alive_count]))
+            program.append(self.record(population.reproduce_prey, W, [world, s.scratch], [s.agents, s.worlds]))
         # 8-9: rewards, episode end, auto-reset of ended worlds.
-        program.append(self._launch(population.collect_rewards, (W, C), [world, s.alive],
-                                    [s.reward, s.episode_return]))
-        program.append(self._launch(population.finish_world_step, W, [world, s.captures, s.episode_return],
-                                    [s.world_step, s.episode, s.episode_captures, s.prey_alive_count,
-                                     s.predator_alive_count, s.episode_ended, s.ended_length, s.ended_captures,
-                                     s.ended_return]))
-        program.append(self._launch(population.close_ended_episodes, (W, C), [world, s.episode, s.episode_ended],
-                                    [s.alive, s.position, s.velocity, s.acceleration, s.heading, s.age,
-                                     s.replication_age, s.starvation, s.truncated, s.episode_return]))
+        program += [
+            self.record(population.collect_rewards, (W, C), [world, s.agents], [s.outputs, s.worlds]),
+            self.record(population.finish_world_step, W, [world], [s.worlds, s.outputs]),
+            self.record(population.close_ended_episodes, (W, C), [world], [s.worlds, s.outputs, s.agents]),
+        ]
         # 10: observations of the final state, and the contact partners of the next step's motion.
-        return program + self._observe_program()
+        return program + self.observe_program()
+
+
+class Program:
+    """One launch program: a list of commands per shard, run on every shard by `run()`; with `graph`,
+    a GPU runs it as a CUDA graph captured on the first run."""
+
+    def __init__(self, shards: ShardSet, commands: list[list], graph: bool = False):
+        self.shards = shards
+        self.commands = commands  # commands[shard.index]
+        self.graph = graph and shards.cuda
+        self._graph = None
+
+    def run(self) -> None:
+        if not self.graph:
+            commands = self.commands
+            self.shards.run(lambda shard: [command() for command in commands[shard.index]])
+            return
+        self.shards.run(self._run_graph)
+
+    def _run_graph(self, shard: WorldShard) -> None:
+        stream = wp.get_stream(self.shards.device)
+        if self._graph is None:
+            for command in self.commands[shard.index]:  # loads every module before the capture
+                command()
+            with wp.ScopedCapture(device=self.shards.device, stream=stream) as capture_scope:
+                for command in self.commands[shard.index]:
+                    command()
+            self._graph = capture_scope.graph
+        else:
+            wp.capture_launch(self._graph, stream=stream)
+
+    def close(self) -> None:
+        self._graph = None
+
+
+class ShardSet:
+    """The shards of a batch of `state`'s worlds and the one owner of launch programs: it records the
+    env's programs (`programs`: "step", "observe", "reset") and any other that `record` is asked for,
+    and runs them on every shard (`run`)."""
+
+    def __init__(self, cfg: AquariumConfig, state: SimulationState, dims, types, action_direction, device,
+                 auto_reset: bool, threads: int):
+        self.device = device
+        self.cuda = wp.get_device(device).is_cuda
+        W = state.agents.alive.shape[0]
+        shards = 1 if self.cuda else max(1, min(threads, W // MIN_WORLDS_PER_THREAD))
+        bounds = [W * k // shards for k in range(shards + 1)]
+        # One observation kernel per observer type's slot counts; rows are staged by blocks of
+        # OBSERVATION_BLOCK threads on a GPU (tile kernels run one thread per block on the CPU).
+        block = OBSERVATION_BLOCK if self.cuda else 1
+        whole_world = tuple(dims) == (1, 1)  # the shards' cell lists are whole-world lists
+        observe_kernels = {t: observation.observation_kernel(getattr(cfg, t).predator_slots,
+                                                             getattr(cfg, t).prey_slots, block, whole_world)
+                           for t in ("prey", "predator")}
+        self.shards = tuple(WorldShard(cfg, state, k, w0, w1, dims, types, action_direction, observe_kernels, device,
+                                       auto_reset) for k, (w0, w1) in enumerate(zip(bounds[:-1], bounds[1:])))
+        self._pool = ThreadPoolExecutor(max_workers=shards) if shards > 1 else None
+        self.programs = {"step": self.record(WorldShard.step_program, graph=True),
+                         "observe": self.record(WorldShard.observe_program),
+                         "reset": self.record(WorldShard.reset_program)}
+        for name, program in self.programs.items():
+            for shard in self.shards:
+                shard.programs[name] = program.commands[shard.index]
+
+    def record(self, build: Callable[[WorldShard], list], graph: bool = False) -> Program:
+        """The program whose commands on each shard are `build(shard)` (made with `WorldShard.record`)."""
+        with WARP_SETUP_LOCK:  # recording a launch loads its module
+            return Program(self, [build(shard) for shard in self.shards], graph)
+
+    def run(self, work: Callable[[WorldShard], object]) -> None:
+        """Call `work(shard)` for every shard: in parallel threads on CPU (Warp's CPU kernels release
+        the GIL); on GPU on Warp's stream, ordered after the torch work that produced the inputs and
+        before the torch work that reads the outputs (torch's legacy default stream cannot be captured
+        into a graph)."""
+        if not self.cuda:
+            if self._pool is not None:
+                list(self._pool.map(work, self.shards))
+            else:
+                for shard in self.shards:
+                    work(shard)
+            return
+        torch_stream = wp.stream_from_torch(torch.cuda.current_stream(torch.device(self.device)))
+        stream = wp.get_stream(self.device)
+        stream.wait_stream(torch_stream)
+        with wp.ScopedStream(stream):
+            for shard in self.shards:
+                work(shard)
+        torch_stream.wait_stream(stream)
+
+    def close(self) -> None:
+        """Release the CUDA graph and the worker threads."""
+        self.programs["step"].close()
+        pool, self._pool = self._pool, None
+        if pool is not None:
+            pool.shutdown(wait=False)

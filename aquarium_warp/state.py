@@ -1,79 +1,88 @@
-"""Structure-of-arrays simulation state, allocated once per environment.
+"""The simulation state of a batch of worlds: the typed groups of `kernels/state.py`, allocated once.
 
-Warp arrays are the storage; `TorchViews` exposes the same memory as torch tensors (zero copy).
-Agent arrays are `[num_worlds, capacity]`: prey slots `[0, prey_capacity)`, then predator slots.
+`SimulationState` holds one instance of each group (`state.agents.position` is a Warp array
+`[W, C]`); kernels take the groups whole. `state.torch` exposes every array as a torch tensor under
+its field name (`state.torch.position`), sharing memory (zero copy). `state.rows(w0, w1)` views
+the groups of worlds `[w0, w1)`, which is what a `WorldShard` runs on.
 """
 
 from __future__ import annotations
 
 import warp as wp
 
-# name: (dtype, doc) -- the agent fields a user may read and set
-AGENT_FIELDS = {
-    "position": (wp.vec2, "[W, C, 2] float32, px, in [0, width) x [0, height)"),
-    "velocity": (wp.vec2, "[W, C, 2] float32, px/step"),
-    "acceleration": (wp.vec2, "[W, C, 2] float32, px/step^2, carried between steps (memory)"),
-    "heading": (wp.vec2, "[W, C, 2] float32, unit vector of the last non-zero velocity"),
-    "alive": (wp.bool, "[W, C] bool, the slot holds a live agent"),
-    "age": (wp.int32, "[W, C] int32, prey: steps since birth or last reproduction"),
-    "replication_age": (wp.int32, "[W, C] int32, prey: age at which it reproduces"),
-    "starvation": (wp.int32, "[W, C] int32, predators: steps since the last capture"),
-}
+from .kernels.state import Actions, Agents, Observations, Scratch, StepOutputs, WorldCounters
 
-# name: (dtype, doc) -- per-world counters
-WORLD_FIELDS = {
-    "world_step": (wp.int32, "[W] int32, steps taken in the current episode"),
-    "episode": (wp.int32, "[W] int32, index of the current episode (keys the random streams)"),
-    "episode_captures": (wp.int32, "[W] int32, captures so far in the current episode"),
-    "prey_alive_count": (wp.int32, "[W] int32, live prey"),
-    "predator_alive_count": (wp.int32, "[W] int32, live predators"),
-}
+# Attribute name -> group type, in the order kernels take them (inputs before outputs).
+GROUPS = {"actions": Actions, "agents": Agents, "worlds": WorldCounters, "scratch": Scratch,
+          "outputs": StepOutputs, "observations": Observations}
+
+
+def group_rows(group_type, group, w0: int, w1: int):
+    """A new `group_type` instance whose arrays view worlds `[w0, w1)` of `group`'s."""
+    view = group_type()
+    for name in group_type.vars:
+        setattr(view, name, getattr(group, name)[w0:w1])
+    return view
 
 
 class SimulationState:
-    """All arrays of a batch of worlds. Attributes are Warp arrays; `.torch` holds torch views."""
+    """The groups of a batch of worlds: `actions` (`Actions`), `agents` (`Agents`), `worlds`
+    (`WorldCounters`), `scratch` (`Scratch`), `outputs` (`StepOutputs`) and `observations`
+    (`Observations`); `torch` (a namespace of torch views of every field, by field name) on the
+    state that owns the memory."""
 
-    def __init__(self, num_worlds: int, capacity: int, prey_capacity: int, predator_count: int,
+    def __init__(self, actions, agents, worlds, scratch, outputs, observations):
+        self.actions = actions
+        self.agents = agents
+        self.worlds = worlds
+        self.scratch = scratch
+        self.outputs = outputs
+        self.observations = observations
+        self.torch: TorchViews | None = None
+
+    @classmethod
+    def allocate(cls, num_worlds: int, capacity: int, prey_capacity: int, predator_count: int,
                  prey_obs_size: int, predator_obs_size: int, prey_mask_size: int, predator_mask_size: int,
-                 device):
+                 device) -> SimulationState:
+        """Zeroed arrays for `num_worlds` worlds of `capacity` slots (the sizes of the field docs)."""
         W, C = num_worlds, capacity
-        zeros = lambda shape, dtype: wp.zeros(shape, dtype=dtype, device=device)  # noqa: E731
-        for name, (dtype, _) in AGENT_FIELDS.items():
-            setattr(self, name, zeros((W, C), dtype))
-        for name, (dtype, _) in WORLD_FIELDS.items():
-            setattr(self, name, zeros(W, dtype))
-        # Per-step outputs and scratch.
-        self.reward = zeros((W, C), float)  # this step's reward per slot
-        self.terminated = zeros((W, C), wp.bool)
-        self.truncated = zeros((W, C), wp.bool)
-        self.captured = zeros((W, C), wp.bool)  # prey captured this step
-        self.contact_partner = zeros((W, C), wp.int32)  # slot of the overlapping same-type agent, or -1
-        self.contact_offset = zeros((W, C), wp.vec2)  # torus displacement from that partner, px
-        self.share_count = zeros((W, C), wp.int32)  # predators sharing each capture
-        self.episode_return = zeros((W, C), float)  # reward summed over the episode, per slot
-        self.captures = zeros(W, wp.int32)  # captures this step
-        self.episode_ended = zeros(W, wp.bool)
-        self.ended_length = zeros(W, wp.int32)
-        self.ended_captures = zeros(W, wp.int32)
-        self.ended_return = zeros((W, 2), float)  # [:, 0] predators, [:, 1] prey, summed over agents
-        self.prey_action = zeros((W, prey_capacity), wp.int32)
-        self.predator_action = zeros((W, predator_count), wp.int32)
-        self.obs_prey = zeros((W, prey_capacity, prey_obs_size), float)
-        self.obs_predator = zeros((W, predator_count, predator_obs_size), float)
-        self.mask_prey = zeros((W, prey_capacity, prey_mask_size), wp.bool)
-        self.mask_predator = zeros((W, predator_count, predator_mask_size), wp.bool)
-        self.slot_prey = zeros((W, prey_capacity, prey_mask_size), wp.int32)  # observed agents' slots, -1 empty
-        self.slot_predator = zeros((W, predator_count, predator_mask_size), wp.int32)
-        self.torch = TorchViews(self)
+        shapes = {  # field -> shape; every other field is [W, C] or [W] as its dtype's ndim says
+            "ended_return": (W, 2),
+            "prey_action": (W, prey_capacity), "predator_action": (W, predator_count),
+            "obs_prey": (W, prey_capacity, prey_obs_size), "obs_predator": (W, predator_count, predator_obs_size),
+            "mask_prey": (W, prey_capacity, prey_mask_size), "mask_predator": (W, predator_count, predator_mask_size),
+            "slot_prey": (W, prey_capacity, prey_mask_size),
+            "slot_predator": (W, predator_count, predator_mask_size),
+        }
+        groups = {}
+        for group_name, group_type in GROUPS.items():
+            group = group_type()
+            for name, var in group_type.vars.items():
+                shape = shapes.get(name, (W, C) if var.type.ndim == 2 else W)
+                setattr(group, name, wp.zeros(shape, dtype=var.type.dtype, device=device))
+            groups[group_name] = group
+        state = cls(**groups)
+        state.torch = TorchViews(state)
+        return state
+
+    def arrays(self) -> dict[str, wp.array]:
+        """Field name -> Warp array, over every group."""
+        return {name: getattr(getattr(self, group), name) for group, group_type in GROUPS.items()
+                for name in group_type.vars}
+
+    def rows(self, w0: int, w1: int) -> SimulationState:
+        """The groups of worlds `[w0, w1)`: views of this state's arrays."""
+        return SimulationState(**{name: group_rows(group_type, getattr(self, name), w0, w1)
+                                  for name, group_type in GROUPS.items()})
 
 
 class TorchViews:
-    """Zero-copy torch views of a `SimulationState`, made once (each conversion costs host time)."""
+    """Zero-copy torch views of every array of a `SimulationState`, by field name; made once (each
+    conversion costs host time)."""
 
     def __init__(self, state: SimulationState):
-        for name, value in vars(state).items():
-            if isinstance(value, wp.array):
-                setattr(self, name, wp.to_torch(value))
+        for name, array in state.arrays().items():
+            setattr(self, name, wp.to_torch(array))
 
 
 def estimate_bytes(cfg, num_worlds: int, cells_per_world: int) -> int:

@@ -15,7 +15,9 @@ Entry points:
 - the original's `raw_env` and `aquarium_v0.parallel_env` (its parallel -> AEC -> parallel round trip).
 
 A breakdown of one parallel env-step follows: time inside `BatchedAquarium.step` (timed by wrapping it),
-drawing the random actions, and the rest (the wrapper's own Python work).
+drawing the random actions, and the rest (the wrapper's own Python work). Last, the time of a parallel
+`reset()`, seeded (`reset(seed=k)`, a new seed each time) and unseeded (`reset()`, whose simulation
+seed comes from the sequence of the last seed): the target is a seeded reset under 0.1 ms.
 
     python benchmarks/bench_pettingzoo.py [--seconds 5] [--repeats 3] [--warmup 2] [--no-original] [--out PATH]
 
@@ -42,6 +44,7 @@ from aquarium_warp.bench import git_info, machine_info  # noqa: E402
 
 RESULTS = HERE / "results"
 TARGET_SPEEDUP = 20.0
+TARGET_SEEDED_RESET_US = 100.0
 
 
 class _CountingStep:
@@ -168,7 +171,7 @@ def breakdown(steps: int = 20000) -> dict:
     # The bare simulator step, for reference (1 world, no validation, fixed actions).
     aq = env.aquarium
     aq.step = timer.inner
-    bare_actions = env._act_tensors
+    bare_actions = {t: a.clone() for t, a in aq.actions.items()}  # the last actions, as host tensors
     t2 = time.perf_counter()
     for i in range(steps):
         if i % (aq.config.max_steps - 1) == 0:  # i = 0 included: the loop starts from a fresh reset
@@ -181,6 +184,25 @@ def breakdown(steps: int = 20000) -> dict:
            "actions_us": actions * us, "bare_batched_step_us": bare * us}
     out["wrapper_us"] = out["total_us"] - out["batched_step_us"] - out["actions_us"]
     return out
+
+
+def reset_times(resets: int = 5000) -> dict:
+    """Microseconds per parallel `reset()`: seeded with a new seed each time, and unseeded. Both start
+    the episode of a new simulation seed (the unseeded one draws it from the last seed's sequence)."""
+    env = aquarium_v1.parallel_env(seed=0)
+    for k in range(200):  # warm-up
+        env.reset(seed=k)
+        env.reset()
+    t0 = time.perf_counter()
+    for k in range(resets):
+        env.reset(seed=k)
+    seeded = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    for _ in range(resets):
+        env.reset()
+    unseeded = time.perf_counter() - t0
+    env.close()
+    return {"resets": resets, "seeded_us": seeded / resets * 1e6, "unseeded_us": unseeded / resets * 1e6}
 
 
 def _loadavg():
@@ -216,6 +238,7 @@ def main(argv=None) -> int:
     load_before = _loadavg()
     ours = {w: measure_ours(w, args.seconds, args.repeats, args.warmup) for w in ("parallel", "aec")}
     parts = breakdown()
+    resets = reset_times()
     original, original_error = {}, None
     if not args.no_original:
         from original_aquarium import OriginalRunError, OriginalSetupError, measure_original
@@ -243,11 +266,14 @@ def main(argv=None) -> int:
     print(f"\nper parallel env-step ({parts['steps']} steps): {parts['total_us']:.1f} us = BatchedAquarium.step "
           f"{parts['batched_step_us']:.1f} us + drawing actions {parts['actions_us']:.1f} us + wrapper "
           f"{parts['wrapper_us']:.1f} us  (bare BatchedAquarium.step loop: {parts['bare_batched_step_us']:.1f} us)")
-    checks = {}
+    print(f"parallel reset(): seeded {resets['seeded_us']:.1f} us, unseeded {resets['unseeded_us']:.1f} us "
+          f"(mean of {resets['resets']}; target for seeded: < {TARGET_SEEDED_RESET_US:g} us)")
+    checks = {"seeded_reset_us": resets["seeded_us"], "target_seeded_reset_us": TARGET_SEEDED_RESET_US,
+              "seeded_reset_target_met": resets["seeded_us"] < TARGET_SEEDED_RESET_US}
     if base:
-        checks = {"speedup_parallel_vs_original_raw": ours["parallel"]["env_steps_per_s"] / base,
-                  "speedup_aec_vs_original_raw": ours["aec"]["env_steps_per_s"] / base,
-                  "target_speedup": TARGET_SPEEDUP}
+        checks.update({"speedup_parallel_vs_original_raw": ours["parallel"]["env_steps_per_s"] / base,
+                       "speedup_aec_vs_original_raw": ours["aec"]["env_steps_per_s"] / base,
+                       "target_speedup": TARGET_SPEEDUP})
         checks["target_met"] = checks["speedup_parallel_vs_original_raw"] >= TARGET_SPEEDUP
         print(f"parallel_env: {checks['speedup_parallel_vs_original_raw']:.1f}x the original raw_env "
               f"(target {TARGET_SPEEDUP:g}x: {'met' if checks['target_met'] else 'MISSED'})")
@@ -265,7 +291,7 @@ def main(argv=None) -> int:
                    "aec_env_step": "one underlying ParallelEnv step (a full cycle of the live agents)"},
         "machine": machine_info("cpu"), "loadavg_before": load_before, "loadavg_after": load_after,
         "versions": _versions(),
-        "ours": ours, "breakdown_us_per_parallel_step": parts, "original": original or None,
+        "ours": ours, "breakdown_us_per_parallel_step": parts, "reset_us": resets, "original": original or None,
         "original_error": original_error, "checks": checks,
     }
     out = Path(args.out)

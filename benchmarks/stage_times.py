@@ -2,7 +2,7 @@
 
     python benchmarks/stage_times.py --device cuda:0 --worlds 65536 [--agents 17]
 
-Prints one line per command of `WorldShard._step_program` (median over `--repeats` steps) and the
+Prints one line per command of `WorldShard.step_program` (median over `--repeats` steps) and the
 whole step replayed as a graph. A profiling aid for the step's cost breakdown.
 """
 
@@ -61,7 +61,7 @@ def main(argv=None) -> int:
     agents = args.worlds * cfg.capacity
     total = 0.0
     print(f"{args.worlds} worlds x {cfg.capacity} agents on {env.device}, "
-          f"{env._dims[0]} x {env._dims[1]} cells per world")
+          f"{env.grid_dims[0]} x {env.grid_dims[1]} cells per world")
     for command, samples in zip(program, times):
         ms = statistics.median(samples)
         total += ms

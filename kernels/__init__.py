@@ -1,12 +1,14 @@
 """Warp kernels of aquarium-warp, one module per stage of MODEL.md.
 
+- `state`: the typed groups of the simulation state (Warp structs of arrays)
 - `common`: parameter structs, torus geometry, counter-based random streams
-- `grid`: cell lists over (world, cell) and ring-by-ring neighbour search
-- `spawn`: initial state, respawn and newborn agents
+- `grid`: cell lists over (world, cell) and the neighbour walks (fixed radius, widening)
+- `spawn`: reset, initial state, respawn and newborn agents
 - `motion`: steps 1-4 (steering, acceleration with memory, contact, clamp, wrap)
-- `capture`: step 5 (captures, reward sharing, respawn/removal)
-- `population`: steps 6-9 (starvation, reproduction, rewards, episode end)
+- `capture`: steps 5-6 (captures, reward sharing, starvation, respawn/removal)
+- `population`: steps 7-9 (reproduction, rewards, episode end)
 - `observation`: step 10 (field-of-view observations)
 - `heuristics`: the paper's baseline policies (Random, TurnAway, NaivChase)
+- `metrics`: swarm metrics (polarization, cohesion, nearest neighbours, groups)
 - `render`: the rasteriser behind `aquarium_warp.render`
 """

@@ -1,4 +1,4 @@
-"""Spatial hash grid over (world, cell), rebuilt every step; and ring-by-ring neighbour search.
+"""Spatial hash grid over (world, cell), rebuilt every step; and the walks of neighbour searches.
 
 Each world is tiled by `dims_x x dims_y` cells whose size divides the world exactly, so cell indices
 wrap modulo the dims and the grid is a torus like the world. Live agents are listed by the key
@@ -21,17 +21,26 @@ by slot (`order_cells`, each entry counting the lower slots of its cell): no sor
 slots lie outside every cell: the count build lists none, the per-world builds list them after their
 world's live agents.
 
-Queries visit the cells around the query cell by rings: ring 0 is the cell itself, ring r the 8r
-cells at Chebyshev cell distance r (`ring_offset`, side by side); a fixed radius visits the whole
-square of rings at once, row by row (`square_extent`, `row_run_entries`). Offsets are clipped to
-[-lo, hi] per axis (`offset_cell`), so on a small torus no cell is visited twice. After rings 0..r
-every agent closer than `r * reach` (reach = the smaller cell side, less a rounding margin) has been
-seen, which bounds fixed-radius queries and lets k-nearest queries stop early.
+Searches walk the cells around a point by rings: ring 0 is the cell itself, ring r the 8r cells at
+Chebyshev cell distance r. Offsets are clipped to [-lo, hi] per axis, so on a small torus no cell is
+visited twice, and after rings 0..r every agent closer than `r * reach` (reach = the smaller cell
+side, less a rounding margin) has been seen (`seen_radius`), which bounds fixed-radius searches and
+lets nearest-agent searches stop early. One iterator, `CellWalk`, serves the two walk styles:
+- row runs: a row of the square, or a row or column of a ring, is read as a run of cells
+  (`walk_segment`, `row_run_entries`), cells wholly beyond a distance bound skipped (`clip_run`).
+  `square_walk` visits the square that holds a fixed radius (captures, group links);
+  `widening_walk` a first square, then one ring per `next_ring`, under a bound the search lowers as
+  it goes (observations). A search loops `while next_run(grid, walk)` and, inside, over the run's
+  entries (`run_length`, `run_entry`, `listed_slot`).
+- cells: `ring_walk` visits one cell at a time, ring by ring (`next_cell`, `next_ring`),
+  for searches of the nearest agent anywhere in the world (heuristic policies, nearest-neighbour
+  metrics), which mostly end within rings 0 and 1: there the row-run walk cost them 20% on the CPU.
 """
 
 import warp as wp
 
 from .common import WorldParams
+from .state import Agents
 
 wp.set_module_options({"enable_backward": False})
 
@@ -106,13 +115,6 @@ def wrap_cell(c: int, dims: int) -> int:
 def row_base(grid: CellLists, world: int, center: wp.vec2i, oy: int) -> int:
     """Global index of cell (0, center_y + oy) of `world`."""
     return world * grid.cells_per_world + wrap_cell(center[1] + oy, grid.dims_y) * grid.dims_x
-
-
-@wp.func
-def square_extent(grid: CellLists, rings: int) -> wp.vec4i:
-    """Offsets (x_first, x_last, y_first, y_last) of the square of rings 0..rings, clipped to the torus."""
-    return wp.vec4i(-wp.min(rings, grid.lo_x), wp.min(rings, grid.hi_x), -wp.min(rings, grid.lo_y),
-                    wp.min(rings, grid.hi_y))
 
 
 @wp.func
@@ -217,10 +219,12 @@ def clip_run(grid: CellLists, run: wp.vec3i, inside_x: float, inside_y: float, b
     oy = run[0]
     if oy < -grid.lo_y or oy > grid.hi_y:
         return wp.vec3i(oy, 1, 0)
-    gap_y = cell_gap(oy, inside_y, grid.cell_height, grid.dims_y)
-    gap_y2 = gap_y * gap_y
     x_first = wp.max(run[1], -grid.lo_x)
     x_last = wp.min(run[2], grid.hi_x)
+    if bound2 == wp.inf:  # no distance bound (fixed squares, unbounded searches): no gaps to compute
+        return wp.vec3i(oy, x_first, x_last)
+    gap_y = cell_gap(oy, inside_y, grid.cell_height, grid.dims_y)
+    gap_y2 = gap_y * gap_y
     # Gaps grow away from offset 0, so the cells in reach form one interval.
     while x_first <= x_last and sq(cell_gap(x_first, inside_x, grid.cell_width, grid.dims_x)) + gap_y2 > bound2:
         x_first += 1
@@ -273,51 +277,159 @@ def rings_for_radius(grid: CellLists, radius: float) -> int:
     return wp.min(int(radius / grid.reach + 1.0e-3) + 1, last)
 
 
+@wp.struct
+class CellWalk:
+    """A walk over the cells around a point (see the module docstring): a row run of cells at a time
+    (made by `square_walk` or `widening_walk`, advanced by `next_run`) or one cell at a time (made by
+    `ring_walk`, advanced by `next_cell`); `next_ring` starts the next ring."""
+
+    world: int  # the world's index in the lists
+    base: int  # flat slot index of the world's slot 0: an entry's slot is listed_slot(grid, entry, base)
+    center: wp.vec2i  # the point's cell
+    inside: wp.vec2  # px: where the point lies inside its cell
+    bound2: float  # px^2: cells wholly farther than sqrt(bound2) from the point are skipped
+    first_ring: int  # the first step visits the square of rings 0..first_ring; each later step one ring
+    ring: int  # the current step's ring
+    segment: int  # the current step's next row run (`walk_segment`)
+    segments: int  # row runs of the current step
+    segment_stride: int  # row runs taken: segment, segment + segment_stride, ...
+    runs: wp.vec4i  # entries of the current row run (`row_run_entries`)
+    side: int  # a cell walk's next cell: the u-th of side `side` of the current ring (`ring_offset`)
+    u: int
+    cell: int  # global index of the cell `next_cell` went to
+
+
+@wp.func(inline=True)
+def cell_walk(grid: CellLists, w: int, capacity: int, p: wp.vec2, first_ring: int, bound2: float, first_segment: int,
+              segment_stride: int) -> CellWalk:
+    """A walk whose first step is the square of rings 0..first_ring, of which a run walk takes the row
+    runs first_segment, first_segment + segment_stride, ..."""
+    walk = CellWalk()
+    walk.world = w
+    walk.base = w * capacity
+    walk.center = cell_coords(grid, p)
+    walk.inside = wp.vec2(p[0] - float(walk.center[0]) * grid.cell_width,
+                          p[1] - float(walk.center[1]) * grid.cell_height)
+    walk.bound2 = bound2
+    walk.first_ring = first_ring
+    walk.ring = first_ring
+    walk.segment = first_segment
+    walk.segments = walk_segments(first_ring, first_ring)
+    walk.segment_stride = segment_stride
+    walk.runs = wp.vec4i(0, 0, 0, 0)
+    walk.side = 0
+    walk.u = 0
+    return walk
+
+
+@wp.func(inline=True)
+def square_walk(grid: CellLists, w: int, capacity: int, p: wp.vec2, radius: float, row: int,
+                row_stride: int) -> CellWalk:
+    """Fixed-radius walk: the square of cells that holds every agent of world `w` within `radius` of
+    `p` (a world of `capacity` slots), row by row; rows `row`, `row + row_stride`, ... of the square
+    only (a search split over `row_stride` threads), all rows with (0, 1)."""
+    return cell_walk(grid, w, capacity, p, rings_for_radius(grid, radius), wp.inf, row, row_stride)
+
+
+@wp.func(inline=True)
+def widening_walk(grid: CellLists, w: int, capacity: int, p: wp.vec2, first_ring: int, bound2: float) -> CellWalk:
+    """Widening walk: first the square of rings 0..first_ring around `p`'s cell, then, after each
+    `next_ring`, the next ring; cells wholly farther than sqrt(`walk.bound2`) are skipped (a search
+    may lower the bound as it goes). After the step of ring r every agent within
+    `seen_radius(grid, r)` has been visited."""
+    return cell_walk(grid, w, capacity, p, first_ring, bound2, 0, 1)
+
+
+@wp.func(inline=True)
+def next_run(grid: CellLists, walk: wp.ref[CellWalk]) -> bool:
+    """Move `walk` to the next row run of its current step, whose entries are `run_entry(walk.runs, n)`
+    for n < `run_length(walk.runs)`; False once the step is done. (A search loops over a run's entries
+    itself: an iterator over single entries cost the observation pass 40% on the CPU.)"""
+    if walk.segment >= walk.segments:
+        return False
+    if grid.whole_world != 0:  # the world is one cell: one run, its slots (no cell arithmetic)
+        walk.runs = wp.vec4i(grid.cell_start[walk.world], grid.cell_end[walk.world], 0, 0)
+    else:
+        run = clip_run(grid, walk_segment(walk.ring, walk.first_ring, walk.segment), walk.inside[0], walk.inside[1],
+                       walk.bound2)
+        walk.runs = row_run_entries(grid, walk.world, walk.center, run[0], run[1], run[2])
+    walk.segment += walk.segment_stride
+    return True
+
+
+@wp.func
+def seen_radius(grid: CellLists, ring: int) -> float:
+    """px within which a walk has visited every agent once it has visited rings 0..ring; +inf once it
+    has visited the whole world."""
+    if ring >= last_ring(grid):
+        return wp.inf
+    return searched_radius(grid, ring)
+
+
+@wp.func(inline=True)
+def next_ring(walk: wp.ref[CellWalk]):
+    """Make the ring after the current step's the walk's next step."""
+    walk.ring += 1
+    walk.segment = 0
+    walk.segments = walk_segments(walk.ring, walk.first_ring)
+    walk.segment_stride = 1
+    walk.side = 0
+    walk.u = 0
+
+
+@wp.func(inline=True)
+def ring_walk(grid: CellLists, w: int, capacity: int, p: wp.vec2) -> CellWalk:
+    """Cell walk: the cells around `p` in world `w` (of `capacity` slots) one at a time (`next_cell`),
+    ring by ring (`next_ring`) from `p`'s cell."""
+    return cell_walk(grid, w, capacity, p, 0, wp.inf, 0, 1)
+
+
+@wp.func(inline=True)
+def next_cell(grid: CellLists, walk: wp.ref[CellWalk]) -> bool:
+    """Move `walk` to the next cell of its current ring (`walk.cell`), skipping offsets that name a cell
+    this torus names otherwise; False once the ring is done."""
+    while walk.side < ring_sides(walk.ring):
+        c = offset_cell(grid, walk.world, walk.center, ring_offset(walk.ring, walk.side, walk.u))
+        walk.u += 1
+        if walk.u >= ring_side_length(walk.ring):
+            walk.u = 0
+            walk.side += 1
+        if c >= 0:
+            walk.cell = c
+            return True
+    return False
+
+
+
 @wp.kernel
-def compute_cell_keys(
-    world: WorldParams,
-    grid: CellLists,
-    position: wp.array2d(dtype=wp.vec2),
-    alive: wp.array2d(dtype=wp.bool),
-    key: wp.array(dtype=int),
-    cell_count: wp.array(dtype=int),
-):
+def compute_cell_keys(world: WorldParams, agents: Agents, grid: CellLists):
     """Count build, step 1: each live agent's key, and its arrival order among its cell's agents
     (`cell_count` zero beforehand counts them; the order varies from run to run, `order_cells`
     replaces it by slot order)."""
     w, i = wp.tid()
     n = grid.position.shape[0]
     k = w * world.capacity + i
-    if alive[w, i]:
-        cell = w * grid.cells_per_world + cell_in_world(grid, position[w, i])
-        key[k] = cell
-        key[n + k] = wp.atomic_add(cell_count, cell, 1)
+    if agents.alive[w, i]:
+        cell = w * grid.cells_per_world + cell_in_world(grid, agents.position[w, i])
+        grid.key[k] = cell
+        grid.key[n + k] = wp.atomic_add(grid.cell_count, cell, 1)
     else:
-        key[k] = -1
+        grid.key[k] = -1
 
 
 @wp.kernel
-def drop_into_cells(
-    grid: CellLists,
-    agent: wp.array(dtype=int),
-):
+def drop_into_cells(grid: CellLists):
     """Count build, step 3 (after the prefix sum of the counts into the cell ends): each live agent
     takes the place of its arrival order in its cell's range of the scratch list."""
     k = wp.tid()
     n = grid.position.shape[0]
     cell = grid.key[k]
     if cell >= 0:
-        agent[n + grid.cell_start[cell] + grid.key[n + k]] = k
+        grid.agent[n + grid.cell_start[cell] + grid.key[n + k]] = k
 
 
 @wp.kernel
-def order_cells(
-    world: WorldParams,
-    grid: CellLists,
-    position: wp.array2d(dtype=wp.vec2),
-    agent: wp.array(dtype=int),
-    sorted_position: wp.array(dtype=wp.vec2),
-):
+def order_cells(world: WorldParams, agents: Agents, grid: CellLists):
     """Count build, step 4: the agent at scratch entry k moves to its cell's start plus the number of
     lower slots in its cell (O(agents of the cell) per thread, like the searches that read the cell),
     and its position is gathered there."""
@@ -325,17 +437,17 @@ def order_cells(
     n = grid.position.shape[0]
     if k >= grid.cell_end[grid.cell_end.shape[0] - 1]:  # past the last live agent
         return
-    idx = agent[n + k]
+    idx = grid.agent[n + k]
     cell = grid.key[idx]
     first = grid.cell_start[cell]
     at = first
     for q in range(first, grid.cell_end[cell]):
-        if agent[n + q] < idx:
+        if grid.agent[n + q] < idx:
             at += 1
     w = idx // world.capacity
     i = idx - w * world.capacity
-    agent[at] = idx
-    sorted_position[at] = position[w, i]
+    grid.agent[at] = idx
+    grid.position[at] = agents.position[w, i]
 
 
 @wp.func
@@ -348,16 +460,7 @@ def set_empty_cells(cell_start: wp.array(dtype=int), cell_end: wp.array(dtype=in
 
 
 @wp.kernel
-def rank_into_cells_per_world(
-    world: WorldParams,
-    grid: CellLists,
-    position: wp.array2d(dtype=wp.vec2),
-    alive: wp.array2d(dtype=wp.bool),
-    cell_start: wp.array(dtype=int),
-    cell_end: wp.array(dtype=int),
-    agent: wp.array(dtype=int),
-    sorted_position: wp.array(dtype=wp.vec2),
-):
+def rank_into_cells_per_world(world: WorldParams, agents: Agents, grid: CellLists):
     """The cell lists of small worlds on a GPU, one thread per slot: a slot's entry is its rank by
     (cell, slot) among its world's live agents, counted over the world's slots (O(capacity) per
     thread, no sort). Live agents get the count build's order; dead slots follow them, as in
@@ -369,16 +472,16 @@ def rank_into_cells_per_world(
     first_cell = w * grid.cells_per_world
     k = first + i
     at = int(0)
-    if alive[w, i]:
-        cell = cell_in_world(grid, position[w, i])
+    if agents.alive[w, i]:
+        cell = cell_in_world(grid, agents.position[w, i])
         before = int(0)  # live agents in lower cells
         ahead = int(0)  # live agents in the same cell with a lower slot
         inside = int(0)
         below = int(-1)  # the highest occupied cell below this one
         above = bool(False)  # any occupied cell above this one
         for j in range(capacity):
-            if alive[w, j]:
-                other = cell_in_world(grid, position[w, j])
+            if agents.alive[w, j]:
+                other = cell_in_world(grid, agents.position[w, j])
                 if other < cell:
                     before += 1
                     below = wp.max(below, other)
@@ -390,39 +493,29 @@ def rank_into_cells_per_world(
                     above = True
         at = first + before + ahead
         if ahead == 0:
-            set_empty_cells(cell_start, cell_end, first_cell + below + 1, first_cell + cell, first + before)
-            cell_start[first_cell + cell] = first + before
-            cell_end[first_cell + cell] = first + before + inside
+            set_empty_cells(grid.cell_start, grid.cell_end, first_cell + below + 1, first_cell + cell, first + before)
+            grid.cell_start[first_cell + cell] = first + before
+            grid.cell_end[first_cell + cell] = first + before + inside
             if not above:
-                set_empty_cells(cell_start, cell_end, first_cell + cell + 1, first_cell + grid.cells_per_world,
-                                first + before + inside)
+                set_empty_cells(grid.cell_start, grid.cell_end, first_cell + cell + 1,
+                                first_cell + grid.cells_per_world, first + before + inside)
     else:
         live = int(0)
         dead_ahead = int(0)
         for j in range(capacity):
-            if alive[w, j]:
+            if agents.alive[w, j]:
                 live += 1
             elif j < i:
                 dead_ahead += 1
         at = first + live + dead_ahead
         if live == 0 and i == 0:  # no live agent: every cell is empty
-            set_empty_cells(cell_start, cell_end, first_cell, first_cell + grid.cells_per_world, first)
-    agent[at] = k
-    sorted_position[at] = position[w, i]
+            set_empty_cells(grid.cell_start, grid.cell_end, first_cell, first_cell + grid.cells_per_world, first)
+    grid.agent[at] = k
+    grid.position[at] = agents.position[w, i]
 
 
 @wp.kernel
-def sort_into_cells_per_world(
-    world: WorldParams,
-    grid: CellLists,
-    position: wp.array2d(dtype=wp.vec2),
-    alive: wp.array2d(dtype=wp.bool),
-    key: wp.array(dtype=int),
-    cell_start: wp.array(dtype=int),
-    cell_end: wp.array(dtype=int),
-    agent: wp.array(dtype=int),
-    sorted_position: wp.array(dtype=wp.vec2),
-):
+def sort_into_cells_per_world(world: WorldParams, agents: Agents, grid: CellLists):
     """The cell lists of one world by a counting sort in one thread (the CPU path: Warp runs CPU
     kernels on one thread anyway). Stable, so live agents get the GPU builds' order; a world's dead
     slots follow its live ones in its own block of entries (no query reads them)."""
@@ -430,27 +523,27 @@ def sort_into_cells_per_world(
     capacity = world.capacity
     first_cell = w * grid.cells_per_world
     for c in range(grid.cells_per_world):
-        cell_end[first_cell + c] = 0
+        grid.cell_end[first_cell + c] = 0
     for i in range(capacity):
         k = w * capacity + i
-        key[k] = -1
-        if alive[w, i]:
-            key[k] = first_cell + cell_in_world(grid, position[w, i])
-            cell_end[key[k]] = cell_end[key[k]] + 1
+        grid.key[k] = -1
+        if agents.alive[w, i]:
+            grid.key[k] = first_cell + cell_in_world(grid, agents.position[w, i])
+            grid.cell_end[grid.key[k]] = grid.cell_end[grid.key[k]] + 1
     total = w * capacity
     for c in range(grid.cells_per_world):
-        count = cell_end[first_cell + c]
-        cell_start[first_cell + c] = total
-        cell_end[first_cell + c] = total  # becomes the write cursor, and ends as the cell's end
+        count = grid.cell_end[first_cell + c]
+        grid.cell_start[first_cell + c] = total
+        grid.cell_end[first_cell + c] = total  # becomes the write cursor, and ends as the cell's end
         total += count
     dead = total
     for i in range(capacity):
         k = w * capacity + i
         at = dead
-        if key[k] >= 0:
-            at = cell_end[key[k]]
-            cell_end[key[k]] = at + 1
+        if grid.key[k] >= 0:
+            at = grid.cell_end[grid.key[k]]
+            grid.cell_end[grid.key[k]] = at + 1
         else:
             dead += 1
-        agent[at] = k
-        sorted_position[at] = position[w, i]
+        grid.agent[at] = k
+        grid.position[at] = agents.position[w, i]

@@ -15,8 +15,8 @@ import warp as wp
 
 from .common import (PURPOSE_POLICY, AgentType, WorldParams, in_view, mix32, random_stream, slot_type,
                      torus_displacement)
-from .grid import (CellLists, cell_coords, last_ring, listed_slot, offset_cell, ring_offset, ring_side_length,
-                   ring_sides, searched_radius)
+from .grid import CellLists, listed_slot, next_cell, next_ring, ring_walk, seen_radius
+from .state import Agents, WorldCounters
 
 wp.set_module_options({"enable_backward": False})
 
@@ -67,35 +67,33 @@ def heuristic_policy(
     types: wp.array(dtype=AgentType),
     grid: CellLists,
     action_direction: wp.array(dtype=wp.vec2),
-    alive: wp.array2d(dtype=wp.bool),
-    position: wp.array2d(dtype=wp.vec2),
-    heading: wp.array2d(dtype=wp.vec2),
-    world_step: wp.array(dtype=wp.int32),
-    episode: wp.array(dtype=wp.int32),
-    seed: wp.uint32,
+    agents: Agents,
+    counters: WorldCounters,
+    seed: wp.array(dtype=wp.uint32),
     policy: int,
     first_slot: int,
     action: wp.array2d(dtype=wp.int32),
 ):
     """Actions of agent slots `[first_slot, first_slot + action.shape[1])` (all of one type) in every
-    world of the batch: `action[w, a]` for slot `first_slot + a`; dead slots get 0.
-    `grid` must hold the cell lists of `position` (the observation pass builds them)."""
+    world of the batch: `action[w, a]` for slot `first_slot + a`; dead slots get 0. `seed[w]` keys
+    world w's draws (the env's `counters.seed`, or a policy's own). `grid` must hold the cell lists
+    of `agents.position` (the observation pass builds them)."""
     w, a = wp.tid()
     i = first_slot + a
-    if not alive[w, i]:
+    if not agents.alive[w, i]:
         action[w, a] = 0
         return
-    n = world.action_count
-    rng = random_stream(seed, world.world_offset + w, episode[w], world_step[w], i, PURPOSE_POLICY)
+    action_count = world.action_count
+    rng = random_stream(seed[w], world.world_offset + w, counters.episode[w], counters.world_step[w], i, PURPOSE_POLICY)
     if policy == POLICY_RANDOM:
-        action[w, a] = wp.randi(rng, 0, n)
+        action[w, a] = wp.randi(rng, 0, action_count)
         return
 
     t = slot_type(world, i)
     target_type = 1 - t  # the other type: predators for TurnAway prey, prey for NaivChase predators
     p = types[t]
-    pos = position[w, i]
-    h = heading[w, i]
+    pos = agents.position[w, i]
+    h = agents.heading[w, i]
     v = p.view_distance
     v2 = v * v
     all_visible = policy == POLICY_CHASE_CONFUSED  # every visible target is a candidate
@@ -112,45 +110,39 @@ def heuristic_policy(
     any_slot = int(-1)
     any_disp = wp.vec2(0.0, 0.0)
 
-    center = cell_coords(grid, pos)
-    base = w * world.capacity
-    last = last_ring(grid)
-    r = int(0)
+    # Ring by ring from the agent's own cell (every choice below is independent of the visiting order).
+    walk = ring_walk(grid, w, world.capacity, pos)
     searching = bool(True)
     while searching:
-        for side in range(ring_sides(r)):
-            for u in range(ring_side_length(r)):
-                c = offset_cell(grid, w, center, ring_offset(r, side, u))
-                if c >= 0:
-                    for k2 in range(grid.cell_start[c], grid.cell_end[c]):
-                        j = listed_slot(grid, k2, base)
-                        if j >= 0 and slot_type(world, j) == target_type:
-                            d = torus_displacement(world, pos, grid.position[k2])
-                            d2 = wp.dot(d, d)
-                            if precedes(d2, j, any_d2, any_slot):
-                                any_d2 = d2
-                                any_slot = j
-                                any_disp = d
-                            visible = in_view(world, h, d, d2, v2, p.cos_half_fov)  # the observation's rule
-                            if visible:
-                                visible_count += 1
-                                if precedes(d2, j, near_d2, near_slot):
-                                    near_d2 = d2
-                                    near_slot = j
-                                    near_disp = d
-                                # Each candidate's priority is a bijective hash of its slot under the
-                                # agent's stream: distinct, and the lowest is a uniform pick that does
-                                # not depend on the order in which cells are visited.
-                                key = mix32(rng ^ wp.uint32(j))
-                                if pick_slot < 0 or key < pick_key:
-                                    pick_key = key
-                                    pick_slot = j
-                                    pick_disp = d
-        # Every agent within `reach` of the observer has been seen after rings 0..r.
-        if r >= last:
+        while next_cell(grid, walk):
+            for k2 in range(grid.cell_start[walk.cell], grid.cell_end[walk.cell]):
+                j = listed_slot(grid, k2, walk.base)
+                if j >= 0 and slot_type(world, j) == target_type:
+                    d = torus_displacement(world, pos, grid.position[k2])
+                    d2 = wp.dot(d, d)
+                    if precedes(d2, j, any_d2, any_slot):
+                        any_d2 = d2
+                        any_slot = j
+                        any_disp = d
+                    visible = in_view(world, h, d, d2, v2, p.cos_half_fov)  # the observation's rule
+                    if visible:
+                        visible_count += 1
+                        if precedes(d2, j, near_d2, near_slot):
+                            near_d2 = d2
+                            near_slot = j
+                            near_disp = d
+                        # Each candidate's priority is a bijective hash of its slot under the agent's
+                        # stream: distinct, and the lowest is a uniform pick that does not depend on the
+                        # order in which cells are visited.
+                        key = mix32(rng ^ wp.uint32(j))
+                        if pick_slot < 0 or key < pick_key:
+                            pick_key = key
+                            pick_slot = j
+                            pick_disp = d
+        reach = seen_radius(grid, walk.ring)  # every agent closer than this has been seen
+        if reach == wp.inf:
             searching = False
         else:
-            reach = searched_radius(grid, r)
             reach2 = reach * reach
             visible_done = reach > v or (not all_visible and near_slot >= 0 and near_d2 < reach2)
             if visible_done:
@@ -158,7 +150,7 @@ def heuristic_policy(
                     searching = False
                 elif any_slot >= 0 and any_d2 < reach2:
                     searching = False
-        r += 1
+        next_ring(walk)
 
     direction = wp.vec2(0.0, 0.0)  # zero: keep the heading
     if policy == POLICY_TURN_AWAY:
@@ -171,15 +163,5 @@ def heuristic_policy(
             direction = near_disp
     elif any_slot >= 0:
         direction = any_disp
-    action[w, a] = nearest_action(action_direction, n, direction, h)
+    action[w, a] = nearest_action(action_direction, action_count, direction, h)
 
-
-def launch_policy(world: WorldParams, types, grid: CellLists, action_direction, alive, position, heading,
-                  world_step, episode, seed: int, policy: int, first_slot: int, action, device, record=False):
-    """Launch `heuristic_policy` over `action`'s `[num_worlds, slots]`; the state arrays are `[num_worlds,
-    capacity]` views of the same worlds as `grid` (`world.world_offset` their first global index).
-    With `record`, returns a recorded launch to replay with `.launch()`."""
-    return wp.launch(heuristic_policy, dim=action.shape,
-                     inputs=[world, types, grid, action_direction, alive, position, heading, world_step, episode,
-                             wp.uint32(seed), int(policy), int(first_slot)],
-                     outputs=[action], device=device, record_cmd=record)

@@ -25,9 +25,9 @@ Launch order per shard (see `aquarium_warp.metrics.SwarmMetrics`): zero the inte
 import warp as wp
 
 from .common import PREY, WorldParams, slot_type, torus_displacement, wrap_coordinate
-from .grid import (CellLists, cell_coords, last_ring, listed_slot, offset_cell, ring_offset, ring_side_length,
-                   ring_sides, rings_for_radius, row_run_entries, run_entry, run_length, searched_radius,
-                   square_extent)
+from .grid import (CellLists, listed_slot, next_cell, next_ring, next_run, ring_walk, run_entry, run_length,
+                   seen_radius, square_walk)
+from .state import Agents, StepOutputs, WorldCounters
 
 wp.set_module_options({"enable_backward": False})
 
@@ -69,6 +69,28 @@ NUM_PARTIALS = wp.constant(13)
 TWO_PI = wp.constant(6.283185307179586)
 
 
+@wp.struct
+class SwarmArrays:
+    """The metrics' device buffers (allocated by `aquarium_warp.metrics.SwarmMetrics`)."""
+
+    nearest_prey: wp.array2d(dtype=float)
+    """[W, Pc] float32, px, torus distance of each live prey to the nearest other live prey; -1: none."""
+    nearest_predator: wp.array2d(dtype=float)
+    """[W, Pc] float32, px, to the nearest live predator; -1: none."""
+    nn_histogram: wp.array2d(dtype=wp.int32)
+    """[W, bins] int32, nearest-prey distances per bin (the last bin also counts those beyond)."""
+    parent: wp.array(dtype=wp.int32)
+    """[W * Pc] int32, union-find forest of the groups: world w's prey slot i at w * Pc + i."""
+    group_label: wp.array2d(dtype=wp.int32)
+    """[W, Pc] int32, smallest prey slot of each live prey's group; -1 for dead slots."""
+    group_size: wp.array2d(dtype=wp.int32)
+    """[W, Pc] int32, members of the group whose root is the slot."""
+    partial: wp.array3d(dtype=float)
+    """[W, chunks, NUM_PARTIALS] float32, first-stage sums (columns `_P_*`)."""
+    values: wp.array2d(dtype=float)
+    """[W, NUM_VALUES] float32, the per-world results (columns named by `VALUE_NAMES`)."""
+
+
 @wp.func
 def find_root(parent: wp.array(dtype=wp.int32), base: int, x: int) -> int:
     """Root of prey slot `x` in the union-find forest `parent[base + slot]`, halving the path on the
@@ -106,29 +128,24 @@ def unite(parent: wp.array(dtype=wp.int32), base: int, a: int, b: int):
 def prey_distances(
     world: WorldParams,
     grid: CellLists,
-    alive: wp.array2d(dtype=wp.bool),
-    position: wp.array2d(dtype=wp.vec2),
+    agents: Agents,
     predators_by_grid: int,
     bin_width: float,
-    nearest_prey: wp.array2d(dtype=float),
-    nearest_predator: wp.array2d(dtype=float),
-    nn_histogram: wp.array2d(dtype=wp.int32),
-    parent: wp.array(dtype=wp.int32),
+    swarm: SwarmArrays,
 ):
     """Per prey slot `(w, i)`, i < prey_capacity: torus distance (px) to the nearest other live prey
     and to the nearest live predator (-1 where there is none, or the slot is dead); the nearest-prey
     distance is counted in `nn_histogram[w, bin]` (bin = floor(d / bin_width), the last bin also
     holds everything beyond). Also starts the union-find: `parent[w * prey_capacity + i] = i`.
     `predators_by_grid` 1: ring search for the nearest predator, 0: loop over the predator slots.
-    `grid` must hold the cell lists of `position`; `nn_histogram` must be zero."""
+    `grid` must hold the cell lists of `agents.position`; `nn_histogram` must be zero."""
     w, i = wp.tid()
-    parent[w * world.prey_capacity + i] = wp.int32(i)
-    if not alive[w, i]:
-        nearest_prey[w, i] = -1.0
-        nearest_predator[w, i] = -1.0
+    swarm.parent[w * world.prey_capacity + i] = wp.int32(i)
+    if not agents.alive[w, i]:
+        swarm.nearest_prey[w, i] = -1.0
+        swarm.nearest_predator[w, i] = -1.0
         return
-    pos = position[w, i]
-    base = w * world.capacity
+    pos = agents.position[w, i]
     prey_d2 = float(0.0)
     prey_found = bool(False)
     pred_d2 = float(0.0)
@@ -136,127 +153,92 @@ def prey_distances(
 
     if predators_by_grid == 0:
         for j in range(world.prey_capacity, world.capacity):
-            if alive[w, j]:
-                d = torus_displacement(world, pos, position[w, j])
+            if agents.alive[w, j]:
+                d = torus_displacement(world, pos, agents.position[w, j])
                 d2 = wp.dot(d, d)
                 if not pred_found or d2 < pred_d2:
                     pred_d2 = d2
                     pred_found = True
 
-    center = cell_coords(grid, pos)
-    last = last_ring(grid)
+    # Ring by ring from the prey's own cell (a minimum does not depend on the visiting order).
+    walk = ring_walk(grid, w, world.capacity, pos)
     want_pred = predators_by_grid != 0
-    r = int(0)
     searching = bool(True)
     while searching:
-        for side in range(ring_sides(r)):
-            for u in range(ring_side_length(r)):
-                c = offset_cell(grid, w, center, ring_offset(r, side, u))
-                if c >= 0:
-                    for k2 in range(grid.cell_start[c], grid.cell_end[c]):
-                        j = listed_slot(grid, k2, base)
-                        if j >= 0 and j != i:
-                            d = torus_displacement(world, pos, grid.position[k2])
-                            d2 = wp.dot(d, d)
-                            if slot_type(world, j) == PREY:
-                                if not prey_found or d2 < prey_d2:
-                                    prey_d2 = d2
-                                    prey_found = True
-                            elif want_pred:
-                                if not pred_found or d2 < pred_d2:
-                                    pred_d2 = d2
-                                    pred_found = True
-        # After rings 0..r every agent within `reach` has been seen.
-        if r >= last:
-            searching = False
-        else:
-            reach = searched_radius(grid, r)
-            reach2 = reach * reach
-            prey_done = prey_found and prey_d2 < reach2
-            pred_done = (not want_pred) or (pred_found and pred_d2 < reach2)
-            if prey_done and pred_done:
-                searching = False
-        r += 1
+        while next_cell(grid, walk):
+            for k2 in range(grid.cell_start[walk.cell], grid.cell_end[walk.cell]):
+                j = listed_slot(grid, k2, walk.base)
+                if j >= 0 and j != i:
+                    d = torus_displacement(world, pos, grid.position[k2])
+                    d2 = wp.dot(d, d)
+                    if slot_type(world, j) == PREY:
+                        if not prey_found or d2 < prey_d2:
+                            prey_d2 = d2
+                            prey_found = True
+                    elif want_pred:
+                        if not pred_found or d2 < pred_d2:
+                            pred_d2 = d2
+                            pred_found = True
+        reach = seen_radius(grid, walk.ring)  # every agent closer than this has been seen
+        reach2 = reach * reach
+        prey_done = prey_found and prey_d2 < reach2
+        pred_done = (not want_pred) or (pred_found and pred_d2 < reach2)
+        searching = reach != wp.inf and not (prey_done and pred_done)
+        next_ring(walk)
 
-    nearest_prey[w, i] = -1.0
+    swarm.nearest_prey[w, i] = -1.0
     if prey_found:
         dist = wp.sqrt(prey_d2)
-        nearest_prey[w, i] = dist
-        bins = nn_histogram.shape[1]
+        swarm.nearest_prey[w, i] = dist
+        bins = swarm.nn_histogram.shape[1]
         b = bins - 1
         if dist < float(bins) * bin_width:
             b = wp.min(int(dist / bin_width), bins - 1)
-        wp.atomic_add(nn_histogram, w, b, wp.int32(1))
-    nearest_predator[w, i] = -1.0
+        wp.atomic_add(swarm.nn_histogram, w, b, wp.int32(1))
+    swarm.nearest_predator[w, i] = -1.0
     if pred_found:
-        nearest_predator[w, i] = wp.sqrt(pred_d2)
+        swarm.nearest_predator[w, i] = wp.sqrt(pred_d2)
 
 
 @wp.kernel
-def link_groups(
-    world: WorldParams,
-    grid: CellLists,
-    alive: wp.array2d(dtype=wp.bool),
-    position: wp.array2d(dtype=wp.vec2),
-    linking_distance: float,
-    parent: wp.array(dtype=wp.int32),
-):
+def link_groups(world: WorldParams, grid: CellLists, agents: Agents, linking_distance: float, swarm: SwarmArrays):
     """Per prey slot `(w, i)`: unite `i` with every live prey `j > i` at torus distance
     `< linking_distance` (px), found by a fixed-radius search of the cell lists.
     `parent[w * prey_capacity + i]` must start as `i` (set by `prey_distances`)."""
     w, i = wp.tid()
-    if not alive[w, i]:
+    if not agents.alive[w, i]:
         return
-    pos = position[w, i]
-    base = w * world.capacity
+    pos = agents.position[w, i]
     forest = w * world.prey_capacity
     link2 = linking_distance * linking_distance
-    center = cell_coords(grid, pos)
-    box = square_extent(grid, rings_for_radius(grid, linking_distance))
-    for oy in range(box[2], box[3] + 1):
-        runs = row_run_entries(grid, w, center, oy, box[0], box[1])
-        for n in range(run_length(runs)):
-            k2 = run_entry(runs, n)
-            j = listed_slot(grid, k2, base)
+    walk = square_walk(grid, w, world.capacity, pos, linking_distance, 0, 1)
+    while next_run(grid, walk):
+        for n in range(run_length(walk.runs)):
+            k2 = run_entry(walk.runs, n)
+            j = listed_slot(grid, k2, walk.base)
             if j > i and slot_type(world, j) == PREY:  # j > i >= 0: a live slot
                 d = torus_displacement(world, pos, grid.position[k2])
                 if wp.dot(d, d) < link2:
-                    unite(parent, forest, i, j)
+                    unite(swarm.parent, forest, i, j)
 
 
 @wp.kernel
-def resolve_groups(
-    world: WorldParams,
-    alive: wp.array2d(dtype=wp.bool),
-    parent: wp.array(dtype=wp.int32),
-    group_label: wp.array2d(dtype=wp.int32),
-    group_size: wp.array2d(dtype=wp.int32),
-):
-    """Per prey slot `(w, i)`: `group_label[w, i]` = the smallest prey slot of its group (-1 if dead),
-    and `group_size[w, root]` counts the group's members. `group_size` must be zero."""
+def resolve_groups(world: WorldParams, agents: Agents, swarm: SwarmArrays):
+    """Per prey slot `(w, i)`: `swarm.group_label[w, i]` = the smallest prey slot of its group (-1 if dead),
+    and `swarm.group_size[w, root]` counts the group's members. `group_size` must be zero."""
     w, i = wp.tid()
-    if not alive[w, i]:
-        group_label[w, i] = -1
+    if not agents.alive[w, i]:
+        swarm.group_label[w, i] = -1
         return
-    root = find_root(parent, w * world.prey_capacity, i)
-    group_label[w, i] = wp.int32(root)
-    wp.atomic_add(group_size, w, root, wp.int32(1))
+    root = find_root(swarm.parent, w * world.prey_capacity, i)
+    swarm.group_label[w, i] = wp.int32(root)
+    wp.atomic_add(swarm.group_size, w, root, wp.int32(1))
 
 
 @wp.kernel
-def prey_partial_sums(
-    world: WorldParams,
-    alive: wp.array2d(dtype=wp.bool),
-    position: wp.array2d(dtype=wp.vec2),
-    heading: wp.array2d(dtype=wp.vec2),
-    nearest_prey: wp.array2d(dtype=float),
-    nearest_predator: wp.array2d(dtype=float),
-    group_label: wp.array2d(dtype=wp.int32),
-    group_size: wp.array2d(dtype=wp.int32),
-    partial: wp.array3d(dtype=float),
-):
+def prey_partial_sums(world: WorldParams, agents: Agents, swarm: SwarmArrays):
     """First stage of the per-world sums: chunk `c` of world `w` sums prey slots
-    `[c * CHUNK, (c + 1) * CHUNK)` in slot order into `partial[w, c, :]` (columns `_P_*`)."""
+    `[c * CHUNK, (c + 1) * CHUNK)` in slot order into `swarm.partial[w, c, :]` (columns `_P_*`)."""
     w, c = wp.tid()
     count = float(0.0)
     head = wp.vec2(0.0, 0.0)
@@ -273,40 +255,40 @@ def prey_partial_sums(
     first = c * CHUNK
     end = wp.min(first + CHUNK, world.prey_capacity)
     for i in range(first, end):
-        if alive[w, i]:
+        if agents.alive[w, i]:
             count += 1.0
-            head = head + heading[w, i]
-            p = position[w, i]
+            head = head + agents.heading[w, i]
+            p = agents.position[w, i]
             ax = TWO_PI * p[0] / world.width
             ay = TWO_PI * p[1] / world.height
             cos_x += wp.cos(ax)
             sin_x += wp.sin(ax)
             cos_y += wp.cos(ay)
             sin_y += wp.sin(ay)
-            nn = nearest_prey[w, i]
+            nn = swarm.nearest_prey[w, i]
             if nn >= 0.0:
                 nn_sum += nn
                 nn_count += 1.0
-            pd = nearest_predator[w, i]
+            pd = swarm.nearest_predator[w, i]
             if pd >= 0.0:
                 pred_sum += pd
                 pred_count += 1.0
-            if group_label[w, i] == i:
+            if swarm.group_label[w, i] == i:
                 roots += 1
-                largest = wp.max(largest, int(group_size[w, i]))
-    partial[w, c, _P_COUNT] = count
-    partial[w, c, _P_HEAD_X] = head[0]
-    partial[w, c, _P_HEAD_Y] = head[1]
-    partial[w, c, _P_COS_X] = cos_x
-    partial[w, c, _P_SIN_X] = sin_x
-    partial[w, c, _P_COS_Y] = cos_y
-    partial[w, c, _P_SIN_Y] = sin_y
-    partial[w, c, _P_NN_SUM] = nn_sum
-    partial[w, c, _P_NN_COUNT] = nn_count
-    partial[w, c, _P_PRED_SUM] = pred_sum
-    partial[w, c, _P_PRED_COUNT] = pred_count
-    partial[w, c, _P_LARGEST] = float(largest)
-    partial[w, c, _P_ROOTS] = float(roots)
+                largest = wp.max(largest, int(swarm.group_size[w, i]))
+    swarm.partial[w, c, _P_COUNT] = count
+    swarm.partial[w, c, _P_HEAD_X] = head[0]
+    swarm.partial[w, c, _P_HEAD_Y] = head[1]
+    swarm.partial[w, c, _P_COS_X] = cos_x
+    swarm.partial[w, c, _P_SIN_X] = sin_x
+    swarm.partial[w, c, _P_COS_Y] = cos_y
+    swarm.partial[w, c, _P_SIN_Y] = sin_y
+    swarm.partial[w, c, _P_NN_SUM] = nn_sum
+    swarm.partial[w, c, _P_NN_COUNT] = nn_count
+    swarm.partial[w, c, _P_PRED_SUM] = pred_sum
+    swarm.partial[w, c, _P_PRED_COUNT] = pred_count
+    swarm.partial[w, c, _P_LARGEST] = float(largest)
+    swarm.partial[w, c, _P_ROOTS] = float(roots)
 
 
 @wp.func
@@ -317,14 +299,8 @@ def circular_mean(cos_sum: float, sin_sum: float, length: float) -> float:
 
 
 @wp.kernel
-def finish_prey_sums(
-    world: WorldParams,
-    partial: wp.array3d(dtype=float),
-    predator_alive_count: wp.array(dtype=wp.int32),
-    captures: wp.array(dtype=wp.int32),
-    values: wp.array2d(dtype=float),
-):
-    """Second stage per world `w`: sums the chunks in order and writes every column of `values[w]`
+def finish_prey_sums(world: WorldParams, counters: WorldCounters, outputs: StepOutputs, swarm: SwarmArrays):
+    """Second stage per world `w`: sums the chunks in order and writes every column of `swarm.values[w]`
     except COHESION. Undefined means (no live prey; fewer than two for NN_MEAN; no predator for
     PREDATOR_DISTANCE) are NaN."""
     w = wp.tid()
@@ -341,76 +317,67 @@ def finish_prey_sums(
     pred_count = float(0.0)
     largest = float(0.0)
     groups = float(0.0)
-    for c in range(partial.shape[1]):
-        n += partial[w, c, _P_COUNT]
-        head_x += partial[w, c, _P_HEAD_X]
-        head_y += partial[w, c, _P_HEAD_Y]
-        cos_x += partial[w, c, _P_COS_X]
-        sin_x += partial[w, c, _P_SIN_X]
-        cos_y += partial[w, c, _P_COS_Y]
-        sin_y += partial[w, c, _P_SIN_Y]
-        nn_sum += partial[w, c, _P_NN_SUM]
-        nn_count += partial[w, c, _P_NN_COUNT]
-        pred_sum += partial[w, c, _P_PRED_SUM]
-        pred_count += partial[w, c, _P_PRED_COUNT]
-        largest = wp.max(largest, partial[w, c, _P_LARGEST])
-        groups += partial[w, c, _P_ROOTS]
+    for c in range(swarm.partial.shape[1]):
+        n += swarm.partial[w, c, _P_COUNT]
+        head_x += swarm.partial[w, c, _P_HEAD_X]
+        head_y += swarm.partial[w, c, _P_HEAD_Y]
+        cos_x += swarm.partial[w, c, _P_COS_X]
+        sin_x += swarm.partial[w, c, _P_SIN_X]
+        cos_y += swarm.partial[w, c, _P_COS_Y]
+        sin_y += swarm.partial[w, c, _P_SIN_Y]
+        nn_sum += swarm.partial[w, c, _P_NN_SUM]
+        nn_count += swarm.partial[w, c, _P_NN_COUNT]
+        pred_sum += swarm.partial[w, c, _P_PRED_SUM]
+        pred_count += swarm.partial[w, c, _P_PRED_COUNT]
+        largest = wp.max(largest, swarm.partial[w, c, _P_LARGEST])
+        groups += swarm.partial[w, c, _P_ROOTS]
     nan = wp.nan
-    values[w, GROUPS] = groups
-    values[w, PREY_ALIVE] = n
-    values[w, PREDATOR_ALIVE] = float(predator_alive_count[w])
-    values[w, CAPTURES] = float(captures[w])
+    swarm.values[w, GROUPS] = groups
+    swarm.values[w, PREY_ALIVE] = n
+    swarm.values[w, PREDATOR_ALIVE] = float(counters.predator_alive_count[w])
+    swarm.values[w, CAPTURES] = float(outputs.captures[w])
     if n > 0.0:
-        values[w, POLARIZATION] = wp.length(wp.vec2(head_x, head_y)) / n
-        values[w, CENTROID_X] = circular_mean(cos_x, sin_x, world.width)
-        values[w, CENTROID_Y] = circular_mean(cos_y, sin_y, world.height)
-        values[w, LARGEST_GROUP] = largest / n
+        swarm.values[w, POLARIZATION] = wp.length(wp.vec2(head_x, head_y)) / n
+        swarm.values[w, CENTROID_X] = circular_mean(cos_x, sin_x, world.width)
+        swarm.values[w, CENTROID_Y] = circular_mean(cos_y, sin_y, world.height)
+        swarm.values[w, LARGEST_GROUP] = largest / n
     else:
-        values[w, POLARIZATION] = nan
-        values[w, CENTROID_X] = nan
-        values[w, CENTROID_Y] = nan
-        values[w, LARGEST_GROUP] = nan
-    values[w, NN_MEAN] = nan
+        swarm.values[w, POLARIZATION] = nan
+        swarm.values[w, CENTROID_X] = nan
+        swarm.values[w, CENTROID_Y] = nan
+        swarm.values[w, LARGEST_GROUP] = nan
+    swarm.values[w, NN_MEAN] = nan
     if nn_count > 0.0:
-        values[w, NN_MEAN] = nn_sum / nn_count
-    values[w, PREDATOR_DISTANCE] = nan
+        swarm.values[w, NN_MEAN] = nn_sum / nn_count
+    swarm.values[w, PREDATOR_DISTANCE] = nan
     if pred_count > 0.0:
-        values[w, PREDATOR_DISTANCE] = pred_sum / pred_count
+        swarm.values[w, PREDATOR_DISTANCE] = pred_sum / pred_count
 
 
 @wp.kernel
-def centroid_partial_sums(
-    world: WorldParams,
-    alive: wp.array2d(dtype=wp.bool),
-    position: wp.array2d(dtype=wp.vec2),
-    values: wp.array2d(dtype=float),
-    partial: wp.array3d(dtype=float),
-):
+def centroid_partial_sums(world: WorldParams, agents: Agents, swarm: SwarmArrays):
     """First stage of the cohesion sum: chunk `c` of world `w` sums the torus distances (px) of its
-    live prey to the centroid in `values[w]` into `partial[w, c, 0]`."""
+    live prey to the centroid in `swarm.values[w]` into `swarm.partial[w, c, 0]`."""
     w, c = wp.tid()
     total = float(0.0)
-    if values[w, PREY_ALIVE] > 0.0:
-        centroid = wp.vec2(values[w, CENTROID_X], values[w, CENTROID_Y])
+    if swarm.values[w, PREY_ALIVE] > 0.0:
+        centroid = wp.vec2(swarm.values[w, CENTROID_X], swarm.values[w, CENTROID_Y])
         end = wp.min(c * CHUNK + CHUNK, world.prey_capacity)
         for i in range(c * CHUNK, end):
-            if alive[w, i]:
-                total += wp.length(torus_displacement(world, centroid, position[w, i]))
-    partial[w, c, 0] = total
+            if agents.alive[w, i]:
+                total += wp.length(torus_displacement(world, centroid, agents.position[w, i]))
+    swarm.partial[w, c, 0] = total
 
 
 @wp.kernel
-def finish_cohesion(
-    partial: wp.array3d(dtype=float),
-    values: wp.array2d(dtype=float),
-):
-    """Second stage per world: `values[w, COHESION]` = mean distance to the centroid (NaN without prey)."""
+def finish_cohesion(swarm: SwarmArrays):
+    """Second stage per world: `swarm.values[w, COHESION]` = mean distance to the centroid (NaN without prey)."""
     w = wp.tid()
-    n = values[w, PREY_ALIVE]
+    n = swarm.values[w, PREY_ALIVE]
     if n > 0.0:
         total = float(0.0)
-        for c in range(partial.shape[1]):
-            total += partial[w, c, 0]
-        values[w, COHESION] = total / n
+        for c in range(swarm.partial.shape[1]):
+            total += swarm.partial[w, c, 0]
+        swarm.values[w, COHESION] = total / n
     else:
-        values[w, COHESION] = wp.nan
+        swarm.values[w, COHESION] = wp.nan

@@ -8,6 +8,7 @@ start-of-step positions at the end of the previous step (or after a reset or `se
 import warp as wp
 
 from .common import PREY, AgentType, WorldParams, slot_type, wrap_coordinate
+from .state import Actions, Agents, Scratch, StepOutputs
 
 wp.set_module_options({"enable_backward": False})
 
@@ -40,30 +41,21 @@ def integrate_motion(
     world: WorldParams,
     types: wp.array(dtype=AgentType),
     action_direction: wp.array(dtype=wp.vec2),
-    prey_action: wp.array2d(dtype=wp.int32),
-    predator_action: wp.array2d(dtype=wp.int32),
-    alive: wp.array2d(dtype=wp.bool),
-    contact_partner: wp.array2d(dtype=wp.int32),
-    contact_offset: wp.array2d(dtype=wp.vec2),
-    position: wp.array2d(dtype=wp.vec2),
-    velocity: wp.array2d(dtype=wp.vec2),
-    acceleration: wp.array2d(dtype=wp.vec2),
-    heading: wp.array2d(dtype=wp.vec2),
-    reward: wp.array2d(dtype=float),
-    terminated: wp.array2d(dtype=wp.bool),
-    truncated: wp.array2d(dtype=wp.bool),
-    captured: wp.array2d(dtype=wp.bool),
-    captures: wp.array(dtype=wp.int32),
+    actions: Actions,
+    agents: Agents,
+    scratch: Scratch,
+    outputs: StepOutputs,
 ):
+    """Moves every live agent (reads `scratch`'s contact partners, clears `scratch.captured`)."""
     w, i = wp.tid()
     # This step's outputs start cleared (here rather than in separate memsets).
-    reward[w, i] = 0.0
-    terminated[w, i] = False
-    truncated[w, i] = False
-    captured[w, i] = False
+    outputs.reward[w, i] = 0.0
+    outputs.terminated[w, i] = False
+    outputs.truncated[w, i] = False
+    scratch.captured[w, i] = False
     if i == 0:
-        captures[w] = 0
-    if not alive[w, i]:
+        outputs.captures[w] = 0
+    if not agents.alive[w, i]:
         return
     t = slot_type(world, i)
     p = types[t]
@@ -71,19 +63,19 @@ def integrate_motion(
     # 1. Steering towards the action's desired velocity (paper eqs. 1 and 6).
     action = int(0)
     if t == PREY:
-        action = int(prey_action[w, i])
+        action = int(actions.prey_action[w, i])
     else:
-        action = int(predator_action[w, i - world.prey_capacity])
+        action = int(actions.predator_action[w, i - world.prey_capacity])
     # `step(validate=False)` skips the host's range check: a clamp (no branch) keeps any action index
     # inside the direction table, so a bad action steers to the nearest end of the range instead of
     # reading out of bounds.
     action = wp.clamp(action, 0, world.action_count - 1)
     desired = action_direction[action] * p.max_speed
-    v = velocity[w, i]
+    v = agents.velocity[w, i]
     steering_force = clamp_length(desired - v, p.max_steering_force)
 
     # 2. Acceleration with memory: the running sum is renormalised to k (paper eq. 2).
-    acc = acceleration[w, i] + steering_force / p.mass
+    acc = agents.acceleration[w, i] + steering_force / p.mass
     n = wp.length(acc)
     if n < SHORTEST_SQUARABLE:  # rare: a fresh agent's tiny steering force, or a near-exact cancellation
         acc = rescaled(acc)
@@ -94,24 +86,24 @@ def integrate_motion(
     # 3. Same-type contact: the nearest overlapping agent of the same type pushes this one away. The
     # partner was found by the observation pass on these same start-of-step positions.
     v_new = v + acc
-    if contact_partner[w, i] >= 0:
-        offset = contact_offset[w, i]
+    if scratch.contact_partner[w, i] >= 0:
+        offset = scratch.contact_offset[w, i]
         v_new = v
         if offset[0] != 0.0 or offset[1] != 0.0:
             v_new = v + wp.normalize(offset) * p.bounce_strength
 
     # 4. Speed clamp (paper eq. 3) and wrap onto the torus (eq. 4).
     v_new = clamp_length(v_new, p.max_speed)
-    pos = position[w, i]
-    position[w, i] = wp.vec2(wrap_coordinate(pos[0] + v_new[0], world.width),
-                             wrap_coordinate(pos[1] + v_new[1], world.height))
-    velocity[w, i] = v_new
-    acceleration[w, i] = acc
+    pos = agents.position[w, i]
+    agents.position[w, i] = wp.vec2(wrap_coordinate(pos[0] + v_new[0], world.width),
+                                    wrap_coordinate(pos[1] + v_new[1], world.height))
+    agents.velocity[w, i] = v_new
+    agents.acceleration[w, i] = acc
     speed = wp.length(v_new)
     if speed >= SHORTEST_SQUARABLE:
-        heading[w, i] = v_new / speed
+        agents.heading[w, i] = v_new / speed
     else:  # rare: a tiny velocity kept by a contact with bounce strength 0 (or set so)
         direction = rescaled(v_new)
         n_direction = wp.length(direction)
         if n_direction > 0.0:
-            heading[w, i] = direction / n_direction
+            agents.heading[w, i] = direction / n_direction

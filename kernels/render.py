@@ -24,6 +24,7 @@ as the one pixel under its centre, so a zoomed-out world of a million agents sho
 import warp as wp
 
 from .common import PREDATOR, PREY, torus_delta
+from .state import Agents
 
 wp.set_module_options({"enable_backward": False})
 
@@ -300,29 +301,26 @@ def box_pixel(p: RenderParams, box: wp.vec4i, q: int) -> wp.vec2i:
 @wp.kernel
 def splat_agents(
     p: RenderParams,
-    position: wp.array2d(dtype=wp.vec2),
-    heading: wp.array2d(dtype=wp.vec2),
-    velocity: wp.array2d(dtype=wp.vec2),
-    alive: wp.array2d(dtype=wp.bool),
+    agents: Agents,
     body_key: wp.array2d(dtype=wp.int32),
     cone_count: wp.array3d(dtype=wp.int32),
     overlay: wp.array2d(dtype=wp.int32),
 ):
     """One thread per slot of world `p.world`.
 
-    Inputs: position, heading, velocity, alive `[W, C]` (px, unit vectors, px/step).
+    Inputs: the agents' position, heading, velocity and alive flags.
     Outputs (cleared by the caller): body_key `[H, W_px]` (top slot + 1, 0 = no agent),
     cone_count `[2, H, W_px]` (cones covering each pixel, by type code), overlay `[H, W_px]` (bits).
     """
     slot = wp.tid()
     w = p.world
-    if not alive[w, slot]:
+    if not agents.alive[w, slot]:
         return
     t = PREY
     if slot >= p.prey_capacity:
         t = PREDATOR
-    c = position[w, slot]
-    h = heading[w, slot]
+    c = agents.position[w, slot]
+    h = agents.heading[w, slot]
     key = slot + 1
     r = p.radius[t]
     dot = is_dot(p, t)
@@ -374,7 +372,7 @@ def splat_agents(
     # velocity arrow from the centre along velocity * velocity_scale, measured in image pixels so
     # it stays a thin line at any zoom
     if p.velocities != 0:
-        v = velocity[w, slot] * p.velocity_scale
+        v = agents.velocity[w, slot] * p.velocity_scale
         tip = wp.vec2(v[0] * inv_pw, v[1] * inv_ph)  # image pixels
         length = wp.length(tip)
         if length >= 1.0:
@@ -434,8 +432,7 @@ def part_colour(pal: Palette, agent_type: int, part: int) -> wp.vec3:
 def compose_image(
     p: RenderParams,
     pal: Palette,
-    position: wp.array2d(dtype=wp.vec2),
-    heading: wp.array2d(dtype=wp.vec2),
+    agents: Agents,
     body_key: wp.array2d(dtype=wp.int32),
     cone_count: wp.array3d(dtype=wp.int32),
     overlay: wp.array2d(dtype=wp.int32),
@@ -461,8 +458,8 @@ def compose_image(
         t = PREY
         if slot >= p.prey_capacity:
             t = PREDATOR
-        d = pixel_offset(p, i, j, position[p.world, slot])
-        h = heading[p.world, slot]
+        d = pixel_offset(p, i, j, agents.position[p.world, slot])
+        h = agents.heading[p.world, slot]
         if is_dot(p, t) == 1:
             colour = part_colour(pal, t, PART_BODY)
         else:
@@ -490,14 +487,13 @@ def compose_image(
     image[i, j, 2] = wp.uint8(wp.clamp(colour[2] + 0.5, 0.0, 255.0))
 
 
-def launch_splat(params, position, heading, velocity, alive, body_key, cone_count, overlay, capacity, device):
+def launch_splat(params, agents, body_key, cone_count, overlay, capacity, device):
     """Splat the `capacity` slots of world `params.world` into the (cleared) buffers."""
-    wp.launch(splat_agents, dim=capacity, inputs=[params, position, heading, velocity, alive],
-              outputs=[body_key, cone_count, overlay], device=device)
+    wp.launch(splat_agents, dim=capacity, inputs=[params, agents], outputs=[body_key, cone_count, overlay],
+              device=device)
 
 
-def launch_compose(params, palette, position, heading, body_key, cone_count, overlay, image, device):
+def launch_compose(params, palette, agents, body_key, cone_count, overlay, image, device):
     """Compose the RGB image `[H, W_px, 3]` uint8 from the splat buffers."""
     wp.launch(compose_image, dim=(params.height_px, params.width_px),
-              inputs=[params, palette, position, heading, body_key, cone_count, overlay],
-              outputs=[image], device=device)
+              inputs=[params, palette, agents, body_key, cone_count, overlay], outputs=[image], device=device)

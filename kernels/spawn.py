@@ -4,6 +4,7 @@
 import warp as wp
 
 from .common import PREY, PURPOSE_SPAWN, WorldParams, random_stream, slot_type
+from .state import Agents, StepOutputs, WorldCounters
 
 wp.set_module_options({"enable_backward": False})
 
@@ -21,24 +22,24 @@ def make_fresh_prey(
     i: int,
     pos: wp.vec2,
     rng: wp.uint32,
-    alive: wp.array2d(dtype=wp.bool),
-    position: wp.array2d(dtype=wp.vec2),
-    velocity: wp.array2d(dtype=wp.vec2),
-    acceleration: wp.array2d(dtype=wp.vec2),
-    heading: wp.array2d(dtype=wp.vec2),
-    age: wp.array2d(dtype=wp.int32),
-    replication_age: wp.array2d(dtype=wp.int32),
-    starvation: wp.array2d(dtype=wp.int32),
+    agents: Agents,
 ):
     """A prey at `pos` moving west at speed 1, as at the start of an episode; keeps only its slot."""
-    alive[w, i] = True
-    position[w, i] = pos
-    velocity[w, i] = wp.vec2(-1.0, 0.0)
-    acceleration[w, i] = wp.vec2(0.0, 0.0)
-    heading[w, i] = wp.vec2(-1.0, 0.0)
-    age[w, i] = 0
-    replication_age[w, i] = draw_replication_age(world, rng)
-    starvation[w, i] = 0
+    set_slot(agents, w, i, True, pos, wp.vec2(-1.0, 0.0), wp.vec2(-1.0, 0.0), draw_replication_age(world, rng))
+
+
+@wp.func
+def set_slot(agents: Agents, w: int, i: int, alive: bool, position: wp.vec2, velocity: wp.vec2, heading: wp.vec2,
+             replication_age: int):
+    """Slot i of world w as a fresh agent (or an empty slot): zero acceleration, age and starvation."""
+    agents.alive[w, i] = alive
+    agents.position[w, i] = position
+    agents.velocity[w, i] = velocity
+    agents.acceleration[w, i] = wp.vec2(0.0, 0.0)
+    agents.heading[w, i] = heading
+    agents.age[w, i] = 0
+    agents.replication_age[w, i] = replication_age
+    agents.starvation[w, i] = 0
 
 
 @wp.func
@@ -55,63 +56,32 @@ def uniform_position(world: WorldParams, rng: wp.uint32, margin: float) -> wp.ve
 
 
 @wp.func
-def spawn_slot(
-    world: WorldParams,
-    w: int,
-    i: int,
-    episode: int,
-    alive: wp.array2d(dtype=wp.bool),
-    position: wp.array2d(dtype=wp.vec2),
-    velocity: wp.array2d(dtype=wp.vec2),
-    acceleration: wp.array2d(dtype=wp.vec2),
-    heading: wp.array2d(dtype=wp.vec2),
-    age: wp.array2d(dtype=wp.int32),
-    replication_age: wp.array2d(dtype=wp.int32),
-    starvation: wp.array2d(dtype=wp.int32),
-):
-    """Slot i of world w at the start of an episode: prey uniform 20 px inside the edges moving west,
-    predators uniform anywhere moving north, zero acceleration; prey slots past `prey_count` empty."""
-    rng = random_stream(world.seed, world.world_offset + w, episode, 0, i, PURPOSE_SPAWN)
+def spawn_slot(world: WorldParams, counters: WorldCounters, w: int, i: int, episode: int, agents: Agents):
+    """Slot i of world w at the start of its episode `episode`: prey uniform 20 px inside the edges
+    moving west, predators uniform anywhere moving north, zero acceleration; prey slots past
+    `prey_count` empty."""
+    rng = random_stream(counters.seed[w], world.world_offset + w, episode, 0, i, PURPOSE_SPAWN)
     if slot_type(world, i) == PREY:
         if i < world.prey_count:
-            pos = uniform_position(world, rng, 20.0)
-            make_fresh_prey(world, w, i, pos, rng, alive, position, velocity, acceleration, heading, age,
-                            replication_age, starvation)
+            make_fresh_prey(world, w, i, uniform_position(world, rng, 20.0), rng, agents)
         else:
-            alive[w, i] = False
-            position[w, i] = wp.vec2(0.0, 0.0)
-            velocity[w, i] = wp.vec2(0.0, 0.0)
-            acceleration[w, i] = wp.vec2(0.0, 0.0)
-            heading[w, i] = wp.vec2(-1.0, 0.0)
-            age[w, i] = 0
-            replication_age[w, i] = 0
-            starvation[w, i] = 0
+            set_slot(agents, w, i, False, wp.vec2(0.0, 0.0), wp.vec2(0.0, 0.0), wp.vec2(-1.0, 0.0), 0)
     else:
-        alive[w, i] = True
-        position[w, i] = uniform_position(world, rng, 0.0)
-        velocity[w, i] = wp.vec2(0.0, -1.0)
-        acceleration[w, i] = wp.vec2(0.0, 0.0)
-        heading[w, i] = wp.vec2(0.0, -1.0)
-        age[w, i] = 0
-        replication_age[w, i] = 0
-        starvation[w, i] = 0
+        set_slot(agents, w, i, True, uniform_position(world, rng, 0.0), wp.vec2(0.0, -1.0), wp.vec2(0.0, -1.0), 0)
 
 
 @wp.kernel
-def spawn_episode(
-    world: WorldParams,
-    episode: wp.array(dtype=wp.int32),
-    alive: wp.array2d(dtype=wp.bool),
-    position: wp.array2d(dtype=wp.vec2),
-    velocity: wp.array2d(dtype=wp.vec2),
-    acceleration: wp.array2d(dtype=wp.vec2),
-    heading: wp.array2d(dtype=wp.vec2),
-    age: wp.array2d(dtype=wp.int32),
-    replication_age: wp.array2d(dtype=wp.int32),
-    starvation: wp.array2d(dtype=wp.int32),
-):
-    """Initial state of every world's episode (`spawn_slot`); auto-reset inside a step goes through
+def spawn_episode(world: WorldParams, counters: WorldCounters, outputs: StepOutputs, agents: Agents):
+    """Every world's first episode (a reset): its counters at zero and its agents as `spawn_slot` makes
+    them (the seed in `counters.seed` is kept); auto-reset inside a step goes through
     `population.close_ended_episodes`."""
     w, i = wp.tid()
-    spawn_slot(world, w, i, episode[w], alive, position, velocity, acceleration, heading, age, replication_age,
-               starvation)
+    counters.episode_return[w, i] = 0.0
+    if i == 0:
+        counters.world_step[w] = 0
+        counters.episode[w] = 0
+        counters.episode_captures[w] = 0
+        counters.prey_alive_count[w] = world.prey_count
+        counters.predator_alive_count[w] = world.predator_count
+        outputs.episode_ended[w] = False
+    spawn_slot(world, counters, w, i, 0, agents)

@@ -16,25 +16,23 @@ import warp as wp
 
 from aquarium_warp import AquariumConfig
 from aquarium_warp.kernels import grid as grid_kernels
+from aquarium_warp.kernels.state import Agents
 from aquarium_warp.shard import cell_lists, world_params
 
 
 def build(method: str, cfg, dims, position, alive, device):
     W, C = alive.shape
     g = cell_lists(cfg, W, dims, device, build=method)
-    world = world_params(cfg, 0, 0, True)
-    position_wp = wp.array(position, dtype=wp.vec2, device=device)
-    alive_wp = wp.array(alive, dtype=wp.bool, device=device)
-    outputs = [g.cell_start, g.cell_end, g.agent, g.position]
+    world = world_params(cfg, 0, True)
+    agents = Agents()  # only the fields the builds read
+    agents.position = wp.array(position, dtype=wp.vec2, device=device)
+    agents.alive = wp.array(alive, dtype=wp.bool, device=device)
     if method == "counting":
-        wp.launch(grid_kernels.sort_into_cells_per_world, W, inputs=[world, g, position_wp, alive_wp],
-                  outputs=[g.key] + outputs, device=device)
+        wp.launch(grid_kernels.sort_into_cells_per_world, W, inputs=[world, agents], outputs=[g], device=device)
     elif method == "rank":
-        wp.launch(grid_kernels.rank_into_cells_per_world, (W, C), inputs=[world, g, position_wp, alive_wp],
-                  outputs=outputs, device=device)
+        wp.launch(grid_kernels.rank_into_cells_per_world, (W, C), inputs=[world, agents], outputs=[g], device=device)
     else:
-        wp.launch(grid_kernels.compute_cell_keys, (W, C), inputs=[world, g, position_wp, alive_wp],
-                  outputs=[g.key, g.cell_count], device=device)
+        wp.launch(grid_kernels.compute_cell_keys, (W, C), inputs=[world, agents], outputs=[g], device=device)
         # On a GPU the arrival order in a cell varies from run to run; the CPU's is slot order. Reverse
         # it in every cell, so that ordering the cells by slot has work to do here too.
         key = g.key.numpy()
@@ -43,9 +41,8 @@ def build(method: str, cfg, dims, position, alive, device):
         key[n:][live] = g.cell_count.numpy()[key[:n][live]] - 1 - key[n:][live]
         g.key.assign(key)
         wp.utils.array_scan(g.cell_count, g.cell_end, inclusive=True)
-        wp.launch(grid_kernels.drop_into_cells, W * C, inputs=[g], outputs=[g.agent], device=device)
-        wp.launch(grid_kernels.order_cells, W * C, inputs=[world, g, position_wp], outputs=[g.agent, g.position],
-                  device=device)
+        wp.launch(grid_kernels.drop_into_cells, W * C, outputs=[g], device=device)
+        wp.launch(grid_kernels.order_cells, W * C, inputs=[world, agents], outputs=[g], device=device)
     return {name: getattr(g, name).numpy() for name in ("cell_start", "cell_end", "agent", "position")}
 
 

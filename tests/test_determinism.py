@@ -147,8 +147,8 @@ def test_thread_split_does_not_matter(device, cfg):
     one = make("cpu", cfg, num_worlds=64, seed=9, cpu_threads=1)
     two = make("cpu", cfg, num_worlds=64, seed=9, cpu_threads=2)
     try:
-        assert len(one._shard_ranges) == 1
-        assert len(two._shard_ranges) == 2  # the split really happens (>= 32 worlds per thread)
+        assert len(one.shards) == 1
+        assert len(two.shards) == 2  # the split really happens (>= 32 worlds per thread)
         assert_identical(snapshot(one), snapshot(two))
         actions = action_sequence(one, 80, seed=4)
         assert_identical(rollout(one, actions), rollout(two, actions))

@@ -165,7 +165,7 @@ def run_cases(cases: int) -> None:
 
     from aquarium_warp import BatchedAquarium
     from aquarium_warp.config import LARGEST
-    from aquarium_warp.env import _grid_dims
+    from aquarium_warp.env import grid_dims
 
     space = field_space()
     names = sorted(space)
@@ -199,7 +199,7 @@ def run_cases(cases: int) -> None:
             assert any(name in str(error) for name in chosen), f"error names none of {chosen}: {error}"
             return
         assert not invalid, f"invalid {invalid} accepted"
-        dims = _grid_dims(cfg)
+        dims = grid_dims(cfg)
         if cfg.capacity > 64 or 2**20 < dims[0] * dims[1] < 2**31:
             counts["config_only"] += 1  # valid, but too large to step in a fuzz case
             return

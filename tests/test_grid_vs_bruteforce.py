@@ -113,7 +113,7 @@ def test_observed_slots_and_contacts_match_brute_force(device, name):
     W = WORLDS.get(name, NUM_WORLDS)
     rng = np.random.default_rng(zlib.crc32(name.encode()))
     env = BatchedAquarium(cfg, num_worlds=W, device=device, seed=1)
-    assert (env._dims == (1, 1)) == (cfg.capacity <= SINGLE_CELL_CAPACITY and cfg.grid_cell_size is None)
+    assert (env.grid_dims == (1, 1)) == (cfg.capacity <= SINGLE_CELL_CAPACITY and cfg.grid_cell_size is None)
     pos, heading, alive = random_state(rng, cfg, W, axis_headings=name != "unlimited")
     env.set_state(position=pos.astype(np.float32), heading=heading.astype(np.float32), alive=alive)
     expected_slots, expected_partner = brute_force(cfg, pos, env.state.torch.heading.cpu().numpy().astype(np.float64), alive)

@@ -37,8 +37,8 @@ def visible(env: BatchedAquarium) -> dict[str, torch.Tensor]:
     names = ["position", "velocity", "acceleration", "heading", "alive", "age", "replication_age", "starvation",
              "world_step", "episode", "episode_captures", "episode_return"]
     out = flat({n: getattr(t, n) for n in names})
-    out.update(flat((env.observations, env.observation_mask, env.observed_slot, env._rewards, env._terminated,
-                     env._truncated, env._info), "buffers"))
+    out.update(flat((env.observations, env.observation_mask, env.observed_slot, *env.outputs[1:]),
+                    "buffers"))
     return out
 
 

@@ -75,7 +75,7 @@ def test_adapter_shapes_dtypes_and_alternating_buffers():
     assert rew.shape == (W * S,) and rew.dtype == torch.float32
     assert done.shape == (W * S,) and done.dtype == torch.int64
     assert extras["time_outs"].shape == (W * S,) and extras["time_outs"].dtype == torch.bool
-    assert torch.equal(rew, 0.5 * env._rewards["prey"].reshape(-1))  # all active: scaled env rewards
+    assert torch.equal(rew, 0.5 * env.outputs.rewards["prey"].reshape(-1))  # all active: scaled env rewards
     kept1 = obs1["policy"].clone()
     obs2, *_ = vec.step(random_actions(vec, gen))
     assert obs2 is obs0 and torch.equal(obs1["policy"], kept1)  # two buffers, alternating
@@ -93,7 +93,7 @@ def test_adapter_time_outs_log_and_episode_ends():
     logs = 0
     for step in range(1, 61):
         _, rew, done, extras = vec.step(random_actions(vec, gen))
-        ended = env._info["episode_ended"]
+        ended = env.outputs.info["episode_ended"]
         captured = env.state.torch.captured[:, : env.prey_capacity].reshape(-1)
         t_out = extras["time_outs"]
         assert bool(ended.all()) == (step % 20 == 0) and bool(ended.any()) == (step % 20 == 0)
@@ -111,9 +111,9 @@ def test_adapter_time_outs_log_and_episode_ends():
             # Swarm metrics of the ended episodes: finite, polarization in [0, 1], all prey alive.
             assert torch.all((log["Swarm/polarization"] >= 0) & (log["Swarm/polarization"] <= 1))
             assert torch.all(log["Swarm/prey_alive"] == 3.0)
-            assert torch.equal(log["Episode/captures"], env._info["episode_captures"].float())
-            assert torch.allclose(log["Episode/captures_per_prey"], env._info["episode_captures"].float() / 3)
-            assert torch.allclose(log["Episode/reward_per_agent"], env._info["episode_return"]["prey"] / 3)
+            assert torch.equal(log["Episode/captures"], env.outputs.info["episode_captures"].float())
+            assert torch.allclose(log["Episode/captures_per_prey"], env.outputs.info["episode_captures"].float() / 3)
+            assert torch.allclose(log["Episode/reward_per_agent"], env.outputs.info["episode_return"]["prey"] / 3)
             assert torch.all(log["Episode/length"] == 20)
             # Undiscounted per-prey reward: 20 survival steps minus 1000 per capture (per prey).
             assert torch.allclose(log["Episode/reward_per_agent"], 20.0 - 1000.0 * log["Episode/captures_per_prey"])
@@ -170,7 +170,7 @@ def test_adapter_predator_team():
     assert vec.num_envs == 4 and vec.get_observations()["policy"].shape == (4, env.observation_size["predator"])
     obs, rew, done, extras = vec.step(torch.zeros(4, 1))
     assert torch.equal(env.state.torch.prey_action, prey.calls[-1])
-    assert torch.equal(rew, env._rewards["predator"].reshape(-1))
+    assert torch.equal(rew, env.outputs.rewards["predator"].reshape(-1))
 
 
 # ----------------------------------------------------------------------------------------- distribution

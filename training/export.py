@@ -352,7 +352,7 @@ class RecurrentOpponent:
         from .vec_env import TrainedOpponent
 
         self.driver, self.policy = TrainedOpponent(policy, env, agent_type), policy
-        self._terminated, self._truncated = env._terminated[agent_type], env._truncated[agent_type]
+        self._terminated, self._truncated = env.outputs.terminated[agent_type], env.outputs.truncated[agent_type]
         self._captured = env.state.torch.captured[:, :env.prey_capacity] if agent_type == "prey" else None
         self._alive = env.alive[agent_type]
         self._active: torch.Tensor | None = None  # rows alive when the policy last acted

@@ -154,12 +154,12 @@ class AquariumVecEnv(VecEnv):
 
         t = env.state.torch
         Pc = env.prey_capacity
-        self._rewards_in = env._rewards[team]
-        self._terminated_in = env._terminated[team]
-        self._truncated_in = env._truncated[team]
+        self._rewards_in = env.outputs.rewards[team]
+        self._terminated_in = env.outputs.terminated[team]
+        self._truncated_in = env.outputs.truncated[team]
         self._alive = env.alive[team]
         self._captured_in = t.captured[:, :Pc] if team == "prey" else None
-        self._info = info = env._info
+        self._info = info = env.outputs.info
         self._episode_ended = info["episode_ended"]
         self._ended_length = info["episode_length"]
         self._ended_captures = info["episode_captures"]
