@@ -161,7 +161,6 @@ def grid_dims(cfg: AquariumConfig) -> tuple[int, int]:
     return max(1, int(cfg.width // target)), max(1, int(cfg.height // target))
 
 
-_grid_dims = grid_dims  # the name aquarium_warp/bench.py still imports
 
 
 def action_directions(action_count: int) -> np.ndarray:

@@ -26,11 +26,11 @@ def step_byte_model(cfg: AquariumConfig, dims: tuple[int, int] | None = None, cu
     Returns `{"stages": {stage: {"read": B, "write": B}}, "read", "write", "total"}` per agent slot,
     with `cells_per_world` and `grid_path` (the build's description).
     """
-    from ..env import _grid_dims
+    from ..env import grid_dims
     from ..shard import grid_build
 
     C, P, Pc = cfg.capacity, cfg.predator_count, cfg.prey_capacity
-    dims_x, dims_y = dims if dims is not None else _grid_dims(cfg)
+    dims_x, dims_y = dims if dims is not None else grid_dims(cfg)
     cells = dims_x * dims_y / C  # grid cells per agent slot
     pred = P / C  # share of slots that are predators
     prey = Pc / C

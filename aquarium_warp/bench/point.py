@@ -30,10 +30,10 @@ ActionSet = dict[str, torch.Tensor]
 
 def estimate_bytes(cfg: AquariumConfig, worlds: int) -> int:
     """Memory a point needs, about: the env's own estimate plus the sort's scratch and the action pool."""
-    from ..env import _grid_dims
+    from ..env import grid_dims
     from ..state import estimate_bytes as env_bytes
 
-    dims = _grid_dims(cfg)
+    dims = grid_dims(cfg)
     n = worlds * cfg.capacity
     env = env_bytes(cfg, worlds, dims[0] * dims[1])
     return int(1.25 * env + 8 * 4 * n + 16 * n)  # margin, 8 action sets (int32), sort scratch
@@ -45,7 +45,7 @@ def array_bytes(env: BatchedAquarium) -> int:
     def size(a: wp.array) -> int:
         return int(getattr(a, "capacity", 0) or a.size * wp.types.type_size_in_bytes(a.dtype))
 
-    total = sum(size(a) for a in vars(env.state).values() if isinstance(a, wp.array))
+    total = sum(size(a) for a in env.state.arrays().values())
     for shard in env.shards:
         g = shard.grid
         owned: tuple[str, ...] = ("cell_start", "cell_end", "cell_count", "key", "agent")
@@ -59,10 +59,10 @@ def array_bytes(env: BatchedAquarium) -> int:
 
 def measure_point(series: str, cfg: AquariumConfig, worlds: int, device: str, settings: BenchSettings) -> dict:
     """Measure one configuration; returns the point's record (status "ok", "skipped" or "failed")."""
-    from ..env import BatchedAquarium, _grid_dims  # at call time: tests replace BatchedAquarium
+    from ..env import BatchedAquarium, grid_dims  # at call time: tests replace BatchedAquarium
 
     agents = worlds * cfg.capacity
-    dims = _grid_dims(cfg)
+    dims = grid_dims(cfg)
     cuda = wp.get_device(device).is_cuda
     row: dict[str, Any] = {
         "series": series, "worlds": worlds, "agents_per_world": cfg.capacity, "agents": agents,
@@ -144,7 +144,7 @@ def _time_env(env: BatchedAquarium, pool: list[ActionSet], row: dict[str, Any], 
 
     # Eager vs graph (CUDA): the same step without the graph.
     if cuda and settings.eager:
-        actions = env._actions
+        actions = env.actions
 
         def eager(k: int) -> None:
             copy_actions_in(actions, pool[k % 8])

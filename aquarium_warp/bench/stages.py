@@ -24,7 +24,7 @@ STAGE_LABELS = {"actions": "action copy-in", "motion": "motion (steering, accele
                 "captures": "captures (detect, resolve, share, starve)",
                 "population": "population, rewards, episode end", "observations": "observations",
                 "heuristics": "heuristic policies (not in the step)"}
-# Kernel name -> stage (commands of `WorldShard._step_program`).
+# Kernel name -> stage (commands of `WorldShard.programs["step"]`).
 KERNEL_STAGES = {
     "integrate_motion": "motion",
     "compute_cell_keys": "grid", "array_scan": "grid", "drop_into_cells": "grid", "order_cells": "grid",
@@ -81,7 +81,7 @@ def stage_times(env: BatchedAquarium, pool: list[dict[str, torch.Tensor]], devic
     reps = repeats_within(settings.stage_repeats, step_time)
     samples: list[list[float]] = [[] for _ in program]
     copies = []
-    actions = env._actions
+    actions = env.actions
     events = [wp.Event(device, enable_timing=True) for _ in range(len(program) + 1)] if timer.cuda else []
 
     def run_recorded(s: WorldShard) -> None:  # CUDA: one shard, on Warp's stream (after torch's, by run_on_shards)
