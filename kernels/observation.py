@@ -112,7 +112,7 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
 
     def observe(
         world: WorldParams,
-        types: wp.array(dtype=AgentType),
+        types: wp.array2d(dtype=AgentType),
         grid: CellLists,
         agents: Agents,
         first_type: int,
@@ -138,7 +138,7 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
         per_world = world.prey_capacity
         first_slot = int(0)
         if t == PREDATOR:
-            per_world = world.predator_count
+            per_world = world.predator_capacity
             first_slot = world.prey_capacity
         r = block * block_dim + lane
         w = r // per_world
@@ -151,7 +151,7 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
                     out.observed_slot[r, s] = -1
                 scratch.contact_partner[w, i] = -1
             else:
-                p = types[t]
+                p = types[w, t]
                 pos = agents.position[w, i]
                 h = agents.heading[w, i]
 
@@ -259,7 +259,7 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
                     if kept_slot[e] != NO_SLOT:
                         jt = wp.where(e < predator_slots, PREDATOR, PREY)
                         k2 = kept_entry[e]
-                        neighbour = neighbour_tuple(world, p, types[jt], jt, kept_d2[e],
+                        neighbour = neighbour_tuple(world, p, types[w, jt], jt, kept_d2[e],
                                                     torus_displacement(world, pos, grid.position[k2]),
                                                     grid.position[k2], wp.length(agents.velocity[w, kept_slot[e]]))
                         for q in range(6):
