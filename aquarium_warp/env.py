@@ -479,7 +479,8 @@ class BatchedAquarium:
             column = per_world(cfg._field(name), W)
             for k, v in zip(worlds, given):
                 column[k] = v
-            values[name] = tuple(column)
+            # A value every world shares stays a scalar (as a config would give it).
+            values[name] = column[0] if all(v == column[0] for v in column) else tuple(column)
         new = cfg.with_values(values)  # checks every world (an error names the world)
         for name, limit in (("prey_count", self.prey_capacity), ("predator_count", self.predator_count)):
             counts = per_world(new._field(name), W)

@@ -99,9 +99,9 @@ class BatchParams:
     def __init__(self, cfg: AquariumConfig, num_worlds: int, device):
         self.num_worlds = num_worlds
         grids, index = flow_grids(per_world(cfg.flow, num_worlds))
-        self.flow_grid = wp.array(grids, dtype=wp.vec2, device=device)
-        self.types = wp.array(type_rows(cfg, num_worlds), dtype=AgentType, device=device)
-        self.values = wp.array(world_rows(cfg, num_worlds, index), dtype=WorldValues, device=device)
+        self.flow_grid: wp.array = wp.array(grids, dtype=wp.vec2, device=device)
+        self.types: wp.array = wp.array(type_rows(cfg, num_worlds), dtype=AgentType, device=device)
+        self.values: wp.array = wp.array(world_rows(cfg, num_worlds, index), dtype=WorldValues, device=device)
 
     def write(self, cfg: AquariumConfig) -> None:
         """Copy `cfg`'s values into the same arrays (a config of the same batch: its grid currents must

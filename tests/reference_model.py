@@ -11,7 +11,9 @@ Conventions (see MODEL.md and the project's decisions):
   predator_reward, catch_share_radius, predator_starvation_steps, prey_reproduction, max_prey,
   observation_range, prey_capacity, capacity, and per type (cfg.prey / cfg.predator): max_speed,
   max_steering_force, max_acceleration, mass, radius, view_distance, fov_angle (degrees),
-  bounce_strength, predator_slots, prey_slots.
+  bounce_strength, predator_slots, prey_slots; optionally `flow` (an `aquarium_warp.config.FlowConfig`).
+  A batch with per-world values is compared world by world on `world_config`s (one world's values, the
+  batch's slot counts).
 * Slots ``[0, prey_capacity)`` are prey, ``[prey_capacity, capacity)`` are predators.
 * A world state is a dict of numpy arrays (see ``FIELDS``); dead slots are ignored everywhere.
 * Type code in observations: predator 0, prey 1.
@@ -226,8 +228,39 @@ def steering_acceleration(cfg, state, i: int, action: int) -> np.ndarray:
     return raw / n * float(t.max_acceleration)
 
 
-def motion(cfg, state: Mapping[str, np.ndarray], actions) -> dict:
-    """Steps 1-4 for every live agent. Returns a new state; alive/age/... are unchanged."""
+def current(cfg, p, t: int) -> np.ndarray:
+    """MODEL.md "Flow fields": the current C(P, t) of ``cfg.flow`` (absent or kind "none": zero) at
+    position ``p`` at step ``t``, float64."""
+    flow = getattr(cfg, "flow", None)
+    kind = "none" if flow is None else flow.kind
+    p = np.asarray(p, np.float64)
+    c = np.zeros(2)
+    if kind == "uniform":
+        c = np.asarray(flow.velocity, np.float64)
+    elif kind == "vortex":
+        d = torus_delta(cfg, np.asarray(flow.centre, np.float64), p)
+        rho = norm(d)
+        if rho > 0.0:
+            g = rho / flow.core_radius if rho < flow.core_radius else flow.core_radius / rho
+            c = flow.strength * g * np.array([-d[1], d[0]]) / rho
+    elif kind == "grid":
+        grid = np.asarray(flow.grid, np.float64)
+        rows, cols = grid.shape[:2]
+        # cell (i, j) has its centre at ((j + 1/2) W / cols, (i + 1/2) H / rows)
+        u = p[0] / cfg.width * cols - 0.5
+        r = p[1] / cfg.height * rows - 0.5
+        j0, i0 = math.floor(u), math.floor(r)
+        fx, fy = u - j0, r - i0
+        c = ((1 - fx) * (1 - fy) * grid[i0 % rows, j0 % cols] + fx * (1 - fy) * grid[i0 % rows, (j0 + 1) % cols]
+             + (1 - fx) * fy * grid[(i0 + 1) % rows, j0 % cols] + fx * fy * grid[(i0 + 1) % rows, (j0 + 1) % cols])
+    if kind != "none" and flow.amplitude != 0.0:
+        c = c * (1.0 + flow.amplitude * math.sin(2.0 * math.pi * t / flow.period))
+    return c
+
+
+def motion(cfg, state: Mapping[str, np.ndarray], actions, world_step: int = 0) -> dict:
+    """Steps 1-4 for every live agent (the current at step ``world_step`` added to the displacement).
+    Returns a new state; alive/age/... are unchanged."""
     start = as_state(cfg, state)
     actions = np.asarray(actions).astype(np.int64)
     new = copy_state(start)
@@ -248,7 +281,7 @@ def motion(cfg, state: Mapping[str, np.ndarray], actions) -> dict:
         speed = norm(v_new)
         new["acceleration"][i] = acc
         new["velocity"][i] = v_new
-        new["position"][i] = wrap(cfg, start["position"][i] + v_new)
+        new["position"][i] = wrap(cfg, start["position"][i] + v_new + current(cfg, start["position"][i], world_step))
         new["heading"][i] = v_new / speed if speed > 0.0 else start["heading"][i]
     return new
 
@@ -430,7 +463,7 @@ def step(
     Returns (new_state, rewards (C,), terminated (C,), truncated (C,), captured (C,), info)."""
     start = as_state(cfg, state)
     c = capacity(cfg)
-    moved = motion(cfg, start, actions)
+    moved = motion(cfg, start, actions, world_step)
     new = copy_state(moved)
 
     rewards = np.zeros(c, np.float64)
