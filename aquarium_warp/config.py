@@ -285,7 +285,8 @@ class AgentTypeConfig:
 
     @property
     def observation_size(self) -> int:
-        """Length of this type's observation vector: 5 + 6 * (predator_slots + prey_slots)."""
+        """Length of this type's observation vector: 5 + 6 * (predator_slots + prey_slots), plus 2 where the
+        world's config has `observe_flow` (`AquariumConfig.observation_size`)."""
         return 5 + 6 * (self.predator_slots + self.prey_slots)
 
 
@@ -522,6 +523,10 @@ class AquariumConfig:
     def capacity(self) -> int:
         """Agent slots per world: prey slots first, then predator slots."""
         return self.prey_capacity + self.predator_capacity
+
+    def observation_size(self, agent_type: str) -> int:
+        """Length of the observation vector of `agent_type` ("prey" or "predator"), flow values included."""
+        return getattr(self, agent_type).observation_size + 2 * int(self.observe_flow)
 
     @property
     def max_torus_distance(self) -> float:

@@ -235,7 +235,7 @@ class BatchedAquarium:
         self.prey_capacity = cfg.prey_capacity
         self.predator_count = cfg.predator_capacity  # predator slots per world
         self.capacity = C = cfg.capacity
-        self.observation_size = {"prey": cfg.prey.observation_size, "predator": cfg.predator.observation_size}
+        self.observation_size = {t: cfg.observation_size(t) for t in TYPES}
         self.observed_slots = {t: getattr(cfg, t).predator_slots + getattr(cfg, t).prey_slots for t in TYPES}
 
         dims_x, dims_y = grid_dims(cfg)

@@ -205,8 +205,8 @@ class WorldShard:
             second_out = self._observed_rows(second, kernel) if second else first_out
             commands.append(self.record(
                 kernel, (first_blocks + (second_rows + block - 1) // block, block),
-                [self.world, self.types, self.grid, self.state.agents, TYPE_CODES[first], rows[first], first_blocks,
-                 second_rows], [first_out, second_out, self.state.scratch], block_dim=block))
+                [self.world, self.types, self.grid, self.state.agents, self.state.worlds, TYPE_CODES[first],
+                 rows[first], first_blocks, second_rows], [first_out, second_out, self.state.scratch], block_dim=block))
         return commands
 
     def observe_program(self) -> list:
@@ -301,7 +301,8 @@ class ShardSet:
         block = OBSERVATION_BLOCK if self.cuda else 1
         whole_world = tuple(dims) == (1, 1)  # the shards' cell lists are whole-world lists
         observe_kernels = {t: observation.observation_kernel(getattr(cfg, t).predator_slots,
-                                                             getattr(cfg, t).prey_slots, block, whole_world)
+                                                             getattr(cfg, t).prey_slots, block, whole_world,
+                                                             bool(cfg.observe_flow))
                            for t in ("prey", "predator")}
         self.shards = tuple(WorldShard(cfg, state, k, w0, w1, dims, params, action_direction, observe_kernels, device,
                                        auto_reset) for k, (w0, w1) in enumerate(zip(bounds[:-1], bounds[1:])))

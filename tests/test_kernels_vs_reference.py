@@ -129,6 +129,11 @@ CONFIGS["respawn_off_starvation_cells"] = dataclasses.replace(CONFIGS["respawn_o
 CONFIGS["reproduction_cells"] = dataclasses.replace(CONFIGS["reproduction"], grid_cell_size=50.0)
 CONFIGS["per_world_flow_and_values_cells"] = dataclasses.replace(CONFIGS["per_world_flow_and_values"],
                                                                  grid_cell_size=30.0)
+# The observed current (two values after the own 5-tuple), in both ranges; world 1's uniform current
+# (2.5 px/step) is faster than its prey (2 px/step), so the prey's value there is clipped.
+CONFIGS["vortex_observed"] = dataclasses.replace(CONFIGS["vortex_time_varying"], observe_flow=True)
+CONFIGS["per_world_flow_observed_signed"] = dataclasses.replace(
+    CONFIGS["per_world_flow_and_values"], observe_flow=True, observation_range="-1..1")
 
 
 def world_config(cfg, w: int):
@@ -390,9 +395,9 @@ def compare_state(cfg, where: str, kernel: dict, reference: dict, errors: list) 
                 errors.append(f"{where} {slot_name(cfg, i)} {name}: kernel={kernel[name][i]} reference={reference[name][i]}")
 
 
-def angle_columns(type_config) -> set:
+def angle_columns(cfg, type_config) -> set:
     k = type_config.predator_slots + type_config.prey_slots
-    return {3} | {ref.OWN_SIZE + ref.TUPLE_SIZE * s + 4 for s in range(k)}
+    return {3} | {ref.own_size(cfg) + ref.TUPLE_SIZE * s + 4 for s in range(k)}
 
 
 def compare_observations(cfg, where: str, k_obs: dict, k_mask: dict, r_obs: dict, r_mask: dict, r_slots: dict, errors):
@@ -406,7 +411,8 @@ def compare_observations(cfg, where: str, k_obs: dict, k_mask: dict, r_obs: dict
                 f"{where} {key} observation shape: kernel={ko.shape}/{km.shape} reference={r_obs[key].shape}/{r_mask[key].shape}"
             )
             continue
-        angles = sorted(angle_columns(t))
+        angles = sorted(angle_columns(cfg, t))
+        own = ref.own_size(cfg)
         for row in range(ko.shape[0]):
             slot = first + row
             diff = np.abs(ko[row] - r_obs[key][row])
@@ -420,10 +426,10 @@ def compare_observations(cfg, where: str, k_obs: dict, k_mask: dict, r_obs: dict
             if bad.size:
                 parts = []
                 for c in bad[:6]:
-                    if c < ref.OWN_SIZE:
+                    if c < own:
                         label = f"own[{c}]"
                     else:
-                        s, e = divmod(c - ref.OWN_SIZE, ref.TUPLE_SIZE)
+                        s, e = divmod(c - own, ref.TUPLE_SIZE)
                         label = f"obs-slot {s} (agent {r_slots[key][row][s]})[{e}]"
                     parts.append(f"{label} kernel={ko[row][c]:.7g} reference={r_obs[key][row][c]:.7g}")
                 errors.append(
@@ -487,7 +493,8 @@ def check_step(name: str, cfg, env, starts: list, actions: np.ndarray, errors: l
             for slot in r_info["respawned"] + [child for _, child in r_info["births"]]:
                 if not lo <= int(after[w]["replication_age"][slot]) <= hi:
                     errors.append(f"{where} {slot_name(cfg, slot)} new replication_age {after[w]['replication_age'][slot]} not in [{lo}, {hi}]")
-            r_obs, r_mask, r_slots = ref.observe(cfg, after[w], with_slots=True)
+            r_obs, r_mask, r_slots = ref.observe(cfg, after[w], with_slots=True,
+                                                 world_step=after[w]["world_step"])
             compare_observations(cfg, where, pick(k_obs), pick(k_mask), r_obs, r_mask, r_slots, errors)
             for key, first in (("prey", 0), ("predator", cfg.prey_capacity)):
                 for row in range(r_mask[key].shape[0]):
@@ -524,7 +531,8 @@ def test_observations_after_set_state(name):
             for field in ref.FIELDS:
                 if not np.array_equal(after[w][field][worlds[w]["alive"]], worlds[w][field][worlds[w]["alive"]]):
                     errors.append(f"{where} set_state did not store {field}")
-            r_obs, r_mask, r_slots = ref.observe(world_config(cfg, w), worlds[w], with_slots=True)
+            r_obs, r_mask, r_slots = ref.observe(world_config(cfg, w), worlds[w], with_slots=True,
+                                                 world_step=after[w]["world_step"])
             k_obs = {k: v[w].detach().cpu().numpy() for k, v in env.observations.items()}
             k_mask = {k: v[w].detach().cpu().numpy() for k, v in env.observation_mask.items()}
             n_before = len(errors)
