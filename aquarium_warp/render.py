@@ -128,6 +128,19 @@ class Renderer:
         p.width_px, p.height_px = Wp, H
         p.pixel_width, p.pixel_height = p.world_width / Wp, p.world_height / H
         p.prey_capacity = env.prey_capacity
+        pixel = max(p.pixel_width, p.pixel_height)
+        p.outline = 1.0 * pixel
+        p.ring = 0.6 * pixel
+        p.line_px = 0.6
+        p.velocity_scale = float(velocity_scale)
+        self._params = p
+
+    def _set_world_types(self, world: int) -> None:
+        """Hit-box radii and view cones of `world`'s own agent types (they may differ between worlds;
+        read from the env's config at each frame, so `set_params` changes show)."""
+        p, cfg = self._params, self.env.config
+        if cfg.per_world_fields:
+            cfg = cfg.world(world)
         half_diagonal = 0.5 * math.hypot(cfg.width, cfg.height)
         radius, cone, cos_half = [0.0, 0.0], [0.0, 0.0], [0.0, 0.0]
         for code, t in ((PREDATOR, cfg.predator), (PREY, cfg.prey)):
@@ -136,12 +149,6 @@ class Renderer:
             full_circle = t.fov_angle >= 360 or not cfg.fov_enabled  # without FOV only the distance limits sight
             cos_half[code] = -2.0 if full_circle else math.cos(math.radians(t.fov_angle / 2.0))
         p.radius, p.cone_radius, p.cos_half_fov = wp.vec2(*radius), wp.vec2(*cone), wp.vec2(*cos_half)
-        pixel = max(p.pixel_width, p.pixel_height)
-        p.outline = 1.0 * pixel
-        p.ring = 0.6 * pixel
-        p.line_px = 0.6
-        p.velocity_scale = float(velocity_scale)
-        self._params = p
 
     @property
     def env(self):
@@ -161,6 +168,7 @@ class Renderer:
         env = self.env
         p = self._params
         p.world = int(world)
+        self._set_world_types(world)
         p.view_cones, p.hit_boxes, p.velocities = int(bool(view_cones)), int(bool(hit_boxes)), int(bool(velocities))
         agents = env.state.agents
         if wp.get_device(self.device).is_cuda:

@@ -14,6 +14,8 @@ import torch
 from aquarium_warp import AquariumConfig, BatchedAquarium
 from aquarium_warp.config import Choice, FlowConfig, LogUniform, Uniform
 from aquarium_warp.heuristics import HeuristicPolicy
+from aquarium_warp.metrics import EpisodeMetrics, SwarmMetrics
+from aquarium_warp.render import Renderer
 
 BASE = AquariumConfig(width=300.0, height=260.0, prey_count=12, predator_count=2)
 # Live prey per world differ; the prey slots stay 12 in the batch and in each world's own batch
@@ -65,6 +67,44 @@ def test_batch_of_different_worlds_equals_a_batch_per_world_config():
             for name in mine:
                 assert torch.equal(mine[name], theirs[name]), f"step {step} world {k}: {name} differs"
     assert batch.state.torch.alive[:, :12].sum(dim=1).tolist() != [12, 12, 12]
+
+
+def test_metrics_and_frames_of_a_per_world_batch_equal_each_world_config():
+    """Swarm metrics (linking distance: each world's 2.5 prey radii), episode metrics (captures per
+    prey: each world's prey count) and frames (each world's hit boxes and view cones) of a per-world
+    batch equal, world by world, those of a batch of that world's own config (same states)."""
+    cfg = dataclasses.replace(PER_WORLD, max_steps=25)
+    W = cfg.num_worlds
+    batch = BatchedAquarium(cfg, W, device="cpu", seed=5)
+    singles = [BatchedAquarium(cfg.world(k), W, device="cpu", seed=5) for k in range(W)]
+    envs = [batch] + singles
+    episodes = [EpisodeMetrics(env, nn_range=150.0) for env in envs]
+    for e in episodes:
+        e.begin()
+    gen = torch.Generator().manual_seed(2)
+    for _ in range(40):  # one episode ends in every world, the next one is under way
+        actions = random_actions(gen, W, batch.prey_capacity, batch.predator_count)
+        for env, e in zip(envs, episodes):
+            out = env.step({"prey": actions["prey"][:, :env.prey_capacity],
+                            "predator": actions["predator"][:, :env.predator_count]})
+            e.update(out.info)
+    assert SwarmMetrics(batch).linking_distance == (50.0, 30.0, 62.5)
+    swarm = SwarmMetrics(batch, nn_range=150.0).compute()
+    batch_episodes = episodes[0].result()
+    renderer = Renderer(batch, 150, 130)
+    for k, single in enumerate(singles):
+        theirs = SwarmMetrics(single, nn_range=150.0).compute()
+        for name, value in swarm.items():
+            assert torch.equal(value[k], theirs[name][k]), f"world {k}: {name}"
+        single_episodes = episodes[1 + k].result()
+        assert batch_episodes["episodes"][k] == 1
+        for name, value in batch_episodes.items():
+            assert torch.equal(value[k], single_episodes[name][k]), f"world {k}: episode {name}"
+        for options in ({"hit_boxes": True}, {"view_cones": True}):
+            frame = renderer.render(k, **options)
+            assert np.array_equal(frame, Renderer(single, 150, 130).render(k, **options)), (k, options)
+    per_prey = batch_episodes["captures"] / torch.tensor([12.0, 5.0, 9.0], dtype=torch.float64)
+    assert torch.equal(batch_episodes["captures_per_prey"], per_prey)
 
 
 def test_swarm_size_sweep_in_one_batch_equals_one_batch_per_size():
