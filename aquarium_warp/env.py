@@ -430,7 +430,7 @@ class BatchedAquarium:
                                  f"actions must be in [0, {n - 1}] (action_count={n})")
 
     # ------------------------------------------------------------------ per-world parameters
-    def set_params(self, world=None, **fields) -> AquariumConfig:
+    def set_params(self, world=None, validate: bool = True, **fields) -> AquariumConfig:
         """Give worlds new parameter values between steps: `world` None (every world), an index or a
         sequence of indices; `fields` by name, the world fields of `config.PER_WORLD_FIELDS`
         (`prey_reward=2.0`, `flow=FlowConfig(...)`, `prey_count=8`) and the per-type ones as
@@ -441,7 +441,9 @@ class BatchedAquarium:
         Values are checked world by world before anything changes (a bad one raises `ValueError`
         naming the field, the world and the allowed range); then they are copied into the device
         arrays the kernels read, so the next step uses them (a live count at the world's next reset).
-        Nothing is rebuilt or recorded again. Returns the new `config`."""
+        Nothing is rebuilt or recorded again. Returns the new `config`. `validate=False` skips the
+        per-world checks of the values (about 70 us per world; the live counts' limits stay checked):
+        for values already known to be valid, such as draws from a range checked once."""
         rng = fields.pop("rng", None)
         names = {}
         for key in fields:
@@ -481,7 +483,7 @@ class BatchedAquarium:
                 column[k] = v
             # A value every world shares stays a scalar (as a config would give it).
             values[name] = column[0] if all(v == column[0] for v in column) else tuple(column)
-        new = cfg.with_values(values)  # checks every world (an error names the world)
+        new = cfg.with_values(values, validate)  # checks every world (an error names the world)
         for name, limit in (("prey_count", self.prey_capacity), ("predator_count", self.predator_count)):
             counts = per_world(new._field(name), W)
             over = [k for k, n in enumerate(counts) if n > limit]

@@ -25,6 +25,7 @@ import json
 import math
 
 from ..config import AquariumConfig, _is_int, _is_real
+from .randomize import parse_spec
 
 DISTRIBUTION = "aquarium_warp.training.distribution:CategoricalDistribution"
 PPO_CLASS = "aquarium_warp.training.ppo:AquariumPPO"
@@ -52,6 +53,7 @@ TRAIN_DEFAULTS = {
     "cuda_graphs": True,            # the fast loop replays CUDA graphs on CUDA devices where the model allows
     "metrics_every": 10,            # swarm metrics (Swarm/* in the log) sampled every N steps; 0: none
     "tf32": False,                  # CUDA matrix products in TF32 (faster for large batches, ~1e-3 relative error)
+    "randomize": {},                # {field: "low:high" or "a,b,c"}: per-world values drawn at every world's reset
 }
 LOOPS = ("fast", "rsl-rl")
 
@@ -216,6 +218,10 @@ def validate(config: dict) -> None:
         raise ValueError(f"train.loop={train['loop']!r} must be one of {LOOPS}")
     if not _is_int(train["metrics_every"]) or not 0 <= train["metrics_every"] <= 2**31 - 1:
         raise ValueError(f"train.metrics_every={train['metrics_every']!r} must be an integer in [0, 2**31 - 1] (0: no swarm metrics)")
+    if not isinstance(train["randomize"], dict):
+        raise ValueError(f"train.randomize={train['randomize']!r} must be a mapping field -> 'low:high' or 'a,b,c'")
+    for field, spec in train["randomize"].items():
+        parse_spec(f"{field}={spec}")
     if not isinstance(train["tf32"], bool):
         raise ValueError(f"train.tf32={train['tf32']!r} must be true or false")
     if not isinstance(train["cuda_graphs"], bool):

@@ -403,7 +403,8 @@ class Trainer:
         self.opponent = make_opponent(train["opponent"], self.env, OTHER[team],
                                       deterministic=train["opponent_deterministic"], seed=self.seed)
         self.vec_env = AquariumVecEnv(self.env, team, self.opponent, reward_scale=train["reward_scale"],
-                                      cfg=config, metrics_every=int(train["metrics_every"]))
+                                      cfg=config, metrics_every=int(train["metrics_every"]),
+                                      randomize=train["randomize"], randomize_seed=self.seed)
         self.runner_cfg = runner_config(config, self.vec_env.slots, self.vec_env.action_count, self.device.type)
         self.total_iterations = total_iterations(config)
         if log_dir is not None and rank == 0:

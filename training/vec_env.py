@@ -48,6 +48,7 @@ from rsl_rl.env import VecEnv
 
 from ..env import TYPES, BatchedAquarium
 from ..metrics import EPISODE_METRICS, EpisodeMetrics
+from .randomize import ParamRandomizer
 
 OTHER = {"prey": "predator", "predator": "prey"}
 # The device-side sums' columns (`accumulate_episode_stats`); captures per prey is derived on the host.
@@ -98,7 +99,7 @@ class AquariumVecEnv(VecEnv):
     """
 
     def __init__(self, env: BatchedAquarium, team: str = "prey", opponent=None, reward_scale: float = 1.0,
-                 cfg: dict | None = None, metrics_every: int = 10):
+                 cfg: dict | None = None, metrics_every: int = 10, randomize=None, randomize_seed: int = 0):
         if not isinstance(env, BatchedAquarium):
             raise ValueError(f"env must be a BatchedAquarium, got {type(env).__name__}")
         if team not in TYPES:
@@ -108,6 +109,8 @@ class AquariumVecEnv(VecEnv):
         if opponent is None or not callable(opponent):
             raise ValueError("opponent must be a callable returning the other team's actions [W, slots]")
         self.env, self.team, self.other = env, team, OTHER[team]
+        # Domain randomisation (`randomize.py`): new per-world values at every world's reset.
+        self.randomizer = ParamRandomizer(env, randomize, randomize_seed) if randomize else None
         self.opponent = opponent
         self.reward_scale = float(reward_scale)
         ecfg = env.config
@@ -225,6 +228,8 @@ class AquariumVecEnv(VecEnv):
             self._actions.copy_(actions.reshape(self.num_worlds, self.slots))  # float -> int32 (exact)
         other_actions = self.opponent()
         self.env.step({self.team: self._actions, self.other: other_actions}, validate=False)
+        if self.randomizer is not None:
+            self.randomizer.update(self._episode_ended)
 
     @property
     def actions_buffer(self) -> torch.Tensor:
