@@ -19,8 +19,7 @@ fields") as arrows on a grid `flow_spacing` image pixels apart, under the agents
 `velocity_scale` steps, at most 0.9 grid spacings; none where the current is shorter than a pixel).
 
 The work per frame is two kernel launches (one thread per agent slot, then one per pixel; a third, one
-thread per arrow, with `draw_flow`) and, for
-`render()`, one copy of the image to the host.
+thread per arrow, with `draw_flow`) and, for `render()`, one copy of the image to the host.
 """
 
 from __future__ import annotations
