@@ -143,8 +143,9 @@ def _is_heuristic(spec: str, agent_type: str) -> bool:
 def _video_config(args):
     """The world to film: the trained policies' own (from their metadata, as `eval` takes it; prey and
     predator files must agree), else MODEL.md's (16 prey, 1 predator, 800 x 800); `--prey`,
-    `--predators`, `--width`, `--height` override either."""
+    `--predators`, `--width`, `--height`, `--flow` override either."""
     from . import AquariumConfig
+    from .config import FlowConfig
 
     files = [spec for spec, agent_type in ((args.prey_policy, "prey"), (args.predator_policy, "predator"))
              if not _is_heuristic(spec, agent_type)]
@@ -160,6 +161,12 @@ def _video_config(args):
                        ("height", args.height)):
         if value is not None:
             data[key] = value
+    width, height = float(data["width"]), float(data["height"])
+    if args.flow == "uniform":
+        data["flow"] = FlowConfig("uniform", velocity=(args.flow_strength, 0.0))
+    elif args.flow == "vortex":  # centred, its core a sixth of the shorter side across
+        data["flow"] = FlowConfig("vortex", centre=(width / 2, height / 2), strength=args.flow_strength,
+                                  core_radius=min(width, height) / 6)
     return AquariumConfig.from_dict(data)
 
 
@@ -179,7 +186,7 @@ def _video(args) -> int:
     frames = record(env, lambda obs: {"prey": prey(), "predator": predator()}, args.steps, args.out,
                     fps=args.fps, progress=not args.no_progress, width_px=args.frame_width,
                     height_px=args.frame_height, view_cones=args.view_cones, hit_boxes=args.hit_boxes,
-                    velocities=args.velocities)
+                    velocities=args.velocities, draw_flow=args.draw_flow)
     print(f"wrote {frames} frames to {args.out} in {time.perf_counter() - start:.1f} s")
     return 0
 
@@ -386,6 +393,12 @@ def build_parser() -> argparse.ArgumentParser:
     video.add_argument("--view-cones", action="store_true", help="draw each agent's field of view")
     video.add_argument("--hit-boxes", action="store_true", help="draw each agent's hit-box circle")
     video.add_argument("--velocities", action="store_true", help="draw velocity arrows (10 steps long)")
+    video.add_argument("--flow", choices=("uniform", "vortex"), default=None,
+                       help="a current (MODEL.md 'Flow fields'): uniform along +x, or a vortex at the centre "
+                            "(core radius a sixth of the shorter side); default: the config's (none)")
+    video.add_argument("--flow-strength", type=float, default=2.0,
+                       help="px per step of --flow (the vortex's at its core's edge; default 2)")
+    video.add_argument("--draw-flow", action="store_true", help="draw the current as arrows under the agents")
     video.add_argument("--no-progress", action="store_true", help="no progress bar")
     video.set_defaults(run=_video)
     _add_train(sub)

@@ -7,6 +7,7 @@ field and its allowed range.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 from dataclasses import dataclass, field
@@ -65,6 +66,163 @@ def _normalise(obj, ints: tuple, reals: tuple, bools: tuple = ()) -> None:
         object.__setattr__(obj, name, bool(getattr(obj, name)))
 
 
+# Per-type fields that may differ between the worlds of a batch (observation slots change array sizes).
+PER_WORLD_TYPE_FIELDS = ("max_speed", "max_steering_force", "max_acceleration", "mass", "radius", "view_distance",
+                         "fov_angle", "bounce_strength")
+# World fields that may differ between worlds: none changes an array's size (live counts are at most
+# the batch's capacity, the largest count).
+PER_WORLD_FIELDS = ("prey_count", "predator_count", "prey_reward", "prey_capture_penalty", "predator_reward",
+                    "catch_share_radius", "predator_starvation_steps", "prey_replication_age", "flow")
+INTEGER_FIELDS = ("prey_count", "predator_count", "predator_starvation_steps", "prey_replication_age")
+
+
+@dataclass(frozen=True)
+class Uniform:
+    """Per-world values drawn uniformly from [low, high] (integers for integer fields)."""
+
+    low: float
+    high: float
+
+    def draw(self, rng: np.random.Generator, n: int, integer: bool) -> list:
+        if integer:
+            return [int(x) for x in rng.integers(int(self.low), int(self.high) + 1, size=n)]
+        return [float(x) for x in rng.uniform(self.low, self.high, size=n)]
+
+    def check(self, name: str) -> None:
+        _check(name, (self.low, self.high), _is_real(self.low) and _is_real(self.high) and self.low <= self.high,
+               "a range of two numbers with low <= high")
+
+
+@dataclass(frozen=True)
+class LogUniform(Uniform):
+    """Per-world values whose logarithm is uniform in [log low, log high] (0 < low <= high)."""
+
+    def draw(self, rng: np.random.Generator, n: int, integer: bool) -> list:
+        values = np.exp(rng.uniform(math.log(self.low), math.log(self.high), size=n))
+        return [int(round(x)) for x in values] if integer else [float(x) for x in values]
+
+    def check(self, name: str) -> None:
+        _check(name, (self.low, self.high), _is_real(self.low) and _is_real(self.high) and 0 < self.low <= self.high,
+               "a range of two numbers with 0 < low <= high")
+
+
+@dataclass(frozen=True)
+class Choice:
+    """Per-world values drawn uniformly from `values`."""
+
+    values: tuple
+
+    def draw(self, rng: np.random.Generator, n: int, integer: bool) -> list:
+        return [self.values[k] for k in rng.integers(0, len(self.values), size=n)]
+
+    def check(self, name: str) -> None:
+        _check(name, self.values, isinstance(self.values, tuple) and len(self.values) > 0, "a non-empty tuple")
+
+
+SAMPLERS = (Uniform, LogUniform, Choice)
+
+
+def _per_world_value(name: str, value):
+    """A per-world value (sequence, array, tensor) as a tuple of Python scalars, a sampler as is, a
+    scalar as is."""
+    if isinstance(value, SAMPLERS):
+        value.check(name)
+        return value
+    if isinstance(value, FlowConfig) or isinstance(value, (str, bytes, dict)):
+        return value
+    if hasattr(value, "tolist") and not isinstance(value, (np.integer, np.floating, np.bool_)):
+        value = value.tolist()  # numpy arrays and torch tensors
+    if isinstance(value, (list, tuple)):
+        _check(name, value, len(value) >= 1, "a scalar or a non-empty sequence of one value per world")
+        return tuple(v if isinstance(v, FlowConfig) else (v.item() if hasattr(v, "item") else v) for v in value)
+    return value
+
+
+def _world_value(value, world: int):
+    return value[world] if isinstance(value, tuple) else value
+
+
+def largest(value) -> float:
+    """The largest per-world value of a field (the value itself when it is a scalar)."""
+    if isinstance(value, tuple):
+        return max(value)
+    if isinstance(value, Choice):
+        return max(value.values)
+    if isinstance(value, Uniform):
+        return value.high
+    return value
+
+
+@dataclass(frozen=True)
+class FlowConfig:
+    """A current that carries the agents (MODEL.md "Flow fields"), in px per step.
+
+    `kind`: "none" (default: no current), "uniform" (`velocity` = (c_x, c_y)), "vortex" (a Rankine
+    vortex at `centre` with `strength` w px/step at the core's edge, `core_radius` r_c px; positive
+    w turns clockwise on screen) or "grid" (`grid`: nested sequences `[rows][cols][2]` of currents at
+    cell centres, bilinear, torus-wrapped). Any kind varies in time as (1 + `amplitude` sin(2 pi t /
+    `period`)), `amplitude` >= 0 (0: steady), `period` > 0 steps.
+    """
+
+    kind: str = "none"
+    velocity: tuple = (0.0, 0.0)
+    centre: tuple = (400.0, 400.0)
+    strength: float = 0.0
+    core_radius: float = 100.0
+    grid: tuple | None = None
+    amplitude: float = 0.0
+    period: float = 1000.0
+
+    def __post_init__(self) -> None:
+        _check("flow.kind", self.kind, self.kind in FLOW_KINDS, f"one of {FLOW_KINDS}")
+        for name in ("velocity", "centre"):
+            value = getattr(self, name)
+            if hasattr(value, "tolist"):
+                value = value.tolist()
+            ok = isinstance(value, (list, tuple)) and len(value) == 2 and all(
+                _is_real(v) and abs(v) <= LARGEST for v in value)
+            _check(f"flow.{name}", value, ok, f"two finite numbers (x, y) with |x|, |y| <= {LARGEST:g}")
+            object.__setattr__(self, name, tuple(float(v) for v in value))
+        _check("flow.strength", self.strength, _in_range(self.strength, -LARGEST, LARGEST),
+               f"a finite number in [-{LARGEST:g}, {LARGEST:g}] px/step")
+        _check("flow.core_radius", self.core_radius, _in_range(self.core_radius, SMALLEST, LARGEST),
+               f"a finite number > 0, in [{SMALLEST:g}, {LARGEST:g}] px")
+        _check("flow.amplitude", self.amplitude, _in_range(self.amplitude, 0.0, LARGEST),
+               f"a finite number >= 0 (at most {LARGEST:g})")
+        _check("flow.period", self.period, _in_range(self.period, SMALLEST, LARGEST),
+               f"a finite number > 0 steps, in [{SMALLEST:g}, {LARGEST:g}]")
+        if self.kind == "grid" or self.grid is not None:
+            grid = np.asarray(self.grid if self.grid is not None else [], dtype=np.float64)
+            _check("flow.grid", "an array of shape " + str(list(grid.shape)),
+                   grid.ndim == 3 and grid.shape[0] >= 1 and grid.shape[1] >= 1 and grid.shape[2] == 2,
+                   "an array [rows, cols, 2] (rows, cols >= 1) of currents at cell centres")
+            bad = ~(np.isfinite(grid) & (np.abs(grid) <= LARGEST))
+            if bad.any():
+                i, j, k = (int(x) for x in np.argwhere(bad)[0])
+                _check(f"flow.grid[{i}, {j}, {k}]", float(grid[i, j, k]), False,
+                       f"a finite number with |value| <= {LARGEST:g} px/step")
+            object.__setattr__(self, "grid", tuple(tuple(tuple(float(c) for c in cell) for cell in row) for row in grid))
+        _normalise(self, (), ("strength", "core_radius", "amplitude", "period"))
+        for name in ("strength", "core_radius", "amplitude", "period"):
+            object.__setattr__(self, name, float(getattr(self, name)))
+
+    @property
+    def reach(self) -> float:
+        """The largest length of the current anywhere, at any time (px/step): bounds an agent's drift."""
+        if self.kind == "uniform":
+            base = math.hypot(*self.velocity)
+        elif self.kind == "vortex":
+            base = abs(self.strength)
+        elif self.kind == "grid":
+            base = float(np.max(np.hypot(*np.moveaxis(np.asarray(self.grid), -1, 0))))
+        else:
+            return 0.0
+        return base * (1.0 + self.amplitude)
+
+
+FLOW_KINDS = ("none", "uniform", "vortex", "grid")
+
+
 @dataclass(frozen=True)
 class AgentTypeConfig:
     """Parameters of one agent type (MODEL.md, per-type table). Lengths in px, angles in degrees,
@@ -89,6 +247,11 @@ class AgentTypeConfig:
     prey_slots: int = 3
 
     def validate(self, prefix: str) -> None:
+        for name in PER_WORLD_TYPE_FIELDS:
+            object.__setattr__(self, name, _per_world_value(f"{prefix}.{name}", getattr(self, name)))
+        if self.per_world_fields:  # AquariumConfig checks them world by world
+            self._validate_slots(prefix)
+            return
         bounded = f"a finite number > 0, in [{SMALLEST:g}, {LARGEST:g}] (float32-safe)"
         for name in ("max_speed", "max_steering_force", "max_acceleration", "mass", "radius"):
             value = getattr(self, name)
@@ -106,17 +269,25 @@ class AgentTypeConfig:
         b = self.bounce_strength
         _check(f"{prefix}.bounce_strength", b, _is_real(b) and (b == 0 or SMALLEST <= b <= LARGEST),
                f"a finite number >= 0: 0 or in [{SMALLEST:g}, {LARGEST:g}] (float32-safe)")
+        self._validate_slots(prefix)
+        _normalise(self, (), PER_WORLD_TYPE_FIELDS)
+
+    def _validate_slots(self, prefix: str) -> None:
         for name in ("predator_slots", "prey_slots"):
             value = getattr(self, name)
             _check(f"{prefix}.{name}", value, _is_int(value) and 0 <= value <= MAX_OBSERVED_SLOTS,
                    f"an integer in [0, {MAX_OBSERVED_SLOTS}]")
-        _normalise(self, ("predator_slots", "prey_slots"),
-                   ("max_speed", "max_steering_force", "max_acceleration", "mass", "radius", "view_distance",
-                    "fov_angle", "bounce_strength"))
+        _normalise(self, ("predator_slots", "prey_slots"), ())
+
+    @property
+    def per_world_fields(self) -> tuple[str, ...]:
+        """Names of the fields given per world (a tuple of values or a sampler)."""
+        return tuple(n for n in PER_WORLD_TYPE_FIELDS if isinstance(getattr(self, n), (tuple,) + SAMPLERS))
 
     @property
     def observation_size(self) -> int:
-        """Length of this type's observation vector: 5 + 6 * (predator_slots + prey_slots)."""
+        """Length of this type's observation vector: 5 + 6 * (predator_slots + prey_slots), plus 2 where the
+        world's config has `observe_flow` (`AquariumConfig.observation_size`)."""
         return 5 + 6 * (self.predator_slots + self.prey_slots)
 
 
@@ -168,8 +339,114 @@ class AquariumConfig:
     prey: AgentTypeConfig = field(default_factory=default_prey)
     predator: AgentTypeConfig = field(default_factory=default_predator)
     grid_cell_size: float | None = None
+    flow: FlowConfig = field(default_factory=FlowConfig)
+    observe_flow: bool = False
 
     def __post_init__(self) -> None:
+        for name in PER_WORLD_FIELDS:
+            object.__setattr__(self, name, _per_world_value(name, getattr(self, name)))
+        if isinstance(self.flow, dict):
+            object.__setattr__(self, "flow", FlowConfig(**self.flow))
+        for name in ("prey", "predator"):
+            value = getattr(self, name)
+            if not isinstance(value, AgentTypeConfig):
+                raise ValueError(f"{name} must be an AgentTypeConfig, got {type(value).__name__}")
+            value.validate(name)
+        if self.per_world_fields:
+            self._validate_worlds()
+            return
+        self._validate_scalars()
+
+    @property
+    def per_world_fields(self) -> tuple[str, ...]:
+        """Names of the fields given per world (`prey.max_speed` for a type's), as tuples or samplers."""
+        own = tuple(n for n in PER_WORLD_FIELDS if isinstance(getattr(self, n), (tuple,) + SAMPLERS))
+        return own + tuple(f"{t}.{n}" for t in ("prey", "predator") for n in getattr(self, t).per_world_fields)
+
+    def _field(self, name: str):
+        owner, _, leaf = name.rpartition(".")
+        return getattr(getattr(self, owner) if owner else self, leaf)
+
+    @property
+    def num_worlds(self) -> int | None:
+        """The number of worlds the per-world tuples are given for (None: none is a tuple)."""
+        lengths = {len(self._field(n)) for n in self.per_world_fields if isinstance(self._field(n), tuple)}
+        return lengths.pop() if len(lengths) == 1 else None
+
+    @property
+    def has_samplers(self) -> bool:
+        return any(isinstance(self._field(n), SAMPLERS) for n in self.per_world_fields)
+
+    def with_values(self, values: dict, validate: bool = True) -> "AquariumConfig":
+        """A copy with fields (names as in `per_world_fields`) set to `values` (validated again, unless
+        `validate=False`: for values known to be valid, such as draws from a range checked once, since
+        the checks cost about 70 us per world)."""
+        replace = dataclasses.replace if validate else _replace_unchecked
+        world = {n: v for n, v in values.items() if "." not in n}
+        for t in ("prey", "predator"):
+            own = {n.split(".", 1)[1]: v for n, v in values.items() if n.startswith(t + ".")}
+            if own:
+                world[t] = replace(getattr(self, t), **own)
+        return replace(self, **world)
+
+    def world(self, index: int) -> "AquariumConfig":
+        """The config of world `index` alone: every per-world tuple replaced by its value there."""
+        if self.has_samplers:
+            raise ValueError("a config with samplers has no world values yet: draw them first (`draw`)")
+        return self.with_values({n: _world_value(self._field(n), index) for n in self.per_world_fields})
+
+    def draw(self, num_worlds: int, seed: int = 0) -> "AquariumConfig":
+        """A copy whose samplers are replaced by `num_worlds` drawn values (a numpy generator seeded by
+        `seed`, fields in `per_world_fields` order)."""
+        rng = np.random.default_rng(seed)
+        values = {}
+        for name in self.per_world_fields:
+            value = self._field(name)
+            if isinstance(value, SAMPLERS):
+                values[name] = tuple(value.draw(rng, num_worlds, name in INTEGER_FIELDS))
+        return self.with_values(values) if values else self
+
+    def _validate_worlds(self) -> None:
+        """Every world's values obey the scalar ranges (checked on the config of each distinct world;
+        a sampler's on its ends, or each choice); an error names the field and the world."""
+        names = self.per_world_fields
+        lengths = {n: len(self._field(n)) for n in names if isinstance(self._field(n), tuple)}
+        if len(set(lengths.values())) > 1:
+            raise ValueError(f"per-world fields must give one value per world, the same number for all: {lengths}")
+        n = next(iter(lengths.values()), 1)
+        seen = set()
+        for k in range(n):
+            row = {name: _world_value(self._field(name), k) for name in names}
+            samplers = [name for name, v in row.items() if isinstance(v, SAMPLERS)]
+            variants = [row]
+            for name in samplers:  # a sampler's ends (or every choice), the other samplers at their first
+                ends = row[name].values if isinstance(row[name], Choice) else (row[name].low, row[name].high)
+                base = {m: (row[m].values[0] if isinstance(row[m], Choice) else row[m].low) if m in samplers
+                        else row[m] for m in names}
+                variants += [base | {name: end} for end in ends]
+            for variant in variants[1:] if samplers else variants:
+                key = tuple(repr(variant[name]) for name in names)
+                if key in seen:
+                    continue
+                seen.add(key)
+                try:
+                    self.with_values(variant)
+                except ValueError as error:
+                    where = f"world {k}" if lengths else "a sampler's range"
+                    raise ValueError(f"{where}: {error}") from None
+        # What the batch shares: the slot count and the episode returns' float32 range.
+        _check("capacity", self.capacity, self.capacity <= 2**30, "at most 2**30 agent slots per world")
+        reward_limit = RETURN_LIMIT / (self.max_steps * self.prey_capacity)
+        for name in ("prey_reward", "prey_capture_penalty", "predator_reward"):
+            value = self._field(name)
+            extremes = value if isinstance(value, tuple) else (
+                (value.low, value.high) if isinstance(value, Uniform) else
+                value.values if isinstance(value, Choice) else (value,))
+            worst = max(abs(v) for v in extremes)
+            _check(name, worst, worst <= reward_limit,
+                   f"|{name}| <= 1e38 / (max_steps x the batch's prey slots) = {reward_limit:.3g} in every world")
+
+    def _validate_scalars(self) -> None:
         for name in ("width", "height"):
             value = getattr(self, name)
             _check(name, value, _is_real(value) and math.isfinite(value) and 40 < value <= 1e7,
@@ -205,15 +482,16 @@ class AquariumConfig:
         _check("observation_range", self.observation_range,
                isinstance(self.observation_range, str) and self.observation_range in OBSERVATION_RANGES,
                f"one of {OBSERVATION_RANGES}")
-        for name in ("prey", "predator"):
-            value = getattr(self, name)
-            if not isinstance(value, AgentTypeConfig):
-                raise ValueError(f"{name} must be an AgentTypeConfig, got {type(value).__name__}")
-            value.validate(name)
+        if not isinstance(self.flow, FlowConfig):
+            raise ValueError(f"flow must be a FlowConfig (or its dict), got {type(self.flow).__name__}")
+        _check("observe_flow", self.observe_flow, isinstance(self.observe_flow, (bool, np.bool_)), "True or False")
+        # One move (speed plus drift) stays shorter than half the world, so a wrap is one add or subtract.
+        drift = self.flow.reach
         for name in ("prey", "predator"):
             speed = getattr(self, name).max_speed
-            _check(f"{name}.max_speed", speed, speed < 0.5 * min(self.width, self.height),
-                   "smaller than half the world's width and height")
+            _check(f"{name}.max_speed", speed, speed + drift < 0.5 * min(self.width, self.height),
+                   "smaller than half the world's width and height" + (
+                       f" less the flow's largest current {drift:g}" if drift else ""))
         if self.grid_cell_size is not None:
             g = self.grid_cell_size
             _check("grid_cell_size", g, _is_real(g) and math.isfinite(g) and g > 0,
@@ -231,18 +509,28 @@ class AquariumConfig:
                           "prey_replication_age", "max_prey"),
                    ("width", "height", "prey_reward", "prey_capture_penalty", "predator_reward", "catch_share_radius",
                     "grid_cell_size"),
-                   ("fov_enabled", "respawn_captured_prey", "prey_reproduction"))
+                   ("fov_enabled", "respawn_captured_prey", "prey_reproduction", "observe_flow"))
 
     # Derived sizes -------------------------------------------------------------------------------
     @property
     def prey_capacity(self) -> int:
         """Prey slots per world: room for reproduction up to `max_prey` when it is on."""
-        return max(self.prey_count, self.max_prey) if self.prey_reproduction else self.prey_count
+        prey = int(largest(self.prey_count))
+        return max(prey, self.max_prey) if self.prey_reproduction else prey
+
+    @property
+    def predator_capacity(self) -> int:
+        """Predator slots per world: the largest per-world predator count."""
+        return int(largest(self.predator_count))
 
     @property
     def capacity(self) -> int:
         """Agent slots per world: prey slots first, then predator slots."""
-        return self.prey_capacity + self.predator_count
+        return self.prey_capacity + self.predator_capacity
+
+    def observation_size(self, agent_type: str) -> int:
+        """Length of the observation vector of `agent_type` ("prey" or "predator"), flow values included."""
+        return getattr(self, agent_type).observation_size + 2 * int(self.observe_flow)
 
     @property
     def max_torus_distance(self) -> float:
@@ -266,7 +554,17 @@ class AquariumConfig:
             if isinstance(data.get(name), dict):
                 _check_keys(data[name], AgentTypeConfig, f"{name}.")
                 data[name] = AgentTypeConfig(**data[name])
+        if isinstance(data.get("flow"), (list, tuple)):
+            data["flow"] = tuple(FlowConfig(**f) if isinstance(f, dict) else f for f in data["flow"])
         return cls(**data)
+
+
+def _replace_unchecked(obj, **changes):
+    """`dataclasses.replace` without `__post_init__` (no checks, no normalisation)."""
+    new = copy.copy(obj)
+    for name, value in changes.items():
+        object.__setattr__(new, name, value)
+    return new
 
 
 def _check_keys(data: dict, cls, prefix: str) -> None:

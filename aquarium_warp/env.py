@@ -18,9 +18,9 @@ import numpy as np
 import torch
 import warp as wp
 
-from .config import INT32_MAX, LARGEST, AquariumConfig
-from .kernels.common import AgentType
+from .config import INT32_MAX, LARGEST, PER_WORLD_FIELDS, PER_WORLD_TYPE_FIELDS, AquariumConfig, largest
 from .kernels.state import Agents, WorldCounters
+from .params import BatchParams, per_world
 from .shard import WARP_SETUP_LOCK, Program, ShardSet
 from .state import SimulationState, estimate_bytes
 
@@ -148,13 +148,15 @@ def grid_dims(cfg: AquariumConfig) -> tuple[int, int]:
     slightly wider than the typical query radius let most queries finish within one ring, and at
     most about one cell per agent slot keeps the cell table small (at the default density that is
     about 190 px: on an H200, one world of 1M agents stepped 9% faster than with 101 px cells)."""
-    contact = max(2 * cfg.prey.radius, 2 * cfg.predator.radius, cfg.prey.radius + cfg.predator.radius)
+    # Per-world values: the largest (results do not depend on the cells, only the time does).
+    prey_radius, predator_radius = largest(cfg.prey.radius), largest(cfg.predator.radius)
+    contact = max(2 * prey_radius, 2 * predator_radius, prey_radius + predator_radius)
     if cfg.grid_cell_size is not None:
         target = cfg.grid_cell_size
     elif cfg.capacity <= SINGLE_CELL_CAPACITY:
         return 1, 1
     else:
-        finite_views = [v for v in (cfg.prey.view_distance, cfg.predator.view_distance) if math.isfinite(v)]
+        finite_views = [v for t in (cfg.prey, cfg.predator) for v in per_world(t.view_distance, 1) if math.isfinite(v)]
         target = 1.01 * max([contact] + ([min(finite_views)] if finite_views else []))
         max_cells = max(64, cfg.capacity)
         target = max(target, math.sqrt(cfg.width * cfg.height / max_cells))
@@ -171,24 +173,6 @@ def action_directions(action_count: int) -> np.ndarray:
     # already moves exactly along its desired direction).
     directions[np.abs(directions) < 1e-12] = 0.0
     return directions.astype(np.float32)
-
-
-def _type_params(cfg: AquariumConfig, t) -> AgentType:
-    p = AgentType()
-    p.max_speed = t.max_speed
-    p.max_steering_force = t.max_steering_force
-    p.max_acceleration = t.max_acceleration
-    p.mass = t.mass
-    p.radius = t.radius
-    p.view_distance = t.view_distance
-    p.distance_norm = min(t.view_distance, cfg.max_torus_distance)
-    cos_half_fov = math.cos(math.radians(t.fov_angle / 2.0))
-    # cos(90 deg) is 6e-17 in floats: it would exclude the inclusive boundary of a 180-degree cone.
-    p.cos_half_fov = -2.0 if t.fov_angle >= 360 else (0.0 if abs(cos_half_fov) < 1e-12 else cos_half_fov)
-    p.bounce_strength = t.bounce_strength
-    p.predator_slots = t.predator_slots
-    p.prey_slots = t.prey_slots
-    return p
 
 
 class StepResult(NamedTuple):
@@ -236,16 +220,21 @@ class BatchedAquarium:
         if not isinstance(auto_reset, bool):
             raise ValueError(f"auto_reset={auto_reset!r} must be True or False")
         self.auto_reset = auto_reset
-        self.config = cfg = config
+        seed_key(seed)
+        if config.num_worlds is not None and config.num_worlds != num_worlds:
+            raise ValueError(f"the config gives per-world values for {config.num_worlds} worlds "
+                             f"({list(config.per_world_fields)}), but num_worlds={num_worlds}")
+        # Samplers are drawn once, from the seed: the env's config holds every world's values.
+        self.config = cfg = config.draw(int(num_worlds), seed) if config.has_samplers else config
         self.num_worlds = W = int(num_worlds)
         self.device = resolve_device(device)
         self.torch_device = torch.device(self.device)
         seed_key(seed)
         self.seed = int(seed)
         self.prey_capacity = cfg.prey_capacity
-        self.predator_count = cfg.predator_count
+        self.predator_count = cfg.predator_capacity  # predator slots per world
         self.capacity = C = cfg.capacity
-        self.observation_size = {"prey": cfg.prey.observation_size, "predator": cfg.predator.observation_size}
+        self.observation_size = {t: cfg.observation_size(t) for t in TYPES}
         self.observed_slots = {t: getattr(cfg, t).predator_slots + getattr(cfg, t).prey_slots for t in TYPES}
 
         dims_x, dims_y = grid_dims(cfg)
@@ -261,15 +250,14 @@ class BatchedAquarium:
 
         with WARP_SETUP_LOCK:  # arrays of structs, kernels and recorded launches (see the lock)
             self._grid_dims = (dims_x, dims_y)
-            types = [_type_params(cfg, cfg.predator), _type_params(cfg, cfg.prey)]  # index = type code
-            self._types = wp.array(types, dtype=AgentType, device=self.device)
+            self._params = BatchParams(cfg, W, self.device)
             self._action_direction = wp.array(action_directions(cfg.action_count), dtype=wp.vec2, device=self.device)
-            self.state = SimulationState.allocate(W, C, cfg.prey_capacity, cfg.predator_count,
+            self.state = SimulationState.allocate(W, C, cfg.prey_capacity, cfg.predator_capacity,
                                                   self.observation_size["prey"], self.observation_size["predator"],
                                                   self.observed_slots["prey"], self.observed_slots["predator"],
                                                   self.device)
             self.state.worlds.seed.fill_(seed_key(seed))
-            self._shards = ShardSet(cfg, self.state, self._grid_dims, self._types, self._action_direction, self.device,
+            self._shards = ShardSet(cfg, self.state, self._grid_dims, self._params, self._action_direction, self.device,
                                     auto_reset, _cpu_threads(cpu_threads))
             self._build_views()
             self.reset()
@@ -334,8 +322,14 @@ class BatchedAquarium:
 
     @property
     def agent_types(self) -> wp.array:
-        """Per-type parameters (`kernels.common.AgentType`), indexed by type code (predator 0, prey 1)."""
-        return self._types
+        """`[W, 2]` per-type parameters of every world (`kernels.common.AgentType`), indexed by world and
+        type code (predator 0, prey 1)."""
+        return self._params.types
+
+    @property
+    def world_values(self) -> wp.array:
+        """`[W]` per-world parameters (`kernels.common.WorldValues`)."""
+        return self._params.values
 
     @property
     def action_directions(self) -> wp.array:
@@ -433,6 +427,71 @@ class BatchedAquarium:
                 w, i = (int(x) for x in torch.nonzero(bad)[0])
                 raise ValueError(f"actions[{t!r}][{w}, {i}]={int(a[w, i])} is out of range: live agents' "
                                  f"actions must be in [0, {n - 1}] (action_count={n})")
+
+    # ------------------------------------------------------------------ per-world parameters
+    def set_params(self, world=None, validate: bool = True, **fields) -> AquariumConfig:
+        """Give worlds new parameter values between steps: `world` None (every world), an index or a
+        sequence of indices; `fields` by name, the world fields of `config.PER_WORLD_FIELDS`
+        (`prey_reward=2.0`, `flow=FlowConfig(...)`, `prey_count=8`) and the per-type ones as
+        `prey_<field>` / `predator_<field>` (`prey_max_speed=[3.0, 5.0]`); a value is a scalar (every
+        selected world), one value per selected world, or a sampler (`Uniform`, `LogUniform`,
+        `Choice`, drawn from `rng`, a numpy Generator, default one seeded by the env's seed).
+
+        Values are checked world by world before anything changes (a bad one raises `ValueError`
+        naming the field, the world and the allowed range); then they are copied into the device
+        arrays the kernels read, so the next step uses them (a live count at the world's next reset).
+        Nothing is rebuilt or recorded again. Returns the new `config`. `validate=False` skips the
+        per-world checks of the values (about 70 us per world; the live counts' limits stay checked):
+        for values already known to be valid, such as draws from a range checked once."""
+        rng = fields.pop("rng", None)
+        names = {}
+        for key in fields:
+            name = key
+            for t in ("prey", "predator"):
+                if key.startswith(t + "_") and key[len(t) + 1:] in PER_WORLD_TYPE_FIELDS:
+                    name = f"{t}.{key[len(t) + 1:]}"
+            if name not in PER_WORLD_FIELDS and "." not in name:
+                settable = list(PER_WORLD_FIELDS) + [f"{t}_{n}" for t in ("prey", "predator") for n in PER_WORLD_TYPE_FIELDS]
+                raise ValueError(f"unknown per-world parameter {key!r}; settable: {settable}")
+            names[key] = name
+        W = self.num_worlds
+        if world is None:
+            worlds = list(range(W))
+        else:
+            indices = [world] if isinstance(world, (int, np.integer)) and not isinstance(world, bool) else list(world)
+            if not indices or any(isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k < W
+                                  for k in indices):
+                raise ValueError(f"world={world!r} must be None, an integer or integers in [0, {W - 1}]")
+            worlds = [int(k) for k in indices]
+        if rng is None:
+            rng = np.random.default_rng(self.seed)
+        cfg = self.config
+        values = {}
+        for key, name in names.items():
+            value = fields[key]
+            if hasattr(value, "draw"):
+                value = value.draw(rng, len(worlds), name in ("prey_count", "predator_count",
+                                                             "predator_starvation_steps", "prey_replication_age"))
+            elif hasattr(value, "tolist"):
+                value = value.tolist()
+            given = list(value) if isinstance(value, (list, tuple)) else [value] * len(worlds)
+            if len(given) != len(worlds):
+                raise ValueError(f"{key} gives {len(given)} values for {len(worlds)} worlds")
+            column = per_world(cfg._field(name), W)
+            for k, v in zip(worlds, given):
+                column[k] = v
+            # A value every world shares stays a scalar (as a config would give it).
+            values[name] = column[0] if all(v == column[0] for v in column) else tuple(column)
+        new = cfg.with_values(values, validate)  # checks every world (an error names the world)
+        for name, limit in (("prey_count", self.prey_capacity), ("predator_count", self.predator_count)):
+            counts = per_world(new._field(name), W)
+            over = [k for k, n in enumerate(counts) if n > limit]
+            if over:
+                raise ValueError(f"world {over[0]}: {name}={counts[over[0]]} is out of range: must be an integer in "
+                                 f"[1, {limit}] (the batch's slots)")
+        self._params.write(new)
+        self.config = new
+        return new
 
     # ------------------------------------------------------------------ state access
     def set_state(self, world: int | None = None, **fields) -> dict[str, torch.Tensor]:

@@ -81,7 +81,7 @@ class HeuristicPolicy:
             seeds = wp.full(env.num_worlds, own_seed, dtype=wp.uint32, device=env.device)
         self._program = env.record_program(lambda shard: [shard.record(
             kernels.heuristic_policy, (shard.num_worlds, slots),
-            [shard.world, env.agent_types, shard.grid, env.action_directions, shard.state.agents, shard.state.worlds,
+            [shard.world, shard.types, shard.grid, env.action_directions, shard.state.agents, shard.state.worlds,
              seeds[shard.w0:shard.w1], self._code, self._first_slot], [self._buffer[shard.w0:shard.w1]])])
 
     @property

@@ -56,9 +56,15 @@ EPISODE_METRICS = ("polarization", "cohesion", "nn_mean", "groups", "largest_gro
                    "prey_alive", "predator_alive")
 
 
-def default_linking_distance(env: BatchedAquarium) -> float:
-    """2.5 prey hit-box radii (50 px by default): prey whose hit boxes are less than half a radius apart."""
-    return 2.5 * env.config.prey.radius
+def default_linking_distance(env: BatchedAquarium) -> float | tuple[float, ...]:
+    """2.5 prey hit-box radii (50 px by default): prey whose hit boxes are less than half a radius apart;
+    one per world (a tuple) where the prey radius differs between worlds."""
+    radius = env.config.prey.radius
+    return tuple(2.5 * r for r in radius) if isinstance(radius, tuple) else 2.5 * radius
+
+
+def _per_world(value, num_worlds: int) -> list:
+    return list(value) if isinstance(value, tuple) else [value] * num_worlds
 
 
 class SwarmMetrics:
@@ -67,10 +73,11 @@ class SwarmMetrics:
     Args:
         env: the batched simulator.
         linking_distance: px; prey closer than this are linked into one group (default
-            `default_linking_distance(env)`, 2.5 prey radii).
+            `default_linking_distance(env)`, 2.5 prey radii, each world's own); one number or one per world.
         nn_bins: bins of the nearest-neighbour histogram.
-        nn_range: px covered by the histogram's bins (default: 2 x the prey view distance, or the
-            largest torus distance if smaller or the view is unlimited).
+        nn_range: px covered by the histogram's bins, shared by the worlds (default: 2 x the prey view
+            distance, the largest over the worlds, or the largest torus distance if smaller or the view
+            is unlimited).
     """
 
     def __init__(self, env: BatchedAquarium, linking_distance: float | None = None, nn_bins: int = 50,
@@ -80,22 +87,27 @@ class SwarmMetrics:
         cfg = env.config
         if linking_distance is None:
             linking_distance = default_linking_distance(env)
-        if isinstance(linking_distance, bool) or not isinstance(linking_distance, (int, float)) \
-                or not math.isfinite(linking_distance) or linking_distance <= 0:
-            raise ValueError(f"linking_distance={linking_distance!r} must be a finite number > 0 (px)")
+        W = env.num_worlds
+        links = list(linking_distance) if isinstance(linking_distance, (tuple, list)) else [linking_distance] * W
+        if len(links) != W or any(isinstance(d, bool) or not isinstance(d, (int, float)) or not math.isfinite(d)
+                                  or d <= 0 for d in links):
+            raise ValueError(f"linking_distance={linking_distance!r} must be a finite number > 0 (px), or {W} "
+                             "of them (one per world)")
         if isinstance(nn_bins, bool) or not isinstance(nn_bins, int) or nn_bins < 1:
             raise ValueError(f"nn_bins={nn_bins!r} must be an integer >= 1")
         if nn_range is None:
-            nn_range = min(2.0 * cfg.prey.view_distance, cfg.max_torus_distance)
+            nn_range = min(2.0 * max(_per_world(cfg.prey.view_distance, W)), cfg.max_torus_distance)
         if isinstance(nn_range, bool) or not isinstance(nn_range, (int, float)) or not math.isfinite(nn_range) \
                 or nn_range <= 0:
             raise ValueError(f"nn_range={nn_range!r} must be a finite number > 0 (px)")
         self._env = env
-        self.linking_distance = float(linking_distance)
+        # One float where every world links at the same distance, else one per world.
+        self.linking_distance = float(links[0]) if len(set(links)) == 1 else tuple(float(d) for d in links)
+        self._linking_distances = wp.array(links, dtype=float, device=env.device)
         self.nn_bins = nn_bins
         self.nn_range = float(nn_range)
         self.bin_width = self.nn_range / nn_bins
-        W, Pc, P = env.num_worlds, env.prey_capacity, env.predator_count
+        Pc, P = env.prey_capacity, env.predator_count
         dev = env.device
         # A lone predator (or a few) is found faster by looping over the predator slots than by a ring
         # search, which walks every prey entry on the way to it.
@@ -141,7 +153,8 @@ class SwarmMetrics:
             arrays.group_size.zero_,
             shard.record(kernels.prey_distances, (W, Pc),
                          [world, g, s.agents, self.predators_by_grid, self.bin_width], [arrays]),
-            shard.record(kernels.link_groups, (W, Pc), [world, g, s.agents, self.linking_distance], [arrays]),
+            shard.record(kernels.link_groups, (W, Pc), [world, g, s.agents, self._linking_distances[w0:w1]],
+                         [arrays]),
             shard.record(kernels.resolve_groups, (W, Pc), [world, s.agents], [arrays]),
             shard.record(kernels.prey_partial_sums, (W, self._chunks), [world, s.agents], [arrays]),
             shard.record(kernels.finish_prey_sums, W, [world, s.worlds, s.outputs], [arrays]),
@@ -267,11 +280,16 @@ class EpisodeMetrics:
         episodes = self._episodes
         out = {name: self._done_sum[:, k] / self._done_count[:, k] for k, name in enumerate(EPISODE_METRICS)}
         out["captures"] = self._done_captures / episodes
-        out["captures_per_prey"] = out["captures"] / self.env.config.prey_count
+        out["captures_per_prey"] = out["captures"] / self._prey_counts()
         out["episode_length"] = self._done_length / episodes
         out["episodes"] = episodes.clone()
         out["nn_distribution"] = self._done_hist / episodes.unsqueeze(1)
         return out
+
+    def _prey_counts(self) -> torch.Tensor:
+        """`[W]` float64: each world's initial prey count (as the env's config holds it now)."""
+        return torch.tensor(_per_world(self.env.config.prey_count, self.env.num_worlds), dtype=torch.float64,
+                            device=self._done_captures.device)
 
     def summary(self) -> dict[str, float]:
         """Means over every completed episode of every world (host sync); `episodes`: their number."""
@@ -281,7 +299,12 @@ class EpisodeMetrics:
             n = float(self._done_count[:, k].sum())
             out[name] = float(self._done_sum[:, k].sum()) / n if n else math.nan
         out["captures"] = float(self._done_captures.sum()) / episodes if episodes else math.nan
-        out["captures_per_prey"] = out["captures"] / self.env.config.prey_count
+        prey = self.env.config.prey_count
+        if isinstance(prey, tuple):  # each world's captures over its own prey count
+            out["captures_per_prey"] = (float((self._done_captures / self._prey_counts()).sum()) / episodes
+                                        if episodes else math.nan)
+        else:
+            out["captures_per_prey"] = out["captures"] / prey
         out["episode_length"] = float(self._done_length.sum()) / episodes if episodes else math.nan
         out["episodes"] = episodes
         return out

@@ -312,7 +312,7 @@ class AquariumParallelEnv(ParallelEnv):
                                 + [f"prey_{Pc + k}" for k in range(self._extra_names_listed)])
         self._possible_set = set(self.possible_agents)
         low = -1.0 if cfg.observation_range == "-1..1" else 0.0
-        self._obs_shape = {t: (getattr(cfg, t).observation_size,) for t in TYPES}
+        self._obs_shape = {t: (cfg.observation_size(t),) for t in TYPES}
         self._obs_low = low
         self._observation_spaces: dict = {}
         self._action_spaces: dict = {}
@@ -439,8 +439,8 @@ class AquariumParallelEnv(ParallelEnv):
         return "predator" if agent.startswith("predator_") else "prey"
 
     def observation_space(self, agent):
-        """`Box(0, 1, (5 + 6 * (predator_slots + prey_slots),), float32)` (`Box(-1, 1, ...)` with
-        `observation_range="-1..1"`); the same object for each call with the same agent."""
+        """`Box(0, 1, (5 + 6 * (predator_slots + prey_slots),), float32)` (2 more with `observe_flow`;
+        `Box(-1, 1, ...)` with `observation_range="-1..1"`); the same object for each call with the same agent."""
         space = self._observation_spaces.get(agent)
         if space is None:
             t = self._agent_type(agent)

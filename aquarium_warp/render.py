@@ -14,10 +14,12 @@ oval, under 0.75 one pixel, so agents of a huge world rendered small stay visibl
 are not drawn. The world is a torus: an agent near an edge is drawn again across the seam. Overlays:
 view cones (translucent sectors of radius view distance and angle fov around the heading, a full disc
 with `fov_enabled=False`; overlapping cones darken), hit boxes (circle of the radius) and velocity
-arrows (velocity x `velocity_scale` steps).
+arrows (velocity x `velocity_scale` steps); with `draw_flow=True` the flow's current (MODEL.md "Flow
+fields") as arrows on a grid `flow_spacing` image pixels apart, under the agents (the drift of
+`velocity_scale` steps, at most 0.9 grid spacings; none where the current is shorter than a pixel).
 
-The work per frame is two kernel launches (one thread per agent slot, then one per pixel) and, for
-`render()`, one copy of the image to the host.
+The work per frame is two kernel launches (one thread per agent slot, then one per pixel; a third, one
+thread per arrow, with `draw_flow`) and, for `render()`, one copy of the image to the host.
 """
 
 from __future__ import annotations
@@ -56,6 +58,7 @@ DEFAULT_PALETTE = {
     "prey_hit_box": (200, 30, 30),
     "predator_hit_box": (120, 10, 60),
     "velocity": (0, 90, 30),
+    "flow": (60, 110, 165),
 }
 
 
@@ -106,10 +109,12 @@ class Renderer:
 
     def __init__(self, env, width_px: int | None = None, height_px: int | None = None, *,
                  max_size: int = DEFAULT_MAX_SIZE, velocity_scale: float = 10.0,
-                 palette: dict | None = None):
+                 palette: dict | None = None, flow_spacing: int = 32):
         if not (isinstance(velocity_scale, (int, float)) and not isinstance(velocity_scale, bool)
                 and math.isfinite(velocity_scale) and velocity_scale >= 0):
             raise ValueError(f"velocity_scale={velocity_scale!r} must be a finite number >= 0")
+        if isinstance(flow_spacing, bool) or not isinstance(flow_spacing, (int, np.integer)) or flow_spacing < 4:
+            raise ValueError(f"flow_spacing={flow_spacing!r} must be an integer >= 4 (image pixels)")
         self._env = env  # a weakref.ref for the renderers that render_world caches per env
         cfg = env.config
         self.width_px, self.height_px = frame_size(cfg, width_px, height_px, max_size)
@@ -128,6 +133,20 @@ class Renderer:
         p.width_px, p.height_px = Wp, H
         p.pixel_width, p.pixel_height = p.world_width / Wp, p.world_height / H
         p.prey_capacity = env.prey_capacity
+        pixel = max(p.pixel_width, p.pixel_height)
+        p.outline = 1.0 * pixel
+        p.ring = 0.6 * pixel
+        p.line_px = 0.6
+        p.velocity_scale = float(velocity_scale)
+        p.flow_spacing = int(flow_spacing)
+        self._params = p
+
+    def _set_world_types(self, world: int) -> None:
+        """Hit-box radii and view cones of `world`'s own agent types (they may differ between worlds;
+        read from the env's config at each frame, so `set_params` changes show)."""
+        p, cfg = self._params, self.env.config
+        if cfg.per_world_fields:
+            cfg = cfg.world(world)
         half_diagonal = 0.5 * math.hypot(cfg.width, cfg.height)
         radius, cone, cos_half = [0.0, 0.0], [0.0, 0.0], [0.0, 0.0]
         for code, t in ((PREDATOR, cfg.predator), (PREY, cfg.prey)):
@@ -136,12 +155,6 @@ class Renderer:
             full_circle = t.fov_angle >= 360 or not cfg.fov_enabled  # without FOV only the distance limits sight
             cos_half[code] = -2.0 if full_circle else math.cos(math.radians(t.fov_angle / 2.0))
         p.radius, p.cone_radius, p.cos_half_fov = wp.vec2(*radius), wp.vec2(*cone), wp.vec2(*cos_half)
-        pixel = max(p.pixel_width, p.pixel_height)
-        p.outline = 1.0 * pixel
-        p.ring = 0.6 * pixel
-        p.line_px = 0.6
-        p.velocity_scale = float(velocity_scale)
-        self._params = p
 
     @property
     def env(self):
@@ -154,13 +167,14 @@ class Renderer:
             raise ValueError(f"world={world!r} must be an integer in [0, {n - 1}]")
 
     def render_device(self, world: int = 0, *, view_cones: bool = False, hit_boxes: bool = False,
-                      velocities: bool = False) -> wp.array:
+                      velocities: bool = False, draw_flow: bool = False) -> wp.array:
         """Draw `world` into the renderer's device image and return it: a Warp array
         `[height_px, width_px, 3]` uint8 on the env's device, overwritten by the next frame."""
         self.check_world(world)
         env = self.env
         p = self._params
         p.world = int(world)
+        self._set_world_types(world)
         p.view_cones, p.hit_boxes, p.velocities = int(bool(view_cones)), int(bool(hit_boxes)), int(bool(velocities))
         agents = env.state.agents
         if wp.get_device(self.device).is_cuda:
@@ -174,14 +188,19 @@ class Renderer:
         if view_cones:
             self._cone_count.zero_()
         rk.launch_splat(p, agents, self._body_key, self._cone_count, self._overlay, env.capacity, self.device)
+        if draw_flow:
+            shard = next(s for s in env.shards if s.w0 <= world < s.w1)
+            rk.launch_flow(p, shard.world, world - shard.w0, shard.state.worlds.world_step, self._overlay,
+                           self.device)
         rk.launch_compose(p, self._palette, agents, self._body_key, self._cone_count, self._overlay, self._image,
                           self.device)
         return self._image
 
     def render(self, world: int = 0, *, view_cones: bool = False, hit_boxes: bool = False,
-               velocities: bool = False) -> np.ndarray:
+               velocities: bool = False, draw_flow: bool = False) -> np.ndarray:
         """Draw `world`; returns a new numpy uint8 array `[height_px, width_px, 3]` (RGB)."""
-        image = self.render_device(world, view_cones=view_cones, hit_boxes=hit_boxes, velocities=velocities)
+        image = self.render_device(world, view_cones=view_cones, hit_boxes=hit_boxes, velocities=velocities,
+                                   draw_flow=draw_flow)
         frame = image.numpy()  # a copy on CUDA (synchronises), a view of the buffer on CPU
         return frame.copy() if not wp.get_device(self.device).is_cuda else frame
 
@@ -190,7 +209,8 @@ _renderers: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
 def render_world(env, world: int = 0, *, width_px: int | None = None, height_px: int | None = None,
-                 view_cones: bool = False, hit_boxes: bool = False, velocities: bool = False) -> np.ndarray:
+                 view_cones: bool = False, hit_boxes: bool = False, velocities: bool = False,
+                 draw_flow: bool = False) -> np.ndarray:
     """Frame of `world` of `env`: numpy uint8 `[height_px, width_px, 3]` RGB.
 
     The size defaults to the world's size in px, scaled down so the long side is at most 1024; one given
@@ -203,7 +223,8 @@ def render_world(env, world: int = 0, *, width_px: int | None = None, height_px:
         renderer = Renderer(env, *size)
         renderer._env = weakref.ref(env)  # a cache value must not keep its key (the env) alive
         _renderers[env] = renderer
-    return renderer.render(world, view_cones=view_cones, hit_boxes=hit_boxes, velocities=velocities)
+    return renderer.render(world, view_cones=view_cones, hit_boxes=hit_boxes, velocities=velocities,
+                           draw_flow=draw_flow)
 
 
 def check_frame(frame, name: str = "frame") -> np.ndarray:

@@ -44,30 +44,26 @@ OBSERVATION_BLOCK = 128  # threads per block of the GPU observation kernel
 WARP_SETUP_LOCK = threading.RLock()
 
 
-def world_params(cfg: AquariumConfig, world_offset: int, auto_reset: bool) -> WorldParams:
-    """The `WorldParams` of worlds of `cfg` whose first global index is `world_offset`."""
+def world_params(cfg: AquariumConfig, world_offset: int, auto_reset: bool, values: wp.array,
+                 flow_grid: wp.array) -> WorldParams:
+    """The `WorldParams` of worlds of `cfg` whose first global index is `world_offset`, with their
+    per-world `values` (a view of the batch's `WorldValues` for these worlds) and the batch's flow grids."""
     p = WorldParams()
     p.width = cfg.width
     p.height = cfg.height
     p.prey_capacity = cfg.prey_capacity
     p.capacity = cfg.capacity
-    p.prey_count = cfg.prey_count
-    p.predator_count = cfg.predator_count
+    p.predator_capacity = cfg.predator_capacity
     p.action_count = cfg.action_count
     p.max_steps = cfg.max_steps
     p.fov_enabled = int(cfg.fov_enabled)
     p.respawn_captured_prey = int(cfg.respawn_captured_prey)
-    p.prey_reward = cfg.prey_reward
-    p.prey_capture_penalty = cfg.prey_capture_penalty
-    p.predator_reward = cfg.predator_reward
-    p.catch_share_radius = cfg.catch_share_radius
-    p.predator_starvation_steps = cfg.predator_starvation_steps
     p.max_prey = cfg.max_prey
-    p.replication_age_min = math.ceil(0.75 * cfg.prey_replication_age)
-    p.replication_age_max = math.floor(1.25 * cfg.prey_replication_age)
     p.signed_observations = int(cfg.observation_range == "-1..1")
     p.world_offset = world_offset
     p.auto_reset = int(auto_reset)
+    p.values = values
+    p.flow_grid = flow_grid
     return p
 
 
@@ -130,14 +126,14 @@ class WorldShard:
     cell lists), `world` (their `WorldParams`), and `programs`, the env's launch programs as recorded
     for this shard (name -> list of commands; MODEL.md's step is `programs["step"]`)."""
 
-    def __init__(self, cfg: AquariumConfig, state: SimulationState, index: int, w0: int, w1: int, dims, types,
+    def __init__(self, cfg: AquariumConfig, state: SimulationState, index: int, w0: int, w1: int, dims, params,
                  action_direction, observe_kernels, device, auto_reset: bool = True):
         self.cfg, self.device = cfg, device
         self.index = index
         self.w0, self.w1 = w0, w1
         self.num_worlds = w1 - w0
-        self.world = world_params(cfg, w0, auto_reset)
-        self.types = types
+        self.world = world_params(cfg, w0, auto_reset, params.values[w0:w1], params.flow_grid)
+        self.types = params.types[w0:w1]  # [worlds, 2] AgentType of these worlds
         self.action_direction = action_direction
         self.observe_kernels = observe_kernels  # {"prey": kernel, "predator": kernel}
         self.state = state.rows(w0, w1)
@@ -194,7 +190,7 @@ class WorldShard:
         """MODEL.md step 10 (and the contact partners of the next step's step 3): one launch for both
         observer types when one kernel serves both, else one per type."""
         W, cfg = self.num_worlds, self.cfg
-        rows = {"prey": W * cfg.prey_capacity, "predator": W * cfg.predator_count}
+        rows = {"prey": W * cfg.prey_capacity, "predator": W * cfg.predator_capacity}
         kernels = self.observe_kernels
         groups = [("prey", "predator")] if kernels["prey"] is kernels["predator"] else [("prey",), ("predator",)]
         commands = []
@@ -209,8 +205,8 @@ class WorldShard:
             second_out = self._observed_rows(second, kernel) if second else first_out
             commands.append(self.record(
                 kernel, (first_blocks + (second_rows + block - 1) // block, block),
-                [self.world, self.types, self.grid, self.state.agents, TYPE_CODES[first], rows[first], first_blocks,
-                 second_rows], [first_out, second_out, self.state.scratch], block_dim=block))
+                [self.world, self.types, self.grid, self.state.agents, self.state.worlds, TYPE_CODES[first],
+                 rows[first], first_blocks, second_rows], [first_out, second_out, self.state.scratch], block_dim=block))
         return commands
 
     def observe_program(self) -> list:
@@ -226,10 +222,11 @@ class WorldShard:
     def step_program(self) -> list:
         """MODEL.md steps 1-10 for every world of the shard."""
         s, g, world, types, cfg = self.state, self.grid, self.world, self.types, self.cfg
-        W, C, Pc, P = self.num_worlds, cfg.capacity, cfg.prey_capacity, cfg.predator_count
+        W, C, Pc, P = self.num_worlds, cfg.capacity, cfg.prey_capacity, cfg.predator_capacity
         # 1-4: motion (which also clears this step's rewards and flags); contact partners were found
         # by the last observation pass.
-        program = [self.record(motion.integrate_motion, (W, C), [world, types, self.action_direction, s.actions],
+        program = [self.record(motion.integrate_motion, (W, C),
+                               [world, types, self.action_direction, s.actions, s.worlds],
                                [s.agents, s.scratch, s.outputs])]
         # 5-6: captures on the moved positions, searched in the start-of-step cell lists; starvation.
         row_threads = 1 if g.whole_world else capture.CAPTURE_ROW_THREADS
@@ -292,7 +289,7 @@ class ShardSet:
     env's programs (`programs`: "step", "observe", "reset") and any other that `record` is asked for,
     and runs them on every shard (`run`)."""
 
-    def __init__(self, cfg: AquariumConfig, state: SimulationState, dims, types, action_direction, device,
+    def __init__(self, cfg: AquariumConfig, state: SimulationState, dims, params, action_direction, device,
                  auto_reset: bool, threads: int):
         self.device = device
         self.cuda = wp.get_device(device).is_cuda
@@ -304,9 +301,10 @@ class ShardSet:
         block = OBSERVATION_BLOCK if self.cuda else 1
         whole_world = tuple(dims) == (1, 1)  # the shards' cell lists are whole-world lists
         observe_kernels = {t: observation.observation_kernel(getattr(cfg, t).predator_slots,
-                                                             getattr(cfg, t).prey_slots, block, whole_world)
+                                                             getattr(cfg, t).prey_slots, block, whole_world,
+                                                             bool(cfg.observe_flow))
                            for t in ("prey", "predator")}
-        self.shards = tuple(WorldShard(cfg, state, k, w0, w1, dims, types, action_direction, observe_kernels, device,
+        self.shards = tuple(WorldShard(cfg, state, k, w0, w1, dims, params, action_direction, observe_kernels, device,
                                        auto_reset) for k, (w0, w1) in enumerate(zip(bounds[:-1], bounds[1:])))
         self._pool = ThreadPoolExecutor(max_workers=shards) if shards > 1 else None
         self.programs = {"step": self.record(WorldShard.step_program, graph=True),

@@ -87,7 +87,7 @@ class TorchViews:
 
 def estimate_bytes(cfg, num_worlds: int, cells_per_world: int) -> int:
     """Device bytes of a batch of `num_worlds` worlds of `cfg` (state, outputs, cell lists), about."""
-    obs = max(cfg.prey.observation_size, cfg.predator.observation_size)
+    obs = max(cfg.observation_size("prey"), cfg.observation_size("predator"))
     slots = max(p.predator_slots + p.prey_slots for p in (cfg.prey, cfg.predator))
     return num_worlds * (cfg.capacity * bytes_per_slot(obs, slots) + cells_per_world * 12 + 64)
 

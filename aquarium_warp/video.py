@@ -116,7 +116,7 @@ def write_video(frames: Iterable[np.ndarray] | Callable[[int], np.ndarray | None
 def record(env, policy_fn: Callable, steps: int, path, world: int = 0, *, fps: float = 30,
            progress: bool = True, width_px: int | None = None, height_px: int | None = None,
            view_cones: bool = False, hit_boxes: bool = False, velocities: bool = False,
-           quality: float = 7) -> int:
+           draw_flow: bool = False, quality: float = 7) -> int:
     """Step `env` `steps` times with `policy_fn` and write world `world` as an MP4 video at `path`.
 
     `policy_fn(observations)` gets the env's current observations dict and returns the actions dict
@@ -128,7 +128,7 @@ def record(env, policy_fn: Callable, steps: int, path, world: int = 0, *, fps: f
     if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
         raise ValueError(f"steps={steps!r} must be an integer >= 0")
     renderer = Renderer(env, width_px, height_px)
-    overlays = dict(view_cones=view_cones, hit_boxes=hit_boxes, velocities=velocities)
+    overlays = dict(view_cones=view_cones, hit_boxes=hit_boxes, velocities=velocities, draw_flow=draw_flow)
     renderer.check_world(world)  # before ffmpeg starts
 
     def frames():

@@ -26,10 +26,11 @@ wp.set_module_options({"enable_backward": False})
 
 
 @wp.func
-def start_of_step_radius(world: WorldParams, radius: float, moved: float) -> float:
+def start_of_step_radius(world: WorldParams, w: int, radius: float, speed: float) -> float:
     """Radius around a moved position that holds, at their start-of-step positions, every agent now
-    within `radius` of it, when they moved by at most `moved` px (plus float rounding of the
-    clamped speeds and of the wrap)."""
+    within `radius` of it, when they moved at most `speed` px plus world w's largest current (plus
+    float rounding of the clamped speeds, the current and the wrap)."""
+    moved = speed + world.values[w].flow_reach
     return radius + moved * (1.0 + 1.0e-5) + 1.0e-6 * (world.width + world.height)
 
 
@@ -43,7 +44,7 @@ CAPTURE_ROW_THREADS = 3
 @wp.kernel
 def detect_captures(
     world: WorldParams,
-    types: wp.array(dtype=AgentType),
+    types: wp.array2d(dtype=AgentType),
     grid: CellLists,
     agents: Agents,
     row_threads: int,
@@ -57,8 +58,8 @@ def detect_captures(
     if not agents.alive[w, i]:
         return
     pos = agents.position[w, i]
-    contact = types[PREY].radius + types[PREDATOR].radius
-    walk = square_walk(grid, w, world.capacity, pos, start_of_step_radius(world, contact, types[PREY].max_speed),
+    contact = types[w, PREY].radius + types[w, PREDATOR].radius
+    walk = square_walk(grid, w, world.capacity, pos, start_of_step_radius(world, w, contact, types[w, PREY].max_speed),
                        row_thread, row_threads)
     while next_run(grid, walk):
         for n in range(run_length(walk.runs)):
@@ -72,7 +73,7 @@ def detect_captures(
 @wp.kernel
 def count_capture_sharers(
     world: WorldParams,
-    types: wp.array(dtype=AgentType),
+    types: wp.array2d(dtype=AgentType),
     grid: CellLists,
     agents: Agents,
     scratch: Scratch,
@@ -87,10 +88,11 @@ def count_capture_sharers(
         agents.age[w, i] = agents.age[w, i] + 1
         return
     pos = agents.position[w, i]
-    contact = types[PREY].radius + types[PREDATOR].radius
-    share = wp.max(world.catch_share_radius, contact)
+    contact = types[w, PREY].radius + types[w, PREDATOR].radius
+    values = world.values[w]
+    share = wp.max(values.catch_share_radius, contact)
     sharers = int(0)
-    radius = start_of_step_radius(world, share, types[PREDATOR].max_speed)
+    radius = start_of_step_radius(world, w, share, types[w, PREDATOR].max_speed)
     walk = square_walk(grid, w, world.capacity, pos, radius, 0, 1)
     while next_run(grid, walk):
         for n in range(run_length(walk.runs)):
@@ -98,17 +100,17 @@ def count_capture_sharers(
             if j >= 0 and slot_type(world, j) == PREDATOR:
                 d = torus_displacement(world, pos, agents.position[w, j])
                 d2 = wp.dot(d, d)
-                if d2 < contact * contact or d2 < world.catch_share_radius * world.catch_share_radius:
+                if d2 < contact * contact or d2 < values.catch_share_radius * values.catch_share_radius:
                     sharers += 1
     scratch.share_count[w, i] = sharers
-    outputs.reward[w, i] = -world.prey_capture_penalty
+    outputs.reward[w, i] = -values.prey_capture_penalty
     wp.atomic_add(outputs.captures, w, 1)
 
 
 @wp.kernel
 def share_capture_rewards(
     world: WorldParams,
-    types: wp.array(dtype=AgentType),
+    types: wp.array2d(dtype=AgentType),
     grid: CellLists,
     scratch: Scratch,
     agents: Agents,
@@ -122,11 +124,12 @@ def share_capture_rewards(
     if not agents.alive[w, i]:
         return
     pos = agents.position[w, i]
-    contact = types[PREY].radius + types[PREDATOR].radius
-    share = wp.max(world.catch_share_radius, contact)
+    contact = types[w, PREY].radius + types[w, PREDATOR].radius
+    values = world.values[w]
+    share = wp.max(values.catch_share_radius, contact)
     total = float(0.0)
     is_capturer = bool(False)
-    walk = square_walk(grid, w, world.capacity, pos, start_of_step_radius(world, share, types[PREY].max_speed), 0, 1)
+    walk = square_walk(grid, w, world.capacity, pos, start_of_step_radius(world, w, share, types[w, PREY].max_speed), 0, 1)
     while next_run(grid, walk):
         for n in range(run_length(walk.runs)):
             j = listed_slot(grid, run_entry(walk.runs, n), walk.base)
@@ -134,17 +137,17 @@ def share_capture_rewards(
                 if scratch.captured[w, j]:
                     d = torus_displacement(world, pos, agents.position[w, j])
                     d2 = wp.dot(d, d)
-                    inside_share = d2 < world.catch_share_radius * world.catch_share_radius
+                    inside_share = d2 < values.catch_share_radius * values.catch_share_radius
                     if d2 < contact * contact:
                         is_capturer = True
                     if inside_share or d2 < contact * contact:
-                        total += world.predator_reward / float(scratch.share_count[w, j])
+                        total += values.predator_reward / float(scratch.share_count[w, j])
     outputs.reward[w, i] = total
     hunger = agents.starvation[w, i] + 1
     if is_capturer:
         hunger = 1
     agents.starvation[w, i] = hunger
-    if hunger > world.predator_starvation_steps:
+    if hunger > values.predator_starvation_steps:
         agents.alive[w, i] = False
         outputs.terminated[w, i] = True
         wp.atomic_add(counters.predator_alive_count, w, -1)

@@ -3,7 +3,9 @@
 Conventions used by every kernel:
 - A world has `capacity` agent slots: prey in `[0, prey_capacity)`, predators after them.
 - Type codes follow the observation's type value: `PREDATOR = 0`, `PREY = 1`; per-type parameters live
-  in a 2-element `wp.array(dtype=AgentType)` indexed by that code, so one kernel serves both types.
+  in a `[worlds, 2]` `wp.array2d(dtype=AgentType)` indexed by world and that code (`types[w, t]`), so
+  one kernel serves both types and every world has its own values; the other per-world values are
+  `world.values[w]` (`WorldValues`).
 - Positions are px in `[0, width) x [0, height)`, velocities px/step, headings unit vectors.
 """
 
@@ -38,32 +40,56 @@ class AgentType:
     prey_slots: int  # observed prey slots
 
 
+FLOW_NONE = wp.constant(0)
+FLOW_UNIFORM = wp.constant(1)
+FLOW_VORTEX = wp.constant(2)
+FLOW_GRID = wp.constant(3)
+
+
+@wp.struct
+class WorldValues:
+    """The world parameters that may differ between the worlds of a batch (one per world), with
+    derived values precomputed on the host."""
+
+    prey_count: int  # live prey at the start of an episode (at most prey_capacity)
+    predator_count: int  # live predators at the start of an episode (at most predator_capacity)
+    prey_reward: float
+    prey_capture_penalty: float
+    predator_reward: float
+    catch_share_radius: float  # px
+    predator_starvation_steps: int
+    replication_age_min: int  # ceil(0.75 * prey_replication_age)
+    replication_age_max: int  # floor(1.25 * prey_replication_age)
+    flow_kind: int  # FLOW_NONE, FLOW_UNIFORM, FLOW_VORTEX or FLOW_GRID
+    flow_vector: wp.vec2  # uniform: the current (px/step); vortex: the centre (px)
+    flow_strength: float  # vortex: px/step at the core's edge
+    flow_core_radius: float  # vortex: px
+    flow_amplitude: float  # time variation (1 + a sin(2 pi t / T)); 0: steady
+    flow_period: float  # T, steps
+    flow_grid: int  # grid: index into WorldParams.flow_grid
+    flow_reach: float  # largest length of the current (px/step): widens the capture searches
+
+
 @wp.struct
 class WorldParams:
-    """World-wide parameters shared by all worlds of a batch."""
+    """Parameters of a batch's worlds: sizes shared by all, and `values`, one `WorldValues` per world."""
 
     width: float
     height: float
     prey_capacity: int
     capacity: int
-    prey_count: int  # live prey at the start of an episode
-    predator_count: int
+    predator_capacity: int
     action_count: int
     max_steps: int
     fov_enabled: int
     respawn_captured_prey: int
-    prey_reward: float
-    prey_capture_penalty: float
-    predator_reward: float
-    catch_share_radius: float
-    predator_starvation_steps: int
     max_prey: int
-    replication_age_min: int  # ceil(0.75 * prey_replication_age)
-    replication_age_max: int  # floor(1.25 * prey_replication_age)
     signed_observations: int  # 1: observation range "-1..1"
     seed: wp.uint32
     auto_reset: int  # 1: a world whose episode ended starts the next one inside the same step
     world_offset: int  # global index of this batch's world 0 (batches of worlds may run on threads)
+    values: wp.array(dtype=WorldValues)  # [shard's worlds]
+    flow_grid: wp.array3d(dtype=wp.vec2)  # [grids, rows, cols] currents at cell centres, px/step
 
 
 @wp.func
@@ -108,6 +134,41 @@ def wrap_coordinate(x: float, length: float) -> float:
     if y >= length:
         y = y - length
     return y
+
+
+@wp.func
+def current(world: WorldParams, v: WorldValues, pos: wp.vec2, t: int) -> wp.vec2:
+    """The flow's current C(P, t) at `pos` at step `t` (MODEL.md "Flow fields"), px/step."""
+    c = wp.vec2(0.0, 0.0)
+    if v.flow_kind == FLOW_UNIFORM:
+        c = v.flow_vector
+    elif v.flow_kind == FLOW_VORTEX:
+        d = torus_displacement(world, v.flow_vector, pos)
+        rho = wp.length(d)
+        if rho > 0.0:
+            profile = wp.where(rho < v.flow_core_radius, rho / v.flow_core_radius, v.flow_core_radius / rho)
+            c = wp.vec2(-d[1], d[0]) * (v.flow_strength * profile / rho)
+    elif v.flow_kind == FLOW_GRID:
+        rows = world.flow_grid.shape[1]
+        cols = world.flow_grid.shape[2]
+        # Cell centres sit at half cells: the four around `pos` and the weights, wrapped round the torus.
+        u = pos[0] * float(cols) / world.width - 0.5
+        r = pos[1] * float(rows) / world.height - 0.5
+        j0f = wp.floor(u)
+        i0f = wp.floor(r)
+        fx = u - j0f
+        fy = r - i0f
+        j0 = (int(j0f) + cols) % cols
+        i0 = (int(i0f) + rows) % rows
+        j1 = (j0 + 1) % cols
+        i1 = (i0 + 1) % rows
+        k = v.flow_grid
+        cells = world.flow_grid
+        c = ((1.0 - fx) * (1.0 - fy)) * cells[k, i0, j0] + (fx * (1.0 - fy)) * cells[k, i0, j1] \
+            + ((1.0 - fx) * fy) * cells[k, i1, j0] + (fx * fy) * cells[k, i1, j1]
+    if v.flow_amplitude != 0.0:
+        c = c * (1.0 + v.flow_amplitude * wp.sin(2.0 * wp.pi * float(t) / v.flow_period))
+    return c
 
 
 @wp.func

@@ -64,7 +64,7 @@ def precedes(d2: float, slot: int, other_d2: float, other_slot: int) -> bool:
 @wp.kernel
 def heuristic_policy(
     world: WorldParams,
-    types: wp.array(dtype=AgentType),
+    types: wp.array2d(dtype=AgentType),
     grid: CellLists,
     action_direction: wp.array(dtype=wp.vec2),
     agents: Agents,
@@ -91,7 +91,7 @@ def heuristic_policy(
 
     t = slot_type(world, i)
     target_type = 1 - t  # the other type: predators for TurnAway prey, prey for NaivChase predators
-    p = types[t]
+    p = types[w, t]
     pos = agents.position[w, i]
     h = agents.heading[w, i]
     v = p.view_distance

@@ -201,15 +201,17 @@ def prey_distances(
 
 
 @wp.kernel
-def link_groups(world: WorldParams, grid: CellLists, agents: Agents, linking_distance: float, swarm: SwarmArrays):
+def link_groups(world: WorldParams, grid: CellLists, agents: Agents, linking_distances: wp.array(dtype=float),
+                swarm: SwarmArrays):
     """Per prey slot `(w, i)`: unite `i` with every live prey `j > i` at torus distance
-    `< linking_distance` (px), found by a fixed-radius search of the cell lists.
-    `parent[w * prey_capacity + i]` must start as `i` (set by `prey_distances`)."""
+    `< linking_distances[w]` (px; per world, as the prey radii may be), found by a fixed-radius search
+    of the cell lists. `parent[w * prey_capacity + i]` must start as `i` (set by `prey_distances`)."""
     w, i = wp.tid()
     if not agents.alive[w, i]:
         return
     pos = agents.position[w, i]
     forest = w * world.prey_capacity
+    linking_distance = linking_distances[w]
     link2 = linking_distance * linking_distance
     walk = square_walk(grid, w, world.capacity, pos, linking_distance, 0, 1)
     while next_run(grid, walk):

@@ -7,8 +7,8 @@ start-of-step positions at the end of the previous step (or after a reset or `se
 
 import warp as wp
 
-from .common import PREY, AgentType, WorldParams, slot_type, wrap_coordinate
-from .state import Actions, Agents, Scratch, StepOutputs
+from .common import FLOW_NONE, PREY, AgentType, WorldParams, current, slot_type, wrap_coordinate
+from .state import Actions, Agents, Scratch, StepOutputs, WorldCounters
 
 wp.set_module_options({"enable_backward": False})
 
@@ -39,9 +39,10 @@ def clamp_length(v: wp.vec2, limit: float) -> wp.vec2:
 @wp.kernel
 def integrate_motion(
     world: WorldParams,
-    types: wp.array(dtype=AgentType),
+    types: wp.array2d(dtype=AgentType),
     action_direction: wp.array(dtype=wp.vec2),
     actions: Actions,
+    counters: WorldCounters,
     agents: Agents,
     scratch: Scratch,
     outputs: StepOutputs,
@@ -58,7 +59,7 @@ def integrate_motion(
     if not agents.alive[w, i]:
         return
     t = slot_type(world, i)
-    p = types[t]
+    p = types[w, t]
 
     # 1. Steering towards the action's desired velocity (paper eqs. 1 and 6).
     action = int(0)
@@ -92,11 +93,15 @@ def integrate_motion(
         if offset[0] != 0.0 or offset[1] != 0.0:
             v_new = v + wp.normalize(offset) * p.bounce_strength
 
-    # 4. Speed clamp (paper eq. 3) and wrap onto the torus (eq. 4).
+    # 4. Speed clamp (paper eq. 3) and wrap onto the torus (eq. 4); a flow's current adds to the
+    # displacement only (MODEL.md "Flow fields"), at the start-of-step position and step counter.
     v_new = clamp_length(v_new, p.max_speed)
     pos = agents.position[w, i]
-    agents.position[w, i] = wp.vec2(wrap_coordinate(pos[0] + v_new[0], world.width),
-                                    wrap_coordinate(pos[1] + v_new[1], world.height))
+    moved = pos + v_new
+    values = world.values[w]
+    if values.flow_kind != FLOW_NONE:  # no add of a zero current: "none" keeps every bit as before
+        moved = moved + current(world, values, pos, counters.world_step[w])
+    agents.position[w, i] = wp.vec2(wrap_coordinate(moved[0], world.width), wrap_coordinate(moved[1], world.height))
     agents.velocity[w, i] = v_new
     agents.acceleration[w, i] = acc
     speed = wp.length(v_new)

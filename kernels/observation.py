@@ -1,7 +1,7 @@
 """MODEL.md step 10: field-of-view observations (and the contact partners of step 3).
 
-Per live agent: the own 5-tuple, then its nearest visible predators and nearest visible prey, each
-block sorted by (distance, slot), packed as 6-tuples; unused slots are zero and a boolean mask marks
+Per live agent: the own 5-tuple (with `observe_flow` then the current there, two values), then its
+nearest visible predators and nearest visible prey, each block sorted by (distance, slot), packed as 6-tuples; unused slots are zero and a boolean mask marks
 the filled ones. Candidates come from a search of the cell lists that widens ring by ring and stops
 as soon as no unseen agent can be visible (beyond the view distance) or closer than the K-th kept
 one, so an unlimited view distance still costs about K neighbours' worth of cells, not the whole
@@ -28,10 +28,10 @@ import functools
 
 import warp as wp
 
-from .common import (PREDATOR, PREY, AgentType, WorldParams, angle_value, in_view, slot_type,
+from .common import (PREDATOR, PREY, AgentType, WorldParams, angle_value, current, in_view, slot_type,
                      torus_displacement)
 from .grid import CellLists, next_ring, next_run, rings_for_radius, run_entry, run_length, seen_radius, widening_walk
-from .state import Agents, Scratch
+from .state import Agents, Scratch, WorldCounters
 
 wp.set_module_options({"enable_backward": False})
 
@@ -86,12 +86,14 @@ def neighbour_tuple(
 
 
 @functools.cache
-def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, whole_world: bool):
+def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, whole_world: bool,
+                       observe_flow: bool = False):
     """The observation kernel for observers with `predator_slots` and `prey_slots` slots, launched with
     `dim=(blocks, block_dim)` and `block_dim`, on whole-world cell lists or not (compiled once per
     combination: the kind of lists is fixed at compile time here, where `listed_slot` would test it for
-    every candidate)."""
+    every candidate), with the two flow values after the own 5-tuple or not (MODEL.md "Flow fields")."""
     slots = predator_slots + prey_slots
+    own = 5 + 2 * int(observe_flow)  # the own block: 5-tuple, then the observed current if asked for
     # The nearest visible agents found so far, one list: predators in [0, predator_slots), prey after
     # them; each block sorted by (distance, slot), unfilled entries (inf, NO_SLOT). Every index into
     # the lists is a compile-time constant (unrolled loops), so they stay in registers.
@@ -99,7 +101,7 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
     KeptInt = wp.types.vector(length=max(slots, 1), dtype=int)
     last_predator = max(predator_slots - 1, 0)  # last entry of each block (unused if the block is empty)
     last_prey = max(slots - 1, 0)
-    Row = wp.types.vector(length=5 + 6 * slots, dtype=float)
+    Row = wp.types.vector(length=own + 6 * slots, dtype=float)
 
     # One observer type's outputs: the `Observations` arrays of the type, its rows as `Row` values (the
     # row type depends on the slot counts, so this struct is made with the kernel, in a module of its own).
@@ -112,9 +114,10 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
 
     def observe(
         world: WorldParams,
-        types: wp.array(dtype=AgentType),
+        types: wp.array2d(dtype=AgentType),
         grid: CellLists,
         agents: Agents,
+        counters: WorldCounters,
         first_type: int,
         first_rows: int,
         first_blocks: int,
@@ -138,7 +141,7 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
         per_world = world.prey_capacity
         first_slot = int(0)
         if t == PREDATOR:
-            per_world = world.predator_count
+            per_world = world.predator_capacity
             first_slot = world.prey_capacity
         r = block * block_dim + lane
         w = r // per_world
@@ -151,7 +154,7 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
                     out.observed_slot[r, s] = -1
                 scratch.contact_partner[w, i] = -1
             else:
-                p = types[t]
+                p = types[w, t]
                 pos = agents.position[w, i]
                 h = agents.heading[w, i]
 
@@ -258,15 +261,21 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
                 row[2] = scaled(pos[1] / world.height, signed)
                 row[3] = scaled(angle_value(h), signed)
                 row[4] = scaled(wp.min(wp.length(agents.velocity[w, i]) / p.max_speed, 1.0), signed)
+                if wp.static(observe_flow):
+                    # The current the next move adds here (same position and step counter), in the
+                    # observer's max speeds, clipped to [-1, 1], then (c + 1) / 2 like a 0..1 value.
+                    c = current(world, world.values[w], pos, counters.world_step[w]) / p.max_speed
+                    for q in range(2):
+                        row[5 + q] = scaled(0.5 * (wp.clamp(c[q], -1.0, 1.0) + 1.0), signed)
                 for e in range(wp.static(slots)):
                     if kept_slot[e] != NO_SLOT:
                         jt = wp.where(e < predator_slots, PREDATOR, PREY)
                         k2 = kept_entry[e]
-                        neighbour = neighbour_tuple(world, p, types[jt], jt, kept_d2[e],
+                        neighbour = neighbour_tuple(world, p, types[w, jt], jt, kept_d2[e],
                                                     torus_displacement(world, pos, grid.position[k2]),
                                                     grid.position[k2], wp.length(agents.velocity[w, kept_slot[e]]))
                         for q in range(6):
-                            row[5 + 6 * e + q] = neighbour[q]
+                            row[own + 6 * e + q] = neighbour[q]
                         out.mask[r, e] = True
                         out.observed_slot[r, e] = kept_slot[e]
                     else:

@@ -44,7 +44,7 @@ def collect_rewards(world: WorldParams, agents: Agents, outputs: StepOutputs, co
     w, i = wp.tid()
     r = outputs.reward[w, i]
     if slot_type(world, i) == PREY and agents.alive[w, i]:
-        r = r + world.prey_reward
+        r = r + world.values[w].prey_reward
         outputs.reward[w, i] = r
     counters.episode_return[w, i] = counters.episode_return[w, i] + r
 
@@ -81,8 +81,8 @@ def finish_world_step(world: WorldParams, counters: WorldCounters, outputs: Step
     counters.world_step[w] = 0
     counters.episode[w] = counters.episode[w] + 1
     counters.episode_captures[w] = 0
-    counters.prey_alive_count[w] = world.prey_count
-    counters.predator_alive_count[w] = world.predator_count
+    counters.prey_alive_count[w] = world.values[w].prey_count
+    counters.predator_alive_count[w] = world.values[w].predator_count
 
 
 @wp.kernel

@@ -23,7 +23,7 @@ as the one pixel under its centre, so a zoomed-out world of a million agents sho
 
 import warp as wp
 
-from .common import PREDATOR, PREY, torus_delta
+from .common import PREDATOR, PREY, WorldParams, current, torus_delta
 from .state import Agents
 
 wp.set_module_options({"enable_backward": False})
@@ -40,6 +40,7 @@ PART_STRIPE = wp.constant(5)  # dorsal marking
 BIT_HIT_BOX_PREDATOR = wp.constant(1)
 BIT_HIT_BOX_PREY = wp.constant(2)
 BIT_VELOCITY = wp.constant(4)
+BIT_FLOW = wp.constant(8)
 
 # A shape whose radius is under this many image pixels is drawn as one pixel (its details would not show).
 DOT_RADIUS_PX = wp.constant(0.75)
@@ -70,6 +71,7 @@ class RenderParams:
     view_cones: int  # 1: draw view cones
     hit_boxes: int  # 1: draw hit boxes
     velocities: int  # 1: draw velocity arrows
+    flow_spacing: int  # image pixels between the flow arrows' grid points
 
 
 @wp.struct
@@ -93,6 +95,7 @@ class Palette:
     prey_hit_box: wp.vec3
     predator_hit_box: wp.vec3
     velocity: wp.vec3
+    flow: wp.vec3
 
 
 @wp.func
@@ -369,35 +372,59 @@ def splat_agents(
             if dist <= vd and wp.dot(d, h) >= cos_half * dist:
                 wp.atomic_add(cone_count, t, ij[0], ij[1], 1)
 
-    # velocity arrow from the centre along velocity * velocity_scale, measured in image pixels so
-    # it stays a thin line at any zoom
+    # velocity arrow from the centre along velocity * velocity_scale
     if p.velocities != 0:
-        v = agents.velocity[w, slot] * p.velocity_scale
-        tip = wp.vec2(v[0] * inv_pw, v[1] * inv_ph)  # image pixels
-        length = wp.length(tip)
-        if length >= 1.0:
-            axis = tip / length
-            head = wp.min(0.35 * length, 7.0)  # arrowhead length, image pixels
-            pad = head * 0.5 + p.line_px + 1.0
-            lo_x = c[0] + wp.min(v[0], 0.0) - pad * p.pixel_width
-            hi_x = c[0] + wp.max(v[0], 0.0) + pad * p.pixel_width
-            lo_y = c[1] + wp.min(v[1], 0.0) - pad * p.pixel_height
-            hi_y = c[1] + wp.max(v[1], 0.0) + pad * p.pixel_height
-            box = pixel_box(p, wp.vec2(lo_x, lo_y), wp.vec2(hi_x, hi_y))
-            for n in range(box_pixel_count(box)):
-                ij = box_pixel(p, box, n)
-                d = pixel_offset(p, ij[0], ij[1], c)
-                e = wp.vec2(d[0] * inv_pw, d[1] * inv_ph)  # image pixels from the centre
-                along = wp.dot(e, axis)
-                across = wp.abs(e[0] * axis[1] - e[1] * axis[0])
-                hit = 0
-                if along >= 0.0 and along <= length - head and across <= p.line_px:
-                    hit = 1  # shaft
-                if along > length - head and along <= length:
-                    if across <= 0.5 * (length - along) + p.line_px * 0.5:
-                        hit = 1  # arrowhead, a triangle of half width head / 2 at its base
-                if hit == 1:
-                    wp.atomic_or(overlay, ij[0], ij[1], BIT_VELOCITY)
+        draw_arrow(p, c, agents.velocity[w, slot] * p.velocity_scale, overlay, BIT_VELOCITY)
+
+
+@wp.func
+def draw_arrow(p: RenderParams, c: wp.vec2, v: wp.vec2, overlay: wp.array2d(dtype=wp.int32), bit: int):
+    """Mark `bit` on the pixels of an arrow from `c` along `v` (world px), measured in image pixels so
+    it stays a thin line at any zoom; shorter than a pixel: nothing."""
+    inv_pw = 1.0 / p.pixel_width
+    inv_ph = 1.0 / p.pixel_height
+    tip = wp.vec2(v[0] * inv_pw, v[1] * inv_ph)  # image pixels
+    length = wp.length(tip)
+    if length >= 1.0:
+        axis = tip / length
+        head = wp.min(0.35 * length, 7.0)  # arrowhead length, image pixels
+        pad = head * 0.5 + p.line_px + 1.0
+        lo_x = c[0] + wp.min(v[0], 0.0) - pad * p.pixel_width
+        hi_x = c[0] + wp.max(v[0], 0.0) + pad * p.pixel_width
+        lo_y = c[1] + wp.min(v[1], 0.0) - pad * p.pixel_height
+        hi_y = c[1] + wp.max(v[1], 0.0) + pad * p.pixel_height
+        box = pixel_box(p, wp.vec2(lo_x, lo_y), wp.vec2(hi_x, hi_y))
+        for n in range(box_pixel_count(box)):
+            ij = box_pixel(p, box, n)
+            d = pixel_offset(p, ij[0], ij[1], c)
+            e = wp.vec2(d[0] * inv_pw, d[1] * inv_ph)  # image pixels from the centre
+            along = wp.dot(e, axis)
+            across = wp.abs(e[0] * axis[1] - e[1] * axis[0])
+            hit = 0
+            if along >= 0.0 and along <= length - head and across <= p.line_px:
+                hit = 1  # shaft
+            if along > length - head and along <= length:
+                if across <= 0.5 * (length - along) + p.line_px * 0.5:
+                    hit = 1  # arrowhead, a triangle of half width head / 2 at its base
+            if hit == 1:
+                wp.atomic_or(overlay, ij[0], ij[1], bit)
+
+
+@wp.kernel
+def splat_flow(p: RenderParams, world: WorldParams, w: int, world_step: wp.array(dtype=wp.int32),
+               overlay: wp.array2d(dtype=wp.int32)):
+    """One thread per point of a grid `flow_spacing` image pixels apart: an arrow of the current there
+    (MODEL.md "Flow fields", at the world's step counter: the one the next move adds), velocity_scale
+    steps of drift long, at most 0.9 grid spacings. `w`: the world's index in `world`'s shard."""
+    gi, gj = wp.tid()
+    spacing = float(p.flow_spacing)
+    c = wp.vec2((float(gj) + 0.5) * spacing * p.pixel_width, (float(gi) + 0.5) * spacing * p.pixel_height)
+    v = current(world, world.values[w], c, world_step[w]) * p.velocity_scale
+    longest = 0.9 * spacing * wp.min(p.pixel_width, p.pixel_height)
+    length = wp.length(v)
+    if length > longest:
+        v = v * (longest / length)
+    draw_arrow(p, c, v, overlay, BIT_FLOW)
 
 
 @wp.func
@@ -449,6 +476,9 @@ def compose_image(
         if n_prey > 0:
             colour = blend(colour, pal.prey_cone, 1.0 - wp.pow(1.0 - pal.cone_alpha[PREY], float(n_prey)))
     bits = overlay[i, j]
+    # flow arrows under everything but the cones
+    if (bits & BIT_FLOW) != 0:
+        colour = pal.flow
     # velocity arrows under the bodies: they start from the agent's centre
     if (bits & BIT_VELOCITY) != 0:
         colour = pal.velocity
@@ -491,6 +521,13 @@ def launch_splat(params, agents, body_key, cone_count, overlay, capacity, device
     """Splat the `capacity` slots of world `params.world` into the (cleared) buffers."""
     wp.launch(splat_agents, dim=capacity, inputs=[params, agents], outputs=[body_key, cone_count, overlay],
               device=device)
+
+
+def launch_flow(params, world, w, world_step, overlay, device):
+    """Splat the flow arrows of world `w` of the shard whose `WorldParams` are `world` into `overlay`."""
+    rows = (params.height_px + params.flow_spacing - 1) // params.flow_spacing
+    cols = (params.width_px + params.flow_spacing - 1) // params.flow_spacing
+    wp.launch(splat_flow, dim=(rows, cols), inputs=[params, world, w, world_step], outputs=[overlay], device=device)
 
 
 def launch_compose(params, palette, agents, body_key, cone_count, overlay, image, device):

@@ -10,9 +10,10 @@ wp.set_module_options({"enable_backward": False})
 
 
 @wp.func
-def draw_replication_age(world: WorldParams, rng: wp.uint32) -> int:
-    """Integer uniform in [ceil(0.75 R), floor(1.25 R)] for R = prey_replication_age."""
-    return wp.randi(rng, world.replication_age_min, world.replication_age_max + 1)
+def draw_replication_age(world: WorldParams, w: int, rng: wp.uint32) -> int:
+    """Integer uniform in [ceil(0.75 R), floor(1.25 R)] for R = world w's prey_replication_age."""
+    values = world.values[w]
+    return wp.randi(rng, values.replication_age_min, values.replication_age_max + 1)
 
 
 @wp.func
@@ -25,7 +26,7 @@ def make_fresh_prey(
     agents: Agents,
 ):
     """A prey at `pos` moving west at speed 1, as at the start of an episode; keeps only its slot."""
-    set_slot(agents, w, i, True, pos, wp.vec2(-1.0, 0.0), wp.vec2(-1.0, 0.0), draw_replication_age(world, rng))
+    set_slot(agents, w, i, True, pos, wp.vec2(-1.0, 0.0), wp.vec2(-1.0, 0.0), draw_replication_age(world, w, rng))
 
 
 @wp.func
@@ -59,15 +60,18 @@ def uniform_position(world: WorldParams, rng: wp.uint32, margin: float) -> wp.ve
 def spawn_slot(world: WorldParams, counters: WorldCounters, w: int, i: int, episode: int, agents: Agents):
     """Slot i of world w at the start of its episode `episode`: prey uniform 20 px inside the edges
     moving west, predators uniform anywhere moving north, zero acceleration; prey slots past
-    `prey_count` empty."""
+    the world's `prey_count` and predator slots past its `predator_count` empty."""
     rng = random_stream(counters.seed[w], world.world_offset + w, episode, 0, i, PURPOSE_SPAWN)
+    values = world.values[w]
     if slot_type(world, i) == PREY:
-        if i < world.prey_count:
+        if i < values.prey_count:
             make_fresh_prey(world, w, i, uniform_position(world, rng, 20.0), rng, agents)
         else:
             set_slot(agents, w, i, False, wp.vec2(0.0, 0.0), wp.vec2(0.0, 0.0), wp.vec2(-1.0, 0.0), 0)
-    else:
+    elif i - world.prey_capacity < values.predator_count:
         set_slot(agents, w, i, True, uniform_position(world, rng, 0.0), wp.vec2(0.0, -1.0), wp.vec2(0.0, -1.0), 0)
+    else:
+        set_slot(agents, w, i, False, wp.vec2(0.0, 0.0), wp.vec2(0.0, 0.0), wp.vec2(0.0, -1.0), 0)
 
 
 @wp.kernel
@@ -81,7 +85,7 @@ def spawn_episode(world: WorldParams, counters: WorldCounters, outputs: StepOutp
         counters.world_step[w] = 0
         counters.episode[w] = 0
         counters.episode_captures[w] = 0
-        counters.prey_alive_count[w] = world.prey_count
-        counters.predator_alive_count[w] = world.predator_count
+        counters.prey_alive_count[w] = world.values[w].prey_count
+        counters.predator_alive_count[w] = world.values[w].predator_count
         outputs.episode_ended[w] = False
     spawn_slot(world, counters, w, i, 0, agents)

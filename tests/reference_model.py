@@ -11,7 +11,10 @@ Conventions (see MODEL.md and the project's decisions):
   predator_reward, catch_share_radius, predator_starvation_steps, prey_reproduction, max_prey,
   observation_range, prey_capacity, capacity, and per type (cfg.prey / cfg.predator): max_speed,
   max_steering_force, max_acceleration, mass, radius, view_distance, fov_angle (degrees),
-  bounce_strength, predator_slots, prey_slots.
+  bounce_strength, predator_slots, prey_slots; optionally `flow` (an `aquarium_warp.config.FlowConfig`) and
+  `observe_flow` (absent: False).
+  A batch with per-world values is compared world by world on `world_config`s (one world's values, the
+  batch's slot counts).
 * Slots ``[0, prey_capacity)`` are prey, ``[prey_capacity, capacity)`` are predators.
 * A world state is a dict of numpy arrays (see ``FIELDS``); dead slots are ignored everywhere.
 * Type code in observations: predator 0, prey 1.
@@ -73,8 +76,13 @@ def same_type_slots(cfg, slot: int) -> range:
     return prey_slots(cfg) if is_prey(cfg, slot) else predator_slots(cfg)
 
 
-def observation_length(type_config) -> int:
-    return OWN_SIZE + TUPLE_SIZE * (int(type_config.predator_slots) + int(type_config.prey_slots))
+def own_size(cfg) -> int:
+    """Length of the own block: the 5-tuple, then the two observed current values with `observe_flow`."""
+    return OWN_SIZE + (2 if getattr(cfg, "observe_flow", False) else 0)
+
+
+def observation_length(cfg, type_config) -> int:
+    return own_size(cfg) + TUPLE_SIZE * (int(type_config.predator_slots) + int(type_config.prey_slots))
 
 
 def empty_state(cfg) -> dict:
@@ -226,8 +234,39 @@ def steering_acceleration(cfg, state, i: int, action: int) -> np.ndarray:
     return raw / n * float(t.max_acceleration)
 
 
-def motion(cfg, state: Mapping[str, np.ndarray], actions) -> dict:
-    """Steps 1-4 for every live agent. Returns a new state; alive/age/... are unchanged."""
+def current(cfg, p, t: int) -> np.ndarray:
+    """MODEL.md "Flow fields": the current C(P, t) of ``cfg.flow`` (absent or kind "none": zero) at
+    position ``p`` at step ``t``, float64."""
+    flow = getattr(cfg, "flow", None)
+    kind = "none" if flow is None else flow.kind
+    p = np.asarray(p, np.float64)
+    c = np.zeros(2)
+    if kind == "uniform":
+        c = np.asarray(flow.velocity, np.float64)
+    elif kind == "vortex":
+        d = torus_delta(cfg, np.asarray(flow.centre, np.float64), p)
+        rho = norm(d)
+        if rho > 0.0:
+            g = rho / flow.core_radius if rho < flow.core_radius else flow.core_radius / rho
+            c = flow.strength * g * np.array([-d[1], d[0]]) / rho
+    elif kind == "grid":
+        grid = np.asarray(flow.grid, np.float64)
+        rows, cols = grid.shape[:2]
+        # cell (i, j) has its centre at ((j + 1/2) W / cols, (i + 1/2) H / rows)
+        u = p[0] / cfg.width * cols - 0.5
+        r = p[1] / cfg.height * rows - 0.5
+        j0, i0 = math.floor(u), math.floor(r)
+        fx, fy = u - j0, r - i0
+        c = ((1 - fx) * (1 - fy) * grid[i0 % rows, j0 % cols] + fx * (1 - fy) * grid[i0 % rows, (j0 + 1) % cols]
+             + (1 - fx) * fy * grid[(i0 + 1) % rows, j0 % cols] + fx * fy * grid[(i0 + 1) % rows, (j0 + 1) % cols])
+    if kind != "none" and flow.amplitude != 0.0:
+        c = c * (1.0 + flow.amplitude * math.sin(2.0 * math.pi * t / flow.period))
+    return c
+
+
+def motion(cfg, state: Mapping[str, np.ndarray], actions, world_step: int = 0) -> dict:
+    """Steps 1-4 for every live agent (the current at step ``world_step`` added to the displacement).
+    Returns a new state; alive/age/... are unchanged."""
     start = as_state(cfg, state)
     actions = np.asarray(actions).astype(np.int64)
     new = copy_state(start)
@@ -248,7 +287,7 @@ def motion(cfg, state: Mapping[str, np.ndarray], actions) -> dict:
         speed = norm(v_new)
         new["acceleration"][i] = acc
         new["velocity"][i] = v_new
-        new["position"][i] = wrap(cfg, start["position"][i] + v_new)
+        new["position"][i] = wrap(cfg, start["position"][i] + v_new + current(cfg, start["position"][i], world_step))
         new["heading"][i] = v_new / speed if speed > 0.0 else start["heading"][i]
     return new
 
@@ -285,14 +324,15 @@ def visible_sorted(cfg, state, i: int, candidates) -> list:
     return out
 
 
-def observe_agent(cfg, state: Mapping[str, np.ndarray], i: int):
-    """Observation vector and slot mask of one observer (zeros / False when dead).
+def observe_agent(cfg, state: Mapping[str, np.ndarray], i: int, world_step: int = 0):
+    """Observation vector and slot mask of one observer (zeros / False when dead); the observed current
+    (with `observe_flow`) is the one at step ``world_step``.
 
     Returns (vector, mask, slots) where ``slots`` lists the observed slot index per observation slot
     (-1 for unused), handy for error messages."""
     t = type_cfg(cfg, i)
     k_pred, k_prey = int(t.predator_slots), int(t.prey_slots)
-    vec = np.zeros(observation_length(t), np.float64)
+    vec = np.zeros(observation_length(cfg, t), np.float64)
     mask = np.zeros(k_pred + k_prey, bool)
     slots = np.full(k_pred + k_prey, -1, np.int64)
     if not state["alive"][i]:
@@ -312,6 +352,10 @@ def observe_agent(cfg, state: Mapping[str, np.ndarray], i: int):
     vec[:OWN_SIZE] = emit(
         [type_code(cfg, i), p[0] / w, p[1] / h, angle_value(float(hd[0]), float(hd[1])), own_speed]
     )
+    own = own_size(cfg)
+    if own > OWN_SIZE:
+        c = np.clip(current(cfg, p, world_step) / float(t.max_speed), -1.0, 1.0)
+        vec[OWN_SIZE:own] = emit((c + 1.0) / 2.0)
     dist_norm = distance_normaliser(cfg, t)
     blocks = ((predator_slots(cfg), k_pred, 0), (prey_slots(cfg), k_prey, k_pred))
     for candidates, k, first_slot in blocks:
@@ -329,27 +373,27 @@ def observe_agent(cfg, state: Mapping[str, np.ndarray], i: int):
                 norm(state["velocity"][j]) / float(tj.max_speed),
             ]
             s = first_slot + n
-            vec[OWN_SIZE + TUPLE_SIZE * s : OWN_SIZE + TUPLE_SIZE * (s + 1)] = emit(tup)
+            vec[own + TUPLE_SIZE * s : own + TUPLE_SIZE * (s + 1)] = emit(tup)
             mask[s] = True
             slots[s] = j
     return vec, mask, slots
 
 
-def observe(cfg, state: Mapping[str, np.ndarray], with_slots: bool = False):
+def observe(cfg, state: Mapping[str, np.ndarray], with_slots: bool = False, world_step: int = 0):
     """Observations of every slot of one world.
 
     Returns (obs, mask) with obs = {"prey": (Pc, Lprey), "predator": (P, Lpred)} and
     mask = {"prey": (Pc, slots_prey), "predator": (P, slots_pred)}; with ``with_slots`` also a third dict of
-    the observed slot indices (-1 where unused)."""
+    the observed slot indices (-1 where unused). ``world_step``: the world's step counter (observed currents)."""
     state = as_state(cfg, state)
     obs, mask, who = {}, {}, {}
     for key, slots, t in (("prey", prey_slots(cfg), cfg.prey), ("predator", predator_slots(cfg), cfg.predator)):
         k = int(t.predator_slots) + int(t.prey_slots)
-        obs[key] = np.zeros((len(slots), observation_length(t)), np.float64)
+        obs[key] = np.zeros((len(slots), observation_length(cfg, t)), np.float64)
         mask[key] = np.zeros((len(slots), k), bool)
         who[key] = np.full((len(slots), k), -1, np.int64)
         for row, i in enumerate(slots):
-            obs[key][row], mask[key][row], who[key][row] = observe_agent(cfg, state, i)
+            obs[key][row], mask[key][row], who[key][row] = observe_agent(cfg, state, i, world_step)
     if with_slots:
         return obs, mask, who
     return obs, mask
@@ -430,7 +474,7 @@ def step(
     Returns (new_state, rewards (C,), terminated (C,), truncated (C,), captured (C,), info)."""
     start = as_state(cfg, state)
     c = capacity(cfg)
-    moved = motion(cfg, start, actions)
+    moved = motion(cfg, start, actions, world_step)
     new = copy_state(moved)
 
     rewards = np.zeros(c, np.float64)
@@ -516,7 +560,7 @@ def step(
     truncated = new["alive"].copy() if episode_over else np.zeros(c, bool)
 
     # 10. observations at the end-of-step state
-    obs, mask, observed = observe(cfg, new, with_slots=True)
+    obs, mask, observed = observe(cfg, new, with_slots=True, world_step=new_world_step)
     info = {
         "world_step": new_world_step,
         "episode_over": episode_over,

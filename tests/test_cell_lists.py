@@ -17,13 +17,15 @@ import warp as wp
 from aquarium_warp import AquariumConfig
 from aquarium_warp.kernels import grid as grid_kernels
 from aquarium_warp.kernels.state import Agents
+from aquarium_warp.params import BatchParams
 from aquarium_warp.shard import cell_lists, world_params
 
 
 def build(method: str, cfg, dims, position, alive, device):
     W, C = alive.shape
     g = cell_lists(cfg, W, dims, device, build=method)
-    world = world_params(cfg, 0, True)
+    params = BatchParams(cfg, W, device)
+    world = world_params(cfg, 0, True, params.values, params.flow_grid)
     agents = Agents()  # only the fields the builds read
     agents.position = wp.array(position, dtype=wp.vec2, device=device)
     agents.alive = wp.array(alive, dtype=wp.bool, device=device)

@@ -27,6 +27,7 @@ import dataclasses
 import math
 import os
 import sys
+import types
 
 import numpy as np
 import pytest
@@ -34,6 +35,7 @@ import pytest
 torch = pytest.importorskip("torch")
 aquarium_warp = pytest.importorskip("aquarium_warp")
 from aquarium_warp import AquariumConfig, BatchedAquarium  # noqa: E402
+from aquarium_warp.config import FlowConfig  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(__file__))
 import reference_model as ref  # noqa: E402
@@ -102,11 +104,46 @@ CONFIGS = {
         predator_starvation_steps=40,
     ),
 }
+# Flow fields (MODEL.md "Flow fields"), and per-world values: every world of the batch has its own
+# (compared world by world with the reference on that world's values).
+FLOW_GRID = [[[1.5, -0.5], [0.0, 2.0], [-1.0, 0.5]], [[0.25, 1.0], [-2.0, -1.5], [1.0, 0.0]]]  # [2, 3, 2]
+CONFIGS["vortex_time_varying"] = make_config(
+    width=300.0, height=260.0, prey_count=14, predator_count=2,
+    flow=FlowConfig("vortex", centre=(10.0, 250.0), strength=3.0, core_radius=40.0, amplitude=0.5, period=7.0))
+CONFIGS["per_world_flow_and_values"] = make_config(
+    width=260.0, height=240.0, prey_count=(12, 5, 9, 12), predator_count=(2, 3, 1, 3),
+    prey_reward=(1.0, 0.5, 2.0, 1.0), catch_share_radius=(100.0, 40.0, 0.0, 150.0),
+    predator_starvation_steps=(3000, 5, 8, 3000),
+    prey=dict(max_speed=(4.0, 2.0, 6.0, 3.0), radius=(20.0, 10.0, 25.0, 15.0), fov_angle=(120.0, 360.0, 90.0, 200.0),
+              view_distance=(100.0, math.inf, 60.0, 140.0), bounce_strength=(1.0, 0.0, 2.0, 0.5),
+              mass=(3.0, 1.0, 8.0, 3.0)),
+    predator=dict(max_speed=(5.0, 7.0, 3.0, 5.0), view_distance=(200.0, 90.0, math.inf, 120.0),
+                  max_acceleration=(0.6, 1.5, 0.3, 0.6), fov_angle=(150.0, 60.0, 360.0, 180.0)),
+    flow=(FlowConfig(), FlowConfig("uniform", velocity=(2.5, -1.0)),
+          FlowConfig("grid", grid=FLOW_GRID, amplitude=1.0, period=5.0),
+          FlowConfig("vortex", centre=(130.0, 0.0), strength=-4.0, core_radius=60.0)))
 # These worlds are one cell each by default (SINGLE_CELL_CAPACITY); the same worlds cut into cells
 # exercise the ring search and the capture searches across cell borders.
 CONFIGS["defaults_dense_cells"] = dataclasses.replace(CONFIGS["defaults_dense"], grid_cell_size=40.0)
 CONFIGS["respawn_off_starvation_cells"] = dataclasses.replace(CONFIGS["respawn_off_starvation"], grid_cell_size=45.0)
 CONFIGS["reproduction_cells"] = dataclasses.replace(CONFIGS["reproduction"], grid_cell_size=50.0)
+CONFIGS["per_world_flow_and_values_cells"] = dataclasses.replace(CONFIGS["per_world_flow_and_values"],
+                                                                 grid_cell_size=30.0)
+# The observed current (two values after the own 5-tuple), in both ranges; world 1's uniform current
+# (2.5 px/step) is faster than its prey (2 px/step), so the prey's value there is clipped.
+CONFIGS["vortex_observed"] = dataclasses.replace(CONFIGS["vortex_time_varying"], observe_flow=True)
+CONFIGS["per_world_flow_observed_signed"] = dataclasses.replace(
+    CONFIGS["per_world_flow_and_values"], observe_flow=True, observation_range="-1..1")
+
+
+def world_config(cfg, w: int):
+    """The config the reference runs world ``w`` on: the world's own values with the batch's slot
+    counts (a scalar config is its own)."""
+    if not cfg.per_world_fields:
+        return cfg
+    own = cfg.world(w)
+    return types.SimpleNamespace(**{f.name: getattr(own, f.name) for f in dataclasses.fields(own)},
+                                 prey_capacity=cfg.prey_capacity, capacity=cfg.capacity)
 
 _ENVS: dict = {}
 
@@ -358,9 +395,9 @@ def compare_state(cfg, where: str, kernel: dict, reference: dict, errors: list) 
                 errors.append(f"{where} {slot_name(cfg, i)} {name}: kernel={kernel[name][i]} reference={reference[name][i]}")
 
 
-def angle_columns(type_config) -> set:
+def angle_columns(cfg, type_config) -> set:
     k = type_config.predator_slots + type_config.prey_slots
-    return {3} | {ref.OWN_SIZE + ref.TUPLE_SIZE * s + 4 for s in range(k)}
+    return {3} | {ref.own_size(cfg) + ref.TUPLE_SIZE * s + 4 for s in range(k)}
 
 
 def compare_observations(cfg, where: str, k_obs: dict, k_mask: dict, r_obs: dict, r_mask: dict, r_slots: dict, errors):
@@ -374,7 +411,8 @@ def compare_observations(cfg, where: str, k_obs: dict, k_mask: dict, r_obs: dict
                 f"{where} {key} observation shape: kernel={ko.shape}/{km.shape} reference={r_obs[key].shape}/{r_mask[key].shape}"
             )
             continue
-        angles = sorted(angle_columns(t))
+        angles = sorted(angle_columns(cfg, t))
+        own = ref.own_size(cfg)
         for row in range(ko.shape[0]):
             slot = first + row
             diff = np.abs(ko[row] - r_obs[key][row])
@@ -388,10 +426,10 @@ def compare_observations(cfg, where: str, k_obs: dict, k_mask: dict, r_obs: dict
             if bad.size:
                 parts = []
                 for c in bad[:6]:
-                    if c < ref.OWN_SIZE:
+                    if c < own:
                         label = f"own[{c}]"
                     else:
-                        s, e = divmod(c - ref.OWN_SIZE, ref.TUPLE_SIZE)
+                        s, e = divmod(c - own, ref.TUPLE_SIZE)
                         label = f"obs-slot {s} (agent {r_slots[key][row][s]})[{e}]"
                     parts.append(f"{label} kernel={ko[row][c]:.7g} reference={r_obs[key][row][c]:.7g}")
                 errors.append(
@@ -422,7 +460,9 @@ def check_step(name: str, cfg, env, starts: list, actions: np.ndarray, errors: l
     k_trunc = {k: v.detach().cpu().numpy().copy() for k, v in truncated.items()}
     k_caps = info["captures"].detach().cpu().numpy().copy()
     after = read_worlds(env)
+    batch_cfg = cfg
     for w in range(env.num_worlds):
+        cfg = world_config(batch_cfg, w)
         where = f"[{name}{step_label} world {w}]"
         start = starts[w]
         r_new, r_rew, r_term, r_trunc, r_cap, r_info = ref.step(
@@ -453,7 +493,8 @@ def check_step(name: str, cfg, env, starts: list, actions: np.ndarray, errors: l
             for slot in r_info["respawned"] + [child for _, child in r_info["births"]]:
                 if not lo <= int(after[w]["replication_age"][slot]) <= hi:
                     errors.append(f"{where} {slot_name(cfg, slot)} new replication_age {after[w]['replication_age'][slot]} not in [{lo}, {hi}]")
-            r_obs, r_mask, r_slots = ref.observe(cfg, after[w], with_slots=True)
+            r_obs, r_mask, r_slots = ref.observe(cfg, after[w], with_slots=True,
+                                                 world_step=after[w]["world_step"])
             compare_observations(cfg, where, pick(k_obs), pick(k_mask), r_obs, r_mask, r_slots, errors)
             for key, first in (("prey", 0), ("predator", cfg.prey_capacity)):
                 for row in range(r_mask[key].shape[0]):
@@ -482,7 +523,7 @@ def test_observations_after_set_state(name):
     rng = np.random.default_rng(1000 + list(CONFIGS).index(name))
     errors = []
     for rep in range(3):
-        worlds = [random_world(rng, cfg) for _ in range(env.num_worlds)]
+        worlds = [random_world(rng, world_config(cfg, w)) for w in range(env.num_worlds)]
         set_worlds(env, worlds)
         after = read_worlds(env)
         for w in range(env.num_worlds):
@@ -490,7 +531,8 @@ def test_observations_after_set_state(name):
             for field in ref.FIELDS:
                 if not np.array_equal(after[w][field][worlds[w]["alive"]], worlds[w][field][worlds[w]["alive"]]):
                     errors.append(f"{where} set_state did not store {field}")
-            r_obs, r_mask, r_slots = ref.observe(cfg, worlds[w], with_slots=True)
+            r_obs, r_mask, r_slots = ref.observe(world_config(cfg, w), worlds[w], with_slots=True,
+                                                 world_step=after[w]["world_step"])
             k_obs = {k: v[w].detach().cpu().numpy() for k, v in env.observations.items()}
             k_mask = {k: v[w].detach().cpu().numpy() for k, v in env.observation_mask.items()}
             n_before = len(errors)
@@ -506,7 +548,7 @@ def test_single_step_from_random_states(name):
     rng = np.random.default_rng(2000 + list(CONFIGS).index(name))
     errors = []
     for rep in range(3):
-        worlds = [random_world(rng, cfg) for _ in range(env.num_worlds)]
+        worlds = [random_world(rng, world_config(cfg, w)) for w in range(env.num_worlds)]
         set_worlds(env, worlds)
         check_step(name, cfg, env, worlds, random_actions(rng, cfg, env.num_worlds), errors, f" #{rep}")
     fail_if(errors, name)
@@ -519,7 +561,7 @@ def test_rollout_resynced_each_step(name):
     cfg, env = CONFIGS[name], get_env(name)
     rng = np.random.default_rng(3000 + list(CONFIGS).index(name))
     errors = []
-    worlds = [random_world(rng, cfg) for _ in range(env.num_worlds)]
+    worlds = [random_world(rng, world_config(cfg, w)) for w in range(env.num_worlds)]
     set_worlds(env, worlds)
     starts = read_worlds(env)
     for k in range(6):

@@ -81,7 +81,7 @@ def test_record_program_runs_on_every_shard():
     # first launch does.
     program = env.record_program(lambda shard: [shard.record(
         motion.integrate_motion, (shard.num_worlds, env.capacity),
-        [shard.world, env.agent_types, env.action_directions, shard.state.actions],
+        [shard.world, shard.types, env.action_directions, shard.state.actions, shard.state.worlds],
         [shard.state.agents, shard.state.scratch, shard.state.outputs])])
     program.run()
     twin.shards[0].programs["step"][0]()

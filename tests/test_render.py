@@ -242,3 +242,33 @@ def test_record_and_cli_video(device, tmp_path):
     assert main(["video", "--steps", "3", "--out", str(out), "--device", device, "--frame-width", "96",
                  "--prey", "5", "--hit-boxes", "--velocities", "--no-progress"]) == 0
     assert imageio.get_reader(str(out)).count_frames() == 4
+    vortex = tmp_path / "vortex.mp4"
+    assert main(["video", "--steps", "2", "--out", str(vortex), "--device", device, "--frame-width", "96",
+                 "--flow", "vortex", "--draw-flow", "--no-progress"]) == 0
+    assert imageio.get_reader(str(vortex)).count_frames() == 3
+
+
+def test_flow_arrows_where_the_current_is_not_zero(device):
+    """`draw_flow=True` on a 600 x 600 world framed 1:1, grid current of 4 cells across, (0, 0), (0, 0),
+    (4, 0), (4, 0) px/step: the current is zero for x in [75, 225] (between the first two cell
+    centres) and not zero from 225 to 600 + 75. Arrows (32 px apart, at most 0.9 x 32 px long, along
+    +x) mark pixels in the second region, none in [105, 225) (the arrows from left of 75 end before);
+    the frame keeps its shape, and the world with no flow is drawn as without the option."""
+    from aquarium_warp.config import FlowConfig
+
+    grid = [[[0.0, 0.0], [0.0, 0.0], [4.0, 0.0], [4.0, 0.0]]]
+    cfg = AquariumConfig(width=600, height=600, prey_count=2, predator_count=1,
+                         flow=(FlowConfig("grid", grid=grid), FlowConfig()))
+    env = BatchedAquarium(cfg, num_worlds=2, device=device, seed=0)
+    for w in range(2):
+        place(env, [], world=w)
+    renderer = Renderer(env, 600, 600)
+    plain, flow = renderer.render(0), renderer.render(0, draw_flow=True)
+    assert flow.shape == plain.shape == (600, 600, 3) and flow.dtype == np.uint8
+    arrows = (flow != plain).any(axis=2)
+    assert (flow[arrows] == np.array(DEFAULT_PALETTE["flow"], np.uint8)).all()
+    assert not arrows[:, 105:225].any()
+    assert arrows[:, 240:600].sum() > 100
+    assert np.array_equal(renderer.render(1, draw_flow=True), renderer.render(1))
+    with pytest.raises(ValueError, match="flow_spacing"):
+        Renderer(env, flow_spacing=2)

@@ -82,6 +82,9 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--export", default=None, help="formats exported after training: 'jit,onnx' (default), 'none'")
     g.add_argument("--quiet", action="store_true", default=None,
                    help="a progress bar instead of rsl-rl's per-iteration report")
+    g.add_argument("--randomize", action="append", default=[], metavar="FIELD=LOW:HIGH",
+                   help="domain randomisation: each world's FIELD (e.g. prey_max_speed, prey_count) drawn from "
+                        "[LOW, HIGH] (or FIELD=A,B,C: from the values) at every reset; repeatable")
     g.add_argument("--no-random-ep-len", action="store_true",
                    help="start every world at step 0 (default: spread the worlds' truncations)")
     g.add_argument("--critic", choices=("local", "team", "world"), default=None,
@@ -150,6 +153,8 @@ def _train_changes(args) -> dict:
              "pool_sampling": args.pool_sampling, "pool_fraction": args.pool_fraction}
     if args.no_random_ep_len:
         train["init_at_random_ep_len"] = False
+    if args.randomize:
+        train["randomize"] = dict(s.partition("=")[::2] for s in args.randomize)  # checked by validate()
     env = {"prey_count": args.prey, "predator_count": args.predators, "max_steps": args.max_steps,
            "width": args.width, "height": args.height}
     alg = {"gamma": args.gamma, "lam": args.lam, "clip_param": args.clip, "entropy_coef": args.entropy,

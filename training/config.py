@@ -29,6 +29,7 @@ import json
 import math
 
 from ..config import AquariumConfig, _is_int, _is_real
+from .randomize import parse_spec
 
 DISTRIBUTION = "aquarium_warp.training.distribution:CategoricalDistribution"
 PPO_CLASS = "aquarium_warp.training.ppo:AquariumPPO"
@@ -66,6 +67,7 @@ TRAIN_DEFAULTS = {
     "pool_fraction": 0.2,           # fraction of worlds in which a team plays against the other team's snapshots
     "video_every": 0,               # every N iterations a rendered evaluation episode into the log (0: none)
     "video_steps": 200,             # steps of that episode
+    "randomize": {},                # {field: "low:high" or "a,b,c"}: per-world values drawn at every world's reset
 }
 LOOPS = ("fast", "rsl-rl")
 TEAMS = ("prey", "predator")
@@ -316,6 +318,10 @@ def validate(config: dict) -> None:
         raise ValueError(f"train.update_schedule={train['update_schedule']!r} must be one of {UPDATE_SCHEDULES}")
     if train["pool_sampling"] not in POOL_SAMPLING:
         raise ValueError(f"train.pool_sampling={train['pool_sampling']!r} must be one of {POOL_SAMPLING}")
+    if not isinstance(train["randomize"], dict):
+        raise ValueError(f"train.randomize={train['randomize']!r} must be a mapping field -> 'low:high' or 'a,b,c'")
+    for field, spec in train["randomize"].items():
+        parse_spec(f"{field}={spec}")
     export = train["export"]
     if isinstance(export, str):
         train["export"] = export = [] if export in ("", "none") else [e.strip() for e in export.split(",")]

@@ -517,7 +517,9 @@ class Trainer:
         self.vec_envs = {team: AquariumVecEnv(self.env, team, opponents[team],
                                               reward_scale=team_settings(config, team)["reward_scale"], cfg=config,
                                               metrics_every=int(train["metrics_every"]) if i == 0 else 0,
-                                              critic=team_settings(config, team)["critic"])
+                                              critic=team_settings(config, team)["critic"],
+                                              randomize=train["randomize"] if i == 0 else None,
+                                              randomize_seed=self.seed)
                          for i, team in enumerate(self.teams)}
         if both:
             for team in TEAMS:

@@ -60,6 +60,7 @@ from rsl_rl.env import VecEnv
 from ..env import TYPES, BatchedAquarium
 from ..metrics import EPISODE_METRICS, EpisodeMetrics
 from ..pettingzoo_env import WorldState
+from .randomize import ParamRandomizer
 
 OTHER = {"prey": "predator", "predator": "prey"}
 # The device-side sums' columns (`accumulate_episode_stats`); captures per prey is derived on the host.
@@ -124,7 +125,8 @@ class AquariumVecEnv(VecEnv):
     """
 
     def __init__(self, env: BatchedAquarium, team: str = "prey", opponent=None, reward_scale: float = 1.0,
-                 cfg: dict | None = None, metrics_every: int = 10, critic: str = "local"):
+                 cfg: dict | None = None, metrics_every: int = 10, critic: str = "local",
+                 randomize=None, randomize_seed: int = 0):
         if not isinstance(env, BatchedAquarium):
             raise ValueError(f"env must be a BatchedAquarium, got {type(env).__name__}")
         if team not in TYPES:
@@ -136,6 +138,8 @@ class AquariumVecEnv(VecEnv):
         if critic not in ("local", "team", "world"):
             raise ValueError(f"critic={critic!r} must be 'local', 'team' or 'world'")
         self.env, self.team, self.other = env, team, OTHER[team]
+        # Domain randomisation (`randomize.py`): new per-world values at every world's reset.
+        self.randomizer = ParamRandomizer(env, randomize, randomize_seed) if randomize else None
         self.opponent = opponent
         self.reward_scale = float(reward_scale)
         ecfg = env.config
@@ -281,6 +285,8 @@ class AquariumVecEnv(VecEnv):
             self._actions.copy_(actions.reshape(self.num_worlds, self.slots))  # float -> int32 (exact)
         other_actions = self.opponent()
         self.env.step({self.team: self._actions, self.other: other_actions}, validate=False)
+        if self.randomizer is not None:
+            self.randomizer.update(self._episode_ended)
 
     @property
     def actions_buffer(self) -> torch.Tensor:

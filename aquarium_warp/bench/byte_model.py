@@ -109,7 +109,7 @@ def step_byte_model(cfg: AquariumConfig, dims: tuple[int, int] | None = None, cu
     # Observations: the observation kernel, one thread per slot: read alive, its position, heading
     # and velocity (from the state, by slot); write its observation row
     # (float32), the mask and slot of each neighbour slot, and the contact partner and offset.
-    obs_floats = prey * cfg.prey.observation_size + pred * cfg.predator.observation_size
+    obs_floats = prey * cfg.observation_size("prey") + pred * cfg.observation_size("predator")
     slots = (prey * (cfg.prey.predator_slots + cfg.prey.prey_slots)
              + pred * (cfg.predator.predator_slots + cfg.predator.prey_slots))
     stages["observations"] = {"read": BOOL + 3 * VEC2,

@@ -1,0 +1,90 @@
+"""Domain randomisation for training: per-world parameter values drawn at every world's reset.
+
+`--randomize prey_max_speed=2:6` draws each world's value uniformly from [2, 6] (integers for integer
+fields), `--randomize prey_count=4,8,12` from the listed values; names are `env.set_params`'s (world
+fields such as `prey_reward`, per-type ones as `prey_<field>` / `predator_<field>`; not `flow`).
+
+Every world gets a draw when the randomiser is made and a new one each time its episode ends (the
+env has then already started the next episode, whose steps use the new values; a live count takes
+effect at the world's next reset). The range is checked once, up front: its ends (or every listed
+value) through the config's own checks, so each draw is written without the per-world checks
+(`env.set_params(validate=False)`). Draws come from a numpy generator seeded by `seed`: the same seed,
+the same values for the same sequence of episode ends. Finding the ended worlds costs one host sync per
+step.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..config import (
+    INTEGER_FIELDS,
+    PER_WORLD_FIELDS,
+    PER_WORLD_TYPE_FIELDS,
+    Choice,
+    Uniform,
+)
+
+FIELDS = tuple(n for n in PER_WORLD_FIELDS if n != "flow") + tuple(
+    f"{t}_{n}" for t in ("prey", "predator") for n in PER_WORLD_TYPE_FIELDS)
+
+
+def _number(field: str, text: str, integer: bool):
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"--randomize {field}: {text!r} is not a number") from None
+    if integer:
+        if value != int(value):
+            raise ValueError(f"--randomize {field}: {text!r} is not an integer")
+        return int(value)
+    return value
+
+
+def parse_spec(text: str) -> tuple[str, Uniform | Choice]:
+    """`"field=low:high"` -> (field, Uniform(low, high)); `"field=a,b,c"` -> (field, Choice((a, b, c)))."""
+    field, sep, spec = str(text).partition("=")
+    field = field.strip()
+    if not sep or not spec.strip():
+        raise ValueError(f"--randomize {text!r}: expected FIELD=LOW:HIGH or FIELD=A,B,C")
+    if field not in FIELDS:
+        raise ValueError(f"--randomize {field}: unknown field; randomisable: {', '.join(FIELDS)}")
+    integer = field in INTEGER_FIELDS
+    if ":" in spec:
+        low, _, high = spec.partition(":")
+        low, high = _number(field, low.strip(), integer), _number(field, high.strip(), integer)
+        if not low <= high:
+            raise ValueError(f"--randomize {field}={spec}: needs low <= high")
+        return field, Uniform(low, high)
+    return field, Choice(tuple(_number(field, v.strip(), integer) for v in spec.split(",")))
+
+
+class ParamRandomizer:
+    """Draws `specs` ({field: "low:high" or "a,b,c"}, or a list of "field=..." strings) for the worlds of
+    `env` at construction and whenever `update(episode_ended)` reports ended episodes."""
+
+    def __init__(self, env, specs, seed: int = 0):
+        items = specs.items() if isinstance(specs, dict) else [str(s).partition("=")[::2] for s in specs]
+        self.env = env
+        self.samplers = dict(parse_spec(f"{k}={v}") for k, v in items)
+        for field, sampler in self.samplers.items():
+            ends = sampler.values if isinstance(sampler, Choice) else (sampler.low, sampler.high)
+            for value in ends:  # the config's checks hold at both ends, so in between (ranges are intervals)
+                try:
+                    env.set_params(**{field: value}, world=0, validate=True)
+                except ValueError as error:
+                    raise ValueError(f"--randomize {field}: {value!r} is not allowed: {error}") from None
+        self.rng = np.random.default_rng(seed)
+        self._draw(list(range(env.num_worlds)))
+
+    def _draw(self, worlds: list[int]) -> None:
+        values = {field: sampler.draw(self.rng, len(worlds), field in INTEGER_FIELDS)
+                  for field, sampler in self.samplers.items()}
+        self.env.set_params(world=worlds, validate=False, **values)
+
+    def update(self, episode_ended: torch.Tensor) -> None:
+        """New draws for the worlds whose episode ended (`[W]` bool, the env's `info["episode_ended"]`)."""
+        worlds = torch.nonzero(episode_ended).flatten().tolist()  # the host sync
+        if worlds:
+            self._draw(worlds)
