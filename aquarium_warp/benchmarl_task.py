@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-from typing import Callable
+from collections.abc import Callable
 
 from benchmarl.environments.common import Task, TaskClass
 from torchrl.data import Composite

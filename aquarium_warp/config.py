@@ -201,7 +201,8 @@ class FlowConfig:
                 i, j, k = (int(x) for x in np.argwhere(bad)[0])
                 _check(f"flow.grid[{i}, {j}, {k}]", float(grid[i, j, k]), False,
                        f"a finite number with |value| <= {LARGEST:g} px/step")
-            object.__setattr__(self, "grid", tuple(tuple(tuple(float(c) for c in cell) for cell in row) for row in grid))
+            object.__setattr__(self, "grid",
+                               tuple(tuple(tuple(float(c) for c in cell) for cell in row) for row in grid))
         _normalise(self, (), ("strength", "core_radius", "amplitude", "period"))
         for name in ("strength", "core_radius", "amplitude", "period"):
             object.__setattr__(self, name, float(getattr(self, name)))
@@ -377,7 +378,7 @@ class AquariumConfig:
     def has_samplers(self) -> bool:
         return any(isinstance(self._field(n), SAMPLERS) for n in self.per_world_fields)
 
-    def with_values(self, values: dict, validate: bool = True) -> "AquariumConfig":
+    def with_values(self, values: dict, validate: bool = True) -> AquariumConfig:
         """A copy with fields (names as in `per_world_fields`) set to `values` (validated again, unless
         `validate=False`: for values known to be valid, such as draws from a range checked once, since
         the checks cost about 70 us per world)."""
@@ -389,13 +390,13 @@ class AquariumConfig:
                 world[t] = replace(getattr(self, t), **own)
         return replace(self, **world)
 
-    def world(self, index: int) -> "AquariumConfig":
+    def world(self, index: int) -> AquariumConfig:
         """The config of world `index` alone: every per-world tuple replaced by its value there."""
         if self.has_samplers:
             raise ValueError("a config with samplers has no world values yet: draw them first (`draw`)")
         return self.with_values({n: _world_value(self._field(n), index) for n in self.per_world_fields})
 
-    def draw(self, num_worlds: int, seed: int = 0) -> "AquariumConfig":
+    def draw(self, num_worlds: int, seed: int = 0) -> AquariumConfig:
         """A copy whose samplers are replaced by `num_worlds` drawn values (a numpy generator seeded by
         `seed`, fields in `per_world_fields` order)."""
         rng = np.random.default_rng(seed)
@@ -536,7 +537,7 @@ class AquariumConfig:
     def max_torus_distance(self) -> float:
         return math.hypot(self.width / 2.0, self.height / 2.0)
 
-    def replace(self, **changes) -> "AquariumConfig":
+    def replace(self, **changes) -> AquariumConfig:
         """A copy with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)
 
@@ -544,7 +545,7 @@ class AquariumConfig:
         return dataclasses.asdict(self)
 
     @classmethod
-    def from_dict(cls, data: dict) -> "AquariumConfig":
+    def from_dict(cls, data: dict) -> AquariumConfig:
         """The config of `to_dict()`'s form; unknown keys are refused by name (ValueError)."""
         if not isinstance(data, dict):
             raise ValueError(f"an AquariumConfig dict must be a dict, got {type(data).__name__}")

@@ -114,7 +114,7 @@ def make_policy(name: str, env: BatchedAquarium, agent_type: str, seed: int | No
 
 
 # Policies made by `heuristic_actions`, kept per env so that repeated calls reuse their buffers.
-_cached: "weakref.WeakKeyDictionary[BatchedAquarium, dict]" = weakref.WeakKeyDictionary()
+_cached: weakref.WeakKeyDictionary[BatchedAquarium, dict] = weakref.WeakKeyDictionary()
 
 
 def heuristic_actions(env: BatchedAquarium, prey: str = "turnaway", predator: str = "naivchase",

@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 
 import torch
 import warp as wp

@@ -32,9 +32,9 @@ import zlib
 import numpy as np
 import warp as wp
 
-from .shard import WARP_SETUP_LOCK
 from .kernels import render as rk
 from .kernels.common import PREDATOR, PREY
+from .shard import WARP_SETUP_LOCK
 
 DEFAULT_MAX_SIZE = 1024
 
@@ -205,7 +205,7 @@ class Renderer:
         return frame.copy() if not wp.get_device(self.device).is_cuda else frame
 
 
-_renderers: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_renderers: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def render_world(env, world: int = 0, *, width_px: int | None = None, height_px: int | None = None,

@@ -15,10 +15,9 @@ runs them (`Program.run`); on a GPU the step runs as one CUDA graph, captured on
 from __future__ import annotations
 
 import functools
-import math
 import threading
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from typing import Callable
 
 import numpy as np
 import torch

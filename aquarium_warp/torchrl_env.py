@@ -19,7 +19,8 @@ group: `observation` [W, slots, L] float32, `action_mask` [W, slots, action_coun
 
 Deaths and respawns: an agent is `terminated` (and `done`) in the step it leaves the episode (caught
 with respawn off, starved); a captured prey that respawns carries on. `truncated` marks the agents
-still alive when the episode ends (a prey born in that very step has not acted and is not). A slot that holds no live agent (before a birth, after a removal)
+still alive when the episode ends (a prey born in that very step has not acted and is not). A slot
+that holds no live agent (before a birth, after a removal)
 is never done, so TorchRL does not reset or cut anything for it: its reward is 0 and its action mask
 allows only action 0 (which the simulation ignores), so its transitions give the policy no gradient
 and masked policies always have an action to sample. A newborn prey starts acting in its slot in the

@@ -113,7 +113,8 @@ def main() -> None:
 
     print(f"device {args.device}: {worlds} worlds x 17 agents")
     print(f"  step, uniform config     {result['uniform_step_ms']:9.3f} ms")
-    print(f"  step, per-world values   {result['per_world_step_ms']:9.3f} ms  ({100 * result['per_world_overhead']:+.1f}%)")
+    print(f"  step, per-world values   {result['per_world_step_ms']:9.3f} ms  "
+          f"({100 * result['per_world_overhead']:+.1f}%)")
     for name, one, many in (("swarm-size sweep", "one_batch_s", "batch_per_size_s"),
                             ("FOV x view sweep", "one_batch_s", "batch_per_setting_s")):
         entry = result["swarm_sweep" if name.startswith("swarm") else "fov_view_sweep"]

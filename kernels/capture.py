@@ -16,8 +16,16 @@ changes nothing.)
 
 import warp as wp
 
-from .common import (PREDATOR, PREY, PURPOSE_RESPAWN, AgentType, WorldParams, random_stream, slot_type,
-                     torus_displacement)
+from .common import (
+    PREDATOR,
+    PREY,
+    PURPOSE_RESPAWN,
+    AgentType,
+    WorldParams,
+    random_stream,
+    slot_type,
+    torus_displacement,
+)
 from .grid import CellLists, listed_slot, next_run, run_entry, run_length, square_walk
 from .spawn import make_fresh_prey, uniform_position
 from .state import Agents, Scratch, StepOutputs, WorldCounters
@@ -129,7 +137,8 @@ def share_capture_rewards(
     share = wp.max(values.catch_share_radius, contact)
     total = float(0.0)
     is_capturer = bool(False)
-    walk = square_walk(grid, w, world.capacity, pos, start_of_step_radius(world, w, share, types[w, PREY].max_speed), 0, 1)
+    walk = square_walk(grid, w, world.capacity, pos,
+                       start_of_step_radius(world, w, share, types[w, PREY].max_speed), 0, 1)
     while next_run(grid, walk):
         for n in range(run_length(walk.runs)):
             j = listed_slot(grid, run_entry(walk.runs, n), walk.base)

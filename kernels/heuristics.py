@@ -13,8 +13,7 @@ so actions are reproducible and equal on CPU and GPU, and do not depend on how w
 
 import warp as wp
 
-from .common import (PURPOSE_POLICY, AgentType, WorldParams, in_view, mix32, random_stream, slot_type,
-                     torus_displacement)
+from .common import PURPOSE_POLICY, AgentType, WorldParams, in_view, mix32, random_stream, slot_type, torus_displacement
 from .grid import CellLists, listed_slot, next_cell, next_ring, ring_walk, seen_radius
 from .state import Agents, WorldCounters
 

@@ -25,8 +25,18 @@ Launch order per shard (see `aquarium_warp.metrics.SwarmMetrics`): zero the inte
 import warp as wp
 
 from .common import PREY, WorldParams, slot_type, torus_displacement, wrap_coordinate
-from .grid import (CellLists, listed_slot, next_cell, next_ring, next_run, ring_walk, run_entry, run_length,
-                   seen_radius, square_walk)
+from .grid import (
+    CellLists,
+    listed_slot,
+    next_cell,
+    next_ring,
+    next_run,
+    ring_walk,
+    run_entry,
+    run_length,
+    seen_radius,
+    square_walk,
+)
 from .state import Agents, StepOutputs, WorldCounters
 
 wp.set_module_options({"enable_backward": False})

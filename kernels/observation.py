@@ -1,7 +1,8 @@
 """MODEL.md step 10: field-of-view observations (and the contact partners of step 3).
 
 Per live agent: the own 5-tuple (with `observe_flow` then the current there, two values), then its
-nearest visible predators and nearest visible prey, each block sorted by (distance, slot), packed as 6-tuples; unused slots are zero and a boolean mask marks
+nearest visible predators and nearest visible prey, each block sorted by (distance, slot), packed as
+6-tuples; unused slots are zero and a boolean mask marks
 the filled ones. Candidates come from a search of the cell lists that widens ring by ring and stops
 as soon as no unseen agent can be visible (beyond the view distance) or closer than the K-th kept
 one, so an unlimited view distance still costs about K neighbours' worth of cells, not the whole
@@ -28,8 +29,7 @@ import functools
 
 import warp as wp
 
-from .common import (PREDATOR, PREY, AgentType, WorldParams, angle_value, current, in_view, slot_type,
-                     torus_displacement)
+from .common import PREDATOR, PREY, AgentType, WorldParams, angle_value, current, in_view, slot_type, torus_displacement
 from .grid import CellLists, next_ring, next_run, rings_for_radius, run_entry, run_length, seen_radius, widening_walk
 from .state import Agents, Scratch, WorldCounters
 

@@ -23,7 +23,8 @@ Conventions (see MODEL.md and the project's decisions):
 from __future__ import annotations
 
 import math
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 
@@ -65,7 +66,7 @@ def type_code(cfg, slot: int) -> float:
 
 
 def prey_slots(cfg) -> range:
-    return range(0, prey_capacity(cfg))
+    return range(prey_capacity(cfg))
 
 
 def predator_slots(cfg) -> range:

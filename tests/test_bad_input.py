@@ -81,7 +81,7 @@ def out_of_range(t: str, value: int, dtype=torch.int64) -> dict:
 BAD_ACTIONS = [
     ("missing_predator", lambda: {"prey": good("prey")}, ["'predator'", "missing ['predator']", "exactly the keys"]),
     ("missing_prey", lambda: {"predator": good("predator")}, ["missing ['prey']", "exactly the keys"]),
-    ("empty_dict", lambda: {}, ["missing ['prey', 'predator']"]),
+    ("empty_dict", dict, ["missing ['prey', 'predator']"]),
     ("extra_key", lambda: {"prey": good("prey"), "predator": good("predator"), "shark": good("predator")},
      ["unknown ['shark']", "exactly the keys"]),
     ("not_a_mapping", lambda: [good("prey"), good("predator")], ["actions must be a dict", "'prey'", "'predator'"]),
@@ -274,7 +274,8 @@ BAD_STATES = [
     ("unknown_output_field", lambda e: dict(world=0, reward=torch.zeros(C)), ["reward", "settable"]),
     ("shape_one_world_missing_slot", lambda e: dict(world=0, position=torch.ones(C - 1, 2)),
      ["position", f"shape [{C}, 2]"]),
-    ("shape_one_world_3d_vectors", lambda e: dict(world=0, velocity=torch.zeros(C, 3)), ["velocity", f"shape [{C}, 2]"]),
+    ("shape_one_world_3d_vectors", lambda e: dict(world=0, velocity=torch.zeros(C, 3)),
+     ["velocity", f"shape [{C}, 2]"]),
     ("shape_all_worlds_for_one", lambda e: dict(world=0, alive=torch.ones(W, C, dtype=torch.bool)),
      ["alive", f"shape [{C}]"]),
     ("shape_one_world_for_all", lambda e: dict(age=torch.zeros(C, dtype=torch.int32)), ["age", f"shape [{W}, {C}]"]),

@@ -11,11 +11,11 @@ import pytest
 
 pytest.importorskip("rsl_rl")
 
-import torch  # noqa: E402
+import torch
 
-from aquarium_warp.cli import main  # noqa: E402
-from aquarium_warp.training.config import make_config  # noqa: E402
-from aquarium_warp.training.trainer import Trainer, latest_checkpoint  # noqa: E402
+from aquarium_warp.cli import main
+from aquarium_warp.training.config import make_config
+from aquarium_warp.training.trainer import Trainer, latest_checkpoint
 
 
 @pytest.fixture(scope="module")

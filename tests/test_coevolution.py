@@ -25,15 +25,15 @@ import pytest
 os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
 pytest.importorskip("rsl_rl")
 
-import torch  # noqa: E402
+import torch
 
-from aquarium_warp import AquariumConfig, aquarium_v1  # noqa: E402
-from aquarium_warp.cli import main  # noqa: E402
-from aquarium_warp.pettingzoo_env import WorldState  # noqa: E402
-from aquarium_warp.render import frame_size  # noqa: E402
-from aquarium_warp.training import Trainer, make_config  # noqa: E402
-from aquarium_warp.training.export import load_policy  # noqa: E402
-from aquarium_warp.training.pool import OpponentPool  # noqa: E402
+from aquarium_warp import AquariumConfig, aquarium_v1
+from aquarium_warp.cli import main
+from aquarium_warp.pettingzoo_env import WorldState
+from aquarium_warp.render import frame_size
+from aquarium_warp.training import Trainer, make_config
+from aquarium_warp.training.export import load_policy
+from aquarium_warp.training.pool import OpponentPool
 
 
 def both_config(**train):
@@ -161,7 +161,7 @@ def test_pool_draws_per_world(rule, one_thread):
     expected = pool.probabilities()
     draws = 8
     counts = {t: np.zeros(3) for t in pool.teams}
-    played = {t: 0 for t in pool.teams}
+    played = dict.fromkeys(pool.teams, 0)
     for _ in range(draws):
         pool._draw(pool._all)
         assert not ((pool.index["prey"] >= 0) & (pool.index["predator"] >= 0)).any()

@@ -35,7 +35,7 @@ def build(field: str, value, **others) -> AquariumConfig:
 def assert_names_field(message: str, field: str) -> None:
     # The message must start with the offending field, so that e.g. "prey.max_speed" is not blamed on
     # "predator.max_speed" or on a world field.
-    assert message.startswith(field + "=") or message.startswith(field + " "), (field, message)
+    assert message.startswith((field + "=", field + " ")), (field, message)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -360,7 +360,8 @@ def test_mass_against_the_steering_force():
     # With mass 1e-15 the default steering force gives 0.6 / 1e-15 = 6e14 px/step^2, within 1e15; a
     # steering force of 1e6 (limited by 2 max_speed = 8) gives 8e15, too much.
     build("prey.mass", 1e-15)
-    with pytest.raises(ValueError, match=r"^prey\.mass=.*at least min\(max_steering_force, 2 max_speed\) / 1e\+15 = 8e-15"):
+    with pytest.raises(ValueError,
+                       match=r"^prey\.mass=.*at least min\(max_steering_force, 2 max_speed\) / 1e\+15 = 8e-15"):
         AquariumConfig(prey=dataclasses.replace(default_prey(), mass=1e-15, max_steering_force=1e6))
 
 

@@ -116,7 +116,8 @@ def test_observed_slots_and_contacts_match_brute_force(device, name):
     assert (env.grid_dims == (1, 1)) == (cfg.capacity <= SINGLE_CELL_CAPACITY and cfg.grid_cell_size is None)
     pos, heading, alive = random_state(rng, cfg, W, axis_headings=name != "unlimited")
     env.set_state(position=pos.astype(np.float32), heading=heading.astype(np.float32), alive=alive)
-    expected_slots, expected_partner = brute_force(cfg, pos, env.state.torch.heading.cpu().numpy().astype(np.float64), alive)
+    expected_slots, expected_partner = brute_force(cfg, pos, env.state.torch.heading.cpu().numpy().astype(np.float64),
+                                                   alive)
     Pc = cfg.prey_capacity
     got = {"prey": env.observed_slot["prey"].cpu().numpy(), "predator": env.observed_slot["predator"].cpu().numpy()}
     for type_name, rows in (("prey", slice(0, Pc)), ("predator", slice(Pc, None))):
@@ -158,7 +159,8 @@ def test_capture_pairs_match_brute_force(device):
     for i in range(cfg.capacity):
         t = cfg.prey if i < Pc else cfg.predator
         same = np.arange(cfg.capacity) < Pc if i < Pc else np.arange(cfg.capacity) >= Pc
-        contact = alive & alive[:, i:i + 1] & same[None, :] & (np.arange(cfg.capacity) != i)[None, :] & (d2[:, i] < (2 * t.radius) ** 2)
+        contact = (alive & alive[:, i:i + 1] & same[None, :] & (np.arange(cfg.capacity) != i)[None, :]
+                   & (d2[:, i] < (2 * t.radius) ** 2))
         key = np.where(contact, d2[:, i], np.inf)  # argmin takes the first (lowest slot) of equal minima
         j = key.argmin(1)
         has = np.isfinite(key.min(1))

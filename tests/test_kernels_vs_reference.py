@@ -183,7 +183,7 @@ def random_world(rng, cfg, world_step_range=(0, 40)) -> dict:
     alive[Pc + rng.integers(0, C - Pc)] = True
 
     def same_type_live(slot):
-        rng_slots = range(0, Pc) if slot < Pc else range(Pc, C)
+        rng_slots = range(Pc) if slot < Pc else range(Pc, C)
         return [j for j in rng_slots if alive[j] and j != slot]
 
     def radius(slot):
@@ -342,7 +342,8 @@ def fail_if(errors: list, context: str) -> None:
     if errors:
         shown = "\n  ".join(errors[:MAX_REPORTED])
         more = f"\n  ... and {len(errors) - MAX_REPORTED} more" if len(errors) > MAX_REPORTED else ""
-        pytest.fail(f"{context}: {len(errors)} mismatch(es) between kernel and reference:\n  {shown}{more}", pytrace=False)
+        pytest.fail(f"{context}: {len(errors)} mismatch(es) between kernel and reference:\n  {shown}{more}",
+                    pytrace=False)
 
 
 def describe_world(cfg, start: dict) -> str:
@@ -368,7 +369,8 @@ def ill_conditioned_heading(reference: dict, i: int, kernel: dict | None = None)
 def compare_state(cfg, where: str, kernel: dict, reference: dict, errors: list) -> None:
     for i in range(cfg.capacity):
         if bool(kernel["alive"][i]) != bool(reference["alive"][i]):
-            errors.append(f"{where} {slot_name(cfg, i)} alive: kernel={kernel['alive'][i]} reference={reference['alive'][i]}")
+            errors.append(f"{where} {slot_name(cfg, i)} alive: kernel={kernel['alive'][i]} "
+                          f"reference={reference['alive'][i]}")
             continue
         if not reference["alive"][i]:
             continue
@@ -392,7 +394,8 @@ def compare_state(cfg, where: str, kernel: dict, reference: dict, errors: list) 
         names = ("age", "replication_age") if i < cfg.prey_capacity else ("starvation",)
         for name in names:
             if int(kernel[name][i]) != int(reference[name][i]):
-                errors.append(f"{where} {slot_name(cfg, i)} {name}: kernel={kernel[name][i]} reference={reference[name][i]}")
+                errors.append(f"{where} {slot_name(cfg, i)} {name}: kernel={kernel[name][i]} "
+                              f"reference={reference[name][i]}")
 
 
 def angle_columns(cfg, type_config) -> set:
@@ -408,7 +411,8 @@ def compare_observations(cfg, where: str, k_obs: dict, k_mask: dict, r_obs: dict
         km = np.asarray(k_mask[key], bool)
         if ko.shape != r_obs[key].shape or km.shape != r_mask[key].shape:
             errors.append(
-                f"{where} {key} observation shape: kernel={ko.shape}/{km.shape} reference={r_obs[key].shape}/{r_mask[key].shape}"
+                f"{where} {key} observation shape: kernel={ko.shape}/{km.shape} "
+                f"reference={r_obs[key].shape}/{r_mask[key].shape}"
             )
             continue
         angles = sorted(angle_columns(cfg, t))
@@ -420,7 +424,8 @@ def compare_observations(cfg, where: str, k_obs: dict, k_mask: dict, r_obs: dict
             if not np.array_equal(km[row], r_mask[key][row]):
                 errors.append(
                     f"{where} observer {slot_name(cfg, slot)} mask: kernel={km[row].astype(int).tolist()} "
-                    f"reference={r_mask[key][row].astype(int).tolist()} (reference sees slots {r_slots[key][row].tolist()})"
+                    f"reference={r_mask[key][row].astype(int).tolist()} "
+                    f"(reference sees slots {r_slots[key][row].tolist()})"
                 )
             bad = np.flatnonzero(diff > TOL)
             if bad.size:
@@ -475,15 +480,17 @@ def check_step(name: str, cfg, env, starts: list, actions: np.ndarray, errors: l
             newborn_replication_age=after[w]["replication_age"],
         )
         n_before = len(errors)
-        pick = lambda d: {k: v[w] for k, v in d.items()}  # noqa: E731
+        pick = lambda d, w=w: {k: v[w] for k, v in d.items()}  # noqa: E731
         compare_flags(cfg, where, "reward", pick(k_rew), r_rew, errors, tol=1e-6)
         compare_flags(cfg, where, "terminated", pick(k_term), r_term, errors)
         compare_flags(cfg, where, "truncated", pick(k_trunc), r_trunc, errors)
         if int(k_caps[w]) != r_info["captures"]:
-            errors.append(f"{where} captures: kernel={int(k_caps[w])} reference={r_info['captures']} {r_info['capturers']}")
+            errors.append(f"{where} captures: kernel={int(k_caps[w])} "
+                          f"reference={r_info['captures']} {r_info['capturers']}")
         if r_info["episode_over"]:
             if after[w]["world_step"] != 0:
-                errors.append(f"{where} the episode ended but the world did not auto-reset (world_step={after[w]['world_step']})")
+                errors.append(f"{where} the episode ended but the world did not auto-reset "
+                              f"(world_step={after[w]['world_step']})")
         else:
             if after[w]["world_step"] != r_info["world_step"]:
                 errors.append(f"{where} world_step: kernel={after[w]['world_step']} reference={r_info['world_step']}")
@@ -492,7 +499,8 @@ def check_step(name: str, cfg, env, starts: list, actions: np.ndarray, errors: l
             hi = math.floor(1.25 * cfg.prey_replication_age)
             for slot in r_info["respawned"] + [child for _, child in r_info["births"]]:
                 if not lo <= int(after[w]["replication_age"][slot]) <= hi:
-                    errors.append(f"{where} {slot_name(cfg, slot)} new replication_age {after[w]['replication_age'][slot]} not in [{lo}, {hi}]")
+                    errors.append(f"{where} {slot_name(cfg, slot)} new replication_age "
+                                  f"{after[w]['replication_age'][slot]} not in [{lo}, {hi}]")
             r_obs, r_mask, r_slots = ref.observe(cfg, after[w], with_slots=True,
                                                  world_step=after[w]["world_step"])
             compare_observations(cfg, where, pick(k_obs), pick(k_mask), r_obs, r_mask, r_slots, errors)
@@ -538,7 +546,8 @@ def test_observations_after_set_state(name):
             n_before = len(errors)
             compare_observations(cfg, where, k_obs, k_mask, r_obs, r_mask, r_slots, errors)
             if len(errors) > n_before:
-                errors.append(f"{where} state: alive {worlds[w]['alive'].astype(int).tolist()} {describe_world(cfg, worlds[w])}")
+                errors.append(f"{where} state: alive {worlds[w]['alive'].astype(int).tolist()} "
+                              f"{describe_world(cfg, worlds[w])}")
     fail_if(errors, name)
 
 
@@ -638,7 +647,8 @@ def test_hand_built_worlds_defaults():
             cfg,
             [dict(pos=(790.0, 400.0), vel=(2.0, 0.0)), dict(pos=(30.0, 380.0)), dict(pos=(10.0, 340.0)),
              dict(pos=(5.0, 5.0)), None],
-            [dict(pos=(760.0, 770.0), vel=(1.0, 1.0)), None, dict(pos=(300.0, 300.0), vel=(0.0, 0.0), heading=(0.0, 1.0))],
+            [dict(pos=(760.0, 770.0), vel=(1.0, 1.0)), None,
+             dict(pos=(300.0, 300.0), vel=(0.0, 0.0), heading=(0.0, 1.0))],
         ),
         # starvation at the limit: one dies (counter 10 -> 11), one survives (9 -> 10)
         _world_from_agents(
@@ -654,10 +664,12 @@ def test_hand_built_worlds_defaults():
     check_step("hand_built", cfg, env, worlds, actions, errors)
     fail_if(errors, "hand-built worlds")
     # the headline numbers of the reference (which the kernel matched), spelled out
-    _, r0, *_ , info0 = ref.step(cfg, worlds[0], actions[0], 17, respawn_position={0: (1.0, 1.0)}, respawn_replication_age={0: 200})
+    _, r0, *_ , info0 = ref.step(cfg, worlds[0], actions[0], 17, respawn_position={0: (1.0, 1.0)},
+                                 respawn_replication_age={0: 200})
     assert r0[0] == -999.0 and r0[cfg.prey_capacity :].tolist() == [5.0, 5.0, 0.0]
     assert info0["capturers"] == {0: [5]} and info0["sharers"] == {0: [5, 6]}
-    _, r1, *_ , info1 = ref.step(cfg, worlds[1], actions[1], 3, respawn_position={0: (1.0, 1.0)}, respawn_replication_age={0: 200})
+    _, r1, *_ , info1 = ref.step(cfg, worlds[1], actions[1], 3, respawn_position={0: (1.0, 1.0)},
+                                 respawn_replication_age={0: 200})
     assert info1["capturers"] == {0: [5, 6]} and r1[cfg.prey_capacity :].tolist() == [5.0, 5.0, 0.0]
     new3, _, term3, *_ = ref.step(cfg, worlds[3], actions[3], 0)
     assert term3[cfg.prey_capacity :].tolist() == [True, False, False] and new3["starvation"][6] == 10
@@ -666,7 +678,8 @@ def test_hand_built_worlds_defaults():
 def test_episode_end_truncation_and_auto_reset():
     """World 0 reaches max_steps; world 1's last predator starves; world 2 (respawn off) loses its last prey;
     world 3 goes on."""
-    cfg = make_config(prey_count=3, predator_count=2, max_steps=50, predator_starvation_steps=5, respawn_captured_prey=False)
+    cfg = make_config(prey_count=3, predator_count=2, max_steps=50, predator_starvation_steps=5,
+                      respawn_captured_prey=False)
     env = BatchedAquarium(cfg, num_worlds=4, device=DEVICE, seed=7)
     worlds = [
         _world_from_agents(cfg, [dict(pos=(100.0, 100.0)), dict(pos=(300.0, 100.0)), None],
@@ -674,7 +687,8 @@ def test_episode_end_truncation_and_auto_reset():
         _world_from_agents(cfg, [dict(pos=(100.0, 100.0)), dict(pos=(300.0, 100.0)), dict(pos=(500.0, 100.0))],
                            [dict(pos=(600.0, 600.0), starve=5), None], world_step=20),
         _world_from_agents(cfg, [None, dict(pos=(300.0, 300.0), vel=(0.0, -4.0), acc=(0.0, -1.0)), None],
-                           [dict(pos=(300.0, 330.0), vel=(0.0, -5.0), acc=(0.0, -0.6)), dict(pos=(700.0, 700.0))], world_step=30),
+                           [dict(pos=(300.0, 330.0), vel=(0.0, -5.0), acc=(0.0, -0.6)), dict(pos=(700.0, 700.0))],
+                           world_step=30),
         _world_from_agents(cfg, [dict(pos=(100.0, 100.0)), None, None],
                            [dict(pos=(600.0, 600.0), starve=4), dict(pos=(600.0, 100.0), starve=5)], world_step=48),
     ]
@@ -742,7 +756,8 @@ def test_exact_capture_and_share_boundaries_after_the_move():
     check_step("exact_boundaries", cfg, env, [world], np.zeros((1, cfg.capacity), np.int64), errors)
     fail_if(errors, "exact capture / share boundaries")
     r_new, r_rew, r_term, r_trunc, r_cap, r_info = ref.step(
-        cfg, world, np.zeros(cfg.capacity, np.int64), 0, respawn_position={0: (0.0, 0.0)}, respawn_replication_age={0: 200}
+        cfg, world, np.zeros(cfg.capacity, np.int64), 0, respawn_position={0: (0.0, 0.0)},
+        respawn_replication_age={0: 200}
     )
     assert r_info["capturers"] == {0: [2, 3]} and r_info["sharers"] == {0: [2, 3]}
     assert r_rew.tolist() == [-999.0, 1.0, 5.0, 5.0, 0.0, 0.0]
@@ -790,7 +805,8 @@ def test_reproduction_cap_counts_prey_after_captures():
     worlds = [
         _world_from_agents(
             cfg,
-            [dict(pos=(100.0, 100.0), age=0, rep=5), dict(pos=(300.0, 100.0), **due), dict(pos=(500.0, 100.0), age=0, rep=5),
+            [dict(pos=(100.0, 100.0), age=0, rep=5), dict(pos=(300.0, 100.0), **due),
+             dict(pos=(500.0, 100.0), age=0, rep=5),
              dict(pos=(100.0, 400.0), age=1, rep=5), dict(pos=(300.0, 400.0), age=2, rep=5), None],
             [dict(pos=(100.0, 120.0))],
         ),
@@ -805,7 +821,9 @@ def test_reproduction_cap_counts_prey_after_captures():
     errors = []
     after = check_step("reproduction_cap", cfg, env, worlds, np.zeros((2, cfg.capacity), np.int64), errors)
     fail_if(errors, "reproduction cap")
-    r0 = ref.step(cfg, worlds[0], np.zeros(cfg.capacity, np.int64), 0, newborn_replication_age=after[0]["replication_age"])
+    r0 = ref.step(cfg, worlds[0], np.zeros(cfg.capacity, np.int64), 0,
+                  newborn_replication_age=after[0]["replication_age"])
     assert r0[5]["births"] == [(1, 5)] and r0[5]["sharers"] == {0: [6]} and r0[1][6] == 10.0
-    r1 = ref.step(cfg, worlds[1], np.zeros(cfg.capacity, np.int64), 0, newborn_replication_age=after[1]["replication_age"])
+    r1 = ref.step(cfg, worlds[1], np.zeros(cfg.capacity, np.int64), 0,
+                  newborn_replication_age=after[1]["replication_age"])
     assert r1[5]["births"] == [(0, 3), (1, 4)] and r1[0]["age"][:3].tolist() == [0, 0, 4]

@@ -4,10 +4,10 @@ import os
 
 os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
 
-import pytest  # noqa: E402
-import torch  # noqa: E402
+import pytest
+import torch
 
-from aquarium_warp.training.models import WEIGHT_GRAD_CHUNK, BatchedLinear, BatchedMLP  # noqa: E402
+from aquarium_warp.training.models import WEIGHT_GRAD_CHUNK, BatchedLinear, BatchedMLP
 
 
 @pytest.mark.parametrize("rows", [3 * WEIGHT_GRAD_CHUNK, WEIGHT_GRAD_CHUNK, WEIGHT_GRAD_CHUNK + 7, 5],

@@ -10,9 +10,8 @@ import torch
 
 pytest.importorskip("rsl_rl")
 
-from aquarium_warp.training.randomize import ParamRandomizer, parse_spec
-
 from aquarium_warp import AquariumConfig, BatchedAquarium
+from aquarium_warp.training.randomize import ParamRandomizer, parse_spec
 
 CFG = AquariumConfig(width=300.0, height=260.0, prey_count=8, predator_count=2, max_steps=4)
 SPECS = {"prey_max_speed": "2:6", "prey_count": "3,5,8", "predator_reward": "5:20"}

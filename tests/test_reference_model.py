@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, os.path.dirname(__file__))
-import reference_model as ref  # noqa: E402
+import reference_model as ref
 
 PREY_DEFAULTS = dict(
     max_speed=4.0,
@@ -208,7 +208,8 @@ def test_acceleration_turn_rate_is_asin_of_force_over_k(kind):
 def test_exact_reversal_stalls_and_speed_is_clamped():
     """Prey at full speed east commanded west: A + F/m = (0.8, 0) -> A' = (1, 0), V' = (5, 0) clamped to (4, 0)."""
     cfg = make_cfg(prey_count=1, predator_count=1)
-    st = make_world(cfg, prey=[agent((100.0, 100.0), vel=(4.0, 0.0), acc=(1.0, 0.0))], predators=[agent((500.0, 500.0))])
+    st = make_world(cfg, prey=[agent((100.0, 100.0), vel=(4.0, 0.0), acc=(1.0, 0.0))],
+                    predators=[agent((500.0, 500.0))])
     actions = zeros_actions(cfg)
     actions[0] = 12
     new = ref.motion(cfg, st, actions)
@@ -220,7 +221,8 @@ def test_exact_reversal_stalls_and_speed_is_clamped():
 
 def test_speed_clamp_keeps_direction():
     cfg = make_cfg(prey_count=1, predator_count=1)
-    st = make_world(cfg, prey=[agent((100.0, 100.0), vel=(3.0, 3.0), acc=(0.0, 1.0))], predators=[agent((500.0, 500.0))])
+    st = make_world(cfg, prey=[agent((100.0, 100.0), vel=(3.0, 3.0), acc=(0.0, 1.0))],
+                    predators=[agent((500.0, 500.0))])
     actions = zeros_actions(cfg)
     actions[0] = 4  # east
     new = ref.motion(cfg, st, actions)
@@ -267,7 +269,8 @@ def test_wrap_across_the_seam():
     cfg = make_cfg(prey_count=1, predator_count=1)
     d = ref.desired_velocity(2, 16, 4.0)  # north-east at full speed
     st = make_world(
-        cfg, prey=[agent((798.5, 0.5), vel=tuple(d), acc=tuple(d / 4.0))], predators=[agent((0.0, 799.5), vel=(-1.0, 1.0))]
+        cfg, prey=[agent((798.5, 0.5), vel=tuple(d), acc=tuple(d / 4.0))],
+        predators=[agent((0.0, 799.5), vel=(-1.0, 1.0))]
     )
     actions = zeros_actions(cfg)
     actions[0] = 2
@@ -418,7 +421,8 @@ def test_two_capturers_and_two_captures_add_up():
 
 def test_last_prey_removed_ends_the_episode():
     cfg = make_cfg(prey_count=1, predator_count=2, respawn_captured_prey=False)
-    st = make_world(cfg, prey=[cruise_prey((100.0, 400.0))], predators=[cruise_pred((100.0, 430.0)), cruise_pred((600.0, 100.0))])
+    st = make_world(cfg, prey=[cruise_prey((100.0, 400.0))],
+                    predators=[cruise_pred((100.0, 430.0)), cruise_pred((600.0, 100.0))])
     new, rewards, term, trunc, captured, info = ref.step(cfg, st, zeros_actions(cfg), 5)
     assert info["episode_over"]
     assert term.tolist() == [True, False, False] and trunc.tolist() == [False, True, True]
@@ -455,7 +459,8 @@ def test_starvation_exactly_at_the_limit(counters, captures, alive_after, starva
 
 def test_starvation_of_the_last_predator_truncates_the_others():
     cfg = make_cfg(prey_count=2, predator_count=1, predator_starvation_steps=3)
-    st = make_world(cfg, prey=[cruise_prey((100.0, 100.0)), cruise_prey((300.0, 100.0))], predators=[cruise_pred((500.0, 500.0), starve=3)])
+    st = make_world(cfg, prey=[cruise_prey((100.0, 100.0)), cruise_prey((300.0, 100.0))],
+                    predators=[cruise_pred((500.0, 500.0), starve=3)])
     new, rewards, term, trunc, captured, info = ref.step(cfg, st, zeros_actions(cfg), 0)
     assert term.tolist() == [False, False, True]
     assert trunc.tolist() == [True, True, False]
@@ -473,7 +478,8 @@ def test_truncation_at_max_steps(world_step, over):
 
 
 def _repro_cfg(prey_count, max_prey, **kw):
-    return make_cfg(prey_count=prey_count, predator_count=1, prey_reproduction=True, max_prey=max_prey, prey_replication_age=10, **kw)
+    return make_cfg(prey_count=prey_count, predator_count=1, prey_reproduction=True, max_prey=max_prey,
+                    prey_replication_age=10, **kw)
 
 
 @pytest.mark.parametrize(
@@ -496,7 +502,8 @@ def test_reproduction_up_to_the_cap(prey, max_prey, births, ages_after):
     agents = [None if p is None else cruise_prey((x, 300.0), age=p[0], rep=p[1]) for x, p in zip(xs, prey)]
     st = make_world(cfg, prey=agents, predators=[cruise_pred((700.0, 700.0))])
     newborn = {s: 150 + s for s in range(cfg.prey_capacity)}
-    new, rewards, term, trunc, captured, info = ref.step(cfg, st, zeros_actions(cfg), 0, newborn_replication_age=newborn)
+    new, rewards, term, trunc, captured, info = ref.step(cfg, st, zeros_actions(cfg), 0,
+                                                         newborn_replication_age=newborn)
     assert info["births"] == births
     assert new["age"][: cfg.prey_capacity].tolist() == ages_after
     for parent, child in births:
@@ -687,7 +694,8 @@ def test_more_visible_than_slots_keeps_the_nearest():
     cfg = make_cfg(prey_count=6, predator_count=1, fov_enabled=False)
     # distances 50, 20, 20, 45, 5 from slot 0 -> nearest three: 5 (slot 5), 20 (slot 2), 20 (slot 3)
     offsets = [(0.0, 50.0), (0.0, 20.0), (20.0, 0.0), (27.0, 36.0), (3.0, 4.0)]
-    prey = [agent((780.0, 790.0))] + [agent(tuple(ref.wrap(make_cfg(), (780.0 + dx, 790.0 + dy)))) for dx, dy in offsets]
+    prey = [agent((780.0, 790.0))] + [agent(tuple(ref.wrap(make_cfg(), (780.0 + dx, 790.0 + dy))))
+                                      for dx, dy in offsets]
     st = make_world(cfg, prey=prey, predators=[agent((780.0, 100.0))])
     obs, mask, slots = ref.observe(cfg, st, with_slots=True)
     assert slots["prey"][0].tolist() == [-1, 5, 2, 3]
@@ -695,7 +703,8 @@ def test_more_visible_than_slots_keeps_the_nearest():
 
 
 def test_infinite_view_distance_uses_the_half_diagonal():
-    cfg = make_cfg(width=300.0, height=400.0, prey_count=1, predator_count=1, fov_enabled=False, prey=dict(view_distance=math.inf))
+    cfg = make_cfg(width=300.0, height=400.0, prey_count=1, predator_count=1, fov_enabled=False,
+                   prey=dict(view_distance=math.inf))
     st = make_world(cfg, prey=[agent((0.0, 0.0))], predators=[agent((150.0, 200.0))])
     obs, mask = ref.observe(cfg, st)
     assert mask["prey"][0].tolist() == [True, False, False, False]

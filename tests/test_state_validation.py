@@ -10,10 +10,9 @@ import copy
 import numpy as np
 import pytest
 import torch
+from test_bad_input import assert_same_state, random_actions, state_of, step_both
 
 from aquarium_warp import AquariumConfig, BatchedAquarium
-
-from test_bad_input import assert_same_state, random_actions, state_of, step_both
 
 W = 2
 CFG = AquariumConfig(prey_count=12, predator_count=2, max_steps=1000)
@@ -114,7 +113,8 @@ BAD_STATE_DICTS = [
      ["position", "[0, 800.0)"]),
     ("position_nan", lambda sd: sd["tensors"]["position"][1, 0].copy_(torch.tensor([float("nan"), 1.0])),
      ["position", "finite"]),
-    ("heading_not_unit", lambda sd: sd["tensors"]["heading"][0, 0].copy_(torch.tensor([2.0, 0.0])), ["heading", "unit"]),
+    ("heading_not_unit", lambda sd: sd["tensors"]["heading"][0, 0].copy_(torch.tensor([2.0, 0.0])),
+     ["heading", "unit"]),
     ("velocity_inf", lambda sd: sd["tensors"]["velocity"][0, 0].copy_(torch.tensor([float("inf"), 0.0])),
      ["velocity", "finite"]),
     ("episode_return_nan", lambda sd: sd["tensors"]["episode_return"][0, 0].fill_(float("nan")),

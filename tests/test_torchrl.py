@@ -12,10 +12,10 @@ import torch
 pytest.importorskip("torchrl", reason="needs the torchrl extra: pip install -c .ci/constraints-torchrl.txt "
                                       "-e '.[torchrl]' (in its own environment)")
 
-from torchrl.envs.utils import check_env_specs  # noqa: E402
+from torchrl.envs.utils import check_env_specs
 
-from aquarium_warp import AquariumConfig, BatchedAquarium  # noqa: E402
-from aquarium_warp.torchrl_env import AquariumTorchRLEnv  # noqa: E402
+from aquarium_warp import AquariumConfig, BatchedAquarium
+from aquarium_warp.torchrl_env import AquariumTorchRLEnv
 
 TYPES = ("prey", "predator")
 # Respawn off, starvation and reproduction: agents leave and are born, episodes end early or at 40 steps.

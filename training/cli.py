@@ -7,8 +7,8 @@ stays fast and works without the training extras.
 from __future__ import annotations
 
 import argparse
-import math
 import importlib.util
+import math
 import os
 import time
 
@@ -70,7 +70,8 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
                    help="prey when training predators: 'random' (default), 'turnaway' or a policy file")
     g.add_argument("--sharing", choices=("parameter", "individual"), default=None,
                    help="Parameter Sharing (one network, default) or Individual Learning (one per slot)")
-    g.add_argument("--num-worlds", type=_int_at_least(1), default=None, help="worlds stepped in parallel (default 1024)")
+    g.add_argument("--num-worlds", type=_int_at_least(1), default=None,
+                   help="worlds stepped in parallel (default 1024)")
     g.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
     g.add_argument("--seed", type=_int_at_least(0), default=None, help="seed of the worlds and the networks")
     g.add_argument("--iterations", type=_int_at_least(0), default=None, help="total PPO iterations of the run")
@@ -163,7 +164,8 @@ def _train_changes(args) -> dict:
            "schedule": args.schedule, "desired_kl": args.desired_kl}
     runner = {"num_steps_per_env": args.num_steps_per_env, "save_interval": args.save_interval,
               "algorithm": {k: v for k, v in alg.items() if v is not None}}
-    models = {k: v for k, v in {"hidden_dims": args.hidden_dims, "activation": args.activation}.items() if v is not None}
+    models = {k: v for k, v in {"hidden_dims": args.hidden_dims, "activation": args.activation}.items()
+              if v is not None}
     if models:
         runner["actor"] = dict(models)
         runner["critic"] = dict(models)
@@ -182,7 +184,8 @@ def _opponent_change(args, team: str) -> dict:
     if team == "prey" and args.prey_policy is not None:
         raise ValueError("--prey-policy sets the prey when training predators; with --team prey use --predator-policy")
     if team == "predator" and args.predator_policy is not None:
-        raise ValueError("--predator-policy sets the predators when training prey; with --team predator use --prey-policy")
+        raise ValueError("--predator-policy sets the predators when training prey; "
+                         "with --team predator use --prey-policy")
     spec = args.predator_policy if team == "prey" else args.prey_policy
     return {"train": {"opponent": spec}} if spec is not None else {}
 
@@ -296,7 +299,8 @@ def run_eval(args) -> int:
     for item in args.curves:
         label, _, pattern = item.partition("=") if "=" in item else (os.path.basename(item.rstrip("/")), "", item)
         curves.setdefault(label, []).append(pattern)
-    evaluate = args.prey != [] and args.predator != [] and not (args.curves and args.prey is None and args.predator is None)
+    evaluate = args.prey != [] and args.predator != [] and not (args.curves and args.prey is None
+                                                                and args.predator is None)
     if evaluate:
         prey = args.prey if args.prey is not None else ["random", "turnaway"]
         predator = args.predator if args.predator is not None else ["naivchase"]

@@ -380,8 +380,9 @@ def _validate_team_models(config: dict, team: str) -> None:
 def _is_recurrent_model(class_name) -> bool:
     """Whether an rsl-rl model class (a class, or a name rsl-rl resolves) is recurrent; a name that
     does not resolve is left for rsl-rl to report."""
-    from . import _rsl  # noqa: F401
     from rsl_rl.utils import resolve_callable
+
+    from . import _rsl  # noqa: F401
 
     try:
         model_class = resolve_callable(class_name)

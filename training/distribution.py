@@ -18,9 +18,9 @@ from __future__ import annotations
 
 import torch
 import torch.nn as nn
+from rsl_rl.modules.distribution import Distribution
 
 from . import _rsl  # noqa: F401  (sets GIT_PYTHON_REFRESH before rsl_rl is imported)
-from rsl_rl.modules.distribution import Distribution
 
 
 class CategoricalDistribution(Distribution):

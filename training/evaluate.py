@@ -471,7 +471,8 @@ def read_run_curve(run_dir: str) -> dict[str, np.ndarray]:
 
         scale = cfg["train"]["num_worlds"] * cfg["runner"]["num_steps_per_env"] / env_config(cfg).max_steps
     caps = acc.Scalars("Episode/captures_per_prey")
-    rews = {e.step: e.value for e in acc.Scalars("Episode/reward_per_agent")} if "Episode/reward_per_agent" in tags else {}
+    rews = ({e.step: e.value for e in acc.Scalars("Episode/reward_per_agent")}
+            if "Episode/reward_per_agent" in tags else {})
     it = np.array([e.step for e in caps], dtype=float)
     return {"iteration": it, "world_episodes": (it + 1) * scale if scale else it,
             "captures_per_prey": np.array([e.value for e in caps]),

@@ -84,27 +84,32 @@ class _RecurrentPolicy(nn.Module):
         h = torch.zeros(self.num_layers, obs.shape[0], self.hidden_size, device=obs.device)
         return h, torch.zeros_like(h)
 
-    def _rnn(self, x: torch.Tensor, h: torch.Tensor, c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def _rnn(self, x: torch.Tensor, h: torch.Tensor,
+             c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         raise NotImplementedError
 
     @torch.jit.export
-    def step(self, obs: torch.Tensor, h: torch.Tensor, c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def step(self, obs: torch.Tensor, h: torch.Tensor,
+             c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         y, h, c = self._rnn(self.obs_normalizer(obs).unsqueeze(0), h, c)
         return self.mlp(y.squeeze(0)), h, c
 
-    def forward(self, obs: torch.Tensor, h: torch.Tensor, c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def forward(self, obs: torch.Tensor, h: torch.Tensor,
+                c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         logits, h, c = self.step(obs, h, c)
         return torch.argmax(logits, dim=-1), h, c
 
 
 class _GRUPolicy(_RecurrentPolicy):
-    def _rnn(self, x: torch.Tensor, h: torch.Tensor, c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def _rnn(self, x: torch.Tensor, h: torch.Tensor,
+             c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         y, h = self.rnn(x, h)
         return y, h, c
 
 
 class _LSTMPolicy(_RecurrentPolicy):
-    def _rnn(self, x: torch.Tensor, h: torch.Tensor, c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def _rnn(self, x: torch.Tensor, h: torch.Tensor,
+             c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         y, (h, c) = self.rnn(x, (h, c))
         return y, h, c
 
@@ -263,7 +268,8 @@ class LoadedPolicy:
         if team is not None and self.team is not None and team != self.team:
             raise ValueError(f"policy was trained for {self.team!r}, not {team!r}")
         if observation_size != self.observation_size:
-            raise ValueError(f"policy expects observations of length {self.observation_size}, env gives {observation_size}")
+            raise ValueError(f"policy expects observations of length {self.observation_size}, "
+                             f"env gives {observation_size}")
         if action_count != self.action_count:
             raise ValueError(f"policy has {self.action_count} actions, env has {action_count}")
         if self.group_size > 1 and slots != self.group_size:

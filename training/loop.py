@@ -21,7 +21,8 @@ One observation buffer serves the whole loop: `after[t]` stores the observations
 it overwrites them with the next ones, so the storage receives exactly what rsl-rl's loop stores.
 
 On the CPU (or where a graph cannot serve: recurrent models, the adaptive learning-rate schedule, RND)
-the same functions run eagerly; recurrent models are updated by rsl-rl's own `PPO.update`. On the CPU this loop and `OnPolicyRunner.learn` produce the same
+the same functions run eagerly; recurrent models are updated by rsl-rl's own `PPO.update`. On the CPU
+this loop and `OnPolicyRunner.learn` produce the same
 parameters bit for bit (`tests/test_training_loop.py`), so `train.loop = "rsl-rl"` (rsl-rl's own
 runner) remains as the reference and for the benchmark's before/after.
 

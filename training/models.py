@@ -22,12 +22,11 @@ import math
 
 import torch
 import torch.nn as nn
+from rsl_rl.models import MLPModel
+from rsl_rl.utils import resolve_nn_activation
 from tensordict import TensorDict
 
 from . import _rsl  # noqa: F401
-from rsl_rl.models import MLPModel
-from rsl_rl.utils import resolve_nn_activation
-
 
 # Rows per product in the weight gradient (see `_BatchedLinearFunction`).
 WEIGHT_GRAD_CHUNK = 512

@@ -148,7 +148,8 @@ class OpponentPool:
             W, S = env.num_worlds, env.slots
             obs = env.env.observations[team].reshape(W * S, -1)
             template = self._templates[team]
-            logits = torch.vmap(lambda params: functional_call(template, params, (obs,)))(self._stacked[team])
+            logits = torch.vmap(lambda params, template=template, obs=obs: functional_call(template, params, (obs,)))(
+                self._stacked[team])
             rows = self.index[team].clamp(min=0).view(W, 1).expand(W, S).reshape(-1)
             chosen = logits.gather(0, rows.view(1, -1, 1).expand(1, -1, logits.shape[-1])).squeeze(0)
             actions = torch.multinomial(torch.softmax(chosen, dim=-1), 1).view(W, S)

@@ -27,11 +27,11 @@ from collections.abc import Generator
 
 import torch
 import torch.nn as nn
-
-from . import _rsl  # noqa: F401
 from rsl_rl.algorithms import PPO
 from rsl_rl.storage import RolloutStorage
 from rsl_rl.utils import resolve_optimizer
+
+from . import _rsl  # noqa: F401
 
 
 def _scaled_optimizer_class(base: type) -> type:

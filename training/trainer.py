@@ -52,19 +52,29 @@ from collections import deque
 
 import numpy as np
 import torch
-
-from . import _rsl  # noqa: F401
-from . import distributed
 from rsl_rl.runners import OnPolicyRunner
 from rsl_rl.utils import resolve_callable
 from rsl_rl.utils.logger import Logger
 
 from ..env import BatchedAquarium
 from ..heuristics import POLICIES, make_policy
-from .config import (TEAMS, default_opponent, env_config, learning_teams, make_config, runner_config, team_settings,
-                     total_iterations, validate)
-from .loop import TrainingLoop
+from . import (
+    _rsl,  # noqa: F401
+    distributed,
+)
+from .config import (
+    TEAMS,
+    default_opponent,
+    env_config,
+    learning_teams,
+    make_config,
+    runner_config,
+    team_settings,
+    total_iterations,
+    validate,
+)
 from .export import RecurrentOpponent, export_policy, load_policy, policy_from_actor, policy_meta
+from .loop import TrainingLoop
 from .vec_env import OTHER, AquariumVecEnv, LearnerActions, TrainedOpponent
 
 CSV_FIELDS = ["iteration", "agent_steps", "world_steps", "world_episodes", "episodes_logged", "captures",
@@ -260,7 +270,7 @@ class AquariumRunner(OnPolicyRunner):
     storage, optimizer and logger. `self.learners` lists them all, this runner's own first."""
 
     def __init__(self, env: AquariumVecEnv, train_cfg: dict, log_dir: str | None = None, device: str = "cpu",
-                 trainer: "Trainer | None" = None, quiet: bool = False, others=()):
+                 trainer: Trainer | None = None, quiet: bool = False, others=()):
         super().__init__(env, train_cfg, log_dir=log_dir, device=device)
         self.trainer = trainer
         several = bool(others)
@@ -466,7 +476,7 @@ def _read_checkpoint(path: str) -> dict:
         raise ValueError(f"checkpoint {path!r} does not exist")
     try:
         checkpoint = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as error:  # torch raises many kinds for a damaged file (EOF, unpickling, zip)
+    except Exception as error:  # noqa: BLE001 - torch raises many kinds for a damaged file (EOF, unpickling, zip)
         reason = (str(error).strip().splitlines() or [""])[0][:200]
         raise ValueError(f"{path}: not a readable checkpoint (empty, truncated or another format: "
                          f"{type(error).__name__}: {reason})") from None
@@ -563,7 +573,7 @@ class Trainer:
 
     # ------------------------------------------------------------------ construction from checkpoints
     @classmethod
-    def resume(cls, path: str, log_dir: str | None = None, changes: dict | None = None) -> "Trainer":
+    def resume(cls, path: str, log_dir: str | None = None, changes: dict | None = None) -> Trainer:
         """A trainer restored from a checkpoint, or from the newest checkpoint of a run directory.
         `changes` may alter train settings that do not affect the state (iterations, episodes,
         quiet, export, videos); the log directory defaults to the checkpoint's."""
@@ -580,7 +590,8 @@ class Trainer:
             if bad:
                 raise ValueError(f"a resumed run keeps its config; only train.{sorted(allowed)} may change, not {bad}")
             config["train"].update(changes.get("train", {}))
-        trainer = cls(config, log_dir=log_dir if log_dir is not None else os.path.dirname(os.path.abspath(checkpoint_path)))
+        trainer = cls(config, log_dir=log_dir if log_dir is not None
+                      else os.path.dirname(os.path.abspath(checkpoint_path)))
         trainer.load(checkpoint_path)
         return trainer
 
@@ -662,7 +673,8 @@ class Trainer:
         if iterations is None:
             iterations = self.total_iterations - self.iteration
         fresh = self.iteration == 0
-        self.runner.learn(iterations, init_at_random_ep_len=fresh and bool(self.config["train"]["init_at_random_ep_len"]))
+        self.runner.learn(iterations,
+                          init_at_random_ep_len=fresh and bool(self.config["train"]["init_at_random_ep_len"]))
 
     def learning(self, iteration: int) -> list[bool] | None:
         """Which learners update in `iteration` (None: all). Alternating schedule: the teams take turns

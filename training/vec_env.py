@@ -52,14 +52,13 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from tensordict import TensorDict
-
-from . import _rsl  # noqa: F401
 from rsl_rl.env import VecEnv
+from tensordict import TensorDict
 
 from ..env import TYPES, BatchedAquarium
 from ..metrics import EPISODE_METRICS, EpisodeMetrics
 from ..pettingzoo_env import WorldState
+from . import _rsl  # noqa: F401
 from .randomize import ParamRandomizer
 
 OTHER = {"prey": "predator", "predator": "prey"}
@@ -104,7 +103,7 @@ class LearnerActions:
     adapter (`vec_env`, set once both adapters exist), which the training loop fills before the
     first adapter steps the worlds."""
 
-    def __init__(self, vec_env: "AquariumVecEnv | None" = None):
+    def __init__(self, vec_env: AquariumVecEnv | None = None):
         self.vec_env = vec_env
 
     def __call__(self) -> torch.Tensor:
@@ -361,7 +360,8 @@ class AquariumVecEnv(VecEnv):
         # Row episodes, as rsl-rl's logger counts them (its "Mean reward"): reward sums up to a done.
         self._row_return += self._rewards
         done = self._dones.to(torch.float32)
-        self._row_stats += torch.stack([(self._row_return * done).sum(dtype=torch.float64), done.sum(dtype=torch.float64)])
+        self._row_stats += torch.stack([(self._row_return * done).sum(dtype=torch.float64),
+                                        done.sum(dtype=torch.float64)])
         self._row_return *= 1.0 - done
 
     def episode_stats_snapshot(self) -> torch.Tensor:
