@@ -76,12 +76,30 @@ class ParamRandomizer:
                 except ValueError as error:
                     raise ValueError(f"--randomize {field}: {value!r} is not allowed: {error}") from None
         self.rng = np.random.default_rng(seed)
+        # Every world's current draw, kept for checkpoints (the env holds them only as kernel parameters).
+        self.values = {field: np.zeros(env.num_worlds, dtype=np.int64 if field in INTEGER_FIELDS else np.float64)
+                       for field in self.samplers}
         self._draw(list(range(env.num_worlds)))
 
     def _draw(self, worlds: list[int]) -> None:
         values = {field: sampler.draw(self.rng, len(worlds), field in INTEGER_FIELDS)
                   for field, sampler in self.samplers.items()}
         self.env.set_params(world=worlds, validate=False, **values)
+        for field, drawn in values.items():
+            self.values[field][worlds] = drawn
+
+    def state_dict(self) -> dict:
+        """The generator's state and every world's current values: a resumed run draws on exactly."""
+        return {"rng": self.rng.bit_generator.state, "values": {f: v.copy() for f, v in self.values.items()}}
+
+    def load_state_dict(self, state: dict) -> None:
+        if set(state["values"]) != set(self.samplers):
+            raise ValueError(f"the checkpoint randomises {sorted(state['values'])}, this run {sorted(self.samplers)}")
+        self.rng.bit_generator.state = state["rng"]
+        for field, values in state["values"].items():
+            self.values[field][:] = values
+        self.env.set_params(world=list(range(self.env.num_worlds)), validate=False,
+                            **{f: v.tolist() for f, v in self.values.items()})
 
     def update(self, episode_ended: torch.Tensor) -> None:
         """New draws for the worlds whose episode ended (`[W]` bool, the env's `info["episode_ended"]`)."""

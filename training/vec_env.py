@@ -439,9 +439,12 @@ class AquariumVecEnv(VecEnv):
             "row_return": self._row_return.cpu().clone(),
             "opponent": opponent_state,
             "swarm": self.swarm.state_dict() if self.swarm is not None else None,
+            "randomizer": self.randomizer.state_dict() if self.randomizer is not None else None,
         }
 
     def load_state_dict(self, state: dict) -> None:
+        if self.randomizer is not None and state.get("randomizer") is not None:
+            self.randomizer.load_state_dict(state["randomizer"])  # first: the env's state names its values
         if "env" in state:
             self.env.load_state_dict(state["env"])
         self._sync_from_env()
