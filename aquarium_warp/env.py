@@ -253,7 +253,8 @@ class BatchedAquarium:
         with WARP_SETUP_LOCK:  # arrays of structs, kernels and recorded launches (see the lock)
             self._grid_dims = (dims_x, dims_y)
             self._params = BatchParams(cfg, W, self.device)
-            self._action_direction = wp.array(action_directions(cfg.action_count), dtype=wp.vec2, device=self.device)
+            self._action_direction: wp.array = wp.array(action_directions(cfg.action_count), dtype=wp.vec2,
+                                                        device=self.device)
             self.state = SimulationState.allocate(W, C, cfg.prey_capacity, cfg.predator_capacity,
                                                   self.observation_size["prey"], self.observation_size["predator"],
                                                   self.observed_slots["prey"], self.observed_slots["predator"],
@@ -681,8 +682,8 @@ class BatchedAquarium:
 
     def __setstate__(self, saved: dict) -> None:
         state = saved["state"]
-        self.__init__(saved["config"], num_worlds=saved["num_worlds"], device=saved["device"], seed=state["seed"],
-                      cpu_threads=saved["cpu_threads"], auto_reset=saved["auto_reset"])
+        type(self).__init__(self, saved["config"], num_worlds=saved["num_worlds"], device=saved["device"],
+                            seed=state["seed"], cpu_threads=saved["cpu_threads"], auto_reset=saved["auto_reset"])
         self.load_state_dict(state)
         t = self.state.torch
         for name, value in saved["outputs"].items():

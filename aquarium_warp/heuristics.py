@@ -134,7 +134,7 @@ def heuristic_actions(env: BatchedAquarium, prey: str = "turnaway", predator: st
     return actions
 
 
-def nearest_action(direction, heading, action_count: int) -> np.ndarray:
+def nearest_action(direction, heading, action_count: int) -> np.ndarray | int:
     """The action whose desired direction makes the smallest angle with `direction` (ties: the lower
     action); where `direction` is zero, with `heading` instead. Shapes `[..., 2]` -> `[...]` int64
     (a plain int for a single vector). Brute force over all actions in float64 (a reference for the

@@ -80,8 +80,8 @@ class SwarmMetrics:
             is unlimited).
     """
 
-    def __init__(self, env: BatchedAquarium, linking_distance: float | None = None, nn_bins: int = 50,
-                 nn_range: float | None = None):
+    def __init__(self, env: BatchedAquarium, linking_distance: float | tuple[float, ...] | None = None,
+                 nn_bins: int = 50, nn_range: float | None = None):
         if not isinstance(env, BatchedAquarium):
             raise ValueError(f"env must be a BatchedAquarium, got {type(env).__name__}")
         cfg = env.config
@@ -97,13 +97,15 @@ class SwarmMetrics:
             raise ValueError(f"nn_bins={nn_bins!r} must be an integer >= 1")
         if nn_range is None:
             nn_range = min(2.0 * max(_per_world(cfg.prey.view_distance, W)), cfg.max_torus_distance)
+        assert nn_range is not None  # for the type checker: set just above
         if isinstance(nn_range, bool) or not isinstance(nn_range, (int, float)) or not math.isfinite(nn_range) \
                 or nn_range <= 0:
             raise ValueError(f"nn_range={nn_range!r} must be a finite number > 0 (px)")
         self._env = env
         # One float where every world links at the same distance, else one per world.
-        self.linking_distance = float(links[0]) if len(set(links)) == 1 else tuple(float(d) for d in links)
-        self._linking_distances = wp.array(links, dtype=float, device=env.device)
+        self.linking_distance: float | tuple[float, ...] = (float(links[0]) if len(set(links)) == 1
+                                                             else tuple(float(d) for d in links))
+        self._linking_distances: wp.array = wp.array(links, dtype=float, device=env.device)
         self.nn_bins = nn_bins
         self.nn_range = float(nn_range)
         self.bin_width = self.nn_range / nn_bins

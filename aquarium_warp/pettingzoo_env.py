@@ -59,6 +59,7 @@ import math
 import random
 import warnings
 import zlib
+from typing import Any
 
 import gymnasium
 import numpy as np
@@ -163,7 +164,7 @@ _CONFIG_FIELDS = tuple(f.name for f in dataclasses.fields(AquariumConfig) if f.n
 
 
 def _own_keywords() -> dict[str, tuple]:
-    own = {name: (name,) for name in _CONFIG_FIELDS}
+    own: dict[str, tuple] = {name: (name,) for name in _CONFIG_FIELDS}
     for t in TYPES:
         for f in _TYPE_FIELDS:
             own[f"{t}_{f}"] = ((t, f),)
@@ -278,7 +279,7 @@ class AquariumParallelEnv(ParallelEnv):
     `state_space`, `render_mode`, `max_cycles` (= `config.max_steps`, informational).
     """
 
-    metadata = {"name": "aquarium_v1", "render_modes": ["human", "rgb_array"], "render_fps": 60,
+    metadata: dict[str, Any] = {"name": "aquarium_v1", "render_modes": ["human", "rgb_array"], "render_fps": 60,
                 "is_parallelizable": True}
 
     def __init__(self, **kwargs):
@@ -547,7 +548,7 @@ class AquariumParallelEnv(ParallelEnv):
         slots = np.concatenate([pred_rows + self._Pc, prey_rows])
         obs = dict(zip(pred_names, obs_pred[pred_rows]))
         obs.update(zip(prey_names, obs_prey[prey_rows]))
-        result = (obs, dict(zip(names, reward[slots].tolist())), dict(zip(names, terminated[slots].tolist())),
+        result: tuple = (obs, dict(zip(names, reward[slots].tolist())), dict(zip(names, terminated[slots].tolist())),
                   dict(zip(names, truncated[slots].tolist())), {a: {} for a in names})
         self._alive_prev = alive
         self._alive_prev_bytes = alive.tobytes()

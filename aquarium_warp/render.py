@@ -28,6 +28,7 @@ import math
 import struct as _struct
 import weakref
 import zlib
+from typing import Any
 
 import numpy as np
 import warp as wp
@@ -71,18 +72,18 @@ def frame_size(config, width_px: int | None = None, height_px: int | None = None
                                   or not 1 <= value <= 32768):
             raise ValueError(f"{name}={value!r} must be None or an integer in [1, 32768]")
     w, h = float(config.width), float(config.height)
-    if width_px is None and height_px is None:
-        scale = min(1.0, max_size / max(w, h))
-        return max(1, round(w * scale)), max(1, round(h * scale))
-    if width_px is None:
-        return max(1, round(height_px * w / h)), int(height_px)
-    if height_px is None:
+    if width_px is not None and height_px is not None:
+        return int(width_px), int(height_px)
+    if width_px is not None:
         return int(width_px), max(1, round(width_px * h / w))
-    return int(width_px), int(height_px)
+    if height_px is not None:
+        return max(1, round(height_px * w / h)), int(height_px)
+    scale = min(1.0, max_size / max(w, h))
+    return max(1, round(w * scale)), max(1, round(h * scale))
 
 
 def _palette(overrides: dict | None) -> rk.Palette:
-    colours = dict(DEFAULT_PALETTE)
+    colours: dict[str, Any] = dict(DEFAULT_PALETTE)
     for name, value in (overrides or {}).items():
         if name not in colours:
             raise ValueError(f"unknown palette entry {name!r}; known: {sorted(colours)}")

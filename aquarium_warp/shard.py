@@ -18,6 +18,7 @@ import functools
 import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
+from typing import Any
 
 import numpy as np
 import torch
@@ -97,6 +98,8 @@ def cell_lists(cfg: AquariumConfig, num_worlds: int, dims: tuple[int, int], devi
     g.whole_world = int(agents is not None and dims == (1, 1))
     cells = num_worlds * g.cells_per_world
     if g.whole_world:
+        if agents is None:
+            raise ValueError("whole-world cell lists view the agents' arrays: pass `agents`")
         first = np.arange(num_worlds, dtype=np.int32) * cfg.capacity
         g.cell_start = wp.array(first, dtype=int, device=device)
         g.cell_end = wp.array(first + cfg.capacity, dtype=int, device=device)
@@ -137,7 +140,7 @@ class WorldShard:
         self.observe_kernels = observe_kernels  # {"prey": kernel, "predator": kernel}
         self.state = state.rows(w0, w1)
         self.grid = cell_lists(cfg, self.num_worlds, dims, device, self.state.agents)
-        self._views = []  # arrays viewing state memory with another dtype (kept alive with the shard)
+        self._views: list[wp.array] = []  # arrays viewing state memory with another dtype (kept alive with the shard)
         self.programs: dict[str, list] = {}
 
     def run(self, program: str) -> None:
@@ -148,7 +151,7 @@ class WorldShard:
     def record(self, kernel, dim, inputs, outputs=(), block_dim: int | None = None):
         """A recorded launch of `kernel` over `dim` threads (blocks of `block_dim` for a tile kernel),
         as a command: calling it replays the launch."""
-        options = {} if block_dim is None else {"block_dim": block_dim}
+        options: dict[str, Any] = {} if block_dim is None else {"block_dim": block_dim}
         return wp.launch(kernel, dim=dim, inputs=list(inputs), outputs=list(outputs), device=self.device,
                          record_cmd=True, **options).launch
 

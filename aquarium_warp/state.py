@@ -8,6 +8,7 @@ the groups of worlds `[w0, w1)`, which is what a `WorldShard` runs on.
 
 from __future__ import annotations
 
+import torch
 import warp as wp
 
 from .kernels.state import Actions, Agents, Observations, Scratch, StepOutputs, WorldCounters
@@ -38,7 +39,15 @@ class SimulationState:
         self.scratch = scratch
         self.outputs = outputs
         self.observations = observations
-        self.torch: TorchViews | None = None
+        self._torch: TorchViews | None = None
+
+    @property
+    def torch(self) -> TorchViews:
+        """Torch views of every field, by name (`state.torch.position`); on the state that owns the
+        memory, not on a shard's `rows()`."""
+        if self._torch is None:
+            raise AttributeError("torch views belong to the state that owns the memory, not to a shard's rows")
+        return self._torch
 
     @classmethod
     def allocate(cls, num_worlds: int, capacity: int, prey_capacity: int, predator_count: int,
@@ -62,7 +71,7 @@ class SimulationState:
                 setattr(group, name, wp.zeros(shape, dtype=var.type.dtype, device=device))
             groups[group_name] = group
         state = cls(**groups)
-        state.torch = TorchViews(state)
+        state._torch = TorchViews(state)
         return state
 
     def arrays(self) -> dict[str, wp.array]:
@@ -83,6 +92,10 @@ class TorchViews:
     def __init__(self, state: SimulationState):
         for name, array in state.arrays().items():
             setattr(self, name, wp.to_torch(array))
+
+    def __getattr__(self, name: str) -> torch.Tensor:
+        # Only reached for a name that is not a field; declared so type checkers see every field as a Tensor.
+        raise AttributeError(f"no state field {name!r}")
 
 
 def estimate_bytes(cfg, num_worlds: int, cells_per_world: int) -> int:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sized
 
 import numpy as np
 
@@ -81,7 +81,7 @@ def write_video(frames: Iterable[np.ndarray] | Callable[[int], np.ndarray | None
         try:
             from tqdm import tqdm
 
-            total = num_frames if num_frames is not None else (len(frames) if hasattr(frames, "__len__") else None)
+            total = num_frames if num_frames is not None else (len(frames) if isinstance(frames, Sized) else None)
             iterator = tqdm(iterator, total=total, unit="frame", desc=os.path.basename(str(path)))
         except ImportError:
             pass
