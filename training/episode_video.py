@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import io
 import os
+import pathlib
 
 import numpy as np
 
@@ -58,7 +59,7 @@ class EpisodeVideo:
             path = os.path.join(log_dir, "videos", f"iteration_{iteration}.mp4")
             os.makedirs(os.path.dirname(path), exist_ok=True)
             write_video(frames, path, fps=self.fps, progress=False)
-            writer.save_video(path, iteration)
+            writer.save_video(pathlib.Path(path), iteration)  # rsl-rl reads `.name`
 
     def close(self) -> None:
         self.env.close()

@@ -110,6 +110,14 @@ class LearnerActions:
         return self.vec_env.actions_buffer
 
 
+class RunConfig(dict):
+    """The run's config as the VecEnv's `cfg`: a dict with the `to_dict()` that rsl-rl's W&B writer
+    calls on it (`WandbLogWriter.store_config`; its fallback, `dataclasses.asdict`, fails on a dict)."""
+
+    def to_dict(self) -> dict:
+        return dict(self)
+
+
 class AquariumVecEnv(VecEnv):
     """rsl-rl VecEnv over a `BatchedAquarium` (created with `auto_reset=True`); see the module doc.
 
@@ -142,7 +150,7 @@ class AquariumVecEnv(VecEnv):
         self.opponent = opponent
         self.reward_scale = float(reward_scale)
         ecfg = env.config
-        self.cfg = cfg if cfg is not None else {"env": ecfg.to_dict()}
+        self.cfg = RunConfig(cfg if cfg is not None else {"env": ecfg.to_dict()})
         self.num_worlds = W = env.num_worlds
         self.slots = S = env.prey_capacity if team == "prey" else env.predator_count
         self.team_count = ecfg.prey_count if team == "prey" else ecfg.predator_count
