@@ -65,8 +65,9 @@ def plot_fov_view(summary: dict, out: str) -> str:
     cfg = summary["config"]
     fig, ax = plt.subplots(figsize=(5.5, 4.5))
     image = ax.imshow(grid, origin="lower", cmap="viridis", aspect="auto")
+    middle = (np.nanmin(grid) + np.nanmax(grid)) / 2  # dark text on the light (high) end of viridis
     for (row, col), value in np.ndenumerate(grid):
-        ax.text(col, row, f"{value:.3g}", ha="center", va="center", fontsize=8, color="w")
+        ax.text(col, row, f"{value:.3g}", ha="center", va="center", fontsize=8, color="k" if value > middle else "w")
     ax.set_xticks(range(len(fovs)), [f"{f:g}" for f in fovs])
     ax.set_yticks(range(len(views)), [f"{v:g}" for v in views])
     ax.set_xlabel("prey field of view (degrees)")
