@@ -210,10 +210,21 @@ def _add_eval(sub) -> None:
     evaluate.set_defaults(run=run_eval)
 
 
+def _study_kwargs(args) -> dict:
+    """The `SwarmSizeStudy` settings that every study subcommand has (`_add_study_run_arguments`)."""
+    from .study import parse_world_size
+
+    return dict(seeds=args.seeds, episodes_per_seed=args.episodes_per_seed, episode_steps=args.episode_steps,
+                prey_policy=args.prey_policy, predator_policy=args.predator_policy, confusion=not args.no_confusion,
+                predators=args.predators, world_size=parse_world_size(args.world_size),
+                linking_distance=args.linking_distance, metrics_every=args.metrics_every, device=args.device,
+                seed=args.seed, jobs=args.jobs, out=args.out, figures=not args.no_figures)
+
+
 def _study_swarm_size(args) -> int:
     """`aquarium-warp study swarm-size`: captures, polarization and groups vs the number of prey."""
     from .number_lists import parse_list
-    from .study import SwarmSizeStudy, parse_world_size, replot_study, run_swarm_size_study
+    from .study import SwarmSizeStudy, replot_study, run_swarm_size_study
 
     if args.replot:
         summary = replot_study(args.out, device=args.device)
@@ -223,18 +234,15 @@ def _study_swarm_size(args) -> int:
     if ray is not None and args.jobs is not None:
         raise ValueError("--jobs sets the threads of a run on this machine; with --ray each setting is a task "
                          "(--cpus-per-task, --gpus-per-task)")
+    if ray is not None and args.one_batch:
+        raise ValueError("--one-batch runs every setting in one batch on this machine: not with --ray")
     study = SwarmSizeStudy(
-        prey=[int(n) for n in parse_list(args.prey, int, "--prey")], seeds=args.seeds,
-        episodes_per_seed=args.episodes_per_seed, episode_steps=args.episode_steps,
-        prey_policy=args.prey_policy, predator_policy=args.predator_policy, confusion=not args.no_confusion,
-        predators=args.predators,
+        prey=[int(n) for n in parse_list(args.prey, int, "--prey")],
         fov_angles=parse_list(args.fov_angle, float, "--fov-angle") if args.fov_angle else None,
         view_distances=parse_list(args.view_distance, float, "--view-distance") if args.view_distance else None,
-        world_size=parse_world_size(args.world_size), constant_density=args.constant_density,
-        reference_prey=args.reference_prey, linking_distance=args.linking_distance,
-        metrics_every=args.metrics_every, respawn=not args.no_respawn, reproduction=args.reproduction,
-        starvation_steps=args.starvation_steps, device=args.device, seed=args.seed, jobs=args.jobs,
-        out=args.out, figures=not args.no_figures)
+        constant_density=args.constant_density, reference_prey=args.reference_prey, respawn=not args.no_respawn,
+        reproduction=args.reproduction, starvation_steps=args.starvation_steps, one_batch=args.one_batch,
+        **_study_kwargs(args))
     print(f"aquarium-warp study swarm-size: prey {study.prey}, {study.seeds} seeds x {study.episodes_per_seed} "
           f"episode(s) of {study.episode_steps} steps, {study.prey_policy} vs {study.predator_policy} -> {study.out}")
     summary = run_swarm_size_study(study, progress=not args.no_progress, ray=ray)
@@ -242,19 +250,33 @@ def _study_swarm_size(args) -> int:
     if ray is not None:
         where = f"Ray ({len(summary['ray']['nodes'])} machine(s), {summary['ray']['settings_kept']} setting(s) kept)"
     print(f"wrote {os.path.join(study.out, 'swarm_size.csv')}, swarm_size.json and {len(summary.get('figures', []))} "
-          f"figures in {summary['wall_time_s']:.1f} s on {where}")
+          f"figures in {summary['wall_time_s']:.1f} s on {where} ({summary['path']})")
     return 0
 
 
-def _add_study(sub) -> None:
-    """`aquarium-warp study swarm-size` (code in `aquarium_warp/study.py`, figures in `study_plots.py`)."""
-    study = sub.add_parser("study", help="parameter studies of collective behaviour (swarm-size)")
-    kinds = study.add_subparsers(dest="study", required=True)
-    p = kinds.add_parser("swarm-size", help="captures per prey (dilution), polarization and groups vs prey count",
-                         description="Run every prey count and seed as batched worlds, one episode each, and "
-                                     "write swarm_size.csv/json and figures into --out.")
-    p.add_argument("--prey", default="4,8,...,4096",
-                   help="prey counts: a comma list; '...' continues the progression (default 4,8,...,4096)")
+def _study_fov_view(args) -> int:
+    """`aquarium-warp study fov-view`: captures per prey over prey FOV angle x view distance."""
+    from .number_lists import parse_list
+    from .study import SwarmSizeStudy, run_swarm_size_study
+
+    fovs = parse_list(args.fov, float, "--fov")
+    if any(not 0 < f <= 360 for f in fovs):
+        raise ValueError(f"--fov={args.fov!r}: every angle must be in (0, 360] degrees")
+    views = parse_list(args.view, float, "--view")
+    if any(not 0 < v < float("inf") for v in views):
+        raise ValueError(f"--view={args.view!r}: every distance must be a finite number > 0 (px)")
+    study = SwarmSizeStudy(prey=[args.prey], fov_angles=fovs, view_distances=views, one_batch=not args.per_setting,
+                           kind="fov-view", **_study_kwargs(args))
+    print(f"aquarium-warp study fov-view: {study.prey[0]} prey, FOV {fovs} x view {views}, {study.seeds} seeds, "
+          f"episodes of {study.episode_steps} steps -> {study.out}")
+    summary = run_swarm_size_study(study, progress=not args.no_progress)
+    print(f"wrote {os.path.join(study.out, 'fov_view.csv')}, fov_view.json and {len(summary.get('figures', []))} "
+          f"figure(s) in {summary['wall_time_s']:.1f} s on {summary['machine']['device_name']} ({summary['path']})")
+    return 0
+
+
+def _add_study_run_arguments(p, out: str) -> None:
+    """The options that every study subcommand has (`_study_kwargs` reads them)."""
     p.add_argument("--seeds", type=int, default=5, help="independent runs per setting (default 5)")
     p.add_argument("--episodes-per-seed", type=int, default=1, help="episodes per seed, run as more worlds")
     p.add_argument("--episode-steps", type=int, default=3000, help="steps per episode (default 3000, the paper's)")
@@ -263,31 +285,56 @@ def _add_study(sub) -> None:
     p.add_argument("--no-confusion", action="store_true", help="NaivChase chases the nearest visible prey "
                    "instead of a random one each step")
     p.add_argument("--predators", type=int, default=1, help="predators per world (default 1)")
-    p.add_argument("--fov-angle", default=None, help="prey field-of-view angles to sweep, degrees (list; default 120)")
-    p.add_argument("--view-distance", default=None, help="prey view distances to sweep, px (list; default 100)")
-    p.add_argument("--world-size", default="800x800", help="arena WIDTHxHEIGHT px, fixed for every N (default "
-                   "800x800: density grows with N)")
-    p.add_argument("--constant-density", action="store_true", help="scale the arena with N instead, keeping the "
-                   "density of --reference-prey prey in --world-size")
-    p.add_argument("--reference-prey", type=int, default=16,
-                   help="with --constant-density: the prey count that --world-size is sized for (default 16)")
+    p.add_argument("--world-size", default="800x800", help="arena WIDTHxHEIGHT px (default 800x800)")
     p.add_argument("--linking-distance", type=float, default=None,
                    help="px; prey closer than this form one group (default 2.5 prey radii = 50)")
     p.add_argument("--metrics-every", type=int, default=10, help="sample the swarm metrics every K steps")
-    p.add_argument("--no-respawn", action="store_true", help="captured prey are removed (populations shrink)")
-    p.add_argument("--reproduction", action="store_true", help="prey reproduce (up to 2 N)")
-    p.add_argument("--starvation-steps", type=int, default=None, help="predator starvation limit (default 3000)")
     p.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
     p.add_argument("--seed", type=non_negative_int, default=0,
                    help="seed of the batched worlds (the --seeds runs are worlds of one env)")
     p.add_argument("--jobs", type=positive_int, default=None,
-                   help="settings run at once in threads (default: CPU cores on the CPU, 1 on a GPU)")
-    p.add_argument("--out", default="swarm_size", help="output directory")
+                   help="settings run at once in threads, one batch per setting (default: CPU cores on the CPU, "
+                        "1 on a GPU)")
+    p.add_argument("--out", default=out, help=f"output directory (default {out})")
     p.add_argument("--no-figures", action="store_true", help="write CSV/JSON only, no figures")
-    p.add_argument("--replot", action="store_true", help="only redraw the figures from --out's swarm_size.json")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _add_study(sub) -> None:
+    """`aquarium-warp study swarm-size` and `study fov-view` (code in `aquarium_warp/study.py`, figures in
+    `study_plots.py`)."""
+    study = sub.add_parser("study", help="parameter studies of collective behaviour (swarm-size, fov-view)")
+    kinds = study.add_subparsers(dest="study", required=True)
+    p = kinds.add_parser("swarm-size", help="captures per prey (dilution), polarization and groups vs prey count",
+                         description="Run every prey count and seed as batched worlds, one episode each, and "
+                                     "write swarm_size.csv/json and figures into --out.")
+    p.add_argument("--prey", default="4,8,...,4096",
+                   help="prey counts: a comma list; '...' continues the progression (default 4,8,...,4096)")
+    p.add_argument("--fov-angle", default=None, help="prey field-of-view angles to sweep, degrees (list; default 120)")
+    p.add_argument("--view-distance", default=None, help="prey view distances to sweep, px (list; default 100)")
+    p.add_argument("--constant-density", action="store_true", help="scale the arena with N instead of a fixed "
+                   "--world-size, keeping the density of --reference-prey prey in --world-size")
+    p.add_argument("--reference-prey", type=int, default=16,
+                   help="with --constant-density: the prey count that --world-size is sized for (default 16)")
+    p.add_argument("--no-respawn", action="store_true", help="captured prey are removed (populations shrink)")
+    p.add_argument("--reproduction", action="store_true", help="prey reproduce (up to 2 N)")
+    p.add_argument("--starvation-steps", type=int, default=None, help="predator starvation limit (default 3000)")
+    p.add_argument("--one-batch", action="store_true", help="every setting in one batch (per-world prey counts; "
+                   "every world has the slots of the largest count) instead of one batch per setting")
+    _add_study_run_arguments(p, "swarm_size")
+    p.add_argument("--replot", action="store_true", help="only redraw the figures from --out's swarm_size.json")
     _add_ray_arguments(p, "setting (prey count, FOV angle and view distance)")
     p.set_defaults(run=_study_swarm_size)
+    p = kinds.add_parser("fov-view", help="captures per prey over prey field of view x view distance",
+                         description="Run every (prey FOV angle, view distance) and seed as worlds of one batch "
+                                     "(per-world parameters), one episode each, and write fov_view.csv/json and "
+                                     "a heatmap into --out.")
+    p.add_argument("--fov", default="60,120,240,360", help="prey field-of-view angles, degrees (list)")
+    p.add_argument("--view", default="50,100,200,400", help="prey view distances, px (list)")
+    p.add_argument("--prey", type=positive_int, default=32, help="prey per world (default 32)")
+    p.add_argument("--per-setting", action="store_true", help="one batch per setting instead (for timing)")
+    _add_study_run_arguments(p, "fov_view")
+    p.set_defaults(run=_study_fov_view)
 
 
 def _sweep_train(args) -> int:

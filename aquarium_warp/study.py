@@ -8,6 +8,14 @@ counter-based random streams are keyed by the world index, so the blocks are ind
 Metrics (`aquarium_warp.metrics`) are sampled every `metrics_every` steps on the device and averaged
 per episode, then per seed; the spread in the figures is the standard deviation over seeds.
 
+With `one_batch=True` (`--one-batch`) every setting runs in one `BatchedAquarium` instead: setting i is
+the block of worlds `[i * S * E, (i + 1) * S * E)` with its own prey count, FOV angle and view distance
+(per-world parameters, `one_batch_config`); every world has the slots of the largest prey count. The
+per-setting statistics come from the same code (`_setting_result`) on both paths. Other worlds draw
+other random streams, so the two paths agree statistically, not bit for bit (a single setting is bit
+for bit). `aquarium-warp study fov-view` is this study with one prey count over prey FOV angle x view
+distance (`kind="fov-view"`: `fov_view.csv/json` and a heatmap), in one batch by default.
+
 Outputs in `out`: `swarm_size.csv` (one row per setting and seed), `swarm_size.json` (the
 configuration, the machine, timings, per-setting means/std/sem over seeds, nearest-neighbour
 distributions, population traces when populations change) and PNG figures (`aquarium_warp.study_plots`):
@@ -100,6 +108,13 @@ class SwarmSizeStudy:
     jobs: int | None = None  # settings run at once on the CPU (threads); None: the CPU's cores; GPU: 1
     out: str = "swarm_size"
     figures: bool = True
+    one_batch: bool = False  # every setting in one batch (worlds of setting i: its prey count, FOV and view)
+    kind: str = "swarm-size"  # "swarm-size" or "fov-view": names the output files and figures
+
+    @property
+    def basename(self) -> str:
+        """The output files' name: swarm_size.csv/json or fov_view.csv/json."""
+        return self.kind.replace("-", "_")
 
     def validate(self) -> None:
         def positive_int(name, value):
@@ -120,6 +135,13 @@ class SwarmSizeStudy:
                 raise ValueError(f"{name} must list at least one value")
         if self.max_prey_factor < 1:
             raise ValueError(f"max_prey_factor={self.max_prey_factor!r} must be >= 1")
+        if self.kind not in ("swarm-size", "fov-view"):
+            raise ValueError(f"kind={self.kind!r} must be 'swarm-size' or 'fov-view'")
+        # The arena and max_prey size the arrays, so they cannot differ between the worlds of one batch.
+        if self.one_batch and self.constant_density:
+            raise ValueError("one batch: every world has one arena, so not with constant density")
+        if self.one_batch and self.reproduction:
+            raise ValueError("one batch: max_prey (2 N with reproduction) sizes the arrays, so not with reproduction")
 
     def settings(self) -> list[dict]:
         """One dict per (fov angle, view distance, prey count), with its `AquariumConfig`."""
@@ -196,13 +218,11 @@ def check_policies(study: SwarmSizeStudy) -> None:
 # --------------------------------------------------------------------------------------------------
 # Running
 # --------------------------------------------------------------------------------------------------
-def run_setting(study: SwarmSizeStudy, setting: dict, device: str, progress=None) -> dict:
-    """Run one setting: `seeds x episodes_per_seed` worlds for one episode. Returns per-seed metrics
-    (numpy arrays `[seeds]`), the mean nearest-neighbour distribution and, with population dynamics,
-    the mean population traces."""
-    cfg = setting["config"]
-    E = study.episodes_per_seed
-    worlds = study.seeds * E
+def _run_batch(study: SwarmSizeStudy, cfg: AquariumConfig, worlds: int, device: str, progress=None) -> dict:
+    """Step `worlds` worlds of `cfg` (its per-world tuples: one value per world) for one episode. Returns the
+    per-world episode statistics (numpy `[W]`, `nn_distribution` `[W, bins]`), the population traces
+    (`[samples, W]` tensors, the last sample dropped: it is the next episode's first state) and the batch's
+    wall time and agent-steps."""
     start = time.perf_counter()
     env = BatchedAquarium(cfg, num_worlds=worlds, device=device, seed=study.seed)
     prey = make_study_policy(study.prey_policy, env, "prey", study.confusion)
@@ -222,23 +242,70 @@ def run_setting(study: SwarmSizeStudy, setting: dict, device: str, progress=None
             chunk = 0
     if progress is not None and chunk:
         progress(chunk)
-    result = {k: v.detach().cpu().double().numpy() for k, v in episodes.result().items()}
-    # Every world finishes its episode at the last step, or earlier if it ran out of prey or predators
-    # (then it restarts, and the restarted episode, unfinished, is not counted).
-    if (result["episodes"] < 1).any():
-        raise RuntimeError(f"N={setting['prey']}: a world finished no episode ({result['episodes']})")
-    per_seed = {name: result[name].reshape(study.seeds, E).mean(axis=1) for name in RESULT_METRICS}
-    out = {"per_seed": per_seed, "nn_distribution": result["nn_distribution"].mean(axis=0),
+    out = {"worlds": {k: v.detach().cpu().double().numpy() for k, v in episodes.result().items()},
            "nn_bin_edges": metrics.bin_edges.numpy(), "linking_distance": metrics.linking_distance}
     if trace:
         traces = episodes.traces()
-        out["population"] = {"step": list(episodes.trace_steps)[:-1]}
-        for name in trace:  # the last sample is the next episode's first state
-            out["population"][name] = traces[name][:-1].double().mean(dim=1).cpu().numpy()
+        population: dict = {"step": list(episodes.trace_steps)[:-1]}
+        population.update({name: traces[name][:-1].double() for name in trace})
+        out["population"] = population
     out["wall_s"] = time.perf_counter() - start
     out["agent_steps"] = worlds * cfg.capacity * study.episode_steps
     env.close()
     return out
+
+
+def _setting_result(study: SwarmSizeStudy, batch: dict, first_world: int, label: str) -> dict:
+    """The statistics of one setting from its worlds `[first_world, first_world + seeds x episodes_per_seed)`
+    of `batch` (`_run_batch`): per-seed metrics (numpy arrays `[seeds]`), the mean nearest-neighbour
+    distribution and, with population dynamics, the mean population traces. Both paths (one batch per
+    setting, every setting in one batch) go through here."""
+    E = study.episodes_per_seed
+    worlds = slice(first_world, first_world + study.seeds * E)
+    result = {k: v[worlds] for k, v in batch["worlds"].items()}
+    # Every world finishes its episode at the last step, or earlier if it ran out of prey or predators
+    # (then it restarts, and the restarted episode, unfinished, is not counted).
+    if (result["episodes"] < 1).any():
+        raise RuntimeError(f"{label}: a world finished no episode ({result['episodes']})")
+    per_seed = {name: result[name].reshape(study.seeds, E).mean(axis=1) for name in RESULT_METRICS}
+    out = {"per_seed": per_seed, "nn_distribution": result["nn_distribution"].mean(axis=0),
+           "nn_bin_edges": batch["nn_bin_edges"], "linking_distance": batch["linking_distance"],
+           "wall_s": batch["wall_s"], "agent_steps": batch["agent_steps"]}
+    if "population" in batch:
+        out["population"] = {"step": batch["population"]["step"]}
+        for name in POPULATION_TRACES:
+            out["population"][name] = batch["population"][name][:, worlds].mean(dim=1).cpu().numpy()
+    return out
+
+
+def run_setting(study: SwarmSizeStudy, setting: dict, device: str, progress=None) -> dict:
+    """Run one setting: `seeds x episodes_per_seed` worlds for one episode (`_setting_result`)."""
+    batch = _run_batch(study, setting["config"], study.seeds * study.episodes_per_seed, device, progress)
+    return _setting_result(study, batch, 0, f"N={setting['prey']}")
+
+
+def one_batch_config(study: SwarmSizeStudy, settings: list[dict]) -> AquariumConfig:
+    """Every setting in one config: setting i's prey count, prey FOV angle and view distance for its block of
+    `seeds x episodes_per_seed` worlds `[i * block, (i + 1) * block)`. Every world has the slots of the
+    largest prey count."""
+    block = study.seeds * study.episodes_per_seed
+
+    def per_world(key):
+        return tuple(s[key] for s in settings for _ in range(block))
+
+    first = settings[0]["config"]
+    prey = dataclasses.replace(first.prey, fov_angle=per_world("fov_angle"), view_distance=per_world("view_distance"))
+    return first.replace(prey_count=per_world("prey"), prey=prey)
+
+
+def _run_one_batch(study: SwarmSizeStudy, settings: list[dict], device: str, advance) -> dict[int, dict]:
+    """Every setting in one batch (`one_batch_config`), then each setting's statistics from its worlds."""
+    block = study.seeds * study.episodes_per_seed
+    batch = _run_batch(study, one_batch_config(study, settings), block * len(settings), device,
+                       progress=lambda n: advance(n * len(settings), "one batch"))
+    return {i: _setting_result(study, batch, i * block, f"N={s['prey']} fov={s['fov_angle']:g} "
+                                                         f"view={s['view_distance']:g}")
+            for i, s in enumerate(settings)}
 
 
 BASELINE_METRICS = ("polarization", "cohesion", "nn_mean", "groups", "largest_group", "predator_distance")
@@ -416,6 +483,8 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayO
     """Run every setting of `study`, write the CSV, JSON and figures into `study.out`, and return the
     JSON's content. `ray`: run each setting as a Ray task (`_run_on_ray`) instead of on this machine."""
     study.validate()
+    if study.one_batch and ray is not None:
+        raise ValueError("one batch runs on this machine: not with Ray (whose tasks are settings)")
     check_policies(study)
     settings = study.settings()
     os.makedirs(study.out, exist_ok=True)
@@ -426,7 +495,8 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayO
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=len(settings) * study.episode_steps, unit="step", desc="swarm-size study", dynamic_ncols=True)
+        bar = tqdm(total=len(settings) * study.episode_steps, unit="step", desc=f"{study.kind} study",
+                   dynamic_ncols=True)
 
     def advance(steps: int, label: str) -> None:
         if bar is not None:
@@ -437,7 +507,10 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayO
     try:
         if ray is None:
             device = resolve_device(study.device)
-            results, jobs = _run_here(study, settings, device, advance)
+            if study.one_batch:
+                results, jobs = _run_one_batch(study, settings, device, advance), 1
+            else:
+                results, jobs = _run_here(study, settings, device, advance)
             machine = machine_info(device)
         else:
             ray, device = placement(ray, study.device)
@@ -472,8 +545,10 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayO
     config["linking_distance"] = results[0]["linking_distance"]
     config["jobs"] = jobs
     config["prey_radius"] = settings[0]["config"].prey.radius
-    summary = {
-        "study": "swarm-size",
+    summary: dict = {
+        "study": study.kind,
+        "path": ("one batch: every setting's worlds in one BatchedAquarium (capacity: the largest prey count)"
+                 if study.one_batch else "one batch per setting"),
         "config": config,
         "definitions": {
             "seed": "seed s = worlds [s*E, (s+1)*E) of one batch per setting (independent random streams); "
@@ -485,6 +560,7 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayO
             "predator_distance": "mean over live prey of the torus distance to the nearest live predator, px",
             "groups": "connected components of prey closer than linking_distance px",
             "spread": "std and sem over seeds",
+            "wall_s": "per setting, the wall time of the batch it ran in (with one batch, shared by every setting)",
             "uniform_baseline": UNIFORM_BASELINE_DEFINITION,
         },
         "nn_bin_edges": [float(x) for x in results[0]["nn_bin_edges"]],
@@ -497,8 +573,8 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayO
     else:
         summary["ray"] = ray_record
         summary = run_tasks(_baselines_on_worker, [(summary, study, device)], ray)[0]
-    write_csv(os.path.join(study.out, "swarm_size.csv"), rows)
-    with open(os.path.join(study.out, "swarm_size.json"), "w", encoding="utf-8") as f:
+    write_csv(os.path.join(study.out, f"{study.basename}.csv"), rows)
+    with open(os.path.join(study.out, f"{study.basename}.json"), "w", encoding="utf-8") as f:
         json.dump(json_safe(summary), f, indent=1)
     if ray is not None:  # swarm_size.json now holds every setting
         shutil.rmtree(os.path.join(study.out, KEPT_DIR), ignore_errors=True)

@@ -1,6 +1,7 @@
 """The figures of the swarm-size study (`aquarium_warp.study`), drawn from its `swarm_size.json`
 summary alone: captures (dilution), polarization and groups, spacing, nearest-neighbour
-distributions and, when populations change, the populations over an episode."""
+distributions and, when populations change, the populations over an episode; of the FOV x
+view-distance study (`fov_view.json`), a heatmap of captures per prey."""
 
 from __future__ import annotations
 
@@ -48,8 +49,43 @@ def _baseline(ax, entries, metric, label="uniform random prey (same N)"):
     ax.plot(n, values, "k:", lw=1.2, label=label)
 
 
+def plot_fov_view(summary: dict, out: str) -> str:
+    """The FOV x view-distance study's heatmap of captures per prey (mean over seeds); returns its path."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fovs = sorted({e["fov_angle"] for e in summary["results"]})
+    views = sorted({e["view_distance"] for e in summary["results"]})
+    grid = np.full((len(views), len(fovs)), np.nan)
+    for e in summary["results"]:
+        mean = e["metrics"]["captures_per_prey"]["mean"]
+        grid[views.index(e["view_distance"]), fovs.index(e["fov_angle"])] = np.nan if mean is None else mean
+    cfg = summary["config"]
+    fig, ax = plt.subplots(figsize=(5.5, 4.5))
+    image = ax.imshow(grid, origin="lower", cmap="viridis", aspect="auto")
+    middle = (np.nanmin(grid) + np.nanmax(grid)) / 2  # dark text on the light (high) end of viridis
+    for (row, col), value in np.ndenumerate(grid):
+        ax.text(col, row, f"{value:.3g}", ha="center", va="center", fontsize=8, color="k" if value > middle else "w")
+    ax.set_xticks(range(len(fovs)), [f"{f:g}" for f in fovs])
+    ax.set_yticks(range(len(views)), [f"{v:g}" for v in views])
+    ax.set_xlabel("prey field of view (degrees)")
+    ax.set_ylabel("prey view distance (px)")
+    fig.colorbar(image, ax=ax, label="captures per prey per episode")
+    ax.set_title(f"{cfg['prey'][0]} prey, {cfg['prey_policy']} vs {cfg['predator_policy']}; "
+                 f"{cfg['episode_steps']} steps, mean over {cfg['seeds']} seeds", fontsize=8)
+    fig.tight_layout()
+    path = os.path.join(out, "captures_fov_view.png")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def plot_study(summary: dict, out: str) -> list[str]:
     """Draw the study's figures into `out`; returns their paths."""
+    if summary["study"] == "fov-view":
+        return [plot_fov_view(summary, out)]
     import matplotlib
 
     matplotlib.use("Agg")
