@@ -462,10 +462,12 @@ class BatchedAquarium:
         if world is None:
             worlds = list(range(W))
         else:
-            indices = [world] if isinstance(world, (int, np.integer)) and not isinstance(world, bool) else list(world)
+            single = isinstance(world, (int, np.integer, bool))
+            indices = [world] if single else list(world) if isinstance(world, (list, tuple, range, np.ndarray)) else []
+            # Repeated worlds would leave it to the order which of their values holds: refused.
             if not indices or any(isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k < W
-                                  for k in indices):
-                raise ValueError(f"world={world!r} must be None, an integer or integers in [0, {W - 1}]")
+                                  for k in indices) or len(set(map(int, indices))) < len(indices):
+                raise ValueError(f"world={world!r} must be None, an integer or distinct integers in [0, {W - 1}]")
             worlds = [int(k) for k in indices]
         if rng is None:
             rng = np.random.default_rng(self.seed)

@@ -197,6 +197,9 @@ def test_bad_values_per_world_are_rejected_by_field_and_world():
         env.set_params(world=0, prey_count=13)
     with pytest.raises(ValueError, match=r"unknown per-world parameter 'width'"):
         env.set_params(width=10.0)
+    for world in (True, [2, 2], [1.5], "a", 10):  # a flag, a repeat (which value would hold?), no index
+        with pytest.raises(ValueError, match=r"must be None, an integer or distinct integers in \[0, 9\]"):
+            env.set_params(world=world, prey_max_speed=3.0)
     with pytest.raises(ValueError, match=r"world 5: prey\.max_speed=140\.0 is out of range: must be smaller than half"):
         env.set_params(world=5, prey_max_speed=140.0)  # 140 + the world's 0 current < 130 fails
     # Nothing changed, and the env still steps as its twin.
