@@ -6,6 +6,7 @@ from __future__ import annotations
 import torch
 
 from aquarium_warp import AquariumConfig, BatchedAquarium
+from aquarium_warp.bench import random_actions as bench_random_actions
 from aquarium_warp.env import StepResult
 from aquarium_warp.heuristics import heuristic_actions
 from aquarium_warp.kernels import motion
@@ -14,10 +15,7 @@ CFG = AquariumConfig(max_steps=30, prey_count=6, predator_count=2)
 
 
 def random_actions(env: BatchedAquarium, seed: int) -> dict[str, torch.Tensor]:
-    gen = torch.Generator().manual_seed(seed)
-    n = env.config.action_count
-    return {"prey": torch.randint(0, n, (env.num_worlds, env.prey_capacity), generator=gen, dtype=torch.int32),
-            "predator": torch.randint(0, n, (env.num_worlds, env.predator_count), generator=gen, dtype=torch.int32)}
+    return bench_random_actions(env.config, env.num_worlds, torch.Generator().manual_seed(seed), "cpu")
 
 
 def test_step_returns_the_outputs_record():

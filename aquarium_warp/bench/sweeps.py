@@ -37,7 +37,7 @@ def random_actions(cfg: AquariumConfig, worlds: int, generator: torch.Generator,
     """One random action per slot of both types, as int32 (the env's own action dtype: a timed step
     copies them in without a conversion)."""
     return {t: torch.randint(0, cfg.action_count, (worlds, n), generator=generator, device=device, dtype=torch.int32)
-            for t, n in (("prey", cfg.prey_capacity), ("predator", cfg.predator_count))}
+            for t, n in (("prey", cfg.prey_capacity), ("predator", cfg.predator_capacity))}
 
 
 def sweep_points(settings: BenchSettings) -> list[tuple[str, AquariumConfig, int]]:
