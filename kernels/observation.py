@@ -14,8 +14,10 @@ state by slot; the cell lists give the candidates' slots and positions.
 The same neighbour pass also finds each agent's contact partner for the next step's motion (MODEL.md
 step 3 reads start-of-step positions, which are exactly these), so motion needs no search of its own.
 
-The kernel is generated per observer slot counts (so the top-K lists and the observation row are
-fixed-size registers) and per block size: one thread per row of an observation array. One launch
+One row's work is a function, `observe_row`, generated per observer slot counts by `observation_rows`
+(so the top-K lists and the observation row are fixed-size registers); the fused step
+(`world_step.py`) calls it too. The kernel is generated per slot counts and per block size: one
+thread per row of an observation array. One launch
 serves both agent types when they observe the same slot counts (the first blocks take one type's
 rows, the rest the other's; a type alone takes a launch of its own otherwise), so the few predators'
 blocks run beside the prey's instead of in a small launch of their own, which would leave most of
