@@ -156,7 +156,7 @@ class WorldShard:
     for this shard (name -> list of commands; MODEL.md's step is `programs["step"]`)."""
 
     def __init__(self, cfg: AquariumConfig, state: SimulationState, index: int, w0: int, w1: int, dims, params,
-                 action_direction, observe_kernels, device, auto_reset: bool = True, step_kernel=None):
+                 action_direction, observe_kernels, device, auto_reset: bool = True, fused_kernel=None):
         self.cfg, self.device = cfg, device
         self.index = index
         self.w0, self.w1 = w0, w1
@@ -165,7 +165,7 @@ class WorldShard:
         self.types = params.types[w0:w1]  # [worlds, 2] AgentType of these worlds
         self.action_direction = action_direction
         self.observe_kernels = observe_kernels  # {"prey": kernel, "predator": kernel}
-        self.step_kernel = step_kernel  # the fused step (`world_step.world_step_kernel`), or None: staged
+        self.fused_kernel = fused_kernel  # the fused step (`world_step.world_step_kernel`), or None: staged
         self.state = state.rows(w0, w1)
         self.grid = cell_lists(cfg, self.num_worlds, dims, device, self.state.agents)
         self._views: list[wp.array] = []  # arrays viewing state memory with another dtype (kept alive with the shard)
@@ -254,8 +254,8 @@ class WorldShard:
         """MODEL.md steps 1-10 for every world of the shard: one launch of the fused step where it
         applies (`step_kernel`), else a launch per stage."""
         s, g, world, types, cfg = self.state, self.grid, self.world, self.types, self.cfg
-        if self.step_kernel is not None:
-            kernel = self.step_kernel
+        if self.fused_kernel is not None:
+            kernel = self.fused_kernel
             return [self.record(kernel, (self.num_worlds, kernel.block_dim),
                                 [world, types, self.action_direction, s.actions, g, int(cfg.prey_reproduction)],
                                 [s.worlds, s.agents, s.scratch, s.outputs,
