@@ -22,7 +22,7 @@ import warp as wp
 from .config import INT32_MAX, LARGEST, PER_WORLD_FIELDS, PER_WORLD_TYPE_FIELDS, AquariumConfig, largest
 from .kernels.state import Agents, WorldCounters
 from .params import BatchParams, per_world
-from .shard import WARP_SETUP_LOCK, Program, ShardSet
+from .shard import WARP_SETUP_LOCK, Program, ShardSet, fused_step
 from .state import SimulationState, estimate_bytes
 
 TYPES = ("prey", "predator")
@@ -209,10 +209,13 @@ class BatchedAquarium:
     `{"prey": [W, prey_capacity], "predator": [W, predator_count]}` on the env's device; actions of
     dead slots are ignored. A world whose episode ends resets itself inside `step()`; with
     `auto_reset=False` it stays as it ended until `reset()` (single-world wrappers use this).
+    `step_kernel` picks how a step is launched: "fused" (each world's whole step in one launch, for
+    worlds of one cell: `kernels/world_step.py`), "stages" (a launch per stage) or "auto" (fused where
+    it applies); the results are the same.
     """
 
     def __init__(self, config: AquariumConfig | None = None, num_worlds: int = 1, device=None, seed: int = 0,
-                 cpu_threads: int | None = None, auto_reset: bool = True):
+                 cpu_threads: int | None = None, auto_reset: bool = True, step_kernel: str = "auto"):
         if config is None:
             config = AquariumConfig()
         if not isinstance(config, AquariumConfig):
@@ -240,6 +243,8 @@ class BatchedAquarium:
         self.observed_slots = {t: getattr(cfg, t).predator_slots + getattr(cfg, t).prey_slots for t in TYPES}
 
         dims_x, dims_y = grid_dims(cfg)
+        fused_step(step_kernel, (dims_x, dims_y))  # the option's errors before any allocation
+        self._step_kernel_option = step_kernel
         cells = dims_x * dims_y
         if cells >= 2**31:
             smallest = math.sqrt(cfg.width * cfg.height / 2**30)
@@ -261,7 +266,7 @@ class BatchedAquarium:
                                                   self.device)
             self.state.worlds.seed.fill_(seed_key(seed))
             self._shards = ShardSet(cfg, self.state, self._grid_dims, self._params, self._action_direction, self.device,
-                                    auto_reset, _cpu_threads(cpu_threads))
+                                    auto_reset, _cpu_threads(cpu_threads), step_kernel)
             self._build_views()
             self.reset()
 
@@ -317,6 +322,11 @@ class BatchedAquarium:
         """The `WorldShard`s (blocks of worlds with their cell lists and parameter structs); their
         cell lists hold the positions of the last returned observations."""
         return self._shards.shards
+
+    @property
+    def step_kernel(self) -> str:
+        """How a step is launched: "fused" (one launch, `kernels/world_step.py`) or "stages"."""
+        return self._shards.step_path
 
     @property
     def grid_dims(self) -> tuple[int, int]:
@@ -678,6 +688,7 @@ class BatchedAquarium:
             "device": self.device,
             "cpu_threads": len(self.shards),  # the same split of worlds over threads
             "auto_reset": self.auto_reset,
+            "step_kernel": self._step_kernel_option,
             "state": self.state_dict(),
             "outputs": {n: getattr(t, n).detach().cpu().clone() for n in self._CARRIED_OUTPUTS},
         }
@@ -685,7 +696,8 @@ class BatchedAquarium:
     def __setstate__(self, saved: dict) -> None:
         state = saved["state"]
         type(self).__init__(self, saved["config"], num_worlds=saved["num_worlds"], device=saved["device"],
-                            seed=state["seed"], cpu_threads=saved["cpu_threads"], auto_reset=saved["auto_reset"])
+                            seed=state["seed"], cpu_threads=saved["cpu_threads"], auto_reset=saved["auto_reset"],
+                            step_kernel=saved.get("step_kernel", "auto"))
         self.load_state_dict(state)
         t = self.state.torch
         for name, value in saved["outputs"].items():

@@ -25,7 +25,7 @@ import torch
 import warp as wp
 
 from .config import AquariumConfig
-from .kernels import capture, motion, observation, population, spawn
+from .kernels import capture, motion, observation, population, spawn, world_step
 from .kernels import grid as grid_kernels
 from .kernels.common import PREDATOR, PREY, WorldParams
 from .kernels.state import Agents
@@ -38,6 +38,11 @@ RANK_SORT_MAX_CAPACITY = 128
 # Below this many worlds per thread, the thread hand-off costs more than the second core gives.
 MIN_WORLDS_PER_THREAD = 32
 OBSERVATION_BLOCK = 128  # threads per block of the GPU observation kernel
+# Lanes of a world's block in the fused step on a GPU: whole warps, one lane per slot up to this many
+# (a world's slots are few: worlds of one cell hold at most SINGLE_CELL_CAPACITY unless a config's
+# grid_cell_size makes larger ones; their lanes then loop over the slots).
+FUSED_MAX_BLOCK = 256
+STEP_KERNELS = ("auto", "fused", "stages")
 # Warp's initialisation, kernel registration and module loading (compiling) are not thread-safe: two
 # threads building envs at once crashed the process. Everything that may load a module (recording a
 # launch loads its kernel's module) holds this lock; stepping built envs in parallel needs no lock.
@@ -76,6 +81,28 @@ def grid_build(cfg: AquariumConfig, dims: tuple[int, int], cuda: bool) -> str:
     if not cuda:
         return "counting"
     return "rank" if cfg.capacity <= RANK_SORT_MAX_CAPACITY else "count"
+
+
+def fused_step(step_kernel: str, dims: tuple[int, int]) -> bool:
+    """Whether worlds with `dims` cells take the fused step (`kernels/world_step.py`, one launch) for
+    the env option `step_kernel`: "auto" where it applies (worlds of one cell, whose cell lists are
+    whole-world lists), "fused" (a ValueError where it does not apply) or "stages" (a launch per stage)."""
+    if not isinstance(step_kernel, str) or step_kernel not in STEP_KERNELS:
+        raise ValueError(f"step_kernel={step_kernel!r} must be one of {', '.join(map(repr, STEP_KERNELS))}")
+    whole_world = tuple(dims) == (1, 1)
+    if step_kernel == "fused" and not whole_world:
+        raise ValueError(f"step_kernel='fused' needs worlds of one cell (whole-world cell lists), but this config's "
+                         f"worlds have {dims[0]} x {dims[1]} cells (more slots than one cell takes, or grid_cell_size "
+                         "set): use step_kernel='auto' or 'stages'")
+    return step_kernel != "stages" and whole_world
+
+
+def fused_block_dim(capacity: int, cuda: bool) -> int:
+    """Lanes per world in the fused step: on a GPU whole warps, one lane per slot up to FUSED_MAX_BLOCK;
+    on the CPU one (the thread loops over its world's slots)."""
+    if not cuda:
+        return 1
+    return min(FUSED_MAX_BLOCK, 32 * ((capacity + 31) // 32))
 
 
 def cell_lists(cfg: AquariumConfig, num_worlds: int, dims: tuple[int, int], device, agents: Agents | None = None,
@@ -129,7 +156,7 @@ class WorldShard:
     for this shard (name -> list of commands; MODEL.md's step is `programs["step"]`)."""
 
     def __init__(self, cfg: AquariumConfig, state: SimulationState, index: int, w0: int, w1: int, dims, params,
-                 action_direction, observe_kernels, device, auto_reset: bool = True):
+                 action_direction, observe_kernels, device, auto_reset: bool = True, fused_kernel=None):
         self.cfg, self.device = cfg, device
         self.index = index
         self.w0, self.w1 = w0, w1
@@ -138,6 +165,7 @@ class WorldShard:
         self.types = params.types[w0:w1]  # [worlds, 2] AgentType of these worlds
         self.action_direction = action_direction
         self.observe_kernels = observe_kernels  # {"prey": kernel, "predator": kernel}
+        self.fused_kernel = fused_kernel  # the fused step (`world_step.world_step_kernel`), or None: staged
         self.state = state.rows(w0, w1)
         self.grid = cell_lists(cfg, self.num_worlds, dims, device, self.state.agents)
         self._views: list[wp.array] = []  # arrays viewing state memory with another dtype (kept alive with the shard)
@@ -175,14 +203,15 @@ class WorldShard:
             self.record(grid_kernels.order_cells, W * C, [self.world, agents, g]),
         ]
 
-    def _observed_rows(self, type_name: str, kernel):
-        """One observer type's observation rows, masks and observed slots, as the kernel takes them."""
+    def _observed_rows(self, type_name: str, rows_type, row_type):
+        """One observer type's observation rows (as `row_type` values), masks and observed slots, as a
+        `rows_type` struct (both made by `observation.observation_rows`)."""
         observations = self.state.observations
         obs = getattr(observations, f"obs_{type_name}")
         rows = obs.shape[0] * obs.shape[1]
-        out = kernel.rows_type()
+        out = rows_type()
         # The [W, per_world, L] observations as [W * per_world] rows of L floats (same memory).
-        out.obs = wp.array(ptr=obs.ptr, dtype=kernel.row_type, shape=(rows,), device=obs.device)
+        out.obs = wp.array(ptr=obs.ptr, dtype=row_type, shape=(rows,), device=obs.device)
         self._views.append(out.obs)
         out.mask = getattr(observations, f"mask_{type_name}").reshape((rows, -1))
         out.observed_slot = getattr(observations, f"slot_{type_name}").reshape((rows, -1))
@@ -202,9 +231,9 @@ class WorldShard:
             first, second = group[0], group[1] if len(group) == 2 else None
             first_blocks = (rows[first] + block - 1) // block
             second_rows = rows[second] if second else 0
-            first_out = self._observed_rows(first, kernel)
+            first_out = self._observed_rows(first, kernel.rows_type, kernel.row_type)
             # A type alone passes its own outputs again for the (empty) second range.
-            second_out = self._observed_rows(second, kernel) if second else first_out
+            second_out = self._observed_rows(second, kernel.rows_type, kernel.row_type) if second else first_out
             commands.append(self.record(
                 kernel, (first_blocks + (second_rows + block - 1) // block, block),
                 [self.world, self.types, self.grid, self.state.agents, self.state.worlds, TYPE_CODES[first],
@@ -222,8 +251,17 @@ class WorldShard:
                             [s.worlds, s.outputs, s.agents])] + self.observe_program()
 
     def step_program(self) -> list:
-        """MODEL.md steps 1-10 for every world of the shard."""
+        """MODEL.md steps 1-10 for every world of the shard: one launch of the fused step where it
+        applies (`step_kernel`), else a launch per stage."""
         s, g, world, types, cfg = self.state, self.grid, self.world, self.types, self.cfg
+        if self.fused_kernel is not None:
+            kernel = self.fused_kernel
+            return [self.record(kernel, (self.num_worlds, kernel.block_dim),
+                                [world, types, self.action_direction, s.actions, g, int(cfg.prey_reproduction)],
+                                [s.worlds, s.agents, s.scratch, s.outputs,
+                                 self._observed_rows("prey", *kernel.rows_types["prey"]),
+                                 self._observed_rows("predator", *kernel.rows_types["predator"])],
+                                block_dim=kernel.block_dim)]
         W, C, Pc, P = self.num_worlds, cfg.capacity, cfg.prey_capacity, cfg.predator_capacity
         # 1-4: motion (which also clears this step's rewards and flags); contact partners were found
         # by the last observation pass.
@@ -292,7 +330,7 @@ class ShardSet:
     and runs them on every shard (`run`)."""
 
     def __init__(self, cfg: AquariumConfig, state: SimulationState, dims, params, action_direction, device,
-                 auto_reset: bool, threads: int):
+                 auto_reset: bool, threads: int, step_kernel: str = "auto"):
         self.device = device
         self.cuda = wp.get_device(device).is_cuda
         W = state.agents.alive.shape[0]
@@ -306,8 +344,15 @@ class ShardSet:
                                                              getattr(cfg, t).prey_slots, block, whole_world,
                                                              bool(cfg.observe_flow))
                            for t in ("prey", "predator")}
+        # The step of worlds of one cell in one launch (`fused_step`), with their observers' slot counts.
+        fused = None
+        if fused_step(step_kernel, dims):
+            fused = world_step.world_step_kernel((cfg.prey.predator_slots, cfg.prey.prey_slots),
+                                                 (cfg.predator.predator_slots, cfg.predator.prey_slots),
+                                                 fused_block_dim(cfg.capacity, self.cuda), bool(cfg.observe_flow))
+        self.step_path = "fused" if fused is not None else "stages"
         self.shards = tuple(WorldShard(cfg, state, k, w0, w1, dims, params, action_direction, observe_kernels, device,
-                                       auto_reset) for k, (w0, w1) in enumerate(zip(bounds[:-1], bounds[1:])))
+                                       auto_reset, fused) for k, (w0, w1) in enumerate(zip(bounds[:-1], bounds[1:])))
         self._pool = ThreadPoolExecutor(max_workers=shards) if shards > 1 else None
         self.programs = {"step": self.record(WorldShard.step_program, graph=True),
                          "observe": self.record(WorldShard.observe_program),

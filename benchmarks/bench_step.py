@@ -8,6 +8,12 @@ Each point: warm-up, then `--repeats` timed runs of at least `--seconds`; the me
 (on CUDA the step is a graph and timing is synchronised).
 
     python benchmarks/bench_step.py [--device cpu] [--seconds 2] [--repeats 5] [--no-original]
+        [--step-kernel stages fused]
+
+`--step-kernel` names the env's step paths to measure, each point with each ("auto", the default,
+takes the fused step on worlds of one cell, "stages" a launch per stage; "fused" skips the points it
+does not apply to); rows record the path that ran (`step_kernel`), and with both "stages" and
+"fused" the checks give the fused step's speed-up at 1024 default worlds.
 
 On the CPU it also times the PettingZoo `aquarium_v1.parallel_env` (one default world).
 Prints a table and writes benchmarks/results/step_<device>.json. Targets: at least 1000x the
@@ -34,6 +40,8 @@ import warp as wp
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from aquarium_warp import AquariumConfig, BatchedAquarium
 from aquarium_warp.bench import density_config, git_info, random_actions, timed_runs
+from aquarium_warp.env import grid_dims
+from aquarium_warp.shard import fused_step
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -44,8 +52,9 @@ def unlimited(cfg: AquariumConfig) -> AquariumConfig:
                                predator=dataclasses.replace(cfg.predator, view_distance=math.inf))
 
 
-def measure(cfg: AquariumConfig, worlds: int, device: str, seconds: float, repeats: int) -> dict:
-    env = BatchedAquarium(cfg, num_worlds=worlds, device=device, seed=0)
+def measure(cfg: AquariumConfig, worlds: int, device: str, seconds: float, repeats: int,
+            step_kernel: str = "auto") -> dict:
+    env = BatchedAquarium(cfg, num_worlds=worlds, device=device, seed=0, step_kernel=step_kernel)
     gen = torch.Generator(device=env.torch_device).manual_seed(0)
     pool = [random_actions(cfg, worlds, gen, env.torch_device) for _ in range(8)]
     sync = (lambda: torch.cuda.synchronize(env.torch_device)) if env.torch_device.type == "cuda" else (lambda: None)
@@ -59,8 +68,9 @@ def measure(cfg: AquariumConfig, worlds: int, device: str, seconds: float, repea
     per_step = timed_runs(lambda i: env.step(pool[i % 8], validate=False), sync, seconds, repeats, first)
     step_time = statistics.median(per_step)
     agents = worlds * cfg.capacity
+    path = env.step_kernel
     env.close()
-    return {"worlds": worlds, "agents_per_world": cfg.capacity, "agents": agents,
+    return {"step_kernel": path, "worlds": worlds, "agents_per_world": cfg.capacity, "agents": agents,
             "step_ms": step_time * 1e3, "agent_steps_per_s": agents / step_time,
             "ns_per_agent_step": step_time / agents * 1e9, "runs_step_ms": [t * 1e3 for t in per_step]}
 
@@ -74,6 +84,8 @@ def main(argv=None) -> int:
     parser.add_argument("--no-original", action="store_true", help="skip the original marl-aquarium")
     parser.add_argument("--large", action="store_true",
                         help="add GPU-sized points: 4096 and 65536 default worlds, one world of 1M agents")
+    parser.add_argument("--step-kernel", nargs="+", default=["auto"], choices=("auto", "fused", "stages"),
+                        help="step paths to measure at every point (default: auto)")
     parser.add_argument("--out", default=None)
     args = parser.parse_args(argv)
     if args.repeats < 1:
@@ -87,10 +99,14 @@ def main(argv=None) -> int:
         points += [(label, make(n), 1) for n in sizes if n <= args.max_agents]
     rows = []
     for label, cfg, worlds in points:
-        row = {"config": label, **measure(cfg, worlds, args.device, args.seconds, args.repeats)}
-        rows.append(row)
-        print(f"{label:34s} {row['worlds']:6d} x {row['agents_per_world']:7d}  {row['step_ms']:9.3f} ms  "
-              f"{row['agent_steps_per_s']:11.3e} agent-steps/s  {row['ns_per_agent_step']:8.1f} ns/agent", flush=True)
+        for step_kernel in args.step_kernel:
+            if step_kernel == "fused" and not fused_step("auto", grid_dims(cfg)):
+                continue  # worlds of several cells: only the staged step applies
+            row = {"config": label, **measure(cfg, worlds, args.device, args.seconds, args.repeats, step_kernel)}
+            rows.append(row)
+            print(f"{label:34s} {row['worlds']:6d} x {row['agents_per_world']:7d} {row['step_kernel']:6s} "
+                  f"{row['step_ms']:9.3f} ms  {row['agent_steps_per_s']:11.3e} agent-steps/s  "
+                  f"{row['ns_per_agent_step']:8.1f} ns/agent", flush=True)
 
     pettingzoo = None
     if args.device == "cpu":
@@ -107,7 +123,14 @@ def main(argv=None) -> int:
               f"{1e3 / original['env_steps_per_s']:9.3f} ms  {original['agent_steps_per_s']:11.3e} agent-steps/s")
 
     checks = {}
-    by = {(r["config"], r["worlds"], r["agents_per_world"]): r for r in rows}
+    # The checks read each point's first measured path (the first --step-kernel that applies).
+    by: dict = {}
+    for r in rows:
+        by.setdefault((r["config"], r["worlds"], r["agents_per_world"]), r)
+    paths = {(r["config"], r["worlds"], r["step_kernel"]): r for r in rows}
+    if ("default", 1024, "stages") in paths and ("default", 1024, "fused") in paths:
+        checks["fused_step_speedup_1024_worlds"] = (paths[("default", 1024, "stages")]["step_ms"]
+                                                   / paths[("default", 1024, "fused")]["step_ms"])
     if original:
         big = by[("default", 1024, 17)]["agent_steps_per_s"]
         checks["speedup_1024_worlds_vs_original"] = big / original["agent_steps_per_s"]
@@ -117,7 +140,7 @@ def main(argv=None) -> int:
                                                                  / original["env_steps_per_s"])
             checks["pettingzoo_env_steps_speedup_target"] = 20.0
     for label in ("density", "density fov off", "density fov off, unlimited view"):
-        series = [r for r in rows if r["config"] == label]
+        series = [r for key, r in by.items() if key[0] == label]
         if len(series) >= 2:
             checks[f"per_agent_ratio_{label}"] = series[-1]["ns_per_agent_step"] / series[0]["ns_per_agent_step"]
     print("\nchecks:")
@@ -130,7 +153,7 @@ def main(argv=None) -> int:
         "device_name": device.name if device.is_cuda else platform.processor() or platform.machine(),
         "cpu_count": os.cpu_count(), "python": platform.python_version(), "warp": wp.__version__,
         "torch": torch.__version__, "git_commit": git_info()["commit"], "seconds": args.seconds,
-        "repeats": args.repeats,
+        "repeats": args.repeats, "step_kernels": args.step_kernel,
         "rows": rows, "pettingzoo_parallel_env": pettingzoo, "original": original, "checks": checks,
     }
     out = Path(args.out) if args.out else RESULTS / f"step_{args.device.replace(':', '')}.json"

@@ -1,13 +1,15 @@
 """Nsight Compute profile of one step: per kernel time, DRAM and L2 traffic, issue and occupancy.
 
     python benchmarks/profile_step.py --worlds 1 --agents 1000000 [--ncu /usr/local/cuda/bin/ncu]
+    python benchmarks/profile_step.py --worlds 1024 --agents 17 --step-kernel fused   # or stages
 
 Runs itself under `ncu` (CUDA only): the child builds the environment, takes warm-up steps, and
 then runs the step's launches once, eagerly, between cudaProfilerStart and cudaProfilerStop, so
 exactly one step is profiled. Caches are not flushed between kernels and clocks are not locked, so
 each kernel sees the caches its predecessors left, as in the graph replay. Prints a table, and the
 measured DRAM bytes per agent-step next to `step_byte_model`'s count; writes
-`profile_<device>_<worlds>x<agents>.json` to `--out-dir`.
+`profile_<device>_<worlds>x<agents>[_<step kernel>].json` to `--out-dir` (`--step-kernel`: the env's
+option; "auto", the default, takes the fused step on worlds of one cell).
 """
 
 from __future__ import annotations
@@ -46,7 +48,8 @@ def child(args) -> int:
     from aquarium_warp.bench import density_config, random_actions
 
     cfg = density_config(args.agents)
-    env = BatchedAquarium(cfg, num_worlds=args.worlds, device=args.device, seed=0, cpu_threads=1)
+    env = BatchedAquarium(cfg, num_worlds=args.worlds, device=args.device, seed=0, cpu_threads=1,
+                          step_kernel=args.step_kernel)
     gen = torch.Generator(device=env.torch_device).manual_seed(0)
     actions = random_actions(cfg, args.worlds, gen, env.torch_device)
     for _ in range(3):
@@ -136,6 +139,8 @@ def main(argv=None) -> int:
     parser.add_argument("--ncu", default=None, help="path of the ncu executable (default: PATH, then /usr/local/cuda)")
     parser.add_argument("--out-dir", default=str(REPO / "benchmarks" / "results"))
     parser.add_argument("--git-commit", default=None)
+    parser.add_argument("--step-kernel", default="auto", choices=("auto", "fused", "stages"),
+                        help="the env's step_kernel option (default auto: fused on worlds of one cell)")
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.worlds < 1 or args.agents < 2:
@@ -151,7 +156,7 @@ def main(argv=None) -> int:
     command = [ncu, "--profile-from-start", "off", "--cache-control", "none", "--clock-control", "none",
                "--metrics", ",".join(METRICS), "--csv", "--page", "raw",
                sys.executable, str(Path(__file__).resolve()), "--child", "--device", args.device,
-               "--worlds", str(args.worlds), "--agents", str(args.agents)]
+               "--worlds", str(args.worlds), "--agents", str(args.agents), "--step-kernel", args.step_kernel]
     run = subprocess.run(command, capture_output=True, text=True, env=dict(os.environ, GIT_PYTHON_REFRESH="quiet"))
     if run.returncode != 0:
         sys.stderr.write(run.stdout[-3000:] + run.stderr[-3000:])
@@ -167,10 +172,12 @@ def main(argv=None) -> int:
               "created_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
               "command": " ".join(sys.argv), "ncu_command": " ".join(command[:12]),
               "machine": machine_info(args.device), "git": git_info(args.git_commit), "copy_bandwidth": copy,
-              "worlds": args.worlds, "agents_per_world": cfg.capacity, "kernels": kernels, "totals": totals}
+              "worlds": args.worlds, "agents_per_world": cfg.capacity, "step_kernel": args.step_kernel,
+              "kernels": kernels, "totals": totals}
     out = Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    path = out / f"profile_{args.device.replace(':', '')}_{args.worlds}x{cfg.capacity}.json"
+    suffix = "" if args.step_kernel == "auto" else f"_{args.step_kernel}"
+    path = out / f"profile_{args.device.replace(':', '')}_{args.worlds}x{cfg.capacity}{suffix}.json"
     path.write_text(json.dumps(result, indent=1))
     print(f"wrote {path}")
     return 0

@@ -1,9 +1,10 @@
 """Time of each launch of the step program, for one configuration (CUDA events on GPU, wall clock on CPU).
 
-    python benchmarks/stage_times.py --device cuda:0 --worlds 65536 [--agents 17]
+    python benchmarks/stage_times.py --device cuda:0 --worlds 65536 [--agents 17] [--step-kernel stages]
 
 Prints one line per command of `WorldShard.step_program` (median over `--repeats` steps) and the
-whole step replayed as a graph. A profiling aid for the step's cost breakdown.
+whole step replayed as a graph. A profiling aid for the step's cost breakdown: worlds of one cell
+take the fused step (one command) unless `--step-kernel stages` asks for a launch per stage.
 """
 
 from __future__ import annotations
@@ -28,6 +29,8 @@ def main(argv=None) -> int:
     parser.add_argument("--agents", type=int, default=17, help="agents per world at the default density")
     parser.add_argument("--repeats", type=int, default=20)
     parser.add_argument("--cell-size", type=float, default=None, help="grid_cell_size (default: chosen by the env)")
+    parser.add_argument("--step-kernel", default="auto", choices=("auto", "fused", "stages"),
+                        help="the env's step_kernel option (default auto: fused on worlds of one cell)")
     args = parser.parse_args(argv)
     if args.worlds < 1:
         parser.error(f"--worlds must be >= 1, got {args.worlds}")
@@ -36,7 +39,8 @@ def main(argv=None) -> int:
     cfg = density_config(args.agents)  # 17 agents: the default config
     if args.cell_size is not None:
         cfg = dataclasses.replace(cfg, grid_cell_size=args.cell_size)
-    env = BatchedAquarium(cfg, num_worlds=args.worlds, device=args.device, seed=0, cpu_threads=1)
+    env = BatchedAquarium(cfg, num_worlds=args.worlds, device=args.device, seed=0, cpu_threads=1,
+                          step_kernel=args.step_kernel)
     cuda = wp.get_device(env.device).is_cuda
     gen = torch.Generator(device=env.torch_device).manual_seed(0)
     actions = random_actions(cfg, args.worlds, gen, env.torch_device)

@@ -8,6 +8,7 @@
 - `capture`: steps 5-6 (captures, reward sharing, starvation, respawn/removal)
 - `population`: steps 7-9 (reproduction, rewards, episode end)
 - `observation`: step 10 (field-of-view observations)
+- `world_step`: steps 1-10 of a small world in one launch (the fused step)
 - `heuristics`: the paper's baseline policies (Random, TurnAway, NaivChase)
 - `metrics`: swarm metrics (polarization, cohesion, nearest neighbours, groups)
 - `render`: the rasteriser behind `aquarium_warp.render`

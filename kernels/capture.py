@@ -49,19 +49,21 @@ def start_of_step_radius(world: WorldParams, w: int, radius: float, speed: float
 CAPTURE_ROW_THREADS = 3
 
 
-@wp.kernel
-def detect_captures(
+@wp.func
+def mark_captures(
     world: WorldParams,
     types: wp.array2d(dtype=AgentType),
     grid: CellLists,
     agents: Agents,
-    row_threads: int,
     scratch: Scratch,
+    w: int,
+    p: int,
+    row_thread: int,
+    row_threads: int,
 ):
-    """Predators mark the prey they overlap in `scratch.captured`, launched with `(worlds, predators,
-    row_threads)` threads, each taking every `row_threads`-th row of the search (concurrent writes of
-    True to one flag agree, so the rows need no combining)."""
-    w, p, row_thread = wp.tid()  # predator slots only
+    """Predator p of world w (if live) marks the prey it overlaps in `scratch.captured`, searching every
+    `row_threads`-th row of its search square from `row_thread` on (concurrent writes of True to one
+    flag agree, so the rows need no combining)."""
     i = world.prey_capacity + p
     if not agents.alive[w, i]:
         return
@@ -78,18 +80,19 @@ def detect_captures(
                     scratch.captured[w, j] = True
 
 
-@wp.kernel
-def count_capture_sharers(
+@wp.func
+def count_sharers(
     world: WorldParams,
     types: wp.array2d(dtype=AgentType),
     grid: CellLists,
     agents: Agents,
     scratch: Scratch,
     outputs: StepOutputs,
+    w: int,
+    i: int,
 ):
-    """Each captured prey counts its sharers (`scratch.share_count`) and takes the penalty; the other
-    live prey age by one."""
-    w, i = wp.tid()  # prey slots only
+    """Prey slot i of world w, if captured, counts its sharers (`scratch.share_count`) and takes the
+    penalty; if live and not captured, it ages by one."""
     if not agents.alive[w, i]:
         return
     if not scratch.captured[w, i]:
@@ -115,8 +118,8 @@ def count_capture_sharers(
     wp.atomic_add(outputs.captures, w, 1)
 
 
-@wp.kernel
-def share_capture_rewards(
+@wp.func
+def share_rewards(
     world: WorldParams,
     types: wp.array2d(dtype=AgentType),
     grid: CellLists,
@@ -124,10 +127,12 @@ def share_capture_rewards(
     agents: Agents,
     outputs: StepOutputs,
     counters: WorldCounters,
+    w: int,
+    p: int,
 ):
-    """Each predator sums its shares of this step's captures; then MODEL.md step 6: a capture resets
-    its steps-since-last-capture counter, which then grows by one; past the limit it dies."""
-    w, p = wp.tid()  # predator slots only
+    """Predator p of world w (if live) sums its shares of this step's captures (in the lists' order);
+    then MODEL.md step 6: a capture resets its steps-since-last-capture counter, which then grows by
+    one; past the limit it dies."""
     i = world.prey_capacity + p
     if not agents.alive[w, i]:
         return
@@ -162,11 +167,11 @@ def share_capture_rewards(
         wp.atomic_add(counters.predator_alive_count, w, -1)
 
 
-@wp.kernel
-def respawn_captured_prey(world: WorldParams, scratch: Scratch, counters: WorldCounters, agents: Agents,
-                          outputs: StepOutputs):
-    """A captured prey reappears as a fresh prey at a uniform position, or is removed and terminated."""
-    w, i = wp.tid()  # prey slots only
+@wp.func
+def respawn_or_remove(world: WorldParams, scratch: Scratch, counters: WorldCounters, agents: Agents,
+                      outputs: StepOutputs, w: int, i: int):
+    """Prey slot i of world w, if captured, reappears as a fresh prey at a uniform position, or is
+    removed and terminated."""
     if not scratch.captured[w, i]:
         return
     if world.respawn_captured_prey != 0:
@@ -177,3 +182,57 @@ def respawn_captured_prey(world: WorldParams, scratch: Scratch, counters: WorldC
         agents.alive[w, i] = False
         outputs.terminated[w, i] = True
         wp.atomic_add(counters.prey_alive_count, w, -1)
+
+
+# The passes as kernels, one thread per slot of the type each pass takes (the staged step).
+
+
+@wp.kernel
+def detect_captures(
+    world: WorldParams,
+    types: wp.array2d(dtype=AgentType),
+    grid: CellLists,
+    agents: Agents,
+    row_threads: int,
+    scratch: Scratch,
+):
+    """`mark_captures`, launched with `(worlds, predators, row_threads)` threads."""
+    w, p, row_thread = wp.tid()
+    mark_captures(world, types, grid, agents, scratch, w, p, row_thread, row_threads)
+
+
+@wp.kernel
+def count_capture_sharers(
+    world: WorldParams,
+    types: wp.array2d(dtype=AgentType),
+    grid: CellLists,
+    agents: Agents,
+    scratch: Scratch,
+    outputs: StepOutputs,
+):
+    """`count_sharers` for every prey slot."""
+    w, i = wp.tid()
+    count_sharers(world, types, grid, agents, scratch, outputs, w, i)
+
+
+@wp.kernel
+def share_capture_rewards(
+    world: WorldParams,
+    types: wp.array2d(dtype=AgentType),
+    grid: CellLists,
+    scratch: Scratch,
+    agents: Agents,
+    outputs: StepOutputs,
+    counters: WorldCounters,
+):
+    """`share_rewards` for every predator."""
+    w, p = wp.tid()
+    share_rewards(world, types, grid, scratch, agents, outputs, counters, w, p)
+
+
+@wp.kernel
+def respawn_captured_prey(world: WorldParams, scratch: Scratch, counters: WorldCounters, agents: Agents,
+                          outputs: StepOutputs):
+    """`respawn_or_remove` for every prey slot."""
+    w, i = wp.tid()
+    respawn_or_remove(world, scratch, counters, agents, outputs, w, i)

@@ -36,8 +36,8 @@ def clamp_length(v: wp.vec2, limit: float) -> wp.vec2:
     return v
 
 
-@wp.kernel
-def integrate_motion(
+@wp.func
+def move_agent(
     world: WorldParams,
     types: wp.array2d(dtype=AgentType),
     action_direction: wp.array(dtype=wp.vec2),
@@ -46,9 +46,11 @@ def integrate_motion(
     agents: Agents,
     scratch: Scratch,
     outputs: StepOutputs,
+    w: int,
+    i: int,
 ):
-    """Moves every live agent (reads `scratch`'s contact partners, clears `scratch.captured`)."""
-    w, i = wp.tid()
+    """Moves slot i of world w if it is live (reads its contact partner in `scratch`), and clears its
+    outputs and capture flag for this step."""
     # This step's outputs start cleared (here rather than in separate memsets).
     outputs.reward[w, i] = 0.0
     outputs.terminated[w, i] = False
@@ -112,3 +114,19 @@ def integrate_motion(
         n_direction = wp.length(direction)
         if n_direction > 0.0:
             agents.heading[w, i] = direction / n_direction
+
+
+@wp.kernel
+def integrate_motion(
+    world: WorldParams,
+    types: wp.array2d(dtype=AgentType),
+    action_direction: wp.array(dtype=wp.vec2),
+    actions: Actions,
+    counters: WorldCounters,
+    agents: Agents,
+    scratch: Scratch,
+    outputs: StepOutputs,
+):
+    """Moves every live agent (`move_agent`), one thread per slot."""
+    w, i = wp.tid()
+    move_agent(world, types, action_direction, actions, counters, agents, scratch, outputs, w, i)

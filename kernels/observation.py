@@ -14,8 +14,10 @@ state by slot; the cell lists give the candidates' slots and positions.
 The same neighbour pass also finds each agent's contact partner for the next step's motion (MODEL.md
 step 3 reads start-of-step positions, which are exactly these), so motion needs no search of its own.
 
-The kernel is generated per observer slot counts (so the top-K lists and the observation row are
-fixed-size registers) and per block size: one thread per row of an observation array. One launch
+One row's work is a function, `observe_row`, generated per observer slot counts by `observation_rows`
+(so the top-K lists and the observation row are fixed-size registers); the fused step
+(`world_step.py`) calls it too. The kernel is generated per slot counts and per block size: one
+thread per row of an observation array. One launch
 serves both agent types when they observe the same slot counts (the first blocks take one type's
 rows, the rest the other's; a type alone takes a launch of its own otherwise), so the few predators'
 blocks run beside the prey's instead of in a small launch of their own, which would leave most of
@@ -86,12 +88,12 @@ def neighbour_tuple(
 
 
 @functools.cache
-def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, whole_world: bool,
-                       observe_flow: bool = False):
-    """The observation kernel for observers with `predator_slots` and `prey_slots` slots, launched with
-    `dim=(blocks, block_dim)` and `block_dim`, on whole-world cell lists or not (compiled once per
-    combination: the kind of lists is fixed at compile time here, where `listed_slot` would test it for
-    every candidate), with the two flow values after the own 5-tuple or not (MODEL.md "Flow fields")."""
+def observation_rows(predator_slots: int, prey_slots: int, whole_world: bool, observe_flow: bool):
+    """The observation of one agent, for observers with `predator_slots` and `prey_slots` slots, on
+    whole-world cell lists or not, with the two flow values after the own 5-tuple or not: returns
+    `(observe_row, ObservedRows, Row)`, the function, the struct of one observer type's outputs and the
+    row type. Made once per combination, and shared by `observation_kernel` and the fused step
+    (`world_step.py`), so both run the same code."""
     slots = predator_slots + prey_slots
     own = 5 + 2 * int(observe_flow)  # the own block: 5-tuple, then the observed current if asked for
     # The nearest visible agents found so far, one list: predators in [0, predator_slots), prey after
@@ -104,13 +106,177 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
     Row = wp.types.vector(length=own + 6 * slots, dtype=float)
 
     # One observer type's outputs: the `Observations` arrays of the type, its rows as `Row` values (the
-    # row type depends on the slot counts, so this struct is made with the kernel, in a module of its own).
+    # row type depends on the slot counts, so this struct is made with the function, in a module of its own).
     class ObservedRows:
         obs: wp.array(dtype=Row)  # [rows] rows of the [W, per_world, L] observations (same memory)
         mask: wp.array2d(dtype=wp.bool)  # [rows, K]
         observed_slot: wp.array2d(dtype=wp.int32)  # [rows, K]
 
     ObservedRows = wp.struct(ObservedRows, module="unique")
+
+    def observe_row(
+        world: WorldParams,
+        types: wp.array2d(dtype=AgentType),
+        grid: CellLists,
+        agents: Agents,
+        counters: WorldCounters,
+        t: int,
+        w: int,
+        i: int,
+        r: int,
+        out: ObservedRows,
+        scratch: Scratch,
+    ):
+        # Slot i of world w, of type t, observes: its mask and observed slots go to row r of `out`, its
+        # contact partner to `scratch`; the row itself is returned (zero for a dead slot), for the
+        # caller to store.
+        row = Row()
+        if not agents.alive[w, i]:
+            for s in range(wp.static(slots)):
+                out.mask[r, s] = False
+                out.observed_slot[r, s] = -1
+            scratch.contact_partner[w, i] = -1
+        else:
+            p = types[w, t]
+            pos = agents.position[w, i]
+            h = agents.heading[w, i]
+
+            # Ring-by-ring search for the nearest visible agents of each type, and for the nearest
+            # overlapping agent of the own type (the contact partner of the next step's motion).
+            kept_d2 = KeptFloat()
+            kept_entry = KeptInt()
+            kept_slot = KeptInt()
+            for e in range(wp.static(slots)):
+                kept_d2[e] = wp.inf
+                kept_slot[e] = NO_SLOT
+            v = p.view_distance
+            v2 = v * v
+            contact = 2.0 * p.radius
+            contact2 = contact * contact
+            contact_rings = rings_for_radius(grid, contact)
+            partner_d2 = contact2
+            partner_slot = int(-1)
+            partner_disp = wp.vec2(0.0, 0.0)
+            # The first step visits the square of rings 0..first_ring (usually the whole search),
+            # later steps one ring each; cells farther than any wanted agent are skipped.
+            first_ring = wp.min(rings_for_radius(grid, wp.max(v, contact)),
+                                wp.max(contact_rings, FIRST_SQUARE_RINGS))
+            walk = widening_walk(grid, w, world.capacity, pos, first_ring, wp.max(v2, contact2))
+            searching = bool(True)
+            while searching:
+                while next_run(grid, walk):
+                    runs = walk.runs
+                    if wp.static(whole_world):
+                        # The world's slots, as a range the compiler knows (a run read from the lists
+                        # cost this pass 10% on the CPU).
+                        runs = wp.vec4i(walk.base, walk.base + world.capacity, 0, 0)
+                    for n in range(run_length(runs)):
+                        k2 = run_entry(runs, n)
+                        # listed_slot, resolved at compile time
+                        if wp.static(whole_world):
+                            j = wp.where(grid.alive[k2], k2 - walk.base, -1)
+                        else:
+                            j = grid.agent[k2] - walk.base
+                        if j >= 0 and j != i:
+                            jt = slot_type(world, j)
+                            d = torus_displacement(world, pos, grid.position[k2])
+                            d2 = wp.dot(d, d)
+                            if jt == t and d2 < contact2:
+                                if partner_slot < 0 or ranks_before(d2, j, partner_d2, partner_slot):
+                                    partner_d2 = d2
+                                    partner_slot = j
+                                    partner_disp = d
+                            visible = in_view(world, h, d, d2, v2, p.cos_half_fov)
+                            # Insert into the type's block if it ranks before the block's last
+                            # entry: the candidate sinks past every entry it ranks before,
+                            # carrying the displaced one along.
+                            last_d2 = wp.where(jt == PREDATOR, kept_d2[last_predator], kept_d2[last_prey])
+                            last_slot = wp.where(jt == PREDATOR, kept_slot[last_predator], kept_slot[last_prey])
+                            if visible and ranks_before(d2, j, last_d2, last_slot):
+                                carry_d2 = d2
+                                carry_slot = j
+                                carry_entry = k2
+                                for e in range(wp.static(slots)):
+                                    in_block = (e < predator_slots) == (jt == PREDATOR)
+                                    if in_block and ranks_before(carry_d2, carry_slot, kept_d2[e], kept_slot[e]):
+                                        swap_d2 = kept_d2[e]
+                                        swap_slot = kept_slot[e]
+                                        swap_entry = kept_entry[e]
+                                        kept_d2[e] = carry_d2
+                                        kept_slot[e] = carry_slot
+                                        kept_entry[e] = carry_entry
+                                        carry_d2 = swap_d2
+                                        carry_slot = swap_slot
+                                        carry_entry = swap_entry
+                # Every agent closer than `reach` has been seen; whole-world lists end after one step
+                # (known at compile time: 9% fewer spill bytes on sm_90 than a test of the ring).
+                reach = seen_radius(grid, walk.ring)
+                if wp.static(whole_world) or reach == wp.inf:
+                    searching = False
+                elif walk.ring >= contact_rings:
+                    if reach > v:
+                        searching = False
+                    else:
+                        reach2 = reach * reach
+                        done = True
+                        farthest = float(0.0)  # squared distance of the farthest agent still wanted
+                        for tt in range(2):
+                            kth = wp.where(tt == PREDATOR, kept_d2[last_predator], kept_d2[last_prey])
+                            if (tt == PREDATOR and predator_slots > 0) or (tt == PREY and prey_slots > 0):
+                                if kth == wp.inf:  # block not full yet
+                                    done = False
+                                    farthest = v2
+                                else:
+                                    farthest = wp.max(farthest, kth)
+                                    if kth >= reach2:
+                                        done = False
+                        searching = not done
+                        walk.bound2 = wp.max(wp.min(farthest, v2), contact2)
+                next_ring(walk)
+            scratch.contact_partner[w, i] = partner_slot
+            scratch.contact_offset[w, i] = -partner_disp  # from the partner to this agent
+
+            # The own 5-tuple, then the kept neighbours: predator block first, then prey block (slot
+            # loops unrolled, so the row stays in registers).
+            signed = world.signed_observations
+            row[0] = scaled(float(t), signed)
+            row[1] = scaled(pos[0] / world.width, signed)
+            row[2] = scaled(pos[1] / world.height, signed)
+            row[3] = scaled(angle_value(h), signed)
+            row[4] = scaled(wp.min(wp.length(agents.velocity[w, i]) / p.max_speed, 1.0), signed)
+            if wp.static(observe_flow):
+                # The current the next move adds here (same position and step counter), in the
+                # observer's max speeds, clipped to [-1, 1], then (c + 1) / 2 like a 0..1 value.
+                c = current(world, world.values[w], pos, counters.world_step[w]) / p.max_speed
+                for q in range(2):
+                    row[5 + q] = scaled(0.5 * (wp.clamp(c[q], -1.0, 1.0) + 1.0), signed)
+            for e in range(wp.static(slots)):
+                if kept_slot[e] != NO_SLOT:
+                    jt = wp.where(e < predator_slots, PREDATOR, PREY)
+                    k2 = kept_entry[e]
+                    neighbour = neighbour_tuple(world, p, types[w, jt], jt, kept_d2[e],
+                                                torus_displacement(world, pos, grid.position[k2]),
+                                                grid.position[k2], wp.length(agents.velocity[w, kept_slot[e]]))
+                    for q in range(6):
+                        row[own + 6 * e + q] = neighbour[q]
+                    out.mask[r, e] = True
+                    out.observed_slot[r, e] = kept_slot[e]
+                else:
+                    out.mask[r, e] = False
+                    out.observed_slot[r, e] = -1
+        return row
+
+    return wp.func(observe_row, module="unique"), ObservedRows, Row
+
+
+@functools.cache
+def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, whole_world: bool,
+                       observe_flow: bool = False):
+    """The observation kernel for observers with `predator_slots` and `prey_slots` slots, launched with
+    `dim=(blocks, block_dim)` and `block_dim`, on whole-world cell lists or not (compiled once per
+    combination: the kind of lists is fixed at compile time here, where `listed_slot` would test it for
+    every candidate), with the two flow values after the own 5-tuple or not (MODEL.md "Flow fields")."""
+    observe_row, ObservedRows, Row = observation_rows(predator_slots, prey_slots, whole_world, observe_flow)
 
     def observe(
         world: WorldParams,
@@ -148,139 +314,7 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
         i = first_slot + r - w * per_world
         row = Row()
         if r < rows:
-            if not agents.alive[w, i]:
-                for s in range(wp.static(slots)):
-                    out.mask[r, s] = False
-                    out.observed_slot[r, s] = -1
-                scratch.contact_partner[w, i] = -1
-            else:
-                p = types[w, t]
-                pos = agents.position[w, i]
-                h = agents.heading[w, i]
-
-                # Ring-by-ring search for the nearest visible agents of each type, and for the nearest
-                # overlapping agent of the own type (the contact partner of the next step's motion).
-                kept_d2 = KeptFloat()
-                kept_entry = KeptInt()
-                kept_slot = KeptInt()
-                for e in range(wp.static(slots)):
-                    kept_d2[e] = wp.inf
-                    kept_slot[e] = NO_SLOT
-                v = p.view_distance
-                v2 = v * v
-                contact = 2.0 * p.radius
-                contact2 = contact * contact
-                contact_rings = rings_for_radius(grid, contact)
-                partner_d2 = contact2
-                partner_slot = int(-1)
-                partner_disp = wp.vec2(0.0, 0.0)
-                # The first step visits the square of rings 0..first_ring (usually the whole search),
-                # later steps one ring each; cells farther than any wanted agent are skipped.
-                first_ring = wp.min(rings_for_radius(grid, wp.max(v, contact)),
-                                    wp.max(contact_rings, FIRST_SQUARE_RINGS))
-                walk = widening_walk(grid, w, world.capacity, pos, first_ring, wp.max(v2, contact2))
-                searching = bool(True)
-                while searching:
-                    while next_run(grid, walk):
-                        runs = walk.runs
-                        if wp.static(whole_world):
-                            # The world's slots, as a range the compiler knows (a run read from the lists
-                            # cost this pass 10% on the CPU).
-                            runs = wp.vec4i(walk.base, walk.base + world.capacity, 0, 0)
-                        for n in range(run_length(runs)):
-                            k2 = run_entry(runs, n)
-                            # listed_slot, resolved at compile time
-                            if wp.static(whole_world):
-                                j = wp.where(grid.alive[k2], k2 - walk.base, -1)
-                            else:
-                                j = grid.agent[k2] - walk.base
-                            if j >= 0 and j != i:
-                                jt = slot_type(world, j)
-                                d = torus_displacement(world, pos, grid.position[k2])
-                                d2 = wp.dot(d, d)
-                                if jt == t and d2 < contact2:
-                                    if partner_slot < 0 or ranks_before(d2, j, partner_d2, partner_slot):
-                                        partner_d2 = d2
-                                        partner_slot = j
-                                        partner_disp = d
-                                visible = in_view(world, h, d, d2, v2, p.cos_half_fov)
-                                # Insert into the type's block if it ranks before the block's last
-                                # entry: the candidate sinks past every entry it ranks before,
-                                # carrying the displaced one along.
-                                last_d2 = wp.where(jt == PREDATOR, kept_d2[last_predator], kept_d2[last_prey])
-                                last_slot = wp.where(jt == PREDATOR, kept_slot[last_predator], kept_slot[last_prey])
-                                if visible and ranks_before(d2, j, last_d2, last_slot):
-                                    carry_d2 = d2
-                                    carry_slot = j
-                                    carry_entry = k2
-                                    for e in range(wp.static(slots)):
-                                        in_block = (e < predator_slots) == (jt == PREDATOR)
-                                        if in_block and ranks_before(carry_d2, carry_slot, kept_d2[e], kept_slot[e]):
-                                            swap_d2 = kept_d2[e]
-                                            swap_slot = kept_slot[e]
-                                            swap_entry = kept_entry[e]
-                                            kept_d2[e] = carry_d2
-                                            kept_slot[e] = carry_slot
-                                            kept_entry[e] = carry_entry
-                                            carry_d2 = swap_d2
-                                            carry_slot = swap_slot
-                                            carry_entry = swap_entry
-                    # Every agent closer than `reach` has been seen; whole-world lists end after one step
-                    # (known at compile time: 9% fewer spill bytes on sm_90 than a test of the ring).
-                    reach = seen_radius(grid, walk.ring)
-                    if wp.static(whole_world) or reach == wp.inf:
-                        searching = False
-                    elif walk.ring >= contact_rings:
-                        if reach > v:
-                            searching = False
-                        else:
-                            reach2 = reach * reach
-                            done = True
-                            farthest = float(0.0)  # squared distance of the farthest agent still wanted
-                            for tt in range(2):
-                                kth = wp.where(tt == PREDATOR, kept_d2[last_predator], kept_d2[last_prey])
-                                if (tt == PREDATOR and predator_slots > 0) or (tt == PREY and prey_slots > 0):
-                                    if kth == wp.inf:  # block not full yet
-                                        done = False
-                                        farthest = v2
-                                    else:
-                                        farthest = wp.max(farthest, kth)
-                                        if kth >= reach2:
-                                            done = False
-                            searching = not done
-                            walk.bound2 = wp.max(wp.min(farthest, v2), contact2)
-                    next_ring(walk)
-                scratch.contact_partner[w, i] = partner_slot
-                scratch.contact_offset[w, i] = -partner_disp  # from the partner to this agent
-
-                # The own 5-tuple, then the kept neighbours: predator block first, then prey block (slot
-                # loops unrolled, so the row stays in registers).
-                signed = world.signed_observations
-                row[0] = scaled(float(t), signed)
-                row[1] = scaled(pos[0] / world.width, signed)
-                row[2] = scaled(pos[1] / world.height, signed)
-                row[3] = scaled(angle_value(h), signed)
-                row[4] = scaled(wp.min(wp.length(agents.velocity[w, i]) / p.max_speed, 1.0), signed)
-                if wp.static(observe_flow):
-                    # The current the next move adds here (same position and step counter), in the
-                    # observer's max speeds, clipped to [-1, 1], then (c + 1) / 2 like a 0..1 value.
-                    c = current(world, world.values[w], pos, counters.world_step[w]) / p.max_speed
-                    for q in range(2):
-                        row[5 + q] = scaled(0.5 * (wp.clamp(c[q], -1.0, 1.0) + 1.0), signed)
-                for e in range(wp.static(slots)):
-                    if kept_slot[e] != NO_SLOT:
-                        jt = wp.where(e < predator_slots, PREDATOR, PREY)
-                        k2 = kept_entry[e]
-                        neighbour = neighbour_tuple(world, p, types[w, jt], jt, kept_d2[e],
-                                                    torus_displacement(world, pos, grid.position[k2]),
-                                                    grid.position[k2], wp.length(agents.velocity[w, kept_slot[e]]))
-                        for q in range(6):
-                            row[own + 6 * e + q] = neighbour[q]
-                        out.mask[r, e] = True
-                        out.observed_slot[r, e] = kept_slot[e]
-                    else:
-                        out.mask[r, e] = False
-                        out.observed_slot[r, e] = -1
+            row = observe_row(world, types, grid, agents, counters, t, w, i, r, out, scratch)
         if wp.static(block_dim > 1):
             staged = wp.tile_empty(shape=block_dim, dtype=Row, storage="shared")
             wp.tile_scatter_masked(staged, lane, row, True)

@@ -14,11 +14,11 @@ from .state import Agents, Scratch, StepOutputs, WorldCounters
 wp.set_module_options({"enable_backward": False})
 
 
-@wp.kernel
-def reproduce_prey(world: WorldParams, scratch: Scratch, agents: Agents, counters: WorldCounters):
-    """One thread per world: parents in slot order; each child takes the lowest slot that was free at
-    the start of the step (a prey removed this step does not free its slot until the next step)."""
-    w = wp.tid()
+@wp.func
+def reproduce(world: WorldParams, scratch: Scratch, agents: Agents, counters: WorldCounters, w: int):
+    """World w's births, by one thread: parents in slot order; each child takes the lowest slot that
+    was free at the start of the step (a prey removed this step does not free its slot until the next
+    step)."""
     live = counters.prey_alive_count[w]
     free = int(0)
     for parent in range(world.prey_capacity):
@@ -38,10 +38,11 @@ def reproduce_prey(world: WorldParams, scratch: Scratch, agents: Agents, counter
     counters.prey_alive_count[w] = live
 
 
-@wp.kernel
-def collect_rewards(world: WorldParams, agents: Agents, outputs: StepOutputs, counters: WorldCounters):
-    """Survival reward for every live prey (newborns included), then the per-slot episode sums."""
-    w, i = wp.tid()
+@wp.func
+def collect_reward(world: WorldParams, agents: Agents, outputs: StepOutputs, counters: WorldCounters, w: int,
+                   i: int):
+    """Survival reward of slot i of world w if it is a live prey (newborns included), then the slot's
+    episode sum."""
     r = outputs.reward[w, i]
     if slot_type(world, i) == PREY and agents.alive[w, i]:
         r = r + world.values[w].prey_reward
@@ -49,11 +50,10 @@ def collect_rewards(world: WorldParams, agents: Agents, outputs: StepOutputs, co
     counters.episode_return[w, i] = counters.episode_return[w, i] + r
 
 
-@wp.kernel
-def finish_world_step(world: WorldParams, counters: WorldCounters, outputs: StepOutputs):
-    """Advance the world's step counter; end the episode at `max_steps` or when a type is extinct,
-    report its statistics, and start the counters of the next episode."""
-    w = wp.tid()
+@wp.func
+def finish_step(world: WorldParams, counters: WorldCounters, outputs: StepOutputs, w: int):
+    """Advance world w's step counter; end the episode at `max_steps` or when a type is extinct,
+    report its statistics, and start the counters of the next episode (one thread per world)."""
     step = counters.world_step[w] + 1
     total_captures = counters.episode_captures[w] + outputs.captures[w]
     ended = step >= world.max_steps or counters.prey_alive_count[w] == 0 or counters.predator_alive_count[w] == 0
@@ -85,11 +85,10 @@ def finish_world_step(world: WorldParams, counters: WorldCounters, outputs: Step
     counters.predator_alive_count[w] = world.values[w].predator_count
 
 
-@wp.kernel
-def close_ended_episodes(world: WorldParams, counters: WorldCounters, outputs: StepOutputs, agents: Agents):
-    """Every agent still alive when its world's episode ends is truncated and the slot's sums
+@wp.func
+def close_episode(world: WorldParams, counters: WorldCounters, outputs: StepOutputs, agents: Agents, w: int, i: int):
+    """If world w's episode ended, slot i's agent (if still alive) is truncated and the slot's sums
     restart; with auto-reset the world's next episode starts here."""
-    w, i = wp.tid()
     if not outputs.episode_ended[w]:
         return
     if agents.alive[w, i]:
@@ -97,3 +96,32 @@ def close_ended_episodes(world: WorldParams, counters: WorldCounters, outputs: S
     counters.episode_return[w, i] = 0.0
     if world.auto_reset != 0:
         spawn_slot(world, counters, w, i, counters.episode[w], agents)
+
+
+# The steps as kernels (the staged step).
+
+
+@wp.kernel
+def reproduce_prey(world: WorldParams, scratch: Scratch, agents: Agents, counters: WorldCounters):
+    """`reproduce`, one thread per world."""
+    reproduce(world, scratch, agents, counters, wp.tid())
+
+
+@wp.kernel
+def collect_rewards(world: WorldParams, agents: Agents, outputs: StepOutputs, counters: WorldCounters):
+    """`collect_reward` for every slot."""
+    w, i = wp.tid()
+    collect_reward(world, agents, outputs, counters, w, i)
+
+
+@wp.kernel
+def finish_world_step(world: WorldParams, counters: WorldCounters, outputs: StepOutputs):
+    """`finish_step`, one thread per world."""
+    finish_step(world, counters, outputs, wp.tid())
+
+
+@wp.kernel
+def close_ended_episodes(world: WorldParams, counters: WorldCounters, outputs: StepOutputs, agents: Agents):
+    """`close_episode` for every slot."""
+    w, i = wp.tid()
+    close_episode(world, counters, outputs, agents, w, i)

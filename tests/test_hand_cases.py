@@ -1,7 +1,8 @@
 """Hand-computed cases on the Warp kernels: each expected value is worked out from MODEL.md by hand.
 
 Every case sets one small world with `set_state`, then steps it (or only observes it) and compares
-with numbers computed here in plain Python.
+with numbers computed here in plain Python, on both step paths (the fused launch that worlds of one
+cell take by default, and the launch per stage).
 """
 
 from __future__ import annotations
@@ -17,9 +18,19 @@ from aquarium_warp import AquariumConfig, BatchedAquarium
 UP, EAST, SOUTH, WEST = 0, 4, 8, 12  # actions of the 16-action default
 
 
+STEP_KERNEL = {"value": "fused"}  # the step path of this test (`step_path`)
+
+
+@pytest.fixture(autouse=True, params=["fused", "stages"])
+def step_path(request):
+    STEP_KERNEL["value"] = request.param
+    yield request.param
+    STEP_KERNEL["value"] = "fused"
+
+
 def make_env(device, prey_count=2, predator_count=1, **world) -> BatchedAquarium:
     cfg = AquariumConfig(prey_count=prey_count, predator_count=predator_count, **world)
-    return BatchedAquarium(cfg, num_worlds=1, device=device, seed=0)
+    return BatchedAquarium(cfg, num_worlds=1, device=device, seed=0, step_kernel=STEP_KERNEL["value"])
 
 
 def place(env: BatchedAquarium, positions, velocities=None, accelerations=None, alive=None, **extra):
@@ -266,7 +277,7 @@ def test_view_distance_boundary_across_the_seam(device, distance, visible):
 
 def test_slots_hold_the_nearest_sorted_with_ties_to_the_lower_slot(device):
     cfg = AquariumConfig(prey_count=6, predator_count=2, fov_enabled=False)
-    env = BatchedAquarium(cfg, num_worlds=1, device=device)
+    env = BatchedAquarium(cfg, num_worlds=1, device=device, step_kernel=STEP_KERNEL["value"])
     # Observer prey 0 at (400, 400). Prey 1..5 at distances 30, 20, 20, 50, 90; predators at 150 and 60
     # (prey view distance is 100: the predator at 150 is not visible).
     positions = [[400, 400], [430, 400], [400, 420], [380, 400], [400, 350], [490, 400], [250, 400], [400, 460]]
@@ -294,7 +305,8 @@ def test_signed_observation_range_maps_used_values_only(device):
 
 def test_without_auto_reset_an_ended_world_stays_as_it_ended(device):
     cfg = AquariumConfig(prey_count=2, predator_count=1, max_steps=3)
-    env = BatchedAquarium(cfg, num_worlds=2, device=device, seed=0, auto_reset=False)
+    env = BatchedAquarium(cfg, num_worlds=2, device=device, seed=0, auto_reset=False,
+                          step_kernel=STEP_KERNEL["value"])
     actions = {"prey": torch.zeros(2, 2, dtype=torch.int64, device=env.torch_device),
                "predator": torch.zeros(2, 1, dtype=torch.int64, device=env.torch_device)}
     for _ in range(2):

@@ -145,13 +145,18 @@ def world_config(cfg, w: int):
     return types.SimpleNamespace(**{f.name: getattr(own, f.name) for f in dataclasses.fields(own)},
                                  prey_capacity=cfg.prey_capacity, capacity=cfg.capacity)
 
+# Worlds of one cell step in one fused launch by default (`step_kernel="auto"`); their step tests run
+# the staged launches too, so the reference checks both paths.
+STEP_CASES = [(name, "auto") for name in CONFIGS] + [(name, "stages") for name in CONFIGS
+                                                     if not name.endswith("_cells")]
 _ENVS: dict = {}
 
 
-def get_env(name: str) -> BatchedAquarium:
-    if name not in _ENVS:
-        _ENVS[name] = BatchedAquarium(CONFIGS[name], num_worlds=NUM_WORLDS, device=DEVICE, seed=0)
-    return _ENVS[name]
+def get_env(name: str, step_kernel: str = "auto") -> BatchedAquarium:
+    if (name, step_kernel) not in _ENVS:
+        _ENVS[name, step_kernel] = BatchedAquarium(CONFIGS[name], num_worlds=NUM_WORLDS, device=DEVICE, seed=0,
+                                                   step_kernel=step_kernel)
+    return _ENVS[name, step_kernel]
 
 
 # --------------------------------------------------------------------------------------------------
@@ -551,9 +556,9 @@ def test_observations_after_set_state(name):
     fail_if(errors, name)
 
 
-@pytest.mark.parametrize("name", list(CONFIGS))
-def test_single_step_from_random_states(name):
-    cfg, env = CONFIGS[name], get_env(name)
+@pytest.mark.parametrize("name, step_kernel", STEP_CASES)
+def test_single_step_from_random_states(name, step_kernel):
+    cfg, env = CONFIGS[name], get_env(name, step_kernel)
     rng = np.random.default_rng(2000 + list(CONFIGS).index(name))
     errors = []
     for rep in range(3):
@@ -563,11 +568,11 @@ def test_single_step_from_random_states(name):
     fail_if(errors, name)
 
 
-@pytest.mark.parametrize("name", list(CONFIGS))
-def test_rollout_resynced_each_step(name):
+@pytest.mark.parametrize("name, step_kernel", STEP_CASES)
+def test_rollout_resynced_each_step(name, step_kernel):
     """Several steps in a row; each step's reference input is the kernel's state (no float32 drift).
     Worlds whose episode ends auto-reset and go on from their new episode."""
-    cfg, env = CONFIGS[name], get_env(name)
+    cfg, env = CONFIGS[name], get_env(name, step_kernel)
     rng = np.random.default_rng(3000 + list(CONFIGS).index(name))
     errors = []
     worlds = [random_world(rng, world_config(cfg, w)) for w in range(env.num_worlds)]

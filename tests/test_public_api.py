@@ -71,7 +71,8 @@ def test_record_program_runs_on_every_shard():
     """A program recorded through the env runs on each shard's worlds (two shards here)."""
     env = BatchedAquarium(CFG, num_worlds=64, device="cpu", seed=2, cpu_threads=2)
     assert len(env.shards) == 2
-    twin = BatchedAquarium(CFG, num_worlds=64, device="cpu", seed=2, cpu_threads=2)
+    # The twin launches a step stage by stage, so its first command is the motion launch.
+    twin = BatchedAquarium(CFG, num_worlds=64, device="cpu", seed=2, cpu_threads=2, step_kernel="stages")
     actions = random_actions(env, 5)
     env.set_actions(actions)
     twin.set_actions(actions)

@@ -23,7 +23,8 @@ STAGE_LABELS = {"actions": "action copy-in", "motion": "motion (steering, accele
                 "grid": "grid build (cell lists, once per step)",
                 "captures": "captures (detect, resolve, share, starve)",
                 "population": "population, rewards, episode end", "observations": "observations",
-                "heuristics": "heuristic policies (not in the step)"}
+                "heuristics": "heuristic policies (not in the step)",
+                "fused": "the whole step in one launch (worlds of one cell: kernels/world_step.py)"}
 # Kernel name -> stage (commands of `WorldShard.programs["step"]`).
 KERNEL_STAGES = {
     "integrate_motion": "motion",
@@ -56,6 +57,8 @@ def command_stage(command: Callable[[], object], shard: WorldShard) -> str:
         return KERNEL_STAGES[name]
     if "observ" in name:
         return "observations"
+    if "world_step" in name:
+        return "fused"
     return "other"
 
 
