@@ -4,10 +4,25 @@ whole-world lists (worlds of one cell: small worlds).
 The staged step (`WorldShard.step_program`) launches a kernel per stage, about ten per step, each
 over every world's slots of one type. For small worlds those launches cost more than their work: a
 GPU is launch-bound below some thousands of worlds, and on the CPU each launch walks the whole batch
-again, out of cache. Here one block of threads takes one world through the whole step: its lanes
-stride over the world's slots in every stage (so any block size serves any world), and each stage
-calls the very function that the stage's own kernel calls (`move_agent`, `mark_captures`, ...,
-`observe_row`), with the same arguments, so the fused step computes what the staged one does.
+again, out of cache. Here each world goes through the whole step in one launch, and each stage calls
+the very function that the stage's own kernel calls (`move_agent`, `mark_captures`, ..., `observe_row`),
+with the same arguments, so the fused step computes what the staged one does.
+
+Lanes: where a world's slots fit a block of several lanes, `block_dim // capacity` consecutive worlds
+are packed into a block, a lane per slot (lane t takes slot `t % capacity` of the block's world
+`t // capacity`), so a GPU warp's lanes are nearly all busy (one world of 17 slots per block of 32
+left 15 lanes idle); lanes past the last packed world, or past the batch, take no slot and only meet
+the others at the barriers. A world of more slots takes a block of its own whose lanes stride over its
+slots in every stage (so any block size serves any world); so does every world on the CPU, in a
+block of one lane.
+
+Observations: where prey and predators observe the same slot counts (the default), the two types'
+row functions are one function (`observation_rows` is cached), called at one site with the observer
+type and its outputs as values; a warp holds both types' lanes, and two call sites would run the
+long neighbour search once per type, one after the other, each with the other type's lanes idle. Only
+the stores differ by type. Packed blocks assemble each type's rows in shared memory and store them as
+one run (the block's worlds are consecutive, so are their rows of each type), as
+`observation_kernel` does: a lane storing its row alone scatters a row's floats across the warp.
 
 Stages depend on each other's results across slots (prey count their sharers only once every predator
 has marked its captures; a predator sums shares only once every prey has counted its sharers; the
@@ -16,12 +31,14 @@ no public barrier, but every in-place update of a shared tile element ends with 
 `__syncthreads` on a GPU, a fiber switch on the CPU): each lane adds 0 to its own element of a
 block-sized shared tile, which costs one uncontended shared-memory add per lane and the barrier,
 which also makes the block's global writes before it visible to the block after it. Per-world
-work of one thread (reproduction, the end of the step) runs on lane 0 between two barriers.
+work of one thread (reproduction, the end of the step) runs on the world's first lane between two
+barriers.
 
-The kernel is generated per block size (no barrier at all with one lane), per the two observer
-types' slot counts (their rows are `observation_rows`' fixed-size rows) and per `observe_flow`; on
-the CPU a block is one lane (Warp runs CPU blocks of more lanes as fibers, opt-in, which only the
-tests use, to check that the barriers are where they must be), which loops over its world in cache.
+The kernel is generated per block size (no barrier at all with one lane), per packed capacities, per
+the two observer types' slot counts (their rows are `observation_rows`' fixed-size rows), per
+`observe_flow` and per register cap (MAX_REGISTERS); on the CPU a block is one lane (Warp runs CPU
+blocks of more lanes as fibers, opt-in, which only the tests use, to check the barriers and the
+packing), which loops over its world in cache.
 Only whole-world lists qualify: they are the state's own arrays in slot order, so there is no cell
 list to rebuild between the stages, and the capture passes' sums run in slot order as in the staged
 step (bit for bit on the CPU).
@@ -44,7 +61,7 @@ wp.set_module_options({"enable_backward": False})
 # Registers per GPU thread of the fused step (`cuda_max_registers`): read when a kernel is made (and
 # part of its cache key), so a probe can set another cap before building an env. The staged
 # observation kernel, which holds most of the step's registers, runs best at 72 (`observation.py`).
-MAX_REGISTERS = 72
+MAX_REGISTERS: int | None = 72  # None: the compiler's choice
 
 
 def world_step_kernel(prey_slots: tuple[int, int], predator_slots: tuple[int, int], block_dim: int,
