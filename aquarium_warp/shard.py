@@ -38,9 +38,12 @@ RANK_SORT_MAX_CAPACITY = 128
 # Below this many worlds per thread, the thread hand-off costs more than the second core gives.
 MIN_WORLDS_PER_THREAD = 32
 OBSERVATION_BLOCK = 128  # threads per block of the GPU observation kernel
-# Lanes of a world's block in the fused step on a GPU: whole warps, one lane per slot up to this many
-# (a world's slots are few: worlds of one cell hold at most SINGLE_CELL_CAPACITY unless a config's
-# grid_cell_size makes larger ones; their lanes then loop over the slots).
+# Lanes of a block of the fused step on a GPU: worlds of at most this many slots are packed into it, a
+# lane per slot (7 worlds of 17 slots use 119 of 128 lanes), read when an env is built (a probe may set
+# another). Worlds of more slots (worlds of one cell hold at most SINGLE_CELL_CAPACITY unless a
+# config's grid_cell_size makes larger ones) take a block of their own: whole warps, one lane per slot
+# up to FUSED_MAX_BLOCK, whose lanes then loop over the slots.
+FUSED_BLOCK = 128
 FUSED_MAX_BLOCK = 256
 STEP_KERNELS = ("auto", "fused", "stages")
 # Warp's initialisation, kernel registration and module loading (compiling) are not thread-safe: two
@@ -98,10 +101,13 @@ def fused_step(step_kernel: str, dims: tuple[int, int]) -> bool:
 
 
 def fused_block_dim(capacity: int, cuda: bool) -> int:
-    """Lanes per world in the fused step: on a GPU whole warps, one lane per slot up to FUSED_MAX_BLOCK;
+    """Lanes per block of the fused step for worlds of `capacity` slots: on a GPU FUSED_BLOCK (which
+    packs several worlds) or, for larger worlds, whole warps, one lane per slot up to FUSED_MAX_BLOCK;
     on the CPU one (the thread loops over its world's slots)."""
     if not cuda:
         return 1
+    if capacity <= FUSED_BLOCK:
+        return FUSED_BLOCK
     return min(FUSED_MAX_BLOCK, 32 * ((capacity + 31) // 32))
 
 
@@ -256,7 +262,8 @@ class WorldShard:
         s, g, world, types, cfg = self.state, self.grid, self.world, self.types, self.cfg
         if self.fused_kernel is not None:
             kernel = self.fused_kernel
-            return [self.record(kernel, (self.num_worlds, kernel.block_dim),
+            blocks = (self.num_worlds + kernel.worlds_per_block - 1) // kernel.worlds_per_block
+            return [self.record(kernel, (blocks, kernel.block_dim),
                                 [world, types, self.action_direction, s.actions, g, int(cfg.prey_reproduction)],
                                 [s.worlds, s.agents, s.scratch, s.outputs,
                                  self._observed_rows("prey", *kernel.rows_types["prey"]),
@@ -349,7 +356,8 @@ class ShardSet:
         if fused_step(step_kernel, dims):
             fused = world_step.world_step_kernel((cfg.prey.predator_slots, cfg.prey.prey_slots),
                                                  (cfg.predator.predator_slots, cfg.predator.prey_slots),
-                                                 fused_block_dim(cfg.capacity, self.cuda), bool(cfg.observe_flow))
+                                                 fused_block_dim(cfg.capacity, self.cuda), bool(cfg.observe_flow),
+                                                 (cfg.prey_capacity, cfg.predator_capacity))
         self.step_path = "fused" if fused is not None else "stages"
         self.shards = tuple(WorldShard(cfg, state, k, w0, w1, dims, params, action_direction, observe_kernels, device,
                                        auto_reset, fused) for k, (w0, w1) in enumerate(zip(bounds[:-1], bounds[1:])))

@@ -112,16 +112,34 @@ def test_cases_exercise_what_they_name():
     assert totals(*CASES["episode ends"][:3])["ended"] > 0
 
 
-@pytest.mark.parametrize("lanes", [4, 32])
-def test_blocks_of_several_lanes_wait_between_stages(lanes, monkeypatch):
-    """A world's block of several lanes (Warp runs CPU blocks as fibers that switch only at a barrier):
-    a missing barrier lets a lane run a stage before the others have finished the stage before it,
-    which changes results. Captures, births and episode ends happen within the run."""
+FIBER_CFG = dataclasses.replace(SMALL, prey_count=8, prey_reproduction=True, prey_replication_age=12, max_prey=14,
+                                max_steps=60)  # 18 slots
+
+
+# name -> (lanes per block, config, worlds): blocks of fewer lanes than slots (lanes stride over one
+# world), of one world, of several packed worlds with a partial last block, with worlds past the batch
+# and lanes past the last packed world, and packed with other slot counts (a row function per type).
+FIBER_BLOCKS = {
+    "stride": (4, FIBER_CFG, 4),
+    "one world": (32, FIBER_CFG, 4),
+    "3 packed, partial last block": (64, FIBER_CFG, 5),
+    "7 packed, worlds past the batch": (128, BASE, 4),
+    "packed, other slots": (64, dataclasses.replace(
+        FIBER_CFG, prey=dataclasses.replace(SMALL.prey, predator_slots=2, prey_slots=5),
+        predator=dataclasses.replace(SMALL.predator, predator_slots=0, prey_slots=2)), 5),
+}
+
+
+@pytest.mark.parametrize("case", list(FIBER_BLOCKS))
+def test_blocks_of_several_lanes_wait_between_stages(case, monkeypatch):
+    """Blocks of several lanes (Warp runs CPU blocks as fibers that switch only at a barrier): a
+    missing barrier lets a lane run a stage before the others have finished the stage before it,
+    which changes results, and a wrong lane-to-slot map or row store leaves rows unset or misplaced.
+    Captures, births and episode ends happen within the run."""
+    lanes, cfg, worlds = FIBER_BLOCKS[case]
     monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
     monkeypatch.setattr(shard_module, "fused_block_dim", lambda capacity, cuda: lanes)
-    cfg = dataclasses.replace(SMALL, prey_count=8, prey_reproduction=True, prey_replication_age=12, max_prey=14,
-                              max_steps=60)
-    run_both(cfg, 4, 150, "cpu")
+    run_both(cfg, worlds, 150, "cpu")
 
 
 def test_auto_takes_the_fused_step_where_it_applies(device):
