@@ -211,7 +211,8 @@ class BatchedAquarium:
     `auto_reset=False` it stays as it ended until `reset()` (single-world wrappers use this).
     `step_kernel` picks how a step is launched: "fused" (each world's whole step in one launch, for
     worlds of one cell: `kernels/world_step.py`), "stages" (a launch per stage) or "auto" (fused where
-    it applies); the results are the same.
+    it applies and, on a GPU, is faster: batches of at most `shard.AUTO_FUSED_GPU_MAX_SLOTS` slots);
+    the results are the same.
     """
 
     def __init__(self, config: AquariumConfig | None = None, num_worlds: int = 1, device=None, seed: int = 0,

@@ -46,6 +46,11 @@ OBSERVATION_BLOCK = 128  # threads per block of the GPU observation kernel
 FUSED_BLOCK = 128
 FUSED_MAX_BLOCK = 256
 STEP_KERNELS = ("auto", "fused", "stages")
+# Largest batch (agent slots) that "auto" runs fused on a GPU. H200, default worlds of 17 slots, CUDA
+# graph (benchmarks/probe_fused_gpu.py, benchmarks/results/fused_step_h200/): fused 0.040 vs staged
+# 0.062 ms at 4,096 worlds (69,632 slots), 0.133 vs 0.113 ms at 16,384 worlds (278,528 slots): past a
+# few thousand worlds the staged kernels keep more warps busy than the fused step's barriers allow.
+AUTO_FUSED_GPU_MAX_SLOTS = 131_072
 # Warp's initialisation, kernel registration and module loading (compiling) are not thread-safe: two
 # threads building envs at once crashed the process. Everything that may load a module (recording a
 # launch loads its kernel's module) holds this lock; stepping built envs in parallel needs no lock.
@@ -86,10 +91,11 @@ def grid_build(cfg: AquariumConfig, dims: tuple[int, int], cuda: bool) -> str:
     return "rank" if cfg.capacity <= RANK_SORT_MAX_CAPACITY else "count"
 
 
-def fused_step(step_kernel: str, dims: tuple[int, int]) -> bool:
+def fused_step(step_kernel: str, dims: tuple[int, int], cuda: bool = False, slots: int = 0) -> bool:
     """Whether worlds with `dims` cells take the fused step (`kernels/world_step.py`, one launch) for
     the env option `step_kernel`: "auto" where it applies (worlds of one cell, whose cell lists are
-    whole-world lists), "fused" (a ValueError where it does not apply) or "stages" (a launch per stage)."""
+    whole-world lists) and, on a GPU, for batches of at most AUTO_FUSED_GPU_MAX_SLOTS agent `slots`;
+    "fused" (a ValueError where it does not apply) or "stages" (a launch per stage)."""
     if not isinstance(step_kernel, str) or step_kernel not in STEP_KERNELS:
         raise ValueError(f"step_kernel={step_kernel!r} must be one of {', '.join(map(repr, STEP_KERNELS))}")
     whole_world = tuple(dims) == (1, 1)
@@ -97,6 +103,8 @@ def fused_step(step_kernel: str, dims: tuple[int, int]) -> bool:
         raise ValueError(f"step_kernel='fused' needs worlds of one cell (whole-world cell lists), but this config's "
                          f"worlds have {dims[0]} x {dims[1]} cells (more slots than one cell takes, or grid_cell_size "
                          "set): use step_kernel='auto' or 'stages'")
+    if step_kernel == "auto" and cuda and slots > AUTO_FUSED_GPU_MAX_SLOTS:
+        return False
     return step_kernel != "stages" and whole_world
 
 
@@ -353,7 +361,7 @@ class ShardSet:
                            for t in ("prey", "predator")}
         # The step of worlds of one cell in one launch (`fused_step`), with their observers' slot counts.
         fused = None
-        if fused_step(step_kernel, dims):
+        if fused_step(step_kernel, dims, self.cuda, W * cfg.capacity):
             fused = world_step.world_step_kernel((cfg.prey.predator_slots, cfg.prey.prey_slots),
                                                  (cfg.predator.predator_slots, cfg.predator.prey_slots),
                                                  fused_block_dim(cfg.capacity, self.cuda), bool(cfg.observe_flow),

@@ -151,6 +151,18 @@ def test_auto_takes_the_fused_step_where_it_applies(device):
         env.close()
 
 
+@pytest.mark.parametrize(("cuda", "slots", "expected"), [
+    (False, 10**7, True),  # the CPU: always, one world per task in cache
+    (True, shard_module.AUTO_FUSED_GPU_MAX_SLOTS, True),
+    (True, shard_module.AUTO_FUSED_GPU_MAX_SLOTS + 1, False),  # large GPU batches: the staged kernels are faster
+])
+def test_auto_on_a_gpu_takes_the_fused_step_for_small_batches_only(cuda, slots, expected):
+    assert shard_module.fused_step("auto", (1, 1), cuda, slots) is expected
+    assert shard_module.fused_step("fused", (1, 1), cuda, slots) is True
+    assert shard_module.fused_step("stages", (1, 1), cuda, slots) is False
+    assert shard_module.fused_step("auto", (2, 2), cuda, slots) is False
+
+
 @pytest.mark.parametrize("value", ["fast", "Fused", "", None, 1])
 def test_bad_step_kernel_names_the_option(value):
     with pytest.raises(ValueError, match=r"step_kernel=.*must be one of 'auto', 'fused', 'stages'"):
