@@ -1,0 +1,275 @@
+"""What the open-question studies share: option checks, training runs through the `Trainer` API,
+several runs at once in worker processes, evaluation rollouts that see every step's state, the
+geometry of fleeing, statistics over seeds, the output files and the error-band plots.
+
+Statistics: every measure is first reduced to one value per seed (training seed or block of worlds);
+figures and tables give the mean over seeds and its standard error (`sem`, std over seeds / sqrt(n)),
+drawn as a band of mean ± 1 s.e.m.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+import os
+import sys
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from multiprocessing import get_context
+
+import numpy as np
+import torch
+
+from ..bench.machine import machine_info
+from ..config import AquariumConfig
+from ..env import BatchedAquarium
+from ..json_records import json_safe
+from ..number_lists import parse_list
+from ..study import _stats, write_csv
+
+BAND = "mean ± 1 s.e.m. over seeds"
+
+
+# ---------------------------------------------------------------------------------------------- options
+def number_list(text, kind: type, name: str, low: float, high: float | None = None, *,
+                low_open: bool = False) -> list:
+    """`parse_list` of an option, each value checked against [low, high] (or (low, high] with
+    `low_open`); the error names the option and the allowed range."""
+    values = parse_list(text, kind, name)
+    for v in values:
+        if (v <= low if low_open else v < low) or (high is not None and v > high):
+            allowed = f"{'(' if low_open else '['}{low:g}, {'inf)' if high is None else f'{high:g}]'}"
+            raise ValueError(f"{name}={text!r}: {v!r} is out of range: every value must be in {allowed}")
+    return values
+
+
+def check_int(name: str, value, low: int = 1) -> None:
+    """A `ValueError` naming `name` unless `value` is an integer >= `low`."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        raise ValueError(f"{name}={value!r} must be an integer >= {low}")
+
+
+def check_number(name: str, value, low: float, high: float = math.inf) -> None:
+    """A `ValueError` naming `name` unless `value` is a finite number in [low, high]."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (low <= value <= high) \
+            or not math.isfinite(value):
+        raise ValueError(f"{name}={value!r} must be a finite number in [{low:g}, {high:g}]")
+
+
+def resolve_jobs(jobs: int | None, device: str) -> int:
+    """Training runs at once: `jobs`, else 4 on a GPU (small batches leave it idle between kernel
+    launches; separate processes each with its own CUDA context fill it) and 1 on the CPU."""
+    if jobs is not None:
+        check_int("jobs", jobs)
+        return jobs
+    return 4 if str(device).startswith("cuda") else 1
+
+
+# ---------------------------------------------------------------------------------------------- jobs
+def run_jobs(function: Callable[[dict], dict], tasks: Sequence[dict], jobs: int, label: str = "run") -> list[dict]:
+    """`function(task)` for every task, in order of the tasks: in this process with `jobs=1`, else in a
+    pool of `jobs` worker processes (spawn context, so each has its own CUDA context). `function` must
+    be a module-level function and the tasks picklable. Prints one line per finished task."""
+    results: list[dict | None] = [None] * len(tasks)
+    start = time.perf_counter()
+
+    def done(i: int, result: dict) -> None:
+        results[i] = result
+        finished = sum(r is not None for r in results)
+        print(f"  {label} {finished}/{len(tasks)} ({tasks[i].get('name', i)}) after "
+              f"{time.perf_counter() - start:.0f} s", flush=True)
+
+    if jobs <= 1 or len(tasks) <= 1:
+        for i, task in enumerate(tasks):
+            done(i, function(task))
+    else:
+        with ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=get_context("spawn")) as pool:
+            futures = {pool.submit(function, task): i for i, task in enumerate(tasks)}
+            for future in as_completed(futures):
+                done(futures[future], future.result())
+    return [r for r in results if r is not None]
+
+
+# ---------------------------------------------------------------------------------------------- training
+def training_config(env: dict, team: str, opponent: str | None, worlds: int, iterations: int, seed: int,
+                    device: str) -> dict:
+    """A run config: the `paper` preset's PPO settings (parameter sharing), the world `env` (AquariumConfig
+    fields), `iterations` PPO iterations of `worlds` worlds, no logging, checkpoints or swarm metrics."""
+    from ..training.config import make_config
+
+    return make_config("paper", {"env": env, "train": {
+        "team": team, "opponent": opponent, "num_worlds": worlds, "iterations": iterations, "episodes": None,
+        "seed": seed, "device": device, "quiet": True, "metrics_every": 0, "export": ["jit"]}})
+
+
+def train_and_export(config: dict, out_dir: str) -> tuple[dict[str, str], float]:
+    """Train one run in this process (`Trainer`, no log directory) and export its policies (TorchScript)
+    into `out_dir` (both teams: `out_dir/<team>/`). Returns `{team: policy file}` and the training's
+    wall time in seconds (construction and export not included)."""
+    from ..training import Trainer
+
+    trainer = Trainer(copy.deepcopy(config))
+    try:
+        start = time.perf_counter()
+        trainer.train()
+        seconds = time.perf_counter() - start
+        exported = trainer.export(out_dir, formats=["jit"])
+    finally:
+        trainer.close()
+    if len(trainer.teams) == 1:
+        return {trainer.teams[0]: exported["jit"]}, seconds
+    return {team: paths["jit"] for team, paths in exported.items()}, seconds
+
+
+# ---------------------------------------------------------------------------------------------- rollouts
+@dataclasses.dataclass
+class StepView:
+    """One step of a rollout, as the measures see it: the state before the step (`before_*`, copies),
+    after it (`position`, `velocity`, `alive`, views valid until the next step), the prey captured in the
+    step (`captured` `[W, Pc]`) and the step's `info`. Positions `[W, C, 2]` px, prey slots first."""
+
+    env: BatchedAquarium
+    before_position: torch.Tensor
+    before_velocity: torch.Tensor
+    before_heading: torch.Tensor
+    before_alive: torch.Tensor
+    position: torch.Tensor
+    velocity: torch.Tensor
+    alive: torch.Tensor
+    captured: torch.Tensor
+    info: dict
+    step: int
+
+
+def rollout(cfg: AquariumConfig, prey: str, predator: str, worlds: int, seed: int, device: str,
+            on_step: Callable[[StepView], None], metrics_every: int = 0) -> dict:
+    """Play one episode of `cfg.max_steps` steps in each of `worlds` worlds with the prey and predator
+    specs (heuristic names as `aquarium_warp.training.evaluate.make_driver` takes them, with
+    "naivchase-noconfusion", or policy files; trained policies act deterministically), calling
+    `on_step` after every step but the last (whose state is already the next episode's first: the worlds
+    reset themselves). Returns per-world numpy arrays: `captures` (the episode's),
+    `length` and, with `metrics_every`, the episode means of the swarm metrics (`EPISODE_METRICS`)."""
+    from ..metrics import EpisodeMetrics
+    from ..training.evaluate import make_driver
+
+    env = BatchedAquarium(cfg, num_worlds=worlds, device=device, seed=seed)
+    drivers = {"prey": make_driver(prey, env, "prey", seed=seed),
+               "predator": make_driver(predator, env, "predator", seed=seed + 1)}
+    episodes = EpisodeMetrics(env, every=metrics_every) if metrics_every else None
+    t = env.state.torch
+    Pc = env.prey_capacity
+    env.reset()
+    if episodes is not None:
+        episodes.begin()
+    for step in range(cfg.max_steps):
+        before = [t.position.clone(), t.velocity.clone(), t.heading.clone(), t.alive.clone()]
+        _, _, _, _, info = env.step({team: drivers[team]() for team in ("prey", "predator")}, validate=False)
+        if episodes is not None:
+            episodes.update(info)
+        if step < cfg.max_steps - 1:
+            on_step(StepView(env, *before, t.position, t.velocity, t.alive, t.captured[:, :Pc], info, step))
+    ended = info["episode_ended"]
+    if not bool(ended.all()):
+        raise RuntimeError("rollout: a world's episode ended early (a team died out): not one episode per world")
+    out = {"captures": info["episode_captures"].cpu().numpy().astype(np.float64),
+           "length": info["episode_length"].cpu().numpy().astype(np.float64)}
+    if episodes is not None:
+        out.update({k: v.detach().cpu().double().numpy() for k, v in episodes.result().items()})
+    env.close()
+    return out
+
+
+# ---------------------------------------------------------------------------------------------- geometry
+def torus_delta(delta: torch.Tensor, width: float, height: float) -> torch.Tensor:
+    """The torus-shortest form of displacements `delta` `[..., 2]` in a `width` x `height` world."""
+    size = torch.tensor([width, height], dtype=delta.dtype, device=delta.device)
+    return delta - size * torch.round(delta / size)
+
+
+def nearest_predator(prey_position: torch.Tensor, predator_position: torch.Tensor, predator_alive: torch.Tensor,
+                     width: float, height: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """For prey `[W, N, 2]` and predators `[W, P, 2]` (`predator_alive` `[W, P]`): the displacement from
+    each prey's nearest live predator to the prey (`[W, N, 2]`, the direction of escape) and its
+    length (`[W, N]`, inf without a live predator)."""
+    away = torus_delta(prey_position[:, :, None, :] - predator_position[:, None, :, :], width, height)
+    distance = torch.linalg.vector_norm(away, dim=-1).masked_fill(~predator_alive[:, None, :], math.inf)
+    nearest = distance.argmin(dim=-1, keepdim=True)
+    return (torch.gather(away, 2, nearest[..., None].expand(-1, -1, 1, 2)).squeeze(2),
+            torch.gather(distance, 2, nearest).squeeze(2))
+
+
+def cosine(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Cosine of the angle between vectors `[..., 2]` (0 where either is zero)."""
+    norm = torch.linalg.vector_norm(a, dim=-1) * torch.linalg.vector_norm(b, dim=-1)
+    return torch.where(norm > 0, (a * b).sum(-1) / norm.clamp_min(1e-12), torch.zeros_like(norm))
+
+
+def fleeing(velocity: torch.Tensor, away: torch.Tensor, distance: torch.Tensor, max_speed: float,
+            flee_angle: float, flee_distance: float) -> torch.Tensor:
+    """Whether each prey flees its nearest predator: the predator is within `flee_distance` px, the
+    prey moves at least half its `max_speed`, and its velocity points away from the predator within
+    `flee_angle` degrees (`away`: displacement from the predator to the prey)."""
+    speed = torch.linalg.vector_norm(velocity, dim=-1)
+    return (distance <= flee_distance) & (speed >= 0.5 * max_speed) & \
+        (cosine(velocity, away) >= math.cos(math.radians(flee_angle)))
+
+
+# ---------------------------------------------------------------------------------------------- statistics
+def seed_stats(values) -> dict:
+    """Mean, std, s.e.m. and n over seeds (NaN seeds left out) and the per-seed values."""
+    return _stats(np.asarray(values, dtype=np.float64))
+
+
+# ---------------------------------------------------------------------------------------------- outputs
+def write_outputs(out: str, name: str, rows: list[dict], summary: dict) -> dict[str, str]:
+    """`<name>.csv` (rows) and `<name>.json` (summary) in `out`; returns their paths."""
+    import json
+
+    os.makedirs(out, exist_ok=True)
+    paths = {"csv": os.path.join(out, f"{name}.csv"), "json": os.path.join(out, f"{name}.json")}
+    write_csv(paths["csv"], rows)
+    with open(paths["json"], "w", encoding="utf-8") as f:
+        json.dump(json_safe(summary), f, indent=1)
+    return paths
+
+
+def run_record(study: str, settings, device: str, wall_s: float, train_s: float, job_s: float,
+               jobs: int) -> dict:
+    """The JSON's record of a run: the study, the exact command, its settings, the machine, the wall
+    time, the summed training time of its runs and the fraction of the workers' time spent training."""
+    return {"study": study, "command": " ".join(["aquarium-warp"] + sys.argv[1:]) if sys.argv else "",
+            "settings": dataclasses.asdict(settings), "device": device, "machine": machine_info(device),
+            "jobs": jobs, "wall_time_s": round(wall_s, 2), "training_time_s": round(train_s, 2),
+            "training_fraction": train_s / job_s if job_s > 0 else 0.0,
+            "training_fraction_definition": "summed training time of the runs (PPO iterations only) / summed "
+                                            "time of the jobs (training, export and evaluation) in the workers",
+            "spread": BAND}
+
+
+def pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def band(ax, x, stats: list[dict], label: str | None = None, style: str = "o-", **kwargs):
+    """A line of the means and a band of mean ± 1 s.e.m. (`seed_stats` dicts, one per x)."""
+    mean = np.array([np.nan if s["mean"] is None else s["mean"] for s in stats], dtype=float)
+    sem = np.nan_to_num(np.array([np.nan if s["sem"] is None else s["sem"] for s in stats], dtype=float))
+    line, = ax.plot(x, mean, style, label=label, ms=4, lw=1.4, **kwargs)
+    ax.fill_between(x, mean - sem, mean + sem, color=line.get_color(), alpha=0.2, lw=0)
+    return line
+
+
+def save_figure(fig, out: str, name: str, title: str) -> str:
+    fig.suptitle(f"{title}\n({BAND})", fontsize=9)
+    fig.tight_layout()
+    path = os.path.join(out, name)
+    fig.savefig(path, dpi=110)
+    pyplot().close(fig)
+    return path
