@@ -164,12 +164,14 @@ def rollout(cfg: AquariumConfig, prey: str, predator: str, worlds: int, seed: in
     if episodes is not None:
         episodes.begin()
     for step in range(cfg.max_steps):
-        before = [t.position.clone(), t.velocity.clone(), t.heading.clone(), t.alive.clone()]
+        position, velocity, heading, alive = (t.position.clone(), t.velocity.clone(), t.heading.clone(),
+                                              t.alive.clone())
         _, _, _, _, info = env.step({team: drivers[team]() for team in ("prey", "predator")}, validate=False)
         if episodes is not None:
             episodes.update(info)
         if step < cfg.max_steps - 1:
-            on_step(StepView(env, *before, t.position, t.velocity, t.alive, t.captured[:, :Pc], info, step))
+            on_step(StepView(env, position, velocity, heading, alive, t.position, t.velocity, t.alive,
+                             t.captured[:, :Pc], info, step))
     ended = info["episode_ended"]
     if not bool(ended.all()):
         raise RuntimeError("rollout: a world's episode ended early (a team died out): not one episode per world")
