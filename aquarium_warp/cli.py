@@ -353,7 +353,7 @@ def _add_open_question_arguments(p, out: str, jobs: bool = True) -> None:
 
 def _study_group_hunting(args) -> int:
     """`aquarium-warp study group-hunting`: learning predator teams, with and without shared catch rewards."""
-    from .studies.common import number_list
+    from .studies.common import command_line, number_list
     from .studies.group_hunting import GroupHuntingStudy, run_group_hunting
 
     study = GroupHuntingStudy(
@@ -366,7 +366,7 @@ def _study_group_hunting(args) -> int:
     print(f"aquarium-warp study group-hunting: predators {study.predators}, {study.prey} prey "
           f"({', '.join(study.prey_conditions)}), catch_share_radius {study.share_radii}, {study.seeds} seeds -> "
           f"{study.out}")
-    summary = run_group_hunting(study)
+    summary = run_group_hunting(study, command_line(args.argv))
     print(f"wrote {summary['files']['csv']}, group_hunting.json and the figure in {summary['wall_time_s']:.1f} s on "
           f"{summary['machine']['device_name']} ({summary['training_fraction']:.0%} of the workers' time training)")
     return 0
@@ -374,7 +374,7 @@ def _study_group_hunting(args) -> int:
 
 def _study_many_eyes(args) -> int:
     """`aquarium-warp study many-eyes`: learned prey groups, dilution vs detection."""
-    from .studies.common import number_list
+    from .studies.common import command_line, number_list
     from .studies.many_eyes import ManyEyesStudy, run_many_eyes
 
     study = ManyEyesStudy(
@@ -386,7 +386,7 @@ def _study_many_eyes(args) -> int:
         device=args.device, jobs=args.jobs, out=args.out, figures=not args.no_figures)
     print(f"aquarium-warp study many-eyes: group sizes {study.group_sizes} x FOV {study.fov_angles}, "
           f"{study.seeds} seeds -> {study.out}")
-    summary = run_many_eyes(study)
+    summary = run_many_eyes(study, command_line(args.argv))
     print(f"wrote {summary['files']['csv']}, many_eyes.json and the figure in {summary['wall_time_s']:.1f} s on "
           f"{summary['machine']['device_name']} ({summary['training_fraction']:.0%} of the workers' time training)")
     return 0
@@ -394,7 +394,7 @@ def _study_many_eyes(args) -> int:
 
 def _study_flow(args) -> int:
     """`aquarium-warp study flow`: captures, swarm metrics and escape directions in currents."""
-    from .studies.common import number_list
+    from .studies.common import command_line, number_list
     from .studies.flow import FlowStudy, run_flow
 
     study = FlowStudy(
@@ -406,7 +406,7 @@ def _study_flow(args) -> int:
         seed=args.seed, device=args.device, out=args.out, figures=not args.no_figures)
     print(f"aquarium-warp study flow: {study.kinds} x strengths {study.strengths} px/step, {study.seeds} seeds x "
           f"{study.episodes_per_seed} episodes of {study.episode_steps} steps -> {study.out}")
-    summary = run_flow(study)
+    summary = run_flow(study, command_line(args.argv))
     print(f"wrote {summary['files']['csv']}, flow.json and figures in {summary['wall_time_s']:.1f} s on "
           f"{summary['machine']['device_name']}")
     return 0
@@ -484,7 +484,8 @@ def _add_open_questions(kinds) -> None:
     p.add_argument("--kinds", default="uniform,vortex", help="flow kinds: 'uniform' (along +x), 'vortex' (centred)")
     p.add_argument("--strengths", default="0,0.5,1,2,3",
                    help="px per step (the vortex's at its core's edge; list; default 0,0.5,1,2,3)")
-    p.add_argument("--episodes-per-seed", type=positive_int, default=4, help="episodes (worlds) per seed (default 4)")
+    p.add_argument("--episodes-per-seed", type=positive_int, default=10,
+                   help="episodes (worlds) per seed (default 10)")
     p.add_argument("--episode-steps", type=_int_at_least(2), default=3000, help="steps per episode (default 3000)")
     p.add_argument("--prey", type=positive_int, default=16, help="prey per world (default 16)")
     p.add_argument("--predators", type=positive_int, default=1, help="predators per world (default 1)")
@@ -623,6 +624,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # the command as given (the studies record it)
     try:
         return args.run(args)
     except ValueError as error:

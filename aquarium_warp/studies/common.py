@@ -13,6 +13,7 @@ import copy
 import dataclasses
 import math
 import os
+import shlex
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -68,10 +69,25 @@ def resolve_jobs(jobs: int | None, device: str) -> int:
 
 
 # ---------------------------------------------------------------------------------------------- jobs
-def run_jobs(function: Callable[[dict], dict], tasks: Sequence[dict], jobs: int, label: str = "run") -> list[dict]:
+def warm_up(device: str) -> None:
+    """Build (or load from Warp's cache) the simulator's kernels once, before worker processes start, so
+    that they do not all compile them at once."""
+    from ..heuristics import make_policy
+    from ..metrics import SwarmMetrics
+
+    env = BatchedAquarium(AquariumConfig(prey_count=2, max_steps=2), num_worlds=1, device=device)
+    env.reset()
+    SwarmMetrics(env).compute()
+    env.step({"prey": make_policy("turnaway", env, "prey")(), "predator": make_policy("naivchase", env, "predator")()})
+    env.close()
+
+
+def run_jobs(function: Callable[[dict], dict], tasks: Sequence[dict], jobs: int, device: str,
+             label: str = "run") -> list[dict]:
     """`function(task)` for every task, in order of the tasks: in this process with `jobs=1`, else in a
-    pool of `jobs` worker processes (spawn context, so each has its own CUDA context). `function` must
-    be a module-level function and the tasks picklable. Prints one line per finished task."""
+    pool of `jobs` worker processes (spawn context, so each has its own CUDA context) after `warm_up`.
+    `function` must be a module-level function and the tasks picklable. Prints one line per finished
+    task."""
     results: list[dict | None] = [None] * len(tasks)
     start = time.perf_counter()
 
@@ -85,6 +101,7 @@ def run_jobs(function: Callable[[dict], dict], tasks: Sequence[dict], jobs: int,
         for i, task in enumerate(tasks):
             done(i, function(task))
     else:
+        warm_up(device)
         with ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=get_context("spawn")) as pool:
             futures = {pool.submit(function, task): i for i, task in enumerate(tasks)}
             for future in as_completed(futures):
@@ -237,11 +254,17 @@ def write_outputs(out: str, name: str, rows: list[dict], summary: dict) -> dict[
     return paths
 
 
+def command_line(argv: Sequence[str] | None = None) -> str:
+    """The command as typed: `aquarium-warp` and `argv` (default: this process's arguments), shell-quoted."""
+    return " ".join(["aquarium-warp"] + [shlex.quote(a) for a in (sys.argv[1:] if argv is None else argv)])
+
+
 def run_record(study: str, settings, device: str, wall_s: float, train_s: float, job_s: float,
-               jobs: int) -> dict:
-    """The JSON's record of a run: the study, the exact command, its settings, the machine, the wall
-    time, the summed training time of its runs and the fraction of the workers' time spent training."""
-    return {"study": study, "command": " ".join(["aquarium-warp"] + sys.argv[1:]) if sys.argv else "",
+               jobs: int, command: str | None) -> dict:
+    """The JSON's record of a run: the study, the exact command (default `command_line()`), its settings,
+    the machine, the wall time, the summed training time of its runs and the fraction of the workers'
+    time spent training."""
+    return {"study": study, "command": command if command is not None else command_line(),
             "settings": dataclasses.asdict(settings), "device": device, "machine": machine_info(device),
             "jobs": jobs, "wall_time_s": round(wall_s, 2), "training_time_s": round(train_s, 2),
             "training_fraction": train_s / job_s if job_s > 0 else 0.0,

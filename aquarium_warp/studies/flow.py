@@ -54,7 +54,7 @@ class FlowStudy:
     kinds: list[str] = field(default_factory=lambda: list(KINDS))
     strengths: list[float] = field(default_factory=lambda: [0.0, 0.5, 1.0, 2.0, 3.0])
     seeds: int = 5
-    episodes_per_seed: int = 4
+    episodes_per_seed: int = 10
     episode_steps: int = 3000
     prey: int = 16
     predators: int = 1
@@ -154,8 +154,9 @@ class EscapeMeasures:
                     "downstream_fraction": s["downstream"] / s["escape_n"], "escape_steps": s["escape_n"]}
 
 
-def run_flow(study: FlowStudy) -> dict:
-    """Run every setting in one batch, write the CSV, JSON and figures; return the JSON's content."""
+def run_flow(study: FlowStudy, command: str | None = None) -> dict:
+    """Run every setting in one batch, write the CSV, JSON and figures; return the JSON's content.
+    `command`: the command line recorded in the JSON (default: this process's, `common.command_line`)."""
     study.validate()
     device = resolve_device(study.device)
     cfg = study.config()
@@ -186,7 +187,7 @@ def run_flow(study: FlowStudy) -> dict:
                         "metrics": {m: common.seed_stats(per_seed[m]) for m in MEASURES},
                         "escape_steps": float(per_world["escape_steps"][block].sum()),
                         "escape_angle_histogram": (counts / counts.sum()).tolist() if counts.sum() else None})
-    summary = common.run_record("flow", study, device, wall, 0.0, wall, 1)
+    summary = common.run_record("flow", study, device, wall, 0.0, wall, 1, command)
     summary["definitions"] = {
         "worlds": f"{worlds} worlds in one batch: per setting {S} seeds x {E} episodes of {study.episode_steps} steps",
         "uniform": "current (strength, 0) px/step along +x",

@@ -242,13 +242,14 @@ def condition_label(condition: str, share_radius: float) -> str:
     return f"learned vs {prey}, reward {reward}"
 
 
-def run_group_hunting(study: GroupHuntingStudy) -> dict:
-    """Run every task (`study.jobs` at once), write the CSV, JSON and figure; return the JSON's content."""
+def run_group_hunting(study: GroupHuntingStudy, command: str | None = None) -> dict:
+    """Run every task (`study.jobs` at once), write the CSV, JSON and figure; return the JSON's content.
+    `command`: the command line recorded in the JSON (default: this process's, `common.command_line`)."""
     study.validate()
     device = resolve_device(study.device)
     jobs = common.resolve_jobs(study.jobs, device)
     start = time.perf_counter()
-    results = common.run_jobs(run_task, study.tasks(device), jobs, "group-hunting")
+    results = common.run_jobs(run_task, study.tasks(device), jobs, device, "group-hunting")
     wall = time.perf_counter() - start
     rows = [{k: v for k, v in r.items() if k != "name"} for r in results]
     groups: dict[tuple, list[dict]] = {}
@@ -258,7 +259,7 @@ def run_group_hunting(study: GroupHuntingStudy) -> dict:
                 "metrics": {m: common.seed_stats([r[m] for r in rs]) for m in MEASURES}}
                for (c, radius, n), rs in groups.items()]
     summary = common.run_record("group-hunting", study, device, wall, sum(r["train_s"] for r in results),
-                                sum(r["job_s"] for r in results), jobs)
+                                sum(r["job_s"] for r in results), jobs, command)
     summary["definitions"] = {
         "captures_per_predator": f"captures per predator per episode of {study.eval_steps} steps "
                                  f"({study.eval_worlds} episodes per seed, deterministic policies)",

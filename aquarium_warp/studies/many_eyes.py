@@ -206,13 +206,14 @@ def run_task(task: dict) -> list[dict]:
     return rows
 
 
-def run_many_eyes(study: ManyEyesStudy) -> dict:
-    """Run every task (`study.jobs` at once), write the CSV, JSON and figure; return the JSON's content."""
+def run_many_eyes(study: ManyEyesStudy, command: str | None = None) -> dict:
+    """Run every task (`study.jobs` at once), write the CSV, JSON and figure; return the JSON's content.
+    `command`: the command line recorded in the JSON (default: this process's, `common.command_line`)."""
     study.validate()
     device = resolve_device(study.device)
     jobs = common.resolve_jobs(study.jobs, device)
     start = time.perf_counter()
-    results = [row for rows in common.run_jobs(_task_rows, study.tasks(device), jobs, "many-eyes")
+    results = [row for rows in common.run_jobs(_task_rows, study.tasks(device), jobs, device, "many-eyes")
                for row in rows["rows"]]
     wall = time.perf_counter() - start
     groups: dict[tuple, list[dict]] = {}
@@ -232,7 +233,7 @@ def run_many_eyes(study: ManyEyesStudy) -> dict:
             for e, x in zip(curve, expected):
                 e.setdefault("dilution_expectation", {})[key] = float(x)
     summary = common.run_record("many-eyes", study, device, wall, sum(r["train_s"] for r in results),
-                                sum(r["job_s"] for r in results), jobs)
+                                sum(r["job_s"] for r in results), jobs, command)
     summary["definitions"] = {
         "captures_per_prey": f"captures per prey per episode of {study.eval_steps} steps",
         "dilution_expectation": "c(N0) * N0 / N, N0 the smallest group size: each prey's share of the smallest "
