@@ -226,3 +226,23 @@ def test_jobs_in_worker_processes_match_one_process(tmp_path):
         assert {k: v for k, v in a.items() if not k.endswith("_s")} == {k: v for k, v in b.items()
                                                                          if not k.endswith("_s")}
     assert read_json(tmp_path / "two" / "group_hunting.json")["jobs"] == 2
+
+
+@pytest.mark.slow
+def test_a_rerun_keeps_finished_tasks(tmp_path, capsys, one_thread):
+    """Finished tasks are kept in `out/finished/`: a rerun runs none of them again and writes the same
+    rows; other settings run afresh."""
+    argv = ["study", "many-eyes", "--group-sizes", "1", "--fov", "120", "--seeds", "2", "--rows", "4",
+            "--iterations", "1", "--train-steps", "20", "--eval-rows", "4", "--eval-steps", "30", "--no-turnaway",
+            "--device", "cpu", "--no-figures", "--out", str(tmp_path)]
+    assert main(argv) == 0
+    first = read_csv(tmp_path / "many_eyes.csv")
+    assert len(list((tmp_path / "finished").iterdir())) == 2
+    capsys.readouterr()
+    assert main(argv) == 0
+    assert "2 of 2 tasks kept" in capsys.readouterr().out
+    assert read_csv(tmp_path / "many_eyes.csv") == first
+    assert read_json(tmp_path / "many_eyes.json")["tasks_kept"] == 2
+    assert main(argv + ["--eval-steps", "40"]) == 0  # the last value of an option counts
+    assert "kept" not in capsys.readouterr().out
+    assert read_json(tmp_path / "many_eyes.json")["tasks_kept"] == 0

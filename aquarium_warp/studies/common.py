@@ -82,31 +82,67 @@ def warm_up(device: str) -> None:
     env.close()
 
 
-def run_jobs(function: Callable[[dict], dict], tasks: Sequence[dict], jobs: int, device: str,
-             label: str = "run") -> list[dict]:
+# Finished tasks, one JSON file each under the study's `out`: a rerun of the same study (after the
+# command was stopped at a time limit, say) keeps them and runs only the others.
+FINISHED_DIR = "finished"
+
+
+def task_key(task: dict) -> dict:
+    """What a kept result must have been computed with: the task (not where it writes) and the study's
+    settings (not its output directory, workers, figures or device option: the task has the device it
+    ran on), as read back from JSON."""
+    import json
+
+    settings = {k: v for k, v in dataclasses.asdict(task["study"]).items()
+                if k not in ("out", "jobs", "figures", "device")}
+    own = {k: v for k, v in task.items() if k not in ("study", "policy_dir")}
+    return json.loads(json.dumps({"task": own, "study": settings}))
+
+
+def run_jobs(function: Callable[[dict], dict], tasks: Sequence[dict], jobs: int, device: str, out: str,
+             label: str = "run") -> tuple[list[dict], int]:
     """`function(task)` for every task, in order of the tasks: in this process with `jobs=1`, else in a
     pool of `jobs` worker processes (spawn context, so each has its own CUDA context) after `warm_up`.
-    `function` must be a module-level function and the tasks picklable. Prints one line per finished
-    task."""
+    `function` must be a module-level function and the tasks picklable (each with a unique "name").
+    Each result is written to `out/finished/<name>.json` as it comes; a task whose file holds the same
+    `task_key` is not run again. Prints one line per finished task. Returns the results and the number
+    of kept ones."""
+    import json
+
     results: list[dict | None] = [None] * len(tasks)
+    keys = [task_key(task) for task in tasks]
+    paths = [os.path.join(out, FINISHED_DIR, f"{task['name']}.json") for task in tasks]
+    for i, path in enumerate(paths):
+        if os.path.isfile(path):
+            with open(path, encoding="utf-8") as f:
+                kept = json.load(f)
+            if kept.get("key") == keys[i]:
+                results[i] = kept["result"]
+    kept_count = sum(r is not None for r in results)
+    if kept_count:
+        print(f"  {label}: {kept_count} of {len(tasks)} tasks kept from {os.path.join(out, FINISHED_DIR)}")
+    todo = [i for i, r in enumerate(results) if r is None]
+    os.makedirs(os.path.join(out, FINISHED_DIR), exist_ok=True)
     start = time.perf_counter()
 
     def done(i: int, result: dict) -> None:
+        with open(paths[i], "w", encoding="utf-8") as f:  # JSON reads back the same floats (NaN included)
+            json.dump({"key": keys[i], "result": result}, f)
         results[i] = result
         finished = sum(r is not None for r in results)
-        print(f"  {label} {finished}/{len(tasks)} ({tasks[i].get('name', i)}) after "
+        print(f"  {label} {finished}/{len(tasks)} ({tasks[i]['name']}) after "
               f"{time.perf_counter() - start:.0f} s", flush=True)
 
-    if jobs <= 1 or len(tasks) <= 1:
-        for i, task in enumerate(tasks):
-            done(i, function(task))
+    if jobs <= 1 or len(todo) <= 1:
+        for i in todo:
+            done(i, function(tasks[i]))
     else:
         warm_up(device)
-        with ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=get_context("spawn")) as pool:
-            futures = {pool.submit(function, task): i for i, task in enumerate(tasks)}
+        with ProcessPoolExecutor(max_workers=min(jobs, len(todo)), mp_context=get_context("spawn")) as pool:
+            futures = {pool.submit(function, tasks[i]): i for i in todo}
             for future in as_completed(futures):
                 done(futures[future], future.result())
-    return [r for r in results if r is not None]
+    return [r for r in results if r is not None], kept_count
 
 
 # ---------------------------------------------------------------------------------------------- training
@@ -260,13 +296,13 @@ def command_line(argv: Sequence[str] | None = None) -> str:
 
 
 def run_record(study: str, settings, device: str, wall_s: float, train_s: float, job_s: float,
-               jobs: int, command: str | None) -> dict:
+               jobs: int, command: str | None, kept: int = 0) -> dict:
     """The JSON's record of a run: the study, the exact command (default `command_line()`), its settings,
     the machine, the wall time, the summed training time of its runs and the fraction of the workers'
-    time spent training."""
+    time spent training (`kept`: tasks kept from an earlier run, whose times count too)."""
     return {"study": study, "command": command if command is not None else command_line(),
             "settings": dataclasses.asdict(settings), "device": device, "machine": machine_info(device),
-            "jobs": jobs, "wall_time_s": round(wall_s, 2), "training_time_s": round(train_s, 2),
+            "jobs": jobs, "tasks_kept": kept, "wall_time_s": round(wall_s, 2), "training_time_s": round(train_s, 2),
             "training_fraction": train_s / job_s if job_s > 0 else 0.0,
             "training_fraction_definition": "summed training time of the runs (PPO iterations only) / summed "
                                             "time of the jobs (training, export and evaluation) in the workers",

@@ -36,7 +36,8 @@ times'. Comparing the shared and individual rewards at each team size tests whet
 
 Outputs (`--out`, default `benchmarks/results/group_hunting/`): `group_hunting.csv` (one row per
 condition, team size and seed), `group_hunting.json` (settings, command, machine, timings, means and
-s.e.m. over seeds, definitions), `group_hunting.png`, and the trained policies in `policies/`.
+s.e.m. over seeds, definitions), `group_hunting.png`, the trained policies in `policies/` and each
+task's result in `finished/` (a rerun of the same command keeps them and runs only the others).
 """
 
 from __future__ import annotations
@@ -249,7 +250,7 @@ def run_group_hunting(study: GroupHuntingStudy, command: str | None = None) -> d
     device = resolve_device(study.device)
     jobs = common.resolve_jobs(study.jobs, device)
     start = time.perf_counter()
-    results = common.run_jobs(run_task, study.tasks(device), jobs, device, "group-hunting")
+    results, kept = common.run_jobs(run_task, study.tasks(device), jobs, device, study.out, "group-hunting")
     wall = time.perf_counter() - start
     rows = [{k: v for k, v in r.items() if k != "name"} for r in results]
     groups: dict[tuple, list[dict]] = {}
@@ -259,7 +260,7 @@ def run_group_hunting(study: GroupHuntingStudy, command: str | None = None) -> d
                 "metrics": {m: common.seed_stats([r[m] for r in rs]) for m in MEASURES}}
                for (c, radius, n), rs in groups.items()]
     summary = common.run_record("group-hunting", study, device, wall, sum(r["train_s"] for r in results),
-                                sum(r["job_s"] for r in results), jobs, command)
+                                sum(r["job_s"] for r in results), jobs, command, kept)
     summary["definitions"] = {
         "captures_per_predator": f"captures per predator per episode of {study.eval_steps} steps "
                                  f"({study.eval_worlds} episodes per seed, deterministic policies)",

@@ -31,7 +31,8 @@ Measures, per seed (`eval_rows // N` evaluation worlds of one `eval_steps`-step 
 
 Outputs (`--out`, default `benchmarks/results/many_eyes/`): `many_eyes.csv` (one row per policy, N,
 FOV, predator and seed), `many_eyes.json` (settings, command, machine, timings, means and s.e.m.,
-dilution expectations, definitions), `many_eyes.png`, and the trained policies in `policies/`.
+dilution expectations, definitions), `many_eyes.png`, the trained policies in `policies/` and each
+task's result in `finished/` (a rerun of the same command keeps them and runs only the others).
 """
 
 from __future__ import annotations
@@ -213,8 +214,8 @@ def run_many_eyes(study: ManyEyesStudy, command: str | None = None) -> dict:
     device = resolve_device(study.device)
     jobs = common.resolve_jobs(study.jobs, device)
     start = time.perf_counter()
-    results = [row for rows in common.run_jobs(_task_rows, study.tasks(device), jobs, device, "many-eyes")
-               for row in rows["rows"]]
+    finished, kept = common.run_jobs(_task_rows, study.tasks(device), jobs, device, study.out, "many-eyes")
+    results = [row for rows in finished for row in rows["rows"]]
     wall = time.perf_counter() - start
     groups: dict[tuple, list[dict]] = {}
     for r in results:
@@ -233,7 +234,7 @@ def run_many_eyes(study: ManyEyesStudy, command: str | None = None) -> dict:
             for e, x in zip(curve, expected):
                 e.setdefault("dilution_expectation", {})[key] = float(x)
     summary = common.run_record("many-eyes", study, device, wall, sum(r["train_s"] for r in results),
-                                sum(r["job_s"] for r in results), jobs, command)
+                                sum(r["job_s"] for r in results), jobs, command, kept)
     summary["definitions"] = {
         "captures_per_prey": f"captures per prey per episode of {study.eval_steps} steps",
         "dilution_expectation": "c(N0) * N0 / N, N0 the smallest group size: each prey's share of the smallest "
