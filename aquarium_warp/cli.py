@@ -430,9 +430,9 @@ def _add_open_questions(kinds) -> None:
                         "learn; team both)")
     p.add_argument("--share-radius", default="100,0", help="catch_share_radius values, px (list; default 100,0: "
                                                            "shared within 100 px, and the capturer alone)")
-    p.add_argument("--worlds", type=positive_int, default=512, help="training worlds per run (default 512)")
-    p.add_argument("--iterations", type=positive_int, default=150,
-                   help="PPO iterations per run, 32 steps each (default 150)")
+    p.add_argument("--worlds", type=positive_int, default=1024, help="training worlds per run (default 1024)")
+    p.add_argument("--iterations", type=positive_int, default=100,
+                   help="PPO iterations per run, 32 steps each (default 100)")
     p.add_argument("--train-steps", type=_int_at_least(2), default=500, help="episode length in training (default 500)")
     p.add_argument("--eval-worlds", type=positive_int, default=32, help="evaluation episodes per seed (default 32)")
     p.add_argument("--eval-steps", type=_int_at_least(2), default=1000,
@@ -456,8 +456,8 @@ def _add_open_questions(kinds) -> None:
     p.add_argument("--fov", default="60,120,240,360", help="prey field-of-view angles, degrees in (0, 360] (list)")
     p.add_argument("--rows", type=positive_int, default=4096,
                    help="learning prey per iteration: --rows // N worlds of N prey (default 4096)")
-    p.add_argument("--iterations", type=positive_int, default=150,
-                   help="PPO iterations per run, 32 steps each (default 150)")
+    p.add_argument("--iterations", type=positive_int, default=120,
+                   help="PPO iterations per run, 32 steps each (default 120)")
     p.add_argument("--train-steps", type=_int_at_least(2), default=500, help="episode length in training (default 500)")
     p.add_argument("--eval-rows", type=positive_int, default=512,
                    help="evaluation prey per seed: --eval-rows // N worlds, at least 2 (default 512)")

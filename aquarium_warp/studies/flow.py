@@ -100,11 +100,13 @@ class FlowStudy:
 
     def config(self) -> AquariumConfig:
         """One batch: setting i (of `settings()`) is worlds [i * S * E, (i + 1) * S * E), seed s of it the
-        block of E worlds from i * S * E + s * E."""
+        block of E worlds from i * S * E + s * E. Predators never starve within an episode (one full
+        episode per world)."""
         repeat = self.seeds * self.episodes_per_seed
         flows = tuple(self.flow(kind, s) for kind, s in self.settings() for _ in range(repeat))
         return AquariumConfig(prey_count=self.prey, predator_count=self.predators, max_steps=self.episode_steps,
-                              width=self.world_size, height=self.world_size).replace(flow=flows)
+                              predator_starvation_steps=self.episode_steps, width=self.world_size,
+                              height=self.world_size).replace(flow=flows)
 
     @property
     def worlds(self) -> int:

@@ -68,8 +68,8 @@ class GroupHuntingStudy:
     prey_conditions: list[str] = field(default_factory=lambda: list(PREY_CONDITIONS))
     share_radii: list[float] = field(default_factory=lambda: [100.0, 0.0])
     seeds: int = 5
-    worlds: int = 512  # training worlds per run
-    iterations: int = 150  # PPO iterations per run (32 steps each)
+    worlds: int = 1024  # training worlds per run
+    iterations: int = 100  # PPO iterations per run (32 steps each)
     train_steps: int = 500  # episode length in training
     eval_worlds: int = 32  # evaluation episodes per seed (worlds)
     eval_steps: int = 1000
@@ -103,8 +103,10 @@ class GroupHuntingStudy:
         common.check_number("world-size", self.world_size, 100.0, 1e6)
 
     def env(self, predators: int, share_radius: float, steps: int) -> dict:
+        """The world's config fields (a predator never starves within an episode: one full episode per world)."""
         return {"prey_count": self.prey, "predator_count": predators, "catch_share_radius": float(share_radius),
-                "max_steps": steps, "width": self.world_size, "height": self.world_size}
+                "max_steps": steps, "predator_starvation_steps": steps, "width": self.world_size,
+                "height": self.world_size}
 
     def tasks(self, device: str) -> list[dict]:
         """One task per (condition, team size, seed): training runs first (the longest), then baselines."""

@@ -62,7 +62,7 @@ class ManyEyesStudy:
     fov_angles: list[float] = field(default_factory=lambda: [60.0, 120.0, 240.0, 360.0])
     seeds: int = 5
     rows: int = 4096  # learning prey rows per iteration: rows // N worlds of N prey
-    iterations: int = 150  # PPO iterations per run (32 steps each)
+    iterations: int = 120  # PPO iterations per run (32 steps each)
     train_steps: int = 500  # episode length in training
     eval_rows: int = 512  # evaluation prey per seed: eval_rows // N worlds (at least 2)
     eval_steps: int = 1000
@@ -94,7 +94,8 @@ class ManyEyesStudy:
         common.check_number("flee-distance", self.flee_distance, 1e-3, 1e6)
 
     def env(self, n: int, fov: float, steps: int) -> dict:
-        return {"prey_count": n, "predator_count": 1, "max_steps": steps,
+        """The world's config fields (a predator never starves within an episode: one full episode per world)."""
+        return {"prey_count": n, "predator_count": 1, "max_steps": steps, "predator_starvation_steps": steps,
                 "prey": {"fov_angle": float(fov), "view_distance": float(self.view_distance)}}
 
     def tasks(self, device: str) -> list[dict]:
@@ -123,8 +124,7 @@ class FlightOnsets:
         self.max_speed, self.view_distance, self.width, self.height = max_speed, view_distance, width, height
         self.history: deque = deque(maxlen=lag + 1)  # (velocity, fleeing, visible, distance) of steps t-lag..t
         self.age: torch.Tensor | None = None
-        self.fid: list[torch.Tensor] = []
-        self.blind: list[torch.Tensor] = []
+        self.sums: dict[str, torch.Tensor] = {}  # onsets, their summed FID and blind ones, on the device (no sync)
 
     def update(self, position, velocity, heading, alive, predator_position, predator_alive,
                respawned) -> torch.Tensor:
@@ -138,15 +138,15 @@ class FlightOnsets:
         self.age = torch.zeros_like(alive, dtype=torch.int32) if self.age is None else \
             torch.where(fresh, torch.zeros_like(self.age), self.age + 1)
         self.history.append((velocity.clone(), flees, visible, distance))
-        onset = torch.zeros_like(flees)
-        if len(self.history) == self.lag + 1:
-            v0, flees0, _, distance0 = self.history[0]
-            turned = common.cosine(velocity, v0) <= self.cos_turn
-            onset = flees & ~self.history[-2][1] & ~flees0 & turned & (self.age >= self.lag)
-            if bool(onset.any()):
-                seen = torch.stack([h[2] for h in list(self.history)[:-1]]).any(dim=0)
-                self.fid.append(distance0[onset])
-                self.blind.append(~seen[onset])
+        if len(self.history) < self.lag + 1:
+            return torch.zeros_like(flees)
+        v0, flees0, _, distance0 = self.history[0]
+        turned = common.cosine(velocity, v0) <= self.cos_turn
+        onset = flees & ~self.history[-2][1] & ~flees0 & turned & (self.age >= self.lag)
+        seen = torch.stack([h[2] for h in list(self.history)[:-1]]).any(dim=0)
+        for name, value in (("onsets", onset), ("fid", torch.where(onset, distance0, 0.0)), ("blind", onset & ~seen)):
+            total = value.double().sum()
+            self.sums[name] = self.sums[name] + total if name in self.sums else total
         return onset
 
     def on_step(self, view: common.StepView) -> None:
@@ -158,10 +158,10 @@ class FlightOnsets:
 
     def result(self) -> dict[str, float]:
         """Onsets, their mean FID (px) and their blind fraction (NaN without onsets)."""
-        fid = torch.cat(self.fid).double() if self.fid else torch.zeros(0, dtype=torch.float64)
-        blind = torch.cat(self.blind).double() if self.blind else torch.zeros(0, dtype=torch.float64)
-        return {"onsets": float(fid.numel()), "fid": float(fid.mean()) if fid.numel() else math.nan,
-                "blind_fraction": float(blind.mean()) if blind.numel() else math.nan}
+        sums = {k: float(v) for k, v in self.sums.items()}
+        onsets = sums.get("onsets", 0.0)
+        return {"onsets": onsets, "fid": sums["fid"] / onsets if onsets else math.nan,
+                "blind_fraction": sums["blind"] / onsets if onsets else math.nan}
 
 
 def dilution_expectation(group_sizes, captures_per_prey) -> np.ndarray:
