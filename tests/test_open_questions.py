@@ -61,7 +61,7 @@ def test_pair_distances_use_the_torus_and_skip_dead_predators():
     assert pair_distances(predators, torch.tensor([[True, True, True]]), 800.0, 800.0).numel() == 3
 
 
-def _flights(respawn_at=None):
+def _flights(respawn_at=None, pushed_at=None):
     """Three prey against a predator at (500, 400): prey 0 at 150 px (unseen: beyond its 100 px view) and
     prey 2 at 70 px (seen, ahead) swim towards it and turn round over two steps; prey 1 at 50 px swims
     away all along (fleeing, but it never turns)."""
@@ -78,7 +78,11 @@ def _flights(respawn_at=None):
         respawned = torch.zeros(1, 3, dtype=torch.bool)
         if respawn_at == t:
             respawned[0, 0] = True
-        onsets.append(detector.update(position, velocity, heading, alive, predator, predator_alive, respawned))
+        pushed = torch.zeros(1, 3, dtype=torch.bool)
+        if pushed_at == t:
+            pushed[0, 0] = True
+        onsets.append(detector.update(position, velocity, heading, alive, predator, predator_alive, respawned,
+                                      pushed))
     return detector, torch.stack(onsets)
 
 
@@ -93,6 +97,12 @@ def test_flight_onsets_on_a_hand_made_trajectory():
     # A prey respawned within the lag has no onset: its history belongs to its previous life.
     detector, onsets = _flights(respawn_at=1)
     assert onsets[:, 0].nonzero().tolist() == [[2, 2]]
+    # Nor one whose turn had a bounce off a neighbour in it (pushed in the move after t = 1).
+    detector, onsets = _flights(pushed_at=1)
+    assert onsets[:, 0].nonzero().tolist() == [[2, 2]]
+    # A push after the onset's step does not matter.
+    detector, onsets = _flights(pushed_at=2)
+    assert onsets[:, 0].nonzero().tolist() == [[2, 0], [2, 2]]
 
 
 def test_dilution_expectation_formula():

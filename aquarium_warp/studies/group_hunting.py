@@ -303,7 +303,9 @@ def plot_group_hunting(summary: dict, out: str) -> str:
             if baseline is not None:
                 common.band(ax, x, [e["metrics"][baseline] for e in entries], None, "s:",
                             color=colors[k % len(colors)])
+    sizes = sorted({e["predators"] for e in summary["results"]})
     for ax, (_, baseline, ylabel) in zip(axes.flat, panels):
+        ax.set_xticks(sizes)
         ax.set_xlabel("predators (team size)")
         ax.set_ylabel(ylabel + (" (solid: at captures, dotted: random times)" if baseline else ""), fontsize=8)
         ax.grid(alpha=0.3)

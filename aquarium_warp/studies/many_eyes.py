@@ -18,15 +18,16 @@ Measures, per seed (`eval_rows // N` evaluation worlds of one `eval_steps`-step 
   `flee_distance` px, it moves at >= half its max speed, and its velocity points away from the
   predator within `flee_angle` degrees (`common.fleeing`). A *flight onset* is a step t where it
   flees, did not flee at t - 1 nor at t - `lag`, and its velocity turned by at least `turn_angle`
-  degrees since t - `lag` (the prey's own turn started the flight, not the predator passing by); the
-  prey must have lived `lag` steps (no respawn in between).
+  degrees since t - `lag` (the prey's own turn started the flight, not the predator passing by), with
+  no same-type contact push in those moves (a bounce off a neighbour is no decision); the prey must
+  have lived `lag` steps (no respawn in between).
 - `fid`: the flight initiation distance, the distance to the nearest predator at t - `lag`, when the
   turn began (px): earlier detection = larger.
 - `blind_fraction`: the fraction of onsets where the predator was not visible to the prey itself
   (beyond its view distance or outside its view cone) at every step from t - `lag` to t - 1. A
   memoryless prey that turns away from a predator it cannot see has the information from its
-  neighbours (or turned by chance: the N = 1 value is the chance level). Many eyes: this fraction and
-  the FID grow with N.
+  neighbours, or turned by chance: the N = 1 value and TurnAway's at the same N (TurnAway reacts only
+  to what it sees) are the chance levels. Many eyes: this fraction and the FID grow with N beyond them.
 - `onsets_per_prey`: flight onsets per prey per 1000 steps.
 
 Outputs (`--out`, default `benchmarks/results/many_eyes/`): `many_eyes.csv` (one row per policy, N,
@@ -122,14 +123,15 @@ class FlightOnsets:
         self.cos_turn = math.cos(math.radians(turn_angle))
         self.cos_half_fov = -2.0 if fov_angle >= 360 else math.cos(math.radians(fov_angle / 2))
         self.max_speed, self.view_distance, self.width, self.height = max_speed, view_distance, width, height
-        self.history: deque = deque(maxlen=lag + 1)  # (velocity, fleeing, visible, distance) of steps t-lag..t
+        self.history: deque = deque(maxlen=lag + 1)  # (velocity, fleeing, visible, distance, pushed) of t-lag..t
         self.age: torch.Tensor | None = None
         self.sums: dict[str, torch.Tensor] = {}  # onsets, their summed FID and blind ones, on the device (no sync)
 
-    def update(self, position, velocity, heading, alive, predator_position, predator_alive,
-               respawned) -> torch.Tensor:
+    def update(self, position, velocity, heading, alive, predator_position, predator_alive, respawned,
+               pushed=None) -> torch.Tensor:
         """One step's state (prey `position`, `velocity`, `heading` `[W, N, 2]`, `alive` `[W, N]`, the
-        predators', and the prey `respawned` in this step `[W, N]`); returns this step's onsets `[W, N]`."""
+        predators', the prey `respawned` in this step `[W, N]` and, optionally, the prey that a same-type
+        neighbour pushes in the next step's move `[W, N]`); returns this step's onsets `[W, N]`."""
         away, distance = common.nearest_predator(position, predator_position, predator_alive, self.width,
                                                  self.height)
         flees = common.fleeing(velocity, away, distance, self.max_speed, self.flee_angle, self.flee_distance) & alive
@@ -137,13 +139,16 @@ class FlightOnsets:
         fresh = respawned | ~alive
         self.age = torch.zeros_like(alive, dtype=torch.int32) if self.age is None else \
             torch.where(fresh, torch.zeros_like(self.age), self.age + 1)
-        self.history.append((velocity.clone(), flees, visible, distance))
+        pushed = torch.zeros_like(flees) if pushed is None else pushed.clone()
+        self.history.append((velocity.clone(), flees, visible, distance, pushed))
         if len(self.history) < self.lag + 1:
             return torch.zeros_like(flees)
-        v0, flees0, _, distance0 = self.history[0]
+        v0, flees0, _, distance0, _ = self.history[0]
         turned = common.cosine(velocity, v0) <= self.cos_turn
-        onset = flees & ~self.history[-2][1] & ~flees0 & turned & (self.age >= self.lag)
-        seen = torch.stack([h[2] for h in list(self.history)[:-1]]).any(dim=0)
+        window = list(self.history)[:-1]  # steps t-lag .. t-1, whose next moves made the turn
+        bounced = torch.stack([h[4] for h in window]).any(dim=0)
+        onset = flees & ~self.history[-2][1] & ~flees0 & turned & ~bounced & (self.age >= self.lag)
+        seen = torch.stack([h[2] for h in window]).any(dim=0)
         for name, value in (("onsets", onset), ("fid", torch.where(onset, distance0, 0.0)), ("blind", onset & ~seen)):
             total = value.double().sum()
             self.sums[name] = self.sums[name] + total if name in self.sums else total
@@ -152,9 +157,9 @@ class FlightOnsets:
     def on_step(self, view: common.StepView) -> None:
         """`common.rollout`'s callback."""
         Pc = view.captured.shape[1]
-        heading = view.env.state.torch.heading
-        self.update(view.position[:, :Pc], view.velocity[:, :Pc], heading[:, :Pc], view.alive[:, :Pc],
-                    view.position[:, Pc:], view.alive[:, Pc:], view.captured)
+        t = view.env.state.torch
+        self.update(view.position[:, :Pc], view.velocity[:, :Pc], t.heading[:, :Pc], view.alive[:, :Pc],
+                    view.position[:, Pc:], view.alive[:, Pc:], view.captured, t.contact_partner[:, :Pc] >= 0)
 
     def result(self) -> dict[str, float]:
         """Onsets, their mean FID (px) and their blind fraction (NaN without onsets)."""
@@ -242,7 +247,8 @@ def run_many_eyes(study: ManyEyesStudy, command: str | None = None) -> dict:
         "fleeing": f"nearest predator within {study.flee_distance:g} px, speed >= half the max, velocity within "
                    f"{study.flee_angle:g} degrees of straight away from it",
         "onset": f"fleeing at t, not at t-1 nor t-{study.lag}, velocity turned >= {study.turn_angle:g} degrees "
-                 f"since t-{study.lag}, prey alive (no respawn) since t-{study.lag}",
+                 f"since t-{study.lag} with no same-type contact push in those moves, prey alive (no respawn) since "
+                 f"t-{study.lag}",
         "fid": f"distance to the nearest predator at t-{study.lag} of an onset, px",
         "blind_fraction": f"onsets where the predator was outside the prey's own view (distance "
                           f"{study.view_distance:g} px and FOV) at every step t-{study.lag}..t-1",
