@@ -367,7 +367,7 @@ def _study_group_hunting(args) -> int:
           f"({', '.join(study.prey_conditions)}), catch_share_radius {study.share_radii}, {study.seeds} seeds -> "
           f"{study.out}")
     summary = run_group_hunting(study, command_line(args.argv))
-    print(f"wrote {summary['files']['csv']}, group_hunting.json and the figure in {summary['wall_time_s']:.1f} s on "
+    print(f"wrote {', '.join(summary['files'].values())} in {summary['wall_time_s']:.1f} s on "
           f"{summary['machine']['device_name']} ({summary['training_fraction']:.0%} of the workers' time training)")
     return 0
 
@@ -387,7 +387,7 @@ def _study_many_eyes(args) -> int:
     print(f"aquarium-warp study many-eyes: group sizes {study.group_sizes} x FOV {study.fov_angles}, "
           f"{study.seeds} seeds -> {study.out}")
     summary = run_many_eyes(study, command_line(args.argv))
-    print(f"wrote {summary['files']['csv']}, many_eyes.json and the figure in {summary['wall_time_s']:.1f} s on "
+    print(f"wrote {', '.join(summary['files'].values())} in {summary['wall_time_s']:.1f} s on "
           f"{summary['machine']['device_name']} ({summary['training_fraction']:.0%} of the workers' time training)")
     return 0
 
@@ -401,14 +401,15 @@ def _study_flow(args) -> int:
         kinds=[k.strip() for k in args.kinds.split(",") if k.strip()],
         strengths=number_list(args.strengths, float, "--strengths", 0.0, 100.0), seeds=args.seeds,
         episodes_per_seed=args.episodes_per_seed, episode_steps=args.episode_steps, prey=args.prey,
+        uniform_angle=args.uniform_angle,
         predators=args.predators, prey_policy=args.prey_policy, predator_policy=args.predator_policy,
         flee_angle=args.flee_angle, flee_distance=args.flee_distance, metrics_every=args.metrics_every,
         seed=args.seed, device=args.device, out=args.out, figures=not args.no_figures)
     print(f"aquarium-warp study flow: {study.kinds} x strengths {study.strengths} px/step, {study.seeds} seeds x "
           f"{study.episodes_per_seed} episodes of {study.episode_steps} steps -> {study.out}")
     summary = run_flow(study, command_line(args.argv))
-    print(f"wrote {summary['files']['csv']}, flow.json and figures in {summary['wall_time_s']:.1f} s on "
-          f"{summary['machine']['device_name']}")
+    print(f"wrote {', '.join(list(summary['files'].values()) + summary.get('figures', []))} in "
+          f"{summary['wall_time_s']:.1f} s on {summary['machine']['device_name']}")
     return 0
 
 
@@ -481,7 +482,11 @@ def _add_open_questions(kinds) -> None:
                     "NaivChase by default (heuristics ignore the current) or trained policy files, and write "
                     "captures, polarization, groups and the angle between fleeing prey's velocity and the current "
                     "(flow.csv/json, flow.png, flow_escape_angles.png) into --out.")
-    p.add_argument("--kinds", default="uniform,vortex", help="flow kinds: 'uniform' (along +x), 'vortex' (centred)")
+    p.add_argument("--kinds", default="uniform,vortex",
+                   help="flow kinds: 'uniform' (along --uniform-angle), 'vortex' (centred, clockwise)")
+    p.add_argument("--uniform-angle", type=float, default=90.0,
+                   help="direction of the uniform current, degrees from +x towards +y (default 90: +y, across the "
+                        "prey's spawn heading -x)")
     p.add_argument("--strengths", default="0,0.5,1,2,3",
                    help="px per step (the vortex's at its core's edge; list; default 0,0.5,1,2,3)")
     p.add_argument("--episodes-per-seed", type=positive_int, default=10,

@@ -191,7 +191,7 @@ def test_many_eyes_cli_tiny(tmp_path, capsys, one_thread):
 def test_flow_cli_tiny(tmp_path, capsys, one_thread):
     out = tmp_path / "flow"
     rc = main(["study", "flow", "--strengths", "0,2", "--seeds", "2", "--episodes-per-seed", "1",
-               "--episode-steps", "60", "--prey", "8", "--device", "cpu", "--out", str(out)])
+               "--episode-steps", "60", "--prey", "8", "--uniform-angle", "0", "--device", "cpu", "--out", str(out)])
     assert rc == 0, capsys.readouterr().err
     rows = read_csv(out / "flow.csv")
     assert list(rows[0]) == ["kind", "strength", "seed", "episodes", "captures_per_prey", "polarization", "groups",
@@ -199,7 +199,7 @@ def test_flow_cli_tiny(tmp_path, capsys, one_thread):
     assert [(r["kind"], r["strength"]) for r in rows[::2]] == [("uniform", "0"), ("uniform", "2"), ("vortex", "0"),
                                                                ("vortex", "2")]
     assert all(r["escape_cosine"] == "nan" and r["cruise_cosine"] == "nan" for r in rows if r["strength"] == "0")
-    # Prey spawn swimming west, against the +x current, and TurnAway keeps that heading until it sees a predator.
+    # Prey spawn swimming west, against a +x current, and TurnAway keeps that heading until it sees a predator.
     uniform = [float(r["cruise_cosine"]) for r in rows if r["kind"] == "uniform" and r["strength"] == "2"]
     assert np.mean(uniform) < -0.5
     record = _check_record(out / "flow.json", "flow")

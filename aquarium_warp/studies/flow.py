@@ -2,8 +2,10 @@
 vector flow fields), and whether fleeing prey escape with or against it.
 
 Every (flow kind, strength, seed) runs as worlds of one `BatchedAquarium` (per-world `flow`, one
-episode each): kind `uniform` (a current along +x of `strength` px/step) or `vortex` (a Rankine vortex at
-the world's centre, `strength` px/step at the edge of a core a sixth of the world across, clockwise).
+episode each): kind `uniform` (a current of `strength` px/step at `uniform_angle` degrees from +x towards
++y; default 90, along +y, across the prey's spawn heading, -x, which TurnAway keeps until it sees a
+predator: a current along it would only measure that heading) or `vortex` (a Rankine vortex at the
+world's centre, `strength` px/step at the edge of a core a sixth of the world across, clockwise).
 Strength 0 is the still-water reference. By default the agents are the paper's heuristics, TurnAway prey
 against NaivChase predators, which ignore the current (MODEL.md); `--prey-policy` / `--predator-policy`
 take trained policy files instead (trained without the current in their observations, as they are).
@@ -61,6 +63,7 @@ class FlowStudy:
     prey_policy: str = "turnaway"
     predator_policy: str = "naivchase"
     world_size: float = 800.0
+    uniform_angle: float = 90.0  # degrees from +x towards +y
     flee_angle: float = 45.0
     flee_distance: float = 200.0
     metrics_every: int = 10
@@ -81,6 +84,7 @@ class FlowStudy:
             common.check_int(name.replace("_", "-"), getattr(self, name))
         common.check_int("episode-steps", self.episode_steps, 2)
         common.check_number("world-size", self.world_size, 100.0, 1e6)
+        common.check_number("uniform-angle", self.uniform_angle, -360.0, 360.0)
         common.check_number("flee-angle", self.flee_angle, 0.0, 180.0)
         common.check_number("flee-distance", self.flee_distance, 1e-3, 1e6)
         for team, spec in (("prey", self.prey_policy), ("predator", self.predator_policy)):
@@ -94,7 +98,8 @@ class FlowStudy:
 
     def flow(self, kind: str, strength: float) -> FlowConfig:
         if kind == "uniform":
-            return FlowConfig("uniform", velocity=(strength, 0.0))
+            angle = math.radians(self.uniform_angle)
+            return FlowConfig("uniform", velocity=(strength * math.cos(angle), strength * math.sin(angle)))
         half = self.world_size / 2
         return FlowConfig("vortex", centre=(half, half), strength=strength, core_radius=self.world_size / 6)
 
@@ -192,7 +197,7 @@ def run_flow(study: FlowStudy, command: str | None = None) -> dict:
     summary = common.run_record("flow", study, device, wall, 0.0, wall, 1, command)
     summary["definitions"] = {
         "worlds": f"{worlds} worlds in one batch: per setting {S} seeds x {E} episodes of {study.episode_steps} steps",
-        "uniform": "current (strength, 0) px/step along +x",
+        "uniform": f"current of strength px/step at {study.uniform_angle:g} degrees from +x towards +y",
         "vortex": f"Rankine vortex at the centre, strength px/step at the edge of a {study.world_size / 6:g} px core, "
                   "clockwise on screen",
         "agents": f"prey {study.prey_policy}, predators {study.predator_policy} (heuristics ignore the current)",
