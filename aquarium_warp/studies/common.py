@@ -60,8 +60,11 @@ def check_number(name: str, value, low: float, high: float = math.inf) -> None:
 
 
 def resolve_jobs(jobs: int | None, device: str) -> int:
-    """Training runs at once: `jobs`, else 4 on a GPU (small batches leave it idle between kernel
-    launches; separate processes each with its own CUDA context fill it) and 1 on the CPU."""
+    """Training runs at once: `jobs`, else 4 on a GPU and 1 on the CPU. On one GPU the processes'
+    kernels take turns (time slicing), so a run's GPU-bound PPO iterations gain little from company
+    (the paper preset's runs took as long four at a time as one after another); what overlaps is the
+    rest, which waits on the host: process start, the trainer's construction and CUDA graph capture,
+    the evaluation loops (a host sync per step)."""
     if jobs is not None:
         check_int("jobs", jobs)
         return jobs

@@ -109,9 +109,10 @@ class GroupHuntingStudy:
                 "height": self.world_size}
 
     def tasks(self, device: str) -> list[dict]:
-        """One task per (condition, team size, seed): training runs first (the longest), then baselines."""
+        """One task per (condition, team size, seed): training runs first, the longest (both teams learning)
+        first, then the baselines."""
         tasks = []
-        for condition in self.prey_conditions:
+        for condition in sorted(self.prey_conditions, key=lambda c: c != "cotrained"):
             for radius in self.share_radii:
                 for n in self.predators:
                     for seed in range(self.seeds):
