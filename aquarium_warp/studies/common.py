@@ -182,20 +182,18 @@ def train_and_export(config: dict, out_dir: str) -> tuple[dict[str, str], float]
 # ---------------------------------------------------------------------------------------------- rollouts
 @dataclasses.dataclass
 class StepView:
-    """One step of a rollout, as the measures see it: the state before the step (`before_*`, copies),
-    after it (`position`, `velocity`, `alive`, views valid until the next step), the prey captured in the
-    step (`captured` `[W, Pc]`) and the step's `info`. Positions `[W, C, 2]` px, prey slots first."""
+    """One step of a rollout, as the measures see it: positions and live slots before the step
+    (`before_*`, copies), the state after it (`position`, `velocity`, `alive`, views valid until the next
+    step; the rest in `env.state.torch`) and the prey captured in the step (`captured` `[W, Pc]`).
+    Positions `[W, C, 2]` px, prey slots first; `step` counts from 0."""
 
     env: BatchedAquarium
     before_position: torch.Tensor
-    before_velocity: torch.Tensor
-    before_heading: torch.Tensor
     before_alive: torch.Tensor
     position: torch.Tensor
     velocity: torch.Tensor
     alive: torch.Tensor
     captured: torch.Tensor
-    info: dict
     step: int
 
 
@@ -220,14 +218,12 @@ def rollout(cfg: AquariumConfig, prey: str, predator: str, worlds: int, seed: in
     if episodes is not None:
         episodes.begin()
     for step in range(cfg.max_steps):
-        position, velocity, heading, alive = (t.position.clone(), t.velocity.clone(), t.heading.clone(),
-                                              t.alive.clone())
+        position, alive = t.position.clone(), t.alive.clone()
         _, _, _, _, info = env.step({team: drivers[team]() for team in ("prey", "predator")}, validate=False)
         if episodes is not None:
             episodes.update(info)
         if step < cfg.max_steps - 1:
-            on_step(StepView(env, position, velocity, heading, alive, t.position, t.velocity, t.alive,
-                             t.captured[:, :Pc], info, step))
+            on_step(StepView(env, position, alive, t.position, t.velocity, t.alive, t.captured[:, :Pc], step))
     ended = info["episode_ended"]
     if not bool(ended.all()):
         raise RuntimeError("rollout: a world's episode ended early (a team died out): not one episode per world")
