@@ -305,6 +305,9 @@ def run_record(study: str, settings, device: str, wall_s: float, train_s: float,
             "training_fraction": train_s / job_s if job_s > 0 else 0.0,
             "training_fraction_definition": "summed training time of the runs (PPO iterations only) / summed "
                                             "time of the jobs (training, export and evaluation) in the workers",
+            "training_time_per_wall_time": train_s / wall_s if wall_s > 0 else 0.0,
+            "training_time_per_wall_time_definition": "summed training time of the runs / this call's wall time "
+                                                      "(above 1 where runs trained at once; kept runs count)",
             "spread": BAND}
 
 

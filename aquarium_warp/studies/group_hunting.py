@@ -174,12 +174,11 @@ class HuntMeasures:
     def __call__(self, view: common.StepView) -> None:
         Pc = view.captured.shape[1]
         predators, alive = view.position[:, Pc:], view.alive[:, Pc:]
-        if view.step % self.every == 0:
-            N = Pc
+        if view.step % self.every == 0:  # around every live prey (row w * Pc + i: world w's predators)
             prey_alive = view.alive[:, :Pc].reshape(-1)
             centres = view.position[:, :Pc].reshape(-1, 2)[prey_alive]
-            around = predators.repeat_interleave(N, dim=0)[prey_alive]
-            _, spread, gap = encirclement(centres, around, alive.repeat_interleave(N, dim=0)[prey_alive],
+            around = predators.repeat_interleave(Pc, dim=0)[prey_alive]
+            _, spread, gap = encirclement(centres, around, alive.repeat_interleave(Pc, dim=0)[prey_alive],
                                           self.radius, self.width, self.height)
             self.values["spread_random"].append(spread)
             self.values["gap_random"].append(gap)
