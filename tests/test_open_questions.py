@@ -165,7 +165,15 @@ def test_group_hunting_cli_tiny(tmp_path, capsys, one_thread):
     record = _check_record(out / "group_hunting.json", "group-hunting")
     assert record["training_fraction"] > 0 and len(record["results"]) == 6
     assert (out / "group_hunting.png").stat().st_size > 0
-    assert (out / "policies" / "cotrained_share0_pred2_seed1" / "prey" / "policy.pt").is_file()
+    policies = out / "policies" / "cotrained_share0_pred2_seed1"
+    assert (policies / "prey" / "policy.pt").is_file()
+    # The flow study takes trained policy files: the co-trained teams in a vortex.
+    rc = main(["study", "flow", "--kinds", "vortex", "--strengths", "1", "--seeds", "2", "--episodes-per-seed", "1",
+               "--episode-steps", "30", "--prey", "3", "--predators", "2", "--prey-policy",
+               str(policies / "prey" / "policy.pt"), "--predator-policy", str(policies / "predator" / "policy.pt"),
+               "--device", "cpu", "--no-figures", "--out", str(tmp_path / "flow")])
+    assert rc == 0, capsys.readouterr().err
+    assert read_json(tmp_path / "flow" / "flow.json")["settings"]["prey_policy"].endswith("policy.pt")
 
 
 @pytest.mark.slow
