@@ -133,8 +133,10 @@ def run_jobs(function: Callable[[dict], dict], tasks: Sequence[dict], jobs: int,
             json.dump({"key": keys[i], "result": result}, f)
         results[i] = result
         finished = sum(r is not None for r in results)
-        print(f"  {label} {finished}/{len(tasks)} ({tasks[i]['name']}) after "
-              f"{time.perf_counter() - start:.0f} s", flush=True)
+        elapsed = time.perf_counter() - start
+        left = elapsed / (finished - kept_count) * (len(tasks) - finished)  # longest tasks first: an overestimate
+        print(f"  {label} {finished}/{len(tasks)} ({tasks[i]['name']}) after {elapsed:.0f} s, ~{left:.0f} s "
+              "left", flush=True)
 
     if jobs <= 1 or len(todo) <= 1:
         for i in todo:
