@@ -52,6 +52,7 @@ import torch
 
 from ..config import AquariumConfig
 from ..env import resolve_device
+from ..training.config import env_config
 from . import common
 
 PREY_CONDITIONS = ("turnaway", "cotrained")
@@ -226,8 +227,7 @@ def run_task(task: dict) -> dict:
         policies, train_s = common.train_and_export(config, task["policy_dir"])
         predator = policies["predator"]
         prey = policies.get("prey", "turnaway")
-    cfg = AquariumConfig.from_dict({**AquariumConfig().to_dict(), **study.env(n, task["share_radius"],
-                                                                              study.eval_steps)})
+    cfg = env_config({"env": study.env(n, task["share_radius"], study.eval_steps)})
     measures = HuntMeasures(study.hunt_radius, study.sample_every, cfg.width, cfg.height)
     episodes = common.rollout(cfg, prey, predator, study.eval_worlds, 1_000_003 * (seed + 1), device, measures)
     result = {"captures_per_predator": float(episodes["captures"].mean()) / n,

@@ -47,8 +47,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..config import AquariumConfig
 from ..env import resolve_device
+from ..training.config import env_config
 from . import common
 
 PREDATORS = ("naivchase", "naivchase-noconfusion")
@@ -190,11 +190,7 @@ def run_task(task: dict) -> list[dict]:
                                         max(1, study.rows // n), study.iterations, seed, device)
         policies, train_s = common.train_and_export(config, task["policy_dir"])
         prey = policies["prey"]
-    data = AquariumConfig().to_dict()
-    env = study.env(n, fov, study.eval_steps)
-    data.update({k: v for k, v in env.items() if k != "prey"})
-    data["prey"].update(env["prey"])
-    cfg = AquariumConfig.from_dict(data)
+    cfg = env_config({"env": study.env(n, fov, study.eval_steps)})
     rows = []
     for predator in PREDATORS:
         flights = FlightOnsets(study.lag, study.flee_angle, study.flee_distance, study.turn_angle, cfg.prey.max_speed,
