@@ -302,8 +302,9 @@ def _add_study_run_arguments(p, out: str) -> None:
 
 def _add_study(sub) -> None:
     """`aquarium-warp study swarm-size` and `study fov-view` (code in `aquarium_warp/study.py`, figures in
-    `study_plots.py`)."""
-    study = sub.add_parser("study", help="parameter studies of collective behaviour (swarm-size, fov-view)")
+    `study_plots.py`), and the open questions (`_add_open_questions`)."""
+    study = sub.add_parser("study", help="parameter studies of collective behaviour (swarm-size, fov-view) and the "
+                                         "paper's open questions (group-hunting, many-eyes, flow)")
     kinds = study.add_subparsers(dest="study", required=True)
     p = kinds.add_parser("swarm-size", help="captures per prey (dilution), polarization and groups vs prey count",
                          description="Run every prey count and seed as batched worlds, one episode each, and "
@@ -335,6 +336,175 @@ def _add_study(sub) -> None:
     p.add_argument("--per-setting", action="store_true", help="one batch per setting instead (for timing)")
     _add_study_run_arguments(p, "fov_view")
     p.set_defaults(run=_study_fov_view)
+    _add_open_questions(kinds)
+
+
+def _add_open_question_arguments(p, out: str, jobs: bool = True) -> None:
+    """The options of every open-question study (`aquarium_warp/studies/`): seeds, device, workers, output."""
+    p.add_argument("--seeds", type=positive_int, default=5, help="independent runs per setting (default 5)")
+    p.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
+    if jobs:
+        p.add_argument("--jobs", type=positive_int, default=None,
+                       help="training runs at once, each in a worker process of its own (spawned; on a GPU each "
+                            "with its own CUDA context); default 4 on a GPU, 1 on the CPU")
+    p.add_argument("--out", default=out, help=f"output directory (default {out})")
+    p.add_argument("--no-figures", action="store_true", help="write CSV/JSON only, no figures")
+
+
+def _study_group_hunting(args) -> int:
+    """`aquarium-warp study group-hunting`: learning predator teams, with and without shared catch rewards."""
+    from .studies.common import command_line, number_list
+    from .studies.group_hunting import GroupHuntingStudy, run_group_hunting
+
+    study = GroupHuntingStudy(
+        predators=number_list(args.predators, int, "--predators", 1, 64),
+        prey=args.prey, prey_conditions=[c.strip() for c in args.prey_conditions.split(",") if c.strip()],
+        share_radii=number_list(args.share_radius, float, "--share-radius", 0.0, 1e6), seeds=args.seeds,
+        worlds=args.worlds, iterations=args.iterations, train_steps=args.train_steps, eval_worlds=args.eval_worlds,
+        eval_steps=args.eval_steps, hunt_radius=args.hunt_radius, sample_every=args.sample_every,
+        baseline=not args.no_baseline, device=args.device, jobs=args.jobs, out=args.out, figures=not args.no_figures)
+    print(f"aquarium-warp study group-hunting: predators {study.predators}, {study.prey} prey "
+          f"({', '.join(study.prey_conditions)}), catch_share_radius {study.share_radii}, {study.seeds} seeds -> "
+          f"{study.out}")
+    summary = run_group_hunting(study, command_line(args.argv))
+    print(f"wrote {', '.join(summary['files'].values())} in {summary['wall_time_s']:.1f} s on "
+          f"{summary['machine']['device_name']} ({summary['training_fraction']:.0%} of the workers' time training)")
+    return 0
+
+
+def _study_many_eyes(args) -> int:
+    """`aquarium-warp study many-eyes`: learned prey groups, dilution vs detection."""
+    from .studies.common import command_line, number_list
+    from .studies.many_eyes import ManyEyesStudy, run_many_eyes
+
+    study = ManyEyesStudy(
+        group_sizes=number_list(args.group_sizes, int, "--group-sizes", 1, 4096),
+        fov_angles=number_list(args.fov, float, "--fov", 0.0, 360.0, low_open=True), seeds=args.seeds,
+        rows=args.rows, iterations=args.iterations, train_steps=args.train_steps, eval_rows=args.eval_rows,
+        eval_steps=args.eval_steps, view_distance=args.view_distance, flee_angle=args.flee_angle,
+        flee_distance=args.flee_distance, turn_angle=args.turn_angle, lag=args.lag, turnaway=not args.no_turnaway,
+        device=args.device, jobs=args.jobs, out=args.out, figures=not args.no_figures)
+    print(f"aquarium-warp study many-eyes: group sizes {study.group_sizes} x FOV {study.fov_angles}, "
+          f"{study.seeds} seeds -> {study.out}")
+    summary = run_many_eyes(study, command_line(args.argv))
+    print(f"wrote {', '.join(summary['files'].values())} in {summary['wall_time_s']:.1f} s on "
+          f"{summary['machine']['device_name']} ({summary['training_fraction']:.0%} of the workers' time training)")
+    return 0
+
+
+def _study_flow(args) -> int:
+    """`aquarium-warp study flow`: captures, swarm metrics and escape directions in currents."""
+    from .studies.common import command_line, number_list
+    from .studies.flow import FlowStudy, run_flow
+
+    study = FlowStudy(
+        kinds=[k.strip() for k in args.kinds.split(",") if k.strip()],
+        strengths=number_list(args.strengths, float, "--strengths", 0.0, 100.0), seeds=args.seeds,
+        episodes_per_seed=args.episodes_per_seed, episode_steps=args.episode_steps, prey=args.prey,
+        uniform_angle=args.uniform_angle,
+        predators=args.predators, prey_policy=args.prey_policy, predator_policy=args.predator_policy,
+        flee_angle=args.flee_angle, flee_distance=args.flee_distance, metrics_every=args.metrics_every,
+        seed=args.seed, device=args.device, out=args.out, figures=not args.no_figures)
+    print(f"aquarium-warp study flow: {study.kinds} x strengths {study.strengths} px/step, {study.seeds} seeds x "
+          f"{study.episodes_per_seed} episodes of {study.episode_steps} steps -> {study.out}")
+    summary = run_flow(study, command_line(args.argv))
+    print(f"wrote {', '.join(list(summary['files'].values()) + summary.get('figures', []))} in "
+          f"{summary['wall_time_s']:.1f} s on {summary['machine']['device_name']}")
+    return 0
+
+
+def _add_open_questions(kinds) -> None:
+    """`study group-hunting`, `study many-eyes` and `study flow` (code in `aquarium_warp/studies/`)."""
+    p = kinds.add_parser(
+        "group-hunting", help="learning predator teams of 1-4: does cooperative hunting emerge, and does the "
+                              "shared catch reward cause it?",
+        description="For every predator team size, prey condition (TurnAway prey, or prey co-trained with the "
+                    "predators) and catch_share_radius (shared reward, or 0: the capturer alone), train --seeds runs "
+                    "and evaluate them: captures per predator, joint captures, the predators' angular spread "
+                    "around the capture point and their distances, at captures and at random times; NaivChase "
+                    "teams as the baseline. Writes group_hunting.csv/json/png into --out.")
+    p.add_argument("--predators", default="1,2,3,4", help="predator team sizes (list; default 1,2,3,4)")
+    p.add_argument("--prey", type=positive_int, default=6, help="prey per world, the same at every team size "
+                                                                "(default 6, the paper's)")
+    p.add_argument("--prey-conditions", default="turnaway,cotrained",
+                   help="comma list of 'turnaway' (predators learn against TurnAway) and 'cotrained' (both teams "
+                        "learn; team both)")
+    p.add_argument("--share-radius", default="100,0", help="catch_share_radius values, px (list; default 100,0: "
+                                                           "shared within 100 px, and the capturer alone)")
+    p.add_argument("--worlds", type=positive_int, default=1024, help="training worlds per run (default 1024)")
+    p.add_argument("--iterations", type=positive_int, default=100,
+                   help="PPO iterations per run, 32 steps each (default 100)")
+    p.add_argument("--train-steps", type=_int_at_least(2), default=500, help="episode length in training (default 500)")
+    p.add_argument("--eval-worlds", type=positive_int, default=32, help="evaluation episodes per seed (default 32)")
+    p.add_argument("--eval-steps", type=_int_at_least(2), default=1000,
+                   help="evaluation episode length (default 1000)")
+    p.add_argument("--hunt-radius", type=positive_float, default=200.0,
+                   help="px; predators this close to a capture take part in it (default 200, the predator's view)")
+    p.add_argument("--sample-every", type=positive_int, default=10,
+                   help="steps between the random-time states of the baselines (default 10)")
+    p.add_argument("--no-baseline", action="store_true", help="no NaivChase teams")
+    _add_open_question_arguments(p, os.path.join("benchmarks", "results", "group_hunting"))
+    p.set_defaults(run=_study_group_hunting)
+
+    p = kinds.add_parser(
+        "many-eyes", help="learned prey groups of 1-64 with FOVs 60-360: dilution vs earlier detection",
+        description="For every prey group size and FOV angle, train --seeds prey runs (parameter sharing) against "
+                    "NaivChase with the same prey-steps per run (--rows // N worlds) and evaluate them against "
+                    "NaivChase with and without confusion: captures per prey next to the pure-dilution "
+                    "expectation, flight initiation distance and the fraction of flight onsets with the predator "
+                    "out of the prey's own view; TurnAway prey as the reference. Writes many_eyes.csv/json/png.")
+    p.add_argument("--group-sizes", default="1,4,16,64", help="prey per world (list; default 1,4,16,64)")
+    p.add_argument("--fov", default="60,120,240,360", help="prey field-of-view angles, degrees in (0, 360] (list)")
+    p.add_argument("--rows", type=positive_int, default=4096,
+                   help="learning prey per iteration: --rows // N worlds of N prey (default 4096)")
+    p.add_argument("--iterations", type=positive_int, default=120,
+                   help="PPO iterations per run, 32 steps each (default 120)")
+    p.add_argument("--train-steps", type=_int_at_least(2), default=500, help="episode length in training (default 500)")
+    p.add_argument("--eval-rows", type=positive_int, default=512,
+                   help="evaluation prey per seed: --eval-rows // N worlds, at least 2 (default 512)")
+    p.add_argument("--eval-steps", type=_int_at_least(2), default=1000,
+                   help="evaluation episode length (default 1000)")
+    p.add_argument("--view-distance", type=positive_float, default=100.0, help="prey view distance, px (default 100)")
+    p.add_argument("--flee-angle", type=non_negative_float, default=45.0,
+                   help="degrees: fleeing = velocity within this of straight away from the predator (default 45)")
+    p.add_argument("--flee-distance", type=positive_float, default=200.0,
+                   help="px: fleeing needs the nearest predator this close (default 200)")
+    p.add_argument("--turn-angle", type=non_negative_float, default=30.0,
+                   help="degrees the prey must turn over --lag steps for a flight onset (default 30)")
+    p.add_argument("--lag", type=positive_int, default=5, help="steps of a flight onset's turn (default 5)")
+    p.add_argument("--no-turnaway", action="store_true", help="no TurnAway reference")
+    _add_open_question_arguments(p, os.path.join("benchmarks", "results", "many_eyes"))
+    p.set_defaults(run=_study_many_eyes)
+
+    p = kinds.add_parser(
+        "flow", help="uniform currents and a vortex of growing strength: captures, swarm metrics, escape direction",
+        description="Run every flow kind and strength as worlds of one batch (per-world flow), TurnAway prey vs "
+                    "NaivChase by default (heuristics ignore the current) or trained policy files, and write "
+                    "captures, polarization, groups and the angle between fleeing prey's velocity and the current "
+                    "(flow.csv/json, flow.png, flow_escape_angles.png) into --out.")
+    p.add_argument("--kinds", default="uniform,vortex",
+                   help="flow kinds: 'uniform' (along --uniform-angle), 'vortex' (centred, clockwise)")
+    p.add_argument("--uniform-angle", type=float, default=90.0,
+                   help="direction of the uniform current, degrees from +x towards +y (default 90: +y, across the "
+                        "prey's spawn heading -x)")
+    p.add_argument("--strengths", default="0,0.5,1,2,3",
+                   help="px per step (the vortex's at its core's edge; list; default 0,0.5,1,2,3)")
+    p.add_argument("--episodes-per-seed", type=positive_int, default=10,
+                   help="episodes (worlds) per seed (default 10)")
+    p.add_argument("--episode-steps", type=_int_at_least(2), default=3000, help="steps per episode (default 3000)")
+    p.add_argument("--prey", type=positive_int, default=16, help="prey per world (default 16)")
+    p.add_argument("--predators", type=positive_int, default=1, help="predators per world (default 1)")
+    p.add_argument("--prey-policy", default="turnaway", help="'turnaway', 'random' or a trained policy file")
+    p.add_argument("--predator-policy", default="naivchase",
+                   help="'naivchase', 'naivchase-noconfusion', 'random' or a trained policy file")
+    p.add_argument("--flee-angle", type=non_negative_float, default=45.0,
+                   help="degrees: fleeing = velocity within this of straight away from the predator (default 45)")
+    p.add_argument("--flee-distance", type=positive_float, default=200.0,
+                   help="px: fleeing needs the nearest predator this close (default 200)")
+    p.add_argument("--metrics-every", type=positive_int, default=10, help="sample the swarm metrics every K steps")
+    p.add_argument("--seed", type=non_negative_int, default=0, help="seed of the batched worlds")
+    _add_open_question_arguments(p, os.path.join("benchmarks", "results", "flow_study"), jobs=False)
+    p.set_defaults(run=_study_flow)
 
 
 def _sweep_train(args) -> int:
@@ -459,6 +629,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # the command as given (the studies record it)
     try:
         return args.run(args)
     except ValueError as error:

@@ -1,0 +1,319 @@
+"""`aquarium-warp study group-hunting`: does cooperative hunting emerge among learning predators, and
+does the shared catch reward cause it? (The paper's open question after Ritz et al. 2021.)
+
+For every team size (1-4 predators, parameter sharing), prey condition and catch-sharing radius, each
+seed trains one run and evaluates it:
+- prey conditions: `turnaway` (predators learn against TurnAway prey, `team predator`) and `cotrained`
+  (both teams learn in the same worlds, `team both`; evaluated against the prey trained with them);
+- catch sharing: `catch_share_radius` 100 px (MODEL.md's default: every predator within 100 px of the
+  captured prey shares the reward) and 0 px (only the capturer(s) in contact are rewarded: MODEL.md's
+  sharers are the predators strictly within the radius plus every capturer);
+- baseline: NaivChase predators against TurnAway prey at each team size (no training).
+
+Evaluation: `eval_worlds` episodes of `eval_steps` steps per seed, deterministic (argmax) policies.
+Measures, per seed (`HuntMeasures`):
+- `captures_per_predator`: captures per predator per episode (and `captures_per_prey`).
+- `joint_fraction`: fraction of captures with at least one other predator within `hunt_radius` of the
+  capture point (default 200 px, the predator's view distance: a predator that close could see the prey
+  and take part). The capture point is the captured prey's position at the start of its capture step
+  (the simulator respawns it in the step; it moved at most its max speed, 4 px).
+- `spread_capture`: the circular variance `1 - |mean of unit bearings|` of the predators within
+  `hunt_radius` of the capture point, bearings taken from that point (captures with >= 2 such
+  predators). 0: all predators on one side of the prey (a chase in file); 1: balanced around it
+  (encircling). `gap_capture`: the largest angular gap between those bearings, degrees (360 (1 - 1/k)
+  at best for k predators; 360 when they coincide). The circular variance needs no choice of angle
+  origin and averages over any number of predators, so it is the headline; the gap is reported too.
+- `spread_random`, `gap_random`: the same measures around every live prey at states sampled every
+  `sample_every` steps, where >= 2 predators are within `hunt_radius` (the baseline: predators near a
+  prey without capturing it).
+- `pair_distance_capture`, `pair_distance_random`: mean torus distance between live predators at
+  capture steps (in the capture's world) and at the sampled states. Hunting as a pack: smaller at
+  captures; converging from different sides: the spread rises at captures.
+
+Cooperation shows as captures per predator that grow with team size where the baseline's fall
+(interference), joint captures above the baseline's rate, and a spread at captures above the random
+times'. Comparing the shared and individual rewards at each team size tests whether sharing causes it.
+
+Outputs (`--out`, default `benchmarks/results/group_hunting/`): `group_hunting.csv` (one row per
+condition, team size and seed), `group_hunting.json` (settings, command, machine, timings, means and
+s.e.m. over seeds, definitions), `group_hunting.png`, the trained policies in `policies/` and each
+task's result in `finished/` (a rerun of the same command keeps them and runs only the others).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from ..config import AquariumConfig
+from ..env import resolve_device
+from ..training.config import env_config
+from . import common
+
+PREY_CONDITIONS = ("turnaway", "cotrained")
+MEASURES = ("captures_per_predator", "captures_per_prey", "joint_fraction", "spread_capture", "spread_random",
+            "gap_capture", "gap_random", "pair_distance_capture", "pair_distance_random")
+
+
+@dataclass
+class GroupHuntingStudy:
+    """Settings of the group-hunting study (the CLI's options; defaults sized for one H200 in ~7 min)."""
+
+    predators: list[int] = field(default_factory=lambda: [1, 2, 3, 4])
+    prey: int = 6
+    prey_conditions: list[str] = field(default_factory=lambda: list(PREY_CONDITIONS))
+    share_radii: list[float] = field(default_factory=lambda: [100.0, 0.0])
+    seeds: int = 5
+    worlds: int = 1024  # training worlds per run
+    iterations: int = 100  # PPO iterations per run (32 steps each)
+    train_steps: int = 500  # episode length in training
+    eval_worlds: int = 32  # evaluation episodes per seed (worlds)
+    eval_steps: int = 1000
+    hunt_radius: float = 200.0
+    sample_every: int = 10
+    baseline: bool = True
+    world_size: float = 800.0
+    device: str | None = None
+    jobs: int | None = None
+    out: str = os.path.join("benchmarks", "results", "group_hunting")
+    figures: bool = True
+
+    def validate(self) -> None:
+        if not self.predators:
+            raise ValueError("predators must list at least one team size")
+        for n in self.predators:
+            common.check_int("predators", n)
+        for name in ("prey", "seeds", "worlds", "iterations", "train_steps", "eval_worlds", "eval_steps",
+                     "sample_every"):
+            common.check_int(name.replace("_", "-"), getattr(self, name))
+        if self.eval_steps < 2 or self.train_steps < 2:
+            raise ValueError("eval-steps and train-steps must be >= 2 (an episode's last state is the next one's)")
+        bad = [c for c in self.prey_conditions if c not in PREY_CONDITIONS]
+        if bad or not self.prey_conditions:
+            raise ValueError(f"prey conditions {self.prey_conditions!r} must be a non-empty list of {PREY_CONDITIONS}")
+        if not self.share_radii:
+            raise ValueError("share radii must list at least one catch_share_radius")
+        for r in self.share_radii:
+            common.check_number("share radius", r, 0.0, 1e6)
+        common.check_number("hunt-radius", self.hunt_radius, 1e-3, 1e6)
+        common.check_number("world-size", self.world_size, 100.0, 1e6)
+
+    def env(self, predators: int, share_radius: float, steps: int) -> dict:
+        """The world's config fields (a predator never starves within an episode: one full episode per world)."""
+        return {"prey_count": self.prey, "predator_count": predators, "catch_share_radius": float(share_radius),
+                "max_steps": steps, "predator_starvation_steps": steps, "width": self.world_size,
+                "height": self.world_size}
+
+    def tasks(self, device: str) -> list[dict]:
+        """One task per (condition, team size, seed): training runs first, the longest (both teams learning)
+        first, then the baselines."""
+        tasks = []
+        for condition in sorted(self.prey_conditions, key=lambda c: c != "cotrained"):
+            for radius in self.share_radii:
+                for n in self.predators:
+                    for seed in range(self.seeds):
+                        name = f"{condition}_share{radius:g}_pred{n}_seed{seed}"
+                        tasks.append({"name": name, "condition": condition, "share_radius": radius, "predators": n,
+                                      "seed": seed, "train": True, "device": device, "study": self,
+                                      "policy_dir": os.path.join(self.out, "policies", name)})
+        if self.baseline:
+            for n in self.predators:
+                for seed in range(self.seeds):
+                    tasks.append({"name": f"naivchase_pred{n}_seed{seed}", "condition": "naivchase",
+                                  "share_radius": AquariumConfig().catch_share_radius, "predators": n, "seed": seed,
+                                  "train": False, "device": device, "study": self})
+        return tasks
+
+
+# ---------------------------------------------------------------------------------------------- measures
+def encirclement(centre: torch.Tensor, predators: torch.Tensor, alive: torch.Tensor, radius: float,
+                 width: float, height: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """How the predators `[E, P, 2]` (`alive` `[E, P]`) surround the points `centre` `[E, 2]`: the number
+    within `radius` px (torus), the circular variance of their bearings from the centre (1 - |mean unit
+    bearing|) and the largest angular gap between the bearings (degrees); the last two NaN where fewer
+    than two predators are within `radius`."""
+    delta = common.torus_delta(predators - centre[:, None, :], width, height).double()
+    near = alive & (torch.linalg.vector_norm(delta, dim=-1) < radius)
+    count = near.sum(dim=1)
+    unit = delta / torch.linalg.vector_norm(delta, dim=-1, keepdim=True).clamp_min(1e-12)
+    mean = (unit * near[..., None]).sum(dim=1) / count.clamp_min(1)[:, None]
+    variance = 1 - torch.linalg.vector_norm(mean, dim=-1)
+    angle = torch.atan2(delta[..., 1], delta[..., 0]) % (2 * math.pi)
+    ordered = torch.sort(torch.where(near, angle, torch.full_like(angle, 10.0)), dim=1).values
+    gaps = ordered[:, 1:] - ordered[:, :-1]
+    index = torch.arange(gaps.shape[1], device=gaps.device)
+    gaps = torch.where(index[None, :] < (count - 1)[:, None], gaps, torch.zeros_like(gaps))
+    last = torch.gather(ordered, 1, (count - 1).clamp_min(0)[:, None]).squeeze(1)
+    wrap = ordered[:, 0] + 2 * math.pi - last
+    gap = torch.maximum(gaps.max(dim=1).values if gaps.shape[1] else wrap, wrap)
+    few = count < 2
+    nan = torch.full_like(variance, math.nan)
+    return count, torch.where(few, nan, variance), torch.where(few, nan, torch.rad2deg(gap))
+
+
+def pair_distances(predators: torch.Tensor, alive: torch.Tensor, width: float, height: float) -> torch.Tensor:
+    """Torus distances between every pair of live predators of each world (`[W, P, 2]`): a flat tensor."""
+    P = predators.shape[1]
+    i, j = torch.triu_indices(P, P, offset=1, device=predators.device)
+    d = torch.linalg.vector_norm(common.torus_delta(predators[:, i] - predators[:, j], width, height), dim=-1)
+    return d[alive[:, i] & alive[:, j]]
+
+
+class HuntMeasures:
+    """Accumulates the capture geometry of a rollout (`common.rollout`'s `on_step`); see the module doc."""
+
+    def __init__(self, hunt_radius: float, sample_every: int, width: float, height: float):
+        self.radius, self.every, self.width, self.height = hunt_radius, sample_every, width, height
+        self.values: dict[str, list[torch.Tensor]] = {k: [] for k in (
+            "count", "spread_capture", "gap_capture", "spread_random", "gap_random", "pair_capture", "pair_random")}
+
+    def __call__(self, view: common.StepView) -> None:
+        Pc = view.captured.shape[1]
+        predators, alive = view.position[:, Pc:], view.alive[:, Pc:]
+        if view.step % self.every == 0:  # around every live prey (row w * Pc + i: world w's predators)
+            prey_alive = view.alive[:, :Pc].reshape(-1)
+            centres = view.position[:, :Pc].reshape(-1, 2)[prey_alive]
+            around = predators.repeat_interleave(Pc, dim=0)[prey_alive]
+            _, spread, gap = encirclement(centres, around, alive.repeat_interleave(Pc, dim=0)[prey_alive],
+                                          self.radius, self.width, self.height)
+            self.values["spread_random"].append(spread)
+            self.values["gap_random"].append(gap)
+            self.values["pair_random"].append(pair_distances(predators, alive, self.width, self.height))
+        if not bool(view.captured.any()):
+            return
+        world, slot = torch.nonzero(view.captured, as_tuple=True)
+        count, spread, gap = encirclement(view.before_position[world, slot], predators[world], alive[world],
+                                          self.radius, self.width, self.height)
+        self.values["count"].append(count)
+        self.values["spread_capture"].append(spread)
+        self.values["gap_capture"].append(gap)
+        self.values["pair_capture"].append(pair_distances(predators[world], alive[world], self.width, self.height))
+
+    def result(self) -> dict[str, float]:
+        def mean(name: str, where=None) -> float:
+            parts = self.values[name]
+            if not parts:
+                return math.nan
+            v = torch.cat([p.double().reshape(-1) for p in parts])
+            if where is not None:
+                v = where(v).double()
+            v = v[~torch.isnan(v)]
+            return float(v.mean()) if v.numel() else math.nan
+
+        return {"joint_fraction": mean("count", lambda c: c >= 2),
+                "spread_capture": mean("spread_capture"), "spread_random": mean("spread_random"),
+                "gap_capture": mean("gap_capture"), "gap_random": mean("gap_random"),
+                "pair_distance_capture": mean("pair_capture"), "pair_distance_random": mean("pair_random")}
+
+
+# ---------------------------------------------------------------------------------------------- one task
+def run_task(task: dict) -> dict:
+    """Train (unless a baseline) and evaluate one (condition, team size, seed); a worker's job."""
+    start = time.perf_counter()
+    study: GroupHuntingStudy = task["study"]
+    n, seed, device = task["predators"], task["seed"], task["device"]
+    train_s = 0.0
+    prey, predator = "turnaway", "naivchase"
+    if task["train"]:
+        both = task["condition"] == "cotrained"
+        config = common.training_config(study.env(n, task["share_radius"], study.train_steps),
+                                        "both" if both else "predator", None if both else "turnaway",
+                                        study.worlds, study.iterations, seed, device)
+        policies, train_s = common.train_and_export(config, task["policy_dir"])
+        predator = policies["predator"]
+        prey = policies.get("prey", "turnaway")
+    cfg = env_config({"env": study.env(n, task["share_radius"], study.eval_steps)})
+    measures = HuntMeasures(study.hunt_radius, study.sample_every, cfg.width, cfg.height)
+    episodes = common.rollout(cfg, prey, predator, study.eval_worlds, 1_000_003 * (seed + 1), device, measures)
+    result = {"captures_per_predator": float(episodes["captures"].mean()) / n,
+              "captures_per_prey": float(episodes["captures"].mean()) / study.prey, **measures.result()}
+    return {**{k: task[k] for k in ("name", "condition", "share_radius", "predators", "seed")}, **result,
+            "train_s": train_s, "job_s": time.perf_counter() - start}
+
+
+# ---------------------------------------------------------------------------------------------- study
+def condition_label(condition: str, share_radius: float) -> str:
+    if condition == "naivchase":
+        return "NaivChase vs TurnAway (heuristic)"
+    prey = "TurnAway prey" if condition == "turnaway" else "co-trained prey"
+    reward = f"shared within {share_radius:g} px" if share_radius > 0 else "capturer only"
+    return f"learned vs {prey}, reward {reward}"
+
+
+def run_group_hunting(study: GroupHuntingStudy, command: str | None = None) -> dict:
+    """Run every task (`study.jobs` at once), write the CSV, JSON and figure; return the JSON's content.
+    `command`: the command line recorded in the JSON (default: this process's, `common.command_line`)."""
+    study.validate()
+    device = resolve_device(study.device)
+    jobs = common.resolve_jobs(study.jobs, device)
+    start = time.perf_counter()
+    results, kept = common.run_jobs(run_task, study.tasks(device), jobs, device, study.out, "group-hunting")
+    wall = time.perf_counter() - start
+    rows = [{k: v for k, v in r.items() if k != "name"} for r in results]
+    groups: dict[tuple, list[dict]] = {}
+    for r in results:
+        groups.setdefault((r["condition"], r["share_radius"], r["predators"]), []).append(r)
+    entries = [{"condition": c, "share_radius": radius, "predators": n, "label": condition_label(c, radius),
+                "metrics": {m: common.seed_stats([r[m] for r in rs]) for m in MEASURES}}
+               for (c, radius, n), rs in groups.items()]
+    summary = common.run_record("group-hunting", study, device, wall, sum(r["train_s"] for r in results),
+                                sum(r["job_s"] for r in results), jobs, command, kept)
+    summary["definitions"] = {
+        "captures_per_predator": f"captures per predator per episode of {study.eval_steps} steps "
+                                 f"({study.eval_worlds} episodes per seed, deterministic policies)",
+        "joint_fraction": f"fraction of captures with >= 2 predators within {study.hunt_radius:g} px of the "
+                          "capture point (the captured prey's position at the start of its capture step)",
+        "spread": "circular variance of the bearings from the capture point (or a prey, random times) of the "
+                  "predators within hunt_radius, where >= 2: 0 all on one side, 1 balanced around",
+        "gap": "largest angular gap between those bearings, degrees",
+        "random": f"around every live prey at states sampled every {study.sample_every} steps",
+        "pair_distance": "mean torus distance between live predators, px (capture steps / sampled states)",
+        "cotrained": "prey and predators trained together (team both); evaluated against each other",
+        "share_radius": "catch_share_radius in training and evaluation; 0: only the capturer(s) are rewarded",
+    }
+    summary["results"] = entries
+    paths = common.write_outputs(study.out, "group_hunting", rows, summary)
+    if study.figures:
+        paths["figure"] = plot_group_hunting(summary, study.out)
+    summary["files"] = paths
+    return summary
+
+
+def plot_group_hunting(summary: dict, out: str) -> str:
+    """Four panels against team size: captures per predator, joint captures, spread (captures solid,
+    random times dotted), predator-predator distance (captures solid, random times dotted)."""
+    plt = common.pyplot()
+    fig, axes = plt.subplots(2, 2, figsize=(11, 8))
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    panels = [("captures_per_predator", None, "captures per predator per episode"),
+              ("joint_fraction", None, "captures with another predator near"),
+              ("spread_capture", "spread_random", "circular variance of predator bearings"),
+              ("pair_distance_capture", "pair_distance_random", "predator-predator distance (px)")]
+    labels = list(dict.fromkeys(e["label"] for e in summary["results"]))
+    for k, label in enumerate(labels):
+        entries = sorted((e for e in summary["results"] if e["label"] == label), key=lambda e: e["predators"])
+        x = np.array([e["predators"] for e in entries], dtype=float)
+        for ax, (metric, baseline, _) in zip(axes.flat, panels):
+            common.band(ax, x, [e["metrics"][metric] for e in entries], label, color=colors[k % len(colors)])
+            if baseline is not None:
+                common.band(ax, x, [e["metrics"][baseline] for e in entries], None, "s:",
+                            color=colors[k % len(colors)])
+    sizes = sorted({e["predators"] for e in summary["results"]})
+    for ax, (_, baseline, ylabel) in zip(axes.flat, panels):
+        ax.set_xticks(sizes)
+        ax.set_xlabel("predators (team size)")
+        ax.set_ylabel(ylabel + (" (solid: at captures, dotted: random times)" if baseline else ""), fontsize=8)
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=7, frameon=False)
+    settings = summary["settings"]
+    return common.save_figure(fig, out, "group_hunting.png",
+                              f"Group hunting: {settings['prey']} prey, {settings['seeds']} seeds, "
+                              f"{settings['iterations']} PPO iterations x {settings['worlds']} worlds per run")
+
+
+__all__ = ["GroupHuntingStudy", "run_group_hunting", "encirclement", "pair_distances", "HuntMeasures"]

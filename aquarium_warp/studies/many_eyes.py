@@ -1,0 +1,306 @@
+"""`aquarium-warp study many-eyes`: do learned prey in larger groups detect and escape a predator
+earlier than alone, beyond dilution? (The paper's open question on the many-eyes hypothesis.)
+
+For every group size N and prey field-of-view angle, each seed trains prey (parameter sharing) against
+one NaivChase predator and evaluates them against NaivChase with confusion (a random visible prey each
+step) and without (the nearest), in MODEL.md's 800 x 800 world. The training budget per run is the
+same number of prey-steps at every N: `rows` learning rows per iteration, so `rows // N` worlds of N
+prey (more worlds for small groups), `iterations` PPO iterations of 32 steps. TurnAway prey (which react
+only to a predator they see themselves) are evaluated the same way as a heuristic reference.
+
+Measures, per seed (`eval_rows // N` evaluation worlds of one `eval_steps`-step episode each):
+- `captures_per_prey` per episode. Next to it, the pure-dilution expectation
+  `dilution(N) = c(N0) * N0 / N` (N0 the smallest group size, normally 1): what each prey would
+  suffer if the predator's total capture rate stayed that of the smallest group and were shared among
+  N prey. Vigilance (or confusion) shows as captures below it; a predator that finds prey faster
+  in bigger groups pushes captures above it, so dilution alone is an upper bound on the benefit.
+- Flight onsets (`FlightOnsets`): a prey *flees* at a step when its nearest predator is within
+  `flee_distance` px, it moves at >= half its max speed, and its velocity points away from the
+  predator within `flee_angle` degrees (`common.fleeing`). A *flight onset* is a step t where it
+  flees, did not flee at t - 1 nor at t - `lag`, and its velocity turned by at least `turn_angle`
+  degrees since t - `lag` (the prey's own turn started the flight, not the predator passing by), with
+  no same-type contact push in those moves (a bounce off a neighbour is no decision); the prey must
+  have lived `lag` steps (no respawn in between).
+- `fid`: the flight initiation distance, the distance to the nearest predator at t - `lag`, when the
+  turn began (px): earlier detection = larger.
+- `blind_fraction`: the fraction of onsets where the predator was not visible to the prey itself
+  (beyond its view distance or outside its view cone) at every step from t - `lag` to t - 1. A
+  memoryless prey that turns away from a predator it cannot see has the information from its
+  neighbours, or turned by chance: the N = 1 value and TurnAway's at the same N (TurnAway reacts only
+  to what it sees) are the chance levels. Many eyes: this fraction and the FID grow with N beyond them.
+- `onsets_per_prey`: flight onsets per prey per 1000 steps.
+
+Outputs (`--out`, default `benchmarks/results/many_eyes/`): `many_eyes.csv` (one row per policy, N,
+FOV, predator and seed), `many_eyes.json` (settings, command, machine, timings, means and s.e.m.,
+dilution expectations, definitions), `many_eyes.png`, the trained policies in `policies/` and each
+task's result in `finished/` (a rerun of the same command keeps them and runs only the others).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from ..env import resolve_device
+from ..training.config import env_config
+from . import common
+
+PREDATORS = ("naivchase", "naivchase-noconfusion")
+MEASURES = ("captures_per_prey", "fid", "blind_fraction", "onsets_per_prey")
+
+
+@dataclass
+class ManyEyesStudy:
+    """Settings of the many-eyes study (the CLI's options; defaults sized for one H200 in ~7 min)."""
+
+    group_sizes: list[int] = field(default_factory=lambda: [1, 4, 16, 64])
+    fov_angles: list[float] = field(default_factory=lambda: [60.0, 120.0, 240.0, 360.0])
+    seeds: int = 5
+    rows: int = 4096  # learning prey rows per iteration: rows // N worlds of N prey
+    iterations: int = 120  # PPO iterations per run (32 steps each)
+    train_steps: int = 500  # episode length in training
+    eval_rows: int = 512  # evaluation prey per seed: eval_rows // N worlds (at least 2)
+    eval_steps: int = 1000
+    view_distance: float = 100.0  # the prey's, px (MODEL.md's)
+    flee_angle: float = 45.0
+    flee_distance: float = 200.0
+    turn_angle: float = 30.0
+    lag: int = 5
+    turnaway: bool = True
+    device: str | None = None
+    jobs: int | None = None
+    out: str = os.path.join("benchmarks", "results", "many_eyes")
+    figures: bool = True
+
+    def validate(self) -> None:
+        if not self.group_sizes or not self.fov_angles:
+            raise ValueError("group sizes and FOV angles must each list at least one value")
+        for n in self.group_sizes:
+            common.check_int("group size", n)
+        for fov in self.fov_angles:
+            common.check_number("FOV angle (degrees)", fov, 1e-3, 360.0)
+        for name in ("seeds", "rows", "iterations", "train_steps", "eval_rows", "eval_steps", "lag"):
+            common.check_int(name.replace("_", "-"), getattr(self, name))
+        if self.eval_steps <= self.lag + 1:
+            raise ValueError(f"eval-steps={self.eval_steps} must exceed lag + 1 = {self.lag + 1}")
+        common.check_number("view-distance", self.view_distance, 1e-3, 1e6)
+        common.check_number("flee-angle", self.flee_angle, 0.0, 180.0)
+        common.check_number("turn-angle", self.turn_angle, 0.0, 180.0)
+        common.check_number("flee-distance", self.flee_distance, 1e-3, 1e6)
+
+    def env(self, n: int, fov: float, steps: int) -> dict:
+        """The world's config fields (a predator never starves within an episode: one full episode per world)."""
+        return {"prey_count": n, "predator_count": 1, "max_steps": steps, "predator_starvation_steps": steps,
+                "prey": {"fov_angle": float(fov), "view_distance": float(self.view_distance)}}
+
+    def tasks(self, device: str) -> list[dict]:
+        """One task per (policy, N, FOV, seed): the training runs first, then the TurnAway references."""
+        tasks = []
+        for policy in ("learned", "turnaway") if self.turnaway else ("learned",):
+            for n in sorted(self.group_sizes):
+                for fov in self.fov_angles:
+                    for seed in range(self.seeds):
+                        name = f"{policy}_N{n}_fov{fov:g}_seed{seed}"
+                        tasks.append({"name": name, "policy": policy, "group_size": n, "fov_angle": fov,
+                                      "seed": seed, "device": device, "study": self,
+                                      "policy_dir": os.path.join(self.out, "policies", name)})
+        return tasks
+
+
+class FlightOnsets:
+    """Streaming detector of flight onsets (module doc) for prey `[W, N]` of a world `width` x `height`;
+    `update` once per step, in order."""
+
+    def __init__(self, lag: int, flee_angle: float, flee_distance: float, turn_angle: float, max_speed: float,
+                 view_distance: float, fov_angle: float, width: float, height: float):
+        self.lag, self.flee_angle, self.flee_distance = lag, flee_angle, flee_distance
+        self.cos_turn = math.cos(math.radians(turn_angle))
+        self.cos_half_fov = -2.0 if fov_angle >= 360 else math.cos(math.radians(fov_angle / 2))
+        self.max_speed, self.view_distance, self.width, self.height = max_speed, view_distance, width, height
+        self.history: deque = deque(maxlen=lag + 1)  # (velocity, fleeing, visible, distance, pushed) of t-lag..t
+        self.age: torch.Tensor | None = None
+        self.sums: dict[str, torch.Tensor] = {}  # onsets, their summed FID and blind ones, on the device (no sync)
+
+    def update(self, position, velocity, heading, alive, predator_position, predator_alive, respawned,
+               pushed=None) -> torch.Tensor:
+        """One step's state (prey `position`, `velocity`, `heading` `[W, N, 2]`, `alive` `[W, N]`, the
+        predators', the prey `respawned` in this step `[W, N]` and, optionally, the prey that a same-type
+        neighbour pushes in the next step's move `[W, N]`); returns this step's onsets `[W, N]`."""
+        away, distance = common.nearest_predator(position, predator_position, predator_alive, self.width,
+                                                 self.height)
+        flees = common.fleeing(velocity, away, distance, self.max_speed, self.flee_angle, self.flee_distance) & alive
+        visible = (distance <= self.view_distance) & (common.cosine(heading, -away) >= self.cos_half_fov)
+        fresh = respawned | ~alive
+        self.age = torch.zeros_like(alive, dtype=torch.int32) if self.age is None else \
+            torch.where(fresh, torch.zeros_like(self.age), self.age + 1)
+        pushed = torch.zeros_like(flees) if pushed is None else pushed.clone()
+        self.history.append((velocity.clone(), flees, visible, distance, pushed))
+        if len(self.history) < self.lag + 1:
+            return torch.zeros_like(flees)
+        v0, flees0, _, distance0, _ = self.history[0]
+        turned = common.cosine(velocity, v0) <= self.cos_turn
+        window = list(self.history)[:-1]  # steps t-lag .. t-1, whose next moves made the turn
+        bounced = torch.stack([h[4] for h in window]).any(dim=0)
+        onset = flees & ~self.history[-2][1] & ~flees0 & turned & ~bounced & (self.age >= self.lag)
+        seen = torch.stack([h[2] for h in window]).any(dim=0)
+        for name, value in (("onsets", onset), ("fid", torch.where(onset, distance0, 0.0)), ("blind", onset & ~seen)):
+            total = value.double().sum()
+            self.sums[name] = self.sums[name] + total if name in self.sums else total
+        return onset
+
+    def on_step(self, view: common.StepView) -> None:
+        """`common.rollout`'s callback."""
+        Pc = view.captured.shape[1]
+        t = view.env.state.torch
+        self.update(view.position[:, :Pc], view.velocity[:, :Pc], t.heading[:, :Pc], view.alive[:, :Pc],
+                    view.position[:, Pc:], view.alive[:, Pc:], view.captured, t.contact_partner[:, :Pc] >= 0)
+
+    def result(self) -> dict[str, float]:
+        """Onsets, their mean FID (px) and their blind fraction (NaN without onsets)."""
+        sums = {k: float(v) for k, v in self.sums.items()}
+        onsets = sums.get("onsets", 0.0)
+        return {"onsets": onsets, "fid": sums["fid"] / onsets if onsets else math.nan,
+                "blind_fraction": sums["blind"] / onsets if onsets else math.nan}
+
+
+def dilution_expectation(group_sizes, captures_per_prey) -> np.ndarray:
+    """Pure dilution: `c(N0) * N0 / N` for each N, from the captures per prey `c(N0)` of the smallest group
+    size N0 (a constant total capture rate shared among N prey)."""
+    n = np.asarray(group_sizes, dtype=np.float64)
+    c = np.asarray(captures_per_prey, dtype=np.float64)
+    first = int(np.argmin(n))
+    return c[first] * n[first] / n
+
+
+# ---------------------------------------------------------------------------------------------- one task
+def run_task(task: dict) -> list[dict]:
+    """Train (learned prey) and evaluate one (N, FOV, seed) against both predators; a worker's job."""
+    start = time.perf_counter()
+    study: ManyEyesStudy = task["study"]
+    n, fov, seed, device = task["group_size"], task["fov_angle"], task["seed"], task["device"]
+    train_s, prey = 0.0, "turnaway"
+    if task["policy"] == "learned":
+        config = common.training_config(study.env(n, fov, study.train_steps), "prey", "naivchase",
+                                        max(1, study.rows // n), study.iterations, seed, device)
+        policies, train_s = common.train_and_export(config, task["policy_dir"])
+        prey = policies["prey"]
+    cfg = env_config({"env": study.env(n, fov, study.eval_steps)})
+    rows = []
+    for predator in PREDATORS:
+        flights = FlightOnsets(study.lag, study.flee_angle, study.flee_distance, study.turn_angle, cfg.prey.max_speed,
+                               cfg.prey.view_distance, cfg.prey.fov_angle, cfg.width, cfg.height)
+        worlds = max(2, study.eval_rows // n)
+        episodes = common.rollout(cfg, prey, predator, worlds, 1_000_003 * (seed + 1), device, flights.on_step)
+        f = flights.result()
+        rows.append({"policy": task["policy"], "group_size": n, "fov_angle": fov, "predator": predator, "seed": seed,
+                     "captures_per_prey": float(episodes["captures"].mean()) / n,
+                     "fid": f["fid"], "blind_fraction": f["blind_fraction"],
+                     "onsets_per_prey": f["onsets"] / (worlds * n) * 1000 / (cfg.max_steps - 1)})
+    job_s = time.perf_counter() - start
+    for row in rows:
+        row.update(train_s=train_s / len(rows), job_s=job_s / len(rows))
+    return rows
+
+
+def run_many_eyes(study: ManyEyesStudy, command: str | None = None) -> dict:
+    """Run every task (`study.jobs` at once), write the CSV, JSON and figure; return the JSON's content.
+    `command`: the command line recorded in the JSON (default: this process's, `common.command_line`)."""
+    study.validate()
+    device = resolve_device(study.device)
+    jobs = common.resolve_jobs(study.jobs, device)
+    start = time.perf_counter()
+    finished, kept = common.run_jobs(_task_rows, study.tasks(device), jobs, device, study.out, "many-eyes")
+    results = [row for rows in finished for row in rows["rows"]]
+    wall = time.perf_counter() - start
+    groups: dict[tuple, list[dict]] = {}
+    for r in results:
+        groups.setdefault((r["policy"], r["predator"], r["fov_angle"], r["group_size"]), []).append(r)
+    entries = [{"policy": p, "predator": pred, "fov_angle": fov, "group_size": n,
+                "metrics": {m: common.seed_stats([r[m] for r in rs]) for m in MEASURES}}
+               for (p, pred, fov, n), rs in sorted(groups.items())]
+    curves: dict[tuple, list[dict]] = {}
+    for e in entries:
+        curves.setdefault((e["policy"], e["predator"], e["fov_angle"]), []).append(e)
+    for curve in curves.values():  # entries are sorted by group size
+        sizes = [e["group_size"] for e in curve]
+        for key in ("mean", "sem"):
+            values = [e["metrics"]["captures_per_prey"][key] for e in curve]
+            expected = dilution_expectation(sizes, [math.nan if v is None else v for v in values])
+            for e, x in zip(curve, expected):
+                e.setdefault("dilution_expectation", {})[key] = float(x)
+    summary = common.run_record("many-eyes", study, device, wall, sum(r["train_s"] for r in results),
+                                sum(r["job_s"] for r in results), jobs, command, kept)
+    summary["definitions"] = {
+        "captures_per_prey": f"captures per prey per episode of {study.eval_steps} steps",
+        "dilution_expectation": "c(N0) * N0 / N, N0 the smallest group size: each prey's share of the smallest "
+                                "group's total capture rate (sem scaled alike)",
+        "fleeing": f"nearest predator within {study.flee_distance:g} px, speed >= half the max, velocity within "
+                   f"{study.flee_angle:g} degrees of straight away from it",
+        "onset": f"fleeing at t, not at t-1 nor t-{study.lag}, velocity turned >= {study.turn_angle:g} degrees "
+                 f"since t-{study.lag} with no same-type contact push in those moves, prey alive (no respawn) since "
+                 f"t-{study.lag}",
+        "fid": f"distance to the nearest predator at t-{study.lag} of an onset, px",
+        "blind_fraction": f"onsets where the predator was outside the prey's own view (distance "
+                          f"{study.view_distance:g} px and FOV) at every step t-{study.lag}..t-1",
+        "onsets_per_prey": "flight onsets per prey per 1000 steps",
+        "training budget": f"{study.iterations} PPO iterations x 32 steps x {study.rows} prey rows per run "
+                           f"({study.rows} // N worlds): the same prey-steps at every N",
+        "policies": "learned: trained prey (parameter sharing) vs NaivChase; turnaway: the heuristic",
+        "predator": "naivchase: a random visible prey each step (confusion); naivchase-noconfusion: the nearest",
+    }
+    summary["results"] = entries
+    paths = common.write_outputs(study.out, "many_eyes", results, summary)
+    if study.figures:
+        paths["figure"] = plot_many_eyes(summary, study.out)
+    summary["files"] = paths
+    return summary
+
+
+def _task_rows(task: dict) -> dict:
+    """`run_task` for `common.run_jobs` (whose jobs return a dict each)."""
+    return {"name": task["name"], "rows": run_task(task)}
+
+
+def plot_many_eyes(summary: dict, out: str) -> str:
+    """Rows: NaivChase with / without confusion; columns: captures per prey (dashed: pure dilution),
+    FID, blind fraction, against group size; a colour per FOV, solid learned, dotted TurnAway."""
+    plt = common.pyplot()
+    fig, axes = plt.subplots(2, 3, figsize=(14, 8), squeeze=False)
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    fovs = sorted({e["fov_angle"] for e in summary["results"]})
+    for row, predator in enumerate(PREDATORS):
+        for policy, style in (("learned", "o-"), ("turnaway", "s:")):
+            for k, fov in enumerate(fovs):
+                curve = [e for e in summary["results"]
+                         if (e["policy"], e["predator"], e["fov_angle"]) == (policy, predator, fov)]
+                if not curve:
+                    continue
+                x = np.array([e["group_size"] for e in curve], dtype=float)
+                color = colors[k % len(colors)]
+                label = f"{policy}, FOV {fov:g}°"
+                for ax, metric in zip(axes[row], ("captures_per_prey", "fid", "blind_fraction")):
+                    common.band(ax, x, [e["metrics"][metric] for e in curve], label, style, color=color)
+                if policy == "learned":
+                    axes[row, 0].plot(x, [e["dilution_expectation"]["mean"] for e in curve], "--", color=color,
+                                      lw=1, alpha=0.7)
+        for ax, ylabel in zip(axes[row], ("captures per prey per episode (dashed: pure dilution)",
+                                          "flight initiation distance (px)", "onsets with the predator unseen")):
+            ax.set_xscale("log", base=2)
+            ax.set_xlabel("group size N (prey)")
+            ax.set_ylabel(ylabel, fontsize=8)
+            ax.set_title(f"vs {predator}", fontsize=8)
+            ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=6, frameon=False)
+    settings = summary["settings"]
+    return common.save_figure(fig, out, "many_eyes.png",
+                              f"Many eyes: prey groups vs one predator; {settings['seeds']} seeds, "
+                              f"{settings['iterations']} PPO iterations x {settings['rows']} prey rows per run")
+
+
+__all__ = ["ManyEyesStudy", "run_many_eyes", "FlightOnsets", "dilution_expectation"]
