@@ -116,3 +116,19 @@ def test_cuda_graph_loop_matches_eager_loop(changes):
     graphed, _ = _train("fast", device=device, train={"cuda_graphs": True, "iterations": 4}, **copy.deepcopy(changes))
     differing = {k: float((eager[k] - graphed[k]).abs().max()) for k in eager if not torch.equal(eager[k], graphed[k])}
     assert not differing, differing
+
+
+def test_graph_captures_pause_the_garbage_collector():
+    """A torch capture must not run Python's collector (it would free Warp arrays of dropped envs, which
+    a capturing stream refuses): paused inside, restored after, also when the block raises."""
+    import gc
+
+    from aquarium_warp.training.loop import collection_paused
+
+    assert gc.isenabled()
+    with collection_paused():
+        assert not gc.isenabled()
+    assert gc.isenabled()
+    with pytest.raises(RuntimeError), collection_paused():
+        raise RuntimeError("capture failed")
+    assert gc.isenabled()

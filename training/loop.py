@@ -41,12 +41,28 @@ they replay the same memory addresses, which is why every buffer they touch is a
 from __future__ import annotations
 
 import contextlib
+import gc
 import time
 
 import torch
 
 from .vec_env import AquariumVecEnv
 
+
+@contextlib.contextmanager
+def collection_paused():
+    """Collect garbage now, then pause Python's garbage collector for the block: a torch graph capture
+    must not free Warp arrays (of an env or trainer dropped earlier in the process, e.g. a study's
+    previous run), because Warp frees them at once, which a capturing stream refuses (CUDA error 900,
+    and the capture is lost)."""
+    gc.collect()
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
 
 class IterationRecord:
     """What an iteration reports: mean losses, episode statistics and phase times, copied to the host
@@ -298,7 +314,7 @@ class TrainingLoop:
         """Record `act[t]` and `after[t]` in replay order, from the loop's memory pool. Capturing runs
         nothing: the storages' step counters advance as if it had and are reset afterwards."""
         torch.cuda.synchronize(self.device)
-        with torch.inference_mode():
+        with torch.inference_mode(), collection_paused():
             for _ in range(self.num_steps):
                 for stage, graphs in ((self._act, self._act_graphs), (self._after_step, self._after_graphs)):
                     graph = torch.cuda.CUDAGraph()
@@ -315,6 +331,6 @@ class TrainingLoop:
         torch.cuda.synchronize(self.device)
         self._indices[i] = torch.arange(size * alg.num_mini_batches, device=self.device)
         graph = torch.cuda.CUDAGraph()
-        with torch.cuda.graph(graph, pool=self._graph_pool(), stream=self._capture_stream):
+        with collection_paused(), torch.cuda.graph(graph, pool=self._graph_pool(), stream=self._capture_stream):
             self._losses[i] = self._learn(i, self._indices[i], size)
         self._learn_graphs[i] = graph
