@@ -353,7 +353,7 @@ def _add_open_question_arguments(p, out: str, jobs: bool = True) -> None:
 
 def _study_group_hunting(args) -> int:
     """`aquarium-warp study group-hunting`: learning predator teams, with and without shared catch rewards."""
-    from .studies.common import command_line, number_list
+    from .studies.common import command_line, number_list, written
     from .studies.group_hunting import GroupHuntingStudy, run_group_hunting
 
     study = GroupHuntingStudy(
@@ -367,14 +367,13 @@ def _study_group_hunting(args) -> int:
           f"({', '.join(study.prey_conditions)}), catch_share_radius {study.share_radii}, {study.seeds} seeds -> "
           f"{study.out}")
     summary = run_group_hunting(study, command_line(args.argv))
-    print(f"wrote {', '.join(summary['files'].values())} in {summary['wall_time_s']:.1f} s on "
-          f"{summary['machine']['device_name']} ({summary['training_fraction']:.0%} of the workers' time training)")
+    print(f"{written(summary)} ({summary['training_fraction']:.0%} of the workers' time training)")
     return 0
 
 
 def _study_many_eyes(args) -> int:
     """`aquarium-warp study many-eyes`: learned prey groups, dilution vs detection."""
-    from .studies.common import command_line, number_list
+    from .studies.common import command_line, number_list, written
     from .studies.many_eyes import ManyEyesStudy, run_many_eyes
 
     study = ManyEyesStudy(
@@ -387,14 +386,13 @@ def _study_many_eyes(args) -> int:
     print(f"aquarium-warp study many-eyes: group sizes {study.group_sizes} x FOV {study.fov_angles}, "
           f"{study.seeds} seeds -> {study.out}")
     summary = run_many_eyes(study, command_line(args.argv))
-    print(f"wrote {', '.join(summary['files'].values())} in {summary['wall_time_s']:.1f} s on "
-          f"{summary['machine']['device_name']} ({summary['training_fraction']:.0%} of the workers' time training)")
+    print(f"{written(summary)} ({summary['training_fraction']:.0%} of the workers' time training)")
     return 0
 
 
 def _study_flow(args) -> int:
     """`aquarium-warp study flow`: captures, swarm metrics and escape directions in currents."""
-    from .studies.common import command_line, number_list
+    from .studies.common import command_line, number_list, written
     from .studies.flow import FlowStudy, run_flow
 
     study = FlowStudy(
@@ -408,8 +406,7 @@ def _study_flow(args) -> int:
     print(f"aquarium-warp study flow: {study.kinds} x strengths {study.strengths} px/step, {study.seeds} seeds x "
           f"{study.episodes_per_seed} episodes of {study.episode_steps} steps -> {study.out}")
     summary = run_flow(study, command_line(args.argv))
-    print(f"wrote {', '.join(list(summary['files'].values()) + summary.get('figures', []))} in "
-          f"{summary['wall_time_s']:.1f} s on {summary['machine']['device_name']}")
+    print(written(summary))
     return 0
 
 

@@ -279,8 +279,11 @@ def seed_stats(values) -> dict:
 
 
 # ---------------------------------------------------------------------------------------------- outputs
-def write_outputs(out: str, name: str, rows: list[dict], summary: dict) -> dict[str, str]:
-    """`<name>.csv` (rows) and `<name>.json` (summary) in `out`; returns their paths."""
+def write_outputs(out: str, name: str, rows: list[dict], summary: dict,
+                  plot: Callable[[dict, str], str | list[str]] | None = None) -> dict:
+    """`<name>.csv` (rows) and `<name>.json` (summary) in `out`, then, with `plot`, the figures that
+    `plot(summary, out)` draws; returns `summary` with `files` (`{"csv", "json"}`) and `figures`
+    (paths) added."""
     import json
 
     os.makedirs(out, exist_ok=True)
@@ -288,7 +291,16 @@ def write_outputs(out: str, name: str, rows: list[dict], summary: dict) -> dict[
     write_csv(paths["csv"], rows)
     with open(paths["json"], "w", encoding="utf-8") as f:
         json.dump(json_safe(summary), f, indent=1)
-    return paths
+    figures = plot(summary, out) if plot is not None else []
+    summary["files"] = paths
+    summary["figures"] = [figures] if isinstance(figures, str) else list(figures)
+    return summary
+
+
+def written(summary: dict) -> str:
+    """The CLI's closing line: the files written, the wall time and the device."""
+    names = list(summary["files"].values()) + summary["figures"]
+    return f"wrote {', '.join(names)} in {summary['wall_time_s']:.1f} s on {summary['machine']['device_name']}"
 
 
 def command_line(argv: Sequence[str] | None = None) -> str:

@@ -210,11 +210,7 @@ def run_flow(study: FlowStudy, command: str | None = None) -> dict:
                                   "degrees, fractions summed over seeds",
     }
     summary["results"] = entries
-    paths = common.write_outputs(study.out, "flow", rows, summary)
-    if study.figures:
-        summary["figures"] = plot_flow(summary, study.out)
-    summary["files"] = paths
-    return summary
+    return common.write_outputs(study.out, "flow", rows, summary, plot_flow if study.figures else None)
 
 
 def plot_flow(summary: dict, out: str) -> list[str]:

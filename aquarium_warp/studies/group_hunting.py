@@ -277,11 +277,8 @@ def run_group_hunting(study: GroupHuntingStudy, command: str | None = None) -> d
         "share_radius": "catch_share_radius in training and evaluation; 0: only the capturer(s) are rewarded",
     }
     summary["results"] = entries
-    paths = common.write_outputs(study.out, "group_hunting", rows, summary)
-    if study.figures:
-        paths["figure"] = plot_group_hunting(summary, study.out)
-    summary["files"] = paths
-    return summary
+    return common.write_outputs(study.out, "group_hunting", rows, summary,
+                                plot_group_hunting if study.figures else None)
 
 
 def plot_group_hunting(summary: dict, out: str) -> str:

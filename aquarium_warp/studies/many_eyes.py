@@ -255,11 +255,7 @@ def run_many_eyes(study: ManyEyesStudy, command: str | None = None) -> dict:
         "predator": "naivchase: a random visible prey each step (confusion); naivchase-noconfusion: the nearest",
     }
     summary["results"] = entries
-    paths = common.write_outputs(study.out, "many_eyes", results, summary)
-    if study.figures:
-        paths["figure"] = plot_many_eyes(summary, study.out)
-    summary["files"] = paths
-    return summary
+    return common.write_outputs(study.out, "many_eyes", results, summary, plot_many_eyes if study.figures else None)
 
 
 def _task_rows(task: dict) -> dict:
