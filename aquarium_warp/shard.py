@@ -208,8 +208,8 @@ class WorldShard:
             return [self.record(grid_kernels.sort_into_cells_per_world, W, [self.world, agents, g])]
         if build == "rank":
             return [self.record(grid_kernels.rank_into_cells_per_world, (W, C), [self.world, agents, g])]
+        # `cell_count` is zero here (at allocation, and after every build: `drop_into_cells` zeroes it).
         return [
-            g.cell_count.zero_,
             self.record(grid_kernels.compute_cell_keys, (W, C), [self.world, agents, g]),
             # Every cell's end is the running count of live agents (its start the previous cell's end).
             functools.partial(wp.utils.array_scan, g.cell_count, g.cell_end, True),
@@ -293,12 +293,13 @@ class WorldShard:
                         [s.agents, s.outputs, s.worlds]),
             self.record(capture.respawn_captured_prey, (W, Pc), [world, s.scratch], [s.worlds, s.agents, s.outputs]),
         ]
-        # 7: reproduction.
+        # 7: reproduction (8, the rewards, are finished by the share and respawn passes and by
+        # `reproduce_prey`, for its newborns).
         if cfg.prey_reproduction:
-            program.append(self.record(population.reproduce_prey, W, [world, s.scratch], [s.agents, s.worlds]))
-        # 8-9: rewards, episode end, auto-reset of ended worlds.
+            program.append(self.record(population.reproduce_prey, W, [world, s.scratch],
+                                       [s.agents, s.outputs, s.worlds]))
+        # 9: episode end, auto-reset of ended worlds.
         program += [
-            self.record(population.collect_rewards, (W, C), [world, s.agents], [s.outputs, s.worlds]),
             self.record(population.finish_world_step, W, [world], [s.worlds, s.outputs]),
             self.record(population.close_ended_episodes, (W, C), [world], [s.worlds, s.outputs, s.agents]),
         ]

@@ -1,10 +1,17 @@
-"""MODEL.md steps 5 and 6: captures after the move, reward sharing, starvation, respawn or removal.
+"""MODEL.md steps 5 and 6: captures after the move, reward sharing, starvation, respawn or removal;
+and step 8's rewards, which these passes finish (no pass of their own).
 
 Four passes keep every sum deterministic (no float atomics): predators mark the prey they overlap;
 each captured prey counts its sharers and takes the penalty; each predator sums its shares over the
 captured prey near it (in the grid's fixed order), resets its starvation counter if it captured,
 then starves by one step; captured prey respawn or are removed last, so the passes before all see
 the positions of the capture.
+
+Rewards: a predator's is final at the end of the share pass, which adds it to the slot's episode sum
+(every predator slot, dead ones included, whose reward is this step's 0); a prey's is final once it
+is respawned or removed: the respawn pass, over every prey slot, adds the survival reward to each prey
+alive after it and the prey's reward to its episode sum. (Newborns, made later by
+`population.reproduce`, get theirs there.)
 
 The passes search the cell lists of the start-of-step positions (built by the last observation
 pass), not cell lists of the moved ones: every agent moved by at most its max speed since, so a
@@ -132,9 +139,11 @@ def share_rewards(
 ):
     """Predator p of world w (if live) sums its shares of this step's captures (in the lists' order);
     then MODEL.md step 6: a capture resets its steps-since-last-capture counter, which then grows by
-    one; past the limit it dies."""
+    one; past the limit it dies. Its reward (this step's 0 for a dead predator) then goes into its
+    episode sum."""
     i = world.prey_capacity + p
     if not agents.alive[w, i]:
+        counters.episode_return[w, i] = counters.episode_return[w, i] + outputs.reward[w, i]
         return
     pos = agents.position[w, i]
     contact = types[w, PREY].radius + types[w, PREDATOR].radius
@@ -157,6 +166,7 @@ def share_rewards(
                     if inside_share or d2 < contact * contact:
                         total += values.predator_reward / float(scratch.share_count[w, j])
     outputs.reward[w, i] = total
+    counters.episode_return[w, i] = counters.episode_return[w, i] + total
     hunger = agents.starvation[w, i] + 1
     if is_capturer:
         hunger = 1
@@ -171,17 +181,22 @@ def share_rewards(
 def respawn_or_remove(world: WorldParams, scratch: Scratch, counters: WorldCounters, agents: Agents,
                       outputs: StepOutputs, w: int, i: int):
     """Prey slot i of world w, if captured, reappears as a fresh prey at a uniform position, or is
-    removed and terminated."""
-    if not scratch.captured[w, i]:
-        return
-    if world.respawn_captured_prey != 0:
-        rng = random_stream(counters.seed[w], world.world_offset + w, counters.episode[w],
-                            counters.world_step[w] + 1, i, PURPOSE_RESPAWN)
-        make_fresh_prey(world, w, i, uniform_position(world, rng, 0.0), rng, agents)
-    else:
-        agents.alive[w, i] = False
-        outputs.terminated[w, i] = True
-        wp.atomic_add(counters.prey_alive_count, w, -1)
+    removed and terminated; then MODEL.md step 8 for the slot: a prey alive now gets its survival
+    reward, and the slot's reward goes into its episode sum."""
+    if scratch.captured[w, i]:
+        if world.respawn_captured_prey != 0:
+            rng = random_stream(counters.seed[w], world.world_offset + w, counters.episode[w],
+                                counters.world_step[w] + 1, i, PURPOSE_RESPAWN)
+            make_fresh_prey(world, w, i, uniform_position(world, rng, 0.0), rng, agents)
+        else:
+            agents.alive[w, i] = False
+            outputs.terminated[w, i] = True
+            wp.atomic_add(counters.prey_alive_count, w, -1)
+    r = outputs.reward[w, i]
+    if agents.alive[w, i]:
+        r = r + world.values[w].prey_reward
+        outputs.reward[w, i] = r
+    counters.episode_return[w, i] = counters.episode_return[w, i] + r
 
 
 # The passes as kernels, one thread per slot of the type each pass takes (the staged step).
@@ -225,7 +240,7 @@ def share_capture_rewards(
     outputs: StepOutputs,
     counters: WorldCounters,
 ):
-    """`share_rewards` for every predator."""
+    """`share_rewards` for every predator slot."""
     w, p = wp.tid()
     share_rewards(world, types, grid, scratch, agents, outputs, counters, w, p)
 

@@ -16,8 +16,9 @@ order, dead ones included (`listed_slot` skips those), and the positions are the
 CPU, a counting sort per world (`sort_into_cells_per_world`, one thread per world). On a GPU, small
 worlds rank each slot over its world (`rank_into_cells_per_world`, one thread per slot), and large
 ones count the agents of each cell (`compute_cell_keys`), take a prefix sum of the counts as the
-cell ranges, drop each agent into its cell in any order (`drop_into_cells`) and then order each cell
-by slot (`order_cells`, each entry counting the lower slots of its cell): no sort of all keys. Dead
+cell ranges, drop each agent into its cell in any order (`drop_into_cells`, which also zeroes the
+counts for the next build, so no memset precedes the counting) and then order each cell by slot
+(`order_cells`, each entry counting the lower slots of its cell): no sort of all keys. Dead
 slots lie outside every cell: the count build lists none, the per-world builds list them after their
 world's live agents.
 
@@ -404,8 +405,9 @@ def next_cell(grid: CellLists, walk: wp.ref[CellWalk]) -> bool:
 @wp.kernel
 def compute_cell_keys(world: WorldParams, agents: Agents, grid: CellLists):
     """Count build, step 1: each live agent's key, and its arrival order among its cell's agents
-    (`cell_count` zero beforehand counts them; the order varies from run to run, `order_cells`
-    replaces it by slot order)."""
+    (`cell_count`, zero beforehand, counts them: zero at allocation, and zeroed again by the last
+    build's `drop_into_cells`; the order varies from run to run, `order_cells` replaces it by slot
+    order)."""
     w, i = wp.tid()
     n = grid.position.shape[0]
     k = w * world.capacity + i
@@ -420,9 +422,13 @@ def compute_cell_keys(world: WorldParams, agents: Agents, grid: CellLists):
 @wp.kernel
 def drop_into_cells(grid: CellLists):
     """Count build, step 3 (after the prefix sum of the counts into the cell ends): each live agent
-    takes the place of its arrival order in its cell's range of the scratch list."""
+    takes the place of its arrival order in its cell's range of the scratch list. The counts have
+    had their last read (the prefix sum), so the threads zero them for the next build (cells k,
+    k + agents, ...: a world may have more cells than slots)."""
     k = wp.tid()
     n = grid.position.shape[0]
+    for c in range(k, grid.cell_count.shape[0], n):
+        grid.cell_count[c] = 0
     cell = grid.key[k]
     if cell >= 0:
         grid.agent[n + grid.cell_start[cell] + grid.key[n + k]] = k

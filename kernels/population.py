@@ -1,5 +1,11 @@
-"""MODEL.md steps 7-9: reproduction, survival rewards, episode end and auto-reset (starvation, step 6,
-is counted in `capture.py`'s share pass, which already visits every predator).
+"""MODEL.md steps 7-9: reproduction, episode end and auto-reset (starvation, step 6, is counted in
+`capture.py`'s share pass, which already visits every predator).
+
+Step 8's rewards are finished by the passes that already visit each slot, not by a pass of their own:
+`capture.py`'s share pass adds each predator's reward to its episode sum, its respawn pass gives
+each prey slot still alive its survival reward and adds the prey's reward to its episode sum, and
+`reproduce` does both for each newborn (whose slot the respawn pass saw dead, with this step's reward
+0, which `move_agent` cleared).
 
 Per-world counts change through integer atomics (exact in any order); per-world float sums are
 taken by one thread per world in slot order, so they are deterministic too.
@@ -7,7 +13,7 @@ taken by one thread per world in slot order, so they are deterministic too.
 
 import warp as wp
 
-from .common import PREY, PURPOSE_NEWBORN, WorldParams, random_stream, slot_type
+from .common import PURPOSE_NEWBORN, WorldParams, random_stream
 from .spawn import make_fresh_prey, spawn_slot
 from .state import Agents, Scratch, StepOutputs, WorldCounters
 
@@ -15,10 +21,13 @@ wp.set_module_options({"enable_backward": False})
 
 
 @wp.func
-def reproduce(world: WorldParams, scratch: Scratch, agents: Agents, counters: WorldCounters, w: int):
+def reproduce(world: WorldParams, scratch: Scratch, agents: Agents, outputs: StepOutputs, counters: WorldCounters,
+              w: int):
     """World w's births, by one thread: parents in slot order; each child takes the lowest slot that
     was free at the start of the step (a prey removed this step does not free its slot until the next
-    step)."""
+    step), and gets its survival reward, which goes into its slot's episode sum (the respawn pass
+    already added the slot's reward before the birth, 0: the sum is the same as adding 0 + the
+    survival reward once, bit for bit)."""
     live = counters.prey_alive_count[w]
     free = int(0)
     for parent in range(world.prey_capacity):
@@ -34,20 +43,11 @@ def reproduce(world: WorldParams, scratch: Scratch, agents: Agents, counters: Wo
                 make_fresh_prey(world, w, child, agents.position[w, parent], rng, agents)
                 agents.velocity[w, child] = wp.vec2(0.0, 0.0)
                 agents.age[w, parent] = 0
+                r = outputs.reward[w, child] + world.values[w].prey_reward
+                outputs.reward[w, child] = r
+                counters.episode_return[w, child] = counters.episode_return[w, child] + r
                 live += 1
     counters.prey_alive_count[w] = live
-
-
-@wp.func
-def collect_reward(world: WorldParams, agents: Agents, outputs: StepOutputs, counters: WorldCounters, w: int,
-                   i: int):
-    """Survival reward of slot i of world w if it is a live prey (newborns included), then the slot's
-    episode sum."""
-    r = outputs.reward[w, i]
-    if slot_type(world, i) == PREY and agents.alive[w, i]:
-        r = r + world.values[w].prey_reward
-        outputs.reward[w, i] = r
-    counters.episode_return[w, i] = counters.episode_return[w, i] + r
 
 
 @wp.func
@@ -102,16 +102,10 @@ def close_episode(world: WorldParams, counters: WorldCounters, outputs: StepOutp
 
 
 @wp.kernel
-def reproduce_prey(world: WorldParams, scratch: Scratch, agents: Agents, counters: WorldCounters):
+def reproduce_prey(world: WorldParams, scratch: Scratch, agents: Agents, outputs: StepOutputs,
+                   counters: WorldCounters):
     """`reproduce`, one thread per world."""
-    reproduce(world, scratch, agents, counters, wp.tid())
-
-
-@wp.kernel
-def collect_rewards(world: WorldParams, agents: Agents, outputs: StepOutputs, counters: WorldCounters):
-    """`collect_reward` for every slot."""
-    w, i = wp.tid()
-    collect_reward(world, agents, outputs, counters, w, i)
+    reproduce(world, scratch, agents, outputs, counters, wp.tid())
 
 
 @wp.kernel

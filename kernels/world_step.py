@@ -53,7 +53,7 @@ from .common import PREDATOR, PREY, AgentType, WorldParams
 from .grid import CellLists
 from .motion import move_agent
 from .observation import observation_rows
-from .population import close_episode, collect_reward, finish_step, reproduce
+from .population import close_episode, finish_step, reproduce
 from .state import Actions, Agents, Scratch, StepOutputs, WorldCounters
 
 wp.set_module_options({"enable_backward": False})
@@ -160,7 +160,8 @@ def _world_step_kernel(prey_slots: tuple[int, int], predator_slots: tuple[int, i
             move_agent(world, types, action_direction, actions, counters, agents, scratch, outputs, w, i)
         if wp.static(block_dim > 1):
             barrier[lane] += 0
-        # 5-6: captures, sharers, shares and starvation, respawn or removal.
+        # 5-6: captures, sharers, shares and starvation, respawn or removal (and 8: the rewards of every
+        # predator and prey slot, in the share and respawn passes).
         for p in range(first, predators, wp.static(lanes)):
             mark_captures(world, types, grid, agents, scratch, w, p, 0, 1)
         if wp.static(block_dim > 1):
@@ -177,19 +178,11 @@ def _world_step_kernel(prey_slots: tuple[int, int], predator_slots: tuple[int, i
             respawn_or_remove(world, scratch, counters, agents, outputs, w, i)
         if wp.static(block_dim > 1):
             barrier[lane] += 0
-        # 7: reproduction (the same for every lane of the block, so all of them reach the barrier), by
-        # the world's first lane.
-        if reproduction != 0:
-            if first == 0:
-                reproduce(world, scratch, agents, counters, w)
-            if wp.static(block_dim > 1):
-                barrier[lane] += 0
-        # 8-9: rewards, episode end, auto-reset.
-        for i in range(first, world.capacity, wp.static(lanes)):
-            collect_reward(world, agents, outputs, counters, w, i)
-        if wp.static(block_dim > 1):
-            barrier[lane] += 0
+        # 7: reproduction; 9: episode end (8, the rewards, was finished by the share and respawn passes
+        # and `reproduce`), both by the world's first lane.
         if first == 0:
+            if reproduction != 0:
+                reproduce(world, scratch, agents, outputs, counters, w)
             finish_step(world, counters, outputs, w)
         if wp.static(block_dim > 1):
             barrier[lane] += 0

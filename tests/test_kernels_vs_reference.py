@@ -588,6 +588,86 @@ def test_rollout_resynced_each_step(name, step_kernel):
     fail_if(errors, name)
 
 
+@pytest.mark.skipif(DEVICE != "cpu", reason="bit for bit on the CPU (a GPU may contract float operations)")
+@pytest.mark.parametrize("name, step_kernel", [("reproduction", "auto"), ("reproduction", "stages"),
+                                               ("reproduction_cells", "auto")])
+def test_rewards_and_episode_returns_bit_for_bit_with_newborns(name, step_kernel):
+    """Rewards and episode sums have no pass of their own (the share and respawn passes and
+    reproduction finish them): every slot's reward and episode sum equal a float32 computation from
+    the reference's captures, sharers and births bit for bit (predators' shares summed in slot order,
+    which is the lists' order in worlds of one cell; in worlds of cells, to within rounding), from
+    episode sums set at random (-0.0 included). Where an episode ends, the ended returns are the sums
+    over the slots, in slot order."""
+    cfg, env = CONFIGS[name], get_env(name, step_kernel)
+    rng = np.random.default_rng(4000 + list(CONFIGS).index(name))
+    f32 = np.float32
+    t = state_views(env)
+    births = ended = 0
+    errors: list = []
+    for rep in range(8):
+        worlds = [random_world(rng, cfg) for _ in range(env.num_worlds)]
+        for w in worlds:  # most prey old enough to reproduce, so that births happen
+            w["age"][: cfg.prey_capacity] = np.maximum(w["age"][: cfg.prey_capacity],
+                                                       rng.integers(0, 8, cfg.prey_capacity))
+        if rep % 4 == 3:  # some worlds end their episode in this step
+            for w in worlds[::2]:
+                w["world_step"] = cfg.max_steps - 1
+        set_worlds(env, worlds)
+        start_return = rng.normal(0.0, 30.0, (env.num_worlds, cfg.capacity)).astype(np.float32)
+        start_return[:, ::3] = 0.0
+        start_return[:, 1::5] = -0.0
+        t.episode_return.copy_(torch.from_numpy(start_return))
+        starts = read_worlds(env)
+        actions = random_actions(rng, cfg, env.num_worlds)
+        _, rewards, _, _, _ = kernel_step(env, actions)
+        k_rew = np.concatenate([rewards["prey"].cpu().numpy(), rewards["predator"].cpu().numpy()], axis=1)
+        k_return = t.episode_return.cpu().numpy()
+        k_ended = t.episode_ended.cpu().numpy()
+        k_ended_return = t.ended_return.cpu().numpy()
+        after = read_worlds(env)
+        for w in range(env.num_worlds):
+            where = f"[{name} {step_kernel} #{rep} world {w}]"
+            r_new, _, _, _, r_cap, r_info = ref.step(
+                cfg, starts[w], actions[w], starts[w]["world_step"], respawn_position=after[w]["position"],
+                respawn_replication_age=after[w]["replication_age"],
+                newborn_replication_age=after[w]["replication_age"])
+            births += len(r_info["births"])
+            want = np.zeros(cfg.capacity, np.float32)
+            for i in range(cfg.prey_capacity):
+                r = f32(-f32(cfg.prey_capture_penalty)) if r_cap[i] else f32(0.0)
+                want[i] = r + f32(cfg.prey_reward) if r_new["alive"][i] else r
+            for prey in sorted(r_info["sharers"]):
+                sharers = r_info["sharers"][prey]
+                for p in sharers:
+                    want[p] = want[p] + f32(cfg.predator_reward) / f32(len(sharers))
+            got = k_rew[w]
+            exact = np.arange(cfg.capacity) < cfg.prey_capacity
+            if not name.endswith("_cells"):
+                exact[:] = True
+            bad = (exact & (got.view(np.int32) != want.view(np.int32))) | (~exact & ~np.isclose(got, want, 1e-6))
+            for i in np.flatnonzero(bad):
+                errors.append(f"{where} {slot_name(cfg, i)} reward: kernel={got[i]!r} float32={want[i]!r}")
+            sums = start_return[w] + got  # float32, one add per slot
+            if k_ended[w]:
+                ended += 1
+                prey_sum = predator_sum = f32(0.0)
+                for i in range(cfg.capacity):
+                    if i < cfg.prey_capacity:
+                        prey_sum = f32(prey_sum + sums[i])
+                    else:
+                        predator_sum = f32(predator_sum + sums[i])
+                if k_ended_return[w].view(np.int32).tolist() != np.array([predator_sum, prey_sum]).view(
+                        np.int32).tolist():
+                    errors.append(f"{where} ended_return: kernel={k_ended_return[w].tolist()} "
+                                  f"float32={[predator_sum, prey_sum]}")
+                sums = np.zeros_like(sums)  # the next episode's sums start at +0.0
+            for i in np.flatnonzero(k_return[w].view(np.int32) != sums.view(np.int32)):
+                errors.append(f"{where} {slot_name(cfg, i)} episode_return: kernel={k_return[w][i]!r} "
+                              f"float32={sums[i]!r} (start {start_return[w][i]!r} + reward {got[i]!r})")
+    fail_if(errors, name)
+    assert births > 0 and ended > 0
+
+
 def _world_from_agents(cfg, prey, predators, world_step=0):
     """Hand-built world: lists of dicts with pos, vel, acc, heading, age, rep, starve (None = dead slot)."""
     C, Pc = cfg.capacity, cfg.prey_capacity

@@ -60,19 +60,18 @@ def step_byte_model(cfg: AquariumConfig, dims: tuple[int, int] | None = None, cu
         # empty ones included.
         build = [{"read": BOOL + VEC2, "write": I32 + VEC2 + 2 * I32 * cells}]
     elif path == "count":
-        # cell_count.zero_: one int32 per cell.
-        clear: Traffic = {"read": 0.0, "write": I32 * cells}
         # compute_cell_keys: read position, alive; write the key and the arrival order (an atomic
-        # read-modify-write of the cell's count).
+        # read-modify-write of the cell's count, zero beforehand).
         keys: Traffic = {"read": VEC2 + BOOL + I32, "write": I32 + I32 + I32}
         # array_scan of the counts into the cell ends: read and write one int32 per cell.
         scan: Traffic = {"read": I32 * cells, "write": I32 * cells}
-        # drop_into_cells: read key, arrival order and the cell's start; write the scratch entry.
-        drop: Traffic = {"read": 3 * I32, "write": I32}
+        # drop_into_cells: read key, arrival order and the cell's start; write the scratch entry; and
+        # zero the counts for the next build (one int32 per cell).
+        drop: Traffic = {"read": 3 * I32, "write": I32 + I32 * cells}
         # order_cells: read the scratch entry, its key, its cell's range and the cell's other scratch
         # entries (cached) and the position; write the entry and the position.
         order: Traffic = {"read": 3 * I32 + VEC2, "write": I32 + VEC2}
-        build = [clear, keys, scan, drop, order]
+        build = [keys, scan, drop, order]
     else:
         # sort_into_cells_per_world (the CPU's counting sort): clear the counts (a pass writing cells);
         # per agent read alive and position, write its key and count it (read-modify-write of the
@@ -88,19 +87,21 @@ def step_byte_model(cfg: AquariumConfig, dims: tuple[int, int] | None = None, cu
     # Captures and starvation. detect_captures, a few threads per predator (rows of its search
     # square): read alive and position (the neighbour walk is a gather). count_capture_sharers, one
     # thread per prey slot: read alive and captured, read-modify-write age. share_capture_rewards, one
-    # thread per predator: read alive and position, read-modify-write starvation, write reward.
-    # respawn_captured_prey, one thread per prey slot: read captured.
+    # thread per predator: read alive and position, read-modify-write starvation, write reward, and
+    # read-modify-write its episode return (MODEL.md step 8). respawn_captured_prey, one thread per
+    # prey slot: read captured, then step 8: read reward and alive, write reward (the survival
+    # reward) and read-modify-write the episode return.
     stages["captures"] = {
-        "read": pred * (BOOL + VEC2) + prey * (BOOL + BOOL + I32) + pred * (BOOL + VEC2 + I32) + prey * BOOL,
-        "write": prey * I32 + pred * (F32 + I32),
+        "read": (pred * (BOOL + VEC2) + prey * (BOOL + BOOL + I32) + pred * (BOOL + VEC2 + I32 + F32)
+                 + prey * (BOOL + F32 + BOOL + F32)),
+        "write": prey * I32 + pred * (F32 + I32 + F32) + prey * (F32 + F32),
     }
-    # Population, rewards, episode end. collect_rewards reads reward, alive and episode return and
-    # writes reward and episode return; finish_world_step reads the world's step, captures, episode
-    # captures and both alive counts and writes episode_ended, step and episode captures;
-    # close_ended_episodes reads episode_ended once per world (it truncates and respawns ended worlds).
+    # Population, episode end. finish_world_step reads the world's step, captures, episode captures
+    # and both alive counts and writes episode_ended, step and episode captures; close_ended_episodes
+    # reads episode_ended once per world (it truncates and respawns ended worlds).
     stages["population"] = {
-        "read": (F32 + BOOL + F32) + per_world * (5 * I32 + 2 * BOOL),
-        "write": (F32 + F32) + per_world * (BOOL + 2 * I32),
+        "read": per_world * (5 * I32 + 2 * BOOL),
+        "write": per_world * (BOOL + 2 * I32),
     }
     if cfg.prey_reproduction:
         # reproduce_prey, one thread per world: reads alive, age and replication age of each prey slot.

@@ -33,8 +33,7 @@ KERNEL_STAGES = {
     "rank_into_cells_per_world": "grid",
     "detect_captures": "captures", "count_capture_sharers": "captures", "share_capture_rewards": "captures",
     "respawn_captured_prey": "captures",
-    "reproduce_prey": "population", "collect_rewards": "population", "finish_world_step": "population",
-    "close_ended_episodes": "population",
+    "reproduce_prey": "population", "finish_world_step": "population", "close_ended_episodes": "population",
 }
 
 
@@ -46,13 +45,9 @@ def command_name(command: Callable[[], object]) -> str:
     return getattr(getattr(command, "func", command), "__name__", "command")
 
 
-def command_stage(command: Callable[[], object], shard: WorldShard) -> str:
-    """The stage of one command of `shard.programs["step"]`."""
+def command_stage(command: Callable[[], object]) -> str:
+    """The stage of one command of a shard's step program (`shard.programs["step"]`)."""
     name = command_name(command)
-    owner = getattr(command, "__self__", None)
-    if name in ("zero_", "fill_"):
-        grid = shard.grid
-        return "grid" if owner is grid.cell_count else "population"
     if name in KERNEL_STAGES:
         return KERNEL_STAGES[name]
     if "observ" in name:
@@ -80,7 +75,7 @@ def stage_times(env: BatchedAquarium, pool: list[dict[str, torch.Tensor]], devic
     shard = env.shards[0]
     program = shard.programs["step"]
     names = [command_name(c) for c in program]
-    stages = [command_stage(c, shard) for c in program]
+    stages = [command_stage(c) for c in program]
     reps = repeats_within(settings.stage_repeats, step_time)
     samples: list[list[float]] = [[] for _ in program]
     copies = []
