@@ -116,6 +116,7 @@ def measure_point(series: str, cfg: AquariumConfig, worlds: int, device: str, se
 def _time_env(env: BatchedAquarium, pool: list[ActionSet], row: dict[str, Any], device: str, settings: BenchSettings,
               free_before: int, build_start: float) -> None:
     """Warm `env` up and add the point's timings and memory to `row`."""
+    row["step_kernel"] = env.step_kernel  # "fused" or "stages": which stages the breakdown can show
     tdev = torch.device(device)
     cuda = wp.get_device(device).is_cuda
     agents = row["agents"]

@@ -18,7 +18,9 @@ if TYPE_CHECKING:
     from ..env import BatchedAquarium
     from ..shard import WorldShard
 
-STAGES = ("actions", "motion", "grid", "captures", "population", "observations")
+# A fused step (`step_kernel`, kernels/world_step.py) is one command: its time is the "fused" stage and
+# the kernel stages read 0; a staged step leaves "fused" at 0.
+STAGES = ("actions", "motion", "grid", "captures", "population", "observations", "fused")
 STAGE_LABELS = {"actions": "action copy-in", "motion": "motion (steering, acceleration, contact, integration)",
                 "grid": "grid build (cell lists, once per step)",
                 "captures": "captures (detect, resolve, share, starve)",

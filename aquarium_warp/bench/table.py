@@ -28,9 +28,9 @@ def format_table(result: dict) -> str:
     """The printed table of a run: every point by stage, the bandwidth, the peers and the flatness."""
     lines = []
     cols = ("series", "worlds x agents", "step ms", "agent-steps/s", "ns/agent", "graph", "act", "mot", "grid",
-            "capt", "pop", "obs", "heur", "MiB", "B/agent", "BW frac", "xVMAS", "xorig")
-    lines.append("{:6s} {:>16s} {:>9s} {:>13s} {:>9s} {:>6s} | {:>6s} {:>6s} {:>6s} {:>6s} {:>6s} {:>6s} | {:>6s} | "
-                 "{:>8s} {:>7s} {:>7s} {:>8s} {:>8s}".format(*cols))
+            "capt", "pop", "obs", "fused", "heur", "MiB", "B/agent", "BW frac", "xVMAS", "xorig")
+    lines.append("{:6s} {:>16s} {:>9s} {:>13s} {:>9s} {:>6s} | {:>6s} {:>6s} {:>6s} {:>6s} {:>6s} {:>6s} {:>6s} | "
+                 "{:>6s} | {:>8s} {:>7s} {:>7s} {:>8s} {:>8s}".format(*cols))
     lines.append("       (stage columns and heur: ns per agent-step)")
     for p in result["points"]:
         head = f"{p['series']:6s} {p['worlds']:>7d} x {p['agents_per_world']:<7d}"
@@ -39,8 +39,8 @@ def format_table(result: dict) -> str:
             continue
         st = p.get("stages_ms", {})
         r = p.get("ratios", {})
-        lines.append("{} {:9.3f} {:13.3e} {:9.2f} {:>6s} | {:>6s} {:>6s} {:>6s} {:>6s} {:>6s} {:>6s} | {:>6s} | "
-                     "{:>8s} {:7.0f} {:7.3f} {:>8s} {:>8s}".format(
+        lines.append("{} {:9.3f} {:13.3e} {:9.2f} {:>6s} | {:>6s} {:>6s} {:>6s} {:>6s} {:>6s} {:>6s} {:>6s} | "
+                     "{:>6s} | {:>8s} {:7.0f} {:7.3f} {:>8s} {:>8s}".format(
                          head, p["step_ms"], p["agent_steps_per_s"], p["ns_per_agent_step"],
                          f"{p['graph_speedup']:.2f}x" if p.get("graph_speedup") else "n/a",
                          *(_ns_per_agent(st.get(s), p["agents"]) for s in STAGES),
