@@ -25,7 +25,7 @@ import torch
 
 from ..bench.machine import machine_info
 from ..config import AquariumConfig
-from ..env import BatchedAquarium
+from ..env import BatchedAquarium, resolve_device
 from ..json_records import json_safe
 from ..number_lists import parse_list
 from ..study import _stats, write_csv
@@ -100,6 +100,43 @@ def task_key(task: dict) -> dict:
                 if k not in ("out", "jobs", "figures", "device")}
     own = {k: v for k, v in task.items() if k not in ("study", "policy_dir")}
     return json.loads(json.dumps({"task": own, "study": settings}))
+
+
+@dataclasses.dataclass
+class TaskRun:
+    """What `run_tasks` did: the tasks' results (in task order), how many were kept from an earlier
+    run, the device, the jobs at once, and the wall time in seconds."""
+
+    results: list[dict]
+    kept: int
+    device: str
+    jobs: int
+    wall_s: float
+
+    def record(self, study_name: str, study, rows: list[dict], command: str | None) -> dict:
+        """`run_record` of this run, with the training and job times summed over `rows`."""
+        return run_record(study_name, study, self.device, self.wall_s, sum(r["train_s"] for r in rows),
+                          sum(r["job_s"] for r in rows), self.jobs, command, self.kept)
+
+
+def run_tasks(study, function: Callable[[dict], dict], label: str) -> TaskRun:
+    """Check `study`'s settings, resolve its device and jobs, and run its tasks (`study.tasks(device)`)
+    with `run_jobs`, timed."""
+    study.validate()
+    device = resolve_device(study.device)
+    jobs = resolve_jobs(study.jobs, device)
+    start = time.perf_counter()
+    results, kept = run_jobs(function, study.tasks(device), jobs, device, study.out, label)
+    return TaskRun(results, kept, device, jobs, time.perf_counter() - start)
+
+
+def group_rows(rows: list[dict], keys: Sequence[str]) -> dict[tuple, list[dict]]:
+    """`rows` grouped by their values of `keys` (one group per setting; its rows are the seeds), in
+    order of first appearance."""
+    groups: dict[tuple, list[dict]] = {}
+    for r in rows:
+        groups.setdefault(tuple(r[k] for k in keys), []).append(r)
+    return groups
 
 
 def run_jobs(function: Callable[[dict], dict], tasks: Sequence[dict], jobs: int, device: str, out: str,

@@ -51,7 +51,6 @@ import numpy as np
 import torch
 
 from ..config import AquariumConfig
-from ..env import resolve_device
 from ..training.config import env_config
 from . import common
 
@@ -248,21 +247,14 @@ def condition_label(condition: str, share_radius: float) -> str:
 def run_group_hunting(study: GroupHuntingStudy, command: str | None = None) -> dict:
     """Run every task (`study.jobs` at once), write the CSV, JSON and figure; return the JSON's content.
     `command`: the command line recorded in the JSON (default: this process's, `common.command_line`)."""
-    study.validate()
-    device = resolve_device(study.device)
-    jobs = common.resolve_jobs(study.jobs, device)
-    start = time.perf_counter()
-    results, kept = common.run_jobs(run_task, study.tasks(device), jobs, device, study.out, "group-hunting")
-    wall = time.perf_counter() - start
+    run = common.run_tasks(study, run_task, "group-hunting")
+    results = run.results
     rows = [{k: v for k, v in r.items() if k != "name"} for r in results]
-    groups: dict[tuple, list[dict]] = {}
-    for r in results:
-        groups.setdefault((r["condition"], r["share_radius"], r["predators"]), []).append(r)
+    groups = common.group_rows(results, ("condition", "share_radius", "predators"))
     entries = [{"condition": c, "share_radius": radius, "predators": n, "label": condition_label(c, radius),
                 "metrics": {m: common.seed_stats([r[m] for r in rs]) for m in MEASURES}}
                for (c, radius, n), rs in groups.items()]
-    summary = common.run_record("group-hunting", study, device, wall, sum(r["train_s"] for r in results),
-                                sum(r["job_s"] for r in results), jobs, command, kept)
+    summary = run.record("group-hunting", study, results, command)
     summary["definitions"] = {
         "captures_per_predator": f"captures per predator per episode of {study.eval_steps} steps "
                                  f"({study.eval_worlds} episodes per seed, deterministic policies)",

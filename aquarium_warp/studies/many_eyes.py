@@ -47,7 +47,6 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..env import resolve_device
 from ..training.config import env_config
 from . import common
 
@@ -211,16 +210,9 @@ def run_task(task: dict) -> list[dict]:
 def run_many_eyes(study: ManyEyesStudy, command: str | None = None) -> dict:
     """Run every task (`study.jobs` at once), write the CSV, JSON and figure; return the JSON's content.
     `command`: the command line recorded in the JSON (default: this process's, `common.command_line`)."""
-    study.validate()
-    device = resolve_device(study.device)
-    jobs = common.resolve_jobs(study.jobs, device)
-    start = time.perf_counter()
-    finished, kept = common.run_jobs(_task_rows, study.tasks(device), jobs, device, study.out, "many-eyes")
-    results = [row for rows in finished for row in rows["rows"]]
-    wall = time.perf_counter() - start
-    groups: dict[tuple, list[dict]] = {}
-    for r in results:
-        groups.setdefault((r["policy"], r["predator"], r["fov_angle"], r["group_size"]), []).append(r)
+    run = common.run_tasks(study, _task_rows, "many-eyes")
+    results = [row for rows in run.results for row in rows["rows"]]
+    groups = common.group_rows(results, ("policy", "predator", "fov_angle", "group_size"))
     entries = [{"policy": p, "predator": pred, "fov_angle": fov, "group_size": n,
                 "metrics": {m: common.seed_stats([r[m] for r in rs]) for m in MEASURES}}
                for (p, pred, fov, n), rs in sorted(groups.items())]
@@ -234,8 +226,7 @@ def run_many_eyes(study: ManyEyesStudy, command: str | None = None) -> dict:
             expected = dilution_expectation(sizes, [math.nan if v is None else v for v in values])
             for e, x in zip(curve, expected):
                 e.setdefault("dilution_expectation", {})[key] = float(x)
-    summary = common.run_record("many-eyes", study, device, wall, sum(r["train_s"] for r in results),
-                                sum(r["job_s"] for r in results), jobs, command, kept)
+    summary = run.record("many-eyes", study, results, command)
     summary["definitions"] = {
         "captures_per_prey": f"captures per prey per episode of {study.eval_steps} steps",
         "dilution_expectation": "c(N0) * N0 / N, N0 the smallest group size: each prey's share of the smallest "
