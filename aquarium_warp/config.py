@@ -134,7 +134,9 @@ def _per_world_value(name: str, value):
         value = value.tolist()  # numpy arrays and torch tensors
     if isinstance(value, (list, tuple)):
         _check(name, value, len(value) >= 1, "a scalar or a non-empty sequence of one value per world")
-        return tuple(v if isinstance(v, FlowConfig) else (v.item() if hasattr(v, "item") else v) for v in value)
+        # A world's flow given as a dict becomes its FlowConfig here, so the stored tuple holds configs.
+        return tuple(v if isinstance(v, FlowConfig) else _flow_from_dict(v, f"{name}[{k}].") if isinstance(v, dict)
+                     else (v.item() if hasattr(v, "item") else v) for k, v in enumerate(value))
     return value
 
 
@@ -347,7 +349,7 @@ class AquariumConfig:
         for name in PER_WORLD_FIELDS:
             object.__setattr__(self, name, _per_world_value(name, getattr(self, name)))
         if isinstance(self.flow, dict):
-            object.__setattr__(self, "flow", FlowConfig(**self.flow))
+            object.__setattr__(self, "flow", _flow_from_dict(self.flow, "flow."))
         for name in ("prey", "predator"):
             value = getattr(self, name)
             if not isinstance(value, AgentTypeConfig):
@@ -556,7 +558,8 @@ class AquariumConfig:
                 _check_keys(data[name], AgentTypeConfig, f"{name}.")
                 data[name] = AgentTypeConfig(**data[name])
         if isinstance(data.get("flow"), (list, tuple)):
-            data["flow"] = tuple(FlowConfig(**f) if isinstance(f, dict) else f for f in data["flow"])
+            data["flow"] = tuple(_flow_from_dict(f, f"flow[{k}].") if isinstance(f, dict) else f
+                                 for k, f in enumerate(data["flow"]))
         return cls(**data)
 
 
@@ -566,6 +569,12 @@ def _replace_unchecked(obj, **changes):
     for name, value in changes.items():
         object.__setattr__(new, name, value)
     return new
+
+
+def _flow_from_dict(data: dict, prefix: str) -> FlowConfig:
+    """A `FlowConfig` from a dict of its fields (unknown keys refused with their names)."""
+    _check_keys(data, FlowConfig, prefix)
+    return FlowConfig(**data)
 
 
 def _check_keys(data: dict, cls, prefix: str) -> None:

@@ -19,7 +19,16 @@ import numpy as np
 import torch
 import warp as wp
 
-from .config import INT32_MAX, LARGEST, PER_WORLD_FIELDS, PER_WORLD_TYPE_FIELDS, AquariumConfig, largest
+from .config import (
+    INT32_MAX,
+    INTEGER_FIELDS,
+    LARGEST,
+    PER_WORLD_FIELDS,
+    PER_WORLD_TYPE_FIELDS,
+    SAMPLERS,
+    AquariumConfig,
+    largest,
+)
 from .kernels.state import Agents, WorldCounters
 from .params import BatchParams, per_world
 from .shard import WARP_SETUP_LOCK, Program, ShardSet, fused_step
@@ -482,13 +491,15 @@ class BatchedAquarium:
             worlds = [int(k) for k in indices]
         if rng is None:
             rng = np.random.default_rng(self.seed)
+        elif not isinstance(rng, np.random.Generator):
+            raise ValueError(f"rng={rng!r} must be a numpy.random.Generator or None")
         cfg = self.config
         values = {}
         for key, name in names.items():
             value = fields[key]
-            if hasattr(value, "draw"):
-                value = value.draw(rng, len(worlds), name in ("prey_count", "predator_count",
-                                                             "predator_starvation_steps", "prey_replication_age"))
+            if isinstance(value, SAMPLERS):
+                value.check(key)
+                value = value.draw(rng, len(worlds), name in INTEGER_FIELDS)
             elif hasattr(value, "tolist"):
                 value = value.tolist()
             given = list(value) if isinstance(value, (list, tuple)) else [value] * len(worlds)

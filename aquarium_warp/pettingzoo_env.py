@@ -69,6 +69,7 @@ from pettingzoo import ParallelEnv
 
 from .config import AgentTypeConfig, AquariumConfig
 from .env import TYPES, BatchedAquarium
+from .params import per_world
 
 # Above this many extra (refill) names, possible_agents grows on demand instead of listing them all.
 MAX_EXTRA_NAMES = 10_000
@@ -92,8 +93,11 @@ class WorldState:
         self.aquarium, self.max_steps = aquarium, cfg.max_steps
         dev = aquarium.torch_device
         self.order = torch.cat([torch.arange(Pc, cfg.capacity, device=dev), torch.arange(Pc, device=dev)])
-        self.speed = torch.tensor([cfg.predator.max_speed] * (cfg.capacity - Pc) + [cfg.prey.max_speed] * Pc,
-                                  dtype=torch.float64, device=dev).unsqueeze(-1)
+        # Each world's max speeds (per-world values allowed), by slot in the state's order: [W, C, 1].
+        W = aquarium.num_worlds
+        speeds = [torch.tensor(per_world(t.max_speed, W), dtype=torch.float64, device=dev)[:, None].expand(W, n)
+                  for t, n in ((cfg.predator, cfg.capacity - Pc), (cfg.prey, Pc))]
+        self.speed = torch.cat(speeds, dim=1).unsqueeze(-1)
         self.size = torch.tensor([cfg.width, cfg.height], dtype=torch.float64, device=dev)
         self.length = len(STATE_FIELDS) * cfg.capacity + 1
 

@@ -271,3 +271,48 @@ def test_time_variation_scales_the_current():
     flow = FlowConfig("uniform", velocity=(1.0, -2.0), amplitude=0.5, period=4.0)
     assert np.allclose(drift(flow, [300.0, 300.0], world_step=1), [1.5, -3.0], atol=1e-4)
     assert np.allclose(drift(flow, [300.0, 300.0], world_step=2), [1.0, -2.0], atol=1e-4)
+
+
+def test_per_world_flows_given_as_dicts_become_flow_configs():
+    cfg = dataclasses.replace(BASE, flow=({"kind": "uniform", "velocity": (1.0, 0.0)}, {"kind": "none"}))
+    assert all(isinstance(f, FlowConfig) for f in cfg.flow)
+    env = BatchedAquarium(cfg, num_worlds=2, device="cpu")
+    env.reset()
+    env.step(None)
+    env.set_params(flow=[{"kind": "none"}, {"kind": "uniform", "velocity": (0.0, 1.0)}])
+    env.step(None)
+    with pytest.raises(ValueError, match=r"flow\[0\]\.nope"):
+        dataclasses.replace(BASE, flow=({"nope": 1.0}, {"kind": "none"}))
+
+
+@pytest.mark.parametrize(("fields", "message"), [
+    ({"prey_max_speed": Choice(())}, r"prey_max_speed=\(\).*non-empty tuple"),
+    ({"prey_max_speed": Uniform(2.0, 1.0)}, r"prey_max_speed=\(2.0, 1.0\).*low <= high"),
+    ({"prey_max_speed": LogUniform(-1.0, 2.0)}, r"prey_max_speed=\(-1.0, 2.0\).*0 < low"),
+    ({"prey_max_speed": Uniform(2.0, 3.0), "rng": 5}, r"rng=5 must be a numpy.random.Generator"),
+])
+def test_set_params_refuses_bad_samplers_and_rng_and_stays_usable(fields, message):
+    env = BatchedAquarium(BASE, num_worlds=3, device="cpu")
+    env.reset()
+    before = env.config
+    with pytest.raises(ValueError, match=message):
+        env.set_params(**fields)
+    assert env.config == before
+    env.step(None)
+
+
+def test_world_state_scales_velocities_by_each_worlds_max_speed():
+    from aquarium_warp.pettingzoo_env import STATE_FIELDS, WorldState
+
+    speeds = (3.0, 4.0)
+    cfg = dataclasses.replace(BASE, prey=dataclasses.replace(BASE.prey, max_speed=speeds))
+    env = BatchedAquarium(cfg, num_worlds=2, device="cpu")
+    env.reset()
+    for _ in range(5):
+        env.step(None)
+    state = WorldState(env)()
+    t, Pc, C = env.state.torch, env.prey_capacity, cfg.capacity
+    fields = len(STATE_FIELDS)
+    for w, speed in enumerate(speeds):  # prey slot 0 follows the predators' slots in the state
+        vx = state[w, (C - Pc) * fields + 3]
+        assert vx == pytest.approx(float(t.velocity[w, 0, 0]) / speed, abs=1e-6)
