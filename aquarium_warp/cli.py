@@ -164,7 +164,7 @@ def _video_config(args):
     width, height = float(data["width"]), float(data["height"])
     if args.flow == "uniform":
         data["flow"] = FlowConfig("uniform", velocity=(args.flow_strength, 0.0))
-    elif args.flow == "vortex":  # centred, its core a sixth of the shorter side across
+    elif args.flow == "vortex":  # centred, its core radius a sixth of the shorter side
         data["flow"] = FlowConfig("vortex", centre=(width / 2, height / 2), strength=args.flow_strength,
                                   core_radius=min(width, height) / 6)
     return AquariumConfig.from_dict(data)

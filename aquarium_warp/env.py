@@ -235,7 +235,7 @@ class BatchedAquarium:
         if not isinstance(auto_reset, bool):
             raise ValueError(f"auto_reset={auto_reset!r} must be True or False")
         self.auto_reset = auto_reset
-        seed_key(seed)
+        seed_key(seed)  # the seed's checks, before anything is drawn from it
         if config.num_worlds is not None and config.num_worlds != num_worlds:
             raise ValueError(f"the config gives per-world values for {config.num_worlds} worlds "
                              f"({list(config.per_world_fields)}), but num_worlds={num_worlds}")
@@ -244,7 +244,6 @@ class BatchedAquarium:
         self.num_worlds = W = int(num_worlds)
         self.device = resolve_device(device)
         self.torch_device = torch.device(self.device)
-        seed_key(seed)
         self.seed = int(seed)
         self.prey_capacity = cfg.prey_capacity
         self.predator_count = cfg.predator_capacity  # predator slots per world

@@ -378,6 +378,9 @@ def test_cli_both_teams_and_bad_input(tmp_path, capsys, one_thread):
             (["train", "--set", "teams.predator.runner.algorithm.gamma=2"],
              "teams.predator.runner.algorithm.gamma=2 must be a number in [0, 1]"),
             (["train", "--set", "teams.shark.sharing=individual"], "must map team names"),
+            (["train", "--set", "runner.actor=5"], "runner.actor=5 must be a mapping of settings"),
+            (["train", "--set", "runner.algorithm=5"], "runner.algorithm=5 must be a mapping of settings"),
+            (["train", "--set", "teams.prey.runner.critic=5"], "teams.prey.runner.critic=5 must be a mapping"),
             (["train", "--team", "both", "--pool-every", "1", "--set", "runner.actor.class_name=RNNModel"],
              "train.pool_every > 0 needs feed-forward actors")):
         # (a run that wrongly starts stops at once and writes into tmp_path)

@@ -56,6 +56,8 @@ def test_values_drawn_at_every_reset_in_range_and_reproducible():
     ("prey_count=2.5:4", "--randomize prey_count: '2.5' is not an integer"),
     ("prey_speed=1:2", "--randomize prey_speed: unknown field"),
     ("prey_radius=5:x", "--randomize prey_radius: 'x' is not a number"),
+    ("prey_count=inf:inf", "--randomize prey_count: 'inf' is not a finite number"),
+    ("prey_radius=nan:2", "--randomize prey_radius: 'nan' is not a finite number"),
     ("prey_radius=9:5", "--randomize prey_radius=9:5: needs low <= high"),
     ("prey_radius", "expected FIELD=LOW:HIGH"),
 ])

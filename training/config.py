@@ -264,6 +264,13 @@ def _validate_algorithm(algorithm: dict, where: str) -> None:
             raise ValueError(f"{where}.{name}={algorithm[name]!r} must be {allowed}")
 
 
+def _check_runner_sections(runner: dict, where: str) -> None:
+    """The model and algorithm entries of a runner block (`where`) must be mappings."""
+    for part in ("algorithm", "actor", "critic"):
+        if part in runner and not isinstance(runner[part], dict):
+            raise ValueError(f"{where}.{part}={runner[part]!r} must be a mapping of settings")
+
+
 def _validate_teams_section(config: dict) -> None:
     teams = config.get("teams")
     if teams is None:
@@ -283,6 +290,7 @@ def _validate_teams_section(config: dict) -> None:
         if not isinstance(runner, dict) or any(k not in TEAM_RUNNER_KEYS for k in runner):
             raise ValueError(f"teams.{team}.runner={runner!r} may set only {list(TEAM_RUNNER_KEYS)} "
                              f"(the rollout length and checkpoints are common: set them under runner)")
+        _check_runner_sections(runner, f"teams.{team}.runner")
         _validate_algorithm(runner.get("algorithm") or {}, f"teams.{team}.runner.algorithm")
 
 
@@ -330,8 +338,9 @@ def validate(config: dict) -> None:
     bad = [e for e in export if e not in ("jit", "onnx")]
     if bad:
         raise ValueError(f"train.export has unknown formats {bad}; allowed: jit, onnx")
-    _validate_teams_section(config)
     runner = config["runner"]
+    _check_runner_sections(runner, "runner")
+    _validate_teams_section(config)
     for name in ("num_steps_per_env", "save_interval"):
         v = runner.get(name)
         if not _is_int(v) or v < 1:

@@ -64,11 +64,6 @@ def init(device: str, rank: int, size: int) -> str:
     return backend
 
 
-def active() -> bool:
-    """Whether this process is one rank of several."""
-    return dist.is_initialized() and dist.get_world_size() > 1
-
-
 def sum_over_ranks(values: list[float]) -> list[float]:
     """Element-wise sums of every rank's `values` (float64), on every rank."""
     device = f"cuda:{torch.cuda.current_device()}" if dist.get_backend() == "nccl" else "cpu"

@@ -15,6 +15,8 @@ step.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 
@@ -35,6 +37,8 @@ def _number(field: str, text: str, integer: bool):
         value = float(text)
     except ValueError:
         raise ValueError(f"--randomize {field}: {text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise ValueError(f"--randomize {field}: {text!r} is not a finite number")
     if integer:
         if value != int(value):
             raise ValueError(f"--randomize {field}: {text!r} is not an integer")

@@ -5,7 +5,7 @@ Every (flow kind, strength, seed) runs as worlds of one `BatchedAquarium` (per-w
 episode each): kind `uniform` (a current of `strength` px/step at `uniform_angle` degrees from +x towards
 +y; default 90, along +y, across the prey's spawn heading, -x, which TurnAway keeps until it sees a
 predator: a current along it would only measure that heading) or `vortex` (a Rankine vortex at the
-world's centre, `strength` px/step at the edge of a core a sixth of the world across, clockwise).
+world's centre, `strength` px/step at the edge of a core whose radius is a sixth of the world, clockwise).
 Strength 0 is the still-water reference. By default the agents are the paper's heuristics, TurnAway prey
 against NaivChase predators, which ignore the current (MODEL.md); `--prey-policy` / `--predator-policy`
 take trained policy files instead (trained without the current in their observations, as they are).
