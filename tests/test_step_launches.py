@@ -102,3 +102,43 @@ def test_count_build_leaves_counts_zero_and_matches_the_cpu_build(monkeypatch):
         env.set_state(world=1, alive=torch.ones(CELLS.capacity, dtype=torch.bool))
     assert counts_zero()
     same_state(-2)
+
+
+# Observers of different slot counts per type take one launch per type.
+CELLS_OWN_SLOTS = dataclasses.replace(CELLS, predator=dataclasses.replace(CELLS.predator, predator_slots=2,
+                                                                         prey_slots=5))
+
+
+@pytest.mark.parametrize("build", ["counting", "rank", "count"])
+@pytest.mark.parametrize("cfg", [CELLS, CELLS_OWN_SLOTS], ids=["shared-kernel", "kernel-per-type"])
+def test_observers_in_cell_order_match_slot_order(monkeypatch, build, cfg):
+    """The GPU's observation pass of worlds of several cells takes its observers in the cell lists'
+    order (`observers_in_cell_order`), the CPU's in slot order: run here on the CPU, both give the
+    same state bit for bit after every step, dead slots (which the count build does not list) and
+    newborns included, for either build and for one launch per type."""
+    envs = {"slot": BatchedAquarium(cfg, num_worlds=3, device="cpu", seed=4)}
+    monkeypatch.setattr(shard_module, "grid_build",
+                        lambda cfg, dims, cuda: "whole-world" if tuple(dims) == (1, 1) else build)
+    monkeypatch.setattr(shard_module, "observers_in_cell_order", lambda cuda: True)
+    envs["cell"] = BatchedAquarium(cfg, num_worlds=3, device="cpu", seed=4)
+    observe = [name for name in step_names(envs["cell"]) if "observ" in name]
+    assert len(observe) == (1 if cfg is CELLS else 2) and all(n.endswith("observe_in_cell_order") for n in observe), \
+        observe
+    assert not any("in_cell_order" in name for name in step_names(envs["slot"]))
+
+    def same_state(step: int) -> None:
+        for name in envs["cell"].state.arrays():
+            a, b = getattr(envs["cell"].state.torch, name), getattr(envs["slot"].state.torch, name)
+            assert torch.equal(a, b), f"{name} differs after step {step}"
+
+    same_state(0)
+    gen = torch.Generator().manual_seed(3)
+    n, dead_seen = cfg.action_count, False
+    for step in range(1, 81):
+        actions = {"prey": torch.randint(0, n, (3, cfg.prey_capacity), generator=gen, dtype=torch.int32),
+                   "predator": torch.randint(0, n, (3, cfg.predator_count), generator=gen, dtype=torch.int32)}
+        for env in envs.values():
+            env.step(actions)
+        same_state(step)
+        dead_seen |= not bool(envs["cell"].state.torch.alive.all())
+    assert dead_seen  # the dead slots' outputs were cleared by the cell-order pass too
