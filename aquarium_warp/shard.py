@@ -91,14 +91,6 @@ def grid_build(cfg: AquariumConfig, dims: tuple[int, int], cuda: bool) -> str:
     return "rank" if cfg.capacity <= RANK_SORT_MAX_CAPACITY else "count"
 
 
-def observers_in_cell_order(cuda: bool) -> bool:
-    """Whether the observation pass of worlds of several cells takes its observers in the cell lists'
-    order (so a warp's observers share cells, their candidates and their loop lengths: on an H200,
-    ms per step for one world of 1M agents) rather than in slot order (the CPU: no warps, and rows
-    stored out of order cost it 10% at 100,000 agents)."""
-    return cuda
-
-
 def fused_step(step_kernel: str, dims: tuple[int, int], cuda: bool = False, slots: int = 0) -> bool:
     """Whether worlds with `dims` cells take the fused step (`kernels/world_step.py`, one launch) for
     the env option `step_kernel`: "auto" where it applies (worlds of one cell, whose cell lists are
@@ -250,17 +242,6 @@ class WorldShard:
         for group in groups:
             kernel, block = kernels[group[0]], kernels[group[0]].block_dim
             assert kernel.whole_world == bool(self.grid.whole_world), "observation kernel built for other lists"
-            if kernel.cell_order:
-                # Observers in cell-list order, one thread per entry (a type alone passes its own
-                # outputs for the other type's too; they are never written).
-                outs = {t: self._observed_rows(t, kernel.rows_type, kernel.row_type) for t in group}
-                only_type = -1 if len(group) == 2 else TYPE_CODES[group[0]]
-                commands.append(self.record(
-                    kernel, W * cfg.capacity,
-                    [self.world, self.types, self.grid, self.state.agents, self.state.worlds, only_type],
-                    [outs.get("prey", outs[group[0]]), outs.get("predator", outs[group[0]]), self.state.scratch],
-                    block_dim=block))
-                continue
             first, second = group[0], group[1] if len(group) == 2 else None
             first_blocks = (rows[first] + block - 1) // block
             second_rows = rows[second] if second else 0
@@ -377,7 +358,7 @@ class ShardSet:
         whole_world = tuple(dims) == (1, 1)  # the shards' cell lists are whole-world lists
         observe_kernels = {t: observation.observation_kernel(getattr(cfg, t).predator_slots,
                                                              getattr(cfg, t).prey_slots, block, whole_world,
-                                                             bool(cfg.observe_flow), observers_in_cell_order(self.cuda))
+                                                             bool(cfg.observe_flow))
                            for t in ("prey", "predator")}
         # The step of worlds of one cell in one launch (`fused_step`), with their observers' slot counts.
         fused = None

@@ -41,7 +41,7 @@ NO_SLOT = wp.constant(2147483647)  # slot of an unfilled list entry: ranks after
 # Registers per GPU thread: the compiler's own choice (96) allows 31% occupancy and the pass waits on
 # memory. On an H200 (graph step, row-run search): cap 72: 0.491 ms for one world of 1M agents and
 # 0.294 ms for 65,536 x 17; cap 64: 0.516 / 0.306 ms; 56: 0.553 ms (1M); 80: 0.499 ms (1M).
-MAX_REGISTERS: int | None = 72  # None: the compiler's choice
+MAX_REGISTERS = 72
 # The search starts with the square of rings 0..2 at most (row runs: one range of entries per row),
 # which holds the whole search at the default sizes; wider searches go on ring by ring.
 FIRST_SQUARE_RINGS = 2
@@ -269,24 +269,13 @@ def observation_rows(predator_slots: int, prey_slots: int, whole_world: bool, ob
     return wp.func(observe_row, module="unique"), ObservedRows, Row
 
 
-def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, whole_world: bool,
-                       observe_flow: bool = False, cell_order: bool = False):
-    """The observation kernel for observers with `predator_slots` and `prey_slots` slots, on
-    whole-world cell lists or not (compiled once per combination: the kind of lists is fixed at
-    compile time here, where `listed_slot` would test it for every candidate), with the two flow values
-    after the own 5-tuple or not (MODEL.md "Flow fields"). Observers go in slot order, launched with
-    `dim=(blocks, block_dim)` and `block_dim` (`observe`), or, with `cell_order` (lists of several
-    cells), in the lists' order, one thread per entry (`observe_in_cell_order`): on a GPU a warp's
-    observers then share cells; on the CPU, which has no warps, their rows would only be stored out
-    of order. At most MAX_REGISTERS registers per GPU thread (read here, so a probe can set another
-    cap before building an env)."""
-    return _observation_kernel(predator_slots, prey_slots, block_dim, whole_world, observe_flow,
-                               cell_order and not whole_world, MAX_REGISTERS)
-
-
 @functools.cache
-def _observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, whole_world: bool, observe_flow: bool,
-                        cell_order: bool, max_registers: int | None):
+def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, whole_world: bool,
+                       observe_flow: bool = False):
+    """The observation kernel for observers with `predator_slots` and `prey_slots` slots, launched with
+    `dim=(blocks, block_dim)` and `block_dim`, on whole-world cell lists or not (compiled once per
+    combination: the kind of lists is fixed at compile time here, where `listed_slot` would test it for
+    every candidate), with the two flow values after the own 5-tuple or not (MODEL.md "Flow fields")."""
     observe_row, ObservedRows, Row = observation_rows(predator_slots, prey_slots, whole_world, observe_flow)
 
     def observe(
@@ -334,62 +323,9 @@ def _observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, wh
         elif r < rows:
             out.obs[r] = row
 
-    slots = predator_slots + prey_slots
-
-    def observe_in_cell_order(
-        world: WorldParams,
-        types: wp.array2d(dtype=AgentType),
-        grid: CellLists,
-        agents: Agents,
-        counters: WorldCounters,
-        only_type: int,
-        prey_out: ObservedRows,
-        predator_out: ObservedRows,
-        scratch: Scratch,
-    ):
-        # Thread e observes the live agent at entry e of the cell lists (of either type, or of
-        # `only_type` where it is not -1), so a warp's observers share cells: the same candidates,
-        # read once for all of them, and loops of equal length. It also clears the outputs of slot e
-        # where that slot is dead: the count build does not list dead slots.
-        e = wp.tid()
-        n = grid.position.shape[0]
-        listed = n  # the per-world builds list every slot, the dead after their world's live agents
-        if grid.cell_count.shape[0] > 0:  # the count build lists the live agents alone
-            listed = grid.cell_end[grid.cell_end.shape[0] - 1]
-        if e >= n:
-            return
-        w = e // world.capacity
-        i = e - w * world.capacity
-        t = slot_type(world, i)
-        if not agents.alive[w, i] and (only_type < 0 or t == only_type):
-            out = prey_out
-            r = w * world.prey_capacity + i
-            if t == PREDATOR:
-                out = predator_out
-                r = w * world.predator_capacity + i - world.prey_capacity
-            for s in range(wp.static(slots)):
-                out.mask[r, s] = False
-                out.observed_slot[r, s] = -1
-            out.obs[r] = Row()
-            scratch.contact_partner[w, i] = -1
-        if e < listed:
-            flat = grid.agent[e]
-            w = flat // world.capacity
-            i = flat - w * world.capacity
-            t = slot_type(world, i)
-            if agents.alive[w, i] and (only_type < 0 or t == only_type):
-                out = prey_out
-                r = w * world.prey_capacity + i
-                if t == PREDATOR:
-                    out = predator_out
-                    r = w * world.predator_capacity + i - world.prey_capacity
-                out.obs[r] = observe_row(world, types, grid, agents, counters, t, w, i, r, out, scratch)
-
-    body = observe_in_cell_order if cell_order else observe
-    kernel = wp.kernel(enable_backward=False, module="unique", cuda_max_registers=max_registers)(body)
+    kernel = wp.kernel(enable_backward=False, module="unique", cuda_max_registers=MAX_REGISTERS)(observe)
     kernel.rows_type = ObservedRows  # type of the `first` and `second` arguments
     kernel.row_type = Row  # dtype of their `obs`
     kernel.block_dim = block_dim
     kernel.whole_world = whole_world
-    kernel.cell_order = cell_order
     return kernel
