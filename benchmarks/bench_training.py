@@ -39,11 +39,16 @@ def sync(device: torch.device) -> None:
         torch.cuda.synchronize(device)
 
 
-# Options measured beside the default (`--variants`): TF32 matrix products, and rsl-rl's own
-# `torch_compile_mode` (torch.compile of the actor and critic, fusing their elementwise work).
+# Options measured beside the default (`--variants`): TF32 matrix products, rsl-rl's own
+# `torch_compile_mode` (torch.compile of the actor and critic, fusing their elementwise work), no CUDA
+# graphs, and the adaptive learning-rate schedule (its update runs eagerly between replayed rollouts,
+# as a torchrun run's does).
+ADAPTIVE = {"runner": {"algorithm": {"schedule": "adaptive", "desired_kl": 0.01}}}
 VARIANTS = {"default": {}, "tf32": {"train": {"tf32": True}},
             "compile": {"runner": {"torch_compile_mode": "default"}},
-            "tf32+compile": {"train": {"tf32": True}, "runner": {"torch_compile_mode": "default"}}}
+            "tf32+compile": {"train": {"tf32": True}, "runner": {"torch_compile_mode": "default"}},
+            "eager": {"train": {"cuda_graphs": False}},
+            "adaptive": ADAPTIVE, "adaptive+eager": {**ADAPTIVE, "train": {"cuda_graphs": False}}}
 
 
 def measure(device: str, worlds: int, sharing: str, loop: str, warmup: int, iterations: int,
@@ -66,6 +71,7 @@ def measure(device: str, worlds: int, sharing: str, loop: str, warmup: int, iter
     elapsed = time.perf_counter() - start
     point = {"worlds": worlds, "rows": rows, "sharing": sharing, "loop": loop, "variant": variant,
              "graphs": bool(loop == "fast" and trainer.runner.loop.graphs),
+             "update_graphs": list(trainer.runner.loop.update_graphs) if loop == "fast" else [],
              "iterations": iterations, "seconds": elapsed, "warmup_seconds": warmup_time,
              "iteration_ms": 1e3 * elapsed / iterations,
              "agent_steps_per_s": rows * steps * iterations / elapsed}

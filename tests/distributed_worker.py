@@ -58,7 +58,10 @@ def main() -> None:
                                       "train": {"team": team, "num_worlds": 4, "iterations": 4, "export": []},
                                       "runner": {"num_steps_per_env": 16, "save_interval": 100}})
         trainer = Trainer(config, log_dir=run_dir)
-    record: dict = {"rank": trainer.rank, "seed": trainer.seed, "params": {}, "stats": {}}
+    record: dict = {"rank": trainer.rank, "seed": trainer.seed, "params": {}, "stats": {},
+                    # The graphs each learner's algorithm would allow on CUDA (the CPU captures none).
+                    "graphable": {name: [learner.alg.rollout_graphable, learner.alg.graphable]
+                                  for name, learner in trainer.learners.items()}}
     for name, learner in trainer.learners.items():
         take = learner.vec_env.episode_stats_snapshot
         record["stats"][name] = []

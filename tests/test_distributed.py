@@ -67,6 +67,8 @@ def test_two_ranks_agree_log_sums_and_keep_their_states(tmp_path):
     assert sorted(records[0]["params"]) == ["0", "1", "2"]
     assert records[0]["params"] == records[1]["params"]
     assert records[0]["final_sim"] != records[1]["final_sim"]
+    # on CUDA the rollout would replay graphs; the update, with its all-reduce, stays eager
+    assert [r["graphable"] for r in records] == [{"prey": [True, False]}] * 2
     assert check_reduced_logs(run_dir, records, "prey", "progress.csv") >= 1
     # one file holds both ranks' simulations (each with its own seed)
     state = torch.load(os.path.join(run_dir, "model_2.pt"), weights_only=False)["infos"]["aquarium"]

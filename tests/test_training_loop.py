@@ -17,13 +17,15 @@ import torch
 from aquarium_warp.training import Trainer, make_config
 
 
-def _train(loop: str, log_dir=None, device="cpu", **changes):
+def _train(loop: str, log_dir=None, device="cpu", plan: list | None = None, **changes):
     train = {"loop": loop, "iterations": 3, "quiet": True, "num_worlds": 16, "device": device, "export": []}
     train.update(changes.pop("train", {}))
     cfg = make_config("tiny", {"train": train, **changes})
     trainer = Trainer(cfg, log_dir=log_dir)
     trainer.train()
     alg = trainer.runner.alg
+    if plan is not None:  # the graphs the fast loop used: (rollout, [update per learner])
+        plan.append((trainer.runner.loop.graphs, trainer.runner.loop.update_graphs))
     params = {f"actor.{k}": v.clone() for k, v in alg.actor.state_dict().items()}
     params.update({f"critic.{k}": v.clone() for k, v in alg.critic.state_dict().items()})
     params.update({f"adam.{i}.{k}": v.clone() for i, s in alg.optimizer.state_dict()["state"].items()
@@ -102,18 +104,65 @@ def test_device_episode_statistics_equal_rsl_rl_logger(tmp_path, metrics_every):
     assert "captures_per_prey" in header
 
 
+class _Alg:
+    """What `graph_plan` reads of an algorithm."""
+
+    def __init__(self, rollout: bool, update: bool, capturable: bool = True):
+        self.rollout_graphable, self.graphable, self.capturable_optimizer = rollout, update, capturable
+
+
+@pytest.mark.parametrize("algs,cuda,plan", [
+    ([_Alg(True, True)], False, (False, [False])),  # the CPU captures nothing
+    ([_Alg(True, True), _Alg(True, True)], True, (True, [True, True])),
+    # several ranks or the adaptive schedule: the rollout replays graphs, that learner's update is eager
+    ([_Alg(True, False), _Alg(True, True)], True, (True, [False, True])),
+    ([_Alg(True, False, capturable=False)], True, (True, [False])),
+    # a recurrent model (or RND, symmetry) in either learner: everything eager
+    ([_Alg(False, False), _Alg(True, True)], True, (False, [False, False])),
+], ids=["cpu", "all", "eager-update", "eager-update-any-optimizer", "eager"])
+def test_graph_plan(algs, cuda, plan):
+    from aquarium_warp.training.loop import graph_plan
+
+    assert graph_plan(algs, cuda) == plan
+
+
+def test_graph_plan_needs_capturable_optimizers():
+    from aquarium_warp.training.loop import graph_plan
+
+    with pytest.raises(ValueError, match="capturable_optimizer=True"):
+        graph_plan([_Alg(True, True, capturable=False)], True)
+
+
+def test_algorithms_say_which_graphs_they_allow():
+    """The adaptive schedule keeps the rollout graphable but not the update; a recurrent model neither."""
+    for changes, want in [({}, (True, True)), (CASES[2][1], (True, False)), (CASES[5][1], (False, False))]:
+        trainer = Trainer(make_config("tiny", {"train": {"num_worlds": 4, "quiet": True, "export": []}, **changes}))
+        alg = trainer.runner.alg
+        assert (alg.rollout_graphable, alg.graphable) == want, changes
+        trainer.close()
+
+
+ADAPTIVE = CASES[2][1]
+
+
 @pytest.mark.skipif(not os.environ.get("AQUARIUM_TEST_DEVICE", "").startswith("cuda"),
                     reason="CUDA graphs need AQUARIUM_TEST_DEVICE=cuda:N")
-@pytest.mark.parametrize("changes", [{}, NORMALISED], ids=["plain", "observation normalisation"])
+@pytest.mark.parametrize("changes", [{}, NORMALISED, ADAPTIVE],
+                         ids=["plain", "observation normalisation", "adaptive schedule (eager update)"])
 def test_cuda_graph_loop_matches_eager_loop(changes):
     """Replayed graphs run the eager loop's kernels, and torch's generator gives a replayed kernel the
     offset the eager call would have had: the same parameters after iterations 2-4 (graphs). With
-    observation normalisation the graphs must see the statistics updated after every iteration."""
+    observation normalisation the graphs must see the statistics updated after every iteration. With
+    the adaptive schedule only the rollout is replayed (as in a torchrun run), and the eager update
+    between the replays must see what the eager loop's saw."""
     import copy
 
     device = os.environ["AQUARIUM_TEST_DEVICE"]
     eager, _ = _train("fast", device=device, train={"cuda_graphs": False, "iterations": 4}, **copy.deepcopy(changes))
-    graphed, _ = _train("fast", device=device, train={"cuda_graphs": True, "iterations": 4}, **copy.deepcopy(changes))
+    plan: list = []
+    graphed, _ = _train("fast", device=device, plan=plan, train={"cuda_graphs": True, "iterations": 4},
+                        **copy.deepcopy(changes))
+    assert plan == [(True, [changes is not ADAPTIVE])]
     differing = {k: float((eager[k] - graphed[k]).abs().max()) for k in eager if not torch.equal(eager[k], graphed[k])}
     assert not differing, differing
 

@@ -20,8 +20,10 @@ them as CUDA graphs:
 One observation buffer serves the whole loop: `after[t]` stores the observations the actor saw before
 it overwrites them with the next ones, so the storage receives exactly what rsl-rl's loop stores.
 
-On the CPU (or where a graph cannot serve: recurrent models, the adaptive learning-rate schedule, RND)
-the same functions run eagerly; recurrent models are updated by rsl-rl's own `PPO.update`. On the CPU
+On the CPU (or where a graph cannot serve: recurrent models, RND, symmetry) the same functions run
+eagerly; recurrent models are updated by rsl-rl's own `PPO.update`. With the adaptive learning-rate
+schedule (which reads the KL on the host) or several processes (torchrun: the gradients' all-reduce)
+the rollout replays its graphs and the update runs eagerly between rollouts. On the CPU
 this loop and `OnPolicyRunner.learn` produce the same
 parameters bit for bit (`tests/test_training_loop.py`), so `train.loop = "rsl-rl"` (rsl-rl's own
 runner) remains as the reference and for the benchmark's before/after.
@@ -105,6 +107,17 @@ class IterationRecord:
         return self._host.tolist(), times
 
 
+def graph_plan(algs, cuda: bool) -> tuple[bool, list[bool]]:
+    """Which CUDA graphs a loop over `algs` captures (`cuda`: graphs asked for on a CUDA device): the
+    rollout's, where every algorithm allows it (`rollout_graphable`), and per learner its update's,
+    where the rollout is captured and its algorithm allows that too (`graphable`)."""
+    rollout = cuda and all(alg.rollout_graphable for alg in algs)
+    updates = [rollout and alg.graphable for alg in algs]
+    if any(updates) and not all(getattr(alg, "capturable_optimizer", False) for alg, u in zip(algs, updates) if u):
+        raise ValueError("CUDA graphs need the algorithms built with capturable_optimizer=True")
+    return rollout, updates
+
+
 class TrainingLoop:
     """Runs iterations of rollout + PPO update for one or more learners over the same worlds; see the
     module doc.
@@ -112,8 +125,10 @@ class TrainingLoop:
     `learners`: `(alg, env)` pairs (an `AquariumPPO` and its `AquariumVecEnv`), one per learning team.
     The first adapter steps the worlds; the other learners' actions reach it through its opponent
     (`LearnerActions`). `pool`: an `OpponentPool` whose snapshots play some worlds. `graphs=True`
-    captures CUDA graphs where the device is CUDA and every algorithm allows it (`alg.graphable`);
-    `self.graphs` says whether they are in use.
+    captures the rollout's CUDA graphs where the device is CUDA and every algorithm allows it
+    (`alg.rollout_graphable`), and a learner's update graph where its algorithm allows that too
+    (`alg.graphable`; else the update runs eagerly between the replayed rollouts: several ranks, the
+    adaptive schedule); `self.graphs` says whether graphs are in use, `self.update_graphs` per learner.
     """
 
     def __init__(self, learners, num_steps: int, graphs: bool = True, pool=None):
@@ -126,9 +141,7 @@ class TrainingLoop:
         self.num_steps = int(num_steps)
         self.pool = pool
         self.device = torch.device(self.algs[0].device)
-        self.graphs = bool(graphs) and self.device.type == "cuda" and all(alg.graphable for alg in self.algs)
-        if self.graphs and not all(getattr(alg, "capturable_optimizer", False) for alg in self.algs):
-            raise ValueError("CUDA graphs need the algorithms built with capturable_optimizer=True")
+        self.graphs, self.update_graphs = graph_plan(self.algs, bool(graphs) and self.device.type == "cuda")
         for env in self.envs:
             env.device_stats = True
         self.obs = [env.get_observations() for env in self.envs]
@@ -262,7 +275,7 @@ class TrainingLoop:
         eagerly (the first time, on the capturing stream when graphs are in use)."""
         alg = self.algs[i]
         indices, size = alg.mini_batch_indices() if alg.feed_forward else (None, 0)
-        if self.graphs and self._updated[i] and self._learn_graphs[i] is None:
+        if self.update_graphs[i] and self._updated[i] and self._learn_graphs[i] is None:
             self._capture_learn(i, size)
         if self._learn_graphs[i] is not None:
             self._indices[i].copy_(indices)
@@ -283,7 +296,8 @@ class TrainingLoop:
         seconds spent in the policy (`act`), the env (other team + simulation), the storage (`after`:
         outcomes, storage writes, statistics) and the update (returns + mini-batches). For the
         benchmark: on CUDA the stages are bracketed by events, which adds no synchronisation."""
-        while self.graphs and not all(g is not None for g in self._learn_graphs):
+        while self.graphs and not (self._act_graphs and all(
+                g is not None for g, graphed in zip(self._learn_graphs, self.update_graphs) if graphed)):
             self.iteration()  # warm-up, then capture
         cuda = self.device.type == "cuda"
         marks: list = []

@@ -166,11 +166,18 @@ class AquariumPPO(PPO):
         return not (self.actor.is_recurrent or self.critic.is_recurrent)
 
     @property
+    def rollout_graphable(self) -> bool:
+        """Whether `act` and `process_env_step` make no host synchronisation (so a rollout step can be
+        captured): feed-forward models, no RND or symmetry. Several ranks and the adaptive schedule
+        change only the update."""
+        return self.feed_forward and self.rnd is None and self.symmetry is None
+
+    @property
     def graphable(self) -> bool:
-        """Whether `update_on_device` makes no host synchronisation (so it can be captured): feed-forward
-        models, no RND / symmetry / multi-GPU, and a fixed learning-rate schedule."""
-        return (not (self.actor.is_recurrent or self.critic.is_recurrent) and self.rnd is None
-                and self.symmetry is None and not self.is_multi_gpu
+        """Whether `update_on_device` can be captured too: a rollout that can, a fixed learning-rate
+        schedule (the adaptive one reads the KL on the host every mini-batch) and one process (the
+        gradients' all-reduce over the ranks stays eager)."""
+        return (self.rollout_graphable and not self.is_multi_gpu
                 and not (self.desired_kl is not None and self.schedule == "adaptive"))
 
     def mini_batch_indices(self) -> tuple[torch.Tensor, int]:
