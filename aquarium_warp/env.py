@@ -88,6 +88,12 @@ def _init_warp_once(device) -> None:
     _warp_ready = True
 
 
+def param_generator(seed: int) -> np.random.Generator:
+    """The generator `set_params` draws samplers from by default: seeded by the env's seed, apart from
+    the stream of the config's own draws (`AquariumConfig.draw`), which it would repeat."""
+    return np.random.default_rng((int(seed), 1))
+
+
 def resolve_device(device) -> str:
     """Warp device name for `device`: None picks "cuda:0" when CUDA is present, else "cpu"."""
     _init_warp(device)
@@ -245,6 +251,7 @@ class BatchedAquarium:
         self.device = resolve_device(device)
         self.torch_device = torch.device(self.device)
         self.seed = int(seed)
+        self._param_rng = param_generator(self.seed)  # `set_params`' samplers draw from it by default
         self.prey_capacity = cfg.prey_capacity
         self.predator_count = cfg.predator_capacity  # predator slots per world
         self.capacity = C = cfg.capacity
@@ -349,6 +356,12 @@ class BatchedAquarium:
         return self._params.types
 
     @property
+    def max_speeds(self) -> torch.Tensor:
+        """`[W, 2]` float64 max speed of each world's predators (column `PREDATOR` = 0) and prey
+        (`PREY` = 1), px/step, on the env's device; `set_params` updates it in place."""
+        return self._params.max_speed
+
+    @property
     def world_values(self) -> wp.array:
         """`[W]` per-world parameters (`kernels.common.WorldValues`)."""
         return self._params.values
@@ -369,6 +382,7 @@ class BatchedAquarium:
         if seed is not None:
             key = seed_key(seed)
             self.seed = int(seed)
+            self._param_rng = param_generator(self.seed)
             self.state.worlds.seed.fill_(key)
         self._run("reset")
         return self.observations
@@ -406,7 +420,7 @@ class BatchedAquarium:
         returned observations. Worlds whose episode ended were reset, so their observations are the
         new episode's first ones.
 
-        `validate=False` skips the host-side checks of the actions (and their device sync); an action
+        `validate=False` skips the host-side checks of the actions (and their one device sync); an action
         outside [0, action_count - 1] is then clamped into that range by the motion kernel, so no value
         reads or writes out of bounds.
         """
@@ -426,6 +440,7 @@ class BatchedAquarium:
         if missing or extra:
             raise ValueError(f"actions must have exactly the keys {TYPES}; missing {missing}, unknown {extra}")
         n = self.config.action_count
+        out_of_range = {}
         for t in TYPES:
             a = actions[t]
             expected = tuple(self._actions[t].shape)
@@ -444,8 +459,11 @@ class BatchedAquarium:
                                  f"(num_worlds, {t} slots), got {list(a.shape)}")
             if a.device != self.torch_device:
                 raise ValueError(f"actions[{t!r}] is on {a.device}, but the env runs on {self.device}")
-            bad = ((a < 0) | (a >= n)) & self.alive[t]
-            if bool(bad.any()):
+            out_of_range[t] = (a, ((a < 0) | (a >= n)) & self.alive[t])
+        # One device sync for both types, then the first bad action named.
+        flags = torch.stack([bad.any() for _, bad in out_of_range.values()]).tolist()
+        for (t, (a, bad)), flagged in zip(out_of_range.items(), flags):
+            if flagged:
                 w, i = (int(x) for x in torch.nonzero(bad)[0])
                 raise ValueError(f"actions[{t!r}][{w}, {i}]={int(a[w, i])} is out of range: live agents' "
                                  f"actions must be in [0, {n - 1}] (action_count={n})")
@@ -457,7 +475,8 @@ class BatchedAquarium:
         (`prey_reward=2.0`, `flow=FlowConfig(...)`, `prey_count=8`) and the per-type ones as
         `prey_<field>` / `predator_<field>` (`prey_max_speed=[3.0, 5.0]`); a value is a scalar (every
         selected world), one value per selected world, or a sampler (`Uniform`, `LogUniform`,
-        `Choice`, drawn from `rng`, a numpy Generator, default one seeded by the env's seed).
+        `Choice`, drawn from `rng`, a numpy Generator; by default from the env's own generator, seeded
+        by the env's seed when the env is made and at a seeded `reset`, so each call draws new values).
 
         Values are checked world by world before anything changes (a bad one raises `ValueError`
         naming the field, the world and the allowed range); then they are copied into the device
@@ -489,7 +508,7 @@ class BatchedAquarium:
                 raise ValueError(f"world={world!r} must be None, an integer or distinct integers in [0, {W - 1}]")
             worlds = [int(k) for k in indices]
         if rng is None:
-            rng = np.random.default_rng(self.seed)
+            rng = self._param_rng
         elif not isinstance(rng, np.random.Generator):
             raise ValueError(f"rng={rng!r} must be a numpy.random.Generator or None")
         cfg = self.config

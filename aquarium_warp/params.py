@@ -5,9 +5,12 @@ tuples (one value per world) or scalars (the same in every world):
 
 - `types`: `[W, 2]` `AgentType` (indexed by world and type code), the per-type table;
 - `values`: `[W]` `WorldValues`, the world parameters that may differ between worlds;
-- `flow_grid`: `[G, rows, cols]` vec2, the distinct grid currents of the batch (G >= 1).
+- `flow_grid`: `[G, rows, cols]` vec2, the distinct grid currents of the batch (G >= 1);
 
-The kernels read them every step, so `write(config)` (a copy into the same arrays) changes the
+and `max_speed`, a `[W, 2]` float64 torch tensor of each world's max speeds by type code, for torch
+code that scales by them (`pettingzoo_env.WorldState`, also inside CUDA graphs).
+
+The kernels read them every step, so `write(config)` (a copy into the same memory) changes the
 worlds between two steps with nothing rebuilt or recorded again, also inside a CUDA graph.
 """
 
@@ -16,6 +19,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import torch
 import warp as wp
 
 from .config import PER_WORLD_TYPE_FIELDS, AquariumConfig, FlowConfig
@@ -93,6 +97,14 @@ def world_rows(cfg: AquariumConfig, num_worlds: int, grid_index: list[int]) -> n
     return rows
 
 
+def max_speeds(cfg: AquariumConfig, num_worlds: int) -> torch.Tensor:
+    """`[W, 2]` float64 max speeds per world, by type code (`PREDATOR`, `PREY`), on the CPU."""
+    speeds = torch.zeros(num_worlds, 2, dtype=torch.float64)
+    for code, t in ((int(PREDATOR), cfg.predator), (int(PREY), cfg.prey)):
+        speeds[:, code] = torch.tensor(per_world(t.max_speed, num_worlds), dtype=torch.float64)
+    return speeds
+
+
 class BatchParams:
     """The device arrays of a batch's per-world parameters (see the module's docstring)."""
 
@@ -102,6 +114,7 @@ class BatchParams:
         self.flow_grid: wp.array = wp.array(grids, dtype=wp.vec2, device=device)
         self.types: wp.array = wp.array(type_rows(cfg, num_worlds), dtype=AgentType, device=device)
         self.values: wp.array = wp.array(world_rows(cfg, num_worlds, index), dtype=WorldValues, device=device)
+        self.max_speed = max_speeds(cfg, num_worlds).to(wp.device_to_torch(device))
 
     def write(self, cfg: AquariumConfig) -> None:
         """Copy `cfg`'s values into the same arrays (a config of the same batch: its grid currents must
@@ -112,3 +125,4 @@ class BatchParams:
                              "uniform and vortex flows, and grids the batch already holds, may be set per world")
         self.types.assign(wp.array(type_rows(cfg, self.num_worlds), dtype=AgentType, device="cpu"))
         self.values.assign(wp.array(world_rows(cfg, self.num_worlds, index), dtype=WorldValues, device="cpu"))
+        self.max_speed.copy_(max_speeds(cfg, self.num_worlds))

@@ -69,7 +69,7 @@ from pettingzoo import ParallelEnv
 
 from .config import AgentTypeConfig, AquariumConfig
 from .env import TYPES, BatchedAquarium
-from .params import per_world
+from .kernels.common import PREDATOR, PREY
 
 # Above this many extra (refill) names, possible_agents grows on demand instead of listing them all.
 MAX_EXTRA_NAMES = 10_000
@@ -93,11 +93,10 @@ class WorldState:
         self.aquarium, self.max_steps = aquarium, cfg.max_steps
         dev = aquarium.torch_device
         self.order = torch.cat([torch.arange(Pc, cfg.capacity, device=dev), torch.arange(Pc, device=dev)])
-        # Each world's max speeds (per-world values allowed), by slot in the state's order: [W, C, 1].
-        W = aquarium.num_worlds
-        speeds = [torch.tensor(per_world(t.max_speed, W), dtype=torch.float64, device=dev)[:, None].expand(W, n)
-                  for t, n in ((cfg.predator, cfg.capacity - Pc), (cfg.prey, Pc))]
-        self.speed = torch.cat(speeds, dim=1).unsqueeze(-1)
+        # Type code of each slot in the state's order, to read each world's max speeds at every call
+        # (`set_params` changes them in place, also under a captured graph).
+        self.slot_type = torch.cat([torch.full((cfg.capacity - Pc,), int(PREDATOR), device=dev),
+                                    torch.full((Pc,), int(PREY), device=dev)])
         self.size = torch.tensor([cfg.width, cfg.height], dtype=torch.float64, device=dev)
         self.length = len(STATE_FIELDS) * cfg.capacity + 1
 
@@ -105,7 +104,8 @@ class WorldState:
         t, order = self.aquarium.state.torch, self.order
         alive = t.alive[:, order]
         fields = torch.cat([alive.unsqueeze(-1).double(), (t.position[:, order].double() / self.size).clamp(0.0, 1.0),
-                            (t.velocity[:, order].double() / self.speed).clamp(-1.0, 1.0),
+                            (t.velocity[:, order].double() / self.aquarium.max_speeds[:, self.slot_type, None])
+                            .clamp(-1.0, 1.0),
                             t.heading[:, order].clamp(-1.0, 1.0).double()], dim=-1)
         fields = torch.where(alive.unsqueeze(-1), fields, 0.0)
         progress = (t.world_step.double() / self.max_steps).clamp(max=1.0)
@@ -354,9 +354,10 @@ class AquariumParallelEnv(ParallelEnv):
                      t.episode_ended)
         if self._on_cpu:
             self._views = tuple(x.numpy() for x in self._src)  # zero copy: always the current values
+        self._world_state = WorldState(aq)  # made once: it reads the state (and max speeds) at each call
 
     # Attributes rebuilt after unpickling: views of the simulation's buffers, and the render window.
-    _UNPICKLED = ("_act_tensors", "_act_prey", "_act_pred", "_src", "_views", "_on_cpu", "_window")
+    _UNPICKLED = ("_act_tensors", "_act_prey", "_act_pred", "_src", "_views", "_on_cpu", "_window", "_world_state")
 
     def __getstate__(self) -> dict:
         """Pickle and `copy.deepcopy` carry the options, names, seeding generators, spaces and the
@@ -563,7 +564,7 @@ class AquariumParallelEnv(ParallelEnv):
     def state(self) -> np.ndarray:
         """Global state: a flat float32 vector of `7 * capacity + 1` values in `state_space` (the
         layout of `WorldState`, which computes it for every world of a `BatchedAquarium`)."""
-        return WorldState(self.aquarium)()[0].cpu().numpy()
+        return self._world_state()[0].cpu().numpy()
 
     # ------------------------------------------------------------------ rendering
     def render(self):

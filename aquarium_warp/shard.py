@@ -371,6 +371,7 @@ class ShardSet:
         self.shards = tuple(WorldShard(cfg, state, k, w0, w1, dims, params, action_direction, observe_kernels, device,
                                        auto_reset, fused) for k, (w0, w1) in enumerate(zip(bounds[:-1], bounds[1:])))
         self._pool = ThreadPoolExecutor(max_workers=shards) if shards > 1 else None
+        self._torch_streams: dict[int, wp.Stream] = {}  # torch stream handle -> the same stream in Warp
         self.programs = {"step": self.record(WorldShard.step_program, graph=True),
                          "observe": self.record(WorldShard.observe_program),
                          "reset": self.record(WorldShard.reset_program)}
@@ -395,7 +396,7 @@ class ShardSet:
                 for shard in self.shards:
                     work(shard)
             return
-        torch_stream = wp.stream_from_torch(torch.cuda.current_stream(torch.device(self.device)))
+        torch_stream = self._torch_stream()
         stream = wp.get_stream(self.device)
         stream.wait_stream(torch_stream)
         with wp.ScopedStream(stream):
@@ -403,9 +404,19 @@ class ShardSet:
                 work(shard)
         torch_stream.wait_stream(stream)
 
+    def _torch_stream(self) -> wp.Stream:
+        """Torch's current stream on this device as a Warp stream, made once per torch stream (making
+        one, with the event it synchronises through, every step costs host time)."""
+        current = torch.cuda.current_stream(torch.device(self.device))
+        stream = self._torch_streams.get(current.cuda_stream)
+        if stream is None:
+            stream = self._torch_streams[current.cuda_stream] = wp.stream_from_torch(current)
+        return stream
+
     def close(self) -> None:
         """Release the CUDA graph and the worker threads."""
         self.programs["step"].close()
+        self._torch_streams.clear()
         pool, self._pool = self._pool, None
         if pool is not None:
             pool.shutdown(wait=False)

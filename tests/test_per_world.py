@@ -229,6 +229,25 @@ def test_samplers_draw_per_world_values_in_range_from_the_seed():
     assert env.config.prey.fov_angle[2:] == (120.0,) * 62
 
 
+def test_set_params_draws_anew_from_the_envs_own_generator():
+    """Without `rng`, samplers draw from the env's generator: new values at every call, the same
+    sequence for the same seed (and again after a seeded reset), not the config's own draws."""
+    cfg = dataclasses.replace(BASE, prey_reward=Uniform(0.5, 2.0))
+
+    def draws(env) -> list:
+        return [env.set_params(prey_reward=Uniform(0.5, 2.0)).prey_reward for _ in range(3)]
+
+    env = BatchedAquarium(cfg, 8, device="cpu", seed=11)
+    first = draws(env)
+    assert len(set(first)) == 3  # every call draws anew
+    again = BatchedAquarium(cfg, 8, device="cpu", seed=11)
+    assert first[0] != again.config.prey_reward  # not a repeat of the construction's draw
+    assert draws(again) == first
+    assert draws(BatchedAquarium(cfg, 8, device="cpu", seed=12)) != first
+    env.reset(seed=11)
+    assert draws(env) == first
+
+
 # --------------------------------------------------------------------------------------------------
 # Hand-computed currents (MODEL.md "Flow fields"): the drift of a lone agent is P' - P - V'.
 # --------------------------------------------------------------------------------------------------
@@ -316,3 +335,11 @@ def test_world_state_scales_velocities_by_each_worlds_max_speed():
     for w, speed in enumerate(speeds):  # prey slot 0 follows the predators' slots in the state
         vx = state[w, (C - Pc) * fields + 3]
         assert vx == pytest.approx(float(t.velocity[w, 0, 0]) / speed, abs=1e-6)
+    # The same WorldState follows `set_params` (training makes it once, and may replay it in a graph).
+    world_state = WorldState(env)
+    env.set_params(prey_max_speed=(6.0, 8.0), predator_max_speed=(10.0, 12.0))
+    assert env.max_speeds.tolist() == [[10.0, 6.0], [12.0, 8.0]]
+    state = world_state()
+    for w, (prey_speed, predator_speed) in enumerate(((6.0, 10.0), (8.0, 12.0))):
+        assert state[w, (C - Pc) * fields + 3] == pytest.approx(float(t.velocity[w, 0, 0]) / prey_speed, abs=1e-6)
+        assert state[w, 3] == pytest.approx(float(t.velocity[w, Pc, 0]) / predator_speed, abs=1e-6)

@@ -4,7 +4,8 @@ optimizer, unmodified) driven from our own loop so that nothing in an iteration 
 rsl-rl's `OnPolicyRunner.learn` spends most of an iteration in Python and host synchronisation around
 small networks: its logger reads the done flags back every step, and its update reads three losses
 back after every mini-batch. This loop makes the same calls in the same order, and on CUDA replays
-them as CUDA graphs:
+them as CUDA graphs (the adapter's own host reads, where its settings need them, are listed in
+`vec_env.py`: episodes that can end otherwise than by truncation, domain randomisation):
 
 - step `t` of a rollout is graph `act[t]` (`PPO.act`: actor, sampling, critic, log-probabilities,
   and the actions into the adapter's int32 buffer), then the Warp work outside any torch graph (the

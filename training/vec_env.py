@@ -45,7 +45,9 @@ episode ends.
 Host synchronisation. `step()` makes none when the world episodes can only end by truncation
 (respawn on and a starvation limit of at least `max_steps - 1`: the paper's setting): a host copy of
 every world's step counter says when episodes end. Otherwise it reads one flag per step
-(`episode_ended.any()`). rsl-rl's own logger syncs each step anyway when a log directory is set.
+(`episode_ended.any()`). Domain randomisation (`randomize`) adds one per step: finding the worlds
+whose episode ended, to draw their new values on the host. rsl-rl's own logger syncs each step anyway
+when a log directory is set.
 """
 
 from __future__ import annotations
