@@ -142,6 +142,10 @@ class SwarmSizeStudy:
             raise ValueError("one batch: every world has one arena, so not with constant density")
         if self.one_batch and self.reproduction:
             raise ValueError("one batch: max_prey (2 N with reproduction) sizes the arrays, so not with reproduction")
+        if self.one_batch and self.jobs is not None and self.jobs > 1:
+            raise ValueError(f"--jobs {self.jobs} runs settings at once, a batch each; one batch holds every setting "
+                             "(--one-batch, fov-view's default): drop --jobs, or use one batch per setting "
+                             "(fov-view --per-setting)")
 
     def settings(self) -> list[dict]:
         """One dict per (fov angle, view distance, prey count), with its `AquariumConfig`."""

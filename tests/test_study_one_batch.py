@@ -96,6 +96,17 @@ def test_one_batch_refuses_what_sizes_the_arrays(tmp_path):
                                  progress=False)
 
 
+@pytest.mark.parametrize("argv", [["study", "swarm-size", "--prey", "4,8", "--one-batch", "--jobs", "2"],
+                                  ["study", "fov-view", "--fov", "90,180", "--view", "50", "--jobs", "2"]])
+def test_one_batch_refuses_jobs(argv, tmp_path, capsys):
+    """One batch runs in this process: `--jobs` (settings at once, a batch each) would be ignored."""
+    assert main([*argv, "--out", str(tmp_path), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "--jobs 2" in err and "one batch" in err
+    assert main([*argv[:-1], "1", "--out", str(tmp_path), "--no-progress", "--seeds", "1", "--episode-steps", "5",
+                 "--no-figures"]) == 0  # one job is what one batch does
+
+
 def test_cli_fov_view_writes_csv_json_and_heatmap(device, tmp_path, capsys):
     out = tmp_path / "fv"
     rc = main(["study", "fov-view", "--fov", "60,360", "--view", "50,100,...,200", "--prey", "8", "--seeds", "2",
