@@ -366,7 +366,7 @@ def _study_group_hunting(args) -> int:
     print(f"aquarium-warp study group-hunting: predators {study.predators}, {study.prey} prey "
           f"({', '.join(study.prey_conditions)}), catch_share_radius {study.share_radii}, {study.seeds} seeds -> "
           f"{study.out}")
-    summary = run_group_hunting(study, command_line(args.argv))
+    summary = run_group_hunting(study, command_line(args.argv), _ray_options(args))
     print(f"{written(summary)} ({summary['training_fraction']:.0%} of the workers' time training)")
     return 0
 
@@ -385,7 +385,7 @@ def _study_many_eyes(args) -> int:
         device=args.device, jobs=args.jobs, out=args.out, figures=not args.no_figures)
     print(f"aquarium-warp study many-eyes: group sizes {study.group_sizes} x FOV {study.fov_angles}, "
           f"{study.seeds} seeds -> {study.out}")
-    summary = run_many_eyes(study, command_line(args.argv))
+    summary = run_many_eyes(study, command_line(args.argv), _ray_options(args))
     print(f"{written(summary)} ({summary['training_fraction']:.0%} of the workers' time training)")
     return 0
 
@@ -441,6 +441,7 @@ def _add_open_questions(kinds) -> None:
                    help="steps between the random-time states of the baselines (default 10)")
     p.add_argument("--no-baseline", action="store_true", help="no NaivChase teams")
     _add_open_question_arguments(p, os.path.join("benchmarks", "results", "group_hunting"))
+    _add_ray_arguments(p, "training run (with its evaluations) or NaivChase baseline")
     p.set_defaults(run=_study_group_hunting)
 
     p = kinds.add_parser(
@@ -471,6 +472,7 @@ def _add_open_questions(kinds) -> None:
     p.add_argument("--lag", type=positive_int, default=5, help="steps of a flight onset's turn (default 5)")
     p.add_argument("--no-turnaway", action="store_true", help="no TurnAway reference")
     _add_open_question_arguments(p, os.path.join("benchmarks", "results", "many_eyes"))
+    _add_ray_arguments(p, "training run (with its evaluations)")
     p.set_defaults(run=_study_many_eyes)
 
     p = kinds.add_parser(

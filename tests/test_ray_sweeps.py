@@ -207,3 +207,35 @@ def test_sweep_runs_are_settings_by_seeds(tmp_path):
                                                 (0, ("train.sharing=individual",)), (1, ("train.sharing=individual",))]
     assert runs[3].run_dir == os.path.join(str(tmp_path), "train.sharing=individual", "seed1")
     assert dataclasses.replace(sweep, vary=()).runs()[0].run_dir == os.path.join(str(tmp_path), "seed0")
+
+
+def csv_rows(path) -> list[dict]:
+    import csv
+
+    with open(path, encoding="utf-8", newline="") as f:
+        return list(csv.DictReader(f))
+
+
+@pytest.mark.slow
+def test_open_question_study_on_ray_equals_the_run_here(ray_cluster, tmp_path, one_thread):
+    """`study group-hunting --ray`: every training run (and the NaivChase baseline) is a Ray task whose
+    worker writes its policies; the rows equal those of the run here (timings aside), the JSON names the
+    Ray run, a rerun keeps every task, and --jobs is refused beside --ray."""
+    argv = ["study", "group-hunting", "--predators", "1,2", "--prey-conditions", "turnaway", "--share-radius", "100",
+            "--seeds", "1", "--worlds", "4", "--iterations", "2", "--train-steps", "40", "--eval-worlds", "2",
+            "--eval-steps", "40", "--device", "cpu", "--no-figures"]
+    assert main(argv + ["--out", str(tmp_path / "here")]) == 0
+    on_ray = argv + ["--out", str(tmp_path / "ray"), "--ray"]
+    assert main(on_ray) == 0
+    here, ray_rows = (csv_rows(tmp_path / name / "group_hunting.csv") for name in ("here", "ray"))
+    assert len(ray_rows) == 4  # turnaway and naivchase, 1 and 2 predators
+    untimed = [[{k: v for k, v in r.items() if not k.endswith("_s")} for r in rows] for rows in (here, ray_rows)]
+    assert untimed[0] == untimed[1]
+    record = json.loads((tmp_path / "ray" / "group_hunting.json").read_text())
+    assert record["jobs"] is None and record["tasks_kept"] == 0
+    assert record["ray"]["device"] == "cpu" and record["ray"]["gpus_per_task"] == 0
+    assert len(record["ray"]["nodes"]) == 1
+    assert (tmp_path / "ray" / "policies" / "turnaway_share100_pred2_seed0").is_dir()
+    assert main(on_ray) == 0  # a rerun keeps every task
+    assert json.loads((tmp_path / "ray" / "group_hunting.json").read_text())["tasks_kept"] == 4
+    assert main(on_ray + ["--jobs", "2"]) == 2

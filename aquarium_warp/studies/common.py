@@ -1,5 +1,5 @@
 """What the open-question studies share: option checks, training runs through the `Trainer` API,
-several runs at once in worker processes, evaluation rollouts that see every step's state, the
+several runs at once in worker processes or as Ray tasks, evaluation rollouts that see every step's state, the
 geometry of fleeing, statistics over seeds, the output files and the error-band plots.
 
 Statistics: every measure is first reduced to one value per seed (training seed or block of worlds);
@@ -13,6 +13,7 @@ import copy
 import dataclasses
 import math
 import os
+import platform
 import shlex
 import sys
 import time
@@ -28,6 +29,8 @@ from ..config import AquariumConfig
 from ..env import BatchedAquarium, resolve_device
 from ..json_records import json_safe
 from ..number_lists import parse_list
+from ..ray_tasks import RayOptions, placement
+from ..ray_tasks import run_tasks as run_ray_tasks
 from ..study import _stats, write_csv
 
 BAND = "mean ± 1 s.e.m. over seeds"
@@ -105,29 +108,53 @@ def task_key(task: dict) -> dict:
 @dataclasses.dataclass
 class TaskRun:
     """What `run_tasks` did: the tasks' results (in task order), how many were kept from an earlier
-    run, the device, the jobs at once, and the wall time in seconds."""
+    run, the device, the jobs at once (None on Ray), the wall time in seconds, and on Ray the run's
+    record (address, what each task held, the machines that ran tasks)."""
 
     results: list[dict]
     kept: int
     device: str
-    jobs: int
+    jobs: int | None
     wall_s: float
+    ray: dict | None = None
 
     def record(self, study_name: str, study, rows: list[dict], command: str | None) -> dict:
         """`run_record` of this run, with the training and job times summed over `rows`."""
-        return run_record(study_name, study, self.device, self.wall_s, sum(r["train_s"] for r in rows),
-                          sum(r["job_s"] for r in rows), self.jobs, command, self.kept)
+        record = run_record(study_name, study, self.device, self.wall_s, sum(r["train_s"] for r in rows),
+                            sum(r["job_s"] for r in rows), self.jobs, command, self.kept)
+        if self.ray is not None:
+            record["ray"] = self.ray
+        return record
 
 
-def run_tasks(study, function: Callable[[dict], dict], label: str) -> TaskRun:
+def run_tasks(study, function: Callable[[dict], dict], label: str, ray: RayOptions | None = None) -> TaskRun:
     """Check `study`'s settings, resolve its device and jobs, and run its tasks (`study.tasks(device)`)
-    with `run_jobs`, timed."""
+    with `run_jobs`, timed: here, or with `ray` each task a Ray task on the device Ray assigns it."""
     study.validate()
-    device = resolve_device(study.device)
-    jobs = resolve_jobs(study.jobs, device)
+    if ray is not None and study.jobs is not None:
+        raise ValueError(f"--jobs {study.jobs} sets the worker processes on this machine; with --ray each "
+                         "training run is a task (--cpus-per-task, --gpus-per-task)")
+    if ray is None:
+        device = resolve_device(study.device)
+        jobs: int | None = resolve_jobs(study.jobs, device)
+    else:
+        ray, device = placement(ray, study.device)
+        jobs = None
+    tasks = study.tasks(device)
+    if ray is not None:  # workers write the trained policies themselves, wherever Ray starts them
+        tasks = [dict(t, policy_dir=os.path.abspath(t["policy_dir"])) if "policy_dir" in t else t for t in tasks]
     start = time.perf_counter()
-    results, kept = run_jobs(function, study.tasks(device), jobs, device, study.out, label)
-    return TaskRun(results, kept, device, jobs, time.perf_counter() - start)
+    results, kept, nodes = run_jobs(function, tasks, jobs or 1, device, study.out, label, ray)
+    record = None
+    if ray is not None:
+        record = {"address": ray.address, "gpus_per_task": ray.gpus_per_task, "cpus_per_task": ray.cpus_per_task,
+                  "max_retries": ray.max_retries, "device": device, "nodes": nodes}
+    return TaskRun(results, kept, device, jobs, time.perf_counter() - start, record)
+
+
+def _on_worker(function: Callable[[dict], dict], task: dict) -> tuple[dict, str]:
+    """A Ray task: `function(task)` and the name of the machine that ran it."""
+    return function(task), platform.node()
 
 
 def group_rows(rows: list[dict], keys: Sequence[str]) -> dict[tuple, list[dict]]:
@@ -140,13 +167,14 @@ def group_rows(rows: list[dict], keys: Sequence[str]) -> dict[tuple, list[dict]]
 
 
 def run_jobs(function: Callable[[dict], dict], tasks: Sequence[dict], jobs: int, device: str, out: str,
-             label: str = "run") -> tuple[list[dict], int]:
+             label: str = "run", ray: RayOptions | None = None) -> tuple[list[dict], int, list[str]]:
     """`function(task)` for every task, in order of the tasks: in this process with `jobs=1`, else in a
-    pool of `jobs` worker processes (spawn context, so each has its own CUDA context) after `warm_up`.
+    pool of `jobs` worker processes (spawn context, so each has its own CUDA context) after `warm_up`,
+    or with `ray` (placed: `ray_tasks.placement`) as Ray tasks, a task whose worker dies rerun by Ray.
     `function` must be a module-level function and the tasks picklable (each with a unique "name").
     Each result is written to `out/finished/<name>.json` as it comes; a task whose file holds the same
-    `task_key` is not run again. Prints one line per finished task. Returns the results and the number
-    of kept ones."""
+    `task_key` is not run again. Prints one line per finished task. Returns the results, the number
+    of kept ones and the machines that ran Ray tasks (sorted; empty without Ray)."""
     import json
 
     results: list[dict | None] = [None] * len(tasks)
@@ -175,7 +203,14 @@ def run_jobs(function: Callable[[dict], dict], tasks: Sequence[dict], jobs: int,
         print(f"  {label} {finished}/{len(tasks)} ({tasks[i]['name']}) after {elapsed:.0f} s, ~{left:.0f} s "
               "left", flush=True)
 
-    if jobs <= 1 or len(todo) <= 1:
+    nodes: set[str] = set()
+    if ray is not None:
+        def finished(k: int, result: tuple[dict, str]) -> None:
+            nodes.add(result[1])
+            done(todo[k], result[0])
+
+        run_ray_tasks(_on_worker, [(function, tasks[i]) for i in todo], ray, on_result=finished)
+    elif jobs <= 1 or len(todo) <= 1:
         for i in todo:
             done(i, function(tasks[i]))
     else:
@@ -184,7 +219,7 @@ def run_jobs(function: Callable[[dict], dict], tasks: Sequence[dict], jobs: int,
             futures = {pool.submit(function, tasks[i]): i for i in todo}
             for future in as_completed(futures):
                 done(futures[future], future.result())
-    return [r for r in results if r is not None], kept_count
+    return [r for r in results if r is not None], kept_count, sorted(nodes)
 
 
 # ---------------------------------------------------------------------------------------------- training
@@ -346,7 +381,7 @@ def command_line(argv: Sequence[str] | None = None) -> str:
 
 
 def run_record(study: str, settings, device: str, wall_s: float, train_s: float, job_s: float,
-               jobs: int, command: str | None, kept: int = 0) -> dict:
+               jobs: int | None, command: str | None, kept: int = 0) -> dict:
     """The JSON's record of a run: the study, the exact command (default `command_line()`), its settings,
     the machine, the wall time, the summed training time of its runs and the fraction of the workers'
     time spent training (`kept`: tasks kept from an earlier run, whose times count too)."""

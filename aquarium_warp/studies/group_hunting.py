@@ -51,6 +51,7 @@ import numpy as np
 import torch
 
 from ..config import AquariumConfig
+from ..ray_tasks import RayOptions
 from ..training.config import env_config
 from . import common
 
@@ -244,10 +245,12 @@ def condition_label(condition: str, share_radius: float) -> str:
     return f"learned vs {prey}, reward {reward}"
 
 
-def run_group_hunting(study: GroupHuntingStudy, command: str | None = None) -> dict:
+def run_group_hunting(study: GroupHuntingStudy, command: str | None = None,
+                      ray: RayOptions | None = None) -> dict:
     """Run every task (`study.jobs` at once), write the CSV, JSON and figure; return the JSON's content.
-    `command`: the command line recorded in the JSON (default: this process's, `common.command_line`)."""
-    run = common.run_tasks(study, run_task, "group-hunting")
+    `command`: the command line recorded in the JSON (default: this process's, `common.command_line`).
+    `ray`: run each training run as a Ray task instead (`ray_tasks`); the JSON then has a "ray" entry."""
+    run = common.run_tasks(study, run_task, "group-hunting", ray)
     results = run.results
     rows = [{k: v for k, v in r.items() if k != "name"} for r in results]
     groups = common.group_rows(results, ("condition", "share_radius", "predators"))

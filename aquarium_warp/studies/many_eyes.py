@@ -47,6 +47,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from ..ray_tasks import RayOptions
 from ..training.config import env_config
 from . import common
 
@@ -207,10 +208,12 @@ def run_task(task: dict) -> list[dict]:
     return rows
 
 
-def run_many_eyes(study: ManyEyesStudy, command: str | None = None) -> dict:
+def run_many_eyes(study: ManyEyesStudy, command: str | None = None,
+                  ray: RayOptions | None = None) -> dict:
     """Run every task (`study.jobs` at once), write the CSV, JSON and figure; return the JSON's content.
-    `command`: the command line recorded in the JSON (default: this process's, `common.command_line`)."""
-    run = common.run_tasks(study, _task_rows, "many-eyes")
+    `command`: the command line recorded in the JSON (default: this process's, `common.command_line`).
+    `ray`: run each training run as a Ray task instead (`ray_tasks`); the JSON then has a "ray" entry."""
+    run = common.run_tasks(study, _task_rows, "many-eyes", ray)
     results = [row for rows in run.results for row in rows["rows"]]
     groups = common.group_rows(results, ("policy", "predator", "fov_angle", "group_size"))
     entries = [{"policy": p, "predator": pred, "fov_angle": fov, "group_size": n,
