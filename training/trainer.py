@@ -31,7 +31,8 @@ Several processes (`torchrun`, see `distributed.py`): each rank trains on its ow
 seed `train.seed + RANK` (listed in `config.json` under `distributed`); rank 0 logs the episode
 statistics and swarm metrics summed over all ranks (losses: their mean) and writes the checkpoints,
 which hold rank 0's state as above plus `world_size` and the other ranks' states under `ranks`; on
-resume each rank restores its own (the same number of processes is required).
+resume each rank restores its own (the same number of processes is required). On CUDA each rank
+replays its rollout from CUDA graphs; the update, with its all-reduce, runs eagerly.
 """
 
 from __future__ import annotations
