@@ -64,12 +64,10 @@ def init(device: str, rank: int, size: int) -> str:
     return backend
 
 
-def sum_over_ranks(values: list[float]) -> list[float]:
-    """Element-wise sums of every rank's `values` (float64), on every rank."""
-    device = f"cuda:{torch.cuda.current_device()}" if dist.get_backend() == "nccl" else "cpu"
-    tensor = torch.tensor(values, dtype=torch.float64, device=device)
+def sum_over_ranks(tensor: torch.Tensor) -> None:
+    """Replace `tensor` (on this rank's device) by the element-wise sum over every rank's, in place. With
+    NCCL the sum is queued on the device in stream order: the host does not wait for it."""
     dist.all_reduce(tensor, op=dist.ReduceOp.SUM)
-    return tensor.tolist()
 
 
 def to_cpu(obj):

@@ -46,6 +46,7 @@ from __future__ import annotations
 import contextlib
 import gc
 import time
+from collections.abc import Callable
 
 import torch
 
@@ -130,9 +131,12 @@ class TrainingLoop:
     (`alg.rollout_graphable`), and a learner's update graph where its algorithm allows that too
     (`alg.graphable`; else the update runs eagerly between the replayed rollouts: several ranks, the
     adaptive schedule); `self.graphs` says whether graphs are in use, `self.update_graphs` per learner.
+    `reduce`: applied in place to each iteration's values (losses and statistics, on the device) before
+    they are copied to the host; a torchrun run sums them over the ranks there, in stream order.
     """
 
-    def __init__(self, learners, num_steps: int, graphs: bool = True, pool=None):
+    def __init__(self, learners, num_steps: int, graphs: bool = True, pool=None,
+                 reduce: Callable[[torch.Tensor], None] | None = None):
         self.learners = [(alg, env) for alg, env in learners]
         if not self.learners:
             raise ValueError("a training loop needs at least one learner")
@@ -141,6 +145,7 @@ class TrainingLoop:
         self.env = self.envs[0]
         self.num_steps = int(num_steps)
         self.pool = pool
+        self.reduce = reduce
         self.device = torch.device(self.algs[0].device)
         self.graphs, self.update_graphs = graph_plan(self.algs, bool(graphs) and self.device.type == "cuda")
         for env in self.envs:
@@ -268,7 +273,10 @@ class TrainingLoop:
                 values.append(self._frozen_losses)
             values.append(self.envs[i].episode_stats_snapshot())
         mark("update")
-        record.finish(torch.cat(values))
+        values = torch.cat(values)
+        if self.reduce is not None:
+            self.reduce(values)
+        record.finish(values)
         return record
 
     def _update(self, i: int) -> torch.Tensor:

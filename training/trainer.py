@@ -339,7 +339,9 @@ class AquariumRunner(OnPolicyRunner):
         if self.loop is None:
             self.loop = TrainingLoop([(learner.alg, learner.vec_env) for learner in self.learners],
                                      self.cfg["num_steps_per_env"], graphs=self.cuda_graphs,
-                                     pool=self.trainer.pool if self.trainer is not None else None)
+                                     pool=self.trainer.pool if self.trainer is not None else None,
+                                     # episode statistics are sums and counts, losses become their mean
+                                     reduce=distributed.sum_over_ranks if self.is_distributed else None)
         for learner in self.learners:
             learner.alg.train_mode()
             if self.is_distributed:  # every rank starts from rank 0's parameters
@@ -352,9 +354,7 @@ class AquariumRunner(OnPolicyRunner):
         total_it = start_it + num_learning_iterations
 
         def log(it: int, record) -> None:
-            values, (collect_time, learn_time) = record.read()
-            if self.is_distributed:  # episode statistics are sums and counts; losses: their mean over ranks
-                values = distributed.sum_over_ranks(values)
+            values, (collect_time, learn_time) = record.read()  # summed over the ranks (`reduce`)
             for learner, (losses, stats) in zip(self.learners, self.loop.split(values)):
                 losses = [loss / self.gpu_world_size for loss in losses]
                 means, episodes, row_reward = learner.vec_env.decode_episode_stats(stats)
