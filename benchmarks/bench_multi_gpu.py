@@ -4,9 +4,10 @@ multi-GPU path), one learning team and both teams.
 Each point is `python -m torch.distributed.run --standalone --nproc_per_node=G -m aquarium_warp train
 ...` with `--num-worlds` worlds per rank, run for `--iterations` iterations; its speed is the median of
 the `fps` column (agent-steps of every rank per second of the iteration) of rank 0's progress CSV over
-the iterations after the first two (Warp compilation, warm-up). One GPU is measured twice: with the
-CUDA graphs of the one-process loop, and eagerly (`train.cuda_graphs=false`), because runs of several
-processes run the loop eagerly; the speed-up per GPU count is against the eager one-GPU run.
+the iterations after the first two (Warp compilation, warm-up). On GPUs every count runs the default
+loop (`train.cuda_graphs=true`: one process captures the rollout and the update, several processes the
+rollout only, their update with its all-reduce eager, since 3fc8de5), and one GPU runs once more
+eagerly (`train.cuda_graphs=false`); each point's speed-up is given against both one-GPU runs.
 
     python benchmarks/bench_multi_gpu.py --gpus 1,2 --teams prey,both --out-dir DIR
     python benchmarks/bench_multi_gpu.py --device cpu --gpus 1,2 --num-worlds 16 --iterations 4   # gloo
@@ -77,14 +78,16 @@ def main(argv: list[str] | None = None) -> int:
     points = []
     for team in teams:
         for g in gpus:
-            for graphs in ((True, False) if g == 1 and args.device != "cpu" else (False,)):
+            cuda = args.device != "cpu"
+            for graphs in ((True, False) if g == 1 and cuda else (True,) if cuda else (False,)):
                 point = run_point(g, team, graphs, args)
                 points.append(point)
                 print(f"{team:>5} {g} GPU{'s' if g > 1 else ' '} graphs={str(graphs):5} "
                       f"{point['agent_steps_per_s']:.3g} agent-steps/s ({point['wall_seconds']:.0f} s)", flush=True)
     for point in points:
-        base = [q for q in points if q["team"] == point["team"] and q["gpus"] == 1 and not q["cuda_graphs"]]
-        point["speedup_vs_one_eager"] = point["agent_steps_per_s"] / base[0]["agent_steps_per_s"] if base else None
+        for key, graphs in (("speedup_vs_one_eager", False), ("speedup_vs_one_graphs", True)):
+            base = [q for q in points if q["team"] == point["team"] and q["gpus"] == 1 and q["cuda_graphs"] == graphs]
+            point[key] = point["agent_steps_per_s"] / base[0]["agent_steps_per_s"] if base else None
     name = torch.cuda.get_device_name(0) if args.device != "cpu" and torch.cuda.is_available() else "cpu"
     result = {"benchmark": "multi_gpu_training", "device_name": name, "settings": vars(args), "points": points,
               "torch": torch.__version__}
@@ -92,10 +95,11 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     path = out / f"multi_gpu_{'cpu' if args.device == 'cpu' else 'cuda'}.json"
     path.write_text(json.dumps(result, indent=2))
-    print(f"\n{'team':>5} {'GPUs':>4} {'graphs':>6} {'agent-steps/s':>14} {'vs 1 eager':>10}")
+    print(f"\n{'team':>5} {'GPUs':>4} {'graphs':>6} {'agent-steps/s':>14} {'vs 1 eager':>10} {'vs 1 graphs':>11}")
     for q in points:
-        ratio = f"{q['speedup_vs_one_eager']:.2f}" if q["speedup_vs_one_eager"] else "-"
-        print(f"{q['team']:>5} {q['gpus']:>4} {str(q['cuda_graphs']):>6} {q['agent_steps_per_s']:>14.3g} {ratio:>10}")
+        ratios = [f"{q[k]:.2f}" if q[k] else "-" for k in ("speedup_vs_one_eager", "speedup_vs_one_graphs")]
+        print(f"{q['team']:>5} {q['gpus']:>4} {str(q['cuda_graphs']):>6} {q['agent_steps_per_s']:>14.3g} "
+              f"{ratios[0]:>10} {ratios[1]:>11}")
     print(f"wrote {path}")
     return 0
 
