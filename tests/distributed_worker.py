@@ -48,14 +48,34 @@ def parameters(trainer: Trainer) -> dict:
             for team, learner in trainer.learners.items()}
 
 
+def share_one_gpu() -> None:
+    """Every rank trains on GPU 0 (its local rank reads 0) and the ranks talk through gloo: NCCL wants
+    a GPU per rank, and a test machine may have one GPU."""
+    from aquarium_warp.training import distributed
+
+    world = distributed.world
+
+    def init(rank_device: str, rank: int, size: int) -> str:
+        torch.cuda.set_device(torch.device(rank_device))
+        if not torch.distributed.is_initialized():
+            torch.distributed.init_process_group(backend="gloo", rank=rank, world_size=size)
+        return "gloo"
+
+    distributed.world = lambda: (world()[0], 0, world()[2])
+    distributed.init = init
+
+
 def main() -> None:
     out, team, iterations, tag = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4]
     run_dir = os.path.join(out, "run")
+    gpu = os.environ.get("AQUARIUM_WORKER_GPU") == "1"  # every rank on GPU 0
+    if gpu:
+        share_one_gpu()
     if sys.argv[5:] == ["resume"]:
         trainer = Trainer.resume(run_dir)
     else:
-        config = make_config("tiny", {"env": {"max_steps": 20},
-                                      "train": {"team": team, "num_worlds": 4, "iterations": 4, "export": []},
+        train = {"team": team, "num_worlds": 4, "iterations": 4, "export": [], **({"device": "cuda"} if gpu else {})}
+        config = make_config("tiny", {"env": {"max_steps": 20}, "train": train,
                                       "runner": {"num_steps_per_env": 16, "save_interval": 100}})
         trainer = Trainer(config, log_dir=run_dir)
     record: dict = {"rank": trainer.rank, "seed": trainer.seed, "params": {}, "stats": {},
@@ -80,6 +100,8 @@ def main() -> None:
 
     trainer.after_iteration = after_iteration
     trainer.train(iterations)
+    loop = trainer.runner.loop
+    record["graphs"] = [loop.graphs, loop.update_graphs]  # what the loop replayed: rollout, updates
     record["final_params"] = digest(parameters(trainer))
     record["final_sim"] = digest(trainer.env.state_dict()["tensors"])
     with open(os.path.join(out, f"{tag}_rank{trainer.rank}.json"), "w", encoding="utf-8") as f:

@@ -19,9 +19,10 @@ from aquarium_warp.training import Trainer, distributed
 WORKER = os.path.join(os.path.dirname(__file__), "distributed_worker.py")
 
 
-def torchrun(out: str, team: str, iterations: int, tag: str, resume: bool = False) -> list[dict]:
-    """Run the worker on two CPU ranks; each rank's record."""
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "GIT_PYTHON_REFRESH": "quiet"}
+def torchrun(out: str, team: str, iterations: int, tag: str, resume: bool = False, gpu: bool = False) -> list[dict]:
+    """Run the worker on two ranks, on the CPU or both on GPU 0 (`gpu`); each rank's record."""
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "GIT_PYTHON_REFRESH": "quiet",
+           **({"AQUARIUM_WORKER_GPU": "1"} if gpu else {})}
     env.pop("WORLD_SIZE", None)
     command = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2", WORKER,
                out, team, str(iterations), tag] + (["resume"] if resume else [])
@@ -124,3 +125,19 @@ def test_torchrun_needs_a_log_dir(monkeypatch, capsys):
     monkeypatch.setenv("WORLD_SIZE", "2")
     assert main(["train", "--preset", "tiny", "--device", "cpu"]) == 2
     assert "--log-dir is required under torchrun" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(not os.environ.get("AQUARIUM_TEST_DEVICE", "").startswith("cuda"),
+                    reason="CUDA graphs need AQUARIUM_TEST_DEVICE=cuda:N (the ranks share GPU 0)")
+@pytest.mark.parametrize("team,updates", [("prey", [False]), ("both", [False, False])])
+def test_ranks_on_a_gpu_replay_their_rollouts_and_update_eagerly(tmp_path, team, updates):
+    """Two ranks on CUDA (sharing one GPU, through gloo): each replays its rollout from CUDA graphs and
+    runs its update, with the gradients' all-reduce, eagerly; the ranks hold the same parameters after
+    every update and rank 0 logs the statistics summed over both."""
+    records = torchrun(str(tmp_path), team, 3, "gpu", gpu=True)
+    assert [r["graphs"] for r in records] == [[True, updates]] * 2
+    assert sorted(records[0]["params"]) == ["0", "1", "2"]
+    assert records[0]["params"] == records[1]["params"]
+    assert records[0]["final_sim"] != records[1]["final_sim"]
+    csv_name = "progress.csv" if team != "both" else "progress_prey.csv"
+    check_reduced_logs(os.path.join(tmp_path, "run"), records, "prey", csv_name)
