@@ -223,6 +223,11 @@ def test_flow_cli_tiny(tmp_path, capsys, one_thread):
     (["many-eyes", "--group-sizes", "0,4"], "--group-sizes"),
     (["flow", "--kinds", "grid"], "flow kinds"),
     (["flow", "--prey-policy", "no_such_file.pt"], "prey-policy"),
+    (["flow", "--prey-policy", "naivchase"], "prey heuristic"),  # a predator's heuristic
+    (["flow", "--strengths", "1,2,1"], "--strengths=[1.0, 2.0, 1.0] repeats 1.0"),
+    (["many-eyes", "--fov", "60,60.0"], "--fov=[60.0, 60.0] repeats"),
+    (["group-hunting", "--predators", "1,2,2"], "--predators=[1, 2, 2] repeats 2"),
+    (["group-hunting", "--prey-conditions", "turnaway,turnaway"], "--prey-conditions"),
 ])
 def test_bad_options_are_named(argv, message, tmp_path, capsys):
     assert main(["study", *argv, "--device", "cpu", "--out", str(tmp_path / "x"), "--no-figures"]) == 2

@@ -49,6 +49,14 @@ def number_list(text, kind: type, name: str, low: float, high: float | None = No
     return values
 
 
+def check_distinct(name: str, values) -> None:
+    """A `ValueError` naming `name` where `values` repeats one: a repeated setting would run twice under
+    one name and pool its seeds with its twin's."""
+    repeated = sorted({v for v in values if list(values).count(v) > 1}, key=str)
+    if repeated:
+        raise ValueError(f"{name}={list(values)!r} repeats {', '.join(map(repr, repeated))}: list each value once")
+
+
 def check_int(name: str, value, low: int = 1) -> None:
     """A `ValueError` naming `name` unless `value` is an integer >= `low`."""
     if isinstance(value, bool) or not isinstance(value, int) or value < low:

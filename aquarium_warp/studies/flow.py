@@ -15,8 +15,9 @@ Measures, per seed:
 - `captures_per_prey` per episode; `polarization`, `groups`, `largest_group`, `nn_mean`: the swarm
   metrics of `aquarium_warp.metrics`, episode means of states sampled every `metrics_every` steps.
 - `escape_cosine`: the mean cosine between a fleeing prey's velocity and the current it drifts in,
-  over every step and fleeing prey (fleeing as in the many-eyes study, `common.fleeing`: nearest
-  predator within `flee_distance`, at least half speed, velocity within `flee_angle` of straight away).
+  over every step and fleeing prey of an episode, then averaged over the seed's episodes (fleeing as
+  in the many-eyes study, `common.fleeing`: nearest predator within `flee_distance`, at least half
+  speed, velocity within `flee_angle` of straight away).
   The current is measured, not recomputed: the step's displacement minus the stored velocity
   (MODEL.md: `P' = wrap(P + V' + C)`), for prey alive and not captured in the step, where it is
   longer than 0.01 px/step. +1: escaping downstream; -1: against the current.
@@ -44,6 +45,8 @@ from ..env import resolve_device
 from . import common
 
 KINDS = ("uniform", "vortex")
+# Heuristics each team can play here (as `training.evaluate.make_driver` names them, without "-" or "_").
+HEURISTICS = {"prey": ("random", "turnaway"), "predator": ("random", "naivchase", "naivchasenoconfusion")}
 ANGLE_BINS = 18
 SWARM = ("polarization", "groups", "largest_group", "nn_mean")
 MEASURES = ("captures_per_prey",) + SWARM + ("escape_cosine", "cruise_cosine", "downstream_fraction")
@@ -78,6 +81,8 @@ class FlowStudy:
             raise ValueError(f"flow kinds {self.kinds!r} must be a non-empty list of {KINDS}")
         if not self.strengths:
             raise ValueError("strengths must list at least one current strength")
+        common.check_distinct("--kinds", self.kinds)
+        common.check_distinct("--strengths", self.strengths)
         for s in self.strengths:
             common.check_number("flow strength (px/step)", s, 0.0, 100.0)
         for name in ("seeds", "episodes_per_seed", "prey", "predators", "metrics_every"):
@@ -88,10 +93,10 @@ class FlowStudy:
         common.check_number("flee-angle", self.flee_angle, 0.0, 180.0)
         common.check_number("flee-distance", self.flee_distance, 1e-3, 1e6)
         for team, spec in (("prey", self.prey_policy), ("predator", self.predator_policy)):
-            heuristic = spec.lower().replace("_", "").replace("-", "") in ("random", "turnaway", "naivchase",
-                                                                          "naivchasenoconfusion")
+            heuristic = spec.lower().replace("_", "").replace("-", "") in HEURISTICS[team]
             if not heuristic and not os.path.isfile(spec):
-                raise ValueError(f"{team}-policy={spec!r} is neither a heuristic nor an existing policy file")
+                raise ValueError(f"--{team}-policy={spec!r} is neither a {team} heuristic "
+                                 f"({', '.join(HEURISTICS[team])}) nor an existing policy file")
 
     def settings(self) -> list[tuple[str, float]]:
         return [(kind, float(s)) for kind in self.kinds for s in self.strengths]
@@ -205,7 +210,8 @@ def run_flow(study: FlowStudy, command: str | None = None) -> dict:
                    f"{study.flee_angle:g} degrees of straight away from it",
         "current": "measured: the step's torus displacement minus the stored velocity (prey alive, not captured, "
                    "current > 0.01 px/step)",
-        "escape_cosine": "mean cos(fleeing prey velocity, current) over steps and prey; cruise_cosine: non-fleeing",
+        "escape_cosine": "mean cos(fleeing prey velocity, current) over an episode's steps and prey, averaged over "
+                         "the seed's episodes; cruise_cosine: non-fleeing; downstream_fraction likewise",
         "escape_angle_histogram": f"angle between escape velocity and current, {ANGLE_BINS} bins over [0, 180] "
                                   "degrees, fractions summed over seeds",
     }

@@ -86,6 +86,9 @@ class GroupHuntingStudy:
     def validate(self) -> None:
         if not self.predators:
             raise ValueError("predators must list at least one team size")
+        for name, values in (("--predators", self.predators), ("--prey-conditions", self.prey_conditions),
+                             ("--share-radius", self.share_radii)):
+            common.check_distinct(name, values)
         for n in self.predators:
             common.check_int("predators", n)
         for name in ("prey", "seeds", "worlds", "iterations", "train_steps", "eval_worlds", "eval_steps",

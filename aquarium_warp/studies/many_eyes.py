@@ -81,6 +81,8 @@ class ManyEyesStudy:
     def validate(self) -> None:
         if not self.group_sizes or not self.fov_angles:
             raise ValueError("group sizes and FOV angles must each list at least one value")
+        common.check_distinct("--group-sizes", self.group_sizes)
+        common.check_distinct("--fov", self.fov_angles)
         for n in self.group_sizes:
             common.check_int("group size", n)
         for fov in self.fov_angles:
