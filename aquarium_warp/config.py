@@ -135,7 +135,8 @@ def _per_world_value(name: str, value):
     if isinstance(value, (list, tuple)):
         _check(name, value, len(value) >= 1, "a scalar or a non-empty sequence of one value per world")
         # A world's flow given as a dict becomes its FlowConfig here, so the stored tuple holds configs.
-        return tuple(v if isinstance(v, FlowConfig) else _flow_from_dict(v, f"{name}[{k}].") if isinstance(v, dict)
+        return tuple(v if isinstance(v, FlowConfig)
+                     else _flow_from_dict(v, f"{name}[{k}].") if isinstance(v, dict) and name == "flow"
                      else (v.item() if hasattr(v, "item") else v) for k, v in enumerate(value))
     return value
 
@@ -557,10 +558,7 @@ class AquariumConfig:
             if isinstance(data.get(name), dict):
                 _check_keys(data[name], AgentTypeConfig, f"{name}.")
                 data[name] = AgentTypeConfig(**data[name])
-        if isinstance(data.get("flow"), (list, tuple)):
-            data["flow"] = tuple(_flow_from_dict(f, f"flow[{k}].") if isinstance(f, dict) else f
-                                 for k, f in enumerate(data["flow"]))
-        return cls(**data)
+        return cls(**data)  # a flow dict, or per-world flow dicts, become FlowConfigs there
 
 
 def _replace_unchecked(obj, **changes):

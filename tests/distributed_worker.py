@@ -61,7 +61,11 @@ def share_one_gpu() -> None:
             torch.distributed.init_process_group(backend="gloo", rank=rank, world_size=size)
         return "gloo"
 
-    distributed.world = lambda: (world()[0], 0, world()[2])
+    def one_gpu_world() -> tuple[int, int, int]:
+        rank, _, size = world()
+        return rank, 0, size
+
+    distributed.world = one_gpu_world
     distributed.init = init
 
 

@@ -133,11 +133,13 @@ def test_torchrun_needs_a_log_dir(monkeypatch, capsys):
 def test_ranks_on_a_gpu_replay_their_rollouts_and_update_eagerly(tmp_path, team, updates):
     """Two ranks on CUDA (sharing one GPU, through gloo): each replays its rollout from CUDA graphs and
     runs its update, with the gradients' all-reduce, eagerly; the ranks hold the same parameters after
-    every update and rank 0 logs the statistics summed over both."""
+    every update and rank 0 logs the statistics summed over both. (gloo waits on the host for its
+    sums; NCCL's in-stream sum needs a GPU per rank, which this test does not have.)"""
     records = torchrun(str(tmp_path), team, 3, "gpu", gpu=True)
     assert [r["graphs"] for r in records] == [[True, updates]] * 2
     assert sorted(records[0]["params"]) == ["0", "1", "2"]
     assert records[0]["params"] == records[1]["params"]
     assert records[0]["final_sim"] != records[1]["final_sim"]
-    csv_name = "progress.csv" if team != "both" else "progress_prey.csv"
-    check_reduced_logs(os.path.join(tmp_path, "run"), records, "prey", csv_name)
+    for name in (["prey", "predator"] if team == "both" else ["prey"]):
+        csv_name = f"progress_{name}.csv" if team == "both" else "progress.csv"
+        assert check_reduced_logs(os.path.join(tmp_path, "run"), records, name, csv_name) >= 1

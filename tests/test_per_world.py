@@ -229,6 +229,11 @@ def test_samplers_draw_per_world_values_in_range_from_the_seed():
     assert env.config.prey.fov_angle[2:] == (120.0,) * 62
 
 
+def test_a_dict_in_a_per_world_field_other_than_flow_is_named():
+    with pytest.raises(ValueError, match=r"world 0: prey_reward=\{'x': 1\} is out of range"):
+        AquariumConfig(prey_reward=[{"x": 1}])
+
+
 def test_set_params_draws_anew_from_the_envs_own_generator():
     """Without `rng`, samplers draw from the env's generator: new values at every call, the same
     sequence for the same seed (and again after a seeded reset), not the config's own draws."""
@@ -327,19 +332,25 @@ def test_world_state_scales_velocities_by_each_worlds_max_speed():
     cfg = dataclasses.replace(BASE, prey=dataclasses.replace(BASE.prey, max_speed=speeds))
     env = BatchedAquarium(cfg, num_worlds=2, device="cpu")
     env.reset()
-    for _ in range(5):
-        env.step(None)
-    state = WorldState(env)()
+    gen = torch.Generator().manual_seed(0)
+    for _ in range(5):  # random actions: every velocity component moves off 0
+        env.step({k: torch.randint(0, cfg.action_count, a.shape, generator=gen, dtype=torch.int32)
+                  for k, a in env.actions.items()})
     t, Pc, C = env.state.torch, env.prey_capacity, cfg.capacity
+    assert bool((t.velocity[:, [0, Pc]].abs() > 0.01).all())  # prey slot 0 and predator slot Pc
+    state = WorldState(env)()
     fields = len(STATE_FIELDS)
+
+    def velocity(w: int, state_slot: int) -> list:  # (vx, vy) of a slot in the state's order
+        return state[w, state_slot * fields + 3:state_slot * fields + 5].tolist()
+
     for w, speed in enumerate(speeds):  # prey slot 0 follows the predators' slots in the state
-        vx = state[w, (C - Pc) * fields + 3]
-        assert vx == pytest.approx(float(t.velocity[w, 0, 0]) / speed, abs=1e-6)
+        assert velocity(w, C - Pc) == pytest.approx((t.velocity[w, 0] / speed).tolist(), abs=1e-6)
     # The same WorldState follows `set_params` (training makes it once, and may replay it in a graph).
     world_state = WorldState(env)
     env.set_params(prey_max_speed=(6.0, 8.0), predator_max_speed=(10.0, 12.0))
     assert env.max_speeds.tolist() == [[10.0, 6.0], [12.0, 8.0]]
     state = world_state()
     for w, (prey_speed, predator_speed) in enumerate(((6.0, 10.0), (8.0, 12.0))):
-        assert state[w, (C - Pc) * fields + 3] == pytest.approx(float(t.velocity[w, 0, 0]) / prey_speed, abs=1e-6)
-        assert state[w, 3] == pytest.approx(float(t.velocity[w, Pc, 0]) / predator_speed, abs=1e-6)
+        assert velocity(w, C - Pc) == pytest.approx((t.velocity[w, 0] / prey_speed).tolist(), abs=1e-6)
+        assert velocity(w, 0) == pytest.approx((t.velocity[w, Pc] / predator_speed).tolist(), abs=1e-6)

@@ -126,6 +126,13 @@ def test_graph_plan(algs, cuda, plan):
     assert graph_plan(algs, cuda) == plan
 
 
+def test_a_loop_needs_at_least_one_rollout_step():
+    from aquarium_warp.training.loop import TrainingLoop
+
+    with pytest.raises(ValueError, match=r"num_steps=0 must be >= 1"):
+        TrainingLoop([(object(), object())], 0)
+
+
 def test_graph_plan_needs_capturable_optimizers():
     from aquarium_warp.training.loop import graph_plan
 

@@ -115,7 +115,7 @@ def graph_plan(algs, cuda: bool) -> tuple[bool, list[bool]]:
     where the rollout is captured and its algorithm allows that too (`graphable`)."""
     rollout = cuda and all(alg.rollout_graphable for alg in algs)
     updates = [rollout and alg.graphable for alg in algs]
-    if any(updates) and not all(getattr(alg, "capturable_optimizer", False) for alg, u in zip(algs, updates) if u):
+    if not all(getattr(alg, "capturable_optimizer", False) for alg, u in zip(algs, updates) if u):
         raise ValueError("CUDA graphs need the algorithms built with capturable_optimizer=True")
     return rollout, updates
 
@@ -132,7 +132,8 @@ class TrainingLoop:
     (`alg.graphable`; else the update runs eagerly between the replayed rollouts: several ranks, the
     adaptive schedule); `self.graphs` says whether graphs are in use, `self.update_graphs` per learner.
     `reduce`: applied in place to each iteration's values (losses and statistics, on the device) before
-    they are copied to the host; a torchrun run sums them over the ranks there, in stream order.
+    they are copied to the host; a torchrun run sums them over the ranks there, in stream order (the
+    record's learn time then includes waiting for the slowest rank's sum).
     """
 
     def __init__(self, learners, num_steps: int, graphs: bool = True, pool=None,
@@ -144,6 +145,8 @@ class TrainingLoop:
         self.envs: list[AquariumVecEnv] = [env for _, env in self.learners]
         self.env = self.envs[0]
         self.num_steps = int(num_steps)
+        if self.num_steps < 1:
+            raise ValueError(f"num_steps={num_steps!r} must be >= 1 (steps of a rollout)")
         self.pool = pool
         self.reduce = reduce
         self.device = torch.device(self.algs[0].device)

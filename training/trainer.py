@@ -355,10 +355,12 @@ class AquariumRunner(OnPolicyRunner):
 
         def log(it: int, record) -> None:
             values, (collect_time, learn_time) = record.read()  # summed over the ranks (`reduce`)
-            for learner, (losses, stats) in zip(self.learners, self.loop.split(values)):
+            # A frozen learner (alternating schedule) logs no losses; a learner's NaN loss is logged.
+            learning = self.trainer.learning(it) if self.trainer is not None else None
+            for k, (learner, (losses, stats)) in enumerate(zip(self.learners, self.loop.split(values))):
                 losses = [loss / self.gpu_world_size for loss in losses]
                 means, episodes, row_reward = learner.vec_env.decode_episode_stats(stats)
-                frozen = losses[0] != losses[0]  # NaN: the learner did not learn in this iteration
+                frozen = learning is not None and not learning[k]
                 learner.logger.log_iteration(it, start_it, total_it, collect_time, learn_time,
                                              None if frozen else dict(zip(("value", "surrogate", "entropy"), losses)),
                                              learner.alg.learning_rate, means, episodes, row_reward)
