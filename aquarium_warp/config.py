@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 OBSERVATION_RANGES = ("0..1", "-1..1")
+FRAMES = ("world", "ego")
+SPAWN_HEADINGS = ("paper", "random")
 
 # Slots per observation block are unrolled in registers by the observation kernel; 16 per block is
 # far beyond any setting in the paper and keeps the kernel small.
@@ -290,8 +292,8 @@ class AgentTypeConfig:
 
     @property
     def observation_size(self) -> int:
-        """Length of this type's observation vector: 5 + 6 * (predator_slots + prey_slots), plus 2 where the
-        world's config has `observe_flow` (`AquariumConfig.observation_size`)."""
+        """Length of this type's observation vector in the world frame without flow values:
+        5 + 6 * (predator_slots + prey_slots) (`AquariumConfig.observation_size` gives every layout's)."""
         return 5 + 6 * (self.predator_slots + self.prey_slots)
 
 
@@ -321,6 +323,15 @@ class AquariumConfig:
     |reward| x max_steps x prey slots at most 1e38, so that episode returns (float32 sums over an
     episode) stay finite; `grid_cell_size` None or a finite number > 0. Per-type ranges: see
     `AgentTypeConfig`.
+
+    Frames and spawn (MODEL.md "Egocentric observations and actions"; the defaults are the paper's):
+    `observation_frame` "world" (own position, world heading and bearings, neighbours' absolute
+    positions) or "ego" (no torus coordinates and no world angles: per slot a present flag, distance,
+    bearing and relative velocity in the observer's forward/right frame, angles as unit vectors);
+    `action_frame` "world" (action a steers to the world direction 360 a / n degrees clockwise from up)
+    or "ego" (the same angle clockwise from the agent's own heading; heuristics pick actions in this
+    frame too); `spawn_heading` "paper" (prey west, predators north) or "random" (a uniform heading per
+    fresh agent: episode start, respawn and birth).
     """
 
     width: float = 800.0
@@ -345,6 +356,9 @@ class AquariumConfig:
     grid_cell_size: float | None = None
     flow: FlowConfig = field(default_factory=FlowConfig)
     observe_flow: bool = False
+    observation_frame: str = "world"
+    action_frame: str = "world"
+    spawn_heading: str = "paper"
 
     def __post_init__(self) -> None:
         for name in PER_WORLD_FIELDS:
@@ -489,6 +503,10 @@ class AquariumConfig:
         if not isinstance(self.flow, FlowConfig):
             raise ValueError(f"flow must be a FlowConfig (or its dict), got {type(self.flow).__name__}")
         _check("observe_flow", self.observe_flow, isinstance(self.observe_flow, (bool, np.bool_)), "True or False")
+        for name, allowed in (("observation_frame", FRAMES), ("action_frame", FRAMES),
+                              ("spawn_heading", SPAWN_HEADINGS)):
+            value = getattr(self, name)
+            _check(name, value, isinstance(value, str) and value in allowed, f"one of {allowed}")
         # One move (speed plus drift) stays shorter than half the world, so a wrap is one add or subtract.
         drift = self.flow.reach
         for name in ("prey", "predator"):
@@ -532,9 +550,22 @@ class AquariumConfig:
         """Agent slots per world: prey slots first, then predator slots."""
         return self.prey_capacity + self.predator_capacity
 
+    @property
+    def observation_layout(self) -> str:
+        """The observation row's layout (MODEL.md "Observations"): "world" (the paper's), "ego" (egocentric
+        observations for ego actions) or "ego+heading" (egocentric, plus the own world heading that
+        world actions need)."""
+        if self.observation_frame == "world":
+            return "world"
+        return "ego" if self.action_frame == "ego" else "ego+heading"
+
     def observation_size(self, agent_type: str) -> int:
-        """Length of the observation vector of `agent_type` ("prey" or "predator"), flow values included."""
-        return getattr(self, agent_type).observation_size + 2 * int(self.observe_flow)
+        """Length of the observation vector of `agent_type` ("prey" or "predator"): the own block (5 values
+        in the world frame; in the ego frame 2, or 4 with world actions), 2 flow values with
+        `observe_flow`, then 6 per observed slot."""
+        own = {"world": 5, "ego": 2, "ego+heading": 4}[self.observation_layout]
+        t = getattr(self, agent_type)
+        return own + 2 * int(self.observe_flow) + 6 * (t.predator_slots + t.prey_slots)
 
     @property
     def max_torus_distance(self) -> float:

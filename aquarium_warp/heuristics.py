@@ -3,7 +3,7 @@
 ```python
 from aquarium_warp.heuristics import heuristic_actions, make_policy
 
-prey = make_policy("turnaway", env, "prey")            # or "random"
+prey = make_policy("turnaway", env, "prey")            # or "random", "constant"
 predator = make_policy("naivchase", env, "predator")   # or "random"; confusion=False: the nearest prey
 obs, rewards, terminated, truncated, info = env.step({"prey": prey(), "predator": predator()})
 # or, in one call:
@@ -29,7 +29,7 @@ from .env import TYPES, BatchedAquarium, action_directions, seed_key
 from .kernels import heuristics as kernels
 
 # Policies allowed for each agent type.
-POLICIES = {"prey": ("random", "turnaway"), "predator": ("random", "naivchase")}
+POLICIES = {"prey": ("random", "constant", "turnaway"), "predator": ("random", "constant", "naivchase")}
 
 
 def _normalise_name(name) -> str:
@@ -66,6 +66,8 @@ class HeuristicPolicy:
         self.confusion = (confusion is not False) if key == "naivchase" else None
         if key == "random":
             self._code = kernels.POLICY_RANDOM
+        elif key == "constant":
+            self._code = kernels.POLICY_CONSTANT
         elif key == "turnaway":
             self._code = kernels.POLICY_TURN_AWAY
         else:
@@ -105,8 +107,9 @@ def make_policy(name: str, env: BatchedAquarium, agent_type: str, seed: int | No
                 confusion: bool | None = None) -> HeuristicPolicy:
     """A heuristic policy for the `agent_type` agents ("prey" or "predator") of every world of `env`.
 
-    `name`: "random" (either type), "turnaway" (prey) or "naivchase" (predators); case, "_" and "-"
-    are ignored. `seed`: keys the policy's random stream (None: the env's current seed).
+    `name`: "random" (either type), "constant" (either type: always the world direction "up", the
+    baseline of an agent that ignores everything), "turnaway" (prey) or "naivchase" (predators); case,
+    "_" and "-" are ignored. `seed`: keys the policy's random stream (None: the env's current seed).
     `confusion` (naivchase only, default True): with several prey visible, chase a uniformly random
     one each step; False chases the nearest (ties: lower slot).
     """

@@ -73,6 +73,8 @@ def world_params(cfg: AquariumConfig, world_offset: int, auto_reset: bool, value
     p.respawn_captured_prey = int(cfg.respawn_captured_prey)
     p.max_prey = cfg.max_prey
     p.signed_observations = int(cfg.observation_range == "-1..1")
+    p.ego_actions = int(cfg.action_frame == "ego")
+    p.random_spawn_heading = int(cfg.spawn_heading == "random")
     p.world_offset = world_offset
     p.auto_reset = int(auto_reset)
     p.values = values
@@ -358,7 +360,7 @@ class ShardSet:
         whole_world = tuple(dims) == (1, 1)  # the shards' cell lists are whole-world lists
         observe_kernels = {t: observation.observation_kernel(getattr(cfg, t).predator_slots,
                                                              getattr(cfg, t).prey_slots, block, whole_world,
-                                                             bool(cfg.observe_flow))
+                                                             bool(cfg.observe_flow), cfg.observation_layout)
                            for t in ("prey", "predator")}
         # The step of worlds of one cell in one launch (`fused_step`), with their observers' slot counts.
         fused = None
@@ -366,7 +368,7 @@ class ShardSet:
             fused = world_step.world_step_kernel((cfg.prey.predator_slots, cfg.prey.prey_slots),
                                                  (cfg.predator.predator_slots, cfg.predator.prey_slots),
                                                  fused_block_dim(cfg.capacity, self.cuda), bool(cfg.observe_flow),
-                                                 (cfg.prey_capacity, cfg.predator_capacity))
+                                                 (cfg.prey_capacity, cfg.predator_capacity), cfg.observation_layout)
         self.step_path = "fused" if fused is not None else "stages"
         self.shards = tuple(WorldShard(cfg, state, k, w0, w1, dims, params, action_direction, observe_kernels, device,
                                        auto_reset, fused) for k, (w0, w1) in enumerate(zip(bounds[:-1], bounds[1:])))

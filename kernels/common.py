@@ -21,6 +21,7 @@ PURPOSE_SPAWN = wp.constant(1)
 PURPOSE_RESPAWN = wp.constant(2)
 PURPOSE_NEWBORN = wp.constant(3)
 PURPOSE_POLICY = wp.constant(4)
+PURPOSE_HEADING = wp.constant(5)  # a fresh agent's random heading, derived from its spawn stream
 
 
 @wp.struct
@@ -85,6 +86,8 @@ class WorldParams:
     respawn_captured_prey: int
     max_prey: int
     signed_observations: int  # 1: observation range "-1..1"
+    ego_actions: int  # 1: action_frame "ego" (an action's direction turns with the agent's heading)
+    random_spawn_heading: int  # 1: spawn_heading "random" (fresh agents face a uniform direction)
     seed: wp.uint32
     auto_reset: int  # 1: a world whose episode ended starts the next one inside the same step
     world_offset: int  # global index of this batch's world 0 (batches of worlds may run on threads)
@@ -169,6 +172,29 @@ def current(world: WorldParams, v: WorldValues, pos: wp.vec2, t: int) -> wp.vec2
     if v.flow_amplitude != 0.0:
         c = c * (1.0 + v.flow_amplitude * wp.sin(2.0 * wp.pi * float(t) / v.flow_period))
     return c
+
+
+@wp.func
+def ego_components(h: wp.vec2, u: wp.vec2) -> wp.vec2:
+    """`u` in the ego frame of an agent heading `h` (a unit vector): (u . f, u . r) on its forward
+    axis f = h and its right axis r = (-h_y, h_x) (h turned 90 degrees clockwise on screen, y down)."""
+    return wp.vec2(h[0] * u[0] + h[1] * u[1], h[0] * u[1] - h[1] * u[0])
+
+
+@wp.func
+def ego_to_world(h: wp.vec2, a: wp.vec2) -> wp.vec2:
+    """The world direction of `a`, a direction in the action table's screen convention ((sin t, -cos t):
+    t clockwise from up), read as t clockwise from the forward axis of an agent heading `h`:
+    cos(t) f + sin(t) r."""
+    return wp.vec2(-a[1] * h[0] - a[0] * h[1], a[0] * h[0] - a[1] * h[1])
+
+
+@wp.func
+def world_to_ego(h: wp.vec2, d: wp.vec2) -> wp.vec2:
+    """The inverse of `ego_to_world`: world direction `d` in the action table's screen convention
+    relative to heading `h`, (d . r, -(d . f)), so that forward reads as "up" (action 0)."""
+    e = ego_components(h, d)
+    return wp.vec2(e[1], -e[0])
 
 
 @wp.func

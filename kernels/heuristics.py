@@ -1,8 +1,10 @@
 """The paper's baseline policies (MODEL.md "Heuristic policies") as one kernel over every world.
 
-Random, TurnAway (flee the nearest visible agent of the other type) and NaivChase (chase a visible
-agent of the other type, with "confusion" a uniformly random one, else the nearest; with none in
-sight the nearest one in the world). Visibility is the observation's rule (distance <= v, and with
+Random, Constant (always the world direction "up", ignoring everything: the baseline of an agent
+that does not react), TurnAway (flee the nearest visible agent of the other type) and NaivChase
+(chase a visible agent of the other type, with "confusion" a uniformly random one, else the nearest;
+with none in sight the nearest one in the world). Each picks a world direction; with
+`action_frame="ego"` the action is the one nearest to that direction seen from the agent's heading. Visibility is the observation's rule (distance <= v, and with
 `fov_enabled` within alpha/2 of the heading; distance 0 is visible). Targets come from a ring-by-ring
 search of the cell lists built on the state the decision is made from, which stops as soon as no
 unseen agent can change the answer, so no search is all-pairs.
@@ -13,7 +15,17 @@ so actions are reproducible and equal on CPU and GPU, and do not depend on how w
 
 import warp as wp
 
-from .common import PURPOSE_POLICY, AgentType, WorldParams, in_view, mix32, random_stream, slot_type, torus_displacement
+from .common import (
+    PURPOSE_POLICY,
+    AgentType,
+    WorldParams,
+    in_view,
+    mix32,
+    random_stream,
+    slot_type,
+    torus_displacement,
+    world_to_ego,
+)
 from .grid import CellLists, listed_slot, next_cell, next_ring, ring_walk, seen_radius
 from .state import Agents, WorldCounters
 
@@ -24,6 +36,7 @@ POLICY_RANDOM = wp.constant(0)
 POLICY_TURN_AWAY = wp.constant(1)  # flee the nearest visible agent of the other type
 POLICY_CHASE_CONFUSED = wp.constant(2)  # chase a uniformly random visible one (else the nearest in the world)
 POLICY_CHASE_NEAREST = wp.constant(3)  # chase the nearest visible one (else the nearest in the world)
+POLICY_CONSTANT = wp.constant(4)  # always the world direction "up" (0, -1): no reaction at all
 
 
 @wp.func
@@ -52,6 +65,17 @@ def nearest_action(action_direction: wp.array(dtype=wp.vec2), action_count: int,
             best = a
             best_dot = dot
     return best
+
+
+@wp.func
+def action_towards(world: WorldParams, action_direction: wp.array(dtype=wp.vec2), direction: wp.vec2,
+                   heading: wp.vec2) -> int:
+    """The action of an agent heading `heading` that steers nearest to the world `direction` (zero: keep
+    the heading), in the world's action frame."""
+    if world.ego_actions != 0:  # seen from the heading, "keep the heading" is "up" (action 0)
+        return nearest_action(action_direction, world.action_count, world_to_ego(heading, direction),
+                              wp.vec2(0.0, -1.0))
+    return nearest_action(action_direction, world.action_count, direction, heading)
 
 
 @wp.func
@@ -86,6 +110,9 @@ def heuristic_policy(
     rng = random_stream(seed[w], world.world_offset + w, counters.episode[w], counters.world_step[w], i, PURPOSE_POLICY)
     if policy == POLICY_RANDOM:
         action[w, a] = wp.randi(rng, 0, action_count)
+        return
+    if policy == POLICY_CONSTANT:
+        action[w, a] = action_towards(world, action_direction, wp.vec2(0.0, -1.0), agents.heading[w, i])
         return
 
     t = slot_type(world, i)
@@ -162,5 +189,5 @@ def heuristic_policy(
             direction = near_disp
     elif any_slot >= 0:
         direction = any_disp
-    action[w, a] = nearest_action(action_direction, action_count, direction, h)
+    action[w, a] = action_towards(world, action_direction, direction, h)
 

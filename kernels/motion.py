@@ -7,7 +7,7 @@ start-of-step positions at the end of the previous step (or after a reset or `se
 
 import warp as wp
 
-from .common import FLOW_NONE, PREY, AgentType, WorldParams, current, slot_type, wrap_coordinate
+from .common import FLOW_NONE, PREY, AgentType, WorldParams, current, ego_to_world, slot_type, wrap_coordinate
 from .state import Actions, Agents, Scratch, StepOutputs, WorldCounters
 
 wp.set_module_options({"enable_backward": False})
@@ -73,7 +73,10 @@ def move_agent(
     # inside the direction table, so a bad action steers to the nearest end of the range instead of
     # reading out of bounds.
     action = wp.clamp(action, 0, world.action_count - 1)
-    desired = action_direction[action] * p.max_speed
+    aim = action_direction[action]
+    if world.ego_actions != 0:  # the action's angle is taken from the start-of-step heading
+        aim = ego_to_world(agents.heading[w, i], aim)
+    desired = aim * p.max_speed
     v = agents.velocity[w, i]
     steering_force = clamp_length(desired - v, p.max_steering_force)
 

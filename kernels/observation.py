@@ -31,7 +31,18 @@ import functools
 
 import warp as wp
 
-from .common import PREDATOR, PREY, AgentType, WorldParams, angle_value, current, in_view, slot_type, torus_displacement
+from .common import (
+    PREDATOR,
+    PREY,
+    AgentType,
+    WorldParams,
+    angle_value,
+    current,
+    ego_components,
+    in_view,
+    slot_type,
+    torus_displacement,
+)
 from .grid import CellLists, next_ring, next_run, rings_for_radius, run_entry, run_length, seen_radius, widening_walk
 from .state import Agents, Scratch, WorldCounters
 
@@ -60,7 +71,19 @@ def ranks_before(d2: float, slot: int, other_d2: float, other_slot: int) -> bool
     return d2 < other_d2 or (d2 == other_d2 and slot < other_slot)
 
 
+@wp.func
+def scaled_signed(x: float, signed: int) -> float:
+    """A signed value in [-1, 1] (clamped: rounding may pass the ends), in the observation range."""
+    c = wp.clamp(x, -1.0, 1.0)
+    if signed != 0:
+        return c
+    return 0.5 * (c + 1.0)
+
+
 Tuple6 = wp.types.vector(length=6, dtype=float)
+
+# Own-block lengths of the observation frames (`AquariumConfig.observation_layout`), before the flow values.
+OWN_SIZES = {"world": 5, "ego": 2, "ego+heading": 4}
 
 
 @wp.func
@@ -87,15 +110,48 @@ def neighbour_tuple(
     )
 
 
+@wp.func
+def ego_neighbour_tuple(
+    observer: AgentType,
+    neighbour: AgentType,
+    heading: wp.vec2,
+    d2: float,
+    offset: wp.vec2,
+    relative_velocity: wp.vec2,
+    signed: int,
+) -> Tuple6:
+    """present, distance / v, bearing (forward, right), relative velocity (forward, right) / (s_i + s_j)
+    of one observed neighbour in the observer's ego frame (MODEL.md "Egocentric observations")."""
+    distance = wp.sqrt(d2)
+    bearing = wp.vec2(0.0, 0.0)  # no direction to an agent at the observer's own position
+    if distance > 0.0:
+        bearing = ego_components(heading, offset) / distance
+    relative = ego_components(heading, relative_velocity) / (observer.max_speed + neighbour.max_speed)
+    return Tuple6(
+        1.0,
+        scaled(wp.min(distance / observer.distance_norm, 1.0), signed),
+        scaled_signed(bearing[0], signed),
+        scaled_signed(bearing[1], signed),
+        scaled_signed(relative[0], signed),
+        scaled_signed(relative[1], signed),
+    )
+
+
 @functools.cache
-def observation_rows(predator_slots: int, prey_slots: int, whole_world: bool, observe_flow: bool):
+def observation_rows(predator_slots: int, prey_slots: int, whole_world: bool, observe_flow: bool,
+                     frame: str = "world"):
     """The observation of one agent, for observers with `predator_slots` and `prey_slots` slots, on
-    whole-world cell lists or not, with the two flow values after the own 5-tuple or not: returns
-    `(observe_row, ObservedRows, Row)`, the function, the struct of one observer type's outputs and the
-    row type. Made once per combination, and shared by `observation_kernel` and the fused step
+    whole-world cell lists or not, with the two flow values after the own block or not, in the
+    observation `frame` ("world": MODEL.md's layout; "ego", or "ego+heading" with the observer's world
+    heading in its own block, for ego actions and world actions: `AquariumConfig.observation_layout`):
+    returns `(observe_row, ObservedRows, Row)`, the function, the struct of one observer type's outputs
+    and the row type. Made once per combination, and shared by `observation_kernel` and the fused step
     (`world_step.py`), so both run the same code."""
     slots = predator_slots + prey_slots
-    own = 5 + 2 * int(observe_flow)  # the own block: 5-tuple, then the observed current if asked for
+    ego = frame != "world"
+    own_heading = frame == "ego+heading"
+    base = OWN_SIZES[frame]
+    own = base + 2 * int(observe_flow)  # the own block, then the observed current if asked for
     # The nearest visible agents found so far, one list: predators in [0, predator_slots), prey after
     # them; each block sorted by (distance, slot), unfilled entries (inf, NO_SLOT). Every index into
     # the lists is a compile-time constant (unrolled loops), so they stay in registers.
@@ -239,24 +295,45 @@ def observation_rows(predator_slots: int, prey_slots: int, whole_world: bool, ob
             # The own 5-tuple, then the kept neighbours: predator block first, then prey block (slot
             # loops unrolled, so the row stays in registers).
             signed = world.signed_observations
-            row[0] = scaled(float(t), signed)
-            row[1] = scaled(pos[0] / world.width, signed)
-            row[2] = scaled(pos[1] / world.height, signed)
-            row[3] = scaled(angle_value(h), signed)
-            row[4] = scaled(wp.min(wp.length(agents.velocity[w, i]) / p.max_speed, 1.0), signed)
+            own_velocity = agents.velocity[w, i]
+            if wp.static(ego):
+                # No torus coordinates and no world angles: the type, the own speed and (for world
+                # actions) the heading as a unit vector.
+                row[0] = scaled(float(t), signed)
+                row[1] = scaled(wp.min(wp.length(own_velocity) / p.max_speed, 1.0), signed)
+                if wp.static(own_heading):
+                    row[2] = scaled_signed(h[0], signed)
+                    row[3] = scaled_signed(h[1], signed)
+            else:
+                row[0] = scaled(float(t), signed)
+                row[1] = scaled(pos[0] / world.width, signed)
+                row[2] = scaled(pos[1] / world.height, signed)
+                row[3] = scaled(angle_value(h), signed)
+                row[4] = scaled(wp.min(wp.length(own_velocity) / p.max_speed, 1.0), signed)
             if wp.static(observe_flow):
                 # The current the next move adds here (same position and step counter), in the
-                # observer's max speeds, clipped to [-1, 1], then (c + 1) / 2 like a 0..1 value.
+                # observer's max speeds, clipped to [-1, 1], then (c + 1) / 2 like a 0..1 value (in
+                # the ego frame: its forward and right components).
                 c = current(world, world.values[w], pos, counters.world_step[w]) / p.max_speed
-                for q in range(2):
-                    row[5 + q] = scaled(0.5 * (wp.clamp(c[q], -1.0, 1.0) + 1.0), signed)
+                if wp.static(ego):
+                    c = ego_components(h, c)
+                    for q in range(2):
+                        row[base + q] = scaled_signed(c[q], signed)
+                else:
+                    for q in range(2):
+                        row[base + q] = scaled(0.5 * (wp.clamp(c[q], -1.0, 1.0) + 1.0), signed)
             for e in range(wp.static(slots)):
                 if kept_slot[e] != NO_SLOT:
                     jt = wp.where(e < predator_slots, PREDATOR, PREY)
                     k2 = kept_entry[e]
-                    neighbour = neighbour_tuple(world, p, types[w, jt], jt, kept_d2[e],
-                                                torus_displacement(world, pos, grid.position[k2]),
-                                                grid.position[k2], wp.length(agents.velocity[w, kept_slot[e]]))
+                    offset = torus_displacement(world, pos, grid.position[k2])
+                    neighbour = Tuple6()
+                    if wp.static(ego):
+                        neighbour = ego_neighbour_tuple(p, types[w, jt], h, kept_d2[e], offset,
+                                                        agents.velocity[w, kept_slot[e]] - own_velocity, signed)
+                    else:
+                        neighbour = neighbour_tuple(world, p, types[w, jt], jt, kept_d2[e], offset,
+                                                    grid.position[k2], wp.length(agents.velocity[w, kept_slot[e]]))
                     for q in range(6):
                         row[own + 6 * e + q] = neighbour[q]
                     out.mask[r, e] = True
@@ -271,12 +348,13 @@ def observation_rows(predator_slots: int, prey_slots: int, whole_world: bool, ob
 
 @functools.cache
 def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, whole_world: bool,
-                       observe_flow: bool = False):
+                       observe_flow: bool = False, frame: str = "world"):
     """The observation kernel for observers with `predator_slots` and `prey_slots` slots, launched with
     `dim=(blocks, block_dim)` and `block_dim`, on whole-world cell lists or not (compiled once per
     combination: the kind of lists is fixed at compile time here, where `listed_slot` would test it for
-    every candidate), with the two flow values after the own 5-tuple or not (MODEL.md "Flow fields")."""
-    observe_row, ObservedRows, Row = observation_rows(predator_slots, prey_slots, whole_world, observe_flow)
+    every candidate), with the two flow values after the own block or not (MODEL.md "Flow fields"), in
+    the observation `frame` (`observation_rows`)."""
+    observe_row, ObservedRows, Row = observation_rows(predator_slots, prey_slots, whole_world, observe_flow, frame)
 
     def observe(
         world: WorldParams,

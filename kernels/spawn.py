@@ -3,7 +3,7 @@
 
 import warp as wp
 
-from .common import PREY, PURPOSE_SPAWN, WorldParams, random_stream, slot_type
+from .common import PREY, PURPOSE_HEADING, PURPOSE_SPAWN, WorldParams, mix32, random_stream, slot_type
 from .state import Agents, StepOutputs, WorldCounters
 
 wp.set_module_options({"enable_backward": False})
@@ -17,6 +17,18 @@ def draw_replication_age(world: WorldParams, w: int, rng: wp.uint32) -> int:
 
 
 @wp.func
+def fresh_heading(world: WorldParams, rng: wp.uint32, paper: wp.vec2) -> wp.vec2:
+    """A fresh agent's heading: `paper` (prey west, predators north), or with `spawn_heading="random"`
+    a uniform direction (cos phi, sin phi), phi drawn from a stream derived from the agent's own
+    (`rng`), so that the paper layout's draws stay as they are."""
+    if world.random_spawn_heading == 0:
+        return paper
+    heading_rng = mix32(rng ^ wp.uint32(PURPOSE_HEADING))
+    phi = wp.randf(heading_rng, 0.0, 2.0 * wp.pi)
+    return wp.vec2(wp.cos(phi), wp.sin(phi))
+
+
+@wp.func
 def make_fresh_prey(
     world: WorldParams,
     w: int,
@@ -25,8 +37,10 @@ def make_fresh_prey(
     rng: wp.uint32,
     agents: Agents,
 ):
-    """A prey at `pos` moving west at speed 1, as at the start of an episode; keeps only its slot."""
-    set_slot(agents, w, i, True, pos, wp.vec2(-1.0, 0.0), wp.vec2(-1.0, 0.0), draw_replication_age(world, w, rng))
+    """A prey at `pos` moving at speed 1 along its fresh heading (west in the paper), as at the start
+    of an episode; keeps only its slot."""
+    h = fresh_heading(world, rng, wp.vec2(-1.0, 0.0))
+    set_slot(agents, w, i, True, pos, h, h, draw_replication_age(world, w, rng))
 
 
 @wp.func
@@ -59,7 +73,8 @@ def uniform_position(world: WorldParams, rng: wp.uint32, margin: float) -> wp.ve
 @wp.func
 def spawn_slot(world: WorldParams, counters: WorldCounters, w: int, i: int, episode: int, agents: Agents):
     """Slot i of world w at the start of its episode `episode`: prey uniform 20 px inside the edges
-    moving west, predators uniform anywhere moving north, zero acceleration; prey slots past
+    moving west, predators uniform anywhere moving north (or both along a random heading:
+    `fresh_heading`), at speed 1, zero acceleration; prey slots past
     the world's `prey_count` and predator slots past its `predator_count` empty."""
     rng = random_stream(counters.seed[w], world.world_offset + w, episode, 0, i, PURPOSE_SPAWN)
     values = world.values[w]
@@ -69,7 +84,8 @@ def spawn_slot(world: WorldParams, counters: WorldCounters, w: int, i: int, epis
         else:
             set_slot(agents, w, i, False, wp.vec2(0.0, 0.0), wp.vec2(0.0, 0.0), wp.vec2(-1.0, 0.0), 0)
     elif i - world.prey_capacity < values.predator_count:
-        set_slot(agents, w, i, True, uniform_position(world, rng, 0.0), wp.vec2(0.0, -1.0), wp.vec2(0.0, -1.0), 0)
+        h = fresh_heading(world, rng, wp.vec2(0.0, -1.0))
+        set_slot(agents, w, i, True, uniform_position(world, rng, 0.0), h, h, 0)
     else:
         set_slot(agents, w, i, False, wp.vec2(0.0, 0.0), wp.vec2(0.0, 0.0), wp.vec2(0.0, -1.0), 0)
 

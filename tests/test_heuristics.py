@@ -325,7 +325,7 @@ def test_dead_slots_get_action_zero_and_same_seed_reproduces_a_rollout(device):
 
 def test_wrong_combinations_are_refused():
     env = make_env("cpu")
-    assert POLICIES == {"prey": ("random", "turnaway"), "predator": ("random", "naivchase")}
+    assert POLICIES == {"prey": ("random", "constant", "turnaway"), "predator": ("random", "constant", "naivchase")}
     with pytest.raises(ValueError, match="random.*naivchase"):
         make_policy("turnaway", env, "predator")
     with pytest.raises(ValueError, match="random.*turnaway"):
@@ -387,3 +387,45 @@ def test_turnaway_prey_are_captured_far_less_than_random_prey(device):
     assert random_prey.mean() > 3.0, summary  # NaivChase does catch Random prey
     assert z > 6.0, summary
     assert ratio < 0.7, summary
+
+
+# --------------------------------------------------------------------------------------------------
+# Constant heading, and every heuristic in the ego action frame (action a: 360 a / n degrees clockwise
+# from the agent's own heading)
+# --------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("velocity, world_action, ego_action", [
+    ((2.0, 0.0), UP, WEST),  # heading east: "up" is a quarter turn to the left, 270 degrees clockwise
+    ((0.0, 2.0), UP, SOUTH),  # heading south: "up" is behind
+    ((0.0, -2.0), UP, UP),  # heading up already: straight on
+    ((-1.0, -1.0), UP, NE),  # heading up-left: "up" is 45 degrees clockwise
+])
+def test_constant_asks_for_up_in_either_frame(device, velocity, world_action, ego_action):
+    for frame, expected in (("world", world_action), ("ego", ego_action)):
+        env = make_env(device, prey_count=1, action_frame=frame)
+        place(env, [[400.0, 400.0], [420.0, 400.0]], [velocity, [0.0, -1.0]])  # a predator in sight changes nothing
+        assert decide(env, "constant", "prey")[0, 0] == expected
+
+
+@pytest.mark.parametrize("prey, velocity, predator, ego_action", [
+    ((400.0, 400.0), (2.0, 0.0), (460.0, 400.0), 8),  # predator dead ahead: turn around (180 degrees)
+    ((400.0, 400.0), (0.0, 2.0), (400.0, 450.0), 8),  # heading south, predator ahead: turn around
+    ((400.0, 400.0), (2.0, 0.0), (450.0, 450.0), 10),  # ahead and to the right (south-east): flee 225 degrees
+    ((790.0, 400.0), (2.0, 0.0), (30.0, 400.0), 8),  # ahead across the seam
+])
+def test_turnaway_in_the_ego_frame(device, prey, velocity, predator, ego_action):
+    env = make_env(device, prey_count=2, action_frame="ego")
+    place(env, [prey, [200.0, 200.0], predator], [velocity, [0.0, -1.0], [0.0, -1.0]])
+    assert decide(env, "turnaway", "prey")[0, 0] == ego_action
+
+
+def test_turnaway_in_the_ego_frame_keeps_the_heading_without_a_predator(device):
+    env = make_env(device, prey_count=1, action_frame="ego")
+    place(env, [[400.0, 400.0], [100.0, 700.0]], [[0.6, 0.8], [0.0, -1.0]])
+    assert decide(env, "turnaway", "prey")[0, 0] == 0
+
+
+def test_naivchase_in_the_ego_frame(device):
+    # Predator heading north, its prey 60 px to the east: a quarter turn clockwise (action 4 of 16).
+    env = make_env(device, prey_count=1, action_frame="ego")
+    place(env, [[460.0, 400.0], [400.0, 400.0]], [[0.0, -1.0], [0.0, -2.0]])
+    assert decide(env, "naivchase", "predator")[0, 0] == 4

@@ -1,0 +1,246 @@
+"""Learned prey against the heuristics: train prey under named conditions in worlds A, B and C, then
+evaluate every trained policy beside the random, constant-heading and TurnAway baselines against
+NaivChase, and write per-seed values, means with 95% intervals and training curves.
+
+Worlds (prey perception; everything else is the paper preset: 6 prey, 1 NaivChase predator):
+A: the paper's (120 degrees, 100 px); B: 360 degrees, 200 px; C: 360 degrees, unlimited (10,000 px).
+
+Every condition is the `paper` preset (or another preset) plus `--set` assignments and train flags
+(`CONDITIONS`); a plan (`PLANS`) names the (condition, world, seeds) to run. Each training is one
+`aquarium-warp train` process; they run several at a time on each GPU (`--gpus`, `--per-gpu`; on the
+CPU `--gpus 0`). Finished runs (an exported policy) are kept, so a rerun trains only what is missing.
+
+Evaluation: per (condition, world), one process evaluates the condition's policies (one label per
+training seed) and the three baselines in the condition's own world (so its action frame), with the
+paper's spawn headings (`spawn_heading="paper"`, the world of the committed TurnAway numbers), against
+NaivChase, `--episodes` episodes x `--eval-seeds` seeds. The primary measure, declared before any run:
+captures per prey per episode, lower is better. Learned: the mean over training seeds of each seed's
+mean, with a 95% t interval over training seeds; baselines: over evaluation seeds.
+
+    python benchmarks/learned_prey.py --plan screen --gpus 4 --per-gpu 3 --out runs/learned_prey
+    python benchmarks/learned_prey.py --plan tiny --gpus 0 --out /tmp/lp   # a CPU smoke run
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures as futures
+import csv
+import json
+import math
+import os
+import shlex
+import subprocess
+import sys
+import time
+
+WORLDS = {
+    "A": [],
+    "B": ["env.prey.fov_angle=360", "env.prey.view_distance=200"],
+    "C": ["env.prey.fov_angle=360", "env.prey.view_distance=10000"],
+}
+EGO = ["env.observation_frame=ego", "env.action_frame=ego"]
+RANDOM_SPAWN = ["env.spawn_heading=random"]
+# name -> (preset, --set assignments, other train arguments)
+CONDITIONS: dict[str, tuple[str, list[str], list[str]]] = {
+    "world-frame": ("paper", [], []),
+    "ego-obs": ("paper", ["env.observation_frame=ego"], []),
+    "ego": ("paper", EGO, []),
+    "ego-rand": ("paper", EGO + RANDOM_SPAWN, []),
+    "ego-rand-worldcritic": ("paper", EGO + RANDOM_SPAWN, ["--critic", "world"]),
+    "ego-rand-ent01": ("paper", EGO + RANDOM_SPAWN, ["--entropy", "0.01"]),
+    "ego-rand-4x": ("paper", EGO + RANDOM_SPAWN, ["--episodes", "16000"]),
+    "ego-rand-il": ("paper", EGO + RANDOM_SPAWN, ["--sharing", "individual"]),
+    "tiny-ego": ("tiny", EGO + RANDOM_SPAWN, ["--iterations", "2"]),
+    "tiny-world": ("tiny", [], ["--iterations", "2"]),
+}
+PLANS: dict[str, list[tuple[str, str, list[int]]]] = {
+    "screen": [(c, "B", [0, 1]) for c in ("world-frame", "ego-obs", "ego", "ego-rand", "ego-rand-worldcritic",
+                                          "ego-rand-ent01", "ego-rand-4x")]
+    + [(c, w, [0, 1]) for c in ("ego-rand", "ego-rand-4x") for w in ("A", "C")],
+    "tiny": [("tiny-ego", "A", [0, 1]), ("tiny-world", "B", [0])],
+}
+BASELINES = ("random", "constant", "turnaway")
+
+
+def run_dir(out: str, condition: str, world: str, seed: int) -> str:
+    return os.path.join(out, "runs", f"{condition}-{world}-s{seed}")
+
+
+def policy_path(out: str, condition: str, world: str, seed: int) -> str:
+    return os.path.join(run_dir(out, condition, world, seed), "exported", "policy.pt")
+
+
+def train_command(out: str, condition: str, world: str, seed: int, device: str) -> list[str]:
+    preset, sets, extra = CONDITIONS[condition]
+    cmd = ["aquarium-warp", "train", "--preset", preset, "--seed", str(seed), "--device", device, "--quiet",
+           "--export", "jit", "--log-dir", run_dir(out, condition, world, seed)]
+    for s in WORLDS[world] + sets:
+        cmd += ["--set", s]
+    return cmd + extra
+
+
+def device_env(gpu: int | None) -> dict:
+    env = dict(os.environ, NCCL_NVLS_ENABLE="0", GIT_PYTHON_REFRESH="quiet", PYTHONUNBUFFERED="1")
+    if gpu is not None:
+        env["CUDA_VISIBLE_DEVICES"] = str(gpu)
+    return env
+
+
+def run_jobs(jobs: list[tuple[list[str], str]], gpus: int, per_gpu: int) -> list[dict]:
+    """Run `(command, log path)` jobs, `per_gpu` at a time on each of `gpus` GPUs (0: the CPU, one at a
+    time per core pair); returns one record per job (command, return code, seconds)."""
+    slots = max(1, gpus * per_gpu) if gpus else max(1, (os.cpu_count() or 2) // 2)
+
+    def one(k: int, cmd: list[str], log: str) -> dict:
+        gpu = (k % gpus) if gpus else None
+        start = time.perf_counter()
+        os.makedirs(os.path.dirname(log), exist_ok=True)
+        with open(log, "w", encoding="utf-8") as f:
+            rc = subprocess.run(cmd, stdout=f, stderr=subprocess.STDOUT, env=device_env(gpu)).returncode
+        seconds = time.perf_counter() - start
+        print(f"  rc={rc} {seconds:6.1f} s gpu={gpu}: {shlex.join(cmd)}", flush=True)
+        return {"command": shlex.join(cmd), "rc": rc, "seconds": round(seconds, 1), "gpu": gpu, "log": log}
+
+    with futures.ThreadPoolExecutor(slots) as pool:
+        done = list(pool.map(lambda a: one(*a), [(k, c, log) for k, (c, log) in enumerate(jobs)]))
+    return done
+
+
+def evaluate_one(out: str, condition: str, world: str, seeds: list[int], episodes: int, eval_seeds: list[int],
+                 device: str) -> None:
+    """The evaluation of one (condition, world): `eval/<condition>-<world>.json`."""
+    from aquarium_warp.config import AquariumConfig
+    from aquarium_warp.training.evaluate import common_policy_env, evaluate_policies
+
+    learned = [f"s{s}={policy_path(out, condition, world, s)}" for s in seeds]
+    env = common_policy_env(learned, AquariumConfig()).replace(spawn_heading="paper")
+    result = evaluate_policies(learned + list(BASELINES), ["naivchase"], env, episodes=episodes, seeds=eval_seeds,
+                               device=device)
+    path = os.path.join(out, "eval", f"{condition}-{world}.json")
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    per_seed = {}
+    for row in result["summary"]:
+        values = [r["captures_per_prey"] for r in result["episodes"] if r["prey_policy"] == row["prey_policy"]]
+        per_seed[row["prey_policy"]] = {"captures_per_prey": row["captures_per_prey_mean"],
+                                        "reward_per_prey": row["reward_per_prey_mean"],
+                                        "per_eval_seed": [float(sum(r["captures_per_prey"] for r in result["episodes"]
+                                                                    if r["prey_policy"] == row["prey_policy"]
+                                                                    and r["seed"] == s) / episodes)
+                                                          for s in eval_seeds],
+                                        "episodes": len(values)}
+    tmp = path + ".partial"
+    with open(tmp, "w", encoding="utf-8") as f:
+        json.dump({"condition": condition, "world": world, "policies": per_seed, "protocol": result["protocol"]}, f,
+                  indent=1)
+    os.replace(tmp, path)
+
+
+def interval(values: list[float]) -> dict:
+    """Mean and the half-width of its 95% t interval (None for fewer than two values)."""
+    from scipy import stats
+
+    n = len(values)
+    mean = sum(values) / n
+    if n < 2:
+        return {"mean": mean, "ci95": None, "n": n, "values": values}
+    sd = math.sqrt(sum((v - mean) ** 2 for v in values) / (n - 1))
+    return {"mean": mean, "ci95": float(stats.t.ppf(0.975, n - 1) * sd / math.sqrt(n)), "n": n, "values": values}
+
+
+def summarize(out: str, plan: list[tuple[str, str, list[int]]]) -> list[dict]:
+    rows = []
+    for condition, world, seeds in plan:
+        path = os.path.join(out, "eval", f"{condition}-{world}.json")
+        with open(path, encoding="utf-8") as f:
+            ev = json.load(f)
+        policies = ev["policies"]
+        row = {"condition": condition, "world": world, "seeds": seeds,
+               "learned": interval([policies[f"s{s}"]["captures_per_prey"] for s in seeds])}
+        for b in BASELINES:
+            row[b] = interval(policies[b]["per_eval_seed"])
+        t = row["turnaway"]["mean"]
+        c = row["constant"]["mean"]
+        row["learned_over_turnaway"] = row["learned"]["mean"] / t if t else None
+        row["learned_over_constant"] = row["learned"]["mean"] / c if c else None
+        rows.append(row)
+    return rows
+
+
+def fmt(s: dict) -> str:
+    return f"{s['mean']:.2f}" + (f" ± {s['ci95']:.2f}" if s["ci95"] is not None else "")
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--plan", choices=sorted(PLANS), default="screen")
+    p.add_argument("--out", default="runs/learned_prey")
+    p.add_argument("--gpus", type=int, default=1, help="GPUs to spread the runs over (0: the CPU)")
+    p.add_argument("--per-gpu", type=int, default=2, help="trainings at once per GPU")
+    p.add_argument("--episodes", type=int, default=50, help="evaluation episodes per evaluation seed")
+    p.add_argument("--eval-seeds", type=int, nargs="+", default=[0, 1])
+    p.add_argument("--commit", default=None, help="the commit to record (default: git rev-parse HEAD)")
+    p.add_argument("--eval-one", nargs=2, metavar=("CONDITION", "WORLD"), help=argparse.SUPPRESS)
+    p.add_argument("--seeds", type=int, nargs="*", help=argparse.SUPPRESS)
+    args = p.parse_args(argv)
+    device = "cuda:0" if args.gpus else "cpu"
+    if args.eval_one:
+        evaluate_one(args.out, *args.eval_one, args.seeds, args.episodes, args.eval_seeds, device)
+        return 0
+    plan = PLANS[args.plan]
+    start = time.perf_counter()
+    todo = [(train_command(args.out, c, w, s, device), os.path.join(run_dir(args.out, c, w, s), "train.log"))
+            for c, w, seeds in plan for s in seeds if not os.path.exists(policy_path(args.out, c, w, s))]
+    print(f"learned_prey: {len(todo)} trainings", flush=True)
+    trained = run_jobs(todo, args.gpus, args.per_gpu)
+    failed = [r for r in trained if r["rc"] != 0]
+    if failed:
+        print(f"learned_prey: {len(failed)} trainings failed; see their logs", file=sys.stderr)
+        return 1
+    train_s = time.perf_counter() - start
+    evals = [([sys.executable, __file__, "--out", args.out, "--gpus", str(args.gpus), "--episodes",
+               str(args.episodes), "--eval-seeds", *map(str, args.eval_seeds), "--eval-one", c, w,
+               "--seeds", *map(str, seeds)], os.path.join(args.out, "eval", f"{c}-{w}.log"))
+             for c, w, seeds in plan]
+    evaluated = run_jobs(evals, args.gpus, args.per_gpu)
+    if any(r["rc"] != 0 for r in evaluated):
+        print("learned_prey: an evaluation failed; see its log", file=sys.stderr)
+        return 1
+    rows = summarize(args.out, plan)
+    commit = args.commit or subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
+                                           cwd=os.path.dirname(os.path.abspath(__file__))).stdout.strip()
+    from aquarium_warp.bench.machine import machine_info
+
+    record = {"command": shlex.join([os.path.basename(sys.executable), "benchmarks/learned_prey.py",
+                                     *(argv if argv is not None else sys.argv[1:])]),
+              "commit": commit, "machine": machine_info(device),
+              "gpus": args.gpus, "per_gpu": args.per_gpu,
+              "measure": "captures per prey per episode against NaivChase (lower is better); learned: mean over "
+                         "training seeds of each seed's mean, 95% t interval over training seeds; baselines: "
+                         "over evaluation seeds; evaluated with spawn_heading='paper' in the condition's world",
+              "episodes_per_eval_seed": args.episodes, "eval_seeds": args.eval_seeds,
+              "conditions": {c: CONDITIONS[c] for c, _, _ in plan}, "worlds": WORLDS,
+              "train_wall_s": round(train_s, 1), "wall_s": round(time.perf_counter() - start, 1),
+              "trainings": trained, "rows": rows}
+    with open(os.path.join(args.out, f"learned_prey_{args.plan}.json"), "w", encoding="utf-8") as f:
+        json.dump(record, f, indent=1)
+    with open(os.path.join(args.out, f"learned_prey_{args.plan}.csv"), "w", newline="", encoding="utf-8") as f:
+        w = csv.writer(f)
+        w.writerow(["condition", "world", "policy", "seed", "captures_per_prey"])
+        for r in rows:
+            for s, v in zip(r["seeds"], r["learned"]["values"]):
+                w.writerow([r["condition"], r["world"], "learned", s, v])
+            for b in BASELINES:
+                for s, v in zip(args.eval_seeds, r[b]["values"]):
+                    w.writerow([r["condition"], r["world"], b, f"eval{s}", v])
+    print(f"{'condition':>22} {'world':>5} {'learned':>14} {'random':>12} {'constant':>12} {'turnaway':>12} "
+          f"{'L/TA':>6} {'L/const':>7}")
+    for r in rows:
+        print(f"{r['condition']:>22} {r['world']:>5} {fmt(r['learned']):>14} {fmt(r['random']):>12} "
+              f"{fmt(r['constant']):>12} {fmt(r['turnaway']):>12} {r['learned_over_turnaway']:6.2f} "
+              f"{r['learned_over_constant']:7.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
