@@ -55,6 +55,8 @@ from .heuristics import POLICIES, make_policy
 from .json_records import json_safe
 from .metrics import EPISODE_METRICS, EpisodeMetrics, SwarmMetrics
 from .number_lists import parse_list as parse_list  # re-exported: the study's list options use it
+from .pretrained import is_policy_file
+from .pretrained import names as pretrained_names
 from .ray_tasks import RayOptions, placement, run_tasks
 from .study_plots import plot_study
 
@@ -205,16 +207,17 @@ def make_study_policy(name: str, env: BatchedAquarium, agent_type: str, confusio
     if is_heuristic(name, agent_type):
         chase = name.lower().replace("_", "").replace("-", "") == "naivchase"
         return make_policy(name, env, agent_type, confusion=confusion if chase else None)
-    if not os.path.isfile(name):
+    if not is_policy_file(name):
         raise ValueError(f"{agent_type} policy {name!r} is neither a heuristic ({', '.join(POLICIES[agent_type])}) "
-                         "nor an existing policy file (exported .pt/.onnx or a training checkpoint)")
+                         "nor an existing policy file (exported .pt/.onnx or a training checkpoint) nor a shipped "
+                         f"policy ({', '.join(pretrained_names())})")
     return trained_policy(name, env, agent_type)
 
 
 def check_policies(study: SwarmSizeStudy) -> None:
     """Fail early (before any simulation) on policy names that are neither heuristics nor files."""
     for agent_type, name in (("prey", study.prey_policy), ("predator", study.predator_policy)):
-        if not is_heuristic(name, agent_type) and not os.path.isfile(name):
+        if not is_heuristic(name, agent_type) and not is_policy_file(name):
             raise ValueError(f"{agent_type} policy {name!r} is neither a heuristic "
                              f"({', '.join(POLICIES[agent_type])}) nor an existing policy file")
 

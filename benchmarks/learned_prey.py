@@ -73,8 +73,8 @@ def policy_path(out: str, condition: str, world: str, seed: int) -> str:
 
 def train_command(out: str, condition: str, world: str, seed: int, device: str) -> list[str]:
     preset, sets, extra = CONDITIONS[condition]
-    cmd = ["aquarium-warp", "train", "--preset", preset, "--seed", str(seed), "--device", device, "--quiet",
-           "--export", "jit", "--log-dir", run_dir(out, condition, world, seed)]
+    cmd = [sys.executable, "-m", "aquarium_warp", "train", "--preset", preset, "--seed", str(seed), "--device", device,
+           "--quiet", "--export", "jit", "--log-dir", run_dir(out, condition, world, seed)]
     for s in WORLDS[world] + sets:
         cmd += ["--set", s]
     return cmd + extra
@@ -191,6 +191,8 @@ def main(argv=None) -> int:
     start = time.perf_counter()
     todo = [(train_command(args.out, c, w, s, device), os.path.join(run_dir(args.out, c, w, s), "train.log"))
             for c, w, seeds in plan for s in seeds if not os.path.exists(policy_path(args.out, c, w, s))]
+    # The longest trainings first, so that they do not start last.
+    todo.sort(key=lambda job: -float(job[0][job[0].index("--episodes") + 1]) if "--episodes" in job[0] else 0.0)
     print(f"learned_prey: {len(todo)} trainings", flush=True)
     trained = run_jobs(todo, args.gpus, args.per_gpu)
     failed = [r for r in trained if r["rc"] != 0]

@@ -44,6 +44,7 @@ import numpy as np
 import torch
 import torch.nn as nn
 
+from ..pretrained import resolve
 from . import _rsl  # noqa: F401
 
 META_NAME = "aquarium_policy.json"
@@ -400,7 +401,9 @@ def load_policy(path: str, device="cpu", deterministic: bool = True, seed: int =
     Returns a `LoadedPolicy`: call it on observations `[N, L]` to get actions `[N]` (int64). TorchScript
     and checkpoints run on `device`; ONNX runs with onnxruntime on the CPU (inputs are moved there and
     the actions moved back). `team` picks one learner of a checkpoint of both teams (required there);
-    for any other file it must be the policy's own team, if given."""
+    for any other file it must be the policy's own team, if given. `path` may name a shipped policy
+    (`aquarium_warp.pretrained`)."""
+    path = resolve(path)
     if not os.path.isfile(path):
         raise ValueError(f"policy file {path!r} does not exist")
     if team is not None and team not in ("prey", "predator"):
@@ -484,7 +487,8 @@ def _load_onnx(path: str, deterministic: bool, seed: int) -> LoadedPolicy:
 
 def policy_world(path: str) -> dict:
     """The `env` settings (the run config's section) a policy file was trained in; for a checkpoint of
-    both teams no team needs naming (both share the world)."""
+    both teams no team needs naming (both share the world); `path` may name a shipped policy."""
+    path = resolve(path)
     if not path.endswith(".onnx") and os.path.isfile(path) and not _is_torchscript(path):
         checkpoint = torch.load(path, map_location="cpu", weights_only=False)
         state = (checkpoint.get("infos") or {}).get("aquarium") if isinstance(checkpoint, dict) else None

@@ -59,6 +59,7 @@ from rsl_rl.utils.logger import Logger
 
 from ..env import BatchedAquarium
 from ..heuristics import POLICIES, make_policy
+from ..pretrained import is_policy_file
 from . import (
     _rsl,  # noqa: F401
     distributed,
@@ -96,7 +97,7 @@ def make_opponent(spec, env: BatchedAquarium, agent_type: str, deterministic: bo
     (`RecurrentOpponent`)."""
     if is_heuristic(spec):
         return make_policy(spec, env, agent_type)
-    if isinstance(spec, str) and os.path.isfile(spec):
+    if is_policy_file(spec):
         return policy_driver(load_policy(spec, device=env.torch_device, deterministic=deterministic, seed=seed,
                                          team=agent_type), env, agent_type)
     raise ValueError(f"opponent {spec!r} is neither a heuristic ({sorted(POLICIES[agent_type])}) nor a policy file")

@@ -42,6 +42,7 @@ import torch
 
 from ..config import AquariumConfig, FlowConfig
 from ..env import resolve_device
+from ..pretrained import is_policy_file
 from . import common
 
 KINDS = ("uniform", "vortex")
@@ -94,7 +95,7 @@ class FlowStudy:
         common.check_number("flee-distance", self.flee_distance, 1e-3, 1e6)
         for team, spec in (("prey", self.prey_policy), ("predator", self.predator_policy)):
             heuristic = spec.lower().replace("_", "").replace("-", "") in HEURISTICS[team]
-            if not heuristic and not os.path.isfile(spec):
+            if not heuristic and not is_policy_file(spec):
                 raise ValueError(f"--{team}-policy={spec!r} is neither a {team} heuristic "
                                  f"({', '.join(HEURISTICS[team])}) nor an existing policy file")
 
