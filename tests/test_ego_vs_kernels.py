@@ -62,6 +62,9 @@ def configs() -> dict:
         "ego_obs_world_actions": (make_config(width=300.0, height=260.0, prey_count=12, predator_count=3,
                                               observation_frame="ego", action_frame="world",
                                               spawn_heading="random"), {"respawns"}),
+        # the world layout with ego actions (each option on its own)
+        "world_obs_ego_actions": (make_config(width=260.0, height=240.0, prey_count=12, predator_count=3,
+                                              action_frame="ego", spawn_heading="random"), {"respawns"}),
         # "-1..1", FOV off / wide, unusual slot counts (empty blocks, more slots than neighbours)
         "ego_signed_slots": (make_config(
             width=260.0, height=250.0, prey_count=10, predator_count=4, observation_range="-1..1",
@@ -101,12 +104,13 @@ def configs() -> dict:
     return out
 
 
-NAMES = ["ego_respawns", "ego_obs_world_actions", "ego_signed_slots", "ego_signed_world_actions",
-         "ego_vortex_observed", "ego_per_world_flow_observed", "ego_reproduction", "ego_many_agents",
+NAMES = ["ego_respawns", "ego_obs_world_actions", "world_obs_ego_actions", "ego_signed_slots",
+         "ego_signed_world_actions", "ego_vortex_observed", "ego_per_world_flow_observed", "ego_reproduction",
+         "ego_many_agents",
          "ego_respawns_cells", "ego_reproduction_cells", "ego_per_world_flow_observed_cells"]
 # one-cell worlds step fused by default ("auto"); they run the staged launches too
-SINGLE_CELL = ["ego_respawns", "ego_obs_world_actions", "ego_signed_slots", "ego_signed_world_actions",
-               "ego_vortex_observed", "ego_per_world_flow_observed", "ego_reproduction"]
+SINGLE_CELL = ["ego_respawns", "ego_obs_world_actions", "world_obs_ego_actions", "ego_signed_slots",
+               "ego_signed_world_actions", "ego_vortex_observed", "ego_per_world_flow_observed", "ego_reproduction"]
 STEP_CASES = [(name, "auto") for name in NAMES] + [(name, "stages") for name in SINGLE_CELL]
 _ENVS: dict = {}
 
@@ -188,6 +192,21 @@ def test_ego_observations_after_set_state(name):
             if len(errors) > n_before:
                 errors.append(f"{where} state: alive {worlds[w]['alive'].astype(int).tolist()} "
                               f"{describe_world(cfg, worlds[w])}")
+    fail_if(errors, name)
+
+
+@pytest.mark.parametrize("name", ["ego_respawns", "ego_signed_slots", "ego_per_world_flow_observed", "ego_many_agents"])
+def test_ego_observations_after_reset(name):
+    """The observations of a fresh episode (random spawn headings) against the reference's of that state."""
+    cfg, env = configs()[name][0], get_env(name)
+    env.reset(seed=17)
+    after = read_worlds(env)
+    errors = []
+    for w in range(env.num_worlds):
+        r_obs, r_mask, r_slots = ref.observe(world_config(cfg, w), after[w], with_slots=True, world_step=0)
+        k_obs = {k: v[w].detach().cpu().numpy() for k, v in env.observations.items()}
+        k_mask = {k: v[w].detach().cpu().numpy() for k, v in env.observation_mask.items()}
+        compare_observations(cfg, f"[{name} reset world {w}]", k_obs, k_mask, r_obs, r_mask, r_slots, errors)
     fail_if(errors, name)
 
 
