@@ -12,7 +12,9 @@ Conventions (see MODEL.md and the project's decisions):
   observation_range, prey_capacity, capacity, and per type (cfg.prey / cfg.predator): max_speed,
   max_steering_force, max_acceleration, mass, radius, view_distance, fov_angle (degrees),
   bounce_strength, predator_slots, prey_slots; optionally `flow` (an `aquarium_warp.config.FlowConfig`) and
-  `observe_flow` (absent: False).
+  `observe_flow` (absent: False); the ego-spec options `observation_frame` ("world" | "ego", absent:
+  "world"), `action_frame` ("world" | "ego", absent: "world") and `spawn_heading` ("paper" | "random",
+  absent: "paper"), so configs written before those options keep their meaning.
   A batch with per-world values is compared world by world on `world_config`s (one world's values, the
   batch's slot counts).
 * Slots ``[0, prey_capacity)`` are prey, ``[prey_capacity, capacity)`` are predators.
@@ -31,7 +33,8 @@ import numpy as np
 PREDATOR_TYPE = 0.0
 PREY_TYPE = 1.0
 OWN_SIZE = 5
-TUPLE_SIZE = 6
+EGO_OWN_SIZE = 2  # [type, speed]
+TUPLE_SIZE = 6  # both layouts: world [type, x, y, distance, bearing, speed], ego [present, distance, f, r, vf, vr]
 
 VECTOR_FIELDS = ("position", "velocity", "acceleration", "heading")
 INT_FIELDS = ("age", "replication_age", "starvation")
@@ -40,6 +43,8 @@ FIELDS = VECTOR_FIELDS + ("alive",) + INT_FIELDS
 FRESH_PREY_VELOCITY = (-1.0, 0.0)
 FRESH_PREY_HEADING = (-1.0, 0.0)
 NEWBORN_HEADING = (-1.0, 0.0)
+FRESH_PREDATOR_VELOCITY = (0.0, -1.0)
+FRESH_PREDATOR_HEADING = (0.0, -1.0)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -77,9 +82,26 @@ def same_type_slots(cfg, slot: int) -> range:
     return prey_slots(cfg) if is_prey(cfg, slot) else predator_slots(cfg)
 
 
+def observation_frame(cfg) -> str:
+    return str(getattr(cfg, "observation_frame", "world"))
+
+
+def action_frame(cfg) -> str:
+    return str(getattr(cfg, "action_frame", "world"))
+
+
+def spawn_heading(cfg) -> str:
+    return str(getattr(cfg, "spawn_heading", "paper"))
+
+
 def own_size(cfg) -> int:
-    """Length of the own block: the 5-tuple, then the two observed current values with `observe_flow`."""
-    return OWN_SIZE + (2 if getattr(cfg, "observe_flow", False) else 0)
+    """Length of the own block. World frame: the 5-tuple, then the two observed current values with
+    `observe_flow`. Ego frame: [type, speed], then [hx, hy] only with world actions (a policy needs the
+    heading to pick world directions), then the two current values with `observe_flow`."""
+    flow = 2 if getattr(cfg, "observe_flow", False) else 0
+    if observation_frame(cfg) == "ego":
+        return EGO_OWN_SIZE + (2 if action_frame(cfg) == "world" else 0) + flow
+    return OWN_SIZE + flow
 
 
 def observation_length(cfg, type_config) -> int:
@@ -196,6 +218,27 @@ def desired_velocity(action: int, action_count: int, max_speed: float) -> np.nda
     return np.array([max_speed * sin_t, -max_speed * cos_t], np.float64)
 
 
+def ego_components(u, heading) -> np.ndarray:
+    """(u.f, u.r): the components of the world vector ``u`` along the forward axis f = h and the right axis
+    r = (-hy, hx) (h turned 90 degrees clockwise on screen, y down) of the heading h."""
+    ux, uy = float(u[0]), float(u[1])
+    hx, hy = float(heading[0]), float(heading[1])
+    return np.array([hx * ux + hy * uy, -hy * ux + hx * uy], np.float64)
+
+
+def ego_desired_velocity(action: int, action_count: int, max_speed: float, heading) -> np.ndarray:
+    """action_frame "ego": action a points at theta = 2 pi a / n clockwise from the heading h (not from
+    "up"): D = s (cos theta f + sin theta r) with f = h, r = (-hy, hx). cos and sin come from the world
+    table's (sin theta, -cos theta), whose quarter turns are exact, so a = 0 gives exactly s h. The
+    heading is used as stored (a unit vector up to the state's rounding)."""
+    sin_t, minus_cos_t = desired_velocity(action, action_count, 1.0)
+    cos_t = -minus_cos_t
+    hx, hy = float(heading[0]), float(heading[1])
+    forward = np.array([hx, hy], np.float64)
+    right = np.array([-hy, hx], np.float64)
+    return float(max_speed) * (cos_t * forward + sin_t * right)
+
+
 def angle_value(dx: float, dy: float) -> float:
     """The reference's angle convention -atan2(dy, dx) in degrees, mapped from [-180, 180] to [0, 1]."""
     return (-math.degrees(math.atan2(dy, dx)) + 180.0) / 360.0
@@ -224,9 +267,13 @@ def contact_partner(cfg, state: Mapping[str, np.ndarray], i: int):
 
 
 def steering_acceleration(cfg, state, i: int, action: int) -> np.ndarray:
-    """Steps 1-2: F = clamp(D - V, f); A' = normalize(A + F/m) * k (zero if A + F/m is exactly zero)."""
+    """Steps 1-2: F = clamp(D - V, f); A' = normalize(A + F/m) * k (zero if A + F/m is exactly zero).
+    ``state`` is the start-of-step state (its heading turns D with action_frame "ego")."""
     t = type_cfg(cfg, i)
-    desired = desired_velocity(action, cfg.action_count, float(t.max_speed))
+    if action_frame(cfg) == "ego":  # relative to the heading at the start of the step
+        desired = ego_desired_velocity(action, cfg.action_count, float(t.max_speed), state["heading"][i])
+    else:
+        desired = desired_velocity(action, cfg.action_count, float(t.max_speed))
     force = clamp_length(desired - state["velocity"][i], float(t.max_steering_force))
     raw = state["acceleration"][i] + force / float(t.mass)
     n = norm(raw)
@@ -341,6 +388,11 @@ def observe_agent(cfg, state: Mapping[str, np.ndarray], i: int, world_step: int 
     signed = str(cfg.observation_range) == "-1..1"
     if not signed and str(cfg.observation_range) != "0..1":
         raise ValueError(f"unknown observation_range {cfg.observation_range!r}")
+    if observation_frame(cfg) == "ego":
+        _observe_agent_ego(cfg, state, i, world_step, signed, vec, mask, slots)
+        return vec, mask, slots
+    if observation_frame(cfg) != "world":
+        raise ValueError(f"unknown observation_frame {observation_frame(cfg)!r}")
 
     def emit(values):
         values = np.asarray(values, np.float64)
@@ -378,6 +430,56 @@ def observe_agent(cfg, state: Mapping[str, np.ndarray], i: int, world_step: int 
             mask[s] = True
             slots[s] = j
     return vec, mask, slots
+
+
+def _observe_agent_ego(cfg, state, i: int, world_step: int, signed: bool, vec, mask, slots) -> None:
+    """observation_frame "ego" (ego-spec): fills ``vec`` / ``mask`` / ``slots`` of live observer i.
+
+    Every value is "unsigned" (natural range [0, 1]) or "signed" (natural range [-1, 1]); the range
+    "0..1" maps signed values by (x + 1) / 2, "-1..1" maps unsigned values by 2x - 1; unused slots stay 0."""
+
+    def unsigned(x: float) -> float:
+        return 2.0 * x - 1.0 if signed else x
+
+    def signed_value(x: float) -> float:
+        return x if signed else (x + 1.0) / 2.0
+
+    t = type_cfg(cfg, i)
+    s_i = float(t.max_speed)
+    p = state["position"][i]
+    h = state["heading"][i]  # the heading after the move, as for visibility
+    own = [unsigned(type_code(cfg, i)), unsigned(min(norm(state["velocity"][i]) / s_i, 1.0))]
+    if action_frame(cfg) == "world":
+        own += [signed_value(float(h[0])), signed_value(float(h[1]))]
+    if getattr(cfg, "observe_flow", False):
+        # rotate first, then clip each ego component (the current's world components are not clipped)
+        c = ego_components(current(cfg, p, world_step) / s_i, h)
+        own += [signed_value(min(max(float(x), -1.0), 1.0)) for x in c]
+    n_own = own_size(cfg)
+    assert len(own) == n_own
+    vec[:n_own] = own
+
+    dist_norm = distance_normaliser(cfg, t)
+    k_pred, k_prey = int(t.predator_slots), int(t.prey_slots)
+    blocks = ((predator_slots(cfg), k_pred, 0), (prey_slots(cfg), k_prey, k_pred))
+    for candidates, k, first_slot in blocks:
+        for n, (d, j) in enumerate(visible_sorted(cfg, state, i, candidates)[:k]):
+            s_j = float(type_cfg(cfg, j).max_speed)
+            delta = torus_delta(cfg, p, state["position"][j])
+            bearing = np.zeros(2) if d == 0.0 else ego_components(delta, h) / d
+            relvel = ego_components(state["velocity"][j] - state["velocity"][i], h) / (s_i + s_j)
+            tup = [
+                unsigned(1.0),  # present
+                unsigned(min(d / dist_norm, 1.0)),
+                signed_value(float(bearing[0])),
+                signed_value(float(bearing[1])),
+                signed_value(min(max(float(relvel[0]), -1.0), 1.0)),
+                signed_value(min(max(float(relvel[1]), -1.0), 1.0)),
+            ]
+            slot = first_slot + n
+            vec[n_own + TUPLE_SIZE * slot : n_own + TUPLE_SIZE * (slot + 1)] = tup
+            mask[slot] = True
+            slots[slot] = j
 
 
 def observe(cfg, state: Mapping[str, np.ndarray], with_slots: bool = False, world_step: int = 0):
@@ -444,11 +546,39 @@ def _lookup(source, slot: int, what: str):
     return np.asarray(source)[slot]
 
 
-def fresh_prey(state: dict, slot: int, position, replication_age: int) -> None:
+def episode_start_velocity_and_heading(cfg, slot: int, heading=None):
+    """(velocity, heading) of a fresh agent at the start of an episode (or a respawned prey).
+    "paper": prey west (-1, 0), predators north (0, -1), both at speed 1. "random": the kernel's drawn
+    heading (cos phi, sin phi), passed in as ``heading``, and velocity = heading * 1 for both types."""
+    if spawn_heading(cfg) == "random":
+        if heading is None:
+            raise ValueError(f"spawn_heading 'random' needs the drawn heading of slot {slot}")
+        h = np.asarray(heading, np.float64)
+        return h.copy(), h.copy()
+    if spawn_heading(cfg) != "paper":
+        raise ValueError(f"unknown spawn_heading {spawn_heading(cfg)!r}")
+    if is_prey(cfg, slot):
+        return np.array(FRESH_PREY_VELOCITY), np.array(FRESH_PREY_HEADING)
+    return np.array(FRESH_PREDATOR_VELOCITY), np.array(FRESH_PREDATOR_HEADING)
+
+
+def newborn_heading_of(cfg, heading=None) -> np.ndarray:
+    """A newborn's heading (its velocity is zero either way): "paper" west, "random" the drawn one."""
+    if spawn_heading(cfg) == "random":
+        if heading is None:
+            raise ValueError("spawn_heading 'random' needs the drawn heading of a newborn")
+        return np.asarray(heading, np.float64).copy()
+    return np.array(NEWBORN_HEADING)
+
+
+def fresh_prey(state: dict, slot: int, position, replication_age: int, cfg=None, heading=None) -> None:
+    """A respawned prey; with ``cfg`` naming spawn_heading "random", ``heading`` is the drawn heading."""
+    velocity, fresh_heading = (np.array(FRESH_PREY_VELOCITY), np.array(FRESH_PREY_HEADING)) if cfg is None \
+        else episode_start_velocity_and_heading(cfg, slot, heading)
     state["position"][slot] = np.asarray(position, np.float64)
-    state["velocity"][slot] = FRESH_PREY_VELOCITY
+    state["velocity"][slot] = velocity
     state["acceleration"][slot] = 0.0
-    state["heading"][slot] = FRESH_PREY_HEADING
+    state["heading"][slot] = fresh_heading
     state["alive"][slot] = True
     state["age"][slot] = 0
     state["replication_age"][slot] = int(replication_age)
@@ -463,6 +593,8 @@ def step(
     respawn_position=None,
     respawn_replication_age=None,
     newborn_replication_age=None,
+    respawn_heading=None,
+    newborn_heading=None,
 ):
     """One full step of one world.
 
@@ -470,7 +602,9 @@ def step(
     are inputs here: ``respawn_position`` / ``respawn_replication_age`` (for respawned prey) and
     ``newborn_replication_age`` (for children), each a mapping slot -> value or an array indexed by slot
     (e.g. the kernel's post-step position / replication_age arrays). Only the needed slots are read; a missing
-    one raises ValueError.
+    one raises ValueError. With spawn_heading "random", the drawn headings are inputs too, the same way:
+    ``respawn_heading`` (respawned prey; their velocity is that heading * 1) and ``newborn_heading``
+    (children; their velocity stays zero), e.g. the kernel's post-step heading array. "paper" reads neither.
 
     Returns (new_state, rewards (C,), terminated (C,), truncated (C,), captured (C,), info)."""
     start = as_state(cfg, state)
@@ -499,7 +633,8 @@ def step(
         if cfg.respawn_captured_prey:
             pos = np.asarray(_lookup(respawn_position, prey, "a respawn position"), np.float64)
             rep = int(_lookup(respawn_replication_age, prey, "a respawn replication age"))
-            fresh_prey(new, prey, pos, rep)
+            heading = _lookup(respawn_heading, prey, "a respawn heading") if spawn_heading(cfg) == "random" else None
+            fresh_prey(new, prey, pos, rep, cfg, heading)
             respawned.append(prey)
         else:
             new["alive"][prey] = False
@@ -540,7 +675,9 @@ def step(
             new["position"][child] = new["position"][parent]
             new["velocity"][child] = 0.0
             new["acceleration"][child] = 0.0
-            new["heading"][child] = NEWBORN_HEADING
+            drawn = (_lookup(newborn_heading, child, "a newborn heading")
+                     if spawn_heading(cfg) == "random" else None)
+            new["heading"][child] = newborn_heading_of(cfg, drawn)
             new["alive"][child] = True
             new["age"][child] = 0
             new["replication_age"][child] = rep
@@ -577,3 +714,24 @@ def step(
         "observed_slots": observed,
     }
     return new, rewards, terminated, truncated, captured, info
+
+
+# --------------------------------------------------------------------------------------------------
+# Heuristic action choice (MODEL.md "Heuristic policies"; ego-spec for action_frame "ego")
+# --------------------------------------------------------------------------------------------------
+def ego_nearest_action(direction, heading, action_count: int) -> int:
+    """The heuristics' action for the world direction ``direction`` (flee / chase) under action_frame "ego".
+
+    The direction d is written in the ego "screen-up" convention u = (d.r, -(d.f)): forward becomes "up"
+    (action 0) and right becomes "east" (action n/4), exactly the world table's convention, so the world
+    rule (`aquarium_warp.heuristics.nearest_action`: smallest angle, ties to the lower action) applies to u.
+    A zero direction keeps the heading: u = (0, -1), action 0."""
+    from aquarium_warp.heuristics import nearest_action  # the world rule's float64 reference
+
+    d = np.asarray(direction, np.float64)
+    if d[0] == 0.0 and d[1] == 0.0:
+        u = np.array([0.0, -1.0])
+    else:
+        forward, right = ego_components(d, heading)
+        u = np.array([right, -forward])
+    return int(nearest_action(u, np.array([0.0, -1.0]), int(action_count)))

@@ -404,6 +404,10 @@ def compare_state(cfg, where: str, kernel: dict, reference: dict, errors: list) 
 
 
 def angle_columns(cfg, type_config) -> set:
+    """Columns compared on the circle: the world layout's own heading and bearings. The ego layout has no
+    angles (headings and bearings are unit-vector components), so every column is compared plainly."""
+    if ref.observation_frame(cfg) == "ego":
+        return set()
     k = type_config.predator_slots + type_config.prey_slots
     return {3} | {ref.own_size(cfg) + ref.TUPLE_SIZE * s + 4 for s in range(k)}
 
@@ -483,6 +487,8 @@ def check_step(name: str, cfg, env, starts: list, actions: np.ndarray, errors: l
             respawn_position=after[w]["position"],
             respawn_replication_age=after[w]["replication_age"],
             newborn_replication_age=after[w]["replication_age"],
+            respawn_heading=after[w]["heading"],  # read only with spawn_heading "random" (the kernel's draw)
+            newborn_heading=after[w]["heading"],
         )
         n_before = len(errors)
         pick = lambda d, w=w: {k: v[w] for k, v in d.items()}  # noqa: E731
