@@ -1,0 +1,99 @@
+"""Shipped policies by short name (`aquarium_warp.pretrained`): a name resolves to its file wherever a
+policy file is taken (eval, video, study, `load_policy`, the PettingZoo env through `world`), an
+existing path wins over a name, and an unknown name is refused with the shipped names. The shipped
+index itself: every entry loads, in the world its metadata names."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import pytest
+
+os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
+pytest.importorskip("rsl_rl")
+
+import torch
+
+from aquarium_warp import aquarium_v1, pretrained
+from aquarium_warp.cli import main
+from aquarium_warp.training.config import env_config, make_config
+from aquarium_warp.training.export import load_policy, policy_world
+from aquarium_warp.training.trainer import Trainer
+
+EGO = {"observation_frame": "ego", "action_frame": "ego", "spawn_heading": "random"}
+
+
+@pytest.fixture
+def shipped(tmp_path, monkeypatch, one_thread):
+    """A policy directory holding one tiny trained ego policy under the name "prey-tiny"."""
+    config = make_config("tiny", {"train": {"num_worlds": 2, "iterations": 1, "quiet": True, "export": ["jit"]},
+                                  "env": {**EGO, "prey_count": 3, "max_steps": 20},
+                                  "runner": {"num_steps_per_env": 4}})
+    trainer = Trainer(config, str(tmp_path / "run"))
+    trainer.train()
+    path = trainer.export()["jit"]
+    folder = tmp_path / "policies"
+    folder.mkdir()
+    os.replace(path, folder / "prey_tiny.pt")
+    world = env_config(config).to_dict()
+    (folder / "index.json").write_text(json.dumps({"policies": {"prey-tiny": {"file": "prey_tiny.pt", "env": world}}}))
+    monkeypatch.setattr(pretrained, "DIRECTORY", str(folder))
+    pretrained.index.cache_clear()
+    yield str(folder / "prey_tiny.pt"), world
+    pretrained.index.cache_clear()
+
+
+def test_a_name_resolves_to_its_file_and_a_path_wins(shipped, tmp_path, monkeypatch):
+    path, world = shipped
+    assert pretrained.names() == ["prey-tiny"]
+    assert pretrained.resolve("prey-tiny") == pretrained.resolve("PREY-TINY") == path
+    assert pretrained.resolve("turnaway") == "turnaway" and pretrained.is_policy_file("prey-tiny")
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "prey-tiny").write_text("a local file of that name")
+    assert pretrained.resolve("prey-tiny") == "prey-tiny"  # an existing path is never shadowed
+    assert pretrained.world("prey-tiny").to_dict() == world
+    with pytest.raises(ValueError, match=r"'prey-nope' is unknown: shipped are \['prey-tiny'\]"):
+        pretrained.world("prey-nope")
+
+
+def test_load_policy_and_the_pettingzoo_env_take_a_name(shipped):
+    path, world = shipped
+    assert policy_world("prey-tiny") == policy_world(path)
+    policy = load_policy("prey-tiny")
+    env = aquarium_v1.parallel_env(config=pretrained.world("prey-tiny"))
+    observations, _ = env.reset(seed=3)
+    prey = {a: o for a, o in observations.items() if a.startswith("prey")}
+    actions = policy.act(prey)
+    assert set(actions) == set(prey) and all(0 <= a < env.config.action_count for a in actions.values())
+    assert len(next(iter(prey.values()))) == policy.observation_size == 2 + 6 * 4  # the ego layout
+
+
+def test_eval_video_and_study_take_a_name(shipped, tmp_path, capsys):
+    out = str(tmp_path / "eval")
+    assert main(["eval", "--prey", "prey-tiny", "constant", "--predator", "naivchase", "--episodes", "2", "--seeds",
+                 "0", "--max-steps", "10", "--no-figures", "--out", out, "--device", "cpu"]) == 0
+    with open(os.path.join(out, "summary.json"), encoding="utf-8") as f:
+        rows = json.load(f)["summary"]
+    assert [r["prey_policy"] for r in rows] == ["prey-tiny", "constant"]
+    assert main(["video", "--prey-policy", "prey-tiny", "--steps", "3", "--out", str(tmp_path / "v.mp4"),
+                 "--no-progress"]) == 0
+    assert os.path.getsize(tmp_path / "v.mp4") > 0
+    from aquarium_warp import BatchedAquarium
+    from aquarium_warp.study import make_study_policy
+
+    env = BatchedAquarium(pretrained.world("prey-tiny"), num_worlds=2, device="cpu")
+    actions = make_study_policy("prey-tiny", env, "prey")()
+    assert actions.shape == (2, 3) and actions.dtype == torch.int32
+    capsys.readouterr()
+    assert main(["eval", "--prey", "prey-nope", "--predator", "naivchase", "--episodes", "1", "--out", out]) == 2
+    assert "prey-nope" in capsys.readouterr().err
+
+
+def test_every_shipped_policy_loads_in_its_world():
+    for name in pretrained.names():
+        policy = load_policy(name)
+        world = pretrained.world(name)
+        assert env_config({"env": policy_world(name)}).to_dict() == world.to_dict(), name
+        assert policy.observation_size == world.observation_size("prey"), name
+        assert os.path.getsize(pretrained.resolve(name)) < 2_000_000, name  # small files only
