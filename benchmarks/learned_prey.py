@@ -39,7 +39,8 @@ WORLDS = {
     "B": ["env.prey.fov_angle=360", "env.prey.view_distance=200"],
     "C": ["env.prey.fov_angle=360", "env.prey.view_distance=10000"],
 }
-EGO = ["env.observation_frame=ego", "env.action_frame=ego"]
+EGO_OBS = ["env.observation_frame=ego"]
+EGO = EGO_OBS + ["env.action_frame=ego"]
 RANDOM_SPAWN = ["env.spawn_heading=random"]
 # name -> (preset, --set assignments, other train arguments)
 CONDITIONS: dict[str, tuple[str, list[str], list[str]]] = {
@@ -51,6 +52,25 @@ CONDITIONS: dict[str, tuple[str, list[str], list[str]]] = {
     "ego-rand-ent01": ("paper", EGO + RANDOM_SPAWN, ["--entropy", "0.01"]),
     "ego-rand-4x": ("paper", EGO + RANDOM_SPAWN, ["--episodes", "16000"]),
     "ego-rand-il": ("paper", EGO + RANDOM_SPAWN, ["--sharing", "individual"]),
+    # Round 2 (after "screen"): ego observations with world actions, random spawn, more entropy; 2x budget.
+    "r2-egoobs-ent01": ("paper", EGO_OBS + RANDOM_SPAWN, ["--entropy", "0.01", "--episodes", "8000"]),
+    "r2-egoobs-ent03": ("paper", EGO_OBS + RANDOM_SPAWN, ["--entropy", "0.03", "--episodes", "8000"]),
+    "r2-egoobs-ent01-wide": ("paper", EGO_OBS + RANDOM_SPAWN + ["runner.actor.hidden_dims=[256,256]",
+                                                               "runner.critic.hidden_dims=[256,256]"],
+                             ["--entropy", "0.01", "--episodes", "8000"]),
+    "r2-egoobs-ent01-slots5": ("paper", EGO_OBS + RANDOM_SPAWN + ["env.prey.prey_slots=5"],
+                               ["--entropy", "0.01", "--episodes", "8000"]),
+    "r2-egoobs-ent01-clip2": ("paper", EGO_OBS + RANDOM_SPAWN, ["--entropy", "0.01", "--clip", "0.2",
+                                                                "--episodes", "8000"]),
+    "r2-egoobs-ent01-gamma": ("paper", EGO_OBS + RANDOM_SPAWN, ["--entropy", "0.01", "--gamma", "0.995",
+                                                                "--lam", "0.98", "--episodes", "8000"]),
+    "r2-ego-ent01": ("paper", EGO + RANDOM_SPAWN, ["--entropy", "0.01", "--episodes", "8000"]),
+    "r2-egoobs-ent01-paperspawn": ("paper", EGO_OBS, ["--entropy", "0.01", "--episodes", "8000"]),
+    # The paper's PS vs IL comparison (its budget) on ego observations, random spawn and entropy 0.01.
+    "recipe-ps-1x": ("paper", EGO_OBS + RANDOM_SPAWN, ["--entropy", "0.01"]),
+    "recipe-il-1x": ("paper", EGO_OBS + RANDOM_SPAWN, ["--entropy", "0.01", "--sharing", "individual"]),
+    # The recipe declared before round 2's results: round 2's first condition at 4x the paper's budget.
+    "recipe": ("paper", EGO_OBS + RANDOM_SPAWN, ["--entropy", "0.01", "--episodes", "16000"]),
     "tiny-ego": ("tiny", EGO + RANDOM_SPAWN, ["--iterations", "2"]),
     "tiny-world": ("tiny", [], ["--iterations", "2"]),
 }
@@ -58,6 +78,11 @@ PLANS: dict[str, list[tuple[str, str, list[int]]]] = {
     "screen": [(c, "B", [0, 1]) for c in ("world-frame", "ego-obs", "ego", "ego-rand", "ego-rand-worldcritic",
                                           "ego-rand-ent01", "ego-rand-4x")]
     + [(c, w, [0, 1]) for c in ("ego-rand", "ego-rand-4x") for w in ("A", "C")],
+    "round2": [(c, "B", [0, 1, 2]) for c in ("r2-egoobs-ent01", "r2-egoobs-ent03", "r2-egoobs-ent01-wide",
+                                             "r2-egoobs-ent01-slots5", "r2-egoobs-ent01-clip2", "r2-egoobs-ent01-gamma",
+                                             "r2-ego-ent01", "r2-egoobs-ent01-paperspawn")]
+    + [(c, "A", [0, 1, 2, 3, 4]) for c in ("recipe-ps-1x", "recipe-il-1x")],
+    "recipe": [("recipe", w, [0, 1, 2, 3, 4]) for w in ("A", "B", "C")],
     "tiny": [("tiny-ego", "A", [0, 1]), ("tiny-world", "B", [0])],
 }
 BASELINES = ("random", "constant", "turnaway")
