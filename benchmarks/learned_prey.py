@@ -205,10 +205,15 @@ def main(argv=None) -> int:
     p.add_argument("--episodes", type=int, default=50, help="evaluation episodes per evaluation seed")
     p.add_argument("--eval-seeds", type=int, nargs="+", default=[0, 1])
     p.add_argument("--commit", default=None, help="the commit to record (default: git rev-parse HEAD)")
+    p.add_argument("--report", metavar="RESULTS", default=None,
+                   help="only copy a finished --out into the folder RESULTS, with curves.csv and curves.png")
     p.add_argument("--eval-one", nargs=2, metavar=("CONDITION", "WORLD"), help=argparse.SUPPRESS)
     p.add_argument("--seeds", type=int, nargs="*", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     device = "cuda:0" if args.gpus else "cpu"
+    if args.report:
+        report(args.out, args.report)
+        return 0
     if args.eval_one:
         evaluate_one(args.out, *args.eval_one, args.seeds, args.episodes, args.eval_seeds, device)
         return 0
@@ -267,6 +272,63 @@ def main(argv=None) -> int:
               f"{fmt(r['constant']):>12} {fmt(r['turnaway']):>12} {r['learned_over_turnaway']:6.2f} "
               f"{r['learned_over_constant']:7.2f}")
     return 0
+
+
+def report(out: str, results: str, every: int = 5) -> None:
+    """Copy a finished `out`'s summaries and evaluations into `results` (a committed folder) with the
+    runs' training curves (`curves.csv`: every `every`-th iteration of each run's progress.csv) and
+    their figure (`curves.png`: training captures per prey, mean and range over seeds)."""
+    import glob
+    import shutil
+
+    os.makedirs(os.path.join(results, "eval"), exist_ok=True)
+    for path in glob.glob(os.path.join(out, "learned_prey_*.*")):
+        shutil.copy(path, results)
+    for path in glob.glob(os.path.join(out, "eval", "*.json")):
+        shutil.copy(path, os.path.join(results, "eval"))
+    columns = ("iteration", "agent_steps", "captures_per_prey", "entropy", "value_loss")
+    curves: dict[str, dict[str, list]] = {}
+    with open(os.path.join(results, "curves.csv"), "w", newline="", encoding="utf-8") as f:
+        writer = csv.writer(f)
+        writer.writerow(("run",) + columns)
+        for run in sorted(glob.glob(os.path.join(out, "runs", "*", "progress.csv"))):
+            name = os.path.basename(os.path.dirname(run))
+            with open(run, encoding="utf-8") as g:
+                rows = [r for r in csv.DictReader(g) if r["captures_per_prey"] not in ("", None)]
+            kept = rows[::every] + ([rows[-1]] if rows and (len(rows) - 1) % every else [])
+            for r in kept:
+                writer.writerow([name] + [r[c] for c in columns])
+            condition = name.rsplit("-s", 1)[0]
+            curves.setdefault(condition, {}).setdefault(name, [(float(r["agent_steps"]), float(r["captures_per_prey"]))
+                                                               for r in kept])
+    _plot_curves(curves, os.path.join(results, "curves.png"))
+
+
+def _plot_curves(curves: dict[str, dict[str, list]], path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    worlds = sorted({c.rsplit("-", 1)[1] for c in curves})
+    fig, axes = plt.subplots(1, len(worlds), figsize=(5.2 * len(worlds), 4.2), squeeze=False)
+    for ax, world in zip(axes[0], worlds):
+        ax.set_prop_cycle(color=plt.cm.tab20.colors)
+        for condition in sorted(c for c in curves if c.endswith("-" + world)):
+            runs = list(curves[condition].values())
+            n = min(len(r) for r in runs)
+            x = np.array([p[0] for p in runs[0][:n]]) / 1e6
+            y = np.array([[p[1] for p in r[:n]] for r in runs])
+            line, = ax.plot(x, y.mean(0), lw=1.3, label=f"{condition.rsplit('-', 1)[0]} ({len(runs)} seeds)")
+            ax.fill_between(x, y.min(0), y.max(0), color=line.get_color(), alpha=0.15, lw=0)
+        ax.set(title=f"world {world}", xlabel="prey-steps (millions)", ylabel="training captures per prey per episode")
+        ax.legend(fontsize=6)
+    fig.suptitle("Training curves: mean over seeds, band = range over seeds (training worlds: their own spawn "
+                 "headings)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 if __name__ == "__main__":

@@ -97,3 +97,26 @@ def test_every_shipped_policy_loads_in_its_world():
         assert env_config({"env": policy_world(name)}).to_dict() == world.to_dict(), name
         assert policy.observation_size == world.observation_size("prey"), name
         assert os.path.getsize(pretrained.resolve(name)) < 2_000_000, name  # small files only
+
+
+@pytest.mark.parametrize("world", ["A", "B", "C"])
+def test_the_recipe_presets_are_the_benchmarked_recipe(world):
+    """`train --preset learned-prey-<w>` trains what benchmarks/learned_prey.py ran as "recipe": the paper
+    preset with its `--set`s and flags (`--entropy`, `--episodes`)."""
+    import sys
+
+    from aquarium_warp.training.config import deep_update, make_config, parse_assignment
+
+    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "benchmarks"))
+    try:
+        import learned_prey
+    finally:
+        sys.path.pop(0)
+    preset, sets, flags = learned_prey.CONDITIONS["recipe"]
+    flag_keys = {"--entropy": "runner.algorithm.entropy_coef", "--episodes": "train.episodes"}
+    changes: dict = {}
+    flag_sets = [f"{flag_keys[k]}={v}" for k, v in zip(flags[::2], flags[1::2])]
+    for assignment in learned_prey.WORLDS[world] + sets + flag_sets:
+        deep_update(changes, parse_assignment(assignment))
+    assert make_config(f"learned-prey-{world.lower()}") == make_config(preset, changes)
+    assert make_config(f"learned-prey-{world.lower()}") != make_config(preset)

@@ -13,9 +13,9 @@ import os
 import time
 
 from ..cli import _int_at_least
-from .config import ALGORITHM_RANGES
+from .config import ALGORITHM_RANGES, PRESETS
 
-PRESET_NAMES = ("default", "paper", "tiny")
+PRESET_NAMES = tuple(PRESETS)
 
 
 def _hidden_dims(text: str) -> list[int]:

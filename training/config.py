@@ -13,7 +13,8 @@ A run configuration is a dict with three sections:
   pool fraction) and, under `runner`, its `algorithm` / `actor` / `critic` entries. With
   `train.team = "both"` each team has its own learner (own PPO, storage, optimizer, normaliser).
 
-Presets (`PRESETS`): `default`, `paper` (section 5 of the paper), `tiny` (small CPU runs and tests).
+Presets (`PRESETS`): `default`, `paper` (section 5 of the paper), `tiny` (small CPU runs and tests),
+`learned-prey-a`, `learned-prey-b`, `learned-prey-c` (the learned-prey recipe in worlds A, B and C).
 Every preset is the default config deep-updated with the preset's entries.
 
 The paper's two learning rates. rsl-rl has one optimizer and one learning rate. `train.actor_lr` is
@@ -132,6 +133,10 @@ PRESETS = {
                                  "num_learning_epochs": 5, "num_mini_batches": 4, "schedule": "fixed",
                                  "max_grad_norm": 0.5}},
     },
+    # The learned-prey recipe (benchmarks/learned_prey.py, results in benchmarks/results/learned_prey_ego/):
+    # the paper's task with egocentric observations (world actions), random spawn headings, entropy
+    # weight 0.01 and 4x the paper's budget, in world A (the paper's prey view), B (360 degrees, 200 px)
+    # or C (360 degrees, unlimited). Filled in below from "paper".
     # A small world for CPU runs and the tests: 4 prey and a NaivChase predator on 400 x 400 px.
     "tiny": {
         "env": {"width": 400.0, "height": 400.0, "prey_count": 4, "predator_count": 1, "max_steps": 200},
@@ -140,6 +145,17 @@ PRESETS = {
                    "algorithm": {"num_learning_epochs": 4, "num_mini_batches": 4, "entropy_coef": 0.003}},
     },
 }
+
+
+# World A, B and C's prey views (benchmarks/learned_prey.py's WORLDS).
+LEARNED_PREY_VIEWS = {"a": {}, "b": {"fov_angle": 360, "view_distance": 200},
+                      "c": {"fov_angle": 360, "view_distance": 10000}}
+for _world, _view in LEARNED_PREY_VIEWS.items():
+    _recipe = copy.deepcopy(PRESETS["paper"])
+    _recipe["env"].update({"observation_frame": "ego", "spawn_heading": "random", **({"prey": _view} if _view else {})})
+    _recipe["train"]["episodes"] = 16000
+    _recipe["runner"]["algorithm"]["entropy_coef"] = 0.01
+    PRESETS[f"learned-prey-{_world}"] = _recipe
 
 
 def deep_update(base: dict, changes: dict) -> dict:
