@@ -4,8 +4,9 @@ Random, Constant (always the world direction "up", ignoring everything: the base
 that does not react), TurnAway (flee the nearest visible agent of the other type) and NaivChase
 (chase a visible agent of the other type, with "confusion" a uniformly random one, else the nearest;
 with none in sight the nearest one in the world). Each picks a world direction; with
-`action_frame="ego"` the action is the one nearest to that direction seen from the agent's heading. Visibility is the observation's rule (distance <= v, and with
-`fov_enabled` within alpha/2 of the heading; distance 0 is visible). Targets come from a ring-by-ring
+`action_frame="ego"` the action is the one nearest to that direction seen from the agent's heading.
+Visibility is the observation's rule (distance <= v, and with `fov_enabled` within alpha/2 of the
+heading; distance 0 is visible). Targets come from a ring-by-ring
 search of the cell lists built on the state the decision is made from, which stops as soon as no
 unseen agent can change the answer, so no search is all-pairs.
 
