@@ -575,6 +575,17 @@ class AquariumConfig:
         """A copy with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)
 
+    def with_interface_of(self, other: AquariumConfig) -> AquariumConfig:
+        """A copy whose agents observe and act as in `other` (the world a trained policy was trained in):
+        its observation and action frames, observation range, flow observation and per-type slot counts;
+        the world itself (sizes, counts, perception, spawn) stays this one's."""
+        slots = ("predator_slots", "prey_slots")
+        return self.replace(
+            observation_frame=other.observation_frame, action_frame=other.action_frame,
+            observation_range=other.observation_range, observe_flow=other.observe_flow,
+            prey=dataclasses.replace(self.prey, **{n: getattr(other.prey, n) for n in slots}),
+            predator=dataclasses.replace(self.predator, **{n: getattr(other.predator, n) for n in slots}))
+
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
 

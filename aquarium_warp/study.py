@@ -150,8 +150,15 @@ class SwarmSizeStudy:
                              "(fov-view --per-setting)")
 
     def settings(self) -> list[dict]:
-        """One dict per (fov angle, view distance, prey count), with its `AquariumConfig`."""
+        """One dict per (fov angle, view distance, prey count), with its `AquariumConfig` (where a team is a
+        trained policy, its agents observe and act as in the policy's world)."""
         base = AquariumConfig()
+        for agent_type, name in (("prey", self.prey_policy), ("predator", self.predator_policy)):
+            if not is_heuristic(name, agent_type) and is_policy_file(name):
+                from .training.config import env_config
+                from .training.export import policy_world
+
+                base = base.with_interface_of(env_config({"env": policy_world(name)}))
         fovs = self.fov_angles or [base.prey.fov_angle]
         views = self.view_distances or [base.prey.view_distance]
         out = []

@@ -5,6 +5,7 @@ index itself: every entry loads, in the world its metadata names."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 
@@ -120,3 +121,24 @@ def test_the_recipe_presets_are_the_benchmarked_recipe(world):
         deep_update(changes, parse_assignment(assignment))
     assert make_config(f"learned-prey-{world.lower()}") == make_config(preset, changes)
     assert make_config(f"learned-prey-{world.lower()}") != make_config(preset)
+
+
+def test_a_study_world_takes_the_policys_interface(shipped):
+    """A study with a trained team keeps its own world (prey counts, perception, spawn) but lets the
+    policy's agents observe and act as they were trained to (frames, range, slot counts)."""
+    from aquarium_warp import AquariumConfig
+    from aquarium_warp.study import SwarmSizeStudy
+
+    study = SwarmSizeStudy(prey=[5, 7], prey_policy="prey-tiny", seeds=1)
+    policy_world = pretrained.world("prey-tiny")
+    for setting in study.settings():
+        cfg = setting["config"]
+        assert (cfg.observation_frame, cfg.action_frame) == (policy_world.observation_frame, policy_world.action_frame)
+        assert cfg.prey_count == setting["prey"] and cfg.spawn_heading == "paper" and cfg.width == 800.0
+        assert cfg.observation_size("prey") == policy_world.observation_size("prey")
+    assert SwarmSizeStudy(prey=[5], seeds=1).settings()[0]["config"].observation_frame == "world"
+    other = AquariumConfig(observation_frame="ego", observation_range="-1..1", observe_flow=True)
+    other = other.replace(prey=dataclasses.replace(other.prey, prey_slots=5, view_distance=300.0))
+    mixed = AquariumConfig(prey_count=9).with_interface_of(other)
+    assert (mixed.prey_count, mixed.observation_frame, mixed.observation_range, mixed.observe_flow,
+            mixed.prey.prey_slots, mixed.prey.view_distance) == (9, "ego", "-1..1", True, 5, 100.0)
