@@ -29,7 +29,7 @@ from .env import TYPES, BatchedAquarium, action_directions, seed_key
 from .kernels import heuristics as kernels
 
 # Policies allowed for each agent type.
-POLICIES = {"prey": ("random", "constant", "turnaway"), "predator": ("random", "constant", "naivchase")}
+POLICIES = {"prey": ("random", "constant", "turnaway", "boids"), "predator": ("random", "constant", "naivchase")}
 
 
 def _normalise_name(name) -> str:
@@ -68,6 +68,8 @@ class HeuristicPolicy:
             self._code = kernels.POLICY_RANDOM
         elif key == "constant":
             self._code = kernels.POLICY_CONSTANT
+        elif key == "boids":
+            self._code = kernels.POLICY_BOIDS
         elif key == "turnaway":
             self._code = kernels.POLICY_TURN_AWAY
         else:
@@ -108,8 +110,9 @@ def make_policy(name: str, env: BatchedAquarium, agent_type: str, seed: int | No
     """A heuristic policy for the `agent_type` agents ("prey" or "predator") of every world of `env`.
 
     `name`: "random" (either type), "constant" (either type: always the world direction "up", the
-    baseline of an agent that ignores everything), "turnaway" (prey) or "naivchase" (predators); case,
-    "_" and "-" are ignored. `seed`: keys the policy's random stream (None: the env's current seed).
+    baseline of an agent that ignores everything), "turnaway" (prey), "boids" (prey: Reynolds flocking
+    over the visible prey, fleeing a visible predator; the positive control of the swarm measures) or
+    "naivchase" (predators); case, "_" and "-" are ignored. `seed`: keys the policy's random stream (None: the env's current seed).
     `confusion` (naivchase only, default True): with several prey visible, chase a uniformly random
     one each step; False chases the nearest (ties: lower slot).
     """

@@ -1,7 +1,9 @@
 """The paper's baseline policies (MODEL.md "Heuristic policies") as one kernel over every world.
 
 Random, Constant (always the world direction "up", ignoring everything: the baseline of an agent
-that does not react), TurnAway (flee the nearest visible agent of the other type) and NaivChase
+that does not react), TurnAway (flee the nearest visible agent of the other type), Boids (Reynolds
+separation, alignment and cohesion over the visible agents of the own type, plus fleeing the nearest
+visible one of the other type) and NaivChase
 (chase a visible agent of the other type, with "confusion" a uniformly random one, else the nearest;
 with none in sight the nearest one in the world). Each picks a world direction; with
 `action_frame="ego"` the action is the one nearest to that direction seen from the agent's heading.
@@ -38,6 +40,15 @@ POLICY_TURN_AWAY = wp.constant(1)  # flee the nearest visible agent of the other
 POLICY_CHASE_CONFUSED = wp.constant(2)  # chase a uniformly random visible one (else the nearest in the world)
 POLICY_CHASE_NEAREST = wp.constant(3)  # chase the nearest visible one (else the nearest in the world)
 POLICY_CONSTANT = wp.constant(4)  # always the world direction "up" (0, -1): no reaction at all
+POLICY_BOIDS = wp.constant(5)  # Reynolds flocking over the visible same-type agents, fleeing a visible predator
+
+# Boids (MODEL.md "Heuristic policies"): weights of the unit flee, separation, alignment and cohesion
+# vectors; separation acts on neighbours closer than BOIDS_SEPARATION_RADII own hit-box radii.
+BOIDS_FLEE = wp.constant(2.0)
+BOIDS_SEPARATION = wp.constant(1.5)
+BOIDS_ALIGNMENT = wp.constant(1.0)
+BOIDS_COHESION = wp.constant(1.0)
+BOIDS_SEPARATION_RADII = wp.constant(2.0)
 
 
 @wp.func
@@ -77,6 +88,14 @@ def action_towards(world: WorldParams, action_direction: wp.array(dtype=wp.vec2)
         return nearest_action(action_direction, world.action_count, world_to_ego(heading, direction),
                               wp.vec2(0.0, -1.0))
     return nearest_action(action_direction, world.action_count, direction, heading)
+
+
+@wp.func
+def unit_or_zero(v: wp.vec2) -> wp.vec2:
+    n = wp.length(v)
+    if n > 0.0:
+        return v / n
+    return wp.vec2(0.0, 0.0)
 
 
 @wp.func
@@ -123,8 +142,16 @@ def heuristic_policy(
     h = agents.heading[w, i]
     v = p.view_distance
     v2 = v * v
-    all_visible = policy == POLICY_CHASE_CONFUSED  # every visible target is a candidate
-    in_world = policy != POLICY_TURN_AWAY  # with none visible, fall back to the nearest in the world
+    boids = policy == POLICY_BOIDS
+    # Every visible agent counts (confusion's candidates; the Boids' flock), so the search runs to v.
+    all_visible = policy == POLICY_CHASE_CONFUSED or boids
+    # With none visible, chasers fall back to the nearest target in the world.
+    in_world = policy == POLICY_CHASE_CONFUSED or policy == POLICY_CHASE_NEAREST
+    separation_radius = BOIDS_SEPARATION_RADII * p.radius
+    flock_count = int(0)  # Boids: visible agents of the own type, their summed offsets and headings
+    flock_offset = wp.vec2(0.0, 0.0)
+    flock_heading = wp.vec2(0.0, 0.0)
+    separation = wp.vec2(0.0, 0.0)  # sum of -d / |d|^2 over the visible ones closer than the radius
 
     visible_count = int(0)
     near_d2 = float(0.0)  # nearest visible target
@@ -166,6 +193,15 @@ def heuristic_policy(
                             pick_key = key
                             pick_slot = j
                             pick_disp = d
+                elif boids and j >= 0 and j != i:  # a flock mate (sums in the cells' visiting order)
+                    d = torus_displacement(world, pos, grid.position[k2])
+                    d2 = wp.dot(d, d)
+                    if in_view(world, h, d, d2, v2, p.cos_half_fov):
+                        flock_count += 1
+                        flock_offset = flock_offset + d
+                        flock_heading = flock_heading + agents.heading[w, j]
+                        if d2 > 0.0 and d2 < separation_radius * separation_radius:
+                            separation = separation - d / d2
         reach = seen_radius(grid, walk.ring)  # every agent closer than this has been seen
         if reach == wp.inf:
             searching = False
@@ -183,6 +219,12 @@ def heuristic_policy(
     if policy == POLICY_TURN_AWAY:
         if near_slot >= 0:
             direction = -near_disp
+    elif boids:
+        if near_slot >= 0:
+            direction = BOIDS_FLEE * unit_or_zero(-near_disp)
+        if flock_count > 0:
+            direction = direction + BOIDS_SEPARATION * unit_or_zero(separation) \
+                + BOIDS_ALIGNMENT * unit_or_zero(flock_heading) + BOIDS_COHESION * unit_or_zero(flock_offset)
     elif visible_count > 0:
         if all_visible:
             direction = pick_disp
