@@ -112,7 +112,8 @@ def make_policy(name: str, env: BatchedAquarium, agent_type: str, seed: int | No
     `name`: "random" (either type), "constant" (either type: always the world direction "up", the
     baseline of an agent that ignores everything), "turnaway" (prey), "boids" (prey: Reynolds flocking
     over the visible prey, fleeing a visible predator; the positive control of the swarm measures) or
-    "naivchase" (predators); case, "_" and "-" are ignored. `seed`: keys the policy's random stream (None: the env's current seed).
+    "naivchase" (predators); case, "_" and "-" are ignored. `seed`: keys the policy's random stream
+    (None: the env's current seed).
     `confusion` (naivchase only, default True): with several prey visible, chase a uniformly random
     one each step; False chases the nearest (ties: lower slot).
     """

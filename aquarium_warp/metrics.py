@@ -27,6 +27,12 @@ Definitions (all over the live prey of a world; distances are torus-shortest, in
 - `groups`: connected components of the graph linking prey closer than `linking_distance`;
   `largest_group`: the largest component's share of the live prey.
 - `predator_distance`: mean over prey of the distance to the nearest live predator, px.
+- `local_alignment`: mean over the prey with a linked neighbour (closer than `linking_distance`) of
+  |own heading + the neighbours' headings| / (1 + neighbours), in [0, 1] (NaN where no prey has one):
+  alignment among neighbours, which a swarm of several differently heading groups keeps.
+- `milling`: |mean over prey of (r / |r|) x heading|, r the prey's offset from the centroid, in [0, 1]:
+  1 when every prey circles the centroid the same way (a mill); about `0.886 / sqrt(n)` for random
+  headings. About the swarm's one centroid: meaningful where the prey form one group.
 - `prey_alive`, `predator_alive`: populations; `captures`: captures in the last step.
 Undefined values (no live prey) are NaN.
 
@@ -53,7 +59,7 @@ SCALAR_METRICS = kernels.VALUE_NAMES
 # Metrics averaged over the sampled states of an episode by `EpisodeMetrics` (the centroid is not:
 # its average over time means nothing on a torus; captures come from the env's episode counters).
 EPISODE_METRICS = ("polarization", "cohesion", "nn_mean", "groups", "largest_group", "predator_distance",
-                   "prey_alive", "predator_alive")
+                   "prey_alive", "predator_alive", "local_alignment", "milling")
 
 
 def default_linking_distance(env: BatchedAquarium) -> float | tuple[float, ...]:
@@ -122,6 +128,7 @@ class SwarmMetrics:
         a.parent = wp.zeros(W * Pc, dtype=wp.int32, device=dev)
         a.group_label = wp.zeros((W, Pc), dtype=wp.int32, device=dev)
         a.group_size = wp.zeros((W, Pc), dtype=wp.int32, device=dev)
+        a.local_alignment = wp.zeros((W, Pc), dtype=float, device=dev)
         a.partial = wp.zeros((W, self._chunks, kernels.NUM_PARTIALS), dtype=float, device=dev)
         a.values = wp.zeros((W, kernels.NUM_VALUES), dtype=float, device=dev)
         values = wp.to_torch(a.values)
@@ -156,6 +163,8 @@ class SwarmMetrics:
             shard.record(kernels.prey_distances, (W, Pc),
                          [world, g, s.agents, self.predators_by_grid, self.bin_width], [arrays]),
             shard.record(kernels.link_groups, (W, Pc), [world, g, s.agents, self._linking_distances[w0:w1]],
+                         [arrays]),
+            shard.record(kernels.local_alignment, (W, Pc), [world, g, s.agents, self._linking_distances[w0:w1]],
                          [arrays]),
             shard.record(kernels.resolve_groups, (W, Pc), [world, s.agents], [arrays]),
             shard.record(kernels.prey_partial_sums, (W, self._chunks), [world, s.agents], [arrays]),

@@ -1,5 +1,6 @@
-"""Swarm metrics of every world on the device: polarization, cohesion, nearest-neighbour distances,
-groups (connected components), distance to the nearest predator, populations.
+"""Swarm metrics of every world on the device: polarization, local alignment, milling, cohesion,
+nearest-neighbour distances, groups (connected components), distance to the nearest predator,
+populations.
 
 All metrics are about the live prey of a world; distances are torus-shortest, in px. Neighbour
 queries read the cell lists that the observation pass built on the current state, so no metric does
@@ -18,8 +19,8 @@ Sums over the prey of a world run in two deterministic stages (no float atomics)
 group sizes) use integer atomics, whose result does not depend on the order.
 
 Launch order per shard (see `aquarium_warp.metrics.SwarmMetrics`): zero the integer counters,
-`prey_distances`, `link_groups`, `resolve_groups`, `prey_partial_sums`, `finish_prey_sums`,
-`centroid_partial_sums`, `finish_cohesion`.
+`prey_distances`, `link_groups`, `local_alignment`, `resolve_groups`, `prey_partial_sums`,
+`finish_prey_sums`, `centroid_partial_sums`, `finish_cohesion`.
 """
 
 import warp as wp
@@ -56,9 +57,15 @@ PREDATOR_DISTANCE = wp.constant(7)  # mean over live prey of the distance to the
 PREY_ALIVE = wp.constant(8)  # live prey
 PREDATOR_ALIVE = wp.constant(9)  # live predators
 CAPTURES = wp.constant(10)  # captures in the last step
-NUM_VALUES = wp.constant(11)
+# Mean over live prey with a linked neighbour (distance < linking distance) of |own heading + the
+# neighbours' headings| / (1 + neighbours), in [0, 1]: alignment among neighbours, whatever the global order.
+LOCAL_ALIGNMENT = wp.constant(11)
+# |mean over live prey of (r / |r|) x heading|, r the prey's torus offset from the centroid, in [0, 1]:
+# 1 for prey circling the centroid all one way (a mill), about 1 / sqrt(n) for random headings.
+MILLING = wp.constant(12)
+NUM_VALUES = wp.constant(13)
 VALUE_NAMES = ("polarization", "cohesion", "centroid_x", "centroid_y", "nn_mean", "groups", "largest_group",
-               "predator_distance", "prey_alive", "predator_alive", "captures")
+               "predator_distance", "prey_alive", "predator_alive", "captures", "local_alignment", "milling")
 
 # Columns of the first-stage partial sums [W, chunks, NUM_PARTIALS].
 _P_COUNT = wp.constant(0)  # live prey
@@ -74,7 +81,9 @@ _P_PRED_SUM = wp.constant(9)  # nearest-predator distances, px, and how many pre
 _P_PRED_COUNT = wp.constant(10)
 _P_LARGEST = wp.constant(11)  # largest group size among the roots of the chunk
 _P_ROOTS = wp.constant(12)  # groups (roots) in the chunk
-NUM_PARTIALS = wp.constant(13)
+_P_ALIGN_SUM = wp.constant(13)  # local alignments, and how many prey have a linked neighbour
+_P_ALIGN_COUNT = wp.constant(14)
+NUM_PARTIALS = wp.constant(15)
 
 TWO_PI = wp.constant(6.283185307179586)
 
@@ -95,6 +104,8 @@ class SwarmArrays:
     """[W, Pc] int32, smallest prey slot of each live prey's group; -1 for dead slots."""
     group_size: wp.array2d(dtype=wp.int32)
     """[W, Pc] int32, members of the group whose root is the slot."""
+    local_alignment: wp.array2d(dtype=float)
+    """[W, Pc] float32, |own + linked neighbours' headings| / (1 + neighbours); -1: dead or no neighbour."""
     partial: wp.array3d(dtype=float)
     """[W, chunks, NUM_PARTIALS] float32, first-stage sums (columns `_P_*`)."""
     values: wp.array2d(dtype=float)
@@ -235,6 +246,34 @@ def link_groups(world: WorldParams, grid: CellLists, agents: Agents, linking_dis
 
 
 @wp.kernel
+def local_alignment(world: WorldParams, grid: CellLists, agents: Agents, linking_distances: wp.array(dtype=float),
+                    swarm: SwarmArrays):
+    """Per prey slot `(w, i)`: `swarm.local_alignment[w, i]` from the live prey closer than
+    `linking_distances[w]` (the groups' links; a fixed-radius search, summed in the cells' order)."""
+    w, i = wp.tid()
+    swarm.local_alignment[w, i] = -1.0
+    if not agents.alive[w, i]:
+        return
+    pos = agents.position[w, i]
+    linking_distance = linking_distances[w]
+    link2 = linking_distance * linking_distance
+    total = agents.heading[w, i]
+    count = int(0)
+    walk = square_walk(grid, w, world.capacity, pos, linking_distance, 0, 1)
+    while next_run(grid, walk):
+        for n in range(run_length(walk.runs)):
+            k2 = run_entry(walk.runs, n)
+            j = listed_slot(grid, k2, walk.base)
+            if j >= 0 and j != i and slot_type(world, j) == PREY:
+                d = torus_displacement(world, pos, grid.position[k2])
+                if wp.dot(d, d) < link2:
+                    total = total + agents.heading[w, j]
+                    count += 1
+    if count > 0:
+        swarm.local_alignment[w, i] = wp.length(total) / float(count + 1)
+
+
+@wp.kernel
 def resolve_groups(world: WorldParams, agents: Agents, swarm: SwarmArrays):
     """Per prey slot `(w, i)`: `swarm.group_label[w, i]` = the smallest prey slot of its group (-1 if dead),
     and `swarm.group_size[w, root]` counts the group's members. `group_size` must be zero."""
@@ -264,6 +303,8 @@ def prey_partial_sums(world: WorldParams, agents: Agents, swarm: SwarmArrays):
     pred_count = float(0.0)
     largest = int(0)
     roots = int(0)
+    align_sum = float(0.0)
+    align_count = float(0.0)
     first = c * CHUNK
     end = wp.min(first + CHUNK, world.prey_capacity)
     for i in range(first, end):
@@ -288,6 +329,10 @@ def prey_partial_sums(world: WorldParams, agents: Agents, swarm: SwarmArrays):
             if swarm.group_label[w, i] == i:
                 roots += 1
                 largest = wp.max(largest, int(swarm.group_size[w, i]))
+            alignment = swarm.local_alignment[w, i]
+            if alignment >= 0.0:
+                align_sum += alignment
+                align_count += 1.0
     swarm.partial[w, c, _P_COUNT] = count
     swarm.partial[w, c, _P_HEAD_X] = head[0]
     swarm.partial[w, c, _P_HEAD_Y] = head[1]
@@ -301,6 +346,8 @@ def prey_partial_sums(world: WorldParams, agents: Agents, swarm: SwarmArrays):
     swarm.partial[w, c, _P_PRED_COUNT] = pred_count
     swarm.partial[w, c, _P_LARGEST] = float(largest)
     swarm.partial[w, c, _P_ROOTS] = float(roots)
+    swarm.partial[w, c, _P_ALIGN_SUM] = align_sum
+    swarm.partial[w, c, _P_ALIGN_COUNT] = align_count
 
 
 @wp.func
@@ -329,6 +376,8 @@ def finish_prey_sums(world: WorldParams, counters: WorldCounters, outputs: StepO
     pred_count = float(0.0)
     largest = float(0.0)
     groups = float(0.0)
+    align_sum = float(0.0)
+    align_count = float(0.0)
     for c in range(swarm.partial.shape[1]):
         n += swarm.partial[w, c, _P_COUNT]
         head_x += swarm.partial[w, c, _P_HEAD_X]
@@ -343,6 +392,8 @@ def finish_prey_sums(world: WorldParams, counters: WorldCounters, outputs: StepO
         pred_count += swarm.partial[w, c, _P_PRED_COUNT]
         largest = wp.max(largest, swarm.partial[w, c, _P_LARGEST])
         groups += swarm.partial[w, c, _P_ROOTS]
+        align_sum += swarm.partial[w, c, _P_ALIGN_SUM]
+        align_count += swarm.partial[w, c, _P_ALIGN_COUNT]
     nan = wp.nan
     swarm.values[w, GROUPS] = groups
     swarm.values[w, PREY_ALIVE] = n
@@ -364,32 +415,48 @@ def finish_prey_sums(world: WorldParams, counters: WorldCounters, outputs: StepO
     swarm.values[w, PREDATOR_DISTANCE] = nan
     if pred_count > 0.0:
         swarm.values[w, PREDATOR_DISTANCE] = pred_sum / pred_count
+    swarm.values[w, LOCAL_ALIGNMENT] = nan
+    if align_count > 0.0:
+        swarm.values[w, LOCAL_ALIGNMENT] = align_sum / align_count
 
 
 @wp.kernel
 def centroid_partial_sums(world: WorldParams, agents: Agents, swarm: SwarmArrays):
-    """First stage of the cohesion sum: chunk `c` of world `w` sums the torus distances (px) of its
-    live prey to the centroid in `swarm.values[w]` into `swarm.partial[w, c, 0]`."""
+    """First stage of the cohesion and milling sums: chunk `c` of world `w` sums the torus distances (px)
+    of its live prey to the centroid in `swarm.values[w]` into `swarm.partial[w, c, 0]`, and their
+    (r / |r|) x heading into `swarm.partial[w, c, 1]`."""
     w, c = wp.tid()
     total = float(0.0)
+    turn = float(0.0)
     if swarm.values[w, PREY_ALIVE] > 0.0:
         centroid = wp.vec2(swarm.values[w, CENTROID_X], swarm.values[w, CENTROID_Y])
         end = wp.min(c * CHUNK + CHUNK, world.prey_capacity)
         for i in range(c * CHUNK, end):
             if agents.alive[w, i]:
-                total += wp.length(torus_displacement(world, centroid, agents.position[w, i]))
+                r = torus_displacement(world, centroid, agents.position[w, i])
+                distance = wp.length(r)
+                total += distance
+                if distance > 0.0:
+                    h = agents.heading[w, i]
+                    turn += (r[0] * h[1] - r[1] * h[0]) / distance
     swarm.partial[w, c, 0] = total
+    swarm.partial[w, c, 1] = turn
 
 
 @wp.kernel
 def finish_cohesion(swarm: SwarmArrays):
-    """Second stage per world: `swarm.values[w, COHESION]` = mean distance to the centroid (NaN without prey)."""
+    """Second stage per world: `swarm.values[w, COHESION]` = mean distance to the centroid and
+    `swarm.values[w, MILLING]` (NaN without prey)."""
     w = wp.tid()
     n = swarm.values[w, PREY_ALIVE]
     if n > 0.0:
         total = float(0.0)
+        turn = float(0.0)
         for c in range(swarm.partial.shape[1]):
             total += swarm.partial[w, c, 0]
+            turn += swarm.partial[w, c, 1]
         swarm.values[w, COHESION] = total / n
+        swarm.values[w, MILLING] = wp.abs(turn) / n
     else:
         swarm.values[w, COHESION] = wp.nan
+        swarm.values[w, MILLING] = wp.nan

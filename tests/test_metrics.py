@@ -62,6 +62,7 @@ def reference(pos, head, alive, Pc, size, link, bins, bin_width):
     if n == 0:
         out.update(polarization=math.nan, cohesion=math.nan, centroid_x=math.nan, centroid_y=math.nan,
                    nn_mean=math.nan, groups=0, largest_group=math.nan, predator_distance=math.nan,
+                   local_alignment=math.nan, milling=math.nan,
                    labels=np.full(Pc, -1), hist=hist, nn=np.full(Pc, -1.0))
         return out
     p = pos[prey]
@@ -72,9 +73,18 @@ def reference(pos, head, alive, Pc, size, link, bins, bin_width):
         c = math.atan2(np.sin(ang).sum(), np.cos(ang).sum()) * size[axis] / (2 * np.pi)
         centroid.append(c % size[axis])
     out["centroid_x"], out["centroid_y"] = centroid
-    out["cohesion"] = np.linalg.norm(torus(p - np.array(centroid), size), axis=1).mean()
+    r = torus(p - np.array(centroid), size)
+    out["cohesion"] = np.linalg.norm(r, axis=1).mean()
+    radius = np.linalg.norm(r, axis=1)
+    h = head[prey]
+    moving = radius > 0
+    out["milling"] = abs(((r[:, 0] * h[:, 1] - r[:, 1] * h[:, 0])[moving] / radius[moving]).sum()) / n
     d = np.linalg.norm(torus(p[:, None, :] - p[None, :, :], size), axis=-1)  # [n, n]
     np.fill_diagonal(d, np.inf)
+    linked = d < link
+    alignments = [np.linalg.norm(h[a] + h[linked[a]].sum(axis=0)) / (1 + linked[a].sum())
+                  for a in range(n) if linked[a].any()]
+    out["local_alignment"] = float(np.mean(alignments)) if alignments else math.nan
     nn = np.full(Pc, -1.0)
     if n > 1:
         nn[prey] = d.min(axis=1)
@@ -151,6 +161,12 @@ def test_aligned_and_opposite_headings(device):
     values = SwarmMetrics(env).compute()
     assert float(values["polarization"][0]) == pytest.approx(1.0, abs=1e-6)
     assert float(values["polarization"][1]) == pytest.approx(0.0, abs=1e-6)
+    # Two groups far apart, each aligned, heading opposite ways: no global order, full local order.
+    left = [[100.0 + 10 * k, 200.0] for k in range(4)]
+    set_prey(env, left + [[400.0 + 10 * k, 500.0] for k in range(4)], unit([0.3] * 4 + [0.3 + np.pi] * 4))
+    values = check_world(SwarmMetrics(env, linking_distance=50.0), 0)
+    assert float(values["polarization"][0]) == pytest.approx(0.0, abs=1e-6)
+    assert float(values["local_alignment"][0]) == pytest.approx(1.0, abs=1e-6)
 
 
 def test_two_clusters_across_the_seam(device):
@@ -197,6 +213,14 @@ def test_ring(device, center):
     assert float(values["groups"][0]) == 1  # neighbours 77.6 px apart, linked at 80
     hist = values["nn_histogram"][0].cpu().numpy()
     assert hist.sum() == n and hist[int(spacing / metrics.bin_width)] == n
+    # A mill: every prey turns the same way round the centre (milling 1), and each one's two linked
+    # neighbours head 30 degrees either side of it: |h + 2 cos(30) h| / 3.
+    assert float(values["milling"][0]) == pytest.approx(1.0, abs=1e-5)
+    assert float(values["local_alignment"][0]) == pytest.approx((1 + 2 * math.cos(math.pi / 6)) / 3, rel=1e-5)
+    set_prey(env, pos, -tangent, predator_pos=[[center[0], (center[1] + 400.0) % 800.0]])  # the other way round
+    assert float(check_world(metrics, 0)["milling"][0]) == pytest.approx(1.0, abs=1e-5)
+    set_prey(env, pos, unit(phi), predator_pos=[[center[0], (center[1] + 400.0) % 800.0]])  # all facing out
+    assert float(check_world(metrics, 0)["milling"][0]) == pytest.approx(0.0, abs=1e-5)
     values = SwarmMetrics(env, linking_distance=75.0).compute()
     assert float(values["groups"][0]) == n  # not linked at 75
 
