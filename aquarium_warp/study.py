@@ -155,10 +155,7 @@ class SwarmSizeStudy:
         base = AquariumConfig()
         for agent_type, name in (("prey", self.prey_policy), ("predator", self.predator_policy)):
             if not is_heuristic(name, agent_type) and is_policy_file(name):
-                from .training.config import env_config
-                from .training.export import policy_world
-
-                base = base.with_interface_of(env_config({"env": policy_world(name)}))
+                base = base.with_interface_of(trained_policy_world(name))
         fovs = self.fov_angles or [base.prey.fov_angle]
         views = self.view_distances or [base.prey.view_distance]
         out = []
@@ -193,6 +190,16 @@ class SwarmSizeStudy:
 # --------------------------------------------------------------------------------------------------
 # Policies
 # --------------------------------------------------------------------------------------------------
+def trained_policy_world(path: str) -> AquariumConfig:
+    """The world the policy file at `path` was trained in (from its metadata)."""
+    try:  # the training extra is optional
+        from .training.config import env_config
+        from .training.export import policy_world
+    except ImportError as error:
+        raise ValueError(f"trained policies need aquarium_warp.training (importing it failed: {error})") from error
+    return env_config({"env": policy_world(path)})
+
+
 def trained_policy(path: str, env: BatchedAquarium, agent_type: str):
     """The trained policy file at `path` (`aquarium_warp.training.export.load_policy`) acting for one agent
     type of every world: a `TrainedOpponent`, whose call returns int32 actions `[W, slots]` from the
