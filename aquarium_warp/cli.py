@@ -9,6 +9,8 @@ import os
 import sys
 import time
 
+from .atomic import check_output_dir, check_output_file
+
 
 def _int_at_least(low: int):
     """argparse type: an integer >= `low` (any size)."""
@@ -175,6 +177,7 @@ def _video(args) -> int:
     from .video import check_video_path, record
 
     check_video_path(args.out)  # before the world is built
+    check_output_file(args.out, "--out")
 
     cfg = _video_config(args)
     env = BatchedAquarium(cfg, num_worlds=1, device=args.device, seed=args.seed)
@@ -245,6 +248,7 @@ def _study_swarm_size(args) -> int:
         **_study_kwargs(args))
     print(f"aquarium-warp study swarm-size: prey {study.prey}, {study.seeds} seeds x {study.episodes_per_seed} "
           f"episode(s) of {study.episode_steps} steps, {study.prey_policy} vs {study.predator_policy} -> {study.out}")
+    check_output_dir(study.out, "--out")
     summary = run_swarm_size_study(study, progress=not args.no_progress, ray=ray)
     where = summary["machine"]["device_name"]
     if ray is not None:
@@ -269,6 +273,7 @@ def _study_fov_view(args) -> int:
                            kind="fov-view", **_study_kwargs(args))
     print(f"aquarium-warp study fov-view: {study.prey[0]} prey, FOV {fovs} x view {views}, {study.seeds} seeds, "
           f"episodes of {study.episode_steps} steps -> {study.out}")
+    check_output_dir(study.out, "--out")
     summary = run_swarm_size_study(study, progress=not args.no_progress)
     print(f"wrote {os.path.join(study.out, 'fov_view.csv')}, fov_view.json and {len(summary.get('figures', []))} "
           f"figure(s) in {summary['wall_time_s']:.1f} s on {summary['machine']['device_name']} ({summary['path']})")
@@ -366,6 +371,7 @@ def _study_group_hunting(args) -> int:
     print(f"aquarium-warp study group-hunting: predators {study.predators}, {study.prey} prey "
           f"({', '.join(study.prey_conditions)}), catch_share_radius {study.share_radii}, {study.seeds} seeds -> "
           f"{study.out}")
+    check_output_dir(study.out, "--out")
     summary = run_group_hunting(study, command_line(args.argv), _ray_options(args))
     print(f"{written(summary)} ({summary['training_fraction']:.0%} of the workers' time training)")
     return 0
@@ -385,6 +391,7 @@ def _study_many_eyes(args) -> int:
         device=args.device, jobs=args.jobs, out=args.out, figures=not args.no_figures)
     print(f"aquarium-warp study many-eyes: group sizes {study.group_sizes} x FOV {study.fov_angles}, "
           f"{study.seeds} seeds -> {study.out}")
+    check_output_dir(study.out, "--out")
     summary = run_many_eyes(study, command_line(args.argv), _ray_options(args))
     print(f"{written(summary)} ({summary['training_fraction']:.0%} of the workers' time training)")
     return 0
@@ -405,6 +412,7 @@ def _study_flow(args) -> int:
         seed=args.seed, device=args.device, out=args.out, figures=not args.no_figures)
     print(f"aquarium-warp study flow: {study.kinds} x strengths {study.strengths} px/step, {study.seeds} seeds x "
           f"{study.episodes_per_seed} episodes of {study.episode_steps} steps -> {study.out}")
+    check_output_dir(study.out, "--out")
     summary = run_flow(study, command_line(args.argv))
     print(written(summary))
     return 0
@@ -440,7 +448,7 @@ def _add_open_questions(kinds) -> None:
     p.add_argument("--sample-every", type=positive_int, default=10,
                    help="steps between the random-time states of the baselines (default 10)")
     p.add_argument("--no-baseline", action="store_true", help="no NaivChase teams")
-    _add_open_question_arguments(p, os.path.join("benchmarks", "results", "group_hunting"))
+    _add_open_question_arguments(p, "group_hunting")
     _add_ray_arguments(p, "training run (with its evaluations) or NaivChase baseline")
     p.set_defaults(run=_study_group_hunting)
 
@@ -471,7 +479,7 @@ def _add_open_questions(kinds) -> None:
                    help="degrees the prey must turn over --lag steps for a flight onset (default 30)")
     p.add_argument("--lag", type=positive_int, default=5, help="steps of a flight onset's turn (default 5)")
     p.add_argument("--no-turnaway", action="store_true", help="no TurnAway reference")
-    _add_open_question_arguments(p, os.path.join("benchmarks", "results", "many_eyes"))
+    _add_open_question_arguments(p, "many_eyes")
     _add_ray_arguments(p, "training run (with its evaluations)")
     p.set_defaults(run=_study_many_eyes)
 
@@ -502,7 +510,7 @@ def _add_open_questions(kinds) -> None:
                    help="px: fleeing needs the nearest predator this close (default 200)")
     p.add_argument("--metrics-every", type=positive_int, default=10, help="sample the swarm metrics every K steps")
     p.add_argument("--seed", type=non_negative_int, default=0, help="seed of the batched worlds")
-    _add_open_question_arguments(p, os.path.join("benchmarks", "results", "flow_study"), jobs=False)
+    _add_open_question_arguments(p, "flow_study", jobs=False)
     p.set_defaults(run=_study_flow)
 
 
@@ -634,6 +642,14 @@ def main(argv=None) -> int:
     except ValueError as error:
         print(f"aquarium-warp {args.command}: {error}", file=sys.stderr)
         return 2
+    except OSError as error:  # a full disk, a file that cannot be read or written: its path and the cause
+        from .atomic import describe_os_error
+
+        print(f"aquarium-warp {args.command}: {describe_os_error(error)}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:  # a second Ctrl-C in train, or one anywhere else: no traceback
+        print(f"aquarium-warp {args.command}: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

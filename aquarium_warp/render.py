@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from .atomic import atomic_open
 from .kernels import render as rk
 from .kernels.common import PREDATOR, PREY
 from .shard import WARP_SETUP_LOCK
@@ -246,7 +247,7 @@ def save_png(frame: np.ndarray, path) -> None:
         return _struct.pack(">I", len(data)) + tag + data + _struct.pack(">I", zlib.crc32(tag + data) & 0xFFFFFFFF)
 
     header = _struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)  # 8-bit RGB
-    with open(path, "wb") as f:
+    with atomic_open(path, "wb") as f:
         f.write(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(raw.tobytes(), 9))
                 + chunk(b"IEND", b""))
 

@@ -25,6 +25,7 @@ import shutil
 import time
 from dataclasses import dataclass
 
+from .atomic import atomic_open
 from .number_lists import parse_list
 from .ray_tasks import RayOptions, placement, run_tasks
 
@@ -164,5 +165,5 @@ def _report(record: dict) -> None:
 
 
 def _write_json(path: str, value: dict) -> None:
-    with open(path, "w", encoding="utf-8") as f:
+    with atomic_open(path) as f:
         json.dump(value, f, indent=1)

@@ -50,6 +50,7 @@ import warnings
 import numpy as np
 import torch
 
+from ..atomic import atomic_open, save_figure
 from ..config import AquariumConfig, _is_int
 from ..env import BatchedAquarium
 from ..heuristics import make_policy
@@ -246,13 +247,13 @@ def write_results(result: dict, out_dir: str) -> dict[str, str]:
              "episodes": os.path.join(out_dir, "episodes.json")}
     rows = result["summary"]
     if rows:
-        with open(paths["csv"], "w", newline="", encoding="utf-8") as f:
+        with atomic_open(paths["csv"], newline="") as f:
             writer = csv.DictWriter(f, fieldnames=list(rows[0]))
             writer.writeheader()
             writer.writerows(rows)
-    with open(paths["json"], "w", encoding="utf-8") as f:
+    with atomic_open(paths["json"]) as f:
         json.dump({"summary": rows, "protocol": result["protocol"]}, f, indent=1)
-    with open(paths["episodes"], "w", encoding="utf-8") as f:
+    with atomic_open(paths["episodes"]) as f:
         json.dump(result["episodes"], f)
     return paths
 
@@ -370,14 +371,14 @@ def write_cross_play(result: dict, out_dir: str) -> dict[str, str]:
     cp = result["cross_play"]
     paths["cross_play_csv"] = os.path.join(out_dir, "cross_play.csv")
     paths["cross_play_json"] = os.path.join(out_dir, "cross_play.json")
-    with open(paths["cross_play_csv"], "w", newline="", encoding="utf-8") as f:
+    with atomic_open(paths["cross_play_csv"], newline="") as f:
         writer = csv.writer(f)
         columns = [(m, s) for m in CROSS_PLAY_METRICS for s in ("mean", "std")]
         writer.writerow(["prey_policy", "predator_policy"] + [f"{m}_{s}" for m, s in columns])
         for i, a in enumerate(cp["prey"]):
             for j, b in enumerate(cp["predator"]):
                 writer.writerow([a, b] + [cp["matrices"][m][s][i][j] for m, s in columns])
-    with open(paths["cross_play_json"], "w", encoding="utf-8") as f:
+    with atomic_open(paths["cross_play_json"]) as f:
         json.dump({**cp, "rating": result.get("rating"), "protocol": result["protocol"]}, f, indent=1)
     return paths
 
@@ -410,7 +411,7 @@ def plot_distributions(result: dict, path: str) -> str:
     fig.suptitle(f"{result['protocol']['episodes']} episodes x {len(result['protocol']['seeds'])} seeds, "
                  f"{result['protocol']['max_steps']} steps")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
     plt.close(fig)
     return path
 
@@ -435,7 +436,7 @@ def plot_cross_play(result: dict, path: str, metric: str = "captures_per_prey") 
     protocol = result["protocol"]
     ax.set_title(f"{metric.replace('_', ' ')}: {protocol['episodes']} episodes x {len(protocol['seeds'])} seeds")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
     plt.close(fig)
     return path
 
@@ -521,6 +522,6 @@ def plot_training_curves(curves: dict[str, list[str]], path: str, smooth: int = 
         ax.grid(alpha=0.3)
         ax.legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
     plt.close(fig)
     return path

@@ -57,6 +57,7 @@ from rsl_rl.runners import OnPolicyRunner
 from rsl_rl.utils import resolve_callable
 from rsl_rl.utils.logger import Logger
 
+from ..atomic import atomic_open
 from ..env import BatchedAquarium
 from ..heuristics import POLICIES, make_policy
 from . import (
@@ -407,18 +408,9 @@ class AquariumRunner(OnPolicyRunner):
         elif self.is_distributed and self.gpu_global_rank != 0:
             return
         saved["infos"] = infos
-        # Atomic: written to a temporary file in the same folder, then renamed over `path`, so an
-        # interrupted save never leaves a truncated checkpoint under a checkpoint's name.
-        partial = f"{path}.{os.getpid()}.partial"
-        try:
-            with open(partial, "wb") as f:
-                torch.save(saved, f)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(partial, path)
-        finally:
-            if os.path.exists(partial):
-                os.remove(partial)
+        # Atomic: an interrupted save never leaves a truncated checkpoint under a checkpoint's name.
+        with atomic_open(path, "wb") as f:
+            torch.save(saved, f)
         self.logger.save_model(path, self.current_learning_iteration)
 
     def load(self, path: str, load_cfg: dict | None = None, strict: bool = True, map_location=None) -> dict:
@@ -549,7 +541,7 @@ class Trainer:
             if self.world_size > 1:  # rank r simulates with seed train.seed + r
                 record["distributed"] = {"world_size": self.world_size,
                                          "seeds": [int(train["seed"]) + r for r in range(self.world_size)]}
-            with open(os.path.join(log_dir, "config.json"), "w", encoding="utf-8") as f:
+            with atomic_open(os.path.join(log_dir, "config.json")) as f:
                 json.dump(record, f, indent=1, default=str)
         with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints the networks (config.json has them)
             self.runner = AquariumRunner(
@@ -660,7 +652,7 @@ class Trainer:
             if self.log_dir and self.rank == 0 and csv_path and os.path.isfile(csv_path):
                 with open(csv_path, newline="", encoding="utf-8") as f:
                     rows = [r for r in csv.DictReader(f) if int(r["iteration"]) < done]
-                with open(csv_path, "w", newline="", encoding="utf-8") as f:
+                with atomic_open(csv_path, newline="") as f:
                     writer = csv.DictWriter(f, fieldnames=CSV_FIELDS)
                     writer.writeheader()
                     writer.writerows(rows)
