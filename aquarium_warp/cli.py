@@ -550,7 +550,7 @@ def _add_sweep(sub) -> None:
                                      "another or as Ray tasks (--ray). A rerun with the same --out keeps the "
                                      "finished runs and resumes the started ones from their newest checkpoint. "
                                      "Every option of `aquarium-warp train` applies to each run (not --seed, "
-                                     "--log-dir, --resume).")
+                                     "--log-dir, --resume, --overwrite).")
     p.add_argument("--seeds", default="0", help="seeds: a comma list, '...' continues it (default 0)")
     p.add_argument("--vary", action="append", default=[], metavar="KEY=V1,V2,...",
                    help="a setting to sweep, as `train --set KEY=VALUE` takes it, e.g. "
@@ -647,9 +647,9 @@ def main(argv=None) -> int:
 
         print(f"aquarium-warp {args.command}: {describe_os_error(error)}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:  # a second Ctrl-C in train, or one anywhere else: no traceback
-        print(f"aquarium-warp {args.command}: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as error:  # Ctrl-C (train: `training/stop.py`'s Stopped, saying how to resume)
+        print(f"aquarium-warp {args.command}: {error or 'interrupted'}", file=sys.stderr)
+        return getattr(error, "exit_code", 130)
 
 
 if __name__ == "__main__":

@@ -80,6 +80,9 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--log-dir", default=None, help="run directory (default: runs/<team>_<sharing>_<time>)")
     g.add_argument("--resume", default=None, metavar="PATH",
                    help="continue a run from a checkpoint model_<i>.pt or the newest one in a run directory")
+    g.add_argument("--overwrite", action="store_true",
+                   help="start a new run in a --log-dir that holds an earlier one, removing its checkpoints, logs "
+                        "and exports (default: such a directory is refused)")
     g.add_argument("--export", default=None, help="formats exported after training: 'jit,onnx' (default), 'none'")
     g.add_argument("--quiet", action="store_true", default=None,
                    help="a progress bar instead of rsl-rl's per-iteration report")
@@ -202,11 +205,17 @@ def _silent(*args, **kwargs) -> None:
 
 
 def run_train(args) -> int:
-    from .config import deep_update, load_config_file, make_config, parse_assignment, team_settings, total_iterations
+    from .config import deep_update, make_config, parse_assignment, team_settings, total_iterations
+    from .run_dir import claim_run_directory
     from .trainer import Trainer
 
     changes = _train_changes(args)
     sets = [parse_assignment(s) for s in args.set]
+    if args.resume and args.overwrite:
+        raise ValueError("--overwrite starts a new run; --resume continues one: give one of them")
+    # torchrun: rank 0 owns the run directory (the other ranks write nothing there)
+    owner = int(os.environ.get("RANK", "0")) == 0
+    run_dir = None
     if args.resume:
         given = {k: v for k, v in changes.items() if k != "train"}
         given_train = {k for k in changes.get("train", {})
@@ -214,13 +223,18 @@ def run_train(args) -> int:
         if given or given_train or sets or args.config or args.preset or args.prey_policy or args.predator_policy:
             raise ValueError("--resume continues a run with its saved config: only --iterations, --episodes, "
                              "--export, --quiet, --video-every and --video-steps may be given with it")
-        trainer = Trainer.resume(args.resume, log_dir=args.log_dir, changes={"train": changes.get("train", {})})
+        log_dir = args.log_dir
+        if log_dir is None and os.path.exists(args.resume):  # the checkpoint's run (Trainer.resume's default)
+            log_dir = args.resume if os.path.isdir(args.resume) else os.path.dirname(os.path.abspath(args.resume))
+        if owner and log_dir is not None:
+            run_dir = claim_run_directory(log_dir, resume=True)
+        trainer = Trainer.resume(args.resume, log_dir=log_dir, changes={"train": changes.get("train", {})})
         _check_logger_package(trainer.config["runner"]["logger"])
         say = print if trainer.rank == 0 else _silent
         say(f"aquarium-warp train: resumed {args.resume} at iteration {trainer.iteration} of "
             f"{trainer.total_iterations} (log dir {trainer.log_dir})")
     else:
-        file_cfg = load_config_file(args.config) if args.config else {}
+        file_cfg = _read_config_file(args.config) if args.config else {}
         # Popped whether or not --preset overrides it: "preset" is no config section.
         file_preset = file_cfg.pop("preset", None)
         preset = args.preset or file_preset or "default"
@@ -235,6 +249,8 @@ def run_train(args) -> int:
         log_dir = args.log_dir or os.path.join(
             "runs", f"{config['train']['team']}_{config['train']['sharing']}_{time.strftime('%Y%m%d-%H%M%S')}")
         _check_logger_package(config["runner"]["logger"])
+        if owner:
+            run_dir = claim_run_directory(log_dir, overwrite=args.overwrite)
         trainer = Trainer(config, log_dir=log_dir)
         learners = " and ".join(f"{t} ({team_settings(config, t)['sharing']} sharing, {trainer.vec_envs[t].slots} "
                                 f"slots)" for t in trainer.teams)
@@ -243,17 +259,64 @@ def run_train(args) -> int:
         ranks = f" (x{trainer.world_size} processes)" if trainer.world_size > 1 else ""
         say(f"aquarium-warp train: {learners}{against} on {trainer.env.device}, {trainer.env.num_worlds} "
             f"worlds{ranks}, {total_iterations(config)} iterations -> {log_dir}")
-    start = time.perf_counter()
+    try:
+        _train_and_export(trainer, say)
+    finally:
+        trainer.close()
+        if run_dir is not None:
+            run_dir.release()
+    return 0
+
+
+def _train_and_export(trainer, say) -> None:
+    """Train the rest of the run and export it; on SIGINT or SIGTERM (`stop.py`) the run stops at an
+    iteration boundary, checkpointed and exported, and `Stopped` says how to resume."""
+    from .stop import Stopped
+
+    start, first = time.perf_counter(), trainer.iteration
     trainer.train()
+    ran = trainer.iteration - first
     # torchrun: the ranks hold the same parameters; rank 0 exports them.
     paths = trainer.export() if trainer.config["train"]["export"] and trainer.rank == 0 else {}
-    say(f"aquarium-warp train: {trainer.iteration} iterations done in {time.perf_counter() - start:.1f} s; "
-        f"checkpoints, progress CSV and TensorBoard logs in {trainer.log_dir}")
+    resumed = f", resumed at {first}" if first else ""
+    if ran == 0:
+        say(f"aquarium-warp train: no iterations to run ({trainer.iteration} of {trainer.total_iterations} done"
+            f"{resumed}); no checkpoint written, run config in {trainer.log_dir}")
+    else:
+        say(f"aquarium-warp train: {_plural(ran, 'iteration')} in {time.perf_counter() - start:.1f} s "
+            f"({trainer.iteration} of {trainer.total_iterations} done{resumed}); checkpoints, progress CSV and "
+            f"TensorBoard logs in {trainer.log_dir}")
     for key, value in paths.items():
         for fmt, path in (value.items() if isinstance(value, dict) else [(key, value)]):
             say(f"  exported {fmt}: {path}")
-    trainer.close()
-    return 0
+    if trainer.stop.signum is not None:
+        raise Stopped(f"stopped by {trainer.stop.name} after iteration {trainer.iteration} of "
+                      f"{trainer.total_iterations}; continue with: aquarium-warp train --resume {trainer.log_dir}",
+                      trainer.stop.signum)
+
+
+def _plural(count: int, noun: str) -> str:
+    return f"{count} {noun}{'' if count == 1 else 's'}"
+
+
+def _read_config_file(path: str) -> dict:
+    """`load_config_file`, its failures one line naming --config, the path and the cause."""
+    from .config import load_config_file
+
+    try:
+        from yaml import YAMLError
+    except ImportError:  # without PyYAML a .yaml file is refused by load_config_file's import
+        YAMLError = ValueError
+    try:
+        return load_config_file(path)
+    except OSError as error:
+        raise ValueError(f"--config {path}: cannot read it ({error.strerror or error})") from None
+    except ValueError as error:  # json.JSONDecodeError is one; our own messages name the path already
+        message = str(error) if str(error).startswith(path) else f"--config {path}: not valid JSON ({error})"
+        raise ValueError(message) from None
+    except YAMLError as error:
+        first = (str(error).strip().splitlines() or [""])[0]
+        raise ValueError(f"--config {path}: not valid YAML ({type(error).__name__}: {first})") from None
 
 
 # ---------------------------------------------------------------------------------------------- eval

@@ -58,7 +58,7 @@ from rsl_rl.utils import resolve_callable
 from rsl_rl.utils.logger import Logger
 
 from ..atomic import atomic_open
-from ..env import BatchedAquarium
+from ..env import BatchedAquarium, resolve_device
 from ..heuristics import POLICIES, make_policy
 from . import (
     _rsl,  # noqa: F401
@@ -77,6 +77,8 @@ from .config import (
 )
 from .export import RecurrentOpponent, export_policy, load_policy, policy_from_actor, policy_meta
 from .loop import TrainingLoop
+from .memory import check_training_memory
+from .stop import StopRequest
 from .vec_env import OTHER, AquariumVecEnv, LearnerActions, TrainedOpponent
 
 CSV_FIELDS = ["iteration", "agent_steps", "world_steps", "world_episodes", "episodes_logged", "captures",
@@ -381,6 +383,8 @@ class AquariumRunner(OnPolicyRunner):
                 log(*pending)  # a checkpoint's progress.csv holds its own iteration
                 pending = None
                 self.save(os.path.join(self.logger.log_dir, f"model_{it}.pt"))
+            if self.trainer is not None and self.trainer.stop.signum is not None:
+                break  # SIGINT or SIGTERM: the final checkpoint below holds this iteration
         if pending is not None:
             log(*pending)
         if saves:
@@ -496,6 +500,7 @@ class Trainer:
             train["opponent"] = default_opponent(train["team"])
         self.config = config
         self.log_dir = log_dir
+        self.stop = StopRequest()
         # torchrun: one process (rank) per GPU or CPU share, each with its own worlds and seed.
         self.rank, local_rank, self.world_size = distributed.world()
         if self.world_size > 1 and train["loop"] == "rsl-rl":
@@ -506,6 +511,7 @@ class Trainer:
         np.random.seed(self.seed % 2**32)
         random.seed(self.seed)
 
+        check_training_memory(config, resolve_device(device))  # the whole run, before anything is allocated
         self.env = BatchedAquarium(env_config(config), num_worlds=train["num_worlds"], device=device,
                                    seed=self.seed)
         self.device = self.env.torch_device
@@ -668,8 +674,13 @@ class Trainer:
         if iterations is None:
             iterations = self.total_iterations - self.iteration
         fresh = self.iteration == 0
-        self.runner.learn(iterations,
-                          init_at_random_ep_len=fresh and bool(self.config["train"]["init_at_random_ep_len"]))
+        # Our loop stops at an iteration boundary on SIGINT or SIGTERM (`stop.py`); rsl-rl's cannot, and
+        # torchrun's ranks could see a signal at different iterations (their all-reduces would wait forever).
+        graceful = self.runner.loop_kind == "fast" and self.world_size == 1
+        catching = self.stop.catching() if graceful else contextlib.nullcontext()
+        with catching:
+            self.runner.learn(iterations,
+                              init_at_random_ep_len=fresh and bool(self.config["train"]["init_at_random_ep_len"]))
 
     def learning(self, iteration: int) -> list[bool] | None:
         """Which learners update in `iteration` (None: all). Alternating schedule: the teams take turns
