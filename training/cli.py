@@ -12,6 +12,7 @@ import math
 import os
 import time
 
+from ..atomic import check_output_dir
 from ..cli import _int_at_least
 from .config import ALGORITHM_RANGES
 
@@ -354,9 +355,9 @@ def add_eval_arguments(p: argparse.ArgumentParser) -> None:
 def run_eval(args) -> int:
     from .evaluate import evaluate_policies, plot_distributions, plot_training_curves, write_results
 
+    check_output_dir(args.out, "--out")  # before any episode runs
     if args.cross_play:
         return run_cross_play(args)
-    os.makedirs(args.out, exist_ok=True)
     outputs = []
     curves: dict[str, list[str]] = {}
     for item in args.curves:
