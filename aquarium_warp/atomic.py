@@ -129,7 +129,7 @@ def describe_os_error(error: OSError) -> str:
     return f"{error.filename}: {os_error_cause(error)}" if error.filename is not None else os_error_cause(error)
 
 
-def save_figure(fig, path, **kwargs) -> str:
+def write_figure(fig, path, **kwargs) -> str:
     """`fig.savefig(path, **kwargs)`, atomically; returns the path."""
     with atomic_path(path) as partial:
         fig.savefig(partial, **kwargs)

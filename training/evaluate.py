@@ -50,7 +50,7 @@ import warnings
 import numpy as np
 import torch
 
-from ..atomic import atomic_open, save_figure
+from ..atomic import atomic_open, write_figure
 from ..config import AquariumConfig, _is_int
 from ..env import BatchedAquarium
 from ..heuristics import make_policy
@@ -411,7 +411,7 @@ def plot_distributions(result: dict, path: str) -> str:
     fig.suptitle(f"{result['protocol']['episodes']} episodes x {len(result['protocol']['seeds'])} seeds, "
                  f"{result['protocol']['max_steps']} steps")
     fig.tight_layout()
-    save_figure(fig, path, dpi=120)
+    write_figure(fig, path, dpi=120)
     plt.close(fig)
     return path
 
@@ -436,7 +436,7 @@ def plot_cross_play(result: dict, path: str, metric: str = "captures_per_prey") 
     protocol = result["protocol"]
     ax.set_title(f"{metric.replace('_', ' ')}: {protocol['episodes']} episodes x {len(protocol['seeds'])} seeds")
     fig.tight_layout()
-    save_figure(fig, path, dpi=120)
+    write_figure(fig, path, dpi=120)
     plt.close(fig)
     return path
 
@@ -522,6 +522,6 @@ def plot_training_curves(curves: dict[str, list[str]], path: str, smooth: int = 
         ax.grid(alpha=0.3)
         ax.legend()
     fig.tight_layout()
-    save_figure(fig, path, dpi=120)
+    write_figure(fig, path, dpi=120)
     plt.close(fig)
     return path

@@ -24,7 +24,7 @@ from multiprocessing import get_context
 import numpy as np
 import torch
 
-from ..atomic import atomic_open, save_figure
+from ..atomic import atomic_open, write_figure
 from ..bench.machine import machine_info
 from ..config import AquariumConfig
 from ..env import BatchedAquarium, resolve_device
@@ -420,6 +420,6 @@ def save_figure(fig, out: str, name: str, title: str) -> str:
     fig.suptitle(f"{title}\n({BAND})", fontsize=9)
     fig.tight_layout()
     path = os.path.join(out, name)
-    save_figure(fig, path, dpi=110)
+    write_figure(fig, path, dpi=110)
     pyplot().close(fig)
     return path

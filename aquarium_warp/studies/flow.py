@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..atomic import save_figure
+from ..atomic import write_figure
 from ..config import AquariumConfig, FlowConfig
 from ..env import resolve_device
 from ..number_lists import check_distinct
@@ -264,7 +264,7 @@ def plot_flow(summary: dict, out: str) -> list[str]:
                  "current, whose angle is uniform in 2D)", fontsize=9)
     fig.tight_layout()
     path = os.path.join(out, "flow_escape_angles.png")
-    save_figure(fig, path, dpi=110)
+    write_figure(fig, path, dpi=110)
     plt.close(fig)
     return paths + [path]
 
