@@ -25,7 +25,9 @@ thread per arrow, with `draw_flow`) and, for `render()`, one copy of the image t
 from __future__ import annotations
 
 import math
+import os
 import struct as _struct
+import sys
 import weakref
 import zlib
 from typing import Any
@@ -267,8 +269,14 @@ class Window:
             import pygame
         except ImportError as error:  # an optional dependency
             raise ImportError("Window needs pygame: pip install 'aquarium-warp[video]'") from error
+        # Without a display SDL prints its probing errors and falls back to a driver that shows nothing
+        # (a driver asked for by name, SDL_VIDEODRIVER=dummy in the tests, is taken as meant).
+        if sys.platform.startswith("linux") and not any(
+                os.environ.get(v) for v in ("DISPLAY", "WAYLAND_DISPLAY", "SDL_VIDEODRIVER")):
+            raise RuntimeError("a window needs a display, and none was found (DISPLAY and WAYLAND_DISPLAY are "
+                               "unset): draw frames with render_mode='rgb_array' or write a video instead")
         self._pygame = pygame
-        pygame.init()
+        pygame.display.init()  # the display only: pygame.init() also opens audio (ALSA's lines on stderr)
         self._screen = pygame.display.set_mode((int(width_px), int(height_px)))
         pygame.display.set_caption(caption)
         self._clock = pygame.time.Clock()
