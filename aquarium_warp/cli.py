@@ -27,6 +27,11 @@ def _int_at_least(low: int):
     return parse
 
 
+def plural(count: int, noun: str) -> str:
+    """"1 predator", "3 predators" (nouns with a plain -s plural)."""
+    return f"{count} {noun}{'' if count == 1 else 's'}"
+
+
 positive_int = _int_at_least(1)
 non_negative_int = _int_at_least(0)  # seeds: any size
 
@@ -183,8 +188,9 @@ def _video(args) -> int:
     env = BatchedAquarium(cfg, num_worlds=1, device=args.device, seed=args.seed)
     prey = _policy_driver(args.prey_policy, env, "prey", args.seed)
     predator = _policy_driver(args.predator_policy, env, "predator", args.seed)
-    print(f"aquarium-warp video: {cfg.prey_count} prey ({args.prey_policy}) and {cfg.predator_count} predators "
-          f"({args.predator_policy}) on {env.device}, {args.steps} steps -> {args.out}")
+    print(f"aquarium-warp video: {cfg.prey_count} prey ({args.prey_policy}) and "
+          f"{plural(cfg.predator_count, 'predator')} ({args.predator_policy}) on {env.device}, {args.steps} steps "
+          f"-> {args.out}")
     start = time.perf_counter()
     frames = record(env, lambda obs: {"prey": prey(), "predator": predator()}, args.steps, args.out,
                     fps=args.fps, progress=not args.no_progress, width_px=args.frame_width,

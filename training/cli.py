@@ -11,9 +11,10 @@ import importlib.util
 import math
 import os
 import time
+import warnings
 
 from ..atomic import check_output_dir
-from ..cli import _int_at_least
+from ..cli import _int_at_least, plural
 from .config import ALGORITHM_RANGES
 
 PRESET_NAMES = ("default", "paper", "tiny")
@@ -284,7 +285,7 @@ def _train_and_export(trainer, say) -> None:
         say(f"aquarium-warp train: no iterations to run ({trainer.iteration} of {trainer.total_iterations} done"
             f"{resumed}); no checkpoint written, run config in {trainer.log_dir}")
     else:
-        say(f"aquarium-warp train: {_plural(ran, 'iteration')} in {time.perf_counter() - start:.1f} s "
+        say(f"aquarium-warp train: {plural(ran, 'iteration')} in {time.perf_counter() - start:.1f} s "
             f"({trainer.iteration} of {trainer.total_iterations} done{resumed}); checkpoints, progress CSV and "
             f"TensorBoard logs in {trainer.log_dir}")
     for key, value in paths.items():
@@ -294,10 +295,6 @@ def _train_and_export(trainer, say) -> None:
         raise Stopped(f"stopped by {trainer.stop.name} after iteration {trainer.iteration} of "
                       f"{trainer.total_iterations}; continue with: aquarium-warp train --resume {trainer.log_dir}",
                       trainer.stop.signum)
-
-
-def _plural(count: int, noun: str) -> str:
-    return f"{count} {noun}{'' if count == 1 else 's'}"
 
 
 def _read_config_file(path: str) -> dict:
@@ -370,7 +367,7 @@ def run_eval(args) -> int:
         predator = args.predator if args.predator is not None else ["naivchase"]
         env = _eval_world(args, prey + predator)
         print(f"aquarium-warp eval: {len(prey)} prey x {len(predator)} predator policies, {args.episodes} episodes "
-              f"x {len(args.seeds)} seeds, {env.prey_count} prey, {env.predator_count} predators, "
+              f"x {len(args.seeds)} seeds, {env.prey_count} prey, {plural(env.predator_count, 'predator')}, "
               f"{env.max_steps} steps")
         start = time.perf_counter()
         result = evaluate_policies(prey, predator, env, episodes=args.episodes, seeds=args.seeds,
@@ -387,8 +384,12 @@ def run_eval(args) -> int:
         if not args.no_figures:
             outputs.append(plot_distributions(result, os.path.join(args.out, "distributions.png")))
     if curves and not args.no_figures:
-        outputs.append(plot_training_curves(curves, os.path.join(args.out, "training_curves.png"),
-                                            smooth=args.smooth))
+        with warnings.catch_warnings(record=True) as notes:  # e.g. why a curve is empty
+            warnings.simplefilter("always")
+            outputs.append(plot_training_curves(curves, os.path.join(args.out, "training_curves.png"),
+                                                smooth=args.smooth))
+        for note in notes:
+            print(f"  note: {note.message}")
     for path in outputs:
         print(f"  wrote {path}")
     return 0
@@ -425,8 +426,8 @@ def run_cross_play(args) -> int:
     predator = expand_specs(args.predator or ["naivchase", NO_CONFUSION, "random"])
     env = _eval_world(args, prey + predator)
     print(f"aquarium-warp eval --cross-play: {len(prey)} prey x {len(predator)} predator policies, "
-          f"{args.episodes} episodes x {len(args.seeds)} seeds, {env.prey_count} prey, {env.predator_count} "
-          f"predators, {env.max_steps} steps")
+          f"{args.episodes} episodes x {len(args.seeds)} seeds, {env.prey_count} prey, "
+          f"{plural(env.predator_count, 'predator')}, {env.max_steps} steps")
     start = time.perf_counter()
     result = cross_play(prey, predator, env, episodes=args.episodes, seeds=args.seeds, device=args.device,
                         max_worlds=args.max_worlds, deterministic=not args.stochastic)

@@ -417,7 +417,8 @@ def plot_distributions(result: dict, path: str) -> str:
 
 
 def plot_cross_play(result: dict, path: str, metric: str = "captures_per_prey") -> str:
-    """Heatmap of a cross-play matrix (prey rows, predator columns), each cell `mean +- std` over seeds."""
+    """Heatmap of a cross-play matrix (prey rows, predator columns), each cell `mean +- std` over seeds
+    (the mean alone with one seed)."""
     plt = _pyplot()
     cp = result["cross_play"]
     mean, std = np.array(cp["matrices"][metric]["mean"]), np.array(cp["matrices"][metric]["std"])
@@ -429,11 +430,14 @@ def plot_cross_play(result: dict, path: str, metric: str = "captures_per_prey") 
     ax.set_xlabel("predator policy")
     ax.set_ylabel("prey policy")
     middle = (np.nanmax(mean) + np.nanmin(mean)) / 2
+    protocol = result["protocol"]
+    several = len(protocol["seeds"]) > 1
     for i in range(mean.shape[0]):
         for j in range(mean.shape[1]):
-            ax.text(j, i, f"{mean[i, j]:.3g}\n± {std[i, j]:.2g}", ha="center", va="center", fontsize=8,
+            # one seed has no spread: its std of 0 would read as a measured one
+            text = f"{mean[i, j]:.3g}" + (f"\n± {std[i, j]:.2g}" if several else "")
+            ax.text(j, i, text, ha="center", va="center", fontsize=8,
                     color="black" if mean[i, j] > middle else "white")
-    protocol = result["protocol"]
     ax.set_title(f"{metric.replace('_', ' ')}: {protocol['episodes']} episodes x {len(protocol['seeds'])} seeds")
     fig.tight_layout()
     write_figure(fig, path, dpi=120)
@@ -499,6 +503,7 @@ def plot_training_curves(curves: dict[str, list[str]], path: str, smooth: int = 
     smoothed by a trailing moving average over `smooth` iterations."""
     plt = _pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    empty: list[str] = []  # labels of which no run logged an ended episode (nothing to draw)
     for label, patterns in curves.items():
         runs = sorted({d for p in patterns for d in (glob.glob(p) or [p])
                        if os.path.isdir(d) or (d.endswith(".csv") and os.path.isfile(d))})
@@ -515,6 +520,13 @@ def plot_training_curves(curves: dict[str, list[str]], path: str, smooth: int = 
             ok = ~np.isnan(mean)
             line, = ax.plot(x[ok], mean[ok], label=f"{label} ({len(runs)} run{'s' if len(runs) > 1 else ''})")
             ax.fill_between(x[ok], (mean - std)[ok], (mean + std)[ok], color=line.get_color(), alpha=0.2)
+            if not ok.any() and metric == "captures_per_prey":  # said once per label
+                empty.append(label)
+    if empty:
+        note = (f"no episode ended in the runs of {', '.join(map(repr, empty))} ({n} iteration(s) logged; an "
+                "episode lasts env.max_steps steps): their curves are empty; train longer")
+        warnings.warn(note, stacklevel=2)
+        fig.text(0.5, 0.01, note, ha="center", va="bottom", fontsize=8, wrap=True)
     axes[0].set_title("captures per prey per episode")
     axes[1].set_title("reward per agent per episode (learning team)")
     for ax in axes:
