@@ -49,6 +49,10 @@ def atomic_path(path) -> Iterator[str]:
         yield partial
         _fsync(partial)
         os.replace(partial, path)
+    except OSError as error:
+        if error.filename != partial:
+            raise
+        raise OSError(error.errno, error.strerror, path) from None  # the file asked for, not its temporary name
     finally:
         with contextlib.suppress(FileNotFoundError):
             os.remove(partial)

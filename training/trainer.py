@@ -41,6 +41,7 @@ import contextlib
 import copy
 import csv
 import datetime
+import errno
 import glob
 import io
 import json
@@ -414,7 +415,11 @@ class AquariumRunner(OnPolicyRunner):
         saved["infos"] = infos
         # Atomic: an interrupted save never leaves a truncated checkpoint under a checkpoint's name.
         with atomic_open(path, "wb") as f:
-            torch.save(saved, f)
+            try:
+                torch.save(saved, f)
+            except RuntimeError as error:  # torch's zip writer reports a failed write (a full disk) so
+                reason = (str(error).strip().splitlines() or [""])[0][:200]
+                raise OSError(errno.EIO, f"writing the checkpoint failed ({reason})", path) from None
         self.logger.save_model(path, self.current_learning_iteration)
 
     def load(self, path: str, load_cfg: dict | None = None, strict: bool = True, map_location=None) -> dict:
