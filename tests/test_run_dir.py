@@ -156,5 +156,6 @@ def test_no_iterations_run_says_so(tmp_path, capsys, one_thread):
     run = str(tmp_path / "run")
     assert main(["train", *TINY, "--iterations", "0", "--log-dir", run]) == 0
     last = capsys.readouterr().out.strip().splitlines()[-1]
-    assert last == f"aquarium-warp train: no iterations to run (0 of 0 done); no checkpoint written, run config in {run}"
+    assert last == ("aquarium-warp train: no iterations to run (0 of 0 done); no checkpoint written, run config in "
+                    f"{run}")
     assert not [n for n in os.listdir(run) if n.startswith("model_")]
