@@ -1,6 +1,6 @@
 """Atomic output files and output locations checked up front: the one helper every writer uses.
 
-A file is written under a temporary name in its own folder (`<name>.<pid>.partial<ext>`: the extension
+A file is written under a temporary name in its own folder (`.<name>.<pid>.partial<ext>`: the extension
 stays last, so ffmpeg and matplotlib still pick the format from it), flushed to disk, then renamed over
 its final name. A full disk or a kill leaves the previous file, or none, never a truncated one; the
 partial file of a failed write is removed, and those of dead processes when a folder is checked.
@@ -26,9 +26,11 @@ _PARTIAL = re.compile(r"\.(\d+)\.partial(\.[^./]*)?$")
 
 
 def partial_name(path: str) -> str:
-    """The temporary name `path` is written under by this process."""
-    root, ext = os.path.splitext(os.fspath(path))
-    return f"{root}.{os.getpid()}.partial{ext}"
+    """The temporary name `path` is written under by this process: hidden (a leading dot), so that
+    globs such as `run/model_*.pt` never take a file being written for a finished one."""
+    folder, name = os.path.split(os.fspath(path))
+    root, ext = os.path.splitext(name)
+    return os.path.join(folder, f".{root}.{os.getpid()}.partial{ext}")
 
 
 def _fsync(path: str) -> None:

@@ -6,7 +6,9 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import signal
 import sys
+import threading
 import time
 
 from .atomic import check_output_dir, check_output_file
@@ -25,6 +27,20 @@ def _int_at_least(low: int):
         return value
 
     return parse
+
+
+class Interrupted(KeyboardInterrupt):
+    """A signal that ended a command early: the message to print and the shell's exit code for it
+    (128 + the signal's number)."""
+
+    def __init__(self, message: str, signum: int):
+        super().__init__(message)
+        self.exit_code = 128 + signum
+
+
+def _terminated(signum, frame) -> None:
+    """SIGTERM as Ctrl-C: the command unwinds (partial files removed) instead of vanishing."""
+    raise Interrupted("terminated (SIGTERM)", signum)
 
 
 def plural(count: int, noun: str) -> str:
@@ -643,6 +659,8 @@ def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)  # the command as given (the studies record it)
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _terminated) if main_thread else None
     try:
         return args.run(args)
     except ValueError as error:
@@ -653,9 +671,12 @@ def main(argv=None) -> int:
 
         print(f"aquarium-warp {args.command}: {describe_os_error(error)}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt as error:  # Ctrl-C (train: `training/stop.py`'s Stopped, saying how to resume)
-        print(f"aquarium-warp {args.command}: {error or 'interrupted'}", file=sys.stderr)
+    except KeyboardInterrupt as error:  # Ctrl-C, SIGTERM (train: Interrupted says how to resume)
+        print(f"aquarium-warp {args.command}: {str(error) or 'interrupted'}", file=sys.stderr)
         return getattr(error, "exit_code", 130)
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

@@ -55,8 +55,8 @@ def test_a_failed_write_leaves_the_previous_file_and_no_partial(tmp_path, monkey
 def test_partial_files_of_dead_processes_are_removed_when_a_folder_is_checked(tmp_path):
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
     pid = int(dead.stdout)
-    stale = tmp_path / f"video.{pid}.partial.mp4"
-    mine = tmp_path / f"figure.{os.getpid()}.partial.png"
+    stale = tmp_path / f".video.{pid}.partial.mp4"
+    mine = tmp_path / f".figure.{os.getpid()}.partial.png"
     for p in (stale, mine, tmp_path / "notes.partial.txt"):
         p.write_text("x")
     atomic.check_output_dir(str(tmp_path), "--out")

@@ -14,7 +14,7 @@ import time
 import warnings
 
 from ..atomic import check_output_dir
-from ..cli import _int_at_least, plural
+from ..cli import Interrupted, _int_at_least, plural
 from .config import ALGORITHM_RANGES
 
 PRESET_NAMES = ("default", "paper", "tiny")
@@ -272,9 +272,7 @@ def run_train(args) -> int:
 
 def _train_and_export(trainer, say) -> None:
     """Train the rest of the run and export it; on SIGINT or SIGTERM (`stop.py`) the run stops at an
-    iteration boundary, checkpointed and exported, and `Stopped` says how to resume."""
-    from .stop import Stopped
-
+    iteration boundary, checkpointed and exported, and `Interrupted` says how to resume."""
     start, first = time.perf_counter(), trainer.iteration
     trainer.train()
     ran = trainer.iteration - first
@@ -292,7 +290,7 @@ def _train_and_export(trainer, say) -> None:
         for fmt, path in (value.items() if isinstance(value, dict) else [(key, value)]):
             say(f"  exported {fmt}: {path}")
     if trainer.stop.signum is not None:
-        raise Stopped(f"stopped by {trainer.stop.name} after iteration {trainer.iteration} of "
+        raise Interrupted(f"stopped by {trainer.stop.name} after iteration {trainer.iteration} of "
                       f"{trainer.total_iterations}; continue with: aquarium-warp train --resume {trainer.log_dir}",
                       trainer.stop.signum)
 

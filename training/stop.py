@@ -1,5 +1,6 @@
 """Ctrl-C and SIGTERM during training: the run stops at the next iteration boundary, where the trainer
-writes a checkpoint (and the export) and says how to resume; a second signal stops at once.
+writes a checkpoint (and the export) and says how to resume (`aquarium_warp.cli.Interrupted`); a
+second signal stops at once.
 
 Signal handlers can only be set from the main thread: elsewhere (a Ray worker's thread, a study's
 thread pool) the signals keep their default behaviour.
@@ -13,15 +14,6 @@ import sys
 import threading
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
-
-
-class Stopped(KeyboardInterrupt):
-    """Raised after a run stopped early on a signal and saved its state; `exit_code` is the shell's
-    convention for the signal (128 + its number)."""
-
-    def __init__(self, message: str, signum: int):
-        super().__init__(message)
-        self.exit_code = 128 + signum
 
 
 class StopRequest:
