@@ -100,6 +100,8 @@ def check_output_dir(path, option: str) -> str:
     it, before any long work: a one-line ValueError naming the option, the path and the cause.
     Stale partial files of dead processes are removed. Returns the path."""
     path = os.fspath(path)
+    if not path:
+        raise ValueError(f"{option} is empty: give a folder")
     try:
         os.makedirs(path, exist_ok=True)
         with tempfile.TemporaryFile(dir=path):
@@ -114,6 +116,8 @@ def check_output_file(path, option: str) -> str:
     """`check_output_dir` for the folder of the file `path` (which must exist: a file name's typo
     should not create folders); refuses a path that is a folder. Returns the path."""
     path = os.fspath(path)
+    if not path:
+        raise ValueError(f"{option} is empty: give a file name")
     folder = os.path.dirname(os.path.abspath(path))
     if os.path.isdir(path):
         raise ValueError(f"{option} {path}: is a folder, not a file name")

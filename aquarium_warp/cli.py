@@ -197,8 +197,8 @@ def _video(args) -> int:
     from . import BatchedAquarium
     from .video import check_video_path, record
 
-    check_video_path(args.out)  # before the world is built
-    check_output_file(args.out, "--out")
+    check_output_file(args.out, "--out")  # before the world is built
+    check_video_path(args.out)
 
     cfg = _video_config(args)
     env = BatchedAquarium(cfg, num_worlds=1, device=args.device, seed=args.seed)
