@@ -1,4 +1,5 @@
-"""Fuzz test of issue 15 (and of issue 28's path options, `test_fuzz_cli_path_options`): configs drawn from the whole field space, edges included, are either refused
+"""Fuzz test of issue 15 (issue 28's CLI path options: `test_fuzz_cli_path_options`): configs drawn
+from the whole field space, edges included, are either refused
 with a `ValueError` that names a field that was set, or built and stepped; every stepped state must be
 finite and respect the model's invariants. Steps mix valid actions with unvalidated out-of-range ones;
 some cases first set velocities, accelerations and positions to the edges `set_state` allows, or load
