@@ -246,3 +246,25 @@ def test_counts_are_pluralised(tmp_path, capsys):
     out = capsys.readouterr().out
     assert ", 2 prey, 1 predator, 5 steps" in out, out
     json.loads((tmp_path / "summary.json").read_text())
+
+
+@pytest.mark.slow
+def test_onnx_export_prints_no_torchvision_notes(tmp_path):
+    """torch.onnx's exporter logged four "torchvision is not installed" lines after every training run
+    (its registry of torchvision operators, which no policy uses). In a fresh process: the registry
+    logs once per process."""
+    pytest.importorskip("rsl_rl")
+    pytest.importorskip("onnx")
+    import importlib.util
+
+    if importlib.util.find_spec("torchvision") is not None:
+        pytest.skip("torchvision is installed: the exporter has nothing to say")
+    script = (
+        "from aquarium_warp.training import Trainer, make_config\n"
+        "t = Trainer(make_config('tiny', {'train': {'num_worlds': 2, 'device': 'cpu', 'iterations': 0}}))\n"
+        f"print(t.export({str(tmp_path)!r}, formats=['onnx']))\n")
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300,
+                            env={**os.environ, "GIT_PYTHON_REFRESH": "quiet"})
+    assert result.returncode == 0, result.stderr
+    assert os.path.isfile(tmp_path / "policy.onnx")
+    assert "torchvision" not in result.stderr, result.stderr
