@@ -19,7 +19,6 @@ import contextlib
 import errno
 import os
 import re
-import tempfile
 from collections.abc import Iterator
 
 _PARTIAL = re.compile(r"\.(\d+)\.partial(\.[^./]*)?$")
@@ -96,19 +95,22 @@ def _alive(pid: int) -> bool:
 
 
 def check_output_dir(path, option: str) -> str:
-    """Create the folder `path` (given as `option`) if needed and check that files can be written in
-    it, before any long work: a one-line ValueError naming the option, the path and the cause.
-    Stale partial files of dead processes are removed. Returns the path."""
+    """Check, before any long work, that the folder `path` (given as `option`) can be created or written
+    in, without creating it: a one-line ValueError naming the option, the path and the cause. Stale
+    partial files of dead processes in it are removed. Returns the path."""
     path = os.fspath(path)
     if not path:
         raise ValueError(f"{option} is empty: give a folder")
-    try:
-        os.makedirs(path, exist_ok=True)
-        with tempfile.TemporaryFile(dir=path):
-            pass
-    except OSError as error:
-        raise ValueError(f"{option} {path}: cannot write there ({os_error_cause(error)})") from None
-    remove_stale_partials(path)
+    existing = os.path.abspath(path)
+    while not os.path.exists(existing):  # the folder that would hold the new ones
+        existing = os.path.dirname(existing)
+    if not os.path.isdir(existing):
+        raise ValueError(f"{option} {path}: cannot write there ({existing} is a file, not a folder)")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        cause = "read-only file system" if os.statvfs(existing).f_flag & os.ST_RDONLY else "permission denied"
+        raise ValueError(f"{option} {path}: cannot write there ({cause} at {existing})")
+    if os.path.isdir(path):
+        remove_stale_partials(path)
     return path
 
 

@@ -109,7 +109,7 @@ def test_bench_checks_its_output_folder_before_measuring(tmp_path, capsys, monke
     bad = _impossible(tmp_path)
     assert main(["bench", "--device", "cpu", "--out-dir", bad]) == 2
     err = one_line(capsys, "aquarium-warp bench: ")
-    assert f"--out-dir {bad}: cannot write there (Not a directory)" in err
+    assert f"--out-dir {bad}: cannot write there ({tmp_path / 'file'} is a file, not a folder)" in err
 
 
 # ------------------------------------------------------------------------------------ damaged inputs

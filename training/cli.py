@@ -350,7 +350,7 @@ def add_eval_arguments(p: argparse.ArgumentParser) -> None:
 def run_eval(args) -> int:
     from .evaluate import evaluate_policies, plot_distributions, plot_training_curves, write_results
 
-    check_output_dir(args.out, "--out")  # before any episode runs
+    os.makedirs(check_output_dir(args.out, "--out"), exist_ok=True)  # before any episode runs
     if args.cross_play:
         return run_cross_play(args)
     outputs = []

@@ -46,7 +46,7 @@ def claim_run_directory(path: str, resume: bool = False, overwrite: bool = False
     `overwrite` (the earlier run's outputs are removed first). A one-line ValueError otherwise."""
     import fcntl
 
-    check_output_dir(path, "--log-dir")
+    os.makedirs(check_output_dir(path, "--log-dir"), exist_ok=True)
     handle = open(os.path.join(path, LOCK_NAME), "a+", encoding="utf-8")  # held until release()
     try:
         fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)

@@ -73,6 +73,7 @@ def run_bench(settings: BenchSettings, peers: Peers | None = None) -> dict:
     add_ratios(points, original, vmas)
 
     out_dir = Path(settings.out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
     tag = device.replace(":", "")
     result: dict[str, Any] = {
         "benchmark": "aquarium-warp scaling: agent-steps/s of BatchedAquarium.step (random actions, observations on)",
