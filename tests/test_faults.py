@@ -137,7 +137,8 @@ def test_killed_interrupted_and_starved_commands_lose_nothing(tmp_path, monkeypa
         assert bool(partials(folder)) == (sig == signal.SIGKILL)  # an interrupted writer cleans up
     assert open(videos[signal.SIGINT] + ".log").read().strip().splitlines()[-1] == "aquarium-warp video: interrupted"
     assert open(os.path.join(evaluation, "summary.json"), "rb").read() == PREVIOUS and not partials(evaluation)
-    assert open(evaluation + ".log").read().strip().splitlines()[-1] == "aquarium-warp eval: interrupted"
+    # (the evaluation's worker threads may still print a progress line after it)
+    assert "aquarium-warp eval: interrupted" in open(evaluation + ".log").read().splitlines()
 
     # The next run into a killed writer's folder removes its partial file.
     killed = videos[signal.SIGKILL]

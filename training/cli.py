@@ -291,8 +291,8 @@ def _train_and_export(trainer, say) -> None:
             say(f"  exported {fmt}: {path}")
     if trainer.stop.signum is not None:
         raise Interrupted(f"stopped by {trainer.stop.name} after iteration {trainer.iteration} of "
-                      f"{trainer.total_iterations}; continue with: aquarium-warp train --resume {trainer.log_dir}",
-                      trainer.stop.signum)
+                          f"{trainer.total_iterations}; continue with: aquarium-warp train --resume "
+                          f"{trainer.log_dir}", trainer.stop.signum)
 
 
 def _read_config_file(path: str) -> dict:
