@@ -15,7 +15,8 @@ par = aquarium_v1.parallel_env(keep_prey_count_constant=False, predator_count=3)
 ```
 
 - `parallel_env(**kwargs)`: the raw `ParallelEnv` (no AEC round trip, unlike `aquarium_v0`).
-- `env(**kwargs)`: the AEC form: PettingZoo's `parallel_to_aec` plus its `AssertOutOfBoundsWrapper` and
+- `env(**kwargs)`: the AEC form: PettingZoo's `parallel_to_aec` plus `CheckedActions` (PettingZoo's
+  `AssertOutOfBoundsWrapper` with a `ValueError` naming the agent, the value and the range) and
   `OrderEnforcingWrapper`.
 - `raw_env`: the `ParallelEnv` class.
 
@@ -26,6 +27,7 @@ Keyword arguments: marl-aquarium's names and defaults, this package's `AquariumC
 
 from __future__ import annotations
 
+import numpy as np
 from pettingzoo.utils import wrappers
 from pettingzoo.utils.conversions import parallel_to_aec
 
@@ -41,9 +43,23 @@ def parallel_env(**kwargs) -> AquariumParallelEnv:
     return AquariumParallelEnv(**kwargs)
 
 
+class CheckedActions(wrappers.BaseWrapper):
+    """PettingZoo's `AssertOutOfBoundsWrapper`, whose bare assertion names nothing, as a `ValueError`
+    naming the agent, the value and the allowed range (a bool is refused: it is no action index)."""
+
+    def step(self, action) -> None:
+        agent = self.agent_selection
+        done = self.terminations[agent] or self.truncations[agent]
+        space = self.action_space(agent)
+        if not (done and action is None) and (isinstance(action, (bool, np.bool_)) or not space.contains(action)):
+            raise ValueError(f"action {action!r} of agent {agent!r} is not in Discrete({space.n}): must be an "
+                             f"integer in [0, {space.n - 1}]" + (" or None (the agent is done)" if done else ""))
+        super().step(action)
+
+
 def env(**kwargs):
     """The Aquarium as a PettingZoo AEC env: `parallel_to_aec(parallel_env(**kwargs))` wrapped in
-    `AssertOutOfBoundsWrapper` and `OrderEnforcingWrapper` (as marl-aquarium's `aquarium_v0.env`)."""
+    `CheckedActions` and `OrderEnforcingWrapper` (as marl-aquarium's `aquarium_v0.env`, whose
+    `AssertOutOfBoundsWrapper` `CheckedActions` replaces)."""
     aec = parallel_to_aec(AquariumParallelEnv(**kwargs))
-    aec = wrappers.AssertOutOfBoundsWrapper(aec)
-    return wrappers.OrderEnforcingWrapper(aec)
+    return wrappers.OrderEnforcingWrapper(CheckedActions(aec))

@@ -6,8 +6,12 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import signal
 import sys
+import threading
 import time
+
+from .atomic import check_output_dir, check_output_file
 
 
 def _int_at_least(low: int):
@@ -23,6 +27,25 @@ def _int_at_least(low: int):
         return value
 
     return parse
+
+
+class Interrupted(KeyboardInterrupt):
+    """A signal that ended a command early: the message to print and the shell's exit code for it
+    (128 + the signal's number)."""
+
+    def __init__(self, message: str, signum: int):
+        super().__init__(message)
+        self.exit_code = 128 + signum
+
+
+def _terminated(signum, frame) -> None:
+    """SIGTERM as Ctrl-C: the command unwinds (partial files removed) instead of vanishing."""
+    raise Interrupted("terminated (SIGTERM)", signum)
+
+
+def plural(count: int, noun: str) -> str:
+    """"1 predator", "3 predators" (nouns with a plain -s plural)."""
+    return f"{count} {noun}{'' if count == 1 else 's'}"
 
 
 positive_int = _int_at_least(1)
@@ -174,14 +197,16 @@ def _video(args) -> int:
     from . import BatchedAquarium
     from .video import check_video_path, record
 
-    check_video_path(args.out)  # before the world is built
+    check_output_file(args.out, "--out")  # before the world is built
+    check_video_path(args.out)
 
     cfg = _video_config(args)
     env = BatchedAquarium(cfg, num_worlds=1, device=args.device, seed=args.seed)
     prey = _policy_driver(args.prey_policy, env, "prey", args.seed)
     predator = _policy_driver(args.predator_policy, env, "predator", args.seed)
-    print(f"aquarium-warp video: {cfg.prey_count} prey ({args.prey_policy}) and {cfg.predator_count} predators "
-          f"({args.predator_policy}) on {env.device}, {args.steps} steps -> {args.out}")
+    print(f"aquarium-warp video: {cfg.prey_count} prey ({args.prey_policy}) and "
+          f"{plural(cfg.predator_count, 'predator')} ({args.predator_policy}) on {env.device}, {args.steps} steps "
+          f"-> {args.out}")
     start = time.perf_counter()
     frames = record(env, lambda obs: {"prey": prey(), "predator": predator()}, args.steps, args.out,
                     fps=args.fps, progress=not args.no_progress, width_px=args.frame_width,
@@ -245,6 +270,7 @@ def _study_swarm_size(args) -> int:
         **_study_kwargs(args))
     print(f"aquarium-warp study swarm-size: prey {study.prey}, {study.seeds} seeds x {study.episodes_per_seed} "
           f"episode(s) of {study.episode_steps} steps, {study.prey_policy} vs {study.predator_policy} -> {study.out}")
+    check_output_dir(study.out, "--out")
     summary = run_swarm_size_study(study, progress=not args.no_progress, ray=ray)
     where = summary["machine"]["device_name"]
     if ray is not None:
@@ -269,6 +295,7 @@ def _study_fov_view(args) -> int:
                            kind="fov-view", **_study_kwargs(args))
     print(f"aquarium-warp study fov-view: {study.prey[0]} prey, FOV {fovs} x view {views}, {study.seeds} seeds, "
           f"episodes of {study.episode_steps} steps -> {study.out}")
+    check_output_dir(study.out, "--out")
     summary = run_swarm_size_study(study, progress=not args.no_progress)
     print(f"wrote {os.path.join(study.out, 'fov_view.csv')}, fov_view.json and {len(summary.get('figures', []))} "
           f"figure(s) in {summary['wall_time_s']:.1f} s on {summary['machine']['device_name']} ({summary['path']})")
@@ -366,6 +393,7 @@ def _study_group_hunting(args) -> int:
     print(f"aquarium-warp study group-hunting: predators {study.predators}, {study.prey} prey "
           f"({', '.join(study.prey_conditions)}), catch_share_radius {study.share_radii}, {study.seeds} seeds -> "
           f"{study.out}")
+    check_output_dir(study.out, "--out")
     summary = run_group_hunting(study, command_line(args.argv), _ray_options(args))
     print(f"{written(summary)} ({summary['training_fraction']:.0%} of the workers' time training)")
     return 0
@@ -385,6 +413,7 @@ def _study_many_eyes(args) -> int:
         device=args.device, jobs=args.jobs, out=args.out, figures=not args.no_figures)
     print(f"aquarium-warp study many-eyes: group sizes {study.group_sizes} x FOV {study.fov_angles}, "
           f"{study.seeds} seeds -> {study.out}")
+    check_output_dir(study.out, "--out")
     summary = run_many_eyes(study, command_line(args.argv), _ray_options(args))
     print(f"{written(summary)} ({summary['training_fraction']:.0%} of the workers' time training)")
     return 0
@@ -405,6 +434,7 @@ def _study_flow(args) -> int:
         seed=args.seed, device=args.device, out=args.out, figures=not args.no_figures)
     print(f"aquarium-warp study flow: {study.kinds} x strengths {study.strengths} px/step, {study.seeds} seeds x "
           f"{study.episodes_per_seed} episodes of {study.episode_steps} steps -> {study.out}")
+    check_output_dir(study.out, "--out")
     summary = run_flow(study, command_line(args.argv))
     print(written(summary))
     return 0
@@ -440,7 +470,7 @@ def _add_open_questions(kinds) -> None:
     p.add_argument("--sample-every", type=positive_int, default=10,
                    help="steps between the random-time states of the baselines (default 10)")
     p.add_argument("--no-baseline", action="store_true", help="no NaivChase teams")
-    _add_open_question_arguments(p, os.path.join("benchmarks", "results", "group_hunting"))
+    _add_open_question_arguments(p, "group_hunting")
     _add_ray_arguments(p, "training run (with its evaluations) or NaivChase baseline")
     p.set_defaults(run=_study_group_hunting)
 
@@ -471,7 +501,7 @@ def _add_open_questions(kinds) -> None:
                    help="degrees the prey must turn over --lag steps for a flight onset (default 30)")
     p.add_argument("--lag", type=positive_int, default=5, help="steps of a flight onset's turn (default 5)")
     p.add_argument("--no-turnaway", action="store_true", help="no TurnAway reference")
-    _add_open_question_arguments(p, os.path.join("benchmarks", "results", "many_eyes"))
+    _add_open_question_arguments(p, "many_eyes")
     _add_ray_arguments(p, "training run (with its evaluations)")
     p.set_defaults(run=_study_many_eyes)
 
@@ -502,7 +532,7 @@ def _add_open_questions(kinds) -> None:
                    help="px: fleeing needs the nearest predator this close (default 200)")
     p.add_argument("--metrics-every", type=positive_int, default=10, help="sample the swarm metrics every K steps")
     p.add_argument("--seed", type=non_negative_int, default=0, help="seed of the batched worlds")
-    _add_open_question_arguments(p, os.path.join("benchmarks", "results", "flow_study"), jobs=False)
+    _add_open_question_arguments(p, "flow_study", jobs=False)
     p.set_defaults(run=_study_flow)
 
 
@@ -542,7 +572,7 @@ def _add_sweep(sub) -> None:
                                      "another or as Ray tasks (--ray). A rerun with the same --out keeps the "
                                      "finished runs and resumes the started ones from their newest checkpoint. "
                                      "Every option of `aquarium-warp train` applies to each run (not --seed, "
-                                     "--log-dir, --resume).")
+                                     "--log-dir, --resume, --overwrite).")
     p.add_argument("--seeds", default="0", help="seeds: a comma list, '...' continues it (default 0)")
     p.add_argument("--vary", action="append", default=[], metavar="KEY=V1,V2,...",
                    help="a setting to sweep, as `train --set KEY=VALUE` takes it, e.g. "
@@ -629,11 +659,24 @@ def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)  # the command as given (the studies record it)
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _terminated) if main_thread else None
     try:
         return args.run(args)
     except ValueError as error:
         print(f"aquarium-warp {args.command}: {error}", file=sys.stderr)
         return 2
+    except OSError as error:  # a full disk, a file that cannot be read or written: its path and the cause
+        from .atomic import describe_os_error
+
+        print(f"aquarium-warp {args.command}: {describe_os_error(error)}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt as error:  # Ctrl-C, SIGTERM (train: Interrupted says how to resume)
+        print(f"aquarium-warp {args.command}: {str(error) or 'interrupted'}", file=sys.stderr)
+        return getattr(error, "exit_code", 130)
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

@@ -197,7 +197,11 @@ class FlowConfig:
         _check("flow.period", self.period, _in_range(self.period, SMALLEST, LARGEST),
                f"a finite number > 0 steps, in [{SMALLEST:g}, {LARGEST:g}]")
         if self.kind == "grid" or self.grid is not None:
-            grid = np.asarray(self.grid if self.grid is not None else [], dtype=np.float64)
+            try:
+                grid = np.asarray(self.grid if self.grid is not None else [], dtype=np.float64)
+            except (TypeError, ValueError):  # ragged rows or cells, or entries that are no numbers
+                _check("flow.grid", self.grid, False, "an array [rows, cols, 2] (rows, cols >= 1) of currents at "
+                       "cell centres: every row as long, every cell two numbers")
             _check("flow.grid", "an array of shape " + str(list(grid.shape)),
                    grid.ndim == 3 and grid.shape[0] >= 1 and grid.shape[1] >= 1 and grid.shape[2] == 2,
                    "an array [rows, cols, 2] (rows, cols >= 1) of currents at cell centres")
@@ -283,6 +287,9 @@ class AgentTypeConfig:
             value = getattr(self, name)
             _check(f"{prefix}.{name}", value, _is_int(value) and 0 <= value <= MAX_OBSERVED_SLOTS,
                    f"an integer in [0, {MAX_OBSERVED_SLOTS}]")
+        if self.predator_slots == 0 and self.prey_slots == 0:  # the observation kernels need a neighbour slot
+            raise ValueError(f"{prefix}.predator_slots=0 and {prefix}.prey_slots=0: an observation needs at least "
+                             "one neighbour slot (set either to 1 or more)")
         _normalise(self, ("predator_slots", "prey_slots"), ())
 
     @property

@@ -91,3 +91,11 @@ def _term(value: object, kind: type, error: str) -> float:
     if isinstance(number, float) and not math.isfinite(number) or kind is int and number != int(number):
         raise ValueError(error)
     return kind(number)
+
+
+def check_distinct(name: str, values) -> None:
+    """A `ValueError` naming `name` where `values` repeats one: a repeated setting would run twice under
+    one name and pool its seeds with its twin's."""
+    repeated = sorted({v for v in values if list(values).count(v) > 1}, key=str)
+    if repeated:
+        raise ValueError(f"{name}={list(values)!r} repeats {', '.join(map(repr, repeated))}: list each value once")

@@ -30,8 +30,8 @@ on demand instead).
 The dicts returned by `step()` hold every agent that was live before the step plus the prey born in it
 (newborns of the step that ends the episode are not reported: they never act). An agent removed in a
 step gets an all-zero last observation. Infos are empty dicts. Actions must be given for every live
-agent (a missing one raises `ValueError`, as does an action outside `Discrete(action_count)`);
-entries for other names are ignored, as in marl-aquarium.
+agent (a missing one raises `ValueError`, as do an action outside `Discrete(action_count)`, a bool and
+an agent name the env never had); entries for agents that have left are ignored.
 
 Episodes: `max_time_steps` (= `max_steps` = `max_cycles`) steps, after which every live agent is
 truncated (marl-aquarium ran `max_time_steps + 2` steps); an episode also ends when no prey or no
@@ -43,7 +43,8 @@ sequence fixed by `s`. Without any seed (`seed=None` here and in the constructor
 Python's global `random` module, so `random.seed(n)` makes marl-aquarium-style code reproducible.
 
 Rendering: nothing is drawn by `step()`; `render()` draws on demand (marl-aquarium's behaviour, whose
-default `render_mode` is "human" too).
+default `render_mode` is "human" too). "human" opens a window, so it needs a display: without one
+`render()` raises a `RuntimeError` saying so (use "rgb_array" for frames).
 
 `state()` is the global state, a flat float32 vector (see `AquariumParallelEnv.state`).
 
@@ -486,6 +487,13 @@ class AquariumParallelEnv(ParallelEnv):
                              "needs an action") from None
         except TypeError:
             raise ValueError(f"actions must be a dict keyed by agent name, got {type(actions).__name__}") from None
+        if len(actions) != len(names):  # names of agents that left are ignored; names never given are refused
+            unknown = sorted(str(a) for a in actions if a not in self._possible_set)
+            if unknown:
+                raise ValueError(f"actions for unknown agent(s) {unknown}: agents are named predator_<i> and "
+                                 "prey_<j> (see possible_agents; env.agents are the live ones)")
+        if any(isinstance(v, (bool, np.bool_)) for v in values):  # numpy would take True as action 1
+            return self._checked_actions(values)
         try:
             arr = np.asarray(values)
         except (ValueError, TypeError):  # e.g. a mix of scalars and 1-element arrays

@@ -25,7 +25,9 @@ thread per arrow, with `draw_flow`) and, for `render()`, one copy of the image t
 from __future__ import annotations
 
 import math
+import os
 import struct as _struct
+import sys
 import weakref
 import zlib
 from typing import Any
@@ -33,6 +35,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from .atomic import atomic_open
 from .kernels import render as rk
 from .kernels.common import PREDATOR, PREY
 from .shard import WARP_SETUP_LOCK
@@ -246,7 +249,7 @@ def save_png(frame: np.ndarray, path) -> None:
         return _struct.pack(">I", len(data)) + tag + data + _struct.pack(">I", zlib.crc32(tag + data) & 0xFFFFFFFF)
 
     header = _struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)  # 8-bit RGB
-    with open(path, "wb") as f:
+    with atomic_open(path, "wb") as f:
         f.write(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(raw.tobytes(), 9))
                 + chunk(b"IEND", b""))
 
@@ -266,8 +269,14 @@ class Window:
             import pygame
         except ImportError as error:  # an optional dependency
             raise ImportError("Window needs pygame: pip install 'aquarium-warp[video]'") from error
+        # Without a display SDL prints its probing errors and falls back to a driver that shows nothing
+        # (a driver asked for by name, SDL_VIDEODRIVER=dummy in the tests, is taken as meant).
+        if sys.platform.startswith("linux") and not any(
+                os.environ.get(v) for v in ("DISPLAY", "WAYLAND_DISPLAY", "SDL_VIDEODRIVER")):
+            raise RuntimeError("a window needs a display, and none was found (DISPLAY and WAYLAND_DISPLAY are "
+                               "unset): draw frames with render_mode='rgb_array' or write a video instead")
         self._pygame = pygame
-        pygame.init()
+        pygame.display.init()  # the display only: pygame.init() also opens audio (ALSA's lines on stderr)
         self._screen = pygame.display.set_mode((int(width_px), int(height_px)))
         pygame.display.set_caption(caption)
         self._clock = pygame.time.Clock()

@@ -48,12 +48,14 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from .atomic import atomic_open
 from .bench.machine import machine_info
 from .config import AquariumConfig
 from .env import BatchedAquarium, resolve_device
 from .heuristics import POLICIES, make_policy
 from .json_records import json_safe
 from .metrics import EPISODE_METRICS, EpisodeMetrics, SwarmMetrics
+from .number_lists import check_distinct
 from .number_lists import parse_list as parse_list  # re-exported: the study's list options use it
 from .pretrained import is_policy_file
 from .pretrained import names as pretrained_names
@@ -135,6 +137,10 @@ class SwarmSizeStudy:
             values = getattr(self, name)
             if values is not None and not values:
                 raise ValueError(f"{name} must list at least one value")
+        # One rule for every study: a repeated setting would run twice and pool its seeds with its twin's.
+        options = ("--fov", "--view") if self.kind == "fov-view" else ("--fov-angle", "--view-distance")
+        for option, values in zip(("--prey", *options), (self.prey, self.fov_angles, self.view_distances)):
+            check_distinct(option, values or [])
         if self.max_prey_factor < 1:
             raise ValueError(f"max_prey_factor={self.max_prey_factor!r} must be >= 1")
         if self.kind not in ("swarm-size", "fov-view"):
@@ -488,7 +494,7 @@ def _run_on_ray(study: SwarmSizeStudy, settings: list[dict], ray: RayOptions, de
     def finished(k: int, result: dict) -> None:
         i = todo[k]
         # JSON writes a float's shortest repr, which reads back as the same float: kept equals fresh.
-        with open(_kept_path(study, settings[i]), "w", encoding="utf-8") as f:
+        with atomic_open(_kept_path(study, settings[i])) as f:
             json.dump({"key": key, "result": _arrays_as_lists(result)}, f)
         results[i] = result
         advance(study.episode_steps, f"N={settings[i]['prey']} done")
@@ -595,7 +601,7 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayO
         summary["ray"] = ray_record
         summary = run_tasks(_baselines_on_worker, [(summary, study, device)], ray)[0]
     write_csv(os.path.join(study.out, f"{study.basename}.csv"), rows)
-    with open(os.path.join(study.out, f"{study.basename}.json"), "w", encoding="utf-8") as f:
+    with atomic_open(os.path.join(study.out, f"{study.basename}.json")) as f:
         json.dump(json_safe(summary), f, indent=1)
     if ray is not None:  # swarm_size.json now holds every setting
         shutil.rmtree(os.path.join(study.out, KEPT_DIR), ignore_errors=True)
@@ -624,14 +630,14 @@ def replot_study(out: str, device=None) -> dict:
         study = study_from_config(summary["config"])
         add_uniform_baselines(summary, study, resolve_device(device))
         summary["definitions"]["uniform_baseline"] = UNIFORM_BASELINE_DEFINITION
-        with open(path, "w", encoding="utf-8") as f:
+        with atomic_open(path) as f:
             json.dump(json_safe(summary), f, indent=1)
     summary["figures"] = plot_study(summary, out)
     return summary
 
 
 def write_csv(path: str, rows: list[dict]) -> None:
-    with open(path, "w", newline="", encoding="utf-8") as f:
+    with atomic_open(path, newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         for row in rows:

@@ -9,6 +9,8 @@ import os
 
 import numpy as np
 
+from .atomic import write_figure
+
 
 def _curves(summary: dict) -> list[tuple[str | None, list[dict]]]:
     """Results grouped into one curve per (fov angle, view distance), each sorted by prey count."""
@@ -77,7 +79,7 @@ def plot_fov_view(summary: dict, out: str) -> str:
                  f"{cfg['episode_steps']} steps, mean over {cfg['seeds']} seeds", fontsize=8)
     fig.tight_layout()
     path = os.path.join(out, "captures_fov_view.png")
-    fig.savefig(path, dpi=110)
+    write_figure(fig, path, dpi=110)
     plt.close(fig)
     return path
 
@@ -107,7 +109,7 @@ def plot_study(summary: dict, out: str) -> list[str]:
         fig.suptitle(f"{title}\n{subtitle}", fontsize=9)
         fig.tight_layout()
         path = os.path.join(out, name)
-        fig.savefig(path, dpi=110)
+        write_figure(fig, path, dpi=110)
         plt.close(fig)
         paths.append(path)
 

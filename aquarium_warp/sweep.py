@@ -25,12 +25,13 @@ import shutil
 import time
 from dataclasses import dataclass
 
+from .atomic import atomic_open
 from .number_lists import parse_list
 from .ray_tasks import RayOptions, placement, run_tasks
 
 RUN_RECORD = "sweep_run.json"
 # Train options that do not change what a run computes: a kept run is one whatever their values.
-NOT_THE_RUN = ("device", "quiet", "log_dir", "resume")
+NOT_THE_RUN = ("device", "quiet", "log_dir", "resume", "overwrite")
 
 
 def parse_vary(text: str) -> tuple[str, tuple[str, ...]]:
@@ -117,6 +118,8 @@ def train_run(train_args: argparse.Namespace, run: TrainingRun) -> dict:
         parser = argparse.ArgumentParser()
         add_train_arguments(parser)
         args = parser.parse_args(["--resume", run.run_dir] + (["--quiet"] if args.quiet else []))
+    else:
+        args.overwrite = True  # the directory holds only this sweep's record of the run
     os.makedirs(run.run_dir, exist_ok=True)
     record = {"seed": run.seed, "set": list(run.sets), "run_dir": run.run_dir, "options": options,
               "status": "running", "node": platform.node(), "resumed_from": resume_from}
@@ -138,6 +141,9 @@ def run_training_sweep(sweep: TrainingSweep, train_args: argparse.Namespace, ray
         raise ValueError("--seed: a sweep takes its seeds as --seeds")
     if train_args.log_dir is not None:
         raise ValueError("--log-dir: a sweep's runs go to --out/<setting>/seed<s>")
+    if getattr(train_args, "overwrite", False):
+        raise ValueError("--overwrite: a sweep keeps its finished runs and resumes the started ones; give it "
+                         "another --out to start over")
     runs = sweep.runs()
     start = time.perf_counter()
     if ray is None:
@@ -164,5 +170,5 @@ def _report(record: dict) -> None:
 
 
 def _write_json(path: str, value: dict) -> None:
-    with open(path, "w", encoding="utf-8") as f:
+    with atomic_open(path) as f:
         json.dump(value, f, indent=1)

@@ -17,6 +17,7 @@ from collections.abc import Callable, Iterable, Sized
 
 import numpy as np
 
+from .atomic import atomic_path
 from .render import Renderer, check_frame
 
 
@@ -88,28 +89,30 @@ def write_video(frames: Iterable[np.ndarray] | Callable[[int], np.ndarray | None
     writer = None
     shape = None
     count = 0
-    try:
-        for frame in iterator:
-            frame = _check_frame(frame, shape)
-            shape = frame.shape
-            h, w = shape[:2]
-            pad = ((0, h % 2), (0, w % 2), (0, 0))
-            if writer is None:
-                writer = imageio_ffmpeg.write_frames(
-                    str(path), (w + w % 2, h + h % 2), fps=fps, quality=quality, codec="libx264",
-                    pix_fmt_in="rgb24", pix_fmt_out="yuv420p", macro_block_size=1)
-                writer.send(None)  # start ffmpeg
-            if h % 2 or w % 2:
-                frame = np.pad(frame, pad, mode="edge")
-            writer.send(np.ascontiguousarray(frame).tobytes())
-            count += 1
-    finally:
-        if writer is not None:
-            writer.close()
-        if hasattr(iterator, "close"):
-            iterator.close()
-    if count == 0:
-        raise ValueError("write_video got no frames")
+    # ffmpeg writes a partial file, renamed when the video is whole (a kill or a full disk leaves none)
+    with atomic_path(path) as partial:
+        try:
+            for frame in iterator:
+                frame = _check_frame(frame, shape)
+                shape = frame.shape
+                h, w = shape[:2]
+                pad = ((0, h % 2), (0, w % 2), (0, 0))
+                if writer is None:
+                    writer = imageio_ffmpeg.write_frames(
+                        partial, (w + w % 2, h + h % 2), fps=fps, quality=quality, codec="libx264",
+                        pix_fmt_in="rgb24", pix_fmt_out="yuv420p", macro_block_size=1)
+                    writer.send(None)  # start ffmpeg
+                if h % 2 or w % 2:
+                    frame = np.pad(frame, pad, mode="edge")
+                writer.send(np.ascontiguousarray(frame).tobytes())
+                count += 1
+        finally:
+            if writer is not None:
+                writer.close()
+            if hasattr(iterator, "close"):
+                iterator.close()
+        if count == 0:
+            raise ValueError("write_video got no frames")
     return count
 
 

@@ -200,13 +200,13 @@ def test_valid_edge_value_accepted(field, value):
 
 
 def test_valid_combined_edges():
-    # Reproduction with prey_count above max_prey, zero slots in every block, both FOVs full.
+    # Reproduction with prey_count above max_prey, one neighbour slot (the fewest: issue 28), both FOVs full.
     cfg = AquariumConfig(width=41.0, height=41.0, prey_count=30, predator_count=1, max_prey=1,
                          prey_reproduction=True, max_steps=1, predator_starvation_steps=0,
-                         prey=AgentTypeConfig(20.0, 1e-9, 1e-9, 1e-9, 1e-9, INF, 360.0, 0.0, 0, 0),
+                         prey=AgentTypeConfig(20.0, 1e-9, 1e-9, 1e-9, 1e-9, INF, 360.0, 0.0, 0, 1),
                          predator=AgentTypeConfig(20.4, 1.0, 1.0, 1.0, 1.0, 1e-9, 1e-6, 0.0, 16, 16))
     assert cfg.prey_capacity == 30 and cfg.capacity == 31
-    assert cfg.prey.observation_size == 5 and cfg.predator.observation_size == 5 + 6 * 32
+    assert cfg.prey.observation_size == 5 + 6 and cfg.predator.observation_size == 5 + 6 * 32
 
 
 # --------------------------------------------------------------------------------------------------

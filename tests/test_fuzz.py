@@ -1,4 +1,5 @@
-"""Fuzz test of issue 15: configs drawn from the whole field space, edges included, are either refused
+"""Fuzz test of issue 15 (issue 28's CLI path options: `test_fuzz_cli_path_options`): configs drawn
+from the whole field space, edges included, are either refused
 with a `ValueError` that names a field that was set, or built and stepped; every stepped state must be
 finite and respect the model's invariants. Steps mix valid actions with unvalidated out-of-range ones;
 some cases first set velocities, accelerations and positions to the edges `set_state` allows, or load
@@ -266,3 +267,90 @@ if __name__ == "__main__":
     wp.config.quiet = True
     wp.config.log_level = getattr(wp, "LOG_WARNING", wp.config.log_level)
     run_cases(int(sys.argv[1]) if len(sys.argv) > 1 else CASES)
+
+
+# ------------------------------------------------------------------------------ the CLI's path options
+class Reached(Exception):
+    """Raised where a command would start its long work: its paths were all accepted."""
+
+
+PATH_OPTIONS = {  # (command line before the option, option, what the path names)
+    "train --log-dir": (["train", "--preset", "tiny", "--device", "cpu"], "--log-dir", "folder"),
+    "train --config": (["train", "--device", "cpu", "--log-dir", "{tmp}/run"], "--config", "input"),
+    "train --resume": (["train"], "--resume", "input"),
+    "eval --out": (["eval", "--device", "cpu", "--episodes", "1", "--seeds", "0"], "--out", "folder"),
+    "eval --prey": (["eval", "--device", "cpu", "--out", "{tmp}/eval"], "--prey", "input"),
+    "video --out": (["video", "--device", "cpu", "--no-progress"], "--out", "file"),
+    "video --prey-policy": (["video", "--device", "cpu", "--no-progress", "--out", "{tmp}/v.mp4"],
+                            "--prey-policy", "input"),
+    "study swarm-size --out": (["study", "swarm-size", "--prey", "4", "--device", "cpu"], "--out", "folder"),
+    "study flow --out": (["study", "flow", "--device", "cpu"], "--out", "folder"),
+    "bench --out-dir": (["bench", "--device", "cpu"], "--out-dir", "folder"),
+}
+
+
+@pytest.mark.slow
+def test_fuzz_cli_path_options(tmp_path, monkeypatch, capsys):
+    """Issue 28: every path option of the CLI, given paths a user might type (missing, nested, below a
+    file, a folder for a file, a file for a folder, too long, odd characters, damaged contents), ends
+    either in a one-line error that names the option or the path, or reaches the work; never a traceback."""
+    pytest.importorskip("hypothesis")
+    pytest.importorskip("rsl_rl")
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+
+    import aquarium_warp.bench.suite
+    import aquarium_warp.env
+    from aquarium_warp.cli import main
+
+    def reached(*args, **kwargs):
+        raise Reached
+
+    monkeypatch.setattr(aquarium_warp.env.BatchedAquarium, "__init__", reached)
+    monkeypatch.setattr(aquarium_warp.bench.suite, "copy_bandwidth", reached)
+    (tmp_path / "file").write_bytes(b"not a folder")
+    (tmp_path / "folder").mkdir()
+    (tmp_path / "empty.pt").write_bytes(b"")
+    (tmp_path / "garbage.pt").write_bytes(b"\x00\x01garbage")
+    (tmp_path / "bad.yaml").write_text("env: [1\n")
+    (tmp_path / "list.json").write_text("[1, 2]")
+    (tmp_path / "ok.json").write_text('{"env": {"prey_count": 4}}')
+    kinds = ["missing/nested", "file", "file/below", "folder", "empty.pt", "garbage.pt", "bad.yaml", "list.json",
+             "ok.json", "x" * 300, "spaced name/ü.mp4", "v.mp4", "noext", "", "/proc/aquarium", "/dev/null/x"]
+    outcomes = {"refused": 0, "reached": 0}
+    counter = iter(range(10**6))
+
+    @settings(max_examples=120, derandomize=True, deadline=None, database=None,
+              suppress_health_check=list(HealthCheck))
+    @given(st.sampled_from(sorted(PATH_OPTIONS)), st.sampled_from(kinds))
+    def case(name, kind):
+        before, option, _ = PATH_OPTIONS[name]
+        case_dir = tmp_path / f"case{next(counter)}"
+        case_dir.mkdir()
+        for item in tmp_path.iterdir():  # each case in a fresh copy, so an accepted path changes nothing later
+            if item.is_file():
+                (case_dir / item.name).write_bytes(item.read_bytes())
+        (case_dir / "folder").mkdir()
+        path = kind if kind.startswith("/") or kind == "" else str(case_dir / kind)
+        argv = [a.replace("{tmp}", str(case_dir)) for a in before] + [option, path]
+        capsys.readouterr()
+        try:
+            code = main(argv)
+        except Reached:
+            outcomes["reached"] += 1
+            return
+        except SystemExit as error:  # argparse
+            code = error.code
+        err = capsys.readouterr().err.strip()
+        assert "Traceback" not in err, (argv, err)
+        if code == 0:  # e.g. a resumed run with nothing left to do
+            outcomes["reached"] += 1
+            return
+        assert code in (1, 2) and len(err.splitlines()) >= 1, (argv, code, err)
+        last = err.splitlines()[-1]
+        named = option in last or (path and path in last) or repr(path) in last or "argument" in last
+        assert named, (argv, last)
+        outcomes["refused"] += 1
+
+    case()
+    assert outcomes["refused"] >= 30 and outcomes["reached"] >= 10, outcomes

@@ -321,9 +321,51 @@ def test_actions_checked():
         env.step({**actions, "prey_0": 1.5})
     with pytest.raises(ValueError, match="prey_0"):
         env.step({**actions, "prey_0": None})
-    # numpy integers and 0-d arrays are fine; entries for other names are ignored (as marl-aquarium).
-    obs, *_ = env.step({**actions, "prey_0": np.int64(3), "prey_1": np.array(2), "ghost": 99})
+    # numpy integers and 0-d arrays are fine
+    obs, *_ = env.step({**actions, "prey_0": np.int64(3), "prey_1": np.array(2)})
     assert set(obs) == set(env.agents)
+
+
+def test_unknown_agents_and_bool_actions_refused():
+    """Issue 28: an action for a name the env never had, or a bool (numpy takes True as 1), is refused
+    naming the agent, and the world does not step."""
+    env = aquarium_v1.parallel_env(prey_count=3)
+    env.reset(seed=0)
+    actions = dict.fromkeys(env.agents, 1)
+    before = env.state().copy()
+    with pytest.raises(ValueError, match=r"unknown agent\(s\) \['prey_99'\]"):
+        env.step({**actions, "prey_99": 1})
+    with pytest.raises(ValueError, match=r"action True of agent 'prey_0' is not in Discrete\(16\)"):
+        env.step({**actions, "prey_0": True})
+    with pytest.raises(ValueError, match="prey_1"):
+        env.step({**actions, "prey_1": np.bool_(False)})
+    assert np.array_equal(env.state(), before)
+    env.close()
+
+
+def test_aec_out_of_range_action_names_agent_value_and_range():
+    env = aquarium_v1.env(prey_count=3)
+    env.reset(seed=0)
+    agent = env.agent_selection
+    for bad in (99, -1, True):
+        with pytest.raises(ValueError, match=rf"action {bad!r} of agent '{agent}' is not in Discrete\(16\): "
+                                             r"must be an integer in \[0, 15\]"):
+            env.step(bad)
+    env.step(3)  # a valid action still steps
+    env.close()
+
+
+def test_human_render_without_a_display_is_a_clear_error(monkeypatch):
+    if importlib.util.find_spec("pygame") is None:
+        pytest.skip("render_mode='human' needs pygame (the 'video' extra)")
+    for name in ("DISPLAY", "WAYLAND_DISPLAY", "SDL_VIDEODRIVER"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setattr("sys.platform", "linux")
+    env = aquarium_v1.parallel_env(prey_count=3)  # render_mode "human", marl-aquarium's default
+    env.reset(seed=0)
+    with pytest.raises(RuntimeError, match="a window needs a display.*render_mode='rgb_array'"):
+        env.render()
+    env.close()
 
 
 def _place(env, positions):

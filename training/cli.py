@@ -11,8 +11,10 @@ import importlib.util
 import math
 import os
 import time
+import warnings
 
-from ..cli import _int_at_least
+from ..atomic import check_output_dir
+from ..cli import Interrupted, _int_at_least, plural
 from .config import ALGORITHM_RANGES, PRESETS
 
 PRESET_NAMES = tuple(PRESETS)
@@ -80,6 +82,9 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--log-dir", default=None, help="run directory (default: runs/<team>_<sharing>_<time>)")
     g.add_argument("--resume", default=None, metavar="PATH",
                    help="continue a run from a checkpoint model_<i>.pt or the newest one in a run directory")
+    g.add_argument("--overwrite", action="store_true",
+                   help="start a new run in a --log-dir that holds an earlier one, removing its checkpoints, logs "
+                        "and exports (default: such a directory is refused)")
     g.add_argument("--export", default=None, help="formats exported after training: 'jit,onnx' (default), 'none'")
     g.add_argument("--quiet", action="store_true", default=None,
                    help="a progress bar instead of rsl-rl's per-iteration report")
@@ -202,11 +207,17 @@ def _silent(*args, **kwargs) -> None:
 
 
 def run_train(args) -> int:
-    from .config import deep_update, load_config_file, make_config, parse_assignment, team_settings, total_iterations
+    from .config import deep_update, make_config, parse_assignment, team_settings, total_iterations
+    from .run_dir import claim_run_directory
     from .trainer import Trainer
 
     changes = _train_changes(args)
     sets = [parse_assignment(s) for s in args.set]
+    if args.resume and args.overwrite:
+        raise ValueError("--overwrite starts a new run; --resume continues one: give one of them")
+    # torchrun: rank 0 owns the run directory (the other ranks write nothing there)
+    owner = int(os.environ.get("RANK", "0")) == 0
+    run_dir = None
     if args.resume:
         given = {k: v for k, v in changes.items() if k != "train"}
         given_train = {k for k in changes.get("train", {})
@@ -214,13 +225,18 @@ def run_train(args) -> int:
         if given or given_train or sets or args.config or args.preset or args.prey_policy or args.predator_policy:
             raise ValueError("--resume continues a run with its saved config: only --iterations, --episodes, "
                              "--export, --quiet, --video-every and --video-steps may be given with it")
-        trainer = Trainer.resume(args.resume, log_dir=args.log_dir, changes={"train": changes.get("train", {})})
+        log_dir = args.log_dir
+        if log_dir is None and os.path.exists(args.resume):  # the checkpoint's run (Trainer.resume's default)
+            log_dir = args.resume if os.path.isdir(args.resume) else os.path.dirname(os.path.abspath(args.resume))
+        if owner and log_dir is not None:
+            run_dir = claim_run_directory(log_dir, resume=True)
+        trainer = Trainer.resume(args.resume, log_dir=log_dir, changes={"train": changes.get("train", {})})
         _check_logger_package(trainer.config["runner"]["logger"])
         say = print if trainer.rank == 0 else _silent
         say(f"aquarium-warp train: resumed {args.resume} at iteration {trainer.iteration} of "
             f"{trainer.total_iterations} (log dir {trainer.log_dir})")
     else:
-        file_cfg = load_config_file(args.config) if args.config else {}
+        file_cfg = _read_config_file(args.config) if args.config else {}
         # Popped whether or not --preset overrides it: "preset" is no config section.
         file_preset = file_cfg.pop("preset", None)
         preset = args.preset or file_preset or "default"
@@ -235,6 +251,8 @@ def run_train(args) -> int:
         log_dir = args.log_dir or os.path.join(
             "runs", f"{config['train']['team']}_{config['train']['sharing']}_{time.strftime('%Y%m%d-%H%M%S')}")
         _check_logger_package(config["runner"]["logger"])
+        if owner:
+            run_dir = claim_run_directory(log_dir, overwrite=args.overwrite)
         trainer = Trainer(config, log_dir=log_dir)
         learners = " and ".join(f"{t} ({team_settings(config, t)['sharing']} sharing, {trainer.vec_envs[t].slots} "
                                 f"slots)" for t in trainer.teams)
@@ -243,17 +261,58 @@ def run_train(args) -> int:
         ranks = f" (x{trainer.world_size} processes)" if trainer.world_size > 1 else ""
         say(f"aquarium-warp train: {learners}{against} on {trainer.env.device}, {trainer.env.num_worlds} "
             f"worlds{ranks}, {total_iterations(config)} iterations -> {log_dir}")
-    start = time.perf_counter()
+    try:
+        _train_and_export(trainer, say)
+    finally:
+        trainer.close()
+        if run_dir is not None:
+            run_dir.release()
+    return 0
+
+
+def _train_and_export(trainer, say) -> None:
+    """Train the rest of the run and export it; on SIGINT or SIGTERM (`stop.py`) the run stops at an
+    iteration boundary, checkpointed and exported, and `Interrupted` says how to resume."""
+    start, first = time.perf_counter(), trainer.iteration
     trainer.train()
+    ran = trainer.iteration - first
     # torchrun: the ranks hold the same parameters; rank 0 exports them.
     paths = trainer.export() if trainer.config["train"]["export"] and trainer.rank == 0 else {}
-    say(f"aquarium-warp train: {trainer.iteration} iterations done in {time.perf_counter() - start:.1f} s; "
-        f"checkpoints, progress CSV and TensorBoard logs in {trainer.log_dir}")
+    resumed = f", resumed at {first}" if first else ""
+    if ran == 0:
+        say(f"aquarium-warp train: no iterations to run ({trainer.iteration} of {trainer.total_iterations} done"
+            f"{resumed}); no checkpoint written, run config in {trainer.log_dir}")
+    else:
+        say(f"aquarium-warp train: {plural(ran, 'iteration')} in {time.perf_counter() - start:.1f} s "
+            f"({trainer.iteration} of {trainer.total_iterations} done{resumed}); checkpoints, progress CSV and "
+            f"TensorBoard logs in {trainer.log_dir}")
     for key, value in paths.items():
         for fmt, path in (value.items() if isinstance(value, dict) else [(key, value)]):
             say(f"  exported {fmt}: {path}")
-    trainer.close()
-    return 0
+    if trainer.stop.signum is not None:
+        raise Interrupted(f"stopped by {trainer.stop.name} after iteration {trainer.iteration} of "
+                          f"{trainer.total_iterations}; continue with: aquarium-warp train --resume "
+                          f"{trainer.log_dir}", trainer.stop.signum)
+
+
+def _read_config_file(path: str) -> dict:
+    """`load_config_file`, its failures one line naming --config, the path and the cause."""
+    from .config import load_config_file
+
+    try:
+        from yaml import YAMLError
+    except ImportError:  # without PyYAML a .yaml file is refused by load_config_file's import
+        YAMLError = ValueError
+    try:
+        return load_config_file(path)
+    except OSError as error:
+        raise ValueError(f"--config {path}: cannot read it ({error.strerror or error})") from None
+    except ValueError as error:  # json.JSONDecodeError is one; our own messages name the path already
+        message = str(error) if str(error).startswith(path) else f"--config {path}: not valid JSON ({error})"
+        raise ValueError(message) from None
+    except YAMLError as error:
+        first = (str(error).strip().splitlines() or [""])[0]
+        raise ValueError(f"--config {path}: not valid YAML ({type(error).__name__}: {first})") from None
 
 
 # ---------------------------------------------------------------------------------------------- eval
@@ -291,9 +350,9 @@ def add_eval_arguments(p: argparse.ArgumentParser) -> None:
 def run_eval(args) -> int:
     from .evaluate import evaluate_policies, plot_distributions, plot_training_curves, write_results
 
+    os.makedirs(check_output_dir(args.out, "--out"), exist_ok=True)  # before any episode runs
     if args.cross_play:
         return run_cross_play(args)
-    os.makedirs(args.out, exist_ok=True)
     outputs = []
     curves: dict[str, list[str]] = {}
     for item in args.curves:
@@ -306,7 +365,7 @@ def run_eval(args) -> int:
         predator = args.predator if args.predator is not None else ["naivchase"]
         env = _eval_world(args, prey + predator)
         print(f"aquarium-warp eval: {len(prey)} prey x {len(predator)} predator policies, {args.episodes} episodes "
-              f"x {len(args.seeds)} seeds, {env.prey_count} prey, {env.predator_count} predators, "
+              f"x {len(args.seeds)} seeds, {env.prey_count} prey, {plural(env.predator_count, 'predator')}, "
               f"{env.max_steps} steps")
         start = time.perf_counter()
         result = evaluate_policies(prey, predator, env, episodes=args.episodes, seeds=args.seeds,
@@ -323,8 +382,12 @@ def run_eval(args) -> int:
         if not args.no_figures:
             outputs.append(plot_distributions(result, os.path.join(args.out, "distributions.png")))
     if curves and not args.no_figures:
-        outputs.append(plot_training_curves(curves, os.path.join(args.out, "training_curves.png"),
-                                            smooth=args.smooth))
+        with warnings.catch_warnings(record=True) as notes:  # e.g. why a curve is empty
+            warnings.simplefilter("always")
+            outputs.append(plot_training_curves(curves, os.path.join(args.out, "training_curves.png"),
+                                                smooth=args.smooth))
+        for note in notes:
+            print(f"  note: {note.message}")
     for path in outputs:
         print(f"  wrote {path}")
     return 0
@@ -361,8 +424,8 @@ def run_cross_play(args) -> int:
     predator = expand_specs(args.predator or ["naivchase", NO_CONFUSION, "random"])
     env = _eval_world(args, prey + predator)
     print(f"aquarium-warp eval --cross-play: {len(prey)} prey x {len(predator)} predator policies, "
-          f"{args.episodes} episodes x {len(args.seeds)} seeds, {env.prey_count} prey, {env.predator_count} "
-          f"predators, {env.max_steps} steps")
+          f"{args.episodes} episodes x {len(args.seeds)} seeds, {env.prey_count} prey, "
+          f"{plural(env.predator_count, 'predator')}, {env.max_steps} steps")
     start = time.perf_counter()
     result = cross_play(prey, predator, env, episodes=args.episodes, seeds=args.seeds, device=args.device,
                         max_worlds=args.max_worlds, deterministic=not args.stochastic)

@@ -50,6 +50,7 @@ import warnings
 import numpy as np
 import torch
 
+from ..atomic import atomic_open, write_figure
 from ..config import AquariumConfig, _is_int
 from ..env import BatchedAquarium
 from ..heuristics import make_policy
@@ -246,13 +247,13 @@ def write_results(result: dict, out_dir: str) -> dict[str, str]:
              "episodes": os.path.join(out_dir, "episodes.json")}
     rows = result["summary"]
     if rows:
-        with open(paths["csv"], "w", newline="", encoding="utf-8") as f:
+        with atomic_open(paths["csv"], newline="") as f:
             writer = csv.DictWriter(f, fieldnames=list(rows[0]))
             writer.writeheader()
             writer.writerows(rows)
-    with open(paths["json"], "w", encoding="utf-8") as f:
+    with atomic_open(paths["json"]) as f:
         json.dump({"summary": rows, "protocol": result["protocol"]}, f, indent=1)
-    with open(paths["episodes"], "w", encoding="utf-8") as f:
+    with atomic_open(paths["episodes"]) as f:
         json.dump(result["episodes"], f)
     return paths
 
@@ -370,14 +371,14 @@ def write_cross_play(result: dict, out_dir: str) -> dict[str, str]:
     cp = result["cross_play"]
     paths["cross_play_csv"] = os.path.join(out_dir, "cross_play.csv")
     paths["cross_play_json"] = os.path.join(out_dir, "cross_play.json")
-    with open(paths["cross_play_csv"], "w", newline="", encoding="utf-8") as f:
+    with atomic_open(paths["cross_play_csv"], newline="") as f:
         writer = csv.writer(f)
         columns = [(m, s) for m in CROSS_PLAY_METRICS for s in ("mean", "std")]
         writer.writerow(["prey_policy", "predator_policy"] + [f"{m}_{s}" for m, s in columns])
         for i, a in enumerate(cp["prey"]):
             for j, b in enumerate(cp["predator"]):
                 writer.writerow([a, b] + [cp["matrices"][m][s][i][j] for m, s in columns])
-    with open(paths["cross_play_json"], "w", encoding="utf-8") as f:
+    with atomic_open(paths["cross_play_json"]) as f:
         json.dump({**cp, "rating": result.get("rating"), "protocol": result["protocol"]}, f, indent=1)
     return paths
 
@@ -410,13 +411,14 @@ def plot_distributions(result: dict, path: str) -> str:
     fig.suptitle(f"{result['protocol']['episodes']} episodes x {len(result['protocol']['seeds'])} seeds, "
                  f"{result['protocol']['max_steps']} steps")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    write_figure(fig, path, dpi=120)
     plt.close(fig)
     return path
 
 
 def plot_cross_play(result: dict, path: str, metric: str = "captures_per_prey") -> str:
-    """Heatmap of a cross-play matrix (prey rows, predator columns), each cell `mean +- std` over seeds."""
+    """Heatmap of a cross-play matrix (prey rows, predator columns), each cell `mean +- std` over seeds
+    (the mean alone with one seed)."""
     plt = _pyplot()
     cp = result["cross_play"]
     mean, std = np.array(cp["matrices"][metric]["mean"]), np.array(cp["matrices"][metric]["std"])
@@ -428,14 +430,17 @@ def plot_cross_play(result: dict, path: str, metric: str = "captures_per_prey") 
     ax.set_xlabel("predator policy")
     ax.set_ylabel("prey policy")
     middle = (np.nanmax(mean) + np.nanmin(mean)) / 2
+    protocol = result["protocol"]
+    several = len(protocol["seeds"]) > 1
     for i in range(mean.shape[0]):
         for j in range(mean.shape[1]):
-            ax.text(j, i, f"{mean[i, j]:.3g}\n± {std[i, j]:.2g}", ha="center", va="center", fontsize=8,
+            # one seed has no spread: its std of 0 would read as a measured one
+            text = f"{mean[i, j]:.3g}" + (f"\n± {std[i, j]:.2g}" if several else "")
+            ax.text(j, i, text, ha="center", va="center", fontsize=8,
                     color="black" if mean[i, j] > middle else "white")
-    protocol = result["protocol"]
     ax.set_title(f"{metric.replace('_', ' ')}: {protocol['episodes']} episodes x {len(protocol['seeds'])} seeds")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    write_figure(fig, path, dpi=120)
     plt.close(fig)
     return path
 
@@ -498,6 +503,7 @@ def plot_training_curves(curves: dict[str, list[str]], path: str, smooth: int = 
     smoothed by a trailing moving average over `smooth` iterations."""
     plt = _pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    empty: list[str] = []  # labels of which no run logged an ended episode (nothing to draw)
     for label, patterns in curves.items():
         runs = sorted({d for p in patterns for d in (glob.glob(p) or [p])
                        if os.path.isdir(d) or (d.endswith(".csv") and os.path.isfile(d))})
@@ -514,6 +520,13 @@ def plot_training_curves(curves: dict[str, list[str]], path: str, smooth: int = 
             ok = ~np.isnan(mean)
             line, = ax.plot(x[ok], mean[ok], label=f"{label} ({len(runs)} run{'s' if len(runs) > 1 else ''})")
             ax.fill_between(x[ok], (mean - std)[ok], (mean + std)[ok], color=line.get_color(), alpha=0.2)
+            if not ok.any() and metric == "captures_per_prey":  # said once per label
+                empty.append(label)
+    if empty:
+        note = (f"no episode ended in the runs of {', '.join(map(repr, empty))} ({n} iteration(s) logged; an "
+                "episode lasts env.max_steps steps): their curves are empty; train longer")
+        warnings.warn(note, stacklevel=2)
+        fig.text(0.5, 0.01, note, ha="center", va="bottom", fontsize=8, wrap=True)
     axes[0].set_title("captures per prey per episode")
     axes[1].set_title("reward per agent per episode (learning team)")
     for ax in axes:
@@ -521,6 +534,6 @@ def plot_training_curves(curves: dict[str, list[str]], path: str, smooth: int = 
         ax.grid(alpha=0.3)
         ax.legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    write_figure(fig, path, dpi=120)
     plt.close(fig)
     return path

@@ -34,8 +34,10 @@ generator instead of taking the argmax.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import json
+import logging
 import os
 import warnings
 import zipfile
@@ -44,6 +46,7 @@ import numpy as np
 import torch
 import torch.nn as nn
 
+from ..atomic import atomic_open, atomic_path
 from ..pretrained import resolve
 from . import _rsl  # noqa: F401
 
@@ -189,7 +192,7 @@ def export_policy(actor: nn.Module, meta: dict, out_dir: str, formats=("jit", "o
     module = exportable(actor)
     meta = {**meta, "recurrent": recurrent_meta(actor)}
     meta_text = json.dumps(meta, indent=1, default=str)
-    with open(os.path.join(out_dir, "policy.json"), "w", encoding="utf-8") as f:
+    with atomic_open(os.path.join(out_dir, "policy.json")) as f:
         f.write(meta_text)
     paths = {}
     if "jit" in formats:
@@ -197,7 +200,8 @@ def export_policy(actor: nn.Module, meta: dict, out_dir: str, formats=("jit", "o
         with warnings.catch_warnings():  # TorchScript is deprecated in torch >= 2.10, still supported
             warnings.simplefilter("ignore", DeprecationWarning)
             scripted = torch.jit.script(module)
-            torch.jit.save(scripted, path, _extra_files={META_NAME: meta_text})
+            with atomic_path(path) as partial:
+                torch.jit.save(scripted, partial, _extra_files={META_NAME: meta_text})
         paths["jit"] = path
     if "onnx" in formats:
         paths["onnx"] = _export_onnx(module, meta, meta_text, os.path.join(out_dir, "policy.onnx"))
@@ -228,14 +232,31 @@ def _export_onnx(module: nn.Module, meta: dict, meta_text: str, path: str) -> st
         # torch.export's notes on the RNN's flat weights and on the shared row axis: harmless here.
         warnings.filterwarnings("ignore", message="The tensor attributes", category=UserWarning)
         warnings.filterwarnings("ignore", message="# The axis name", category=UserWarning)
-        torch.onnx.export(wrapper.eval(), args, path, input_names=inputs, output_names=outputs,
-                          dynamic_shapes=dynamic, opset_version=18, dynamo=True, external_data=False,
-                          verbose=False)
-    model = onnx.load(path)
-    entry = model.metadata_props.add()
-    entry.key, entry.value = META_NAME, meta_text
-    onnx.save(model, path)
+        with _without_torchvision_notes(), atomic_path(path) as partial:
+            torch.onnx.export(wrapper.eval(), args, partial, input_names=inputs, output_names=outputs,
+                              dynamic_shapes=dynamic, opset_version=18, dynamo=True, external_data=False,
+                              verbose=False)
+            model = onnx.load(partial)
+            entry = model.metadata_props.add()
+            entry.key, entry.value = META_NAME, meta_text
+            onnx.save(model, partial)
     return path
+
+
+@contextlib.contextmanager
+def _without_torchvision_notes():
+    """torch.onnx's exporter logs a warning for each torchvision operator it cannot register when
+    torchvision is not installed (four lines per export); a policy uses none of them."""
+    log = logging.getLogger("torch.onnx._internal.exporter._registration")
+
+    def keep(record: logging.LogRecord) -> bool:
+        return not record.getMessage().startswith("torchvision is not installed")
+
+    log.addFilter(keep)
+    try:
+        yield
+    finally:
+        log.removeFilter(keep)
 
 
 class LoadedPolicy:
@@ -415,12 +436,22 @@ def load_policy(path: str, device="cpu", deterministic: bool = True, seed: int =
         extra = {META_NAME: ""}
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", DeprecationWarning)
-            module = torch.jit.load(path, map_location=device, _extra_files=extra)
+            module = _unreadable_as_value_error(path, torch.jit.load, path, map_location=device, _extra_files=extra)
         module.eval()
         meta = json.loads(extra[META_NAME]) if extra[META_NAME] else _sidecar_meta(path)
         return _checked_team(LoadedPolicy(_module_logits(module, device, meta), meta, "jit", device, deterministic,
                                           seed, module=module), team, path)
     return _checked_team(_load_checkpoint(path, device, deterministic, seed, team), team, path)
+
+
+def _unreadable_as_value_error(path: str, read, *args, **kwargs):
+    """`read(*args, **kwargs)`; a damaged or foreign file is a one-line ValueError naming `path`."""
+    try:
+        return read(*args, **kwargs)
+    except Exception as error:  # noqa: BLE001 - torch and onnxruntime raise many kinds for a damaged file
+        reason = (str(error).strip().splitlines() or [""])[0][:200]
+        raise ValueError(f"{path}: not a readable policy file (a TorchScript or ONNX policy, or a training "
+                         f"checkpoint; {type(error).__name__}: {reason})") from None
 
 
 def _checked_team(policy: LoadedPolicy, team: str | None, path: str) -> LoadedPolicy:
@@ -460,7 +491,7 @@ def _load_onnx(path: str, deterministic: bool, seed: int) -> LoadedPolicy:
     except ImportError as error:  # pragma: no cover - depends on the installation
         raise ValueError("loading .onnx policies needs onnxruntime (pip install onnxruntime); "
                          "the TorchScript policy.pt beside it needs nothing extra") from error
-    session = ort.InferenceSession(path, providers=["CPUExecutionProvider"])
+    session = _unreadable_as_value_error(path, ort.InferenceSession, path, providers=["CPUExecutionProvider"])
     custom = session.get_modelmeta().custom_metadata_map
     meta = json.loads(custom[META_NAME]) if META_NAME in custom else _sidecar_meta(path)
 
@@ -490,7 +521,7 @@ def policy_world(path: str) -> dict:
     both teams no team needs naming (both share the world); `path` may name a shipped policy."""
     path = resolve(path)
     if not path.endswith(".onnx") and os.path.isfile(path) and not _is_torchscript(path):
-        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+        checkpoint = _unreadable_as_value_error(path, torch.load, path, map_location="cpu", weights_only=False)
         state = (checkpoint.get("infos") or {}).get("aquarium") if isinstance(checkpoint, dict) else None
         if isinstance(state, dict) and "config" in state:
             return state["config"].get("env", {})
@@ -530,10 +561,7 @@ def policy_from_actor(actor: nn.Module, meta: dict, device, deterministic: bool 
 
 def _load_checkpoint(path: str, device: torch.device, deterministic: bool, seed: int,
                      team: str | None = None) -> LoadedPolicy:
-    try:
-        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as error:
-        raise ValueError(f"{path}: neither a TorchScript policy nor a training checkpoint ({error})") from error
+    checkpoint = _unreadable_as_value_error(path, torch.load, path, map_location="cpu", weights_only=False)
     if not isinstance(checkpoint, dict) or ("actor_state_dict" not in checkpoint and "learners" not in checkpoint):
         raise ValueError(f"{path}: not a training checkpoint (no actor_state_dict)")
     try:

@@ -41,6 +41,7 @@ import contextlib
 import copy
 import csv
 import datetime
+import errno
 import glob
 import io
 import json
@@ -57,7 +58,8 @@ from rsl_rl.runners import OnPolicyRunner
 from rsl_rl.utils import resolve_callable
 from rsl_rl.utils.logger import Logger
 
-from ..env import BatchedAquarium
+from ..atomic import atomic_open
+from ..env import BatchedAquarium, resolve_device
 from ..heuristics import POLICIES, make_policy
 from ..pretrained import is_policy_file
 from . import (
@@ -77,6 +79,8 @@ from .config import (
 )
 from .export import RecurrentOpponent, export_policy, load_policy, policy_from_actor, policy_meta
 from .loop import TrainingLoop
+from .memory import check_training_memory
+from .stop import StopRequest
 from .vec_env import OTHER, AquariumVecEnv, LearnerActions, TrainedOpponent
 
 CSV_FIELDS = ["iteration", "agent_steps", "world_steps", "world_episodes", "episodes_logged", "captures",
@@ -381,6 +385,8 @@ class AquariumRunner(OnPolicyRunner):
                 log(*pending)  # a checkpoint's progress.csv holds its own iteration
                 pending = None
                 self.save(os.path.join(self.logger.log_dir, f"model_{it}.pt"))
+            if self.trainer is not None and self.trainer.stop.signum is not None:
+                break  # SIGINT or SIGTERM: the final checkpoint below holds this iteration
         if pending is not None:
             log(*pending)
         if saves:
@@ -408,18 +414,13 @@ class AquariumRunner(OnPolicyRunner):
         elif self.is_distributed and self.gpu_global_rank != 0:
             return
         saved["infos"] = infos
-        # Atomic: written to a temporary file in the same folder, then renamed over `path`, so an
-        # interrupted save never leaves a truncated checkpoint under a checkpoint's name.
-        partial = f"{path}.{os.getpid()}.partial"
-        try:
-            with open(partial, "wb") as f:
+        # Atomic: an interrupted save never leaves a truncated checkpoint under a checkpoint's name.
+        with atomic_open(path, "wb") as f:
+            try:
                 torch.save(saved, f)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(partial, path)
-        finally:
-            if os.path.exists(partial):
-                os.remove(partial)
+            except RuntimeError as error:  # torch's zip writer reports a failed write (a full disk) so
+                reason = (str(error).strip().splitlines() or [""])[0][:200]
+                raise OSError(errno.EIO, f"writing the checkpoint failed ({reason})", path) from None
         self.logger.save_model(path, self.current_learning_iteration)
 
     def load(self, path: str, load_cfg: dict | None = None, strict: bool = True, map_location=None) -> dict:
@@ -505,6 +506,7 @@ class Trainer:
             train["opponent"] = default_opponent(train["team"])
         self.config = config
         self.log_dir = log_dir
+        self.stop = StopRequest()
         # torchrun: one process (rank) per GPU or CPU share, each with its own worlds and seed.
         self.rank, local_rank, self.world_size = distributed.world()
         if self.world_size > 1 and train["loop"] == "rsl-rl":
@@ -515,6 +517,7 @@ class Trainer:
         np.random.seed(self.seed % 2**32)
         random.seed(self.seed)
 
+        check_training_memory(config, resolve_device(device))  # the whole run, before anything is allocated
         self.env = BatchedAquarium(env_config(config), num_worlds=train["num_worlds"], device=device,
                                    seed=self.seed)
         self.device = self.env.torch_device
@@ -550,7 +553,7 @@ class Trainer:
             if self.world_size > 1:  # rank r simulates with seed train.seed + r
                 record["distributed"] = {"world_size": self.world_size,
                                          "seeds": [int(train["seed"]) + r for r in range(self.world_size)]}
-            with open(os.path.join(log_dir, "config.json"), "w", encoding="utf-8") as f:
+            with atomic_open(os.path.join(log_dir, "config.json")) as f:
                 json.dump(record, f, indent=1, default=str)
         with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints the networks (config.json has them)
             self.runner = AquariumRunner(
@@ -661,7 +664,7 @@ class Trainer:
             if self.log_dir and self.rank == 0 and csv_path and os.path.isfile(csv_path):
                 with open(csv_path, newline="", encoding="utf-8") as f:
                     rows = [r for r in csv.DictReader(f) if int(r["iteration"]) < done]
-                with open(csv_path, "w", newline="", encoding="utf-8") as f:
+                with atomic_open(csv_path, newline="") as f:
                     writer = csv.DictWriter(f, fieldnames=CSV_FIELDS)
                     writer.writeheader()
                     writer.writerows(rows)
@@ -677,8 +680,13 @@ class Trainer:
         if iterations is None:
             iterations = self.total_iterations - self.iteration
         fresh = self.iteration == 0
-        self.runner.learn(iterations,
-                          init_at_random_ep_len=fresh and bool(self.config["train"]["init_at_random_ep_len"]))
+        # Our loop stops at an iteration boundary on SIGINT or SIGTERM (`stop.py`); rsl-rl's cannot, and
+        # torchrun's ranks could see a signal at different iterations (their all-reduces would wait forever).
+        graceful = self.runner.loop_kind == "fast" and self.world_size == 1
+        catching = self.stop.catching() if graceful else contextlib.nullcontext()
+        with catching:
+            self.runner.learn(iterations,
+                              init_at_random_ep_len=fresh and bool(self.config["train"]["init_at_random_ep_len"]))
 
     def learning(self, iteration: int) -> list[bool] | None:
         """Which learners update in `iteration` (None: all). Alternating schedule: the teams take turns

@@ -6,6 +6,7 @@ from __future__ import annotations
 import statistics
 from pathlib import Path
 
+from ..atomic import write_figure
 from .stages import STAGE_LABELS, STAGES
 
 
@@ -74,7 +75,7 @@ def plot_results(result: dict, stem: str | Path) -> list[Path]:
         ax.legend(fontsize=7.5, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=2, frameon=False)
         fig.tight_layout()
         path = stem.parent / f"{stem.name}_{kind}.png"
-        fig.savefig(path, dpi=110, bbox_inches="tight")
+        write_figure(fig, path, dpi=110, bbox_inches="tight")
         plt.close(fig)
         paths.append(path)
 
@@ -110,7 +111,7 @@ def plot_results(result: dict, stem: str | Path) -> list[Path]:
         fig.suptitle(f"Where the step's time goes on {where}\n{stamp}", fontsize=10)
         fig.tight_layout(rect=(0, 0.12, 1, 0.93))
         path = stem.parent / f"{stem.name}_stages.png"
-        fig.savefig(path, dpi=110, bbox_inches="tight")
+        write_figure(fig, path, dpi=110, bbox_inches="tight")
         plt.close(fig)
         paths.append(path)
     return paths

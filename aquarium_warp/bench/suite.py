@@ -13,6 +13,7 @@ from typing import Any
 
 import warp as wp
 
+from ..atomic import atomic_open, check_output_dir
 from ..env import resolve_device
 from ..json_records import json_safe
 from .bandwidth import copy_bandwidth
@@ -33,6 +34,7 @@ def run_bench(settings: BenchSettings, peers: Peers | None = None) -> dict:
     `peers`: the measuring code of the peers that `settings` asks for (`peers.Peers`)."""
     peers = peers or Peers()
     peers.check(settings)
+    check_output_dir(settings.out_dir, "--out-dir")  # before the suite runs, not after
     log: Callable[..., None] = (lambda *a: None) if settings.quiet else (lambda *a: print(*a, flush=True))
     device = resolve_device(settings.device)
     cuda = wp.get_device(device).is_cuda
@@ -103,7 +105,8 @@ def run_bench(settings: BenchSettings, peers: Peers | None = None) -> dict:
     result["figures"] = [Path(f).name for f in figures]  # next to the JSON
     result["wall_s"] = time.perf_counter() - started
     path = out_dir / f"scaling_{tag}.json"
-    path.write_text(json.dumps(json_safe(result), indent=2) + "\n")
+    with atomic_open(path) as f:
+        f.write(json.dumps(json_safe(result), indent=2) + "\n")
     result["json"] = str(path)
     log("")
     log(format_table(result))
@@ -118,6 +121,7 @@ def replot(json_path: str | Path) -> list[Path]:
     stem = path.with_suffix("")
     figures = plot_results(result, stem)
     result["figures"] = [f.name for f in figures]
-    path.write_text(json.dumps(json_safe(result), indent=2) + "\n")
+    with atomic_open(path) as f:
+        f.write(json.dumps(json_safe(result), indent=2) + "\n")
     return figures
 

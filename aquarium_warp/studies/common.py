@@ -24,6 +24,7 @@ from multiprocessing import get_context
 import numpy as np
 import torch
 
+from ..atomic import atomic_open, write_figure
 from ..bench.machine import machine_info
 from ..config import AquariumConfig
 from ..env import BatchedAquarium, resolve_device
@@ -47,14 +48,6 @@ def number_list(text, kind: type, name: str, low: float, high: float | None = No
             allowed = f"{'(' if low_open else '['}{low:g}, {'inf)' if high is None else f'{high:g}]'}"
             raise ValueError(f"{name}={text!r}: {v!r} is out of range: every value must be in {allowed}")
     return values
-
-
-def check_distinct(name: str, values) -> None:
-    """A `ValueError` naming `name` where `values` repeats one: a repeated setting would run twice under
-    one name and pool its seeds with its twin's."""
-    repeated = sorted({v for v in values if list(values).count(v) > 1}, key=str)
-    if repeated:
-        raise ValueError(f"{name}={list(values)!r} repeats {', '.join(map(repr, repeated))}: list each value once")
 
 
 def check_int(name: str, value, low: int = 1) -> None:
@@ -202,7 +195,7 @@ def run_jobs(function: Callable[[dict], dict], tasks: Sequence[dict], jobs: int,
     start = time.perf_counter()
 
     def done(i: int, result: dict) -> None:
-        with open(paths[i], "w", encoding="utf-8") as f:  # JSON reads back the same floats (NaN included)
+        with atomic_open(paths[i]) as f:  # JSON reads back the same floats (NaN included)
             json.dump({"key": keys[i], "result": result}, f)
         results[i] = result
         finished = sum(r is not None for r in results)
@@ -369,7 +362,7 @@ def write_outputs(out: str, name: str, rows: list[dict], summary: dict,
     os.makedirs(out, exist_ok=True)
     paths = {"csv": os.path.join(out, f"{name}.csv"), "json": os.path.join(out, f"{name}.json")}
     write_csv(paths["csv"], rows)
-    with open(paths["json"], "w", encoding="utf-8") as f:
+    with atomic_open(paths["json"]) as f:
         json.dump(json_safe(summary), f, indent=1)
     figures = plot(summary, out) if plot is not None else []
     summary["files"] = paths
@@ -427,6 +420,6 @@ def save_figure(fig, out: str, name: str, title: str) -> str:
     fig.suptitle(f"{title}\n({BAND})", fontsize=9)
     fig.tight_layout()
     path = os.path.join(out, name)
-    fig.savefig(path, dpi=110)
+    write_figure(fig, path, dpi=110)
     pyplot().close(fig)
     return path

@@ -26,7 +26,7 @@ Measures, per seed:
 - `escape_angle_histogram` (JSON and figure): the angle between escape velocity and current in
   `ANGLE_BINS` bins of 180 / `ANGLE_BINS` degrees, over every seed.
 
-Outputs (`--out`, default `benchmarks/results/flow_study/`): `flow.csv` (one row per kind, strength and
+Outputs (`--out`, default `flow_study/` in the current directory): `flow.csv` (one row per kind, strength and
 seed), `flow.json`, `flow.png` and `flow_escape_angles.png`.
 """
 
@@ -40,8 +40,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from ..atomic import write_figure
 from ..config import AquariumConfig, FlowConfig
 from ..env import resolve_device
+from ..number_lists import check_distinct
 from ..pretrained import is_policy_file
 from . import common
 
@@ -73,7 +75,7 @@ class FlowStudy:
     metrics_every: int = 10
     seed: int = 0
     device: str | None = None
-    out: str = os.path.join("benchmarks", "results", "flow_study")
+    out: str = "flow_study"
     figures: bool = True
 
     def validate(self) -> None:
@@ -82,8 +84,8 @@ class FlowStudy:
             raise ValueError(f"flow kinds {self.kinds!r} must be a non-empty list of {KINDS}")
         if not self.strengths:
             raise ValueError("strengths must list at least one current strength")
-        common.check_distinct("--kinds", self.kinds)
-        common.check_distinct("--strengths", self.strengths)
+        check_distinct("--kinds", self.kinds)
+        check_distinct("--strengths", self.strengths)
         for s in self.strengths:
             common.check_number("flow strength (px/step)", s, 0.0, 100.0)
         for name in ("seeds", "episodes_per_seed", "prey", "predators", "metrics_every"):
@@ -263,7 +265,7 @@ def plot_flow(summary: dict, out: str) -> list[str]:
                  "current, whose angle is uniform in 2D)", fontsize=9)
     fig.tight_layout()
     path = os.path.join(out, "flow_escape_angles.png")
-    fig.savefig(path, dpi=110)
+    write_figure(fig, path, dpi=110)
     plt.close(fig)
     return paths + [path]
 

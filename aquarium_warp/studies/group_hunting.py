@@ -34,7 +34,7 @@ Cooperation shows as captures per predator that grow with team size where the ba
 (interference), joint captures above the baseline's rate, and a spread at captures above the random
 times'. Comparing the shared and individual rewards at each team size tests whether sharing causes it.
 
-Outputs (`--out`, default `benchmarks/results/group_hunting/`): `group_hunting.csv` (one row per
+Outputs (`--out`, default `group_hunting/` in the current directory): `group_hunting.csv` (one row per
 condition, team size and seed), `group_hunting.json` (settings, command, machine, timings, means and
 s.e.m. over seeds, definitions), `group_hunting.png`, the trained policies in `policies/` and each
 task's result in `finished/` (a rerun of the same command keeps them and runs only the others).
@@ -51,6 +51,7 @@ import numpy as np
 import torch
 
 from ..config import AquariumConfig
+from ..number_lists import check_distinct
 from ..ray_tasks import RayOptions
 from ..training.config import env_config
 from . import common
@@ -80,7 +81,7 @@ class GroupHuntingStudy:
     world_size: float = 800.0
     device: str | None = None
     jobs: int | None = None
-    out: str = os.path.join("benchmarks", "results", "group_hunting")
+    out: str = "group_hunting"
     figures: bool = True
 
     def validate(self) -> None:
@@ -88,7 +89,7 @@ class GroupHuntingStudy:
             raise ValueError("predators must list at least one team size")
         for name, values in (("--predators", self.predators), ("--prey-conditions", self.prey_conditions),
                              ("--share-radius", self.share_radii)):
-            common.check_distinct(name, values)
+            check_distinct(name, values)
         for n in self.predators:
             common.check_int("predators", n)
         for name in ("prey", "seeds", "worlds", "iterations", "train_steps", "eval_worlds", "eval_steps",

@@ -30,7 +30,7 @@ Measures, per seed (`eval_rows // N` evaluation worlds of one `eval_steps`-step 
   to what it sees) are the chance levels. Many eyes: this fraction and the FID grow with N beyond them.
 - `onsets_per_prey`: flight onsets per prey per 1000 steps.
 
-Outputs (`--out`, default `benchmarks/results/many_eyes/`): `many_eyes.csv` (one row per policy, N,
+Outputs (`--out`, default `many_eyes/` in the current directory): `many_eyes.csv` (one row per policy, N,
 FOV, predator and seed), `many_eyes.json` (settings, command, machine, timings, means and s.e.m.,
 dilution expectations, definitions), `many_eyes.png`, the trained policies in `policies/` and each
 task's result in `finished/` (a rerun of the same command keeps them and runs only the others).
@@ -47,6 +47,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from ..number_lists import check_distinct
 from ..ray_tasks import RayOptions
 from ..training.config import env_config
 from . import common
@@ -75,14 +76,14 @@ class ManyEyesStudy:
     turnaway: bool = True
     device: str | None = None
     jobs: int | None = None
-    out: str = os.path.join("benchmarks", "results", "many_eyes")
+    out: str = "many_eyes"
     figures: bool = True
 
     def validate(self) -> None:
         if not self.group_sizes or not self.fov_angles:
             raise ValueError("group sizes and FOV angles must each list at least one value")
-        common.check_distinct("--group-sizes", self.group_sizes)
-        common.check_distinct("--fov", self.fov_angles)
+        check_distinct("--group-sizes", self.group_sizes)
+        check_distinct("--fov", self.fov_angles)
         for n in self.group_sizes:
             common.check_int("group size", n)
         for fov in self.fov_angles:
