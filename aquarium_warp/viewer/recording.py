@@ -66,8 +66,12 @@ class Recorder:
         self._thread.start()
 
     def _encode(self, fps: float) -> None:
+        def frames():
+            while (frame := self._frames.get()) is not None:  # not iter(get, None): it compares arrays with ==
+                yield frame
+
         try:
-            write_video(iter(self._frames.get, None), self.path, fps=fps, progress=False)
+            write_video(frames(), self.path, fps=fps, progress=False)
         except (ValueError, OSError, RuntimeError) as error:  # reported by close(), not lost with the thread
             self._error = error
             while self._frames.get() is not None:  # let the simulation thread go on

@@ -164,9 +164,12 @@ class Viewer:
             await asyncio.sleep(max(0.0, period - (time.perf_counter() - start)))
 
     async def close(self) -> None:
-        paths = await self.call(self._stop_recording)
-        if paths is not None:
-            print(f"aquarium-warp view: wrote {paths[0]} and {paths[1]}")
+        try:
+            paths = await self.call(self._stop_recording)
+            if paths is not None:
+                print(f"aquarium-warp view: wrote {paths[0]} and {paths[1]}")
+        except ValueError as error:  # a failed recording is reported; the server still shuts down cleanly
+            print(f"aquarium-warp view: {error}")
         self._thread.shutdown(wait=True)
 
     async def _send_frames(self, page: _Page) -> None:

@@ -176,6 +176,10 @@
     ctx.setTransform(v.scale, 0, 0, v.scale, -v.x * v.scale, -v.y * v.scale);
     ctx.fillStyle = COLOURS.sea;
     ctx.fillRect(0, 0, h.width, h.height);
+    ctx.save();
+    ctx.beginPath();
+    ctx.rect(0, 0, h.width, h.height);
+    ctx.clip();  // cones and arrows stop at the world's edge
     const px = 1 / v.scale;  // one canvas pixel in world px
     const ov = state.overlays;
     if (ov.flow && frame.flow) drawFlow(frame, px);
@@ -249,6 +253,7 @@
         ctx.stroke();
       }
     }
+    ctx.restore();
   }
 
   function drawFlow(frame, px) {
