@@ -117,7 +117,7 @@ def read_trajectory(path: str) -> dict:
 
 def asset(name: str) -> str:
     """The text of one of the page's files (`aquarium_warp/viewer/static/`)."""
-    return resources.files(__package__).joinpath("static", name).read_text(encoding="utf-8")
+    return (resources.files(__package__) / "static" / name).read_text(encoding="utf-8")
 
 
 def replay_page(trajectory: dict) -> str:

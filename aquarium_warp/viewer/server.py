@@ -29,6 +29,7 @@ from starlette.staticfiles import StaticFiles
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from ..metrics import SwarmMetrics
+from ..render import Renderer
 from .messages import MessageError, parse_message
 from .recording import Recorder, asset
 from .simulation import Simulation
@@ -97,7 +98,7 @@ class Viewer:
         self.recorder: Recorder | None = None
         self._record_path = record
         self._metrics: SwarmMetrics | None = None
-        self._renderer = None
+        self._renderer: Renderer | None = None
         self.frames = 0  # snapshots published (tests and the benchmark read it)
         self.tick_seconds = 0.0  # time of the last tick on the simulation thread
 
@@ -110,8 +111,9 @@ class Viewer:
         start = time.perf_counter()
         sim = self.simulation
         stepped = sim.advance()
+        assert sim.env is not None  # built with the simulation
         if self._metrics is None or self._metrics.env is not sim.env:
-            self._metrics = SwarmMetrics(sim.env)  # type: ignore[arg-type] - built with the simulation
+            self._metrics = SwarmMetrics(sim.env)
         snapshot = sim.snapshot(self._metrics)
         snapshot["header"]["recording"] = self.recorder is not None
         if self.recorder is not None and stepped:
@@ -120,8 +122,6 @@ class Viewer:
         return snapshot
 
     def _start_recording(self, path: str | None = None) -> str:
-        from ..render import Renderer
-
         if self.recorder is not None:
             return self.recorder.path
         if path is None:

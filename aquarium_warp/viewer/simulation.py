@@ -137,7 +137,7 @@ class Simulation:
             drivers = {team: _policy_driver(spec, env, team, self.options.seed) for team, spec in specs.items()}
             for driver in drivers.values():
                 driver()  # a policy whose observations do not fit this world fails here, not in a step
-        except Exception as error:  # noqa: BLE001 - whatever a user's file makes torch, onnx or the loaders raise, the viewer goes on with its current teams
+        except Exception as error:  # whatever a user's file makes torch, onnx or the loaders raise: keep the teams
             if env is not None and env is not self.env:
                 env.close()
             if self.env is None:  # at start-up: the command line's policies must work
@@ -264,7 +264,7 @@ class Simulation:
         snap["header"] = {
             "step": int(s.world_step[w]), "episode": int(s.episode[w]), "world": w, "num_worlds": env.num_worlds,
             "width": float(cfg.width), "height": float(cfg.height), "prey_capacity": env.prey_capacity,
-            "types": {"prey": _type_info(cfg.prey, cfg.fov_enabled), "predator": _type_info(cfg.predator, cfg.fov_enabled)},
+            "types": {t: _type_info(getattr(cfg, t), cfg.fov_enabled) for t in ("prey", "predator")},
             "episode_captures": int(s.episode_captures[w]),
             "polarization": _finite(values["polarization"][w]), "groups": _finite(values["groups"][w]),
             "prey_alive": int(s.prey_alive_count[w]), "predator_alive": int(s.predator_alive_count[w]),
