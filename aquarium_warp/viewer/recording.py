@@ -141,3 +141,19 @@ def write_replay_page(trajectory_path: str, out: str) -> None:
     page = replay_page(read_trajectory(trajectory_path))
     with open(out, "w", encoding="utf-8") as f:
         f.write(page)
+
+
+def record_trajectory(simulation, steps: int, path: str) -> int:
+    """Step `simulation` (a `viewer.simulation.Simulation`) `steps` times without a server and write the
+    trajectory of its displayed world to `path` (the current state, then one frame per step); returns
+    the frame count. The docs' replays of the shipped policies are made with it (docs/viewer.md)."""
+    from ..metrics import SwarmMetrics
+
+    metrics = SwarmMetrics(simulation.env)
+    snapshot = simulation.snapshot(metrics)
+    frames = [trajectory_frame(snapshot)]
+    for _ in range(steps):
+        simulation.step()
+        frames.append(trajectory_frame(simulation.snapshot(metrics)))
+    write_trajectory(path, trajectory_meta(snapshot), frames)
+    return len(frames)

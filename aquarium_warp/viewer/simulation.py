@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import time
 
 import numpy as np
 import torch
@@ -73,6 +74,8 @@ class Simulation:
         self.human_slot = 0
         self._human_action = 0
         self.human_stats = {"captures": 0, "reward": 0.0, "steps": 0}
+        self._metrics_values: tuple | None = None  # (the SwarmMetrics, its values of the displayed world)
+        self._metrics_due = 0.0
         if options.human is not None:
             self.set_human(options.human)
 
@@ -207,6 +210,7 @@ class Simulation:
             self.speed = message["value"]
         elif kind == "world":
             self.world = message["index"]
+            self._metrics_values = None  # the other world's values
             if self.human is not None:
                 self.set_human(self.human)
         elif kind == "overlays":
@@ -254,7 +258,14 @@ class Simulation:
         `metrics`: a `SwarmMetrics` of the env (the caller keeps one per env)."""
         env, w = self._env, self.world
         s = env.state.torch
-        values = metrics.compute()
+        # The swarm metrics (groups: a connected-components pass) cost more than a step in a large world:
+        # recomputed when the last result is older than 4x its own cost, they take at most a fifth of the time.
+        now = time.perf_counter()
+        if self._metrics_values is None or self._metrics_values[0] is not metrics or now >= self._metrics_due:
+            values = metrics.compute()
+            self._metrics_values = (metrics, {k: float(values[k][w]) for k in ("polarization", "groups")})
+            self._metrics_due = time.perf_counter() + 4 * (time.perf_counter() - now)
+        values = self._metrics_values[1]
         snap = {
             "position": s.position[w].cpu().numpy().copy(), "heading": s.heading[w].cpu().numpy().copy(),
             "velocity": s.velocity[w].cpu().numpy().copy(), "alive": s.alive[w].cpu().numpy().copy(),
@@ -266,7 +277,7 @@ class Simulation:
             "width": float(cfg.width), "height": float(cfg.height), "prey_capacity": env.prey_capacity,
             "types": {t: _type_info(getattr(cfg, t), cfg.fov_enabled) for t in ("prey", "predator")},
             "episode_captures": int(s.episode_captures[w]),
-            "polarization": _finite(values["polarization"][w]), "groups": _finite(values["groups"][w]),
+            "polarization": _finite(values["polarization"]), "groups": _finite(values["groups"]),
             "prey_alive": int(s.prey_alive_count[w]), "predator_alive": int(s.predator_alive_count[w]),
             "playing": self.playing, "speed": self.speed, "specs": dict(self.specs), "overlays": dict(self.overlays),
             "human": None if self.human is None else {"team": self.human, "slot": self.human_agent(),
