@@ -17,10 +17,10 @@ import sys
 import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests"))
-from test_viewer import _browser, serve  # noqa: E402 - the tests' server thread and browser
+from test_viewer import _browser, serve  # the tests' server thread and browser
 
-from aquarium_warp.viewer.server import Viewer, pack_frame  # noqa: E402
-from aquarium_warp.viewer.simulation import Simulation, ViewOptions  # noqa: E402
+from aquarium_warp.viewer.server import Viewer, pack_frame
+from aquarium_warp.viewer.simulation import Simulation, ViewOptions
 
 
 def measure(agents: int, seconds: float, max_agents: int, device: str) -> dict:
