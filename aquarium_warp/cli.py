@@ -580,6 +580,18 @@ def _add_bench(sub) -> None:
     bench.set_defaults(run=run_from_args)
 
 
+def _add_view(sub) -> None:
+    """`aquarium-warp view`: the browser viewer (code in `aquarium_warp/viewer/`)."""
+    from .viewer import add_arguments, run
+
+    view = sub.add_parser("view", help="watch and steer a world live in the browser; replay pages of recordings",
+                          description="Serve a page that shows one world live: play/pause, speed, overlays, "
+                                      "plots, team policies and keyboard play; or, with --replay, write a page "
+                                      "that plays a recorded trajectory (docs/viewer.md).")
+    add_arguments(view)
+    view.set_defaults(run=run)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The `aquarium-warp` parser with every subcommand (`python -m aquarium_warp` is the same)."""
     from . import __version__
@@ -634,6 +646,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_study(sub)
     _add_sweep(sub)
     _add_bench(sub)
+    _add_view(sub)
     return parser
 
 

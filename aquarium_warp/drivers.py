@@ -30,8 +30,8 @@ from .pretrained import is_policy_file
 from .pretrained import names as pretrained_names
 
 NO_CONFUSION = "naivchase-noconfusion"
-# Heuristic names by team, normalised (`normalise_name`).
-HEURISTICS = {"prey": POLICIES["prey"], "predator": POLICIES["predator"] + (normalise_name(NO_CONFUSION),)}
+# Heuristic names by team (compared after `normalise_name`).
+HEURISTICS = {"prey": POLICIES["prey"], "predator": POLICIES["predator"] + (NO_CONFUSION,)}
 
 Driver = Callable[[], torch.Tensor]
 
@@ -39,7 +39,8 @@ Driver = Callable[[], torch.Tensor]
 def is_heuristic(spec, team: str | None = None) -> bool:
     """Whether `spec` names a heuristic of `team` (of either team for None)."""
     teams = TYPES if team is None else (team,)
-    return isinstance(spec, str) and any(normalise_name(spec) in HEURISTICS[t] for t in teams)
+    return isinstance(spec, str) and any(normalise_name(spec) == normalise_name(name) for t in teams
+                                         for name in HEURISTICS[t])
 
 
 def check_spec(spec, team: str, option: str | None = None) -> None:
