@@ -94,7 +94,7 @@ class AquariumSB3VecEnv(VecEnv):
         self.rows.close()
 
     def _count(self, indices: VecEnvIndices) -> int:
-        return len(self._get_indices(indices))
+        return len(list(self._get_indices(indices)))
 
     def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
         value = getattr(self, attr_name)

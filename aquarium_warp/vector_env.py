@@ -161,9 +161,9 @@ class AquariumRows:
         self._terminated = torch.zeros(W, S, dtype=torch.bool, device=dev)
         self._truncated = torch.zeros(W, S, dtype=torch.bool, device=dev)
         self._active = torch.zeros(W, S, dtype=torch.bool, device=dev)
-        out, t, Pc = env.outputs, env.state.torch, env.prey_capacity
+        out, captured = env.outputs, env.state.torch.captured[:, :env.prey_capacity]
         self._in = {typ: (out.rewards[typ], out.terminated[typ], out.truncated[typ], env.alive[typ],
-                          t.captured[:, :Pc] if typ == "prey" else None) for typ in self.types}
+                          captured if typ == "prey" else None) for typ in self.types}
         self._step_actions = {typ: self._actions[:, self.slices[typ]] for typ in self.types}
         self._load()
 
@@ -213,7 +213,7 @@ class AquariumRows:
                 arr = np.asarray(actions)
             except (ValueError, TypeError):
                 raise ValueError(f"actions must be integers in [0, {self.action_count - 1}], one per row") from None
-            if arr.dtype == object:
+            if arr.dtype.kind not in "biuf":
                 raise ValueError(f"actions must be integers in [0, {self.action_count - 1}], one per row")
             a = torch.from_numpy(np.ascontiguousarray(arr))
         if a.numel() != self.num_rows or (a.dim() > 1 and a.shape[0] != self.num_rows):
