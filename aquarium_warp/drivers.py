@@ -49,9 +49,9 @@ def check_spec(spec, team: str, option: str | None = None) -> None:
     if is_heuristic(spec, team) or is_policy_file(spec):
         return
     name = option or f"{team} policy"
-    raise ValueError(f"{name}={spec!r} is neither a heuristic of the {team} ({', '.join(HEURISTICS[team])}) nor an "
-                     f"existing policy file (exported .pt/.onnx or a training checkpoint) nor a shipped policy "
-                     f"({', '.join(pretrained_names()) or 'none'})")
+    raise ValueError(f"{name}={spec!r} is neither a heuristic (a {team} heuristic: {', '.join(HEURISTICS[team])}) "
+                     f"nor an existing policy file (exported .pt/.onnx or a training checkpoint) nor a shipped "
+                     f"policy ({', '.join(pretrained_names()) or 'none'})")
 
 
 def make_driver(spec, env: BatchedAquarium, team: str, deterministic: bool = True, seed: int = 0,
