@@ -142,36 +142,18 @@ def _demo(args) -> int:
     return 0
 
 
-def _policy_driver(spec: str, env, agent_type: str, seed: int):
-    """A heuristic by name, or a trained policy file (needs the `training` extra): a callable that
-    returns the team's actions `[W, slots]` for the env's current observations."""
-    from .heuristics import POLICIES, make_policy
-
-    if _is_heuristic(spec, agent_type):
-        return make_policy(spec, env, agent_type, seed=seed)
-    try:
-        from .training.evaluate import make_driver
-    except ImportError as error:
-        raise ValueError(f"{agent_type} policy {spec!r} is not a heuristic {POLICIES[agent_type]}; trained "
-                         f"policy files need the training extra ({error})") from error
-    return make_driver(spec, env, agent_type, seed=seed)
-
-
-def _is_heuristic(spec: str, agent_type: str) -> bool:
-    from .heuristics import POLICIES
-
-    return spec.lower().replace("_", "").replace("-", "") in POLICIES[agent_type]
-
-
 def _video_config(args):
     """The world to film: the trained policies' own (from their metadata, as `eval` takes it; prey and
     predator files must agree), else MODEL.md's (16 prey, 1 predator, 800 x 800); `--prey`,
     `--predators`, `--width`, `--height`, `--flow` override either."""
     from . import AquariumConfig
     from .config import FlowConfig
+    from .drivers import check_spec, is_heuristic
 
+    for spec, agent_type in ((args.prey_policy, "prey"), (args.predator_policy, "predator")):
+        check_spec(spec, agent_type, f"--{agent_type}-policy")
     files = [spec for spec, agent_type in ((args.prey_policy, "prey"), (args.predator_policy, "predator"))
-             if not _is_heuristic(spec, agent_type)]
+             if not is_heuristic(spec, agent_type)]
     data = AquariumConfig().to_dict()
     if files:
         try:
@@ -195,6 +177,7 @@ def _video_config(args):
 
 def _video(args) -> int:
     from . import BatchedAquarium
+    from .drivers import make_drivers
     from .video import check_video_path, record
 
     check_output_file(args.out, "--out")  # before the world is built
@@ -202,13 +185,12 @@ def _video(args) -> int:
 
     cfg = _video_config(args)
     env = BatchedAquarium(cfg, num_worlds=1, device=args.device, seed=args.seed)
-    prey = _policy_driver(args.prey_policy, env, "prey", args.seed)
-    predator = _policy_driver(args.predator_policy, env, "predator", args.seed)
+    drivers = make_drivers({"prey": args.prey_policy, "predator": args.predator_policy}, env, seed=args.seed)
     print(f"aquarium-warp video: {cfg.prey_count} prey ({args.prey_policy}) and "
           f"{plural(cfg.predator_count, 'predator')} ({args.predator_policy}) on {env.device}, {args.steps} steps "
           f"-> {args.out}")
     start = time.perf_counter()
-    frames = record(env, lambda obs: {"prey": prey(), "predator": predator()}, args.steps, args.out,
+    frames = record(env, lambda obs: {team: drive() for team, drive in drivers.items()}, args.steps, args.out,
                     fps=args.fps, progress=not args.no_progress, width_px=args.frame_width,
                     height_px=args.frame_height, view_cones=args.view_cones, hit_boxes=args.hit_boxes,
                     velocities=args.velocities, draw_flow=args.draw_flow)
@@ -600,6 +582,18 @@ def _add_bench(sub) -> None:
     bench.set_defaults(run=run_from_args)
 
 
+def _add_view(sub) -> None:
+    """`aquarium-warp view`: the browser viewer (code in `aquarium_warp/viewer/`)."""
+    from .viewer import add_arguments, run
+
+    view = sub.add_parser("view", help="watch and steer a world live in the browser; replay pages of recordings",
+                          description="Serve a page that shows one world live: play/pause, speed, overlays, "
+                                      "plots, team policies and keyboard play; or, with --replay, write a page "
+                                      "that plays a recorded trajectory (docs/viewer.md).")
+    add_arguments(view)
+    view.set_defaults(run=run)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The `aquarium-warp` parser with every subcommand (`python -m aquarium_warp` is the same)."""
     from . import __version__
@@ -654,6 +648,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_study(sub)
     _add_sweep(sub)
     _add_bench(sub)
+    _add_view(sub)
     return parser
 
 

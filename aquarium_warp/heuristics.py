@@ -32,7 +32,8 @@ from .kernels import heuristics as kernels
 POLICIES = {"prey": ("random", "constant", "turnaway", "boids"), "predator": ("random", "constant", "naivchase")}
 
 
-def _normalise_name(name) -> str:
+def normalise_name(name) -> str:
+    """A policy name as the registries hold it: lower case, without "_" and "-" (the one rule)."""
     if not isinstance(name, str):
         raise ValueError(f"policy name {name!r} must be a string: one of {sorted(set(sum(POLICIES.values(), ())))}")
     return name.lower().replace("_", "").replace("-", "")
@@ -52,7 +53,7 @@ class HeuristicPolicy:
             raise ValueError(f"env must be a BatchedAquarium, got {type(env).__name__}")
         if agent_type not in TYPES:
             raise ValueError(f"agent_type={agent_type!r} must be one of {TYPES}")
-        key = _normalise_name(name)
+        key = normalise_name(name)
         if key not in POLICIES[agent_type]:
             raise ValueError(f"policy {name!r} is not available for {agent_type}: allowed {POLICIES[agent_type]}")
         if confusion is not None and key != "naivchase":
@@ -132,7 +133,7 @@ def heuristic_actions(env: BatchedAquarium, prey: str = "turnaway", predator: st
     policies = _cached.setdefault(env, {})
     actions = {}
     for agent_type, name in (("prey", prey), ("predator", predator)):
-        normal = _normalise_name(name)
+        normal = normalise_name(name)
         chase = normal == "naivchase"
         key = (agent_type, normal, seed, confusion if chase else None)
         if key not in policies:

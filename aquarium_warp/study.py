@@ -51,14 +51,13 @@ import torch
 from .atomic import atomic_open
 from .bench.machine import git_info, machine_info
 from .config import AquariumConfig
+from .drivers import check_spec, is_heuristic, make_driver
 from .env import BatchedAquarium, resolve_device
-from .heuristics import POLICIES, make_policy
 from .json_records import json_safe
 from .metrics import EPISODE_METRICS, EpisodeMetrics, SwarmMetrics
 from .number_lists import check_distinct
 from .number_lists import parse_list as parse_list  # re-exported: the study's list options use it
 from .pretrained import is_policy_file
-from .pretrained import names as pretrained_names
 from .ray_tasks import RayOptions, placement, run_tasks
 from .study_plots import plot_study
 
@@ -206,40 +205,10 @@ def trained_policy_world(path: str) -> AquariumConfig:
     return env_config({"env": policy_world(path)})
 
 
-def trained_policy(path: str, env: BatchedAquarium, agent_type: str):
-    """The trained policy file at `path` (`aquarium_warp.training.export.load_policy`) acting for one agent
-    type of every world: a `TrainedOpponent`, whose call returns int32 actions `[W, slots]` from the
-    env's current observations."""
-    try:  # the training extra is optional (vec_env also needs its rsl-rl and tensordict)
-        from .training.export import load_policy
-        from .training.vec_env import TrainedOpponent
-    except ImportError as error:
-        raise ValueError(f"trained policies need aquarium_warp.training (importing it failed: {error})") from error
-    return TrainedOpponent(load_policy(path, device=env.device), env, agent_type)
-
-
-def is_heuristic(name: str, agent_type: str) -> bool:
-    return isinstance(name, str) and name.lower().replace("_", "").replace("-", "") in POLICIES[agent_type]
-
-
-def make_study_policy(name: str, env: BatchedAquarium, agent_type: str, confusion: bool = True):
-    """A heuristic by name (see `aquarium_warp.heuristics`), else a trained policy file."""
-    if is_heuristic(name, agent_type):
-        chase = name.lower().replace("_", "").replace("-", "") == "naivchase"
-        return make_policy(name, env, agent_type, confusion=confusion if chase else None)
-    if not is_policy_file(name):
-        raise ValueError(f"{agent_type} policy {name!r} is neither a heuristic ({', '.join(POLICIES[agent_type])}) "
-                         "nor an existing policy file (exported .pt/.onnx or a training checkpoint) nor a shipped "
-                         f"policy ({', '.join(pretrained_names())})")
-    return trained_policy(name, env, agent_type)
-
-
 def check_policies(study: SwarmSizeStudy) -> None:
     """Fail early (before any simulation) on policy names that are neither heuristics nor files."""
     for agent_type, name in (("prey", study.prey_policy), ("predator", study.predator_policy)):
-        if not is_heuristic(name, agent_type) and not is_policy_file(name):
-            raise ValueError(f"{agent_type} policy {name!r} is neither a heuristic "
-                             f"({', '.join(POLICIES[agent_type])}) nor an existing policy file")
+        check_spec(name, agent_type)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -252,8 +221,8 @@ def _run_batch(study: SwarmSizeStudy, cfg: AquariumConfig, worlds: int, device: 
     wall time and agent-steps."""
     start = time.perf_counter()
     env = BatchedAquarium(cfg, num_worlds=worlds, device=device, seed=study.seed)
-    prey = make_study_policy(study.prey_policy, env, "prey", study.confusion)
-    predator = make_study_policy(study.predator_policy, env, "predator", study.confusion)
+    prey = make_driver(study.prey_policy, env, "prey", confusion=study.confusion)
+    predator = make_driver(study.predator_policy, env, "predator", confusion=study.confusion)
     metrics = SwarmMetrics(env, linking_distance=study.linking_distance)
     trace = POPULATION_TRACES if study.population_changes else ()
     episodes = EpisodeMetrics(env, metrics=metrics, every=study.metrics_every, trace=trace)
@@ -379,8 +348,8 @@ def _warm_up(study: SwarmSizeStudy, device: str) -> None:
     if cfg.prey_reproduction:
         cfg = cfg.replace(max_prey=4)
     env = BatchedAquarium(cfg, num_worlds=1, device=device, seed=0)
-    prey = make_study_policy(study.prey_policy, env, "prey", study.confusion)
-    predator = make_study_policy(study.predator_policy, env, "predator", study.confusion)
+    prey = make_driver(study.prey_policy, env, "prey", confusion=study.confusion)
+    predator = make_driver(study.predator_policy, env, "predator", confusion=study.confusion)
     metrics = SwarmMetrics(env, linking_distance=study.linking_distance)
     metrics.compute()
     env.step({"prey": prey(), "predator": predator()}, validate=False)

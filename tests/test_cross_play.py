@@ -17,6 +17,7 @@ pytest.importorskip("rsl_rl")
 import torch
 
 from aquarium_warp import BatchedAquarium
+from aquarium_warp.drivers import make_driver
 from aquarium_warp.training.config import env_config, make_config
 from aquarium_warp.training.evaluate import (
     CROSS_PLAY_METRICS,
@@ -24,7 +25,6 @@ from aquarium_warp.training.evaluate import (
     elo_ratings,
     evaluate_policies,
     expand_specs,
-    make_driver,
     run_episodes,
 )
 from aquarium_warp.training.trainer import Trainer

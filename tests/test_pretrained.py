@@ -81,10 +81,10 @@ def test_eval_video_and_study_take_a_name(shipped, tmp_path, capsys):
                  "--no-progress"]) == 0
     assert os.path.getsize(tmp_path / "v.mp4") > 0
     from aquarium_warp import BatchedAquarium
-    from aquarium_warp.study import make_study_policy
+    from aquarium_warp.drivers import make_driver
 
     env = BatchedAquarium(pretrained.world("prey-tiny"), num_worlds=2, device="cpu")
-    actions = make_study_policy("prey-tiny", env, "prey")()
+    actions = make_driver("prey-tiny", env, "prey")()
     assert actions.shape == (2, 3) and actions.dtype == torch.int32
     capsys.readouterr()
     assert main(["eval", "--prey", "prey-nope", "--predator", "naivchase", "--episodes", "1", "--out", out]) == 2

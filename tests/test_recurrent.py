@@ -141,9 +141,10 @@ def test_recurrent_export_reload_and_evaluate(tmp_path, one_thread, rnn_type):
         assert [{k: v for k, v in r.items() if k not in ("prey_policy", "prey_spec")} for r in records] == strip, kind
     # ... and `aquarium-warp video` films it (past the episode's end at step 30), rows reset by
     # RecurrentOpponent.
-    from aquarium_warp.cli import _policy_driver, main
+    from aquarium_warp.cli import main
+    from aquarium_warp.drivers import make_driver
 
-    assert isinstance(_policy_driver(paths["jit"], vec.env, "prey", 0), RecurrentOpponent)
+    assert isinstance(make_driver(paths["jit"], vec.env, "prey", seed=0), RecurrentOpponent)
     out = str(tmp_path / "recurrent.mp4")
     assert main(["video", "--prey-policy", paths["onnx" if "onnx" in kinds else "jit"], "--steps", "35",
                  "--out", out, "--no-progress"]) == 0

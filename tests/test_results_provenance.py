@@ -33,6 +33,7 @@ DEVICE_KEYS = (
     ("device_name",),  # bench_step, bench_training, benchmarl_mappo, bench_multi_gpu, coevolution
     ("machine", "device_name"),  # aquarium_warp.bench.machine.machine_info
     ("machine", "cpu_model"),  # benchmarks/original_aquarium.py and the first bench_pettingzoo.py (CPU only)
+    ("machine", "cpu"),  # benchmarks/bench_viewer.py (CPU only; machine_info's CPU model has this name too)
     ("gpu",),  # benchmarks/bench_per_world.py (before `machine`)
 )
 # Versions: the `versions` mapping, machine_info's entries, or top-level keys (bench_step, bench_training).
@@ -68,6 +69,7 @@ INCOMPLETE: dict[str, tuple[tuple[str, ...], str]] = {
     "redesign_h200/step_old_r1.json": (("command",), "round 1 did not run the README's command (its rows stop at "
                                                      "100,000 agents)"),
     "swarm_size/swarm_size.json": (("commit",), "the commit it ran at is not recorded anywhere"),
+    "viewer_cpu/viewer.json": (("versions",), "only the browser's version recorded, not warp's"),
 }
 
 

@@ -14,7 +14,8 @@ import torch
 
 from aquarium_warp import AquariumConfig, BatchedAquarium
 from aquarium_warp.cli import main
-from aquarium_warp.study import SwarmSizeStudy, make_study_policy, parse_list, parse_world_size, run_swarm_size_study
+from aquarium_warp.drivers import make_driver
+from aquarium_warp.study import SwarmSizeStudy, parse_list, parse_world_size, run_swarm_size_study
 
 
 def read_csv(path):
@@ -127,11 +128,11 @@ def test_trained_policy_file(device, tmp_path):
     path = str(tmp_path / "policy.pt")
     torch.jit.save(torch.jit.script(Policy()), path, _extra_files={"aquarium_policy.json": json.dumps(meta)})
     env = BatchedAquarium(AquariumConfig(prey_count=8), num_worlds=3, device=device)
-    policy = make_study_policy(path, env, "prey")
+    policy = make_driver(path, env, "prey")
     actions = policy()
     assert actions.shape == (3, 8) and actions.dtype == torch.int32 and (actions == 4).all()
     with pytest.raises(ValueError, match="trained for 'prey'"):
-        make_study_policy(path, env, "predator")
+        make_driver(path, env, "predator")
     study = SwarmSizeStudy(prey=[8], seeds=2, episode_steps=40, metrics_every=1, prey_policy=path, device=device,
                            out=str(tmp_path / "out"), figures=False)
     summary = run_swarm_size_study(study, progress=False)

@@ -24,7 +24,7 @@ _EXPORTS = {
     "IndividualMLPModel": "models", "BatchedMLP": "models",
     "AquariumPPO": "ppo",
     "make_config": "config", "PRESETS": "config", "env_config": "config",
-    "Trainer": "trainer", "make_opponent": "trainer", "latest_checkpoint": "trainer",
+    "Trainer": "trainer", "latest_checkpoint": "trainer",
     "export_policy": "export", "load_policy": "export", "LoadedPolicy": "export",
     "evaluate_policies": "evaluate",
 }

@@ -416,7 +416,8 @@ def _eval_world(args, specs):
 
 def run_cross_play(args) -> int:
     """`aquarium-warp eval --cross-play`: the matrix, its files, rating and heatmaps."""
-    from .evaluate import NO_CONFUSION, cross_play, expand_specs, plot_cross_play, write_cross_play
+    from ..drivers import NO_CONFUSION
+    from .evaluate import cross_play, expand_specs, plot_cross_play, write_cross_play
 
     if args.curves:
         raise ValueError("--curves is not drawn with --cross-play: run eval --curves on its own")

@@ -55,25 +55,12 @@ import torch
 from ..atomic import atomic_open, write_figure
 from ..bench.machine import git_info, machine_info
 from ..config import AquariumConfig, _is_int
+from ..drivers import is_heuristic, make_drivers
 from ..env import BatchedAquarium, resolve_device
-from ..heuristics import make_policy
 from ..metrics import EPISODE_METRICS, EpisodeMetrics
-from .trainer import is_heuristic, make_opponent
 
 METRICS = ("captures_per_prey", "reward_per_prey", "reward_per_predator") + tuple(
     f"swarm_{name}" for name in EPISODE_METRICS)
-
-
-NO_CONFUSION = "naivchase-noconfusion"  # NaivChase chasing the nearest visible prey (make_policy(confusion=False))
-
-
-def _normalise(spec: str) -> str:
-    return spec.lower().replace("_", "").replace("-", "")
-
-
-def is_heuristic_spec(spec) -> bool:
-    """A heuristic name of `make_opponent`, or `NO_CONFUSION`."""
-    return is_heuristic(spec) or (isinstance(spec, str) and _normalise(spec) == _normalise(NO_CONFUSION))
 
 
 def parse_spec(spec: str) -> tuple[str, str]:
@@ -81,7 +68,7 @@ def parse_spec(spec: str) -> tuple[str, str]:
     if "=" in spec and not os.path.exists(spec):
         label, value = spec.split("=", 1)
         return label, value
-    if is_heuristic_spec(spec):
+    if is_heuristic(spec):
         return spec.lower(), spec
     path = os.path.normpath(spec)
     parts = path.split(os.sep)
@@ -103,7 +90,7 @@ def common_policy_env(specs, fallback: AquariumConfig) -> AquariumConfig:
     first = None
     for spec in specs:
         _, value = parse_spec(spec)
-        if is_heuristic_spec(value):
+        if is_heuristic(value):
             continue
         world = env_config({"env": policy_world(value)})
         if first is None:
@@ -115,13 +102,6 @@ def common_policy_env(specs, fallback: AquariumConfig) -> AquariumConfig:
     return first[1] if first is not None else fallback
 
 
-def make_driver(spec: str, env: BatchedAquarium, agent_type: str, deterministic: bool = True, seed: int = 0):
-    """`make_opponent`, plus `NO_CONFUSION`: one team's driver for evaluation and videos."""
-    if isinstance(spec, str) and _normalise(spec) == _normalise(NO_CONFUSION):
-        return make_policy("naivchase", env, agent_type, confusion=False)
-    return make_opponent(spec, env, agent_type, deterministic=deterministic, seed=seed)
-
-
 def run_episodes(env_cfg: AquariumConfig, prey: str, predator: str, episodes: int, seed: int, device=None,
                  max_worlds: int = 1024, deterministic: bool = True, metrics_every: int = 10) -> list[dict]:
     """Play `episodes` episodes of `prey` vs `predator` specs; one dict per episode with per-slot
@@ -129,8 +109,7 @@ def run_episodes(env_cfg: AquariumConfig, prey: str, predator: str, episodes: in
     swarm metrics (`swarm_<name>`: means over states sampled every `metrics_every` steps)."""
     W = max(1, min(episodes, max_worlds))
     env = BatchedAquarium(env_cfg, num_worlds=W, device=device, seed=seed)
-    drivers = {"prey": make_driver(prey, env, "prey", deterministic=deterministic, seed=seed),
-               "predator": make_driver(predator, env, "predator", deterministic=deterministic, seed=seed + 1)}
+    drivers = make_drivers({"prey": prey, "predator": predator}, env, seed=seed, deterministic=deterministic)
     dev = env.torch_device
     Pc, P = env.prey_capacity, env.predator_count
     prey_captures = torch.zeros(W, Pc, dtype=torch.int32, device=dev)
@@ -284,7 +263,7 @@ def expand_specs(specs) -> list[str]:
     out = []
     for spec in specs:
         label, value = parse_spec(spec)
-        if is_heuristic_spec(value) or os.path.exists(value) or not glob.has_magic(value):
+        if is_heuristic(value) or os.path.exists(value) or not glob.has_magic(value):
             out.append(spec)
             continue
         paths = glob.glob(value)

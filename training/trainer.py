@@ -59,9 +59,8 @@ from rsl_rl.utils import resolve_callable
 from rsl_rl.utils.logger import Logger
 
 from ..atomic import atomic_open
+from ..drivers import make_driver
 from ..env import BatchedAquarium, resolve_device
-from ..heuristics import POLICIES, make_policy
-from ..pretrained import is_policy_file
 from . import (
     _rsl,  # noqa: F401
     distributed,
@@ -77,41 +76,16 @@ from .config import (
     total_iterations,
     validate,
 )
-from .export import RecurrentOpponent, export_policy, load_policy, policy_from_actor, policy_meta
+from .export import export_policy, policy_from_actor, policy_meta
 from .loop import TrainingLoop
 from .memory import check_training_memory
 from .stop import StopRequest
-from .vec_env import OTHER, AquariumVecEnv, LearnerActions, TrainedOpponent
+from .vec_env import OTHER, AquariumVecEnv, LearnerActions, policy_driver
 
 CSV_FIELDS = ["iteration", "agent_steps", "world_steps", "world_episodes", "episodes_logged", "captures",
               "captures_per_prey", "reward_per_agent", "opponent_reward_per_agent", "episode_length",
               "mean_row_reward", "value_loss", "surrogate_loss", "entropy", "learning_rate", "fps",
               "collect_time", "learn_time"]
-
-
-def is_heuristic(name) -> bool:
-    return isinstance(name, str) and name.lower().replace("_", "").replace("-", "") in \
-        {p for names in POLICIES.values() for p in names}
-
-
-def make_opponent(spec, env: BatchedAquarium, agent_type: str, deterministic: bool = True, seed: int = 0):
-    """The other team's driver: a heuristic name ("random", "turnaway", "naivchase") or the path of a
-    trained policy (exported file or checkpoint; of a checkpoint of both teams, its `agent_type`
-    learner); a recurrent one resets its rows' hidden states where their episodes end
-    (`RecurrentOpponent`)."""
-    if is_heuristic(spec):
-        return make_policy(spec, env, agent_type)
-    if is_policy_file(spec):
-        return policy_driver(load_policy(spec, device=env.torch_device, deterministic=deterministic, seed=seed,
-                                         team=agent_type), env, agent_type)
-    raise ValueError(f"opponent {spec!r} is neither a heuristic ({sorted(POLICIES[agent_type])}) nor a policy file")
-
-
-def policy_driver(policy, env: BatchedAquarium, agent_type: str):
-    """`TrainedOpponent` around a loaded policy, or `RecurrentOpponent` for a recurrent one."""
-    if getattr(policy, "recurrent", None) is not None:
-        return RecurrentOpponent(policy, env, agent_type)
-    return TrainedOpponent(policy, env, agent_type)
 
 
 class AquariumLogger(Logger):
@@ -527,8 +501,8 @@ class Trainer:
             self.opponent = None
             opponents = {team: LearnerActions() for team in TEAMS}
         else:
-            self.opponent = make_opponent(train["opponent"], self.env, OTHER[train["team"]],
-                                          deterministic=train["opponent_deterministic"], seed=self.seed)
+            self.opponent = make_driver(train["opponent"], self.env, OTHER[train["team"]],
+                                        deterministic=train["opponent_deterministic"], seed=self.seed)
             opponents = {train["team"]: self.opponent}
         # The first team's adapter steps the worlds and samples the swarm metrics (one per world is enough).
         self.vec_envs = {team: AquariumVecEnv(self.env, team, opponents[team],
@@ -714,8 +688,8 @@ class Trainer:
                                                          self.device), env, team) for team in self.teams}
         if self.opponent is not None:
             other = OTHER[train["team"]]
-            drivers[other] = make_opponent(train["opponent"], env, other,
-                                           deterministic=train["opponent_deterministic"], seed=self.seed)
+            drivers[other] = make_driver(train["opponent"], env, other,
+                                         deterministic=train["opponent_deterministic"], seed=self.seed)
         return drivers
 
     def save(self, path: str) -> None:
@@ -752,5 +726,5 @@ class Trainer:
             distributed.close()
 
 
-__all__ = ["Trainer", "AquariumRunner", "AquariumLogger", "make_opponent", "latest_checkpoint",
+__all__ = ["Trainer", "AquariumRunner", "AquariumLogger", "latest_checkpoint",
            "make_config"]

@@ -100,6 +100,16 @@ class TrainedOpponent:
             self.policy.set_rng_state(state["policy_rng"])
 
 
+def policy_driver(policy, env: BatchedAquarium, agent_type: str):
+    """`TrainedOpponent` around a loaded policy (`export.load_policy`), or `RecurrentOpponent` for a
+    recurrent one (its rows' hidden states reset where their episodes end)."""
+    if getattr(policy, "recurrent", None) is not None:
+        from .export import RecurrentOpponent
+
+        return RecurrentOpponent(policy, env, agent_type)
+    return TrainedOpponent(policy, env, agent_type)
+
+
 class LearnerActions:
     """The other team's actions when it learns too (`train.team = "both"`): the action buffer of its
     adapter (`vec_env`, set once both adapters exist), which the training loop fills before the

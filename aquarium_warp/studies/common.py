@@ -275,17 +275,16 @@ class StepView:
 def rollout(cfg: AquariumConfig, prey: str, predator: str, worlds: int, seed: int, device: str,
             on_step: Callable[[StepView], None], metrics_every: int = 0) -> dict:
     """Play one episode of `cfg.max_steps` steps in each of `worlds` worlds with the prey and predator
-    specs (heuristic names as `aquarium_warp.training.evaluate.make_driver` takes them, with
-    "naivchase-noconfusion", or policy files; trained policies act deterministically), calling
+    specs (`aquarium_warp.drivers`: heuristic names, policy files or shipped names; trained policies
+    act deterministically), calling
     `on_step` after every step but the last (whose state is already the next episode's first: the worlds
     reset themselves). Returns per-world numpy arrays: `captures` (the episode's),
     `length` and, with `metrics_every`, the episode means of the swarm metrics (`EPISODE_METRICS`)."""
+    from ..drivers import make_drivers
     from ..metrics import EpisodeMetrics
-    from ..training.evaluate import make_driver
 
     env = BatchedAquarium(cfg, num_worlds=worlds, device=device, seed=seed)
-    drivers = {"prey": make_driver(prey, env, "prey", seed=seed),
-               "predator": make_driver(predator, env, "predator", seed=seed + 1)}
+    drivers = make_drivers({"prey": prey, "predator": predator}, env, seed=seed)
     episodes = EpisodeMetrics(env, every=metrics_every) if metrics_every else None
     t = env.state.torch
     Pc = env.prey_capacity

@@ -42,14 +42,12 @@ import torch
 
 from ..atomic import write_figure
 from ..config import AquariumConfig, FlowConfig
+from ..drivers import check_spec
 from ..env import resolve_device
 from ..number_lists import check_distinct
-from ..pretrained import is_policy_file
 from . import common
 
 KINDS = ("uniform", "vortex")
-# Heuristics each team can play here (as `training.evaluate.make_driver` names them, without "-" or "_").
-HEURISTICS = {"prey": ("random", "turnaway"), "predator": ("random", "naivchase", "naivchasenoconfusion")}
 ANGLE_BINS = 18
 SWARM = ("polarization", "groups", "largest_group", "nn_mean")
 MEASURES = ("captures_per_prey",) + SWARM + ("escape_cosine", "cruise_cosine", "downstream_fraction")
@@ -96,10 +94,7 @@ class FlowStudy:
         common.check_number("flee-angle", self.flee_angle, 0.0, 180.0)
         common.check_number("flee-distance", self.flee_distance, 1e-3, 1e6)
         for team, spec in (("prey", self.prey_policy), ("predator", self.predator_policy)):
-            heuristic = spec.lower().replace("_", "").replace("-", "") in HEURISTICS[team]
-            if not heuristic and not is_policy_file(spec):
-                raise ValueError(f"--{team}-policy={spec!r} is neither a {team} heuristic "
-                                 f"({', '.join(HEURISTICS[team])}) nor an existing policy file")
+            check_spec(spec, team, f"--{team}-policy")
 
     def settings(self) -> list[tuple[str, float]]:
         return [(kind, float(s)) for kind in self.kinds for s in self.strengths]

@@ -1,0 +1,88 @@
+"""Team drivers: the one place that turns a policy spec (a heuristic's name, a policy file or a shipped
+policy's name) into the driver of one team of a `BatchedAquarium`: a callable returning that team's
+actions `[num_worlds, slots]` for the env's current state. Training opponents, `eval`, `video`, the
+studies and the viewer all build their teams here.
+
+```python
+from aquarium_warp.drivers import make_driver, make_drivers
+
+prey = make_driver("prey-b", env, "prey")              # a shipped policy (needs the training extra)
+predator = make_driver("naivchase", env, "predator")   # a heuristic
+env.step({"prey": prey(), "predator": predator()})
+drivers = make_drivers({"prey": "turnaway", "predator": "runs/x/exported/policy.pt"}, env, seed=3)
+```
+
+Heuristic names (`HEURISTICS`; case, "_" and "-" are ignored): those of `aquarium_warp.heuristics`,
+plus "naivchase-noconfusion" (NaivChase chasing the nearest visible prey). Heuristics draw from the
+env's seed. Trained policies act by argmax unless `deterministic=False`, then sample with their own
+`seed` (`make_drivers`: the evaluation seed for the prey, the next one for the predators).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+
+import torch
+
+from .env import TYPES, BatchedAquarium
+from .heuristics import POLICIES, make_policy, normalise_name
+from .pretrained import is_policy_file
+from .pretrained import names as pretrained_names
+
+NO_CONFUSION = "naivchase-noconfusion"
+# Heuristic names by team (compared after `normalise_name`).
+HEURISTICS = {"prey": POLICIES["prey"], "predator": POLICIES["predator"] + (NO_CONFUSION,)}
+
+Driver = Callable[[], torch.Tensor]
+
+
+def is_heuristic(spec, team: str | None = None) -> bool:
+    """Whether `spec` names a heuristic of `team` (of either team for None)."""
+    teams = TYPES if team is None else (team,)
+    return isinstance(spec, str) and any(normalise_name(spec) == normalise_name(name) for t in teams
+                                         for name in HEURISTICS[t])
+
+
+def check_spec(spec, team: str, option: str | None = None) -> None:
+    """A one-line ValueError (naming `option`, e.g. "--prey-policy", else the team) unless `spec` is a
+    heuristic of `team`, an existing policy file or a shipped policy's name."""
+    if is_heuristic(spec, team) or is_policy_file(spec):
+        return
+    name = option or f"{team} policy"
+    raise ValueError(f"{name}={spec!r} is neither a heuristic of the {team} ({', '.join(HEURISTICS[team])}) nor an "
+                     f"existing policy file (exported .pt/.onnx or a training checkpoint) nor a shipped policy "
+                     f"({', '.join(pretrained_names()) or 'none'})")
+
+
+def make_driver(spec, env: BatchedAquarium, team: str, deterministic: bool = True, seed: int = 0,
+                confusion: bool | None = None) -> Driver:
+    """The driver of `team` ("prey" or "predator") of every world of `env` for `spec`.
+
+    `confusion` (NaivChase only; None: the heuristic's default, True) picks NaivChase's target among
+    several visible prey. A trained policy (exported file, checkpoint or shipped name; of a checkpoint
+    of both teams, its `team` learner) needs the training extra; a recurrent one resets its rows'
+    hidden states where their episodes end."""
+    if team not in TYPES:
+        raise ValueError(f"team={team!r} must be one of {TYPES}")
+    check_spec(spec, team)
+    if is_heuristic(spec, team):
+        key = normalise_name(spec)
+        if key == normalise_name(NO_CONFUSION):
+            return make_policy("naivchase", env, team, confusion=False)
+        return make_policy(spec, env, team, confusion=confusion if key == "naivchase" else None)
+    try:  # the training extra is optional
+        from .training.export import load_policy
+        from .training.vec_env import policy_driver
+    except ImportError as error:
+        raise ValueError(f"trained policies need aquarium_warp.training (importing it failed: {error})") from error
+    return policy_driver(load_policy(spec, device=env.torch_device, deterministic=deterministic, seed=seed, team=team),
+                         env, team)
+
+
+def make_drivers(specs: Mapping[str, str], env: BatchedAquarium, seed: int = 0, deterministic: bool = True,
+                 confusion: bool | None = None) -> dict[str, Driver]:
+    """`{team: driver}` for the teams of `specs`; a trained team samples (if `deterministic=False`) with
+    `seed` for the prey and `seed + 1` for the predators, so the two teams' draws are independent."""
+    return {team: make_driver(spec, env, team, deterministic=deterministic, seed=seed + TYPES.index(team),
+                              confusion=confusion)
+            for team, spec in specs.items()}

@@ -1,0 +1,284 @@
+"""The viewer's simulation: a `BatchedAquarium`, the two teams' drivers, the human's agent and the
+snapshots of the displayed world that the server streams. No web code here (the tests drive it directly).
+
+Every method runs on one thread (the server's simulation thread), so no locking is needed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+
+import numpy as np
+import torch
+
+from .. import pretrained
+from ..config import AquariumConfig
+from ..drivers import HEURISTICS, is_heuristic, make_drivers
+from ..env import BatchedAquarium, action_directions
+from .flow import FlowSampler
+from .messages import OVERLAYS
+
+TYPE_PREY, TYPE_PREDATOR = 1, 0  # the codes the page and replay files use (kernels.common's PREY / PREDATOR)
+
+
+@dataclasses.dataclass
+class ViewOptions:
+    """What `aquarium-warp view` was started with (its options, checked by `validate`)."""
+
+    prey_policy: str = "turnaway"
+    predator_policy: str = "naivchase"
+    prey: int | None = None  # None: the trained policies' world's, else 16
+    predators: int | None = None
+    width: float | None = None
+    height: float | None = None
+    worlds: int = 1
+    seed: int = 0
+    device: str | None = None
+    policy_dir: str | None = None
+    human: str | None = None
+
+
+class Simulation:
+    """The worlds on view. `apply(message)` acts on a checked page message (`messages.parse_message`);
+    `tick()` advances by the speed (when playing) and returns the snapshot of the displayed world."""
+
+    def __init__(self, options: ViewOptions):
+        self.options = options
+        self.specs = {"prey": options.prey_policy, "predator": options.predator_policy}
+        # Policy files the command line named may be chosen again on the page, wherever they are.
+        self._given_files = {os.path.realpath(pretrained.resolve(spec)) for spec in self.specs.values()
+                             if not is_heuristic(spec)}
+        for team in self.specs:
+            self.specs[team] = self.allowed_spec(team, self.specs[team])
+        self.env: BatchedAquarium | None = None
+        self._build(self.specs)
+        self.world = 0
+        self.playing = True
+        self.speed = 1.0
+        self._step_credit = 0.0  # fractional steps owed at speeds below 1
+        self._single_steps = 0
+        self.overlays = dict.fromkeys(OVERLAYS, False)
+        self.human: str | None = None
+        self.human_slot = 0
+        self._human_action = 0
+        self.human_stats = {"captures": 0, "reward": 0.0, "steps": 0}
+        self._metrics_values: tuple | None = None  # (the SwarmMetrics, its values of the displayed world)
+        self._metrics_due = 0.0
+        if options.human is not None:
+            self.set_human(options.human)
+
+    # ------------------------------------------------------------------ policies
+    def policy_choices(self) -> dict[str, list[str]]:
+        """What the page offers per team: heuristics, shipped names, files under --policy-dir and
+        files given on the command line."""
+        files = sorted(self._given_files)
+        directory = self.options.policy_dir
+        if directory:
+            for root, _, names in os.walk(directory):
+                files += sorted(os.path.join(root, n) for n in names if n.endswith((".pt", ".onnx")))
+        return {team: list(HEURISTICS[team]) + pretrained.names() + sorted(set(files)) for team in self.specs}
+
+    def allowed_spec(self, team: str, spec: str) -> str:
+        """`spec` if a page may choose it for `team`: a heuristic of the team, a shipped policy's name,
+        or a file under --policy-dir or given on the command line; ValueError otherwise (so nothing a
+        page sends opens any other file)."""
+        if is_heuristic(spec, team):
+            return spec
+        if spec.lower() in pretrained.names():
+            return spec.lower()
+        path = os.path.realpath(spec)
+        directory = self.options.policy_dir
+        inside = directory is not None and os.path.commonpath([path, os.path.realpath(directory)]) == \
+            os.path.realpath(directory)
+        if path not in self._given_files and not inside:
+            where = f"under --policy-dir {directory}" if directory else "(no --policy-dir was given)"
+            raise ValueError(f"{team} policy {spec!r} is not allowed: choose a heuristic {list(HEURISTICS[team])}, a "
+                             f"shipped policy {pretrained.names()}, a file given on the command line or a file {where}")
+        if not os.path.isfile(path):
+            raise ValueError(f"{team} policy file {spec!r} does not exist")
+        return path
+
+    def _config(self, specs: dict[str, str]) -> AquariumConfig:
+        """The trained policies' world (their metadata, as `video` takes it), else MODEL.md's; the
+        command line's counts and sizes override it."""
+        files = [spec for team, spec in specs.items() if not is_heuristic(spec, team)]
+        data = AquariumConfig().to_dict()
+        if files:
+            from ..training.evaluate import common_policy_env
+
+            data = common_policy_env(files, AquariumConfig()).to_dict()
+        o = self.options
+        for key, value in (("prey_count", o.prey), ("predator_count", o.predators), ("width", o.width),
+                           ("height", o.height)):
+            if value is not None:
+                data[key] = value
+        return AquariumConfig.from_dict(data)
+
+    def _build(self, specs: dict[str, str]) -> None:
+        """Drivers for `specs` (and a new env when their world differs from the current one's); the
+        current ones stay when anything fails (the ValueError says what)."""
+        env = self.env
+        try:
+            config = self._config(specs)
+            if env is None or env.config.to_dict() != config.to_dict():
+                env = BatchedAquarium(config, num_worlds=self.options.worlds, device=self.options.device,
+                                      seed=self.options.seed)
+            drivers = make_drivers(specs, env, seed=self.options.seed)
+            for driver in drivers.values():
+                driver()  # a policy whose observations do not fit this world fails here, not in a step
+        except Exception as error:  # whatever a user's file makes torch, onnx or the loaders raise: keep the teams
+            if env is not None and env is not self.env:
+                env.close()
+            if self.env is None:  # at start-up: the command line's policies must work
+                raise ValueError(str(error)) from error
+            raise ValueError(f"cannot run {specs}: {error}") from error
+        if env is not self.env:
+            if self.env is not None:
+                self.env.close()
+            self.env = env
+            self._directions = torch.from_numpy(action_directions(config.action_count))
+            self.flow = FlowSampler(env)
+            self.world = min(getattr(self, "world", 0), env.num_worlds - 1)
+            self.human_slot = 0
+        self.drivers, self.specs = drivers, dict(specs)
+
+    def set_policy(self, team: str, spec: str) -> None:
+        spec = self.allowed_spec(team, spec)
+        self._build({**self.specs, team: spec})
+
+    # ------------------------------------------------------------------ human play
+    def _team_slots(self, team: str) -> tuple[int, int]:
+        env = self._env
+        return (0, env.prey_capacity) if team == "prey" else (env.prey_capacity, env.capacity)
+
+    @property
+    def _env(self) -> BatchedAquarium:
+        assert self.env is not None  # built in __init__
+        return self.env
+
+    def set_human(self, team: str | None) -> None:
+        """Hand the first live agent of `team` in the displayed world to the keyboard (None: no human)."""
+        self.human = team
+        self.human_stats = {"captures": 0, "reward": 0.0, "steps": 0}
+        if team is None:
+            return
+        first, end = self._team_slots(team)
+        alive = self._env.state.torch.alive[self.world, first:end].cpu()
+        self.human_slot = int(torch.nonzero(alive).flatten()[0]) if bool(alive.any()) else 0
+        heading = self._env.state.torch.heading[self.world, first + self.human_slot].cpu()
+        self._human_action = int(torch.argmax(self._directions @ heading))  # keep going the way it faces
+
+    def set_keys(self, dx: int, dy: int) -> None:
+        """The held arrow keys: the heading of the 16 (or action_count) nearest their direction (screen
+        y points down, as the world's does); no key keeps the last heading (there is no 'stop' action)."""
+        if dx or dy:
+            want = torch.tensor([dx, dy], dtype=torch.float32)
+            self._human_action = int(torch.argmax(self._directions @ (want / want.norm())))
+
+    def human_agent(self) -> int | None:
+        """The slot (in the env's slot order) of the human's agent, or None."""
+        return None if self.human is None else self._team_slots(self.human)[0] + self.human_slot
+
+    # ------------------------------------------------------------------ stepping
+    def apply(self, message: dict) -> None:
+        """Act on a checked page message; a ValueError (e.g. a policy that is not allowed) changes nothing."""
+        kind = message["type"]
+        if kind == "play":
+            self.playing = True
+        elif kind == "pause":
+            self.playing = False
+        elif kind == "step":
+            self.playing = False
+            self._single_steps += 1
+        elif kind == "reset":
+            self._env.reset()
+        elif kind == "speed":
+            self.speed = message["value"]
+        elif kind == "world":
+            self.world = message["index"]
+            self._metrics_values = None  # the other world's values
+            if self.human is not None:
+                self.set_human(self.human)
+        elif kind == "overlays":
+            self.overlays = {name: message[name] for name in OVERLAYS}
+        elif kind == "policy":
+            self.set_policy(message["team"], message["spec"])
+        elif kind == "human":
+            self.set_human(message["team"])
+        elif kind == "keys":
+            self.set_keys(message["dx"], message["dy"])
+
+    def step(self) -> None:
+        """One step of every world: the drivers' actions, the human's for its agent."""
+        actions = {team: driver() for team, driver in self.drivers.items()}
+        if self.human is not None:
+            actions[self.human] = actions[self.human].clone()  # the drivers' buffers are theirs
+            actions[self.human][self.world, self.human_slot] = self._human_action
+        _, rewards, _, _, info = self._env.step(actions, validate=False)
+        w = self.world
+        if self.human is not None:
+            stats = self.human_stats
+            stats["steps"] += 1
+            reward = float(rewards[self.human][w, self.human_slot])
+            stats["reward"] += reward
+            if self.human == "prey":
+                stats["captures"] += int(self._env.state.torch.captured[w, self.human_slot])
+            else:  # a capture the predator took part in: its share of the capture reward
+                stats["captures"] += int(int(info["captures"][w]) > 0 and reward > 0)
+
+    def advance(self) -> int:
+        """Steps owed since the last call: `speed` per call while playing (fractions carried over),
+        plus single steps asked for; returns how many were taken."""
+        count = self._single_steps
+        self._single_steps = 0
+        if self.playing:
+            self._step_credit += self.speed
+            count += int(self._step_credit)
+            self._step_credit -= int(self._step_credit)
+        for _ in range(count):
+            self.step()
+        return count
+
+    def snapshot(self, metrics) -> dict:
+        """The displayed world now: numpy arrays of every slot and the header values the page shows.
+        `metrics`: a `SwarmMetrics` of the env (the caller keeps one per env)."""
+        env, w = self._env, self.world
+        s = env.state.torch
+        # The swarm metrics (groups: a connected-components pass) cost more than a step in a large world:
+        # recomputed when the last result is older than 4x its own cost, they take at most a fifth of the time.
+        now = time.perf_counter()
+        if self._metrics_values is None or self._metrics_values[0] is not metrics or now >= self._metrics_due:
+            values = metrics.compute()
+            self._metrics_values = (metrics, {k: float(values[k][w]) for k in ("polarization", "groups")})
+            self._metrics_due = time.perf_counter() + 4 * (time.perf_counter() - now)
+        values = self._metrics_values[1]
+        snap = {
+            "position": s.position[w].cpu().numpy().copy(), "heading": s.heading[w].cpu().numpy().copy(),
+            "velocity": s.velocity[w].cpu().numpy().copy(), "alive": s.alive[w].cpu().numpy().copy(),
+            "flow": self.flow.sample(w) if self.overlays["flow"] else None,
+        }
+        cfg = env.config.world(w) if env.config.per_world_fields else env.config
+        snap["header"] = {
+            "step": int(s.world_step[w]), "episode": int(s.episode[w]), "world": w, "num_worlds": env.num_worlds,
+            "width": float(cfg.width), "height": float(cfg.height), "prey_capacity": env.prey_capacity,
+            "types": {t: _type_info(getattr(cfg, t), cfg.fov_enabled) for t in ("prey", "predator")},
+            "episode_captures": int(s.episode_captures[w]),
+            "polarization": _finite(values["polarization"]), "groups": _finite(values["groups"]),
+            "prey_alive": int(s.prey_alive_count[w]), "predator_alive": int(s.predator_alive_count[w]),
+            "playing": self.playing, "speed": self.speed, "specs": dict(self.specs), "overlays": dict(self.overlays),
+            "human": None if self.human is None else {"team": self.human, "slot": self.human_agent(),
+                                                      **self.human_stats},
+        }
+        return snap
+
+
+def _finite(value) -> float | None:
+    value = float(value)
+    return value if np.isfinite(value) else None  # JSON has no NaN
+
+
+def _type_info(t, fov_enabled: bool) -> dict:
+    return {"radius": float(t.radius), "view_distance": float(t.view_distance),
+            "fov": float(t.fov_angle) if fov_enabled else 360.0}

@@ -1,0 +1,86 @@
+"""Frame rates of `aquarium-warp view` with a real page: the server's published frames per second and
+the page's received and drawn frames per second (headless system chromium through Selenium, on the
+same machine), for worlds of 1,000 and 100,000 agents at the density of MODEL.md's world.
+
+    python benchmarks/bench_viewer.py --agents 1000 100000 --seconds 8 --out benchmarks/results/viewer_cpu
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import time
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests"))
+from test_viewer import _browser, serve  # the tests' server thread and browser
+
+from aquarium_warp.bench.machine import machine_info
+from aquarium_warp.viewer.server import Viewer, pack_frame
+from aquarium_warp.viewer.simulation import Simulation, ViewOptions
+
+
+def measure(agents: int, seconds: float, max_agents: int, device: str) -> dict:
+    predators = max(1, agents // 100)
+    side = 800.0 * (agents / 17) ** 0.5  # MODEL.md's density: 17 agents on 800 x 800 px
+    options = ViewOptions(prey=agents - predators, predators=predators, width=side, height=side, device=device)
+    viewer = Viewer(Simulation(options), max_agents=max_agents)
+    with serve(viewer) as port:
+        page = _browser()
+        try:
+            page.get(f"http://127.0.0.1:{port}/")
+            deadline = time.time() + 60
+            while page.execute_script("return window.aquarium.framesDrawn") < 3:
+                assert time.time() < deadline, "no frame reached the page"
+                time.sleep(0.1)
+            read = "return [window.aquarium.framesReceived, window.aquarium.framesDrawn]"
+            frames0, (received0, drawn0), t0 = viewer.frames, page.execute_script(read), time.perf_counter()
+            steps0 = int(viewer.simulation.env.state.torch.world_step[0])
+            time.sleep(seconds)
+            frames1, (received1, drawn1), t1 = viewer.frames, page.execute_script(read), time.perf_counter()
+            steps1 = int(viewer.simulation.env.state.torch.world_step[0])
+            sent = page.execute_script("return window.aquarium.frame.header.n")
+        finally:
+            page.quit()
+        frame_bytes = len(pack_frame(viewer.snapshot, None, max_agents))
+    elapsed = t1 - t0
+    return {"agents": agents, "prey": agents - predators, "predators": predators, "world_px": round(side),
+            "max_agents": max_agents, "agents_sent_per_frame": sent, "frame_bytes": frame_bytes,
+            "server_frames_per_s": round((frames1 - frames0) / elapsed, 2),
+            "steps_per_s": round((steps1 - steps0) / elapsed, 2),
+            "page_frames_received_per_s": round((received1 - received0) / elapsed, 2),
+            "page_frames_drawn_per_s": round((drawn1 - drawn0) / elapsed, 2),
+            "last_tick_ms": round(viewer.tick_seconds * 1e3, 2)}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--agents", type=int, nargs="+", default=[1000, 100000])
+    parser.add_argument("--seconds", type=float, default=8.0)
+    parser.add_argument("--max-agents", type=int, default=20000)
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--out", default=os.path.join("benchmarks", "results", "viewer_cpu"))
+    args = parser.parse_args()
+    rows = [measure(n, args.seconds, args.max_agents, args.device) for n in args.agents]
+    chromium = subprocess.run([shutil.which("chromium") or "chromium", "--version"], capture_output=True, text=True)
+    commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
+    info = machine_info(args.device)
+    result = {"command": "python " + " ".join(sys.argv), "commit": commit, "device": args.device,
+              "device_name": info["device_name"], "versions": {k: info[k] for k in ("python", "warp", "torch")},
+              "machine": {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
+                          "system": platform.platform(), "browser": chromium.stdout.strip()},
+              "rows": rows}
+    os.makedirs(args.out, exist_ok=True)
+    with open(os.path.join(args.out, "viewer.json"), "w", encoding="utf-8") as f:
+        json.dump(result, f, indent=1)
+    for row in rows:
+        print(row)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

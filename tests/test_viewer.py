@@ -1,0 +1,369 @@
+"""`aquarium-warp view` (aquarium_warp/viewer): page messages, the simulation behind the page, the
+server over a real socket, recordings and replay pages, and the page itself in a real browser (the
+system's chromium through Selenium; CI installs it, elsewhere those tests skip)."""
+
+import contextlib
+import json
+import os
+import shutil
+import socket
+import threading
+import time
+
+import numpy as np
+import pytest
+
+pytest.importorskip("starlette", reason="the viewer extra: pip install 'aquarium-warp[viewer]'")
+uvicorn = pytest.importorskip("uvicorn", reason="the viewer extra: pip install 'aquarium-warp[viewer]'")
+from websockets.sync.client import connect  # noqa: E402 - after the extra's check
+
+from aquarium_warp.cli import main  # noqa: E402
+from aquarium_warp.viewer.messages import MessageError, parse_message  # noqa: E402
+from aquarium_warp.viewer.recording import read_trajectory, replay_page  # noqa: E402
+from aquarium_warp.viewer.server import Viewer, make_app, pack_frame, select_agents  # noqa: E402
+from aquarium_warp.viewer.simulation import Simulation, ViewOptions  # noqa: E402
+
+BAD_MESSAGES = [
+    (b"\x00binary", "binary"),
+    ("not json", "not JSON"),
+    ("[1, 2]", "JSON object"),
+    ('{"type": "explode"}', "type="),
+    ('{"type": "play", "extra": 1}', "unknown fields ['extra']"),
+    ('{"type": "speed"}', "missing fields ['value']"),
+    ('{"type": "speed", "value": 100}', "speed=100.0 must be in [0.1, 16.0]"),
+    ('{"type": "speed", "value": "fast"}', "finite number"),
+    ('{"type": "speed", "value": NaN}', "finite number"),
+    ('{"type": "world", "index": 2}', "in [0, 1]"),
+    ('{"type": "world", "index": true}', "in [0, 1]"),
+    ('{"type": "world", "index": -1}', "in [0, 1]"),
+    ('{"type": "overlays", "view_cones": 1, "hit_boxes": false, "velocities": false, "flow": false}', "true or false"),
+    ('{"type": "view", "rect": [0, 0, 10]}', "[x0, y0, x1, y1]"),
+    ('{"type": "view", "rect": [5, 0, 1, 10]}', "x0 < x1"),
+    ('{"type": "policy", "team": "fish", "spec": "random"}', "team="),
+    ('{"type": "policy", "team": "prey", "spec": ""}', "non-empty string"),
+    ('{"type": "policy", "team": "prey", "spec": 3}', "non-empty string"),
+    ('{"type": "policy", "team": "prey", "spec": "' + "x" * 2000 + '"}', "non-empty string"),
+    ('{"type": "human", "team": ["prey"]}', "team="),
+    ('{"type": "keys", "dx": 2, "dy": 0}', "dx=2 must be -1, 0 or 1"),
+    ('{"type": "keys", "dx": 1.0, "dy": 0}', "dx=1.0"),
+    ('{"type": "record", "on": "yes"}', "true or false"),
+    ("[" * 100000, "characters"),
+]
+
+
+@pytest.mark.parametrize(("text", "says"), BAD_MESSAGES)
+def test_bad_messages_are_refused_with_a_reason(text, says):
+    with pytest.raises(MessageError, match=None) as error:
+        parse_message(text, num_worlds=2)
+    assert says in str(error.value)
+
+
+def test_good_messages_are_checked_and_kept():
+    assert parse_message('{"type": "keys", "dx": -1, "dy": 1}', 1) == {"type": "keys", "dx": -1, "dy": 1}
+    assert parse_message('{"type": "view", "rect": [0, 0, 1.5, 2]}', 1)["rect"] == (0.0, 0.0, 1.5, 2.0)
+    assert parse_message('{"type": "policy", "team": "prey", "spec": " prey-a "}', 1)["spec"] == "prey-a"
+    assert parse_message('{"type": "human", "team": null}', 1)["team"] is None
+
+
+@pytest.fixture
+def simulation(tmp_path):
+    return Simulation(ViewOptions(worlds=2, device="cpu", policy_dir=str(tmp_path)))
+
+
+@pytest.mark.slow  # loading a junk file through the policy loaders takes seconds
+def test_only_heuristics_shipped_names_and_allowed_files_may_be_chosen(simulation, tmp_path):
+    assert simulation.allowed_spec("prey", "TurnAway") == "TurnAway"
+    assert simulation.allowed_spec("prey", "PREY-A") == "prey-a"
+    assert simulation.allowed_spec("predator", "naivchase-noconfusion") == "naivchase-noconfusion"
+    with pytest.raises(ValueError, match="not allowed"):
+        simulation.allowed_spec("prey", "/etc/passwd")
+    with pytest.raises(ValueError, match="not allowed"):  # a way out of the folder is still outside it
+        simulation.allowed_spec("prey", str(tmp_path / ".." / "x.pt"))
+    with pytest.raises(ValueError, match="does not exist"):
+        simulation.allowed_spec("prey", str(tmp_path / "missing.pt"))
+    with pytest.raises(ValueError, match="not allowed"):
+        simulation.allowed_spec("prey", "naivchase")  # a predator's heuristic
+    junk = tmp_path / "junk.pt"
+    junk.write_bytes(b"not a policy")
+    assert simulation.allowed_spec("prey", str(junk)) == os.path.realpath(junk)
+    with pytest.raises(ValueError, match="cannot run"):  # allowed, but no policy: the old teams stay
+        simulation.set_policy("prey", str(junk))
+    assert simulation.specs["prey"] == "turnaway"
+    assert str(junk) in " ".join(simulation.policy_choices()["prey"])
+
+
+def test_a_shipped_policy_switches_the_world_without_a_new_simulation(simulation):
+    simulation.set_policy("prey", "prey-a")
+    assert simulation.specs["prey"] == "prey-a"
+    assert simulation.env.config.prey_count == 6  # prey-a's world
+    simulation.advance()
+    simulation.set_policy("prey", "random")
+    assert simulation.env.config.prey_count == 16
+
+
+@pytest.mark.parametrize(("dx", "dy"), [(1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, -1)])
+def test_keys_steer_the_human_agent(simulation, dx, dy):
+    simulation.apply({"type": "world", "index": 1})
+    simulation.apply({"type": "human", "team": "predator"})
+    simulation.apply({"type": "keys", "dx": dx, "dy": dy})
+    slot = simulation.human_agent()
+    start = simulation.env.state.torch.position[1, slot].clone()
+    for _ in range(40):
+        simulation.step()
+    moved = (simulation.env.state.torch.position[1, slot] - start).numpy()
+    moved = (moved + 400.0) % 800.0 - 400.0  # the torus' shortest displacement (the world is 800 x 800)
+    want = np.array([dx, dy], dtype=np.float32) / np.hypot(dx, dy)
+    # 40 steps at up to 5 px/step: well over 60 px along the keys' direction
+    assert float(moved @ want) > 60.0
+
+
+def test_select_agents_thins_prey_and_keeps_predators_and_the_human():
+    n, prey = 1000, 990
+    rng = np.random.default_rng(0)
+    snapshot = {"alive": np.ones(n, bool), "position": rng.uniform(0, 100, (n, 2)).astype(np.float32),
+                "header": {"prey_capacity": prey}}
+    slots = select_agents(snapshot, None, 100, human=5)
+    assert len(slots) <= 101 and set(range(prey, n)) <= set(slots.tolist()) and 5 in slots
+    inside = select_agents(snapshot, (0, 0, 50, 50), 10**6, human=None)
+    p = snapshot["position"][inside]
+    assert len(inside) > 100 and (p <= 50).all()
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@contextlib.contextmanager
+def serve(viewer):
+    """The viewer's app on uvicorn on a free port, on a thread; yields the port."""
+    port = _free_port()
+    server = uvicorn.Server(uvicorn.Config(make_app(viewer), host="127.0.0.1", port=port, log_level="warning",
+                                           ws="websockets-sansio"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    deadline = time.time() + 30
+    while not server.started:
+        assert time.time() < deadline and thread.is_alive(), "the viewer did not start"
+        time.sleep(0.05)
+    try:
+        yield port
+    finally:
+        server.should_exit = True
+        thread.join(30)
+
+
+def _next_frame(ws) -> dict:
+    while True:
+        data = ws.recv(timeout=10)
+        if isinstance(data, bytes):
+            n = int(np.frombuffer(data[:4], "<u4")[0])
+            return json.loads(data[4:4 + n])
+
+
+@pytest.fixture(scope="module")
+def server():
+    viewer = Viewer(Simulation(ViewOptions(worlds=2, device="cpu")))
+    with serve(viewer) as port:
+        yield viewer, port
+
+
+@pytest.mark.parametrize(("text", "says"), [(t, s) for t, s in BAD_MESSAGES if isinstance(t, str)] +
+                         [('{"type": "policy", "team": "prey", "spec": "/etc/passwd"}', "not allowed")])
+def test_the_server_answers_bad_messages_and_keeps_serving(server, text, says):
+    viewer, port = server
+    with connect(f"ws://127.0.0.1:{port}/ws", max_size=None) as ws:
+        hello = json.loads(ws.recv(timeout=10))
+        assert hello["type"] == "hello" and "prey-a" in hello["choices"]["prey"]
+        ws.send(text)
+        while True:
+            reply = ws.recv(timeout=10)
+            if isinstance(reply, str):
+                break
+        assert json.loads(reply)["type"] == "error" and says in json.loads(reply)["message"]
+        before = _next_frame(ws)["step"]
+        ws.send('{"type": "play"}')
+        deadline = time.time() + 10
+        while _next_frame(ws)["step"] == before:
+            assert time.time() < deadline
+
+
+def test_frames_decode(server):
+    snapshot = server[0].snapshot  # once: the server publishes a new one every frame
+    frame = pack_frame(snapshot, None, 1000)
+    n = int(np.frombuffer(frame[:4], "<u4")[0])
+    header = json.loads(frame[4:4 + n])
+    agents = np.frombuffer(frame, "<f4", header["n"] * 6, 4 + n).reshape(-1, 6)
+    slots = np.frombuffer(frame, "<u4", header["n"], 4 + n + agents.nbytes)
+    assert header["n"] == header["alive_total"] == 17 and sorted(slots) == list(range(17))
+    np.testing.assert_allclose(agents[:, :2], snapshot["position"][slots])
+
+
+@pytest.mark.slow
+def test_record_writes_an_mp4_and_a_replay_page_plays_it(tmp_path):
+    video = tmp_path / "run.mp4"
+    viewer = Viewer(Simulation(ViewOptions(device="cpu")), record=str(video))
+    with serve(viewer):
+        deadline = time.time() + 30
+        while viewer.frames < 20:
+            assert time.time() < deadline
+            time.sleep(0.05)
+    assert video.stat().st_size > 1000
+    trajectory = read_trajectory(str(tmp_path / "run.json"))
+    assert len(trajectory["frames"]) >= 19 and trajectory["meta"]["prey_capacity"] == 16
+    assert main(["view", "--replay", str(tmp_path / "run.json"), "--out", str(tmp_path / "run.html")]) == 0
+    page = (tmp_path / "run.html").read_text()
+    assert 'id="replay-data"' in page and "static/viewer.js" not in page and "</script>" in replay_page(trajectory)
+
+
+@pytest.mark.parametrize(("argv", "says"), [
+    (["--port", "70000"], "--port: invalid value '70000': must be an integer in [1, 65535]"),
+    (["--worlds", "0"], "--worlds: invalid value '0': must be an integer in [1, 65536]"),
+    (["--prey", "-3"], "--prey: invalid value '-3'"),
+    (["--human", "shark"], "--human: invalid choice"),
+    (["--fps", "500"], "--fps: invalid value '500': must be a number in [1, 120]"),
+    (["--record", "out.avi"], "must end in .mp4"),
+    (["--replay", "nothing.json", "--out", "x.html"], "--replay nothing.json: cannot read"),
+    (["--replay", "x.json"], "--replay FILE.json and --out PAGE.html go together"),
+    (["--prey-policy", "/no/such/policy.pt"], "does not exist"),
+])
+def test_view_options_are_checked_in_one_line(argv, says, capsys):
+    try:
+        code = main(["view", *argv])
+    except SystemExit as exit_:
+        code = exit_.code
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert code == 2 and says in err
+
+
+# ---------------------------------------------------------------------- a real browser
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+CHROMEDRIVER = shutil.which("chromedriver")
+browser_only = pytest.mark.skipif(CHROMIUM is None or CHROMEDRIVER is None,
+                                  reason="needs the system chromium and chromedriver (apt-get install chromium "
+                                         "chromium-driver; .ci/run installs them)")
+
+
+@pytest.fixture(scope="module")
+def browser_server():
+    viewer = Viewer(Simulation(ViewOptions(worlds=3, device="cpu")))
+    with serve(viewer) as port:
+        yield viewer, f"http://127.0.0.1:{port}/"
+
+
+def _browser():
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    options = webdriver.ChromeOptions()
+    for argument in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--window-size=1280,800"):
+        options.add_argument(argument)
+    options.binary_location = CHROMIUM
+    return webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
+
+
+@pytest.fixture(scope="module")
+def page(browser_server):
+    driver = _browser()
+    driver.get(browser_server[1])
+    yield driver
+    driver.quit()
+
+
+def _until(predicate, timeout=15.0):
+    deadline = time.time() + timeout
+    while not predicate():
+        assert time.time() < deadline, "timed out"
+        time.sleep(0.05)
+
+
+def _header(page):
+    return page.execute_script("return window.aquarium.frame && window.aquarium.frame.header")
+
+
+@browser_only
+@pytest.mark.slow
+def test_page_loads_and_frames_arrive_and_change(page):
+    _until(lambda: page.execute_script("return window.aquarium.framesDrawn") > 5)
+    first = page.execute_script("return Array.from(window.aquarium.frame.agents.slice(0, 2))")
+    _until(lambda: page.execute_script("return Array.from(window.aquarium.frame.agents.slice(0, 2))") != first)
+    assert page.find_element("id", "agents").text == "17 / 17"
+    assert "turnaway" in page.find_element("id", "prey-choice").get_attribute("innerHTML")
+
+
+@browser_only
+@pytest.mark.slow
+def test_play_pause_step_and_world_switching(page, browser_server):
+    viewer = browser_server[0]
+    _until(lambda: _header(page) is not None and _header(page)["playing"])
+    page.find_element("id", "play").click()
+    _until(lambda: not viewer.simulation.playing and not _header(page)["playing"])
+    paused = viewer.simulation.env.state.torch.world_step[0].item()
+    time.sleep(0.3)
+    assert viewer.simulation.env.state.torch.world_step[0].item() == paused
+    page.find_element("id", "step").click()
+    _until(lambda: _header(page)["step"] == paused + 1)
+    world = page.find_element("id", "world-index")
+    world.clear()
+    world.send_keys("2\n")
+    _until(lambda: viewer.simulation.world == 2 and _header(page)["world"] == 2)
+    page.find_element("id", "play").click()
+    _until(lambda: viewer.simulation.playing)
+
+
+@browser_only
+@pytest.mark.slow
+def test_a_key_press_moves_the_human_agent(page, browser_server):
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.keys import Keys
+    from selenium.webdriver.support.ui import Select
+
+    viewer = browser_server[0]
+    Select(page.find_element("id", "human")).select_by_value("predator")
+    _until(lambda: viewer.simulation.human == "predator" and _header(page)["human"] is not None)
+    sim = viewer.simulation
+    slot, world = sim.human_agent(), sim.world
+    for key, want in ((Keys.ARROW_RIGHT, (1.0, 0.0)), (Keys.ARROW_UP, (0.0, -1.0))):
+        page.find_element("id", "world").click()
+        ActionChains(page).key_down(key).perform()
+        # the server's simulation state: the human's predator heads the way of the key
+        _until(lambda want=want: float(sim.env.state.torch.heading[world, slot] @ _tensor(want)) > 0.95)
+        ActionChains(page).key_up(key).perform()
+    assert "predator" in page.find_element("id", "human-stats").text
+
+
+def _tensor(values):
+    import torch
+
+    return torch.tensor(values)
+
+
+@browser_only
+@pytest.mark.slow
+def test_a_bad_policy_path_shows_an_error_and_the_server_keeps_running(page, browser_server):
+    viewer = browser_server[0]
+    spec = page.find_element("id", "prey-spec")
+    spec.clear()
+    spec.send_keys("/etc/passwd")
+    page.find_element("id", "prey-apply").click()
+    _until(lambda: "not allowed" in page.find_element("id", "error").text)
+    frames = viewer.frames
+    _until(lambda: viewer.frames > frames + 5)
+    step = _header(page)["step"]
+    _until(lambda: _header(page)["step"] > step)
+
+
+@browser_only
+@pytest.mark.slow
+def test_two_pages_at_once(page, browser_server):
+    second = _browser()
+    try:
+        second.get(browser_server[1])
+        _until(lambda: second.execute_script("return window.aquarium.framesDrawn") > 5)
+        seen = page.execute_script("return window.aquarium.framesReceived")
+        _until(lambda: page.execute_script("return window.aquarium.framesReceived") > seen + 5)
+        assert len(browser_server[0].pages) == 2
+    finally:
+        second.quit()
+    _until(lambda: len(browser_server[0].pages) == 1)
