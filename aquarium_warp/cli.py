@@ -231,6 +231,7 @@ def _study_kwargs(args) -> dict:
 def _study_swarm_size(args) -> int:
     """`aquarium-warp study swarm-size`: captures, polarization and groups vs the number of prey."""
     from .number_lists import parse_list
+    from .studies.common import command_line
     from .study import SwarmSizeStudy, replot_study, run_swarm_size_study
 
     if args.replot:
@@ -253,7 +254,7 @@ def _study_swarm_size(args) -> int:
     print(f"aquarium-warp study swarm-size: prey {study.prey}, {study.seeds} seeds x {study.episodes_per_seed} "
           f"episode(s) of {study.episode_steps} steps, {study.prey_policy} vs {study.predator_policy} -> {study.out}")
     check_output_dir(study.out, "--out")
-    summary = run_swarm_size_study(study, progress=not args.no_progress, ray=ray)
+    summary = run_swarm_size_study(study, progress=not args.no_progress, ray=ray, command=command_line(args.argv))
     where = summary["machine"]["device_name"]
     if ray is not None:
         where = f"Ray ({len(summary['ray']['nodes'])} machine(s), {summary['ray']['settings_kept']} setting(s) kept)"
@@ -265,6 +266,7 @@ def _study_swarm_size(args) -> int:
 def _study_fov_view(args) -> int:
     """`aquarium-warp study fov-view`: captures per prey over prey FOV angle x view distance."""
     from .number_lists import parse_list
+    from .studies.common import command_line
     from .study import SwarmSizeStudy, run_swarm_size_study
 
     fovs = parse_list(args.fov, float, "--fov")
@@ -278,7 +280,7 @@ def _study_fov_view(args) -> int:
     print(f"aquarium-warp study fov-view: {study.prey[0]} prey, FOV {fovs} x view {views}, {study.seeds} seeds, "
           f"episodes of {study.episode_steps} steps -> {study.out}")
     check_output_dir(study.out, "--out")
-    summary = run_swarm_size_study(study, progress=not args.no_progress)
+    summary = run_swarm_size_study(study, progress=not args.no_progress, command=command_line(args.argv))
     print(f"wrote {os.path.join(study.out, 'fov_view.csv')}, fov_view.json and {len(summary.get('figures', []))} "
           f"figure(s) in {summary['wall_time_s']:.1f} s on {summary['machine']['device_name']} ({summary['path']})")
     return 0

@@ -49,7 +49,7 @@ import numpy as np
 import torch
 
 from .atomic import atomic_open
-from .bench.machine import machine_info
+from .bench.machine import git_info, machine_info
 from .config import AquariumConfig
 from .drivers import check_spec, is_heuristic, make_driver
 from .env import BatchedAquarium, resolve_device
@@ -475,9 +475,13 @@ def _run_on_ray(study: SwarmSizeStudy, settings: list[dict], ray: RayOptions, de
     return results, record
 
 
-def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayOptions | None = None) -> dict:
+def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayOptions | None = None,
+                         command: str | None = None) -> dict:
     """Run every setting of `study`, write the CSV, JSON and figures into `study.out`, and return the
-    JSON's content. `ray`: run each setting as a Ray task (`_run_on_ray`) instead of on this machine."""
+    JSON's content. `ray`: run each setting as a Ray task (`_run_on_ray`) instead of on this machine.
+    `command`: the command recorded in the JSON (default: this process's, as `aquarium-warp ...`)."""
+    from .studies.common import command_line  # here: aquarium_warp.studies imports this module
+
     study.validate()
     if study.one_batch and ray is not None:
         raise ValueError("one batch runs on this machine: not with Ray (whose tasks are settings)")
@@ -560,6 +564,8 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayO
             "uniform_baseline": UNIFORM_BASELINE_DEFINITION,
         },
         "nn_bin_edges": [float(x) for x in results[0]["nn_bin_edges"]],
+        "command": command if command is not None else command_line(),
+        "git": git_info(),
         "machine": machine,
         "wall_time_s": round(wall, 2),
         "results": entries,

@@ -29,6 +29,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from aquarium_warp.bench.machine import git_info, machine_info
 from aquarium_warp.number_lists import parse_list
 
 
@@ -90,7 +91,9 @@ def main(argv: list[str] | None = None) -> int:
             point[key] = point["agent_steps_per_s"] / base[0]["agent_steps_per_s"] if base else None
     name = torch.cuda.get_device_name(0) if args.device != "cpu" and torch.cuda.is_available() else "cpu"
     result = {"benchmark": "multi_gpu_training", "device_name": name, "settings": vars(args), "points": points,
-              "torch": torch.__version__}
+              "torch": torch.__version__,
+              "command": " ".join([Path(__file__).name] + list(sys.argv[1:] if argv is None else argv)),
+              "git": git_info(), "machine": machine_info("cpu" if args.device == "cpu" else "cuda:0")}
     out = Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     path = out / f"multi_gpu_{'cpu' if args.device == 'cpu' else 'cuda'}.json"

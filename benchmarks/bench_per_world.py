@@ -14,11 +14,14 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import sys
 import time
+from pathlib import Path
 
 import torch
 
 from aquarium_warp import AquariumConfig, BatchedAquarium
+from aquarium_warp.bench.machine import git_info, machine_info
 from aquarium_warp.config import Uniform
 
 
@@ -68,11 +71,11 @@ def per_world_config(base: AquariumConfig) -> AquariumConfig:
                                prey_reward=Uniform(0.5, 2.0), predator_reward=Uniform(5.0, 20.0))
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default="cuda:0")
     parser.add_argument("--out", default="bench_per_world.json")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     cpu = args.device == "cpu"
     # CPU: a tiny check of the script; GPU: the sizes.
     worlds, steps = (256, 20) if cpu else (65536, 200)
@@ -80,7 +83,9 @@ def main() -> None:
     repeats, sweep_steps = (4, 20) if cpu else (16, 200)
     fovs, views = ((90.0, 180.0), (50.0, 100.0)) if cpu else ((60.0, 120.0, 180.0, 240.0, 360.0),
                                                                (50.0, 100.0, 200.0, 400.0))
-    result: dict = {"device": args.device, "worlds": worlds, "agents_per_world": 17}
+    result: dict = {"device": args.device, "worlds": worlds, "agents_per_world": 17,
+                    "command": " ".join([Path(__file__).name] + list(sys.argv[1:] if argv is None else argv)),
+                    "git": git_info(), "machine": machine_info(args.device)}
     if not cpu:
         result["gpu"] = torch.cuda.get_device_name(torch.device(args.device))
 

@@ -284,6 +284,7 @@ def main(argv=None) -> int:
                      "random actions, no rendering",
         "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "git_commit": git_info()["commit"],
+        "command": " ".join([Path(__file__).name] + list(sys.argv[1:] if argv is None else argv)),
         "method": {"seconds": args.seconds, "repeats": args.repeats, "warmup_s_min": args.warmup, "min_steps": 3,
                    "ours": "in this process, one fresh env per run, seed=run, actions numpy default_rng(run)",
                    "original": "benchmarks/original_aquarium.measure_original (fresh process per run)",

@@ -152,7 +152,9 @@ def main(argv=None) -> int:
         "device": args.device,
         "device_name": device.name if device.is_cuda else platform.processor() or platform.machine(),
         "cpu_count": os.cpu_count(), "python": platform.python_version(), "warp": wp.__version__,
-        "torch": torch.__version__, "git_commit": git_info()["commit"], "seconds": args.seconds,
+        "torch": torch.__version__, "git_commit": git_info()["commit"],
+        "command": " ".join([Path(__file__).name] + list(sys.argv[1:] if argv is None else argv)),
+        "seconds": args.seconds,
         "repeats": args.repeats, "step_kernels": args.step_kernel,
         "rows": rows, "pettingzoo_parallel_env": pettingzoo, "original": original, "checks": checks,
     }

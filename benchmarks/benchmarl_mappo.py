@@ -86,6 +86,8 @@ def main(argv=None) -> int:
 
     import torch
 
+    from aquarium_warp.bench.machine import git_info
+
     dev = torch.device(args.device)
     result = {
         "benchmark": "benchmarl_mappo", "task": "aquarium/predator_prey", "algorithm": "MAPPO (BenchMARL defaults)",
@@ -94,6 +96,8 @@ def main(argv=None) -> int:
         "device_name": (torch.cuda.get_device_name(dev) if dev.type == "cuda"
                         else platform.processor() or platform.machine()),
         "versions": {name: _version(name) for name in ("torch", "torchrl", "tensordict", "benchmarl", "warp-lang")},
+        "command": " ".join([Path(__file__).name] + list(sys.argv[1:] if argv is None else argv)),
+        "git": git_info(),
         "curves": curves,
     }
     out = Path(args.out_dir)

@@ -156,8 +156,8 @@ def evaluate_one(out: str, condition: str, world: str, seeds: list[int], episode
                                         "episodes": len(values)}
     tmp = path + ".partial"
     with open(tmp, "w", encoding="utf-8") as f:
-        json.dump({"condition": condition, "world": world, "policies": per_seed, "protocol": result["protocol"]}, f,
-                  indent=1)
+        json.dump({"condition": condition, "world": world, "policies": per_seed, "protocol": result["protocol"],
+                   "command": result["command"], "git": result["git"], "machine": result["machine"]}, f, indent=1)
     os.replace(tmp, path)
 
 

@@ -355,6 +355,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.setup_only:
         return 0
 
+    from aquarium_warp.bench.machine import git_info
+
     machine = _machine_info()  # load average taken before our own runs add to it
     results = {}
     try:
@@ -403,6 +405,8 @@ def main(argv: list[str] | None = None) -> int:
             "env_kwargs": env_kwargs,
         },
         "machine": machine,
+        "command": " ".join([Path(__file__).name] + list(sys.argv[1:] if argv is None else argv)),
+        "git": git_info(),
         "venv": {"path": setup["venv"], "reused": setup["reused"], "setup_s": setup["setup_s"]},
         "versions": next(iter(results.values()))["versions"] if results else {},
         "results": results,

@@ -28,6 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import aquarium_warp.shard as shard_module
 from aquarium_warp import AquariumConfig, BatchedAquarium
 from aquarium_warp.bench import random_actions
+from aquarium_warp.bench.machine import git_info, machine_info
 from aquarium_warp.bench.timing import DeviceTimer
 from aquarium_warp.kernels import world_step
 
@@ -91,7 +92,7 @@ def drift(variant: tuple[int, int | None], worlds: int, steps: int, device: str)
     return result
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--worlds", type=int, nargs="+", default=[4096, 16384, 65536])
     parser.add_argument("--variants", nargs="+", default=list(DEFAULT_VARIANTS), help="BLOCK:REGISTERS")
@@ -101,7 +102,7 @@ def main() -> None:
     parser.add_argument("--check-steps", type=int, default=20)
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--device", default="cuda:0", help="cpu runs a smoke test (every variant is one lane there)")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     out = args.out or (Path(os.environ["OUT"]) / "probe_fused_gpu.json" if os.environ.get("OUT") else None)
 
     wp.init()
@@ -109,7 +110,9 @@ def main() -> None:
     paths: dict[str, tuple[int, int | None] | None] = {"stages": None}
     paths.update({f"fused {text}": v for text, v in variants.items()})
     record: dict = {"device": wp.get_device(args.device).name, "warp": wp.config.version, "steps": args.steps,
-                    "repeats": args.repeats, "ms_per_step": {}, "drift": {}}
+                    "repeats": args.repeats, "ms_per_step": {}, "drift": {},
+                    "command": " ".join([Path(__file__).name] + list(sys.argv[1:] if argv is None else argv)),
+                    "git": git_info(), "machine": machine_info(args.device)}
 
     print(f"device {record['device']}, warp {record['warp']}; drift after {args.check_steps} steps of "
           f"{args.check_worlds} worlds, fused against staged:")

@@ -45,15 +45,18 @@ import json
 import math
 import os
 import re
+import shlex
+import sys
 import warnings
 
 import numpy as np
 import torch
 
 from ..atomic import atomic_open, write_figure
+from ..bench.machine import git_info, machine_info
 from ..config import AquariumConfig, _is_int
 from ..drivers import is_heuristic, make_drivers
-from ..env import BatchedAquarium
+from ..env import BatchedAquarium, resolve_device
 from ..metrics import EPISODE_METRICS, EpisodeMetrics
 
 METRICS = ("captures_per_prey", "reward_per_prey", "reward_per_predator") + tuple(
@@ -216,7 +219,18 @@ def evaluate_policies(prey, predator, env: AquariumConfig | None = None, episode
         summary.append(row)
     return {"summary": summary, "episodes": episodes_out,
             "protocol": {"episodes": episodes, "seeds": [int(s) for s in seeds], "max_steps": env.max_steps,
-                         "deterministic": deterministic, "env": env.to_dict()}}
+                         "deterministic": deterministic, "env": env.to_dict()},
+            **run_provenance(device)}
+
+
+def run_provenance(device=None) -> dict:
+    """What a result file records of the run that made it: this process's command line, the commit
+    (`git_info`) and the machine (`machine_info`: device name and versions)."""
+    return {"command": shlex.join([os.path.basename(sys.argv[0]), *sys.argv[1:]]), "git": git_info(),
+            "machine": machine_info(resolve_device(device))}
+
+
+PROVENANCE_KEYS = ("command", "git", "machine")
 
 
 def write_results(result: dict, out_dir: str) -> dict[str, str]:
@@ -231,7 +245,8 @@ def write_results(result: dict, out_dir: str) -> dict[str, str]:
             writer.writeheader()
             writer.writerows(rows)
     with atomic_open(paths["json"]) as f:
-        json.dump({"summary": rows, "protocol": result["protocol"]}, f, indent=1)
+        json.dump({"summary": rows, "protocol": result["protocol"],
+                   **{k: result[k] for k in PROVENANCE_KEYS if k in result}}, f, indent=1)
     with atomic_open(paths["episodes"]) as f:
         json.dump(result["episodes"], f)
     return paths
@@ -358,7 +373,8 @@ def write_cross_play(result: dict, out_dir: str) -> dict[str, str]:
             for j, b in enumerate(cp["predator"]):
                 writer.writerow([a, b] + [cp["matrices"][m][s][i][j] for m, s in columns])
     with atomic_open(paths["cross_play_json"]) as f:
-        json.dump({**cp, "rating": result.get("rating"), "protocol": result["protocol"]}, f, indent=1)
+        json.dump({**cp, "rating": result.get("rating"), "protocol": result["protocol"],
+                   **{k: result[k] for k in PROVENANCE_KEYS if k in result}}, f, indent=1)
     return paths
 
 

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from ..atomic import atomic_open, write_figure
-from ..bench.machine import machine_info
+from ..bench.machine import git_info, machine_info
 from ..config import AquariumConfig
 from ..env import BatchedAquarium, resolve_device
 from ..json_records import json_safe
@@ -382,10 +382,10 @@ def command_line(argv: Sequence[str] | None = None) -> str:
 
 def run_record(study: str, settings, device: str, wall_s: float, train_s: float, job_s: float,
                jobs: int | None, command: str | None, kept: int = 0) -> dict:
-    """The JSON's record of a run: the study, the exact command (default `command_line()`), its settings,
-    the machine, the wall time, the summed training time of its runs and the fraction of the workers'
-    time spent training (`kept`: tasks kept from an earlier run, whose times count too)."""
-    return {"study": study, "command": command if command is not None else command_line(),
+    """The JSON's record of a run: the study, the exact command (default `command_line()`), the commit
+    (`git_info`), its settings, the machine, the wall time, the summed training time of its runs and the
+    fraction of the workers' time spent training (`kept`: tasks kept from an earlier run, whose times count too)."""
+    return {"study": study, "command": command if command is not None else command_line(), "git": git_info(),
             "settings": dataclasses.asdict(settings), "device": device, "machine": machine_info(device),
             "jobs": jobs, "tasks_kept": kept, "wall_time_s": round(wall_s, 2), "training_time_s": round(train_s, 2),
             "training_fraction": train_s / job_s if job_s > 0 else 0.0,

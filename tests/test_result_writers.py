@@ -1,0 +1,71 @@
+"""The result writers record commit, command, device and versions (issue #29), as
+`tests/test_results_provenance.py` reads them from the committed files."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+import pytest
+from test_results_provenance import missing
+
+BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
+
+
+def test_study_run_record_records_provenance():
+    from aquarium_warp.studies.common import run_record
+
+    @dataclasses.dataclass
+    class Settings:
+        seeds: int = 1
+
+    record = run_record("flow", Settings(), "cpu", 1.0, 0.0, 1.0, 1, "aquarium-warp study flow --device cpu")
+    assert missing(record) == ()
+    assert record["command"] == "aquarium-warp study flow --device cpu" and record["git"]["commit"]
+
+
+def test_swarm_size_study_records_provenance(tmp_path):
+    from aquarium_warp.study import SwarmSizeStudy, run_swarm_size_study
+
+    study = SwarmSizeStudy(prey=[4], seeds=1, episode_steps=5, metrics_every=5, device="cpu", out=str(tmp_path),
+                           figures=False)
+    summary = run_swarm_size_study(study, progress=False, command="aquarium-warp study swarm-size --prey 4")
+    written = json.loads((tmp_path / "swarm_size.json").read_text())
+    assert missing(written) == ()
+    assert written["command"] == summary["command"] == "aquarium-warp study swarm-size --prey 4"
+
+
+def test_evaluation_files_record_provenance(tmp_path):
+    pytest.importorskip("rsl_rl")
+    import aquarium_warp.training as training
+    from aquarium_warp import AquariumConfig
+
+    if Path(training.__path__[0]).resolve().parent != Path(__file__).resolve().parents[1]:
+        pytest.skip("aquarium_warp.training is installed from another checkout")
+    from aquarium_warp.training.evaluate import evaluate_policies, write_results
+
+    result = evaluate_policies(["turnaway"], ["naivchase"], AquariumConfig(max_steps=5), episodes=1, seeds=[0],
+                               device="cpu", max_worlds=1)
+    write_results(result, str(tmp_path))
+    assert missing(json.loads((tmp_path / "summary.json").read_text())) == ()
+
+
+def _script(name: str):
+    sys.path.insert(0, str(BENCHMARKS))
+    try:
+        return __import__(name)
+    finally:
+        sys.path.remove(str(BENCHMARKS))
+
+
+def test_bench_multi_gpu_records_provenance(tmp_path, monkeypatch):
+    bench = _script("bench_multi_gpu")
+    monkeypatch.setattr(bench, "run_point", lambda g, team, graphs, args: {
+        "gpus": g, "team": team, "cuda_graphs": graphs, "agent_steps_per_s": 1.0, "wall_seconds": 1.0})
+    bench.main(["--device", "cpu", "--gpus", "1", "--teams", "prey", "--out-dir", str(tmp_path)])
+    data = json.loads((tmp_path / "multi_gpu_cpu.json").read_text())
+    assert missing(data) == ()
+    assert data["command"].endswith("--device cpu --gpus 1 --teams prey --out-dir " + str(tmp_path))
+
