@@ -98,6 +98,6 @@ def _repo_path(docs: str, src_uri: str, target: str) -> str | None:
     if not target:
         return None
     path = posixpath.normpath(posixpath.join(docs, posixpath.dirname(src_uri), target))
-    if path == docs or path.startswith(docs + "/") or path.startswith(".."):
+    if path == docs or path.startswith((docs + "/", "..")):
         return None
     return path
