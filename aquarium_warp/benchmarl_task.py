@@ -40,7 +40,7 @@ from .torchrl_env import AquariumTorchRLEnv
 @dataclasses.dataclass
 class TaskConfig:
     """The task's settings: the world (`AquariumConfig` fields) and the simulation's CPU threads.
-    Defaults are MODEL.md's world, as `AquariumConfig()`; a config given to `get_task` may name any
+    Defaults are docs/model.md's world, as `AquariumConfig()`; a config given to `get_task` may name any
     `AquariumConfig` field, and the fields it leaves out keep `AquariumConfig`'s defaults."""
 
     width: float = 800.0

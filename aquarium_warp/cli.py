@@ -144,7 +144,7 @@ def _demo(args) -> int:
 
 def _video_config(args):
     """The world to film: the trained policies' own (from their metadata, as `eval` takes it; prey and
-    predator files must agree), else MODEL.md's (16 prey, 1 predator, 800 x 800); `--prey`,
+    predator files must agree), else docs/model.md's (16 prey, 1 predator, 800 x 800); `--prey`,
     `--predators`, `--width`, `--height`, `--flow` override either."""
     from . import AquariumConfig
     from .config import FlowConfig
@@ -636,7 +636,7 @@ def build_parser() -> argparse.ArgumentParser:
     video.add_argument("--hit-boxes", action="store_true", help="draw each agent's hit-box circle")
     video.add_argument("--velocities", action="store_true", help="draw velocity arrows (10 steps long)")
     video.add_argument("--flow", choices=("uniform", "vortex"), default=None,
-                       help="a current (MODEL.md 'Flow fields'): uniform along +x, or a vortex at the centre "
+                       help="a current (docs/model.md 'Flow fields'): uniform along +x, or a vortex at the centre "
                             "(core radius a sixth of the shorter side); default: the config's (none)")
     video.add_argument("--flow-strength", type=float, default=2.0,
                        help="px per step of --flow (the vortex's at its core's edge; default 2)")

@@ -1,4 +1,4 @@
-"""Frozen configuration of an Aquarium world: MODEL.md's parameters with their defaults.
+"""Frozen configuration of an Aquarium world: docs/model.md's parameters with their defaults.
 
 `AquariumConfig` holds the world parameters and one `AgentTypeConfig` per agent type (`prey`,
 `predator`). Every field is validated on construction; a bad value raises `ValueError` naming the
@@ -160,7 +160,7 @@ def largest(value) -> float:
 
 @dataclass(frozen=True)
 class FlowConfig:
-    """A current that carries the agents (MODEL.md "Flow fields"), in px per step.
+    """A current that carries the agents (docs/model.md "Flow fields"), in px per step.
 
     `kind`: "none" (default: no current), "uniform" (`velocity` = (c_x, c_y)), "vortex" (a Rankine
     vortex at `centre` with `strength` w px/step at the core's edge, `core_radius` r_c px; positive
@@ -235,7 +235,7 @@ FLOW_KINDS = ("none", "uniform", "vortex", "grid")
 
 @dataclass(frozen=True)
 class AgentTypeConfig:
-    """Parameters of one agent type (MODEL.md, per-type table). Lengths in px, angles in degrees,
+    """Parameters of one agent type (docs/model.md, per-type table). Lengths in px, angles in degrees,
     speeds in px/step. Numpy scalars are accepted (and stored as Python numbers).
 
     Allowed ranges (float32-safe, see `SMALLEST` / `LARGEST`): `max_speed` in [1e-15, half the
@@ -316,7 +316,7 @@ def default_predator() -> AgentTypeConfig:
 
 @dataclass(frozen=True)
 class AquariumConfig:
-    """World parameters (MODEL.md "World parameters"); defaults are marl-aquarium 0.1.10's.
+    """World parameters (docs/model.md "World parameters"); defaults are marl-aquarium 0.1.10's.
 
     `respawn_captured_prey` is the reference's `keep_prey_count_constant`. `grid_cell_size` is a
     performance setting only (None picks one from the interaction radii); results do not depend on it.
@@ -331,7 +331,7 @@ class AquariumConfig:
     episode) stay finite; `grid_cell_size` None or a finite number > 0. Per-type ranges: see
     `AgentTypeConfig`.
 
-    Frames and spawn (MODEL.md "Egocentric observations and actions"; the defaults are the paper's):
+    Frames and spawn (docs/model.md "Egocentric observations and actions"; the defaults are the paper's):
     `observation_frame` "world" (own position, world heading and bearings, neighbours' absolute
     positions) or "ego" (no torus coordinates and no world angles: per slot a present flag, distance,
     bearing and relative velocity in the observer's forward/right frame, angles as unit vectors);
@@ -559,7 +559,7 @@ class AquariumConfig:
 
     @property
     def observation_layout(self) -> str:
-        """The observation row's layout (MODEL.md "Observations"): "world" (the paper's), "ego" (egocentric
+        """The observation row's layout (docs/model.md "Observations"): "world" (the paper's), "ego" (egocentric
         observations for ego actions) or "ego+heading" (egocentric, plus the own world heading that
         world actions need)."""
         if self.observation_frame == "world":

@@ -1,6 +1,6 @@
 """`BatchedAquarium`: many independent Aquarium worlds stepped at once by Warp kernels.
 
-The step is a fixed sequence of kernel launches (MODEL.md steps 1-10) with no allocation and no host
+The step is a fixed sequence of kernel launches (docs/model.md steps 1-10) with no allocation and no host
 synchronisation, replayed as a CUDA graph on GPU. Inputs and outputs are torch tensors that share
 memory with the simulation (zero copy): returned tensors are overwritten by the next `step()`, so
 clone what you keep.
@@ -199,7 +199,7 @@ class StepResult(NamedTuple):
     `(observations, rewards, terminated, truncated, info)`.
 
     - `observations`: `{"prey": [W, prey_capacity, L_prey], "predator": [W, predator_count, L_predator]}`
-      float32, the observations of the state after the step (MODEL.md step 10).
+      float32, the observations of the state after the step (docs/model.md step 10).
     - `rewards`: `{"prey": [W, prey_capacity], "predator": [W, predator_count]}` float32, this step's.
     - `terminated`, `truncated`: the same shapes, bool: the agent died in this step (captured without
       respawn, or starved); the agent was alive when its world's episode ended in this step.

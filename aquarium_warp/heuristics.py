@@ -1,4 +1,4 @@
-"""The paper's baseline policies (MODEL.md "Heuristic policies") for every world of a `BatchedAquarium`.
+"""The paper's baseline policies (docs/model.md "Heuristic policies") for every world of a `BatchedAquarium`.
 
 ```python
 from aquarium_warp.heuristics import heuristic_actions, make_policy

@@ -14,7 +14,7 @@ oval, under 0.75 one pixel, so agents of a huge world rendered small stay visibl
 are not drawn. The world is a torus: an agent near an edge is drawn again across the seam. Overlays:
 view cones (translucent sectors of radius view distance and angle fov around the heading, a full disc
 with `fov_enabled=False`; overlapping cones darken), hit boxes (circle of the radius) and velocity
-arrows (velocity x `velocity_scale` steps); with `draw_flow=True` the flow's current (MODEL.md "Flow
+arrows (velocity x `velocity_scale` steps); with `draw_flow=True` the flow's current (docs/model.md "Flow
 fields") as arrows on a grid `flow_spacing` image pixels apart, under the agents (the drift of
 `velocity_scale` steps, at most 0.9 grid spacings; none where the current is shorter than a pixel).
 

@@ -169,7 +169,7 @@ def cell_lists(cfg: AquariumConfig, num_worlds: int, dims: tuple[int, int], devi
 class WorldShard:
     """Worlds `[w0, w1)` of a batch: `state` (the batch's groups viewed for these worlds), `grid` (their
     cell lists), `world` (their `WorldParams`), and `programs`, the env's launch programs as recorded
-    for this shard (name -> list of commands; MODEL.md's step is `programs["step"]`)."""
+    for this shard (name -> list of commands; docs/model.md's step is `programs["step"]`)."""
 
     def __init__(self, cfg: AquariumConfig, state: SimulationState, index: int, w0: int, w1: int, dims, params,
                  action_direction, observe_kernels, device, auto_reset: bool = True, fused_kernel=None):
@@ -234,7 +234,7 @@ class WorldShard:
         return out
 
     def observe_commands(self) -> list:
-        """MODEL.md step 10 (and the contact partners of the next step's step 3): one launch for both
+        """docs/model.md step 10 (and the contact partners of the next step's step 3): one launch for both
         observer types when one kernel serves both, else one per type."""
         W, cfg = self.num_worlds, self.cfg
         rows = {"prey": W * cfg.prey_capacity, "predator": W * cfg.predator_capacity}
@@ -267,7 +267,7 @@ class WorldShard:
                             [s.worlds, s.outputs, s.agents])] + self.observe_program()
 
     def step_program(self) -> list:
-        """MODEL.md steps 1-10 for every world of the shard: one launch of the fused step where it
+        """docs/model.md steps 1-10 for every world of the shard: one launch of the fused step where it
         applies (`step_kernel`), else a launch per stage."""
         s, g, world, types, cfg = self.state, self.grid, self.world, self.types, self.cfg
         if self.fused_kernel is not None:

@@ -48,7 +48,7 @@ from .env import TYPES, BatchedAquarium
 class AquariumTorchRLEnv(EnvBase):
     """`num_worlds` Aquarium worlds as one batched TorchRL env with a "prey" and a "predator" group.
 
-    Args: `config` (an `AquariumConfig`, default MODEL.md's), `num_worlds`, `device` (None: CUDA when
+    Args: `config` (an `AquariumConfig`, default docs/model.md's), `num_worlds`, `device` (None: CUDA when
     present), `seed`, `cpu_threads`, or `aquarium=` an existing `BatchedAquarium` (with auto-reset).
     `validate_actions=False` skips `BatchedAquarium.step`'s check of the live agents' actions (and
     its host synchronisation); out-of-range actions are then undefined behaviour."""

@@ -1,6 +1,6 @@
 """Frame rates of `aquarium-warp view` with a real page: the server's published frames per second and
 the page's received and drawn frames per second (headless system chromium through Selenium, on the
-same machine), for worlds of 1,000 and 100,000 agents at the density of MODEL.md's world.
+same machine), for worlds of 1,000 and 100,000 agents at the density of docs/model.md's world.
 
     python benchmarks/bench_viewer.py --agents 1000 100000 --seconds 8 --out benchmarks/results/viewer_cpu
 """
@@ -26,7 +26,7 @@ from aquarium_warp.viewer.simulation import Simulation, ViewOptions
 
 def measure(agents: int, seconds: float, max_agents: int, device: str) -> dict:
     predators = max(1, agents // 100)
-    side = 800.0 * (agents / 17) ** 0.5  # MODEL.md's density: 17 agents on 800 x 800 px
+    side = 800.0 * (agents / 17) ** 0.5  # docs/model.md's density: 17 agents on 800 x 800 px
     options = ViewOptions(prey=agents - predators, predators=predators, width=side, height=side, device=device)
     viewer = Viewer(Simulation(options), max_agents=max_agents)
     with serve(viewer) as port:

@@ -5,7 +5,7 @@ along training, one video, and the end-to-end speed of the two-learner path agai
     python benchmarks/coevolution.py --device cuda:0 --out-dir benchmarks/results/coevolution_h100
     python benchmarks/coevolution.py --tiny --out-dir /tmp/coevolution_tiny          # CPU, about a minute
 
-The run (defaults): 4096 worlds of 32 prey and 4 predators in MODEL.md's 800 x 800 px world, 500-step
+The run (defaults): 4096 worlds of 32 prey and 4 predators in docs/model.md's 800 x 800 px world, 500-step
 episodes, both teams Parameter Sharing with the trainer's default PPO (two tanh layers of 64, 32 steps
 x 4096 worlds per iteration, 5 epochs x 4 mini-batches), simultaneous updates, an opponent pool
 (a snapshot of each team every 20 iterations, 4 kept, uniform; each team plays the other's snapshots

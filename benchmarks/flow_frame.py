@@ -3,7 +3,7 @@
     python benchmarks/flow_frame.py --out benchmarks/results/flow          # CPU, a few seconds
     python benchmarks/flow_frame.py --out DIR --steps 300 --video           # also DIR/vortex.mp4 (imageio-ffmpeg)
 
-MODEL.md's world (800 x 800, 16 prey turning away, one chasing predator) with a Rankine vortex at the
+docs/model.md's world (800 x 800, 16 prey turning away, one chasing predator) with a Rankine vortex at the
 centre: 3 px/step at the edge of a core of radius 130 px, steady. The PNG shows the state after
 `--steps` steps.
 """

@@ -1,4 +1,4 @@
-"""Warp kernels of aquarium-warp, one module per stage of MODEL.md.
+"""Warp kernels of aquarium-warp, one module per stage of docs/model.md.
 
 - `state`: the typed groups of the simulation state (Warp structs of arrays)
 - `common`: parameter structs, torus geometry, counter-based random streams

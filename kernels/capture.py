@@ -1,4 +1,4 @@
-"""MODEL.md steps 5 and 6: captures after the move, reward sharing, starvation, respawn or removal;
+"""docs/model.md steps 5 and 6: captures after the move, reward sharing, starvation, respawn or removal;
 and step 8's rewards, which these passes finish (no pass of their own).
 
 Four passes keep every sum deterministic (no float atomics): predators mark the prey they overlap;
@@ -138,7 +138,7 @@ def share_rewards(
     p: int,
 ):
     """Predator p of world w (if live) sums its shares of this step's captures (in the lists' order);
-    then MODEL.md step 6: a capture resets its steps-since-last-capture counter, which then grows by
+    then docs/model.md step 6: a capture resets its steps-since-last-capture counter, which then grows by
     one; past the limit it dies. Its reward (this step's 0 for a dead predator) then goes into its
     episode sum."""
     i = world.prey_capacity + p
@@ -181,7 +181,7 @@ def share_rewards(
 def respawn_or_remove(world: WorldParams, scratch: Scratch, counters: WorldCounters, agents: Agents,
                       outputs: StepOutputs, w: int, i: int):
     """Prey slot i of world w, if captured, reappears as a fresh prey at a uniform position, or is
-    removed and terminated; then MODEL.md step 8 for the slot: a prey alive now gets its survival
+    removed and terminated; then docs/model.md step 8 for the slot: a prey alive now gets its survival
     reward, and the slot's reward goes into its episode sum."""
     if scratch.captured[w, i]:
         if world.respawn_captured_prey != 0:

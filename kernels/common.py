@@ -26,7 +26,7 @@ PURPOSE_HEADING = wp.constant(5)  # a fresh agent's random heading, derived from
 
 @wp.struct
 class AgentType:
-    """Per-type parameters (MODEL.md's per-type table), with derived values precomputed on the host."""
+    """Per-type parameters (docs/model.md's per-type table), with derived values precomputed on the host."""
 
     max_speed: float  # s, px/step
     max_steering_force: float  # f
@@ -141,7 +141,7 @@ def wrap_coordinate(x: float, length: float) -> float:
 
 @wp.func
 def current(world: WorldParams, v: WorldValues, pos: wp.vec2, t: int) -> wp.vec2:
-    """The flow's current C(P, t) at `pos` at step `t` (MODEL.md "Flow fields"), px/step."""
+    """The flow's current C(P, t) at `pos` at step `t` (docs/model.md "Flow fields"), px/step."""
     c = wp.vec2(0.0, 0.0)
     if v.flow_kind == FLOW_UNIFORM:
         c = v.flow_vector

@@ -1,4 +1,4 @@
-"""The paper's baseline policies (MODEL.md "Heuristic policies") as one kernel over every world.
+"""The paper's baseline policies (docs/model.md "Heuristic policies") as one kernel over every world.
 
 Random, Constant (always the world direction "up", ignoring everything: the baseline of an agent
 that does not react), TurnAway (flee the nearest visible agent of the other type), Boids (Reynolds
@@ -42,7 +42,7 @@ POLICY_CHASE_NEAREST = wp.constant(3)  # chase the nearest visible one (else the
 POLICY_CONSTANT = wp.constant(4)  # always the world direction "up" (0, -1): no reaction at all
 POLICY_BOIDS = wp.constant(5)  # Reynolds flocking over the visible same-type agents, fleeing a visible predator
 
-# Boids (MODEL.md "Heuristic policies"): weights of the unit flee, separation, alignment and cohesion
+# Boids (docs/model.md "Heuristic policies"): weights of the unit flee, separation, alignment and cohesion
 # vectors; separation acts on neighbours closer than BOIDS_SEPARATION_RADII own hit-box radii.
 BOIDS_FLEE = wp.constant(2.0)
 BOIDS_SEPARATION = wp.constant(1.5)

@@ -1,4 +1,4 @@
-"""MODEL.md steps 1-4: steering, acceleration with memory, same-type contact, speed clamp, wrap.
+"""docs/model.md steps 1-4: steering, acceleration with memory, same-type contact, speed clamp, wrap.
 
 All agents read the start-of-step state; each thread writes only its own slot. The contact partner
 (step 3) comes precomputed from the neighbour pass in `observation.py`, which runs on the same
@@ -99,7 +99,7 @@ def move_agent(
             v_new = v + wp.normalize(offset) * p.bounce_strength
 
     # 4. Speed clamp (paper eq. 3) and wrap onto the torus (eq. 4); a flow's current adds to the
-    # displacement only (MODEL.md "Flow fields"), at the start-of-step position and step counter.
+    # displacement only (docs/model.md "Flow fields"), at the start-of-step position and step counter.
     v_new = clamp_length(v_new, p.max_speed)
     pos = agents.position[w, i]
     moved = pos + v_new

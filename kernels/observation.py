@@ -1,4 +1,4 @@
-"""MODEL.md step 10: field-of-view observations (and the contact partners of step 3).
+"""docs/model.md step 10: field-of-view observations (and the contact partners of step 3).
 
 Per live agent: the own 5-tuple (with `observe_flow` then the current there, two values), then its
 nearest visible predators and nearest visible prey, each block sorted by (distance, slot), packed as
@@ -11,7 +11,7 @@ first the square of rings 0..2 at most, which at the default sizes is the whole 
 ring per step. Observers read their own fields, and their kept neighbours' velocities, from the
 state by slot; the cell lists give the candidates' slots and positions.
 
-The same neighbour pass also finds each agent's contact partner for the next step's motion (MODEL.md
+The same neighbour pass also finds each agent's contact partner for the next step's motion (docs/model.md
 step 3 reads start-of-step positions, which are exactly these), so motion needs no search of its own.
 
 One row's work is a function, `observe_row`, generated per observer slot counts by `observation_rows`
@@ -121,7 +121,7 @@ def ego_neighbour_tuple(
     signed: int,
 ) -> Tuple6:
     """present, distance / v, bearing (forward, right), relative velocity (forward, right) / (s_i + s_j)
-    of one observed neighbour in the observer's ego frame (MODEL.md "Egocentric observations")."""
+    of one observed neighbour in the observer's ego frame (docs/model.md "Egocentric observations")."""
     distance = wp.sqrt(d2)
     bearing = wp.vec2(0.0, 0.0)  # no direction to an agent at the observer's own position
     if distance > 0.0:
@@ -142,7 +142,7 @@ def observation_rows(predator_slots: int, prey_slots: int, whole_world: bool, ob
                      frame: str = "world"):
     """The observation of one agent, for observers with `predator_slots` and `prey_slots` slots, on
     whole-world cell lists or not, with the two flow values after the own block or not, in the
-    observation `frame` ("world": MODEL.md's layout; "ego", or "ego+heading" with the observer's world
+    observation `frame` ("world": docs/model.md's layout; "ego", or "ego+heading" with the observer's world
     heading in its own block, for ego actions and world actions: `AquariumConfig.observation_layout`):
     returns `(observe_row, ObservedRows, Row)`, the function, the struct of one observer type's outputs
     and the row type. Made once per combination, and shared by `observation_kernel` and the fused step
@@ -352,7 +352,7 @@ def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, who
     """The observation kernel for observers with `predator_slots` and `prey_slots` slots, launched with
     `dim=(blocks, block_dim)` and `block_dim`, on whole-world cell lists or not (compiled once per
     combination: the kind of lists is fixed at compile time here, where `listed_slot` would test it for
-    every candidate), with the two flow values after the own block or not (MODEL.md "Flow fields"), in
+    every candidate), with the two flow values after the own block or not (docs/model.md "Flow fields"), in
     the observation `frame` (`observation_rows`)."""
     observe_row, ObservedRows, Row = observation_rows(predator_slots, prey_slots, whole_world, observe_flow, frame)
 

@@ -1,4 +1,4 @@
-"""MODEL.md steps 7-9: reproduction, episode end and auto-reset (starvation, step 6, is counted in
+"""docs/model.md steps 7-9: reproduction, episode end and auto-reset (starvation, step 6, is counted in
 `capture.py`'s share pass, which already visits every predator).
 
 Step 8's rewards are finished by the passes that already visit each slot, not by a pass of their own:

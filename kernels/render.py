@@ -414,7 +414,7 @@ def draw_arrow(p: RenderParams, c: wp.vec2, v: wp.vec2, overlay: wp.array2d(dtyp
 def splat_flow(p: RenderParams, world: WorldParams, w: int, world_step: wp.array(dtype=wp.int32),
                overlay: wp.array2d(dtype=wp.int32)):
     """One thread per point of a grid `flow_spacing` image pixels apart: an arrow of the current there
-    (MODEL.md "Flow fields", at the world's step counter: the one the next move adds), velocity_scale
+    (docs/model.md "Flow fields", at the world's step counter: the one the next move adds), velocity_scale
     steps of drift long, at most 0.9 grid spacings. `w`: the world's index in `world`'s shard."""
     gi, gj = wp.tid()
     spacing = float(p.flow_spacing)

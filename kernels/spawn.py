@@ -1,4 +1,4 @@
-"""Fresh agents: the initial state of an episode, a respawned prey and a newborn (MODEL.md
+"""Fresh agents: the initial state of an episode, a respawned prey and a newborn (docs/model.md
 "Randomness" and "Details"). Every draw comes from a counter-based stream, so it is reproducible."""
 
 import warp as wp

@@ -17,7 +17,7 @@ wp.set_module_options({"enable_backward": False})
 
 @wp.struct
 class Agents:
-    """Per-slot state of every agent (MODEL.md "World and agents"). A dead slot's values are stale."""
+    """Per-slot state of every agent (docs/model.md "World and agents"). A dead slot's values are stale."""
 
     position: wp.array2d(dtype=wp.vec2)
     """[W, C] vec2 float32, px, in [0, width) x [0, height)."""
@@ -92,7 +92,7 @@ class StepOutputs:
 
 @wp.struct
 class Observations:
-    """Observations of the state after a step (MODEL.md step 10), per observer type."""
+    """Observations of the state after a step (docs/model.md step 10), per observer type."""
 
     obs_prey: wp.array3d(dtype=float)
     """[W, Pc, L_prey] float32, in [0, 1] (or [-1, 1]); rows of dead slots are zero."""
@@ -117,7 +117,7 @@ class Scratch:
     share_count: wp.array2d(dtype=wp.int32)
     """[W, C] int32, predators sharing the capture of each captured prey."""
     contact_partner: wp.array2d(dtype=wp.int32)
-    """[W, C] int32, slot of the overlapping same-type agent (MODEL.md step 3), or -1; found by the
+    """[W, C] int32, slot of the overlapping same-type agent (docs/model.md step 3), or -1; found by the
     observation pass for the next step's motion."""
     contact_offset: wp.array2d(dtype=wp.vec2)
     """[W, C] vec2 float32, px, torus displacement from that partner to the agent."""

@@ -1,4 +1,4 @@
-"""MODEL.md steps 1-10 of a world in one launch: the fused step of worlds whose cell lists are
+"""docs/model.md steps 1-10 of a world in one launch: the fused step of worlds whose cell lists are
 whole-world lists (worlds of one cell: small worlds).
 
 The staged step (`WorldShard.step_program`) launches a kernel per stage, about ten per step, each

@@ -1,9 +1,9 @@
-"""Independent plain-numpy, float64 reference implementation of MODEL.md for ONE world.
+"""Independent plain-numpy, float64 reference implementation of docs/model.md for ONE world.
 
 This module is the test oracle for the Warp kernels. It is written for clarity, not speed: every
 neighbour search is a brute-force loop over the world's slots, every quantity is float64.
 
-Conventions (see MODEL.md and the project's decisions):
+Conventions (see docs/model.md and the project's decisions):
 
 * ``cfg`` is anything with the attributes of ``aquarium_warp.AquariumConfig`` (a frozen dataclass or a
   ``types.SimpleNamespace``). Only attributes are read: width, height, prey_count, predator_count,
@@ -250,7 +250,7 @@ def distance_normaliser(cfg, observer_type) -> float:
 
 
 # --------------------------------------------------------------------------------------------------
-# Motion (MODEL.md steps 1-4; everyone reads the start-of-step state)
+# Motion (docs/model.md steps 1-4; everyone reads the start-of-step state)
 # --------------------------------------------------------------------------------------------------
 def contact_partner(cfg, state: Mapping[str, np.ndarray], i: int):
     """Nearest live same-type agent j != i with torus distance < r_i + r_j (ties: lower slot); None if none."""
@@ -283,7 +283,7 @@ def steering_acceleration(cfg, state, i: int, action: int) -> np.ndarray:
 
 
 def current(cfg, p, t: int) -> np.ndarray:
-    """MODEL.md "Flow fields": the current C(P, t) of ``cfg.flow`` (absent or kind "none": zero) at
+    """docs/model.md "Flow fields": the current C(P, t) of ``cfg.flow`` (absent or kind "none": zero) at
     position ``p`` at step ``t``, float64."""
     flow = getattr(cfg, "flow", None)
     kind = "none" if flow is None else flow.kind
@@ -717,7 +717,7 @@ def step(
 
 
 # --------------------------------------------------------------------------------------------------
-# Heuristic action choice (MODEL.md "Heuristic policies"; ego-spec for action_frame "ego")
+# Heuristic action choice (docs/model.md "Heuristic policies"; ego-spec for action_frame "ego")
 # --------------------------------------------------------------------------------------------------
 def ego_nearest_action(direction, heading, action_count: int) -> int:
     """The heuristics' action for the world direction ``direction`` (flee / chase) under action_frame "ego".

@@ -43,7 +43,7 @@ def test_byte_model_counts_every_stage():
     gpu = step_byte_model(cfg, cuda=True)
     cpu = step_byte_model(cfg, cuda=False)
     for model in (gpu, cpu):
-        # The model counts what each of MODEL.md's stages must move, whichever launches run them.
+        # The model counts what each of docs/model.md's stages must move, whichever launches run them.
         assert set(model["stages"]) == set(bench.STAGES) - {"fused"}
         assert model["read"] == pytest.approx(sum(s["read"] for s in model["stages"].values()))
         assert model["write"] == pytest.approx(sum(s["write"] for s in model["stages"].values()))

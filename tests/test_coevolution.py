@@ -394,7 +394,7 @@ def test_cli_both_teams_and_bad_input(tmp_path, capsys, one_thread):
 
 @pytest.mark.skipif(os.environ.get("AQUARIUM_SKIP_LEARNING_TEST") == "1", reason="AQUARIUM_SKIP_LEARNING_TEST=1")
 def test_learning_two_predators_catch_more_than_random(tmp_path, one_thread):
-    """Two PPO predators sharing parameters (MODEL.md's shared catch reward) must catch clearly more
+    """Two PPO predators sharing parameters (docs/model.md's shared catch reward) must catch clearly more
     TurnAway prey than two random predators.
 
     World: the `tiny` preset (400 x 400 px, 4 prey, 200-step episodes) with 2 predators against

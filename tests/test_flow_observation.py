@@ -1,4 +1,4 @@
-"""The observed current (MODEL.md "Flow fields", `observe_flow`): two values after the own 5-tuple,
+"""The observed current (docs/model.md "Flow fields", `observe_flow`): two values after the own 5-tuple,
 the current at the observer divided by its own max speed, clipped to [-1, 1], mapped by (c + 1) / 2
 (and then 2x - 1 in the "-1..1" range); the rest of the row as without it; sizes and spaces grown by 2."""
 

@@ -122,7 +122,7 @@ def build_config(changes: dict):
 
 
 def check_state(env, rewards=None, stepped: bool = True) -> None:
-    """Finite state within MODEL.md's invariants (every world, every slot); the speed and acceleration
+    """Finite state within docs/model.md's invariants (every world, every slot); the speed and acceleration
     limits hold once a step has clamped them (`stepped`)."""
     import torch
 
@@ -142,7 +142,7 @@ def check_state(env, rewards=None, stepped: bool = True) -> None:
         if not stepped:
             continue
         speed = torch.linalg.vector_norm(t.velocity[:, slots].double(), dim=-1)[alive]
-        # Fresh agents move at speed 1 (MODEL.md "Randomness"), whatever their max speed.
+        # Fresh agents move at speed 1 (docs/model.md "Randomness"), whatever their max speed.
         assert (speed <= max(params.max_speed, 1.0) * (1 + 1e-5)).all(), f"{kind} faster than max_speed"
         acc = torch.linalg.vector_norm(t.acceleration[:, slots].double(), dim=-1)[alive]
         k = params.max_acceleration

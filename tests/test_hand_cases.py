@@ -1,4 +1,4 @@
-"""Hand-computed cases on the Warp kernels: each expected value is worked out from MODEL.md by hand.
+"""Hand-computed cases on the Warp kernels: each expected value is worked out from docs/model.md by hand.
 
 Every case sets one small world with `set_state`, then steps it (or only observes it) and compares
 with numbers computed here in plain Python, on both step paths (the fused launch that worlds of one

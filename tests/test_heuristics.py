@@ -1,4 +1,4 @@
-"""The baseline policies (MODEL.md "Heuristic policies"): hand-made cases, a brute-force reference on
+"""The baseline policies (docs/model.md "Heuristic policies"): hand-made cases, a brute-force reference on
 random states, determinism, and a statistical check that TurnAway prey escape NaivChase far better
 than Random prey.
 

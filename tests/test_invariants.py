@@ -87,7 +87,7 @@ def circle_gap(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 
 def angle_value(v: torch.Tensor) -> torch.Tensor:
-    """MODEL.md's angle: -atan2(y, x) in degrees mapped from [-180, 180] to [0, 1]."""
+    """docs/model.md's angle: -atan2(y, x) in degrees mapped from [-180, 180] to [0, 1]."""
     v = v.double()
     return 0.5 - torch.atan2(v[..., 1], v[..., 0]) / (2.0 * math.pi)
 

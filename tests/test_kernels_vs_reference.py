@@ -59,7 +59,7 @@ def make_config(prey=None, predator=None, **world) -> AquariumConfig:
 
 
 CONFIGS = {
-    # MODEL.md defaults in a small, crowded world (predator view 200 > half diagonal 198.5)
+    # docs/model.md defaults in a small, crowded world (predator view 200 > half diagonal 198.5)
     "defaults_dense": make_config(width=300.0, height=260.0, prey_count=14, predator_count=2),
     # FOV off, infinite view distances, more observed slots of other agents
     "fov_off_inf_view": make_config(
@@ -104,7 +104,7 @@ CONFIGS = {
         predator_starvation_steps=40,
     ),
 }
-# Flow fields (MODEL.md "Flow fields"), and per-world values: every world of the batch has its own
+# Flow fields (docs/model.md "Flow fields"), and per-world values: every world of the batch has its own
 # (compared world by world with the reference on that world's values).
 FLOW_GRID = [[[1.5, -0.5], [0.0, 2.0], [-1.0, 0.5]], [[0.25, 1.0], [-2.0, -1.5], [1.0, 0.0]]]  # [2, 3, 2]
 CONFIGS["vortex_time_varying"] = make_config(
@@ -803,7 +803,7 @@ def test_quarter_turn_actions_are_exact():
       respawned prey whose first action is "right" (1 in 16) hits this.
     * prey 1: V = (0, -1), action "down": the same, vertically.
     * prey 2 and the predator: V = D exactly (full speed along an axis), A = 0, same action: F = 0, A + F/m = 0
-      exactly, A' = 0 (MODEL.md: A' stays zero). With the residue A' becomes a full-length k vector pointing
+      exactly, A' = 0 (docs/model.md: A' stays zero). With the residue A' becomes a full-length k vector pointing
       along the residue, perpendicular to the motion."""
     cfg = make_config(prey_count=3, predator_count=1)
     env = BatchedAquarium(cfg, num_worlds=1, device=DEVICE, seed=0)
@@ -856,7 +856,7 @@ def test_exact_capture_and_share_boundaries_after_the_move():
 
 def test_fov_boundary_is_inclusive_at_exactly_90_degrees():
     """fov_angle 180: a target exactly perpendicular to the heading (dot product exactly 0) is on the cone's
-    boundary and visible (MODEL.md: the angle limit includes its boundary). A test with cos(radians(90)) =
+    boundary and visible (docs/model.md: the angle limit includes its boundary). A test with cos(radians(90)) =
     6e-17 > 0 would reject it. fov_angle 360: a target exactly behind is visible."""
     cfg = make_config(
         prey_count=4, predator_count=2, prey=dict(fov_angle=180.0), predator=dict(fov_angle=360.0)

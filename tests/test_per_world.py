@@ -260,7 +260,7 @@ def test_set_params_draws_anew_from_the_envs_own_generator():
 
 
 # --------------------------------------------------------------------------------------------------
-# Hand-computed currents (MODEL.md "Flow fields"): the drift of a lone agent is P' - P - V'.
+# Hand-computed currents (docs/model.md "Flow fields"): the drift of a lone agent is P' - P - V'.
 # --------------------------------------------------------------------------------------------------
 def drift(flow: FlowConfig, position, world_step: int = 0, size=(800.0, 800.0)) -> np.ndarray:
     cfg = AquariumConfig(width=size[0], height=size[1], prey_count=1, predator_count=1, flow=flow)

@@ -1,6 +1,6 @@
 """Self-tests of the float64 reference model (tests/reference_model.py) on hand-computed cases.
 
-These tests do not need aquarium_warp: configurations are SimpleNamespace objects with MODEL.md's defaults.
+These tests do not need aquarium_warp: configurations are SimpleNamespace objects with docs/model.md's defaults.
 """
 
 from __future__ import annotations

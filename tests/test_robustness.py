@@ -170,7 +170,7 @@ def _one_world(cfg, **fields):
 def test_tiny_steering_acceleration_is_normalised_exactly():
     """Case 2: a steering force of 1e-30 (now refused), or the smallest allowed force on the heaviest
     allowed mass, gives F / m ~ 1e-30, whose square underflows in float32: the acceleration was NaN.
-    From a zero acceleration, MODEL.md step 2 gives A' = k * unit(F) (computed here in float64)."""
+    From a zero acceleration, docs/model.md step 2 gives A' = k * unit(F) (computed here in float64)."""
     import dataclasses
 
     import numpy as np

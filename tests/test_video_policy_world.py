@@ -65,7 +65,7 @@ def test_video_uses_the_trained_policys_world(tmp_path, filmed, capsys):
     assert main(["video", "--prey-policy", policy, "--prey", "6", "--steps", "1", "--out", out, "--no-progress"]) == 2
     assert "4 per-slot networks" in capsys.readouterr().err
 
-    # Heuristics only: MODEL.md's world, as before.
+    # Heuristics only: docs/model.md's world, as before.
     assert main(["video", "--steps", "0", "--out", out, "--no-progress"]) == 0
     assert filmed[-1][0].to_dict() == AquariumConfig().to_dict() and filmed[-1][1] == 16
 

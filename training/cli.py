@@ -326,7 +326,7 @@ def add_eval_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--episodes", type=int, default=200, help="episodes per seed (paper: 200)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="evaluation seeds (paper: 5)")
     p.add_argument("--preset", choices=PRESET_NAMES, default=None,
-                   help="take the world from a preset (default: a trained policy's own world, else MODEL.md's)")
+                   help="take the world from a preset (default: a trained policy's own world, else docs/model.md's)")
     p.add_argument("--set", action="append", default=[], metavar="env.KEY=VALUE", help="override a world setting")
     p.add_argument("--prey-count", type=int, default=None, help="prey per world (default: the world's)")
     p.add_argument("--predator-count", type=int, default=None, help="predators per world (default: the world's)")

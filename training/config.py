@@ -2,7 +2,7 @@
 
 A run configuration is a dict with three sections:
 
-- `env`: `AquariumConfig` fields that differ from MODEL.md's defaults (`prey` / `predator` may hold
+- `env`: `AquariumConfig` fields that differ from docs/model.md's defaults (`prey` / `predator` may hold
   a dict of per-type fields).
 - `train`: what this package adds around rsl-rl (see `TRAIN_DEFAULTS`).
 - `runner`: rsl-rl's `OnPolicyRunner` config (num_steps_per_env, save_interval, algorithm, actor,
@@ -120,7 +120,7 @@ RUNNER_DEFAULTS = {
 
 PRESETS = {
     "default": {},
-    # Section 5: prey trained with PPO against one NaivChase predator; MODEL.md's world otherwise.
+    # Section 5: prey trained with PPO against one NaivChase predator; docs/model.md's world otherwise.
     # From the paper's table: gamma, lambda, clip, entropy weight, actor/critic learning rates; 4000
     # episodes of 3000 steps. Not given by the paper (our choices): the networks (two tanh layers of
     # 64, separate actor and critic), epochs, mini-batches, gradient clipping, the reward scale, and
@@ -224,7 +224,7 @@ def parse_assignment(text: str) -> dict:
 
 
 def env_config(config: dict) -> AquariumConfig:
-    """The `AquariumConfig` of a run config (MODEL.md defaults updated with `config["env"]`)."""
+    """The `AquariumConfig` of a run config (docs/model.md defaults updated with `config["env"]`)."""
     data = AquariumConfig().to_dict()
     deep_update(data, config.get("env", {}))
     return AquariumConfig.from_dict(data)

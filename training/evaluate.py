@@ -283,7 +283,7 @@ def cross_play(prey, predator, env: AquariumConfig | None = None, episodes: int 
                max_worlds: int = 1024, deterministic: bool = True, progress=None, rating: bool = True) -> dict:
     """Every prey spec against every predator spec (globs expanded by `expand_specs`) under the
     evaluation protocol of `evaluate_policies` (which plays the pairs). `env=None`: the common world of
-    the trained policies (`common_policy_env`), else MODEL.md's.
+    the trained policies (`common_policy_env`), else docs/model.md's.
 
     Returns `evaluate_policies`' result plus `"cross_play"`: the row (prey) and column (predator)
     labels and, per metric of `CROSS_PLAY_METRICS`, `[prey][predator]` matrices of the mean and std over

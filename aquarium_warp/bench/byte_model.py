@@ -88,7 +88,7 @@ def step_byte_model(cfg: AquariumConfig, dims: tuple[int, int] | None = None, cu
     # square): read alive and position (the neighbour walk is a gather). count_capture_sharers, one
     # thread per prey slot: read alive and captured, read-modify-write age. share_capture_rewards, one
     # thread per predator: read alive and position, read-modify-write starvation, write reward, and
-    # read-modify-write its episode return (MODEL.md step 8). respawn_captured_prey, one thread per
+    # read-modify-write its episode return (docs/model.md step 8). respawn_captured_prey, one thread per
     # prey slot: read captured, then step 8: read reward and alive, write reward (the survival
     # reward) and read-modify-write the episode return.
     stages["captures"] = {

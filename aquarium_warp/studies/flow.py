@@ -7,7 +7,7 @@ episode each): kind `uniform` (a current of `strength` px/step at `uniform_angle
 predator: a current along it would only measure that heading) or `vortex` (a Rankine vortex at the
 world's centre, `strength` px/step at the edge of a core whose radius is a sixth of the world, clockwise).
 Strength 0 is the still-water reference. By default the agents are the paper's heuristics, TurnAway prey
-against NaivChase predators, which ignore the current (MODEL.md); `--prey-policy` / `--predator-policy`
+against NaivChase predators, which ignore the current (docs/model.md); `--prey-policy` / `--predator-policy`
 take trained policy files instead (trained without the current in their observations, as they are).
 Seed s is the block of `episodes_per_seed` worlds of a setting (independent random streams).
 
@@ -19,7 +19,7 @@ Measures, per seed:
   in the many-eyes study, `common.fleeing`: nearest predator within `flee_distance`, at least half
   speed, velocity within `flee_angle` of straight away).
   The current is measured, not recomputed: the step's displacement minus the stored velocity
-  (MODEL.md: `P' = wrap(P + V' + C)`), for prey alive and not captured in the step, where it is
+  (docs/model.md: `P' = wrap(P + V' + C)`), for prey alive and not captured in the step, where it is
   longer than 0.01 px/step. +1: escaping downstream; -1: against the current.
 - `cruise_cosine`: the same for the prey that are not fleeing (the reference: do prey align with the
   current anyway?); `downstream_fraction`: the fraction of fleeing steps with a positive cosine.

@@ -5,8 +5,8 @@ For every team size (1-4 predators, parameter sharing), prey condition and catch
 seed trains one run and evaluates it:
 - prey conditions: `turnaway` (predators learn against TurnAway prey, `team predator`) and `cotrained`
   (both teams learn in the same worlds, `team both`; evaluated against the prey trained with them);
-- catch sharing: `catch_share_radius` 100 px (MODEL.md's default: every predator within 100 px of the
-  captured prey shares the reward) and 0 px (only the capturer(s) in contact are rewarded: MODEL.md's
+- catch sharing: `catch_share_radius` 100 px (docs/model.md's default: every predator within 100 px of the
+  captured prey shares the reward) and 0 px (only the capturer(s) in contact are rewarded: docs/model.md's
   sharers are the predators strictly within the radius plus every capturer);
 - baseline: NaivChase predators against TurnAway prey at each team size (no training).
 

@@ -3,7 +3,7 @@ earlier than alone, beyond dilution? (The paper's open question on the many-eyes
 
 For every group size N and prey field-of-view angle, each seed trains prey (parameter sharing) against
 one NaivChase predator and evaluates them against NaivChase with confusion (a random visible prey each
-step) and without (the nearest), in MODEL.md's 800 x 800 world. The training budget per run is the
+step) and without (the nearest), in docs/model.md's 800 x 800 world. The training budget per run is the
 same number of prey-steps at every N: `rows` learning rows per iteration, so `rows // N` worlds of N
 prey (more worlds for small groups), `iterations` PPO iterations of 32 steps. TurnAway prey (which react
 only to a predator they see themselves) are evaluated the same way as a heuristic reference.
@@ -68,7 +68,7 @@ class ManyEyesStudy:
     train_steps: int = 500  # episode length in training
     eval_rows: int = 512  # evaluation prey per seed: eval_rows // N worlds (at least 2)
     eval_steps: int = 1000
-    view_distance: float = 100.0  # the prey's, px (MODEL.md's)
+    view_distance: float = 100.0  # the prey's, px (docs/model.md's)
     flee_angle: float = 45.0
     flee_distance: float = 200.0
     turn_angle: float = 30.0

@@ -101,7 +101,7 @@ class Simulation:
         return path
 
     def _config(self, specs: dict[str, str]) -> AquariumConfig:
-        """The trained policies' world (their metadata, as `video` takes it), else MODEL.md's; the
+        """The trained policies' world (their metadata, as `video` takes it), else docs/model.md's; the
         command line's counts and sizes override it."""
         files = [spec for team, spec in specs.items() if not is_heuristic(spec, team)]
         data = AquariumConfig().to_dict()
