@@ -33,9 +33,9 @@ import test_heuristics  # noqa: E402
 from test_kernels_vs_reference import (  # noqa: E402
     DEVICE,
     NUM_WORLDS,
+    check_observations_after_set_state,
     check_step,
     compare_observations,
-    describe_world,
     fail_if,
     kernel_step,
     make_config,
@@ -174,25 +174,8 @@ def check_fresh_headings(name: str, seen: dict) -> None:
 # --------------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("name", NAMES)
 def test_ego_observations_after_set_state(name):
-    cfg, env = configs()[name][0], get_env(name)
-    rng = np.random.default_rng(5000 + NAMES.index(name))
-    errors = []
-    for rep in range(3):
-        worlds = [random_world(rng, world_config(cfg, w)) for w in range(env.num_worlds)]
-        set_worlds(env, worlds)
-        after = read_worlds(env)
-        for w in range(env.num_worlds):
-            where = f"[{name} set_state #{rep} world {w}]"
-            r_obs, r_mask, r_slots = ref.observe(world_config(cfg, w), worlds[w], with_slots=True,
-                                                 world_step=after[w]["world_step"])
-            k_obs = {k: v[w].detach().cpu().numpy() for k, v in env.observations.items()}
-            k_mask = {k: v[w].detach().cpu().numpy() for k, v in env.observation_mask.items()}
-            n_before = len(errors)
-            compare_observations(cfg, where, k_obs, k_mask, r_obs, r_mask, r_slots, errors)
-            if len(errors) > n_before:
-                errors.append(f"{where} state: alive {worlds[w]['alive'].astype(int).tolist()} "
-                              f"{describe_world(cfg, worlds[w])}")
-    fail_if(errors, name)
+    check_observations_after_set_state(name, configs()[name][0], get_env(name),
+                                       np.random.default_rng(5000 + NAMES.index(name)))
 
 
 @pytest.mark.parametrize("name", ["ego_respawns", "ego_signed_slots", "ego_per_world_flow_observed", "ego_many_agents"])

@@ -536,12 +536,11 @@ def check_step(name: str, cfg, env, starts: list, actions: np.ndarray, errors: l
 # --------------------------------------------------------------------------------------------------
 # Tests
 # --------------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("name", list(CONFIGS))
-def test_observations_after_set_state(name):
-    cfg, env = CONFIGS[name], get_env(name)
-    rng = np.random.default_rng(1000 + list(CONFIGS).index(name))
+def check_observations_after_set_state(name: str, cfg, env, rng, repeats: int = 3) -> None:
+    """`repeats` times: random states set into every world, stored as given, observed as the reference
+    observes them."""
     errors = []
-    for rep in range(3):
+    for rep in range(repeats):
         worlds = [random_world(rng, world_config(cfg, w)) for w in range(env.num_worlds)]
         set_worlds(env, worlds)
         after = read_worlds(env)
@@ -560,6 +559,12 @@ def test_observations_after_set_state(name):
                 errors.append(f"{where} state: alive {worlds[w]['alive'].astype(int).tolist()} "
                               f"{describe_world(cfg, worlds[w])}")
     fail_if(errors, name)
+
+
+@pytest.mark.parametrize("name", list(CONFIGS))
+def test_observations_after_set_state(name):
+    check_observations_after_set_state(name, CONFIGS[name], get_env(name),
+                                       np.random.default_rng(1000 + list(CONFIGS).index(name)))
 
 
 @pytest.mark.parametrize("name, step_kernel", STEP_CASES)
