@@ -14,7 +14,7 @@ import time
 from .atomic import check_output_dir, check_output_file
 
 
-def _int_at_least(low: int):
+def int_at_least(low: int):
     """argparse type: an integer >= `low` (any size)."""
 
     def parse(text: str) -> int:
@@ -48,8 +48,8 @@ def plural(count: int, noun: str) -> str:
     return f"{count} {noun}{'' if count == 1 else 's'}"
 
 
-positive_int = _int_at_least(1)
-non_negative_int = _int_at_least(0)  # seeds: any size
+positive_int = int_at_least(1)
+non_negative_int = int_at_least(0)  # seeds: any size
 
 
 def positive_float(text: str) -> float:
@@ -445,9 +445,9 @@ def _add_open_questions(kinds) -> None:
     p.add_argument("--worlds", type=positive_int, default=1024, help="training worlds per run (default 1024)")
     p.add_argument("--iterations", type=positive_int, default=100,
                    help="PPO iterations per run, 32 steps each (default 100)")
-    p.add_argument("--train-steps", type=_int_at_least(2), default=500, help="episode length in training (default 500)")
+    p.add_argument("--train-steps", type=int_at_least(2), default=500, help="episode length in training (default 500)")
     p.add_argument("--eval-worlds", type=positive_int, default=32, help="evaluation episodes per seed (default 32)")
-    p.add_argument("--eval-steps", type=_int_at_least(2), default=1000,
+    p.add_argument("--eval-steps", type=int_at_least(2), default=1000,
                    help="evaluation episode length (default 1000)")
     p.add_argument("--hunt-radius", type=positive_float, default=200.0,
                    help="px; predators this close to a capture take part in it (default 200, the predator's view)")
@@ -471,10 +471,10 @@ def _add_open_questions(kinds) -> None:
                    help="learning prey per iteration: --rows // N worlds of N prey (default 4096)")
     p.add_argument("--iterations", type=positive_int, default=120,
                    help="PPO iterations per run, 32 steps each (default 120)")
-    p.add_argument("--train-steps", type=_int_at_least(2), default=500, help="episode length in training (default 500)")
+    p.add_argument("--train-steps", type=int_at_least(2), default=500, help="episode length in training (default 500)")
     p.add_argument("--eval-rows", type=positive_int, default=512,
                    help="evaluation prey per seed: --eval-rows // N worlds, at least 2 (default 512)")
-    p.add_argument("--eval-steps", type=_int_at_least(2), default=1000,
+    p.add_argument("--eval-steps", type=int_at_least(2), default=1000,
                    help="evaluation episode length (default 1000)")
     p.add_argument("--view-distance", type=positive_float, default=100.0, help="prey view distance, px (default 100)")
     p.add_argument("--flee-angle", type=non_negative_float, default=45.0,
@@ -504,7 +504,7 @@ def _add_open_questions(kinds) -> None:
                    help="px per step (the vortex's at its core's edge; list; default 0,0.5,1,2,3)")
     p.add_argument("--episodes-per-seed", type=positive_int, default=10,
                    help="episodes (worlds) per seed (default 10)")
-    p.add_argument("--episode-steps", type=_int_at_least(2), default=3000, help="steps per episode (default 3000)")
+    p.add_argument("--episode-steps", type=int_at_least(2), default=3000, help="steps per episode (default 3000)")
     p.add_argument("--prey", type=positive_int, default=16, help="prey per world (default 16)")
     p.add_argument("--predators", type=positive_int, default=1, help="predators per world (default 1)")
     p.add_argument("--prey-policy", default="turnaway", help="'turnaway', 'random' or a trained policy file")

@@ -41,18 +41,18 @@ def _check(name: str, value, ok: bool, allowed: str) -> None:
         raise ValueError(f"{name}={value!r} is out of range: must be {allowed}")
 
 
-def _is_int(value) -> bool:
+def is_int(value) -> bool:
     """Python or numpy integers (not bools)."""
     return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
 
 
-def _is_real(value) -> bool:
+def is_real(value) -> bool:
     return (isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
             and not math.isnan(value))
 
 
 def _in_range(value, lo: float, hi: float) -> bool:
-    return _is_real(value) and lo <= value <= hi
+    return is_real(value) and lo <= value <= hi
 
 
 def _normalise(obj, ints: tuple, reals: tuple, bools: tuple = ()) -> None:
@@ -91,7 +91,7 @@ class Uniform:
         return [float(x) for x in rng.uniform(self.low, self.high, size=n)]
 
     def check(self, name: str) -> None:
-        _check(name, (self.low, self.high), _is_real(self.low) and _is_real(self.high) and self.low <= self.high,
+        _check(name, (self.low, self.high), is_real(self.low) and is_real(self.high) and self.low <= self.high,
                "a range of two numbers with low <= high")
 
 
@@ -104,7 +104,7 @@ class LogUniform(Uniform):
         return [int(round(x)) for x in values] if integer else [float(x) for x in values]
 
     def check(self, name: str) -> None:
-        _check(name, (self.low, self.high), _is_real(self.low) and _is_real(self.high) and 0 < self.low <= self.high,
+        _check(name, (self.low, self.high), is_real(self.low) and is_real(self.high) and 0 < self.low <= self.high,
                "a range of two numbers with 0 < low <= high")
 
 
@@ -185,7 +185,7 @@ class FlowConfig:
             if hasattr(value, "tolist"):
                 value = value.tolist()
             ok = isinstance(value, (list, tuple)) and len(value) == 2 and all(
-                _is_real(v) and abs(v) <= LARGEST for v in value)
+                is_real(v) and abs(v) <= LARGEST for v in value)
             _check(f"flow.{name}", value, ok, f"two finite numbers (x, y) with |x|, |y| <= {LARGEST:g}")
             object.__setattr__(self, name, tuple(float(v) for v in value))
         _check("flow.strength", self.strength, _in_range(self.strength, -LARGEST, LARGEST),
@@ -275,9 +275,9 @@ class AgentTypeConfig:
         _check(f"{prefix}.view_distance", v, _in_range(v, SMALLEST, LARGEST) or v == math.inf,
                f"a number > 0 (math.inf for unlimited): math.inf or in [{SMALLEST:g}, {LARGEST:g}]")
         a = self.fov_angle
-        _check(f"{prefix}.fov_angle", a, _is_real(a) and 0 < a <= 360, "in (0, 360] degrees")
+        _check(f"{prefix}.fov_angle", a, is_real(a) and 0 < a <= 360, "in (0, 360] degrees")
         b = self.bounce_strength
-        _check(f"{prefix}.bounce_strength", b, _is_real(b) and (b == 0 or SMALLEST <= b <= LARGEST),
+        _check(f"{prefix}.bounce_strength", b, is_real(b) and (b == 0 or SMALLEST <= b <= LARGEST),
                f"a finite number >= 0: 0 or in [{SMALLEST:g}, {LARGEST:g}] (float32-safe)")
         self._validate_slots(prefix)
         _normalise(self, (), PER_WORLD_TYPE_FIELDS)
@@ -285,7 +285,7 @@ class AgentTypeConfig:
     def _validate_slots(self, prefix: str) -> None:
         for name in ("predator_slots", "prey_slots"):
             value = getattr(self, name)
-            _check(f"{prefix}.{name}", value, _is_int(value) and 0 <= value <= MAX_OBSERVED_SLOTS,
+            _check(f"{prefix}.{name}", value, is_int(value) and 0 <= value <= MAX_OBSERVED_SLOTS,
                    f"an integer in [0, {MAX_OBSERVED_SLOTS}]")
         if self.predator_slots == 0 and self.prey_slots == 0:  # the observation kernels need a neighbour slot
             raise ValueError(f"{prefix}.predator_slots=0 and {prefix}.prey_slots=0: an observation needs at least "
@@ -474,35 +474,35 @@ class AquariumConfig:
     def _validate_scalars(self) -> None:
         for name in ("width", "height"):
             value = getattr(self, name)
-            _check(name, value, _is_real(value) and math.isfinite(value) and 40 < value <= 1e7,
+            _check(name, value, is_real(value) and math.isfinite(value) and 40 < value <= 1e7,
                    "a finite number in (40, 1e7] px (prey spawn 20 px from the edges)")
-        _check("prey_count", self.prey_count, _is_int(self.prey_count) and self.prey_count >= 1,
+        _check("prey_count", self.prey_count, is_int(self.prey_count) and self.prey_count >= 1,
                "an integer >= 1")
         _check("predator_count", self.predator_count,
-               _is_int(self.predator_count) and self.predator_count >= 1, "an integer >= 1")
+               is_int(self.predator_count) and self.predator_count >= 1, "an integer >= 1")
         _check("action_count", self.action_count,
-               _is_int(self.action_count) and 1 <= self.action_count <= 65536, "an integer in [1, 65536]")
-        _check("max_steps", self.max_steps, _is_int(self.max_steps) and 1 <= self.max_steps <= INT32_MAX,
+               is_int(self.action_count) and 1 <= self.action_count <= 65536, "an integer in [1, 65536]")
+        _check("max_steps", self.max_steps, is_int(self.max_steps) and 1 <= self.max_steps <= INT32_MAX,
                "an integer >= 1 and <= 2**31 - 1 (an int32 step counter)")
         for name in ("fov_enabled", "respawn_captured_prey", "prey_reproduction"):
             value = getattr(self, name)
             _check(name, value, isinstance(value, (bool, np.bool_)), "True or False")
         _check("catch_share_radius", self.catch_share_radius,
-               _is_real(self.catch_share_radius) and (self.catch_share_radius == 0
+               is_real(self.catch_share_radius) and (self.catch_share_radius == 0
                                                      or SMALLEST <= self.catch_share_radius <= LARGEST),
                f"a finite number >= 0: 0 or in [{SMALLEST:g}, {LARGEST:g}] px (float32-safe)")
         # A starving predator's counter reaches predator_starvation_steps + 1 (int32).
         _check("predator_starvation_steps", self.predator_starvation_steps,
-               _is_int(self.predator_starvation_steps) and 0 <= self.predator_starvation_steps <= INT32_MAX - 1,
+               is_int(self.predator_starvation_steps) and 0 <= self.predator_starvation_steps <= INT32_MAX - 1,
                "an integer >= 0 and <= 2**31 - 2 (an int32 counter)")
         # Replication ages are drawn up to floor(1.25 R), and the draw's exclusive bound, one more, is
         # int32: the largest R with floor(5 R / 4) + 1 <= 2**31 - 1.
         max_replication_age = (4 * INT32_MAX - 1) // 5
         _check("prey_replication_age", self.prey_replication_age,
-               _is_int(self.prey_replication_age) and 1 <= self.prey_replication_age <= max_replication_age,
+               is_int(self.prey_replication_age) and 1 <= self.prey_replication_age <= max_replication_age,
                f"an integer >= 1 and <= {max_replication_age} (its 1.25x drawn ages are int32)")
         # Unused without reproduction, but still an int32 kernel parameter.
-        _check("max_prey", self.max_prey, _is_int(self.max_prey) and 1 <= self.max_prey <= 2**30,
+        _check("max_prey", self.max_prey, is_int(self.max_prey) and 1 <= self.max_prey <= 2**30,
                "an integer >= 1 and <= 2**30 (the agent slots' limit)")
         _check("observation_range", self.observation_range,
                isinstance(self.observation_range, str) and self.observation_range in OBSERVATION_RANGES,
@@ -523,7 +523,7 @@ class AquariumConfig:
                        f" less the flow's largest current {drift:g}" if drift else ""))
         if self.grid_cell_size is not None:
             g = self.grid_cell_size
-            _check("grid_cell_size", g, _is_real(g) and math.isfinite(g) and g > 0,
+            _check("grid_cell_size", g, is_real(g) and math.isfinite(g) and g > 0,
                    "None or a finite number > 0")
         _check("capacity", self.capacity, self.capacity <= 2**30,
                "at most 2**30 agent slots per world: prey_count (with reproduction max(prey_count, max_prey)) "
@@ -531,7 +531,7 @@ class AquariumConfig:
         reward_limit = RETURN_LIMIT / (self.max_steps * self.prey_capacity)
         for name in ("prey_reward", "prey_capture_penalty", "predator_reward"):
             value = getattr(self, name)
-            _check(name, value, _is_real(value) and math.isfinite(value) and abs(value) <= reward_limit,
+            _check(name, value, is_real(value) and math.isfinite(value) and abs(value) <= reward_limit,
                    f"a finite number with |{name}| <= 1e38 / (max_steps x prey slots) = {reward_limit:.3g} "
                    "(episode returns are float32 sums)")
         _normalise(self, ("prey_count", "predator_count", "action_count", "max_steps", "predator_starvation_steps",
@@ -573,6 +573,16 @@ class AquariumConfig:
         own = {"world": 5, "ego": 2, "ego+heading": 4}[self.observation_layout]
         t = getattr(self, agent_type)
         return own + 2 * int(self.observe_flow) + 6 * (t.predator_slots + t.prey_slots)
+
+    def neighbour_columns(self, agent_type: str, of_type: str) -> slice:
+        """The columns of `agent_type`'s observation row that hold its observed `of_type` agents (6 per
+        slot; predator slots come first), in every layout."""
+        t = getattr(self, agent_type)
+        own = self.observation_size(agent_type) - 6 * (t.predator_slots + t.prey_slots)
+        if of_type == "predator":
+            return slice(own, own + 6 * t.predator_slots)
+        start = own + 6 * t.predator_slots
+        return slice(start, start + 6 * t.prey_slots)
 
     @property
     def max_torus_distance(self) -> float:

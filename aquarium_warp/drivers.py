@@ -55,16 +55,22 @@ def check_spec(spec, team: str, option: str | None = None) -> None:
 
 
 def make_driver(spec, env: BatchedAquarium, team: str, deterministic: bool = True, seed: int = 0,
-                confusion: bool | None = None) -> Driver:
+                confusion: bool | None = None, blind_to: str | None = None) -> Driver:
     """The driver of `team` ("prey" or "predator") of every world of `env` for `spec`.
 
     `confusion` (NaivChase only; None: the heuristic's default, True) picks NaivChase's target among
     several visible prey. A trained policy (exported file, checkpoint or shipped name; of a checkpoint
     of both teams, its `team` learner) needs the training extra; a recurrent one resets its rows'
-    hidden states where their episodes end."""
+    hidden states where their episodes end. `blind_to` ("prey" or "predator"; trained policies only):
+    the policy sees its slots of that type empty (the neighbour-ablation control)."""
     if team not in TYPES:
         raise ValueError(f"team={team!r} must be one of {TYPES}")
+    if blind_to is not None and blind_to not in TYPES:
+        raise ValueError(f"blind_to={blind_to!r} must be None or one of {TYPES}")
     check_spec(spec, team)
+    if blind_to is not None and is_heuristic(spec, team):
+        raise ValueError(f"blind_to={blind_to!r} applies to trained policies, not to the heuristic {spec!r} "
+                         "(heuristics read the state, not observations)")
     if is_heuristic(spec, team):
         key = normalise_name(spec)
         if key == normalise_name(NO_CONFUSION):
@@ -76,13 +82,15 @@ def make_driver(spec, env: BatchedAquarium, team: str, deterministic: bool = Tru
     except ImportError as error:
         raise ValueError(f"trained policies need aquarium_warp.training (importing it failed: {error})") from error
     return policy_driver(load_policy(spec, device=env.torch_device, deterministic=deterministic, seed=seed, team=team),
-                         env, team)
+                         env, team, blind_to=blind_to)
 
 
 def make_drivers(specs: Mapping[str, str], env: BatchedAquarium, seed: int = 0, deterministic: bool = True,
-                 confusion: bool | None = None) -> dict[str, Driver]:
+                 confusion: bool | None = None, blind_to: Mapping[str, str] | None = None) -> dict[str, Driver]:
     """`{team: driver}` for the teams of `specs`; a trained team samples (if `deterministic=False`) with
-    `seed` for the prey and `seed + 1` for the predators, so the two teams' draws are independent."""
+    `seed` for the prey and `seed + 1` for the predators, so the two teams' draws are independent.
+    `blind_to` maps a team to the type its trained policy sees no slots of (`make_driver`)."""
+    blind_to = blind_to or {}
     return {team: make_driver(spec, env, team, deterministic=deterministic, seed=seed + TYPES.index(team),
-                              confusion=confusion)
+                              confusion=confusion, blind_to=blind_to.get(team))
             for team, spec in specs.items()}

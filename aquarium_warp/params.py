@@ -8,7 +8,7 @@ tuples (one value per world) or scalars (the same in every world):
 - `flow_grid`: `[G, rows, cols]` vec2, the distinct grid currents of the batch (G >= 1);
 
 and `max_speed`, a `[W, 2]` float64 torch tensor of each world's max speeds by type code, for torch
-code that scales by them (`pettingzoo_env.WorldState`, also inside CUDA graphs).
+code that scales by them (`world_state.WorldState`, also inside CUDA graphs).
 
 The kernels read them every step, so `write(config)` (a copy into the same memory) changes the
 worlds between two steps with nothing rebuilt or recorded again, also inside a CUDA graph.

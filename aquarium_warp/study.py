@@ -356,7 +356,8 @@ def _warm_up(study: SwarmSizeStudy, device: str) -> None:
     env.close()
 
 
-def _stats(values: np.ndarray) -> dict:
+def seed_stats(values) -> dict:
+    """Mean, std, s.e.m. and n over seeds (NaN seeds left out) and the per-seed values."""
     v = np.asarray(values, dtype=np.float64)
     ok = v[~np.isnan(v)]
     n = len(ok)
@@ -534,7 +535,7 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayO
                  "world_width": s["width"], "world_height": s["height"],
                  "worlds": study.seeds * study.episodes_per_seed, "wall_s": round(r["wall_s"], 3),
                  "agent_steps_per_s": r["agent_steps"] / r["wall_s"],
-                 "metrics": {name: _stats(r["per_seed"][name]) for name in RESULT_METRICS},
+                 "metrics": {name: seed_stats(r["per_seed"][name]) for name in RESULT_METRICS},
                  "nn_distribution": [round(float(x), 6) for x in r["nn_distribution"]]}
         if "population" in r:
             entry["population"] = {k: [round(float(x), 4) for x in v] for k, v in r["population"].items()}

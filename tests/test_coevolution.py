@@ -29,11 +29,11 @@ import torch
 
 from aquarium_warp import AquariumConfig, aquarium_v1
 from aquarium_warp.cli import main
-from aquarium_warp.pettingzoo_env import WorldState
 from aquarium_warp.render import frame_size
 from aquarium_warp.training import Trainer, make_config
 from aquarium_warp.training.export import load_policy
 from aquarium_warp.training.pool import OpponentPool
+from aquarium_warp.world_state import WorldState
 
 
 def both_config(**train):

@@ -332,7 +332,7 @@ def test_set_params_refuses_bad_samplers_and_rng_and_stays_usable(fields, messag
 
 
 def test_world_state_scales_velocities_by_each_worlds_max_speed():
-    from aquarium_warp.pettingzoo_env import STATE_FIELDS, WorldState
+    from aquarium_warp.world_state import STATE_FIELDS, WorldState
 
     speeds = (3.0, 4.0)
     cfg = dataclasses.replace(BASE, prey=dataclasses.replace(BASE.prey, max_speed=speeds))

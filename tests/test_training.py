@@ -146,7 +146,7 @@ def test_adapter_inactive_rows_respawn_off():
     assert not vec.predictable_ends
     pos = torch.tensor([[100.0, 100.0], [200.0, 40.0], [40.0, 250.0], [100.0, 100.0]])
     env.set_state(world=0, position=pos)
-    vec._sync_from_env()
+    vec.sync_from_env()
     gen = torch.Generator().manual_seed(3)
     _, rew, done, extras = vec.step(random_actions(vec, gen))
     assert done[0] == 1 and not extras["time_outs"][0] and rew[0] == -1000.0  # removed: terminated

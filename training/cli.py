@@ -14,7 +14,7 @@ import time
 import warnings
 
 from ..atomic import check_output_dir
-from ..cli import Interrupted, _int_at_least, plural
+from ..cli import Interrupted, int_at_least, plural
 from .config import ALGORITHM_RANGES, PRESETS
 
 PRESET_NAMES = tuple(PRESETS)
@@ -72,11 +72,11 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
                    help="prey when training predators: 'random' (default), 'turnaway' or a policy file")
     g.add_argument("--sharing", choices=("parameter", "individual"), default=None,
                    help="Parameter Sharing (one network, default) or Individual Learning (one per slot)")
-    g.add_argument("--num-worlds", type=_int_at_least(1), default=None,
+    g.add_argument("--num-worlds", type=int_at_least(1), default=None,
                    help="worlds stepped in parallel (default 1024)")
     g.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
-    g.add_argument("--seed", type=_int_at_least(0), default=None, help="seed of the worlds and the networks")
-    g.add_argument("--iterations", type=_int_at_least(0), default=None, help="total PPO iterations of the run")
+    g.add_argument("--seed", type=int_at_least(0), default=None, help="seed of the worlds and the networks")
+    g.add_argument("--iterations", type=int_at_least(0), default=None, help="total PPO iterations of the run")
     g.add_argument("--episodes", type=POSITIVE, default=None,
                    help="total world episodes instead of --iterations (the paper: 4000)")
     g.add_argument("--log-dir", default=None, help="run directory (default: runs/<team>_<sharing>_<time>)")
@@ -97,20 +97,20 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
                    help="what each learner's critic sees besides the agent's observation (MAPPO's centralised "
                         "critic; actors stay local): nothing (local, default), the team's joint observation "
                         "(team) or the world state (world)")
-    g.add_argument("--video-every", type=_int_at_least(0), default=None, metavar="N",
+    g.add_argument("--video-every", type=int_at_least(0), default=None, metavar="N",
                    help="every N iterations a rendered evaluation episode of one world into the log "
                         "(TensorBoard Video/episode; default 0: none)")
-    g.add_argument("--video-steps", type=_int_at_least(1), default=None, help="steps of that episode (default 200)")
+    g.add_argument("--video-steps", type=int_at_least(1), default=None, help="steps of that episode (default 200)")
     b = p.add_argument_group("both teams learning (--team both)")
     b.add_argument("--update-schedule", choices=("simultaneous", "alternating"), default=None,
                    help="both learners update every iteration (simultaneous, default), or take turns while "
                         "the other is frozen (alternating)")
-    b.add_argument("--alternate-every", type=_int_at_least(1), default=None, metavar="K",
+    b.add_argument("--alternate-every", type=int_at_least(1), default=None, metavar="K",
                    help="alternating: iterations per turn, prey first (default 10)")
-    b.add_argument("--pool-every", type=_int_at_least(0), default=None, metavar="N",
+    b.add_argument("--pool-every", type=int_at_least(0), default=None, metavar="N",
                    help="snapshot each team's actor into its opponent pool every N iterations "
                         "(fictitious self-play; default 0: no pool)")
-    b.add_argument("--pool-size", type=_int_at_least(1), default=None, help="snapshots kept per team (default 8)")
+    b.add_argument("--pool-size", type=int_at_least(1), default=None, help="snapshots kept per team (default 8)")
     b.add_argument("--pool-sampling", choices=("uniform", "latest"), default=None,
                    help="which snapshot a world draws when its episode ends: uniform, or latest-biased "
                         "(weights 1..n from the oldest to the newest)")
@@ -124,8 +124,8 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     e.add_argument("--width", type=float, default=None, help="world width, px")
     e.add_argument("--height", type=float, default=None, help="world height, px")
     a = p.add_argument_group("PPO")
-    a.add_argument("--num-steps-per-env", type=_int_at_least(1), default=None, help="rollout length per iteration")
-    a.add_argument("--save-interval", type=_int_at_least(1), default=None, help="checkpoint every N iterations")
+    a.add_argument("--num-steps-per-env", type=int_at_least(1), default=None, help="rollout length per iteration")
+    a.add_argument("--save-interval", type=int_at_least(1), default=None, help="checkpoint every N iterations")
     a.add_argument("--learning-rate", "--actor-lr", dest="actor_lr", type=POSITIVE, default=None,
                    help="actor learning rate (rsl-rl's learning_rate)")
     a.add_argument("--critic-lr", type=POSITIVE, default=None,
@@ -136,8 +136,8 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     a.add_argument("--entropy", type=_algorithm("entropy_coef"), default=None, help="entropy coefficient, >= 0")
     a.add_argument("--value-loss-coef", type=_algorithm("value_loss_coef"), default=None,
                    help="weight of the value loss")
-    a.add_argument("--epochs", type=_int_at_least(1), default=None, help="learning epochs per iteration")
-    a.add_argument("--minibatches", type=_int_at_least(1), default=None, help="mini-batches per epoch")
+    a.add_argument("--epochs", type=int_at_least(1), default=None, help="learning epochs per iteration")
+    a.add_argument("--minibatches", type=int_at_least(1), default=None, help="mini-batches per epoch")
     a.add_argument("--max-grad-norm", type=_algorithm("max_grad_norm"), default=None, help="gradient norm clip")
     a.add_argument("--schedule", choices=("fixed", "adaptive"), default=None,
                    help="learning rate: fixed, or adapted to keep the KL near --desired-kl")
@@ -334,6 +334,9 @@ def add_eval_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
     p.add_argument("--max-worlds", type=int, default=1024, help="episodes run in parallel at most")
     p.add_argument("--stochastic", action="store_true", help="trained policies sample actions (default: argmax)")
+    p.add_argument("--blind", action="append", default=[], metavar="TEAM=TYPE",
+                   help="neighbour ablation: TEAM's trained policies act with their TYPE slots empty (e.g. "
+                        "prey=prey: learned prey that see no other prey); heuristics are unaffected")
     p.add_argument("--out", default="eval_results", help="output directory (CSV, JSON, figures)")
     p.add_argument("--curves", nargs="*", default=[], metavar="LABEL=RUNDIR_GLOB",
                    help="also plot training curves of these runs (mean and std band over runs per label); a run "
@@ -370,7 +373,8 @@ def run_eval(args) -> int:
         start = time.perf_counter()
         result = evaluate_policies(prey, predator, env, episodes=args.episodes, seeds=args.seeds,
                                    device=args.device, max_worlds=args.max_worlds,
-                                   deterministic=not args.stochastic, progress=lambda m: print("  " + m))
+                                   deterministic=not args.stochastic, progress=lambda m: print("  " + m),
+                                   blind_to=_blind(args.blind))
         paths = write_results(result, args.out)
         outputs += list(paths.values())
         print(f"{'prey':>16} {'predator':>12} {'captures/prey':>20} {'reward/prey':>22}")
@@ -391,6 +395,19 @@ def run_eval(args) -> int:
     for path in outputs:
         print(f"  wrote {path}")
     return 0
+
+
+def _blind(items: list[str]) -> dict[str, str]:
+    """`--blind TEAM=TYPE` options as `{team: type}`, refused in one line when malformed or repeated."""
+    out: dict[str, str] = {}
+    for item in items:
+        team, _, kind = item.partition("=")
+        if team not in ("prey", "predator") or kind not in ("prey", "predator"):
+            raise ValueError(f"--blind {item!r}: expected TEAM=TYPE with TEAM and TYPE each 'prey' or 'predator'")
+        if team in out:
+            raise ValueError(f"--blind names {team!r} twice")
+        out[team] = kind
+    return out
 
 
 def _eval_world(args, specs):

@@ -29,7 +29,7 @@ import copy
 import json
 import math
 
-from ..config import AquariumConfig, _is_int, _is_real
+from ..config import AquariumConfig, is_int, is_real
 from .randomize import parse_spec
 
 DISTRIBUTION = "aquarium_warp.training.distribution:CategoricalDistribution"
@@ -74,7 +74,7 @@ LOOPS = ("fast", "rsl-rl")
 TEAMS = ("prey", "predator")
 # What the critic sees besides the agent's own observation (rsl-rl's "critic" observation set):
 # "local": nothing (the actor's input); "team": the team's joint observation (every slot of the
-# world, slot order); "world": the world state (`pettingzoo_env.WorldState`). Actors stay local.
+# world, slot order); "world": the world state (`world_state.WorldState`). Actors stay local.
 CRITICS = ("local", "team", "world")
 UPDATE_SCHEDULES = ("simultaneous", "alternating")
 POOL_SAMPLING = ("uniform", "latest")
@@ -254,15 +254,15 @@ def _validate_team_settings(settings: dict, where: str) -> None:
     if "sharing" in settings and settings["sharing"] not in SHARING:
         raise ValueError(f"{where}.sharing={settings['sharing']!r} must be one of {SHARING}")
     for name in ("actor_lr", "reward_scale"):
-        if name in settings and (not _is_real(settings[name]) or not 0 < settings[name] < math.inf):
+        if name in settings and (not is_real(settings[name]) or not 0 < settings[name] < math.inf):
             raise ValueError(f"{where}.{name}={settings[name]!r} must be a finite number > 0")
     lr = settings.get("critic_lr")
-    if lr is not None and (not _is_real(lr) or not 0 < lr < math.inf):
+    if lr is not None and (not is_real(lr) or not 0 < lr < math.inf):
         raise ValueError(f"{where}.critic_lr={lr!r} must be None or a finite number > 0")
     if "critic" in settings and settings["critic"] not in CRITICS:
         raise ValueError(f"{where}.critic={settings['critic']!r} must be one of {CRITICS}")
     fraction = settings.get("pool_fraction", 0.0)
-    if not _is_real(fraction) or not 0 <= fraction <= 1:
+    if not is_real(fraction) or not 0 <= fraction <= 1:
         raise ValueError(f"{where}.pool_fraction={fraction!r} must be a number in [0, 1]")
 
 
@@ -270,13 +270,13 @@ def _validate_algorithm(algorithm: dict, where: str) -> None:
     """PPO settings present in `algorithm` (`where`: "runner.algorithm" or a team block's)."""
     # Checked here: rsl-rl would only fail on 0 (ZeroDivisionError) after the first rollout.
     for name in ("num_learning_epochs", "num_mini_batches"):
-        if name in algorithm and (not _is_int(algorithm[name]) or algorithm[name] < 1):
+        if name in algorithm and (not is_int(algorithm[name]) or algorithm[name] < 1):
             raise ValueError(f"{where}.{name}={algorithm[name]!r} must be an integer >= 1")
     # NaN or out-of-range coefficients fail only deep inside sampling or the update (or not at all).
     for name, (allowed, ok) in ALGORITHM_RANGES.items():
         if name == "desired_kl" and algorithm.get(name) is None:
             continue  # rsl-rl's "no KL target" (the fixed schedule)
-        if name in algorithm and (not _is_real(algorithm[name]) or not ok(algorithm[name])):
+        if name in algorithm and (not is_real(algorithm[name]) or not ok(algorithm[name])):
             raise ValueError(f"{where}.{name}={algorithm[name]!r} must be {allowed}")
 
 
@@ -321,19 +321,19 @@ def validate(config: dict) -> None:
     _validate_team_settings(train, "train")
     for name in ("num_worlds", "iterations"):
         v = train[name]
-        if not _is_int(v) or v < (1 if name == "num_worlds" else 0):
+        if not is_int(v) or v < (1 if name == "num_worlds" else 0):
             raise ValueError(f"train.{name}={v!r} must be an integer >= {1 if name == 'num_worlds' else 0}")
-    if not _is_int(train["seed"]) or not 0 <= train["seed"] < 2**63 - 2**16:
+    if not is_int(train["seed"]) or not 0 <= train["seed"] < 2**63 - 2**16:
         # torch seeds are 64-bit, and distributed runs add their rank
         raise ValueError(f"train.seed={train['seed']!r} must be an integer in [0, 2**63 - 2**16)")
-    if train["episodes"] is not None and (not _is_real(train["episodes"]) or train["episodes"] <= 0):
+    if train["episodes"] is not None and (not is_real(train["episodes"]) or train["episodes"] <= 0):
         raise ValueError(f"train.episodes={train['episodes']!r} must be None or a number > 0")
     if train["loop"] not in LOOPS:
         raise ValueError(f"train.loop={train['loop']!r} must be one of {LOOPS}")
     for name, low, meaning in (("metrics_every", 0, " (0: no swarm metrics)"), ("alternate_every", 1, ""),
                                ("pool_every", 0, " (0: no opponent pool)"), ("pool_size", 1, ""),
                                ("video_every", 0, " (0: no videos)"), ("video_steps", 1, "")):
-        if not _is_int(train[name]) or not low <= train[name] <= 2**31 - 1:
+        if not is_int(train[name]) or not low <= train[name] <= 2**31 - 1:
             raise ValueError(f"train.{name}={train[name]!r} must be an integer in [{low}, 2**31 - 1]{meaning}")
     for name in ("tf32", "cuda_graphs"):
         if not isinstance(train[name], bool):
@@ -359,11 +359,11 @@ def validate(config: dict) -> None:
     _validate_teams_section(config)
     for name in ("num_steps_per_env", "save_interval"):
         v = runner.get(name)
-        if not _is_int(v) or v < 1:
+        if not is_int(v) or v < 1:
             raise ValueError(f"runner.{name}={v!r} must be an integer >= 1")
     algorithm = runner.get("algorithm", {})
     for name in ("num_learning_epochs", "num_mini_batches"):
-        if not _is_int(algorithm.get(name)):  # required (a team block may only override them)
+        if not is_int(algorithm.get(name)):  # required (a team block may only override them)
             raise ValueError(f"runner.algorithm.{name}={algorithm.get(name)!r} must be an integer >= 1")
     _validate_algorithm(algorithm, "runner.algorithm")
     both = train["team"] == "both"

@@ -54,7 +54,7 @@ import torch
 
 from ..atomic import atomic_open, write_figure
 from ..bench.machine import git_info, machine_info
-from ..config import AquariumConfig, _is_int
+from ..config import AquariumConfig, is_int
 from ..drivers import is_heuristic, make_drivers
 from ..env import BatchedAquarium, resolve_device
 from ..metrics import EPISODE_METRICS, EpisodeMetrics
@@ -103,13 +103,18 @@ def common_policy_env(specs, fallback: AquariumConfig) -> AquariumConfig:
 
 
 def run_episodes(env_cfg: AquariumConfig, prey: str, predator: str, episodes: int, seed: int, device=None,
-                 max_worlds: int = 1024, deterministic: bool = True, metrics_every: int = 10) -> list[dict]:
+                 max_worlds: int = 1024, deterministic: bool = True, metrics_every: int = 10,
+                 blind_to: dict[str, str] | None = None) -> list[dict]:
     """Play `episodes` episodes of `prey` vs `predator` specs; one dict per episode with per-slot
     prey captures and rewards, predator rewards, the world's captures and length, and the episode's
-    swarm metrics (`swarm_<name>`: means over states sampled every `metrics_every` steps)."""
+    swarm metrics (`swarm_<name>`: means over states sampled every `metrics_every` steps).
+    `blind_to` (`{team: type}`): that team's trained policy sees no slots of the type (heuristics are
+    unaffected: they read the state)."""
     W = max(1, min(episodes, max_worlds))
     env = BatchedAquarium(env_cfg, num_worlds=W, device=device, seed=seed)
-    drivers = make_drivers({"prey": prey, "predator": predator}, env, seed=seed, deterministic=deterministic)
+    specs = {"prey": prey, "predator": predator}
+    blind = {t: v for t, v in (blind_to or {}).items() if not is_heuristic(specs[t], t)}
+    drivers = make_drivers(specs, env, seed=seed, deterministic=deterministic, blind_to=blind)
     dev = env.torch_device
     Pc, P = env.prey_capacity, env.predator_count
     prey_captures = torch.zeros(W, Pc, dtype=torch.int32, device=dev)
@@ -177,11 +182,13 @@ def summarize(values_per_seed: list[list[float]]) -> dict:
 
 
 def evaluate_policies(prey, predator, env: AquariumConfig | None = None, episodes: int = 200, seeds=(0,),
-                      device=None, max_worlds: int = 1024, deterministic: bool = True, progress=None) -> dict:
+                      device=None, max_worlds: int = 1024, deterministic: bool = True, progress=None,
+                      blind_to: dict[str, str] | None = None) -> dict:
     """Evaluate every (prey spec, predator spec) pair; see the module doc. Returns
-    `{"summary": [rows], "episodes": [per-episode records]}`."""
+    `{"summary": [rows], "episodes": [per-episode records]}`. `blind_to` (`{team: type}`): trained
+    policies of the team act without their slots of that type (the neighbour-ablation control)."""
     for name, value in (("episodes", episodes), ("max_worlds", max_worlds)):
-        if not _is_int(value) or value < 1:
+        if not is_int(value) or value < 1:
             raise ValueError(f"{name}={value!r} must be an integer >= 1")
     seeds = list(seeds)
     if not seeds:
@@ -201,7 +208,7 @@ def evaluate_policies(prey, predator, env: AquariumConfig | None = None, episode
                 if progress is not None:
                     progress(f"prey={prey_label} ({prey_value}) vs predator={pred_label} ({pred_value}), seed {seed}")
                 records = run_episodes(env, prey_value, pred_value, episodes, int(seed), device=device,
-                                       max_worlds=max_worlds, deterministic=deterministic)
+                                       max_worlds=max_worlds, deterministic=deterministic, blind_to=blind_to)
                 for m in METRICS:
                     group[m].append([r[m] for r in records])
                 for r in records:
@@ -219,7 +226,7 @@ def evaluate_policies(prey, predator, env: AquariumConfig | None = None, episode
         summary.append(row)
     return {"summary": summary, "episodes": episodes_out,
             "protocol": {"episodes": episodes, "seeds": [int(s) for s in seeds], "max_steps": env.max_steps,
-                         "deterministic": deterministic, "env": env.to_dict()},
+                         "deterministic": deterministic, "blind_to": dict(blind_to or {}), "env": env.to_dict()},
             **run_provenance(device)}
 
 

@@ -376,10 +376,10 @@ class RecurrentOpponent:
     its empty slot was filled again, the row dones of the training adapter (`vec_env.py`). Call it
     once per env step."""
 
-    def __init__(self, policy: LoadedPolicy, env, agent_type: str):
+    def __init__(self, policy: LoadedPolicy, env, agent_type: str, blind_to: str | None = None):
         from .vec_env import TrainedOpponent
 
-        self.driver, self.policy = TrainedOpponent(policy, env, agent_type), policy
+        self.driver, self.policy = TrainedOpponent(policy, env, agent_type, blind_to=blind_to), policy
         self._terminated, self._truncated = env.outputs.terminated[agent_type], env.outputs.truncated[agent_type]
         self._captured = env.state.torch.captured[:, :env.prey_capacity] if agent_type == "prey" else None
         self._alive = env.alive[agent_type]

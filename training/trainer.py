@@ -314,7 +314,7 @@ class AquariumRunner(OnPolicyRunner):
             self.env.episode_length_buf = torch.randint_like(
                 self.env.episode_length_buf, high=int(self.env.max_episode_length))
             for learner in self.learners[1:]:  # the worlds' step counters changed under them too
-                learner.vec_env._sync_from_env()
+                learner.vec_env.sync_from_env()
         if self.loop is None:
             self.loop = TrainingLoop([(learner.alg, learner.vec_env) for learner in self.learners],
                                      self.cfg["num_steps_per_env"], graphs=self.cuda_graphs,

@@ -10,7 +10,7 @@ Outputs of `step(actions [N, 1])`:
   `step()`, so each step writes into the buffer it did not return last time. A centralised critic
   (`critic="team"` or `"world"`, the MAPPO setting) adds one group for rsl-rl's "critic" observation
   set: `"team"` `[N, S * L]`, the team's joint observation (every slot of the row's world, slot
-  order), or `"world"` `[N, 7 * capacity + 1]`, the world state (`pettingzoo_env.WorldState`); it is
+  order), or `"world"` `[N, 7 * capacity + 1]`, the world state (`world_state.WorldState`); it is
   zero for inactive rows, like their own observation.
 - rewards `[N]` float32: the env's reward times `reward_scale` (rows inactive at the start of the
   step get 0).
@@ -59,7 +59,7 @@ from tensordict import TensorDict
 
 from ..env import TYPES, BatchedAquarium
 from ..metrics import EPISODE_METRICS, EpisodeMetrics
-from ..pettingzoo_env import WorldState
+from ..world_state import WorldState
 from . import _rsl  # noqa: F401
 from .randomize import ParamRandomizer
 
@@ -71,11 +71,16 @@ EPISODE_KEYS = ["Episode/captures", "Episode/reward_per_agent", "Episode/opponen
 
 class TrainedOpponent:
     """Drives one team of `env` with a policy mapping observations `[N, L]` -> actions `[N]`
-    (e.g. `load_policy(...)`); returns int32 actions `[W, slots]` on the env's device."""
+    (e.g. `load_policy(...)`); returns int32 actions `[W, slots]` on the env's device.
 
-    def __init__(self, policy, env: BatchedAquarium, agent_type: str):
+    `blind_to` ("prey" or "predator"): the policy acts on observations whose slots of that type are
+    empty (all zeros, as an unfilled slot reads): the neighbour-ablation control of a study."""
+
+    def __init__(self, policy, env: BatchedAquarium, agent_type: str, blind_to: str | None = None):
         if agent_type not in TYPES:
             raise ValueError(f"agent_type={agent_type!r} must be one of {TYPES}")
+        if blind_to is not None and blind_to not in TYPES:
+            raise ValueError(f"blind_to={blind_to!r} must be None or one of {TYPES}")
         self.policy, self.env, self.agent_type = policy, env, agent_type
         obs = env.observations[agent_type]
         self._slots, self._obs_size = obs.shape[1], obs.shape[2]
@@ -83,9 +88,17 @@ class TrainedOpponent:
         if check is not None:
             check(agent_type, self._obs_size, env.config.action_count, self._slots)
         self.actions = torch.zeros(obs.shape[:2], dtype=torch.int32, device=env.torch_device)
+        self.blind_to = blind_to
+        self._blind = env.config.neighbour_columns(agent_type, blind_to) if blind_to is not None else None
+        self._seen = torch.empty_like(obs) if blind_to is not None else None  # the ablated copy
 
     def __call__(self) -> torch.Tensor:
-        obs = self.env.observations[self.agent_type].reshape(-1, self._obs_size)
+        obs = self.env.observations[self.agent_type]
+        if self._seen is not None:
+            self._seen.copy_(obs)
+            self._seen[..., self._blind] = 0.0
+            obs = self._seen
+        obs = obs.reshape(-1, self._obs_size)
         with torch.inference_mode():
             act = self.policy(obs)
         self.actions.copy_(act.reshape(self.actions.shape))
@@ -100,14 +113,14 @@ class TrainedOpponent:
             self.policy.set_rng_state(state["policy_rng"])
 
 
-def policy_driver(policy, env: BatchedAquarium, agent_type: str):
+def policy_driver(policy, env: BatchedAquarium, agent_type: str, blind_to: str | None = None):
     """`TrainedOpponent` around a loaded policy (`export.load_policy`), or `RecurrentOpponent` for a
-    recurrent one (its rows' hidden states reset where their episodes end)."""
+    recurrent one (its rows' hidden states reset where their episodes end); `blind_to` as there."""
     if getattr(policy, "recurrent", None) is not None:
         from .export import RecurrentOpponent
 
-        return RecurrentOpponent(policy, env, agent_type)
-    return TrainedOpponent(policy, env, agent_type)
+        return RecurrentOpponent(policy, env, agent_type, blind_to=blind_to)
+    return TrainedOpponent(policy, env, agent_type, blind_to=blind_to)
 
 
 class LearnerActions:
@@ -228,10 +241,10 @@ class AquariumVecEnv(VecEnv):
         # Rows' running reward sums and, over the row episodes (agent lives) that ended, their total and count.
         self._row_return = torch.zeros(W * S, dtype=torch.float32, device=dev)
         self._row_stats = torch.zeros(2, dtype=torch.float64, device=dev)
-        self._sync_from_env()
+        self.sync_from_env()
 
     # ------------------------------------------------------------------ internal state
-    def _sync_from_env(self) -> None:
+    def sync_from_env(self) -> None:
         """Take rows' activity, the host step counters and the current observations from the env
         (after construction, `load_state_dict` or a change of the step counters)."""
         self._active.copy_(self._live_rows())
@@ -254,7 +267,7 @@ class AquariumVecEnv(VecEnv):
         """`driven [W]` bool (a buffer its owner updates in place): the worlds in which this learner
         drives its team; elsewhere its rows are inactive (see the module doc). None: every world."""
         self.driven = driven
-        self._sync_from_env()
+        self.sync_from_env()
 
     @property
     def episode_stats_size(self) -> int:
@@ -279,7 +292,7 @@ class AquariumVecEnv(VecEnv):
         value = torch.as_tensor(value).reshape(self.num_worlds, self.slots)[:, 0]
         steps = value.to(torch.int64).clamp(0, self.max_episode_length - 1).to(torch.int32).cpu()
         self.env.set_state(world_step=steps)
-        self._sync_from_env()
+        self.sync_from_env()
 
     def step(self, actions: torch.Tensor):
         self.step_simulation(actions)
@@ -467,7 +480,7 @@ class AquariumVecEnv(VecEnv):
             self.randomizer.load_state_dict(state["randomizer"])  # first: the env's state names its values
         if "env" in state:
             self.env.load_state_dict(state["env"])
-        self._sync_from_env()
+        self.sync_from_env()
         self._active.copy_(state["active"].to(self.device))
         self._host_full = np.asarray(state["host_full"], dtype=bool).copy()
         self._full.copy_(torch.from_numpy(self._host_full))

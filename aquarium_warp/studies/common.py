@@ -32,7 +32,7 @@ from ..json_records import json_safe
 from ..number_lists import parse_list
 from ..ray_tasks import RayOptions, placement
 from ..ray_tasks import run_tasks as run_ray_tasks
-from ..study import _stats, write_csv
+from ..study import write_csv
 
 BAND = "mean ± 1 s.e.m. over seeds"
 
@@ -342,12 +342,6 @@ def fleeing(velocity: torch.Tensor, away: torch.Tensor, distance: torch.Tensor, 
     speed = torch.linalg.vector_norm(velocity, dim=-1)
     return (distance <= flee_distance) & (speed >= 0.5 * max_speed) & \
         (cosine(velocity, away) >= math.cos(math.radians(flee_angle)))
-
-
-# ---------------------------------------------------------------------------------------------- statistics
-def seed_stats(values) -> dict:
-    """Mean, std, s.e.m. and n over seeds (NaN seeds left out) and the per-seed values."""
-    return _stats(np.asarray(values, dtype=np.float64))
 
 
 # ---------------------------------------------------------------------------------------------- outputs

@@ -45,6 +45,7 @@ from ..config import AquariumConfig, FlowConfig
 from ..drivers import check_spec
 from ..env import resolve_device
 from ..number_lists import check_distinct
+from ..study import seed_stats
 from . import common
 
 KINDS = ("uniform", "vortex")
@@ -194,7 +195,7 @@ def run_flow(study: FlowStudy, command: str | None = None) -> dict:
                          **{m: float(per_seed[m][s]) for m in MEASURES}})
         counts = histogram[block].sum(axis=0)
         entries.append({"kind": kind, "strength": strength,
-                        "metrics": {m: common.seed_stats(per_seed[m]) for m in MEASURES},
+                        "metrics": {m: seed_stats(per_seed[m]) for m in MEASURES},
                         "escape_steps": float(per_world["escape_steps"][block].sum()),
                         "escape_angle_histogram": (counts / counts.sum()).tolist() if counts.sum() else None})
     summary = common.run_record("flow", study, device, wall, 0.0, wall, 1, command)

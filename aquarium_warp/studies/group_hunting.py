@@ -53,6 +53,7 @@ import torch
 from ..config import AquariumConfig
 from ..number_lists import check_distinct
 from ..ray_tasks import RayOptions
+from ..study import seed_stats
 from ..training.config import env_config
 from . import common
 
@@ -259,7 +260,7 @@ def run_group_hunting(study: GroupHuntingStudy, command: str | None = None,
     rows = [{k: v for k, v in r.items() if k != "name"} for r in results]
     groups = common.group_rows(results, ("condition", "share_radius", "predators"))
     entries = [{"condition": c, "share_radius": radius, "predators": n, "label": condition_label(c, radius),
-                "metrics": {m: common.seed_stats([r[m] for r in rs]) for m in MEASURES}}
+                "metrics": {m: seed_stats([r[m] for r in rs]) for m in MEASURES}}
                for (c, radius, n), rs in groups.items()]
     summary = run.record("group-hunting", study, results, command)
     summary["definitions"] = {

@@ -49,6 +49,7 @@ import torch
 
 from ..number_lists import check_distinct
 from ..ray_tasks import RayOptions
+from ..study import seed_stats
 from ..training.config import env_config
 from . import common
 
@@ -220,7 +221,7 @@ def run_many_eyes(study: ManyEyesStudy, command: str | None = None,
     results = [row for rows in run.results for row in rows["rows"]]
     groups = common.group_rows(results, ("policy", "predator", "fov_angle", "group_size"))
     entries = [{"policy": p, "predator": pred, "fov_angle": fov, "group_size": n,
-                "metrics": {m: common.seed_stats([r[m] for r in rs]) for m in MEASURES}}
+                "metrics": {m: seed_stats([r[m] for r in rs]) for m in MEASURES}}
                for (p, pred, fov, n), rs in sorted(groups.items())]
     curves: dict[tuple, list[dict]] = {}
     for e in entries:
