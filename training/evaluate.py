@@ -57,6 +57,7 @@ from ..bench.machine import git_info, machine_info
 from ..config import AquariumConfig, is_int
 from ..drivers import is_heuristic, make_drivers
 from ..env import BatchedAquarium, resolve_device
+from ..json_records import json_safe
 from ..metrics import EPISODE_METRICS, EpisodeMetrics
 
 METRICS = ("captures_per_prey", "reward_per_prey", "reward_per_predator") + tuple(
@@ -252,10 +253,11 @@ def write_results(result: dict, out_dir: str) -> dict[str, str]:
             writer.writeheader()
             writer.writerows(rows)
     with atomic_open(paths["json"]) as f:
-        json.dump({"summary": rows, "protocol": result["protocol"],
-                   **{k: result[k] for k in PROVENANCE_KEYS if k in result}}, f, indent=1)
+        # Strict JSON: an undefined value (NaN, e.g. local alignment without linked prey) is null.
+        json.dump(json_safe({"summary": rows, "protocol": result["protocol"],
+                             **{k: result[k] for k in PROVENANCE_KEYS if k in result}}), f, indent=1)
     with atomic_open(paths["episodes"]) as f:
-        json.dump(result["episodes"], f)
+        json.dump(json_safe(result["episodes"]), f)
     return paths
 
 
@@ -380,8 +382,8 @@ def write_cross_play(result: dict, out_dir: str) -> dict[str, str]:
             for j, b in enumerate(cp["predator"]):
                 writer.writerow([a, b] + [cp["matrices"][m][s][i][j] for m, s in columns])
     with atomic_open(paths["cross_play_json"]) as f:
-        json.dump({**cp, "rating": result.get("rating"), "protocol": result["protocol"],
-                   **{k: result[k] for k in PROVENANCE_KEYS if k in result}}, f, indent=1)
+        json.dump(json_safe({**cp, "rating": result.get("rating"), "protocol": result["protocol"],
+                             **{k: result[k] for k in PROVENANCE_KEYS if k in result}}), f, indent=1)
     return paths
 
 
