@@ -71,6 +71,9 @@ CONDITIONS: dict[str, tuple[str, list[str], list[str]]] = {
     "recipe-il-1x": ("paper", EGO_OBS + RANDOM_SPAWN, ["--entropy", "0.01", "--sharing", "individual"]),
     # The recipe declared before round 2's results: round 2's first condition at 4x the paper's budget.
     "recipe": ("paper", EGO_OBS + RANDOM_SPAWN, ["--entropy", "0.01", "--episodes", "16000"]),
+    # The neighbour control: the recipe with no prey slots (the prey see the predator only).
+    "recipe-noprey": ("paper", EGO_OBS + RANDOM_SPAWN + ["env.prey.prey_slots=0"],
+                      ["--entropy", "0.01", "--episodes", "16000"]),
     "tiny-ego": ("tiny", EGO + RANDOM_SPAWN, ["--iterations", "2"]),
     "tiny-world": ("tiny", [], ["--iterations", "2"]),
 }
@@ -83,6 +86,7 @@ PLANS: dict[str, list[tuple[str, str, list[int]]]] = {
                                              "r2-ego-ent01", "r2-egoobs-ent01-paperspawn")]
     + [(c, "A", [0, 1, 2, 3, 4]) for c in ("recipe-ps-1x", "recipe-il-1x")],
     "recipe": [("recipe", w, [0, 1, 2, 3, 4]) for w in ("A", "B", "C")],
+    "noprey": [("recipe-noprey", w, [0, 1, 2, 3, 4]) for w in ("B", "C")],
     "tiny": [("tiny-ego", "A", [0, 1]), ("tiny-world", "B", [0])],
 }
 BASELINES = ("random", "constant", "turnaway")
