@@ -223,7 +223,8 @@ def main(argv=None) -> int:
         return 0
     plan = PLANS[args.plan]
     start = time.perf_counter()
-    todo = [(train_command(args.out, c, w, s, device), os.path.join(run_dir(args.out, c, w, s), "train.log"))
+    # Logs beside the run directories: `train` refuses a run directory that is not empty.
+    todo = [(train_command(args.out, c, w, s, device), os.path.join(args.out, "logs", f"{c}-{w}-s{s}.log"))
             for c, w, seeds in plan for s in seeds if not os.path.exists(policy_path(args.out, c, w, s))]
     # The longest trainings first, so that they do not start last.
     todo.sort(key=lambda job: -float(job[0][job[0].index("--episodes") + 1]) if "--episodes" in job[0] else 0.0)
