@@ -137,7 +137,7 @@ def run_jobs(jobs: list[tuple[list[str], str]], gpus: int, per_gpu: int) -> list
 
 
 def evaluate_one(out: str, condition: str, world: str, seeds: list[int], episodes: int, eval_seeds: list[int],
-                 device: str) -> None:
+                 device: str, commit: str | None = None) -> None:
     """The evaluation of one (condition, world): `eval/<condition>-<world>.json`."""
     from aquarium_warp.config import AquariumConfig
     from aquarium_warp.training.evaluate import common_policy_env, evaluate_policies
@@ -161,7 +161,10 @@ def evaluate_one(out: str, condition: str, world: str, seeds: list[int], episode
     tmp = path + ".partial"
     with open(tmp, "w", encoding="utf-8") as f:
         json.dump({"condition": condition, "world": world, "policies": per_seed, "protocol": result["protocol"],
-                   "command": result["command"], "git": result["git"], "machine": result["machine"]}, f, indent=1)
+                   "command": result["command"],
+                   # The plan's --commit where given: a lent machine's copy may have no git history.
+                   "git": {"commit": commit, "source": "--commit"} if commit else result["git"],
+                   "machine": result["machine"]}, f, indent=1)
     os.replace(tmp, path)
 
 
@@ -219,7 +222,7 @@ def main(argv=None) -> int:
         report(args.out, args.report)
         return 0
     if args.eval_one:
-        evaluate_one(args.out, *args.eval_one, args.seeds, args.episodes, args.eval_seeds, device)
+        evaluate_one(args.out, *args.eval_one, args.seeds, args.episodes, args.eval_seeds, device, args.commit)
         return 0
     plan = PLANS[args.plan]
     start = time.perf_counter()
@@ -237,7 +240,8 @@ def main(argv=None) -> int:
     train_s = time.perf_counter() - start
     evals = [([sys.executable, __file__, "--out", args.out, "--gpus", str(args.gpus), "--episodes",
                str(args.episodes), "--eval-seeds", *map(str, args.eval_seeds), "--eval-one", c, w,
-               "--seeds", *map(str, seeds)], os.path.join(args.out, "eval", f"{c}-{w}.log"))
+               "--seeds", *map(str, seeds)] + (["--commit", args.commit] if args.commit else []),
+              os.path.join(args.out, "eval", f"{c}-{w}.log"))
              for c, w, seeds in plan]
     evaluated = run_jobs(evals, args.gpus, args.per_gpu)
     if any(r["rc"] != 0 for r in evaluated):
@@ -282,15 +286,17 @@ def main(argv=None) -> int:
 def report(out: str, results: str, every: int = 5) -> None:
     """Copy a finished `out`'s summaries and evaluations into `results` (a committed folder) with the
     runs' training curves (`curves.csv`: every `every`-th iteration of each run's progress.csv) and
-    their figure (`curves.png`: training captures per prey, mean and range over seeds)."""
+    their figure (`curves.png`: training captures per prey, mean and range over seeds). Summaries and
+    evaluations already in `results` are kept as they are (they may carry added provenance)."""
     import glob
     import shutil
 
     os.makedirs(os.path.join(results, "eval"), exist_ok=True)
-    for path in glob.glob(os.path.join(out, "learned_prey_*.*")):
-        shutil.copy(path, results)
-    for path in glob.glob(os.path.join(out, "eval", "*.json")):
-        shutil.copy(path, os.path.join(results, "eval"))
+    for pattern, folder in ((os.path.join(out, "learned_prey_*.*"), results),
+                            (os.path.join(out, "eval", "*.json"), os.path.join(results, "eval"))):
+        for path in glob.glob(pattern):
+            if not os.path.exists(os.path.join(folder, os.path.basename(path))):
+                shutil.copy(path, folder)
     columns = ("iteration", "agent_steps", "captures_per_prey", "entropy", "value_loss")
     curves: dict[str, dict[str, list]] = {}
     with open(os.path.join(results, "curves.csv"), "w", newline="", encoding="utf-8") as f:
