@@ -282,7 +282,7 @@ class WorldShard:
         W, C, Pc, P = self.num_worlds, cfg.capacity, cfg.prey_capacity, cfg.predator_capacity
         # 1-4: motion (which also clears this step's rewards and flags); contact partners were found
         # by the last observation pass.
-        program = [self.record(motion.integrate_motion, (W, C),
+        program = [self.record(motion.motion_stage(cfg.action_frame == "ego")[1], (W, C),
                                [world, types, self.action_direction, s.actions, s.worlds],
                                [s.agents, s.scratch, s.outputs])]
         # 5-6: captures on the moved positions, searched in the start-of-step cell lists; starvation.
@@ -368,7 +368,8 @@ class ShardSet:
             fused = world_step.world_step_kernel((cfg.prey.predator_slots, cfg.prey.prey_slots),
                                                  (cfg.predator.predator_slots, cfg.predator.prey_slots),
                                                  fused_block_dim(cfg.capacity, self.cuda), bool(cfg.observe_flow),
-                                                 (cfg.prey_capacity, cfg.predator_capacity), cfg.observation_layout)
+                                                 (cfg.prey_capacity, cfg.predator_capacity), cfg.observation_layout,
+                                                 cfg.action_frame == "ego")
         self.step_path = "fused" if fused is not None else "stages"
         self.shards = tuple(WorldShard(cfg, state, k, w0, w1, dims, params, action_direction, observe_kernels, device,
                                        auto_reset, fused) for k, (w0, w1) in enumerate(zip(bounds[:-1], bounds[1:])))

@@ -51,7 +51,7 @@ import warp as wp
 from .capture import count_sharers, mark_captures, respawn_or_remove, share_rewards
 from .common import PREDATOR, PREY, AgentType, WorldParams
 from .grid import CellLists
-from .motion import move_agent
+from .motion import motion_stage
 from .observation import observation_rows
 from .population import close_episode, finish_step, reproduce
 from .state import Actions, Agents, Scratch, StepOutputs, WorldCounters
@@ -65,22 +65,27 @@ MAX_REGISTERS: int | None = 72  # None: the compiler's choice
 
 
 def world_step_kernel(prey_slots: tuple[int, int], predator_slots: tuple[int, int], block_dim: int,
-                      observe_flow: bool, capacities: tuple[int, int], frame: str = "world"):
+                      observe_flow: bool, capacities: tuple[int, int], frame: str = "world",
+                      ego_actions: bool = False):
     """The fused step for prey observing `prey_slots` (predator slots, prey slots) and predators
     observing `predator_slots`, in blocks of `block_dim` lanes, for worlds of `capacities` (prey,
     predator) slots, with at most MAX_REGISTERS registers per GPU thread. Launched with
     `dim=(blocks, block_dim)` and `block_dim`, where `blocks` is the worlds over
     `kernel.worlds_per_block`, rounded up; its `prey_rows` and `predator_rows` arguments are
-    `observation_rows`' structs (`kernel.rows_types`), in the observation `frame`."""
+    `observation_rows`' structs (`kernel.rows_types`), in the observation `frame`, with the motion of
+    `motion_stage(ego_actions)`."""
     # Worlds that fit a block of several lanes are packed, a lane per slot; the others (and every world
     # in a block of one lane) take a block of their own, whose lanes stride over the slots.
     packed = capacities if 1 < sum(capacities) <= block_dim else None
-    return _world_step_kernel(prey_slots, predator_slots, block_dim, observe_flow, packed, MAX_REGISTERS, frame)
+    return _world_step_kernel(prey_slots, predator_slots, block_dim, observe_flow, packed, MAX_REGISTERS, frame,
+                              ego_actions)
 
 
 @functools.cache
 def _world_step_kernel(prey_slots: tuple[int, int], predator_slots: tuple[int, int], block_dim: int,
-                       observe_flow: bool, packed: tuple[int, int] | None, max_registers: int, frame: str):
+                       observe_flow: bool, packed: tuple[int, int] | None, max_registers: int, frame: str,
+                       ego_actions: bool):
+    move_agent = motion_stage(ego_actions)[0]
     prey_row, PreyRows, PreyRow = observation_rows(prey_slots[0], prey_slots[1], True, observe_flow, frame)
     predator_row, PredatorRows, PredatorRow = observation_rows(predator_slots[0], predator_slots[1], True, observe_flow,
                                                                frame)

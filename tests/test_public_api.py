@@ -79,7 +79,7 @@ def test_record_program_runs_on_every_shard():
     # The motion kernel alone, launched through a program of its own, moves the agents as the step's
     # first launch does.
     program = env.record_program(lambda shard: [shard.record(
-        motion.integrate_motion, (shard.num_worlds, env.capacity),
+        motion.motion_stage(False)[1], (shard.num_worlds, env.capacity),
         [shard.world, shard.types, env.action_directions, shard.state.actions, shard.state.worlds],
         [shard.state.agents, shard.state.scratch, shard.state.outputs])])
     program.run()
