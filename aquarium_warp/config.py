@@ -570,7 +570,9 @@ class AquariumConfig:
         """Length of the observation vector of `agent_type` ("prey" or "predator"): the own block (5 values
         in the world frame; in the ego frame 2, or 4 with world actions), 2 flow values with
         `observe_flow`, then 6 per observed slot."""
-        own = {"world": 5, "ego": 2, "ego+heading": 4}[self.observation_layout]
+        from .kernels.observation import OWN_SIZES  # the layout the kernel writes (imported where used)
+
+        own = OWN_SIZES[self.observation_layout]
         t = getattr(self, agent_type)
         return own + 2 * int(self.observe_flow) + 6 * (t.predator_slots + t.prey_slots)
 

@@ -158,14 +158,16 @@ def evaluate_one(out: str, condition: str, world: str, seeds: list[int], episode
                                                                     and r["seed"] == s) / episodes)
                                                           for s in eval_seeds],
                                         "episodes": len(values)}
-    tmp = path + ".partial"
-    with open(tmp, "w", encoding="utf-8") as f:
-        json.dump({"condition": condition, "world": world, "policies": per_seed, "protocol": result["protocol"],
-                   "command": result["command"],
-                   # The plan's --commit where given: a lent machine's copy may have no git history.
-                   "git": {"commit": commit, "source": "--commit"} if commit else result["git"],
-                   "machine": result["machine"]}, f, indent=1)
-    os.replace(tmp, path)
+    from aquarium_warp.atomic import atomic_open
+    from aquarium_warp.json_records import json_safe
+
+    with atomic_open(path) as f:
+        record = {"condition": condition, "world": world, "policies": per_seed, "protocol": result["protocol"],
+                  "command": result["command"],
+                  # The plan's --commit where given: a lent machine's copy may have no git history.
+                  "git": {"commit": commit, "source": "--commit"} if commit else result["git"],
+                  "machine": result["machine"]}
+        json.dump(json_safe(record), f, indent=1)
 
 
 def interval(values: list[float]) -> dict:
@@ -263,9 +265,11 @@ def main(argv=None) -> int:
               "conditions": {c: CONDITIONS[c] for c, _, _ in plan}, "worlds": WORLDS,
               "train_wall_s": round(train_s, 1), "wall_s": round(time.perf_counter() - start, 1),
               "trainings": trained, "rows": rows}
-    with open(os.path.join(args.out, f"learned_prey_{args.plan}.json"), "w", encoding="utf-8") as f:
+    from aquarium_warp.atomic import atomic_open
+
+    with atomic_open(os.path.join(args.out, f"learned_prey_{args.plan}.json")) as f:
         json.dump(record, f, indent=1)
-    with open(os.path.join(args.out, f"learned_prey_{args.plan}.csv"), "w", newline="", encoding="utf-8") as f:
+    with atomic_open(os.path.join(args.out, f"learned_prey_{args.plan}.csv"), newline="") as f:
         w = csv.writer(f)
         w.writerow(["condition", "world", "policy", "seed", "captures_per_prey"])
         for r in rows:
