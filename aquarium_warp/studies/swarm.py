@@ -393,8 +393,8 @@ def summarize_learned(out: str, conditions: Sequence[str], seeds: int) -> dict:
     and the pre-declared comparisons."""
     per: dict[str, dict] = {}
     for c in conditions:
-        records = [read_task(task_path(out, "eval", f"{c}-s{s}")) for s in range(seeds)]
-        records = [r for r in records if r is not None]
+        found = [read_task(task_path(out, "eval", f"{c}-s{s}")) for s in range(seeds)]
+        records = [r for r in found if r is not None]
         if not records:
             continue
         entry: dict = {"seeds": [r["task"]["seed"] for r in records], "uniform": records[0]["uniform"]}
