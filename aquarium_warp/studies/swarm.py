@@ -16,9 +16,14 @@ in the scenario world, `--seeds` training seeds per condition:
 |---|---|---|
 | `swarm` | - (`SCENARIO`, N = 32) | |
 | `no-neighbours` | prey observe no prey (0 prey slots) | structure without interaction |
-| `no-predation` | no capture penalty (capture costs nothing) | structure not induced by predation |
+| `no-attack` | trained against a random predator (one that never hunts) | structure not induced by predation |
+| `no-penalty` | no capture penalty (a capture still ends the prey's life in training) | the penalty's role |
 | `no-confusion` | trained against NaivChase without confusion | a confusion-driven benefit |
 | `sparse` | N = 8 (a quarter of the density) | the density dose |
+| `swarm-2x` | twice the iterations | a budget that has not plateaued |
+
+(`no-attack` and `swarm-2x` were added after the first run, at eb9c892: its `no-predation` control, a
+zero penalty, turned out not to remove predation, since training ends a captured prey's life.)
 
 Every trained policy is evaluated in its own world against NaivChase, with its prey slots emptied
 (the neighbour ablation, `blind`), and against NaivChase without confusion, beside the four
@@ -55,9 +60,11 @@ RECIPE = ("env.observation_frame=ego", "env.spawn_heading=random")
 CONDITIONS: dict[str, dict] = {
     "swarm": {"prey": 32, "sets": (), "opponent": "naivchase"},
     "no-neighbours": {"prey": 32, "sets": ("env.prey.prey_slots=0",), "opponent": "naivchase"},
-    "no-predation": {"prey": 32, "sets": ("env.prey_capture_penalty=0",), "opponent": "naivchase"},
+    "no-attack": {"prey": 32, "sets": (), "opponent": "random"},
+    "no-penalty": {"prey": 32, "sets": ("env.prey_capture_penalty=0",), "opponent": "naivchase"},
     "no-confusion": {"prey": 32, "sets": (), "opponent": "naivchase-noconfusion"},
     "sparse": {"prey": 8, "sets": (), "opponent": "naivchase"},
+    "swarm-2x": {"prey": 32, "sets": (), "opponent": "naivchase", "budget": 2},
 }
 # Evaluations of each trained policy: label -> (predator, prey slots emptied)
 EVALUATIONS = {"naivchase": ("naivchase", False), "blind": ("naivchase", True),
@@ -269,10 +276,11 @@ def policy_path(out: str, condition: str, seed: int) -> str:
 def train_command(args, condition: str, seed: int, device: str) -> list[str]:
     spec = CONDITIONS[condition]
     worlds = args.train_worlds or max(1, TRAIN_AGENT_STEPS // (spec["prey"] * 32 * args.iterations))
+    iterations = args.iterations * spec.get("budget", 1)
     cmd = [sys.executable, "-m", "aquarium_warp", "train", "--preset", args.train_preset, "--seed", str(seed),
            "--device", device, "--quiet", "--export", "jit", "--log-dir", run_dir(args.out, condition, seed),
-           "--overwrite", "--save-interval", str(args.iterations), "--prey", str(spec["prey"]), "--num-worlds",
-           str(worlds), "--iterations", str(args.iterations), "--entropy", "0.01",
+           "--overwrite", "--save-interval", str(iterations), "--prey", str(spec["prey"]), "--num-worlds",
+           str(worlds), "--iterations", str(iterations), "--entropy", "0.01",
            "--predator-policy", spec["opponent"]]
     for s in SCENARIO + RECIPE + tuple(spec["sets"]) + tuple(args.train_set):
         cmd += ["--set", s]
@@ -424,7 +432,7 @@ def summarize_learned(out: str, conditions: Sequence[str], seeds: int) -> dict:
             if "noconfusion" in main:
                 compare("swarm: vs NaivChase minus vs no-confusion (paired)", main["naivchase"], main["noconfusion"],
                         m, True)
-            for control in ("no-neighbours", "no-predation", "no-confusion", "sparse"):
+            for control in ("no-neighbours", "no-attack", "no-penalty", "no-confusion", "sparse", "swarm-2x"):
                 if control in per:
                     compare(f"swarm minus {control}", main["naivchase"], per[control]["naivchase"], m, False)
             for prey in HEURISTIC_PREY:
