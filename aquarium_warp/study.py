@@ -59,6 +59,7 @@ from .number_lists import check_distinct
 from .number_lists import parse_list as parse_list  # re-exported: the study's list options use it
 from .pretrained import is_policy_file
 from .ray_tasks import RayOptions, placement, run_tasks
+from .seeding import baseline_seed
 from .study_plots import plot_study
 
 # Per-seed columns of the CSV, in order.
@@ -338,7 +339,7 @@ def add_uniform_baselines(summary: dict, study: SwarmSizeStudy, device: str) -> 
         if key not in cache:
             snapshots = min(256, max(study.seeds, -(-65536 // s["prey"])))  # about 64k prey in all
             cache[key] = uniform_baseline(s["config"], snapshots, study.linking_distance, device,
-                                          seed=study.seed * 1_000_003 + s["prey"])
+                                          seed=baseline_seed(study.seed, s["prey"]))
         entry["uniform_baseline"] = cache[key]
 
 

@@ -53,6 +53,7 @@ import torch
 from ..config import AquariumConfig
 from ..number_lists import check_distinct
 from ..ray_tasks import RayOptions
+from ..seeding import evaluation_seed
 from ..study import seed_stats
 from ..training.config import env_config
 from . import common
@@ -234,7 +235,7 @@ def run_task(task: dict) -> dict:
         prey = policies.get("prey", "turnaway")
     cfg = env_config({"env": study.env(n, task["share_radius"], study.eval_steps)})
     measures = HuntMeasures(study.hunt_radius, study.sample_every, cfg.width, cfg.height)
-    episodes = common.rollout(cfg, prey, predator, study.eval_worlds, 1_000_003 * (seed + 1), device, measures)
+    episodes = common.rollout(cfg, prey, predator, study.eval_worlds, evaluation_seed(seed), device, measures)
     result = {"captures_per_predator": float(episodes["captures"].mean()) / n,
               "captures_per_prey": float(episodes["captures"].mean()) / study.prey, **measures.result()}
     return {**{k: task[k] for k in ("name", "condition", "share_radius", "predators", "seed")}, **result,
