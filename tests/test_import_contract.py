@@ -17,7 +17,7 @@ ABOVE_CORE = ("aquarium_warp.training", "aquarium_warp.cli", "aquarium_warp.stud
               "aquarium_warp.viewer", "aquarium_warp.drivers", "aquarium_warp.pettingzoo_env",
               "aquarium_warp.aquarium_v1", "aquarium_warp.torchrl_env", "aquarium_warp.benchmarl_task",
               "aquarium_warp.vector_env", "aquarium_warp.sb3_vec_env", "aquarium_warp.sweep", "aquarium_warp.video",
-              "aquarium_warp.bench")
+              "aquarium_warp.bench", "aquarium_warp.rollout")
 
 
 def modules() -> dict[str, str]:

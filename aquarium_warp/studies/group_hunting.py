@@ -53,6 +53,7 @@ import torch
 from ..config import AquariumConfig
 from ..number_lists import check_distinct
 from ..ray_tasks import RayOptions
+from ..rollout import StepView
 from ..seeding import evaluation_seed
 from ..study import seed_stats
 from ..training.config import env_config
@@ -178,7 +179,7 @@ class HuntMeasures:
         self.values: dict[str, list[torch.Tensor]] = {k: [] for k in (
             "count", "spread_capture", "gap_capture", "spread_random", "gap_random", "pair_capture", "pair_random")}
 
-    def __call__(self, view: common.StepView) -> None:
+    def __call__(self, view: StepView) -> None:
         Pc = view.captured.shape[1]
         predators, alive = view.position[:, Pc:], view.alive[:, Pc:]
         if view.step % self.every == 0:  # around every live prey (row w * Pc + i: world w's predators)

@@ -49,6 +49,7 @@ import torch
 
 from ..number_lists import check_distinct
 from ..ray_tasks import RayOptions
+from ..rollout import StepView
 from ..seeding import evaluation_seed
 from ..study import seed_stats
 from ..training.config import env_config
@@ -159,7 +160,7 @@ class FlightOnsets:
             self.sums[name] = self.sums[name] + total if name in self.sums else total
         return onset
 
-    def on_step(self, view: common.StepView) -> None:
+    def on_step(self, view: StepView) -> None:
         """`common.rollout`'s callback."""
         Pc = view.captured.shape[1]
         t = view.env.state.torch
