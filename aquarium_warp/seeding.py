@@ -16,9 +16,10 @@ streams coincide by accident and a reader finds where a number came from.
 | `space_seed(seed, agent, kind)` | (4) | a PettingZoo agent's action and observation spaces |
 
 (1) Counter-based streams of `(key, world, episode, step, slot, purpose)`, on the device: docs/model.md
-"Randomness". (2) `torch.manual_seed(seed)`, `np.random.seed(seed % 2**32)`, `random.seed(seed)`. (3) A
-Python `random.Random(seed)` (for None, seeded from Python's global `random`, so that `random.seed(s)`
-makes such code reproducible), each reset taking its next 63 bits. (4) numpy
+"Randomness" (the `demo` command's random actions: a torch generator seeded with the key).
+(2) `torch.manual_seed(seed)`, `np.random.seed(seed % 2**32)`, `random.seed(seed)`. (3) A Python
+`random.Random(seed)` (for None, seeded from Python's global `random`, so that `random.seed(s)` makes
+such code reproducible), each reset taking its next 63 bits. (4) numpy
 `SeedSequence([seed, crc32(agent), kind])`, kind 0 for the action space, 1 for the observation space.
 
 The numpy streams of one seed differ by their entropy (`seed`, `(seed, 1)`, `(seed, 2)`), so the
