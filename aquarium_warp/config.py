@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .seeding import config_stream
+
 OBSERVATION_RANGES = ("0..1", "-1..1")
 FRAMES = ("world", "ego")
 SPAWN_HEADINGS = ("paper", "random")
@@ -421,9 +423,9 @@ class AquariumConfig:
         return self.with_values({n: _world_value(self._field(n), index) for n in self.per_world_fields})
 
     def draw(self, num_worlds: int, seed: int = 0) -> AquariumConfig:
-        """A copy whose samplers are replaced by `num_worlds` drawn values (a numpy generator seeded by
-        `seed`, fields in `per_world_fields` order)."""
-        rng = np.random.default_rng(seed)
+        """A copy whose samplers are replaced by `num_worlds` drawn values (`seeding.config_stream(seed)`,
+        fields in `per_world_fields` order)."""
+        rng = config_stream(seed)
         values = {}
         for name in self.per_world_fields:
             value = self._field(name)

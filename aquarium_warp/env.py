@@ -31,6 +31,7 @@ from .config import (
 )
 from .kernels.state import Agents, WorldCounters
 from .params import BatchParams, per_world
+from .seeding import set_params_stream
 from .shard import WARP_SETUP_LOCK, Program, ShardSet, fused_step
 from .state import SimulationState, estimate_bytes
 
@@ -86,12 +87,6 @@ def _init_warp_once(device) -> None:
         if others:
             sys.stderr.write("".join(others))
     _warp_ready = True
-
-
-def param_generator(seed: int) -> np.random.Generator:
-    """The generator `set_params` draws samplers from by default: seeded by the env's seed, apart from
-    the stream of the config's own draws (`AquariumConfig.draw`), which it would repeat."""
-    return np.random.default_rng((int(seed), 1))
 
 
 def resolve_device(device) -> str:
@@ -251,7 +246,7 @@ class BatchedAquarium:
         self.device = resolve_device(device)
         self.torch_device = torch.device(self.device)
         self.seed = int(seed)
-        self._param_rng = param_generator(self.seed)  # `set_params`' samplers draw from it by default
+        self._param_rng = set_params_stream(self.seed)  # `set_params`' samplers draw from it by default
         self.prey_capacity = cfg.prey_capacity
         self.predator_count = cfg.predator_capacity  # predator slots per world
         self.capacity = C = cfg.capacity
@@ -382,7 +377,7 @@ class BatchedAquarium:
         if seed is not None:
             key = seed_key(seed)
             self.seed = int(seed)
-            self._param_rng = param_generator(self.seed)
+            self._param_rng = set_params_stream(self.seed)
             self.state.worlds.seed.fill_(key)
         self._run("reset")
         return self.observations

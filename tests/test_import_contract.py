@@ -1,5 +1,5 @@
 """The package's layering, read from the source (nothing imported): the core (the config, env, state,
-shards, parameters and kernels) imports nothing from training, the command line, the studies, the
+shards, parameters, seeding and kernels) imports nothing from training, the command line, the studies, the
 viewer or the adapters, and no module imports a private name (`_name`) of another package."""
 
 from __future__ import annotations
@@ -11,13 +11,13 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # Source folders and the package each installs as (pyproject.toml's package-dir).
 FOLDERS = {"aquarium_warp": "aquarium_warp", "kernels": "aquarium_warp.kernels", "training": "aquarium_warp.training"}
 CORE = ("aquarium_warp.config", "aquarium_warp.env", "aquarium_warp.state", "aquarium_warp.shard",
-        "aquarium_warp.params")
+        "aquarium_warp.params", "aquarium_warp.seeding")
 # What the core must not reach: everything built on top of it.
 ABOVE_CORE = ("aquarium_warp.training", "aquarium_warp.cli", "aquarium_warp.study", "aquarium_warp.studies",
               "aquarium_warp.viewer", "aquarium_warp.drivers", "aquarium_warp.pettingzoo_env",
               "aquarium_warp.aquarium_v1", "aquarium_warp.torchrl_env", "aquarium_warp.benchmarl_task",
               "aquarium_warp.vector_env", "aquarium_warp.sb3_vec_env", "aquarium_warp.sweep", "aquarium_warp.video",
-              "aquarium_warp.bench")
+              "aquarium_warp.bench", "aquarium_warp.rollout")
 
 
 def modules() -> dict[str, str]:
