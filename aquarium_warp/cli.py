@@ -219,7 +219,7 @@ def _add_eval(sub) -> None:
 
 def _study_kwargs(args) -> dict:
     """The `SwarmSizeStudy` settings that every study subcommand has (`_add_study_run_arguments`)."""
-    from .study import parse_world_size
+    from .studies.swarm_size import parse_world_size
 
     return dict(seeds=args.seeds, episodes_per_seed=args.episodes_per_seed, episode_steps=args.episode_steps,
                 prey_policy=args.prey_policy, predator_policy=args.predator_policy, confusion=not args.no_confusion,
@@ -232,7 +232,7 @@ def _study_swarm_size(args) -> int:
     """`aquarium-warp study swarm-size`: captures, polarization and groups vs the number of prey."""
     from .number_lists import parse_list
     from .studies.common import command_line
-    from .study import SwarmSizeStudy, replot_study, run_swarm_size_study
+    from .studies.swarm_size import SwarmSizeStudy, replot_study, run_swarm_size_study
 
     if args.replot:
         summary = replot_study(args.out, device=args.device)
@@ -267,7 +267,7 @@ def _study_fov_view(args) -> int:
     """`aquarium-warp study fov-view`: captures per prey over prey FOV angle x view distance."""
     from .number_lists import parse_list
     from .studies.common import command_line
-    from .study import SwarmSizeStudy, run_swarm_size_study
+    from .studies.swarm_size import SwarmSizeStudy, run_swarm_size_study
 
     fovs = parse_list(args.fov, float, "--fov")
     if any(not 0 < f <= 360 for f in fovs):

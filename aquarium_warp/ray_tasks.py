@@ -8,7 +8,7 @@ The tasks import aquarium_warp on the workers: every machine of the cluster need
 
 ```python
 from aquarium_warp.ray_tasks import RayOptions
-from aquarium_warp.study import SwarmSizeStudy, run_swarm_size_study
+from aquarium_warp.studies.swarm_size import SwarmSizeStudy, run_swarm_size_study
 run_swarm_size_study(SwarmSizeStudy(prey=[4, 8, 16], out="out"), ray=RayOptions(address="auto", gpus_per_task=0.5))
 ```
 """

@@ -17,7 +17,7 @@ import torch
 from aquarium_warp.cli import main
 from aquarium_warp.json_records import json_safe
 from aquarium_warp.ray_tasks import RayOptions
-from aquarium_warp.study import KEPT_DIR, SwarmSizeStudy, run_swarm_size_study
+from aquarium_warp.studies.swarm_size import KEPT_DIR, SwarmSizeStudy, run_swarm_size_study
 
 TINY_TRAIN = ["--preset", "tiny", "--iterations", "2", "--save-interval", "1", "--num-worlds", "4",
               "--num-steps-per-env", "8", "--export", "none", "--quiet", "--device", "cpu"]
@@ -29,7 +29,7 @@ def dying_setting_hook(plan: str, died: str):
     if any; `died` marks that it happened (the retry then runs normally)."""
 
     def setup() -> None:
-        import aquarium_warp.study as study
+        import aquarium_warp.studies.swarm_size as study
 
         run_setting = study.run_setting
 

@@ -14,7 +14,7 @@ import pytest
 
 from aquarium_warp import BatchedAquarium
 from aquarium_warp.cli import main
-from aquarium_warp.study import SwarmSizeStudy, one_batch_config, run_swarm_size_study
+from aquarium_warp.studies.swarm_size import SwarmSizeStudy, one_batch_config, run_swarm_size_study
 
 METRICS = ("captures", "captures_per_prey", "polarization", "cohesion", "nn_mean", "groups", "largest_group",
            "predator_distance", "prey_alive", "episode_length")

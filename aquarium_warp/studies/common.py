@@ -32,7 +32,7 @@ from ..json_records import json_safe
 from ..number_lists import parse_list
 from ..ray_tasks import RayOptions, placement
 from ..ray_tasks import run_tasks as run_ray_tasks
-from ..study import write_csv
+from .swarm_size import write_csv
 
 BAND = "mean ± 1 s.e.m. over seeds"
 

@@ -45,7 +45,7 @@ from ..config import AquariumConfig, FlowConfig
 from ..drivers import check_spec
 from ..env import resolve_device
 from ..number_lists import check_distinct
-from ..study import seed_stats
+from .swarm_size import seed_stats
 from . import common
 
 KINDS = ("uniform", "vortex")

@@ -53,7 +53,7 @@ import torch
 from ..config import AquariumConfig
 from ..number_lists import check_distinct
 from ..ray_tasks import RayOptions
-from ..study import seed_stats
+from .swarm_size import seed_stats
 from ..training.config import env_config
 from . import common
 

@@ -18,12 +18,12 @@ distance (`kind="fov-view"`: `fov_view.csv/json` and a heatmap), in one batch by
 
 Outputs in `out`: `swarm_size.csv` (one row per setting and seed), `swarm_size.json` (the
 configuration, the machine, timings, per-setting means/std/sem over seeds, nearest-neighbour
-distributions, population traces when populations change) and PNG figures (`aquarium_warp.study_plots`):
+distributions, population traces when populations change) and PNG figures (`aquarium_warp.studies.swarm_size_plots`):
 `captures_vs_size.png` (dilution), `polarization_groups_vs_size.png`, `spacing_vs_size.png`,
 `nn_distribution.png` and, with population dynamics, `population.png`.
 
 ```python
-from aquarium_warp.study import SwarmSizeStudy, run_swarm_size_study
+from aquarium_warp.studies.swarm_size import SwarmSizeStudy, run_swarm_size_study
 results = run_swarm_size_study(SwarmSizeStudy(prey=[4, 8, 16], seeds=2, episode_steps=200, out="out"))
 ```
 
@@ -48,18 +48,18 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from .atomic import atomic_open
-from .bench.machine import git_info, machine_info
-from .config import AquariumConfig
-from .drivers import check_spec, is_heuristic, make_driver
-from .env import BatchedAquarium, resolve_device
-from .json_records import json_safe
-from .metrics import EPISODE_METRICS, EpisodeMetrics, SwarmMetrics
-from .number_lists import check_distinct
-from .number_lists import parse_list as parse_list  # re-exported: the study's list options use it
-from .pretrained import is_policy_file
-from .ray_tasks import RayOptions, placement, run_tasks
-from .study_plots import plot_study
+from ..atomic import atomic_open
+from ..bench.machine import git_info, machine_info
+from ..config import AquariumConfig
+from ..drivers import check_spec, is_heuristic, make_driver
+from ..env import BatchedAquarium, resolve_device
+from ..json_records import json_safe
+from ..metrics import EPISODE_METRICS, EpisodeMetrics, SwarmMetrics
+from ..number_lists import check_distinct
+from ..number_lists import parse_list as parse_list  # re-exported: the study's list options use it
+from ..pretrained import is_policy_file
+from ..ray_tasks import RayOptions, placement, run_tasks
+from .swarm_size_plots import plot_study
 
 # Per-seed columns of the CSV, in order.
 RESULT_METRICS = ("captures", "captures_per_prey") + EPISODE_METRICS + ("episode_length",)
@@ -198,8 +198,8 @@ class SwarmSizeStudy:
 def trained_policy_world(path: str) -> AquariumConfig:
     """The world the policy file at `path` was trained in (from its metadata)."""
     try:  # the training extra is optional
-        from .training.config import env_config
-        from .training.export import policy_world
+        from ..training.config import env_config
+        from ..training.export import policy_world
     except ImportError as error:
         raise ValueError(f"trained policies need aquarium_warp.training (importing it failed: {error})") from error
     return env_config({"env": policy_world(path)})
@@ -481,7 +481,7 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayO
     """Run every setting of `study`, write the CSV, JSON and figures into `study.out`, and return the
     JSON's content. `ray`: run each setting as a Ray task (`_run_on_ray`) instead of on this machine.
     `command`: the command recorded in the JSON (default: this process's, as `aquarium-warp ...`)."""
-    from .studies.common import command_line  # here: aquarium_warp.studies imports this module
+    from .common import command_line  # here: aquarium_warp.studies.common imports this module
 
     study.validate()
     if study.one_batch and ray is not None:
