@@ -4,29 +4,14 @@
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import signal
 import sys
 import threading
 import time
 
+from .arguments import int_at_least, non_negative_float, non_negative_int, positive_float, positive_int
 from .atomic import check_output_dir, check_output_file
-
-
-def int_at_least(low: int):
-    """argparse type: an integer >= `low` (any size)."""
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"invalid value {text!r}: must be an integer >= {low}") from None
-        if value < low:
-            raise argparse.ArgumentTypeError(f"invalid value {text!r}: must be an integer >= {low}")
-        return value
-
-    return parse
 
 
 class Interrupted(KeyboardInterrupt):
@@ -46,32 +31,6 @@ def _terminated(signum, frame) -> None:
 def plural(count: int, noun: str) -> str:
     """"1 predator", "3 predators" (nouns with a plain -s plural)."""
     return f"{count} {noun}{'' if count == 1 else 's'}"
-
-
-positive_int = int_at_least(1)
-non_negative_int = int_at_least(0)  # seeds: any size
-
-
-def positive_float(text: str) -> float:
-    """argparse type: a finite number > 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"invalid value {text!r}: must be a finite number > 0") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"invalid value {text!r}: must be a finite number > 0")
-    return value
-
-
-def non_negative_float(text: str) -> float:
-    """argparse type: a finite number >= 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"invalid value {text!r}: must be a finite number >= 0") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"invalid value {text!r}: must be a finite number >= 0")
-    return value
 
 
 def _add_ray_arguments(parser: argparse.ArgumentParser, what: str) -> None:
@@ -230,7 +189,7 @@ def _study_kwargs(args) -> dict:
 
 def _study_swarm_size(args) -> int:
     """`aquarium-warp study swarm-size`: captures, polarization and groups vs the number of prey."""
-    from .number_lists import parse_list
+    from .arguments import parse_list
     from .studies.common import command_line
     from .studies.swarm_size import SwarmSizeStudy, replot_study, run_swarm_size_study
 
@@ -265,7 +224,7 @@ def _study_swarm_size(args) -> int:
 
 def _study_fov_view(args) -> int:
     """`aquarium-warp study fov-view`: captures per prey over prey FOV angle x view distance."""
-    from .number_lists import parse_list
+    from .arguments import parse_list
     from .studies.common import command_line
     from .studies.swarm_size import SwarmSizeStudy, run_swarm_size_study
 
@@ -364,7 +323,8 @@ def _add_open_question_arguments(p, out: str, jobs: bool = True) -> None:
 
 def _study_group_hunting(args) -> int:
     """`aquarium-warp study group-hunting`: learning predator teams, with and without shared catch rewards."""
-    from .studies.common import command_line, number_list, written
+    from .arguments import number_list
+    from .studies.common import command_line, written
     from .studies.group_hunting import GroupHuntingStudy, run_group_hunting
 
     study = GroupHuntingStudy(
@@ -385,7 +345,8 @@ def _study_group_hunting(args) -> int:
 
 def _study_many_eyes(args) -> int:
     """`aquarium-warp study many-eyes`: learned prey groups, dilution vs detection."""
-    from .studies.common import command_line, number_list, written
+    from .arguments import number_list
+    from .studies.common import command_line, written
     from .studies.many_eyes import ManyEyesStudy, run_many_eyes
 
     study = ManyEyesStudy(
@@ -405,7 +366,8 @@ def _study_many_eyes(args) -> int:
 
 def _study_flow(args) -> int:
     """`aquarium-warp study flow`: captures, swarm metrics and escape directions in currents."""
-    from .studies.common import command_line, number_list, written
+    from .arguments import number_list
+    from .studies.common import command_line, written
     from .studies.flow import FlowStudy, run_flow
 
     study = FlowStudy(
@@ -522,7 +484,7 @@ def _add_open_questions(kinds) -> None:
 
 def _sweep_train(args) -> int:
     """`aquarium-warp sweep train`: one training run per seed and setting (`aquarium_warp/sweep.py`)."""
-    from .number_lists import parse_list
+    from .arguments import parse_list
     from .sweep import TrainingSweep, parse_vary, run_training_sweep
     from .training.cli import add_train_arguments
 

@@ -25,8 +25,8 @@ import shutil
 import time
 from dataclasses import dataclass
 
+from .arguments import parse_list
 from .atomic import atomic_open
-from .number_lists import parse_list
 from .ray_tasks import RayOptions, placement, run_tasks
 
 RUN_RECORD = "sweep_run.json"

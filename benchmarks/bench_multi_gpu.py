@@ -29,8 +29,8 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from aquarium_warp.arguments import parse_list
 from aquarium_warp.bench.machine import git_info, machine_info
-from aquarium_warp.number_lists import parse_list
 
 
 def run_point(gpus: int, team: str, graphs: bool, args: argparse.Namespace) -> dict:

@@ -24,12 +24,12 @@ from multiprocessing import get_context
 import numpy as np
 import torch
 
+from ..arguments import check_int
 from ..atomic import atomic_open, write_figure
 from ..bench.machine import git_info, machine_info
 from ..config import AquariumConfig
 from ..env import BatchedAquarium, resolve_device
 from ..json_records import json_safe
-from ..number_lists import parse_list
 from ..ray_tasks import RayOptions, placement
 from ..ray_tasks import run_tasks as run_ray_tasks
 from .swarm_size import write_csv
@@ -38,31 +38,6 @@ BAND = "mean ± 1 s.e.m. over seeds"
 
 
 # ---------------------------------------------------------------------------------------------- options
-def number_list(text, kind: type, name: str, low: float, high: float | None = None, *,
-                low_open: bool = False) -> list:
-    """`parse_list` of an option, each value checked against [low, high] (or (low, high] with
-    `low_open`); the error names the option and the allowed range."""
-    values = parse_list(text, kind, name)
-    for v in values:
-        if (v <= low if low_open else v < low) or (high is not None and v > high):
-            allowed = f"{'(' if low_open else '['}{low:g}, {'inf)' if high is None else f'{high:g}]'}"
-            raise ValueError(f"{name}={text!r}: {v!r} is out of range: every value must be in {allowed}")
-    return values
-
-
-def check_int(name: str, value, low: int = 1) -> None:
-    """A `ValueError` naming `name` unless `value` is an integer >= `low`."""
-    if isinstance(value, bool) or not isinstance(value, int) or value < low:
-        raise ValueError(f"{name}={value!r} must be an integer >= {low}")
-
-
-def check_number(name: str, value, low: float, high: float = math.inf) -> None:
-    """A `ValueError` naming `name` unless `value` is a finite number in [low, high]."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (low <= value <= high) \
-            or not math.isfinite(value):
-        raise ValueError(f"{name}={value!r} must be a finite number in [{low:g}, {high:g}]")
-
-
 def resolve_jobs(jobs: int | None, device: str) -> int:
     """Training runs at once: `jobs`, else 4 on a GPU and 1 on the CPU. On one GPU the processes'
     kernels take turns (time slicing), so a run's GPU-bound PPO iterations gain little from company

@@ -40,13 +40,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from ..arguments import check_distinct, check_int, check_number
 from ..atomic import write_figure
 from ..config import AquariumConfig, FlowConfig
 from ..drivers import check_spec
 from ..env import resolve_device
-from ..number_lists import check_distinct
-from .swarm_size import seed_stats
 from . import common
+from .swarm_size import seed_stats
 
 KINDS = ("uniform", "vortex")
 ANGLE_BINS = 18
@@ -86,14 +86,14 @@ class FlowStudy:
         check_distinct("--kinds", self.kinds)
         check_distinct("--strengths", self.strengths)
         for s in self.strengths:
-            common.check_number("flow strength (px/step)", s, 0.0, 100.0)
+            check_number("flow strength (px/step)", s, 0.0, 100.0)
         for name in ("seeds", "episodes_per_seed", "prey", "predators", "metrics_every"):
-            common.check_int(name.replace("_", "-"), getattr(self, name))
-        common.check_int("episode-steps", self.episode_steps, 2)
-        common.check_number("world-size", self.world_size, 100.0, 1e6)
-        common.check_number("uniform-angle", self.uniform_angle, -360.0, 360.0)
-        common.check_number("flee-angle", self.flee_angle, 0.0, 180.0)
-        common.check_number("flee-distance", self.flee_distance, 1e-3, 1e6)
+            check_int(name.replace("_", "-"), getattr(self, name))
+        check_int("episode-steps", self.episode_steps, 2)
+        check_number("world-size", self.world_size, 100.0, 1e6)
+        check_number("uniform-angle", self.uniform_angle, -360.0, 360.0)
+        check_number("flee-angle", self.flee_angle, 0.0, 180.0)
+        check_number("flee-distance", self.flee_distance, 1e-3, 1e6)
         for team, spec in (("prey", self.prey_policy), ("predator", self.predator_policy)):
             check_spec(spec, team, f"--{team}-policy")
 

@@ -50,12 +50,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from ..arguments import check_distinct, check_int, check_number
 from ..config import AquariumConfig
-from ..number_lists import check_distinct
 from ..ray_tasks import RayOptions
-from .swarm_size import seed_stats
 from ..training.config import env_config
 from . import common
+from .swarm_size import seed_stats
 
 PREY_CONDITIONS = ("turnaway", "cotrained")
 MEASURES = ("captures_per_predator", "captures_per_prey", "joint_fraction", "spread_capture", "spread_random",
@@ -92,10 +92,10 @@ class GroupHuntingStudy:
                              ("--share-radius", self.share_radii)):
             check_distinct(name, values)
         for n in self.predators:
-            common.check_int("predators", n)
+            check_int("predators", n)
         for name in ("prey", "seeds", "worlds", "iterations", "train_steps", "eval_worlds", "eval_steps",
                      "sample_every"):
-            common.check_int(name.replace("_", "-"), getattr(self, name))
+            check_int(name.replace("_", "-"), getattr(self, name))
         if self.eval_steps < 2 or self.train_steps < 2:
             raise ValueError("eval-steps and train-steps must be >= 2 (an episode's last state is the next one's)")
         bad = [c for c in self.prey_conditions if c not in PREY_CONDITIONS]
@@ -104,9 +104,9 @@ class GroupHuntingStudy:
         if not self.share_radii:
             raise ValueError("share radii must list at least one catch_share_radius")
         for r in self.share_radii:
-            common.check_number("share radius", r, 0.0, 1e6)
-        common.check_number("hunt-radius", self.hunt_radius, 1e-3, 1e6)
-        common.check_number("world-size", self.world_size, 100.0, 1e6)
+            check_number("share radius", r, 0.0, 1e6)
+        check_number("hunt-radius", self.hunt_radius, 1e-3, 1e6)
+        check_number("world-size", self.world_size, 100.0, 1e6)
 
     def env(self, predators: int, share_radius: float, steps: int) -> dict:
         """The world's config fields (a predator never starves within an episode: one full episode per world)."""

@@ -47,11 +47,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..number_lists import check_distinct
+from ..arguments import check_distinct, check_int, check_number
 from ..ray_tasks import RayOptions
-from .swarm_size import seed_stats
 from ..training.config import env_config
 from . import common
+from .swarm_size import seed_stats
 
 PREDATORS = ("naivchase", "naivchase-noconfusion")
 MEASURES = ("captures_per_prey", "fid", "blind_fraction", "onsets_per_prey")
@@ -86,17 +86,17 @@ class ManyEyesStudy:
         check_distinct("--group-sizes", self.group_sizes)
         check_distinct("--fov", self.fov_angles)
         for n in self.group_sizes:
-            common.check_int("group size", n)
+            check_int("group size", n)
         for fov in self.fov_angles:
-            common.check_number("FOV angle (degrees)", fov, 1e-3, 360.0)
+            check_number("FOV angle (degrees)", fov, 1e-3, 360.0)
         for name in ("seeds", "rows", "iterations", "train_steps", "eval_rows", "eval_steps", "lag"):
-            common.check_int(name.replace("_", "-"), getattr(self, name))
+            check_int(name.replace("_", "-"), getattr(self, name))
         if self.eval_steps <= self.lag + 1:
             raise ValueError(f"eval-steps={self.eval_steps} must exceed lag + 1 = {self.lag + 1}")
-        common.check_number("view-distance", self.view_distance, 1e-3, 1e6)
-        common.check_number("flee-angle", self.flee_angle, 0.0, 180.0)
-        common.check_number("turn-angle", self.turn_angle, 0.0, 180.0)
-        common.check_number("flee-distance", self.flee_distance, 1e-3, 1e6)
+        check_number("view-distance", self.view_distance, 1e-3, 1e6)
+        check_number("flee-angle", self.flee_angle, 0.0, 180.0)
+        check_number("turn-angle", self.turn_angle, 0.0, 180.0)
+        check_number("flee-distance", self.flee_distance, 1e-3, 1e6)
 
     def env(self, n: int, fov: float, steps: int) -> dict:
         """The world's config fields (a predator never starves within an episode: one full episode per world)."""

@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from ..arguments import check_distinct, check_int
 from ..atomic import atomic_open
 from ..bench.machine import git_info, machine_info
 from ..config import AquariumConfig
@@ -55,8 +56,6 @@ from ..drivers import check_spec, is_heuristic, make_driver
 from ..env import BatchedAquarium, resolve_device
 from ..json_records import json_safe
 from ..metrics import EPISODE_METRICS, EpisodeMetrics, SwarmMetrics
-from ..number_lists import check_distinct
-from ..number_lists import parse_list as parse_list  # re-exported: the study's list options use it
 from ..pretrained import is_policy_file
 from ..ray_tasks import RayOptions, placement, run_tasks
 from .swarm_size_plots import plot_study
@@ -120,18 +119,14 @@ class SwarmSizeStudy:
         return self.kind.replace("-", "_")
 
     def validate(self) -> None:
-        def positive_int(name, value):
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name}={value!r} must be an integer >= 1")
-
         if not self.prey:
             raise ValueError("prey must list at least one prey count")
         for n in self.prey:
-            positive_int("prey count", n)
+            check_int("prey count", n)
         for name in ("seeds", "episodes_per_seed", "episode_steps", "predators", "metrics_every", "reference_prey"):
-            positive_int(name.replace("_", "-"), getattr(self, name))
+            check_int(name.replace("_", "-"), getattr(self, name))
         if self.jobs is not None:
-            positive_int("jobs", self.jobs)
+            check_int("jobs", self.jobs)
         for name in ("fov_angles", "view_distances"):
             values = getattr(self, name)
             if values is not None and not values:
