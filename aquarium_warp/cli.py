@@ -190,7 +190,7 @@ def _study_kwargs(args) -> dict:
 def _study_swarm_size(args) -> int:
     """`aquarium-warp study swarm-size`: captures, polarization and groups vs the number of prey."""
     from .arguments import parse_list
-    from .studies.common import command_line
+    from .records import command_line
     from .studies.swarm_size import SwarmSizeStudy, replot_study, run_swarm_size_study
 
     if args.replot:
@@ -225,7 +225,7 @@ def _study_swarm_size(args) -> int:
 def _study_fov_view(args) -> int:
     """`aquarium-warp study fov-view`: captures per prey over prey FOV angle x view distance."""
     from .arguments import parse_list
-    from .studies.common import command_line
+    from .records import command_line
     from .studies.swarm_size import SwarmSizeStudy, run_swarm_size_study
 
     fovs = parse_list(args.fov, float, "--fov")
@@ -324,7 +324,8 @@ def _add_open_question_arguments(p, out: str, jobs: bool = True) -> None:
 def _study_group_hunting(args) -> int:
     """`aquarium-warp study group-hunting`: learning predator teams, with and without shared catch rewards."""
     from .arguments import number_list
-    from .studies.common import command_line, written
+    from .records import command_line
+    from .studies.common import written
     from .studies.group_hunting import GroupHuntingStudy, run_group_hunting
 
     study = GroupHuntingStudy(
@@ -346,7 +347,8 @@ def _study_group_hunting(args) -> int:
 def _study_many_eyes(args) -> int:
     """`aquarium-warp study many-eyes`: learned prey groups, dilution vs detection."""
     from .arguments import number_list
-    from .studies.common import command_line, written
+    from .records import command_line
+    from .studies.common import written
     from .studies.many_eyes import ManyEyesStudy, run_many_eyes
 
     study = ManyEyesStudy(
@@ -367,7 +369,8 @@ def _study_many_eyes(args) -> int:
 def _study_flow(args) -> int:
     """`aquarium-warp study flow`: captures, swarm metrics and escape directions in currents."""
     from .arguments import number_list
-    from .studies.common import command_line, written
+    from .records import command_line
+    from .studies.common import written
     from .studies.flow import FlowStudy, run_flow
 
     study = FlowStudy(

@@ -159,7 +159,7 @@ def evaluate_one(out: str, condition: str, world: str, seeds: list[int], episode
                                                           for s in eval_seeds],
                                         "episodes": len(values)}
     from aquarium_warp.atomic import atomic_open
-    from aquarium_warp.json_records import json_safe
+    from aquarium_warp.records import json_safe
 
     with atomic_open(path) as f:
         record = {"condition": condition, "world": world, "policies": per_seed, "protocol": result["protocol"],
@@ -252,10 +252,10 @@ def main(argv=None) -> int:
     rows = summarize(args.out, plan)
     commit = args.commit or subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
                                            cwd=os.path.dirname(os.path.abspath(__file__))).stdout.strip()
-    from aquarium_warp.bench.machine import machine_info
+    from aquarium_warp.records import command_line, machine_info
 
-    record = {"command": shlex.join([os.path.basename(sys.executable), "benchmarks/learned_prey.py",
-                                     *(argv if argv is not None else sys.argv[1:])]),
+    record = {"command": command_line(["benchmarks/learned_prey.py", *(argv if argv is not None else sys.argv[1:])],
+                                           os.path.basename(sys.executable)),
               "commit": commit, "machine": machine_info(device),
               "gpus": args.gpus, "per_gpu": args.per_gpu,
               "measure": "captures per prey per episode against NaivChase (lower is better); learned: mean over "

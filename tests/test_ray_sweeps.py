@@ -15,8 +15,8 @@ import pytest
 import torch
 
 from aquarium_warp.cli import main
-from aquarium_warp.json_records import json_safe
 from aquarium_warp.ray_tasks import RayOptions
+from aquarium_warp.records import json_safe
 from aquarium_warp.studies.swarm_size import KEPT_DIR, SwarmSizeStudy, run_swarm_size_study
 
 TINY_TRAIN = ["--preset", "tiny", "--iterations", "2", "--save-interval", "1", "--num-worlds", "4",

@@ -13,9 +13,9 @@ import pytest
 import torch
 
 from aquarium_warp import AquariumConfig, BatchedAquarium
+from aquarium_warp.arguments import parse_list
 from aquarium_warp.cli import main
 from aquarium_warp.drivers import make_driver
-from aquarium_warp.arguments import parse_list
 from aquarium_warp.studies.swarm_size import SwarmSizeStudy, parse_world_size, run_swarm_size_study
 
 

@@ -14,8 +14,6 @@ import dataclasses
 import math
 import os
 import platform
-import shlex
-import sys
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -26,12 +24,11 @@ import torch
 
 from ..arguments import check_int
 from ..atomic import atomic_open, write_figure
-from ..bench.machine import git_info, machine_info
 from ..config import AquariumConfig
 from ..env import BatchedAquarium, resolve_device
-from ..json_records import json_safe
 from ..ray_tasks import RayOptions, placement
 from ..ray_tasks import run_tasks as run_ray_tasks
+from ..records import json_safe, provenance
 from .swarm_size import write_csv
 
 BAND = "mean ± 1 s.e.m. over seeds"
@@ -344,18 +341,12 @@ def written(summary: dict) -> str:
     return f"wrote {', '.join(names)} in {summary['wall_time_s']:.1f} s on {summary['machine']['device_name']}"
 
 
-def command_line(argv: Sequence[str] | None = None) -> str:
-    """The command as typed: `aquarium-warp` and `argv` (default: this process's arguments), shell-quoted."""
-    return " ".join(["aquarium-warp"] + [shlex.quote(a) for a in (sys.argv[1:] if argv is None else argv)])
-
-
 def run_record(study: str, settings, device: str, wall_s: float, train_s: float, job_s: float,
                jobs: int | None, command: str | None, kept: int = 0) -> dict:
     """The JSON's record of a run: the study, the exact command (default `command_line()`), the commit
     (`git_info`), its settings, the machine, the wall time, the summed training time of its runs and the
     fraction of the workers' time spent training (`kept`: tasks kept from an earlier run, whose times count too)."""
-    return {"study": study, "command": command if command is not None else command_line(), "git": git_info(),
-            "settings": dataclasses.asdict(settings), "device": device, "machine": machine_info(device),
+    return {"study": study, **provenance(device, command), "settings": dataclasses.asdict(settings), "device": device,
             "jobs": jobs, "tasks_kept": kept, "wall_time_s": round(wall_s, 2), "training_time_s": round(train_s, 2),
             "training_fraction": train_s / job_s if job_s > 0 else 0.0,
             "training_fraction_definition": "summed training time of the runs (PPO iterations only) / summed "

@@ -50,14 +50,13 @@ import torch
 
 from ..arguments import check_distinct, check_int
 from ..atomic import atomic_open
-from ..bench.machine import git_info, machine_info
 from ..config import AquariumConfig
 from ..drivers import check_spec, is_heuristic, make_driver
 from ..env import BatchedAquarium, resolve_device
-from ..json_records import json_safe
 from ..metrics import EPISODE_METRICS, EpisodeMetrics, SwarmMetrics
 from ..pretrained import is_policy_file
 from ..ray_tasks import RayOptions, placement, run_tasks
+from ..records import command_line, git_info, json_safe, machine_info
 from .swarm_size_plots import plot_study
 
 # Per-seed columns of the CSV, in order.
@@ -476,8 +475,6 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayO
     """Run every setting of `study`, write the CSV, JSON and figures into `study.out`, and return the
     JSON's content. `ray`: run each setting as a Ray task (`_run_on_ray`) instead of on this machine.
     `command`: the command recorded in the JSON (default: this process's, as `aquarium-warp ...`)."""
-    from .common import command_line  # here: aquarium_warp.studies.common imports this module
-
     study.validate()
     if study.one_batch and ray is not None:
         raise ValueError("one batch runs on this machine: not with Ray (whose tasks are settings)")
