@@ -27,7 +27,6 @@ import argparse
 import concurrent.futures as futures
 import csv
 import json
-import math
 import os
 import shlex
 import subprocess
@@ -172,14 +171,10 @@ def evaluate_one(out: str, condition: str, world: str, seeds: list[int], episode
 
 def interval(values: list[float]) -> dict:
     """Mean and the half-width of its 95% t interval (None for fewer than two values)."""
-    from scipy import stats
+    from aquarium_warp.studies.statistics import mean_interval
 
-    n = len(values)
-    mean = sum(values) / n
-    if n < 2:
-        return {"mean": mean, "ci95": None, "n": n, "values": values}
-    sd = math.sqrt(sum((v - mean) ** 2 for v in values) / (n - 1))
-    return {"mean": mean, "ci95": float(stats.t.ppf(0.975, n - 1) * sd / math.sqrt(n)), "n": n, "values": values}
+    mean, ci95 = mean_interval(values)
+    return {"mean": mean, "ci95": ci95, "n": len(values), "values": values}
 
 
 def summarize(out: str, plan: list[tuple[str, str, list[int]]]) -> list[dict]:

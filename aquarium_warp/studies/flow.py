@@ -46,7 +46,7 @@ from ..config import AquariumConfig, FlowConfig
 from ..drivers import check_spec
 from ..env import resolve_device
 from . import common
-from .swarm_size import seed_stats
+from .statistics import seed_stats
 
 KINDS = ("uniform", "vortex")
 ANGLE_BINS = 18

@@ -55,7 +55,7 @@ from ..config import AquariumConfig
 from ..ray_tasks import RayOptions
 from ..training.config import env_config
 from . import common
-from .swarm_size import seed_stats
+from .statistics import seed_stats
 
 PREY_CONDITIONS = ("turnaway", "cotrained")
 MEASURES = ("captures_per_predator", "captures_per_prey", "joint_fraction", "spread_capture", "spread_random",

@@ -51,7 +51,7 @@ from ..arguments import check_distinct, check_int, check_number
 from ..ray_tasks import RayOptions
 from ..training.config import env_config
 from . import common
-from .swarm_size import seed_stats
+from .statistics import seed_stats
 
 PREDATORS = ("naivchase", "naivchase-noconfusion")
 MEASURES = ("captures_per_prey", "fid", "blind_fraction", "onsets_per_prey")

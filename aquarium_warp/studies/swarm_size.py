@@ -57,6 +57,7 @@ from ..metrics import EPISODE_METRICS, EpisodeMetrics, SwarmMetrics
 from ..pretrained import is_policy_file
 from ..ray_tasks import RayOptions, placement, run_tasks
 from ..records import command_line, git_info, json_safe, machine_info
+from .statistics import seed_stats
 from .swarm_size_plots import plot_study
 
 # Per-seed columns of the CSV, in order.
@@ -350,17 +351,6 @@ def _warm_up(study: SwarmSizeStudy, device: str) -> None:
     env.close()
 
 
-def seed_stats(values) -> dict:
-    """Mean, std, s.e.m. and n over seeds (NaN seeds left out) and the per-seed values."""
-    v = np.asarray(values, dtype=np.float64)
-    ok = v[~np.isnan(v)]
-    n = len(ok)
-    mean = float(ok.mean()) if n else math.nan
-    std = float(ok.std(ddof=1)) if n > 1 else (0.0 if n == 1 else math.nan)
-    return {"mean": mean, "std": std, "sem": std / math.sqrt(n) if n > 1 else math.nan, "n": n,
-            "seeds": [None if math.isnan(x) else float(x) for x in v]}
-
-
 def _run_here(study: SwarmSizeStudy, settings: list[dict], device: str, advance) -> tuple[dict[int, dict], int]:
     """`run_setting` of every setting on this machine: on the CPU several at once on threads (`study.jobs`),
     on a GPU one after another. Returns the results by setting index and the number of threads."""
@@ -552,7 +542,7 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayO
                                "(aquarium_warp.metrics), then over the seed's episodes",
             "predator_distance": "mean over live prey of the torus distance to the nearest live predator, px",
             "groups": "connected components of prey closer than linking_distance px",
-            "spread": "std and sem over seeds",
+            "spread": "std and sem over seeds; ci95: half-width of the 95% Student-t interval of the mean",
             "wall_s": "per setting, the wall time of the batch it ran in (with one batch, shared by every setting)",
             "uniform_baseline": UNIFORM_BASELINE_DEFINITION,
         },
