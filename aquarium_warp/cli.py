@@ -12,6 +12,7 @@ import time
 
 from .arguments import int_at_least, non_negative_float, non_negative_int, positive_float, positive_int
 from .atomic import check_output_dir, check_output_file
+from .studies.jobs import add_ray_arguments, ray_options
 
 
 class Interrupted(KeyboardInterrupt):
@@ -31,40 +32,6 @@ def _terminated(signum, frame) -> None:
 def plural(count: int, noun: str) -> str:
     """"1 predator", "3 predators" (nouns with a plain -s plural)."""
     return f"{count} {noun}{'' if count == 1 else 's'}"
-
-
-def _add_ray_arguments(parser: argparse.ArgumentParser, what: str) -> None:
-    """`--ray [ADDRESS]` and what each Ray task holds (`aquarium_warp/ray_tasks.py`)."""
-    g = parser.add_argument_group("Ray", f"run each {what} as a Ray task, on one machine or a cluster "
-                                         "(pip install 'aquarium-warp[distributed]')")
-    g.add_argument("--ray", nargs="?", const="", default=None, metavar="ADDRESS",
-                   help=f"run each {what} as a Ray task: on the cluster at ADDRESS ('auto': the one `ray start` "
-                        "started on this machine; 'ray://HOST:10001': Ray Client), without ADDRESS on "
-                        "$RAY_ADDRESS's cluster or else a new one on this machine")
-    g.add_argument("--gpus-per-task", type=non_negative_float, default=None, metavar="G",
-                   help="GPUs each task holds: a fraction in [0, 1] (0.25: four tasks share a GPU) or a whole "
-                        "number (default 1 where the cluster has GPUs and --device is not 'cpu', else 0)")
-    g.add_argument("--cpus-per-task", type=positive_float, default=None, metavar="C",
-                   help="CPU cores each task holds (default 1)")
-    g.add_argument("--max-retries", type=non_negative_int, default=None, metavar="R",
-                   help="reruns of a task whose worker died (default 3)")
-
-
-def _ray_options(args):
-    """The `RayOptions` of `_add_ray_arguments`' options, or None without --ray."""
-    from .ray_tasks import RayOptions
-
-    given = {name: value for name, value in (("gpus_per_task", args.gpus_per_task),
-                                             ("cpus_per_task", args.cpus_per_task),
-                                             ("max_retries", args.max_retries)) if value is not None}
-    if args.ray is None:
-        if given:
-            names = ", ".join("--" + name.replace("_", "-") for name in given)
-            raise ValueError(f"{names} set the Ray tasks: give --ray too")
-        return None
-    options = RayOptions(address=args.ray or None, **given)
-    options.validate()
-    return options
 
 
 def _demo(args) -> int:
@@ -197,7 +164,7 @@ def _study_swarm_size(args) -> int:
         summary = replot_study(args.out, device=args.device)
         print(f"redrew {len(summary['figures'])} figures in {args.out} from swarm_size.json")
         return 0
-    ray = _ray_options(args)
+    ray = ray_options(args)
     if ray is not None and args.jobs is not None:
         raise ValueError("--jobs sets the threads of a run on this machine; with --ray each setting is a task "
                          "(--cpus-per-task, --gpus-per-task)")
@@ -294,7 +261,7 @@ def _add_study(sub) -> None:
                    "every world has the slots of the largest count) instead of one batch per setting")
     _add_study_run_arguments(p, "swarm_size")
     p.add_argument("--replot", action="store_true", help="only redraw the figures from --out's swarm_size.json")
-    _add_ray_arguments(p, "setting (prey count, FOV angle and view distance)")
+    add_ray_arguments(p, "setting (prey count, FOV angle and view distance)")
     p.set_defaults(run=_study_swarm_size)
     p = kinds.add_parser("fov-view", help="captures per prey over prey field of view x view distance",
                          description="Run every (prey FOV angle, view distance) and seed as worlds of one batch "
@@ -339,7 +306,7 @@ def _study_group_hunting(args) -> int:
           f"({', '.join(study.prey_conditions)}), catch_share_radius {study.share_radii}, {study.seeds} seeds -> "
           f"{study.out}")
     check_output_dir(study.out, "--out")
-    summary = run_group_hunting(study, command_line(args.argv), _ray_options(args))
+    summary = run_group_hunting(study, command_line(args.argv), ray_options(args))
     print(f"{written(summary)} ({summary['training_fraction']:.0%} of the workers' time training)")
     return 0
 
@@ -361,7 +328,7 @@ def _study_many_eyes(args) -> int:
     print(f"aquarium-warp study many-eyes: group sizes {study.group_sizes} x FOV {study.fov_angles}, "
           f"{study.seeds} seeds -> {study.out}")
     check_output_dir(study.out, "--out")
-    summary = run_many_eyes(study, command_line(args.argv), _ray_options(args))
+    summary = run_many_eyes(study, command_line(args.argv), ray_options(args))
     print(f"{written(summary)} ({summary['training_fraction']:.0%} of the workers' time training)")
     return 0
 
@@ -420,7 +387,7 @@ def _add_open_questions(kinds) -> None:
                    help="steps between the random-time states of the baselines (default 10)")
     p.add_argument("--no-baseline", action="store_true", help="no NaivChase teams")
     _add_open_question_arguments(p, "group_hunting")
-    _add_ray_arguments(p, "training run (with its evaluations) or NaivChase baseline")
+    add_ray_arguments(p, "training run (with its evaluations) or NaivChase baseline")
     p.set_defaults(run=_study_group_hunting)
 
     p = kinds.add_parser(
@@ -451,7 +418,7 @@ def _add_open_questions(kinds) -> None:
     p.add_argument("--lag", type=positive_int, default=5, help="steps of a flight onset's turn (default 5)")
     p.add_argument("--no-turnaway", action="store_true", help="no TurnAway reference")
     _add_open_question_arguments(p, "many_eyes")
-    _add_ray_arguments(p, "training run (with its evaluations)")
+    add_ray_arguments(p, "training run (with its evaluations)")
     p.set_defaults(run=_study_many_eyes)
 
     p = kinds.add_parser(
@@ -498,7 +465,7 @@ def _sweep_train(args) -> int:
                           vary=tuple(parse_vary(text) for text in args.vary),
                           out=args.out or os.path.join("runs", f"sweep_{time.strftime('%Y%m%d-%H%M%S')}"))
     sweep.validate()
-    ray = _ray_options(args)
+    ray = ray_options(args)
     print(f"aquarium-warp sweep train: {len(sweep.runs())} runs ({len(sweep.seeds)} seeds"
           f"{''.join(f' x {len(v)} {k}' for k, v in sweep.vary)}) {'as Ray tasks' if ray else 'one after another'} "
           f"-> {sweep.out}")
@@ -529,7 +496,7 @@ def _add_sweep(sub) -> None:
     p.add_argument("--out", default=None, help="the sweep's directory: sweep.json and one directory per run "
                                                "(default runs/sweep_<time>; on Ray one that every machine sees)")
     add_train_arguments(p)
-    _add_ray_arguments(p, "training run")
+    add_ray_arguments(p, "training run")
     p.set_defaults(run=_sweep_train)
 
 

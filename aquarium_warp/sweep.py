@@ -1,5 +1,5 @@
 """Training sweeps: one `aquarium-warp train` run per seed and setting, one after another on this machine or
-as Ray tasks (`aquarium_warp.ray_tasks`).
+as Ray tasks (`aquarium_warp.studies.jobs`).
 
     aquarium-warp sweep train --seeds 0,1,2 --vary train.sharing=parameter,individual --out runs/grid \\
         [--ray [ADDRESS]] [any option of aquarium-warp train]
@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 from .arguments import parse_list
 from .atomic import atomic_open
-from .ray_tasks import RayOptions, placement, run_tasks
+from .studies.jobs import RayOptions, placement, run_ray_tasks
 
 RUN_RECORD = "sweep_run.json"
 # Train options that do not change what a run computes: a kept run is one whatever their values.
@@ -154,7 +154,7 @@ def run_training_sweep(sweep: TrainingSweep, train_args: argparse.Namespace, ray
     else:
         ray, device = placement(ray, train_args.device)
         on_ray = argparse.Namespace(**dict(vars(train_args), device=device))
-        records = run_tasks(train_run, [(on_ray, run) for run in runs], ray, on_result=lambda _, r: _report(r))
+        records = run_ray_tasks(train_run, [(on_ray, run) for run in runs], ray, on_result=lambda _, r: _report(r))
     summary = {"seeds": list(sweep.seeds), "vary": {key: list(values) for key, values in sweep.vary},
                "ray": None if ray is None else {"address": ray.address, "gpus_per_task": ray.gpus_per_task,
                                                  "cpus_per_task": ray.cpus_per_task, "max_retries": ray.max_retries},

@@ -52,9 +52,9 @@ import torch
 
 from ..arguments import check_distinct, check_int, check_number
 from ..config import AquariumConfig
-from ..ray_tasks import RayOptions
 from ..training.config import env_config
 from . import common
+from .jobs import RayOptions, run_tasks
 from .statistics import seed_stats
 
 PREY_CONDITIONS = ("turnaway", "cotrained")
@@ -254,8 +254,8 @@ def run_group_hunting(study: GroupHuntingStudy, command: str | None = None,
                       ray: RayOptions | None = None) -> dict:
     """Run every task (`study.jobs` at once), write the CSV, JSON and figure; return the JSON's content.
     `command`: the command line recorded in the JSON (default: this process's, `common.command_line`).
-    `ray`: run each training run as a Ray task instead (`ray_tasks`); the JSON then has a "ray" entry."""
-    run = common.run_tasks(study, run_task, "group-hunting", ray)
+    `ray`: run each training run as a Ray task instead (`jobs`); the JSON then has a "ray" entry."""
+    run = run_tasks(study, run_task, "group-hunting", ray)
     results = run.results
     rows = [{k: v for k, v in r.items() if k != "name"} for r in results]
     groups = common.group_rows(results, ("condition", "share_radius", "predators"))

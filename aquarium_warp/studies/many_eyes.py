@@ -48,9 +48,9 @@ import numpy as np
 import torch
 
 from ..arguments import check_distinct, check_int, check_number
-from ..ray_tasks import RayOptions
 from ..training.config import env_config
 from . import common
+from .jobs import RayOptions, run_tasks
 from .statistics import seed_stats
 
 PREDATORS = ("naivchase", "naivchase-noconfusion")
@@ -216,8 +216,8 @@ def run_many_eyes(study: ManyEyesStudy, command: str | None = None,
                   ray: RayOptions | None = None) -> dict:
     """Run every task (`study.jobs` at once), write the CSV, JSON and figure; return the JSON's content.
     `command`: the command line recorded in the JSON (default: this process's, `common.command_line`).
-    `ray`: run each training run as a Ray task instead (`ray_tasks`); the JSON then has a "ray" entry."""
-    run = common.run_tasks(study, _task_rows, "many-eyes", ray)
+    `ray`: run each training run as a Ray task instead (`jobs`); the JSON then has a "ray" entry."""
+    run = run_tasks(study, _task_rows, "many-eyes", ray)
     results = [row for rows in run.results for row in rows["rows"]]
     groups = common.group_rows(results, ("policy", "predator", "fov_angle", "group_size"))
     entries = [{"policy": p, "predator": pred, "fov_angle": fov, "group_size": n,
@@ -257,7 +257,7 @@ def run_many_eyes(study: ManyEyesStudy, command: str | None = None,
 
 
 def _task_rows(task: dict) -> dict:
-    """`run_task` for `common.run_jobs` (whose jobs return a dict each)."""
+    """`run_task` for `jobs.run_tasks` (whose tasks return a dict each)."""
     return {"name": task["name"], "rows": run_task(task)}
 
 

@@ -27,25 +27,23 @@ from aquarium_warp.studies.swarm_size import SwarmSizeStudy, run_swarm_size_stud
 results = run_swarm_size_study(SwarmSizeStudy(prey=[4, 8, 16], seeds=2, episode_steps=200, out="out"))
 ```
 
-With `ray=RayOptions(...)` (`aquarium_warp.ray_tasks`; `--ray` on the command line) every setting is a
-Ray task calling the same `run_setting`, and the files are the same.
+Each setting is a task of the studies' job runner (`aquarium_warp.studies.jobs`): here on threads
+(`jobs`), or with `ray=RayOptions(...)` (`--ray` on the command line) as Ray tasks calling the same
+`run_setting`; the files are the same. Finished settings are kept in `out/finished/` until the JSON is
+written: a rerun after an interruption runs only the others.
 """
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import json
 import math
 import os
-import platform
 import shutil
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
-import numpy as np
 import torch
 
 from ..arguments import check_distinct, check_int
@@ -55,8 +53,9 @@ from ..drivers import check_spec, is_heuristic, make_driver
 from ..env import BatchedAquarium, resolve_device
 from ..metrics import EPISODE_METRICS, EpisodeMetrics, SwarmMetrics
 from ..pretrained import is_policy_file
-from ..ray_tasks import RayOptions, placement, run_tasks
 from ..records import command_line, git_info, json_safe, machine_info
+from .common import write_csv
+from .jobs import FINISHED_DIR, RayOptions, placement, resolve_jobs, run_jobs, run_ray_tasks, warm_up
 from .statistics import seed_stats
 from .swarm_size_plots import plot_study
 
@@ -294,9 +293,7 @@ def _run_one_batch(study: SwarmSizeStudy, settings: list[dict], device: str, adv
     block = study.seeds * study.episodes_per_seed
     batch = _run_batch(study, one_batch_config(study, settings), block * len(settings), device,
                        progress=lambda n: advance(n * len(settings), "one batch"))
-    return {i: _setting_result(study, batch, i * block, f"N={s['prey']} fov={s['fov_angle']:g} "
-                                                         f"view={s['view_distance']:g}")
-            for i, s in enumerate(settings)}
+    return {i: _setting_result(study, batch, i * block, _label(s)) for i, s in enumerate(settings)}
 
 
 BASELINE_METRICS = ("polarization", "cohesion", "nn_mean", "groups", "largest_group", "predator_distance")
@@ -337,49 +334,6 @@ def add_uniform_baselines(summary: dict, study: SwarmSizeStudy, device: str) -> 
         entry["uniform_baseline"] = cache[key]
 
 
-def _warm_up(study: SwarmSizeStudy, device: str) -> None:
-    """Load every kernel module once before settings run on parallel threads."""
-    cfg = study.settings()[0]["config"].replace(prey_count=2, max_steps=2)
-    if cfg.prey_reproduction:
-        cfg = cfg.replace(max_prey=4)
-    env = BatchedAquarium(cfg, num_worlds=1, device=device, seed=0)
-    prey = make_driver(study.prey_policy, env, "prey", confusion=study.confusion)
-    predator = make_driver(study.predator_policy, env, "predator", confusion=study.confusion)
-    metrics = SwarmMetrics(env, linking_distance=study.linking_distance)
-    metrics.compute()
-    env.step({"prey": prey(), "predator": predator()}, validate=False)
-    env.close()
-
-
-def _run_here(study: SwarmSizeStudy, settings: list[dict], device: str, advance) -> tuple[dict[int, dict], int]:
-    """`run_setting` of every setting on this machine: on the CPU several at once on threads (`study.jobs`),
-    on a GPU one after another. Returns the results by setting index and the number of threads."""
-    import warp as wp
-
-    on_gpu = wp.get_device(device).is_cuda
-    # On a GPU settings run one after another: the batch already fills the device, and a CUDA graph
-    # being captured in one thread must not see another thread's launches.
-    jobs = 1 if on_gpu else (study.jobs if study.jobs is not None else (os.cpu_count() or 1))
-    jobs = max(1, min(jobs, len(settings)))
-    _warm_up(study, device)
-
-    def job(index: int) -> dict:
-        s = settings[index]
-        label = f"N={s['prey']} fov={s['fov_angle']:g} view={s['view_distance']:g}"
-        return run_setting(study, s, device, progress=lambda n: advance(n, label))
-
-    order = _largest_first(settings)
-    results: dict[int, dict] = {}
-    if jobs == 1:
-        for i in order:
-            results[i] = job(i)
-    else:
-        with ThreadPoolExecutor(max_workers=jobs) as pool:
-            for i, r in zip(order, pool.map(job, order)):
-                results[i] = r
-    return results, jobs
-
-
 def _largest_first(settings: list[dict]) -> list[int]:
     """Setting indices, largest worlds first, so that settings run side by side (threads, Ray tasks) finish
     together."""
@@ -387,18 +341,29 @@ def _largest_first(settings: list[dict]) -> list[int]:
 
 
 # --------------------------------------------------------------------------------------------------
-# Ray: one task per setting
+# One task per setting (`jobs.run_jobs`: on threads here, or as Ray tasks)
 # --------------------------------------------------------------------------------------------------
-# Settings finished on Ray, one JSON file each, kept in the study's `out` until swarm_size.json is
-# written: a rerun of the same study skips them (after the driver died, say).
-KEPT_DIR = "ray_settings"
+def setting_tasks(study: SwarmSizeStudy, settings: list[dict], device: str) -> list[dict]:
+    """One task per setting, largest worlds first: its prey count, FOV angle and view distance (the
+    setting of `study.settings()` it runs), its seed count and device."""
+    return [{"name": f"prey{s['prey']}_fov{s['fov_angle']:g}_view{s['view_distance']:g}", "prey": s["prey"],
+             "fov_angle": s["fov_angle"], "view_distance": s["view_distance"], "seeds": study.seeds,
+             "device": device, "study": study} for s in (settings[i] for i in _largest_first(settings))]
 
 
-def _setting_on_worker(study: SwarmSizeStudy, setting: dict, device: str) -> dict:
-    """A Ray task: `run_setting` on the worker's `device`, with the worker's machine and host name."""
-    result = run_setting(study, setting, device)
-    result["machine"] = machine_info(device)
-    result["node"] = platform.node()
+def run_setting_task(task: dict, progress=None) -> dict:
+    """`run_setting` of a task of `setting_tasks`."""
+    study: SwarmSizeStudy = task["study"]
+    setting = next(s for s in study.settings()
+                   if (s["prey"], s["fov_angle"], s["view_distance"]) ==
+                   (task["prey"], task["fov_angle"], task["view_distance"]))
+    return run_setting(study, setting, task["device"], progress)
+
+
+def _setting_on_worker(task: dict) -> dict:
+    """A Ray task: `run_setting_task` on the worker's device, with the worker's machine."""
+    result = run_setting_task(task)
+    result["machine"] = machine_info(task["device"])
     return result
 
 
@@ -408,56 +373,37 @@ def _baselines_on_worker(summary: dict, study: SwarmSizeStudy, device: str) -> d
     return summary
 
 
-def _kept_path(study: SwarmSizeStudy, setting: dict) -> str:
-    name = f"prey{setting['prey']}_fov{setting['fov_angle']:g}_view{setting['view_distance']:g}.json"
-    return os.path.join(study.out, KEPT_DIR, name)
+def _run_settings(study: SwarmSizeStudy, settings: list[dict], device: str, ray: RayOptions | None,
+                  advance) -> tuple[dict[int, dict], int | None, dict | None]:
+    """Every setting a task of `jobs.run_jobs`: here on threads (`study.jobs`: on the CPU several at once,
+    on a GPU one after another), or with `ray` as Ray tasks. Returns the results by setting index, the
+    threads (None on Ray) and, on Ray, the run's record."""
+    tasks = setting_tasks(study, settings, device)
+    index = {(s["prey"], s["fov_angle"], s["view_distance"]): i for i, s in enumerate(settings)}
+
+    def finished(k: int, result: dict, kept: bool) -> None:
+        if ray is not None or kept:  # here, run_setting's progress advances the bar as the steps run
+            advance(study.episode_steps, f"N={tasks[k]['prey']} {'kept' if kept else 'done'}")
+
+    if ray is None:
+        jobs: int | None = min(resolve_jobs(study.jobs, device, threads=True), len(settings))
+        run = run_jobs(lambda task: run_setting_task(task, progress=lambda n: advance(n, _label(task))), tasks,
+                       study.out, jobs=jobs, threads=True, device=device, label=study.kind, on_result=finished,
+                       report=None, prepare=lambda: warm_up(device, settings[0]["config"], study.prey_policy,
+                                                            study.predator_policy, study.confusion,
+                                                            study.linking_distance))
+        record = None
+    else:
+        jobs = None
+        run = run_jobs(_setting_on_worker, tasks, study.out, device=device, ray=ray, label=study.kind,
+                       on_result=finished, report=None)
+        record = dict(ray.record(device), settings_kept=run.kept, nodes=run.nodes)
+    results = {index[(t["prey"], t["fov_angle"], t["view_distance"])]: r for t, r in zip(tasks, run.results)}
+    return results, jobs, record
 
 
-def _kept_key(study: SwarmSizeStudy, device: str) -> dict:
-    """What a kept result must have been run with: the study's settings (not where it writes) and device."""
-    config = {k: v for k, v in dataclasses.asdict(study).items() if k not in ("out", "jobs", "figures", "device")}
-    return json.loads(json.dumps({"study": config, "device": device}))  # as read back from a file
-
-
-def _arrays_as_lists(value):
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, dict):
-        return {k: _arrays_as_lists(v) for k, v in value.items()}
-    return value
-
-
-def _run_on_ray(study: SwarmSizeStudy, settings: list[dict], ray: RayOptions, device: str,
-                advance) -> tuple[dict[int, dict], dict]:
-    """`run_setting` of every setting as a Ray task (`ray` placed, on `device`), kept settings
-    skipped. Returns the results by setting index and the record of the run for swarm_size.json."""
-    key = _kept_key(study, device)
-    results: dict[int, dict] = {}
-    for i, s in enumerate(settings):
-        path = _kept_path(study, s)
-        if os.path.isfile(path):
-            with open(path, encoding="utf-8") as f:
-                kept = json.load(f)
-            if kept["key"] == key:
-                results[i] = kept["result"]
-                advance(study.episode_steps, f"N={s['prey']} kept")
-    kept_count = len(results)
-    todo = [i for i in _largest_first(settings) if i not in results]
-    os.makedirs(os.path.join(study.out, KEPT_DIR), exist_ok=True)
-
-    def finished(k: int, result: dict) -> None:
-        i = todo[k]
-        # JSON writes a float's shortest repr, which reads back as the same float: kept equals fresh.
-        with atomic_open(_kept_path(study, settings[i])) as f:
-            json.dump({"key": key, "result": _arrays_as_lists(result)}, f)
-        results[i] = result
-        advance(study.episode_steps, f"N={settings[i]['prey']} done")
-
-    run_tasks(_setting_on_worker, [(study, settings[i], device) for i in todo], ray, on_result=finished)
-    record = {"address": ray.address, "gpus_per_task": ray.gpus_per_task, "cpus_per_task": ray.cpus_per_task,
-              "max_retries": ray.max_retries, "device": device, "settings_kept": kept_count,
-              "nodes": sorted({results[i]["node"] for i in results})}
-    return results, record
+def _label(setting: dict) -> str:
+    return f"N={setting['prey']} fov={setting['fov_angle']:g} view={setting['view_distance']:g}"
 
 
 def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayOptions | None = None,
@@ -490,15 +436,14 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayO
     try:
         if ray is None:
             device = resolve_device(study.device)
-            if study.one_batch:
-                results, jobs = _run_one_batch(study, settings, device, advance), 1
-            else:
-                results, jobs = _run_here(study, settings, device, advance)
-            machine = machine_info(device)
         else:
             ray, device = placement(ray, study.device)
-            results, ray_record = _run_on_ray(study, settings, ray, device, advance)
-            jobs, machine = None, results[0]["machine"]
+        if study.one_batch:
+            results, jobs, ray_record = _run_one_batch(study, settings, device, advance), 1, None
+        else:
+            results, jobs, ray_record = _run_settings(study, settings, device, ray, advance)
+        # On Ray, a worker's machine (every setting kept from a run here: this one, which ran them)
+        machine = next((r["machine"] for r in results.values() if "machine" in r), None) or machine_info(device)
     finally:
         if bar is not None:
             bar.close()
@@ -557,12 +502,12 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayO
         add_uniform_baselines(summary, study, device)
     else:
         summary["ray"] = ray_record
-        summary = run_tasks(_baselines_on_worker, [(summary, study, device)], ray)[0]
+        summary = run_ray_tasks(_baselines_on_worker, [(summary, study, device)], ray)[0]
     write_csv(os.path.join(study.out, f"{study.basename}.csv"), rows)
     with atomic_open(os.path.join(study.out, f"{study.basename}.json")) as f:
         json.dump(json_safe(summary), f, indent=1)
-    if ray is not None:  # swarm_size.json now holds every setting
-        shutil.rmtree(os.path.join(study.out, KEPT_DIR), ignore_errors=True)
+    # swarm_size.json now holds every setting
+    shutil.rmtree(os.path.join(study.out, FINISHED_DIR), ignore_errors=True)
     if study.figures:
         summary["figures"] = plot_study(summary, study.out)
     return summary
@@ -594,9 +539,3 @@ def replot_study(out: str, device=None) -> dict:
     return summary
 
 
-def write_csv(path: str, rows: list[dict]) -> None:
-    with atomic_open(path, newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        for row in rows:
-            writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
