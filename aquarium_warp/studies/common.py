@@ -8,6 +8,7 @@ band of mean ± 1 s.e.m.; the JSON files give the 95% interval of the mean too (
 
 from __future__ import annotations
 
+import argparse
 import copy
 import csv
 import dataclasses
@@ -19,6 +20,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import torch
 
+from ..arguments import positive_int
 from ..atomic import atomic_open, write_figure
 from ..config import AquariumConfig
 from ..env import BatchedAquarium
@@ -233,3 +235,16 @@ def save_figure(fig, out: str, name: str, title: str) -> str:
     write_figure(fig, path, dpi=110)
     pyplot().close(fig)
     return path
+
+
+# ---------------------------------------------------------------------------------------------- command line
+def add_common_arguments(p: argparse.ArgumentParser, out: str, jobs: bool = True) -> None:
+    """The options of every open-question study: seeds, device, workers (`jobs`), output."""
+    p.add_argument("--seeds", type=positive_int, default=5, help="independent runs per setting (default 5)")
+    p.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
+    if jobs:
+        p.add_argument("--jobs", type=positive_int, default=None,
+                       help="training runs at once, each in a worker process of its own (spawned; on a GPU each "
+                            "with its own CUDA context); default 4 on a GPU, 1 on the CPU")
+    p.add_argument("--out", default=out, help=f"output directory (default {out})")
+    p.add_argument("--no-figures", action="store_true", help="write CSV/JSON only, no figures")

@@ -42,6 +42,7 @@ task's result in `finished/` (a rerun of the same command keeps them and runs on
 
 from __future__ import annotations
 
+import argparse
 import math
 import os
 import time
@@ -50,11 +51,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..arguments import check_distinct, check_int, check_number
+from ..arguments import check_distinct, check_int, check_number, int_at_least, number_list, positive_float, positive_int
+from ..atomic import check_output_dir
 from ..config import AquariumConfig
+from ..records import command_line
 from ..training.config import env_config
 from . import common
-from .jobs import RayOptions, run_tasks
+from .jobs import RayOptions, add_ray_arguments, ray_options, run_tasks
 from .statistics import seed_stats
 
 PREY_CONDITIONS = ("turnaway", "cotrained")
@@ -314,3 +317,55 @@ def plot_group_hunting(summary: dict, out: str) -> str:
 
 
 __all__ = ["GroupHuntingStudy", "run_group_hunting", "encirclement", "pair_distances", "HuntMeasures"]
+
+
+# ---------------------------------------------------------------------------------------------- command line
+HELP = "learning predator teams of 1-4: does cooperative hunting emerge, and does the shared catch reward cause it?"
+DESCRIPTION = ("For every predator team size, prey condition (TurnAway prey, or prey co-trained with the predators) "
+               "and catch_share_radius (shared reward, or 0: the capturer alone), train --seeds runs and evaluate "
+               "them: captures per predator, joint captures, the predators' angular spread around the capture point "
+               "and their distances, at captures and at random times; NaivChase teams as the baseline. Writes "
+               "group_hunting.csv/json/png into --out.")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--predators", default="1,2,3,4", help="predator team sizes (list; default 1,2,3,4)")
+    p.add_argument("--prey", type=positive_int, default=6, help="prey per world, the same at every team size "
+                                                                "(default 6, the paper's)")
+    p.add_argument("--prey-conditions", default="turnaway,cotrained",
+                   help="comma list of 'turnaway' (predators learn against TurnAway) and 'cotrained' (both teams "
+                        "learn; team both)")
+    p.add_argument("--share-radius", default="100,0", help="catch_share_radius values, px (list; default 100,0: "
+                                                           "shared within 100 px, and the capturer alone)")
+    p.add_argument("--worlds", type=positive_int, default=1024, help="training worlds per run (default 1024)")
+    p.add_argument("--iterations", type=positive_int, default=100,
+                   help="PPO iterations per run, 32 steps each (default 100)")
+    p.add_argument("--train-steps", type=int_at_least(2), default=500, help="episode length in training (default 500)")
+    p.add_argument("--eval-worlds", type=positive_int, default=32, help="evaluation episodes per seed (default 32)")
+    p.add_argument("--eval-steps", type=int_at_least(2), default=1000,
+                   help="evaluation episode length (default 1000)")
+    p.add_argument("--hunt-radius", type=positive_float, default=200.0,
+                   help="px; predators this close to a capture take part in it (default 200, the predator's view)")
+    p.add_argument("--sample-every", type=positive_int, default=10,
+                   help="steps between the random-time states of the baselines (default 10)")
+    p.add_argument("--no-baseline", action="store_true", help="no NaivChase teams")
+    common.add_common_arguments(p, "group_hunting")
+    add_ray_arguments(p, "training run (with its evaluations) or NaivChase baseline")
+
+
+def run(args: argparse.Namespace) -> int:
+    """`aquarium-warp study group-hunting`: learning predator teams, with and without shared catch rewards."""
+    study = GroupHuntingStudy(
+        predators=number_list(args.predators, int, "--predators", 1, 64),
+        prey=args.prey, prey_conditions=[c.strip() for c in args.prey_conditions.split(",") if c.strip()],
+        share_radii=number_list(args.share_radius, float, "--share-radius", 0.0, 1e6), seeds=args.seeds,
+        worlds=args.worlds, iterations=args.iterations, train_steps=args.train_steps, eval_worlds=args.eval_worlds,
+        eval_steps=args.eval_steps, hunt_radius=args.hunt_radius, sample_every=args.sample_every,
+        baseline=not args.no_baseline, device=args.device, jobs=args.jobs, out=args.out, figures=not args.no_figures)
+    print(f"aquarium-warp study group-hunting: predators {study.predators}, {study.prey} prey "
+          f"({', '.join(study.prey_conditions)}), catch_share_radius {study.share_radii}, {study.seeds} seeds -> "
+          f"{study.out}")
+    check_output_dir(study.out, "--out")
+    summary = run_group_hunting(study, command_line(args.argv), ray_options(args))
+    print(f"{common.written(summary)} ({summary['training_fraction']:.0%} of the workers' time training)")
+    return 0

@@ -38,6 +38,7 @@ task's result in `finished/` (a rerun of the same command keeps them and runs on
 
 from __future__ import annotations
 
+import argparse
 import math
 import os
 import time
@@ -47,10 +48,21 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..arguments import check_distinct, check_int, check_number
+from ..arguments import (
+    check_distinct,
+    check_int,
+    check_number,
+    int_at_least,
+    non_negative_float,
+    number_list,
+    positive_float,
+    positive_int,
+)
+from ..atomic import check_output_dir
+from ..records import command_line
 from ..training.config import env_config
 from . import common
-from .jobs import RayOptions, run_tasks
+from .jobs import RayOptions, add_ray_arguments, ray_options, run_tasks
 from .statistics import seed_stats
 
 PREDATORS = ("naivchase", "naivchase-noconfusion")
@@ -298,3 +310,54 @@ def plot_many_eyes(summary: dict, out: str) -> str:
 
 
 __all__ = ["ManyEyesStudy", "run_many_eyes", "FlightOnsets", "dilution_expectation"]
+
+
+# ---------------------------------------------------------------------------------------------- command line
+HELP = "learned prey groups of 1-64 with FOVs 60-360: dilution vs earlier detection"
+DESCRIPTION = ("For every prey group size and FOV angle, train --seeds prey runs (parameter sharing) against NaivChase "
+               "with the same prey-steps per run (--rows // N worlds) and evaluate them against NaivChase with and "
+               "without confusion: captures per prey next to the pure-dilution expectation, flight initiation "
+               "distance and the fraction of flight onsets with the predator out of the prey's own view; TurnAway "
+               "prey as the reference. Writes many_eyes.csv/json/png.")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--group-sizes", default="1,4,16,64", help="prey per world (list; default 1,4,16,64)")
+    p.add_argument("--fov", default="60,120,240,360", help="prey field-of-view angles, degrees in (0, 360] (list)")
+    p.add_argument("--rows", type=positive_int, default=4096,
+                   help="learning prey per iteration: --rows // N worlds of N prey (default 4096)")
+    p.add_argument("--iterations", type=positive_int, default=120,
+                   help="PPO iterations per run, 32 steps each (default 120)")
+    p.add_argument("--train-steps", type=int_at_least(2), default=500, help="episode length in training (default 500)")
+    p.add_argument("--eval-rows", type=positive_int, default=512,
+                   help="evaluation prey per seed: --eval-rows // N worlds, at least 2 (default 512)")
+    p.add_argument("--eval-steps", type=int_at_least(2), default=1000,
+                   help="evaluation episode length (default 1000)")
+    p.add_argument("--view-distance", type=positive_float, default=100.0, help="prey view distance, px (default 100)")
+    p.add_argument("--flee-angle", type=non_negative_float, default=45.0,
+                   help="degrees: fleeing = velocity within this of straight away from the predator (default 45)")
+    p.add_argument("--flee-distance", type=positive_float, default=200.0,
+                   help="px: fleeing needs the nearest predator this close (default 200)")
+    p.add_argument("--turn-angle", type=non_negative_float, default=30.0,
+                   help="degrees the prey must turn over --lag steps for a flight onset (default 30)")
+    p.add_argument("--lag", type=positive_int, default=5, help="steps of a flight onset's turn (default 5)")
+    p.add_argument("--no-turnaway", action="store_true", help="no TurnAway reference")
+    common.add_common_arguments(p, "many_eyes")
+    add_ray_arguments(p, "training run (with its evaluations)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """`aquarium-warp study many-eyes`: learned prey groups, dilution vs detection."""
+    study = ManyEyesStudy(
+        group_sizes=number_list(args.group_sizes, int, "--group-sizes", 1, 4096),
+        fov_angles=number_list(args.fov, float, "--fov", 0.0, 360.0, low_open=True), seeds=args.seeds,
+        rows=args.rows, iterations=args.iterations, train_steps=args.train_steps, eval_rows=args.eval_rows,
+        eval_steps=args.eval_steps, view_distance=args.view_distance, flee_angle=args.flee_angle,
+        flee_distance=args.flee_distance, turn_angle=args.turn_angle, lag=args.lag, turnaway=not args.no_turnaway,
+        device=args.device, jobs=args.jobs, out=args.out, figures=not args.no_figures)
+    print(f"aquarium-warp study many-eyes: group sizes {study.group_sizes} x FOV {study.fov_angles}, "
+          f"{study.seeds} seeds -> {study.out}")
+    check_output_dir(study.out, "--out")
+    summary = run_many_eyes(study, command_line(args.argv), ray_options(args))
+    print(f"{common.written(summary)} ({summary['training_fraction']:.0%} of the workers' time training)")
+    return 0

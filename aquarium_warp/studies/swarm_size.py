@@ -35,6 +35,7 @@ written: a rerun after an interruption runs only the others.
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 import math
@@ -46,8 +47,8 @@ from dataclasses import dataclass, field
 
 import torch
 
-from ..arguments import check_distinct, check_int
-from ..atomic import atomic_open
+from ..arguments import check_distinct, check_int, non_negative_int, parse_list, positive_int
+from ..atomic import atomic_open, check_output_dir
 from ..config import AquariumConfig
 from ..drivers import check_spec, is_heuristic, make_driver
 from ..env import BatchedAquarium, resolve_device
@@ -55,7 +56,17 @@ from ..metrics import EPISODE_METRICS, EpisodeMetrics, SwarmMetrics
 from ..pretrained import is_policy_file
 from ..records import command_line, git_info, json_safe, machine_info
 from .common import write_csv
-from .jobs import FINISHED_DIR, RayOptions, placement, resolve_jobs, run_jobs, run_ray_tasks, warm_up
+from .jobs import (
+    FINISHED_DIR,
+    RayOptions,
+    add_ray_arguments,
+    placement,
+    ray_options,
+    resolve_jobs,
+    run_jobs,
+    run_ray_tasks,
+    warm_up,
+)
 from .statistics import seed_stats
 from .swarm_size_plots import plot_study
 
@@ -539,3 +550,95 @@ def replot_study(out: str, device=None) -> dict:
     return summary
 
 
+
+
+# --------------------------------------------------------------------------------------------------
+# Command line: `aquarium-warp study swarm-size` (and the options `study fov-view` shares)
+# --------------------------------------------------------------------------------------------------
+HELP = "captures per prey (dilution), polarization and groups vs prey count"
+DESCRIPTION = ("Run every prey count and seed as batched worlds, one episode each, and write swarm_size.csv/json "
+               "and figures into --out.")
+
+
+def add_run_arguments(p: argparse.ArgumentParser, out: str) -> None:
+    """The options of both swarm-size subcommands (`run_settings` reads them)."""
+    p.add_argument("--seeds", type=int, default=5, help="independent runs per setting (default 5)")
+    p.add_argument("--episodes-per-seed", type=int, default=1, help="episodes per seed, run as more worlds")
+    p.add_argument("--episode-steps", type=int, default=3000, help="steps per episode (default 3000, the paper's)")
+    p.add_argument("--prey-policy", default="turnaway", help="'turnaway', 'random' or a trained policy file")
+    p.add_argument("--predator-policy", default="naivchase", help="'naivchase', 'random' or a trained policy file")
+    p.add_argument("--no-confusion", action="store_true", help="NaivChase chases the nearest visible prey "
+                   "instead of a random one each step")
+    p.add_argument("--predators", type=int, default=1, help="predators per world (default 1)")
+    p.add_argument("--world-size", default="800x800", help="arena WIDTHxHEIGHT px (default 800x800)")
+    p.add_argument("--linking-distance", type=float, default=None,
+                   help="px; prey closer than this form one group (default 2.5 prey radii = 50)")
+    p.add_argument("--metrics-every", type=int, default=10, help="sample the swarm metrics every K steps")
+    p.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
+    p.add_argument("--seed", type=non_negative_int, default=0,
+                   help="seed of the batched worlds (the --seeds runs are worlds of one env)")
+    p.add_argument("--jobs", type=positive_int, default=None,
+                   help="settings run at once in threads, one batch per setting (default: CPU cores on the CPU, "
+                        "1 on a GPU)")
+    p.add_argument("--out", default=out, help=f"output directory (default {out})")
+    p.add_argument("--no-figures", action="store_true", help="write CSV/JSON only, no figures")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def run_settings(args: argparse.Namespace) -> dict:
+    """The `SwarmSizeStudy` settings of `add_run_arguments`' options."""
+    return dict(seeds=args.seeds, episodes_per_seed=args.episodes_per_seed, episode_steps=args.episode_steps,
+                prey_policy=args.prey_policy, predator_policy=args.predator_policy, confusion=not args.no_confusion,
+                predators=args.predators, world_size=parse_world_size(args.world_size),
+                linking_distance=args.linking_distance, metrics_every=args.metrics_every, device=args.device,
+                seed=args.seed, jobs=args.jobs, out=args.out, figures=not args.no_figures)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--prey", default="4,8,...,4096",
+                   help="prey counts: a comma list; '...' continues the progression (default 4,8,...,4096)")
+    p.add_argument("--fov-angle", default=None, help="prey field-of-view angles to sweep, degrees (list; default 120)")
+    p.add_argument("--view-distance", default=None, help="prey view distances to sweep, px (list; default 100)")
+    p.add_argument("--constant-density", action="store_true", help="scale the arena with N instead of a fixed "
+                   "--world-size, keeping the density of --reference-prey prey in --world-size")
+    p.add_argument("--reference-prey", type=int, default=16,
+                   help="with --constant-density: the prey count that --world-size is sized for (default 16)")
+    p.add_argument("--no-respawn", action="store_true", help="captured prey are removed (populations shrink)")
+    p.add_argument("--reproduction", action="store_true", help="prey reproduce (up to 2 N)")
+    p.add_argument("--starvation-steps", type=int, default=None, help="predator starvation limit (default 3000)")
+    p.add_argument("--one-batch", action="store_true", help="every setting in one batch (per-world prey counts; "
+                   "every world has the slots of the largest count) instead of one batch per setting")
+    add_run_arguments(p, "swarm_size")
+    p.add_argument("--replot", action="store_true", help="only redraw the figures from --out's swarm_size.json")
+    add_ray_arguments(p, "setting (prey count, FOV angle and view distance)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """`aquarium-warp study swarm-size`: captures, polarization and groups vs the number of prey."""
+    if args.replot:
+        summary = replot_study(args.out, device=args.device)
+        print(f"redrew {len(summary['figures'])} figures in {args.out} from swarm_size.json")
+        return 0
+    ray = ray_options(args)
+    if ray is not None and args.jobs is not None:
+        raise ValueError("--jobs sets the threads of a run on this machine; with --ray each setting is a task "
+                         "(--cpus-per-task, --gpus-per-task)")
+    if ray is not None and args.one_batch:
+        raise ValueError("--one-batch runs every setting in one batch on this machine: not with --ray")
+    study = SwarmSizeStudy(
+        prey=[int(n) for n in parse_list(args.prey, int, "--prey")],
+        fov_angles=parse_list(args.fov_angle, float, "--fov-angle") if args.fov_angle else None,
+        view_distances=parse_list(args.view_distance, float, "--view-distance") if args.view_distance else None,
+        constant_density=args.constant_density, reference_prey=args.reference_prey, respawn=not args.no_respawn,
+        reproduction=args.reproduction, starvation_steps=args.starvation_steps, one_batch=args.one_batch,
+        **run_settings(args))
+    print(f"aquarium-warp study swarm-size: prey {study.prey}, {study.seeds} seeds x {study.episodes_per_seed} "
+          f"episode(s) of {study.episode_steps} steps, {study.prey_policy} vs {study.predator_policy} -> {study.out}")
+    check_output_dir(study.out, "--out")
+    summary = run_swarm_size_study(study, progress=not args.no_progress, ray=ray, command=command_line(args.argv))
+    where = summary["machine"]["device_name"]
+    if ray is not None:
+        where = f"Ray ({len(summary['ray']['nodes'])} machine(s), {summary['ray']['settings_kept']} setting(s) kept)"
+    print(f"wrote {os.path.join(study.out, 'swarm_size.csv')}, swarm_size.json and {len(summary.get('figures', []))} "
+          f"figures in {summary['wall_time_s']:.1f} s on {where} ({summary['path']})")
+    return 0
