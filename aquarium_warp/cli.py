@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import argparse
-import os
 import signal
 import sys
 import threading
@@ -12,7 +11,6 @@ import time
 
 from .arguments import non_negative_int, positive_float, positive_int
 from .atomic import check_output_file
-from .studies.jobs import add_ray_arguments, ray_options
 
 
 class Interrupted(KeyboardInterrupt):
@@ -156,52 +154,15 @@ def _add_study(sub) -> None:
         p.set_defaults(run=module.run)
 
 
-def _sweep_train(args) -> int:
-    """`aquarium-warp sweep train`: one training run per seed and setting (`aquarium_warp/sweep.py`)."""
-    from .arguments import parse_list
-    from .sweep import TrainingSweep, parse_vary, run_training_sweep
-    from .training.cli import add_train_arguments
-
-    train = argparse.ArgumentParser()
-    add_train_arguments(train)
-    train_args = argparse.Namespace(**{name: getattr(args, name) for name in vars(train.parse_args([]))})
-    sweep = TrainingSweep(seeds=tuple(parse_list(args.seeds, int, "--seeds", minimum=0)),
-                          vary=tuple(parse_vary(text) for text in args.vary),
-                          out=args.out or os.path.join("runs", f"sweep_{time.strftime('%Y%m%d-%H%M%S')}"))
-    sweep.validate()
-    ray = ray_options(args)
-    print(f"aquarium-warp sweep train: {len(sweep.runs())} runs ({len(sweep.seeds)} seeds"
-          f"{''.join(f' x {len(v)} {k}' for k, v in sweep.vary)}) {'as Ray tasks' if ray else 'one after another'} "
-          f"-> {sweep.out}")
-    summary = run_training_sweep(sweep, train_args, ray)
-    kept = sum(r["kept"] for r in summary["runs"])
-    print(f"aquarium-warp sweep train: {len(summary['runs'])} runs ({kept} kept from before) in "
-          f"{summary['wall_time_s']:.1f} s; {os.path.join(sweep.out, 'sweep.json')} lists them")
-    return 0
-
-
 def _add_sweep(sub) -> None:
-    """`aquarium-warp sweep train` (code in `aquarium_warp/sweep.py`, Ray tasks in `ray_tasks.py`)."""
-    from .training.cli import add_train_arguments
+    """`aquarium-warp sweep train` (options and handler in `training/sweep.py`)."""
+    from .training import sweep as training_sweep
 
     sweep = sub.add_parser("sweep", help="many training runs: seeds x settings, here or as Ray tasks")
     kinds = sweep.add_subparsers(dest="sweep", required=True)
-    p = kinds.add_parser("train", help="one `aquarium-warp train` run per seed and setting",
-                         description="Train every combination of a seed (--seeds) and the varied settings "
-                                     "(--vary) in a run directory of its own, --out/<setting>/seed<s>, one after "
-                                     "another or as Ray tasks (--ray). A rerun with the same --out keeps the "
-                                     "finished runs and resumes the started ones from their newest checkpoint. "
-                                     "Every option of `aquarium-warp train` applies to each run (not --seed, "
-                                     "--log-dir, --resume, --overwrite).")
-    p.add_argument("--seeds", default="0", help="seeds: a comma list, '...' continues it (default 0)")
-    p.add_argument("--vary", action="append", default=[], metavar="KEY=V1,V2,...",
-                   help="a setting to sweep, as `train --set KEY=VALUE` takes it, e.g. "
-                        "train.sharing=parameter,individual (repeatable: every combination)")
-    p.add_argument("--out", default=None, help="the sweep's directory: sweep.json and one directory per run "
-                                               "(default runs/sweep_<time>; on Ray one that every machine sees)")
-    add_train_arguments(p)
-    add_ray_arguments(p, "training run")
-    p.set_defaults(run=_sweep_train)
+    p = kinds.add_parser("train", help=training_sweep.HELP, description=training_sweep.DESCRIPTION)
+    training_sweep.add_arguments(p)
+    p.set_defaults(run=training_sweep.run)
 
 
 def _add_bench(sub) -> None:

@@ -199,7 +199,7 @@ def test_ray_missing_names_the_extra(monkeypatch, tmp_path, capsys):
 
 
 def test_sweep_runs_are_settings_by_seeds(tmp_path):
-    from aquarium_warp.sweep import TrainingSweep, parse_vary
+    from aquarium_warp.training.sweep import TrainingSweep, parse_vary
 
     assert parse_vary("runner.actor.hidden_dims=[64,64],[32]") == ("runner.actor.hidden_dims", ("[64,64]", "[32]"))
     sweep = TrainingSweep(seeds=(0, 1), vary=(parse_vary("train.sharing=parameter,individual"),), out=str(tmp_path))

@@ -1,4 +1,4 @@
-"""`aquarium-warp study swarm-size` (aquarium_warp/study.py): list parsing, a tiny sweep through the CLI
+"""`aquarium-warp study swarm-size` (aquarium_warp/studies/swarm_size.py): list parsing, a tiny sweep through the CLI
 writing its CSV, JSON and figures, the prey FOV / view-distance sweep with constant density and
 population traces, and trained policies through `aquarium_warp.training.export.load_policy`."""
 

@@ -11,6 +11,7 @@ import importlib.util
 import os
 import time
 import warnings
+from collections.abc import Sequence
 
 from ..arguments import int_at_least, number, positive_float
 from ..atomic import check_output_dir
@@ -191,7 +192,7 @@ def _silent(*args, **kwargs) -> None:
 
 
 def run_train(args) -> int:
-    from .config import deep_update, make_config, parse_assignment, team_settings, total_iterations
+    from .config import parse_assignment, team_settings, total_iterations
     from .run_dir import claim_run_directory
     from .trainer import Trainer
 
@@ -220,21 +221,11 @@ def run_train(args) -> int:
         say(f"aquarium-warp train: resumed {args.resume} at iteration {trainer.iteration} of "
             f"{trainer.total_iterations} (log dir {trainer.log_dir})")
     else:
-        file_cfg = _read_config_file(args.config) if args.config else {}
-        # Popped whether or not --preset overrides it: "preset" is no config section.
-        file_preset = file_cfg.pop("preset", None)
-        preset = args.preset or file_preset or "default"
-        merged = deep_update(deep_update({}, file_cfg), changes)
-        for s in sets:
-            deep_update(merged, s)
-        team = merged.get("train", {}).get("team") or make_config(preset)["train"]["team"]
-        deep_update(merged, _opponent_change(args, team))
-        config = make_config(preset, merged)
+        config = train_config(args)
         if args.log_dir is None and int(os.environ.get("WORLD_SIZE", "1")) > 1:
             raise ValueError("--log-dir is required under torchrun: every process must name the same run directory")
         log_dir = args.log_dir or os.path.join(
             "runs", f"{config['train']['team']}_{config['train']['sharing']}_{time.strftime('%Y%m%d-%H%M%S')}")
-        _check_logger_package(config["runner"]["logger"])
         if owner:
             run_dir = claim_run_directory(log_dir, overwrite=args.overwrite)
         trainer = Trainer(config, log_dir=log_dir)
@@ -246,7 +237,7 @@ def run_train(args) -> int:
         say(f"aquarium-warp train: {learners}{against} on {trainer.env.device}, {trainer.env.num_worlds} "
             f"worlds{ranks}, {total_iterations(config)} iterations -> {log_dir}")
     try:
-        _train_and_export(trainer, say)
+        finish_training(trainer, say)
     finally:
         trainer.close()
         if run_dir is not None:
@@ -254,7 +245,27 @@ def run_train(args) -> int:
     return 0
 
 
-def _train_and_export(trainer, say) -> None:
+def train_config(args, sets: Sequence[str] = ()) -> dict:
+    """The run config of `aquarium-warp train`'s options `args` (a new run, not --resume): the preset,
+    --config's file, the flags, the --set assignments, then `sets` (a sweep's settings), and the
+    opponent flags. Refuses a logger whose package is missing."""
+    from .config import deep_update, make_config, parse_assignment
+
+    file_cfg = _read_config_file(args.config) if args.config else {}
+    # Popped whether or not --preset overrides it: "preset" is no config section.
+    file_preset = file_cfg.pop("preset", None)
+    preset = args.preset or file_preset or "default"
+    merged = deep_update(deep_update({}, file_cfg), _train_changes(args))
+    for s in [*args.set, *sets]:
+        deep_update(merged, parse_assignment(s))
+    team = merged.get("train", {}).get("team") or make_config(preset)["train"]["team"]
+    deep_update(merged, _opponent_change(args, team))
+    config = make_config(preset, merged)
+    _check_logger_package(config["runner"]["logger"])
+    return config
+
+
+def finish_training(trainer, say) -> None:
     """Train the rest of the run and export it; on SIGINT or SIGTERM (`stop.py`) the run stops at an
     iteration boundary, checkpointed and exported, and `Interrupted` says how to resume."""
     start, first = time.perf_counter(), trainer.iteration
