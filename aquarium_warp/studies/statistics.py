@@ -86,7 +86,7 @@ def _finite(values) -> np.ndarray:
     return v[~np.isnan(v)]
 
 
-def mean_interval(values: Sequence[float], confidence: float = 0.95) -> tuple[float, float | None]:
+def mean_interval(values: Sequence[float] | np.ndarray, confidence: float = 0.95) -> tuple[float, float | None]:
     """The mean of `values` (NaN left out) and the half-width of its Student-t interval at `confidence`
     (None for fewer than two values; the mean is NaN for none)."""
     v = _finite(values)

@@ -390,27 +390,29 @@ def _run_settings(study: SwarmSizeStudy, settings: list[dict], device: str, ray:
     on a GPU one after another), or with `ray` as Ray tasks. Returns the results by setting index, the
     threads (None on Ray) and, on Ray, the run's record."""
     tasks = setting_tasks(study, settings, device)
-    index = {(s["prey"], s["fov_angle"], s["view_distance"]): i for i, s in enumerate(settings)}
 
     def finished(k: int, result: dict, kept: bool) -> None:
         if ray is not None or kept:  # here, run_setting's progress advances the bar as the steps run
             advance(study.episode_steps, f"N={tasks[k]['prey']} {'kept' if kept else 'done'}")
 
     if ray is None:
-        jobs: int | None = min(resolve_jobs(study.jobs, device, threads=True), len(settings))
+        threads = min(resolve_jobs(study.jobs, device, threads=True), len(settings))
         run = run_jobs(lambda task: run_setting_task(task, progress=lambda n: advance(n, _label(task))), tasks,
-                       study.out, jobs=jobs, threads=True, device=device, label=study.kind, on_result=finished,
+                       study.out, jobs=threads, threads=True, device=device, label=study.kind, on_result=finished,
                        report=None, prepare=lambda: warm_up(device, settings[0]["config"], study.prey_policy,
                                                             study.predator_policy, study.confusion,
                                                             study.linking_distance))
-        record = None
-    else:
-        jobs = None
-        run = run_jobs(_setting_on_worker, tasks, study.out, device=device, ray=ray, label=study.kind,
-                       on_result=finished, report=None)
-        record = dict(ray.record(device), settings_kept=run.kept, nodes=run.nodes)
-    results = {index[(t["prey"], t["fov_angle"], t["view_distance"])]: r for t, r in zip(tasks, run.results)}
-    return results, jobs, record
+        return _by_setting(settings, tasks, run.results), threads, None
+    run = run_jobs(_setting_on_worker, tasks, study.out, device=device, ray=ray, label=study.kind, on_result=finished,
+                   report=None)
+    return _by_setting(settings, tasks, run.results), None, dict(ray.record(device), settings_kept=run.kept,
+                                                                 nodes=run.nodes)
+
+
+def _by_setting(settings: list[dict], tasks: list[dict], results: list) -> dict[int, dict]:
+    """The results of `setting_tasks`' tasks by the index of their setting in `settings`."""
+    index = {(s["prey"], s["fov_angle"], s["view_distance"]): i for i, s in enumerate(settings)}
+    return {index[(t["prey"], t["fov_angle"], t["view_distance"])]: r for t, r in zip(tasks, results)}
 
 
 def _label(setting: dict) -> str:
@@ -449,6 +451,7 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayO
             device = resolve_device(study.device)
         else:
             ray, device = placement(ray, study.device)
+        jobs: int | None
         if study.one_batch:
             results, jobs, ray_record = _run_one_batch(study, settings, device, advance), 1, None
         else:
