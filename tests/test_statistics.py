@@ -1,14 +1,17 @@
 """Statistics over seeds (`aquarium_warp.studies.statistics`) against values computed by hand: Student-t
 quantiles from the printed tables, the mean's 95% interval, Welch's interval of a difference and the
-TOST equivalence test."""
+TOST equivalence test; the flow study's differences against still water."""
 
 from __future__ import annotations
 
+import csv
+import json
 import math
 
 import pytest
 
-from aquarium_warp.studies.statistics import difference, equivalence, mean_interval, seed_stats, t_quantile
+from aquarium_warp.cli import main
+from aquarium_warp.studies.statistics import compare, difference, equivalence, mean_interval, seed_stats, t_quantile
 
 
 @pytest.mark.parametrize("p, df, expected", [
@@ -55,7 +58,7 @@ def test_welch_difference_by_hand():
 
 def test_equivalence_is_the_90_percent_interval_inside_the_margin():
     # a: mean 1, var 0.025; b: mean 1, var 0.00625; n = 5 each: se^2 = 0.005 + 0.00125 = 0.00625,
-    # df = 0.00625^2 / ((0.005^2 + 0.00125^2) / 4) = 100/17, t(0.95, 100/17) = 1.950163: 90% interval ±0.154174
+    # df = 0.00625^2 / ((0.005^2 + 0.00125^2) / 4) = 100/17, t(0.95, 100/17) = 1.950163: 90% interval ±0.154173
     a, b = [1.0, 1.2, 0.8, 1.1, 0.9], [1.05, 0.95, 1.0, 1.1, 0.9]
     e = equivalence(a, b, margin=0.3)
     assert e["difference"] == pytest.approx(0.0, abs=1e-12) and e["confidence"] == pytest.approx(0.9)
@@ -67,3 +70,26 @@ def test_equivalence_is_the_90_percent_interval_inside_the_margin():
     for margin in (0.0, -1.0, math.inf):
         with pytest.raises(ValueError, match="margin"):
             equivalence(a, b, margin)
+
+
+def test_compare_takes_the_difference_of_each_measure():
+    a = [{"x": 1.0, "y": 1.0}, {"x": 2.0, "y": math.nan}, {"x": 3.0, "y": None}]
+    b = [{"x": 4.0, "y": 0.0}, {"x": 5.0, "y": 1.0}, {"x": 6.0, "y": 2.0}, {"x": 7.0, "y": 3.0}]
+    out = compare(a, b, ("x", "y"))
+    assert out["x"] == difference([1.0, 2.0, 3.0], [4.0, 5.0, 6.0, 7.0])
+    assert out["y"] is None  # one value of y in a: no interval
+
+
+def test_the_flow_study_reports_each_current_against_still_water(tmp_path, one_thread):
+    out = tmp_path / "flow"
+    assert main(["study", "flow", "--kinds", "uniform", "--strengths", "0,2", "--seeds", "3", "--episodes-per-seed",
+                 "1", "--episode-steps", "40", "--prey", "8", "--device", "cpu", "--no-figures",
+                 "--out", str(out)]) == 0
+    rows = list(csv.DictReader((out / "flow.csv").open(encoding="utf-8", newline="")))
+    effects = json.loads((out / "flow.json").read_text())["current_effects"]
+    assert [(e["kind"], e["strength"]) for e in effects] == [("uniform", 2.0)]
+    captures = {s: [float(r["captures_per_prey"]) for r in rows if r["strength"] == s] for s in ("0", "2")}
+    expected = difference(captures["2"], captures["0"])  # from the CSV's 6 significant digits
+    got = effects[0]["differences"]["captures_per_prey"]
+    assert got["difference"] == pytest.approx(expected["difference"], rel=1e-4, abs=1e-6)
+    assert (got["n_a"], got["n_b"]) == (3, 3)

@@ -58,7 +58,7 @@ from ..drivers import check_spec
 from ..env import resolve_device
 from ..records import command_line
 from . import common
-from .statistics import seed_stats
+from .statistics import compare, seed_stats
 
 KINDS = ("uniform", "vortex")
 ANGLE_BINS = 18
@@ -211,6 +211,11 @@ def run_flow(study: FlowStudy, command: str | None = None) -> dict:
                         "escape_steps": float(per_world["escape_steps"][block].sum()),
                         "escape_angle_histogram": (counts / counts.sum()).tolist() if counts.sum() else None})
     summary = common.run_record("flow", study, device, wall, 0.0, wall, 1, command)
+    settings = common.group_rows(rows, ("kind", "strength"))
+    summary["current_effects"] = [
+        {"kind": kind, "strength": strength, "differences": compare(settings[(kind, strength)],
+                                                                     settings[(kind, 0.0)], MEASURES)}
+        for kind, strength in study.settings() if strength != 0 and (kind, 0.0) in settings]
     summary["definitions"] = {
         "worlds": f"{worlds} worlds in one batch: per setting {S} seeds x {E} episodes of {study.episode_steps} steps",
         "uniform": f"current of strength px/step at {study.uniform_angle:g} degrees from +x towards +y",
@@ -225,6 +230,8 @@ def run_flow(study: FlowStudy, command: str | None = None) -> dict:
                          "the seed's episodes; cruise_cosine: non-fleeing; downstream_fraction likewise",
         "escape_angle_histogram": f"angle between escape velocity and current, {ANGLE_BINS} bins over [0, 180] "
                                   "degrees, fractions summed over seeds",
+        "current_effects": "each strength minus still water (strength 0) of the same kind: difference of the seed "
+                           "means with its 95% Welch interval (null with fewer than 2 seeds)",
     }
     summary["results"] = entries
     return common.write_outputs(study.out, "flow", rows, summary, plot_flow if study.figures else None)

@@ -58,7 +58,7 @@ from ..records import command_line
 from ..training.config import env_config
 from . import common
 from .jobs import RayOptions, add_ray_arguments, ray_options, run_tasks
-from .statistics import seed_stats
+from .statistics import compare, seed_stats
 
 PREY_CONDITIONS = ("turnaway", "cotrained")
 MEASURES = ("captures_per_predator", "captures_per_prey", "joint_fraction", "spread_capture", "spread_random",
@@ -266,6 +266,11 @@ def run_group_hunting(study: GroupHuntingStudy, command: str | None = None,
                 "metrics": {m: seed_stats([r[m] for r in rs]) for m in MEASURES}}
                for (c, radius, n), rs in groups.items()]
     summary = run.record("group-hunting", study, results, command)
+    summary["reward_differences"] = [
+        {"condition": c, "predators": n, "share_radius": radius, "minus_share_radius": 0.0,
+         "differences": compare(groups[(c, radius, n)], groups[(c, 0.0, n)], MEASURES)}
+        for c in study.prey_conditions for n in study.predators for radius in study.share_radii
+        if radius != 0 and 0 in study.share_radii]
     summary["definitions"] = {
         "captures_per_predator": f"captures per predator per episode of {study.eval_steps} steps "
                                  f"({study.eval_worlds} episodes per seed, deterministic policies)",
@@ -278,6 +283,9 @@ def run_group_hunting(study: GroupHuntingStudy, command: str | None = None,
         "pair_distance": "mean torus distance between live predators, px (capture steps / sampled states)",
         "cotrained": "prey and predators trained together (team both); evaluated against each other",
         "share_radius": "catch_share_radius in training and evaluation; 0: only the capturer(s) are rewarded",
+        "reward_differences": "per prey condition and team size, the shared reward (share_radius) minus the "
+                              "capturer alone (0): difference of the seed means with its 95% Welch interval "
+                              "(null with fewer than 2 seeds)",
     }
     summary["results"] = entries
     return common.write_outputs(study.out, "group_hunting", rows, summary,

@@ -63,7 +63,7 @@ from ..records import command_line
 from ..training.config import env_config
 from . import common
 from .jobs import RayOptions, add_ray_arguments, ray_options, run_tasks
-from .statistics import seed_stats
+from .statistics import compare, seed_stats
 
 PREDATORS = ("naivchase", "naivchase-noconfusion")
 MEASURES = ("captures_per_prey", "fid", "blind_fraction", "onsets_per_prey")
@@ -246,6 +246,10 @@ def run_many_eyes(study: ManyEyesStudy, command: str | None = None,
             for e, x in zip(curve, expected):
                 e.setdefault("dilution_expectation", {})[key] = float(x)
     summary = run.record("many-eyes", study, results, command)
+    summary["learned_minus_turnaway"] = [
+        {"predator": pred, "fov_angle": fov, "group_size": n,
+         "differences": compare(rs, groups[("turnaway", pred, fov, n)], MEASURES)}
+        for (p, pred, fov, n), rs in sorted(groups.items()) if p == "learned" and study.turnaway]
     summary["definitions"] = {
         "captures_per_prey": f"captures per prey per episode of {study.eval_steps} steps",
         "dilution_expectation": "c(N0) * N0 / N, N0 the smallest group size: each prey's share of the smallest "
@@ -263,6 +267,8 @@ def run_many_eyes(study: ManyEyesStudy, command: str | None = None,
                            f"({study.rows} // N worlds): the same prey-steps at every N",
         "policies": "learned: trained prey (parameter sharing) vs NaivChase; turnaway: the heuristic",
         "predator": "naivchase: a random visible prey each step (confusion); naivchase-noconfusion: the nearest",
+        "learned_minus_turnaway": "learned prey minus TurnAway at each predator, FOV and N: difference of the "
+                                  "seed means with its 95% Welch interval (null with fewer than 2 seeds)",
     }
     summary["results"] = entries
     return common.write_outputs(study.out, "many_eyes", results, summary, plot_many_eyes if study.figures else None)

@@ -5,6 +5,7 @@ seed (a training seed, or a block of worlds), then
   interval (`mean_interval`);
 - `difference`: the difference of two conditions' means with its 95% interval (Welch: unequal
   variances, Welch-Satterthwaite degrees of freedom);
+- `compare`: `difference` of each measure between two conditions' per-seed rows;
 - `equivalence`: the two one-sided tests (TOST) for a "no effect" claim: the conditions are equivalent
   within ±margin when the 90% interval of the difference lies inside (-margin, margin) (each one-sided
   test at 5%).
@@ -129,7 +130,7 @@ def _interval(diff: float, se: float, df: float, confidence: float) -> tuple[flo
     return diff - half, diff + half
 
 
-def difference(a: Sequence[float], b: Sequence[float], confidence: float = 0.95) -> dict:
+def difference(a: Sequence[float] | np.ndarray, b: Sequence[float] | np.ndarray, confidence: float = 0.95) -> dict:
     """Mean of `a` minus mean of `b` (per-seed values of two conditions, NaN left out) with its Welch
     interval at `confidence`: `difference`, `low`, `high`, `se`, `df` (None where both conditions are
     constant: the interval is the point), `n_a`, `n_b`."""
@@ -137,6 +138,16 @@ def difference(a: Sequence[float], b: Sequence[float], confidence: float = 0.95)
     low, high = _interval(diff, se, df, confidence)
     return {"difference": diff, "low": low, "high": high, "confidence": confidence, "se": se,
             "df": df if math.isfinite(df) else None, "n_a": na, "n_b": nb}
+
+
+def compare(a: Sequence[dict], b: Sequence[dict], measures: Sequence[str], confidence: float = 0.95) -> dict:
+    """`difference` of each of `measures` between two conditions' per-seed rows (`a` minus `b`; NaN and
+    None values left out), None for a measure with fewer than two values in either."""
+    out: dict[str, dict | None] = {}
+    for m in measures:
+        x, y = (_finite(np.asarray([r[m] for r in rows], dtype=np.float64)) for rows in (a, b))
+        out[m] = difference(x, y, confidence) if len(x) >= 2 and len(y) >= 2 else None
+    return out
 
 
 def equivalence(a: Sequence[float], b: Sequence[float], margin: float, alpha: float = 0.05) -> dict:

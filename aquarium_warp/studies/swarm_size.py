@@ -422,7 +422,7 @@ def _label(setting: dict) -> str:
 def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayOptions | None = None,
                          command: str | None = None) -> dict:
     """Run every setting of `study`, write the CSV, JSON and figures into `study.out`, and return the
-    JSON's content. `ray`: run each setting as a Ray task (`_run_on_ray`) instead of on this machine.
+    JSON's content. `ray`: run each setting as a Ray task (`_run_settings`) instead of on this machine.
     `command`: the command recorded in the JSON (default: this process's, as `aquarium-warp ...`)."""
     study.validate()
     if study.one_batch and ray is not None:
