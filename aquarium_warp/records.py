@@ -38,8 +38,11 @@ def json_safe(value: Any) -> Any:
 
 
 def command_line(argv: Sequence[str] | None = None, program: str = "aquarium-warp") -> str:
-    """The command as typed: `program` and `argv` (default: this process's arguments), shell-quoted."""
-    return shlex.join([program, *(sys.argv[1:] if argv is None else argv)])
+    """The command as typed, shell-quoted: `program` and its arguments `argv` (by default an
+    `aquarium-warp` command's); without `argv`, this process's own (its program's file name and arguments)."""
+    if argv is None:
+        return shlex.join([os.path.basename(sys.argv[0]), *sys.argv[1:]])
+    return shlex.join([program, *argv])
 
 
 def git_info(commit: str | None = None) -> dict:

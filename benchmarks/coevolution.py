@@ -328,7 +328,7 @@ def main(argv=None) -> int:
     one, two = speed[0]["agent_steps_per_s"], speed[2]["agent_steps_per_s"]
     summary = {
         "settings": {**vars(args), "iterations": iterations, "save_every": save_every,
-                     "command": command_line(program=Path(sys.argv[0]).name)},
+                     "command": command_line()},
         "git": git_info(), "device": str(device), "machine": machine_info(str(device)),
         "device_name": torch.cuda.get_device_name(device) if device.type == "cuda" else platform.processor(),
         "agent_steps": iterations * steps_per_iteration, "train_seconds": train_seconds,

@@ -171,7 +171,7 @@ def main(argv=None) -> int:
     print(format_table(kernels, totals, agents))
     result = {"benchmark": "aquarium-warp: Nsight Compute profile of one step",
               "created_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-              "command": command_line(program=sys.argv[0]), "ncu_command": " ".join(command[:12]),
+              "command": command_line(), "ncu_command": " ".join(command[:12]),
               "machine": machine_info(args.device), "git": git_info(args.git_commit), "copy_bandwidth": copy,
               "worlds": args.worlds, "agents_per_world": cfg.capacity, "step_kernel": args.step_kernel,
               "kernels": kernels, "totals": totals}

@@ -1,8 +1,8 @@
 """Every setting of a study in one batch (per-world prey counts, FOV angles and view distances;
-`aquarium_warp.study.one_batch_config`) against the independent path of one batch per setting: exact where
-the worlds are the same (a single setting; setting 0's worlds when the capacity does not change; the prey at
-reset), statistically elsewhere (random draws are keyed by world and slot, so other worlds draw other
-episodes); and `aquarium-warp study fov-view` (CSV, JSON, heatmap, bad lists)."""
+`aquarium_warp.studies.swarm_size.one_batch_config`) against the independent path of one batch per
+setting: exact where the worlds are the same (a single setting; setting 0's worlds when the capacity does
+not change; the prey at reset), statistically elsewhere (random draws are keyed by world and slot, so
+other worlds draw other episodes); and `aquarium-warp study fov-view` (CSV, JSON, heatmap, bad lists)."""
 
 from __future__ import annotations
 

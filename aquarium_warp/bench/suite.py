@@ -5,7 +5,6 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import json
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -77,7 +76,7 @@ def run_bench(settings: BenchSettings, peers: Peers | None = None) -> dict:
     result: dict[str, Any] = {
         "benchmark": "aquarium-warp scaling: agent-steps/s of BatchedAquarium.step (random actions, observations on)",
         "created_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-        "command": command_line(program=Path(sys.argv[0]).name),
+        "command": command_line(),
         "machine": machine, "git": git_info(settings.git_commit),
         "settings": {k: v for k, v in dataclasses.asdict(settings).items() if k not in ("quiet",)},
         "method": {

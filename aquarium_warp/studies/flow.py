@@ -179,7 +179,7 @@ class EscapeMeasures:
 
 def run_flow(study: FlowStudy, command: str | None = None) -> dict:
     """Run every setting in one batch, write the CSV, JSON and figures; return the JSON's content.
-    `command`: the command line recorded in the JSON (default: this process's, `common.command_line`)."""
+    `command`: the command line recorded in the JSON (default: this process's, `records.command_line`)."""
     study.validate()
     device = resolve_device(study.device)
     cfg = study.config()

@@ -256,7 +256,7 @@ def condition_label(condition: str, share_radius: float) -> str:
 def run_group_hunting(study: GroupHuntingStudy, command: str | None = None,
                       ray: RayOptions | None = None) -> dict:
     """Run every task (`study.jobs` at once), write the CSV, JSON and figure; return the JSON's content.
-    `command`: the command line recorded in the JSON (default: this process's, `common.command_line`).
+    `command`: the command line recorded in the JSON (default: this process's, `records.command_line`).
     `ray`: run each training run as a Ray task instead (`jobs`); the JSON then has a "ray" entry."""
     run = run_tasks(study, run_task, "group-hunting", ray)
     results = run.results

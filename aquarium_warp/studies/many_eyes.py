@@ -227,7 +227,7 @@ def run_task(task: dict) -> list[dict]:
 def run_many_eyes(study: ManyEyesStudy, command: str | None = None,
                   ray: RayOptions | None = None) -> dict:
     """Run every task (`study.jobs` at once), write the CSV, JSON and figure; return the JSON's content.
-    `command`: the command line recorded in the JSON (default: this process's, `common.command_line`).
+    `command`: the command line recorded in the JSON (default: this process's, `records.command_line`).
     `ray`: run each training run as a Ray task instead (`jobs`); the JSON then has a "ray" entry."""
     run = run_tasks(study, _task_rows, "many-eyes", ray)
     results = [row for rows in run.results for row in rows["rows"]]

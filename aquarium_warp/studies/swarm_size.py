@@ -17,10 +17,11 @@ for bit). `aquarium-warp study fov-view` is this study with one prey count over 
 distance (`kind="fov-view"`: `fov_view.csv/json` and a heatmap), in one batch by default.
 
 Outputs in `out`: `swarm_size.csv` (one row per setting and seed), `swarm_size.json` (the
-configuration, the machine, timings, per-setting means/std/sem over seeds, nearest-neighbour
-distributions, population traces when populations change) and PNG figures (`aquarium_warp.studies.swarm_size_plots`):
-`captures_vs_size.png` (dilution), `polarization_groups_vs_size.png`, `spacing_vs_size.png`,
-`nn_distribution.png` and, with population dynamics, `population.png`.
+configuration, the machine, timings, per-setting means/std/sem/95% intervals over seeds,
+nearest-neighbour distributions, population traces when populations change) and PNG figures
+(`aquarium_warp.studies.swarm_size_plots`): `captures_vs_size.png` (dilution),
+`polarization_groups_vs_size.png`, `spacing_vs_size.png`, `nn_distribution.png` and, with population
+dynamics, `population.png`.
 
 ```python
 from aquarium_warp.studies.swarm_size import SwarmSizeStudy, run_swarm_size_study
