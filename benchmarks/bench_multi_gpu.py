@@ -29,8 +29,8 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from aquarium_warp.bench.machine import git_info, machine_info
-from aquarium_warp.number_lists import parse_list
+from aquarium_warp.arguments import parse_list
+from aquarium_warp.records import command_line, git_info, machine_info
 
 
 def run_point(gpus: int, team: str, graphs: bool, args: argparse.Namespace) -> dict:
@@ -92,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     name = torch.cuda.get_device_name(0) if args.device != "cpu" and torch.cuda.is_available() else "cpu"
     result = {"benchmark": "multi_gpu_training", "device_name": name, "settings": vars(args), "points": points,
               "torch": torch.__version__,
-              "command": " ".join([Path(__file__).name] + list(sys.argv[1:] if argv is None else argv)),
+              "command": command_line(argv, Path(__file__).name),
               "git": git_info(), "machine": machine_info("cpu" if args.device == "cpu" else "cuda:0")}
     out = Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)

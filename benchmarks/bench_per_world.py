@@ -14,15 +14,14 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import sys
 import time
 from pathlib import Path
 
 import torch
 
 from aquarium_warp import AquariumConfig, BatchedAquarium
-from aquarium_warp.bench.machine import git_info, machine_info
 from aquarium_warp.config import Uniform
+from aquarium_warp.records import command_line, git_info, machine_info
 
 
 def sync(device: str) -> None:
@@ -84,7 +83,7 @@ def main(argv: list[str] | None = None) -> None:
     fovs, views = ((90.0, 180.0), (50.0, 100.0)) if cpu else ((60.0, 120.0, 180.0, 240.0, 360.0),
                                                                (50.0, 100.0, 200.0, 400.0))
     result: dict = {"device": args.device, "worlds": worlds, "agents_per_world": 17,
-                    "command": " ".join([Path(__file__).name] + list(sys.argv[1:] if argv is None else argv)),
+                    "command": command_line(argv, Path(__file__).name),
                     "git": git_info(), "machine": machine_info(args.device)}
     if not cpu:
         result["gpu"] = torch.cuda.get_device_name(torch.device(args.device))

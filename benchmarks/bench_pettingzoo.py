@@ -40,7 +40,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 from aquarium_warp import aquarium_v1  # noqa: E402
-from aquarium_warp.bench import git_info, machine_info  # noqa: E402
+from aquarium_warp.records import command_line, git_info, machine_info  # noqa: E402
 
 RESULTS = HERE / "results"
 TARGET_SPEEDUP = 20.0
@@ -284,7 +284,7 @@ def main(argv=None) -> int:
                      "random actions, no rendering",
         "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "git_commit": git_info()["commit"],
-        "command": " ".join([Path(__file__).name] + list(sys.argv[1:] if argv is None else argv)),
+        "command": command_line(argv, Path(__file__).name),
         "method": {"seconds": args.seconds, "repeats": args.repeats, "warmup_s_min": args.warmup, "min_steps": 3,
                    "ours": "in this process, one fresh env per run, seed=run, actions numpy default_rng(run)",
                    "original": "benchmarks/original_aquarium.measure_original (fresh process per run)",

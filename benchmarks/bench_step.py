@@ -39,8 +39,9 @@ import warp as wp
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from aquarium_warp import AquariumConfig, BatchedAquarium
-from aquarium_warp.bench import density_config, git_info, timed_runs
+from aquarium_warp.bench import density_config, timed_runs
 from aquarium_warp.env import grid_dims
+from aquarium_warp.records import command_line, git_info
 from aquarium_warp.rollout import random_actions
 from aquarium_warp.shard import fused_step
 
@@ -154,7 +155,7 @@ def main(argv=None) -> int:
         "device_name": device.name if device.is_cuda else platform.processor() or platform.machine(),
         "cpu_count": os.cpu_count(), "python": platform.python_version(), "warp": wp.__version__,
         "torch": torch.__version__, "git_commit": git_info()["commit"],
-        "command": " ".join([Path(__file__).name] + list(sys.argv[1:] if argv is None else argv)),
+        "command": command_line(argv, Path(__file__).name),
         "seconds": args.seconds,
         "repeats": args.repeats, "step_kernels": args.step_kernel,
         "rows": rows, "pettingzoo_parallel_env": pettingzoo, "original": original, "checks": checks,

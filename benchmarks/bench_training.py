@@ -30,7 +30,8 @@ os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from aquarium_warp.bench import git_info, parse_counts
+from aquarium_warp.bench import parse_counts
+from aquarium_warp.records import command_line, git_info
 from aquarium_warp.training import Trainer, make_config
 
 
@@ -190,7 +191,7 @@ def main(argv=None) -> int:
                         else platform.processor() or platform.machine()),
         "cpu_count": os.cpu_count(), "python": platform.python_version(), "torch": torch.__version__,
         "warp": wp.__version__, "rsl_rl": version("rsl-rl-lib"), "git": git_info(args.commit),
-        "command": " ".join([Path(sys.argv[0]).name] + argv),
+        "command": command_line(argv, Path(sys.argv[0]).name),
         "points": points, "speedups": speedups,
     }
     out_dir = Path(args.out_dir)

@@ -33,7 +33,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 from aquarium_warp import AquariumConfig, aquarium_v1  # noqa: E402
-from aquarium_warp.bench import git_info, machine_info  # noqa: E402
+from aquarium_warp.records import command_line, git_info, machine_info  # noqa: E402
 
 RESULTS = HERE / "results" / "vector_envs_cpu"
 PATHS = ("native gymnasium", "native sb3", "supersuit gymnasium", "supersuit sb3", "supersuit sb3 2 procs")
@@ -148,8 +148,8 @@ def main(argv=None) -> int:
         "benchmark": "native vector envs (Gymnasium VectorEnv, SB3 VecEnv) vs SuperSuit over aquarium_v1, CPU",
         "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "git": git_info(),
-        "command": "python " + " ".join([os.path.relpath(__file__, HERE.parent), *(argv if argv is not None
-                                                                                  else sys.argv[1:])]),
+        "command": command_line([os.path.relpath(__file__, HERE.parent), *(argv if argv is not None else sys.argv[1:])],
+                                "python"),
         "method": {"seconds": args.seconds, "repeats": args.repeats, "warmup_s_min": args.warmup,
                    "max_steps": args.max_steps, "config": "AquariumConfig() defaults but max_steps",
                    "env_step": "one row (agent) step; env-steps/s = rows x vector steps / s",

@@ -86,7 +86,7 @@ def main(argv=None) -> int:
 
     import torch
 
-    from aquarium_warp.bench.machine import git_info
+    from aquarium_warp.records import command_line, git_info
 
     dev = torch.device(args.device)
     result = {
@@ -96,7 +96,7 @@ def main(argv=None) -> int:
         "device_name": (torch.cuda.get_device_name(dev) if dev.type == "cuda"
                         else platform.processor() or platform.machine()),
         "versions": {name: _version(name) for name in ("torch", "torchrl", "tensordict", "benchmarl", "warp-lang")},
-        "command": " ".join([Path(__file__).name] + list(sys.argv[1:] if argv is None else argv)),
+        "command": command_line(argv, Path(__file__).name),
         "git": git_info(),
         "curves": curves,
     }

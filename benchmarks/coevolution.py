@@ -49,7 +49,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from aquarium_warp.bench import git_info, machine_info
+from aquarium_warp.records import command_line, git_info, machine_info
 from aquarium_warp.training import Trainer, make_config
 from aquarium_warp.training.config import env_config
 from aquarium_warp.training.episode_video import EpisodeVideo, gif_bytes
@@ -328,7 +328,7 @@ def main(argv=None) -> int:
     one, two = speed[0]["agent_steps_per_s"], speed[2]["agent_steps_per_s"]
     summary = {
         "settings": {**vars(args), "iterations": iterations, "save_every": save_every,
-                     "command": " ".join([Path(sys.argv[0]).name] + sys.argv[1:])},
+                     "command": command_line()},
         "git": git_info(), "device": str(device), "machine": machine_info(str(device)),
         "device_name": torch.cuda.get_device_name(device) if device.type == "cuda" else platform.processor(),
         "agent_steps": iterations * steps_per_iteration, "train_seconds": train_seconds,

@@ -27,7 +27,6 @@ import argparse
 import concurrent.futures as futures
 import csv
 import json
-import math
 import os
 import shlex
 import subprocess
@@ -159,7 +158,7 @@ def evaluate_one(out: str, condition: str, world: str, seeds: list[int], episode
                                                           for s in eval_seeds],
                                         "episodes": len(values)}
     from aquarium_warp.atomic import atomic_open
-    from aquarium_warp.json_records import json_safe
+    from aquarium_warp.records import json_safe
 
     with atomic_open(path) as f:
         record = {"condition": condition, "world": world, "policies": per_seed, "protocol": result["protocol"],
@@ -172,14 +171,10 @@ def evaluate_one(out: str, condition: str, world: str, seeds: list[int], episode
 
 def interval(values: list[float]) -> dict:
     """Mean and the half-width of its 95% t interval (None for fewer than two values)."""
-    from scipy import stats
+    from aquarium_warp.studies.statistics import mean_interval
 
-    n = len(values)
-    mean = sum(values) / n
-    if n < 2:
-        return {"mean": mean, "ci95": None, "n": n, "values": values}
-    sd = math.sqrt(sum((v - mean) ** 2 for v in values) / (n - 1))
-    return {"mean": mean, "ci95": float(stats.t.ppf(0.975, n - 1) * sd / math.sqrt(n)), "n": n, "values": values}
+    mean, ci95 = mean_interval(values)
+    return {"mean": mean, "ci95": ci95, "n": len(values), "values": values}
 
 
 def summarize(out: str, plan: list[tuple[str, str, list[int]]]) -> list[dict]:
@@ -252,10 +247,10 @@ def main(argv=None) -> int:
     rows = summarize(args.out, plan)
     commit = args.commit or subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
                                            cwd=os.path.dirname(os.path.abspath(__file__))).stdout.strip()
-    from aquarium_warp.bench.machine import machine_info
+    from aquarium_warp.records import command_line, machine_info
 
-    record = {"command": shlex.join([os.path.basename(sys.executable), "benchmarks/learned_prey.py",
-                                     *(argv if argv is not None else sys.argv[1:])]),
+    record = {"command": command_line(["benchmarks/learned_prey.py", *(argv if argv is not None else sys.argv[1:])],
+                                           os.path.basename(sys.executable)),
               "commit": commit, "machine": machine_info(device),
               "gpus": args.gpus, "per_gpu": args.per_gpu,
               "measure": "captures per prey per episode against NaivChase (lower is better); learned: mean over "

@@ -305,7 +305,7 @@ def measure_original(
 
 
 def _machine_info() -> dict:
-    from aquarium_warp.bench.machine import cpu_model
+    from aquarium_warp.records import cpu_model
 
     info = {
         "platform": platform.platform(),
@@ -355,7 +355,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.setup_only:
         return 0
 
-    from aquarium_warp.bench.machine import git_info
+    from aquarium_warp.records import command_line, git_info
 
     machine = _machine_info()  # load average taken before our own runs add to it
     results = {}
@@ -405,7 +405,7 @@ def main(argv: list[str] | None = None) -> int:
             "env_kwargs": env_kwargs,
         },
         "machine": machine,
-        "command": " ".join([Path(__file__).name] + list(sys.argv[1:] if argv is None else argv)),
+        "command": command_line(argv, Path(__file__).name),
         "git": git_info(),
         "venv": {"path": setup["venv"], "reused": setup["reused"], "setup_s": setup["setup_s"]},
         "versions": next(iter(results.values()))["versions"] if results else {},

@@ -27,9 +27,9 @@ import warp as wp
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import aquarium_warp.shard as shard_module
 from aquarium_warp import AquariumConfig, BatchedAquarium
-from aquarium_warp.bench.machine import git_info, machine_info
 from aquarium_warp.bench.timing import DeviceTimer
 from aquarium_warp.kernels import world_step
+from aquarium_warp.records import command_line, git_info, machine_info
 from aquarium_warp.rollout import random_actions
 
 DEFAULT_VARIANTS = ("128:72", "64:72", "256:72", "128:64", "128:96", "128:none", "32:72")
@@ -111,7 +111,7 @@ def main(argv: list[str] | None = None) -> None:
     paths.update({f"fused {text}": v for text, v in variants.items()})
     record: dict = {"device": wp.get_device(args.device).name, "warp": wp.config.version, "steps": args.steps,
                     "repeats": args.repeats, "ms_per_step": {}, "drift": {},
-                    "command": " ".join([Path(__file__).name] + list(sys.argv[1:] if argv is None else argv)),
+                    "command": command_line(argv, Path(__file__).name),
                     "git": git_info(), "machine": machine_info(args.device)}
 
     print(f"device {record['device']}, warp {record['warp']}; drift after {args.check_steps} steps of "

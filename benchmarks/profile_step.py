@@ -151,7 +151,8 @@ def main(argv=None) -> int:
     if args.child:
         return child(args)
 
-    from aquarium_warp.bench import copy_bandwidth, density_config, git_info, machine_info, step_byte_model
+    from aquarium_warp.bench import copy_bandwidth, density_config, step_byte_model
+    from aquarium_warp.records import command_line, git_info, machine_info
 
     ncu = find_ncu(args.ncu)
     command = [ncu, "--profile-from-start", "off", "--cache-control", "none", "--clock-control", "none",
@@ -171,7 +172,7 @@ def main(argv=None) -> int:
     print(format_table(kernels, totals, agents))
     result = {"benchmark": "aquarium-warp: Nsight Compute profile of one step",
               "created_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-              "command": " ".join(sys.argv), "ncu_command": " ".join(command[:12]),
+              "command": command_line(), "ncu_command": " ".join(command[:12]),
               "machine": machine_info(args.device), "git": git_info(args.git_commit), "copy_bandwidth": copy,
               "worlds": args.worlds, "agents_per_world": cfg.capacity, "step_kernel": args.step_kernel,
               "kernels": kernels, "totals": totals}

@@ -1,12 +1,12 @@
-"""The one comma-list parser (`aquarium_warp.number_lists.parse_list`) of `bench`, `study` and the
+"""The one comma-list parser (`aquarium_warp.arguments.parse_list`) of `bench`, `study` and the
 benchmark scripts: what each list means, and that every malformed list is refused with its name."""
 
 from __future__ import annotations
 
 import pytest
 
+from aquarium_warp.arguments import parse_list
 from aquarium_warp.bench import parse_counts
-from aquarium_warp.number_lists import parse_list
 
 # (text, kind, last, expected)
 PARSED = [

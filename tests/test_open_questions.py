@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 import torch
 
+from aquarium_warp.arguments import number_list
 from aquarium_warp.cli import main
-from aquarium_warp.studies.common import number_list
 from aquarium_warp.studies.flow import ANGLE_BINS, EscapeMeasures
 from aquarium_warp.studies.group_hunting import encirclement, pair_distances
 from aquarium_warp.studies.many_eyes import FlightOnsets, dilution_expectation

@@ -127,7 +127,7 @@ def test_a_study_world_takes_the_policys_interface(shipped):
     """A study with a trained team keeps its own world (prey counts, perception, spawn) but lets the
     policy's agents observe and act as they were trained to (frames, range, slot counts)."""
     from aquarium_warp import AquariumConfig
-    from aquarium_warp.study import SwarmSizeStudy
+    from aquarium_warp.studies.swarm_size import SwarmSizeStudy
 
     study = SwarmSizeStudy(prey=[5, 7], prey_policy="prey-tiny", seeds=1)
     policy_world = pretrained.world("prey-tiny")

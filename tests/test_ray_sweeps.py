@@ -1,4 +1,4 @@
-"""Sweeps on Ray (aquarium_warp/ray_tasks.py) on a local two-CPU cluster: a tiny study equals the run on this
+"""Sweeps on Ray (aquarium_warp/studies/jobs.py) on a local two-CPU cluster: a tiny study equals the run on this
 machine; a setting whose worker dies is rerun (Ray's max_retries) and, once the retries are spent, a rerun
 of the study keeps the settings that finished; a training sweep equals the runs here and a rerun keeps
 them; a started training run resumes from its newest checkpoint; without Ray, --ray names the extra."""
@@ -15,9 +15,9 @@ import pytest
 import torch
 
 from aquarium_warp.cli import main
-from aquarium_warp.json_records import json_safe
-from aquarium_warp.ray_tasks import RayOptions
-from aquarium_warp.study import KEPT_DIR, SwarmSizeStudy, run_swarm_size_study
+from aquarium_warp.records import json_safe
+from aquarium_warp.studies.jobs import FINISHED_DIR, RayOptions
+from aquarium_warp.studies.swarm_size import SwarmSizeStudy, run_swarm_size_study
 
 TINY_TRAIN = ["--preset", "tiny", "--iterations", "2", "--save-interval", "1", "--num-worlds", "4",
               "--num-steps-per-env", "8", "--export", "none", "--quiet", "--device", "cpu"]
@@ -29,7 +29,7 @@ def dying_setting_hook(plan: str, died: str):
     if any; `died` marks that it happened (the retry then runs normally)."""
 
     def setup() -> None:
-        import aquarium_warp.study as study
+        import aquarium_warp.studies.swarm_size as study
 
         run_setting = study.run_setting
 
@@ -77,7 +77,7 @@ def assert_same_study(here: dict, on_ray: dict, out_here, out_ray) -> None:
     # As the JSON holds them: an undefined metric (NaN, e.g. local alignment without linked prey) is null.
     assert json_safe([{k: v for k, v in e.items() if k not in TIMINGS} for e in on_ray["results"]]) == \
         json_safe([{k: v for k, v in e.items() if k not in TIMINGS} for e in here["results"]])
-    assert not (out_ray / KEPT_DIR).exists()  # swarm_size.json holds every setting now
+    assert not (out_ray / FINISHED_DIR).exists()  # swarm_size.json holds every setting now
 
 
 @pytest.mark.slow
@@ -109,7 +109,7 @@ def dead_workers_rerun_and_kept(ray, plan, died, here, tmp_path):
     assert_same_study(here, on_ray, tmp_path / "here", tmp_path / "retried")
     # No retries left: the study fails once N=4 has finished (its worker waits for N=4's kept file)...
     os.remove(died)
-    kept = tmp_path / "kept" / KEPT_DIR / "prey4_fov120_view100.json"
+    kept = tmp_path / "kept" / FINISHED_DIR / "prey4_fov120_view100.json"
     with open(plan, "w", encoding="utf-8") as f:
         json.dump({"prey": 8, "wait_for": str(kept)}, f)
     with pytest.raises(ray.exceptions.RayError):
@@ -199,7 +199,7 @@ def test_ray_missing_names_the_extra(monkeypatch, tmp_path, capsys):
 
 
 def test_sweep_runs_are_settings_by_seeds(tmp_path):
-    from aquarium_warp.sweep import TrainingSweep, parse_vary
+    from aquarium_warp.training.sweep import TrainingSweep, parse_vary
 
     assert parse_vary("runner.actor.hidden_dims=[64,64],[32]") == ("runner.actor.hidden_dims", ("[64,64]", "[32]"))
     sweep = TrainingSweep(seeds=(0, 1), vary=(parse_vary("train.sharing=parameter,individual"),), out=str(tmp_path))

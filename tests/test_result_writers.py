@@ -27,7 +27,7 @@ def test_study_run_record_records_provenance():
 
 
 def test_swarm_size_study_records_provenance(tmp_path):
-    from aquarium_warp.study import SwarmSizeStudy, run_swarm_size_study
+    from aquarium_warp.studies.swarm_size import SwarmSizeStudy, run_swarm_size_study
 
     study = SwarmSizeStudy(prey=[4], seeds=1, episode_steps=5, metrics_every=5, device="cpu", out=str(tmp_path),
                            figures=False)

@@ -23,7 +23,7 @@ FIELDS = ("commit", "command", "device", "versions")
 COMMIT_KEYS = (
     ("git_commit",),  # benchmarks/bench_step.py, bench_pettingzoo.py (before the `git` object)
     ("commit",),  # benchmarks/learned_prey.py
-    ("git", "commit"),  # aquarium_warp.bench.machine.git_info: bench suite, profile_step, bench_training, ...
+    ("git", "commit"),  # aquarium_warp.records.git_info: bench suite, profile_step, bench_training, ...
 )
 COMMAND_KEYS = (
     ("command",),  # bench suite, profile_step, bench_training, learned_prey, studies' run_record
@@ -31,7 +31,7 @@ COMMAND_KEYS = (
 )
 DEVICE_KEYS = (
     ("device_name",),  # bench_step, bench_training, benchmarl_mappo, bench_multi_gpu, coevolution
-    ("machine", "device_name"),  # aquarium_warp.bench.machine.machine_info
+    ("machine", "device_name"),  # aquarium_warp.records.machine_info
     ("machine", "cpu_model"),  # benchmarks/original_aquarium.py and the first bench_pettingzoo.py (CPU only)
     ("machine", "cpu"),  # benchmarks/bench_viewer.py (CPU only; machine_info's CPU model has this name too)
     ("gpu",),  # benchmarks/bench_per_world.py (before `machine`)

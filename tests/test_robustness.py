@@ -52,7 +52,7 @@ def test_study_settings_built_on_parallel_threads(tmp_path):
     fresh interpreter, settings of one-cell and cell-list worlds (different observation kernels than
     the study's warm-up loads) are built by 2 threads."""
     result = run_python(f"""
-        from aquarium_warp.study import SwarmSizeStudy, run_swarm_size_study
+        from aquarium_warp.studies.swarm_size import SwarmSizeStudy, run_swarm_size_study
         study = SwarmSizeStudy(prey=[8, 40, 48], seeds=1, episode_steps=5, metrics_every=5, device="cpu",
                                out={str(tmp_path)!r}, jobs=2, figures=False)
         summary = run_swarm_size_study(study, progress=False)

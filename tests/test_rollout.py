@@ -185,7 +185,7 @@ def test_rollout_metrics_equals_the_plain_loop():
 
 
 def test_swarm_size_setting_equals_the_plain_loop():
-    from aquarium_warp.study import SwarmSizeStudy, run_setting
+    from aquarium_warp.studies.swarm_size import SwarmSizeStudy, run_setting
 
     study = SwarmSizeStudy(prey=[6], seeds=3, episode_steps=30, metrics_every=5, respawn=False, device="cpu", seed=2,
                            figures=False)

@@ -1,4 +1,4 @@
-"""`aquarium-warp study swarm-size` (aquarium_warp/study.py): list parsing, a tiny sweep through the CLI
+"""`aquarium-warp study swarm-size` (aquarium_warp/studies/swarm_size.py): list parsing, a tiny sweep through the CLI
 writing its CSV, JSON and figures, the prey FOV / view-distance sweep with constant density and
 population traces, and trained policies through `aquarium_warp.training.export.load_policy`."""
 
@@ -13,9 +13,10 @@ import pytest
 import torch
 
 from aquarium_warp import AquariumConfig, BatchedAquarium
+from aquarium_warp.arguments import parse_list
 from aquarium_warp.cli import main
 from aquarium_warp.drivers import make_driver
-from aquarium_warp.study import SwarmSizeStudy, parse_list, parse_world_size, run_swarm_size_study
+from aquarium_warp.studies.swarm_size import SwarmSizeStudy, parse_world_size, run_swarm_size_study
 
 
 def read_csv(path):

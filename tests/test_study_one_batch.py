@@ -1,8 +1,8 @@
 """Every setting of a study in one batch (per-world prey counts, FOV angles and view distances;
-`aquarium_warp.study.one_batch_config`) against the independent path of one batch per setting: exact where
-the worlds are the same (a single setting; setting 0's worlds when the capacity does not change; the prey at
-reset), statistically elsewhere (random draws are keyed by world and slot, so other worlds draw other
-episodes); and `aquarium-warp study fov-view` (CSV, JSON, heatmap, bad lists)."""
+`aquarium_warp.studies.swarm_size.one_batch_config`) against the independent path of one batch per
+setting: exact where the worlds are the same (a single setting; setting 0's worlds when the capacity does
+not change; the prey at reset), statistically elsewhere (random draws are keyed by world and slot, so
+other worlds draw other episodes); and `aquarium-warp study fov-view` (CSV, JSON, heatmap, bad lists)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import pytest
 
 from aquarium_warp import BatchedAquarium
 from aquarium_warp.cli import main
-from aquarium_warp.study import SwarmSizeStudy, one_batch_config, run_swarm_size_study
+from aquarium_warp.studies.swarm_size import SwarmSizeStudy, one_batch_config, run_swarm_size_study
 
 METRICS = ("captures", "captures_per_prey", "polarization", "cohesion", "nn_mean", "groups", "largest_group",
            "predator_distance", "prey_alive", "episode_length")

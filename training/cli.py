@@ -8,13 +8,14 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
-import math
 import os
 import time
 import warnings
+from collections.abc import Sequence
 
+from ..arguments import int_at_least, number, positive_float
 from ..atomic import check_output_dir
-from ..cli import Interrupted, int_at_least, plural
+from ..cli import Interrupted, plural
 from .config import ALGORITHM_RANGES, PRESETS
 
 PRESET_NAMES = tuple(PRESETS)
@@ -30,25 +31,9 @@ def _hidden_dims(text: str) -> list[int]:
     return dims
 
 
-def _number(allowed: str, ok):
-    """argparse type: a float for which `ok(value)` holds (NaN never does); `allowed` names the range."""
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"invalid value {text!r}: must be {allowed}") from None
-        if math.isnan(value) or not ok(value):
-            raise argparse.ArgumentTypeError(f"invalid value {text!r}: must be {allowed}")
-        return value
-    return parse
-
-
-POSITIVE = _number("a finite number > 0", lambda v: 0 < v < math.inf)
-
-
 def _algorithm(name: str):
     """argparse type of the PPO coefficient `name`: the range `config.validate` checks."""
-    return _number(*ALGORITHM_RANGES[name])
+    return number(*ALGORITHM_RANGES[name])
 
 
 
@@ -77,7 +62,7 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
     g.add_argument("--seed", type=int_at_least(0), default=None, help="seed of the worlds and the networks")
     g.add_argument("--iterations", type=int_at_least(0), default=None, help="total PPO iterations of the run")
-    g.add_argument("--episodes", type=POSITIVE, default=None,
+    g.add_argument("--episodes", type=positive_float, default=None,
                    help="total world episodes instead of --iterations (the paper: 4000)")
     g.add_argument("--log-dir", default=None, help="run directory (default: runs/<team>_<sharing>_<time>)")
     g.add_argument("--resume", default=None, metavar="PATH",
@@ -114,7 +99,7 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     b.add_argument("--pool-sampling", choices=("uniform", "latest"), default=None,
                    help="which snapshot a world draws when its episode ends: uniform, or latest-biased "
                         "(weights 1..n from the oldest to the newest)")
-    b.add_argument("--pool-fraction", type=_number("a number in [0, 0.5]", lambda v: 0 <= v <= 0.5), default=None,
+    b.add_argument("--pool-fraction", type=number("a number in [0, 0.5]", lambda v: 0 <= v <= 0.5), default=None,
                    help="fraction of worlds in which each team plays against the other team's snapshots "
                         "(default 0.2; per team: --set teams.<team>.pool_fraction=F, both at most 1)")
     e = p.add_argument_group("environment")
@@ -126,9 +111,9 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     a = p.add_argument_group("PPO")
     a.add_argument("--num-steps-per-env", type=int_at_least(1), default=None, help="rollout length per iteration")
     a.add_argument("--save-interval", type=int_at_least(1), default=None, help="checkpoint every N iterations")
-    a.add_argument("--learning-rate", "--actor-lr", dest="actor_lr", type=POSITIVE, default=None,
+    a.add_argument("--learning-rate", "--actor-lr", dest="actor_lr", type=positive_float, default=None,
                    help="actor learning rate (rsl-rl's learning_rate)")
-    a.add_argument("--critic-lr", type=POSITIVE, default=None,
+    a.add_argument("--critic-lr", type=positive_float, default=None,
                    help="critic learning rate (applied as a factor critic_lr/actor_lr on the critic's group)")
     a.add_argument("--gamma", type=_algorithm("gamma"), default=None, help="discount factor, in [0, 1]")
     a.add_argument("--lam", type=_algorithm("lam"), default=None, help="GAE lambda, in [0, 1]")
@@ -145,7 +130,7 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
                    help="KL target of the adaptive schedule")
     a.add_argument("--hidden-dims", type=_hidden_dims, default=None, help="e.g. 64,64 (actor and critic)")
     a.add_argument("--activation", default=None, help="e.g. tanh, elu, relu")
-    a.add_argument("--reward-scale", type=POSITIVE, default=None, help="factor on the rewards PPO sees")
+    a.add_argument("--reward-scale", type=positive_float, default=None, help="factor on the rewards PPO sees")
 
 
 def _train_changes(args) -> dict:
@@ -207,7 +192,7 @@ def _silent(*args, **kwargs) -> None:
 
 
 def run_train(args) -> int:
-    from .config import deep_update, make_config, parse_assignment, team_settings, total_iterations
+    from .config import parse_assignment, team_settings, total_iterations
     from .run_dir import claim_run_directory
     from .trainer import Trainer
 
@@ -236,21 +221,11 @@ def run_train(args) -> int:
         say(f"aquarium-warp train: resumed {args.resume} at iteration {trainer.iteration} of "
             f"{trainer.total_iterations} (log dir {trainer.log_dir})")
     else:
-        file_cfg = _read_config_file(args.config) if args.config else {}
-        # Popped whether or not --preset overrides it: "preset" is no config section.
-        file_preset = file_cfg.pop("preset", None)
-        preset = args.preset or file_preset or "default"
-        merged = deep_update(deep_update({}, file_cfg), changes)
-        for s in sets:
-            deep_update(merged, s)
-        team = merged.get("train", {}).get("team") or make_config(preset)["train"]["team"]
-        deep_update(merged, _opponent_change(args, team))
-        config = make_config(preset, merged)
+        config = train_config(args)
         if args.log_dir is None and int(os.environ.get("WORLD_SIZE", "1")) > 1:
             raise ValueError("--log-dir is required under torchrun: every process must name the same run directory")
         log_dir = args.log_dir or os.path.join(
             "runs", f"{config['train']['team']}_{config['train']['sharing']}_{time.strftime('%Y%m%d-%H%M%S')}")
-        _check_logger_package(config["runner"]["logger"])
         if owner:
             run_dir = claim_run_directory(log_dir, overwrite=args.overwrite)
         trainer = Trainer(config, log_dir=log_dir)
@@ -262,7 +237,7 @@ def run_train(args) -> int:
         say(f"aquarium-warp train: {learners}{against} on {trainer.env.device}, {trainer.env.num_worlds} "
             f"worlds{ranks}, {total_iterations(config)} iterations -> {log_dir}")
     try:
-        _train_and_export(trainer, say)
+        finish_training(trainer, say)
     finally:
         trainer.close()
         if run_dir is not None:
@@ -270,7 +245,27 @@ def run_train(args) -> int:
     return 0
 
 
-def _train_and_export(trainer, say) -> None:
+def train_config(args, sets: Sequence[str] = ()) -> dict:
+    """The run config of `aquarium-warp train`'s options `args` (a new run, not --resume): the preset,
+    --config's file, the flags, the --set assignments, then `sets` (a sweep's settings), and the
+    opponent flags. Refuses a logger whose package is missing."""
+    from .config import deep_update, make_config, parse_assignment
+
+    file_cfg = _read_config_file(args.config) if args.config else {}
+    # Popped whether or not --preset overrides it: "preset" is no config section.
+    file_preset = file_cfg.pop("preset", None)
+    preset = args.preset or file_preset or "default"
+    merged = deep_update(deep_update({}, file_cfg), _train_changes(args))
+    for s in [*args.set, *sets]:
+        deep_update(merged, parse_assignment(s))
+    team = merged.get("train", {}).get("team") or make_config(preset)["train"]["team"]
+    deep_update(merged, _opponent_change(args, team))
+    config = make_config(preset, merged)
+    _check_logger_package(config["runner"]["logger"])
+    return config
+
+
+def finish_training(trainer, say) -> None:
     """Train the rest of the run and export it; on SIGINT or SIGTERM (`stop.py`) the run stops at an
     iteration boundary, checkpointed and exported, and `Interrupted` says how to resume."""
     start, first = time.perf_counter(), trainer.iteration

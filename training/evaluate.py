@@ -45,20 +45,17 @@ import json
 import math
 import os
 import re
-import shlex
-import sys
 import warnings
 
 import numpy as np
 import torch
 
 from ..atomic import atomic_open, write_figure
-from ..bench.machine import git_info, machine_info
 from ..config import AquariumConfig, is_int
 from ..drivers import is_heuristic, make_drivers
 from ..env import BatchedAquarium, StepResult, resolve_device
-from ..json_records import json_safe
 from ..metrics import EPISODE_METRICS, EpisodeMetrics
+from ..records import json_safe, provenance
 from ..rollout import Observer, rollout
 
 METRICS = ("captures_per_prey", "reward_per_prey", "reward_per_predator") + tuple(
@@ -243,14 +240,7 @@ def evaluate_policies(prey, predator, env: AquariumConfig | None = None, episode
     return {"summary": summary, "episodes": episodes_out,
             "protocol": {"episodes": episodes, "seeds": [int(s) for s in seeds], "max_steps": env.max_steps,
                          "deterministic": deterministic, "blind_to": dict(blind_to or {}), "env": env.to_dict()},
-            **run_provenance(device)}
-
-
-def run_provenance(device=None) -> dict:
-    """What a result file records of the run that made it: this process's command line, the commit
-    (`git_info`) and the machine (`machine_info`: device name and versions)."""
-    return {"command": shlex.join([os.path.basename(sys.argv[0]), *sys.argv[1:]]), "git": git_info(),
-            "machine": machine_info(resolve_device(device))}
+            **provenance(resolve_device(device))}
 
 
 PROVENANCE_KEYS = ("command", "git", "machine")

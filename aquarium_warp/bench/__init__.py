@@ -50,7 +50,7 @@ command), `byte_model`, `bandwidth` (the copy bandwidth), `machine` (commit, dev
 from .bandwidth import copy_bandwidth
 from .byte_model import GRID_PATHS, step_byte_model
 from .cli import add_arguments, main, run_from_args, settings_from_args
-from .machine import available_bytes, git_info, installed_version, machine_info
+from .machine import available_bytes
 from .peers import OriginalHarness, Peers, VmasHarness, add_ratios, measure_original_peer, measure_vmas_peer
 from .plots import plot_results
 from .point import array_bytes, estimate_bytes, measure_point
@@ -67,7 +67,7 @@ __all__ = [
     "BenchSettings", "DeviceTimer", "OriginalHarness", "Peers", "VmasHarness",
     "add_arguments", "add_ratios", "array_bytes", "available_bytes", "command_name", "command_stage",
     "copy_actions_in", "copy_bandwidth", "density_config", "estimate_bytes", "format_row", "format_table",
-    "git_info", "installed_version", "load_worlds", "machine_info", "main", "measure_original_peer",
+    "load_worlds", "main", "measure_original_peer",
     "measure_point", "measure_vmas_peer", "parse_counts", "per_agent_time_ratio", "plot_results",
     "repeats_within", "replot", "run_bench", "run_from_args", "settings_from_args",
     "split_agents", "stage_times", "step_byte_model", "summary", "sweep_points", "timed_runs", "torch_timer",

@@ -5,14 +5,14 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 
-from ..number_lists import parse_list
+from ..arguments import parse_list
 
 
 def parse_counts(text: str | Sequence[int], name: str = "counts") -> list[int]:
     """`"16,64,...,1000000"` -> [16, 64, 256, ..., 262144, 1000000]: positive integers; an ellipsis
     continues the progression of the terms before it (geometric when they have a constant ratio
     above 1, else arithmetic: `"100,200,300,...,600"`) while it stays below the last term, which
-    always ends the list (`number_lists.parse_list` with `last="cap"`)."""
+    always ends the list (`arguments.parse_list` with `last="cap"`)."""
     return parse_list(text, int, name, last="cap", minimum=1)
 
 

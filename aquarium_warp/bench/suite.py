@@ -5,7 +5,6 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import json
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -15,10 +14,9 @@ import warp as wp
 
 from ..atomic import atomic_open, check_output_dir
 from ..env import resolve_device
-from ..json_records import json_safe
+from ..records import command_line, git_info, json_safe, machine_info
 from .bandwidth import copy_bandwidth
 from .byte_model import step_byte_model
-from .machine import git_info, machine_info
 from .peers import Peers, add_ratios, measure_original_peer, measure_vmas_peer
 from .plots import plot_results
 from .point import measure_point
@@ -78,7 +76,7 @@ def run_bench(settings: BenchSettings, peers: Peers | None = None) -> dict:
     result: dict[str, Any] = {
         "benchmark": "aquarium-warp scaling: agent-steps/s of BatchedAquarium.step (random actions, observations on)",
         "created_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-        "command": " ".join(sys.argv),
+        "command": command_line(),
         "machine": machine, "git": git_info(settings.git_commit),
         "settings": {k: v for k, v in dataclasses.asdict(settings).items() if k not in ("quiet",)},
         "method": {

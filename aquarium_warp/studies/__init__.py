@@ -1,9 +1,26 @@
-"""The paper's open questions as studies (`aquarium-warp study group-hunting | many-eyes | flow`):
+"""The studies, `aquarium-warp study <name>`: each module of `STUDIES` owns its command line,
+`add_arguments(parser)` and `run(args) -> int`, with its `HELP` line and `DESCRIPTION`.
 
+- `swarm_size`: captures, polarization and groups vs the number of prey (figures in `swarm_size_plots`);
+- `fov_view`: the swarm-size study over prey FOV angle x view distance;
 - `group_hunting`: learning predator teams of 1-4, with and without the shared catch reward, against
   TurnAway or co-trained prey: captures per predator and how the predators stand at captures;
 - `many_eyes`: learned prey groups of 1-64 over FOV angles: captures against pure dilution, flight
   initiation distance and flights started with the predator unseen;
-- `flow`: currents of growing strength: captures, swarm metrics and escape direction against the current;
-- `common`: what they share (training runs, worker processes, rollouts, geometry, statistics, outputs).
+- `flow`: currents of growing strength: captures, swarm metrics and escape direction against the current.
+
+What they share: `jobs` (the job runner: finished-task cache, threads, worker processes, Ray tasks),
+`statistics` (over seeds: means with 95% intervals, Welch differences, TOST equivalence) and `common`
+(training runs, rollouts, geometry, output files, error-band plots).
 """
+
+from __future__ import annotations
+
+from types import ModuleType
+
+from . import flow, fov_view, group_hunting, many_eyes, swarm_size
+
+STUDIES: dict[str, ModuleType] = {"swarm-size": swarm_size, "fov-view": fov_view, "group-hunting": group_hunting,
+                                  "many-eyes": many_eyes, "flow": flow}
+
+__all__ = ["STUDIES"]

@@ -32,6 +32,7 @@ seed), `flow.json`, `flow.png` and `flow_escape_angles.png`.
 
 from __future__ import annotations
 
+import argparse
 import math
 import os
 import time
@@ -40,14 +41,25 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..atomic import write_figure
+from ..arguments import (
+    check_distinct,
+    check_int,
+    check_number,
+    int_at_least,
+    non_negative_float,
+    non_negative_int,
+    number_list,
+    positive_float,
+    positive_int,
+)
+from ..atomic import check_output_dir, write_figure
 from ..config import AquariumConfig, FlowConfig
 from ..drivers import check_spec
 from ..env import resolve_device
-from ..number_lists import check_distinct
+from ..records import command_line
 from ..rollout import StepView
-from ..study import seed_stats
 from . import common
+from .statistics import compare, seed_stats
 
 KINDS = ("uniform", "vortex")
 ANGLE_BINS = 18
@@ -87,14 +99,14 @@ class FlowStudy:
         check_distinct("--kinds", self.kinds)
         check_distinct("--strengths", self.strengths)
         for s in self.strengths:
-            common.check_number("flow strength (px/step)", s, 0.0, 100.0)
+            check_number("flow strength (px/step)", s, 0.0, 100.0)
         for name in ("seeds", "episodes_per_seed", "prey", "predators", "metrics_every"):
-            common.check_int(name.replace("_", "-"), getattr(self, name))
-        common.check_int("episode-steps", self.episode_steps, 2)
-        common.check_number("world-size", self.world_size, 100.0, 1e6)
-        common.check_number("uniform-angle", self.uniform_angle, -360.0, 360.0)
-        common.check_number("flee-angle", self.flee_angle, 0.0, 180.0)
-        common.check_number("flee-distance", self.flee_distance, 1e-3, 1e6)
+            check_int(name.replace("_", "-"), getattr(self, name))
+        check_int("episode-steps", self.episode_steps, 2)
+        check_number("world-size", self.world_size, 100.0, 1e6)
+        check_number("uniform-angle", self.uniform_angle, -360.0, 360.0)
+        check_number("flee-angle", self.flee_angle, 0.0, 180.0)
+        check_number("flee-distance", self.flee_distance, 1e-3, 1e6)
         for team, spec in (("prey", self.prey_policy), ("predator", self.predator_policy)):
             check_spec(spec, team, f"--{team}-policy")
 
@@ -168,7 +180,7 @@ class EscapeMeasures:
 
 def run_flow(study: FlowStudy, command: str | None = None) -> dict:
     """Run every setting in one batch, write the CSV, JSON and figures; return the JSON's content.
-    `command`: the command line recorded in the JSON (default: this process's, `common.command_line`)."""
+    `command`: the command line recorded in the JSON (default: this process's, `records.command_line`)."""
     study.validate()
     device = resolve_device(study.device)
     cfg = study.config()
@@ -200,6 +212,11 @@ def run_flow(study: FlowStudy, command: str | None = None) -> dict:
                         "escape_steps": float(per_world["escape_steps"][block].sum()),
                         "escape_angle_histogram": (counts / counts.sum()).tolist() if counts.sum() else None})
     summary = common.run_record("flow", study, device, wall, 0.0, wall, 1, command)
+    settings = common.group_rows(rows, ("kind", "strength"))
+    summary["current_effects"] = [
+        {"kind": kind, "strength": strength, "differences": compare(settings[(kind, strength)],
+                                                                     settings[(kind, 0.0)], MEASURES)}
+        for kind, strength in study.settings() if strength != 0 and (kind, 0.0) in settings]
     summary["definitions"] = {
         "worlds": f"{worlds} worlds in one batch: per setting {S} seeds x {E} episodes of {study.episode_steps} steps",
         "uniform": f"current of strength px/step at {study.uniform_angle:g} degrees from +x towards +y",
@@ -214,6 +231,8 @@ def run_flow(study: FlowStudy, command: str | None = None) -> dict:
                          "the seed's episodes; cruise_cosine: non-fleeing; downstream_fraction likewise",
         "escape_angle_histogram": f"angle between escape velocity and current, {ANGLE_BINS} bins over [0, 180] "
                                   "degrees, fractions summed over seeds",
+        "current_effects": "each strength minus still water (strength 0) of the same kind: difference of the seed "
+                           "means with its 95% Welch interval (null with fewer than 2 seeds)",
     }
     summary["results"] = entries
     return common.write_outputs(study.out, "flow", rows, summary, plot_flow if study.figures else None)
@@ -268,3 +287,54 @@ def plot_flow(summary: dict, out: str) -> list[str]:
 
 
 __all__ = ["FlowStudy", "run_flow", "EscapeMeasures"]
+
+
+# ---------------------------------------------------------------------------------------------- command line
+HELP = "uniform currents and a vortex of growing strength: captures, swarm metrics, escape direction"
+DESCRIPTION = ("Run every flow kind and strength as worlds of one batch (per-world flow), TurnAway prey vs NaivChase "
+               "by default (heuristics ignore the current) or trained policy files, and write captures, polarization, "
+               "groups and the angle between fleeing prey's velocity and the current (flow.csv/json, flow.png, "
+               "flow_escape_angles.png) into --out.")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--kinds", default="uniform,vortex",
+                   help="flow kinds: 'uniform' (along --uniform-angle), 'vortex' (centred, clockwise)")
+    p.add_argument("--uniform-angle", type=float, default=90.0,
+                   help="direction of the uniform current, degrees from +x towards +y (default 90: +y, across the "
+                        "prey's spawn heading -x)")
+    p.add_argument("--strengths", default="0,0.5,1,2,3",
+                   help="px per step (the vortex's at its core's edge; list; default 0,0.5,1,2,3)")
+    p.add_argument("--episodes-per-seed", type=positive_int, default=10,
+                   help="episodes (worlds) per seed (default 10)")
+    p.add_argument("--episode-steps", type=int_at_least(2), default=3000, help="steps per episode (default 3000)")
+    p.add_argument("--prey", type=positive_int, default=16, help="prey per world (default 16)")
+    p.add_argument("--predators", type=positive_int, default=1, help="predators per world (default 1)")
+    p.add_argument("--prey-policy", default="turnaway", help="'turnaway', 'random' or a trained policy file")
+    p.add_argument("--predator-policy", default="naivchase",
+                   help="'naivchase', 'naivchase-noconfusion', 'random' or a trained policy file")
+    p.add_argument("--flee-angle", type=non_negative_float, default=45.0,
+                   help="degrees: fleeing = velocity within this of straight away from the predator (default 45)")
+    p.add_argument("--flee-distance", type=positive_float, default=200.0,
+                   help="px: fleeing needs the nearest predator this close (default 200)")
+    p.add_argument("--metrics-every", type=positive_int, default=10, help="sample the swarm metrics every K steps")
+    p.add_argument("--seed", type=non_negative_int, default=0, help="seed of the batched worlds")
+    common.add_common_arguments(p, "flow_study", jobs=False)
+
+
+def run(args: argparse.Namespace) -> int:
+    """`aquarium-warp study flow`: captures, swarm metrics and escape directions in currents."""
+    study = FlowStudy(
+        kinds=[k.strip() for k in args.kinds.split(",") if k.strip()],
+        strengths=number_list(args.strengths, float, "--strengths", 0.0, 100.0), seeds=args.seeds,
+        episodes_per_seed=args.episodes_per_seed, episode_steps=args.episode_steps, prey=args.prey,
+        uniform_angle=args.uniform_angle,
+        predators=args.predators, prey_policy=args.prey_policy, predator_policy=args.predator_policy,
+        flee_angle=args.flee_angle, flee_distance=args.flee_distance, metrics_every=args.metrics_every,
+        seed=args.seed, device=args.device, out=args.out, figures=not args.no_figures)
+    print(f"aquarium-warp study flow: {study.kinds} x strengths {study.strengths} px/step, {study.seeds} seeds x "
+          f"{study.episodes_per_seed} episodes of {study.episode_steps} steps -> {study.out}")
+    check_output_dir(study.out, "--out")
+    summary = run_flow(study, command_line(args.argv))
+    print(common.written(summary))
+    return 0

@@ -42,6 +42,7 @@ task's result in `finished/` (a rerun of the same command keeps them and runs on
 
 from __future__ import annotations
 
+import argparse
 import math
 import os
 import time
@@ -50,14 +51,16 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from ..arguments import check_distinct, check_int, check_number, int_at_least, number_list, positive_float, positive_int
+from ..atomic import check_output_dir
 from ..config import AquariumConfig
-from ..number_lists import check_distinct
-from ..ray_tasks import RayOptions
+from ..records import command_line
 from ..rollout import StepView
 from ..seeding import evaluation_seed
-from ..study import seed_stats
 from ..training.config import env_config
 from . import common
+from .jobs import RayOptions, add_ray_arguments, ray_options, run_tasks
+from .statistics import compare, seed_stats
 
 PREY_CONDITIONS = ("turnaway", "cotrained")
 MEASURES = ("captures_per_predator", "captures_per_prey", "joint_fraction", "spread_capture", "spread_random",
@@ -94,10 +97,10 @@ class GroupHuntingStudy:
                              ("--share-radius", self.share_radii)):
             check_distinct(name, values)
         for n in self.predators:
-            common.check_int("predators", n)
+            check_int("predators", n)
         for name in ("prey", "seeds", "worlds", "iterations", "train_steps", "eval_worlds", "eval_steps",
                      "sample_every"):
-            common.check_int(name.replace("_", "-"), getattr(self, name))
+            check_int(name.replace("_", "-"), getattr(self, name))
         if self.eval_steps < 2 or self.train_steps < 2:
             raise ValueError("eval-steps and train-steps must be >= 2 (an episode's last state is the next one's)")
         bad = [c for c in self.prey_conditions if c not in PREY_CONDITIONS]
@@ -106,9 +109,9 @@ class GroupHuntingStudy:
         if not self.share_radii:
             raise ValueError("share radii must list at least one catch_share_radius")
         for r in self.share_radii:
-            common.check_number("share radius", r, 0.0, 1e6)
-        common.check_number("hunt-radius", self.hunt_radius, 1e-3, 1e6)
-        common.check_number("world-size", self.world_size, 100.0, 1e6)
+            check_number("share radius", r, 0.0, 1e6)
+        check_number("hunt-radius", self.hunt_radius, 1e-3, 1e6)
+        check_number("world-size", self.world_size, 100.0, 1e6)
 
     def env(self, predators: int, share_radius: float, steps: int) -> dict:
         """The world's config fields (a predator never starves within an episode: one full episode per world)."""
@@ -255,9 +258,9 @@ def condition_label(condition: str, share_radius: float) -> str:
 def run_group_hunting(study: GroupHuntingStudy, command: str | None = None,
                       ray: RayOptions | None = None) -> dict:
     """Run every task (`study.jobs` at once), write the CSV, JSON and figure; return the JSON's content.
-    `command`: the command line recorded in the JSON (default: this process's, `common.command_line`).
-    `ray`: run each training run as a Ray task instead (`ray_tasks`); the JSON then has a "ray" entry."""
-    run = common.run_tasks(study, run_task, "group-hunting", ray)
+    `command`: the command line recorded in the JSON (default: this process's, `records.command_line`).
+    `ray`: run each training run as a Ray task instead (`jobs`); the JSON then has a "ray" entry."""
+    run = run_tasks(study, run_task, "group-hunting", ray)
     results = run.results
     rows = [{k: v for k, v in r.items() if k != "name"} for r in results]
     groups = common.group_rows(results, ("condition", "share_radius", "predators"))
@@ -265,6 +268,11 @@ def run_group_hunting(study: GroupHuntingStudy, command: str | None = None,
                 "metrics": {m: seed_stats([r[m] for r in rs]) for m in MEASURES}}
                for (c, radius, n), rs in groups.items()]
     summary = run.record("group-hunting", study, results, command)
+    summary["reward_differences"] = [
+        {"condition": c, "predators": n, "share_radius": radius, "minus_share_radius": 0.0,
+         "differences": compare(groups[(c, radius, n)], groups[(c, 0.0, n)], MEASURES)}
+        for c in study.prey_conditions for n in study.predators for radius in study.share_radii
+        if radius != 0 and 0 in study.share_radii]
     summary["definitions"] = {
         "captures_per_predator": f"captures per predator per episode of {study.eval_steps} steps "
                                  f"({study.eval_worlds} episodes per seed, deterministic policies)",
@@ -277,6 +285,9 @@ def run_group_hunting(study: GroupHuntingStudy, command: str | None = None,
         "pair_distance": "mean torus distance between live predators, px (capture steps / sampled states)",
         "cotrained": "prey and predators trained together (team both); evaluated against each other",
         "share_radius": "catch_share_radius in training and evaluation; 0: only the capturer(s) are rewarded",
+        "reward_differences": "per prey condition and team size, the shared reward (share_radius) minus the "
+                              "capturer alone (0): difference of the seed means with its 95% Welch interval "
+                              "(null with fewer than 2 seeds)",
     }
     summary["results"] = entries
     return common.write_outputs(study.out, "group_hunting", rows, summary,
@@ -316,3 +327,55 @@ def plot_group_hunting(summary: dict, out: str) -> str:
 
 
 __all__ = ["GroupHuntingStudy", "run_group_hunting", "encirclement", "pair_distances", "HuntMeasures"]
+
+
+# ---------------------------------------------------------------------------------------------- command line
+HELP = "learning predator teams of 1-4: does cooperative hunting emerge, and does the shared catch reward cause it?"
+DESCRIPTION = ("For every predator team size, prey condition (TurnAway prey, or prey co-trained with the predators) "
+               "and catch_share_radius (shared reward, or 0: the capturer alone), train --seeds runs and evaluate "
+               "them: captures per predator, joint captures, the predators' angular spread around the capture point "
+               "and their distances, at captures and at random times; NaivChase teams as the baseline. Writes "
+               "group_hunting.csv/json/png into --out.")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--predators", default="1,2,3,4", help="predator team sizes (list; default 1,2,3,4)")
+    p.add_argument("--prey", type=positive_int, default=6, help="prey per world, the same at every team size "
+                                                                "(default 6, the paper's)")
+    p.add_argument("--prey-conditions", default="turnaway,cotrained",
+                   help="comma list of 'turnaway' (predators learn against TurnAway) and 'cotrained' (both teams "
+                        "learn; team both)")
+    p.add_argument("--share-radius", default="100,0", help="catch_share_radius values, px (list; default 100,0: "
+                                                           "shared within 100 px, and the capturer alone)")
+    p.add_argument("--worlds", type=positive_int, default=1024, help="training worlds per run (default 1024)")
+    p.add_argument("--iterations", type=positive_int, default=100,
+                   help="PPO iterations per run, 32 steps each (default 100)")
+    p.add_argument("--train-steps", type=int_at_least(2), default=500, help="episode length in training (default 500)")
+    p.add_argument("--eval-worlds", type=positive_int, default=32, help="evaluation episodes per seed (default 32)")
+    p.add_argument("--eval-steps", type=int_at_least(2), default=1000,
+                   help="evaluation episode length (default 1000)")
+    p.add_argument("--hunt-radius", type=positive_float, default=200.0,
+                   help="px; predators this close to a capture take part in it (default 200, the predator's view)")
+    p.add_argument("--sample-every", type=positive_int, default=10,
+                   help="steps between the random-time states of the baselines (default 10)")
+    p.add_argument("--no-baseline", action="store_true", help="no NaivChase teams")
+    common.add_common_arguments(p, "group_hunting")
+    add_ray_arguments(p, "training run (with its evaluations) or NaivChase baseline")
+
+
+def run(args: argparse.Namespace) -> int:
+    """`aquarium-warp study group-hunting`: learning predator teams, with and without shared catch rewards."""
+    study = GroupHuntingStudy(
+        predators=number_list(args.predators, int, "--predators", 1, 64),
+        prey=args.prey, prey_conditions=[c.strip() for c in args.prey_conditions.split(",") if c.strip()],
+        share_radii=number_list(args.share_radius, float, "--share-radius", 0.0, 1e6), seeds=args.seeds,
+        worlds=args.worlds, iterations=args.iterations, train_steps=args.train_steps, eval_worlds=args.eval_worlds,
+        eval_steps=args.eval_steps, hunt_radius=args.hunt_radius, sample_every=args.sample_every,
+        baseline=not args.no_baseline, device=args.device, jobs=args.jobs, out=args.out, figures=not args.no_figures)
+    print(f"aquarium-warp study group-hunting: predators {study.predators}, {study.prey} prey "
+          f"({', '.join(study.prey_conditions)}), catch_share_radius {study.share_radii}, {study.seeds} seeds -> "
+          f"{study.out}")
+    check_output_dir(study.out, "--out")
+    summary = run_group_hunting(study, command_line(args.argv), ray_options(args))
+    print(f"{common.written(summary)} ({summary['training_fraction']:.0%} of the workers' time training)")
+    return 0

@@ -38,6 +38,7 @@ task's result in `finished/` (a rerun of the same command keeps them and runs on
 
 from __future__ import annotations
 
+import argparse
 import math
 import os
 import time
@@ -47,13 +48,24 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..number_lists import check_distinct
-from ..ray_tasks import RayOptions
+from ..arguments import (
+    check_distinct,
+    check_int,
+    check_number,
+    int_at_least,
+    non_negative_float,
+    number_list,
+    positive_float,
+    positive_int,
+)
+from ..atomic import check_output_dir
+from ..records import command_line
 from ..rollout import StepView
 from ..seeding import evaluation_seed
-from ..study import seed_stats
 from ..training.config import env_config
 from . import common
+from .jobs import RayOptions, add_ray_arguments, ray_options, run_tasks
+from .statistics import compare, seed_stats
 
 PREDATORS = ("naivchase", "naivchase-noconfusion")
 MEASURES = ("captures_per_prey", "fid", "blind_fraction", "onsets_per_prey")
@@ -88,17 +100,17 @@ class ManyEyesStudy:
         check_distinct("--group-sizes", self.group_sizes)
         check_distinct("--fov", self.fov_angles)
         for n in self.group_sizes:
-            common.check_int("group size", n)
+            check_int("group size", n)
         for fov in self.fov_angles:
-            common.check_number("FOV angle (degrees)", fov, 1e-3, 360.0)
+            check_number("FOV angle (degrees)", fov, 1e-3, 360.0)
         for name in ("seeds", "rows", "iterations", "train_steps", "eval_rows", "eval_steps", "lag"):
-            common.check_int(name.replace("_", "-"), getattr(self, name))
+            check_int(name.replace("_", "-"), getattr(self, name))
         if self.eval_steps <= self.lag + 1:
             raise ValueError(f"eval-steps={self.eval_steps} must exceed lag + 1 = {self.lag + 1}")
-        common.check_number("view-distance", self.view_distance, 1e-3, 1e6)
-        common.check_number("flee-angle", self.flee_angle, 0.0, 180.0)
-        common.check_number("turn-angle", self.turn_angle, 0.0, 180.0)
-        common.check_number("flee-distance", self.flee_distance, 1e-3, 1e6)
+        check_number("view-distance", self.view_distance, 1e-3, 1e6)
+        check_number("flee-angle", self.flee_angle, 0.0, 180.0)
+        check_number("turn-angle", self.turn_angle, 0.0, 180.0)
+        check_number("flee-distance", self.flee_distance, 1e-3, 1e6)
 
     def env(self, n: int, fov: float, steps: int) -> dict:
         """The world's config fields (a predator never starves within an episode: one full episode per world)."""
@@ -217,9 +229,9 @@ def run_task(task: dict) -> list[dict]:
 def run_many_eyes(study: ManyEyesStudy, command: str | None = None,
                   ray: RayOptions | None = None) -> dict:
     """Run every task (`study.jobs` at once), write the CSV, JSON and figure; return the JSON's content.
-    `command`: the command line recorded in the JSON (default: this process's, `common.command_line`).
-    `ray`: run each training run as a Ray task instead (`ray_tasks`); the JSON then has a "ray" entry."""
-    run = common.run_tasks(study, _task_rows, "many-eyes", ray)
+    `command`: the command line recorded in the JSON (default: this process's, `records.command_line`).
+    `ray`: run each training run as a Ray task instead (`jobs`); the JSON then has a "ray" entry."""
+    run = run_tasks(study, _task_rows, "many-eyes", ray)
     results = [row for rows in run.results for row in rows["rows"]]
     groups = common.group_rows(results, ("policy", "predator", "fov_angle", "group_size"))
     entries = [{"policy": p, "predator": pred, "fov_angle": fov, "group_size": n,
@@ -236,6 +248,10 @@ def run_many_eyes(study: ManyEyesStudy, command: str | None = None,
             for e, x in zip(curve, expected):
                 e.setdefault("dilution_expectation", {})[key] = float(x)
     summary = run.record("many-eyes", study, results, command)
+    summary["learned_minus_turnaway"] = [
+        {"predator": pred, "fov_angle": fov, "group_size": n,
+         "differences": compare(rs, groups[("turnaway", pred, fov, n)], MEASURES)}
+        for (p, pred, fov, n), rs in sorted(groups.items()) if p == "learned" and study.turnaway]
     summary["definitions"] = {
         "captures_per_prey": f"captures per prey per episode of {study.eval_steps} steps",
         "dilution_expectation": "c(N0) * N0 / N, N0 the smallest group size: each prey's share of the smallest "
@@ -253,13 +269,15 @@ def run_many_eyes(study: ManyEyesStudy, command: str | None = None,
                            f"({study.rows} // N worlds): the same prey-steps at every N",
         "policies": "learned: trained prey (parameter sharing) vs NaivChase; turnaway: the heuristic",
         "predator": "naivchase: a random visible prey each step (confusion); naivchase-noconfusion: the nearest",
+        "learned_minus_turnaway": "learned prey minus TurnAway at each predator, FOV and N: difference of the "
+                                  "seed means with its 95% Welch interval (null with fewer than 2 seeds)",
     }
     summary["results"] = entries
     return common.write_outputs(study.out, "many_eyes", results, summary, plot_many_eyes if study.figures else None)
 
 
 def _task_rows(task: dict) -> dict:
-    """`run_task` for `common.run_jobs` (whose jobs return a dict each)."""
+    """`run_task` for `jobs.run_tasks` (whose tasks return a dict each)."""
     return {"name": task["name"], "rows": run_task(task)}
 
 
@@ -300,3 +318,54 @@ def plot_many_eyes(summary: dict, out: str) -> str:
 
 
 __all__ = ["ManyEyesStudy", "run_many_eyes", "FlightOnsets", "dilution_expectation"]
+
+
+# ---------------------------------------------------------------------------------------------- command line
+HELP = "learned prey groups of 1-64 with FOVs 60-360: dilution vs earlier detection"
+DESCRIPTION = ("For every prey group size and FOV angle, train --seeds prey runs (parameter sharing) against NaivChase "
+               "with the same prey-steps per run (--rows // N worlds) and evaluate them against NaivChase with and "
+               "without confusion: captures per prey next to the pure-dilution expectation, flight initiation "
+               "distance and the fraction of flight onsets with the predator out of the prey's own view; TurnAway "
+               "prey as the reference. Writes many_eyes.csv/json/png.")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--group-sizes", default="1,4,16,64", help="prey per world (list; default 1,4,16,64)")
+    p.add_argument("--fov", default="60,120,240,360", help="prey field-of-view angles, degrees in (0, 360] (list)")
+    p.add_argument("--rows", type=positive_int, default=4096,
+                   help="learning prey per iteration: --rows // N worlds of N prey (default 4096)")
+    p.add_argument("--iterations", type=positive_int, default=120,
+                   help="PPO iterations per run, 32 steps each (default 120)")
+    p.add_argument("--train-steps", type=int_at_least(2), default=500, help="episode length in training (default 500)")
+    p.add_argument("--eval-rows", type=positive_int, default=512,
+                   help="evaluation prey per seed: --eval-rows // N worlds, at least 2 (default 512)")
+    p.add_argument("--eval-steps", type=int_at_least(2), default=1000,
+                   help="evaluation episode length (default 1000)")
+    p.add_argument("--view-distance", type=positive_float, default=100.0, help="prey view distance, px (default 100)")
+    p.add_argument("--flee-angle", type=non_negative_float, default=45.0,
+                   help="degrees: fleeing = velocity within this of straight away from the predator (default 45)")
+    p.add_argument("--flee-distance", type=positive_float, default=200.0,
+                   help="px: fleeing needs the nearest predator this close (default 200)")
+    p.add_argument("--turn-angle", type=non_negative_float, default=30.0,
+                   help="degrees the prey must turn over --lag steps for a flight onset (default 30)")
+    p.add_argument("--lag", type=positive_int, default=5, help="steps of a flight onset's turn (default 5)")
+    p.add_argument("--no-turnaway", action="store_true", help="no TurnAway reference")
+    common.add_common_arguments(p, "many_eyes")
+    add_ray_arguments(p, "training run (with its evaluations)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """`aquarium-warp study many-eyes`: learned prey groups, dilution vs detection."""
+    study = ManyEyesStudy(
+        group_sizes=number_list(args.group_sizes, int, "--group-sizes", 1, 4096),
+        fov_angles=number_list(args.fov, float, "--fov", 0.0, 360.0, low_open=True), seeds=args.seeds,
+        rows=args.rows, iterations=args.iterations, train_steps=args.train_steps, eval_rows=args.eval_rows,
+        eval_steps=args.eval_steps, view_distance=args.view_distance, flee_angle=args.flee_angle,
+        flee_distance=args.flee_distance, turn_angle=args.turn_angle, lag=args.lag, turnaway=not args.no_turnaway,
+        device=args.device, jobs=args.jobs, out=args.out, figures=not args.no_figures)
+    print(f"aquarium-warp study many-eyes: group sizes {study.group_sizes} x FOV {study.fov_angles}, "
+          f"{study.seeds} seeds -> {study.out}")
+    check_output_dir(study.out, "--out")
+    summary = run_many_eyes(study, command_line(args.argv), ray_options(args))
+    print(f"{common.written(summary)} ({summary['training_fraction']:.0%} of the workers' time training)")
+    return 0

@@ -46,7 +46,7 @@ def _fps(text: str) -> float:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from ..cli import non_negative_int, positive_float
+    from ..arguments import non_negative_int, positive_float
 
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1: this machine "
                                                        "only; reach it through an SSH tunnel)")

@@ -1,4 +1,4 @@
-"""The figures of the swarm-size study (`aquarium_warp.study`), drawn from its `swarm_size.json`
+"""The figures of the swarm-size study (`aquarium_warp.studies.swarm_size`), drawn from its `swarm_size.json`
 summary alone: captures (dilution), polarization and groups, spacing, nearest-neighbour
 distributions and, when populations change, the populations over an episode; of the FOV x
 view-distance study (`fov_view.json`), a heatmap of captures per prey."""
@@ -9,7 +9,7 @@ import os
 
 import numpy as np
 
-from .atomic import write_figure
+from ..atomic import write_figure
 
 
 def _curves(summary: dict) -> list[tuple[str | None, list[dict]]]:

@@ -17,51 +17,61 @@ for bit). `aquarium-warp study fov-view` is this study with one prey count over 
 distance (`kind="fov-view"`: `fov_view.csv/json` and a heatmap), in one batch by default.
 
 Outputs in `out`: `swarm_size.csv` (one row per setting and seed), `swarm_size.json` (the
-configuration, the machine, timings, per-setting means/std/sem over seeds, nearest-neighbour
-distributions, population traces when populations change) and PNG figures (`aquarium_warp.study_plots`):
-`captures_vs_size.png` (dilution), `polarization_groups_vs_size.png`, `spacing_vs_size.png`,
-`nn_distribution.png` and, with population dynamics, `population.png`.
+configuration, the machine, timings, per-setting means/std/sem/95% intervals over seeds,
+nearest-neighbour distributions, population traces when populations change) and PNG figures
+(`aquarium_warp.studies.swarm_size_plots`): `captures_vs_size.png` (dilution),
+`polarization_groups_vs_size.png`, `spacing_vs_size.png`, `nn_distribution.png` and, with population
+dynamics, `population.png`.
 
 ```python
-from aquarium_warp.study import SwarmSizeStudy, run_swarm_size_study
+from aquarium_warp.studies.swarm_size import SwarmSizeStudy, run_swarm_size_study
 results = run_swarm_size_study(SwarmSizeStudy(prey=[4, 8, 16], seeds=2, episode_steps=200, out="out"))
 ```
 
-With `ray=RayOptions(...)` (`aquarium_warp.ray_tasks`; `--ray` on the command line) every setting is a
-Ray task calling the same `run_setting`, and the files are the same.
+Each setting is a task of the studies' job runner (`aquarium_warp.studies.jobs`): here on threads
+(`jobs`), or with `ray=RayOptions(...)` (`--ray` on the command line) as Ray tasks calling the same
+`run_setting`; the files are the same. Finished settings are kept in `out/finished/` until the JSON is
+written: a rerun after an interruption runs only the others.
 """
 
 from __future__ import annotations
 
-import csv
+import argparse
 import dataclasses
 import json
 import math
 import os
-import platform
 import shutil
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
-import numpy as np
 import torch
 
-from .atomic import atomic_open
-from .bench.machine import git_info, machine_info
-from .config import AquariumConfig
-from .drivers import check_spec, is_heuristic, make_driver
-from .env import BatchedAquarium, resolve_device
-from .json_records import json_safe
-from .metrics import EPISODE_METRICS, EpisodeMetrics, SwarmMetrics
-from .number_lists import check_distinct
-from .number_lists import parse_list as parse_list  # re-exported: the study's list options use it
-from .pretrained import is_policy_file
-from .ray_tasks import RayOptions, placement, run_tasks
-from .rollout import Observer, Progress, rollout
-from .seeding import baseline_seed
-from .study_plots import plot_study
+from ..arguments import check_distinct, check_int, non_negative_int, parse_list, positive_int
+from ..atomic import atomic_open, check_output_dir
+from ..config import AquariumConfig
+from ..drivers import check_spec, is_heuristic, make_driver
+from ..env import BatchedAquarium, resolve_device
+from ..metrics import EPISODE_METRICS, EpisodeMetrics, SwarmMetrics
+from ..pretrained import is_policy_file
+from ..records import command_line, git_info, json_safe, machine_info
+from ..rollout import Observer, Progress, rollout
+from ..seeding import baseline_seed
+from .common import write_csv
+from .jobs import (
+    FINISHED_DIR,
+    RayOptions,
+    add_ray_arguments,
+    placement,
+    ray_options,
+    resolve_jobs,
+    run_jobs,
+    run_ray_tasks,
+    warm_up,
+)
+from .statistics import seed_stats
+from .swarm_size_plots import plot_study
 
 # Per-seed columns of the CSV, in order.
 RESULT_METRICS = ("captures", "captures_per_prey") + EPISODE_METRICS + ("episode_length",)
@@ -122,18 +132,14 @@ class SwarmSizeStudy:
         return self.kind.replace("-", "_")
 
     def validate(self) -> None:
-        def positive_int(name, value):
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name}={value!r} must be an integer >= 1")
-
         if not self.prey:
             raise ValueError("prey must list at least one prey count")
         for n in self.prey:
-            positive_int("prey count", n)
+            check_int("prey count", n)
         for name in ("seeds", "episodes_per_seed", "episode_steps", "predators", "metrics_every", "reference_prey"):
-            positive_int(name.replace("_", "-"), getattr(self, name))
+            check_int(name.replace("_", "-"), getattr(self, name))
         if self.jobs is not None:
-            positive_int("jobs", self.jobs)
+            check_int("jobs", self.jobs)
         for name in ("fov_angles", "view_distances"):
             values = getattr(self, name)
             if values is not None and not values:
@@ -200,8 +206,8 @@ class SwarmSizeStudy:
 def trained_policy_world(path: str) -> AquariumConfig:
     """The world the policy file at `path` was trained in (from its metadata)."""
     try:  # the training extra is optional
-        from .training.config import env_config
-        from .training.export import policy_world
+        from ..training.config import env_config
+        from ..training.export import policy_world
     except ImportError as error:
         raise ValueError(f"trained policies need aquarium_warp.training (importing it failed: {error})") from error
     return env_config({"env": policy_world(path)})
@@ -291,9 +297,7 @@ def _run_one_batch(study: SwarmSizeStudy, settings: list[dict], device: str, adv
     block = study.seeds * study.episodes_per_seed
     batch = _run_batch(study, one_batch_config(study, settings), block * len(settings), device,
                        progress=lambda n: advance(n * len(settings), "one batch"))
-    return {i: _setting_result(study, batch, i * block, f"N={s['prey']} fov={s['fov_angle']:g} "
-                                                         f"view={s['view_distance']:g}")
-            for i, s in enumerate(settings)}
+    return {i: _setting_result(study, batch, i * block, _label(s)) for i, s in enumerate(settings)}
 
 
 BASELINE_METRICS = ("polarization", "cohesion", "nn_mean", "groups", "largest_group", "predator_distance")
@@ -334,60 +338,6 @@ def add_uniform_baselines(summary: dict, study: SwarmSizeStudy, device: str) -> 
         entry["uniform_baseline"] = cache[key]
 
 
-def _warm_up(study: SwarmSizeStudy, device: str) -> None:
-    """Load every kernel module once before settings run on parallel threads."""
-    cfg = study.settings()[0]["config"].replace(prey_count=2, max_steps=2)
-    if cfg.prey_reproduction:
-        cfg = cfg.replace(max_prey=4)
-    env = BatchedAquarium(cfg, num_worlds=1, device=device, seed=0)
-    prey = make_driver(study.prey_policy, env, "prey", confusion=study.confusion)
-    predator = make_driver(study.predator_policy, env, "predator", confusion=study.confusion)
-    metrics = SwarmMetrics(env, linking_distance=study.linking_distance)
-    metrics.compute()
-    env.step({"prey": prey(), "predator": predator()}, validate=False)
-    env.close()
-
-
-def seed_stats(values) -> dict:
-    """Mean, std, s.e.m. and n over seeds (NaN seeds left out) and the per-seed values."""
-    v = np.asarray(values, dtype=np.float64)
-    ok = v[~np.isnan(v)]
-    n = len(ok)
-    mean = float(ok.mean()) if n else math.nan
-    std = float(ok.std(ddof=1)) if n > 1 else (0.0 if n == 1 else math.nan)
-    return {"mean": mean, "std": std, "sem": std / math.sqrt(n) if n > 1 else math.nan, "n": n,
-            "seeds": [None if math.isnan(x) else float(x) for x in v]}
-
-
-def _run_here(study: SwarmSizeStudy, settings: list[dict], device: str, advance) -> tuple[dict[int, dict], int]:
-    """`run_setting` of every setting on this machine: on the CPU several at once on threads (`study.jobs`),
-    on a GPU one after another. Returns the results by setting index and the number of threads."""
-    import warp as wp
-
-    on_gpu = wp.get_device(device).is_cuda
-    # On a GPU settings run one after another: the batch already fills the device, and a CUDA graph
-    # being captured in one thread must not see another thread's launches.
-    jobs = 1 if on_gpu else (study.jobs if study.jobs is not None else (os.cpu_count() or 1))
-    jobs = max(1, min(jobs, len(settings)))
-    _warm_up(study, device)
-
-    def job(index: int) -> dict:
-        s = settings[index]
-        label = f"N={s['prey']} fov={s['fov_angle']:g} view={s['view_distance']:g}"
-        return run_setting(study, s, device, progress=lambda n: advance(n, label))
-
-    order = _largest_first(settings)
-    results: dict[int, dict] = {}
-    if jobs == 1:
-        for i in order:
-            results[i] = job(i)
-    else:
-        with ThreadPoolExecutor(max_workers=jobs) as pool:
-            for i, r in zip(order, pool.map(job, order)):
-                results[i] = r
-    return results, jobs
-
-
 def _largest_first(settings: list[dict]) -> list[int]:
     """Setting indices, largest worlds first, so that settings run side by side (threads, Ray tasks) finish
     together."""
@@ -395,18 +345,29 @@ def _largest_first(settings: list[dict]) -> list[int]:
 
 
 # --------------------------------------------------------------------------------------------------
-# Ray: one task per setting
+# One task per setting (`jobs.run_jobs`: on threads here, or as Ray tasks)
 # --------------------------------------------------------------------------------------------------
-# Settings finished on Ray, one JSON file each, kept in the study's `out` until swarm_size.json is
-# written: a rerun of the same study skips them (after the driver died, say).
-KEPT_DIR = "ray_settings"
+def setting_tasks(study: SwarmSizeStudy, settings: list[dict], device: str) -> list[dict]:
+    """One task per setting, largest worlds first: its prey count, FOV angle and view distance (the
+    setting of `study.settings()` it runs), its seed count and device."""
+    return [{"name": f"prey{s['prey']}_fov{s['fov_angle']:g}_view{s['view_distance']:g}", "prey": s["prey"],
+             "fov_angle": s["fov_angle"], "view_distance": s["view_distance"], "seeds": study.seeds,
+             "device": device, "study": study} for s in (settings[i] for i in _largest_first(settings))]
 
 
-def _setting_on_worker(study: SwarmSizeStudy, setting: dict, device: str) -> dict:
-    """A Ray task: `run_setting` on the worker's `device`, with the worker's machine and host name."""
-    result = run_setting(study, setting, device)
-    result["machine"] = machine_info(device)
-    result["node"] = platform.node()
+def run_setting_task(task: dict, progress=None) -> dict:
+    """`run_setting` of a task of `setting_tasks`."""
+    study: SwarmSizeStudy = task["study"]
+    setting = next(s for s in study.settings()
+                   if (s["prey"], s["fov_angle"], s["view_distance"]) ==
+                   (task["prey"], task["fov_angle"], task["view_distance"]))
+    return run_setting(study, setting, task["device"], progress)
+
+
+def _setting_on_worker(task: dict) -> dict:
+    """A Ray task: `run_setting_task` on the worker's device, with the worker's machine."""
+    result = run_setting_task(task)
+    result["machine"] = machine_info(task["device"])
     return result
 
 
@@ -416,65 +377,46 @@ def _baselines_on_worker(summary: dict, study: SwarmSizeStudy, device: str) -> d
     return summary
 
 
-def _kept_path(study: SwarmSizeStudy, setting: dict) -> str:
-    name = f"prey{setting['prey']}_fov{setting['fov_angle']:g}_view{setting['view_distance']:g}.json"
-    return os.path.join(study.out, KEPT_DIR, name)
+def _run_settings(study: SwarmSizeStudy, settings: list[dict], device: str, ray: RayOptions | None,
+                  advance) -> tuple[dict[int, dict], int | None, dict | None]:
+    """Every setting a task of `jobs.run_jobs`: here on threads (`study.jobs`: on the CPU several at once,
+    on a GPU one after another), or with `ray` as Ray tasks. Returns the results by setting index, the
+    threads (None on Ray) and, on Ray, the run's record."""
+    tasks = setting_tasks(study, settings, device)
+
+    def finished(k: int, result: dict, kept: bool) -> None:
+        if ray is not None or kept:  # here, run_setting's progress advances the bar as the steps run
+            advance(study.episode_steps, f"N={tasks[k]['prey']} {'kept' if kept else 'done'}")
+
+    if ray is None:
+        threads = min(resolve_jobs(study.jobs, device, threads=True), len(settings))
+        run = run_jobs(lambda task: run_setting_task(task, progress=lambda n: advance(n, _label(task))), tasks,
+                       study.out, jobs=threads, threads=True, device=device, label=study.kind, on_result=finished,
+                       report=None, prepare=lambda: warm_up(device, settings[0]["config"], study.prey_policy,
+                                                            study.predator_policy, study.confusion,
+                                                            study.linking_distance))
+        return _by_setting(settings, tasks, run.results), threads, None
+    run = run_jobs(_setting_on_worker, tasks, study.out, device=device, ray=ray, label=study.kind, on_result=finished,
+                   report=None)
+    return _by_setting(settings, tasks, run.results), None, dict(ray.record(device), settings_kept=run.kept,
+                                                                 nodes=run.nodes)
 
 
-def _kept_key(study: SwarmSizeStudy, device: str) -> dict:
-    """What a kept result must have been run with: the study's settings (not where it writes) and device."""
-    config = {k: v for k, v in dataclasses.asdict(study).items() if k not in ("out", "jobs", "figures", "device")}
-    return json.loads(json.dumps({"study": config, "device": device}))  # as read back from a file
+def _by_setting(settings: list[dict], tasks: list[dict], results: list) -> dict[int, dict]:
+    """The results of `setting_tasks`' tasks by the index of their setting in `settings`."""
+    index = {(s["prey"], s["fov_angle"], s["view_distance"]): i for i, s in enumerate(settings)}
+    return {index[(t["prey"], t["fov_angle"], t["view_distance"])]: r for t, r in zip(tasks, results)}
 
 
-def _arrays_as_lists(value):
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, dict):
-        return {k: _arrays_as_lists(v) for k, v in value.items()}
-    return value
-
-
-def _run_on_ray(study: SwarmSizeStudy, settings: list[dict], ray: RayOptions, device: str,
-                advance) -> tuple[dict[int, dict], dict]:
-    """`run_setting` of every setting as a Ray task (`ray` placed, on `device`), kept settings
-    skipped. Returns the results by setting index and the record of the run for swarm_size.json."""
-    key = _kept_key(study, device)
-    results: dict[int, dict] = {}
-    for i, s in enumerate(settings):
-        path = _kept_path(study, s)
-        if os.path.isfile(path):
-            with open(path, encoding="utf-8") as f:
-                kept = json.load(f)
-            if kept["key"] == key:
-                results[i] = kept["result"]
-                advance(study.episode_steps, f"N={s['prey']} kept")
-    kept_count = len(results)
-    todo = [i for i in _largest_first(settings) if i not in results]
-    os.makedirs(os.path.join(study.out, KEPT_DIR), exist_ok=True)
-
-    def finished(k: int, result: dict) -> None:
-        i = todo[k]
-        # JSON writes a float's shortest repr, which reads back as the same float: kept equals fresh.
-        with atomic_open(_kept_path(study, settings[i])) as f:
-            json.dump({"key": key, "result": _arrays_as_lists(result)}, f)
-        results[i] = result
-        advance(study.episode_steps, f"N={settings[i]['prey']} done")
-
-    run_tasks(_setting_on_worker, [(study, settings[i], device) for i in todo], ray, on_result=finished)
-    record = {"address": ray.address, "gpus_per_task": ray.gpus_per_task, "cpus_per_task": ray.cpus_per_task,
-              "max_retries": ray.max_retries, "device": device, "settings_kept": kept_count,
-              "nodes": sorted({results[i]["node"] for i in results})}
-    return results, record
+def _label(setting: dict) -> str:
+    return f"N={setting['prey']} fov={setting['fov_angle']:g} view={setting['view_distance']:g}"
 
 
 def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayOptions | None = None,
                          command: str | None = None) -> dict:
     """Run every setting of `study`, write the CSV, JSON and figures into `study.out`, and return the
-    JSON's content. `ray`: run each setting as a Ray task (`_run_on_ray`) instead of on this machine.
+    JSON's content. `ray`: run each setting as a Ray task (`_run_settings`) instead of on this machine.
     `command`: the command recorded in the JSON (default: this process's, as `aquarium-warp ...`)."""
-    from .studies.common import command_line  # here: aquarium_warp.studies imports this module
-
     study.validate()
     if study.one_batch and ray is not None:
         raise ValueError("one batch runs on this machine: not with Ray (whose tasks are settings)")
@@ -500,15 +442,15 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayO
     try:
         if ray is None:
             device = resolve_device(study.device)
-            if study.one_batch:
-                results, jobs = _run_one_batch(study, settings, device, advance), 1
-            else:
-                results, jobs = _run_here(study, settings, device, advance)
-            machine = machine_info(device)
         else:
             ray, device = placement(ray, study.device)
-            results, ray_record = _run_on_ray(study, settings, ray, device, advance)
-            jobs, machine = None, results[0]["machine"]
+        jobs: int | None
+        if study.one_batch:
+            results, jobs, ray_record = _run_one_batch(study, settings, device, advance), 1, None
+        else:
+            results, jobs, ray_record = _run_settings(study, settings, device, ray, advance)
+        # On Ray, a worker's machine (every setting kept from a run here: this one, which ran them)
+        machine = next((r["machine"] for r in results.values() if "machine" in r), None) or machine_info(device)
     finally:
         if bar is not None:
             bar.close()
@@ -552,7 +494,7 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayO
                                "(aquarium_warp.metrics), then over the seed's episodes",
             "predator_distance": "mean over live prey of the torus distance to the nearest live predator, px",
             "groups": "connected components of prey closer than linking_distance px",
-            "spread": "std and sem over seeds",
+            "spread": "std and sem over seeds; ci95: half-width of the 95% Student-t interval of the mean",
             "wall_s": "per setting, the wall time of the batch it ran in (with one batch, shared by every setting)",
             "uniform_baseline": UNIFORM_BASELINE_DEFINITION,
         },
@@ -567,12 +509,12 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayO
         add_uniform_baselines(summary, study, device)
     else:
         summary["ray"] = ray_record
-        summary = run_tasks(_baselines_on_worker, [(summary, study, device)], ray)[0]
+        summary = run_ray_tasks(_baselines_on_worker, [(summary, study, device)], ray)[0]
     write_csv(os.path.join(study.out, f"{study.basename}.csv"), rows)
     with atomic_open(os.path.join(study.out, f"{study.basename}.json")) as f:
         json.dump(json_safe(summary), f, indent=1)
-    if ray is not None:  # swarm_size.json now holds every setting
-        shutil.rmtree(os.path.join(study.out, KEPT_DIR), ignore_errors=True)
+    # swarm_size.json now holds every setting
+    shutil.rmtree(os.path.join(study.out, FINISHED_DIR), ignore_errors=True)
     if study.figures:
         summary["figures"] = plot_study(summary, study.out)
     return summary
@@ -604,9 +546,95 @@ def replot_study(out: str, device=None) -> dict:
     return summary
 
 
-def write_csv(path: str, rows: list[dict]) -> None:
-    with atomic_open(path, newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        for row in rows:
-            writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
+
+
+# --------------------------------------------------------------------------------------------------
+# Command line: `aquarium-warp study swarm-size` (and the options `study fov-view` shares)
+# --------------------------------------------------------------------------------------------------
+HELP = "captures per prey (dilution), polarization and groups vs prey count"
+DESCRIPTION = ("Run every prey count and seed as batched worlds, one episode each, and write swarm_size.csv/json "
+               "and figures into --out.")
+
+
+def add_run_arguments(p: argparse.ArgumentParser, out: str) -> None:
+    """The options of both swarm-size subcommands (`run_settings` reads them)."""
+    p.add_argument("--seeds", type=int, default=5, help="independent runs per setting (default 5)")
+    p.add_argument("--episodes-per-seed", type=int, default=1, help="episodes per seed, run as more worlds")
+    p.add_argument("--episode-steps", type=int, default=3000, help="steps per episode (default 3000, the paper's)")
+    p.add_argument("--prey-policy", default="turnaway", help="'turnaway', 'random' or a trained policy file")
+    p.add_argument("--predator-policy", default="naivchase", help="'naivchase', 'random' or a trained policy file")
+    p.add_argument("--no-confusion", action="store_true", help="NaivChase chases the nearest visible prey "
+                   "instead of a random one each step")
+    p.add_argument("--predators", type=int, default=1, help="predators per world (default 1)")
+    p.add_argument("--world-size", default="800x800", help="arena WIDTHxHEIGHT px (default 800x800)")
+    p.add_argument("--linking-distance", type=float, default=None,
+                   help="px; prey closer than this form one group (default 2.5 prey radii = 50)")
+    p.add_argument("--metrics-every", type=int, default=10, help="sample the swarm metrics every K steps")
+    p.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
+    p.add_argument("--seed", type=non_negative_int, default=0,
+                   help="seed of the batched worlds (the --seeds runs are worlds of one env)")
+    p.add_argument("--jobs", type=positive_int, default=None,
+                   help="settings run at once in threads, one batch per setting (default: CPU cores on the CPU, "
+                        "1 on a GPU)")
+    p.add_argument("--out", default=out, help=f"output directory (default {out})")
+    p.add_argument("--no-figures", action="store_true", help="write CSV/JSON only, no figures")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def run_settings(args: argparse.Namespace) -> dict:
+    """The `SwarmSizeStudy` settings of `add_run_arguments`' options."""
+    return dict(seeds=args.seeds, episodes_per_seed=args.episodes_per_seed, episode_steps=args.episode_steps,
+                prey_policy=args.prey_policy, predator_policy=args.predator_policy, confusion=not args.no_confusion,
+                predators=args.predators, world_size=parse_world_size(args.world_size),
+                linking_distance=args.linking_distance, metrics_every=args.metrics_every, device=args.device,
+                seed=args.seed, jobs=args.jobs, out=args.out, figures=not args.no_figures)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--prey", default="4,8,...,4096",
+                   help="prey counts: a comma list; '...' continues the progression (default 4,8,...,4096)")
+    p.add_argument("--fov-angle", default=None, help="prey field-of-view angles to sweep, degrees (list; default 120)")
+    p.add_argument("--view-distance", default=None, help="prey view distances to sweep, px (list; default 100)")
+    p.add_argument("--constant-density", action="store_true", help="scale the arena with N instead of a fixed "
+                   "--world-size, keeping the density of --reference-prey prey in --world-size")
+    p.add_argument("--reference-prey", type=int, default=16,
+                   help="with --constant-density: the prey count that --world-size is sized for (default 16)")
+    p.add_argument("--no-respawn", action="store_true", help="captured prey are removed (populations shrink)")
+    p.add_argument("--reproduction", action="store_true", help="prey reproduce (up to 2 N)")
+    p.add_argument("--starvation-steps", type=int, default=None, help="predator starvation limit (default 3000)")
+    p.add_argument("--one-batch", action="store_true", help="every setting in one batch (per-world prey counts; "
+                   "every world has the slots of the largest count) instead of one batch per setting")
+    add_run_arguments(p, "swarm_size")
+    p.add_argument("--replot", action="store_true", help="only redraw the figures from --out's swarm_size.json")
+    add_ray_arguments(p, "setting (prey count, FOV angle and view distance)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """`aquarium-warp study swarm-size`: captures, polarization and groups vs the number of prey."""
+    if args.replot:
+        summary = replot_study(args.out, device=args.device)
+        print(f"redrew {len(summary['figures'])} figures in {args.out} from swarm_size.json")
+        return 0
+    ray = ray_options(args)
+    if ray is not None and args.jobs is not None:
+        raise ValueError("--jobs sets the threads of a run on this machine; with --ray each setting is a task "
+                         "(--cpus-per-task, --gpus-per-task)")
+    if ray is not None and args.one_batch:
+        raise ValueError("--one-batch runs every setting in one batch on this machine: not with --ray")
+    study = SwarmSizeStudy(
+        prey=[int(n) for n in parse_list(args.prey, int, "--prey")],
+        fov_angles=parse_list(args.fov_angle, float, "--fov-angle") if args.fov_angle else None,
+        view_distances=parse_list(args.view_distance, float, "--view-distance") if args.view_distance else None,
+        constant_density=args.constant_density, reference_prey=args.reference_prey, respawn=not args.no_respawn,
+        reproduction=args.reproduction, starvation_steps=args.starvation_steps, one_batch=args.one_batch,
+        **run_settings(args))
+    print(f"aquarium-warp study swarm-size: prey {study.prey}, {study.seeds} seeds x {study.episodes_per_seed} "
+          f"episode(s) of {study.episode_steps} steps, {study.prey_policy} vs {study.predator_policy} -> {study.out}")
+    check_output_dir(study.out, "--out")
+    summary = run_swarm_size_study(study, progress=not args.no_progress, ray=ray, command=command_line(args.argv))
+    where = summary["machine"]["device_name"]
+    if ray is not None:
+        where = f"Ray ({len(summary['ray']['nodes'])} machine(s), {summary['ray']['settings_kept']} setting(s) kept)"
+    print(f"wrote {os.path.join(study.out, 'swarm_size.csv')}, swarm_size.json and {len(summary.get('figures', []))} "
+          f"figures in {summary['wall_time_s']:.1f} s on {where} ({summary['path']})")
+    return 0

@@ -1,5 +1,8 @@
-"""Comma lists of numbers with `...` progressions: the one parser of every list option
-(`aquarium-warp bench --agents`, `aquarium-warp study swarm-size --prey`, the benchmark scripts).
+"""Arguments: the argparse types, number lists and range checks of every command line and settings
+dataclass (`aquarium-warp ...`, the studies, training, the benchmark suite and scripts). Errors name the
+option or parameter and the allowed range in one line.
+
+Comma lists of numbers with `...` progressions (`parse_list`):
 
     parse_list("4,8,16")                                  -> [4.0, 8.0, 16.0]
     parse_list("4,8,...,64", int)                         -> [4, 8, 16, 32, 64]
@@ -9,9 +12,64 @@
 
 from __future__ import annotations
 
+import argparse
 import math
 from collections.abc import Callable, Sequence
 from typing import Literal
+
+
+# ---------------------------------------------------------------------------------------------- argparse types
+def number(allowed: str, ok: Callable[[float], bool]) -> Callable[[str], float]:
+    """argparse type: a float for which `ok(value)` holds (NaN never does); `allowed` names the range."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"invalid value {text!r}: must be {allowed}") from None
+        if math.isnan(value) or not ok(value):
+            raise argparse.ArgumentTypeError(f"invalid value {text!r}: must be {allowed}")
+        return value
+
+    return parse
+
+
+def int_at_least(low: int) -> Callable[[str], int]:
+    """argparse type: an integer >= `low` (any size)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"invalid value {text!r}: must be an integer >= {low}") from None
+        if value < low:
+            raise argparse.ArgumentTypeError(f"invalid value {text!r}: must be an integer >= {low}")
+        return value
+
+    return parse
+
+
+positive_int = int_at_least(1)
+non_negative_int = int_at_least(0)  # seeds: any size
+positive_float = number("a finite number > 0", lambda v: 0 < v < math.inf)
+non_negative_float = number("a finite number >= 0", lambda v: 0 <= v < math.inf)
+
+
+# ---------------------------------------------------------------------------------------------- values
+def check_int(name: str, value, low: int = 1) -> None:
+    """A `ValueError` naming `name` unless `value` is an integer >= `low`."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        raise ValueError(f"{name}={value!r} must be an integer >= {low}")
+
+
+def check_number(name: str, value, low: float, high: float = math.inf) -> None:
+    """A `ValueError` naming `name` unless `value` is a finite number in [low, high]."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (low <= value <= high) \
+            or not math.isfinite(value):
+        raise ValueError(f"{name}={value!r} must be a finite number in [{low:g}, {high:g}]")
+
+
+# ---------------------------------------------------------------------------------------------- number lists
 
 # What the last term of a progression is: "exact", a term the progression must reach; "cap", a bound
 # that ends the list whether or not the progression lands on it.
@@ -99,3 +157,15 @@ def check_distinct(name: str, values) -> None:
     repeated = sorted({v for v in values if list(values).count(v) > 1}, key=str)
     if repeated:
         raise ValueError(f"{name}={list(values)!r} repeats {', '.join(map(repr, repeated))}: list each value once")
+
+
+def number_list(text, kind: type, name: str, low: float, high: float | None = None, *,
+                low_open: bool = False) -> list:
+    """`parse_list` of an option, each value checked against [low, high] (or (low, high] with
+    `low_open`); the error names the option and the allowed range."""
+    values = parse_list(text, kind, name)
+    for v in values:
+        if (v <= low if low_open else v < low) or (high is not None and v > high):
+            allowed = f"{'(' if low_open else '['}{low:g}, {'inf)' if high is None else f'{high:g}]'}"
+            raise ValueError(f"{name}={text!r}: {v!r} is out of range: every value must be in {allowed}")
+    return values

@@ -1,0 +1,364 @@
+"""The studies' job runner: every task of a study (a setting of the swarm-size study, a training run of
+an open question) through `run_jobs`, which keeps finished tasks, runs the others here (one after
+another, on threads or in worker processes, after a `warm_up`) or as Ray tasks, and returns the results
+in task order. Training sweeps (`aquarium_warp.training.sweep`) run on Ray through `run_ray_tasks` too.
+
+Finished tasks: each result is written to `<out>/finished/<name>.json` with its `task_key` (the task
+and the study's settings) as it comes, so a rerun of the same study (after it was stopped at a time
+limit, say, or with more `--seeds`) runs only the tasks it has no result for.
+
+Ray: each task is a Ray task holding the GPUs (or the GPU fraction) and CPUs it needs (`RayOptions`);
+Ray schedules the tasks over the cluster's machines and reruns a task whose worker died
+(`max_retries`) while the finished ones stay done. Ray is optional (`pip install
+'aquarium-warp[distributed]'`) and imported only when a study or sweep runs on it. The tasks import
+aquarium_warp on the workers: every machine of the cluster needs the same install.
+
+```python
+from aquarium_warp.studies.jobs import RayOptions
+from aquarium_warp.studies.swarm_size import SwarmSizeStudy, run_swarm_size_study
+run_swarm_size_study(SwarmSizeStudy(prey=[4, 8, 16], out="out"), ray=RayOptions(address="auto", gpus_per_task=0.5))
+```
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import os
+import platform
+import time
+import warnings
+from collections.abc import Callable, Sequence
+from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor, as_completed
+from dataclasses import dataclass
+from multiprocessing import get_context
+from typing import Any
+
+import numpy as np
+
+from ..arguments import check_int, non_negative_float, non_negative_int, positive_float
+from ..atomic import atomic_open
+from ..config import AquariumConfig
+from ..env import BatchedAquarium, resolve_device
+
+INSTALL = "pip install 'aquarium-warp[distributed]'"
+# Finished tasks, one JSON file each under the study's `out`.
+FINISHED_DIR = "finished"
+
+
+# ---------------------------------------------------------------------------------------------- Ray
+@dataclass(frozen=True)
+class RayOptions:
+    """Where the tasks run and what each one holds."""
+
+    address: str | None = None  # None: $RAY_ADDRESS's cluster, else a new local one; "auto": this machine's
+    gpus_per_task: float | None = None  # None: 1 where the cluster has GPUs and the device is not the CPU
+    cpus_per_task: float = 1.0
+    max_retries: int = 3  # reruns of a task whose worker died (a Python error in the task is not retried)
+
+    def validate(self) -> None:
+        gpus = self.gpus_per_task
+        # Ray packs fractions of one GPU, or takes whole GPUs: 1.5 GPUs is neither.
+        if gpus is not None and not (math.isfinite(gpus) and (0 <= gpus <= 1 or gpus == int(gpus))):
+            raise ValueError(f"gpus_per_task={gpus!r} must be a fraction in [0, 1] or a whole number of GPUs")
+        if not (math.isfinite(self.cpus_per_task) and self.cpus_per_task > 0):
+            raise ValueError(f"cpus_per_task={self.cpus_per_task!r} must be a finite number > 0")
+        check_int("max_retries", self.max_retries, 0)
+
+    def record(self, device: str) -> dict:
+        """The JSON's record of a run on Ray: the cluster's address, what each task held and the device."""
+        return {"address": self.address, "gpus_per_task": self.gpus_per_task, "cpus_per_task": self.cpus_per_task,
+                "max_retries": self.max_retries, "device": device}
+
+
+def add_ray_arguments(parser: argparse.ArgumentParser, what: str) -> None:
+    """`--ray [ADDRESS]` and what each Ray task holds (`ray_options` reads them)."""
+    g = parser.add_argument_group("Ray", f"run each {what} as a Ray task, on one machine or a cluster ({INSTALL})")
+    g.add_argument("--ray", nargs="?", const="", default=None, metavar="ADDRESS",
+                   help=f"run each {what} as a Ray task: on the cluster at ADDRESS ('auto': the one `ray start` "
+                        "started on this machine; 'ray://HOST:10001': Ray Client), without ADDRESS on "
+                        "$RAY_ADDRESS's cluster or else a new one on this machine")
+    g.add_argument("--gpus-per-task", type=non_negative_float, default=None, metavar="G",
+                   help="GPUs each task holds: a fraction in [0, 1] (0.25: four tasks share a GPU) or a whole "
+                        "number (default 1 where the cluster has GPUs and --device is not 'cpu', else 0)")
+    g.add_argument("--cpus-per-task", type=positive_float, default=None, metavar="C",
+                   help="CPU cores each task holds (default 1)")
+    g.add_argument("--max-retries", type=non_negative_int, default=None, metavar="R",
+                   help="reruns of a task whose worker died (default 3)")
+
+
+def ray_options(args: argparse.Namespace) -> RayOptions | None:
+    """The `RayOptions` of `add_ray_arguments`' options, or None without --ray."""
+    given = {name: value for name, value in (("gpus_per_task", args.gpus_per_task),
+                                             ("cpus_per_task", args.cpus_per_task),
+                                             ("max_retries", args.max_retries)) if value is not None}
+    if args.ray is None:
+        if given:
+            names = ", ".join("--" + name.replace("_", "-") for name in given)
+            raise ValueError(f"{names} set the Ray tasks: give --ray too")
+        return None
+    options = RayOptions(address=args.ray or None, **given)
+    options.validate()
+    return options
+
+
+def import_ray() -> Any:
+    """The `ray` module, or a ValueError naming the extra to install."""
+    try:
+        import ray
+    except ImportError as error:
+        raise ValueError(f"running on Ray (--ray) needs Ray: {INSTALL} ({error})") from error
+    return ray
+
+
+def connect(options: RayOptions) -> Any:
+    """The `ray` module, connected to `options.address` unless this process already is (to any cluster)."""
+    ray = import_ray()
+    if not ray.is_initialized():
+        with warnings.catch_warnings():
+            # The tip is about tasks without GPUs seeing the GPUs in a later Ray: ours name their device.
+            warnings.filterwarnings("ignore", message="Tip: In future versions of Ray", category=FutureWarning)
+            ray.init(address=options.address)
+    return ray
+
+
+def placement(options: RayOptions, device: str | None) -> tuple[RayOptions, str]:
+    """`options` with the GPUs per task settled, and the device the tasks run on: "cuda:0" (the GPU
+    that Ray assigns, the first one the task sees) when they hold GPUs, else "cpu". `device` is the
+    one asked for: None (a GPU where the cluster has one), "cuda" or "cpu". Connects to the cluster."""
+    options.validate()
+    if device not in (None, "cpu", "cuda", "cuda:0"):
+        raise ValueError(f"device={device!r}: on Ray a task runs on the GPU that Ray assigns it ('cuda') or on "
+                         "the CPU ('cpu'); --gpus-per-task sets how much of a GPU it holds")
+    cluster_gpus = float(connect(options).cluster_resources().get("GPU", 0.0))
+    gpus = options.gpus_per_task
+    if gpus is None:
+        gpus = 1.0 if cluster_gpus > 0 and device != "cpu" else 0.0
+    if gpus > cluster_gpus:
+        raise ValueError(f"gpus_per_task={gpus:g}: the Ray cluster has {cluster_gpus:g} GPUs")
+    if device == "cpu" and gpus > 0:
+        raise ValueError(f"device='cpu' with gpus_per_task={gpus:g}: the tasks would hold GPUs they do not use")
+    if device is not None and device != "cpu" and gpus == 0:
+        raise ValueError(f"device={device!r} needs gpus_per_task > 0 (the Ray cluster has {cluster_gpus:g} GPUs)")
+    return dataclasses.replace(options, gpus_per_task=gpus), ("cuda:0" if gpus > 0 else "cpu")
+
+
+def run_ray_tasks(function: Callable, calls: Sequence[tuple], options: RayOptions,
+                  on_result: Callable[[int, Any], None] | None = None) -> list:
+    """`function(*call)` for every call as Ray tasks, results in the order of `calls`. `on_result(i,
+    result)` runs on this process as each task finishes. A task whose worker dies reruns up to
+    `options.max_retries` times; an error in the task cancels the others and is raised here."""
+    ray = connect(options)
+    # Options given to ray.remote itself (not .options()): Ray then starts a fresh worker for every GPU
+    # task, so each one sees the GPU it was assigned.
+    remote = ray.remote(num_gpus=options.gpus_per_task or 0, num_cpus=options.cpus_per_task,
+                        max_retries=options.max_retries)(function)
+    refs = [remote.remote(*call) for call in calls]
+    index = {ref: i for i, ref in enumerate(refs)}
+    results: list = [None] * len(refs)
+    pending = list(refs)
+    try:
+        while pending:
+            done, pending = ray.wait(pending, num_returns=1)
+            i = index[done[0]]
+            results[i] = ray.get(done[0])
+            if on_result is not None:
+                on_result(i, results[i])
+    finally:
+        for ref in pending:  # after an error or an interrupt: nothing left running for nobody
+            ray.cancel(ref)
+    return results
+
+
+def _on_worker(function: Callable[[dict], Any], task: dict) -> tuple[Any, str]:
+    """A Ray task: `function(task)` and the name of the machine that ran it."""
+    return function(task), platform.node()
+
+
+# ---------------------------------------------------------------------------------------------- here
+def resolve_jobs(jobs: int | None, device: str, threads: bool = False) -> int:
+    """Tasks at once on this machine: `jobs`, else in worker processes 4 on a GPU and 1 on the CPU, on
+    threads the CPU's cores. On one GPU the processes' kernels take turns (time slicing), so a run's
+    GPU-bound PPO iterations gain little from company (the paper preset's runs took as long four at a
+    time as one after another); what overlaps is the rest, which waits on the host: process start, the
+    trainer's construction and CUDA graph capture, the evaluation loops (a host sync per step). Threads
+    on a GPU run one at a time: a batch already fills the device, and a CUDA graph being captured in
+    one thread must not see another thread's launches."""
+    on_gpu = str(device).startswith("cuda")
+    if threads and on_gpu:
+        return 1
+    if jobs is not None:
+        check_int("jobs", jobs)
+        return jobs
+    if threads:
+        return os.cpu_count() or 1
+    return 4 if on_gpu else 1
+
+
+def warm_up(device: str, config: AquariumConfig | None = None, prey: str = "turnaway", predator: str = "naivchase",
+            confusion: bool = True, linking_distance: float | None = None) -> None:
+    """Build (or load from Warp's cache) the kernels of a step of `config` (a two-prey copy; default the
+    model's world) with the `prey` and `predator` drivers and the swarm metrics, once, before tasks run
+    at once: worker processes must not all compile them, nor threads load them together."""
+    from ..drivers import make_drivers
+    from ..metrics import SwarmMetrics
+
+    cfg = (config or AquariumConfig()).replace(prey_count=2, max_steps=2)
+    if cfg.prey_reproduction:
+        cfg = cfg.replace(max_prey=4)
+    env = BatchedAquarium(cfg, num_worlds=1, device=device, seed=0)
+    drivers = make_drivers({"prey": prey, "predator": predator}, env, confusion=confusion)
+    env.reset()
+    SwarmMetrics(env, linking_distance=linking_distance).compute()
+    env.step({team: drive() for team, drive in drivers.items()}, validate=False)
+    env.close()
+
+
+# ---------------------------------------------------------------------------------------------- the runner
+def task_key(task: dict) -> dict:
+    """What a kept result must have been computed with, as read back from JSON: the task (not where it
+    writes; it names its seed or seed count and its device) and the study's settings (not the seed
+    count, so that adding seeds keeps the finished ones, nor its output directory, workers, figures or
+    device option)."""
+    settings = {k: v for k, v in dataclasses.asdict(task["study"]).items()
+                if k not in ("seeds", "out", "jobs", "figures", "device")}
+    own = {k: v for k, v in task.items() if k not in ("study", "policy_dir")}
+    return json.loads(json.dumps({"task": own, "study": settings}))
+
+
+def _json_ready(value):
+    """`value` with numpy arrays as lists (JSON writes a float's shortest repr, which reads back as the
+    same float, NaN included: a kept result equals a fresh one)."""
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, dict):
+        return {k: _json_ready(v) for k, v in value.items()}
+    return value
+
+
+@dataclass
+class JobsRun:
+    """What `run_jobs` did: the results in task order, how many were kept from an earlier run, and the
+    machines that ran Ray tasks (sorted; empty without Ray)."""
+
+    results: list
+    kept: int
+    nodes: list[str]
+
+
+def run_jobs(function: Callable[[dict], Any], tasks: Sequence[dict], out: str, *, jobs: int = 1,
+             threads: bool = False, device: str = "cpu", ray: RayOptions | None = None, label: str = "run",
+             prepare: Callable[[], None] | None = None, on_result: Callable[[int, Any, bool], None] | None = None,
+             report: Callable[[str], None] | None = print) -> JobsRun:
+    """`function(task)` for every task (each a dict with a unique "name" and its "study"): those whose
+    `<out>/finished/<name>.json` holds the same `task_key` are kept, the others run, in the order of
+    `tasks` (longest first runs best): with `ray` (placed: `placement`) as Ray tasks, a task whose
+    worker dies rerun by Ray; else with `jobs=1` (or one task to run) in this process, or `jobs` at once
+    on threads (`threads`) or in worker processes (spawned, so each has its own CUDA context), after
+    `prepare()` (default: `warm_up(device)`). With processes or Ray, `function` must be a module-level
+    function and the tasks picklable. Each result is written to its file as it comes; `on_result(i,
+    result, kept)` follows (kept ones first), and `report` gets a line per finished task (None: quiet)."""
+    results: list = [None] * len(tasks)
+    done_here = [False] * len(tasks)
+    keys = [task_key(task) for task in tasks]
+    paths = [os.path.join(out, FINISHED_DIR, f"{task['name']}.json") for task in tasks]
+    for i, path in enumerate(paths):
+        if os.path.isfile(path):
+            with open(path, encoding="utf-8") as f:
+                kept = json.load(f)
+            if kept.get("key") == keys[i]:
+                results[i], done_here[i] = kept["result"], True
+    kept_count = sum(done_here)
+    if kept_count and report is not None:
+        report(f"  {label}: {kept_count} of {len(tasks)} tasks kept from {os.path.join(out, FINISHED_DIR)}")
+    if on_result is not None:
+        for i in range(len(tasks)):
+            if done_here[i]:
+                on_result(i, results[i], True)
+    todo = [i for i in range(len(tasks)) if not done_here[i]]
+    os.makedirs(os.path.join(out, FINISHED_DIR), exist_ok=True)
+    start = time.perf_counter()
+
+    def done(i: int, result) -> None:
+        with atomic_open(paths[i]) as f:
+            json.dump({"key": keys[i], "result": _json_ready(result)}, f)
+        results[i], done_here[i] = result, True
+        if on_result is not None:
+            on_result(i, result, False)
+        if report is not None:
+            finished = sum(done_here)
+            elapsed = time.perf_counter() - start
+            left = elapsed / (finished - kept_count) * (len(tasks) - finished)  # longest first: an overestimate
+            report(f"  {label} {finished}/{len(tasks)} ({tasks[i]['name']}) after {elapsed:.0f} s, ~{left:.0f} s "
+                   "left")
+
+    nodes: set[str] = set()
+    if ray is not None:
+        def finished_on_ray(k: int, result: tuple[Any, str]) -> None:
+            nodes.add(result[1])
+            done(todo[k], result[0])
+
+        run_ray_tasks(_on_worker, [(function, tasks[i]) for i in todo], ray, on_result=finished_on_ray)
+    elif jobs <= 1 or len(todo) <= 1:
+        for i in todo:
+            done(i, function(tasks[i]))
+    else:
+        (prepare or (lambda: warm_up(device)))()
+        pool: Executor = (ThreadPoolExecutor(max_workers=min(jobs, len(todo))) if threads else
+                          ProcessPoolExecutor(max_workers=min(jobs, len(todo)), mp_context=get_context("spawn")))
+        with pool:
+            futures = {pool.submit(function, tasks[i]): i for i in todo}
+            for future in as_completed(futures):
+                done(futures[future], future.result())
+    return JobsRun(results, kept_count, sorted(nodes))
+
+
+# ---------------------------------------------------------------------------------------------- a study's tasks
+@dataclass
+class TaskRun:
+    """What `run_tasks` did: the tasks' results (in task order), how many were kept from an earlier
+    run, the device, the jobs at once (None on Ray), the wall time in seconds, and on Ray the run's
+    record (address, what each task held, the machines that ran tasks)."""
+
+    results: list[dict]
+    kept: int
+    device: str
+    jobs: int | None
+    wall_s: float
+    ray: dict | None = None
+
+    def record(self, study_name: str, study, rows: list[dict], command: str | None) -> dict:
+        """`run_record` of this run, with the training and job times summed over `rows`."""
+        from .common import run_record
+
+        record = run_record(study_name, study, self.device, self.wall_s, sum(r["train_s"] for r in rows),
+                            sum(r["job_s"] for r in rows), self.jobs, command, self.kept)
+        if self.ray is not None:
+            record["ray"] = self.ray
+        return record
+
+
+def run_tasks(study, function: Callable[[dict], dict], label: str, ray: RayOptions | None = None) -> TaskRun:
+    """Check `study`'s settings, resolve its device and jobs, and run its tasks (`study.tasks(device)`)
+    with `run_jobs` in worker processes, timed: here, or with `ray` each task a Ray task on the device
+    Ray assigns it."""
+    study.validate()
+    if ray is not None and study.jobs is not None:
+        raise ValueError(f"--jobs {study.jobs} sets the worker processes on this machine; with --ray each "
+                         "training run is a task (--cpus-per-task, --gpus-per-task)")
+    if ray is None:
+        device = resolve_device(study.device)
+        jobs: int | None = resolve_jobs(study.jobs, device)
+    else:
+        ray, device = placement(ray, study.device)
+        jobs = None
+    tasks = study.tasks(device)
+    if ray is not None:  # workers write the trained policies themselves, wherever Ray starts them
+        tasks = [dict(t, policy_dir=os.path.abspath(t["policy_dir"])) if "policy_dir" in t else t for t in tasks]
+    start = time.perf_counter()
+    run = run_jobs(function, tasks, study.out, jobs=jobs or 1, device=device, ray=ray, label=label,
+                   report=lambda line: print(line, flush=True))
+    record = None if ray is None else dict(ray.record(device), nodes=run.nodes)
+    return TaskRun(run.results, run.kept, device, jobs, time.perf_counter() - start, record)

@@ -1,0 +1,105 @@
+"""The studies' job runner (`aquarium_warp.studies.jobs.run_jobs`): finished tasks are kept under
+`out/finished/` keyed on the task and the study's settings, so that a rerun with more seeds runs only
+the new (setting, seed) tasks and keeps the old rows, while a changed setting runs afresh; threads return
+the results in task order."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import threading
+
+import pytest
+
+from aquarium_warp.cli import main
+from aquarium_warp.studies.jobs import FINISHED_DIR, run_jobs, task_key
+
+
+@dataclasses.dataclass
+class Study:
+    seeds: int = 2
+    scale: float = 1.0
+    out: str = "out"
+    jobs: int | None = None
+    figures: bool = True
+    device: str | None = None
+
+    def tasks(self) -> list[dict]:
+        return [{"name": f"x{x}_seed{seed}", "x": x, "seed": seed, "study": self}
+                for x in (1, 2) for seed in range(self.seeds)]
+
+
+class Counted:
+    """`x * scale + seed` of a task, counting the calls (thread-safe)."""
+
+    def __init__(self):
+        self.names: list[str] = []
+        self.lock = threading.Lock()
+
+    def __call__(self, task: dict) -> dict:
+        with self.lock:
+            self.names.append(task["name"])
+        return {"value": task["x"] * task["study"].scale + task["seed"]}
+
+
+def test_more_seeds_run_only_the_new_tasks_and_keep_the_old_results(tmp_path):
+    out = str(tmp_path)
+    first = Counted()
+    run = run_jobs(first, Study(seeds=2).tasks(), out, report=None)
+    assert run.kept == 0 and sorted(first.names) == ["x1_seed0", "x1_seed1", "x2_seed0", "x2_seed1"]
+    assert len(list((tmp_path / FINISHED_DIR).iterdir())) == 4
+    more = Counted()
+    lines: list[str] = []
+    run = run_jobs(more, Study(seeds=3).tasks(), out, report=lines.append)
+    assert sorted(more.names) == ["x1_seed2", "x2_seed2"] and run.kept == 4
+    assert [r["value"] for r in run.results] == [1.0, 2.0, 3.0, 2.0, 3.0, 4.0]  # task order, kept ones included
+    assert lines[0] == f"  run: 4 of 6 tasks kept from {tmp_path / FINISHED_DIR}"
+    # Another setting of the study is another computation: every task runs again.
+    other = Counted()
+    assert run_jobs(other, Study(seeds=3, scale=2.0).tasks(), out, report=None).kept == 0 and len(other.names) == 6
+    # Where it writes, its workers, figures and device option are not: the tasks are kept.
+    same = Counted()
+    moved = Study(seeds=3, scale=2.0, out="elsewhere", jobs=4, figures=False, device="cpu")
+    assert run_jobs(same, moved.tasks(), out, report=None).kept == 6 and same.names == []
+
+
+def test_the_key_leaves_out_the_seed_count_and_the_task_s_output_folder():
+    task = dict(Study(seeds=2).tasks()[0], policy_dir="out/policies/x1_seed0")
+    key = task_key(task)
+    assert key == task_key(dict(Study(seeds=7).tasks()[0], policy_dir="elsewhere"))
+    assert key["task"] == {"name": "x1_seed0", "x": 1, "seed": 0} and "seeds" not in key["study"]
+
+
+def test_threads_return_results_in_task_order_and_call_back_each(tmp_path):
+    seen: list[tuple[int, bool]] = []
+    prepared: list[bool] = []
+    run = run_jobs(Counted(), Study(seeds=3).tasks(), str(tmp_path), jobs=3, threads=True, report=None,
+                   prepare=lambda: prepared.append(True), on_result=lambda i, result, kept: seen.append((i, kept)))
+    assert [r["value"] for r in run.results] == [1.0, 2.0, 3.0, 2.0, 3.0, 4.0]
+    assert prepared == [True] and sorted(seen) == [(i, False) for i in range(6)]
+    seen.clear()
+    run_jobs(Counted(), Study(seeds=3).tasks(), str(tmp_path), jobs=3, threads=True, report=None,
+             prepare=lambda: prepared.append(True), on_result=lambda i, result, kept: seen.append((i, kept)))
+    assert seen == [(i, True) for i in range(6)] and prepared == [True]  # nothing left to run: no warm-up
+
+
+def read_csv(path):
+    with open(path, newline="", encoding="utf-8") as f:
+        return list(csv.DictReader(f))
+
+
+@pytest.mark.slow
+def test_a_rerun_with_more_seeds_trains_only_the_new_seeds(tmp_path, capsys, one_thread):
+    argv = ["study", "many-eyes", "--group-sizes", "1", "--fov", "120", "--rows", "4", "--iterations", "1",
+            "--train-steps", "20", "--eval-rows", "4", "--eval-steps", "30", "--no-turnaway", "--device", "cpu",
+            "--no-figures", "--out", str(tmp_path)]
+    assert main(argv + ["--seeds", "1"]) == 0
+    first = read_csv(tmp_path / "many_eyes.csv")
+    capsys.readouterr()
+    assert main(argv + ["--seeds", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "1 of 2 tasks kept" in out and "many-eyes 2/2 (learned_N1_fov120_seed1)" in out
+    rows = read_csv(tmp_path / "many_eyes.csv")
+    assert [r for r in rows if r["seed"] == "0"] == first  # the old rows, timings included: nothing rerun
+    assert sorted({r["seed"] for r in rows}) == ["0", "1"] and len(rows) == 2 * len(first)
+    assert (tmp_path / "policies" / "learned_N1_fov120_seed1").is_dir()
