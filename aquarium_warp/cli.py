@@ -144,8 +144,9 @@ def _add_study(sub) -> None:
     """`aquarium-warp study <name>`: each study of `aquarium_warp.studies.STUDIES` owns its options and handler."""
     from .studies import STUDIES
 
-    study = sub.add_parser("study", help="parameter studies of collective behaviour (swarm-size, fov-view) and the "
-                                         "paper's open questions (group-hunting, many-eyes, flow)")
+    study = sub.add_parser("study", help="parameter studies of collective behaviour (swarm-size, fov-view), the "
+                                         "paper's open questions (group-hunting, many-eyes, flow) and the swarm "
+                                         "study (swarm)")
     kinds = study.add_subparsers(dest="study", required=True)
     for name, module in STUDIES.items():
         p = kinds.add_parser(name, help=module.HELP, description=module.DESCRIPTION)

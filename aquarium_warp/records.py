@@ -85,10 +85,10 @@ def machine_info(device: str) -> dict:
     return info
 
 
-def provenance(device: str, command: str | None = None) -> dict:
-    """`command` (default `command_line()`), `git` and `machine`: what a result file records of the run
-    that made it on `device`."""
-    return {"command": command if command is not None else command_line(), "git": git_info(),
+def provenance(device: str, command: str | None = None, commit: str | None = None) -> dict:
+    """`command` (default `command_line()`), `git` (`commit` overrides, for a copy without git history)
+    and `machine`: what a result file records of the run that made it on `device`."""
+    return {"command": command if command is not None else command_line(), "git": git_info(commit),
             "machine": machine_info(device)}
 
 

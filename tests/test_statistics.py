@@ -56,6 +56,28 @@ def test_welch_difference_by_hand():
         difference([1.0], [2.0, 3.0])
 
 
+def test_paired_difference_by_hand():
+    # matched differences 0.5, 1, 0.5, 1: mean 0.75, sample var 1/12, se = sqrt(1/12 / 4) = sqrt(1/48),
+    # df = 3, t(0.975, 3) = 3.182446; the fifth pair has a NaN and is left out
+    a, b = [1.0, 2.0, 3.0, 4.0, math.nan], [0.5, 1.0, 2.5, 3.0, 7.0]
+    d = difference(a, b, paired=True)
+    assert d["difference"] == pytest.approx(0.75) and d["se"] == pytest.approx(math.sqrt(1 / 48))
+    assert d["df"] == 3.0 and (d["n_a"], d["n_b"]) == (4, 4)
+    half = 3.182446 * math.sqrt(1 / 48)
+    assert d["low"] == pytest.approx(0.75 - half, abs=1e-6) and d["high"] == pytest.approx(0.75 + half, abs=1e-6)
+    # Welch on the same values ignores the pairing: a wider interval
+    welch = difference(a, b)
+    assert welch["high"] - welch["low"] > d["high"] - d["low"]
+    # TOST on the pairs: t(0.95, 3) = 2.353363, 90% interval 0.75 ± 0.339679 = [0.410321, 1.089679]
+    e = equivalence(a, b, margin=1.2, paired=True)
+    assert e["high"] == pytest.approx(0.75 + 2.353363 * math.sqrt(1 / 48), abs=1e-6) and e["equivalent"] is True
+    assert equivalence(a, b, margin=1.0, paired=True)["equivalent"] is False
+    with pytest.raises(ValueError, match="one value of b per value of a"):
+        difference([1.0, 2.0, 3.0], [1.0, 2.0], paired=True)
+    with pytest.raises(ValueError, match="at least two pairs"):
+        difference([1.0, math.nan], [2.0, 3.0], paired=True)
+
+
 def test_equivalence_is_the_90_percent_interval_inside_the_margin():
     # a: mean 1, var 0.025; b: mean 1, var 0.00625; n = 5 each: se^2 = 0.005 + 0.00125 = 0.00625,
     # df = 0.00625^2 / ((0.005^2 + 0.00125^2) / 4) = 100/17, t(0.95, 100/17) = 1.950163: 90% interval ±0.154173

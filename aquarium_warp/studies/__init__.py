@@ -7,7 +7,9 @@
   TurnAway or co-trained prey: captures per predator and how the predators stand at captures;
 - `many_eyes`: learned prey groups of 1-64 over FOV angles: captures against pure dilution, flight
   initiation distance and flights started with the predator unseen;
-- `flow`: currents of growing strength: captures, swarm metrics and escape direction against the current.
+- `flow`: currents of growing strength: captures, swarm metrics and escape direction against the current;
+- `swarm`: can collective behaviour pay, and does it emerge in learned prey: a heuristic screen over
+  density, view distance and predator speed, then learned prey with their controls (aggregation index).
 
 What they share: `jobs` (the job runner: finished-task cache, threads, worker processes, Ray tasks),
 `statistics` (over seeds: means with 95% intervals, Welch differences, TOST equivalence) and `common`
@@ -18,9 +20,9 @@ from __future__ import annotations
 
 from types import ModuleType
 
-from . import flow, fov_view, group_hunting, many_eyes, swarm_size
+from . import flow, fov_view, group_hunting, many_eyes, swarm, swarm_size
 
 STUDIES: dict[str, ModuleType] = {"swarm-size": swarm_size, "fov-view": fov_view, "group-hunting": group_hunting,
-                                  "many-eyes": many_eyes, "flow": flow}
+                                  "many-eyes": many_eyes, "flow": flow, "swarm": swarm}
 
 __all__ = ["STUDIES"]

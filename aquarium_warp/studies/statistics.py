@@ -4,7 +4,8 @@ seed (a training seed, or a block of worlds), then
 - `seed_stats`: the mean over seeds with its std, s.e.m. and the half-width of its 95% Student-t
   interval (`mean_interval`);
 - `difference`: the difference of two conditions' means with its 95% interval (Welch: unequal
-  variances, Welch-Satterthwaite degrees of freedom);
+  variances, Welch-Satterthwaite degrees of freedom; or `paired`: the t interval of matched differences,
+  for two measurements of the same seeds);
 - `compare`: `difference` of each measure between two conditions' per-seed rows;
 - `equivalence`: the two one-sided tests (TOST) for a "no effect" claim: the conditions are equivalent
   within ±margin when the 90% interval of the difference lies inside (-margin, margin) (each one-sided
@@ -82,7 +83,8 @@ def t_quantile(p: float, df: float) -> float:
 
 
 # ---------------------------------------------------------------------------------------------- one condition
-def _finite(values) -> np.ndarray:
+def finite(values) -> np.ndarray:
+    """The values that are numbers, as float64 (NaN and None, a NaN written to JSON, left out)."""
     v = np.asarray(values, dtype=np.float64)
     return v[~np.isnan(v)]
 
@@ -90,7 +92,7 @@ def _finite(values) -> np.ndarray:
 def mean_interval(values: Sequence[float] | np.ndarray, confidence: float = 0.95) -> tuple[float, float | None]:
     """The mean of `values` (NaN left out) and the half-width of its Student-t interval at `confidence`
     (None for fewer than two values; the mean is NaN for none)."""
-    v = _finite(values)
+    v = finite(values)
     n = len(v)
     if n == 0:
         return math.nan, None
@@ -104,7 +106,7 @@ def seed_stats(values) -> dict:
     """Mean, std, s.e.m., the half-width of the mean's 95% Student-t interval (`ci95`) and n over seeds
     (NaN seeds left out) and the per-seed values."""
     v = np.asarray(values, dtype=np.float64)
-    ok = _finite(v)
+    ok = finite(v)
     n = len(ok)
     mean, ci95 = mean_interval(ok)
     std = float(ok.std(ddof=1)) if n > 1 else (0.0 if n == 1 else math.nan)
@@ -116,7 +118,7 @@ def seed_stats(values) -> dict:
 def _welch(a, b) -> tuple[float, float, float, int, int]:
     """The difference of the means of `a` and `b` (NaN left out), its standard error and the
     Welch-Satterthwaite degrees of freedom, and the two counts."""
-    x, y = _finite(a), _finite(b)
+    x, y = finite(a), finite(b)
     if len(x) < 2 or len(y) < 2:
         raise ValueError(f"a difference needs at least two values per condition (got {len(x)} and {len(y)})")
     va, vb = float(x.var(ddof=1)) / len(x), float(y.var(ddof=1)) / len(y)
@@ -125,16 +127,31 @@ def _welch(a, b) -> tuple[float, float, float, int, int]:
     return float(x.mean() - y.mean()), se, df, len(x), len(y)
 
 
+def _paired(a, b) -> tuple[float, float, float, int, int]:
+    """The mean of the matched differences `a[i] - b[i]` (pairs with a NaN left out), its standard error
+    and n - 1 degrees of freedom, and the number of pairs (twice, as `_welch` gives two counts)."""
+    x, y = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    if x.shape != y.shape:
+        raise ValueError(f"a paired difference needs one value of b per value of a (got {len(x)} and {len(y)})")
+    d = finite(x - y)
+    if len(d) < 2:
+        raise ValueError(f"a paired difference needs at least two pairs (got {len(d)})")
+    se = float(d.std(ddof=1)) / math.sqrt(len(d))
+    return float(d.mean()), se, len(d) - 1.0 if se > 0 else math.inf, len(d), len(d)
+
+
 def _interval(diff: float, se: float, df: float, confidence: float) -> tuple[float, float]:
     half = t_quantile(0.5 + confidence / 2.0, df) * se if se > 0 else 0.0
     return diff - half, diff + half
 
 
-def difference(a: Sequence[float] | np.ndarray, b: Sequence[float] | np.ndarray, confidence: float = 0.95) -> dict:
+def difference(a: Sequence[float] | np.ndarray, b: Sequence[float] | np.ndarray, confidence: float = 0.95,
+               paired: bool = False) -> dict:
     """Mean of `a` minus mean of `b` (per-seed values of two conditions, NaN left out) with its Welch
     interval at `confidence`: `difference`, `low`, `high`, `se`, `df` (None where both conditions are
-    constant: the interval is the point), `n_a`, `n_b`."""
-    diff, se, df, na, nb = _welch(a, b)
+    constant: the interval is the point), `n_a`, `n_b`. `paired`: `a[i]` and `b[i]` measure the same
+    seed, and the interval is the t interval of the differences `a[i] - b[i]` (n_a = n_b = the pairs)."""
+    diff, se, df, na, nb = _paired(a, b) if paired else _welch(a, b)
     low, high = _interval(diff, se, df, confidence)
     return {"difference": diff, "low": low, "high": high, "confidence": confidence, "se": se,
             "df": df if math.isfinite(df) else None, "n_a": na, "n_b": nb}
@@ -145,20 +162,22 @@ def compare(a: Sequence[dict], b: Sequence[dict], measures: Sequence[str], confi
     None values left out), None for a measure with fewer than two values in either."""
     out: dict[str, dict | None] = {}
     for m in measures:
-        x, y = (_finite(np.asarray([r[m] for r in rows], dtype=np.float64)) for rows in (a, b))
+        x, y = (finite(np.asarray([r[m] for r in rows], dtype=np.float64)) for rows in (a, b))
         out[m] = difference(x, y, confidence) if len(x) >= 2 and len(y) >= 2 else None
     return out
 
 
-def equivalence(a: Sequence[float], b: Sequence[float], margin: float, alpha: float = 0.05) -> dict:
+def equivalence(a: Sequence[float], b: Sequence[float], margin: float, alpha: float = 0.05,
+                paired: bool = False) -> dict:
     """TOST of "`a` and `b` differ by less than `margin`": `equivalent` when the (1 - 2 alpha) Welch
-    interval of the difference (`low`, `high`: 90% at the default alpha) lies inside (-margin, margin),
-    i.e. both one-sided tests reject at `alpha`; `p` is the larger of their p-values."""
+    interval of the difference (`low`, `high`: 90% at the default alpha; `paired`: of the matched
+    differences, as in `difference`) lies inside (-margin, margin), i.e. both one-sided tests reject at
+    `alpha`; `p` is the larger of their p-values."""
     if not (margin > 0 and math.isfinite(margin)):
         raise ValueError(f"margin={margin!r} must be a finite number > 0")
     if not 0.0 < alpha < 0.5:
         raise ValueError(f"alpha={alpha!r} must be in (0, 0.5)")
-    diff, se, df, na, nb = _welch(a, b)
+    diff, se, df, na, nb = _paired(a, b) if paired else _welch(a, b)
     low, high = _interval(diff, se, df, 1.0 - 2.0 * alpha)
     if se > 0:
         p = max(t_tail((diff + margin) / se, df), t_tail((margin - diff) / se, df))

@@ -53,6 +53,10 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 
+from ..arguments import check_distinct, check_int, number_list
+from ..records import command_line, provenance
+from .statistics import difference, equivalence, finite, mean_interval
+
 # The scenario: prey see all around, 200 px (reacting pays only with rear vision and range, see
 # docs/learned-prey.md); everything else is the paper's world.
 SCENARIO = ("env.prey.fov_angle=360", "env.prey.view_distance=200")
@@ -80,6 +84,16 @@ MARGINS = {"aggregation_index": 0.05, "swarm_local_alignment": 0.05, "captures_p
 TRAIN_AGENT_STEPS = 32 * 256 * 32 * 500
 
 
+HELP = "can collective behaviour pay, and does it emerge in learned prey? (heuristic screen, learned prey, controls)"
+DESCRIPTION = ("Part screen: heuristic prey (random, constant, TurnAway, Boids) against NaivChase with and without "
+               "confusion over density, prey view distance and predator speed, with the aggregation index against "
+               "uniformly random prey. Part learned: train --seeds prey runs per condition (the swarm scenario and its "
+               "controls), evaluate each with and without its prey slots and against NaivChase without confusion, "
+               "and compare the conditions with 95% intervals and declared equivalence margins. Tasks keep their "
+               "results in --out (tasks/); a rerun runs only what is missing. Writes summary.json, screen.csv, "
+               "learned.csv and figures.")
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--part", choices=("screen", "learned", "all"), default="all",
                         help="the heuristic scenario screen, the learned prey with their controls, or both")
@@ -102,35 +116,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="learned: extra `train --set` assignments (tiny smoke runs)")
     parser.add_argument("--commit", default=None, help="the commit to record (a copy without git history)")
     parser.add_argument("--no-figures", action="store_true", help="no matplotlib figures")
-    parser.add_argument("--out", default="runs/study_swarm", help="output directory")
-
-
-def number_list(text: str, kind: type, name: str, low: float) -> list:
-    try:
-        values = [kind(v) for v in str(text).split(",") if v.strip()]
-    except ValueError:
-        raise ValueError(f"{name}={text!r} must be a comma-separated list of numbers >= {low}") from None
-    if not values or any(v < low for v in values):
-        raise ValueError(f"{name}={text!r} must be a comma-separated list of numbers >= {low}")
-    return values
+    parser.add_argument("--out", default="swarm_study", help="output directory")
 
 
 def check(args) -> None:
+    """A one-line `ValueError` naming the option unless every option is in range; sets the parsed lists
+    (`prey_count_list`, `view_list`, `speed_list`, `condition_list`)."""
     conditions = [c for c in args.conditions.split(",") if c]
     unknown = [c for c in conditions if c not in CONDITIONS]
     if unknown or not conditions:
         raise ValueError(f"--conditions={args.conditions!r}: choose from {', '.join(CONDITIONS)}")
+    check_distinct("--conditions", conditions)
     for name, value, low in (("--seeds", args.seeds, 2), ("--iterations", args.iterations, 1),
                              ("--episodes", args.episodes, 1), ("--eval-seeds", args.eval_seeds, 1),
-                             ("--max-steps", args.max_steps, 1), ("--per-gpu", args.per_gpu, 1),
-                             ("--train-worlds", args.train_worlds or 1, 1)):
-        if value < low:
-            raise ValueError(f"{name}={value} must be >= {low}")
-    if args.gpus is not None and args.gpus < 0:
-        raise ValueError(f"--gpus={args.gpus} must be >= 0")
+                             ("--max-steps", args.max_steps, 1), ("--per-gpu", args.per_gpu, 1)):
+        check_int(name, value, low)
+    if args.train_worlds is not None:
+        check_int("--train-worlds", args.train_worlds, 1)
+    if args.gpus is not None:
+        check_int("--gpus", args.gpus, 0)
     args.prey_count_list = number_list(args.prey_counts, int, "--prey-counts", 2)
     args.view_list = number_list(args.view_distances, float, "--view-distances", 1)
-    args.speed_list = number_list(args.predator_speeds, float, "--predator-speeds", 0.1)
+    args.speed_list = number_list(args.predator_speeds, float, "--predator-speeds", 0, low_open=True)
+    for name, values in (("--prey-counts", args.prey_count_list), ("--view-distances", args.view_list),
+                         ("--predator-speeds", args.speed_list)):
+        check_distinct(name, values)  # a repeated value would name one task twice
     args.condition_list = conditions
 
 
@@ -150,7 +160,7 @@ def read_task(path: str) -> dict | None:
 
 def write_task(path: str, record: dict) -> None:
     from ..atomic import atomic_open
-    from ..json_records import json_safe
+    from ..records import json_safe
 
     os.makedirs(os.path.dirname(path), exist_ok=True)
     with atomic_open(path) as f:
@@ -182,7 +192,7 @@ def per_seed_values(result: dict, prey_label: str, predator_label: str) -> dict[
 
 def uniform_measures(cfg, device: str, seed: int = 0) -> dict[str, float]:
     """Swarm measures of uniformly random prey (random headings) in `cfg`'s arena at its prey count."""
-    from ..study import uniform_baseline
+    from .swarm_size import uniform_baseline
 
     snapshots = max(8, min(256, 65536 // cfg.prey_count))
     return uniform_baseline(cfg, snapshots, None, device, seed=seed)
@@ -315,52 +325,25 @@ def run_trainings(args, gpus: int) -> list[dict]:
         return list(pool.map(lambda a: one(*a), [(k, c, s) for k, (c, s) in enumerate(jobs)]))
 
 
-# ---- statistics -------------------------------------------------------------------------------------
+# ---- statistics (statistics.py: Student-t intervals, Welch or paired differences, TOST) ---------------
 
-def finite(values) -> list[float]:
-    """The values that are numbers (result files write a NaN, a measure with no sample, as null)."""
-    return [float(x) for x in values if x is not None and not math.isnan(x)]
-
-
-def mean_interval(values: Sequence[float]) -> dict:
-    """Mean and the half-width of its 95% Student-t interval (None below two values)."""
-    from scipy import stats
-
-    v = finite(values)
-    n = len(v)
-    if n == 0:
-        return {"mean": float("nan"), "ci95": None, "n": 0, "values": []}
-    mean = sum(v) / n
-    if n < 2:
-        return {"mean": mean, "ci95": None, "n": n, "values": v}
-    sd = math.sqrt(sum((x - mean) ** 2 for x in v) / (n - 1))
-    return {"mean": mean, "ci95": float(stats.t.ppf(0.975, n - 1) * sd / math.sqrt(n)), "n": n, "values": v}
+def interval(values: Sequence[float]) -> dict:
+    """The finite `values` (result files write a NaN, a measure with no sample, as null): their `mean`,
+    the half-width of its 95% Student-t interval (`ci95`, None below two values), `n` and the `values`."""
+    v = finite(values).tolist()
+    mean, ci95 = mean_interval(v)
+    return {"mean": mean, "ci95": ci95, "n": len(v), "values": v}
 
 
-def difference(a: Sequence[float], b: Sequence[float], paired: bool = False, margin: float | None = None) -> dict:
-    """mean(a) - mean(b) with its 95% interval (paired t over matched values, else Welch), and, with a
-    `margin`, whether the 90% interval lies inside +-margin (equivalent: the TOST at 5%)."""
-    from scipy import stats
-
-    a, b = [float(x) for x in a], [float(x) for x in b]
-    if paired:
-        d = [x - y for x, y in zip(a, b, strict=True)]
-        n = len(d)
-        mean = sum(d) / n
-        se = math.sqrt(sum((x - mean) ** 2 for x in d) / (n - 1) / n)
-        dof = n - 1.0
-    else:
-        na, nb = len(a), len(b)
-        ma, mb = sum(a) / na, sum(b) / nb
-        va = sum((x - ma) ** 2 for x in a) / (na - 1)
-        vb = sum((x - mb) ** 2 for x in b) / (nb - 1)
-        mean, se = ma - mb, math.sqrt(va / na + vb / nb)
-        dof = (va / na + vb / nb) ** 2 / ((va / na) ** 2 / (na - 1) + (vb / nb) ** 2 / (nb - 1)) if se > 0 else 1.0
-    out = {"difference": mean, "ci95": float(stats.t.ppf(0.975, dof) * se), "paired": paired}
+def comparison(a: Sequence[float], b: Sequence[float], paired: bool, margin: float | None) -> dict:
+    """mean(a) - mean(b) with the half-width of its 95% interval (`paired`: of the matched differences,
+    else Welch) and, with a `margin`, whether the TOST at 5% finds them equivalent within it (a margin
+    that is not a positive number, from a condition without captures, finds nothing equivalent)."""
+    d = difference(a, b, paired=paired)
+    out = {"difference": d["difference"], "ci95": d["high"] - d["difference"], "paired": paired}
     if margin is not None:
-        half90 = float(stats.t.ppf(0.95, dof) * se)
         out["margin"] = margin
-        out["equivalent"] = bool(abs(mean) + half90 < margin)
+        out["equivalent"] = bool(margin > 0) and equivalence(a, b, margin, paired=paired)["equivalent"]
     return out
 
 
@@ -369,13 +352,13 @@ def difference(a: Sequence[float], b: Sequence[float], paired: bool = False, mar
 def _values(record: dict, key: str, measure: str) -> list[float]:
     """One value per evaluation seed of `measure` (the aggregation index from the mean NN distance)."""
     if measure == PRIMARY:
-        return [v / record["uniform"]["nn_mean"] for v in finite(record["values"][key]["swarm_nn_mean"])]
+        return (finite(record["values"][key]["swarm_nn_mean"]) / record["uniform"]["nn_mean"]).tolist()
     return record["values"][key][measure]
 
 
 def seed_value(record: dict, key: str, measure: str) -> float:
-    values = finite(_values(record, key, measure))
-    return sum(values) / len(values) if values else float("nan")
+    """The mean over evaluation seeds (NaN without a finite value)."""
+    return mean_interval(_values(record, key, measure))[0]
 
 
 def summarize_screen(out: str, tasks: list[dict]) -> list[dict]:
@@ -390,7 +373,7 @@ def summarize_screen(out: str, tasks: list[dict]) -> list[dict]:
                 row = {"prey_count": task["prey"], "view_distance": task["view"],
                        "predator_speed": task["predator_speed"], "prey_policy": p, "predator_policy": q}
                 for m in MEASURES + (PRIMARY,):
-                    row[m] = mean_interval(_values(record, key, m))
+                    row[m] = interval(_values(record, key, m))
                 row["uniform"] = record["uniform"]
                 rows.append(row)
     return rows
@@ -408,12 +391,12 @@ def summarize_learned(out: str, conditions: Sequence[str], seeds: int) -> dict:
         entry: dict = {"seeds": [r["task"]["seed"] for r in records], "uniform": records[0]["uniform"]}
         for label in EVALUATIONS:
             if label in records[0]["values"]:
-                entry[label] = {m: mean_interval([seed_value(r, label, m) for r in records])
+                entry[label] = {m: interval([seed_value(r, label, m) for r in records])
                                 for m in MEASURES + (PRIMARY,)}
         baseline = read_task(task_path(out, "baseline", c))
         if baseline is not None:  # over evaluation seeds
             for label in baseline["values"]:
-                entry[label] = {m: mean_interval(_values(baseline, label, m)) for m in MEASURES + (PRIMARY,)}
+                entry[label] = {m: interval(_values(baseline, label, m)) for m in MEASURES + (PRIMARY,)}
         per[c] = entry
     comparisons = []
 
@@ -421,7 +404,7 @@ def summarize_learned(out: str, conditions: Sequence[str], seeds: int) -> dict:
         margin = MARGINS.get(measure)
         if measure == "captures_per_prey":
             margin = MARGINS["captures_per_prey_relative"] * b[measure]["mean"]
-        d = difference(a[measure]["values"], b[measure]["values"], paired=paired, margin=margin)
+        d = comparison(a[measure]["values"], b[measure]["values"], paired, margin)
         comparisons.append({"comparison": what, "measure": measure, **d})
 
     main = per.get("swarm")
@@ -458,14 +441,6 @@ def baseline_tasks(args) -> list[dict]:
              "eval_seeds": args.eval_seeds, "max_steps": args.max_steps} for c in args.condition_list]
 
 
-def provenance(args) -> dict:
-    from ..bench.machine import git_info, machine_info
-
-    return {"command": shlex.join(["aquarium-warp", *sys.argv[1:]]) if sys.argv else None,
-            "git": {"commit": args.commit, "source": "--commit"} if args.commit else git_info(),
-            "machine": machine_info("cuda:0" if gpu_count(args.gpus) else "cpu")}
-
-
 def run(args) -> int:
     check(args)
     gpus = gpu_count(args.gpus)
@@ -496,7 +471,8 @@ def run(args) -> int:
                 if read_task(task_path(args.out, "baseline", t["name"])) is None]
         run_in_processes(run_baseline_task, todo, gpus, args.per_gpu, "baselines")
         summary["learned"] = summarize_learned(args.out, args.condition_list, args.seeds)
-    summary.update(provenance(args), wall_s=round(time.perf_counter() - start, 1))
+    summary.update(provenance("cuda:0" if gpus else "cpu", command_line(args.argv), commit=args.commit),
+                   wall_s=round(time.perf_counter() - start, 1))
     write_task(os.path.join(args.out, "summary.json"), summary)
     write_tables(args.out, summary)
     if not args.no_figures:

@@ -300,7 +300,8 @@ def _run_one_batch(study: SwarmSizeStudy, settings: list[dict], device: str, adv
     return {i: _setting_result(study, batch, i * block, _label(s)) for i, s in enumerate(settings)}
 
 
-BASELINE_METRICS = ("polarization", "cohesion", "nn_mean", "groups", "largest_group", "predator_distance")
+BASELINE_METRICS = ("polarization", "cohesion", "nn_mean", "groups", "largest_group", "predator_distance",
+                    "local_alignment", "milling")
 
 
 def uniform_baseline(cfg: AquariumConfig, worlds: int, linking_distance: float | None, device: str,

@@ -1,0 +1,109 @@
+"""The swarm study (`aquarium-warp study swarm`, issue #30) on the CPU: its screen part end to end on a
+tiny grid (a row per heuristic prey x predator, the aggregation index from the uniform prey's
+nearest-neighbour distance, a rerun that runs no task), and its option checks."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+
+import pytest
+
+from aquarium_warp.cli import main
+from aquarium_warp.studies import STUDIES, swarm
+
+SCREEN = ["study", "swarm", "--part", "screen", "--prey-counts", "4", "--view-distances", "200", "--predator-speeds",
+          "5", "--episodes", "2", "--eval-seeds", "2", "--max-steps", "60", "--gpus", "0", "--no-figures"]
+
+
+def test_the_screen_end_to_end_and_a_rerun_runs_nothing(tmp_path, capsys, one_thread):
+    assert STUDIES["swarm"] is swarm
+    out = tmp_path / "swarm"
+    assert main(SCREEN + ["--out", str(out)]) == 0
+    assert "(1 to run)" in capsys.readouterr().out
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["command"].startswith("aquarium-warp study swarm --part screen")
+    rows = summary["screen"]
+    assert sorted((r["prey_policy"], r["predator_policy"]) for r in rows) == sorted(
+        (p, q) for p in swarm.HEURISTIC_PREY for q in swarm.PREDATORS)
+    for row in rows:
+        assert (row["prey_count"], row["view_distance"], row["predator_speed"]) == (4, 200.0, 5.0)
+        uniform = row["uniform"]["nn_mean"]
+        assert uniform > 0 and {"local_alignment", "milling"} <= set(row["uniform"])
+        nn, index = row["swarm_nn_mean"], row[swarm.PRIMARY]
+        assert nn["n"] == index["n"] == 2  # one value per evaluation seed
+        assert index["values"] == pytest.approx([v / uniform for v in nn["values"]], rel=1e-12)
+        assert index["mean"] == pytest.approx(nn["mean"] / uniform, rel=1e-12)
+        captures = row["captures_per_prey"]
+        assert captures["mean"] == pytest.approx(sum(captures["values"]) / 2) and captures["ci95"] is not None
+    lines = (out / "screen.csv").read_text().splitlines()
+    assert len(lines) == 1 + len(rows)
+    task = out / "tasks" / "screen" / "n4-v200-p5.json"
+    before, mtime = task.read_bytes(), task.stat().st_mtime_ns
+    # The same command again: the screen world's task is kept, nothing runs.
+    assert main(SCREEN + ["--out", str(out)]) == 0
+    assert "(0 to run)" in capsys.readouterr().out
+    assert task.read_bytes() == before and task.stat().st_mtime_ns == mtime
+    assert json.loads((out / "summary.json").read_text())["screen"] == rows
+
+
+def options(**changes) -> argparse.Namespace:
+    parser = argparse.ArgumentParser()
+    swarm.add_arguments(parser)
+    args = parser.parse_args([])
+    for name, value in changes.items():
+        setattr(args, name, value)
+    return args
+
+
+@pytest.mark.parametrize("changes, option", [
+    ({"seeds": 1}, "--seeds"),
+    ({"episodes": 0}, "--episodes"),
+    ({"eval_seeds": 0}, "--eval-seeds"),
+    ({"max_steps": 0}, "--max-steps"),
+    ({"per_gpu": 0}, "--per-gpu"),
+    ({"train_worlds": 0}, "--train-worlds"),
+    ({"gpus": -1}, "--gpus"),
+    ({"conditions": "swarm,flocking"}, "--conditions"),
+    ({"conditions": "swarm,swarm"}, "--conditions"),
+    ({"prey_counts": "1,8"}, "--prey-counts"),
+    ({"prey_counts": "8,8"}, "--prey-counts"),
+    ({"view_distances": "0.5"}, "--view-distances"),
+    ({"predator_speeds": "5,0"}, "--predator-speeds"),
+    ({"predator_speeds": "five"}, "--predator-speeds"),
+])
+def test_check_refuses_bad_options_naming_them(changes, option):
+    with pytest.raises(ValueError) as error:
+        swarm.check(options(**changes))
+    message = str(error.value)
+    assert message.startswith(f"{option}=") and len(message.splitlines()) == 1, message
+
+
+def test_check_accepts_the_defaults_and_parses_the_lists():
+    args = options()
+    swarm.check(args)
+    assert args.prey_count_list == [8, 16, 32, 64] and args.view_list == [100.0, 200.0, 400.0]
+    assert args.speed_list == [5.0, 4.5, 4.0, 3.5] and args.condition_list == list(swarm.CONDITIONS)
+
+
+def test_a_bad_option_is_one_line_and_writes_nothing(tmp_path, capsys):
+    out = tmp_path / "swarm"
+    assert main(SCREEN + ["--seeds", "1", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "aquarium-warp study: --seeds=1 must be an integer >= 2", err
+    assert not out.exists()
+
+
+def test_comparisons_keep_their_keys_and_the_pairing():
+    a, b = [1.0, 2.0, 3.0, 4.0], [0.5, 1.0, 2.5, 3.0]  # matched differences 0.5, 1, 0.5, 1
+    paired = swarm.comparison(a, b, True, 1.2)
+    assert set(paired) == {"difference", "ci95", "paired", "margin", "equivalent"} and paired["paired"] is True
+    # t(0.975, 3) = 3.182446, se = sqrt(1/12 / 4); t(0.95, 3) = 2.353363: 90% interval inside ±1.2
+    assert paired["difference"] == pytest.approx(0.75)
+    assert paired["ci95"] == pytest.approx(3.182446 * math.sqrt(1 / 48), abs=1e-6) and paired["equivalent"] is True
+    welch = swarm.comparison(a, b, False, None)
+    assert set(welch) == {"difference", "ci95", "paired"} and welch["ci95"] > paired["ci95"]
+    assert swarm.comparison(a, b, False, 0.0)["equivalent"] is False  # no captures: no margin to be inside
+    assert swarm.interval([1.0, None, 3.0]) == {"mean": 2.0, "ci95": pytest.approx(12.706205 * 1.0, abs=1e-5),
+                                                "n": 2, "values": [1.0, 3.0]}
