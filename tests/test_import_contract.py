@@ -14,10 +14,8 @@ CORE = ("aquarium_warp.config", "aquarium_warp.env", "aquarium_warp.state", "aqu
         "aquarium_warp.params")
 # What the core must not reach: everything built on top of it.
 ABOVE_CORE = ("aquarium_warp.training", "aquarium_warp.cli", "aquarium_warp.study", "aquarium_warp.studies",
-              "aquarium_warp.viewer", "aquarium_warp.drivers", "aquarium_warp.pettingzoo_env",
-              "aquarium_warp.aquarium_v1", "aquarium_warp.torchrl_env", "aquarium_warp.benchmarl_task",
-              "aquarium_warp.vector_env", "aquarium_warp.sb3_vec_env", "aquarium_warp.sweep", "aquarium_warp.video",
-              "aquarium_warp.bench")
+              "aquarium_warp.viewer", "aquarium_warp.drivers", "aquarium_warp.interop", "aquarium_warp.aquarium_v1",
+              "aquarium_warp.sweep", "aquarium_warp.video", "aquarium_warp.bench")
 
 
 def modules() -> dict[str, str]:

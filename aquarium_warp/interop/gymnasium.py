@@ -1,9 +1,9 @@
 """Native vector envs over `BatchedAquarium`: a Gymnasium `VectorEnv` (here) and a Stable-Baselines3
-`VecEnv` (`sb3_vec_env.py`), with no SuperSuit or PettingZoo layer in between.
+`VecEnv` (`sb3.py`), with no SuperSuit or PettingZoo layer in between.
 
 ```python
 from aquarium_warp import AquariumConfig
-from aquarium_warp.vector_env import AquariumVectorEnv
+from aquarium_warp.interop.gymnasium import AquariumVectorEnv
 
 envs = AquariumVectorEnv(AquariumConfig(prey_count=16), num_worlds=64)   # every agent of 64 worlds
 obs, infos = envs.reset(seed=0)                                          # [64 * 20, L] float32
@@ -70,9 +70,9 @@ import torch
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 
-from .config import AquariumConfig
-from .drivers import make_driver
-from .env import TYPES, BatchedAquarium
+from ..config import AquariumConfig
+from ..drivers import make_driver
+from ..env import TYPES, BatchedAquarium
 
 TEAMS = ("all", "prey", "predator")
 ARRAY_TYPES = ("numpy", "torch")
@@ -90,7 +90,7 @@ def _check_seed(seed, name: str = "seed") -> int | None:
 
 class AquariumRows:
     """The rows of a `BatchedAquarium` as one batch of single-agent envs (the engine behind
-    `AquariumVectorEnv` and `sb3_vec_env.AquariumSB3VecEnv`; see this module's doc for the rows'
+    `AquariumVectorEnv` and `sb3.AquariumSB3VecEnv`; see this module's doc for the rows'
     semantics). Tensors only, on the simulation's device.
 
     Args: `config`, `num_worlds`, `device` ("cpu" by default), `seed` (None: drawn from Python's

@@ -2,7 +2,7 @@
 
 ```python
 from torchrl.envs.utils import check_env_specs
-from aquarium_warp.torchrl_env import AquariumTorchRLEnv
+from aquarium_warp.interop.torchrl import AquariumTorchRLEnv
 
 env = AquariumTorchRLEnv(num_worlds=64, device="cpu", seed=0)   # batch_size [64]
 check_env_specs(env)
@@ -41,8 +41,8 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from .config import AquariumConfig
-from .env import TYPES, BatchedAquarium
+from ..config import AquariumConfig
+from ..env import TYPES, BatchedAquarium
 
 
 class AquariumTorchRLEnv(EnvBase):
