@@ -115,7 +115,7 @@ class SwarmMetrics:
         self.nn_bins = nn_bins
         self.nn_range = float(nn_range)
         self.bin_width = self.nn_range / nn_bins
-        Pc, P = env.prey_capacity, env.predator_count
+        Pc, P = env.prey_capacity, env.predator_capacity
         dev = env.device
         # A lone predator (or a few) is found faster by looping over the predator slots than by a ring
         # search, which walks every prey entry on the way to it.

@@ -29,7 +29,8 @@ import copy
 import json
 import math
 
-from ..config import AquariumConfig, is_int, is_real
+from ..checks import is_int, is_real
+from ..config import AquariumConfig
 from .randomize import parse_spec
 
 DISTRIBUTION = "aquarium_warp.training.distribution:CategoricalDistribution"

@@ -54,9 +54,11 @@ import torch
 
 from ..atomic import atomic_open, write_figure
 from ..bench.machine import git_info, machine_info
-from ..config import AquariumConfig, is_int
+from ..checks import is_int
+from ..config import AquariumConfig
+from ..device import resolve_device
 from ..drivers import is_heuristic, make_drivers
-from ..env import BatchedAquarium, resolve_device
+from ..env import BatchedAquarium
 from ..json_records import json_safe
 from ..metrics import EPISODE_METRICS, EpisodeMetrics
 
@@ -117,7 +119,7 @@ def run_episodes(env_cfg: AquariumConfig, prey: str, predator: str, episodes: in
     blind = {t: v for t, v in (blind_to or {}).items() if not is_heuristic(specs[t], t)}
     drivers = make_drivers(specs, env, seed=seed, deterministic=deterministic, blind_to=blind)
     dev = env.torch_device
-    Pc, P = env.prey_capacity, env.predator_count
+    Pc, P = env.prey_capacity, env.predator_capacity
     prey_captures = torch.zeros(W, Pc, dtype=torch.int32, device=dev)
     prey_reward = torch.zeros(W, Pc, dtype=torch.float64, device=dev)
     predator_reward = torch.zeros(W, P, dtype=torch.float64, device=dev)

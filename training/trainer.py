@@ -59,8 +59,9 @@ from rsl_rl.utils import resolve_callable
 from rsl_rl.utils.logger import Logger
 
 from ..atomic import atomic_open
+from ..device import resolve_device
 from ..drivers import make_driver
-from ..env import BatchedAquarium, resolve_device
+from ..env import BatchedAquarium
 from . import (
     _rsl,  # noqa: F401
     distributed,

@@ -1,7 +1,7 @@
 """rsl-rl `VecEnv` adapter over `BatchedAquarium`: one learning team, the other team driven inside `step()`.
 
 Rows. Every slot of the learning team in every world is one row, world-major: row `w * S + s` is slot
-`s` of world `w` (S = `env.prey_capacity` for prey, `env.predator_count` for predators), so
+`s` of world `w` (S = `env.prey_capacity` for prey, `env.predator_capacity` for predators), so
 `num_envs = W * S`, `num_actions = 1` (one discrete action, a float category index as rsl-rl stores it).
 
 Outputs of `step(actions [N, 1])`:
@@ -177,7 +177,7 @@ class AquariumVecEnv(VecEnv):
         ecfg = env.config
         self.cfg = RunConfig(cfg if cfg is not None else {"env": ecfg.to_dict()})
         self.num_worlds = W = env.num_worlds
-        self.slots = S = env.prey_capacity if team == "prey" else env.predator_count
+        self.slots = S = env.prey_capacity if team == "prey" else env.predator_capacity
         self.team_count = ecfg.prey_count if team == "prey" else ecfg.predator_count
         self.other_count = ecfg.predator_count if team == "prey" else ecfg.prey_count
         self.num_envs = W * S

@@ -14,7 +14,7 @@ prey = AquariumVectorEnv(num_worlds=64, team="prey", opponent="naivchase")   # p
 
 Rows. `team="all"` (default): every agent slot of every world is one row, world-major, and within a
 world in `aquarium_v1`'s `possible_agents` order: the predators, then the prey slots (including those
-that reproduction can fill), so `num_envs = W * (predator_count + prey_capacity)` and row `w * S + k`
+that reproduction can fill), so `num_envs = W * (predator_capacity + prey_capacity)` and row `w * S + k`
 is the agent that SuperSuit's route gives row `w * S + k` (one parameter-shared policy; both types
 must then have the same observation size). `team="prey"` or `"predator"`: only that team's slots
 (`W * slots` rows, `w * slots + s` is slot `s` of world `w`, as `training/vec_env.py` lays out rsl-rl's
@@ -139,7 +139,7 @@ class AquariumRows:
                 raise ValueError(f"opponent must be a policy spec or a callable returning the {OTHER[team]} "
                                  f"actions [W, slots] (team={team!r})")
             self.opponent = opponent
-        slots = {"prey": env.prey_capacity, "predator": env.predator_count}
+        slots = {"prey": env.prey_capacity, "predator": env.predator_capacity}
         self.slices: dict[str, slice] = {}
         start = 0
         for t in self.types:

@@ -66,7 +66,7 @@ class AquariumTorchRLEnv(EnvBase):
             raise ValueError("aquarium must be a BatchedAquarium with auto_reset=True")
         self.aquarium = aquarium
         super().__init__(device=aquarium.torch_device, batch_size=torch.Size([aquarium.num_worlds]))
-        self.slots = {"prey": aquarium.prey_capacity, "predator": aquarium.predator_count}
+        self.slots = {"prey": aquarium.prey_capacity, "predator": aquarium.predator_capacity}
         self.group_map = {t: [f"{t}_{i}" for i in range(n)] for t, n in self.slots.items()}
         self._make_specs()
 
