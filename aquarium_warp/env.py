@@ -318,7 +318,8 @@ class BatchedAquarium:
         return self._outputs
 
     # ------------------------------------------------------------------ per-world parameters
-    def set_params(self, world=None, validate: bool = True, **fields) -> AquariumConfig:
+    def set_params(self, world=None, validate: bool = True, rng: np.random.Generator | None = None,
+                   **fields) -> AquariumConfig:
         """Give worlds new parameter values between steps: `world` None (every world), an index or a
         sequence of indices; `fields` by name, the world fields of `per_world.PER_WORLD_FIELDS`
         (`prey_reward=2.0`, `flow=FlowConfig(...)`, `prey_count=8`) and the per-type ones as
@@ -333,7 +334,6 @@ class BatchedAquarium:
         Nothing is rebuilt or recorded again. Returns the new `config`. `validate=False` skips the
         per-world checks of the values (about 70 us per world; the live counts' limits stay checked):
         for values already known to be valid, such as draws from a range checked once."""
-        rng = fields.pop("rng", None)
         names = {key: dotted_name(key) for key in fields}
         W = self.num_worlds
         if world is None:

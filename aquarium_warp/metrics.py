@@ -54,6 +54,7 @@ import warp as wp
 
 from .env import BatchedAquarium
 from .kernels import metrics as kernels
+from .per_world import per_world
 
 SCALAR_METRICS = kernels.VALUE_NAMES
 # Metrics averaged over the sampled states of an episode by `EpisodeMetrics` (the centroid is not:
@@ -67,10 +68,6 @@ def default_linking_distance(env: BatchedAquarium) -> float | tuple[float, ...]:
     one per world (a tuple) where the prey radius differs between worlds."""
     radius = env.config.prey.radius
     return tuple(2.5 * r for r in radius) if isinstance(radius, tuple) else 2.5 * radius
-
-
-def _per_world(value, num_worlds: int) -> list:
-    return list(value) if isinstance(value, tuple) else [value] * num_worlds
 
 
 class SwarmMetrics:
@@ -102,7 +99,7 @@ class SwarmMetrics:
         if isinstance(nn_bins, bool) or not isinstance(nn_bins, int) or nn_bins < 1:
             raise ValueError(f"nn_bins={nn_bins!r} must be an integer >= 1")
         if nn_range is None:
-            nn_range = min(2.0 * max(_per_world(cfg.prey.view_distance, W)), cfg.max_torus_distance)
+            nn_range = min(2.0 * max(per_world(cfg.prey.view_distance, W)), cfg.max_torus_distance)
         assert nn_range is not None  # for the type checker: set just above
         if isinstance(nn_range, bool) or not isinstance(nn_range, (int, float)) or not math.isfinite(nn_range) \
                 or nn_range <= 0:
@@ -299,7 +296,7 @@ class EpisodeMetrics:
 
     def _prey_counts(self) -> torch.Tensor:
         """`[W]` float64: each world's initial prey count (as the env's config holds it now)."""
-        return torch.tensor(_per_world(self.env.config.prey_count, self.env.num_worlds), dtype=torch.float64,
+        return torch.tensor(per_world(self.env.config.prey_count, self.env.num_worlds), dtype=torch.float64,
                             device=self._done_captures.device)
 
     def summary(self) -> dict[str, float]:

@@ -23,10 +23,11 @@ import torch
 import warp as wp
 
 from .config import AquariumConfig, FlowConfig
-from .kernels.common import PREDATOR, PREY, AgentType, WorldValues
+from .kernels.common import FLOW_GRID, FLOW_NONE, FLOW_UNIFORM, FLOW_VORTEX, PREDATOR, PREY, AgentType, WorldValues
 from .per_world import PER_WORLD_TYPE_FIELDS, per_world
 
-_FLOW_CODES = {"none": 0, "uniform": 1, "vortex": 2, "grid": 3}
+# `FlowConfig.kind` -> the kernels' code of the current.
+_FLOW_CODES = {"none": int(FLOW_NONE), "uniform": int(FLOW_UNIFORM), "vortex": int(FLOW_VORTEX), "grid": int(FLOW_GRID)}
 
 
 def cos_half_fov(fov_angle: float) -> float:
