@@ -21,8 +21,8 @@ unchanged for a GRU), `forward(obs, h, c) -> (actions, h, c)` and `initial_state
 `policy.onnx` has inputs `obs`, `h_in` (and `c_in` for an LSTM) and outputs `actions`, `logits`,
 `h_out` (and `c_out`). `load_policy` keeps the state of each row between calls (each call is one
 step; the first starts from zeros, as rsl-rl's rollouts do) and `policy.reset(dones)` zeroes the rows
-whose episode ended (`reset()`: all rows, e.g. after an env reset). `RecurrentOpponent` does those
-resets for a team of a `BatchedAquarium` (evaluation, `aquarium-warp video`).
+whose episode ended (`reset()`: all rows, e.g. after an env reset). `drivers.RecurrentOpponent` does
+those resets for a team of a `BatchedAquarium` (evaluation, `aquarium-warp video`).
 
 Individual Learning policies (`group_size` S > 1) take rows in world-major slot order: N must be a
 multiple of S, row `k` acting for slot `k % S` (one world of the PettingZoo env: its S agents in
@@ -367,45 +367,6 @@ class LoadedPolicy:
     def set_rng_state(self, state) -> None:
         if self._generator is not None and state is not None:
             self._generator.set_state(state.cpu())
-
-
-class RecurrentOpponent:
-    """Drives one team of a `BatchedAquarium` with a recurrent `LoadedPolicy`, as `TrainedOpponent`
-    does, and before acting resets the hidden state of the rows whose episode ended in the step since
-    its last call: the agent's life ended (captured, removed, starved, or its world's episode ended) or
-    its empty slot was filled again, the row dones of the training adapter (`vec_env.py`). Call it
-    once per env step."""
-
-    def __init__(self, policy: LoadedPolicy, env, agent_type: str, blind_to: str | None = None):
-        from .vec_env import TrainedOpponent
-
-        self.driver, self.policy = TrainedOpponent(policy, env, agent_type, blind_to=blind_to), policy
-        self._terminated, self._truncated = env.outputs.terminated[agent_type], env.outputs.truncated[agent_type]
-        self._captured = env.state.torch.captured[:, :env.prey_capacity] if agent_type == "prey" else None
-        self._alive = env.alive[agent_type]
-        self._active: torch.Tensor | None = None  # rows alive when the policy last acted
-        policy.reset()  # every row starts from zero states, as rsl-rl's rollouts do
-
-    def __call__(self) -> torch.Tensor:
-        if self._active is not None:
-            ended = self._terminated | self._truncated
-            if self._captured is not None:
-                ended = ended | self._captured
-            self.policy.reset(torch.where(self._active, ended, self._alive).reshape(-1))
-        self._active = self._alive.clone()
-        return self.driver()
-
-    def state_dict(self) -> dict:
-        """The sampling stream, the rows' hidden states and which rows were alive (for bit-exact resumes)."""
-        hidden = self.policy.hidden_state
-        return {**self.driver.state_dict(),
-                "hidden_state": None if hidden is None else tuple(x.cpu().clone() for x in hidden),
-                "active": None if self._active is None else self._active.cpu().clone()}
-
-    def load_state_dict(self, state: dict) -> None:
-        self.driver.load_state_dict(state)
-        self.policy.hidden_state = state.get("hidden_state")
-        self._active = None if state.get("active") is None else state["active"].to(self._alive.device)
 
 
 def _is_torchscript(path: str) -> bool:
