@@ -12,6 +12,7 @@ import math
 import os
 import time
 import warnings
+from typing import Any
 
 from ..atomic import check_output_dir
 from ..cli import Interrupted, int_at_least, plural
@@ -419,7 +420,7 @@ def _eval_world(args, specs):
     from .evaluate import common_policy_env
 
     base = env_config(make_config(args.preset)) if args.preset else common_policy_env(specs, AquariumConfig())
-    changes = {}
+    changes: dict[str, Any] = {}
     for s in args.set:
         change = parse_assignment(s)
         if set(change) != {"env"}:

@@ -82,6 +82,8 @@ class LearnerActions:
         self.vec_env = vec_env
 
     def __call__(self) -> torch.Tensor:
+        if self.vec_env is None:
+            raise RuntimeError("LearnerActions: the other learner's adapter is not set yet")
         return self.vec_env.actions_buffer
 
 

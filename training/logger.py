@@ -10,12 +10,16 @@ import io
 import os
 import statistics
 from collections import deque
+from typing import TYPE_CHECKING
 
 import torch
 from rsl_rl.utils.logger import Logger
 
 from ..atomic import atomic_open
 from . import _rsl  # noqa: F401
+
+if TYPE_CHECKING:
+    from tqdm import tqdm
 
 CSV_FIELDS = ["iteration", "agent_steps", "world_steps", "world_episodes", "episodes_logged", "captures",
               "captures_per_prey", "reward_per_agent", "opponent_reward_per_agent", "episode_length",
@@ -28,12 +32,16 @@ class AquariumLogger(Logger):
     With several learners each has one (`team`: its scalars are logged as `<team>/...`, the swarm
     metrics of the worlds once, unprefixed), sharing the first one's writer."""
 
+    # Declared: `load_state_dict` rebinds rsl-rl's buffers from their own `maxlen`.
+    rewbuffer: deque[float]
+    lenbuffer: deque[float]
+
     def __init__(self, *args, csv_path: str | None = None, slots: int = 1, max_steps: int = 1,
                  quiet: bool = False, team: str | None = None, bar: bool = True, **kwargs):
         super().__init__(*args, **kwargs)
         self.csv_path, self.slots, self.max_steps, self.quiet = csv_path, slots, max_steps, quiet
         self.team, self.bar = team, bar
-        self._bar = None
+        self._bar: tqdm | None = None
 
     def _tag(self, key: str) -> str:
         return key if self.team is None or key.startswith("Swarm/") else f"{self.team}/{key}"

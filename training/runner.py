@@ -41,6 +41,9 @@ class AquariumRunner(OnPolicyRunner):
     gets its own algorithm (built by rsl-rl's `construct_algorithm`, as the runner builds its own),
     storage, optimizer and logger. `self.learners` lists them all, this runner's own first."""
 
+    # Declared: `load` rebinds rsl-rl's counter from a checkpoint, which its type inference cannot follow.
+    current_learning_iteration: int
+
     def __init__(self, env: AquariumVecEnv, train_cfg: dict, log_dir: str | None = None, device: str = "cpu",
                  trainer: Trainer | None = None, quiet: bool = False, others=()):
         super().__init__(env, train_cfg, log_dir=log_dir, device=device)
@@ -107,8 +110,9 @@ class AquariumRunner(OnPolicyRunner):
                 self.env.episode_length_buf, high=int(self.env.max_episode_length))
             for learner in self.learners[1:]:  # the worlds' step counters changed under them too
                 learner.vec_env.sync_from_env()
-        if self.loop is None:
-            self.loop = TrainingLoop([(learner.alg, learner.vec_env) for learner in self.learners],
+        loop = self.loop
+        if loop is None:
+            loop = self.loop = TrainingLoop([(learner.alg, learner.vec_env) for learner in self.learners],
                                      self.cfg["num_steps_per_env"], graphs=self.cuda_graphs,
                                      pool=self.trainer.pool if self.trainer is not None else None,
                                      # episode statistics are sums and counts, losses become their mean
@@ -128,7 +132,7 @@ class AquariumRunner(OnPolicyRunner):
             values, (collect_time, learn_time) = record.read()  # summed over the ranks (`reduce`)
             # A frozen learner (alternating schedule) logs no losses; a learner's NaN loss is logged.
             learning = self.trainer.learning(it) if self.trainer is not None else None
-            for k, (learner, (losses, stats)) in enumerate(zip(self.learners, self.loop.split(values))):
+            for k, (learner, (losses, stats)) in enumerate(zip(self.learners, loop.split(values))):
                 losses = [loss / self.gpu_world_size for loss in losses]
                 means, episodes, row_reward = learner.vec_env.decode_episode_stats(stats)
                 frozen = learning is not None and not learning[k]
@@ -140,7 +144,7 @@ class AquariumRunner(OnPolicyRunner):
         saves = self.logger.log_dir is not None
         pending = None  # the previous iteration, logged while this one runs on the device
         for it in range(start_it, total_it):
-            record = self.loop.iteration(self.trainer.learning(it) if self.trainer is not None else None)
+            record = loop.iteration(self.trainer.learning(it) if self.trainer is not None else None)
             self.current_learning_iteration = it
             if self.trainer is not None:
                 self.trainer.after_iteration(it)

@@ -139,13 +139,13 @@ class AquariumVecEnv(VecEnv):
         self._obs = [torch.zeros(W * S, L, dtype=torch.float32, device=dev) for _ in range(2)]
         # The centralised critic's group (None: the critic sees the actor's observation only).
         self.critic_group = None if critic == "local" else critic
-        self._critic_obs = [None, None]
-        self._world_state = WorldState(env) if critic == "world" else None
+        self._world_state = WorldState(env) if critic == "world" else None  # None: the team's joint observation
+        self._critic_obs: list[torch.Tensor] | None = None  # the critic group's two buffers
         if self.critic_group is not None:
-            size = S * L if critic == "team" else self._world_state.length
+            size = self._world_state.length if self._world_state is not None else S * L
             self._critic_obs = [torch.zeros(W * S, size, dtype=torch.float32, device=dev) for _ in range(2)]
-        self._obs_td = [TensorDict({"policy": o, **({critic: c} if self.critic_group else {})},
-                                   batch_size=[W * S], device=dev) for o, c in zip(self._obs, self._critic_obs)]
+        self._obs_td = [TensorDict({"policy": o, **({critic: self._critic_obs[k]} if self._critic_obs else {})},
+                                   batch_size=[W * S], device=dev) for k, o in enumerate(self._obs)]
         self._current = 0
         self._rewards = torch.zeros(W * S, dtype=torch.float32, device=dev)
         self._dones = torch.zeros(W * S, dtype=torch.long, device=dev)
@@ -300,9 +300,9 @@ class AquariumVecEnv(VecEnv):
         obs.copy_(self.env.observations[self.team])
         if self.driven is not None:
             obs.mul_(self._active.unsqueeze(-1))
-        if self.critic_group is not None:
+        if self._critic_obs is not None:
             critic = self._critic_obs[self._current].view(W, S, -1)
-            joint = obs.reshape(W, 1, -1) if self.critic_group == "team" else self._world_state().unsqueeze(1)
+            joint = obs.reshape(W, 1, -1) if self._world_state is None else self._world_state().unsqueeze(1)
             torch.mul(joint, self._active.unsqueeze(-1), out=critic)
 
     def accumulate_episode_stats(self) -> None:
