@@ -190,10 +190,9 @@ def _video(args) -> int:
           f"{plural(cfg.predator_count, 'predator')} ({args.predator_policy}) on {env.device}, {args.steps} steps "
           f"-> {args.out}")
     start = time.perf_counter()
-    frames = record(env, lambda obs: {team: drive() for team, drive in drivers.items()}, args.steps, args.out,
-                    fps=args.fps, progress=not args.no_progress, width_px=args.frame_width,
-                    height_px=args.frame_height, view_cones=args.view_cones, hit_boxes=args.hit_boxes,
-                    velocities=args.velocities, draw_flow=args.draw_flow)
+    frames = record(env, drivers, args.steps, args.out, fps=args.fps, progress=not args.no_progress,
+                    width_px=args.frame_width, height_px=args.frame_height, view_cones=args.view_cones,
+                    hit_boxes=args.hit_boxes, velocities=args.velocities, draw_flow=args.draw_flow)
     print(f"wrote {frames} frames to {args.out} in {time.perf_counter() - start:.1f} s")
     return 0
 

@@ -16,6 +16,7 @@ import numpy as np
 
 from .checks import INT32_MAX, LARGEST, RETURN_LIMIT, SMALLEST, is_int, is_real, require
 from .per_world import INTEGER_FIELDS, PER_WORLD_FIELDS, PER_WORLD_TYPE_FIELDS, SAMPLERS, Choice, Uniform, largest
+from .seeding import config_stream
 
 OBSERVATION_RANGES = ("0..1", "-1..1")
 FRAMES = ("world", "ego")
@@ -329,9 +330,9 @@ class AquariumConfig:
         return self.with_values({n: _world_value(self._field(n), index) for n in self.per_world_fields})
 
     def draw(self, num_worlds: int, seed: int = 0) -> AquariumConfig:
-        """A copy whose samplers are replaced by `num_worlds` drawn values (a numpy generator seeded by
-        `seed`, fields in `per_world_fields` order)."""
-        rng = np.random.default_rng(seed)
+        """A copy whose samplers are replaced by `num_worlds` drawn values (`seeding.config_stream(seed)`,
+        fields in `per_world_fields` order)."""
+        rng = config_stream(seed)
         values = {}
         for name in self.per_world_fields:
             value = self._field(name)

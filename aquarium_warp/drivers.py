@@ -15,7 +15,7 @@ drivers = make_drivers({"prey": "turnaway", "predator": "runs/x/exported/policy.
 Heuristic names (`HEURISTICS`; case, "_" and "-" are ignored): those of `aquarium_warp.heuristics`,
 plus "naivchase-noconfusion" (NaivChase chasing the nearest visible prey). Heuristics draw from the
 env's seed. Trained policies act by argmax unless `deterministic=False`, then sample with their own
-`seed` (`make_drivers`: the evaluation seed for the prey, the next one for the predators).
+`seed` (`make_drivers`: `seeding.team_seed`, the run's seed for the prey, the next one for the predators).
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ from .env import TYPES, BatchedAquarium
 from .heuristics import POLICIES, make_policy, normalise_name
 from .pretrained import is_policy_file
 from .pretrained import names as pretrained_names
+from .seeding import team_seed
 
 NO_CONFUSION = "naivchase-noconfusion"
 # Heuristic names by team (compared after `normalise_name`).
@@ -88,9 +89,10 @@ def make_driver(spec, env: BatchedAquarium, team: str, deterministic: bool = Tru
 def make_drivers(specs: Mapping[str, str], env: BatchedAquarium, seed: int = 0, deterministic: bool = True,
                  confusion: bool | None = None, blind_to: Mapping[str, str] | None = None) -> dict[str, Driver]:
     """`{team: driver}` for the teams of `specs`; a trained team samples (if `deterministic=False`) with
-    `seed` for the prey and `seed + 1` for the predators, so the two teams' draws are independent.
+    `seeding.team_seed(seed, team)` (`seed` for the prey, `seed + 1` for the predators), so the two teams'
+    draws are independent.
     `blind_to` maps a team to the type its trained policy sees no slots of (`make_driver`)."""
     blind_to = blind_to or {}
-    return {team: make_driver(spec, env, team, deterministic=deterministic, seed=seed + TYPES.index(team),
+    return {team: make_driver(spec, env, team, deterministic=deterministic, seed=team_seed(seed, team),
                               confusion=confusion, blind_to=blind_to.get(team))
             for team, spec in specs.items()}

@@ -21,6 +21,7 @@ from .config import AquariumConfig
 from .device import WARP_SETUP_LOCK, free_bytes, resolve_cpu_threads, resolve_device
 from .params import BatchParams
 from .per_world import INTEGER_FIELDS, SAMPLERS, dotted_name, largest, per_world
+from .seeding import set_params_stream
 from .shard import Program, ShardSet, fused_step
 from .state import STATE_DICT_FIELDS, SimulationState, estimate_bytes
 
@@ -28,12 +29,6 @@ TYPES = ("prey", "predator")
 # Worlds of at most this many slots are one cell, whose fixed whole-world lists need no build per step
 # (H200, ~1M agents in flight: worlds of 64 stepped 14% faster with cells than as one cell).
 SINGLE_CELL_CAPACITY = 32
-
-
-def param_generator(seed: int) -> np.random.Generator:
-    """The generator `set_params` draws samplers from by default: seeded by the env's seed, apart from
-    the stream of the config's own draws (`AquariumConfig.draw`), which it would repeat."""
-    return np.random.default_rng((int(seed), 1))
 
 
 def seed_key(seed) -> int:
@@ -140,7 +135,7 @@ class BatchedAquarium:
         self.device = resolve_device(device)
         self.torch_device = torch.device(self.device)
         self.seed = int(seed)
-        self._param_rng = param_generator(self.seed)  # `set_params`' samplers draw from it by default
+        self._param_rng = set_params_stream(self.seed)  # `set_params`' samplers draw from it by default
         self.prey_capacity = cfg.prey_capacity
         self.predator_capacity = cfg.predator_capacity  # predator slots per world
         self.capacity = C = cfg.capacity
@@ -267,7 +262,7 @@ class BatchedAquarium:
         if seed is not None:
             key = seed_key(seed)
             self.seed = int(seed)
-            self._param_rng = param_generator(self.seed)
+            self._param_rng = set_params_stream(self.seed)
             self.state.worlds.seed.fill_(key)
         self._run("reset")
         return self.observations

@@ -11,6 +11,7 @@ env.reset(); episodes.begin()
 for _ in range(steps):
     obs, rewards, terminated, truncated, info = env.step(actions)
     episodes.update(info)
+# or, as an observer of the episode loop: rollout(env, drivers, steps, observers=[episodes])
 episodes.result()                   # per world: mean over its completed episodes ([W] tensors)
 episodes.log_values()               # {"swarm/polarization": float, ...}: means since the last call
 ```
@@ -47,14 +48,15 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Iterable, Mapping
 
 import torch
 import warp as wp
 
-from .env import BatchedAquarium
+from .env import BatchedAquarium, StepResult
 from .kernels import metrics as kernels
 from .per_world import per_world
+from .rollout import Drivers, Observer, Progress, rollout
 
 SCALAR_METRICS = kernels.VALUE_NAMES
 # Metrics averaged over the sampled states of an episode by `EpisodeMetrics` (the centroid is not:
@@ -178,10 +180,11 @@ class SwarmMetrics:
         return self._result
 
 
-class EpisodeMetrics:
+class EpisodeMetrics(Observer):
     """Per-episode averages of `SwarmMetrics` for every world, accumulated on the device.
 
-    Call `begin()` after `env.reset()` and `update(info)` after every `env.step()`. The state is
+    Call `begin()` after `env.reset()` and `update(info)` after every `env.step()`, or let the episode
+    loop do it (an observer of `rollout.rollout`). The state is
     sampled every `every` steps (the first state of an episode, then every `every`-th): an episode's
     value of a metric is its mean over the episode's sampled states, skipping NaN samples. When a
     world's episode ends (`info["episode_ended"]`, the env resets it), its episode values, its
@@ -245,6 +248,12 @@ class EpisodeMetrics:
         if self._trace_columns:
             self._trace.append(self.metrics.values[:, self._trace_columns].clone())
             self.trace_steps.append(self._steps)
+
+    def on_start(self, env: BatchedAquarium) -> None:
+        self.begin()
+
+    def on_step(self, env: BatchedAquarium, step: int, result: StepResult) -> None:
+        self.update(result.info)
 
     def update(self, info: Mapping) -> None:
         """Account for one `env.step()`: close the episodes that ended in it, then sample the new state
@@ -350,10 +359,11 @@ class EpisodeMetrics:
         return {name: stacked[:, :, k] for k, name in enumerate(self.trace_names)}
 
 
-def rollout_metrics(env: BatchedAquarium, act: Callable[[Mapping], Mapping], steps: int, every: int = 1,
+def rollout_metrics(env: BatchedAquarium, act: Drivers, steps: int, every: int = 1,
                     reset: bool = True, trace: Iterable[str] = (), progress: bool = False,
                     **metric_kwargs) -> dict[str, torch.Tensor]:
-    """Run `steps` steps of `env` with `actions = act(obs)` and return `EpisodeMetrics.result()`
+    """Run `steps` steps of `env` (`rollout.rollout`) with the actions of `act` (`{team: driver}`, or a
+    function of the observations returning every team's actions) and return `EpisodeMetrics.result()`
     (per world, means over the episodes completed in the run), plus the traces when `trace` names some.
 
     For evaluation: `rollout_metrics(env, lambda obs: heuristic_actions(env), steps=env.config.max_steps)`
@@ -361,16 +371,18 @@ def rollout_metrics(env: BatchedAquarium, act: Callable[[Mapping], Mapping], ste
     if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
         raise ValueError(f"steps={steps!r} must be an integer >= 1")
     episodes = EpisodeMetrics(env, every=every, trace=trace, **metric_kwargs)
-    obs = env.reset() if reset else env.observations
-    episodes.begin()
-    iterator = range(steps)
+    observers: list[Observer] = [episodes]
+    bar = None
     if progress:
         from tqdm import tqdm
 
-        iterator = tqdm(iterator, desc="rollout", unit="step")
-    for _ in iterator:
-        obs, _, _, _, info = env.step(act(obs), validate=False)
-        episodes.update(info)
+        bar = tqdm(total=steps, desc="rollout", unit="step")
+        observers.append(Progress(bar.update))
+    try:
+        rollout(env, act, steps, observers, reset=reset)
+    finally:
+        if bar is not None:
+            bar.close()
     out = episodes.result()
     if trace:
         out.update({f"trace_{k}": v for k, v in episodes.traces().items()})

@@ -60,6 +60,8 @@ from .number_lists import check_distinct
 from .number_lists import parse_list as parse_list  # re-exported: the study's list options use it
 from .pretrained import is_policy_file
 from .ray_tasks import RayOptions, placement, run_tasks
+from .rollout import Observer, Progress, rollout
+from .seeding import baseline_seed
 from .study_plots import plot_study
 
 # Per-seed columns of the CSV, in order.
@@ -227,18 +229,8 @@ def _run_batch(study: SwarmSizeStudy, cfg: AquariumConfig, worlds: int, device: 
     metrics = SwarmMetrics(env, linking_distance=study.linking_distance)
     trace = POPULATION_TRACES if study.population_changes else ()
     episodes = EpisodeMetrics(env, metrics=metrics, every=study.metrics_every, trace=trace)
-    env.reset()
-    episodes.begin()
-    chunk = 0
-    for _ in range(study.episode_steps):
-        _, _, _, _, info = env.step({"prey": prey(), "predator": predator()}, validate=False)
-        episodes.update(info)
-        chunk += 1
-        if progress is not None and chunk == 25:
-            progress(chunk)
-            chunk = 0
-    if progress is not None and chunk:
-        progress(chunk)
+    observers: list[Observer] = [episodes] if progress is None else [episodes, Progress(progress, every=25)]
+    rollout(env, {"prey": prey, "predator": predator}, study.episode_steps, observers)
     out = {"worlds": {k: v.detach().cpu().double().numpy() for k, v in episodes.result().items()},
            "nn_bin_edges": metrics.bin_edges.numpy(), "linking_distance": metrics.linking_distance}
     if trace:
@@ -339,7 +331,7 @@ def add_uniform_baselines(summary: dict, study: SwarmSizeStudy, device: str) -> 
         if key not in cache:
             snapshots = min(256, max(study.seeds, -(-65536 // s["prey"])))  # about 64k prey in all
             cache[key] = uniform_baseline(s["config"], snapshots, study.linking_distance, device,
-                                          seed=study.seed * 1_000_003 + s["prey"])
+                                          seed=baseline_seed(study.seed, s["prey"]))
         entry["uniform_baseline"] = cache[key]
 
 

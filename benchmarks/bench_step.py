@@ -39,8 +39,9 @@ import warp as wp
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from aquarium_warp import AquariumConfig, BatchedAquarium
-from aquarium_warp.bench import density_config, git_info, random_actions, timed_runs
+from aquarium_warp.bench import density_config, git_info, timed_runs
 from aquarium_warp.env import grid_dims
+from aquarium_warp.rollout import random_actions
 from aquarium_warp.shard import fused_step
 
 RESULTS = Path(__file__).resolve().parent / "results"

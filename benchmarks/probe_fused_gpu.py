@@ -27,10 +27,10 @@ import warp as wp
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import aquarium_warp.shard as shard_module
 from aquarium_warp import AquariumConfig, BatchedAquarium
-from aquarium_warp.bench import random_actions
 from aquarium_warp.bench.machine import git_info, machine_info
 from aquarium_warp.bench.timing import DeviceTimer
 from aquarium_warp.kernels import world_step
+from aquarium_warp.rollout import random_actions
 
 DEFAULT_VARIANTS = ("128:72", "64:72", "256:72", "128:64", "128:96", "128:none", "32:72")
 

@@ -45,7 +45,8 @@ def child(args) -> int:
     import warp as wp
 
     from aquarium_warp import BatchedAquarium
-    from aquarium_warp.bench import density_config, random_actions
+    from aquarium_warp.bench import density_config
+    from aquarium_warp.rollout import random_actions
 
     cfg = density_config(args.agents)
     env = BatchedAquarium(cfg, num_worlds=args.worlds, device=args.device, seed=0, cpu_threads=1,

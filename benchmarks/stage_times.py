@@ -19,7 +19,8 @@ import torch
 import warp as wp
 
 from aquarium_warp import BatchedAquarium
-from aquarium_warp.bench import command_name, density_config, random_actions
+from aquarium_warp.bench import command_name, density_config
+from aquarium_warp.rollout import random_actions
 
 
 def main(argv=None) -> int:

@@ -6,16 +6,16 @@ from __future__ import annotations
 import torch
 
 from aquarium_warp import AquariumConfig, BatchedAquarium
-from aquarium_warp.bench import random_actions as bench_random_actions
 from aquarium_warp.env import StepResult
 from aquarium_warp.heuristics import heuristic_actions
 from aquarium_warp.kernels import motion
+from aquarium_warp.rollout import random_actions as rollout_random_actions
 
 CFG = AquariumConfig(max_steps=30, prey_count=6, predator_count=2)
 
 
 def random_actions(env: BatchedAquarium, seed: int) -> dict[str, torch.Tensor]:
-    return bench_random_actions(env.config, env.num_worlds, torch.Generator().manual_seed(seed), "cpu")
+    return rollout_random_actions(env.config, env.num_worlds, torch.Generator().manual_seed(seed), "cpu")
 
 
 def test_step_returns_the_outputs_record():

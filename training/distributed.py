@@ -2,12 +2,13 @@
 
 torchrun starts one process per GPU (or per share of the CPU) and tells each its place through the
 environment (`WORLD_SIZE`, `RANK`, `LOCAL_RANK`, and the rendezvous that `init_process_group` reads).
-Each process (rank) simulates its own worlds on its own device with its own seed (`train.seed + RANK`);
-rsl-rl's PPO keeps the learners identical: parameters broadcast from rank 0 when learning starts,
-gradients all-reduced every mini-batch, the observation normalisers' statistics all-reduced, the
-adaptive learning rate decided on rank 0. This module holds the few pieces rsl-rl leaves to us: the
-rank's device and process-group backend (NCCL on GPUs, gloo on CPUs), sums over ranks for the logs,
-and gathering every rank's training state into rank 0's checkpoint.
+Each process (rank) simulates its own worlds on its own device with its own seed
+(`seeding.rank_seed`: `train.seed + RANK`); rsl-rl's PPO keeps the learners identical: parameters
+broadcast from rank 0 when learning starts, gradients all-reduced every mini-batch, the observation
+normalisers' statistics all-reduced, the adaptive learning rate decided on rank 0. This module holds
+the few pieces rsl-rl leaves to us: the rank's device and process-group backend (NCCL on GPUs, gloo
+on CPUs), sums over ranks for the logs, and gathering every rank's training state into rank 0's
+checkpoint.
 """
 
 from __future__ import annotations

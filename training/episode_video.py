@@ -24,6 +24,8 @@ import numpy as np
 
 from ..env import BatchedAquarium
 from ..render import Renderer
+from ..rollout import rollout
+from ..video import Frames
 
 TAG = "Video/episode"
 
@@ -41,11 +43,8 @@ class EpisodeVideo:
         """`make_drivers(env)` -> `{team: driver}` (callables returning a team's actions `[1, slots]`),
         built after the reset so that recurrent drivers start with zero states."""
         self.env.reset()
-        drivers = make_drivers(self.env)
-        frames = [self.renderer.render(0)]
-        for _ in range(self.steps):
-            self.env.step({team: drive() for team, drive in drivers.items()}, validate=False)
-            frames.append(self.renderer.render(0))
+        frames: list[np.ndarray] = []
+        rollout(self.env, make_drivers(self.env), self.steps, [Frames(self.renderer, frames.append)], reset=False)
         return np.stack(frames)
 
     def log(self, writer, frames: np.ndarray, iteration: int, log_dir: str | None) -> None:

@@ -45,9 +45,10 @@ from ..checks import is_int
 from ..config import AquariumConfig
 from ..device import resolve_device
 from ..drivers import is_heuristic, make_drivers
-from ..env import BatchedAquarium
+from ..env import BatchedAquarium, StepResult
 from ..json_records import json_safe
 from ..metrics import EPISODE_METRICS, EpisodeMetrics
+from ..rollout import Observer, rollout
 
 METRICS = ("captures_per_prey", "reward_per_prey", "reward_per_predator") + tuple(
     f"swarm_{name}" for name in EPISODE_METRICS)
@@ -92,6 +93,53 @@ def common_policy_env(specs, fallback: AquariumConfig) -> AquariumConfig:
     return first[1] if first is not None else fallback
 
 
+class EpisodeRecords(Observer):
+    """Records the first `per_world` episodes of every world of `env` as they end (one host sync per
+    step: whether any ended): per-slot prey captures and rewards, predator rewards, the world's
+    captures and length, and the episode's swarm metrics from `swarm` (an observer placed before this
+    one). `done` turns True once every world has finished its `per_world` episodes."""
+
+    def __init__(self, env: BatchedAquarium, swarm: EpisodeMetrics, per_world: int):
+        dev, W = env.torch_device, env.num_worlds
+        Pc, P = env.prey_capacity, env.predator_capacity
+        self.swarm, self.per_world = swarm, per_world
+        self.prey_captures = torch.zeros(W, Pc, dtype=torch.int32, device=dev)
+        self.prey_reward = torch.zeros(W, Pc, dtype=torch.float64, device=dev)
+        self.predator_reward = torch.zeros(W, P, dtype=torch.float64, device=dev)
+        self.captured = env.state.torch.captured[:, :Pc]
+        self.done_count = np.zeros(W, dtype=np.int64)
+        self.records: list[tuple[int, int, dict]] = []  # (the world's episode number, world, record)
+
+    @property
+    def done(self) -> bool:
+        return bool(self.done_count.min() >= self.per_world)
+
+    def on_step(self, env: BatchedAquarium, step: int, result: StepResult) -> None:
+        rewards, info = result.rewards, result.info
+        self.prey_captures += self.captured
+        self.prey_reward += rewards["prey"]
+        self.predator_reward += rewards["predator"]
+        ended = info["episode_ended"]
+        if not bool(ended.any()):
+            return
+        idx = torch.nonzero(ended).flatten()
+        pc, pr, dr = (self.prey_captures[idx].cpu().numpy(), self.prey_reward[idx].cpu().numpy(),
+                      self.predator_reward[idx].cpu().numpy())
+        caps = info["episode_captures"][idx].cpu().numpy()
+        swarm_values = self.swarm.ended_values[idx].cpu().numpy()
+        lengths = info["episode_length"][idx].cpu().numpy()
+        for k, w in enumerate(idx.cpu().numpy().tolist()):
+            if self.done_count[w] < self.per_world:
+                self.records.append((int(self.done_count[w]), w, {
+                    "prey_captures": pc[k].tolist(), "prey_rewards": pr[k].tolist(),
+                    "predator_rewards": dr[k].tolist(), "captures": int(caps[k]), "length": int(lengths[k]),
+                    **{f"swarm_{name}": float(swarm_values[k, m]) for m, name in enumerate(EPISODE_METRICS)}}))
+            self.done_count[w] += 1
+        self.prey_captures[idx] = 0
+        self.prey_reward[idx] = 0
+        self.predator_reward[idx] = 0
+
+
 def run_episodes(env_cfg: AquariumConfig, prey: str, predator: str, episodes: int, seed: int, device=None,
                  max_worlds: int = 1024, deterministic: bool = True, metrics_every: int = 10,
                  blind_to: dict[str, str] | None = None) -> list[dict]:
@@ -105,53 +153,20 @@ def run_episodes(env_cfg: AquariumConfig, prey: str, predator: str, episodes: in
     specs = {"prey": prey, "predator": predator}
     blind = {t: v for t, v in (blind_to or {}).items() if not is_heuristic(specs[t], t)}
     drivers = make_drivers(specs, env, seed=seed, deterministic=deterministic, blind_to=blind)
-    dev = env.torch_device
-    Pc, P = env.prey_capacity, env.predator_capacity
-    prey_captures = torch.zeros(W, Pc, dtype=torch.int32, device=dev)
-    prey_reward = torch.zeros(W, Pc, dtype=torch.float64, device=dev)
-    predator_reward = torch.zeros(W, P, dtype=torch.float64, device=dev)
-    captured = env.state.torch.captured[:, :Pc]
     swarm = EpisodeMetrics(env, every=metrics_every)  # per-episode swarm metrics (aquarium_warp.metrics)
-    swarm.begin()
     per_world = math.ceil(episodes / W)
-    done_count = np.zeros(W, dtype=np.int64)
-    records: list[tuple[int, int, dict]] = []
-    max_total_steps = per_world * env_cfg.max_steps
-    steps = 0
-    while done_count.min() < per_world:
-        if steps >= max_total_steps + env_cfg.max_steps:  # pragma: no cover - defensive
-            raise RuntimeError("evaluation did not finish its episodes")
-        actions = {t: drivers[t]() for t in ("prey", "predator")}
-        _, rewards, _, _, info = env.step(actions, validate=False)
-        swarm.update(info)
-        steps += 1
-        prey_captures += captured
-        prey_reward += rewards["prey"]
-        predator_reward += rewards["predator"]
-        ended = info["episode_ended"]
-        if not bool(ended.any()):
-            continue
-        idx = torch.nonzero(ended).flatten()
-        pc, pr, dr = (prey_captures[idx].cpu().numpy(), prey_reward[idx].cpu().numpy(),
-                      predator_reward[idx].cpu().numpy())
-        caps = info["episode_captures"][idx].cpu().numpy()
-        swarm_values = swarm.ended_values[idx].cpu().numpy()
-        lengths = info["episode_length"][idx].cpu().numpy()
-        for k, w in enumerate(idx.cpu().numpy().tolist()):
-            if done_count[w] < per_world:
-                records.append((int(done_count[w]), w, {
-                    "prey_captures": pc[k].tolist(), "prey_rewards": pr[k].tolist(),
-                    "predator_rewards": dr[k].tolist(), "captures": int(caps[k]), "length": int(lengths[k]),
-                    **{f"swarm_{name}": float(swarm_values[k, m]) for m, name in enumerate(EPISODE_METRICS)}}))
-            done_count[w] += 1
-        prey_captures[idx] = 0
-        prey_reward[idx] = 0
-        predator_reward[idx] = 0
+    records = EpisodeRecords(env, swarm, per_world)
+    # The env starts in its first episode (no reset); the bound is defensive: every world ends an
+    # episode at least every max_steps steps.
+    rollout(env, drivers, (per_world + 1) * env_cfg.max_steps, [swarm, records], reset=False,
+            until=lambda: records.done)
+    if not records.done:  # pragma: no cover - defensive
+        raise RuntimeError("evaluation did not finish its episodes")
     env.close()
-    records.sort(key=lambda r: (r[0], r[1]))
+    ordered = sorted(records.records, key=lambda r: (r[0], r[1]))
     out = []
     prey_n, pred_n = env_cfg.prey_count, env_cfg.predator_count
-    for i, (_, _, rec) in enumerate(records[:episodes]):
+    for i, (_, _, rec) in enumerate(ordered[:episodes]):
         rec["episode"] = i
         # Per prey agent of the episode (the team's initial size: reproduction slots add to the sums).
         rec["captures_per_prey"] = float(sum(rec["prey_captures"])) / prey_n

@@ -8,8 +8,9 @@ Every world gets a draw when the randomiser is made and a new one each time its 
 env has then already started the next episode, whose steps use the new values; a live count takes
 effect at the world's next reset). The range is checked once, up front: its ends (or every listed
 value) through the config's own checks, so each draw is written without the per-world checks
-(`env.set_params(validate=False)`). Draws come from a numpy generator seeded by `seed`: the same seed,
-the same values for the same sequence of episode ends. Finding the ended worlds costs one host sync per
+(`env.set_params(validate=False)`). Draws come from `seeding.randomiser_stream(seed)` (a stream of its own,
+apart from the config's draws of the same seed): the same seed, the same values for the same sequence of
+episode ends. Finding the ended worlds costs one host sync per
 step.
 """
 
@@ -21,6 +22,7 @@ import numpy as np
 import torch
 
 from ..per_world import FLAT_NAMES, INTEGER_FIELDS, Choice, Uniform
+from ..seeding import randomiser_stream
 
 FIELDS = tuple(n for n in FLAT_NAMES if n != "flow")
 
@@ -72,7 +74,7 @@ class ParamRandomizer:
                     env.set_params(**{field: value}, world=0, validate=True)
                 except ValueError as error:
                     raise ValueError(f"--randomize {field}: {value!r} is not allowed: {error}") from None
-        self.rng = np.random.default_rng(seed)
+        self.rng = randomiser_stream(seed)
         # Every world's current draw, kept for checkpoints (the env holds them only as kernel parameters).
         self.values = {field: np.zeros(env.num_worlds, dtype=np.int64 if field in INTEGER_FIELDS else np.float64)
                        for field in self.samplers}

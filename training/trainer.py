@@ -42,15 +42,14 @@ import copy
 import io
 import json
 import os
-import random
 
-import numpy as np
 import torch
 
 from ..atomic import atomic_open
 from ..device import resolve_device
 from ..drivers import make_driver
 from ..env import BatchedAquarium
+from ..seeding import rank_seed, seed_process
 from . import (
     _rsl,  # noqa: F401
     distributed,
@@ -95,10 +94,8 @@ class Trainer:
         if self.world_size > 1 and train["loop"] == "rsl-rl":
             raise ValueError("train.loop='rsl-rl' runs in one process; a torchrun run needs train.loop='fast'")
         device = distributed.rank_device(train["device"], local_rank) if self.world_size > 1 else train["device"]
-        self.seed = int(train["seed"]) + self.rank
-        torch.manual_seed(self.seed)
-        np.random.seed(self.seed % 2**32)
-        random.seed(self.seed)
+        self.seed = rank_seed(train["seed"], self.rank)
+        seed_process(self.seed)
 
         check_training_memory(config, resolve_device(device))  # the whole run, before anything is allocated
         self.env = BatchedAquarium(env_config(config), num_worlds=train["num_worlds"], device=device,
@@ -133,9 +130,9 @@ class Trainer:
             os.makedirs(log_dir, exist_ok=True)
             record = {"config": config, "runner_cfg": self.runner_cfg if not both else self.runner_cfgs,
                       "total_iterations": self.total_iterations}
-            if self.world_size > 1:  # rank r simulates with seed train.seed + r
+            if self.world_size > 1:  # rank r simulates with seed rank_seed(train.seed, r)
                 record["distributed"] = {"world_size": self.world_size,
-                                         "seeds": [int(train["seed"]) + r for r in range(self.world_size)]}
+                                         "seeds": [rank_seed(train["seed"], r) for r in range(self.world_size)]}
             with atomic_open(os.path.join(log_dir, "config.json")) as f:
                 json.dump(record, f, indent=1, default=str)
         with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints the networks (config.json has them)

@@ -58,7 +58,7 @@ from .settings import BenchSettings, parse_counts
 from .stages import KERNEL_STAGES, STAGE_LABELS, STAGES, command_name, command_stage, copy_actions_in, stage_times
 from .suite import replot, run_bench
 from .summary import RATIO_FROM_AGENTS_PER_WORLD, SERIES, per_agent_time_ratio, summary
-from .sweeps import density_config, load_worlds, random_actions, split_agents, sweep_points
+from .sweeps import density_config, load_worlds, split_agents, sweep_points
 from .table import format_row, format_table
 from .timing import DeviceTimer, repeats_within, timed_runs, torch_timer, wall_clock
 
@@ -69,7 +69,7 @@ __all__ = [
     "copy_actions_in", "copy_bandwidth", "density_config", "estimate_bytes", "format_row", "format_table",
     "git_info", "installed_version", "load_worlds", "machine_info", "main", "measure_original_peer",
     "measure_point", "measure_vmas_peer", "parse_counts", "per_agent_time_ratio", "plot_results",
-    "random_actions", "repeats_within", "replot", "run_bench", "run_from_args", "settings_from_args",
+    "repeats_within", "replot", "run_bench", "run_from_args", "settings_from_args",
     "split_agents", "stage_times", "step_byte_model", "summary", "sweep_points", "timed_runs", "torch_timer",
     "wall_clock",
 ]

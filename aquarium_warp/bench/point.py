@@ -15,11 +15,11 @@ import warp as wp
 
 from ..config import AquariumConfig
 from ..heuristics import heuristic_actions
+from ..rollout import random_actions
 from .byte_model import step_byte_model
 from .machine import available_bytes
 from .settings import BenchSettings
 from .stages import copy_actions_in, stage_times
-from .sweeps import random_actions
 from .timing import DeviceTimer, repeats_within, timed_runs
 
 if TYPE_CHECKING:

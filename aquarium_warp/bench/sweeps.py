@@ -1,11 +1,9 @@
-"""The configurations of the sweeps: worlds at the default density, their points, random actions."""
+"""The configurations of the sweeps: worlds at the default density and their points."""
 
 from __future__ import annotations
 
 import math
 from typing import Any
-
-import torch
 
 from ..config import AquariumConfig
 from .settings import BenchSettings
@@ -30,14 +28,6 @@ def density_config(agents: int, **changes: Any) -> AquariumConfig:
 def load_worlds(agents_per_world: int, load_agents: int) -> int:
     """Worlds of the load series' point: about `load_agents` agents in flight, at least one world."""
     return max(1, round(load_agents / agents_per_world))
-
-
-def random_actions(cfg: AquariumConfig, worlds: int, generator: torch.Generator, device: torch.device | str,
-                   ) -> dict[str, torch.Tensor]:
-    """One random action per slot of both types, as int32 (the env's own action dtype: a timed step
-    copies them in without a conversion)."""
-    return {t: torch.randint(0, cfg.action_count, (worlds, n), generator=generator, device=device, dtype=torch.int32)
-            for t, n in (("prey", cfg.prey_capacity), ("predator", cfg.predator_capacity))}
 
 
 def sweep_points(settings: BenchSettings) -> list[tuple[str, AquariumConfig, int]]:

@@ -62,7 +62,6 @@ copy to the host per step. Rewards and flags are new arrays each step.
 
 from __future__ import annotations
 
-import random
 from typing import Any
 
 import numpy as np
@@ -73,6 +72,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from ..config import AquariumConfig
 from ..drivers import make_driver
 from ..env import TYPES, BatchedAquarium
+from ..seeding import next_reset_seed, reset_seeds
 
 TEAMS = ("all", "prey", "predator")
 ARRAY_TYPES = ("numpy", "torch")
@@ -107,10 +107,10 @@ class AquariumRows:
         if not isinstance(validate_actions, bool):
             raise ValueError(f"validate_actions={validate_actions!r} must be True or False")
         seed = _check_seed(seed)
-        self._seed_rng = random.Random(seed if seed is not None else random.getrandbits(64))
+        self._seed_rng = reset_seeds(seed)
         if aquarium is None:
             aquarium = BatchedAquarium(config, num_worlds=num_worlds, device=device,
-                                       seed=seed if seed is not None else self._seed_rng.getrandbits(63),
+                                       seed=seed if seed is not None else next_reset_seed(self._seed_rng),
                                        cpu_threads=cpu_threads, auto_reset=True)
         elif not isinstance(aquarium, BatchedAquarium) or not aquarium.auto_reset:
             raise ValueError("aquarium must be a BatchedAquarium with auto_reset=True")
@@ -198,9 +198,9 @@ class AquariumRows:
         next seed of the sequence (see the module doc). Returns `observations`."""
         seed = _check_seed(seed)
         if seed is not None:
-            self._seed_rng = random.Random(seed)
+            self._seed_rng = reset_seeds(seed)
         else:
-            seed = self._seed_rng.getrandbits(63)
+            seed = next_reset_seed(self._seed_rng)
         self.aquarium.reset(seed=seed)
         self._load()
         return self.observations

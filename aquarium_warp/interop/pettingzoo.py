@@ -57,9 +57,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import random
 import warnings
-import zlib
 from typing import Any
 
 import gymnasium
@@ -70,6 +68,7 @@ from pettingzoo import ParallelEnv
 
 from ..config import AgentTypeConfig, AquariumConfig
 from ..env import TYPES, BatchedAquarium
+from ..seeding import next_reset_seed, reset_seeds, space_seed
 from ..world_state import STATE_FIELDS, WorldState
 
 # Above this many extra (refill) names, possible_agents grows on demand instead of listing them all.
@@ -350,15 +349,15 @@ class AquariumParallelEnv(ParallelEnv):
         if seed is not None:
             if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
                 raise ValueError(f"seed={seed!r} must be None or a non-negative integer")
-            self._seed_rng = random.Random(int(seed))
+            self._seed_rng = reset_seeds(int(seed))
             self._space_seed = int(seed)
             for kind, table in enumerate((self._action_spaces, self._observation_spaces)):
                 for agent, space in table.items():
                     self._seed_space(space, agent, kind)
             return int(seed)
         if self._seed_rng is None:
-            self._seed_rng = random.Random(random.getrandbits(64))
-        return self._seed_rng.getrandbits(63)
+            self._seed_rng = reset_seeds(None)
+        return next_reset_seed(self._seed_rng)
 
     def _start_episode(self) -> None:
         """Names and live-agent tables of a freshly reset world."""
@@ -398,8 +397,7 @@ class AquariumParallelEnv(ParallelEnv):
         """Seed an agent's space from the last explicit seed (reset(seed=...) or seed=), so that
         sampling after a seeded reset is reproducible, newborns' spaces included."""
         if self._space_seed is not None:
-            key = [self._space_seed, zlib.crc32(agent.encode()), kind]
-            space.seed(int(np.random.SeedSequence(key).generate_state(1, np.uint64)[0] >> 1))
+            space.seed(space_seed(self._space_seed, agent, kind))
 
     def _agent_type(self, agent) -> str:
         if agent not in self._possible_set:

@@ -33,6 +33,8 @@ from ..json_records import json_safe
 from ..number_lists import parse_list
 from ..ray_tasks import RayOptions, placement
 from ..ray_tasks import run_tasks as run_ray_tasks
+from ..rollout import Observer, StepView, StepViews
+from ..rollout import rollout as run_rollout
 from ..study import write_csv
 
 BAND = "mean ± 1 s.e.m. over seeds"
@@ -256,23 +258,6 @@ def train_and_export(config: dict, out_dir: str) -> tuple[dict[str, str], float]
 
 
 # ---------------------------------------------------------------------------------------------- rollouts
-@dataclasses.dataclass
-class StepView:
-    """One step of a rollout, as the measures see it: positions and live slots before the step
-    (`before_*`, copies), the state after it (`position`, `velocity`, `alive`, views valid until the next
-    step; the rest in `env.state.torch`) and the prey captured in the step (`captured` `[W, Pc]`).
-    Positions `[W, C, 2]` px, prey slots first; `step` counts from 0."""
-
-    env: BatchedAquarium
-    before_position: torch.Tensor
-    before_alive: torch.Tensor
-    position: torch.Tensor
-    velocity: torch.Tensor
-    alive: torch.Tensor
-    captured: torch.Tensor
-    step: int
-
-
 def rollout(cfg: AquariumConfig, prey: str, predator: str, worlds: int, seed: int, device: str,
             on_step: Callable[[StepView], None], metrics_every: int = 0) -> dict:
     """Play one episode of `cfg.max_steps` steps in each of `worlds` worlds with the prey and predator
@@ -287,18 +272,14 @@ def rollout(cfg: AquariumConfig, prey: str, predator: str, worlds: int, seed: in
     env = BatchedAquarium(cfg, num_worlds=worlds, device=device, seed=seed)
     drivers = make_drivers({"prey": prey, "predator": predator}, env, seed=seed)
     episodes = EpisodeMetrics(env, every=metrics_every) if metrics_every else None
-    t = env.state.torch
-    Pc = env.prey_capacity
-    env.reset()
-    if episodes is not None:
-        episodes.begin()
-    for step in range(cfg.max_steps):
-        position, alive = t.position.clone(), t.alive.clone()
-        _, _, _, _, info = env.step({team: drivers[team]() for team in ("prey", "predator")}, validate=False)
-        if episodes is not None:
-            episodes.update(info)
-        if step < cfg.max_steps - 1:
-            on_step(StepView(env, position, alive, t.position, t.velocity, t.alive, t.captured[:, :Pc], step))
+
+    def measure(view: StepView) -> None:
+        if view.step < cfg.max_steps - 1:  # the last step's state is already the next episode's first
+            on_step(view)
+
+    observers: list[Observer] = [StepViews(measure)] if episodes is None else [episodes, StepViews(measure)]
+    run_rollout(env, drivers, cfg.max_steps, observers)
+    info = env.outputs.info
     ended = info["episode_ended"]
     if not bool(ended.all()):
         raise RuntimeError("rollout: a world's episode ended early (a team died out): not one episode per world")

@@ -45,6 +45,7 @@ from ..config import AquariumConfig, FlowConfig
 from ..device import resolve_device
 from ..drivers import check_spec
 from ..number_lists import check_distinct
+from ..rollout import StepView
 from ..study import seed_stats
 from . import common
 
@@ -152,7 +153,7 @@ class EscapeMeasures:
         bins = (angle / (180 / ANGLE_BINS)).long().clamp(0, ANGLE_BINS - 1)
         self.histogram += (torch.nn.functional.one_hot(bins, ANGLE_BINS) * escape[..., None]).sum(dim=1)
 
-    def on_step(self, view: common.StepView) -> None:
+    def on_step(self, view: StepView) -> None:
         Pc = view.captured.shape[1]
         alive = view.before_alive[:, :Pc] & view.alive[:, :Pc] & ~view.captured
         self.update(view.before_position[:, :Pc], view.position[:, :Pc], view.velocity[:, :Pc], alive,

@@ -53,6 +53,8 @@ import torch
 from ..config import AquariumConfig
 from ..number_lists import check_distinct
 from ..ray_tasks import RayOptions
+from ..rollout import StepView
+from ..seeding import evaluation_seed
 from ..study import seed_stats
 from ..training.config import env_config
 from . import common
@@ -177,7 +179,7 @@ class HuntMeasures:
         self.values: dict[str, list[torch.Tensor]] = {k: [] for k in (
             "count", "spread_capture", "gap_capture", "spread_random", "gap_random", "pair_capture", "pair_random")}
 
-    def __call__(self, view: common.StepView) -> None:
+    def __call__(self, view: StepView) -> None:
         Pc = view.captured.shape[1]
         predators, alive = view.position[:, Pc:], view.alive[:, Pc:]
         if view.step % self.every == 0:  # around every live prey (row w * Pc + i: world w's predators)
@@ -234,7 +236,7 @@ def run_task(task: dict) -> dict:
         prey = policies.get("prey", "turnaway")
     cfg = env_config({"env": study.env(n, task["share_radius"], study.eval_steps)})
     measures = HuntMeasures(study.hunt_radius, study.sample_every, cfg.width, cfg.height)
-    episodes = common.rollout(cfg, prey, predator, study.eval_worlds, 1_000_003 * (seed + 1), device, measures)
+    episodes = common.rollout(cfg, prey, predator, study.eval_worlds, evaluation_seed(seed), device, measures)
     result = {"captures_per_predator": float(episodes["captures"].mean()) / n,
               "captures_per_prey": float(episodes["captures"].mean()) / study.prey, **measures.result()}
     return {**{k: task[k] for k in ("name", "condition", "share_radius", "predators", "seed")}, **result,

@@ -49,6 +49,8 @@ import torch
 
 from ..number_lists import check_distinct
 from ..ray_tasks import RayOptions
+from ..rollout import StepView
+from ..seeding import evaluation_seed
 from ..study import seed_stats
 from ..training.config import env_config
 from . import common
@@ -158,7 +160,7 @@ class FlightOnsets:
             self.sums[name] = self.sums[name] + total if name in self.sums else total
         return onset
 
-    def on_step(self, view: common.StepView) -> None:
+    def on_step(self, view: StepView) -> None:
         """`common.rollout`'s callback."""
         Pc = view.captured.shape[1]
         t = view.env.state.torch
@@ -200,7 +202,7 @@ def run_task(task: dict) -> list[dict]:
         flights = FlightOnsets(study.lag, study.flee_angle, study.flee_distance, study.turn_angle, cfg.prey.max_speed,
                                cfg.prey.view_distance, cfg.prey.fov_angle, cfg.width, cfg.height)
         worlds = max(2, study.eval_rows // n)
-        episodes = common.rollout(cfg, prey, predator, worlds, 1_000_003 * (seed + 1), device, flights.on_step)
+        episodes = common.rollout(cfg, prey, predator, worlds, evaluation_seed(seed), device, flights.on_step)
         f = flights.result()
         rows.append({"policy": task["policy"], "group_size": n, "fov_angle": fov, "predator": predator, "seed": seed,
                      "captures_per_prey": float(episodes["captures"].mean()) / n,

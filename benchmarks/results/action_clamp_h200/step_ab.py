@@ -7,7 +7,8 @@ import torch
 
 import aquarium_warp
 from aquarium_warp import AquariumConfig, BatchedAquarium
-from aquarium_warp.bench import density_config, random_actions
+from aquarium_warp.bench import density_config
+from aquarium_warp.rollout import random_actions
 
 out = {"package": aquarium_warp.__file__}
 for name, cfg, worlds in (("65536x17", AquariumConfig(), 65536), ("1x1M", density_config(1_000_000), 1)):
