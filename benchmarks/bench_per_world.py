@@ -20,7 +20,7 @@ from pathlib import Path
 import torch
 
 from aquarium_warp import AquariumConfig, BatchedAquarium
-from aquarium_warp.config import Uniform
+from aquarium_warp.per_world import Uniform
 from aquarium_warp.records import command_line, git_info, machine_info
 
 

@@ -13,7 +13,7 @@ from typing import Any
 import warp as wp
 
 from ..atomic import atomic_open, check_output_dir
-from ..env import resolve_device
+from ..device import resolve_device
 from ..records import command_line, git_info, json_safe, machine_info
 from .bandwidth import copy_bandwidth
 from .byte_model import step_byte_model

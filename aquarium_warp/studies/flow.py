@@ -54,8 +54,8 @@ from ..arguments import (
 )
 from ..atomic import check_output_dir, write_figure
 from ..config import AquariumConfig, FlowConfig
+from ..device import resolve_device
 from ..drivers import check_spec
-from ..env import resolve_device
 from ..records import command_line
 from ..rollout import StepView
 from . import common

@@ -21,9 +21,12 @@ in the scenario world, `--seeds` training seeds per condition:
 | `no-confusion` | trained against NaivChase without confusion | a confusion-driven benefit |
 | `sparse` | N = 8 (a quarter of the density) | the density dose |
 | `swarm-2x` | twice the iterations | a budget that has not plateaued |
+| `slow-predator` | N = 16, predator max speed 3.5 (the prey's is 4) | the screen's world where flocking pays |
+| `slow-predator-no-neighbours` | the same, 0 prey slots | its neighbour control |
 
 (`no-attack` and `swarm-2x` were added after the first run, at eb9c892: its `no-predation` control, a
-zero penalty, turned out not to remove predation, since training ends a captured prey's life.)
+zero penalty, turned out not to remove predation, since training ends a captured prey's life. The two
+`slow-predator` conditions were added after the screen's results, at 1d9a73b.)
 
 Every trained policy is evaluated in its own world against NaivChase, with its prey slots emptied
 (the neighbour ablation, `blind`), and against NaivChase without confusion, beside the four
@@ -69,7 +72,14 @@ CONDITIONS: dict[str, dict] = {
     "no-confusion": {"prey": 32, "sets": (), "opponent": "naivchase-noconfusion"},
     "sparse": {"prey": 8, "sets": (), "opponent": "naivchase"},
     "swarm-2x": {"prey": 32, "sets": (), "opponent": "naivchase", "budget": 2},
+    # Where the screen finds that flocking pays (a predator slower than the prey, N <= 16, 200 px).
+    "slow-predator": {"prey": 16, "sets": ("env.predator.max_speed=3.5",), "opponent": "naivchase"},
+    "slow-predator-no-neighbours": {"prey": 16, "sets": ("env.predator.max_speed=3.5", "env.prey.prey_slots=0"),
+                                    "opponent": "naivchase"},
 }
+# "a minus b" comparisons between conditions (each against NaivChase): a treatment and its control.
+CONTRASTS = (("swarm", "no-neighbours"), ("swarm", "no-attack"), ("swarm", "no-penalty"), ("swarm", "no-confusion"),
+             ("swarm", "sparse"), ("swarm", "swarm-2x"), ("slow-predator", "slow-predator-no-neighbours"))
 # Evaluations of each trained policy: label -> (predator, prey slots emptied)
 EVALUATIONS = {"naivchase": ("naivchase", False), "blind": ("naivchase", True),
                "noconfusion": ("naivchase-noconfusion", False)}
@@ -407,20 +417,18 @@ def summarize_learned(out: str, conditions: Sequence[str], seeds: int) -> dict:
         d = comparison(a[measure]["values"], b[measure]["values"], paired, margin)
         comparisons.append({"comparison": what, "measure": measure, **d})
 
-    main = per.get("swarm")
-    if main is not None:
-        for m in (PRIMARY, "swarm_local_alignment", "swarm_milling", "captures_per_prey"):
-            if "blind" in main:
-                compare("swarm: own minus neighbour-ablated (paired)", main["naivchase"], main["blind"], m, True)
-            if "noconfusion" in main:
-                compare("swarm: vs NaivChase minus vs no-confusion (paired)", main["naivchase"], main["noconfusion"],
-                        m, True)
-            for control in ("no-neighbours", "no-attack", "no-penalty", "no-confusion", "sparse", "swarm-2x"):
-                if control in per:
-                    compare(f"swarm minus {control}", main["naivchase"], per[control]["naivchase"], m, False)
+    for m in (PRIMARY, "swarm_local_alignment", "swarm_milling", "captures_per_prey"):
+        for c, entry in per.items():
+            for label, what in (("blind", "neighbour-ablated"), ("noconfusion", "vs no-confusion")):
+                if label in entry:
+                    compare(f"{c}: vs NaivChase minus {what} (paired)", entry["naivchase"], entry[label], m, True)
+        for a, b in CONTRASTS:
+            if a in per and b in per:
+                compare(f"{a} minus {b}", per[a]["naivchase"], per[b]["naivchase"], m, False)
+        for c in ("swarm", "slow-predator"):
             for prey in HEURISTIC_PREY:
-                if f"{prey}|naivchase" in main:
-                    compare(f"swarm minus {prey} prey", main["naivchase"], main[f"{prey}|naivchase"], m, False)
+                if c in per and f"{prey}|naivchase" in per[c]:
+                    compare(f"{c} minus {prey} prey", per[c]["naivchase"], per[c][f"{prey}|naivchase"], m, False)
     return {"conditions": per, "comparisons": comparisons}
 
 

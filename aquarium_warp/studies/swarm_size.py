@@ -51,8 +51,9 @@ import torch
 from ..arguments import check_distinct, check_int, non_negative_int, parse_list, positive_int
 from ..atomic import atomic_open, check_output_dir
 from ..config import AquariumConfig
+from ..device import resolve_device
 from ..drivers import check_spec, is_heuristic, make_driver
-from ..env import BatchedAquarium, resolve_device
+from ..env import BatchedAquarium
 from ..metrics import EPISODE_METRICS, EpisodeMetrics, SwarmMetrics
 from ..pretrained import is_policy_file
 from ..records import command_line, git_info, json_safe, machine_info
