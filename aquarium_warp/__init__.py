@@ -2,9 +2,9 @@
 
 from .config import AgentTypeConfig, AquariumConfig
 from .env import BatchedAquarium
-from .pettingzoo_registry import register as _register_pettingzoo
+from .interop.pettingzoo_registry import register as _register_pettingzoo
 
-_register_pettingzoo()  # pettingzoo.make("parallel" | "aec", "aquarium/Aquarium-v1"): see pettingzoo_registry
+_register_pettingzoo()  # pettingzoo.make("parallel" | "aec", "aquarium/Aquarium-v1"): see interop.pettingzoo_registry
 
 __all__ = ["AgentTypeConfig", "AquariumConfig", "BatchedAquarium", "aquarium_v1"]
 __version__ = "0.1.0"

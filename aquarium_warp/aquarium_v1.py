@@ -22,7 +22,7 @@ par = aquarium_v1.parallel_env(keep_prey_count_constant=False, predator_count=3)
 
 Keyword arguments: marl-aquarium's names and defaults, this package's `AquariumConfig` fields or
 `config=AquariumConfig(...)`, `device=` ("cpu" by default), `seed=`, `max_cycles=` (alias of
-`max_time_steps` / `max_steps`). See `aquarium_warp.pettingzoo_env`.
+`max_time_steps` / `max_steps`). See `aquarium_warp.interop.pettingzoo`.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ import numpy as np
 from pettingzoo.utils import wrappers
 from pettingzoo.utils.conversions import parallel_to_aec
 
-from .pettingzoo_env import AquariumParallelEnv
+from .interop.pettingzoo import AquariumParallelEnv
 
 raw_env = AquariumParallelEnv
 

@@ -118,7 +118,7 @@ def _demo(args) -> int:
     env = BatchedAquarium(cfg, num_worlds=args.worlds, device=args.device, seed=args.seed)
     # torch seeds are 64-bit: fold a larger seed as the env does (seeds below 2**32 are unchanged)
     gen = torch.Generator(device=env.torch_device).manual_seed(seed_key(args.seed))
-    shapes = {"prey": (args.worlds, env.prey_capacity), "predator": (args.worlds, env.predator_count)}
+    shapes = {"prey": (args.worlds, env.prey_capacity), "predator": (args.worlds, env.predator_capacity)}
     print(f"aquarium-warp demo: {args.worlds} worlds x {cfg.capacity} agents on {env.device}, "
           f"random actions, {args.steps} steps")
     env.reset()

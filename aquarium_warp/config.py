@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .checks import INT32_MAX, LARGEST, RETURN_LIMIT, SMALLEST, is_int, is_real, require
+from .per_world import INTEGER_FIELDS, PER_WORLD_FIELDS, PER_WORLD_TYPE_FIELDS, SAMPLERS, Choice, Uniform, largest
 from .seeding import config_stream
 
 OBSERVATION_RANGES = ("0..1", "-1..1")
@@ -23,34 +25,6 @@ SPAWN_HEADINGS = ("paper", "random")
 # Slots per observation block are unrolled in registers by the observation kernel; 16 per block is
 # far beyond any setting in the paper and keeps the kernel small.
 MAX_OBSERVED_SLOTS = 16
-
-# Ranges that keep the kernels' float32 arithmetic finite and exact to float32 for any reachable
-# state. The kernels square lengths (distances, vector lengths) and add per-step rates to velocities,
-# so every length, speed, force, acceleration and mass lies in [SMALLEST, LARGEST]: a square, and a
-# sum of a few squares, of such values stays inside float32's normal range [1.2e-38, 3.4e38] with a
-# wide margin (no overflow to inf, no underflow to a subnormal or to 0). Worlds are at most 1e7 px.
-SMALLEST = 1e-15
-LARGEST = 1e15
-# Episode returns add every reward of a world's slots over an episode in float32: the largest
-# per-step reward magnitude x max_steps x prey slots must stay below this (float32's max is 3.4e38).
-RETURN_LIMIT = 1e38
-# Counters (steps, ages, starvation) are int32 on the device.
-INT32_MAX = 2**31 - 1
-
-
-def _check(name: str, value, ok: bool, allowed: str) -> None:
-    if not ok:
-        raise ValueError(f"{name}={value!r} is out of range: must be {allowed}")
-
-
-def is_int(value) -> bool:
-    """Python or numpy integers (not bools)."""
-    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
-
-
-def is_real(value) -> bool:
-    return (isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
-            and not math.isnan(value))
 
 
 def _in_range(value, lo: float, hi: float) -> bool:
@@ -70,62 +44,6 @@ def _normalise(obj, ints: tuple, reals: tuple, bools: tuple = ()) -> None:
         object.__setattr__(obj, name, bool(getattr(obj, name)))
 
 
-# Per-type fields that may differ between the worlds of a batch (observation slots change array sizes).
-PER_WORLD_TYPE_FIELDS = ("max_speed", "max_steering_force", "max_acceleration", "mass", "radius", "view_distance",
-                         "fov_angle", "bounce_strength")
-# World fields that may differ between worlds: none changes an array's size (live counts are at most
-# the batch's capacity, the largest count).
-PER_WORLD_FIELDS = ("prey_count", "predator_count", "prey_reward", "prey_capture_penalty", "predator_reward",
-                    "catch_share_radius", "predator_starvation_steps", "prey_replication_age", "flow")
-INTEGER_FIELDS = ("prey_count", "predator_count", "predator_starvation_steps", "prey_replication_age")
-
-
-@dataclass(frozen=True)
-class Uniform:
-    """Per-world values drawn uniformly from [low, high] (integers for integer fields)."""
-
-    low: float
-    high: float
-
-    def draw(self, rng: np.random.Generator, n: int, integer: bool) -> list:
-        if integer:
-            return [int(x) for x in rng.integers(int(self.low), int(self.high) + 1, size=n)]
-        return [float(x) for x in rng.uniform(self.low, self.high, size=n)]
-
-    def check(self, name: str) -> None:
-        _check(name, (self.low, self.high), is_real(self.low) and is_real(self.high) and self.low <= self.high,
-               "a range of two numbers with low <= high")
-
-
-@dataclass(frozen=True)
-class LogUniform(Uniform):
-    """Per-world values whose logarithm is uniform in [log low, log high] (0 < low <= high)."""
-
-    def draw(self, rng: np.random.Generator, n: int, integer: bool) -> list:
-        values = np.exp(rng.uniform(math.log(self.low), math.log(self.high), size=n))
-        return [int(round(x)) for x in values] if integer else [float(x) for x in values]
-
-    def check(self, name: str) -> None:
-        _check(name, (self.low, self.high), is_real(self.low) and is_real(self.high) and 0 < self.low <= self.high,
-               "a range of two numbers with 0 < low <= high")
-
-
-@dataclass(frozen=True)
-class Choice:
-    """Per-world values drawn uniformly from `values`."""
-
-    values: tuple
-
-    def draw(self, rng: np.random.Generator, n: int, integer: bool) -> list:
-        return [self.values[k] for k in rng.integers(0, len(self.values), size=n)]
-
-    def check(self, name: str) -> None:
-        _check(name, self.values, isinstance(self.values, tuple) and len(self.values) > 0, "a non-empty tuple")
-
-
-SAMPLERS = (Uniform, LogUniform, Choice)
-
-
 def _per_world_value(name: str, value):
     """A per-world value (sequence, array, tensor) as a tuple of Python scalars, a sampler as is, a
     scalar as is."""
@@ -137,7 +55,7 @@ def _per_world_value(name: str, value):
     if hasattr(value, "tolist") and not isinstance(value, (np.integer, np.floating, np.bool_)):
         value = value.tolist()  # numpy arrays and torch tensors
     if isinstance(value, (list, tuple)):
-        _check(name, value, len(value) >= 1, "a scalar or a non-empty sequence of one value per world")
+        require(name, value, len(value) >= 1, "a scalar or a non-empty sequence of one value per world")
         # A world's flow given as a dict becomes its FlowConfig here, so the stored tuple holds configs.
         return tuple(v if isinstance(v, FlowConfig)
                      else _flow_from_dict(v, f"{name}[{k}].") if isinstance(v, dict) and name == "flow"
@@ -147,17 +65,6 @@ def _per_world_value(name: str, value):
 
 def _world_value(value, world: int):
     return value[world] if isinstance(value, tuple) else value
-
-
-def largest(value) -> float:
-    """The largest per-world value of a field (the value itself when it is a scalar)."""
-    if isinstance(value, tuple):
-        return max(value)
-    if isinstance(value, Choice):
-        return max(value.values)
-    if isinstance(value, Uniform):
-        return value.high
-    return value
 
 
 @dataclass(frozen=True)
@@ -181,36 +88,36 @@ class FlowConfig:
     period: float = 1000.0
 
     def __post_init__(self) -> None:
-        _check("flow.kind", self.kind, self.kind in FLOW_KINDS, f"one of {FLOW_KINDS}")
+        require("flow.kind", self.kind, self.kind in FLOW_KINDS, f"one of {FLOW_KINDS}")
         for name in ("velocity", "centre"):
             value = getattr(self, name)
             if hasattr(value, "tolist"):
                 value = value.tolist()
             ok = isinstance(value, (list, tuple)) and len(value) == 2 and all(
                 is_real(v) and abs(v) <= LARGEST for v in value)
-            _check(f"flow.{name}", value, ok, f"two finite numbers (x, y) with |x|, |y| <= {LARGEST:g}")
+            require(f"flow.{name}", value, ok, f"two finite numbers (x, y) with |x|, |y| <= {LARGEST:g}")
             object.__setattr__(self, name, tuple(float(v) for v in value))
-        _check("flow.strength", self.strength, _in_range(self.strength, -LARGEST, LARGEST),
+        require("flow.strength", self.strength, _in_range(self.strength, -LARGEST, LARGEST),
                f"a finite number in [-{LARGEST:g}, {LARGEST:g}] px/step")
-        _check("flow.core_radius", self.core_radius, _in_range(self.core_radius, SMALLEST, LARGEST),
+        require("flow.core_radius", self.core_radius, _in_range(self.core_radius, SMALLEST, LARGEST),
                f"a finite number > 0, in [{SMALLEST:g}, {LARGEST:g}] px")
-        _check("flow.amplitude", self.amplitude, _in_range(self.amplitude, 0.0, LARGEST),
+        require("flow.amplitude", self.amplitude, _in_range(self.amplitude, 0.0, LARGEST),
                f"a finite number >= 0 (at most {LARGEST:g})")
-        _check("flow.period", self.period, _in_range(self.period, SMALLEST, LARGEST),
+        require("flow.period", self.period, _in_range(self.period, SMALLEST, LARGEST),
                f"a finite number > 0 steps, in [{SMALLEST:g}, {LARGEST:g}]")
         if self.kind == "grid" or self.grid is not None:
             try:
                 grid = np.asarray(self.grid if self.grid is not None else [], dtype=np.float64)
             except (TypeError, ValueError):  # ragged rows or cells, or entries that are no numbers
-                _check("flow.grid", self.grid, False, "an array [rows, cols, 2] (rows, cols >= 1) of currents at "
+                require("flow.grid", self.grid, False, "an array [rows, cols, 2] (rows, cols >= 1) of currents at "
                        "cell centres: every row as long, every cell two numbers")
-            _check("flow.grid", "an array of shape " + str(list(grid.shape)),
+            require("flow.grid", "an array of shape " + str(list(grid.shape)),
                    grid.ndim == 3 and grid.shape[0] >= 1 and grid.shape[1] >= 1 and grid.shape[2] == 2,
                    "an array [rows, cols, 2] (rows, cols >= 1) of currents at cell centres")
             bad = ~(np.isfinite(grid) & (np.abs(grid) <= LARGEST))
             if bad.any():
                 i, j, k = (int(x) for x in np.argwhere(bad)[0])
-                _check(f"flow.grid[{i}, {j}, {k}]", float(grid[i, j, k]), False,
+                require(f"flow.grid[{i}, {j}, {k}]", float(grid[i, j, k]), False,
                        f"a finite number with |value| <= {LARGEST:g} px/step")
             object.__setattr__(self, "grid",
                                tuple(tuple(tuple(float(c) for c in cell) for cell in row) for row in grid))
@@ -240,7 +147,7 @@ class AgentTypeConfig:
     """Parameters of one agent type (docs/model.md, per-type table). Lengths in px, angles in degrees,
     speeds in px/step. Numpy scalars are accepted (and stored as Python numbers).
 
-    Allowed ranges (float32-safe, see `SMALLEST` / `LARGEST`): `max_speed` in [1e-15, half the
+    Allowed ranges (float32-safe, see `checks.SMALLEST` / `checks.LARGEST`): `max_speed` in [1e-15, half the
     world's smaller side); `max_steering_force`, `max_acceleration`, `mass` and `radius` in
     [1e-15, 1e15], with `min(max_steering_force, 2 max_speed) / mass` (the largest steering
     acceleration) at most 1e15; `view_distance` in [1e-15, 1e15] or `math.inf` (unlimited);
@@ -267,19 +174,19 @@ class AgentTypeConfig:
         bounded = f"a finite number > 0, in [{SMALLEST:g}, {LARGEST:g}] (float32-safe)"
         for name in ("max_speed", "max_steering_force", "max_acceleration", "mass", "radius"):
             value = getattr(self, name)
-            _check(f"{prefix}.{name}", value, _in_range(value, SMALLEST, LARGEST), bounded)
+            require(f"{prefix}.{name}", value, _in_range(value, SMALLEST, LARGEST), bounded)
         steering = min(self.max_steering_force, 2.0 * self.max_speed) / self.mass
-        _check(f"{prefix}.mass", self.mass, steering <= LARGEST,
+        require(f"{prefix}.mass", self.mass, steering <= LARGEST,
                f"at least min(max_steering_force, 2 max_speed) / {LARGEST:g} = "
                f"{min(self.max_steering_force, 2.0 * self.max_speed) / LARGEST:g} (a finite number > 0: the "
                "largest steering acceleration, force / mass, must stay float32-safe)")
         v = self.view_distance
-        _check(f"{prefix}.view_distance", v, _in_range(v, SMALLEST, LARGEST) or v == math.inf,
+        require(f"{prefix}.view_distance", v, _in_range(v, SMALLEST, LARGEST) or v == math.inf,
                f"a number > 0 (math.inf for unlimited): math.inf or in [{SMALLEST:g}, {LARGEST:g}]")
         a = self.fov_angle
-        _check(f"{prefix}.fov_angle", a, is_real(a) and 0 < a <= 360, "in (0, 360] degrees")
+        require(f"{prefix}.fov_angle", a, is_real(a) and 0 < a <= 360, "in (0, 360] degrees")
         b = self.bounce_strength
-        _check(f"{prefix}.bounce_strength", b, is_real(b) and (b == 0 or SMALLEST <= b <= LARGEST),
+        require(f"{prefix}.bounce_strength", b, is_real(b) and (b == 0 or SMALLEST <= b <= LARGEST),
                f"a finite number >= 0: 0 or in [{SMALLEST:g}, {LARGEST:g}] (float32-safe)")
         self._validate_slots(prefix)
         _normalise(self, (), PER_WORLD_TYPE_FIELDS)
@@ -287,7 +194,7 @@ class AgentTypeConfig:
     def _validate_slots(self, prefix: str) -> None:
         for name in ("predator_slots", "prey_slots"):
             value = getattr(self, name)
-            _check(f"{prefix}.{name}", value, is_int(value) and 0 <= value <= MAX_OBSERVED_SLOTS,
+            require(f"{prefix}.{name}", value, is_int(value) and 0 <= value <= MAX_OBSERVED_SLOTS,
                    f"an integer in [0, {MAX_OBSERVED_SLOTS}]")
         if self.predator_slots == 0 and self.prey_slots == 0:  # the observation kernels need a neighbour slot
             raise ValueError(f"{prefix}.predator_slots=0 and {prefix}.prey_slots=0: an observation needs at least "
@@ -462,7 +369,7 @@ class AquariumConfig:
                     where = f"world {k}" if lengths else "a sampler's range"
                     raise ValueError(f"{where}: {error}") from None
         # What the batch shares: the slot count and the episode returns' float32 range.
-        _check("capacity", self.capacity, self.capacity <= 2**30, "at most 2**30 agent slots per world")
+        require("capacity", self.capacity, self.capacity <= 2**30, "at most 2**30 agent slots per world")
         reward_limit = RETURN_LIMIT / (self.max_steps * self.prey_capacity)
         for name in ("prey_reward", "prey_capture_penalty", "predator_reward"):
             value = self._field(name)
@@ -470,70 +377,70 @@ class AquariumConfig:
                 (value.low, value.high) if isinstance(value, Uniform) else
                 value.values if isinstance(value, Choice) else (value,))
             worst = max(abs(v) for v in extremes)
-            _check(name, worst, worst <= reward_limit,
+            require(name, worst, worst <= reward_limit,
                    f"|{name}| <= 1e38 / (max_steps x the batch's prey slots) = {reward_limit:.3g} in every world")
 
     def _validate_scalars(self) -> None:
         for name in ("width", "height"):
             value = getattr(self, name)
-            _check(name, value, is_real(value) and math.isfinite(value) and 40 < value <= 1e7,
+            require(name, value, is_real(value) and math.isfinite(value) and 40 < value <= 1e7,
                    "a finite number in (40, 1e7] px (prey spawn 20 px from the edges)")
-        _check("prey_count", self.prey_count, is_int(self.prey_count) and self.prey_count >= 1,
+        require("prey_count", self.prey_count, is_int(self.prey_count) and self.prey_count >= 1,
                "an integer >= 1")
-        _check("predator_count", self.predator_count,
+        require("predator_count", self.predator_count,
                is_int(self.predator_count) and self.predator_count >= 1, "an integer >= 1")
-        _check("action_count", self.action_count,
+        require("action_count", self.action_count,
                is_int(self.action_count) and 1 <= self.action_count <= 65536, "an integer in [1, 65536]")
-        _check("max_steps", self.max_steps, is_int(self.max_steps) and 1 <= self.max_steps <= INT32_MAX,
+        require("max_steps", self.max_steps, is_int(self.max_steps) and 1 <= self.max_steps <= INT32_MAX,
                "an integer >= 1 and <= 2**31 - 1 (an int32 step counter)")
         for name in ("fov_enabled", "respawn_captured_prey", "prey_reproduction"):
             value = getattr(self, name)
-            _check(name, value, isinstance(value, (bool, np.bool_)), "True or False")
-        _check("catch_share_radius", self.catch_share_radius,
+            require(name, value, isinstance(value, (bool, np.bool_)), "True or False")
+        require("catch_share_radius", self.catch_share_radius,
                is_real(self.catch_share_radius) and (self.catch_share_radius == 0
                                                      or SMALLEST <= self.catch_share_radius <= LARGEST),
                f"a finite number >= 0: 0 or in [{SMALLEST:g}, {LARGEST:g}] px (float32-safe)")
         # A starving predator's counter reaches predator_starvation_steps + 1 (int32).
-        _check("predator_starvation_steps", self.predator_starvation_steps,
+        require("predator_starvation_steps", self.predator_starvation_steps,
                is_int(self.predator_starvation_steps) and 0 <= self.predator_starvation_steps <= INT32_MAX - 1,
                "an integer >= 0 and <= 2**31 - 2 (an int32 counter)")
         # Replication ages are drawn up to floor(1.25 R), and the draw's exclusive bound, one more, is
         # int32: the largest R with floor(5 R / 4) + 1 <= 2**31 - 1.
         max_replication_age = (4 * INT32_MAX - 1) // 5
-        _check("prey_replication_age", self.prey_replication_age,
+        require("prey_replication_age", self.prey_replication_age,
                is_int(self.prey_replication_age) and 1 <= self.prey_replication_age <= max_replication_age,
                f"an integer >= 1 and <= {max_replication_age} (its 1.25x drawn ages are int32)")
         # Unused without reproduction, but still an int32 kernel parameter.
-        _check("max_prey", self.max_prey, is_int(self.max_prey) and 1 <= self.max_prey <= 2**30,
+        require("max_prey", self.max_prey, is_int(self.max_prey) and 1 <= self.max_prey <= 2**30,
                "an integer >= 1 and <= 2**30 (the agent slots' limit)")
-        _check("observation_range", self.observation_range,
+        require("observation_range", self.observation_range,
                isinstance(self.observation_range, str) and self.observation_range in OBSERVATION_RANGES,
                f"one of {OBSERVATION_RANGES}")
         if not isinstance(self.flow, FlowConfig):
             raise ValueError(f"flow must be a FlowConfig (or its dict), got {type(self.flow).__name__}")
-        _check("observe_flow", self.observe_flow, isinstance(self.observe_flow, (bool, np.bool_)), "True or False")
+        require("observe_flow", self.observe_flow, isinstance(self.observe_flow, (bool, np.bool_)), "True or False")
         for name, allowed in (("observation_frame", FRAMES), ("action_frame", FRAMES),
                               ("spawn_heading", SPAWN_HEADINGS)):
             value = getattr(self, name)
-            _check(name, value, isinstance(value, str) and value in allowed, f"one of {allowed}")
+            require(name, value, isinstance(value, str) and value in allowed, f"one of {allowed}")
         # One move (speed plus drift) stays shorter than half the world, so a wrap is one add or subtract.
         drift = self.flow.reach
         for name in ("prey", "predator"):
             speed = getattr(self, name).max_speed
-            _check(f"{name}.max_speed", speed, speed + drift < 0.5 * min(self.width, self.height),
+            require(f"{name}.max_speed", speed, speed + drift < 0.5 * min(self.width, self.height),
                    "smaller than half the world's width and height" + (
                        f" less the flow's largest current {drift:g}" if drift else ""))
         if self.grid_cell_size is not None:
             g = self.grid_cell_size
-            _check("grid_cell_size", g, is_real(g) and math.isfinite(g) and g > 0,
+            require("grid_cell_size", g, is_real(g) and math.isfinite(g) and g > 0,
                    "None or a finite number > 0")
-        _check("capacity", self.capacity, self.capacity <= 2**30,
+        require("capacity", self.capacity, self.capacity <= 2**30,
                "at most 2**30 agent slots per world: prey_count (with reproduction max(prey_count, max_prey)) "
                "+ predator_count")
         reward_limit = RETURN_LIMIT / (self.max_steps * self.prey_capacity)
         for name in ("prey_reward", "prey_capture_penalty", "predator_reward"):
             value = getattr(self, name)
-            _check(name, value, is_real(value) and math.isfinite(value) and abs(value) <= reward_limit,
+            require(name, value, is_real(value) and math.isfinite(value) and abs(value) <= reward_limit,
                    f"a finite number with |{name}| <= 1e38 / (max_steps x prey slots) = {reward_limit:.3g} "
                    "(episode returns are float32 sums)")
         _normalise(self, ("prey_count", "predator_count", "action_count", "max_steps", "predator_starvation_steps",

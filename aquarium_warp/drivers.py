@@ -78,8 +78,8 @@ def make_driver(spec, env: BatchedAquarium, team: str, deterministic: bool = Tru
             return make_policy("naivchase", env, team, confusion=False)
         return make_policy(spec, env, team, confusion=confusion if key == "naivchase" else None)
     try:  # the training extra is optional
+        from .training.drivers import policy_driver
         from .training.export import load_policy
-        from .training.vec_env import policy_driver
     except ImportError as error:
         raise ValueError(f"trained policies need aquarium_warp.training (importing it failed: {error})") from error
     return policy_driver(load_policy(spec, device=env.torch_device, deterministic=deterministic, seed=seed, team=team),

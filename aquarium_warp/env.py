@@ -9,9 +9,6 @@ clone what you keep.
 from __future__ import annotations
 
 import math
-import os
-import sys
-import tempfile
 from collections.abc import Mapping
 from typing import NamedTuple
 
@@ -19,92 +16,19 @@ import numpy as np
 import torch
 import warp as wp
 
-from .config import (
-    INT32_MAX,
-    INTEGER_FIELDS,
-    LARGEST,
-    PER_WORLD_FIELDS,
-    PER_WORLD_TYPE_FIELDS,
-    SAMPLERS,
-    AquariumConfig,
-    largest,
-)
-from .kernels.state import Agents, WorldCounters
-from .params import BatchParams, per_world
+from . import checks
+from .config import AquariumConfig
+from .device import WARP_SETUP_LOCK, free_bytes, resolve_cpu_threads, resolve_device
+from .params import BatchParams
+from .per_world import INTEGER_FIELDS, SAMPLERS, dotted_name, largest, per_world
 from .seeding import set_params_stream
-from .shard import WARP_SETUP_LOCK, Program, ShardSet, fused_step
-from .state import SimulationState, estimate_bytes
+from .shard import Program, ShardSet, fused_step
+from .state import STATE_DICT_FIELDS, SimulationState, estimate_bytes
 
 TYPES = ("prey", "predator")
-# The agent fields a user may read and set (`set_state`), and the tensors of `state_dict()`: the
-# whole simulation state (the seed travels as an integer).
-AGENT_FIELDS = tuple(Agents.vars)
-STATE_DICT_FIELDS = AGENT_FIELDS + tuple(name for name in WorldCounters.vars if name != "seed")
 # Worlds of at most this many slots are one cell, whose fixed whole-world lists need no build per step
 # (H200, ~1M agents in flight: worlds of 64 stepped 14% faster with cells than as one cell).
 SINGLE_CELL_CAPACITY = 32
-_warp_ready = False
-
-
-# What Warp's native library prints during init on a machine without the NVIDIA driver.
-_NO_DRIVER_WARNING = "Could not find or load the NVIDIA CUDA driver"
-_init_messages = ""  # what init printed while silenced
-
-
-def _wants_cuda(device) -> bool:
-    return (device.type == "cuda") if isinstance(device, torch.device) else (
-        isinstance(device, str) and device.startswith("cuda"))
-
-
-def _init_warp(device=None) -> None:
-    """Initialise Warp once. Its native library warns on stderr when no CUDA driver is found, also
-    for users who never asked for CUDA; unless `device` names CUDA, that warning is held back (kept
-    for the error that `resolve_device` raises if CUDA is asked for later) and anything else printed
-    during init is passed on."""
-    with WARP_SETUP_LOCK:
-        if not _warp_ready:
-            _init_warp_once(device)
-
-
-def _init_warp_once(device) -> None:
-    global _warp_ready, _init_messages
-    wp.config.log_level = wp.LOG_WARNING  # no banner
-    if _wants_cuda(device):
-        wp.init()
-    else:
-        sys.stderr.flush()
-        saved = os.dup(2)
-        with tempfile.TemporaryFile(mode="w+b") as captured:
-            os.dup2(captured.fileno(), 2)
-            try:
-                wp.init()
-            finally:
-                os.dup2(saved, 2)
-                os.close(saved)
-            captured.seek(0)
-            _init_messages = captured.read().decode(errors="replace")
-        others = [line for line in _init_messages.splitlines(keepends=True) if _NO_DRIVER_WARNING not in line]
-        if others:
-            sys.stderr.write("".join(others))
-    _warp_ready = True
-
-
-def resolve_device(device) -> str:
-    """Warp device name for `device`: None picks "cuda:0" when CUDA is present, else "cpu"."""
-    _init_warp(device)
-    if device is None:
-        return "cuda:0" if wp.is_cuda_available() else "cpu"
-    if isinstance(device, torch.device):
-        device = str(device) if device.type == "cpu" or device.index is not None else f"{device.type}:0"
-    if not isinstance(device, str):
-        raise ValueError(f"device={device!r} must be None, a string like 'cpu' or 'cuda:0', or a torch.device")
-    if device == "cuda":
-        device = "cuda:0"
-    names = [d.alias for d in wp.get_devices()]
-    if device not in names:
-        driver = f" ({_init_messages.strip()})" if _NO_DRIVER_WARNING in _init_messages and _wants_cuda(device) else ""
-        raise ValueError(f"device={device!r} is not available; available devices: {names}{driver}")
-    return device
 
 
 def seed_key(seed) -> int:
@@ -118,39 +42,6 @@ def seed_key(seed) -> int:
         seed >>= 32
         if seed == 0:
             return key
-
-
-def _action_tensor(actions) -> torch.Tensor:
-    """Actions as a tensor; numpy arrays of the other byte order are converted first (torch reads only
-    native ones)."""
-    if isinstance(actions, np.ndarray) and not actions.dtype.isnative:
-        actions = actions.astype(actions.dtype.newbyteorder("="))
-    return actions if isinstance(actions, torch.Tensor) else torch.as_tensor(actions)
-
-
-def _cpu_tensor(name: str, value) -> torch.Tensor:
-    """`value` (a tensor, array, number or nested list) as a CPU tensor; a clear error naming `name`
-    for what torch cannot hold (strings, objects, mixed types)."""
-    try:
-        if not isinstance(value, torch.Tensor):
-            value = np.asarray(value)
-            if value.dtype.kind not in "biuf":
-                raise TypeError(f"dtype {value.dtype}")
-            value = torch.as_tensor(value.astype(value.dtype.newbyteorder("=")))
-        if value.dtype in (torch.uint16, torch.uint32, torch.uint64):
-            value = value.to(torch.float64)  # torch's wide unsigned types support little arithmetic
-        return value.detach().cpu()
-    except (TypeError, ValueError, RuntimeError, NotImplementedError) as error:
-        raise ValueError(f"{name} must hold numbers (a tensor or array of booleans, integers or reals): "
-                         f"{error}") from None
-
-
-def _cpu_threads(cpu_threads) -> int:
-    if cpu_threads is None:
-        return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    if isinstance(cpu_threads, bool) or not isinstance(cpu_threads, int) or cpu_threads < 1:
-        raise ValueError(f"cpu_threads={cpu_threads!r} must be None or an integer >= 1")
-    return cpu_threads
 
 
 def grid_dims(cfg: AquariumConfig) -> tuple[int, int]:
@@ -175,8 +66,6 @@ def grid_dims(cfg: AquariumConfig) -> tuple[int, int]:
     return max(1, int(cfg.width // target)), max(1, int(cfg.height // target))
 
 
-
-
 def action_directions(action_count: int) -> np.ndarray:
     """`[action_count, 2]` float32 unit desired-velocity directions (sin theta, -cos theta) of the actions."""
     angles = 2.0 * np.pi * np.arange(action_count) / action_count
@@ -193,9 +82,9 @@ class StepResult(NamedTuple):
     next `step()`, `reset()` or `set_state()`: clone what you keep). Unpacks as the tuple
     `(observations, rewards, terminated, truncated, info)`.
 
-    - `observations`: `{"prey": [W, prey_capacity, L_prey], "predator": [W, predator_count, L_predator]}`
+    - `observations`: `{"prey": [W, prey_capacity, L_prey], "predator": [W, predator_capacity, L_predator]}`
       float32, the observations of the state after the step (docs/model.md step 10).
-    - `rewards`: `{"prey": [W, prey_capacity], "predator": [W, predator_count]}` float32, this step's.
+    - `rewards`: `{"prey": [W, prey_capacity], "predator": [W, predator_capacity]}` float32, this step's.
     - `terminated`, `truncated`: the same shapes, bool: the agent died in this step (captured without
       respawn, or starved); the agent was alive when its world's episode ended in this step.
     - `info`: per world `"captures"` `[W]` int32 (this step's), `"episode_ended"` `[W]` bool and, valid
@@ -214,9 +103,9 @@ class StepResult(NamedTuple):
 class BatchedAquarium:
     """`num_worlds` independent Aquarium worlds on one device.
 
-    Observations: `{"prey": [W, prey_capacity, L_prey], "predator": [W, predator_count, L_pred]}`
+    Observations: `{"prey": [W, prey_capacity, L_prey], "predator": [W, predator_capacity, L_pred]}`
     float32; `observation_mask` says which neighbour slots are filled. Actions: integer tensors
-    `{"prey": [W, prey_capacity], "predator": [W, predator_count]}` on the env's device; actions of
+    `{"prey": [W, prey_capacity], "predator": [W, predator_capacity]}` on the env's device; actions of
     dead slots are ignored. A world whose episode ends resets itself inside `step()`; with
     `auto_reset=False` it stays as it ended until `reset()` (single-world wrappers use this).
     `step_kernel` picks how a step is launched: "fused" (each world's whole step in one launch, for
@@ -248,7 +137,7 @@ class BatchedAquarium:
         self.seed = int(seed)
         self._param_rng = set_params_stream(self.seed)  # `set_params`' samplers draw from it by default
         self.prey_capacity = cfg.prey_capacity
-        self.predator_count = cfg.predator_capacity  # predator slots per world
+        self.predator_capacity = cfg.predator_capacity  # predator slots per world
         self.capacity = C = cfg.capacity
         self.observation_size = {t: cfg.observation_size(t) for t in TYPES}
         self.observed_slots = {t: getattr(cfg, t).predator_slots + getattr(cfg, t).prey_slots for t in TYPES}
@@ -277,18 +166,14 @@ class BatchedAquarium:
                                                   self.device)
             self.state.worlds.seed.fill_(seed_key(seed))
             self._shards = ShardSet(cfg, self.state, self._grid_dims, self._params, self._action_direction, self.device,
-                                    auto_reset, _cpu_threads(cpu_threads), step_kernel)
+                                    auto_reset, resolve_cpu_threads(cpu_threads), step_kernel)
             self._build_views()
             self.reset()
 
     # ------------------------------------------------------------------ construction helpers
     def _check_memory(self, cells_per_world: int) -> None:
         need = estimate_bytes(self.config, self.num_worlds, cells_per_world)
-        dev = wp.get_device(self.device)
-        if dev.is_cuda:
-            available = dev.free_memory
-        else:
-            available = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES")
+        available = free_bytes(self.device)
         if need > 0.9 * available:
             raise ValueError(f"num_worlds={self.num_worlds} with capacity {self.capacity} needs about "
                              f"{need / 2**30:.2f} GiB on {self.device}, but only {available / 2**30:.2f} GiB "
@@ -384,7 +269,7 @@ class BatchedAquarium:
 
     @property
     def actions(self) -> dict[str, torch.Tensor]:
-        """The step's input buffers: `{"prey": [W, prey_capacity], "predator": [W, predator_count]}` int32
+        """The step's input buffers: `{"prey": [W, prey_capacity], "predator": [W, predator_capacity]}` int32
         tensors on the env's device. `step(actions)` copies into them; writing into them and calling
         `step()` with no actions skips that copy."""
         return self._actions
@@ -399,13 +284,13 @@ class BatchedAquarium:
         """Copy `actions` (see `step`) into the input buffers `actions`, checked first unless `validate`
         is False."""
         if validate:
-            self._validate_actions(actions)
+            checks.check_actions(self, actions)
         for t in TYPES:
-            self._actions[t].copy_(_action_tensor(actions[t]))
+            self._actions[t].copy_(checks.action_tensor(actions[t]))
 
     def step(self, actions: Mapping[str, torch.Tensor] | None = None, validate: bool = True) -> StepResult:
         """Advance every world by one step with `actions` (integer tensors `{"prey": [W, prey_capacity],
-        "predator": [W, predator_count]}` on the env's device), or, with None, with the actions already
+        "predator": [W, predator_capacity]}` on the env's device), or, with None, with the actions already
         in the `actions` buffers.
 
         Returns a `StepResult`, which unpacks as `(obs, rewards, terminated, truncated, info)`: dicts of
@@ -421,52 +306,17 @@ class BatchedAquarium:
         """
         if actions is None:
             if validate:
-                self._validate_actions(self._actions)
+                checks.check_actions(self, self._actions)
         else:
             self.set_actions(actions, validate)
         self._run("step")
         return self._outputs
 
-    def _validate_actions(self, actions) -> None:
-        if not isinstance(actions, Mapping):
-            raise ValueError(f"actions must be a dict with keys {TYPES}, got {type(actions).__name__}")
-        missing = [t for t in TYPES if t not in actions]
-        extra = [k for k in actions if k not in TYPES]
-        if missing or extra:
-            raise ValueError(f"actions must have exactly the keys {TYPES}; missing {missing}, unknown {extra}")
-        n = self.config.action_count
-        out_of_range = {}
-        for t in TYPES:
-            a = actions[t]
-            expected = tuple(self._actions[t].shape)
-            if isinstance(a, np.ndarray):
-                if self.torch_device.type != "cpu":
-                    raise ValueError(f"actions[{t!r}] is a numpy array; pass a torch tensor on {self.device}")
-                if a.dtype.kind not in "biufc":
-                    raise ValueError(f"actions[{t!r}] must have an integer dtype, got numpy {a.dtype}")
-                a = _action_tensor(a)
-            if not isinstance(a, torch.Tensor):
-                raise ValueError(f"actions[{t!r}] must be a torch tensor, got {type(a).__name__}")
-            if a.dtype.is_floating_point or a.dtype.is_complex or a.dtype == torch.bool:
-                raise ValueError(f"actions[{t!r}] must have an integer dtype, got {a.dtype}")
-            if tuple(a.shape) != expected:
-                raise ValueError(f"actions[{t!r}] must have shape {list(expected)} "
-                                 f"(num_worlds, {t} slots), got {list(a.shape)}")
-            if a.device != self.torch_device:
-                raise ValueError(f"actions[{t!r}] is on {a.device}, but the env runs on {self.device}")
-            out_of_range[t] = (a, ((a < 0) | (a >= n)) & self.alive[t])
-        # One device sync for both types, then the first bad action named.
-        flags = torch.stack([bad.any() for _, bad in out_of_range.values()]).tolist()
-        for (t, (a, bad)), flagged in zip(out_of_range.items(), flags):
-            if flagged:
-                w, i = (int(x) for x in torch.nonzero(bad)[0])
-                raise ValueError(f"actions[{t!r}][{w}, {i}]={int(a[w, i])} is out of range: live agents' "
-                                 f"actions must be in [0, {n - 1}] (action_count={n})")
-
     # ------------------------------------------------------------------ per-world parameters
-    def set_params(self, world=None, validate: bool = True, **fields) -> AquariumConfig:
+    def set_params(self, world=None, validate: bool = True, rng: np.random.Generator | None = None,
+                   **fields) -> AquariumConfig:
         """Give worlds new parameter values between steps: `world` None (every world), an index or a
-        sequence of indices; `fields` by name, the world fields of `config.PER_WORLD_FIELDS`
+        sequence of indices; `fields` by name, the world fields of `per_world.PER_WORLD_FIELDS`
         (`prey_reward=2.0`, `flow=FlowConfig(...)`, `prey_count=8`) and the per-type ones as
         `prey_<field>` / `predator_<field>` (`prey_max_speed=[3.0, 5.0]`); a value is a scalar (every
         selected world), one value per selected world, or a sampler (`Uniform`, `LogUniform`,
@@ -479,18 +329,7 @@ class BatchedAquarium:
         Nothing is rebuilt or recorded again. Returns the new `config`. `validate=False` skips the
         per-world checks of the values (about 70 us per world; the live counts' limits stay checked):
         for values already known to be valid, such as draws from a range checked once."""
-        rng = fields.pop("rng", None)
-        names = {}
-        for key in fields:
-            name = key
-            for t in ("prey", "predator"):
-                if key.startswith(t + "_") and key[len(t) + 1:] in PER_WORLD_TYPE_FIELDS:
-                    name = f"{t}.{key[len(t) + 1:]}"
-            if name not in PER_WORLD_FIELDS and "." not in name:
-                settable = list(PER_WORLD_FIELDS) + [f"{t}_{n}" for t in ("prey", "predator")
-                                                     for n in PER_WORLD_TYPE_FIELDS]
-                raise ValueError(f"unknown per-world parameter {key!r}; settable: {settable}")
-            names[key] = name
+        names = {key: dotted_name(key) for key in fields}
         W = self.num_worlds
         if world is None:
             worlds = list(range(W))
@@ -524,7 +363,7 @@ class BatchedAquarium:
             # A value every world shares stays a scalar (as a config would give it).
             values[name] = column[0] if all(v == column[0] for v in column) else tuple(column)
         new = cfg.with_values(values, validate)  # checks every world (an error names the world)
-        for name, limit in (("prey_count", self.prey_capacity), ("predator_count", self.predator_count)):
+        for name, limit in (("prey_count", self.prey_capacity), ("predator_count", self.predator_capacity)):
             counts = per_world(new._field(name), W)
             over = [k for k, n in enumerate(counts) if n > limit]
             if over:
@@ -537,28 +376,13 @@ class BatchedAquarium:
     # ------------------------------------------------------------------ state access
     def set_state(self, world: int | None = None, **fields) -> dict[str, torch.Tensor]:
         """Overwrite part of the state and recompute everything derived from it (counts, cell lists,
-        observations). Fields: the agent fields of `AGENT_FIELDS` shaped `[C, ...]` (one world) or
+        observations). Fields: the agent fields of `state.AGENT_FIELDS` shaped `[C, ...]` (one world) or
         `[W, C, ...]` (all worlds, `world=None`), and `world_step` / `episode` (a scalar for one world,
         `[W]` for all). Every value is checked (see `state_value_ranges`) before anything is written:
         a bad call raises `ValueError` and changes nothing. Returns the observations of the new state."""
         t = self.state.torch
-        unknown = [k for k in fields if k not in AGENT_FIELDS and k not in ("world_step", "episode")]
-        if unknown:
-            raise ValueError(f"unknown state fields {unknown}; "
-                             f"settable: {list(AGENT_FIELDS)} + ['world_step', 'episode']")
-        if world is not None and (isinstance(world, bool) or not isinstance(world, (int, np.integer))
-                                  or not 0 <= world < self.num_worlds):
-            raise ValueError(f"world={world!r} must be None or an integer in [0, {self.num_worlds - 1}]")
+        staged = checks.checked_state_fields(self, world, fields)
         sel = slice(None) if world is None else int(world)
-        staged = {}
-        for name, value in fields.items():
-            target = getattr(t, name)[sel]
-            value = _cpu_tensor(name, value)
-            if name in ("world_step", "episode") and world is None and value.dim() == 0:
-                value = value.expand(target.shape)
-            if tuple(value.shape) != tuple(target.shape):
-                raise ValueError(f"{name} must have shape {list(target.shape)}, got {list(value.shape)}")
-            staged[name] = self._checked_state_value(name, value, target.dtype)
         for name, value in staged.items():
             getattr(t, name)[sel].copy_(value.to(self.torch_device))
         alive = t.alive
@@ -570,69 +394,8 @@ class BatchedAquarium:
     def state_value_ranges(self) -> dict[str, str]:
         """The values `set_state` and `load_state_dict` accept, per field. Integer counters are int32 on
         the device and must not overflow within an episode; vectors must keep the kernels' float32
-        arithmetic finite (`config.LARGEST`)."""
-        cfg = self.config
-        return {name: text for name, (_, _, text) in self._integer_ranges().items()} | {
-            "position": f"finite, in [0, {cfg.width}) x [0, {cfg.height}) (as float32)",
-            "velocity": f"finite, each component in [-{LARGEST:g}, {LARGEST:g}] px/step",
-            "acceleration": f"finite, each component in [-{LARGEST:g}, {LARGEST:g}] px/step^2",
-            "heading": "finite unit vectors (|heading| = 1 within 1e-4)",
-            "alive": "booleans (or 0/1)",
-            "episode_return": "finite float32",
-        }
-
-    def _integer_ranges(self) -> dict[str, tuple[int, int, str]]:
-        steps = self.config.max_steps
-        return {
-            # A prey's age grows by one per step for up to max_steps steps of an episode.
-            "age": (0, INT32_MAX - steps, f"2**31 - 1 - max_steps: ages grow by one per step for up to "
-                                          f"max_steps={steps} steps (int32)"),
-            "replication_age": (0, INT32_MAX, "int32"),
-            "starvation": (0, INT32_MAX - 1, "int32, grows by one per step"),
-            "world_step": (0, steps - 1, f"below max_steps={steps}"),
-            "episode": (0, INT32_MAX - 1, "int32, grows by one per episode"),
-            "episode_captures": (0, INT32_MAX, "int32"),
-            "prey_alive_count": (0, self.prey_capacity, "live prey slots"),
-            "predator_alive_count": (0, self.predator_count, "live predator slots"),
-        }
-
-    def _checked_state_value(self, name: str, value: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
-        """`value` (a CPU tensor of the field's shape) as `dtype`, after checking that it holds values the
-        field may take; the range check runs on the given values, before a cast could wrap them."""
-        cfg = self.config
-        if value.dtype.is_complex:
-            raise ValueError(f"{name} has dtype {value.dtype}; expected real numbers ({dtype})")
-        if dtype == torch.bool:
-            if value.dtype != torch.bool and not ((value == 0) | (value == 1)).all():
-                raise ValueError(f"{name} must hold booleans (or 0/1)")
-            return value.to(torch.bool)
-        if dtype == torch.int32:
-            if value.dtype == torch.bool or value.dtype.is_floating_point and \
-                    not (torch.isfinite(value) & (value == value.round())).all():
-                raise ValueError(f"{name} must hold integers")
-            lo, hi, why = self._integer_ranges()[name]
-            wide = value.double() if value.dtype.is_floating_point else value.to(torch.int64)
-            if value.numel() and (wide.min() < lo or wide.max() > hi):
-                bad = wide[(wide < lo) | (wide > hi)][0].item()
-                raise ValueError(f"{name} holds {bad:.0f}, out of range: must be >= {lo} and <= {hi}, "
-                                 f"i.e. in [{lo}, {hi}] ({why})")
-            return value.to(torch.int32)
-        if value.dtype == torch.bool:
-            raise ValueError(f"{name} must hold real numbers, got booleans")
-        value = value.to(torch.float32)  # a value beyond float32's range becomes inf here and is refused
-        if not torch.isfinite(value).all():
-            raise ValueError(f"{name} must be finite (as float32)")
-        if name == "position":
-            x, y = value[..., 0], value[..., 1]
-            if (x < 0).any() or (x >= cfg.width).any() or (y < 0).any() or (y >= cfg.height).any():
-                raise ValueError(f"position must lie in [0, {cfg.width}) x [0, {cfg.height}) (as float32)")
-        elif name in ("velocity", "acceleration") and (value.abs() > LARGEST).any():
-            raise ValueError(f"{name} components must be in [-{LARGEST:g}, {LARGEST:g}] (float32-safe)")
-        elif name == "heading":
-            norm = torch.linalg.vector_norm(value.double(), dim=-1)
-            if ((norm - 1.0).abs() > 1e-4).any():
-                raise ValueError("heading must hold unit vectors (|heading| = 1 within 1e-4)")
-        return value
+        arithmetic finite (`checks.LARGEST`)."""
+        return checks.state_value_ranges(self)
 
     def state_dict(self) -> dict:
         """A copy of the whole simulation state (CPU tensors) plus the config and seed."""
@@ -659,36 +422,8 @@ class BatchedAquarium:
             key = seed_key(state["seed"])
         except ValueError as error:
             raise ValueError(f"state_dict {error}") from None
-        tensors = state["tensors"]
-        if not isinstance(tensors, Mapping):
-            raise ValueError(f"state_dict tensors must be a dict of tensors, got {type(tensors).__name__}")
-        missing = [n for n in STATE_DICT_FIELDS if n not in tensors]
-        unknown = [n for n in tensors if n not in STATE_DICT_FIELDS]
-        if missing or unknown:
-            raise ValueError(f"state_dict tensors must be exactly {list(STATE_DICT_FIELDS)}; missing {missing}, "
-                             f"unknown {unknown}")
+        staged = checks.checked_state_tensors(self, state["tensors"])
         t = self.state.torch
-        staged = {}
-        for name in STATE_DICT_FIELDS:
-            value, target = tensors[name], getattr(t, name)
-            if not isinstance(value, torch.Tensor):
-                raise ValueError(f"state_dict tensor {name} must be a torch tensor, got {type(value).__name__}")
-            if tuple(value.shape) != tuple(target.shape):
-                raise ValueError(f"state_dict tensor {name} has shape {list(value.shape)}, "
-                                 f"expected {list(target.shape)}")
-            if value.dtype != target.dtype:
-                raise ValueError(f"state_dict tensor {name} has dtype {value.dtype}, expected {target.dtype}")
-            try:
-                staged[name] = self._checked_state_value(name, value.detach().cpu(), target.dtype)
-            except ValueError as error:
-                raise ValueError(f"state_dict tensor {error}") from None
-        alive = staged["alive"]
-        for kind, slots in (("prey", slice(0, self.prey_capacity)), ("predator", slice(self.prey_capacity, None))):
-            count = staged[f"{kind}_alive_count"]
-            if not torch.equal(count, alive[:, slots].sum(dim=1).to(torch.int32)):
-                w = int(torch.nonzero(count != alive[:, slots].sum(dim=1))[0])
-                raise ValueError(f"state_dict tensor {kind}_alive_count[{w}]={int(count[w])} does not match the "
-                                 f"{int(alive[w, slots].sum())} live {kind} slots of world {w}")
         self.seed = int(state["seed"])
         self.state.worlds.seed.fill_(key)
         for name, value in staged.items():

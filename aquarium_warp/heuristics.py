@@ -43,7 +43,7 @@ class HeuristicPolicy:
     """One heuristic policy for the agents of one type in every world of `env`.
 
     Calling it returns `actions`: an int32 tensor `[num_worlds, prey_capacity]` (prey) or
-    `[num_worlds, predator_count]` (predators) on the env's device, written by a kernel into a buffer
+    `[num_worlds, predator_capacity]` (predators) on the env's device, written by a kernel into a buffer
     allocated once (so the next call overwrites it).
     """
 
@@ -76,7 +76,7 @@ class HeuristicPolicy:
         else:
             self._code = kernels.POLICY_CHASE_CONFUSED if self.confusion else kernels.POLICY_CHASE_NEAREST
         self._first_slot = 0 if agent_type == "prey" else env.prey_capacity
-        slots = env.prey_capacity if agent_type == "prey" else env.predator_count
+        slots = env.prey_capacity if agent_type == "prey" else env.predator_capacity
         self._buffer = wp.zeros((env.num_worlds, slots), dtype=wp.int32, device=env.device)
         self.actions = wp.to_torch(self._buffer)
         # The streams' keys: the env's seed (device data, so a reseed reaches the recorded launches),
@@ -127,7 +127,7 @@ _cached: weakref.WeakKeyDictionary[BatchedAquarium, dict] = weakref.WeakKeyDicti
 
 def heuristic_actions(env: BatchedAquarium, prey: str = "turnaway", predator: str = "naivchase",
                       seed: int | None = None, confusion: bool = True) -> dict[str, torch.Tensor]:
-    """Actions of both types for `env.step`: `{"prey": [W, prey_capacity], "predator": [W, predator_count]}`
+    """Actions of both types for `env.step`: `{"prey": [W, prey_capacity], "predator": [W, predator_capacity]}`
     int32 tensors (overwritten by the next call with the same arguments). `confusion` applies to a
     "naivchase" predator policy only."""
     policies = _cached.setdefault(env, {})

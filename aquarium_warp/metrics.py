@@ -55,6 +55,7 @@ import warp as wp
 
 from .env import BatchedAquarium, StepResult
 from .kernels import metrics as kernels
+from .per_world import per_world
 from .rollout import Drivers, Observer, Progress, rollout
 
 SCALAR_METRICS = kernels.VALUE_NAMES
@@ -69,10 +70,6 @@ def default_linking_distance(env: BatchedAquarium) -> float | tuple[float, ...]:
     one per world (a tuple) where the prey radius differs between worlds."""
     radius = env.config.prey.radius
     return tuple(2.5 * r for r in radius) if isinstance(radius, tuple) else 2.5 * radius
-
-
-def _per_world(value, num_worlds: int) -> list:
-    return list(value) if isinstance(value, tuple) else [value] * num_worlds
 
 
 class SwarmMetrics:
@@ -104,7 +101,7 @@ class SwarmMetrics:
         if isinstance(nn_bins, bool) or not isinstance(nn_bins, int) or nn_bins < 1:
             raise ValueError(f"nn_bins={nn_bins!r} must be an integer >= 1")
         if nn_range is None:
-            nn_range = min(2.0 * max(_per_world(cfg.prey.view_distance, W)), cfg.max_torus_distance)
+            nn_range = min(2.0 * max(per_world(cfg.prey.view_distance, W)), cfg.max_torus_distance)
         assert nn_range is not None  # for the type checker: set just above
         if isinstance(nn_range, bool) or not isinstance(nn_range, (int, float)) or not math.isfinite(nn_range) \
                 or nn_range <= 0:
@@ -117,7 +114,7 @@ class SwarmMetrics:
         self.nn_bins = nn_bins
         self.nn_range = float(nn_range)
         self.bin_width = self.nn_range / nn_bins
-        Pc, P = env.prey_capacity, env.predator_count
+        Pc, P = env.prey_capacity, env.predator_capacity
         dev = env.device
         # A lone predator (or a few) is found faster by looping over the predator slots than by a ring
         # search, which walks every prey entry on the way to it.
@@ -308,7 +305,7 @@ class EpisodeMetrics(Observer):
 
     def _prey_counts(self) -> torch.Tensor:
         """`[W]` float64: each world's initial prey count (as the env's config holds it now)."""
-        return torch.tensor(_per_world(self.env.config.prey_count, self.env.num_worlds), dtype=torch.float64,
+        return torch.tensor(per_world(self.env.config.prey_count, self.env.num_worlds), dtype=torch.float64,
                             device=self._done_captures.device)
 
     def summary(self) -> dict[str, float]:

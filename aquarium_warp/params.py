@@ -22,15 +22,12 @@ import numpy as np
 import torch
 import warp as wp
 
-from .config import PER_WORLD_TYPE_FIELDS, AquariumConfig, FlowConfig
-from .kernels.common import PREDATOR, PREY, AgentType, WorldValues
+from .config import AquariumConfig, FlowConfig
+from .kernels.common import FLOW_GRID, FLOW_NONE, FLOW_UNIFORM, FLOW_VORTEX, PREDATOR, PREY, AgentType, WorldValues
+from .per_world import PER_WORLD_TYPE_FIELDS, per_world
 
-_FLOW_CODES = {"none": 0, "uniform": 1, "vortex": 2, "grid": 3}
-
-
-def per_world(value, num_worlds: int) -> list:
-    """A field's values, one per world."""
-    return list(value) if isinstance(value, tuple) else [value] * num_worlds
+# `FlowConfig.kind` -> the kernels' code of the current.
+_FLOW_CODES = {"none": int(FLOW_NONE), "uniform": int(FLOW_UNIFORM), "vortex": int(FLOW_VORTEX), "grid": int(FLOW_GRID)}
 
 
 def cos_half_fov(fov_angle: float) -> float:

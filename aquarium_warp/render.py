@@ -36,9 +36,9 @@ import numpy as np
 import warp as wp
 
 from .atomic import atomic_open
+from .device import WARP_SETUP_LOCK
 from .kernels import render as rk
 from .kernels.common import PREDATOR, PREY
-from .shard import WARP_SETUP_LOCK
 
 DEFAULT_MAX_SIZE = 1024
 

@@ -15,7 +15,6 @@ runs them (`Program.run`); on a GPU the step runs as one CUDA graph, captured on
 from __future__ import annotations
 
 import functools
-import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
@@ -25,6 +24,7 @@ import torch
 import warp as wp
 
 from .config import AquariumConfig
+from .device import WARP_SETUP_LOCK
 from .kernels import capture, motion, observation, population, spawn, world_step
 from .kernels import grid as grid_kernels
 from .kernels.common import PREDATOR, PREY, WorldParams
@@ -51,10 +51,6 @@ STEP_KERNELS = ("auto", "fused", "stages")
 # 0.062 ms at 4,096 worlds (69,632 slots), 0.133 vs 0.113 ms at 16,384 worlds (278,528 slots): past a
 # few thousand worlds the staged kernels keep more warps busy than the fused step's barriers allow.
 AUTO_FUSED_GPU_MAX_SLOTS = 131_072
-# Warp's initialisation, kernel registration and module loading (compiling) are not thread-safe: two
-# threads building envs at once crashed the process. Everything that may load a module (recording a
-# launch loads its kernel's module) holds this lock; stepping built envs in parallel needs no lock.
-WARP_SETUP_LOCK = threading.RLock()
 
 
 def world_params(cfg: AquariumConfig, world_offset: int, auto_reset: bool, values: wp.array,

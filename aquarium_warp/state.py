@@ -16,6 +16,10 @@ from .kernels.state import Actions, Agents, Observations, Scratch, StepOutputs, 
 # Attribute name -> group type, in the order kernels take them (inputs before outputs).
 GROUPS = {"actions": Actions, "agents": Agents, "worlds": WorldCounters, "scratch": Scratch,
           "outputs": StepOutputs, "observations": Observations}
+# The agent fields a user may read and set (`BatchedAquarium.set_state`), and the tensors of
+# `state_dict()`: the whole simulation state (the seed travels as an integer).
+AGENT_FIELDS = tuple(Agents.vars)
+STATE_DICT_FIELDS = AGENT_FIELDS + tuple(name for name in WorldCounters.vars if name != "seed")
 
 
 def group_rows(group_type, group, w0: int, w1: int):
@@ -50,18 +54,19 @@ class SimulationState:
         return self._torch
 
     @classmethod
-    def allocate(cls, num_worlds: int, capacity: int, prey_capacity: int, predator_count: int,
+    def allocate(cls, num_worlds: int, capacity: int, prey_capacity: int, predator_capacity: int,
                  prey_obs_size: int, predator_obs_size: int, prey_mask_size: int, predator_mask_size: int,
                  device) -> SimulationState:
         """Zeroed arrays for `num_worlds` worlds of `capacity` slots (the sizes of the field docs)."""
         W, C = num_worlds, capacity
         shapes = {  # field -> shape; every other field is [W, C] or [W] as its dtype's ndim says
             "ended_return": (W, 2),
-            "prey_action": (W, prey_capacity), "predator_action": (W, predator_count),
-            "obs_prey": (W, prey_capacity, prey_obs_size), "obs_predator": (W, predator_count, predator_obs_size),
-            "mask_prey": (W, prey_capacity, prey_mask_size), "mask_predator": (W, predator_count, predator_mask_size),
+            "prey_action": (W, prey_capacity), "predator_action": (W, predator_capacity),
+            "obs_prey": (W, prey_capacity, prey_obs_size), "obs_predator": (W, predator_capacity, predator_obs_size),
+            "mask_prey": (W, prey_capacity, prey_mask_size),
+            "mask_predator": (W, predator_capacity, predator_mask_size),
             "slot_prey": (W, prey_capacity, prey_mask_size),
-            "slot_predator": (W, predator_count, predator_mask_size),
+            "slot_predator": (W, predator_capacity, predator_mask_size),
         }
         groups = {}
         for group_name, group_type in GROUPS.items():

@@ -51,8 +51,9 @@ import torch
 from .atomic import atomic_open
 from .bench.machine import git_info, machine_info
 from .config import AquariumConfig
+from .device import resolve_device
 from .drivers import check_spec, is_heuristic, make_driver
-from .env import BatchedAquarium, resolve_device
+from .env import BatchedAquarium
 from .json_records import json_safe
 from .metrics import EPISODE_METRICS, EpisodeMetrics, SwarmMetrics
 from .number_lists import check_distinct

@@ -93,8 +93,8 @@ def train_run(train_args: argparse.Namespace, run: TrainingRun) -> dict:
     """Train `run` in its directory with `aquarium-warp train`'s options `train_args`: kept if
     `sweep_run.json` says it finished, resumed from its newest checkpoint if it started, else from
     scratch. Returns the run's record (also in `sweep_run.json`). One sweep task, on Ray or here."""
+    from .training.checkpoints import latest_checkpoint
     from .training.cli import add_train_arguments, run_train
-    from .training.trainer import latest_checkpoint
 
     args = argparse.Namespace(**vars(train_args))
     args.seed, args.log_dir, args.set = run.seed, run.run_dir, list(train_args.set) + list(run.sets)

@@ -160,7 +160,7 @@ def record(env, drivers: Drivers, steps: int, path, world: int = 0, *, fps: floa
 
     `drivers`: `{team: driver}` (`drivers.make_drivers`), or a function of the env's current
     observations returning the actions dict for `env.step` (`{"prey": [W, prey_capacity], "predator":
-    [W, predator_count]}` int tensors); every step's actions are checked. The env is not reset: the
+    [W, predator_capacity]}` int tensors); every step's actions are checked. The env is not reset: the
     video starts from its current state. Writes `steps + 1` frames (the current state, then the state
     after each step) and returns that count. A world whose episode ends resets itself inside `step()`,
     so the video then continues with the new episode.

@@ -22,7 +22,7 @@ import torch
 
 from aquarium_warp import AquariumConfig, BatchedAquarium
 from aquarium_warp.bench.machine import git_info, machine_info
-from aquarium_warp.config import Uniform
+from aquarium_warp.per_world import Uniform
 
 
 def sync(device: str) -> None:

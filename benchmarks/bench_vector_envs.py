@@ -44,12 +44,12 @@ def make(path: str, worlds: int, max_steps: int, seed: int):
     if path.startswith("native"):
         cfg = AquariumConfig(max_steps=max_steps)
         if path == "native gymnasium":
-            from aquarium_warp.vector_env import AquariumVectorEnv
+            from aquarium_warp.interop.gymnasium import AquariumVectorEnv
 
             vec = AquariumVectorEnv(cfg, num_worlds=worlds)
             vec.reset(seed=seed)
             return vec, vec.step, vec.num_envs
-        from aquarium_warp.sb3_vec_env import AquariumSB3VecEnv
+        from aquarium_warp.interop.sb3 import AquariumSB3VecEnv
 
         vec = AquariumSB3VecEnv(cfg, num_worlds=worlds)
         vec.seed(seed)

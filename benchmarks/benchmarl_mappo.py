@@ -60,7 +60,7 @@ def main(argv=None) -> int:
     from benchmarl.experiment import Experiment, ExperimentConfig
     from benchmarl.models.mlp import MlpConfig
 
-    from aquarium_warp.benchmarl_task import AquariumTask
+    from aquarium_warp.interop.benchmarl import AquariumTask
 
     task = AquariumTask.PREDATOR_PREY.get_task(config={"max_steps": args.max_steps, "prey_count": args.prey,
                                                        "predator_count": args.predators})

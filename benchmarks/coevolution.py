@@ -18,7 +18,7 @@ Steps:
    (b) both teams learning, (c) both teams with the pool, each in a process of its own; agent-steps/s
    of all agents and of the learning rows;
 2. the co-evolution run, checkpoints every `iterations / --generations` iterations (`run/`);
-3. cross-play (`aquarium_warp.training.evaluate.cross_play`): every prey generation (and Random,
+3. cross-play (`aquarium_warp.training.cross_play.cross_play`): every prey generation (and Random,
    TurnAway) against every predator generation (and Random, NaivChase), `--eval-episodes` x
    `--eval-seeds`; each generation against the previous one;
 4. one video (`episode.gif`, and its last frame `episode.png`) of the final policies;
@@ -52,8 +52,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from aquarium_warp.bench import git_info, machine_info
 from aquarium_warp.training import Trainer, make_config
 from aquarium_warp.training.config import env_config
+from aquarium_warp.training.cross_play import cross_play, write_cross_play
 from aquarium_warp.training.episode_video import EpisodeVideo, gif_bytes
-from aquarium_warp.training.evaluate import cross_play, plot_cross_play, write_cross_play
+from aquarium_warp.training.plots import plot_cross_play
 
 SWARM = ("polarization", "groups", "cohesion", "nn_mean")
 

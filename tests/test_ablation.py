@@ -16,7 +16,7 @@ import torch
 from aquarium_warp import AquariumConfig, BatchedAquarium
 from aquarium_warp.cli import main
 from aquarium_warp.drivers import make_driver
-from aquarium_warp.training.vec_env import TrainedOpponent
+from aquarium_warp.training.drivers import TrainedOpponent
 
 
 @pytest.mark.parametrize("kw, own", [

@@ -37,7 +37,7 @@ def assert_same_state(a: dict, b: dict) -> None:
 
 def random_actions(env, gen) -> dict:
     return {"prey": torch.randint(0, env.config.action_count, (env.num_worlds, env.prey_capacity), generator=gen),
-            "predator": torch.randint(0, env.config.action_count, (env.num_worlds, env.predator_count),
+            "predator": torch.randint(0, env.config.action_count, (env.num_worlds, env.predator_capacity),
                                       generator=gen)}
 
 

@@ -14,8 +14,9 @@ pytest.importorskip("rsl_rl")
 import torch
 
 from aquarium_warp.cli import main
+from aquarium_warp.training.checkpoints import latest_checkpoint
 from aquarium_warp.training.config import make_config
-from aquarium_warp.training.trainer import Trainer, latest_checkpoint
+from aquarium_warp.training.trainer import Trainer
 
 
 @pytest.fixture(scope="module")

@@ -266,7 +266,7 @@ def test_env_argument_edge_accepted(kwargs):
     try:
         assert env.device == "cpu"
         obs, *_ = env.step({"prey": torch.zeros(env.num_worlds, env.prey_capacity, dtype=torch.int64),
-                            "predator": torch.zeros(env.num_worlds, env.predator_count, dtype=torch.int64)})
+                            "predator": torch.zeros(env.num_worlds, env.predator_capacity, dtype=torch.int64)})
         assert torch.isfinite(obs["prey"]).all()
     finally:
         env.close()

@@ -19,14 +19,8 @@ import torch
 from aquarium_warp import BatchedAquarium
 from aquarium_warp.drivers import make_driver
 from aquarium_warp.training.config import env_config, make_config
-from aquarium_warp.training.evaluate import (
-    CROSS_PLAY_METRICS,
-    cross_play,
-    elo_ratings,
-    evaluate_policies,
-    expand_specs,
-    run_episodes,
-)
+from aquarium_warp.training.cross_play import CROSS_PLAY_METRICS, cross_play, elo_ratings, expand_specs
+from aquarium_warp.training.evaluate import evaluate_policies, run_episodes
 from aquarium_warp.training.trainer import Trainer
 
 

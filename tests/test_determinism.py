@@ -27,7 +27,8 @@ def action_sequence(env, steps: int, seed: int) -> list[dict]:
     gen = torch.Generator().manual_seed(seed)
     n = env.config.action_count
     return [{"prey": torch.randint(0, n, (env.num_worlds, env.prey_capacity), generator=gen).to(env.torch_device),
-             "predator": torch.randint(0, n, (env.num_worlds, env.predator_count), generator=gen).to(env.torch_device)}
+             "predator": torch.randint(0, n, (env.num_worlds, env.predator_capacity),
+                                       generator=gen).to(env.torch_device)}
             for _ in range(steps)]
 
 

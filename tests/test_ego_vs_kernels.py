@@ -31,7 +31,6 @@ sys.path.insert(0, os.path.dirname(__file__))
 import reference_model as ref  # noqa: E402
 import test_heuristics  # noqa: E402
 from test_kernels_vs_reference import (  # noqa: E402
-    DEVICE,
     NUM_WORLDS,
     check_observations_after_set_state,
     check_step,
@@ -115,9 +114,9 @@ STEP_CASES = [(name, "auto") for name in NAMES] + [(name, "stages") for name in 
 _ENVS: dict = {}
 
 
-def get_env(name: str, step_kernel: str = "auto") -> BatchedAquarium:
+def get_env(name: str, device: str, step_kernel: str = "auto") -> BatchedAquarium:
     if (name, step_kernel) not in _ENVS:
-        _ENVS[name, step_kernel] = BatchedAquarium(configs()[name][0], num_worlds=NUM_WORLDS, device=DEVICE,
+        _ENVS[name, step_kernel] = BatchedAquarium(configs()[name][0], num_worlds=NUM_WORLDS, device=device,
                                                    seed=0, step_kernel=step_kernel)
     return _ENVS[name, step_kernel]
 
@@ -173,15 +172,15 @@ def check_fresh_headings(name: str, seen: dict) -> None:
 # Kernel vs reference
 # --------------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("name", NAMES)
-def test_ego_observations_after_set_state(name):
-    check_observations_after_set_state(name, configs()[name][0], get_env(name),
+def test_ego_observations_after_set_state(name, device):
+    check_observations_after_set_state(name, configs()[name][0], get_env(name, device),
                                        np.random.default_rng(5000 + NAMES.index(name)))
 
 
 @pytest.mark.parametrize("name", ["ego_respawns", "ego_signed_slots", "ego_per_world_flow_observed", "ego_many_agents"])
-def test_ego_observations_after_reset(name):
+def test_ego_observations_after_reset(name, device):
     """The observations of a fresh episode (random spawn headings) against the reference's of that state."""
-    cfg, env = configs()[name][0], get_env(name)
+    cfg, env = configs()[name][0], get_env(name, device)
     env.reset(seed=17)
     after = read_worlds(env)
     errors = []
@@ -194,8 +193,8 @@ def test_ego_observations_after_reset(name):
 
 
 @pytest.mark.parametrize("name, step_kernel", STEP_CASES)
-def test_ego_single_step_from_random_states(name, step_kernel, events):
-    cfg, env = configs()[name][0], get_env(name, step_kernel)
+def test_ego_single_step_from_random_states(name, step_kernel, events, device):
+    cfg, env = configs()[name][0], get_env(name, device, step_kernel)
     rng = np.random.default_rng(6000 + NAMES.index(name))
     errors = []
     for rep in range(3):
@@ -208,12 +207,12 @@ def test_ego_single_step_from_random_states(name, step_kernel, events):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name, step_kernel", STEP_CASES)
-def test_ego_rollout_resynced_each_step(name, step_kernel, events):
+def test_ego_rollout_resynced_each_step(name, step_kernel, events, device):
     """ROLLOUT_STEPS steps with random actions, each step's reference input the kernel's state. Ego actions
     turn from each agent's own heading, so a constant action per world makes agents circle; worlds whose
     episode ends auto-reset (random headings) and go on. The configs meant to respawn or give birth must."""
     cfg, expected_events = configs()[name]
-    env = get_env(name, step_kernel)
+    env = get_env(name, device, step_kernel)
     rng = np.random.default_rng(7000 + NAMES.index(name))
     errors = []
     worlds = [random_world(rng, world_config(cfg, w)) for w in range(env.num_worlds)]
@@ -234,21 +233,21 @@ def test_ego_rollout_resynced_each_step(name, step_kernel, events):
 # --------------------------------------------------------------------------------------------------
 # Spawn headings and defaults
 # --------------------------------------------------------------------------------------------------
-def _reset_state(cfg, num_worlds, seed=0):
-    env = BatchedAquarium(cfg, num_worlds=num_worlds, device=DEVICE, seed=seed)
+def _reset_state(cfg, num_worlds, device, seed=0):
+    env = BatchedAquarium(cfg, num_worlds=num_worlds, device=device, seed=seed)
     env.reset()
     return env, {k: v.cpu().numpy().copy() for k, v in
                  ((k, getattr(env.state.torch, k)) for k in ("position", "velocity", "heading", "alive",
                                                               "replication_age"))}
 
 
-def test_random_spawn_headings_at_episode_start():
+def test_random_spawn_headings_at_episode_start(device):
     """spawn_heading "random": every live agent's heading is a unit vector, velocity = heading * 1 (both
     types), headings differ and cover all four quadrants (prey and predators each); the paper layout's
     draws (positions, replication ages) are unchanged, because the angle is drawn after them."""
     kw = dict(prey_count=16, predator_count=2, prey_reproduction=True, max_prey=20)
-    env, st = _reset_state(AquariumConfig(**kw, spawn_heading="random"), 48)
-    _, paper = _reset_state(AquariumConfig(**kw), 48)
+    env, st = _reset_state(AquariumConfig(**kw, spawn_heading="random"), 48, device)
+    _, paper = _reset_state(AquariumConfig(**kw), 48, device)
     Pc = env.prey_capacity
     alive = st["alive"]
     assert alive[:, :16].all() and not alive[:, 16:Pc].any() and alive[:, Pc:].all()
@@ -270,11 +269,11 @@ def test_random_spawn_headings_at_episode_start():
     assert (paper["heading"][:, Pc:] == [0.0, -1.0]).all() and (paper["velocity"][:, Pc:] == [0.0, -1.0]).all()
 
 
-def test_random_spawn_headings_after_auto_reset():
+def test_random_spawn_headings_after_auto_reset(device):
     """An auto-reset (max_steps 2) spawns the next episode with new random headings (its own spawn stream),
     velocity = heading * 1, at the paper layout's positions."""
     kw = dict(prey_count=12, predator_count=2, max_steps=2)
-    envs = [BatchedAquarium(AquariumConfig(**kw, spawn_heading=mode), num_worlds=16, device=DEVICE, seed=5)
+    envs = [BatchedAquarium(AquariumConfig(**kw, spawn_heading=mode), num_worlds=16, device=device, seed=5)
             for mode in ("random", "paper")]
     for env in envs:
         env.reset()
@@ -293,17 +292,17 @@ def test_random_spawn_headings_after_auto_reset():
     np.testing.assert_array_equal(st["position"], envs[1].state.torch.position.cpu().numpy())
 
 
-def test_random_spawn_headings_depend_on_the_seed_and_reproduce():
+def test_random_spawn_headings_depend_on_the_seed_and_reproduce(device):
     cfg = AquariumConfig(prey_count=8, predator_count=2, spawn_heading="random")
-    _, a = _reset_state(cfg, 4, seed=1)
-    _, b = _reset_state(cfg, 4, seed=1)
-    _, c = _reset_state(cfg, 4, seed=2)
+    _, a = _reset_state(cfg, 4, device, seed=1)
+    _, b = _reset_state(cfg, 4, device, seed=1)
+    _, c = _reset_state(cfg, 4, device, seed=2)
     np.testing.assert_array_equal(a["heading"], b["heading"])
     assert not np.array_equal(a["heading"], c["heading"])
 
 
 @pytest.mark.slow
-def test_named_defaults_are_bit_for_bit_the_unnamed_config():
+def test_named_defaults_are_bit_for_bit_the_unnamed_config(device):
     """observation_frame "world", action_frame "world", spawn_heading "paper" named explicitly give the
     same observations, masks, rewards and states, bit for bit, as a config that does not name them, over a
     rollout with captures, respawns and auto-resets (fused and staged)."""
@@ -312,7 +311,7 @@ def test_named_defaults_are_bit_for_bit_the_unnamed_config():
     named = AquariumConfig(**kw, observation_frame="world", action_frame="world", spawn_heading="paper")
     assert plain == named
     for step_kernel in ("auto", "stages"):
-        envs = [BatchedAquarium(c, num_worlds=4, device=DEVICE, seed=3, step_kernel=step_kernel)
+        envs = [BatchedAquarium(c, num_worlds=4, device=device, seed=3, step_kernel=step_kernel)
                 for c in (plain, named)]
         obs = [e.reset() for e in envs]
         assert obs[0]["prey"].shape[-1] == 29 and obs[0]["predator"].shape[-1] == 29
@@ -334,14 +333,14 @@ def test_named_defaults_are_bit_for_bit_the_unnamed_config():
 # Heuristics under action_frame "ego"
 # --------------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("variant", ["default", "no_fov", "small_world"])
-def test_ego_heuristics_match_the_brute_force_reference(variant, monkeypatch):
+def test_ego_heuristics_match_the_brute_force_reference(variant, monkeypatch, device):
     """test_heuristics' all-pairs reference with the ego choice: the same flee / chase direction d, then the
     action nearest to u = (d.r, -(d.f)) (zero d: action 0)."""
     world = {"default": {}, "no_fov": {"fov_enabled": False}, "small_world": {"width": 300.0, "height": 250.0}}
     cfg = AquariumConfig(prey_count=10, predator_count=3, action_frame="ego", **world[variant])
     monkeypatch.setattr(test_heuristics, "nearest_action", ref.ego_nearest_action)
     W = 48
-    env = BatchedAquarium(cfg, num_worlds=W, device=DEVICE, seed=3)
+    env = BatchedAquarium(cfg, num_worlds=W, device=device, seed=3)
     rng = np.random.default_rng(11)
     C = env.capacity
     spread = np.where(rng.random((W, 1, 1)) < 0.3, 60.0, 1.0)

@@ -165,7 +165,7 @@ def run_cases(cases: int) -> None:
     from hypothesis import strategies as st
 
     from aquarium_warp import BatchedAquarium
-    from aquarium_warp.config import LARGEST
+    from aquarium_warp.checks import LARGEST
     from aquarium_warp.env import grid_dims
 
     space = field_space()
@@ -246,7 +246,7 @@ def run_cases(cases: int) -> None:
         n = cfg.action_count
         extremes = np.array([-2**31, -10**6, -5, -1, n, 16, 10**6, 2**31 - 1])
         for _ in range(3):
-            shapes = {"prey": (worlds, env.prey_capacity), "predator": (worlds, env.predator_count)}
+            shapes = {"prey": (worlds, env.prey_capacity), "predator": (worlds, env.predator_capacity)}
             if data.draw(st.integers(0, 3)) == 0:  # unvalidated, out of range: clamped in the kernel
                 counts["unvalidated_steps"] += 1
                 actions = {t: torch.as_tensor(rng.choice(extremes, size=s)) for t, s in shapes.items()}

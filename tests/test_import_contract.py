@@ -1,6 +1,7 @@
-"""The package's layering, read from the source (nothing imported): the core (the config, env, state,
-shards, parameters, seeding and kernels) imports nothing from training, the command line, the studies, the
-viewer or the adapters, and no module imports a private name (`_name`) of another package."""
+"""The package's layering, read from the source (nothing imported): the core (the config, per-world
+fields, checks, device, seeding, env, state, shards, parameters and kernels) imports nothing from training,
+the command line, the studies, the viewer, the adapters or the episode loop, and no module imports a private
+name (`_name`) of another package."""
 
 from __future__ import annotations
 
@@ -11,13 +12,12 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # Source folders and the package each installs as (pyproject.toml's package-dir).
 FOLDERS = {"aquarium_warp": "aquarium_warp", "kernels": "aquarium_warp.kernels", "training": "aquarium_warp.training"}
 CORE = ("aquarium_warp.config", "aquarium_warp.env", "aquarium_warp.state", "aquarium_warp.shard",
-        "aquarium_warp.params", "aquarium_warp.seeding")
+        "aquarium_warp.params", "aquarium_warp.per_world", "aquarium_warp.checks", "aquarium_warp.device",
+        "aquarium_warp.seeding")
 # What the core must not reach: everything built on top of it.
 ABOVE_CORE = ("aquarium_warp.training", "aquarium_warp.cli", "aquarium_warp.study", "aquarium_warp.studies",
-              "aquarium_warp.viewer", "aquarium_warp.drivers", "aquarium_warp.pettingzoo_env",
-              "aquarium_warp.aquarium_v1", "aquarium_warp.torchrl_env", "aquarium_warp.benchmarl_task",
-              "aquarium_warp.vector_env", "aquarium_warp.sb3_vec_env", "aquarium_warp.sweep", "aquarium_warp.video",
-              "aquarium_warp.bench", "aquarium_warp.rollout")
+              "aquarium_warp.viewer", "aquarium_warp.drivers", "aquarium_warp.interop", "aquarium_warp.aquarium_v1",
+              "aquarium_warp.sweep", "aquarium_warp.video", "aquarium_warp.bench", "aquarium_warp.rollout")
 
 
 def modules() -> dict[str, str]:

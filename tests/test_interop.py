@@ -51,7 +51,7 @@ def assert_same(a: dict, b: dict, where: str) -> None:
 def random_actions(env, gen) -> dict[str, torch.Tensor]:
     n = env.config.action_count
     return {"prey": torch.randint(0, n, (env.num_worlds, env.prey_capacity), generator=gen, dtype=torch.int32),
-            "predator": torch.randint(0, n, (env.num_worlds, env.predator_count), generator=gen, dtype=torch.int32)}
+            "predator": torch.randint(0, n, (env.num_worlds, env.predator_capacity), generator=gen, dtype=torch.int32)}
 
 
 @pytest.mark.parametrize("how", ["pickle", "deepcopy"])

@@ -120,7 +120,7 @@ class Checker:
     def __init__(self, env: BatchedAquarium):
         self.env = env
         self.cfg = cfg = env.config
-        self.W, self.C, self.Pc, self.P = env.num_worlds, env.capacity, env.prey_capacity, env.predator_count
+        self.W, self.C, self.Pc, self.P = env.num_worlds, env.capacity, env.prey_capacity, env.predator_capacity
         self.signed = cfg.observation_range == "-1..1"
         self.lo = -1.0 if self.signed else 0.0
         self.dev = dev = env.torch_device  # every tensor the checker makes lives with the env's tensors
@@ -361,7 +361,7 @@ def test_random_rollout_invariants(device, name):
         n = case.cfg.action_count
         for _ in range(case.steps):
             actions = {"prey": torch.randint(0, n, (env.num_worlds, env.prey_capacity), generator=gen),
-                       "predator": torch.randint(0, n, (env.num_worlds, env.predator_count), generator=gen)}
+                       "predator": torch.randint(0, n, (env.num_worlds, env.predator_capacity), generator=gen)}
             actions = {k: a.to(env.torch_device) for k, a in actions.items()}
             checker.step(actions)
         for event in case.expect:
@@ -381,7 +381,7 @@ def test_reset_mid_episode_restarts_the_statistics(device):
 
         def actions():
             return {"prey": torch.randint(0, n, (2, env.prey_capacity), generator=gen).to(env.torch_device),
-                    "predator": torch.randint(0, n, (2, env.predator_count), generator=gen).to(env.torch_device)}
+                    "predator": torch.randint(0, n, (2, env.predator_capacity), generator=gen).to(env.torch_device)}
 
         for _ in range(25):
             checker.step(actions())

@@ -42,7 +42,6 @@ import reference_model as ref  # noqa: E402
 
 TOL = 1e-5
 NUM_WORLDS = 4
-DEVICE = os.environ.get("AQUARIUM_TEST_DEVICE", "cpu")  # as in conftest.py: CPU unless a GPU is named
 MAX_REPORTED = 25
 
 
@@ -152,9 +151,9 @@ STEP_CASES = [(name, "auto") for name in CONFIGS] + [(name, "stages") for name i
 _ENVS: dict = {}
 
 
-def get_env(name: str, step_kernel: str = "auto") -> BatchedAquarium:
+def get_env(name: str, device: str, step_kernel: str = "auto") -> BatchedAquarium:
     if (name, step_kernel) not in _ENVS:
-        _ENVS[name, step_kernel] = BatchedAquarium(CONFIGS[name], num_worlds=NUM_WORLDS, device=DEVICE, seed=0,
+        _ENVS[name, step_kernel] = BatchedAquarium(CONFIGS[name], num_worlds=NUM_WORLDS, device=device, seed=0,
                                                    step_kernel=step_kernel)
     return _ENVS[name, step_kernel]
 
@@ -562,14 +561,14 @@ def check_observations_after_set_state(name: str, cfg, env, rng, repeats: int = 
 
 
 @pytest.mark.parametrize("name", list(CONFIGS))
-def test_observations_after_set_state(name):
-    check_observations_after_set_state(name, CONFIGS[name], get_env(name),
+def test_observations_after_set_state(name, device):
+    check_observations_after_set_state(name, CONFIGS[name], get_env(name, device),
                                        np.random.default_rng(1000 + list(CONFIGS).index(name)))
 
 
 @pytest.mark.parametrize("name, step_kernel", STEP_CASES)
-def test_single_step_from_random_states(name, step_kernel):
-    cfg, env = CONFIGS[name], get_env(name, step_kernel)
+def test_single_step_from_random_states(name, step_kernel, device):
+    cfg, env = CONFIGS[name], get_env(name, device, step_kernel)
     rng = np.random.default_rng(2000 + list(CONFIGS).index(name))
     errors = []
     for rep in range(3):
@@ -580,10 +579,10 @@ def test_single_step_from_random_states(name, step_kernel):
 
 
 @pytest.mark.parametrize("name, step_kernel", STEP_CASES)
-def test_rollout_resynced_each_step(name, step_kernel):
+def test_rollout_resynced_each_step(name, step_kernel, device):
     """Several steps in a row; each step's reference input is the kernel's state (no float32 drift).
     Worlds whose episode ends auto-reset and go on from their new episode."""
-    cfg, env = CONFIGS[name], get_env(name, step_kernel)
+    cfg, env = CONFIGS[name], get_env(name, device, step_kernel)
     rng = np.random.default_rng(3000 + list(CONFIGS).index(name))
     errors = []
     worlds = [random_world(rng, world_config(cfg, w)) for w in range(env.num_worlds)]
@@ -599,17 +598,18 @@ def test_rollout_resynced_each_step(name, step_kernel):
     fail_if(errors, name)
 
 
-@pytest.mark.skipif(DEVICE != "cpu", reason="bit for bit on the CPU (a GPU may contract float operations)")
 @pytest.mark.parametrize("name, step_kernel", [("reproduction", "auto"), ("reproduction", "stages"),
                                                ("reproduction_cells", "auto")])
-def test_rewards_and_episode_returns_bit_for_bit_with_newborns(name, step_kernel):
+def test_rewards_and_episode_returns_bit_for_bit_with_newborns(name, step_kernel, device):
     """Rewards and episode sums have no pass of their own (the share and respawn passes and
     reproduction finish them): every slot's reward and episode sum equal a float32 computation from
     the reference's captures, sharers and births bit for bit (predators' shares summed in slot order,
     which is the lists' order in worlds of one cell; in worlds of cells, to within rounding), from
     episode sums set at random (-0.0 included). Where an episode ends, the ended returns are the sums
     over the slots, in slot order."""
-    cfg, env = CONFIGS[name], get_env(name, step_kernel)
+    if device != "cpu":
+        pytest.skip(f"bit for bit on the CPU (a GPU may contract float operations), not {device}")
+    cfg, env = CONFIGS[name], get_env(name, device, step_kernel)
     rng = np.random.default_rng(4000 + list(CONFIGS).index(name))
     f32 = np.float32
     t = state_views(env)
@@ -709,11 +709,11 @@ def _world_from_agents(cfg, prey, predators, world_step=0):
     return st
 
 
-def test_hand_built_worlds_defaults():
+def test_hand_built_worlds_defaults(device):
     """Deterministic scenarios (defaults, 800 x 800): shared capture, bounce across the seam, exact overlap,
     contact ties, a target across the seam in the view cone."""
     cfg = make_config(prey_count=5, predator_count=3, predator_starvation_steps=10)
-    env = BatchedAquarium(cfg, num_worlds=4, device=DEVICE, seed=3)
+    env = BatchedAquarium(cfg, num_worlds=4, device=device, seed=3)
     up_prey = dict(vel=(0.0, -4.0), acc=(0.0, -1.0))
     up_pred = dict(vel=(0.0, -5.0), acc=(0.0, -0.6))
     worlds = [
@@ -771,12 +771,12 @@ def test_hand_built_worlds_defaults():
     assert term3[cfg.prey_capacity :].tolist() == [True, False, False] and new3["starvation"][6] == 10
 
 
-def test_episode_end_truncation_and_auto_reset():
+def test_episode_end_truncation_and_auto_reset(device):
     """World 0 reaches max_steps; world 1's last predator starves; world 2 (respawn off) loses its last prey;
     world 3 goes on."""
     cfg = make_config(prey_count=3, predator_count=2, max_steps=50, predator_starvation_steps=5,
                       respawn_captured_prey=False)
-    env = BatchedAquarium(cfg, num_worlds=4, device=DEVICE, seed=7)
+    env = BatchedAquarium(cfg, num_worlds=4, device=device, seed=7)
     worlds = [
         _world_from_agents(cfg, [dict(pos=(100.0, 100.0)), dict(pos=(300.0, 100.0)), None],
                            [dict(pos=(600.0, 600.0)), dict(pos=(600.0, 300.0))], world_step=49),
@@ -798,7 +798,7 @@ def test_episode_end_truncation_and_auto_reset():
         assert after[w]["alive"][: cfg.prey_count].all() and after[w]["alive"][cfg.prey_capacity :].all()
 
 
-def test_quarter_turn_actions_are_exact():
+def test_quarter_turn_actions_are_exact(device):
     """Actions whose direction is up / right / down / left must give an exact desired velocity D (no sin/cos
     residue such as cos(pi/2) = -4e-8 in float32). The residue matters where a quantity cancels exactly:
 
@@ -811,7 +811,7 @@ def test_quarter_turn_actions_are_exact():
       exactly, A' = 0 (docs/model.md: A' stays zero). With the residue A' becomes a full-length k vector pointing
       along the residue, perpendicular to the motion."""
     cfg = make_config(prey_count=3, predator_count=1)
-    env = BatchedAquarium(cfg, num_worlds=1, device=DEVICE, seed=0)
+    env = BatchedAquarium(cfg, num_worlds=1, device=device, seed=0)
     world = _world_from_agents(
         cfg,
         [dict(pos=(100.0, 100.0), vel=(-1.0, 0.0)), dict(pos=(300.0, 300.0), vel=(0.0, -1.0)),
@@ -832,13 +832,13 @@ def test_quarter_turn_actions_are_exact():
     fail_if(errors, "quarter-turn actions (exact desired velocity)")
 
 
-def test_exact_capture_and_share_boundaries_after_the_move():
+def test_exact_capture_and_share_boundaries_after_the_move(device):
     """Post-move distances that are exact in float32 too: two predators overlapping at distance 0 with zero
     velocity stay exactly in place (no push, V' = V = 0), and a prey cruising up at full speed moves exactly
     (0, -4). Prey 0 ends 20 from predators A, B (captured by both); predators C, D end exactly 100 from it
     (catch_share_radius is strict: no share); prey 1 ends exactly 50 = r_prey + r_pred from A, B (not captured)."""
     cfg = make_config(prey_count=2, predator_count=4)
-    env = BatchedAquarium(cfg, num_worlds=1, device=DEVICE, seed=0)
+    env = BatchedAquarium(cfg, num_worlds=1, device=device, seed=0)
     P = np.array([400.0, 400.0])
     cruise = dict(vel=(0.0, -4.0), acc=(0.0, -1.0))
     world = _world_from_agents(
@@ -859,14 +859,14 @@ def test_exact_capture_and_share_boundaries_after_the_move():
     assert r_rew.tolist() == [-999.0, 1.0, 5.0, 5.0, 0.0, 0.0]
 
 
-def test_fov_boundary_is_inclusive_at_exactly_90_degrees():
+def test_fov_boundary_is_inclusive_at_exactly_90_degrees(device):
     """fov_angle 180: a target exactly perpendicular to the heading (dot product exactly 0) is on the cone's
     boundary and visible (docs/model.md: the angle limit includes its boundary). A test with cos(radians(90)) =
     6e-17 > 0 would reject it. fov_angle 360: a target exactly behind is visible."""
     cfg = make_config(
         prey_count=4, predator_count=2, prey=dict(fov_angle=180.0), predator=dict(fov_angle=360.0)
     )
-    env = BatchedAquarium(cfg, num_worlds=1, device=DEVICE, seed=0)
+    env = BatchedAquarium(cfg, num_worlds=1, device=device, seed=0)
     world = _world_from_agents(
         cfg,
         [dict(pos=(400.0, 400.0), heading=(1.0, 0.0)), dict(pos=(400.0, 350.0)), dict(pos=(400.0, 470.0)),
@@ -884,7 +884,7 @@ def test_fov_boundary_is_inclusive_at_exactly_90_degrees():
     fail_if(errors, "FOV boundary at exactly 90 degrees")
 
 
-def test_reproduction_cap_counts_prey_after_captures():
+def test_reproduction_cap_counts_prey_after_captures(device):
     """max_prey (5) below prey_count (6), so free slots outnumber what the cap allows.
     World 0: 5 prey alive, prey 0 is captured and removed (respawn off): 4 live after captures, so parent 1 gets
     a child (in slot 5, the only slot free at the start). Its capturer is outside catch_share_radius (10) and
@@ -896,7 +896,7 @@ def test_reproduction_cap_counts_prey_after_captures():
         respawn_captured_prey=False, catch_share_radius=10.0,
     )
     assert cfg.prey_capacity == 6
-    env = BatchedAquarium(cfg, num_worlds=2, device=DEVICE, seed=0)
+    env = BatchedAquarium(cfg, num_worlds=2, device=device, seed=0)
     due = dict(age=3, rep=4)
     worlds = [
         _world_from_agents(

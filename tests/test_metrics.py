@@ -33,7 +33,7 @@ def set_prey(env, prey_pos, prey_heading, predator_pos=None, world=0, prey_alive
     head[:n] = np.asarray(prey_heading, np.float32)
     alive[:n] = True if prey_alive is None else np.asarray(prey_alive, bool)
     if predator_pos is None:
-        predator_pos = [[1.0, 1.0]] * env.predator_count
+        predator_pos = [[1.0, 1.0]] * env.predator_capacity
     pos[Pc:] = np.asarray(predator_pos, np.float32)
     alive[Pc:] = True
     env.set_state(world=world, position=pos, velocity=head * 2.0, heading=head, alive=alive)

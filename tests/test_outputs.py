@@ -199,7 +199,7 @@ def test_studies_write_to_the_current_directory_by_default():
 def test_one_seed_heatmaps_show_no_interval(tmp_path, monkeypatch):
     pytest.importorskip("matplotlib")
     pytest.importorskip("rsl_rl")
-    from aquarium_warp.training import evaluate
+    from aquarium_warp.training import plots
 
     cells: dict[int, list[str]] = {}
 
@@ -207,13 +207,13 @@ def test_one_seed_heatmaps_show_no_interval(tmp_path, monkeypatch):
         cells[len(cells)] = [t.get_text() for ax in fig.axes for t in ax.texts]
         return str(path)
 
-    monkeypatch.setattr(evaluate, "write_figure", texts)
+    monkeypatch.setattr(plots, "write_figure", texts)
     matrix = {"mean": [[0.25, 0.5]], "std": [[0.0, 0.0]]}
     for seeds in ([0], [0, 1]):
         result = {"cross_play": {"prey": ["random"], "predator": ["naivchase", "random"],
                                  "matrices": {"captures_per_prey": matrix}},
                   "protocol": {"episodes": 2, "seeds": seeds}}
-        evaluate.plot_cross_play(result, str(tmp_path / "heatmap.png"))
+        plots.plot_cross_play(result, str(tmp_path / "heatmap.png"))
     assert cells[0] == ["0.25", "0.5"]
     assert cells[1] == ["0.25\n± 0", "0.5\n± 0"]
 
@@ -221,7 +221,7 @@ def test_one_seed_heatmaps_show_no_interval(tmp_path, monkeypatch):
 def test_an_empty_training_curve_says_why(tmp_path, capsys):
     pytest.importorskip("matplotlib")
     pytest.importorskip("rsl_rl")
-    from aquarium_warp.training.trainer import CSV_FIELDS
+    from aquarium_warp.training.logger import CSV_FIELDS
 
     run = tmp_path / "run"
     run.mkdir()

@@ -12,9 +12,10 @@ import pytest
 import torch
 
 from aquarium_warp import AquariumConfig, BatchedAquarium
-from aquarium_warp.config import Choice, FlowConfig, LogUniform, Uniform
+from aquarium_warp.config import FlowConfig
 from aquarium_warp.heuristics import HeuristicPolicy
 from aquarium_warp.metrics import EpisodeMetrics, SwarmMetrics
+from aquarium_warp.per_world import Choice, LogUniform, Uniform
 from aquarium_warp.render import Renderer
 
 BASE = AquariumConfig(width=300.0, height=260.0, prey_count=12, predator_count=2)
@@ -57,13 +58,13 @@ def test_batch_of_different_worlds_equals_a_batch_per_world_config():
     singles = [BatchedAquarium(PER_WORLD.world(k), W, device="cpu", seed=5) for k in range(W)]
     gen = torch.Generator().manual_seed(1)
     for step in range(steps):
-        actions = random_actions(gen, W, batch.prey_capacity, batch.predator_count)
+        actions = random_actions(gen, W, batch.prey_capacity, batch.predator_capacity)
         batch.step(actions)
         for k, single in enumerate(singles):
             single.step({"prey": actions["prey"][:, :single.prey_capacity],
-                         "predator": actions["predator"][:, :single.predator_count]})
-            mine = world_slice(batch, k, single.prey_capacity, single.predator_count)
-            theirs = world_slice(single, k, single.prey_capacity, single.predator_count)
+                         "predator": actions["predator"][:, :single.predator_capacity]})
+            mine = world_slice(batch, k, single.prey_capacity, single.predator_capacity)
+            theirs = world_slice(single, k, single.prey_capacity, single.predator_capacity)
             for name in mine:
                 assert torch.equal(mine[name], theirs[name]), f"step {step} world {k}: {name} differs"
     assert batch.state.torch.alive[:, :12].sum(dim=1).tolist() != [12, 12, 12]
@@ -89,10 +90,10 @@ def test_metrics_and_frames_of_a_per_world_batch_equal_each_world_config():
         e.begin()
     gen = torch.Generator().manual_seed(2)
     for _ in range(40):  # one episode ends in every world, the next one is under way
-        actions = random_actions(gen, W, batch.prey_capacity, batch.predator_count)
+        actions = random_actions(gen, W, batch.prey_capacity, batch.predator_capacity)
         for env, e in zip(envs, episodes):
             out = env.step({"prey": actions["prey"][:, :env.prey_capacity],
-                            "predator": actions["predator"][:, :env.predator_count]})
+                            "predator": actions["predator"][:, :env.predator_capacity]})
             e.update(out.info)
     assert SwarmMetrics(batch).linking_distance == (50.0, 30.0, 62.5)
     swarm = SwarmMetrics(batch, nn_range=150.0).compute()
@@ -169,14 +170,14 @@ def test_set_params_between_steps_equals_a_batch_built_with_them():
     assert twin.prey_capacity == env.prey_capacity
     gen = torch.Generator().manual_seed(3)
     for _ in range(30):
-        actions = random_actions(gen, W, env.prey_capacity, env.predator_count)
+        actions = random_actions(gen, W, env.prey_capacity, env.predator_capacity)
         a, b = env.step(actions), twin.step(actions)
         assert torch.equal(a.observations["prey"], b.observations["prey"])
         assert torch.equal(a.rewards["predator"], b.rewards["predator"])
         assert torch.equal(env.state.torch.position, twin.state.torch.position)
     # One world changed mid-run: the other worlds go on as before.
     env.set_params(world=1, prey_max_speed=1.0, flow=FlowConfig("uniform", velocity=(3.0, 0.0)))
-    actions = random_actions(gen, W, env.prey_capacity, env.predator_count)
+    actions = random_actions(gen, W, env.prey_capacity, env.predator_capacity)
     env.step(actions)
     twin.step(actions)
     assert torch.equal(env.state.torch.position[[0, 2]], twin.state.torch.position[[0, 2]])
@@ -213,7 +214,7 @@ def test_bad_values_per_world_are_rejected_by_field_and_world():
     assert np.array_equal(env.agent_types.numpy(), types_before)
     gen = torch.Generator().manual_seed(0)
     for _ in range(5):
-        actions = random_actions(gen, 10, env.prey_capacity, env.predator_count)
+        actions = random_actions(gen, 10, env.prey_capacity, env.predator_capacity)
         assert torch.equal(env.step(actions).observations["prey"], twin.step(actions).observations["prey"])
 
 

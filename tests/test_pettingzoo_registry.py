@@ -1,4 +1,4 @@
-"""PettingZoo's registry (`aquarium_warp.pettingzoo_registry`): `pettingzoo.make("parallel" | "aec",
+"""PettingZoo's registry (`aquarium_warp.interop.pettingzoo_registry`): `pettingzoo.make("parallel" | "aec",
 "aquarium/Aquarium-v1", **kwargs)` after `import aquarium_warp`, with PettingZoo's own api, parallel
 and seed tests run on the envs it makes."""
 
@@ -13,7 +13,7 @@ from pettingzoo.test import api_test, parallel_api_test, parallel_seed_test, see
 
 import aquarium_warp  # noqa: F401 - registers the env
 from aquarium_warp import aquarium_v1
-from aquarium_warp.pettingzoo_registry import ENV_ID, register
+from aquarium_warp.interop.pettingzoo_registry import ENV_ID, register
 
 pettingzoo = pytest.importorskip("pettingzoo")
 if not hasattr(pettingzoo, "make"):  # pragma: no cover - PettingZoo < 1.27

@@ -90,7 +90,7 @@ def test_recurrent_export_reload_and_evaluate(tmp_path, one_thread, rnn_type):
     policies = {kind: load_policy(path) for kind, path in kinds.items()}
     assert all(p.recurrent == {"rnn_type": rnn_type, "num_layers": 1, "hidden_size": 8} for p in policies.values())
     driven = load_policy(paths["jit"])  # inside RecurrentOpponent, which finds the dones itself
-    from aquarium_warp.training.export import RecurrentOpponent
+    from aquarium_warp.training.drivers import RecurrentOpponent
 
     vec, actor = trainer.vec_env, trainer.actor
     opponent = RecurrentOpponent(driven, vec.env, "prey")

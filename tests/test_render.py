@@ -232,7 +232,7 @@ def test_record_and_cli_video(device, tmp_path):
 
     env = BatchedAquarium(AquariumConfig(), num_worlds=2, device=device, seed=0)
     zeros = {"prey": torch.zeros(2, env.prey_capacity, dtype=torch.int64, device=env.torch_device),
-             "predator": torch.zeros(2, env.predator_count, dtype=torch.int64, device=env.torch_device)}
+             "predator": torch.zeros(2, env.predator_capacity, dtype=torch.int64, device=env.torch_device)}
     path = tmp_path / "record.mp4"
     assert record(env, lambda obs: zeros, 4, path, world=1, width_px=128, progress=False, view_cones=True) == 5
     reader = imageio.get_reader(str(path))

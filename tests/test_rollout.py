@@ -24,7 +24,7 @@ CFG = AquariumConfig(prey_count=6, predator_count=2, max_steps=12, width=300, he
 
 def constant(env: BatchedAquarium, team: str, action: int, calls: list):
     """A driver of `team` that asks for `action` in every slot and notes its calls."""
-    slots = env.prey_capacity if team == "prey" else env.predator_count
+    slots = env.prey_capacity if team == "prey" else env.predator_capacity
     actions = torch.full((env.num_worlds, slots), action, dtype=torch.int32)
 
     def drive() -> torch.Tensor:
@@ -72,7 +72,7 @@ def test_hooks_in_order_once_per_step_and_the_outputs_the_env_returned():
     manual.reset()
     assert torch.equal(log[0][2], manual.state.torch.position)  # started after the reset
     actions = {"prey": torch.full((2, manual.prey_capacity), 3, dtype=torch.int32),
-               "predator": torch.full((2, manual.predator_count), 5, dtype=torch.int32)}
+               "predator": torch.full((2, manual.predator_capacity), 5, dtype=torch.int32)}
     for k in range(4):
         _, rewards, _, _, info = manual.step(actions)
         for seen in (first.seen[k], second.seen[k]):
@@ -248,7 +248,7 @@ def test_run_episodes_equals_the_plain_loop():
     swarm.begin()
     captures = torch.zeros(2, env.prey_capacity, dtype=torch.int32)
     prey_reward = torch.zeros(2, env.prey_capacity, dtype=torch.float64)
-    predator_reward = torch.zeros(2, env.predator_count, dtype=torch.float64)
+    predator_reward = torch.zeros(2, env.predator_capacity, dtype=torch.float64)
     expected = []
     for step in range(3 * cfg.max_steps):
         _, rewards, _, _, info = env.step({team: drivers[team]() for team in ("prey", "predator")}, validate=False)

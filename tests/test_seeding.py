@@ -14,7 +14,7 @@ import torch
 
 from aquarium_warp import AquariumConfig, BatchedAquarium
 from aquarium_warp import drivers as drivers_module
-from aquarium_warp.config import Uniform
+from aquarium_warp.per_world import Uniform
 from aquarium_warp.seeding import (
     baseline_seed,
     config_stream,

@@ -15,7 +15,7 @@ pytest.importorskip("torchrl", reason="needs the torchrl extra: pip install -c .
 from torchrl.envs.utils import check_env_specs
 
 from aquarium_warp import AquariumConfig, BatchedAquarium
-from aquarium_warp.torchrl_env import AquariumTorchRLEnv
+from aquarium_warp.interop.torchrl import AquariumTorchRLEnv
 
 TYPES = ("prey", "predator")
 # Respawn off, starvation and reproduction: agents leave and are born, episodes end early or at 40 steps.
@@ -111,7 +111,7 @@ def test_benchmarl_mappo_trains_on_the_task():
     from benchmarl.experiment import Experiment, ExperimentConfig
     from benchmarl.models.mlp import MlpConfig
 
-    from aquarium_warp.benchmarl_task import AquariumTask
+    from aquarium_warp.interop.benchmarl import AquariumTask
 
     task = AquariumTask.PREDATOR_PREY.get_task(config=dict(
         width=300.0, height=300.0, prey_count=4, predator_count=1, max_steps=50, respawn_captured_prey=True,

@@ -25,11 +25,12 @@ from aquarium_warp.heuristics import make_policy
 from aquarium_warp.metrics import EPISODE_METRICS
 from aquarium_warp.training.config import PRESETS, make_config, runner_config, total_iterations
 from aquarium_warp.training.distribution import CategoricalDistribution
+from aquarium_warp.training.drivers import TrainedOpponent
 from aquarium_warp.training.export import load_policy
 from aquarium_warp.training.models import IndividualMLPModel
 from aquarium_warp.training.ppo import AquariumPPO, GroupedRolloutStorage
 from aquarium_warp.training.trainer import Trainer
-from aquarium_warp.training.vec_env import AquariumVecEnv, TrainedOpponent
+from aquarium_warp.training.vec_env import AquariumVecEnv
 
 
 class Recorder:

@@ -1,4 +1,4 @@
-"""Native vector envs (`aquarium_warp.vector_env`, `aquarium_warp.sb3_vec_env`): rows against
+"""Native vector envs (`aquarium_warp.interop.gymnasium`, `aquarium_warp.interop.sb3`): rows against
 `BatchedAquarium` stepped directly with the same seed and actions (dead slots, respawns, auto-reset),
 against rsl-rl's adapter in team mode, seeding, buffers, bad input, Gymnasium's episode statistics and
 a short Stable-Baselines3 PPO run."""
@@ -11,7 +11,7 @@ import torch
 from gymnasium.wrappers.vector import RecordEpisodeStatistics
 
 from aquarium_warp import AquariumConfig, BatchedAquarium
-from aquarium_warp.vector_env import AquariumRows, AquariumVectorEnv
+from aquarium_warp.interop.gymnasium import AquariumRows, AquariumVectorEnv
 
 # Respawn off, starvation after 12 steps, reproduction: slots empty and refill, episodes end early.
 DYNAMIC = AquariumConfig(width=300.0, height=300.0, prey_count=5, predator_count=2, max_steps=40,
@@ -221,7 +221,7 @@ def test_gymnasium_episode_statistics_count_row_episodes():
 @pytest.mark.slow
 def test_stable_baselines3_ppo_trains_and_seeds(tmp_path):
     sb3 = pytest.importorskip("stable_baselines3", reason="needs the interop extra: pip install -e '.[interop]'")
-    from aquarium_warp.sb3_vec_env import AquariumSB3VecEnv
+    from aquarium_warp.interop.sb3 import AquariumSB3VecEnv
 
     def train(seed):
         vec = AquariumSB3VecEnv(RESPAWN, num_worlds=4)
@@ -249,7 +249,7 @@ def test_stable_baselines3_ppo_trains_and_seeds(tmp_path):
 
 def test_sb3_vec_env_dones_and_infos():
     pytest.importorskip("stable_baselines3", reason="needs the interop extra: pip install -e '.[interop]'")
-    from aquarium_warp.sb3_vec_env import AquariumSB3VecEnv
+    from aquarium_warp.interop.sb3 import AquariumSB3VecEnv
 
     vec = AquariumSB3VecEnv(DYNAMIC, num_worlds=2)
     gym_vec = AquariumVectorEnv(DYNAMIC, num_worlds=2)

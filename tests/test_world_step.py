@@ -53,7 +53,8 @@ CASES = {
 def random_actions(gen: torch.Generator, env: BatchedAquarium, device) -> dict:
     worlds, n = env.num_worlds, env.config.action_count
     return {"prey": torch.randint(0, n, (worlds, env.prey_capacity), generator=gen, dtype=torch.int32).to(device),
-            "predator": torch.randint(0, n, (worlds, env.predator_count), generator=gen, dtype=torch.int32).to(device)}
+            "predator": torch.randint(0, n, (worlds, env.predator_capacity), generator=gen,
+                                      dtype=torch.int32).to(device)}
 
 
 def assert_same_state(fused: BatchedAquarium, staged: BatchedAquarium, step: int, exact: bool) -> None:

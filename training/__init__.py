@@ -5,9 +5,11 @@
 - `models.IndividualMLPModel`: Individual Learning, per-slot parameters in one batched network.
 - `ppo.AquariumPPO`: separate actor/critic learning rates, grouped mini-batches.
 - `config`: presets (`default`, `paper`, `tiny`) and the rsl-rl runner config.
-- `trainer.Trainer`: training, checkpoints, bit-exact resume, export.
+- `trainer.Trainer`: training, checkpoints, bit-exact resume, export (`runner.AquariumRunner`, rsl-rl's
+  runner; `logger.AquariumLogger`, the CSV and console log; `checkpoints`, finding and reading them).
+- `drivers`: a team driven by a trained policy (`TrainedOpponent`, `RecurrentOpponent`).
 - `export.load_policy`: exported policies (TorchScript, ONNX) or checkpoints -> callable obs -> actions.
-- `evaluate`: the paper's evaluation protocol and figures.
+- `evaluate`: the paper's evaluation protocol; `cross_play`: cross play and Elo ratings; `plots`: the figures.
 
 Submodules import rsl_rl lazily; this package's names resolve on first use.
 """
@@ -19,12 +21,12 @@ import importlib
 from . import _rsl  # noqa: F401
 
 _EXPORTS = {
-    "AquariumVecEnv": "vec_env", "TrainedOpponent": "vec_env",
+    "AquariumVecEnv": "vec_env", "TrainedOpponent": "drivers",
     "CategoricalDistribution": "distribution",
     "IndividualMLPModel": "models", "BatchedMLP": "models",
     "AquariumPPO": "ppo",
     "make_config": "config", "PRESETS": "config", "env_config": "config",
-    "Trainer": "trainer", "latest_checkpoint": "trainer",
+    "Trainer": "trainer", "latest_checkpoint": "checkpoints",
     "export_policy": "export", "load_policy": "export", "LoadedPolicy": "export",
     "evaluate_policies": "evaluate",
 }

@@ -12,6 +12,7 @@ import math
 import os
 import time
 import warnings
+from typing import Any
 
 from ..atomic import check_output_dir
 from ..cli import Interrupted, int_at_least, plural
@@ -351,7 +352,8 @@ def add_eval_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run_eval(args) -> int:
-    from .evaluate import evaluate_policies, plot_distributions, plot_training_curves, write_results
+    from .evaluate import evaluate_policies, write_results
+    from .plots import plot_distributions, plot_training_curves
 
     os.makedirs(check_output_dir(args.out, "--out"), exist_ok=True)  # before any episode runs
     if args.cross_play:
@@ -418,7 +420,7 @@ def _eval_world(args, specs):
     from .evaluate import common_policy_env
 
     base = env_config(make_config(args.preset)) if args.preset else common_policy_env(specs, AquariumConfig())
-    changes = {}
+    changes: dict[str, Any] = {}
     for s in args.set:
         change = parse_assignment(s)
         if set(change) != {"env"}:
@@ -434,7 +436,8 @@ def _eval_world(args, specs):
 def run_cross_play(args) -> int:
     """`aquarium-warp eval --cross-play`: the matrix, its files, rating and heatmaps."""
     from ..drivers import NO_CONFUSION
-    from .evaluate import cross_play, expand_specs, plot_cross_play, write_cross_play
+    from .cross_play import cross_play, expand_specs, write_cross_play
+    from .plots import plot_cross_play
 
     if args.curves:
         raise ValueError("--curves is not drawn with --cross-play: run eval --curves on its own")

@@ -28,8 +28,10 @@ from __future__ import annotations
 import copy
 import json
 import math
+from typing import Any
 
-from ..config import AquariumConfig, is_int, is_real
+from ..checks import is_int, is_real
+from ..config import AquariumConfig
 from .randomize import parse_spec
 
 DISTRIBUTION = "aquarium_warp.training.distribution:CategoricalDistribution"
@@ -38,7 +40,7 @@ MLP_MODEL = "MLPModel"
 IL_MODEL = "aquarium_warp.training.models:IndividualMLPModel"
 SHARING = ("parameter", "individual")
 
-TRAIN_DEFAULTS = {
+TRAIN_DEFAULTS: dict[str, Any] = {
     "team": "prey",                 # the learning team: "prey", "predator" or "both" (one learner per team)
     "opponent": None,               # the other team: a heuristic name or a policy file; None: naivchase / random
     "opponent_deterministic": True,  # trained opponents: argmax (True) or sampled actions
@@ -118,7 +120,7 @@ RUNNER_DEFAULTS = {
     },
 }
 
-PRESETS = {
+PRESETS: dict[str, dict[str, Any]] = {  # name -> changes to the defaults (a nested run config)
     "default": {},
     # Section 5: prey trained with PPO against one NaivChase predator; docs/model.md's world otherwise.
     # From the paper's table: gamma, lambda, clip, entropy weight, actor/critic learning rates; 4000

@@ -55,8 +55,14 @@ class CategoricalDistribution(Distribution):
         self._log_probs = torch.log_softmax(mlp_output, dim=-1)
         self._probs = self._log_probs.exp()
 
+    def _current(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """`(log_probs, probs)` of the last `update`."""
+        if self._log_probs is None or self._probs is None:
+            raise RuntimeError("CategoricalDistribution has no logits yet: update(mlp_output) comes first")
+        return self._log_probs, self._probs
+
     def sample(self) -> torch.Tensor:
-        probs = self._probs
+        _, probs = self._current()
         flat = probs.reshape(-1, self.num_categories)
         index = torch.multinomial(flat, 1, replacement=True)
         return index.reshape(*probs.shape[:-1], 1).to(probs.dtype)
@@ -73,7 +79,8 @@ class CategoricalDistribution(Distribution):
 
     @property
     def mean(self) -> torch.Tensor:
-        return torch.argmax(self._log_probs, dim=-1, keepdim=True).to(self._log_probs.dtype)
+        log_probs, _ = self._current()
+        return torch.argmax(log_probs, dim=-1, keepdim=True).to(log_probs.dtype)
 
     @property
     def std(self) -> torch.Tensor:
@@ -81,15 +88,16 @@ class CategoricalDistribution(Distribution):
 
     @property
     def entropy(self) -> torch.Tensor:
-        return -(self._probs * self._log_probs).sum(dim=-1)
+        log_probs, probs = self._current()
+        return -(probs * log_probs).sum(dim=-1)
 
     @property
     def params(self) -> tuple[torch.Tensor, ...]:
-        return (self._log_probs,)
+        return (self._current()[0],)
 
     def log_prob(self, outputs: torch.Tensor) -> torch.Tensor:
         index = outputs[..., :1].long()
-        return torch.gather(self._log_probs, -1, index).squeeze(-1)
+        return torch.gather(self._current()[0], -1, index).squeeze(-1)
 
     def kl_divergence(self, old_params: tuple[torch.Tensor, ...], new_params: tuple[torch.Tensor, ...]) -> torch.Tensor:
         old = torch.log_softmax(old_params[0], dim=-1)  # idempotent on log-probabilities
@@ -100,14 +108,18 @@ class CategoricalDistribution(Distribution):
         """Scale the last layer (the last module with a weight: `nn.Linear` or a per-agent batched layer)."""
         if self.init_logit_scale == 1.0:
             return
-        layers = [m for m in mlp.modules() if isinstance(getattr(m, "weight", None), torch.Tensor)]
-        if not layers:
+        last = None  # (weight, bias) of the last module with a weight
+        for module in mlp.modules():
+            weight = getattr(module, "weight", None)
+            if isinstance(weight, torch.Tensor):
+                last = (weight, getattr(module, "bias", None))
+        if last is None:
             return
-        last = layers[-1]
+        weight, bias = last
         with torch.no_grad():
-            last.weight.mul_(self.init_logit_scale)
-            if getattr(last, "bias", None) is not None:
-                last.bias.zero_()
+            weight.mul_(self.init_logit_scale)
+            if bias is not None:
+                bias.zero_()
 
 
 class ArgmaxOutput(nn.Module):

@@ -21,8 +21,8 @@ unchanged for a GRU), `forward(obs, h, c) -> (actions, h, c)` and `initial_state
 `policy.onnx` has inputs `obs`, `h_in` (and `c_in` for an LSTM) and outputs `actions`, `logits`,
 `h_out` (and `c_out`). `load_policy` keeps the state of each row between calls (each call is one
 step; the first starts from zeros, as rsl-rl's rollouts do) and `policy.reset(dones)` zeroes the rows
-whose episode ended (`reset()`: all rows, e.g. after an env reset). `RecurrentOpponent` does those
-resets for a team of a `BatchedAquarium` (evaluation, `aquarium-warp video`).
+whose episode ended (`reset()`: all rows, e.g. after an env reset). `drivers.RecurrentOpponent` does
+those resets for a team of a `BatchedAquarium` (evaluation, `aquarium-warp video`).
 
 Individual Learning policies (`group_size` S > 1) take rows in world-major slot order: N must be a
 multiple of S, row `k` acting for slot `k % S` (one world of the PettingZoo env: its S agents in
@@ -41,6 +41,7 @@ import logging
 import os
 import warnings
 import zipfile
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -50,16 +51,19 @@ from ..atomic import atomic_open, atomic_path
 from ..pretrained import resolve
 from . import _rsl  # noqa: F401
 
+if TYPE_CHECKING:
+    from rsl_rl.models import MLPModel, RNNModel
+
 META_NAME = "aquarium_policy.json"
 
 
 class ExportablePolicy(nn.Module):
     """The actor's observation normaliser and MLP: `forward(obs) -> argmax actions [N]`, `logits(obs)`."""
 
-    def __init__(self, actor: nn.Module) -> None:
+    def __init__(self, actor: MLPModel) -> None:
         super().__init__()
-        self.obs_normalizer = copy.deepcopy(actor.obs_normalizer).cpu()
-        self.mlp = copy.deepcopy(actor.mlp).cpu()
+        self.obs_normalizer: nn.Module = copy.deepcopy(actor.obs_normalizer).cpu()
+        self.mlp: nn.Module = copy.deepcopy(actor.mlp).cpu()
         self.eval()
 
     @torch.jit.export
@@ -74,11 +78,11 @@ class _RecurrentPolicy(nn.Module):
     """The actor's observation normaliser, GRU/LSTM and MLP as a step function with explicit per-row
     states (see the module doc); `_GRUPolicy` / `_LSTMPolicy` differ in how the RNN takes its state."""
 
-    def __init__(self, actor: nn.Module) -> None:
+    def __init__(self, actor: RNNModel) -> None:
         super().__init__()
-        self.obs_normalizer = copy.deepcopy(actor.obs_normalizer).cpu()
-        self.rnn = copy.deepcopy(actor.rnn.rnn).cpu()  # the torch module inside rsl-rl's RNN wrapper
-        self.mlp = copy.deepcopy(actor.mlp).cpu()
+        self.obs_normalizer: nn.Module = copy.deepcopy(actor.obs_normalizer).cpu()
+        self.rnn: nn.RNNBase = copy.deepcopy(actor.rnn.rnn).cpu()  # the torch module inside rsl-rl's RNN wrapper
+        self.mlp: nn.Module = copy.deepcopy(actor.mlp).cpu()
         self.num_layers, self.hidden_size = int(self.rnn.num_layers), int(self.rnn.hidden_size)
         self.eval()
 
@@ -118,7 +122,7 @@ class _LSTMPolicy(_RecurrentPolicy):
         return y, h, c
 
 
-def recurrent_meta(actor: nn.Module) -> dict | None:
+def recurrent_meta(actor: MLPModel) -> dict | None:
     """`{"rnn_type", "num_layers", "hidden_size"}` of a recurrent rsl-rl actor, None for a feed-forward one."""
     if not getattr(actor, "is_recurrent", False):
         return None
@@ -129,7 +133,7 @@ def recurrent_meta(actor: nn.Module) -> dict | None:
             "hidden_size": int(rnn.hidden_size)}
 
 
-def exportable(actor: nn.Module) -> nn.Module:
+def exportable(actor: MLPModel) -> ExportablePolicy | _GRUPolicy | _LSTMPolicy:
     """The CPU module that `export_policy` scripts: `ExportablePolicy` or a recurrent step function."""
     info = recurrent_meta(actor)
     if info is None:
@@ -185,7 +189,7 @@ def policy_meta(config: dict, slots: int, observation_size: int, action_count: i
     }
 
 
-def export_policy(actor: nn.Module, meta: dict, out_dir: str, formats=("jit", "onnx")) -> dict[str, str]:
+def export_policy(actor: MLPModel, meta: dict, out_dir: str, formats=("jit", "onnx")) -> dict[str, str]:
     """Write the actor as `policy.pt` (TorchScript) and/or `policy.onnx` plus `policy.json` into
     `out_dir`; returns `{format: path}`."""
     os.makedirs(out_dir, exist_ok=True)
@@ -208,14 +212,19 @@ def export_policy(actor: nn.Module, meta: dict, out_dir: str, formats=("jit", "o
     return paths
 
 
-def _export_onnx(module: nn.Module, meta: dict, meta_text: str, path: str) -> str:
+def _export_onnx(module: ExportablePolicy | _GRUPolicy | _LSTMPolicy, meta: dict, meta_text: str, path: str) -> str:
     import onnx
 
     group = int(meta.get("group_size", 1))
     L = int(meta["observation_size"])
     dummy = torch.zeros(2 * group, L)
     batch = torch.export.Dim("worlds", min=1) * group if group > 1 else torch.export.Dim("rows", min=1)
-    if isinstance(module, _RecurrentPolicy):
+    wrapper: nn.Module
+    args: tuple[torch.Tensor, ...]
+    if isinstance(module, ExportablePolicy):
+        wrapper, args, inputs, outputs = _OnnxPolicy(module), (dummy,), ["obs"], ["actions", "logits"]
+        dynamic = {"obs": {0: batch}}
+    else:
         state = module.initial_state(dummy)
         if isinstance(module, _LSTMPolicy):
             wrapper, args, names = _OnnxLSTMPolicy(module), (dummy, *state), ["h_in", "c_in"]
@@ -224,9 +233,6 @@ def _export_onnx(module: nn.Module, meta: dict, meta_text: str, path: str) -> st
         inputs = ["obs"] + names
         outputs = ["actions", "logits"] + [n.replace("_in", "_out") for n in names]
         dynamic = {"obs": {0: batch}, **{n: {1: batch} for n in names}}
-    else:
-        wrapper, args, inputs, outputs = _OnnxPolicy(module), (dummy,), ["obs"], ["actions", "logits"]
-        dynamic = {"obs": {0: batch}}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", FutureWarning)
         # torch.export's notes on the RNN's flat weights and on the shared row axis: harmless here.
@@ -326,7 +332,8 @@ class LoadedPolicy:
         mask = torch.as_tensor(dones).to(self._state[0].device).reshape(-1).bool()
         if mask.numel() != self._state[0].shape[1]:
             raise ValueError(f"dones must have one entry per row ({self._state[0].shape[1]}), got {mask.numel()}")
-        self._state = tuple(torch.where(mask.view(1, -1, 1), 0.0, x) for x in self._state)
+        h, c = self._state
+        self._state = (torch.where(mask.view(1, -1, 1), 0.0, h), torch.where(mask.view(1, -1, 1), 0.0, c))
 
     @property
     def hidden_state(self) -> tuple[torch.Tensor, torch.Tensor] | None:
@@ -336,12 +343,16 @@ class LoadedPolicy:
 
     @hidden_state.setter
     def hidden_state(self, state) -> None:
-        self._state = None if state is None else tuple(torch.as_tensor(x).to(self.device) for x in state)
+        if state is None:
+            self._state = None
+        else:
+            h, c = state
+            self._state = (torch.as_tensor(h).to(self.device), torch.as_tensor(c).to(self.device))
 
     def __call__(self, obs) -> torch.Tensor:
         out_device = obs.device if isinstance(obs, torch.Tensor) else torch.device("cpu")
         logits = self.logits(obs)
-        if self.deterministic:
+        if self._generator is None:  # deterministic
             actions = torch.argmax(logits, dim=-1)
         else:
             probs = torch.softmax(logits.to(self._generator.device), dim=-1)
@@ -367,45 +378,6 @@ class LoadedPolicy:
     def set_rng_state(self, state) -> None:
         if self._generator is not None and state is not None:
             self._generator.set_state(state.cpu())
-
-
-class RecurrentOpponent:
-    """Drives one team of a `BatchedAquarium` with a recurrent `LoadedPolicy`, as `TrainedOpponent`
-    does, and before acting resets the hidden state of the rows whose episode ended in the step since
-    its last call: the agent's life ended (captured, removed, starved, or its world's episode ended) or
-    its empty slot was filled again, the row dones of the training adapter (`vec_env.py`). Call it
-    once per env step."""
-
-    def __init__(self, policy: LoadedPolicy, env, agent_type: str, blind_to: str | None = None):
-        from .vec_env import TrainedOpponent
-
-        self.driver, self.policy = TrainedOpponent(policy, env, agent_type, blind_to=blind_to), policy
-        self._terminated, self._truncated = env.outputs.terminated[agent_type], env.outputs.truncated[agent_type]
-        self._captured = env.state.torch.captured[:, :env.prey_capacity] if agent_type == "prey" else None
-        self._alive = env.alive[agent_type]
-        self._active: torch.Tensor | None = None  # rows alive when the policy last acted
-        policy.reset()  # every row starts from zero states, as rsl-rl's rollouts do
-
-    def __call__(self) -> torch.Tensor:
-        if self._active is not None:
-            ended = self._terminated | self._truncated
-            if self._captured is not None:
-                ended = ended | self._captured
-            self.policy.reset(torch.where(self._active, ended, self._alive).reshape(-1))
-        self._active = self._alive.clone()
-        return self.driver()
-
-    def state_dict(self) -> dict:
-        """The sampling stream, the rows' hidden states and which rows were alive (for bit-exact resumes)."""
-        hidden = self.policy.hidden_state
-        return {**self.driver.state_dict(),
-                "hidden_state": None if hidden is None else tuple(x.cpu().clone() for x in hidden),
-                "active": None if self._active is None else self._active.cpu().clone()}
-
-    def load_state_dict(self, state: dict) -> None:
-        self.driver.load_state_dict(state)
-        self.policy.hidden_state = state.get("hidden_state")
-        self._active = None if state.get("active") is None else state["active"].to(self._alive.device)
 
 
 def _is_torchscript(path: str) -> bool:

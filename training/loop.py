@@ -75,7 +75,7 @@ class IterationRecord:
 
     def __init__(self, device: torch.device):
         self.cuda = device.type == "cuda"
-        self._host = None
+        self._host = torch.empty(0)  # the values of the last `finish` (pinned on CUDA)
         if self.cuda:
             self._events = [torch.cuda.Event(enable_timing=True) for _ in range(3)]
         self._times = [0.0, 0.0, 0.0]
@@ -90,7 +90,7 @@ class IterationRecord:
     def finish(self, values: torch.Tensor) -> None:
         """Copy `values` (losses and statistics, on the device) to the host after the iteration."""
         if self.cuda:
-            if self._host is None or self._host.shape != values.shape:
+            if self._host.shape != values.shape:
                 self._host = torch.empty(values.shape, dtype=values.dtype, pin_memory=True)
             self._host.copy_(values, non_blocking=True)
         else:
@@ -159,7 +159,7 @@ class TrainingLoop:
         self._record_index = 0
         self._warm = False
         self._capture_stream = torch.cuda.Stream(self.device) if self.graphs else None
-        self._pool_handle = None
+        self._pool_handle = torch.cuda.graph_pool_handle() if self.graphs else None  # the graphs' memory pool
         self._act_graphs: list = []
         self._after_graphs: list = []
         n = len(self.learners)
@@ -243,6 +243,7 @@ class TrainingLoop:
     def _on_capture_stream(self):
         """Run eager work on the capturing stream, ordered with the current stream on both sides."""
         stream = self._capture_stream
+        assert stream is not None, "only a loop that captures graphs runs on a capture stream"
         stream.wait_stream(torch.cuda.current_stream(self.device))
         with torch.cuda.stream(stream):
             yield
@@ -267,16 +268,16 @@ class TrainingLoop:
                 self._advance_metrics()
                 mark("storage")
         record.mark(1)
-        values = []
+        parts = []
         for i, alg in enumerate(self.algs):
             if learning[i]:
-                values.append(self._update(i))
+                parts.append(self._update(i))
             else:
                 alg.storage.clear()  # a frozen learner: its parameters, optimizer and normaliser stay
-                values.append(self._frozen_losses)
-            values.append(self.envs[i].episode_stats_snapshot())
+                parts.append(self._frozen_losses)
+            parts.append(self.envs[i].episode_stats_snapshot())
         mark("update")
-        values = torch.cat(values)
+        values = torch.cat(parts)
         if self.reduce is not None:
             self.reduce(values)
         record.finish(values)
@@ -331,11 +332,6 @@ class TrainingLoop:
             times[phase] += a.elapsed_time(b) / 1e3 if cuda else b - a
         return times
 
-    def _graph_pool(self):
-        if self._pool_handle is None:
-            self._pool_handle = torch.cuda.graph_pool_handle()
-        return self._pool_handle
-
     def _capture_rollout(self) -> None:
         """Record `act[t]` and `after[t]` in replay order, from the loop's memory pool. Capturing runs
         nothing: the storages' step counters advance as if it had and are reset afterwards."""
@@ -344,7 +340,7 @@ class TrainingLoop:
             for _ in range(self.num_steps):
                 for stage, graphs in ((self._act, self._act_graphs), (self._after_step, self._after_graphs)):
                     graph = torch.cuda.CUDAGraph()
-                    with torch.cuda.graph(graph, pool=self._graph_pool(), stream=self._capture_stream):
+                    with torch.cuda.graph(graph, pool=self._pool_handle, stream=self._capture_stream):
                         stage()
                     graphs.append(graph)
         for alg in self.algs:
@@ -357,6 +353,6 @@ class TrainingLoop:
         torch.cuda.synchronize(self.device)
         self._indices[i] = torch.arange(size * alg.num_mini_batches, device=self.device)
         graph = torch.cuda.CUDAGraph()
-        with collection_paused(), torch.cuda.graph(graph, pool=self._graph_pool(), stream=self._capture_stream):
+        with collection_paused(), torch.cuda.graph(graph, pool=self._pool_handle, stream=self._capture_stream):
             self._losses[i] = self._learn(i, self._indices[i], size)
         self._learn_graphs[i] = graph

@@ -124,6 +124,10 @@ class AquariumPPO(PPO):
     Extra arguments: `critic_lr_scale` (critic rate / actor rate, default 1) and
     `minibatch_group_size` (default 1: rsl-rl's row shuffling)."""
 
+    # Declared: this class rebinds both from their own values, which type inference cannot start from.
+    storage: RolloutStorage
+    learning_rate: float
+
     def __init__(self, actor, critic, storage, critic_lr_scale: float = 1.0, minibatch_group_size: int = 1,
                  optimizer: str = "adam", learning_rate: float = 0.001, capturable_optimizer: bool = False,
                  **kwargs) -> None:
@@ -212,7 +216,7 @@ class AquariumPPO(PPO):
             std = getattr(normalizer, "_std", None)
             model.update_normalization(obs)
             # rsl-rl's normaliser rebinds `_std` to a new tensor; captured graphs read the old one.
-            if isinstance(std, torch.Tensor) and normalizer._std is not std:
+            if normalizer is not None and isinstance(std, torch.Tensor) and normalizer._std is not std:
                 std.copy_(normalizer._std)
                 normalizer._std = std
         self.storage.clear()

@@ -21,17 +21,10 @@ import math
 import numpy as np
 import torch
 
-from ..config import (
-    INTEGER_FIELDS,
-    PER_WORLD_FIELDS,
-    PER_WORLD_TYPE_FIELDS,
-    Choice,
-    Uniform,
-)
+from ..per_world import FLAT_NAMES, INTEGER_FIELDS, Choice, Uniform
 from ..seeding import randomiser_stream
 
-FIELDS = tuple(n for n in PER_WORLD_FIELDS if n != "flow") + tuple(
-    f"{t}_{n}" for t in ("prey", "predator") for n in PER_WORLD_TYPE_FIELDS)
+FIELDS = tuple(n for n in FLAT_NAMES if n != "flow")
 
 
 def _number(field: str, text: str, integer: bool):

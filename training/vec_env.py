@@ -1,7 +1,7 @@
 """rsl-rl `VecEnv` adapter over `BatchedAquarium`: one learning team, the other team driven inside `step()`.
 
 Rows. Every slot of the learning team in every world is one row, world-major: row `w * S + s` is slot
-`s` of world `w` (S = `env.prey_capacity` for prey, `env.predator_count` for predators), so
+`s` of world `w` (S = `env.prey_capacity` for prey, `env.predator_capacity` for predators), so
 `num_envs = W * S`, `num_actions = 1` (one discrete action, a float category index as rsl-rl stores it).
 
 Outputs of `step(actions [N, 1])`:
@@ -33,9 +33,9 @@ Outputs of `step(actions [N, 1])`:
 
 The other team acts inside `step()` through `opponent()`, a callable returning its int actions
 `[W, slots]` on the env's device, decided from the state before the step (a heuristic from
-`aquarium_warp.heuristics.make_policy`, `TrainedOpponent` around a loaded policy, or, when both teams
-learn, `LearnerActions`: the other learner's action buffer, written by the training loop before the
-first adapter steps the worlds).
+`aquarium_warp.heuristics.make_policy`, `drivers.TrainedOpponent` around a loaded policy, or, when both
+teams learn, `drivers.LearnerActions`: the other learner's action buffer, written by the training loop
+before the first adapter steps the worlds).
 
 Worlds the learner does not drive. With an opponent pool (`pool.OpponentPool`) a team may be played
 by one of its own past snapshots in some worlds (`set_driven(mask [W])`); there its rows are inactive
@@ -67,72 +67,6 @@ OTHER = {"prey": "predator", "predator": "prey"}
 # The device-side sums' columns (`accumulate_episode_stats`); captures per prey is derived on the host.
 EPISODE_KEYS = ["Episode/captures", "Episode/reward_per_agent", "Episode/opponent_reward_per_agent",
                 "Episode/length"]
-
-
-class TrainedOpponent:
-    """Drives one team of `env` with a policy mapping observations `[N, L]` -> actions `[N]`
-    (e.g. `load_policy(...)`); returns int32 actions `[W, slots]` on the env's device.
-
-    `blind_to` ("prey" or "predator"): the policy acts on observations whose slots of that type are
-    empty (all zeros, as an unfilled slot reads): the neighbour-ablation control of a study."""
-
-    def __init__(self, policy, env: BatchedAquarium, agent_type: str, blind_to: str | None = None):
-        if agent_type not in TYPES:
-            raise ValueError(f"agent_type={agent_type!r} must be one of {TYPES}")
-        if blind_to is not None and blind_to not in TYPES:
-            raise ValueError(f"blind_to={blind_to!r} must be None or one of {TYPES}")
-        self.policy, self.env, self.agent_type = policy, env, agent_type
-        obs = env.observations[agent_type]
-        self._slots, self._obs_size = obs.shape[1], obs.shape[2]
-        check = getattr(policy, "check_compatible", None)
-        if check is not None:
-            check(agent_type, self._obs_size, env.config.action_count, self._slots)
-        self.actions = torch.zeros(obs.shape[:2], dtype=torch.int32, device=env.torch_device)
-        self.blind_to = blind_to
-        self._blind = env.config.neighbour_columns(agent_type, blind_to) if blind_to is not None else None
-        self._seen = torch.empty_like(obs) if blind_to is not None else None  # the ablated copy
-
-    def __call__(self) -> torch.Tensor:
-        obs = self.env.observations[self.agent_type]
-        if self._seen is not None:
-            self._seen.copy_(obs)
-            self._seen[..., self._blind] = 0.0
-            obs = self._seen
-        obs = obs.reshape(-1, self._obs_size)
-        with torch.inference_mode():
-            act = self.policy(obs)
-        self.actions.copy_(act.reshape(self.actions.shape))
-        return self.actions
-
-    def state_dict(self) -> dict:
-        state = getattr(self.policy, "rng_state", None)
-        return {"policy_rng": state()} if state is not None else {}
-
-    def load_state_dict(self, state: dict) -> None:
-        if "policy_rng" in state:
-            self.policy.set_rng_state(state["policy_rng"])
-
-
-def policy_driver(policy, env: BatchedAquarium, agent_type: str, blind_to: str | None = None):
-    """`TrainedOpponent` around a loaded policy (`export.load_policy`), or `RecurrentOpponent` for a
-    recurrent one (its rows' hidden states reset where their episodes end); `blind_to` as there."""
-    if getattr(policy, "recurrent", None) is not None:
-        from .export import RecurrentOpponent
-
-        return RecurrentOpponent(policy, env, agent_type, blind_to=blind_to)
-    return TrainedOpponent(policy, env, agent_type, blind_to=blind_to)
-
-
-class LearnerActions:
-    """The other team's actions when it learns too (`train.team = "both"`): the action buffer of its
-    adapter (`vec_env`, set once both adapters exist), which the training loop fills before the
-    first adapter steps the worlds."""
-
-    def __init__(self, vec_env: AquariumVecEnv | None = None):
-        self.vec_env = vec_env
-
-    def __call__(self) -> torch.Tensor:
-        return self.vec_env.actions_buffer
 
 
 class RunConfig(dict):
@@ -177,7 +111,7 @@ class AquariumVecEnv(VecEnv):
         ecfg = env.config
         self.cfg = RunConfig(cfg if cfg is not None else {"env": ecfg.to_dict()})
         self.num_worlds = W = env.num_worlds
-        self.slots = S = env.prey_capacity if team == "prey" else env.predator_count
+        self.slots = S = env.prey_capacity if team == "prey" else env.predator_capacity
         self.team_count = ecfg.prey_count if team == "prey" else ecfg.predator_count
         self.other_count = ecfg.predator_count if team == "prey" else ecfg.prey_count
         self.num_envs = W * S
@@ -205,13 +139,13 @@ class AquariumVecEnv(VecEnv):
         self._obs = [torch.zeros(W * S, L, dtype=torch.float32, device=dev) for _ in range(2)]
         # The centralised critic's group (None: the critic sees the actor's observation only).
         self.critic_group = None if critic == "local" else critic
-        self._critic_obs = [None, None]
-        self._world_state = WorldState(env) if critic == "world" else None
+        self._world_state = WorldState(env) if critic == "world" else None  # None: the team's joint observation
+        self._critic_obs: list[torch.Tensor] | None = None  # the critic group's two buffers
         if self.critic_group is not None:
-            size = S * L if critic == "team" else self._world_state.length
+            size = self._world_state.length if self._world_state is not None else S * L
             self._critic_obs = [torch.zeros(W * S, size, dtype=torch.float32, device=dev) for _ in range(2)]
-        self._obs_td = [TensorDict({"policy": o, **({critic: c} if self.critic_group else {})},
-                                   batch_size=[W * S], device=dev) for o, c in zip(self._obs, self._critic_obs)]
+        self._obs_td = [TensorDict({"policy": o, **({critic: self._critic_obs[k]} if self._critic_obs else {})},
+                                   batch_size=[W * S], device=dev) for k, o in enumerate(self._obs)]
         self._current = 0
         self._rewards = torch.zeros(W * S, dtype=torch.float32, device=dev)
         self._dones = torch.zeros(W * S, dtype=torch.long, device=dev)
@@ -366,9 +300,9 @@ class AquariumVecEnv(VecEnv):
         obs.copy_(self.env.observations[self.team])
         if self.driven is not None:
             obs.mul_(self._active.unsqueeze(-1))
-        if self.critic_group is not None:
+        if self._critic_obs is not None:
             critic = self._critic_obs[self._current].view(W, S, -1)
-            joint = obs.reshape(W, 1, -1) if self.critic_group == "team" else self._world_state().unsqueeze(1)
+            joint = obs.reshape(W, 1, -1) if self._world_state is None else self._world_state().unsqueeze(1)
             torch.mul(joint, self._active.unsqueeze(-1), out=critic)
 
     def accumulate_episode_stats(self) -> None:

@@ -14,7 +14,7 @@ from typing import Any
 import warp as wp
 
 from ..atomic import atomic_open, check_output_dir
-from ..env import resolve_device
+from ..device import resolve_device
 from ..json_records import json_safe
 from .bandwidth import copy_bandwidth
 from .byte_model import step_byte_model

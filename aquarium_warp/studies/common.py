@@ -27,7 +27,8 @@ import torch
 from ..atomic import atomic_open, write_figure
 from ..bench.machine import git_info, machine_info
 from ..config import AquariumConfig
-from ..env import BatchedAquarium, resolve_device
+from ..device import resolve_device
+from ..env import BatchedAquarium
 from ..json_records import json_safe
 from ..number_lists import parse_list
 from ..ray_tasks import RayOptions, placement

@@ -42,8 +42,8 @@ import torch
 
 from ..atomic import write_figure
 from ..config import AquariumConfig, FlowConfig
+from ..device import resolve_device
 from ..drivers import check_spec
-from ..env import resolve_device
 from ..number_lists import check_distinct
 from ..rollout import StepView
 from ..study import seed_stats

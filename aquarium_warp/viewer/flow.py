@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from ..device import WARP_SETUP_LOCK
 from ..kernels import viewer_flow
-from ..shard import WARP_SETUP_LOCK
 
 
 class FlowSampler:

@@ -3,7 +3,7 @@
 ```python
 from stable_baselines3 import PPO
 from aquarium_warp import AquariumConfig
-from aquarium_warp.sb3_vec_env import AquariumSB3VecEnv
+from aquarium_warp.interop.sb3 import AquariumSB3VecEnv
 
 vec = AquariumSB3VecEnv(AquariumConfig(prey_count=6, max_steps=200), num_worlds=16)   # every agent a row
 model = PPO("MlpPolicy", vec, n_steps=64, batch_size=448, seed=0).learn(total_timesteps=100_000)
@@ -11,7 +11,7 @@ model = PPO("MlpPolicy", vec, n_steps=64, batch_size=448, seed=0).learn(total_ti
 prey = AquariumSB3VecEnv(num_worlds=16, team="prey", opponent="naivchase")    # one team learns
 ```
 
-Rows, dead slots, respawns, autoreset, seeding and buffers: as `vector_env.AquariumVectorEnv` (its
+Rows, dead slots, respawns, autoreset, seeding and buffers: as `gymnasium.AquariumVectorEnv` (its
 module doc), with SB3's conventions:
 - `dones = terminations | truncations`; `infos` is a list of one dict per row: `{}`, or for a done row
   `{"TimeLimit.truncated": bool}` (True for a truncation). There is no `"terminal_observation"`: the
@@ -37,8 +37,8 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices
 
-from .config import AquariumConfig
-from .vector_env import AquariumRows
+from ..config import AquariumConfig
+from .gymnasium import AquariumRows
 
 
 class AquariumSB3VecEnv(VecEnv):

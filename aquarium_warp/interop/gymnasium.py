@@ -1,9 +1,9 @@
 """Native vector envs over `BatchedAquarium`: a Gymnasium `VectorEnv` (here) and a Stable-Baselines3
-`VecEnv` (`sb3_vec_env.py`), with no SuperSuit or PettingZoo layer in between.
+`VecEnv` (`sb3.py`), with no SuperSuit or PettingZoo layer in between.
 
 ```python
 from aquarium_warp import AquariumConfig
-from aquarium_warp.vector_env import AquariumVectorEnv
+from aquarium_warp.interop.gymnasium import AquariumVectorEnv
 
 envs = AquariumVectorEnv(AquariumConfig(prey_count=16), num_worlds=64)   # every agent of 64 worlds
 obs, infos = envs.reset(seed=0)                                          # [64 * 20, L] float32
@@ -14,7 +14,7 @@ prey = AquariumVectorEnv(num_worlds=64, team="prey", opponent="naivchase")   # p
 
 Rows. `team="all"` (default): every agent slot of every world is one row, world-major, and within a
 world in `aquarium_v1`'s `possible_agents` order: the predators, then the prey slots (including those
-that reproduction can fill), so `num_envs = W * (predator_count + prey_capacity)` and row `w * S + k`
+that reproduction can fill), so `num_envs = W * (predator_capacity + prey_capacity)` and row `w * S + k`
 is the agent that SuperSuit's route gives row `w * S + k` (one parameter-shared policy; both types
 must then have the same observation size). `team="prey"` or `"predator"`: only that team's slots
 (`W * slots` rows, `w * slots + s` is slot `s` of world `w`, as `training/vec_env.py` lays out rsl-rl's
@@ -69,10 +69,10 @@ import torch
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 
-from .config import AquariumConfig
-from .drivers import make_driver
-from .env import TYPES, BatchedAquarium
-from .seeding import next_reset_seed, reset_seeds
+from ..config import AquariumConfig
+from ..drivers import make_driver
+from ..env import TYPES, BatchedAquarium
+from ..seeding import next_reset_seed, reset_seeds
 
 TEAMS = ("all", "prey", "predator")
 ARRAY_TYPES = ("numpy", "torch")
@@ -90,7 +90,7 @@ def _check_seed(seed, name: str = "seed") -> int | None:
 
 class AquariumRows:
     """The rows of a `BatchedAquarium` as one batch of single-agent envs (the engine behind
-    `AquariumVectorEnv` and `sb3_vec_env.AquariumSB3VecEnv`; see this module's doc for the rows'
+    `AquariumVectorEnv` and `sb3.AquariumSB3VecEnv`; see this module's doc for the rows'
     semantics). Tensors only, on the simulation's device.
 
     Args: `config`, `num_worlds`, `device` ("cpu" by default), `seed` (None: drawn from Python's
@@ -139,7 +139,7 @@ class AquariumRows:
                 raise ValueError(f"opponent must be a policy spec or a callable returning the {OTHER[team]} "
                                  f"actions [W, slots] (team={team!r})")
             self.opponent = opponent
-        slots = {"prey": env.prey_capacity, "predator": env.predator_count}
+        slots = {"prey": env.prey_capacity, "predator": env.predator_capacity}
         self.slices: dict[str, slice] = {}
         start = 0
         for t in self.types:

@@ -66,10 +66,10 @@ import torch
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from .config import AgentTypeConfig, AquariumConfig
-from .env import TYPES, BatchedAquarium
-from .seeding import next_reset_seed, reset_seeds, space_seed
-from .world_state import STATE_FIELDS, WorldState
+from ..config import AgentTypeConfig, AquariumConfig
+from ..env import TYPES, BatchedAquarium
+from ..seeding import next_reset_seed, reset_seeds, space_seed
+from ..world_state import STATE_FIELDS, WorldState
 
 # Above this many extra (refill) names, possible_agents grows on demand instead of listing them all.
 MAX_EXTRA_NAMES = 10_000
@@ -542,7 +542,7 @@ class AquariumParallelEnv(ParallelEnv):
         if self.render_mode is None:
             gymnasium.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'")
             return None
-        from .render import render_world  # lazy: only rendering needs it
+        from ..render import render_world  # lazy: only rendering needs it
 
         o = self._options
         frame = render_world(self.aquarium, 0, view_cones=bool(o["draw_view_cones"]),
@@ -554,7 +554,7 @@ class AquariumParallelEnv(ParallelEnv):
         return None
 
     def _show(self, frame: np.ndarray) -> None:
-        from .render import Window
+        from ..render import Window
 
         if self._window is None:
             try:

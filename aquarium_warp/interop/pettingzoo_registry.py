@@ -13,7 +13,7 @@ PettingZoo 1.27 adds `pettingzoo.make` / `pettingzoo.register` and deprecates th
 `ENV_ID` in both registries, with the entry points `aquarium_warp.aquarium_v1:parallel_env` and
 `aquarium_warp.aquarium_v1:env` (imported on the first `make`), so the keyword arguments are those of
 `aquarium_v1` (marl-aquarium's names, `AquariumConfig` fields, `device=`, `seed=`, `max_cycles=`; see
-`pettingzoo_env.resolve_kwargs`). `pettingzoo.make(..., max_cycles=N)` passes `max_cycles` on, the
+`interop.pettingzoo.resolve_kwargs`). `pettingzoo.make(..., max_cycles=N)` passes `max_cycles` on, the
 episode length in steps. With an older PettingZoo (no `pettingzoo.register`), nothing is registered and
 `aquarium_v1.parallel_env()` / `aquarium_v1.env()` remain the constructors.
 """

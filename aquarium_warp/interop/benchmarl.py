@@ -4,7 +4,7 @@
 from benchmarl.algorithms import MappoConfig
 from benchmarl.experiment import Experiment, ExperimentConfig
 from benchmarl.models.mlp import MlpConfig
-from aquarium_warp.benchmarl_task import AquariumTask
+from aquarium_warp.interop.benchmarl import AquariumTask
 
 task = AquariumTask.PREDATOR_PREY.get_task(config={"max_steps": 100})  # AquariumConfig fields; others default
 config = ExperimentConfig.get_from_yaml()
@@ -33,8 +33,8 @@ from benchmarl.environments.common import Task, TaskClass
 from torchrl.data import Composite
 from torchrl.envs import EnvBase
 
-from .config import AquariumConfig
-from .torchrl_env import AquariumTorchRLEnv
+from ..config import AquariumConfig
+from .torchrl import AquariumTorchRLEnv
 
 
 @dataclasses.dataclass

@@ -2,7 +2,7 @@
 
 ```python
 from torchrl.envs.utils import check_env_specs
-from aquarium_warp.torchrl_env import AquariumTorchRLEnv
+from aquarium_warp.interop.torchrl import AquariumTorchRLEnv
 
 env = AquariumTorchRLEnv(num_worlds=64, device="cpu", seed=0)   # batch_size [64]
 check_env_specs(env)
@@ -41,8 +41,8 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from .config import AquariumConfig
-from .env import TYPES, BatchedAquarium
+from ..config import AquariumConfig
+from ..env import TYPES, BatchedAquarium
 
 
 class AquariumTorchRLEnv(EnvBase):
@@ -66,7 +66,7 @@ class AquariumTorchRLEnv(EnvBase):
             raise ValueError("aquarium must be a BatchedAquarium with auto_reset=True")
         self.aquarium = aquarium
         super().__init__(device=aquarium.torch_device, batch_size=torch.Size([aquarium.num_worlds]))
-        self.slots = {"prey": aquarium.prey_capacity, "predator": aquarium.predator_count}
+        self.slots = {"prey": aquarium.prey_capacity, "predator": aquarium.predator_capacity}
         self.group_map = {t: [f"{t}_{i}" for i in range(n)] for t, n in self.slots.items()}
         self._make_specs()
 

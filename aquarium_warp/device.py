@@ -1,0 +1,94 @@
+"""The machine an env runs on: Warp's initialisation, device names, free memory and CPU threads."""
+
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+import threading
+
+import torch
+import warp as wp
+
+# Warp's initialisation, kernel registration and module loading (compiling) are not thread-safe: two
+# threads building envs at once crashed the process. Everything that may load a module (recording a
+# launch loads its kernel's module) holds this lock; stepping built envs in parallel needs no lock.
+WARP_SETUP_LOCK = threading.RLock()
+
+# What Warp's native library prints during init on a machine without the NVIDIA driver.
+_NO_DRIVER_WARNING = "Could not find or load the NVIDIA CUDA driver"
+_warp_ready = False
+_init_messages = ""  # what init printed while silenced
+
+
+def _wants_cuda(device) -> bool:
+    return (device.type == "cuda") if isinstance(device, torch.device) else (
+        isinstance(device, str) and device.startswith("cuda"))
+
+
+def _init_warp(device=None) -> None:
+    """Initialise Warp once. Its native library warns on stderr when no CUDA driver is found, also
+    for users who never asked for CUDA; unless `device` names CUDA, that warning is held back (kept
+    for the error that `resolve_device` raises if CUDA is asked for later) and anything else printed
+    during init is passed on."""
+    with WARP_SETUP_LOCK:
+        if not _warp_ready:
+            _init_warp_once(device)
+
+
+def _init_warp_once(device) -> None:
+    global _warp_ready, _init_messages
+    wp.config.log_level = wp.LOG_WARNING  # no banner
+    if _wants_cuda(device):
+        wp.init()
+    else:
+        sys.stderr.flush()
+        saved = os.dup(2)
+        with tempfile.TemporaryFile(mode="w+b") as captured:
+            os.dup2(captured.fileno(), 2)
+            try:
+                wp.init()
+            finally:
+                os.dup2(saved, 2)
+                os.close(saved)
+            captured.seek(0)
+            _init_messages = captured.read().decode(errors="replace")
+        others = [line for line in _init_messages.splitlines(keepends=True) if _NO_DRIVER_WARNING not in line]
+        if others:
+            sys.stderr.write("".join(others))
+    _warp_ready = True
+
+
+def resolve_device(device) -> str:
+    """Warp device name for `device`: None picks "cuda:0" when CUDA is present, else "cpu"."""
+    _init_warp(device)
+    if device is None:
+        return "cuda:0" if wp.is_cuda_available() else "cpu"
+    if isinstance(device, torch.device):
+        device = str(device) if device.type == "cpu" or device.index is not None else f"{device.type}:0"
+    if not isinstance(device, str):
+        raise ValueError(f"device={device!r} must be None, a string like 'cpu' or 'cuda:0', or a torch.device")
+    if device == "cuda":
+        device = "cuda:0"
+    names = [d.alias for d in wp.get_devices()]
+    if device not in names:
+        driver = f" ({_init_messages.strip()})" if _NO_DRIVER_WARNING in _init_messages and _wants_cuda(device) else ""
+        raise ValueError(f"device={device!r} is not available; available devices: {names}{driver}")
+    return device
+
+
+def free_bytes(device: str) -> int:
+    """Bytes free on a resolved Warp `device`: the GPU's free memory, or the host's available pages."""
+    dev = wp.get_device(device)
+    if dev.is_cuda:
+        return dev.free_memory
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES")
+
+
+def resolve_cpu_threads(cpu_threads) -> int:
+    """Worker threads for CPU shards: None gives one per core this process may run on."""
+    if cpu_threads is None:
+        return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    if isinstance(cpu_threads, bool) or not isinstance(cpu_threads, int) or cpu_threads < 1:
+        raise ValueError(f"cpu_threads={cpu_threads!r} must be None or an integer >= 1")
+    return cpu_threads
