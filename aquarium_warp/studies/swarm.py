@@ -531,10 +531,10 @@ def plot(out: str, summary: dict) -> None:
     rows = summary.get("screen") or []
     if rows:
         speeds = sorted({r["predator_speed"] for r in rows})
-        fig, axes = plt.subplots(1, len(speeds) * len(PREDATORS), figsize=(4 * len(speeds) * len(PREDATORS), 3.4),
+        fig, axes = plt.subplots(len(PREDATORS), len(speeds), figsize=(3.6 * len(speeds), 3.2 * len(PREDATORS)),
                                  sharey=True, squeeze=False)
         for i, (speed, predator) in enumerate((s, q) for s in speeds for q in PREDATORS):
-            ax = axes[0, i]
+            ax = axes[i % len(PREDATORS), i // len(PREDATORS)]
             for view in sorted({r["view_distance"] for r in rows}):
                 pick = {(r["prey_count"], r["prey_policy"]): r for r in rows if r["predator_speed"] == speed
                         and r["view_distance"] == view and r["predator_policy"] == predator}
@@ -544,6 +544,7 @@ def plot(out: str, summary: dict) -> None:
                 ax.plot(counts, ratio, "o-", label=f"view {view:g} px")
             ax.axhline(1.0, color="grey", lw=0.8)
             ax.set_xscale("log", base=2)
+            ax.set_yscale("log")
             ax.set_title(f"predator speed {speed:g}, {predator}", fontsize=9)
             ax.set_xlabel("prey per world")
         axes[0, 0].set_ylabel("captures: Boids / TurnAway")
