@@ -30,6 +30,14 @@ Measures, per seed (`eval_rows // N` evaluation worlds of one `eval_steps`-step 
   to what it sees) are the chance levels. Many eyes: this fraction and the FID grow with N beyond them.
 - `onsets_per_prey`: flight onsets per prey per 1000 steps.
 
+The redesign (issue #30; `--area-per-prey`, `--recipe`, `--neighbour-control`): in the fixed 800 x 800
+arena N confounds group size with density, the prey see neighbours' positions but not their motion, and
+nothing tells detection through neighbours from chance. `--area-per-prey A` keeps the density fixed (a
+square arena of side sqrt(N A)); `--recipe` trains with the learned-prey recipe, whose ego observations
+give every neighbour's relative velocity; `--neighbour-control` trains the same prey without prey slots
+at every N > 1, the control for detection through neighbours: many eyes needs the FID and the blind
+fraction above it (`learned_minus_no_neighbours`, with TOST equivalence within `MARGINS` for a null).
+
 Outputs (`--out`, default `many_eyes/` in the current directory): `many_eyes.csv` (one row per policy, N,
 FOV, predator and seed), `many_eyes.json` (settings, command, machine, timings, means and s.e.m.,
 dilution expectations, definitions), `many_eyes.png`, the trained policies in `policies/` and each
@@ -65,10 +73,14 @@ from ..seeding import evaluation_seed
 from ..training.config import env_config
 from . import common
 from .jobs import RayOptions, add_ray_arguments, ray_options, run_tasks
-from .statistics import compare, seed_stats
+from .statistics import compare, equivalence, finite, seed_stats
 
 PREDATORS = ("naivchase", "naivchase-noconfusion")
 MEASURES = ("captures_per_prey", "fid", "blind_fraction", "onsets_per_prey")
+RECIPE_ENTROPY = 0.01  # the learned-prey recipe's entropy coefficient (docs/learned-prey.md)
+# Equivalence margins of the neighbour control, declared with the redesign: a "no effect" of seeing
+# neighbours needs the 90% interval of learned minus no-neighbours inside these.
+MARGINS = {"captures_per_prey": 0.1, "fid": 10.0, "blind_fraction": 0.05, "onsets_per_prey": 0.5}
 
 
 @dataclass
@@ -89,6 +101,13 @@ class ManyEyesStudy:
     turn_angle: float = 30.0
     lag: int = 5
     turnaway: bool = True
+    # The redesign (issue #30): `area_per_prey` px^2 fixes the density (a square arena of side
+    # sqrt(N * area_per_prey); None: docs/model.md's 800 x 800 at every N); `recipe`: the learned-prey
+    # recipe (ego observations, which carry each neighbour's relative velocity, random spawn headings,
+    # entropy 0.01); `neighbour_control`: also train prey without prey slots at every N > 1.
+    area_per_prey: float | None = None
+    recipe: bool = False
+    neighbour_control: bool = False
     device: str | None = None
     jobs: int | None = None
     out: str = "many_eyes"
@@ -111,17 +130,33 @@ class ManyEyesStudy:
         check_number("flee-angle", self.flee_angle, 0.0, 180.0)
         check_number("turn-angle", self.turn_angle, 0.0, 180.0)
         check_number("flee-distance", self.flee_distance, 1e-3, 1e6)
+        if self.area_per_prey is not None:
+            check_number("area-per-prey", self.area_per_prey, 1.0, 1e8)
 
-    def env(self, n: int, fov: float, steps: int) -> dict:
+    def env(self, n: int, fov: float, steps: int, prey_slots: int | None = None) -> dict:
         """The world's config fields (a predator never starves within an episode: one full episode per world)."""
-        return {"prey_count": n, "predator_count": 1, "max_steps": steps, "predator_starvation_steps": steps,
-                "prey": {"fov_angle": float(fov), "view_distance": float(self.view_distance)}}
+        env: dict = {"prey_count": n, "predator_count": 1, "max_steps": steps, "predator_starvation_steps": steps,
+                     "prey": {"fov_angle": float(fov), "view_distance": float(self.view_distance)}}
+        if self.area_per_prey is not None:
+            env["width"] = env["height"] = math.sqrt(n * self.area_per_prey)
+        if self.recipe:
+            env.update(observation_frame="ego", spawn_heading="random")
+        if prey_slots is not None:
+            env["prey"]["prey_slots"] = prey_slots
+        return env
+
+    def policies(self, n: int) -> tuple[str, ...]:
+        """The prey policies evaluated at group size `n`."""
+        learned = ("learned", "no-neighbours") if self.neighbour_control and n > 1 else ("learned",)
+        return learned + (("turnaway",) if self.turnaway else ())
 
     def tasks(self, device: str) -> list[dict]:
         """One task per (policy, N, FOV, seed): the training runs first, then the TurnAway references."""
         tasks = []
-        for policy in ("learned", "turnaway") if self.turnaway else ("learned",):
+        for policy in ("learned", "no-neighbours", "turnaway"):
             for n in sorted(self.group_sizes):
+                if policy not in self.policies(n):
+                    continue
                 for fov in self.fov_angles:
                     for seed in range(self.seeds):
                         name = f"{policy}_N{n}_fov{fov:g}_seed{seed}"
@@ -203,12 +238,15 @@ def run_task(task: dict) -> list[dict]:
     study: ManyEyesStudy = task["study"]
     n, fov, seed, device = task["group_size"], task["fov_angle"], task["seed"], task["device"]
     train_s, prey = 0.0, "turnaway"
-    if task["policy"] == "learned":
-        config = common.training_config(study.env(n, fov, study.train_steps), "prey", "naivchase",
+    slots = 0 if task["policy"] == "no-neighbours" else None
+    if task["policy"] != "turnaway":
+        config = common.training_config(study.env(n, fov, study.train_steps, slots), "prey", "naivchase",
                                         max(1, study.rows // n), study.iterations, seed, device)
+        if study.recipe:
+            config["runner"]["algorithm"]["entropy_coef"] = RECIPE_ENTROPY
         policies, train_s = common.train_and_export(config, task["policy_dir"])
         prey = policies["prey"]
-    cfg = env_config({"env": study.env(n, fov, study.eval_steps)})
+    cfg = env_config({"env": study.env(n, fov, study.eval_steps, slots)})
     rows = []
     for predator in PREDATORS:
         flights = FlightOnsets(study.lag, study.flee_angle, study.flee_distance, study.turn_angle, cfg.prey.max_speed,
@@ -252,6 +290,12 @@ def run_many_eyes(study: ManyEyesStudy, command: str | None = None,
         {"predator": pred, "fov_angle": fov, "group_size": n,
          "differences": compare(rs, groups[("turnaway", pred, fov, n)], MEASURES)}
         for (p, pred, fov, n), rs in sorted(groups.items()) if p == "learned" and study.turnaway]
+    summary["learned_minus_no_neighbours"] = [
+        {"predator": pred, "fov_angle": fov, "group_size": n,
+         "differences": compare(rs, groups[("no-neighbours", pred, fov, n)], MEASURES),
+         "equivalence": {m: _equivalence(rs, groups[("no-neighbours", pred, fov, n)], m) for m in MEASURES}}
+        for (p, pred, fov, n), rs in sorted(groups.items())
+        if p == "learned" and ("no-neighbours", pred, fov, n) in groups]
     summary["definitions"] = {
         "captures_per_prey": f"captures per prey per episode of {study.eval_steps} steps",
         "dilution_expectation": "c(N0) * N0 / N, N0 the smallest group size: each prey's share of the smallest "
@@ -271,9 +315,21 @@ def run_many_eyes(study: ManyEyesStudy, command: str | None = None,
         "predator": "naivchase: a random visible prey each step (confusion); naivchase-noconfusion: the nearest",
         "learned_minus_turnaway": "learned prey minus TurnAway at each predator, FOV and N: difference of the "
                                   "seed means with its 95% Welch interval (null with fewer than 2 seeds)",
+        "learned_minus_no_neighbours": "learned prey minus prey trained without prey slots (the neighbour control) "
+                                       f"at each predator, FOV and N > 1; equivalence: TOST within {MARGINS}",
+        "arena": (f"square, side sqrt(N x {study.area_per_prey:g} px^2): the same density at every N"
+                  if study.area_per_prey is not None else "800 x 800 at every N"),
+        "recipe": ("ego observations (neighbours' relative velocity included), random spawn headings, entropy "
+                   f"{RECIPE_ENTROPY}" if study.recipe else "the paper preset's observations and PPO settings"),
     }
     summary["results"] = entries
     return common.write_outputs(study.out, "many_eyes", results, summary, plot_many_eyes if study.figures else None)
+
+
+def _equivalence(a: list[dict], b: list[dict], measure: str) -> dict | None:
+    """TOST of `measure` between two conditions' per-seed rows within `MARGINS` (None below two values)."""
+    x, y = (finite(np.asarray([r[measure] for r in rows], dtype=np.float64)) for rows in (a, b))
+    return equivalence(x.tolist(), y.tolist(), MARGINS[measure]) if len(x) >= 2 and len(y) >= 2 else None
 
 
 def _task_rows(task: dict) -> dict:
@@ -289,7 +345,7 @@ def plot_many_eyes(summary: dict, out: str) -> str:
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     fovs = sorted({e["fov_angle"] for e in summary["results"]})
     for row, predator in enumerate(PREDATORS):
-        for policy, style in (("learned", "o-"), ("turnaway", "s:")):
+        for policy, style in (("learned", "o-"), ("no-neighbours", "^--"), ("turnaway", "s:")):
             for k, fov in enumerate(fovs):
                 curve = [e for e in summary["results"]
                          if (e["policy"], e["predator"], e["fov_angle"]) == (policy, predator, fov)]
@@ -350,6 +406,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="degrees the prey must turn over --lag steps for a flight onset (default 30)")
     p.add_argument("--lag", type=positive_int, default=5, help="steps of a flight onset's turn (default 5)")
     p.add_argument("--no-turnaway", action="store_true", help="no TurnAway reference")
+    p.add_argument("--area-per-prey", type=positive_float, default=None,
+                   help="px^2 per prey: a square arena of side sqrt(N x this), the same density at every N "
+                        "(default: 800 x 800 at every N; 40000 is 16 prey in 800 x 800)")
+    p.add_argument("--recipe", action="store_true",
+                   help="train with the learned-prey recipe: ego observations (neighbours' relative velocity), "
+                        "random spawn headings, entropy 0.01")
+    p.add_argument("--neighbour-control", action="store_true",
+                   help="also train prey without prey slots at every N > 1 (the neighbour ablation)")
     common.add_common_arguments(p, "many_eyes")
     add_ray_arguments(p, "training run (with its evaluations)")
 
@@ -362,6 +426,7 @@ def run(args: argparse.Namespace) -> int:
         rows=args.rows, iterations=args.iterations, train_steps=args.train_steps, eval_rows=args.eval_rows,
         eval_steps=args.eval_steps, view_distance=args.view_distance, flee_angle=args.flee_angle,
         flee_distance=args.flee_distance, turn_angle=args.turn_angle, lag=args.lag, turnaway=not args.no_turnaway,
+        area_per_prey=args.area_per_prey, recipe=args.recipe, neighbour_control=args.neighbour_control,
         device=args.device, jobs=args.jobs, out=args.out, figures=not args.no_figures)
     print(f"aquarium-warp study many-eyes: group sizes {study.group_sizes} x FOV {study.fov_angles}, "
           f"{study.seeds} seeds -> {study.out}")
