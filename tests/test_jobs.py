@@ -1,18 +1,22 @@
 """The studies' job runner (`aquarium_warp.studies.jobs.run_jobs`): finished tasks are kept under
 `out/finished/` keyed on the task and the study's settings, so that a rerun with more seeds runs only
 the new (setting, seed) tasks and keeps the old rows, while a changed setting runs afresh; threads return
-the results in task order."""
+the results in task order; tasks spread over several devices get one each, which their keys do not
+hold, so a rerun on other devices keeps them."""
 
 from __future__ import annotations
 
 import csv
 import dataclasses
+import json
+import os
+import re
 import threading
 
 import pytest
 
 from aquarium_warp.cli import main
-from aquarium_warp.studies.jobs import FINISHED_DIR, run_jobs, task_key
+from aquarium_warp.studies.jobs import FINISHED_DIR, read_finished, run_jobs, task_key
 
 
 @dataclasses.dataclass
@@ -81,6 +85,61 @@ def test_threads_return_results_in_task_order_and_call_back_each(tmp_path):
     run_jobs(Counted(), Study(seeds=3).tasks(), str(tmp_path), jobs=3, threads=True, report=None,
              prepare=lambda: prepared.append(True), on_result=lambda i, result, kept: seen.append((i, kept)))
     assert seen == [(i, True) for i in range(6)] and prepared == [True]  # nothing left to run: no warm-up
+
+
+class Located(Counted):
+    """`Counted` that is given a device, and records it."""
+
+    def __init__(self):
+        super().__init__()
+        self.devices: list[str] = []
+
+    def __call__(self, task: dict, device: str) -> dict:
+        self.devices.append(device)
+        return super().__call__(task)
+
+
+def on_device(task: dict, device: str) -> dict:
+    """A worker process's task: its value, the device it was given and the process it ran in."""
+    return {"value": task["x"] * task["study"].scale + task["seed"], "device": device, "process": os.getpid()}
+
+
+def test_one_device_runs_here_and_gives_each_task_the_device(tmp_path):
+    here = Located()
+    run = run_jobs(here, Study(seeds=2).tasks(), str(tmp_path), devices=["cpu"], report=None)
+    assert [r["value"] for r in run.results] == [1.0, 2.0, 2.0, 3.0] and here.devices == ["cpu"] * 4
+    # The device is not part of a task's key: a run on other devices keeps every task.
+    for task in Study(seeds=2).tasks():
+        assert "device" not in task_key(task)["task"] and read_finished(str(tmp_path), task) == (True, {
+            "value": task["x"] + task["seed"]})
+    again = Located()
+    assert run_jobs(again, Study(seeds=2).tasks(), str(tmp_path), devices=["cpu", "cpu"], jobs=2,
+                    report=None).kept == 4 and again.devices == []
+
+
+def test_two_devices_run_in_a_worker_process_each_and_a_rerun_keeps_all(tmp_path):
+    tasks = Study(seeds=2).tasks()
+    run = run_jobs(on_device, tasks, str(tmp_path), devices=["cpu", "cpu"], report=None, prepare=lambda: None)
+    assert [r["value"] for r in run.results] == [1.0, 2.0, 2.0, 3.0] and {r["device"] for r in run.results} == {"cpu"}
+    processes = {r["process"] for r in run.results}
+    assert len(processes) == 2 and os.getpid() not in processes  # one worker per device (jobs=1 on each)
+    for task in tasks:
+        with open(tmp_path / FINISHED_DIR / f"{task['name']}.json", encoding="utf-8") as f:
+            assert json.load(f)["key"] == task_key(task)
+    here = Located()
+    rerun = run_jobs(here, tasks, str(tmp_path), devices=["cpu"], report=None)
+    assert rerun.kept == 4 and here.devices == [] and rerun.results == run.results
+
+
+@pytest.mark.parametrize("options, message", [
+    ({"devices": []}, "devices=[] must name at least one device"),
+    ({"devices": ["cpu"], "threads": True}, "devices spread tasks over worker processes of this machine"),
+    ({"devices": ["cpu", "cpu"], "jobs": 0}, "jobs=0 must be an integer >= 1"),
+])
+def test_bad_devices_are_refused(tmp_path, options, message):
+    with pytest.raises(ValueError, match="^" + re.escape(message)):
+        run_jobs(Located(), Study().tasks(), str(tmp_path), report=None, **options)
+    assert not (tmp_path / FINISHED_DIR).exists()
 
 
 def read_csv(path):

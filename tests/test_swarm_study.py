@@ -1,6 +1,7 @@
 """The swarm study (`aquarium-warp study swarm`, issue #30) on the CPU: its screen part end to end on a
 tiny grid (a row per heuristic prey x predator, the aggregation index from the uniform prey's
-nearest-neighbour distance, a rerun that runs no task), and its option checks."""
+nearest-neighbour distance, a rerun that runs no task), its learned part end to end, the
+training runs' configs against `aquarium-warp train`'s, and its option checks."""
 
 from __future__ import annotations
 
@@ -10,8 +11,9 @@ import math
 
 import pytest
 
-from aquarium_warp.cli import main
+from aquarium_warp.cli import build_parser, main
 from aquarium_warp.studies import STUDIES, swarm
+from aquarium_warp.studies.jobs import FINISHED_DIR
 
 SCREEN = ["study", "swarm", "--part", "screen", "--prey-counts", "4", "--view-distances", "200", "--predator-speeds",
           "5", "--episodes", "2", "--eval-seeds", "2", "--max-steps", "60", "--gpus", "0", "--no-figures"]
@@ -39,7 +41,7 @@ def test_the_screen_end_to_end_and_a_rerun_runs_nothing(tmp_path, capsys, one_th
         assert captures["mean"] == pytest.approx(sum(captures["values"]) / 2) and captures["ci95"] is not None
     lines = (out / "screen.csv").read_text().splitlines()
     assert len(lines) == 1 + len(rows)
-    task = out / "tasks" / "screen" / "n4-v200-p5.json"
+    task = out / FINISHED_DIR / "screen-n4-v200-p5.json"
     before, mtime = task.read_bytes(), task.stat().st_mtime_ns
     # The same command again: the screen world's task is kept, nothing runs.
     assert main(SCREEN + ["--out", str(out)]) == 0
@@ -107,3 +109,66 @@ def test_comparisons_keep_their_keys_and_the_pairing():
     assert swarm.comparison(a, b, False, 0.0)["equivalent"] is False  # no captures: no margin to be inside
     assert swarm.interval([1.0, None, 3.0]) == {"mean": 2.0, "ci95": pytest.approx(12.706205 * 1.0, abs=1e-5),
                                                 "n": 2, "values": [1.0, 3.0]}
+
+
+def old_train_argv(args, condition: str, seed: int, device: str) -> list[str]:
+    """The `aquarium-warp train` command line that trained the committed results (`train_command` of
+    swarm.py before its trainings ran in-process, commit 39265e4), without its --log-dir."""
+    spec = swarm.CONDITIONS[condition]
+    worlds = args.train_worlds or max(1, swarm.TRAIN_AGENT_STEPS // (spec["prey"] * 32 * args.iterations))
+    iterations = args.iterations * spec.get("budget", 1)
+    argv = ["train", "--preset", args.train_preset, "--seed", str(seed), "--device", device, "--quiet", "--export",
+            "jit", "--overwrite", "--save-interval", str(iterations), "--prey", str(spec["prey"]), "--num-worlds",
+            str(worlds), "--iterations", str(iterations), "--entropy", "0.01", "--predator-policy", spec["opponent"]]
+    for s in swarm.SCENARIO + swarm.RECIPE + tuple(spec["sets"]) + tuple(args.train_set):
+        argv += ["--set", s]
+    return argv
+
+
+@pytest.mark.parametrize("changes", [{}, {"train_preset": "tiny", "iterations": 2, "train_worlds": 4,
+                                          "train_set": ["runner.num_steps_per_env=8"]}])
+def test_each_condition_trains_with_the_config_of_its_train_command(changes):
+    from aquarium_warp.training.cli import train_config
+
+    args = options(**changes)
+    swarm.check(args)
+    for condition in swarm.CONDITIONS:
+        for seed, device in ((0, "cpu"), (3, "cuda:0")):
+            config = swarm.run_config(args, condition, seed)
+            assert config["train"]["device"] is None  # the task is given its device
+            config["train"]["device"] = device
+            assert config == train_config(build_parser().parse_args(old_train_argv(args, condition, seed, device)))
+
+
+def test_more_gpus_than_the_machine_has_are_refused():
+    import torch
+
+    count = torch.cuda.device_count()
+    with pytest.raises(ValueError, match=rf"^--gpus={count + 1} must be at most the {count} CUDA devices"):
+        swarm.task_devices(count + 1)
+    assert swarm.task_devices(0) == ["cpu"]
+
+
+LEARNED = ["study", "swarm", "--part", "learned", "--conditions", "no-neighbours", "--seeds", "2", "--iterations", "1",
+           "--train-worlds", "2", "--train-preset", "tiny", "--episodes", "1", "--eval-seeds", "2", "--max-steps", "40",
+           "--gpus", "0", "--no-figures"]
+
+
+def test_the_learned_part_end_to_end_and_a_rerun_runs_nothing(tmp_path, capsys, one_thread):
+    out = tmp_path / "swarm"
+    assert main(LEARNED + ["--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "training 1 conditions x 2 seeds (2 to run)" in printed and "evaluating 2 policies (2 to run)" in printed
+    summary = json.loads((out / "summary.json").read_text())
+    entry = summary["learned"]["conditions"]["no-neighbours"]
+    assert entry["seeds"] == [0, 1] and "blind" not in entry  # no prey slots to empty
+    assert entry["naivchase"][swarm.PRIMARY]["n"] == 2 and "boids|naivchase" in entry
+    assert [(t["condition"], t["seed"]) for t in summary["trainings"]] == [("no-neighbours", 0), ("no-neighbours", 1)]
+    policy = out / "runs" / "no-neighbours-s1" / "exported" / "policy.pt"
+    mtime = policy.stat().st_mtime_ns
+    assert main(LEARNED + ["--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "(2 to run)" not in printed and "(1 to run)" not in printed and printed.count("(0 to run)") == 3
+    assert policy.stat().st_mtime_ns == mtime
+    again = json.loads((out / "summary.json").read_text())
+    assert again["learned"] == summary["learned"] and again["trainings"] == summary["trainings"]

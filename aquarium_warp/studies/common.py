@@ -53,13 +53,13 @@ def training_config(env: dict, team: str, opponent: str | None, worlds: int, ite
         "seed": seed, "device": device, "quiet": True, "metrics_every": 0, "export": ["jit"]}})
 
 
-def train_and_export(config: dict, out_dir: str) -> tuple[dict[str, str], float]:
-    """Train one run in this process (`Trainer`, no log directory) and export its policies (TorchScript)
-    into `out_dir` (both teams: `out_dir/<team>/`). Returns `{team: policy file}` and the training's
-    wall time in seconds (construction and export not included)."""
+def train_and_export(config: dict, out_dir: str, log_dir: str | None = None) -> tuple[dict[str, str], float]:
+    """Train one run in this process (`Trainer`; with `log_dir`, its config, logs and checkpoints there)
+    and export its policies (TorchScript) into `out_dir` (both teams: `out_dir/<team>/`). Returns
+    `{team: policy file}` and the training's wall time in seconds (construction and export not included)."""
     from ..training import Trainer
 
-    trainer = Trainer(copy.deepcopy(config))
+    trainer = Trainer(copy.deepcopy(config), log_dir=log_dir)
     try:
         start = time.perf_counter()
         trainer.train()

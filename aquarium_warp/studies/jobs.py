@@ -7,6 +7,10 @@ Finished tasks: each result is written to `<out>/finished/<name>.json` with its 
 and the study's settings) as it comes, so a rerun of the same study (after it was stopped at a time
 limit, say, or with more `--seeds`) runs only the tasks it has no result for.
 
+Several devices of one machine (`devices`): worker processes, each bound to one device, run `jobs`
+tasks at a time on each; a task takes the next free device, which its function is given and its key
+does not hold, so a rerun on another number of GPUs keeps the finished tasks.
+
 Ray: each task is a Ray task holding the GPUs (or the GPU fraction) and CPUs it needs (`RayOptions`);
 Ray schedules the tasks over the cluster's machines and reruns a task whose worker died
 (`max_retries`) while the finished ones stay done. Ray is optional (`pip install
@@ -23,6 +27,7 @@ run_swarm_size_study(SwarmSizeStudy(prey=[4, 8, 16], out="out"), ray=RayOptions(
 from __future__ import annotations
 
 import argparse
+import concurrent.futures as futures
 import dataclasses
 import json
 import math
@@ -31,7 +36,6 @@ import platform
 import time
 import warnings
 from collections.abc import Callable, Sequence
-from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
 from multiprocessing import get_context
 from typing import Any
@@ -217,15 +221,37 @@ def warm_up(device: str, config: AquariumConfig | None = None, prey: str = "turn
 
 
 # ---------------------------------------------------------------------------------------------- the runner
+# Entries of a task that name its folders under the study's `out` (where it writes or reads its files):
+# not part of its key, so a study keeps its tasks wherever `out` is given from.
+TASK_FOLDERS = ("policy_dir", "run_dir")
+
+
 def task_key(task: dict) -> dict:
-    """What a kept result must have been computed with, as read back from JSON: the task (not where it
-    writes; it names its seed or seed count and its device) and the study's settings (not the seed
-    count, so that adding seeds keeps the finished ones, nor its output directory, workers, figures or
-    device option)."""
+    """What a kept result must have been computed with, as read back from JSON: the task (not its
+    folders, `TASK_FOLDERS`; it names its seed or seed count, and its device unless `run_jobs` gives
+    it one of `devices`) and, where it has a "study", the study's settings (not the seed count, so that
+    adding seeds keeps the finished ones, nor its output directory, workers, figures or device option)."""
     settings = {k: v for k, v in dataclasses.asdict(task["study"]).items()
-                if k not in ("seeds", "out", "jobs", "figures", "device")}
-    own = {k: v for k, v in task.items() if k not in ("study", "policy_dir")}
+                if k not in ("seeds", "out", "jobs", "figures", "device")} if "study" in task else {}
+    own = {k: v for k, v in task.items() if k != "study" and k not in TASK_FOLDERS}
     return json.loads(json.dumps({"task": own, "study": settings}))
+
+
+def finished_path(out: str, task: dict) -> str:
+    """The file of `task`'s result under `out`."""
+    return os.path.join(out, FINISHED_DIR, f"{task['name']}.json")
+
+
+def read_finished(out: str, task: dict) -> tuple[bool, Any]:
+    """`(True, result)` where `task`'s file under `out` holds a result computed with its `task_key`,
+    else `(False, None)`."""
+    path = finished_path(out, task)
+    if os.path.isfile(path):
+        with open(path, encoding="utf-8") as f:
+            kept = json.load(f)
+        if kept.get("key") == task_key(task):
+            return True, kept["result"]
+    return False, None
 
 
 def _json_ready(value):
@@ -248,28 +274,33 @@ class JobsRun:
     nodes: list[str]
 
 
-def run_jobs(function: Callable[[dict], Any], tasks: Sequence[dict], out: str, *, jobs: int = 1,
-             threads: bool = False, device: str = "cpu", ray: RayOptions | None = None, label: str = "run",
-             prepare: Callable[[], None] | None = None, on_result: Callable[[int, Any, bool], None] | None = None,
+def run_jobs(function: Callable[..., Any], tasks: Sequence[dict], out: str, *, jobs: int = 1,
+             threads: bool = False, device: str = "cpu", devices: Sequence[str] | None = None,
+             ray: RayOptions | None = None, label: str = "run", prepare: Callable[[], None] | None = None,
+             on_result: Callable[[int, Any, bool], None] | None = None,
              report: Callable[[str], None] | None = print) -> JobsRun:
-    """`function(task)` for every task (each a dict with a unique "name" and its "study"): those whose
-    `<out>/finished/<name>.json` holds the same `task_key` are kept, the others run, in the order of
-    `tasks` (longest first runs best): with `ray` (placed: `placement`) as Ray tasks, a task whose
-    worker dies rerun by Ray; else with `jobs=1` (or one task to run) in this process, or `jobs` at once
-    on threads (`threads`) or in worker processes (spawned, so each has its own CUDA context), after
-    `prepare()` (default: `warm_up(device)`). With processes or Ray, `function` must be a module-level
-    function and the tasks picklable. Each result is written to its file as it comes; `on_result(i,
-    result, kept)` follows (kept ones first), and `report` gets a line per finished task (None: quiet)."""
+    """`function(task)` for every task (each a dict with a unique "name", and its "study" where it has
+    settings of one): those whose `<out>/finished/<name>.json` holds the same `task_key` are kept, the
+    others run, in the order of `tasks` (longest first runs best): with `ray` (placed: `placement`) as
+    Ray tasks, a task whose worker dies rerun by Ray; else with `jobs=1` (or one task to run) in this
+    process, or `jobs` at once on threads (`threads`) or in worker processes (spawned, so each has its
+    own CUDA context), after `prepare()` (default: `warm_up(device)`). With `devices`, `function(task,
+    device)` runs `jobs` at a time on each of `devices`, in worker processes bound to one device each
+    (one device and `jobs=1`, or one task to run: here, on the first device; `prepare` defaults to
+    `warm_up` of the first device). With processes or Ray, `function` must be a module-level function
+    and the tasks picklable. Each result is written to its file as it comes; `on_result(i, result,
+    kept)` follows (kept ones first), and `report` gets a line per finished task (None: quiet)."""
+    if devices is not None:
+        if not devices:
+            raise ValueError("devices=[] must name at least one device")
+        if ray is not None or threads:
+            raise ValueError("devices spread tasks over worker processes of this machine: not with ray or threads")
+        check_int("jobs", jobs)  # tasks at a time on each device
+        device = devices[0]
     results: list = [None] * len(tasks)
     done_here = [False] * len(tasks)
-    keys = [task_key(task) for task in tasks]
-    paths = [os.path.join(out, FINISHED_DIR, f"{task['name']}.json") for task in tasks]
-    for i, path in enumerate(paths):
-        if os.path.isfile(path):
-            with open(path, encoding="utf-8") as f:
-                kept = json.load(f)
-            if kept.get("key") == keys[i]:
-                results[i], done_here[i] = kept["result"], True
+    for i, task in enumerate(tasks):
+        done_here[i], results[i] = read_finished(out, task)
     kept_count = sum(done_here)
     if kept_count and report is not None:
         report(f"  {label}: {kept_count} of {len(tasks)} tasks kept from {os.path.join(out, FINISHED_DIR)}")
@@ -282,8 +313,8 @@ def run_jobs(function: Callable[[dict], Any], tasks: Sequence[dict], out: str, *
     start = time.perf_counter()
 
     def done(i: int, result) -> None:
-        with atomic_open(paths[i]) as f:
-            json.dump({"key": keys[i], "result": _json_ready(result)}, f)
+        with atomic_open(finished_path(out, tasks[i])) as f:
+            json.dump({"key": task_key(tasks[i]), "result": _json_ready(result)}, f)
         results[i], done_here[i] = result, True
         if on_result is not None:
             on_result(i, result, False)
@@ -301,18 +332,59 @@ def run_jobs(function: Callable[[dict], Any], tasks: Sequence[dict], out: str, *
             done(todo[k], result[0])
 
         run_ray_tasks(_on_worker, [(function, tasks[i]) for i in todo], ray, on_result=finished_on_ray)
-    elif jobs <= 1 or len(todo) <= 1:
+    elif (jobs <= 1 and (devices is None or len(devices) == 1)) or len(todo) <= 1:
         for i in todo:
-            done(i, function(tasks[i]))
+            done(i, function(tasks[i]) if devices is None else function(tasks[i], device))
     else:
         (prepare or (lambda: warm_up(device)))()
-        pool: Executor = (ThreadPoolExecutor(max_workers=min(jobs, len(todo))) if threads else
-                          ProcessPoolExecutor(max_workers=min(jobs, len(todo)), mp_context=get_context("spawn")))
-        with pool:
-            futures = {pool.submit(function, tasks[i]): i for i in todo}
-            for future in as_completed(futures):
-                done(futures[future], future.result())
+        if devices is not None:
+            _run_on_devices(function, [(i, tasks[i]) for i in todo], devices, jobs, done)
+        else:
+            pool: futures.Executor = (
+                futures.ThreadPoolExecutor(max_workers=min(jobs, len(todo))) if threads else
+                futures.ProcessPoolExecutor(max_workers=min(jobs, len(todo)), mp_context=get_context("spawn")))
+            with pool:
+                submitted = {pool.submit(function, tasks[i]): i for i in todo}
+                for future in futures.as_completed(submitted):
+                    done(submitted[future], future.result())
     return JobsRun(results, kept_count, sorted(nodes))
+
+
+def _bind_device(device: str) -> None:
+    """A worker process's start: make `device` its current CUDA device, so that code using the current
+    device (a CUDA graph's capture, a synchronize) works on it and opens no context on GPU 0."""
+    if device.startswith("cuda"):
+        import torch
+
+        torch.cuda.set_device(torch.device(device))
+
+
+def _run_on_devices(function: Callable[[dict, str], Any], tasks: list[tuple[int, dict]], devices: Sequence[str],
+                    per_device: int, done: Callable[[int, Any], None]) -> None:
+    """`function(task, device)` for the `(index, task)` pairs, in task order as slots free up: a pool of
+    `per_device` spawned worker processes per device, each task on the device with the most free
+    slots (the first of them on a tie); `done(index, result)` as each finishes."""
+    context = get_context("spawn")
+    pools = [futures.ProcessPoolExecutor(max_workers=per_device, mp_context=context, initializer=_bind_device,
+                                         initargs=(d,)) for d in devices]
+    free = [per_device] * len(devices)
+    waiting = list(reversed(tasks))
+    running: dict[futures.Future, tuple[int, int]] = {}
+    try:
+        while waiting or running:
+            while waiting and max(free) > 0:
+                k = free.index(max(free))
+                i, task = waiting.pop()
+                running[pools[k].submit(function, task, devices[k])] = (i, k)
+                free[k] -= 1
+            finished, _ = futures.wait(running, return_when=futures.FIRST_COMPLETED)
+            for future in finished:
+                i, k = running.pop(future)
+                free[k] += 1
+                done(i, future.result())
+    finally:
+        for pool in pools:  # after an error: the waiting tasks never start, the running ones end
+            pool.shutdown(cancel_futures=True)
 
 
 # ---------------------------------------------------------------------------------------------- a study's tasks

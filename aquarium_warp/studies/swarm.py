@@ -38,26 +38,26 @@ Secondary: local alignment, milling, largest-group fraction, captures per prey. 
 95% t interval over training seeds, differences between conditions with 95% Welch intervals (paired
 over seeds for the ablation), and an equivalence margin for a "no effect" reading (`MARGINS`).
 
-Tasks (a screen world, a training run, a policy's evaluation) keep their results in `--out`; a rerun,
-or one with more `--seeds`, runs only what is missing.
+Tasks (a screen world, a training run, a policy's evaluation, a condition's heuristics) run through
+the studies' job runner (`jobs.run_jobs`), `--per-gpu` at a time on each of `--gpus` GPUs (0: one at
+a time on the CPU), trainings in-process (`Trainer`, each into `runs/<condition>-s<seed>/`). Their
+results are kept in `--out` (`finished/`); a rerun, one with more `--seeds` or on another number of
+GPUs, runs only what is missing.
 """
 
 from __future__ import annotations
 
 import argparse
-import concurrent.futures as futures
+import copy
 import json
 import math
-import multiprocessing
 import os
-import shlex
-import subprocess
-import sys
 import time
 from collections.abc import Callable, Sequence
 
 from ..arguments import check_distinct, check_int, number_list
-from ..records import command_line, provenance
+from ..records import command_line, json_safe, provenance
+from .jobs import read_finished, run_jobs
 from .statistics import difference, equivalence, finite, mean_interval
 
 # The scenario: prey see all around, 200 px (reacting pays only with rear vision and range, see
@@ -100,7 +100,7 @@ DESCRIPTION = ("Part screen: heuristic prey (random, constant, TurnAway, Boids) 
                "uniformly random prey. Part learned: train --seeds prey runs per condition (the swarm scenario and its "
                "controls), evaluate each with and without its prey slots and against NaivChase without confusion, "
                "and compare the conditions with 95% intervals and declared equivalence margins. Tasks keep their "
-               "results in --out (tasks/); a rerun runs only what is missing. Writes summary.json, screen.csv, "
+               "results in --out (finished/); a rerun runs only what is missing. Writes summary.json, screen.csv, "
                "learned.csv and figures.")
 
 
@@ -154,27 +154,29 @@ def check(args) -> None:
     args.condition_list = conditions
 
 
-# ---- tasks and their kept results -------------------------------------------------------------------
+# ---- the tasks (`jobs.run_jobs`: kept in <out>/finished/, spread over the GPUs) -----------------------
 
-def task_path(out: str, kind: str, name: str) -> str:
-    return os.path.join(out, "tasks", kind, f"{name}.json")
+def task_devices(gpus: int | None) -> list[str]:
+    """The devices the tasks spread over: CUDA devices 0 to `gpus` - 1 (None: every one), or the CPU
+    (`gpus` 0, or a machine without CUDA)."""
+    import torch
+
+    available = torch.cuda.device_count()
+    if gpus is not None and gpus > available:
+        raise ValueError(f"--gpus={gpus} must be at most the {available} CUDA devices of this machine")
+    return [f"cuda:{k}" for k in range(available if gpus is None else gpus)] or ["cpu"]
 
 
-def read_task(path: str) -> dict | None:
-    try:
-        with open(path, encoding="utf-8") as f:
-            return json.load(f)
-    except FileNotFoundError:
-        return None
-
-
-def write_task(path: str, record: dict) -> None:
-    from ..atomic import atomic_open
-    from ..records import json_safe
-
-    os.makedirs(os.path.dirname(path), exist_ok=True)
-    with atomic_open(path) as f:
-        json.dump(json_safe(record), f, indent=1)
+def run_part(heading: str, function: Callable[[dict, str], dict], tasks: list[dict], args,
+             devices: Sequence[str], label: str) -> list[dict]:
+    """The results of `tasks` (`function(task, device)`) in task order, the kept ones read back: on the
+    GPUs `--per-gpu` at a time on each, on the CPU one at a time here (Warp's CPU kernels take one
+    thread each)."""
+    todo = sum(not read_finished(args.out, task)[0] for task in tasks)
+    print(f"study swarm: {heading} ({todo} to run)", flush=True)
+    jobs = args.per_gpu if devices[0] != "cpu" else 1
+    return run_jobs(function, tasks, args.out, jobs=jobs, devices=devices, label=label,
+                    report=lambda line: print(line, flush=True)).results
 
 
 def screen_config(n: int, view: float, predator_speed: float, max_steps: int):
@@ -208,79 +210,52 @@ def uniform_measures(cfg, device: str, seed: int = 0) -> dict[str, float]:
     return uniform_baseline(cfg, snapshots, None, device, seed=seed)
 
 
-def run_heuristics(cfg, task: dict) -> dict:
-    """Every heuristic prey against every predator of `PREDATORS` in `cfg`, with the uniform baseline."""
+def run_heuristics(cfg, task: dict, device: str) -> dict:
+    """Every heuristic prey against every predator of `PREDATORS` in `cfg`, with the uniform baseline
+    (as JSON writes it: a NaN, a measure without a sample, as None)."""
     from ..training.evaluate import evaluate_policies
 
     result = evaluate_policies(list(HEURISTIC_PREY), list(PREDATORS), cfg, episodes=task["episodes"],
-                               seeds=range(task["eval_seeds"]), device=task["device"])
+                               seeds=range(task["eval_seeds"]), device=device)
     values = {f"{p}|{q}": per_seed_values(result, p, q) for p in HEURISTIC_PREY for q in PREDATORS}
-    return {"task": {k: v for k, v in task.items() if k != "device"}, "values": values,
-            "uniform": uniform_measures(cfg, task["device"]), "machine": result["machine"], "env": cfg.to_dict()}
+    return json_safe({"values": values, "uniform": uniform_measures(cfg, device), "machine": result["machine"],
+                      "env": cfg.to_dict()})
 
 
-def run_screen_task(task: dict) -> dict:
-    return run_heuristics(screen_config(task["prey"], task["view"], task["predator_speed"], task["max_steps"]), task)
+def run_screen_task(task: dict, device: str) -> dict:
+    return run_heuristics(screen_config(task["prey"], task["view"], task["predator_speed"], task["max_steps"]), task,
+                          device)
 
 
-def run_eval_task(task: dict) -> dict:
-    """One trained policy in its own world: each of `EVALUATIONS`."""
+def policy_world(task: dict):
+    """The world of the policy that `task`'s training run exported, with the task's episode length."""
     from ..config import AquariumConfig
-    from ..training.evaluate import common_policy_env, evaluate_policies
+    from ..training.evaluate import common_policy_env
 
-    cfg = common_policy_env([task["policy"]], AquariumConfig()).replace(max_steps=task["max_steps"])
+    return common_policy_env([policy_path(task["run_dir"])], AquariumConfig()).replace(max_steps=task["max_steps"])
+
+
+def run_eval_task(task: dict, device: str) -> dict:
+    """One trained policy in its own world: each of `EVALUATIONS`."""
+    from ..training.evaluate import evaluate_policies
+
+    cfg = policy_world(task)
     values, machine = {}, None
     for label, (predator, blind) in EVALUATIONS.items():
         if blind and cfg.prey.prey_slots == 0:
             continue  # no prey slots to empty
-        result = evaluate_policies([f"learned={task['policy']}"], [predator], cfg, episodes=task["episodes"],
-                                   seeds=range(task["eval_seeds"]), device=task["device"],
+        result = evaluate_policies([f"learned={policy_path(task['run_dir'])}"], [predator], cfg,
+                                   episodes=task["episodes"], seeds=range(task["eval_seeds"]), device=device,
                                    blind_to={"prey": "prey"} if blind else None)
         values[label] = per_seed_values(result, "learned", predator)
         machine = result["machine"]
-    return {"task": {k: v for k, v in task.items() if k != "device"}, "values": values,
-            "uniform": uniform_measures(cfg, task["device"]), "machine": machine, "env": cfg.to_dict()}
+    return json_safe({"values": values, "uniform": uniform_measures(cfg, device), "machine": machine,
+                      "env": cfg.to_dict()})
 
 
-def run_baseline_task(task: dict) -> dict:
+def run_baseline_task(task: dict, device: str) -> dict:
     """The heuristic prey in a condition's world (its first seed's policy's): the same evaluation seeds."""
-    from ..config import AquariumConfig
-    from ..training.evaluate import common_policy_env
-
-    cfg = common_policy_env([task["policy"]], AquariumConfig()).replace(max_steps=task["max_steps"])
-    return run_heuristics(cfg, task)
-
-
-def _in_worker(function: Callable[[dict], dict], task: dict, path: str) -> str:
-    write_task(path, function(task))
-    return path
-
-
-def gpu_count(requested: int | None) -> int:
-    if requested is not None:
-        return requested
-    import torch
-
-    return torch.cuda.device_count()
-
-
-def run_in_processes(function: Callable[[dict], dict], tasks: Sequence[tuple[dict, str]], gpus: int,
-                     per_gpu: int, label: str) -> None:
-    """Run `(task, result path)` pairs in spawned worker processes, `per_gpu` per GPU."""
-    if not gpus:  # the CPU: one task at a time, here (Warp's CPU kernels take one thread each)
-        for done, (task, path) in enumerate(tasks, 1):
-            _in_worker(function, dict(task, device="cpu"), path)
-            print(f"  {label} {done}/{len(tasks)}: {os.path.basename(path)}", flush=True)
-        return
-    slots = gpus * per_gpu
-    context = multiprocessing.get_context("spawn")
-    with futures.ProcessPoolExecutor(min(slots, len(tasks)), mp_context=context) as pool:
-        jobs = []
-        for k, (task, path) in enumerate(tasks):
-            device = f"cuda:{k % gpus}"
-            jobs.append(pool.submit(_in_worker, function, dict(task, device=device), path))
-        for done, job in enumerate(futures.as_completed(jobs), 1):
-            print(f"  {label} {done}/{len(jobs)}: {os.path.basename(job.result())}", flush=True)
+    return run_heuristics(policy_world(task), task, device)
 
 
 # ---- training ---------------------------------------------------------------------------------------
@@ -289,50 +264,46 @@ def run_dir(out: str, condition: str, seed: int) -> str:
     return os.path.join(out, "runs", f"{condition}-s{seed}")
 
 
-def policy_path(out: str, condition: str, seed: int) -> str:
-    return os.path.join(run_dir(out, condition, seed), "exported", "policy.pt")
+def policy_path(run: str) -> str:
+    """The policy that the training run in the folder `run` exported."""
+    return os.path.join(run, "exported", "policy.pt")
 
 
-def train_command(args, condition: str, seed: int, device: str) -> list[str]:
+def run_config(args, condition: str, seed: int) -> dict:
+    """The Trainer config of `condition`'s training run with `seed`, without a device (its task is
+    given one): what `aquarium-warp train --preset <--train-preset> --seed <seed> --quiet --export jit
+    --save-interval I --prey N --num-worlds W --iterations I --entropy 0.01 --predator-policy <opponent>`
+    with `--set` of `SCENARIO`, `RECIPE`, the condition's and `--train-set`'s assignments builds, the
+    command that trained the committed results. W: `--train-worlds`, else `TRAIN_AGENT_STEPS` / (N x
+    32 steps x `--iterations`); I: `--iterations` x the condition's budget."""
+    from ..training.config import deep_update, make_config, parse_assignment
+
     spec = CONDITIONS[condition]
     worlds = args.train_worlds or max(1, TRAIN_AGENT_STEPS // (spec["prey"] * 32 * args.iterations))
     iterations = args.iterations * spec.get("budget", 1)
-    cmd = [sys.executable, "-m", "aquarium_warp", "train", "--preset", args.train_preset, "--seed", str(seed),
-           "--device", device, "--quiet", "--export", "jit", "--log-dir", run_dir(args.out, condition, seed),
-           "--overwrite", "--save-interval", str(iterations), "--prey", str(spec["prey"]), "--num-worlds",
-           str(worlds), "--iterations", str(iterations), "--entropy", "0.01",
-           "--predator-policy", spec["opponent"]]
-    for s in SCENARIO + RECIPE + tuple(spec["sets"]) + tuple(args.train_set):
-        cmd += ["--set", s]
-    return cmd
+    changes = {"train": {"team": "prey", "device": None, "seed": seed, "quiet": True, "export": "jit",
+                         "num_worlds": worlds, "iterations": iterations, "episodes": None},
+               "env": {"prey_count": spec["prey"]},
+               "runner": {"save_interval": iterations, "algorithm": {"entropy_coef": 0.01}}}
+    for assignment in SCENARIO + RECIPE + tuple(spec["sets"]) + tuple(args.train_set):
+        deep_update(changes, parse_assignment(assignment))
+    return make_config(args.train_preset, deep_update(changes, {"train": {"opponent": spec["opponent"]}}))
 
 
-def run_trainings(args, gpus: int) -> list[dict]:
-    """Train every (condition, seed) without an exported policy; `per_gpu` at a time on each GPU."""
-    jobs = [(c, s) for c in args.condition_list for s in range(args.seeds)
-            if not os.path.exists(policy_path(args.out, c, s))]
-    slots = gpus * args.per_gpu if gpus else 1
+def run_training_task(task: dict, device: str) -> dict:
+    """Train one run in this process into its folder (config, progress CSV, TensorBoard log, the last
+    checkpoint, the exported policy), replacing an earlier run's outputs there."""
+    from ..training.run_dir import claim_run_directory
+    from .common import train_and_export
 
-    def one(k: int, condition: str, seed: int) -> dict:
-        gpu = k % gpus if gpus else None
-        device = "cuda:0" if gpu is not None else "cpu"
-        cmd = train_command(args, condition, seed, device)
-        env = dict(os.environ, NCCL_NVLS_ENABLE="0", GIT_PYTHON_REFRESH="quiet")
-        if gpu is not None:
-            env["CUDA_VISIBLE_DEVICES"] = str(gpu)
-        log = os.path.join(args.out, "logs", f"train-{condition}-s{seed}.log")
-        os.makedirs(os.path.dirname(log), exist_ok=True)
-        start = time.perf_counter()
-        with open(log, "w", encoding="utf-8") as f:
-            rc = subprocess.run(cmd, stdout=f, stderr=subprocess.STDOUT, env=env).returncode
-        seconds = round(time.perf_counter() - start, 1)
-        print(f"  train {condition} s{seed}: rc={rc} {seconds} s", flush=True)
-        if rc != 0:
-            raise RuntimeError(f"training {condition} seed {seed} failed (rc={rc}); see {log}")
-        return {"condition": condition, "seed": seed, "command": shlex.join(cmd), "seconds": seconds}
-
-    with futures.ThreadPoolExecutor(max(1, min(slots, len(jobs) or 1))) as pool:
-        return list(pool.map(lambda a: one(*a), [(k, c, s) for k, (c, s) in enumerate(jobs)]))
+    config = copy.deepcopy(task["config"])
+    config["train"]["device"] = device
+    claimed = claim_run_directory(task["run_dir"], overwrite=True)
+    try:
+        _, seconds = train_and_export(config, os.path.dirname(policy_path(task["run_dir"])), log_dir=task["run_dir"])
+    finally:
+        claimed.release()
+    return {"seconds": round(seconds, 1)}
 
 
 # ---- statistics (statistics.py: Student-t intervals, Welch or paired differences, TOST) ---------------
@@ -371,12 +342,10 @@ def seed_value(record: dict, key: str, measure: str) -> float:
     return mean_interval(_values(record, key, measure))[0]
 
 
-def summarize_screen(out: str, tasks: list[dict]) -> list[dict]:
+def summarize_screen(tasks: Sequence[dict], records: Sequence[dict]) -> list[dict]:
+    """A row per screen world (`tasks`, with their `records`), heuristic prey and predator."""
     rows = []
-    for task in tasks:
-        record = read_task(task_path(out, "screen", task["name"]))
-        if record is None:
-            continue
+    for task, record in zip(tasks, records, strict=True):
         for p in HEURISTIC_PREY:
             for q in PREDATORS:
                 key = f"{p}|{q}"
@@ -389,21 +358,23 @@ def summarize_screen(out: str, tasks: list[dict]) -> list[dict]:
     return rows
 
 
-def summarize_learned(out: str, conditions: Sequence[str], seeds: int) -> dict:
+def summarize_learned(evaluations: Sequence[tuple[dict, dict]], baselines: Sequence[tuple[dict, dict]]) -> dict:
     """Per condition and evaluation: per-seed values and their mean with 95% interval; the baselines;
-    and the pre-declared comparisons."""
+    and the pre-declared comparisons. `evaluations`: (task, record) of each policy's evaluation, in
+    the order of the conditions and seeds; `baselines`: (task, record) of each condition's heuristics."""
+    by_condition: dict[str, list[tuple[dict, dict]]] = {}
+    for task, record in evaluations:
+        by_condition.setdefault(task["condition"], []).append((task, record))
+    baseline_of = {task["condition"]: record for task, record in baselines}
     per: dict[str, dict] = {}
-    for c in conditions:
-        found = [read_task(task_path(out, "eval", f"{c}-s{s}")) for s in range(seeds)]
-        records = [r for r in found if r is not None]
-        if not records:
-            continue
-        entry: dict = {"seeds": [r["task"]["seed"] for r in records], "uniform": records[0]["uniform"]}
+    for c, evaluated in by_condition.items():
+        records = [record for _, record in evaluated]
+        entry: dict = {"seeds": [task["seed"] for task, _ in evaluated], "uniform": records[0]["uniform"]}
         for label in EVALUATIONS:
             if label in records[0]["values"]:
                 entry[label] = {m: interval([seed_value(r, label, m) for r in records])
                                 for m in MEASURES + (PRIMARY,)}
-        baseline = read_task(task_path(out, "baseline", c))
+        baseline = baseline_of.get(c)
         if baseline is not None:  # over evaluation seeds
             for label in baseline["values"]:
                 entry[label] = {m: interval(_values(baseline, label, m)) for m in MEASURES + (PRIMARY,)}
@@ -433,25 +404,37 @@ def summarize_learned(out: str, conditions: Sequence[str], seeds: int) -> dict:
 
 
 def screen_tasks(args) -> list[dict]:
-    return [{"name": f"n{n}-v{int(v)}-p{s:g}", "prey": n, "view": v, "predator_speed": s, "episodes": args.episodes,
-             "eval_seeds": args.eval_seeds, "max_steps": args.max_steps}
+    return [{"name": f"screen-n{n}-v{int(v)}-p{s:g}", "prey": n, "view": v, "predator_speed": s,
+             "episodes": args.episodes, "eval_seeds": args.eval_seeds, "max_steps": args.max_steps}
             for n in args.prey_count_list for v in args.view_list for s in args.speed_list]
 
 
-def eval_tasks(args) -> list[dict]:
-    return [{"name": f"{c}-s{s}", "condition": c, "seed": s, "policy": policy_path(args.out, c, s),
-             "episodes": args.episodes, "eval_seeds": args.eval_seeds, "max_steps": args.max_steps}
-            for c in args.condition_list for s in range(args.seeds)]
+def training_tasks(args) -> list[dict]:
+    return [{"name": f"train-{c}-s{s}", "condition": c, "seed": s, "config": run_config(args, c, s),
+             "run_dir": run_dir(args.out, c, s)} for c in args.condition_list for s in range(args.seeds)]
 
 
-def baseline_tasks(args) -> list[dict]:
-    return [{"name": c, "condition": c, "policy": policy_path(args.out, c, 0), "episodes": args.episodes,
-             "eval_seeds": args.eval_seeds, "max_steps": args.max_steps} for c in args.condition_list]
+def eval_tasks(args, trainings: Sequence[dict]) -> list[dict]:
+    """An evaluation of each training run's policy; its config is part of the task, so that a run
+    trained again with other settings is evaluated again."""
+    return [{"name": f"eval-{t['condition']}-s{t['seed']}", "condition": t["condition"], "seed": t["seed"],
+             "training": t["config"], "run_dir": t["run_dir"], "episodes": args.episodes,
+             "eval_seeds": args.eval_seeds, "max_steps": args.max_steps} for t in trainings]
+
+
+def baseline_tasks(args, trainings: Sequence[dict]) -> list[dict]:
+    """The heuristics in each condition's world, that of its first seed's run."""
+    return [{"name": f"baseline-{t['condition']}", "condition": t["condition"], "training": t["config"],
+             "run_dir": t["run_dir"], "episodes": args.episodes, "eval_seeds": args.eval_seeds,
+             "max_steps": args.max_steps} for t in trainings if t["seed"] == 0]
 
 
 def run(args) -> int:
+    from ..atomic import atomic_open
+
     check(args)
-    gpus = gpu_count(args.gpus)
+    devices = task_devices(args.gpus)
+    trainings = training_tasks(args) if args.part in ("learned", "all") else []  # their configs checked first
     os.makedirs(args.out, exist_ok=True)
     start = time.perf_counter()
     summary: dict = {"design": {"scenario": SCENARIO, "recipe": RECIPE, "conditions": CONDITIONS,
@@ -461,27 +444,25 @@ def run(args) -> int:
                                 "max_steps": args.max_steps, "seeds": args.seeds}}
     if args.part in ("screen", "all"):
         tasks = screen_tasks(args)
-        todo = [(t, task_path(args.out, "screen", t["name"])) for t in tasks
-                if read_task(task_path(args.out, "screen", t["name"])) is None]
-        print(f"study swarm: screen, {len(tasks)} worlds ({len(todo)} to run)", flush=True)
-        run_in_processes(run_screen_task, todo, gpus, args.per_gpu, "screen")
-        summary["screen"] = summarize_screen(args.out, tasks)
-    if args.part in ("learned", "all"):
-        print(f"study swarm: training {len(args.condition_list)} conditions x {args.seeds} seeds", flush=True)
-        summary["trainings"] = run_trainings(args, gpus)
-        tasks = eval_tasks(args)
-        todo = [(t, task_path(args.out, "eval", t["name"])) for t in tasks
-                if read_task(task_path(args.out, "eval", t["name"])) is None]
-        print(f"study swarm: evaluating {len(tasks)} policies ({len(todo)} to run)", flush=True)
-        run_in_processes(run_eval_task, todo, gpus, args.per_gpu, "eval")
-        tasks = baseline_tasks(args)
-        todo = [(t, task_path(args.out, "baseline", t["name"])) for t in tasks
-                if read_task(task_path(args.out, "baseline", t["name"])) is None]
-        run_in_processes(run_baseline_task, todo, gpus, args.per_gpu, "baselines")
-        summary["learned"] = summarize_learned(args.out, args.condition_list, args.seeds)
-    summary.update(provenance("cuda:0" if gpus else "cpu", command_line(args.argv), commit=args.commit),
+        records = run_part(f"screen, {len(tasks)} worlds", run_screen_task, tasks, args, devices, "screen")
+        summary["screen"] = summarize_screen(tasks, records)
+    if trainings:
+        trained = run_part(f"training {len(args.condition_list)} conditions x {args.seeds} seeds", run_training_task,
+                           trainings, args, devices, "train")
+        summary["trainings"] = [{"condition": t["condition"], "seed": t["seed"], "run_dir": t["run_dir"], **r}
+                                for t, r in zip(trainings, trained, strict=True)]
+        evaluations = eval_tasks(args, trainings)
+        evaluated = run_part(f"evaluating {len(evaluations)} policies", run_eval_task, evaluations, args, devices,
+                             "eval")
+        baselines = baseline_tasks(args, trainings)
+        heuristics = run_part(f"heuristic prey in {len(baselines)} conditions' worlds", run_baseline_task, baselines,
+                              args, devices, "baselines")
+        summary["learned"] = summarize_learned(list(zip(evaluations, evaluated, strict=True)),
+                                               list(zip(baselines, heuristics, strict=True)))
+    summary.update(provenance(devices[0], command_line(args.argv), commit=args.commit),
                    wall_s=round(time.perf_counter() - start, 1))
-    write_task(os.path.join(args.out, "summary.json"), summary)
+    with atomic_open(os.path.join(args.out, "summary.json")) as f:
+        json.dump(json_safe(summary), f, indent=1)
     write_tables(args.out, summary)
     if not args.no_figures:
         plot(args.out, summary)
