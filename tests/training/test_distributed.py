@@ -1,6 +1,6 @@
 """Training over two processes (`torchrun --nproc_per_node=2`, gloo on the CPU): the ranks hold the same
 parameters after every update, rank 0 logs the episode statistics summed over the ranks, and a run
-stopped and resumed continues exactly on every rank (tests/distributed_worker.py is each rank)."""
+stopped and resumed continues exactly on every rank (tests/training/distributed_worker.py is each rank)."""
 
 from __future__ import annotations
 
