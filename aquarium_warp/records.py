@@ -1,7 +1,7 @@
 """What every result file records: the exact command (`command_line`), the commit (`git_info`), the
 machine and library versions (`machine_info`), all three at once (`provenance`), written as strict
 JSON (`json_safe`). The studies, the benchmark suite, `aquarium-warp eval` and the benchmark scripts
-record them through here, and tests/test_results_provenance.py reads them back under these names."""
+record them through here, and tests/app/test_results_provenance.py reads them back under these names."""
 
 from __future__ import annotations
 

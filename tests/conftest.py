@@ -1,4 +1,5 @@
-"""Shared test setup: quiet Warp, CPU by default; `AQUARIUM_TEST_DEVICE=cuda:0` reruns the suite on a GPU."""
+"""Shared test setup: quiet Warp, CPU by default; `AQUARIUM_TEST_DEVICE=cuda:0` runs the device-aware tests on a
+GPU (`pytest -m gpu` selects them: every test that takes the `device` fixture, `cuda_device` included)."""
 
 import os
 
@@ -15,6 +16,20 @@ os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
 def device() -> str:
     """Device the env tests run on: CPU in CI, a GPU when AQUARIUM_TEST_DEVICE names one."""
     return os.environ.get("AQUARIUM_TEST_DEVICE", "cpu")
+
+
+@pytest.fixture(scope="session")
+def cuda_device(device: str) -> str:
+    """The GPU of AQUARIUM_TEST_DEVICE, for the tests that need CUDA (CUDA graphs): they skip on the CPU."""
+    if not device.startswith("cuda"):
+        pytest.skip("needs CUDA: AQUARIUM_TEST_DEVICE=cuda:N")
+    return device
+
+
+def pytest_itemcollected(item: pytest.Item) -> None:
+    """`gpu` marks the tests that run on AQUARIUM_TEST_DEVICE, read from the fixtures they take."""
+    if "device" in getattr(item, "fixturenames", ()):
+        item.add_marker(pytest.mark.gpu)
 
 
 @pytest.fixture

@@ -26,7 +26,7 @@ eagerly; recurrent models are updated by rsl-rl's own `PPO.update`. With the ada
 schedule (which reads the KL on the host) or several processes (torchrun: the gradients' all-reduce)
 the rollout replays its graphs and the update runs eagerly between rollouts. On the CPU
 this loop and `OnPolicyRunner.learn` produce the same
-parameters bit for bit (`tests/test_training_loop.py`), so `train.loop = "rsl-rl"` (rsl-rl's own
+parameters bit for bit (`tests/training/test_training_loop.py`), so `train.loop = "rsl-rl"` (rsl-rl's own
 runner) remains as the reference and for the benchmark's before/after.
 
 Several learners (`train.team = "both"`: one PPO learner per team, acting in the same worlds): `act[t]`

@@ -18,7 +18,7 @@
    every mini-batch. Without host synchronisation the whole update (fixed learning-rate schedule) can
    be captured as one CUDA graph (`training/loop.py`); `capturable_optimizer=True` builds the optimizer
    with `capturable=True` for that. On the CPU the parameters it produces equal rsl-rl's bit for bit
-   (`tests/test_training_loop.py`).
+   (`tests/training/test_training_loop.py`).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Training over two processes (`torchrun --nproc_per_node=2`, gloo on the CPU): the ranks hold the same
 parameters after every update, rank 0 logs the episode statistics summed over the ranks, and a run
-stopped and resumed continues exactly on every rank (tests/distributed_worker.py is each rank)."""
+stopped and resumed continues exactly on every rank (tests/training/distributed_worker.py is each rank)."""
 
 from __future__ import annotations
 
@@ -127,8 +127,7 @@ def test_torchrun_needs_a_log_dir(monkeypatch, capsys):
     assert "--log-dir is required under torchrun" in capsys.readouterr().err
 
 
-@pytest.mark.skipif(not os.environ.get("AQUARIUM_TEST_DEVICE", "").startswith("cuda"),
-                    reason="CUDA graphs need AQUARIUM_TEST_DEVICE=cuda:N (the ranks share GPU 0)")
+@pytest.mark.usefixtures("cuda_device")  # the ranks share GPU 0
 @pytest.mark.parametrize("team,updates", [("prey", [False]), ("both", [False, False])])
 def test_ranks_on_a_gpu_replay_their_rollouts_and_update_eagerly(tmp_path, team, updates):
     """Two ranks on CUDA (sharing one GPU, through gloo): each replays its rollout from CUDA graphs and

@@ -14,7 +14,7 @@ from aquarium_warp import AquariumConfig, bench
 from aquarium_warp.bench import BenchSettings, parse_counts, run_bench, step_byte_model
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
+BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
 
 
 def tiny(tmp_path, **changes) -> BenchSettings:

@@ -10,7 +10,7 @@ ending the test run; each case is printed before it runs, so the last one printe
 Hypothesis draws them with a fixed seed (`derandomize`): CI runs the same cases every time. Worlds
 stay tiny, and the observation kernels drawn are few, so a warm Warp kernel cache keeps this fast.
 
-    python tests/test_fuzz.py 500    # run 500 cases directly
+    python tests/core/test_fuzz.py 500    # run 500 cases directly
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import time
 import pytest
 
 CASES = 1500
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
 TYPE_FIELDS = ("max_speed", "max_steering_force", "max_acceleration", "mass", "radius", "view_distance",
                "fov_angle", "bounce_strength", "predator_slots", "prey_slots")
 

@@ -11,7 +11,7 @@ log, several learning predators (CPU).
 - the centralised critic's observation groups and input sizes;
 - videos: frames of the rendered episode and the GIF in the TensorBoard log;
 - a learning test: trained predators (two, sharing parameters) catch clearly more TurnAway prey than
-  random predators (`AQUARIUM_SKIP_LEARNING_TEST=1` skips it).
+  random predators (marked `learning`: `-m "not learning"` leaves it out).
 """
 
 from __future__ import annotations
@@ -335,16 +335,14 @@ def test_video_logging_frames(tmp_path, one_thread):
     assert (images[0].width, images[0].height) == (width, height)
 
 
-@pytest.mark.skipif(not os.environ.get("AQUARIUM_TEST_DEVICE", "").startswith("cuda"),
-                    reason="CUDA graphs need AQUARIUM_TEST_DEVICE=cuda:N")
-def test_cuda_graphs_of_two_learners_match_eager():
+def test_cuda_graphs_of_two_learners_match_eager(cuda_device):
     """Both teams, pool, Individual Learning, a normaliser and turns of two iterations: the prey's
     update graph is captured in iteration 1, the predators' after their first (eager) update in
     iteration 2, replayed in 3; the graphs give the eager loop's state bit for bit after 5 iterations."""
     import copy
 
     def run(graphs: bool) -> dict:
-        trainer = Trainer(both_config(device=os.environ["AQUARIUM_TEST_DEVICE"], cuda_graphs=graphs, iterations=5,
+        trainer = Trainer(both_config(device=cuda_device, cuda_graphs=graphs, iterations=5,
                                       update_schedule="alternating", alternate_every=2, **copy.deepcopy(POOLED)), None)
         trainer.train()
         assert trainer.runner.loop.graphs == graphs
@@ -392,7 +390,7 @@ def test_cli_both_teams_and_bad_input(tmp_path, capsys, one_thread):
     assert "--pool-fraction: invalid value '0.7': must be a number in [0, 0.5]" in capsys.readouterr().err
 
 
-@pytest.mark.skipif(os.environ.get("AQUARIUM_SKIP_LEARNING_TEST") == "1", reason="AQUARIUM_SKIP_LEARNING_TEST=1")
+@pytest.mark.learning
 def test_learning_two_predators_catch_more_than_random(tmp_path, one_thread):
     """Two PPO predators sharing parameters (docs/model.md's shared catch reward) must catch clearly more
     TurnAway prey than two random predators.

@@ -1,5 +1,5 @@
 """The result writers record commit, command, device and versions (issue #29), as
-`tests/test_results_provenance.py` reads them from the committed files."""
+`tests/app/test_results_provenance.py` reads them from the committed files."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from test_results_provenance import missing
 
-BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
+BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
 
 
 def test_study_run_record_records_provenance():
@@ -42,7 +42,7 @@ def test_evaluation_files_record_provenance(tmp_path):
     import aquarium_warp.training as training
     from aquarium_warp import AquariumConfig
 
-    if Path(training.__path__[0]).resolve().parent != Path(__file__).resolve().parents[1]:
+    if Path(training.__path__[0]).resolve().parent != Path(__file__).resolve().parents[2]:
         pytest.skip("aquarium_warp.training is installed from another checkout")
     from aquarium_warp.training.evaluate import evaluate_policies, write_results
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import ast
 import os
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
 # Source folders and the package each installs as (pyproject.toml's package-dir).
 FOLDERS = {"aquarium_warp": "aquarium_warp", "kernels": "aquarium_warp.kernels", "training": "aquarium_warp.training"}
 CORE = ("aquarium_warp.config", "aquarium_warp.env", "aquarium_warp.state", "aquarium_warp.shard",

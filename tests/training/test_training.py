@@ -1,7 +1,7 @@
 """PPO training with rsl-rl over BatchedAquarium (CPU): the VecEnv adapter's contract, the categorical
 distribution, Individual Learning's batched model, the two learning rates, bit-exact resume, export and
 `load_policy`, the CLI, and one learning test (`test_learning_trained_prey_evade_naivchase`, about a
-minute; set AQUARIUM_SKIP_LEARNING_TEST=1 to skip it)."""
+minute; marked `learning`: `-m "not learning"` leaves it out)."""
 
 from __future__ import annotations
 
@@ -468,7 +468,7 @@ def _has_matplotlib() -> bool:
 
 
 # ------------------------------------------------------------------------------------------------ learning
-@pytest.mark.skipif(os.environ.get("AQUARIUM_SKIP_LEARNING_TEST") == "1", reason="AQUARIUM_SKIP_LEARNING_TEST=1")
+@pytest.mark.learning
 @pytest.mark.slow
 def test_learning_trained_prey_evade_naivchase(tmp_path, one_thread):
     """PPO (Parameter Sharing) prey must be captured clearly less often than random prey.

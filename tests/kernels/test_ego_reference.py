@@ -10,14 +10,10 @@ observation range's mapping); the mapping is applied here, in both ranges. These
 from __future__ import annotations
 
 import math
-import os
-import sys
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
-
-sys.path.insert(0, os.path.dirname(__file__))
 import reference_model as ref
 from test_reference_model import agent, make_cfg, make_world
 

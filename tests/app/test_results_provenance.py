@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-RESULTS = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
+RESULTS = Path(__file__).resolve().parents[2] / "benchmarks" / "results"
 INDEX = RESULTS / "README.md"
 FIELDS = ("commit", "command", "device", "versions")
 

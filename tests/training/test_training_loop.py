@@ -152,11 +152,9 @@ def test_algorithms_say_which_graphs_they_allow():
 ADAPTIVE = CASES[2][1]
 
 
-@pytest.mark.skipif(not os.environ.get("AQUARIUM_TEST_DEVICE", "").startswith("cuda"),
-                    reason="CUDA graphs need AQUARIUM_TEST_DEVICE=cuda:N")
 @pytest.mark.parametrize("changes", [{}, NORMALISED, ADAPTIVE],
                          ids=["plain", "observation normalisation", "adaptive schedule (eager update)"])
-def test_cuda_graph_loop_matches_eager_loop(changes):
+def test_cuda_graph_loop_matches_eager_loop(changes, cuda_device):
     """Replayed graphs run the eager loop's kernels, and torch's generator gives a replayed kernel the
     offset the eager call would have had: the same parameters after iterations 2-4 (graphs). With
     observation normalisation the graphs must see the statistics updated after every iteration. With
@@ -164,10 +162,10 @@ def test_cuda_graph_loop_matches_eager_loop(changes):
     between the replays must see what the eager loop's saw."""
     import copy
 
-    device = os.environ["AQUARIUM_TEST_DEVICE"]
-    eager, _ = _train("fast", device=device, train={"cuda_graphs": False, "iterations": 4}, **copy.deepcopy(changes))
+    eager, _ = _train("fast", device=cuda_device, train={"cuda_graphs": False, "iterations": 4},
+                      **copy.deepcopy(changes))
     plan: list = []
-    graphed, _ = _train("fast", device=device, plan=plan, train={"cuda_graphs": True, "iterations": 4},
+    graphed, _ = _train("fast", device=cuda_device, plan=plan, train={"cuda_graphs": True, "iterations": 4},
                         **copy.deepcopy(changes))
     assert plan == [(True, [changes is not ADAPTIVE])]
     differing = {k: float((eager[k] - graphed[k]).abs().max()) for k in eager if not torch.equal(eager[k], graphed[k])}

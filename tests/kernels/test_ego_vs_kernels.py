@@ -1,7 +1,7 @@
 """The Warp kernels against the float64 reference (tests/reference_model.py) for the ego-spec options
 (/work/notes/ego-spec.md): observation_frame "ego", action_frame "ego", spawn_heading "random".
 
-Compared exactly as tests/test_kernels_vs_reference.py compares (its helpers, random states with edge
+Compared exactly as tests/kernels/test_kernels_vs_reference.py compares (its helpers, random states with edge
 cases and tolerances are reused, nothing is loosened): each step's reference input is the kernel's state,
 the random draws (respawn positions, replication ages, and now the drawn headings of respawned prey and
 newborns) are read from the kernel's post-step state. The ego layout has no angle columns, so every
@@ -16,18 +16,12 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-import os
-import sys
 
 import numpy as np
 import pytest
 
 torch = pytest.importorskip("torch")
 pytest.importorskip("aquarium_warp")
-from aquarium_warp import AquariumConfig, BatchedAquarium  # noqa: E402
-from aquarium_warp.config import FlowConfig  # noqa: E402
-
-sys.path.insert(0, os.path.dirname(__file__))
 import reference_model as ref  # noqa: E402
 import test_heuristics  # noqa: E402
 from test_kernels_vs_reference import (  # noqa: E402
@@ -44,6 +38,9 @@ from test_kernels_vs_reference import (  # noqa: E402
     set_worlds,
     world_config,
 )
+
+from aquarium_warp import AquariumConfig, BatchedAquarium  # noqa: E402
+from aquarium_warp.config import FlowConfig  # noqa: E402
 
 EGO = dict(observation_frame="ego", action_frame="ego", spawn_heading="random")
 ROLLOUT_STEPS = 32

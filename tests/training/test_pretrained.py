@@ -108,7 +108,7 @@ def test_the_recipe_presets_are_the_benchmarked_recipe(world):
 
     from aquarium_warp.training.config import deep_update, make_config, parse_assignment
 
-    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "benchmarks"))
+    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "benchmarks"))
     try:
         import learned_prey
     finally:

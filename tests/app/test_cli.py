@@ -17,7 +17,7 @@ import pytest
 
 from aquarium_warp.cli import build_parser, main
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 
 
 def run(*args, cwd=None) -> subprocess.CompletedProcess:

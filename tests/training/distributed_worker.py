@@ -1,6 +1,6 @@
-"""One rank of a tiny torchrun training run for tests/test_distributed.py.
+"""One rank of a tiny torchrun training run for tests/training/test_distributed.py.
 
-`torchrun --nproc_per_node=2 tests/distributed_worker.py OUT TEAM ITERATIONS TAG [resume]` trains (or
+`torchrun --nproc_per_node=2 tests/training/distributed_worker.py OUT TEAM ITERATIONS TAG [resume]` trains (or
 resumes) the run in `OUT/run` and writes `OUT/<TAG>_rank<r>.json`: this rank's seed, a hash of every
 learner's parameters after each iteration, each adapter's episode-statistics snapshots (sums and counts
 before the reduction over ranks) and hashes of the final simulation state and parameters.

@@ -6,14 +6,10 @@ These tests do not need aquarium_warp: configurations are SimpleNamespace object
 from __future__ import annotations
 
 import math
-import os
-import sys
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
-
-sys.path.insert(0, os.path.dirname(__file__))
 import reference_model as ref
 
 PREY_DEFAULTS = dict(

@@ -25,8 +25,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
-import sys
 import types
 
 import numpy as np
@@ -34,11 +32,10 @@ import pytest
 
 torch = pytest.importorskip("torch")
 aquarium_warp = pytest.importorskip("aquarium_warp")
+import reference_model as ref  # noqa: E402
+
 from aquarium_warp import AquariumConfig, BatchedAquarium  # noqa: E402
 from aquarium_warp.config import FlowConfig  # noqa: E402
-
-sys.path.insert(0, os.path.dirname(__file__))
-import reference_model as ref  # noqa: E402
 
 TOL = 1e-5
 NUM_WORLDS = 4
