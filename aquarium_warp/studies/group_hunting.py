@@ -34,6 +34,13 @@ Cooperation shows as captures per predator that grow with team size where the ba
 (interference), joint captures above the baseline's rate, and a spread at captures above the random
 times'. Comparing the shared and individual rewards at each team size tests whether sharing causes it.
 
+The redesign (issue #30; `--predator-speed`, `--predator-slots`, `--recipe`): in the design above a lone
+predator outruns its prey (5 against 4 px/step), each predator sees at most one teammate, and the shared
+reward touches a minority of captures, so cooperation cannot pay. `--predator-speed 4` makes predators
+no faster than prey, `--predator-slots 3` shows each predator its teammates, `--recipe` trains both
+teams with the learned-prey recipe; a "sharing makes no difference" reading needs the TOST of
+`reward_differences[...]["equivalence"]` (within `SHARING_MARGIN` of the capturer-only mean).
+
 Outputs (`--out`, default `group_hunting/` in the current directory): `group_hunting.csv` (one row per
 condition, team size and seed), `group_hunting.json` (settings, command, machine, timings, means and
 s.e.m. over seeds, definitions), `group_hunting.png`, the trained policies in `policies/` and each
@@ -60,9 +67,13 @@ from ..seeding import evaluation_seed
 from ..training.config import env_config
 from . import common
 from .jobs import RayOptions, add_ray_arguments, ray_options, run_tasks
-from .statistics import compare, seed_stats
+from .statistics import compare, equivalence, finite, seed_stats
 
 PREY_CONDITIONS = ("turnaway", "cotrained")
+RECIPE_ENTROPY = 0.01  # the learned-prey recipe's entropy coefficient (docs/learned-prey.md)
+# "Sharing makes no difference" needs the 90% interval of shared minus capturer-only captures per
+# predator inside +-SHARING_MARGIN of the capturer-only mean (declared with the redesign).
+SHARING_MARGIN = 0.10
 MEASURES = ("captures_per_predator", "captures_per_prey", "joint_fraction", "spread_capture", "spread_random",
             "gap_capture", "gap_random", "pair_distance_capture", "pair_distance_random")
 
@@ -85,6 +96,13 @@ class GroupHuntingStudy:
     sample_every: int = 10
     baseline: bool = True
     world_size: float = 800.0
+    # The redesign (issue #30): predators that cannot win alone (`predator_speed`, None: docs/model.md's 5;
+    # the prey's is 4), predators that see their teammates (`predator_slots` predator slots, None: 1),
+    # and the learned-prey recipe for both teams (`recipe`: ego observations, random spawn headings,
+    # entropy 0.01).
+    predator_speed: float | None = None
+    predator_slots: int | None = None
+    recipe: bool = False
     device: str | None = None
     jobs: int | None = None
     out: str = "group_hunting"
@@ -112,12 +130,26 @@ class GroupHuntingStudy:
             check_number("share radius", r, 0.0, 1e6)
         check_number("hunt-radius", self.hunt_radius, 1e-3, 1e6)
         check_number("world-size", self.world_size, 100.0, 1e6)
+        if self.predator_speed is not None:
+            check_number("predator-speed", self.predator_speed, 0.1, 1e3)
+        if self.predator_slots is not None:
+            check_int("predator-slots", self.predator_slots, low=0)
 
     def env(self, predators: int, share_radius: float, steps: int) -> dict:
         """The world's config fields (a predator never starves within an episode: one full episode per world)."""
-        return {"prey_count": self.prey, "predator_count": predators, "catch_share_radius": float(share_radius),
-                "max_steps": steps, "predator_starvation_steps": steps, "width": self.world_size,
-                "height": self.world_size}
+        env: dict = {"prey_count": self.prey, "predator_count": predators, "catch_share_radius": float(share_radius),
+                     "max_steps": steps, "predator_starvation_steps": steps, "width": self.world_size,
+                     "height": self.world_size}
+        predator: dict = {}
+        if self.predator_speed is not None:
+            predator["max_speed"] = float(self.predator_speed)
+        if self.predator_slots is not None:
+            predator["predator_slots"] = int(self.predator_slots)
+        if predator:
+            env["predator"] = predator
+        if self.recipe:
+            env.update(observation_frame="ego", spawn_heading="random")
+        return env
 
     def tasks(self, device: str) -> list[dict]:
         """One task per (condition, team size, seed): training runs first, the longest (both teams learning)
@@ -234,6 +266,8 @@ def run_task(task: dict) -> dict:
         config = common.training_config(study.env(n, task["share_radius"], study.train_steps),
                                         "both" if both else "predator", None if both else "turnaway",
                                         study.worlds, study.iterations, seed, device)
+        if study.recipe:
+            config["runner"]["algorithm"]["entropy_coef"] = RECIPE_ENTROPY
         policies, train_s = common.train_and_export(config, task["policy_dir"])
         predator = policies["predator"]
         prey = policies.get("prey", "turnaway")
@@ -270,7 +304,8 @@ def run_group_hunting(study: GroupHuntingStudy, command: str | None = None,
     summary = run.record("group-hunting", study, results, command)
     summary["reward_differences"] = [
         {"condition": c, "predators": n, "share_radius": radius, "minus_share_radius": 0.0,
-         "differences": compare(groups[(c, radius, n)], groups[(c, 0.0, n)], MEASURES)}
+         "differences": compare(groups[(c, radius, n)], groups[(c, 0.0, n)], MEASURES),
+         "equivalence": sharing_equivalence(groups[(c, radius, n)], groups[(c, 0.0, n)])}
         for c in study.prey_conditions for n in study.predators for radius in study.share_radii
         if radius != 0 and 0 in study.share_radii]
     summary["definitions"] = {
@@ -287,11 +322,26 @@ def run_group_hunting(study: GroupHuntingStudy, command: str | None = None,
         "share_radius": "catch_share_radius in training and evaluation; 0: only the capturer(s) are rewarded",
         "reward_differences": "per prey condition and team size, the shared reward (share_radius) minus the "
                               "capturer alone (0): difference of the seed means with its 95% Welch interval "
-                              "(null with fewer than 2 seeds)",
+                              "(null with fewer than 2 seeds); equivalence: TOST of captures per predator within "
+                              f"+-{SHARING_MARGIN:.0%} of the capturer-only mean",
+        "design": (f"predator max speed {study.predator_speed if study.predator_speed is not None else 5.0:g} "
+                   f"(prey 4), {study.predator_slots if study.predator_slots is not None else 1} predator slot(s), "
+                   + ("the learned-prey recipe (ego observations, random spawn headings, entropy "
+                      f"{RECIPE_ENTROPY})" if study.recipe else "the paper preset's observations and PPO settings")),
     }
     summary["results"] = entries
     return common.write_outputs(study.out, "group_hunting", rows, summary,
                                 plot_group_hunting if study.figures else None)
+
+
+def sharing_equivalence(shared: list[dict], alone: list[dict]) -> dict | None:
+    """TOST of captures per predator, shared minus capturer-only, within `SHARING_MARGIN` of the
+    capturer-only mean (None below two seeds each, or without captures)."""
+    x, y = (finite(np.asarray([r["captures_per_predator"] for r in rows], dtype=np.float64))
+            for rows in (shared, alone))
+    if len(x) < 2 or len(y) < 2 or not float(np.mean(y)) > 0:
+        return None
+    return equivalence(x.tolist(), y.tolist(), SHARING_MARGIN * float(np.mean(y)))
 
 
 def plot_group_hunting(summary: dict, out: str) -> str:
@@ -359,6 +409,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sample-every", type=positive_int, default=10,
                    help="steps between the random-time states of the baselines (default 10)")
     p.add_argument("--no-baseline", action="store_true", help="no NaivChase teams")
+    p.add_argument("--predator-speed", type=positive_float, default=None,
+                   help="predator max speed (default docs/model.md's 5; the prey's is 4: 4 or less and a lone "
+                        "predator cannot simply outrun its prey)")
+    p.add_argument("--predator-slots", type=int_at_least(0), default=None,
+                   help="predator slots each agent observes (default 1: a predator sees at most one teammate)")
+    p.add_argument("--recipe", action="store_true",
+                   help="train with the learned-prey recipe: ego observations, random spawn headings, entropy 0.01")
     common.add_common_arguments(p, "group_hunting")
     add_ray_arguments(p, "training run (with its evaluations) or NaivChase baseline")
 
@@ -371,7 +428,8 @@ def run(args: argparse.Namespace) -> int:
         share_radii=number_list(args.share_radius, float, "--share-radius", 0.0, 1e6), seeds=args.seeds,
         worlds=args.worlds, iterations=args.iterations, train_steps=args.train_steps, eval_worlds=args.eval_worlds,
         eval_steps=args.eval_steps, hunt_radius=args.hunt_radius, sample_every=args.sample_every,
-        baseline=not args.no_baseline, device=args.device, jobs=args.jobs, out=args.out, figures=not args.no_figures)
+        baseline=not args.no_baseline, predator_speed=args.predator_speed, predator_slots=args.predator_slots,
+        recipe=args.recipe, device=args.device, jobs=args.jobs, out=args.out, figures=not args.no_figures)
     print(f"aquarium-warp study group-hunting: predators {study.predators}, {study.prey} prey "
           f"({', '.join(study.prey_conditions)}), catch_share_radius {study.share_radii}, {study.seeds} seeds -> "
           f"{study.out}")
