@@ -5,12 +5,14 @@ NaivChase, and write per-seed values, means with 95% intervals and training curv
 Worlds (prey perception; everything else is the paper preset: 6 prey, 1 NaivChase predator):
 A: the paper's (120 degrees, 100 px); B: 360 degrees, 200 px; C: 360 degrees, unlimited (10,000 px).
 
-Every condition is the `paper` preset (or another preset) plus `--set` assignments and train flags
-(`CONDITIONS`); a plan (`PLANS`) names the (condition, world, seeds) to run. Each training is one
-`aquarium-warp train` process; they run several at a time on each GPU (`--gpus`, `--per-gpu`; on the
-CPU `--gpus 0`). Finished runs (an exported policy) are kept, so a rerun trains only what is missing.
+Every condition is the `paper` preset (or another preset) plus config assignments (`train --set`'s
+form; `CONDITIONS`); a plan (`PLANS`) names the (condition, world, seeds) to run. Trainings and
+evaluations are tasks of the studies' job runner (`aquarium_warp.studies.jobs.run_jobs`): `--per-gpu`
+at a time on each of `--gpus` GPUs (0: one at a time on the CPU), each training in-process (`Trainer`)
+into `runs/<condition>-<world>-s<seed>/`. Finished tasks are kept in `--out` (`finished/`), so a rerun
+runs only what is missing.
 
-Evaluation: per (condition, world), one process evaluates the condition's policies (one label per
+Evaluation: per (condition, world), one task evaluates the condition's policies (one label per
 training seed) and the three baselines in the condition's own world (so its action frame), with the
 paper's spawn headings (`spawn_heading="paper"`, the world of the committed TurnAway numbers), against
 NaivChase, `--episodes` episodes x `--eval-seeds` seeds. The primary measure, declared before any run:
@@ -24,14 +26,16 @@ mean, with a 95% t interval over training seeds; baselines: over evaluation seed
 from __future__ import annotations
 
 import argparse
-import concurrent.futures as futures
 import csv
 import json
 import os
-import shlex
 import subprocess
 import sys
 import time
+
+from aquarium_warp.studies.common import policy_path, run_training_task
+from aquarium_warp.studies.jobs import read_finished, run_jobs, task_devices
+from aquarium_warp.studies.statistics import interval
 
 WORLDS = {
     "A": [],
@@ -41,40 +45,48 @@ WORLDS = {
 EGO_OBS = ["env.observation_frame=ego"]
 EGO = EGO_OBS + ["env.action_frame=ego"]
 RANDOM_SPAWN = ["env.spawn_heading=random"]
-# name -> (preset, --set assignments, other train arguments)
-CONDITIONS: dict[str, tuple[str, list[str], list[str]]] = {
-    "world-frame": ("paper", [], []),
-    "ego-obs": ("paper", ["env.observation_frame=ego"], []),
-    "ego": ("paper", EGO, []),
-    "ego-rand": ("paper", EGO + RANDOM_SPAWN, []),
-    "ego-rand-worldcritic": ("paper", EGO + RANDOM_SPAWN, ["--critic", "world"]),
-    "ego-rand-ent01": ("paper", EGO + RANDOM_SPAWN, ["--entropy", "0.01"]),
-    "ego-rand-4x": ("paper", EGO + RANDOM_SPAWN, ["--episodes", "16000"]),
-    "ego-rand-il": ("paper", EGO + RANDOM_SPAWN, ["--sharing", "individual"]),
+ENTROPY_01 = ["runner.algorithm.entropy_coef=0.01"]
+
+
+def episodes(n: int) -> list[str]:
+    """A budget of `n` training episodes (the paper's: 4000)."""
+    return [f"train.episodes={n}"]
+
+
+# name -> (preset, config assignments)
+CONDITIONS: dict[str, tuple[str, list[str]]] = {
+    "world-frame": ("paper", []),
+    "ego-obs": ("paper", EGO_OBS),
+    "ego": ("paper", EGO),
+    "ego-rand": ("paper", EGO + RANDOM_SPAWN),
+    "ego-rand-worldcritic": ("paper", EGO + RANDOM_SPAWN + ["train.critic=world"]),
+    "ego-rand-ent01": ("paper", EGO + RANDOM_SPAWN + ENTROPY_01),
+    "ego-rand-4x": ("paper", EGO + RANDOM_SPAWN + episodes(16000)),
+    "ego-rand-il": ("paper", EGO + RANDOM_SPAWN + ["train.sharing=individual"]),
     # Round 2 (after "screen"): ego observations with world actions, random spawn, more entropy; 2x budget.
-    "r2-egoobs-ent01": ("paper", EGO_OBS + RANDOM_SPAWN, ["--entropy", "0.01", "--episodes", "8000"]),
-    "r2-egoobs-ent03": ("paper", EGO_OBS + RANDOM_SPAWN, ["--entropy", "0.03", "--episodes", "8000"]),
+    "r2-egoobs-ent01": ("paper", EGO_OBS + RANDOM_SPAWN + ENTROPY_01 + episodes(8000)),
+    "r2-egoobs-ent03": ("paper", EGO_OBS + RANDOM_SPAWN + ["runner.algorithm.entropy_coef=0.03"] + episodes(8000)),
     "r2-egoobs-ent01-wide": ("paper", EGO_OBS + RANDOM_SPAWN + ["runner.actor.hidden_dims=[256,256]",
-                                                               "runner.critic.hidden_dims=[256,256]"],
-                             ["--entropy", "0.01", "--episodes", "8000"]),
-    "r2-egoobs-ent01-slots5": ("paper", EGO_OBS + RANDOM_SPAWN + ["env.prey.prey_slots=5"],
-                               ["--entropy", "0.01", "--episodes", "8000"]),
-    "r2-egoobs-ent01-clip2": ("paper", EGO_OBS + RANDOM_SPAWN, ["--entropy", "0.01", "--clip", "0.2",
-                                                                "--episodes", "8000"]),
-    "r2-egoobs-ent01-gamma": ("paper", EGO_OBS + RANDOM_SPAWN, ["--entropy", "0.01", "--gamma", "0.995",
-                                                                "--lam", "0.98", "--episodes", "8000"]),
-    "r2-ego-ent01": ("paper", EGO + RANDOM_SPAWN, ["--entropy", "0.01", "--episodes", "8000"]),
-    "r2-egoobs-ent01-paperspawn": ("paper", EGO_OBS, ["--entropy", "0.01", "--episodes", "8000"]),
+                                                               "runner.critic.hidden_dims=[256,256]"]
+                             + ENTROPY_01 + episodes(8000)),
+    "r2-egoobs-ent01-slots5": ("paper", EGO_OBS + RANDOM_SPAWN + ["env.prey.prey_slots=5"] + ENTROPY_01
+                               + episodes(8000)),
+    "r2-egoobs-ent01-clip2": ("paper", EGO_OBS + RANDOM_SPAWN + ENTROPY_01 + ["runner.algorithm.clip_param=0.2"]
+                              + episodes(8000)),
+    "r2-egoobs-ent01-gamma": ("paper", EGO_OBS + RANDOM_SPAWN + ENTROPY_01 + ["runner.algorithm.gamma=0.995",
+                                                                            "runner.algorithm.lam=0.98"]
+                              + episodes(8000)),
+    "r2-ego-ent01": ("paper", EGO + RANDOM_SPAWN + ENTROPY_01 + episodes(8000)),
+    "r2-egoobs-ent01-paperspawn": ("paper", EGO_OBS + ENTROPY_01 + episodes(8000)),
     # The paper's PS vs IL comparison (its budget) on ego observations, random spawn and entropy 0.01.
-    "recipe-ps-1x": ("paper", EGO_OBS + RANDOM_SPAWN, ["--entropy", "0.01"]),
-    "recipe-il-1x": ("paper", EGO_OBS + RANDOM_SPAWN, ["--entropy", "0.01", "--sharing", "individual"]),
+    "recipe-ps-1x": ("paper", EGO_OBS + RANDOM_SPAWN + ENTROPY_01),
+    "recipe-il-1x": ("paper", EGO_OBS + RANDOM_SPAWN + ENTROPY_01 + ["train.sharing=individual"]),
     # The recipe declared before round 2's results: round 2's first condition at 4x the paper's budget.
-    "recipe": ("paper", EGO_OBS + RANDOM_SPAWN, ["--entropy", "0.01", "--episodes", "16000"]),
+    "recipe": ("paper", EGO_OBS + RANDOM_SPAWN + ENTROPY_01 + episodes(16000)),
     # The neighbour control: the recipe with no prey slots (the prey see the predator only).
-    "recipe-noprey": ("paper", EGO_OBS + RANDOM_SPAWN + ["env.prey.prey_slots=0"],
-                      ["--entropy", "0.01", "--episodes", "16000"]),
-    "tiny-ego": ("tiny", EGO + RANDOM_SPAWN, ["--iterations", "2"]),
-    "tiny-world": ("tiny", [], ["--iterations", "2"]),
+    "recipe-noprey": ("paper", EGO_OBS + RANDOM_SPAWN + ["env.prey.prey_slots=0"] + ENTROPY_01 + episodes(16000)),
+    "tiny-ego": ("tiny", EGO + RANDOM_SPAWN + ["train.iterations=2"]),
+    "tiny-world": ("tiny", ["train.iterations=2"]),
 }
 PLANS: dict[str, list[tuple[str, str, list[int]]]] = {
     "screen": [(c, "B", [0, 1]) for c in ("world-frame", "ego-obs", "ego", "ego-rand", "ego-rand-worldcritic",
@@ -95,58 +107,51 @@ def run_dir(out: str, condition: str, world: str, seed: int) -> str:
     return os.path.join(out, "runs", f"{condition}-{world}-s{seed}")
 
 
-def policy_path(out: str, condition: str, world: str, seed: int) -> str:
-    return os.path.join(run_dir(out, condition, world, seed), "exported", "policy.pt")
+def run_config(condition: str, world: str, seed: int) -> dict:
+    """The Trainer config of `condition`'s training run in `world` with `seed`, without a device (its
+    task is given one): what `aquarium-warp train --preset <preset> --seed <seed> --quiet --export jit`
+    with `--set` of the world's and the condition's assignments builds."""
+    from aquarium_warp.training.config import deep_update, make_config, parse_assignment
+
+    preset, assignments = CONDITIONS[condition]
+    changes = {"train": {"device": None, "seed": seed, "quiet": True, "export": "jit"}}
+    for assignment in WORLDS[world] + assignments:
+        deep_update(changes, parse_assignment(assignment))
+    return make_config(preset, changes)
 
 
-def train_command(out: str, condition: str, world: str, seed: int, device: str) -> list[str]:
-    preset, sets, extra = CONDITIONS[condition]
-    cmd = [sys.executable, "-m", "aquarium_warp", "train", "--preset", preset, "--seed", str(seed), "--device", device,
-           "--quiet", "--export", "jit", "--log-dir", run_dir(out, condition, world, seed)]
-    for s in WORLDS[world] + sets:
-        cmd += ["--set", s]
-    return cmd + extra
+def training_tasks(out: str, plan: list[tuple[str, str, list[int]]]) -> list[dict]:
+    """A training task per (condition, world, seed) of `plan`, the longest first (so that they do not
+    start last)."""
+    from aquarium_warp.training.config import total_iterations
+
+    tasks = [{"name": f"train-{c}-{w}-s{s}", "condition": c, "world": w, "seed": s, "config": run_config(c, w, s),
+              "run_dir": run_dir(out, c, w, s)} for c, w, seeds in plan for s in seeds]
+    return sorted(tasks, key=lambda task: -total_iterations(task["config"]))
 
 
-def device_env(gpu: int | None) -> dict:
-    env = dict(os.environ, NCCL_NVLS_ENABLE="0", GIT_PYTHON_REFRESH="quiet", PYTHONUNBUFFERED="1")
-    if gpu is not None:
-        env["CUDA_VISIBLE_DEVICES"] = str(gpu)
-    return env
+def eval_tasks(out: str, plan: list[tuple[str, str, list[int]]], trainings: list[dict], episodes: int,
+               eval_seeds: list[int], commit: str | None) -> list[dict]:
+    """An evaluation task per (condition, world) of `plan`; its runs' configs are part of it, so that
+    runs trained again with other settings are evaluated again, and so is the `commit` it records."""
+    config = {(t["condition"], t["world"], t["seed"]): t["config"] for t in trainings}
+    return [{"name": f"eval-{c}-{w}", "condition": c, "world": w, "seeds": seeds,
+             "trainings": [config[(c, w, s)] for s in seeds], "run_dirs": [run_dir(out, c, w, s) for s in seeds],
+             "episodes": episodes, "eval_seeds": eval_seeds, "commit": commit} for c, w, seeds in plan]
 
 
-def run_jobs(jobs: list[tuple[list[str], str]], gpus: int, per_gpu: int) -> list[dict]:
-    """Run `(command, log path)` jobs, `per_gpu` at a time on each of `gpus` GPUs (0: the CPU, one at a
-    time per core pair); returns one record per job (command, return code, seconds)."""
-    slots = max(1, gpus * per_gpu) if gpus else max(1, (os.cpu_count() or 2) // 2)
-
-    def one(k: int, cmd: list[str], log: str) -> dict:
-        gpu = (k % gpus) if gpus else None
-        start = time.perf_counter()
-        os.makedirs(os.path.dirname(log), exist_ok=True)
-        with open(log, "w", encoding="utf-8") as f:
-            rc = subprocess.run(cmd, stdout=f, stderr=subprocess.STDOUT, env=device_env(gpu)).returncode
-        seconds = time.perf_counter() - start
-        print(f"  rc={rc} {seconds:6.1f} s gpu={gpu}: {shlex.join(cmd)}", flush=True)
-        return {"command": shlex.join(cmd), "rc": rc, "seconds": round(seconds, 1), "gpu": gpu, "log": log}
-
-    with futures.ThreadPoolExecutor(slots) as pool:
-        done = list(pool.map(lambda a: one(*a), [(k, c, log) for k, (c, log) in enumerate(jobs)]))
-    return done
-
-
-def evaluate_one(out: str, condition: str, world: str, seeds: list[int], episodes: int, eval_seeds: list[int],
-                 device: str, commit: str | None = None) -> None:
-    """The evaluation of one (condition, world): `eval/<condition>-<world>.json`."""
+def run_eval_task(task: dict, device: str) -> dict:
+    """The record of `eval/<condition>-<world>.json`: each policy's and baseline's captures and reward
+    per prey, per evaluation seed too, with the protocol and provenance."""
     from aquarium_warp.config import AquariumConfig
+    from aquarium_warp.records import json_safe
     from aquarium_warp.training.evaluate import common_policy_env, evaluate_policies
 
-    learned = [f"s{s}={policy_path(out, condition, world, s)}" for s in seeds]
+    learned = [f"s{s}={policy_path(run)}" for s, run in zip(task["seeds"], task["run_dirs"], strict=True)]
     env = common_policy_env(learned, AquariumConfig()).replace(spawn_heading="paper")
+    episodes, eval_seeds = task["episodes"], task["eval_seeds"]
     result = evaluate_policies(learned + list(BASELINES), ["naivchase"], env, episodes=episodes, seeds=eval_seeds,
                                device=device)
-    path = os.path.join(out, "eval", f"{condition}-{world}.json")
-    os.makedirs(os.path.dirname(path), exist_ok=True)
     per_seed = {}
     for row in result["summary"]:
         values = [r["captures_per_prey"] for r in result["episodes"] if r["prey_policy"] == row["prey_policy"]]
@@ -157,24 +162,12 @@ def evaluate_one(out: str, condition: str, world: str, seeds: list[int], episode
                                                                     and r["seed"] == s) / episodes)
                                                           for s in eval_seeds],
                                         "episodes": len(values)}
-    from aquarium_warp.atomic import atomic_open
-    from aquarium_warp.records import json_safe
-
-    with atomic_open(path) as f:
-        record = {"condition": condition, "world": world, "policies": per_seed, "protocol": result["protocol"],
-                  "command": result["command"],
-                  # The plan's --commit where given: a lent machine's copy may have no git history.
-                  "git": {"commit": commit, "source": "--commit"} if commit else result["git"],
-                  "machine": result["machine"]}
-        json.dump(json_safe(record), f, indent=1)
-
-
-def interval(values: list[float]) -> dict:
-    """Mean and the half-width of its 95% t interval (None for fewer than two values)."""
-    from aquarium_warp.studies.statistics import mean_interval
-
-    mean, ci95 = mean_interval(values)
-    return {"mean": mean, "ci95": ci95, "n": len(values), "values": values}
+    commit = task["commit"]
+    return json_safe({"condition": task["condition"], "world": task["world"], "policies": per_seed,
+                      "protocol": result["protocol"], "command": result["command"],
+                      # The plan's --commit where given: a lent machine's copy may have no git history.
+                      "git": {"commit": commit, "source": "--commit"} if commit else result["git"],
+                      "machine": result["machine"]})
 
 
 def summarize(out: str, plan: list[tuple[str, str, list[int]]]) -> list[dict]:
@@ -204,46 +197,43 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--plan", choices=sorted(PLANS), default="screen")
     p.add_argument("--out", default="runs/learned_prey")
-    p.add_argument("--gpus", type=int, default=1, help="GPUs to spread the runs over (0: the CPU)")
-    p.add_argument("--per-gpu", type=int, default=2, help="trainings at once per GPU")
+    p.add_argument("--gpus", type=int, default=1, help="GPUs to spread the tasks over (0: the CPU)")
+    p.add_argument("--per-gpu", type=int, default=2, help="tasks (trainings, evaluations) at once per GPU")
     p.add_argument("--episodes", type=int, default=50, help="evaluation episodes per evaluation seed")
     p.add_argument("--eval-seeds", type=int, nargs="+", default=[0, 1])
     p.add_argument("--commit", default=None, help="the commit to record (default: git rev-parse HEAD)")
     p.add_argument("--report", metavar="RESULTS", default=None,
                    help="only copy a finished --out into the folder RESULTS, with curves.csv and curves.png")
-    p.add_argument("--eval-one", nargs=2, metavar=("CONDITION", "WORLD"), help=argparse.SUPPRESS)
-    p.add_argument("--seeds", type=int, nargs="*", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
-    device = "cuda:0" if args.gpus else "cpu"
     if args.report:
         report(args.out, args.report)
         return 0
-    if args.eval_one:
-        evaluate_one(args.out, *args.eval_one, args.seeds, args.episodes, args.eval_seeds, device, args.commit)
-        return 0
+    devices = task_devices(args.gpus)
+    jobs = args.per_gpu if devices[0] != "cpu" else 1  # Warp's CPU kernels take one thread each
     plan = PLANS[args.plan]
     start = time.perf_counter()
-    # Logs beside the run directories: `train` refuses a run directory that is not empty.
-    todo = [(train_command(args.out, c, w, s, device), os.path.join(args.out, "logs", f"{c}-{w}-s{s}.log"))
-            for c, w, seeds in plan for s in seeds if not os.path.exists(policy_path(args.out, c, w, s))]
-    # The longest trainings first, so that they do not start last.
-    todo.sort(key=lambda job: -float(job[0][job[0].index("--episodes") + 1]) if "--episodes" in job[0] else 0.0)
-    print(f"learned_prey: {len(todo)} trainings", flush=True)
-    trained = run_jobs(todo, args.gpus, args.per_gpu)
-    failed = [r for r in trained if r["rc"] != 0]
-    if failed:
-        print(f"learned_prey: {len(failed)} trainings failed; see their logs", file=sys.stderr)
-        return 1
+    trainings = training_tasks(args.out, plan)
+    ran = [False] * len(trainings)
+
+    def trained(i: int, result: dict, kept: bool) -> None:
+        ran[i] = not kept
+
+    print(f"learned_prey: {sum(not read_finished(args.out, t)[0] for t in trainings)} trainings", flush=True)
+    results = run_jobs(run_training_task, trainings, args.out, jobs=jobs, devices=devices, label="train",
+                       on_result=trained, report=lambda line: print(line, flush=True)).results
     train_s = time.perf_counter() - start
-    evals = [([sys.executable, __file__, "--out", args.out, "--gpus", str(args.gpus), "--episodes",
-               str(args.episodes), "--eval-seeds", *map(str, args.eval_seeds), "--eval-one", c, w,
-               "--seeds", *map(str, seeds)] + (["--commit", args.commit] if args.commit else []),
-              os.path.join(args.out, "eval", f"{c}-{w}.log"))
-             for c, w, seeds in plan]
-    evaluated = run_jobs(evals, args.gpus, args.per_gpu)
-    if any(r["rc"] != 0 for r in evaluated):
-        print("learned_prey: an evaluation failed; see its log", file=sys.stderr)
-        return 1
+    evaluations = eval_tasks(args.out, plan, trainings, args.episodes, args.eval_seeds, args.commit)
+
+    def write_evaluation(i: int, record: dict, kept: bool) -> None:
+        from aquarium_warp.atomic import atomic_open
+
+        path = os.path.join(args.out, "eval", f"{evaluations[i]['condition']}-{evaluations[i]['world']}.json")
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        with atomic_open(path) as f:
+            json.dump(record, f, indent=1)
+
+    run_jobs(run_eval_task, evaluations, args.out, jobs=jobs, devices=devices, label="eval",
+             on_result=write_evaluation, report=lambda line: print(line, flush=True))
     rows = summarize(args.out, plan)
     commit = args.commit or subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
                                            cwd=os.path.dirname(os.path.abspath(__file__))).stdout.strip()
@@ -251,7 +241,7 @@ def main(argv=None) -> int:
 
     record = {"command": command_line(["benchmarks/learned_prey.py", *(argv if argv is not None else sys.argv[1:])],
                                            os.path.basename(sys.executable)),
-              "commit": commit, "machine": machine_info(device),
+              "commit": commit, "machine": machine_info(devices[0]),
               "gpus": args.gpus, "per_gpu": args.per_gpu,
               "measure": "captures per prey per episode against NaivChase (lower is better); learned: mean over "
                          "training seeds of each seed's mean, 95% t interval over training seeds; baselines: "
@@ -259,7 +249,10 @@ def main(argv=None) -> int:
               "episodes_per_eval_seed": args.episodes, "eval_seeds": args.eval_seeds,
               "conditions": {c: CONDITIONS[c] for c, _, _ in plan}, "worlds": WORLDS,
               "train_wall_s": round(train_s, 1), "wall_s": round(time.perf_counter() - start, 1),
-              "trainings": trained, "rows": rows}
+              # The trainings this call ran (not those kept from an earlier one).
+              "trainings": [{"condition": t["condition"], "world": t["world"], "seed": t["seed"],
+                             "run_dir": t["run_dir"], **r} for t, r, now in zip(trainings, results, ran) if now],
+              "rows": rows}
     from aquarium_warp.atomic import atomic_open
 
     with atomic_open(os.path.join(args.out, f"learned_prey_{args.plan}.json")) as f:

@@ -72,6 +72,27 @@ def train_and_export(config: dict, out_dir: str, log_dir: str | None = None) -> 
     return {team: paths["jit"] for team, paths in exported.items()}, seconds
 
 
+def policy_path(run: str) -> str:
+    """The policy that the training run in the folder `run` exported (`run_training_task`)."""
+    return os.path.join(run, "exported", "policy.pt")
+
+
+def run_training_task(task: dict, device: str) -> dict:
+    """A job (`jobs.run_jobs` with `devices`): train the run config `task["config"]` on `device` in this
+    process into the folder `task["run_dir"]` (config, progress CSV, TensorBoard log, the last
+    checkpoint, the exported policy: `policy_path`), replacing an earlier run's outputs there."""
+    from ..training.run_dir import claim_run_directory
+
+    config = copy.deepcopy(task["config"])
+    config["train"]["device"] = device
+    claimed = claim_run_directory(task["run_dir"], overwrite=True)
+    try:
+        _, seconds = train_and_export(config, os.path.dirname(policy_path(task["run_dir"])), log_dir=task["run_dir"])
+    finally:
+        claimed.release()
+    return {"seconds": round(seconds, 1)}
+
+
 # ---------------------------------------------------------------------------------------------- rollouts
 def rollout(cfg: AquariumConfig, prey: str, predator: str, worlds: int, seed: int, device: str,
             on_step: Callable[[StepView], None], metrics_every: int = 0) -> dict:

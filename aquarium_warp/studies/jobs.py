@@ -220,10 +220,21 @@ def warm_up(device: str, config: AquariumConfig | None = None, prey: str = "turn
     env.close()
 
 
+def task_devices(gpus: int | None) -> list[str]:
+    """The `devices` of `run_jobs` for a `--gpus` option: CUDA devices 0 to `gpus` - 1 (None: every
+    one), or the CPU (`gpus` 0, or a machine without CUDA)."""
+    import torch
+
+    available = torch.cuda.device_count()
+    if gpus is not None and gpus > available:
+        raise ValueError(f"--gpus={gpus} must be at most the {available} CUDA devices of this machine")
+    return [f"cuda:{k}" for k in range(available if gpus is None else gpus)] or ["cpu"]
+
+
 # ---------------------------------------------------------------------------------------------- the runner
 # Entries of a task that name its folders under the study's `out` (where it writes or reads its files):
 # not part of its key, so a study keeps its tasks wherever `out` is given from.
-TASK_FOLDERS = ("policy_dir", "run_dir")
+TASK_FOLDERS = ("policy_dir", "run_dir", "run_dirs")
 
 
 def task_key(task: dict) -> dict:

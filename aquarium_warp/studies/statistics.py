@@ -2,7 +2,8 @@
 seed (a training seed, or a block of worlds), then
 
 - `seed_stats`: the mean over seeds with its std, s.e.m. and the half-width of its 95% Student-t
-  interval (`mean_interval`);
+  interval (`mean_interval`); `interval`: the mean, that half-width, n and the values, as the result
+  files write them;
 - `difference`: the difference of two conditions' means with its 95% interval (Welch: unequal
   variances, Welch-Satterthwaite degrees of freedom; or `paired`: the t interval of matched differences,
   for two measurements of the same seeds);
@@ -112,6 +113,14 @@ def seed_stats(values) -> dict:
     std = float(ok.std(ddof=1)) if n > 1 else (0.0 if n == 1 else math.nan)
     return {"mean": mean, "std": std, "sem": std / math.sqrt(n) if n > 1 else math.nan, "ci95": ci95, "n": n,
             "seeds": [None if math.isnan(x) else float(x) for x in v]}
+
+
+def interval(values) -> dict:
+    """The finite `values` (NaN and None, a NaN written to JSON, left out): their `mean`, the half-width
+    of its 95% Student-t interval (`ci95`, None below two values), `n` and the `values`."""
+    v = finite(values).tolist()
+    mean, ci95 = mean_interval(v)
+    return {"mean": mean, "ci95": ci95, "n": len(v), "values": v}
 
 
 # ---------------------------------------------------------------------------------------------- two conditions

@@ -48,7 +48,6 @@ GPUs, runs only what is missing.
 from __future__ import annotations
 
 import argparse
-import copy
 import json
 import math
 import os
@@ -57,8 +56,9 @@ from collections.abc import Callable, Sequence
 
 from ..arguments import check_distinct, check_int, number_list
 from ..records import command_line, json_safe, provenance
-from .jobs import read_finished, run_jobs
-from .statistics import difference, equivalence, finite, mean_interval
+from .common import policy_path, run_training_task
+from .jobs import read_finished, run_jobs, task_devices
+from .statistics import difference, equivalence, finite, interval, mean_interval
 
 # The scenario: prey see all around, 200 px (reacting pays only with rear vision and range, see
 # docs/learned-prey.md); everything else is the paper's world.
@@ -155,17 +155,6 @@ def check(args) -> None:
 
 
 # ---- the tasks (`jobs.run_jobs`: kept in <out>/finished/, spread over the GPUs) -----------------------
-
-def task_devices(gpus: int | None) -> list[str]:
-    """The devices the tasks spread over: CUDA devices 0 to `gpus` - 1 (None: every one), or the CPU
-    (`gpus` 0, or a machine without CUDA)."""
-    import torch
-
-    available = torch.cuda.device_count()
-    if gpus is not None and gpus > available:
-        raise ValueError(f"--gpus={gpus} must be at most the {available} CUDA devices of this machine")
-    return [f"cuda:{k}" for k in range(available if gpus is None else gpus)] or ["cpu"]
-
 
 def run_part(heading: str, function: Callable[[dict, str], dict], tasks: list[dict], args,
              devices: Sequence[str], label: str) -> list[dict]:
@@ -264,11 +253,6 @@ def run_dir(out: str, condition: str, seed: int) -> str:
     return os.path.join(out, "runs", f"{condition}-s{seed}")
 
 
-def policy_path(run: str) -> str:
-    """The policy that the training run in the folder `run` exported."""
-    return os.path.join(run, "exported", "policy.pt")
-
-
 def run_config(args, condition: str, seed: int) -> dict:
     """The Trainer config of `condition`'s training run with `seed`, without a device (its task is
     given one): what `aquarium-warp train --preset <--train-preset> --seed <seed> --quiet --export jit
@@ -290,31 +274,7 @@ def run_config(args, condition: str, seed: int) -> dict:
     return make_config(args.train_preset, deep_update(changes, {"train": {"opponent": spec["opponent"]}}))
 
 
-def run_training_task(task: dict, device: str) -> dict:
-    """Train one run in this process into its folder (config, progress CSV, TensorBoard log, the last
-    checkpoint, the exported policy), replacing an earlier run's outputs there."""
-    from ..training.run_dir import claim_run_directory
-    from .common import train_and_export
-
-    config = copy.deepcopy(task["config"])
-    config["train"]["device"] = device
-    claimed = claim_run_directory(task["run_dir"], overwrite=True)
-    try:
-        _, seconds = train_and_export(config, os.path.dirname(policy_path(task["run_dir"])), log_dir=task["run_dir"])
-    finally:
-        claimed.release()
-    return {"seconds": round(seconds, 1)}
-
-
 # ---- statistics (statistics.py: Student-t intervals, Welch or paired differences, TOST) ---------------
-
-def interval(values: Sequence[float]) -> dict:
-    """The finite `values` (result files write a NaN, a measure with no sample, as null): their `mean`,
-    the half-width of its 95% Student-t interval (`ci95`, None below two values), `n` and the `values`."""
-    v = finite(values).tolist()
-    mean, ci95 = mean_interval(v)
-    return {"mean": mean, "ci95": ci95, "n": len(v), "values": v}
-
 
 def comparison(a: Sequence[float], b: Sequence[float], paired: bool, margin: float | None) -> dict:
     """mean(a) - mean(b) with the half-width of its 95% interval (`paired`: of the matched differences,

@@ -1,12 +1,14 @@
-"""`benchmarks/learned_prey.py` on the CPU: the 95% interval by hand, and the tiny plan end to end
+"""`benchmarks/learned_prey.py` on the CPU: every training's config against the `aquarium-warp train`
+command line that trained it before its trainings ran in-process, and the tiny plan end to end
 (trainings, evaluations with the baselines, the record with per-seed values and provenance; a rerun
-trains nothing again, and a report keeps result files it finds)."""
+runs nothing again, and a report keeps result files it finds)."""
 
 from __future__ import annotations
 
+import glob
 import json
-import math
 import os
+import shlex
 import sys
 
 import pytest
@@ -19,12 +21,61 @@ import learned_prey
 sys.path.pop(0)
 
 
-def test_interval_is_the_t_interval():
-    # mean 2, sample std 1, t(0.975, 2 df) = 4.302653: half-width 4.302653 / sqrt(3)
-    out = learned_prey.interval([1.0, 2.0, 3.0])
-    assert out["mean"] == 2.0 and out["n"] == 3
-    assert out["ci95"] == pytest.approx(4.302653 / math.sqrt(3), rel=1e-6)
-    assert learned_prey.interval([5.0])["ci95"] is None
+RESULTS = os.path.join(os.path.dirname(__file__), "..", "benchmarks", "results", "learned_prey_ego")
+# The conditions that no committed plan trained, as `CONDITIONS` gave them before the trainings ran
+# in-process (commit ec1364b): (preset, --set assignments, other `train` arguments).
+UNRECORDED = {
+    "ego-rand-il": ("paper", ["env.observation_frame=ego", "env.action_frame=ego", "env.spawn_heading=random"],
+                    ["--sharing", "individual"]),
+    "tiny-ego": ("tiny", ["env.observation_frame=ego", "env.action_frame=ego", "env.spawn_heading=random"],
+                 ["--iterations", "2"]),
+    "tiny-world": ("tiny", [], ["--iterations", "2"]),
+}
+
+
+def recorded_train_argv() -> dict[tuple[str, str, int], list[str]]:
+    """The `aquarium-warp train` command lines that trained the committed results (their records'
+    "trainings"), by (condition, world, seed), without the interpreter and --log-dir."""
+    argv = {}
+    for path in glob.glob(os.path.join(RESULTS, "learned_prey_*.json")):
+        with open(path, encoding="utf-8") as f:
+            trainings = json.load(f)["trainings"]
+        for training in trainings:
+            words = shlex.split(training["command"])
+            log = words.index("--log-dir")
+            name, seed = os.path.basename(words[log + 1]).rsplit("-s", 1)
+            condition, world = name.rsplit("-", 1)
+            argv[(condition, world, int(seed))] = words[words.index("train"):log] + words[log + 2:]
+    return argv
+
+
+def old_train_argv(condition: str, world: str, seed: int, device: str) -> list[str]:
+    """An `UNRECORDED` condition's command line (`train_command` at commit ec1364b, without --log-dir)."""
+    preset, sets, extra = UNRECORDED[condition]
+    argv = ["train", "--preset", preset, "--seed", str(seed), "--device", device, "--quiet", "--export", "jit"]
+    for s in learned_prey.WORLDS[world] + sets:
+        argv += ["--set", s]
+    return argv + extra
+
+
+def test_each_condition_trains_with_the_config_of_its_train_command():
+    from aquarium_warp.cli import build_parser
+    from aquarium_warp.training.cli import train_config
+
+    recorded = recorded_train_argv()
+    planned = {(c, w, s) for plan in learned_prey.PLANS.values() for c, w, seeds in plan for s in seeds}
+    assert {key for key in planned if key[0] not in UNRECORDED} <= set(recorded)
+    cases = dict(recorded)
+    for condition in UNRECORDED:
+        for world in learned_prey.WORLDS:
+            for seed, device in ((0, "cpu"), (3, "cuda:0")):
+                cases[(condition, world, seed)] = old_train_argv(condition, world, seed, device)
+    assert {condition for condition, _, _ in cases} == set(learned_prey.CONDITIONS)
+    for (condition, world, seed), argv in cases.items():
+        config = learned_prey.run_config(condition, world, seed)
+        assert config["train"]["device"] is None  # the task is given its device
+        config["train"]["device"] = argv[argv.index("--device") + 1]
+        assert config == train_config(build_parser().parse_args(argv)), (condition, world, seed)
 
 
 @pytest.mark.slow
@@ -44,7 +95,7 @@ def test_the_tiny_plan_end_to_end(tmp_path):
         assert {"random", "constant", "turnaway"} <= set(row)
     with open(os.path.join(out, "eval", "tiny-ego-A.json"), encoding="utf-8") as f:
         assert json.load(f)["git"]["commit"] == "abc1234"
-    # A rerun finds every policy and trains nothing.
+    # A rerun keeps every task (finished/) and runs nothing.
     assert learned_prey.main(argv) == 0
     with open(os.path.join(out, "learned_prey_tiny.json"), encoding="utf-8") as f:
         assert json.load(f)["trainings"] == []

@@ -11,7 +11,15 @@ import math
 import pytest
 
 from aquarium_warp.cli import main
-from aquarium_warp.studies.statistics import compare, difference, equivalence, mean_interval, seed_stats, t_quantile
+from aquarium_warp.studies.statistics import (
+    compare,
+    difference,
+    equivalence,
+    interval,
+    mean_interval,
+    seed_stats,
+    t_quantile,
+)
 
 
 @pytest.mark.parametrize("p, df, expected", [
@@ -38,6 +46,14 @@ def test_seed_stats_mean_and_its_interval():
     one = seed_stats([5.0])
     assert one["mean"] == 5.0 and one["std"] == 0.0 and math.isnan(one["sem"]) and one["ci95"] is None
     assert math.isnan(mean_interval([])[0])
+
+
+def test_interval_is_the_t_interval():
+    # mean 2, sample std 1, t(0.975, 2 df) = 4.302653: half-width 4.302653 / sqrt(3)
+    out = interval([1.0, 2.0, 3.0])
+    assert out["mean"] == 2.0 and out["n"] == 3
+    assert out["ci95"] == pytest.approx(4.302653 / math.sqrt(3), rel=1e-6)
+    assert interval([5.0])["ci95"] is None
 
 
 def test_welch_difference_by_hand():

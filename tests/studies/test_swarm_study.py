@@ -13,7 +13,8 @@ import pytest
 
 from aquarium_warp.cli import build_parser, main
 from aquarium_warp.studies import STUDIES, swarm
-from aquarium_warp.studies.jobs import FINISHED_DIR
+from aquarium_warp.studies.jobs import FINISHED_DIR, task_devices
+from aquarium_warp.studies.statistics import interval
 
 SCREEN = ["study", "swarm", "--part", "screen", "--prey-counts", "4", "--view-distances", "200", "--predator-speeds",
           "5", "--episodes", "2", "--eval-seeds", "2", "--max-steps", "60", "--gpus", "0", "--no-figures"]
@@ -107,8 +108,8 @@ def test_comparisons_keep_their_keys_and_the_pairing():
     welch = swarm.comparison(a, b, False, None)
     assert set(welch) == {"difference", "ci95", "paired"} and welch["ci95"] > paired["ci95"]
     assert swarm.comparison(a, b, False, 0.0)["equivalent"] is False  # no captures: no margin to be inside
-    assert swarm.interval([1.0, None, 3.0]) == {"mean": 2.0, "ci95": pytest.approx(12.706205 * 1.0, abs=1e-5),
-                                                "n": 2, "values": [1.0, 3.0]}
+    assert interval([1.0, None, 3.0]) == {"mean": 2.0, "ci95": pytest.approx(12.706205 * 1.0, abs=1e-5),
+                                          "n": 2, "values": [1.0, 3.0]}
 
 
 def old_train_argv(args, condition: str, seed: int, device: str) -> list[str]:
@@ -145,8 +146,8 @@ def test_more_gpus_than_the_machine_has_are_refused():
 
     count = torch.cuda.device_count()
     with pytest.raises(ValueError, match=rf"^--gpus={count + 1} must be at most the {count} CUDA devices"):
-        swarm.task_devices(count + 1)
-    assert swarm.task_devices(0) == ["cpu"]
+        task_devices(count + 1)
+    assert task_devices(0) == ["cpu"]
 
 
 LEARNED = ["study", "swarm", "--part", "learned", "--conditions", "no-neighbours", "--seeds", "2", "--iterations", "1",

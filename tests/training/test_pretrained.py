@@ -103,7 +103,7 @@ def test_every_shipped_policy_loads_in_its_world():
 @pytest.mark.parametrize("world", ["A", "B", "C"])
 def test_the_recipe_presets_are_the_benchmarked_recipe(world):
     """`train --preset learned-prey-<w>` trains what benchmarks/learned_prey.py ran as "recipe": the paper
-    preset with its `--set`s and flags (`--entropy`, `--episodes`)."""
+    preset with its world's and its assignments."""
     import sys
 
     from aquarium_warp.training.config import deep_update, make_config, parse_assignment
@@ -113,11 +113,9 @@ def test_the_recipe_presets_are_the_benchmarked_recipe(world):
         import learned_prey
     finally:
         sys.path.pop(0)
-    preset, sets, flags = learned_prey.CONDITIONS["recipe"]
-    flag_keys = {"--entropy": "runner.algorithm.entropy_coef", "--episodes": "train.episodes"}
+    preset, assignments = learned_prey.CONDITIONS["recipe"]
     changes: dict = {}
-    flag_sets = [f"{flag_keys[k]}={v}" for k, v in zip(flags[::2], flags[1::2])]
-    for assignment in learned_prey.WORLDS[world] + sets + flag_sets:
+    for assignment in learned_prey.WORLDS[world] + assignments:
         deep_update(changes, parse_assignment(assignment))
     assert make_config(f"learned-prey-{world.lower()}") == make_config(preset, changes)
     assert make_config(f"learned-prey-{world.lower()}") != make_config(preset)
