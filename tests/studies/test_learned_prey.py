@@ -21,7 +21,7 @@ import learned_prey
 sys.path.pop(0)
 
 
-RESULTS = os.path.join(os.path.dirname(__file__), "..", "benchmarks", "results", "learned_prey_ego")
+RESULTS = os.path.join(os.path.dirname(__file__), "..", "..", "benchmarks", "results", "learned_prey_ego")
 # The conditions that no committed plan trained, as `CONDITIONS` gave them before the trainings ran
 # in-process (commit ec1364b): (preset, --set assignments, other `train` arguments).
 UNRECORDED = {
