@@ -52,8 +52,10 @@ class CheckedActions(wrappers.BaseWrapper):
         done = self.terminations[agent] or self.truncations[agent]
         space = self.action_space(agent)
         if not (done and action is None) and (isinstance(action, (bool, np.bool_)) or not space.contains(action)):
-            raise ValueError(f"action {action!r} of agent {agent!r} is not in Discrete({space.n}): must be an "
-                             f"integer in [0, {space.n - 1}]" + (" or None (the agent is done)" if done else ""))
+            raise ValueError(
+                f"action {action!r} of agent {agent!r} is not in Discrete({space.n}): must be an "
+                f"integer in [0, {space.n - 1}]" + (" or None (the agent is done)" if done else "")
+            )
         super().step(action)
 
 

@@ -64,8 +64,12 @@ def check_int(name: str, value, low: int = 1) -> None:
 
 def check_number(name: str, value, low: float, high: float = math.inf) -> None:
     """A `ValueError` naming `name` unless `value` is a finite number in [low, high]."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (low <= value <= high) \
-            or not math.isfinite(value):
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float))
+        or not (low <= value <= high)
+        or not math.isfinite(value)
+    ):
         raise ValueError(f"{name}={value!r} must be a finite number in [{low:g}, {high:g}]")
 
 
@@ -76,8 +80,14 @@ def check_number(name: str, value, low: float, high: float = math.inf) -> None:
 LastTerm = Literal["exact", "cap"]
 
 
-def parse_list(text: str | Sequence[float], kind: type = float, name: str = "list", *,
-               last: LastTerm = "exact", minimum: float | None = None) -> list:
+def parse_list(
+    text: str | Sequence[float],
+    kind: type = float,
+    name: str = "list",
+    *,
+    last: LastTerm = "exact",
+    minimum: float | None = None,
+) -> list:
     """The numbers of `text` ("4,8,16", spaces allowed), each converted by `kind` (int or float).
 
     An ellipsis continues the progression of the terms before it (at least two, in increasing
@@ -103,8 +113,7 @@ def _parse_text(text: str, kind: type, name: str, last: LastTerm, what: str) -> 
     parts = [p.strip() for p in text.split(",") if p.strip()]
     if not parts:
         raise ValueError(f"{name}={text!r} is empty")
-    terms = [_term(p, kind, f"{name}={text!r} must be a comma-separated list of {what}")
-             for p in parts if p != "..."]
+    terms = [_term(p, kind, f"{name}={text!r} must be a comma-separated list of {what}") for p in parts if p != "..."]
     if "..." not in parts:
         return terms
     at = parts.index("...")
@@ -159,8 +168,7 @@ def check_distinct(name: str, values) -> None:
         raise ValueError(f"{name}={list(values)!r} repeats {', '.join(map(repr, repeated))}: list each value once")
 
 
-def number_list(text, kind: type, name: str, low: float, high: float | None = None, *,
-                low_open: bool = False) -> list:
+def number_list(text, kind: type, name: str, low: float, high: float | None = None, *, low_open: bool = False) -> list:
     """`parse_list` of an option, each value checked against [low, high] (or (low, high] with
     `low_open`); the error names the option and the allowed range."""
     values = parse_list(text, kind, name)

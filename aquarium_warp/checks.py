@@ -49,8 +49,11 @@ def is_int(value) -> bool:
 
 def is_real(value) -> bool:
     """Python or numpy integers or reals, not NaN (and not bools)."""
-    return (isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
-            and not math.isnan(value))
+    return (
+        isinstance(value, (int, float, np.integer, np.floating))
+        and not isinstance(value, (bool, np.bool_))
+        and not math.isnan(value)
+    )
 
 
 # ---------------------------------------------------------------------------------------------- actions
@@ -88,8 +91,9 @@ def check_actions(env: BatchedAquarium, actions) -> None:
         if a.dtype.is_floating_point or a.dtype.is_complex or a.dtype == torch.bool:
             raise ValueError(f"actions[{t!r}] must have an integer dtype, got {a.dtype}")
         if tuple(a.shape) != expected:
-            raise ValueError(f"actions[{t!r}] must have shape {list(expected)} "
-                             f"(num_worlds, {t} slots), got {list(a.shape)}")
+            raise ValueError(
+                f"actions[{t!r}] must have shape {list(expected)} (num_worlds, {t} slots), got {list(a.shape)}"
+            )
         if a.device != env.torch_device:
             raise ValueError(f"actions[{t!r}] is on {a.device}, but the env runs on {env.device}")
         out_of_range[t] = (a, ((a < 0) | (a >= n)) & env.alive[t])
@@ -98,8 +102,10 @@ def check_actions(env: BatchedAquarium, actions) -> None:
     for (t, (a, bad)), flagged in zip(out_of_range.items(), flags):
         if flagged:
             w, i = (int(x) for x in torch.nonzero(bad)[0])
-            raise ValueError(f"actions[{t!r}][{w}, {i}]={int(a[w, i])} is out of range: live agents' "
-                             f"actions must be in [0, {n - 1}] (action_count={n})")
+            raise ValueError(
+                f"actions[{t!r}][{w}, {i}]={int(a[w, i])} is out of range: live agents' "
+                f"actions must be in [0, {n - 1}] (action_count={n})"
+            )
 
 
 # ---------------------------------------------------------------------------------------------- state values
@@ -116,8 +122,9 @@ def cpu_tensor(name: str, value) -> torch.Tensor:
             value = value.to(torch.float64)  # torch's wide unsigned types support little arithmetic
         return value.detach().cpu()
     except (TypeError, ValueError, RuntimeError, NotImplementedError) as error:
-        raise ValueError(f"{name} must hold numbers (a tensor or array of booleans, integers or reals): "
-                         f"{error}") from None
+        raise ValueError(
+            f"{name} must hold numbers (a tensor or array of booleans, integers or reals): {error}"
+        ) from None
 
 
 def integer_ranges(env: BatchedAquarium) -> dict[str, tuple[int, int, str]]:
@@ -125,8 +132,11 @@ def integer_ranges(env: BatchedAquarium) -> dict[str, tuple[int, int, str]]:
     steps = env.config.max_steps
     return {
         # A prey's age grows by one per step for up to max_steps steps of an episode.
-        "age": (0, INT32_MAX - steps, f"2**31 - 1 - max_steps: ages grow by one per step for up to "
-                                      f"max_steps={steps} steps (int32)"),
+        "age": (
+            0,
+            INT32_MAX - steps,
+            f"2**31 - 1 - max_steps: ages grow by one per step for up to max_steps={steps} steps (int32)",
+        ),
         "replication_age": (0, INT32_MAX, "int32"),
         "starvation": (0, INT32_MAX - 1, "int32, grows by one per step"),
         "world_step": (0, steps - 1, f"below max_steps={steps}"),
@@ -161,15 +171,19 @@ def checked_state_value(env: BatchedAquarium, name: str, value: torch.Tensor, dt
             raise ValueError(f"{name} must hold booleans (or 0/1)")
         return value.to(torch.bool)
     if dtype == torch.int32:
-        if value.dtype == torch.bool or value.dtype.is_floating_point and \
-                not (torch.isfinite(value) & (value == value.round())).all():
+        if (
+            value.dtype == torch.bool
+            or value.dtype.is_floating_point
+            and not (torch.isfinite(value) & (value == value.round())).all()
+        ):
             raise ValueError(f"{name} must hold integers")
         lo, hi, why = integer_ranges(env)[name]
         wide = value.double() if value.dtype.is_floating_point else value.to(torch.int64)
         if value.numel() and (wide.min() < lo or wide.max() > hi):
             bad = wide[(wide < lo) | (wide > hi)][0].item()
-            raise ValueError(f"{name} holds {bad:.0f}, out of range: must be >= {lo} and <= {hi}, "
-                             f"i.e. in [{lo}, {hi}] ({why})")
+            raise ValueError(
+                f"{name} holds {bad:.0f}, out of range: must be >= {lo} and <= {hi}, i.e. in [{lo}, {hi}] ({why})"
+            )
         return value.to(torch.int32)
     if value.dtype == torch.bool:
         raise ValueError(f"{name} must hold real numbers, got booleans")
@@ -195,10 +209,10 @@ def checked_state_fields(env: BatchedAquarium, world, fields: Mapping) -> dict[s
     views, num_worlds = env.state.torch, env.num_worlds
     unknown = [k for k in fields if k not in AGENT_FIELDS and k not in SETTABLE_COUNTERS]
     if unknown:
-        raise ValueError(f"unknown state fields {unknown}; "
-                         f"settable: {list(AGENT_FIELDS)} + {list(SETTABLE_COUNTERS)}")
-    if world is not None and (isinstance(world, bool) or not isinstance(world, (int, np.integer))
-                              or not 0 <= world < num_worlds):
+        raise ValueError(f"unknown state fields {unknown}; settable: {list(AGENT_FIELDS)} + {list(SETTABLE_COUNTERS)}")
+    if world is not None and (
+        isinstance(world, bool) or not isinstance(world, (int, np.integer)) or not 0 <= world < num_worlds
+    ):
         raise ValueError(f"world={world!r} must be None or an integer in [0, {num_worlds - 1}]")
     sel = slice(None) if world is None else int(world)
     staged = {}
@@ -223,16 +237,16 @@ def checked_state_tensors(env: BatchedAquarium, tensors) -> dict[str, torch.Tens
     missing = [n for n in STATE_DICT_FIELDS if n not in tensors]
     unknown = [n for n in tensors if n not in STATE_DICT_FIELDS]
     if missing or unknown:
-        raise ValueError(f"state_dict tensors must be exactly {list(STATE_DICT_FIELDS)}; missing {missing}, "
-                         f"unknown {unknown}")
+        raise ValueError(
+            f"state_dict tensors must be exactly {list(STATE_DICT_FIELDS)}; missing {missing}, unknown {unknown}"
+        )
     staged = {}
     for name in STATE_DICT_FIELDS:
         value, target = tensors[name], getattr(views, name)
         if not isinstance(value, torch.Tensor):
             raise ValueError(f"state_dict tensor {name} must be a torch tensor, got {type(value).__name__}")
         if tuple(value.shape) != tuple(target.shape):
-            raise ValueError(f"state_dict tensor {name} has shape {list(value.shape)}, "
-                             f"expected {list(target.shape)}")
+            raise ValueError(f"state_dict tensor {name} has shape {list(value.shape)}, expected {list(target.shape)}")
         if value.dtype != target.dtype:
             raise ValueError(f"state_dict tensor {name} has dtype {value.dtype}, expected {target.dtype}")
         try:
@@ -244,6 +258,8 @@ def checked_state_tensors(env: BatchedAquarium, tensors) -> dict[str, torch.Tens
         count = staged[f"{kind}_alive_count"]
         if not torch.equal(count, alive[:, slots].sum(dim=1).to(torch.int32)):
             w = int(torch.nonzero(count != alive[:, slots].sum(dim=1))[0])
-            raise ValueError(f"state_dict tensor {kind}_alive_count[{w}]={int(count[w])} does not match the "
-                             f"{int(alive[w, slots].sum())} live {kind} slots of world {w}")
+            raise ValueError(
+                f"state_dict tensor {kind}_alive_count[{w}]={int(count[w])} does not match the "
+                f"{int(alive[w, slots].sum())} live {kind} slots of world {w}"
+            )
     return staged

@@ -28,7 +28,7 @@ def _terminated(signum, frame) -> None:
 
 
 def plural(count: int, noun: str) -> str:
-    """"1 predator", "3 predators" (nouns with a plain -s plural)."""
+    """ "1 predator", "3 predators" (nouns with a plain -s plural)."""
     return f"{count} {noun}{'' if count == 1 else 's'}"
 
 
@@ -43,8 +43,10 @@ def _demo(args) -> int:
     # torch seeds are 64-bit: fold a larger seed as the env does (seeds below 2**32 are unchanged)
     gen = torch.Generator(device=env.torch_device).manual_seed(seed_key(args.seed))
     shapes = {"prey": (args.worlds, env.prey_capacity), "predator": (args.worlds, env.predator_capacity)}
-    print(f"aquarium-warp demo: {args.worlds} worlds x {cfg.capacity} agents on {env.device}, "
-          f"random actions, {args.steps} steps")
+    print(
+        f"aquarium-warp demo: {args.worlds} worlds x {cfg.capacity} agents on {env.device}, "
+        f"random actions, {args.steps} steps"
+    )
     env.reset()
     actions = {t: torch.empty(s, dtype=torch.int32, device=env.torch_device) for t, s in shapes.items()}
     # running totals stay on the device: a host read per step would put syncs into the timing
@@ -61,8 +63,10 @@ def _demo(args) -> int:
     elapsed = time.perf_counter() - start
     agent_steps = args.steps * args.worlds * cfg.capacity
     print(f"{'steps/s':>12} {'agent-steps/s':>15} {'captures':>10} {'captures/world-step':>20} {'episodes ended':>15}")
-    print(f"{args.steps / elapsed:12.1f} {agent_steps / elapsed:15.3e} {captured:10d} "
-          f"{captured / (args.steps * args.worlds):20.5f} {episodes_ended:15d}")
+    print(
+        f"{args.steps / elapsed:12.1f} {agent_steps / elapsed:15.3e} {captured:10d} "
+        f"{captured / (args.steps * args.worlds):20.5f} {episodes_ended:15d}"
+    )
     return 0
 
 
@@ -76,26 +80,35 @@ def _video_config(args):
 
     for spec, agent_type in ((args.prey_policy, "prey"), (args.predator_policy, "predator")):
         check_spec(spec, agent_type, f"--{agent_type}-policy")
-    files = [spec for spec, agent_type in ((args.prey_policy, "prey"), (args.predator_policy, "predator"))
-             if not is_heuristic(spec, agent_type)]
+    files = [
+        spec
+        for spec, agent_type in ((args.prey_policy, "prey"), (args.predator_policy, "predator"))
+        if not is_heuristic(spec, agent_type)
+    ]
     data = AquariumConfig().to_dict()
     if files:
         try:
             from .training.evaluate import common_policy_env
         except ImportError as error:
-            raise ValueError(f"policies {files} are not heuristics; trained policy files need the training "
-                             f"extra ({error})") from error
+            raise ValueError(
+                f"policies {files} are not heuristics; trained policy files need the training extra ({error})"
+            ) from error
         data = common_policy_env(files, AquariumConfig()).to_dict()
-    for key, value in (("prey_count", args.prey), ("predator_count", args.predators), ("width", args.width),
-                       ("height", args.height)):
+    for key, value in (
+        ("prey_count", args.prey),
+        ("predator_count", args.predators),
+        ("width", args.width),
+        ("height", args.height),
+    ):
         if value is not None:
             data[key] = value
     width, height = float(data["width"]), float(data["height"])
     if args.flow == "uniform":
         data["flow"] = FlowConfig("uniform", velocity=(args.flow_strength, 0.0))
     elif args.flow == "vortex":  # centred, its core radius a sixth of the shorter side
-        data["flow"] = FlowConfig("vortex", centre=(width / 2, height / 2), strength=args.flow_strength,
-                                  core_radius=min(width, height) / 6)
+        data["flow"] = FlowConfig(
+            "vortex", centre=(width / 2, height / 2), strength=args.flow_strength, core_radius=min(width, height) / 6
+        )
     return AquariumConfig.from_dict(data)
 
 
@@ -110,13 +123,26 @@ def _video(args) -> int:
     cfg = _video_config(args)
     env = BatchedAquarium(cfg, num_worlds=1, device=args.device, seed=args.seed)
     drivers = make_drivers({"prey": args.prey_policy, "predator": args.predator_policy}, env, seed=args.seed)
-    print(f"aquarium-warp video: {cfg.prey_count} prey ({args.prey_policy}) and "
-          f"{plural(cfg.predator_count, 'predator')} ({args.predator_policy}) on {env.device}, {args.steps} steps "
-          f"-> {args.out}")
+    print(
+        f"aquarium-warp video: {cfg.prey_count} prey ({args.prey_policy}) and "
+        f"{plural(cfg.predator_count, 'predator')} ({args.predator_policy}) on {env.device}, {args.steps} steps "
+        f"-> {args.out}"
+    )
     start = time.perf_counter()
-    frames = record(env, drivers, args.steps, args.out, fps=args.fps, progress=not args.no_progress,
-                    width_px=args.frame_width, height_px=args.frame_height, view_cones=args.view_cones,
-                    hit_boxes=args.hit_boxes, velocities=args.velocities, draw_flow=args.draw_flow)
+    frames = record(
+        env,
+        drivers,
+        args.steps,
+        args.out,
+        fps=args.fps,
+        progress=not args.no_progress,
+        width_px=args.frame_width,
+        height_px=args.frame_height,
+        view_cones=args.view_cones,
+        hit_boxes=args.hit_boxes,
+        velocities=args.velocities,
+        draw_flow=args.draw_flow,
+    )
     print(f"wrote {frames} frames to {args.out} in {time.perf_counter() - start:.1f} s")
     return 0
 
@@ -134,8 +160,9 @@ def _add_eval(sub) -> None:
     """`aquarium-warp eval`: the paper's evaluation protocol and figures (in `training/cli.py`)."""
     from .training.cli import add_eval_arguments, run_eval
 
-    evaluate = sub.add_parser("eval", help="evaluate trained and heuristic policies (paper protocol), "
-                                           "write CSV/JSON/figures")
+    evaluate = sub.add_parser(
+        "eval", help="evaluate trained and heuristic policies (paper protocol), write CSV/JSON/figures"
+    )
     add_eval_arguments(evaluate)
     evaluate.set_defaults(run=run_eval)
 
@@ -144,9 +171,12 @@ def _add_study(sub) -> None:
     """`aquarium-warp study <name>`: each study of `aquarium_warp.studies.STUDIES` owns its options and handler."""
     from .studies import STUDIES
 
-    study = sub.add_parser("study", help="parameter studies of collective behaviour (swarm-size, fov-view), the "
-                                         "paper's open questions (group-hunting, many-eyes, flow) and the swarm "
-                                         "study (swarm)")
+    study = sub.add_parser(
+        "study",
+        help="parameter studies of collective behaviour (swarm-size, fov-view), the "
+        "paper's open questions (group-hunting, many-eyes, flow) and the swarm "
+        "study (swarm)",
+    )
     kinds = study.add_subparsers(dest="study", required=True)
     for name, module in STUDIES.items():
         p = kinds.add_parser(name, help=module.HELP, description=module.DESCRIPTION)
@@ -169,12 +199,14 @@ def _add_bench(sub) -> None:
     """`aquarium-warp bench`: the scaling benchmark suite (code in `aquarium_warp/bench/`)."""
     from .bench import add_arguments, run_from_args
 
-    bench = sub.add_parser("bench", help="scaling benchmark: agent-steps/s, stage times, memory and bandwidth vs "
-                                         "agents and worlds",
-                           description="Sweep agents per world and worlds; print a table and write "
-                                       "scaling_<device>.json and log-log figures into --out-dir. The peers "
-                                       "(--original, --vmas) are measured by the source tree's "
-                                       "benchmarks/bench_scaling.py (same options).")
+    bench = sub.add_parser(
+        "bench",
+        help="scaling benchmark: agent-steps/s, stage times, memory and bandwidth vs agents and worlds",
+        description="Sweep agents per world and worlds; print a table and write "
+        "scaling_<device>.json and log-log figures into --out-dir. The peers "
+        "(--original, --vmas) are measured by the source tree's "
+        "benchmarks/bench_scaling.py (same options).",
+    )
     add_arguments(bench)
     bench.set_defaults(run=run_from_args)
 
@@ -183,10 +215,13 @@ def _add_view(sub) -> None:
     """`aquarium-warp view`: the browser viewer (code in `aquarium_warp/viewer/`)."""
     from .viewer import add_arguments, run
 
-    view = sub.add_parser("view", help="watch and steer a world live in the browser; replay pages of recordings",
-                          description="Serve a page that shows one world live: play/pause, speed, overlays, "
-                                      "plots, team policies and keyboard play; or, with --replay, write a page "
-                                      "that plays a recorded trajectory (docs/viewer.md).")
+    view = sub.add_parser(
+        "view",
+        help="watch and steer a world live in the browser; replay pages of recordings",
+        description="Serve a page that shows one world live: play/pause, speed, overlays, "
+        "plots, team policies and keyboard play; or, with --replay, write a page "
+        "that plays a recorded trajectory (docs/viewer.md).",
+    )
     add_arguments(view)
     view.set_defaults(run=run)
 
@@ -198,9 +233,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="aquarium-warp", description="Aquarium predator-prey worlds on Warp")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
-    demo = sub.add_parser("demo", help="step a batch of worlds with random actions and report speed and captures",
-                          description="Step a batch of worlds with random actions; print steps/s, agent-steps/s "
-                                      "and captures.")
+    demo = sub.add_parser(
+        "demo",
+        help="step a batch of worlds with random actions and report speed and captures",
+        description="Step a batch of worlds with random actions; print steps/s, agent-steps/s and captures.",
+    )
     demo.add_argument("--worlds", type=positive_int, default=64, help="worlds stepped at once (default 64)")
     demo.add_argument("--steps", type=positive_int, default=500, help="steps to time (default 500)")
     demo.add_argument("--prey", type=int, default=16, help="prey per world (default 16)")
@@ -211,20 +248,27 @@ def build_parser() -> argparse.ArgumentParser:
     demo.set_defaults(run=_demo)
     video = sub.add_parser("video", help="record one world driven by heuristic or trained policies as an MP4 video")
     video.add_argument("--prey-policy", default="turnaway", help="'turnaway', 'random' or a trained policy file")
-    video.add_argument("--predator-policy", default="naivchase",
-                       help="'naivchase', 'random' or a trained policy file")
+    video.add_argument("--predator-policy", default="naivchase", help="'naivchase', 'random' or a trained policy file")
     video.add_argument("--steps", type=non_negative_int, default=600, help="steps to record (frames: steps + 1)")
     video.add_argument("--out", default="aquarium.mp4", help="output MP4 file (name ending in .mp4)")
-    video.add_argument("--prey", type=int, default=None,
-                       help="prey in the world (default: a trained policy's world, else 16)")
-    video.add_argument("--predators", type=int, default=None,
-                       help="predators in the world (default: a trained policy's world, else 1)")
-    video.add_argument("--width", type=float, default=None,
-                       help="world width, px (default: a trained policy's world, else 800)")
-    video.add_argument("--height", type=float, default=None,
-                       help="world height, px (default: a trained policy's world, else 800)")
-    video.add_argument("--frame-width", type=int, default=None,
-                       help="frame width in pixels (default: the world's, long side at most 1024)")
+    video.add_argument(
+        "--prey", type=int, default=None, help="prey in the world (default: a trained policy's world, else 16)"
+    )
+    video.add_argument(
+        "--predators", type=int, default=None, help="predators in the world (default: a trained policy's world, else 1)"
+    )
+    video.add_argument(
+        "--width", type=float, default=None, help="world width, px (default: a trained policy's world, else 800)"
+    )
+    video.add_argument(
+        "--height", type=float, default=None, help="world height, px (default: a trained policy's world, else 800)"
+    )
+    video.add_argument(
+        "--frame-width",
+        type=int,
+        default=None,
+        help="frame width in pixels (default: the world's, long side at most 1024)",
+    )
     video.add_argument("--frame-height", type=int, default=None, help="frame height in pixels")
     video.add_argument("--fps", type=positive_float, default=30.0, help="frames per second of the video (default 30)")
     video.add_argument("--seed", type=non_negative_int, default=0, help="seed of the world and the policies")
@@ -232,11 +276,19 @@ def build_parser() -> argparse.ArgumentParser:
     video.add_argument("--view-cones", action="store_true", help="draw each agent's field of view")
     video.add_argument("--hit-boxes", action="store_true", help="draw each agent's hit-box circle")
     video.add_argument("--velocities", action="store_true", help="draw velocity arrows (10 steps long)")
-    video.add_argument("--flow", choices=("uniform", "vortex"), default=None,
-                       help="a current (docs/model.md 'Flow fields'): uniform along +x, or a vortex at the centre "
-                            "(core radius a sixth of the shorter side); default: the config's (none)")
-    video.add_argument("--flow-strength", type=float, default=2.0,
-                       help="px per step of --flow (the vortex's at its core's edge; default 2)")
+    video.add_argument(
+        "--flow",
+        choices=("uniform", "vortex"),
+        default=None,
+        help="a current (docs/model.md 'Flow fields'): uniform along +x, or a vortex at the centre "
+        "(core radius a sixth of the shorter side); default: the config's (none)",
+    )
+    video.add_argument(
+        "--flow-strength",
+        type=float,
+        default=2.0,
+        help="px per step of --flow (the vortex's at its core's edge; default 2)",
+    )
     video.add_argument("--draw-flow", action="store_true", help="draw the current as arrows under the agents")
     video.add_argument("--no-progress", action="store_true", help="no progress bar")
     video.set_defaults(run=_video)

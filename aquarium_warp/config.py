@@ -57,9 +57,14 @@ def _per_world_value(name: str, value):
     if isinstance(value, (list, tuple)):
         require(name, value, len(value) >= 1, "a scalar or a non-empty sequence of one value per world")
         # A world's flow given as a dict becomes its FlowConfig here, so the stored tuple holds configs.
-        return tuple(v if isinstance(v, FlowConfig)
-                     else _flow_from_dict(v, f"{name}[{k}].") if isinstance(v, dict) and name == "flow"
-                     else (v.item() if hasattr(v, "item") else v) for k, v in enumerate(value))
+        return tuple(
+            v
+            if isinstance(v, FlowConfig)
+            else _flow_from_dict(v, f"{name}[{k}].")
+            if isinstance(v, dict) and name == "flow"
+            else (v.item() if hasattr(v, "item") else v)
+            for k, v in enumerate(value)
+        )
     return value
 
 
@@ -93,34 +98,66 @@ class FlowConfig:
             value = getattr(self, name)
             if hasattr(value, "tolist"):
                 value = value.tolist()
-            ok = isinstance(value, (list, tuple)) and len(value) == 2 and all(
-                is_real(v) and abs(v) <= LARGEST for v in value)
+            ok = (
+                isinstance(value, (list, tuple))
+                and len(value) == 2
+                and all(is_real(v) and abs(v) <= LARGEST for v in value)
+            )
             require(f"flow.{name}", value, ok, f"two finite numbers (x, y) with |x|, |y| <= {LARGEST:g}")
             object.__setattr__(self, name, tuple(float(v) for v in value))
-        require("flow.strength", self.strength, _in_range(self.strength, -LARGEST, LARGEST),
-               f"a finite number in [-{LARGEST:g}, {LARGEST:g}] px/step")
-        require("flow.core_radius", self.core_radius, _in_range(self.core_radius, SMALLEST, LARGEST),
-               f"a finite number > 0, in [{SMALLEST:g}, {LARGEST:g}] px")
-        require("flow.amplitude", self.amplitude, _in_range(self.amplitude, 0.0, LARGEST),
-               f"a finite number >= 0 (at most {LARGEST:g})")
-        require("flow.period", self.period, _in_range(self.period, SMALLEST, LARGEST),
-               f"a finite number > 0 steps, in [{SMALLEST:g}, {LARGEST:g}]")
+        require(
+            "flow.strength",
+            self.strength,
+            _in_range(self.strength, -LARGEST, LARGEST),
+            f"a finite number in [-{LARGEST:g}, {LARGEST:g}] px/step",
+        )
+        require(
+            "flow.core_radius",
+            self.core_radius,
+            _in_range(self.core_radius, SMALLEST, LARGEST),
+            f"a finite number > 0, in [{SMALLEST:g}, {LARGEST:g}] px",
+        )
+        require(
+            "flow.amplitude",
+            self.amplitude,
+            _in_range(self.amplitude, 0.0, LARGEST),
+            f"a finite number >= 0 (at most {LARGEST:g})",
+        )
+        require(
+            "flow.period",
+            self.period,
+            _in_range(self.period, SMALLEST, LARGEST),
+            f"a finite number > 0 steps, in [{SMALLEST:g}, {LARGEST:g}]",
+        )
         if self.kind == "grid" or self.grid is not None:
             try:
                 grid = np.asarray(self.grid if self.grid is not None else [], dtype=np.float64)
             except (TypeError, ValueError):  # ragged rows or cells, or entries that are no numbers
-                require("flow.grid", self.grid, False, "an array [rows, cols, 2] (rows, cols >= 1) of currents at "
-                       "cell centres: every row as long, every cell two numbers")
-            require("flow.grid", "an array of shape " + str(list(grid.shape)),
-                   grid.ndim == 3 and grid.shape[0] >= 1 and grid.shape[1] >= 1 and grid.shape[2] == 2,
-                   "an array [rows, cols, 2] (rows, cols >= 1) of currents at cell centres")
+                require(
+                    "flow.grid",
+                    self.grid,
+                    False,
+                    "an array [rows, cols, 2] (rows, cols >= 1) of currents at "
+                    "cell centres: every row as long, every cell two numbers",
+                )
+            require(
+                "flow.grid",
+                "an array of shape " + str(list(grid.shape)),
+                grid.ndim == 3 and grid.shape[0] >= 1 and grid.shape[1] >= 1 and grid.shape[2] == 2,
+                "an array [rows, cols, 2] (rows, cols >= 1) of currents at cell centres",
+            )
             bad = ~(np.isfinite(grid) & (np.abs(grid) <= LARGEST))
             if bad.any():
                 i, j, k = (int(x) for x in np.argwhere(bad)[0])
-                require(f"flow.grid[{i}, {j}, {k}]", float(grid[i, j, k]), False,
-                       f"a finite number with |value| <= {LARGEST:g} px/step")
-            object.__setattr__(self, "grid",
-                               tuple(tuple(tuple(float(c) for c in cell) for cell in row) for row in grid))
+                require(
+                    f"flow.grid[{i}, {j}, {k}]",
+                    float(grid[i, j, k]),
+                    False,
+                    f"a finite number with |value| <= {LARGEST:g} px/step",
+                )
+            object.__setattr__(
+                self, "grid", tuple(tuple(tuple(float(c) for c in cell) for cell in row) for row in grid)
+            )
         _normalise(self, (), ("strength", "core_radius", "amplitude", "period"))
         for name in ("strength", "core_radius", "amplitude", "period"):
             object.__setattr__(self, name, float(getattr(self, name)))
@@ -176,29 +213,47 @@ class AgentTypeConfig:
             value = getattr(self, name)
             require(f"{prefix}.{name}", value, _in_range(value, SMALLEST, LARGEST), bounded)
         steering = min(self.max_steering_force, 2.0 * self.max_speed) / self.mass
-        require(f"{prefix}.mass", self.mass, steering <= LARGEST,
-               f"at least min(max_steering_force, 2 max_speed) / {LARGEST:g} = "
-               f"{min(self.max_steering_force, 2.0 * self.max_speed) / LARGEST:g} (a finite number > 0: the "
-               "largest steering acceleration, force / mass, must stay float32-safe)")
+        require(
+            f"{prefix}.mass",
+            self.mass,
+            steering <= LARGEST,
+            f"at least min(max_steering_force, 2 max_speed) / {LARGEST:g} = "
+            f"{min(self.max_steering_force, 2.0 * self.max_speed) / LARGEST:g} (a finite number > 0: the "
+            "largest steering acceleration, force / mass, must stay float32-safe)",
+        )
         v = self.view_distance
-        require(f"{prefix}.view_distance", v, _in_range(v, SMALLEST, LARGEST) or v == math.inf,
-               f"a number > 0 (math.inf for unlimited): math.inf or in [{SMALLEST:g}, {LARGEST:g}]")
+        require(
+            f"{prefix}.view_distance",
+            v,
+            _in_range(v, SMALLEST, LARGEST) or v == math.inf,
+            f"a number > 0 (math.inf for unlimited): math.inf or in [{SMALLEST:g}, {LARGEST:g}]",
+        )
         a = self.fov_angle
         require(f"{prefix}.fov_angle", a, is_real(a) and 0 < a <= 360, "in (0, 360] degrees")
         b = self.bounce_strength
-        require(f"{prefix}.bounce_strength", b, is_real(b) and (b == 0 or SMALLEST <= b <= LARGEST),
-               f"a finite number >= 0: 0 or in [{SMALLEST:g}, {LARGEST:g}] (float32-safe)")
+        require(
+            f"{prefix}.bounce_strength",
+            b,
+            is_real(b) and (b == 0 or SMALLEST <= b <= LARGEST),
+            f"a finite number >= 0: 0 or in [{SMALLEST:g}, {LARGEST:g}] (float32-safe)",
+        )
         self._validate_slots(prefix)
         _normalise(self, (), PER_WORLD_TYPE_FIELDS)
 
     def _validate_slots(self, prefix: str) -> None:
         for name in ("predator_slots", "prey_slots"):
             value = getattr(self, name)
-            require(f"{prefix}.{name}", value, is_int(value) and 0 <= value <= MAX_OBSERVED_SLOTS,
-                   f"an integer in [0, {MAX_OBSERVED_SLOTS}]")
+            require(
+                f"{prefix}.{name}",
+                value,
+                is_int(value) and 0 <= value <= MAX_OBSERVED_SLOTS,
+                f"an integer in [0, {MAX_OBSERVED_SLOTS}]",
+            )
         if self.predator_slots == 0 and self.prey_slots == 0:  # the observation kernels need a neighbour slot
-            raise ValueError(f"{prefix}.predator_slots=0 and {prefix}.prey_slots=0: an observation needs at least "
-                             "one neighbour slot (set either to 1 or more)")
+            raise ValueError(
+                f"{prefix}.predator_slots=0 and {prefix}.prey_slots=0: an observation needs at least "
+                "one neighbour slot (set either to 1 or more)"
+            )
         _normalise(self, ("predator_slots", "prey_slots"), ())
 
     @property
@@ -214,13 +269,29 @@ class AgentTypeConfig:
 
 
 def default_prey() -> AgentTypeConfig:
-    return AgentTypeConfig(max_speed=4.0, max_steering_force=0.6, max_acceleration=1.0, mass=3.0,
-                           radius=20.0, view_distance=100.0, fov_angle=120.0, bounce_strength=1.0)
+    return AgentTypeConfig(
+        max_speed=4.0,
+        max_steering_force=0.6,
+        max_acceleration=1.0,
+        mass=3.0,
+        radius=20.0,
+        view_distance=100.0,
+        fov_angle=120.0,
+        bounce_strength=1.0,
+    )
 
 
 def default_predator() -> AgentTypeConfig:
-    return AgentTypeConfig(max_speed=5.0, max_steering_force=0.6, max_acceleration=0.6, mass=10.0,
-                           radius=30.0, view_distance=200.0, fov_angle=150.0, bounce_strength=0.625)
+    return AgentTypeConfig(
+        max_speed=5.0,
+        max_steering_force=0.6,
+        max_acceleration=0.6,
+        mass=10.0,
+        radius=30.0,
+        view_distance=200.0,
+        fov_angle=150.0,
+        bounce_strength=0.625,
+    )
 
 
 @dataclass(frozen=True)
@@ -355,8 +426,10 @@ class AquariumConfig:
             variants = [row]
             for name in samplers:  # a sampler's ends (or every choice), the other samplers at their first
                 ends = row[name].values if isinstance(row[name], Choice) else (row[name].low, row[name].high)
-                base = {m: (row[m].values[0] if isinstance(row[m], Choice) else row[m].low) if m in samplers
-                        else row[m] for m in names}
+                base = {
+                    m: (row[m].values[0] if isinstance(row[m], Choice) else row[m].low) if m in samplers else row[m]
+                    for m in names
+                }
                 variants += [base | {name: end} for end in ends]
             for variant in variants[1:] if samplers else variants:
                 key = tuple(repr(variant[name]) for name in names)
@@ -373,81 +446,155 @@ class AquariumConfig:
         reward_limit = RETURN_LIMIT / (self.max_steps * self.prey_capacity)
         for name in ("prey_reward", "prey_capture_penalty", "predator_reward"):
             value = self._field(name)
-            extremes = value if isinstance(value, tuple) else (
-                (value.low, value.high) if isinstance(value, Uniform) else
-                value.values if isinstance(value, Choice) else (value,))
+            extremes = (
+                value
+                if isinstance(value, tuple)
+                else (
+                    (value.low, value.high)
+                    if isinstance(value, Uniform)
+                    else value.values
+                    if isinstance(value, Choice)
+                    else (value,)
+                )
+            )
             worst = max(abs(v) for v in extremes)
-            require(name, worst, worst <= reward_limit,
-                   f"|{name}| <= 1e38 / (max_steps x the batch's prey slots) = {reward_limit:.3g} in every world")
+            require(
+                name,
+                worst,
+                worst <= reward_limit,
+                f"|{name}| <= 1e38 / (max_steps x the batch's prey slots) = {reward_limit:.3g} in every world",
+            )
 
     def _validate_scalars(self) -> None:
         for name in ("width", "height"):
             value = getattr(self, name)
-            require(name, value, is_real(value) and math.isfinite(value) and 40 < value <= 1e7,
-                   "a finite number in (40, 1e7] px (prey spawn 20 px from the edges)")
-        require("prey_count", self.prey_count, is_int(self.prey_count) and self.prey_count >= 1,
-               "an integer >= 1")
-        require("predator_count", self.predator_count,
-               is_int(self.predator_count) and self.predator_count >= 1, "an integer >= 1")
-        require("action_count", self.action_count,
-               is_int(self.action_count) and 1 <= self.action_count <= 65536, "an integer in [1, 65536]")
-        require("max_steps", self.max_steps, is_int(self.max_steps) and 1 <= self.max_steps <= INT32_MAX,
-               "an integer >= 1 and <= 2**31 - 1 (an int32 step counter)")
+            require(
+                name,
+                value,
+                is_real(value) and math.isfinite(value) and 40 < value <= 1e7,
+                "a finite number in (40, 1e7] px (prey spawn 20 px from the edges)",
+            )
+        require("prey_count", self.prey_count, is_int(self.prey_count) and self.prey_count >= 1, "an integer >= 1")
+        require(
+            "predator_count",
+            self.predator_count,
+            is_int(self.predator_count) and self.predator_count >= 1,
+            "an integer >= 1",
+        )
+        require(
+            "action_count",
+            self.action_count,
+            is_int(self.action_count) and 1 <= self.action_count <= 65536,
+            "an integer in [1, 65536]",
+        )
+        require(
+            "max_steps",
+            self.max_steps,
+            is_int(self.max_steps) and 1 <= self.max_steps <= INT32_MAX,
+            "an integer >= 1 and <= 2**31 - 1 (an int32 step counter)",
+        )
         for name in ("fov_enabled", "respawn_captured_prey", "prey_reproduction"):
             value = getattr(self, name)
             require(name, value, isinstance(value, (bool, np.bool_)), "True or False")
-        require("catch_share_radius", self.catch_share_radius,
-               is_real(self.catch_share_radius) and (self.catch_share_radius == 0
-                                                     or SMALLEST <= self.catch_share_radius <= LARGEST),
-               f"a finite number >= 0: 0 or in [{SMALLEST:g}, {LARGEST:g}] px (float32-safe)")
+        require(
+            "catch_share_radius",
+            self.catch_share_radius,
+            is_real(self.catch_share_radius)
+            and (self.catch_share_radius == 0 or SMALLEST <= self.catch_share_radius <= LARGEST),
+            f"a finite number >= 0: 0 or in [{SMALLEST:g}, {LARGEST:g}] px (float32-safe)",
+        )
         # A starving predator's counter reaches predator_starvation_steps + 1 (int32).
-        require("predator_starvation_steps", self.predator_starvation_steps,
-               is_int(self.predator_starvation_steps) and 0 <= self.predator_starvation_steps <= INT32_MAX - 1,
-               "an integer >= 0 and <= 2**31 - 2 (an int32 counter)")
+        require(
+            "predator_starvation_steps",
+            self.predator_starvation_steps,
+            is_int(self.predator_starvation_steps) and 0 <= self.predator_starvation_steps <= INT32_MAX - 1,
+            "an integer >= 0 and <= 2**31 - 2 (an int32 counter)",
+        )
         # Replication ages are drawn up to floor(1.25 R), and the draw's exclusive bound, one more, is
         # int32: the largest R with floor(5 R / 4) + 1 <= 2**31 - 1.
         max_replication_age = (4 * INT32_MAX - 1) // 5
-        require("prey_replication_age", self.prey_replication_age,
-               is_int(self.prey_replication_age) and 1 <= self.prey_replication_age <= max_replication_age,
-               f"an integer >= 1 and <= {max_replication_age} (its 1.25x drawn ages are int32)")
+        require(
+            "prey_replication_age",
+            self.prey_replication_age,
+            is_int(self.prey_replication_age) and 1 <= self.prey_replication_age <= max_replication_age,
+            f"an integer >= 1 and <= {max_replication_age} (its 1.25x drawn ages are int32)",
+        )
         # Unused without reproduction, but still an int32 kernel parameter.
-        require("max_prey", self.max_prey, is_int(self.max_prey) and 1 <= self.max_prey <= 2**30,
-               "an integer >= 1 and <= 2**30 (the agent slots' limit)")
-        require("observation_range", self.observation_range,
-               isinstance(self.observation_range, str) and self.observation_range in OBSERVATION_RANGES,
-               f"one of {OBSERVATION_RANGES}")
+        require(
+            "max_prey",
+            self.max_prey,
+            is_int(self.max_prey) and 1 <= self.max_prey <= 2**30,
+            "an integer >= 1 and <= 2**30 (the agent slots' limit)",
+        )
+        require(
+            "observation_range",
+            self.observation_range,
+            isinstance(self.observation_range, str) and self.observation_range in OBSERVATION_RANGES,
+            f"one of {OBSERVATION_RANGES}",
+        )
         if not isinstance(self.flow, FlowConfig):
             raise ValueError(f"flow must be a FlowConfig (or its dict), got {type(self.flow).__name__}")
         require("observe_flow", self.observe_flow, isinstance(self.observe_flow, (bool, np.bool_)), "True or False")
-        for name, allowed in (("observation_frame", FRAMES), ("action_frame", FRAMES),
-                              ("spawn_heading", SPAWN_HEADINGS)):
+        for name, allowed in (
+            ("observation_frame", FRAMES),
+            ("action_frame", FRAMES),
+            ("spawn_heading", SPAWN_HEADINGS),
+        ):
             value = getattr(self, name)
             require(name, value, isinstance(value, str) and value in allowed, f"one of {allowed}")
         # One move (speed plus drift) stays shorter than half the world, so a wrap is one add or subtract.
         drift = self.flow.reach
         for name in ("prey", "predator"):
             speed = getattr(self, name).max_speed
-            require(f"{name}.max_speed", speed, speed + drift < 0.5 * min(self.width, self.height),
-                   "smaller than half the world's width and height" + (
-                       f" less the flow's largest current {drift:g}" if drift else ""))
+            require(
+                f"{name}.max_speed",
+                speed,
+                speed + drift < 0.5 * min(self.width, self.height),
+                "smaller than half the world's width and height"
+                + (f" less the flow's largest current {drift:g}" if drift else ""),
+            )
         if self.grid_cell_size is not None:
             g = self.grid_cell_size
-            require("grid_cell_size", g, is_real(g) and math.isfinite(g) and g > 0,
-                   "None or a finite number > 0")
-        require("capacity", self.capacity, self.capacity <= 2**30,
-               "at most 2**30 agent slots per world: prey_count (with reproduction max(prey_count, max_prey)) "
-               "+ predator_count")
+            require("grid_cell_size", g, is_real(g) and math.isfinite(g) and g > 0, "None or a finite number > 0")
+        require(
+            "capacity",
+            self.capacity,
+            self.capacity <= 2**30,
+            "at most 2**30 agent slots per world: prey_count (with reproduction max(prey_count, max_prey)) "
+            "+ predator_count",
+        )
         reward_limit = RETURN_LIMIT / (self.max_steps * self.prey_capacity)
         for name in ("prey_reward", "prey_capture_penalty", "predator_reward"):
             value = getattr(self, name)
-            require(name, value, is_real(value) and math.isfinite(value) and abs(value) <= reward_limit,
-                   f"a finite number with |{name}| <= 1e38 / (max_steps x prey slots) = {reward_limit:.3g} "
-                   "(episode returns are float32 sums)")
-        _normalise(self, ("prey_count", "predator_count", "action_count", "max_steps", "predator_starvation_steps",
-                          "prey_replication_age", "max_prey"),
-                   ("width", "height", "prey_reward", "prey_capture_penalty", "predator_reward", "catch_share_radius",
-                    "grid_cell_size"),
-                   ("fov_enabled", "respawn_captured_prey", "prey_reproduction", "observe_flow"))
+            require(
+                name,
+                value,
+                is_real(value) and math.isfinite(value) and abs(value) <= reward_limit,
+                f"a finite number with |{name}| <= 1e38 / (max_steps x prey slots) = {reward_limit:.3g} "
+                "(episode returns are float32 sums)",
+            )
+        _normalise(
+            self,
+            (
+                "prey_count",
+                "predator_count",
+                "action_count",
+                "max_steps",
+                "predator_starvation_steps",
+                "prey_replication_age",
+                "max_prey",
+            ),
+            (
+                "width",
+                "height",
+                "prey_reward",
+                "prey_capture_penalty",
+                "predator_reward",
+                "catch_share_radius",
+                "grid_cell_size",
+            ),
+            ("fov_enabled", "respawn_captured_prey", "prey_reproduction", "observe_flow"),
+        )
 
     # Derived sizes -------------------------------------------------------------------------------
     @property
@@ -509,10 +656,13 @@ class AquariumConfig:
         the world itself (sizes, counts, perception, spawn) stays this one's."""
         slots = ("predator_slots", "prey_slots")
         return self.replace(
-            observation_frame=other.observation_frame, action_frame=other.action_frame,
-            observation_range=other.observation_range, observe_flow=other.observe_flow,
+            observation_frame=other.observation_frame,
+            action_frame=other.action_frame,
+            observation_range=other.observation_range,
+            observe_flow=other.observe_flow,
             prey=dataclasses.replace(self.prey, **{n: getattr(other.prey, n) for n in slots}),
-            predator=dataclasses.replace(self.predator, **{n: getattr(other.predator, n) for n in slots}))
+            predator=dataclasses.replace(self.predator, **{n: getattr(other.predator, n) for n in slots}),
+        )
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)

@@ -22,8 +22,11 @@ _init_messages = ""  # what init printed while silenced
 
 
 def _wants_cuda(device) -> bool:
-    return (device.type == "cuda") if isinstance(device, torch.device) else (
-        isinstance(device, str) and device.startswith("cuda"))
+    return (
+        (device.type == "cuda")
+        if isinstance(device, torch.device)
+        else (isinstance(device, str) and device.startswith("cuda"))
+    )
 
 
 def _init_warp(device=None) -> None:

@@ -40,8 +40,9 @@ Driver = Callable[[], torch.Tensor]
 def is_heuristic(spec, team: str | None = None) -> bool:
     """Whether `spec` names a heuristic of `team` (of either team for None)."""
     teams = TYPES if team is None else (team,)
-    return isinstance(spec, str) and any(normalise_name(spec) == normalise_name(name) for t in teams
-                                         for name in HEURISTICS[t])
+    return isinstance(spec, str) and any(
+        normalise_name(spec) == normalise_name(name) for t in teams for name in HEURISTICS[t]
+    )
 
 
 def check_spec(spec, team: str, option: str | None = None) -> None:
@@ -50,13 +51,22 @@ def check_spec(spec, team: str, option: str | None = None) -> None:
     if is_heuristic(spec, team) or is_policy_file(spec):
         return
     name = option or f"{team} policy"
-    raise ValueError(f"{name}={spec!r} is neither a heuristic (a {team} heuristic: {', '.join(HEURISTICS[team])}) "
-                     f"nor an existing policy file (exported .pt/.onnx or a training checkpoint) nor a shipped "
-                     f"policy ({', '.join(pretrained_names()) or 'none'})")
+    raise ValueError(
+        f"{name}={spec!r} is neither a heuristic (a {team} heuristic: {', '.join(HEURISTICS[team])}) "
+        f"nor an existing policy file (exported .pt/.onnx or a training checkpoint) nor a shipped "
+        f"policy ({', '.join(pretrained_names()) or 'none'})"
+    )
 
 
-def make_driver(spec, env: BatchedAquarium, team: str, deterministic: bool = True, seed: int = 0,
-                confusion: bool | None = None, blind_to: str | None = None) -> Driver:
+def make_driver(
+    spec,
+    env: BatchedAquarium,
+    team: str,
+    deterministic: bool = True,
+    seed: int = 0,
+    confusion: bool | None = None,
+    blind_to: str | None = None,
+) -> Driver:
     """The driver of `team` ("prey" or "predator") of every world of `env` for `spec`.
 
     `confusion` (NaivChase only; None: the heuristic's default, True) picks NaivChase's target among
@@ -70,8 +80,10 @@ def make_driver(spec, env: BatchedAquarium, team: str, deterministic: bool = Tru
         raise ValueError(f"blind_to={blind_to!r} must be None or one of {TYPES}")
     check_spec(spec, team)
     if blind_to is not None and is_heuristic(spec, team):
-        raise ValueError(f"blind_to={blind_to!r} applies to trained policies, not to the heuristic {spec!r} "
-                         "(heuristics read the state, not observations)")
+        raise ValueError(
+            f"blind_to={blind_to!r} applies to trained policies, not to the heuristic {spec!r} "
+            "(heuristics read the state, not observations)"
+        )
     if is_heuristic(spec, team):
         key = normalise_name(spec)
         if key == normalise_name(NO_CONFUSION):
@@ -82,17 +94,36 @@ def make_driver(spec, env: BatchedAquarium, team: str, deterministic: bool = Tru
         from .training.export import load_policy
     except ImportError as error:
         raise ValueError(f"trained policies need aquarium_warp.training (importing it failed: {error})") from error
-    return policy_driver(load_policy(spec, device=env.torch_device, deterministic=deterministic, seed=seed, team=team),
-                         env, team, blind_to=blind_to)
+    return policy_driver(
+        load_policy(spec, device=env.torch_device, deterministic=deterministic, seed=seed, team=team),
+        env,
+        team,
+        blind_to=blind_to,
+    )
 
 
-def make_drivers(specs: Mapping[str, str], env: BatchedAquarium, seed: int = 0, deterministic: bool = True,
-                 confusion: bool | None = None, blind_to: Mapping[str, str] | None = None) -> dict[str, Driver]:
+def make_drivers(
+    specs: Mapping[str, str],
+    env: BatchedAquarium,
+    seed: int = 0,
+    deterministic: bool = True,
+    confusion: bool | None = None,
+    blind_to: Mapping[str, str] | None = None,
+) -> dict[str, Driver]:
     """`{team: driver}` for the teams of `specs`; a trained team samples (if `deterministic=False`) with
     `seeding.team_seed(seed, team)` (`seed` for the prey, `seed + 1` for the predators), so the two teams'
     draws are independent.
     `blind_to` maps a team to the type its trained policy sees no slots of (`make_driver`)."""
     blind_to = blind_to or {}
-    return {team: make_driver(spec, env, team, deterministic=deterministic, seed=team_seed(seed, team),
-                              confusion=confusion, blind_to=blind_to.get(team))
-            for team, spec in specs.items()}
+    return {
+        team: make_driver(
+            spec,
+            env,
+            team,
+            deterministic=deterministic,
+            seed=team_seed(seed, team),
+            confusion=confusion,
+            blind_to=blind_to.get(team),
+        )
+        for team, spec in specs.items()
+    }

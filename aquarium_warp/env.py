@@ -114,8 +114,16 @@ class BatchedAquarium:
     the results are the same.
     """
 
-    def __init__(self, config: AquariumConfig | None = None, num_worlds: int = 1, device=None, seed: int = 0,
-                 cpu_threads: int | None = None, auto_reset: bool = True, step_kernel: str = "auto"):
+    def __init__(
+        self,
+        config: AquariumConfig | None = None,
+        num_worlds: int = 1,
+        device=None,
+        seed: int = 0,
+        cpu_threads: int | None = None,
+        auto_reset: bool = True,
+        step_kernel: str = "auto",
+    ):
         if config is None:
             config = AquariumConfig()
         if not isinstance(config, AquariumConfig):
@@ -127,8 +135,10 @@ class BatchedAquarium:
         self.auto_reset = auto_reset
         seed_key(seed)  # the seed's checks, before anything is drawn from it
         if config.num_worlds is not None and config.num_worlds != num_worlds:
-            raise ValueError(f"the config gives per-world values for {config.num_worlds} worlds "
-                             f"({list(config.per_world_fields)}), but num_worlds={num_worlds}")
+            raise ValueError(
+                f"the config gives per-world values for {config.num_worlds} worlds "
+                f"({list(config.per_world_fields)}), but num_worlds={num_worlds}"
+            )
         # Samplers are drawn once, from the seed: the env's config holds every world's values.
         self.config = cfg = config.draw(int(num_worlds), seed) if config.has_samplers else config
         self.num_worlds = W = int(num_worlds)
@@ -148,25 +158,46 @@ class BatchedAquarium:
         cells = dims_x * dims_y
         if cells >= 2**31:
             smallest = math.sqrt(cfg.width * cfg.height / 2**30)
-            raise ValueError(f"grid_cell_size={cfg.grid_cell_size!r} gives more than 2**31 cells per world (32-bit "
-                             f"cell indices): must be None or at least about {smallest:.3g} px")
+            raise ValueError(
+                f"grid_cell_size={cfg.grid_cell_size!r} gives more than 2**31 cells per world (32-bit "
+                f"cell indices): must be None or at least about {smallest:.3g} px"
+            )
         if W * C * 2 >= 2**31 or W * cells + 1 >= 2**31:
-            raise ValueError(f"num_worlds={W} x capacity={C} (cells per world {cells}) exceeds the 32-bit "
-                             "index range of the cell lists; use fewer worlds or agents")
+            raise ValueError(
+                f"num_worlds={W} x capacity={C} (cells per world {cells}) exceeds the 32-bit "
+                "index range of the cell lists; use fewer worlds or agents"
+            )
         self._check_memory(cells)
 
         with WARP_SETUP_LOCK:  # arrays of structs, kernels and recorded launches (see the lock)
             self._grid_dims = (dims_x, dims_y)
             self._params = BatchParams(cfg, W, self.device)
-            self._action_direction: wp.array = wp.array(action_directions(cfg.action_count), dtype=wp.vec2,
-                                                        device=self.device)
-            self.state = SimulationState.allocate(W, C, cfg.prey_capacity, cfg.predator_capacity,
-                                                  self.observation_size["prey"], self.observation_size["predator"],
-                                                  self.observed_slots["prey"], self.observed_slots["predator"],
-                                                  self.device)
+            self._action_direction: wp.array = wp.array(
+                action_directions(cfg.action_count), dtype=wp.vec2, device=self.device
+            )
+            self.state = SimulationState.allocate(
+                W,
+                C,
+                cfg.prey_capacity,
+                cfg.predator_capacity,
+                self.observation_size["prey"],
+                self.observation_size["predator"],
+                self.observed_slots["prey"],
+                self.observed_slots["predator"],
+                self.device,
+            )
             self.state.worlds.seed.fill_(seed_key(seed))
-            self._shards = ShardSet(cfg, self.state, self._grid_dims, self._params, self._action_direction, self.device,
-                                    auto_reset, resolve_cpu_threads(cpu_threads), step_kernel)
+            self._shards = ShardSet(
+                cfg,
+                self.state,
+                self._grid_dims,
+                self._params,
+                self._action_direction,
+                self.device,
+                auto_reset,
+                resolve_cpu_threads(cpu_threads),
+                step_kernel,
+            )
             self._build_views()
             self.reset()
 
@@ -175,9 +206,11 @@ class BatchedAquarium:
         need = estimate_bytes(self.config, self.num_worlds, cells_per_world)
         available = free_bytes(self.device)
         if need > 0.9 * available:
-            raise ValueError(f"num_worlds={self.num_worlds} with capacity {self.capacity} needs about "
-                             f"{need / 2**30:.2f} GiB on {self.device}, but only {available / 2**30:.2f} GiB "
-                             "is free; use fewer worlds or agents")
+            raise ValueError(
+                f"num_worlds={self.num_worlds} with capacity {self.capacity} needs about "
+                f"{need / 2**30:.2f} GiB on {self.device}, but only {available / 2**30:.2f} GiB "
+                "is free; use fewer worlds or agents"
+            )
 
     def _build_views(self) -> None:
         t, Pc = self.state.torch, self.prey_capacity
@@ -195,9 +228,13 @@ class BatchedAquarium:
             "alive": self.alive,
             "observation_mask": self.observation_mask,
         }
-        self._outputs = StepResult(self.observations, {"prey": t.reward[:, :Pc], "predator": t.reward[:, Pc:]},
-                                   {"prey": t.terminated[:, :Pc], "predator": t.terminated[:, Pc:]},
-                                   {"prey": t.truncated[:, :Pc], "predator": t.truncated[:, Pc:]}, info)
+        self._outputs = StepResult(
+            self.observations,
+            {"prey": t.reward[:, :Pc], "predator": t.reward[:, Pc:]},
+            {"prey": t.terminated[:, :Pc], "predator": t.terminated[:, Pc:]},
+            {"prey": t.truncated[:, :Pc], "predator": t.truncated[:, Pc:]},
+            info,
+        )
 
     # ------------------------------------------------------------------ shards and programs
     def run_on_shards(self, work) -> None:
@@ -313,8 +350,9 @@ class BatchedAquarium:
         return self._outputs
 
     # ------------------------------------------------------------------ per-world parameters
-    def set_params(self, world=None, validate: bool = True, rng: np.random.Generator | None = None,
-                   **fields) -> AquariumConfig:
+    def set_params(
+        self, world=None, validate: bool = True, rng: np.random.Generator | None = None, **fields
+    ) -> AquariumConfig:
         """Give worlds new parameter values between steps: `world` None (every world), an index or a
         sequence of indices; `fields` by name, the world fields of `per_world.PER_WORLD_FIELDS`
         (`prey_reward=2.0`, `flow=FlowConfig(...)`, `prey_count=8`) and the per-type ones as
@@ -337,8 +375,11 @@ class BatchedAquarium:
             single = isinstance(world, (int, np.integer, bool))
             indices = [world] if single else list(world) if isinstance(world, (list, tuple, range, np.ndarray)) else []
             # Repeated worlds would leave it to the order which of their values holds: refused.
-            if not indices or any(isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k < W
-                                  for k in indices) or len(set(map(int, indices))) < len(indices):
+            if (
+                not indices
+                or any(isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k < W for k in indices)
+                or len(set(map(int, indices))) < len(indices)
+            ):
                 raise ValueError(f"world={world!r} must be None, an integer or distinct integers in [0, {W - 1}]")
             worlds = [int(k) for k in indices]
         if rng is None:
@@ -367,8 +408,10 @@ class BatchedAquarium:
             counts = per_world(new._field(name), W)
             over = [k for k, n in enumerate(counts) if n > limit]
             if over:
-                raise ValueError(f"world {over[0]}: {name}={counts[over[0]]} is out of range: must be an integer in "
-                                 f"[1, {limit}] (the batch's slots)")
+                raise ValueError(
+                    f"world {over[0]}: {name}={counts[over[0]]} is out of range: must be an integer in "
+                    f"[1, {limit}] (the batch's slots)"
+                )
         self._params.write(new)
         self.config = new
         return new
@@ -387,7 +430,7 @@ class BatchedAquarium:
             getattr(t, name)[sel].copy_(value.to(self.torch_device))
         alive = t.alive
         t.prey_alive_count.copy_(alive[:, : self.prey_capacity].sum(dim=1).to(torch.int32))
-        t.predator_alive_count.copy_(alive[:, self.prey_capacity:].sum(dim=1).to(torch.int32))
+        t.predator_alive_count.copy_(alive[:, self.prey_capacity :].sum(dim=1).to(torch.int32))
         self._run("observe")
         return self.observations
 
@@ -434,8 +477,18 @@ class BatchedAquarium:
     # ------------------------------------------------------------------ pickling and copying
     # Outputs of the last step that `load_state_dict` does not recompute: carried so that a copy's
     # buffers hold what the original's last `step()` returned, not only the state.
-    _CARRIED_OUTPUTS = ("reward", "terminated", "truncated", "captures", "episode_ended", "ended_length",
-                        "ended_captures", "ended_return", "prey_action", "predator_action")
+    _CARRIED_OUTPUTS = (
+        "reward",
+        "terminated",
+        "truncated",
+        "captures",
+        "episode_ended",
+        "ended_length",
+        "ended_captures",
+        "ended_return",
+        "prey_action",
+        "predator_action",
+    )
 
     def __getstate__(self) -> dict:
         """Pickle and `copy.deepcopy` carry the constructor's arguments, `state_dict()` and the last
@@ -455,9 +508,16 @@ class BatchedAquarium:
 
     def __setstate__(self, saved: dict) -> None:
         state = saved["state"]
-        type(self).__init__(self, saved["config"], num_worlds=saved["num_worlds"], device=saved["device"],
-                            seed=state["seed"], cpu_threads=saved["cpu_threads"], auto_reset=saved["auto_reset"],
-                            step_kernel=saved.get("step_kernel", "auto"))
+        type(self).__init__(
+            self,
+            saved["config"],
+            num_worlds=saved["num_worlds"],
+            device=saved["device"],
+            seed=state["seed"],
+            cpu_threads=saved["cpu_threads"],
+            auto_reset=saved["auto_reset"],
+            step_kernel=saved.get("step_kernel", "auto"),
+        )
         self.load_state_dict(state)
         t = self.state.torch
         for name, value in saved["outputs"].items():

@@ -47,8 +47,9 @@ class HeuristicPolicy:
     allocated once (so the next call overwrites it).
     """
 
-    def __init__(self, name: str, env: BatchedAquarium, agent_type: str, seed: int | None = None,
-                 confusion: bool | None = None):
+    def __init__(
+        self, name: str, env: BatchedAquarium, agent_type: str, seed: int | None = None, confusion: bool | None = None
+    ):
         if not isinstance(env, BatchedAquarium):
             raise ValueError(f"env must be a BatchedAquarium, got {type(env).__name__}")
         if agent_type not in TYPES:
@@ -84,10 +85,26 @@ class HeuristicPolicy:
         seeds = env.state.worlds.seed
         if own_seed is not None:
             seeds = wp.full(env.num_worlds, own_seed, dtype=wp.uint32, device=env.device)
-        self._program = env.record_program(lambda shard: [shard.record(
-            kernels.heuristic_policy, (shard.num_worlds, slots),
-            [shard.world, shard.types, shard.grid, env.action_directions, shard.state.agents, shard.state.worlds,
-             seeds[shard.w0:shard.w1], self._code, self._first_slot], [self._buffer[shard.w0:shard.w1]])])
+        self._program = env.record_program(
+            lambda shard: [
+                shard.record(
+                    kernels.heuristic_policy,
+                    (shard.num_worlds, slots),
+                    [
+                        shard.world,
+                        shard.types,
+                        shard.grid,
+                        env.action_directions,
+                        shard.state.agents,
+                        shard.state.worlds,
+                        seeds[shard.w0 : shard.w1],
+                        self._code,
+                        self._first_slot,
+                    ],
+                    [self._buffer[shard.w0 : shard.w1]],
+                )
+            ]
+        )
 
     @property
     def env(self) -> BatchedAquarium:
@@ -106,8 +123,9 @@ class HeuristicPolicy:
         return self.actions
 
 
-def make_policy(name: str, env: BatchedAquarium, agent_type: str, seed: int | None = None,
-                confusion: bool | None = None) -> HeuristicPolicy:
+def make_policy(
+    name: str, env: BatchedAquarium, agent_type: str, seed: int | None = None, confusion: bool | None = None
+) -> HeuristicPolicy:
     """A heuristic policy for the `agent_type` agents ("prey" or "predator") of every world of `env`.
 
     `name`: "random" (either type), "constant" (either type: always the world direction "up", the
@@ -125,8 +143,13 @@ def make_policy(name: str, env: BatchedAquarium, agent_type: str, seed: int | No
 _cached: weakref.WeakKeyDictionary[BatchedAquarium, dict] = weakref.WeakKeyDictionary()
 
 
-def heuristic_actions(env: BatchedAquarium, prey: str = "turnaway", predator: str = "naivchase",
-                      seed: int | None = None, confusion: bool = True) -> dict[str, torch.Tensor]:
+def heuristic_actions(
+    env: BatchedAquarium,
+    prey: str = "turnaway",
+    predator: str = "naivchase",
+    seed: int | None = None,
+    confusion: bool = True,
+) -> dict[str, torch.Tensor]:
     """Actions of both types for `env.step`: `{"prey": [W, prey_capacity], "predator": [W, predator_capacity]}`
     int32 tensors (overwritten by the next call with the same arguments). `confusion` applies to a
     "naivchase" predator policy only."""

@@ -61,8 +61,18 @@ from .rollout import Drivers, Observer, Progress, rollout
 SCALAR_METRICS = kernels.VALUE_NAMES
 # Metrics averaged over the sampled states of an episode by `EpisodeMetrics` (the centroid is not:
 # its average over time means nothing on a torus; captures come from the env's episode counters).
-EPISODE_METRICS = ("polarization", "cohesion", "nn_mean", "groups", "largest_group", "predator_distance",
-                   "prey_alive", "predator_alive", "local_alignment", "milling")
+EPISODE_METRICS = (
+    "polarization",
+    "cohesion",
+    "nn_mean",
+    "groups",
+    "largest_group",
+    "predator_distance",
+    "prey_alive",
+    "predator_alive",
+    "local_alignment",
+    "milling",
+)
 
 
 def default_linking_distance(env: BatchedAquarium) -> float | tuple[float, ...]:
@@ -85,8 +95,13 @@ class SwarmMetrics:
             is unlimited).
     """
 
-    def __init__(self, env: BatchedAquarium, linking_distance: float | tuple[float, ...] | None = None,
-                 nn_bins: int = 50, nn_range: float | None = None):
+    def __init__(
+        self,
+        env: BatchedAquarium,
+        linking_distance: float | tuple[float, ...] | None = None,
+        nn_bins: int = 50,
+        nn_range: float | None = None,
+    ):
         if not isinstance(env, BatchedAquarium):
             raise ValueError(f"env must be a BatchedAquarium, got {type(env).__name__}")
         cfg = env.config
@@ -94,22 +109,30 @@ class SwarmMetrics:
             linking_distance = default_linking_distance(env)
         W = env.num_worlds
         links = list(linking_distance) if isinstance(linking_distance, (tuple, list)) else [linking_distance] * W
-        if len(links) != W or any(isinstance(d, bool) or not isinstance(d, (int, float)) or not math.isfinite(d)
-                                  or d <= 0 for d in links):
-            raise ValueError(f"linking_distance={linking_distance!r} must be a finite number > 0 (px), or {W} "
-                             "of them (one per world)")
+        if len(links) != W or any(
+            isinstance(d, bool) or not isinstance(d, (int, float)) or not math.isfinite(d) or d <= 0 for d in links
+        ):
+            raise ValueError(
+                f"linking_distance={linking_distance!r} must be a finite number > 0 (px), or {W} "
+                "of them (one per world)"
+            )
         if isinstance(nn_bins, bool) or not isinstance(nn_bins, int) or nn_bins < 1:
             raise ValueError(f"nn_bins={nn_bins!r} must be an integer >= 1")
         if nn_range is None:
             nn_range = min(2.0 * max(per_world(cfg.prey.view_distance, W)), cfg.max_torus_distance)
         assert nn_range is not None  # for the type checker: set just above
-        if isinstance(nn_range, bool) or not isinstance(nn_range, (int, float)) or not math.isfinite(nn_range) \
-                or nn_range <= 0:
+        if (
+            isinstance(nn_range, bool)
+            or not isinstance(nn_range, (int, float))
+            or not math.isfinite(nn_range)
+            or nn_range <= 0
+        ):
             raise ValueError(f"nn_range={nn_range!r} must be a finite number > 0 (px)")
         self._env = env
         # One float where every world links at the same distance, else one per world.
-        self.linking_distance: float | tuple[float, ...] = (float(links[0]) if len(set(links)) == 1
-                                                             else tuple(float(d) for d in links))
+        self.linking_distance: float | tuple[float, ...] = (
+            float(links[0]) if len(set(links)) == 1 else tuple(float(d) for d in links)
+        )
         self._linking_distances: wp.array = wp.array(links, dtype=float, device=env.device)
         self.nn_bins = nn_bins
         self.nn_range = float(nn_range)
@@ -159,12 +182,13 @@ class SwarmMetrics:
         return [
             arrays.nn_histogram.zero_,
             arrays.group_size.zero_,
-            shard.record(kernels.prey_distances, (W, Pc),
-                         [world, g, s.agents, self.predators_by_grid, self.bin_width], [arrays]),
-            shard.record(kernels.link_groups, (W, Pc), [world, g, s.agents, self._linking_distances[w0:w1]],
-                         [arrays]),
-            shard.record(kernels.local_alignment, (W, Pc), [world, g, s.agents, self._linking_distances[w0:w1]],
-                         [arrays]),
+            shard.record(
+                kernels.prey_distances, (W, Pc), [world, g, s.agents, self.predators_by_grid, self.bin_width], [arrays]
+            ),
+            shard.record(kernels.link_groups, (W, Pc), [world, g, s.agents, self._linking_distances[w0:w1]], [arrays]),
+            shard.record(
+                kernels.local_alignment, (W, Pc), [world, g, s.agents, self._linking_distances[w0:w1]], [arrays]
+            ),
             shard.record(kernels.resolve_groups, (W, Pc), [world, s.agents], [arrays]),
             shard.record(kernels.prey_partial_sums, (W, self._chunks), [world, s.agents], [arrays]),
             shard.record(kernels.finish_prey_sums, W, [world, s.worlds, s.outputs], [arrays]),
@@ -197,8 +221,14 @@ class EpisodeMetrics(Observer):
     them as `[samples, W]` tensors, with `trace_steps` the step count of each sample.
     """
 
-    def __init__(self, env: BatchedAquarium, metrics: SwarmMetrics | None = None, every: int = 1,
-                 trace: Iterable[str] = (), **metric_kwargs):
+    def __init__(
+        self,
+        env: BatchedAquarium,
+        metrics: SwarmMetrics | None = None,
+        every: int = 1,
+        trace: Iterable[str] = (),
+        **metric_kwargs,
+    ):
         if metrics is None:
             metrics = SwarmMetrics(env, **metric_kwargs)
         elif metric_kwargs:
@@ -230,8 +260,17 @@ class EpisodeMetrics(Observer):
 
     def begin(self) -> None:
         """Forget everything and sample the current state as step 0 (call right after `env.reset()`)."""
-        for t in (self._sum, self._count, self._hist, self._done_sum, self._done_count, self._done_hist,
-                  self._done_captures, self._done_length, self._episodes):
+        for t in (
+            self._sum,
+            self._count,
+            self._hist,
+            self._done_sum,
+            self._done_count,
+            self._done_hist,
+            self._done_captures,
+            self._done_length,
+            self._episodes,
+        ):
             t.zero_()
         self._trace.clear()
         self.trace_steps.clear()
@@ -305,8 +344,11 @@ class EpisodeMetrics(Observer):
 
     def _prey_counts(self) -> torch.Tensor:
         """`[W]` float64: each world's initial prey count (as the env's config holds it now)."""
-        return torch.tensor(per_world(self.env.config.prey_count, self.env.num_worlds), dtype=torch.float64,
-                            device=self._done_captures.device)
+        return torch.tensor(
+            per_world(self.env.config.prey_count, self.env.num_worlds),
+            dtype=torch.float64,
+            device=self._done_captures.device,
+        )
 
     def summary(self) -> dict[str, float]:
         """Means over every completed episode of every world (host sync); `episodes`: their number."""
@@ -318,8 +360,9 @@ class EpisodeMetrics(Observer):
         out["captures"] = float(self._done_captures.sum()) / episodes if episodes else math.nan
         prey = self.env.config.prey_count
         if isinstance(prey, tuple):  # each world's captures over its own prey count
-            out["captures_per_prey"] = (float((self._done_captures / self._prey_counts()).sum()) / episodes
-                                        if episodes else math.nan)
+            out["captures_per_prey"] = (
+                float((self._done_captures / self._prey_counts()).sum()) / episodes if episodes else math.nan
+            )
         else:
             out["captures_per_prey"] = out["captures"] / prey
         out["episode_length"] = float(self._done_length.sum()) / episodes if episodes else math.nan
@@ -330,15 +373,30 @@ class EpisodeMetrics(Observer):
         """`summary()` of the episodes completed since the last call, keys prefixed for a logger
         (empty when none completed); then forgets those episodes (the running ones carry on)."""
         summary = self.summary()
-        for t in (self._done_sum, self._done_count, self._done_hist, self._done_captures, self._done_length,
-                  self._episodes):
+        for t in (
+            self._done_sum,
+            self._done_count,
+            self._done_hist,
+            self._done_captures,
+            self._done_length,
+            self._episodes,
+        ):
             t.zero_()
         if not summary["episodes"]:
             return {}
         return {prefix + k: v for k, v in summary.items()}
 
-    _STATE = ("_sum", "_count", "_hist", "_done_sum", "_done_count", "_done_hist", "_done_captures",
-              "_done_length", "_episodes")
+    _STATE = (
+        "_sum",
+        "_count",
+        "_hist",
+        "_done_sum",
+        "_done_count",
+        "_done_hist",
+        "_done_captures",
+        "_done_length",
+        "_episodes",
+    )
 
     def state_dict(self) -> dict:
         """The accumulators (CPU copies), so that a resumed run reports the same episode values."""
@@ -359,9 +417,16 @@ class EpisodeMetrics(Observer):
         return {name: stacked[:, :, k] for k, name in enumerate(self.trace_names)}
 
 
-def rollout_metrics(env: BatchedAquarium, act: Drivers, steps: int, every: int = 1,
-                    reset: bool = True, trace: Iterable[str] = (), progress: bool = False,
-                    **metric_kwargs) -> dict[str, torch.Tensor]:
+def rollout_metrics(
+    env: BatchedAquarium,
+    act: Drivers,
+    steps: int,
+    every: int = 1,
+    reset: bool = True,
+    trace: Iterable[str] = (),
+    progress: bool = False,
+    **metric_kwargs,
+) -> dict[str, torch.Tensor]:
     """Run `steps` steps of `env` (`rollout.rollout`) with the actions of `act` (`{team: driver}`, or a
     function of the observations returning every team's actions) and return `EpisodeMetrics.result()`
     (per world, means over the episodes completed in the run), plus the traces when `trace` names some.

@@ -76,8 +76,15 @@ def flow_grids(flows: list[FlowConfig]) -> tuple[np.ndarray, list[int]]:
 def world_rows(cfg: AquariumConfig, num_worlds: int, grid_index: list[int]) -> np.ndarray:
     """`[W]` rows of `WorldValues` (numpy structured)."""
     rows = np.zeros(num_worlds, dtype=WorldValues.numpy_dtype())
-    for name in ("prey_count", "predator_count", "prey_reward", "prey_capture_penalty", "predator_reward",
-                 "catch_share_radius", "predator_starvation_steps"):
+    for name in (
+        "prey_count",
+        "predator_count",
+        "prey_reward",
+        "prey_capture_penalty",
+        "predator_reward",
+        "catch_share_radius",
+        "predator_starvation_steps",
+    ):
         rows[name] = per_world(getattr(cfg, name), num_worlds)
     ages = per_world(cfg.prey_replication_age, num_worlds)
     rows["replication_age_min"] = [math.ceil(0.75 * r) for r in ages]
@@ -118,8 +125,10 @@ class BatchParams:
         be those the arrays hold)."""
         grids, index = flow_grids(per_world(cfg.flow, self.num_worlds))
         if grids.shape != tuple(self.flow_grid.shape) + (2,) or not np.array_equal(grids, self.flow_grid.numpy()):
-            raise ValueError("flow: set_params cannot change the batch's grid currents (a new grid needs a new env); "
-                             "uniform and vortex flows, and grids the batch already holds, may be set per world")
+            raise ValueError(
+                "flow: set_params cannot change the batch's grid currents (a new grid needs a new env); "
+                "uniform and vortex flows, and grids the batch already holds, may be set per world"
+            )
         self.types.assign(wp.array(type_rows(cfg, self.num_worlds), dtype=AgentType, device="cpu"))
         self.values.assign(wp.array(world_rows(cfg, self.num_worlds, index), dtype=WorldValues, device="cpu"))
         self.max_speed.copy_(max_speeds(cfg, self.num_worlds))

@@ -17,12 +17,29 @@ import numpy as np
 from .checks import is_real, require
 
 # Per-type fields that may differ between the worlds of a batch (observation slots change array sizes).
-PER_WORLD_TYPE_FIELDS = ("max_speed", "max_steering_force", "max_acceleration", "mass", "radius", "view_distance",
-                         "fov_angle", "bounce_strength")
+PER_WORLD_TYPE_FIELDS = (
+    "max_speed",
+    "max_steering_force",
+    "max_acceleration",
+    "mass",
+    "radius",
+    "view_distance",
+    "fov_angle",
+    "bounce_strength",
+)
 # World fields that may differ between worlds: none changes an array's size (live counts are at most
 # the batch's capacity, the largest count).
-PER_WORLD_FIELDS = ("prey_count", "predator_count", "prey_reward", "prey_capture_penalty", "predator_reward",
-                    "catch_share_radius", "predator_starvation_steps", "prey_replication_age", "flow")
+PER_WORLD_FIELDS = (
+    "prey_count",
+    "predator_count",
+    "prey_reward",
+    "prey_capture_penalty",
+    "predator_reward",
+    "catch_share_radius",
+    "predator_starvation_steps",
+    "prey_replication_age",
+    "flow",
+)
 INTEGER_FIELDS = ("prey_count", "predator_count", "predator_starvation_steps", "prey_replication_age")
 # Every per-world field by its flat name: the world fields, then `prey_<field>` and `predator_<field>`.
 FLAT_NAMES = PER_WORLD_FIELDS + tuple(f"{t}_{n}" for t in ("prey", "predator") for n in PER_WORLD_TYPE_FIELDS)
@@ -34,8 +51,8 @@ def dotted_name(flat: str) -> str:
     if flat not in FLAT_NAMES:
         raise ValueError(f"unknown per-world parameter {flat!r}; settable: {list(FLAT_NAMES)}")
     for t in ("prey", "predator"):
-        if flat.startswith(t + "_") and flat[len(t) + 1:] in PER_WORLD_TYPE_FIELDS:
-            return f"{t}.{flat[len(t) + 1:]}"
+        if flat.startswith(t + "_") and flat[len(t) + 1 :] in PER_WORLD_TYPE_FIELDS:
+            return f"{t}.{flat[len(t) + 1 :]}"
     return flat
 
 
@@ -52,8 +69,12 @@ class Uniform:
         return [float(x) for x in rng.uniform(self.low, self.high, size=n)]
 
     def check(self, name: str) -> None:
-        require(name, (self.low, self.high), is_real(self.low) and is_real(self.high) and self.low <= self.high,
-                "a range of two numbers with low <= high")
+        require(
+            name,
+            (self.low, self.high),
+            is_real(self.low) and is_real(self.high) and self.low <= self.high,
+            "a range of two numbers with low <= high",
+        )
 
 
 @dataclass(frozen=True)
@@ -65,8 +86,12 @@ class LogUniform(Uniform):
         return [int(round(x)) for x in values] if integer else [float(x) for x in values]
 
     def check(self, name: str) -> None:
-        require(name, (self.low, self.high), is_real(self.low) and is_real(self.high) and 0 < self.low <= self.high,
-                "a range of two numbers with 0 < low <= high")
+        require(
+            name,
+            (self.low, self.high),
+            is_real(self.low) and is_real(self.high) and 0 < self.low <= self.high,
+            "a range of two numbers with 0 < low <= high",
+        )
 
 
 @dataclass(frozen=True)

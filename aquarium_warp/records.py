@@ -53,8 +53,13 @@ def git_info(commit: str | None = None) -> dict:
         head = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, cwd=PACKAGE_DIR, timeout=30)
         if head.returncode != 0:
             return {"commit": "unknown", "dirty": None, "source": "git failed"}
-        status = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True,
-                                text=True, cwd=PACKAGE_DIR, timeout=30)
+        status = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            cwd=PACKAGE_DIR,
+            timeout=30,
+        )
         return {"commit": head.stdout.strip(), "dirty": bool(status.stdout.strip()), "source": "git"}
     except (OSError, subprocess.SubprocessError):
         return {"commit": "unknown", "dirty": None, "source": "no git"}
@@ -66,10 +71,18 @@ def machine_info(device: str) -> dict:
     import warp as wp
 
     dev = wp.get_device(device)
-    info: dict[str, Any] = {"device": device, "device_name": dev.name, "platform": platform.platform(),
-            "python": platform.python_version(), "warp": wp.__version__, "torch": torch.__version__,
-            "numpy": np.__version__, "vmas": installed_version("vmas"), "cpu_count": os.cpu_count(),
-            "cpu_threads_available": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None}
+    info: dict[str, Any] = {
+        "device": device,
+        "device_name": dev.name,
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "warp": wp.__version__,
+        "torch": torch.__version__,
+        "numpy": np.__version__,
+        "vmas": installed_version("vmas"),
+        "cpu_count": os.cpu_count(),
+        "cpu_threads_available": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
+    }
     model = cpu_model()
     if model is not None:
         info["cpu"] = model
@@ -78,8 +91,15 @@ def machine_info(device: str) -> dict:
         info["cuda_capability"] = list(torch.cuda.get_device_capability(torch.device(device)))
         info["torch_cuda"] = torch.version.cuda
         try:
-            info["driver"] = subprocess.run(["nvidia-smi", "--query-gpu=driver_version", "--format=csv,noheader"],
-                                            capture_output=True, text=True, timeout=30).stdout.strip() or None
+            info["driver"] = (
+                subprocess.run(
+                    ["nvidia-smi", "--query-gpu=driver_version", "--format=csv,noheader"],
+                    capture_output=True,
+                    text=True,
+                    timeout=30,
+                ).stdout.strip()
+                or None
+            )
         except (OSError, subprocess.SubprocessError):
             info["driver"] = None
     return info
@@ -88,8 +108,11 @@ def machine_info(device: str) -> dict:
 def provenance(device: str, command: str | None = None, commit: str | None = None) -> dict:
     """`command` (default `command_line()`), `git` (`commit` overrides, for a copy without git history)
     and `machine`: what a result file records of the run that made it on `device`."""
-    return {"command": command if command is not None else command_line(), "git": git_info(commit),
-            "machine": machine_info(device)}
+    return {
+        "command": command if command is not None else command_line(),
+        "git": git_info(commit),
+        "machine": machine_info(device),
+    }
 
 
 def installed_version(package: str) -> str | None:

@@ -66,13 +66,15 @@ DEFAULT_PALETTE = {
 }
 
 
-def frame_size(config, width_px: int | None = None, height_px: int | None = None,
-               max_size: int = DEFAULT_MAX_SIZE) -> tuple[int, int]:
+def frame_size(
+    config, width_px: int | None = None, height_px: int | None = None, max_size: int = DEFAULT_MAX_SIZE
+) -> tuple[int, int]:
     """(width_px, height_px) of a frame: the world's size in px, scaled down so the long side is at most
     `max_size`; one given side sets the other from the world's aspect ratio."""
     for name, value in (("width_px", width_px), ("height_px", height_px), ("max_size", max_size)):
-        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer))
-                                  or not 1 <= value <= 32768):
+        if value is not None and (
+            isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 1 <= value <= 32768
+        ):
             raise ValueError(f"{name}={value!r} must be None or an integer in [1, 32768]")
     w, h = float(config.width), float(config.height)
     if width_px is not None and height_px is not None:
@@ -111,11 +113,23 @@ class Renderer:
     work on torch's current stream, so state written through `env.state.torch` is seen.
     """
 
-    def __init__(self, env, width_px: int | None = None, height_px: int | None = None, *,
-                 max_size: int = DEFAULT_MAX_SIZE, velocity_scale: float = 10.0,
-                 palette: dict | None = None, flow_spacing: int = 32):
-        if not (isinstance(velocity_scale, (int, float)) and not isinstance(velocity_scale, bool)
-                and math.isfinite(velocity_scale) and velocity_scale >= 0):
+    def __init__(
+        self,
+        env,
+        width_px: int | None = None,
+        height_px: int | None = None,
+        *,
+        max_size: int = DEFAULT_MAX_SIZE,
+        velocity_scale: float = 10.0,
+        palette: dict | None = None,
+        flow_spacing: int = 32,
+    ):
+        if not (
+            isinstance(velocity_scale, (int, float))
+            and not isinstance(velocity_scale, bool)
+            and math.isfinite(velocity_scale)
+            and velocity_scale >= 0
+        ):
             raise ValueError(f"velocity_scale={velocity_scale!r} must be a finite number >= 0")
         if isinstance(flow_spacing, bool) or not isinstance(flow_spacing, (int, np.integer)) or flow_spacing < 4:
             raise ValueError(f"flow_spacing={flow_spacing!r} must be an integer >= 4 (image pixels)")
@@ -170,8 +184,15 @@ class Renderer:
         if isinstance(world, bool) or not isinstance(world, (int, np.integer)) or not 0 <= world < n:
             raise ValueError(f"world={world!r} must be an integer in [0, {n - 1}]")
 
-    def render_device(self, world: int = 0, *, view_cones: bool = False, hit_boxes: bool = False,
-                      velocities: bool = False, draw_flow: bool = False) -> wp.array:
+    def render_device(
+        self,
+        world: int = 0,
+        *,
+        view_cones: bool = False,
+        hit_boxes: bool = False,
+        velocities: bool = False,
+        draw_flow: bool = False,
+    ) -> wp.array:
         """Draw `world` into the renderer's device image and return it: a Warp array
         `[height_px, width_px, 3]` uint8 on the env's device, overwritten by the next frame."""
         self.check_world(world)
@@ -194,17 +215,25 @@ class Renderer:
         rk.launch_splat(p, agents, self._body_key, self._cone_count, self._overlay, env.capacity, self.device)
         if draw_flow:
             shard = next(s for s in env.shards if s.w0 <= world < s.w1)
-            rk.launch_flow(p, shard.world, world - shard.w0, shard.state.worlds.world_step, self._overlay,
-                           self.device)
-        rk.launch_compose(p, self._palette, agents, self._body_key, self._cone_count, self._overlay, self._image,
-                          self.device)
+            rk.launch_flow(p, shard.world, world - shard.w0, shard.state.worlds.world_step, self._overlay, self.device)
+        rk.launch_compose(
+            p, self._palette, agents, self._body_key, self._cone_count, self._overlay, self._image, self.device
+        )
         return self._image
 
-    def render(self, world: int = 0, *, view_cones: bool = False, hit_boxes: bool = False,
-               velocities: bool = False, draw_flow: bool = False) -> np.ndarray:
+    def render(
+        self,
+        world: int = 0,
+        *,
+        view_cones: bool = False,
+        hit_boxes: bool = False,
+        velocities: bool = False,
+        draw_flow: bool = False,
+    ) -> np.ndarray:
         """Draw `world`; returns a new numpy uint8 array `[height_px, width_px, 3]` (RGB)."""
-        image = self.render_device(world, view_cones=view_cones, hit_boxes=hit_boxes, velocities=velocities,
-                                   draw_flow=draw_flow)
+        image = self.render_device(
+            world, view_cones=view_cones, hit_boxes=hit_boxes, velocities=velocities, draw_flow=draw_flow
+        )
         frame = image.numpy()  # a copy on CUDA (synchronises), a view of the buffer on CPU
         return frame.copy() if not wp.get_device(self.device).is_cuda else frame
 
@@ -212,9 +241,17 @@ class Renderer:
 _renderers: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
-def render_world(env, world: int = 0, *, width_px: int | None = None, height_px: int | None = None,
-                 view_cones: bool = False, hit_boxes: bool = False, velocities: bool = False,
-                 draw_flow: bool = False) -> np.ndarray:
+def render_world(
+    env,
+    world: int = 0,
+    *,
+    width_px: int | None = None,
+    height_px: int | None = None,
+    view_cones: bool = False,
+    hit_boxes: bool = False,
+    velocities: bool = False,
+    draw_flow: bool = False,
+) -> np.ndarray:
     """Frame of `world` of `env`: numpy uint8 `[height_px, width_px, 3]` RGB.
 
     The size defaults to the world's size in px, scaled down so the long side is at most 1024; one given
@@ -227,8 +264,9 @@ def render_world(env, world: int = 0, *, width_px: int | None = None, height_px:
         renderer = Renderer(env, *size)
         renderer._env = weakref.ref(env)  # a cache value must not keep its key (the env) alive
         _renderers[env] = renderer
-    return renderer.render(world, view_cones=view_cones, hit_boxes=hit_boxes, velocities=velocities,
-                           draw_flow=draw_flow)
+    return renderer.render(
+        world, view_cones=view_cones, hit_boxes=hit_boxes, velocities=velocities, draw_flow=draw_flow
+    )
 
 
 def check_frame(frame, name: str = "frame") -> np.ndarray:
@@ -250,8 +288,12 @@ def save_png(frame: np.ndarray, path) -> None:
 
     header = _struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)  # 8-bit RGB
     with atomic_open(path, "wb") as f:
-        f.write(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(raw.tobytes(), 9))
-                + chunk(b"IEND", b""))
+        f.write(
+            b"\x89PNG\r\n\x1a\n"
+            + chunk(b"IHDR", header)
+            + chunk(b"IDAT", zlib.compress(raw.tobytes(), 9))
+            + chunk(b"IEND", b"")
+        )
 
 
 class Window:
@@ -272,9 +314,12 @@ class Window:
         # Without a display SDL prints its probing errors and falls back to a driver that shows nothing
         # (a driver asked for by name, SDL_VIDEODRIVER=dummy in the tests, is taken as meant).
         if sys.platform.startswith("linux") and not any(
-                os.environ.get(v) for v in ("DISPLAY", "WAYLAND_DISPLAY", "SDL_VIDEODRIVER")):
-            raise RuntimeError("a window needs a display, and none was found (DISPLAY and WAYLAND_DISPLAY are "
-                               "unset): draw frames with render_mode='rgb_array' or write a video instead")
+            os.environ.get(v) for v in ("DISPLAY", "WAYLAND_DISPLAY", "SDL_VIDEODRIVER")
+        ):
+            raise RuntimeError(
+                "a window needs a display, and none was found (DISPLAY and WAYLAND_DISPLAY are "
+                "unset): draw frames with render_mode='rgb_array' or write a video instead"
+            )
         self._pygame = pygame
         pygame.display.init()  # the display only: pygame.init() also opens audio (ALSA's lines on stderr)
         self._screen = pygame.display.set_mode((int(width_px), int(height_px)))

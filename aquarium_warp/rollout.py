@@ -55,8 +55,16 @@ class Observer:
         """After the last step."""
 
 
-def rollout(env: BatchedAquarium, drivers: Drivers, steps: int, observers: Iterable[Observer] = (), *,
-            reset: bool = True, validate: bool = False, until: Callable[[], bool] | None = None) -> int:
+def rollout(
+    env: BatchedAquarium,
+    drivers: Drivers,
+    steps: int,
+    observers: Iterable[Observer] = (),
+    *,
+    reset: bool = True,
+    validate: bool = False,
+    until: Callable[[], bool] | None = None,
+) -> int:
     """Step `env` `steps` times with the actions of `drivers` and tell `observers`; returns the steps taken.
 
     `drivers`: `{team: driver}` (`drivers.make_drivers`; each a callable returning its team's actions),
@@ -91,8 +99,9 @@ def _actions(env: BatchedAquarium, drivers: Drivers) -> Callable[[], Mapping[str
         return lambda: {team: drive() for team, drive in teams}
     if callable(drivers):
         return lambda: drivers(env.observations)
-    raise ValueError(f"drivers={drivers!r} must be {{team: driver}} or a function of the observations "
-                     "returning every team's actions")
+    raise ValueError(
+        f"drivers={drivers!r} must be {{team: driver}} or a function of the observations returning every team's actions"
+    )
 
 
 @dataclasses.dataclass
@@ -124,8 +133,9 @@ class StepViews(Observer):
 
     def on_step(self, env: BatchedAquarium, step: int, result: StepResult) -> None:
         t = env.state.torch
-        self.callback(StepView(env, *self._before, t.position, t.velocity, t.alive, t.captured[:, :env.prey_capacity],
-                               step))
+        self.callback(
+            StepView(env, *self._before, t.position, t.velocity, t.alive, t.captured[:, : env.prey_capacity], step)
+        )
         self._before = (t.position.clone(), t.alive.clone())  # the next step's state before it
 
 
@@ -153,9 +163,15 @@ class Progress(Observer):
             self._pending = 0
 
 
-def random_actions(cfg: AquariumConfig, worlds: int, generator: torch.Generator, device: torch.device | str,
-                   ) -> dict[str, torch.Tensor]:
+def random_actions(
+    cfg: AquariumConfig,
+    worlds: int,
+    generator: torch.Generator,
+    device: torch.device | str,
+) -> dict[str, torch.Tensor]:
     """One uniformly random action per slot of both types from `generator`, as int32 (the env's own
     action dtype: a timed step copies them in without a conversion)."""
-    return {t: torch.randint(0, cfg.action_count, (worlds, n), generator=generator, device=device, dtype=torch.int32)
-            for t, n in (("prey", cfg.prey_capacity), ("predator", cfg.predator_capacity))}
+    return {
+        t: torch.randint(0, cfg.action_count, (worlds, n), generator=generator, device=device, dtype=torch.int32)
+        for t, n in (("prey", cfg.prey_capacity), ("predator", cfg.predator_capacity))
+    }

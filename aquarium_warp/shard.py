@@ -53,8 +53,9 @@ STEP_KERNELS = ("auto", "fused", "stages")
 AUTO_FUSED_GPU_MAX_SLOTS = 131_072
 
 
-def world_params(cfg: AquariumConfig, world_offset: int, auto_reset: bool, values: wp.array,
-                 flow_grid: wp.array) -> WorldParams:
+def world_params(
+    cfg: AquariumConfig, world_offset: int, auto_reset: bool, values: wp.array, flow_grid: wp.array
+) -> WorldParams:
     """The `WorldParams` of worlds of `cfg` whose first global index is `world_offset`, with their
     per-world `values` (a view of the batch's `WorldValues` for these worlds) and the batch's flow grids."""
     p = WorldParams()
@@ -98,9 +99,11 @@ def fused_step(step_kernel: str, dims: tuple[int, int], cuda: bool = False, slot
         raise ValueError(f"step_kernel={step_kernel!r} must be one of {', '.join(map(repr, STEP_KERNELS))}")
     whole_world = tuple(dims) == (1, 1)
     if step_kernel == "fused" and not whole_world:
-        raise ValueError(f"step_kernel='fused' needs worlds of one cell (whole-world cell lists), but this config's "
-                         f"worlds have {dims[0]} x {dims[1]} cells (more slots than one cell takes, or grid_cell_size "
-                         "set): use step_kernel='auto' or 'stages'")
+        raise ValueError(
+            f"step_kernel='fused' needs worlds of one cell (whole-world cell lists), but this config's "
+            f"worlds have {dims[0]} x {dims[1]} cells (more slots than one cell takes, or grid_cell_size "
+            "set): use step_kernel='auto' or 'stages'"
+        )
     if step_kernel == "auto" and cuda and slots > AUTO_FUSED_GPU_MAX_SLOTS:
         return False
     return step_kernel != "stages" and whole_world
@@ -117,8 +120,14 @@ def fused_block_dim(capacity: int, cuda: bool) -> int:
     return min(FUSED_MAX_BLOCK, 32 * ((capacity + 31) // 32))
 
 
-def cell_lists(cfg: AquariumConfig, num_worlds: int, dims: tuple[int, int], device, agents: Agents | None = None,
-               build: str | None = None) -> grid_kernels.CellLists:
+def cell_lists(
+    cfg: AquariumConfig,
+    num_worlds: int,
+    dims: tuple[int, int],
+    device,
+    agents: Agents | None = None,
+    build: str | None = None,
+) -> grid_kernels.CellLists:
     """Cell lists of `num_worlds` worlds of `dims` cells, for the `build` that `grid_build` names (or the
     one given). Worlds of one cell get whole-world lists over the `agents` arrays (views of
     `[num_worlds, capacity]` arrays), which never need a build."""
@@ -167,8 +176,21 @@ class WorldShard:
     cell lists), `world` (their `WorldParams`), and `programs`, the env's launch programs as recorded
     for this shard (name -> list of commands; docs/model.md's step is `programs["step"]`)."""
 
-    def __init__(self, cfg: AquariumConfig, state: SimulationState, index: int, w0: int, w1: int, dims, params,
-                 action_direction, observe_kernels, device, auto_reset: bool = True, fused_kernel=None):
+    def __init__(
+        self,
+        cfg: AquariumConfig,
+        state: SimulationState,
+        index: int,
+        w0: int,
+        w1: int,
+        dims,
+        params,
+        action_direction,
+        observe_kernels,
+        device,
+        auto_reset: bool = True,
+        fused_kernel=None,
+    ):
         self.cfg, self.device = cfg, device
         self.index = index
         self.w0, self.w1 = w0, w1
@@ -192,8 +214,9 @@ class WorldShard:
         """A recorded launch of `kernel` over `dim` threads (blocks of `block_dim` for a tile kernel),
         as a command: calling it replays the launch."""
         options: dict[str, Any] = {} if block_dim is None else {"block_dim": block_dim}
-        return wp.launch(kernel, dim=dim, inputs=list(inputs), outputs=list(outputs), device=self.device,
-                         record_cmd=True, **options).launch
+        return wp.launch(
+            kernel, dim=dim, inputs=list(inputs), outputs=list(outputs), device=self.device, record_cmd=True, **options
+        ).launch
 
     # The env's programs -------------------------------------------------------------------------
     def build_grid_commands(self) -> list:
@@ -246,10 +269,25 @@ class WorldShard:
             first_out = self._observed_rows(first, kernel.rows_type, kernel.row_type)
             # A type alone passes its own outputs again for the (empty) second range.
             second_out = self._observed_rows(second, kernel.rows_type, kernel.row_type) if second else first_out
-            commands.append(self.record(
-                kernel, (first_blocks + (second_rows + block - 1) // block, block),
-                [self.world, self.types, self.grid, self.state.agents, self.state.worlds, TYPE_CODES[first],
-                 rows[first], first_blocks, second_rows], [first_out, second_out, self.state.scratch], block_dim=block))
+            commands.append(
+                self.record(
+                    kernel,
+                    (first_blocks + (second_rows + block - 1) // block, block),
+                    [
+                        self.world,
+                        self.types,
+                        self.grid,
+                        self.state.agents,
+                        self.state.worlds,
+                        TYPE_CODES[first],
+                        rows[first],
+                        first_blocks,
+                        second_rows,
+                    ],
+                    [first_out, second_out, self.state.scratch],
+                    block_dim=block,
+                )
+            )
         return commands
 
     def observe_program(self) -> list:
@@ -259,8 +297,11 @@ class WorldShard:
     def reset_program(self) -> list:
         """Every world's first episode: counters and agents (`spawn_episode`), then observations."""
         s = self.state
-        return [self.record(spawn.spawn_episode, (self.num_worlds, self.cfg.capacity), [self.world],
-                            [s.worlds, s.outputs, s.agents])] + self.observe_program()
+        return [
+            self.record(
+                spawn.spawn_episode, (self.num_worlds, self.cfg.capacity), [self.world], [s.worlds, s.outputs, s.agents]
+            )
+        ] + self.observe_program()
 
     def step_program(self) -> list:
         """docs/model.md steps 1-10 for every world of the shard: one launch of the fused step where it
@@ -269,33 +310,51 @@ class WorldShard:
         if self.fused_kernel is not None:
             kernel = self.fused_kernel
             blocks = (self.num_worlds + kernel.worlds_per_block - 1) // kernel.worlds_per_block
-            return [self.record(kernel, (blocks, kernel.block_dim),
-                                [world, types, self.action_direction, s.actions, g, int(cfg.prey_reproduction)],
-                                [s.worlds, s.agents, s.scratch, s.outputs,
-                                 self._observed_rows("prey", *kernel.rows_types["prey"]),
-                                 self._observed_rows("predator", *kernel.rows_types["predator"])],
-                                block_dim=kernel.block_dim)]
+            return [
+                self.record(
+                    kernel,
+                    (blocks, kernel.block_dim),
+                    [world, types, self.action_direction, s.actions, g, int(cfg.prey_reproduction)],
+                    [
+                        s.worlds,
+                        s.agents,
+                        s.scratch,
+                        s.outputs,
+                        self._observed_rows("prey", *kernel.rows_types["prey"]),
+                        self._observed_rows("predator", *kernel.rows_types["predator"]),
+                    ],
+                    block_dim=kernel.block_dim,
+                )
+            ]
         W, C, Pc, P = self.num_worlds, cfg.capacity, cfg.prey_capacity, cfg.predator_capacity
         # 1-4: motion (which also clears this step's rewards and flags); contact partners were found
         # by the last observation pass.
-        program = [self.record(motion.motion_stage(cfg.action_frame == "ego")[1], (W, C),
-                               [world, types, self.action_direction, s.actions, s.worlds],
-                               [s.agents, s.scratch, s.outputs])]
+        program = [
+            self.record(
+                motion.motion_stage(cfg.action_frame == "ego")[1],
+                (W, C),
+                [world, types, self.action_direction, s.actions, s.worlds],
+                [s.agents, s.scratch, s.outputs],
+            )
+        ]
         # 5-6: captures on the moved positions, searched in the start-of-step cell lists; starvation.
         row_threads = 1 if g.whole_world else capture.CAPTURE_ROW_THREADS
         program += [
-            self.record(capture.detect_captures, (W, P, row_threads), [world, types, g, s.agents, row_threads],
-                        [s.scratch]),
+            self.record(
+                capture.detect_captures, (W, P, row_threads), [world, types, g, s.agents, row_threads], [s.scratch]
+            ),
             self.record(capture.count_capture_sharers, (W, Pc), [world, types, g], [s.agents, s.scratch, s.outputs]),
-            self.record(capture.share_capture_rewards, (W, P), [world, types, g, s.scratch],
-                        [s.agents, s.outputs, s.worlds]),
+            self.record(
+                capture.share_capture_rewards, (W, P), [world, types, g, s.scratch], [s.agents, s.outputs, s.worlds]
+            ),
             self.record(capture.respawn_captured_prey, (W, Pc), [world, s.scratch], [s.worlds, s.agents, s.outputs]),
         ]
         # 7: reproduction (8, the rewards, are finished by the share and respawn passes and by
         # `reproduce_prey`, for its newborns).
         if cfg.prey_reproduction:
-            program.append(self.record(population.reproduce_prey, W, [world, s.scratch],
-                                       [s.agents, s.outputs, s.worlds]))
+            program.append(
+                self.record(population.reproduce_prey, W, [world, s.scratch], [s.agents, s.outputs, s.worlds])
+            )
         # 9: episode end, auto-reset of ended worlds.
         program += [
             self.record(population.finish_world_step, W, [world], [s.worlds, s.outputs]),
@@ -343,8 +402,18 @@ class ShardSet:
     env's programs (`programs`: "step", "observe", "reset") and any other that `record` is asked for,
     and runs them on every shard (`run`)."""
 
-    def __init__(self, cfg: AquariumConfig, state: SimulationState, dims, params, action_direction, device,
-                 auto_reset: bool, threads: int, step_kernel: str = "auto"):
+    def __init__(
+        self,
+        cfg: AquariumConfig,
+        state: SimulationState,
+        dims,
+        params,
+        action_direction,
+        device,
+        auto_reset: bool,
+        threads: int,
+        step_kernel: str = "auto",
+    ):
         self.device = device
         self.cuda = wp.get_device(device).is_cuda
         W = state.agents.alive.shape[0]
@@ -354,26 +423,43 @@ class ShardSet:
         # OBSERVATION_BLOCK threads on a GPU (tile kernels run one thread per block on the CPU).
         block = OBSERVATION_BLOCK if self.cuda else 1
         whole_world = tuple(dims) == (1, 1)  # the shards' cell lists are whole-world lists
-        observe_kernels = {t: observation.observation_kernel(getattr(cfg, t).predator_slots,
-                                                             getattr(cfg, t).prey_slots, block, whole_world,
-                                                             bool(cfg.observe_flow), cfg.observation_layout)
-                           for t in ("prey", "predator")}
+        observe_kernels = {
+            t: observation.observation_kernel(
+                getattr(cfg, t).predator_slots,
+                getattr(cfg, t).prey_slots,
+                block,
+                whole_world,
+                bool(cfg.observe_flow),
+                cfg.observation_layout,
+            )
+            for t in ("prey", "predator")
+        }
         # The step of worlds of one cell in one launch (`fused_step`), with their observers' slot counts.
         fused = None
         if fused_step(step_kernel, dims, self.cuda, W * cfg.capacity):
-            fused = world_step.world_step_kernel((cfg.prey.predator_slots, cfg.prey.prey_slots),
-                                                 (cfg.predator.predator_slots, cfg.predator.prey_slots),
-                                                 fused_block_dim(cfg.capacity, self.cuda), bool(cfg.observe_flow),
-                                                 (cfg.prey_capacity, cfg.predator_capacity), cfg.observation_layout,
-                                                 cfg.action_frame == "ego")
+            fused = world_step.world_step_kernel(
+                (cfg.prey.predator_slots, cfg.prey.prey_slots),
+                (cfg.predator.predator_slots, cfg.predator.prey_slots),
+                fused_block_dim(cfg.capacity, self.cuda),
+                bool(cfg.observe_flow),
+                (cfg.prey_capacity, cfg.predator_capacity),
+                cfg.observation_layout,
+                cfg.action_frame == "ego",
+            )
         self.step_path = "fused" if fused is not None else "stages"
-        self.shards = tuple(WorldShard(cfg, state, k, w0, w1, dims, params, action_direction, observe_kernels, device,
-                                       auto_reset, fused) for k, (w0, w1) in enumerate(zip(bounds[:-1], bounds[1:])))
+        self.shards = tuple(
+            WorldShard(
+                cfg, state, k, w0, w1, dims, params, action_direction, observe_kernels, device, auto_reset, fused
+            )
+            for k, (w0, w1) in enumerate(zip(bounds[:-1], bounds[1:]))
+        )
         self._pool = ThreadPoolExecutor(max_workers=shards) if shards > 1 else None
         self._torch_streams: dict[int, wp.Stream] = {}  # torch stream handle -> the same stream in Warp
-        self.programs = {"step": self.record(WorldShard.step_program, graph=True),
-                         "observe": self.record(WorldShard.observe_program),
-                         "reset": self.record(WorldShard.reset_program)}
+        self.programs = {
+            "step": self.record(WorldShard.step_program, graph=True),
+            "observe": self.record(WorldShard.observe_program),
+            "reset": self.record(WorldShard.reset_program),
+        }
         for name, program in self.programs.items():
             for shard in self.shards:
                 shard.programs[name] = program.commands[shard.index]

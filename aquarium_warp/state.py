@@ -14,8 +14,14 @@ import warp as wp
 from .kernels.state import Actions, Agents, Observations, Scratch, StepOutputs, WorldCounters
 
 # Attribute name -> group type, in the order kernels take them (inputs before outputs).
-GROUPS = {"actions": Actions, "agents": Agents, "worlds": WorldCounters, "scratch": Scratch,
-          "outputs": StepOutputs, "observations": Observations}
+GROUPS = {
+    "actions": Actions,
+    "agents": Agents,
+    "worlds": WorldCounters,
+    "scratch": Scratch,
+    "outputs": StepOutputs,
+    "observations": Observations,
+}
 # The agent fields a user may read and set (`BatchedAquarium.set_state`), and the tensors of
 # `state_dict()`: the whole simulation state (the seed travels as an integer).
 AGENT_FIELDS = tuple(Agents.vars)
@@ -54,15 +60,26 @@ class SimulationState:
         return self._torch
 
     @classmethod
-    def allocate(cls, num_worlds: int, capacity: int, prey_capacity: int, predator_capacity: int,
-                 prey_obs_size: int, predator_obs_size: int, prey_mask_size: int, predator_mask_size: int,
-                 device) -> SimulationState:
+    def allocate(
+        cls,
+        num_worlds: int,
+        capacity: int,
+        prey_capacity: int,
+        predator_capacity: int,
+        prey_obs_size: int,
+        predator_obs_size: int,
+        prey_mask_size: int,
+        predator_mask_size: int,
+        device,
+    ) -> SimulationState:
         """Zeroed arrays for `num_worlds` worlds of `capacity` slots (the sizes of the field docs)."""
         W, C = num_worlds, capacity
         shapes = {  # field -> shape; every other field is [W, C] or [W] as its dtype's ndim says
             "ended_return": (W, 2),
-            "prey_action": (W, prey_capacity), "predator_action": (W, predator_capacity),
-            "obs_prey": (W, prey_capacity, prey_obs_size), "obs_predator": (W, predator_capacity, predator_obs_size),
+            "prey_action": (W, prey_capacity),
+            "predator_action": (W, predator_capacity),
+            "obs_prey": (W, prey_capacity, prey_obs_size),
+            "obs_predator": (W, predator_capacity, predator_obs_size),
             "mask_prey": (W, prey_capacity, prey_mask_size),
             "mask_predator": (W, predator_capacity, predator_mask_size),
             "slot_prey": (W, prey_capacity, prey_mask_size),
@@ -81,13 +98,17 @@ class SimulationState:
 
     def arrays(self) -> dict[str, wp.array]:
         """Field name -> Warp array, over every group."""
-        return {name: getattr(getattr(self, group), name) for group, group_type in GROUPS.items()
-                for name in group_type.vars}
+        return {
+            name: getattr(getattr(self, group), name)
+            for group, group_type in GROUPS.items()
+            for name in group_type.vars
+        }
 
     def rows(self, w0: int, w1: int) -> SimulationState:
         """The groups of worlds `[w0, w1)`: views of this state's arrays."""
-        return SimulationState(**{name: group_rows(group_type, getattr(self, name), w0, w1)
-                                  for name, group_type in GROUPS.items()})
+        return SimulationState(
+            **{name: group_rows(group_type, getattr(self, name), w0, w1) for name, group_type in GROUPS.items()}
+        )
 
 
 class TorchViews:

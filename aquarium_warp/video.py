@@ -54,8 +54,14 @@ def check_video_path(path) -> None:
         raise ValueError(f"cannot write {path}: the file name must end in .mp4 (an H.264 MP4 video)")
 
 
-def write_video(frames: Iterable[np.ndarray] | Callable[[int], np.ndarray | None], path, fps: float = 30,
-                progress: bool = True, num_frames: int | None = None, quality: float = 7) -> int:
+def write_video(
+    frames: Iterable[np.ndarray] | Callable[[int], np.ndarray | None],
+    path,
+    fps: float = 30,
+    progress: bool = True,
+    num_frames: int | None = None,
+    quality: float = 7,
+) -> int:
     """Write RGB uint8 frames `[H, W, 3]` to an H.264 MP4 file at `path`; returns the frame count.
 
     `frames` is an iterable of frames, or a callable called as `frames(i)` for `i < num_frames` (it may
@@ -76,8 +82,9 @@ def write_video(frames: Iterable[np.ndarray] | Callable[[int], np.ndarray | None
 
 
 @contextlib.contextmanager
-def video_file(path, fps: float = 30, progress: bool = True, total: int | None = None,
-               quality: float = 7) -> Iterator[Callable[[np.ndarray], None]]:
+def video_file(
+    path, fps: float = 30, progress: bool = True, total: int | None = None, quality: float = 7
+) -> Iterator[Callable[[np.ndarray], None]]:
     """An H.264 MP4 file at `path` written one frame at a time: `with video_file(path) as add: add(frame)`.
     Checks the arguments before ffmpeg starts; the file appears whole when the block ends (a kill or a
     full disk leaves none), and a block that added no frame raises a ValueError. `total`: the frames
@@ -89,8 +96,9 @@ def video_file(path, fps: float = 30, progress: bool = True, total: int | None =
     if not (isinstance(fps, (int, float)) and not isinstance(fps, bool) and math.isfinite(fps) and fps > 0):
         raise ValueError(f"fps={fps!r} must be a finite number > 0")
     # imageio-ffmpeg asserts this range; checked here to fail with a ValueError before ffmpeg starts
-    if quality is not None and not (isinstance(quality, (int, float)) and not isinstance(quality, bool)
-                                    and 1 <= quality <= 10):
+    if quality is not None and not (
+        isinstance(quality, (int, float)) and not isinstance(quality, bool) and 1 <= quality <= 10
+    ):
         raise ValueError(f"quality={quality!r} must be None or a number in [1, 10]")
     check_video_path(path)
     folder = os.path.dirname(os.path.abspath(str(path)))
@@ -117,8 +125,15 @@ def video_file(path, fps: float = 30, progress: bool = True, total: int | None =
             h, w = shape[:2]
             if writer is None:
                 writer = imageio_ffmpeg.write_frames(
-                    partial, (w + w % 2, h + h % 2), fps=fps, quality=quality, codec="libx264",
-                    pix_fmt_in="rgb24", pix_fmt_out="yuv420p", macro_block_size=1)
+                    partial,
+                    (w + w % 2, h + h % 2),
+                    fps=fps,
+                    quality=quality,
+                    codec="libx264",
+                    pix_fmt_in="rgb24",
+                    pix_fmt_out="yuv420p",
+                    macro_block_size=1,
+                )
                 writer.send(None)  # start ffmpeg
             if h % 2 or w % 2:
                 frame = np.pad(frame, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
@@ -152,10 +167,23 @@ class Frames(Observer):
         self.add(self.renderer.render(self.world, **self.overlays))
 
 
-def record(env, drivers: Drivers, steps: int, path, world: int = 0, *, fps: float = 30,
-           progress: bool = True, width_px: int | None = None, height_px: int | None = None,
-           view_cones: bool = False, hit_boxes: bool = False, velocities: bool = False,
-           draw_flow: bool = False, quality: float = 7) -> int:
+def record(
+    env,
+    drivers: Drivers,
+    steps: int,
+    path,
+    world: int = 0,
+    *,
+    fps: float = 30,
+    progress: bool = True,
+    width_px: int | None = None,
+    height_px: int | None = None,
+    view_cones: bool = False,
+    hit_boxes: bool = False,
+    velocities: bool = False,
+    draw_flow: bool = False,
+    quality: float = 7,
+) -> int:
     """Step `env` `steps` times with `drivers` and write world `world` as an MP4 video at `path`.
 
     `drivers`: `{team: driver}` (`drivers.make_drivers`), or a function of the env's current

@@ -29,18 +29,24 @@ class WorldState:
         self.order = torch.cat([torch.arange(Pc, cfg.capacity, device=dev), torch.arange(Pc, device=dev)])
         # Type code of each slot in the state's order, to read each world's max speeds at every call
         # (`set_params` changes them in place, also under a captured graph).
-        self.slot_type = torch.cat([torch.full((cfg.capacity - Pc,), int(PREDATOR), device=dev),
-                                    torch.full((Pc,), int(PREY), device=dev)])
+        self.slot_type = torch.cat(
+            [torch.full((cfg.capacity - Pc,), int(PREDATOR), device=dev), torch.full((Pc,), int(PREY), device=dev)]
+        )
         self.size = torch.tensor([cfg.width, cfg.height], dtype=torch.float64, device=dev)
         self.length = len(STATE_FIELDS) * cfg.capacity + 1
 
     def __call__(self) -> torch.Tensor:
         t, order = self.aquarium.state.torch, self.order
         alive = t.alive[:, order]
-        fields = torch.cat([alive.unsqueeze(-1).double(), (t.position[:, order].double() / self.size).clamp(0.0, 1.0),
-                            (t.velocity[:, order].double() / self.aquarium.max_speeds[:, self.slot_type, None])
-                            .clamp(-1.0, 1.0),
-                            t.heading[:, order].clamp(-1.0, 1.0).double()], dim=-1)
+        fields = torch.cat(
+            [
+                alive.unsqueeze(-1).double(),
+                (t.position[:, order].double() / self.size).clamp(0.0, 1.0),
+                (t.velocity[:, order].double() / self.aquarium.max_speeds[:, self.slot_type, None]).clamp(-1.0, 1.0),
+                t.heading[:, order].clamp(-1.0, 1.0).double(),
+            ],
+            dim=-1,
+        )
         fields = torch.where(alive.unsqueeze(-1), fields, 0.0)
         progress = (t.world_step.double() / self.max_steps).clamp(max=1.0)
         return torch.cat([fields.flatten(1), progress.unsqueeze(1)], dim=1).float()

@@ -36,11 +36,29 @@ from aquarium_warp.records import command_line, git_info, machine_info
 def run_point(gpus: int, team: str, graphs: bool, args: argparse.Namespace) -> dict:
     """One torchrun training run; its median agent-steps/s."""
     log_dir = tempfile.mkdtemp(prefix=f"multi_{team}_{gpus}_")
-    command = [sys.executable, "-m", "torch.distributed.run", "--standalone", f"--nproc_per_node={gpus}",
-               "-m", "aquarium_warp", "train", "--team", team, "--num-worlds", str(args.num_worlds),
-               "--iterations", str(args.iterations), "--log-dir", log_dir, "--quiet",
-               "--device", "cpu" if args.device == "cpu" else "cuda",
-               "--set", f"train.cuda_graphs={'true' if graphs else 'false'}"]
+    command = [
+        sys.executable,
+        "-m",
+        "torch.distributed.run",
+        "--standalone",
+        f"--nproc_per_node={gpus}",
+        "-m",
+        "aquarium_warp",
+        "train",
+        "--team",
+        team,
+        "--num-worlds",
+        str(args.num_worlds),
+        "--iterations",
+        str(args.iterations),
+        "--log-dir",
+        log_dir,
+        "--quiet",
+        "--device",
+        "cpu" if args.device == "cpu" else "cuda",
+        "--set",
+        f"train.cuda_graphs={'true' if graphs else 'false'}",
+    ]
     env = {**os.environ, "NCCL_NVLS_ENABLE": "0", "OMP_NUM_THREADS": "1"}
     env.pop("WORLD_SIZE", None)
     started = time.perf_counter()
@@ -52,9 +70,15 @@ def run_point(gpus: int, team: str, graphs: bool, args: argparse.Namespace) -> d
     with open(os.path.join(log_dir, name), newline="", encoding="utf-8") as f:
         rows = list(csv.DictReader(f))
     fps = [float(r["fps"]) for r in rows[2:]] or [float(r["fps"]) for r in rows]
-    return {"gpus": gpus, "team": team, "cuda_graphs": graphs, "iterations": len(rows),
-            "agent_steps_per_s": statistics.median(fps), "wall_seconds": wall,
-            "agent_steps": int(float(rows[-1]["agent_steps"]))}
+    return {
+        "gpus": gpus,
+        "team": team,
+        "cuda_graphs": graphs,
+        "iterations": len(rows),
+        "agent_steps_per_s": statistics.median(fps),
+        "wall_seconds": wall,
+        "agent_steps": int(float(rows[-1]["agent_steps"])),
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -80,20 +104,29 @@ def main(argv: list[str] | None = None) -> int:
     for team in teams:
         for g in gpus:
             cuda = args.device != "cpu"
-            for graphs in ((True, False) if g == 1 and cuda else (True,) if cuda else (False,)):
+            for graphs in (True, False) if g == 1 and cuda else (True,) if cuda else (False,):
                 point = run_point(g, team, graphs, args)
                 points.append(point)
-                print(f"{team:>5} {g} GPU{'s' if g > 1 else ' '} graphs={str(graphs):5} "
-                      f"{point['agent_steps_per_s']:.3g} agent-steps/s ({point['wall_seconds']:.0f} s)", flush=True)
+                print(
+                    f"{team:>5} {g} GPU{'s' if g > 1 else ' '} graphs={str(graphs):5} "
+                    f"{point['agent_steps_per_s']:.3g} agent-steps/s ({point['wall_seconds']:.0f} s)",
+                    flush=True,
+                )
     for point in points:
         for key, graphs in (("speedup_vs_one_eager", False), ("speedup_vs_one_graphs", True)):
             base = [q for q in points if q["team"] == point["team"] and q["gpus"] == 1 and q["cuda_graphs"] == graphs]
             point[key] = point["agent_steps_per_s"] / base[0]["agent_steps_per_s"] if base else None
     name = torch.cuda.get_device_name(0) if args.device != "cpu" and torch.cuda.is_available() else "cpu"
-    result = {"benchmark": "multi_gpu_training", "device_name": name, "settings": vars(args), "points": points,
-              "torch": torch.__version__,
-              "command": command_line(argv, Path(__file__).name),
-              "git": git_info(), "machine": machine_info("cpu" if args.device == "cpu" else "cuda:0")}
+    result = {
+        "benchmark": "multi_gpu_training",
+        "device_name": name,
+        "settings": vars(args),
+        "points": points,
+        "torch": torch.__version__,
+        "command": command_line(argv, Path(__file__).name),
+        "git": git_info(),
+        "machine": machine_info("cpu" if args.device == "cpu" else "cuda:0"),
+    }
     out = Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     path = out / f"multi_gpu_{'cpu' if args.device == 'cpu' else 'cuda'}.json"
@@ -101,8 +134,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\n{'team':>5} {'GPUs':>4} {'graphs':>6} {'agent-steps/s':>14} {'vs 1 eager':>10} {'vs 1 graphs':>11}")
     for q in points:
         ratios = [f"{q[k]:.2f}" if q[k] else "-" for k in ("speedup_vs_one_eager", "speedup_vs_one_graphs")]
-        print(f"{q['team']:>5} {q['gpus']:>4} {str(q['cuda_graphs']):>6} {q['agent_steps_per_s']:>14.3g} "
-              f"{ratios[0]:>10} {ratios[1]:>11}")
+        print(
+            f"{q['team']:>5} {q['gpus']:>4} {str(q['cuda_graphs']):>6} {q['agent_steps_per_s']:>14.3g} "
+            f"{ratios[0]:>10} {ratios[1]:>11}"
+        )
     print(f"wrote {path}")
     return 0
 

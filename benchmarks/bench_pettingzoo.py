@@ -117,8 +117,14 @@ def _time_loop(one_step, seconds: float, warmup: float, min_steps: int = 3) -> d
         if steps >= min_steps and perf() - t0 >= seconds:
             break
     elapsed = perf() - t0
-    return {"steps": steps, "agent_steps": agent_steps, "elapsed_s": elapsed, "env_steps_per_s": steps / elapsed,
-            "agent_steps_per_s": agent_steps / elapsed, "mean_agents": agent_steps / steps}
+    return {
+        "steps": steps,
+        "agent_steps": agent_steps,
+        "elapsed_s": elapsed,
+        "env_steps_per_s": steps / elapsed,
+        "agent_steps_per_s": agent_steps / elapsed,
+        "mean_agents": agent_steps / steps,
+    }
 
 
 def measure_ours(which: str, seconds: float, repeats: int, warmup: float) -> dict:
@@ -180,8 +186,13 @@ def breakdown(steps: int = 20000) -> dict:
     bare = time.perf_counter() - t2
     env.close()
     us = 1e6 / steps
-    out = {"steps": steps, "total_us": total * us, "batched_step_us": timer.seconds * us,
-           "actions_us": actions * us, "bare_batched_step_us": bare * us}
+    out = {
+        "steps": steps,
+        "total_us": total * us,
+        "batched_step_us": timer.seconds * us,
+        "actions_us": actions * us,
+        "bare_batched_step_us": bare * us,
+    }
     out["wrapper_us"] = out["total_us"] - out["batched_step_us"] - out["actions_us"]
     return out
 
@@ -253,47 +264,75 @@ def main(argv=None) -> int:
 
     rows = [(r["entry_point"], r) for r in ours.values()] + [(r["entry_point"], r) for r in original.values()]
     base = original.get("raw", {}).get("env_steps_per_s")
-    print(f"\nPettingZoo env, default config (16 prey + 1 predator), CPU, random actions, no rendering "
-          f"({args.repeats} runs x {args.seconds:g} s, median)")
-    header = (f"{'entry point':44s} {'env-steps/s':>12s} {'agent-steps/s':>14s} {'vs original raw':>16s}  "
-              "runs (env-steps/s)")
+    print(
+        f"\nPettingZoo env, default config (16 prey + 1 predator), CPU, random actions, no rendering "
+        f"({args.repeats} runs x {args.seconds:g} s, median)"
+    )
+    header = (
+        f"{'entry point':44s} {'env-steps/s':>12s} {'agent-steps/s':>14s} {'vs original raw':>16s}  runs (env-steps/s)"
+    )
     print(header)
     print("-" * len(header))
     for name, r in rows:
         ratio = f"{r['env_steps_per_s'] / base:15.1f}x" if base else f"{'-':>16s}"
         per_run = ", ".join(f"{x['env_steps_per_s']:.0f}" for x in r["runs"])
         print(f"{name:44s} {r['env_steps_per_s']:12.1f} {r['agent_steps_per_s']:14.0f} {ratio}  {per_run}")
-    print(f"\nper parallel env-step ({parts['steps']} steps): {parts['total_us']:.1f} us = BatchedAquarium.step "
-          f"{parts['batched_step_us']:.1f} us + drawing actions {parts['actions_us']:.1f} us + wrapper "
-          f"{parts['wrapper_us']:.1f} us  (bare BatchedAquarium.step loop: {parts['bare_batched_step_us']:.1f} us)")
-    print(f"parallel reset(): seeded {resets['seeded_us']:.1f} us, unseeded {resets['unseeded_us']:.1f} us "
-          f"(mean of {resets['resets']}; target for seeded: < {TARGET_SEEDED_RESET_US:g} us)")
-    checks = {"seeded_reset_us": resets["seeded_us"], "target_seeded_reset_us": TARGET_SEEDED_RESET_US,
-              "seeded_reset_target_met": resets["seeded_us"] < TARGET_SEEDED_RESET_US}
+    print(
+        f"\nper parallel env-step ({parts['steps']} steps): {parts['total_us']:.1f} us = BatchedAquarium.step "
+        f"{parts['batched_step_us']:.1f} us + drawing actions {parts['actions_us']:.1f} us + wrapper "
+        f"{parts['wrapper_us']:.1f} us  (bare BatchedAquarium.step loop: {parts['bare_batched_step_us']:.1f} us)"
+    )
+    print(
+        f"parallel reset(): seeded {resets['seeded_us']:.1f} us, unseeded {resets['unseeded_us']:.1f} us "
+        f"(mean of {resets['resets']}; target for seeded: < {TARGET_SEEDED_RESET_US:g} us)"
+    )
+    checks = {
+        "seeded_reset_us": resets["seeded_us"],
+        "target_seeded_reset_us": TARGET_SEEDED_RESET_US,
+        "seeded_reset_target_met": resets["seeded_us"] < TARGET_SEEDED_RESET_US,
+    }
     if base:
-        checks.update({"speedup_parallel_vs_original_raw": ours["parallel"]["env_steps_per_s"] / base,
-                       "speedup_aec_vs_original_raw": ours["aec"]["env_steps_per_s"] / base,
-                       "target_speedup": TARGET_SPEEDUP})
+        checks.update(
+            {
+                "speedup_parallel_vs_original_raw": ours["parallel"]["env_steps_per_s"] / base,
+                "speedup_aec_vs_original_raw": ours["aec"]["env_steps_per_s"] / base,
+                "target_speedup": TARGET_SPEEDUP,
+            }
+        )
         checks["target_met"] = checks["speedup_parallel_vs_original_raw"] >= TARGET_SPEEDUP
-        print(f"parallel_env: {checks['speedup_parallel_vs_original_raw']:.1f}x the original raw_env "
-              f"(target {TARGET_SPEEDUP:g}x: {'met' if checks['target_met'] else 'MISSED'})")
+        print(
+            f"parallel_env: {checks['speedup_parallel_vs_original_raw']:.1f}x the original raw_env "
+            f"(target {TARGET_SPEEDUP:g}x: {'met' if checks['target_met'] else 'MISSED'})"
+        )
     print(f"load average (1, 5, 15 min) before {load_before}, after {load_after}")
 
     result = {
         "benchmark": "aquarium_v1 PettingZoo env vs original marl-aquarium 0.1.10, CPU, default config, "
-                     "random actions, no rendering",
+        "random actions, no rendering",
         "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "git_commit": git_info()["commit"],
         "command": command_line(argv, Path(__file__).name),
-        "method": {"seconds": args.seconds, "repeats": args.repeats, "warmup_s_min": args.warmup, "min_steps": 3,
-                   "ours": "in this process, one fresh env per run, seed=run, actions numpy default_rng(run)",
-                   "original": "benchmarks/original_aquarium.measure_original (fresh process per run)",
-                   "resets_included": True, "statistic": "median over runs",
-                   "aec_env_step": "one underlying ParallelEnv step (a full cycle of the live agents)"},
-        "machine": machine_info("cpu"), "loadavg_before": load_before, "loadavg_after": load_after,
+        "method": {
+            "seconds": args.seconds,
+            "repeats": args.repeats,
+            "warmup_s_min": args.warmup,
+            "min_steps": 3,
+            "ours": "in this process, one fresh env per run, seed=run, actions numpy default_rng(run)",
+            "original": "benchmarks/original_aquarium.measure_original (fresh process per run)",
+            "resets_included": True,
+            "statistic": "median over runs",
+            "aec_env_step": "one underlying ParallelEnv step (a full cycle of the live agents)",
+        },
+        "machine": machine_info("cpu"),
+        "loadavg_before": load_before,
+        "loadavg_after": load_after,
         "versions": _versions(),
-        "ours": ours, "breakdown_us_per_parallel_step": parts, "reset_us": resets, "original": original or None,
-        "original_error": original_error, "checks": checks,
+        "ours": ours,
+        "breakdown_us_per_parallel_step": parts,
+        "reset_us": resets,
+        "original": original or None,
+        "original_error": original_error,
+        "checks": checks,
     }
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)

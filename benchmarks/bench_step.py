@@ -49,13 +49,17 @@ RESULTS = Path(__file__).resolve().parent / "results"
 
 
 def unlimited(cfg: AquariumConfig) -> AquariumConfig:
-    return dataclasses.replace(cfg, fov_enabled=False,
-                               prey=dataclasses.replace(cfg.prey, view_distance=math.inf),
-                               predator=dataclasses.replace(cfg.predator, view_distance=math.inf))
+    return dataclasses.replace(
+        cfg,
+        fov_enabled=False,
+        prey=dataclasses.replace(cfg.prey, view_distance=math.inf),
+        predator=dataclasses.replace(cfg.predator, view_distance=math.inf),
+    )
 
 
-def measure(cfg: AquariumConfig, worlds: int, device: str, seconds: float, repeats: int,
-            step_kernel: str = "auto") -> dict:
+def measure(
+    cfg: AquariumConfig, worlds: int, device: str, seconds: float, repeats: int, step_kernel: str = "auto"
+) -> dict:
     env = BatchedAquarium(cfg, num_worlds=worlds, device=device, seed=0, step_kernel=step_kernel)
     gen = torch.Generator(device=env.torch_device).manual_seed(0)
     pool = [random_actions(cfg, worlds, gen, env.torch_device) for _ in range(8)]
@@ -72,9 +76,16 @@ def measure(cfg: AquariumConfig, worlds: int, device: str, seconds: float, repea
     agents = worlds * cfg.capacity
     path = env.step_kernel
     env.close()
-    return {"step_kernel": path, "worlds": worlds, "agents_per_world": cfg.capacity, "agents": agents,
-            "step_ms": step_time * 1e3, "agent_steps_per_s": agents / step_time,
-            "ns_per_agent_step": step_time / agents * 1e9, "runs_step_ms": [t * 1e3 for t in per_step]}
+    return {
+        "step_kernel": path,
+        "worlds": worlds,
+        "agents_per_world": cfg.capacity,
+        "agents": agents,
+        "step_ms": step_time * 1e3,
+        "agent_steps_per_s": agents / step_time,
+        "ns_per_agent_step": step_time / agents * 1e9,
+        "runs_step_ms": [t * 1e3 for t in per_step],
+    }
 
 
 def main(argv=None) -> int:
@@ -84,19 +95,29 @@ def main(argv=None) -> int:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--max-agents", type=int, default=100_000)
     parser.add_argument("--no-original", action="store_true", help="skip the original marl-aquarium")
-    parser.add_argument("--large", action="store_true",
-                        help="add GPU-sized points: 4096 and 65536 default worlds, one world of 1M agents")
-    parser.add_argument("--step-kernel", nargs="+", default=["auto"], choices=("auto", "fused", "stages"),
-                        help="step paths to measure at every point (default: auto)")
+    parser.add_argument(
+        "--large",
+        action="store_true",
+        help="add GPU-sized points: 4096 and 65536 default worlds, one world of 1M agents",
+    )
+    parser.add_argument(
+        "--step-kernel",
+        nargs="+",
+        default=["auto"],
+        choices=("auto", "fused", "stages"),
+        help="step paths to measure at every point (default: auto)",
+    )
     parser.add_argument("--out", default=None)
     args = parser.parse_args(argv)
     if args.repeats < 1:
         parser.error(f"--repeats must be >= 1, got {args.repeats}")
 
     points = [("default", AquariumConfig(), w) for w in ((1, 64, 1024, 4096, 65536) if args.large else (1, 64, 1024))]
-    for label, make in (("density", density_config),
-                        ("density fov off", lambda n: density_config(n, fov_enabled=False)),
-                        ("density fov off, unlimited view", lambda n: unlimited(density_config(n)))):
+    for label, make in (
+        ("density", density_config),
+        ("density fov off", lambda n: density_config(n, fov_enabled=False)),
+        ("density fov off, unlimited view", lambda n: unlimited(density_config(n))),
+    ):
         sizes = (1_000, 10_000, 100_000) + ((1_000_000,) if args.large else ())
         points += [(label, make(n), 1) for n in sizes if n <= args.max_agents]
     rows = []
@@ -106,23 +127,32 @@ def main(argv=None) -> int:
                 continue  # worlds of several cells: only the staged step applies
             row = {"config": label, **measure(cfg, worlds, args.device, args.seconds, args.repeats, step_kernel)}
             rows.append(row)
-            print(f"{label:34s} {row['worlds']:6d} x {row['agents_per_world']:7d} {row['step_kernel']:6s} "
-                  f"{row['step_ms']:9.3f} ms  {row['agent_steps_per_s']:11.3e} agent-steps/s  "
-                  f"{row['ns_per_agent_step']:8.1f} ns/agent", flush=True)
+            print(
+                f"{label:34s} {row['worlds']:6d} x {row['agents_per_world']:7d} {row['step_kernel']:6s} "
+                f"{row['step_ms']:9.3f} ms  {row['agent_steps_per_s']:11.3e} agent-steps/s  "
+                f"{row['ns_per_agent_step']:8.1f} ns/agent",
+                flush=True,
+            )
 
     pettingzoo = None
     if args.device == "cpu":
         from bench_pettingzoo import measure_ours
+
         pettingzoo = measure_ours("parallel", seconds=max(2.0, args.seconds), repeats=3, warmup=1.0)
-        print(f"{'aquarium_v1.parallel_env (PettingZoo)':34s} {1:6d} x {17:7d}  "
-              f"{1e3 / pettingzoo['env_steps_per_s']:9.3f} ms  {pettingzoo['agent_steps_per_s']:11.3e} agent-steps/s")
+        print(
+            f"{'aquarium_v1.parallel_env (PettingZoo)':34s} {1:6d} x {17:7d}  "
+            f"{1e3 / pettingzoo['env_steps_per_s']:9.3f} ms  {pettingzoo['agent_steps_per_s']:11.3e} agent-steps/s"
+        )
 
     original = None
     if not args.no_original:
         from original_aquarium import measure_original
+
         original = measure_original(seconds=max(5.0, args.seconds * 2), repeats=3, which="raw")
-        print(f"{'original marl-aquarium 0.1.10':34s} {1:6d} x {17:7d}  "
-              f"{1e3 / original['env_steps_per_s']:9.3f} ms  {original['agent_steps_per_s']:11.3e} agent-steps/s")
+        print(
+            f"{'original marl-aquarium 0.1.10':34s} {1:6d} x {17:7d}  "
+            f"{1e3 / original['env_steps_per_s']:9.3f} ms  {original['agent_steps_per_s']:11.3e} agent-steps/s"
+        )
 
     checks = {}
     # The checks read each point's first measured path (the first --step-kernel that applies).
@@ -131,15 +161,17 @@ def main(argv=None) -> int:
         by.setdefault((r["config"], r["worlds"], r["agents_per_world"]), r)
     paths = {(r["config"], r["worlds"], r["step_kernel"]): r for r in rows}
     if ("default", 1024, "stages") in paths and ("default", 1024, "fused") in paths:
-        checks["fused_step_speedup_1024_worlds"] = (paths[("default", 1024, "stages")]["step_ms"]
-                                                   / paths[("default", 1024, "fused")]["step_ms"])
+        checks["fused_step_speedup_1024_worlds"] = (
+            paths[("default", 1024, "stages")]["step_ms"] / paths[("default", 1024, "fused")]["step_ms"]
+        )
     if original:
         big = by[("default", 1024, 17)]["agent_steps_per_s"]
         checks["speedup_1024_worlds_vs_original"] = big / original["agent_steps_per_s"]
         checks["speedup_1024_worlds_target"] = 1000.0
         if pettingzoo:
-            checks["pettingzoo_env_steps_speedup_vs_original"] = (pettingzoo["env_steps_per_s"]
-                                                                 / original["env_steps_per_s"])
+            checks["pettingzoo_env_steps_speedup_vs_original"] = (
+                pettingzoo["env_steps_per_s"] / original["env_steps_per_s"]
+            )
             checks["pettingzoo_env_steps_speedup_target"] = 20.0
     for label in ("density", "density fov off", "density fov off, unlimited view"):
         series = [r for key, r in by.items() if key[0] == label]
@@ -153,12 +185,19 @@ def main(argv=None) -> int:
     result = {
         "device": args.device,
         "device_name": device.name if device.is_cuda else platform.processor() or platform.machine(),
-        "cpu_count": os.cpu_count(), "python": platform.python_version(), "warp": wp.__version__,
-        "torch": torch.__version__, "git_commit": git_info()["commit"],
+        "cpu_count": os.cpu_count(),
+        "python": platform.python_version(),
+        "warp": wp.__version__,
+        "torch": torch.__version__,
+        "git_commit": git_info()["commit"],
         "command": command_line(argv, Path(__file__).name),
         "seconds": args.seconds,
-        "repeats": args.repeats, "step_kernels": args.step_kernel,
-        "rows": rows, "pettingzoo_parallel_env": pettingzoo, "original": original, "checks": checks,
+        "repeats": args.repeats,
+        "step_kernels": args.step_kernel,
+        "rows": rows,
+        "pettingzoo_parallel_env": pettingzoo,
+        "original": original,
+        "checks": checks,
     }
     out = Path(args.out) if args.out else RESULTS / f"step_{args.device.replace(':', '')}.json"
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -45,17 +45,31 @@ def sync(device: torch.device) -> None:
 # graphs, and the adaptive learning-rate schedule (its update runs eagerly between replayed rollouts,
 # as a torchrun run's does).
 ADAPTIVE = {"runner": {"algorithm": {"schedule": "adaptive", "desired_kl": 0.01}}}
-VARIANTS = {"default": {}, "tf32": {"train": {"tf32": True}},
-            "compile": {"runner": {"torch_compile_mode": "default"}},
-            "tf32+compile": {"train": {"tf32": True}, "runner": {"torch_compile_mode": "default"}},
-            "eager": {"train": {"cuda_graphs": False}},
-            "adaptive": ADAPTIVE, "adaptive+eager": {**ADAPTIVE, "train": {"cuda_graphs": False}}}
+VARIANTS = {
+    "default": {},
+    "tf32": {"train": {"tf32": True}},
+    "compile": {"runner": {"torch_compile_mode": "default"}},
+    "tf32+compile": {"train": {"tf32": True}, "runner": {"torch_compile_mode": "default"}},
+    "eager": {"train": {"cuda_graphs": False}},
+    "adaptive": ADAPTIVE,
+    "adaptive+eager": {**ADAPTIVE, "train": {"cuda_graphs": False}},
+}
 
 
-def measure(device: str, worlds: int, sharing: str, loop: str, warmup: int, iterations: int,
-            variant: str = "default") -> dict:
-    changes = {"train": {"num_worlds": worlds, "device": device, "sharing": sharing, "loop": loop,
-                         "quiet": True, "export": [], "iterations": warmup + iterations + 1}}
+def measure(
+    device: str, worlds: int, sharing: str, loop: str, warmup: int, iterations: int, variant: str = "default"
+) -> dict:
+    changes = {
+        "train": {
+            "num_worlds": worlds,
+            "device": device,
+            "sharing": sharing,
+            "loop": loop,
+            "quiet": True,
+            "export": [],
+            "iterations": warmup + iterations + 1,
+        }
+    }
     cfg = make_config("paper", changes, VARIANTS[variant])
     torch.backends.cuda.matmul.allow_tf32 = False  # process-wide: a TF32 variant must not leak into the next
     trainer = Trainer(cfg)
@@ -70,12 +84,20 @@ def measure(device: str, worlds: int, sharing: str, loop: str, warmup: int, iter
     trainer.train(iterations)
     sync(dev)
     elapsed = time.perf_counter() - start
-    point = {"worlds": worlds, "rows": rows, "sharing": sharing, "loop": loop, "variant": variant,
-             "graphs": bool(loop == "fast" and trainer.runner.loop.graphs),
-             "update_graphs": list(trainer.runner.loop.update_graphs) if loop == "fast" else [],
-             "iterations": iterations, "seconds": elapsed, "warmup_seconds": warmup_time,
-             "iteration_ms": 1e3 * elapsed / iterations,
-             "agent_steps_per_s": rows * steps * iterations / elapsed}
+    point = {
+        "worlds": worlds,
+        "rows": rows,
+        "sharing": sharing,
+        "loop": loop,
+        "variant": variant,
+        "graphs": bool(loop == "fast" and trainer.runner.loop.graphs),
+        "update_graphs": list(trainer.runner.loop.update_graphs) if loop == "fast" else [],
+        "iterations": iterations,
+        "seconds": elapsed,
+        "warmup_seconds": warmup_time,
+        "iteration_ms": 1e3 * elapsed / iterations,
+        "agent_steps_per_s": rows * steps * iterations / elapsed,
+    }
     if loop == "fast":
         phases = trainer.runner.loop.phase_times()
         point["phase_ms"] = {k: 1e3 * v for k, v in phases.items()}
@@ -91,14 +113,23 @@ def measure_in_subprocess(args, worlds: int, sharing: str, loop: str, variant: s
     carried over from the previous point, and a failed point cannot disturb the next."""
     import subprocess
 
-    point = json.dumps({"device": args.device, "worlds": worlds, "sharing": sharing, "loop": loop,
-                        "warmup": args.warmup, "iterations": args.iterations, "variant": variant,
-                        "blas": args.blas})
+    point = json.dumps(
+        {
+            "device": args.device,
+            "worlds": worlds,
+            "sharing": sharing,
+            "loop": loop,
+            "warmup": args.warmup,
+            "iterations": args.iterations,
+            "variant": variant,
+            "blas": args.blas,
+        }
+    )
     done = subprocess.run([sys.executable, __file__, "--point", point], capture_output=True, text=True)
     lines = [line for line in done.stdout.splitlines() if line.startswith("POINT ")]
     if done.returncode != 0 or not lines:
         raise RuntimeError(f"exit {done.returncode}: {(done.stderr or done.stdout).strip()[-1500:]}")
-    return json.loads(lines[-1][len("POINT "):])
+    return json.loads(lines[-1][len("POINT ") :])
 
 
 def run_point(text: str) -> int:
@@ -116,18 +147,25 @@ def main(argv=None) -> int:
         return run_point(argv[1])
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--device", default="cuda:0" if torch.cuda.is_available() else "cpu")
-    p.add_argument("--worlds", default="256,1024,4096,16384,65536",
-                   help="world counts, a comma list; '...' continues the progression")
+    p.add_argument(
+        "--worlds",
+        default="256,1024,4096,16384,65536",
+        help="world counts, a comma list; '...' continues the progression",
+    )
     p.add_argument("--sharing", default="parameter,individual", help="parameter and/or individual")
     p.add_argument("--loops", default="fast,rsl-rl", help="fast and/or rsl-rl")
-    p.add_argument("--variants", default="default",
-                   help=f"fast-loop variants, comma-separated: {', '.join(VARIANTS)}")
-    p.add_argument("--rsl-rl-max-worlds", type=int, default=65536,
-                   help="measure rsl-rl's loop only up to this many worlds")
+    p.add_argument("--variants", default="default", help=f"fast-loop variants, comma-separated: {', '.join(VARIANTS)}")
+    p.add_argument(
+        "--rsl-rl-max-worlds", type=int, default=65536, help="measure rsl-rl's loop only up to this many worlds"
+    )
     p.add_argument("--warmup", type=int, default=2, help="untimed iterations first")
     p.add_argument("--iterations", type=int, default=10, help="timed iterations")
-    p.add_argument("--blas", choices=("cublas",), default=None,
-                   help="torch.backends.cuda.preferred_blas_library for every point (default: torch's choice)")
+    p.add_argument(
+        "--blas",
+        choices=("cublas",),
+        default=None,
+        help="torch.backends.cuda.preferred_blas_library for every point (default: torch's choice)",
+    )
     p.add_argument("--commit", default=None, help="commit to record where git is not available")
     p.add_argument("--out-dir", default=".", help="where the JSON (and plot) go")
     p.add_argument("--plot", action="store_true", help="also write a PNG plot")
@@ -148,8 +186,10 @@ def main(argv=None) -> int:
         p.error(f"--variants takes {', '.join(VARIANTS)}")
 
     points = []
-    header = (f"{'worlds':>7} {'rows':>8} {'sharing':>10} {'loop':>7} {'variant':>12} {'ms/it':>9} "
-              f"{'agent-steps/s':>14}  phases (ms)")
+    header = (
+        f"{'worlds':>7} {'rows':>8} {'sharing':>10} {'loop':>7} {'variant':>12} {'ms/it':>9} "
+        f"{'agent-steps/s':>14}  phases (ms)"
+    )
     print(header)
     for w in worlds:
         for sharing in sharings:
@@ -161,21 +201,33 @@ def main(argv=None) -> int:
                     pt = measure_in_subprocess(args, w, sharing, loop, variant)
                 except Exception as error:  # noqa: BLE001  (a point that does not run here is reported, not fatal)
                     print(f"{w:>7} {'':>8} {sharing:>10} {loop:>7} {variant:>12} failed: {error!r}"[:400])
-                    points.append({"worlds": w, "sharing": sharing, "loop": loop, "variant": variant,
-                                   "error": repr(error)[:2000]})
+                    points.append(
+                        {"worlds": w, "sharing": sharing, "loop": loop, "variant": variant, "error": repr(error)[:2000]}
+                    )
                     continue
                 points.append(pt)
                 phases = " ".join(f"{k} {v:.2f}" for k, v in pt.get("phase_ms", {}).items())
-                print(f"{w:>7} {pt['rows']:>8} {sharing:>10} {loop:>7} {variant:>12} {pt['iteration_ms']:>9.2f} "
-                      f"{pt['agent_steps_per_s']:>14.3e}  {phases}", flush=True)
+                print(
+                    f"{w:>7} {pt['rows']:>8} {sharing:>10} {loop:>7} {variant:>12} {pt['iteration_ms']:>9.2f} "
+                    f"{pt['agent_steps_per_s']:>14.3e}  {phases}",
+                    flush=True,
+                )
     points_ok = [q for q in points if "error" not in q]
     speedups = []
     for fast in (q for q in points_ok if q["loop"] == "fast" and q["variant"] == "default"):
-        ref = [q for q in points_ok if q["loop"] == "rsl-rl" and q["worlds"] == fast["worlds"]
-               and q["sharing"] == fast["sharing"]]
+        ref = [
+            q
+            for q in points_ok
+            if q["loop"] == "rsl-rl" and q["worlds"] == fast["worlds"] and q["sharing"] == fast["sharing"]
+        ]
         if ref:
-            speedups.append({"worlds": fast["worlds"], "sharing": fast["sharing"],
-                             "speedup": fast["agent_steps_per_s"] / ref[0]["agent_steps_per_s"]})
+            speedups.append(
+                {
+                    "worlds": fast["worlds"],
+                    "sharing": fast["sharing"],
+                    "speedup": fast["agent_steps_per_s"] / ref[0]["agent_steps_per_s"],
+                }
+            )
     for s in speedups:
         print(f"speed-up fast / rsl-rl loop: {s['worlds']:>6} worlds {s['sharing']:>10}: {s['speedup']:.1f}x")
 
@@ -185,14 +237,21 @@ def main(argv=None) -> int:
 
     dev = torch.device(args.device)
     result = {
-        "benchmark": "bench_training", "task": "paper preset (6 prey vs NaivChase, 2x64 tanh, T=32, 5x4)",
+        "benchmark": "bench_training",
+        "task": "paper preset (6 prey vs NaivChase, 2x64 tanh, T=32, 5x4)",
         "device": args.device,
-        "device_name": (torch.cuda.get_device_name(dev) if dev.type == "cuda"
-                        else platform.processor() or platform.machine()),
-        "cpu_count": os.cpu_count(), "python": platform.python_version(), "torch": torch.__version__,
-        "warp": wp.__version__, "rsl_rl": version("rsl-rl-lib"), "git": git_info(args.commit),
+        "device_name": (
+            torch.cuda.get_device_name(dev) if dev.type == "cuda" else platform.processor() or platform.machine()
+        ),
+        "cpu_count": os.cpu_count(),
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+        "warp": wp.__version__,
+        "rsl_rl": version("rsl-rl-lib"),
+        "git": git_info(args.commit),
         "command": command_line(argv, Path(sys.argv[0]).name),
-        "points": points, "speedups": speedups,
+        "points": points,
+        "speedups": speedups,
     }
     out_dir = Path(args.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -213,12 +272,23 @@ def plot(result: dict, path: Path) -> None:
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     for loop, style in (("fast", "-"), ("rsl-rl", "--")):
         for sharing, marker in (("parameter", "o"), ("individual", "s")):
-            pts = [q for q in result["points"] if q["loop"] == loop and q["sharing"] == sharing
-                   and q.get("variant", "default") == "default" and "error" not in q]
+            pts = [
+                q
+                for q in result["points"]
+                if q["loop"] == loop
+                and q["sharing"] == sharing
+                and q.get("variant", "default") == "default"
+                and "error" not in q
+            ]
             if pts:
-                ax.plot([q["worlds"] for q in pts], [q["agent_steps_per_s"] for q in pts], style, marker=marker,
-                        label=f"{'fast loop' if loop == 'fast' else 'rsl-rl runner'}, "
-                              f"{'PS' if sharing == 'parameter' else 'IL'}")
+                ax.plot(
+                    [q["worlds"] for q in pts],
+                    [q["agent_steps_per_s"] for q in pts],
+                    style,
+                    marker=marker,
+                    label=f"{'fast loop' if loop == 'fast' else 'rsl-rl runner'}, "
+                    f"{'PS' if sharing == 'parameter' else 'IL'}",
+                )
     ax.set_xscale("log", base=2)
     ax.set_yscale("log")
     ax.set_xlabel("worlds (6 learning prey each)")

@@ -84,16 +84,29 @@ def measure(path: str, worlds: int, max_steps: int, seconds: float, warmup: floa
         elapsed = perf() - t0
     finally:
         vec.close()
-    return {"steps": steps, "rows": rows, "elapsed_s": elapsed, "env_steps_per_s": rows * steps / elapsed,
-            "vector_steps_per_s": steps / elapsed}
+    return {
+        "steps": steps,
+        "rows": rows,
+        "elapsed_s": elapsed,
+        "env_steps_per_s": rows * steps / elapsed,
+        "vector_steps_per_s": steps / elapsed,
+    }
 
 
 def _versions() -> dict:
     from importlib import metadata
 
     out = {}
-    for dist in ("aquarium-warp", "warp-lang", "torch", "numpy", "gymnasium", "pettingzoo", "SuperSuit",
-                 "stable_baselines3"):
+    for dist in (
+        "aquarium-warp",
+        "warp-lang",
+        "torch",
+        "numpy",
+        "gymnasium",
+        "pettingzoo",
+        "SuperSuit",
+        "stable_baselines3",
+    ):
         try:
             out[dist] = metadata.version(dist)
         except metadata.PackageNotFoundError:
@@ -108,8 +121,14 @@ def main(argv=None) -> int:
     parser.add_argument("--seconds", type=float, default=3.0, help="timed window per run (s)")
     parser.add_argument("--repeats", type=int, default=3, help="runs per path (median reported)")
     parser.add_argument("--warmup", type=float, default=1.0, help="warm-up per run (s)")
-    parser.add_argument("--paths", nargs="+", default=list(PATHS), choices=PATHS, metavar="PATH",
-                        help=f"paths to measure (default: all of {PATHS})")
+    parser.add_argument(
+        "--paths",
+        nargs="+",
+        default=list(PATHS),
+        choices=PATHS,
+        metavar="PATH",
+        help=f"paths to measure (default: all of {PATHS})",
+    )
     parser.add_argument("--out", default=str(RESULTS / "vector_envs_cpu.json"))
     args = parser.parse_args(argv)
     if args.repeats < 1:
@@ -123,22 +142,27 @@ def main(argv=None) -> int:
     results = []
     for worlds in args.worlds:
         for path in args.paths:
-            runs = [measure(path, worlds, args.max_steps, args.seconds, args.warmup, run)
-                    for run in range(args.repeats)]
+            runs = [
+                measure(path, worlds, args.max_steps, args.seconds, args.warmup, run) for run in range(args.repeats)
+            ]
             median = statistics.median(r["env_steps_per_s"] for r in runs)
-            results.append({"path": path, "worlds": worlds, "rows": runs[0]["rows"], "env_steps_per_s": median,
-                            "runs": runs})
+            results.append(
+                {"path": path, "worlds": worlds, "rows": runs[0]["rows"], "env_steps_per_s": median, "runs": runs}
+            )
             print(f"  measured {path} x {worlds} worlds: {median:,.0f} env-steps/s", file=sys.stderr)
     load_after = os.getloadavg()
 
-    print(f"\nVector envs, default config (16 prey + 1 predator = 17 rows per world), max_steps={args.max_steps}, "
-          f"CPU, random actions ({args.repeats} runs x {args.seconds:g} s, median)")
+    print(
+        f"\nVector envs, default config (16 prey + 1 predator = 17 rows per world), max_steps={args.max_steps}, "
+        f"CPU, random actions ({args.repeats} runs x {args.seconds:g} s, median)"
+    )
     header = f"{'path':24s} {'worlds':>6s} {'rows':>6s} {'env-steps/s':>13s} {'vs supersuit sb3':>17s}"
     print(header)
     print("-" * len(header))
     for r in results:
-        base = next((x["env_steps_per_s"] for x in results
-                     if x["worlds"] == r["worlds"] and x["path"] == "supersuit sb3"), None)
+        base = next(
+            (x["env_steps_per_s"] for x in results if x["worlds"] == r["worlds"] and x["path"] == "supersuit sb3"), None
+        )
         r["vs_supersuit_sb3"] = r["env_steps_per_s"] / base if base else None
         ratio = f"{r['vs_supersuit_sb3']:16.1f}x" if base else f"{'-':>17s}"
         print(f"{r['path']:24s} {r['worlds']:6d} {r['rows']:6d} {r['env_steps_per_s']:13,.0f} {ratio}")
@@ -148,15 +172,25 @@ def main(argv=None) -> int:
         "benchmark": "native vector envs (Gymnasium VectorEnv, SB3 VecEnv) vs SuperSuit over aquarium_v1, CPU",
         "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "git": git_info(),
-        "command": command_line([os.path.relpath(__file__, HERE.parent), *(argv if argv is not None else sys.argv[1:])],
-                                "python"),
-        "method": {"seconds": args.seconds, "repeats": args.repeats, "warmup_s_min": args.warmup,
-                   "max_steps": args.max_steps, "config": "AquariumConfig() defaults but max_steps",
-                   "env_step": "one row (agent) step; env-steps/s = rows x vector steps / s",
-                   "actions": "numpy default_rng(run).integers(0, 16, (64, rows)), cycled",
-                   "statistic": "median over runs", "resets_included": True},
-        "machine": machine_info("cpu"), "loadavg_before": list(load_before), "loadavg_after": list(load_after),
-        "versions": _versions(), "results": results,
+        "command": command_line(
+            [os.path.relpath(__file__, HERE.parent), *(argv if argv is not None else sys.argv[1:])], "python"
+        ),
+        "method": {
+            "seconds": args.seconds,
+            "repeats": args.repeats,
+            "warmup_s_min": args.warmup,
+            "max_steps": args.max_steps,
+            "config": "AquariumConfig() defaults but max_steps",
+            "env_step": "one row (agent) step; env-steps/s = rows x vector steps / s",
+            "actions": "numpy default_rng(run).integers(0, 16, (64, rows)), cycled",
+            "statistic": "median over runs",
+            "resets_included": True,
+        },
+        "machine": machine_info("cpu"),
+        "loadavg_before": list(load_before),
+        "loadavg_after": list(load_after),
+        "versions": _versions(),
+        "results": results,
     }
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -48,13 +48,20 @@ def measure(agents: int, seconds: float, max_agents: int, device: str) -> dict:
             page.quit()
         frame_bytes = len(pack_frame(viewer.snapshot, None, max_agents))
     elapsed = t1 - t0
-    return {"agents": agents, "prey": agents - predators, "predators": predators, "world_px": round(side),
-            "max_agents": max_agents, "agents_sent_per_frame": sent, "frame_bytes": frame_bytes,
-            "server_frames_per_s": round((frames1 - frames0) / elapsed, 2),
-            "steps_per_s": round((steps1 - steps0) / elapsed, 2),
-            "page_frames_received_per_s": round((received1 - received0) / elapsed, 2),
-            "page_frames_drawn_per_s": round((drawn1 - drawn0) / elapsed, 2),
-            "last_tick_ms": round(viewer.tick_seconds * 1e3, 2)}
+    return {
+        "agents": agents,
+        "prey": agents - predators,
+        "predators": predators,
+        "world_px": round(side),
+        "max_agents": max_agents,
+        "agents_sent_per_frame": sent,
+        "frame_bytes": frame_bytes,
+        "server_frames_per_s": round((frames1 - frames0) / elapsed, 2),
+        "steps_per_s": round((steps1 - steps0) / elapsed, 2),
+        "page_frames_received_per_s": round((received1 - received0) / elapsed, 2),
+        "page_frames_drawn_per_s": round((drawn1 - drawn0) / elapsed, 2),
+        "last_tick_ms": round(viewer.tick_seconds * 1e3, 2),
+    }
 
 
 def main() -> int:
@@ -69,11 +76,20 @@ def main() -> int:
     chromium = subprocess.run([shutil.which("chromium") or "chromium", "--version"], capture_output=True, text=True)
     commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
     info = machine_info(args.device)
-    result = {"command": command_line(sys.argv, "python"), "commit": commit, "device": args.device,
-              "device_name": info["device_name"], "versions": {k: info[k] for k in ("python", "warp", "torch")},
-              "machine": {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
-                          "system": platform.platform(), "browser": chromium.stdout.strip()},
-              "rows": rows}
+    result = {
+        "command": command_line(sys.argv, "python"),
+        "commit": commit,
+        "device": args.device,
+        "device_name": info["device_name"],
+        "versions": {k: info[k] for k in ("python", "warp", "torch")},
+        "machine": {
+            "cpu": platform.processor() or platform.machine(),
+            "cores": os.cpu_count(),
+            "system": platform.platform(),
+            "browser": chromium.stdout.strip(),
+        },
+        "rows": rows,
+    }
     os.makedirs(args.out, exist_ok=True)
     with open(os.path.join(args.out, "viewer.json"), "w", encoding="utf-8") as f:
         json.dump(result, f, indent=1)

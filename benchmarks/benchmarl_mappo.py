@@ -28,9 +28,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 def reward_curves(save_folder: str) -> dict[str, list[tuple[int, float]]]:
     """`{group: [(iteration, mean episode reward), ...]}` from BenchMARL's CSV logger files."""
     curves = {}
-    for path in glob.glob(os.path.join(save_folder, "**", "collection_*_reward_episode_reward_mean.csv"),
-                          recursive=True):
-        group = Path(path).name[len("collection_"):-len("_reward_episode_reward_mean.csv")]
+    for path in glob.glob(
+        os.path.join(save_folder, "**", "collection_*_reward_episode_reward_mean.csv"), recursive=True
+    ):
+        group = Path(path).name[len("collection_") : -len("_reward_episode_reward_mean.csv")]
         with open(path, newline="", encoding="utf-8") as f:
             curves[group] = [(int(float(row[0])), float(row[1])) for row in csv.reader(f) if row]
     return curves
@@ -44,9 +45,13 @@ def main(argv=None) -> int:
     p.add_argument("--iterations", type=int, default=10, help="BenchMARL iterations")
     p.add_argument("--prey", type=int, default=16, help="prey per world")
     p.add_argument("--predators", type=int, default=2, help="predators per world")
-    p.add_argument("--epochs", type=int, default=5,
-                   help="passes over each iteration's frames (BenchMARL's on_policy_n_minibatch_iters; its default "
-                        "45 with 400-frame mini-batches makes 28,800 optimizer steps per 128,000 frames)")
+    p.add_argument(
+        "--epochs",
+        type=int,
+        default=5,
+        help="passes over each iteration's frames (BenchMARL's on_policy_n_minibatch_iters; its default "
+        "45 with 400-frame mini-batches makes 28,800 optimizer steps per 128,000 frames)",
+    )
     p.add_argument("--minibatch-size", type=int, default=4096, help="frames per mini-batch")
     p.add_argument("--seed", type=int, default=0, help="experiment seed")
     p.add_argument("--out-dir", default=".", help="where the JSON (and plot) go")
@@ -62,8 +67,9 @@ def main(argv=None) -> int:
 
     from aquarium_warp.interop.benchmarl import AquariumTask
 
-    task = AquariumTask.PREDATOR_PREY.get_task(config={"max_steps": args.max_steps, "prey_count": args.prey,
-                                                       "predator_count": args.predators})
+    task = AquariumTask.PREDATOR_PREY.get_task(
+        config={"max_steps": args.max_steps, "prey_count": args.prey, "predator_count": args.predators}
+    )
     config = ExperimentConfig.get_from_yaml()
     config.sampling_device = config.train_device = config.buffer_device = args.device
     config.on_policy_n_envs_per_worker = args.worlds
@@ -77,9 +83,14 @@ def main(argv=None) -> int:
     config.checkpoint_at_end = False
     config.save_folder = tempfile.mkdtemp(prefix="benchmarl_")
     start = time.perf_counter()
-    experiment = Experiment(task=task, algorithm_config=MappoConfig.get_from_yaml(),
-                            model_config=MlpConfig.get_from_yaml(), critic_model_config=MlpConfig.get_from_yaml(),
-                            seed=args.seed, config=config)
+    experiment = Experiment(
+        task=task,
+        algorithm_config=MappoConfig.get_from_yaml(),
+        model_config=MlpConfig.get_from_yaml(),
+        critic_model_config=MlpConfig.get_from_yaml(),
+        seed=args.seed,
+        config=config,
+    )
     experiment.run()
     wall = time.perf_counter() - start
     curves = reward_curves(config.save_folder)
@@ -90,11 +101,17 @@ def main(argv=None) -> int:
 
     dev = torch.device(args.device)
     result = {
-        "benchmark": "benchmarl_mappo", "task": "aquarium/predator_prey", "algorithm": "MAPPO (BenchMARL defaults)",
-        "settings": vars(args), "frames": experiment.total_frames, "iterations": experiment.n_iters_performed,
-        "wall_seconds": wall, "frames_per_second": experiment.total_frames / wall,
-        "device_name": (torch.cuda.get_device_name(dev) if dev.type == "cuda"
-                        else platform.processor() or platform.machine()),
+        "benchmark": "benchmarl_mappo",
+        "task": "aquarium/predator_prey",
+        "algorithm": "MAPPO (BenchMARL defaults)",
+        "settings": vars(args),
+        "frames": experiment.total_frames,
+        "iterations": experiment.n_iters_performed,
+        "wall_seconds": wall,
+        "frames_per_second": experiment.total_frames / wall,
+        "device_name": (
+            torch.cuda.get_device_name(dev) if dev.type == "cuda" else platform.processor() or platform.machine()
+        ),
         "versions": {name: _version(name) for name in ("torch", "torchrl", "tensordict", "benchmarl", "warp-lang")},
         "command": command_line(argv, Path(__file__).name),
         "git": git_info(),
@@ -104,8 +121,10 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     stem = f"benchmarl_mappo_{args.device.replace(':', '')}"
     (out / f"{stem}.json").write_text(json.dumps(result, indent=2))
-    print(f"{experiment.n_iters_performed} iterations, {experiment.total_frames} frames in {wall:.1f} s; "
-          f"wrote {out / (stem + '.json')}")
+    print(
+        f"{experiment.n_iters_performed} iterations, {experiment.total_frames} frames in {wall:.1f} s; "
+        f"wrote {out / (stem + '.json')}"
+    )
     for group, points in curves.items():
         print(f"  {group}: mean episode reward {points[0][1]:.1f} -> {points[-1][1]:.1f}")
     try:
@@ -139,8 +158,11 @@ def plot(result: dict, path: Path) -> None:
     s = result["settings"]
     ax.set_xlabel("BenchMARL iteration")
     ax.set_ylabel("mean episode reward per agent")
-    ax.set_title(f"BenchMARL MAPPO on aquarium/predator_prey\n{s['worlds']} worlds, {s['prey']} prey, "
-                 f"{s['predators']} predators, {result['device_name']}", fontsize=10)
+    ax.set_title(
+        f"BenchMARL MAPPO on aquarium/predator_prey\n{s['worlds']} worlds, {s['prey']} prey, "
+        f"{s['predators']} predators, {result['device_name']}",
+        fontsize=10,
+    )
     ax.grid(True, alpha=0.3)
     ax.legend()
     fig.tight_layout()

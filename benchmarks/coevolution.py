@@ -67,10 +67,20 @@ def sync(device: torch.device) -> None:
 def settings(args) -> dict:
     """The run config's changes for the co-evolution run (without the team)."""
     return {
-        "env": {"prey_count": args.prey, "predator_count": args.predators, "max_steps": args.max_steps,
-                **({"width": 400.0, "height": 400.0} if args.tiny else {})},
-        "train": {"num_worlds": args.worlds, "device": args.device, "seed": args.seed, "quiet": True,
-                  "export": ["jit"], "metrics_every": 10},
+        "env": {
+            "prey_count": args.prey,
+            "predator_count": args.predators,
+            "max_steps": args.max_steps,
+            **({"width": 400.0, "height": 400.0} if args.tiny else {}),
+        },
+        "train": {
+            "num_worlds": args.worlds,
+            "device": args.device,
+            "seed": args.seed,
+            "quiet": True,
+            "export": ["jit"],
+            "metrics_every": 10,
+        },
         "runner": {"num_steps_per_env": args.steps},
     }
 
@@ -82,8 +92,11 @@ def pool_settings(args) -> dict:
 def speed_paths(args) -> dict[str, tuple[str, list[dict]]]:
     """The paths whose speed is compared: `{key: (name, config changes)}`, same world for all."""
     both = {"train": {"team": "both"}}
-    return {"one": ("one team (prey vs NaivChase)", [{"train": {"team": "prey", "opponent": "naivchase"}}]),
-            "both": ("both teams", [both]), "pool": ("both teams + pool", [both, pool_settings(args)])}
+    return {
+        "one": ("one team (prey vs NaivChase)", [{"train": {"team": "prey", "opponent": "naivchase"}}]),
+        "both": ("both teams", [both]),
+        "pool": ("both teams + pool", [both, pool_settings(args)]),
+    }
 
 
 def measure_speed_in_subprocess(key: str, argv: list[str]) -> dict:
@@ -94,7 +107,7 @@ def measure_speed_in_subprocess(key: str, argv: list[str]) -> dict:
     lines = [line for line in done.stdout.splitlines() if line.startswith("SPEED ")]
     if done.returncode != 0 or not lines:
         raise RuntimeError(f"speed of {key!r} failed:\n{done.stdout[-2000:]}\n{done.stderr[-4000:]}")
-    return json.loads(lines[-1][len("SPEED "):])
+    return json.loads(lines[-1][len("SPEED ") :])
 
 
 def _number(text: str):
@@ -122,9 +135,15 @@ def measure_speed(args, name: str, *changes: dict) -> dict:
     steps = args.steps * args.speed_iterations
     agents = trainer.env.num_worlds * (args.prey + args.predators)
     rows = sum(v.num_envs for v in trainer.vec_envs.values())
-    point = {"path": name, "teams": "+".join(trainer.teams), "graphs": bool(trainer.runner.loop.graphs),
-             "iterations": args.speed_iterations, "seconds": seconds,
-             "agent_steps_per_s": agents * steps / seconds, "learning_rows_per_s": rows * steps / seconds}
+    point = {
+        "path": name,
+        "teams": "+".join(trainer.teams),
+        "graphs": bool(trainer.runner.loop.graphs),
+        "iterations": args.speed_iterations,
+        "seconds": seconds,
+        "agent_steps_per_s": agents * steps / seconds,
+        "learning_rows_per_s": rows * steps / seconds,
+    }
     trainer.close()
     return point
 
@@ -143,9 +162,12 @@ def plot_curves(scalars: dict, steps_per_iteration: int, path: str) -> str:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    panels = [("captures per prey per episode", ["prey/Episode/captures_per_prey"]),
-              ("reward per agent per episode", ["prey/Episode/reward_per_agent", "predator/Episode/reward_per_agent"]),
-              ("polarization", ["Swarm/polarization"]), ("groups", ["Swarm/groups"])]
+    panels = [
+        ("captures per prey per episode", ["prey/Episode/captures_per_prey"]),
+        ("reward per agent per episode", ["prey/Episode/reward_per_agent", "predator/Episode/reward_per_agent"]),
+        ("polarization", ["Swarm/polarization"]),
+        ("groups", ["Swarm/groups"]),
+    ]
     fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 3.4))
     for ax, (title, tags) in zip(axes, panels):
         for tag in tags:
@@ -173,13 +195,18 @@ def generations_table(result: dict) -> list[dict]:
     for g in range(1, len(prey)):
         i, j = cp["prey"].index(prey[g]), cp["predator"].index(predator[g])
         i0, j0 = cp["prey"].index(prey[g - 1]), cp["predator"].index(predator[g - 1])
-        rows.append({"generation": prey[g], "previous": prey[g - 1],
-                     "previous_vs_previous": captures[i0, j0],
-                     "new_prey_vs_previous_predators": captures[i, j0],
-                     "previous_prey_vs_new_predators": captures[i0, j],
-                     "new_vs_new": captures[i, j],
-                     "prey_improved": bool(captures[i, j0] < captures[i0, j0]),
-                     "predators_improved": bool(captures[i0, j] > captures[i0, j0])})
+        rows.append(
+            {
+                "generation": prey[g],
+                "previous": prey[g - 1],
+                "previous_vs_previous": captures[i0, j0],
+                "new_prey_vs_previous_predators": captures[i, j0],
+                "previous_prey_vs_new_predators": captures[i0, j],
+                "new_vs_new": captures[i, j],
+                "prey_improved": bool(captures[i, j0] < captures[i0, j0]),
+                "predators_improved": bool(captures[i0, j] > captures[i0, j0]),
+            }
+        )
     return rows
 
 
@@ -192,8 +219,9 @@ def write_csv(rows: list[dict], path: str) -> str:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("--device", default=None, help="'cuda:0' (default when present) or 'cpu'")
     p.add_argument("--out-dir", default="coevolution_results", help="output folder")
     p.add_argument("--tiny", action="store_true", help="a CPU-sized run of every step (400 x 400 px, 16 worlds)")
@@ -207,22 +235,39 @@ def main(argv=None) -> int:
     p.add_argument("--pool-every", type=int, default=None, help="pool snapshot interval (default 20; tiny 2)")
     p.add_argument("--pool-size", type=int, default=4, help="snapshots kept per team")
     p.add_argument("--pool-fraction", type=float, default=0.2, help="worlds per team against the other's snapshots")
-    p.add_argument("--speed-iterations", type=int, default=None,
-                   help="timed iterations per speed point (default 10; tiny 2)")
+    p.add_argument(
+        "--speed-iterations", type=int, default=None, help="timed iterations per speed point (default 10; tiny 2)"
+    )
     p.add_argument("--eval-episodes", type=int, default=None, help="cross-play episodes per seed (default 64; tiny 4)")
     p.add_argument("--eval-seeds", type=int, nargs="+", default=[0, 1], help="cross-play seeds")
     p.add_argument("--seed", type=int, default=0, help="training seed")
     p.add_argument("--keep-checkpoints", action="store_true", help="keep run/model_*.pt")
     p.add_argument("--speed-only", action="store_true", help="measure step 1 only and write speed.csv")
-    p.add_argument("--speed-from", default=None,
-                   help="a speed.csv written earlier (same settings): step 1 reads it instead of measuring, so the "
-                        "speed points and the run can go in separate calls of a time-limited machine")
-    p.add_argument("--speed-path", choices=("one", "both", "pool"), default=None,
-                   help="(internal) measure the speed of one path and print it as JSON")
+    p.add_argument(
+        "--speed-from",
+        default=None,
+        help="a speed.csv written earlier (same settings): step 1 reads it instead of measuring, so the "
+        "speed points and the run can go in separate calls of a time-limited machine",
+    )
+    p.add_argument(
+        "--speed-path",
+        choices=("one", "both", "pool"),
+        default=None,
+        help="(internal) measure the speed of one path and print it as JSON",
+    )
     argv = sys.argv[1:] if argv is None else list(argv)
     args = p.parse_args(argv)
-    defaults = dict(worlds=(16, 4096), prey=(8, 32), predators=(2, 4), max_steps=(100, 500), agent_steps=(2e5, 1e9),
-                    generations=(3, 6), pool_every=(2, 20), speed_iterations=(2, 10), eval_episodes=(4, 64))
+    defaults = dict(
+        worlds=(16, 4096),
+        prey=(8, 32),
+        predators=(2, 4),
+        max_steps=(100, 500),
+        agent_steps=(2e5, 1e9),
+        generations=(3, 6),
+        pool_every=(2, 20),
+        speed_iterations=(2, 10),
+        eval_episodes=(4, 64),
+    )
     for name, (tiny, full) in defaults.items():
         if getattr(args, name) is None:
             setattr(args, name, tiny if args.tiny else full)
@@ -241,29 +286,40 @@ def main(argv=None) -> int:
     iterations = math.ceil(args.agent_steps / (args.worlds * agents * args.steps))
     save_every = max(1, iterations // args.generations)
     started = time.perf_counter()
-    print(f"coevolution: {args.worlds} worlds x ({args.prey} prey + {args.predators} predators), "
-          f"{iterations} iterations of {args.steps} steps = {iterations * args.worlds * agents * args.steps:.3g} "
-          f"agent-steps, device {args.device or 'default'}", flush=True)
+    print(
+        f"coevolution: {args.worlds} worlds x ({args.prey} prey + {args.predators} predators), "
+        f"{iterations} iterations of {args.steps} steps = {iterations * args.worlds * agents * args.steps:.3g} "
+        f"agent-steps, device {args.device or 'default'}",
+        flush=True,
+    )
 
     # 1. speed of the one-team path against the two-learner path, same world
     if args.speed_from:
         with open(args.speed_from, newline="", encoding="utf-8") as f:
             speed = [{k: _number(v) for k, v in row.items()} for row in csv.DictReader(f)]
     else:
-        speed = [measure_speed_in_subprocess(key, [a for a in argv if a != "--speed-only"])
-                 for key in ("one", "both", "pool")]
+        speed = [
+            measure_speed_in_subprocess(key, [a for a in argv if a != "--speed-only"])
+            for key in ("one", "both", "pool")
+        ]
     for point in speed:
-        print(f"  speed {point['path']:>30}: {point['agent_steps_per_s']:.3g} agent-steps/s "
-              f"({point['learning_rows_per_s']:.3g} learning rows/s)", flush=True)
+        print(
+            f"  speed {point['path']:>30}: {point['agent_steps_per_s']:.3g} agent-steps/s "
+            f"({point['learning_rows_per_s']:.3g} learning rows/s)",
+            flush=True,
+        )
 
     if args.speed_only:
         write_csv(speed, str(out / "speed.csv"))
         return 0
 
     # 2. the co-evolution run
-    config = make_config("default", settings(args), pool_settings(args),
-                         {"train": {"team": "both", "iterations": iterations},
-                          "runner": {"save_interval": save_every}})
+    config = make_config(
+        "default",
+        settings(args),
+        pool_settings(args),
+        {"train": {"team": "both", "iterations": iterations}, "runner": {"save_interval": save_every}},
+    )
     trainer = Trainer(config, run_dir)
     device = trainer.device
     start = time.perf_counter()
@@ -271,8 +327,11 @@ def main(argv=None) -> int:
     sync(device)
     train_seconds = time.perf_counter() - start
     trainer.export()
-    print(f"  trained {iterations} iterations in {train_seconds:.1f} s "
-          f"({iterations * args.worlds * agents * args.steps / train_seconds:.3g} agent-steps/s)", flush=True)
+    print(
+        f"  trained {iterations} iterations in {train_seconds:.1f} s "
+        f"({iterations * args.worlds * agents * args.steps / train_seconds:.3g} agent-steps/s)",
+        flush=True,
+    )
 
     # 4. one video of the final policies (rendered before the trainer goes)
     video = EpisodeVideo(env_config(config), device, args.seed, steps=min(300, args.max_steps))
@@ -286,15 +345,22 @@ def main(argv=None) -> int:
     del trainer
 
     # 3. cross-play over the generations (checkpoints), with the heuristics as anchors
-    checkpoints = sorted(glob.glob(os.path.join(run_dir, "model_*.pt")),
-                         key=lambda path: int(Path(path).stem.split("_")[1]))
+    checkpoints = sorted(
+        glob.glob(os.path.join(run_dir, "model_*.pt")), key=lambda path: int(Path(path).stem.split("_")[1])
+    )
     picks = np.unique(np.linspace(0, len(checkpoints) - 1, args.generations).round().astype(int))
     chosen = [checkpoints[i] for i in picks]  # evenly spaced, the first and the last included
     gens = [f"gen{Path(c).stem.split('_')[1]}={c}" for c in chosen]
     start = time.perf_counter()
-    result = cross_play(["random", "turnaway"] + gens, gens + ["random", "naivchase"], env_config(config),
-                        episodes=args.eval_episodes, seeds=args.eval_seeds, device=args.device,
-                        max_worlds=args.eval_episodes)
+    result = cross_play(
+        ["random", "turnaway"] + gens,
+        gens + ["random", "naivchase"],
+        env_config(config),
+        episodes=args.eval_episodes,
+        seeds=args.eval_seeds,
+        device=args.device,
+        max_worlds=args.eval_episodes,
+    )
     cross_seconds = time.perf_counter() - start
     write_cross_play(result, str(out))
     for metric in ("captures_per_prey", "prey_survival"):
@@ -328,14 +394,19 @@ def main(argv=None) -> int:
 
     one, two = speed[0]["agent_steps_per_s"], speed[2]["agent_steps_per_s"]
     summary = {
-        "settings": {**vars(args), "iterations": iterations, "save_every": save_every,
-                     "command": command_line()},
-        "git": git_info(), "device": str(device), "machine": machine_info(str(device)),
+        "settings": {**vars(args), "iterations": iterations, "save_every": save_every, "command": command_line()},
+        "git": git_info(),
+        "device": str(device),
+        "machine": machine_info(str(device)),
         "device_name": torch.cuda.get_device_name(device) if device.type == "cuda" else platform.processor(),
-        "agent_steps": iterations * steps_per_iteration, "train_seconds": train_seconds,
+        "agent_steps": iterations * steps_per_iteration,
+        "train_seconds": train_seconds,
         "train_agent_steps_per_s": iterations * steps_per_iteration / train_seconds,
-        "speed": speed, "two_learner_over_one_team": two / one,
-        "cross_play_seconds": cross_seconds, "cross_play": result["cross_play"], "rating": result.get("rating"),
+        "speed": speed,
+        "two_learner_over_one_team": two / one,
+        "cross_play_seconds": cross_seconds,
+        "cross_play": result["cross_play"],
+        "rating": result.get("rating"),
         "generations": generations,
         "swarm_first_last": {name: first_last(f"Swarm/{name}") for name in SWARM},
         "total_seconds": time.perf_counter() - started,
@@ -345,8 +416,10 @@ def main(argv=None) -> int:
 
     # the compact summary
     print(f"\n{'agent-steps':>12} {'train s':>8} {'agent-steps/s':>14} {'two/one speed':>14}")
-    print(f"{summary['agent_steps']:12.3g} {train_seconds:8.1f} {summary['train_agent_steps_per_s']:14.3g} "
-          f"{two / one:14.2f}")
+    print(
+        f"{summary['agent_steps']:12.3g} {train_seconds:8.1f} {summary['train_agent_steps_per_s']:14.3g} "
+        f"{two / one:14.2f}"
+    )
     cp = result["cross_play"]
     captures = cp["matrices"]["captures_per_prey"]["mean"]
     width = max(len(a) for a in cp["prey"]) + 1
@@ -355,15 +428,21 @@ def main(argv=None) -> int:
     for a, row in zip(cp["prey"], captures):
         print(f"{a:>{width}}" + "".join(f"{v:10.3f}" for v in row))
     if generations:
-        print(f"\n{'generation':>12} {'prev/prev':>10} {'new prey':>10} {'new pred':>10} {'prey better':>12} "
-              f"{'pred better':>12}")
+        print(
+            f"\n{'generation':>12} {'prev/prev':>10} {'new prey':>10} {'new pred':>10} {'prey better':>12} "
+            f"{'pred better':>12}"
+        )
         for g in generations:
-            print(f"{g['generation']:>12} {g['previous_vs_previous']:10.3f} "
-                  f"{g['new_prey_vs_previous_predators']:10.3f} "
-                  f"{g['previous_prey_vs_new_predators']:10.3f} {str(g['prey_improved']):>12} "
-                  f"{str(g['predators_improved']):>12}")
-    print("\nswarm metrics, first -> last logged value: " + ", ".join(
-        f"{name} {a:.3g} -> {b:.3g}" for name, (a, b) in summary["swarm_first_last"].items()))
+            print(
+                f"{g['generation']:>12} {g['previous_vs_previous']:10.3f} "
+                f"{g['new_prey_vs_previous_predators']:10.3f} "
+                f"{g['previous_prey_vs_new_predators']:10.3f} {str(g['prey_improved']):>12} "
+                f"{str(g['predators_improved']):>12}"
+            )
+    print(
+        "\nswarm metrics, first -> last logged value: "
+        + ", ".join(f"{name} {a:.3g} -> {b:.3g}" for name, (a, b) in summary["swarm_first_last"].items())
+    )
     print(f"\n{summary['total_seconds']:.0f} s in all; files in {out}")
     return 0
 

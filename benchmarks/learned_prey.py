@@ -66,16 +66,30 @@ CONDITIONS: dict[str, tuple[str, list[str]]] = {
     # Round 2 (after "screen"): ego observations with world actions, random spawn, more entropy; 2x budget.
     "r2-egoobs-ent01": ("paper", EGO_OBS + RANDOM_SPAWN + ENTROPY_01 + episodes(8000)),
     "r2-egoobs-ent03": ("paper", EGO_OBS + RANDOM_SPAWN + ["runner.algorithm.entropy_coef=0.03"] + episodes(8000)),
-    "r2-egoobs-ent01-wide": ("paper", EGO_OBS + RANDOM_SPAWN + ["runner.actor.hidden_dims=[256,256]",
-                                                               "runner.critic.hidden_dims=[256,256]"]
-                             + ENTROPY_01 + episodes(8000)),
-    "r2-egoobs-ent01-slots5": ("paper", EGO_OBS + RANDOM_SPAWN + ["env.prey.prey_slots=5"] + ENTROPY_01
-                               + episodes(8000)),
-    "r2-egoobs-ent01-clip2": ("paper", EGO_OBS + RANDOM_SPAWN + ENTROPY_01 + ["runner.algorithm.clip_param=0.2"]
-                              + episodes(8000)),
-    "r2-egoobs-ent01-gamma": ("paper", EGO_OBS + RANDOM_SPAWN + ENTROPY_01 + ["runner.algorithm.gamma=0.995",
-                                                                            "runner.algorithm.lam=0.98"]
-                              + episodes(8000)),
+    "r2-egoobs-ent01-wide": (
+        "paper",
+        EGO_OBS
+        + RANDOM_SPAWN
+        + ["runner.actor.hidden_dims=[256,256]", "runner.critic.hidden_dims=[256,256]"]
+        + ENTROPY_01
+        + episodes(8000),
+    ),
+    "r2-egoobs-ent01-slots5": (
+        "paper",
+        EGO_OBS + RANDOM_SPAWN + ["env.prey.prey_slots=5"] + ENTROPY_01 + episodes(8000),
+    ),
+    "r2-egoobs-ent01-clip2": (
+        "paper",
+        EGO_OBS + RANDOM_SPAWN + ENTROPY_01 + ["runner.algorithm.clip_param=0.2"] + episodes(8000),
+    ),
+    "r2-egoobs-ent01-gamma": (
+        "paper",
+        EGO_OBS
+        + RANDOM_SPAWN
+        + ENTROPY_01
+        + ["runner.algorithm.gamma=0.995", "runner.algorithm.lam=0.98"]
+        + episodes(8000),
+    ),
     "r2-ego-ent01": ("paper", EGO + RANDOM_SPAWN + ENTROPY_01 + episodes(8000)),
     "r2-egoobs-ent01-paperspawn": ("paper", EGO_OBS + ENTROPY_01 + episodes(8000)),
     # The paper's PS vs IL comparison (its budget) on ego observations, random spawn and entropy 0.01.
@@ -89,12 +103,24 @@ CONDITIONS: dict[str, tuple[str, list[str]]] = {
     "tiny-world": ("tiny", ["train.iterations=2"]),
 }
 PLANS: dict[str, list[tuple[str, str, list[int]]]] = {
-    "screen": [(c, "B", [0, 1]) for c in ("world-frame", "ego-obs", "ego", "ego-rand", "ego-rand-worldcritic",
-                                          "ego-rand-ent01", "ego-rand-4x")]
+    "screen": [
+        (c, "B", [0, 1])
+        for c in ("world-frame", "ego-obs", "ego", "ego-rand", "ego-rand-worldcritic", "ego-rand-ent01", "ego-rand-4x")
+    ]
     + [(c, w, [0, 1]) for c in ("ego-rand", "ego-rand-4x") for w in ("A", "C")],
-    "round2": [(c, "B", [0, 1, 2]) for c in ("r2-egoobs-ent01", "r2-egoobs-ent03", "r2-egoobs-ent01-wide",
-                                             "r2-egoobs-ent01-slots5", "r2-egoobs-ent01-clip2", "r2-egoobs-ent01-gamma",
-                                             "r2-ego-ent01", "r2-egoobs-ent01-paperspawn")]
+    "round2": [
+        (c, "B", [0, 1, 2])
+        for c in (
+            "r2-egoobs-ent01",
+            "r2-egoobs-ent03",
+            "r2-egoobs-ent01-wide",
+            "r2-egoobs-ent01-slots5",
+            "r2-egoobs-ent01-clip2",
+            "r2-egoobs-ent01-gamma",
+            "r2-ego-ent01",
+            "r2-egoobs-ent01-paperspawn",
+        )
+    ]
     + [(c, "A", [0, 1, 2, 3, 4]) for c in ("recipe-ps-1x", "recipe-il-1x")],
     "recipe": [("recipe", w, [0, 1, 2, 3, 4]) for w in ("A", "B", "C")],
     "noprey": [("recipe-noprey", w, [0, 1, 2, 3, 4]) for w in ("B", "C")],
@@ -125,19 +151,46 @@ def training_tasks(out: str, plan: list[tuple[str, str, list[int]]]) -> list[dic
     start last)."""
     from aquarium_warp.training.config import total_iterations
 
-    tasks = [{"name": f"train-{c}-{w}-s{s}", "condition": c, "world": w, "seed": s, "config": run_config(c, w, s),
-              "run_dir": run_dir(out, c, w, s)} for c, w, seeds in plan for s in seeds]
+    tasks = [
+        {
+            "name": f"train-{c}-{w}-s{s}",
+            "condition": c,
+            "world": w,
+            "seed": s,
+            "config": run_config(c, w, s),
+            "run_dir": run_dir(out, c, w, s),
+        }
+        for c, w, seeds in plan
+        for s in seeds
+    ]
     return sorted(tasks, key=lambda task: -total_iterations(task["config"]))
 
 
-def eval_tasks(out: str, plan: list[tuple[str, str, list[int]]], trainings: list[dict], episodes: int,
-               eval_seeds: list[int], commit: str | None) -> list[dict]:
+def eval_tasks(
+    out: str,
+    plan: list[tuple[str, str, list[int]]],
+    trainings: list[dict],
+    episodes: int,
+    eval_seeds: list[int],
+    commit: str | None,
+) -> list[dict]:
     """An evaluation task per (condition, world) of `plan`; its runs' configs are part of it, so that
     runs trained again with other settings are evaluated again, and so is the `commit` it records."""
     config = {(t["condition"], t["world"], t["seed"]): t["config"] for t in trainings}
-    return [{"name": f"eval-{c}-{w}", "condition": c, "world": w, "seeds": seeds,
-             "trainings": [config[(c, w, s)] for s in seeds], "run_dirs": [run_dir(out, c, w, s) for s in seeds],
-             "episodes": episodes, "eval_seeds": eval_seeds, "commit": commit} for c, w, seeds in plan]
+    return [
+        {
+            "name": f"eval-{c}-{w}",
+            "condition": c,
+            "world": w,
+            "seeds": seeds,
+            "trainings": [config[(c, w, s)] for s in seeds],
+            "run_dirs": [run_dir(out, c, w, s) for s in seeds],
+            "episodes": episodes,
+            "eval_seeds": eval_seeds,
+            "commit": commit,
+        }
+        for c, w, seeds in plan
+    ]
 
 
 def run_eval_task(task: dict, device: str) -> dict:
@@ -150,24 +203,41 @@ def run_eval_task(task: dict, device: str) -> dict:
     learned = [f"s{s}={policy_path(run)}" for s, run in zip(task["seeds"], task["run_dirs"], strict=True)]
     env = common_policy_env(learned, AquariumConfig()).replace(spawn_heading="paper")
     episodes, eval_seeds = task["episodes"], task["eval_seeds"]
-    result = evaluate_policies(learned + list(BASELINES), ["naivchase"], env, episodes=episodes, seeds=eval_seeds,
-                               device=device)
+    result = evaluate_policies(
+        learned + list(BASELINES), ["naivchase"], env, episodes=episodes, seeds=eval_seeds, device=device
+    )
     per_seed = {}
     for row in result["summary"]:
         values = [r["captures_per_prey"] for r in result["episodes"] if r["prey_policy"] == row["prey_policy"]]
-        per_seed[row["prey_policy"]] = {"captures_per_prey": row["captures_per_prey_mean"],
-                                        "reward_per_prey": row["reward_per_prey_mean"],
-                                        "per_eval_seed": [float(sum(r["captures_per_prey"] for r in result["episodes"]
-                                                                    if r["prey_policy"] == row["prey_policy"]
-                                                                    and r["seed"] == s) / episodes)
-                                                          for s in eval_seeds],
-                                        "episodes": len(values)}
+        per_seed[row["prey_policy"]] = {
+            "captures_per_prey": row["captures_per_prey_mean"],
+            "reward_per_prey": row["reward_per_prey_mean"],
+            "per_eval_seed": [
+                float(
+                    sum(
+                        r["captures_per_prey"]
+                        for r in result["episodes"]
+                        if r["prey_policy"] == row["prey_policy"] and r["seed"] == s
+                    )
+                    / episodes
+                )
+                for s in eval_seeds
+            ],
+            "episodes": len(values),
+        }
     commit = task["commit"]
-    return json_safe({"condition": task["condition"], "world": task["world"], "policies": per_seed,
-                      "protocol": result["protocol"], "command": result["command"],
-                      # The plan's --commit where given: a lent machine's copy may have no git history.
-                      "git": {"commit": commit, "source": "--commit"} if commit else result["git"],
-                      "machine": result["machine"]})
+    return json_safe(
+        {
+            "condition": task["condition"],
+            "world": task["world"],
+            "policies": per_seed,
+            "protocol": result["protocol"],
+            "command": result["command"],
+            # The plan's --commit where given: a lent machine's copy may have no git history.
+            "git": {"commit": commit, "source": "--commit"} if commit else result["git"],
+            "machine": result["machine"],
+        }
+    )
 
 
 def summarize(out: str, plan: list[tuple[str, str, list[int]]]) -> list[dict]:
@@ -177,8 +247,12 @@ def summarize(out: str, plan: list[tuple[str, str, list[int]]]) -> list[dict]:
         with open(path, encoding="utf-8") as f:
             ev = json.load(f)
         policies = ev["policies"]
-        row = {"condition": condition, "world": world, "seeds": seeds,
-               "learned": interval([policies[f"s{s}"]["captures_per_prey"] for s in seeds])}
+        row = {
+            "condition": condition,
+            "world": world,
+            "seeds": seeds,
+            "learned": interval([policies[f"s{s}"]["captures_per_prey"] for s in seeds]),
+        }
         for b in BASELINES:
             row[b] = interval(policies[b]["per_eval_seed"])
         t = row["turnaway"]["mean"]
@@ -202,8 +276,12 @@ def main(argv=None) -> int:
     p.add_argument("--episodes", type=int, default=50, help="evaluation episodes per evaluation seed")
     p.add_argument("--eval-seeds", type=int, nargs="+", default=[0, 1])
     p.add_argument("--commit", default=None, help="the commit to record (default: git rev-parse HEAD)")
-    p.add_argument("--report", metavar="RESULTS", default=None,
-                   help="only copy a finished --out into the folder RESULTS, with curves.csv and curves.png")
+    p.add_argument(
+        "--report",
+        metavar="RESULTS",
+        default=None,
+        help="only copy a finished --out into the folder RESULTS, with curves.csv and curves.png",
+    )
     args = p.parse_args(argv)
     if args.report:
         report(args.out, args.report)
@@ -219,8 +297,16 @@ def main(argv=None) -> int:
         ran[i] = not kept
 
     print(f"learned_prey: {sum(not read_finished(args.out, t)[0] for t in trainings)} trainings", flush=True)
-    results = run_jobs(run_training_task, trainings, args.out, jobs=jobs, devices=devices, label="train",
-                       on_result=trained, report=lambda line: print(line, flush=True)).results
+    results = run_jobs(
+        run_training_task,
+        trainings,
+        args.out,
+        jobs=jobs,
+        devices=devices,
+        label="train",
+        on_result=trained,
+        report=lambda line: print(line, flush=True),
+    ).results
     train_s = time.perf_counter() - start
     evaluations = eval_tasks(args.out, plan, trainings, args.episodes, args.eval_seeds, args.commit)
 
@@ -232,27 +318,51 @@ def main(argv=None) -> int:
         with atomic_open(path) as f:
             json.dump(record, f, indent=1)
 
-    run_jobs(run_eval_task, evaluations, args.out, jobs=jobs, devices=devices, label="eval",
-             on_result=write_evaluation, report=lambda line: print(line, flush=True))
+    run_jobs(
+        run_eval_task,
+        evaluations,
+        args.out,
+        jobs=jobs,
+        devices=devices,
+        label="eval",
+        on_result=write_evaluation,
+        report=lambda line: print(line, flush=True),
+    )
     rows = summarize(args.out, plan)
-    commit = args.commit or subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
-                                           cwd=os.path.dirname(os.path.abspath(__file__))).stdout.strip()
+    commit = (
+        args.commit
+        or subprocess.run(
+            ["git", "rev-parse", "HEAD"], capture_output=True, text=True, cwd=os.path.dirname(os.path.abspath(__file__))
+        ).stdout.strip()
+    )
     from aquarium_warp.records import command_line, machine_info
 
-    record = {"command": command_line(["benchmarks/learned_prey.py", *(argv if argv is not None else sys.argv[1:])],
-                                           os.path.basename(sys.executable)),
-              "commit": commit, "machine": machine_info(devices[0]),
-              "gpus": args.gpus, "per_gpu": args.per_gpu,
-              "measure": "captures per prey per episode against NaivChase (lower is better); learned: mean over "
-                         "training seeds of each seed's mean, 95% t interval over training seeds; baselines: "
-                         "over evaluation seeds; evaluated with spawn_heading='paper' in the condition's world",
-              "episodes_per_eval_seed": args.episodes, "eval_seeds": args.eval_seeds,
-              "conditions": {c: CONDITIONS[c] for c, _, _ in plan}, "worlds": WORLDS,
-              "train_wall_s": round(train_s, 1), "wall_s": round(time.perf_counter() - start, 1),
-              # The trainings this call ran (not those kept from an earlier one).
-              "trainings": [{"condition": t["condition"], "world": t["world"], "seed": t["seed"],
-                             "run_dir": t["run_dir"], **r} for t, r, now in zip(trainings, results, ran) if now],
-              "rows": rows}
+    record = {
+        "command": command_line(
+            ["benchmarks/learned_prey.py", *(argv if argv is not None else sys.argv[1:])],
+            os.path.basename(sys.executable),
+        ),
+        "commit": commit,
+        "machine": machine_info(devices[0]),
+        "gpus": args.gpus,
+        "per_gpu": args.per_gpu,
+        "measure": "captures per prey per episode against NaivChase (lower is better); learned: mean over "
+        "training seeds of each seed's mean, 95% t interval over training seeds; baselines: "
+        "over evaluation seeds; evaluated with spawn_heading='paper' in the condition's world",
+        "episodes_per_eval_seed": args.episodes,
+        "eval_seeds": args.eval_seeds,
+        "conditions": {c: CONDITIONS[c] for c, _, _ in plan},
+        "worlds": WORLDS,
+        "train_wall_s": round(train_s, 1),
+        "wall_s": round(time.perf_counter() - start, 1),
+        # The trainings this call ran (not those kept from an earlier one).
+        "trainings": [
+            {"condition": t["condition"], "world": t["world"], "seed": t["seed"], "run_dir": t["run_dir"], **r}
+            for t, r, now in zip(trainings, results, ran)
+            if now
+        ],
+        "rows": rows,
+    }
     from aquarium_warp.atomic import atomic_open
 
     with atomic_open(os.path.join(args.out, f"learned_prey_{args.plan}.json")) as f:
@@ -266,12 +376,16 @@ def main(argv=None) -> int:
             for b in BASELINES:
                 for s, v in zip(args.eval_seeds, r[b]["values"]):
                     w.writerow([r["condition"], r["world"], b, f"eval{s}", v])
-    print(f"{'condition':>22} {'world':>5} {'learned':>14} {'random':>12} {'constant':>12} {'turnaway':>12} "
-          f"{'L/TA':>6} {'L/const':>7}")
+    print(
+        f"{'condition':>22} {'world':>5} {'learned':>14} {'random':>12} {'constant':>12} {'turnaway':>12} "
+        f"{'L/TA':>6} {'L/const':>7}"
+    )
     for r in rows:
-        print(f"{r['condition']:>22} {r['world']:>5} {fmt(r['learned']):>14} {fmt(r['random']):>12} "
-              f"{fmt(r['constant']):>12} {fmt(r['turnaway']):>12} {r['learned_over_turnaway']:6.2f} "
-              f"{r['learned_over_constant']:7.2f}")
+        print(
+            f"{r['condition']:>22} {r['world']:>5} {fmt(r['learned']):>14} {fmt(r['random']):>12} "
+            f"{fmt(r['constant']):>12} {fmt(r['turnaway']):>12} {r['learned_over_turnaway']:6.2f} "
+            f"{r['learned_over_constant']:7.2f}"
+        )
     return 0
 
 
@@ -284,8 +398,10 @@ def report(out: str, results: str, every: int = 5) -> None:
     import shutil
 
     os.makedirs(os.path.join(results, "eval"), exist_ok=True)
-    for pattern, folder in ((os.path.join(out, "learned_prey_*.*"), results),
-                            (os.path.join(out, "eval", "*.json"), os.path.join(results, "eval"))):
+    for pattern, folder in (
+        (os.path.join(out, "learned_prey_*.*"), results),
+        (os.path.join(out, "eval", "*.json"), os.path.join(results, "eval")),
+    ):
         for path in glob.glob(pattern):
             if not os.path.exists(os.path.join(folder, os.path.basename(path))):
                 shutil.copy(path, folder)
@@ -302,8 +418,9 @@ def report(out: str, results: str, every: int = 5) -> None:
             for r in kept:
                 writer.writerow([name] + [r[c] for c in columns])
             condition = name.rsplit("-s", 1)[0]
-            curves.setdefault(condition, {}).setdefault(name, [(float(r["agent_steps"]), float(r["captures_per_prey"]))
-                                                               for r in kept])
+            curves.setdefault(condition, {}).setdefault(
+                name, [(float(r["agent_steps"]), float(r["captures_per_prey"])) for r in kept]
+            )
     _plot_curves(curves, os.path.join(results, "curves.png"))
 
 
@@ -323,12 +440,14 @@ def _plot_curves(curves: dict[str, dict[str, list]], path: str) -> None:
             n = min(len(r) for r in runs)
             x = np.array([p[0] for p in runs[0][:n]]) / 1e6
             y = np.array([[p[1] for p in r[:n]] for r in runs])
-            line, = ax.plot(x, y.mean(0), lw=1.3, label=f"{condition.rsplit('-', 1)[0]} ({len(runs)} seeds)")
+            (line,) = ax.plot(x, y.mean(0), lw=1.3, label=f"{condition.rsplit('-', 1)[0]} ({len(runs)} seeds)")
             ax.fill_between(x, y.min(0), y.max(0), color=line.get_color(), alpha=0.15, lw=0)
         ax.set(title=f"world {world}", xlabel="prey-steps (millions)", ylabel="training captures per prey per episode")
         ax.legend(fontsize=6)
-    fig.suptitle("Training curves: mean over seeds, band = range over seeds (training worlds: their own spawn "
-                 "headings)", fontsize=9)
+    fig.suptitle(
+        "Training curves: mean over seeds, band = range over seeds (training worlds: their own spawn headings)",
+        fontsize=9,
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

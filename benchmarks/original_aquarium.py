@@ -163,9 +163,7 @@ def ensure_original_venv(venv: Path | str = DEFAULT_VENV, *, verbose: bool = Tru
     if verbose:
         print(f"[original] creating venv {venv} ({sys.executable} -m venv)", file=sys.stderr, flush=True)
     try:
-        proc = subprocess.run(
-            [sys.executable, "-m", "venv", str(venv)], capture_output=True, text=True, timeout=600
-        )
+        proc = subprocess.run([sys.executable, "-m", "venv", str(venv)], capture_output=True, text=True, timeout=600)
     except subprocess.TimeoutExpired as exc:
         raise OriginalSetupError("`python -m venv` timed out") from exc
     if proc.returncode != 0:
@@ -178,9 +176,7 @@ def ensure_original_venv(venv: Path | str = DEFAULT_VENV, *, verbose: bool = Tru
     _run_pip(py, ["--no-deps", ORIGINAL_REQ], ORIGINAL_REQ, verbose)
     _run_pip(py, RUNTIME_REQS, ", ".join(RUNTIME_REQS), verbose)
     if not _venv_works(venv):
-        proc = subprocess.run(
-            [str(py), "-c", _CHECK_CODE], capture_output=True, text=True, env=_child_env()
-        )
+        proc = subprocess.run([str(py), "-c", _CHECK_CODE], capture_output=True, text=True, env=_child_env())
         raise OriginalSetupError(
             f"venv {venv} was installed but the original package does not import:\n"
             f"{(proc.stdout + proc.stderr).strip()[-3000:]}"
@@ -219,9 +215,7 @@ def _run_child(
     # Generous: construction + warm-up + window; large configs step slowly.
     timeout = 300 + 5 * (seconds + warmup)
     try:
-        proc = subprocess.run(
-            cmd, capture_output=True, text=True, timeout=timeout, env=_child_env(), cwd=str(HERE)
-        )
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=_child_env(), cwd=str(HERE))
     except subprocess.TimeoutExpired as exc:
         raise OriginalRunError(f"{which} run {run} timed out after {timeout:.0f} s") from exc
     result = None
@@ -283,9 +277,7 @@ def measure_original(
     return {
         "which": which,
         "entry_point": (
-            "marl_aquarium.env.aquarium.raw_env"
-            if which == "raw"
-            else "marl_aquarium.aquarium_v0.parallel_env"
+            "marl_aquarium.env.aquarium.raw_env" if which == "raw" else "marl_aquarium.aquarium_v0.parallel_env"
         ),
         "env_steps_per_s": statistics.median(r["env_steps_per_s"] for r in runs),
         "agent_steps_per_s": statistics.median(r["agent_steps_per_s"] for r in runs),
@@ -348,8 +340,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"ERROR: could not set up the original marl-aquarium venv at {args.venv}:\n{exc}", file=sys.stderr)
         return 2
     print(
-        f"[original] venv {setup['venv']} {'reused' if setup['reused'] else 'created'} "
-        f"in {setup['setup_s']:.1f} s",
+        f"[original] venv {setup['venv']} {'reused' if setup['reused'] else 'created'} in {setup['setup_s']:.1f} s",
         file=sys.stderr,
     )
     if args.setup_only:
@@ -376,8 +367,10 @@ def main(argv: list[str] | None = None) -> int:
         return 3
 
     print()
-    print(f"original marl-aquarium 0.1.10, CPU, random actions, no rendering "
-          f"({args.repeats} runs x {args.seconds:g} s, median)")
+    print(
+        f"original marl-aquarium 0.1.10, CPU, random actions, no rendering "
+        f"({args.repeats} runs x {args.seconds:g} s, median)"
+    )
     hdr = f"{'entry point':<40} {'env-steps/s':>12} {'agent-steps/s':>14} {'runs (env-steps/s)':>28} {'RSS MB':>7}"
     print(hdr)
     print("-" * len(hdr))

@@ -109,23 +109,35 @@ def main(argv: list[str] | None = None) -> None:
     variants = {text: parse_variant(text) for text in args.variants}
     paths: dict[str, tuple[int, int | None] | None] = {"stages": None}
     paths.update({f"fused {text}": v for text, v in variants.items()})
-    record: dict = {"device": wp.get_device(args.device).name, "warp": wp.config.version, "steps": args.steps,
-                    "repeats": args.repeats, "ms_per_step": {}, "drift": {},
-                    "command": command_line(argv, Path(__file__).name),
-                    "git": git_info(), "machine": machine_info(args.device)}
+    record: dict = {
+        "device": wp.get_device(args.device).name,
+        "warp": wp.config.version,
+        "steps": args.steps,
+        "repeats": args.repeats,
+        "ms_per_step": {},
+        "drift": {},
+        "command": command_line(argv, Path(__file__).name),
+        "git": git_info(),
+        "machine": machine_info(args.device),
+    }
 
-    print(f"device {record['device']}, warp {record['warp']}; drift after {args.check_steps} steps of "
-          f"{args.check_worlds} worlds, fused against staged:")
+    print(
+        f"device {record['device']}, warp {record['warp']}; drift after {args.check_steps} steps of "
+        f"{args.check_worlds} worlds, fused against staged:"
+    )
     for name, variant in paths.items():
         if variant is None:
             continue
         d = drift(variant, args.check_worlds, args.check_steps, args.device)
         record["drift"][name] = d
         floats = d["float_max_abs"]
-        print(f"  {name:16s} position {floats['position']:.3g}  obs_prey {floats['obs_prey']:.3g}  "
-              f"obs_predator {floats['obs_predator']:.3g}  max float {max(floats.values()):.3g}  "
-              f"unequal non-float entries {sum(d['unequal'].values())} "
-              f"({', '.join(f'{k} {v}' for k, v in d['unequal'].items() if v)})", flush=True)
+        print(
+            f"  {name:16s} position {floats['position']:.3g}  obs_prey {floats['obs_prey']:.3g}  "
+            f"obs_predator {floats['obs_predator']:.3g}  max float {max(floats.values()):.3g}  "
+            f"unequal non-float entries {sum(d['unequal'].values())} "
+            f"({', '.join(f'{k} {v}' for k, v in d['unequal'].items() if v)})",
+            flush=True,
+        )
 
     for worlds in args.worlds:
         row = record["ms_per_step"].setdefault(str(worlds), {})

@@ -49,8 +49,9 @@ def child(args) -> int:
     from aquarium_warp.rollout import random_actions
 
     cfg = density_config(args.agents)
-    env = BatchedAquarium(cfg, num_worlds=args.worlds, device=args.device, seed=0, cpu_threads=1,
-                          step_kernel=args.step_kernel)
+    env = BatchedAquarium(
+        cfg, num_worlds=args.worlds, device=args.device, seed=0, cpu_threads=1, step_kernel=args.step_kernel
+    )
     gen = torch.Generator(device=env.torch_device).manual_seed(0)
     actions = random_actions(cfg, args.worlds, gen, env.torch_device)
     for _ in range(3):
@@ -79,8 +80,17 @@ def parse_ncu_csv(text: str) -> list[dict]:
     if len(rows) < 3:
         raise RuntimeError("ncu profiled no kernel:\n" + text[-2000:])
     header, units = rows[0], rows[1]
-    scale = {"byte": 1, "Kbyte": 1e3, "Mbyte": 1e6, "Gbyte": 1e9, "ns": 1, "us": 1e3, "usecond": 1e3,
-             "msecond": 1e6, "nsecond": 1}
+    scale = {
+        "byte": 1,
+        "Kbyte": 1e3,
+        "Mbyte": 1e6,
+        "Gbyte": 1e9,
+        "ns": 1,
+        "us": 1e3,
+        "usecond": 1e3,
+        "msecond": 1e6,
+        "nsecond": 1,
+    }
     kernels = []
     for row in rows[2:]:
         values = dict(zip(header, row))
@@ -97,30 +107,43 @@ def parse_ncu_csv(text: str) -> list[dict]:
 def summarize(kernels: list[dict], agents: int, model_bytes: float, copy_bandwidth: float | None) -> dict:
     time_s = sum(k["time_ns"] for k in kernels) * 1e-9
     dram = sum(k["dram_read_bytes"] + k["dram_write_bytes"] for k in kernels)
-    result = {"kernel_time_ms": time_s * 1e3, "dram_bytes_per_agent_step": dram / agents,
-              "model_bytes_per_agent_step": model_bytes, "dram_over_model": dram / agents / model_bytes,
-              "dram_bandwidth_tb_s": dram / time_s / 1e12,
-              "l2_bytes_per_agent_step": sum(k["l2_bytes"] for k in kernels) / agents,
-              "warp_instructions_per_agent_step": sum(k["warp_instructions"] for k in kernels) / agents}
+    result = {
+        "kernel_time_ms": time_s * 1e3,
+        "dram_bytes_per_agent_step": dram / agents,
+        "model_bytes_per_agent_step": model_bytes,
+        "dram_over_model": dram / agents / model_bytes,
+        "dram_bandwidth_tb_s": dram / time_s / 1e12,
+        "l2_bytes_per_agent_step": sum(k["l2_bytes"] for k in kernels) / agents,
+        "warp_instructions_per_agent_step": sum(k["warp_instructions"] for k in kernels) / agents,
+    }
     if copy_bandwidth:
         result["dram_fraction_of_copy"] = dram / time_s / copy_bandwidth
     return result
 
 
 def format_table(kernels: list[dict], totals: dict, agents: int) -> str:
-    lines = [f"{'kernel':34s} {'time us':>8s} {'DRAM rd B/ag':>12s} {'DRAM wr B/ag':>12s} {'L2 B/ag':>8s} "
-             f"{'instr/ag':>8s} {'issue %':>7s} {'occ %':>6s} {'thr/ins':>7s} {'regs':>4s}"]
+    lines = [
+        f"{'kernel':34s} {'time us':>8s} {'DRAM rd B/ag':>12s} {'DRAM wr B/ag':>12s} {'L2 B/ag':>8s} "
+        f"{'instr/ag':>8s} {'issue %':>7s} {'occ %':>6s} {'thr/ins':>7s} {'regs':>4s}"
+    ]
     for k in kernels:
-        lines.append(f"{k['kernel'][:34]:34s} {k['time_ns'] / 1e3:8.1f} {k['dram_read_bytes'] / agents:12.1f} "
-                     f"{k['dram_write_bytes'] / agents:12.1f} {k['l2_bytes'] / agents:8.1f} "
-                     f"{k['warp_instructions'] * 32 / agents:8.0f} {k['issue_active_pct']:7.1f} "
-                     f"{k['occupancy_pct']:6.1f} {k['threads_per_instruction']:7.1f} {k['registers']:4.0f}")
-    lines.append(f"kernels {totals['kernel_time_ms']:.3f} ms (launched one by one); DRAM "
-                 f"{totals['dram_bytes_per_agent_step']:.0f} B per agent-step measured vs "
-                 f"{totals['model_bytes_per_agent_step']:.0f} B in step_byte_model "
-                 f"({totals['dram_over_model']:.2f}x); {totals['dram_bandwidth_tb_s']:.2f} TB/s over the kernels"
-                 + (f" ({100 * totals['dram_fraction_of_copy']:.1f}% of copy bandwidth)"
-                    if "dram_fraction_of_copy" in totals else ""))
+        lines.append(
+            f"{k['kernel'][:34]:34s} {k['time_ns'] / 1e3:8.1f} {k['dram_read_bytes'] / agents:12.1f} "
+            f"{k['dram_write_bytes'] / agents:12.1f} {k['l2_bytes'] / agents:8.1f} "
+            f"{k['warp_instructions'] * 32 / agents:8.0f} {k['issue_active_pct']:7.1f} "
+            f"{k['occupancy_pct']:6.1f} {k['threads_per_instruction']:7.1f} {k['registers']:4.0f}"
+        )
+    lines.append(
+        f"kernels {totals['kernel_time_ms']:.3f} ms (launched one by one); DRAM "
+        f"{totals['dram_bytes_per_agent_step']:.0f} B per agent-step measured vs "
+        f"{totals['model_bytes_per_agent_step']:.0f} B in step_byte_model "
+        f"({totals['dram_over_model']:.2f}x); {totals['dram_bandwidth_tb_s']:.2f} TB/s over the kernels"
+        + (
+            f" ({100 * totals['dram_fraction_of_copy']:.1f}% of copy bandwidth)"
+            if "dram_fraction_of_copy" in totals
+            else ""
+        )
+    )
     lines.append("instr/ag: thread-instruction slots per agent (warp instructions x 32 / agents)")
     return "\n".join(lines)
 
@@ -140,8 +163,12 @@ def main(argv=None) -> int:
     parser.add_argument("--ncu", default=None, help="path of the ncu executable (default: PATH, then /usr/local/cuda)")
     parser.add_argument("--out-dir", default=str(REPO / "benchmarks" / "results"))
     parser.add_argument("--git-commit", default=None)
-    parser.add_argument("--step-kernel", default="auto", choices=("auto", "fused", "stages"),
-                        help="the env's step_kernel option (default auto: fused on worlds of one cell)")
+    parser.add_argument(
+        "--step-kernel",
+        default="auto",
+        choices=("auto", "fused", "stages"),
+        help="the env's step_kernel option (default auto: fused on worlds of one cell)",
+    )
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.worlds < 1 or args.agents < 2:
@@ -155,10 +182,31 @@ def main(argv=None) -> int:
     from aquarium_warp.records import command_line, git_info, machine_info
 
     ncu = find_ncu(args.ncu)
-    command = [ncu, "--profile-from-start", "off", "--cache-control", "none", "--clock-control", "none",
-               "--metrics", ",".join(METRICS), "--csv", "--page", "raw",
-               sys.executable, str(Path(__file__).resolve()), "--child", "--device", args.device,
-               "--worlds", str(args.worlds), "--agents", str(args.agents), "--step-kernel", args.step_kernel]
+    command = [
+        ncu,
+        "--profile-from-start",
+        "off",
+        "--cache-control",
+        "none",
+        "--clock-control",
+        "none",
+        "--metrics",
+        ",".join(METRICS),
+        "--csv",
+        "--page",
+        "raw",
+        sys.executable,
+        str(Path(__file__).resolve()),
+        "--child",
+        "--device",
+        args.device,
+        "--worlds",
+        str(args.worlds),
+        "--agents",
+        str(args.agents),
+        "--step-kernel",
+        args.step_kernel,
+    ]
     run = subprocess.run(command, capture_output=True, text=True, env=dict(os.environ, GIT_PYTHON_REFRESH="quiet"))
     if run.returncode != 0:
         sys.stderr.write(run.stdout[-3000:] + run.stderr[-3000:])
@@ -170,12 +218,20 @@ def main(argv=None) -> int:
     totals = summarize(kernels, agents, step_byte_model(cfg)["total"], copy.get("bytes_per_s"))
     print(f"{args.worlds} worlds x {cfg.capacity} agents on {args.device}: one step, kernel by kernel (Nsight Compute)")
     print(format_table(kernels, totals, agents))
-    result = {"benchmark": "aquarium-warp: Nsight Compute profile of one step",
-              "created_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-              "command": command_line(), "ncu_command": " ".join(command[:12]),
-              "machine": machine_info(args.device), "git": git_info(args.git_commit), "copy_bandwidth": copy,
-              "worlds": args.worlds, "agents_per_world": cfg.capacity, "step_kernel": args.step_kernel,
-              "kernels": kernels, "totals": totals}
+    result = {
+        "benchmark": "aquarium-warp: Nsight Compute profile of one step",
+        "created_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "command": command_line(),
+        "ncu_command": " ".join(command[:12]),
+        "machine": machine_info(args.device),
+        "git": git_info(args.git_commit),
+        "copy_bandwidth": copy,
+        "worlds": args.worlds,
+        "agents_per_world": cfg.capacity,
+        "step_kernel": args.step_kernel,
+        "kernels": kernels,
+        "totals": totals,
+    }
     out = Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     suffix = "" if args.step_kernel == "auto" else f"_{args.step_kernel}"

@@ -20,7 +20,7 @@ import subprocess
 import sys
 import tempfile
 
-CHILD = r'''
+CHILD = r"""
 import json, os, time
 import torch
 torch.set_num_threads(1)  # one thread: less sensitive to a busy machine, the same for both trees
@@ -46,7 +46,7 @@ trainer = Trainer(make_config("tiny", {"train": {"device": "cpu", "iterations": 
 start = time.perf_counter()
 trainer.train()
 print(json.dumps({"step_ms": step_ms, "train_s": time.perf_counter() - start}))
-'''
+"""
 
 
 def stage(tree: str, where: str) -> str:
@@ -61,8 +61,9 @@ def stage(tree: str, where: str) -> str:
 
 def measure(path: str) -> dict:
     env = dict(os.environ, PYTHONPATH=path, GIT_PYTHON_REFRESH="quiet")
-    run = subprocess.run([sys.executable, "-c", CHILD], cwd=tempfile.gettempdir(), env=env, capture_output=True,
-                         text=True)
+    run = subprocess.run(
+        [sys.executable, "-c", CHILD], cwd=tempfile.gettempdir(), env=env, capture_output=True, text=True
+    )
     lines = [line for line in run.stdout.splitlines() if line.startswith("{")]
     if run.returncode or not lines:
         raise RuntimeError(f"the child for {path} failed: {run.stderr[-2000:]}")
@@ -82,8 +83,10 @@ def main(argv=None) -> int:
     from aquarium_warp.records import provenance
 
     work = tempfile.mkdtemp()
-    trees = {"before": stage(args.before, os.path.join(work, "before")),
-             "after": stage(args.after, os.path.join(work, "after"))}
+    trees = {
+        "before": stage(args.before, os.path.join(work, "before")),
+        "after": stage(args.after, os.path.join(work, "after")),
+    }
     for path in trees.values():
         measure(path)  # compiles the tree's kernels (untimed)
     runs: dict[str, list[dict]] = {name: [] for name in trees}
@@ -95,13 +98,18 @@ def main(argv=None) -> int:
     medians = {name: {k: statistics.median(r[k] for r in rs) for k in keys} for name, rs in runs.items()}
     # The fastest round: on a shared machine, the least disturbed one (the median is given beside it).
     minima = {name: {k: min(r[k] for r in rs) for k in keys} for name, rs in runs.items()}
-    result = {"runs": runs, "medians": medians, "minima": minima,
-              "after_over_before": {k: medians["after"][k] / medians["before"][k] for k in keys},
-              "after_over_before_minima": {k: minima["after"][k] / minima["before"][k] for k in keys},
-              "commits": {name: git_info_of(path) for name, path in (("before", args.before), ("after", args.after))},
-              **provenance("cpu", commit=git_info_of(args.after))}
-    print(json.dumps({key: result[key] for key in ("medians", "minima", "after_over_before",
-                                                   "after_over_before_minima")}))
+    result = {
+        "runs": runs,
+        "medians": medians,
+        "minima": minima,
+        "after_over_before": {k: medians["after"][k] / medians["before"][k] for k in keys},
+        "after_over_before_minima": {k: minima["after"][k] / minima["before"][k] for k in keys},
+        "commits": {name: git_info_of(path) for name, path in (("before", args.before), ("after", args.after))},
+        **provenance("cpu", commit=git_info_of(args.after)),
+    }
+    print(
+        json.dumps({key: result[key] for key in ("medians", "minima", "after_over_before", "after_over_before_minima")})
+    )
     if args.out:
         with open(args.out, "w", encoding="utf-8") as f:
             json.dump(result, f, indent=1)

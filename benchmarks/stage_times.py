@@ -30,8 +30,12 @@ def main(argv=None) -> int:
     parser.add_argument("--agents", type=int, default=17, help="agents per world at the default density")
     parser.add_argument("--repeats", type=int, default=20)
     parser.add_argument("--cell-size", type=float, default=None, help="grid_cell_size (default: chosen by the env)")
-    parser.add_argument("--step-kernel", default="auto", choices=("auto", "fused", "stages"),
-                        help="the env's step_kernel option (default auto: fused on worlds of one cell)")
+    parser.add_argument(
+        "--step-kernel",
+        default="auto",
+        choices=("auto", "fused", "stages"),
+        help="the env's step_kernel option (default auto: fused on worlds of one cell)",
+    )
     args = parser.parse_args(argv)
     if args.worlds < 1:
         parser.error(f"--worlds must be >= 1, got {args.worlds}")
@@ -40,8 +44,9 @@ def main(argv=None) -> int:
     cfg = density_config(args.agents)  # 17 agents: the default config
     if args.cell_size is not None:
         cfg = dataclasses.replace(cfg, grid_cell_size=args.cell_size)
-    env = BatchedAquarium(cfg, num_worlds=args.worlds, device=args.device, seed=0, cpu_threads=1,
-                          step_kernel=args.step_kernel)
+    env = BatchedAquarium(
+        cfg, num_worlds=args.worlds, device=args.device, seed=0, cpu_threads=1, step_kernel=args.step_kernel
+    )
     cuda = wp.get_device(env.device).is_cuda
     gen = torch.Generator(device=env.torch_device).manual_seed(0)
     actions = random_actions(cfg, args.worlds, gen, env.torch_device)
@@ -65,8 +70,10 @@ def main(argv=None) -> int:
                 times[i].append((time.perf_counter() - t) * 1e3)
     agents = args.worlds * cfg.capacity
     total = 0.0
-    print(f"{args.worlds} worlds x {cfg.capacity} agents on {env.device}, "
-          f"{env.grid_dims[0]} x {env.grid_dims[1]} cells per world")
+    print(
+        f"{args.worlds} worlds x {cfg.capacity} agents on {env.device}, "
+        f"{env.grid_dims[0]} x {env.grid_dims[1]} cells per world"
+    )
     for command, samples in zip(program, times):
         ms = statistics.median(samples)
         total += ms

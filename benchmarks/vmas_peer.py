@@ -40,9 +40,20 @@ def vmas_version() -> str | None:
     return getattr(vmas, "__version__", "unknown")
 
 
-def measure_vmas(agents_per_env: int, envs: int, device: str = "cpu", seconds: float = 1.0, repeats: int = 3,
-                 *, scenario: str = SCENARIO, warmup_steps: int = 2, min_steps: int = 2, budget_s: float | None = None,
-                 seed: int = 0, scenario_kwargs: dict | None = None) -> dict:
+def measure_vmas(
+    agents_per_env: int,
+    envs: int,
+    device: str = "cpu",
+    seconds: float = 1.0,
+    repeats: int = 3,
+    *,
+    scenario: str = SCENARIO,
+    warmup_steps: int = 2,
+    min_steps: int = 2,
+    budget_s: float | None = None,
+    seed: int = 0,
+    scenario_kwargs: dict | None = None,
+) -> dict:
     """Time `envs` parallel VMAS `scenario` environments of `agents_per_env` agents on `device`.
 
     Each timed run steps with random discrete actions (a pool of 8 action sets drawn beforehand on the
@@ -81,6 +92,7 @@ def measure_vmas(agents_per_env: int, envs: int, device: str = "cpu", seconds: f
     per_run = max(seconds, first_step_s * min_steps)  # a run lasts `seconds` and `min_steps` steps at least
     if budget_s is not None and per_run * repeats > budget_s:
         runs_made = min(repeats, max(1, int(budget_s // max(per_run, 1e-9))))
+
     def advance(i, step=env.step, actions=pool):
         step(actions[i % 8])
 
@@ -92,21 +104,39 @@ def measure_vmas(agents_per_env: int, envs: int, device: str = "cpu", seconds: f
     if cuda:
         torch.cuda.empty_cache()
     return {
-        "peer": "vmas", "vmas": vmas_version(), "scenario": scenario, "scenario_kwargs": kwargs,
-        "continuous_actions": False, "device": device, "device_name": name,
-        "envs": envs, "agents_per_env": agents_per_env, "prey_per_env": prey, "predators_per_env": predators,
-        "agents": agents, "step_ms": step_s * 1e3, "agent_steps_per_s": agents / step_s,
-        "ns_per_agent_step": step_s / agents * 1e9, "runs_step_ms": [t * 1e3 for t in per_step],
-        "runs": runs_made, "repeats_asked": repeats, "build_s": build_s, "first_step_ms": first_step_s * 1e3,
-        "observation_floats_per_env": obs_floats, "torch": torch.__version__,
+        "peer": "vmas",
+        "vmas": vmas_version(),
+        "scenario": scenario,
+        "scenario_kwargs": kwargs,
+        "continuous_actions": False,
+        "device": device,
+        "device_name": name,
+        "envs": envs,
+        "agents_per_env": agents_per_env,
+        "prey_per_env": prey,
+        "predators_per_env": predators,
+        "agents": agents,
+        "step_ms": step_s * 1e3,
+        "agent_steps_per_s": agents / step_s,
+        "ns_per_agent_step": step_s / agents * 1e9,
+        "runs_step_ms": [t * 1e3 for t in per_step],
+        "runs": runs_made,
+        "repeats_asked": repeats,
+        "build_s": build_s,
+        "first_step_ms": first_step_s * 1e3,
+        "observation_floats_per_env": obs_floats,
+        "torch": torch.__version__,
     }
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default="cpu")
-    parser.add_argument("--agents", default="17",
-                        help="agents per environment, a comma list; '...' continues the progression (default 17)")
+    parser.add_argument(
+        "--agents",
+        default="17",
+        help="agents per environment, a comma list; '...' continues the progression (default 17)",
+    )
     parser.add_argument("--envs", default="1", help="parallel environments, a comma list (default 1)")
     parser.add_argument("--seconds", type=float, default=1.0)
     parser.add_argument("--repeats", type=int, default=3)
@@ -127,8 +157,11 @@ def main(argv=None) -> int:
         for e in envs:
             row = measure_vmas(n, e, args.device, args.seconds, args.repeats, budget_s=args.budget)
             rows.append(row)
-            print(f"VMAS {SCENARIO} {e:6d} envs x {n:5d} agents on {args.device}: {row['step_ms']:10.3f} ms/step  "
-                  f"{row['agent_steps_per_s']:11.3e} agent-steps/s", flush=True)
+            print(
+                f"VMAS {SCENARIO} {e:6d} envs x {n:5d} agents on {args.device}: {row['step_ms']:10.3f} ms/step  "
+                f"{row['agent_steps_per_s']:11.3e} agent-steps/s",
+                flush=True,
+            )
     if args.out:
         with open(args.out, "w", encoding="utf-8") as f:
             json.dump(rows, f, indent=2)

@@ -76,8 +76,15 @@ def mark_captures(
         return
     pos = agents.position[w, i]
     contact = types[w, PREY].radius + types[w, PREDATOR].radius
-    walk = square_walk(grid, w, world.capacity, pos, start_of_step_radius(world, w, contact, types[w, PREY].max_speed),
-                       row_thread, row_threads)
+    walk = square_walk(
+        grid,
+        w,
+        world.capacity,
+        pos,
+        start_of_step_radius(world, w, contact, types[w, PREY].max_speed),
+        row_thread,
+        row_threads,
+    )
     while next_run(grid, walk):
         for n in range(run_length(walk.runs)):
             j = listed_slot(grid, run_entry(walk.runs, n), walk.base)
@@ -151,8 +158,9 @@ def share_rewards(
     share = wp.max(values.catch_share_radius, contact)
     total = float(0.0)
     is_capturer = bool(False)
-    walk = square_walk(grid, w, world.capacity, pos,
-                       start_of_step_radius(world, w, share, types[w, PREY].max_speed), 0, 1)
+    walk = square_walk(
+        grid, w, world.capacity, pos, start_of_step_radius(world, w, share, types[w, PREY].max_speed), 0, 1
+    )
     while next_run(grid, walk):
         for n in range(run_length(walk.runs)):
             j = listed_slot(grid, run_entry(walk.runs, n), walk.base)
@@ -178,15 +186,22 @@ def share_rewards(
 
 
 @wp.func
-def respawn_or_remove(world: WorldParams, scratch: Scratch, counters: WorldCounters, agents: Agents,
-                      outputs: StepOutputs, w: int, i: int):
+def respawn_or_remove(
+    world: WorldParams, scratch: Scratch, counters: WorldCounters, agents: Agents, outputs: StepOutputs, w: int, i: int
+):
     """Prey slot i of world w, if captured, reappears as a fresh prey at a uniform position, or is
     removed and terminated; then docs/model.md step 8 for the slot: a prey alive now gets its survival
     reward, and the slot's reward goes into its episode sum."""
     if scratch.captured[w, i]:
         if world.respawn_captured_prey != 0:
-            rng = random_stream(counters.seed[w], world.world_offset + w, counters.episode[w],
-                                counters.world_step[w] + 1, i, PURPOSE_RESPAWN)
+            rng = random_stream(
+                counters.seed[w],
+                world.world_offset + w,
+                counters.episode[w],
+                counters.world_step[w] + 1,
+                i,
+                PURPOSE_RESPAWN,
+            )
             make_fresh_prey(world, w, i, uniform_position(world, rng, 0.0), rng, agents)
         else:
             agents.alive[w, i] = False
@@ -246,8 +261,9 @@ def share_capture_rewards(
 
 
 @wp.kernel
-def respawn_captured_prey(world: WorldParams, scratch: Scratch, counters: WorldCounters, agents: Agents,
-                          outputs: StepOutputs):
+def respawn_captured_prey(
+    world: WorldParams, scratch: Scratch, counters: WorldCounters, agents: Agents, outputs: StepOutputs
+):
     """`respawn_or_remove` for every prey slot."""
     w, i = wp.tid()
     respawn_or_remove(world, scratch, counters, agents, outputs, w, i)

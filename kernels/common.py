@@ -166,8 +166,12 @@ def current(world: WorldParams, v: WorldValues, pos: wp.vec2, t: int) -> wp.vec2
         i1 = (i0 + 1) % rows
         k = v.flow_grid
         cells = world.flow_grid
-        c = ((1.0 - fx) * (1.0 - fy)) * cells[k, i0, j0] + (fx * (1.0 - fy)) * cells[k, i0, j1] \
-            + ((1.0 - fx) * fy) * cells[k, i1, j0] + (fx * fy) * cells[k, i1, j1]
+        c = (
+            ((1.0 - fx) * (1.0 - fy)) * cells[k, i0, j0]
+            + (fx * (1.0 - fy)) * cells[k, i0, j1]
+            + ((1.0 - fx) * fy) * cells[k, i1, j0]
+            + (fx * fy) * cells[k, i1, j1]
+        )
     if v.flow_amplitude != 0.0:
         c = c * (1.0 + v.flow_amplitude * wp.sin(2.0 * wp.pi * float(t) / v.flow_period))
     return c

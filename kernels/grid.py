@@ -133,11 +133,19 @@ def row_run_entries(grid: CellLists, world: int, center: wp.vec2i, oy: int, x_fi
         shift = wp.where(b < 0, dims, -dims)
         return wp.vec4i(grid.cell_start[base + a + shift], grid.cell_end[base + b + shift], 0, 0)
     if a < 0:  # the run's left part lies at the row's far end
-        return wp.vec4i(grid.cell_start[base + a + dims], grid.cell_end[base + dims - 1], grid.cell_start[base],
-                        grid.cell_end[base + b])
+        return wp.vec4i(
+            grid.cell_start[base + a + dims],
+            grid.cell_end[base + dims - 1],
+            grid.cell_start[base],
+            grid.cell_end[base + b],
+        )
     if b >= dims:  # its right part lies at the row's start
-        return wp.vec4i(grid.cell_start[base + a], grid.cell_end[base + dims - 1], grid.cell_start[base],
-                        grid.cell_end[base + b - dims])
+        return wp.vec4i(
+            grid.cell_start[base + a],
+            grid.cell_end[base + dims - 1],
+            grid.cell_start[base],
+            grid.cell_end[base + b - dims],
+        )
     return wp.vec4i(grid.cell_start[base + a], grid.cell_end[base + b], 0, 0)
 
 
@@ -301,16 +309,25 @@ class CellWalk:
 
 
 @wp.func(inline=True)
-def cell_walk(grid: CellLists, w: int, capacity: int, p: wp.vec2, first_ring: int, bound2: float, first_segment: int,
-              segment_stride: int) -> CellWalk:
+def cell_walk(
+    grid: CellLists,
+    w: int,
+    capacity: int,
+    p: wp.vec2,
+    first_ring: int,
+    bound2: float,
+    first_segment: int,
+    segment_stride: int,
+) -> CellWalk:
     """A walk whose first step is the square of rings 0..first_ring, of which a run walk takes the row
     runs first_segment, first_segment + segment_stride, ..."""
     walk = CellWalk()
     walk.world = w
     walk.base = w * capacity
     walk.center = cell_coords(grid, p)
-    walk.inside = wp.vec2(p[0] - float(walk.center[0]) * grid.cell_width,
-                          p[1] - float(walk.center[1]) * grid.cell_height)
+    walk.inside = wp.vec2(
+        p[0] - float(walk.center[0]) * grid.cell_width, p[1] - float(walk.center[1]) * grid.cell_height
+    )
     walk.bound2 = bound2
     walk.first_ring = first_ring
     walk.ring = first_ring
@@ -324,8 +341,9 @@ def cell_walk(grid: CellLists, w: int, capacity: int, p: wp.vec2, first_ring: in
 
 
 @wp.func(inline=True)
-def square_walk(grid: CellLists, w: int, capacity: int, p: wp.vec2, radius: float, row: int,
-                row_stride: int) -> CellWalk:
+def square_walk(
+    grid: CellLists, w: int, capacity: int, p: wp.vec2, radius: float, row: int, row_stride: int
+) -> CellWalk:
     """Fixed-radius walk: the square of cells that holds every agent of world `w` within `radius` of
     `p` (a world of `capacity` slots), row by row; rows `row`, `row + row_stride`, ... of the square
     only (a search split over `row_stride` threads), all rows with (0, 1)."""
@@ -351,8 +369,9 @@ def next_run(grid: CellLists, walk: wp.ref[CellWalk]) -> bool:
     if grid.whole_world != 0:  # the world is one cell: one run, its slots (no cell arithmetic)
         walk.runs = wp.vec4i(grid.cell_start[walk.world], grid.cell_end[walk.world], 0, 0)
     else:
-        run = clip_run(grid, walk_segment(walk.ring, walk.first_ring, walk.segment), walk.inside[0], walk.inside[1],
-                       walk.bound2)
+        run = clip_run(
+            grid, walk_segment(walk.ring, walk.first_ring, walk.segment), walk.inside[0], walk.inside[1], walk.bound2
+        )
         walk.runs = row_run_entries(grid, walk.world, walk.center, run[0], run[1], run[2])
     walk.segment += walk.segment_stride
     return True
@@ -399,7 +418,6 @@ def next_cell(grid: CellLists, walk: wp.ref[CellWalk]) -> bool:
             walk.cell = c
             return True
     return False
-
 
 
 @wp.kernel
@@ -457,8 +475,7 @@ def order_cells(world: WorldParams, agents: Agents, grid: CellLists):
 
 
 @wp.func
-def set_empty_cells(cell_start: wp.array(dtype=int), cell_end: wp.array(dtype=int), first: int, last: int,
-                    entry: int):
+def set_empty_cells(cell_start: wp.array(dtype=int), cell_end: wp.array(dtype=int), first: int, last: int, entry: int):
     """Cells [first, last) hold no agent: their ranges are empty, at `entry`."""
     for c in range(first, last):
         cell_start[c] = entry
@@ -503,8 +520,13 @@ def rank_into_cells_per_world(world: WorldParams, agents: Agents, grid: CellList
             grid.cell_start[first_cell + cell] = first + before
             grid.cell_end[first_cell + cell] = first + before + inside
             if not above:
-                set_empty_cells(grid.cell_start, grid.cell_end, first_cell + cell + 1,
-                                first_cell + grid.cells_per_world, first + before + inside)
+                set_empty_cells(
+                    grid.cell_start,
+                    grid.cell_end,
+                    first_cell + cell + 1,
+                    first_cell + grid.cells_per_world,
+                    first + before + inside,
+                )
     else:
         live = int(0)
         dead_ahead = int(0)

@@ -52,8 +52,9 @@ BOIDS_SEPARATION_RADII = wp.constant(2.0)
 
 
 @wp.func
-def nearest_action(action_direction: wp.array(dtype=wp.vec2), action_count: int, direction: wp.vec2,
-                   heading: wp.vec2) -> int:
+def nearest_action(
+    action_direction: wp.array(dtype=wp.vec2), action_count: int, direction: wp.vec2, heading: wp.vec2
+) -> int:
     """The action whose desired direction makes the smallest angle with `direction` (ties: lower action);
     a zero direction falls back to `heading`. The angle's rounding picks a guess, and the exact test
     (largest dot product with the unit action directions) decides between it and its two neighbours,
@@ -80,13 +81,15 @@ def nearest_action(action_direction: wp.array(dtype=wp.vec2), action_count: int,
 
 
 @wp.func
-def action_towards(world: WorldParams, action_direction: wp.array(dtype=wp.vec2), direction: wp.vec2,
-                   heading: wp.vec2) -> int:
+def action_towards(
+    world: WorldParams, action_direction: wp.array(dtype=wp.vec2), direction: wp.vec2, heading: wp.vec2
+) -> int:
     """The action of an agent heading `heading` that steers nearest to the world `direction` (zero: keep
     the heading), in the world's action frame."""
     if world.ego_actions != 0:  # seen from the heading, "keep the heading" is "up" (action 0)
-        return nearest_action(action_direction, world.action_count, world_to_ego(heading, direction),
-                              wp.vec2(0.0, -1.0))
+        return nearest_action(
+            action_direction, world.action_count, world_to_ego(heading, direction), wp.vec2(0.0, -1.0)
+        )
     return nearest_action(action_direction, world.action_count, direction, heading)
 
 
@@ -223,8 +226,12 @@ def heuristic_policy(
         if near_slot >= 0:
             direction = BOIDS_FLEE * unit_or_zero(-near_disp)
         if flock_count > 0:
-            direction = direction + BOIDS_SEPARATION * unit_or_zero(separation) \
-                + BOIDS_ALIGNMENT * unit_or_zero(flock_heading) + BOIDS_COHESION * unit_or_zero(flock_offset)
+            direction = (
+                direction
+                + BOIDS_SEPARATION * unit_or_zero(separation)
+                + BOIDS_ALIGNMENT * unit_or_zero(flock_heading)
+                + BOIDS_COHESION * unit_or_zero(flock_offset)
+            )
     elif visible_count > 0:
         if all_visible:
             direction = pick_disp
@@ -233,4 +240,3 @@ def heuristic_policy(
     elif any_slot >= 0:
         direction = any_disp
     action[w, a] = action_towards(world, action_direction, direction, h)
-

@@ -64,8 +64,21 @@ LOCAL_ALIGNMENT = wp.constant(11)
 # 1 for prey circling the centroid all one way (a mill), about 1 / sqrt(n) for random headings.
 MILLING = wp.constant(12)
 NUM_VALUES = wp.constant(13)
-VALUE_NAMES = ("polarization", "cohesion", "centroid_x", "centroid_y", "nn_mean", "groups", "largest_group",
-               "predator_distance", "prey_alive", "predator_alive", "captures", "local_alignment", "milling")
+VALUE_NAMES = (
+    "polarization",
+    "cohesion",
+    "centroid_x",
+    "centroid_y",
+    "nn_mean",
+    "groups",
+    "largest_group",
+    "predator_distance",
+    "prey_alive",
+    "predator_alive",
+    "captures",
+    "local_alignment",
+    "milling",
+)
 
 # Columns of the first-stage partial sums [W, chunks, NUM_PARTIALS].
 _P_COUNT = wp.constant(0)  # live prey
@@ -222,8 +235,9 @@ def prey_distances(
 
 
 @wp.kernel
-def link_groups(world: WorldParams, grid: CellLists, agents: Agents, linking_distances: wp.array(dtype=float),
-                swarm: SwarmArrays):
+def link_groups(
+    world: WorldParams, grid: CellLists, agents: Agents, linking_distances: wp.array(dtype=float), swarm: SwarmArrays
+):
     """Per prey slot `(w, i)`: unite `i` with every live prey `j > i` at torus distance
     `< linking_distances[w]` (px; per world, as the prey radii may be), found by a fixed-radius search
     of the cell lists. `parent[w * prey_capacity + i]` must start as `i` (set by `prey_distances`)."""
@@ -246,8 +260,9 @@ def link_groups(world: WorldParams, grid: CellLists, agents: Agents, linking_dis
 
 
 @wp.kernel
-def local_alignment(world: WorldParams, grid: CellLists, agents: Agents, linking_distances: wp.array(dtype=float),
-                    swarm: SwarmArrays):
+def local_alignment(
+    world: WorldParams, grid: CellLists, agents: Agents, linking_distances: wp.array(dtype=float), swarm: SwarmArrays
+):
     """Per prey slot `(w, i)`: `swarm.local_alignment[w, i]` from the live prey closer than
     `linking_distances[w]` (the groups' links; a fixed-radius search, summed in the cells' order)."""
     w, i = wp.tid()

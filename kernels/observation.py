@@ -138,8 +138,7 @@ def ego_neighbour_tuple(
 
 
 @functools.cache
-def observation_rows(predator_slots: int, prey_slots: int, whole_world: bool, observe_flow: bool,
-                     frame: str = "world"):
+def observation_rows(predator_slots: int, prey_slots: int, whole_world: bool, observe_flow: bool, frame: str = "world"):
     """The observation of one agent, for observers with `predator_slots` and `prey_slots` slots, on
     whole-world cell lists or not, with the two flow values after the own block or not, in the
     observation `frame` ("world": docs/model.md's layout; "ego", or "ego+heading" with the observer's world
@@ -215,8 +214,7 @@ def observation_rows(predator_slots: int, prey_slots: int, whole_world: bool, ob
             partner_disp = wp.vec2(0.0, 0.0)
             # The first step visits the square of rings 0..first_ring (usually the whole search),
             # later steps one ring each; cells farther than any wanted agent are skipped.
-            first_ring = wp.min(rings_for_radius(grid, wp.max(v, contact)),
-                                wp.max(contact_rings, FIRST_SQUARE_RINGS))
+            first_ring = wp.min(rings_for_radius(grid, wp.max(v, contact)), wp.max(contact_rings, FIRST_SQUARE_RINGS))
             walk = widening_walk(grid, w, world.capacity, pos, first_ring, wp.max(v2, contact2))
             searching = bool(True)
             while searching:
@@ -329,11 +327,26 @@ def observation_rows(predator_slots: int, prey_slots: int, whole_world: bool, ob
                     offset = torus_displacement(world, pos, grid.position[k2])
                     neighbour = Tuple6()
                     if wp.static(ego):
-                        neighbour = ego_neighbour_tuple(p, types[w, jt], h, kept_d2[e], offset,
-                                                        agents.velocity[w, kept_slot[e]] - own_velocity, signed)
+                        neighbour = ego_neighbour_tuple(
+                            p,
+                            types[w, jt],
+                            h,
+                            kept_d2[e],
+                            offset,
+                            agents.velocity[w, kept_slot[e]] - own_velocity,
+                            signed,
+                        )
                     else:
-                        neighbour = neighbour_tuple(world, p, types[w, jt], jt, kept_d2[e], offset,
-                                                    grid.position[k2], wp.length(agents.velocity[w, kept_slot[e]]))
+                        neighbour = neighbour_tuple(
+                            world,
+                            p,
+                            types[w, jt],
+                            jt,
+                            kept_d2[e],
+                            offset,
+                            grid.position[k2],
+                            wp.length(agents.velocity[w, kept_slot[e]]),
+                        )
                     for q in range(6):
                         row[own + 6 * e + q] = neighbour[q]
                     out.mask[r, e] = True
@@ -347,8 +360,14 @@ def observation_rows(predator_slots: int, prey_slots: int, whole_world: bool, ob
 
 
 @functools.cache
-def observation_kernel(predator_slots: int, prey_slots: int, block_dim: int, whole_world: bool,
-                       observe_flow: bool = False, frame: str = "world"):
+def observation_kernel(
+    predator_slots: int,
+    prey_slots: int,
+    block_dim: int,
+    whole_world: bool,
+    observe_flow: bool = False,
+    frame: str = "world",
+):
     """The observation kernel for observers with `predator_slots` and `prey_slots` slots, launched with
     `dim=(blocks, block_dim)` and `block_dim`, on whole-world cell lists or not (compiled once per
     combination: the kind of lists is fixed at compile time here, where `listed_slot` would test it for

@@ -21,8 +21,9 @@ wp.set_module_options({"enable_backward": False})
 
 
 @wp.func
-def reproduce(world: WorldParams, scratch: Scratch, agents: Agents, outputs: StepOutputs, counters: WorldCounters,
-              w: int):
+def reproduce(
+    world: WorldParams, scratch: Scratch, agents: Agents, outputs: StepOutputs, counters: WorldCounters, w: int
+):
     """World w's births, by one thread: parents in slot order; each child takes the lowest slot that
     was free at the start of the step (a prey removed this step does not free its slot until the next
     step), and gets its survival reward, which goes into its slot's episode sum (the respawn pass
@@ -38,8 +39,14 @@ def reproduce(world: WorldParams, scratch: Scratch, agents: Agents, outputs: Ste
                 free += 1
             if free < world.prey_capacity:
                 child = free
-                rng = random_stream(counters.seed[w], world.world_offset + w, counters.episode[w],
-                                    counters.world_step[w] + 1, child, PURPOSE_NEWBORN)
+                rng = random_stream(
+                    counters.seed[w],
+                    world.world_offset + w,
+                    counters.episode[w],
+                    counters.world_step[w] + 1,
+                    child,
+                    PURPOSE_NEWBORN,
+                )
                 make_fresh_prey(world, w, child, agents.position[w, parent], rng, agents)
                 agents.velocity[w, child] = wp.vec2(0.0, 0.0)
                 agents.age[w, parent] = 0
@@ -102,8 +109,7 @@ def close_episode(world: WorldParams, counters: WorldCounters, outputs: StepOutp
 
 
 @wp.kernel
-def reproduce_prey(world: WorldParams, scratch: Scratch, agents: Agents, outputs: StepOutputs,
-                   counters: WorldCounters):
+def reproduce_prey(world: WorldParams, scratch: Scratch, agents: Agents, outputs: StepOutputs, counters: WorldCounters):
     """`reproduce`, one thread per world."""
     reproduce(world, scratch, agents, outputs, counters, wp.tid())
 

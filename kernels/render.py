@@ -284,8 +284,12 @@ def pixel_box(p: RenderParams, lo: wp.vec2, hi: wp.vec2) -> wp.vec4i:
     image wide each way (so no pixel twice)."""
     i0 = first_pixel(lo[1], 1.0 / p.pixel_height)
     j0 = first_pixel(lo[0], 1.0 / p.pixel_width)
-    return wp.vec4i(i0, span(i0, last_pixel(hi[1], 1.0 / p.pixel_height), p.height_px),
-                    j0, span(j0, last_pixel(hi[0], 1.0 / p.pixel_width), p.width_px))
+    return wp.vec4i(
+        i0,
+        span(i0, last_pixel(hi[1], 1.0 / p.pixel_height), p.height_px),
+        j0,
+        span(j0, last_pixel(hi[0], 1.0 / p.pixel_width), p.width_px),
+    )
 
 
 @wp.func
@@ -411,8 +415,13 @@ def draw_arrow(p: RenderParams, c: wp.vec2, v: wp.vec2, overlay: wp.array2d(dtyp
 
 
 @wp.kernel
-def splat_flow(p: RenderParams, world: WorldParams, w: int, world_step: wp.array(dtype=wp.int32),
-               overlay: wp.array2d(dtype=wp.int32)):
+def splat_flow(
+    p: RenderParams,
+    world: WorldParams,
+    w: int,
+    world_step: wp.array(dtype=wp.int32),
+    overlay: wp.array2d(dtype=wp.int32),
+):
     """One thread per point of a grid `flow_spacing` image pixels apart: an arrow of the current there
     (docs/model.md "Flow fields", at the world's step counter: the one the next move adds), velocity_scale
     steps of drift long, at most 0.9 grid spacings. `w`: the world's index in `world`'s shard."""
@@ -519,8 +528,9 @@ def compose_image(
 
 def launch_splat(params, agents, body_key, cone_count, overlay, capacity, device):
     """Splat the `capacity` slots of world `params.world` into the (cleared) buffers."""
-    wp.launch(splat_agents, dim=capacity, inputs=[params, agents], outputs=[body_key, cone_count, overlay],
-              device=device)
+    wp.launch(
+        splat_agents, dim=capacity, inputs=[params, agents], outputs=[body_key, cone_count, overlay], device=device
+    )
 
 
 def launch_flow(params, world, w, world_step, overlay, device):
@@ -532,5 +542,10 @@ def launch_flow(params, world, w, world_step, overlay, device):
 
 def launch_compose(params, palette, agents, body_key, cone_count, overlay, image, device):
     """Compose the RGB image `[H, W_px, 3]` uint8 from the splat buffers."""
-    wp.launch(compose_image, dim=(params.height_px, params.width_px),
-              inputs=[params, palette, agents, body_key, cone_count, overlay], outputs=[image], device=device)
+    wp.launch(
+        compose_image,
+        dim=(params.height_px, params.width_px),
+        inputs=[params, palette, agents, body_key, cone_count, overlay],
+        outputs=[image],
+        device=device,
+    )

@@ -44,8 +44,16 @@ def make_fresh_prey(
 
 
 @wp.func
-def set_slot(agents: Agents, w: int, i: int, alive: bool, position: wp.vec2, velocity: wp.vec2, heading: wp.vec2,
-             replication_age: int):
+def set_slot(
+    agents: Agents,
+    w: int,
+    i: int,
+    alive: bool,
+    position: wp.vec2,
+    velocity: wp.vec2,
+    heading: wp.vec2,
+    replication_age: int,
+):
     """Slot i of world w as a fresh agent (or an empty slot): zero acceleration, age and starvation."""
     agents.alive[w, i] = alive
     agents.position[w, i] = position

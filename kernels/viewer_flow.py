@@ -7,8 +7,14 @@ from .common import WorldParams, current
 
 
 @wp.kernel
-def sample_current(world: WorldParams, w: int, world_step: wp.array(dtype=wp.int32), cell_x: float, cell_y: float,
-                   out: wp.array2d(dtype=wp.vec2)):
+def sample_current(
+    world: WorldParams,
+    w: int,
+    world_step: wp.array(dtype=wp.int32),
+    cell_x: float,
+    cell_y: float,
+    out: wp.array2d(dtype=wp.vec2),
+):
     """One thread per grid cell: the current (px/step) at the cell's centre, at the world's step counter
     (the one the next move adds). `w`: the world's index in `world`'s shard."""
     i, j = wp.tid()

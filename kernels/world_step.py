@@ -64,9 +64,15 @@ wp.set_module_options({"enable_backward": False})
 MAX_REGISTERS: int | None = 72  # None: the compiler's choice
 
 
-def world_step_kernel(prey_slots: tuple[int, int], predator_slots: tuple[int, int], block_dim: int,
-                      observe_flow: bool, capacities: tuple[int, int], frame: str = "world",
-                      ego_actions: bool = False):
+def world_step_kernel(
+    prey_slots: tuple[int, int],
+    predator_slots: tuple[int, int],
+    block_dim: int,
+    observe_flow: bool,
+    capacities: tuple[int, int],
+    frame: str = "world",
+    ego_actions: bool = False,
+):
     """The fused step for prey observing `prey_slots` (predator slots, prey slots) and predators
     observing `predator_slots`, in blocks of `block_dim` lanes, for worlds of `capacities` (prey,
     predator) slots, with at most MAX_REGISTERS registers per GPU thread. Launched with
@@ -77,18 +83,27 @@ def world_step_kernel(prey_slots: tuple[int, int], predator_slots: tuple[int, in
     # Worlds that fit a block of several lanes are packed, a lane per slot; the others (and every world
     # in a block of one lane) take a block of their own, whose lanes stride over the slots.
     packed = capacities if 1 < sum(capacities) <= block_dim else None
-    return _world_step_kernel(prey_slots, predator_slots, block_dim, observe_flow, packed, MAX_REGISTERS, frame,
-                              ego_actions)
+    return _world_step_kernel(
+        prey_slots, predator_slots, block_dim, observe_flow, packed, MAX_REGISTERS, frame, ego_actions
+    )
 
 
 @functools.cache
-def _world_step_kernel(prey_slots: tuple[int, int], predator_slots: tuple[int, int], block_dim: int,
-                       observe_flow: bool, packed: tuple[int, int] | None, max_registers: int, frame: str,
-                       ego_actions: bool):
+def _world_step_kernel(
+    prey_slots: tuple[int, int],
+    predator_slots: tuple[int, int],
+    block_dim: int,
+    observe_flow: bool,
+    packed: tuple[int, int] | None,
+    max_registers: int,
+    frame: str,
+    ego_actions: bool,
+):
     move_agent = motion_stage(ego_actions)[0]
     prey_row, PreyRows, PreyRow = observation_rows(prey_slots[0], prey_slots[1], True, observe_flow, frame)
-    predator_row, PredatorRows, PredatorRow = observation_rows(predator_slots[0], predator_slots[1], True, observe_flow,
-                                                               frame)
+    predator_row, PredatorRows, PredatorRow = observation_rows(
+        predator_slots[0], predator_slots[1], True, observe_flow, frame
+    )
     # Lanes per world (the stride of the stage loops) and worlds per block.
     lanes = sum(packed) if packed else block_dim
     worlds_per_block = block_dim // lanes
@@ -128,11 +143,23 @@ def _world_step_kernel(prey_slots: tuple[int, int], predator_slots: tuple[int, i
             prey_value = PreyRow()
             predator_value = PredatorRow()
             if i < prey:
-                prey_value = prey_row(world, types, grid, agents, counters, PREY, w, i, w * prey + i, prey_rows,
-                                      scratch)
+                prey_value = prey_row(
+                    world, types, grid, agents, counters, PREY, w, i, w * prey + i, prey_rows, scratch
+                )
             else:
-                predator_value = predator_row(world, types, grid, agents, counters, PREDATOR, w, i,
-                                              w * world.predator_capacity + i - prey, predator_rows, scratch)
+                predator_value = predator_row(
+                    world,
+                    types,
+                    grid,
+                    agents,
+                    counters,
+                    PREDATOR,
+                    w,
+                    i,
+                    w * world.predator_capacity + i - prey,
+                    predator_rows,
+                    scratch,
+                )
             return prey_value, predator_value
 
     observe_slot = wp.func(observe_slot, module="unique")
@@ -199,8 +226,9 @@ def _world_step_kernel(prey_slots: tuple[int, int], predator_slots: tuple[int, i
         # 10: observations of the final state, and the next step's contact partners.
         if wp.static(packed is None):
             for i in range(first, world.capacity, wp.static(lanes)):
-                prey_value, predator_value = observe_slot(world, types, grid, agents, counters, w, i, prey_rows,
-                                                          predator_rows, scratch)
+                prey_value, predator_value = observe_slot(
+                    world, types, grid, agents, counters, w, i, prey_rows, predator_rows, scratch
+                )
                 if i < prey:
                     prey_rows.obs[w * prey + i] = prey_value
                 else:
@@ -211,15 +239,18 @@ def _world_step_kernel(prey_slots: tuple[int, int], predator_slots: tuple[int, i
             prey_value = PreyRow()
             predator_value = PredatorRow()
             if first < world.capacity:
-                prey_value, predator_value = observe_slot(world, types, grid, agents, counters, w, first, prey_rows,
-                                                          predator_rows, scratch)
-            prey_staged = wp.tile_empty(shape=wp.static(staged_prey), dtype=PreyRow,
-                                        storage="shared")
-            predator_staged = wp.tile_empty(shape=wp.static(staged_predators), dtype=PredatorRow,
-                                            storage="shared")
+                prey_value, predator_value = observe_slot(
+                    world, types, grid, agents, counters, w, first, prey_rows, predator_rows, scratch
+                )
+            prey_staged = wp.tile_empty(shape=wp.static(staged_prey), dtype=PreyRow, storage="shared")
+            predator_staged = wp.tile_empty(shape=wp.static(staged_predators), dtype=PredatorRow, storage="shared")
             wp.tile_scatter_masked(prey_staged, group * prey + first, prey_value, first < prey)
-            wp.tile_scatter_masked(predator_staged, group * predators + first - prey, predator_value,
-                                   first >= prey and first < world.capacity)
+            wp.tile_scatter_masked(
+                predator_staged,
+                group * predators + first - prey,
+                predator_value,
+                first >= prey and first < world.capacity,
+            )
             prey_obs = prey_rows.obs  # local arrays: tile_store does not take a struct's field (Warp 1.19)
             predator_obs = predator_rows.obs
             wp.tile_store(prey_obs, prey_staged, offset=block * wp.static(staged_prey))

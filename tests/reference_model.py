@@ -163,9 +163,7 @@ def torus_delta(cfg, a, b) -> np.ndarray:
     """Torus-shortest displacement from point ``a`` to point ``b``."""
     dx = float(b[0]) - float(a[0])
     dy = float(b[1]) - float(a[1])
-    return np.array(
-        [torus_axis_delta(dx, float(cfg.width)), torus_axis_delta(dy, float(cfg.height))], np.float64
-    )
+    return np.array([torus_axis_delta(dx, float(cfg.width)), torus_axis_delta(dy, float(cfg.height))], np.float64)
 
 
 def norm(v) -> float:
@@ -305,8 +303,12 @@ def current(cfg, p, t: int) -> np.ndarray:
         r = p[1] / cfg.height * rows - 0.5
         j0, i0 = math.floor(u), math.floor(r)
         fx, fy = u - j0, r - i0
-        c = ((1 - fx) * (1 - fy) * grid[i0 % rows, j0 % cols] + fx * (1 - fy) * grid[i0 % rows, (j0 + 1) % cols]
-             + (1 - fx) * fy * grid[(i0 + 1) % rows, j0 % cols] + fx * fy * grid[(i0 + 1) % rows, (j0 + 1) % cols])
+        c = (
+            (1 - fx) * (1 - fy) * grid[i0 % rows, j0 % cols]
+            + fx * (1 - fy) * grid[i0 % rows, (j0 + 1) % cols]
+            + (1 - fx) * fy * grid[(i0 + 1) % rows, j0 % cols]
+            + fx * fy * grid[(i0 + 1) % rows, (j0 + 1) % cols]
+        )
     if kind != "none" and flow.amplitude != 0.0:
         c = c * (1.0 + flow.amplitude * math.sin(2.0 * math.pi * t / flow.period))
     return c
@@ -402,9 +404,7 @@ def observe_agent(cfg, state: Mapping[str, np.ndarray], i: int, world_step: int 
     p = state["position"][i]
     hd = state["heading"][i]
     own_speed = norm(state["velocity"][i]) / float(t.max_speed)
-    vec[:OWN_SIZE] = emit(
-        [type_code(cfg, i), p[0] / w, p[1] / h, angle_value(float(hd[0]), float(hd[1])), own_speed]
-    )
+    vec[:OWN_SIZE] = emit([type_code(cfg, i), p[0] / w, p[1] / h, angle_value(float(hd[0]), float(hd[1])), own_speed])
     own = own_size(cfg)
     if own > OWN_SIZE:
         c = np.clip(current(cfg, p, world_step) / float(t.max_speed), -1.0, 1.0)
@@ -573,8 +573,11 @@ def newborn_heading_of(cfg, heading=None) -> np.ndarray:
 
 def fresh_prey(state: dict, slot: int, position, replication_age: int, cfg=None, heading=None) -> None:
     """A respawned prey; with ``cfg`` naming spawn_heading "random", ``heading`` is the drawn heading."""
-    velocity, fresh_heading = (np.array(FRESH_PREY_VELOCITY), np.array(FRESH_PREY_HEADING)) if cfg is None \
+    velocity, fresh_heading = (
+        (np.array(FRESH_PREY_VELOCITY), np.array(FRESH_PREY_HEADING))
+        if cfg is None
         else episode_start_velocity_and_heading(cfg, slot, heading)
+    )
     state["position"][slot] = np.asarray(position, np.float64)
     state["velocity"][slot] = velocity
     state["acceleration"][slot] = 0.0
@@ -675,8 +678,7 @@ def step(
             new["position"][child] = new["position"][parent]
             new["velocity"][child] = 0.0
             new["acceleration"][child] = 0.0
-            drawn = (_lookup(newborn_heading, child, "a newborn heading")
-                     if spawn_heading(cfg) == "random" else None)
+            drawn = _lookup(newborn_heading, child, "a newborn heading") if spawn_heading(cfg) == "random" else None
             new["heading"][child] = newborn_heading_of(cfg, drawn)
             new["alive"][child] = True
             new["age"][child] = 0

@@ -21,13 +21,20 @@ import importlib
 from . import _rsl  # noqa: F401
 
 _EXPORTS = {
-    "AquariumVecEnv": "vec_env", "TrainedOpponent": "drivers",
+    "AquariumVecEnv": "vec_env",
+    "TrainedOpponent": "drivers",
     "CategoricalDistribution": "distribution",
-    "IndividualMLPModel": "models", "BatchedMLP": "models",
+    "IndividualMLPModel": "models",
+    "BatchedMLP": "models",
     "AquariumPPO": "ppo",
-    "make_config": "config", "PRESETS": "config", "env_config": "config",
-    "Trainer": "trainer", "latest_checkpoint": "checkpoints",
-    "export_policy": "export", "load_policy": "export", "LoadedPolicy": "export",
+    "make_config": "config",
+    "PRESETS": "config",
+    "env_config": "config",
+    "Trainer": "trainer",
+    "latest_checkpoint": "checkpoints",
+    "export_policy": "export",
+    "load_policy": "export",
+    "LoadedPolicy": "export",
     "evaluate_policies": "evaluate",
 }
 

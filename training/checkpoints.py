@@ -55,8 +55,7 @@ def latest_checkpoint(run_dir: str) -> str:
 def newest_readable_checkpoint(run_dir: str) -> tuple[str, dict]:
     """`(path, checkpoint)` of `latest_checkpoint(run_dir)`."""
     paths = glob.glob(os.path.join(run_dir, "model_*.pt"))
-    numbered = sorted(((int(m.group(1)), p) for p in paths if (m := re.search(r"model_(\d+)\.pt$", p))),
-                      reverse=True)
+    numbered = sorted(((int(m.group(1)), p) for p in paths if (m := re.search(r"model_(\d+)\.pt$", p))), reverse=True)
     if not numbered:
         raise ValueError(f"no checkpoint model_<i>.pt in {run_dir!r}")
     for _, path in numbered:
@@ -76,8 +75,9 @@ def read_checkpoint(path: str) -> dict:
         checkpoint = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as error:  # noqa: BLE001 - torch raises many kinds for a damaged file (EOF, unpickling, zip)
         reason = (str(error).strip().splitlines() or [""])[0][:200]
-        raise ValueError(f"{path}: not a readable checkpoint (empty, truncated or another format: "
-                         f"{type(error).__name__}: {reason})") from None
+        raise ValueError(
+            f"{path}: not a readable checkpoint (empty, truncated or another format: {type(error).__name__}: {reason})"
+        ) from None
     state = (checkpoint.get("infos") or {}).get("aquarium") if isinstance(checkpoint, dict) else None
     if not isinstance(state, dict) or "config" not in state:
         raise ValueError(f"{path}: not a checkpoint of aquarium_warp.training")

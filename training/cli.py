@@ -37,72 +37,146 @@ def _algorithm(name: str):
     return number(*ALGORITHM_RANGES[name])
 
 
-
-
 # --------------------------------------------------------------------------------------------- train
 def add_train_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--preset", choices=PRESET_NAMES, default=None,
-                   help="base configuration (default: 'default'; 'paper': section 5 of the paper)")
-    p.add_argument("--config", default=None, help="JSON or YAML file with sections env / train / runner "
-                                                  "(and optionally 'preset'); flags override it")
-    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="override any config entry, e.g. runner.algorithm.num_mini_batches=8 (repeatable); "
-                        "one team's learner: teams.<prey|predator>.<sharing|actor_lr|critic_lr|reward_scale|"
-                        "critic|pool_fraction>=V or teams.<team>.runner.<algorithm|actor|critic>.KEY=V")
+    p.add_argument(
+        "--preset",
+        choices=PRESET_NAMES,
+        default=None,
+        help="base configuration (default: 'default'; 'paper': section 5 of the paper)",
+    )
+    p.add_argument(
+        "--config",
+        default=None,
+        help="JSON or YAML file with sections env / train / runner (and optionally 'preset'); flags override it",
+    )
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override any config entry, e.g. runner.algorithm.num_mini_batches=8 (repeatable); "
+        "one team's learner: teams.<prey|predator>.<sharing|actor_lr|critic_lr|reward_scale|"
+        "critic|pool_fraction>=V or teams.<team>.runner.<algorithm|actor|critic>.KEY=V",
+    )
     g = p.add_argument_group("run")
-    g.add_argument("--team", choices=("prey", "predator", "both"), default=None,
-                   help="the learning team; 'both': one PPO learner per team in the same worlds")
-    g.add_argument("--predator-policy", default=None,
-                   help="predators when training prey: 'naivchase' (default), 'random' or a policy file")
-    g.add_argument("--prey-policy", default=None,
-                   help="prey when training predators: 'random' (default), 'turnaway' or a policy file")
-    g.add_argument("--sharing", choices=("parameter", "individual"), default=None,
-                   help="Parameter Sharing (one network, default) or Individual Learning (one per slot)")
-    g.add_argument("--num-worlds", type=int_at_least(1), default=None,
-                   help="worlds stepped in parallel (default 1024)")
+    g.add_argument(
+        "--team",
+        choices=("prey", "predator", "both"),
+        default=None,
+        help="the learning team; 'both': one PPO learner per team in the same worlds",
+    )
+    g.add_argument(
+        "--predator-policy",
+        default=None,
+        help="predators when training prey: 'naivchase' (default), 'random' or a policy file",
+    )
+    g.add_argument(
+        "--prey-policy",
+        default=None,
+        help="prey when training predators: 'random' (default), 'turnaway' or a policy file",
+    )
+    g.add_argument(
+        "--sharing",
+        choices=("parameter", "individual"),
+        default=None,
+        help="Parameter Sharing (one network, default) or Individual Learning (one per slot)",
+    )
+    g.add_argument("--num-worlds", type=int_at_least(1), default=None, help="worlds stepped in parallel (default 1024)")
     g.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
     g.add_argument("--seed", type=int_at_least(0), default=None, help="seed of the worlds and the networks")
     g.add_argument("--iterations", type=int_at_least(0), default=None, help="total PPO iterations of the run")
-    g.add_argument("--episodes", type=positive_float, default=None,
-                   help="total world episodes instead of --iterations (the paper: 4000)")
+    g.add_argument(
+        "--episodes",
+        type=positive_float,
+        default=None,
+        help="total world episodes instead of --iterations (the paper: 4000)",
+    )
     g.add_argument("--log-dir", default=None, help="run directory (default: runs/<team>_<sharing>_<time>)")
-    g.add_argument("--resume", default=None, metavar="PATH",
-                   help="continue a run from a checkpoint model_<i>.pt or the newest one in a run directory")
-    g.add_argument("--overwrite", action="store_true",
-                   help="start a new run in a --log-dir that holds an earlier one, removing its checkpoints, logs "
-                        "and exports (default: such a directory is refused)")
+    g.add_argument(
+        "--resume",
+        default=None,
+        metavar="PATH",
+        help="continue a run from a checkpoint model_<i>.pt or the newest one in a run directory",
+    )
+    g.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="start a new run in a --log-dir that holds an earlier one, removing its checkpoints, logs "
+        "and exports (default: such a directory is refused)",
+    )
     g.add_argument("--export", default=None, help="formats exported after training: 'jit,onnx' (default), 'none'")
-    g.add_argument("--quiet", action="store_true", default=None,
-                   help="a progress bar instead of rsl-rl's per-iteration report")
-    g.add_argument("--randomize", action="append", default=[], metavar="FIELD=LOW:HIGH",
-                   help="domain randomisation: each world's FIELD (e.g. prey_max_speed, prey_count) drawn from "
-                        "[LOW, HIGH] (or FIELD=A,B,C: from the values) at every reset; repeatable")
-    g.add_argument("--no-random-ep-len", action="store_true",
-                   help="start every world at step 0 (default: spread the worlds' truncations)")
-    g.add_argument("--critic", choices=("local", "team", "world"), default=None,
-                   help="what each learner's critic sees besides the agent's observation (MAPPO's centralised "
-                        "critic; actors stay local): nothing (local, default), the team's joint observation "
-                        "(team) or the world state (world)")
-    g.add_argument("--video-every", type=int_at_least(0), default=None, metavar="N",
-                   help="every N iterations a rendered evaluation episode of one world into the log "
-                        "(TensorBoard Video/episode; default 0: none)")
+    g.add_argument(
+        "--quiet", action="store_true", default=None, help="a progress bar instead of rsl-rl's per-iteration report"
+    )
+    g.add_argument(
+        "--randomize",
+        action="append",
+        default=[],
+        metavar="FIELD=LOW:HIGH",
+        help="domain randomisation: each world's FIELD (e.g. prey_max_speed, prey_count) drawn from "
+        "[LOW, HIGH] (or FIELD=A,B,C: from the values) at every reset; repeatable",
+    )
+    g.add_argument(
+        "--no-random-ep-len",
+        action="store_true",
+        help="start every world at step 0 (default: spread the worlds' truncations)",
+    )
+    g.add_argument(
+        "--critic",
+        choices=("local", "team", "world"),
+        default=None,
+        help="what each learner's critic sees besides the agent's observation (MAPPO's centralised "
+        "critic; actors stay local): nothing (local, default), the team's joint observation "
+        "(team) or the world state (world)",
+    )
+    g.add_argument(
+        "--video-every",
+        type=int_at_least(0),
+        default=None,
+        metavar="N",
+        help="every N iterations a rendered evaluation episode of one world into the log "
+        "(TensorBoard Video/episode; default 0: none)",
+    )
     g.add_argument("--video-steps", type=int_at_least(1), default=None, help="steps of that episode (default 200)")
     b = p.add_argument_group("both teams learning (--team both)")
-    b.add_argument("--update-schedule", choices=("simultaneous", "alternating"), default=None,
-                   help="both learners update every iteration (simultaneous, default), or take turns while "
-                        "the other is frozen (alternating)")
-    b.add_argument("--alternate-every", type=int_at_least(1), default=None, metavar="K",
-                   help="alternating: iterations per turn, prey first (default 10)")
-    b.add_argument("--pool-every", type=int_at_least(0), default=None, metavar="N",
-                   help="snapshot each team's actor into its opponent pool every N iterations "
-                        "(fictitious self-play; default 0: no pool)")
+    b.add_argument(
+        "--update-schedule",
+        choices=("simultaneous", "alternating"),
+        default=None,
+        help="both learners update every iteration (simultaneous, default), or take turns while "
+        "the other is frozen (alternating)",
+    )
+    b.add_argument(
+        "--alternate-every",
+        type=int_at_least(1),
+        default=None,
+        metavar="K",
+        help="alternating: iterations per turn, prey first (default 10)",
+    )
+    b.add_argument(
+        "--pool-every",
+        type=int_at_least(0),
+        default=None,
+        metavar="N",
+        help="snapshot each team's actor into its opponent pool every N iterations "
+        "(fictitious self-play; default 0: no pool)",
+    )
     b.add_argument("--pool-size", type=int_at_least(1), default=None, help="snapshots kept per team (default 8)")
-    b.add_argument("--pool-sampling", choices=("uniform", "latest"), default=None,
-                   help="which snapshot a world draws when its episode ends: uniform, or latest-biased "
-                        "(weights 1..n from the oldest to the newest)")
-    b.add_argument("--pool-fraction", type=number("a number in [0, 0.5]", lambda v: 0 <= v <= 0.5), default=None,
-                   help="fraction of worlds in which each team plays against the other team's snapshots "
-                        "(default 0.2; per team: --set teams.<team>.pool_fraction=F, both at most 1)")
+    b.add_argument(
+        "--pool-sampling",
+        choices=("uniform", "latest"),
+        default=None,
+        help="which snapshot a world draws when its episode ends: uniform, or latest-biased "
+        "(weights 1..n from the oldest to the newest)",
+    )
+    b.add_argument(
+        "--pool-fraction",
+        type=number("a number in [0, 0.5]", lambda v: 0 <= v <= 0.5),
+        default=None,
+        help="fraction of worlds in which each team plays against the other team's snapshots "
+        "(default 0.2; per team: --set teams.<team>.pool_fraction=F, both at most 1)",
+    )
     e = p.add_argument_group("environment")
     e.add_argument("--prey", type=int, default=None, help="prey per world")
     e.add_argument("--predators", type=int, default=None, help="predators per world")
@@ -112,23 +186,39 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     a = p.add_argument_group("PPO")
     a.add_argument("--num-steps-per-env", type=int_at_least(1), default=None, help="rollout length per iteration")
     a.add_argument("--save-interval", type=int_at_least(1), default=None, help="checkpoint every N iterations")
-    a.add_argument("--learning-rate", "--actor-lr", dest="actor_lr", type=positive_float, default=None,
-                   help="actor learning rate (rsl-rl's learning_rate)")
-    a.add_argument("--critic-lr", type=positive_float, default=None,
-                   help="critic learning rate (applied as a factor critic_lr/actor_lr on the critic's group)")
+    a.add_argument(
+        "--learning-rate",
+        "--actor-lr",
+        dest="actor_lr",
+        type=positive_float,
+        default=None,
+        help="actor learning rate (rsl-rl's learning_rate)",
+    )
+    a.add_argument(
+        "--critic-lr",
+        type=positive_float,
+        default=None,
+        help="critic learning rate (applied as a factor critic_lr/actor_lr on the critic's group)",
+    )
     a.add_argument("--gamma", type=_algorithm("gamma"), default=None, help="discount factor, in [0, 1]")
     a.add_argument("--lam", type=_algorithm("lam"), default=None, help="GAE lambda, in [0, 1]")
     a.add_argument("--clip", type=_algorithm("clip_param"), default=None, help="PPO clip parameter, in (0, 1]")
     a.add_argument("--entropy", type=_algorithm("entropy_coef"), default=None, help="entropy coefficient, >= 0")
-    a.add_argument("--value-loss-coef", type=_algorithm("value_loss_coef"), default=None,
-                   help="weight of the value loss")
+    a.add_argument(
+        "--value-loss-coef", type=_algorithm("value_loss_coef"), default=None, help="weight of the value loss"
+    )
     a.add_argument("--epochs", type=int_at_least(1), default=None, help="learning epochs per iteration")
     a.add_argument("--minibatches", type=int_at_least(1), default=None, help="mini-batches per epoch")
     a.add_argument("--max-grad-norm", type=_algorithm("max_grad_norm"), default=None, help="gradient norm clip")
-    a.add_argument("--schedule", choices=("fixed", "adaptive"), default=None,
-                   help="learning rate: fixed, or adapted to keep the KL near --desired-kl")
-    a.add_argument("--desired-kl", type=_algorithm("desired_kl"), default=None,
-                   help="KL target of the adaptive schedule")
+    a.add_argument(
+        "--schedule",
+        choices=("fixed", "adaptive"),
+        default=None,
+        help="learning rate: fixed, or adapted to keep the KL near --desired-kl",
+    )
+    a.add_argument(
+        "--desired-kl", type=_algorithm("desired_kl"), default=None, help="KL target of the adaptive schedule"
+    )
     a.add_argument("--hidden-dims", type=_hidden_dims, default=None, help="e.g. 64,64 (actor and critic)")
     a.add_argument("--activation", default=None, help="e.g. tanh, elu, relu")
     a.add_argument("--reward-scale", type=positive_float, default=None, help="factor on the rewards PPO sees")
@@ -136,33 +226,68 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
 
 def _train_changes(args) -> dict:
     """The config changes given by flags (None where a flag was not given)."""
-    train = {"team": args.team, "sharing": args.sharing, "num_worlds": args.num_worlds, "device": args.device,
-             "seed": args.seed, "iterations": args.iterations, "episodes": args.episodes,
-             "actor_lr": args.actor_lr, "critic_lr": args.critic_lr, "reward_scale": args.reward_scale,
-             "export": args.export, "quiet": args.quiet, "critic": args.critic, "video_every": args.video_every,
-             "video_steps": args.video_steps, "update_schedule": args.update_schedule,
-             "alternate_every": args.alternate_every, "pool_every": args.pool_every, "pool_size": args.pool_size,
-             "pool_sampling": args.pool_sampling, "pool_fraction": args.pool_fraction}
+    train = {
+        "team": args.team,
+        "sharing": args.sharing,
+        "num_worlds": args.num_worlds,
+        "device": args.device,
+        "seed": args.seed,
+        "iterations": args.iterations,
+        "episodes": args.episodes,
+        "actor_lr": args.actor_lr,
+        "critic_lr": args.critic_lr,
+        "reward_scale": args.reward_scale,
+        "export": args.export,
+        "quiet": args.quiet,
+        "critic": args.critic,
+        "video_every": args.video_every,
+        "video_steps": args.video_steps,
+        "update_schedule": args.update_schedule,
+        "alternate_every": args.alternate_every,
+        "pool_every": args.pool_every,
+        "pool_size": args.pool_size,
+        "pool_sampling": args.pool_sampling,
+        "pool_fraction": args.pool_fraction,
+    }
     if args.no_random_ep_len:
         train["init_at_random_ep_len"] = False
     if args.randomize:
         train["randomize"] = dict(s.partition("=")[::2] for s in args.randomize)  # checked by validate()
-    env = {"prey_count": args.prey, "predator_count": args.predators, "max_steps": args.max_steps,
-           "width": args.width, "height": args.height}
-    alg = {"gamma": args.gamma, "lam": args.lam, "clip_param": args.clip, "entropy_coef": args.entropy,
-           "value_loss_coef": args.value_loss_coef, "num_learning_epochs": args.epochs,
-           "num_mini_batches": args.minibatches, "max_grad_norm": args.max_grad_norm,
-           "schedule": args.schedule, "desired_kl": args.desired_kl}
-    runner = {"num_steps_per_env": args.num_steps_per_env, "save_interval": args.save_interval,
-              "algorithm": {k: v for k, v in alg.items() if v is not None}}
-    models = {k: v for k, v in {"hidden_dims": args.hidden_dims, "activation": args.activation}.items()
-              if v is not None}
+    env = {
+        "prey_count": args.prey,
+        "predator_count": args.predators,
+        "max_steps": args.max_steps,
+        "width": args.width,
+        "height": args.height,
+    }
+    alg = {
+        "gamma": args.gamma,
+        "lam": args.lam,
+        "clip_param": args.clip,
+        "entropy_coef": args.entropy,
+        "value_loss_coef": args.value_loss_coef,
+        "num_learning_epochs": args.epochs,
+        "num_mini_batches": args.minibatches,
+        "max_grad_norm": args.max_grad_norm,
+        "schedule": args.schedule,
+        "desired_kl": args.desired_kl,
+    }
+    runner = {
+        "num_steps_per_env": args.num_steps_per_env,
+        "save_interval": args.save_interval,
+        "algorithm": {k: v for k, v in alg.items() if v is not None},
+    }
+    models = {
+        k: v for k, v in {"hidden_dims": args.hidden_dims, "activation": args.activation}.items() if v is not None
+    }
     if models:
         runner["actor"] = dict(models)
         runner["critic"] = dict(models)
-    changes = {"train": {k: v for k, v in train.items() if v is not None},
-               "env": {k: v for k, v in env.items() if v is not None},
-               "runner": {k: v for k, v in runner.items() if v not in (None, {})}}
+    changes = {
+        "train": {k: v for k, v in train.items() if v is not None},
+        "env": {k: v for k, v in env.items() if v is not None},
+        "runner": {k: v for k, v in runner.items() if v not in (None, {})},
+    }
     if args.iterations is not None and args.episodes is None:
         changes["train"]["episodes"] = None  # an explicit iteration count wins over a preset's episodes
     return {k: v for k, v in changes.items() if v}
@@ -170,13 +295,15 @@ def _train_changes(args) -> dict:
 
 def _opponent_change(args, team: str) -> dict:
     if team == "both" and (args.prey_policy is not None or args.predator_policy is not None):
-        raise ValueError("--prey-policy / --predator-policy set the other team of a one-team run; with --team both "
-                         "both teams learn")
+        raise ValueError(
+            "--prey-policy / --predator-policy set the other team of a one-team run; with --team both both teams learn"
+        )
     if team == "prey" and args.prey_policy is not None:
         raise ValueError("--prey-policy sets the prey when training predators; with --team prey use --predator-policy")
     if team == "predator" and args.predator_policy is not None:
-        raise ValueError("--predator-policy sets the predators when training prey; "
-                         "with --team predator use --prey-policy")
+        raise ValueError(
+            "--predator-policy sets the predators when training prey; with --team predator use --prey-policy"
+        )
     spec = args.predator_policy if team == "prey" else args.prey_policy
     return {"train": {"opponent": spec}} if spec is not None else {}
 
@@ -206,11 +333,16 @@ def run_train(args) -> int:
     run_dir = None
     if args.resume:
         given = {k: v for k, v in changes.items() if k != "train"}
-        given_train = {k for k in changes.get("train", {})
-                       if k not in ("iterations", "episodes", "export", "quiet", "video_every", "video_steps")}
+        given_train = {
+            k
+            for k in changes.get("train", {})
+            if k not in ("iterations", "episodes", "export", "quiet", "video_every", "video_steps")
+        }
         if given or given_train or sets or args.config or args.preset or args.prey_policy or args.predator_policy:
-            raise ValueError("--resume continues a run with its saved config: only --iterations, --episodes, "
-                             "--export, --quiet, --video-every and --video-steps may be given with it")
+            raise ValueError(
+                "--resume continues a run with its saved config: only --iterations, --episodes, "
+                "--export, --quiet, --video-every and --video-steps may be given with it"
+            )
         log_dir = args.log_dir
         if log_dir is None and os.path.exists(args.resume):  # the checkpoint's run (Trainer.resume's default)
             log_dir = args.resume if os.path.isdir(args.resume) else os.path.dirname(os.path.abspath(args.resume))
@@ -219,24 +351,31 @@ def run_train(args) -> int:
         trainer = Trainer.resume(args.resume, log_dir=log_dir, changes={"train": changes.get("train", {})})
         _check_logger_package(trainer.config["runner"]["logger"])
         say = print if trainer.rank == 0 else _silent
-        say(f"aquarium-warp train: resumed {args.resume} at iteration {trainer.iteration} of "
-            f"{trainer.total_iterations} (log dir {trainer.log_dir})")
+        say(
+            f"aquarium-warp train: resumed {args.resume} at iteration {trainer.iteration} of "
+            f"{trainer.total_iterations} (log dir {trainer.log_dir})"
+        )
     else:
         config = train_config(args)
         if args.log_dir is None and int(os.environ.get("WORLD_SIZE", "1")) > 1:
             raise ValueError("--log-dir is required under torchrun: every process must name the same run directory")
         log_dir = args.log_dir or os.path.join(
-            "runs", f"{config['train']['team']}_{config['train']['sharing']}_{time.strftime('%Y%m%d-%H%M%S')}")
+            "runs", f"{config['train']['team']}_{config['train']['sharing']}_{time.strftime('%Y%m%d-%H%M%S')}"
+        )
         if owner:
             run_dir = claim_run_directory(log_dir, overwrite=args.overwrite)
         trainer = Trainer(config, log_dir=log_dir)
-        learners = " and ".join(f"{t} ({team_settings(config, t)['sharing']} sharing, {trainer.vec_envs[t].slots} "
-                                f"slots)" for t in trainer.teams)
+        learners = " and ".join(
+            f"{t} ({team_settings(config, t)['sharing']} sharing, {trainer.vec_envs[t].slots} slots)"
+            for t in trainer.teams
+        )
         against = "" if trainer.opponent is None else f" vs {trainer.config['train']['opponent']}"
         say = print if trainer.rank == 0 else _silent
         ranks = f" (x{trainer.world_size} processes)" if trainer.world_size > 1 else ""
-        say(f"aquarium-warp train: {learners}{against} on {trainer.env.device}, {trainer.env.num_worlds} "
-            f"worlds{ranks}, {total_iterations(config)} iterations -> {log_dir}")
+        say(
+            f"aquarium-warp train: {learners}{against} on {trainer.env.device}, {trainer.env.num_worlds} "
+            f"worlds{ranks}, {total_iterations(config)} iterations -> {log_dir}"
+        )
     try:
         finish_training(trainer, say)
     finally:
@@ -276,19 +415,26 @@ def finish_training(trainer, say) -> None:
     paths = trainer.export() if trainer.config["train"]["export"] and trainer.rank == 0 else {}
     resumed = f", resumed at {first}" if first else ""
     if ran == 0:
-        say(f"aquarium-warp train: no iterations to run ({trainer.iteration} of {trainer.total_iterations} done"
-            f"{resumed}); no checkpoint written, run config in {trainer.log_dir}")
+        say(
+            f"aquarium-warp train: no iterations to run ({trainer.iteration} of {trainer.total_iterations} done"
+            f"{resumed}); no checkpoint written, run config in {trainer.log_dir}"
+        )
     else:
-        say(f"aquarium-warp train: {plural(ran, 'iteration')} in {time.perf_counter() - start:.1f} s "
+        say(
+            f"aquarium-warp train: {plural(ran, 'iteration')} in {time.perf_counter() - start:.1f} s "
             f"({trainer.iteration} of {trainer.total_iterations} done{resumed}); checkpoints, progress CSV and "
-            f"TensorBoard logs in {trainer.log_dir}")
+            f"TensorBoard logs in {trainer.log_dir}"
+        )
     for key, value in paths.items():
-        for fmt, path in (value.items() if isinstance(value, dict) else [(key, value)]):
+        for fmt, path in value.items() if isinstance(value, dict) else [(key, value)]:
             say(f"  exported {fmt}: {path}")
     if trainer.stop.signum is not None:
-        raise Interrupted(f"stopped by {trainer.stop.name} after iteration {trainer.iteration} of "
-                          f"{trainer.total_iterations}; continue with: aquarium-warp train --resume "
-                          f"{trainer.log_dir}", trainer.stop.signum)
+        raise Interrupted(
+            f"stopped by {trainer.stop.name} after iteration {trainer.iteration} of "
+            f"{trainer.total_iterations}; continue with: aquarium-warp train --resume "
+            f"{trainer.log_dir}",
+            trainer.stop.signum,
+        )
 
 
 def _read_config_file(path: str) -> dict:
@@ -313,16 +459,30 @@ def _read_config_file(path: str) -> dict:
 
 # ---------------------------------------------------------------------------------------------- eval
 def add_eval_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--prey", nargs="*", default=None, metavar="SPEC",
-                   help="prey policies: 'random', 'turnaway', or policy files (exported or checkpoints), "
-                        "optionally LABEL=SPEC; specs sharing a label are pooled (default: random turnaway)")
-    p.add_argument("--predator", nargs="*", default=None, metavar="SPEC",
-                   help="predator policies: 'naivchase', 'naivchase-noconfusion' (chases the nearest prey), "
-                        "'random' or policy files (default: naivchase)")
+    p.add_argument(
+        "--prey",
+        nargs="*",
+        default=None,
+        metavar="SPEC",
+        help="prey policies: 'random', 'turnaway', or policy files (exported or checkpoints), "
+        "optionally LABEL=SPEC; specs sharing a label are pooled (default: random turnaway)",
+    )
+    p.add_argument(
+        "--predator",
+        nargs="*",
+        default=None,
+        metavar="SPEC",
+        help="predator policies: 'naivchase', 'naivchase-noconfusion' (chases the nearest prey), "
+        "'random' or policy files (default: naivchase)",
+    )
     p.add_argument("--episodes", type=int, default=200, help="episodes per seed (paper: 200)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="evaluation seeds (paper: 5)")
-    p.add_argument("--preset", choices=PRESET_NAMES, default=None,
-                   help="take the world from a preset (default: a trained policy's own world, else docs/model.md's)")
+    p.add_argument(
+        "--preset",
+        choices=PRESET_NAMES,
+        default=None,
+        help="take the world from a preset (default: a trained policy's own world, else docs/model.md's)",
+    )
     p.add_argument("--set", action="append", default=[], metavar="env.KEY=VALUE", help="override a world setting")
     p.add_argument("--prey-count", type=int, default=None, help="prey per world (default: the world's)")
     p.add_argument("--predator-count", type=int, default=None, help="predators per world (default: the world's)")
@@ -330,20 +490,38 @@ def add_eval_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
     p.add_argument("--max-worlds", type=int, default=1024, help="episodes run in parallel at most")
     p.add_argument("--stochastic", action="store_true", help="trained policies sample actions (default: argmax)")
-    p.add_argument("--blind", action="append", default=[], metavar="TEAM=TYPE",
-                   help="neighbour ablation: TEAM's trained policies act with their TYPE slots empty (e.g. "
-                        "prey=prey: learned prey that see no other prey); heuristics are unaffected")
+    p.add_argument(
+        "--blind",
+        action="append",
+        default=[],
+        metavar="TEAM=TYPE",
+        help="neighbour ablation: TEAM's trained policies act with their TYPE slots empty (e.g. "
+        "prey=prey: learned prey that see no other prey); heuristics are unaffected",
+    )
     p.add_argument("--out", default="eval_results", help="output directory (CSV, JSON, figures)")
-    p.add_argument("--curves", nargs="*", default=[], metavar="LABEL=RUNDIR_GLOB",
-                   help="also plot training curves of these runs (mean and std band over runs per label); a run "
-                        "of both teams: its run/progress_prey.csv or run/progress_predator.csv")
-    p.add_argument("--smooth", type=int, default=1, metavar="N",
-                   help="training curves: moving average over N iterations (default 1: none)")
+    p.add_argument(
+        "--curves",
+        nargs="*",
+        default=[],
+        metavar="LABEL=RUNDIR_GLOB",
+        help="also plot training curves of these runs (mean and std band over runs per label); a run "
+        "of both teams: its run/progress_prey.csv or run/progress_predator.csv",
+    )
+    p.add_argument(
+        "--smooth",
+        type=int,
+        default=1,
+        metavar="N",
+        help="training curves: moving average over N iterations (default 1: none)",
+    )
     p.add_argument("--no-figures", action="store_true", help="no matplotlib figures")
-    p.add_argument("--cross-play", action="store_true",
-                   help="every prey policy against every predator policy (globs such as 'run/model_*.pt' "
-                        "expand to every checkpoint; default predators: naivchase naivchase-noconfusion "
-                        "random): cross_play.csv/json, an Elo rating and heatmaps")
+    p.add_argument(
+        "--cross-play",
+        action="store_true",
+        help="every prey policy against every predator policy (globs such as 'run/model_*.pt' "
+        "expand to every checkpoint; default predators: naivchase naivchase-noconfusion "
+        "random): cross_play.csv/json, an Elo rating and heatmaps",
+    )
 
 
 def run_eval(args) -> int:
@@ -358,35 +536,49 @@ def run_eval(args) -> int:
     for item in args.curves:
         label, _, pattern = item.partition("=") if "=" in item else (os.path.basename(item.rstrip("/")), "", item)
         curves.setdefault(label, []).append(pattern)
-    evaluate = args.prey != [] and args.predator != [] and not (args.curves and args.prey is None
-                                                                and args.predator is None)
+    evaluate = (
+        args.prey != [] and args.predator != [] and not (args.curves and args.prey is None and args.predator is None)
+    )
     if evaluate:
         prey = args.prey if args.prey is not None else ["random", "turnaway"]
         predator = args.predator if args.predator is not None else ["naivchase"]
         env = _eval_world(args, prey + predator)
-        print(f"aquarium-warp eval: {len(prey)} prey x {len(predator)} predator policies, {args.episodes} episodes "
-              f"x {len(args.seeds)} seeds, {env.prey_count} prey, {plural(env.predator_count, 'predator')}, "
-              f"{env.max_steps} steps")
+        print(
+            f"aquarium-warp eval: {len(prey)} prey x {len(predator)} predator policies, {args.episodes} episodes "
+            f"x {len(args.seeds)} seeds, {env.prey_count} prey, {plural(env.predator_count, 'predator')}, "
+            f"{env.max_steps} steps"
+        )
         start = time.perf_counter()
-        result = evaluate_policies(prey, predator, env, episodes=args.episodes, seeds=args.seeds,
-                                   device=args.device, max_worlds=args.max_worlds,
-                                   deterministic=not args.stochastic, progress=lambda m: print("  " + m),
-                                   blind_to=_blind(args.blind))
+        result = evaluate_policies(
+            prey,
+            predator,
+            env,
+            episodes=args.episodes,
+            seeds=args.seeds,
+            device=args.device,
+            max_worlds=args.max_worlds,
+            deterministic=not args.stochastic,
+            progress=lambda m: print("  " + m),
+            blind_to=_blind(args.blind),
+        )
         paths = write_results(result, args.out)
         outputs += list(paths.values())
         print(f"{'prey':>16} {'predator':>12} {'captures/prey':>20} {'reward/prey':>22}")
         for row in result["summary"]:
-            print(f"{row['prey_policy']:>16} {row['predator_policy']:>12} "
-                  f"{row['captures_per_prey_mean']:10.3f} +- {row['captures_per_prey_std']:6.3f} "
-                  f"{row['reward_per_prey_mean']:12.1f} +- {row['reward_per_prey_std']:6.1f}")
+            print(
+                f"{row['prey_policy']:>16} {row['predator_policy']:>12} "
+                f"{row['captures_per_prey_mean']:10.3f} +- {row['captures_per_prey_std']:6.3f} "
+                f"{row['reward_per_prey_mean']:12.1f} +- {row['reward_per_prey_std']:6.1f}"
+            )
         print(f"  ({time.perf_counter() - start:.1f} s; mean +- std over seeds of the per-seed means)")
         if not args.no_figures:
             outputs.append(plot_distributions(result, os.path.join(args.out, "distributions.png")))
     if curves and not args.no_figures:
         with warnings.catch_warnings(record=True) as notes:  # e.g. why a curve is empty
             warnings.simplefilter("always")
-            outputs.append(plot_training_curves(curves, os.path.join(args.out, "training_curves.png"),
-                                                smooth=args.smooth))
+            outputs.append(
+                plot_training_curves(curves, os.path.join(args.out, "training_curves.png"), smooth=args.smooth)
+            )
         for note in notes:
             print(f"  note: {note.message}")
     for path in outputs:
@@ -421,8 +613,11 @@ def _eval_world(args, specs):
         if set(change) != {"env"}:
             raise ValueError(f"--set {s!r}: eval takes env.* settings only")
         deep_update(changes, change["env"])
-    for key, value in (("prey_count", args.prey_count), ("predator_count", args.predator_count),
-                       ("max_steps", args.max_steps)):
+    for key, value in (
+        ("prey_count", args.prey_count),
+        ("predator_count", args.predator_count),
+        ("max_steps", args.max_steps),
+    ):
         if value is not None:
             changes[key] = value
     return env_config({"env": deep_update(base.to_dict(), changes)})
@@ -439,12 +634,22 @@ def run_cross_play(args) -> int:
     prey = expand_specs(args.prey or ["random", "turnaway"])
     predator = expand_specs(args.predator or ["naivchase", NO_CONFUSION, "random"])
     env = _eval_world(args, prey + predator)
-    print(f"aquarium-warp eval --cross-play: {len(prey)} prey x {len(predator)} predator policies, "
-          f"{args.episodes} episodes x {len(args.seeds)} seeds, {env.prey_count} prey, "
-          f"{plural(env.predator_count, 'predator')}, {env.max_steps} steps")
+    print(
+        f"aquarium-warp eval --cross-play: {len(prey)} prey x {len(predator)} predator policies, "
+        f"{args.episodes} episodes x {len(args.seeds)} seeds, {env.prey_count} prey, "
+        f"{plural(env.predator_count, 'predator')}, {env.max_steps} steps"
+    )
     start = time.perf_counter()
-    result = cross_play(prey, predator, env, episodes=args.episodes, seeds=args.seeds, device=args.device,
-                        max_worlds=args.max_worlds, deterministic=not args.stochastic)
+    result = cross_play(
+        prey,
+        predator,
+        env,
+        episodes=args.episodes,
+        seeds=args.seeds,
+        device=args.device,
+        max_worlds=args.max_worlds,
+        deterministic=not args.stochastic,
+    )
     outputs = list(write_cross_play(result, args.out).values())
     cp = result["cross_play"]
     print("captures per prey per episode (mean over seeds; rows: prey, columns: predators)")
@@ -454,8 +659,10 @@ def run_cross_play(args) -> int:
     for i, a in enumerate(cp["prey"]):
         cells = "".join(f"{v:{w}.3f}" for v, w in zip(cp["matrices"]["captures_per_prey"]["mean"][i], widths))
         print(f"{a:>{first}}{cells}{result['rating']['prey'][a]:9.0f}")
-    print(f"{'rating':>{first}}" + "".join(f"{result['rating']['predator'][b]:{w}.0f}"
-                                            for b, w in zip(cp["predator"], widths)))
+    print(
+        f"{'rating':>{first}}"
+        + "".join(f"{result['rating']['predator'][b]:{w}.0f}" for b, w in zip(cp["predator"], widths))
+    )
     print(f"  ({time.perf_counter() - start:.1f} s; Elo ratings from the prey survival matrix)")
     if not args.no_figures:
         for metric in ("captures_per_prey", "prey_survival"):

@@ -41,36 +41,36 @@ IL_MODEL = "aquarium_warp.training.models:IndividualMLPModel"
 SHARING = ("parameter", "individual")
 
 TRAIN_DEFAULTS: dict[str, Any] = {
-    "team": "prey",                 # the learning team: "prey", "predator" or "both" (one learner per team)
-    "opponent": None,               # the other team: a heuristic name or a policy file; None: naivchase / random
+    "team": "prey",  # the learning team: "prey", "predator" or "both" (one learner per team)
+    "opponent": None,  # the other team: a heuristic name or a policy file; None: naivchase / random
     "opponent_deterministic": True,  # trained opponents: argmax (True) or sampled actions
     "num_worlds": 1024,
-    "device": None,                 # None: "cuda:0" when CUDA is available, else "cpu"
+    "device": None,  # None: "cuda:0" when CUDA is available, else "cpu"
     "seed": 0,
-    "iterations": 300,              # total PPO iterations of the run (a resumed run continues up to it)
-    "episodes": None,               # if set: iterations = ceil(episodes * max_steps / (worlds * steps per env))
-    "sharing": "parameter",         # "parameter" (one shared network) or "individual" (one per agent slot)
+    "iterations": 300,  # total PPO iterations of the run (a resumed run continues up to it)
+    "episodes": None,  # if set: iterations = ceil(episodes * max_steps / (worlds * steps per env))
+    "sharing": "parameter",  # "parameter" (one shared network) or "individual" (one per agent slot)
     "actor_lr": 1e-3,
-    "critic_lr": None,              # None: the actor's rate
-    "reward_scale": 0.01,           # rewards given to PPO are scaled; logged episode rewards are not
+    "critic_lr": None,  # None: the actor's rate
+    "reward_scale": 0.01,  # rewards given to PPO are scaled; logged episode rewards are not
     "init_at_random_ep_len": True,  # spread the worlds' truncations (episode_length_buf setter)
-    "export": ["jit", "onnx"],      # formats exported at the end of training: "jit", "onnx"
-    "quiet": False,                 # tqdm progress bar instead of the per-iteration line
-    "loop": "fast",                 # "fast": training/loop.py (no host syncs; CUDA graphs); "rsl-rl": its runner's loop
-    "cuda_graphs": True,            # the fast loop replays CUDA graphs on CUDA devices where the model allows
-    "metrics_every": 10,            # swarm metrics (Swarm/* in the log) sampled every N steps; 0: none
-    "tf32": False,                  # CUDA matrix products in TF32 (faster for large batches, ~1e-3 relative error)
-    "critic": "local",              # the critic's input (MAPPO): "local", "team" or "world" (see CRITICS)
+    "export": ["jit", "onnx"],  # formats exported at the end of training: "jit", "onnx"
+    "quiet": False,  # tqdm progress bar instead of the per-iteration line
+    "loop": "fast",  # "fast": training/loop.py (no host syncs; CUDA graphs); "rsl-rl": its runner's loop
+    "cuda_graphs": True,  # the fast loop replays CUDA graphs on CUDA devices where the model allows
+    "metrics_every": 10,  # swarm metrics (Swarm/* in the log) sampled every N steps; 0: none
+    "tf32": False,  # CUDA matrix products in TF32 (faster for large batches, ~1e-3 relative error)
+    "critic": "local",  # the critic's input (MAPPO): "local", "team" or "world" (see CRITICS)
     # Both teams learning (team "both"):
     "update_schedule": "simultaneous",  # "simultaneous", or "alternating": one team learns, the other is frozen
-    "alternate_every": 10,          # alternating: iterations per turn (prey first)
-    "pool_every": 0,                # snapshot each team's actor into its opponent pool every N iterations; 0: no pool
-    "pool_size": 8,                 # snapshots kept per team (the oldest is replaced)
-    "pool_sampling": "uniform",     # which snapshot a world draws: "uniform" or "latest" (weights 1..size by age)
-    "pool_fraction": 0.2,           # fraction of worlds in which a team plays against the other team's snapshots
-    "video_every": 0,               # every N iterations a rendered evaluation episode into the log (0: none)
-    "video_steps": 200,             # steps of that episode
-    "randomize": {},                # {field: "low:high" or "a,b,c"}: per-world values drawn at every world's reset
+    "alternate_every": 10,  # alternating: iterations per turn (prey first)
+    "pool_every": 0,  # snapshot each team's actor into its opponent pool every N iterations; 0: no pool
+    "pool_size": 8,  # snapshots kept per team (the oldest is replaced)
+    "pool_sampling": "uniform",  # which snapshot a world draws: "uniform" or "latest" (weights 1..size by age)
+    "pool_fraction": 0.2,  # fraction of worlds in which a team plays against the other team's snapshots
+    "video_every": 0,  # every N iterations a rendered evaluation episode into the log (0: none)
+    "video_steps": 200,  # steps of that episode
+    "randomize": {},  # {field: "low:high" or "a,b,c"}: per-world values drawn at every world's reset
 }
 LOOPS = ("fast", "rsl-rl")
 TEAMS = ("prey", "predator")
@@ -129,11 +129,26 @@ PRESETS: dict[str, dict[str, Any]] = {  # name -> changes to the defaults (a nes
     # the batch: many worlds in parallel instead of its 2048-sample batches.
     "paper": {
         "env": {"prey_count": 6, "predator_count": 1},
-        "train": {"team": "prey", "opponent": "naivchase", "num_worlds": 1024, "episodes": 4000,
-                  "actor_lr": 1e-3, "critic_lr": 3e-3},
-        "runner": {"algorithm": {"gamma": 0.99, "lam": 0.95, "clip_param": 0.1, "entropy_coef": 0.001,
-                                 "num_learning_epochs": 5, "num_mini_batches": 4, "schedule": "fixed",
-                                 "max_grad_norm": 0.5}},
+        "train": {
+            "team": "prey",
+            "opponent": "naivchase",
+            "num_worlds": 1024,
+            "episodes": 4000,
+            "actor_lr": 1e-3,
+            "critic_lr": 3e-3,
+        },
+        "runner": {
+            "algorithm": {
+                "gamma": 0.99,
+                "lam": 0.95,
+                "clip_param": 0.1,
+                "entropy_coef": 0.001,
+                "num_learning_epochs": 5,
+                "num_mini_batches": 4,
+                "schedule": "fixed",
+                "max_grad_norm": 0.5,
+            }
+        },
     },
     # The learned-prey recipe (benchmarks/learned_prey.py, results in benchmarks/results/learned_prey_ego/):
     # the paper's task with egocentric observations (world actions), random spawn headings, entropy
@@ -143,15 +158,21 @@ PRESETS: dict[str, dict[str, Any]] = {  # name -> changes to the defaults (a nes
     "tiny": {
         "env": {"width": 400.0, "height": 400.0, "prey_count": 4, "predator_count": 1, "max_steps": 200},
         "train": {"num_worlds": 32, "iterations": 100, "actor_lr": 3e-3, "device": "cpu"},
-        "runner": {"num_steps_per_env": 32, "save_interval": 25,
-                   "algorithm": {"num_learning_epochs": 4, "num_mini_batches": 4, "entropy_coef": 0.003}},
+        "runner": {
+            "num_steps_per_env": 32,
+            "save_interval": 25,
+            "algorithm": {"num_learning_epochs": 4, "num_mini_batches": 4, "entropy_coef": 0.003},
+        },
     },
 }
 
 
 # World A, B and C's prey views (benchmarks/learned_prey.py's WORLDS).
-LEARNED_PREY_VIEWS = {"a": {}, "b": {"fov_angle": 360, "view_distance": 200},
-                      "c": {"fov_angle": 360, "view_distance": 10000}}
+LEARNED_PREY_VIEWS = {
+    "a": {},
+    "b": {"fov_angle": 360, "view_distance": 200},
+    "c": {"fov_angle": 360, "view_distance": 10000},
+}
 for _world, _view in LEARNED_PREY_VIEWS.items():
     _recipe = copy.deepcopy(PRESETS["paper"])
     _recipe["env"].update({"observation_frame": "ego", "spawn_heading": "random", **({"prey": _view} if _view else {})})
@@ -306,8 +327,10 @@ def _validate_teams_section(config: dict) -> None:
         _validate_team_settings(block, f"teams.{team}")
         runner = block.get("runner") or {}
         if not isinstance(runner, dict) or any(k not in TEAM_RUNNER_KEYS for k in runner):
-            raise ValueError(f"teams.{team}.runner={runner!r} may set only {list(TEAM_RUNNER_KEYS)} "
-                             f"(the rollout length and checkpoints are common: set them under runner)")
+            raise ValueError(
+                f"teams.{team}.runner={runner!r} may set only {list(TEAM_RUNNER_KEYS)} "
+                f"(the rollout length and checkpoints are common: set them under runner)"
+            )
         _check_runner_sections(runner, f"teams.{team}.runner")
         _validate_algorithm(runner.get("algorithm") or {}, f"teams.{team}.runner.algorithm")
 
@@ -332,9 +355,14 @@ def validate(config: dict) -> None:
         raise ValueError(f"train.episodes={train['episodes']!r} must be None or a number > 0")
     if train["loop"] not in LOOPS:
         raise ValueError(f"train.loop={train['loop']!r} must be one of {LOOPS}")
-    for name, low, meaning in (("metrics_every", 0, " (0: no swarm metrics)"), ("alternate_every", 1, ""),
-                               ("pool_every", 0, " (0: no opponent pool)"), ("pool_size", 1, ""),
-                               ("video_every", 0, " (0: no videos)"), ("video_steps", 1, "")):
+    for name, low, meaning in (
+        ("metrics_every", 0, " (0: no swarm metrics)"),
+        ("alternate_every", 1, ""),
+        ("pool_every", 0, " (0: no opponent pool)"),
+        ("pool_size", 1, ""),
+        ("video_every", 0, " (0: no videos)"),
+        ("video_steps", 1, ""),
+    ):
         if not is_int(train[name]) or not low <= train[name] <= 2**31 - 1:
             raise ValueError(f"train.{name}={train[name]!r} must be an integer in [{low}, 2**31 - 1]{meaning}")
     for name in ("tf32", "cuda_graphs"):
@@ -372,14 +400,18 @@ def validate(config: dict) -> None:
     if both and train["loop"] != "fast":
         raise ValueError("train.team='both' needs train.loop='fast' (rsl-rl's runner drives one learner)")
     if both and train["opponent"] is not None:
-        raise ValueError(f"train.opponent={train['opponent']!r} sets the other team of a one-team run; with "
-                         f"train.team='both' every team learns")
+        raise ValueError(
+            f"train.opponent={train['opponent']!r} sets the other team of a one-team run; with "
+            f"train.team='both' every team learns"
+        )
     if train["pool_every"] and not both:
         raise ValueError("train.pool_every > 0 (an opponent pool of past snapshots) needs train.team='both'")
     teams = learning_teams(config)
     if train["pool_every"] and sum(team_settings(config, t)["pool_fraction"] for t in teams) > 1:
-        raise ValueError("the pool fractions of both teams (train.pool_fraction or teams.<team>.pool_fraction) "
-                         "must add up to at most 1: a world plays at most one team's snapshots")
+        raise ValueError(
+            "the pool fractions of both teams (train.pool_fraction or teams.<team>.pool_fraction) "
+            "must add up to at most 1: a world plays at most one team's snapshots"
+        )
     for team in teams:
         _validate_team_models(config, team)
 
@@ -396,12 +428,16 @@ def _validate_team_models(config: dict, team: str) -> None:
         model = f"teams.{team}.runner.{part}" if part in (block.get("runner") or {}) else f"runner.{part}"
         if settings["sharing"] == "individual":
             sharing = f"teams.{team}.sharing" if "sharing" in block else "train.sharing"
-            raise ValueError(f"{sharing}='individual' does not support recurrent models "
-                             f"({model}.class_name={class_name!r}): use {sharing}='parameter' or a "
-                             f"feed-forward model")
+            raise ValueError(
+                f"{sharing}='individual' does not support recurrent models "
+                f"({model}.class_name={class_name!r}): use {sharing}='parameter' or a "
+                f"feed-forward model"
+            )
         if part == "actor" and config["train"]["pool_every"]:
-            raise ValueError(f"train.pool_every > 0 needs feed-forward actors (snapshots act without hidden "
-                             f"states), not {model}.class_name={class_name!r}")
+            raise ValueError(
+                f"train.pool_every > 0 needs feed-forward actors (snapshots act without hidden "
+                f"states), not {model}.class_name={class_name!r}"
+            )
 
 
 def _is_recurrent_model(class_name) -> bool:
@@ -445,8 +481,9 @@ def total_iterations(config: dict) -> int:
     return max(1, math.ceil(steps / per_iteration))
 
 
-def runner_config(config: dict, slots: int, action_count: int, device_type: str = "cpu",
-                  team: str | None = None) -> dict:
+def runner_config(
+    config: dict, slots: int, action_count: int, device_type: str = "cpu", team: str | None = None
+) -> dict:
     """rsl-rl's runner config of `team`'s learner (default: the one learning team) for a run config,
     given that team's slots per world, the number of discrete actions and the device type ("cpu" or
     "cuda")."""

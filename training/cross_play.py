@@ -49,8 +49,18 @@ def expand_specs(specs) -> list[str]:
     return out
 
 
-def cross_play(prey, predator, env: AquariumConfig | None = None, episodes: int = 200, seeds=(0,), device=None,
-               max_worlds: int = 1024, deterministic: bool = True, progress=None, rating: bool = True) -> dict:
+def cross_play(
+    prey,
+    predator,
+    env: AquariumConfig | None = None,
+    episodes: int = 200,
+    seeds=(0,),
+    device=None,
+    max_worlds: int = 1024,
+    deterministic: bool = True,
+    progress=None,
+    rating: bool = True,
+) -> dict:
     """Every prey spec against every predator spec (globs expanded by `expand_specs`) under the
     evaluation protocol of `evaluate_policies` (which plays the pairs). `env=None`: the common world of
     the trained policies (`common_policy_env`), else docs/model.md's.
@@ -59,20 +69,32 @@ def cross_play(prey, predator, env: AquariumConfig | None = None, episodes: int 
     labels and, per metric of `CROSS_PLAY_METRICS`, `[prey][predator]` matrices of the mean and std over
     seeds of the per-seed means. `prey_survival` is the fraction of the `prey_count` first prey slots
     not captured in an episode. With `rating`, `"rating"`: `elo_ratings` of that survival matrix."""
-    prey, predator = expand_specs([prey] if isinstance(prey, str) else prey), \
-        expand_specs([predator] if isinstance(predator, str) else predator)
+    prey, predator = (
+        expand_specs([prey] if isinstance(prey, str) else prey),
+        expand_specs([predator] if isinstance(predator, str) else predator),
+    )
     if env is None:
         env = common_policy_env(prey + predator, AquariumConfig())
-    result = evaluate_policies(prey, predator, env, episodes=episodes, seeds=seeds, device=device,
-                               max_worlds=max_worlds, deterministic=deterministic, progress=progress)
+    result = evaluate_policies(
+        prey,
+        predator,
+        env,
+        episodes=episodes,
+        seeds=seeds,
+        device=device,
+        max_worlds=max_worlds,
+        deterministic=deterministic,
+        progress=progress,
+    )
     rows = list(dict.fromkeys(parse_spec(p)[0] for p in prey))
     cols = list(dict.fromkeys(parse_spec(p)[0] for p in predator))
     by_pair = {(r["prey_policy"], r["predator_policy"]): r for r in result["summary"]}
     survival: dict[tuple[str, str], dict[int, list[float]]] = {}
     for record in result["episodes"]:
-        alive = [c == 0 for c in record["prey_captures"][:env.prey_count]]
+        alive = [c == 0 for c in record["prey_captures"][: env.prey_count]]
         survival.setdefault((record["prey_policy"], record["predator_policy"]), {}).setdefault(
-            record["seed"], []).append(sum(alive) / len(alive))
+            record["seed"], []
+        ).append(sum(alive) / len(alive))
     matrices = {}
     for metric in CROSS_PLAY_METRICS:
         mean, std = np.zeros((len(rows), len(cols))), np.zeros((len(rows), len(cols)))
@@ -89,8 +111,12 @@ def cross_play(prey, predator, env: AquariumConfig | None = None, episodes: int 
     if rating:
         games = len(result["protocol"]["seeds"]) * episodes * env.prey_count
         prey_r, pred_r = elo_ratings(np.array(matrices["prey_survival"]["mean"]), games)
-        result["rating"] = {"basis": "prey_survival", "games_per_pair": games,
-                            "prey": dict(zip(rows, prey_r.tolist())), "predator": dict(zip(cols, pred_r.tolist()))}
+        result["rating"] = {
+            "basis": "prey_survival",
+            "games_per_pair": games,
+            "prey": dict(zip(rows, prey_r.tolist())),
+            "predator": dict(zip(cols, pred_r.tolist())),
+        }
     return result
 
 
@@ -143,6 +169,16 @@ def write_cross_play(result: dict, out_dir: str) -> dict[str, str]:
             for j, b in enumerate(cp["predator"]):
                 writer.writerow([a, b] + [cp["matrices"][m][s][i][j] for m, s in columns])
     with atomic_open(paths["cross_play_json"]) as f:
-        json.dump(json_safe({**cp, "rating": result.get("rating"), "protocol": result["protocol"],
-                             **{k: result[k] for k in PROVENANCE_KEYS if k in result}}), f, indent=1)
+        json.dump(
+            json_safe(
+                {
+                    **cp,
+                    "rating": result.get("rating"),
+                    "protocol": result["protocol"],
+                    **{k: result[k] for k in PROVENANCE_KEYS if k in result},
+                }
+            ),
+            f,
+            indent=1,
+        )
     return paths

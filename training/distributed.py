@@ -48,8 +48,10 @@ def rank_device(device: str | None, local_rank: int) -> str:
     if kind != "cuda":
         raise ValueError(f"train.device={device!r}: a torchrun run trains on 'cpu' or 'cuda'")
     if local_rank >= torch.cuda.device_count():
-        raise ValueError(f"train.device={device!r}: LOCAL_RANK={local_rank} needs GPU {local_rank}, but this "
-                         f"node has {torch.cuda.device_count()}; start at most that many processes per node")
+        raise ValueError(
+            f"train.device={device!r}: LOCAL_RANK={local_rank} needs GPU {local_rank}, but this "
+            f"node has {torch.cuda.device_count()}; start at most that many processes per node"
+        )
     return f"cuda:{local_rank}"
 
 

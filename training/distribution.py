@@ -41,8 +41,10 @@ class CategoricalDistribution(Distribution):
     def __init__(self, output_dim: int, num_categories: int = 16, init_logit_scale: float = 0.01) -> None:
         super().__init__(output_dim)
         if output_dim != 1:
-            raise ValueError(f"CategoricalDistribution models one discrete action: output_dim (env.num_actions) "
-                             f"must be 1, got {output_dim}")
+            raise ValueError(
+                f"CategoricalDistribution models one discrete action: output_dim (env.num_actions) "
+                f"must be 1, got {output_dim}"
+            )
         if isinstance(num_categories, bool) or not isinstance(num_categories, int) or num_categories < 1:
             raise ValueError(f"num_categories={num_categories!r} must be an integer >= 1")
         self.num_categories = num_categories

@@ -97,7 +97,7 @@ class RecurrentOpponent:
     def __init__(self, policy: LoadedPolicy, env: BatchedAquarium, agent_type: str, blind_to: str | None = None):
         self.driver, self.policy = TrainedOpponent(policy, env, agent_type, blind_to=blind_to), policy
         self._terminated, self._truncated = env.outputs.terminated[agent_type], env.outputs.truncated[agent_type]
-        self._captured = env.state.torch.captured[:, :env.prey_capacity] if agent_type == "prey" else None
+        self._captured = env.state.torch.captured[:, : env.prey_capacity] if agent_type == "prey" else None
         self._alive = env.alive[agent_type]
         self._active: torch.Tensor | None = None  # rows alive when the policy last acted
         policy.reset()  # every row starts from zero states, as rsl-rl's rollouts do
@@ -114,9 +114,11 @@ class RecurrentOpponent:
     def state_dict(self) -> dict:
         """The sampling stream, the rows' hidden states and which rows were alive (for bit-exact resumes)."""
         hidden = self.policy.hidden_state
-        return {**self.driver.state_dict(),
-                "hidden_state": None if hidden is None else tuple(x.cpu().clone() for x in hidden),
-                "active": None if self._active is None else self._active.cpu().clone()}
+        return {
+            **self.driver.state_dict(),
+            "hidden_state": None if hidden is None else tuple(x.cpu().clone() for x in hidden),
+            "active": None if self._active is None else self._active.cpu().clone(),
+        }
 
     def load_state_dict(self, state: dict) -> None:
         self.driver.load_state_dict(state)

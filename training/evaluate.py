@@ -48,7 +48,8 @@ from ..records import json_safe, provenance
 from ..rollout import Observer, rollout
 
 METRICS = ("captures_per_prey", "reward_per_prey", "reward_per_predator") + tuple(
-    f"swarm_{name}" for name in EPISODE_METRICS)
+    f"swarm_{name}" for name in EPISODE_METRICS
+)
 
 
 def parse_spec(spec: str) -> tuple[str, str]:
@@ -120,26 +121,48 @@ class EpisodeRecords(Observer):
         if not bool(ended.any()):
             return
         idx = torch.nonzero(ended).flatten()
-        pc, pr, dr = (self.prey_captures[idx].cpu().numpy(), self.prey_reward[idx].cpu().numpy(),
-                      self.predator_reward[idx].cpu().numpy())
+        pc, pr, dr = (
+            self.prey_captures[idx].cpu().numpy(),
+            self.prey_reward[idx].cpu().numpy(),
+            self.predator_reward[idx].cpu().numpy(),
+        )
         caps = info["episode_captures"][idx].cpu().numpy()
         swarm_values = self.swarm.ended_values[idx].cpu().numpy()
         lengths = info["episode_length"][idx].cpu().numpy()
         for k, w in enumerate(idx.cpu().numpy().tolist()):
             if self.done_count[w] < self.per_world:
-                self.records.append((int(self.done_count[w]), w, {
-                    "prey_captures": pc[k].tolist(), "prey_rewards": pr[k].tolist(),
-                    "predator_rewards": dr[k].tolist(), "captures": int(caps[k]), "length": int(lengths[k]),
-                    **{f"swarm_{name}": float(swarm_values[k, m]) for m, name in enumerate(EPISODE_METRICS)}}))
+                self.records.append(
+                    (
+                        int(self.done_count[w]),
+                        w,
+                        {
+                            "prey_captures": pc[k].tolist(),
+                            "prey_rewards": pr[k].tolist(),
+                            "predator_rewards": dr[k].tolist(),
+                            "captures": int(caps[k]),
+                            "length": int(lengths[k]),
+                            **{f"swarm_{name}": float(swarm_values[k, m]) for m, name in enumerate(EPISODE_METRICS)},
+                        },
+                    )
+                )
             self.done_count[w] += 1
         self.prey_captures[idx] = 0
         self.prey_reward[idx] = 0
         self.predator_reward[idx] = 0
 
 
-def run_episodes(env_cfg: AquariumConfig, prey: str, predator: str, episodes: int, seed: int, device=None,
-                 max_worlds: int = 1024, deterministic: bool = True, metrics_every: int = 10,
-                 blind_to: dict[str, str] | None = None) -> list[dict]:
+def run_episodes(
+    env_cfg: AquariumConfig,
+    prey: str,
+    predator: str,
+    episodes: int,
+    seed: int,
+    device=None,
+    max_worlds: int = 1024,
+    deterministic: bool = True,
+    metrics_every: int = 10,
+    blind_to: dict[str, str] | None = None,
+) -> list[dict]:
     """Play `episodes` episodes of `prey` vs `predator` specs; one dict per episode with per-slot
     prey captures and rewards, predator rewards, the world's captures and length, and the episode's
     swarm metrics (`swarm_<name>`: means over states sampled every `metrics_every` steps).
@@ -155,8 +178,9 @@ def run_episodes(env_cfg: AquariumConfig, prey: str, predator: str, episodes: in
     records = EpisodeRecords(env, swarm, per_world)
     # The env starts in its first episode (no reset); the bound is defensive: every world ends an
     # episode at least every max_steps steps.
-    rollout(env, drivers, (per_world + 1) * env_cfg.max_steps, [swarm, records], reset=False,
-            until=lambda: records.done)
+    rollout(
+        env, drivers, (per_world + 1) * env_cfg.max_steps, [swarm, records], reset=False, until=lambda: records.done
+    )
     if not records.done:  # pragma: no cover - defensive
         raise RuntimeError("evaluation did not finish its episodes")
     env.close()
@@ -177,15 +201,26 @@ def summarize(values_per_seed: list[list[float]]) -> dict:
     """Mean and std over seeds of the per-seed means, plus the std over all episodes."""
     seed_means = [float(np.mean(v)) for v in values_per_seed if len(v)]
     flat = [x for v in values_per_seed for x in v]
-    return {"mean": float(np.mean(seed_means)) if seed_means else float("nan"),
-            "std_over_seeds": float(np.std(seed_means)) if seed_means else float("nan"),
-            "std_over_episodes": float(np.std(flat)) if flat else float("nan"),
-            "seed_means": seed_means}
+    return {
+        "mean": float(np.mean(seed_means)) if seed_means else float("nan"),
+        "std_over_seeds": float(np.std(seed_means)) if seed_means else float("nan"),
+        "std_over_episodes": float(np.std(flat)) if flat else float("nan"),
+        "seed_means": seed_means,
+    }
 
 
-def evaluate_policies(prey, predator, env: AquariumConfig | None = None, episodes: int = 200, seeds=(0,),
-                      device=None, max_worlds: int = 1024, deterministic: bool = True, progress=None,
-                      blind_to: dict[str, str] | None = None) -> dict:
+def evaluate_policies(
+    prey,
+    predator,
+    env: AquariumConfig | None = None,
+    episodes: int = 200,
+    seeds=(0,),
+    device=None,
+    max_worlds: int = 1024,
+    deterministic: bool = True,
+    progress=None,
+    blind_to: dict[str, str] | None = None,
+) -> dict:
     """Evaluate every (prey spec, predator spec) pair; see the module doc. Returns
     `{"summary": [rows], "episodes": [per-episode records]}`. `blind_to` (`{team: type}`): trained
     policies of the team act without their slots of that type (the neighbour-ablation control)."""
@@ -209,27 +244,56 @@ def evaluate_policies(prey, predator, env: AquariumConfig | None = None, episode
             for seed in seeds:
                 if progress is not None:
                     progress(f"prey={prey_label} ({prey_value}) vs predator={pred_label} ({pred_value}), seed {seed}")
-                records = run_episodes(env, prey_value, pred_value, episodes, int(seed), device=device,
-                                       max_worlds=max_worlds, deterministic=deterministic, blind_to=blind_to)
+                records = run_episodes(
+                    env,
+                    prey_value,
+                    pred_value,
+                    episodes,
+                    int(seed),
+                    device=device,
+                    max_worlds=max_worlds,
+                    deterministic=deterministic,
+                    blind_to=blind_to,
+                )
                 for m in METRICS:
                     group[m].append([r[m] for r in records])
                 for r in records:
-                    r.update({"prey_policy": prey_label, "prey_spec": prey_value, "predator_policy": pred_label,
-                              "predator_spec": pred_value, "seed": int(seed)})
+                    r.update(
+                        {
+                            "prey_policy": prey_label,
+                            "prey_spec": prey_value,
+                            "predator_policy": pred_label,
+                            "predator_spec": pred_value,
+                            "seed": int(seed),
+                        }
+                    )
                 episodes_out.extend(records)
     summary = []
     for (prey_label, pred_label), group in groups.items():
-        row = {"prey_policy": prey_label, "predator_policy": pred_label, "seeds": len(group[METRICS[0]]),
-               "episodes_per_seed": episodes}
+        row = {
+            "prey_policy": prey_label,
+            "predator_policy": pred_label,
+            "seeds": len(group[METRICS[0]]),
+            "episodes_per_seed": episodes,
+        }
         for m in METRICS:
             s = summarize(group[m])
             row[f"{m}_mean"], row[f"{m}_std"] = s["mean"], s["std_over_seeds"]
             row[f"{m}_episode_std"] = s["std_over_episodes"]
         summary.append(row)
-    return {"summary": summary, "episodes": episodes_out,
-            "protocol": {"episodes": episodes, "seeds": [int(s) for s in seeds], "max_steps": env.max_steps,
-                         "deterministic": deterministic, "blind_to": dict(blind_to or {}), "env": env.to_dict()},
-            **provenance(resolve_device(device))}
+    return {
+        "summary": summary,
+        "episodes": episodes_out,
+        "protocol": {
+            "episodes": episodes,
+            "seeds": [int(s) for s in seeds],
+            "max_steps": env.max_steps,
+            "deterministic": deterministic,
+            "blind_to": dict(blind_to or {}),
+            "env": env.to_dict(),
+        },
+        **provenance(resolve_device(device)),
+    }
 
 
 PROVENANCE_KEYS = ("command", "git", "machine")
@@ -238,8 +302,11 @@ PROVENANCE_KEYS = ("command", "git", "machine")
 def write_results(result: dict, out_dir: str) -> dict[str, str]:
     """`summary.csv`, `summary.json` (summary + protocol) and `episodes.json` into `out_dir`."""
     os.makedirs(out_dir, exist_ok=True)
-    paths = {"csv": os.path.join(out_dir, "summary.csv"), "json": os.path.join(out_dir, "summary.json"),
-             "episodes": os.path.join(out_dir, "episodes.json")}
+    paths = {
+        "csv": os.path.join(out_dir, "summary.csv"),
+        "json": os.path.join(out_dir, "summary.json"),
+        "episodes": os.path.join(out_dir, "episodes.json"),
+    }
     rows = result["summary"]
     if rows:
         with atomic_open(paths["csv"], newline="") as f:
@@ -248,8 +315,17 @@ def write_results(result: dict, out_dir: str) -> dict[str, str]:
             writer.writerows(rows)
     with atomic_open(paths["json"]) as f:
         # Strict JSON: an undefined value (NaN, e.g. local alignment without linked prey) is null.
-        json.dump(json_safe({"summary": rows, "protocol": result["protocol"],
-                             **{k: result[k] for k in PROVENANCE_KEYS if k in result}}), f, indent=1)
+        json.dump(
+            json_safe(
+                {
+                    "summary": rows,
+                    "protocol": result["protocol"],
+                    **{k: result[k] for k in PROVENANCE_KEYS if k in result},
+                }
+            ),
+            f,
+            indent=1,
+        )
     with atomic_open(paths["episodes"]) as f:
         json.dump(json_safe(result["episodes"]), f)
     return paths

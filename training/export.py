@@ -92,32 +92,37 @@ class _RecurrentPolicy(nn.Module):
         h = torch.zeros(self.num_layers, obs.shape[0], self.hidden_size, device=obs.device)
         return h, torch.zeros_like(h)
 
-    def _rnn(self, x: torch.Tensor, h: torch.Tensor,
-             c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def _rnn(
+        self, x: torch.Tensor, h: torch.Tensor, c: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         raise NotImplementedError
 
     @torch.jit.export
-    def step(self, obs: torch.Tensor, h: torch.Tensor,
-             c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def step(
+        self, obs: torch.Tensor, h: torch.Tensor, c: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         y, h, c = self._rnn(self.obs_normalizer(obs).unsqueeze(0), h, c)
         return self.mlp(y.squeeze(0)), h, c
 
-    def forward(self, obs: torch.Tensor, h: torch.Tensor,
-                c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def forward(
+        self, obs: torch.Tensor, h: torch.Tensor, c: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         logits, h, c = self.step(obs, h, c)
         return torch.argmax(logits, dim=-1), h, c
 
 
 class _GRUPolicy(_RecurrentPolicy):
-    def _rnn(self, x: torch.Tensor, h: torch.Tensor,
-             c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def _rnn(
+        self, x: torch.Tensor, h: torch.Tensor, c: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         y, h = self.rnn(x, h)
         return y, h, c
 
 
 class _LSTMPolicy(_RecurrentPolicy):
-    def _rnn(self, x: torch.Tensor, h: torch.Tensor,
-             c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def _rnn(
+        self, x: torch.Tensor, h: torch.Tensor, c: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         y, (h, c) = self.rnn(x, (h, c))
         return y, h, c
 
@@ -129,8 +134,11 @@ def recurrent_meta(actor: MLPModel) -> dict | None:
     rnn = actor.rnn.rnn
     if not isinstance(rnn, (nn.GRU, nn.LSTM)):
         raise ValueError(f"recurrent actor with a {type(rnn).__name__}: only GRU and LSTM can be exported")
-    return {"rnn_type": "lstm" if isinstance(rnn, nn.LSTM) else "gru", "num_layers": int(rnn.num_layers),
-            "hidden_size": int(rnn.hidden_size)}
+    return {
+        "rnn_type": "lstm" if isinstance(rnn, nn.LSTM) else "gru",
+        "num_layers": int(rnn.num_layers),
+        "hidden_size": int(rnn.hidden_size),
+    }
 
 
 def exportable(actor: MLPModel) -> ExportablePolicy | _GRUPolicy | _LSTMPolicy:
@@ -239,9 +247,18 @@ def _export_onnx(module: ExportablePolicy | _GRUPolicy | _LSTMPolicy, meta: dict
         warnings.filterwarnings("ignore", message="The tensor attributes", category=UserWarning)
         warnings.filterwarnings("ignore", message="# The axis name", category=UserWarning)
         with _without_torchvision_notes(), atomic_path(path) as partial:
-            torch.onnx.export(wrapper.eval(), args, partial, input_names=inputs, output_names=outputs,
-                              dynamic_shapes=dynamic, opset_version=18, dynamo=True, external_data=False,
-                              verbose=False)
+            torch.onnx.export(
+                wrapper.eval(),
+                args,
+                partial,
+                input_names=inputs,
+                output_names=outputs,
+                dynamic_shapes=dynamic,
+                opset_version=18,
+                dynamo=True,
+                external_data=False,
+                verbose=False,
+            )
             model = onnx.load(partial)
             entry = model.metadata_props.add()
             entry.key, entry.value = META_NAME, meta_text
@@ -271,8 +288,16 @@ class LoadedPolicy:
     `logits_fn(obs) -> logits`, or for a recurrent policy `logits_fn(obs, (h, c)) -> (logits, (h, c))`
     with the states `[layers, N, H]` that this object keeps between calls (see the module doc)."""
 
-    def __init__(self, logits_fn, meta: dict, kind: str, device: torch.device, deterministic: bool = True,
-                 seed: int = 0, module=None):
+    def __init__(
+        self,
+        logits_fn,
+        meta: dict,
+        kind: str,
+        device: torch.device,
+        deterministic: bool = True,
+        seed: int = 0,
+        module=None,
+    ):
         self._logits_fn, self.meta, self.kind, self.device = logits_fn, meta, kind, torch.device(device)
         self.module = module
         self.deterministic = deterministic
@@ -288,21 +313,26 @@ class LoadedPolicy:
             self._generator.manual_seed(int(seed))
 
     def __repr__(self) -> str:
-        return (f"LoadedPolicy({self.kind}, team={self.team!r}, obs={self.observation_size}, "
-                f"actions={self.action_count}, group_size={self.group_size}, deterministic={self.deterministic})")
+        return (
+            f"LoadedPolicy({self.kind}, team={self.team!r}, obs={self.observation_size}, "
+            f"actions={self.action_count}, group_size={self.group_size}, deterministic={self.deterministic})"
+        )
 
     def check_compatible(self, team: str | None, observation_size: int, action_count: int, slots: int) -> None:
         """Raise `ValueError` if this policy cannot act for `slots` agents per world of that kind."""
         if team is not None and self.team is not None and team != self.team:
             raise ValueError(f"policy was trained for {self.team!r}, not {team!r}")
         if observation_size != self.observation_size:
-            raise ValueError(f"policy expects observations of length {self.observation_size}, "
-                             f"env gives {observation_size}")
+            raise ValueError(
+                f"policy expects observations of length {self.observation_size}, env gives {observation_size}"
+            )
         if action_count != self.action_count:
             raise ValueError(f"policy has {self.action_count} actions, env has {action_count}")
         if self.group_size > 1 and slots != self.group_size:
-            raise ValueError(f"Individual-Learning policy has {self.group_size} per-slot networks, "
-                             f"env has {slots} {team} slots per world")
+            raise ValueError(
+                f"Individual-Learning policy has {self.group_size} per-slot networks, "
+                f"env has {slots} {team} slots per world"
+            )
 
     def logits(self, obs) -> torch.Tensor:
         """Logits `[N, action_count]`; for a recurrent policy this is one step (it advances the state)."""
@@ -316,8 +346,10 @@ class LoadedPolicy:
             shape = (int(self.recurrent["num_layers"]), rows, int(self.recurrent["hidden_size"]))
             self._state = (torch.zeros(shape, device=self.device), torch.zeros(shape, device=self.device))
         elif self._state[0].shape[1] != rows:
-            raise ValueError(f"recurrent policy holds hidden states for {self._state[0].shape[1]} rows, got "
-                             f"{rows}: call reset() first to start over with other rows")
+            raise ValueError(
+                f"recurrent policy holds hidden states for {self._state[0].shape[1]} rows, got "
+                f"{rows}: call reset() first to start over with other rows"
+            )
         logits, self._state = self._logits_fn(obs, self._state)
         return logits
 
@@ -367,8 +399,10 @@ class LoadedPolicy:
         if not names:
             return {}
         if self.group_size > 1 and len(names) != self.group_size:
-            raise ValueError(f"an Individual-Learning policy acts for exactly {self.group_size} agents "
-                             f"(every slot, in order), got {len(names)}")
+            raise ValueError(
+                f"an Individual-Learning policy acts for exactly {self.group_size} agents "
+                f"(every slot, in order), got {len(names)}"
+            )
         actions = self(np.stack([np.asarray(observations[name], dtype=np.float32) for name in names]))
         return dict(zip(names, actions.cpu().tolist()))
 
@@ -387,8 +421,9 @@ def _is_torchscript(path: str) -> bool:
         return any(name.endswith("constants.pkl") or "/code/" in name for name in z.namelist())
 
 
-def load_policy(path: str, device="cpu", deterministic: bool = True, seed: int = 0,
-                team: str | None = None) -> LoadedPolicy:
+def load_policy(
+    path: str, device="cpu", deterministic: bool = True, seed: int = 0, team: str | None = None
+) -> LoadedPolicy:
     """Load an exported policy (`.pt` TorchScript, `.onnx`) or a training checkpoint (`model_N.pt`).
 
     Returns a `LoadedPolicy`: call it on observations `[N, L]` to get actions `[N]` (int64). TorchScript
@@ -411,8 +446,11 @@ def load_policy(path: str, device="cpu", deterministic: bool = True, seed: int =
             module = _unreadable_as_value_error(path, torch.jit.load, path, map_location=device, _extra_files=extra)
         module.eval()
         meta = json.loads(extra[META_NAME]) if extra[META_NAME] else _sidecar_meta(path)
-        return _checked_team(LoadedPolicy(_module_logits(module, device, meta), meta, "jit", device, deterministic,
-                                          seed, module=module), team, path)
+        return _checked_team(
+            LoadedPolicy(_module_logits(module, device, meta), meta, "jit", device, deterministic, seed, module=module),
+            team,
+            path,
+        )
     return _checked_team(_load_checkpoint(path, device, deterministic, seed, team), team, path)
 
 
@@ -422,8 +460,10 @@ def _unreadable_as_value_error(path: str, read, *args, **kwargs):
         return read(*args, **kwargs)
     except Exception as error:  # noqa: BLE001 - torch and onnxruntime raise many kinds for a damaged file
         reason = (str(error).strip().splitlines() or [""])[0][:200]
-        raise ValueError(f"{path}: not a readable policy file (a TorchScript or ONNX policy, or a training "
-                         f"checkpoint; {type(error).__name__}: {reason})") from None
+        raise ValueError(
+            f"{path}: not a readable policy file (a TorchScript or ONNX policy, or a training "
+            f"checkpoint; {type(error).__name__}: {reason})"
+        ) from None
 
 
 def _checked_team(policy: LoadedPolicy, team: str | None, path: str) -> LoadedPolicy:
@@ -435,6 +475,7 @@ def _checked_team(policy: LoadedPolicy, team: str | None, path: str) -> LoadedPo
 def _module_logits(module, device: torch.device, meta: dict):
     """`LoadedPolicy`'s `logits_fn` of a TorchScript or `exportable()` module on `device`."""
     if meta.get("recurrent") is not None:
+
         def step_fn(obs: torch.Tensor, state):
             with torch.inference_mode():
                 logits, h, c = module.step(obs.to(device), *state)
@@ -461,8 +502,10 @@ def _load_onnx(path: str, deterministic: bool, seed: int) -> LoadedPolicy:
     try:
         import onnxruntime as ort
     except ImportError as error:  # pragma: no cover - depends on the installation
-        raise ValueError("loading .onnx policies needs onnxruntime (pip install onnxruntime); "
-                         "the TorchScript policy.pt beside it needs nothing extra") from error
+        raise ValueError(
+            "loading .onnx policies needs onnxruntime (pip install onnxruntime); "
+            "the TorchScript policy.pt beside it needs nothing extra"
+        ) from error
     session = _unreadable_as_value_error(path, ort.InferenceSession, path, providers=["CPUExecutionProvider"])
     custom = session.get_modelmeta().custom_metadata_map
     meta = json.loads(custom[META_NAME]) if META_NAME in custom else _sidecar_meta(path)
@@ -484,8 +527,15 @@ def _load_onnx(path: str, deterministic: bool, seed: int) -> LoadedPolicy:
 
     recurrent = meta.get("recurrent")
     lstm = recurrent is not None and recurrent["rnn_type"] == "lstm"
-    return LoadedPolicy(logits_fn if recurrent is None else step_fn, meta, "onnx", torch.device("cpu"),
-                        deterministic, seed, module=session)
+    return LoadedPolicy(
+        logits_fn if recurrent is None else step_fn,
+        meta,
+        "onnx",
+        torch.device("cpu"),
+        deterministic,
+        seed,
+        module=session,
+    )
 
 
 def policy_world(path: str) -> dict:
@@ -527,12 +577,14 @@ def policy_from_actor(actor: nn.Module, meta: dict, device, deterministic: bool 
     device = torch.device(device)
     module = exportable(actor).to(device)
     meta = {**meta, "recurrent": recurrent_meta(actor)}
-    return LoadedPolicy(_module_logits(module, device, meta), meta, "checkpoint", device, deterministic, seed,
-                        module=module)
+    return LoadedPolicy(
+        _module_logits(module, device, meta), meta, "checkpoint", device, deterministic, seed, module=module
+    )
 
 
-def _load_checkpoint(path: str, device: torch.device, deterministic: bool, seed: int,
-                     team: str | None = None) -> LoadedPolicy:
+def _load_checkpoint(
+    path: str, device: torch.device, deterministic: bool, seed: int, team: str | None = None
+) -> LoadedPolicy:
     checkpoint = _unreadable_as_value_error(path, torch.load, path, map_location="cpu", weights_only=False)
     if not isinstance(checkpoint, dict) or ("actor_state_dict" not in checkpoint and "learners" not in checkpoint):
         raise ValueError(f"{path}: not a training checkpoint (no actor_state_dict)")

@@ -21,10 +21,26 @@ from . import _rsl  # noqa: F401
 if TYPE_CHECKING:
     from tqdm import tqdm
 
-CSV_FIELDS = ["iteration", "agent_steps", "world_steps", "world_episodes", "episodes_logged", "captures",
-              "captures_per_prey", "reward_per_agent", "opponent_reward_per_agent", "episode_length",
-              "mean_row_reward", "value_loss", "surrogate_loss", "entropy", "learning_rate", "fps",
-              "collect_time", "learn_time"]
+CSV_FIELDS = [
+    "iteration",
+    "agent_steps",
+    "world_steps",
+    "world_episodes",
+    "episodes_logged",
+    "captures",
+    "captures_per_prey",
+    "reward_per_agent",
+    "opponent_reward_per_agent",
+    "episode_length",
+    "mean_row_reward",
+    "value_loss",
+    "surrogate_loss",
+    "entropy",
+    "learning_rate",
+    "fps",
+    "collect_time",
+    "learn_time",
+]
 
 
 class AquariumLogger(Logger):
@@ -36,8 +52,17 @@ class AquariumLogger(Logger):
     rewbuffer: deque[float]
     lenbuffer: deque[float]
 
-    def __init__(self, *args, csv_path: str | None = None, slots: int = 1, max_steps: int = 1,
-                 quiet: bool = False, team: str | None = None, bar: bool = True, **kwargs):
+    def __init__(
+        self,
+        *args,
+        csv_path: str | None = None,
+        slots: int = 1,
+        max_steps: int = 1,
+        quiet: bool = False,
+        team: str | None = None,
+        bar: bool = True,
+        **kwargs,
+    ):
         super().__init__(*args, **kwargs)
         self.csv_path, self.slots, self.max_steps, self.quiet = csv_path, slots, max_steps, quiet
         self.team, self.bar = team, bar
@@ -46,23 +71,53 @@ class AquariumLogger(Logger):
     def _tag(self, key: str) -> str:
         return key if self.team is None or key.startswith("Swarm/") else f"{self.team}/{key}"
 
-    def log(self, it, start_it, total_it, collect_time, learn_time, loss_dict, learning_rate, action_std,
-            rnd_weight, print_minimal=False, width=80, pad=40):
+    def log(
+        self,
+        it,
+        start_it,
+        total_it,
+        collect_time,
+        learn_time,
+        loss_dict,
+        learning_rate,
+        action_std,
+        rnd_weight,
+        print_minimal=False,
+        width=80,
+        pad=40,
+    ):
         if self.writer is None:
             return
         means, counts = {}, {}
         for key in dict.fromkeys(k for info in self.ep_extras for k in info):
-            values = [torch.as_tensor(info[key], dtype=torch.float32).reshape(-1).cpu()
-                      for info in self.ep_extras if key in info]
+            values = [
+                torch.as_tensor(info[key], dtype=torch.float32).reshape(-1).cpu()
+                for info in self.ep_extras
+                if key in info
+            ]
             cat = torch.cat(values)
             means[key], counts[key] = float(cat.mean()), int(cat.numel())
         mean_row_reward = statistics.mean(self.rewbuffer) if len(self.rewbuffer) else float("nan")
         with contextlib.redirect_stdout(io.StringIO()) if self.quiet else contextlib.nullcontext():
-            super().log(it, start_it, total_it, collect_time, learn_time, loss_dict, learning_rate, action_std,
-                        rnd_weight, print_minimal, width, pad)
+            super().log(
+                it,
+                start_it,
+                total_it,
+                collect_time,
+                learn_time,
+                loss_dict,
+                learning_rate,
+                action_std,
+                rnd_weight,
+                print_minimal,
+                width,
+                pad,
+            )
         world_steps = self.tot_timesteps // self.slots
         row = {
-            "iteration": it, "agent_steps": self.tot_timesteps, "world_steps": world_steps,
+            "iteration": it,
+            "agent_steps": self.tot_timesteps,
+            "world_steps": world_steps,
             "world_episodes": world_steps / self.max_steps,
             "episodes_logged": counts.get("Episode/captures", 0),
             "captures": means.get("Episode/captures", ""),
@@ -71,10 +126,13 @@ class AquariumLogger(Logger):
             "opponent_reward_per_agent": means.get("Episode/opponent_reward_per_agent", ""),
             "episode_length": means.get("Episode/length", ""),
             "mean_row_reward": mean_row_reward,
-            "value_loss": loss_dict.get("value", ""), "surrogate_loss": loss_dict.get("surrogate", ""),
-            "entropy": loss_dict.get("entropy", ""), "learning_rate": learning_rate,
+            "value_loss": loss_dict.get("value", ""),
+            "surrogate_loss": loss_dict.get("surrogate", ""),
+            "entropy": loss_dict.get("entropy", ""),
+            "learning_rate": learning_rate,
             "fps": int(self.cfg["num_steps_per_env"] * self.num_envs / max(1e-9, collect_time + learn_time)),
-            "collect_time": collect_time, "learn_time": learn_time,
+            "collect_time": collect_time,
+            "learn_time": learn_time,
         }
         self._write_row(row)
         if self.quiet:
@@ -89,9 +147,19 @@ class AquariumLogger(Logger):
                     writer.writeheader()
                 writer.writerow(row)
 
-    def log_iteration(self, it: int, start_it: int, total_it: int, collect_time: float, learn_time: float,
-                      losses: dict | None, learning_rate: float, episode_means: dict, episodes: int,
-                      mean_row_reward: float) -> None:
+    def log_iteration(
+        self,
+        it: int,
+        start_it: int,
+        total_it: int,
+        collect_time: float,
+        learn_time: float,
+        losses: dict | None,
+        learning_rate: float,
+        episode_means: dict,
+        episodes: int,
+        mean_row_reward: float,
+    ) -> None:
         """The training loop's log of one iteration (`loop.py`): TensorBoard scalars under rsl-rl's
         names, the CSV row, and one console line (or the progress bar when quiet) with what matters
         for this task: captures per prey, the team's reward per agent, agent-steps/s, time left.
@@ -116,11 +184,19 @@ class AquariumLogger(Logger):
         world_steps = self.tot_timesteps // self.slots
         losses = losses or dict.fromkeys(("value", "surrogate", "entropy"), "")
         row = {
-            "iteration": it, "agent_steps": self.tot_timesteps, "world_steps": world_steps,
-            "world_episodes": world_steps / self.max_steps, "episodes_logged": episodes,
+            "iteration": it,
+            "agent_steps": self.tot_timesteps,
+            "world_steps": world_steps,
+            "world_episodes": world_steps / self.max_steps,
+            "episodes_logged": episodes,
             "mean_row_reward": mean_row_reward if mean_row_reward == mean_row_reward else "",
-            "value_loss": losses["value"], "surrogate_loss": losses["surrogate"], "entropy": losses["entropy"],
-            "learning_rate": learning_rate, "fps": fps, "collect_time": collect_time, "learn_time": learn_time,
+            "value_loss": losses["value"],
+            "surrogate_loss": losses["surrogate"],
+            "entropy": losses["entropy"],
+            "learning_rate": learning_rate,
+            "fps": fps,
+            "collect_time": collect_time,
+            "learn_time": learn_time,
         }
         for field in ("captures", "captures_per_prey", "reward_per_agent", "opponent_reward_per_agent"):
             row[field] = episode_means.get(f"Episode/{field}", "")
@@ -134,8 +210,11 @@ class AquariumLogger(Logger):
         eta = self.tot_time / max(1, done) * (total_it - start_it - done) if done else 0.0
         parts = [f"it {it + 1}/{total_it}"] + ([self.team] if self.team is not None else [])
         if row["captures_per_prey"] != "":
-            parts += [f"captures/prey {row['captures_per_prey']:.3f}", f"reward/agent {row['reward_per_agent']:.1f}",
-                      f"opponent reward/agent {row['opponent_reward_per_agent']:.1f}"]
+            parts += [
+                f"captures/prey {row['captures_per_prey']:.3f}",
+                f"reward/agent {row['reward_per_agent']:.1f}",
+                f"opponent reward/agent {row['opponent_reward_per_agent']:.1f}",
+            ]
         if losses["value"] != "":
             parts += [f"value loss {losses['value']:.4f}", f"entropy {losses['entropy']:.3f}"]
         else:
@@ -164,10 +243,14 @@ class AquariumLogger(Logger):
             self._bar = None
 
     def state_dict(self) -> dict:
-        return {"tot_timesteps": self.tot_timesteps, "tot_time": self.tot_time,
-                "rewbuffer": list(self.rewbuffer), "lenbuffer": list(self.lenbuffer),
-                "cur_reward_sum": self.cur_reward_sum.cpu().clone(),
-                "cur_episode_length": self.cur_episode_length.cpu().clone()}
+        return {
+            "tot_timesteps": self.tot_timesteps,
+            "tot_time": self.tot_time,
+            "rewbuffer": list(self.rewbuffer),
+            "lenbuffer": list(self.lenbuffer),
+            "cur_reward_sum": self.cur_reward_sum.cpu().clone(),
+            "cur_episode_length": self.cur_episode_length.cpu().clone(),
+        }
 
     def load_state_dict(self, state: dict) -> None:
         self.tot_timesteps, self.tot_time = state["tot_timesteps"], state["tot_time"]

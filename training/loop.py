@@ -68,6 +68,7 @@ def collection_paused():
         if enabled:
             gc.enable()
 
+
 class IterationRecord:
     """What an iteration reports: mean losses, episode statistics and phase times, copied to the host
     without blocking. `read()` waits for this iteration's work only, so the trainer can log iteration
@@ -136,8 +137,14 @@ class TrainingLoop:
     record's learn time then includes waiting for the slowest rank's sum).
     """
 
-    def __init__(self, learners, num_steps: int, graphs: bool = True, pool=None,
-                 reduce: Callable[[torch.Tensor], None] | None = None):
+    def __init__(
+        self,
+        learners,
+        num_steps: int,
+        graphs: bool = True,
+        pool=None,
+        reduce: Callable[[torch.Tensor], None] | None = None,
+    ):
         self.learners = [(alg, env) for alg, env in learners]
         if not self.learners:
             raise ValueError("a training loop needs at least one learner")
@@ -206,8 +213,9 @@ class TrainingLoop:
         # Recurrent models: rsl-rl's own update (its trajectory mini-batches), which also does what
         # `finish_update` does.
         losses = alg.update()
-        return torch.tensor([losses["value"], losses["surrogate"], losses["entropy"]], dtype=torch.float64,
-                            device=self.device)
+        return torch.tensor(
+            [losses["value"], losses["surrogate"], losses["entropy"]], dtype=torch.float64, device=self.device
+        )
 
     # ------------------------------------------------------------------ one iteration
     def iteration(self, learning=None) -> IterationRecord:
@@ -235,7 +243,7 @@ class TrainingLoop:
         out, start = [], 0
         for env in self.envs:
             end = start + 3 + env.episode_stats_size
-            out.append((values[start:start + 3], values[start + 3:end]))
+            out.append((values[start : start + 3], values[start + 3 : end]))
             start = end
         return out
 
@@ -309,8 +317,10 @@ class TrainingLoop:
         seconds spent in the policy (`act`), the env (other team + simulation), the storage (`after`:
         outcomes, storage writes, statistics) and the update (returns + mini-batches). For the
         benchmark: on CUDA the stages are bracketed by events, which adds no synchronisation."""
-        while self.graphs and not (self._act_graphs and all(
-                g is not None for g, graphed in zip(self._learn_graphs, self.update_graphs) if graphed)):
+        while self.graphs and not (
+            self._act_graphs
+            and all(g is not None for g, graphed in zip(self._learn_graphs, self.update_graphs) if graphed)
+        ):
             self.iteration()  # warm-up, then capture
         cuda = self.device.type == "cuda"
         marks: list = []

@@ -74,7 +74,9 @@ def check_training_memory(config: dict, device: str) -> None:
     worlds = int(config["train"]["num_worlds"])
     fits = int(worlds * 0.9 * free / parts["total"])
     gib = {k: v / 2**30 for k, v in parts.items()}
-    raise ValueError(f"train.num_worlds={worlds} needs about {gib['total']:.1f} GiB on {device} (simulation "
-                     f"{gib['simulation']:.1f}, rollout storage {gib['rollout']:.1f}, update {gib['update']:.1f} "
-                     f"GiB), but only {free / 2**30:.1f} GiB is available: use at most about {fits} worlds, "
-                     "or a shorter rollout (runner.num_steps_per_env)")
+    raise ValueError(
+        f"train.num_worlds={worlds} needs about {gib['total']:.1f} GiB on {device} (simulation "
+        f"{gib['simulation']:.1f}, rollout storage {gib['rollout']:.1f}, update {gib['update']:.1f} "
+        f"GiB), but only {free / 2**30:.1f} GiB is available: use at most about {fits} worlds, "
+        "or a shorter rollout (runner.num_steps_per_env)"
+    )

@@ -51,8 +51,11 @@ class _BatchedLinearFunction(torch.autograd.Function):
         grad_x = torch.bmm(grad, weight.transpose(1, 2))
         chunks = G // WEIGHT_GRAD_CHUNK if G % WEIGHT_GRAD_CHUNK == 0 and G > WEIGHT_GRAD_CHUNK else 1
         rows = G // chunks
-        grad_weight = torch.bmm(x.reshape(S * chunks, rows, n_in).transpose(1, 2),
-                                grad.reshape(S * chunks, rows, n_out)).view(S, chunks, n_in, n_out).sum(dim=1)
+        grad_weight = (
+            torch.bmm(x.reshape(S * chunks, rows, n_in).transpose(1, 2), grad.reshape(S * chunks, rows, n_out))
+            .view(S, chunks, n_in, n_out)
+            .sum(dim=1)
+        )
         return grad_x, grad_weight, grad.sum(dim=1)
 
 
@@ -105,8 +108,10 @@ class BatchedMLP(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         rows = x.shape[0]
         if rows % self.groups != 0:
-            raise ValueError(f"Individual-Learning model: batch of {rows} rows is not a multiple of the "
-                             f"{self.groups} agent slots (rows must be whole worlds in slot order)")
+            raise ValueError(
+                f"Individual-Learning model: batch of {rows} rows is not a multiple of the "
+                f"{self.groups} agent slots (rows must be whole worlds in slot order)"
+            )
         h = x.reshape(rows // self.groups, self.groups, x.shape[-1]).transpose(0, 1)  # [S, G, L]
         last = len(self.layers) - 1
         for i, layer in enumerate(self.layers):
@@ -123,11 +128,28 @@ class IndividualMLPModel(MLPModel):
     Extra argument: `num_agents` (S, the learning team's slots per world). Everything else (observation
     groups, normalisation, distribution, export through `as_jit` / `as_onnx`) is `MLPModel`'s."""
 
-    def __init__(self, obs: TensorDict, obs_groups: dict[str, list[str]], obs_set: str, output_dim: int,
-                 num_agents: int = 1, hidden_dims=(256, 256, 256), activation: str = "elu",
-                 obs_normalization: bool = False, distribution_cfg: dict | None = None) -> None:
-        super().__init__(obs, obs_groups, obs_set, output_dim, hidden_dims=hidden_dims, activation=activation,
-                         obs_normalization=obs_normalization, distribution_cfg=distribution_cfg)
+    def __init__(
+        self,
+        obs: TensorDict,
+        obs_groups: dict[str, list[str]],
+        obs_set: str,
+        output_dim: int,
+        num_agents: int = 1,
+        hidden_dims=(256, 256, 256),
+        activation: str = "elu",
+        obs_normalization: bool = False,
+        distribution_cfg: dict | None = None,
+    ) -> None:
+        super().__init__(
+            obs,
+            obs_groups,
+            obs_set,
+            output_dim,
+            hidden_dims=hidden_dims,
+            activation=activation,
+            obs_normalization=obs_normalization,
+            distribution_cfg=distribution_cfg,
+        )
         self.num_agents = num_agents
         head = self.distribution.input_dim if self.distribution is not None else output_dim
         # Replaces the shared MLP that MLPModel built (its parameters are discarded).

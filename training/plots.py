@@ -32,16 +32,22 @@ def plot_distributions(result: dict, path: str) -> str:
     predators = {p for _, p in pairs}
     labels = [a if len(predators) == 1 else f"{a}\nvs {b}" for a, b in pairs]
     fig, axes = plt.subplots(1, 2, figsize=(max(6.0, 1.6 * len(pairs) + 3), 4.2))
-    for ax, metric, title in ((axes[0], "captures_per_prey", "captures per prey per episode"),
-                              (axes[1], "reward_per_prey", "reward per prey per episode")):
-        data = [[r[metric] for r in result["episodes"] if (r["prey_policy"], r["predator_policy"]) == pair]
-                for pair in pairs]
+    for ax, metric, title in (
+        (axes[0], "captures_per_prey", "captures per prey per episode"),
+        (axes[1], "reward_per_prey", "reward per prey per episode"),
+    ):
+        data = [
+            [r[metric] for r in result["episodes"] if (r["prey_policy"], r["predator_policy"]) == pair]
+            for pair in pairs
+        ]
         ax.boxplot(data, showmeans=True)
         ax.set_xticks(range(1, len(labels) + 1), labels)
         ax.set_title(title)
         ax.grid(alpha=0.3)
-    fig.suptitle(f"{result['protocol']['episodes']} episodes x {len(result['protocol']['seeds'])} seeds, "
-                 f"{result['protocol']['max_steps']} steps")
+    fig.suptitle(
+        f"{result['protocol']['episodes']} episodes x {len(result['protocol']['seeds'])} seeds, "
+        f"{result['protocol']['max_steps']} steps"
+    )
     fig.tight_layout()
     write_figure(fig, path, dpi=120)
     plt.close(fig)
@@ -68,8 +74,7 @@ def plot_cross_play(result: dict, path: str, metric: str = "captures_per_prey") 
         for j in range(mean.shape[1]):
             # one seed has no spread: its std of 0 would read as a measured one
             text = f"{mean[i, j]:.3g}" + (f"\n± {std[i, j]:.2g}" if several else "")
-            ax.text(j, i, text, ha="center", va="center", fontsize=8,
-                    color="black" if mean[i, j] > middle else "white")
+            ax.text(j, i, text, ha="center", va="center", fontsize=8, color="black" if mean[i, j] > middle else "white")
     ax.set_title(f"{metric.replace('_', ' ')}: {protocol['episodes']} episodes x {len(protocol['seeds'])} seeds")
     fig.tight_layout()
     write_figure(fig, path, dpi=120)
@@ -89,8 +94,12 @@ def read_run_curve(run_dir: str) -> dict[str, np.ndarray]:
         def col(name):
             return np.array([float(r[name]) if r.get(name) not in (None, "") else np.nan for r in rows])
 
-        return {"iteration": col("iteration"), "world_episodes": col("world_episodes"),
-                "captures_per_prey": col("captures_per_prey"), "reward_per_agent": col("reward_per_agent")}
+        return {
+            "iteration": col("iteration"),
+            "world_episodes": col("world_episodes"),
+            "captures_per_prey": col("captures_per_prey"),
+            "reward_per_agent": col("reward_per_agent"),
+        }
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     acc = EventAccumulator(run_dir)
@@ -108,12 +117,16 @@ def read_run_curve(run_dir: str) -> dict[str, np.ndarray]:
 
         scale = cfg["train"]["num_worlds"] * cfg["runner"]["num_steps_per_env"] / env_config(cfg).max_steps
     caps = acc.Scalars("Episode/captures_per_prey")
-    rews = ({e.step: e.value for e in acc.Scalars("Episode/reward_per_agent")}
-            if "Episode/reward_per_agent" in tags else {})
+    rews = (
+        {e.step: e.value for e in acc.Scalars("Episode/reward_per_agent")} if "Episode/reward_per_agent" in tags else {}
+    )
     it = np.array([e.step for e in caps], dtype=float)
-    return {"iteration": it, "world_episodes": (it + 1) * scale if scale else it,
-            "captures_per_prey": np.array([e.value for e in caps]),
-            "reward_per_agent": np.array([rews.get(e.step, np.nan) for e in caps])}
+    return {
+        "iteration": it,
+        "world_episodes": (it + 1) * scale if scale else it,
+        "captures_per_prey": np.array([e.value for e in caps]),
+        "reward_per_agent": np.array([rews.get(e.step, np.nan) for e in caps]),
+    }
 
 
 def _moving_average(y: np.ndarray, window: int) -> np.ndarray:
@@ -137,8 +150,14 @@ def plot_training_curves(curves: dict[str, list[str]], path: str, smooth: int = 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     empty: list[str] = []  # labels of which no run logged an ended episode (nothing to draw)
     for label, patterns in curves.items():
-        runs = sorted({d for p in patterns for d in (glob.glob(p) or [p])
-                       if os.path.isdir(d) or (d.endswith(".csv") and os.path.isfile(d))})
+        runs = sorted(
+            {
+                d
+                for p in patterns
+                for d in (glob.glob(p) or [p])
+                if os.path.isdir(d) or (d.endswith(".csv") and os.path.isfile(d))
+            }
+        )
         if not runs:
             raise ValueError(f"curves {label!r}: no run directory matches {patterns}")
         data = [read_run_curve(d) for d in runs]
@@ -150,13 +169,15 @@ def plot_training_curves(curves: dict[str, list[str]], path: str, smooth: int = 
                 warnings.simplefilter("ignore", category=RuntimeWarning)
                 mean, std = np.nanmean(ys, axis=0), np.nanstd(ys, axis=0)
             ok = ~np.isnan(mean)
-            line, = ax.plot(x[ok], mean[ok], label=f"{label} ({len(runs)} run{'s' if len(runs) > 1 else ''})")
+            (line,) = ax.plot(x[ok], mean[ok], label=f"{label} ({len(runs)} run{'s' if len(runs) > 1 else ''})")
             ax.fill_between(x[ok], (mean - std)[ok], (mean + std)[ok], color=line.get_color(), alpha=0.2)
             if not ok.any() and metric == "captures_per_prey":  # said once per label
                 empty.append(label)
     if empty:
-        note = (f"no episode ended in the runs of {', '.join(map(repr, empty))} ({n} iteration(s) logged; an "
-                "episode lasts env.max_steps steps): their curves are empty; train longer")
+        note = (
+            f"no episode ended in the runs of {', '.join(map(repr, empty))} ({n} iteration(s) logged; an "
+            "episode lasts env.max_steps steps): their curves are empty; train longer"
+        )
         warnings.warn(note, stacklevel=2)
         fig.text(0.5, 0.01, note, ha="center", va="bottom", fontsize=8, wrap=True)
     axes[0].set_title("captures per prey per episode")

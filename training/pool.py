@@ -64,8 +64,10 @@ class OpponentPool:
         # A world's uniform `role` draw: [0, f_prey) predators are a snapshot, [f_prey, f_prey + f_predator)
         # the prey are, the rest is live.
         self._low = {"predator": 0.0, "prey": float(fractions["prey"])}
-        self._threshold = {"predator": float(fractions["prey"]),
-                           "prey": float(fractions["prey"] + fractions["predator"])}
+        self._threshold = {
+            "predator": float(fractions["prey"]),
+            "prey": float(fractions["prey"] + fractions["predator"]),
+        }
         self._templates = {}
         self._stacked: dict[str, dict[str, torch.Tensor]] = {}
         for team in self.teams:
@@ -74,8 +76,10 @@ class OpponentPool:
                 raise ValueError("an opponent pool needs feed-forward actors (snapshots keep no hidden state)")
             template = nn.Sequential(*(copy.deepcopy(getattr(actor, part)) for part in ACTOR_PARTS)).eval()
             self._templates[team] = template
-            self._stacked[team] = {name: torch.zeros((size,) + tuple(value.shape), dtype=value.dtype, device=dev)
-                                   for name, value in template.state_dict().items()}
+            self._stacked[team] = {
+                name: torch.zeros((size,) + tuple(value.shape), dtype=value.dtype, device=dev)
+                for name, value in template.state_dict().items()
+            }
         # Per world: the snapshot slot playing each team there, -1 where its learner plays it.
         self.index = {t: torch.full((W,), -1, dtype=torch.long, device=dev) for t in self.teams}
         self.driven = {t: torch.ones(W, dtype=torch.bool, device=dev) for t in self.teams}
@@ -112,7 +116,7 @@ class OpponentPool:
         age = (count - 1 - np.arange(filled)) % size  # slot s holds the snapshot taken `age` snapshots ago
         weights = np.ones(filled) if sampling == "uniform" else (filled - age).astype(np.float64)
         cdf = np.full(size, 2.0)
-        cdf[:filled - 1] = np.cumsum(weights)[:-1] / weights.sum()
+        cdf[: filled - 1] = np.cumsum(weights)[:-1] / weights.sum()
         return cdf.astype(np.float32)
 
     def probabilities(self) -> np.ndarray:
@@ -149,7 +153,8 @@ class OpponentPool:
             obs = env.env.observations[team].reshape(W * S, -1)
             template = self._templates[team]
             logits = torch.vmap(lambda params, template=template, obs=obs: functional_call(template, params, (obs,)))(
-                self._stacked[team])
+                self._stacked[team]
+            )
             rows = self.index[team].clamp(min=0).view(W, 1).expand(W, S).reshape(-1)
             chosen = logits.gather(0, rows.view(1, -1, 1).expand(1, -1, logits.shape[-1])).squeeze(0)
             actions = torch.multinomial(torch.softmax(chosen, dim=-1), 1).view(W, S)
@@ -158,9 +163,11 @@ class OpponentPool:
 
     # ------------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict:
-        return {"count": self.count,
-                "stacked": {t: {k: v.cpu().clone() for k, v in s.items()} for t, s in self._stacked.items()},
-                "index": {t: v.cpu().clone() for t, v in self.index.items()}}
+        return {
+            "count": self.count,
+            "stacked": {t: {k: v.cpu().clone() for k, v in s.items()} for t, s in self._stacked.items()},
+            "index": {t: v.cpu().clone() for t, v in self.index.items()},
+        }
 
     def load_state_dict(self, state: dict) -> None:
         self.count = int(state["count"])

@@ -55,9 +55,15 @@ def _scaled_optimizer_class(base: type) -> type:
 def flat_samples(storage: RolloutStorage) -> tuple:
     """The rollout's samples as rsl-rl's mini-batch generator flattens them (step-major): observations,
     actions, values, returns, action log-probabilities, advantages, distribution parameters."""
-    return (storage.observations.flatten(0, 1), storage.actions.flatten(0, 1), storage.values.flatten(0, 1),
-            storage.returns.flatten(0, 1), storage.actions_log_prob.flatten(0, 1),
-            storage.advantages.flatten(0, 1), tuple(p.flatten(0, 1) for p in storage.distribution_params))
+    return (
+        storage.observations.flatten(0, 1),
+        storage.actions.flatten(0, 1),
+        storage.values.flatten(0, 1),
+        storage.returns.flatten(0, 1),
+        storage.actions_log_prob.flatten(0, 1),
+        storage.advantages.flatten(0, 1),
+        tuple(p.flatten(0, 1) for p in storage.distribution_params),
+    )
 
 
 def mini_batch_size(storage: RolloutStorage, num_mini_batches: int, group_size: int = 1) -> int:
@@ -101,12 +107,13 @@ class GroupedRolloutStorage(RolloutStorage):
 
     def mini_batch_generator(self, num_mini_batches: int, num_epochs: int = 8) -> Generator:
         indices, mini_batch_size = mini_batch_indices(self, num_mini_batches, self.group_size)
-        (observations, actions, values, returns, old_actions_log_prob, advantages,
-         old_distribution_params) = flat_samples(self)
+        (observations, actions, values, returns, old_actions_log_prob, advantages, old_distribution_params) = (
+            flat_samples(self)
+        )
 
         for _ in range(num_epochs):
             for i in range(num_mini_batches):
-                batch_idx = indices[i * mini_batch_size:(i + 1) * mini_batch_size]
+                batch_idx = indices[i * mini_batch_size : (i + 1) * mini_batch_size]
                 yield RolloutStorage.Batch(
                     observations=observations[batch_idx],
                     actions=actions[batch_idx],
@@ -128,30 +135,52 @@ class AquariumPPO(PPO):
     storage: RolloutStorage
     learning_rate: float
 
-    def __init__(self, actor, critic, storage, critic_lr_scale: float = 1.0, minibatch_group_size: int = 1,
-                 optimizer: str = "adam", learning_rate: float = 0.001, capturable_optimizer: bool = False,
-                 **kwargs) -> None:
+    def __init__(
+        self,
+        actor,
+        critic,
+        storage,
+        critic_lr_scale: float = 1.0,
+        minibatch_group_size: int = 1,
+        optimizer: str = "adam",
+        learning_rate: float = 0.001,
+        capturable_optimizer: bool = False,
+        **kwargs,
+    ) -> None:
         super().__init__(actor, critic, storage, optimizer=optimizer, learning_rate=learning_rate, **kwargs)
         if not (isinstance(critic_lr_scale, (int, float)) and critic_lr_scale > 0):
             raise ValueError(f"critic_lr_scale={critic_lr_scale!r} must be a number > 0")
-        if isinstance(minibatch_group_size, bool) or not isinstance(minibatch_group_size, int) \
-                or minibatch_group_size < 1:
+        if (
+            isinstance(minibatch_group_size, bool)
+            or not isinstance(minibatch_group_size, int)
+            or minibatch_group_size < 1
+        ):
             raise ValueError(f"minibatch_group_size={minibatch_group_size!r} must be an integer >= 1")
         if minibatch_group_size > 1 and (actor.is_recurrent or critic.is_recurrent):
             raise ValueError("minibatch_group_size > 1 is for feed-forward models only")
         self.critic_lr_scale = float(critic_lr_scale)
         self.minibatch_group_size = minibatch_group_size
         optimizer_class = _scaled_optimizer_class(resolve_optimizer(optimizer))
-        self.optimizer = optimizer_class([
-            {"params": list(self.actor.parameters()), "lr_scale": 1.0, "name": "actor"},
-            {"params": list(self.critic.parameters()), "lr_scale": self.critic_lr_scale, "name": "critic"},
-        ], lr=learning_rate, **(_capturable_options(optimizer) if capturable_optimizer else {}))
+        self.optimizer = optimizer_class(
+            [
+                {"params": list(self.actor.parameters()), "lr_scale": 1.0, "name": "actor"},
+                {"params": list(self.critic.parameters()), "lr_scale": self.critic_lr_scale, "name": "critic"},
+            ],
+            lr=learning_rate,
+            **(_capturable_options(optimizer) if capturable_optimizer else {}),
+        )
         self.capturable_optimizer = bool(capturable_optimizer)
         if minibatch_group_size > 1:
             old = self.storage
             self.storage = GroupedRolloutStorage(
-                minibatch_group_size, old.training_type, old.num_envs, old.num_transitions_per_env,
-                old.observations[0], old.actions_shape, old.device)
+                minibatch_group_size,
+                old.training_type,
+                old.num_envs,
+                old.num_transitions_per_env,
+                old.observations[0],
+                old.actions_shape,
+                old.device,
+            )
 
     def load(self, loaded_dict: dict, load_cfg: dict | None, strict: bool) -> bool:
         loaded = super().load(loaded_dict, load_cfg, strict)
@@ -181,8 +210,11 @@ class AquariumPPO(PPO):
         """Whether `update_on_device` can be captured too: a rollout that can, a fixed learning-rate
         schedule (the adaptive one reads the KL on the host every mini-batch) and one process (the
         gradients' all-reduce over the ranks stays eager)."""
-        return (self.rollout_graphable and not self.is_multi_gpu
-                and not (self.desired_kl is not None and self.schedule == "adaptive"))
+        return (
+            self.rollout_graphable
+            and not self.is_multi_gpu
+            and not (self.desired_kl is not None and self.schedule == "adaptive")
+        )
 
     def mini_batch_indices(self) -> tuple[torch.Tensor, int]:
         """The indices of the next update (see `mini_batch_indices`); call once per update."""
@@ -195,16 +227,22 @@ class AquariumPPO(PPO):
         The adaptive schedule works too, with one host sync per mini-batch (as in rsl-rl)."""
         if self.actor.is_recurrent or self.critic.is_recurrent or self.rnd or self.symmetry:
             raise ValueError("update_on_device serves feed-forward models without RND or symmetry")
-        (observations, actions, values, returns, old_actions_log_prob, advantages,
-         old_distribution_params) = flat_samples(self.storage)
+        (observations, actions, values, returns, old_actions_log_prob, advantages, old_distribution_params) = (
+            flat_samples(self.storage)
+        )
         losses = torch.zeros(3, dtype=torch.float64, device=self.device)
         for _ in range(self.num_learning_epochs):
             for i in range(self.num_mini_batches):
-                batch_idx = indices[i * mini_batch_size:(i + 1) * mini_batch_size]
+                batch_idx = indices[i * mini_batch_size : (i + 1) * mini_batch_size]
                 losses += self._mini_batch_step(
-                    observations[batch_idx], actions[batch_idx], values[batch_idx], advantages[batch_idx],
-                    returns[batch_idx], old_actions_log_prob[batch_idx],
-                    tuple(p[batch_idx] for p in old_distribution_params))
+                    observations[batch_idx],
+                    actions[batch_idx],
+                    values[batch_idx],
+                    advantages[batch_idx],
+                    returns[batch_idx],
+                    old_actions_log_prob[batch_idx],
+                    tuple(p[batch_idx] for p in old_distribution_params),
+                )
         return losses / (self.num_learning_epochs * self.num_mini_batches)
 
     def finish_update(self) -> None:
@@ -221,16 +259,18 @@ class AquariumPPO(PPO):
                 normalizer._std = std
         self.storage.clear()
 
-    def _mini_batch_step(self, observations, actions, old_values, advantages, returns, old_actions_log_prob,
-                         old_distribution_params) -> torch.Tensor:
+    def _mini_batch_step(
+        self, observations, actions, old_values, advantages, returns, old_actions_log_prob, old_distribution_params
+    ) -> torch.Tensor:
         """One mini-batch of rsl-rl 5.5.1's `PPO.update` (same operations, same order); returns the
         detached `[value loss, surrogate loss, entropy]`."""
         original_batch_size = observations.batch_size[0]
         if self.normalize_advantage_per_mini_batch:
             with torch.no_grad():
                 advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
-        with torch.amp.autocast(device_type=torch.device(self.device).type, enabled=self.use_mixed_precision,
-                                dtype=torch.bfloat16):
+        with torch.amp.autocast(
+            device_type=torch.device(self.device).type, enabled=self.use_mixed_precision, dtype=torch.bfloat16
+        ):
             self.actor(observations, masks=None, hidden_state=None, stochastic_output=True)
             actions_log_prob = self.actor.get_output_log_prob(actions)
             values = self.critic(observations, masks=None, hidden_state=None)
@@ -256,8 +296,9 @@ class AquariumPPO(PPO):
                         param_group["lr"] = self.learning_rate
             ratio = torch.exp(actions_log_prob - torch.squeeze(old_actions_log_prob))
             surrogate = -torch.squeeze(advantages) * ratio
-            surrogate_clipped = -torch.squeeze(advantages) * torch.clamp(ratio, 1.0 - self.clip_param,
-                                                                         1.0 + self.clip_param)
+            surrogate_clipped = -torch.squeeze(advantages) * torch.clamp(
+                ratio, 1.0 - self.clip_param, 1.0 + self.clip_param
+            )
             surrogate_loss = torch.max(surrogate, surrogate_clipped).mean()
             if self.use_clipped_value_loss:
                 value_clipped = old_values + (values - old_values).clamp(-self.clip_param, self.clip_param)

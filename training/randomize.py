@@ -76,13 +76,17 @@ class ParamRandomizer:
                     raise ValueError(f"--randomize {field}: {value!r} is not allowed: {error}") from None
         self.rng = randomiser_stream(seed)
         # Every world's current draw, kept for checkpoints (the env holds them only as kernel parameters).
-        self.values = {field: np.zeros(env.num_worlds, dtype=np.int64 if field in INTEGER_FIELDS else np.float64)
-                       for field in self.samplers}
+        self.values = {
+            field: np.zeros(env.num_worlds, dtype=np.int64 if field in INTEGER_FIELDS else np.float64)
+            for field in self.samplers
+        }
         self._draw(list(range(env.num_worlds)))
 
     def _draw(self, worlds: list[int]) -> None:
-        values = {field: sampler.draw(self.rng, len(worlds), field in INTEGER_FIELDS)
-                  for field, sampler in self.samplers.items()}
+        values = {
+            field: sampler.draw(self.rng, len(worlds), field in INTEGER_FIELDS)
+            for field, sampler in self.samplers.items()
+        }
         self.env.set_params(world=worlds, validate=False, **values)
         for field, drawn in values.items():
             self.values[field][worlds] = drawn
@@ -97,8 +101,9 @@ class ParamRandomizer:
         self.rng.bit_generator.state = state["rng"]
         for field, values in state["values"].items():
             self.values[field][:] = values
-        self.env.set_params(world=list(range(self.env.num_worlds)), validate=False,
-                            **{f: v.tolist() for f, v in self.values.items()})
+        self.env.set_params(
+            world=list(range(self.env.num_worlds)), validate=False, **{f: v.tolist() for f, v in self.values.items()}
+        )
 
     def update(self, episode_ended: torch.Tensor) -> None:
         """New draws for the worlds whose episode ended (`[W]` bool, the env's `info["episode_ended"]`)."""

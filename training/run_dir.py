@@ -18,8 +18,15 @@ from ..atomic import check_output_dir
 LOCK_NAME = ".lock"
 # What a run writes into its directory (rsl-rl: TensorBoard events, git state; ours: the rest);
 # --overwrite removes these and nothing else.
-RUN_OUTPUTS = ("config.json", "progress.csv", "progress_*.csv", "model_*.pt", "events.out.tfevents.*",
-               "exported", "git")
+RUN_OUTPUTS = (
+    "config.json",
+    "progress.csv",
+    "progress_*.csv",
+    "model_*.pt",
+    "events.out.tfevents.*",
+    "exported",
+    "git",
+)
 
 
 class RunDirectory:
@@ -54,8 +61,10 @@ def claim_run_directory(path: str, resume: bool = False, overwrite: bool = False
         handle.seek(0)
         owner = handle.read().strip() or "unknown"
         handle.close()
-        raise ValueError(f"--log-dir {path}: another run (process {owner}) is using it; wait for it to finish "
-                         "or choose another directory") from None
+        raise ValueError(
+            f"--log-dir {path}: another run (process {owner}) is using it; wait for it to finish "
+            "or choose another directory"
+        ) from None
     handle.seek(0)
     previous = handle.read().strip()
     if previous and previous != str(os.getpid()):
@@ -79,8 +88,10 @@ def _check_new_run(path: str, overwrite: bool) -> None:
         return
     if not overwrite:
         listed = ", ".join(present[:4]) + (f" and {len(present) - 4} more" if len(present) > 4 else "")
-        raise ValueError(f"--log-dir {path} is not empty ({listed}): continue that run with --resume {path}, "
-                         "replace it with --overwrite, or choose another directory")
+        raise ValueError(
+            f"--log-dir {path} is not empty ({listed}): continue that run with --resume {path}, "
+            "replace it with --overwrite, or choose another directory"
+        )
     for pattern in RUN_OUTPUTS:
         for item in glob.glob(os.path.join(glob.escape(path), pattern)):
             if os.path.isdir(item):

@@ -44,8 +44,16 @@ class AquariumRunner(OnPolicyRunner):
     # Declared: `load` rebinds rsl-rl's counter from a checkpoint, which its type inference cannot follow.
     current_learning_iteration: int
 
-    def __init__(self, env: AquariumVecEnv, train_cfg: dict, log_dir: str | None = None, device: str = "cpu",
-                 trainer: Trainer | None = None, quiet: bool = False, others=()):
+    def __init__(
+        self,
+        env: AquariumVecEnv,
+        train_cfg: dict,
+        log_dir: str | None = None,
+        device: str = "cpu",
+        trainer: Trainer | None = None,
+        quiet: bool = False,
+        others=(),
+    ):
         super().__init__(env, train_cfg, log_dir=log_dir, device=device)
         self.trainer = trainer
         several = bool(others)
@@ -53,12 +61,21 @@ class AquariumRunner(OnPolicyRunner):
         def logger(vec_env: AquariumVecEnv, cfg: dict, first: bool) -> AquariumLogger:
             name = f"progress_{vec_env.team}.csv" if several else "progress.csv"
             return AquariumLogger(
-                log_dir=log_dir, cfg=cfg, env_cfg=vec_env.cfg, num_envs=vec_env.num_envs,
-                is_distributed=self.is_distributed, gpu_world_size=self.gpu_world_size,
-                gpu_global_rank=self.gpu_global_rank, device=self.device,
-                csv_path=os.path.join(log_dir, name) if log_dir else None, slots=vec_env.slots,
-                max_steps=vec_env.max_episode_length, quiet=quiet, team=vec_env.team if several else None,
-                bar=first)
+                log_dir=log_dir,
+                cfg=cfg,
+                env_cfg=vec_env.cfg,
+                num_envs=vec_env.num_envs,
+                is_distributed=self.is_distributed,
+                gpu_world_size=self.gpu_world_size,
+                gpu_global_rank=self.gpu_global_rank,
+                device=self.device,
+                csv_path=os.path.join(log_dir, name) if log_dir else None,
+                slots=vec_env.slots,
+                max_steps=vec_env.max_episode_length,
+                quiet=quiet,
+                team=vec_env.team if several else None,
+                bar=first,
+            )
 
         self.logger = logger(env, self.cfg, True)
         self.learners = [Learner(env.team, env, self.cfg, self.alg, self.logger)]
@@ -82,10 +99,15 @@ class AquariumRunner(OnPolicyRunner):
             self.cfg["multi_gpu"] = None
             return
         if self.device not in ("cpu", f"cuda:{self.gpu_local_rank}"):
-            raise ValueError(f"device {self.device!r} of rank {self.gpu_global_rank}: a torchrun run trains on "
-                             f"'cpu' or 'cuda:{self.gpu_local_rank}' (LOCAL_RANK)")
-        self.cfg["multi_gpu"] = {"global_rank": self.gpu_global_rank, "local_rank": self.gpu_local_rank,
-                                 "world_size": self.gpu_world_size}
+            raise ValueError(
+                f"device {self.device!r} of rank {self.gpu_global_rank}: a torchrun run trains on "
+                f"'cpu' or 'cuda:{self.gpu_local_rank}' (LOCAL_RANK)"
+            )
+        self.cfg["multi_gpu"] = {
+            "global_rank": self.gpu_global_rank,
+            "local_rank": self.gpu_local_rank,
+            "world_size": self.gpu_world_size,
+        }
         distributed.init(self.device, self.gpu_global_rank, self.gpu_world_size)
 
     def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False) -> None:
@@ -107,16 +129,20 @@ class AquariumRunner(OnPolicyRunner):
         calls in the same order, logging once per iteration."""
         if init_at_random_ep_len:
             self.env.episode_length_buf = torch.randint_like(
-                self.env.episode_length_buf, high=int(self.env.max_episode_length))
+                self.env.episode_length_buf, high=int(self.env.max_episode_length)
+            )
             for learner in self.learners[1:]:  # the worlds' step counters changed under them too
                 learner.vec_env.sync_from_env()
         loop = self.loop
         if loop is None:
-            loop = self.loop = TrainingLoop([(learner.alg, learner.vec_env) for learner in self.learners],
-                                     self.cfg["num_steps_per_env"], graphs=self.cuda_graphs,
-                                     pool=self.trainer.pool if self.trainer is not None else None,
-                                     # episode statistics are sums and counts, losses become their mean
-                                     reduce=distributed.sum_over_ranks if self.is_distributed else None)
+            loop = self.loop = TrainingLoop(
+                [(learner.alg, learner.vec_env) for learner in self.learners],
+                self.cfg["num_steps_per_env"],
+                graphs=self.cuda_graphs,
+                pool=self.trainer.pool if self.trainer is not None else None,
+                # episode statistics are sums and counts, losses become their mean
+                reduce=distributed.sum_over_ranks if self.is_distributed else None,
+            )
         for learner in self.learners:
             learner.alg.train_mode()
             if self.is_distributed:  # every rank starts from rank 0's parameters
@@ -136,9 +162,18 @@ class AquariumRunner(OnPolicyRunner):
                 losses = [loss / self.gpu_world_size for loss in losses]
                 means, episodes, row_reward = learner.vec_env.decode_episode_stats(stats)
                 frozen = learning is not None and not learning[k]
-                learner.logger.log_iteration(it, start_it, total_it, collect_time, learn_time,
-                                             None if frozen else dict(zip(("value", "surrogate", "entropy"), losses)),
-                                             learner.alg.learning_rate, means, episodes, row_reward)
+                learner.logger.log_iteration(
+                    it,
+                    start_it,
+                    total_it,
+                    collect_time,
+                    learn_time,
+                    None if frozen else dict(zip(("value", "surrogate", "entropy"), losses)),
+                    learner.alg.learning_rate,
+                    means,
+                    episodes,
+                    row_reward,
+                )
 
         # Every rank takes part in a save (rank 0 gathers their states), only rank 0 has a writer.
         saves = self.logger.log_dir is not None
@@ -192,8 +227,9 @@ class AquariumRunner(OnPolicyRunner):
         if len(self.learners) == 1:
             load_iteration = self.alg.load(loaded, load_cfg, strict)
         else:
-            load_iteration = [learner.alg.load(loaded["learners"][learner.team], load_cfg, strict)
-                              for learner in self.learners][0]
+            load_iteration = [
+                learner.alg.load(loaded["learners"][learner.team], load_cfg, strict) for learner in self.learners
+            ][0]
         if load_iteration:
             self.current_learning_iteration = loaded["iter"]
         infos = loaded.get("infos") or {}

@@ -30,8 +30,12 @@ class StopRequest:
         if self.signum is not None:  # the second one: stop now
             raise KeyboardInterrupt
         self.signum = signum
-        print(f"\naquarium-warp train: {signal.Signals(signum).name} received, stopping after this iteration "
-              "(a checkpoint is written); send it again to stop at once", file=sys.stderr, flush=True)
+        print(
+            f"\naquarium-warp train: {signal.Signals(signum).name} received, stopping after this iteration "
+            "(a checkpoint is written); send it again to stop at once",
+            file=sys.stderr,
+            flush=True,
+        )
 
     @contextlib.contextmanager
     def catching(self):

@@ -41,8 +41,9 @@ def parse_vary(text: str) -> tuple[str, tuple[str, ...]]:
     key, sep, values = text.partition("=")
     parts = tuple(v.strip() for v in re.split(r",(?![^\[{]*[\]}])", values))
     if not sep or not key.strip() or not all(parts):
-        raise ValueError(f"--vary {text!r}: expected KEY.PATH=VALUE,VALUE,... "
-                         "(e.g. train.sharing=parameter,individual)")
+        raise ValueError(
+            f"--vary {text!r}: expected KEY.PATH=VALUE,VALUE,... (e.g. train.sharing=parameter,individual)"
+        )
     return key.strip(), parts
 
 
@@ -121,18 +122,28 @@ def train_run(run: TrainingRun, config: dict, options: dict) -> dict:
         resume_from = None
         shutil.rmtree(run.run_dir, ignore_errors=True)  # a started run's logs, which the new start would append to
     os.makedirs(run.run_dir, exist_ok=True)
-    record = {"seed": run.seed, "set": list(run.sets), "run_dir": run.run_dir, "options": options,
-              "status": "running", "node": platform.node(), "resumed_from": resume_from}
+    record = {
+        "seed": run.seed,
+        "set": list(run.sets),
+        "run_dir": run.run_dir,
+        "options": options,
+        "status": "running",
+        "node": platform.node(),
+        "resumed_from": resume_from,
+    }
     _write_json(path, record)
     start = time.perf_counter()
     # A new run's directory holds only this sweep's record of it: overwrite what an earlier start left.
     directory = claim_run_directory(run.run_dir, resume=resume_from is not None, overwrite=resume_from is None)
     try:
         if resume_from is not None:  # the checkpoint holds the run's config
-            trainer = Trainer.resume(run.run_dir, log_dir=run.run_dir,
-                                     changes={"train": {"quiet": True} if config["train"]["quiet"] else {}})
-            print(f"aquarium-warp sweep: resumed {run.run_dir} at iteration {trainer.iteration} of "
-                  f"{trainer.total_iterations}")
+            trainer = Trainer.resume(
+                run.run_dir, log_dir=run.run_dir, changes={"train": {"quiet": True} if config["train"]["quiet"] else {}}
+            )
+            print(
+                f"aquarium-warp sweep: resumed {run.run_dir} at iteration {trainer.iteration} of "
+                f"{trainer.total_iterations}"
+            )
         else:
             trainer = Trainer(config, log_dir=run.run_dir)
         try:
@@ -160,8 +171,10 @@ def run_training_sweep(sweep: TrainingSweep, train_args: argparse.Namespace, ray
     if train_args.log_dir is not None:
         raise ValueError("--log-dir: a sweep's runs go to --out/<setting>/seed<s>")
     if getattr(train_args, "overwrite", False):
-        raise ValueError("--overwrite: a sweep keeps its finished runs and resumes the started ones; give it "
-                         "another --out to start over")
+        raise ValueError(
+            "--overwrite: a sweep keeps its finished runs and resumes the started ones; give it "
+            "another --out to start over"
+        )
     if ray is not None:  # the tasks run on the GPU that Ray assigns them, or on the CPU
         ray, device = placement(ray, train_args.device)
     calls = []
@@ -179,10 +192,20 @@ def run_training_sweep(sweep: TrainingSweep, train_args: argparse.Namespace, ray
             _report(records[-1])
     else:
         records = run_ray_tasks(train_run, calls, ray, on_result=lambda _, r: _report(r))
-    summary = {"seeds": list(sweep.seeds), "vary": {key: list(values) for key, values in sweep.vary},
-               "ray": None if ray is None else {"address": ray.address, "gpus_per_task": ray.gpus_per_task,
-                                                 "cpus_per_task": ray.cpus_per_task, "max_retries": ray.max_retries},
-               "wall_time_s": round(time.perf_counter() - start, 2), "runs": records}
+    summary = {
+        "seeds": list(sweep.seeds),
+        "vary": {key: list(values) for key, values in sweep.vary},
+        "ray": None
+        if ray is None
+        else {
+            "address": ray.address,
+            "gpus_per_task": ray.gpus_per_task,
+            "cpus_per_task": ray.cpus_per_task,
+            "max_retries": ray.max_retries,
+        },
+        "wall_time_s": round(time.perf_counter() - start, 2),
+        "runs": records,
+    }
     os.makedirs(sweep.out, exist_ok=True)
     _write_json(os.path.join(sweep.out, "sweep.json"), summary)
     return summary
@@ -200,21 +223,32 @@ def _write_json(path: str, value: dict) -> None:
 
 # ---------------------------------------------------------------------------------------------- command line
 HELP = "one `aquarium-warp train` run per seed and setting"
-DESCRIPTION = ("Train every combination of a seed (--seeds) and the varied settings (--vary) in a run directory of "
-               "its own, --out/<setting>/seed<s>, one after another or as Ray tasks (--ray). A rerun with the same "
-               "--out keeps the finished runs and resumes the started ones from their newest checkpoint. Every "
-               "option of `aquarium-warp train` applies to each run (not --seed, --log-dir, --resume, --overwrite).")
+DESCRIPTION = (
+    "Train every combination of a seed (--seeds) and the varied settings (--vary) in a run directory of "
+    "its own, --out/<setting>/seed<s>, one after another or as Ray tasks (--ray). A rerun with the same "
+    "--out keeps the finished runs and resumes the started ones from their newest checkpoint. Every "
+    "option of `aquarium-warp train` applies to each run (not --seed, --log-dir, --resume, --overwrite)."
+)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from .cli import add_train_arguments
 
     p.add_argument("--seeds", default="0", help="seeds: a comma list, '...' continues it (default 0)")
-    p.add_argument("--vary", action="append", default=[], metavar="KEY=V1,V2,...",
-                   help="a setting to sweep, as `train --set KEY=VALUE` takes it, e.g. "
-                        "train.sharing=parameter,individual (repeatable: every combination)")
-    p.add_argument("--out", default=None, help="the sweep's directory: sweep.json and one directory per run "
-                                               "(default runs/sweep_<time>; on Ray one that every machine sees)")
+    p.add_argument(
+        "--vary",
+        action="append",
+        default=[],
+        metavar="KEY=V1,V2,...",
+        help="a setting to sweep, as `train --set KEY=VALUE` takes it, e.g. "
+        "train.sharing=parameter,individual (repeatable: every combination)",
+    )
+    p.add_argument(
+        "--out",
+        default=None,
+        help="the sweep's directory: sweep.json and one directory per run "
+        "(default runs/sweep_<time>; on Ray one that every machine sees)",
+    )
     add_train_arguments(p)
     add_ray_arguments(p, "training run")
 
@@ -226,16 +260,22 @@ def run(args: argparse.Namespace) -> int:
     train = argparse.ArgumentParser()
     add_train_arguments(train)
     train_args = argparse.Namespace(**{name: getattr(args, name) for name in vars(train.parse_args([]))})
-    sweep = TrainingSweep(seeds=tuple(parse_list(args.seeds, int, "--seeds", minimum=0)),
-                          vary=tuple(parse_vary(text) for text in args.vary),
-                          out=args.out or os.path.join("runs", f"sweep_{time.strftime('%Y%m%d-%H%M%S')}"))
+    sweep = TrainingSweep(
+        seeds=tuple(parse_list(args.seeds, int, "--seeds", minimum=0)),
+        vary=tuple(parse_vary(text) for text in args.vary),
+        out=args.out or os.path.join("runs", f"sweep_{time.strftime('%Y%m%d-%H%M%S')}"),
+    )
     sweep.validate()
     ray = ray_options(args)
-    print(f"aquarium-warp sweep train: {len(sweep.runs())} runs ({len(sweep.seeds)} seeds"
-          f"{''.join(f' x {len(v)} {k}' for k, v in sweep.vary)}) {'as Ray tasks' if ray else 'one after another'} "
-          f"-> {sweep.out}")
+    print(
+        f"aquarium-warp sweep train: {len(sweep.runs())} runs ({len(sweep.seeds)} seeds"
+        f"{''.join(f' x {len(v)} {k}' for k, v in sweep.vary)}) {'as Ray tasks' if ray else 'one after another'} "
+        f"-> {sweep.out}"
+    )
     summary = run_training_sweep(sweep, train_args, ray)
     kept = sum(r["kept"] for r in summary["runs"])
-    print(f"aquarium-warp sweep train: {len(summary['runs'])} runs ({kept} kept from before) in "
-          f"{summary['wall_time_s']:.1f} s; {os.path.join(sweep.out, 'sweep.json')} lists them")
+    print(
+        f"aquarium-warp sweep train: {len(summary['runs'])} runs ({kept} kept from before) in "
+        f"{summary['wall_time_s']:.1f} s; {os.path.join(sweep.out, 'sweep.json')} lists them"
+    )
     return 0

@@ -98,8 +98,7 @@ class Trainer:
         seed_process(self.seed)
 
         check_training_memory(config, resolve_device(device))  # the whole run, before anything is allocated
-        self.env = BatchedAquarium(env_config(config), num_worlds=train["num_worlds"], device=device,
-                                   seed=self.seed)
+        self.env = BatchedAquarium(env_config(config), num_worlds=train["num_worlds"], device=device, seed=self.seed)
         self.device = self.env.torch_device
         if train["tf32"] and self.device.type == "cuda":
             torch.backends.cuda.matmul.allow_tf32 = True  # a process-wide switch of torch's
@@ -107,47 +106,74 @@ class Trainer:
             self.opponent = None
             opponents = {team: LearnerActions() for team in TEAMS}
         else:
-            self.opponent = make_driver(train["opponent"], self.env, OTHER[train["team"]],
-                                        deterministic=train["opponent_deterministic"], seed=self.seed)
+            self.opponent = make_driver(
+                train["opponent"],
+                self.env,
+                OTHER[train["team"]],
+                deterministic=train["opponent_deterministic"],
+                seed=self.seed,
+            )
             opponents = {train["team"]: self.opponent}
         # The first team's adapter steps the worlds and samples the swarm metrics (one per world is enough).
-        self.vec_envs = {team: AquariumVecEnv(self.env, team, opponents[team],
-                                              reward_scale=team_settings(config, team)["reward_scale"], cfg=config,
-                                              metrics_every=int(train["metrics_every"]) if i == 0 else 0,
-                                              critic=team_settings(config, team)["critic"],
-                                              randomize=train["randomize"] if i == 0 else None,
-                                              randomize_seed=self.seed)
-                         for i, team in enumerate(self.teams)}
+        self.vec_envs = {
+            team: AquariumVecEnv(
+                self.env,
+                team,
+                opponents[team],
+                reward_scale=team_settings(config, team)["reward_scale"],
+                cfg=config,
+                metrics_every=int(train["metrics_every"]) if i == 0 else 0,
+                critic=team_settings(config, team)["critic"],
+                randomize=train["randomize"] if i == 0 else None,
+                randomize_seed=self.seed,
+            )
+            for i, team in enumerate(self.teams)
+        }
         if both:
             for team in TEAMS:
                 opponents[team].vec_env = self.vec_envs[OTHER[team]]
         self.vec_env = self.vec_envs[self.teams[0]]
-        self.runner_cfgs = {team: runner_config(config, v.slots, v.action_count, self.device.type, team=team)
-                            for team, v in self.vec_envs.items()}
+        self.runner_cfgs = {
+            team: runner_config(config, v.slots, v.action_count, self.device.type, team=team)
+            for team, v in self.vec_envs.items()
+        }
         self.runner_cfg = self.runner_cfgs[self.teams[0]]
         self.total_iterations = total_iterations(config)
         if log_dir is not None and self.rank == 0:
             os.makedirs(log_dir, exist_ok=True)
-            record = {"config": config, "runner_cfg": self.runner_cfg if not both else self.runner_cfgs,
-                      "total_iterations": self.total_iterations}
+            record = {
+                "config": config,
+                "runner_cfg": self.runner_cfg if not both else self.runner_cfgs,
+                "total_iterations": self.total_iterations,
+            }
             if self.world_size > 1:  # rank r simulates with seed rank_seed(train.seed, r)
-                record["distributed"] = {"world_size": self.world_size,
-                                         "seeds": [rank_seed(train["seed"], r) for r in range(self.world_size)]}
+                record["distributed"] = {
+                    "world_size": self.world_size,
+                    "seeds": [rank_seed(train["seed"], r) for r in range(self.world_size)],
+                }
             with atomic_open(os.path.join(log_dir, "config.json")) as f:
                 json.dump(record, f, indent=1, default=str)
         with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints the networks (config.json has them)
             self.runner = AquariumRunner(
-                self.vec_env, copy.deepcopy(self.runner_cfg), log_dir=log_dir, device=str(self.device), trainer=self,
+                self.vec_env,
+                copy.deepcopy(self.runner_cfg),
+                log_dir=log_dir,
+                device=str(self.device),
+                trainer=self,
                 quiet=train["quiet"],
-                others=[(self.vec_envs[t], copy.deepcopy(self.runner_cfgs[t])) for t in self.teams[1:]])
+                others=[(self.vec_envs[t], copy.deepcopy(self.runner_cfgs[t])) for t in self.teams[1:]],
+            )
         self.learners = {learner.team: learner for learner in self.runner.learners}
         self.pool = None
         if train["pool_every"]:
             from .pool import OpponentPool
 
-            self.pool = OpponentPool({t: (l.alg.get_policy(), l.vec_env) for t, l in self.learners.items()},
-                                     size=int(train["pool_size"]), sampling=train["pool_sampling"],
-                                     fractions={t: float(team_settings(config, t)["pool_fraction"]) for t in TEAMS})
+            self.pool = OpponentPool(
+                {t: (l.alg.get_policy(), l.vec_env) for t, l in self.learners.items()},
+                size=int(train["pool_size"]),
+                sampling=train["pool_sampling"],
+                fractions={t: float(team_settings(config, t)["pool_fraction"]) for t in TEAMS},
+            )
         self.video = None
         if train["video_every"]:
             from .episode_video import EpisodeVideo
@@ -170,15 +196,24 @@ class Trainer:
             checkpoint_path, checkpoint = path, read_checkpoint(path)
         config = copy.deepcopy(checkpoint["infos"]["aquarium"]["config"])
         if changes:
-            allowed = {"iterations", "episodes", "quiet", "export", "loop", "cuda_graphs", "tf32", "video_every",
-                       "video_steps"}
-            bad = [k for k in changes.get("train", {}) if k not in allowed] + \
-                  [k for k in changes if k != "train"]
+            allowed = {
+                "iterations",
+                "episodes",
+                "quiet",
+                "export",
+                "loop",
+                "cuda_graphs",
+                "tf32",
+                "video_every",
+                "video_steps",
+            }
+            bad = [k for k in changes.get("train", {}) if k not in allowed] + [k for k in changes if k != "train"]
             if bad:
                 raise ValueError(f"a resumed run keeps its config; only train.{sorted(allowed)} may change, not {bad}")
             config["train"].update(changes.get("train", {}))
-        trainer = cls(config, log_dir=log_dir if log_dir is not None
-                      else os.path.dirname(os.path.abspath(checkpoint_path)))
+        trainer = cls(
+            config, log_dir=log_dir if log_dir is not None else os.path.dirname(os.path.abspath(checkpoint_path))
+        )
         trainer.load(checkpoint_path)
         return trainer
 
@@ -192,8 +227,10 @@ class Trainer:
             "vec_env": learner.vec_env.state_dict(with_env=with_env),
             "logger": learner.logger.state_dict(),
             # Recurrent models carry each row's GRU/LSTM state from one iteration into the next.
-            "hidden_states": {name: hidden_state_to(getattr(learner.alg, name).get_hidden_state(), "cpu")
-                              for name in ("actor", "critic")},
+            "hidden_states": {
+                name: hidden_state_to(getattr(learner.alg, name).get_hidden_state(), "cpu")
+                for name in ("actor", "critic")
+            },
         }
 
     def _load_learner_state(self, learner: Learner, state: dict) -> None:
@@ -213,16 +250,21 @@ class Trainer:
         learners = self.runner.learners
         if len(learners) == 1:
             return {**state, **self._learner_state(learners[0], with_env=True)}
-        return {**state, "pool": self.pool.state_dict() if self.pool is not None else None,
-                "teams": {l.team: self._learner_state(l, with_env=i == 0) for i, l in enumerate(learners)}}
+        return {
+            **state,
+            "pool": self.pool.state_dict() if self.pool is not None else None,
+            "teams": {l.team: self._learner_state(l, with_env=i == 0) for i, l in enumerate(learners)},
+        }
 
     def load_extra_state(self, state: dict) -> None:
         """Restore `extra_state()`; of a torchrun run's checkpoint (`world_size`, the other ranks'
         states under `ranks`), this rank's own part."""
         saved_size = int(state.get("world_size", 1))
         if saved_size != self.world_size:
-            raise ValueError(f"the checkpoint holds the state of {saved_size} process(es) (torchrun's WORLD_SIZE), "
-                             f"this run has {self.world_size}: resume with the same number of processes")
+            raise ValueError(
+                f"the checkpoint holds the state of {saved_size} process(es) (torchrun's WORLD_SIZE), "
+                f"this run has {self.world_size}: resume with the same number of processes"
+            )
         if self.rank > 0:
             state = state["ranks"][self.rank - 1]
         if self.pool is not None:  # first: the adapters' rows depend on which worlds the learners drive
@@ -258,8 +300,9 @@ class Trainer:
         graceful = self.runner.loop_kind == "fast" and self.world_size == 1
         catching = self.stop.catching() if graceful else contextlib.nullcontext()
         with catching:
-            self.runner.learn(iterations,
-                              init_at_random_ep_len=fresh and bool(self.config["train"]["init_at_random_ep_len"]))
+            self.runner.learn(
+                iterations, init_at_random_ep_len=fresh and bool(self.config["train"]["init_at_random_ep_len"])
+            )
 
     def learning(self, iteration: int) -> list[bool] | None:
         """Which learners update in `iteration` (None: all). Alternating schedule: the teams take turns
@@ -283,12 +326,17 @@ class Trainer:
         """Every team's driver in a video's world: the learners' current actors (argmax), and for a
         one-team run the opponent as in training."""
         train = self.config["train"]
-        drivers = {team: policy_driver(policy_from_actor(self.learners[team].alg.get_policy(), self.policy_meta(team),
-                                                         self.device), env, team) for team in self.teams}
+        drivers = {
+            team: policy_driver(
+                policy_from_actor(self.learners[team].alg.get_policy(), self.policy_meta(team), self.device), env, team
+            )
+            for team in self.teams
+        }
         if self.opponent is not None:
             other = OTHER[train["team"]]
-            drivers[other] = make_driver(train["opponent"], env, other,
-                                         deterministic=train["opponent_deterministic"], seed=self.seed)
+            drivers[other] = make_driver(
+                train["opponent"], env, other, deterministic=train["opponent_deterministic"], seed=self.seed
+            )
         return drivers
 
     def save(self, path: str) -> None:
@@ -314,8 +362,12 @@ class Trainer:
         formats = self.config["train"]["export"] if formats is None else formats
         if len(self.teams) == 1:
             return export_policy(self.actor, self.policy_meta(), out_dir, formats)
-        return {team: export_policy(self.learners[team].alg.get_policy(), self.policy_meta(team),
-                                    os.path.join(out_dir, team), formats) for team in self.teams}
+        return {
+            team: export_policy(
+                self.learners[team].alg.get_policy(), self.policy_meta(team), os.path.join(out_dir, team), formats
+            )
+            for team in self.teams
+        }
 
     def close(self) -> None:
         if self.video is not None:

@@ -65,8 +65,7 @@ from .randomize import ParamRandomizer
 
 OTHER = {"prey": "predator", "predator": "prey"}
 # The device-side sums' columns (`accumulate_episode_stats`); captures per prey is derived on the host.
-EPISODE_KEYS = ["Episode/captures", "Episode/reward_per_agent", "Episode/opponent_reward_per_agent",
-                "Episode/length"]
+EPISODE_KEYS = ["Episode/captures", "Episode/reward_per_agent", "Episode/opponent_reward_per_agent", "Episode/length"]
 
 
 class RunConfig(dict):
@@ -90,9 +89,18 @@ class AquariumVecEnv(VecEnv):
         critic: "local", or the extra observation group of a centralised critic, "team" or "world".
     """
 
-    def __init__(self, env: BatchedAquarium, team: str = "prey", opponent=None, reward_scale: float = 1.0,
-                 cfg: dict | None = None, metrics_every: int = 10, critic: str = "local",
-                 randomize=None, randomize_seed: int = 0):
+    def __init__(
+        self,
+        env: BatchedAquarium,
+        team: str = "prey",
+        opponent=None,
+        reward_scale: float = 1.0,
+        cfg: dict | None = None,
+        metrics_every: int = 10,
+        critic: str = "local",
+        randomize=None,
+        randomize_seed: int = 0,
+    ):
         if not isinstance(env, BatchedAquarium):
             raise ValueError(f"env must be a BatchedAquarium, got {type(env).__name__}")
         if team not in TYPES:
@@ -144,8 +152,14 @@ class AquariumVecEnv(VecEnv):
         if self.critic_group is not None:
             size = self._world_state.length if self._world_state is not None else S * L
             self._critic_obs = [torch.zeros(W * S, size, dtype=torch.float32, device=dev) for _ in range(2)]
-        self._obs_td = [TensorDict({"policy": o, **({critic: self._critic_obs[k]} if self._critic_obs else {})},
-                                   batch_size=[W * S], device=dev) for k, o in enumerate(self._obs)]
+        self._obs_td = [
+            TensorDict(
+                {"policy": o, **({critic: self._critic_obs[k]} if self._critic_obs else {})},
+                batch_size=[W * S],
+                device=dev,
+            )
+            for k, o in enumerate(self._obs)
+        ]
         self._current = 0
         self._rewards = torch.zeros(W * S, dtype=torch.float32, device=dev)
         self._dones = torch.zeros(W * S, dtype=torch.long, device=dev)
@@ -314,8 +328,15 @@ class AquariumVecEnv(VecEnv):
         ended = self._episode_ended
         report = (ended & self._full).to(torch.float64)  # [W]
         self._full |= ended
-        values = torch.stack([self._ended_captures.to(torch.float32), self._ended_return,
-                              self._ended_return_other, self._ended_length.to(torch.float32)], dim=1)
+        values = torch.stack(
+            [
+                self._ended_captures.to(torch.float32),
+                self._ended_return,
+                self._ended_return_other,
+                self._ended_length.to(torch.float32),
+            ],
+            dim=1,
+        )
         k = values.shape[1]
         self._stat_sum[:k] += report @ values.to(torch.float64)
         self._stat_count[:k] += report.sum()
@@ -327,8 +348,9 @@ class AquariumVecEnv(VecEnv):
         # Row episodes, as rsl-rl's logger counts them (its "Mean reward"): reward sums up to a done.
         self._row_return += self._rewards
         done = self._dones.to(torch.float32)
-        self._row_stats += torch.stack([(self._row_return * done).sum(dtype=torch.float64),
-                                        done.sum(dtype=torch.float64)])
+        self._row_stats += torch.stack(
+            [(self._row_return * done).sum(dtype=torch.float64), done.sum(dtype=torch.float64)]
+        )
         self._row_return *= 1.0 - done
 
     def episode_stats_snapshot(self) -> torch.Tensor:
@@ -345,7 +367,7 @@ class AquariumVecEnv(VecEnv):
         mean reward of the rows' ended lives (NaN if none))`."""
         values = [float(v) for v in snapshot]
         k = len(self._stat_names)
-        sums, counts, (row_total, row_count) = values[:k], values[k:2 * k], values[2 * k:]
+        sums, counts, (row_total, row_count) = values[:k], values[k : 2 * k], values[2 * k :]
         means = {name: s / c for name, s, c in zip(self._stat_names, sums, counts) if c > 0}
         prey_count = self.team_count if self.team == "prey" else self.other_count
         if "Episode/captures" in means:  # per-world sums -> the logged per-agent values

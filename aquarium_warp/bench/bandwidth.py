@@ -30,7 +30,10 @@ def copy_bandwidth(device: str, nbytes: int | None = None, repeats: int = 10) ->
     if cuda:
         torch.cuda.empty_cache()
     t = statistics.median(times)
-    return {"bytes": nbytes, "seconds": t, "bytes_per_s": 2 * nbytes / t,
-            "method": f"torch copy_ of {nbytes / 2**20:.0f} MiB on {device}, bytes read + written per second, "
-                      f"median of {repeats}" + ("" if cuda else f" ({torch.get_num_threads()} torch threads)")}
-
+    return {
+        "bytes": nbytes,
+        "seconds": t,
+        "bytes_per_s": 2 * nbytes / t,
+        "method": f"torch copy_ of {nbytes / 2**20:.0f} MiB on {device}, bytes read + written per second, "
+        f"median of {repeats}" + ("" if cuda else f" ({torch.get_num_threads()} torch threads)"),
+    }

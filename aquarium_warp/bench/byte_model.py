@@ -44,8 +44,10 @@ def step_byte_model(cfg: AquariumConfig, dims: tuple[int, int] | None = None, cu
     # (found by the last observation pass), position, velocity, acceleration. Writes: position,
     # velocity, acceleration, heading, and clears the step's reward, terminated, truncated and
     # captured flags (and the world's capture count).
-    stages["motion"] = {"read": BOOL + I32 + I32 + VEC2 + 3 * VEC2,
-                        "write": 4 * VEC2 + F32 + 3 * BOOL + per_world * I32}
+    stages["motion"] = {
+        "read": BOOL + I32 + I32 + VEC2 + 3 * VEC2,
+        "write": 4 * VEC2 + F32 + 3 * BOOL + per_world * I32,
+    }
 
     # Grid build (cell lists of the final positions), once per step: captures search the cell lists
     # of the start-of-step positions, which are the last step's.
@@ -78,10 +80,12 @@ def step_byte_model(cfg: AquariumConfig, dims: tuple[int, int] | None = None, cu
         # cell's count); a prefix sum over the cells (read count, write start and end); per agent
         # read the key, position and the cell's cursor, write the sorted agent index, position and
         # the cursor.
-        build = [{"read": 0.0, "write": I32 * cells},
-                 {"read": BOOL + VEC2 + I32, "write": I32 + I32},
-                 {"read": 4 * cells, "write": 8 * cells},
-                 {"read": I32 + VEC2 + I32, "write": I32 + VEC2 + I32}]
+        build = [
+            {"read": 0.0, "write": I32 * cells},
+            {"read": BOOL + VEC2 + I32, "write": I32 + I32},
+            {"read": 4 * cells, "write": 8 * cells},
+            {"read": I32 + VEC2 + I32, "write": I32 + VEC2 + I32},
+        ]
     stages["grid"] = {"read": sum(b["read"] for b in build), "write": sum(b["write"] for b in build)}
 
     # Captures and starvation. detect_captures, a few threads per predator (rows of its search
@@ -92,8 +96,12 @@ def step_byte_model(cfg: AquariumConfig, dims: tuple[int, int] | None = None, cu
     # prey slot: read captured, then step 8: read reward and alive, write reward (the survival
     # reward) and read-modify-write the episode return.
     stages["captures"] = {
-        "read": (pred * (BOOL + VEC2) + prey * (BOOL + BOOL + I32) + pred * (BOOL + VEC2 + I32 + F32)
-                 + prey * (BOOL + F32 + BOOL + F32)),
+        "read": (
+            pred * (BOOL + VEC2)
+            + prey * (BOOL + BOOL + I32)
+            + pred * (BOOL + VEC2 + I32 + F32)
+            + prey * (BOOL + F32 + BOOL + F32)
+        ),
         "write": prey * I32 + pred * (F32 + I32 + F32) + prey * (F32 + F32),
     }
     # Population, episode end. finish_world_step reads the world's step, captures, episode captures
@@ -111,18 +119,26 @@ def step_byte_model(cfg: AquariumConfig, dims: tuple[int, int] | None = None, cu
     # and velocity (from the state, by slot); write its observation row
     # (float32), the mask and slot of each neighbour slot, and the contact partner and offset.
     obs_floats = prey * cfg.observation_size("prey") + pred * cfg.observation_size("predator")
-    slots = (prey * (cfg.prey.predator_slots + cfg.prey.prey_slots)
-             + pred * (cfg.predator.predator_slots + cfg.predator.prey_slots))
-    stages["observations"] = {"read": BOOL + 3 * VEC2,
-                              "write": F32 * obs_floats + slots * (BOOL + I32) + I32 + VEC2}
+    slots = prey * (cfg.prey.predator_slots + cfg.prey.prey_slots) + pred * (
+        cfg.predator.predator_slots + cfg.predator.prey_slots
+    )
+    stages["observations"] = {"read": BOOL + 3 * VEC2, "write": F32 * obs_floats + slots * (BOOL + I32) + I32 + VEC2}
     read = sum(s["read"] for s in stages.values())
     write = sum(s["write"] for s in stages.values())
-    return {"stages": stages, "read": read, "write": write, "total": read + write,
-            "cells_per_world": dims_x * dims_y,
-            "grid_path": GRID_PATHS[path]}
+    return {
+        "stages": stages,
+        "read": read,
+        "write": write,
+        "total": read + write,
+        "cells_per_world": dims_x * dims_y,
+        "grid_path": GRID_PATHS[path],
+    }
 
 
 # The byte model's name for each way of making the step's cell lists (`shard.grid_build`).
-GRID_PATHS = {"whole-world": "whole-world lists (no build)", "rank": "rank per slot (CUDA)",
-              "count": "cell counts + prefix sum (CUDA)", "counting": "counting sort (CPU)"}
-
+GRID_PATHS = {
+    "whole-world": "whole-world lists (no build)",
+    "rank": "rank per slot (CUDA)",
+    "count": "cell counts + prefix sum (CUDA)",
+    "counting": "counting sort (CPU)",
+}

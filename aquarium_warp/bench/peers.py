@@ -22,8 +22,9 @@ from .settings import BenchSettings
 class OriginalHarness(Protocol):
     """What the suite uses of `benchmarks/original_aquarium.py`."""
 
-    def measure_original(self, seconds: float = ..., repeats: int = ..., which: str = ..., *,
-                         warmup: float = ...) -> dict: ...
+    def measure_original(
+        self, seconds: float = ..., repeats: int = ..., which: str = ..., *, warmup: float = ...
+    ) -> dict: ...
 
 
 class VmasHarness(Protocol):
@@ -33,8 +34,16 @@ class VmasHarness(Protocol):
 
     def vmas_version(self) -> str | None: ...
 
-    def measure_vmas(self, agents_per_env: int, envs: int, device: str = ..., seconds: float = ...,
-                     repeats: int = ..., *, budget_s: float | None = ...) -> dict: ...
+    def measure_vmas(
+        self,
+        agents_per_env: int,
+        envs: int,
+        device: str = ...,
+        seconds: float = ...,
+        repeats: int = ...,
+        *,
+        budget_s: float | None = ...,
+    ) -> dict: ...
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,9 +62,11 @@ class Peers:
 
 
 def _needs_harness(flag: str) -> str:
-    return (f"{flag}: the peers are measured by the source tree's benchmark script, "
-            f"`python benchmarks/bench_scaling.py {flag} ...` (same options); `aquarium-warp bench` measures "
-            "aquarium-warp alone" + (" or reads --original-json" if flag == "--original" else ""))
+    return (
+        f"{flag}: the peers are measured by the source tree's benchmark script, "
+        f"`python benchmarks/bench_scaling.py {flag} ...` (same options); `aquarium-warp bench` measures "
+        "aquarium-warp alone" + (" or reads --original-json" if flag == "--original" else "")
+    )
 
 
 def measure_original_peer(settings: BenchSettings, harness: OriginalHarness | None = None) -> dict:
@@ -65,10 +76,14 @@ def measure_original_peer(settings: BenchSettings, harness: OriginalHarness | No
         try:
             stored = json.loads(Path(settings.original_json).read_text())
             raw = stored.get("results", {}).get("raw", stored)
-            return {"status": "stored", "agent_steps_per_s": raw["agent_steps_per_s"],
-                    "env_steps_per_s": raw["env_steps_per_s"], "source": str(settings.original_json),
-                    "machine": stored.get("machine"),
-                    "note": "measured earlier, possibly on another machine (see machine)"}
+            return {
+                "status": "stored",
+                "agent_steps_per_s": raw["agent_steps_per_s"],
+                "env_steps_per_s": raw["env_steps_per_s"],
+                "source": str(settings.original_json),
+                "machine": stored.get("machine"),
+                "note": "measured earlier, possibly on another machine (see machine)",
+            }
         except (OSError, KeyError, ValueError) as error:
             return {"status": "skipped", "note": f"could not read {settings.original_json}: {error}"}
     if not settings.original:
@@ -79,15 +94,27 @@ def measure_original_peer(settings: BenchSettings, harness: OriginalHarness | No
         result = harness.measure_original(seconds=settings.original_seconds, repeats=3, which="raw", warmup=1.0)
     except Exception as error:  # noqa: BLE001  (no network for the venv, a failing child, ...)
         return {"status": "skipped", "note": f"{type(error).__name__}: {str(error)[:400]}"}
-    return {"status": "ok", "agent_steps_per_s": result["agent_steps_per_s"],
-            "env_steps_per_s": result["env_steps_per_s"],
-            "runs": [r["agent_steps_per_s"] for r in result["runs"]], "seconds": result["seconds"],
-            "repeats": result["repeats"], "versions": result.get("versions"), "entry_point": result["entry_point"],
-            "agents": 17, "config": "default (16 prey, 1 predator, 800 x 800 px)"}
+    return {
+        "status": "ok",
+        "agent_steps_per_s": result["agent_steps_per_s"],
+        "env_steps_per_s": result["env_steps_per_s"],
+        "runs": [r["agent_steps_per_s"] for r in result["runs"]],
+        "seconds": result["seconds"],
+        "repeats": result["repeats"],
+        "versions": result.get("versions"),
+        "entry_point": result["entry_point"],
+        "agents": 17,
+        "config": "default (16 prey, 1 predator, 800 x 800 px)",
+    }
 
 
-def measure_vmas_peer(settings: BenchSettings, device: str, log: Callable[[str], None], started: float | None = None,
-                      harness: VmasHarness | None = None) -> dict:
+def measure_vmas_peer(
+    settings: BenchSettings,
+    device: str,
+    log: Callable[[str], None],
+    started: float | None = None,
+    harness: VmasHarness | None = None,
+) -> dict:
     """VMAS simple_tag at the agent counts of both sweeps (within the caps), measured by `harness`
     when `settings.vmas` asks for it, or why not."""
     if not settings.vmas:
@@ -102,31 +129,48 @@ def measure_vmas_peer(settings: BenchSettings, device: str, log: Callable[[str],
     points: list[dict[str, Any]] = []
     for series, n, envs in plan:
         base = {"series": series, "agents_per_env": n, "envs": envs, "agents": n * envs}
-        if (settings.budget_s is not None and started is not None
-                and time.perf_counter() - started > settings.budget_s):
+        if settings.budget_s is not None and started is not None and time.perf_counter() - started > settings.budget_s:
             points.append({**base, "status": "skipped", "note": "suite time budget spent"})
             continue
         if n > settings.vmas_max_agents_per_env:
-            points.append({**base, "status": "skipped", "note": f"{n} agents per env > --vmas-max-agents-per-env "
-                                                                 f"{settings.vmas_max_agents_per_env}"})
+            points.append(
+                {
+                    **base,
+                    "status": "skipped",
+                    "note": f"{n} agents per env > --vmas-max-agents-per-env {settings.vmas_max_agents_per_env}",
+                }
+            )
             continue
         if envs > settings.vmas_max_envs or n * envs > settings.max_agents_in_flight:
             points.append({**base, "status": "skipped", "note": "over --vmas-max-envs or --max-agents-in-flight"})
             continue
         try:
-            r = module.measure_vmas(n, envs, device, seconds=settings.seconds, repeats=min(settings.repeats, 3),
-                                    budget_s=settings.vmas_budget_s)
+            r = module.measure_vmas(
+                n,
+                envs,
+                device,
+                seconds=settings.seconds,
+                repeats=min(settings.repeats, 3),
+                budget_s=settings.vmas_budget_s,
+            )
             points.append({**base, "status": "ok", **r})
-            log(f"  VMAS {module.SCENARIO:10s} {series:6s} {envs:6d} x {n:7d}  {r['step_ms']:10.3f} ms  "
-                f"{r['agent_steps_per_s']:11.3e} agent-steps/s")
+            log(
+                f"  VMAS {module.SCENARIO:10s} {series:6s} {envs:6d} x {n:7d}  {r['step_ms']:10.3f} ms  "
+                f"{r['agent_steps_per_s']:11.3e} agent-steps/s"
+            )
         except Exception as error:  # noqa: BLE001
             points.append({**base, "status": "failed", "note": f"{type(error).__name__}: {str(error)[:300]}"})
             log(f"  VMAS {series} {envs} x {n}: failed ({type(error).__name__})")
         gc.collect()
-    return {"status": "ok", "scenario": module.SCENARIO, "vmas": module.vmas_version(), "points": points,
-            "split": "predators = max(1, round(N / 17)), prey = N - predators (as ours)",
-            "note": "scenario defaults otherwise (2 landmarks, 10 substeps), discrete actions, observations "
-                    "computed in every step"}
+    return {
+        "status": "ok",
+        "scenario": module.SCENARIO,
+        "vmas": module.vmas_version(),
+        "points": points,
+        "split": "predators = max(1, round(N / 17)), prey = N - predators (as ours)",
+        "note": "scenario defaults otherwise (2 landmarks, 10 substeps), discrete actions, observations "
+        "computed in every step",
+    }
 
 
 def add_ratios(points: list[dict], original: dict, vmas: dict) -> None:
@@ -145,4 +189,3 @@ def add_ratios(points: list[dict], original: dict, vmas: dict) -> None:
             ratios["vs_vmas"] = row["agent_steps_per_s"] / peer["agent_steps_per_s"]
             row["vmas_agent_steps_per_s"] = peer["agent_steps_per_s"]
         row["ratios"] = ratios
-

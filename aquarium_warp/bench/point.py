@@ -65,12 +65,23 @@ def measure_point(series: str, cfg: AquariumConfig, worlds: int, device: str, se
     dims = grid_dims(cfg)
     cuda = wp.get_device(device).is_cuda
     row: dict[str, Any] = {
-        "series": series, "worlds": worlds, "agents_per_world": cfg.capacity, "agents": agents,
-        "prey_per_world": cfg.prey_capacity, "predators_per_world": cfg.predator_count,
-        "world_size_px": [cfg.width, cfg.height], "cells_per_world": dims[0] * dims[1], "status": "ok", "note": None}
+        "series": series,
+        "worlds": worlds,
+        "agents_per_world": cfg.capacity,
+        "agents": agents,
+        "prey_per_world": cfg.prey_capacity,
+        "predators_per_world": cfg.predator_count,
+        "world_size_px": [cfg.width, cfg.height],
+        "cells_per_world": dims[0] * dims[1],
+        "status": "ok",
+        "note": None,
+    }
     if agents > settings.max_agents_in_flight:
-        return {**row, "status": "skipped",
-                "note": f"{agents} agents > --max-agents-in-flight {settings.max_agents_in_flight}"}
+        return {
+            **row,
+            "status": "skipped",
+            "note": f"{agents} agents > --max-agents-in-flight {settings.max_agents_in_flight}",
+        }
     need = estimate_bytes(cfg, worlds)
     gc.collect()
     if cuda:
@@ -79,8 +90,11 @@ def measure_point(series: str, cfg: AquariumConfig, worlds: int, device: str, se
     free = available_bytes(device)
     row["memory_estimate_bytes"] = need
     if need > settings.memory_fraction * free:
-        return {**row, "status": "skipped", "note": f"needs about {need / 2**30:.2f} GiB, "
-                f"{free / 2**30:.2f} GiB free on {device}"}
+        return {
+            **row,
+            "status": "skipped",
+            "note": f"needs about {need / 2**30:.2f} GiB, {free / 2**30:.2f} GiB free on {device}",
+        }
     env = None
     try:
         tdev = torch.device(device)
@@ -113,8 +127,15 @@ def measure_point(series: str, cfg: AquariumConfig, worlds: int, device: str, se
     return row
 
 
-def _time_env(env: BatchedAquarium, pool: list[ActionSet], row: dict[str, Any], device: str, settings: BenchSettings,
-              free_before: int, build_start: float) -> None:
+def _time_env(
+    env: BatchedAquarium,
+    pool: list[ActionSet],
+    row: dict[str, Any],
+    device: str,
+    settings: BenchSettings,
+    free_before: int,
+    build_start: float,
+) -> None:
     """Warm `env` up and add the point's timings and memory to `row`."""
     row["step_kernel"] = env.step_kernel  # "fused" or "stages": which stages the breakdown can show
     tdev = torch.device(device)
@@ -128,20 +149,27 @@ def _time_env(env: BatchedAquarium, pool: list[ActionSet], row: dict[str, Any], 
         sync()
         step_s = time.perf_counter() - t
     row["build_s"] = time.perf_counter() - build_start
-    row["memory"] = {"arrays_bytes": array_bytes(env),
-                     "device_bytes": (free_before - available_bytes(device)) if cuda else None,
-                     "note": "arrays: the env's Warp arrays (state, outputs, cell lists)"
-                             + ("; device: drop of the device's free memory across construction, warm-up "
-                                "and graph capture" if cuda else "")}
+    row["memory"] = {
+        "arrays_bytes": array_bytes(env),
+        "device_bytes": (free_before - available_bytes(device)) if cuda else None,
+        "note": "arrays: the env's Warp arrays (state, outputs, cell lists)"
+        + ("; device: drop of the device's free memory across construction, warm-up and graph capture" if cuda else ""),
+    }
     row["memory"]["bytes_per_agent"] = row["memory"]["arrays_bytes"] / agents
 
-    runs = timed_runs(lambda k: env.step(pool[k % 8], validate=False), sync, settings.seconds,
-                      settings.repeats, step_s)
+    runs = timed_runs(lambda k: env.step(pool[k % 8], validate=False), sync, settings.seconds, settings.repeats, step_s)
     step_time = statistics.median(runs)
-    row.update({"step_ms": step_time * 1e3, "agent_steps_per_s": agents / step_time,
-                "ns_per_agent_step": step_time / agents * 1e9, "runs_step_ms": [t * 1e3 for t in runs],
-                "timing": "CUDA graph replay (env.step), synchronised wall clock" if cuda
-                else "env.step (recorded launches, shards in threads), wall clock"})
+    row.update(
+        {
+            "step_ms": step_time * 1e3,
+            "agent_steps_per_s": agents / step_time,
+            "ns_per_agent_step": step_time / agents * 1e9,
+            "runs_step_ms": [t * 1e3 for t in runs],
+            "timing": "CUDA graph replay (env.step), synchronised wall clock"
+            if cuda
+            else "env.step (recorded launches, shards in threads), wall clock",
+        }
+    )
 
     # Eager vs graph (CUDA): the same step without the graph.
     if cuda and settings.eager:
@@ -160,8 +188,9 @@ def _time_env(env: BatchedAquarium, pool: list[ActionSet], row: dict[str, Any], 
     else:
         row["eager"] = None
         row["graph_speedup"] = None
-        row["graph_note"] = ("n/a: no CUDA graph on the CPU (env.step runs the recorded launches)" if not cuda
-                             else "eager not measured")
+        row["graph_note"] = (
+            "n/a: no CUDA graph on the CPU (env.step runs the recorded launches)" if not cuda else "eager not measured"
+        )
 
     if settings.stages:
         row.update(stage_times(env, pool, device, settings, step_time))

@@ -67,4 +67,3 @@ class BenchSettings:
             raise ValueError(f"--cpu-threads={self.cpu_threads} must be >= 1")
         if self.copy_bytes is not None and self.copy_bytes <= 0:
             raise ValueError(f"--copy-mib must be >= 1 (copy_bytes={self.copy_bytes} must be > 0)")
-

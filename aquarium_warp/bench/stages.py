@@ -21,21 +21,32 @@ if TYPE_CHECKING:
 # A fused step (`step_kernel`, kernels/world_step.py) is one command: its time is the "fused" stage and
 # the kernel stages read 0; a staged step leaves "fused" at 0.
 STAGES = ("actions", "motion", "grid", "captures", "population", "observations", "fused")
-STAGE_LABELS = {"actions": "action copy-in", "motion": "motion (steering, acceleration, contact, integration)",
-                "grid": "grid build (cell lists, once per step)",
-                "captures": "captures (detect, resolve, share, starve)",
-                "population": "population, rewards, episode end", "observations": "observations",
-                "heuristics": "heuristic policies (not in the step)",
-                "fused": "the whole step in one launch (worlds of one cell: kernels/world_step.py)"}
+STAGE_LABELS = {
+    "actions": "action copy-in",
+    "motion": "motion (steering, acceleration, contact, integration)",
+    "grid": "grid build (cell lists, once per step)",
+    "captures": "captures (detect, resolve, share, starve)",
+    "population": "population, rewards, episode end",
+    "observations": "observations",
+    "heuristics": "heuristic policies (not in the step)",
+    "fused": "the whole step in one launch (worlds of one cell: kernels/world_step.py)",
+}
 # Kernel name -> stage (commands of `WorldShard.programs["step"]`).
 KERNEL_STAGES = {
     "integrate_motion": "motion",
-    "compute_cell_keys": "grid", "array_scan": "grid", "drop_into_cells": "grid", "order_cells": "grid",
+    "compute_cell_keys": "grid",
+    "array_scan": "grid",
+    "drop_into_cells": "grid",
+    "order_cells": "grid",
     "sort_into_cells_per_world": "grid",
     "rank_into_cells_per_world": "grid",
-    "detect_captures": "captures", "count_capture_sharers": "captures", "share_capture_rewards": "captures",
+    "detect_captures": "captures",
+    "count_capture_sharers": "captures",
+    "share_capture_rewards": "captures",
     "respawn_captured_prey": "captures",
-    "reproduce_prey": "population", "finish_world_step": "population", "close_ended_episodes": "population",
+    "reproduce_prey": "population",
+    "finish_world_step": "population",
+    "close_ended_episodes": "population",
 }
 
 
@@ -65,8 +76,9 @@ def copy_actions_in(actions: dict[str, torch.Tensor], chosen: dict[str, torch.Te
         actions[t].copy_(chosen[t])
 
 
-def stage_times(env: BatchedAquarium, pool: list[dict[str, torch.Tensor]], device: str, settings: BenchSettings,
-                step_time: float) -> dict:
+def stage_times(
+    env: BatchedAquarium, pool: list[dict[str, torch.Tensor]], device: str, settings: BenchSettings, step_time: float
+) -> dict:
     """Median time of every command of the step program over a few eagerly launched steps, summed by
     stage. CUDA: events recorded between consecutive commands of a step, read after the step, so the
     intervals partition the step's device timeline (launch gaps included where the GPU outruns the
@@ -110,10 +122,14 @@ def stage_times(env: BatchedAquarium, pool: list[dict[str, torch.Tensor]], devic
     for stage, t in zip(stages, per_command):
         totals[stage] = totals.get(stage, 0.0) + t
     stage_ms = {s: t * 1e3 for s, t in totals.items()}
-    return {"stages_ms": stage_ms, "stage_sum_ms": sum(stage_ms.values()),
-            "commands_ms": [{"name": n, "stage": s, "ms": t * 1e3} for n, s, t in zip(names, stages, per_command)],
-            "stage_repeats": reps,
-            "stage_timing": ("CUDA events between consecutive commands of eagerly launched steps (device timeline), "
-                             "median over steps" if timer.cuda
-                             else "wall clock around each command (all shards), median over steps")}
-
+    return {
+        "stages_ms": stage_ms,
+        "stage_sum_ms": sum(stage_ms.values()),
+        "commands_ms": [{"name": n, "stage": s, "ms": t * 1e3} for n, s, t in zip(names, stages, per_command)],
+        "stage_repeats": reps,
+        "stage_timing": (
+            "CUDA events between consecutive commands of eagerly launched steps (device timeline), median over steps"
+            if timer.cuda
+            else "wall clock around each command (all shards), median over steps"
+        ),
+    }

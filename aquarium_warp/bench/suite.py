@@ -50,8 +50,16 @@ def run_bench(settings: BenchSettings, peers: Peers | None = None) -> dict:
     points: list[dict[str, Any]] = []
     for series, cfg, worlds in sweep_points(settings):
         if settings.budget_s is not None and time.perf_counter() - started > settings.budget_s:
-            points.append({"series": series, "worlds": worlds, "agents_per_world": cfg.capacity,
-                           "agents": worlds * cfg.capacity, "status": "skipped", "note": "suite time budget spent"})
+            points.append(
+                {
+                    "series": series,
+                    "worlds": worlds,
+                    "agents_per_world": cfg.capacity,
+                    "agents": worlds * cfg.capacity,
+                    "status": "skipped",
+                    "note": "suite time budget spent",
+                }
+            )
             continue
         row = measure_point(series, cfg, worlds, device, settings)
         if row["status"] == "ok":
@@ -61,8 +69,10 @@ def run_bench(settings: BenchSettings, peers: Peers | None = None) -> dict:
 
     original = measure_original_peer(settings, peers.original)
     if original.get("agent_steps_per_s"):
-        log(f"  original marl-aquarium 0.1.10 (CPU, default, {original['status']}): "
-            f"{original['agent_steps_per_s']:.3e} agent-steps/s")
+        log(
+            f"  original marl-aquarium 0.1.10 (CPU, default, {original['status']}): "
+            f"{original['agent_steps_per_s']:.3e} agent-steps/s"
+        )
     else:
         log(f"  original marl-aquarium: {original['note']}")
     vmas = measure_vmas_peer(settings, device, log, started, peers.vmas)
@@ -77,15 +87,16 @@ def run_bench(settings: BenchSettings, peers: Peers | None = None) -> dict:
         "benchmark": "aquarium-warp scaling: agent-steps/s of BatchedAquarium.step (random actions, observations on)",
         "created_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
         "command": command_line(),
-        "machine": machine, "git": git_info(settings.git_commit),
+        "machine": machine,
+        "git": git_info(settings.git_commit),
         "settings": {k: v for k, v in dataclasses.asdict(settings).items() if k not in ("quiet",)},
         "method": {
             "throughput": f"median of {settings.repeats} runs of >= {settings.seconds} s after {settings.warmup_steps} "
-                          "warm-up steps; actions from a pool of 8 random sets drawn beforehand; agents counted as "
-                          "slots (worlds x capacity)",
+            "warm-up steps; actions from a pool of 8 random sets drawn beforehand; agents counted as "
+            "slots (worlds x capacity)",
             "stages": STAGE_LABELS,
             "bandwidth": "achieved = bytes_per_agent_step (step_byte_model) x agent-steps/s; fraction of the "
-                         "measured copy bandwidth (both count bytes read + written)",
+            "measured copy bandwidth (both count bytes read + written)",
             "byte_model": (step_byte_model.__doc__ or "").strip(),
         },
         "copy_bandwidth": bandwidth,
@@ -122,4 +133,3 @@ def replot(json_path: str | Path) -> list[Path]:
     with atomic_open(path) as f:
         f.write(json.dumps(json_safe(result), indent=2) + "\n")
     return figures
-

@@ -9,8 +9,9 @@ SERIES = ("agents", "worlds", "load")
 RATIO_FROM_AGENTS_PER_WORLD = 1000  # per-agent time ratios run from this world size (or the next above)
 
 
-def per_agent_time_ratio(points: list[dict], series: str,
-                         from_agents_per_world: int = RATIO_FROM_AGENTS_PER_WORLD) -> dict | None:
+def per_agent_time_ratio(
+    points: list[dict], series: str, from_agents_per_world: int = RATIO_FROM_AGENTS_PER_WORLD
+) -> dict | None:
     """How flat per-agent time is along one series, from the smallest world of at least
     `from_agents_per_world` agents to the largest world: the two points' agents per world and ns per
     agent-step, and ratio = max / min ns per agent-step over the series' measured points between them
@@ -28,13 +29,18 @@ def per_agent_time_ratio(points: list[dict], series: str,
     def at(n: int) -> dict:  # the point of that world size (the first, should a size repeat)
         return next(p for p in span if p["agents_per_world"] == n)
 
-    return {"agents_per_world": [lo, hi], "worlds": [at(lo)["worlds"], at(hi)["worlds"]],
-            "ns_per_agent_step": [at(lo)["ns_per_agent_step"], at(hi)["ns_per_agent_step"]],
-            "ratio": max(ns) / min(ns), "points": len(span)}
+    return {
+        "agents_per_world": [lo, hi],
+        "worlds": [at(lo)["worlds"], at(hi)["worlds"]],
+        "ns_per_agent_step": [at(lo)["ns_per_agent_step"], at(hi)["ns_per_agent_step"]],
+        "ratio": max(ns) / min(ns),
+        "points": len(span),
+    }
 
 
-def summary(points: list[dict], original: dict, vmas: dict,
-            from_agents_per_world: int = RATIO_FROM_AGENTS_PER_WORLD) -> dict:
+def summary(
+    points: list[dict], original: dict, vmas: dict, from_agents_per_world: int = RATIO_FROM_AGENTS_PER_WORLD
+) -> dict:
     """Headline numbers. `<series>_per_agent_time_ratio` (`per_agent_time_ratio`) for every series
     with measured worlds from `from_agents_per_world` agents up to a larger one."""
     ok = [p for p in points if p.get("status") == "ok"]
@@ -62,4 +68,3 @@ def summary(points: list[dict], original: dict, vmas: dict,
         if speedups:
             out["graph_speedup_min_max"] = [min(speedups), max(speedups)]
     return out
-

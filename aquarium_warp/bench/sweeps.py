@@ -37,7 +37,9 @@ def sweep_points(settings: BenchSettings) -> list[tuple[str, AquariumConfig, int
     points = [("agents", density_config(n), 1) for n in settings.agents]
     points += [("worlds", AquariumConfig(), w) for w in settings.worlds]
     if settings.load_agents is not None:
-        points += [("load", density_config(n), load_worlds(n, settings.load_agents))
-                   for n in settings.agents if n <= settings.load_agents]
+        points += [
+            ("load", density_config(n), load_worlds(n, settings.load_agents))
+            for n in settings.agents
+            if n <= settings.load_agents
+        ]
     return points
-

@@ -11,8 +11,14 @@ import torch
 import warp as wp
 
 
-def timed_runs(step: Callable[[int], object], sync: Callable[[], object], seconds: float, repeats: int,
-               step_s: float, min_steps: int = 3) -> list[float]:
+def timed_runs(
+    step: Callable[[int], object],
+    sync: Callable[[], object],
+    seconds: float,
+    repeats: int,
+    step_s: float,
+    min_steps: int = 3,
+) -> list[float]:
     """Seconds per step of `repeats` runs of at least `seconds` and `min_steps` steps each: `step(i)`
     advances one step, `sync()` waits for the device (every step when a step takes more than 1/20 of
     `seconds`, else every 8), `step_s` is a first estimate of a step's time."""

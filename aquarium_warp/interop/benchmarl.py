@@ -61,13 +61,13 @@ class AquariumClass(TaskClass):
         threads = config.pop("cpu_threads", None)
         return AquariumConfig(**config), threads
 
-    def get_env_fun(self, num_envs: int, continuous_actions: bool, seed: int | None,
-                    device) -> Callable[[], EnvBase]:
+    def get_env_fun(self, num_envs: int, continuous_actions: bool, seed: int | None, device) -> Callable[[], EnvBase]:
         if continuous_actions:
             raise ValueError("aquarium/predator_prey has discrete actions only: use an algorithm's discrete form")
         world, threads = self._world()
-        return lambda: AquariumTorchRLEnv(world, num_worlds=num_envs, device=device,
-                                          seed=0 if seed is None else seed, cpu_threads=threads)
+        return lambda: AquariumTorchRLEnv(
+            world, num_worlds=num_envs, device=device, seed=0 if seed is None else seed, cpu_threads=threads
+        )
 
     def supports_continuous_actions(self) -> bool:
         return False

@@ -83,8 +83,10 @@ def _check_seed(seed, name: str = "seed") -> int | None:
     if seed is None:
         return None
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**63:
-        raise ValueError(f"{name}={seed!r} must be None or an integer in [0, 2**63 - 1] (the worlds draw from "
-                         "one seed: no list per row)")
+        raise ValueError(
+            f"{name}={seed!r} must be None or an integer in [0, 2**63 - 1] (the worlds draw from "
+            "one seed: no list per row)"
+        )
     return int(seed)
 
 
@@ -99,9 +101,18 @@ class AquariumRows:
     a heuristic name or a callable returning the other team's actions `[W, slots]`);
     `validate_actions` (False skips the range check of the actions and its host sync on a GPU)."""
 
-    def __init__(self, config: AquariumConfig | None = None, num_worlds: int = 1, device: Any = "cpu",
-                 seed: int | None = None, cpu_threads: int | None = None, team: str = "all", opponent: Any = None,
-                 aquarium: BatchedAquarium | None = None, validate_actions: bool = True):
+    def __init__(
+        self,
+        config: AquariumConfig | None = None,
+        num_worlds: int = 1,
+        device: Any = "cpu",
+        seed: int | None = None,
+        cpu_threads: int | None = None,
+        team: str = "all",
+        opponent: Any = None,
+        aquarium: BatchedAquarium | None = None,
+        validate_actions: bool = True,
+    ):
         if team not in TEAMS:
             raise ValueError(f"team={team!r} must be one of {TEAMS}")
         if not isinstance(validate_actions, bool):
@@ -109,14 +120,21 @@ class AquariumRows:
         seed = _check_seed(seed)
         self._seed_rng = reset_seeds(seed)
         if aquarium is None:
-            aquarium = BatchedAquarium(config, num_worlds=num_worlds, device=device,
-                                       seed=seed if seed is not None else next_reset_seed(self._seed_rng),
-                                       cpu_threads=cpu_threads, auto_reset=True)
+            aquarium = BatchedAquarium(
+                config,
+                num_worlds=num_worlds,
+                device=device,
+                seed=seed if seed is not None else next_reset_seed(self._seed_rng),
+                cpu_threads=cpu_threads,
+                auto_reset=True,
+            )
         elif not isinstance(aquarium, BatchedAquarium) or not aquarium.auto_reset:
             raise ValueError("aquarium must be a BatchedAquarium with auto_reset=True")
         elif config is not None or num_worlds != 1 or seed is not None or cpu_threads is not None:
-            raise ValueError("aquarium= takes the config, num_worlds, seed and cpu_threads of that BatchedAquarium; "
-                             "do not pass them too")
+            raise ValueError(
+                "aquarium= takes the config, num_worlds, seed and cpu_threads of that BatchedAquarium; "
+                "do not pass them too"
+            )
         self.aquarium = env = aquarium
         self.team = team
         self.validate_actions = validate_actions
@@ -126,8 +144,10 @@ class AquariumRows:
             self.types: tuple[str, ...] = ("predator", "prey")  # aquarium_v1's possible_agents order
             sizes = {env.observation_size[t] for t in TYPES}
             if len(sizes) != 1:
-                raise ValueError(f"team='all' needs one observation size for both types (one shared policy), got "
-                                 f"{env.observation_size}; use team='prey' or 'predator'")
+                raise ValueError(
+                    f"team='all' needs one observation size for both types (one shared policy), got "
+                    f"{env.observation_size}; use team='prey' or 'predator'"
+                )
             if opponent is not None:
                 raise ValueError("opponent is for team='prey' or 'predator' (with team='all' every agent is a row)")
             self.opponent = None
@@ -136,8 +156,10 @@ class AquariumRows:
             if isinstance(opponent, str):
                 opponent = make_driver(opponent, env, OTHER[team])
             if opponent is None or not callable(opponent):
-                raise ValueError(f"opponent must be a policy spec or a callable returning the {OTHER[team]} "
-                                 f"actions [W, slots] (team={team!r})")
+                raise ValueError(
+                    f"opponent must be a policy spec or a callable returning the {OTHER[team]} "
+                    f"actions [W, slots] (team={team!r})"
+                )
             self.opponent = opponent
         slots = {"prey": env.prey_capacity, "predator": env.predator_capacity}
         self.slices: dict[str, slice] = {}
@@ -161,9 +183,17 @@ class AquariumRows:
         self._terminated = torch.zeros(W, S, dtype=torch.bool, device=dev)
         self._truncated = torch.zeros(W, S, dtype=torch.bool, device=dev)
         self._active = torch.zeros(W, S, dtype=torch.bool, device=dev)
-        out, captured = env.outputs, env.state.torch.captured[:, :env.prey_capacity]
-        self._in = {typ: (out.rewards[typ], out.terminated[typ], out.truncated[typ], env.alive[typ],
-                          captured if typ == "prey" else None) for typ in self.types}
+        out, captured = env.outputs, env.state.torch.captured[:, : env.prey_capacity]
+        self._in = {
+            typ: (
+                out.rewards[typ],
+                out.terminated[typ],
+                out.truncated[typ],
+                env.alive[typ],
+                captured if typ == "prey" else None,
+            )
+            for typ in self.types
+        }
         self._step_actions = {typ: self._actions[:, self.slices[typ]] for typ in self.types}
         self._load()
 
@@ -225,8 +255,10 @@ class AquariumRows:
             elif a.dtype == torch.bool or a.dtype.is_complex:
                 raise ValueError(f"actions must be integers in [0, {self.action_count - 1}], got {a.dtype}")
             if a.numel() and (int(a.min()) < 0 or int(a.max()) >= self.action_count):
-                raise ValueError(f"actions must be integers in [0, {self.action_count - 1}], got values in "
-                                 f"[{int(a.min())}, {int(a.max())}]")
+                raise ValueError(
+                    f"actions must be integers in [0, {self.action_count - 1}], got values in "
+                    f"[{int(a.min())}, {int(a.max())}]"
+                )
         return a.reshape(self.num_worlds, self.slots)
 
     def step(self, actions) -> None:
@@ -278,19 +310,29 @@ class AquariumVectorEnv(VectorEnv):
 
     metadata: dict[str, Any] = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
 
-    def __init__(self, config: AquariumConfig | None = None, num_worlds: int = 1, device: Any = "cpu",
-                 seed: int | None = None, team: str = "all", opponent: Any = None, array_type: str = "numpy",
-                 **kwargs: Any):
+    def __init__(
+        self,
+        config: AquariumConfig | None = None,
+        num_worlds: int = 1,
+        device: Any = "cpu",
+        seed: int | None = None,
+        team: str = "all",
+        opponent: Any = None,
+        array_type: str = "numpy",
+        **kwargs: Any,
+    ):
         if array_type not in ARRAY_TYPES:
             raise ValueError(f"array_type={array_type!r} must be one of {ARRAY_TYPES}")
-        self.rows = rows = AquariumRows(config, num_worlds=num_worlds, device=device, seed=seed, team=team,
-                                        opponent=opponent, **kwargs)
+        self.rows = rows = AquariumRows(
+            config, num_worlds=num_worlds, device=device, seed=seed, team=team, opponent=opponent, **kwargs
+        )
         self.array_type = array_type
         self.num_envs = rows.num_rows
         self.single_observation_space = rows.single_observation_space
         self.single_action_space = rows.single_action_space
-        self.observation_space = spaces.Box(rows.single_observation_space.low[0], 1.0,
-                                            (self.num_envs, rows.observation_size), np.float32)
+        self.observation_space = spaces.Box(
+            rows.single_observation_space.low[0], 1.0, (self.num_envs, rows.observation_size), np.float32
+        )
         self.action_space = spaces.MultiDiscrete(np.full(self.num_envs, rows.action_count, dtype=np.int64))
         self.render_mode = None
         # numpy views of the observation buffers (zero copy on the CPU)
@@ -328,8 +370,13 @@ class AquariumVectorEnv(VectorEnv):
         `infos = {"active": [N] bool}`; see the module doc."""
         rows = self.rows
         rows.step(actions)
-        return (self._observations(), self._out(rows.rewards), self._out(rows.terminated),
-                self._out(rows.truncated), {"active": self._out(rows.active)})
+        return (
+            self._observations(),
+            self._out(rows.rewards),
+            self._out(rows.terminated),
+            self._out(rows.truncated),
+            {"active": self._out(rows.active)},
+        )
 
     def close_extras(self, **kwargs: Any) -> None:
         self.rows.close()

@@ -169,8 +169,9 @@ def resolve_kwargs(kwargs: dict) -> tuple[AquariumConfig, dict]:
     kwargs = dict(kwargs)
     unknown = sorted(k for k in kwargs if k not in VALID_KEYWORDS)
     if unknown:
-        raise TypeError(f"aquarium_v1: unknown keyword argument(s) {unknown}; valid keywords are: "
-                        f"{', '.join(VALID_KEYWORDS)}")
+        raise TypeError(
+            f"aquarium_v1: unknown keyword argument(s) {unknown}; valid keywords are: {', '.join(VALID_KEYWORDS)}"
+        )
     config = kwargs.pop("config", None)
     if config is not None and not isinstance(config, AquariumConfig):
         raise ValueError(f"config must be an AquariumConfig, got {type(config).__name__}")
@@ -185,8 +186,9 @@ def resolve_kwargs(kwargs: dict) -> tuple[AquariumConfig, dict]:
         if target in assigned:
             old, old_source = assigned[target]
             if not _same(old, value):
-                raise ValueError(f"contradicting settings for {_target_name(target)}: {old_source}={old!r} "
-                                 f"but {source}={value!r}")
+                raise ValueError(
+                    f"contradicting settings for {_target_name(target)}: {old_source}={old!r} but {source}={value!r}"
+                )
             return
         assigned[target] = (value, source)
 
@@ -214,8 +216,9 @@ def resolve_kwargs(kwargs: dict) -> tuple[AquariumConfig, dict]:
         if isinstance(speed, (int, float)) and not isinstance(speed, bool):
             assigned[("predator", "bounce_strength")] = (speed / 8.0, "predator_max_velocity / 8")
     top = {t: v for t, (v, _) in assigned.items() if isinstance(t, str)}
-    per_type = {typ: {t[1]: v for t, (v, _) in assigned.items() if not isinstance(t, str) and t[0] == typ}
-                for typ in TYPES}
+    per_type = {
+        typ: {t[1]: v for t, (v, _) in assigned.items() if not isinstance(t, str) and t[0] == typ} for typ in TYPES
+    }
     for typ in TYPES:
         if per_type[typ]:
             try:
@@ -245,8 +248,12 @@ class AquariumParallelEnv(ParallelEnv):
     `state_space`, `render_mode`, `max_cycles` (= `config.max_steps`, informational).
     """
 
-    metadata: dict[str, Any] = {"name": "aquarium_v1", "render_modes": ["human", "rgb_array"], "render_fps": 60,
-                "is_parallelizable": True}
+    metadata: dict[str, Any] = {
+        "name": "aquarium_v1",
+        "render_modes": ["human", "rgb_array"],
+        "render_fps": 60,
+        "is_parallelizable": True,
+    }
 
     def __init__(self, **kwargs):
         config, options = resolve_kwargs(kwargs)
@@ -257,8 +264,11 @@ class AquariumParallelEnv(ParallelEnv):
         if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not fps > 0 or not math.isfinite(fps):
             raise ValueError(f"fps={fps!r} must be a finite number > 0")
         if options["observable_walls"] != ENV_OPTIONS["observable_walls"]:
-            warnings.warn("observable_walls is accepted for compatibility with marl-aquarium but unused "
-                          "(walls are not observed; the world is a torus)", stacklevel=3)
+            warnings.warn(
+                "observable_walls is accepted for compatibility with marl-aquarium but unused "
+                "(walls are not observed; the world is a torus)",
+                stacklevel=3,
+            )
         if options["draw_death_circles"]:
             warnings.warn("draw_death_circles is not supported by aquarium-warp's renderer; ignored", stacklevel=3)
         self.metadata = {**type(self).metadata, "render_fps": fps}
@@ -275,8 +285,9 @@ class AquariumParallelEnv(ParallelEnv):
         self._prey_slot_names = [f"prey_{j}" for j in range(Pc)]
         extra = _extra_name_count(cfg)
         self._extra_names_listed = min(extra, MAX_EXTRA_NAMES)
-        self.possible_agents = (self._predator_names + self._prey_slot_names
-                                + [f"prey_{Pc + k}" for k in range(self._extra_names_listed)])
+        self.possible_agents = (
+            self._predator_names + self._prey_slot_names + [f"prey_{Pc + k}" for k in range(self._extra_names_listed)]
+        )
         self._possible_set = set(self.possible_agents)
         low = -1.0 if cfg.observation_range == "-1..1" else 0.0
         self._obs_shape = {t: (cfg.observation_size(t),) for t in TYPES}
@@ -286,8 +297,9 @@ class AquariumParallelEnv(ParallelEnv):
         C = cfg.capacity
         state_low = np.tile(np.array([0, 0, 0, -1, -1, -1, -1], np.float32), C)
         state_high = np.ones(len(STATE_FIELDS) * C, np.float32)
-        self.state_space = spaces.Box(np.append(state_low, np.float32(0)), np.append(state_high, np.float32(1)),
-                                      dtype=np.float32)
+        self.state_space = spaces.Box(
+            np.append(state_low, np.float32(0)), np.append(state_high, np.float32(1)), dtype=np.float32
+        )
 
         # Seeding: reset(seed=s) runs the simulation with seed s; later resets without a seed take
         # seeds from a generator seeded with s. Without any seed, Python's global `random` seeds it
@@ -296,8 +308,7 @@ class AquariumParallelEnv(ParallelEnv):
         self._seed_rng = None
         self._space_seed = None  # the last explicit seed; spaces are seeded from it
         sim_seed = self._next_sim_seed(seed)
-        self.aquarium = BatchedAquarium(cfg, num_worlds=1, device=options["device"], seed=sim_seed,
-                                        auto_reset=False)
+        self.aquarium = BatchedAquarium(cfg, num_worlds=1, device=options["device"], seed=sim_seed, auto_reset=False)
         self._bind_buffers()
         self._closed = False
         self._start_episode()
@@ -308,12 +319,21 @@ class AquariumParallelEnv(ParallelEnv):
         t = aq.state.torch
         self._on_cpu = aq.torch_device.type == "cpu"
         # Action buffers on the host (numpy views of CPU tensors); BatchedAquarium.step copies them in.
-        self._act_tensors = {"prey": torch.zeros((1, self._Pc), dtype=torch.int32),
-                             "predator": torch.zeros((1, self._P), dtype=torch.int32)}
+        self._act_tensors = {
+            "prey": torch.zeros((1, self._Pc), dtype=torch.int32),
+            "predator": torch.zeros((1, self._P), dtype=torch.int32),
+        }
         self._act_prey = self._act_tensors["prey"].numpy()[0]
         self._act_pred = self._act_tensors["predator"].numpy()[0]
-        self._src = (t.obs_prey[0], t.obs_predator[0], t.reward[0], t.terminated[0], t.truncated[0], t.alive[0],
-                     t.episode_ended)
+        self._src = (
+            t.obs_prey[0],
+            t.obs_predator[0],
+            t.reward[0],
+            t.terminated[0],
+            t.truncated[0],
+            t.alive[0],
+            t.episode_ended,
+        )
         if self._on_cpu:
             self._views = tuple(x.numpy() for x in self._src)  # zero copy: always the current values
         self._world_state = WorldState(aq)  # made once: it reads the state (and max speeds) at each call
@@ -401,8 +421,7 @@ class AquariumParallelEnv(ParallelEnv):
 
     def _agent_type(self, agent) -> str:
         if agent not in self._possible_set:
-            raise KeyError(f"unknown agent {agent!r}; agents are named predator_<i> and prey_<j> "
-                           f"(see possible_agents)")
+            raise KeyError(f"unknown agent {agent!r}; agents are named predator_<i> and prey_<j> (see possible_agents)")
         return "predator" if agent.startswith("predator_") else "prey"
 
     def observation_space(self, agent):
@@ -443,15 +462,18 @@ class AquariumParallelEnv(ParallelEnv):
             values = [actions[a] for a in names]
         except KeyError:
             missing = [a for a in names if a not in actions]
-            raise ValueError(f"actions are missing for live agents {missing}; every agent in env.agents "
-                             "needs an action") from None
+            raise ValueError(
+                f"actions are missing for live agents {missing}; every agent in env.agents needs an action"
+            ) from None
         except TypeError:
             raise ValueError(f"actions must be a dict keyed by agent name, got {type(actions).__name__}") from None
         if len(actions) != len(names):  # names of agents that left are ignored; names never given are refused
             unknown = sorted(str(a) for a in actions if a not in self._possible_set)
             if unknown:
-                raise ValueError(f"actions for unknown agent(s) {unknown}: agents are named predator_<i> and "
-                                 "prey_<j> (see possible_agents; env.agents are the live ones)")
+                raise ValueError(
+                    f"actions for unknown agent(s) {unknown}: agents are named predator_<i> and "
+                    "prey_<j> (see possible_agents; env.agents are the live ones)"
+                )
         if any(isinstance(v, (bool, np.bool_)) for v in values):  # numpy would take True as action 1
             return self._checked_actions(values)
         try:
@@ -471,8 +493,10 @@ class AquariumParallelEnv(ParallelEnv):
         for i, (name, value) in enumerate(zip(self._names, values)):
             a = np.asarray(value)
             if a.size != 1 or a.dtype.kind not in "iu" or not 0 <= int(a.reshape(())) < count:
-                raise ValueError(f"action {value!r} of agent {name!r} is not in Discrete({count}): "
-                                 f"actions must be integers in [0, {count - 1}]")
+                raise ValueError(
+                    f"action {value!r} of agent {name!r} is not in Discrete({count}): "
+                    f"actions must be integers in [0, {count - 1}]"
+                )
             out[i] = int(a.reshape(()))
         return out
 
@@ -501,8 +525,13 @@ class AquariumParallelEnv(ParallelEnv):
         names, slots = self._names, self._full_slots
         obs = dict(zip(self._pred_live_names, obs_pred[self._pred_rows]))
         obs.update(zip(self._prey_live_names, obs_prey[self._prey_rows]))
-        return (obs, dict(zip(names, reward[slots].tolist())), dict(zip(names, terminated[slots].tolist())),
-                dict(zip(names, truncated[slots].tolist())), {a: {} for a in names})
+        return (
+            obs,
+            dict(zip(names, reward[slots].tolist())),
+            dict(zip(names, terminated[slots].tolist())),
+            dict(zip(names, truncated[slots].tolist())),
+            {a: {} for a in names},
+        )
 
     def _step_with_changes(self, obs_prey, obs_pred, reward, terminated, truncated, alive, ended):
         alive = alive.copy()
@@ -521,8 +550,13 @@ class AquariumParallelEnv(ParallelEnv):
         slots = np.concatenate([pred_rows + self._Pc, prey_rows])
         obs = dict(zip(pred_names, obs_pred[pred_rows]))
         obs.update(zip(prey_names, obs_prey[prey_rows]))
-        result: tuple = (obs, dict(zip(names, reward[slots].tolist())), dict(zip(names, terminated[slots].tolist())),
-                  dict(zip(names, truncated[slots].tolist())), {a: {} for a in names})
+        result: tuple = (
+            obs,
+            dict(zip(names, reward[slots].tolist())),
+            dict(zip(names, terminated[slots].tolist())),
+            dict(zip(names, truncated[slots].tolist())),
+            {a: {} for a in names},
+        )
         self._alive_prev = alive
         self._alive_prev_bytes = alive.tobytes()
         self._set_live(alive if not ended else np.zeros_like(alive))
@@ -545,9 +579,13 @@ class AquariumParallelEnv(ParallelEnv):
         from ..render import render_world  # lazy: only rendering needs it
 
         o = self._options
-        frame = render_world(self.aquarium, 0, view_cones=bool(o["draw_view_cones"]),
-                             hit_boxes=bool(o["draw_hit_boxes"]),
-                             velocities=bool(o["draw_force_vectors"] or o["draw_action_vectors"]))
+        frame = render_world(
+            self.aquarium,
+            0,
+            view_cones=bool(o["draw_view_cones"]),
+            hit_boxes=bool(o["draw_hit_boxes"]),
+            velocities=bool(o["draw_force_vectors"] or o["draw_action_vectors"]),
+        )
         if self.render_mode == "rgb_array":
             return frame
         self._show(frame)
@@ -558,11 +596,13 @@ class AquariumParallelEnv(ParallelEnv):
 
         if self._window is None:
             try:
-                self._window = Window(frame.shape[1], frame.shape[0], str(self._options["caption"]),
-                                      fps=self.metadata["render_fps"])
+                self._window = Window(
+                    frame.shape[1], frame.shape[0], str(self._options["caption"]), fps=self.metadata["render_fps"]
+                )
             except ImportError as error:
                 raise gymnasium.error.DependencyNotInstalled(
-                    "render_mode='human' needs pygame: pip install 'aquarium-warp[video]'") from error
+                    "render_mode='human' needs pygame: pip install 'aquarium-warp[video]'"
+                ) from error
         if not self._window.show(frame):  # the user closed the window
             self._window = None
 

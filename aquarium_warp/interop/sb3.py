@@ -44,10 +44,19 @@ from .gymnasium import AquariumRows
 class AquariumSB3VecEnv(VecEnv):
     """Stable-Baselines3 `VecEnv` over a `BatchedAquarium`; keyword arguments as `AquariumRows`."""
 
-    def __init__(self, config: AquariumConfig | None = None, num_worlds: int = 1, device: Any = "cpu",
-                 seed: int | None = None, team: str = "all", opponent: Any = None, **kwargs: Any):
-        self.rows = rows = AquariumRows(config, num_worlds=num_worlds, device=device, seed=seed, team=team,
-                                        opponent=opponent, **kwargs)
+    def __init__(
+        self,
+        config: AquariumConfig | None = None,
+        num_worlds: int = 1,
+        device: Any = "cpu",
+        seed: int | None = None,
+        team: str = "all",
+        opponent: Any = None,
+        **kwargs: Any,
+    ):
+        self.rows = rows = AquariumRows(
+            config, num_worlds=num_worlds, device=device, seed=seed, team=team, opponent=opponent, **kwargs
+        )
         self.render_mode = None
         self._host = rows.device.type == "cpu"
         self._obs_np = [o.view(rows.num_rows, -1).numpy() for o in rows._obs] if self._host else None

@@ -53,15 +53,21 @@ class AquariumTorchRLEnv(EnvBase):
     `validate_actions=False` skips `BatchedAquarium.step`'s check of the live agents' actions (and
     its host synchronisation); out-of-range actions are then undefined behaviour."""
 
-    def __init__(self, config: AquariumConfig | None = None, num_worlds: int = 1, device=None, seed: int = 0,
-                 cpu_threads: int | None = None, aquarium: BatchedAquarium | None = None,
-                 validate_actions: bool = True):
+    def __init__(
+        self,
+        config: AquariumConfig | None = None,
+        num_worlds: int = 1,
+        device=None,
+        seed: int = 0,
+        cpu_threads: int | None = None,
+        aquarium: BatchedAquarium | None = None,
+        validate_actions: bool = True,
+    ):
         if not isinstance(validate_actions, bool):
             raise ValueError(f"validate_actions={validate_actions!r} must be True or False")
         self.validate_actions = validate_actions
         if aquarium is None:
-            aquarium = BatchedAquarium(config, num_worlds=num_worlds, device=device, seed=seed,
-                                       cpu_threads=cpu_threads)
+            aquarium = BatchedAquarium(config, num_worlds=num_worlds, device=device, seed=seed, cpu_threads=cpu_threads)
         elif not isinstance(aquarium, BatchedAquarium) or not aquarium.auto_reset:
             raise ValueError("aquarium must be a BatchedAquarium with auto_reset=True")
         self.aquarium = aquarium
@@ -79,18 +85,29 @@ class AquariumTorchRLEnv(EnvBase):
             obs[t] = Composite(
                 observation=Unbounded(shape=(*shape, size), dtype=torch.float32, device=dev),
                 action_mask=Categorical(n=2, shape=(*shape, n), dtype=torch.bool, device=dev),
-                shape=shape, device=dev)
-            act[t] = Composite(action=Categorical(n=n, shape=shape, dtype=torch.int64, device=dev),
-                               shape=shape, device=dev)
-            rew[t] = Composite(reward=Unbounded(shape=(*shape, 1), dtype=torch.float32, device=dev),
-                               shape=shape, device=dev)
-            done[t] = Composite({k: Categorical(n=2, shape=(*shape, 1), dtype=torch.bool, device=dev)
-                                 for k in ("done", "terminated", "truncated")}, shape=shape, device=dev)
+                shape=shape,
+                device=dev,
+            )
+            act[t] = Composite(
+                action=Categorical(n=n, shape=shape, dtype=torch.int64, device=dev), shape=shape, device=dev
+            )
+            rew[t] = Composite(
+                reward=Unbounded(shape=(*shape, 1), dtype=torch.float32, device=dev), shape=shape, device=dev
+            )
+            done[t] = Composite(
+                {
+                    k: Categorical(n=2, shape=(*shape, 1), dtype=torch.bool, device=dev)
+                    for k in ("done", "terminated", "truncated")
+                },
+                shape=shape,
+                device=dev,
+            )
         self.observation_spec = Composite(obs, shape=(W,), device=dev)
         self.action_spec = Composite(act, shape=(W,), device=dev)
         self.reward_spec = Composite(rew, shape=(W,), device=dev)
-        root_done = {k: Categorical(n=2, shape=(W, 1), dtype=torch.bool, device=dev)
-                     for k in ("done", "terminated", "truncated")}
+        root_done = {
+            k: Categorical(n=2, shape=(W, 1), dtype=torch.bool, device=dev) for k in ("done", "terminated", "truncated")
+        }
         self.done_spec = Composite({**done, **root_done}, shape=(W,), device=dev)
 
     # ------------------------------------------------------------------ TorchRL hooks
@@ -108,7 +125,8 @@ class AquariumTorchRLEnv(EnvBase):
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         partial = tensordict is not None and any(
-            (key if isinstance(key, str) else key[-1]) == "_reset" for key in tensordict.keys(True, True))
+            (key if isinstance(key, str) else key[-1]) == "_reset" for key in tensordict.keys(True, True)
+        )
         if not partial:  # partial resets already happened inside step(): the worlds auto-reset
             self.aquarium.reset()
         W, dev = self.aquarium.num_worlds, self.device
@@ -130,8 +148,7 @@ class AquariumTorchRLEnv(EnvBase):
             # A prey born in the step that ends the episode is truncated by the simulation, but it never
             # acted: only agents that acted end a trajectory.
             term, trunc = (terminated[t] & acted[t]).unsqueeze(-1), (truncated[t] & acted[t]).unsqueeze(-1)
-            out[t].update(reward=rewards[t].unsqueeze(-1).clone(), terminated=term, truncated=trunc,
-                          done=term | trunc)
+            out[t].update(reward=rewards[t].unsqueeze(-1).clone(), terminated=term, truncated=trunc, done=term | trunc)
         ended = info["episode_ended"].unsqueeze(-1).clone()
         truncated_world = ended & (aq.state.torch.ended_length == aq.config.max_steps).unsqueeze(-1)
         out.update(done=ended, truncated=truncated_world, terminated=ended & ~truncated_world)

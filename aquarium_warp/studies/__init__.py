@@ -22,7 +22,13 @@ from types import ModuleType
 
 from . import flow, fov_view, group_hunting, many_eyes, swarm, swarm_size
 
-STUDIES: dict[str, ModuleType] = {"swarm-size": swarm_size, "fov-view": fov_view, "group-hunting": group_hunting,
-                                  "many-eyes": many_eyes, "flow": flow, "swarm": swarm}
+STUDIES: dict[str, ModuleType] = {
+    "swarm-size": swarm_size,
+    "fov-view": fov_view,
+    "group-hunting": group_hunting,
+    "many-eyes": many_eyes,
+    "flow": flow,
+    "swarm": swarm,
+}
 
 __all__ = ["STUDIES"]

@@ -42,15 +42,31 @@ def group_rows(rows: list[dict], keys: Sequence[str]) -> dict[tuple, list[dict]]
 
 
 # ---------------------------------------------------------------------------------------------- training
-def training_config(env: dict, team: str, opponent: str | None, worlds: int, iterations: int, seed: int,
-                    device: str) -> dict:
+def training_config(
+    env: dict, team: str, opponent: str | None, worlds: int, iterations: int, seed: int, device: str
+) -> dict:
     """A run config: the `paper` preset's PPO settings (parameter sharing), the world `env` (AquariumConfig
     fields), `iterations` PPO iterations of `worlds` worlds, no logging, checkpoints or swarm metrics."""
     from ..training.config import make_config
 
-    return make_config("paper", {"env": env, "train": {
-        "team": team, "opponent": opponent, "num_worlds": worlds, "iterations": iterations, "episodes": None,
-        "seed": seed, "device": device, "quiet": True, "metrics_every": 0, "export": ["jit"]}})
+    return make_config(
+        "paper",
+        {
+            "env": env,
+            "train": {
+                "team": team,
+                "opponent": opponent,
+                "num_worlds": worlds,
+                "iterations": iterations,
+                "episodes": None,
+                "seed": seed,
+                "device": device,
+                "quiet": True,
+                "metrics_every": 0,
+                "export": ["jit"],
+            },
+        },
+    )
 
 
 def train_and_export(config: dict, out_dir: str, log_dir: str | None = None) -> tuple[dict[str, str], float]:
@@ -94,8 +110,16 @@ def run_training_task(task: dict, device: str) -> dict:
 
 
 # ---------------------------------------------------------------------------------------------- rollouts
-def rollout(cfg: AquariumConfig, prey: str, predator: str, worlds: int, seed: int, device: str,
-            on_step: Callable[[StepView], None], metrics_every: int = 0) -> dict:
+def rollout(
+    cfg: AquariumConfig,
+    prey: str,
+    predator: str,
+    worlds: int,
+    seed: int,
+    device: str,
+    on_step: Callable[[StepView], None],
+    metrics_every: int = 0,
+) -> dict:
     """Play one episode of `cfg.max_steps` steps in each of `worlds` worlds with the prey and predator
     specs (`aquarium_warp.drivers`: heuristic names, policy files or shipped names; trained policies
     act deterministically), calling
@@ -119,8 +143,10 @@ def rollout(cfg: AquariumConfig, prey: str, predator: str, worlds: int, seed: in
     ended = info["episode_ended"]
     if not bool(ended.all()):
         raise RuntimeError("rollout: a world's episode ended early (a team died out): not one episode per world")
-    out = {"captures": info["episode_captures"].cpu().numpy().astype(np.float64),
-           "length": info["episode_length"].cpu().numpy().astype(np.float64)}
+    out = {
+        "captures": info["episode_captures"].cpu().numpy().astype(np.float64),
+        "length": info["episode_length"].cpu().numpy().astype(np.float64),
+    }
     if episodes is not None:
         out.update({k: v.detach().cpu().double().numpy() for k, v in episodes.result().items()})
     env.close()
@@ -134,16 +160,23 @@ def torus_delta(delta: torch.Tensor, width: float, height: float) -> torch.Tenso
     return delta - size * torch.round(delta / size)
 
 
-def nearest_predator(prey_position: torch.Tensor, predator_position: torch.Tensor, predator_alive: torch.Tensor,
-                     width: float, height: float) -> tuple[torch.Tensor, torch.Tensor]:
+def nearest_predator(
+    prey_position: torch.Tensor,
+    predator_position: torch.Tensor,
+    predator_alive: torch.Tensor,
+    width: float,
+    height: float,
+) -> tuple[torch.Tensor, torch.Tensor]:
     """For prey `[W, N, 2]` and predators `[W, P, 2]` (`predator_alive` `[W, P]`): the displacement from
     each prey's nearest live predator to the prey (`[W, N, 2]`, the direction of escape) and its
     length (`[W, N]`, inf without a live predator)."""
     away = torus_delta(prey_position[:, :, None, :] - predator_position[:, None, :, :], width, height)
     distance = torch.linalg.vector_norm(away, dim=-1).masked_fill(~predator_alive[:, None, :], math.inf)
     nearest = distance.argmin(dim=-1, keepdim=True)
-    return (torch.gather(away, 2, nearest[..., None].expand(-1, -1, 1, 2)).squeeze(2),
-            torch.gather(distance, 2, nearest).squeeze(2))
+    return (
+        torch.gather(away, 2, nearest[..., None].expand(-1, -1, 1, 2)).squeeze(2),
+        torch.gather(distance, 2, nearest).squeeze(2),
+    )
 
 
 def cosine(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -152,19 +185,29 @@ def cosine(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return torch.where(norm > 0, (a * b).sum(-1) / norm.clamp_min(1e-12), torch.zeros_like(norm))
 
 
-def fleeing(velocity: torch.Tensor, away: torch.Tensor, distance: torch.Tensor, max_speed: float,
-            flee_angle: float, flee_distance: float) -> torch.Tensor:
+def fleeing(
+    velocity: torch.Tensor,
+    away: torch.Tensor,
+    distance: torch.Tensor,
+    max_speed: float,
+    flee_angle: float,
+    flee_distance: float,
+) -> torch.Tensor:
     """Whether each prey flees its nearest predator: the predator is within `flee_distance` px, the
     prey moves at least half its `max_speed`, and its velocity points away from the predator within
     `flee_angle` degrees (`away`: displacement from the predator to the prey)."""
     speed = torch.linalg.vector_norm(velocity, dim=-1)
-    return (distance <= flee_distance) & (speed >= 0.5 * max_speed) & \
-        (cosine(velocity, away) >= math.cos(math.radians(flee_angle)))
+    return (
+        (distance <= flee_distance)
+        & (speed >= 0.5 * max_speed)
+        & (cosine(velocity, away) >= math.cos(math.radians(flee_angle)))
+    )
 
 
 # ---------------------------------------------------------------------------------------------- outputs
-def write_outputs(out: str, name: str, rows: list[dict], summary: dict,
-                  plot: Callable[[dict, str], str | list[str]] | None = None) -> dict:
+def write_outputs(
+    out: str, name: str, rows: list[dict], summary: dict, plot: Callable[[dict, str], str | list[str]] | None = None
+) -> dict:
     """`<name>.csv` (rows) and `<name>.json` (summary) in `out`, then, with `plot`, the figures that
     `plot(summary, out)` draws; returns `summary` with `files` (`{"csv", "json"}`) and `figures`
     (paths) added."""
@@ -196,20 +239,37 @@ def written(summary: dict) -> str:
     return f"wrote {', '.join(names)} in {summary['wall_time_s']:.1f} s on {summary['machine']['device_name']}"
 
 
-def run_record(study: str, settings, device: str, wall_s: float, train_s: float, job_s: float,
-               jobs: int | None, command: str | None, kept: int = 0) -> dict:
+def run_record(
+    study: str,
+    settings,
+    device: str,
+    wall_s: float,
+    train_s: float,
+    job_s: float,
+    jobs: int | None,
+    command: str | None,
+    kept: int = 0,
+) -> dict:
     """The JSON's record of a run: the study, the exact command (default `command_line()`), the commit
     (`git_info`), its settings, the machine, the wall time, the summed training time of its runs and the
     fraction of the workers' time spent training (`kept`: tasks kept from an earlier run, whose times count too)."""
-    return {"study": study, **provenance(device, command), "settings": dataclasses.asdict(settings), "device": device,
-            "jobs": jobs, "tasks_kept": kept, "wall_time_s": round(wall_s, 2), "training_time_s": round(train_s, 2),
-            "training_fraction": train_s / job_s if job_s > 0 else 0.0,
-            "training_fraction_definition": "summed training time of the runs (PPO iterations only) / summed "
-                                            "time of the jobs (training, export and evaluation) in the workers",
-            "training_time_per_wall_time": train_s / wall_s if wall_s > 0 else 0.0,
-            "training_time_per_wall_time_definition": "summed training time of the runs / this call's wall time "
-                                                      "(above 1 where runs trained at once; kept runs count)",
-            "spread": BAND}
+    return {
+        "study": study,
+        **provenance(device, command),
+        "settings": dataclasses.asdict(settings),
+        "device": device,
+        "jobs": jobs,
+        "tasks_kept": kept,
+        "wall_time_s": round(wall_s, 2),
+        "training_time_s": round(train_s, 2),
+        "training_fraction": train_s / job_s if job_s > 0 else 0.0,
+        "training_fraction_definition": "summed training time of the runs (PPO iterations only) / summed "
+        "time of the jobs (training, export and evaluation) in the workers",
+        "training_time_per_wall_time": train_s / wall_s if wall_s > 0 else 0.0,
+        "training_time_per_wall_time_definition": "summed training time of the runs / this call's wall time "
+        "(above 1 where runs trained at once; kept runs count)",
+        "spread": BAND,
+    }
 
 
 def pyplot():
@@ -225,7 +285,7 @@ def band(ax, x, stats: list[dict], label: str | None = None, style: str = "o-", 
     """A line of the means and a band of mean ± 1 s.e.m. (`seed_stats` dicts, one per x)."""
     mean = np.array([np.nan if s["mean"] is None else s["mean"] for s in stats], dtype=float)
     sem = np.nan_to_num(np.array([np.nan if s["sem"] is None else s["sem"] for s in stats], dtype=float))
-    line, = ax.plot(x, mean, style, label=label, ms=4, lw=1.4, **kwargs)
+    (line,) = ax.plot(x, mean, style, label=label, ms=4, lw=1.4, **kwargs)
     ax.fill_between(x, mean - sem, mean + sem, color=line.get_color(), alpha=0.2, lw=0)
     return line
 
@@ -245,8 +305,12 @@ def add_common_arguments(p: argparse.ArgumentParser, out: str, jobs: bool = True
     p.add_argument("--seeds", type=positive_int, default=5, help="independent runs per setting (default 5)")
     p.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
     if jobs:
-        p.add_argument("--jobs", type=positive_int, default=None,
-                       help="training runs at once, each in a worker process of its own (spawned; on a GPU each "
-                            "with its own CUDA context); default 4 on a GPU, 1 on the CPU")
+        p.add_argument(
+            "--jobs",
+            type=positive_int,
+            default=None,
+            help="training runs at once, each in a worker process of its own (spawned; on a GPU each "
+            "with its own CUDA context); default 4 on a GPU, 1 on the CPU",
+        )
     p.add_argument("--out", default=out, help=f"output directory (default {out})")
     p.add_argument("--no-figures", action="store_true", help="write CSV/JSON only, no figures")

@@ -126,9 +126,14 @@ class FlowStudy:
         episode per world)."""
         repeat = self.seeds * self.episodes_per_seed
         flows = tuple(self.flow(kind, s) for kind, s in self.settings() for _ in range(repeat))
-        return AquariumConfig(prey_count=self.prey, predator_count=self.predators, max_steps=self.episode_steps,
-                              predator_starvation_steps=self.episode_steps, width=self.world_size,
-                              height=self.world_size).replace(flow=flows)
+        return AquariumConfig(
+            prey_count=self.prey,
+            predator_count=self.predators,
+            max_steps=self.episode_steps,
+            predator_starvation_steps=self.episode_steps,
+            width=self.world_size,
+            height=self.world_size,
+        ).replace(flow=flows)
 
     @property
     def worlds(self) -> int:
@@ -138,21 +143,29 @@ class FlowStudy:
 class EscapeMeasures:
     """Per-world sums of the escape and cruise cosines and the escape-angle histogram of a rollout."""
 
-    def __init__(self, worlds: int, device, flee_angle: float, flee_distance: float, max_speed: float,
-                 width: float, height: float):
+    def __init__(
+        self,
+        worlds: int,
+        device,
+        flee_angle: float,
+        flee_distance: float,
+        max_speed: float,
+        width: float,
+        height: float,
+    ):
         self.flee_angle, self.flee_distance, self.max_speed = flee_angle, flee_distance, max_speed
         self.width, self.height = width, height
         zeros = {"dtype": torch.float64, "device": device}
-        self.sums = {k: torch.zeros(worlds, **zeros) for k in ("escape", "escape_n", "cruise", "cruise_n",
-                                                               "downstream")}
+        self.sums = {
+            k: torch.zeros(worlds, **zeros) for k in ("escape", "escape_n", "cruise", "cruise_n", "downstream")
+        }
         self.histogram = torch.zeros(worlds, ANGLE_BINS, **zeros)
 
     def update(self, before_position, position, velocity, alive, predator_position, predator_alive) -> None:
         """One step of the prey (`[W, N, ...]`; `alive`: alive before and after, not captured)."""
         current = common.torus_delta(position - before_position, self.width, self.height) - velocity
         moving = alive & (torch.linalg.vector_norm(current, dim=-1) > 0.01)
-        away, distance = common.nearest_predator(position, predator_position, predator_alive, self.width,
-                                                 self.height)
+        away, distance = common.nearest_predator(position, predator_position, predator_alive, self.width, self.height)
         flees = common.fleeing(velocity, away, distance, self.max_speed, self.flee_angle, self.flee_distance)
         c = common.cosine(velocity, current).double()
         escape, cruise = moving & flees, moving & ~flees
@@ -168,14 +181,24 @@ class EscapeMeasures:
     def on_step(self, view: StepView) -> None:
         Pc = view.captured.shape[1]
         alive = view.before_alive[:, :Pc] & view.alive[:, :Pc] & ~view.captured
-        self.update(view.before_position[:, :Pc], view.position[:, :Pc], view.velocity[:, :Pc], alive,
-                    view.position[:, Pc:], view.alive[:, Pc:])
+        self.update(
+            view.before_position[:, :Pc],
+            view.position[:, :Pc],
+            view.velocity[:, :Pc],
+            alive,
+            view.position[:, Pc:],
+            view.alive[:, Pc:],
+        )
 
     def per_world(self) -> dict[str, np.ndarray]:
         s = {k: v.cpu().numpy() for k, v in self.sums.items()}
         with np.errstate(invalid="ignore", divide="ignore"):
-            return {"escape_cosine": s["escape"] / s["escape_n"], "cruise_cosine": s["cruise"] / s["cruise_n"],
-                    "downstream_fraction": s["downstream"] / s["escape_n"], "escape_steps": s["escape_n"]}
+            return {
+                "escape_cosine": s["escape"] / s["escape_n"],
+                "cruise_cosine": s["cruise"] / s["cruise_n"],
+                "downstream_fraction": s["downstream"] / s["escape_n"],
+                "escape_steps": s["escape_n"],
+            }
 
 
 def run_flow(study: FlowStudy, command: str | None = None) -> dict:
@@ -186,13 +209,25 @@ def run_flow(study: FlowStudy, command: str | None = None) -> dict:
     cfg = study.config()
     worlds = study.worlds
     start = time.perf_counter()
-    escape = EscapeMeasures(worlds, torch.device(device), study.flee_angle, study.flee_distance,
-                            cfg.prey.max_speed, cfg.width, cfg.height)
-    episodes = common.rollout(cfg, study.prey_policy, study.predator_policy, worlds, study.seed, device,
-                              escape.on_step, metrics_every=study.metrics_every)
+    escape = EscapeMeasures(
+        worlds, torch.device(device), study.flee_angle, study.flee_distance, cfg.prey.max_speed, cfg.width, cfg.height
+    )
+    episodes = common.rollout(
+        cfg,
+        study.prey_policy,
+        study.predator_policy,
+        worlds,
+        study.seed,
+        device,
+        escape.on_step,
+        metrics_every=study.metrics_every,
+    )
     wall = time.perf_counter() - start
-    per_world = {"captures_per_prey": episodes["captures"] / study.prey, **{k: episodes[k] for k in SWARM},
-                 **escape.per_world()}
+    per_world = {
+        "captures_per_prey": episodes["captures"] / study.prey,
+        **{k: episodes[k] for k in SWARM},
+        **escape.per_world(),
+    }
     histogram = escape.histogram.cpu().numpy()
     S, E = study.seeds, study.episodes_per_seed
     rows, entries = [], []
@@ -204,35 +239,52 @@ def run_flow(study: FlowStudy, command: str | None = None) -> dict:
                 values = per_world[m][block].reshape(S, E)
                 per_seed[m] = np.array([np.nanmean(v) if np.isfinite(v).any() else math.nan for v in values])
         for s in range(S):
-            rows.append({"kind": kind, "strength": strength, "seed": s, "episodes": E,
-                         **{m: float(per_seed[m][s]) for m in MEASURES}})
+            rows.append(
+                {
+                    "kind": kind,
+                    "strength": strength,
+                    "seed": s,
+                    "episodes": E,
+                    **{m: float(per_seed[m][s]) for m in MEASURES},
+                }
+            )
         counts = histogram[block].sum(axis=0)
-        entries.append({"kind": kind, "strength": strength,
-                        "metrics": {m: seed_stats(per_seed[m]) for m in MEASURES},
-                        "escape_steps": float(per_world["escape_steps"][block].sum()),
-                        "escape_angle_histogram": (counts / counts.sum()).tolist() if counts.sum() else None})
+        entries.append(
+            {
+                "kind": kind,
+                "strength": strength,
+                "metrics": {m: seed_stats(per_seed[m]) for m in MEASURES},
+                "escape_steps": float(per_world["escape_steps"][block].sum()),
+                "escape_angle_histogram": (counts / counts.sum()).tolist() if counts.sum() else None,
+            }
+        )
     summary = common.run_record("flow", study, device, wall, 0.0, wall, 1, command)
     settings = common.group_rows(rows, ("kind", "strength"))
     summary["current_effects"] = [
-        {"kind": kind, "strength": strength, "differences": compare(settings[(kind, strength)],
-                                                                     settings[(kind, 0.0)], MEASURES)}
-        for kind, strength in study.settings() if strength != 0 and (kind, 0.0) in settings]
+        {
+            "kind": kind,
+            "strength": strength,
+            "differences": compare(settings[(kind, strength)], settings[(kind, 0.0)], MEASURES),
+        }
+        for kind, strength in study.settings()
+        if strength != 0 and (kind, 0.0) in settings
+    ]
     summary["definitions"] = {
         "worlds": f"{worlds} worlds in one batch: per setting {S} seeds x {E} episodes of {study.episode_steps} steps",
         "uniform": f"current of strength px/step at {study.uniform_angle:g} degrees from +x towards +y",
         "vortex": f"Rankine vortex at the centre, strength px/step at the edge of a {study.world_size / 6:g} px core, "
-                  "clockwise on screen",
+        "clockwise on screen",
         "agents": f"prey {study.prey_policy}, predators {study.predator_policy} (heuristics ignore the current)",
         "fleeing": f"nearest predator within {study.flee_distance:g} px, speed >= half the max, velocity within "
-                   f"{study.flee_angle:g} degrees of straight away from it",
+        f"{study.flee_angle:g} degrees of straight away from it",
         "current": "measured: the step's torus displacement minus the stored velocity (prey alive, not captured, "
-                   "current > 0.01 px/step)",
+        "current > 0.01 px/step)",
         "escape_cosine": "mean cos(fleeing prey velocity, current) over an episode's steps and prey, averaged over "
-                         "the seed's episodes; cruise_cosine: non-fleeing; downstream_fraction likewise",
+        "the seed's episodes; cruise_cosine: non-fleeing; downstream_fraction likewise",
         "escape_angle_histogram": f"angle between escape velocity and current, {ANGLE_BINS} bins over [0, 180] "
-                                  "degrees, fractions summed over seeds",
+        "degrees, fractions summed over seeds",
         "current_effects": "each strength minus still water (strength 0) of the same kind: difference of the seed "
-                           "means with its 95% Welch interval (null with fewer than 2 seeds)",
+        "means with its 95% Welch interval (null with fewer than 2 seeds)",
     }
     summary["results"] = entries
     return common.write_outputs(study.out, "flow", rows, summary, plot_flow if study.figures else None)
@@ -245,40 +297,65 @@ def plot_flow(summary: dict, out: str) -> list[str]:
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     kinds = list(dict.fromkeys(e["kind"] for e in summary["results"]))
     fig, axes = plt.subplots(2, 2, figsize=(10, 7.5))
-    panels = (("captures_per_prey", "captures per prey per episode"), ("polarization", "polarization"),
-              ("groups", "groups (prey links < 2.5 radii)"), ("escape_cosine", "cos(escape velocity, current)"))
+    panels = (
+        ("captures_per_prey", "captures per prey per episode"),
+        ("polarization", "polarization"),
+        ("groups", "groups (prey links < 2.5 radii)"),
+        ("escape_cosine", "cos(escape velocity, current)"),
+    )
     for k, kind in enumerate(kinds):
         entries = [e for e in summary["results"] if e["kind"] == kind]
         x = np.array([e["strength"] for e in entries])
         for ax, (metric, _) in zip(axes.flat, panels):
             common.band(ax, x, [e["metrics"][metric] for e in entries], kind, color=colors[k % len(colors)])
-        common.band(axes[1, 1], x, [e["metrics"]["cruise_cosine"] for e in entries], f"{kind}, not fleeing", "s:",
-                    color=colors[k % len(colors)])
+        common.band(
+            axes[1, 1],
+            x,
+            [e["metrics"]["cruise_cosine"] for e in entries],
+            f"{kind}, not fleeing",
+            "s:",
+            color=colors[k % len(colors)],
+        )
     for ax, (_, ylabel) in zip(axes.flat, panels):
         ax.set_xlabel("current strength (px/step)")
         ax.set_ylabel(ylabel, fontsize=8)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7, frameon=False)
     settings = summary["settings"]
-    paths = [common.save_figure(fig, out, "flow.png",
-                                f"Currents: {settings['prey']} {settings['prey_policy']} prey vs "
-                                f"{settings['predators']} {settings['predator_policy']}, {settings['seeds']} seeds")]
+    paths = [
+        common.save_figure(
+            fig,
+            out,
+            "flow.png",
+            f"Currents: {settings['prey']} {settings['prey_policy']} prey vs "
+            f"{settings['predators']} {settings['predator_policy']}, {settings['seeds']} seeds",
+        )
+    ]
     fig, axes = plt.subplots(1, len(kinds), figsize=(5 * len(kinds), 4), squeeze=False)
     centres = (np.arange(ANGLE_BINS) + 0.5) * 180 / ANGLE_BINS
     for ax, kind in zip(axes[0], kinds):
         entries = [e for e in summary["results"] if e["kind"] == kind and e["escape_angle_histogram"] is not None]
         cmap = plt.get_cmap("viridis")
         for j, e in enumerate(entries):
-            ax.plot(centres, e["escape_angle_histogram"], "o-", ms=3, color=cmap(j / max(1, len(entries) - 1)),
-                    label=f"{e['strength']:g} px/step")
+            ax.plot(
+                centres,
+                e["escape_angle_histogram"],
+                "o-",
+                ms=3,
+                color=cmap(j / max(1, len(entries) - 1)),
+                label=f"{e['strength']:g} px/step",
+            )
         ax.axhline(1 / ANGLE_BINS, color="k", ls=":", lw=1)
         ax.set_xlabel("angle between escape velocity and current (degrees)")
         ax.set_ylabel("fraction of fleeing prey-steps")
         ax.set_title(kind, fontsize=9)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7, frameon=False)
-    fig.suptitle("Escape direction relative to the current (all seeds; dotted: directions independent of the "
-                 "current, whose angle is uniform in 2D)", fontsize=9)
+    fig.suptitle(
+        "Escape direction relative to the current (all seeds; dotted: directions independent of the "
+        "current, whose angle is uniform in 2D)",
+        fontsize=9,
+    )
     fig.tight_layout()
     path = os.path.join(out, "flow_escape_angles.png")
     write_figure(fig, path, dpi=110)
@@ -291,32 +368,54 @@ __all__ = ["FlowStudy", "run_flow", "EscapeMeasures"]
 
 # ---------------------------------------------------------------------------------------------- command line
 HELP = "uniform currents and a vortex of growing strength: captures, swarm metrics, escape direction"
-DESCRIPTION = ("Run every flow kind and strength as worlds of one batch (per-world flow), TurnAway prey vs NaivChase "
-               "by default (heuristics ignore the current) or trained policy files, and write captures, polarization, "
-               "groups and the angle between fleeing prey's velocity and the current (flow.csv/json, flow.png, "
-               "flow_escape_angles.png) into --out.")
+DESCRIPTION = (
+    "Run every flow kind and strength as worlds of one batch (per-world flow), TurnAway prey vs NaivChase "
+    "by default (heuristics ignore the current) or trained policy files, and write captures, polarization, "
+    "groups and the angle between fleeing prey's velocity and the current (flow.csv/json, flow.png, "
+    "flow_escape_angles.png) into --out."
+)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--kinds", default="uniform,vortex",
-                   help="flow kinds: 'uniform' (along --uniform-angle), 'vortex' (centred, clockwise)")
-    p.add_argument("--uniform-angle", type=float, default=90.0,
-                   help="direction of the uniform current, degrees from +x towards +y (default 90: +y, across the "
-                        "prey's spawn heading -x)")
-    p.add_argument("--strengths", default="0,0.5,1,2,3",
-                   help="px per step (the vortex's at its core's edge; list; default 0,0.5,1,2,3)")
-    p.add_argument("--episodes-per-seed", type=positive_int, default=10,
-                   help="episodes (worlds) per seed (default 10)")
+    p.add_argument(
+        "--kinds",
+        default="uniform,vortex",
+        help="flow kinds: 'uniform' (along --uniform-angle), 'vortex' (centred, clockwise)",
+    )
+    p.add_argument(
+        "--uniform-angle",
+        type=float,
+        default=90.0,
+        help="direction of the uniform current, degrees from +x towards +y (default 90: +y, across the "
+        "prey's spawn heading -x)",
+    )
+    p.add_argument(
+        "--strengths",
+        default="0,0.5,1,2,3",
+        help="px per step (the vortex's at its core's edge; list; default 0,0.5,1,2,3)",
+    )
+    p.add_argument("--episodes-per-seed", type=positive_int, default=10, help="episodes (worlds) per seed (default 10)")
     p.add_argument("--episode-steps", type=int_at_least(2), default=3000, help="steps per episode (default 3000)")
     p.add_argument("--prey", type=positive_int, default=16, help="prey per world (default 16)")
     p.add_argument("--predators", type=positive_int, default=1, help="predators per world (default 1)")
     p.add_argument("--prey-policy", default="turnaway", help="'turnaway', 'random' or a trained policy file")
-    p.add_argument("--predator-policy", default="naivchase",
-                   help="'naivchase', 'naivchase-noconfusion', 'random' or a trained policy file")
-    p.add_argument("--flee-angle", type=non_negative_float, default=45.0,
-                   help="degrees: fleeing = velocity within this of straight away from the predator (default 45)")
-    p.add_argument("--flee-distance", type=positive_float, default=200.0,
-                   help="px: fleeing needs the nearest predator this close (default 200)")
+    p.add_argument(
+        "--predator-policy",
+        default="naivchase",
+        help="'naivchase', 'naivchase-noconfusion', 'random' or a trained policy file",
+    )
+    p.add_argument(
+        "--flee-angle",
+        type=non_negative_float,
+        default=45.0,
+        help="degrees: fleeing = velocity within this of straight away from the predator (default 45)",
+    )
+    p.add_argument(
+        "--flee-distance",
+        type=positive_float,
+        default=200.0,
+        help="px: fleeing needs the nearest predator this close (default 200)",
+    )
     p.add_argument("--metrics-every", type=positive_int, default=10, help="sample the swarm metrics every K steps")
     p.add_argument("--seed", type=non_negative_int, default=0, help="seed of the batched worlds")
     common.add_common_arguments(p, "flow_study", jobs=False)
@@ -326,14 +425,27 @@ def run(args: argparse.Namespace) -> int:
     """`aquarium-warp study flow`: captures, swarm metrics and escape directions in currents."""
     study = FlowStudy(
         kinds=[k.strip() for k in args.kinds.split(",") if k.strip()],
-        strengths=number_list(args.strengths, float, "--strengths", 0.0, 100.0), seeds=args.seeds,
-        episodes_per_seed=args.episodes_per_seed, episode_steps=args.episode_steps, prey=args.prey,
+        strengths=number_list(args.strengths, float, "--strengths", 0.0, 100.0),
+        seeds=args.seeds,
+        episodes_per_seed=args.episodes_per_seed,
+        episode_steps=args.episode_steps,
+        prey=args.prey,
         uniform_angle=args.uniform_angle,
-        predators=args.predators, prey_policy=args.prey_policy, predator_policy=args.predator_policy,
-        flee_angle=args.flee_angle, flee_distance=args.flee_distance, metrics_every=args.metrics_every,
-        seed=args.seed, device=args.device, out=args.out, figures=not args.no_figures)
-    print(f"aquarium-warp study flow: {study.kinds} x strengths {study.strengths} px/step, {study.seeds} seeds x "
-          f"{study.episodes_per_seed} episodes of {study.episode_steps} steps -> {study.out}")
+        predators=args.predators,
+        prey_policy=args.prey_policy,
+        predator_policy=args.predator_policy,
+        flee_angle=args.flee_angle,
+        flee_distance=args.flee_distance,
+        metrics_every=args.metrics_every,
+        seed=args.seed,
+        device=args.device,
+        out=args.out,
+        figures=not args.no_figures,
+    )
+    print(
+        f"aquarium-warp study flow: {study.kinds} x strengths {study.strengths} px/step, {study.seeds} seeds x "
+        f"{study.episodes_per_seed} episodes of {study.episode_steps} steps -> {study.out}"
+    )
     check_output_dir(study.out, "--out")
     summary = run_flow(study, command_line(args.argv))
     print(common.written(summary))

@@ -13,8 +13,10 @@ from ..records import command_line
 from .swarm_size import SwarmSizeStudy, add_run_arguments, run_settings, run_swarm_size_study
 
 HELP = "captures per prey over prey field of view x view distance"
-DESCRIPTION = ("Run every (prey FOV angle, view distance) and seed as worlds of one batch (per-world parameters), "
-               "one episode each, and write fov_view.csv/json and a heatmap into --out.")
+DESCRIPTION = (
+    "Run every (prey FOV angle, view distance) and seed as worlds of one batch (per-world parameters), "
+    "one episode each, and write fov_view.csv/json and a heatmap into --out."
+)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -29,12 +31,22 @@ def run(args: argparse.Namespace) -> int:
     """`aquarium-warp study fov-view`: captures per prey over prey FOV angle x view distance."""
     fovs = number_list(args.fov, float, "--fov", 0.0, 360.0, low_open=True)
     views = number_list(args.view, float, "--view", 0.0, low_open=True)
-    study = SwarmSizeStudy(prey=[args.prey], fov_angles=fovs, view_distances=views, one_batch=not args.per_setting,
-                           kind="fov-view", **run_settings(args))
-    print(f"aquarium-warp study fov-view: {study.prey[0]} prey, FOV {fovs} x view {views}, {study.seeds} seeds, "
-          f"episodes of {study.episode_steps} steps -> {study.out}")
+    study = SwarmSizeStudy(
+        prey=[args.prey],
+        fov_angles=fovs,
+        view_distances=views,
+        one_batch=not args.per_setting,
+        kind="fov-view",
+        **run_settings(args),
+    )
+    print(
+        f"aquarium-warp study fov-view: {study.prey[0]} prey, FOV {fovs} x view {views}, {study.seeds} seeds, "
+        f"episodes of {study.episode_steps} steps -> {study.out}"
+    )
     check_output_dir(study.out, "--out")
     summary = run_swarm_size_study(study, progress=not args.no_progress, command=command_line(args.argv))
-    print(f"wrote {os.path.join(study.out, 'fov_view.csv')}, fov_view.json and {len(summary.get('figures', []))} "
-          f"figure(s) in {summary['wall_time_s']:.1f} s on {summary['machine']['device_name']} ({summary['path']})")
+    print(
+        f"wrote {os.path.join(study.out, 'fov_view.csv')}, fov_view.json and {len(summary.get('figures', []))} "
+        f"figure(s) in {summary['wall_time_s']:.1f} s on {summary['machine']['device_name']} ({summary['path']})"
+    )
     return 0

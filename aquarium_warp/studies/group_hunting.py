@@ -74,8 +74,17 @@ RECIPE_ENTROPY = 0.01  # the learned-prey recipe's entropy coefficient (docs/lea
 # "Sharing makes no difference" needs the 90% interval of shared minus capturer-only captures per
 # predator inside +-SHARING_MARGIN of the capturer-only mean (declared with the redesign).
 SHARING_MARGIN = 0.10
-MEASURES = ("captures_per_predator", "captures_per_prey", "joint_fraction", "spread_capture", "spread_random",
-            "gap_capture", "gap_random", "pair_distance_capture", "pair_distance_random")
+MEASURES = (
+    "captures_per_predator",
+    "captures_per_prey",
+    "joint_fraction",
+    "spread_capture",
+    "spread_random",
+    "gap_capture",
+    "gap_random",
+    "pair_distance_capture",
+    "pair_distance_random",
+)
 
 
 @dataclass
@@ -111,13 +120,24 @@ class GroupHuntingStudy:
     def validate(self) -> None:
         if not self.predators:
             raise ValueError("predators must list at least one team size")
-        for name, values in (("--predators", self.predators), ("--prey-conditions", self.prey_conditions),
-                             ("--share-radius", self.share_radii)):
+        for name, values in (
+            ("--predators", self.predators),
+            ("--prey-conditions", self.prey_conditions),
+            ("--share-radius", self.share_radii),
+        ):
             check_distinct(name, values)
         for n in self.predators:
             check_int("predators", n)
-        for name in ("prey", "seeds", "worlds", "iterations", "train_steps", "eval_worlds", "eval_steps",
-                     "sample_every"):
+        for name in (
+            "prey",
+            "seeds",
+            "worlds",
+            "iterations",
+            "train_steps",
+            "eval_worlds",
+            "eval_steps",
+            "sample_every",
+        ):
             check_int(name.replace("_", "-"), getattr(self, name))
         if self.eval_steps < 2 or self.train_steps < 2:
             raise ValueError("eval-steps and train-steps must be >= 2 (an episode's last state is the next one's)")
@@ -137,9 +157,15 @@ class GroupHuntingStudy:
 
     def env(self, predators: int, share_radius: float, steps: int) -> dict:
         """The world's config fields (a predator never starves within an episode: one full episode per world)."""
-        env: dict = {"prey_count": self.prey, "predator_count": predators, "catch_share_radius": float(share_radius),
-                     "max_steps": steps, "predator_starvation_steps": steps, "width": self.world_size,
-                     "height": self.world_size}
+        env: dict = {
+            "prey_count": self.prey,
+            "predator_count": predators,
+            "catch_share_radius": float(share_radius),
+            "max_steps": steps,
+            "predator_starvation_steps": steps,
+            "width": self.world_size,
+            "height": self.world_size,
+        }
         predator: dict = {}
         if self.predator_speed is not None:
             predator["max_speed"] = float(self.predator_speed)
@@ -160,21 +186,41 @@ class GroupHuntingStudy:
                 for n in self.predators:
                     for seed in range(self.seeds):
                         name = f"{condition}_share{radius:g}_pred{n}_seed{seed}"
-                        tasks.append({"name": name, "condition": condition, "share_radius": radius, "predators": n,
-                                      "seed": seed, "train": True, "device": device, "study": self,
-                                      "policy_dir": os.path.join(self.out, "policies", name)})
+                        tasks.append(
+                            {
+                                "name": name,
+                                "condition": condition,
+                                "share_radius": radius,
+                                "predators": n,
+                                "seed": seed,
+                                "train": True,
+                                "device": device,
+                                "study": self,
+                                "policy_dir": os.path.join(self.out, "policies", name),
+                            }
+                        )
         if self.baseline:
             for n in self.predators:
                 for seed in range(self.seeds):
-                    tasks.append({"name": f"naivchase_pred{n}_seed{seed}", "condition": "naivchase",
-                                  "share_radius": AquariumConfig().catch_share_radius, "predators": n, "seed": seed,
-                                  "train": False, "device": device, "study": self})
+                    tasks.append(
+                        {
+                            "name": f"naivchase_pred{n}_seed{seed}",
+                            "condition": "naivchase",
+                            "share_radius": AquariumConfig().catch_share_radius,
+                            "predators": n,
+                            "seed": seed,
+                            "train": False,
+                            "device": device,
+                            "study": self,
+                        }
+                    )
         return tasks
 
 
 # ---------------------------------------------------------------------------------------------- measures
-def encirclement(centre: torch.Tensor, predators: torch.Tensor, alive: torch.Tensor, radius: float,
-                 width: float, height: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def encirclement(
+    centre: torch.Tensor, predators: torch.Tensor, alive: torch.Tensor, radius: float, width: float, height: float
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """How the predators `[E, P, 2]` (`alive` `[E, P]`) surround the points `centre` `[E, 2]`: the number
     within `radius` px (torus), the circular variance of their bearings from the centre (1 - |mean unit
     bearing|) and the largest angular gap between the bearings (degrees); the last two NaN where fewer
@@ -211,8 +257,18 @@ class HuntMeasures:
 
     def __init__(self, hunt_radius: float, sample_every: int, width: float, height: float):
         self.radius, self.every, self.width, self.height = hunt_radius, sample_every, width, height
-        self.values: dict[str, list[torch.Tensor]] = {k: [] for k in (
-            "count", "spread_capture", "gap_capture", "spread_random", "gap_random", "pair_capture", "pair_random")}
+        self.values: dict[str, list[torch.Tensor]] = {
+            k: []
+            for k in (
+                "count",
+                "spread_capture",
+                "gap_capture",
+                "spread_random",
+                "gap_random",
+                "pair_capture",
+                "pair_random",
+            )
+        }
 
     def __call__(self, view: StepView) -> None:
         Pc = view.captured.shape[1]
@@ -221,16 +277,18 @@ class HuntMeasures:
             prey_alive = view.alive[:, :Pc].reshape(-1)
             centres = view.position[:, :Pc].reshape(-1, 2)[prey_alive]
             around = predators.repeat_interleave(Pc, dim=0)[prey_alive]
-            _, spread, gap = encirclement(centres, around, alive.repeat_interleave(Pc, dim=0)[prey_alive],
-                                          self.radius, self.width, self.height)
+            _, spread, gap = encirclement(
+                centres, around, alive.repeat_interleave(Pc, dim=0)[prey_alive], self.radius, self.width, self.height
+            )
             self.values["spread_random"].append(spread)
             self.values["gap_random"].append(gap)
             self.values["pair_random"].append(pair_distances(predators, alive, self.width, self.height))
         if not bool(view.captured.any()):
             return
         world, slot = torch.nonzero(view.captured, as_tuple=True)
-        count, spread, gap = encirclement(view.before_position[world, slot], predators[world], alive[world],
-                                          self.radius, self.width, self.height)
+        count, spread, gap = encirclement(
+            view.before_position[world, slot], predators[world], alive[world], self.radius, self.width, self.height
+        )
         self.values["count"].append(count)
         self.values["spread_capture"].append(spread)
         self.values["gap_capture"].append(gap)
@@ -247,10 +305,15 @@ class HuntMeasures:
             v = v[~torch.isnan(v)]
             return float(v.mean()) if v.numel() else math.nan
 
-        return {"joint_fraction": mean("count", lambda c: c >= 2),
-                "spread_capture": mean("spread_capture"), "spread_random": mean("spread_random"),
-                "gap_capture": mean("gap_capture"), "gap_random": mean("gap_random"),
-                "pair_distance_capture": mean("pair_capture"), "pair_distance_random": mean("pair_random")}
+        return {
+            "joint_fraction": mean("count", lambda c: c >= 2),
+            "spread_capture": mean("spread_capture"),
+            "spread_random": mean("spread_random"),
+            "gap_capture": mean("gap_capture"),
+            "gap_random": mean("gap_random"),
+            "pair_distance_capture": mean("pair_capture"),
+            "pair_distance_random": mean("pair_random"),
+        }
 
 
 # ---------------------------------------------------------------------------------------------- one task
@@ -263,9 +326,15 @@ def run_task(task: dict) -> dict:
     prey, predator = "turnaway", "naivchase"
     if task["train"]:
         both = task["condition"] == "cotrained"
-        config = common.training_config(study.env(n, task["share_radius"], study.train_steps),
-                                        "both" if both else "predator", None if both else "turnaway",
-                                        study.worlds, study.iterations, seed, device)
+        config = common.training_config(
+            study.env(n, task["share_radius"], study.train_steps),
+            "both" if both else "predator",
+            None if both else "turnaway",
+            study.worlds,
+            study.iterations,
+            seed,
+            device,
+        )
         if study.recipe:
             config["runner"]["algorithm"]["entropy_coef"] = RECIPE_ENTROPY
         policies, train_s = common.train_and_export(config, task["policy_dir"])
@@ -274,10 +343,17 @@ def run_task(task: dict) -> dict:
     cfg = env_config({"env": study.env(n, task["share_radius"], study.eval_steps)})
     measures = HuntMeasures(study.hunt_radius, study.sample_every, cfg.width, cfg.height)
     episodes = common.rollout(cfg, prey, predator, study.eval_worlds, evaluation_seed(seed), device, measures)
-    result = {"captures_per_predator": float(episodes["captures"].mean()) / n,
-              "captures_per_prey": float(episodes["captures"].mean()) / study.prey, **measures.result()}
-    return {**{k: task[k] for k in ("name", "condition", "share_radius", "predators", "seed")}, **result,
-            "train_s": train_s, "job_s": time.perf_counter() - start}
+    result = {
+        "captures_per_predator": float(episodes["captures"].mean()) / n,
+        "captures_per_prey": float(episodes["captures"].mean()) / study.prey,
+        **measures.result(),
+    }
+    return {
+        **{k: task[k] for k in ("name", "condition", "share_radius", "predators", "seed")},
+        **result,
+        "train_s": train_s,
+        "job_s": time.perf_counter() - start,
+    }
 
 
 # ---------------------------------------------------------------------------------------------- study
@@ -289,8 +365,7 @@ def condition_label(condition: str, share_radius: float) -> str:
     return f"learned vs {prey}, reward {reward}"
 
 
-def run_group_hunting(study: GroupHuntingStudy, command: str | None = None,
-                      ray: RayOptions | None = None) -> dict:
+def run_group_hunting(study: GroupHuntingStudy, command: str | None = None, ray: RayOptions | None = None) -> dict:
     """Run every task (`study.jobs` at once), write the CSV, JSON and figure; return the JSON's content.
     `command`: the command line recorded in the JSON (default: this process's, `records.command_line`).
     `ray`: run each training run as a Ray task instead (`jobs`); the JSON then has a "ray" entry."""
@@ -298,47 +373,69 @@ def run_group_hunting(study: GroupHuntingStudy, command: str | None = None,
     results = run.results
     rows = [{k: v for k, v in r.items() if k != "name"} for r in results]
     groups = common.group_rows(results, ("condition", "share_radius", "predators"))
-    entries = [{"condition": c, "share_radius": radius, "predators": n, "label": condition_label(c, radius),
-                "metrics": {m: seed_stats([r[m] for r in rs]) for m in MEASURES}}
-               for (c, radius, n), rs in groups.items()]
+    entries = [
+        {
+            "condition": c,
+            "share_radius": radius,
+            "predators": n,
+            "label": condition_label(c, radius),
+            "metrics": {m: seed_stats([r[m] for r in rs]) for m in MEASURES},
+        }
+        for (c, radius, n), rs in groups.items()
+    ]
     summary = run.record("group-hunting", study, results, command)
     summary["reward_differences"] = [
-        {"condition": c, "predators": n, "share_radius": radius, "minus_share_radius": 0.0,
-         "differences": compare(groups[(c, radius, n)], groups[(c, 0.0, n)], MEASURES),
-         "equivalence": sharing_equivalence(groups[(c, radius, n)], groups[(c, 0.0, n)])}
-        for c in study.prey_conditions for n in study.predators for radius in study.share_radii
-        if radius != 0 and 0 in study.share_radii]
+        {
+            "condition": c,
+            "predators": n,
+            "share_radius": radius,
+            "minus_share_radius": 0.0,
+            "differences": compare(groups[(c, radius, n)], groups[(c, 0.0, n)], MEASURES),
+            "equivalence": sharing_equivalence(groups[(c, radius, n)], groups[(c, 0.0, n)]),
+        }
+        for c in study.prey_conditions
+        for n in study.predators
+        for radius in study.share_radii
+        if radius != 0 and 0 in study.share_radii
+    ]
     summary["definitions"] = {
         "captures_per_predator": f"captures per predator per episode of {study.eval_steps} steps "
-                                 f"({study.eval_worlds} episodes per seed, deterministic policies)",
+        f"({study.eval_worlds} episodes per seed, deterministic policies)",
         "joint_fraction": f"fraction of captures with >= 2 predators within {study.hunt_radius:g} px of the "
-                          "capture point (the captured prey's position at the start of its capture step)",
+        "capture point (the captured prey's position at the start of its capture step)",
         "spread": "circular variance of the bearings from the capture point (or a prey, random times) of the "
-                  "predators within hunt_radius, where >= 2: 0 all on one side, 1 balanced around",
+        "predators within hunt_radius, where >= 2: 0 all on one side, 1 balanced around",
         "gap": "largest angular gap between those bearings, degrees",
         "random": f"around every live prey at states sampled every {study.sample_every} steps",
         "pair_distance": "mean torus distance between live predators, px (capture steps / sampled states)",
         "cotrained": "prey and predators trained together (team both); evaluated against each other",
         "share_radius": "catch_share_radius in training and evaluation; 0: only the capturer(s) are rewarded",
         "reward_differences": "per prey condition and team size, the shared reward (share_radius) minus the "
-                              "capturer alone (0): difference of the seed means with its 95% Welch interval "
-                              "(null with fewer than 2 seeds); equivalence: TOST of captures per predator within "
-                              f"+-{SHARING_MARGIN:.0%} of the capturer-only mean",
-        "design": (f"predator max speed {study.predator_speed if study.predator_speed is not None else 5.0:g} "
-                   f"(prey 4), {study.predator_slots if study.predator_slots is not None else 1} predator slot(s), "
-                   + ("the learned-prey recipe (ego observations, random spawn headings, entropy "
-                      f"{RECIPE_ENTROPY})" if study.recipe else "the paper preset's observations and PPO settings")),
+        "capturer alone (0): difference of the seed means with its 95% Welch interval "
+        "(null with fewer than 2 seeds); equivalence: TOST of captures per predator within "
+        f"+-{SHARING_MARGIN:.0%} of the capturer-only mean",
+        "design": (
+            f"predator max speed {study.predator_speed if study.predator_speed is not None else 5.0:g} "
+            f"(prey 4), {study.predator_slots if study.predator_slots is not None else 1} predator slot(s), "
+            + (
+                f"the learned-prey recipe (ego observations, random spawn headings, entropy {RECIPE_ENTROPY})"
+                if study.recipe
+                else "the paper preset's observations and PPO settings"
+            )
+        ),
     }
     summary["results"] = entries
-    return common.write_outputs(study.out, "group_hunting", rows, summary,
-                                plot_group_hunting if study.figures else None)
+    return common.write_outputs(
+        study.out, "group_hunting", rows, summary, plot_group_hunting if study.figures else None
+    )
 
 
 def sharing_equivalence(shared: list[dict], alone: list[dict]) -> dict | None:
     """TOST of captures per predator, shared minus capturer-only, within `SHARING_MARGIN` of the
     capturer-only mean (None below two seeds each, or without captures)."""
-    x, y = (finite(np.asarray([r["captures_per_predator"] for r in rows], dtype=np.float64))
-            for rows in (shared, alone))
+    x, y = (
+        finite(np.asarray([r["captures_per_predator"] for r in rows], dtype=np.float64)) for rows in (shared, alone)
+    )
     if len(x) < 2 or len(y) < 2 or not float(np.mean(y)) > 0:
         return None
     return equivalence(x.tolist(), y.tolist(), SHARING_MARGIN * float(np.mean(y)))
@@ -350,10 +447,12 @@ def plot_group_hunting(summary: dict, out: str) -> str:
     plt = common.pyplot()
     fig, axes = plt.subplots(2, 2, figsize=(11, 8))
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    panels = [("captures_per_predator", None, "captures per predator per episode"),
-              ("joint_fraction", None, "captures with another predator near"),
-              ("spread_capture", "spread_random", "circular variance of predator bearings"),
-              ("pair_distance_capture", "pair_distance_random", "predator-predator distance (px)")]
+    panels = [
+        ("captures_per_predator", None, "captures per predator per episode"),
+        ("joint_fraction", None, "captures with another predator near"),
+        ("spread_capture", "spread_random", "circular variance of predator bearings"),
+        ("pair_distance_capture", "pair_distance_random", "predator-predator distance (px)"),
+    ]
     labels = list(dict.fromkeys(e["label"] for e in summary["results"]))
     for k, label in enumerate(labels):
         entries = sorted((e for e in summary["results"] if e["label"] == label), key=lambda e: e["predators"])
@@ -361,8 +460,7 @@ def plot_group_hunting(summary: dict, out: str) -> str:
         for ax, (metric, baseline, _) in zip(axes.flat, panels):
             common.band(ax, x, [e["metrics"][metric] for e in entries], label, color=colors[k % len(colors)])
             if baseline is not None:
-                common.band(ax, x, [e["metrics"][baseline] for e in entries], None, "s:",
-                            color=colors[k % len(colors)])
+                common.band(ax, x, [e["metrics"][baseline] for e in entries], None, "s:", color=colors[k % len(colors)])
     sizes = sorted({e["predators"] for e in summary["results"]})
     for ax, (_, baseline, ylabel) in zip(axes.flat, panels):
         ax.set_xticks(sizes)
@@ -371,9 +469,13 @@ def plot_group_hunting(summary: dict, out: str) -> str:
         ax.grid(alpha=0.3)
     axes[0, 0].legend(fontsize=7, frameon=False)
     settings = summary["settings"]
-    return common.save_figure(fig, out, "group_hunting.png",
-                              f"Group hunting: {settings['prey']} prey, {settings['seeds']} seeds, "
-                              f"{settings['iterations']} PPO iterations x {settings['worlds']} worlds per run")
+    return common.save_figure(
+        fig,
+        out,
+        "group_hunting.png",
+        f"Group hunting: {settings['prey']} prey, {settings['seeds']} seeds, "
+        f"{settings['iterations']} PPO iterations x {settings['worlds']} worlds per run",
+    )
 
 
 __all__ = ["GroupHuntingStudy", "run_group_hunting", "encirclement", "pair_distances", "HuntMeasures"]
@@ -381,41 +483,72 @@ __all__ = ["GroupHuntingStudy", "run_group_hunting", "encirclement", "pair_dista
 
 # ---------------------------------------------------------------------------------------------- command line
 HELP = "learning predator teams of 1-4: does cooperative hunting emerge, and does the shared catch reward cause it?"
-DESCRIPTION = ("For every predator team size, prey condition (TurnAway prey, or prey co-trained with the predators) "
-               "and catch_share_radius (shared reward, or 0: the capturer alone), train --seeds runs and evaluate "
-               "them: captures per predator, joint captures, the predators' angular spread around the capture point "
-               "and their distances, at captures and at random times; NaivChase teams as the baseline. Writes "
-               "group_hunting.csv/json/png into --out.")
+DESCRIPTION = (
+    "For every predator team size, prey condition (TurnAway prey, or prey co-trained with the predators) "
+    "and catch_share_radius (shared reward, or 0: the capturer alone), train --seeds runs and evaluate "
+    "them: captures per predator, joint captures, the predators' angular spread around the capture point "
+    "and their distances, at captures and at random times; NaivChase teams as the baseline. Writes "
+    "group_hunting.csv/json/png into --out."
+)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--predators", default="1,2,3,4", help="predator team sizes (list; default 1,2,3,4)")
-    p.add_argument("--prey", type=positive_int, default=6, help="prey per world, the same at every team size "
-                                                                "(default 6, the paper's)")
-    p.add_argument("--prey-conditions", default="turnaway,cotrained",
-                   help="comma list of 'turnaway' (predators learn against TurnAway) and 'cotrained' (both teams "
-                        "learn; team both)")
-    p.add_argument("--share-radius", default="100,0", help="catch_share_radius values, px (list; default 100,0: "
-                                                           "shared within 100 px, and the capturer alone)")
+    p.add_argument(
+        "--prey",
+        type=positive_int,
+        default=6,
+        help="prey per world, the same at every team size (default 6, the paper's)",
+    )
+    p.add_argument(
+        "--prey-conditions",
+        default="turnaway,cotrained",
+        help="comma list of 'turnaway' (predators learn against TurnAway) and 'cotrained' (both teams "
+        "learn; team both)",
+    )
+    p.add_argument(
+        "--share-radius",
+        default="100,0",
+        help="catch_share_radius values, px (list; default 100,0: shared within 100 px, and the capturer alone)",
+    )
     p.add_argument("--worlds", type=positive_int, default=1024, help="training worlds per run (default 1024)")
-    p.add_argument("--iterations", type=positive_int, default=100,
-                   help="PPO iterations per run, 32 steps each (default 100)")
+    p.add_argument(
+        "--iterations", type=positive_int, default=100, help="PPO iterations per run, 32 steps each (default 100)"
+    )
     p.add_argument("--train-steps", type=int_at_least(2), default=500, help="episode length in training (default 500)")
     p.add_argument("--eval-worlds", type=positive_int, default=32, help="evaluation episodes per seed (default 32)")
-    p.add_argument("--eval-steps", type=int_at_least(2), default=1000,
-                   help="evaluation episode length (default 1000)")
-    p.add_argument("--hunt-radius", type=positive_float, default=200.0,
-                   help="px; predators this close to a capture take part in it (default 200, the predator's view)")
-    p.add_argument("--sample-every", type=positive_int, default=10,
-                   help="steps between the random-time states of the baselines (default 10)")
+    p.add_argument("--eval-steps", type=int_at_least(2), default=1000, help="evaluation episode length (default 1000)")
+    p.add_argument(
+        "--hunt-radius",
+        type=positive_float,
+        default=200.0,
+        help="px; predators this close to a capture take part in it (default 200, the predator's view)",
+    )
+    p.add_argument(
+        "--sample-every",
+        type=positive_int,
+        default=10,
+        help="steps between the random-time states of the baselines (default 10)",
+    )
     p.add_argument("--no-baseline", action="store_true", help="no NaivChase teams")
-    p.add_argument("--predator-speed", type=positive_float, default=None,
-                   help="predator max speed (default docs/model.md's 5; the prey's is 4: 4 or less and a lone "
-                        "predator cannot simply outrun its prey)")
-    p.add_argument("--predator-slots", type=int_at_least(0), default=None,
-                   help="predator slots each agent observes (default 1: a predator sees at most one teammate)")
-    p.add_argument("--recipe", action="store_true",
-                   help="train with the learned-prey recipe: ego observations, random spawn headings, entropy 0.01")
+    p.add_argument(
+        "--predator-speed",
+        type=positive_float,
+        default=None,
+        help="predator max speed (default docs/model.md's 5; the prey's is 4: 4 or less and a lone "
+        "predator cannot simply outrun its prey)",
+    )
+    p.add_argument(
+        "--predator-slots",
+        type=int_at_least(0),
+        default=None,
+        help="predator slots each agent observes (default 1: a predator sees at most one teammate)",
+    )
+    p.add_argument(
+        "--recipe",
+        action="store_true",
+        help="train with the learned-prey recipe: ego observations, random spawn headings, entropy 0.01",
+    )
     common.add_common_arguments(p, "group_hunting")
     add_ray_arguments(p, "training run (with its evaluations) or NaivChase baseline")
 
@@ -424,15 +557,31 @@ def run(args: argparse.Namespace) -> int:
     """`aquarium-warp study group-hunting`: learning predator teams, with and without shared catch rewards."""
     study = GroupHuntingStudy(
         predators=number_list(args.predators, int, "--predators", 1, 64),
-        prey=args.prey, prey_conditions=[c.strip() for c in args.prey_conditions.split(",") if c.strip()],
-        share_radii=number_list(args.share_radius, float, "--share-radius", 0.0, 1e6), seeds=args.seeds,
-        worlds=args.worlds, iterations=args.iterations, train_steps=args.train_steps, eval_worlds=args.eval_worlds,
-        eval_steps=args.eval_steps, hunt_radius=args.hunt_radius, sample_every=args.sample_every,
-        baseline=not args.no_baseline, predator_speed=args.predator_speed, predator_slots=args.predator_slots,
-        recipe=args.recipe, device=args.device, jobs=args.jobs, out=args.out, figures=not args.no_figures)
-    print(f"aquarium-warp study group-hunting: predators {study.predators}, {study.prey} prey "
-          f"({', '.join(study.prey_conditions)}), catch_share_radius {study.share_radii}, {study.seeds} seeds -> "
-          f"{study.out}")
+        prey=args.prey,
+        prey_conditions=[c.strip() for c in args.prey_conditions.split(",") if c.strip()],
+        share_radii=number_list(args.share_radius, float, "--share-radius", 0.0, 1e6),
+        seeds=args.seeds,
+        worlds=args.worlds,
+        iterations=args.iterations,
+        train_steps=args.train_steps,
+        eval_worlds=args.eval_worlds,
+        eval_steps=args.eval_steps,
+        hunt_radius=args.hunt_radius,
+        sample_every=args.sample_every,
+        baseline=not args.no_baseline,
+        predator_speed=args.predator_speed,
+        predator_slots=args.predator_slots,
+        recipe=args.recipe,
+        device=args.device,
+        jobs=args.jobs,
+        out=args.out,
+        figures=not args.no_figures,
+    )
+    print(
+        f"aquarium-warp study group-hunting: predators {study.predators}, {study.prey} prey "
+        f"({', '.join(study.prey_conditions)}), catch_share_radius {study.share_radii}, {study.seeds} seeds -> "
+        f"{study.out}"
+    )
     check_output_dir(study.out, "--out")
     summary = run_group_hunting(study, command_line(args.argv), ray_options(args))
     print(f"{common.written(summary)} ({summary['training_fraction']:.0%} of the workers' time training)")

@@ -73,31 +73,59 @@ class RayOptions:
 
     def record(self, device: str) -> dict:
         """The JSON's record of a run on Ray: the cluster's address, what each task held and the device."""
-        return {"address": self.address, "gpus_per_task": self.gpus_per_task, "cpus_per_task": self.cpus_per_task,
-                "max_retries": self.max_retries, "device": device}
+        return {
+            "address": self.address,
+            "gpus_per_task": self.gpus_per_task,
+            "cpus_per_task": self.cpus_per_task,
+            "max_retries": self.max_retries,
+            "device": device,
+        }
 
 
 def add_ray_arguments(parser: argparse.ArgumentParser, what: str) -> None:
     """`--ray [ADDRESS]` and what each Ray task holds (`ray_options` reads them)."""
     g = parser.add_argument_group("Ray", f"run each {what} as a Ray task, on one machine or a cluster ({INSTALL})")
-    g.add_argument("--ray", nargs="?", const="", default=None, metavar="ADDRESS",
-                   help=f"run each {what} as a Ray task: on the cluster at ADDRESS ('auto': the one `ray start` "
-                        "started on this machine; 'ray://HOST:10001': Ray Client), without ADDRESS on "
-                        "$RAY_ADDRESS's cluster or else a new one on this machine")
-    g.add_argument("--gpus-per-task", type=non_negative_float, default=None, metavar="G",
-                   help="GPUs each task holds: a fraction in [0, 1] (0.25: four tasks share a GPU) or a whole "
-                        "number (default 1 where the cluster has GPUs and --device is not 'cpu', else 0)")
-    g.add_argument("--cpus-per-task", type=positive_float, default=None, metavar="C",
-                   help="CPU cores each task holds (default 1)")
-    g.add_argument("--max-retries", type=non_negative_int, default=None, metavar="R",
-                   help="reruns of a task whose worker died (default 3)")
+    g.add_argument(
+        "--ray",
+        nargs="?",
+        const="",
+        default=None,
+        metavar="ADDRESS",
+        help=f"run each {what} as a Ray task: on the cluster at ADDRESS ('auto': the one `ray start` "
+        "started on this machine; 'ray://HOST:10001': Ray Client), without ADDRESS on "
+        "$RAY_ADDRESS's cluster or else a new one on this machine",
+    )
+    g.add_argument(
+        "--gpus-per-task",
+        type=non_negative_float,
+        default=None,
+        metavar="G",
+        help="GPUs each task holds: a fraction in [0, 1] (0.25: four tasks share a GPU) or a whole "
+        "number (default 1 where the cluster has GPUs and --device is not 'cpu', else 0)",
+    )
+    g.add_argument(
+        "--cpus-per-task", type=positive_float, default=None, metavar="C", help="CPU cores each task holds (default 1)"
+    )
+    g.add_argument(
+        "--max-retries",
+        type=non_negative_int,
+        default=None,
+        metavar="R",
+        help="reruns of a task whose worker died (default 3)",
+    )
 
 
 def ray_options(args: argparse.Namespace) -> RayOptions | None:
     """The `RayOptions` of `add_ray_arguments`' options, or None without --ray."""
-    given = {name: value for name, value in (("gpus_per_task", args.gpus_per_task),
-                                             ("cpus_per_task", args.cpus_per_task),
-                                             ("max_retries", args.max_retries)) if value is not None}
+    given = {
+        name: value
+        for name, value in (
+            ("gpus_per_task", args.gpus_per_task),
+            ("cpus_per_task", args.cpus_per_task),
+            ("max_retries", args.max_retries),
+        )
+        if value is not None
+    }
     if args.ray is None:
         if given:
             names = ", ".join("--" + name.replace("_", "-") for name in given)
@@ -134,8 +162,10 @@ def placement(options: RayOptions, device: str | None) -> tuple[RayOptions, str]
     one asked for: None (a GPU where the cluster has one), "cuda" or "cpu". Connects to the cluster."""
     options.validate()
     if device not in (None, "cpu", "cuda", "cuda:0"):
-        raise ValueError(f"device={device!r}: on Ray a task runs on the GPU that Ray assigns it ('cuda') or on "
-                         "the CPU ('cpu'); --gpus-per-task sets how much of a GPU it holds")
+        raise ValueError(
+            f"device={device!r}: on Ray a task runs on the GPU that Ray assigns it ('cuda') or on "
+            "the CPU ('cpu'); --gpus-per-task sets how much of a GPU it holds"
+        )
     cluster_gpus = float(connect(options).cluster_resources().get("GPU", 0.0))
     gpus = options.gpus_per_task
     if gpus is None:
@@ -149,16 +179,18 @@ def placement(options: RayOptions, device: str | None) -> tuple[RayOptions, str]
     return dataclasses.replace(options, gpus_per_task=gpus), ("cuda:0" if gpus > 0 else "cpu")
 
 
-def run_ray_tasks(function: Callable, calls: Sequence[tuple], options: RayOptions,
-                  on_result: Callable[[int, Any], None] | None = None) -> list:
+def run_ray_tasks(
+    function: Callable, calls: Sequence[tuple], options: RayOptions, on_result: Callable[[int, Any], None] | None = None
+) -> list:
     """`function(*call)` for every call as Ray tasks, results in the order of `calls`. `on_result(i,
     result)` runs on this process as each task finishes. A task whose worker dies reruns up to
     `options.max_retries` times; an error in the task cancels the others and is raised here."""
     ray = connect(options)
     # Options given to ray.remote itself (not .options()): Ray then starts a fresh worker for every GPU
     # task, so each one sees the GPU it was assigned.
-    remote = ray.remote(num_gpus=options.gpus_per_task or 0, num_cpus=options.cpus_per_task,
-                        max_retries=options.max_retries)(function)
+    remote = ray.remote(
+        num_gpus=options.gpus_per_task or 0, num_cpus=options.cpus_per_task, max_retries=options.max_retries
+    )(function)
     refs = [remote.remote(*call) for call in calls]
     index = {ref: i for i, ref in enumerate(refs)}
     results: list = [None] * len(refs)
@@ -201,8 +233,14 @@ def resolve_jobs(jobs: int | None, device: str, threads: bool = False) -> int:
     return 4 if on_gpu else 1
 
 
-def warm_up(device: str, config: AquariumConfig | None = None, prey: str = "turnaway", predator: str = "naivchase",
-            confusion: bool = True, linking_distance: float | None = None) -> None:
+def warm_up(
+    device: str,
+    config: AquariumConfig | None = None,
+    prey: str = "turnaway",
+    predator: str = "naivchase",
+    confusion: bool = True,
+    linking_distance: float | None = None,
+) -> None:
     """Build (or load from Warp's cache) the kernels of a step of `config` (a two-prey copy; default the
     model's world) with the `prey` and `predator` drivers and the swarm metrics, once, before tasks run
     at once: worker processes must not all compile them, nor threads load them together."""
@@ -242,8 +280,15 @@ def task_key(task: dict) -> dict:
     folders, `TASK_FOLDERS`; it names its seed or seed count, and its device unless `run_jobs` gives
     it one of `devices`) and, where it has a "study", the study's settings (not the seed count, so that
     adding seeds keeps the finished ones, nor its output directory, workers, figures or device option)."""
-    settings = {k: v for k, v in dataclasses.asdict(task["study"]).items()
-                if k not in ("seeds", "out", "jobs", "figures", "device")} if "study" in task else {}
+    settings = (
+        {
+            k: v
+            for k, v in dataclasses.asdict(task["study"]).items()
+            if k not in ("seeds", "out", "jobs", "figures", "device")
+        }
+        if "study" in task
+        else {}
+    )
     own = {k: v for k, v in task.items() if k != "study" and k not in TASK_FOLDERS}
     return json.loads(json.dumps({"task": own, "study": settings}))
 
@@ -285,11 +330,21 @@ class JobsRun:
     nodes: list[str]
 
 
-def run_jobs(function: Callable[..., Any], tasks: Sequence[dict], out: str, *, jobs: int = 1,
-             threads: bool = False, device: str = "cpu", devices: Sequence[str] | None = None,
-             ray: RayOptions | None = None, label: str = "run", prepare: Callable[[], None] | None = None,
-             on_result: Callable[[int, Any, bool], None] | None = None,
-             report: Callable[[str], None] | None = print) -> JobsRun:
+def run_jobs(
+    function: Callable[..., Any],
+    tasks: Sequence[dict],
+    out: str,
+    *,
+    jobs: int = 1,
+    threads: bool = False,
+    device: str = "cpu",
+    devices: Sequence[str] | None = None,
+    ray: RayOptions | None = None,
+    label: str = "run",
+    prepare: Callable[[], None] | None = None,
+    on_result: Callable[[int, Any, bool], None] | None = None,
+    report: Callable[[str], None] | None = print,
+) -> JobsRun:
     """`function(task)` for every task (each a dict with a unique "name", and its "study" where it has
     settings of one): those whose `<out>/finished/<name>.json` holds the same `task_key` are kept, the
     others run, in the order of `tasks` (longest first runs best): with `ray` (placed: `placement`) as
@@ -333,11 +388,11 @@ def run_jobs(function: Callable[..., Any], tasks: Sequence[dict], out: str, *, j
             finished = sum(done_here)
             elapsed = time.perf_counter() - start
             left = elapsed / (finished - kept_count) * (len(tasks) - finished)  # longest first: an overestimate
-            report(f"  {label} {finished}/{len(tasks)} ({tasks[i]['name']}) after {elapsed:.0f} s, ~{left:.0f} s "
-                   "left")
+            report(f"  {label} {finished}/{len(tasks)} ({tasks[i]['name']}) after {elapsed:.0f} s, ~{left:.0f} s left")
 
     nodes: set[str] = set()
     if ray is not None:
+
         def finished_on_ray(k: int, result: tuple[Any, str]) -> None:
             nodes.add(result[1])
             done(todo[k], result[0])
@@ -352,8 +407,10 @@ def run_jobs(function: Callable[..., Any], tasks: Sequence[dict], out: str, *, j
             _run_on_devices(function, [(i, tasks[i]) for i in todo], devices, jobs, done)
         else:
             pool: futures.Executor = (
-                futures.ThreadPoolExecutor(max_workers=min(jobs, len(todo))) if threads else
-                futures.ProcessPoolExecutor(max_workers=min(jobs, len(todo)), mp_context=get_context("spawn")))
+                futures.ThreadPoolExecutor(max_workers=min(jobs, len(todo)))
+                if threads
+                else futures.ProcessPoolExecutor(max_workers=min(jobs, len(todo)), mp_context=get_context("spawn"))
+            )
             with pool:
                 submitted = {pool.submit(function, tasks[i]): i for i in todo}
                 for future in futures.as_completed(submitted):
@@ -370,14 +427,21 @@ def _bind_device(device: str) -> None:
         torch.cuda.set_device(torch.device(device))
 
 
-def _run_on_devices(function: Callable[[dict, str], Any], tasks: list[tuple[int, dict]], devices: Sequence[str],
-                    per_device: int, done: Callable[[int, Any], None]) -> None:
+def _run_on_devices(
+    function: Callable[[dict, str], Any],
+    tasks: list[tuple[int, dict]],
+    devices: Sequence[str],
+    per_device: int,
+    done: Callable[[int, Any], None],
+) -> None:
     """`function(task, device)` for the `(index, task)` pairs, in task order as slots free up: a pool of
     `per_device` spawned worker processes per device, each task on the device with the most free
     slots (the first of them on a tie); `done(index, result)` as each finishes."""
     context = get_context("spawn")
-    pools = [futures.ProcessPoolExecutor(max_workers=per_device, mp_context=context, initializer=_bind_device,
-                                         initargs=(d,)) for d in devices]
+    pools = [
+        futures.ProcessPoolExecutor(max_workers=per_device, mp_context=context, initializer=_bind_device, initargs=(d,))
+        for d in devices
+    ]
     free = [per_device] * len(devices)
     waiting = list(reversed(tasks))
     running: dict[futures.Future, tuple[int, int]] = {}
@@ -416,8 +480,17 @@ class TaskRun:
         """`run_record` of this run, with the training and job times summed over `rows`."""
         from .common import run_record
 
-        record = run_record(study_name, study, self.device, self.wall_s, sum(r["train_s"] for r in rows),
-                            sum(r["job_s"] for r in rows), self.jobs, command, self.kept)
+        record = run_record(
+            study_name,
+            study,
+            self.device,
+            self.wall_s,
+            sum(r["train_s"] for r in rows),
+            sum(r["job_s"] for r in rows),
+            self.jobs,
+            command,
+            self.kept,
+        )
         if self.ray is not None:
             record["ray"] = self.ray
         return record
@@ -429,8 +502,10 @@ def run_tasks(study, function: Callable[[dict], dict], label: str, ray: RayOptio
     Ray assigns it."""
     study.validate()
     if ray is not None and study.jobs is not None:
-        raise ValueError(f"--jobs {study.jobs} sets the worker processes on this machine; with --ray each "
-                         "training run is a task (--cpus-per-task, --gpus-per-task)")
+        raise ValueError(
+            f"--jobs {study.jobs} sets the worker processes on this machine; with --ray each "
+            "training run is a task (--cpus-per-task, --gpus-per-task)"
+        )
     if ray is None:
         device = resolve_device(study.device)
         jobs: int | None = resolve_jobs(study.jobs, device)
@@ -441,7 +516,15 @@ def run_tasks(study, function: Callable[[dict], dict], label: str, ray: RayOptio
     if ray is not None:  # workers write the trained policies themselves, wherever Ray starts them
         tasks = [dict(t, policy_dir=os.path.abspath(t["policy_dir"])) if "policy_dir" in t else t for t in tasks]
     start = time.perf_counter()
-    run = run_jobs(function, tasks, study.out, jobs=jobs or 1, device=device, ray=ray, label=label,
-                   report=lambda line: print(line, flush=True))
+    run = run_jobs(
+        function,
+        tasks,
+        study.out,
+        jobs=jobs or 1,
+        device=device,
+        ray=ray,
+        label=label,
+        report=lambda line: print(line, flush=True),
+    )
     record = None if ray is None else dict(ray.record(device), nodes=run.nodes)
     return TaskRun(run.results, run.kept, device, jobs, time.perf_counter() - start, record)

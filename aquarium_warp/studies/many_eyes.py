@@ -135,8 +135,13 @@ class ManyEyesStudy:
 
     def env(self, n: int, fov: float, steps: int, prey_slots: int | None = None) -> dict:
         """The world's config fields (a predator never starves within an episode: one full episode per world)."""
-        env: dict = {"prey_count": n, "predator_count": 1, "max_steps": steps, "predator_starvation_steps": steps,
-                     "prey": {"fov_angle": float(fov), "view_distance": float(self.view_distance)}}
+        env: dict = {
+            "prey_count": n,
+            "predator_count": 1,
+            "max_steps": steps,
+            "predator_starvation_steps": steps,
+            "prey": {"fov_angle": float(fov), "view_distance": float(self.view_distance)},
+        }
         if self.area_per_prey is not None:
             env["width"] = env["height"] = math.sqrt(n * self.area_per_prey)
         if self.recipe:
@@ -160,9 +165,18 @@ class ManyEyesStudy:
                 for fov in self.fov_angles:
                     for seed in range(self.seeds):
                         name = f"{policy}_N{n}_fov{fov:g}_seed{seed}"
-                        tasks.append({"name": name, "policy": policy, "group_size": n, "fov_angle": fov,
-                                      "seed": seed, "device": device, "study": self,
-                                      "policy_dir": os.path.join(self.out, "policies", name)})
+                        tasks.append(
+                            {
+                                "name": name,
+                                "policy": policy,
+                                "group_size": n,
+                                "fov_angle": fov,
+                                "seed": seed,
+                                "device": device,
+                                "study": self,
+                                "policy_dir": os.path.join(self.out, "policies", name),
+                            }
+                        )
         return tasks
 
 
@@ -170,8 +184,18 @@ class FlightOnsets:
     """Streaming detector of flight onsets (module doc) for prey `[W, N]` of a world `width` x `height`;
     `update` once per step, in order."""
 
-    def __init__(self, lag: int, flee_angle: float, flee_distance: float, turn_angle: float, max_speed: float,
-                 view_distance: float, fov_angle: float, width: float, height: float):
+    def __init__(
+        self,
+        lag: int,
+        flee_angle: float,
+        flee_distance: float,
+        turn_angle: float,
+        max_speed: float,
+        view_distance: float,
+        fov_angle: float,
+        width: float,
+        height: float,
+    ):
         self.lag, self.flee_angle, self.flee_distance = lag, flee_angle, flee_distance
         self.cos_turn = math.cos(math.radians(turn_angle))
         self.cos_half_fov = -2.0 if fov_angle >= 360 else math.cos(math.radians(fov_angle / 2))
@@ -180,18 +204,21 @@ class FlightOnsets:
         self.age: torch.Tensor | None = None
         self.sums: dict[str, torch.Tensor] = {}  # onsets, their summed FID and blind ones, on the device (no sync)
 
-    def update(self, position, velocity, heading, alive, predator_position, predator_alive, respawned,
-               pushed=None) -> torch.Tensor:
+    def update(
+        self, position, velocity, heading, alive, predator_position, predator_alive, respawned, pushed=None
+    ) -> torch.Tensor:
         """One step's state (prey `position`, `velocity`, `heading` `[W, N, 2]`, `alive` `[W, N]`, the
         predators', the prey `respawned` in this step `[W, N]` and, optionally, the prey that a same-type
         neighbour pushes in the next step's move `[W, N]`); returns this step's onsets `[W, N]`."""
-        away, distance = common.nearest_predator(position, predator_position, predator_alive, self.width,
-                                                 self.height)
+        away, distance = common.nearest_predator(position, predator_position, predator_alive, self.width, self.height)
         flees = common.fleeing(velocity, away, distance, self.max_speed, self.flee_angle, self.flee_distance) & alive
         visible = (distance <= self.view_distance) & (common.cosine(heading, -away) >= self.cos_half_fov)
         fresh = respawned | ~alive
-        self.age = torch.zeros_like(alive, dtype=torch.int32) if self.age is None else \
-            torch.where(fresh, torch.zeros_like(self.age), self.age + 1)
+        self.age = (
+            torch.zeros_like(alive, dtype=torch.int32)
+            if self.age is None
+            else torch.where(fresh, torch.zeros_like(self.age), self.age + 1)
+        )
         pushed = torch.zeros_like(flees) if pushed is None else pushed.clone()
         self.history.append((velocity.clone(), flees, visible, distance, pushed))
         if len(self.history) < self.lag + 1:
@@ -211,15 +238,26 @@ class FlightOnsets:
         """`common.rollout`'s callback."""
         Pc = view.captured.shape[1]
         t = view.env.state.torch
-        self.update(view.position[:, :Pc], view.velocity[:, :Pc], t.heading[:, :Pc], view.alive[:, :Pc],
-                    view.position[:, Pc:], view.alive[:, Pc:], view.captured, t.contact_partner[:, :Pc] >= 0)
+        self.update(
+            view.position[:, :Pc],
+            view.velocity[:, :Pc],
+            t.heading[:, :Pc],
+            view.alive[:, :Pc],
+            view.position[:, Pc:],
+            view.alive[:, Pc:],
+            view.captured,
+            t.contact_partner[:, :Pc] >= 0,
+        )
 
     def result(self) -> dict[str, float]:
         """Onsets, their mean FID (px) and their blind fraction (NaN without onsets)."""
         sums = {k: float(v) for k, v in self.sums.items()}
         onsets = sums.get("onsets", 0.0)
-        return {"onsets": onsets, "fid": sums["fid"] / onsets if onsets else math.nan,
-                "blind_fraction": sums["blind"] / onsets if onsets else math.nan}
+        return {
+            "onsets": onsets,
+            "fid": sums["fid"] / onsets if onsets else math.nan,
+            "blind_fraction": sums["blind"] / onsets if onsets else math.nan,
+        }
 
 
 def dilution_expectation(group_sizes, captures_per_prey) -> np.ndarray:
@@ -240,8 +278,15 @@ def run_task(task: dict) -> list[dict]:
     train_s, prey = 0.0, "turnaway"
     slots = 0 if task["policy"] == "no-neighbours" else None
     if task["policy"] != "turnaway":
-        config = common.training_config(study.env(n, fov, study.train_steps, slots), "prey", "naivchase",
-                                        max(1, study.rows // n), study.iterations, seed, device)
+        config = common.training_config(
+            study.env(n, fov, study.train_steps, slots),
+            "prey",
+            "naivchase",
+            max(1, study.rows // n),
+            study.iterations,
+            seed,
+            device,
+        )
         if study.recipe:
             config["runner"]["algorithm"]["entropy_coef"] = RECIPE_ENTROPY
         policies, train_s = common.train_and_export(config, task["policy_dir"])
@@ -249,32 +294,56 @@ def run_task(task: dict) -> list[dict]:
     cfg = env_config({"env": study.env(n, fov, study.eval_steps, slots)})
     rows = []
     for predator in PREDATORS:
-        flights = FlightOnsets(study.lag, study.flee_angle, study.flee_distance, study.turn_angle, cfg.prey.max_speed,
-                               cfg.prey.view_distance, cfg.prey.fov_angle, cfg.width, cfg.height)
+        flights = FlightOnsets(
+            study.lag,
+            study.flee_angle,
+            study.flee_distance,
+            study.turn_angle,
+            cfg.prey.max_speed,
+            cfg.prey.view_distance,
+            cfg.prey.fov_angle,
+            cfg.width,
+            cfg.height,
+        )
         worlds = max(2, study.eval_rows // n)
         episodes = common.rollout(cfg, prey, predator, worlds, evaluation_seed(seed), device, flights.on_step)
         f = flights.result()
-        rows.append({"policy": task["policy"], "group_size": n, "fov_angle": fov, "predator": predator, "seed": seed,
-                     "captures_per_prey": float(episodes["captures"].mean()) / n,
-                     "fid": f["fid"], "blind_fraction": f["blind_fraction"],
-                     "onsets_per_prey": f["onsets"] / (worlds * n) * 1000 / (cfg.max_steps - 1)})
+        rows.append(
+            {
+                "policy": task["policy"],
+                "group_size": n,
+                "fov_angle": fov,
+                "predator": predator,
+                "seed": seed,
+                "captures_per_prey": float(episodes["captures"].mean()) / n,
+                "fid": f["fid"],
+                "blind_fraction": f["blind_fraction"],
+                "onsets_per_prey": f["onsets"] / (worlds * n) * 1000 / (cfg.max_steps - 1),
+            }
+        )
     job_s = time.perf_counter() - start
     for row in rows:
         row.update(train_s=train_s / len(rows), job_s=job_s / len(rows))
     return rows
 
 
-def run_many_eyes(study: ManyEyesStudy, command: str | None = None,
-                  ray: RayOptions | None = None) -> dict:
+def run_many_eyes(study: ManyEyesStudy, command: str | None = None, ray: RayOptions | None = None) -> dict:
     """Run every task (`study.jobs` at once), write the CSV, JSON and figure; return the JSON's content.
     `command`: the command line recorded in the JSON (default: this process's, `records.command_line`).
     `ray`: run each training run as a Ray task instead (`jobs`); the JSON then has a "ray" entry."""
     run = run_tasks(study, _task_rows, "many-eyes", ray)
     results = [row for rows in run.results for row in rows["rows"]]
     groups = common.group_rows(results, ("policy", "predator", "fov_angle", "group_size"))
-    entries = [{"policy": p, "predator": pred, "fov_angle": fov, "group_size": n,
-                "metrics": {m: seed_stats([r[m] for r in rs]) for m in MEASURES}}
-               for (p, pred, fov, n), rs in sorted(groups.items())]
+    entries = [
+        {
+            "policy": p,
+            "predator": pred,
+            "fov_angle": fov,
+            "group_size": n,
+            "metrics": {m: seed_stats([r[m] for r in rs]) for m in MEASURES},
+        }
+        for (p, pred, fov, n), rs in sorted(groups.items())
+    ]
     curves: dict[tuple, list[dict]] = {}
     for e in entries:
         curves.setdefault((e["policy"], e["predator"], e["fov_angle"]), []).append(e)
@@ -287,40 +356,58 @@ def run_many_eyes(study: ManyEyesStudy, command: str | None = None,
                 e.setdefault("dilution_expectation", {})[key] = float(x)
     summary = run.record("many-eyes", study, results, command)
     summary["learned_minus_turnaway"] = [
-        {"predator": pred, "fov_angle": fov, "group_size": n,
-         "differences": compare(rs, groups[("turnaway", pred, fov, n)], MEASURES)}
-        for (p, pred, fov, n), rs in sorted(groups.items()) if p == "learned" and study.turnaway]
-    summary["learned_minus_no_neighbours"] = [
-        {"predator": pred, "fov_angle": fov, "group_size": n,
-         "differences": compare(rs, groups[("no-neighbours", pred, fov, n)], MEASURES),
-         "equivalence": {m: _equivalence(rs, groups[("no-neighbours", pred, fov, n)], m) for m in MEASURES}}
+        {
+            "predator": pred,
+            "fov_angle": fov,
+            "group_size": n,
+            "differences": compare(rs, groups[("turnaway", pred, fov, n)], MEASURES),
+        }
         for (p, pred, fov, n), rs in sorted(groups.items())
-        if p == "learned" and ("no-neighbours", pred, fov, n) in groups]
+        if p == "learned" and study.turnaway
+    ]
+    summary["learned_minus_no_neighbours"] = [
+        {
+            "predator": pred,
+            "fov_angle": fov,
+            "group_size": n,
+            "differences": compare(rs, groups[("no-neighbours", pred, fov, n)], MEASURES),
+            "equivalence": {m: _equivalence(rs, groups[("no-neighbours", pred, fov, n)], m) for m in MEASURES},
+        }
+        for (p, pred, fov, n), rs in sorted(groups.items())
+        if p == "learned" and ("no-neighbours", pred, fov, n) in groups
+    ]
     summary["definitions"] = {
         "captures_per_prey": f"captures per prey per episode of {study.eval_steps} steps",
         "dilution_expectation": "c(N0) * N0 / N, N0 the smallest group size: each prey's share of the smallest "
-                                "group's total capture rate (sem scaled alike)",
+        "group's total capture rate (sem scaled alike)",
         "fleeing": f"nearest predator within {study.flee_distance:g} px, speed >= half the max, velocity within "
-                   f"{study.flee_angle:g} degrees of straight away from it",
+        f"{study.flee_angle:g} degrees of straight away from it",
         "onset": f"fleeing at t, not at t-1 nor t-{study.lag}, velocity turned >= {study.turn_angle:g} degrees "
-                 f"since t-{study.lag} with no same-type contact push in those moves, prey alive (no respawn) since "
-                 f"t-{study.lag}",
+        f"since t-{study.lag} with no same-type contact push in those moves, prey alive (no respawn) since "
+        f"t-{study.lag}",
         "fid": f"distance to the nearest predator at t-{study.lag} of an onset, px",
         "blind_fraction": f"onsets where the predator was outside the prey's own view (distance "
-                          f"{study.view_distance:g} px and FOV) at every step t-{study.lag}..t-1",
+        f"{study.view_distance:g} px and FOV) at every step t-{study.lag}..t-1",
         "onsets_per_prey": "flight onsets per prey per 1000 steps",
         "training budget": f"{study.iterations} PPO iterations x 32 steps x {study.rows} prey rows per run "
-                           f"({study.rows} // N worlds): the same prey-steps at every N",
+        f"({study.rows} // N worlds): the same prey-steps at every N",
         "policies": "learned: trained prey (parameter sharing) vs NaivChase; turnaway: the heuristic",
         "predator": "naivchase: a random visible prey each step (confusion); naivchase-noconfusion: the nearest",
         "learned_minus_turnaway": "learned prey minus TurnAway at each predator, FOV and N: difference of the "
-                                  "seed means with its 95% Welch interval (null with fewer than 2 seeds)",
+        "seed means with its 95% Welch interval (null with fewer than 2 seeds)",
         "learned_minus_no_neighbours": "learned prey minus prey trained without prey slots (the neighbour control) "
-                                       f"at each predator, FOV and N > 1; equivalence: TOST within {MARGINS}",
-        "arena": (f"square, side sqrt(N x {study.area_per_prey:g} px^2): the same density at every N"
-                  if study.area_per_prey is not None else "800 x 800 at every N"),
-        "recipe": ("ego observations (neighbours' relative velocity included), random spawn headings, entropy "
-                   f"{RECIPE_ENTROPY}" if study.recipe else "the paper preset's observations and PPO settings"),
+        f"at each predator, FOV and N > 1; equivalence: TOST within {MARGINS}",
+        "arena": (
+            f"square, side sqrt(N x {study.area_per_prey:g} px^2): the same density at every N"
+            if study.area_per_prey is not None
+            else "800 x 800 at every N"
+        ),
+        "recipe": (
+            "ego observations (neighbours' relative velocity included), random spawn headings, entropy "
+            f"{RECIPE_ENTROPY}"
+            if study.recipe
+            else "the paper preset's observations and PPO settings"
+        ),
     }
     summary["results"] = entries
     return common.write_outputs(study.out, "many_eyes", results, summary, plot_many_eyes if study.figures else None)
@@ -347,8 +434,11 @@ def plot_many_eyes(summary: dict, out: str) -> str:
     for row, predator in enumerate(PREDATORS):
         for policy, style in (("learned", "o-"), ("no-neighbours", "^--"), ("turnaway", "s:")):
             for k, fov in enumerate(fovs):
-                curve = [e for e in summary["results"]
-                         if (e["policy"], e["predator"], e["fov_angle"]) == (policy, predator, fov)]
+                curve = [
+                    e
+                    for e in summary["results"]
+                    if (e["policy"], e["predator"], e["fov_angle"]) == (policy, predator, fov)
+                ]
                 if not curve:
                     continue
                 x = np.array([e["group_size"] for e in curve], dtype=float)
@@ -357,10 +447,17 @@ def plot_many_eyes(summary: dict, out: str) -> str:
                 for ax, metric in zip(axes[row], ("captures_per_prey", "fid", "blind_fraction")):
                     common.band(ax, x, [e["metrics"][metric] for e in curve], label, style, color=color)
                 if policy == "learned":
-                    axes[row, 0].plot(x, [e["dilution_expectation"]["mean"] for e in curve], "--", color=color,
-                                      lw=1, alpha=0.7)
-        for ax, ylabel in zip(axes[row], ("captures per prey per episode (dashed: pure dilution)",
-                                          "flight initiation distance (px)", "onsets with the predator unseen")):
+                    axes[row, 0].plot(
+                        x, [e["dilution_expectation"]["mean"] for e in curve], "--", color=color, lw=1, alpha=0.7
+                    )
+        for ax, ylabel in zip(
+            axes[row],
+            (
+                "captures per prey per episode (dashed: pure dilution)",
+                "flight initiation distance (px)",
+                "onsets with the predator unseen",
+            ),
+        ):
             ax.set_xscale("log", base=2)
             ax.set_xlabel("group size N (prey)")
             ax.set_ylabel(ylabel, fontsize=8)
@@ -368,9 +465,13 @@ def plot_many_eyes(summary: dict, out: str) -> str:
             ax.grid(alpha=0.3)
     axes[0, 0].legend(fontsize=6, frameon=False)
     settings = summary["settings"]
-    return common.save_figure(fig, out, "many_eyes.png",
-                              f"Many eyes: prey groups vs one predator; {settings['seeds']} seeds, "
-                              f"{settings['iterations']} PPO iterations x {settings['rows']} prey rows per run")
+    return common.save_figure(
+        fig,
+        out,
+        "many_eyes.png",
+        f"Many eyes: prey groups vs one predator; {settings['seeds']} seeds, "
+        f"{settings['iterations']} PPO iterations x {settings['rows']} prey rows per run",
+    )
 
 
 __all__ = ["ManyEyesStudy", "run_many_eyes", "FlightOnsets", "dilution_expectation"]
@@ -378,42 +479,74 @@ __all__ = ["ManyEyesStudy", "run_many_eyes", "FlightOnsets", "dilution_expectati
 
 # ---------------------------------------------------------------------------------------------- command line
 HELP = "learned prey groups of 1-64 with FOVs 60-360: dilution vs earlier detection"
-DESCRIPTION = ("For every prey group size and FOV angle, train --seeds prey runs (parameter sharing) against NaivChase "
-               "with the same prey-steps per run (--rows // N worlds) and evaluate them against NaivChase with and "
-               "without confusion: captures per prey next to the pure-dilution expectation, flight initiation "
-               "distance and the fraction of flight onsets with the predator out of the prey's own view; TurnAway "
-               "prey as the reference. Writes many_eyes.csv/json/png.")
+DESCRIPTION = (
+    "For every prey group size and FOV angle, train --seeds prey runs (parameter sharing) against NaivChase "
+    "with the same prey-steps per run (--rows // N worlds) and evaluate them against NaivChase with and "
+    "without confusion: captures per prey next to the pure-dilution expectation, flight initiation "
+    "distance and the fraction of flight onsets with the predator out of the prey's own view; TurnAway "
+    "prey as the reference. Writes many_eyes.csv/json/png."
+)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--group-sizes", default="1,4,16,64", help="prey per world (list; default 1,4,16,64)")
     p.add_argument("--fov", default="60,120,240,360", help="prey field-of-view angles, degrees in (0, 360] (list)")
-    p.add_argument("--rows", type=positive_int, default=4096,
-                   help="learning prey per iteration: --rows // N worlds of N prey (default 4096)")
-    p.add_argument("--iterations", type=positive_int, default=120,
-                   help="PPO iterations per run, 32 steps each (default 120)")
+    p.add_argument(
+        "--rows",
+        type=positive_int,
+        default=4096,
+        help="learning prey per iteration: --rows // N worlds of N prey (default 4096)",
+    )
+    p.add_argument(
+        "--iterations", type=positive_int, default=120, help="PPO iterations per run, 32 steps each (default 120)"
+    )
     p.add_argument("--train-steps", type=int_at_least(2), default=500, help="episode length in training (default 500)")
-    p.add_argument("--eval-rows", type=positive_int, default=512,
-                   help="evaluation prey per seed: --eval-rows // N worlds, at least 2 (default 512)")
-    p.add_argument("--eval-steps", type=int_at_least(2), default=1000,
-                   help="evaluation episode length (default 1000)")
+    p.add_argument(
+        "--eval-rows",
+        type=positive_int,
+        default=512,
+        help="evaluation prey per seed: --eval-rows // N worlds, at least 2 (default 512)",
+    )
+    p.add_argument("--eval-steps", type=int_at_least(2), default=1000, help="evaluation episode length (default 1000)")
     p.add_argument("--view-distance", type=positive_float, default=100.0, help="prey view distance, px (default 100)")
-    p.add_argument("--flee-angle", type=non_negative_float, default=45.0,
-                   help="degrees: fleeing = velocity within this of straight away from the predator (default 45)")
-    p.add_argument("--flee-distance", type=positive_float, default=200.0,
-                   help="px: fleeing needs the nearest predator this close (default 200)")
-    p.add_argument("--turn-angle", type=non_negative_float, default=30.0,
-                   help="degrees the prey must turn over --lag steps for a flight onset (default 30)")
+    p.add_argument(
+        "--flee-angle",
+        type=non_negative_float,
+        default=45.0,
+        help="degrees: fleeing = velocity within this of straight away from the predator (default 45)",
+    )
+    p.add_argument(
+        "--flee-distance",
+        type=positive_float,
+        default=200.0,
+        help="px: fleeing needs the nearest predator this close (default 200)",
+    )
+    p.add_argument(
+        "--turn-angle",
+        type=non_negative_float,
+        default=30.0,
+        help="degrees the prey must turn over --lag steps for a flight onset (default 30)",
+    )
     p.add_argument("--lag", type=positive_int, default=5, help="steps of a flight onset's turn (default 5)")
     p.add_argument("--no-turnaway", action="store_true", help="no TurnAway reference")
-    p.add_argument("--area-per-prey", type=positive_float, default=None,
-                   help="px^2 per prey: a square arena of side sqrt(N x this), the same density at every N "
-                        "(default: 800 x 800 at every N; 40000 is 16 prey in 800 x 800)")
-    p.add_argument("--recipe", action="store_true",
-                   help="train with the learned-prey recipe: ego observations (neighbours' relative velocity), "
-                        "random spawn headings, entropy 0.01")
-    p.add_argument("--neighbour-control", action="store_true",
-                   help="also train prey without prey slots at every N > 1 (the neighbour ablation)")
+    p.add_argument(
+        "--area-per-prey",
+        type=positive_float,
+        default=None,
+        help="px^2 per prey: a square arena of side sqrt(N x this), the same density at every N "
+        "(default: 800 x 800 at every N; 40000 is 16 prey in 800 x 800)",
+    )
+    p.add_argument(
+        "--recipe",
+        action="store_true",
+        help="train with the learned-prey recipe: ego observations (neighbours' relative velocity), "
+        "random spawn headings, entropy 0.01",
+    )
+    p.add_argument(
+        "--neighbour-control",
+        action="store_true",
+        help="also train prey without prey slots at every N > 1 (the neighbour ablation)",
+    )
     common.add_common_arguments(p, "many_eyes")
     add_ray_arguments(p, "training run (with its evaluations)")
 
@@ -422,14 +555,31 @@ def run(args: argparse.Namespace) -> int:
     """`aquarium-warp study many-eyes`: learned prey groups, dilution vs detection."""
     study = ManyEyesStudy(
         group_sizes=number_list(args.group_sizes, int, "--group-sizes", 1, 4096),
-        fov_angles=number_list(args.fov, float, "--fov", 0.0, 360.0, low_open=True), seeds=args.seeds,
-        rows=args.rows, iterations=args.iterations, train_steps=args.train_steps, eval_rows=args.eval_rows,
-        eval_steps=args.eval_steps, view_distance=args.view_distance, flee_angle=args.flee_angle,
-        flee_distance=args.flee_distance, turn_angle=args.turn_angle, lag=args.lag, turnaway=not args.no_turnaway,
-        area_per_prey=args.area_per_prey, recipe=args.recipe, neighbour_control=args.neighbour_control,
-        device=args.device, jobs=args.jobs, out=args.out, figures=not args.no_figures)
-    print(f"aquarium-warp study many-eyes: group sizes {study.group_sizes} x FOV {study.fov_angles}, "
-          f"{study.seeds} seeds -> {study.out}")
+        fov_angles=number_list(args.fov, float, "--fov", 0.0, 360.0, low_open=True),
+        seeds=args.seeds,
+        rows=args.rows,
+        iterations=args.iterations,
+        train_steps=args.train_steps,
+        eval_rows=args.eval_rows,
+        eval_steps=args.eval_steps,
+        view_distance=args.view_distance,
+        flee_angle=args.flee_angle,
+        flee_distance=args.flee_distance,
+        turn_angle=args.turn_angle,
+        lag=args.lag,
+        turnaway=not args.no_turnaway,
+        area_per_prey=args.area_per_prey,
+        recipe=args.recipe,
+        neighbour_control=args.neighbour_control,
+        device=args.device,
+        jobs=args.jobs,
+        out=args.out,
+        figures=not args.no_figures,
+    )
+    print(
+        f"aquarium-warp study many-eyes: group sizes {study.group_sizes} x FOV {study.fov_angles}, "
+        f"{study.seeds} seeds -> {study.out}"
+    )
     check_output_dir(study.out, "--out")
     summary = run_many_eyes(study, command_line(args.argv), ray_options(args))
     print(f"{common.written(summary)} ({summary['training_fraction']:.0%} of the workers' time training)")

@@ -33,8 +33,10 @@ def _beta_continued_fraction(a: float, b: float, x: float) -> float:
     d = 1.0 / (d if abs(d) > tiny else tiny)
     h = d
     for m in range(1, 1000):
-        for numerator in (m * (b - m) * x / ((a + 2 * m - 1) * (a + 2 * m)),
-                          -(a + m) * (a + b + m) * x / ((a + 2 * m) * (a + 2 * m + 1))):
+        for numerator in (
+            m * (b - m) * x / ((a + 2 * m - 1) * (a + 2 * m)),
+            -(a + m) * (a + b + m) * x / ((a + 2 * m) * (a + 2 * m + 1)),
+        ):
             d = 1.0 + numerator * d
             d = 1.0 / (d if abs(d) > tiny else tiny)
             c = 1.0 + numerator / c
@@ -111,8 +113,14 @@ def seed_stats(values) -> dict:
     n = len(ok)
     mean, ci95 = mean_interval(ok)
     std = float(ok.std(ddof=1)) if n > 1 else (0.0 if n == 1 else math.nan)
-    return {"mean": mean, "std": std, "sem": std / math.sqrt(n) if n > 1 else math.nan, "ci95": ci95, "n": n,
-            "seeds": [None if math.isnan(x) else float(x) for x in v]}
+    return {
+        "mean": mean,
+        "std": std,
+        "sem": std / math.sqrt(n) if n > 1 else math.nan,
+        "ci95": ci95,
+        "n": n,
+        "seeds": [None if math.isnan(x) else float(x) for x in v],
+    }
 
 
 def interval(values) -> dict:
@@ -132,7 +140,7 @@ def _welch(a, b) -> tuple[float, float, float, int, int]:
         raise ValueError(f"a difference needs at least two values per condition (got {len(x)} and {len(y)})")
     va, vb = float(x.var(ddof=1)) / len(x), float(y.var(ddof=1)) / len(y)
     se = math.sqrt(va + vb)
-    df = (va + vb) ** 2 / (va ** 2 / (len(x) - 1) + vb ** 2 / (len(y) - 1)) if se > 0 else math.inf
+    df = (va + vb) ** 2 / (va**2 / (len(x) - 1) + vb**2 / (len(y) - 1)) if se > 0 else math.inf
     return float(x.mean() - y.mean()), se, df, len(x), len(y)
 
 
@@ -154,16 +162,25 @@ def _interval(diff: float, se: float, df: float, confidence: float) -> tuple[flo
     return diff - half, diff + half
 
 
-def difference(a: Sequence[float] | np.ndarray, b: Sequence[float] | np.ndarray, confidence: float = 0.95,
-               paired: bool = False) -> dict:
+def difference(
+    a: Sequence[float] | np.ndarray, b: Sequence[float] | np.ndarray, confidence: float = 0.95, paired: bool = False
+) -> dict:
     """Mean of `a` minus mean of `b` (per-seed values of two conditions, NaN left out) with its Welch
     interval at `confidence`: `difference`, `low`, `high`, `se`, `df` (None where both conditions are
     constant: the interval is the point), `n_a`, `n_b`. `paired`: `a[i]` and `b[i]` measure the same
     seed, and the interval is the t interval of the differences `a[i] - b[i]` (n_a = n_b = the pairs)."""
     diff, se, df, na, nb = _paired(a, b) if paired else _welch(a, b)
     low, high = _interval(diff, se, df, confidence)
-    return {"difference": diff, "low": low, "high": high, "confidence": confidence, "se": se,
-            "df": df if math.isfinite(df) else None, "n_a": na, "n_b": nb}
+    return {
+        "difference": diff,
+        "low": low,
+        "high": high,
+        "confidence": confidence,
+        "se": se,
+        "df": df if math.isfinite(df) else None,
+        "n_a": na,
+        "n_b": nb,
+    }
 
 
 def compare(a: Sequence[dict], b: Sequence[dict], measures: Sequence[str], confidence: float = 0.95) -> dict:
@@ -176,8 +193,9 @@ def compare(a: Sequence[dict], b: Sequence[dict], measures: Sequence[str], confi
     return out
 
 
-def equivalence(a: Sequence[float], b: Sequence[float], margin: float, alpha: float = 0.05,
-                paired: bool = False) -> dict:
+def equivalence(
+    a: Sequence[float], b: Sequence[float], margin: float, alpha: float = 0.05, paired: bool = False
+) -> dict:
     """TOST of "`a` and `b` differ by less than `margin`": `equivalent` when the (1 - 2 alpha) Welch
     interval of the difference (`low`, `high`: 90% at the default alpha; `paired`: of the matched
     differences, as in `difference`) lies inside (-margin, margin), i.e. both one-sided tests reject at
@@ -192,5 +210,14 @@ def equivalence(a: Sequence[float], b: Sequence[float], margin: float, alpha: fl
         p = max(t_tail((diff + margin) / se, df), t_tail((margin - diff) / se, df))
     else:
         p = 0.0 if abs(diff) < margin else 1.0
-    return {"difference": diff, "low": low, "high": high, "confidence": 1.0 - 2.0 * alpha, "margin": margin,
-            "equivalent": bool(-margin < low and high < margin), "p": p, "n_a": na, "n_b": nb}
+    return {
+        "difference": diff,
+        "low": low,
+        "high": high,
+        "confidence": 1.0 - 2.0 * alpha,
+        "margin": margin,
+        "equivalent": bool(-margin < low and high < margin),
+        "p": p,
+        "n_a": na,
+        "n_b": nb,
+    }

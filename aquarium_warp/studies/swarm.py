@@ -74,19 +74,39 @@ CONDITIONS: dict[str, dict] = {
     "swarm-2x": {"prey": 32, "sets": (), "opponent": "naivchase", "budget": 2},
     # Where the screen finds that flocking pays (a predator slower than the prey, N <= 16, 200 px).
     "slow-predator": {"prey": 16, "sets": ("env.predator.max_speed=3.5",), "opponent": "naivchase"},
-    "slow-predator-no-neighbours": {"prey": 16, "sets": ("env.predator.max_speed=3.5", "env.prey.prey_slots=0"),
-                                    "opponent": "naivchase"},
+    "slow-predator-no-neighbours": {
+        "prey": 16,
+        "sets": ("env.predator.max_speed=3.5", "env.prey.prey_slots=0"),
+        "opponent": "naivchase",
+    },
 }
 # "a minus b" comparisons between conditions (each against NaivChase): a treatment and its control.
-CONTRASTS = (("swarm", "no-neighbours"), ("swarm", "no-attack"), ("swarm", "no-penalty"), ("swarm", "no-confusion"),
-             ("swarm", "sparse"), ("swarm", "swarm-2x"), ("slow-predator", "slow-predator-no-neighbours"))
+CONTRASTS = (
+    ("swarm", "no-neighbours"),
+    ("swarm", "no-attack"),
+    ("swarm", "no-penalty"),
+    ("swarm", "no-confusion"),
+    ("swarm", "sparse"),
+    ("swarm", "swarm-2x"),
+    ("slow-predator", "slow-predator-no-neighbours"),
+)
 # Evaluations of each trained policy: label -> (predator, prey slots emptied)
-EVALUATIONS = {"naivchase": ("naivchase", False), "blind": ("naivchase", True),
-               "noconfusion": ("naivchase-noconfusion", False)}
+EVALUATIONS = {
+    "naivchase": ("naivchase", False),
+    "blind": ("naivchase", True),
+    "noconfusion": ("naivchase-noconfusion", False),
+}
 HEURISTIC_PREY = ("random", "constant", "turnaway", "boids")
 PREDATORS = ("naivchase", "naivchase-noconfusion")
-MEASURES = ("captures_per_prey", "swarm_nn_mean", "swarm_local_alignment", "swarm_milling", "swarm_polarization",
-            "swarm_largest_group", "swarm_groups")
+MEASURES = (
+    "captures_per_prey",
+    "swarm_nn_mean",
+    "swarm_local_alignment",
+    "swarm_milling",
+    "swarm_polarization",
+    "swarm_largest_group",
+    "swarm_groups",
+)
 PRIMARY = "aggregation_index"
 # Equivalence margins, declared with the design: |difference| inside the margin reads "no effect".
 MARGINS = {"aggregation_index": 0.05, "swarm_local_alignment": 0.05, "captures_per_prey_relative": 0.10}
@@ -95,35 +115,51 @@ TRAIN_AGENT_STEPS = 32 * 256 * 32 * 500
 
 
 HELP = "can collective behaviour pay, and does it emerge in learned prey? (heuristic screen, learned prey, controls)"
-DESCRIPTION = ("Part screen: heuristic prey (random, constant, TurnAway, Boids) against NaivChase with and without "
-               "confusion over density, prey view distance and predator speed, with the aggregation index against "
-               "uniformly random prey. Part learned: train --seeds prey runs per condition (the swarm scenario and its "
-               "controls), evaluate each with and without its prey slots and against NaivChase without confusion, "
-               "and compare the conditions with 95% intervals and declared equivalence margins. Tasks keep their "
-               "results in --out (finished/); a rerun runs only what is missing. Writes summary.json, screen.csv, "
-               "learned.csv and figures.")
+DESCRIPTION = (
+    "Part screen: heuristic prey (random, constant, TurnAway, Boids) against NaivChase with and without "
+    "confusion over density, prey view distance and predator speed, with the aggregation index against "
+    "uniformly random prey. Part learned: train --seeds prey runs per condition (the swarm scenario and its "
+    "controls), evaluate each with and without its prey slots and against NaivChase without confusion, "
+    "and compare the conditions with 95% intervals and declared equivalence margins. Tasks keep their "
+    "results in --out (finished/); a rerun runs only what is missing. Writes summary.json, screen.csv, "
+    "learned.csv and figures."
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--part", choices=("screen", "learned", "all"), default="all",
-                        help="the heuristic scenario screen, the learned prey with their controls, or both")
+    parser.add_argument(
+        "--part",
+        choices=("screen", "learned", "all"),
+        default="all",
+        help="the heuristic scenario screen, the learned prey with their controls, or both",
+    )
     parser.add_argument("--prey-counts", default="8,16,32,64", help="screen: prey per world (density)")
     parser.add_argument("--view-distances", default="100,200,400", help="screen: prey view distances, px (360 deg)")
-    parser.add_argument("--predator-speeds", default="5,4.5,4,3.5",
-                        help="screen: predator max speeds (the prey's is 4)")
+    parser.add_argument(
+        "--predator-speeds", default="5,4.5,4,3.5", help="screen: predator max speeds (the prey's is 4)"
+    )
     parser.add_argument("--conditions", default=",".join(CONDITIONS), help="learned: conditions to train")
     parser.add_argument("--seeds", type=int, default=5, help="learned: training seeds per condition (>= 2)")
     parser.add_argument("--iterations", type=int, default=500, help="learned: PPO iterations per run")
-    parser.add_argument("--train-worlds", type=int, default=None,
-                        help="learned: worlds per training run (default: TRAIN_AGENT_STEPS / (prey x 32 x iterations))")
+    parser.add_argument(
+        "--train-worlds",
+        type=int,
+        default=None,
+        help="learned: worlds per training run (default: TRAIN_AGENT_STEPS / (prey x 32 x iterations))",
+    )
     parser.add_argument("--episodes", type=int, default=64, help="evaluation episodes per evaluation seed")
     parser.add_argument("--eval-seeds", type=int, default=2, help="evaluation seeds")
     parser.add_argument("--max-steps", type=int, default=3000, help="episode length (docs/model.md: 3000)")
     parser.add_argument("--gpus", type=int, default=None, help="GPUs to spread tasks over (default: all; 0: CPU)")
     parser.add_argument("--per-gpu", type=int, default=4, help="tasks at a time per GPU")
     parser.add_argument("--train-preset", default="paper", help="learned: the preset trained from")
-    parser.add_argument("--train-set", action="append", default=[], metavar="KEY=VALUE",
-                        help="learned: extra `train --set` assignments (tiny smoke runs)")
+    parser.add_argument(
+        "--train-set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="learned: extra `train --set` assignments (tiny smoke runs)",
+    )
     parser.add_argument("--commit", default=None, help="the commit to record (a copy without git history)")
     parser.add_argument("--no-figures", action="store_true", help="no matplotlib figures")
     parser.add_argument("--out", default="swarm_study", help="output directory")
@@ -137,9 +173,14 @@ def check(args) -> None:
     if unknown or not conditions:
         raise ValueError(f"--conditions={args.conditions!r}: choose from {', '.join(CONDITIONS)}")
     check_distinct("--conditions", conditions)
-    for name, value, low in (("--seeds", args.seeds, 2), ("--iterations", args.iterations, 1),
-                             ("--episodes", args.episodes, 1), ("--eval-seeds", args.eval_seeds, 1),
-                             ("--max-steps", args.max_steps, 1), ("--per-gpu", args.per_gpu, 1)):
+    for name, value, low in (
+        ("--seeds", args.seeds, 2),
+        ("--iterations", args.iterations, 1),
+        ("--episodes", args.episodes, 1),
+        ("--eval-seeds", args.eval_seeds, 1),
+        ("--max-steps", args.max_steps, 1),
+        ("--per-gpu", args.per_gpu, 1),
+    ):
         check_int(name, value, low)
     if args.train_worlds is not None:
         check_int("--train-worlds", args.train_worlds, 1)
@@ -148,24 +189,30 @@ def check(args) -> None:
     args.prey_count_list = number_list(args.prey_counts, int, "--prey-counts", 2)
     args.view_list = number_list(args.view_distances, float, "--view-distances", 1)
     args.speed_list = number_list(args.predator_speeds, float, "--predator-speeds", 0, low_open=True)
-    for name, values in (("--prey-counts", args.prey_count_list), ("--view-distances", args.view_list),
-                         ("--predator-speeds", args.speed_list)):
+    for name, values in (
+        ("--prey-counts", args.prey_count_list),
+        ("--view-distances", args.view_list),
+        ("--predator-speeds", args.speed_list),
+    ):
         check_distinct(name, values)  # a repeated value would name one task twice
     args.condition_list = conditions
 
 
 # ---- the tasks (`jobs.run_jobs`: kept in <out>/finished/, spread over the GPUs) -----------------------
 
-def run_part(heading: str, function: Callable[[dict, str], dict], tasks: list[dict], args,
-             devices: Sequence[str], label: str) -> list[dict]:
+
+def run_part(
+    heading: str, function: Callable[[dict, str], dict], tasks: list[dict], args, devices: Sequence[str], label: str
+) -> list[dict]:
     """The results of `tasks` (`function(task, device)`) in task order, the kept ones read back: on the
     GPUs `--per-gpu` at a time on each, on the CPU one at a time here (Warp's CPU kernels take one
     thread each)."""
     todo = sum(not read_finished(args.out, task)[0] for task in tasks)
     print(f"study swarm: {heading} ({todo} to run)", flush=True)
     jobs = args.per_gpu if devices[0] != "cpu" else 1
-    return run_jobs(function, tasks, args.out, jobs=jobs, devices=devices, label=label,
-                    report=lambda line: print(line, flush=True)).results
+    return run_jobs(
+        function, tasks, args.out, jobs=jobs, devices=devices, label=label, report=lambda line: print(line, flush=True)
+    ).results
 
 
 def screen_config(n: int, view: float, predator_speed: float, max_steps: int):
@@ -174,8 +221,10 @@ def screen_config(n: int, view: float, predator_speed: float, max_steps: int):
     from ..config import AquariumConfig
 
     cfg = AquariumConfig(prey_count=n, max_prey=max(n, 20), max_steps=max_steps, spawn_heading="random")
-    return cfg.replace(prey=dataclasses.replace(cfg.prey, fov_angle=360.0, view_distance=view),
-                       predator=dataclasses.replace(cfg.predator, max_speed=predator_speed))
+    return cfg.replace(
+        prey=dataclasses.replace(cfg.prey, fov_angle=360.0, view_distance=view),
+        predator=dataclasses.replace(cfg.predator, max_speed=predator_speed),
+    )
 
 
 def per_seed_values(result: dict, prey_label: str, predator_label: str) -> dict[str, list[float]]:
@@ -185,8 +234,14 @@ def per_seed_values(result: dict, prey_label: str, predator_label: str) -> dict[
     for m in MEASURES:
         out[m] = []
         for s in seeds:
-            values = [r[m] for r in result["episodes"] if r["prey_policy"] == prey_label
-                      and r["predator_policy"] == predator_label and r["seed"] == s and not math.isnan(r[m])]
+            values = [
+                r[m]
+                for r in result["episodes"]
+                if r["prey_policy"] == prey_label
+                and r["predator_policy"] == predator_label
+                and r["seed"] == s
+                and not math.isnan(r[m])
+            ]
             out[m].append(sum(values) / len(values) if values else float("nan"))
     return out
 
@@ -204,16 +259,24 @@ def run_heuristics(cfg, task: dict, device: str) -> dict:
     (as JSON writes it: a NaN, a measure without a sample, as None)."""
     from ..training.evaluate import evaluate_policies
 
-    result = evaluate_policies(list(HEURISTIC_PREY), list(PREDATORS), cfg, episodes=task["episodes"],
-                               seeds=range(task["eval_seeds"]), device=device)
+    result = evaluate_policies(
+        list(HEURISTIC_PREY),
+        list(PREDATORS),
+        cfg,
+        episodes=task["episodes"],
+        seeds=range(task["eval_seeds"]),
+        device=device,
+    )
     values = {f"{p}|{q}": per_seed_values(result, p, q) for p in HEURISTIC_PREY for q in PREDATORS}
-    return json_safe({"values": values, "uniform": uniform_measures(cfg, device), "machine": result["machine"],
-                      "env": cfg.to_dict()})
+    return json_safe(
+        {"values": values, "uniform": uniform_measures(cfg, device), "machine": result["machine"], "env": cfg.to_dict()}
+    )
 
 
 def run_screen_task(task: dict, device: str) -> dict:
-    return run_heuristics(screen_config(task["prey"], task["view"], task["predator_speed"], task["max_steps"]), task,
-                          device)
+    return run_heuristics(
+        screen_config(task["prey"], task["view"], task["predator_speed"], task["max_steps"]), task, device
+    )
 
 
 def policy_world(task: dict):
@@ -233,13 +296,20 @@ def run_eval_task(task: dict, device: str) -> dict:
     for label, (predator, blind) in EVALUATIONS.items():
         if blind and cfg.prey.prey_slots == 0:
             continue  # no prey slots to empty
-        result = evaluate_policies([f"learned={policy_path(task['run_dir'])}"], [predator], cfg,
-                                   episodes=task["episodes"], seeds=range(task["eval_seeds"]), device=device,
-                                   blind_to={"prey": "prey"} if blind else None)
+        result = evaluate_policies(
+            [f"learned={policy_path(task['run_dir'])}"],
+            [predator],
+            cfg,
+            episodes=task["episodes"],
+            seeds=range(task["eval_seeds"]),
+            device=device,
+            blind_to={"prey": "prey"} if blind else None,
+        )
         values[label] = per_seed_values(result, "learned", predator)
         machine = result["machine"]
-    return json_safe({"values": values, "uniform": uniform_measures(cfg, device), "machine": machine,
-                      "env": cfg.to_dict()})
+    return json_safe(
+        {"values": values, "uniform": uniform_measures(cfg, device), "machine": machine, "env": cfg.to_dict()}
+    )
 
 
 def run_baseline_task(task: dict, device: str) -> dict:
@@ -248,6 +318,7 @@ def run_baseline_task(task: dict, device: str) -> dict:
 
 
 # ---- training ---------------------------------------------------------------------------------------
+
 
 def run_dir(out: str, condition: str, seed: int) -> str:
     return os.path.join(out, "runs", f"{condition}-s{seed}")
@@ -265,16 +336,27 @@ def run_config(args, condition: str, seed: int) -> dict:
     spec = CONDITIONS[condition]
     worlds = args.train_worlds or max(1, TRAIN_AGENT_STEPS // (spec["prey"] * 32 * args.iterations))
     iterations = args.iterations * spec.get("budget", 1)
-    changes = {"train": {"team": "prey", "device": None, "seed": seed, "quiet": True, "export": "jit",
-                         "num_worlds": worlds, "iterations": iterations, "episodes": None},
-               "env": {"prey_count": spec["prey"]},
-               "runner": {"save_interval": iterations, "algorithm": {"entropy_coef": 0.01}}}
+    changes = {
+        "train": {
+            "team": "prey",
+            "device": None,
+            "seed": seed,
+            "quiet": True,
+            "export": "jit",
+            "num_worlds": worlds,
+            "iterations": iterations,
+            "episodes": None,
+        },
+        "env": {"prey_count": spec["prey"]},
+        "runner": {"save_interval": iterations, "algorithm": {"entropy_coef": 0.01}},
+    }
     for assignment in SCENARIO + RECIPE + tuple(spec["sets"]) + tuple(args.train_set):
         deep_update(changes, parse_assignment(assignment))
     return make_config(args.train_preset, deep_update(changes, {"train": {"opponent": spec["opponent"]}}))
 
 
 # ---- statistics (statistics.py: Student-t intervals, Welch or paired differences, TOST) ---------------
+
 
 def comparison(a: Sequence[float], b: Sequence[float], paired: bool, margin: float | None) -> dict:
     """mean(a) - mean(b) with the half-width of its 95% interval (`paired`: of the matched differences,
@@ -289,6 +371,7 @@ def comparison(a: Sequence[float], b: Sequence[float], paired: bool, margin: flo
 
 
 # ---- the summary ------------------------------------------------------------------------------------
+
 
 def _values(record: dict, key: str, measure: str) -> list[float]:
     """One value per evaluation seed of `measure` (the aggregation index from the mean NN distance)."""
@@ -309,8 +392,13 @@ def summarize_screen(tasks: Sequence[dict], records: Sequence[dict]) -> list[dic
         for p in HEURISTIC_PREY:
             for q in PREDATORS:
                 key = f"{p}|{q}"
-                row = {"prey_count": task["prey"], "view_distance": task["view"],
-                       "predator_speed": task["predator_speed"], "prey_policy": p, "predator_policy": q}
+                row = {
+                    "prey_count": task["prey"],
+                    "view_distance": task["view"],
+                    "predator_speed": task["predator_speed"],
+                    "prey_policy": p,
+                    "predator_policy": q,
+                }
                 for m in MEASURES + (PRIMARY,):
                     row[m] = interval(_values(record, key, m))
                 row["uniform"] = record["uniform"]
@@ -332,8 +420,7 @@ def summarize_learned(evaluations: Sequence[tuple[dict, dict]], baselines: Seque
         entry: dict = {"seeds": [task["seed"] for task, _ in evaluated], "uniform": records[0]["uniform"]}
         for label in EVALUATIONS:
             if label in records[0]["values"]:
-                entry[label] = {m: interval([seed_value(r, label, m) for r in records])
-                                for m in MEASURES + (PRIMARY,)}
+                entry[label] = {m: interval([seed_value(r, label, m) for r in records]) for m in MEASURES + (PRIMARY,)}
         baseline = baseline_of.get(c)
         if baseline is not None:  # over evaluation seeds
             for label in baseline["values"]:
@@ -364,29 +451,69 @@ def summarize_learned(evaluations: Sequence[tuple[dict, dict]], baselines: Seque
 
 
 def screen_tasks(args) -> list[dict]:
-    return [{"name": f"screen-n{n}-v{int(v)}-p{s:g}", "prey": n, "view": v, "predator_speed": s,
-             "episodes": args.episodes, "eval_seeds": args.eval_seeds, "max_steps": args.max_steps}
-            for n in args.prey_count_list for v in args.view_list for s in args.speed_list]
+    return [
+        {
+            "name": f"screen-n{n}-v{int(v)}-p{s:g}",
+            "prey": n,
+            "view": v,
+            "predator_speed": s,
+            "episodes": args.episodes,
+            "eval_seeds": args.eval_seeds,
+            "max_steps": args.max_steps,
+        }
+        for n in args.prey_count_list
+        for v in args.view_list
+        for s in args.speed_list
+    ]
 
 
 def training_tasks(args) -> list[dict]:
-    return [{"name": f"train-{c}-s{s}", "condition": c, "seed": s, "config": run_config(args, c, s),
-             "run_dir": run_dir(args.out, c, s)} for c in args.condition_list for s in range(args.seeds)]
+    return [
+        {
+            "name": f"train-{c}-s{s}",
+            "condition": c,
+            "seed": s,
+            "config": run_config(args, c, s),
+            "run_dir": run_dir(args.out, c, s),
+        }
+        for c in args.condition_list
+        for s in range(args.seeds)
+    ]
 
 
 def eval_tasks(args, trainings: Sequence[dict]) -> list[dict]:
     """An evaluation of each training run's policy; its config is part of the task, so that a run
     trained again with other settings is evaluated again."""
-    return [{"name": f"eval-{t['condition']}-s{t['seed']}", "condition": t["condition"], "seed": t["seed"],
-             "training": t["config"], "run_dir": t["run_dir"], "episodes": args.episodes,
-             "eval_seeds": args.eval_seeds, "max_steps": args.max_steps} for t in trainings]
+    return [
+        {
+            "name": f"eval-{t['condition']}-s{t['seed']}",
+            "condition": t["condition"],
+            "seed": t["seed"],
+            "training": t["config"],
+            "run_dir": t["run_dir"],
+            "episodes": args.episodes,
+            "eval_seeds": args.eval_seeds,
+            "max_steps": args.max_steps,
+        }
+        for t in trainings
+    ]
 
 
 def baseline_tasks(args, trainings: Sequence[dict]) -> list[dict]:
     """The heuristics in each condition's world, that of its first seed's run."""
-    return [{"name": f"baseline-{t['condition']}", "condition": t["condition"], "training": t["config"],
-             "run_dir": t["run_dir"], "episodes": args.episodes, "eval_seeds": args.eval_seeds,
-             "max_steps": args.max_steps} for t in trainings if t["seed"] == 0]
+    return [
+        {
+            "name": f"baseline-{t['condition']}",
+            "condition": t["condition"],
+            "training": t["config"],
+            "run_dir": t["run_dir"],
+            "episodes": args.episodes,
+            "eval_seeds": args.eval_seeds,
+            "max_steps": args.max_steps,
+        }
+        for t in trainings
+        if t["seed"] == 0
+    ]
 
 
 def run(args) -> int:
@@ -397,30 +524,59 @@ def run(args) -> int:
     trainings = training_tasks(args) if args.part in ("learned", "all") else []  # their configs checked first
     os.makedirs(args.out, exist_ok=True)
     start = time.perf_counter()
-    summary: dict = {"design": {"scenario": SCENARIO, "recipe": RECIPE, "conditions": CONDITIONS,
-                                "evaluations": EVALUATIONS, "primary": PRIMARY, "margins": MARGINS,
-                                "train_agent_steps": TRAIN_AGENT_STEPS, "iterations": args.iterations,
-                                "episodes": args.episodes, "eval_seeds": args.eval_seeds,
-                                "max_steps": args.max_steps, "seeds": args.seeds}}
+    summary: dict = {
+        "design": {
+            "scenario": SCENARIO,
+            "recipe": RECIPE,
+            "conditions": CONDITIONS,
+            "evaluations": EVALUATIONS,
+            "primary": PRIMARY,
+            "margins": MARGINS,
+            "train_agent_steps": TRAIN_AGENT_STEPS,
+            "iterations": args.iterations,
+            "episodes": args.episodes,
+            "eval_seeds": args.eval_seeds,
+            "max_steps": args.max_steps,
+            "seeds": args.seeds,
+        }
+    }
     if args.part in ("screen", "all"):
         tasks = screen_tasks(args)
         records = run_part(f"screen, {len(tasks)} worlds", run_screen_task, tasks, args, devices, "screen")
         summary["screen"] = summarize_screen(tasks, records)
     if trainings:
-        trained = run_part(f"training {len(args.condition_list)} conditions x {args.seeds} seeds", run_training_task,
-                           trainings, args, devices, "train")
-        summary["trainings"] = [{"condition": t["condition"], "seed": t["seed"], "run_dir": t["run_dir"], **r}
-                                for t, r in zip(trainings, trained, strict=True)]
+        trained = run_part(
+            f"training {len(args.condition_list)} conditions x {args.seeds} seeds",
+            run_training_task,
+            trainings,
+            args,
+            devices,
+            "train",
+        )
+        summary["trainings"] = [
+            {"condition": t["condition"], "seed": t["seed"], "run_dir": t["run_dir"], **r}
+            for t, r in zip(trainings, trained, strict=True)
+        ]
         evaluations = eval_tasks(args, trainings)
-        evaluated = run_part(f"evaluating {len(evaluations)} policies", run_eval_task, evaluations, args, devices,
-                             "eval")
+        evaluated = run_part(
+            f"evaluating {len(evaluations)} policies", run_eval_task, evaluations, args, devices, "eval"
+        )
         baselines = baseline_tasks(args, trainings)
-        heuristics = run_part(f"heuristic prey in {len(baselines)} conditions' worlds", run_baseline_task, baselines,
-                              args, devices, "baselines")
-        summary["learned"] = summarize_learned(list(zip(evaluations, evaluated, strict=True)),
-                                               list(zip(baselines, heuristics, strict=True)))
-    summary.update(provenance(devices[0], command_line(args.argv), commit=args.commit),
-                   wall_s=round(time.perf_counter() - start, 1))
+        heuristics = run_part(
+            f"heuristic prey in {len(baselines)} conditions' worlds",
+            run_baseline_task,
+            baselines,
+            args,
+            devices,
+            "baselines",
+        )
+        summary["learned"] = summarize_learned(
+            list(zip(evaluations, evaluated, strict=True)), list(zip(baselines, heuristics, strict=True))
+        )
+    summary.update(
+        provenance(devices[0], command_line(args.argv), commit=args.commit),
+        wall_s=round(time.perf_counter() - start, 1),
+    )
     with atomic_open(os.path.join(args.out, "summary.json")) as f:
         json.dump(json_safe(summary), f, indent=1)
     write_tables(args.out, summary)
@@ -431,6 +587,7 @@ def run(args) -> int:
 
 
 # ---- tables and figures -----------------------------------------------------------------------------
+
 
 def write_tables(out: str, summary: dict) -> None:
     """`screen.csv` (one row per world, prey and predator: means and interval half-widths) and
@@ -445,8 +602,10 @@ def write_tables(out: str, summary: dict) -> None:
             w = csv.writer(f)
             w.writerow(columns + [f"{m}{s}" for m in MEASURES + (PRIMARY,) for s in ("", "_ci95")])
             for row in summary["screen"]:
-                w.writerow([row[c] for c in columns] + [v for m in MEASURES + (PRIMARY,)
-                                                        for v in (row[m]["mean"], row[m]["ci95"])])
+                w.writerow(
+                    [row[c] for c in columns]
+                    + [v for m in MEASURES + (PRIMARY,) for v in (row[m]["mean"], row[m]["ci95"])]
+                )
     learned = summary.get("learned", {}).get("conditions", {})
     if learned:
         with atomic_open(os.path.join(out, "learned.csv"), newline="") as f:
@@ -456,9 +615,13 @@ def write_tables(out: str, summary: dict) -> None:
                 for label in EVALUATIONS:
                     if label in entry:
                         for k, seed in enumerate(entry["seeds"]):
-                            w.writerow([c, label, seed] + [entry[label][m]["values"][k]
-                                                           if k < len(entry[label][m]["values"]) else ""
-                                                           for m in MEASURES + (PRIMARY,)])
+                            w.writerow(
+                                [c, label, seed]
+                                + [
+                                    entry[label][m]["values"][k] if k < len(entry[label][m]["values"]) else ""
+                                    for m in MEASURES + (PRIMARY,)
+                                ]
+                            )
 
 
 def plot(out: str, summary: dict) -> None:
@@ -472,16 +635,23 @@ def plot(out: str, summary: dict) -> None:
     rows = summary.get("screen") or []
     if rows:
         speeds = sorted({r["predator_speed"] for r in rows})
-        fig, axes = plt.subplots(len(PREDATORS), len(speeds), figsize=(3.6 * len(speeds), 3.2 * len(PREDATORS)),
-                                 sharey=True, squeeze=False)
+        fig, axes = plt.subplots(
+            len(PREDATORS), len(speeds), figsize=(3.6 * len(speeds), 3.2 * len(PREDATORS)), sharey=True, squeeze=False
+        )
         for i, (speed, predator) in enumerate((s, q) for s in speeds for q in PREDATORS):
             ax = axes[i % len(PREDATORS), i // len(PREDATORS)]
             for view in sorted({r["view_distance"] for r in rows}):
-                pick = {(r["prey_count"], r["prey_policy"]): r for r in rows if r["predator_speed"] == speed
-                        and r["view_distance"] == view and r["predator_policy"] == predator}
+                pick = {
+                    (r["prey_count"], r["prey_policy"]): r
+                    for r in rows
+                    if r["predator_speed"] == speed and r["view_distance"] == view and r["predator_policy"] == predator
+                }
                 counts = sorted({n for n, _ in pick})
-                ratio = [pick[(n, "boids")]["captures_per_prey"]["mean"]
-                         / max(pick[(n, "turnaway")]["captures_per_prey"]["mean"], 1e-9) for n in counts]
+                ratio = [
+                    pick[(n, "boids")]["captures_per_prey"]["mean"]
+                    / max(pick[(n, "turnaway")]["captures_per_prey"]["mean"], 1e-9)
+                    for n in counts
+                ]
                 ax.plot(counts, ratio, "o-", label=f"view {view:g} px")
             ax.axhline(1.0, color="grey", lw=0.8)
             ax.set_xscale("log", base=2)

@@ -78,8 +78,10 @@ from .swarm_size_plots import plot_study
 RESULT_METRICS = ("captures", "captures_per_prey") + EPISODE_METRICS + ("episode_length",)
 POPULATION_TRACES = ("prey_alive", "predator_alive")
 # The "definitions" entry of swarm_size.json for the baselines (written by the study and by replot).
-UNIFORM_BASELINE_DEFINITION = ("the same metrics for uniformly random prey and predator positions and headings "
-                               "(same arena and N; mean over snapshots of about 65k prey in all)")
+UNIFORM_BASELINE_DEFINITION = (
+    "the same metrics for uniformly random prey and predator positions and headings "
+    "(same arena and N; mean over snapshots of about 65k prey in all)"
+)
 
 
 def parse_world_size(text) -> tuple[float, float]:
@@ -100,7 +102,7 @@ def parse_world_size(text) -> tuple[float, float]:
 class SwarmSizeStudy:
     """Settings of a swarm-size study (the CLI's options)."""
 
-    prey: list[int] = field(default_factory=lambda: [4 * 2 ** k for k in range(11)])  # 4 .. 4096
+    prey: list[int] = field(default_factory=lambda: [4 * 2**k for k in range(11)])  # 4 .. 4096
     seeds: int = 5
     episodes_per_seed: int = 1
     episode_steps: int = 3000
@@ -159,9 +161,11 @@ class SwarmSizeStudy:
         if self.one_batch and self.reproduction:
             raise ValueError("one batch: max_prey (2 N with reproduction) sizes the arrays, so not with reproduction")
         if self.one_batch and self.jobs is not None and self.jobs > 1:
-            raise ValueError(f"--jobs {self.jobs} runs settings at once, a batch each; one batch holds every setting "
-                             "(--one-batch, fov-view's default): drop --jobs, or use one batch per setting "
-                             "(fov-view --per-setting)")
+            raise ValueError(
+                f"--jobs {self.jobs} runs settings at once, a batch each; one batch holds every setting "
+                "(--one-batch, fov-view's default): drop --jobs, or use one batch per setting "
+                "(fov-view --per-setting)"
+            )
 
     def settings(self) -> list[dict]:
         """One dict per (fov angle, view distance, prey count), with its `AquariumConfig` (where a team is a
@@ -180,24 +184,39 @@ class SwarmSizeStudy:
                     if self.constant_density:
                         scale = math.sqrt(n / self.reference_prey)
                         width, height = width * scale, height * scale
-                    changes = dict(width=float(width), height=float(height), prey_count=int(n),
-                                   predator_count=self.predators, max_steps=self.episode_steps,
-                                   respawn_captured_prey=self.respawn,
-                                   prey=dataclasses.replace(base.prey, fov_angle=float(fov), view_distance=float(view)))
+                    changes = dict(
+                        width=float(width),
+                        height=float(height),
+                        prey_count=int(n),
+                        predator_count=self.predators,
+                        max_steps=self.episode_steps,
+                        respawn_captured_prey=self.respawn,
+                        prey=dataclasses.replace(base.prey, fov_angle=float(fov), view_distance=float(view)),
+                    )
                     if self.reproduction:
-                        changes.update(prey_reproduction=True,
-                                       max_prey=max(int(n), int(round(self.max_prey_factor * n))))
+                        changes.update(
+                            prey_reproduction=True, max_prey=max(int(n), int(round(self.max_prey_factor * n)))
+                        )
                     if self.starvation_steps is not None:
                         changes["predator_starvation_steps"] = self.starvation_steps
-                    out.append({"prey": int(n), "fov_angle": float(fov), "view_distance": float(view),
-                                "width": float(width), "height": float(height), "config": base.replace(**changes)})
+                    out.append(
+                        {
+                            "prey": int(n),
+                            "fov_angle": float(fov),
+                            "view_distance": float(view),
+                            "width": float(width),
+                            "height": float(height),
+                            "config": base.replace(**changes),
+                        }
+                    )
         return out
 
     @property
     def population_changes(self) -> bool:
         """Whether populations can change within an episode (then population traces are recorded)."""
-        starve = (self.starvation_steps if self.starvation_steps is not None
-                  else AquariumConfig().predator_starvation_steps)
+        starve = (
+            self.starvation_steps if self.starvation_steps is not None else AquariumConfig().predator_starvation_steps
+        )
         return (not self.respawn) or self.reproduction or starve < self.episode_steps
 
 
@@ -237,8 +256,11 @@ def _run_batch(study: SwarmSizeStudy, cfg: AquariumConfig, worlds: int, device: 
     episodes = EpisodeMetrics(env, metrics=metrics, every=study.metrics_every, trace=trace)
     observers: list[Observer] = [episodes] if progress is None else [episodes, Progress(progress, every=25)]
     rollout(env, {"prey": prey, "predator": predator}, study.episode_steps, observers)
-    out = {"worlds": {k: v.detach().cpu().double().numpy() for k, v in episodes.result().items()},
-           "nn_bin_edges": metrics.bin_edges.numpy(), "linking_distance": metrics.linking_distance}
+    out = {
+        "worlds": {k: v.detach().cpu().double().numpy() for k, v in episodes.result().items()},
+        "nn_bin_edges": metrics.bin_edges.numpy(),
+        "linking_distance": metrics.linking_distance,
+    }
     if trace:
         traces = episodes.traces()
         population: dict = {"step": list(episodes.trace_steps)[:-1]}
@@ -263,9 +285,14 @@ def _setting_result(study: SwarmSizeStudy, batch: dict, first_world: int, label:
     if (result["episodes"] < 1).any():
         raise RuntimeError(f"{label}: a world finished no episode ({result['episodes']})")
     per_seed = {name: result[name].reshape(study.seeds, E).mean(axis=1) for name in RESULT_METRICS}
-    out = {"per_seed": per_seed, "nn_distribution": result["nn_distribution"].mean(axis=0),
-           "nn_bin_edges": batch["nn_bin_edges"], "linking_distance": batch["linking_distance"],
-           "wall_s": batch["wall_s"], "agent_steps": batch["agent_steps"]}
+    out = {
+        "per_seed": per_seed,
+        "nn_distribution": result["nn_distribution"].mean(axis=0),
+        "nn_bin_edges": batch["nn_bin_edges"],
+        "linking_distance": batch["linking_distance"],
+        "wall_s": batch["wall_s"],
+        "agent_steps": batch["agent_steps"],
+    }
     if "population" in batch:
         out["population"] = {"step": batch["population"]["step"]}
         for name in POPULATION_TRACES:
@@ -296,17 +323,31 @@ def one_batch_config(study: SwarmSizeStudy, settings: list[dict]) -> AquariumCon
 def _run_one_batch(study: SwarmSizeStudy, settings: list[dict], device: str, advance) -> dict[int, dict]:
     """Every setting in one batch (`one_batch_config`), then each setting's statistics from its worlds."""
     block = study.seeds * study.episodes_per_seed
-    batch = _run_batch(study, one_batch_config(study, settings), block * len(settings), device,
-                       progress=lambda n: advance(n * len(settings), "one batch"))
+    batch = _run_batch(
+        study,
+        one_batch_config(study, settings),
+        block * len(settings),
+        device,
+        progress=lambda n: advance(n * len(settings), "one batch"),
+    )
     return {i: _setting_result(study, batch, i * block, _label(s)) for i, s in enumerate(settings)}
 
 
-BASELINE_METRICS = ("polarization", "cohesion", "nn_mean", "groups", "largest_group", "predator_distance",
-                    "local_alignment", "milling")
+BASELINE_METRICS = (
+    "polarization",
+    "cohesion",
+    "nn_mean",
+    "groups",
+    "largest_group",
+    "predator_distance",
+    "local_alignment",
+    "milling",
+)
 
 
-def uniform_baseline(cfg: AquariumConfig, worlds: int, linking_distance: float | None, device: str,
-                     seed: int) -> dict[str, float]:
+def uniform_baseline(
+    cfg: AquariumConfig, worlds: int, linking_distance: float | None, device: str, seed: int
+) -> dict[str, float]:
     """The metrics of `worlds` snapshots of uniformly random prey and predators with uniformly random
     headings (prey that ignore each other and the predator), in `cfg`'s arena, by the same kernels:
     the reference each measured curve is read against. Means over the snapshots."""
@@ -335,8 +376,9 @@ def add_uniform_baselines(summary: dict, study: SwarmSizeStudy, device: str) -> 
         key = (s["prey"], s["width"], s["height"])  # the baseline depends on the arena and N only
         if key not in cache:
             snapshots = min(256, max(study.seeds, -(-65536 // s["prey"])))  # about 64k prey in all
-            cache[key] = uniform_baseline(s["config"], snapshots, study.linking_distance, device,
-                                          seed=baseline_seed(study.seed, s["prey"]))
+            cache[key] = uniform_baseline(
+                s["config"], snapshots, study.linking_distance, device, seed=baseline_seed(study.seed, s["prey"])
+            )
         entry["uniform_baseline"] = cache[key]
 
 
@@ -352,17 +394,28 @@ def _largest_first(settings: list[dict]) -> list[int]:
 def setting_tasks(study: SwarmSizeStudy, settings: list[dict], device: str) -> list[dict]:
     """One task per setting, largest worlds first: its prey count, FOV angle and view distance (the
     setting of `study.settings()` it runs), its seed count and device."""
-    return [{"name": f"prey{s['prey']}_fov{s['fov_angle']:g}_view{s['view_distance']:g}", "prey": s["prey"],
-             "fov_angle": s["fov_angle"], "view_distance": s["view_distance"], "seeds": study.seeds,
-             "device": device, "study": study} for s in (settings[i] for i in _largest_first(settings))]
+    return [
+        {
+            "name": f"prey{s['prey']}_fov{s['fov_angle']:g}_view{s['view_distance']:g}",
+            "prey": s["prey"],
+            "fov_angle": s["fov_angle"],
+            "view_distance": s["view_distance"],
+            "seeds": study.seeds,
+            "device": device,
+            "study": study,
+        }
+        for s in (settings[i] for i in _largest_first(settings))
+    ]
 
 
 def run_setting_task(task: dict, progress=None) -> dict:
     """`run_setting` of a task of `setting_tasks`."""
     study: SwarmSizeStudy = task["study"]
-    setting = next(s for s in study.settings()
-                   if (s["prey"], s["fov_angle"], s["view_distance"]) ==
-                   (task["prey"], task["fov_angle"], task["view_distance"]))
+    setting = next(
+        s
+        for s in study.settings()
+        if (s["prey"], s["fov_angle"], s["view_distance"]) == (task["prey"], task["fov_angle"], task["view_distance"])
+    )
     return run_setting(study, setting, task["device"], progress)
 
 
@@ -379,8 +432,9 @@ def _baselines_on_worker(summary: dict, study: SwarmSizeStudy, device: str) -> d
     return summary
 
 
-def _run_settings(study: SwarmSizeStudy, settings: list[dict], device: str, ray: RayOptions | None,
-                  advance) -> tuple[dict[int, dict], int | None, dict | None]:
+def _run_settings(
+    study: SwarmSizeStudy, settings: list[dict], device: str, ray: RayOptions | None, advance
+) -> tuple[dict[int, dict], int | None, dict | None]:
     """Every setting a task of `jobs.run_jobs`: here on threads (`study.jobs`: on the CPU several at once,
     on a GPU one after another), or with `ray` as Ray tasks. Returns the results by setting index, the
     threads (None on Ray) and, on Ray, the run's record."""
@@ -392,16 +446,34 @@ def _run_settings(study: SwarmSizeStudy, settings: list[dict], device: str, ray:
 
     if ray is None:
         threads = min(resolve_jobs(study.jobs, device, threads=True), len(settings))
-        run = run_jobs(lambda task: run_setting_task(task, progress=lambda n: advance(n, _label(task))), tasks,
-                       study.out, jobs=threads, threads=True, device=device, label=study.kind, on_result=finished,
-                       report=None, prepare=lambda: warm_up(device, settings[0]["config"], study.prey_policy,
-                                                            study.predator_policy, study.confusion,
-                                                            study.linking_distance))
+        run = run_jobs(
+            lambda task: run_setting_task(task, progress=lambda n: advance(n, _label(task))),
+            tasks,
+            study.out,
+            jobs=threads,
+            threads=True,
+            device=device,
+            label=study.kind,
+            on_result=finished,
+            report=None,
+            prepare=lambda: warm_up(
+                device,
+                settings[0]["config"],
+                study.prey_policy,
+                study.predator_policy,
+                study.confusion,
+                study.linking_distance,
+            ),
+        )
         return _by_setting(settings, tasks, run.results), threads, None
-    run = run_jobs(_setting_on_worker, tasks, study.out, device=device, ray=ray, label=study.kind, on_result=finished,
-                   report=None)
-    return _by_setting(settings, tasks, run.results), None, dict(ray.record(device), settings_kept=run.kept,
-                                                                 nodes=run.nodes)
+    run = run_jobs(
+        _setting_on_worker, tasks, study.out, device=device, ray=ray, label=study.kind, on_result=finished, report=None
+    )
+    return (
+        _by_setting(settings, tasks, run.results),
+        None,
+        dict(ray.record(device), settings_kept=run.kept, nodes=run.nodes),
+    )
 
 
 def _by_setting(settings: list[dict], tasks: list[dict], results: list) -> dict[int, dict]:
@@ -414,8 +486,9 @@ def _label(setting: dict) -> str:
     return f"N={setting['prey']} fov={setting['fov_angle']:g} view={setting['view_distance']:g}"
 
 
-def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayOptions | None = None,
-                         command: str | None = None) -> dict:
+def run_swarm_size_study(
+    study: SwarmSizeStudy, progress: bool = True, ray: RayOptions | None = None, command: str | None = None
+) -> dict:
     """Run every setting of `study`, write the CSV, JSON and figures into `study.out`, and return the
     JSON's content. `ray`: run each setting as a Ray task (`_run_settings`) instead of on this machine.
     `command`: the command recorded in the JSON (default: this process's, as `aquarium-warp ...`)."""
@@ -432,8 +505,9 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayO
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=len(settings) * study.episode_steps, unit="step", desc=f"{study.kind} study",
-                   dynamic_ncols=True)
+        bar = tqdm(
+            total=len(settings) * study.episode_steps, unit="step", desc=f"{study.kind} study", dynamic_ncols=True
+        )
 
     def advance(steps: int, label: str) -> None:
         if bar is not None:
@@ -462,17 +536,29 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayO
     for i, s in enumerate(settings):
         r = results[i]
         for seed in range(study.seeds):
-            row = {"prey": s["prey"], "fov_angle": s["fov_angle"], "view_distance": s["view_distance"],
-                   "world_width": s["width"], "world_height": s["height"], "seed": seed,
-                   "episodes": study.episodes_per_seed}
+            row = {
+                "prey": s["prey"],
+                "fov_angle": s["fov_angle"],
+                "view_distance": s["view_distance"],
+                "world_width": s["width"],
+                "world_height": s["height"],
+                "seed": seed,
+                "episodes": study.episodes_per_seed,
+            }
             row.update({name: float(r["per_seed"][name][seed]) for name in RESULT_METRICS})
             rows.append(row)
-        entry = {"prey": s["prey"], "fov_angle": s["fov_angle"], "view_distance": s["view_distance"],
-                 "world_width": s["width"], "world_height": s["height"],
-                 "worlds": study.seeds * study.episodes_per_seed, "wall_s": round(r["wall_s"], 3),
-                 "agent_steps_per_s": r["agent_steps"] / r["wall_s"],
-                 "metrics": {name: seed_stats(r["per_seed"][name]) for name in RESULT_METRICS},
-                 "nn_distribution": [round(float(x), 6) for x in r["nn_distribution"]]}
+        entry = {
+            "prey": s["prey"],
+            "fov_angle": s["fov_angle"],
+            "view_distance": s["view_distance"],
+            "world_width": s["width"],
+            "world_height": s["height"],
+            "worlds": study.seeds * study.episodes_per_seed,
+            "wall_s": round(r["wall_s"], 3),
+            "agent_steps_per_s": r["agent_steps"] / r["wall_s"],
+            "metrics": {name: seed_stats(r["per_seed"][name]) for name in RESULT_METRICS},
+            "nn_distribution": [round(float(x), 6) for x in r["nn_distribution"]],
+        }
         if "population" in r:
             entry["population"] = {k: [round(float(x), 4) for x in v] for k, v in r["population"].items()}
         entries.append(entry)
@@ -484,16 +570,19 @@ def run_swarm_size_study(study: SwarmSizeStudy, progress: bool = True, ray: RayO
     config["prey_radius"] = settings[0]["config"].prey.radius
     summary: dict = {
         "study": study.kind,
-        "path": ("one batch: every setting's worlds in one BatchedAquarium (capacity: the largest prey count)"
-                 if study.one_batch else "one batch per setting"),
+        "path": (
+            "one batch: every setting's worlds in one BatchedAquarium (capacity: the largest prey count)"
+            if study.one_batch
+            else "one batch per setting"
+        ),
         "config": config,
         "definitions": {
             "seed": "seed s = worlds [s*E, (s+1)*E) of one batch per setting (independent random streams); "
-                    "E = episodes_per_seed; env seed = config.seed",
+            "E = episodes_per_seed; env seed = config.seed",
             "captures": "captures per episode (all predators), per seed the mean over its episodes",
             "captures_per_prey": "captures per episode / initial prey count",
             "sampled metrics": f"mean over an episode's states sampled every {study.metrics_every} steps "
-                               "(aquarium_warp.metrics), then over the seed's episodes",
+            "(aquarium_warp.metrics), then over the seed's episodes",
             "predator_distance": "mean over live prey of the torus distance to the nearest live predator, px",
             "groups": "connected components of prey closer than linking_distance px",
             "spread": "std and sem over seeds; ci95: half-width of the 95% Student-t interval of the mean",
@@ -548,14 +637,14 @@ def replot_study(out: str, device=None) -> dict:
     return summary
 
 
-
-
 # --------------------------------------------------------------------------------------------------
 # Command line: `aquarium-warp study swarm-size` (and the options `study fov-view` shares)
 # --------------------------------------------------------------------------------------------------
 HELP = "captures per prey (dilution), polarization and groups vs prey count"
-DESCRIPTION = ("Run every prey count and seed as batched worlds, one episode each, and write swarm_size.csv/json "
-               "and figures into --out.")
+DESCRIPTION = (
+    "Run every prey count and seed as batched worlds, one episode each, and write swarm_size.csv/json "
+    "and figures into --out."
+)
 
 
 def add_run_arguments(p: argparse.ArgumentParser, out: str) -> None:
@@ -565,19 +654,33 @@ def add_run_arguments(p: argparse.ArgumentParser, out: str) -> None:
     p.add_argument("--episode-steps", type=int, default=3000, help="steps per episode (default 3000, the paper's)")
     p.add_argument("--prey-policy", default="turnaway", help="'turnaway', 'random' or a trained policy file")
     p.add_argument("--predator-policy", default="naivchase", help="'naivchase', 'random' or a trained policy file")
-    p.add_argument("--no-confusion", action="store_true", help="NaivChase chases the nearest visible prey "
-                   "instead of a random one each step")
+    p.add_argument(
+        "--no-confusion",
+        action="store_true",
+        help="NaivChase chases the nearest visible prey instead of a random one each step",
+    )
     p.add_argument("--predators", type=int, default=1, help="predators per world (default 1)")
     p.add_argument("--world-size", default="800x800", help="arena WIDTHxHEIGHT px (default 800x800)")
-    p.add_argument("--linking-distance", type=float, default=None,
-                   help="px; prey closer than this form one group (default 2.5 prey radii = 50)")
+    p.add_argument(
+        "--linking-distance",
+        type=float,
+        default=None,
+        help="px; prey closer than this form one group (default 2.5 prey radii = 50)",
+    )
     p.add_argument("--metrics-every", type=int, default=10, help="sample the swarm metrics every K steps")
     p.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
-    p.add_argument("--seed", type=non_negative_int, default=0,
-                   help="seed of the batched worlds (the --seeds runs are worlds of one env)")
-    p.add_argument("--jobs", type=positive_int, default=None,
-                   help="settings run at once in threads, one batch per setting (default: CPU cores on the CPU, "
-                        "1 on a GPU)")
+    p.add_argument(
+        "--seed",
+        type=non_negative_int,
+        default=0,
+        help="seed of the batched worlds (the --seeds runs are worlds of one env)",
+    )
+    p.add_argument(
+        "--jobs",
+        type=positive_int,
+        default=None,
+        help="settings run at once in threads, one batch per setting (default: CPU cores on the CPU, 1 on a GPU)",
+    )
     p.add_argument("--out", default=out, help=f"output directory (default {out})")
     p.add_argument("--no-figures", action="store_true", help="write CSV/JSON only, no figures")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -585,27 +688,54 @@ def add_run_arguments(p: argparse.ArgumentParser, out: str) -> None:
 
 def run_settings(args: argparse.Namespace) -> dict:
     """The `SwarmSizeStudy` settings of `add_run_arguments`' options."""
-    return dict(seeds=args.seeds, episodes_per_seed=args.episodes_per_seed, episode_steps=args.episode_steps,
-                prey_policy=args.prey_policy, predator_policy=args.predator_policy, confusion=not args.no_confusion,
-                predators=args.predators, world_size=parse_world_size(args.world_size),
-                linking_distance=args.linking_distance, metrics_every=args.metrics_every, device=args.device,
-                seed=args.seed, jobs=args.jobs, out=args.out, figures=not args.no_figures)
+    return dict(
+        seeds=args.seeds,
+        episodes_per_seed=args.episodes_per_seed,
+        episode_steps=args.episode_steps,
+        prey_policy=args.prey_policy,
+        predator_policy=args.predator_policy,
+        confusion=not args.no_confusion,
+        predators=args.predators,
+        world_size=parse_world_size(args.world_size),
+        linking_distance=args.linking_distance,
+        metrics_every=args.metrics_every,
+        device=args.device,
+        seed=args.seed,
+        jobs=args.jobs,
+        out=args.out,
+        figures=not args.no_figures,
+    )
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--prey", default="4,8,...,4096",
-                   help="prey counts: a comma list; '...' continues the progression (default 4,8,...,4096)")
+    p.add_argument(
+        "--prey",
+        default="4,8,...,4096",
+        help="prey counts: a comma list; '...' continues the progression (default 4,8,...,4096)",
+    )
     p.add_argument("--fov-angle", default=None, help="prey field-of-view angles to sweep, degrees (list; default 120)")
     p.add_argument("--view-distance", default=None, help="prey view distances to sweep, px (list; default 100)")
-    p.add_argument("--constant-density", action="store_true", help="scale the arena with N instead of a fixed "
-                   "--world-size, keeping the density of --reference-prey prey in --world-size")
-    p.add_argument("--reference-prey", type=int, default=16,
-                   help="with --constant-density: the prey count that --world-size is sized for (default 16)")
+    p.add_argument(
+        "--constant-density",
+        action="store_true",
+        help="scale the arena with N instead of a fixed "
+        "--world-size, keeping the density of --reference-prey prey in --world-size",
+    )
+    p.add_argument(
+        "--reference-prey",
+        type=int,
+        default=16,
+        help="with --constant-density: the prey count that --world-size is sized for (default 16)",
+    )
     p.add_argument("--no-respawn", action="store_true", help="captured prey are removed (populations shrink)")
     p.add_argument("--reproduction", action="store_true", help="prey reproduce (up to 2 N)")
     p.add_argument("--starvation-steps", type=int, default=None, help="predator starvation limit (default 3000)")
-    p.add_argument("--one-batch", action="store_true", help="every setting in one batch (per-world prey counts; "
-                   "every world has the slots of the largest count) instead of one batch per setting")
+    p.add_argument(
+        "--one-batch",
+        action="store_true",
+        help="every setting in one batch (per-world prey counts; "
+        "every world has the slots of the largest count) instead of one batch per setting",
+    )
     add_run_arguments(p, "swarm_size")
     p.add_argument("--replot", action="store_true", help="only redraw the figures from --out's swarm_size.json")
     add_ray_arguments(p, "setting (prey count, FOV angle and view distance)")
@@ -619,24 +749,35 @@ def run(args: argparse.Namespace) -> int:
         return 0
     ray = ray_options(args)
     if ray is not None and args.jobs is not None:
-        raise ValueError("--jobs sets the threads of a run on this machine; with --ray each setting is a task "
-                         "(--cpus-per-task, --gpus-per-task)")
+        raise ValueError(
+            "--jobs sets the threads of a run on this machine; with --ray each setting is a task "
+            "(--cpus-per-task, --gpus-per-task)"
+        )
     if ray is not None and args.one_batch:
         raise ValueError("--one-batch runs every setting in one batch on this machine: not with --ray")
     study = SwarmSizeStudy(
         prey=[int(n) for n in parse_list(args.prey, int, "--prey")],
         fov_angles=parse_list(args.fov_angle, float, "--fov-angle") if args.fov_angle else None,
         view_distances=parse_list(args.view_distance, float, "--view-distance") if args.view_distance else None,
-        constant_density=args.constant_density, reference_prey=args.reference_prey, respawn=not args.no_respawn,
-        reproduction=args.reproduction, starvation_steps=args.starvation_steps, one_batch=args.one_batch,
-        **run_settings(args))
-    print(f"aquarium-warp study swarm-size: prey {study.prey}, {study.seeds} seeds x {study.episodes_per_seed} "
-          f"episode(s) of {study.episode_steps} steps, {study.prey_policy} vs {study.predator_policy} -> {study.out}")
+        constant_density=args.constant_density,
+        reference_prey=args.reference_prey,
+        respawn=not args.no_respawn,
+        reproduction=args.reproduction,
+        starvation_steps=args.starvation_steps,
+        one_batch=args.one_batch,
+        **run_settings(args),
+    )
+    print(
+        f"aquarium-warp study swarm-size: prey {study.prey}, {study.seeds} seeds x {study.episodes_per_seed} "
+        f"episode(s) of {study.episode_steps} steps, {study.prey_policy} vs {study.predator_policy} -> {study.out}"
+    )
     check_output_dir(study.out, "--out")
     summary = run_swarm_size_study(study, progress=not args.no_progress, ray=ray, command=command_line(args.argv))
     where = summary["machine"]["device_name"]
     if ray is not None:
         where = f"Ray ({len(summary['ray']['nodes'])} machine(s), {summary['ray']['settings_kept']} setting(s) kept)"
-    print(f"wrote {os.path.join(study.out, 'swarm_size.csv')}, swarm_size.json and {len(summary.get('figures', []))} "
-          f"figures in {summary['wall_time_s']:.1f} s on {where} ({summary['path']})")
+    print(
+        f"wrote {os.path.join(study.out, 'swarm_size.csv')}, swarm_size.json and {len(summary.get('figures', []))} "
+        f"figures in {summary['wall_time_s']:.1f} s on {where} ({summary['path']})"
+    )
     return 0

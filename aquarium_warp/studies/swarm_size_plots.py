@@ -27,10 +27,12 @@ def _curves(summary: dict) -> list[tuple[str | None, list[dict]]]:
 
 def _band(ax, entries, metric, label, color, log_y=False):
     n = np.array([e["prey"] for e in entries], dtype=float)
-    mean = np.array([np.nan if e["metrics"][metric]["mean"] is None else e["metrics"][metric]["mean"]
-                     for e in entries], dtype=float)
-    std = np.array([0.0 if e["metrics"][metric]["std"] is None else e["metrics"][metric]["std"]
-                    for e in entries], dtype=float)
+    mean = np.array(
+        [np.nan if e["metrics"][metric]["mean"] is None else e["metrics"][metric]["mean"] for e in entries], dtype=float
+    )
+    std = np.array(
+        [0.0 if e["metrics"][metric]["std"] is None else e["metrics"][metric]["std"] for e in entries], dtype=float
+    )
     std = np.nan_to_num(std)
     lo, hi = mean - std, mean + std
     if log_y:
@@ -46,8 +48,10 @@ def _baseline(ax, entries, metric, label="uniform random prey (same N)"):
     if not all("uniform_baseline" in e for e in entries):
         return
     n = np.array([e["prey"] for e in entries], dtype=float)
-    values = np.array([np.nan if e["uniform_baseline"].get(metric) is None else e["uniform_baseline"][metric]
-                       for e in entries], dtype=float)
+    values = np.array(
+        [np.nan if e["uniform_baseline"].get(metric) is None else e["uniform_baseline"][metric] for e in entries],
+        dtype=float,
+    )
     ax.plot(n, values, "k:", lw=1.2, label=label)
 
 
@@ -75,8 +79,11 @@ def plot_fov_view(summary: dict, out: str) -> str:
     ax.set_xlabel("prey field of view (degrees)")
     ax.set_ylabel("prey view distance (px)")
     fig.colorbar(image, ax=ax, label="captures per prey per episode")
-    ax.set_title(f"{cfg['prey'][0]} prey, {cfg['prey_policy']} vs {cfg['predator_policy']}; "
-                 f"{cfg['episode_steps']} steps, mean over {cfg['seeds']} seeds", fontsize=8)
+    ax.set_title(
+        f"{cfg['prey'][0]} prey, {cfg['prey_policy']} vs {cfg['predator_policy']}; "
+        f"{cfg['episode_steps']} steps, mean over {cfg['seeds']} seeds",
+        fontsize=8,
+    )
     fig.tight_layout()
     path = os.path.join(out, "captures_fov_view.png")
     write_figure(fig, path, dpi=110)
@@ -99,10 +106,15 @@ def plot_study(summary: dict, out: str) -> list[str]:
     policies = f"{cfg['prey_policy']} prey vs {cfg['predator_policy']}"
     if cfg["predator_policy"].lower() == "naivchase":
         policies += " (confusion)" if cfg["confusion"] else " (nearest)"
-    arena = (f"constant density ({cfg['reference_prey']} prey per {cfg['world_size'][0]:g}x{cfg['world_size'][1]:g})"
-             if cfg["constant_density"] else f"fixed {cfg['world_size'][0]:g}x{cfg['world_size'][1]:g} arena")
-    subtitle = (f"{policies}; {arena}; {cfg['predators']} predator(s); episodes of {cfg['episode_steps']} steps; "
-                f"mean ± std over {cfg['seeds']} seeds")
+    arena = (
+        f"constant density ({cfg['reference_prey']} prey per {cfg['world_size'][0]:g}x{cfg['world_size'][1]:g})"
+        if cfg["constant_density"]
+        else f"fixed {cfg['world_size'][0]:g}x{cfg['world_size'][1]:g} arena"
+    )
+    subtitle = (
+        f"{policies}; {arena}; {cfg['predators']} predator(s); episodes of {cfg['episode_steps']} steps; "
+        f"mean ± std over {cfg['seeds']} seeds"
+    )
     paths = []
 
     def finish(fig, name, title):
@@ -159,10 +171,12 @@ def plot_study(summary: dict, out: str) -> list[str]:
 
     # 3. Spacing: nearest neighbour, cohesion, distance to the predator, largest group.
     fig, axes = plt.subplots(2, 2, figsize=(10, 7))
-    panels = [("nn_mean", "nearest-neighbour distance (px)", True),
-              ("cohesion", "mean distance to swarm centroid (px)", False),
-              ("predator_distance", "distance to nearest predator (px)", False),
-              ("largest_group", "largest group / live prey", False)]
+    panels = [
+        ("nn_mean", "nearest-neighbour distance (px)", True),
+        ("cohesion", "mean distance to swarm centroid (px)", False),
+        ("predator_distance", "distance to nearest predator (px)", False),
+        ("largest_group", "largest group / live prey", False),
+    ]
     for k, (label, entries) in enumerate(curves):
         c = colors[k % len(colors)]
         for ax, (metric, _, log_y) in zip(axes.flat, panels):
@@ -190,18 +204,23 @@ def plot_study(summary: dict, out: str) -> list[str]:
     for k, e in enumerate(entries0):
         dist = np.array(e["nn_distribution"], dtype=float)
         beyond = f", {dist[-1]:.0%} beyond" if dist[-1] >= 0.005 else ""
-        ax.plot(centers[:-1], dist[:-1] / (edges[1] - edges[0]), color=cmap(k / max(1, len(entries0) - 1)),
-                lw=1.3, label=f"N={e['prey']}{beyond}")
+        ax.plot(
+            centers[:-1],
+            dist[:-1] / (edges[1] - edges[0]),
+            color=cmap(k / max(1, len(entries0) - 1)),
+            lw=1.3,
+            label=f"N={e['prey']}{beyond}",
+        )
     contact = 2 * cfg["prey_radius"]
     ax.axvline(contact, color="k", ls=":", lw=1)
     ax.text(contact + 1, ax.get_ylim()[1] * 0.97, "hit boxes touch", fontsize=7, va="top")
-    ax.set_xlabel(f"nearest-neighbour distance (px; bins of {edges[1] - edges[0]:g} px, "
-                  f"last bin: beyond {edges[-2]:g})")
+    ax.set_xlabel(
+        f"nearest-neighbour distance (px; bins of {edges[1] - edges[0]:g} px, last bin: beyond {edges[-2]:g})"
+    )
     ax.set_ylabel("probability density (1/px)")
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=7, frameon=False, loc="center left", bbox_to_anchor=(1.01, 0.5))
-    finish(fig, "nn_distribution.png", "Nearest-neighbour distance distribution"
-           + (f" ({label0})" if label0 else ""))
+    finish(fig, "nn_distribution.png", "Nearest-neighbour distance distribution" + (f" ({label0})" if label0 else ""))
 
     # 5. Populations over time (only when they can change).
     if any("population" in e for e in summary["results"]):

@@ -48,35 +48,68 @@ def _fps(text: str) -> float:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..arguments import non_negative_int, positive_float
 
-    p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1: this machine "
-                                                       "only; reach it through an SSH tunnel)")
+    p.add_argument(
+        "--host",
+        default="127.0.0.1",
+        help="address to serve on (default 127.0.0.1: this machine only; reach it through an SSH tunnel)",
+    )
     p.add_argument("--port", type=_port, default=8765, help="port, in [1, 65535] (default 8765)")
-    p.add_argument("--prey-policy", default="turnaway",
-                   help="heuristic (turnaway, random, constant), shipped policy name (prey-a, ...) or policy file")
-    p.add_argument("--predator-policy", default="naivchase",
-                   help="heuristic (naivchase, naivchase-noconfusion, random, constant), shipped name or file")
-    p.add_argument("--policy-dir", default=None,
-                   help="policy files (.pt, .onnx) under this folder may be chosen on the page")
-    p.add_argument("--prey", type=_int_in(1, 10_000_000), default=None,
-                   help="prey per world, in [1, 10000000] (default: a trained policy's world, else 16)")
-    p.add_argument("--predators", type=_int_in(1, 1_000_000), default=None,
-                   help="predators per world, in [1, 1000000] (default: a trained policy's world, else 1)")
+    p.add_argument(
+        "--prey-policy",
+        default="turnaway",
+        help="heuristic (turnaway, random, constant), shipped policy name (prey-a, ...) or policy file",
+    )
+    p.add_argument(
+        "--predator-policy",
+        default="naivchase",
+        help="heuristic (naivchase, naivchase-noconfusion, random, constant), shipped name or file",
+    )
+    p.add_argument(
+        "--policy-dir", default=None, help="policy files (.pt, .onnx) under this folder may be chosen on the page"
+    )
+    p.add_argument(
+        "--prey",
+        type=_int_in(1, 10_000_000),
+        default=None,
+        help="prey per world, in [1, 10000000] (default: a trained policy's world, else 16)",
+    )
+    p.add_argument(
+        "--predators",
+        type=_int_in(1, 1_000_000),
+        default=None,
+        help="predators per world, in [1, 1000000] (default: a trained policy's world, else 1)",
+    )
     p.add_argument("--width", type=positive_float, default=None, help="world width, px (default: the policy's, 800)")
     p.add_argument("--height", type=positive_float, default=None, help="world height, px (default: the policy's, 800)")
     p.add_argument("--worlds", type=_int_in(1, 65536), default=1, help="worlds, in [1, 65536]; the page shows one")
     p.add_argument("--seed", type=non_negative_int, default=0, help="seed of the worlds and the policies")
     p.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
-    p.add_argument("--human", choices=("prey", "predator"), default=None,
-                   help="hand one agent of this team to the keyboard from the start (also on the page)")
-    p.add_argument("--record", default=None, metavar="OUT.mp4",
-                   help="record from the start: the MP4 and OUT.json (the trajectory); stops with the record "
-                        "button or the server")
+    p.add_argument(
+        "--human",
+        choices=("prey", "predator"),
+        default=None,
+        help="hand one agent of this team to the keyboard from the start (also on the page)",
+    )
+    p.add_argument(
+        "--record",
+        default=None,
+        metavar="OUT.mp4",
+        help="record from the start: the MP4 and OUT.json (the trajectory); stops with the record button or the server",
+    )
     p.add_argument("--record-dir", default=".", help="folder of the record button's files (default: here)")
     p.add_argument("--fps", type=_fps, default=30.0, help="frames per second, in [1, 120] (default 30)")
-    p.add_argument("--max-agents", type=_int_in(100, 1_000_000), default=20000,
-                   help="agents sent per frame, in [100, 1000000]: more are thinned (default 20000)")
-    p.add_argument("--replay", default=None, metavar="FILE.json",
-                   help="no server: write --out, a page that plays this recorded trajectory")
+    p.add_argument(
+        "--max-agents",
+        type=_int_in(100, 1_000_000),
+        default=20000,
+        help="agents sent per frame, in [100, 1000000]: more are thinned (default 20000)",
+    )
+    p.add_argument(
+        "--replay",
+        default=None,
+        metavar="FILE.json",
+        help="no server: write --out, a page that plays this recorded trajectory",
+    )
     p.add_argument("--out", default=None, metavar="PAGE.html", help="the replay page to write (with --replay)")
 
 
@@ -106,17 +139,30 @@ def run(args) -> int:
         raise ValueError(f"--record-dir {args.record_dir}: not a folder")
     if args.policy_dir is not None and not os.path.isdir(args.policy_dir):
         raise ValueError(f"--policy-dir {args.policy_dir}: not a folder")
-    options = ViewOptions(prey_policy=args.prey_policy, predator_policy=args.predator_policy, prey=args.prey,
-                          predators=args.predators, width=args.width, height=args.height, worlds=args.worlds,
-                          seed=args.seed, device=args.device, policy_dir=args.policy_dir, human=args.human)
+    options = ViewOptions(
+        prey_policy=args.prey_policy,
+        predator_policy=args.predator_policy,
+        prey=args.prey,
+        predators=args.predators,
+        width=args.width,
+        height=args.height,
+        worlds=args.worlds,
+        seed=args.seed,
+        device=args.device,
+        policy_dir=args.policy_dir,
+        human=args.human,
+    )
     simulation = Simulation(options)
-    viewer = Viewer(simulation, fps=args.fps, max_agents=args.max_agents, record=args.record,
-                    record_dir=args.record_dir)
+    viewer = Viewer(
+        simulation, fps=args.fps, max_agents=args.max_agents, record=args.record, record_dir=args.record_dir
+    )
     env = simulation.env
     assert env is not None
-    print(f"aquarium-warp view: {env.num_worlds} world(s) of {env.config.prey_count} prey "
-          f"({simulation.specs['prey']}) and {env.config.predator_count} predators ({simulation.specs['predator']}) "
-          f"on {env.device}")
+    print(
+        f"aquarium-warp view: {env.num_worlds} world(s) of {env.config.prey_count} prey "
+        f"({simulation.specs['prey']}) and {env.config.predator_count} predators ({simulation.specs['predator']}) "
+        f"on {env.device}"
+    )
     print(f"aquarium-warp view: open http://{args.host}:{args.port}/  (Ctrl-C stops)", flush=True)
     uvicorn.run(make_app(viewer), host=args.host, port=args.port, log_level="warning", ws="websockets-sansio")
     return 0

@@ -23,7 +23,11 @@ class FlowSampler:
         env = self._env
         shard = next(s for s in env.shards if s.w0 <= world < s.w1)
         cell_x, cell_y = float(env.config.width) / self.cols, float(env.config.height) / self.rows
-        wp.launch(viewer_flow.sample_current, dim=(self.rows, self.cols),
-                  inputs=[shard.world, world - shard.w0, shard.state.worlds.world_step, cell_x, cell_y],
-                  outputs=[self._out], device=env.device)
+        wp.launch(
+            viewer_flow.sample_current,
+            dim=(self.rows, self.cols),
+            inputs=[shard.world, world - shard.w0, shard.state.worlds.world_step, cell_x, cell_y],
+            outputs=[self._out],
+            device=env.device,
+        )
         return self._out.numpy().copy()

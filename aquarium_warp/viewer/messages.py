@@ -54,9 +54,18 @@ def _unit_step(value, name: str) -> int:
 
 # type -> the fields it must have (and may have: no others)
 FIELDS: dict[str, tuple[str, ...]] = {
-    "play": (), "pause": (), "step": (), "reset": (),
-    "speed": ("value",), "world": ("index",), "overlays": OVERLAYS, "view": ("rect",),
-    "policy": ("team", "spec"), "human": ("team",), "keys": ("dx", "dy"), "record": ("on",),
+    "play": (),
+    "pause": (),
+    "step": (),
+    "reset": (),
+    "speed": ("value",),
+    "world": ("index",),
+    "overlays": OVERLAYS,
+    "view": ("rect",),
+    "policy": ("team", "spec"),
+    "human": ("team",),
+    "keys": ("dx", "dy"),
+    "record": ("on",),
 }
 
 

@@ -31,9 +31,15 @@ def trajectory_frame(snapshot: dict) -> dict:
     alive = np.flatnonzero(snapshot["alive"])
     p, h, v = snapshot["position"][alive], snapshot["heading"][alive], snapshot["velocity"][alive]
     frame = {key: snapshot["header"][key] for key in FRAME_KEYS}
-    frame.update(slot=alive.tolist(), x=np.round(p[:, 0], 1).tolist(), y=np.round(p[:, 1], 1).tolist(),
-                 hx=np.round(h[:, 0], 3).tolist(), hy=np.round(h[:, 1], 3).tolist(),
-                 vx=np.round(v[:, 0], 2).tolist(), vy=np.round(v[:, 1], 2).tolist())
+    frame.update(
+        slot=alive.tolist(),
+        x=np.round(p[:, 0], 1).tolist(),
+        y=np.round(p[:, 1], 1).tolist(),
+        hx=np.round(h[:, 0], 3).tolist(),
+        hy=np.round(h[:, 1], 3).tolist(),
+        vx=np.round(v[:, 0], 2).tolist(),
+        vy=np.round(v[:, 1], 2).tolist(),
+    )
     human = snapshot["header"]["human"]
     frame["human"] = None if human is None else human["slot"]
     return frame
@@ -82,9 +88,13 @@ class Recorder:
         if self._meta is None:
             self._meta = trajectory_meta(snapshot)
         self._trajectory.append(trajectory_frame(snapshot))
-        frame = self._renderer.render(snapshot["header"]["world"], view_cones=overlays["view_cones"],
-                                      hit_boxes=overlays["hit_boxes"], velocities=overlays["velocities"],
-                                      draw_flow=overlays["flow"])
+        frame = self._renderer.render(
+            snapshot["header"]["world"],
+            view_cones=overlays["view_cones"],
+            hit_boxes=overlays["hit_boxes"],
+            velocities=overlays["velocities"],
+            draw_flow=overlays["flow"],
+        )
         self._frames.put(frame)
 
     def close(self) -> tuple[str, str]:
@@ -126,9 +136,10 @@ def replay_page(trajectory: dict) -> str:
     data = json.dumps(trajectory, separators=(",", ":")).replace("</", "<\\/")  # no early </script>
     page = asset("index.html")
     page = page.replace('<link rel="stylesheet" href="static/viewer.css">', f"<style>{asset('viewer.css')}</style>")
-    page = page.replace('<script src="static/viewer.js"></script>',
-                        f'<script id="replay-data" type="application/json">{data}</script>\n'
-                        f"<script>{asset('viewer.js')}</script>")
+    page = page.replace(
+        '<script src="static/viewer.js"></script>',
+        f'<script id="replay-data" type="application/json">{data}</script>\n<script>{asset("viewer.js")}</script>',
+    )
     return page
 
 

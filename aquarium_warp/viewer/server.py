@@ -63,11 +63,18 @@ def pack_frame(snapshot: dict, rect, max_agents: int) -> bytes:
     header = snapshot["header"]
     human = header["human"]["slot"] if header["human"] else None
     slots = select_agents(snapshot, rect, max_agents, human)
-    agents = np.concatenate([snapshot["position"][slots], snapshot["heading"][slots], snapshot["velocity"][slots]],
-                            axis=1).astype("<f4")
+    agents = np.concatenate(
+        [snapshot["position"][slots], snapshot["heading"][slots], snapshot["velocity"][slots]], axis=1
+    ).astype("<f4")
     flow = snapshot["flow"]
-    header = {**header, "type": "frame", "n": len(slots), "alive_total": int(snapshot["alive"].sum()),
-              "flow_shape": None if flow is None else list(flow.shape[:2]), "sent_at": time.time()}
+    header = {
+        **header,
+        "type": "frame",
+        "n": len(slots),
+        "alive_total": int(snapshot["alive"].sum()),
+        "flow_shape": None if flow is None else list(flow.shape[:2]),
+        "sent_at": time.time(),
+    }
     text = json.dumps(header).encode()
     text += b" " * (-len(text) % 4)
     parts = [np.uint32(len(text)).astype("<u4").tobytes(), text, agents.tobytes(), slots.astype("<u4").tobytes()]
@@ -88,8 +95,15 @@ class _Page:
 class Viewer:
     """The server's state: the simulation, its thread, the pages and the recording."""
 
-    def __init__(self, simulation: Simulation, *, fps: float = 30, max_agents: int = 20000,
-                 record: str | None = None, record_dir: str = "."):
+    def __init__(
+        self,
+        simulation: Simulation,
+        *,
+        fps: float = 30,
+        max_agents: int = 20000,
+        record: str | None = None,
+        record_dir: str = ".",
+    ):
         self.simulation = simulation
         self.fps, self.max_agents, self.record_dir = fps, max_agents, record_dir
         self._thread = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="aquarium-view")
@@ -184,8 +198,9 @@ class Viewer:
         await socket.accept()
         page = _Page(socket)
         sim = self.simulation
-        await socket.send_text(json.dumps({"type": "hello", "choices": await self.call(sim.policy_choices),
-                                           "max_agents": self.max_agents}))
+        await socket.send_text(
+            json.dumps({"type": "hello", "choices": await self.call(sim.policy_choices), "max_agents": self.max_agents})
+        )
         self.pages.add(page)
         sender = asyncio.create_task(self._send_frames(page))
         try:
@@ -205,8 +220,15 @@ class Viewer:
                 if notice:
                     await socket.send_text(json.dumps({"type": "notice", "message": notice}))
                 if message["type"] == "policy":  # the page's lists may show a new file
-                    await socket.send_text(json.dumps({"type": "hello", "choices": await self.call(sim.policy_choices),
-                                                       "max_agents": self.max_agents}))
+                    await socket.send_text(
+                        json.dumps(
+                            {
+                                "type": "hello",
+                                "choices": await self.call(sim.policy_choices),
+                                "max_agents": self.max_agents,
+                            }
+                        )
+                    )
         except WebSocketDisconnect:
             pass
         finally:
@@ -233,5 +255,11 @@ def make_app(viewer: Viewer) -> Starlette:
                 await loop_task
             await viewer.close()
 
-    return Starlette(routes=[Route("/", index), Mount("/static", StaticFiles(directory=STATIC), name="static"),
-                             WebSocketRoute("/ws", viewer.page_socket)], lifespan=lifespan)
+    return Starlette(
+        routes=[
+            Route("/", index),
+            Mount("/static", StaticFiles(directory=STATIC), name="static"),
+            WebSocketRoute("/ws", viewer.page_socket),
+        ],
+        lifespan=lifespan,
+    )

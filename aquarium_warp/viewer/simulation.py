@@ -48,8 +48,9 @@ class Simulation:
         self.options = options
         self.specs = {"prey": options.prey_policy, "predator": options.predator_policy}
         # Policy files the command line named may be chosen again on the page, wherever they are.
-        self._given_files = {os.path.realpath(pretrained.resolve(spec)) for spec in self.specs.values()
-                             if not is_heuristic(spec)}
+        self._given_files = {
+            os.path.realpath(pretrained.resolve(spec)) for spec in self.specs.values() if not is_heuristic(spec)
+        }
         for team in self.specs:
             self.specs[team] = self.allowed_spec(team, self.specs[team])
         self.env: BatchedAquarium | None = None
@@ -90,12 +91,15 @@ class Simulation:
             return spec.lower()
         path = os.path.realpath(spec)
         directory = self.options.policy_dir
-        inside = directory is not None and os.path.commonpath([path, os.path.realpath(directory)]) == \
-            os.path.realpath(directory)
+        inside = directory is not None and os.path.commonpath([path, os.path.realpath(directory)]) == os.path.realpath(
+            directory
+        )
         if path not in self._given_files and not inside:
             where = f"under --policy-dir {directory}" if directory else "(no --policy-dir was given)"
-            raise ValueError(f"{team} policy {spec!r} is not allowed: choose a heuristic {list(HEURISTICS[team])}, a "
-                             f"shipped policy {pretrained.names()}, a file given on the command line or a file {where}")
+            raise ValueError(
+                f"{team} policy {spec!r} is not allowed: choose a heuristic {list(HEURISTICS[team])}, a "
+                f"shipped policy {pretrained.names()}, a file given on the command line or a file {where}"
+            )
         if not os.path.isfile(path):
             raise ValueError(f"{team} policy file {spec!r} does not exist")
         return path
@@ -110,8 +114,12 @@ class Simulation:
 
             data = common_policy_env(files, AquariumConfig()).to_dict()
         o = self.options
-        for key, value in (("prey_count", o.prey), ("predator_count", o.predators), ("width", o.width),
-                           ("height", o.height)):
+        for key, value in (
+            ("prey_count", o.prey),
+            ("predator_count", o.predators),
+            ("width", o.width),
+            ("height", o.height),
+        ):
             if value is not None:
                 data[key] = value
         return AquariumConfig.from_dict(data)
@@ -123,8 +131,9 @@ class Simulation:
         try:
             config = self._config(specs)
             if env is None or env.config.to_dict() != config.to_dict():
-                env = BatchedAquarium(config, num_worlds=self.options.worlds, device=self.options.device,
-                                      seed=self.options.seed)
+                env = BatchedAquarium(
+                    config, num_worlds=self.options.worlds, device=self.options.device, seed=self.options.seed
+                )
             drivers = make_drivers(specs, env, seed=self.options.seed)
             for driver in drivers.values():
                 driver()  # a policy whose observations do not fit this world fails here, not in a step
@@ -255,21 +264,34 @@ class Simulation:
             self._metrics_due = time.perf_counter() + 4 * (time.perf_counter() - now)
         values = self._metrics_values[1]
         snap = {
-            "position": s.position[w].cpu().numpy().copy(), "heading": s.heading[w].cpu().numpy().copy(),
-            "velocity": s.velocity[w].cpu().numpy().copy(), "alive": s.alive[w].cpu().numpy().copy(),
+            "position": s.position[w].cpu().numpy().copy(),
+            "heading": s.heading[w].cpu().numpy().copy(),
+            "velocity": s.velocity[w].cpu().numpy().copy(),
+            "alive": s.alive[w].cpu().numpy().copy(),
             "flow": self.flow.sample(w) if self.overlays["flow"] else None,
         }
         cfg = env.config.world(w) if env.config.per_world_fields else env.config
         snap["header"] = {
-            "step": int(s.world_step[w]), "episode": int(s.episode[w]), "world": w, "num_worlds": env.num_worlds,
-            "width": float(cfg.width), "height": float(cfg.height), "prey_capacity": env.prey_capacity,
+            "step": int(s.world_step[w]),
+            "episode": int(s.episode[w]),
+            "world": w,
+            "num_worlds": env.num_worlds,
+            "width": float(cfg.width),
+            "height": float(cfg.height),
+            "prey_capacity": env.prey_capacity,
             "types": {t: _type_info(getattr(cfg, t), cfg.fov_enabled) for t in ("prey", "predator")},
             "episode_captures": int(s.episode_captures[w]),
-            "polarization": _finite(values["polarization"]), "groups": _finite(values["groups"]),
-            "prey_alive": int(s.prey_alive_count[w]), "predator_alive": int(s.predator_alive_count[w]),
-            "playing": self.playing, "speed": self.speed, "specs": dict(self.specs), "overlays": dict(self.overlays),
-            "human": None if self.human is None else {"team": self.human, "slot": self.human_agent(),
-                                                      **self.human_stats},
+            "polarization": _finite(values["polarization"]),
+            "groups": _finite(values["groups"]),
+            "prey_alive": int(s.prey_alive_count[w]),
+            "predator_alive": int(s.predator_alive_count[w]),
+            "playing": self.playing,
+            "speed": self.speed,
+            "specs": dict(self.specs),
+            "overlays": dict(self.overlays),
+            "human": None
+            if self.human is None
+            else {"team": self.human, "slot": self.human_agent(), **self.human_stats},
         }
         return snap
 
@@ -280,5 +302,8 @@ def _finite(value) -> float | None:
 
 
 def _type_info(t, fov_enabled: bool) -> dict:
-    return {"radius": float(t.radius), "view_distance": float(t.view_distance),
-            "fov": float(t.fov_angle) if fov_enabled else 360.0}
+    return {
+        "radius": float(t.radius),
+        "view_distance": float(t.view_distance),
+        "fov": float(t.fov_angle) if fov_enabled else 360.0,
+    }

@@ -22,18 +22,27 @@ from aquarium_warp.arguments import (
 
 def test_integer_types_take_any_size_at_or_above_their_bound():
     assert positive_int("1") == 1 and non_negative_int("0") == 0 and int_at_least(2)("2") == 2
-    assert non_negative_int(str(2 ** 70)) == 2 ** 70
-    for parse, text in ((positive_int, "0"), (non_negative_int, "-1"), (int_at_least(2), "1"), (positive_int, "1.5"),
-                        (positive_int, "x")):
+    assert non_negative_int(str(2**70)) == 2**70
+    for parse, text in (
+        (positive_int, "0"),
+        (non_negative_int, "-1"),
+        (int_at_least(2), "1"),
+        (positive_int, "1.5"),
+        (positive_int, "x"),
+    ):
         with pytest.raises(argparse.ArgumentTypeError, match=f"invalid value '{text}': must be an integer >= "):
             parse(text)
 
 
 def test_number_types_refuse_nan_infinity_and_out_of_range():
     assert positive_float("0.25") == 0.25 and non_negative_float("0") == 0.0
-    for parse, text, allowed in ((positive_float, "0", "> 0"), (positive_float, "inf", "> 0"),
-                                 (non_negative_float, "-0.1", ">= 0"), (non_negative_float, "nan", ">= 0"),
-                                 (positive_float, "x", "> 0")):
+    for parse, text, allowed in (
+        (positive_float, "0", "> 0"),
+        (positive_float, "inf", "> 0"),
+        (non_negative_float, "-0.1", ">= 0"),
+        (non_negative_float, "nan", ">= 0"),
+        (positive_float, "x", "> 0"),
+    ):
         with pytest.raises(argparse.ArgumentTypeError, match=f"'{text}': must be a finite number {allowed}"):
             parse(text)
     half = number("a number in [0, 0.5]", lambda v: 0 <= v <= 0.5)

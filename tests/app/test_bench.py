@@ -18,9 +18,20 @@ BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
 
 
 def tiny(tmp_path, **changes) -> BenchSettings:
-    settings = dict(device="cpu", agents=[16, 64], worlds=[1, 2], seconds=0.02, repeats=2, warmup_steps=2,
-                    stage_repeats=3, original=False, vmas=False, out_dir=str(tmp_path), quiet=True,
-                    copy_bytes=8 << 20)
+    settings = dict(
+        device="cpu",
+        agents=[16, 64],
+        worlds=[1, 2],
+        seconds=0.02,
+        repeats=2,
+        warmup_steps=2,
+        stage_repeats=3,
+        original=False,
+        vmas=False,
+        out_dir=str(tmp_path),
+        quiet=True,
+        copy_bytes=8 << 20,
+    )
     settings.update(changes)
     return BenchSettings(**settings)
 
@@ -72,8 +83,10 @@ def test_byte_model_counts_every_stage():
     assert counted["stages"]["grid"]["read"] > ranked["stages"]["grid"]["read"]
     # More grid cells per agent clear more cell ranges; reproduction reads the prey's ages.
     assert step_byte_model(cfg, (20, 20))["total"] > step_byte_model(cfg, (5, 5))["total"]
-    assert (step_byte_model(AquariumConfig(prey_reproduction=True, max_prey=32))["stages"]["population"]["read"]
-            > gpu["stages"]["population"]["read"])
+    assert (
+        step_byte_model(AquariumConfig(prey_reproduction=True, max_prey=32))["stages"]["population"]["read"]
+        > gpu["stages"]["population"]["read"]
+    )
     # A one-world config at the default density models the same order of bytes as the default world.
     assert 0.5 < counted["total"] / gpu["total"] < 2.0
 
@@ -110,8 +123,7 @@ def test_tiny_sweep_writes_json_and_figures(tmp_path):
         assert p["step_kernel"] == ("fused" if p["cells_per_world"] == 1 else "stages")
         busy = {"fused"} if p["step_kernel"] == "fused" else set(bench.STAGES[1:]) - {"fused"}
         for stage in bench.STAGES[1:]:
-            assert p["stages_ms"][stage] == pytest.approx(
-                sum(c["ms"] for c in p["commands_ms"] if c["stage"] == stage))
+            assert p["stages_ms"][stage] == pytest.approx(sum(c["ms"] for c in p["commands_ms"] if c["stage"] == stage))
             assert (p["stages_ms"][stage] > 0) == (stage in busy), (stage, p["step_kernel"])
         assert not [c for c in p["commands_ms"] if c["stage"] == "other"]
         assert p["heuristics_ms"] > 0
@@ -119,7 +131,8 @@ def test_tiny_sweep_writes_json_and_figures(tmp_path):
         model = step_byte_model(AquariumConfig() if key[0] == "worlds" else bench.density_config(16), cuda=False)
         assert p["bytes_per_agent_step"] == pytest.approx(model["total"])
         assert p["fraction_of_copy_bandwidth"] == pytest.approx(
-            p["bytes_per_agent_step"] * p["agent_steps_per_s"] / bandwidth)
+            p["bytes_per_agent_step"] * p["agent_steps_per_s"] / bandwidth
+        )
     assert data["peers"]["vmas"]["status"] == "skipped" and data["peers"]["original"]["status"] == "skipped"
     names = sorted(Path(f).name for f in data["figures"])
     assert names == ["scaling_cpu_per_agent.png", "scaling_cpu_stages.png", "scaling_cpu_throughput.png"]
@@ -140,8 +153,9 @@ def test_sweep_points_load_series():
     points = bench.sweep_points(BenchSettings(**base, load_agents=250))
     load = [(cfg.capacity, worlds) for series, cfg, worlds in points if series == "load"]
     # Worlds of N agents hold about 250 agents in all; N > 250 is left out.
-    assert load == [(16, round(250 / 16)), (64, round(250 / 64)), (100, round(250 / 100))] == [(16, 16), (64, 4),
-                                                                                              (100, 2)]
+    assert (
+        load == [(16, round(250 / 16)), (64, round(250 / 64)), (100, round(250 / 100))] == [(16, 16), (64, 4), (100, 2)]
+    )
     assert [s for s, _, _ in points] == ["agents"] * 5 + ["worlds"] * 2 + ["load"] * 3
     for series, cfg, _ in points:  # the load series' worlds are the agents series' (default density)
         if series == "load":
@@ -167,21 +181,39 @@ def test_sweep_points_load_series():
 
 def test_per_agent_time_ratio_summary():
     def pt(series, n, ns, worlds=1, status="ok"):
-        return {"series": series, "worlds": worlds, "agents_per_world": n, "agents": worlds * n, "status": status,
-                "ns_per_agent_step": ns, "agent_steps_per_s": 1e9 / ns}
+        return {
+            "series": series,
+            "worlds": worlds,
+            "agents_per_world": n,
+            "agents": worlds * n,
+            "status": status,
+            "ns_per_agent_step": ns,
+            "agent_steps_per_s": 1e9 / ns,
+        }
 
-    points = ([pt("agents", n, ns) for n, ns in ((256, 90.0), (1024, 40.0), (4096, 12.0), (65536, 10.0))]
-              + [pt("worlds", 17, ns, w) for w, ns in ((1, 300.0), (16, 30.0))]
-              + [pt("load", n, ns, 4096 // n) for n, ns in ((16, 20.0), (512, 9.0), (1000, 8.0), (2048, 11.0),
-                                                             (4096, 10.0))]
-              + [pt("load", 8192, 1.0, status="skipped")])
+    points = (
+        [pt("agents", n, ns) for n, ns in ((256, 90.0), (1024, 40.0), (4096, 12.0), (65536, 10.0))]
+        + [pt("worlds", 17, ns, w) for w, ns in ((1, 300.0), (16, 30.0))]
+        + [pt("load", n, ns, 4096 // n) for n, ns in ((16, 20.0), (512, 9.0), (1000, 8.0), (2048, 11.0), (4096, 10.0))]
+        + [pt("load", 8192, 1.0, status="skipped")]
+    )
     s = bench.summary(points, {}, {})
     # Agents: from 1024 (the nearest world >= 1000) to 65536; max / min over 1024, 4096, 65536.
-    assert s["agents_per_agent_time_ratio"] == {"agents_per_world": [1024, 65536], "worlds": [1, 1],
-                                                "ns_per_agent_step": [40.0, 10.0], "ratio": 4.0, "points": 3}
+    assert s["agents_per_agent_time_ratio"] == {
+        "agents_per_world": [1024, 65536],
+        "worlds": [1, 1],
+        "ns_per_agent_step": [40.0, 10.0],
+        "ratio": 4.0,
+        "points": 3,
+    }
     # Load: from 1000 exactly to 4096 (the skipped 8192 does not count); the peak is in between.
-    assert s["load_per_agent_time_ratio"] == {"agents_per_world": [1000, 4096], "worlds": [4, 1],
-                                              "ns_per_agent_step": [8.0, 10.0], "ratio": 11.0 / 8.0, "points": 3}
+    assert s["load_per_agent_time_ratio"] == {
+        "agents_per_world": [1000, 4096],
+        "worlds": [4, 1],
+        "ns_per_agent_step": [8.0, 10.0],
+        "ratio": 11.0 / 8.0,
+        "points": 3,
+    }
     assert "worlds_per_agent_time_ratio" not in s  # 17 agents per world: no world of 1000
     # The existing keys stay as they were.
     assert s["agents_ns_per_agent_first_last"] == [90.0, 10.0] and s["worlds_ns_per_agent_first_last"] == [300.0, 30.0]
@@ -194,8 +226,19 @@ def test_per_agent_time_ratio_summary():
 
 @pytest.mark.slow
 def test_tiny_load_sweep(tmp_path):
-    result = run_bench(tiny(tmp_path, agents="16,64", worlds=[1], load_agents=128, seconds=0.01, repeats=1,
-                            warmup_steps=1, stage_repeats=1, heuristics=False))
+    result = run_bench(
+        tiny(
+            tmp_path,
+            agents="16,64",
+            worlds=[1],
+            load_agents=128,
+            seconds=0.01,
+            repeats=1,
+            warmup_steps=1,
+            stage_repeats=1,
+            heuristics=False,
+        )
+    )
     points = {(p["series"], p["worlds"], p["agents_per_world"]): p for p in result["points"]}
     assert set(points) == {("agents", 1, 16), ("agents", 1, 64), ("worlds", 1, 17), ("load", 8, 16), ("load", 2, 64)}
     load = [p for p in result["points"] if p["series"] == "load"]
@@ -212,9 +255,13 @@ def test_tiny_load_sweep(tmp_path):
     assert result["summary"]["load_ns_per_agent_first_last"] == [p["ns_per_agent_step"] for p in load]
     s = bench.summary(result["points"], {}, {}, from_agents_per_world=16)
     ns = [p["ns_per_agent_step"] for p in load]
-    assert s["load_per_agent_time_ratio"] == {"agents_per_world": [16, 64], "worlds": [8, 2],
-                                              "ns_per_agent_step": ns, "ratio": pytest.approx(max(ns) / min(ns)),
-                                              "points": 2}
+    assert s["load_per_agent_time_ratio"] == {
+        "agents_per_world": [16, 64],
+        "worlds": [8, 2],
+        "ns_per_agent_step": ns,
+        "ratio": pytest.approx(max(ns) / min(ns)),
+        "points": 2,
+    }
     assert s["load_per_agent_time_ratio"]["ratio"] >= 1.0
     # The table prints the load rows, the load and the ratio lines.
     table = bench.format_table({**result, "summary": s})
@@ -251,9 +298,11 @@ def test_failures_and_memory_guard_skip_points(tmp_path, monkeypatch):
 
 
 def test_ratios_against_peers():
-    points = [{"series": "worlds", "worlds": 4, "agents_per_world": 17, "status": "ok", "agent_steps_per_s": 1e6},
-              {"series": "agents", "worlds": 1, "agents_per_world": 64, "status": "ok", "agent_steps_per_s": 5e5},
-              {"series": "agents", "worlds": 1, "agents_per_world": 99, "status": "skipped"}]
+    points = [
+        {"series": "worlds", "worlds": 4, "agents_per_world": 17, "status": "ok", "agent_steps_per_s": 1e6},
+        {"series": "agents", "worlds": 1, "agents_per_world": 64, "status": "ok", "agent_steps_per_s": 5e5},
+        {"series": "agents", "worlds": 1, "agents_per_world": 99, "status": "skipped"},
+    ]
     vmas = {"points": [{"series": "worlds", "envs": 4, "agents_per_env": 17, "status": "ok", "agent_steps_per_s": 1e4}]}
     bench.add_ratios(points, {"agent_steps_per_s": 2e3}, vmas)
     assert points[0]["ratios"] == {"vs_original": 500.0, "vs_vmas": 100.0}
@@ -265,8 +314,11 @@ def test_ratios_against_peers():
 
 def test_stored_original_measurement(tmp_path):
     stored = tmp_path / "original.json"
-    stored.write_text(json.dumps({"machine": {"cpu": "x"}, "results": {"raw": {"agent_steps_per_s": 3584.0,
-                                                                                "env_steps_per_s": 210.8}}}))
+    stored.write_text(
+        json.dumps(
+            {"machine": {"cpu": "x"}, "results": {"raw": {"agent_steps_per_s": 3584.0, "env_steps_per_s": 210.8}}}
+        )
+    )
     peer = bench.measure_original_peer(tiny(tmp_path, original_json=str(stored)))
     assert peer["status"] == "stored" and peer["agent_steps_per_s"] == 3584.0 and peer["machine"] == {"cpu": "x"}
     assert bench.measure_original_peer(tiny(tmp_path))["status"] == "skipped"
@@ -286,13 +338,20 @@ def test_peers_are_measured_by_the_harnesses_passed_in(tmp_path):
 
     def measure_original(seconds, repeats, which, warmup):
         calls.append(("original", which))
-        return {"agent_steps_per_s": 100.0, "env_steps_per_s": 6.0, "runs": [{"agent_steps_per_s": 100.0}],
-                "seconds": seconds, "repeats": repeats, "entry_point": "raw_env"}
+        return {
+            "agent_steps_per_s": 100.0,
+            "env_steps_per_s": 6.0,
+            "runs": [{"agent_steps_per_s": 100.0}],
+            "seconds": seconds,
+            "repeats": repeats,
+            "entry_point": "raw_env",
+        }
 
     vmas = SimpleNamespace(SCENARIO="simple_tag", vmas_version=lambda: "0.0", measure_vmas=measure_vmas)
     peers = bench.Peers(original=SimpleNamespace(measure_original=measure_original), vmas=vmas)
-    settings = tiny(tmp_path, agents=[16], worlds=[1], vmas=True, original=True, plots=False, stages=False,
-                    heuristics=False)
+    settings = tiny(
+        tmp_path, agents=[16], worlds=[1], vmas=True, original=True, plots=False, stages=False, heuristics=False
+    )
     result = run_bench(settings, peers)
     assert calls == [("original", "raw"), ("vmas", 16, 1, "cpu"), ("vmas", 17, 1, "cpu")]
     assert [p["status"] for p in result["peers"]["vmas"]["points"]] == ["ok", "ok"]
@@ -308,9 +367,36 @@ def test_cli_bench(tmp_path):
     from aquarium_warp.cli import main
 
     out = tmp_path / "cli"
-    assert main(["bench", "--device", "cpu", "--agents", "16", "--worlds", "1", "--seconds", "0.01", "--repeats", "1",
-                 "--warmup-steps", "1", "--no-original", "--no-plots", "--no-heuristics", "--copy-mib", "4",
-                 "--git-commit", "abc123", "--quiet", "--out-dir", str(out)]) == 0
+    assert (
+        main(
+            [
+                "bench",
+                "--device",
+                "cpu",
+                "--agents",
+                "16",
+                "--worlds",
+                "1",
+                "--seconds",
+                "0.01",
+                "--repeats",
+                "1",
+                "--warmup-steps",
+                "1",
+                "--no-original",
+                "--no-plots",
+                "--no-heuristics",
+                "--copy-mib",
+                "4",
+                "--git-commit",
+                "abc123",
+                "--quiet",
+                "--out-dir",
+                str(out),
+            ]
+        )
+        == 0
+    )
     data = json.loads((out / "scaling_cpu.json").read_text())
     assert data["git"] == {"commit": "abc123", "dirty": None, "source": "given"}
     assert all(p["status"] == "ok" for p in data["points"])
@@ -346,17 +432,38 @@ def test_profile_step_reads_ncu_csv():
     step totals per agent (a hand-made two-kernel CSV in the layout of `ncu --csv --page raw`)."""
     profile = _profile_step_module()
     metrics = list(profile.METRICS)
-    units = {"gpu__time_duration.sum": "us", "dram__bytes_read.sum": "Mbyte", "dram__bytes_write.sum": "Kbyte",
-             "lts__t_bytes.sum": "byte"}
-    values = [{"gpu__time_duration.sum": "2", "dram__bytes_read.sum": "1.5", "dram__bytes_write.sum": "500",
-               "lts__t_bytes.sum": "4,000,000", "smsp__inst_executed.sum": "1,000"},
-              {"gpu__time_duration.sum": "6", "dram__bytes_read.sum": "0.5", "dram__bytes_write.sum": "1,500",
-               "lts__t_bytes.sum": "0", "smsp__inst_executed.sum": "3,000"}]
-    names = ["observation_kernel__locals__observe_98279985_cuda_kernel_forward",
-             "void cub::DeviceScanKernel<cub::policy_hub<int>, int *>(int *)"]
+    units = {
+        "gpu__time_duration.sum": "us",
+        "dram__bytes_read.sum": "Mbyte",
+        "dram__bytes_write.sum": "Kbyte",
+        "lts__t_bytes.sum": "byte",
+    }
+    values = [
+        {
+            "gpu__time_duration.sum": "2",
+            "dram__bytes_read.sum": "1.5",
+            "dram__bytes_write.sum": "500",
+            "lts__t_bytes.sum": "4,000,000",
+            "smsp__inst_executed.sum": "1,000",
+        },
+        {
+            "gpu__time_duration.sum": "6",
+            "dram__bytes_read.sum": "0.5",
+            "dram__bytes_write.sum": "1,500",
+            "lts__t_bytes.sum": "0",
+            "smsp__inst_executed.sum": "3,000",
+        },
+    ]
+    names = [
+        "observation_kernel__locals__observe_98279985_cuda_kernel_forward",
+        "void cub::DeviceScanKernel<cub::policy_hub<int>, int *>(int *)",
+    ]
     quote = lambda row: ",".join(f'"{x}"' for x in row)  # noqa: E731
-    lines = ["==PROF== Connected to process", quote(["ID", "Kernel Name"] + metrics),
-             quote(["", ""] + [units.get(m, "") for m in metrics])]
+    lines = [
+        "==PROF== Connected to process",
+        quote(["ID", "Kernel Name"] + metrics),
+        quote(["", ""] + [units.get(m, "") for m in metrics]),
+    ]
     for k, (name, v) in enumerate(zip(names, values)):
         lines.append(quote([str(k), name] + [v.get(m, "50") for m in metrics]))
     kernels = profile.parse_ncu_csv("\n".join(lines))

@@ -22,8 +22,9 @@ REPO = Path(__file__).resolve().parents[2]
 
 def run(*args, cwd=None) -> subprocess.CompletedProcess:
     env = {k: v for k, v in os.environ.items() if k != "CUDA_VISIBLE_DEVICES"}
-    return subprocess.run([sys.executable, "-m", "aquarium_warp", *args], capture_output=True, text=True,
-                          cwd=cwd, env=env, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "aquarium_warp", *args], capture_output=True, text=True, cwd=cwd, env=env, timeout=300
+    )
 
 
 def subparsers(parser: argparse.ArgumentParser, path=("aquarium-warp",)):
@@ -37,11 +38,20 @@ def subparsers(parser: argparse.ArgumentParser, path=("aquarium-warp",)):
 def test_every_option_of_every_subcommand_has_help():
     found = {" ".join(path): p for path, p in subparsers(build_parser())}
     # every subcommand is reached, nested ones included
-    assert {"aquarium-warp demo", "aquarium-warp video", "aquarium-warp train", "aquarium-warp eval",
-            "aquarium-warp study swarm-size", "aquarium-warp bench"} <= set(found)
-    missing = [f"{name} {'/'.join(a.option_strings) or a.dest}"
-               for name, p in found.items() for a in p._actions
-               if not isinstance(a, argparse._SubParsersAction) and not (a.help or "").strip()]
+    assert {
+        "aquarium-warp demo",
+        "aquarium-warp video",
+        "aquarium-warp train",
+        "aquarium-warp eval",
+        "aquarium-warp study swarm-size",
+        "aquarium-warp bench",
+    } <= set(found)
+    missing = [
+        f"{name} {'/'.join(a.option_strings) or a.dest}"
+        for name, p in found.items()
+        for a in p._actions
+        if not isinstance(a, argparse._SubParsersAction) and not (a.help or "").strip()
+    ]
     assert not missing, f"options without a help text: {missing}"
 
 
@@ -68,8 +78,16 @@ def test_python_m_runs_the_command_line_quietly_on_the_cpu():
 
 @pytest.mark.slow
 def test_asking_for_cuda_without_a_driver_says_why():
-    probe = subprocess.run([sys.executable, "-c", "import warp as wp; wp.config.log_level = wp.LOG_WARNING; "
-                            "wp.init(); print(wp.is_cuda_available())"], capture_output=True, text=True, timeout=300)
+    probe = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "import warp as wp; wp.config.log_level = wp.LOG_WARNING; wp.init(); print(wp.is_cuda_available())",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     if probe.stdout.strip() != "False" or "NVIDIA CUDA driver" not in probe.stderr:
         pytest.skip("this machine has a CUDA driver")
     result = run("demo", "--worlds", "2", "--steps", "3", "--device", "cuda:0")
@@ -80,9 +98,34 @@ def test_asking_for_cuda_without_a_driver_says_why():
 @pytest.mark.slow
 def test_bench_writes_to_the_current_directory_without_the_original(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    assert main(["bench", "--device", "cpu", "--agents", "16", "--worlds", "1", "--seconds", "0.01",
-                 "--repeats", "1", "--warmup-steps", "1", "--no-plots", "--no-heuristics", "--no-stages",
-                 "--copy-mib", "4", "--git-commit", "abc123", "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "bench",
+                "--device",
+                "cpu",
+                "--agents",
+                "16",
+                "--worlds",
+                "1",
+                "--seconds",
+                "0.01",
+                "--repeats",
+                "1",
+                "--warmup-steps",
+                "1",
+                "--no-plots",
+                "--no-heuristics",
+                "--no-stages",
+                "--copy-mib",
+                "4",
+                "--git-commit",
+                "abc123",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scaling_cpu.json"]
     original = json.loads((tmp_path / "scaling_cpu.json").read_text())["peers"]["original"]
     assert original["status"] == "skipped" and "--original" in original["note"]
@@ -103,8 +146,23 @@ def test_wandb_logger_without_wandb_names_the_extra(tmp_path, capsys):
     pytest.importorskip("rsl_rl", reason="needs the training extra")
     if importlib.util.find_spec("wandb") is not None:
         pytest.skip("wandb is installed")
-    code = main(["train", "--device", "cpu", "--num-worlds", "2", "--iterations", "1", "--num-steps-per-env", "2",
-                 "--set", "runner.logger=wandb", "--log-dir", str(tmp_path / "run")])
+    code = main(
+        [
+            "train",
+            "--device",
+            "cpu",
+            "--num-worlds",
+            "2",
+            "--iterations",
+            "1",
+            "--num-steps-per-env",
+            "2",
+            "--set",
+            "runner.logger=wandb",
+            "--log-dir",
+            str(tmp_path / "run"),
+        ]
+    )
     assert code == 2
     assert "pip install 'aquarium-warp[wandb]'" in capsys.readouterr().err
     assert not (tmp_path / "run").exists()  # refused before the run started

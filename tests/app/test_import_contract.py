@@ -11,13 +11,30 @@ import os
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
 # Source folders and the package each installs as (pyproject.toml's package-dir).
 FOLDERS = {"aquarium_warp": "aquarium_warp", "kernels": "aquarium_warp.kernels", "training": "aquarium_warp.training"}
-CORE = ("aquarium_warp.config", "aquarium_warp.env", "aquarium_warp.state", "aquarium_warp.shard",
-        "aquarium_warp.params", "aquarium_warp.per_world", "aquarium_warp.checks", "aquarium_warp.device",
-        "aquarium_warp.seeding")
+CORE = (
+    "aquarium_warp.config",
+    "aquarium_warp.env",
+    "aquarium_warp.state",
+    "aquarium_warp.shard",
+    "aquarium_warp.params",
+    "aquarium_warp.per_world",
+    "aquarium_warp.checks",
+    "aquarium_warp.device",
+    "aquarium_warp.seeding",
+)
 # What the core must not reach: everything built on top of it.
-ABOVE_CORE = ("aquarium_warp.training", "aquarium_warp.cli", "aquarium_warp.studies", "aquarium_warp.viewer",
-              "aquarium_warp.drivers", "aquarium_warp.interop", "aquarium_warp.aquarium_v1", "aquarium_warp.video",
-              "aquarium_warp.bench", "aquarium_warp.rollout")
+ABOVE_CORE = (
+    "aquarium_warp.training",
+    "aquarium_warp.cli",
+    "aquarium_warp.studies",
+    "aquarium_warp.viewer",
+    "aquarium_warp.drivers",
+    "aquarium_warp.interop",
+    "aquarium_warp.aquarium_v1",
+    "aquarium_warp.video",
+    "aquarium_warp.bench",
+    "aquarium_warp.rollout",
+)
 
 
 def modules() -> dict[str, str]:

@@ -27,6 +27,7 @@ def one_line(capsys, prefix: str) -> str:
 
 def full_disk(monkeypatch) -> None:
     """Every atomic write fails as a full disk makes it fail: when its data reach the disk."""
+
     def no_space(path):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), path)
 
@@ -70,18 +71,35 @@ def _impossible(tmp_path) -> str:
     return str(tmp_path / "file" / "out")
 
 
-@pytest.mark.parametrize("argv", [
-    ["train", "--preset", "tiny", "--device", "cpu", "--log-dir", "{bad}"],
-    ["eval", "--device", "cpu", "--episodes", "1", "--seeds", "0", "--out", "{bad}"],
-    ["eval", "--cross-play", "--device", "cpu", "--episodes", "1", "--seeds", "0", "--out", "{bad}"],
-    ["study", "swarm-size", "--prey", "4", "--seeds", "1", "--episode-steps", "5", "--device", "cpu", "--out", "{bad}"],
-    ["study", "fov-view", "--seeds", "1", "--episode-steps", "5", "--device", "cpu", "--out", "{bad}"],
-    ["study", "flow", "--seeds", "1", "--episode-steps", "5", "--device", "cpu", "--out", "{bad}"],
-    ["study", "group-hunting", "--seeds", "1", "--device", "cpu", "--out", "{bad}"],
-    ["study", "many-eyes", "--seeds", "1", "--device", "cpu", "--out", "{bad}"],
-    ["video", "--steps", "2", "--device", "cpu", "--no-progress", "--out", "{bad}/v.mp4"],
-    ["video", "--steps", "2", "--device", "cpu", "--no-progress", "--out", "{folder}"],
-], ids=lambda argv: " ".join(argv[:2]) + (" folder" if "{folder}" in argv else ""))
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["train", "--preset", "tiny", "--device", "cpu", "--log-dir", "{bad}"],
+        ["eval", "--device", "cpu", "--episodes", "1", "--seeds", "0", "--out", "{bad}"],
+        ["eval", "--cross-play", "--device", "cpu", "--episodes", "1", "--seeds", "0", "--out", "{bad}"],
+        [
+            "study",
+            "swarm-size",
+            "--prey",
+            "4",
+            "--seeds",
+            "1",
+            "--episode-steps",
+            "5",
+            "--device",
+            "cpu",
+            "--out",
+            "{bad}",
+        ],
+        ["study", "fov-view", "--seeds", "1", "--episode-steps", "5", "--device", "cpu", "--out", "{bad}"],
+        ["study", "flow", "--seeds", "1", "--episode-steps", "5", "--device", "cpu", "--out", "{bad}"],
+        ["study", "group-hunting", "--seeds", "1", "--device", "cpu", "--out", "{bad}"],
+        ["study", "many-eyes", "--seeds", "1", "--device", "cpu", "--out", "{bad}"],
+        ["video", "--steps", "2", "--device", "cpu", "--no-progress", "--out", "{bad}/v.mp4"],
+        ["video", "--steps", "2", "--device", "cpu", "--no-progress", "--out", "{folder}"],
+    ],
+    ids=lambda argv: " ".join(argv[:2]) + (" folder" if "{folder}" in argv else ""),
+)
 def test_an_impossible_output_location_is_refused_before_any_work(tmp_path, capsys, monkeypatch, argv):
     import aquarium_warp.env
 
@@ -113,11 +131,14 @@ def test_bench_checks_its_output_folder_before_measuring(tmp_path, capsys, monke
 
 
 # ------------------------------------------------------------------------------------ damaged inputs
-@pytest.mark.parametrize("name,text,expected", [
-    ("missing.yaml", None, "--config {path}: cannot read it (No such file or directory)"),
-    ("bad.yaml", "env: [1\n", "--config {path}: not valid YAML (ParserError"),
-    ("bad.json", "{env", "--config {path}: not valid JSON ("),
-])
+@pytest.mark.parametrize(
+    "name,text,expected",
+    [
+        ("missing.yaml", None, "--config {path}: cannot read it (No such file or directory)"),
+        ("bad.yaml", "env: [1\n", "--config {path}: not valid YAML (ParserError"),
+        ("bad.json", "{env", "--config {path}: not valid JSON ("),
+    ],
+)
 def test_train_config_file_errors_are_one_line(tmp_path, capsys, name, text, expected):
     pytest.importorskip("yaml")
     path = tmp_path / name
@@ -134,8 +155,11 @@ def test_a_corrupt_policy_file_is_named(tmp_path, capsys, suffix, command):
     pytest.importorskip("rsl_rl")
     path = tmp_path / f"policy{suffix}"
     path.write_bytes(b"garbage, not a policy\n")
-    argv = (["eval", "--prey", str(path), "--episodes", "1", "--seeds", "0", "--out", str(tmp_path / "out")]
-            if command == "eval" else ["video", "--prey-policy", str(path), "--out", str(tmp_path / "v.mp4")])
+    argv = (
+        ["eval", "--prey", str(path), "--episodes", "1", "--seeds", "0", "--out", str(tmp_path / "out")]
+        if command == "eval"
+        else ["video", "--prey-policy", str(path), "--out", str(tmp_path / "v.mp4")]
+    )
     assert main(argv + ["--device", "cpu"]) == 2
     assert f"{path}: not a readable policy file" in one_line(capsys, f"aquarium-warp {command}: ")
 
@@ -149,8 +173,11 @@ def test_ragged_flow_grid_and_blind_types_are_refused_naming_the_field():
             FlowConfig("grid", grid=grid)
     for kind, default in (("prey", default_prey), ("predator", default_predator)):
         blind = dataclasses.replace(default(), prey_slots=0, predator_slots=0)
-        with pytest.raises(ValueError, match=rf"^{kind}\.predator_slots=0 and {kind}\.prey_slots=0: an observation "
-                                             "needs at least one neighbour slot"):
+        with pytest.raises(
+            ValueError,
+            match=rf"^{kind}\.predator_slots=0 and {kind}\.prey_slots=0: an observation "
+            "needs at least one neighbour slot",
+        ):
             AquariumConfig(**{kind: blind})
         AquariumConfig(**{kind: dataclasses.replace(default(), prey_slots=0, predator_slots=1)})  # one is enough
 
@@ -162,8 +189,24 @@ def test_a_full_disk_during_eval_keeps_the_previous_results(tmp_path, capsys, mo
     out.mkdir()
     (out / "summary.json").write_text("previous")
     full_disk(monkeypatch)
-    argv = ["eval", "--episodes", "1", "--seeds", "0", "--max-steps", "5", "--prey-count", "2", "--device", "cpu",
-            "--max-worlds", "2", "--out", str(out), "--no-figures"]
+    argv = [
+        "eval",
+        "--episodes",
+        "1",
+        "--seeds",
+        "0",
+        "--max-steps",
+        "5",
+        "--prey-count",
+        "2",
+        "--device",
+        "cpu",
+        "--max-worlds",
+        "2",
+        "--out",
+        str(out),
+        "--no-figures",
+    ]
     assert main(argv) == 1
     err = one_line(capsys, "aquarium-warp eval: ")
     assert err.endswith(": no space left on device") and str(out) in err, err
@@ -172,14 +215,17 @@ def test_a_full_disk_during_eval_keeps_the_previous_results(tmp_path, capsys, mo
 
 
 # ------------------------------------------------------------------------------- consistent choices
-@pytest.mark.parametrize("argv,option", [
-    (["study", "swarm-size", "--prey", "4,4"], "--prey"),
-    (["study", "swarm-size", "--prey", "4,8", "--fov-angle", "90,90"], "--fov-angle"),
-    (["study", "swarm-size", "--prey", "4", "--view-distance", "50,50"], "--view-distance"),
-    (["study", "fov-view", "--fov", "60,60"], "--fov"),
-    (["study", "fov-view", "--view", "50,100,50"], "--view"),
-    (["study", "group-hunting", "--predators", "1,1"], "--predators"),
-])
+@pytest.mark.parametrize(
+    "argv,option",
+    [
+        (["study", "swarm-size", "--prey", "4,4"], "--prey"),
+        (["study", "swarm-size", "--prey", "4,8", "--fov-angle", "90,90"], "--fov-angle"),
+        (["study", "swarm-size", "--prey", "4", "--view-distance", "50,50"], "--view-distance"),
+        (["study", "fov-view", "--fov", "60,60"], "--fov"),
+        (["study", "fov-view", "--view", "50,100,50"], "--view"),
+        (["study", "group-hunting", "--predators", "1,1"], "--predators"),
+    ],
+)
 def test_every_study_refuses_repeated_values_naming_the_option(tmp_path, capsys, argv, option):
     assert main(argv + ["--device", "cpu", "--out", str(tmp_path)]) == 2
     err = one_line(capsys, "aquarium-warp study: ")
@@ -210,9 +256,14 @@ def test_one_seed_heatmaps_show_no_interval(tmp_path, monkeypatch):
     monkeypatch.setattr(plots, "write_figure", texts)
     matrix = {"mean": [[0.25, 0.5]], "std": [[0.0, 0.0]]}
     for seeds in ([0], [0, 1]):
-        result = {"cross_play": {"prey": ["random"], "predator": ["naivchase", "random"],
-                                 "matrices": {"captures_per_prey": matrix}},
-                  "protocol": {"episodes": 2, "seeds": seeds}}
+        result = {
+            "cross_play": {
+                "prey": ["random"],
+                "predator": ["naivchase", "random"],
+                "matrices": {"captures_per_prey": matrix},
+            },
+            "protocol": {"episodes": 2, "seeds": seeds},
+        }
         plots.plot_cross_play(result, str(tmp_path / "heatmap.png"))
     assert cells[0] == ["0.25", "0.5"]
     assert cells[1] == ["0.25\n± 0", "0.5\n± 0"]
@@ -225,9 +276,17 @@ def test_an_empty_training_curve_says_why(tmp_path, capsys):
 
     run = tmp_path / "run"
     run.mkdir()
-    rows = [",".join(CSV_FIELDS)] + [",".join("" if f in ("captures", "captures_per_prey", "reward_per_agent",
-                                                          "opponent_reward_per_agent", "episode_length") else "1"
-                                              if f != "iteration" else str(i) for f in CSV_FIELDS) for i in range(3)]
+    rows = [",".join(CSV_FIELDS)] + [
+        ",".join(
+            ""
+            if f in ("captures", "captures_per_prey", "reward_per_agent", "opponent_reward_per_agent", "episode_length")
+            else "1"
+            if f != "iteration"
+            else str(i)
+            for f in CSV_FIELDS
+        )
+        for i in range(3)
+    ]
     (run / "progress.csv").write_text("\n".join(rows) + "\n")
     assert main(["eval", "--curves", f"short={run}", "--out", str(tmp_path / "out")]) == 0
     out = capsys.readouterr().out
@@ -240,8 +299,24 @@ def test_counts_are_pluralised(tmp_path, capsys):
     from aquarium_warp.cli import plural
 
     assert [plural(n, "predator") for n in (0, 1, 2)] == ["0 predators", "1 predator", "2 predators"]
-    argv = ["eval", "--episodes", "1", "--seeds", "0", "--max-steps", "5", "--prey-count", "2", "--device", "cpu",
-            "--max-worlds", "2", "--out", str(tmp_path), "--no-figures"]
+    argv = [
+        "eval",
+        "--episodes",
+        "1",
+        "--seeds",
+        "0",
+        "--max-steps",
+        "5",
+        "--prey-count",
+        "2",
+        "--device",
+        "cpu",
+        "--max-worlds",
+        "2",
+        "--out",
+        str(tmp_path),
+        "--no-figures",
+    ]
     assert main(argv) == 0
     out = capsys.readouterr().out
     assert ", 2 prey, 1 predator, 5 steps" in out, out
@@ -262,9 +337,15 @@ def test_onnx_export_prints_no_torchvision_notes(tmp_path):
     script = (
         "from aquarium_warp.training import Trainer, make_config\n"
         "t = Trainer(make_config('tiny', {'train': {'num_worlds': 2, 'device': 'cpu', 'iterations': 0}}))\n"
-        f"print(t.export({str(tmp_path)!r}, formats=['onnx']))\n")
-    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300,
-                            env={**os.environ, "GIT_PYTHON_REFRESH": "quiet"})
+        f"print(t.export({str(tmp_path)!r}, formats=['onnx']))\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", script],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, "GIT_PYTHON_REFRESH": "quiet"},
+    )
     assert result.returncode == 0, result.stderr
     assert os.path.isfile(tmp_path / "policy.onnx")
     assert "torchvision" not in result.stderr, result.stderr

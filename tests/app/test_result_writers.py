@@ -29,8 +29,9 @@ def test_study_run_record_records_provenance():
 def test_swarm_size_study_records_provenance(tmp_path):
     from aquarium_warp.studies.swarm_size import SwarmSizeStudy, run_swarm_size_study
 
-    study = SwarmSizeStudy(prey=[4], seeds=1, episode_steps=5, metrics_every=5, device="cpu", out=str(tmp_path),
-                           figures=False)
+    study = SwarmSizeStudy(
+        prey=[4], seeds=1, episode_steps=5, metrics_every=5, device="cpu", out=str(tmp_path), figures=False
+    )
     summary = run_swarm_size_study(study, progress=False, command="aquarium-warp study swarm-size --prey 4")
     written = json.loads((tmp_path / "swarm_size.json").read_text())
     assert missing(written) == ()
@@ -46,8 +47,9 @@ def test_evaluation_files_record_provenance(tmp_path):
         pytest.skip("aquarium_warp.training is installed from another checkout")
     from aquarium_warp.training.evaluate import evaluate_policies, write_results
 
-    result = evaluate_policies(["turnaway"], ["naivchase"], AquariumConfig(max_steps=5), episodes=1, seeds=[0],
-                               device="cpu", max_worlds=1)
+    result = evaluate_policies(
+        ["turnaway"], ["naivchase"], AquariumConfig(max_steps=5), episodes=1, seeds=[0], device="cpu", max_worlds=1
+    )
     write_results(result, str(tmp_path))
     assert missing(json.loads((tmp_path / "summary.json").read_text())) == ()
 
@@ -62,10 +64,18 @@ def _script(name: str):
 
 def test_bench_multi_gpu_records_provenance(tmp_path, monkeypatch):
     bench = _script("bench_multi_gpu")
-    monkeypatch.setattr(bench, "run_point", lambda g, team, graphs, args: {
-        "gpus": g, "team": team, "cuda_graphs": graphs, "agent_steps_per_s": 1.0, "wall_seconds": 1.0})
+    monkeypatch.setattr(
+        bench,
+        "run_point",
+        lambda g, team, graphs, args: {
+            "gpus": g,
+            "team": team,
+            "cuda_graphs": graphs,
+            "agent_steps_per_s": 1.0,
+            "wall_seconds": 1.0,
+        },
+    )
     bench.main(["--device", "cpu", "--gpus", "1", "--teams", "prey", "--out-dir", str(tmp_path)])
     data = json.loads((tmp_path / "multi_gpu_cpu.json").read_text())
     assert missing(data) == ()
     assert data["command"].endswith("--device cpu --gpus 1 --teams prey --out-dir " + str(tmp_path))
-

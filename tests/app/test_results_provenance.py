@@ -58,16 +58,22 @@ INCOMPLETE: dict[str, tuple[tuple[str, ...], str]] = {
     "one_batch_h200/fv_one_batch/fov_view.json": (("command",), "the README gives options in prose, not the command"),
     "one_batch_h200/fv_per_setting/fov_view.json": (("command",), "the README gives options in prose, not the command"),
     "one_batch_h200/ss_one_batch/swarm_size.json": (("command",), "the README gives options in prose, not the command"),
-    "one_batch_h200/ss_per_setting/swarm_size.json": (("command",),
-                                                      "the README gives options in prose, not the command"),
+    "one_batch_h200/ss_per_setting/swarm_size.json": (
+        ("command",),
+        "the README gives options in prose, not the command",
+    ),
     "original_cpu.json": (("commit", "command"), "benchmarks/original_aquarium.py recorded neither then"),
     "paper_h200_fast_loop/summary.json": (("versions",), _NO_VERSIONS),
     "per_world_h200/per_world_cuda0_h200.json": (("versions",), _NO_VERSIONS),
     "pettingzoo_cpu.json": (("command",), "benchmarks/bench_pettingzoo.py did not record it then"),
-    "redesign_h200/step_new_r1.json": (("command",), "round 1 did not run the README's command (its rows stop at "
-                                                     "100,000 agents)"),
-    "redesign_h200/step_old_r1.json": (("command",), "round 1 did not run the README's command (its rows stop at "
-                                                     "100,000 agents)"),
+    "redesign_h200/step_new_r1.json": (
+        ("command",),
+        "round 1 did not run the README's command (its rows stop at 100,000 agents)",
+    ),
+    "redesign_h200/step_old_r1.json": (
+        ("command",),
+        "round 1 did not run the README's command (its rows stop at 100,000 agents)",
+    ),
     "swarm_size/swarm_size.json": (("commit",), "the commit it ran at is not recorded anywhere"),
     "viewer_cpu/viewer.json": (("versions",), "only the browser's version recorded, not warp's"),
 }
@@ -100,8 +106,9 @@ def recorded(data: dict) -> dict:
     prov = data.get("provenance") if isinstance(data.get("provenance"), dict) else {}
     found = {}
     for field, paths in (("commit", COMMIT_KEYS), ("command", COMMAND_KEYS), ("device", DEVICE_KEYS)):
-        found[field] = prov[field] if field in prov else next(
-            (v for v in (_get(data, p) for p in paths) if _known(v)), None)
+        found[field] = (
+            prov[field] if field in prov else next((v for v in (_get(data, p) for p in paths) if _known(v)), None)
+        )
     found["versions"] = prov["versions"] if "versions" in prov else _own_versions(data)
     return found
 
@@ -111,8 +118,11 @@ def missing(data: dict) -> tuple[str, ...]:
     found = recorded(data)
     lacking = [f for f in ("commit", "command", "device") if not (_known(found[f]) and isinstance(found[f], str))]
     versions = found["versions"]
-    if not (isinstance(versions, dict) and any(_known(versions.get(k)) for k in SIMULATOR_VERSION)
-            and all(_known(v) for v in versions.values())):
+    if not (
+        isinstance(versions, dict)
+        and any(_known(versions.get(k)) for k in SIMULATOR_VERSION)
+        and all(_known(v) for v in versions.values())
+    ):
         lacking.append("versions")
     return tuple(lacking)
 
@@ -137,7 +147,8 @@ def test_result_records_commit_command_device_versions(name):
     expected = INCOMPLETE.get(name, ((), ""))[0]
     assert lacking == expected, (
         f"{name} lacks {lacking or 'nothing'} but INCOMPLETE says {expected or 'nothing'}: record commit, command, "
-        "device and versions (or a `provenance` object; see benchmarks/results/README.md)")
+        "device and versions (or a `provenance` object; see benchmarks/results/README.md)"
+    )
     if lacking:
         assert prov is not None, f"{name}: an incomplete file says so in a provenance object"
         assert "unknown" in prov["source"] or "not recorded" in prov["source"], f"{name}: source must say why"
@@ -167,8 +178,18 @@ def test_provenance_rules_on_examples():
     assert missing(full) == ()
     assert missing({"command": "x"}) == ("commit", "device", "versions")
     assert missing({**full, "git": {"commit": "unknown"}}) == ("commit",)
-    assert missing({**full, "provenance": {"commit": None, "command": "x", "device": "CPU",
-                                           "versions": {"warp": "1.19.0"}, "source": "unknown"}}) == ("commit",)
+    assert missing(
+        {
+            **full,
+            "provenance": {
+                "commit": None,
+                "command": "x",
+                "device": "CPU",
+                "versions": {"warp": "1.19.0"},
+                "source": "unknown",
+            },
+        }
+    ) == ("commit",)
     assert missing({**full, "machine": {"device_name": "CPU", "torch": "2"}}) == ("versions",)
 
 

@@ -120,8 +120,11 @@ def test_keys_steer_the_human_agent(simulation, dx, dy):
 def test_select_agents_thins_prey_and_keeps_predators_and_the_human():
     n, prey = 1000, 990
     rng = np.random.default_rng(0)
-    snapshot = {"alive": np.ones(n, bool), "position": rng.uniform(0, 100, (n, 2)).astype(np.float32),
-                "header": {"prey_capacity": prey}}
+    snapshot = {
+        "alive": np.ones(n, bool),
+        "position": rng.uniform(0, 100, (n, 2)).astype(np.float32),
+        "header": {"prey_capacity": prey},
+    }
     slots = select_agents(snapshot, None, 100, human=5)
     assert len(slots) <= 101 and set(range(prey, n)) <= set(slots.tolist()) and 5 in slots
     inside = select_agents(snapshot, (0, 0, 50, 50), 10**6, human=None)
@@ -139,8 +142,9 @@ def _free_port() -> int:
 def serve(viewer):
     """The viewer's app on uvicorn on a free port, on a thread; yields the port."""
     port = _free_port()
-    server = uvicorn.Server(uvicorn.Config(make_app(viewer), host="127.0.0.1", port=port, log_level="warning",
-                                           ws="websockets-sansio"))
+    server = uvicorn.Server(
+        uvicorn.Config(make_app(viewer), host="127.0.0.1", port=port, log_level="warning", ws="websockets-sansio")
+    )
     thread = threading.Thread(target=server.run, daemon=True)
     thread.start()
     deadline = time.time() + 30
@@ -159,7 +163,7 @@ def _next_frame(ws) -> dict:
         data = ws.recv(timeout=10)
         if isinstance(data, bytes):
             n = int(np.frombuffer(data[:4], "<u4")[0])
-            return json.loads(data[4:4 + n])
+            return json.loads(data[4 : 4 + n])
 
 
 @pytest.fixture(scope="module")
@@ -169,8 +173,11 @@ def server():
         yield viewer, port
 
 
-@pytest.mark.parametrize(("text", "says"), [(t, s) for t, s in BAD_MESSAGES if isinstance(t, str)] +
-                         [('{"type": "policy", "team": "prey", "spec": "/etc/passwd"}', "not allowed")])
+@pytest.mark.parametrize(
+    ("text", "says"),
+    [(t, s) for t, s in BAD_MESSAGES if isinstance(t, str)]
+    + [('{"type": "policy", "team": "prey", "spec": "/etc/passwd"}', "not allowed")],
+)
 def test_the_server_answers_bad_messages_and_keeps_serving(server, text, says):
     viewer, port = server
     with connect(f"ws://127.0.0.1:{port}/ws", max_size=None) as ws:
@@ -193,7 +200,7 @@ def test_frames_decode(server):
     snapshot = server[0].snapshot  # once: the server publishes a new one every frame
     frame = pack_frame(snapshot, None, 1000)
     n = int(np.frombuffer(frame[:4], "<u4")[0])
-    header = json.loads(frame[4:4 + n])
+    header = json.loads(frame[4 : 4 + n])
     agents = np.frombuffer(frame, "<f4", header["n"] * 6, 4 + n).reshape(-1, 6)
     slots = np.frombuffer(frame, "<u4", header["n"], 4 + n + agents.nbytes)
     assert header["n"] == header["alive_total"] == 17 and sorted(slots) == list(range(17))
@@ -217,17 +224,20 @@ def test_record_writes_an_mp4_and_a_replay_page_plays_it(tmp_path):
     assert 'id="replay-data"' in page and "static/viewer.js" not in page and "</script>" in replay_page(trajectory)
 
 
-@pytest.mark.parametrize(("argv", "says"), [
-    (["--port", "70000"], "--port: invalid value '70000': must be an integer in [1, 65535]"),
-    (["--worlds", "0"], "--worlds: invalid value '0': must be an integer in [1, 65536]"),
-    (["--prey", "-3"], "--prey: invalid value '-3'"),
-    (["--human", "shark"], "--human: invalid choice"),
-    (["--fps", "500"], "--fps: invalid value '500': must be a number in [1, 120]"),
-    (["--record", "out.avi"], "must end in .mp4"),
-    (["--replay", "nothing.json", "--out", "x.html"], "--replay nothing.json: cannot read"),
-    (["--replay", "x.json"], "--replay FILE.json and --out PAGE.html go together"),
-    (["--prey-policy", "/no/such/policy.pt"], "does not exist"),
-])
+@pytest.mark.parametrize(
+    ("argv", "says"),
+    [
+        (["--port", "70000"], "--port: invalid value '70000': must be an integer in [1, 65535]"),
+        (["--worlds", "0"], "--worlds: invalid value '0': must be an integer in [1, 65536]"),
+        (["--prey", "-3"], "--prey: invalid value '-3'"),
+        (["--human", "shark"], "--human: invalid choice"),
+        (["--fps", "500"], "--fps: invalid value '500': must be a number in [1, 120]"),
+        (["--record", "out.avi"], "must end in .mp4"),
+        (["--replay", "nothing.json", "--out", "x.html"], "--replay nothing.json: cannot read"),
+        (["--replay", "x.json"], "--replay FILE.json and --out PAGE.html go together"),
+        (["--prey-policy", "/no/such/policy.pt"], "does not exist"),
+    ],
+)
 def test_view_options_are_checked_in_one_line(argv, says, capsys):
     try:
         code = main(["view", *argv])
@@ -240,9 +250,11 @@ def test_view_options_are_checked_in_one_line(argv, says, capsys):
 # ---------------------------------------------------------------------- a real browser
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 CHROMEDRIVER = shutil.which("chromedriver")
-browser_only = pytest.mark.skipif(CHROMIUM is None or CHROMEDRIVER is None,
-                                  reason="needs the system chromium and chromedriver (apt-get install chromium "
-                                         "chromium-driver; .ci/run installs them)")
+browser_only = pytest.mark.skipif(
+    CHROMIUM is None or CHROMEDRIVER is None,
+    reason="needs the system chromium and chromedriver (apt-get install chromium "
+    "chromium-driver; .ci/run installs them)",
+)
 
 
 @pytest.fixture(scope="module")

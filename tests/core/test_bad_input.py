@@ -36,9 +36,10 @@ def assert_same_state(a: dict, b: dict) -> None:
 
 
 def random_actions(env, gen) -> dict:
-    return {"prey": torch.randint(0, env.config.action_count, (env.num_worlds, env.prey_capacity), generator=gen),
-            "predator": torch.randint(0, env.config.action_count, (env.num_worlds, env.predator_capacity),
-                                      generator=gen)}
+    return {
+        "prey": torch.randint(0, env.config.action_count, (env.num_worlds, env.prey_capacity), generator=gen),
+        "predator": torch.randint(0, env.config.action_count, (env.num_worlds, env.predator_capacity), generator=gen),
+    }
 
 
 def step_both(env, twin, gen, steps: int = 3, actions=None, twin_actions=None) -> None:
@@ -82,21 +83,36 @@ BAD_ACTIONS = [
     ("missing_predator", lambda: {"prey": good("prey")}, ["'predator'", "missing ['predator']", "exactly the keys"]),
     ("missing_prey", lambda: {"predator": good("predator")}, ["missing ['prey']", "exactly the keys"]),
     ("empty_dict", dict, ["missing ['prey', 'predator']"]),
-    ("extra_key", lambda: {"prey": good("prey"), "predator": good("predator"), "shark": good("predator")},
-     ["unknown ['shark']", "exactly the keys"]),
+    (
+        "extra_key",
+        lambda: {"prey": good("prey"), "predator": good("predator"), "shark": good("predator")},
+        ["unknown ['shark']", "exactly the keys"],
+    ),
     ("not_a_mapping", lambda: [good("prey"), good("predator")], ["actions must be a dict", "'prey'", "'predator'"]),
 ]
 for _t, _n in (("prey", CFG.prey_count), ("predator", CFG.predator_count)):
     _key = f"actions[{_t!r}]"
     BAD_ACTIONS += [
-        (f"{_t}_shape_extra_slot", lambda t=_t, n=_n: with_(t, torch.zeros(W, n + 1, dtype=torch.int64)),
-         [_key, f"must have shape [{W}, {_n}]"]),
-        (f"{_t}_shape_flat", lambda t=_t, n=_n: with_(t, torch.zeros(W * n, dtype=torch.int64)),
-         [_key, f"must have shape [{W}, {_n}]"]),
-        (f"{_t}_shape_3d", lambda t=_t, n=_n: with_(t, torch.zeros(W, n, 1, dtype=torch.int64)),
-         [_key, f"must have shape [{W}, {_n}]"]),
-        (f"{_t}_shape_worlds", lambda t=_t, n=_n: with_(t, torch.zeros(W + 1, n, dtype=torch.int64)),
-         [_key, f"must have shape [{W}, {_n}]"]),
+        (
+            f"{_t}_shape_extra_slot",
+            lambda t=_t, n=_n: with_(t, torch.zeros(W, n + 1, dtype=torch.int64)),
+            [_key, f"must have shape [{W}, {_n}]"],
+        ),
+        (
+            f"{_t}_shape_flat",
+            lambda t=_t, n=_n: with_(t, torch.zeros(W * n, dtype=torch.int64)),
+            [_key, f"must have shape [{W}, {_n}]"],
+        ),
+        (
+            f"{_t}_shape_3d",
+            lambda t=_t, n=_n: with_(t, torch.zeros(W, n, 1, dtype=torch.int64)),
+            [_key, f"must have shape [{W}, {_n}]"],
+        ),
+        (
+            f"{_t}_shape_worlds",
+            lambda t=_t, n=_n: with_(t, torch.zeros(W + 1, n, dtype=torch.int64)),
+            [_key, f"must have shape [{W}, {_n}]"],
+        ),
         (f"{_t}_float32", lambda t=_t: with_(t, good(t, torch.float32)), [_key, "integer dtype"]),
         (f"{_t}_float64", lambda t=_t: with_(t, good(t, torch.float64)), [_key, "integer dtype"]),
         (f"{_t}_float16", lambda t=_t: with_(t, good(t, torch.float16)), [_key, "integer dtype"]),
@@ -107,13 +123,18 @@ for _t, _n in (("prey", CFG.prey_count), ("predator", CFG.predator_count)):
         (f"{_t}_huge", lambda t=_t: out_of_range(t, 2**40), [_key, f"[0, {A - 1}]"]),
         (f"{_t}_int8_minus_one", lambda t=_t: out_of_range(t, -1, torch.int8), [_key, f"[0, {A - 1}]"]),
         (f"{_t}_int32_action_count", lambda t=_t: out_of_range(t, A, torch.int32), [_key, f"[0, {A - 1}]"]),
-        (f"{_t}_numpy_float", lambda t=_t, n=_n: with_(t, np.zeros((W, n), dtype=np.float32)),
-         [_key, "integer dtype"]),
+        (f"{_t}_numpy_float", lambda t=_t, n=_n: with_(t, np.zeros((W, n), dtype=np.float32)), [_key, "integer dtype"]),
         (f"{_t}_numpy_bool", lambda t=_t, n=_n: with_(t, np.zeros((W, n), dtype=bool)), [_key, "integer dtype"]),
-        (f"{_t}_numpy_out_of_range", lambda t=_t, n=_n: with_(t, np.full((W, n), A, dtype=np.int32)),
-         [_key, f"[0, {A - 1}]"]),
-        (f"{_t}_numpy_wrong_shape", lambda t=_t, n=_n: with_(t, np.zeros((n, W), dtype=np.int64)),
-         [_key, f"must have shape [{W}, {_n}]"]),
+        (
+            f"{_t}_numpy_out_of_range",
+            lambda t=_t, n=_n: with_(t, np.full((W, n), A, dtype=np.int32)),
+            [_key, f"[0, {A - 1}]"],
+        ),
+        (
+            f"{_t}_numpy_wrong_shape",
+            lambda t=_t, n=_n: with_(t, np.zeros((n, W), dtype=np.int64)),
+            [_key, f"must have shape [{W}, {_n}]"],
+        ),
         (f"{_t}_python_list", lambda t=_t, n=_n: with_(t, [[0] * n for _ in range(W)]), [_key, "torch tensor"]),
         (f"{_t}_python_int", lambda t=_t: with_(t, 3), [_key, "torch tensor"]),
         (f"{_t}_none", lambda t=_t: with_(t, None), [_key, "torch tensor"]),
@@ -252,9 +273,15 @@ BAD_STATES = [
     ("position_far", lambda e: _pos(e, 1e6, 5.0), ["position"]),
     ("position_nan", lambda e: _pos(e, float("nan"), 5.0), ["position", "finite"]),
     ("position_inf", lambda e: _pos(e, 5.0, float("inf")), ["position", "finite"]),
-    ("position_all_worlds", lambda e: dict(position=torch.where(
-        torch.arange(W)[:, None, None] == W - 1, torch.full((W, C, 2), CFG.width), e.state.torch.position)),
-     ["position"]),
+    (
+        "position_all_worlds",
+        lambda e: dict(
+            position=torch.where(
+                torch.arange(W)[:, None, None] == W - 1, torch.full((W, C, 2), CFG.width), e.state.torch.position
+            )
+        ),
+        ["position"],
+    ),
     ("velocity_nan", lambda e: _vec(e, "velocity", [float("nan"), 0.0]), ["velocity", "finite"]),
     ("velocity_inf", lambda e: _vec(e, "velocity", [0.0, float("-inf")]), ["velocity", "finite"]),
     ("acceleration_nan", lambda e: _vec(e, "acceleration", [float("nan"), 0.0]), ["acceleration", "finite"]),
@@ -265,31 +292,55 @@ BAD_STATES = [
     ("replication_age_negative", lambda e: _int(e, "replication_age", -5), ["replication_age", ">= 0"]),
     ("starvation_negative", lambda e: _int(e, "starvation", -1, slot=C - 1), ["starvation", ">= 0"]),
     ("world_step_negative", lambda e: dict(world=1, world_step=-1), ["world_step", ">= 0"]),
-    ("world_step_max_steps", lambda e: dict(world=1, world_step=CFG.max_steps),
-     ["world_step", f"[0, {CFG.max_steps - 1}]"]),
-    ("world_step_all_worlds", lambda e: dict(world_step=torch.tensor([0, CFG.max_steps + 5, 0])),
-     ["world_step", f"[0, {CFG.max_steps - 1}]"]),
+    (
+        "world_step_max_steps",
+        lambda e: dict(world=1, world_step=CFG.max_steps),
+        ["world_step", f"[0, {CFG.max_steps - 1}]"],
+    ),
+    (
+        "world_step_all_worlds",
+        lambda e: dict(world_step=torch.tensor([0, CFG.max_steps + 5, 0])),
+        ["world_step", f"[0, {CFG.max_steps - 1}]"],
+    ),
     ("episode_negative", lambda e: dict(world=2, episode=-1), ["episode", ">= 0"]),
     ("unknown_field", lambda e: dict(world=0, mass=torch.ones(C)), ["mass", "settable", "position"]),
     ("unknown_output_field", lambda e: dict(world=0, reward=torch.zeros(C)), ["reward", "settable"]),
-    ("shape_one_world_missing_slot", lambda e: dict(world=0, position=torch.ones(C - 1, 2)),
-     ["position", f"shape [{C}, 2]"]),
-    ("shape_one_world_3d_vectors", lambda e: dict(world=0, velocity=torch.zeros(C, 3)),
-     ["velocity", f"shape [{C}, 2]"]),
-    ("shape_all_worlds_for_one", lambda e: dict(world=0, alive=torch.ones(W, C, dtype=torch.bool)),
-     ["alive", f"shape [{C}]"]),
+    (
+        "shape_one_world_missing_slot",
+        lambda e: dict(world=0, position=torch.ones(C - 1, 2)),
+        ["position", f"shape [{C}, 2]"],
+    ),
+    (
+        "shape_one_world_3d_vectors",
+        lambda e: dict(world=0, velocity=torch.zeros(C, 3)),
+        ["velocity", f"shape [{C}, 2]"],
+    ),
+    (
+        "shape_all_worlds_for_one",
+        lambda e: dict(world=0, alive=torch.ones(W, C, dtype=torch.bool)),
+        ["alive", f"shape [{C}]"],
+    ),
     ("shape_one_world_for_all", lambda e: dict(age=torch.zeros(C, dtype=torch.int32)), ["age", f"shape [{W}, {C}]"]),
-    ("shape_world_step_vector", lambda e: dict(world=0, world_step=torch.zeros(W, dtype=torch.int32)),
-     ["world_step", "shape []"]),
+    (
+        "shape_world_step_vector",
+        lambda e: dict(world=0, world_step=torch.zeros(W, dtype=torch.int32)),
+        ["world_step", "shape []"],
+    ),
     ("world_out_of_range", lambda e: dict(world=W, age=torch.zeros(C, dtype=torch.int32)), ["world=", f"[0, {W - 1}]"]),
     ("world_negative", lambda e: dict(world=-1, age=torch.zeros(C, dtype=torch.int32)), ["world=", f"[0, {W - 1}]"]),
     ("world_float", lambda e: dict(world=1.0, age=torch.zeros(C, dtype=torch.int32)), ["world=", f"[0, {W - 1}]"]),
     ("world_string", lambda e: dict(world="0", age=torch.zeros(C, dtype=torch.int32)), ["world=", f"[0, {W - 1}]"]),
     # A valid field together with a bad one: nothing at all may be written.
-    ("valid_position_bad_velocity", lambda e: {**_pos(e, 1.0, 2.0), "velocity": _vec(e, "velocity", [float("nan"), 0])[
-        "velocity"]}, ["velocity"]),
-    ("valid_alive_bad_age", lambda e: dict(world=0, alive=torch.zeros(C, dtype=torch.bool),
-                                           age=torch.full((C,), -3, dtype=torch.int32)), ["age"]),
+    (
+        "valid_position_bad_velocity",
+        lambda e: {**_pos(e, 1.0, 2.0), "velocity": _vec(e, "velocity", [float("nan"), 0])["velocity"]},
+        ["velocity"],
+    ),
+    (
+        "valid_alive_bad_age",
+        lambda e: dict(world=0, alive=torch.zeros(C, dtype=torch.bool), age=torch.full((C,), -3, dtype=torch.int32)),
+        ["age"],
+    ),
 ]
 
 
@@ -324,7 +375,6 @@ def test_valid_set_state_applies_to_both(pair):
     assert truncated["prey"][1].all() and truncated["predator"][1].all()
     assert_same_state(state_of(env), state_of(twin))
     step_both(env, twin, gen)
-
 
 
 def test_fractional_negative_age_rejected(pair):

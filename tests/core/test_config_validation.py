@@ -72,8 +72,7 @@ for _v in (0.0, -10.0, NAN, INF, True, "50"):
     WORLD_CASES.append(("grid_cell_size", _v, "None or a finite number > 0"))
 
 
-@pytest.mark.parametrize("field,value,allowed", WORLD_CASES,
-                         ids=[f"{f}={v!r}" for f, v, _ in WORLD_CASES])
+@pytest.mark.parametrize("field,value,allowed", WORLD_CASES, ids=[f"{f}={v!r}" for f, v, _ in WORLD_CASES])
 def test_world_field_rejected(field, value, allowed):
     with pytest.raises(ValueError) as err:
         build(field, value)
@@ -104,8 +103,7 @@ for _kind in ("prey", "predator"):
         TYPE_CASES.append((f"{_kind}.max_speed", _v, "smaller than half the world's width and height"))
 
 
-@pytest.mark.parametrize("field,value,allowed", TYPE_CASES,
-                         ids=[f"{f}={v!r}" for f, v, _ in TYPE_CASES])
+@pytest.mark.parametrize("field,value,allowed", TYPE_CASES, ids=[f"{f}={v!r}" for f, v, _ in TYPE_CASES])
 def test_type_field_rejected(field, value, allowed):
     with pytest.raises(ValueError) as err:
         build(field, value)
@@ -161,31 +159,63 @@ def test_from_dict_validates():
 # Valid edge values
 # --------------------------------------------------------------------------------------------------
 VALID_CASES = [
-    ("width", 41.0), ("width", 41), ("width", 1e7), ("height", 40.5), ("height", 1e7), ("width", np.float64(500.0)),
-    ("prey_count", 1), ("predator_count", 1), ("prey_count", 500),
-    ("action_count", 1), ("action_count", 65536),
+    ("width", 41.0),
+    ("width", 41),
+    ("width", 1e7),
+    ("height", 40.5),
+    ("height", 1e7),
+    ("width", np.float64(500.0)),
+    ("prey_count", 1),
+    ("predator_count", 1),
+    ("prey_count", 500),
+    ("action_count", 1),
+    ("action_count", 65536),
     ("max_steps", 1),
-    ("fov_enabled", False), ("respawn_captured_prey", False), ("prey_reproduction", True),
-    ("prey_reward", 0.0), ("prey_reward", -3), ("prey_capture_penalty", 0), ("prey_capture_penalty", -5.0),
-    ("predator_reward", 0.0), ("predator_reward", 1e30),
-    ("catch_share_radius", 0.0), ("catch_share_radius", 0), ("catch_share_radius", 1e9),
+    ("fov_enabled", False),
+    ("respawn_captured_prey", False),
+    ("prey_reproduction", True),
+    ("prey_reward", 0.0),
+    ("prey_reward", -3),
+    ("prey_capture_penalty", 0),
+    ("prey_capture_penalty", -5.0),
+    ("predator_reward", 0.0),
+    ("predator_reward", 1e30),
+    ("catch_share_radius", 0.0),
+    ("catch_share_radius", 0),
+    ("catch_share_radius", 1e9),
     ("predator_starvation_steps", 0),
     ("prey_replication_age", 1),
     ("max_prey", 1),
-    ("observation_range", "0..1"), ("observation_range", "-1..1"),
-    ("grid_cell_size", None), ("grid_cell_size", 1e-3), ("grid_cell_size", 1e6),
+    ("observation_range", "0..1"),
+    ("observation_range", "-1..1"),
+    ("grid_cell_size", None),
+    ("grid_cell_size", 1e-3),
+    ("grid_cell_size", 1e6),
 ]
 for _kind in ("prey", "predator"):
     VALID_CASES += [
-        (f"{_kind}.max_speed", 1e-6), (f"{_kind}.max_speed", 399.999), (f"{_kind}.max_speed", 4),
-        (f"{_kind}.max_steering_force", 1e-9), (f"{_kind}.max_steering_force", 1e9),
-        (f"{_kind}.max_acceleration", 1e-9), (f"{_kind}.mass", 1e-9), (f"{_kind}.mass", 1e9),
-        (f"{_kind}.radius", 1e-9), (f"{_kind}.radius", 1e6),
-        (f"{_kind}.view_distance", INF), (f"{_kind}.view_distance", 1e-9), (f"{_kind}.view_distance", 1e12),
-        (f"{_kind}.fov_angle", 360.0), (f"{_kind}.fov_angle", 360), (f"{_kind}.fov_angle", 1e-6),
-        (f"{_kind}.bounce_strength", 0.0), (f"{_kind}.bounce_strength", 0),
-        (f"{_kind}.predator_slots", 0), (f"{_kind}.predator_slots", MAX_OBSERVED_SLOTS),
-        (f"{_kind}.prey_slots", 0), (f"{_kind}.prey_slots", MAX_OBSERVED_SLOTS),
+        (f"{_kind}.max_speed", 1e-6),
+        (f"{_kind}.max_speed", 399.999),
+        (f"{_kind}.max_speed", 4),
+        (f"{_kind}.max_steering_force", 1e-9),
+        (f"{_kind}.max_steering_force", 1e9),
+        (f"{_kind}.max_acceleration", 1e-9),
+        (f"{_kind}.mass", 1e-9),
+        (f"{_kind}.mass", 1e9),
+        (f"{_kind}.radius", 1e-9),
+        (f"{_kind}.radius", 1e6),
+        (f"{_kind}.view_distance", INF),
+        (f"{_kind}.view_distance", 1e-9),
+        (f"{_kind}.view_distance", 1e12),
+        (f"{_kind}.fov_angle", 360.0),
+        (f"{_kind}.fov_angle", 360),
+        (f"{_kind}.fov_angle", 1e-6),
+        (f"{_kind}.bounce_strength", 0.0),
+        (f"{_kind}.bounce_strength", 0),
+        (f"{_kind}.predator_slots", 0),
+        (f"{_kind}.predator_slots", MAX_OBSERVED_SLOTS),
+        (f"{_kind}.prey_slots", 0),
+        (f"{_kind}.prey_slots", MAX_OBSERVED_SLOTS),
     ]
 
 
@@ -201,10 +231,18 @@ def test_valid_edge_value_accepted(field, value):
 
 def test_valid_combined_edges():
     # Reproduction with prey_count above max_prey, one neighbour slot (the fewest: issue 28), both FOVs full.
-    cfg = AquariumConfig(width=41.0, height=41.0, prey_count=30, predator_count=1, max_prey=1,
-                         prey_reproduction=True, max_steps=1, predator_starvation_steps=0,
-                         prey=AgentTypeConfig(20.0, 1e-9, 1e-9, 1e-9, 1e-9, INF, 360.0, 0.0, 0, 1),
-                         predator=AgentTypeConfig(20.4, 1.0, 1.0, 1.0, 1.0, 1e-9, 1e-6, 0.0, 16, 16))
+    cfg = AquariumConfig(
+        width=41.0,
+        height=41.0,
+        prey_count=30,
+        predator_count=1,
+        max_prey=1,
+        prey_reproduction=True,
+        max_steps=1,
+        predator_starvation_steps=0,
+        prey=AgentTypeConfig(20.0, 1e-9, 1e-9, 1e-9, 1e-9, INF, 360.0, 0.0, 0, 1),
+        predator=AgentTypeConfig(20.4, 1.0, 1.0, 1.0, 1.0, 1e-9, 1e-6, 0.0, 16, 16),
+    )
     assert cfg.prey_capacity == 30 and cfg.capacity == 31
     assert cfg.prey.observation_size == 5 + 6 and cfg.predator.observation_size == 5 + 6 * 32
 
@@ -255,18 +293,33 @@ def test_env_argument_rejected(name, kwargs, allowed):
     assert allowed in message, message
 
 
-@pytest.mark.parametrize("kwargs", [
-    dict(num_worlds=1), dict(num_worlds=np.int64(2)), dict(seed=0), dict(seed=2**64 + 5), dict(seed=np.uint32(7)),
-    dict(cpu_threads=1), dict(cpu_threads=None), dict(device=torch.device("cpu")), dict(device=None),
-], ids=lambda kw: ",".join(f"{k}={v!r}" for k, v in kw.items()))
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        dict(num_worlds=1),
+        dict(num_worlds=np.int64(2)),
+        dict(seed=0),
+        dict(seed=2**64 + 5),
+        dict(seed=np.uint32(7)),
+        dict(cpu_threads=1),
+        dict(cpu_threads=None),
+        dict(device=torch.device("cpu")),
+        dict(device=None),
+    ],
+    ids=lambda kw: ",".join(f"{k}={v!r}" for k, v in kw.items()),
+)
 def test_env_argument_edge_accepted(kwargs):
     kwargs = dict(kwargs)
     kwargs.setdefault("device", "cpu")
     env = BatchedAquarium(AquariumConfig(max_steps=10), **kwargs)
     try:
         assert env.device == "cpu"
-        obs, *_ = env.step({"prey": torch.zeros(env.num_worlds, env.prey_capacity, dtype=torch.int64),
-                            "predator": torch.zeros(env.num_worlds, env.predator_capacity, dtype=torch.int64)})
+        obs, *_ = env.step(
+            {
+                "prey": torch.zeros(env.num_worlds, env.prey_capacity, dtype=torch.int64),
+                "predator": torch.zeros(env.num_worlds, env.predator_capacity, dtype=torch.int64),
+            }
+        )
         assert torch.isfinite(obs["prey"]).all()
     finally:
         env.close()
@@ -327,8 +380,10 @@ FLOAT32_CASES = [
 ]
 for _kind in ("prey", "predator"):
     for _f in ("max_steering_force", "max_acceleration", "radius"):
-        FLOAT32_CASES += [(f"{_kind}.{_f}", 0.99e-15, 1e-15, "in [1e-15, 1e+15]"),
-                          (f"{_kind}.{_f}", 1.01e15, 1e15, "in [1e-15, 1e+15]")]
+        FLOAT32_CASES += [
+            (f"{_kind}.{_f}", 0.99e-15, 1e-15, "in [1e-15, 1e+15]"),
+            (f"{_kind}.{_f}", 1.01e15, 1e15, "in [1e-15, 1e+15]"),
+        ]
     FLOAT32_CASES += [
         (f"{_kind}.max_speed", 0.99e-15, 1e-15, "in [1e-15, 1e+15]"),
         (f"{_kind}.mass", 1e-45, 1e-15, "in [1e-15, 1e+15]"),  # 0.6 / 1e-45 is inf in float32
@@ -344,8 +399,7 @@ for _kind in ("prey", "predator"):
     ]
 
 
-@pytest.mark.parametrize("field,bad,edge,allowed", FLOAT32_CASES,
-                         ids=[f"{f}={b!r}" for f, b, _, _ in FLOAT32_CASES])
+@pytest.mark.parametrize("field,bad,edge,allowed", FLOAT32_CASES, ids=[f"{f}={b!r}" for f, b, _, _ in FLOAT32_CASES])
 def test_float32_and_int32_ranges(field, bad, edge, allowed):
     with pytest.raises(ValueError) as err:
         build(field, bad)
@@ -360,16 +414,25 @@ def test_mass_against_the_steering_force():
     # With mass 1e-15 the default steering force gives 0.6 / 1e-15 = 6e14 px/step^2, within 1e15; a
     # steering force of 1e6 (limited by 2 max_speed = 8) gives 8e15, too much.
     build("prey.mass", 1e-15)
-    with pytest.raises(ValueError,
-                       match=r"^prey\.mass=.*at least min\(max_steering_force, 2 max_speed\) / 1e\+15 = 8e-15"):
+    with pytest.raises(
+        ValueError, match=r"^prey\.mass=.*at least min\(max_steering_force, 2 max_speed\) / 1e\+15 = 8e-15"
+    ):
         AquariumConfig(prey=dataclasses.replace(default_prey(), mass=1e-15, max_steering_force=1e6))
 
 
-@pytest.mark.parametrize("field,value", [
-    ("prey_count", np.int64(16)), ("predator_count", np.int32(2)), ("max_steps", np.uint16(100)),
-    ("width", np.float32(500.0)), ("prey_reward", np.float64(2.0)), ("fov_enabled", np.bool_(False)),
-    ("prey.prey_slots", np.int8(2)), ("prey.radius", np.float32(10.0)),
-])
+@pytest.mark.parametrize(
+    "field,value",
+    [
+        ("prey_count", np.int64(16)),
+        ("predator_count", np.int32(2)),
+        ("max_steps", np.uint16(100)),
+        ("width", np.float32(500.0)),
+        ("prey_reward", np.float64(2.0)),
+        ("fov_enabled", np.bool_(False)),
+        ("prey.prey_slots", np.int8(2)),
+        ("prey.radius", np.float32(10.0)),
+    ],
+)
 def test_numpy_scalars_accepted_as_python_numbers(field, value):
     # Issue 15: prey_count=np.int64(16) said "out of range"; numpy integers are integers.
     cfg = build(field, value)

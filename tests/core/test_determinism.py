@@ -14,8 +14,15 @@ TYPES = ("prey", "predator")
 # A small world so that captures happen; max_steps 50 so that every world auto-resets several times.
 CFG = AquariumConfig(width=400.0, height=360.0, prey_count=12, predator_count=2, max_steps=50)
 # Respawn off and a short starvation limit: episodes also end early, at different steps per world.
-CFG_EARLY_ENDS = AquariumConfig(width=300.0, height=300.0, prey_count=8, predator_count=2, max_steps=50,
-                                respawn_captured_prey=False, predator_starvation_steps=12)
+CFG_EARLY_ENDS = AquariumConfig(
+    width=300.0,
+    height=300.0,
+    prey_count=8,
+    predator_count=2,
+    max_steps=50,
+    respawn_captured_prey=False,
+    predator_starvation_steps=12,
+)
 
 
 def make(device, cfg=CFG, num_worlds=8, seed=0, **kw) -> BatchedAquarium:
@@ -26,18 +33,29 @@ def action_sequence(env, steps: int, seed: int) -> list[dict]:
     """Random actions drawn on the CPU (the same numbers on every device), placed on the env's device."""
     gen = torch.Generator().manual_seed(seed)
     n = env.config.action_count
-    return [{"prey": torch.randint(0, n, (env.num_worlds, env.prey_capacity), generator=gen).to(env.torch_device),
-             "predator": torch.randint(0, n, (env.num_worlds, env.predator_capacity),
-                                       generator=gen).to(env.torch_device)}
-            for _ in range(steps)]
+    return [
+        {
+            "prey": torch.randint(0, n, (env.num_worlds, env.prey_capacity), generator=gen).to(env.torch_device),
+            "predator": torch.randint(0, n, (env.num_worlds, env.predator_capacity), generator=gen).to(
+                env.torch_device
+            ),
+        }
+        for _ in range(steps)
+    ]
 
 
 def snapshot(env, out=None) -> dict:
     """Everything observable after a step (or reset), cloned (on the env's device)."""
     t = env.state.torch
-    snap = {"position": t.position.clone(), "velocity": t.velocity.clone(), "acceleration": t.acceleration.clone(),
-            "heading": t.heading.clone(), "alive": t.alive.clone(), "world_step": t.world_step.clone(),
-            "episode": t.episode.clone()}
+    snap = {
+        "position": t.position.clone(),
+        "velocity": t.velocity.clone(),
+        "acceleration": t.acceleration.clone(),
+        "heading": t.heading.clone(),
+        "alive": t.alive.clone(),
+        "world_step": t.world_step.clone(),
+        "episode": t.episode.clone(),
+    }
     for k in TYPES:
         snap[f"obs_{k}"] = env.observations[k].clone()
         snap[f"mask_{k}"] = env.observation_mask[k].clone()
@@ -108,9 +126,14 @@ def test_same_seed_same_actions_bit_identical(device, reference_run):
         env.close()
 
 
-@pytest.mark.parametrize("cfg", [CFG_EARLY_ENDS, CFG.replace(prey_reproduction=True, max_prey=16,
-                                                             prey_replication_age=8, respawn_captured_prey=False)],
-                         ids=["early_ends", "reproduction"])
+@pytest.mark.parametrize(
+    "cfg",
+    [
+        CFG_EARLY_ENDS,
+        CFG.replace(prey_reproduction=True, max_prey=16, prey_replication_age=8, respawn_captured_prey=False),
+    ],
+    ids=["early_ends", "reproduction"],
+)
 def test_same_seed_bit_identical_other_configs(device, cfg):
     a, b = make(device, cfg, seed=42), make(device, cfg, seed=42)
     try:

@@ -25,20 +25,33 @@ import pytest
 
 CASES = 1500
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
-TYPE_FIELDS = ("max_speed", "max_steering_force", "max_acceleration", "mass", "radius", "view_distance",
-               "fov_angle", "bounce_strength", "predator_slots", "prey_slots")
+TYPE_FIELDS = (
+    "max_speed",
+    "max_steering_force",
+    "max_acceleration",
+    "mass",
+    "radius",
+    "view_distance",
+    "fov_angle",
+    "bounce_strength",
+    "predator_slots",
+    "prey_slots",
+)
 
 
 def test_fuzz_configs_in_a_subprocess():
     pytest.importorskip("hypothesis")
     start = time.perf_counter()
-    result = subprocess.run([sys.executable, os.path.abspath(__file__), str(CASES)], cwd=ROOT,
-                            capture_output=True, text=True, timeout=600)
+    result = subprocess.run(
+        [sys.executable, os.path.abspath(__file__), str(CASES)], cwd=ROOT, capture_output=True, text=True, timeout=600
+    )
     elapsed = time.perf_counter() - start
     lines = result.stdout.splitlines()
     last_case = next((line for line in reversed(lines) if line.startswith("case ")), "none")
-    assert result.returncode == 0, (f"fuzz worker exited with {result.returncode} after {elapsed:.0f} s; "
-                                    f"last case: {last_case}\n{result.stderr[-4000:]}")
+    assert result.returncode == 0, (
+        f"fuzz worker exited with {result.returncode} after {elapsed:.0f} s; "
+        f"last case: {last_case}\n{result.stderr[-4000:]}"
+    )
     summary = dict(item.split("=") for item in lines[-1].removeprefix("fuzz summary: ").split())
     counts = {k: int(v) for k, v in summary.items()}
     ran = counts["refused"] + counts["config_only"] + counts["stepped"]
@@ -86,24 +99,30 @@ def field_space():
         "max_prey": (whole(1, 48, 20), [0, -5, 20.0, 2**31, *not_int]),
         "observation_range": (st.sampled_from(["0..1", "-1..1"]), ["0..2", "", 1, None]),
         # 1e-45 and 1e-3 are valid configs whose cell count the env refuses by name.
-        "grid_cell_size": (st.sampled_from([None, 1e-45, 1e-3, 30.0, 1e6, 1e15]) | st.floats(30.0, 1e15),
-                           [0.0, -10.0, nan, inf, -inf, True, "50"]),
+        "grid_cell_size": (
+            st.sampled_from([None, 1e-45, 1e-3, 30.0, 1e6, 1e15]) | st.floats(30.0, 1e15),
+            [0.0, -10.0, nan, inf, -inf, True, "50"],
+        ),
     }
     for kind in ("prey", "predator"):
-        space.update({
-            f"{kind}.max_speed": (real(1e-15, 19.9, 0.5, 4.0), [0.0, -1.0, 0.99e-15, 1e8, *not_real]),
-            f"{kind}.max_steering_force": (real(1e-15, 1e15, 0.6), [0.0, 0.99e-15, 1.01e15, 1e-30, *not_real]),
-            f"{kind}.max_acceleration": (real(1e-15, 1e15, 1.0), [0.0, 0.99e-15, 1.01e15, 1e38, *not_real]),
-            f"{kind}.mass": (real(1e-15, 1e15, 3.0), [0.0, -3.0, 1e-45, 1e25, 1e30, 1e39, *not_real]),
-            f"{kind}.radius": (real(1e-15, 1e15, 20.0), [0.0, -1.0, 0.99e-15, 1.01e15, *not_real]),
-            f"{kind}.view_distance": (real(1e-15, 1e15, 100.0, inf), [0.0, -inf, 1e-30, 1.01e15, nan, True, None]),
-            f"{kind}.fov_angle": (real(1e-6, 360.0, 120.0) | st.floats(0.0, 360.0, exclude_min=True),
-                                  [0.0, -10.0, 360.0001, nan, inf, True]),
-            f"{kind}.bounce_strength": (real(1e-15, 1e15, 0.0, 1.0), [-1.0, 1e-30, 1e39, *not_real]),
-            # few slot counts: each pair is an observation kernel to compile
-            f"{kind}.predator_slots": (st.sampled_from([0, 1, 16]), [-1, 17, 1.0, True, None]),
-            f"{kind}.prey_slots": (st.sampled_from([0, 3, 16]), [-1, 17, 3.0, None]),
-        })
+        space.update(
+            {
+                f"{kind}.max_speed": (real(1e-15, 19.9, 0.5, 4.0), [0.0, -1.0, 0.99e-15, 1e8, *not_real]),
+                f"{kind}.max_steering_force": (real(1e-15, 1e15, 0.6), [0.0, 0.99e-15, 1.01e15, 1e-30, *not_real]),
+                f"{kind}.max_acceleration": (real(1e-15, 1e15, 1.0), [0.0, 0.99e-15, 1.01e15, 1e38, *not_real]),
+                f"{kind}.mass": (real(1e-15, 1e15, 3.0), [0.0, -3.0, 1e-45, 1e25, 1e30, 1e39, *not_real]),
+                f"{kind}.radius": (real(1e-15, 1e15, 20.0), [0.0, -1.0, 0.99e-15, 1.01e15, *not_real]),
+                f"{kind}.view_distance": (real(1e-15, 1e15, 100.0, inf), [0.0, -inf, 1e-30, 1.01e15, nan, True, None]),
+                f"{kind}.fov_angle": (
+                    real(1e-6, 360.0, 120.0) | st.floats(0.0, 360.0, exclude_min=True),
+                    [0.0, -10.0, 360.0001, nan, inf, True],
+                ),
+                f"{kind}.bounce_strength": (real(1e-15, 1e15, 0.0, 1.0), [-1.0, 1e-30, 1e39, *not_real]),
+                # few slot counts: each pair is an observation kernel to compile
+                f"{kind}.predator_slots": (st.sampled_from([0, 1, 16]), [-1, 17, 1.0, True, None]),
+                f"{kind}.prey_slots": (st.sampled_from([0, 3, 16]), [-1, 17, 3.0, None]),
+            }
+        )
     return space
 
 
@@ -130,8 +149,9 @@ def check_state(env, rewards=None, stepped: bool = True) -> None:
     for name in ("position", "velocity", "acceleration", "heading", "episode_return"):
         assert torch.isfinite(getattr(t, name)).all(), f"{name} not finite"
     p = t.position.double()
-    assert ((p[..., 0] >= 0) & (p[..., 0] < cfg.width) & (p[..., 1] >= 0) & (p[..., 1] < cfg.height)).all(), \
+    assert ((p[..., 0] >= 0) & (p[..., 0] < cfg.width) & (p[..., 1] >= 0) & (p[..., 1] < cfg.height)).all(), (
         "position outside the world"
+    )
     heading_norm = torch.linalg.vector_norm(t.heading.double(), dim=-1)
     assert ((heading_norm - 1).abs() < 1e-4).all(), f"heading not unit: {heading_norm.min()}..{heading_norm.max()}"
     for kind, slots in (("prey", slice(0, Pc)), ("predator", slice(Pc, None))):
@@ -172,14 +192,28 @@ def run_cases(cases: int) -> None:
     names = sorted(space)
     # "drawn" counts Hypothesis's attempts, some of which it abandons while drawing; the outcomes of
     # the cases that ran are "refused", "config_only" (valid, too large to step) and "stepped".
-    counts = {"drawn": 0, "refused": 0, "config_only": 0, "stepped": 0, "states_set": 0, "states_loaded": 0,
-              "loads_refused": 0, "unvalidated_steps": 0}
+    counts = {
+        "drawn": 0,
+        "refused": 0,
+        "config_only": 0,
+        "stepped": 0,
+        "states_set": 0,
+        "states_loaded": 0,
+        "loads_refused": 0,
+        "unvalidated_steps": 0,
+    }
     vector_edges = [0.0, 1.4e-45, -1.4e-45, 1e-30, -1e-20, 1e-18, 1.0, -3.0, LARGEST, -LARGEST]
     state_dict_edges_float = [math.nan, math.inf, -1e9, 1e9, -1.0, 1e-45, 0.5, 40.0, LARGEST, 1e16]
-    state_dict_edges_int = [-2**31, -1, 0, 1, 2, 2**31 - 1]
+    state_dict_edges_int = [-(2**31), -1, 0, 1, 2, 2**31 - 1]
 
-    @settings(max_examples=cases, derandomize=True, deadline=None, database=None,
-              phases=(Phase.explicit, Phase.generate), suppress_health_check=list(HealthCheck))
+    @settings(
+        max_examples=cases,
+        derandomize=True,
+        deadline=None,
+        database=None,
+        phases=(Phase.explicit, Phase.generate),
+        suppress_health_check=list(HealthCheck),
+    )
     @given(st.data())
     def case(data):
         counts["drawn"] += 1
@@ -219,8 +253,11 @@ def run_cases(cases: int) -> None:
             C = env.capacity
             state = {name: rng.choice(vector_edges, size=(worlds, C, 2)) for name in ("velocity", "acceleration")}
             top = np.nextafter(np.float32([cfg.width, cfg.height]), np.float32(0))  # the largest float32 inside
-            state["position"] = np.where(rng.random((worlds, C, 2)) < 0.3, rng.choice([0.0, 1.0], (worlds, C, 2)) * top,
-                                         rng.random((worlds, C, 2)) * top).astype(np.float32)
+            state["position"] = np.where(
+                rng.random((worlds, C, 2)) < 0.3,
+                rng.choice([0.0, 1.0], (worlds, C, 2)) * top,
+                rng.random((worlds, C, 2)) * top,
+            ).astype(np.float32)
             env.set_state(**state)
             check_state(env, stepped=False)
         if data.draw(st.integers(0, 3)) == 0:  # a state dict with one entry changed to an edge value
@@ -244,7 +281,7 @@ def run_cases(cases: int) -> None:
                 counts["loads_refused"] += 1
             check_state(env, stepped=False)
         n = cfg.action_count
-        extremes = np.array([-2**31, -10**6, -5, -1, n, 16, 10**6, 2**31 - 1])
+        extremes = np.array([-(2**31), -(10**6), -5, -1, n, 16, 10**6, 2**31 - 1])
         for _ in range(3):
             shapes = {"prey": (worlds, env.prey_capacity), "predator": (worlds, env.predator_capacity)}
             if data.draw(st.integers(0, 3)) == 0:  # unvalidated, out of range: clamped in the kernel
@@ -281,8 +318,11 @@ PATH_OPTIONS = {  # (command line before the option, option, what the path names
     "eval --out": (["eval", "--device", "cpu", "--episodes", "1", "--seeds", "0"], "--out", "folder"),
     "eval --prey": (["eval", "--device", "cpu", "--out", "{tmp}/eval"], "--prey", "input"),
     "video --out": (["video", "--device", "cpu", "--no-progress"], "--out", "file"),
-    "video --prey-policy": (["video", "--device", "cpu", "--no-progress", "--out", "{tmp}/v.mp4"],
-                            "--prey-policy", "input"),
+    "video --prey-policy": (
+        ["video", "--device", "cpu", "--no-progress", "--out", "{tmp}/v.mp4"],
+        "--prey-policy",
+        "input",
+    ),
     "study swarm-size --out": (["study", "swarm-size", "--prey", "4", "--device", "cpu"], "--out", "folder"),
     "study flow --out": (["study", "flow", "--device", "cpu"], "--out", "folder"),
     "bench --out-dir": (["bench", "--device", "cpu"], "--out-dir", "folder"),
@@ -315,13 +355,28 @@ def test_fuzz_cli_path_options(tmp_path, monkeypatch, capsys):
     (tmp_path / "bad.yaml").write_text("env: [1\n")
     (tmp_path / "list.json").write_text("[1, 2]")
     (tmp_path / "ok.json").write_text('{"env": {"prey_count": 4}}')
-    kinds = ["missing/nested", "file", "file/below", "folder", "empty.pt", "garbage.pt", "bad.yaml", "list.json",
-             "ok.json", "x" * 300, "spaced name/ü.mp4", "v.mp4", "noext", "", "/proc/aquarium", "/dev/null/x"]
+    kinds = [
+        "missing/nested",
+        "file",
+        "file/below",
+        "folder",
+        "empty.pt",
+        "garbage.pt",
+        "bad.yaml",
+        "list.json",
+        "ok.json",
+        "x" * 300,
+        "spaced name/ü.mp4",
+        "v.mp4",
+        "noext",
+        "",
+        "/proc/aquarium",
+        "/dev/null/x",
+    ]
     outcomes = {"refused": 0, "reached": 0}
     counter = iter(range(10**6))
 
-    @settings(max_examples=120, derandomize=True, deadline=None, database=None,
-              suppress_health_check=list(HealthCheck))
+    @settings(max_examples=120, derandomize=True, deadline=None, database=None, suppress_health_check=list(HealthCheck))
     @given(st.sampled_from(sorted(PATH_OPTIONS)), st.sampled_from(kinds))
     def case(name, kind):
         before, option, _ = PATH_OPTIONS[name]

@@ -27,8 +27,9 @@ TYPE_CODE = {"prey": 1, "predator": 0}
 
 def cfg_with(prey=None, predator=None, **world) -> AquariumConfig:
     base = AquariumConfig()
-    return AquariumConfig(prey=replace(base.prey, **(prey or {})), predator=replace(base.predator, **(predator or {})),
-                          **world)
+    return AquariumConfig(
+        prey=replace(base.prey, **(prey or {})), predator=replace(base.predator, **(predator or {})), **world
+    )
 
 
 @dataclass
@@ -41,26 +42,63 @@ class Case:
 
 CASES = {
     "default": Case(AquariumConfig(max_steps=100), 4, 400, ("time_limit",)),
-    "default_dense": Case(AquariumConfig(width=300.0, height=300.0, max_steps=100), 4, 300,
-                          ("time_limit", "captures")),
+    "default_dense": Case(AquariumConfig(width=300.0, height=300.0, max_steps=100), 4, 300, ("time_limit", "captures")),
     "respawn_off_starvation": Case(
-        AquariumConfig(width=300.0, height=300.0, prey_count=12, predator_count=4, respawn_captured_prey=False,
-                       predator_starvation_steps=15, max_steps=200),
-        4, 300, ("captures", "starved", "extinct", "prey_terminated")),
+        AquariumConfig(
+            width=300.0,
+            height=300.0,
+            prey_count=12,
+            predator_count=4,
+            respawn_captured_prey=False,
+            predator_starvation_steps=15,
+            max_steps=200,
+        ),
+        4,
+        300,
+        ("captures", "starved", "extinct", "prey_terminated"),
+    ),
     "reproduction": Case(
-        AquariumConfig(width=400.0, height=400.0, prey_count=4, predator_count=2, prey_reproduction=True,
-                       max_prey=12, prey_replication_age=10, respawn_captured_prey=False, max_steps=80),
-        4, 300, ("time_limit", "births", "captures")),
+        AquariumConfig(
+            width=400.0,
+            height=400.0,
+            prey_count=4,
+            predator_count=2,
+            prey_reproduction=True,
+            max_prey=12,
+            prey_replication_age=10,
+            respawn_captured_prey=False,
+            max_steps=80,
+        ),
+        4,
+        300,
+        ("time_limit", "births", "captures"),
+    ),
     "fov_off_inf_view": Case(
-        cfg_with(width=500.0, height=400.0, prey_count=10, predator_count=2, fov_enabled=False, max_steps=100,
-                 prey=dict(view_distance=math.inf), predator=dict(view_distance=math.inf)),
-        4, 300, ("time_limit", "captures")),
+        cfg_with(
+            width=500.0,
+            height=400.0,
+            prey_count=10,
+            predator_count=2,
+            fov_enabled=False,
+            max_steps=100,
+            prey=dict(view_distance=math.inf),
+            predator=dict(view_distance=math.inf),
+        ),
+        4,
+        300,
+        ("time_limit", "captures"),
+    ),
     "signed_observations": Case(
-        AquariumConfig(width=400.0, height=400.0, prey_count=10, predator_count=2, observation_range="-1..1",
-                       max_steps=60),
-        4, 300, ("time_limit", "captures")),
-    "400_agents": Case(AquariumConfig(prey_count=390, predator_count=10, max_steps=100), 1, 250,
-                       ("time_limit", "captures")),
+        AquariumConfig(
+            width=400.0, height=400.0, prey_count=10, predator_count=2, observation_range="-1..1", max_steps=60
+        ),
+        4,
+        300,
+        ("time_limit", "captures"),
+    ),
+    "400_agents": Case(
+        AquariumConfig(prey_count=390, predator_count=10, max_steps=100), 1, 250, ("time_limit", "captures")
+    ),
 }
 
 
@@ -127,8 +165,9 @@ class Checker:
         self.steps = torch.zeros(self.W, dtype=torch.int64, device=dev)
         self.captures = torch.zeros(self.W, dtype=torch.int64, device=dev)
         self.returns = {t: torch.zeros(self.W, dtype=torch.float64, device=dev) for t in TYPES}
-        self.events = dict.fromkeys(("time_limit", "captures", "starved", "extinct", "prey_terminated", "births",
-                                     "ended"), 0)
+        self.events = dict.fromkeys(
+            ("time_limit", "captures", "starved", "extinct", "prey_terminated", "births", "ended"), 0
+        )
 
     # ---------------------------------------------------------------- state
     def check_state(self) -> None:
@@ -178,7 +217,7 @@ class Checker:
         # filled slots come first in each block
         for a, b in ((0, Kd), (Kd, S)):
             if b - a > 1:
-                assert not (mask[..., a + 1:b] & ~mask[..., a:b - 1]).any(), "gap in an observation block"
+                assert not (mask[..., a + 1 : b] & ~mask[..., a : b - 1]).any(), "gap in an observation block"
 
         # own 5-tuple of live agents
         pos = t.position[:, own_slots]  # [W, N, 2]
@@ -216,8 +255,9 @@ class Checker:
         assert ((nu[..., 3].double() * norm - dist).abs()[m] <= 1e-4 * norm + 1e-3).all(), "observed distance"
         assert (dist[m] <= tcfg.view_distance + 1e-3).all(), "observed beyond the view distance"
         assert (circle_gap(nu[..., 4], angle_value(disp))[m] <= 1e-4).all(), "observed bearing"
-        max_speed = torch.tensor([cfg.predator.max_speed] * Kd + [cfg.prey.max_speed] * Ky, dtype=torch.float64,
-                                 device=self.dev)
+        max_speed = torch.tensor(
+            [cfg.predator.max_speed] * Kd + [cfg.prey.max_speed] * Ky, dtype=torch.float64, device=self.dev
+        )
         nspeed = torch.linalg.vector_norm(t.velocity[wi, idx].double(), dim=-1) / max_speed
         assert ((nu[..., 5].double() - nspeed.clamp(max=1.0)).abs()[m] <= 1e-5).all(), "observed speed"
         if cfg.fov_enabled and tcfg.fov_angle < 360:
@@ -227,8 +267,8 @@ class Checker:
         # nearest first within each block
         for a, b in ((0, Kd), (Kd, S)):
             if b - a > 1:
-                both = m[..., a + 1:b] & m[..., a:b - 1]
-                assert (dist[..., a + 1:b] >= dist[..., a:b - 1] - 1e-3)[both].all(), "block not nearest first"
+                both = m[..., a + 1 : b] & m[..., a : b - 1]
+                assert (dist[..., a + 1 : b] >= dist[..., a : b - 1] - 1e-3)[both].all(), "block not nearest first"
 
     # ---------------------------------------------------------------- one step
     def step(self, actions) -> None:
@@ -322,8 +362,9 @@ class Checker:
             if length == cfg.max_steps:
                 self.events["time_limit"] += 1
             else:
-                assert not survivors["prey"][w].any() or not survivors["predator"][w].any(), \
+                assert not survivors["prey"][w].any() or not survivors["predator"][w].any(), (
                     "episode ended early with both types alive"
+                )
                 self.events["extinct"] += 1
             assert int(info["episode_captures"][w]) == int(self.captures[w])
             assert int(t.world_step[w]) == 0
@@ -360,8 +401,10 @@ def test_random_rollout_invariants(device, name):
         gen = torch.Generator().manual_seed(7)  # drawn on the CPU (same actions on every device), then moved
         n = case.cfg.action_count
         for _ in range(case.steps):
-            actions = {"prey": torch.randint(0, n, (env.num_worlds, env.prey_capacity), generator=gen),
-                       "predator": torch.randint(0, n, (env.num_worlds, env.predator_capacity), generator=gen)}
+            actions = {
+                "prey": torch.randint(0, n, (env.num_worlds, env.prey_capacity), generator=gen),
+                "predator": torch.randint(0, n, (env.num_worlds, env.predator_capacity), generator=gen),
+            }
             actions = {k: a.to(env.torch_device) for k, a in actions.items()}
             checker.step(actions)
         for event in case.expect:
@@ -380,8 +423,10 @@ def test_reset_mid_episode_restarts_the_statistics(device):
         n = cfg.action_count
 
         def actions():
-            return {"prey": torch.randint(0, n, (2, env.prey_capacity), generator=gen).to(env.torch_device),
-                    "predator": torch.randint(0, n, (2, env.predator_capacity), generator=gen).to(env.torch_device)}
+            return {
+                "prey": torch.randint(0, n, (2, env.prey_capacity), generator=gen).to(env.torch_device),
+                "predator": torch.randint(0, n, (2, env.predator_capacity), generator=gen).to(env.torch_device),
+            }
 
         for _ in range(25):
             checker.step(actions())

@@ -23,19 +23,35 @@ BASE = AquariumConfig(width=300.0, height=260.0, prey_count=12, predator_count=2
 # (reproduction up to max_prey = 12), because random draws are keyed by slot and predator slots
 # follow the prey slots.
 PER_WORLD = dataclasses.replace(
-    BASE, prey_count=(12, 5, 9), prey_reproduction=True, max_prey=12, prey_replication_age=30,
+    BASE,
+    prey_count=(12, 5, 9),
+    prey_reproduction=True,
+    max_prey=12,
+    prey_replication_age=30,
     prey_reward=(1.0, 0.25, 2.0),
-    catch_share_radius=(100.0, 0.0, 150.0), predator_reward=(10.0, 4.0, 10.0),
-    prey=dataclasses.replace(BASE.prey, max_speed=(4.0, 2.5, 6.0), fov_angle=(120.0, 360.0, 80.0),
-                             view_distance=(100.0, math.inf, 60.0), radius=(20.0, 12.0, 25.0)),
+    catch_share_radius=(100.0, 0.0, 150.0),
+    predator_reward=(10.0, 4.0, 10.0),
+    prey=dataclasses.replace(
+        BASE.prey,
+        max_speed=(4.0, 2.5, 6.0),
+        fov_angle=(120.0, 360.0, 80.0),
+        view_distance=(100.0, math.inf, 60.0),
+        radius=(20.0, 12.0, 25.0),
+    ),
     predator=dataclasses.replace(BASE.predator, max_acceleration=(0.6, 1.2, 0.3), mass=(10.0, 4.0, 10.0)),
-    flow=(FlowConfig(), FlowConfig("vortex", centre=(150.0, 5.0), strength=2.0, core_radius=50.0),
-          FlowConfig("uniform", velocity=(-1.5, 0.5), amplitude=0.5, period=9.0)))
+    flow=(
+        FlowConfig(),
+        FlowConfig("vortex", centre=(150.0, 5.0), strength=2.0, core_radius=50.0),
+        FlowConfig("uniform", velocity=(-1.5, 0.5), amplitude=0.5, period=9.0),
+    ),
+)
 
 
 def random_actions(gen: torch.Generator, worlds: int, prey: int, predators: int) -> dict:
-    return {"prey": torch.randint(0, 16, (worlds, prey), generator=gen, dtype=torch.int32),
-            "predator": torch.randint(0, 16, (worlds, predators), generator=gen, dtype=torch.int32)}
+    return {
+        "prey": torch.randint(0, 16, (worlds, prey), generator=gen, dtype=torch.int32),
+        "predator": torch.randint(0, 16, (worlds, predators), generator=gen, dtype=torch.int32),
+    }
 
 
 def world_slice(env, w: int, prey: int, predators: int) -> dict:
@@ -61,8 +77,12 @@ def test_batch_of_different_worlds_equals_a_batch_per_world_config():
         actions = random_actions(gen, W, batch.prey_capacity, batch.predator_capacity)
         batch.step(actions)
         for k, single in enumerate(singles):
-            single.step({"prey": actions["prey"][:, :single.prey_capacity],
-                         "predator": actions["predator"][:, :single.predator_capacity]})
+            single.step(
+                {
+                    "prey": actions["prey"][:, : single.prey_capacity],
+                    "predator": actions["predator"][:, : single.predator_capacity],
+                }
+            )
             mine = world_slice(batch, k, single.prey_capacity, single.predator_capacity)
             theirs = world_slice(single, k, single.prey_capacity, single.predator_capacity)
             for name in mine:
@@ -92,8 +112,12 @@ def test_metrics_and_frames_of_a_per_world_batch_equal_each_world_config():
     for _ in range(40):  # one episode ends in every world, the next one is under way
         actions = random_actions(gen, W, batch.prey_capacity, batch.predator_capacity)
         for env, e in zip(envs, episodes):
-            out = env.step({"prey": actions["prey"][:, :env.prey_capacity],
-                            "predator": actions["predator"][:, :env.predator_capacity]})
+            out = env.step(
+                {
+                    "prey": actions["prey"][:, : env.prey_capacity],
+                    "predator": actions["predator"][:, : env.predator_capacity],
+                }
+            )
             e.update(out.info)
     assert SwarmMetrics(batch).linking_distance == (50.0, 30.0, 62.5)
     swarm = SwarmMetrics(batch, nn_range=150.0).compute()
@@ -145,7 +169,7 @@ def test_swarm_size_sweep_in_one_batch_equals_one_batch_per_size():
         assert abs(float(a.mean() - b.mean())) <= 4 * error + 1e-9, (n, float(a.mean()), float(b.mean()))
         assert float(a.mean()) > 0.0
     # More prey, more captures: the sizes are not all the same world.
-    rates = [float(sweep_captures[s * repeats:(s + 1) * repeats].mean()) for s in range(len(sizes))]
+    rates = [float(sweep_captures[s * repeats : (s + 1) * repeats].mean()) for s in range(len(sizes))]
     assert rates[0] < rates[1] < rates[2]
 
 
@@ -153,16 +177,21 @@ def test_set_params_between_steps_equals_a_batch_built_with_them():
     """`set_params` writes into the arrays the recorded launches read: after it, the env steps as one
     built with the new values (live counts from the next reset)."""
     W = 3
-    target = dataclasses.replace(PER_WORLD, prey_reproduction=False, max_prey=BASE.max_prey,
-                                 prey_replication_age=BASE.prey_replication_age)
+    target = dataclasses.replace(
+        PER_WORLD, prey_reproduction=False, max_prey=BASE.max_prey, prey_replication_age=BASE.prey_replication_age
+    )
     env = BatchedAquarium(BASE, W, device="cpu", seed=2)
     step_before = env._shards.programs["step"]
-    env.set_params(prey_count=PER_WORLD.prey_count, predator_count=PER_WORLD.predator_count,
-                   prey_reward=PER_WORLD.prey_reward, catch_share_radius=PER_WORLD.catch_share_radius,
-                   predator_reward=PER_WORLD.predator_reward, flow=PER_WORLD.flow,
-                   **{f"prey_{n}": getattr(PER_WORLD.prey, n) for n in ("max_speed", "fov_angle", "view_distance",
-                                                                         "radius")},
-                   **{f"predator_{n}": getattr(PER_WORLD.predator, n) for n in ("max_acceleration", "mass")})
+    env.set_params(
+        prey_count=PER_WORLD.prey_count,
+        predator_count=PER_WORLD.predator_count,
+        prey_reward=PER_WORLD.prey_reward,
+        catch_share_radius=PER_WORLD.catch_share_radius,
+        predator_reward=PER_WORLD.predator_reward,
+        flow=PER_WORLD.flow,
+        **{f"prey_{n}": getattr(PER_WORLD.prey, n) for n in ("max_speed", "fov_angle", "view_distance", "radius")},
+        **{f"predator_{n}": getattr(PER_WORLD.predator, n) for n in ("max_acceleration", "mass")},
+    )
     assert env._shards.programs["step"] is step_before  # nothing recorded again
     assert env.config == target
     env.reset()
@@ -219,8 +248,12 @@ def test_bad_values_per_world_are_rejected_by_field_and_world():
 
 
 def test_samplers_draw_per_world_values_in_range_from_the_seed():
-    cfg = dataclasses.replace(BASE, prey_count=Choice((4, 8, 12)), prey_reward=Uniform(0.5, 2.0),
-                              prey=dataclasses.replace(BASE.prey, view_distance=LogUniform(30.0, 300.0)))
+    cfg = dataclasses.replace(
+        BASE,
+        prey_count=Choice((4, 8, 12)),
+        prey_reward=Uniform(0.5, 2.0),
+        prey=dataclasses.replace(BASE.prey, view_distance=LogUniform(30.0, 300.0)),
+    )
     env = BatchedAquarium(cfg, 64, device="cpu", seed=11)
     assert set(env.config.prey_count) == {4, 8, 12} and env.prey_capacity == 12
     assert all(0.5 <= r <= 2.0 for r in env.config.prey_reward)
@@ -267,9 +300,12 @@ def drift(flow: FlowConfig, position, world_step: int = 0, size=(800.0, 800.0)) 
     cfg = AquariumConfig(width=size[0], height=size[1], prey_count=1, predator_count=1, flow=flow)
     env = BatchedAquarium(cfg, 1, device="cpu", seed=0)
     # The predator far from the prey (no capture), both at rest.
-    env.set_state(world=0, position=torch.tensor([position, [position[0] + 400.0 - size[0] * (position[0] >= 400.0),
-                                                             position[1]]]),
-                  velocity=torch.zeros(2, 2), world_step=world_step)
+    env.set_state(
+        world=0,
+        position=torch.tensor([position, [position[0] + 400.0 - size[0] * (position[0] >= 400.0), position[1]]]),
+        velocity=torch.zeros(2, 2),
+        world_step=world_step,
+    )
     env.step({"prey": torch.zeros(1, 1, dtype=torch.int32), "predator": torch.zeros(1, 1, dtype=torch.int32)})
     t = env.state.torch
     d = (t.position[0, 0] - torch.tensor(position) - t.velocity[0, 0]).double().numpy()
@@ -316,12 +352,15 @@ def test_per_world_flows_given_as_dicts_become_flow_configs():
         dataclasses.replace(BASE, flow=({"nope": 1.0}, {"kind": "none"}))
 
 
-@pytest.mark.parametrize(("fields", "message"), [
-    ({"prey_max_speed": Choice(())}, r"prey_max_speed=\(\).*non-empty tuple"),
-    ({"prey_max_speed": Uniform(2.0, 1.0)}, r"prey_max_speed=\(2.0, 1.0\).*low <= high"),
-    ({"prey_max_speed": LogUniform(-1.0, 2.0)}, r"prey_max_speed=\(-1.0, 2.0\).*0 < low"),
-    ({"prey_max_speed": Uniform(2.0, 3.0), "rng": 5}, r"rng=5 must be a numpy.random.Generator"),
-])
+@pytest.mark.parametrize(
+    ("fields", "message"),
+    [
+        ({"prey_max_speed": Choice(())}, r"prey_max_speed=\(\).*non-empty tuple"),
+        ({"prey_max_speed": Uniform(2.0, 1.0)}, r"prey_max_speed=\(2.0, 1.0\).*low <= high"),
+        ({"prey_max_speed": LogUniform(-1.0, 2.0)}, r"prey_max_speed=\(-1.0, 2.0\).*0 < low"),
+        ({"prey_max_speed": Uniform(2.0, 3.0), "rng": 5}, r"rng=5 must be a numpy.random.Generator"),
+    ],
+)
 def test_set_params_refuses_bad_samplers_and_rng_and_stays_usable(fields, message):
     env = BatchedAquarium(BASE, num_worlds=3, device="cpu")
     env.reset()
@@ -341,15 +380,19 @@ def test_world_state_scales_velocities_by_each_worlds_max_speed():
     env.reset()
     gen = torch.Generator().manual_seed(0)
     for _ in range(5):  # random actions: every velocity component moves off 0
-        env.step({k: torch.randint(0, cfg.action_count, a.shape, generator=gen, dtype=torch.int32)
-                  for k, a in env.actions.items()})
+        env.step(
+            {
+                k: torch.randint(0, cfg.action_count, a.shape, generator=gen, dtype=torch.int32)
+                for k, a in env.actions.items()
+            }
+        )
     t, Pc, C = env.state.torch, env.prey_capacity, cfg.capacity
     assert bool((t.velocity[:, [0, Pc]].abs() > 0.01).all())  # prey slot 0 and predator slot Pc
     state = WorldState(env)()
     fields = len(STATE_FIELDS)
 
     def velocity(w: int, state_slot: int) -> list:  # (vx, vy) of a slot in the state's order
-        return state[w, state_slot * fields + 3:state_slot * fields + 5].tolist()
+        return state[w, state_slot * fields + 3 : state_slot * fields + 5].tolist()
 
     for w, speed in enumerate(speeds):  # prey slot 0 follows the predators' slots in the state
         assert velocity(w, C - Pc) == pytest.approx((t.velocity[w, 0] / speed).tolist(), abs=1e-6)

@@ -30,7 +30,7 @@ def test_step_returns_the_outputs_record():
     for k in range(1, 5):
         env.step(random_actions(env, k))
     assert result.rewards["prey"].data_ptr() == env.state.torch.reward.data_ptr()
-    assert torch.equal(result.rewards["prey"], env.state.torch.reward[:, :env.prey_capacity])
+    assert torch.equal(result.rewards["prey"], env.state.torch.reward[:, : env.prey_capacity])
 
 
 def test_writing_the_action_buffers_equals_passing_actions():
@@ -78,13 +78,20 @@ def test_record_program_runs_on_every_shard():
     twin.set_actions(actions)
     # The motion kernel alone, launched through a program of its own, moves the agents as the step's
     # first launch does.
-    program = env.record_program(lambda shard: [shard.record(
-        motion.motion_stage(False)[1], (shard.num_worlds, env.capacity),
-        [shard.world, shard.types, env.action_directions, shard.state.actions, shard.state.worlds],
-        [shard.state.agents, shard.state.scratch, shard.state.outputs])])
+    program = env.record_program(
+        lambda shard: [
+            shard.record(
+                motion.motion_stage(False)[1],
+                (shard.num_worlds, env.capacity),
+                [shard.world, shard.types, env.action_directions, shard.state.actions, shard.state.worlds],
+                [shard.state.agents, shard.state.scratch, shard.state.outputs],
+            )
+        ]
+    )
     program.run()
     twin.shards[0].programs["step"][0]()
     twin.shards[1].programs["step"][0]()
     assert torch.equal(env.state.torch.position, twin.state.torch.position)
-    assert not torch.equal(env.state.torch.position, BatchedAquarium(CFG, num_worlds=64, device="cpu",
-                                                                      seed=2).state.torch.position)
+    assert not torch.equal(
+        env.state.torch.position, BatchedAquarium(CFG, num_worlds=64, device="cpu", seed=2).state.torch.position
+    )

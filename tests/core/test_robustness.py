@@ -16,8 +16,9 @@ ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
 
 def run_python(code: str, timeout: float = 240) -> subprocess.CompletedProcess:
     """Run `code` in a fresh interpreter (fresh Warp: nothing loaded yet), from the repository root."""
-    return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], cwd=ROOT, capture_output=True,
-                          text=True, timeout=timeout)
+    return subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(code)], cwd=ROOT, capture_output=True, text=True, timeout=timeout
+    )
 
 
 @pytest.mark.slow
@@ -60,6 +61,7 @@ def test_study_settings_built_on_parallel_threads(tmp_path):
     """)
     assert result.returncode == 0, result.stderr[-2000:]
     assert "settings 3 jobs 2" in result.stdout
+
 
 @pytest.mark.slow
 def test_unvalidated_actions_are_clamped_in_the_kernel():
@@ -128,8 +130,10 @@ def test_tiny_grid_cell_size_is_blamed_by_name():
     assert len(message) < 200
 
 
-@pytest.mark.parametrize("dtype,error", [(">i8", None), (">i2", None), ("object", "numpy object"),
-                                         ("<U2", "numpy <U2"), (">f4", "integer dtype")])
+@pytest.mark.parametrize(
+    "dtype,error",
+    [(">i8", None), (">i2", None), ("object", "numpy object"), ("<U2", "numpy <U2"), (">f4", "integer dtype")],
+)
 def test_numpy_actions_of_any_byte_order_or_dtype(dtype, error):
     """Case 10: big-endian or object numpy actions gave torch's message without the action key. Big-endian
     integers are integers (the same step as native ones); other dtypes are refused naming the key."""
@@ -162,8 +166,9 @@ def _one_world(cfg, **fields):
     from aquarium_warp import BatchedAquarium
 
     env = BatchedAquarium(cfg, num_worlds=1, device="cpu", seed=0)
-    env.set_state(world=0, **{k: torch.as_tensor(v, dtype=getattr(env.state.torch, k).dtype)
-                              for k, v in fields.items()})
+    env.set_state(
+        world=0, **{k: torch.as_tensor(v, dtype=getattr(env.state.torch, k).dtype) for k, v in fields.items()}
+    )
     return env
 
 
@@ -208,8 +213,11 @@ def test_tiny_velocity_gives_a_unit_heading():
 
     prey = dataclasses.replace(default_prey(), bounce_strength=0.0)
     cfg = AquariumConfig(prey_count=2, prey=prey)
-    env = _one_world(cfg, position=[[100.0, 100.0], [110.0, 100.0], [600.0, 600.0]],
-                     velocity=[[3e-22, 4e-22], [0.0, -7e-30], [0.0, -1.0]])
+    env = _one_world(
+        cfg,
+        position=[[100.0, 100.0], [110.0, 100.0], [600.0, 600.0]],
+        velocity=[[3e-22, 4e-22], [0.0, -7e-30], [0.0, -1.0]],
+    )
     env.step({"prey": torch.tensor([[0, 0]]), "predator": torch.tensor([[0]])})
     heading = env.state.torch.heading[0].double().numpy()
     np.testing.assert_allclose(heading[0], [0.6, 0.8], rtol=1e-6)
@@ -227,14 +235,22 @@ def test_int32_edges_do_not_overflow():
     from aquarium_warp import AquariumConfig, BatchedAquarium
 
     age = 1717986917
-    cfg = AquariumConfig(prey_count=8, max_prey=12, prey_reproduction=True, prey_replication_age=age,
-                         max_steps=2**31 - 1, predator_starvation_steps=2**31 - 2)
+    cfg = AquariumConfig(
+        prey_count=8,
+        max_prey=12,
+        prey_reproduction=True,
+        prey_replication_age=age,
+        max_steps=2**31 - 1,
+        predator_starvation_steps=2**31 - 2,
+    )
     env = BatchedAquarium(cfg, num_worlds=2, device="cpu", seed=9)
     replication = env.state.torch.replication_age[:, :8]
     assert int(replication.min()) >= math.ceil(0.75 * age) and int(replication.max()) <= 2**31 - 2
     for _ in range(6):
-        actions = {"prey": torch.zeros(2, env.prey_capacity, dtype=torch.int64),
-                   "predator": torch.zeros(2, 1, dtype=torch.int64)}
+        actions = {
+            "prey": torch.zeros(2, env.prey_capacity, dtype=torch.int64),
+            "predator": torch.zeros(2, 1, dtype=torch.int64),
+        }
         _, _, terminated, truncated, info = env.step(actions)
         assert not info["episode_ended"].any() and not terminated["predator"].any()
     assert (env.state.torch.world_step == 6).all()

@@ -109,6 +109,25 @@ def test_video_seeds_each_team_by_the_team_rule(monkeypatch, tmp_path):
         return make_driver(spec, env, team, **kwargs)
 
     monkeypatch.setattr(drivers_module, "make_driver", noting)
-    assert main(["video", "--steps", "1", "--out", str(tmp_path / "v.mp4"), "--device", "cpu", "--frame-width", "32",
-                 "--prey", "3", "--seed", "5", "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "video",
+                "--steps",
+                "1",
+                "--out",
+                str(tmp_path / "v.mp4"),
+                "--device",
+                "cpu",
+                "--frame-width",
+                "32",
+                "--prey",
+                "3",
+                "--seed",
+                "5",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     assert seeds == {"prey": team_seed(5, "prey"), "predator": team_seed(5, "predator")} == {"prey": 5, "predator": 6}

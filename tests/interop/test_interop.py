@@ -16,8 +16,15 @@ import torch
 from aquarium_warp import AquariumConfig, BatchedAquarium, aquarium_v1
 
 # Respawn off and a short starvation limit: episodes end early, at different steps per world.
-CFG_EARLY_ENDS = AquariumConfig(width=300.0, height=300.0, prey_count=8, predator_count=2, max_steps=50,
-                                respawn_captured_prey=False, predator_starvation_steps=12)
+CFG_EARLY_ENDS = AquariumConfig(
+    width=300.0,
+    height=300.0,
+    prey_count=8,
+    predator_count=2,
+    max_steps=50,
+    respawn_captured_prey=False,
+    predator_starvation_steps=12,
+)
 
 
 def flat(out, prefix="") -> dict[str, torch.Tensor]:
@@ -34,11 +41,22 @@ def flat(out, prefix="") -> dict[str, torch.Tensor]:
 def visible(env: BatchedAquarium) -> dict[str, torch.Tensor]:
     """What a user can read without stepping: the state and the buffers of the last step's outputs."""
     t = env.state.torch
-    names = ["position", "velocity", "acceleration", "heading", "alive", "age", "replication_age", "starvation",
-             "world_step", "episode", "episode_captures", "episode_return"]
+    names = [
+        "position",
+        "velocity",
+        "acceleration",
+        "heading",
+        "alive",
+        "age",
+        "replication_age",
+        "starvation",
+        "world_step",
+        "episode",
+        "episode_captures",
+        "episode_return",
+    ]
     out = flat({n: getattr(t, n) for n in names})
-    out.update(flat((env.observations, env.observation_mask, env.observed_slot, *env.outputs[1:]),
-                    "buffers"))
+    out.update(flat((env.observations, env.observation_mask, env.observed_slot, *env.outputs[1:]), "buffers"))
     return out
 
 
@@ -50,8 +68,10 @@ def assert_same(a: dict, b: dict, where: str) -> None:
 
 def random_actions(env, gen) -> dict[str, torch.Tensor]:
     n = env.config.action_count
-    return {"prey": torch.randint(0, n, (env.num_worlds, env.prey_capacity), generator=gen, dtype=torch.int32),
-            "predator": torch.randint(0, n, (env.num_worlds, env.predator_capacity), generator=gen, dtype=torch.int32)}
+    return {
+        "prey": torch.randint(0, n, (env.num_worlds, env.prey_capacity), generator=gen, dtype=torch.int32),
+        "predator": torch.randint(0, n, (env.num_worlds, env.predator_capacity), generator=gen, dtype=torch.int32),
+    }
 
 
 @pytest.mark.parametrize("how", ["pickle", "deepcopy"])
@@ -105,8 +125,17 @@ def assert_same_step(x, y, where):
 @pytest.mark.parametrize("how", ["pickle", "deepcopy"])
 def test_parallel_env_copy_continues_bit_for_bit(how):
     # Permanent capture, starvation and reproduction: agents leave, newborns join with fresh names.
-    kwargs = dict(prey_count=6, predator_count=2, width=300, height=300, max_cycles=60,
-                  keep_prey_count_constant=False, procreate=True, prey_replication_age=20, predator_max_age=25)
+    kwargs = dict(
+        prey_count=6,
+        predator_count=2,
+        width=300,
+        height=300,
+        max_cycles=60,
+        keep_prey_count_constant=False,
+        procreate=True,
+        prey_replication_age=20,
+        predator_max_age=25,
+    )
     env = aquarium_v1.parallel_env(**kwargs)
     env.reset(seed=7)
     for _ in range(10):
@@ -224,8 +253,9 @@ class PredatorView(gymnasium.Env):
         return obs["predator_0"], {}
 
     def step(self, action):
-        actions = {a: (int(action) if a == "predator_0" else self.env.action_space(a).sample())
-                   for a in self.env.agents}
+        actions = {
+            a: (int(action) if a == "predator_0" else self.env.action_space(a).sample()) for a in self.env.agents
+        }
         obs, rewards, terminations, truncations, _ = self.env.step(actions)
         return obs["predator_0"], rewards["predator_0"], terminations["predator_0"], truncations["predator_0"], {}
 
@@ -260,7 +290,10 @@ def test_stable_baselines3_ppo_trains_on_the_supersuit_env(tmp_path):
     sb3 = pytest.importorskip("stable_baselines3", reason="needs the interop extra: pip install -e '.[interop]'")
     vec = ss.concat_vec_envs_v1(
         ss.pettingzoo_env_to_vec_env_v1(aquarium_v1.parallel_env(prey_count=6, max_cycles=40)),
-        2, num_cpus=2, base_class="stable_baselines3")
+        2,
+        num_cpus=2,
+        base_class="stable_baselines3",
+    )
     try:
         # PPO(seed=...) would call a seed() that SuperSuit's multiprocess vector env lacks: seed the inner
         # vector env instead (later unseeded resets continue from it), and torch through SB3.

@@ -20,8 +20,15 @@ from aquarium_warp.config import default_prey
 
 # Agents leave (permanent capture, starvation after 60 steps without a catch) and join (prey replicate
 # after 15..25 steps); freed slots are refilled under fresh names. Episodes last at most 400 steps.
-DYNAMIC = dict(keep_prey_count_constant=False, predator_count=3, predator_max_age=60, procreate=True,
-               prey_replication_age=20, max_prey_count=20, max_time_steps=400)
+DYNAMIC = dict(
+    keep_prey_count_constant=False,
+    predator_count=3,
+    predator_max_age=60,
+    procreate=True,
+    prey_replication_age=20,
+    max_prey_count=20,
+    max_time_steps=400,
+)
 CONFIGS = {"default": {}, "dynamic": DYNAMIC}
 CYCLES = 300
 
@@ -112,8 +119,12 @@ def test_factories_and_metadata():
     par = aquarium_v1.parallel_env(fps=30)
     assert isinstance(par, ParallelEnv) and isinstance(par, aquarium_v1.raw_env)
     assert par.unwrapped is par
-    assert par.metadata == {"name": "aquarium_v1", "render_modes": ["human", "rgb_array"], "render_fps": 30,
-                            "is_parallelizable": True}
+    assert par.metadata == {
+        "name": "aquarium_v1",
+        "render_modes": ["human", "rgb_array"],
+        "render_fps": 30,
+        "is_parallelizable": True,
+    }
     assert par.render_mode == "human"  # marl-aquarium's default; nothing is drawn until render()
     aec = aquarium_v1.env(prey_count=5)
     assert isinstance(aec, AECEnv)
@@ -123,15 +134,46 @@ def test_factories_and_metadata():
 
 def test_original_keywords_map_onto_config():
     env = aquarium_v1.env(
-        width=600, height=400, max_time_steps=123, action_count=8, predator_count=2, prey_count=10,
-        predator_observe_count=2, prey_observe_count=4, fov_enabled=False, keep_prey_count_constant=False,
-        prey_radius=10, prey_max_acceleration=0.9, prey_max_velocity=3.0, prey_view_distance=50,
-        prey_replication_age=100, prey_max_steer_force=0.5, prey_fov=90, prey_reward=2, prey_punishment=7,
-        max_prey_count=30, predator_max_acceleration=0.7, predator_radius=15, predator_max_velocity=8.0,
-        predator_view_distance=300, predator_max_steer_force=0.4, predator_max_age=100, predator_fov=100,
-        predator_reward=20, catch_radius=50, procreate=True, observable_walls=2, caption="x", fps=10,
-        draw_force_vectors=True, draw_action_vectors=False, draw_view_cones=True, draw_hit_boxes=True,
-        draw_death_circles=False, render_mode="rgb_array")
+        width=600,
+        height=400,
+        max_time_steps=123,
+        action_count=8,
+        predator_count=2,
+        prey_count=10,
+        predator_observe_count=2,
+        prey_observe_count=4,
+        fov_enabled=False,
+        keep_prey_count_constant=False,
+        prey_radius=10,
+        prey_max_acceleration=0.9,
+        prey_max_velocity=3.0,
+        prey_view_distance=50,
+        prey_replication_age=100,
+        prey_max_steer_force=0.5,
+        prey_fov=90,
+        prey_reward=2,
+        prey_punishment=7,
+        max_prey_count=30,
+        predator_max_acceleration=0.7,
+        predator_radius=15,
+        predator_max_velocity=8.0,
+        predator_view_distance=300,
+        predator_max_steer_force=0.4,
+        predator_max_age=100,
+        predator_fov=100,
+        predator_reward=20,
+        catch_radius=50,
+        procreate=True,
+        observable_walls=2,
+        caption="x",
+        fps=10,
+        draw_force_vectors=True,
+        draw_action_vectors=False,
+        draw_view_cones=True,
+        draw_hit_boxes=True,
+        draw_death_circles=False,
+        render_mode="rgb_array",
+    )
     cfg = env.unwrapped.config
     assert (cfg.width, cfg.height, cfg.max_steps, cfg.action_count) == (600, 400, 123, 8)
     assert (cfg.predator_count, cfg.prey_count, cfg.max_prey) == (2, 10, 30)
@@ -141,10 +183,22 @@ def test_original_keywords_map_onto_config():
     for t in (cfg.prey, cfg.predator):
         assert (t.predator_slots, t.prey_slots) == (2, 4)
     p, q = cfg.prey, cfg.predator
-    assert (p.radius, p.max_acceleration, p.max_speed, p.view_distance, p.max_steering_force, p.fov_angle) == \
-        (10, 0.9, 3.0, 50, 0.5, 90)
-    assert (q.radius, q.max_acceleration, q.max_speed, q.view_distance, q.max_steering_force, q.fov_angle) == \
-        (15, 0.7, 8.0, 300, 0.4, 100)
+    assert (p.radius, p.max_acceleration, p.max_speed, p.view_distance, p.max_steering_force, p.fov_angle) == (
+        10,
+        0.9,
+        3.0,
+        50,
+        0.5,
+        90,
+    )
+    assert (q.radius, q.max_acceleration, q.max_speed, q.view_distance, q.max_steering_force, q.fov_angle) == (
+        15,
+        0.7,
+        8.0,
+        300,
+        0.4,
+        100,
+    )
     assert q.bounce_strength == 1.0 and p.bounce_strength == 1.0  # predator: max velocity / 8, as the original
     assert env.unwrapped.metadata["render_fps"] == 10
     assert env.observation_space("prey_0").shape == (5 + 6 * 6,) == env.observation_space("predator_0").shape
@@ -157,8 +211,13 @@ def test_own_names_and_config():
     cfg = AquariumConfig(prey_count=8, max_steps=50)
     assert aquarium_v1.parallel_env(config=cfg).config is cfg
     assert aquarium_v1.parallel_env(config=cfg, prey_count=8, max_time_steps=50).config is cfg  # agreeing
-    env = aquarium_v1.parallel_env(respawn_captured_prey=False, catch_share_radius=70, predator_bounce_strength=0.3,
-                                   predator_max_velocity=8.0, prey_mass=4.0)
+    env = aquarium_v1.parallel_env(
+        respawn_captured_prey=False,
+        catch_share_radius=70,
+        predator_bounce_strength=0.3,
+        predator_max_velocity=8.0,
+        prey_mass=4.0,
+    )
     c = env.config
     assert not c.respawn_captured_prey and c.catch_share_radius == 70 and c.prey.mass == 4.0
     assert c.predator.bounce_strength == 0.3 and c.predator.max_speed == 8.0  # given: not max velocity / 8
@@ -168,16 +227,19 @@ def test_own_names_and_config():
     assert env.observation_space("prey_0").shape == (41,) and env.observation_space("predator_0").shape == (29,)
 
 
-@pytest.mark.parametrize("kwargs", [
-    dict(keep_prey_count_constant=True, respawn_captured_prey=False),
-    dict(max_cycles=4, max_time_steps=5),
-    dict(max_steps=4, max_time_steps=5),
-    dict(prey_max_velocity=3.0, prey_max_speed=4.0),
-    dict(predator_observe_count=2, prey_predator_slots=1),
-    dict(config=AquariumConfig(prey_count=8), prey_count=9),
-    dict(config=AquariumConfig(), catch_radius=5),
-    dict(prey=AgentTypeConfig(4.0, 0.6, 1.0, 3.0, 20.0, 100.0, 120.0, 1.0), prey_radius=25),
-])
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        dict(keep_prey_count_constant=True, respawn_captured_prey=False),
+        dict(max_cycles=4, max_time_steps=5),
+        dict(max_steps=4, max_time_steps=5),
+        dict(prey_max_velocity=3.0, prey_max_speed=4.0),
+        dict(predator_observe_count=2, prey_predator_slots=1),
+        dict(config=AquariumConfig(prey_count=8), prey_count=9),
+        dict(config=AquariumConfig(), catch_radius=5),
+        dict(prey=AgentTypeConfig(4.0, 0.6, 1.0, 3.0, 20.0, 100.0, 120.0, 1.0), prey_radius=25),
+    ],
+)
 def test_contradicting_keywords_raise(kwargs):
     with pytest.raises(ValueError, match="contradict"):
         aquarium_v1.parallel_env(**kwargs)
@@ -197,8 +259,16 @@ def test_unknown_keyword_lists_valid_ones():
         aquarium_v1.parallel_env(prey_cuont=3)
     message = str(info.value)
     assert "prey_cuont" in message
-    for name in ("prey_count", "keep_prey_count_constant", "max_time_steps", "respawn_captured_prey", "config",
-                 "render_mode", "device", "seed"):
+    for name in (
+        "prey_count",
+        "keep_prey_count_constant",
+        "max_time_steps",
+        "respawn_captured_prey",
+        "config",
+        "render_mode",
+        "device",
+        "seed",
+    ):
         assert name in message
 
 
@@ -348,8 +418,11 @@ def test_aec_out_of_range_action_names_agent_value_and_range():
     env.reset(seed=0)
     agent = env.agent_selection
     for bad in (99, -1, True):
-        with pytest.raises(ValueError, match=rf"action {bad!r} of agent '{agent}' is not in Discrete\(16\): "
-                                             r"must be an integer in \[0, 15\]"):
+        with pytest.raises(
+            ValueError,
+            match=rf"action {bad!r} of agent '{agent}' is not in Discrete\(16\): "
+            r"must be an integer in \[0, 15\]",
+        ):
             env.step(bad)
     env.step(3)  # a valid action still steps
     env.close()
@@ -372,8 +445,12 @@ def _place(env, positions):
     """Put every slot at `positions` (slot order: prey slots, then predators), at rest."""
     aq = env.aquarium
     C = aq.capacity
-    aq.set_state(world=0, position=np.asarray(positions, np.float32),
-                 velocity=np.zeros((C, 2), np.float32), acceleration=np.zeros((C, 2), np.float32))
+    aq.set_state(
+        world=0,
+        position=np.asarray(positions, np.float32),
+        velocity=np.zeros((C, 2), np.float32),
+        acceleration=np.zeros((C, 2), np.float32),
+    )
 
 
 def test_capture_rewards_and_names():

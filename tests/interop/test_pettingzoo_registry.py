@@ -20,8 +20,17 @@ if not hasattr(pettingzoo, "make"):  # pragma: no cover - PettingZoo < 1.27
     pytest.skip("the installed PettingZoo has no registry (pettingzoo.make arrived in 1.27)", allow_module_level=True)
 
 # Agents leave (permanent capture, starvation) and join (reproduction): the harder case for the tests.
-DYNAMIC = dict(prey_count=6, predator_count=2, width=300, height=300, keep_prey_count_constant=False,
-               predator_max_age=30, procreate=True, prey_replication_age=20, max_prey_count=12)
+DYNAMIC = dict(
+    prey_count=6,
+    predator_count=2,
+    width=300,
+    height=300,
+    keep_prey_count_constant=False,
+    predator_max_age=30,
+    procreate=True,
+    prey_replication_age=20,
+    max_prey_count=12,
+)
 
 
 def test_ids_are_registered_once_with_the_aquarium_v1_entry_points():

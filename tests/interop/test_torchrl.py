@@ -9,8 +9,11 @@ import tempfile
 import pytest
 import torch
 
-pytest.importorskip("torchrl", reason="needs the torchrl extra: pip install -c .ci/constraints-torchrl.txt "
-                                      "-e '.[torchrl]' (in its own environment)")
+pytest.importorskip(
+    "torchrl",
+    reason="needs the torchrl extra: pip install -c .ci/constraints-torchrl.txt "
+    "-e '.[torchrl]' (in its own environment)",
+)
 
 from torchrl.envs.utils import check_env_specs
 
@@ -19,9 +22,18 @@ from aquarium_warp.interop.torchrl import AquariumTorchRLEnv
 
 TYPES = ("prey", "predator")
 # Respawn off, starvation and reproduction: agents leave and are born, episodes end early or at 40 steps.
-CFG_CHANGES = AquariumConfig(width=300.0, height=300.0, prey_count=6, predator_count=2, max_steps=40,
-                             respawn_captured_prey=False, predator_starvation_steps=15, prey_reproduction=True,
-                             prey_replication_age=12, max_prey=10)
+CFG_CHANGES = AquariumConfig(
+    width=300.0,
+    height=300.0,
+    prey_count=6,
+    predator_count=2,
+    max_steps=40,
+    respawn_captured_prey=False,
+    predator_starvation_steps=15,
+    prey_reproduction=True,
+    prey_replication_age=12,
+    max_prey=10,
+)
 CFG_DEFAULT_LIKE = AquariumConfig(width=400.0, height=400.0, prey_count=8, max_steps=30)
 
 
@@ -29,8 +41,10 @@ CFG_DEFAULT_LIKE = AquariumConfig(width=400.0, height=400.0, prey_count=8, max_s
 def test_check_env_specs(cfg):
     env = AquariumTorchRLEnv(cfg, num_worlds=5, device="cpu", seed=0)
     assert env.batch_size == torch.Size([5])
-    assert env.group_map == {"prey": [f"prey_{i}" for i in range(env.aquarium.prey_capacity)],
-                             "predator": [f"predator_{i}" for i in range(cfg.predator_count)]}
+    assert env.group_map == {
+        "prey": [f"prey_{i}" for i in range(env.aquarium.prey_capacity)],
+        "predator": [f"predator_{i}" for i in range(cfg.predator_count)],
+    }
     check_env_specs(env, seed=0)
     env.close()
 
@@ -113,9 +127,18 @@ def test_benchmarl_mappo_trains_on_the_task():
 
     from aquarium_warp.interop.benchmarl import AquariumTask
 
-    task = AquariumTask.PREDATOR_PREY.get_task(config=dict(
-        width=300.0, height=300.0, prey_count=4, predator_count=1, max_steps=50, respawn_captured_prey=True,
-        prey_reproduction=False, cpu_threads=1))
+    task = AquariumTask.PREDATOR_PREY.get_task(
+        config=dict(
+            width=300.0,
+            height=300.0,
+            prey_count=4,
+            predator_count=1,
+            max_steps=50,
+            respawn_captured_prey=True,
+            prey_reproduction=False,
+            cpu_threads=1,
+        )
+    )
     cfg = ExperimentConfig.get_from_yaml()
     cfg.sampling_device = cfg.train_device = cfg.buffer_device = "cpu"
     cfg.on_policy_collected_frames_per_batch = 200  # 4 worlds x 50 steps
@@ -131,8 +154,14 @@ def test_benchmarl_mappo_trains_on_the_task():
     model.num_cells = [32]
     with tempfile.TemporaryDirectory() as folder:
         cfg.save_folder = folder
-        experiment = Experiment(task=task, algorithm_config=MappoConfig.get_from_yaml(), model_config=model,
-                                critic_model_config=model, seed=0, config=cfg)
+        experiment = Experiment(
+            task=task,
+            algorithm_config=MappoConfig.get_from_yaml(),
+            model_config=model,
+            critic_model_config=model,
+            seed=0,
+            config=cfg,
+        )
         assert set(experiment.group_map) == {"prey", "predator"}
         before = [p.detach().clone() for p in experiment.policy.parameters()]
         experiment.run()

@@ -14,9 +14,18 @@ from aquarium_warp import AquariumConfig, BatchedAquarium
 from aquarium_warp.interop.gymnasium import AquariumRows, AquariumVectorEnv
 
 # Respawn off, starvation after 12 steps, reproduction: slots empty and refill, episodes end early.
-DYNAMIC = AquariumConfig(width=300.0, height=300.0, prey_count=5, predator_count=2, max_steps=40,
-                         respawn_captured_prey=False, predator_starvation_steps=12, prey_reproduction=True,
-                         prey_replication_age=8, max_prey=9)
+DYNAMIC = AquariumConfig(
+    width=300.0,
+    height=300.0,
+    prey_count=5,
+    predator_count=2,
+    max_steps=40,
+    respawn_captured_prey=False,
+    predator_starvation_steps=12,
+    prey_reproduction=True,
+    prey_replication_age=8,
+    max_prey=9,
+)
 # Respawn on (the paper's setting): every world ends by truncation at max_steps.
 RESPAWN = AquariumConfig(width=200.0, height=200.0, prey_count=6, predator_count=2, max_steps=25)
 
@@ -25,7 +34,7 @@ def expected_rows(env: BatchedAquarium, active: np.ndarray):
     """Rows (predators, then prey slots, per world) of the step `env` just made, from its outputs with a
     per-row loop; `active` (rows live before the step) is updated in place."""
     obs, rew, term, trunc, _ = env.outputs
-    captured = env.state.torch.captured[:, :env.prey_capacity].numpy()
+    captured = env.state.torch.captured[:, : env.prey_capacity].numpy()
     out = {k: [] for k in ("obs", "reward", "terminated", "truncated")}
     row = 0
     for w in range(env.num_worlds):
@@ -54,11 +63,14 @@ def test_rows_match_batched_aquarium_with_dead_slots_and_refills():
         S = 2 + DYNAMIC.prey_capacity
         assert vec.num_envs == 3 * S and vec.single_observation_space.shape == (DYNAMIC.observation_size("prey"),)
         obs, infos = vec.reset(seed=21)
-        active = np.concatenate([np.concatenate([ref.alive["predator"][w].numpy(), ref.alive["prey"][w].numpy()])
-                                 for w in range(3)])
+        active = np.concatenate(
+            [np.concatenate([ref.alive["predator"][w].numpy(), ref.alive["prey"][w].numpy()]) for w in range(3)]
+        )
         assert np.array_equal(infos["active"], active) and not active.all()  # reproduction slots start empty
-        assert np.array_equal(obs[active], np.concatenate([ref.observations["predator"], ref.observations["prey"]],
-                                                          axis=1).reshape(3 * S, -1)[active])
+        assert np.array_equal(
+            obs[active],
+            np.concatenate([ref.observations["predator"], ref.observations["prey"]], axis=1).reshape(3 * S, -1)[active],
+        )
         rng = np.random.default_rng(0)
         seen = dict(empty=0, refilled=0, died=0, truncated=0)
         for step in range(90):  # past two world episodes
@@ -120,8 +132,9 @@ def test_team_rows_match_the_rsl_rl_adapter():
 
     vec = AquariumVectorEnv(DYNAMIC, num_worlds=2, seed=8, team="prey", opponent="naivchase")
     ref_env = BatchedAquarium(DYNAMIC, num_worlds=2, seed=8)
-    ref = vec_env.AquariumVecEnv(ref_env, team="prey", opponent=make_policy("naivchase", ref_env, "predator"),
-                                 metrics_every=0)
+    ref = vec_env.AquariumVecEnv(
+        ref_env, team="prey", opponent=make_policy("naivchase", ref_env, "predator"), metrics_every=0
+    )
     try:
         assert vec.num_envs == ref.num_envs == 2 * DYNAMIC.prey_capacity
         obs, _ = vec.reset(seed=8)
@@ -180,9 +193,14 @@ def test_bad_input():
     vec = AquariumVectorEnv(RESPAWN, num_worlds=2)
     try:
         n = vec.num_envs
-        for actions, match in [(np.zeros(n + 1, int), "shape"), (np.full(n, 16), r"\[0, 15\]"),
-                               (np.full(n, -1), r"\[0, 15\]"), (np.full(n, 0.5), "fractions"),
-                               (np.zeros(n, bool), "integers"), (["a"] * n, "integers")]:
+        for actions, match in [
+            (np.zeros(n + 1, int), "shape"),
+            (np.full(n, 16), r"\[0, 15\]"),
+            (np.full(n, -1), r"\[0, 15\]"),
+            (np.full(n, 0.5), "fractions"),
+            (np.zeros(n, bool), "integers"),
+            (["a"] * n, "integers"),
+        ]:
             with pytest.raises(ValueError, match=match):
                 vec.step(actions)
         with pytest.raises(ValueError, match="seed"):
@@ -191,10 +209,14 @@ def test_bad_input():
             vec.reset(seed=-1)
     finally:
         vec.close()
-    for kwargs, match in [(dict(team="fish"), "team"), (dict(array_type="jax"), "array_type"),
-                          (dict(team="prey"), "opponent"), (dict(opponent="naivchase"), "opponent"),
-                          (dict(team="prey", opponent="nochase"), "heuristic|name|policy"),
-                          (dict(validate_actions=1), "validate_actions")]:
+    for kwargs, match in [
+        (dict(team="fish"), "team"),
+        (dict(array_type="jax"), "array_type"),
+        (dict(team="prey"), "opponent"),
+        (dict(opponent="naivchase"), "opponent"),
+        (dict(team="prey", opponent="nochase"), "heuristic|name|policy"),
+        (dict(validate_actions=1), "validate_actions"),
+    ]:
         with pytest.raises(ValueError, match=match):
             AquariumVectorEnv(RESPAWN, **kwargs)
     with pytest.raises(ValueError, match="auto_reset"):

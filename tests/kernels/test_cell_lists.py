@@ -70,7 +70,7 @@ def test_cell_list_builds_agree(device, dims):
     # Positions on a 1/4 px lattice, some exactly on cell borders and on the seam (0).
     position = np.stack([rng.integers(0, 4 * 300, (W, C)) / 4.0, rng.integers(0, 4 * 200, (W, C)) / 4.0], -1)
     border = rng.random((W, C)) < 0.2
-    position[border, 0] = (rng.integers(0, dims[0], border.sum()) * (300.0 / dims[0]))
+    position[border, 0] = rng.integers(0, dims[0], border.sum()) * (300.0 / dims[0])
     position = position.astype(np.float32)
     alive = rng.random((W, C)) < 0.8
     alive[3] = False  # a world with no live agent
@@ -79,7 +79,7 @@ def test_cell_list_builds_agree(device, dims):
     flat_position = position.reshape(-1, 2)
     for method in ("counting", "rank", "count"):
         got = build(method, cfg, dims, position, alive, device)
-        occupied = {c: list(got["agent"][got["cell_start"][c]:got["cell_end"][c]]) for c in want}
+        occupied = {c: list(got["agent"][got["cell_start"][c] : got["cell_end"][c]]) for c in want}
         assert occupied == want, f"{method}: cells differ"
         empty = np.ones(W * dims[0] * dims[1], bool)
         empty[list(want)] = False
@@ -92,16 +92,18 @@ def test_cell_list_builds_agree(device, dims):
         assert (ends[:, :-1] == starts[:, 1:]).all(), f"{method}: cell ranges do not follow each other"
         assert (starts <= ends).all(), f"{method}: a cell range is reversed"
         listed = np.concatenate([np.arange(got["cell_start"][c], got["cell_end"][c]) for c in want])
-        assert (got["position"][listed] == flat_position[got["agent"][listed]]).all(), \
+        assert (got["position"][listed] == flat_position[got["agent"][listed]]).all(), (
             f"{method}: gathered positions differ"
+        )
 
 
 @wp.kernel
 def runs_of_rows(grid: grid_kernels.CellLists, cases: wp.array(dtype=wp.vec4i), runs: wp.array(dtype=wp.vec4i)):
     q = wp.tid()
     case = cases[q]  # center x, center y, oy, (x_first + 50) * 100 + x_last + 50
-    runs[q] = grid_kernels.row_run_entries(grid, 1, wp.vec2i(case[0], case[1]), case[2], case[3] // 100 - 50,
-                                           case[3] % 100 - 50)
+    runs[q] = grid_kernels.row_run_entries(
+        grid, 1, wp.vec2i(case[0], case[1]), case[2], case[3] // 100 - 50, case[3] % 100 - 50
+    )
 
 
 @pytest.mark.parametrize("dims", [(5, 3), (4, 4), (1, 2)])

@@ -50,21 +50,23 @@ SLOT_CASES = {
     # 30 px straight ahead of an observer heading east; u = (0, 0) - (2, 0): forward -2/8
     "ahead": ((400.0, 400.0), EAST, (2.0, 0.0), (430.0, 400.0), (0.0, 0.0), [1.0, 0.3, 1.0, 0.0, -0.25, 0.0]),
     # 40 px to the right of east is +y (south); u = (0, 4) - (2, 0) = (-2, 4): forward -2/8, right 4/8
-    "right_of_east": ((400.0, 400.0), EAST, (2.0, 0.0), (400.0, 440.0), (0.0, 4.0),
-                      [1.0, 0.4, 0.0, 1.0, -0.25, 0.5]),
+    "right_of_east": ((400.0, 400.0), EAST, (2.0, 0.0), (400.0, 440.0), (0.0, 4.0), [1.0, 0.4, 0.0, 1.0, -0.25, 0.5]),
     # to the left of east (north, -y), moving west: u = (-4, 0) - (2, 0): forward -6/8
-    "left_of_east": ((400.0, 400.0), EAST, (2.0, 0.0), (400.0, 350.0), (-4.0, 0.0),
-                     [1.0, 0.5, 0.0, -1.0, -0.75, 0.0]),
+    "left_of_east": ((400.0, 400.0), EAST, (2.0, 0.0), (400.0, 350.0), (-4.0, 0.0), [1.0, 0.5, 0.0, -1.0, -0.75, 0.0]),
     # behind a north-heading observer (+y is behind), moving east = the observer's right
-    "behind_north": ((400.0, 400.0), NORTH, (0.0, 0.0), (400.0, 460.0), (4.0, 0.0),
-                     [1.0, 0.6, -1.0, 0.0, 0.0, 0.5]),
+    "behind_north": ((400.0, 400.0), NORTH, (0.0, 0.0), (400.0, 460.0), (4.0, 0.0), [1.0, 0.6, -1.0, 0.0, 0.0, 0.5]),
     # across the x seam: from x=790 to x=10 on the 800 px world is +20 (east); heading north, east is the
     # right; the neighbour moves north (the observer's forward) at 4
-    "seam_right_of_north": ((790.0, 400.0), NORTH, (0.0, 0.0), (10.0, 400.0), (0.0, -4.0),
-                            [1.0, 0.2, 0.0, 1.0, 0.5, 0.0]),
+    "seam_right_of_north": (
+        (790.0, 400.0),
+        NORTH,
+        (0.0, 0.0),
+        (10.0, 400.0),
+        (0.0, -4.0),
+        [1.0, 0.2, 0.0, 1.0, 0.5, 0.0],
+    ),
     # across the y seam: from y=795 to y=15 is +20 (south): ahead of a south-heading observer
-    "seam_ahead_south": ((100.0, 795.0), SOUTH, (0.0, 4.0), (100.0, 15.0), (0.0, 4.0),
-                         [1.0, 0.2, 1.0, 0.0, 0.0, 0.0]),
+    "seam_ahead_south": ((100.0, 795.0), SOUTH, (0.0, 4.0), (100.0, 15.0), (0.0, 4.0), [1.0, 0.2, 1.0, 0.0, 0.0, 0.0]),
     # heading H = (0.6, 0.8): displacement (-40, 30) has d.f = -24 + 24 = 0, d.r = 32 + 18 = 50 (right);
     # u = (4, 0): u.f = 2.4, u.r = -0.8 * 4 = -3.2
     "right_of_H": ((200.0, 200.0), H, (0.0, 0.0), (160.0, 230.0), (4.0, 0.0), [1.0, 0.5, 0.0, 1.0, 0.3, -0.4]),
@@ -83,8 +85,9 @@ SLOT_CASES = {
 def test_ego_prey_slot(case, observation_range):
     p_i, h, v_i, p_j, v_j, natural = SLOT_CASES[case]
     cfg = ego_cfg(prey_count=2, predator_count=1, fov_enabled=False, observation_range=observation_range)
-    st = make_world(cfg, prey=[agent(p_i, vel=v_i, heading=h), agent(p_j, vel=v_j, heading=EAST)],
-                    predators=[agent((600.0, 600.0))])  # out of view
+    st = make_world(
+        cfg, prey=[agent(p_i, vel=v_i, heading=h), agent(p_j, vel=v_j, heading=EAST)], predators=[agent((600.0, 600.0))]
+    )  # out of view
     obs, mask, slots = ref.observe(cfg, st, with_slots=True)
     o = obs["prey"][0]
     assert o.shape == (2 + 6 * 4,)
@@ -102,20 +105,26 @@ def test_ego_predator_slot_uses_both_max_speeds(observation_range):
     st = make_world(cfg, prey=[agent((400.0, 400.0), heading=EAST)], predators=[agent((400.0, 370.0), vel=(0.0, -4.5))])
     obs, mask = ref.observe(cfg, st)
     assert mask["prey"][0].tolist() == [True, False, False, False]
-    np.testing.assert_allclose(obs["prey"][0][2:8], mapped([1.0, 0.3, 0.0, -1.0, 0.0, -0.5], UNSIGNED,
-                                                           observation_range), atol=1e-12)
+    np.testing.assert_allclose(
+        obs["prey"][0][2:8], mapped([1.0, 0.3, 0.0, -1.0, 0.0, -0.5], UNSIGNED, observation_range), atol=1e-12
+    )
 
 
 def test_ego_slots_keep_the_world_layouts_selection_and_order():
     """Same selection (visible, nearest first, ties to the lower slot) as the world layout: FOV on (prey 120
     degrees, heading east), the one behind is not seen; two at distance 30 tie and keep slot order."""
     cfg = ego_cfg(prey_count=5, predator_count=1)
-    st = make_world(cfg, prey=[agent((400.0, 400.0), heading=EAST),
-                               agent((430.0, 400.0)),  # 30 ahead
-                               agent((370.0, 400.0)),  # 30 behind: outside the cone
-                               agent((424.0, 418.0)),  # 30 away, 36.9 degrees right: ties with slot 1
-                               agent((410.0, 400.0))],  # 10 ahead: nearest
-                    predators=[agent((700.0, 700.0))])
+    st = make_world(
+        cfg,
+        prey=[
+            agent((400.0, 400.0), heading=EAST),
+            agent((430.0, 400.0)),  # 30 ahead
+            agent((370.0, 400.0)),  # 30 behind: outside the cone
+            agent((424.0, 418.0)),  # 30 away, 36.9 degrees right: ties with slot 1
+            agent((410.0, 400.0)),
+        ],  # 10 ahead: nearest
+        predators=[agent((700.0, 700.0))],
+    )
     obs, mask, slots = ref.observe(cfg, st, with_slots=True)
     assert slots["prey"][0].tolist() == [-1, 4, 1, 3]
     o = obs["prey"][0]
@@ -142,12 +151,24 @@ OWN_CASES = {
     "speed_clipped": ("ego", None, False, (3.0, 4.0), [1.0, 1.0], (True, True)),
     # c = (0.5, 0): c.f = 0.6 * 0.5 = 0.3, c.r = -0.8 * 0.5 = -0.4
     "flow_ego": ("ego", UNIFORM_2, True, (0.0, 0.0), [1.0, 0.0, 0.3, -0.4], (True, True, False, False)),
-    "flow_world_actions": ("world", UNIFORM_2, True, (0.0, 0.0), [1.0, 0.0, 0.6, 0.8, 0.3, -0.4],
-                           (True, True, False, False, False, False)),
+    "flow_world_actions": (
+        "world",
+        UNIFORM_2,
+        True,
+        (0.0, 0.0),
+        [1.0, 0.0, 0.6, 0.8, 0.3, -0.4],
+        (True, True, False, False, False, False),
+    ),
     # c = (2.5, 0): rotated first (c.f = 1.5, c.r = -2.0), then each clipped: (1, -1). Clipping the world
     # components first would give (0.6, -0.8).
-    "flow_clipped_after_rotation": ("ego", UNIFORM_10, True, (0.0, 0.0), [1.0, 0.0, 1.0, -1.0],
-                                    (True, True, False, False)),
+    "flow_clipped_after_rotation": (
+        "ego",
+        UNIFORM_10,
+        True,
+        (0.0, 0.0),
+        [1.0, 0.0, 1.0, -1.0],
+        (True, True, False, False),
+    ),
     # a flow that is not observed changes nothing in the row
     "flow_not_observed": ("ego", UNIFORM_2, False, (1.2, 1.6), [1.0, 0.5], (True, True)),
 }
@@ -157,13 +178,19 @@ OWN_CASES = {
 @pytest.mark.parametrize("case", list(OWN_CASES))
 def test_ego_own_block(case, observation_range):
     frame, flow, observe_flow, vel, natural, flags = OWN_CASES[case]
-    cfg = ego_cfg(action_frame=frame, prey_count=1, predator_count=1, observation_range=observation_range,
-                  flow=flow, observe_flow=observe_flow)
+    cfg = ego_cfg(
+        action_frame=frame,
+        prey_count=1,
+        predator_count=1,
+        observation_range=observation_range,
+        flow=flow,
+        observe_flow=observe_flow,
+    )
     st = make_world(cfg, prey=[agent((100.0, 100.0), vel=vel, heading=H)], predators=[agent((500.0, 500.0))])
     o = ref.observe(cfg, st)[0]["prey"][0]
     assert ref.own_size(cfg) == len(natural) and o.shape == (len(natural) + 24,)
     np.testing.assert_allclose(o[: len(natural)], mapped(natural, flags, observation_range), atol=1e-12)
-    assert not o[len(natural):].any()  # nothing in view
+    assert not o[len(natural) :].any()  # nothing in view
 
 
 def test_ego_own_block_of_a_predator():
@@ -174,17 +201,21 @@ def test_ego_own_block_of_a_predator():
         assert ref.observe(cfg, st)[0]["predator"][0][:2].tolist() == expected
 
 
-@pytest.mark.parametrize("frame, observe_flow, slots, length", [
-    ("ego", False, (1, 3), 26),  # the spec's default: 2 + 24
-    ("world", False, (1, 3), 28),
-    ("ego", True, (1, 3), 28),
-    ("world", True, (1, 3), 30),
-    ("ego", False, (2, 3), 32),
-    ("world", True, (0, 1), 12),
-])
+@pytest.mark.parametrize(
+    "frame, observe_flow, slots, length",
+    [
+        ("ego", False, (1, 3), 26),  # the spec's default: 2 + 24
+        ("world", False, (1, 3), 28),
+        ("ego", True, (1, 3), 28),
+        ("world", True, (1, 3), 30),
+        ("ego", False, (2, 3), 32),
+        ("world", True, (0, 1), 12),
+    ],
+)
 def test_ego_observation_length(frame, observe_flow, slots, length):
-    cfg = ego_cfg(action_frame=frame, observe_flow=observe_flow,
-                  prey=dict(predator_slots=slots[0], prey_slots=slots[1]))
+    cfg = ego_cfg(
+        action_frame=frame, observe_flow=observe_flow, prey=dict(predator_slots=slots[0], prey_slots=slots[1])
+    )
     assert ref.observation_length(cfg, cfg.prey) == length
     st = make_world(cfg, prey=[agent((100.0, 100.0))], predators=[agent((500.0, 500.0))])
     assert ref.observe(cfg, st)[0]["prey"].shape[1] == length
@@ -196,8 +227,9 @@ def test_configs_without_the_new_fields_keep_the_world_layout_and_paper_spawn():
     assert ref.observation_frame(cfg) == "world" and ref.action_frame(cfg) == "world"
     assert ref.spawn_heading(cfg) == "paper"
     st = make_world(cfg, prey=[agent((100.0, 100.0), heading=H)], predators=[agent((500.0, 500.0))])
-    named = make_cfg(prey_count=1, predator_count=1, observation_frame="world", action_frame="world",
-                     spawn_heading="paper")
+    named = make_cfg(
+        prey_count=1, predator_count=1, observation_frame="world", action_frame="world", spawn_heading="paper"
+    )
     np.testing.assert_array_equal(ref.observe(cfg, st)[0]["prey"], ref.observe(named, st)[0]["prey"])
 
 
@@ -207,13 +239,16 @@ def test_configs_without_the_new_fields_keep_the_world_layout_and_paper_spawn():
 R = (-0.8, 0.6)  # the right axis of H
 
 
-@pytest.mark.parametrize("action, direction", [
-    (0, H),  # forward
-    (4, R),  # n/4: a right turn
-    (8, (-0.6, -0.8)),  # n/2: reverse
-    (12, (0.8, -0.6)),  # 3n/4: left
-    (2, ((0.6 - 0.8) / math.sqrt(2), (0.8 + 0.6) / math.sqrt(2))),  # 45 degrees right: (H + R) / sqrt 2
-])
+@pytest.mark.parametrize(
+    "action, direction",
+    [
+        (0, H),  # forward
+        (4, R),  # n/4: a right turn
+        (8, (-0.6, -0.8)),  # n/2: reverse
+        (12, (0.8, -0.6)),  # 3n/4: left
+        (2, ((0.6 - 0.8) / math.sqrt(2), (0.8 + 0.6) / math.sqrt(2))),  # 45 degrees right: (H + R) / sqrt 2
+    ],
+)
 def test_ego_desired_velocity_turns_from_the_heading(action, direction):
     np.testing.assert_allclose(ref.ego_desired_velocity(action, 16, 4.0, H), 4.0 * np.array(direction), atol=1e-12)
 
@@ -252,28 +287,31 @@ def test_ego_action_uses_the_start_of_step_heading_not_the_velocity():
 # --------------------------------------------------------------------------------------------------
 # Heuristics in the ego frame
 # --------------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("direction, heading, n, expected", [
-    # TurnAway fleeing a predator straight ahead (displacement 50 H): d = -50 H, u = (0, 50): reverse, n/2
-    ((-30.0, -40.0), H, 16, 8),
-    # fleeing a predator on the right (displacement 50 R): d = -50 R, u = (-50, 0): turn left, 3n/4
-    ((40.0, -30.0), H, 16, 12),
-    # chasing a prey on the right: u = (50, 0): n/4
-    ((-40.0, 30.0), H, 16, 4),
-    # straight ahead: 0 (whatever the world direction is)
-    ((30.0, 40.0), H, 16, 0),
-    # 45 degrees right of H: H + R = (-0.2, 1.4): action 2 of 16
-    ((-0.2, 1.4), H, 16, 2),
-    # zero direction: keep the heading, action 0
-    ((0.0, 0.0), H, 16, 0),
-    # heading east, a target south-east (forward 1, right 1): a tie of 0 and 1 of 4 goes to the lower
-    ((1.0, 1.0), EAST, 4, 0),
-    # heading east, north-east is forward 1, left 1: u = (-1, -1), a tie of 3 and 0 goes to 0
-    ((1.0, -1.0), EAST, 4, 0),
-    # heading east, south-west is back 1, right 1: u = (1, 1), a tie of 1 and 2 goes to 1
-    ((-1.0, 1.0), EAST, 4, 1),
-    # heading south, a target to the west is on its right: n/4
-    ((-7.0, 0.0), SOUTH, 8, 2),
-])
+@pytest.mark.parametrize(
+    "direction, heading, n, expected",
+    [
+        # TurnAway fleeing a predator straight ahead (displacement 50 H): d = -50 H, u = (0, 50): reverse, n/2
+        ((-30.0, -40.0), H, 16, 8),
+        # fleeing a predator on the right (displacement 50 R): d = -50 R, u = (-50, 0): turn left, 3n/4
+        ((40.0, -30.0), H, 16, 12),
+        # chasing a prey on the right: u = (50, 0): n/4
+        ((-40.0, 30.0), H, 16, 4),
+        # straight ahead: 0 (whatever the world direction is)
+        ((30.0, 40.0), H, 16, 0),
+        # 45 degrees right of H: H + R = (-0.2, 1.4): action 2 of 16
+        ((-0.2, 1.4), H, 16, 2),
+        # zero direction: keep the heading, action 0
+        ((0.0, 0.0), H, 16, 0),
+        # heading east, a target south-east (forward 1, right 1): a tie of 0 and 1 of 4 goes to the lower
+        ((1.0, 1.0), EAST, 4, 0),
+        # heading east, north-east is forward 1, left 1: u = (-1, -1), a tie of 3 and 0 goes to 0
+        ((1.0, -1.0), EAST, 4, 0),
+        # heading east, south-west is back 1, right 1: u = (1, 1), a tie of 1 and 2 goes to 1
+        ((-1.0, 1.0), EAST, 4, 1),
+        # heading south, a target to the west is on its right: n/4
+        ((-7.0, 0.0), SOUTH, 8, 2),
+    ],
+)
 def test_ego_heuristic_action(direction, heading, n, expected):
     assert ref.ego_nearest_action(direction, heading, n) == expected
 
@@ -305,7 +343,9 @@ def test_episode_start_velocity_and_heading():
     rand = make_cfg(prey_count=1, predator_count=1, spawn_heading="random")
     for slot in (0, 1):  # both types: velocity = heading * 1
         assert [v.tolist() for v in ref.episode_start_velocity_and_heading(rand, slot, (0.6, -0.8))] == [
-            [0.6, -0.8], [0.6, -0.8]]
+            [0.6, -0.8],
+            [0.6, -0.8],
+        ]
     with pytest.raises(ValueError):
         ref.episode_start_velocity_and_heading(rand, 0)
 
@@ -318,8 +358,15 @@ def test_respawned_prey_takes_the_drawn_heading_at_speed_one():
     for mode, heading in (("random", [0.6, -0.8]), ("paper", [-1.0, 0.0])):
         cfg = make_cfg(prey_count=1, predator_count=1, spawn_heading=mode)
         st = make_world(cfg, prey=[cruise_prey((400.0, 400.0))], predators=[cruise_pred((400.0, 430.0))])
-        new, *_, info = ref.step(cfg, st, np.zeros(2, np.int64), 0, respawn_position={0: (100.0, 100.0)},
-                                 respawn_replication_age={0: 190}, respawn_heading={0: (0.6, -0.8)})
+        new, *_, info = ref.step(
+            cfg,
+            st,
+            np.zeros(2, np.int64),
+            0,
+            respawn_position={0: (100.0, 100.0)},
+            respawn_replication_age={0: 190},
+            respawn_heading={0: (0.6, -0.8)},
+        )
         assert info["respawned"] == [0]
         assert new["heading"][0].tolist() == heading and new["velocity"][0].tolist() == heading
         assert new["acceleration"][0].tolist() == [0.0, 0.0] and new["position"][0].tolist() == [100.0, 100.0]
@@ -332,10 +379,17 @@ def test_respawned_prey_takes_the_drawn_heading_at_speed_one():
 def test_newborn_takes_the_drawn_heading_with_zero_velocity():
     for mode, heading in (("random", [-0.28, 0.96]), ("paper", [-1.0, 0.0])):
         cfg = make_cfg(prey_count=2, predator_count=1, prey_reproduction=True, max_prey=2, spawn_heading=mode)
-        st = make_world(cfg, prey=[agent((100.0, 100.0), vel=(2.0, 0.0), age=199, rep=200), None],
-                        predators=[agent((600.0, 600.0))])
-        new, *_, info = ref.step(cfg, st, np.zeros(cfg.capacity, np.int64), 0, newborn_replication_age={1: 180},
-                                 newborn_heading={1: (-0.28, 0.96)})
+        st = make_world(
+            cfg, prey=[agent((100.0, 100.0), vel=(2.0, 0.0), age=199, rep=200), None], predators=[agent((600.0, 600.0))]
+        )
+        new, *_, info = ref.step(
+            cfg,
+            st,
+            np.zeros(cfg.capacity, np.int64),
+            0,
+            newborn_replication_age={1: 180},
+            newborn_heading={1: (-0.28, 0.96)},
+        )
         assert info["births"] == [(0, 1)]
         assert new["heading"][1].tolist() == heading and new["velocity"][1].tolist() == [0.0, 0.0]
         assert new["position"][1].tolist() == new["position"][0].tolist()

@@ -52,46 +52,113 @@ def configs() -> dict:
     flow_grid = [[[1.5, -0.5], [0.0, 2.0], [-1.0, 0.5]], [[0.25, 1.0], [-2.0, -1.5], [1.0, 0.0]]]
     out = {
         # everything ego, a small crowded world with several predators: captures and respawns every few steps
-        "ego_respawns": (make_config(width=220.0, height=200.0, prey_count=14, predator_count=4, **EGO),
-                         {"respawns"}),
+        "ego_respawns": (make_config(width=220.0, height=200.0, prey_count=14, predator_count=4, **EGO), {"respawns"}),
         # ego observations for a policy that acts in world directions (the own block holds hx, hy)
-        "ego_obs_world_actions": (make_config(width=300.0, height=260.0, prey_count=12, predator_count=3,
-                                              observation_frame="ego", action_frame="world",
-                                              spawn_heading="random"), {"respawns"}),
+        "ego_obs_world_actions": (
+            make_config(
+                width=300.0,
+                height=260.0,
+                prey_count=12,
+                predator_count=3,
+                observation_frame="ego",
+                action_frame="world",
+                spawn_heading="random",
+            ),
+            {"respawns"},
+        ),
         # the world layout with ego actions (each option on its own)
-        "world_obs_ego_actions": (make_config(width=260.0, height=240.0, prey_count=12, predator_count=3,
-                                              action_frame="ego", spawn_heading="random"), {"respawns"}),
+        "world_obs_ego_actions": (
+            make_config(
+                width=260.0, height=240.0, prey_count=12, predator_count=3, action_frame="ego", spawn_heading="random"
+            ),
+            {"respawns"},
+        ),
         # "-1..1", FOV off / wide, unusual slot counts (empty blocks, more slots than neighbours)
-        "ego_signed_slots": (make_config(
-            width=260.0, height=250.0, prey_count=10, predator_count=4, observation_range="-1..1",
-            prey=dict(view_distance=80.0, fov_angle=200.0, predator_slots=3, prey_slots=1),
-            predator=dict(view_distance=math.inf, fov_angle=360.0, predator_slots=0, prey_slots=3), **EGO), set()),
-        "ego_signed_world_actions": (make_config(
-            width=240.0, height=220.0, prey_count=10, predator_count=3, observation_range="-1..1",
-            fov_enabled=False, observation_frame="ego", action_frame="world"), set()),
+        "ego_signed_slots": (
+            make_config(
+                width=260.0,
+                height=250.0,
+                prey_count=10,
+                predator_count=4,
+                observation_range="-1..1",
+                prey=dict(view_distance=80.0, fov_angle=200.0, predator_slots=3, prey_slots=1),
+                predator=dict(view_distance=math.inf, fov_angle=360.0, predator_slots=0, prey_slots=3),
+                **EGO,
+            ),
+            set(),
+        ),
+        "ego_signed_world_actions": (
+            make_config(
+                width=240.0,
+                height=220.0,
+                prey_count=10,
+                predator_count=3,
+                observation_range="-1..1",
+                fov_enabled=False,
+                observation_frame="ego",
+                action_frame="world",
+            ),
+            set(),
+        ),
         # an observed, time-varying current: rotated into the ego frame, clipped per component
-        "ego_vortex_observed": (make_config(
-            width=300.0, height=260.0, prey_count=14, predator_count=2, observe_flow=True,
-            flow=FlowConfig("vortex", centre=(10.0, 250.0), strength=3.0, core_radius=40.0, amplitude=0.5,
-                            period=7.0), **EGO), set()),
+        "ego_vortex_observed": (
+            make_config(
+                width=300.0,
+                height=260.0,
+                prey_count=14,
+                predator_count=2,
+                observe_flow=True,
+                flow=FlowConfig(
+                    "vortex", centre=(10.0, 250.0), strength=3.0, core_radius=40.0, amplitude=0.5, period=7.0
+                ),
+                **EGO,
+            ),
+            set(),
+        ),
         # per-world values and currents (one faster than its prey: clipped), "-1..1", world actions
-        "ego_per_world_flow_observed": (make_config(
-            width=260.0, height=240.0, prey_count=(12, 5, 9, 12), predator_count=(2, 3, 1, 3),
-            observe_flow=True, observation_range="-1..1", observation_frame="ego", action_frame="world",
-            spawn_heading="random",
-            prey=dict(max_speed=(4.0, 2.0, 6.0, 3.0), fov_angle=(120.0, 360.0, 90.0, 200.0),
-                      view_distance=(100.0, math.inf, 60.0, 140.0)),
-            predator=dict(max_speed=(5.0, 7.0, 3.0, 5.0), view_distance=(200.0, 90.0, math.inf, 120.0)),
-            flow=(FlowConfig(), FlowConfig("uniform", velocity=(2.5, -1.0)),
-                  FlowConfig("grid", grid=flow_grid, amplitude=1.0, period=5.0),
-                  FlowConfig("vortex", centre=(130.0, 0.0), strength=-4.0, core_radius=60.0))), set()),
+        "ego_per_world_flow_observed": (
+            make_config(
+                width=260.0,
+                height=240.0,
+                prey_count=(12, 5, 9, 12),
+                predator_count=(2, 3, 1, 3),
+                observe_flow=True,
+                observation_range="-1..1",
+                observation_frame="ego",
+                action_frame="world",
+                spawn_heading="random",
+                prey=dict(
+                    max_speed=(4.0, 2.0, 6.0, 3.0),
+                    fov_angle=(120.0, 360.0, 90.0, 200.0),
+                    view_distance=(100.0, math.inf, 60.0, 140.0),
+                ),
+                predator=dict(max_speed=(5.0, 7.0, 3.0, 5.0), view_distance=(200.0, 90.0, math.inf, 120.0)),
+                flow=(
+                    FlowConfig(),
+                    FlowConfig("uniform", velocity=(2.5, -1.0)),
+                    FlowConfig("grid", grid=flow_grid, amplitude=1.0, period=5.0),
+                    FlowConfig("vortex", centre=(130.0, 0.0), strength=-4.0, core_radius=60.0),
+                ),
+            ),
+            set(),
+        ),
         # newborns take a drawn heading and zero velocity
-        "ego_reproduction": (make_config(width=240.0, height=200.0, prey_count=6, predator_count=2,
-                                         prey_reproduction=True, max_prey=12, prey_replication_age=4,
-                                         predator_starvation_steps=40, **EGO), {"births"}),
+        "ego_reproduction": (
+            make_config(
+                width=240.0,
+                height=200.0,
+                prey_count=6,
+                predator_count=2,
+                prey_reproduction=True,
+                max_prey=12,
+                prey_replication_age=4,
+                predator_starvation_steps=40,
+                **EGO,
+            ),
+            {"births"},
+        ),
         # more slots than one cell takes (capacity 43 > 32): cell lists of several cells by default
-        "ego_many_agents": (make_config(width=400.0, height=360.0, prey_count=40, predator_count=3, **EGO),
-                            set()),
+        "ego_many_agents": (make_config(width=400.0, height=360.0, prey_count=40, predator_count=3, **EGO), set()),
     }
     # the same small worlds cut into cells: the staged path with ring searches across cell borders
     for name in ("ego_respawns", "ego_reproduction", "ego_per_world_flow_observed"):
@@ -100,21 +167,40 @@ def configs() -> dict:
     return out
 
 
-NAMES = ["ego_respawns", "ego_obs_world_actions", "world_obs_ego_actions", "ego_signed_slots",
-         "ego_signed_world_actions", "ego_vortex_observed", "ego_per_world_flow_observed", "ego_reproduction",
-         "ego_many_agents",
-         "ego_respawns_cells", "ego_reproduction_cells", "ego_per_world_flow_observed_cells"]
+NAMES = [
+    "ego_respawns",
+    "ego_obs_world_actions",
+    "world_obs_ego_actions",
+    "ego_signed_slots",
+    "ego_signed_world_actions",
+    "ego_vortex_observed",
+    "ego_per_world_flow_observed",
+    "ego_reproduction",
+    "ego_many_agents",
+    "ego_respawns_cells",
+    "ego_reproduction_cells",
+    "ego_per_world_flow_observed_cells",
+]
 # one-cell worlds step fused by default ("auto"); they run the staged launches too
-SINGLE_CELL = ["ego_respawns", "ego_obs_world_actions", "world_obs_ego_actions", "ego_signed_slots",
-               "ego_signed_world_actions", "ego_vortex_observed", "ego_per_world_flow_observed", "ego_reproduction"]
+SINGLE_CELL = [
+    "ego_respawns",
+    "ego_obs_world_actions",
+    "world_obs_ego_actions",
+    "ego_signed_slots",
+    "ego_signed_world_actions",
+    "ego_vortex_observed",
+    "ego_per_world_flow_observed",
+    "ego_reproduction",
+]
 STEP_CASES = [(name, "auto") for name in NAMES] + [(name, "stages") for name in SINGLE_CELL]
 _ENVS: dict = {}
 
 
 def get_env(name: str, device: str, step_kernel: str = "auto") -> BatchedAquarium:
     if (name, step_kernel) not in _ENVS:
-        _ENVS[name, step_kernel] = BatchedAquarium(configs()[name][0], num_worlds=NUM_WORLDS, device=device,
-                                                   seed=0, step_kernel=step_kernel)
+        _ENVS[name, step_kernel] = BatchedAquarium(
+            configs()[name][0], num_worlds=NUM_WORLDS, device=device, seed=0, step_kernel=step_kernel
+        )
     return _ENVS[name, step_kernel]
 
 
@@ -170,8 +256,9 @@ def check_fresh_headings(name: str, seen: dict) -> None:
 # --------------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("name", NAMES)
 def test_ego_observations_after_set_state(name, device):
-    check_observations_after_set_state(name, configs()[name][0], get_env(name, device),
-                                       np.random.default_rng(5000 + NAMES.index(name)))
+    check_observations_after_set_state(
+        name, configs()[name][0], get_env(name, device), np.random.default_rng(5000 + NAMES.index(name))
+    )
 
 
 @pytest.mark.parametrize("name", ["ego_respawns", "ego_signed_slots", "ego_per_world_flow_observed", "ego_many_agents"])
@@ -233,9 +320,12 @@ def test_ego_rollout_resynced_each_step(name, step_kernel, events, device):
 def _reset_state(cfg, num_worlds, device, seed=0):
     env = BatchedAquarium(cfg, num_worlds=num_worlds, device=device, seed=seed)
     env.reset()
-    return env, {k: v.cpu().numpy().copy() for k, v in
-                 ((k, getattr(env.state.torch, k)) for k in ("position", "velocity", "heading", "alive",
-                                                              "replication_age"))}
+    return env, {
+        k: v.cpu().numpy().copy()
+        for k, v in (
+            (k, getattr(env.state.torch, k)) for k in ("position", "velocity", "heading", "alive", "replication_age")
+        )
+    }
 
 
 def test_random_spawn_headings_at_episode_start(device):
@@ -270,8 +360,10 @@ def test_random_spawn_headings_after_auto_reset(device):
     """An auto-reset (max_steps 2) spawns the next episode with new random headings (its own spawn stream),
     velocity = heading * 1, at the paper layout's positions."""
     kw = dict(prey_count=12, predator_count=2, max_steps=2)
-    envs = [BatchedAquarium(AquariumConfig(**kw, spawn_heading=mode), num_worlds=16, device=device, seed=5)
-            for mode in ("random", "paper")]
+    envs = [
+        BatchedAquarium(AquariumConfig(**kw, spawn_heading=mode), num_worlds=16, device=device, seed=5)
+        for mode in ("random", "paper")
+    ]
     for env in envs:
         env.reset()
     first = envs[0].state.torch.heading.cpu().numpy().copy()
@@ -308,8 +400,9 @@ def test_named_defaults_are_bit_for_bit_the_unnamed_config(device):
     named = AquariumConfig(**kw, observation_frame="world", action_frame="world", spawn_heading="paper")
     assert plain == named
     for step_kernel in ("auto", "stages"):
-        envs = [BatchedAquarium(c, num_worlds=4, device=device, seed=3, step_kernel=step_kernel)
-                for c in (plain, named)]
+        envs = [
+            BatchedAquarium(c, num_worlds=4, device=device, seed=3, step_kernel=step_kernel) for c in (plain, named)
+        ]
         obs = [e.reset() for e in envs]
         assert obs[0]["prey"].shape[-1] == 29 and obs[0]["predator"].shape[-1] == 29
         rng = np.random.default_rng(0)
@@ -348,16 +441,23 @@ def test_ego_heuristics_match_the_brute_force_reference(variant, monkeypatch, de
     heading = np.stack([np.cos(angle), np.sin(angle)], -1).astype(np.float32)
     alive = rng.random((W, C)) < 0.85
     alive[:4, : cfg.prey_count] = False  # nothing to chase: action 0 (keep the heading)
-    alive[4:8, cfg.prey_count:] = False  # nothing to flee
+    alive[4:8, cfg.prey_count :] = False  # nothing to flee
     env.set_state(position=pos.astype(np.float32), velocity=heading * 2, heading=heading, alive=alive)
     state = {k: getattr(env.state.torch, k).cpu().numpy().astype(np.float64) for k in ("position", "heading")}
     state["alive"] = env.state.torch.alive.cpu().numpy()
-    for name, agent_type, kw in [("turnaway", "prey", {}), ("naivchase-nearest", "predator", {"confusion": False}),
-                                 ("naivchase", "predator", {})]:
+    for name, agent_type, kw in [
+        ("turnaway", "prey", {}),
+        ("naivchase-nearest", "predator", {"confusion": False}),
+        ("naivchase", "predator", {}),
+    ]:
         got = test_heuristics.decide(env, name.split("-")[0], agent_type, **kw)
         want = test_heuristics.reference(cfg, state, name, agent_type)
-        bad = [(w, s, int(got[w, s]), want[w][s]) for w in range(W) for s in range(got.shape[1])
-               if int(got[w, s]) not in want[w][s]]
+        bad = [
+            (w, s, int(got[w, s]), want[w][s])
+            for w in range(W)
+            for s in range(got.shape[1])
+            if int(got[w, s]) not in want[w][s]
+        ]
         assert not bad, f"{name}: (world, slot, got, allowed) {bad[:5]}"
         # nothing to flee (worlds 4-7) or chase (worlds 0-3): keep the heading, which is action 0 in ego
         nothing = slice(4, 8) if agent_type == "prey" else slice(0, 4)

@@ -16,10 +16,18 @@ from aquarium_warp.heuristics import make_policy
 
 # Prey max speed 4, predators 5 (the defaults): a current of (3, -6) px/step is (0.75, -1.5) prey
 # speeds (the second clipped to -1) and (0.6, -1.2) predator speeds (clipped likewise).
-UNIFORM = AquariumConfig(width=300.0, height=260.0, prey_count=6, predator_count=2, observe_flow=True,
-                         flow=FlowConfig("uniform", velocity=(3.0, -6.0)))
-EXPECTED = {"0..1": {"prey": (0.875, 0.0), "predator": (0.8, 0.0)},
-            "-1..1": {"prey": (0.75, -1.0), "predator": (0.6, -1.0)}}
+UNIFORM = AquariumConfig(
+    width=300.0,
+    height=260.0,
+    prey_count=6,
+    predator_count=2,
+    observe_flow=True,
+    flow=FlowConfig("uniform", velocity=(3.0, -6.0)),
+)
+EXPECTED = {
+    "0..1": {"prey": (0.875, 0.0), "predator": (0.8, 0.0)},
+    "-1..1": {"prey": (0.75, -1.0), "predator": (0.6, -1.0)},
+}
 
 
 @pytest.mark.parametrize("observation_range", ["0..1", "-1..1"])
@@ -36,8 +44,10 @@ def test_uniform_current_observed_by_hand(observation_range):
             np.testing.assert_array_equal(obs[..., 7:], ref[..., 5:])  # neighbour blocks unchanged
             expected = np.broadcast_to(np.float32(EXPECTED[observation_range][t]), obs[..., 5:7].shape)
             np.testing.assert_array_equal(obs[..., 5:7], expected)
-        actions = {"prey": torch.full((2, 6), 3, dtype=torch.int32),
-                   "predator": torch.full((2, 2), 9, dtype=torch.int32)}
+        actions = {
+            "prey": torch.full((2, 6), 3, dtype=torch.int32),
+            "predator": torch.full((2, 2), 9, dtype=torch.int32),
+        }
         env.step(actions)
         plain.step(actions)
 
@@ -46,8 +56,14 @@ def test_vortex_current_observed_by_hand():
     """A steady vortex (centre (100, 100), strength 2, core 50): an agent 25 px right of the centre, in
     the core, feels (0, 2 * 25 / 50) = (0, 1) px/step; 200 px left of it (on a 600 px torus) it feels
     2 * 50 / 200 = 0.5 px/step, (0, -0.5). As prey speeds (4): (0, 0.25) and (0, -0.125)."""
-    cfg = AquariumConfig(width=600.0, height=600.0, prey_count=2, predator_count=1, observe_flow=True,
-                         flow=FlowConfig("vortex", centre=(100.0, 100.0), strength=2.0, core_radius=50.0))
+    cfg = AquariumConfig(
+        width=600.0,
+        height=600.0,
+        prey_count=2,
+        predator_count=1,
+        observe_flow=True,
+        flow=FlowConfig("vortex", centre=(100.0, 100.0), strength=2.0, core_radius=50.0),
+    )
     env = BatchedAquarium(cfg, num_worlds=1, device="cpu", seed=0)
     position = env.state.torch.position[0].clone()
     position[0] = torch.tensor([125.0, 100.0])

@@ -28,7 +28,7 @@ def torus_d2(pos, width, height):
         c = d[..., axis]
         c[c > length / 2] -= length
         c[c < -length / 2] += length
-    return (d ** 2).sum(-1), d
+    return (d**2).sum(-1), d
 
 
 def brute_force(cfg: AquariumConfig, pos, heading, alive):
@@ -44,8 +44,8 @@ def brute_force(cfg: AquariumConfig, pos, heading, alive):
     idx = np.arange(C)
     for i in range(C):
         t = types[i]
-        other = alive & alive[:, i:i + 1] & (idx != i)[None, :]
-        visible = other & (d2[:, i] <= t.view_distance ** 2)
+        other = alive & alive[:, i : i + 1] & (idx != i)[None, :]
+        visible = other & (d2[:, i] <= t.view_distance**2)
         if cfg.fov_enabled:
             dist = np.sqrt(d2[:, i])
             cos = (d[:, i] * heading[:, i, None, :]).sum(-1) / np.where(dist > 0, dist, 1.0)
@@ -56,7 +56,7 @@ def brute_force(cfg: AquariumConfig, pos, heading, alive):
             for block_is_prey, k in ((False, t.predator_slots), (True, t.prey_slots)):
                 cand = np.nonzero(visible[w] & (is_prey == block_is_prey))[0]
                 cand = cand[np.lexsort((cand, d2[w, i, cand]))][:k]  # (distance, slot) order
-                slots[w, i, col:col + len(cand)] = cand
+                slots[w, i, col : col + len(cand)] = cand
                 col += k
             cand = np.nonzero(same[w])[0]
             if len(cand):
@@ -66,8 +66,9 @@ def brute_force(cfg: AquariumConfig, pos, heading, alive):
 
 def random_state(rng, cfg: AquariumConfig, W: int, axis_headings: bool):
     C = cfg.capacity
-    pos = np.stack([rng.integers(0, int(2 * cfg.width), (W, C)) / 2.0,
-                    rng.integers(0, int(2 * cfg.height), (W, C)) / 2.0], axis=-1)
+    pos = np.stack(
+        [rng.integers(0, int(2 * cfg.width), (W, C)) / 2.0, rng.integers(0, int(2 * cfg.height), (W, C)) / 2.0], axis=-1
+    )
     # Clusters: copy some agents onto others (exact overlaps) or half a world away (ties at L/2).
     dup = rng.random((W, C)) < 0.1
     src = rng.integers(0, C, (W, C))
@@ -82,25 +83,32 @@ def random_state(rng, cfg: AquariumConfig, W: int, axis_headings: bool):
 
 
 def with_types(cfg: AquariumConfig, **per_type) -> AquariumConfig:
-    return dataclasses.replace(cfg, prey=dataclasses.replace(cfg.prey, **per_type),
-                               predator=dataclasses.replace(cfg.predator, **per_type))
+    return dataclasses.replace(
+        cfg, prey=dataclasses.replace(cfg.prey, **per_type), predator=dataclasses.replace(cfg.predator, **per_type)
+    )
 
 
 CASES = {
     "dense": AquariumConfig(width=300.0, height=240.0, prey_count=14, predator_count=3),
     "sparse": AquariumConfig(width=1600.0, height=1000.0, prey_count=12, predator_count=2),
     "fov-off": AquariumConfig(width=500.0, height=500.0, prey_count=14, predator_count=3, fov_enabled=False),
-    "unlimited": with_types(AquariumConfig(width=2000.0, height=900.0, prey_count=10, predator_count=3,
-                                           fov_enabled=False), view_distance=math.inf),
-    "unlimited-fov": with_types(AquariumConfig(width=700.0, height=700.0, prey_count=10, predator_count=2),
-                                view_distance=math.inf),
-    "more-slots": with_types(AquariumConfig(width=400.0, height=400.0, prey_count=14, predator_count=4),
-                             predator_slots=3, prey_slots=5),
+    "unlimited": with_types(
+        AquariumConfig(width=2000.0, height=900.0, prey_count=10, predator_count=3, fov_enabled=False),
+        view_distance=math.inf,
+    ),
+    "unlimited-fov": with_types(
+        AquariumConfig(width=700.0, height=700.0, prey_count=10, predator_count=2), view_distance=math.inf
+    ),
+    "more-slots": with_types(
+        AquariumConfig(width=400.0, height=400.0, prey_count=14, predator_count=4), predator_slots=3, prey_slots=5
+    ),
     "tiny-cells": AquariumConfig(width=800.0, height=800.0, prey_count=14, predator_count=3, grid_cell_size=45.0),
     # Worlds this small are one cell by default; the same worlds cut into cells exercise the ring search.
     "dense-cells": AquariumConfig(width=300.0, height=240.0, prey_count=14, predator_count=3, grid_cell_size=70.0),
-    "unlimited-fov-cells": with_types(AquariumConfig(width=700.0, height=700.0, prey_count=10, predator_count=2,
-                                                     grid_cell_size=90.0), view_distance=math.inf),
+    "unlimited-fov-cells": with_types(
+        AquariumConfig(width=700.0, height=700.0, prey_count=10, predator_count=2, grid_cell_size=90.0),
+        view_distance=math.inf,
+    ),
     # More slots than SINGLE_CELL_CAPACITY: cells chosen automatically (fewer worlds: the brute force is slow).
     "crowd": AquariumConfig(width=1200.0, height=900.0, prey_count=72, predator_count=6),
 }
@@ -116,16 +124,19 @@ def test_observed_slots_and_contacts_match_brute_force(device, name):
     assert (env.grid_dims == (1, 1)) == (cfg.capacity <= SINGLE_CELL_CAPACITY and cfg.grid_cell_size is None)
     pos, heading, alive = random_state(rng, cfg, W, axis_headings=name != "unlimited")
     env.set_state(position=pos.astype(np.float32), heading=heading.astype(np.float32), alive=alive)
-    expected_slots, expected_partner = brute_force(cfg, pos, env.state.torch.heading.cpu().numpy().astype(np.float64),
-                                                   alive)
+    expected_slots, expected_partner = brute_force(
+        cfg, pos, env.state.torch.heading.cpu().numpy().astype(np.float64), alive
+    )
     Pc = cfg.prey_capacity
     got = {"prey": env.observed_slot["prey"].cpu().numpy(), "predator": env.observed_slot["predator"].cpu().numpy()}
     for type_name, rows in (("prey", slice(0, Pc)), ("predator", slice(Pc, None))):
-        want = expected_slots[:, rows, :got[type_name].shape[2]]
+        want = expected_slots[:, rows, : got[type_name].shape[2]]
         mismatch = np.argwhere((got[type_name] != want).any(-1))
-        assert len(mismatch) == 0, (f"{name}: {len(mismatch)} {type_name} observers differ, first world/row "
-                                    f"{mismatch[0]}: kernel {got[type_name][tuple(mismatch[0])]} "
-                                    f"brute force {want[tuple(mismatch[0])]}")
+        assert len(mismatch) == 0, (
+            f"{name}: {len(mismatch)} {type_name} observers differ, first world/row "
+            f"{mismatch[0]}: kernel {got[type_name][tuple(mismatch[0])]} "
+            f"brute force {want[tuple(mismatch[0])]}"
+        )
     partner = env.state.torch.contact_partner.cpu().numpy()
     partner = np.where(alive, partner, -1)
     bad = np.argwhere(partner != expected_partner)
@@ -143,11 +154,19 @@ def test_capture_pairs_match_brute_force(device):
     env = BatchedAquarium(cfg, num_worlds=W, device=device, seed=3)
     pos, heading, alive = random_state(rng, cfg, W, axis_headings=True)
     zero = np.zeros_like(pos, dtype=np.float32)
-    env.set_state(position=pos.astype(np.float32), heading=heading.astype(np.float32), alive=alive,
-                  velocity=zero, acceleration=zero)
+    env.set_state(
+        position=pos.astype(np.float32),
+        heading=heading.astype(np.float32),
+        alive=alive,
+        velocity=zero,
+        acceleration=zero,
+    )
     import torch
-    actions = {"prey": torch.zeros(W, cfg.prey_capacity, dtype=torch.int64, device=env.torch_device),
-               "predator": torch.zeros(W, cfg.predator_count, dtype=torch.int64, device=env.torch_device)}
+
+    actions = {
+        "prey": torch.zeros(W, cfg.prey_capacity, dtype=torch.int64, device=env.torch_device),
+        "predator": torch.zeros(W, cfg.predator_count, dtype=torch.int64, device=env.torch_device),
+    }
     before_alive = env.state.torch.alive.clone().cpu().numpy()
     # Positions after the move are what captures use: read them back from a copy of the env's motion.
     _, _, terminated, _, info = env.step(actions)
@@ -159,8 +178,13 @@ def test_capture_pairs_match_brute_force(device):
     for i in range(cfg.capacity):
         t = cfg.prey if i < Pc else cfg.predator
         same = np.arange(cfg.capacity) < Pc if i < Pc else np.arange(cfg.capacity) >= Pc
-        contact = (alive & alive[:, i:i + 1] & same[None, :] & (np.arange(cfg.capacity) != i)[None, :]
-                   & (d2[:, i] < (2 * t.radius) ** 2))
+        contact = (
+            alive
+            & alive[:, i : i + 1]
+            & same[None, :]
+            & (np.arange(cfg.capacity) != i)[None, :]
+            & (d2[:, i] < (2 * t.radius) ** 2)
+        )
         key = np.where(contact, d2[:, i], np.inf)  # argmin takes the first (lowest slot) of equal minima
         j = key.argmin(1)
         has = np.isfinite(key.min(1))

@@ -48,8 +48,10 @@ def place(env: BatchedAquarium, positions, velocities=None, accelerations=None, 
 
 
 def act(env: BatchedAquarium, prey, predator):
-    actions = {"prey": torch.tensor([prey], dtype=torch.int64, device=env.torch_device),
-               "predator": torch.tensor([predator], dtype=torch.int64, device=env.torch_device)}
+    actions = {
+        "prey": torch.tensor([prey], dtype=torch.int64, device=env.torch_device),
+        "predator": torch.tensor([predator], dtype=torch.int64, device=env.torch_device),
+    }
     return env.step(actions)
 
 
@@ -98,21 +100,29 @@ def test_zero_acceleration_sum_stays_zero_and_heading_is_kept(device):
     """A + F/m exactly zero keeps A' = 0; V' = 0 keeps the previous heading."""
     env = make_env(device, prey_count=1)
     # Prey: V = 0, action UP -> F = (0, -4) clamped to (0, -0.6); A = (0, 0.2) cancels F/m = (0, -0.2).
-    place(env, [[100.0, 100.0], [500.0, 500.0]], [[0.0, 0.0], [0.0, -1.0]], [[0.0, 0.2], [0.0, 0.0]],
-          heading=np.array([[0.0, 1.0], [0.0, -1.0]], np.float32))
+    place(
+        env,
+        [[100.0, 100.0], [500.0, 500.0]],
+        [[0.0, 0.0], [0.0, -1.0]],
+        [[0.0, 0.2], [0.0, 0.0]],
+        heading=np.array([[0.0, 1.0], [0.0, -1.0]], np.float32),
+    )
     act(env, [UP], [UP])
     np.testing.assert_array_equal(state(env, "acceleration", 0), [0.0, 0.0])
     np.testing.assert_array_equal(state(env, "velocity", 0), [0.0, 0.0])
     np.testing.assert_array_equal(state(env, "heading", 0), [0.0, 1.0])
 
 
-@pytest.mark.parametrize("start, velocity, expected", [
-    ((798.0, 400.0), (4.0, 0.0), (2.0, 400.0)),  # east across the seam
-    ((1.0, 400.0), (-4.0, 0.0), (797.0, 400.0)),  # west across the seam
-    ((400.0, 1.0), (0.0, -4.0), (400.0, 797.0)),  # up across the top
-    ((400.0, 799.5), (0.0, 4.0), (400.0, 3.5)),  # down across the bottom
-    ((796.0, 400.0), (4.0, 0.0), (0.0, 400.0)),  # exactly onto the seam: x = 800 is x = 0
-])
+@pytest.mark.parametrize(
+    "start, velocity, expected",
+    [
+        ((798.0, 400.0), (4.0, 0.0), (2.0, 400.0)),  # east across the seam
+        ((1.0, 400.0), (-4.0, 0.0), (797.0, 400.0)),  # west across the seam
+        ((400.0, 1.0), (0.0, -4.0), (400.0, 797.0)),  # up across the top
+        ((400.0, 799.5), (0.0, 4.0), (400.0, 3.5)),  # down across the bottom
+        ((796.0, 400.0), (4.0, 0.0), (0.0, 400.0)),  # exactly onto the seam: x = 800 is x = 0
+    ],
+)
 def test_wrap_is_a_true_modulo(device, start, velocity, expected):
     env = make_env(device, prey_count=1)
     direction = np.asarray(velocity) / np.linalg.norm(velocity)
@@ -122,11 +132,14 @@ def test_wrap_is_a_true_modulo(device, start, velocity, expected):
     np.testing.assert_allclose(state(env, "position", 0), expected, atol=1e-4)
 
 
-@pytest.mark.parametrize("p0, p1, push", [
-    ((100.0, 100.0), (130.0, 100.0), (-1.0, 0.0)),  # overlap 30 < 40: pushed west
-    ((5.0, 400.0), (790.0, 400.0), (1.0, 0.0)),  # 15 apart across the seam: pushed east, not west
-    ((400.0, 795.0), (400.0, 20.0), (0.0, -1.0)),  # 25 apart across the bottom seam: pushed up
-])
+@pytest.mark.parametrize(
+    "p0, p1, push",
+    [
+        ((100.0, 100.0), (130.0, 100.0), (-1.0, 0.0)),  # overlap 30 < 40: pushed west
+        ((5.0, 400.0), (790.0, 400.0), (1.0, 0.0)),  # 15 apart across the seam: pushed east, not west
+        ((400.0, 795.0), (400.0, 20.0), (0.0, -1.0)),  # 25 apart across the bottom seam: pushed up
+    ],
+)
 def test_bounce_pushes_away_from_the_nearest_same_type_agent(device, p0, p1, push):
     """Prey-prey contact: V' = V + b * unit(P_i - P_j) (b = 1) instead of V + A'."""
     env = make_env(device, prey_count=2)
@@ -143,13 +156,19 @@ def test_bounce_pushes_away_from_the_nearest_same_type_agent(device, p0, p1, pus
 def test_bounce_partner_is_the_nearest_and_exact_overlap_gives_no_push(device):
     env = make_env(device, prey_count=3)
     # Prey 0 overlaps prey 1 (d = 30) and prey 2 (d = 10, nearer): pushed away from prey 2 only.
-    place(env, [[200.0, 200.0], [230.0, 200.0], [200.0, 210.0], [600.0, 600.0]],
-          [[0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, -1.0]])
+    place(
+        env,
+        [[200.0, 200.0], [230.0, 200.0], [200.0, 210.0], [600.0, 600.0]],
+        [[0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, -1.0]],
+    )
     act(env, [UP, UP, UP], [UP])
     np.testing.assert_allclose(state(env, "velocity", 0), [0.0, -1.0], atol=1e-6)
     # Two prey at exactly the same position: no push, V' = V.
-    place(env, [[300.0, 300.0], [300.0, 300.0], [500.0, 300.0], [600.0, 600.0]],
-          [[0.25, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, -1.0]])
+    place(
+        env,
+        [[300.0, 300.0], [300.0, 300.0], [500.0, 300.0], [600.0, 600.0]],
+        [[0.25, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, -1.0]],
+    )
     act(env, [UP, UP, UP], [UP])
     np.testing.assert_allclose(state(env, "velocity", 0), [0.25, 0.0], atol=1e-7)
 
@@ -196,8 +215,12 @@ def test_two_captures_add_up_and_permanent_capture_removes_the_prey(device):
 
 def test_starvation_at_exactly_the_limit(device):
     env = make_env(device, prey_count=1, predator_count=2, predator_starvation_steps=5)
-    place(env, [[100.0, 100.0], [400.0, 400.0], [700.0, 700.0]], [[0.0, 0.0]] * 3,
-          starvation=np.array([0, 4, 3], np.int32))
+    place(
+        env,
+        [[100.0, 100.0], [400.0, 400.0], [700.0, 700.0]],
+        [[0.0, 0.0]] * 3,
+        starvation=np.array([0, 4, 3], np.int32),
+    )
     _, _, terminated, _, _ = act(env, [UP], [UP, UP])
     np.testing.assert_array_equal(env.state.torch.starvation[0, 1:].cpu().numpy(), [5, 4])  # 5 is not > 5
     assert not terminated["predator"].any()
@@ -305,10 +328,11 @@ def test_signed_observation_range_maps_used_values_only(device):
 
 def test_without_auto_reset_an_ended_world_stays_as_it_ended(device):
     cfg = AquariumConfig(prey_count=2, predator_count=1, max_steps=3)
-    env = BatchedAquarium(cfg, num_worlds=2, device=device, seed=0, auto_reset=False,
-                          step_kernel=STEP_KERNEL["value"])
-    actions = {"prey": torch.zeros(2, 2, dtype=torch.int64, device=env.torch_device),
-               "predator": torch.zeros(2, 1, dtype=torch.int64, device=env.torch_device)}
+    env = BatchedAquarium(cfg, num_worlds=2, device=device, seed=0, auto_reset=False, step_kernel=STEP_KERNEL["value"])
+    actions = {
+        "prey": torch.zeros(2, 2, dtype=torch.int64, device=env.torch_device),
+        "predator": torch.zeros(2, 1, dtype=torch.int64, device=env.torch_device),
+    }
     for _ in range(2):
         _, _, _, truncated, info = env.step(actions)
         assert not info["episode_ended"].any()

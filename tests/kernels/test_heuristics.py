@@ -61,11 +61,14 @@ def test_nearest_action_reference():
     np.testing.assert_array_equal(nearest_action(np.array([[0.0, -2.0], [3.0, 0.0]]), [1.0, 0.0], 8), [0, 2])
 
 
-@pytest.mark.parametrize("predator_at, expected", [
-    ((350.0, 450.0), 0),  # flee up-right: a tie of up (0) and east (1) goes to 0
-    ((450.0, 450.0), 0),  # flee up-left: a tie of west (3) and up (0) goes to 0
-    ((450.0, 350.0), 2),  # flee down-left: a tie of south (2) and west (3) goes to 2
-])
+@pytest.mark.parametrize(
+    "predator_at, expected",
+    [
+        ((350.0, 450.0), 0),  # flee up-right: a tie of up (0) and east (1) goes to 0
+        ((450.0, 450.0), 0),  # flee up-left: a tie of west (3) and up (0) goes to 0
+        ((450.0, 350.0), 2),  # flee down-left: a tie of south (2) and west (3) goes to 2
+    ],
+)
 def test_ties_go_to_the_lower_action(device, predator_at, expected):
     env = make_env(device, prey_count=1, action_count=4, fov_enabled=False)
     place(env, [[400.0, 400.0], predator_at], [[1.0, 0.0], [0.0, -1.0]])
@@ -80,13 +83,16 @@ def test_ties_go_to_the_lower_action(device, predator_at, expected):
 # --------------------------------------------------------------------------------------------------
 # TurnAway (prey)
 # --------------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("prey, velocity, predator, expected", [
-    ((400.0, 400.0), (2.0, 0.0), (460.0, 400.0), WEST),  # predator ahead: turn around
-    ((400.0, 400.0), (2.0, 2.0), (450.0, 450.0), towards([-1.0, -1.0])),  # ahead diagonally: flee up-left
-    ((790.0, 400.0), (2.0, 0.0), (30.0, 400.0), WEST),  # 40 px east across the seam: flee west, not east
-    ((400.0, 10.0), (0.0, -2.0), (400.0, 770.0), SOUTH),  # 40 px up across the top seam: flee down
-    ((5.0, 795.0), (-1.0, 1.0), (775.0, 25.0), towards([1.0, -1.0])),  # 30 px left and down across the corner
-])
+@pytest.mark.parametrize(
+    "prey, velocity, predator, expected",
+    [
+        ((400.0, 400.0), (2.0, 0.0), (460.0, 400.0), WEST),  # predator ahead: turn around
+        ((400.0, 400.0), (2.0, 2.0), (450.0, 450.0), towards([-1.0, -1.0])),  # ahead diagonally: flee up-left
+        ((790.0, 400.0), (2.0, 0.0), (30.0, 400.0), WEST),  # 40 px east across the seam: flee west, not east
+        ((400.0, 10.0), (0.0, -2.0), (400.0, 770.0), SOUTH),  # 40 px up across the top seam: flee down
+        ((5.0, 795.0), (-1.0, 1.0), (775.0, 25.0), towards([1.0, -1.0])),  # 30 px left and down across the corner
+    ],
+)
 def test_turnaway_flees_the_nearest_visible_predator(device, prey, velocity, predator, expected):
     env = make_env(device, prey_count=2)
     place(env, [prey, [200.0, 200.0], predator], [velocity, [0.0, -1.0], [0.0, -1.0]])
@@ -96,8 +102,11 @@ def test_turnaway_flees_the_nearest_visible_predator(device, prey, velocity, pre
 def test_turnaway_flees_the_nearest_of_several_predators(device):
     env = make_env(device, prey_count=1, predator_count=3)
     # Heading east; predators ahead at 90 px, up-right at 50 px (nearest), and behind at 30 px (unseen).
-    place(env, [[400.0, 400.0], [490.0, 400.0], [430.0, 360.0], [370.0, 400.0]],
-          [[2.0, 0.0], [0.0, -1.0], [0.0, -1.0], [0.0, -1.0]])
+    place(
+        env,
+        [[400.0, 400.0], [490.0, 400.0], [430.0, 360.0], [370.0, 400.0]],
+        [[2.0, 0.0], [0.0, -1.0], [0.0, -1.0], [0.0, -1.0]],
+    )
     assert decide(env, "turnaway", "prey")[0, 0] == towards([-30.0, 40.0])
 
 
@@ -156,8 +165,11 @@ def test_naivchase_across_the_seam(device):
 def confusion_scene(env):
     """Predator at (400, 400) heading east; prey 0-2 visible to the NE (113 px), E (120 px) and SE (99 px);
     prey 3 behind (unseen, 100 px), prey 4 ahead beyond the view distance (300 px)."""
-    place(env, [[480.0, 320.0], [520.0, 400.0], [470.0, 470.0], [300.0, 400.0], [700.0, 400.0], [400.0, 400.0]],
-          [[0.0, 0.0]] * 5 + [[2.0, 0.0]])
+    place(
+        env,
+        [[480.0, 320.0], [520.0, 400.0], [470.0, 470.0], [300.0, 400.0], [700.0, 400.0], [400.0, 400.0]],
+        [[0.0, 0.0]] * 5 + [[2.0, 0.0]],
+    )
 
 
 def test_naivchase_confusion_picks_uniformly_among_the_visible_prey(device):
@@ -194,11 +206,19 @@ def test_naivchase_without_visible_prey_chases_the_nearest_in_the_world(device):
     place(env, [[780.0, 400.0], [300.0, 400.0], [400.0, 100.0], [10.0, 400.0]], [[0.0, 0.0]] * 3 + [[2.0, 0.0]])
     assert decide(env, "naivchase", "predator")[0, 0] == WEST
     # Ties at equal distance go to the lower slot; the far corner of the world is found too.
-    place(env, [[400.0, 700.0], [700.0, 400.0], [200.0, 200.0], [400.0, 400.0]], [[0.0, 0.0]] * 3 + [[-2.0, 0.0]],
-          alive=[True, True, False, True])
+    place(
+        env,
+        [[400.0, 700.0], [700.0, 400.0], [200.0, 200.0], [400.0, 400.0]],
+        [[0.0, 0.0]] * 3 + [[-2.0, 0.0]],
+        alive=[True, True, False, True],
+    )
     assert decide(env, "naivchase", "predator", confusion=False)[0, 0] == SOUTH
-    place(env, [[0.0, 0.0], [10.0, 10.0], [10.0, 10.0], [400.0, 400.0]], [[0.0, 0.0]] * 3 + [[0.0, 0.0]],
-          alive=[False, True, True, True])
+    place(
+        env,
+        [[0.0, 0.0], [10.0, 10.0], [10.0, 10.0], [400.0, 400.0]],
+        [[0.0, 0.0]] * 3 + [[0.0, 0.0]],
+        alive=[False, True, True, True],
+    )
     assert decide(env, "naivchase", "predator")[0, 0] == towards([-1.0, -1.0])
 
 
@@ -233,8 +253,9 @@ def reference(cfg: AquariumConfig, state: dict, name: str, agent_type: str):
                     elif d[axis] < -length / 2:
                         d[axis] += length
                 d2 = float(d @ d)
-                visible = d2 <= t.view_distance ** 2 and (
-                    not cfg.fov_enabled or d2 == 0.0 or heading[w, i] @ d >= math.sqrt(d2) * cos_half)
+                visible = d2 <= t.view_distance**2 and (
+                    not cfg.fov_enabled or d2 == 0.0 or heading[w, i] @ d >= math.sqrt(d2) * cos_half
+                )
                 found.append((d2, j, d, visible))
             seen = sorted((f for f in found if f[3]), key=lambda f: f[:2])
             anywhere = sorted(found, key=lambda f: f[:2])
@@ -254,8 +275,10 @@ def test_policies_match_a_brute_force_reference_on_random_states(device, variant
     world = {"default": {}, "no_fov": {"fov_enabled": False}, "small_world": {"width": 300.0, "height": 250.0}}
     cfg = AquariumConfig(prey_count=10, predator_count=3, **world.get(variant, {}))
     if variant == "unlimited_view":
-        cfg = cfg.replace(predator=dataclasses.replace(cfg.predator, view_distance=math.inf),
-                          prey=dataclasses.replace(cfg.prey, view_distance=300.0))
+        cfg = cfg.replace(
+            predator=dataclasses.replace(cfg.predator, view_distance=math.inf),
+            prey=dataclasses.replace(cfg.prey, view_distance=300.0),
+        )
     W = 96
     env = BatchedAquarium(cfg, num_worlds=W, device=device, seed=3, cpu_threads=2)
     rng = np.random.default_rng(7)
@@ -270,17 +293,24 @@ def test_policies_match_a_brute_force_reference_on_random_states(device, variant
     heading = np.stack([np.cos(angle), np.sin(angle)], -1).astype(np.float32)
     alive = rng.random((W, C)) < 0.85
     alive[:4, : cfg.prey_count] = False  # worlds without prey: nothing to chase
-    alive[4:8, cfg.prey_count:] = False  # worlds without predators: nothing to flee
+    alive[4:8, cfg.prey_count :] = False  # worlds without predators: nothing to flee
     env.set_state(position=pos.astype(np.float32), velocity=heading * 2, heading=heading, alive=alive)
     state = {k: getattr(env.state.torch, k).cpu().numpy().astype(np.float64) for k in ("position", "heading")}
     state["alive"] = env.state.torch.alive.cpu().numpy()
-    cases = [("turnaway", "prey", {}), ("naivchase-nearest", "predator", {"confusion": False}),
-             ("naivchase", "predator", {})]
+    cases = [
+        ("turnaway", "prey", {}),
+        ("naivchase-nearest", "predator", {"confusion": False}),
+        ("naivchase", "predator", {}),
+    ]
     for name, agent_type, kw in cases:
         got = decide(env, name.split("-")[0], agent_type, **kw)
         want = reference(cfg, state, name, agent_type)
-        bad = [(w, s, int(got[w, s]), want[w][s]) for w in range(W) for s in range(got.shape[1])
-               if int(got[w, s]) not in want[w][s]]
+        bad = [
+            (w, s, int(got[w, s]), want[w][s])
+            for w in range(W)
+            for s in range(got.shape[1])
+            if int(got[w, s]) not in want[w][s]
+        ]
         assert not bad, f"{name}: (world, slot, got, allowed) {bad[:5]}"
 
 
@@ -325,8 +355,10 @@ def test_dead_slots_get_action_zero_and_same_seed_reproduces_a_rollout(device):
 
 def test_wrong_combinations_are_refused():
     env = make_env("cpu")
-    assert POLICIES == {"prey": ("random", "constant", "turnaway", "boids"),
-                        "predator": ("random", "constant", "naivchase")}
+    assert POLICIES == {
+        "prey": ("random", "constant", "turnaway", "boids"),
+        "predator": ("random", "constant", "naivchase"),
+    }
     with pytest.raises(ValueError, match="random.*naivchase"):
         make_policy("turnaway", env, "predator")
     with pytest.raises(ValueError, match="random.*turnaway"):
@@ -347,6 +379,7 @@ def test_wrong_combinations_are_refused():
     # The policies cached for heuristic_actions do not keep the env alive.
     import gc
     import weakref
+
     ref = weakref.ref(env)
     del env, actions
     gc.collect()
@@ -394,12 +427,15 @@ def test_turnaway_prey_are_captured_far_less_than_random_prey(device):
 # Constant heading, and every heuristic in the ego action frame (action a: 360 a / n degrees clockwise
 # from the agent's own heading)
 # --------------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("velocity, world_action, ego_action", [
-    ((2.0, 0.0), UP, WEST),  # heading east: "up" is a quarter turn to the left, 270 degrees clockwise
-    ((0.0, 2.0), UP, SOUTH),  # heading south: "up" is behind
-    ((0.0, -2.0), UP, UP),  # heading up already: straight on
-    ((-1.0, -1.0), UP, NE),  # heading up-left: "up" is 45 degrees clockwise
-])
+@pytest.mark.parametrize(
+    "velocity, world_action, ego_action",
+    [
+        ((2.0, 0.0), UP, WEST),  # heading east: "up" is a quarter turn to the left, 270 degrees clockwise
+        ((0.0, 2.0), UP, SOUTH),  # heading south: "up" is behind
+        ((0.0, -2.0), UP, UP),  # heading up already: straight on
+        ((-1.0, -1.0), UP, NE),  # heading up-left: "up" is 45 degrees clockwise
+    ],
+)
 def test_constant_asks_for_up_in_either_frame(device, velocity, world_action, ego_action):
     for frame, expected in (("world", world_action), ("ego", ego_action)):
         env = make_env(device, prey_count=1, action_frame=frame)
@@ -407,12 +443,15 @@ def test_constant_asks_for_up_in_either_frame(device, velocity, world_action, eg
         assert decide(env, "constant", "prey")[0, 0] == expected
 
 
-@pytest.mark.parametrize("prey, velocity, predator, ego_action", [
-    ((400.0, 400.0), (2.0, 0.0), (460.0, 400.0), 8),  # predator dead ahead: turn around (180 degrees)
-    ((400.0, 400.0), (0.0, 2.0), (400.0, 450.0), 8),  # heading south, predator ahead: turn around
-    ((400.0, 400.0), (2.0, 0.0), (450.0, 450.0), 10),  # ahead and to the right (south-east): flee 225 degrees
-    ((790.0, 400.0), (2.0, 0.0), (30.0, 400.0), 8),  # ahead across the seam
-])
+@pytest.mark.parametrize(
+    "prey, velocity, predator, ego_action",
+    [
+        ((400.0, 400.0), (2.0, 0.0), (460.0, 400.0), 8),  # predator dead ahead: turn around (180 degrees)
+        ((400.0, 400.0), (0.0, 2.0), (400.0, 450.0), 8),  # heading south, predator ahead: turn around
+        ((400.0, 400.0), (2.0, 0.0), (450.0, 450.0), 10),  # ahead and to the right (south-east): flee 225 degrees
+        ((790.0, 400.0), (2.0, 0.0), (30.0, 400.0), 8),  # ahead across the seam
+    ],
+)
 def test_turnaway_in_the_ego_frame(device, prey, velocity, predator, ego_action):
     env = make_env(device, prey_count=2, action_frame="ego")
     place(env, [prey, [200.0, 200.0], predator], [velocity, [0.0, -1.0], [0.0, -1.0]])
@@ -439,18 +478,25 @@ def test_naivchase_in_the_ego_frame(device):
 FAR = [100.0, 700.0]  # out of everyone's sight in the cases below
 
 
-@pytest.mark.parametrize("mates, mate_velocities, predator, expected", [
-    ([FAR, FAR], [[0.0, -1.0], [0.0, -1.0]], [460.0, 400.0], WEST),  # alone, a predator ahead: flee
-    # Two mates ahead, 73 px away, heading north: cohesion east + alignment north.
-    ([[470.0, 380.0], [470.0, 420.0]], [[0.0, -1.0], [0.0, -1.0]], FAR, towards([1.0, -1.0])),
-    # One mate 25 px ahead heading south (separation west), one far: -1.5 (1, 0) + (0, 1) + (1, 0).
-    ([[425.0, 400.0], FAR], [[0.0, 1.0], [0.0, -1.0]], FAR, towards([-0.5, 1.0])),
-    # A predator 67 px ahead-right (27 degrees) and a mate 50 px ahead heading north: 2 flee + align + cohere.
-    ([[450.0, 400.0], FAR], [[0.0, -1.0], [0.0, -1.0]], [460.0, 430.0],
-     towards(2 * np.array([-60.0, -30.0]) / math.hypot(60, 30) + np.array([0.0, -1.0]) + np.array([1.0, 0.0]))),
-    # A mate across the seam (820 - 800 = 20 px ahead) heading east: separation west, align and cohere east.
-    ([[10.0, 400.0], FAR], [[1.0, 0.0], [0.0, -1.0]], FAR, towards([-1.5 + 1 + 1, 0.0])),
-])
+@pytest.mark.parametrize(
+    "mates, mate_velocities, predator, expected",
+    [
+        ([FAR, FAR], [[0.0, -1.0], [0.0, -1.0]], [460.0, 400.0], WEST),  # alone, a predator ahead: flee
+        # Two mates ahead, 73 px away, heading north: cohesion east + alignment north.
+        ([[470.0, 380.0], [470.0, 420.0]], [[0.0, -1.0], [0.0, -1.0]], FAR, towards([1.0, -1.0])),
+        # One mate 25 px ahead heading south (separation west), one far: -1.5 (1, 0) + (0, 1) + (1, 0).
+        ([[425.0, 400.0], FAR], [[0.0, 1.0], [0.0, -1.0]], FAR, towards([-0.5, 1.0])),
+        # A predator 67 px ahead-right (27 degrees) and a mate 50 px ahead heading north: 2 flee + align + cohere.
+        (
+            [[450.0, 400.0], FAR],
+            [[0.0, -1.0], [0.0, -1.0]],
+            [460.0, 430.0],
+            towards(2 * np.array([-60.0, -30.0]) / math.hypot(60, 30) + np.array([0.0, -1.0]) + np.array([1.0, 0.0])),
+        ),
+        # A mate across the seam (820 - 800 = 20 px ahead) heading east: separation west, align and cohere east.
+        ([[10.0, 400.0], FAR], [[1.0, 0.0], [0.0, -1.0]], FAR, towards([-1.5 + 1 + 1, 0.0])),
+    ],
+)
 def test_boids_hand_cases(device, mates, mate_velocities, predator, expected):
     env = make_env(device, prey_count=3)
     prey = [790.0, 400.0] if mates[0] == [10.0, 400.0] else [400.0, 400.0]
@@ -501,8 +547,12 @@ def test_boids_matches_a_brute_force_reference_on_random_states(device):
     pos = rng.random((W, cfg.capacity, 2)) * [cfg.width, cfg.height]
     angle = rng.random((W, cfg.capacity)) * 2 * np.pi
     heading = np.stack([np.cos(angle), np.sin(angle)], -1).astype(np.float32)
-    env.set_state(position=pos.astype(np.float32), velocity=heading * 2, heading=heading,
-                  alive=rng.random((W, cfg.capacity)) < 0.9)
+    env.set_state(
+        position=pos.astype(np.float32),
+        velocity=heading * 2,
+        heading=heading,
+        alive=rng.random((W, cfg.capacity)) < 0.9,
+    )
     state = {k: getattr(env.state.torch, k).cpu().numpy().astype(np.float64) for k in ("position", "heading")}
     state["alive"] = env.state.torch.alive.cpu().numpy()
     got = decide(env, "boids", "prey")
@@ -531,8 +581,13 @@ def test_boids_prey_flock_where_turnaway_prey_do_not(device):
     40 px apart)."""
     from aquarium_warp.metrics import SwarmMetrics
 
-    cfg = AquariumConfig(prey_count=24, predator_count=1, width=500.0, height=500.0,
-                         prey=dataclasses.replace(AquariumConfig().prey, fov_angle=360.0))
+    cfg = AquariumConfig(
+        prey_count=24,
+        predator_count=1,
+        width=500.0,
+        height=500.0,
+        prey=dataclasses.replace(AquariumConfig().prey, fov_angle=360.0),
+    )
     values = {}
     for name in ("boids", "turnaway", "random"):
         env = BatchedAquarium(cfg.replace(spawn_heading="random"), num_worlds=32, device=device, seed=5)

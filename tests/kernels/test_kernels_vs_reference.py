@@ -104,32 +104,55 @@ CONFIGS = {
 # (compared world by world with the reference on that world's values).
 FLOW_GRID = [[[1.5, -0.5], [0.0, 2.0], [-1.0, 0.5]], [[0.25, 1.0], [-2.0, -1.5], [1.0, 0.0]]]  # [2, 3, 2]
 CONFIGS["vortex_time_varying"] = make_config(
-    width=300.0, height=260.0, prey_count=14, predator_count=2,
-    flow=FlowConfig("vortex", centre=(10.0, 250.0), strength=3.0, core_radius=40.0, amplitude=0.5, period=7.0))
+    width=300.0,
+    height=260.0,
+    prey_count=14,
+    predator_count=2,
+    flow=FlowConfig("vortex", centre=(10.0, 250.0), strength=3.0, core_radius=40.0, amplitude=0.5, period=7.0),
+)
 CONFIGS["per_world_flow_and_values"] = make_config(
-    width=260.0, height=240.0, prey_count=(12, 5, 9, 12), predator_count=(2, 3, 1, 3),
-    prey_reward=(1.0, 0.5, 2.0, 1.0), catch_share_radius=(100.0, 40.0, 0.0, 150.0),
+    width=260.0,
+    height=240.0,
+    prey_count=(12, 5, 9, 12),
+    predator_count=(2, 3, 1, 3),
+    prey_reward=(1.0, 0.5, 2.0, 1.0),
+    catch_share_radius=(100.0, 40.0, 0.0, 150.0),
     predator_starvation_steps=(3000, 5, 8, 3000),
-    prey=dict(max_speed=(4.0, 2.0, 6.0, 3.0), radius=(20.0, 10.0, 25.0, 15.0), fov_angle=(120.0, 360.0, 90.0, 200.0),
-              view_distance=(100.0, math.inf, 60.0, 140.0), bounce_strength=(1.0, 0.0, 2.0, 0.5),
-              mass=(3.0, 1.0, 8.0, 3.0)),
-    predator=dict(max_speed=(5.0, 7.0, 3.0, 5.0), view_distance=(200.0, 90.0, math.inf, 120.0),
-                  max_acceleration=(0.6, 1.5, 0.3, 0.6), fov_angle=(150.0, 60.0, 360.0, 180.0)),
-    flow=(FlowConfig(), FlowConfig("uniform", velocity=(2.5, -1.0)),
-          FlowConfig("grid", grid=FLOW_GRID, amplitude=1.0, period=5.0),
-          FlowConfig("vortex", centre=(130.0, 0.0), strength=-4.0, core_radius=60.0)))
+    prey=dict(
+        max_speed=(4.0, 2.0, 6.0, 3.0),
+        radius=(20.0, 10.0, 25.0, 15.0),
+        fov_angle=(120.0, 360.0, 90.0, 200.0),
+        view_distance=(100.0, math.inf, 60.0, 140.0),
+        bounce_strength=(1.0, 0.0, 2.0, 0.5),
+        mass=(3.0, 1.0, 8.0, 3.0),
+    ),
+    predator=dict(
+        max_speed=(5.0, 7.0, 3.0, 5.0),
+        view_distance=(200.0, 90.0, math.inf, 120.0),
+        max_acceleration=(0.6, 1.5, 0.3, 0.6),
+        fov_angle=(150.0, 60.0, 360.0, 180.0),
+    ),
+    flow=(
+        FlowConfig(),
+        FlowConfig("uniform", velocity=(2.5, -1.0)),
+        FlowConfig("grid", grid=FLOW_GRID, amplitude=1.0, period=5.0),
+        FlowConfig("vortex", centre=(130.0, 0.0), strength=-4.0, core_radius=60.0),
+    ),
+)
 # These worlds are one cell each by default (SINGLE_CELL_CAPACITY); the same worlds cut into cells
 # exercise the ring search and the capture searches across cell borders.
 CONFIGS["defaults_dense_cells"] = dataclasses.replace(CONFIGS["defaults_dense"], grid_cell_size=40.0)
 CONFIGS["respawn_off_starvation_cells"] = dataclasses.replace(CONFIGS["respawn_off_starvation"], grid_cell_size=45.0)
 CONFIGS["reproduction_cells"] = dataclasses.replace(CONFIGS["reproduction"], grid_cell_size=50.0)
-CONFIGS["per_world_flow_and_values_cells"] = dataclasses.replace(CONFIGS["per_world_flow_and_values"],
-                                                                 grid_cell_size=30.0)
+CONFIGS["per_world_flow_and_values_cells"] = dataclasses.replace(
+    CONFIGS["per_world_flow_and_values"], grid_cell_size=30.0
+)
 # The observed current (two values after the own 5-tuple), in both ranges; world 1's uniform current
 # (2.5 px/step) is faster than its prey (2 px/step), so the prey's value there is clipped.
 CONFIGS["vortex_observed"] = dataclasses.replace(CONFIGS["vortex_time_varying"], observe_flow=True)
 CONFIGS["per_world_flow_observed_signed"] = dataclasses.replace(
-    CONFIGS["per_world_flow_and_values"], observe_flow=True, observation_range="-1..1")
+    CONFIGS["per_world_flow_and_values"], observe_flow=True, observation_range="-1..1"
+)
 
 
 def world_config(cfg, w: int):
@@ -138,20 +161,26 @@ def world_config(cfg, w: int):
     if not cfg.per_world_fields:
         return cfg
     own = cfg.world(w)
-    return types.SimpleNamespace(**{f.name: getattr(own, f.name) for f in dataclasses.fields(own)},
-                                 prey_capacity=cfg.prey_capacity, capacity=cfg.capacity)
+    return types.SimpleNamespace(
+        **{f.name: getattr(own, f.name) for f in dataclasses.fields(own)},
+        prey_capacity=cfg.prey_capacity,
+        capacity=cfg.capacity,
+    )
+
 
 # Worlds of one cell step in one fused launch by default (`step_kernel="auto"`); their step tests run
 # the staged launches too, so the reference checks both paths.
-STEP_CASES = [(name, "auto") for name in CONFIGS] + [(name, "stages") for name in CONFIGS
-                                                     if not name.endswith("_cells")]
+STEP_CASES = [(name, "auto") for name in CONFIGS] + [
+    (name, "stages") for name in CONFIGS if not name.endswith("_cells")
+]
 _ENVS: dict = {}
 
 
 def get_env(name: str, device: str, step_kernel: str = "auto") -> BatchedAquarium:
     if (name, step_kernel) not in _ENVS:
-        _ENVS[name, step_kernel] = BatchedAquarium(CONFIGS[name], num_worlds=NUM_WORLDS, device=device, seed=0,
-                                                   step_kernel=step_kernel)
+        _ENVS[name, step_kernel] = BatchedAquarium(
+            CONFIGS[name], num_worlds=NUM_WORLDS, device=device, seed=0, step_kernel=step_kernel
+        )
     return _ENVS[name, step_kernel]
 
 
@@ -343,8 +372,9 @@ def fail_if(errors: list, context: str) -> None:
     if errors:
         shown = "\n  ".join(errors[:MAX_REPORTED])
         more = f"\n  ... and {len(errors) - MAX_REPORTED} more" if len(errors) > MAX_REPORTED else ""
-        pytest.fail(f"{context}: {len(errors)} mismatch(es) between kernel and reference:\n  {shown}{more}",
-                    pytrace=False)
+        pytest.fail(
+            f"{context}: {len(errors)} mismatch(es) between kernel and reference:\n  {shown}{more}", pytrace=False
+        )
 
 
 def describe_world(cfg, start: dict) -> str:
@@ -370,8 +400,9 @@ def ill_conditioned_heading(reference: dict, i: int, kernel: dict | None = None)
 def compare_state(cfg, where: str, kernel: dict, reference: dict, errors: list) -> None:
     for i in range(cfg.capacity):
         if bool(kernel["alive"][i]) != bool(reference["alive"][i]):
-            errors.append(f"{where} {slot_name(cfg, i)} alive: kernel={kernel['alive'][i]} "
-                          f"reference={reference['alive'][i]}")
+            errors.append(
+                f"{where} {slot_name(cfg, i)} alive: kernel={kernel['alive'][i]} reference={reference['alive'][i]}"
+            )
             continue
         if not reference["alive"][i]:
             continue
@@ -395,8 +426,9 @@ def compare_state(cfg, where: str, kernel: dict, reference: dict, errors: list) 
         names = ("age", "replication_age") if i < cfg.prey_capacity else ("starvation",)
         for name in names:
             if int(kernel[name][i]) != int(reference[name][i]):
-                errors.append(f"{where} {slot_name(cfg, i)} {name}: kernel={kernel[name][i]} "
-                              f"reference={reference[name][i]}")
+                errors.append(
+                    f"{where} {slot_name(cfg, i)} {name}: kernel={kernel[name][i]} reference={reference[name][i]}"
+                )
 
 
 def angle_columns(cfg, type_config) -> set:
@@ -443,7 +475,8 @@ def compare_observations(cfg, where: str, k_obs: dict, k_mask: dict, r_obs: dict
                         label = f"obs-slot {s} (agent {r_slots[key][row][s]})[{e}]"
                     parts.append(f"{label} kernel={ko[row][c]:.7g} reference={r_obs[key][row][c]:.7g}")
                 errors.append(
-                    f"{where} observer {slot_name(cfg, slot)} values: " + "; ".join(parts)
+                    f"{where} observer {slot_name(cfg, slot)} values: "
+                    + "; ".join(parts)
                     + f" (reference sees slots {r_slots[key][row].tolist()})"
                 )
 
@@ -492,12 +525,14 @@ def check_step(name: str, cfg, env, starts: list, actions: np.ndarray, errors: l
         compare_flags(cfg, where, "terminated", pick(k_term), r_term, errors)
         compare_flags(cfg, where, "truncated", pick(k_trunc), r_trunc, errors)
         if int(k_caps[w]) != r_info["captures"]:
-            errors.append(f"{where} captures: kernel={int(k_caps[w])} "
-                          f"reference={r_info['captures']} {r_info['capturers']}")
+            errors.append(
+                f"{where} captures: kernel={int(k_caps[w])} reference={r_info['captures']} {r_info['capturers']}"
+            )
         if r_info["episode_over"]:
             if after[w]["world_step"] != 0:
-                errors.append(f"{where} the episode ended but the world did not auto-reset "
-                              f"(world_step={after[w]['world_step']})")
+                errors.append(
+                    f"{where} the episode ended but the world did not auto-reset (world_step={after[w]['world_step']})"
+                )
         else:
             if after[w]["world_step"] != r_info["world_step"]:
                 errors.append(f"{where} world_step: kernel={after[w]['world_step']} reference={r_info['world_step']}")
@@ -506,10 +541,11 @@ def check_step(name: str, cfg, env, starts: list, actions: np.ndarray, errors: l
             hi = math.floor(1.25 * cfg.prey_replication_age)
             for slot in r_info["respawned"] + [child for _, child in r_info["births"]]:
                 if not lo <= int(after[w]["replication_age"][slot]) <= hi:
-                    errors.append(f"{where} {slot_name(cfg, slot)} new replication_age "
-                                  f"{after[w]['replication_age'][slot]} not in [{lo}, {hi}]")
-            r_obs, r_mask, r_slots = ref.observe(cfg, after[w], with_slots=True,
-                                                 world_step=after[w]["world_step"])
+                    errors.append(
+                        f"{where} {slot_name(cfg, slot)} new replication_age "
+                        f"{after[w]['replication_age'][slot]} not in [{lo}, {hi}]"
+                    )
+            r_obs, r_mask, r_slots = ref.observe(cfg, after[w], with_slots=True, world_step=after[w]["world_step"])
             compare_observations(cfg, where, pick(k_obs), pick(k_mask), r_obs, r_mask, r_slots, errors)
             for key, first in (("prey", 0), ("predator", cfg.prey_capacity)):
                 for row in range(r_mask[key].shape[0]):
@@ -545,22 +581,25 @@ def check_observations_after_set_state(name: str, cfg, env, rng, repeats: int = 
             for field in ref.FIELDS:
                 if not np.array_equal(after[w][field][worlds[w]["alive"]], worlds[w][field][worlds[w]["alive"]]):
                     errors.append(f"{where} set_state did not store {field}")
-            r_obs, r_mask, r_slots = ref.observe(world_config(cfg, w), worlds[w], with_slots=True,
-                                                 world_step=after[w]["world_step"])
+            r_obs, r_mask, r_slots = ref.observe(
+                world_config(cfg, w), worlds[w], with_slots=True, world_step=after[w]["world_step"]
+            )
             k_obs = {k: v[w].detach().cpu().numpy() for k, v in env.observations.items()}
             k_mask = {k: v[w].detach().cpu().numpy() for k, v in env.observation_mask.items()}
             n_before = len(errors)
             compare_observations(cfg, where, k_obs, k_mask, r_obs, r_mask, r_slots, errors)
             if len(errors) > n_before:
-                errors.append(f"{where} state: alive {worlds[w]['alive'].astype(int).tolist()} "
-                              f"{describe_world(cfg, worlds[w])}")
+                errors.append(
+                    f"{where} state: alive {worlds[w]['alive'].astype(int).tolist()} {describe_world(cfg, worlds[w])}"
+                )
     fail_if(errors, name)
 
 
 @pytest.mark.parametrize("name", list(CONFIGS))
 def test_observations_after_set_state(name, device):
-    check_observations_after_set_state(name, CONFIGS[name], get_env(name, device),
-                                       np.random.default_rng(1000 + list(CONFIGS).index(name)))
+    check_observations_after_set_state(
+        name, CONFIGS[name], get_env(name, device), np.random.default_rng(1000 + list(CONFIGS).index(name))
+    )
 
 
 @pytest.mark.parametrize("name, step_kernel", STEP_CASES)
@@ -595,8 +634,9 @@ def test_rollout_resynced_each_step(name, step_kernel, device):
     fail_if(errors, name)
 
 
-@pytest.mark.parametrize("name, step_kernel", [("reproduction", "auto"), ("reproduction", "stages"),
-                                               ("reproduction_cells", "auto")])
+@pytest.mark.parametrize(
+    "name, step_kernel", [("reproduction", "auto"), ("reproduction", "stages"), ("reproduction_cells", "auto")]
+)
 def test_rewards_and_episode_returns_bit_for_bit_with_newborns(name, step_kernel, device):
     """Rewards and episode sums have no pass of their own (the share and respawn passes and
     reproduction finish them): every slot's reward and episode sum equal a float32 computation from
@@ -615,8 +655,9 @@ def test_rewards_and_episode_returns_bit_for_bit_with_newborns(name, step_kernel
     for rep in range(8):
         worlds = [random_world(rng, cfg) for _ in range(env.num_worlds)]
         for w in worlds:  # most prey old enough to reproduce, so that births happen
-            w["age"][: cfg.prey_capacity] = np.maximum(w["age"][: cfg.prey_capacity],
-                                                       rng.integers(0, 8, cfg.prey_capacity))
+            w["age"][: cfg.prey_capacity] = np.maximum(
+                w["age"][: cfg.prey_capacity], rng.integers(0, 8, cfg.prey_capacity)
+            )
         if rep % 4 == 3:  # some worlds end their episode in this step
             for w in worlds[::2]:
                 w["world_step"] = cfg.max_steps - 1
@@ -636,9 +677,14 @@ def test_rewards_and_episode_returns_bit_for_bit_with_newborns(name, step_kernel
         for w in range(env.num_worlds):
             where = f"[{name} {step_kernel} #{rep} world {w}]"
             r_new, _, _, _, r_cap, r_info = ref.step(
-                cfg, starts[w], actions[w], starts[w]["world_step"], respawn_position=after[w]["position"],
+                cfg,
+                starts[w],
+                actions[w],
+                starts[w]["world_step"],
+                respawn_position=after[w]["position"],
                 respawn_replication_age=after[w]["replication_age"],
-                newborn_replication_age=after[w]["replication_age"])
+                newborn_replication_age=after[w]["replication_age"],
+            )
             births += len(r_info["births"])
             want = np.zeros(cfg.capacity, np.float32)
             for i in range(cfg.prey_capacity):
@@ -664,14 +710,19 @@ def test_rewards_and_episode_returns_bit_for_bit_with_newborns(name, step_kernel
                         prey_sum = f32(prey_sum + sums[i])
                     else:
                         predator_sum = f32(predator_sum + sums[i])
-                if k_ended_return[w].view(np.int32).tolist() != np.array([predator_sum, prey_sum]).view(
-                        np.int32).tolist():
-                    errors.append(f"{where} ended_return: kernel={k_ended_return[w].tolist()} "
-                                  f"float32={[predator_sum, prey_sum]}")
+                if (
+                    k_ended_return[w].view(np.int32).tolist()
+                    != np.array([predator_sum, prey_sum]).view(np.int32).tolist()
+                ):
+                    errors.append(
+                        f"{where} ended_return: kernel={k_ended_return[w].tolist()} float32={[predator_sum, prey_sum]}"
+                    )
                 sums = np.zeros_like(sums)  # the next episode's sums start at +0.0
             for i in np.flatnonzero(k_return[w].view(np.int32) != sums.view(np.int32)):
-                errors.append(f"{where} {slot_name(cfg, i)} episode_return: kernel={k_return[w][i]!r} "
-                              f"float32={sums[i]!r} (start {start_return[w][i]!r} + reward {got[i]!r})")
+                errors.append(
+                    f"{where} {slot_name(cfg, i)} episode_return: kernel={k_return[w][i]!r} "
+                    f"float32={sums[i]!r} (start {start_return[w][i]!r} + reward {got[i]!r})"
+                )
     fail_if(errors, name)
     assert births > 0 and ended > 0
 
@@ -718,30 +769,54 @@ def test_hand_built_worlds_defaults(device):
         # across the x seam; prey 3 exactly overlaps prey 4 (no push)
         _world_from_agents(
             cfg,
-            [dict(pos=(400.0, 400.0), **up_prey), dict(pos=(5.0, 100.0)), dict(pos=(785.0, 100.0)),
-             dict(pos=(600.0, 600.0), vel=(1.0, 0.5)), dict(pos=(600.0, 600.0), vel=(0.0, 2.0))],
-            [dict(pos=(400.0, 445.0), starve=9, **up_pred), dict(pos=(480.0, 405.0), starve=10, **up_pred),
-             dict(pos=(400.0, 250.0), starve=3, **up_pred)],
+            [
+                dict(pos=(400.0, 400.0), **up_prey),
+                dict(pos=(5.0, 100.0)),
+                dict(pos=(785.0, 100.0)),
+                dict(pos=(600.0, 600.0), vel=(1.0, 0.5)),
+                dict(pos=(600.0, 600.0), vel=(0.0, 2.0)),
+            ],
+            [
+                dict(pos=(400.0, 445.0), starve=9, **up_pred),
+                dict(pos=(480.0, 405.0), starve=10, **up_pred),
+                dict(pos=(400.0, 250.0), starve=3, **up_pred),
+            ],
             world_step=17,
         ),
         # two capturers of one prey; predators at exactly contact distance 60 (no bounce) and a tie of prey
         # bounce partners at 30 (the lower slot wins)
         _world_from_agents(
             cfg,
-            [dict(pos=(500.0, 400.0), **up_prey), dict(pos=(100.0, 100.0)), dict(pos=(130.0, 100.0)),
-             dict(pos=(70.0, 100.0)), None],
-            [dict(pos=(470.0, 411.0), **up_pred), dict(pos=(530.0, 411.0), **up_pred),
-             dict(pos=(200.0, 700.0), heading=(1.0, 0.0))],
+            [
+                dict(pos=(500.0, 400.0), **up_prey),
+                dict(pos=(100.0, 100.0)),
+                dict(pos=(130.0, 100.0)),
+                dict(pos=(70.0, 100.0)),
+                None,
+            ],
+            [
+                dict(pos=(470.0, 411.0), **up_pred),
+                dict(pos=(530.0, 411.0), **up_pred),
+                dict(pos=(200.0, 700.0), heading=(1.0, 0.0)),
+            ],
             world_step=3,
         ),
         # observers looking across the seams: prey 0 at the right edge heading east sees prey 1 across the seam
         # (30 deg off) but not prey 2 (75 deg off); the predator sees the prey at the top-left across the corner
         _world_from_agents(
             cfg,
-            [dict(pos=(790.0, 400.0), vel=(2.0, 0.0)), dict(pos=(30.0, 380.0)), dict(pos=(10.0, 340.0)),
-             dict(pos=(5.0, 5.0)), None],
-            [dict(pos=(760.0, 770.0), vel=(1.0, 1.0)), None,
-             dict(pos=(300.0, 300.0), vel=(0.0, 0.0), heading=(0.0, 1.0))],
+            [
+                dict(pos=(790.0, 400.0), vel=(2.0, 0.0)),
+                dict(pos=(30.0, 380.0)),
+                dict(pos=(10.0, 340.0)),
+                dict(pos=(5.0, 5.0)),
+                None,
+            ],
+            [
+                dict(pos=(760.0, 770.0), vel=(1.0, 1.0)),
+                None,
+                dict(pos=(300.0, 300.0), vel=(0.0, 0.0), heading=(0.0, 1.0)),
+            ],
         ),
         # starvation at the limit: one dies (counter 10 -> 11), one survives (9 -> 10)
         _world_from_agents(
@@ -757,12 +832,14 @@ def test_hand_built_worlds_defaults(device):
     check_step("hand_built", cfg, env, worlds, actions, errors)
     fail_if(errors, "hand-built worlds")
     # the headline numbers of the reference (which the kernel matched), spelled out
-    _, r0, *_ , info0 = ref.step(cfg, worlds[0], actions[0], 17, respawn_position={0: (1.0, 1.0)},
-                                 respawn_replication_age={0: 200})
+    _, r0, *_, info0 = ref.step(
+        cfg, worlds[0], actions[0], 17, respawn_position={0: (1.0, 1.0)}, respawn_replication_age={0: 200}
+    )
     assert r0[0] == -999.0 and r0[cfg.prey_capacity :].tolist() == [5.0, 5.0, 0.0]
     assert info0["capturers"] == {0: [5]} and info0["sharers"] == {0: [5, 6]}
-    _, r1, *_ , info1 = ref.step(cfg, worlds[1], actions[1], 3, respawn_position={0: (1.0, 1.0)},
-                                 respawn_replication_age={0: 200})
+    _, r1, *_, info1 = ref.step(
+        cfg, worlds[1], actions[1], 3, respawn_position={0: (1.0, 1.0)}, respawn_replication_age={0: 200}
+    )
     assert info1["capturers"] == {0: [5, 6]} and r1[cfg.prey_capacity :].tolist() == [5.0, 5.0, 0.0]
     new3, _, term3, *_ = ref.step(cfg, worlds[3], actions[3], 0)
     assert term3[cfg.prey_capacity :].tolist() == [True, False, False] and new3["starvation"][6] == 10
@@ -771,19 +848,35 @@ def test_hand_built_worlds_defaults(device):
 def test_episode_end_truncation_and_auto_reset(device):
     """World 0 reaches max_steps; world 1's last predator starves; world 2 (respawn off) loses its last prey;
     world 3 goes on."""
-    cfg = make_config(prey_count=3, predator_count=2, max_steps=50, predator_starvation_steps=5,
-                      respawn_captured_prey=False)
+    cfg = make_config(
+        prey_count=3, predator_count=2, max_steps=50, predator_starvation_steps=5, respawn_captured_prey=False
+    )
     env = BatchedAquarium(cfg, num_worlds=4, device=device, seed=7)
     worlds = [
-        _world_from_agents(cfg, [dict(pos=(100.0, 100.0)), dict(pos=(300.0, 100.0)), None],
-                           [dict(pos=(600.0, 600.0)), dict(pos=(600.0, 300.0))], world_step=49),
-        _world_from_agents(cfg, [dict(pos=(100.0, 100.0)), dict(pos=(300.0, 100.0)), dict(pos=(500.0, 100.0))],
-                           [dict(pos=(600.0, 600.0), starve=5), None], world_step=20),
-        _world_from_agents(cfg, [None, dict(pos=(300.0, 300.0), vel=(0.0, -4.0), acc=(0.0, -1.0)), None],
-                           [dict(pos=(300.0, 330.0), vel=(0.0, -5.0), acc=(0.0, -0.6)), dict(pos=(700.0, 700.0))],
-                           world_step=30),
-        _world_from_agents(cfg, [dict(pos=(100.0, 100.0)), None, None],
-                           [dict(pos=(600.0, 600.0), starve=4), dict(pos=(600.0, 100.0), starve=5)], world_step=48),
+        _world_from_agents(
+            cfg,
+            [dict(pos=(100.0, 100.0)), dict(pos=(300.0, 100.0)), None],
+            [dict(pos=(600.0, 600.0)), dict(pos=(600.0, 300.0))],
+            world_step=49,
+        ),
+        _world_from_agents(
+            cfg,
+            [dict(pos=(100.0, 100.0)), dict(pos=(300.0, 100.0)), dict(pos=(500.0, 100.0))],
+            [dict(pos=(600.0, 600.0), starve=5), None],
+            world_step=20,
+        ),
+        _world_from_agents(
+            cfg,
+            [None, dict(pos=(300.0, 300.0), vel=(0.0, -4.0), acc=(0.0, -1.0)), None],
+            [dict(pos=(300.0, 330.0), vel=(0.0, -5.0), acc=(0.0, -0.6)), dict(pos=(700.0, 700.0))],
+            world_step=30,
+        ),
+        _world_from_agents(
+            cfg,
+            [dict(pos=(100.0, 100.0)), None, None],
+            [dict(pos=(600.0, 600.0), starve=4), dict(pos=(600.0, 100.0), starve=5)],
+            world_step=48,
+        ),
     ]
     set_worlds(env, worlds)
     errors = []
@@ -811,8 +904,11 @@ def test_quarter_turn_actions_are_exact(device):
     env = BatchedAquarium(cfg, num_worlds=1, device=device, seed=0)
     world = _world_from_agents(
         cfg,
-        [dict(pos=(100.0, 100.0), vel=(-1.0, 0.0)), dict(pos=(300.0, 300.0), vel=(0.0, -1.0)),
-         dict(pos=(500.0, 100.0), vel=(4.0, 0.0))],
+        [
+            dict(pos=(100.0, 100.0), vel=(-1.0, 0.0)),
+            dict(pos=(300.0, 300.0), vel=(0.0, -1.0)),
+            dict(pos=(500.0, 100.0), vel=(4.0, 0.0)),
+        ],
         [dict(pos=(600.0, 600.0), vel=(0.0, 5.0))],
     )
     set_worlds(env, [world])
@@ -841,16 +937,24 @@ def test_exact_capture_and_share_boundaries_after_the_move(device):
     world = _world_from_agents(
         cfg,
         [dict(pos=tuple(P + (0.0, 24.0)), **cruise), dict(pos=tuple(P + (30.0, -36.0)), **cruise)],
-        [dict(pos=tuple(P), heading=(0.0, 1.0)), dict(pos=tuple(P), heading=(0.0, 1.0)),
-         dict(pos=tuple(P + (60.0, 100.0))), dict(pos=tuple(P + (60.0, 100.0)))],
+        [
+            dict(pos=tuple(P), heading=(0.0, 1.0)),
+            dict(pos=tuple(P), heading=(0.0, 1.0)),
+            dict(pos=tuple(P + (60.0, 100.0))),
+            dict(pos=tuple(P + (60.0, 100.0))),
+        ],
     )
     set_worlds(env, [world])
     errors = []
     check_step("exact_boundaries", cfg, env, [world], np.zeros((1, cfg.capacity), np.int64), errors)
     fail_if(errors, "exact capture / share boundaries")
     r_new, r_rew, r_term, r_trunc, r_cap, r_info = ref.step(
-        cfg, world, np.zeros(cfg.capacity, np.int64), 0, respawn_position={0: (0.0, 0.0)},
-        respawn_replication_age={0: 200}
+        cfg,
+        world,
+        np.zeros(cfg.capacity, np.int64),
+        0,
+        respawn_position={0: (0.0, 0.0)},
+        respawn_replication_age={0: 200},
     )
     assert r_info["capturers"] == {0: [2, 3]} and r_info["sharers"] == {0: [2, 3]}
     assert r_rew.tolist() == [-999.0, 1.0, 5.0, 5.0, 0.0, 0.0]
@@ -860,14 +964,16 @@ def test_fov_boundary_is_inclusive_at_exactly_90_degrees(device):
     """fov_angle 180: a target exactly perpendicular to the heading (dot product exactly 0) is on the cone's
     boundary and visible (docs/model.md: the angle limit includes its boundary). A test with cos(radians(90)) =
     6e-17 > 0 would reject it. fov_angle 360: a target exactly behind is visible."""
-    cfg = make_config(
-        prey_count=4, predator_count=2, prey=dict(fov_angle=180.0), predator=dict(fov_angle=360.0)
-    )
+    cfg = make_config(prey_count=4, predator_count=2, prey=dict(fov_angle=180.0), predator=dict(fov_angle=360.0))
     env = BatchedAquarium(cfg, num_worlds=1, device=device, seed=0)
     world = _world_from_agents(
         cfg,
-        [dict(pos=(400.0, 400.0), heading=(1.0, 0.0)), dict(pos=(400.0, 350.0)), dict(pos=(400.0, 470.0)),
-         dict(pos=(399.5, 450.0))],
+        [
+            dict(pos=(400.0, 400.0), heading=(1.0, 0.0)),
+            dict(pos=(400.0, 350.0)),
+            dict(pos=(400.0, 470.0)),
+            dict(pos=(399.5, 450.0)),
+        ],
         [dict(pos=(600.0, 600.0), heading=(1.0, 0.0)), dict(pos=(500.0, 600.0))],
     )
     set_worlds(env, [world])
@@ -889,8 +995,13 @@ def test_reproduction_cap_counts_prey_after_captures(device):
     World 1: 3 prey alive and due, slots 3-5 free: children for parents 0 and 1 (slots 3, 4), then 3 + 2 = 5
     reaches the cap and parent 2 keeps its age."""
     cfg = make_config(
-        prey_count=6, predator_count=1, prey_reproduction=True, max_prey=5, prey_replication_age=4,
-        respawn_captured_prey=False, catch_share_radius=10.0,
+        prey_count=6,
+        predator_count=1,
+        prey_reproduction=True,
+        max_prey=5,
+        prey_replication_age=4,
+        respawn_captured_prey=False,
+        catch_share_radius=10.0,
     )
     assert cfg.prey_capacity == 6
     env = BatchedAquarium(cfg, num_worlds=2, device=device, seed=0)
@@ -898,15 +1009,26 @@ def test_reproduction_cap_counts_prey_after_captures(device):
     worlds = [
         _world_from_agents(
             cfg,
-            [dict(pos=(100.0, 100.0), age=0, rep=5), dict(pos=(300.0, 100.0), **due),
-             dict(pos=(500.0, 100.0), age=0, rep=5),
-             dict(pos=(100.0, 400.0), age=1, rep=5), dict(pos=(300.0, 400.0), age=2, rep=5), None],
+            [
+                dict(pos=(100.0, 100.0), age=0, rep=5),
+                dict(pos=(300.0, 100.0), **due),
+                dict(pos=(500.0, 100.0), age=0, rep=5),
+                dict(pos=(100.0, 400.0), age=1, rep=5),
+                dict(pos=(300.0, 400.0), age=2, rep=5),
+                None,
+            ],
             [dict(pos=(100.0, 120.0))],
         ),
         _world_from_agents(
             cfg,
-            [dict(pos=(100.0, 100.0), **due), dict(pos=(300.0, 100.0), **due), dict(pos=(500.0, 100.0), **due),
-             None, None, None],
+            [
+                dict(pos=(100.0, 100.0), **due),
+                dict(pos=(300.0, 100.0), **due),
+                dict(pos=(500.0, 100.0), **due),
+                None,
+                None,
+                None,
+            ],
             [dict(pos=(700.0, 700.0))],
         ),
     ]
@@ -914,9 +1036,11 @@ def test_reproduction_cap_counts_prey_after_captures(device):
     errors = []
     after = check_step("reproduction_cap", cfg, env, worlds, np.zeros((2, cfg.capacity), np.int64), errors)
     fail_if(errors, "reproduction cap")
-    r0 = ref.step(cfg, worlds[0], np.zeros(cfg.capacity, np.int64), 0,
-                  newborn_replication_age=after[0]["replication_age"])
+    r0 = ref.step(
+        cfg, worlds[0], np.zeros(cfg.capacity, np.int64), 0, newborn_replication_age=after[0]["replication_age"]
+    )
     assert r0[5]["births"] == [(1, 5)] and r0[5]["sharers"] == {0: [6]} and r0[1][6] == 10.0
-    r1 = ref.step(cfg, worlds[1], np.zeros(cfg.capacity, np.int64), 0,
-                  newborn_replication_age=after[1]["replication_age"])
+    r1 = ref.step(
+        cfg, worlds[1], np.zeros(cfg.capacity, np.int64), 0, newborn_replication_age=after[1]["replication_age"]
+    )
     assert r1[5]["births"] == [(0, 3), (1, 4)] and r1[0]["age"][:3].tolist() == [0, 0, 4]

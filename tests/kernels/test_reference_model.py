@@ -149,8 +149,17 @@ def test_desired_velocity_clockwise_from_up(action, expected):
     np.testing.assert_allclose(ref.desired_velocity(action, 16, 4.0), expected, atol=1e-12)
 
 
-@pytest.mark.parametrize("action, n, expected", [(0, 16, (0.0, -4.0)), (4, 16, (4.0, 0.0)), (8, 16, (0.0, 4.0)),
-                                                 (12, 16, (-4.0, 0.0)), (3, 12, (4.0, 0.0)), (1, 4, (4.0, 0.0))])
+@pytest.mark.parametrize(
+    "action, n, expected",
+    [
+        (0, 16, (0.0, -4.0)),
+        (4, 16, (4.0, 0.0)),
+        (8, 16, (0.0, 4.0)),
+        (12, 16, (-4.0, 0.0)),
+        (3, 12, (4.0, 0.0)),
+        (1, 4, (4.0, 0.0)),
+    ],
+)
 def test_quarter_turns_are_exact(action, n, expected):
     assert tuple(ref.desired_velocity(action, n, 4.0)) == expected
 
@@ -204,8 +213,9 @@ def test_acceleration_turn_rate_is_asin_of_force_over_k(kind):
 def test_exact_reversal_stalls_and_speed_is_clamped():
     """Prey at full speed east commanded west: A + F/m = (0.8, 0) -> A' = (1, 0), V' = (5, 0) clamped to (4, 0)."""
     cfg = make_cfg(prey_count=1, predator_count=1)
-    st = make_world(cfg, prey=[agent((100.0, 100.0), vel=(4.0, 0.0), acc=(1.0, 0.0))],
-                    predators=[agent((500.0, 500.0))])
+    st = make_world(
+        cfg, prey=[agent((100.0, 100.0), vel=(4.0, 0.0), acc=(1.0, 0.0))], predators=[agent((500.0, 500.0))]
+    )
     actions = zeros_actions(cfg)
     actions[0] = 12
     new = ref.motion(cfg, st, actions)
@@ -217,8 +227,9 @@ def test_exact_reversal_stalls_and_speed_is_clamped():
 
 def test_speed_clamp_keeps_direction():
     cfg = make_cfg(prey_count=1, predator_count=1)
-    st = make_world(cfg, prey=[agent((100.0, 100.0), vel=(3.0, 3.0), acc=(0.0, 1.0))],
-                    predators=[agent((500.0, 500.0))])
+    st = make_world(
+        cfg, prey=[agent((100.0, 100.0), vel=(3.0, 3.0), acc=(0.0, 1.0))], predators=[agent((500.0, 500.0))]
+    )
     actions = zeros_actions(cfg)
     actions[0] = 4  # east
     new = ref.motion(cfg, st, actions)
@@ -265,8 +276,9 @@ def test_wrap_across_the_seam():
     cfg = make_cfg(prey_count=1, predator_count=1)
     d = ref.desired_velocity(2, 16, 4.0)  # north-east at full speed
     st = make_world(
-        cfg, prey=[agent((798.5, 0.5), vel=tuple(d), acc=tuple(d / 4.0))],
-        predators=[agent((0.0, 799.5), vel=(-1.0, 1.0))]
+        cfg,
+        prey=[agent((798.5, 0.5), vel=tuple(d), acc=tuple(d / 4.0))],
+        predators=[agent((0.0, 799.5), vel=(-1.0, 1.0))],
     )
     actions = zeros_actions(cfg)
     actions[0] = 2
@@ -417,8 +429,9 @@ def test_two_capturers_and_two_captures_add_up():
 
 def test_last_prey_removed_ends_the_episode():
     cfg = make_cfg(prey_count=1, predator_count=2, respawn_captured_prey=False)
-    st = make_world(cfg, prey=[cruise_prey((100.0, 400.0))],
-                    predators=[cruise_pred((100.0, 430.0)), cruise_pred((600.0, 100.0))])
+    st = make_world(
+        cfg, prey=[cruise_prey((100.0, 400.0))], predators=[cruise_pred((100.0, 430.0)), cruise_pred((600.0, 100.0))]
+    )
     new, rewards, term, trunc, captured, info = ref.step(cfg, st, zeros_actions(cfg), 5)
     assert info["episode_over"]
     assert term.tolist() == [True, False, False] and trunc.tolist() == [False, True, True]
@@ -455,8 +468,11 @@ def test_starvation_exactly_at_the_limit(counters, captures, alive_after, starva
 
 def test_starvation_of_the_last_predator_truncates_the_others():
     cfg = make_cfg(prey_count=2, predator_count=1, predator_starvation_steps=3)
-    st = make_world(cfg, prey=[cruise_prey((100.0, 100.0)), cruise_prey((300.0, 100.0))],
-                    predators=[cruise_pred((500.0, 500.0), starve=3)])
+    st = make_world(
+        cfg,
+        prey=[cruise_prey((100.0, 100.0)), cruise_prey((300.0, 100.0))],
+        predators=[cruise_pred((500.0, 500.0), starve=3)],
+    )
     new, rewards, term, trunc, captured, info = ref.step(cfg, st, zeros_actions(cfg), 0)
     assert term.tolist() == [False, False, True]
     assert trunc.tolist() == [True, True, False]
@@ -474,8 +490,14 @@ def test_truncation_at_max_steps(world_step, over):
 
 
 def _repro_cfg(prey_count, max_prey, **kw):
-    return make_cfg(prey_count=prey_count, predator_count=1, prey_reproduction=True, max_prey=max_prey,
-                    prey_replication_age=10, **kw)
+    return make_cfg(
+        prey_count=prey_count,
+        predator_count=1,
+        prey_reproduction=True,
+        max_prey=max_prey,
+        prey_replication_age=10,
+        **kw,
+    )
 
 
 @pytest.mark.parametrize(
@@ -498,8 +520,9 @@ def test_reproduction_up_to_the_cap(prey, max_prey, births, ages_after):
     agents = [None if p is None else cruise_prey((x, 300.0), age=p[0], rep=p[1]) for x, p in zip(xs, prey)]
     st = make_world(cfg, prey=agents, predators=[cruise_pred((700.0, 700.0))])
     newborn = {s: 150 + s for s in range(cfg.prey_capacity)}
-    new, rewards, term, trunc, captured, info = ref.step(cfg, st, zeros_actions(cfg), 0,
-                                                         newborn_replication_age=newborn)
+    new, rewards, term, trunc, captured, info = ref.step(
+        cfg, st, zeros_actions(cfg), 0, newborn_replication_age=newborn
+    )
     assert info["births"] == births
     assert new["age"][: cfg.prey_capacity].tolist() == ages_after
     for parent, child in births:
@@ -629,17 +652,46 @@ def test_observation_values_slot_order_and_ties():
     assert mask["predator"][0].tolist() == [True] * 5
     half_diag = math.sqrt(400.0**2 + 400.0**2)
     expected = [
-        0.0, 0.5, 0.5, 0.75, 0.5,  # own: predator, heading north (-atan2(-1, 0) = 90 deg -> 0.75), speed 2.5/5
+        0.0,
+        0.5,
+        0.5,
+        0.75,
+        0.5,  # own: predator, heading north (-atan2(-1, 0) = 90 deg -> 0.75), speed 2.5/5
         # predator slot 6: dx = 0 - 400 = -400 = -L/2 stays -400: west, bearing (-180 + 180) / 360 = 0
-        0.0, 0.0, 0.5, 400.0 / half_diag, 0.0, 1.0,
+        0.0,
+        0.0,
+        0.5,
+        400.0 / half_diag,
+        0.0,
+        1.0,
         # predator slot 7: displacement (300, 300): -atan2(300, 300) = -45 deg -> 135 / 360
-        0.0, 700 / 800, 700 / 800, math.sqrt(2) * 300 / half_diag, 135.0 / 360.0, 0.0,
+        0.0,
+        700 / 800,
+        700 / 800,
+        math.sqrt(2) * 300 / half_diag,
+        135.0 / 360.0,
+        0.0,
         # prey slot 1 (north): 90 deg -> 0.75, speed 3/4
-        1.0, 0.5, 390 / 800, 10 / half_diag, 0.75, 0.75,
+        1.0,
+        0.5,
+        390 / 800,
+        10 / half_diag,
+        0.75,
+        0.75,
         # prey slot 3 (west): -atan2(0, -10) = -180 deg -> 0
-        1.0, 390 / 800, 0.5, 10 / half_diag, 0.0, 1.0,
+        1.0,
+        390 / 800,
+        0.5,
+        10 / half_diag,
+        0.0,
+        1.0,
         # prey slot 0 (south): -atan2(30, 0) = -90 -> 0.25, speed 2/4
-        1.0, 0.5, 430 / 800, 30 / half_diag, 0.25, 0.5,
+        1.0,
+        0.5,
+        430 / 800,
+        30 / half_diag,
+        0.25,
+        0.5,
     ]
     np.testing.assert_allclose(o, expected, atol=1e-15)
 
@@ -690,8 +742,9 @@ def test_more_visible_than_slots_keeps_the_nearest():
     cfg = make_cfg(prey_count=6, predator_count=1, fov_enabled=False)
     # distances 50, 20, 20, 45, 5 from slot 0 -> nearest three: 5 (slot 5), 20 (slot 2), 20 (slot 3)
     offsets = [(0.0, 50.0), (0.0, 20.0), (20.0, 0.0), (27.0, 36.0), (3.0, 4.0)]
-    prey = [agent((780.0, 790.0))] + [agent(tuple(ref.wrap(make_cfg(), (780.0 + dx, 790.0 + dy))))
-                                      for dx, dy in offsets]
+    prey = [agent((780.0, 790.0))] + [
+        agent(tuple(ref.wrap(make_cfg(), (780.0 + dx, 790.0 + dy)))) for dx, dy in offsets
+    ]
     st = make_world(cfg, prey=prey, predators=[agent((780.0, 100.0))])
     obs, mask, slots = ref.observe(cfg, st, with_slots=True)
     assert slots["prey"][0].tolist() == [-1, 5, 2, 3]
@@ -699,8 +752,9 @@ def test_more_visible_than_slots_keeps_the_nearest():
 
 
 def test_infinite_view_distance_uses_the_half_diagonal():
-    cfg = make_cfg(width=300.0, height=400.0, prey_count=1, predator_count=1, fov_enabled=False,
-                   prey=dict(view_distance=math.inf))
+    cfg = make_cfg(
+        width=300.0, height=400.0, prey_count=1, predator_count=1, fov_enabled=False, prey=dict(view_distance=math.inf)
+    )
     st = make_world(cfg, prey=[agent((0.0, 0.0))], predators=[agent((150.0, 200.0))])
     obs, mask = ref.observe(cfg, st)
     assert mask["prey"][0].tolist() == [True, False, False, False]

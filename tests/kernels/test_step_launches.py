@@ -17,16 +17,24 @@ import aquarium_warp.shard as shard_module
 from aquarium_warp import AquariumConfig, BatchedAquarium
 from aquarium_warp.bench import command_name, density_config
 
-STAGED = ["integrate_motion", "detect_captures", "count_capture_sharers", "share_capture_rewards",
-          "respawn_captured_prey", "finish_world_step", "close_ended_episodes"]
+STAGED = [
+    "integrate_motion",
+    "detect_captures",
+    "count_capture_sharers",
+    "share_capture_rewards",
+    "respawn_captured_prey",
+    "finish_world_step",
+    "close_ended_episodes",
+]
 COUNT_BUILD = ["compute_cell_keys", "array_scan", "drop_into_cells", "order_cells"]
 
 
 @pytest.fixture
 def count_build(monkeypatch):
     """Worlds of several cells take the count build on any device."""
-    monkeypatch.setattr(shard_module, "grid_build",
-                        lambda cfg, dims, cuda: "whole-world" if tuple(dims) == (1, 1) else "count")
+    monkeypatch.setattr(
+        shard_module, "grid_build", lambda cfg, dims, cuda: "whole-world" if tuple(dims) == (1, 1) else "count"
+    )
 
 
 def step_names(env: BatchedAquarium) -> list[str]:
@@ -43,8 +51,9 @@ def test_large_world_step_launches(count_build):
     assert names[:-1] == STAGED + COUNT_BUILD, names
     assert "observation" in names[-1], names
     assert len(names) == 12 and "zero_" not in names and "collect_rewards" not in names
-    repro = BatchedAquarium(dataclasses.replace(cfg, prey_reproduction=True, max_prey=cfg.prey_count + 50),
-                            num_worlds=1, device="cpu")
+    repro = BatchedAquarium(
+        dataclasses.replace(cfg, prey_reproduction=True, max_prey=cfg.prey_count + 50), num_worlds=1, device="cpu"
+    )
     assert step_names(repro)[:-1] == STAGED[:5] + ["reproduce_prey"] + STAGED[5:] + COUNT_BUILD
     # The observe and reset programs build the lists the same way.
     assert [command_name(c) for c in env.shards[0].programs["observe"]][:-1] == COUNT_BUILD
@@ -60,15 +69,25 @@ def test_cpu_step_launches():
 
 # Worlds with more cells than slots (the zeroing threads stride over the cells), reproduction and
 # removal (dead slots, newborns), episodes that end.
-CELLS = AquariumConfig(width=900.0, height=800.0, prey_count=30, predator_count=6, prey_reproduction=True,
-                       prey_replication_age=6, max_prey=60, respawn_captured_prey=False, max_steps=40,
-                       grid_cell_size=50.0)
+CELLS = AquariumConfig(
+    width=900.0,
+    height=800.0,
+    prey_count=30,
+    predator_count=6,
+    prey_reproduction=True,
+    prey_replication_age=6,
+    max_prey=60,
+    respawn_captured_prey=False,
+    max_steps=40,
+    grid_cell_size=50.0,
+)
 
 
 def test_count_build_leaves_counts_zero_and_matches_the_cpu_build(monkeypatch):
     envs = {"counting": BatchedAquarium(CELLS, num_worlds=3, device="cpu", seed=4)}
-    monkeypatch.setattr(shard_module, "grid_build",
-                        lambda cfg, dims, cuda: "whole-world" if tuple(dims) == (1, 1) else "count")
+    monkeypatch.setattr(
+        shard_module, "grid_build", lambda cfg, dims, cuda: "whole-world" if tuple(dims) == (1, 1) else "count"
+    )
     envs["count"] = BatchedAquarium(CELLS, num_worlds=3, device="cpu", seed=4)
     grid = envs["count"].shards[0].grid
     cells = grid.cell_count.shape[0]
@@ -88,8 +107,10 @@ def test_count_build_leaves_counts_zero_and_matches_the_cpu_build(monkeypatch):
     gen = torch.Generator().manual_seed(2)
     n = CELLS.action_count
     for step in range(1, 121):
-        actions = {"prey": torch.randint(0, n, (3, CELLS.prey_capacity), generator=gen, dtype=torch.int32),
-                   "predator": torch.randint(0, n, (3, CELLS.predator_count), generator=gen, dtype=torch.int32)}
+        actions = {
+            "prey": torch.randint(0, n, (3, CELLS.prey_capacity), generator=gen, dtype=torch.int32),
+            "predator": torch.randint(0, n, (3, CELLS.predator_count), generator=gen, dtype=torch.int32),
+        }
         for env in envs.values():
             env.step(actions)
         assert counts_zero(), f"cell counts left after step {step}"

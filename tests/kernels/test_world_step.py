@@ -21,40 +21,81 @@ from aquarium_warp.config import FlowConfig
 
 BASE = AquariumConfig()
 SMALL = AquariumConfig(width=260.0, height=240.0, prey_count=12, predator_count=4)
-GRID_FLOW = FlowConfig("grid", grid=(((1.0, 0.5), (-0.5, 1.0), (0.0, -1.0)), ((2.0, 0.0), (0.5, 0.5), (-1.0, -1.0))),
-                       amplitude=0.3, period=17.0)
+GRID_FLOW = FlowConfig(
+    "grid",
+    grid=(((1.0, 0.5), (-0.5, 1.0), (0.0, -1.0)), ((2.0, 0.0), (0.5, 0.5), (-1.0, -1.0))),
+    amplitude=0.3,
+    period=17.0,
+)
 # name -> (config, worlds, steps, env keywords)
 CASES = {
     "default": (BASE, 8, 300, {}),
     "captures often": (SMALL, 8, 300, {}),
     "starvation": (dataclasses.replace(SMALL, predator_starvation_steps=15, width=600.0, height=600.0), 6, 200, {}),
-    "reproduction": (dataclasses.replace(SMALL, prey_count=6, prey_reproduction=True, prey_replication_age=12,
-                                         max_prey=14, predator_count=2), 6, 300, {}),
+    "reproduction": (
+        dataclasses.replace(
+            SMALL, prey_count=6, prey_reproduction=True, prey_replication_age=12, max_prey=14, predator_count=2
+        ),
+        6,
+        300,
+        {},
+    ),
     "respawn off": (dataclasses.replace(SMALL, respawn_captured_prey=False), 6, 300, {}),
     "episode ends": (dataclasses.replace(SMALL, max_steps=23), 6, 200, {}),
     "no auto-reset": (dataclasses.replace(SMALL, max_steps=23), 4, 60, {"auto_reset": False}),
-    "per-world values": (dataclasses.replace(
-        SMALL, prey_count=(12, 5, 9), prey_reproduction=True, max_prey=12, prey_replication_age=30,
-        prey_reward=(1.0, 0.25, 2.0), catch_share_radius=(100.0, 0.0, 150.0), predator_reward=(10.0, 4.0, 10.0),
-        predator_starvation_steps=(3000, 40, 100),
-        prey=dataclasses.replace(SMALL.prey, max_speed=(4.0, 2.5, 6.0), fov_angle=(120.0, 360.0, 80.0),
-                                 view_distance=(100.0, math.inf, 60.0), radius=(20.0, 12.0, 25.0)),
-        predator=dataclasses.replace(SMALL.predator, max_acceleration=(0.6, 1.2, 0.3), mass=(10.0, 4.0, 10.0)),
-        flow=(FlowConfig(), FlowConfig("vortex", centre=(150.0, 5.0), strength=2.0, core_radius=50.0),
-              FlowConfig("uniform", velocity=(-1.5, 0.5), amplitude=0.5, period=9.0))), 3, 300, {}),
-    "grid flow, observed, signed, other slots": (dataclasses.replace(
-        SMALL, flow=GRID_FLOW, observe_flow=True, observation_range="-1..1", fov_enabled=False,
-        prey=dataclasses.replace(SMALL.prey, predator_slots=2, prey_slots=5),
-        predator=dataclasses.replace(SMALL.predator, predator_slots=0, prey_slots=2)), 6, 300, {}),
+    "per-world values": (
+        dataclasses.replace(
+            SMALL,
+            prey_count=(12, 5, 9),
+            prey_reproduction=True,
+            max_prey=12,
+            prey_replication_age=30,
+            prey_reward=(1.0, 0.25, 2.0),
+            catch_share_radius=(100.0, 0.0, 150.0),
+            predator_reward=(10.0, 4.0, 10.0),
+            predator_starvation_steps=(3000, 40, 100),
+            prey=dataclasses.replace(
+                SMALL.prey,
+                max_speed=(4.0, 2.5, 6.0),
+                fov_angle=(120.0, 360.0, 80.0),
+                view_distance=(100.0, math.inf, 60.0),
+                radius=(20.0, 12.0, 25.0),
+            ),
+            predator=dataclasses.replace(SMALL.predator, max_acceleration=(0.6, 1.2, 0.3), mass=(10.0, 4.0, 10.0)),
+            flow=(
+                FlowConfig(),
+                FlowConfig("vortex", centre=(150.0, 5.0), strength=2.0, core_radius=50.0),
+                FlowConfig("uniform", velocity=(-1.5, 0.5), amplitude=0.5, period=9.0),
+            ),
+        ),
+        3,
+        300,
+        {},
+    ),
+    "grid flow, observed, signed, other slots": (
+        dataclasses.replace(
+            SMALL,
+            flow=GRID_FLOW,
+            observe_flow=True,
+            observation_range="-1..1",
+            fov_enabled=False,
+            prey=dataclasses.replace(SMALL.prey, predator_slots=2, prey_slots=5),
+            predator=dataclasses.replace(SMALL.predator, predator_slots=0, prey_slots=2),
+        ),
+        6,
+        300,
+        {},
+    ),
     "shards": (BASE, 70, 100, {"cpu_threads": 2}),
 }
 
 
 def random_actions(gen: torch.Generator, env: BatchedAquarium, device) -> dict:
     worlds, n = env.num_worlds, env.config.action_count
-    return {"prey": torch.randint(0, n, (worlds, env.prey_capacity), generator=gen, dtype=torch.int32).to(device),
-            "predator": torch.randint(0, n, (worlds, env.predator_capacity), generator=gen,
-                                      dtype=torch.int32).to(device)}
+    return {
+        "prey": torch.randint(0, n, (worlds, env.prey_capacity), generator=gen, dtype=torch.int32).to(device),
+        "predator": torch.randint(0, n, (worlds, env.predator_capacity), generator=gen, dtype=torch.int32).to(device),
+    }
 
 
 def assert_same_state(fused: BatchedAquarium, staged: BatchedAquarium, step: int, exact: bool) -> None:
@@ -68,8 +109,10 @@ def assert_same_state(fused: BatchedAquarium, staged: BatchedAquarium, step: int
 
 def run_both(cfg: AquariumConfig, worlds: int, steps: int, device: str, **kw) -> None:
     exact = device == "cpu"
-    envs = {k: BatchedAquarium(cfg, num_worlds=worlds, device=device, seed=11, step_kernel=k, **kw)
-            for k in ("fused", "stages")}
+    envs = {
+        k: BatchedAquarium(cfg, num_worlds=worlds, device=device, seed=11, step_kernel=k, **kw)
+        for k in ("fused", "stages")
+    }
     assert envs["fused"].step_kernel == "fused" and envs["stages"].step_kernel == "stages"
     assert_same_state(envs["fused"], envs["stages"], 0, exact)
     gen = torch.Generator().manual_seed(5)
@@ -93,6 +136,7 @@ def test_fused_step_equals_staged_step(case, device):
 def test_cases_exercise_what_they_name():
     """The cases reach what they are named for (captures, deaths, births, ends), so the comparison
     above covers those paths."""
+
     def totals(cfg, worlds, steps, **kw):
         env = BatchedAquarium(cfg, num_worlds=worlds, device="cpu", seed=11, step_kernel="fused", **kw)
         gen = torch.Generator().manual_seed(5)
@@ -113,8 +157,9 @@ def test_cases_exercise_what_they_name():
     assert totals(*CASES["episode ends"][:3])["ended"] > 0
 
 
-FIBER_CFG = dataclasses.replace(SMALL, prey_count=8, prey_reproduction=True, prey_replication_age=12, max_prey=14,
-                                max_steps=60)  # 18 slots
+FIBER_CFG = dataclasses.replace(
+    SMALL, prey_count=8, prey_reproduction=True, prey_replication_age=12, max_prey=14, max_steps=60
+)  # 18 slots
 
 
 # name -> (lanes per block, config, worlds): blocks of fewer lanes than slots (lanes stride over one
@@ -125,9 +170,15 @@ FIBER_BLOCKS = {
     "one world": (32, FIBER_CFG, 4),
     "3 packed, partial last block": (64, FIBER_CFG, 5),
     "7 packed, worlds past the batch": (128, BASE, 4),
-    "packed, other slots": (64, dataclasses.replace(
-        FIBER_CFG, prey=dataclasses.replace(SMALL.prey, predator_slots=2, prey_slots=5),
-        predator=dataclasses.replace(SMALL.predator, predator_slots=0, prey_slots=2)), 5),
+    "packed, other slots": (
+        64,
+        dataclasses.replace(
+            FIBER_CFG,
+            prey=dataclasses.replace(SMALL.prey, predator_slots=2, prey_slots=5),
+            predator=dataclasses.replace(SMALL.predator, predator_slots=0, prey_slots=2),
+        ),
+        5,
+    ),
 }
 
 
@@ -152,11 +203,14 @@ def test_auto_takes_the_fused_step_where_it_applies(device):
         env.close()
 
 
-@pytest.mark.parametrize(("cuda", "slots", "expected"), [
-    (False, 10**7, True),  # the CPU: always, one world per task in cache
-    (True, shard_module.AUTO_FUSED_GPU_MAX_SLOTS, True),
-    (True, shard_module.AUTO_FUSED_GPU_MAX_SLOTS + 1, False),  # large GPU batches: the staged kernels are faster
-])
+@pytest.mark.parametrize(
+    ("cuda", "slots", "expected"),
+    [
+        (False, 10**7, True),  # the CPU: always, one world per task in cache
+        (True, shard_module.AUTO_FUSED_GPU_MAX_SLOTS, True),
+        (True, shard_module.AUTO_FUSED_GPU_MAX_SLOTS + 1, False),  # large GPU batches: the staged kernels are faster
+    ],
+)
 def test_auto_on_a_gpu_takes_the_fused_step_for_small_batches_only(cuda, slots, expected):
     assert shard_module.fused_step("auto", (1, 1), cuda, slots) is expected
     assert shard_module.fused_step("fused", (1, 1), cuda, slots) is True
@@ -172,8 +226,10 @@ def test_bad_step_kernel_names_the_option(value):
 
 def test_fused_on_worlds_of_several_cells_says_why():
     with pytest.raises(ValueError, match=r"step_kernel='fused' needs worlds of one cell.*cells"):
-        BatchedAquarium(AquariumConfig(prey_count=60, predator_count=4), num_worlds=1, device="cpu",
-                        step_kernel="fused")
+        BatchedAquarium(
+            AquariumConfig(prey_count=60, predator_count=4), num_worlds=1, device="cpu", step_kernel="fused"
+        )
     with pytest.raises(ValueError, match=r"step_kernel='fused' needs worlds of one cell"):
-        BatchedAquarium(dataclasses.replace(BASE, grid_cell_size=200.0), num_worlds=1, device="cpu",
-                        step_kernel="fused")
+        BatchedAquarium(
+            dataclasses.replace(BASE, grid_cell_size=200.0), num_worlds=1, device="cpu", step_kernel="fused"
+        )

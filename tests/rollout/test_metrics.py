@@ -60,10 +60,21 @@ def reference(pos, head, alive, Pc, size, link, bins, bin_width):
     out = {"prey_alive": n, "predator_alive": len(preds), "nan": float("nan")}
     hist = np.zeros(bins, np.int64)
     if n == 0:
-        out.update(polarization=math.nan, cohesion=math.nan, centroid_x=math.nan, centroid_y=math.nan,
-                   nn_mean=math.nan, groups=0, largest_group=math.nan, predator_distance=math.nan,
-                   local_alignment=math.nan, milling=math.nan,
-                   labels=np.full(Pc, -1), hist=hist, nn=np.full(Pc, -1.0))
+        out.update(
+            polarization=math.nan,
+            cohesion=math.nan,
+            centroid_x=math.nan,
+            centroid_y=math.nan,
+            nn_mean=math.nan,
+            groups=0,
+            largest_group=math.nan,
+            predator_distance=math.nan,
+            local_alignment=math.nan,
+            milling=math.nan,
+            labels=np.full(Pc, -1),
+            hist=hist,
+            nn=np.full(Pc, -1.0),
+        )
         return out
     p = pos[prey]
     out["polarization"] = np.linalg.norm(head[prey].mean(axis=0))
@@ -82,8 +93,9 @@ def reference(pos, head, alive, Pc, size, link, bins, bin_width):
     d = np.linalg.norm(torus(p[:, None, :] - p[None, :, :], size), axis=-1)  # [n, n]
     np.fill_diagonal(d, np.inf)
     linked = d < link
-    alignments = [np.linalg.norm(h[a] + h[linked[a]].sum(axis=0)) / (1 + linked[a].sum())
-                  for a in range(n) if linked[a].any()]
+    alignments = [
+        np.linalg.norm(h[a] + h[linked[a]].sum(axis=0)) / (1 + linked[a].sum()) for a in range(n) if linked[a].any()
+    ]
     out["local_alignment"] = float(np.mean(alignments)) if alignments else math.nan
     nn = np.full(Pc, -1.0)
     if n > 1:
@@ -128,8 +140,16 @@ def check_world(metrics: SwarmMetrics, w: int, rtol=2e-5, atol=2e-3):
     t = env.state.torch
     values = metrics.compute()
     size = np.array([env.config.width, env.config.height])
-    ref = reference(t.position[w].cpu().numpy(), t.heading[w].cpu().numpy(), t.alive[w].cpu().numpy(),
-                    env.prey_capacity, size, metrics.linking_distance, metrics.nn_bins, metrics.bin_width)
+    ref = reference(
+        t.position[w].cpu().numpy(),
+        t.heading[w].cpu().numpy(),
+        t.alive[w].cpu().numpy(),
+        env.prey_capacity,
+        size,
+        metrics.linking_distance,
+        metrics.nn_bins,
+        metrics.bin_width,
+    )
     for name in SCALAR_METRICS:
         if name == "captures":
             continue
@@ -183,8 +203,9 @@ def test_two_clusters_across_the_seam(device):
     assert float(values["centroid_y"][0]) == pytest.approx(300.0, abs=1e-3)
     assert float(values["cohesion"][0]) == pytest.approx(50.0, abs=1e-3)
     assert float(values["nn_mean"][0]) == pytest.approx(5.0, abs=1e-4)
-    assert float(values["predator_distance"][0]) == pytest.approx(np.mean(
-        [math.hypot(torus(x - 50.0, 800.0), 400.0) for x in xs]), rel=1e-5)
+    assert float(values["predator_distance"][0]) == pytest.approx(
+        np.mean([math.hypot(torus(x - 50.0, 800.0), 400.0) for x in xs]), rel=1e-5
+    )
     assert metrics.group_label[0].tolist() == [0, 0, 0, 0, 4, 4, 4, 4]
     # The same two clusters straddling the horizontal seam (y = 0) and the corner.
     set_prey(env, [[y, x] for x, y in pos], unit([0.0] * 8))
@@ -259,8 +280,10 @@ def random_state(env, rng, clustered: bool):
     env.set_state(position=pos, velocity=head, heading=head, alive=alive)
 
 
-@pytest.mark.parametrize("prey_count,predator_count,link,worlds",
-                         [(60, 1, 50.0, 12), (150, 3, 35.0, 12), (100, 40, 60.0, 12), (700, 2, 30.0, 3)])
+@pytest.mark.parametrize(
+    "prey_count,predator_count,link,worlds",
+    [(60, 1, 50.0, 12), (150, 3, 35.0, 12), (100, 40, 60.0, 12), (700, 2, 30.0, 3)],
+)
 def test_random_states_match_all_pairs_reference(device, prey_count, predator_count, link, worlds):
     """Every metric of every world; 700 prey span three chunks of the two-stage sums."""
     env = make_env(device, prey_count=prey_count, predator_count=predator_count, num_worlds=worlds)
@@ -319,8 +342,9 @@ def test_episode_metrics_average_each_episode(device):
     result = episodes.result()
     bounds = [0] + ends
     for name in EPISODE_METRICS:
-        per_episode = [torch.stack([samples[i][name] for i in range(a, b)]).nanmean(dim=0)
-                       for a, b in zip(bounds[:-1], bounds[1:])]
+        per_episode = [
+            torch.stack([samples[i][name] for i in range(a, b)]).nanmean(dim=0) for a, b in zip(bounds[:-1], bounds[1:])
+        ]
         want = torch.stack(per_episode).mean(dim=0)
         torch.testing.assert_close(result[name], want, rtol=1e-6, atol=1e-6)
     torch.testing.assert_close(result["captures"], torch.stack(captures).mean(dim=0))
@@ -340,16 +364,18 @@ def test_episode_metrics_average_each_episode(device):
 def test_rollout_metrics_population_traces(device):
     # Respawn off: captured prey are gone, so the prey population never grows within the episode.
     env = make_env(device, prey_count=16, num_worlds=4, max_steps=40, respawn_captured_prey=False)
-    out = rollout_metrics(env, lambda obs: heuristic_actions(env), steps=40, every=1,
-                          trace=("prey_alive", "predator_alive"))
+    out = rollout_metrics(
+        env, lambda obs: heuristic_actions(env), steps=40, every=1, trace=("prey_alive", "predator_alive")
+    )
     prey = out["trace_prey_alive"]
     assert prey.shape == (41, 4) and out["trace_steps"].tolist() == list(range(41))
     assert (prey[1:-1] <= prey[:-2]).all() and (prey[0] == 16).all() and (prey[-1] == 16).all()  # last: reset
     assert (out["trace_predator_alive"] == 1).all() and out["episodes"].tolist() == [1.0] * 4
     assert torch.equal(out["prey_alive"], prey[:-1].double().mean(dim=0))
     # Reproduction: the prey population grows to the cap.
-    env = make_env(device, prey_count=8, num_worlds=2, max_steps=100, prey_reproduction=True,
-                   prey_replication_age=12, max_prey=20)
+    env = make_env(
+        device, prey_count=8, num_worlds=2, max_steps=100, prey_reproduction=True, prey_replication_age=12, max_prey=20
+    )
     out = rollout_metrics(env, lambda obs: heuristic_actions(env), steps=60, every=5, trace=("prey_alive",))
     prey = out["trace_prey_alive"]
     assert (prey[0] == 8).all() and (prey[-1] == 20).all() and (prey[1:] >= prey[:-1]).all()

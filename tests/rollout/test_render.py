@@ -40,8 +40,9 @@ def place(env, agents, world=0):
 @pytest.fixture
 def env(device):
     """A 400 x 300 world with 2 prey slots (0, 1) and 1 predator slot (2), all dead until placed."""
-    env = BatchedAquarium(AquariumConfig(width=400, height=300, prey_count=2, predator_count=1),
-                          num_worlds=1, device=device, seed=0)
+    env = BatchedAquarium(
+        AquariumConfig(width=400, height=300, prey_count=2, predator_count=1), num_worlds=1, device=device, seed=0
+    )
     return place(env, [])
 
 
@@ -231,20 +232,59 @@ def test_record_and_cli_video(device, tmp_path):
     from aquarium_warp.video import record
 
     env = BatchedAquarium(AquariumConfig(), num_worlds=2, device=device, seed=0)
-    zeros = {"prey": torch.zeros(2, env.prey_capacity, dtype=torch.int64, device=env.torch_device),
-             "predator": torch.zeros(2, env.predator_capacity, dtype=torch.int64, device=env.torch_device)}
+    zeros = {
+        "prey": torch.zeros(2, env.prey_capacity, dtype=torch.int64, device=env.torch_device),
+        "predator": torch.zeros(2, env.predator_capacity, dtype=torch.int64, device=env.torch_device),
+    }
     path = tmp_path / "record.mp4"
     assert record(env, lambda obs: zeros, 4, path, world=1, width_px=128, progress=False, view_cones=True) == 5
     reader = imageio.get_reader(str(path))
     assert reader.count_frames() == 5 and reader.get_data(0).shape == (128, 128, 3)
 
     out = tmp_path / "cli.mp4"
-    assert main(["video", "--steps", "3", "--out", str(out), "--device", device, "--frame-width", "96",
-                 "--prey", "5", "--hit-boxes", "--velocities", "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "video",
+                "--steps",
+                "3",
+                "--out",
+                str(out),
+                "--device",
+                device,
+                "--frame-width",
+                "96",
+                "--prey",
+                "5",
+                "--hit-boxes",
+                "--velocities",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     assert imageio.get_reader(str(out)).count_frames() == 4
     vortex = tmp_path / "vortex.mp4"
-    assert main(["video", "--steps", "2", "--out", str(vortex), "--device", device, "--frame-width", "96",
-                 "--flow", "vortex", "--draw-flow", "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "video",
+                "--steps",
+                "2",
+                "--out",
+                str(vortex),
+                "--device",
+                device,
+                "--frame-width",
+                "96",
+                "--flow",
+                "vortex",
+                "--draw-flow",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     assert imageio.get_reader(str(vortex)).count_frames() == 3
 
 
@@ -257,8 +297,9 @@ def test_flow_arrows_where_the_current_is_not_zero(device):
     from aquarium_warp.config import FlowConfig
 
     grid = [[[0.0, 0.0], [0.0, 0.0], [4.0, 0.0], [4.0, 0.0]]]
-    cfg = AquariumConfig(width=600, height=600, prey_count=2, predator_count=1,
-                         flow=(FlowConfig("grid", grid=grid), FlowConfig()))
+    cfg = AquariumConfig(
+        width=600, height=600, prey_count=2, predator_count=1, flow=(FlowConfig("grid", grid=grid), FlowConfig())
+    )
     env = BatchedAquarium(cfg, num_worlds=2, device=device, seed=0)
     for w in range(2):
         place(env, [], world=w)

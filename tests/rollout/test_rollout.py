@@ -46,8 +46,9 @@ class Counting(Observer):
     def on_step(self, env, step, result):
         assert result is env.outputs
         self.log.append((self.name, "step", step))
-        self.seen.append((result.rewards["prey"].clone(), result.info["captures"].clone(),
-                          env.state.torch.position.clone()))
+        self.seen.append(
+            (result.rewards["prey"].clone(), result.info["captures"].clone(), env.state.torch.position.clone())
+        )
 
     def on_end(self, env):
         self.log.append((self.name, "end", None))
@@ -64,15 +65,18 @@ def test_hooks_in_order_once_per_step_and_the_outputs_the_env_returned():
     drivers = {"prey": constant(env, "prey", 3, calls), "predator": constant(env, "predator", 5, calls)}
     assert rollout(env, drivers, 4, [first, second]) == 4
     assert calls == ["prey", "predator"] * 4
-    assert [(name, hook) for name, hook, _ in log] == [("a", "start"), ("b", "start")] + \
-        [(name, "step") for _ in range(4) for name in "ab"] + [("a", "end"), ("b", "end")]
+    assert [(name, hook) for name, hook, _ in log] == [("a", "start"), ("b", "start")] + [
+        (name, "step") for _ in range(4) for name in "ab"
+    ] + [("a", "end"), ("b", "end")]
     assert [value for _, hook, value in log if hook == "step"] == [0, 0, 1, 1, 2, 2, 3, 3]
 
     manual = BatchedAquarium(CFG, num_worlds=2, device="cpu", seed=1)
     manual.reset()
     assert torch.equal(log[0][2], manual.state.torch.position)  # started after the reset
-    actions = {"prey": torch.full((2, manual.prey_capacity), 3, dtype=torch.int32),
-               "predator": torch.full((2, manual.predator_capacity), 5, dtype=torch.int32)}
+    actions = {
+        "prey": torch.full((2, manual.prey_capacity), 3, dtype=torch.int32),
+        "predator": torch.full((2, manual.predator_capacity), 5, dtype=torch.int32),
+    }
     for k in range(4):
         _, rewards, _, _, info = manual.step(actions)
         for seen in (first.seen[k], second.seen[k]):
@@ -126,16 +130,25 @@ def test_progress_reports_every_n_steps_and_the_rest_at_the_end():
 def test_step_views_hold_the_state_before_and_after_each_step():
     env = BatchedAquarium(CFG, num_worlds=2, device="cpu", seed=4)
     views = []
-    rollout(env, make_drivers({"prey": "turnaway", "predator": "naivchase"}, env),
-            5, [StepViews(lambda v: views.append((v.step, v.before_position, v.before_alive, v.position.clone(),
-                                                   v.captured.clone())))])
+    rollout(
+        env,
+        make_drivers({"prey": "turnaway", "predator": "naivchase"}, env),
+        5,
+        [
+            StepViews(
+                lambda v: views.append(
+                    (v.step, v.before_position, v.before_alive, v.position.clone(), v.captured.clone())
+                )
+            )
+        ],
+    )
     manual = BatchedAquarium(CFG, num_worlds=2, device="cpu", seed=4)
     manual.reset()
     t = manual.state.torch
     for _, before_position, before_alive, position, captured in views:
         assert torch.equal(before_position, t.position) and torch.equal(before_alive, t.alive)
         manual.step(heuristic_actions(manual))
-        assert torch.equal(position, t.position) and torch.equal(captured, t.captured[:, :manual.prey_capacity])
+        assert torch.equal(position, t.position) and torch.equal(captured, t.captured[:, : manual.prey_capacity])
     assert [v[0] for v in views] == list(range(5))
 
 
@@ -187,8 +200,9 @@ def test_rollout_metrics_equals_the_plain_loop():
 def test_swarm_size_setting_equals_the_plain_loop():
     from aquarium_warp.studies.swarm_size import SwarmSizeStudy, run_setting
 
-    study = SwarmSizeStudy(prey=[6], seeds=3, episode_steps=30, metrics_every=5, respawn=False, device="cpu", seed=2,
-                           figures=False)
+    study = SwarmSizeStudy(
+        prey=[6], seeds=3, episode_steps=30, metrics_every=5, respawn=False, device="cpu", seed=2, figures=False
+    )
     setting = study.settings()[0]
     progress: list = []
     result = run_setting(study, setting, "cpu", progress=progress.append)
@@ -210,8 +224,16 @@ def test_study_rollout_equals_the_plain_loop():
     from aquarium_warp.studies import common
 
     views: list = []
-    out = common.rollout(CFG, "turnaway", "naivchase", 2, 7, "cpu",
-                         lambda v: views.append((v.step, v.before_position, v.position.clone())), metrics_every=4)
+    out = common.rollout(
+        CFG,
+        "turnaway",
+        "naivchase",
+        2,
+        7,
+        "cpu",
+        lambda v: views.append((v.step, v.before_position, v.position.clone())),
+        metrics_every=4,
+    )
     env = BatchedAquarium(CFG, num_worlds=2, device="cpu", seed=7)
     drivers = make_drivers({"prey": "turnaway", "predator": "naivchase"}, env, seed=7)
     episodes = EpisodeMetrics(env, every=4)
@@ -228,8 +250,10 @@ def test_study_rollout_equals_the_plain_loop():
     assert len(views) == len(expected_views) == CFG.max_steps - 1
     for (s, a, b), (e, c, d) in zip(views, expected_views):
         assert s == e and torch.equal(a, c) and torch.equal(b, d)
-    expected = {"captures": info["episode_captures"].numpy().astype(np.float64),
-                "length": info["episode_length"].numpy().astype(np.float64)}
+    expected = {
+        "captures": info["episode_captures"].numpy().astype(np.float64),
+        "length": info["episode_length"].numpy().astype(np.float64),
+    }
     expected.update({k: v.double().numpy() for k, v in episodes.result().items()})
     assert_same(out, expected)
 
@@ -253,17 +277,26 @@ def test_run_episodes_equals_the_plain_loop():
     for step in range(3 * cfg.max_steps):
         _, rewards, _, _, info = env.step({team: drivers[team]() for team in ("prey", "predator")}, validate=False)
         swarm.update(info)
-        captures += env.state.torch.captured[:, :env.prey_capacity]
+        captures += env.state.torch.captured[:, : env.prey_capacity]
         prey_reward += rewards["prey"]
         predator_reward += rewards["predator"]
         if step % cfg.max_steps == cfg.max_steps - 1:
             assert bool(info["episode_ended"].all())
             for w in range(2):
-                expected.append((step // cfg.max_steps, w, {
-                    "prey_captures": captures[w].tolist(), "prey_rewards": prey_reward[w].tolist(),
-                    "predator_rewards": predator_reward[w].tolist(), "captures": int(info["episode_captures"][w]),
-                    "length": int(info["episode_length"][w]),
-                    **{f"swarm_{n}": float(swarm.ended_values[w, m]) for m, n in enumerate(EPISODE_METRICS)}}))
+                expected.append(
+                    (
+                        step // cfg.max_steps,
+                        w,
+                        {
+                            "prey_captures": captures[w].tolist(),
+                            "prey_rewards": prey_reward[w].tolist(),
+                            "predator_rewards": predator_reward[w].tolist(),
+                            "captures": int(info["episode_captures"][w]),
+                            "length": int(info["episode_length"][w]),
+                            **{f"swarm_{n}": float(swarm.ended_values[w, m]) for m, n in enumerate(EPISODE_METRICS)},
+                        },
+                    )
+                )
             captures.zero_()
             prey_reward.zero_()
             predator_reward.zero_()
@@ -299,8 +332,9 @@ def test_video_frames_equal_the_plain_loop(monkeypatch):
     drivers = make_drivers({"prey": "turnaway", "predator": "naivchase"}, env, seed=5)
     assert video.record(env, drivers, 6, "unused.mp4", world=1, width_px=64, progress=False, view_cones=True) == 7
     plain = BatchedAquarium(CFG, num_worlds=2, device="cpu", seed=5)
-    expected = manual_frames(plain, make_drivers({"prey": "turnaway", "predator": "naivchase"}, plain, seed=5), 6,
-                             world=1, view_cones=True)
+    expected = manual_frames(
+        plain, make_drivers({"prey": "turnaway", "predator": "naivchase"}, plain, seed=5), 6, world=1, view_cones=True
+    )
     assert np.array_equal(np.stack(written), expected)
 
 

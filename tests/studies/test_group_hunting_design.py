@@ -19,9 +19,14 @@ def test_redesign_fields():
     assert env["catch_share_radius"] == 0.0 and env["max_steps"] == env["predator_starvation_steps"] == 200
 
 
-@pytest.mark.parametrize("field, value, option", [("predator_speed", 0.0, "predator-speed"),
-                                                  ("predator_slots", -1, "predator-slots"),
-                                                  ("predator_slots", 1.5, "predator-slots")])
+@pytest.mark.parametrize(
+    "field, value, option",
+    [
+        ("predator_speed", 0.0, "predator-speed"),
+        ("predator_slots", -1, "predator-slots"),
+        ("predator_slots", 1.5, "predator-slots"),
+    ],
+)
 def test_bad_redesign_values(field, value, option):
     with pytest.raises(ValueError, match=option):
         GroupHuntingStudy(**{field: value}).validate()

@@ -29,8 +29,11 @@ class Study:
     device: str | None = None
 
     def tasks(self) -> list[dict]:
-        return [{"name": f"x{x}_seed{seed}", "x": x, "seed": seed, "study": self}
-                for x in (1, 2) for seed in range(self.seeds)]
+        return [
+            {"name": f"x{x}_seed{seed}", "x": x, "seed": seed, "study": self}
+            for x in (1, 2)
+            for seed in range(self.seeds)
+        ]
 
 
 class Counted:
@@ -77,13 +80,29 @@ def test_the_key_leaves_out_the_seed_count_and_the_task_s_output_folder():
 def test_threads_return_results_in_task_order_and_call_back_each(tmp_path):
     seen: list[tuple[int, bool]] = []
     prepared: list[bool] = []
-    run = run_jobs(Counted(), Study(seeds=3).tasks(), str(tmp_path), jobs=3, threads=True, report=None,
-                   prepare=lambda: prepared.append(True), on_result=lambda i, result, kept: seen.append((i, kept)))
+    run = run_jobs(
+        Counted(),
+        Study(seeds=3).tasks(),
+        str(tmp_path),
+        jobs=3,
+        threads=True,
+        report=None,
+        prepare=lambda: prepared.append(True),
+        on_result=lambda i, result, kept: seen.append((i, kept)),
+    )
     assert [r["value"] for r in run.results] == [1.0, 2.0, 3.0, 2.0, 3.0, 4.0]
     assert prepared == [True] and sorted(seen) == [(i, False) for i in range(6)]
     seen.clear()
-    run_jobs(Counted(), Study(seeds=3).tasks(), str(tmp_path), jobs=3, threads=True, report=None,
-             prepare=lambda: prepared.append(True), on_result=lambda i, result, kept: seen.append((i, kept)))
+    run_jobs(
+        Counted(),
+        Study(seeds=3).tasks(),
+        str(tmp_path),
+        jobs=3,
+        threads=True,
+        report=None,
+        prepare=lambda: prepared.append(True),
+        on_result=lambda i, result, kept: seen.append((i, kept)),
+    )
     assert seen == [(i, True) for i in range(6)] and prepared == [True]  # nothing left to run: no warm-up
 
 
@@ -110,11 +129,15 @@ def test_one_device_runs_here_and_gives_each_task_the_device(tmp_path):
     assert [r["value"] for r in run.results] == [1.0, 2.0, 2.0, 3.0] and here.devices == ["cpu"] * 4
     # The device is not part of a task's key: a run on other devices keeps every task.
     for task in Study(seeds=2).tasks():
-        assert "device" not in task_key(task)["task"] and read_finished(str(tmp_path), task) == (True, {
-            "value": task["x"] + task["seed"]})
+        assert "device" not in task_key(task)["task"] and read_finished(str(tmp_path), task) == (
+            True,
+            {"value": task["x"] + task["seed"]},
+        )
     again = Located()
-    assert run_jobs(again, Study(seeds=2).tasks(), str(tmp_path), devices=["cpu", "cpu"], jobs=2,
-                    report=None).kept == 4 and again.devices == []
+    assert (
+        run_jobs(again, Study(seeds=2).tasks(), str(tmp_path), devices=["cpu", "cpu"], jobs=2, report=None).kept == 4
+        and again.devices == []
+    )
 
 
 def test_two_devices_run_in_a_worker_process_each_and_a_rerun_keeps_all(tmp_path):
@@ -131,11 +154,14 @@ def test_two_devices_run_in_a_worker_process_each_and_a_rerun_keeps_all(tmp_path
     assert rerun.kept == 4 and here.devices == [] and rerun.results == run.results
 
 
-@pytest.mark.parametrize("options, message", [
-    ({"devices": []}, "devices=[] must name at least one device"),
-    ({"devices": ["cpu"], "threads": True}, "devices spread tasks over worker processes of this machine"),
-    ({"devices": ["cpu", "cpu"], "jobs": 0}, "jobs=0 must be an integer >= 1"),
-])
+@pytest.mark.parametrize(
+    "options, message",
+    [
+        ({"devices": []}, "devices=[] must name at least one device"),
+        ({"devices": ["cpu"], "threads": True}, "devices spread tasks over worker processes of this machine"),
+        ({"devices": ["cpu", "cpu"], "jobs": 0}, "jobs=0 must be an integer >= 1"),
+    ],
+)
 def test_bad_devices_are_refused(tmp_path, options, message):
     with pytest.raises(ValueError, match="^" + re.escape(message)):
         run_jobs(Located(), Study().tasks(), str(tmp_path), report=None, **options)
@@ -149,9 +175,30 @@ def read_csv(path):
 
 @pytest.mark.slow
 def test_a_rerun_with_more_seeds_trains_only_the_new_seeds(tmp_path, capsys, one_thread):
-    argv = ["study", "many-eyes", "--group-sizes", "1", "--fov", "120", "--rows", "4", "--iterations", "1",
-            "--train-steps", "20", "--eval-rows", "4", "--eval-steps", "30", "--no-turnaway", "--device", "cpu",
-            "--no-figures", "--out", str(tmp_path)]
+    argv = [
+        "study",
+        "many-eyes",
+        "--group-sizes",
+        "1",
+        "--fov",
+        "120",
+        "--rows",
+        "4",
+        "--iterations",
+        "1",
+        "--train-steps",
+        "20",
+        "--eval-rows",
+        "4",
+        "--eval-steps",
+        "30",
+        "--no-turnaway",
+        "--device",
+        "cpu",
+        "--no-figures",
+        "--out",
+        str(tmp_path),
+    ]
     assert main(argv + ["--seeds", "1"]) == 0
     first = read_csv(tmp_path / "many_eyes.csv")
     capsys.readouterr()

@@ -25,10 +25,16 @@ RESULTS = os.path.join(os.path.dirname(__file__), "..", "..", "benchmarks", "res
 # The conditions that no committed plan trained, as `CONDITIONS` gave them before the trainings ran
 # in-process (commit ec1364b): (preset, --set assignments, other `train` arguments).
 UNRECORDED = {
-    "ego-rand-il": ("paper", ["env.observation_frame=ego", "env.action_frame=ego", "env.spawn_heading=random"],
-                    ["--sharing", "individual"]),
-    "tiny-ego": ("tiny", ["env.observation_frame=ego", "env.action_frame=ego", "env.spawn_heading=random"],
-                 ["--iterations", "2"]),
+    "ego-rand-il": (
+        "paper",
+        ["env.observation_frame=ego", "env.action_frame=ego", "env.spawn_heading=random"],
+        ["--sharing", "individual"],
+    ),
+    "tiny-ego": (
+        "tiny",
+        ["env.observation_frame=ego", "env.action_frame=ego", "env.spawn_heading=random"],
+        ["--iterations", "2"],
+    ),
     "tiny-world": ("tiny", [], ["--iterations", "2"]),
 }
 
@@ -45,7 +51,7 @@ def recorded_train_argv() -> dict[tuple[str, str, int], list[str]]:
             log = words.index("--log-dir")
             name, seed = os.path.basename(words[log + 1]).rsplit("-s", 1)
             condition, world = name.rsplit("-", 1)
-            argv[(condition, world, int(seed))] = words[words.index("train"):log] + words[log + 2:]
+            argv[(condition, world, int(seed))] = words[words.index("train") : log] + words[log + 2 :]
     return argv
 
 
@@ -81,8 +87,20 @@ def test_each_condition_trains_with_the_config_of_its_train_command():
 @pytest.mark.slow
 def test_the_tiny_plan_end_to_end(tmp_path):
     out = str(tmp_path / "lp")
-    argv = ["--plan", "tiny", "--gpus", "0", "--out", out, "--episodes", "2", "--eval-seeds", "0",
-            "--commit", "abc1234"]
+    argv = [
+        "--plan",
+        "tiny",
+        "--gpus",
+        "0",
+        "--out",
+        out,
+        "--episodes",
+        "2",
+        "--eval-seeds",
+        "0",
+        "--commit",
+        "abc1234",
+    ]
     assert learned_prey.main(argv) == 0
     with open(os.path.join(out, "learned_prey_tiny.json"), encoding="utf-8") as f:
         record = json.load(f)

@@ -32,15 +32,18 @@ def read_json(path):
 # ---------------------------------------------------------------------------------------------- measures
 def test_encirclement_on_predators_placed_by_hand():
     centre = torch.tensor([[400.0, 400.0]]).repeat(5, 1)
-    predators = torch.tensor([
-        [[450.0, 400.0], [350.0, 400.0], [0.0, 0.0]],      # opposite sides: balanced, gap 180
-        [[450.0, 400.0], [460.0, 400.0], [0.0, 0.0]],      # one side, same bearing: spread 0, gap 360
-        [[500.0, 400.0], [400.0 - 50.0, 400.0 + 86.6025], [400.0 - 50.0, 400.0 - 86.6025]],  # 3 at 120 degrees
-        [[450.0, 400.0], [400.0, 650.0], [0.0, 0.0]],      # the second is beyond the radius: one predator
-        [[400.0, 450.0], [400.0, 350.0], [300.0, 400.0]],  # the third is dead
-    ])
-    alive = torch.tensor([[True, True, False], [True, True, False], [True, True, True], [True, True, False],
-                          [True, True, False]])
+    predators = torch.tensor(
+        [
+            [[450.0, 400.0], [350.0, 400.0], [0.0, 0.0]],  # opposite sides: balanced, gap 180
+            [[450.0, 400.0], [460.0, 400.0], [0.0, 0.0]],  # one side, same bearing: spread 0, gap 360
+            [[500.0, 400.0], [400.0 - 50.0, 400.0 + 86.6025], [400.0 - 50.0, 400.0 - 86.6025]],  # 3 at 120 degrees
+            [[450.0, 400.0], [400.0, 650.0], [0.0, 0.0]],  # the second is beyond the radius: one predator
+            [[400.0, 450.0], [400.0, 350.0], [300.0, 400.0]],  # the third is dead
+        ]
+    )
+    alive = torch.tensor(
+        [[True, True, False], [True, True, False], [True, True, True], [True, True, False], [True, True, False]]
+    )
     count, spread, gap = encirclement(centre, predators, alive, 200.0, 800.0, 800.0)
     assert count.tolist() == [2, 2, 3, 1, 2]
     assert spread[0] == pytest.approx(1.0) and gap[0] == pytest.approx(180.0)
@@ -49,8 +52,14 @@ def test_encirclement_on_predators_placed_by_hand():
     assert math.isnan(spread[3]) and math.isnan(gap[3])
     assert spread[4] == pytest.approx(1.0) and gap[4] == pytest.approx(180.0)
     # Across the torus edge: a prey at x = 5 and predators at x = 795 and x = 55 are 10 and 50 px away.
-    count, spread, gap = encirclement(torch.tensor([[5.0, 400.0]]), torch.tensor([[[795.0, 400.0], [55.0, 400.0]]]),
-                                      torch.tensor([[True, True]]), 100.0, 800.0, 800.0)
+    count, spread, gap = encirclement(
+        torch.tensor([[5.0, 400.0]]),
+        torch.tensor([[[795.0, 400.0], [55.0, 400.0]]]),
+        torch.tensor([[True, True]]),
+        100.0,
+        800.0,
+        800.0,
+    )
     assert count.item() == 2 and spread.item() == pytest.approx(1.0) and gap.item() == pytest.approx(180.0)
 
 
@@ -65,8 +74,17 @@ def _flights(respawn_at=None, pushed_at=None):
     """Three prey against a predator at (500, 400): prey 0 at 150 px (unseen: beyond its 100 px view) and
     prey 2 at 70 px (seen, ahead) swim towards it and turn round over two steps; prey 1 at 50 px swims
     away all along (fleeing, but it never turns)."""
-    detector = FlightOnsets(lag=2, flee_angle=45.0, flee_distance=200.0, turn_angle=30.0, max_speed=4.0,
-                            view_distance=100.0, fov_angle=120.0, width=800.0, height=800.0)
+    detector = FlightOnsets(
+        lag=2,
+        flee_angle=45.0,
+        flee_distance=200.0,
+        turn_angle=30.0,
+        max_speed=4.0,
+        view_distance=100.0,
+        fov_angle=120.0,
+        width=800.0,
+        height=800.0,
+    )
     position = torch.tensor([[[350.0, 400.0], [450.0, 400.0], [430.0, 400.0]]])
     predator, predator_alive = torch.tensor([[[500.0, 400.0]]]), torch.tensor([[True]])
     alive = torch.ones(1, 3, dtype=torch.bool)
@@ -81,8 +99,7 @@ def _flights(respawn_at=None, pushed_at=None):
         pushed = torch.zeros(1, 3, dtype=torch.bool)
         if pushed_at == t:
             pushed[0, 0] = True
-        onsets.append(detector.update(position, velocity, heading, alive, predator, predator_alive, respawned,
-                                      pushed))
+        onsets.append(detector.update(position, velocity, heading, alive, predator, predator_alive, respawned, pushed))
     return detector, torch.stack(onsets)
 
 
@@ -112,15 +129,17 @@ def test_dilution_expectation_formula():
 
 
 def test_escape_cosine_against_the_measured_current():
-    escape = EscapeMeasures(1, torch.device("cpu"), flee_angle=45.0, flee_distance=200.0, max_speed=4.0,
-                            width=800.0, height=800.0)
+    escape = EscapeMeasures(
+        1, torch.device("cpu"), flee_angle=45.0, flee_distance=200.0, max_speed=4.0, width=800.0, height=800.0
+    )
     current = torch.tensor([1.0, 0.0])
     before = torch.tensor([[[100.0, 100.0], [700.0, 700.0], [799.5, 300.0]]])
     velocity = torch.tensor([[[-2.0, 0.0], [0.0, 3.0], [2.0, 0.0]]])
     position = (before + velocity + current) % 800.0  # the third prey wraps round the edge
     predator = torch.tensor([[[150.0, 100.0], [700.0, 300.0]]])
-    escape.update(before, position, velocity, torch.ones(1, 3, dtype=torch.bool), predator,
-                  torch.ones(1, 2, dtype=torch.bool))
+    escape.update(
+        before, position, velocity, torch.ones(1, 3, dtype=torch.bool), predator, torch.ones(1, 2, dtype=torch.bool)
+    )
     # Prey 0 flees predator 0 (51 px behind it, against the current); prey 2 flees predator 1 (102 px
     # behind it, with the current); prey 1 is 400 px from both, not fleeing, and crosses the current.
     values = escape.per_world()
@@ -151,14 +170,53 @@ def _check_record(path, study):
 @pytest.mark.slow
 def test_group_hunting_cli_tiny(tmp_path, capsys, one_thread):
     out = tmp_path / "gh"
-    rc = main(["study", "group-hunting", "--predators", "1,2", "--prey", "3", "--share-radius", "0", "--seeds", "2",
-               "--worlds", "4", "--iterations", "2", "--train-steps", "40", "--eval-worlds", "2", "--eval-steps", "60",
-               "--device", "cpu", "--out", str(out)])
+    rc = main(
+        [
+            "study",
+            "group-hunting",
+            "--predators",
+            "1,2",
+            "--prey",
+            "3",
+            "--share-radius",
+            "0",
+            "--seeds",
+            "2",
+            "--worlds",
+            "4",
+            "--iterations",
+            "2",
+            "--train-steps",
+            "40",
+            "--eval-worlds",
+            "2",
+            "--eval-steps",
+            "60",
+            "--device",
+            "cpu",
+            "--out",
+            str(out),
+        ]
+    )
     assert rc == 0, capsys.readouterr().err
     rows = read_csv(out / "group_hunting.csv")
-    assert list(rows[0]) == ["condition", "share_radius", "predators", "seed", "captures_per_predator",
-                             "captures_per_prey", "joint_fraction", "spread_capture", "spread_random", "gap_capture",
-                             "gap_random", "pair_distance_capture", "pair_distance_random", "train_s", "job_s"]
+    assert list(rows[0]) == [
+        "condition",
+        "share_radius",
+        "predators",
+        "seed",
+        "captures_per_predator",
+        "captures_per_prey",
+        "joint_fraction",
+        "spread_capture",
+        "spread_random",
+        "gap_capture",
+        "gap_random",
+        "pair_distance_capture",
+        "pair_distance_random",
+        "train_s",
+        "job_s",
+    ]
     # 2 learned conditions + NaivChase, 2 team sizes, 2 seeds.
     assert sorted({r["condition"] for r in rows}) == ["cotrained", "naivchase", "turnaway"] and len(rows) == 12
     assert all(r["joint_fraction"] in ("0", "nan") for r in rows if r["predators"] == "1")
@@ -168,10 +226,35 @@ def test_group_hunting_cli_tiny(tmp_path, capsys, one_thread):
     policies = out / "policies" / "cotrained_share0_pred2_seed1"
     assert (policies / "prey" / "policy.pt").is_file()
     # The flow study takes trained policy files: the co-trained teams in a vortex.
-    rc = main(["study", "flow", "--kinds", "vortex", "--strengths", "1", "--seeds", "2", "--episodes-per-seed", "1",
-               "--episode-steps", "30", "--prey", "3", "--predators", "2", "--prey-policy",
-               str(policies / "prey" / "policy.pt"), "--predator-policy", str(policies / "predator" / "policy.pt"),
-               "--device", "cpu", "--no-figures", "--out", str(tmp_path / "flow")])
+    rc = main(
+        [
+            "study",
+            "flow",
+            "--kinds",
+            "vortex",
+            "--strengths",
+            "1",
+            "--seeds",
+            "2",
+            "--episodes-per-seed",
+            "1",
+            "--episode-steps",
+            "30",
+            "--prey",
+            "3",
+            "--predators",
+            "2",
+            "--prey-policy",
+            str(policies / "prey" / "policy.pt"),
+            "--predator-policy",
+            str(policies / "predator" / "policy.pt"),
+            "--device",
+            "cpu",
+            "--no-figures",
+            "--out",
+            str(tmp_path / "flow"),
+        ]
+    )
     assert rc == 0, capsys.readouterr().err
     assert read_json(tmp_path / "flow" / "flow.json")["settings"]["prey_policy"].endswith("policy.pt")
 
@@ -179,18 +262,55 @@ def test_group_hunting_cli_tiny(tmp_path, capsys, one_thread):
 @pytest.mark.slow
 def test_many_eyes_cli_tiny(tmp_path, capsys, one_thread):
     out = tmp_path / "me"
-    rc = main(["study", "many-eyes", "--group-sizes", "1,2", "--fov", "360", "--seeds", "2", "--rows", "8",
-               "--iterations", "2", "--train-steps", "40", "--eval-rows", "8", "--eval-steps", "80",
-               "--device", "cpu", "--out", str(out)])
+    rc = main(
+        [
+            "study",
+            "many-eyes",
+            "--group-sizes",
+            "1,2",
+            "--fov",
+            "360",
+            "--seeds",
+            "2",
+            "--rows",
+            "8",
+            "--iterations",
+            "2",
+            "--train-steps",
+            "40",
+            "--eval-rows",
+            "8",
+            "--eval-steps",
+            "80",
+            "--device",
+            "cpu",
+            "--out",
+            str(out),
+        ]
+    )
     assert rc == 0, capsys.readouterr().err
     rows = read_csv(out / "many_eyes.csv")
-    assert list(rows[0]) == ["policy", "group_size", "fov_angle", "predator", "seed", "captures_per_prey", "fid",
-                             "blind_fraction", "onsets_per_prey", "train_s", "job_s"]
+    assert list(rows[0]) == [
+        "policy",
+        "group_size",
+        "fov_angle",
+        "predator",
+        "seed",
+        "captures_per_prey",
+        "fid",
+        "blind_fraction",
+        "onsets_per_prey",
+        "train_s",
+        "job_s",
+    ]
     assert len(rows) == 2 * 2 * 2 * 2  # learned / turnaway, N, predator with / without confusion, seeds
     record = _check_record(out / "many_eyes.json", "many-eyes")
     for entry in record["results"]:
-        single = next(e for e in record["results"] if e["group_size"] == 1 and
-                      (e["policy"], e["predator"]) == (entry["policy"], entry["predator"]))
+        single = next(
+            e
+            for e in record["results"]
+            if e["group_size"] == 1 and (e["policy"], e["predator"]) == (entry["policy"], entry["predator"])
+        )
         expected = single["metrics"]["captures_per_prey"]["mean"] / entry["group_size"]
         assert entry["dilution_expectation"]["mean"] == pytest.approx(expected)
     assert (out / "many_eyes.png").stat().st_size > 0
@@ -198,14 +318,50 @@ def test_many_eyes_cli_tiny(tmp_path, capsys, one_thread):
 
 def test_flow_cli_tiny(tmp_path, capsys, one_thread):
     out = tmp_path / "flow"
-    rc = main(["study", "flow", "--strengths", "0,2", "--seeds", "2", "--episodes-per-seed", "1",
-               "--episode-steps", "60", "--prey", "8", "--uniform-angle", "0", "--device", "cpu", "--out", str(out)])
+    rc = main(
+        [
+            "study",
+            "flow",
+            "--strengths",
+            "0,2",
+            "--seeds",
+            "2",
+            "--episodes-per-seed",
+            "1",
+            "--episode-steps",
+            "60",
+            "--prey",
+            "8",
+            "--uniform-angle",
+            "0",
+            "--device",
+            "cpu",
+            "--out",
+            str(out),
+        ]
+    )
     assert rc == 0, capsys.readouterr().err
     rows = read_csv(out / "flow.csv")
-    assert list(rows[0]) == ["kind", "strength", "seed", "episodes", "captures_per_prey", "polarization", "groups",
-                             "largest_group", "nn_mean", "escape_cosine", "cruise_cosine", "downstream_fraction"]
-    assert [(r["kind"], r["strength"]) for r in rows[::2]] == [("uniform", "0"), ("uniform", "2"), ("vortex", "0"),
-                                                               ("vortex", "2")]
+    assert list(rows[0]) == [
+        "kind",
+        "strength",
+        "seed",
+        "episodes",
+        "captures_per_prey",
+        "polarization",
+        "groups",
+        "largest_group",
+        "nn_mean",
+        "escape_cosine",
+        "cruise_cosine",
+        "downstream_fraction",
+    ]
+    assert [(r["kind"], r["strength"]) for r in rows[::2]] == [
+        ("uniform", "0"),
+        ("uniform", "2"),
+        ("vortex", "0"),
+        ("vortex", "2"),
+    ]
     assert all(r["escape_cosine"] == "nan" and r["cruise_cosine"] == "nan" for r in rows if r["strength"] == "0")
     # Prey spawn swimming west, against a +x current, and TurnAway keeps that heading until it sees a predator.
     uniform = [float(r["cruise_cosine"]) for r in rows if r["kind"] == "uniform" and r["strength"] == "2"]
@@ -216,19 +372,22 @@ def test_flow_cli_tiny(tmp_path, capsys, one_thread):
         assert (out / name).stat().st_size > 0
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["group-hunting", "--prey-conditions", "turnaway,wolves"], "prey conditions"),
-    (["group-hunting", "--share-radius", "-5"], "--share-radius"),
-    (["many-eyes", "--fov", "0,120"], "--fov"),
-    (["many-eyes", "--group-sizes", "0,4"], "--group-sizes"),
-    (["flow", "--kinds", "grid"], "flow kinds"),
-    (["flow", "--prey-policy", "no_such_file.pt"], "prey-policy"),
-    (["flow", "--prey-policy", "naivchase"], "prey heuristic"),  # a predator's heuristic
-    (["flow", "--strengths", "1,2,1"], "--strengths=[1.0, 2.0, 1.0] repeats 1.0"),
-    (["many-eyes", "--fov", "60,60.0"], "--fov=[60.0, 60.0] repeats"),
-    (["group-hunting", "--predators", "1,2,2"], "--predators=[1, 2, 2] repeats 2"),
-    (["group-hunting", "--prey-conditions", "turnaway,turnaway"], "--prey-conditions"),
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["group-hunting", "--prey-conditions", "turnaway,wolves"], "prey conditions"),
+        (["group-hunting", "--share-radius", "-5"], "--share-radius"),
+        (["many-eyes", "--fov", "0,120"], "--fov"),
+        (["many-eyes", "--group-sizes", "0,4"], "--group-sizes"),
+        (["flow", "--kinds", "grid"], "flow kinds"),
+        (["flow", "--prey-policy", "no_such_file.pt"], "prey-policy"),
+        (["flow", "--prey-policy", "naivchase"], "prey heuristic"),  # a predator's heuristic
+        (["flow", "--strengths", "1,2,1"], "--strengths=[1.0, 2.0, 1.0] repeats 1.0"),
+        (["many-eyes", "--fov", "60,60.0"], "--fov=[60.0, 60.0] repeats"),
+        (["group-hunting", "--predators", "1,2,2"], "--predators=[1, 2, 2] repeats 2"),
+        (["group-hunting", "--prey-conditions", "turnaway,turnaway"], "--prey-conditions"),
+    ],
+)
 def test_bad_options_are_named(argv, message, tmp_path, capsys):
     assert main(["study", *argv, "--device", "cpu", "--out", str(tmp_path / "x"), "--no-figures"]) == 2
     assert message in capsys.readouterr().err
@@ -238,16 +397,40 @@ def test_bad_options_are_named(argv, message, tmp_path, capsys):
 @pytest.mark.slow
 def test_jobs_in_worker_processes_match_one_process(tmp_path):
     """`--jobs 2` trains and evaluates in two spawned worker processes; the rows come back in task order."""
-    argv = ["study", "group-hunting", "--predators", "1,2", "--prey-conditions", "turnaway", "--share-radius", "100",
-            "--seeds", "1", "--worlds", "4", "--iterations", "2", "--train-steps", "40", "--eval-worlds", "2",
-            "--eval-steps", "40", "--no-baseline", "--device", "cpu", "--no-figures"]
+    argv = [
+        "study",
+        "group-hunting",
+        "--predators",
+        "1,2",
+        "--prey-conditions",
+        "turnaway",
+        "--share-radius",
+        "100",
+        "--seeds",
+        "1",
+        "--worlds",
+        "4",
+        "--iterations",
+        "2",
+        "--train-steps",
+        "40",
+        "--eval-worlds",
+        "2",
+        "--eval-steps",
+        "40",
+        "--no-baseline",
+        "--device",
+        "cpu",
+        "--no-figures",
+    ]
     assert main(argv + ["--jobs", "2", "--out", str(tmp_path / "two")]) == 0
     assert main(argv + ["--jobs", "1", "--out", str(tmp_path / "one")]) == 0
     two, one = (read_csv(tmp_path / name / "group_hunting.csv") for name in ("two", "one"))
     assert [(r["predators"], r["seed"]) for r in two] == [("1", "0"), ("2", "0")]
     for a, b in zip(one, two):
-        assert {k: v for k, v in a.items() if not k.endswith("_s")} == {k: v for k, v in b.items()
-                                                                         if not k.endswith("_s")}
+        assert {k: v for k, v in a.items() if not k.endswith("_s")} == {
+            k: v for k, v in b.items() if not k.endswith("_s")
+        }
     assert read_json(tmp_path / "two" / "group_hunting.json")["jobs"] == 2
 
 
@@ -255,9 +438,32 @@ def test_jobs_in_worker_processes_match_one_process(tmp_path):
 def test_a_rerun_keeps_finished_tasks(tmp_path, capsys, one_thread):
     """Finished tasks are kept in `out/finished/`: a rerun runs none of them again and writes the same
     rows; other settings run afresh."""
-    argv = ["study", "many-eyes", "--group-sizes", "1", "--fov", "120", "--seeds", "2", "--rows", "4",
-            "--iterations", "1", "--train-steps", "20", "--eval-rows", "4", "--eval-steps", "30", "--no-turnaway",
-            "--device", "cpu", "--no-figures", "--out", str(tmp_path)]
+    argv = [
+        "study",
+        "many-eyes",
+        "--group-sizes",
+        "1",
+        "--fov",
+        "120",
+        "--seeds",
+        "2",
+        "--rows",
+        "4",
+        "--iterations",
+        "1",
+        "--train-steps",
+        "20",
+        "--eval-rows",
+        "4",
+        "--eval-steps",
+        "30",
+        "--no-turnaway",
+        "--device",
+        "cpu",
+        "--no-figures",
+        "--out",
+        str(tmp_path),
+    ]
     assert main(argv) == 0
     first = read_csv(tmp_path / "many_eyes.csv")
     assert len(list((tmp_path / "finished").iterdir())) == 2

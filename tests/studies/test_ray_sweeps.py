@@ -19,8 +19,23 @@ from aquarium_warp.records import json_safe
 from aquarium_warp.studies.jobs import FINISHED_DIR, RayOptions
 from aquarium_warp.studies.swarm_size import SwarmSizeStudy, run_swarm_size_study
 
-TINY_TRAIN = ["--preset", "tiny", "--iterations", "2", "--save-interval", "1", "--num-worlds", "4",
-              "--num-steps-per-env", "8", "--export", "none", "--quiet", "--device", "cpu"]
+TINY_TRAIN = [
+    "--preset",
+    "tiny",
+    "--iterations",
+    "2",
+    "--save-interval",
+    "1",
+    "--num-worlds",
+    "4",
+    "--num-steps-per-env",
+    "8",
+    "--export",
+    "none",
+    "--quiet",
+    "--device",
+    "cpu",
+]
 
 
 def dying_setting_hook(plan: str, died: str):
@@ -56,15 +71,17 @@ def ray_cluster(tmp_path_factory):
     ray = pytest.importorskip("ray")
     marks = tmp_path_factory.mktemp("ray_marks")
     plan, died = str(marks / "plan.json"), str(marks / "died")
-    ray.init(num_cpus=2, include_dashboard=False, runtime_env={"worker_process_setup_hook":
-                                                                dying_setting_hook(plan, died)})
+    ray.init(
+        num_cpus=2, include_dashboard=False, runtime_env={"worker_process_setup_hook": dying_setting_hook(plan, died)}
+    )
     yield ray, plan, died
     ray.shutdown()
 
 
 def tiny_study(out) -> SwarmSizeStudy:
-    return SwarmSizeStudy(prey=[4, 8], seeds=2, episode_steps=30, metrics_every=5, device="cpu", figures=False,
-                          out=str(out))
+    return SwarmSizeStudy(
+        prey=[4, 8], seeds=2, episode_steps=30, metrics_every=5, device="cpu", figures=False, out=str(out)
+    )
 
 
 TIMINGS = ("wall_s", "agent_steps_per_s")
@@ -75,8 +92,9 @@ def assert_same_study(here: dict, on_ray: dict, out_here, out_ray) -> None:
     assert (out_ray / "swarm_size.csv").read_bytes() == (out_here / "swarm_size.csv").read_bytes()
     assert on_ray["nn_bin_edges"] == here["nn_bin_edges"]
     # As the JSON holds them: an undefined metric (NaN, e.g. local alignment without linked prey) is null.
-    assert json_safe([{k: v for k, v in e.items() if k not in TIMINGS} for e in on_ray["results"]]) == \
-        json_safe([{k: v for k, v in e.items() if k not in TIMINGS} for e in here["results"]])
+    assert json_safe([{k: v for k, v in e.items() if k not in TIMINGS} for e in on_ray["results"]]) == json_safe(
+        [{k: v for k, v in e.items() if k not in TIMINGS} for e in here["results"]]
+    )
     assert not (out_ray / FINISHED_DIR).exists()  # swarm_size.json holds every setting now
 
 
@@ -175,15 +193,18 @@ def test_a_started_training_run_resumes_from_its_newest_checkpoint(tmp_path, one
     assert main(["sweep", "train", "--seeds", "3", "--out", str(tmp_path), *TINY_TRAIN, "--gamma", "0.9"]) == 2
 
 
-@pytest.mark.parametrize("argv, expected", [
-    (["study", "swarm-size", "--ray", "--jobs", "2"], "--jobs"),
-    (["study", "swarm-size", "--gpus-per-task", "1"], "give --ray too"),
-    (["study", "swarm-size", "--ray", "--gpus-per-task", "1.5"], "gpus_per_task=1.5"),
-    (["sweep", "train", "--seeds", "0,0"], "each once"),
-    (["sweep", "train", "--seeds", "0", "--seed", "1"], "--seeds"),
-    (["sweep", "train", "--vary", "train.sharing"], "--vary"),
-    (["sweep", "train", "--vary", "sharing=parameter"], "env., train., runner. or teams."),
-])
+@pytest.mark.parametrize(
+    "argv, expected",
+    [
+        (["study", "swarm-size", "--ray", "--jobs", "2"], "--jobs"),
+        (["study", "swarm-size", "--gpus-per-task", "1"], "give --ray too"),
+        (["study", "swarm-size", "--ray", "--gpus-per-task", "1.5"], "gpus_per_task=1.5"),
+        (["sweep", "train", "--seeds", "0,0"], "each once"),
+        (["sweep", "train", "--seeds", "0", "--seed", "1"], "--seeds"),
+        (["sweep", "train", "--vary", "train.sharing"], "--vary"),
+        (["sweep", "train", "--vary", "sharing=parameter"], "env., train., runner. or teams."),
+    ],
+)
 def test_bad_sweep_options_are_one_line_errors(capsys, argv, expected):
     assert main(argv) == 2
     err = capsys.readouterr().err
@@ -192,8 +213,22 @@ def test_bad_sweep_options_are_one_line_errors(capsys, argv, expected):
 
 def test_ray_missing_names_the_extra(monkeypatch, tmp_path, capsys):
     monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` fails as when it is not installed
-    argv = ["study", "swarm-size", "--prey", "4", "--seeds", "1", "--episode-steps", "5", "--device", "cpu",
-            "--out", str(tmp_path), "--no-progress", "--ray"]
+    argv = [
+        "study",
+        "swarm-size",
+        "--prey",
+        "4",
+        "--seeds",
+        "1",
+        "--episode-steps",
+        "5",
+        "--device",
+        "cpu",
+        "--out",
+        str(tmp_path),
+        "--no-progress",
+        "--ray",
+    ]
     assert main(argv) == 2
     assert "pip install 'aquarium-warp[distributed]'" in capsys.readouterr().err
 
@@ -205,8 +240,12 @@ def test_sweep_runs_are_settings_by_seeds(tmp_path):
     sweep = TrainingSweep(seeds=(0, 1), vary=(parse_vary("train.sharing=parameter,individual"),), out=str(tmp_path))
     sweep.validate()
     runs = sweep.runs()
-    assert [(r.seed, r.sets) for r in runs] == [(0, ("train.sharing=parameter",)), (1, ("train.sharing=parameter",)),
-                                                (0, ("train.sharing=individual",)), (1, ("train.sharing=individual",))]
+    assert [(r.seed, r.sets) for r in runs] == [
+        (0, ("train.sharing=parameter",)),
+        (1, ("train.sharing=parameter",)),
+        (0, ("train.sharing=individual",)),
+        (1, ("train.sharing=individual",)),
+    ]
     assert runs[3].run_dir == os.path.join(str(tmp_path), "train.sharing=individual", "seed1")
     assert dataclasses.replace(sweep, vary=()).runs()[0].run_dir == os.path.join(str(tmp_path), "seed0")
 
@@ -223,9 +262,31 @@ def test_open_question_study_on_ray_equals_the_run_here(ray_cluster, tmp_path, o
     """`study group-hunting --ray`: every training run (and the NaivChase baseline) is a Ray task whose
     worker writes its policies; the rows equal those of the run here (timings aside), the JSON names the
     Ray run, a rerun keeps every task, and --jobs is refused beside --ray."""
-    argv = ["study", "group-hunting", "--predators", "1,2", "--prey-conditions", "turnaway", "--share-radius", "100",
-            "--seeds", "1", "--worlds", "4", "--iterations", "2", "--train-steps", "40", "--eval-worlds", "2",
-            "--eval-steps", "40", "--device", "cpu", "--no-figures"]
+    argv = [
+        "study",
+        "group-hunting",
+        "--predators",
+        "1,2",
+        "--prey-conditions",
+        "turnaway",
+        "--share-radius",
+        "100",
+        "--seeds",
+        "1",
+        "--worlds",
+        "4",
+        "--iterations",
+        "2",
+        "--train-steps",
+        "40",
+        "--eval-worlds",
+        "2",
+        "--eval-steps",
+        "40",
+        "--device",
+        "cpu",
+        "--no-figures",
+    ]
     assert main(argv + ["--out", str(tmp_path / "here")]) == 0
     on_ray = argv + ["--out", str(tmp_path / "ray"), "--ray"]
     assert main(on_ray) == 0

@@ -22,10 +22,20 @@ from aquarium_warp.studies.statistics import (
 )
 
 
-@pytest.mark.parametrize("p, df, expected", [
-    (0.975, 1, 12.706205), (0.975, 2, 4.302653), (0.975, 4, 2.776445), (0.975, 30, 2.042272), (0.95, 10, 1.812461),
-    (0.995, 5, 4.032143), (0.025, 4, -2.776445), (0.5, 3, 0.0), (0.975, 1e5, 1.959988),
-])
+@pytest.mark.parametrize(
+    "p, df, expected",
+    [
+        (0.975, 1, 12.706205),
+        (0.975, 2, 4.302653),
+        (0.975, 4, 2.776445),
+        (0.975, 30, 2.042272),
+        (0.95, 10, 1.812461),
+        (0.995, 5, 4.032143),
+        (0.025, 4, -2.776445),
+        (0.5, 3, 0.0),
+        (0.975, 1e5, 1.959988),
+    ],
+)
 def test_t_quantiles_match_the_tables(p, df, expected):
     assert t_quantile(p, df) == pytest.approx(expected, abs=1e-6)
 
@@ -67,7 +77,8 @@ def test_welch_difference_by_hand():
     assert (d["n_a"], d["n_b"]) == (3, 4)
     # Two constant conditions: the interval is the point.
     assert difference([1.0, 1.0], [3.0, 3.0, 3.0]) == pytest.approx(
-        {"difference": -2.0, "low": -2.0, "high": -2.0, "confidence": 0.95, "se": 0.0, "df": None, "n_a": 2, "n_b": 3})
+        {"difference": -2.0, "low": -2.0, "high": -2.0, "confidence": 0.95, "se": 0.0, "df": None, "n_a": 2, "n_b": 3}
+    )
     with pytest.raises(ValueError, match="at least two values"):
         difference([1.0], [2.0, 3.0])
 
@@ -120,9 +131,32 @@ def test_compare_takes_the_difference_of_each_measure():
 
 def test_the_flow_study_reports_each_current_against_still_water(tmp_path, one_thread):
     out = tmp_path / "flow"
-    assert main(["study", "flow", "--kinds", "uniform", "--strengths", "0,2", "--seeds", "3", "--episodes-per-seed",
-                 "1", "--episode-steps", "40", "--prey", "8", "--device", "cpu", "--no-figures",
-                 "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "study",
+                "flow",
+                "--kinds",
+                "uniform",
+                "--strengths",
+                "0,2",
+                "--seeds",
+                "3",
+                "--episodes-per-seed",
+                "1",
+                "--episode-steps",
+                "40",
+                "--prey",
+                "8",
+                "--device",
+                "cpu",
+                "--no-figures",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     rows = list(csv.DictReader((out / "flow.csv").open(encoding="utf-8", newline="")))
     effects = json.loads((out / "flow.json").read_text())["current_effects"]
     assert [(e["kind"], e["strength"]) for e in effects] == [("uniform", 2.0)]

@@ -38,8 +38,25 @@ def test_parse_lists():
 @pytest.mark.slow
 def test_cli_tiny_sweep_writes_csv_json_and_figures(device, tmp_path, capsys):
     out = tmp_path / "study"
-    rc = main(["study", "swarm-size", "--prey", "4,8", "--seeds", "2", "--episode-steps", "30",
-               "--metrics-every", "5", "--device", device, "--out", str(out), "--no-progress"])
+    rc = main(
+        [
+            "study",
+            "swarm-size",
+            "--prey",
+            "4,8",
+            "--seeds",
+            "2",
+            "--episode-steps",
+            "30",
+            "--metrics-every",
+            "5",
+            "--device",
+            device,
+            "--out",
+            str(out),
+            "--no-progress",
+        ]
+    )
     assert rc == 0
     rows = read_csv(out / "swarm_size.csv")
     assert [(int(r["prey"]), int(r["seed"])) for r in rows] == [(4, 0), (4, 1), (8, 0), (8, 1)]
@@ -54,8 +71,12 @@ def test_cli_tiny_sweep_writes_csv_json_and_figures(device, tmp_path, capsys):
     assert stats["n"] == 2 and stats["mean"] == pytest.approx(sum(stats["seeds"]) / 2)
     assert len(summary["results"][0]["nn_distribution"]) == len(summary["nn_bin_edges"]) - 1
     assert "population" not in summary["results"][0]  # respawn on: populations do not change
-    for name in ("captures_vs_size.png", "polarization_groups_vs_size.png", "spacing_vs_size.png",
-                 "nn_distribution.png"):
+    for name in (
+        "captures_vs_size.png",
+        "polarization_groups_vs_size.png",
+        "spacing_vs_size.png",
+        "nn_distribution.png",
+    ):
         assert (out / name).stat().st_size > 10_000, name
     assert not (out / "population.png").exists()
     assert "wrote" in capsys.readouterr().out
@@ -70,9 +91,19 @@ def test_cli_tiny_sweep_writes_csv_json_and_figures(device, tmp_path, capsys):
 
 @pytest.mark.slow
 def test_fov_and_view_sweep_constant_density_and_populations(device, tmp_path):
-    study = SwarmSizeStudy(prey=[4, 16], seeds=2, episode_steps=25, metrics_every=5, fov_angles=[90.0, 240.0],
-                           view_distances=[150.0], constant_density=True, respawn=False, device=device,
-                           out=str(tmp_path), jobs=2)
+    study = SwarmSizeStudy(
+        prey=[4, 16],
+        seeds=2,
+        episode_steps=25,
+        metrics_every=5,
+        fov_angles=[90.0, 240.0],
+        view_distances=[150.0],
+        constant_density=True,
+        respawn=False,
+        device=device,
+        out=str(tmp_path),
+        jobs=2,
+    )
     summary = run_swarm_size_study(study, progress=False)
     rows = read_csv(tmp_path / "swarm_size.csv")
     assert len(rows) == 2 * 2 * 2
@@ -89,18 +120,40 @@ def test_fov_and_view_sweep_constant_density_and_populations(device, tmp_path):
 
 def test_bad_policy_names(tmp_path):
     with pytest.raises(ValueError, match="neither a heuristic"):
-        run_swarm_size_study(SwarmSizeStudy(prey=[4], seeds=1, episode_steps=5, prey_policy="nope",
-                                            out=str(tmp_path)), progress=False)
-    assert main(["study", "swarm-size", "--prey", "4", "--predator-policy", "turnaway", "--out",
-                 str(tmp_path), "--no-progress"]) == 2
+        run_swarm_size_study(
+            SwarmSizeStudy(prey=[4], seeds=1, episode_steps=5, prey_policy="nope", out=str(tmp_path)), progress=False
+        )
+    assert (
+        main(
+            [
+                "study",
+                "swarm-size",
+                "--prey",
+                "4",
+                "--predator-policy",
+                "turnaway",
+                "--out",
+                str(tmp_path),
+                "--no-progress",
+            ]
+        )
+        == 2
+    )
 
 
 def test_trained_policy_without_training_package(device, tmp_path, monkeypatch):
     path = tmp_path / "policy.pt"
     path.write_bytes(b"not read")
     monkeypatch.setitem(sys.modules, "aquarium_warp.training.export", None)  # import fails
-    study = SwarmSizeStudy(prey=[4], seeds=1, episode_steps=5, prey_policy=str(path), device=device,
-                           out=str(tmp_path / "out"), figures=False)
+    study = SwarmSizeStudy(
+        prey=[4],
+        seeds=1,
+        episode_steps=5,
+        prey_policy=str(path),
+        device=device,
+        out=str(tmp_path / "out"),
+        figures=False,
+    )
     with pytest.raises(ValueError, match="trained policies need aquarium_warp.training"):
         run_swarm_size_study(study, progress=False)
 
@@ -124,8 +177,14 @@ def test_trained_policy_file(device, tmp_path):
         def forward(self, obs: torch.Tensor) -> torch.Tensor:
             return torch.argmax(self.logits(obs), dim=-1)
 
-    meta = {"format_version": 1, "team": "prey", "observation_size": 29, "action_count": 16, "group_size": 1,
-            "sharing": "parameter"}
+    meta = {
+        "format_version": 1,
+        "team": "prey",
+        "observation_size": 29,
+        "action_count": 16,
+        "group_size": 1,
+        "sharing": "parameter",
+    }
     path = str(tmp_path / "policy.pt")
     torch.jit.save(torch.jit.script(Policy()), path, _extra_files={"aquarium_policy.json": json.dumps(meta)})
     env = BatchedAquarium(AquariumConfig(prey_count=8), num_worlds=3, device=device)
@@ -134,8 +193,16 @@ def test_trained_policy_file(device, tmp_path):
     assert actions.shape == (3, 8) and actions.dtype == torch.int32 and (actions == 4).all()
     with pytest.raises(ValueError, match="trained for 'prey'"):
         make_driver(path, env, "predator")
-    study = SwarmSizeStudy(prey=[8], seeds=2, episode_steps=40, metrics_every=1, prey_policy=path, device=device,
-                           out=str(tmp_path / "out"), figures=False)
+    study = SwarmSizeStudy(
+        prey=[8],
+        seeds=2,
+        episode_steps=40,
+        metrics_every=1,
+        prey_policy=path,
+        device=device,
+        out=str(tmp_path / "out"),
+        figures=False,
+    )
     summary = run_swarm_size_study(study, progress=False)
     assert summary["config"]["prey_policy"] == path and summary["results"][0]["metrics"]["captures"]["n"] == 2
     assert os.path.exists(tmp_path / "out" / "swarm_size.csv")

@@ -16,8 +16,18 @@ from aquarium_warp import BatchedAquarium
 from aquarium_warp.cli import main
 from aquarium_warp.studies.swarm_size import SwarmSizeStudy, one_batch_config, run_swarm_size_study
 
-METRICS = ("captures", "captures_per_prey", "polarization", "cohesion", "nn_mean", "groups", "largest_group",
-           "predator_distance", "prey_alive", "episode_length")
+METRICS = (
+    "captures",
+    "captures_per_prey",
+    "polarization",
+    "cohesion",
+    "nn_mean",
+    "groups",
+    "largest_group",
+    "predator_distance",
+    "prey_alive",
+    "episode_length",
+)
 
 
 def read_csv(path):
@@ -27,9 +37,12 @@ def read_csv(path):
 
 def both_paths(tmp_path, **settings) -> tuple[dict, dict]:
     """The summaries of the same study run one batch per setting and in one batch."""
-    return tuple(run_swarm_size_study(SwarmSizeStudy(one_batch=one, out=str(tmp_path / str(one)), figures=False,
-                                                     **settings), progress=False)
-                 for one in (False, True))
+    return tuple(
+        run_swarm_size_study(
+            SwarmSizeStudy(one_batch=one, out=str(tmp_path / str(one)), figures=False, **settings), progress=False
+        )
+        for one in (False, True)
+    )
 
 
 def metric_rows(rows):
@@ -49,8 +62,9 @@ def assert_agree(per_setting: dict, one_batch: dict, names, sigmas: float = 4.0)
 
 
 def test_single_setting_is_identical_on_both_paths(device, tmp_path):
-    per_setting, one_batch = both_paths(tmp_path, prey=[8], seeds=2, episode_steps=30, metrics_every=5,
-                                        fov_angles=[200.0], respawn=False, device=device)
+    per_setting, one_batch = both_paths(
+        tmp_path, prey=[8], seeds=2, episode_steps=30, metrics_every=5, fov_angles=[200.0], respawn=False, device=device
+    )
     assert per_setting["path"] == "one batch per setting" and one_batch["path"].startswith("one batch:")
     assert one_batch["config"]["one_batch"] and one_batch["wall_time_s"] > 0
     assert read_csv(tmp_path / "True" / "swarm_size.csv") == read_csv(tmp_path / "False" / "swarm_size.csv")
@@ -75,8 +89,9 @@ def test_one_batch_prey_at_reset_are_those_of_their_own_batch(device):
 
 
 def test_swarm_size_one_batch_agrees_with_one_batch_per_size(device, tmp_path):
-    per_setting, one_batch = both_paths(tmp_path, prey=[4, 24], seeds=16, episode_steps=80, metrics_every=8,
-                                        device=device)
+    per_setting, one_batch = both_paths(
+        tmp_path, prey=[4, 24], seeds=16, episode_steps=80, metrics_every=8, device=device
+    )
     names = ("captures_per_prey", "polarization", "nn_mean", "groups", "largest_group", "predator_distance")
     assert_agree(per_setting, one_batch, names)
     # The sizes differ by far more than the margin, so swapped or mixed worlds would fail the comparison.
@@ -92,30 +107,72 @@ def test_swarm_size_one_batch_agrees_with_one_batch_per_size(device, tmp_path):
 def test_one_batch_refuses_what_sizes_the_arrays(tmp_path):
     for change, words in ((dict(constant_density=True), "constant density"), (dict(reproduction=True), "max_prey")):
         with pytest.raises(ValueError, match=words):
-            run_swarm_size_study(SwarmSizeStudy(prey=[4, 8], one_batch=True, out=str(tmp_path), **change),
-                                 progress=False)
+            run_swarm_size_study(
+                SwarmSizeStudy(prey=[4, 8], one_batch=True, out=str(tmp_path), **change), progress=False
+            )
 
 
-@pytest.mark.parametrize("argv", [["study", "swarm-size", "--prey", "4,8", "--one-batch", "--jobs", "2"],
-                                  ["study", "fov-view", "--fov", "90,180", "--view", "50", "--jobs", "2"]])
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["study", "swarm-size", "--prey", "4,8", "--one-batch", "--jobs", "2"],
+        ["study", "fov-view", "--fov", "90,180", "--view", "50", "--jobs", "2"],
+    ],
+)
 def test_one_batch_refuses_jobs(argv, tmp_path, capsys):
     """One batch runs in this process: `--jobs` (settings at once, a batch each) would be ignored."""
     assert main([*argv, "--out", str(tmp_path), "--no-progress"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "--jobs 2" in err and "one batch" in err
-    assert main([*argv[:-1], "1", "--out", str(tmp_path), "--no-progress", "--seeds", "1", "--episode-steps", "5",
-                 "--no-figures"]) == 0  # one job is what one batch does
+    assert (
+        main(
+            [
+                *argv[:-1],
+                "1",
+                "--out",
+                str(tmp_path),
+                "--no-progress",
+                "--seeds",
+                "1",
+                "--episode-steps",
+                "5",
+                "--no-figures",
+            ]
+        )
+        == 0
+    )  # one job is what one batch does
 
 
 def test_cli_fov_view_writes_csv_json_and_heatmap(device, tmp_path, capsys):
     out = tmp_path / "fv"
-    rc = main(["study", "fov-view", "--fov", "60,360", "--view", "50,100,...,200", "--prey", "8", "--seeds", "2",
-               "--episode-steps", "20", "--metrics-every", "5", "--device", device, "--out", str(out),
-               "--no-progress"])
+    rc = main(
+        [
+            "study",
+            "fov-view",
+            "--fov",
+            "60,360",
+            "--view",
+            "50,100,...,200",
+            "--prey",
+            "8",
+            "--seeds",
+            "2",
+            "--episode-steps",
+            "20",
+            "--metrics-every",
+            "5",
+            "--device",
+            device,
+            "--out",
+            str(out),
+            "--no-progress",
+        ]
+    )
     assert rc == 0 and "fov_view.csv" in capsys.readouterr().out
     rows = read_csv(out / "fov_view.csv")
     assert [(float(r["fov_angle"]), float(r["view_distance"]), int(r["seed"])) for r in rows] == [
-        (f, v, s) for f in (60.0, 360.0) for v in (50.0, 100.0, 200.0) for s in (0, 1)]
+        (f, v, s) for f in (60.0, 360.0) for v in (50.0, 100.0, 200.0) for s in (0, 1)
+    ]
     assert all(int(r["prey"]) == 8 and float(r["episode_length"]) == 20 for r in rows)
     summary = json.loads((out / "fov_view.json").read_text())
     assert summary["study"] == "fov-view" and summary["config"]["one_batch"]
@@ -127,23 +184,39 @@ def test_cli_fov_view_writes_csv_json_and_heatmap(device, tmp_path, capsys):
 
 
 def test_fov_view_one_batch_agrees_with_one_batch_per_setting(device, tmp_path):
-    settings = dict(kind="fov-view", prey=[24], fov_angles=[30.0, 360.0], view_distances=[40.0, 300.0], seeds=12,
-                    episode_steps=80, metrics_every=8, device=device)
+    settings = dict(
+        kind="fov-view",
+        prey=[24],
+        fov_angles=[30.0, 360.0],
+        view_distances=[40.0, 300.0],
+        seeds=12,
+        episode_steps=80,
+        metrics_every=8,
+        device=device,
+    )
     per_setting, one_batch = both_paths(tmp_path, **settings)
     # Every world has 24 prey (one capacity), so setting 0's worlds are the same worlds on both paths.
     rows = [read_csv(tmp_path / str(one) / "fov_view.csv") for one in (False, True)]
     assert metric_rows(rows[0][:12]) == metric_rows(rows[1][:12])
-    assert_agree(per_setting, one_batch, ("captures_per_prey", "polarization", "nn_mean", "groups",
-                                          "predator_distance"))
+    assert_agree(
+        per_setting, one_batch, ("captures_per_prey", "polarization", "nn_mean", "groups", "predator_distance")
+    )
     # Seeing far and all around makes TurnAway prey flee together: the settings differ beyond the margin.
     for summary in (per_setting, one_batch):
         blind, seeing = (summary["results"][i]["metrics"]["polarization"] for i in (0, 3))
         assert abs(seeing["mean"] - blind["mean"]) > 8 * math.hypot(blind["sem"], seeing["sem"])
 
 
-@pytest.mark.parametrize("argv, option", [(["--fov", "60,abc"], "--fov"), (["--fov", "0,90"], "--fov"),
-                                          (["--fov", "90,400"], "--fov"), (["--view", "50,-1"], "--view"),
-                                          (["--view", "50,100,...,99"], "--view")])
+@pytest.mark.parametrize(
+    "argv, option",
+    [
+        (["--fov", "60,abc"], "--fov"),
+        (["--fov", "0,90"], "--fov"),
+        (["--fov", "90,400"], "--fov"),
+        (["--view", "50,-1"], "--view"),
+        (["--view", "50,100,...,99"], "--view"),
+    ],
+)
 def test_fov_view_bad_lists_are_one_line_errors(argv, option, tmp_path, capsys):
     assert main(["study", "fov-view", *argv, "--out", str(tmp_path), "--no-progress"]) == 2
     err = capsys.readouterr().err.strip()

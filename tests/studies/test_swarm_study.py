@@ -16,8 +16,27 @@ from aquarium_warp.studies import STUDIES, swarm
 from aquarium_warp.studies.jobs import FINISHED_DIR, task_devices
 from aquarium_warp.studies.statistics import interval
 
-SCREEN = ["study", "swarm", "--part", "screen", "--prey-counts", "4", "--view-distances", "200", "--predator-speeds",
-          "5", "--episodes", "2", "--eval-seeds", "2", "--max-steps", "60", "--gpus", "0", "--no-figures"]
+SCREEN = [
+    "study",
+    "swarm",
+    "--part",
+    "screen",
+    "--prey-counts",
+    "4",
+    "--view-distances",
+    "200",
+    "--predator-speeds",
+    "5",
+    "--episodes",
+    "2",
+    "--eval-seeds",
+    "2",
+    "--max-steps",
+    "60",
+    "--gpus",
+    "0",
+    "--no-figures",
+]
 
 
 def test_the_screen_end_to_end_and_a_rerun_runs_nothing(tmp_path, capsys, one_thread):
@@ -29,7 +48,8 @@ def test_the_screen_end_to_end_and_a_rerun_runs_nothing(tmp_path, capsys, one_th
     assert summary["command"].startswith("aquarium-warp study swarm --part screen")
     rows = summary["screen"]
     assert sorted((r["prey_policy"], r["predator_policy"]) for r in rows) == sorted(
-        (p, q) for p in swarm.HEURISTIC_PREY for q in swarm.PREDATORS)
+        (p, q) for p in swarm.HEURISTIC_PREY for q in swarm.PREDATORS
+    )
     for row in rows:
         assert (row["prey_count"], row["view_distance"], row["predator_speed"]) == (4, 200.0, 5.0)
         uniform = row["uniform"]["nn_mean"]
@@ -60,22 +80,25 @@ def options(**changes) -> argparse.Namespace:
     return args
 
 
-@pytest.mark.parametrize("changes, option", [
-    ({"seeds": 1}, "--seeds"),
-    ({"episodes": 0}, "--episodes"),
-    ({"eval_seeds": 0}, "--eval-seeds"),
-    ({"max_steps": 0}, "--max-steps"),
-    ({"per_gpu": 0}, "--per-gpu"),
-    ({"train_worlds": 0}, "--train-worlds"),
-    ({"gpus": -1}, "--gpus"),
-    ({"conditions": "swarm,flocking"}, "--conditions"),
-    ({"conditions": "swarm,swarm"}, "--conditions"),
-    ({"prey_counts": "1,8"}, "--prey-counts"),
-    ({"prey_counts": "8,8"}, "--prey-counts"),
-    ({"view_distances": "0.5"}, "--view-distances"),
-    ({"predator_speeds": "5,0"}, "--predator-speeds"),
-    ({"predator_speeds": "five"}, "--predator-speeds"),
-])
+@pytest.mark.parametrize(
+    "changes, option",
+    [
+        ({"seeds": 1}, "--seeds"),
+        ({"episodes": 0}, "--episodes"),
+        ({"eval_seeds": 0}, "--eval-seeds"),
+        ({"max_steps": 0}, "--max-steps"),
+        ({"per_gpu": 0}, "--per-gpu"),
+        ({"train_worlds": 0}, "--train-worlds"),
+        ({"gpus": -1}, "--gpus"),
+        ({"conditions": "swarm,flocking"}, "--conditions"),
+        ({"conditions": "swarm,swarm"}, "--conditions"),
+        ({"prey_counts": "1,8"}, "--prey-counts"),
+        ({"prey_counts": "8,8"}, "--prey-counts"),
+        ({"view_distances": "0.5"}, "--view-distances"),
+        ({"predator_speeds": "5,0"}, "--predator-speeds"),
+        ({"predator_speeds": "five"}, "--predator-speeds"),
+    ],
+)
 def test_check_refuses_bad_options_naming_them(changes, option):
     with pytest.raises(ValueError) as error:
         swarm.check(options(**changes))
@@ -108,8 +131,12 @@ def test_comparisons_keep_their_keys_and_the_pairing():
     welch = swarm.comparison(a, b, False, None)
     assert set(welch) == {"difference", "ci95", "paired"} and welch["ci95"] > paired["ci95"]
     assert swarm.comparison(a, b, False, 0.0)["equivalent"] is False  # no captures: no margin to be inside
-    assert interval([1.0, None, 3.0]) == {"mean": 2.0, "ci95": pytest.approx(12.706205 * 1.0, abs=1e-5),
-                                          "n": 2, "values": [1.0, 3.0]}
+    assert interval([1.0, None, 3.0]) == {
+        "mean": 2.0,
+        "ci95": pytest.approx(12.706205 * 1.0, abs=1e-5),
+        "n": 2,
+        "values": [1.0, 3.0],
+    }
 
 
 def old_train_argv(args, condition: str, seed: int, device: str) -> list[str]:
@@ -118,16 +145,40 @@ def old_train_argv(args, condition: str, seed: int, device: str) -> list[str]:
     spec = swarm.CONDITIONS[condition]
     worlds = args.train_worlds or max(1, swarm.TRAIN_AGENT_STEPS // (spec["prey"] * 32 * args.iterations))
     iterations = args.iterations * spec.get("budget", 1)
-    argv = ["train", "--preset", args.train_preset, "--seed", str(seed), "--device", device, "--quiet", "--export",
-            "jit", "--overwrite", "--save-interval", str(iterations), "--prey", str(spec["prey"]), "--num-worlds",
-            str(worlds), "--iterations", str(iterations), "--entropy", "0.01", "--predator-policy", spec["opponent"]]
+    argv = [
+        "train",
+        "--preset",
+        args.train_preset,
+        "--seed",
+        str(seed),
+        "--device",
+        device,
+        "--quiet",
+        "--export",
+        "jit",
+        "--overwrite",
+        "--save-interval",
+        str(iterations),
+        "--prey",
+        str(spec["prey"]),
+        "--num-worlds",
+        str(worlds),
+        "--iterations",
+        str(iterations),
+        "--entropy",
+        "0.01",
+        "--predator-policy",
+        spec["opponent"],
+    ]
     for s in swarm.SCENARIO + swarm.RECIPE + tuple(spec["sets"]) + tuple(args.train_set):
         argv += ["--set", s]
     return argv
 
 
-@pytest.mark.parametrize("changes", [{}, {"train_preset": "tiny", "iterations": 2, "train_worlds": 4,
-                                          "train_set": ["runner.num_steps_per_env=8"]}])
+@pytest.mark.parametrize(
+    "changes",
+    [{}, {"train_preset": "tiny", "iterations": 2, "train_worlds": 4, "train_set": ["runner.num_steps_per_env=8"]}],
+)
 def test_each_condition_trains_with_the_config_of_its_train_command(changes):
     from aquarium_warp.training.cli import train_config
 
@@ -150,9 +201,31 @@ def test_more_gpus_than_the_machine_has_are_refused():
     assert task_devices(0) == ["cpu"]
 
 
-LEARNED = ["study", "swarm", "--part", "learned", "--conditions", "no-neighbours", "--seeds", "2", "--iterations", "1",
-           "--train-worlds", "2", "--train-preset", "tiny", "--episodes", "1", "--eval-seeds", "2", "--max-steps", "40",
-           "--gpus", "0", "--no-figures"]
+LEARNED = [
+    "study",
+    "swarm",
+    "--part",
+    "learned",
+    "--conditions",
+    "no-neighbours",
+    "--seeds",
+    "2",
+    "--iterations",
+    "1",
+    "--train-worlds",
+    "2",
+    "--train-preset",
+    "tiny",
+    "--episodes",
+    "1",
+    "--eval-seeds",
+    "2",
+    "--max-steps",
+    "40",
+    "--gpus",
+    "0",
+    "--no-figures",
+]
 
 
 def test_the_learned_part_end_to_end_and_a_rerun_runs_nothing(tmp_path, capsys, one_thread):

@@ -44,8 +44,10 @@ def digest(obj) -> str:
 
 def parameters(trainer: Trainer) -> dict:
     """Each learner's actor and critic state (parameters and normaliser statistics)."""
-    return {team: {"actor": learner.alg.actor.state_dict(), "critic": learner.alg.critic.state_dict()}
-            for team, learner in trainer.learners.items()}
+    return {
+        team: {"actor": learner.alg.actor.state_dict(), "critic": learner.alg.critic.state_dict()}
+        for team, learner in trainer.learners.items()
+    }
 
 
 def share_one_gpu() -> None:
@@ -79,13 +81,21 @@ def main() -> None:
         trainer = Trainer.resume(run_dir)
     else:
         train = {"team": team, "num_worlds": 4, "iterations": 4, "export": [], **({"device": "cuda"} if gpu else {})}
-        config = make_config("tiny", {"env": {"max_steps": 20}, "train": train,
-                                      "runner": {"num_steps_per_env": 16, "save_interval": 100}})
+        config = make_config(
+            "tiny",
+            {"env": {"max_steps": 20}, "train": train, "runner": {"num_steps_per_env": 16, "save_interval": 100}},
+        )
         trainer = Trainer(config, log_dir=run_dir)
-    record: dict = {"rank": trainer.rank, "seed": trainer.seed, "params": {}, "stats": {},
-                    # The graphs each learner's algorithm would allow on CUDA (the CPU captures none).
-                    "graphable": {name: [learner.alg.rollout_graphable, learner.alg.graphable]
-                                  for name, learner in trainer.learners.items()}}
+    record: dict = {
+        "rank": trainer.rank,
+        "seed": trainer.seed,
+        "params": {},
+        "stats": {},
+        # The graphs each learner's algorithm would allow on CUDA (the CPU captures none).
+        "graphable": {
+            name: [learner.alg.rollout_graphable, learner.alg.graphable] for name, learner in trainer.learners.items()
+        },
+    }
     for name, learner in trainer.learners.items():
         take = learner.vec_env.episode_stats_snapshot
         record["stats"][name] = []

@@ -19,12 +19,15 @@ from aquarium_warp.drivers import make_driver
 from aquarium_warp.training.drivers import TrainedOpponent
 
 
-@pytest.mark.parametrize("kw, own", [
-    ({}, 5),  # type, x, y, heading, speed
-    ({"observation_frame": "ego", "action_frame": "ego"}, 2),  # type, speed
-    ({"observation_frame": "ego"}, 4),  # type, speed, heading x, y
-    ({"observation_frame": "ego", "observe_flow": True}, 6),  # ... and the current's two values
-])
+@pytest.mark.parametrize(
+    "kw, own",
+    [
+        ({}, 5),  # type, x, y, heading, speed
+        ({"observation_frame": "ego", "action_frame": "ego"}, 2),  # type, speed
+        ({"observation_frame": "ego"}, 4),  # type, speed, heading x, y
+        ({"observation_frame": "ego", "observe_flow": True}, 6),  # ... and the current's two values
+    ],
+)
 def test_neighbour_columns_follow_the_layout(kw, own):
     cfg = AquariumConfig(**kw)
     assert cfg.neighbour_columns("prey", "predator") == slice(own, own + 6)  # one predator slot
@@ -42,8 +45,9 @@ class Recorder:
 
 @pytest.mark.parametrize("kw", [{}, {"observation_frame": "ego"}])
 def test_a_blind_policy_sees_empty_slots_of_the_type_only(kw):
-    env = BatchedAquarium(AquariumConfig(prey_count=12, width=300.0, height=300.0, **kw), num_worlds=4,
-                          device="cpu", seed=1)
+    env = BatchedAquarium(
+        AquariumConfig(prey_count=12, width=300.0, height=300.0, **kw), num_worlds=4, device="cpu", seed=1
+    )
     env.reset()
     for _ in range(20):  # prey in each other's view
         env.step({"prey": torch.zeros(4, 12, dtype=torch.int32), "predator": torch.zeros(4, 1, dtype=torch.int32)})
@@ -72,7 +76,28 @@ def test_blindness_is_for_trained_policies_and_checked():
 
 @pytest.mark.parametrize("value, message", [("prey", "expected TEAM=TYPE"), ("prey=shark", "expected TEAM=TYPE")])
 def test_eval_blind_option_is_parsed_strictly(tmp_path, capsys, value, message):
-    assert main(["eval", "--prey", "turnaway", "--predator", "naivchase", "--episodes", "1", "--seeds", "0",
-                 "--max-steps", "5", "--no-figures", "--out", str(tmp_path), "--blind", value]) == 2
+    assert (
+        main(
+            [
+                "eval",
+                "--prey",
+                "turnaway",
+                "--predator",
+                "naivchase",
+                "--episodes",
+                "1",
+                "--seeds",
+                "0",
+                "--max-steps",
+                "5",
+                "--no-figures",
+                "--out",
+                str(tmp_path),
+                "--blind",
+                value,
+            ]
+        )
+        == 2
+    )
     err = capsys.readouterr().err
     assert message in err and len(err.strip().splitlines()) == 1

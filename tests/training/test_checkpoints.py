@@ -24,9 +24,14 @@ def run_dir(tmp_path_factory):
     """A tiny run of 3 iterations, checkpointed after each (model_<i>.pt: i + 1 iterations done)."""
     torch.set_num_threads(1)
     path = str(tmp_path_factory.mktemp("run"))
-    config = make_config("tiny", {"train": {"num_worlds": 4, "iterations": 3, "quiet": True, "export": []},
-                                  "env": {"max_steps": 20},
-                                  "runner": {"num_steps_per_env": 8, "save_interval": 1}})
+    config = make_config(
+        "tiny",
+        {
+            "train": {"num_worlds": 4, "iterations": 3, "quiet": True, "export": []},
+            "env": {"max_steps": 20},
+            "runner": {"num_steps_per_env": 8, "save_interval": 1},
+        },
+    )
     trainer = Trainer(config, path)
     trainer.train()
     trainer.close()
@@ -36,8 +41,14 @@ def run_dir(tmp_path_factory):
 def _damage(path: str, kind: str, source: str) -> None:
     data = open(source, "rb").read()
     with open(path, "wb") as f:
-        f.write({"empty": b"", "truncated": data[: len(data) // 2], "text": b"hello, not a checkpoint\n",
-                 "corrupt": bytes(reversed(data))}[kind])
+        f.write(
+            {
+                "empty": b"",
+                "truncated": data[: len(data) // 2],
+                "text": b"hello, not a checkpoint\n",
+                "corrupt": bytes(reversed(data)),
+            }[kind]
+        )
 
 
 @pytest.mark.parametrize("kind", ["missing", "empty", "truncated", "text", "corrupt", "foreign"])
@@ -130,17 +141,26 @@ def test_cli_option_out_of_range_is_an_argparse_error(capsys, argv, option, allo
     assert f"argument {option}" in err[-1] and allowed in err[-1], err[-1]
 
 
-@pytest.mark.parametrize("argv,expected", [
-    (["train", "--set", "env.foo=1"], "unknown config fields ['foo']"),
-    (["train", "--set", "env.prey.bar=2"], "unknown config fields ['prey.bar']"),
-    (["train", "--set", "runner.algorithm.gamma=2"], "runner.algorithm.gamma=2 must be a number in [0, 1]"),
-    (["train", "--set", "runner.algorithm.lam=NaN"], "runner.algorithm.lam=nan must be a number in [0, 1]"),
-    (["train", "--set", "runner.algorithm.clip_param=0"], "runner.algorithm.clip_param=0 must be a number in (0, 1]"),
-    (["train", "--set", "runner.algorithm.entropy_coef=-1"], "entropy_coef=-1 must be a finite number >= 0"),
-    (["train", "--set", "train.actor_lr=Infinity"], "train.actor_lr=inf must be a finite number > 0"),
-    (["train", "--seed", "99999999999999999999"], "train.seed=99999999999999999999 must be an integer in [0, 2**63"),
-    (["video", "--out", "noext", "--steps", "1", "--device", "cpu", "--no-progress"], "must end in .mp4"),
-])
+@pytest.mark.parametrize(
+    "argv,expected",
+    [
+        (["train", "--set", "env.foo=1"], "unknown config fields ['foo']"),
+        (["train", "--set", "env.prey.bar=2"], "unknown config fields ['prey.bar']"),
+        (["train", "--set", "runner.algorithm.gamma=2"], "runner.algorithm.gamma=2 must be a number in [0, 1]"),
+        (["train", "--set", "runner.algorithm.lam=NaN"], "runner.algorithm.lam=nan must be a number in [0, 1]"),
+        (
+            ["train", "--set", "runner.algorithm.clip_param=0"],
+            "runner.algorithm.clip_param=0 must be a number in (0, 1]",
+        ),
+        (["train", "--set", "runner.algorithm.entropy_coef=-1"], "entropy_coef=-1 must be a finite number >= 0"),
+        (["train", "--set", "train.actor_lr=Infinity"], "train.actor_lr=inf must be a finite number > 0"),
+        (
+            ["train", "--seed", "99999999999999999999"],
+            "train.seed=99999999999999999999 must be an integer in [0, 2**63",
+        ),
+        (["video", "--out", "noext", "--steps", "1", "--device", "cpu", "--no-progress"], "must end in .mp4"),
+    ],
+)
 def test_cli_value_errors_are_one_line(capsys, argv, expected):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()

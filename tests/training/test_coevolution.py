@@ -39,10 +39,15 @@ from aquarium_warp.world_state import WorldState
 def both_config(**train):
     """Six worlds of the tiny preset with two predators, 20-step episodes, 8-step rollouts."""
     teams = train.pop("teams", {})
-    return make_config("tiny", {
-        "train": {"team": "both", "num_worlds": 6, "iterations": 4, "quiet": True, "export": [], **train},
-        "env": {"max_steps": 20, "predator_count": 2},
-        "runner": {"num_steps_per_env": 8, "save_interval": 2}, "teams": teams})
+    return make_config(
+        "tiny",
+        {
+            "train": {"team": "both", "num_worlds": 6, "iterations": 4, "quiet": True, "export": [], **train},
+            "env": {"max_steps": 20, "predator_count": 2},
+            "runner": {"num_steps_per_env": 8, "save_interval": 2},
+            "teams": teams,
+        },
+    )
 
 
 def training_state(trainer: Trainer) -> dict[str, torch.Tensor]:
@@ -69,9 +74,16 @@ def assert_same(a: dict, b: dict) -> None:
     assert not differing, f"differ: {differing}"
 
 
-POOLED = dict(pool_every=1, pool_size=2, pool_fraction=0.3, metrics_every=5,
-              teams={"prey": {"sharing": "individual", "critic": "team"},
-                     "predator": {"critic": "world", "runner": {"actor": {"obs_normalization": True}}}})
+POOLED = dict(
+    pool_every=1,
+    pool_size=2,
+    pool_fraction=0.3,
+    metrics_every=5,
+    teams={
+        "prey": {"sharing": "individual", "critic": "team"},
+        "predator": {"critic": "world", "runner": {"actor": {"obs_normalization": True}}},
+    },
+)
 
 
 @pytest.fixture(scope="module")
@@ -114,14 +126,23 @@ def test_alternating_schedule_freezes_the_other_team(one_thread):
     """Turns of one iteration, prey first: in the prey's turn the predators' parameters, observation
     normaliser and optimizer stay bit for bit, and the other way round; the learning team changes."""
     normalised = {"runner": {"actor": {"obs_normalization": True}, "critic": {"obs_normalization": True}}}
-    trainer = Trainer(both_config(update_schedule="alternating", alternate_every=1,
-                                  teams={"prey": normalised, "predator": normalised}), None)
+    trainer = Trainer(
+        both_config(
+            update_schedule="alternating", alternate_every=1, teams={"prey": normalised, "predator": normalised}
+        ),
+        None,
+    )
 
     def snapshot(team):
         saved = trainer.learners[team].alg.save()
         out = {f"{p}.{k}": v.clone() for p in ("actor_state_dict", "critic_state_dict") for k, v in saved[p].items()}
-        out.update({f"adam.{i}.{k}": torch.as_tensor(v).clone()
-                    for i, s in saved["optimizer_state_dict"]["state"].items() for k, v in s.items()})
+        out.update(
+            {
+                f"adam.{i}.{k}": torch.as_tensor(v).clone()
+                for i, s in saved["optimizer_state_dict"]["state"].items()
+                for k, v in s.items()
+            }
+        )
         return out
 
     assert [trainer.learning(i) for i in range(4)] == [[True, False], [False, True]] * 2
@@ -137,8 +158,11 @@ def test_alternating_schedule_freezes_the_other_team(one_thread):
 
 def test_pool_sampling_rules():
     """Probabilities of the ring's slots by age: uniform, and latest-biased weights 1..n."""
-    p = lambda count, size, rule: np.diff(np.concatenate([[0.0], np.minimum(  # noqa: E731
-        OpponentPool.cdf(count, size, rule).astype(np.float64), 1.0)]))
+
+    def p(count, size, rule):
+        cdf = np.minimum(OpponentPool.cdf(count, size, rule).astype(np.float64), 1.0)
+        return np.diff(np.concatenate([[0.0], cdf]))
+
     assert np.allclose(p(2, 4, "uniform"), [0.5, 0.5, 0, 0])
     assert np.allclose(p(2, 4, "latest"), [1 / 3, 2 / 3, 0, 0])  # slot 1 is the newer
     # 6 snapshots in a ring of 4: slots 0, 1 hold snapshots 5 and 6 (newest), 2 and 3 hold 3 and 4.
@@ -152,8 +176,16 @@ def test_pool_draws_per_world(rule, one_thread):
     pool fraction), never both in one world, snapshot slots with the rule's probabilities (each within
     5 binomial standard deviations), and a resample changes only the worlds whose episode ended."""
     fractions = {"prey": 0.3, "predator": 0.2}
-    trainer = Trainer(both_config(num_worlds=4096, pool_every=1, pool_size=3, pool_sampling=rule,
-                                  teams={t: {"pool_fraction": f} for t, f in fractions.items()}), None)
+    trainer = Trainer(
+        both_config(
+            num_worlds=4096,
+            pool_every=1,
+            pool_size=3,
+            pool_sampling=rule,
+            teams={t: {"pool_fraction": f} for t, f in fractions.items()},
+        ),
+        None,
+    )
     pool = trainer.pool
     assert all((pool.index[t] == -1).all() for t in pool.teams)  # no snapshot yet: every world is live
     for _ in range(5):
@@ -265,21 +297,69 @@ def test_export_and_reload_both_policies(both_run, tmp_path, one_thread):
         observations, *_ = env.step(actions)
     env.close()
     out = str(tmp_path / "both.mp4")
-    assert main(["video", "--prey-policy", paths["prey"]["jit"], "--predator-policy", paths["predator"]["jit"],
-                 "--steps", "2", "--out", out, "--no-progress", "--device", "cpu"]) == 0
+    assert (
+        main(
+            [
+                "video",
+                "--prey-policy",
+                paths["prey"]["jit"],
+                "--predator-policy",
+                paths["predator"]["jit"],
+                "--steps",
+                "2",
+                "--out",
+                out,
+                "--no-progress",
+                "--device",
+                "cpu",
+            ]
+        )
+        == 0
+    )
     assert os.path.getsize(out) > 0
     cross = str(tmp_path / "cross")
-    assert main(["eval", "--cross-play", "--prey", os.path.join(run, "model_*.pt"), "--predator",
-                 os.path.join(run, "model_*.pt"), "random", "--episodes", "2", "--seeds", "0", "--out", cross,
-                 "--no-figures", "--device", "cpu"]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                "--cross-play",
+                "--prey",
+                os.path.join(run, "model_*.pt"),
+                "--predator",
+                os.path.join(run, "model_*.pt"),
+                "random",
+                "--episodes",
+                "2",
+                "--seeds",
+                "0",
+                "--out",
+                cross,
+                "--no-figures",
+                "--device",
+                "cpu",
+            ]
+        )
+        == 0
+    )
     import json
 
     result = json.loads(open(os.path.join(cross, "cross_play.json")).read())
     assert result["prey"] == ["model_0", "model_2", "model_3"]
     assert result["predator"] == ["model_0", "model_2", "model_3", "random"]
     # Each team's training curve from its progress CSV.
-    assert main(["eval", "--curves", f"prey={run}/progress_prey.csv", f"predator={run}/progress_predator.csv",
-                 "--out", cross]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                "--curves",
+                f"prey={run}/progress_prey.csv",
+                f"predator={run}/progress_predator.csv",
+                "--out",
+                cross,
+            ]
+        )
+        == 0
+    )
     assert os.path.getsize(os.path.join(cross, "training_curves.png")) > 0
 
 
@@ -294,8 +374,11 @@ def test_centralised_critic_observation_groups(critic, one_thread):
         W, S, L = vec.num_worlds, vec.slots, vec.observation_size
         obs = vec.get_observations()
         assert list(obs.keys()) == ["policy", critic]
-        extra = WorldState(env)().unsqueeze(1).expand(W, S, -1) if critic == "world" else \
-            env.observations[team].reshape(W, 1, S * L).expand(W, S, S * L)
+        extra = (
+            WorldState(env)().unsqueeze(1).expand(W, S, -1)
+            if critic == "world"
+            else env.observations[team].reshape(W, 1, S * L).expand(W, S, S * L)
+        )
         assert obs[critic].shape == (W * S, extra.shape[-1])
         assert torch.equal(obs[critic].view(W, S, -1), extra * env.alive[team].unsqueeze(-1))
         assert learner.alg.actor.obs_dim == L and learner.alg.critic.obs_dim == L + extra.shape[-1]
@@ -303,8 +386,12 @@ def test_centralised_critic_observation_groups(critic, one_thread):
     assert WorldState(env)().shape == (6, 7 * env.config.capacity + 1)
     trainer.train(1)  # the update runs with the wider critic
     trainer.close()
-    one_team = Trainer(make_config("tiny", {"train": {"num_worlds": 4, "critic": critic, "iterations": 1,
-                                                      "quiet": True, "export": []}}), None)
+    one_team = Trainer(
+        make_config(
+            "tiny", {"train": {"num_worlds": 4, "critic": critic, "iterations": 1, "quiet": True, "export": []}}
+        ),
+        None,
+    )
     assert one_team.runner.alg.critic.obs_dim > one_team.runner.alg.actor.obs_dim
     one_team.train()
     one_team.close()
@@ -318,8 +405,10 @@ def test_video_logging_frames(tmp_path, one_thread):
 
     from aquarium_warp.training.config import env_config
 
-    config = make_config("tiny", {"train": {"num_worlds": 4, "iterations": 2, "quiet": True, "export": [],
-                                            "video_every": 1, "video_steps": 5}})
+    config = make_config(
+        "tiny",
+        {"train": {"num_worlds": 4, "iterations": 2, "quiet": True, "export": [], "video_every": 1, "video_steps": 5}},
+    )
     trainer = Trainer(config, str(tmp_path / "run"))
     frames = trainer.video.record(trainer.video_drivers)
     width, height = frame_size(env_config(config), width_px=256)
@@ -342,8 +431,17 @@ def test_cuda_graphs_of_two_learners_match_eager(cuda_device):
     import copy
 
     def run(graphs: bool) -> dict:
-        trainer = Trainer(both_config(device=cuda_device, cuda_graphs=graphs, iterations=5,
-                                      update_schedule="alternating", alternate_every=2, **copy.deepcopy(POOLED)), None)
+        trainer = Trainer(
+            both_config(
+                device=cuda_device,
+                cuda_graphs=graphs,
+                iterations=5,
+                update_schedule="alternating",
+                alternate_every=2,
+                **copy.deepcopy(POOLED),
+            ),
+            None,
+        )
         trainer.train()
         assert trainer.runner.loop.graphs == graphs
         state = {k: v.cpu() for k, v in training_state(trainer).items()}
@@ -355,32 +453,73 @@ def test_cuda_graphs_of_two_learners_match_eager(cuda_device):
 
 def test_cli_both_teams_and_bad_input(tmp_path, capsys, one_thread):
     run = str(tmp_path / "cli")
-    common = ["--preset", "tiny", "--team", "both", "--num-worlds", "4", "--max-steps", "20", "--predators", "2",
-              "--num-steps-per-env", "8", "--save-interval", "1", "--log-dir", run, "--quiet", "--export", "jit",
-              "--update-schedule", "alternating", "--alternate-every", "1", "--pool-every", "1", "--pool-size", "2",
-              "--pool-sampling", "latest", "--pool-fraction", "0.25", "--critic", "world",
-              "--set", "teams.predator.actor_lr=0.001"]
+    common = [
+        "--preset",
+        "tiny",
+        "--team",
+        "both",
+        "--num-worlds",
+        "4",
+        "--max-steps",
+        "20",
+        "--predators",
+        "2",
+        "--num-steps-per-env",
+        "8",
+        "--save-interval",
+        "1",
+        "--log-dir",
+        run,
+        "--quiet",
+        "--export",
+        "jit",
+        "--update-schedule",
+        "alternating",
+        "--alternate-every",
+        "1",
+        "--pool-every",
+        "1",
+        "--pool-size",
+        "2",
+        "--pool-sampling",
+        "latest",
+        "--pool-fraction",
+        "0.25",
+        "--critic",
+        "world",
+        "--set",
+        "teams.predator.actor_lr=0.001",
+    ]
     assert main(["train", "--iterations", "2", *common]) == 0
     assert main(["train", "--resume", run, "--iterations", "3", "--quiet"]) == 0
     assert os.path.isfile(os.path.join(run, "exported", "predator", "policy.pt"))
     capsys.readouterr()
     for argv, expected in (
-            (["train", "--team", "prey", "--pool-every", "2"], "train.pool_every > 0 (an opponent pool of past "
-                                                               "snapshots) needs train.team='both'"),
-            (["train", "--team", "both", "--predator-policy", "naivchase"], "with --team both both teams learn"),
-            (["train", "--team", "both", "--pool-every", "1", "--set", "teams.prey.pool_fraction=0.9"],
-             "must add up to at most 1"),
-            (["train", "--team", "both", "--set", "train.loop=rsl-rl"], "train.team='both' needs train.loop='fast'"),
-            (["train", "--set", "teams.prey.critic=global"], "teams.prey.critic='global' must be one of"),
-            (["train", "--set", "teams.prey.runner.num_steps_per_env=4"], "teams.prey.runner="),
-            (["train", "--set", "teams.predator.runner.algorithm.gamma=2"],
-             "teams.predator.runner.algorithm.gamma=2 must be a number in [0, 1]"),
-            (["train", "--set", "teams.shark.sharing=individual"], "must map team names"),
-            (["train", "--set", "runner.actor=5"], "runner.actor=5 must be a mapping of settings"),
-            (["train", "--set", "runner.algorithm=5"], "runner.algorithm=5 must be a mapping of settings"),
-            (["train", "--set", "teams.prey.runner.critic=5"], "teams.prey.runner.critic=5 must be a mapping"),
-            (["train", "--team", "both", "--pool-every", "1", "--set", "runner.actor.class_name=RNNModel"],
-             "train.pool_every > 0 needs feed-forward actors")):
+        (
+            ["train", "--team", "prey", "--pool-every", "2"],
+            "train.pool_every > 0 (an opponent pool of past snapshots) needs train.team='both'",
+        ),
+        (["train", "--team", "both", "--predator-policy", "naivchase"], "with --team both both teams learn"),
+        (
+            ["train", "--team", "both", "--pool-every", "1", "--set", "teams.prey.pool_fraction=0.9"],
+            "must add up to at most 1",
+        ),
+        (["train", "--team", "both", "--set", "train.loop=rsl-rl"], "train.team='both' needs train.loop='fast'"),
+        (["train", "--set", "teams.prey.critic=global"], "teams.prey.critic='global' must be one of"),
+        (["train", "--set", "teams.prey.runner.num_steps_per_env=4"], "teams.prey.runner="),
+        (
+            ["train", "--set", "teams.predator.runner.algorithm.gamma=2"],
+            "teams.predator.runner.algorithm.gamma=2 must be a number in [0, 1]",
+        ),
+        (["train", "--set", "teams.shark.sharing=individual"], "must map team names"),
+        (["train", "--set", "runner.actor=5"], "runner.actor=5 must be a mapping of settings"),
+        (["train", "--set", "runner.algorithm=5"], "runner.algorithm=5 must be a mapping of settings"),
+        (["train", "--set", "teams.prey.runner.critic=5"], "teams.prey.runner.critic=5 must be a mapping"),
+        (
+            ["train", "--team", "both", "--pool-every", "1", "--set", "runner.actor.class_name=RNNModel"],
+            "train.pool_every > 0 needs feed-forward actors",
+        ),
+    ):
         # (a run that wrongly starts stops at once and writes into tmp_path)
         assert main(argv + ["--iterations", "0", "--log-dir", str(tmp_path / "refused")]) == 2, argv
         err = capsys.readouterr().err.strip()
@@ -410,16 +549,34 @@ def test_learning_two_predators_catch_more_than_random(tmp_path, one_thread):
     from aquarium_warp.training.config import env_config
     from aquarium_warp.training.evaluate import evaluate_policies
 
-    config = make_config("tiny", {"train": {"team": "predator", "opponent": "turnaway", "num_worlds": 64,
-                                            "iterations": 100, "seed": 0, "quiet": True, "export": ["jit"]},
-                                  "env": {"predator_count": 2}})
+    config = make_config(
+        "tiny",
+        {
+            "train": {
+                "team": "predator",
+                "opponent": "turnaway",
+                "num_worlds": 64,
+                "iterations": 100,
+                "seed": 0,
+                "quiet": True,
+                "export": ["jit"],
+            },
+            "env": {"predator_count": 2},
+        },
+    )
     trainer = Trainer(config, None)
     assert trainer.vec_env.num_envs == 128  # two predator rows per world
     trainer.train()
     path = trainer.export(str(tmp_path / "exported"))["jit"]
     trainer.close()
-    result = evaluate_policies(["turnaway"], ["random", f"trained={path}"], env_config(config), episodes=64,
-                               seeds=[100, 101, 102], device="cpu")
+    result = evaluate_policies(
+        ["turnaway"],
+        ["random", f"trained={path}"],
+        env_config(config),
+        episodes=64,
+        seeds=[100, 101, 102],
+        device="cpu",
+    )
     captures = {r["predator_policy"]: r["captures_per_prey_mean"] for r in result["summary"]}
     print(f"captures per prey per episode: {captures}")
     assert captures["random"] > 1.5  # the baseline itself (1.68 measured)

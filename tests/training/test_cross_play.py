@@ -49,16 +49,26 @@ def test_cross_play_matrix_equals_single_evaluations(tmp_path):
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
-        config = make_config("tiny", {"train": {"num_worlds": 2, "iterations": 2, "quiet": True, "export": []},
-                                      "env": {"max_steps": 25}, "runner": {"num_steps_per_env": 4, "save_interval": 1}})
+        config = make_config(
+            "tiny",
+            {
+                "train": {"num_worlds": 2, "iterations": 2, "quiet": True, "export": []},
+                "env": {"max_steps": 25},
+                "runner": {"num_steps_per_env": 4, "save_interval": 1},
+            },
+        )
         Trainer(config, str(tmp_path / "run")).train()
     finally:
         torch.set_num_threads(threads)
     run = str(tmp_path / "run")
     # Natural order: model_10 after model_1 (a link stands in for a later checkpoint).
     os.link(os.path.join(run, "model_1.pt"), os.path.join(run, "model_10.pt"))
-    assert [s.split("=")[0] for s in expand_specs(["random", f"ckpt={run}/model_*.pt"])] == \
-        ["random", "ckpt/model_0", "ckpt/model_1", "ckpt/model_10"]
+    assert [s.split("=")[0] for s in expand_specs(["random", f"ckpt={run}/model_*.pt"])] == [
+        "random",
+        "ckpt/model_0",
+        "ckpt/model_1",
+        "ckpt/model_10",
+    ]
     os.remove(os.path.join(run, "model_10.pt"))
 
     prey = ["random", f"{run}/model_*.pt"]
@@ -75,16 +85,19 @@ def test_cross_play_matrix_equals_single_evaluations(tmp_path):
     specs = {"random": "random", "model_0": f"{run}/model_0.pt", "model_1": f"{run}/model_1.pt"}
     for i, label in enumerate(cp["prey"]):
         for j, predator in enumerate(predators):
-            single = evaluate_policies([specs[label]], [predator], world, episodes=episodes, seeds=seeds,
-                                       device="cpu")["summary"][0]
+            single = evaluate_policies([specs[label]], [predator], world, episodes=episodes, seeds=seeds, device="cpu")[
+                "summary"
+            ][0]
             for metric in CROSS_PLAY_METRICS[:3]:
                 assert cp["matrices"][metric]["mean"][i][j] == single[f"{metric}_mean"], (label, predator, metric)
                 assert cp["matrices"][metric]["std"][i][j] == single[f"{metric}_std"], (label, predator, metric)
             # From the episodes themselves: per-seed means, then mean and std over the seeds.
             per_seed = [run_episodes(world, specs[label], predator, episodes, seed, device="cpu") for seed in seeds]
             captures = [np.mean([r["captures_per_prey"] for r in records]) for records in per_seed]
-            survival = [np.mean([np.mean(np.array(r["prey_captures"][:world.prey_count]) == 0) for r in records])
-                        for records in per_seed]
+            survival = [
+                np.mean([np.mean(np.array(r["prey_captures"][: world.prey_count]) == 0) for r in records])
+                for records in per_seed
+            ]
             assert cp["matrices"]["captures_per_prey"]["mean"][i][j] == pytest.approx(np.mean(captures), abs=1e-12)
             assert cp["matrices"]["captures_per_prey"]["std"][i][j] == pytest.approx(np.std(captures), abs=1e-12)
             assert cp["matrices"]["prey_survival"]["mean"][i][j] == pytest.approx(np.mean(survival), abs=1e-12)
@@ -97,12 +110,30 @@ def test_cross_play_matrix_equals_single_evaluations(tmp_path):
     from aquarium_warp.cli import main
 
     out = str(tmp_path / "xp")
-    assert main(["eval", "--cross-play", "--prey", *prey, "--predator", *predators, "--episodes", str(episodes),
-                 "--seeds", *map(str, seeds), "--out", out, "--device", "cpu"]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                "--cross-play",
+                "--prey",
+                *prey,
+                "--predator",
+                *predators,
+                "--episodes",
+                str(episodes),
+                "--seeds",
+                *map(str, seeds),
+                "--out",
+                out,
+                "--device",
+                "cpu",
+            ]
+        )
+        == 0
+    )
     with open(os.path.join(out, "cross_play.csv"), newline="") as f:
         rows = list(csv.DictReader(f))
-    assert [(r["prey_policy"], r["predator_policy"]) for r in rows] == \
-        [(a, b) for a in cp["prey"] for b in predators]
+    assert [(r["prey_policy"], r["predator_policy"]) for r in rows] == [(a, b) for a in cp["prey"] for b in predators]
     for r in rows:
         i, j = cp["prey"].index(r["prey_policy"]), predators.index(r["predator_policy"])
         for metric in CROSS_PLAY_METRICS:

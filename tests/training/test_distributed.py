@@ -21,11 +21,25 @@ WORKER = os.path.join(os.path.dirname(__file__), "distributed_worker.py")
 
 def torchrun(out: str, team: str, iterations: int, tag: str, resume: bool = False, gpu: bool = False) -> list[dict]:
     """Run the worker on two ranks, on the CPU or both on GPU 0 (`gpu`); each rank's record."""
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "GIT_PYTHON_REFRESH": "quiet",
-           **({"AQUARIUM_WORKER_GPU": "1"} if gpu else {})}
+    env = {
+        **os.environ,
+        "OMP_NUM_THREADS": "1",
+        "GIT_PYTHON_REFRESH": "quiet",
+        **({"AQUARIUM_WORKER_GPU": "1"} if gpu else {}),
+    }
     env.pop("WORLD_SIZE", None)
-    command = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2", WORKER,
-               out, team, str(iterations), tag] + (["resume"] if resume else [])
+    command = [
+        sys.executable,
+        "-m",
+        "torch.distributed.run",
+        "--standalone",
+        "--nproc_per_node=2",
+        WORKER,
+        out,
+        team,
+        str(iterations),
+        tag,
+    ] + (["resume"] if resume else [])
     result = subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     records = []
@@ -45,7 +59,7 @@ def check_reduced_logs(run_dir: str, records: list[dict], team: str, csv_name: s
     for it, row in enumerate(rows):
         both = [sum(values) for values in zip(*(r["stats"][team][it] for r in records))]
         k = (len(both) - 2) // 2  # snapshot: k sums, k counts, row reward total and row count
-        sums, counts = both[:k], both[k:2 * k]
+        sums, counts = both[:k], both[k : 2 * k]
         assert int(row["episodes_logged"]) == int(counts[0])
         assert float(row["mean_row_reward"]) == pytest.approx(both[-2] / both[-1], rel=1e-12)
         if counts[0]:
@@ -100,12 +114,15 @@ def test_stop_and_resume_continues_exactly_on_every_rank(tmp_path, team):
         check_reduced_logs(os.path.join(straight, "run"), whole, name, csv_name)
 
 
-@pytest.mark.parametrize("env, message", [
-    ({"WORLD_SIZE": "two"}, "WORLD_SIZE='two' must be an integer"),
-    ({"WORLD_SIZE": "0"}, "WORLD_SIZE=0 must be >= 1"),
-    ({"WORLD_SIZE": "2", "RANK": "2"}, r"RANK=2 must be in \[0, WORLD_SIZE=2\)"),
-    ({"WORLD_SIZE": "2", "LOCAL_RANK": "-1"}, r"LOCAL_RANK=-1 must be in \[0, WORLD_SIZE=2\)"),
-])
+@pytest.mark.parametrize(
+    "env, message",
+    [
+        ({"WORLD_SIZE": "two"}, "WORLD_SIZE='two' must be an integer"),
+        ({"WORLD_SIZE": "0"}, "WORLD_SIZE=0 must be >= 1"),
+        ({"WORLD_SIZE": "2", "RANK": "2"}, r"RANK=2 must be in \[0, WORLD_SIZE=2\)"),
+        ({"WORLD_SIZE": "2", "LOCAL_RANK": "-1"}, r"LOCAL_RANK=-1 must be in \[0, WORLD_SIZE=2\)"),
+    ],
+)
 def test_bad_torchrun_environment_is_named(monkeypatch, env, message):
     for name, value in env.items():
         monkeypatch.setenv(name, value)
@@ -139,6 +156,6 @@ def test_ranks_on_a_gpu_replay_their_rollouts_and_update_eagerly(tmp_path, team,
     assert sorted(records[0]["params"]) == ["0", "1", "2"]
     assert records[0]["params"] == records[1]["params"]
     assert records[0]["final_sim"] != records[1]["final_sim"]
-    for name in (["prey", "predator"] if team == "both" else ["prey"]):
+    for name in ["prey", "predator"] if team == "both" else ["prey"]:
         csv_name = f"progress_{name}.csv" if team == "both" else "progress.csv"
         assert check_reduced_logs(os.path.join(tmp_path, "run"), records, name, csv_name) >= 1

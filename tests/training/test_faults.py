@@ -28,8 +28,23 @@ from aquarium_warp.cli import main
 from aquarium_warp.training.trainer import Trainer
 
 pytestmark = pytest.mark.slow
-TINY = ["--preset", "tiny", "--num-worlds", "4", "--device", "cpu", "--export", "none", "--quiet", "--max-steps",
-        "20", "--set", "runner.num_steps_per_env=8", "--save-interval", "1"]
+TINY = [
+    "--preset",
+    "tiny",
+    "--num-worlds",
+    "4",
+    "--device",
+    "cpu",
+    "--export",
+    "none",
+    "--quiet",
+    "--max-steps",
+    "20",
+    "--set",
+    "runner.num_steps_per_env=8",
+    "--save-interval",
+    "1",
+]
 PREVIOUS = b"the previous file, whole"
 
 
@@ -40,8 +55,13 @@ def launch(argv: list[str], log: str) -> subprocess.Popen:
         signal.signal(signal.SIGINT, signal.SIG_DFL)
 
     with open(log, "w") as f:
-        return subprocess.Popen([sys.executable, "-m", "aquarium_warp", *argv], stdout=f, stderr=subprocess.STDOUT,
-                                env=env, preexec_fn=default_sigint)
+        return subprocess.Popen(
+            [sys.executable, "-m", "aquarium_warp", *argv],
+            stdout=f,
+            stderr=subprocess.STDOUT,
+            env=env,
+            preexec_fn=default_sigint,
+        )
 
 
 def wait_for(condition, what: str, timeout: float = 180) -> None:
@@ -98,8 +118,10 @@ def resume_and_compare(run: str, tmp_path) -> None:
 def test_killed_interrupted_and_starved_commands_lose_nothing(tmp_path, monkeypatch, capsys, one_thread):
     # ------------------------------------------------------------------ interrupted, as processes
     runs = {sig: str(tmp_path / f"train_{sig.name}") for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL)}
-    procs = {("train", sig): launch(["train", *TINY, "--iterations", "100000", "--log-dir", run], run + ".log")
-             for sig, run in runs.items()}
+    procs = {
+        ("train", sig): launch(["train", *TINY, "--iterations", "100000", "--log-dir", run], run + ".log")
+        for sig, run in runs.items()
+    }
     videos = {sig: str(tmp_path / f"video_{sig.name}") for sig in (signal.SIGINT, signal.SIGKILL)}
     for folder in videos.values():
         os.makedirs(folder)
@@ -113,24 +135,35 @@ def test_killed_interrupted_and_starved_commands_lose_nothing(tmp_path, monkeypa
         wait_for(lambda run=run: len(checkpoints(run)) >= 2, f"two checkpoints in {run}")
         procs["train", sig].send_signal(sig)
     for sig, folder in videos.items():
-        procs["video", sig] = launch(["video", "--steps", "100000", "--device", "cpu", "--no-progress", "--out",
-                             os.path.join(folder, "v.mp4")], folder + ".log")
-    procs["eval"] = launch(["eval", "--episodes", "64", "--seeds", "0", "1", "2", "3", "4", "--device", "cpu",
-                            "--out", evaluation], evaluation + ".log")
+        procs["video", sig] = launch(
+            ["video", "--steps", "100000", "--device", "cpu", "--no-progress", "--out", os.path.join(folder, "v.mp4")],
+            folder + ".log",
+        )
+    procs["eval"] = launch(
+        ["eval", "--episodes", "64", "--seeds", "0", "1", "2", "3", "4", "--device", "cpu", "--out", evaluation],
+        evaluation + ".log",
+    )
     for sig, folder in videos.items():
         wait_for(lambda folder=folder: partials(folder), f"the video's partial file in {folder}")
         procs["video", sig].send_signal(sig)
     wait_for(lambda: "aquarium-warp eval:" in open(evaluation + ".log").read(), "the evaluation to start")
     procs["eval"].send_signal(signal.SIGINT)
     codes = {key: proc.wait(timeout=120) for key, proc in procs.items()}
-    assert codes == {("train", signal.SIGINT): 130, ("train", signal.SIGTERM): 143, ("train", signal.SIGKILL): -9,
-                     ("video", signal.SIGINT): 130, ("video", signal.SIGKILL): -9, "eval": 130}, codes
+    assert codes == {
+        ("train", signal.SIGINT): 130,
+        ("train", signal.SIGTERM): 143,
+        ("train", signal.SIGKILL): -9,
+        ("video", signal.SIGINT): 130,
+        ("video", signal.SIGKILL): -9,
+        "eval": 130,
+    }, codes
 
     for sig in (signal.SIGINT, signal.SIGTERM):
         run = runs[sig]
         last = open(run + ".log").read().strip().splitlines()[-1]
-        assert last.startswith(f"aquarium-warp train: stopped by {sig.name} after iteration ") and \
-            last.endswith(f"continue with: aquarium-warp train --resume {run}"), last
+        assert last.startswith(f"aquarium-warp train: stopped by {sig.name} after iteration ") and last.endswith(
+            f"continue with: aquarium-warp train --resume {run}"
+        ), last
         assert not partials(run)
     for sig, folder in videos.items():
         assert open(os.path.join(folder, "v.mp4"), "rb").read() == PREVIOUS
@@ -142,8 +175,9 @@ def test_killed_interrupted_and_starved_commands_lose_nothing(tmp_path, monkeypa
 
     # The next run into a killed writer's folder removes its partial file.
     killed = videos[signal.SIGKILL]
-    assert main(["video", "--steps", "2", "--device", "cpu", "--no-progress", "--out",
-                 os.path.join(killed, "v.mp4")]) == 0
+    assert (
+        main(["video", "--steps", "2", "--device", "cpu", "--no-progress", "--out", os.path.join(killed, "v.mp4")]) == 0
+    )
     assert not partials(killed) and open(os.path.join(killed, "v.mp4"), "rb").read() != PREVIOUS
     for run in runs.values():
         resume_and_compare(run, tmp_path)
@@ -156,8 +190,10 @@ def test_killed_interrupted_and_starved_commands_lose_nothing(tmp_path, monkeypa
     capsys.readouterr()
     assert main(["train", "--resume", starved, "--iterations", "4", "--quiet", "--export", "none"]) == 1
     monkeypatch.undo()
-    assert capsys.readouterr().err.strip().splitlines()[-1] == \
-        f"aquarium-warp train: {starved}/model_2.pt: no space left on device"
+    assert (
+        capsys.readouterr().err.strip().splitlines()[-1]
+        == f"aquarium-warp train: {starved}/model_2.pt: no space left on device"
+    )
     assert {i: open(p, "rb").read() for i, p in checkpoints(starved).items()} == before and not partials(starved)
     resume_and_compare(starved, tmp_path)
 
@@ -166,9 +202,12 @@ def test_killed_interrupted_and_starved_commands_lose_nothing(tmp_path, monkeypa
     with open(os.path.join(video, "v.mp4"), "wb") as f:
         f.write(PREVIOUS)
     full_disk_for(monkeypatch, "v.")
-    assert main(["video", "--steps", "2", "--device", "cpu", "--no-progress", "--out",
-                 os.path.join(video, "v.mp4")]) == 1
+    assert (
+        main(["video", "--steps", "2", "--device", "cpu", "--no-progress", "--out", os.path.join(video, "v.mp4")]) == 1
+    )
     monkeypatch.undo()
-    assert capsys.readouterr().err.strip().splitlines()[-1] == \
-        f"aquarium-warp video: {video}/v.mp4: no space left on device"
+    assert (
+        capsys.readouterr().err.strip().splitlines()[-1]
+        == f"aquarium-warp video: {video}/v.mp4: no space left on device"
+    )
     assert open(os.path.join(video, "v.mp4"), "rb").read() == PREVIOUS and not partials(video)

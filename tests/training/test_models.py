@@ -10,8 +10,11 @@ import torch
 from aquarium_warp.training.models import WEIGHT_GRAD_CHUNK, BatchedLinear, BatchedMLP
 
 
-@pytest.mark.parametrize("rows", [3 * WEIGHT_GRAD_CHUNK, WEIGHT_GRAD_CHUNK, WEIGHT_GRAD_CHUNK + 7, 5],
-                         ids=["chunked", "one chunk", "not a multiple", "few rows"])
+@pytest.mark.parametrize(
+    "rows",
+    [3 * WEIGHT_GRAD_CHUNK, WEIGHT_GRAD_CHUNK, WEIGHT_GRAD_CHUNK + 7, 5],
+    ids=["chunked", "one chunk", "not a multiple", "few rows"],
+)
 def test_batched_linear_gradients_equal_plain_products(rows):
     gen = torch.Generator().manual_seed(rows)
     layer = BatchedLinear(3, 29, 16).double()

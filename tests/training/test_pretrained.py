@@ -28,9 +28,14 @@ EGO = {"observation_frame": "ego", "action_frame": "ego", "spawn_heading": "rand
 @pytest.fixture
 def shipped(tmp_path, monkeypatch, one_thread):
     """A policy directory holding one tiny trained ego policy under the name "prey-tiny"."""
-    config = make_config("tiny", {"train": {"num_worlds": 2, "iterations": 1, "quiet": True, "export": ["jit"]},
-                                  "env": {**EGO, "prey_count": 3, "max_steps": 20},
-                                  "runner": {"num_steps_per_env": 4}})
+    config = make_config(
+        "tiny",
+        {
+            "train": {"num_worlds": 2, "iterations": 1, "quiet": True, "export": ["jit"]},
+            "env": {**EGO, "prey_count": 3, "max_steps": 20},
+            "runner": {"num_steps_per_env": 4},
+        },
+    )
     trainer = Trainer(config, str(tmp_path / "run"))
     trainer.train()
     path = trainer.export()["jit"]
@@ -72,13 +77,37 @@ def test_load_policy_and_the_pettingzoo_env_take_a_name(shipped):
 
 def test_eval_video_and_study_take_a_name(shipped, tmp_path, capsys):
     out = str(tmp_path / "eval")
-    assert main(["eval", "--prey", "prey-tiny", "constant", "--predator", "naivchase", "--episodes", "2", "--seeds",
-                 "0", "--max-steps", "10", "--no-figures", "--out", out, "--device", "cpu"]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                "--prey",
+                "prey-tiny",
+                "constant",
+                "--predator",
+                "naivchase",
+                "--episodes",
+                "2",
+                "--seeds",
+                "0",
+                "--max-steps",
+                "10",
+                "--no-figures",
+                "--out",
+                out,
+                "--device",
+                "cpu",
+            ]
+        )
+        == 0
+    )
     with open(os.path.join(out, "summary.json"), encoding="utf-8") as f:
         rows = json.load(f)["summary"]
     assert [r["prey_policy"] for r in rows] == ["prey-tiny", "constant"]
-    assert main(["video", "--prey-policy", "prey-tiny", "--steps", "3", "--out", str(tmp_path / "v.mp4"),
-                 "--no-progress"]) == 0
+    assert (
+        main(["video", "--prey-policy", "prey-tiny", "--steps", "3", "--out", str(tmp_path / "v.mp4"), "--no-progress"])
+        == 0
+    )
     assert os.path.getsize(tmp_path / "v.mp4") > 0
     from aquarium_warp import BatchedAquarium
     from aquarium_warp.drivers import make_driver
@@ -138,5 +167,11 @@ def test_a_study_world_takes_the_policys_interface(shipped):
     other = AquariumConfig(observation_frame="ego", observation_range="-1..1", observe_flow=True)
     other = other.replace(prey=dataclasses.replace(other.prey, prey_slots=5, view_distance=300.0))
     mixed = AquariumConfig(prey_count=9).with_interface_of(other)
-    assert (mixed.prey_count, mixed.observation_frame, mixed.observation_range, mixed.observe_flow,
-            mixed.prey.prey_slots, mixed.prey.view_distance) == (9, "ego", "-1..1", True, 5, 100.0)
+    assert (
+        mixed.prey_count,
+        mixed.observation_frame,
+        mixed.observation_range,
+        mixed.observe_flow,
+        mixed.prey.prey_slots,
+        mixed.prey.view_distance,
+    ) == (9, "ego", "-1..1", True, 5, 100.0)

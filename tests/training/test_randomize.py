@@ -50,17 +50,20 @@ def test_values_drawn_at_every_reset_in_range_and_reproducible():
     assert run(seed=2)[0] != history
 
 
-@pytest.mark.parametrize("spec, message", [
-    ("prey_max_speed=-1:3", "--randomize prey_max_speed: -1.0 is not allowed"),
-    ("prey_count=2,9", "--randomize prey_count: 9 is not allowed"),
-    ("prey_count=2.5:4", "--randomize prey_count: '2.5' is not an integer"),
-    ("prey_speed=1:2", "--randomize prey_speed: unknown field"),
-    ("prey_radius=5:x", "--randomize prey_radius: 'x' is not a number"),
-    ("prey_count=inf:inf", "--randomize prey_count: 'inf' is not a finite number"),
-    ("prey_radius=nan:2", "--randomize prey_radius: 'nan' is not a finite number"),
-    ("prey_radius=9:5", "--randomize prey_radius=9:5: needs low <= high"),
-    ("prey_radius", "expected FIELD=LOW:HIGH"),
-])
+@pytest.mark.parametrize(
+    "spec, message",
+    [
+        ("prey_max_speed=-1:3", "--randomize prey_max_speed: -1.0 is not allowed"),
+        ("prey_count=2,9", "--randomize prey_count: 9 is not allowed"),
+        ("prey_count=2.5:4", "--randomize prey_count: '2.5' is not an integer"),
+        ("prey_speed=1:2", "--randomize prey_speed: unknown field"),
+        ("prey_radius=5:x", "--randomize prey_radius: 'x' is not a number"),
+        ("prey_count=inf:inf", "--randomize prey_count: 'inf' is not a finite number"),
+        ("prey_radius=nan:2", "--randomize prey_radius: 'nan' is not a finite number"),
+        ("prey_radius=9:5", "--randomize prey_radius=9:5: needs low <= high"),
+        ("prey_radius", "expected FIELD=LOW:HIGH"),
+    ],
+)
 def test_bad_spec_is_one_line_naming_the_field(spec, message):
     env = BatchedAquarium(CFG, 2, device="cpu", seed=0)
     with pytest.raises(ValueError) as error:
@@ -73,8 +76,23 @@ def test_bad_spec_is_one_line_naming_the_field(spec, message):
 def test_cli_train_randomize(tmp_path, capsys):
     from aquarium_warp.cli import main
 
-    common = ["--preset", "tiny", "--num-worlds", "2", "--max-steps", "10", "--num-steps-per-env", "8",
-              "--log-dir", str(tmp_path / "run"), "--quiet", "--export", "none", "--iterations", "1"]
+    common = [
+        "--preset",
+        "tiny",
+        "--num-worlds",
+        "2",
+        "--max-steps",
+        "10",
+        "--num-steps-per-env",
+        "8",
+        "--log-dir",
+        str(tmp_path / "run"),
+        "--quiet",
+        "--export",
+        "none",
+        "--iterations",
+        "1",
+    ]
     assert main(["train", "--randomize", "prey_max_speed=1:0", *common]) == 2
     err = capsys.readouterr().err.strip()
     assert "prey_max_speed" in err and "\n" not in err

@@ -20,10 +20,14 @@ from aquarium_warp.training.trainer import Trainer
 
 def rnn_config(rnn_type="lstm", **train):
     model = {"class_name": "RNNModel", "rnn_type": rnn_type, "rnn_hidden_dim": 8, "hidden_dims": [16]}
-    return make_config("tiny", {"train": {"num_worlds": 4, "iterations": 4, "quiet": True, "export": [], **train},
-                                "env": {"max_steps": 30},
-                                "runner": {"num_steps_per_env": 10, "save_interval": 2,
-                                           "actor": dict(model), "critic": dict(model)}})
+    return make_config(
+        "tiny",
+        {
+            "train": {"num_worlds": 4, "iterations": 4, "quiet": True, "export": [], **train},
+            "env": {"max_steps": 30},
+            "runner": {"num_steps_per_env": 10, "save_interval": 2, "actor": dict(model), "critic": dict(model)},
+        },
+    )
 
 
 def _hidden(model):
@@ -133,8 +137,12 @@ def test_recurrent_export_reload_and_evaluate(tmp_path, one_thread, rnn_type):
     from aquarium_warp.training.evaluate import common_policy_env, evaluate_policies
 
     env = common_policy_env([paths["jit"]], None)
-    runs = {kind: evaluate_policies(prey=[f"{kind}={path}"], predator=["naivchase"], env=env, episodes=2,
-                                    seeds=[0], device="cpu")["episodes"] for kind, path in kinds.items()}
+    runs = {
+        kind: evaluate_policies(
+            prey=[f"{kind}={path}"], predator=["naivchase"], env=env, episodes=2, seeds=[0], device="cpu"
+        )["episodes"]
+        for kind, path in kinds.items()
+    }
     assert len(runs["jit"]) == 2 and all(r["length"] == 30 for r in runs["jit"])
     strip = [{k: v for k, v in r.items() if k not in ("prey_policy", "prey_spec")} for r in runs["jit"]]
     for kind, records in runs.items():  # the same actions in every format: the same episodes
@@ -146,6 +154,19 @@ def test_recurrent_export_reload_and_evaluate(tmp_path, one_thread, rnn_type):
 
     assert isinstance(make_driver(paths["jit"], vec.env, "prey", seed=0), RecurrentOpponent)
     out = str(tmp_path / "recurrent.mp4")
-    assert main(["video", "--prey-policy", paths["onnx" if "onnx" in kinds else "jit"], "--steps", "35",
-                 "--out", out, "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "video",
+                "--prey-policy",
+                paths["onnx" if "onnx" in kinds else "jit"],
+                "--steps",
+                "35",
+                "--out",
+                out,
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     assert os.path.getsize(out) > 0

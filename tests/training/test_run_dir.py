@@ -23,8 +23,21 @@ from aquarium_warp.training.run_dir import LOCK_NAME, claim_run_directory
 from aquarium_warp.training.stop import StopRequest
 from aquarium_warp.training.trainer import Trainer
 
-TINY = ["--preset", "tiny", "--num-worlds", "4", "--device", "cpu", "--export", "none", "--quiet", "--max-steps",
-        "20", "--set", "runner.num_steps_per_env=8"]
+TINY = [
+    "--preset",
+    "tiny",
+    "--num-worlds",
+    "4",
+    "--device",
+    "cpu",
+    "--export",
+    "none",
+    "--quiet",
+    "--max-steps",
+    "20",
+    "--set",
+    "runner.num_steps_per_env=8",
+]
 
 
 def one_line(capsys, prefix: str) -> str:
@@ -49,8 +62,10 @@ def test_a_non_empty_run_directory_is_refused(tmp_path, capsys):
     (run / "progress.csv").write_text("iteration\n0\n")
     assert main(["train", *TINY, "--iterations", "1", "--log-dir", str(run)]) == 2
     err = one_line(capsys, "aquarium-warp train: ")
-    assert f"--log-dir {run} is not empty (progress.csv): continue that run with --resume {run}, replace it " \
-           "with --overwrite" in err
+    assert (
+        f"--log-dir {run} is not empty (progress.csv): continue that run with --resume {run}, replace it "
+        "with --overwrite" in err
+    )
     assert sorted(os.listdir(run)) == sorted([LOCK_NAME, "progress.csv"])
     assert (run / "progress.csv").read_text() == "iteration\n0\n"
     assert (run / LOCK_NAME).read_text() == ""  # released
@@ -62,11 +77,13 @@ def test_a_locked_run_directory_is_refused_and_a_dead_owners_lock_taken_over(tmp
     run = str(tmp_path / "run")
     held = claim_run_directory(run)
     assert main(["train", *TINY, "--iterations", "1", "--log-dir", run]) == 2
-    assert f"--log-dir {run}: another run (process {os.getpid()}) is using it" in \
-        one_line(capsys, "aquarium-warp train: ")
+    assert f"--log-dir {run}: another run (process {os.getpid()}) is using it" in one_line(
+        capsys, "aquarium-warp train: "
+    )
     held.release()
-    dead = int(subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
-                              text=True).stdout)
+    dead = int(
+        subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True).stdout
+    )
     with open(os.path.join(run, LOCK_NAME), "w") as f:  # as left by a killed run: its pid, no flock
         f.write(str(dead))
     said = []
@@ -99,9 +116,12 @@ def test_a_run_that_cannot_fit_is_refused_with_the_estimate(monkeypatch):
     monkeypatch.setattr(memory, "available_bytes", lambda device: int(parts["total"] / 0.9) + 1)
     memory.check_training_memory(config, "cpu")  # fits
     monkeypatch.setattr(memory, "available_bytes", lambda device: parts["total"])
-    with pytest.raises(ValueError, match=r"^train.num_worlds=1024 needs about .* GiB on cpu \(simulation .*, "
-                                         r"rollout storage .*, update .* GiB\), but only .* GiB is available: use "
-                                         r"at most about 921 worlds"):
+    with pytest.raises(
+        ValueError,
+        match=r"^train.num_worlds=1024 needs about .* GiB on cpu \(simulation .*, "
+        r"rollout storage .*, update .* GiB\), but only .* GiB is available: use "
+        r"at most about 921 worlds",
+    ):
         Trainer(config)
 
 
@@ -123,8 +143,9 @@ def test_a_second_signal_stops_at_once():
 
 
 @pytest.mark.slow
-def test_ctrl_c_stops_at_an_iteration_boundary_and_the_resume_continues_bit_for_bit(tmp_path, capsys, monkeypatch,
-                                                                                      one_thread):
+def test_ctrl_c_stops_at_an_iteration_boundary_and_the_resume_continues_bit_for_bit(
+    tmp_path, capsys, monkeypatch, one_thread
+):
     stopped, reference = str(tmp_path / "stopped"), str(tmp_path / "reference")
     assert main(["train", *TINY, "--iterations", "5", "--log-dir", reference]) == 0
     after = Trainer.after_iteration
@@ -138,9 +159,11 @@ def test_ctrl_c_stops_at_an_iteration_boundary_and_the_resume_continues_bit_for_
     capsys.readouterr()
     assert main(["train", *TINY, "--iterations", "5", "--log-dir", stopped, "--export", "jit"]) == 130
     captured = capsys.readouterr()
-    assert captured.err.strip().splitlines()[-1] == \
-        f"aquarium-warp train: stopped by SIGINT after iteration 2 of 5; continue with: aquarium-warp train " \
+    assert (
+        captured.err.strip().splitlines()[-1]
+        == f"aquarium-warp train: stopped by SIGINT after iteration 2 of 5; continue with: aquarium-warp train "
         f"--resume {stopped}"
+    )
     assert "2 iterations in" in captured.out and os.path.isfile(os.path.join(stopped, "exported", "policy.pt"))
     assert sorted(n for n in os.listdir(stopped) if n.startswith("model_")) == ["model_0.pt", "model_1.pt"]
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
@@ -156,6 +179,7 @@ def test_no_iterations_run_says_so(tmp_path, capsys, one_thread):
     run = str(tmp_path / "run")
     assert main(["train", *TINY, "--iterations", "0", "--log-dir", run]) == 0
     last = capsys.readouterr().out.strip().splitlines()[-1]
-    assert last == ("aquarium-warp train: no iterations to run (0 of 0 done); no checkpoint written, run config in "
-                    f"{run}")
+    assert last == (
+        f"aquarium-warp train: no iterations to run (0 of 0 done); no checkpoint written, run config in {run}"
+    )
     assert not [n for n in os.listdir(run) if n.startswith("model_")]

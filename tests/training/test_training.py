@@ -106,9 +106,13 @@ def test_adapter_time_outs_log_and_episode_ends():
         if "log" in extras:
             logs += 1
             log = extras["log"]
-            assert set(log) == {"Episode/captures", "Episode/captures_per_prey", "Episode/reward_per_agent",
-                                "Episode/opponent_reward_per_agent", "Episode/length"} | {
-                                    f"Swarm/{name}" for name in EPISODE_METRICS}
+            assert set(log) == {
+                "Episode/captures",
+                "Episode/captures_per_prey",
+                "Episode/reward_per_agent",
+                "Episode/opponent_reward_per_agent",
+                "Episode/length",
+            } | {f"Swarm/{name}" for name in EPISODE_METRICS}
             # Swarm metrics of the ended episodes: finite, polarization in [0, 1], all prey alive.
             assert torch.all((log["Swarm/polarization"] >= 0) & (log["Swarm/polarization"] <= 1))
             assert torch.all(log["Swarm/prey_alive"] == 3.0)
@@ -218,10 +222,14 @@ def test_individual_model_equals_independent_mlps():
     S, G, L = 3, 5, 11
     obs = TensorDict({"policy": torch.randn(G * S, L)}, batch_size=[G * S])
     groups = {"actor": ["policy"], "critic": ["policy"]}
-    dist_cfg = {"class_name": "aquarium_warp.training.distribution:CategoricalDistribution", "num_categories": 4,
-                "init_logit_scale": 1.0}
-    actor = IndividualMLPModel(obs, groups, "actor", 1, num_agents=S, hidden_dims=[8, 6], activation="tanh",
-                               distribution_cfg=dist_cfg)
+    dist_cfg = {
+        "class_name": "aquarium_warp.training.distribution:CategoricalDistribution",
+        "num_categories": 4,
+        "init_logit_scale": 1.0,
+    }
+    actor = IndividualMLPModel(
+        obs, groups, "actor", 1, num_agents=S, hidden_dims=[8, 6], activation="tanh", distribution_cfg=dist_cfg
+    )
     critic = IndividualMLPModel(obs, groups, "critic", 1, num_agents=S, hidden_dims=[8, 6], activation="tanh")
     for model, out in ((actor, 4), (critic, 1)):
         layers = model.mlp.layers
@@ -256,12 +264,14 @@ def test_grouped_storage_and_two_learning_rates():
     actor = IndividualMLPModel(obs, groups, "actor", 1, num_agents=S, hidden_dims=[8], distribution_cfg=dist_cfg)
     critic = IndividualMLPModel(obs, groups, "critic", 1, num_agents=S, hidden_dims=[8])
     storage = GroupedRolloutStorage(S, "rl", W * S, T, obs, [1])
-    ppo = AquariumPPO(actor, critic, storage, critic_lr_scale=3.0, minibatch_group_size=S, optimizer="sgd",
-                      learning_rate=0.1)
+    ppo = AquariumPPO(
+        actor, critic, storage, critic_lr_scale=3.0, minibatch_group_size=S, optimizer="sgd", learning_rate=0.1
+    )
     assert isinstance(ppo.storage, GroupedRolloutStorage)
     # Mini-batches hold whole groups of S consecutive rows, in slot order.
-    ppo.storage.observations["policy"].copy_(torch.arange(T * W * S, dtype=torch.float32).reshape(T, W * S, 1)
-                                             .expand(T, W * S, L))
+    ppo.storage.observations["policy"].copy_(
+        torch.arange(T * W * S, dtype=torch.float32).reshape(T, W * S, 1).expand(T, W * S, L)
+    )
     ppo.storage.distribution_params = (torch.zeros(T, W * S, 4),)
     for batch in ppo.storage.mini_batch_generator(num_mini_batches=2, num_epochs=1):
         rows = batch.observations["policy"][:, 0].long()
@@ -304,9 +314,14 @@ def test_config_presets():
 
 # ----------------------------------------------------------------------------------- end to end, resume
 def tiny_config(**train):
-    return make_config("tiny", {"train": {"num_worlds": 6, "iterations": 4, "quiet": True, "export": [], **train},
-                                "env": {"max_steps": 30},
-                                "runner": {"num_steps_per_env": 12, "save_interval": 2}})
+    return make_config(
+        "tiny",
+        {
+            "train": {"num_worlds": 6, "iterations": 4, "quiet": True, "export": [], **train},
+            "env": {"max_steps": 30},
+            "runner": {"num_steps_per_env": 12, "save_interval": 2},
+        },
+    )
 
 
 def _same_state(a: Trainer, b: Trainer) -> None:
@@ -352,10 +367,14 @@ def test_resume_with_randomize_is_bit_exact(tmp_path, one_thread):
     checkpoint. Episodes of 10 steps end twice before the resume point (iteration 2 = step 24), so a
     resumed run that drew afresh would give other worlds from there on."""
     randomize = {"prey_max_speed": "3:5", "catch_share_radius": "50:150", "predator_reward": "5,10"}
-    config = make_config("tiny", {"train": {"num_worlds": 6, "iterations": 4, "quiet": True, "export": [],
-                                            "randomize": randomize},
-                                  "env": {"max_steps": 10},
-                                  "runner": {"num_steps_per_env": 12, "save_interval": 2}})
+    config = make_config(
+        "tiny",
+        {
+            "train": {"num_worlds": 6, "iterations": 4, "quiet": True, "export": [], "randomize": randomize},
+            "env": {"max_steps": 10},
+            "runner": {"num_steps_per_env": 12, "save_interval": 2},
+        },
+    )
     full = Trainer(config, str(tmp_path / "full"))
     full.train()
     part = Trainer(config, str(tmp_path / "part"))
@@ -422,9 +441,29 @@ def test_export_load_policy_round_trip(tmp_path, one_thread):
     pz.close()
     # ... and `aquarium-warp video` (same world as the policy's).
     out = str(tmp_path / "trained.mp4")
-    assert main(["video", "--prey-policy", paths["jit"], "--steps", "3", "--out", out, "--no-progress",
-                 "--prey", str(meta["prey_count"]), "--predators", str(meta["predator_count"]),
-                 "--width", str(meta["width"]), "--height", str(meta["height"])]) == 0
+    assert (
+        main(
+            [
+                "video",
+                "--prey-policy",
+                paths["jit"],
+                "--steps",
+                "3",
+                "--out",
+                out,
+                "--no-progress",
+                "--prey",
+                str(meta["prey_count"]),
+                "--predators",
+                str(meta["predator_count"]),
+                "--width",
+                str(meta["width"]),
+                "--height",
+                str(meta["height"]),
+            ]
+        )
+        == 0
+    )
     assert os.path.getsize(out) > 0
 
 
@@ -433,8 +472,23 @@ def test_cli_train_resume_eval(tmp_path, one_thread):
     from aquarium_warp.cli import main
 
     run = str(tmp_path / "cli_run")
-    common = ["--preset", "tiny", "--num-worlds", "4", "--max-steps", "20", "--num-steps-per-env", "8",
-              "--save-interval", "1", "--log-dir", run, "--quiet", "--export", "jit"]
+    common = [
+        "--preset",
+        "tiny",
+        "--num-worlds",
+        "4",
+        "--max-steps",
+        "20",
+        "--num-steps-per-env",
+        "8",
+        "--save-interval",
+        "1",
+        "--log-dir",
+        run,
+        "--quiet",
+        "--export",
+        "jit",
+    ]
     assert main(["train", "--iterations", "2", *common]) == 0
     assert main(["train", "--resume", run, "--iterations", "3", "--quiet"]) == 0
     assert main(["train", "--resume", run, "--gamma", "0.5"]) == 2  # a resumed run keeps its config
@@ -442,8 +496,29 @@ def test_cli_train_resume_eval(tmp_path, one_thread):
     assert ckpt["iter"] == 3
     out = str(tmp_path / "eval")
     figures = [] if _has_matplotlib() else ["--no-figures"]
-    assert main(["eval", "--prey", "random", f"trained={run}/exported/policy.pt", "--predator", "naivchase",
-                 "--episodes", "4", "--seeds", "0", "1", "--out", out, "--curves", f"tiny={run}", *figures]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                "--prey",
+                "random",
+                f"trained={run}/exported/policy.pt",
+                "--predator",
+                "naivchase",
+                "--episodes",
+                "4",
+                "--seeds",
+                "0",
+                "1",
+                "--out",
+                out,
+                "--curves",
+                f"tiny={run}",
+                *figures,
+            ]
+        )
+        == 0
+    )
     with open(os.path.join(out, "summary.csv"), newline="") as f:
         rows = list(csv.DictReader(f))
     assert [r["prey_policy"] for r in rows] == ["random", "trained"]
@@ -488,13 +563,20 @@ def test_learning_trained_prey_evade_naivchase(tmp_path, one_thread):
     from aquarium_warp.training.config import env_config
     from aquarium_warp.training.evaluate import evaluate_policies
 
-    config = make_config("tiny", {"train": {"num_worlds": 64, "iterations": 300, "seed": 0, "quiet": True,
-                                            "export": ["jit"]}})
+    config = make_config(
+        "tiny", {"train": {"num_worlds": 64, "iterations": 300, "seed": 0, "quiet": True, "export": ["jit"]}}
+    )
     trainer = Trainer(config, None)
     trainer.train()
     path = trainer.export(str(tmp_path / "exported"))["jit"]
-    result = evaluate_policies(["random", f"trained={path}"], ["naivchase"], env_config(config), episodes=64,
-                               seeds=[100, 101, 102], device="cpu")
+    result = evaluate_policies(
+        ["random", f"trained={path}"],
+        ["naivchase"],
+        env_config(config),
+        episodes=64,
+        seeds=[100, 101, 102],
+        device="cpu",
+    )
     captures = {r["prey_policy"]: r["captures_per_prey_mean"] for r in result["summary"]}
     print(f"captures per prey per episode: {captures}")
     assert captures["random"] > 1.4  # the baseline itself (1.65 measured)

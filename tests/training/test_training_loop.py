@@ -28,8 +28,14 @@ def _train(loop: str, log_dir=None, device="cpu", plan: list | None = None, **ch
         plan.append((trainer.runner.loop.graphs, trainer.runner.loop.update_graphs))
     params = {f"actor.{k}": v.clone() for k, v in alg.actor.state_dict().items()}
     params.update({f"critic.{k}": v.clone() for k, v in alg.critic.state_dict().items()})
-    params.update({f"adam.{i}.{k}": v.clone() for i, s in alg.optimizer.state_dict()["state"].items()
-                   for k, v in s.items() if isinstance(v, torch.Tensor) and k != "step"})
+    params.update(
+        {
+            f"adam.{i}.{k}": v.clone()
+            for i, s in alg.optimizer.state_dict()["state"].items()
+            for k, v in s.items()
+            if isinstance(v, torch.Tensor) and k != "step"
+        }
+    )
     trainer.close()
     return params, alg.learning_rate
 
@@ -41,13 +47,19 @@ CASES = [
     ("parameter sharing", {}),
     ("individual learning", {"train": {"sharing": "individual"}}),
     ("adaptive schedule", {"runner": {"algorithm": {"schedule": "adaptive", "desired_kl": 0.002}}}),
-    ("per-mini-batch advantages, clipped value loss",
-     {"runner": {"algorithm": {"normalize_advantage_per_mini_batch": True, "use_clipped_value_loss": True}}}),
+    (
+        "per-mini-batch advantages, clipped value loss",
+        {"runner": {"algorithm": {"normalize_advantage_per_mini_batch": True, "use_clipped_value_loss": True}}},
+    ),
     ("observation normalisation", NORMALISED),
-    ("recurrent models (rsl-rl's own update)",
-     {"runner": {"actor": {"class_name": "RNNModel"}, "critic": {"class_name": "RNNModel"}}}),
-    ("permanent capture (inactive rows), predators learn",
-     {"env": {"respawn_captured_prey": False}, "train": {"team": "predator", "opponent": "turnaway"}}),
+    (
+        "recurrent models (rsl-rl's own update)",
+        {"runner": {"actor": {"class_name": "RNNModel"}, "critic": {"class_name": "RNNModel"}}},
+    ),
+    (
+        "permanent capture (inactive rows), predators learn",
+        {"env": {"respawn_captured_prey": False}, "train": {"team": "predator", "opponent": "turnaway"}},
+    ),
 ]
 
 
@@ -86,8 +98,13 @@ def test_device_episode_statistics_equal_rsl_rl_logger(tmp_path, metrics_every):
     logged = 0
     for a, b in zip(ref, fast):
         assert a["episodes_logged"] == b["episodes_logged"]
-        for field in ("captures", "captures_per_prey", "reward_per_agent", "opponent_reward_per_agent",
-                      "episode_length"):
+        for field in (
+            "captures",
+            "captures_per_prey",
+            "reward_per_agent",
+            "opponent_reward_per_agent",
+            "episode_length",
+        ):
             assert (a[field] == "") == (b[field] == ""), field
             if a[field] != "":
                 assert float(b[field]) == pytest.approx(float(a[field]), rel=1e-6, abs=1e-9), field
@@ -111,15 +128,19 @@ class _Alg:
         self.rollout_graphable, self.graphable, self.capturable_optimizer = rollout, update, capturable
 
 
-@pytest.mark.parametrize("algs,cuda,plan", [
-    ([_Alg(True, True)], False, (False, [False])),  # the CPU captures nothing
-    ([_Alg(True, True), _Alg(True, True)], True, (True, [True, True])),
-    # several ranks or the adaptive schedule: the rollout replays graphs, that learner's update is eager
-    ([_Alg(True, False), _Alg(True, True)], True, (True, [False, True])),
-    ([_Alg(True, False, capturable=False)], True, (True, [False])),
-    # a recurrent model (or RND, symmetry) in either learner: everything eager
-    ([_Alg(False, False), _Alg(True, True)], True, (False, [False, False])),
-], ids=["cpu", "all", "eager-update", "eager-update-any-optimizer", "eager"])
+@pytest.mark.parametrize(
+    "algs,cuda,plan",
+    [
+        ([_Alg(True, True)], False, (False, [False])),  # the CPU captures nothing
+        ([_Alg(True, True), _Alg(True, True)], True, (True, [True, True])),
+        # several ranks or the adaptive schedule: the rollout replays graphs, that learner's update is eager
+        ([_Alg(True, False), _Alg(True, True)], True, (True, [False, True])),
+        ([_Alg(True, False, capturable=False)], True, (True, [False])),
+        # a recurrent model (or RND, symmetry) in either learner: everything eager
+        ([_Alg(False, False), _Alg(True, True)], True, (False, [False, False])),
+    ],
+    ids=["cpu", "all", "eager-update", "eager-update-any-optimizer", "eager"],
+)
 def test_graph_plan(algs, cuda, plan):
     from aquarium_warp.training.loop import graph_plan
 
@@ -152,8 +173,11 @@ def test_algorithms_say_which_graphs_they_allow():
 ADAPTIVE = CASES[2][1]
 
 
-@pytest.mark.parametrize("changes", [{}, NORMALISED, ADAPTIVE],
-                         ids=["plain", "observation normalisation", "adaptive schedule (eager update)"])
+@pytest.mark.parametrize(
+    "changes",
+    [{}, NORMALISED, ADAPTIVE],
+    ids=["plain", "observation normalisation", "adaptive schedule (eager update)"],
+)
 def test_cuda_graph_loop_matches_eager_loop(changes, cuda_device):
     """Replayed graphs run the eager loop's kernels, and torch's generator gives a replayed kernel the
     offset the eager call would have had: the same parameters after iterations 2-4 (graphs). With
@@ -162,11 +186,13 @@ def test_cuda_graph_loop_matches_eager_loop(changes, cuda_device):
     between the replays must see what the eager loop's saw."""
     import copy
 
-    eager, _ = _train("fast", device=cuda_device, train={"cuda_graphs": False, "iterations": 4},
-                      **copy.deepcopy(changes))
+    eager, _ = _train(
+        "fast", device=cuda_device, train={"cuda_graphs": False, "iterations": 4}, **copy.deepcopy(changes)
+    )
     plan: list = []
-    graphed, _ = _train("fast", device=cuda_device, plan=plan, train={"cuda_graphs": True, "iterations": 4},
-                        **copy.deepcopy(changes))
+    graphed, _ = _train(
+        "fast", device=cuda_device, plan=plan, train={"cuda_graphs": True, "iterations": 4}, **copy.deepcopy(changes)
+    )
     assert plan == [(True, [changes is not ADAPTIVE])]
     differing = {k: float((eager[k] - graphed[k]).abs().max()) for k in eager if not torch.equal(eager[k], graphed[k])}
     assert not differing, differing

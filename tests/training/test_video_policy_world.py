@@ -42,10 +42,14 @@ def test_video_uses_the_trained_policys_world(tmp_path, filmed, capsys):
     torch.set_num_threads(1)
     try:
         # Individual Learning (one network per slot): it can act only for exactly 4 prey.
-        config = make_config("tiny", {"train": {"num_worlds": 2, "iterations": 1, "quiet": True, "export": ["jit"],
-                                                "sharing": "individual"},
-                                      "env": {"prey_count": 4, "width": 300.0, "height": 350.0, "max_steps": 20},
-                                      "runner": {"num_steps_per_env": 4}})
+        config = make_config(
+            "tiny",
+            {
+                "train": {"num_worlds": 2, "iterations": 1, "quiet": True, "export": ["jit"], "sharing": "individual"},
+                "env": {"prey_count": 4, "width": 300.0, "height": 350.0, "max_steps": 20},
+                "runner": {"num_steps_per_env": 4},
+            },
+        )
         trainer = Trainer(config, str(tmp_path / "il"))
         trainer.train()
         policy = trainer.export()["jit"]
@@ -73,8 +77,23 @@ def test_video_uses_the_trained_policys_world(tmp_path, filmed, capsys):
     meta = {**trainer.policy_meta(), "team": "predator", "env": {**config["env"], "prey_count": 6}}
     other = export_policy(trainer.actor, meta, str(tmp_path / "other"), formats=["jit"])["jit"]
     count = len(filmed)
-    assert main(["video", "--prey-policy", policy, "--predator-policy", other, "--steps", "1", "--out", out,
-                 "--no-progress"]) == 2
+    assert (
+        main(
+            [
+                "video",
+                "--prey-policy",
+                policy,
+                "--predator-policy",
+                other,
+                "--steps",
+                "1",
+                "--out",
+                out,
+                "--no-progress",
+            ]
+        )
+        == 2
+    )
     err = capsys.readouterr().err
     assert f"policies {policy!r} and {other!r} were trained in different worlds (prey_count 4 vs 6)" in err
     assert len(err.strip().splitlines()) == 1 and len(filmed) == count

@@ -19,11 +19,26 @@ def test_wandb_logger_trains_and_receives_videos(tmp_path, monkeypatch, one_thre
     monkeypatch.setenv("WANDB_MODE", "offline")  # nothing leaves the machine
     monkeypatch.setenv("WANDB_DIR", str(tmp_path))
     monkeypatch.setenv("WANDB_SILENT", "true")
-    config = make_config("tiny", {"train": {"num_worlds": 4, "iterations": 2, "quiet": True, "export": [],
-                                            "video_every": 1, "video_steps": 5},
-                                  "env": {"max_steps": 20},
-                                  "runner": {"num_steps_per_env": 8, "save_interval": 1, "logger": "wandb",
-                                             "wandb_project": "aquarium-warp-test"}})
+    config = make_config(
+        "tiny",
+        {
+            "train": {
+                "num_worlds": 4,
+                "iterations": 2,
+                "quiet": True,
+                "export": [],
+                "video_every": 1,
+                "video_steps": 5,
+            },
+            "env": {"max_steps": 20},
+            "runner": {
+                "num_steps_per_env": 8,
+                "save_interval": 1,
+                "logger": "wandb",
+                "wandb_project": "aquarium-warp-test",
+            },
+        },
+    )
     trainer = Trainer(config, str(tmp_path / "run"))
     trainer.train()
     trainer.close()

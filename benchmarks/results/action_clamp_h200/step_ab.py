@@ -1,4 +1,5 @@
 """A/B step time: the package on PYTHONPATH (old or new), graph step, two configurations."""
+
 import json
 import statistics
 import time
