@@ -10,7 +10,7 @@ streams coincide by accident and a reader finds where a number came from.
 | `team_seed(seed, team)` | prey `seed`, predators `seed + 1` | a trained team's sampled actions (`make_drivers`) |
 | `rank_seed(seed, rank)` | `seed + rank` | a torchrun training process (`Trainer`) |
 | `seed_process(seed)` | (2) | torch's, numpy's and Python's global generators (`Trainer`) |
-| `evaluation_seed(seed)` | `1_000_003 * (seed + 1)` | the evaluation worlds of group hunting and many eyes |
+| `evaluation_seed(seed)` | `1_000_003 * (seed + 1)` | the evaluation worlds of group hunting, many eyes, co-evolution |
 | `baseline_seed(seed, prey)` | `1_000_003 * seed + prey` | the swarm-size study's uniform baselines |
 | `reset_seeds(seed)`, `next_reset_seed` | (3) | the seeds of resets without a seed (PettingZoo, vector envs) |
 | `space_seed(seed, agent, kind)` | (4) | a PettingZoo agent's action and observation spaces |
