@@ -167,18 +167,20 @@ PRESETS: dict[str, dict[str, Any]] = {  # name -> changes to the defaults (a nes
 }
 
 
+# The learned-prey recipe's changes to a run config (docs/learned-prey.md): egocentric observations
+# (world actions), random spawn headings and entropy weight 0.01. The learned-prey presets, the swarm
+# study and the many-eyes and group-hunting studies' `--recipe` take it from here.
+LEARNED_PREY_RECIPE = {
+    "env": {"observation_frame": "ego", "spawn_heading": "random"},
+    "runner": {"algorithm": {"entropy_coef": 0.01}},
+}
+
 # World A, B and C's prey views (benchmarks/learned_prey.py's WORLDS).
 LEARNED_PREY_VIEWS = {
     "a": {},
     "b": {"fov_angle": 360, "view_distance": 200},
     "c": {"fov_angle": 360, "view_distance": 10000},
 }
-for _world, _view in LEARNED_PREY_VIEWS.items():
-    _recipe = copy.deepcopy(PRESETS["paper"])
-    _recipe["env"].update({"observation_frame": "ego", "spawn_heading": "random", **({"prey": _view} if _view else {})})
-    _recipe["train"]["episodes"] = 16000
-    _recipe["runner"]["algorithm"]["entropy_coef"] = 0.01
-    PRESETS[f"learned-prey-{_world}"] = _recipe
 
 
 def deep_update(base: dict, changes: dict) -> dict:
@@ -189,6 +191,14 @@ def deep_update(base: dict, changes: dict) -> dict:
         else:
             base[key] = copy.deepcopy(value)
     return base
+
+
+for _world, _view in LEARNED_PREY_VIEWS.items():
+    _recipe = deep_update(copy.deepcopy(PRESETS["paper"]), copy.deepcopy(LEARNED_PREY_RECIPE))
+    if _view:
+        _recipe["env"]["prey"] = dict(_view)
+    _recipe["train"]["episodes"] = 16000
+    PRESETS[f"learned-prey-{_world}"] = _recipe
 
 
 def default_config() -> dict:

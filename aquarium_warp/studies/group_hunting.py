@@ -64,13 +64,12 @@ from ..config import AquariumConfig
 from ..records import command_line
 from ..rollout import StepView
 from ..seeding import evaluation_seed
-from ..training.config import env_config
+from ..training.config import LEARNED_PREY_RECIPE, deep_update, env_config
 from . import common
 from .jobs import RayOptions, add_ray_arguments, ray_options, run_tasks
 from .statistics import compare, equivalence, finite, seed_stats
 
 PREY_CONDITIONS = ("turnaway", "cotrained")
-RECIPE_ENTROPY = 0.01  # the learned-prey recipe's entropy coefficient (docs/learned-prey.md)
 # "Sharing makes no difference" needs the 90% interval of shared minus capturer-only captures per
 # predator inside +-SHARING_MARGIN of the capturer-only mean (declared with the redesign).
 SHARING_MARGIN = 0.10
@@ -174,7 +173,7 @@ class GroupHuntingStudy:
         if predator:
             env["predator"] = predator
         if self.recipe:
-            env.update(observation_frame="ego", spawn_heading="random")
+            env.update(LEARNED_PREY_RECIPE["env"])
         return env
 
     def tasks(self, device: str) -> list[dict]:
@@ -336,7 +335,7 @@ def run_task(task: dict) -> dict:
             device,
         )
         if study.recipe:
-            config["runner"]["algorithm"]["entropy_coef"] = RECIPE_ENTROPY
+            deep_update(config, {"runner": LEARNED_PREY_RECIPE["runner"]})
         policies, train_s = common.train_and_export(config, task["policy_dir"])
         predator = policies["predator"]
         prey = policies.get("prey", "turnaway")
@@ -418,7 +417,7 @@ def run_group_hunting(study: GroupHuntingStudy, command: str | None = None, ray:
             f"predator max speed {study.predator_speed if study.predator_speed is not None else 5.0:g} "
             f"(prey 4), {study.predator_slots if study.predator_slots is not None else 1} predator slot(s), "
             + (
-                f"the learned-prey recipe (ego observations, random spawn headings, entropy {RECIPE_ENTROPY})"
+                f"the learned-prey recipe {LEARNED_PREY_RECIPE}"
                 if study.recipe
                 else "the paper preset's observations and PPO settings"
             )

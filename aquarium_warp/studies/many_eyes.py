@@ -70,14 +70,13 @@ from ..atomic import check_output_dir
 from ..records import command_line
 from ..rollout import StepView
 from ..seeding import evaluation_seed
-from ..training.config import env_config
+from ..training.config import LEARNED_PREY_RECIPE, deep_update, env_config
 from . import common
 from .jobs import RayOptions, add_ray_arguments, ray_options, run_tasks
 from .statistics import compare, equivalence, finite, seed_stats
 
 PREDATORS = ("naivchase", "naivchase-noconfusion")
 MEASURES = ("captures_per_prey", "fid", "blind_fraction", "onsets_per_prey")
-RECIPE_ENTROPY = 0.01  # the learned-prey recipe's entropy coefficient (docs/learned-prey.md)
 # Equivalence margins of the neighbour control, declared with the redesign: a "no effect" of seeing
 # neighbours needs the 90% interval of learned minus no-neighbours inside these.
 MARGINS = {"captures_per_prey": 0.1, "fid": 10.0, "blind_fraction": 0.05, "onsets_per_prey": 0.5}
@@ -145,7 +144,7 @@ class ManyEyesStudy:
         if self.area_per_prey is not None:
             env["width"] = env["height"] = math.sqrt(n * self.area_per_prey)
         if self.recipe:
-            env.update(observation_frame="ego", spawn_heading="random")
+            env.update(LEARNED_PREY_RECIPE["env"])
         if prey_slots is not None:
             env["prey"]["prey_slots"] = prey_slots
         return env
@@ -288,7 +287,7 @@ def run_task(task: dict) -> list[dict]:
             device,
         )
         if study.recipe:
-            config["runner"]["algorithm"]["entropy_coef"] = RECIPE_ENTROPY
+            deep_update(config, {"runner": LEARNED_PREY_RECIPE["runner"]})
         policies, train_s = common.train_and_export(config, task["policy_dir"])
         prey = policies["prey"]
     cfg = env_config({"env": study.env(n, fov, study.eval_steps, slots)})
@@ -404,7 +403,7 @@ def run_many_eyes(study: ManyEyesStudy, command: str | None = None, ray: RayOpti
         ),
         "recipe": (
             "ego observations (neighbours' relative velocity included), random spawn headings, entropy "
-            f"{RECIPE_ENTROPY}"
+            f"{LEARNED_PREY_RECIPE['runner']['algorithm']['entropy_coef']}"
             if study.recipe
             else "the paper preset's observations and PPO settings"
         ),

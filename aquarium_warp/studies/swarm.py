@@ -63,7 +63,6 @@ from .statistics import difference, equivalence, finite, interval, mean_interval
 # The scenario: prey see all around, 200 px (reacting pays only with rear vision and range, see
 # docs/learned-prey.md); everything else is the paper's world.
 SCENARIO = ("env.prey.fov_angle=360", "env.prey.view_distance=200")
-RECIPE = ("env.observation_frame=ego", "env.spawn_heading=random")
 CONDITIONS: dict[str, dict] = {
     "swarm": {"prey": 32, "sets": (), "opponent": "naivchase"},
     "no-neighbours": {"prey": 32, "sets": ("env.prey.prey_slots=0",), "opponent": "naivchase"},
@@ -328,10 +327,10 @@ def run_config(args, condition: str, seed: int) -> dict:
     """The Trainer config of `condition`'s training run with `seed`, without a device (its task is
     given one): what `aquarium-warp train --preset <--train-preset> --seed <seed> --quiet --export jit
     --save-interval I --prey N --num-worlds W --iterations I --entropy 0.01 --predator-policy <opponent>`
-    with `--set` of `SCENARIO`, `RECIPE`, the condition's and `--train-set`'s assignments builds, the
-    command that trained the committed results. W: `--train-worlds`, else `TRAIN_AGENT_STEPS` / (N x
-    32 steps x `--iterations`); I: `--iterations` x the condition's budget."""
-    from ..training.config import deep_update, make_config, parse_assignment
+    with `--set` of `SCENARIO`, the recipe's (`LEARNED_PREY_RECIPE`), the condition's and `--train-set`'s
+    assignments builds, the command that trained the committed results. W: `--train-worlds`, else
+    `TRAIN_AGENT_STEPS` / (N x 32 steps x `--iterations`); I: `--iterations` x the condition's budget."""
+    from ..training.config import LEARNED_PREY_RECIPE, deep_update, make_config, parse_assignment
 
     spec = CONDITIONS[condition]
     worlds = args.train_worlds or max(1, TRAIN_AGENT_STEPS // (spec["prey"] * 32 * args.iterations))
@@ -348,9 +347,10 @@ def run_config(args, condition: str, seed: int) -> dict:
             "episodes": None,
         },
         "env": {"prey_count": spec["prey"]},
-        "runner": {"save_interval": iterations, "algorithm": {"entropy_coef": 0.01}},
+        "runner": {"save_interval": iterations},
     }
-    for assignment in SCENARIO + RECIPE + tuple(spec["sets"]) + tuple(args.train_set):
+    deep_update(changes, LEARNED_PREY_RECIPE)
+    for assignment in SCENARIO + tuple(spec["sets"]) + tuple(args.train_set):
         deep_update(changes, parse_assignment(assignment))
     return make_config(args.train_preset, deep_update(changes, {"train": {"opponent": spec["opponent"]}}))
 
@@ -518,6 +518,7 @@ def baseline_tasks(args, trainings: Sequence[dict]) -> list[dict]:
 
 def run(args) -> int:
     from ..atomic import atomic_open
+    from ..training.config import LEARNED_PREY_RECIPE
 
     check(args)
     devices = task_devices(args.gpus)
@@ -527,7 +528,7 @@ def run(args) -> int:
     summary: dict = {
         "design": {
             "scenario": SCENARIO,
-            "recipe": RECIPE,
+            "recipe": LEARNED_PREY_RECIPE,
             "conditions": CONDITIONS,
             "evaluations": EVALUATIONS,
             "primary": PRIMARY,

@@ -170,7 +170,8 @@ def old_train_argv(args, condition: str, seed: int, device: str) -> list[str]:
         "--predator-policy",
         spec["opponent"],
     ]
-    for s in swarm.SCENARIO + swarm.RECIPE + tuple(spec["sets"]) + tuple(args.train_set):
+    recipe = ("env.observation_frame=ego", "env.spawn_heading=random")  # the recipe's part of those commands
+    for s in swarm.SCENARIO + recipe + tuple(spec["sets"]) + tuple(args.train_set):
         argv += ["--set", s]
     return argv
 
