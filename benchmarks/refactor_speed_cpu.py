@@ -80,6 +80,7 @@ def main(argv=None) -> int:
     if args.reps < 1:
         raise SystemExit(f"--reps={args.reps} must be >= 1")
     sys.path.insert(0, os.path.abspath(args.after))
+    from aquarium_warp.atomic import atomic_open
     from aquarium_warp.records import provenance
 
     work = tempfile.mkdtemp()
@@ -110,8 +111,8 @@ def main(argv=None) -> int:
     print(
         json.dumps({key: result[key] for key in ("medians", "minima", "after_over_before", "after_over_before_minima")})
     )
-    if args.out:
-        with open(args.out, "w", encoding="utf-8") as f:
+    if args.out:  # written whole or not at all
+        with atomic_open(args.out) as f:
             json.dump(result, f, indent=1)
     return 0
 

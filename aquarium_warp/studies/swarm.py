@@ -517,12 +517,13 @@ def baseline_tasks(args, trainings: Sequence[dict]) -> list[dict]:
 
 
 def run(args) -> int:
-    from ..atomic import atomic_open
+    from ..atomic import atomic_open, check_output_dir
     from ..training.config import LEARNED_PREY_RECIPE
 
     check(args)
     devices = task_devices(args.gpus)
     trainings = training_tasks(args) if args.part in ("learned", "all") else []  # their configs checked first
+    check_output_dir(args.out, "--out")
     os.makedirs(args.out, exist_ok=True)
     start = time.perf_counter()
     summary: dict = {

@@ -121,6 +121,15 @@ def test_a_bad_option_is_one_line_and_writes_nothing(tmp_path, capsys):
     assert not out.exists()
 
 
+def test_an_out_that_is_a_file_is_refused_in_one_line(tmp_path, capsys):
+    out = tmp_path / "results.json"
+    out.write_text("a user's file")
+    assert main(SCREEN + ["--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("aquarium-warp study: --out ") and "is a file, not a folder" in err, err
+    assert out.read_text() == "a user's file"
+
+
 def test_comparisons_keep_their_keys_and_the_pairing():
     a, b = [1.0, 2.0, 3.0, 4.0], [0.5, 1.0, 2.5, 3.0]  # matched differences 0.5, 1, 0.5, 1
     paired = swarm.comparison(a, b, True, 1.2)
