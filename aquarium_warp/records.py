@@ -46,7 +46,9 @@ def command_line(argv: Sequence[str] | None = None, program: str = "aquarium-war
 
 
 def git_info(commit: str | None = None) -> dict:
-    """The repository's commit and whether tracked files differ from it (`commit` overrides)."""
+    """The repository's commit and whether tracked files differ from it (`commit`, else the environment's
+    `AQUARIUM_WARP_COMMIT`, overrides: a copy without git history, e.g. on a lent GPU machine, names it)."""
+    commit = commit or os.environ.get("AQUARIUM_WARP_COMMIT")
     if commit:
         return {"commit": commit, "dirty": None, "source": "given"}
     try:
