@@ -276,6 +276,25 @@ def test_cuda_graph_loop_matches_eager_loop(changes, cuda_device):
     assert not differing, differing
 
 
+def test_a_failed_update_capture_says_so(cuda_device, monkeypatch):
+    """An update that cannot be captured (here: a host read) raises at its capture, naming the learner
+    and the way out; no silent fallback to the eager update."""
+    config = make_config("tiny", {"train": {"device": cuda_device, "num_worlds": 4, "quiet": True, "export": []}})
+    trainer = Trainer(config)
+    alg = trainer.runner.alg
+    update = alg.update_on_device
+
+    def reading_update(indices, size):
+        losses = update(indices, size)
+        losses.sum().item()  # allowed eagerly, refused while capturing
+        return losses
+
+    monkeypatch.setattr(alg, "update_on_device", reading_update)
+    with pytest.raises(RuntimeError, match=r"learner 0 \(prey; one process\).*train.graph_update=false"):
+        trainer.train(3)
+    trainer.close()
+
+
 def test_graph_captures_pause_the_garbage_collector():
     """A torch capture must not run Python's collector (it would free Warp arrays of dropped envs, which
     a capturing stream refuses): paused inside, restored after, also when the block raises."""
