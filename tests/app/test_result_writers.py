@@ -67,10 +67,11 @@ def test_bench_multi_gpu_records_provenance(tmp_path, monkeypatch):
     monkeypatch.setattr(
         bench,
         "run_point",
-        lambda g, team, graphs, args: {
+        lambda g, team, mode, args: {
             "gpus": g,
             "team": team,
-            "cuda_graphs": graphs,
+            "mode": mode,
+            "captured": {"rollout": False, "update": {team: False}},
             "agent_steps_per_s": 1.0,
             "wall_seconds": 1.0,
         },
