@@ -175,7 +175,7 @@ class UpdateFloor:
 
     @property
     def bound(self) -> str | None:
-        """"arithmetic" or "memory": which of the two sets the floor."""
+        """Which of the two sets the floor: "arithmetic" or "memory"."""
         if self.flop_seconds is None or self.byte_seconds is None:
             return None
         return "arithmetic" if self.flop_seconds >= self.byte_seconds else "memory"
@@ -188,16 +188,18 @@ class UpdateFloor:
 
     def describe(self, measured_seconds: float | None = None) -> str:
         """One line: the floor, what sets it, and the fraction reached by `measured_seconds`."""
+        reached = None if measured_seconds is None else self.fraction(measured_seconds)
         work = f"{self.work.flops / 1e12:.3g} TFLOP, {self.work.bytes / 1e9:.3g} GB"
-        if self.peaks is None or self.seconds is None:
+        peaks, flop_seconds, byte_seconds, seconds = self.peaks, self.flop_seconds, self.byte_seconds, self.seconds
+        if peaks is None or flop_seconds is None or byte_seconds is None or seconds is None:
             return f"floor n/a (no peaks for this card; {work})"
         text = (
-            f"floor {1e3 * self.seconds:.3g} ms on {self.peaks.name} ({self.bound}: {work}; "
-            f"{1e3 * self.flop_seconds:.3g} ms at {self.peaks.fp32_flops / 1e12:.3g} TFLOP/s fp32, "
-            f"{1e3 * self.byte_seconds:.3g} ms at {self.peaks.bandwidth / 1e12:.3g} TB/s)"
+            f"floor {1e3 * seconds:.3g} ms on {peaks.name} ({self.bound}: {work}; "
+            f"{1e3 * flop_seconds:.3g} ms at {peaks.fp32_flops / 1e12:.3g} TFLOP/s fp32, "
+            f"{1e3 * byte_seconds:.3g} ms at {peaks.bandwidth / 1e12:.3g} TB/s)"
         )
-        if measured_seconds is not None:
-            text += f", {100 * self.fraction(measured_seconds):.3g}% reached"
+        if reached is not None:
+            text += f", {100 * reached:.3g}% reached"
         return text
 
     def record(self, measured_seconds: dict[str, float] | None = None) -> dict:

@@ -33,8 +33,9 @@ captures use CUDA's thread-local capture mode: NCCL's proxy threads and torch's 
 calls of their own while this thread captures, which the global mode would count against the capture.
 A capture that fails raises, naming the learner and the way out (`train.graph_update=false`); there
 is no silent fallback (a failed capture of a collective may leave the communicator unusable). On the
-CPU this loop and `OnPolicyRunner.learn` produce the same parameters bit for bit (`tests/training/test_training_loop.py`), so `train.loop = "rsl-rl"` (rsl-rl's own
-runner) remains as the reference and for the benchmark's before/after.
+CPU this loop and `OnPolicyRunner.learn` produce the same parameters bit for bit
+(`tests/training/test_training_loop.py`), so `train.loop = "rsl-rl"` (rsl-rl's own runner) remains as
+the reference and for the benchmark's before/after.
 
 Several learners (`train.team = "both"`: one PPO learner per team, acting in the same worlds): `act[t]`
 runs every learner's `PPO.act` (and the opponent pool's snapshots, `pool.py`), one simulation step

@@ -17,8 +17,8 @@
    draw as the storage's generator) and the mean losses kept on the device instead of `.item()` after
    every mini-batch. Without host synchronisation the whole update (fixed learning-rate schedule;
    with several ranks, NCCL's all-reduce inside) can be captured as one CUDA graph (`training/loop.py`);
-   `capturable_optimizer=True` builds the optimizer with `capturable=True` for that. On the CPU the parameters it produces equal rsl-rl's bit for bit
-   (`tests/training/test_training_loop.py`).
+   `capturable_optimizer=True` builds the optimizer with `capturable=True` for that. On the CPU the
+   parameters it produces equal rsl-rl's bit for bit (`tests/training/test_training_loop.py`).
 """
 
 from __future__ import annotations

@@ -255,7 +255,9 @@ def test_ranks_on_their_own_gpus_capture_the_update_with_its_all_reduce(tmp_path
     for graph_update in (True, False):
         out = str(tmp_path / f"graph_update_{graph_update}")
         os.makedirs(out)
-        records = torchrun(out, team, 3, "nccl", gpu="own", train={"pool_every": pool_every, "graph_update": graph_update})
+        records = torchrun(
+            out, team, 3, "nccl", gpu="own", train={"pool_every": pool_every, "graph_update": graph_update}
+        )
         assert [r["graphs"] for r in records] == [[True, [graph_update] * learners]] * 2
         assert records[0]["params"] == records[1]["params"]
         assert records[0]["final_sim"] != records[1]["final_sim"]
