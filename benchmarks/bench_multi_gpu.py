@@ -1,18 +1,29 @@
 """End-to-end training agent-steps per second on 1, 2, ... GPUs of one host (`torchrun`, rsl-rl's
-multi-GPU path), one learning team and both teams.
+multi-GPU path), one learning team and both teams, with the update captured in CUDA graphs or eager.
 
 Each point is `python -m torch.distributed.run --standalone --nproc_per_node=G -m aquarium_warp train
 ...` with `--num-worlds` worlds per rank, run for `--iterations` iterations; its speed is the median of
 the `fps` column (agent-steps of every rank per second of the iteration) of rank 0's progress CSV over
-the iterations after the first two (Warp compilation, warm-up). On GPUs every count runs the default
-loop (`train.cuda_graphs=true`: one process captures the rollout and the update, several processes the
-rollout only, their update with its all-reduce eager, since 3fc8de5), and one GPU runs once more
-eagerly (`train.cuda_graphs=false`); each point's speed-up is given against both one-GPU runs.
+the iterations after the first two (Warp compilation, warm-up). `--modes` picks the loops measured:
 
-    python benchmarks/bench_multi_gpu.py --gpus 1,2 --teams prey,both --out-dir DIR
+- `graphs`: the default loop, rollout and update replayed from CUDA graphs (on several GPUs the update
+  with its NCCL all-reduce inside its graph);
+- `eager-update`: the rollout from CUDA graphs, the update eager (`train.graph_update=false`: what
+  several GPUs ran before the all-reduce was captured) - with `graphs`, the before/after of that change;
+- `eager`: no graphs (`train.cuda_graphs=false`), on one GPU only (the loop before any graphs).
+
+Every point records what its run captured (its `config.json`'s `cuda_graphs`), and its speed-up
+against one GPU of the `graphs` mode and of its own mode, with the ideal (linear) speed-up and the
+fraction of it reached (`aquarium_warp.training.floors.linear_scaling`). On the CPU (gloo) only
+`eager` runs, at every count.
+
+    python benchmarks/bench_multi_gpu.py --gpus 1,2,4 --teams prey,both --out-dir DIR
     python benchmarks/bench_multi_gpu.py --device cpu --gpus 1,2 --num-worlds 16 --iterations 4   # gloo
 
-Writes `multi_gpu_<device>.json` and prints a table.
+Writes `multi_gpu_<device>.json` atomically (the command, the commit: `--commit` where git is not
+available, the machine and the library versions) and prints a table. A point whose run fails (a failed
+capture raises in the run) is printed with its error, kept in the JSON as such, and makes the exit
+status 1.
 """
 
 from __future__ import annotations
@@ -30,11 +41,20 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from aquarium_warp.arguments import parse_list
-from aquarium_warp.records import command_line, git_info, machine_info
+from aquarium_warp.atomic import atomic_open
+from aquarium_warp.records import command_line, provenance
+from aquarium_warp.training.floors import linear_scaling
+
+# mode -> the train settings of its runs
+MODES = {
+    "graphs": {"cuda_graphs": True, "graph_update": True},
+    "eager-update": {"cuda_graphs": True, "graph_update": False},
+    "eager": {"cuda_graphs": False},
+}
 
 
-def run_point(gpus: int, team: str, graphs: bool, args: argparse.Namespace) -> dict:
-    """One torchrun training run; its median agent-steps/s."""
+def run_point(gpus: int, team: str, mode: str, args: argparse.Namespace) -> dict:
+    """One torchrun training run; its median agent-steps/s and the graphs it captured."""
     log_dir = tempfile.mkdtemp(prefix=f"multi_{team}_{gpus}_")
     command = [
         sys.executable,
@@ -54,11 +74,13 @@ def run_point(gpus: int, team: str, graphs: bool, args: argparse.Namespace) -> d
         "--log-dir",
         log_dir,
         "--quiet",
+        "--export",
+        "none",
         "--device",
         "cpu" if args.device == "cpu" else "cuda",
-        "--set",
-        f"train.cuda_graphs={'true' if graphs else 'false'}",
     ]
+    for key, value in MODES[mode].items():
+        command += ["--set", f"train.{key}={'true' if value else 'false'}"]
     env = {**os.environ, "NCCL_NVLS_ENABLE": "0", "OMP_NUM_THREADS": "1"}
     env.pop("WORLD_SIZE", None)
     started = time.perf_counter()
@@ -69,11 +91,15 @@ def run_point(gpus: int, team: str, graphs: bool, args: argparse.Namespace) -> d
     name = "progress.csv" if team != "both" else "progress_prey.csv"
     with open(os.path.join(log_dir, name), newline="", encoding="utf-8") as f:
         rows = list(csv.DictReader(f))
+    with open(os.path.join(log_dir, "config.json"), encoding="utf-8") as f:
+        captured = json.load(f)["cuda_graphs"]
     fps = [float(r["fps"]) for r in rows[2:]] or [float(r["fps"]) for r in rows]
     return {
         "gpus": gpus,
         "team": team,
-        "cuda_graphs": graphs,
+        "mode": mode,
+        "settings": MODES[mode],
+        "captured": captured,
         "iterations": len(rows),
         "agent_steps_per_s": statistics.median(fps),
         "wall_seconds": wall,
@@ -81,14 +107,59 @@ def run_point(gpus: int, team: str, graphs: bool, args: argparse.Namespace) -> d
     }
 
 
+def add_scaling(points: list[dict]) -> None:
+    """Each point's speed-up against one GPU of the `graphs` mode and of its own mode, with the ideal."""
+    for point in points:
+        for key, mode in (("vs_one_graphs", "graphs"), ("vs_one_same_mode", point["mode"])):
+            base = [
+                q
+                for q in points
+                if q["team"] == point["team"] and q["gpus"] == 1 and q["mode"] == mode and "error" not in q
+            ]
+            ok = base and "error" not in point
+            point[key] = (
+                linear_scaling(point["gpus"], base[0]["agent_steps_per_s"], point["agent_steps_per_s"]) if ok else None
+            )
+
+
+def graph_update_gains(points: list[dict]) -> list[dict]:
+    """Per team and GPU count: the update captured against the update eager (`graphs` over `eager-update`)."""
+    out = []
+    for point in points:
+        if point["mode"] != "graphs" or "error" in point:
+            continue
+        eager = [
+            q
+            for q in points
+            if q["mode"] == "eager-update"
+            and q["team"] == point["team"]
+            and q["gpus"] == point["gpus"]
+            and "error" not in q
+        ]
+        if eager:
+            out.append(
+                {
+                    "team": point["team"],
+                    "gpus": point["gpus"],
+                    "graphs": point["agent_steps_per_s"],
+                    "eager_update": eager[0]["agent_steps_per_s"],
+                    "speedup": point["agent_steps_per_s"] / eager[0]["agent_steps_per_s"],
+                }
+            )
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--gpus", default="1,2", help="process counts, e.g. 1,2,4,8")
     p.add_argument("--teams", default="prey,both", help="learning teams: prey, predator and/or both")
+    p.add_argument("--modes", default="graphs,eager-update,eager", help=f"loops measured: {', '.join(MODES)}")
     p.add_argument("--num-worlds", type=int, default=4096, help="worlds per rank")
     p.add_argument("--iterations", type=int, default=12, help="training iterations per point")
     p.add_argument("--device", default="cuda", help="'cuda' (rank r on cuda:r) or 'cpu' (gloo)")
     p.add_argument("--timeout", type=float, default=300, help="seconds per point")
+    p.add_argument("--commit", default=None, help="commit to record where git is not available")
     p.add_argument("--out-dir", default=".", help="where the JSON goes")
     args = p.parse_args(argv)
     try:
@@ -98,48 +169,76 @@ def main(argv: list[str] | None = None) -> int:
     teams = [t.strip() for t in args.teams.split(",")]
     if bad := [t for t in teams if t not in ("prey", "predator", "both")]:
         p.error(f"--teams: {bad} are not teams (prey, predator, both)")
+    modes = [m.strip() for m in args.modes.split(",")]
+    if bad := [m for m in modes if m not in MODES]:
+        p.error(f"--modes: {bad} are not modes ({', '.join(MODES)})")
+    cuda = args.device != "cpu"
+    if not cuda:
+        modes = ["eager"]  # the CPU captures no graphs
     import torch
 
     points = []
     for team in teams:
         for g in gpus:
-            cuda = args.device != "cpu"
-            for graphs in (True, False) if g == 1 and cuda else (True,) if cuda else (False,):
-                point = run_point(g, team, graphs, args)
+            for mode in (m for m in modes if m != "eager" or g == 1 or not cuda):
+                try:
+                    point = run_point(g, team, mode, args)
+                except (RuntimeError, subprocess.TimeoutExpired) as error:  # reported, not fatal
+                    point = {"gpus": g, "team": team, "mode": mode, "error": str(error)[-6000:]}
+                    print(f"{team:>5} {g} GPU{'s' if g > 1 else ' '} {mode:>12} failed:\n{point['error']}", flush=True)
+                    points.append(point)
+                    continue
                 points.append(point)
                 print(
-                    f"{team:>5} {g} GPU{'s' if g > 1 else ' '} graphs={str(graphs):5} "
-                    f"{point['agent_steps_per_s']:.3g} agent-steps/s ({point['wall_seconds']:.0f} s)",
+                    f"{team:>5} {g} GPU{'s' if g > 1 else ' '} {mode:>12} "
+                    f"{point['agent_steps_per_s']:.3g} agent-steps/s ({point['wall_seconds']:.0f} s), "
+                    f"captured {point['captured']}",
                     flush=True,
                 )
-    for point in points:
-        for key, graphs in (("speedup_vs_one_eager", False), ("speedup_vs_one_graphs", True)):
-            base = [q for q in points if q["team"] == point["team"] and q["gpus"] == 1 and q["cuda_graphs"] == graphs]
-            point[key] = point["agent_steps_per_s"] / base[0]["agent_steps_per_s"] if base else None
-    name = torch.cuda.get_device_name(0) if args.device != "cpu" and torch.cuda.is_available() else "cpu"
+    add_scaling(points)
+    gains = graph_update_gains(points)
+    name = torch.cuda.get_device_name(0) if cuda and torch.cuda.is_available() else "cpu"
     result = {
         "benchmark": "multi_gpu_training",
         "device_name": name,
         "settings": vars(args),
         "points": points,
+        "graph_update_gains": gains,
         "torch": torch.__version__,
-        "command": command_line(argv, Path(__file__).name),
-        "git": git_info(),
-        "machine": machine_info("cpu" if args.device == "cpu" else "cuda:0"),
+        # command, git (commit, dirty) and machine (device, driver, versions)
+        **provenance("cuda:0" if cuda else "cpu", command_line(argv, Path(__file__).name), args.commit),
     }
     out = Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    path = out / f"multi_gpu_{'cpu' if args.device == 'cpu' else 'cuda'}.json"
-    path.write_text(json.dumps(result, indent=2))
-    print(f"\n{'team':>5} {'GPUs':>4} {'graphs':>6} {'agent-steps/s':>14} {'vs 1 eager':>10} {'vs 1 graphs':>11}")
+    path = out / f"multi_gpu_{'cuda' if cuda else 'cpu'}.json"
+    with atomic_open(path) as f:
+        json.dump(result, f, indent=2)
+    print(
+        f"\n{'team':>5} {'GPUs':>4} {'mode':>12} {'agent-steps/s':>14} {'vs 1 graphs':>11} {'of ideal':>8} "
+        f"{'vs 1 same':>9} {'of ideal':>8}"
+    )
     for q in points:
-        ratios = [f"{q[k]:.2f}" if q[k] else "-" for k in ("speedup_vs_one_eager", "speedup_vs_one_graphs")]
+        if "error" in q:
+            print(f"{q['team']:>5} {q['gpus']:>4} {q['mode']:>12} {'failed':>14}")
+            continue
+        cells = []
+        for key in ("vs_one_graphs", "vs_one_same_mode"):
+            s = q[key]
+            cells += [f"{s['speedup']:.2f}x", f"{100 * s['fraction_of_ideal']:.0f}%"] if s else ["-", "-"]
         print(
-            f"{q['team']:>5} {q['gpus']:>4} {str(q['cuda_graphs']):>6} {q['agent_steps_per_s']:>14.3g} "
-            f"{ratios[0]:>10} {ratios[1]:>11}"
+            f"{q['team']:>5} {q['gpus']:>4} {q['mode']:>12} {q['agent_steps_per_s']:>14.3g} {cells[0]:>11} "
+            f"{cells[1]:>8} {cells[2]:>9} {cells[3]:>8}"
+        )
+    for gain in gains:
+        print(
+            f"update captured vs eager, {gain['team']}, {gain['gpus']} GPU{'s' if gain['gpus'] > 1 else ''}: "
+            f"{gain['graphs']:.3g} / {gain['eager_update']:.3g} agent-steps/s = {gain['speedup']:.2f}x"
         )
     print(f"wrote {path}")
-    return 0
+    failed = [q for q in points if "error" in q]
+    if failed:
+        print(f"{len(failed)} point(s) failed: see their errors above and in the JSON", file=sys.stderr)
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":

@@ -8,11 +8,18 @@ captures its graphs), then `--iterations` timed iterations (synchronised at the 
 learning-team rows x steps, as the paper counts prey-steps. The fast loop's time is then split into
 policy / env / storage / update by one more iteration bracketed by CUDA events (or host timers).
 
+Beside each point: the update's floor on this card (`aquarium_warp.training.floors`: the actor's and
+critic's matrix products forward and backward over every sample of the 5 epochs at the card's float32
+peak, or the bytes no update can avoid at its memory bandwidth, whichever is longer; "n/a" for a card
+without peaks in its table, the CPU included) and the fraction of it reached by the update's time and by
+the whole iteration's (the rollout's own floor is a small part of it: one forward per sample).
+
     python benchmarks/bench_training.py --device cuda:0 --worlds 256,1024,4096,16384,65536
     python benchmarks/bench_training.py --device cpu --worlds 64,256 --iterations 3
 
 Prints a table, writes `training_<device>.json` (and `.png` with `--plot`) into `--out-dir`
-(default: the current directory).
+(default: the current directory); the JSON records the command, the commit (`--commit` where git is
+not available), the machine and the library versions.
 """
 
 from __future__ import annotations
@@ -30,9 +37,15 @@ os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from aquarium_warp.atomic import atomic_open
 from aquarium_warp.bench import parse_counts
-from aquarium_warp.records import command_line, git_info
+from aquarium_warp.records import command_line, provenance
 from aquarium_warp.training import Trainer, make_config
+from aquarium_warp.training.floors import UpdateFloor, card_peaks, update_work
+
+
+def device_name(device: torch.device) -> str:
+    return torch.cuda.get_device_name(device) if device.type == "cuda" else platform.processor() or platform.machine()
 
 
 def sync(device: torch.device) -> None:
@@ -98,9 +111,14 @@ def measure(
         "iteration_ms": 1e3 * elapsed / iterations,
         "agent_steps_per_s": rows * steps * iterations / elapsed,
     }
+    measured = {"iteration": elapsed / iterations}
     if loop == "fast":
         phases = trainer.runner.loop.phase_times()
         point["phase_ms"] = {k: 1e3 * v for k, v in phases.items()}
+        measured["update"] = phases["update"]
+    floor = UpdateFloor(update_work(trainer.runner.alg), card_peaks(device_name(dev)))
+    point["floor"] = floor.record(measured)
+    point["floor_text"] = floor.describe()
     trainer.close()
     del trainer
     if dev.type == "cuda":
@@ -188,7 +206,7 @@ def main(argv=None) -> int:
     points = []
     header = (
         f"{'worlds':>7} {'rows':>8} {'sharing':>10} {'loop':>7} {'variant':>12} {'ms/it':>9} "
-        f"{'agent-steps/s':>14}  phases (ms)"
+        f"{'agent-steps/s':>14} {'floor ms':>9} {'% it':>6} {'% upd':>6}  phases (ms)"
     )
     print(header)
     for w in worlds:
@@ -207,9 +225,14 @@ def main(argv=None) -> int:
                     continue
                 points.append(pt)
                 phases = " ".join(f"{k} {v:.2f}" for k, v in pt.get("phase_ms", {}).items())
+                floor = pt["floor"]
+                reached = [floor.get(f"fraction_of_{k}") for k in ("iteration", "update")]
                 print(
                     f"{w:>7} {pt['rows']:>8} {sharing:>10} {loop:>7} {variant:>12} {pt['iteration_ms']:>9.2f} "
-                    f"{pt['agent_steps_per_s']:>14.3e}  {phases}",
+                    f"{pt['agent_steps_per_s']:>14.3e} "
+                    f"{'n/a' if floor['seconds'] is None else format(1e3 * floor['seconds'], '.2f'):>9} "
+                    + " ".join(f"{'-' if r is None else format(100 * r, '.1f'):>6}" for r in reached)
+                    + f"  {phases}",
                     flush=True,
                 )
     points_ok = [q for q in points if "error" not in q]
@@ -231,32 +254,33 @@ def main(argv=None) -> int:
     for s in speedups:
         print(f"speed-up fast / rsl-rl loop: {s['worlds']:>6} worlds {s['sharing']:>10}: {s['speedup']:.1f}x")
 
+    if points_ok:
+        print(f"floor of the update ({points_ok[-1]['worlds']} worlds): {points_ok[-1]['floor_text']}")
+
     from importlib.metadata import version
 
     import warp as wp
 
-    dev = torch.device(args.device)
     result = {
         "benchmark": "bench_training",
         "task": "paper preset (6 prey vs NaivChase, 2x64 tanh, T=32, 5x4)",
         "device": args.device,
-        "device_name": (
-            torch.cuda.get_device_name(dev) if dev.type == "cuda" else platform.processor() or platform.machine()
-        ),
+        "device_name": device_name(torch.device(args.device)),
         "cpu_count": os.cpu_count(),
         "python": platform.python_version(),
         "torch": torch.__version__,
         "warp": wp.__version__,
         "rsl_rl": version("rsl-rl-lib"),
-        "git": git_info(args.commit),
-        "command": command_line(argv, Path(sys.argv[0]).name),
+        # command, git (commit, dirty) and machine (device, driver, versions)
+        **provenance(args.device, command_line(argv, Path(sys.argv[0]).name), args.commit),
         "points": points,
         "speedups": speedups,
     }
     out_dir = Path(args.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     stem = f"training_{args.device.replace(':', '')}"
-    (out_dir / f"{stem}.json").write_text(json.dumps(result, indent=2))
+    with atomic_open(out_dir / f"{stem}.json") as f:
+        json.dump(result, f, indent=2)
     print(f"wrote {out_dir / (stem + '.json')}")
     if args.plot:
         plot(result, out_dir / f"{stem}.png")

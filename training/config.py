@@ -58,6 +58,7 @@ TRAIN_DEFAULTS: dict[str, Any] = {
     "quiet": False,  # tqdm progress bar instead of the per-iteration line
     "loop": "fast",  # "fast": training/loop.py (no host syncs; CUDA graphs); "rsl-rl": its runner's loop
     "cuda_graphs": True,  # the fast loop replays CUDA graphs on CUDA devices where the model allows
+    "graph_update": True,  # with cuda_graphs: the PPO update (several GPUs: with its all-reduce) too; false: eager
     "metrics_every": 10,  # swarm metrics (Swarm/* in the log) sampled every N steps; 0: none
     "tf32": False,  # CUDA matrix products in TF32 (faster for large batches, ~1e-3 relative error)
     "critic": "local",  # the critic's input (MAPPO): "local", "team" or "world" (see CRITICS)
@@ -375,7 +376,7 @@ def validate(config: dict) -> None:
     ):
         if not is_int(train[name]) or not low <= train[name] <= 2**31 - 1:
             raise ValueError(f"train.{name}={train[name]!r} must be an integer in [{low}, 2**31 - 1]{meaning}")
-    for name in ("tf32", "cuda_graphs"):
+    for name in ("tf32", "cuda_graphs", "graph_update"):
         if not isinstance(train[name], bool):
             raise ValueError(f"train.{name}={train[name]!r} must be true or false")
     if train["update_schedule"] not in UPDATE_SCHEDULES:

@@ -7,8 +7,13 @@ Each process (rank) simulates its own worlds on its own device with its own seed
 broadcast from rank 0 when learning starts, gradients all-reduced every mini-batch, the observation
 normalisers' statistics all-reduced, the adaptive learning rate decided on rank 0. This module holds
 the few pieces rsl-rl leaves to us: the rank's device and process-group backend (NCCL on GPUs, gloo
-on CPUs), sums over ranks for the logs, and gathering every rank's training state into rank 0's
-checkpoint.
+on CPUs), whether the backend's collectives can be captured in a CUDA graph (NCCL's can: the update
+with its gradient all-reduce is then replayed like one process's), sums over ranks for the logs, and
+gathering every rank's training state into rank 0's checkpoint.
+
+Several machines join through torchrun's rendezvous (`--nnodes=N --rdzv-backend=c10d
+--rdzv-endpoint=HOST:PORT`, the same command on each); `tests/training/test_distributed.py` starts two
+such launchers on one host (gloo on the CPU).
 """
 
 from __future__ import annotations
@@ -65,6 +70,13 @@ def init(device: str, rank: int, size: int) -> str:
     if not dist.is_initialized():
         dist.init_process_group(backend=backend, rank=rank, world_size=size)
     return backend
+
+
+def collectives_capturable() -> bool:
+    """Whether this process's group (if any) runs its collectives on the GPU's streams, so that a CUDA
+    graph can capture them: NCCL (from 2.9.6; torch skips the watchdog's bookkeeping of captured work).
+    gloo's collectives wait on the host, which a capture refuses."""
+    return dist.is_initialized() and dist.get_backend() == "nccl"
 
 
 def sum_over_ranks(tensor: torch.Tensor) -> None:

@@ -19,7 +19,7 @@ from . import (
 )
 from .checkpoints import write_checkpoint
 from .logger import AquariumLogger
-from .loop import TrainingLoop
+from .loop import TrainingLoop, graph_plan
 from .vec_env import AquariumVecEnv
 
 if TYPE_CHECKING:
@@ -88,7 +88,14 @@ class AquariumRunner(OnPolicyRunner):
         train = trainer.config["train"] if trainer is not None else {}
         self.loop_kind = train.get("loop", "fast")
         self.cuda_graphs = bool(train.get("cuda_graphs", True))
+        self.graph_update = bool(train.get("graph_update", True))
         self.loop: TrainingLoop | None = None
+
+    def graph_plan(self) -> tuple[bool, list[bool]]:
+        """The CUDA graphs the training loop captures: the rollout's, and per learner its update's
+        (`loop.graph_plan`, from `train.loop`, `train.cuda_graphs`, `train.graph_update` and the device)."""
+        cuda = self.loop_kind == "fast" and self.cuda_graphs and torch.device(self.device).type == "cuda"
+        return graph_plan([learner.alg for learner in self.learners], cuda, self.graph_update)
 
     def _configure_multi_gpu(self) -> None:
         """rsl-rl's setup of a several-process run (torchrun), with the backend chosen by the device:
@@ -142,6 +149,7 @@ class AquariumRunner(OnPolicyRunner):
                 pool=self.trainer.pool if self.trainer is not None else None,
                 # episode statistics are sums and counts, losses become their mean
                 reduce=distributed.sum_over_ranks if self.is_distributed else None,
+                graph_update=self.graph_update,
             )
         for learner in self.learners:
             learner.alg.train_mode()

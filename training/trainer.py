@@ -10,7 +10,8 @@ trainer.export()                   # runs/paper_ps_s0/exported/policy.pt, policy
 Trainer.resume("runs/paper_ps_s0").train()     # continues from the newest checkpoint
 ```
 
-The log directory receives rsl-rl's TensorBoard events, `config.json`, `progress.csv` (one row per
+The log directory receives rsl-rl's TensorBoard events, `config.json` (the config, and under
+`cuda_graphs` what the training loop captures: the rollout, each learner's update), `progress.csv` (one row per
 iteration: episode statistics, losses, speed) and checkpoints `model_<i>.pt`, which hold the state
 after iteration i (0-based; the runner's `iter` entry is the next iteration, `i + 1`).
 
@@ -31,8 +32,9 @@ Several processes (`torchrun`, see `distributed.py`): each rank trains on its ow
 seed `train.seed + RANK` (listed in `config.json` under `distributed`); rank 0 logs the episode
 statistics and swarm metrics summed over all ranks (losses: their mean) and writes the checkpoints,
 which hold rank 0's state as above plus `world_size` and the other ranks' states under `ranks`; on
-resume each rank restores its own (the same number of processes is required). On CUDA each rank
-replays its rollout from CUDA graphs; the update, with its all-reduce, runs eagerly.
+resume each rank restores its own (the same number of processes is required). On CUDA (NCCL) each
+rank replays its rollout and its update, with the update's all-reduce, from CUDA graphs, as one process
+does (`train.graph_update=false`: the update runs eagerly).
 """
 
 from __future__ import annotations
@@ -139,6 +141,17 @@ class Trainer:
         }
         self.runner_cfg = self.runner_cfgs[self.teams[0]]
         self.total_iterations = total_iterations(config)
+        with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints the networks (config.json has them)
+            self.runner = AquariumRunner(
+                self.vec_env,
+                copy.deepcopy(self.runner_cfg),
+                log_dir=log_dir,
+                device=str(self.device),
+                trainer=self,
+                quiet=train["quiet"],
+                others=[(self.vec_envs[t], copy.deepcopy(self.runner_cfgs[t])) for t in self.teams[1:]],
+            )
+        self.learners = {learner.team: learner for learner in self.runner.learners}
         if log_dir is not None and self.rank == 0:
             os.makedirs(log_dir, exist_ok=True)
             record = {
@@ -151,19 +164,10 @@ class Trainer:
                     "world_size": self.world_size,
                     "seeds": [rank_seed(train["seed"], r) for r in range(self.world_size)],
                 }
+            rollout_graphs, update_graphs = self.runner.graph_plan()  # what the training loop will capture
+            record["cuda_graphs"] = {"rollout": rollout_graphs, "update": dict(zip(self.teams, update_graphs))}
             with atomic_open(os.path.join(log_dir, "config.json")) as f:
                 json.dump(record, f, indent=1, default=str)
-        with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints the networks (config.json has them)
-            self.runner = AquariumRunner(
-                self.vec_env,
-                copy.deepcopy(self.runner_cfg),
-                log_dir=log_dir,
-                device=str(self.device),
-                trainer=self,
-                quiet=train["quiet"],
-                others=[(self.vec_envs[t], copy.deepcopy(self.runner_cfgs[t])) for t in self.teams[1:]],
-            )
-        self.learners = {learner.team: learner for learner in self.runner.learners}
         self.pool = None
         if train["pool_every"]:
             from .pool import OpponentPool
@@ -203,6 +207,7 @@ class Trainer:
                 "export",
                 "loop",
                 "cuda_graphs",
+                "graph_update",
                 "tf32",
                 "video_every",
                 "video_steps",

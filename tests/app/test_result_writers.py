@@ -67,10 +67,11 @@ def test_bench_multi_gpu_records_provenance(tmp_path, monkeypatch):
     monkeypatch.setattr(
         bench,
         "run_point",
-        lambda g, team, graphs, args: {
+        lambda g, team, mode, args: {
             "gpus": g,
             "team": team,
-            "cuda_graphs": graphs,
+            "mode": mode,
+            "captured": {"rollout": False, "update": {team: False}},
             "agent_steps_per_s": 1.0,
             "wall_seconds": 1.0,
         },
@@ -79,3 +80,28 @@ def test_bench_multi_gpu_records_provenance(tmp_path, monkeypatch):
     data = json.loads((tmp_path / "multi_gpu_cpu.json").read_text())
     assert missing(data) == ()
     assert data["command"].endswith("--device cpu --gpus 1 --teams prey --out-dir " + str(tmp_path))
+
+
+def test_bench_training_records_provenance_and_the_floor(tmp_path, monkeypatch, capsys):
+    pytest.importorskip("rsl_rl")
+    bench = _script("bench_training")
+    floor = {"seconds": None, "fraction_of_iteration": None, "fraction_of_update": None}
+    point = {"rows": 6, "iteration_ms": 1.0, "agent_steps_per_s": 1.0, "floor": floor, "floor_text": "floor n/a (...)"}
+    monkeypatch.setattr(
+        bench,
+        "measure_in_subprocess",
+        lambda args, w, sharing, loop, variant: {
+            "worlds": w,
+            "sharing": sharing,
+            "loop": loop,
+            "variant": variant,
+            **point,
+        },
+    )
+    argv = ["--device", "cpu", "--worlds", "4", "--loops", "fast", "--sharing", "parameter"]
+    bench.main([*argv, "--commit", "abc1234", "--out-dir", str(tmp_path)])
+    data = json.loads((tmp_path / "training_cpu.json").read_text())
+    assert missing(data) == ()
+    assert data["git"] == {"commit": "abc1234", "dirty": None, "source": "given"}
+    assert data["points"][0]["floor"] == floor
+    assert "floor n/a" in capsys.readouterr().out

@@ -4,6 +4,8 @@
 resumes) the run in `OUT/run` and writes `OUT/<TAG>_rank<r>.json`: this rank's seed, a hash of every
 learner's parameters after each iteration, each adapter's episode-statistics snapshots (sums and counts
 before the reduction over ranks) and hashes of the final simulation state and parameters.
+`AQUARIUM_WORKER_GPU=shared`: every rank on GPU 0, through gloo; `own`: rank r on GPU r, through NCCL.
+`AQUARIUM_WORKER_TRAIN`: further train settings, as JSON.
 """
 
 from __future__ import annotations
@@ -74,13 +76,20 @@ def share_one_gpu() -> None:
 def main() -> None:
     out, team, iterations, tag = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4]
     run_dir = os.path.join(out, "run")
-    gpu = os.environ.get("AQUARIUM_WORKER_GPU") == "1"  # every rank on GPU 0
-    if gpu:
+    gpu = os.environ.get("AQUARIUM_WORKER_GPU")
+    if gpu == "shared":
         share_one_gpu()
     if sys.argv[5:] == ["resume"]:
         trainer = Trainer.resume(run_dir)
     else:
-        train = {"team": team, "num_worlds": 4, "iterations": 4, "export": [], **({"device": "cuda"} if gpu else {})}
+        train = {
+            "team": team,
+            "num_worlds": 4,
+            "iterations": 4,
+            "export": [],
+            **({"device": "cuda"} if gpu else {}),
+            **json.loads(os.environ.get("AQUARIUM_WORKER_TRAIN", "{}")),
+        }
         config = make_config(
             "tiny",
             {"env": {"max_steps": 20}, "train": train, "runner": {"num_steps_per_env": 16, "save_interval": 100}},

@@ -14,18 +14,22 @@ import pytest
 import torch
 
 from aquarium_warp.cli import main
-from aquarium_warp.training import Trainer, distributed
+from aquarium_warp.training import Trainer, distributed, make_config
 
 WORKER = os.path.join(os.path.dirname(__file__), "distributed_worker.py")
 
 
-def torchrun(out: str, team: str, iterations: int, tag: str, resume: bool = False, gpu: bool = False) -> list[dict]:
-    """Run the worker on two ranks, on the CPU or both on GPU 0 (`gpu`); each rank's record."""
+def torchrun(
+    out: str, team: str, iterations: int, tag: str, resume: bool = False, gpu: str | None = None, train=None
+) -> list[dict]:
+    """Run the worker on two ranks, on the CPU, both on GPU 0 (`gpu="shared"`, gloo) or on GPUs 0 and 1
+    (`gpu="own"`, NCCL), with further `train` settings; each rank's record."""
     env = {
         **os.environ,
         "OMP_NUM_THREADS": "1",
         "GIT_PYTHON_REFRESH": "quiet",
-        **({"AQUARIUM_WORKER_GPU": "1"} if gpu else {}),
+        **({"AQUARIUM_WORKER_GPU": gpu} if gpu else {}),
+        **({"AQUARIUM_WORKER_TRAIN": json.dumps(train)} if train else {}),
     }
     env.pop("WORLD_SIZE", None)
     command = [
@@ -114,6 +118,81 @@ def test_stop_and_resume_continues_exactly_on_every_rank(tmp_path, team):
         check_reduced_logs(os.path.join(straight, "run"), whole, name, csv_name)
 
 
+def free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.slow
+def test_two_nodes_join_through_the_rendezvous(tmp_path):
+    """Two torchrun launchers, one per "node" (both on this host), meet at a c10d rendezvous and run
+    `aquarium-warp train` as one run of two ranks (gloo on the CPU): both finish, rank 0's checkpoint
+    holds both ranks' states and the logged agent-steps count both ranks' worlds."""
+    run_dir = str(tmp_path / "run")
+    port = free_port()
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "GIT_PYTHON_REFRESH": "quiet"}
+    env.pop("WORLD_SIZE", None)
+    worlds, steps, iterations = 4, 16, 2
+    launchers = [
+        subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "torch.distributed.run",
+                "--nnodes=2",
+                "--nproc_per_node=1",
+                f"--node_rank={node}",
+                "--rdzv_backend=c10d",
+                f"--rdzv_endpoint=127.0.0.1:{port}",
+                "--rdzv_id=two-nodes",
+                "-m",
+                "aquarium_warp",
+                "train",
+                "--preset",
+                "tiny",
+                "--device",
+                "cpu",
+                "--num-worlds",
+                str(worlds),
+                "--num-steps-per-env",
+                str(steps),
+                "--iterations",
+                str(iterations),
+                "--export",
+                "none",
+                "--quiet",
+                "--log-dir",
+                run_dir,
+            ],
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        for node in range(2)
+    ]
+    outputs = []
+    try:
+        for launcher in launchers:
+            outputs.append(launcher.communicate(timeout=300)[0])
+    finally:
+        for launcher in launchers:
+            if launcher.poll() is None:
+                launcher.kill()
+    assert [launcher.returncode for launcher in launchers] == [0, 0], "\n".join(o[-3000:] for o in outputs)
+    state = torch.load(os.path.join(run_dir, f"model_{iterations - 1}.pt"), weights_only=False)["infos"]["aquarium"]
+    assert state["world_size"] == 2 and len(state["ranks"]) == 1
+    assert [state["seed"], state["ranks"][0]["seed"]] == [0, 1]
+    assert state["vec_env"]["env"]["seed"] == 0 and state["ranks"][0]["vec_env"]["env"]["seed"] == 1
+    with open(os.path.join(run_dir, "progress.csv"), newline="", encoding="utf-8") as f:
+        rows = list(csv.DictReader(f))
+    prey = make_config("tiny")["env"]["prey_count"]
+    assert [int(row["agent_steps"]) for row in rows] == [2 * worlds * prey * steps * (i + 1) for i in range(iterations)]
+
+
 @pytest.mark.parametrize(
     "env, message",
     [
@@ -151,7 +230,7 @@ def test_ranks_on_a_gpu_replay_their_rollouts_and_update_eagerly(tmp_path, team,
     runs its update, with the gradients' all-reduce, eagerly; the ranks hold the same parameters after
     every update and rank 0 logs the statistics summed over both. (gloo waits on the host for its
     sums; NCCL's in-stream sum needs a GPU per rank, which this test does not have.)"""
-    records = torchrun(str(tmp_path), team, 3, "gpu", gpu=True)
+    records = torchrun(str(tmp_path), team, 3, "gpu", gpu="shared")
     assert [r["graphs"] for r in records] == [[True, updates]] * 2
     assert sorted(records[0]["params"]) == ["0", "1", "2"]
     assert records[0]["params"] == records[1]["params"]
@@ -159,3 +238,36 @@ def test_ranks_on_a_gpu_replay_their_rollouts_and_update_eagerly(tmp_path, team,
     for name in ["prey", "predator"] if team == "both" else ["prey"]:
         csv_name = f"progress_{name}.csv" if team == "both" else "progress.csv"
         assert check_reduced_logs(os.path.join(tmp_path, "run"), records, name, csv_name) >= 1
+
+
+@pytest.mark.usefixtures("cuda_device")
+@pytest.mark.parametrize("team,pool_every", [("prey", 0), ("both", 0), ("both", 1)], ids=["prey", "both", "both+pool"])
+def test_ranks_on_their_own_gpus_capture_the_update_with_its_all_reduce(tmp_path, team, pool_every):
+    """Two ranks on GPUs 0 and 1 (NCCL) replay rollout and update, the update's all-reduce inside its
+    graph, as one process does: for one team, both teams and both with the opponent pool. The ranks
+    hold the same parameters after every update, rank 0 logs the statistics summed over both, and the
+    captured update gives the eager update's parameters bit for bit (two ranks' sum is one rounding,
+    whichever NCCL algorithm adds them)."""
+    if torch.cuda.device_count() < 2:
+        pytest.skip("needs 2 GPUs: NCCL wants one per rank")
+    learners = 2 if team == "both" else 1
+    runs = {}
+    for graph_update in (True, False):
+        out = str(tmp_path / f"graph_update_{graph_update}")
+        os.makedirs(out)
+        records = torchrun(
+            out, team, 3, "nccl", gpu="own", train={"pool_every": pool_every, "graph_update": graph_update}
+        )
+        assert [r["graphs"] for r in records] == [[True, [graph_update] * learners]] * 2
+        assert records[0]["params"] == records[1]["params"]
+        assert records[0]["final_sim"] != records[1]["final_sim"]
+        for name in ["prey", "predator"] if team == "both" else ["prey"]:
+            csv_name = f"progress_{name}.csv" if team == "both" else "progress.csv"
+            assert check_reduced_logs(os.path.join(out, "run"), records, name, csv_name) >= 1
+        with open(os.path.join(out, "run", "config.json"), encoding="utf-8") as f:
+            assert json.load(f)["cuda_graphs"]["update"] == dict.fromkeys(
+                ["prey", "predator"] if team == "both" else ["prey"], graph_update
+            )
+        runs[graph_update] = records
+    assert runs[True][0]["params"] == runs[False][0]["params"]
+    assert runs[True][0]["final_params"] == runs[False][0]["final_params"]

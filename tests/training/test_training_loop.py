@@ -147,6 +147,84 @@ def test_graph_plan(algs, cuda, plan):
     assert graph_plan(algs, cuda) == plan
 
 
+@pytest.mark.parametrize(
+    "algs,plan",
+    [
+        ([_Alg(True, True)], (True, [False])),
+        ([_Alg(True, True), _Alg(True, False)], (True, [False, False])),
+        ([_Alg(False, False)], (False, [False])),
+    ],
+    ids=["one", "two", "recurrent"],
+)
+def test_graph_plan_without_graph_update_keeps_the_rollout_graphs(algs, plan):
+    """`train.graph_update=false`: the update runs eagerly between the replayed rollouts."""
+    from aquarium_warp.training.loop import graph_plan
+
+    assert graph_plan(algs, True, graph_update=False) == plan
+
+
+def _learners(monkeypatch, ranks: int, backend: str | None, *changes: dict, team: str = "prey"):
+    """The algorithms of a CPU trainer built as for CUDA graphs (capturable optimizer), made to believe
+    they are one of `ranks` ranks whose process group runs `backend` (NCCL's capture cannot be
+    exercised on the CPU; what `graphable` reads of it can)."""
+    from aquarium_warp.training import distributed
+
+    monkeypatch.setattr(distributed, "collectives_capturable", lambda: backend == "nccl")
+    train = {"team": team, "num_worlds": 4, "quiet": True, "export": [], "pool_every": int(team == "both")}
+    cfg = make_config("tiny", {"train": train, "runner": {"algorithm": {"capturable_optimizer": True}}}, *changes)
+    trainer = Trainer(cfg)
+    algs = [learner.alg for learner in trainer.runner.learners]
+    for alg in algs:
+        alg.is_multi_gpu = ranks > 1
+    trainer.close()
+    return algs
+
+
+@pytest.mark.parametrize(
+    "ranks,backend,team,changes,graph_update,plan",
+    [
+        (1, None, "prey", {}, True, (True, [True])),
+        (1, None, "prey", {}, False, (True, [False])),
+        # torchrun on GPUs: the update with its all-reduce is captured, for one team and for both
+        (2, "nccl", "prey", {}, True, (True, [True])),
+        (2, "nccl", "both", {}, True, (True, [True, True])),
+        (2, "nccl", "both", {}, False, (True, [False, False])),
+        # gloo waits on the host: eager update; the adaptive schedule reads the KL on the host
+        (2, "gloo", "both", {}, True, (True, [False, False])),
+        (2, "nccl", "prey", CASES[2][1], True, (True, [False])),
+        # a recurrent model: nothing captured
+        (2, "nccl", "prey", CASES[5][1], True, (False, [False])),
+    ],
+    ids=["one", "one-eager-update", "nccl", "nccl-both", "nccl-both-eager-update", "gloo", "nccl-adaptive", "rnn"],
+)
+def test_graph_plan_of_real_algorithms(monkeypatch, ranks, backend, team, changes, graph_update, plan):
+    """What the loop would capture on CUDA, from the algorithms a run builds (both teams: with the
+    opponent pool)."""
+    from aquarium_warp.training.loop import graph_plan
+
+    algs = _learners(monkeypatch, ranks, backend, changes, team=team)
+    assert graph_plan(algs, True, graph_update) == plan
+    assert graph_plan(algs, False, graph_update) == (False, [False] * len(algs))  # the CPU: none
+
+
+def test_graph_update_is_a_switch():
+    with pytest.raises(ValueError, match=r"train.graph_update='no' must be true or false"):
+        make_config("tiny", {"train": {"graph_update": "no"}})
+
+
+@pytest.mark.slow
+def test_graph_update_leaves_cpu_training_unchanged(tmp_path):
+    """The CPU captures nothing: `train.graph_update` changes no bit there; `config.json` says so."""
+    import json
+
+    default, _ = _train("fast", log_dir=str(tmp_path / "default"), train={"iterations": 2})
+    eager, _ = _train("fast", train={"iterations": 2, "graph_update": False})
+    assert default.keys() == eager.keys()
+    assert all(torch.equal(default[k], eager[k]) for k in default)
+    with open(tmp_path / "default" / "config.json", encoding="utf-8") as f:
+        assert json.load(f)["cuda_graphs"] == {"rollout": False, "update": {"prey": False}}
+
+
 def test_a_loop_needs_at_least_one_rollout_step():
     from aquarium_warp.training.loop import TrainingLoop
 
@@ -196,6 +274,25 @@ def test_cuda_graph_loop_matches_eager_loop(changes, cuda_device):
     assert plan == [(True, [changes is not ADAPTIVE])]
     differing = {k: float((eager[k] - graphed[k]).abs().max()) for k in eager if not torch.equal(eager[k], graphed[k])}
     assert not differing, differing
+
+
+def test_a_failed_update_capture_says_so(cuda_device, monkeypatch):
+    """An update that cannot be captured (here: a host read) raises at its capture, naming the learner
+    and the way out; no silent fallback to the eager update."""
+    config = make_config("tiny", {"train": {"device": cuda_device, "num_worlds": 4, "quiet": True, "export": []}})
+    trainer = Trainer(config)
+    alg = trainer.runner.alg
+    update = alg.update_on_device
+
+    def reading_update(indices, size):
+        losses = update(indices, size)
+        losses.sum().item()  # allowed eagerly, refused while capturing
+        return losses
+
+    monkeypatch.setattr(alg, "update_on_device", reading_update)
+    with pytest.raises(RuntimeError, match=r"learner 0 \(prey; one process\).*train.graph_update=false"):
+        trainer.train(3)
+    trainer.close()
 
 
 def test_graph_captures_pause_the_garbage_collector():
