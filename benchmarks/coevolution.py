@@ -146,9 +146,16 @@ def checkpoint_after(run_dir: str, iterations: int) -> str:
 
 
 def train_generations(trainer: Trainer, iterations: list[int]) -> None:
-    """Train up to each of `iterations` in turn; each stretch ends with a checkpoint (`checkpoint_after`)."""
-    for n in iterations:
+    """Train up to each of `iterations` in turn; each stretch ends with a checkpoint (`checkpoint_after`).
+    A SIGINT/SIGTERM ends a stretch early (`Trainer.stop`): the seed then stops here, unfinished (a
+    rerun trains it again), instead of taking short stretches for generations."""
+    for k, n in enumerate(iterations, 1):
         trainer.train(n - trainer.iteration)
+        if trainer.stop.signum is not None:
+            raise RuntimeError(
+                f"training stopped by signal {trainer.stop.signum} at iteration {trainer.iteration}, before "
+                f"generation {k} ({n} iterations): this seed is not finished"
+            )
 
 
 def evaluation_seeds(seed: int, eval_seeds: list[int]) -> list[int]:
@@ -610,6 +617,7 @@ def check(args) -> None:
     if len(args.seeds) < 2:
         raise ValueError(f"--seeds={args.seeds!r} must name at least 2 training seeds (intervals over seeds)")
     check_distinct("--seeds", args.seeds)
+    check_int("--jobs", args.jobs, 1)
     for seed in args.seeds:
         check_int("--seeds", seed, 0)
     check_distinct("--eval-seeds", args.eval_seeds)
@@ -659,6 +667,12 @@ def main(argv=None) -> int:
         f"+ {EVALUATION_STRIDE} (s + 1), aquarium_warp.seeding.evaluation_seed)",
     )
     p.add_argument("--no-figures", action="store_true", help="no matplotlib figures (the files are written)")
+    p.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        help="training seeds at once on the device, each in a worker process of its own (default 1)",
+    )
     p.add_argument("--keep-checkpoints", action="store_true", help="keep the generations' seed<s>/run/model_*.pt")
     p.add_argument(
         "--speed-only",
@@ -740,6 +754,7 @@ def main(argv=None) -> int:
         functools.partial(run_seed, keep_checkpoints=args.keep_checkpoints),
         [seed_task(args, seed, out) for seed in args.seeds],
         str(out),
+        jobs=args.jobs,
         devices=[device],
         label="seeds",
         report=report,

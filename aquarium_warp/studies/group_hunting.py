@@ -90,6 +90,9 @@ MEASURES = (
 class GroupHuntingStudy:
     """Settings of the group-hunting study (the CLI's options; defaults sized for one H200 in ~7 min)."""
 
+    # Settings that only list which tasks exist (jobs.task_key): a run over fewer keeps the rest.
+    TASK_AXES = ("predators", "prey_conditions", "share_radii", "baseline")
+
     predators: list[int] = field(default_factory=lambda: [1, 2, 3, 4])
     prey: int = 6
     prey_conditions: list[str] = field(default_factory=lambda: list(PREY_CONDITIONS))

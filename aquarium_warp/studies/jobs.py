@@ -275,20 +275,24 @@ def task_devices(gpus: int | None) -> list[str]:
 TASK_FOLDERS = ("policy_dir", "run_dir", "run_dirs")
 
 
+# Study settings that never change a task's computation: the seed count (adding seeds keeps the
+# finished ones), where it writes, its workers, figures and device option.
+STUDY_RUN_OPTIONS = ("seeds", "out", "jobs", "figures", "device")
+
+
 def task_key(task: dict) -> dict:
     """What a kept result must have been computed with, as read back from JSON: the task (not its
     folders, `TASK_FOLDERS`; it names its seed or seed count, and its device unless `run_jobs` gives
-    it one of `devices`) and, where it has a "study", the study's settings (not the seed count, so that
-    adding seeds keeps the finished ones, nor its output directory, workers, figures or device option)."""
-    settings = (
-        {
-            k: v
-            for k, v in dataclasses.asdict(task["study"]).items()
-            if k not in ("seeds", "out", "jobs", "figures", "device")
-        }
-        if "study" in task
-        else {}
-    )
+    it one of `devices`) and, where it has a "study", the study's settings, less `STUDY_RUN_OPTIONS`
+    and less the study's `TASK_AXES`: the settings that only list which tasks exist (team sizes,
+    conditions), each task carrying its own value, so that a run over fewer or more of them keeps the
+    tasks they share."""
+    if "study" in task:
+        study = task["study"]
+        left_out = STUDY_RUN_OPTIONS + tuple(getattr(study, "TASK_AXES", ()))
+        settings = {k: v for k, v in dataclasses.asdict(study).items() if k not in left_out}
+    else:
+        settings = {}
     own = {k: v for k, v in task.items() if k != "study" and k not in TASK_FOLDERS}
     return json.loads(json.dumps({"task": own, "study": settings}))
 

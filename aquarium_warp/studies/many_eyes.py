@@ -86,6 +86,9 @@ MARGINS = {"captures_per_prey": 0.1, "fid": 10.0, "blind_fraction": 0.05, "onset
 class ManyEyesStudy:
     """Settings of the many-eyes study (the CLI's options; defaults sized for one H200 in ~7 min)."""
 
+    # Settings that only list which tasks exist (jobs.task_key): a run over fewer keeps the rest.
+    TASK_AXES = ("group_sizes", "fov_angles", "turnaway", "neighbour_control")
+
     group_sizes: list[int] = field(default_factory=lambda: [1, 4, 16, 64])
     fov_angles: list[float] = field(default_factory=lambda: [60.0, 120.0, 240.0, 360.0])
     seeds: int = 5

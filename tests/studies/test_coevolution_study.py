@@ -64,6 +64,7 @@ def test_generations_out_of_range_are_refused():
         (["--seeds", "0", "-1"], "--seeds"),
         (["--eval-seeds", "1000003"], "--eval-seeds"),
         (["--generations", "41"], "--generations"),
+        (["--jobs", "0"], r"--jobs=0 must be an integer >= 1"),
     ],
 )
 def test_bad_options_are_refused(tmp_path, options, match):
@@ -314,3 +315,28 @@ def test_two_seeds_end_to_end_and_a_rerun_that_trains_nothing(tmp_path, monkeypa
     assert coevolution.main(argv) == 0
     again = json.loads((out / "summary.json").read_text())
     assert again["tasks"] == {"kept": 3, "run": 0} and again["cross_play"] == summary["cross_play"]
+
+
+def test_a_signal_during_a_stretch_leaves_the_seed_unfinished():
+    """A SIGTERM ends a stretch early: the seed must stop there, not take one-iteration stretches for the
+    later generations (and cross-play checkpoints that were never written)."""
+    import signal
+    from types import SimpleNamespace
+
+    class Stretches:
+        def __init__(self):
+            self.iteration, self.calls = 0, []
+            self.stop = SimpleNamespace(signum=None)
+
+        def train(self, n):
+            self.calls.append(n)
+            if len(self.calls) == 2:  # the signal arrives three iterations into the second stretch
+                self.iteration += 3
+                self.stop.signum = signal.SIGTERM
+            else:
+                self.iteration += n
+
+    trainer = Stretches()
+    with pytest.raises(RuntimeError, match="stopped by signal .* at iteration 5, before generation 2 "):
+        coevolution.train_generations(trainer, [2, 5, 7])
+    assert trainer.calls == [2, 3]

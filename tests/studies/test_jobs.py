@@ -70,6 +70,39 @@ def test_more_seeds_run_only_the_new_tasks_and_keep_the_old_results(tmp_path):
     assert run_jobs(same, moved.tasks(), out, report=None).kept == 6 and same.names == []
 
 
+@dataclasses.dataclass
+class StudyWithAxes(Study):
+    """`xs` only lists which tasks exist (each task carries its `x`): a `TASK_AXES` entry."""
+
+    TASK_AXES = ("xs",)
+    xs: tuple = (1, 2)
+
+    def tasks(self) -> list[dict]:
+        return [{"name": f"x{x}_seed{s}", "x": x, "seed": s, "study": self} for x in self.xs for s in range(self.seeds)]
+
+
+def test_a_run_over_fewer_or_more_task_axes_keeps_the_tasks_they_share(tmp_path):
+    out = str(tmp_path)
+    run_jobs(Counted(), StudyWithAxes(xs=(1, 2)).tasks(), out, report=None)
+    fewer = Counted()
+    assert run_jobs(fewer, StudyWithAxes(xs=(2,)).tasks(), out, report=None).kept == 2 and fewer.names == []
+    more = Counted()
+    assert run_jobs(more, StudyWithAxes(xs=(2, 3)).tasks(), out, report=None).kept == 2
+    assert sorted(more.names) == ["x3_seed0", "x3_seed1"]
+    # A setting that is not an axis still changes every task's key.
+    other = Counted()
+    assert run_jobs(other, StudyWithAxes(xs=(2,), scale=3.0).tasks(), out, report=None).kept == 0
+
+
+def test_the_studies_task_axes_are_their_settings():
+    from aquarium_warp.studies.group_hunting import GroupHuntingStudy
+    from aquarium_warp.studies.many_eyes import ManyEyesStudy
+
+    for study in (GroupHuntingStudy, ManyEyesStudy):
+        fields = {f.name for f in dataclasses.fields(study)}
+        assert study.TASK_AXES and set(study.TASK_AXES) <= fields
+
+
 def test_the_key_leaves_out_the_seed_count_and_the_task_s_output_folder():
     task = dict(Study(seeds=2).tasks()[0], policy_dir="out/policies/x1_seed0")
     key = task_key(task)
