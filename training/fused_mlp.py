@@ -158,7 +158,7 @@ class MLPSpec:
         return out
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def mlp_kernel(spec: MLPSpec, backward_pass: bool, input_grad: bool = False) -> wp.Kernel:
     """The forward (`backward_pass=False`) or backward tile kernel of `spec`; the backward writes the
     input gradient only with `input_grad`. Both share one argument list and one body (the backward

@@ -204,6 +204,7 @@ class Trainer:
                 "loop",
                 "cuda_graphs",
                 "tf32",
+                "fused_mlp",
                 "video_every",
                 "video_steps",
             }
