@@ -9,7 +9,7 @@ Individual Learning keeps its `BatchedMLP`.
 
 The kernels (made per architecture by `mlp_kernels`):
 
-- forward: one block per tile of `ROWS` rows runs every layer (`tile_matmul`, bias, activation)
+- forward: each block takes row tiles of `spec.rows` rows and runs every layer (`tile_matmul`, bias, activation)
   with the weights read from one flat parameter vector, and writes only the output rows.
 - backward: a fixed number of blocks (`backward_blocks`), each taking every `blocks`-th row tile:
   it recomputes the tile's hidden activations (kept in one shared tile), then walks the layers back,
@@ -36,8 +36,7 @@ torch's within float32 rounding, not bit for bit (tests/training/test_fused_mlp.
 measured errors). Autocast, other dtypes, TorchScript and ONNX export take the plain torch path.
 """
 
-from __future__ import annotations
-
+# (No `from __future__ import annotations`: TorchScript must resolve FusedMLP's annotations as objects.)
 import functools
 import math
 from dataclasses import dataclass
@@ -50,10 +49,11 @@ from rsl_rl.modules import MLP
 
 from . import _rsl  # noqa: F401
 
-ROWS = 64  # rows per tile: a [64, 128] float32 tile is 32 KB of shared memory
+TILE_ROWS = (64, 32, 16)  # rows per tile: the most whose tiles fit SHARED_BUDGET (MLPSpec.rows)
+SHARED_BUDGET = 200 * 1024  # bytes of a block's shared memory for its tiles (H100/H200: 227 KB a block)
 BLOCK_DIM = 128  # CUDA threads per block (the CPU runs a block on one thread)
 INPUT_CHUNK = 64  # input columns the first layer reads at once
-MAX_WIDTH = 128  # widest hidden or output layer whose tiles fit a block's shared memory
+MAX_WIDTH = 128  # widest hidden or output layer
 BLOCKS_PER_SM = 4  # blocks per multiprocessor: enough resident warps to hide latency
 CPU_BLOCKS = 4  # the CPU runs blocks one after another; a few exercise the partial sums
 ACTIVATIONS = {nn.Tanh: "tanh", nn.ReLU: "relu", nn.ELU: "elu"}
@@ -137,6 +137,19 @@ class MLPSpec:
         """Length of the flat parameter vector."""
         return self.offsets[-1][1] + self.dims[-1]
 
+    def shared_bytes(self, rows: int) -> int:
+        """The shared memory the backward kernel's tiles take with `rows` rows per tile (the forward
+        takes less): the resident parameters, the hidden activations and output gradients of a row
+        tile, one weight gradient, two input chunks and the input gradient's chunk."""
+        hidden, dims = sum(self.dims[1:-1]), self.dims
+        scratch = max(dims[1] * self.chunk, *(dims[l + 1] * dims[l] for l in range(1, self.layers)))
+        return 4 * (self.size - self.resident_start + rows * (2 * hidden + dims[-1] + 3 * self.chunk) + scratch)
+
+    @property
+    def rows(self) -> int:
+        """Rows per tile: the most of `TILE_ROWS` that fit `SHARED_BUDGET` (0: none fits)."""
+        return next((rows for rows in TILE_ROWS if self.shared_bytes(rows) <= SHARED_BUDGET), 0)
+
     def flat(self, params: tuple[torch.Tensor, ...]) -> torch.Tensor:
         """The flat vector of `params` (`weight0, bias0, weight1, ...`, torch's `[out, in]` weights)."""
         padded = nn.functional.pad(params[0], (0, self.chunks * self.chunk - self.dims[0]))
@@ -169,7 +182,7 @@ def mlp_kernel(spec: MLPSpec, backward_pass: bool, input_grad: bool = False) -> 
     views of a few tiles made once per block instead of making new ones: `weights` (the resident
     parameters), `hidden` (the activations of a row tile, layer by layer side by side), `grads` (the
     gradients of every layer's output, likewise) and `scratch` (one weight gradient at a time)."""
-    L, dims, R, K = spec.layers, spec.dims, ROWS, spec.chunk
+    L, dims, R, K = spec.layers, spec.dims, spec.rows, spec.chunk
     C, H1, size, start = spec.chunks, dims[1], spec.size, spec.resident_start
     weight_at = [w for w, _ in spec.offsets]  # where each layer's weight and bias start in the flat
     bias_at = [b for _, b in spec.offsets]  # vector (minus `start` in the resident tile)
@@ -357,7 +370,7 @@ class FusedMLPFunction(torch.autograd.Function):
         x, *params = ctx.saved_tensors
         spec: MLPSpec = ctx.spec
         input_grad = bool(ctx.needs_input_grad[1])
-        blocks = launch_blocks(x.device, math.ceil(x.shape[0] / ROWS))
+        blocks = launch_blocks(x.device, math.ceil(x.shape[0] / spec.rows))
         partial = torch.zeros(blocks, spec.size, dtype=x.dtype, device=x.device)
         grad_x = torch.empty_like(x) if input_grad else None
         kernel = mlp_kernel(spec, backward_pass=True, input_grad=input_grad)
@@ -376,7 +389,7 @@ def _run(
     grad_x: torch.Tensor | None = None,
 ) -> None:
     """One launch of `kernel` over the rows of `x` (absent outputs: empty tensors)."""
-    tiles = math.ceil(x.shape[0] / ROWS)
+    tiles = math.ceil(x.shape[0] / spec.rows)
     blocks = launch_blocks(x.device, tiles) if partial is None else partial.shape[0]
     unused = torch.empty(0, dtype=x.dtype, device=x.device)
     inputs = [
@@ -413,7 +426,13 @@ def mlp_spec(mlp: nn.Sequential) -> MLPSpec:
     dims = (linears[0].in_features,) + tuple(m.out_features for m in linears)
     if any(not 1 <= d <= MAX_WIDTH for d in dims[1:]):
         raise ValueError(f"fused MLP: layer widths {list(dims[1:])} must be in [1, {MAX_WIDTH}]")
-    return MLPSpec(dims, ACTIVATIONS[next(iter(kinds))])
+    spec = MLPSpec(dims, ACTIVATIONS[next(iter(kinds))])
+    if not spec.rows:
+        raise ValueError(
+            f"fused MLP: layers {list(dims)} need {spec.shared_bytes(TILE_ROWS[-1])} bytes of shared memory "
+            f"at {TILE_ROWS[-1]} rows per tile, over the {SHARED_BUDGET} a block has here"
+        )
+    return spec
 
 
 class FusedMLP(MLP):
@@ -441,6 +460,7 @@ class FusedMLP(MLP):
             and not torch.is_autocast_enabled(x.device.type)
             and not torch.jit.is_tracing()
             and not torch.compiler.is_compiling()
+            and not torch.compiler.is_exporting()
         )
 
     @torch.jit.unused
