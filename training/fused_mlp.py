@@ -39,6 +39,7 @@ measured errors). Autocast, other dtypes, TorchScript and ONNX export take the p
 # (No `from __future__ import annotations`: TorchScript must resolve FusedMLP's annotations as objects.)
 import functools
 import math
+import typing
 from dataclasses import dataclass
 
 import torch
@@ -200,6 +201,7 @@ def mlp_kernel(spec: MLPSpec, backward_pass: bool, input_grad: bool = False) -> 
     def times_slope(g: float, y: float) -> float:
         return g * slope(y)
 
+    @typing.no_type_check  # Warp's kernel language, which mypy reads as Python and misjudges
     def kernel(
         x: wp.array2d[float],
         params: wp.array[float],
@@ -357,7 +359,7 @@ class FusedMLPFunction(torch.autograd.Function):
     contiguous) with torch's `nn.Linear` parameters; saves only `x` and the parameters for its backward."""
 
     @staticmethod
-    def forward(ctx, spec: MLPSpec, x: torch.Tensor, *params: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
+    def forward(ctx, spec: MLPSpec, x: torch.Tensor, *params: torch.Tensor) -> torch.Tensor:
         ctx.spec = spec
         ctx.save_for_backward(x, *params)
         out = torch.empty(x.shape[0], spec.dims[-1], dtype=x.dtype, device=x.device)
@@ -366,7 +368,7 @@ class FusedMLPFunction(torch.autograd.Function):
         return out
 
     @staticmethod
-    def backward(ctx, grad_out: torch.Tensor):  # type: ignore[override]
+    def backward(ctx, grad_out: torch.Tensor):
         x, *params = ctx.saved_tensors
         spec: MLPSpec = ctx.spec
         input_grad = bool(ctx.needs_input_grad[1])
@@ -410,9 +412,9 @@ def mlp_spec(mlp: nn.Sequential) -> MLPSpec:
     """The `MLPSpec` of an rsl-rl `MLP` (Linear, activation, ..., Linear); a one-line ValueError
     names what the fused kernels do not cover."""
     modules = list(mlp)
-    linears = modules[0::2]
+    linears = [m for m in modules[0::2] if isinstance(m, nn.Linear)]
     activations = modules[1::2]
-    if len(modules) < 3 or len(modules) % 2 == 0 or not all(isinstance(m, nn.Linear) for m in linears):
+    if len(modules) < 3 or len(modules) % 2 == 0 or len(linears) != len(modules[0::2]):
         raise ValueError(
             f"fused MLP: expected Linear, activation, ..., Linear modules, got {[type(m).__name__ for m in modules]}"
         )
@@ -473,6 +475,8 @@ class FusedMLP(MLP):
 
 class FusedMLPModel(MLPModel):
     """rsl-rl's `MLPModel` with a `FusedMLP` (see the module doc); its arguments are `MLPModel`'s."""
+
+    mlp: MLP  # declared: rsl-rl's class sets it in __init__, where type inference does not follow
 
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
