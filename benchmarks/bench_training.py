@@ -64,6 +64,7 @@ VARIANTS = {
     "compile": {"runner": {"torch_compile_mode": "default"}},
     "tf32+compile": {"train": {"tf32": True}, "runner": {"torch_compile_mode": "default"}},
     "eager": {"train": {"cuda_graphs": False}},
+    "fused": {"train": {"fused_mlp": True}},  # the actor's and critic's MLPs as Warp tile kernels
     "adaptive": ADAPTIVE,
     "adaptive+eager": {**ADAPTIVE, "train": {"cuda_graphs": False}},
 }

@@ -38,6 +38,7 @@ DISTRIBUTION = "aquarium_warp.training.distribution:CategoricalDistribution"
 PPO_CLASS = "aquarium_warp.training.ppo:AquariumPPO"
 MLP_MODEL = "MLPModel"
 IL_MODEL = "aquarium_warp.training.models:IndividualMLPModel"
+FUSED_MODEL = "aquarium_warp.training.fused_mlp:FusedMLPModel"
 SHARING = ("parameter", "individual")
 
 TRAIN_DEFAULTS: dict[str, Any] = {
@@ -61,6 +62,7 @@ TRAIN_DEFAULTS: dict[str, Any] = {
     "graph_update": True,  # with cuda_graphs: the PPO update (several GPUs: with its all-reduce) too; false: eager
     "metrics_every": 10,  # swarm metrics (Swarm/* in the log) sampled every N steps; 0: none
     "tf32": False,  # CUDA matrix products in TF32 (faster for large batches, ~1e-3 relative error)
+    "fused_mlp": False,  # actor and critic MLPs as fused Warp tile kernels (fused_mlp.py; parameter sharing)
     "critic": "local",  # the critic's input (MAPPO): "local", "team" or "world" (see CRITICS)
     # Both teams learning (team "both"):
     "update_schedule": "simultaneous",  # "simultaneous", or "alternating": one team learns, the other is frozen
@@ -376,7 +378,7 @@ def validate(config: dict) -> None:
     ):
         if not is_int(train[name]) or not low <= train[name] <= 2**31 - 1:
             raise ValueError(f"train.{name}={train[name]!r} must be an integer in [{low}, 2**31 - 1]{meaning}")
-    for name in ("tf32", "cuda_graphs", "graph_update"):
+    for name in ("tf32", "cuda_graphs", "graph_update", "fused_mlp"):
         if not isinstance(train[name], bool):
             raise ValueError(f"train.{name}={train[name]!r} must be true or false")
     if train["update_schedule"] not in UPDATE_SCHEDULES:
@@ -434,6 +436,13 @@ def _validate_team_models(config: dict, team: str) -> None:
     settings = team_settings(config, team)
     for part in ("actor", "critic"):
         class_name = runner.get(part, {}).get("class_name", MLP_MODEL)
+        if config["train"]["fused_mlp"] and (
+            settings["sharing"] == "individual" or class_name not in (MLP_MODEL, "rsl_rl.models:MLPModel")
+        ):
+            raise ValueError(
+                f"train.fused_mlp=true serves parameter sharing with rsl-rl's MLPModel, not "
+                f"sharing={settings['sharing']!r} with {part} class_name={class_name!r}"
+            )
         if not _is_recurrent_model(class_name):
             continue
         model = f"teams.{team}.runner.{part}" if part in (block.get("runner") or {}) else f"runner.{part}"
@@ -517,6 +526,8 @@ def runner_config(
     dist = actor.setdefault("distribution_cfg", {"class_name": DISTRIBUTION})
     dist.setdefault("class_name", DISTRIBUTION)
     dist["num_categories"] = int(action_count)
+    if train["fused_mlp"]:
+        actor["class_name"] = critic["class_name"] = FUSED_MODEL
     if train["sharing"] == "individual":
         for model in (actor, critic):
             if model.get("class_name", MLP_MODEL) in (MLP_MODEL, "rsl_rl.models:MLPModel"):

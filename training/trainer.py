@@ -209,6 +209,7 @@ class Trainer:
                 "cuda_graphs",
                 "graph_update",
                 "tf32",
+                "fused_mlp",
                 "video_every",
                 "video_steps",
             }

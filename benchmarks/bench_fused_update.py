@@ -1,0 +1,220 @@
+"""The PPO update with torch's MLP against the fused Warp MLP (`training/fused_mlp.py`), on one device.
+
+For each `--worlds`: the trainer of `--preset` (default: the default preset, 32 steps per
+iteration, 5 epochs x 4 mini-batches, actor and critic 2 x 64 tanh) is built, its rollout storage
+filled with random samples, and `AquariumPPO.update_on_device` timed with the actor's and critic's
+`mlp` as torch's modules and as `FusedMLP` (the same parameters): eagerly, and on CUDA also replayed
+from a CUDA graph. One update from the same state with each then gives the largest relative
+difference per parameter tensor (max |fused - torch| / max |torch|).
+
+Beside each time: the update's floor on the device (`aquarium_warp.training.floors`: the MLPs'
+matrix products forward and backward at the card's float32 peak, the least bytes at its bandwidth;
+the fused backward also recomputes the forward, which the floor does not count), and "of floor"
+the fraction of it reached.
+
+    python benchmarks/bench_fused_update.py --device cuda:0 --worlds 1024,65536
+    python benchmarks/bench_fused_update.py --device cpu --worlds 4 --preset tiny --repeats 1
+
+Prints a table and writes JSON (atomically) to `--out` (default `fused_update_<device>.json`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import os
+import statistics
+import sys
+from pathlib import Path
+
+os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from aquarium_warp.atomic import atomic_open
+from aquarium_warp.bench import parse_counts
+from aquarium_warp.bench.timing import torch_timer
+from aquarium_warp.records import command_line, provenance
+from aquarium_warp.training import Trainer, make_config
+from aquarium_warp.training.floors import UpdateFloor, card_peaks, update_work
+from aquarium_warp.training.fused_mlp import FusedMLP
+from aquarium_warp.training.loop import collection_paused
+
+PATHS = ("torch", "fused")
+
+
+def build(preset: str, worlds: int, device: str):
+    """The rsl-rl PPO of `preset` at `worlds` worlds (through the trainer, as training builds it)."""
+    changes = {"train": {"num_worlds": worlds, "device": device, "quiet": True, "export": [], "fused_mlp": False}}
+    return Trainer(make_config(preset, changes)).runner.alg
+
+
+def fill_storage(alg, seed: int = 0) -> None:
+    """Random samples in every storage field the update reads (observations, actions in range,
+    values, returns, advantages, log-probabilities, logits)."""
+    gen = torch.Generator(device=alg.device).manual_seed(seed)
+    storage = alg.storage
+
+    def normal(t: torch.Tensor) -> None:
+        t.copy_(torch.randn(t.shape, generator=gen, device=t.device, dtype=t.dtype))
+
+    for key in storage.observations.keys():
+        normal(storage.observations[key])
+    if storage.distribution_params is None:  # made by the storage's first transition otherwise
+        with torch.no_grad():
+            alg.actor(storage.observations[0], stochastic_output=True)
+        storage.distribution_params = tuple(
+            torch.zeros(storage.num_transitions_per_env, *p.shape, device=alg.device)
+            for p in alg.actor.output_distribution_params
+        )
+    categories = alg.actor.distribution.input_dim
+    storage.actions.copy_(torch.randint(0, categories, storage.actions.shape, generator=gen, device=alg.device))
+    for t in (storage.values, storage.returns, storage.advantages, *storage.distribution_params):
+        normal(t)
+    storage.actions_log_prob.copy_(-torch.rand(storage.actions_log_prob.shape, generator=gen, device=alg.device))
+
+
+class MLPSwitch:
+    """Switches the actor's and critic's `mlp` between torch's modules and `FusedMLP` (the same
+    parameter objects), and restores the learner's state for updates from the same start."""
+
+    def __init__(self, alg) -> None:
+        self.alg = alg
+        self.models = (alg.actor, alg.critic)
+        self.mlps = {"torch": [m.mlp for m in self.models], "fused": [FusedMLP(m.mlp) for m in self.models]}
+        self.start = self.state()
+
+    def use(self, path: str) -> None:
+        for model, mlp in zip(self.models, self.mlps[path]):
+            model.mlp = mlp
+
+    def state(self) -> dict:
+        alg = self.alg
+        return copy.deepcopy(
+            {
+                "actor": alg.actor.state_dict(),
+                "critic": alg.critic.state_dict(),
+                "optimizer": alg.optimizer.state_dict(),
+            }
+        )
+
+    def restore(self) -> None:
+        self.alg.actor.load_state_dict(self.start["actor"])
+        self.alg.critic.load_state_dict(self.start["critic"])
+        self.alg.optimizer.load_state_dict(self.start["optimizer"])
+
+
+def parameters_after_update(switch: MLPSwitch, path: str, indices: torch.Tensor, size: int) -> dict[str, torch.Tensor]:
+    """Every parameter after one update with `path`'s MLPs from the switch's start state."""
+    switch.restore()
+    switch.use(path)
+    switch.alg.update_on_device(indices, size)
+    return {
+        f"{name}.{k}": v.detach().clone()
+        for name, model in (("actor", switch.alg.actor), ("critic", switch.alg.critic))
+        for k, v in model.state_dict().items()
+    }
+
+
+def update_difference(switch: MLPSwitch, seed: int = 0) -> dict[str, float]:
+    """Per parameter tensor, max |fused - torch| / max |torch| after one update from the same state."""
+    torch.manual_seed(seed)
+    indices, size = switch.alg.mini_batch_indices()
+    after = {path: parameters_after_update(switch, path, indices, size) for path in PATHS}
+    return {
+        name: float((after["fused"][name] - ref).abs().max() / ref.abs().max().clamp_min(1e-30))
+        for name, ref in after["torch"].items()
+    }
+
+
+def time_update(switch: MLPSwitch, path: str, repeats: int, graph: bool) -> float:
+    """Median seconds of `repeats` updates with `path`'s MLPs (after a warm-up update), eagerly or
+    replayed from a CUDA graph of one update."""
+    alg = switch.alg
+    switch.restore()
+    switch.use(path)
+    indices, size = alg.mini_batch_indices()
+    timer = torch_timer(str(alg.device))
+    if not graph:
+        alg.update_on_device(indices, size)  # warm-up: kernels compiled and loaded, optimizer state made
+        return statistics.median(timer(lambda: alg.update_on_device(indices, size)) for _ in range(repeats))
+    side = torch.cuda.Stream(alg.device)
+    side.wait_stream(torch.cuda.current_stream(alg.device))
+    with torch.cuda.stream(side):  # warm-up on the capturing stream, as torch asks
+        alg.update_on_device(indices, size)
+    torch.cuda.current_stream(alg.device).wait_stream(side)
+    cuda_graph = torch.cuda.CUDAGraph()
+    with collection_paused(), torch.cuda.graph(cuda_graph):
+        alg.update_on_device(indices, size)
+    cuda_graph.replay()
+    return statistics.median(timer(cuda_graph.replay) for _ in range(repeats))
+
+
+def update_floor(alg, device: torch.device) -> UpdateFloor:
+    """The update's floor on `device`'s card (`training.floors`; None peaks: no floor)."""
+    return UpdateFloor(
+        update_work(alg), card_peaks(torch.cuda.get_device_name(device)) if device.type == "cuda" else None
+    )
+
+
+def measure(preset: str, worlds: int, device: str, repeats: int) -> dict:
+    alg = build(preset, worlds, device)
+    fill_storage(alg)
+    switch = MLPSwitch(alg)
+    torch_device = torch.device(alg.device)
+    floor = update_floor(alg, torch_device)
+    point: dict = {"worlds": worlds, "seconds": {}}
+    graphs = (False, True) if torch_device.type == "cuda" else (False,)
+    for graph in graphs:
+        for path in PATHS:
+            key = f"{path} {'graph' if graph else 'eager'}"
+            point["seconds"][key] = time_update(switch, path, repeats, graph)
+    point["max_relative_difference"] = update_difference(switch)
+    point["floor"] = floor.record(point["seconds"])
+    point["floor_text"] = floor.describe()
+    return point
+
+
+def print_point(point: dict) -> None:
+    floor_s = point["floor"]["seconds"]
+    print(f"{point['worlds']} worlds: {point['floor_text']}")
+    for key, seconds in point["seconds"].items():
+        reached = f"  {floor_s / seconds:6.1%} of floor" if floor_s else ""
+        print(f"  {key:12s} {seconds * 1e3:10.2f} ms{reached}")
+    worst = max(point["max_relative_difference"].items(), key=lambda kv: kv[1])
+    print(f"  one update, fused vs torch: max relative difference {worst[1]:.2e} ({worst[0]})")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--device", default="cuda:0")
+    parser.add_argument("--worlds", default="1024,65536", help="comma-separated world counts")
+    parser.add_argument("--preset", default="default")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--out", type=Path, default=None, help="JSON path (default fused_update_<device>.json)")
+    parser.add_argument("--commit", default=None, help="the commit measured, for a copy without git history")
+    args = parser.parse_args(argv)
+    if args.repeats < 1:
+        parser.error(f"--repeats={args.repeats} must be an integer >= 1")
+    worlds = parse_counts(args.worlds, "--worlds")
+    out = args.out or Path(f"fused_update_{args.device.replace(':', '')}.json")
+    record = {
+        **provenance(args.device, command_line(argv, "benchmarks/bench_fused_update.py"), args.commit),
+        "preset": args.preset,
+        "repeats": args.repeats,
+        "points": [],
+    }
+    for w in worlds:
+        point = measure(args.preset, w, args.device, args.repeats)
+        record["points"].append(point)
+        print_point(point)
+    with atomic_open(out) as f:
+        json.dump(record, f, indent=1)
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
