@@ -29,6 +29,7 @@ from ..rollout import Observer, StepView, StepViews
 from ..rollout import rollout as run_rollout
 
 BAND = "mean ± 1 s.e.m. over seeds"
+FIGURE_BAND = "bands: the 95% Student-t interval of the mean over seeds"
 
 
 # ---------------------------------------------------------------------------------------------- rows
@@ -282,16 +283,16 @@ def pyplot():
 
 
 def band(ax, x, stats: list[dict], label: str | None = None, style: str = "o-", **kwargs):
-    """A line of the means and a band of mean ± 1 s.e.m. (`seed_stats` dicts, one per x)."""
+    """A line of the means and a band of their 95% t intervals (`seed_stats` dicts, one per x)."""
     mean = np.array([np.nan if s["mean"] is None else s["mean"] for s in stats], dtype=float)
-    sem = np.nan_to_num(np.array([np.nan if s["sem"] is None else s["sem"] for s in stats], dtype=float))
+    half = np.nan_to_num(np.array([np.nan if s["ci95"] is None else s["ci95"] for s in stats], dtype=float))
     (line,) = ax.plot(x, mean, style, label=label, ms=4, lw=1.4, **kwargs)
-    ax.fill_between(x, mean - sem, mean + sem, color=line.get_color(), alpha=0.2, lw=0)
+    ax.fill_between(x, mean - half, mean + half, color=line.get_color(), alpha=0.2, lw=0)
     return line
 
 
 def save_figure(fig, out: str, name: str, title: str) -> str:
-    fig.suptitle(f"{title}\n({BAND})", fontsize=9)
+    fig.suptitle(f"{title}\n({FIGURE_BAND})", fontsize=9)
     fig.tight_layout()
     path = os.path.join(out, name)
     write_figure(fig, path, dpi=110)
