@@ -12,10 +12,19 @@ matrix products forward and backward at the card's float32 peak, the least bytes
 the fused backward also recomputes the forward, which the floor does not count), and "of floor"
 the fraction of it reached.
 
+First, before any timing, the trainer of the first `--worlds` is built (the simulation's kernels
+compiled or loaded) and the fused MLPs' kernels are built and loaded by one forward and backward of
+the actor's and critic's MLP, each step's seconds printed as it ends and recorded under
+`build_seconds` (`--compile-only` stops there): a fresh machine compiles the tile kernels, which can
+take long.
+
     python benchmarks/bench_fused_update.py --device cuda:0 --worlds 1024,65536
+    python benchmarks/bench_fused_update.py --device cuda:0 --compile-only
     python benchmarks/bench_fused_update.py --device cpu --worlds 4 --preset tiny --repeats 1
 
-Prints a table and writes JSON (atomically) to `--out` (default `fused_update_<device>.json`).
+Prints each time as it is measured (flushed) and writes JSON (atomically) to `--out` (default
+`fused_update_<device>.json`) after the build step and after every point, so a time limit keeps what
+was measured.
 """
 
 from __future__ import annotations
@@ -26,6 +35,7 @@ import json
 import os
 import statistics
 import sys
+import time
 from pathlib import Path
 
 os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
@@ -159,32 +169,63 @@ def update_floor(alg, device: torch.device) -> UpdateFloor:
     )
 
 
+def sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def build_seconds(preset: str, worlds: int, device: str) -> dict[str, float]:
+    """Seconds to build the trainer of `preset` at `worlds` worlds (the simulation's kernels compiled
+    or loaded from Warp's cache), then of the first fused forward and backward of the actor's and
+    critic's MLP on one row (Warp builds or loads each tile kernel at its first launch); each printed
+    as it ends."""
+    seconds = {}
+    started = time.perf_counter()
+    switch = MLPSwitch(build(preset, worlds, device))
+    seconds["trainer"] = time.perf_counter() - started
+    print(f"trainer built in {seconds['trainer']:.1f} s", flush=True)
+    torch_device = torch.device(switch.alg.device)
+    for name, mlp in zip(("actor", "critic"), switch.mlps["fused"]):
+        params = list(mlp.parameters())
+        started = time.perf_counter()
+        out = mlp(torch.zeros(1, mlp.spec.dims[0], device=torch_device))
+        sync(torch_device)
+        seconds[f"{name} forward"] = time.perf_counter() - started
+        print(f"{name} forward kernel built and loaded in {seconds[f'{name} forward']:.1f} s", flush=True)
+        started = time.perf_counter()
+        torch.autograd.grad(out.sum(), params)  # not into .grad: the update's state stays untouched
+        sync(torch_device)
+        seconds[f"{name} backward"] = time.perf_counter() - started
+        print(f"{name} backward kernel built and loaded in {seconds[f'{name} backward']:.1f} s", flush=True)
+    return seconds
+
+
 def measure(preset: str, worlds: int, device: str, repeats: int) -> dict:
+    """One point: every path's update time at `worlds` worlds (printed as each is measured), the
+    largest relative difference after one update, and the floor."""
     alg = build(preset, worlds, device)
     fill_storage(alg)
     switch = MLPSwitch(alg)
     torch_device = torch.device(alg.device)
     floor = update_floor(alg, torch_device)
+    print(f"{worlds} worlds: {floor.describe()}", flush=True)
     point: dict = {"worlds": worlds, "seconds": {}}
     graphs = (False, True) if torch_device.type == "cuda" else (False,)
     for graph in graphs:
         for path in PATHS:
             key = f"{path} {'graph' if graph else 'eager'}"
-            point["seconds"][key] = time_update(switch, path, repeats, graph)
+            seconds = point["seconds"][key] = time_update(switch, path, repeats, graph)
+            reached = floor.fraction(seconds)
+            print(
+                f"  {key:12s} {seconds * 1e3:10.2f} ms{'' if reached is None else f'  {reached:6.1%} of floor'}",
+                flush=True,
+            )
     point["max_relative_difference"] = update_difference(switch)
+    worst = max(point["max_relative_difference"].items(), key=lambda kv: kv[1])
+    print(f"  one update, fused vs torch: max relative difference {worst[1]:.2e} ({worst[0]})", flush=True)
     point["floor"] = floor.record(point["seconds"])
     point["floor_text"] = floor.describe()
     return point
-
-
-def print_point(point: dict) -> None:
-    floor_s = point["floor"]["seconds"]
-    print(f"{point['worlds']} worlds: {point['floor_text']}")
-    for key, seconds in point["seconds"].items():
-        reached = f"  {floor_s / seconds:6.1%} of floor" if floor_s else ""
-        print(f"  {key:12s} {seconds * 1e3:10.2f} ms{reached}")
-    worst = max(point["max_relative_difference"].items(), key=lambda kv: kv[1])
-    print(f"  one update, fused vs torch: max relative difference {worst[1]:.2e} ({worst[0]})")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -195,6 +236,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--out", type=Path, default=None, help="JSON path (default fused_update_<device>.json)")
     parser.add_argument("--commit", default=None, help="the commit measured, for a copy without git history")
+    parser.add_argument(
+        "--compile-only", action="store_true", help="stop after building the trainer and the fused kernels"
+    )
     args = parser.parse_args(argv)
     if args.repeats < 1:
         parser.error(f"--repeats={args.repeats} must be an integer >= 1")
@@ -206,13 +250,18 @@ def main(argv: list[str] | None = None) -> int:
         "repeats": args.repeats,
         "points": [],
     }
-    for w in worlds:
-        point = measure(args.preset, w, args.device, args.repeats)
-        record["points"].append(point)
-        print_point(point)
-    with atomic_open(out) as f:
-        json.dump(record, f, indent=1)
-    print(f"wrote {out}")
+
+    def write() -> None:
+        with atomic_open(out) as f:
+            json.dump(record, f, indent=1)
+
+    record["build_seconds"] = build_seconds(args.preset, worlds[0], args.device)
+    write()
+    if not args.compile_only:
+        for w in worlds:
+            record["points"].append(measure(args.preset, w, args.device, args.repeats))
+            write()  # after every point: a time limit keeps what was measured
+    print(f"wrote {out}", flush=True)
     return 0
 
 

@@ -6,10 +6,11 @@ Each point is `python -m torch.distributed.run --standalone --nproc_per_node=G -
 the `fps` column (agent-steps of every rank per second of the iteration) of rank 0's progress CSV over
 the iterations after the first two (Warp compilation, warm-up). `--modes` picks the loops measured:
 
-- `graphs`: the default loop, rollout and update replayed from CUDA graphs (on several GPUs the update
-  with its NCCL all-reduce inside its graph);
+- `graphs`: rollout and update replayed from CUDA graphs (`train.graph_update=true`: on several GPUs
+  this opts in to the experimental capture of the update with its NCCL all-reduce inside its graph,
+  which hung on 2 x H100 at commit 8535669; one GPU captures the update by default anyway);
 - `eager-update`: the rollout from CUDA graphs, the update eager (`train.graph_update=false`: what
-  several GPUs ran before the all-reduce was captured) - with `graphs`, the before/after of that change;
+  several GPUs run by default) - with `graphs`, the gain of capturing the update;
 - `eager`: no graphs (`train.cuda_graphs=false`), on one GPU only (the loop before any graphs).
 
 Every point records what its run captured (its `config.json`'s `cuda_graphs`), and its speed-up
@@ -21,17 +22,21 @@ fraction of it reached (`aquarium_warp.training.floors.linear_scaling`). On the 
     python benchmarks/bench_multi_gpu.py --device cpu --gpus 1,2 --num-worlds 16 --iterations 4   # gloo
 
 Writes `multi_gpu_<device>.json` atomically (the command, the commit: `--commit` where git is not
-available, the machine and the library versions) and prints a table. A point whose run fails (a failed
-capture raises in the run) is printed with its error, kept in the JSON as such, and makes the exit
-status 1.
+available, the machine and the library versions) after every point, with the points so far, so that a
+time limit that ends the script keeps what was measured; prints each point as it ends and a table at
+the end. A point whose run fails or exceeds `--timeout` (a failed capture raises in the run; a run
+past its time is killed with every rank) is printed with its error, kept in the JSON as such, and makes
+the exit status 1.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import json
 import os
+import signal
 import statistics
 import subprocess
 import sys
@@ -45,12 +50,32 @@ from aquarium_warp.atomic import atomic_open
 from aquarium_warp.records import command_line, provenance
 from aquarium_warp.training.floors import linear_scaling
 
-# mode -> the train settings of its runs
+# mode -> the train settings of its runs ("graphs" opts in to the captured update on several GPUs)
 MODES = {
     "graphs": {"cuda_graphs": True, "graph_update": True},
     "eager-update": {"cuda_graphs": True, "graph_update": False},
     "eager": {"cuda_graphs": False},
 }
+
+
+def kill_tree(pid: int) -> None:
+    """SIGKILL `pid` and every process below it (read from Linux's /proc). torchrun starts each rank in
+    a session of its own, which a kill of the launcher or its process group misses, and a hung rank
+    would go on holding its GPU (and the output pipes this script reads to their end)."""
+    children: dict[int, list[int]] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            parent = int(stat.read_text().rsplit(")", 1)[1].split()[1])  # after the command name
+        except (OSError, IndexError, ValueError):  # a process that ended meanwhile
+            continue
+        children.setdefault(parent, []).append(int(stat.parent.name))
+    tree, todo = [], [pid]
+    while todo:
+        tree.append(todo.pop())
+        todo += children.get(tree[-1], [])
+    for p in tree:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(p, signal.SIGKILL)
 
 
 def run_point(gpus: int, team: str, mode: str, args: argparse.Namespace) -> dict:
@@ -84,10 +109,16 @@ def run_point(gpus: int, team: str, mode: str, args: argparse.Namespace) -> dict
     env = {**os.environ, "NCCL_NVLS_ENABLE": "0", "OMP_NUM_THREADS": "1"}
     env.pop("WORLD_SIZE", None)
     started = time.perf_counter()
-    done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=args.timeout)
+    with subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) as run:
+        try:
+            stdout, stderr = run.communicate(timeout=args.timeout)
+        except subprocess.TimeoutExpired:
+            kill_tree(run.pid)
+            run.communicate()
+            raise
     wall = time.perf_counter() - started
-    if done.returncode != 0:
-        raise RuntimeError(f"{' '.join(command)} failed:\n{done.stdout[-2000:]}\n{done.stderr[-4000:]}")
+    if run.returncode != 0:
+        raise RuntimeError(f"{' '.join(command)} failed:\n{stdout[-2000:]}\n{stderr[-4000:]}")
     name = "progress.csv" if team != "both" else "progress_prey.csv"
     with open(os.path.join(log_dir, name), newline="", encoding="utf-8") as f:
         rows = list(csv.DictReader(f))
@@ -177,7 +208,20 @@ def main(argv: list[str] | None = None) -> int:
         modes = ["eager"]  # the CPU captures no graphs
     import torch
 
-    points = []
+    record = {
+        "benchmark": "multi_gpu_training",
+        "device_name": torch.cuda.get_device_name(0) if cuda and torch.cuda.is_available() else "cpu",
+        "settings": vars(args),
+        "points": [],
+        "graph_update_gains": [],
+        "torch": torch.__version__,
+        # command, git (commit, dirty) and machine (device, driver, versions)
+        **provenance("cuda:0" if cuda else "cpu", command_line(argv, Path(__file__).name), args.commit),
+    }
+    out = Path(args.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f"multi_gpu_{'cuda' if cuda else 'cpu'}.json"
+    points = record["points"]
     for team in teams:
         for g in gpus:
             for mode in (m for m in modes if m != "eager" or g == 1 or not cuda):
@@ -186,33 +230,19 @@ def main(argv: list[str] | None = None) -> int:
                 except (RuntimeError, subprocess.TimeoutExpired) as error:  # reported, not fatal
                     point = {"gpus": g, "team": team, "mode": mode, "error": str(error)[-6000:]}
                     print(f"{team:>5} {g} GPU{'s' if g > 1 else ' '} {mode:>12} failed:\n{point['error']}", flush=True)
-                    points.append(point)
-                    continue
+                else:
+                    print(
+                        f"{team:>5} {g} GPU{'s' if g > 1 else ' '} {mode:>12} "
+                        f"{point['agent_steps_per_s']:.3g} agent-steps/s ({point['wall_seconds']:.0f} s), "
+                        f"captured {point['captured']}",
+                        flush=True,
+                    )
                 points.append(point)
-                print(
-                    f"{team:>5} {g} GPU{'s' if g > 1 else ' '} {mode:>12} "
-                    f"{point['agent_steps_per_s']:.3g} agent-steps/s ({point['wall_seconds']:.0f} s), "
-                    f"captured {point['captured']}",
-                    flush=True,
-                )
-    add_scaling(points)
-    gains = graph_update_gains(points)
-    name = torch.cuda.get_device_name(0) if cuda and torch.cuda.is_available() else "cpu"
-    result = {
-        "benchmark": "multi_gpu_training",
-        "device_name": name,
-        "settings": vars(args),
-        "points": points,
-        "graph_update_gains": gains,
-        "torch": torch.__version__,
-        # command, git (commit, dirty) and machine (device, driver, versions)
-        **provenance("cuda:0" if cuda else "cpu", command_line(argv, Path(__file__).name), args.commit),
-    }
-    out = Path(args.out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / f"multi_gpu_{'cuda' if cuda else 'cpu'}.json"
-    with atomic_open(path) as f:
-        json.dump(result, f, indent=2)
+                add_scaling(points)
+                record["graph_update_gains"] = graph_update_gains(points)
+                with atomic_open(path) as f:  # after every point: a time limit keeps what was measured
+                    json.dump(record, f, indent=2)
+    gains = record["graph_update_gains"]
     print(
         f"\n{'team':>5} {'GPUs':>4} {'mode':>12} {'agent-steps/s':>14} {'vs 1 graphs':>11} {'of ideal':>8} "
         f"{'vs 1 same':>9} {'of ideal':>8}"

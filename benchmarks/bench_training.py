@@ -19,7 +19,8 @@ the whole iteration's (the rollout's own floor is a small part of it: one forwar
 
 Prints a table, writes `training_<device>.json` (and `.png` with `--plot`) into `--out-dir`
 (default: the current directory); the JSON records the command, the commit (`--commit` where git is
-not available), the machine and the library versions.
+not available), the machine and the library versions, and is rewritten (atomically) after every
+point, so a time limit keeps what was measured.
 """
 
 from __future__ import annotations
@@ -160,6 +161,27 @@ def run_point(text: str) -> int:
     return 0
 
 
+def loop_speedups(points: list[dict]) -> list[dict]:
+    """Per world count and sharing: the fast loop's default variant over rsl-rl's loop."""
+    points_ok = [q for q in points if "error" not in q]
+    speedups = []
+    for fast in (q for q in points_ok if q["loop"] == "fast" and q["variant"] == "default"):
+        ref = [
+            q
+            for q in points_ok
+            if q["loop"] == "rsl-rl" and q["worlds"] == fast["worlds"] and q["sharing"] == fast["sharing"]
+        ]
+        if ref:
+            speedups.append(
+                {
+                    "worlds": fast["worlds"],
+                    "sharing": fast["sharing"],
+                    "speedup": fast["agent_steps_per_s"] / ref[0]["agent_steps_per_s"],
+                }
+            )
+    return speedups
+
+
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if len(argv) == 2 and argv[0] == "--point":
@@ -204,60 +226,6 @@ def main(argv=None) -> int:
     if not variants or not set(variants) <= set(VARIANTS):
         p.error(f"--variants takes {', '.join(VARIANTS)}")
 
-    points = []
-    header = (
-        f"{'worlds':>7} {'rows':>8} {'sharing':>10} {'loop':>7} {'variant':>12} {'ms/it':>9} "
-        f"{'agent-steps/s':>14} {'floor ms':>9} {'% it':>6} {'% upd':>6}  phases (ms)"
-    )
-    print(header)
-    for w in worlds:
-        for sharing in sharings:
-            runs = [("fast", v) for v in variants if "fast" in loops]
-            if "rsl-rl" in loops and w <= args.rsl_rl_max_worlds:
-                runs.append(("rsl-rl", "default"))
-            for loop, variant in runs:
-                try:
-                    pt = measure_in_subprocess(args, w, sharing, loop, variant)
-                except Exception as error:  # noqa: BLE001  (a point that does not run here is reported, not fatal)
-                    print(f"{w:>7} {'':>8} {sharing:>10} {loop:>7} {variant:>12} failed: {error!r}"[:400])
-                    points.append(
-                        {"worlds": w, "sharing": sharing, "loop": loop, "variant": variant, "error": repr(error)[:2000]}
-                    )
-                    continue
-                points.append(pt)
-                phases = " ".join(f"{k} {v:.2f}" for k, v in pt.get("phase_ms", {}).items())
-                floor = pt["floor"]
-                reached = [floor.get(f"fraction_of_{k}") for k in ("iteration", "update")]
-                print(
-                    f"{w:>7} {pt['rows']:>8} {sharing:>10} {loop:>7} {variant:>12} {pt['iteration_ms']:>9.2f} "
-                    f"{pt['agent_steps_per_s']:>14.3e} "
-                    f"{'n/a' if floor['seconds'] is None else format(1e3 * floor['seconds'], '.2f'):>9} "
-                    + " ".join(f"{'-' if r is None else format(100 * r, '.1f'):>6}" for r in reached)
-                    + f"  {phases}",
-                    flush=True,
-                )
-    points_ok = [q for q in points if "error" not in q]
-    speedups = []
-    for fast in (q for q in points_ok if q["loop"] == "fast" and q["variant"] == "default"):
-        ref = [
-            q
-            for q in points_ok
-            if q["loop"] == "rsl-rl" and q["worlds"] == fast["worlds"] and q["sharing"] == fast["sharing"]
-        ]
-        if ref:
-            speedups.append(
-                {
-                    "worlds": fast["worlds"],
-                    "sharing": fast["sharing"],
-                    "speedup": fast["agent_steps_per_s"] / ref[0]["agent_steps_per_s"],
-                }
-            )
-    for s in speedups:
-        print(f"speed-up fast / rsl-rl loop: {s['worlds']:>6} worlds {s['sharing']:>10}: {s['speedup']:.1f}x")
-
-    if points_ok:
-        print(f"floor of the update ({points_ok[-1]['worlds']} worlds): {points_ok[-1]['floor_text']}")
-
     from importlib.metadata import version
 
     import warp as wp
@@ -274,14 +242,56 @@ def main(argv=None) -> int:
         "rsl_rl": version("rsl-rl-lib"),
         # command, git (commit, dirty) and machine (device, driver, versions)
         **provenance(args.device, command_line(argv, Path(sys.argv[0]).name), args.commit),
-        "points": points,
-        "speedups": speedups,
+        "points": [],
+        "speedups": [],
     }
     out_dir = Path(args.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     stem = f"training_{args.device.replace(':', '')}"
-    with atomic_open(out_dir / f"{stem}.json") as f:
-        json.dump(result, f, indent=2)
+    points = result["points"]
+    header = (
+        f"{'worlds':>7} {'rows':>8} {'sharing':>10} {'loop':>7} {'variant':>12} {'ms/it':>9} "
+        f"{'agent-steps/s':>14} {'floor ms':>9} {'% it':>6} {'% upd':>6}  phases (ms)"
+    )
+    print(header, flush=True)
+    for w in worlds:
+        for sharing in sharings:
+            runs = [("fast", v) for v in variants if "fast" in loops]
+            if "rsl-rl" in loops and w <= args.rsl_rl_max_worlds:
+                runs.append(("rsl-rl", "default"))
+            for loop, variant in runs:
+                try:
+                    pt = measure_in_subprocess(args, w, sharing, loop, variant)
+                except Exception as error:  # noqa: BLE001  (a point that does not run here is reported, not fatal)
+                    print(f"{w:>7} {'':>8} {sharing:>10} {loop:>7} {variant:>12} failed: {error!r}"[:400], flush=True)
+                    pt = {
+                        "worlds": w,
+                        "sharing": sharing,
+                        "loop": loop,
+                        "variant": variant,
+                        "error": repr(error)[:2000],
+                    }
+                else:
+                    phases = " ".join(f"{k} {v:.2f}" for k, v in pt.get("phase_ms", {}).items())
+                    floor = pt["floor"]
+                    reached = [floor.get(f"fraction_of_{k}") for k in ("iteration", "update")]
+                    print(
+                        f"{w:>7} {pt['rows']:>8} {sharing:>10} {loop:>7} {variant:>12} {pt['iteration_ms']:>9.2f} "
+                        f"{pt['agent_steps_per_s']:>14.3e} "
+                        f"{'n/a' if floor['seconds'] is None else format(1e3 * floor['seconds'], '.2f'):>9} "
+                        + " ".join(f"{'-' if r is None else format(100 * r, '.1f'):>6}" for r in reached)
+                        + f"  {phases}",
+                        flush=True,
+                    )
+                points.append(pt)
+                result["speedups"] = loop_speedups(points)
+                with atomic_open(out_dir / f"{stem}.json") as f:  # after every point: a time limit keeps them
+                    json.dump(result, f, indent=2)
+    for s in result["speedups"]:
+        print(f"speed-up fast / rsl-rl loop: {s['worlds']:>6} worlds {s['sharing']:>10}: {s['speedup']:.1f}x")
+    points_ok = [q for q in points if "error" not in q]
+    if points_ok:
+        print(f"floor of the update ({points_ok[-1]['worlds']} worlds): {points_ok[-1]['floor_text']}")
     print(f"wrote {out_dir / (stem + '.json')}")
     if args.plot:
         plot(result, out_dir / f"{stem}.png")

@@ -59,7 +59,9 @@ TRAIN_DEFAULTS: dict[str, Any] = {
     "quiet": False,  # tqdm progress bar instead of the per-iteration line
     "loop": "fast",  # "fast": training/loop.py (no host syncs; CUDA graphs); "rsl-rl": its runner's loop
     "cuda_graphs": True,  # the fast loop replays CUDA graphs on CUDA devices where the model allows
-    "graph_update": True,  # with cuda_graphs: the PPO update (several GPUs: with its all-reduce) too; false: eager
+    # with cuda_graphs, the PPO update too: "auto" (one process captures it, several ranks run it eagerly),
+    # true (several NCCL ranks capture it with its all-reduce too: experimental, hung on 2 x H100) or false (eager)
+    "graph_update": "auto",
     "metrics_every": 10,  # swarm metrics (Swarm/* in the log) sampled every N steps; 0: none
     "tf32": False,  # CUDA matrix products in TF32 (faster for large batches, ~1e-3 relative error)
     "fused_mlp": False,  # actor and critic MLPs as fused Warp tile kernels (fused_mlp.py; parameter sharing)
@@ -378,9 +380,14 @@ def validate(config: dict) -> None:
     ):
         if not is_int(train[name]) or not low <= train[name] <= 2**31 - 1:
             raise ValueError(f"train.{name}={train[name]!r} must be an integer in [{low}, 2**31 - 1]{meaning}")
-    for name in ("tf32", "cuda_graphs", "graph_update", "fused_mlp"):
+    for name in ("tf32", "cuda_graphs", "fused_mlp"):
         if not isinstance(train[name], bool):
             raise ValueError(f"train.{name}={train[name]!r} must be true or false")
+    if not (isinstance(train["graph_update"], bool) or train["graph_update"] == "auto"):
+        raise ValueError(
+            f"train.graph_update={train['graph_update']!r} must be true or false, or 'auto' "
+            "(captured in one process, eager on several ranks)"
+        )
     if train["update_schedule"] not in UPDATE_SCHEDULES:
         raise ValueError(f"train.update_schedule={train['update_schedule']!r} must be one of {UPDATE_SCHEDULES}")
     if train["pool_sampling"] not in POOL_SAMPLING:

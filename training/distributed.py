@@ -7,9 +7,9 @@ Each process (rank) simulates its own worlds on its own device with its own seed
 broadcast from rank 0 when learning starts, gradients all-reduced every mini-batch, the observation
 normalisers' statistics all-reduced, the adaptive learning rate decided on rank 0. This module holds
 the few pieces rsl-rl leaves to us: the rank's device and process-group backend (NCCL on GPUs, gloo
-on CPUs), whether the backend's collectives can be captured in a CUDA graph (NCCL's can: the update
-with its gradient all-reduce is then replayed like one process's), sums over ranks for the logs, and
-gathering every rank's training state into rank 0's checkpoint.
+on CPUs), whether the backend's collectives can be captured in a CUDA graph (NCCL's can: with
+`train.graph_update=true` the update with its gradient all-reduce is then replayed like one process's),
+sums over ranks for the logs, and gathering every rank's training state into rank 0's checkpoint.
 
 Several machines join through torchrun's rendezvous (`--nnodes=N --rdzv-backend=c10d
 --rdzv-endpoint=HOST:PORT`, the same command on each); `tests/training/test_distributed.py` starts two

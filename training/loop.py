@@ -24,18 +24,20 @@ it overwrites them with the next ones, so the storage receives exactly what rsl-
 On the CPU (or where a graph cannot serve: recurrent models, RND, symmetry) the same functions run
 eagerly; recurrent models are updated by rsl-rl's own `PPO.update`. With the adaptive learning-rate
 schedule (which reads the KL on the host), several processes talking through gloo (which waits on the
-host), or `graph_update=False` (`train.graph_update`), the rollout replays its graphs and the update
-runs eagerly between rollouts. Several processes talking through NCCL (torchrun on GPUs) capture the
-update with its gradient all-reduce, as one process does: NCCL's collectives join a stream capture, and
-every rank captures and replays the same collectives in the same order (the graphs are captured at
-the same iteration on every rank, after the parameters' broadcast has set up the communicator). Their
-captures use CUDA's thread-local capture mode: NCCL's proxy threads and torch's watchdog make CUDA
-calls of their own while this thread captures, which the global mode would count against the capture.
-A capture that fails raises, naming the learner and the way out (`train.graph_update=false`); there
-is no silent fallback (a failed capture of a collective may leave the communicator unusable). On the
-CPU this loop and `OnPolicyRunner.learn` produce the same parameters bit for bit
-(`tests/training/test_training_loop.py`), so `train.loop = "rsl-rl"` (rsl-rl's own runner) remains as
-the reference and for the benchmark's before/after.
+host), several processes talking through NCCL (torchrun on GPUs) unless `graph_update=True`, or
+`graph_update=False` (`train.graph_update`; its default "auto" captures the update in one process
+only), the rollout replays its graphs and the update runs eagerly between rollouts. With
+`graph_update=True` NCCL ranks capture the update with its gradient all-reduce, as one process does
+(experimental: on 2 x H100 at commit 8535669 such a run never finished): NCCL's collectives join a
+stream capture, and every rank captures and replays the same collectives in the same order (the
+graphs are captured at the same iteration on every rank, after the parameters' broadcast has set up
+the communicator). Their captures use CUDA's thread-local capture mode: NCCL's proxy threads and
+torch's watchdog make CUDA calls of their own while this thread captures, which the global mode would
+count against the capture. A capture that fails raises, naming the learner and the way out
+(`train.graph_update=false`); there is no silent fallback (a failed capture of a collective may leave
+the communicator unusable). On the CPU this loop and `OnPolicyRunner.learn` produce the same
+parameters bit for bit (`tests/training/test_training_loop.py`), so `train.loop = "rsl-rl"` (rsl-rl's
+own runner) remains as the reference and for the benchmark's before/after.
 
 Several learners (`train.team = "both"`: one PPO learner per team, acting in the same worlds): `act[t]`
 runs every learner's `PPO.act` (and the opponent pool's snapshots, `pool.py`), one simulation step
@@ -118,12 +120,16 @@ class IterationRecord:
         return self._host.tolist(), times
 
 
-def graph_plan(algs, cuda: bool, graph_update: bool = True) -> tuple[bool, list[bool]]:
+def graph_plan(algs, cuda: bool, graph_update: bool | str = "auto") -> tuple[bool, list[bool]]:
     """Which CUDA graphs a loop over `algs` captures (`cuda`: graphs asked for on a CUDA device): the
     rollout's, where every algorithm allows it (`rollout_graphable`), and per learner its update's,
-    where the rollout is captured, `graph_update` asks for it and its algorithm allows it (`graphable`)."""
+    where the rollout is captured, its algorithm allows it (`graphable`) and `graph_update` asks for
+    it: True, or "auto" in one process (several NCCL ranks capturing the update hung; see the module doc)."""
     rollout = cuda and all(alg.rollout_graphable for alg in algs)
-    updates = [rollout and graph_update and alg.graphable for alg in algs]
+    updates = [
+        rollout and alg.graphable and (graph_update is True or (graph_update == "auto" and not alg.is_multi_gpu))
+        for alg in algs
+    ]
     if not all(getattr(alg, "capturable_optimizer", False) for alg, u in zip(algs, updates) if u):
         raise ValueError("CUDA graphs need the algorithms built with capturable_optimizer=True")
     return rollout, updates
@@ -137,10 +143,11 @@ class TrainingLoop:
     The first adapter steps the worlds; the other learners' actions reach it through its opponent
     (`LearnerActions`). `pool`: an `OpponentPool` whose snapshots play some worlds. `graphs=True`
     captures the rollout's CUDA graphs where the device is CUDA and every algorithm allows it
-    (`alg.rollout_graphable`), and with `graph_update=True` a learner's update graph where its
-    algorithm allows that too (`alg.graphable`; else the update runs eagerly between the replayed
-    rollouts: ranks talking through gloo, the adaptive schedule); `self.graphs` says whether graphs
-    are in use, `self.update_graphs` per learner (see `graph_plan`).
+    (`alg.rollout_graphable`), and as `graph_update` asks ("auto": in one process; True: on NCCL ranks
+    too; False: never) a learner's update graph where its algorithm allows that too (`alg.graphable`;
+    else the update runs eagerly between the replayed rollouts: ranks talking through gloo, the
+    adaptive schedule); `self.graphs` says whether graphs are in use, `self.update_graphs` per learner
+    (see `graph_plan`).
     `reduce`: applied in place to each iteration's values (losses and statistics, on the device) before
     they are copied to the host; a torchrun run sums them over the ranks there, in stream order (the
     record's learn time then includes waiting for the slowest rank's sum).
@@ -153,7 +160,7 @@ class TrainingLoop:
         graphs: bool = True,
         pool=None,
         reduce: Callable[[torch.Tensor], None] | None = None,
-        graph_update: bool = True,
+        graph_update: bool | str = "auto",
     ):
         self.learners = [(alg, env) for alg, env in learners]
         if not self.learners:
@@ -168,7 +175,7 @@ class TrainingLoop:
         self.reduce = reduce
         self.device = torch.device(self.algs[0].device)
         self.graphs, self.update_graphs = graph_plan(
-            self.algs, bool(graphs) and self.device.type == "cuda", bool(graph_update)
+            self.algs, bool(graphs) and self.device.type == "cuda", graph_update
         )
         # Several ranks: other threads (NCCL's proxies, torch's watchdog) call CUDA during a capture.
         self._capture_mode = "thread_local" if any(alg.is_multi_gpu for alg in self.algs) else "global"

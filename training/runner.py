@@ -88,7 +88,7 @@ class AquariumRunner(OnPolicyRunner):
         train = trainer.config["train"] if trainer is not None else {}
         self.loop_kind = train.get("loop", "fast")
         self.cuda_graphs = bool(train.get("cuda_graphs", True))
-        self.graph_update = bool(train.get("graph_update", True))
+        self.graph_update = train.get("graph_update", "auto")
         self.loop: TrainingLoop | None = None
 
     def graph_plan(self) -> tuple[bool, list[bool]]:

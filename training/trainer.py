@@ -33,8 +33,9 @@ seed `train.seed + RANK` (listed in `config.json` under `distributed`); rank 0 l
 statistics and swarm metrics summed over all ranks (losses: their mean) and writes the checkpoints,
 which hold rank 0's state as above plus `world_size` and the other ranks' states under `ranks`; on
 resume each rank restores its own (the same number of processes is required). On CUDA (NCCL) each
-rank replays its rollout and its update, with the update's all-reduce, from CUDA graphs, as one process
-does (`train.graph_update=false`: the update runs eagerly).
+rank replays its rollout from CUDA graphs and runs its update, with its all-reduce, eagerly;
+`train.graph_update=true` captures that update too, as one process does (experimental: it hung on
+2 x H100 at commit 8535669).
 """
 
 from __future__ import annotations

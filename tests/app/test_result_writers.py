@@ -105,3 +105,95 @@ def test_bench_training_records_provenance_and_the_floor(tmp_path, monkeypatch, 
     assert data["git"] == {"commit": "abc1234", "dirty": None, "source": "given"}
     assert data["points"][0]["floor"] == floor
     assert "floor n/a" in capsys.readouterr().out
+
+
+class _LimitReached(BaseException):
+    """What a time limit does to a benchmark: it ends the script between points (not an error it reports)."""
+
+
+def _second_point_ends_the_script(point):
+    """A point function that returns `point(*args)` for its first call and ends the script at its second."""
+    calls = []
+
+    def run(*args):
+        calls.append(args)
+        if len(calls) == 2:
+            raise _LimitReached
+        return point(*args)
+
+    return run
+
+
+def test_bench_multi_gpu_keeps_the_points_measured_before_a_limit(tmp_path, monkeypatch):
+    bench = _script("bench_multi_gpu")
+    point = {"captured": {"rollout": False, "update": {"prey": False}}, "agent_steps_per_s": 1.0, "wall_seconds": 1.0}
+    monkeypatch.setattr(
+        bench,
+        "run_point",
+        _second_point_ends_the_script(lambda g, team, mode, args: {"gpus": g, "team": team, "mode": mode, **point}),
+    )
+    with pytest.raises(_LimitReached):
+        bench.main(["--device", "cpu", "--gpus", "1,2", "--teams", "prey", "--out-dir", str(tmp_path)])
+    data = json.loads((tmp_path / "multi_gpu_cpu.json").read_text())
+    assert [(p["gpus"], p["agent_steps_per_s"]) for p in data["points"]] == [(1, 1.0)]
+    assert data["points"][0]["vs_one_same_mode"]["speedup"] == 1.0
+    assert missing(data) == ()
+
+
+def test_bench_training_keeps_the_points_measured_before_a_limit(tmp_path, monkeypatch):
+    pytest.importorskip("rsl_rl")
+    bench = _script("bench_training")
+    floor = {"seconds": None, "fraction_of_iteration": None, "fraction_of_update": None}
+    monkeypatch.setattr(
+        bench,
+        "measure_in_subprocess",
+        _second_point_ends_the_script(
+            lambda args, w, sharing, loop, variant: {
+                "worlds": w,
+                "sharing": sharing,
+                "loop": loop,
+                "variant": variant,
+                "rows": 6 * w,
+                "iteration_ms": 1.0,
+                "agent_steps_per_s": 2.0,
+                "floor": floor,
+                "floor_text": "floor n/a (...)",
+            }
+        ),
+    )
+    argv = ["--device", "cpu", "--worlds", "4,8", "--loops", "fast", "--sharing", "parameter"]
+    with pytest.raises(_LimitReached):
+        bench.main([*argv, "--commit", "abc1234", "--out-dir", str(tmp_path)])
+    data = json.loads((tmp_path / "training_cpu.json").read_text())
+    assert [(p["worlds"], p["agent_steps_per_s"]) for p in data["points"]] == [(4, 2.0)]
+    assert missing(data) == ()
+
+
+def test_bench_fused_update_keeps_the_points_measured_before_a_limit(tmp_path, monkeypatch):
+    pytest.importorskip("rsl_rl")
+    bench = _script("bench_fused_update")
+    monkeypatch.setattr(bench, "build_seconds", lambda preset, worlds, device: {"trainer": 1.0})
+    monkeypatch.setattr(
+        bench,
+        "measure",
+        _second_point_ends_the_script(
+            lambda preset, w, device, repeats: {"worlds": w, "seconds": {"torch eager": 0.5}}
+        ),
+    )
+    out = tmp_path / "fused.json"
+    with pytest.raises(_LimitReached):
+        bench.main(["--device", "cpu", "--worlds", "4,8", "--out", str(out), "--commit", "abc123"])
+    data = json.loads(out.read_text())
+    assert data["build_seconds"] == {"trainer": 1.0}
+    assert data["points"] == [{"worlds": 4, "seconds": {"torch eager": 0.5}}]
+    assert data["git"]["commit"] == "abc123"
+
+
+def test_bench_fused_update_compile_only_times_the_build_and_no_point(tmp_path, monkeypatch, capsys):
+    pytest.importorskip("rsl_rl")
+    bench = _script("bench_fused_update")
+    monkeypatch.setattr(bench, "build_seconds", lambda preset, worlds, device: {"trainer": 1.0})
+    monkeypatch.setattr(bench, "measure", lambda *args: pytest.fail("--compile-only measured a point"))
+    out = tmp_path / "fused.json"
+    assert bench.main(["--device", "cpu", "--compile-only", "--out", str(out)]) == 0
+    assert json.loads(out.read_text())["points"] == []

@@ -124,8 +124,9 @@ def test_device_episode_statistics_equal_rsl_rl_logger(tmp_path, metrics_every):
 class _Alg:
     """What `graph_plan` reads of an algorithm."""
 
-    def __init__(self, rollout: bool, update: bool, capturable: bool = True):
+    def __init__(self, rollout: bool, update: bool, capturable: bool = True, ranks: bool = False):
         self.rollout_graphable, self.graphable, self.capturable_optimizer = rollout, update, capturable
+        self.is_multi_gpu = ranks
 
 
 @pytest.mark.parametrize(
@@ -163,6 +164,18 @@ def test_graph_plan_without_graph_update_keeps_the_rollout_graphs(algs, plan):
     assert graph_plan(algs, True, graph_update=False) == plan
 
 
+@pytest.mark.parametrize(
+    "graph_update,plan",
+    [("auto", (True, [True, False])), (True, (True, [True, True])), (False, (True, [False, False]))],
+)
+def test_graph_plan_captures_the_update_of_several_ranks_only_when_asked(graph_update, plan):
+    """One process captures its update by default; a rank of several (NCCL: its update all-reduces)
+    runs it eagerly unless `train.graph_update=true` (that capture hung on 2 x H100 at 8535669)."""
+    from aquarium_warp.training.loop import graph_plan
+
+    assert graph_plan([_Alg(True, True), _Alg(True, True, ranks=True)], True, graph_update) == plan
+
+
 def _learners(monkeypatch, ranks: int, backend: str | None, *changes: dict, team: str = "prey"):
     """The algorithms of a CPU trainer built as for CUDA graphs (capturable optimizer), made to believe
     they are one of `ranks` ranks whose process group runs `backend` (NCCL's capture cannot be
@@ -184,8 +197,12 @@ def _learners(monkeypatch, ranks: int, backend: str | None, *changes: dict, team
     "ranks,backend,team,changes,graph_update,plan",
     [
         (1, None, "prey", {}, True, (True, [True])),
+        (1, None, "prey", {}, "auto", (True, [True])),
         (1, None, "prey", {}, False, (True, [False])),
-        # torchrun on GPUs: the update with its all-reduce is captured, for one team and for both
+        # torchrun on GPUs: the update runs eagerly by default, for one team and for both
+        (2, "nccl", "prey", {}, "auto", (True, [False])),
+        (2, "nccl", "both", {}, "auto", (True, [False, False])),
+        # train.graph_update=true: the update with its all-reduce is captured, for one team and for both
         (2, "nccl", "prey", {}, True, (True, [True])),
         (2, "nccl", "both", {}, True, (True, [True, True])),
         (2, "nccl", "both", {}, False, (True, [False, False])),
@@ -195,7 +212,19 @@ def _learners(monkeypatch, ranks: int, backend: str | None, *changes: dict, team
         # a recurrent model: nothing captured
         (2, "nccl", "prey", CASES[5][1], True, (False, [False])),
     ],
-    ids=["one", "one-eager-update", "nccl", "nccl-both", "nccl-both-eager-update", "gloo", "nccl-adaptive", "rnn"],
+    ids=[
+        "one",
+        "one-auto",
+        "one-eager-update",
+        "nccl-auto",
+        "nccl-both-auto",
+        "nccl-opted-in",
+        "nccl-both-opted-in",
+        "nccl-both-eager-update",
+        "gloo",
+        "nccl-adaptive",
+        "rnn",
+    ],
 )
 def test_graph_plan_of_real_algorithms(monkeypatch, ranks, backend, team, changes, graph_update, plan):
     """What the loop would capture on CUDA, from the algorithms a run builds (both teams: with the
@@ -210,6 +239,9 @@ def test_graph_plan_of_real_algorithms(monkeypatch, ranks, backend, team, change
 def test_graph_update_is_a_switch():
     with pytest.raises(ValueError, match=r"train.graph_update='no' must be true or false"):
         make_config("tiny", {"train": {"graph_update": "no"}})
+    with pytest.raises(ValueError, match=r"train.graph_update=1 must be true or false, or 'auto'"):
+        make_config("tiny", {"train": {"graph_update": 1}})
+    assert make_config("tiny")["train"]["graph_update"] == "auto"
 
 
 @pytest.mark.slow
