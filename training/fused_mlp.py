@@ -14,7 +14,7 @@ The kernels (made per architecture by `mlp_kernels`):
 - backward: a fixed number of blocks (`backward_blocks`), each taking every `blocks`-th row tile:
   it recomputes the tile's hidden activations (kept in one shared tile), then walks the layers back,
   adding the tile's weight and bias gradients into the block's own row of a `[blocks, parameters]`
-  buffer with `tile_atomic_add`, and writes the input gradient only when the input requires one;
+  buffer (read, add, write back), and writes the input gradient only when the input requires one;
   torch sums the rows afterwards. One row per block instead of one per tile keeps that buffer small
   (a few MB on a GPU); the atomics touch addresses no other block touches (no contention), and as
   each element's additions come from one thread in program order, the sum does not depend on
@@ -368,8 +368,7 @@ class FusedMLPFunction(torch.autograd.Function):
         ctx.spec = spec
         ctx.save_for_backward(x, *params)
         out = torch.empty(x.shape[0], spec.dims[-1], dtype=x.dtype, device=x.device)
-        unused = torch.empty(0, dtype=x.dtype, device=x.device)
-        _run(mlp_kernel(spec, backward_pass=False), spec, x, params, grad_out=unused.view(0, 1), out=out)
+        _run(mlp_kernel(spec, backward_pass=False), spec, x, params, out=out)
         return out
 
     @staticmethod
@@ -390,7 +389,7 @@ def _run(
     spec: MLPSpec,
     x: torch.Tensor,
     params: tuple[torch.Tensor, ...],
-    grad_out: torch.Tensor,
+    grad_out: torch.Tensor | None = None,
     out: torch.Tensor | None = None,
     partial: torch.Tensor | None = None,
     grad_x: torch.Tensor | None = None,
@@ -402,7 +401,7 @@ def _run(
     inputs = [
         x,
         spec.flat(params),
-        grad_out,
+        unused.view(0, 1) if grad_out is None else grad_out,
         spec.chunks,
         tiles,
         blocks,
@@ -472,6 +471,9 @@ class FusedMLP(MLP):
 
     @torch.jit.unused
     def _fused(self, x: torch.Tensor) -> torch.Tensor:
+        # The kernels read columns past a narrower input as zeros: refuse it, as nn.Linear does.
+        if x.shape[-1] != self.spec.dims[0]:
+            raise ValueError(f"FusedMLP: input of {x.shape[-1]} features, the first layer takes {self.spec.dims[0]}")
         rows = x.reshape(-1, x.shape[-1]).contiguous()
         params = [p for layer in list(self)[0::2] for p in (layer.weight, layer.bias)]
         out = FusedMLPFunction.apply(self.spec, rows, *params)

@@ -122,6 +122,17 @@ def test_empty_batch_and_leading_dimensions():
     assert relative_error(fused(x).detach(), mlp(x).detach().double()) <= FORWARD_TOLERANCE
 
 
+@pytest.mark.parametrize("features", [6, 8])
+def test_input_of_the_wrong_width_is_refused_as_by_torch(features):
+    mlp, fused = _mlps(7, [16], 2, "tanh")
+    x = torch.randn(4, features)
+    with pytest.raises(RuntimeError):  # torch's Linear
+        mlp(x)
+    with pytest.raises(ValueError, match=f"input of {features} features, the first layer takes 7") as info:
+        fused(x)
+    assert "\n" not in str(info.value)
+
+
 def test_torch_path_where_the_kernels_do_not_serve():
     mlp, fused = _mlps(7, [16], 2, "tanh")
     x = torch.randn(10, 7, dtype=torch.float64)
