@@ -156,7 +156,9 @@ def time_update(switch: MLPSwitch, path: str, repeats: int, graph: bool) -> floa
         alg.update_on_device(indices, size)
     torch.cuda.current_stream(alg.device).wait_stream(side)
     cuda_graph = torch.cuda.CUDAGraph()
-    with collection_paused(), torch.cuda.graph(cuda_graph):
+    # Captured on the warm-up stream: the fused MLP's Warp stream for it exists then, and making one
+    # inside a capture fails (H100, 5b61039: "would make the legacy stream depend on a capturing stream").
+    with collection_paused(), torch.cuda.graph(cuda_graph, stream=side):
         alg.update_on_device(indices, size)
     cuda_graph.replay()
     return statistics.median(timer(cuda_graph.replay) for _ in range(repeats))
