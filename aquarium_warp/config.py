@@ -306,7 +306,10 @@ class AquariumConfig:
     most 2**30 agent slots per world; `action_count` in [1, 65536]; `max_steps` in [1, 2**31 - 1] and
     `predator_starvation_steps` in [0, 2**31 - 2] (int32 counters on the device);
     `prey_replication_age` in [1, 1717986917] (its 1.25x drawn ages must fit in int32);
-    `catch_share_radius` 0 or in [1e-15, 1e15]; the three rewards finite with
+    `catch_share_radius` 0 or in [1e-15, 1e15]; `capture_probability` in [0, 1], `capture_confusion`
+    in [0, 1e15] and `confusion_radius` in [1e-15, 1e15] px (capture confusion, docs/model.md step 5:
+    a contact captures with probability `capture_probability / (1 + capture_confusion k)`, k the
+    other prey within `confusion_radius`); the three rewards finite with
     |reward| x max_steps x prey slots at most 1e38, so that episode returns (float32 sums over an
     episode) stay finite; `grid_cell_size` None or a finite number > 0. Per-type ranges: see
     `AgentTypeConfig`.
@@ -333,6 +336,9 @@ class AquariumConfig:
     prey_capture_penalty: float = 1000.0
     predator_reward: float = 10.0
     catch_share_radius: float = 100.0
+    capture_probability: float = 1.0
+    capture_confusion: float = 0.0
+    confusion_radius: float = 100.0
     predator_starvation_steps: int = 3000
     prey_reproduction: bool = False
     prey_replication_age: int = 200
@@ -503,6 +509,24 @@ class AquariumConfig:
             and (self.catch_share_radius == 0 or SMALLEST <= self.catch_share_radius <= LARGEST),
             f"a finite number >= 0: 0 or in [{SMALLEST:g}, {LARGEST:g}] px (float32-safe)",
         )
+        require(
+            "capture_probability",
+            self.capture_probability,
+            _in_range(self.capture_probability, 0.0, 1.0),
+            "a number in [0, 1] (the chance that a contact captures a lone prey)",
+        )
+        require(
+            "capture_confusion",
+            self.capture_confusion,
+            _in_range(self.capture_confusion, 0.0, LARGEST),
+            f"a finite number >= 0, in [0, {LARGEST:g}] (0: no confusion)",
+        )
+        require(
+            "confusion_radius",
+            self.confusion_radius,
+            _in_range(self.confusion_radius, SMALLEST, LARGEST),
+            f"a finite number > 0, in [{SMALLEST:g}, {LARGEST:g}] px (float32-safe)",
+        )
         # A starving predator's counter reaches predator_starvation_steps + 1 (int32).
         require(
             "predator_starvation_steps",
@@ -591,6 +615,9 @@ class AquariumConfig:
                 "prey_capture_penalty",
                 "predator_reward",
                 "catch_share_radius",
+                "capture_probability",
+                "capture_confusion",
+                "confusion_radius",
                 "grid_cell_size",
             ),
             ("fov_enabled", "respawn_captured_prey", "prey_reproduction", "observe_flow"),

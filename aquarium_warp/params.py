@@ -83,6 +83,9 @@ def world_rows(cfg: AquariumConfig, num_worlds: int, grid_index: list[int]) -> n
         "prey_capture_penalty",
         "predator_reward",
         "catch_share_radius",
+        "capture_probability",
+        "capture_confusion",
+        "confusion_radius",
         "predator_starvation_steps",
     ):
         rows[name] = per_world(getattr(cfg, name), num_worlds)

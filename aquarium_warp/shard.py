@@ -341,9 +341,11 @@ class WorldShard:
         row_threads = 1 if g.whole_world else capture.CAPTURE_ROW_THREADS
         program += [
             self.record(
-                capture.detect_captures, (W, P, row_threads), [world, types, g, s.agents, row_threads], [s.scratch]
+                capture.detect_contacts, (W, P, row_threads), [world, types, g, s.agents, row_threads], [s.scratch]
             ),
-            self.record(capture.count_capture_sharers, (W, Pc), [world, types, g], [s.agents, s.scratch, s.outputs]),
+            self.record(
+                capture.resolve_captures, (W, Pc), [world, types, g, s.worlds], [s.agents, s.scratch, s.outputs]
+            ),
             self.record(
                 capture.share_capture_rewards, (W, P), [world, types, g, s.scratch], [s.agents, s.outputs, s.worlds]
             ),

@@ -1,11 +1,13 @@
 """docs/model.md steps 5 and 6: captures after the move, reward sharing, starvation, respawn or removal;
 and step 8's rewards, which these passes finish (no pass of their own).
 
-Four passes keep every sum deterministic (no float atomics): predators mark the prey they overlap;
-each captured prey counts its sharers and takes the penalty; each predator sums its shares over the
-captured prey near it (in the grid's fixed order), resets its starvation counter if it captured,
-then starves by one step; captured prey respawn or are removed last, so the passes before all see
-the positions of the capture.
+Four passes keep every sum deterministic (no float atomics): predators mark the prey they overlap
+(contacts); each prey in contact decides whether it is captured (under capture confusion, one draw
+against p0 / (1 + c k), k its prey neighbours; a failed attempt clears the mark) and, if captured,
+counts its sharers and takes the penalty; each predator sums its shares over the captured prey near
+it (in the grid's fixed order), resets its starvation counter if it captured, then starves by one
+step; captured prey respawn or are removed last, so the passes before all see the positions of the
+capture.
 
 Rewards: a predator's is final at the end of the share pass, which adds it to the slot's episode sum
 (every predator slot, dead ones included, whose reward is this step's 0); a prey's is final once it
@@ -16,9 +18,9 @@ alive after it and the prey's reward to its episode sum. (Newborns, made later b
 The passes search the cell lists of the start-of-step positions (built by the last observation
 pass), not cell lists of the moved ones: every agent moved by at most its max speed since, so a
 search radius widened by the max speeds (`start_of_step_radius`) finds every pair that is within
-the capture or share radius now, and the exact test uses the moved positions. This saves a second
-cell-list build per step. (Whole-world lists hold every slot of the world, so there the widening
-changes nothing.)
+the capture, share or confusion radius now, and the exact test uses the moved positions. This saves
+a second cell-list build per step. (Whole-world lists hold every slot of the world, so there the
+widening changes nothing.)
 """
 
 import warp as wp
@@ -26,6 +28,7 @@ import warp as wp
 from .common import (
     PREDATOR,
     PREY,
+    PURPOSE_CAPTURE,
     PURPOSE_RESPAWN,
     AgentType,
     WorldParams,
@@ -49,7 +52,7 @@ def start_of_step_radius(world: WorldParams, w: int, radius: float, speed: float
     return radius + moved * (1.0 + 1.0e-5) + 1.0e-6 * (world.width + world.height)
 
 
-# Threads per predator in `detect_captures` on cell lists, each taking every CAPTURE_ROW_THREADS-th
+# Threads per predator in `detect_contacts` on cell lists, each taking every CAPTURE_ROW_THREADS-th
 # row of the predator's search square (3 rows at the default sizes): predators are few, so one thread
 # each would leave most of a GPU idle while they wait on their candidates' positions. (H200, one world
 # of 1M agents: 0.032 -> 0.024 ms.) Whole-world lists are one row: one thread per predator.
@@ -57,7 +60,7 @@ CAPTURE_ROW_THREADS = 3
 
 
 @wp.func
-def mark_captures(
+def mark_contacts(
     world: WorldParams,
     types: wp.array2d(dtype=AgentType),
     grid: CellLists,
@@ -68,9 +71,10 @@ def mark_captures(
     row_thread: int,
     row_threads: int,
 ):
-    """Predator p of world w (if live) marks the prey it overlaps in `scratch.captured`, searching every
-    `row_threads`-th row of its search square from `row_thread` on (concurrent writes of True to one
-    flag agree, so the rows need no combining)."""
+    """Predator p of world w (if live) marks the prey it overlaps in `scratch.captured` (a contact,
+    which `resolve_capture` then turns into a capture or not), searching every `row_threads`-th row of
+    its search square from `row_thread` on (concurrent writes of True to one flag agree, so the rows
+    need no combining)."""
     i = world.prey_capacity + p
     if not agents.alive[w, i]:
         return
@@ -95,26 +99,71 @@ def mark_captures(
 
 
 @wp.func
-def count_sharers(
+def confusing_prey(
+    world: WorldParams, types: wp.array2d(dtype=AgentType), grid: CellLists, agents: Agents, w: int, i: int
+) -> int:
+    """The number k of other live prey of world w strictly within `confusion_radius` of prey i, all at
+    their moved positions."""
+    pos = agents.position[w, i]
+    radius = world.values[w].confusion_radius
+    k = int(0)
+    walk = square_walk(
+        grid, w, world.capacity, pos, start_of_step_radius(world, w, radius, types[w, PREY].max_speed), 0, 1
+    )
+    while next_run(grid, walk):
+        for n in range(run_length(walk.runs)):
+            j = listed_slot(grid, run_entry(walk.runs, n), walk.base)
+            if j >= 0 and j != i and slot_type(world, j) == PREY:
+                d = torus_displacement(world, pos, agents.position[w, j])
+                if wp.dot(d, d) < radius * radius:
+                    k += 1
+    return k
+
+
+@wp.func
+def capture_draw(world: WorldParams, counters: WorldCounters, w: int, i: int) -> float:
+    """Prey slot i's draw u in [0, 1) that decides its contact in the step being finished."""
+    rng = random_stream(
+        counters.seed[w],
+        world.world_offset + w,
+        counters.episode[w],
+        counters.world_step[w] + 1,
+        i,
+        PURPOSE_CAPTURE,
+    )
+    return wp.randf(rng)
+
+
+@wp.func
+def resolve_capture(
     world: WorldParams,
     types: wp.array2d(dtype=AgentType),
     grid: CellLists,
     agents: Agents,
     scratch: Scratch,
     outputs: StepOutputs,
+    counters: WorldCounters,
     w: int,
     i: int,
 ):
-    """Prey slot i of world w, if captured, counts its sharers (`scratch.share_count`) and takes the
-    penalty; if live and not captured, it ages by one."""
+    """Prey slot i of world w, if in contact with a predator, is captured with probability
+    p0 / (1 + c k) (`confusing_prey`; no draw at p0 = 1, c = 0, where every contact captures); a failed
+    attempt clears its flag, so the later passes see only captures. A captured prey counts its sharers
+    (`scratch.share_count`) and takes the penalty; a live prey not captured ages by one."""
     if not agents.alive[w, i]:
         return
+    values = world.values[w]
+    if scratch.captured[w, i] and (values.capture_probability < 1.0 or values.capture_confusion > 0.0):
+        chance = values.capture_probability
+        if values.capture_confusion > 0.0:
+            chance = chance / (1.0 + values.capture_confusion * float(confusing_prey(world, types, grid, agents, w, i)))
+        if capture_draw(world, counters, w, i) >= chance:
+            scratch.captured[w, i] = False
     if not scratch.captured[w, i]:
         agents.age[w, i] = agents.age[w, i] + 1
         return
     pos = agents.position[w, i]
     contact = types[w, PREY].radius + types[w, PREDATOR].radius
-    values = world.values[w]
     share = wp.max(values.catch_share_radius, contact)
     sharers = int(0)
     radius = start_of_step_radius(world, w, share, types[w, PREDATOR].max_speed)
@@ -218,7 +267,7 @@ def respawn_or_remove(
 
 
 @wp.kernel
-def detect_captures(
+def detect_contacts(
     world: WorldParams,
     types: wp.array2d(dtype=AgentType),
     grid: CellLists,
@@ -226,23 +275,24 @@ def detect_captures(
     row_threads: int,
     scratch: Scratch,
 ):
-    """`mark_captures`, launched with `(worlds, predators, row_threads)` threads."""
+    """`mark_contacts`, launched with `(worlds, predators, row_threads)` threads."""
     w, p, row_thread = wp.tid()
-    mark_captures(world, types, grid, agents, scratch, w, p, row_thread, row_threads)
+    mark_contacts(world, types, grid, agents, scratch, w, p, row_thread, row_threads)
 
 
 @wp.kernel
-def count_capture_sharers(
+def resolve_captures(
     world: WorldParams,
     types: wp.array2d(dtype=AgentType),
     grid: CellLists,
+    counters: WorldCounters,
     agents: Agents,
     scratch: Scratch,
     outputs: StepOutputs,
 ):
-    """`count_sharers` for every prey slot."""
+    """`resolve_capture` for every prey slot."""
     w, i = wp.tid()
-    count_sharers(world, types, grid, agents, scratch, outputs, w, i)
+    resolve_capture(world, types, grid, agents, scratch, outputs, counters, w, i)
 
 
 @wp.kernel

@@ -22,6 +22,7 @@ PURPOSE_RESPAWN = wp.constant(2)
 PURPOSE_NEWBORN = wp.constant(3)
 PURPOSE_POLICY = wp.constant(4)
 PURPOSE_HEADING = wp.constant(5)  # a fresh agent's random heading, derived from its spawn stream
+PURPOSE_CAPTURE = wp.constant(6)  # whether a contact captures, under capture confusion
 
 
 @wp.struct
@@ -58,6 +59,9 @@ class WorldValues:
     prey_capture_penalty: float
     predator_reward: float
     catch_share_radius: float  # px
+    capture_probability: float  # p0: the chance that a contact captures a lone prey
+    capture_confusion: float  # c: p0 / (1 + c k) with k other prey within confusion_radius
+    confusion_radius: float  # px
     predator_starvation_steps: int
     replication_age_min: int  # ceil(0.75 * prey_replication_age)
     replication_age_max: int  # floor(1.25 * prey_replication_age)

@@ -5,7 +5,7 @@ The staged step (`WorldShard.step_program`) launches a kernel per stage, about t
 over every world's slots of one type. For small worlds those launches cost more than their work: a
 GPU is launch-bound below some thousands of worlds, and on the CPU each launch walks the whole batch
 again, out of cache. Here each world goes through the whole step in one launch, and each stage calls
-the very function that the stage's own kernel calls (`move_agent`, `mark_captures`, ..., `observe_row`),
+the very function that the stage's own kernel calls (`move_agent`, `mark_contacts`, ..., `observe_row`),
 with the same arguments, so the fused step computes what the staged one does.
 
 Lanes: where a world's slots fit a block of several lanes, `block_dim // capacity` consecutive worlds
@@ -24,8 +24,8 @@ the stores differ by type. Packed blocks assemble each type's rows in shared mem
 one run (the block's worlds are consecutive, so are their rows of each type), as
 `observation_kernel` does: a lane storing its row alone scatters a row's floats across the warp.
 
-Stages depend on each other's results across slots (prey count their sharers only once every predator
-has marked its captures; a predator sums shares only once every prey has counted its sharers; the
+Stages depend on each other's results across slots (prey resolve their captures only once every predator
+has marked its contacts; a predator sums shares only once every prey has counted its sharers; the
 respawn moves prey that the share pass reads ...), so a block barrier separates them. Warp 1.19 has
 no public barrier, but every in-place update of a shared tile element ends with one (`WP_TILE_SYNC`:
 `__syncthreads` on a GPU, a fiber switch on the CPU): each lane adds 0 to its own element of a
@@ -48,7 +48,7 @@ import functools
 
 import warp as wp
 
-from .capture import count_sharers, mark_captures, respawn_or_remove, share_rewards
+from .capture import mark_contacts, resolve_capture, respawn_or_remove, share_rewards
 from .common import PREDATOR, PREY, AgentType, WorldParams
 from .grid import CellLists
 from .motion import motion_stage
@@ -196,11 +196,11 @@ def _world_step_kernel(
         # 5-6: captures, sharers, shares and starvation, respawn or removal (and 8: the rewards of every
         # predator and prey slot, in the share and respawn passes).
         for p in range(first, predators, wp.static(lanes)):
-            mark_captures(world, types, grid, agents, scratch, w, p, 0, 1)
+            mark_contacts(world, types, grid, agents, scratch, w, p, 0, 1)
         if wp.static(block_dim > 1):
             barrier[lane] += 0
         for i in range(first, prey, wp.static(lanes)):
-            count_sharers(world, types, grid, agents, scratch, outputs, w, i)
+            resolve_capture(world, types, grid, agents, scratch, outputs, counters, w, i)
         if wp.static(block_dim > 1):
             barrier[lane] += 0
         for p in range(first, predators, wp.static(lanes)):

@@ -12,9 +12,11 @@ Conventions (see docs/model.md and the project's decisions):
   observation_range, prey_capacity, capacity, and per type (cfg.prey / cfg.predator): max_speed,
   max_steering_force, max_acceleration, mass, radius, view_distance, fov_angle (degrees),
   bounce_strength, predator_slots, prey_slots; optionally `flow` (an `aquarium_warp.config.FlowConfig`) and
-  `observe_flow` (absent: False); the ego-spec options `observation_frame` ("world" | "ego", absent:
-  "world"), `action_frame` ("world" | "ego", absent: "world") and `spawn_heading` ("paper" | "random",
-  absent: "paper"), so configs written before those options keep their meaning.
+  `observe_flow` (absent: False); capture confusion's `capture_probability` (absent: 1.0),
+  `capture_confusion` (absent: 0.0) and `confusion_radius`; the ego-spec options `observation_frame`
+  ("world" | "ego", absent: "world"), `action_frame` ("world" | "ego", absent: "world") and
+  `spawn_heading` ("paper" | "random", absent: "paper"), so configs written before those options keep
+  their meaning.
   A batch with per-world values is compared world by world on `world_config`s (one world's values, the
   batch's slot counts).
 * Slots ``[0, prey_capacity)`` are prey, ``[prey_capacity, capacity)`` are predators.
@@ -505,8 +507,8 @@ def observe(cfg, state: Mapping[str, np.ndarray], with_slots: bool = False, worl
 # --------------------------------------------------------------------------------------------------
 # Capture, starvation, ageing, reproduction, rewards, episode end (steps 5-10)
 # --------------------------------------------------------------------------------------------------
-def find_captures(cfg, state: Mapping[str, np.ndarray]) -> dict:
-    """{prey slot: [capturing predator slots]} for every live prey overlapped by a live predator."""
+def find_contacts(cfg, state: Mapping[str, np.ndarray]) -> dict:
+    """{prey slot: [overlapping predator slots]} for every live prey overlapped by a live predator."""
     out = {}
     for i in prey_slots(cfg):
         if not state["alive"][i]:
@@ -521,6 +523,23 @@ def find_captures(cfg, state: Mapping[str, np.ndarray]) -> dict:
         if capturers:
             out[i] = capturers
     return out
+
+
+def capture_chance(cfg, state: Mapping[str, np.ndarray], prey: int) -> float:
+    """The chance that a contact captures ``prey``: capture_probability / (1 + capture_confusion * k), k the
+    other live prey strictly within confusion_radius of it."""
+    p0 = float(getattr(cfg, "capture_probability", 1.0))
+    c = float(getattr(cfg, "capture_confusion", 0.0))
+    if c == 0.0:
+        return p0
+    k = sum(
+        1
+        for j in prey_slots(cfg)
+        if j != prey
+        and state["alive"][j]
+        and torus_distance(cfg, state["position"][prey], state["position"][j]) < float(cfg.confusion_radius)
+    )
+    return p0 / (1.0 + c * k)
 
 
 def capture_sharers(cfg, state: Mapping[str, np.ndarray], prey: int, capturers) -> list:
@@ -598,6 +617,7 @@ def step(
     newborn_replication_age=None,
     respawn_heading=None,
     newborn_heading=None,
+    capture_draw=None,
 ):
     """One full step of one world.
 
@@ -608,6 +628,8 @@ def step(
     one raises ValueError. With spawn_heading "random", the drawn headings are inputs too, the same way:
     ``respawn_heading`` (respawned prey; their velocity is that heading * 1) and ``newborn_heading``
     (children; their velocity stays zero), e.g. the kernel's post-step heading array. "paper" reads neither.
+    Under capture confusion, ``capture_draw`` (prey slot -> u in [0, 1), read the same way) decides each
+    contact whose capture chance p is strictly between 0 and 1: captured iff u < p.
 
     Returns (new_state, rewards (C,), terminated (C,), truncated (C,), captured (C,), info)."""
     start = as_state(cfg, state)
@@ -619,8 +641,12 @@ def step(
     terminated = np.zeros(c, bool)
     captured = np.zeros(c, bool)
 
-    # 5. capture (positions after the move)
-    captures = find_captures(cfg, moved)
+    # 5. capture (positions after the move): a contact captures with its chance
+    captures = {}
+    for prey, capturers in find_contacts(cfg, moved).items():
+        chance = capture_chance(cfg, moved, prey)
+        if chance >= 1.0 or (chance > 0.0 and float(_lookup(capture_draw, prey, "a capture draw")) < chance):
+            captures[prey] = capturers
     all_capturers = set()
     sharers_of = {}
     for prey, capturers in captures.items():

@@ -88,9 +88,10 @@ def step_byte_model(cfg: AquariumConfig, dims: tuple[int, int] | None = None, cu
         ]
     stages["grid"] = {"read": sum(b["read"] for b in build), "write": sum(b["write"] for b in build)}
 
-    # Captures and starvation. detect_captures, a few threads per predator (rows of its search
-    # square): read alive and position (the neighbour walk is a gather). count_capture_sharers, one
-    # thread per prey slot: read alive and captured, read-modify-write age. share_capture_rewards, one
+    # Captures and starvation. detect_contacts, a few threads per predator (rows of its search
+    # square): read alive and position (the neighbour walk is a gather). resolve_captures, one
+    # thread per prey slot: read alive and captured, read-modify-write age (without capture
+    # confusion; with it, contacted prey also read their neighbours, few per step). share_capture_rewards, one
     # thread per predator: read alive and position, read-modify-write starvation, write reward, and
     # read-modify-write its episode return (docs/model.md step 8). respawn_captured_prey, one thread per
     # prey slot: read captured, then step 8: read reward and alive, write reward (the survival

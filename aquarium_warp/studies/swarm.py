@@ -5,9 +5,11 @@ Part 1, the scenario screen (heuristics, no training). In 360-degree worlds, cap
 episode and the swarm measures of random, constant-heading, TurnAway and Boids prey (Boids: Reynolds
 flocking over the seen prey, fleeing a seen predator; the positive control of the measures), against
 NaivChase with confusion (a uniformly random visible target) and without it (the nearest), over
-density (prey per 800 x 800 torus), prey view distance and predator speed. A world's collective
-payoff is Boids' captures over TurnAway's: below 1, flocking lowers captures there. The scenario of
-part 2 is chosen from it.
+density (prey per 800 x 800 torus), prey view distance, predator speed and, with
+`--capture-confusion`, the capture confusion c of docs/model.md step 5 (a contact captures with
+probability 1 / (1 + c k), k the other prey within 100 px; the default 0 is the screen as first run:
+its tasks keep their names and kept results). A world's collective payoff is Boids' captures over
+TurnAway's: below 1, flocking lowers captures there. The scenario of part 2 is chosen from it.
 
 Part 2, learned prey (the learned-prey recipe: ego observations, random spawn headings, entropy 0.01)
 in the scenario world, `--seeds` training seeds per condition:
@@ -23,12 +25,31 @@ in the scenario world, `--seeds` training seeds per condition:
 | `swarm-2x` | twice the iterations | a budget that has not plateaued |
 | `slow-predator` | N = 16, predator max speed 3.5 (the prey's is 4) | the screen's world where flocking pays |
 | `slow-predator-no-neighbours` | the same, 0 prey slots | its neighbour control |
+| `confusion` | capture confusion c = 4, confusion_radius 100 px (`CONFUSION`) | |
+| `confusion-no-neighbours` | the same, 0 prey slots | structure without interaction |
+| `confusion-no-predation` | the same, capture_probability 0 (it never captures) | grouping not induced by predation |
+| `confusion-slow` | the same, predator max speed 4 (the prey's) | flocking paying only against a faster predator |
 
 (`no-attack` and `swarm-2x` were added after the first run, at eb9c892: its `no-predation` control, a
 zero penalty, turned out not to remove predation, since training ends a captured prey's life. The two
-`slow-predator` conditions were added after the screen's results, at 1d9a73b.)
+`slow-predator` conditions were added after the screen's results, at 1d9a73b. The four `confusion`
+conditions were added after all of these had run: capture confusion (docs/model.md step 5) makes a
+prey among many others harder to catch (Olson et al. 2013; Ioannou et al. 2012), which the first run
+found missing for aggregation to pay. Their contrasts: `confusion` minus `swarm` (the same world
+without capture confusion) and minus each of its three other conditions.)
 
-Every trained policy is evaluated in its own world against NaivChase, with its prey slots emptied
+c = 4 and the 100 px radius are declared here before any GPU run of them, after a CPU screen at a tiny
+size (N = 32, 200 px, 1,000 steps, 4 episodes x 2 seeds, `--capture-confusion 0,1,4,16`). Boids'
+captures over TurnAway's at c = 0, 1, 4 and 16: against NaivChase at speed 5, 3.7, 3.5, 2.5 and 1.5
+(Boids 1.26 -> 0.65 captures per prey at c = 4, TurnAway 0.34 -> 0.27); at speed 4, 5.2, 4.4, 3.7
+and 1.5; against NaivChase without target confusion at speed 5, 2.9, 2.1, 1.6 and 0.9. So confusion
+favours grouped prey at c = 4 without making Boids beat TurnAway at N = 32; only c = 16 did, and only
+against the nearest-target NaivChase. c = 16 would leave a prey with one neighbour within 100 px (a
+uniformly placed prey has 1.5 on average at N = 32) a 6% chance per contact, and captures rare: the
+first run found that rare captures leave little to learn from.
+
+Every trained policy is evaluated in its own world (the `confusion` conditions' with the capture
+confusion they trained with) against NaivChase, with its prey slots emptied
 (the neighbour ablation, `blind`), and against NaivChase without confusion, beside the four
 heuristics; the swarm measures are read against uniformly random prey in the same arena.
 
@@ -55,6 +76,7 @@ import time
 from collections.abc import Callable, Sequence
 
 from ..arguments import check_distinct, check_int, number_list
+from ..checks import LARGEST
 from ..records import command_line, json_safe, provenance
 from .common import policy_path, run_training_task
 from .jobs import read_finished, run_jobs, task_devices
@@ -63,6 +85,8 @@ from .statistics import difference, equivalence, finite, interval, mean_interval
 # The scenario: prey see all around, 200 px (reacting pays only with rear vision and range, see
 # docs/learned-prey.md); everything else is the paper's world.
 SCENARIO = ("env.prey.fov_angle=360", "env.prey.view_distance=200")
+# Capture confusion of the `confusion` conditions (docs/model.md step 5), declared before their first run.
+CONFUSION = ("env.capture_confusion=4", "env.confusion_radius=100")
 CONDITIONS: dict[str, dict] = {
     "swarm": {"prey": 32, "sets": (), "opponent": "naivchase"},
     "no-neighbours": {"prey": 32, "sets": ("env.prey.prey_slots=0",), "opponent": "naivchase"},
@@ -78,6 +102,11 @@ CONDITIONS: dict[str, dict] = {
         "sets": ("env.predator.max_speed=3.5", "env.prey.prey_slots=0"),
         "opponent": "naivchase",
     },
+    # A prey among many is harder to catch: can aggregation pay there?
+    "confusion": {"prey": 32, "sets": CONFUSION, "opponent": "naivchase"},
+    "confusion-no-neighbours": {"prey": 32, "sets": CONFUSION + ("env.prey.prey_slots=0",), "opponent": "naivchase"},
+    "confusion-no-predation": {"prey": 32, "sets": CONFUSION + ("env.capture_probability=0",), "opponent": "naivchase"},
+    "confusion-slow": {"prey": 32, "sets": CONFUSION + ("env.predator.max_speed=4",), "opponent": "naivchase"},
 }
 # "a minus b" comparisons between conditions (each against NaivChase): a treatment and its control.
 CONTRASTS = (
@@ -88,6 +117,10 @@ CONTRASTS = (
     ("swarm", "sparse"),
     ("swarm", "swarm-2x"),
     ("slow-predator", "slow-predator-no-neighbours"),
+    ("confusion", "swarm"),
+    ("confusion", "confusion-no-neighbours"),
+    ("confusion", "confusion-no-predation"),
+    ("confusion", "confusion-slow"),
 )
 # Evaluations of each trained policy: label -> (predator, prey slots emptied)
 EVALUATIONS = {
@@ -116,7 +149,8 @@ TRAIN_AGENT_STEPS = 32 * 256 * 32 * 500
 HELP = "can collective behaviour pay, and does it emerge in learned prey? (heuristic screen, learned prey, controls)"
 DESCRIPTION = (
     "Part screen: heuristic prey (random, constant, TurnAway, Boids) against NaivChase with and without "
-    "confusion over density, prey view distance and predator speed, with the aggregation index against "
+    "confusion over density, prey view distance, predator speed and capture confusion, with the aggregation "
+    "index against "
     "uniformly random prey. Part learned: train --seeds prey runs per condition (the swarm scenario and its "
     "controls), evaluate each with and without its prey slots and against NaivChase without confusion, "
     "and compare the conditions with 95% intervals and declared equivalence margins. Tasks keep their "
@@ -136,6 +170,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--view-distances", default="100,200,400", help="screen: prey view distances, px (360 deg)")
     parser.add_argument(
         "--predator-speeds", default="5,4.5,4,3.5", help="screen: predator max speeds (the prey's is 4)"
+    )
+    parser.add_argument(
+        "--capture-confusion",
+        default="0",
+        help="screen: capture confusion strengths c (docs/model.md step 5; confusion_radius 100 px), e.g. 0,1,4",
     )
     parser.add_argument("--conditions", default=",".join(CONDITIONS), help="learned: conditions to train")
     parser.add_argument("--seeds", type=int, default=5, help="learned: training seeds per condition (>= 2)")
@@ -166,7 +205,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def check(args) -> None:
     """A one-line `ValueError` naming the option unless every option is in range; sets the parsed lists
-    (`prey_count_list`, `view_list`, `speed_list`, `condition_list`)."""
+    (`prey_count_list`, `view_list`, `speed_list`, `confusion_list`, `condition_list`)."""
     conditions = [c for c in args.conditions.split(",") if c]
     unknown = [c for c in conditions if c not in CONDITIONS]
     if unknown or not conditions:
@@ -188,10 +227,12 @@ def check(args) -> None:
     args.prey_count_list = number_list(args.prey_counts, int, "--prey-counts", 2)
     args.view_list = number_list(args.view_distances, float, "--view-distances", 1)
     args.speed_list = number_list(args.predator_speeds, float, "--predator-speeds", 0, low_open=True)
+    args.confusion_list = number_list(args.capture_confusion, float, "--capture-confusion", 0, LARGEST)
     for name, values in (
         ("--prey-counts", args.prey_count_list),
         ("--view-distances", args.view_list),
         ("--predator-speeds", args.speed_list),
+        ("--capture-confusion", args.confusion_list),
     ):
         check_distinct(name, values)  # a repeated value would name one task twice
     args.condition_list = conditions
@@ -214,12 +255,18 @@ def run_part(
     ).results
 
 
-def screen_config(n: int, view: float, predator_speed: float, max_steps: int):
+def screen_config(n: int, view: float, predator_speed: float, max_steps: int, capture_confusion: float = 0.0):
     import dataclasses
 
     from ..config import AquariumConfig
 
-    cfg = AquariumConfig(prey_count=n, max_prey=max(n, 20), max_steps=max_steps, spawn_heading="random")
+    cfg = AquariumConfig(
+        prey_count=n,
+        max_prey=max(n, 20),
+        max_steps=max_steps,
+        spawn_heading="random",
+        capture_confusion=capture_confusion,
+    )
     return cfg.replace(
         prey=dataclasses.replace(cfg.prey, fov_angle=360.0, view_distance=view),
         predator=dataclasses.replace(cfg.predator, max_speed=predator_speed),
@@ -273,9 +320,10 @@ def run_heuristics(cfg, task: dict, device: str) -> dict:
 
 
 def run_screen_task(task: dict, device: str) -> dict:
-    return run_heuristics(
-        screen_config(task["prey"], task["view"], task["predator_speed"], task["max_steps"]), task, device
+    cfg = screen_config(
+        task["prey"], task["view"], task["predator_speed"], task["max_steps"], task.get("capture_confusion", 0.0)
     )
+    return run_heuristics(cfg, task, device)
 
 
 def policy_world(task: dict):
@@ -396,6 +444,7 @@ def summarize_screen(tasks: Sequence[dict], records: Sequence[dict]) -> list[dic
                     "prey_count": task["prey"],
                     "view_distance": task["view"],
                     "predator_speed": task["predator_speed"],
+                    "capture_confusion": task.get("capture_confusion", 0.0),
                     "prey_policy": p,
                     "predator_policy": q,
                 }
@@ -443,7 +492,7 @@ def summarize_learned(evaluations: Sequence[tuple[dict, dict]], baselines: Seque
         for a, b in CONTRASTS:
             if a in per and b in per:
                 compare(f"{a} minus {b}", per[a]["naivchase"], per[b]["naivchase"], m, False)
-        for c in ("swarm", "slow-predator"):
+        for c in ("swarm", "slow-predator", "confusion"):
             for prey in HEURISTIC_PREY:
                 if c in per and f"{prey}|naivchase" in per[c]:
                     compare(f"{c} minus {prey} prey", per[c]["naivchase"], per[c][f"{prey}|naivchase"], m, False)
@@ -451,20 +500,26 @@ def summarize_learned(evaluations: Sequence[tuple[dict, dict]], baselines: Seque
 
 
 def screen_tasks(args) -> list[dict]:
-    return [
-        {
-            "name": f"screen-n{n}-v{int(v)}-p{s:g}",
-            "prey": n,
-            "view": v,
-            "predator_speed": s,
-            "episodes": args.episodes,
-            "eval_seeds": args.eval_seeds,
-            "max_steps": args.max_steps,
-        }
-        for n in args.prey_count_list
-        for v in args.view_list
-        for s in args.speed_list
-    ]
+    """A task per screen world. A world without capture confusion (c = 0) is the task of the screen as
+    first run, with its name and without a `capture_confusion` key, so that its kept results stay valid."""
+    tasks = []
+    for n in args.prey_count_list:
+        for v in args.view_list:
+            for s in args.speed_list:
+                for c in args.confusion_list:
+                    task = {
+                        "name": f"screen-n{n}-v{int(v)}-p{s:g}" + (f"-c{c:g}" if c else ""),
+                        "prey": n,
+                        "view": v,
+                        "predator_speed": s,
+                        "episodes": args.episodes,
+                        "eval_seeds": args.eval_seeds,
+                        "max_steps": args.max_steps,
+                    }
+                    if c:
+                        task["capture_confusion"] = c
+                    tasks.append(task)
+    return tasks
 
 
 def training_tasks(args) -> list[dict]:
@@ -529,6 +584,7 @@ def run(args) -> int:
     summary: dict = {
         "design": {
             "scenario": SCENARIO,
+            "confusion": CONFUSION,
             "recipe": LEARNED_PREY_RECIPE,
             "conditions": CONDITIONS,
             "evaluations": EVALUATIONS,
@@ -599,7 +655,14 @@ def write_tables(out: str, summary: dict) -> None:
     from ..atomic import atomic_open
 
     if summary.get("screen"):
-        columns = ["prey_count", "view_distance", "predator_speed", "prey_policy", "predator_policy"]
+        columns = [
+            "prey_count",
+            "view_distance",
+            "predator_speed",
+            "capture_confusion",
+            "prey_policy",
+            "predator_policy",
+        ]
         with atomic_open(os.path.join(out, "screen.csv"), newline="") as f:
             w = csv.writer(f)
             w.writerow(columns + [f"{m}{s}" for m in MEASURES + (PRIMARY,) for s in ("", "_ci95")])
@@ -627,8 +690,9 @@ def write_tables(out: str, summary: dict) -> None:
 
 
 def plot(out: str, summary: dict) -> None:
-    """`screen.png`: Boids' captures over TurnAway's against density, per view distance, predator speed
-    and confusion; `learned.png`: the primary measure and captures per condition with 95% intervals."""
+    """`screen.png`: Boids' captures over TurnAway's against density, per view distance, predator speed,
+    NaivChase's confusion and capture confusion; `learned.png`: the primary measure and captures per
+    condition with 95% intervals."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -640,13 +704,17 @@ def plot(out: str, summary: dict) -> None:
         fig, axes = plt.subplots(
             len(PREDATORS), len(speeds), figsize=(3.6 * len(speeds), 3.2 * len(PREDATORS)), sharey=True, squeeze=False
         )
+        confusions = sorted({r["capture_confusion"] for r in rows})
         for i, (speed, predator) in enumerate((s, q) for s in speeds for q in PREDATORS):
             ax = axes[i % len(PREDATORS), i // len(PREDATORS)]
-            for view in sorted({r["view_distance"] for r in rows}):
+            for view, c in ((v, c) for v in sorted({r["view_distance"] for r in rows}) for c in confusions):
                 pick = {
                     (r["prey_count"], r["prey_policy"]): r
                     for r in rows
-                    if r["predator_speed"] == speed and r["view_distance"] == view and r["predator_policy"] == predator
+                    if r["predator_speed"] == speed
+                    and r["view_distance"] == view
+                    and r["capture_confusion"] == c
+                    and r["predator_policy"] == predator
                 }
                 counts = sorted({n for n, _ in pick})
                 ratio = [
@@ -654,7 +722,8 @@ def plot(out: str, summary: dict) -> None:
                     / max(pick[(n, "turnaway")]["captures_per_prey"]["mean"], 1e-9)
                     for n in counts
                 ]
-                ax.plot(counts, ratio, "o-", label=f"view {view:g} px")
+                label = f"view {view:g} px" + (f", c {c:g}" if len(confusions) > 1 else "")
+                ax.plot(counts, ratio, "o-", label=label)
             ax.axhline(1.0, color="grey", lw=0.8)
             ax.set_xscale("log", base=2)
             ax.set_yscale("log")

@@ -60,6 +60,12 @@ for _f in ("prey_reward", "prey_capture_penalty", "predator_reward"):
         WORLD_CASES.append((_f, _v, "a finite number"))
 for _v in (-1.0, -1e-9, NAN, INF, True, "100", None):
     WORLD_CASES.append(("catch_share_radius", _v, ">= 0"))
+for _v in (-0.1, 1.01, 2, NAN, INF, True, "1", None):
+    WORLD_CASES.append(("capture_probability", _v, "in [0, 1]"))
+for _v in (-1.0, -1e-9, NAN, INF, True, "4", None):
+    WORLD_CASES.append(("capture_confusion", _v, ">= 0"))
+for _v in (0.0, -1.0, NAN, INF, True, "100", None):
+    WORLD_CASES.append(("confusion_radius", _v, "> 0"))
 for _v in (-1, 1.5, 3000.0, True, NAN, None):
     WORLD_CASES.append(("predator_starvation_steps", _v, "an integer >= 0"))
 for _v in (0, -1, 200.0, True, NAN, None):
@@ -183,6 +189,12 @@ VALID_CASES = [
     ("catch_share_radius", 0.0),
     ("catch_share_radius", 0),
     ("catch_share_radius", 1e9),
+    ("capture_probability", 0.0),
+    ("capture_probability", 1),
+    ("capture_probability", 0.25),
+    ("capture_confusion", 0),
+    ("capture_confusion", 4.0),
+    ("confusion_radius", 1e9),
     ("predator_starvation_steps", 0),
     ("prey_replication_age", 1),
     ("max_prey", 1),
@@ -373,6 +385,9 @@ FLOAT32_CASES = [
     ("prey_replication_age", 1717986918, 1717986917, "<= 1717986917"),
     ("catch_share_radius", 0.99e-15, 1e-15, "0 or in [1e-15, 1e+15]"),
     ("catch_share_radius", 1.01e15, 1e15, "0 or in [1e-15, 1e+15]"),
+    ("capture_confusion", 1.01e15, 1e15, "in [0, 1e+15]"),
+    ("confusion_radius", 0.99e-15, 1e-15, "in [1e-15, 1e+15]"),
+    ("confusion_radius", 1.01e15, 1e15, "in [1e-15, 1e+15]"),
     # |reward| x max_steps (3000) x prey slots (16) <= 1e38
     ("prey_reward", 1e39, 1e38 / 48000, "1e38 / (max_steps x prey slots)"),
     ("prey_capture_penalty", -1e39, -1e38 / 48000, "1e38 / (max_steps x prey slots)"),

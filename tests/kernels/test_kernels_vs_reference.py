@@ -6,7 +6,8 @@ squared distances at the start of a step are exact in float32 and ties are ties 
 edge cases: exact overlaps, agents across the seams, zero velocities, exact distance ties, agents exactly at
 contact distance and at view distance, displacements of exactly half the world. The kernel's float32 inputs
 are fed to the reference as float64. Random draws (respawn positions, replication ages of respawned and
-newborn prey) belong to the kernels: the reference reads them from the kernel's post-step state.
+newborn prey) belong to the kernels: the reference reads them from the kernel's post-step state, and the
+capture draws of capture confusion from the kernels' own draw function (`capture_draws`, before the step).
 
 Tolerances: 1e-5 for positions (as fractions of width/height, torus-aware), velocities, accelerations,
 headings and observation values; angle values (own heading, bearing) are compared on the circle, because
@@ -33,9 +34,13 @@ import pytest
 torch = pytest.importorskip("torch")
 aquarium_warp = pytest.importorskip("aquarium_warp")
 import reference_model as ref  # noqa: E402
+import warp as wp  # noqa: E402
 
 from aquarium_warp import AquariumConfig, BatchedAquarium  # noqa: E402
 from aquarium_warp.config import FlowConfig  # noqa: E402
+from aquarium_warp.kernels.capture import capture_draw  # noqa: E402
+from aquarium_warp.kernels.common import WorldParams  # noqa: E402
+from aquarium_warp.kernels.state import WorldCounters  # noqa: E402
 
 TOL = 1e-5
 NUM_WORLDS = 4
@@ -152,6 +157,21 @@ CONFIGS["per_world_flow_and_values_cells"] = dataclasses.replace(
 CONFIGS["vortex_observed"] = dataclasses.replace(CONFIGS["vortex_time_varying"], observe_flow=True)
 CONFIGS["per_world_flow_observed_signed"] = dataclasses.replace(
     CONFIGS["per_world_flow_and_values"], observe_flow=True, observation_range="-1..1"
+)
+# Capture confusion (docs/model.md step 5), per world: none (every contact captures), confusion
+# alone, a lower base chance with confusion, and a predator that never captures; in worlds of one cell
+# and of cells (the confusion search across cell borders).
+CONFIGS["capture_confusion_per_world"] = make_config(
+    width=240.0,
+    height=220.0,
+    prey_count=14,
+    predator_count=3,
+    capture_probability=(1.0, 1.0, 0.7, 0.0),
+    capture_confusion=(0.0, 1.5, 4.0, 2.0),
+    confusion_radius=(100.0, 60.0, 35.5, 100.0),
+)
+CONFIGS["capture_confusion_per_world_cells"] = dataclasses.replace(
+    CONFIGS["capture_confusion_per_world"], grid_cell_size=30.0
 )
 
 
@@ -350,6 +370,25 @@ def random_actions(rng, cfg, n_worlds) -> np.ndarray:
     return rng.integers(0, cfg.action_count, (n_worlds, cfg.capacity))
 
 
+@wp.kernel
+def read_capture_draws(world: WorldParams, counters: WorldCounters, draws: wp.array2d(dtype=float)):
+    w, i = wp.tid()
+    draws[w, i] = capture_draw(world, counters, w, i)
+
+
+def capture_draws(env) -> np.ndarray:
+    """``[W, prey_capacity]``: the draws that decide each prey's contact in the env's next step, by the
+    kernels' own draw function (read before the step: they are keyed by its step counter)."""
+    out = []
+    for shard in env.shards:
+        draws = wp.zeros((shard.num_worlds, env.prey_capacity), dtype=float, device=env.device)
+        wp.launch(
+            read_capture_draws, dim=draws.shape, inputs=[shard.world, shard.state.worlds, draws], device=env.device
+        )
+        out.append(draws.numpy())
+    return np.concatenate(out)
+
+
 def kernel_step(env, actions: np.ndarray):
     Pc = env.config.prey_capacity
     a = torch.as_tensor(actions, dtype=torch.int64).to(getattr(env, "torch_device", "cpu"))
@@ -495,6 +534,7 @@ def compare_flags(cfg, where, name, kernel: dict, reference: np.ndarray, errors,
 def check_step(name: str, cfg, env, starts: list, actions: np.ndarray, errors: list, step_label: str = "") -> list:
     """Step the kernel env (already holding ``starts``) and compare every world with the reference.
     Returns the kernel's post-step worlds."""
+    draws = capture_draws(env)
     obs, rewards, terminated, truncated, info = kernel_step(env, actions)
     k_obs = {k: v.detach().cpu().numpy().copy() for k, v in obs.items()}
     k_mask = {k: v.detach().cpu().numpy().copy() for k, v in env.observation_mask.items()}
@@ -518,6 +558,7 @@ def check_step(name: str, cfg, env, starts: list, actions: np.ndarray, errors: l
             newborn_replication_age=after[w]["replication_age"],
             respawn_heading=after[w]["heading"],  # read only with spawn_heading "random" (the kernel's draw)
             newborn_heading=after[w]["heading"],
+            capture_draw=draws[w],
         )
         n_before = len(errors)
         pick = lambda d, w=w: {k: v[w] for k, v in d.items()}  # noqa: E731

@@ -362,6 +362,57 @@ def test_dead_agents_are_ignored_by_contact_capture_and_vision():
 # --------------------------------------------------------------------------------------------------
 # Capture, starvation, reproduction, truncation
 # --------------------------------------------------------------------------------------------------
+# Capture confusion: prey 0 (cruising, (10, 400) -> (10, 396)) in contact with the predator at (10, 440);
+# the other prey, cruising too (4 px up), at least 40 px from each other (no same-type contact) and out of
+# the predator's contact. confusion_radius 50 in an 800 x 800 world.
+CONFUSION_CASES = {
+    # name: (capture_probability, capture_confusion, other prey's start positions, chance)
+    "no confusion: p0": (0.7, 0.0, [(55.0, 400.0)], 0.7),
+    "lone prey": (1.0, 4.0, [(400.0, 400.0)], 1.0),
+    "k = 3, one across the seam": (1.0, 1.0, [(765.0, 400.0), (10.0, 355.0), (55.0, 400.0)], 0.25),
+    "exactly at the radius: not counted": (1.0, 1.0, [(760.0, 400.0), (10.0, 350.0)], 1.0),
+    "p0 = 0.6, c = 2, k = 1": (0.6, 2.0, [(55.0, 400.0), (400.0, 400.0)], 0.2),
+    "p0 = 0": (0.0, 3.0, [(55.0, 400.0)], 0.0),
+}
+
+
+@pytest.mark.parametrize("case", list(CONFUSION_CASES))
+def test_capture_chance(case):
+    p0, c, others, chance = CONFUSION_CASES[case]
+    cfg = make_cfg(
+        prey_count=1 + len(others),
+        capture_probability=p0,
+        capture_confusion=c,
+        confusion_radius=50.0,
+    )
+    st = make_world(
+        cfg, prey=[cruise_prey((10.0, 400.0))] + [cruise_prey(p) for p in others], predators=[agent((10.0, 440.0))]
+    )
+    moved = ref.motion(cfg, ref.as_state(cfg, st), zeros_actions(cfg))
+    assert ref.capture_chance(cfg, moved, 0) == pytest.approx(chance, rel=1e-12)
+    draw = {0: chance - 1e-9, 1: 0.0, 2: 0.0, 3: 0.0}  # just below the chance: a capture where it is > 0
+    kw = dict(respawn_position={0: (1.0, 1.0)}, respawn_replication_age={0: 200})
+    *_, captured, info = ref.step(cfg, st, zeros_actions(cfg), 0, capture_draw=draw, **kw)
+    assert list(info["capturers"]) == ([0] if chance > 0 else []) and captured[0] == (chance > 0)
+    if 0 < chance < 1:
+        *_, captured, info = ref.step(cfg, st, zeros_actions(cfg), 0, capture_draw={0: chance}, **kw)
+        assert info["captures"] == 0 and not captured[0]  # captured iff u < p: not at u = p
+        with pytest.raises(ValueError, match="a capture draw for slot 0"):
+            ref.step(cfg, st, zeros_actions(cfg), 0, **kw)
+    else:
+        ref.step(cfg, st, zeros_actions(cfg), 0, **kw)  # chance 0 or 1: no draw needed
+
+
+def test_failed_capture_attempt_is_no_capture():
+    """A contact that does not capture: survival reward, ageing, no share and no feeding of the predator."""
+    cfg = make_cfg(prey_count=1, predator_count=1, capture_probability=0.5, respawn_captured_prey=False)
+    st = make_world(cfg, prey=[cruise_prey((400.0, 400.0), age=7)], predators=[agent((400.0, 420.0), starve=5)])
+    new, rewards, term, trunc, captured, info = ref.step(cfg, st, zeros_actions(cfg), 0, capture_draw={0: 0.5})
+    assert info["captures"] == 0 and not captured.any() and not term.any()
+    assert rewards.tolist() == [1.0, 0.0]
+    assert new["age"][0] == 8 and new["alive"][0] and new["starvation"][1] == 6
+
+
 def test_capture_shared_by_two_predators():
     cfg = make_cfg(prey_count=1, predator_count=3, predator_starvation_steps=3000)
     st = make_world(

@@ -19,8 +19,8 @@ from aquarium_warp.bench import command_name, density_config
 
 STAGED = [
     "integrate_motion",
-    "detect_captures",
-    "count_capture_sharers",
+    "detect_contacts",
+    "resolve_captures",
     "share_capture_rewards",
     "respawn_captured_prey",
     "finish_world_step",

@@ -87,6 +87,17 @@ CASES = {
         {},
     ),
     "shards": (BASE, 70, 100, {"cpu_threads": 2}),
+    "capture confusion, per world": (
+        dataclasses.replace(
+            SMALL,
+            capture_probability=(1.0, 0.8, 0.0, 1.0),
+            capture_confusion=(3.0, 1.0, 2.0, 0.0),
+            confusion_radius=(100.0, 40.0, 100.0, 100.0),
+        ),
+        4,
+        300,
+        {},
+    ),
 }
 
 

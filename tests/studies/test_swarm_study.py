@@ -1,11 +1,13 @@
 """The swarm study (`aquarium-warp study swarm`, issue #30) on the CPU: its screen part end to end on a
 tiny grid (a row per heuristic prey x predator, the aggregation index from the uniform prey's
-nearest-neighbour distance, a rerun that runs no task), its learned part end to end, the
-training runs' configs against `aquarium-warp train`'s, and its option checks."""
+nearest-neighbour distance, a rerun that runs no task), with a capture-confusion axis, its learned
+part end to end (the capture-confusion conditions too), the training runs' configs against
+`aquarium-warp train`'s, and its option checks."""
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 
@@ -71,6 +73,27 @@ def test_the_screen_end_to_end_and_a_rerun_runs_nothing(tmp_path, capsys, one_th
     assert json.loads((out / "summary.json").read_text())["screen"] == rows
 
 
+def test_the_screen_with_capture_confusion_keeps_the_worlds_without_it(tmp_path, capsys, one_thread):
+    """`--capture-confusion 0,4`: the c = 0 world is the screen's task as before (its name, its kept
+    result); the c = 4 world is a task of its own, its env has the confusion, and its rows say so."""
+    out = tmp_path / "swarm"
+    assert main(SCREEN + ["--out", str(out)]) == 0
+    plain = out / FINISHED_DIR / "screen-n4-v200-p5.json"
+    before = plain.read_bytes()
+    capsys.readouterr()
+    assert main(SCREEN + ["--capture-confusion", "0,4", "--out", str(out)]) == 0
+    assert "(1 to run)" in capsys.readouterr().out
+    assert plain.read_bytes() == before
+    confused = json.loads((out / FINISHED_DIR / "screen-n4-v200-p5-c4.json").read_text())["result"]
+    assert confused["env"]["capture_confusion"] == 4.0 and confused["env"]["confusion_radius"] == 100.0
+    assert json.loads(before)["result"]["env"]["capture_confusion"] == 0.0
+    rows = json.loads((out / "summary.json").read_text())["screen"]
+    pairs = len(swarm.HEURISTIC_PREY) * len(swarm.PREDATORS)
+    assert [r["capture_confusion"] for r in rows] == [0.0] * pairs + [4.0] * pairs
+    header = (out / "screen.csv").read_text().splitlines()[0].split(",")
+    assert header[:4] == ["prey_count", "view_distance", "predator_speed", "capture_confusion"]
+
+
 def options(**changes) -> argparse.Namespace:
     parser = argparse.ArgumentParser()
     swarm.add_arguments(parser)
@@ -97,6 +120,9 @@ def options(**changes) -> argparse.Namespace:
         ({"view_distances": "0.5"}, "--view-distances"),
         ({"predator_speeds": "5,0"}, "--predator-speeds"),
         ({"predator_speeds": "five"}, "--predator-speeds"),
+        ({"capture_confusion": "-1"}, "--capture-confusion"),
+        ({"capture_confusion": "0,1e16"}, "--capture-confusion"),
+        ({"capture_confusion": "4,4"}, "--capture-confusion"),
     ],
 )
 def test_check_refuses_bad_options_naming_them(changes, option):
@@ -111,6 +137,7 @@ def test_check_accepts_the_defaults_and_parses_the_lists():
     swarm.check(args)
     assert args.prey_count_list == [8, 16, 32, 64] and args.view_list == [100.0, 200.0, 400.0]
     assert args.speed_list == [5.0, 4.5, 4.0, 3.5] and args.condition_list == list(swarm.CONDITIONS)
+    assert args.confusion_list == [0.0]
 
 
 def test_a_bad_option_is_one_line_and_writes_nothing(tmp_path, capsys):
@@ -236,6 +263,60 @@ LEARNED = [
     "0",
     "--no-figures",
 ]
+
+
+def test_the_confusion_conditions_train_in_their_worlds():
+    """The capture-confusion conditions: the swarm scenario (N = 32, 360 degrees, 200 px) with c = 4
+    and a 100 px radius, and each control's one change."""
+    from aquarium_warp.training.config import env_config
+
+    args = options()
+    swarm.check(args)
+    worlds = {c: env_config(swarm.run_config(args, c, 0)) for c in swarm.CONDITIONS if c.startswith("confusion")}
+    assert set(worlds) == {"confusion", "confusion-no-neighbours", "confusion-no-predation", "confusion-slow"}
+    swarm_world = env_config(swarm.run_config(args, "swarm", 0))
+    base = worlds["confusion"]
+    assert base == swarm_world.replace(capture_confusion=4.0, confusion_radius=100.0)
+    assert (base.prey_count, base.prey.fov_angle, base.prey.view_distance) == (32, 360.0, 200.0)
+    assert base.capture_probability == 1.0 and base.predator.max_speed == 5.0 and base.prey.prey_slots == 3
+    assert worlds["confusion-no-neighbours"] == base.replace(prey=dataclasses.replace(base.prey, prey_slots=0))
+    assert worlds["confusion-no-predation"] == base.replace(capture_probability=0.0)
+    assert worlds["confusion-slow"] == base.replace(predator=dataclasses.replace(base.predator, max_speed=4.0))
+    for control in ("swarm", "confusion-no-neighbours", "confusion-no-predation", "confusion-slow"):
+        assert ("confusion", control) in swarm.CONTRASTS
+
+
+CONFUSION_LEARNED = [
+    "confusion,confusion-no-neighbours,confusion-no-predation,confusion-slow" if a == "no-neighbours" else a
+    for a in LEARNED
+]
+
+
+@pytest.mark.slow
+def test_the_confusion_conditions_end_to_end(tmp_path, capsys, one_thread):
+    """The four capture-confusion conditions train, and each policy is evaluated in its own world
+    (with the confusion it was trained with): the never-capturing predator catches nothing there; the
+    declared contrasts are made."""
+    out = tmp_path / "swarm"
+    assert main(CONFUSION_LEARNED + ["--out", str(out)]) == 0
+    assert "training 4 conditions x 2 seeds (8 to run)" in capsys.readouterr().out
+    summary = json.loads((out / "summary.json").read_text())
+    conditions = summary["learned"]["conditions"]
+    assert list(conditions) == ["confusion", "confusion-no-neighbours", "confusion-no-predation", "confusion-slow"]
+    for c, entry in conditions.items():
+        assert entry["seeds"] == [0, 1] and entry["naivchase"][swarm.PRIMARY]["n"] == 2
+        assert ("blind" in entry) == (c != "confusion-no-neighbours")
+        evaluated = json.loads((out / FINISHED_DIR / f"eval-{c}-s0.json").read_text())["result"]["env"]
+        assert evaluated["capture_confusion"] == 4.0 and evaluated["confusion_radius"] == 100.0
+        assert evaluated["capture_probability"] == (0.0 if c == "confusion-no-predation" else 1.0)
+        assert evaluated["predator"]["max_speed"] == (4.0 if c == "confusion-slow" else 5.0)
+    no_predation = conditions["confusion-no-predation"]
+    for label in ("naivchase", "blind", "noconfusion", "boids|naivchase", "turnaway|naivchase"):
+        assert no_predation[label]["captures_per_prey"]["mean"] == 0.0
+    made = {c["comparison"] for c in summary["learned"]["comparisons"]}
+    for control in ("confusion-no-neighbours", "confusion-no-predation", "confusion-slow"):
+        assert f"confusion minus {control}" in made
+    assert "confusion minus boids prey" in made
 
 
 def test_the_learned_part_end_to_end_and_a_rerun_runs_nothing(tmp_path, capsys, one_thread):
