@@ -25,28 +25,30 @@ in the scenario world, `--seeds` training seeds per condition:
 | `swarm-2x` | twice the iterations | a budget that has not plateaued |
 | `slow-predator` | N = 16, predator max speed 3.5 (the prey's is 4) | the screen's world where flocking pays |
 | `slow-predator-no-neighbours` | the same, 0 prey slots | its neighbour control |
-| `confusion` | capture confusion c = 4, confusion_radius 100 px (`CONFUSION`) | |
+| `confusion` | capture confusion c = 16 within 100 px (`CONFUSION`), NaivChase without target confusion | |
 | `confusion-no-neighbours` | the same, 0 prey slots | structure without interaction |
 | `confusion-no-predation` | the same, capture_probability 0 (it never captures) | grouping not induced by predation |
-| `confusion-slow` | the same, predator max speed 4 (the prey's) | flocking paying only against a faster predator |
+| `confusion-mild` | the same with c = 4 | the dose of capture confusion |
+| (`no-confusion`) | the same without capture confusion (c = 0): the condition above | capture confusion's role |
 
 (`no-attack` and `swarm-2x` were added after the first run, at eb9c892: its `no-predation` control, a
 zero penalty, turned out not to remove predation, since training ends a captured prey's life. The two
 `slow-predator` conditions were added after the screen's results, at 1d9a73b. The four `confusion`
 conditions were added after all of these had run: capture confusion (docs/model.md step 5) makes a
 prey among many others harder to catch (Olson et al. 2013; Ioannou et al. 2012), which the first run
-found missing for aggregation to pay. Their contrasts: `confusion` minus `swarm` (the same world
-without capture confusion) and minus each of its three other conditions.)
+found missing for aggregation to pay. Their contrasts: `confusion` minus each of its controls and
+minus `no-confusion`, the same world and predator without capture confusion.)
 
-c = 4 and the 100 px radius are declared here before any GPU run of them, after a CPU screen at a tiny
-size (N = 32, 200 px, 1,000 steps, 4 episodes x 2 seeds, `--capture-confusion 0,1,4,16`). Boids'
-captures over TurnAway's at c = 0, 1, 4 and 16: against NaivChase at speed 5, 3.7, 3.5, 2.5 and 1.5
-(Boids 1.26 -> 0.65 captures per prey at c = 4, TurnAway 0.34 -> 0.27); at speed 4, 5.2, 4.4, 3.7
-and 1.5; against NaivChase without target confusion at speed 5, 2.9, 2.1, 1.6 and 0.9. So confusion
-favours grouped prey at c = 4 without making Boids beat TurnAway at N = 32; only c = 16 did, and only
-against the nearest-target NaivChase. c = 16 would leave a prey with one neighbour within 100 px (a
-uniformly placed prey has 1.5 on average at N = 32) a 6% chance per contact, and captures rare: the
-first run found that rare captures leave little to learn from.
+The design of the `confusion` conditions is declared here before any GPU run of them, from a CPU
+screen at a tiny size (N = 32, 200 px, 1,000 steps, 4 episodes x 2 seeds, `--capture-confusion
+0,1,4,16`). Boids' captures over TurnAway's at c = 0, 1, 4 and 16: against NaivChase at speed 5,
+3.7, 3.5, 2.5 and 1.5; at speed 4, 5.2, 4.4, 3.7 and 1.5; against NaivChase without target
+confusion at speed 5, 2.9, 2.1, 1.6 and 0.9. Only c = 16 against the nearest-target NaivChase
+brought flocking below TurnAway, so that is the `confusion` world: a prey with one neighbour within
+100 px is caught by a contact with probability 1/17, a lone prey always. Its predator in training and
+in the comparisons (`evaluated`: the `noconfusion` evaluation) is NaivChase without target
+confusion, so that capture confusion is the only confusion at work. `confusion-mild` (c = 4) is the
+dose below it.
 
 Every trained policy is evaluated in its own world (the `confusion` conditions' with the capture
 confusion they trained with) against NaivChase, with its prey slots emptied
@@ -86,7 +88,10 @@ from .statistics import difference, equivalence, finite, interval, mean_interval
 # docs/learned-prey.md); everything else is the paper's world.
 SCENARIO = ("env.prey.fov_angle=360", "env.prey.view_distance=200")
 # Capture confusion of the `confusion` conditions (docs/model.md step 5), declared before their first run.
-CONFUSION = ("env.capture_confusion=4", "env.confusion_radius=100")
+CONFUSION = ("env.capture_confusion=16", "env.confusion_radius=100")
+# The `confusion` conditions' predator, in training and in their comparisons (`evaluated`: the label
+# of `EVALUATIONS` a condition is compared on; "naivchase" where absent).
+NEAREST = {"opponent": "naivchase-noconfusion", "evaluated": "noconfusion"}
 CONDITIONS: dict[str, dict] = {
     "swarm": {"prey": 32, "sets": (), "opponent": "naivchase"},
     "no-neighbours": {"prey": 32, "sets": ("env.prey.prey_slots=0",), "opponent": "naivchase"},
@@ -103,12 +108,12 @@ CONDITIONS: dict[str, dict] = {
         "opponent": "naivchase",
     },
     # A prey among many is harder to catch: can aggregation pay there?
-    "confusion": {"prey": 32, "sets": CONFUSION, "opponent": "naivchase"},
-    "confusion-no-neighbours": {"prey": 32, "sets": CONFUSION + ("env.prey.prey_slots=0",), "opponent": "naivchase"},
-    "confusion-no-predation": {"prey": 32, "sets": CONFUSION + ("env.capture_probability=0",), "opponent": "naivchase"},
-    "confusion-slow": {"prey": 32, "sets": CONFUSION + ("env.predator.max_speed=4",), "opponent": "naivchase"},
+    "confusion": {"prey": 32, "sets": CONFUSION, **NEAREST},
+    "confusion-no-neighbours": {"prey": 32, "sets": CONFUSION + ("env.prey.prey_slots=0",), **NEAREST},
+    "confusion-no-predation": {"prey": 32, "sets": CONFUSION + ("env.capture_probability=0",), **NEAREST},
+    "confusion-mild": {"prey": 32, "sets": ("env.capture_confusion=4", "env.confusion_radius=100"), **NEAREST},
 }
-# "a minus b" comparisons between conditions (each against NaivChase): a treatment and its control.
+# "a minus b" comparisons between conditions, both on a's `evaluated` label: a treatment and its control.
 CONTRASTS = (
     ("swarm", "no-neighbours"),
     ("swarm", "no-attack"),
@@ -117,10 +122,10 @@ CONTRASTS = (
     ("swarm", "sparse"),
     ("swarm", "swarm-2x"),
     ("slow-predator", "slow-predator-no-neighbours"),
-    ("confusion", "swarm"),
+    ("confusion", "no-confusion"),
     ("confusion", "confusion-no-neighbours"),
     ("confusion", "confusion-no-predation"),
-    ("confusion", "confusion-slow"),
+    ("confusion", "confusion-mild"),
 )
 # Evaluations of each trained policy: label -> (predator, prey slots emptied)
 EVALUATIONS = {
@@ -490,12 +495,15 @@ def summarize_learned(evaluations: Sequence[tuple[dict, dict]], baselines: Seque
                 if label in entry:
                     compare(f"{c}: vs NaivChase minus {what} (paired)", entry["naivchase"], entry[label], m, True)
         for a, b in CONTRASTS:
-            if a in per and b in per:
-                compare(f"{a} minus {b}", per[a]["naivchase"], per[b]["naivchase"], m, False)
+            label = CONDITIONS[a].get("evaluated", "naivchase")
+            if a in per and b in per and label in per[b]:
+                compare(f"{a} minus {b}", per[a][label], per[b][label], m, False)
         for c in ("swarm", "slow-predator", "confusion"):
+            label = CONDITIONS[c].get("evaluated", "naivchase")
+            heuristic = f"|{EVALUATIONS[label][0]}"
             for prey in HEURISTIC_PREY:
-                if c in per and f"{prey}|naivchase" in per[c]:
-                    compare(f"{c} minus {prey} prey", per[c]["naivchase"], per[c][f"{prey}|naivchase"], m, False)
+                if c in per and f"{prey}{heuristic}" in per[c]:
+                    compare(f"{c} minus {prey} prey", per[c][label], per[c][f"{prey}{heuristic}"], m, False)
     return {"conditions": per, "comparisons": comparisons}
 
 
@@ -740,9 +748,12 @@ def plot(out: str, summary: dict) -> None:
         for ax, measure in zip(axes, (PRIMARY, "captures_per_prey"), strict=True):
             labels, means, errs = [], [], []
             for c, entry in learned.items():
-                for label in list(EVALUATIONS) + [f"{p}|naivchase" for p in HEURISTIC_PREY]:
-                    if label in entry and (c == "swarm" or label in EVALUATIONS):
-                        labels.append(f"{c}\n{label.replace('|naivchase', '')}")
+                # Heuristic prey beside the two scenarios, against the predator each is compared with.
+                predator = EVALUATIONS[CONDITIONS[c].get("evaluated", "naivchase")][0]
+                heuristics = [f"{p}|{predator}" for p in HEURISTIC_PREY] if c in ("swarm", "confusion") else []
+                for label in list(EVALUATIONS) + heuristics:
+                    if label in entry:
+                        labels.append(f"{c}\n{label.split('|')[0]}")
                         means.append(entry[label][measure]["mean"])
                         errs.append(entry[label][measure]["ci95"] or 0.0)
             ax.bar(range(len(labels)), means, yerr=errs, capsize=3)

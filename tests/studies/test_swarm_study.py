@@ -266,57 +266,69 @@ LEARNED = [
 
 
 def test_the_confusion_conditions_train_in_their_worlds():
-    """The capture-confusion conditions: the swarm scenario (N = 32, 360 degrees, 200 px) with c = 4
-    and a 100 px radius, and each control's one change."""
+    """The capture-confusion conditions: the swarm scenario (N = 32, 360 degrees, 200 px) with c = 16
+    and a 100 px radius, trained against NaivChase without target confusion (as `no-confusion`, their
+    c = 0 control), each control with its one change, compared on that predator's evaluation."""
     from aquarium_warp.training.config import env_config
 
     args = options()
     swarm.check(args)
-    worlds = {c: env_config(swarm.run_config(args, c, 0)) for c in swarm.CONDITIONS if c.startswith("confusion")}
-    assert set(worlds) == {"confusion", "confusion-no-neighbours", "confusion-no-predation", "confusion-slow"}
-    swarm_world = env_config(swarm.run_config(args, "swarm", 0))
+    configs = {c: swarm.run_config(args, c, 0) for c in swarm.CONDITIONS if c.startswith("confusion")}
+    worlds = {c: env_config(config) for c, config in configs.items()}
+    assert set(worlds) == {"confusion", "confusion-no-neighbours", "confusion-no-predation", "confusion-mild"}
+    control = env_config(swarm.run_config(args, "no-confusion", 0))
     base = worlds["confusion"]
-    assert base == swarm_world.replace(capture_confusion=4.0, confusion_radius=100.0)
+    assert base == control.replace(capture_confusion=16.0, confusion_radius=100.0)
     assert (base.prey_count, base.prey.fov_angle, base.prey.view_distance) == (32, 360.0, 200.0)
     assert base.capture_probability == 1.0 and base.predator.max_speed == 5.0 and base.prey.prey_slots == 3
     assert worlds["confusion-no-neighbours"] == base.replace(prey=dataclasses.replace(base.prey, prey_slots=0))
     assert worlds["confusion-no-predation"] == base.replace(capture_probability=0.0)
-    assert worlds["confusion-slow"] == base.replace(predator=dataclasses.replace(base.predator, max_speed=4.0))
-    for control in ("swarm", "confusion-no-neighbours", "confusion-no-predation", "confusion-slow"):
-        assert ("confusion", control) in swarm.CONTRASTS
+    assert worlds["confusion-mild"] == base.replace(capture_confusion=4.0)
+    for c, config in configs.items():
+        assert config["train"]["opponent"] == "naivchase-noconfusion", c
+        assert swarm.CONDITIONS[c]["evaluated"] == "noconfusion"
+    for control_condition in ("no-confusion", "confusion-no-neighbours", "confusion-no-predation", "confusion-mild"):
+        assert ("confusion", control_condition) in swarm.CONTRASTS
 
 
 CONFUSION_LEARNED = [
-    "confusion,confusion-no-neighbours,confusion-no-predation,confusion-slow" if a == "no-neighbours" else a
+    "confusion,confusion-no-neighbours,confusion-no-predation,no-confusion" if a == "no-neighbours" else a
     for a in LEARNED
 ]
 
 
 @pytest.mark.slow
 def test_the_confusion_conditions_end_to_end(tmp_path, capsys, one_thread):
-    """The four capture-confusion conditions train, and each policy is evaluated in its own world
-    (with the confusion it was trained with): the never-capturing predator catches nothing there; the
-    declared contrasts are made."""
+    """The capture-confusion conditions and their c = 0 control train, and each policy is evaluated in
+    its own world (with the confusion it was trained with): the never-capturing predator catches nothing
+    there; the declared contrasts are made, on the nearest-target predator's evaluation."""
     out = tmp_path / "swarm"
     assert main(CONFUSION_LEARNED + ["--out", str(out)]) == 0
     assert "training 4 conditions x 2 seeds (8 to run)" in capsys.readouterr().out
     summary = json.loads((out / "summary.json").read_text())
     conditions = summary["learned"]["conditions"]
-    assert list(conditions) == ["confusion", "confusion-no-neighbours", "confusion-no-predation", "confusion-slow"]
+    assert list(conditions) == ["confusion", "confusion-no-neighbours", "confusion-no-predation", "no-confusion"]
     for c, entry in conditions.items():
-        assert entry["seeds"] == [0, 1] and entry["naivchase"][swarm.PRIMARY]["n"] == 2
+        assert entry["seeds"] == [0, 1] and entry["noconfusion"][swarm.PRIMARY]["n"] == 2
         assert ("blind" in entry) == (c != "confusion-no-neighbours")
         evaluated = json.loads((out / FINISHED_DIR / f"eval-{c}-s0.json").read_text())["result"]["env"]
-        assert evaluated["capture_confusion"] == 4.0 and evaluated["confusion_radius"] == 100.0
+        assert evaluated["capture_confusion"] == (0.0 if c == "no-confusion" else 16.0)
         assert evaluated["capture_probability"] == (0.0 if c == "confusion-no-predation" else 1.0)
-        assert evaluated["predator"]["max_speed"] == (4.0 if c == "confusion-slow" else 5.0)
     no_predation = conditions["confusion-no-predation"]
-    for label in ("naivchase", "blind", "noconfusion", "boids|naivchase", "turnaway|naivchase"):
+    for label in ("naivchase", "blind", "noconfusion", "boids|naivchase-noconfusion", "turnaway|naivchase"):
         assert no_predation[label]["captures_per_prey"]["mean"] == 0.0
-    made = {c["comparison"] for c in summary["learned"]["comparisons"]}
-    for control in ("confusion-no-neighbours", "confusion-no-predation", "confusion-slow"):
+    comparisons = summary["learned"]["comparisons"]
+    made = {c["comparison"] for c in comparisons}
+    for control in ("no-confusion", "confusion-no-neighbours", "confusion-no-predation"):
         assert f"confusion minus {control}" in made
     assert "confusion minus boids prey" in made
+    # The contrast is made on the `noconfusion` evaluations of both conditions.
+    primary = next(
+        c for c in comparisons if c["comparison"] == "confusion minus no-confusion" and c["measure"] == swarm.PRIMARY
+    )
+    a = conditions["confusion"]["noconfusion"][swarm.PRIMARY]["mean"]
+    b = conditions["no-confusion"]["noconfusion"][swarm.PRIMARY]["mean"]
+    assert primary["difference"] == pytest.approx(a - b)
 
 
 def test_the_learned_part_end_to_end_and_a_rerun_runs_nothing(tmp_path, capsys, one_thread):
