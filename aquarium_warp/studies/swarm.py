@@ -29,6 +29,8 @@ in the scenario world, `--seeds` training seeds per condition:
 | `confusion-no-neighbours` | the same, 0 prey slots | structure without interaction |
 | `confusion-no-predation` | the same, capture_probability 0 (it never captures) | grouping not induced by predation |
 | `confusion-mild` | the same with c = 4 | the dose of capture confusion |
+| `confusion-strong` | the same with c = 64 | the dose above |
+| `confusion-strong-no-neighbours` | c = 64, 0 prey slots | its neighbour control |
 | (`no-confusion`) | the same without capture confusion (c = 0): the condition above | capture confusion's role |
 
 (`no-attack` and `swarm-2x` were added after the first run, at eb9c892: its `no-predation` control, a
@@ -48,7 +50,9 @@ brought flocking below TurnAway, so that is the `confusion` world: a prey with o
 100 px is caught by a contact with probability 1/17, a lone prey always. Its predator in training and
 in the comparisons (`evaluated`: the `noconfusion` evaluation) is NaivChase without target
 confusion, so that capture confusion is the only confusion at work. `confusion-mild` (c = 4) is the
-dose below it.
+dose below it. The two `confusion-strong` conditions (c = 64) were added after those had run at 71f5ea7
+(learned prey spaced out less as c grew, R 1.24, 1.20 and 1.06 at c = 0, 4 and 16, without
+aggregating): the dose above, declared with the same primary measure before their run.
 
 Every trained policy is evaluated in its own world (the `confusion` conditions' with the capture
 confusion they trained with) against NaivChase, with its prey slots emptied
@@ -89,6 +93,7 @@ from .statistics import difference, equivalence, finite, interval, mean_interval
 SCENARIO = ("env.prey.fov_angle=360", "env.prey.view_distance=200")
 # Capture confusion of the `confusion` conditions (docs/model.md step 5), declared before their first run.
 CONFUSION = ("env.capture_confusion=16", "env.confusion_radius=100")
+STRONG_CONFUSION = ("env.capture_confusion=64", "env.confusion_radius=100")
 # The `confusion` conditions' predator, in training and in their comparisons (`evaluated`: the label
 # of `EVALUATIONS` a condition is compared on; "naivchase" where absent).
 NEAREST = {"opponent": "naivchase-noconfusion", "evaluated": "noconfusion"}
@@ -112,6 +117,8 @@ CONDITIONS: dict[str, dict] = {
     "confusion-no-neighbours": {"prey": 32, "sets": CONFUSION + ("env.prey.prey_slots=0",), **NEAREST},
     "confusion-no-predation": {"prey": 32, "sets": CONFUSION + ("env.capture_probability=0",), **NEAREST},
     "confusion-mild": {"prey": 32, "sets": ("env.capture_confusion=4", "env.confusion_radius=100"), **NEAREST},
+    "confusion-strong": {"prey": 32, "sets": STRONG_CONFUSION, **NEAREST},
+    "confusion-strong-no-neighbours": {"prey": 32, "sets": STRONG_CONFUSION + ("env.prey.prey_slots=0",), **NEAREST},
 }
 # "a minus b" comparisons between conditions, both on a's `evaluated` label: a treatment and its control.
 CONTRASTS = (
@@ -126,6 +133,8 @@ CONTRASTS = (
     ("confusion", "confusion-no-neighbours"),
     ("confusion", "confusion-no-predation"),
     ("confusion", "confusion-mild"),
+    ("confusion-strong", "confusion"),
+    ("confusion-strong", "confusion-strong-no-neighbours"),
 )
 # Evaluations of each trained policy: label -> (predator, prey slots emptied)
 EVALUATIONS = {
@@ -498,7 +507,7 @@ def summarize_learned(evaluations: Sequence[tuple[dict, dict]], baselines: Seque
             label = CONDITIONS[a].get("evaluated", "naivchase")
             if a in per and b in per and label in per[b]:
                 compare(f"{a} minus {b}", per[a][label], per[b][label], m, False)
-        for c in ("swarm", "slow-predator", "confusion"):
+        for c in ("swarm", "slow-predator", "confusion", "confusion-strong"):
             label = CONDITIONS[c].get("evaluated", "naivchase")
             heuristic = f"|{EVALUATIONS[label][0]}"
             for prey in HEURISTIC_PREY:

@@ -275,7 +275,14 @@ def test_the_confusion_conditions_train_in_their_worlds():
     swarm.check(args)
     configs = {c: swarm.run_config(args, c, 0) for c in swarm.CONDITIONS if c.startswith("confusion")}
     worlds = {c: env_config(config) for c, config in configs.items()}
-    assert set(worlds) == {"confusion", "confusion-no-neighbours", "confusion-no-predation", "confusion-mild"}
+    assert set(worlds) == {
+        "confusion",
+        "confusion-no-neighbours",
+        "confusion-no-predation",
+        "confusion-mild",
+        "confusion-strong",
+        "confusion-strong-no-neighbours",
+    }
     control = env_config(swarm.run_config(args, "no-confusion", 0))
     base = worlds["confusion"]
     assert base == control.replace(capture_confusion=16.0, confusion_radius=100.0)
@@ -284,11 +291,17 @@ def test_the_confusion_conditions_train_in_their_worlds():
     assert worlds["confusion-no-neighbours"] == base.replace(prey=dataclasses.replace(base.prey, prey_slots=0))
     assert worlds["confusion-no-predation"] == base.replace(capture_probability=0.0)
     assert worlds["confusion-mild"] == base.replace(capture_confusion=4.0)
+    strong = worlds["confusion-strong"]
+    assert strong == base.replace(capture_confusion=64.0)
+    assert worlds["confusion-strong-no-neighbours"] == strong.replace(prey=dataclasses.replace(base.prey, prey_slots=0))
     for c, config in configs.items():
         assert config["train"]["opponent"] == "naivchase-noconfusion", c
         assert swarm.CONDITIONS[c]["evaluated"] == "noconfusion"
     for control_condition in ("no-confusion", "confusion-no-neighbours", "confusion-no-predation", "confusion-mild"):
         assert ("confusion", control_condition) in swarm.CONTRASTS
+    assert {("confusion-strong", "confusion"), ("confusion-strong", "confusion-strong-no-neighbours")} <= set(
+        swarm.CONTRASTS
+    )
 
 
 CONFUSION_LEARNED = [
