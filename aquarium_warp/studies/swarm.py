@@ -52,7 +52,10 @@ in the comparisons (`evaluated`: the `noconfusion` evaluation) is NaivChase with
 confusion, so that capture confusion is the only confusion at work. `confusion-mild` (c = 4) is the
 dose below it. The two `confusion-strong` conditions (c = 64) were added after those had run at 71f5ea7
 (learned prey spaced out less as c grew, R 1.24, 1.20 and 1.06 at c = 0, 4 and 16, without
-aggregating): the dose above, declared with the same primary measure before their run.
+aggregating): the dose above, declared with the same primary measure before their run. Its
+no-predation control is `confusion-no-predation`: with capture_probability 0 the value of c changes
+nothing (tests/kernels/test_capture_confusion.py checks the trajectories bit for bit); that contrast
+was added after the run.
 
 Every trained policy is evaluated in its own world (the `confusion` conditions' with the capture
 confusion they trained with) against NaivChase, with its prey slots emptied
@@ -135,6 +138,8 @@ CONTRASTS = (
     ("confusion", "confusion-mild"),
     ("confusion-strong", "confusion"),
     ("confusion-strong", "confusion-strong-no-neighbours"),
+    # Its no-predation control: with capture_probability 0, c changes nothing (the same trajectories).
+    ("confusion-strong", "confusion-no-predation"),
 )
 # Evaluations of each trained policy: label -> (predator, prey slots emptied)
 EVALUATIONS = {

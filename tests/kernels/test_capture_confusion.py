@@ -173,9 +173,10 @@ def test_captured_fraction_matches_the_chance(case, path, device):
     assert abs(fraction - p) <= bound, (case, fraction, p, bound)
 
 
-def trajectory(device: str, seed: int, steps: int = 150) -> list:
+def trajectory(device: str, seed: int, steps: int = 150, capture_probability: float = 0.8, **world) -> list:
+    world.setdefault("capture_confusion", 2.0)
     cfg = AquariumConfig(
-        width=260.0, height=240.0, prey_count=12, predator_count=3, capture_probability=0.8, capture_confusion=2.0
+        width=260.0, height=240.0, prey_count=12, predator_count=3, capture_probability=capture_probability, **world
     )
     env = BatchedAquarium(cfg, num_worlds=6, device=device, seed=seed)
     gen = torch.Generator().manual_seed(3)
@@ -187,7 +188,7 @@ def trajectory(device: str, seed: int, steps: int = 150) -> list:
         }
         captures += int(env.step(actions).info["captures"].sum())
         states.append({name: getattr(env.state.torch, name).cpu().clone() for name in env.state.arrays()})
-    assert captures > 20  # the draws decide many contacts
+    assert (captures > 20) == (capture_probability > 0)  # the draws decide many contacts, if any can capture
     return states
 
 
@@ -202,6 +203,16 @@ def test_same_seed_same_actions_same_trajectory(device):
             else:
                 torch.testing.assert_close(x[name], y[name])
     assert not torch.equal(a[-1]["position"], other[-1]["position"])
+
+
+def test_a_predator_that_never_captures_makes_confusion_irrelevant():
+    """With capture_probability 0 no contact captures, whatever c: the worlds with c = 16 and c = 64 run
+    the same trajectory bit for bit (the swarm study's no-predation control serves both strengths)."""
+    a = trajectory("cpu", 5, capture_probability=0.0, capture_confusion=16.0)
+    b = trajectory("cpu", 5, capture_probability=0.0, capture_confusion=64.0)
+    for step, (x, y) in enumerate(zip(a, b, strict=True)):
+        for name in x:
+            assert torch.equal(x[name], y[name]), (name, step)
 
 
 @pytest.mark.parametrize("path", list(PATHS))
