@@ -105,7 +105,7 @@ CONDITIONS: dict[str, dict] = {
     "no-neighbours": {"prey": 32, "sets": ("env.prey.prey_slots=0",), "opponent": "naivchase"},
     "no-attack": {"prey": 32, "sets": (), "opponent": "random"},
     "no-penalty": {"prey": 32, "sets": ("env.prey_capture_penalty=0",), "opponent": "naivchase"},
-    "no-confusion": {"prey": 32, "sets": (), "opponent": "naivchase-noconfusion"},
+    "no-confusion": {"prey": 32, "sets": (), **NEAREST},
     "sparse": {"prey": 8, "sets": (), "opponent": "naivchase"},
     "swarm-2x": {"prey": 32, "sets": (), "opponent": "naivchase", "budget": 2},
     # Where the screen finds that flocking pays (a predator slower than the prey, N <= 16, 200 px).
@@ -778,3 +778,50 @@ def plot(out: str, summary: dict) -> None:
         fig.tight_layout()
         fig.savefig(os.path.join(out, "learned.png"), dpi=120)
         plt.close(fig)
+        plot_confusion_dose(out, learned)
+
+
+def capture_confusion_of(condition: str) -> float:
+    """The capture confusion c a condition trains with (0 where its `sets` give none)."""
+    for assignment in CONDITIONS[condition]["sets"]:
+        key, _, value = assignment.partition("=")
+        if key == "env.capture_confusion":
+            return float(value)
+    return 0.0
+
+
+def plot_confusion_dose(out: str, learned: dict) -> None:
+    """`confusion_dose.png`, where conditions trained against the nearest-target NaivChase ran: the
+    primary measure and captures per prey against capture confusion c, for learned prey with and
+    without prey slots and the heuristic prey in the same worlds, each with its 95% band."""
+    from .common import band, pyplot, save_figure
+
+    dose = [c for c in learned if CONDITIONS[c].get("evaluated") == "noconfusion"]
+    if len(dose) < 2:
+        return
+    strengths = sorted({capture_confusion_of(c) for c in dose})
+    fig, axes = pyplot().subplots(1, 2, figsize=(10, 3.8))
+    for ax, measure in zip(axes, (PRIMARY, "captures_per_prey"), strict=True):
+        series: dict[str, list[tuple[int, dict]]] = {}
+        for c in dose:
+            sets, x = CONDITIONS[c]["sets"], strengths.index(capture_confusion_of(c))
+            if "env.capture_probability=0" in sets:
+                continue  # no captures, so no dose: it is read beside the others in learned.png
+            blind = "env.prey.prey_slots=0" in sets
+            series.setdefault("learned, 0 prey slots" if blind else "learned", []).append(
+                (x, learned[c]["noconfusion"][measure])
+            )
+            for prey in () if blind else ("turnaway", "boids", "random"):
+                label = f"{prey}|naivchase-noconfusion"
+                if label in learned[c]:
+                    series.setdefault(prey, []).append((x, learned[c][label][measure]))
+        for name, points in series.items():
+            points.sort(key=lambda p: p[0])
+            band(ax, [x for x, _ in points], [v for _, v in points], label=name)
+        ax.set_xticks(range(len(strengths)), [f"{c:g}" for c in strengths])
+        ax.set_xlabel("capture confusion c (confusion_radius 100 px)")
+        ax.set_ylabel(measure)
+        if measure == PRIMARY:
+            ax.axhline(1.0, color="grey", lw=0.8)
+    axes[0].legend(fontsize=8)
+    save_figure(fig, out, "confusion_dose.png", "Prey against NaivChase (nearest target), N = 32, 360 degrees, 200 px")

@@ -297,6 +297,10 @@ def test_the_confusion_conditions_train_in_their_worlds():
     for c, config in configs.items():
         assert config["train"]["opponent"] == "naivchase-noconfusion", c
         assert swarm.CONDITIONS[c]["evaluated"] == "noconfusion"
+    # The dose figure's c of each condition is the c its world trains with.
+    swarm_world = env_config(swarm.run_config(args, "swarm", 0))
+    for c, world in {**worlds, "no-confusion": control, "swarm": swarm_world}.items():
+        assert swarm.capture_confusion_of(c) == world.capture_confusion, c
     for control_condition in ("no-confusion", "confusion-no-neighbours", "confusion-no-predation", "confusion-mild"):
         assert ("confusion", control_condition) in swarm.CONTRASTS
     assert {("confusion-strong", "confusion"), ("confusion-strong", "confusion-strong-no-neighbours")} <= set(
@@ -342,6 +346,8 @@ def test_the_confusion_conditions_end_to_end(tmp_path, capsys, one_thread):
     a = conditions["confusion"]["noconfusion"][swarm.PRIMARY]["mean"]
     b = conditions["no-confusion"]["noconfusion"][swarm.PRIMARY]["mean"]
     assert primary["difference"] == pytest.approx(a - b)
+    swarm.plot(str(out), summary)
+    assert (out / "learned.png").stat().st_size > 0 and (out / "confusion_dose.png").stat().st_size > 0
 
 
 def test_the_learned_part_end_to_end_and_a_rerun_runs_nothing(tmp_path, capsys, one_thread):
