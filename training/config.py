@@ -14,7 +14,8 @@ A run configuration is a dict with three sections:
   `train.team = "both"` each team has its own learner (own PPO, storage, optimizer, normaliser).
 
 Presets (`PRESETS`): `default`, `paper` (section 5 of the paper), `tiny` (small CPU runs and tests),
-`learned-prey-a`, `learned-prey-b`, `learned-prey-c` (the learned-prey recipe in worlds A, B and C).
+`learned-prey-a`, `learned-prey-b`, `learned-prey-c` (the learned-prey recipe in worlds A, B and C),
+`swarm` (the swarm scenario, where learned prey aggregate: docs/studies/swarm.md).
 Every preset is the default config deep-updated with the preset's entries.
 
 The paper's two learning rates. rsl-rl has one optimizer and one learning rate. `train.actor_lr` is
@@ -204,6 +205,19 @@ for _world, _view in LEARNED_PREY_VIEWS.items():
         _recipe["env"]["prey"] = dict(_view)
     _recipe["train"]["episodes"] = 16000
     PRESETS[f"learned-prey-{_world}"] = _recipe
+
+
+# The swarm scenario (docs/studies/swarm.md): where learned prey aggregate. The swarm study's
+# `confusion-strong` condition: 32 prey that see 360 degrees and 200 px, capture confusion c = 64
+# within 100 px (a contact catches a prey with 1 / (1 + 64 k), k its prey neighbours), NaivChase
+# without target confusion, the learned-prey recipe, 500 iterations of 256 worlds.
+PRESETS["swarm"] = deep_update(
+    copy.deepcopy(PRESETS["learned-prey-b"]),
+    {
+        "env": {"prey_count": 32, "capture_confusion": 64.0, "confusion_radius": 100.0},
+        "train": {"opponent": "naivchase-noconfusion", "num_worlds": 256, "iterations": 500, "episodes": None},
+    },
+)
 
 
 def default_config() -> dict:

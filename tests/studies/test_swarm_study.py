@@ -368,3 +368,19 @@ def test_the_learned_part_end_to_end_and_a_rerun_runs_nothing(tmp_path, capsys, 
     assert policy.stat().st_mtime_ns == mtime
     again = json.loads((out / "summary.json").read_text())
     assert again["learned"] == summary["learned"] and again["trainings"] == summary["trainings"]
+
+
+def test_the_swarm_preset_is_the_confusion_strong_condition():
+    """`aquarium-warp train --preset swarm` trains the world, predator, recipe and budget of the study's
+    `confusion-strong` condition (the scenario where learned prey aggregate)."""
+    from aquarium_warp.training.config import env_config, make_config
+
+    args = options()
+    swarm.check(args)
+    study = swarm.run_config(args, "confusion-strong", 0)
+    preset = make_config("swarm")
+    assert env_config(preset) == env_config(study)
+    assert env_config(preset).capture_confusion == 64.0 and env_config(preset).prey_count == 32
+    for key in ("team", "opponent", "num_worlds", "iterations", "episodes", "actor_lr", "critic_lr"):
+        assert preset["train"][key] == study["train"][key], key
+    assert preset["runner"]["algorithm"] == study["runner"]["algorithm"]
