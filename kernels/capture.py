@@ -32,12 +32,11 @@ from .common import (
     PURPOSE_RESPAWN,
     AgentType,
     WorldParams,
-    random_stream,
     slot_type,
     torus_displacement,
 )
 from .grid import CellLists, listed_slot, next_run, run_entry, run_length, square_walk
-from .spawn import make_fresh_prey, uniform_position
+from .spawn import finishing_step_stream, make_fresh_prey, uniform_position
 from .state import Agents, Scratch, StepOutputs, WorldCounters
 
 wp.set_module_options({"enable_backward": False})
@@ -123,15 +122,7 @@ def confusing_prey(
 @wp.func
 def capture_draw(world: WorldParams, counters: WorldCounters, w: int, i: int) -> float:
     """Prey slot i's draw u in [0, 1) that decides its contact in the step being finished."""
-    rng = random_stream(
-        counters.seed[w],
-        world.world_offset + w,
-        counters.episode[w],
-        counters.world_step[w] + 1,
-        i,
-        PURPOSE_CAPTURE,
-    )
-    return wp.randf(rng)
+    return wp.randf(finishing_step_stream(world, counters, w, i, PURPOSE_CAPTURE))
 
 
 @wp.func
@@ -243,14 +234,7 @@ def respawn_or_remove(
     reward, and the slot's reward goes into its episode sum."""
     if scratch.captured[w, i]:
         if world.respawn_captured_prey != 0:
-            rng = random_stream(
-                counters.seed[w],
-                world.world_offset + w,
-                counters.episode[w],
-                counters.world_step[w] + 1,
-                i,
-                PURPOSE_RESPAWN,
-            )
+            rng = finishing_step_stream(world, counters, w, i, PURPOSE_RESPAWN)
             make_fresh_prey(world, w, i, uniform_position(world, rng, 0.0), rng, agents)
         else:
             agents.alive[w, i] = False

@@ -13,8 +13,8 @@ taken by one thread per world in slot order, so they are deterministic too.
 
 import warp as wp
 
-from .common import PURPOSE_NEWBORN, WorldParams, random_stream
-from .spawn import make_fresh_prey, spawn_slot
+from .common import PURPOSE_NEWBORN, WorldParams
+from .spawn import finishing_step_stream, make_fresh_prey, spawn_slot
 from .state import Agents, Scratch, StepOutputs, WorldCounters
 
 wp.set_module_options({"enable_backward": False})
@@ -39,14 +39,7 @@ def reproduce(
                 free += 1
             if free < world.prey_capacity:
                 child = free
-                rng = random_stream(
-                    counters.seed[w],
-                    world.world_offset + w,
-                    counters.episode[w],
-                    counters.world_step[w] + 1,
-                    child,
-                    PURPOSE_NEWBORN,
-                )
+                rng = finishing_step_stream(world, counters, w, child, PURPOSE_NEWBORN)
                 make_fresh_prey(world, w, child, agents.position[w, parent], rng, agents)
                 agents.velocity[w, child] = wp.vec2(0.0, 0.0)
                 agents.age[w, parent] = 0

@@ -6,6 +6,16 @@ import warp as wp
 from .common import PREY, PURPOSE_HEADING, PURPOSE_SPAWN, WorldParams, mix32, random_stream, slot_type
 from .state import Agents, StepOutputs, WorldCounters
 
+
+@wp.func
+def finishing_step_stream(world: WorldParams, counters: WorldCounters, w: int, slot: int, purpose: int) -> wp.uint32:
+    """Random stream of `slot` in world w for a draw made while finishing the step being taken (a
+    capture, a respawn, a newborn): keyed by the step's new counter, t + 1 (docs/model.md, Randomness)."""
+    return random_stream(
+        counters.seed[w], world.world_offset + w, counters.episode[w], counters.world_step[w] + 1, slot, purpose
+    )
+
+
 wp.set_module_options({"enable_backward": False})
 
 
