@@ -8,7 +8,9 @@ seed trains one run and evaluates it:
 - catch sharing: `catch_share_radius` 100 px (docs/model.md's default: every predator within 100 px of the
   captured prey shares the reward) and 0 px (only the capturer(s) in contact are rewarded: docs/model.md's
   sharers are the predators strictly within the radius plus every capturer);
-- baseline: NaivChase predators against TurnAway prey at each team size (no training).
+- baseline: NaivChase predators against TurnAway prey at each team size (no training); with
+  `--random-baseline` also predators that act at random (the floor a learned team must beat),
+  compared with each learned condition in `random_differences`.
 
 Evaluation: `eval_worlds` episodes of `eval_steps` steps per seed, deterministic (argmax) policies.
 Measures, per seed (`HuntMeasures`):
@@ -70,6 +72,8 @@ from .jobs import RayOptions, add_ray_arguments, ray_options, run_tasks
 from .statistics import compare, equivalence, finite, seed_stats
 
 PREY_CONDITIONS = ("turnaway", "cotrained")
+# Heuristic predator teams of the baselines (their condition names) -> how the labels name them.
+HEURISTIC_TEAMS = {"naivchase": "NaivChase", "random": "random predators"}
 # "Sharing makes no difference" needs the 90% interval of shared minus capturer-only captures per
 # predator inside +-SHARING_MARGIN of the capturer-only mean (declared with the redesign).
 SHARING_MARGIN = 0.10
@@ -91,7 +95,7 @@ class GroupHuntingStudy:
     """Settings of the group-hunting study (the CLI's options; defaults sized for one H200 in ~7 min)."""
 
     # Settings that only list which tasks exist (jobs.task_key): a run over fewer keeps the rest.
-    TASK_AXES = ("predators", "prey_conditions", "share_radii", "baseline")
+    TASK_AXES = ("predators", "prey_conditions", "share_radii", "baseline", "random_baseline")
 
     predators: list[int] = field(default_factory=lambda: [1, 2, 3, 4])
     prey: int = 6
@@ -106,6 +110,7 @@ class GroupHuntingStudy:
     hunt_radius: float = 200.0
     sample_every: int = 10
     baseline: bool = True
+    random_baseline: bool = False  # random predator teams against TurnAway prey too
     world_size: float = 800.0
     # The redesign (issue #30): predators that cannot win alone (`predator_speed`, None: docs/model.md's 5;
     # the prey's is 4), predators that see their teammates (`predator_slots` predator slots, None: 1),
@@ -201,13 +206,14 @@ class GroupHuntingStudy:
                                 "policy_dir": os.path.join(self.out, "policies", name),
                             }
                         )
-        if self.baseline:
+        heuristics = ["naivchase"] * self.baseline + ["random"] * self.random_baseline
+        for predator in heuristics:
             for n in self.predators:
                 for seed in range(self.seeds):
                     tasks.append(
                         {
-                            "name": f"naivchase_pred{n}_seed{seed}",
-                            "condition": "naivchase",
+                            "name": f"{predator}_pred{n}_seed{seed}",
+                            "condition": predator,
                             "share_radius": AquariumConfig().catch_share_radius,
                             "predators": n,
                             "seed": seed,
@@ -325,7 +331,7 @@ def run_task(task: dict) -> dict:
     study: GroupHuntingStudy = task["study"]
     n, seed, device = task["predators"], task["seed"], task["device"]
     train_s = 0.0
-    prey, predator = "turnaway", "naivchase"
+    prey, predator = "turnaway", task["condition"]  # a baseline's condition names its heuristic predator
     if task["train"]:
         both = task["condition"] == "cotrained"
         config = common.training_config(
@@ -360,8 +366,8 @@ def run_task(task: dict) -> dict:
 
 # ---------------------------------------------------------------------------------------------- study
 def condition_label(condition: str, share_radius: float) -> str:
-    if condition == "naivchase":
-        return "NaivChase vs TurnAway (heuristic)"
+    if condition in HEURISTIC_TEAMS:
+        return f"{HEURISTIC_TEAMS[condition]} vs TurnAway (heuristic)"
     prey = "TurnAway prey" if condition == "turnaway" else "co-trained prey"
     reward = f"shared within {share_radius:g} px" if share_radius > 0 else "capturer only"
     return f"learned vs {prey}, reward {reward}"
@@ -400,6 +406,19 @@ def run_group_hunting(study: GroupHuntingStudy, command: str | None = None, ray:
         for radius in study.share_radii
         if radius != 0 and 0 in study.share_radii
     ]
+    if study.random_baseline:
+        default_radius = AquariumConfig().catch_share_radius
+        summary["random_differences"] = [
+            {
+                "condition": c,
+                "predators": n,
+                "share_radius": radius,
+                "differences": compare(groups[(c, radius, n)], groups[("random", default_radius, n)], MEASURES),
+            }
+            for c in study.prey_conditions
+            for n in study.predators
+            for radius in study.share_radii
+        ]
     summary["definitions"] = {
         "captures_per_predator": f"captures per predator per episode of {study.eval_steps} steps "
         f"({study.eval_worlds} episodes per seed, deterministic policies)",
@@ -416,6 +435,9 @@ def run_group_hunting(study: GroupHuntingStudy, command: str | None = None, ray:
         "capturer alone (0): difference of the seed means with its 95% Welch interval "
         "(null with fewer than 2 seeds); equivalence: TOST of captures per predator within "
         f"+-{SHARING_MARGIN:.0%} of the capturer-only mean",
+        "random_differences": "with --random-baseline, per learned condition, sharing radius and team size: the "
+        "learned team minus random predator teams (against TurnAway prey), difference of the seed means with its "
+        "95% Welch interval",
         "design": (
             f"predator max speed {study.predator_speed if study.predator_speed is not None else 5.0:g} "
             f"(prey 4), {study.predator_slots if study.predator_slots is not None else 1} predator slot(s), "
@@ -534,6 +556,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--no-baseline", action="store_true", help="no NaivChase teams")
     p.add_argument(
+        "--random-baseline",
+        action="store_true",
+        help="also random predator teams against TurnAway prey (the floor a learned team must beat)",
+    )
+    p.add_argument(
         "--predator-speed",
         type=positive_float,
         default=None,
@@ -571,6 +598,7 @@ def run(args: argparse.Namespace) -> int:
         hunt_radius=args.hunt_radius,
         sample_every=args.sample_every,
         baseline=not args.no_baseline,
+        random_baseline=args.random_baseline,
         predator_speed=args.predator_speed,
         predator_slots=args.predator_slots,
         recipe=args.recipe,

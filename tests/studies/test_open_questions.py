@@ -167,6 +167,35 @@ def _check_record(path, study):
     return record
 
 
+def test_group_hunting_random_baseline(tmp_path, capsys, one_thread):
+    """`--random-baseline`: random predator teams against TurnAway prey at every team size and seed, and
+    `random_differences`, each learned team's seed mean minus theirs (checked against the CSV)."""
+    out = tmp_path / "gh"
+    args = ["study", "group-hunting", "--predators", "1,2", "--prey", "3", "--prey-conditions", "turnaway"]
+    args += ["--share-radius", "0", "--seeds", "2", "--worlds", "4", "--iterations", "1", "--train-steps", "40"]
+    args += ["--eval-worlds", "2", "--eval-steps", "60", "--no-baseline", "--random-baseline", "--device", "cpu"]
+    assert main(args + ["--out", str(out)]) == 0, capsys.readouterr().err
+    rows = read_csv(out / "group_hunting.csv")
+    assert sorted((r["condition"], r["predators"], r["seed"]) for r in rows if r["condition"] == "random") == [
+        ("random", n, seed) for n in ("1", "2") for seed in ("0", "1")
+    ]
+    record = json.loads((out / "group_hunting.json").read_text())
+    assert {r["label"] for r in record["results"]} == {
+        "random predators vs TurnAway (heuristic)",
+        "learned vs TurnAway prey, reward capturer only",
+    }
+    differences = record["random_differences"]
+    assert [(d["condition"], d["predators"]) for d in differences] == [("turnaway", 1), ("turnaway", 2)]
+    for d in differences:
+        n = str(d["predators"])
+        turnaway, random = (
+            [float(r["captures_per_predator"]) for r in rows if (r["condition"], r["predators"]) == (c, n)]
+            for c in ("turnaway", "random")
+        )
+        got = d["differences"]["captures_per_predator"]["difference"]
+        assert got == pytest.approx(sum(turnaway) / len(turnaway) - sum(random) / len(random))
+
+
 @pytest.mark.slow
 def test_group_hunting_cli_tiny(tmp_path, capsys, one_thread):
     out = tmp_path / "gh"
