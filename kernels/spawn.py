@@ -6,6 +6,8 @@ import warp as wp
 from .common import PREY, PURPOSE_HEADING, PURPOSE_SPAWN, WorldParams, mix32, random_stream, slot_type
 from .state import Agents, StepOutputs, WorldCounters
 
+wp.set_module_options({"enable_backward": False})
+
 
 @wp.func
 def finishing_step_stream(world: WorldParams, counters: WorldCounters, w: int, slot: int, purpose: int) -> wp.uint32:
@@ -14,9 +16,6 @@ def finishing_step_stream(world: WorldParams, counters: WorldCounters, w: int, s
     return random_stream(
         counters.seed[w], world.world_offset + w, counters.episode[w], counters.world_step[w] + 1, slot, purpose
     )
-
-
-wp.set_module_options({"enable_backward": False})
 
 
 @wp.func

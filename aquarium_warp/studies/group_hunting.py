@@ -10,7 +10,7 @@ seed trains one run and evaluates it:
   sharers are the predators strictly within the radius plus every capturer);
 - baseline: NaivChase predators against TurnAway prey at each team size (no training); with
   `--random-baseline` also predators that act at random (the floor a learned team must beat),
-  compared with each learned condition in `random_differences`.
+  compared with the teams trained against TurnAway prey in `random_differences`.
 
 Evaluation: `eval_worlds` episodes of `eval_steps` steps per seed, deterministic (argmax) policies.
 Measures, per seed (`HuntMeasures`):
@@ -416,6 +416,7 @@ def run_group_hunting(study: GroupHuntingStudy, command: str | None = None, ray:
                 "differences": compare(groups[(c, radius, n)], groups[("random", default_radius, n)], MEASURES),
             }
             for c in study.prey_conditions
+            if c == "turnaway"  # the random teams hunt TurnAway prey: co-trained teams face other prey
             for n in study.predators
             for radius in study.share_radii
         ]
@@ -435,9 +436,9 @@ def run_group_hunting(study: GroupHuntingStudy, command: str | None = None, ray:
         "capturer alone (0): difference of the seed means with its 95% Welch interval "
         "(null with fewer than 2 seeds); equivalence: TOST of captures per predator within "
         f"+-{SHARING_MARGIN:.0%} of the capturer-only mean",
-        "random_differences": "with --random-baseline, per learned condition, sharing radius and team size: the "
-        "learned team minus random predator teams (against TurnAway prey), difference of the seed means with its "
-        "95% Welch interval",
+        "random_differences": "with --random-baseline, per sharing radius and team size: the learned team "
+        "trained against TurnAway prey minus random predator teams (against TurnAway prey), difference of the "
+        "seed means with its 95% Welch interval",
         "design": (
             f"predator max speed {study.predator_speed if study.predator_speed is not None else 5.0:g} "
             f"(prey 4), {study.predator_slots if study.predator_slots is not None else 1} predator slot(s), "
