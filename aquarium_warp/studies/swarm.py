@@ -94,9 +94,16 @@ from .statistics import difference, equivalence, finite, interval, mean_interval
 # The scenario: prey see all around, 200 px (reacting pays only with rear vision and range, see
 # docs/learned-prey.md); everything else is the paper's world.
 SCENARIO = ("env.prey.fov_angle=360", "env.prey.view_distance=200")
-# Capture confusion of the `confusion` conditions (docs/model.md step 5), declared before their first run.
-CONFUSION = ("env.capture_confusion=16", "env.confusion_radius=100")
-STRONG_CONFUSION = ("env.capture_confusion=64", "env.confusion_radius=100")
+
+
+def capture_confusion_sets(c: float) -> tuple[str, ...]:
+    """The `sets` of a world with capture confusion c within 100 px (docs/model.md step 5)."""
+    return (f"env.capture_confusion={c:g}", "env.confusion_radius=100")
+
+
+# Capture confusion of the `confusion` conditions, declared before their first run; and the doses.
+CONFUSION = capture_confusion_sets(16)
+STRONG_CONFUSION = capture_confusion_sets(64)
 # The `confusion` conditions' predator, in training and in their comparisons (`evaluated`: the label
 # of `EVALUATIONS` a condition is compared on; "naivchase" where absent).
 NEAREST = {"opponent": "naivchase-noconfusion", "evaluated": "noconfusion"}
@@ -119,7 +126,7 @@ CONDITIONS: dict[str, dict] = {
     "confusion": {"prey": 32, "sets": CONFUSION, **NEAREST},
     "confusion-no-neighbours": {"prey": 32, "sets": CONFUSION + ("env.prey.prey_slots=0",), **NEAREST},
     "confusion-no-predation": {"prey": 32, "sets": CONFUSION + ("env.capture_probability=0",), **NEAREST},
-    "confusion-mild": {"prey": 32, "sets": ("env.capture_confusion=4", "env.confusion_radius=100"), **NEAREST},
+    "confusion-mild": {"prey": 32, "sets": capture_confusion_sets(4), **NEAREST},
     "confusion-strong": {"prey": 32, "sets": STRONG_CONFUSION, **NEAREST},
     "confusion-strong-no-neighbours": {"prey": 32, "sets": STRONG_CONFUSION + ("env.prey.prey_slots=0",), **NEAREST},
 }
