@@ -6,11 +6,13 @@ Each point is `python -m torch.distributed.run --standalone --nproc_per_node=G -
 the `fps` column (agent-steps of every rank per second of the iteration) of rank 0's progress CSV over
 the iterations after the first two (Warp compilation, warm-up). `--modes` picks the loops measured:
 
-- `graphs`: rollout and update replayed from CUDA graphs (`train.graph_update=true`: on several GPUs
-  this opts in to the experimental capture of the update with its NCCL all-reduce inside its graph,
-  which hung on 2 x H100 at commit 8535669; one GPU captures the update by default anyway);
-- `eager-update`: the rollout from CUDA graphs, the update eager (`train.graph_update=false`: what
-  several GPUs run by default) - with `graphs`, the gain of capturing the update;
+- `graphs`: rollout and update replayed from CUDA graphs, the defaults (`train.graph_update="auto"`:
+  one GPU captures the update as one graph, several GPUs as graphs cut at its all-reduces, which run
+  eagerly between them);
+- `whole-update`: on several GPUs the experimental capture of the update with its NCCL all-reduce
+  inside one graph (`train.graph_update=true`), which hung on 2 x H100 at commit 8535669;
+- `eager-update`: the rollout from CUDA graphs, the update eager (`train.graph_update=false`) - with
+  `graphs`, the gain of capturing the update;
 - `eager`: no graphs (`train.cuda_graphs=false`), on one GPU only (the loop before any graphs).
 
 Every point records what its run captured (its `config.json`'s `cuda_graphs`), and its speed-up
@@ -52,16 +54,16 @@ from aquarium_warp.training.floors import linear_scaling
 
 # mode -> the train settings of its runs ("graphs" opts in to the captured update on several GPUs)
 MODES = {
-    "graphs": {"cuda_graphs": True, "graph_update": True},
+    "graphs": {"cuda_graphs": True, "graph_update": "auto"},
+    "whole-update": {"cuda_graphs": True, "graph_update": True},
     "eager-update": {"cuda_graphs": True, "graph_update": False},
     "eager": {"cuda_graphs": False},
 }
 
 
-def kill_tree(pid: int) -> None:
-    """SIGKILL `pid` and every process below it (read from Linux's /proc). torchrun starts each rank in
-    a session of its own, which a kill of the launcher or its process group misses, and a hung rank
-    would go on holding its GPU (and the output pipes this script reads to their end)."""
+def process_tree(pid: int) -> list[int]:
+    """`pid` and every process below it (read from Linux's /proc). torchrun starts each rank in a session
+    of its own, which a signal to the launcher or its process group misses."""
     children: dict[int, list[int]] = {}
     for stat in Path("/proc").glob("[0-9]*/stat"):
         try:
@@ -73,9 +75,41 @@ def kill_tree(pid: int) -> None:
     while todo:
         tree.append(todo.pop())
         todo += children.get(tree[-1], [])
-    for p in tree:
+    return tree
+
+
+def signal_tree(pid: int, sig: int) -> None:
+    """Send `sig` to `pid` and every process below it; a hung rank would go on holding its GPU (and
+    the output pipes this script reads to their end)."""
+    for p in process_tree(pid):
         with contextlib.suppress(ProcessLookupError):
-            os.kill(p, signal.SIGKILL)
+            os.kill(p, sig)
+
+
+def run_ranks(command: list[str], env: dict, timeout: float) -> tuple[str, str, float]:
+    """Run `command` (a torchrun launcher) to its end: `(stdout, stderr, seconds)`. A RuntimeError names
+    a failed run with its output's end, or a run past `timeout` seconds with where its ranks waited:
+    the launcher's children get SIGABRT, on which Python's faulthandler prints every thread's stack,
+    then the whole tree SIGKILL."""
+    started = time.perf_counter()
+    env = {**env, "PYTHONFAULTHANDLER": "1"}
+    with subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) as run:
+        try:
+            stdout, stderr = run.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            # The ranks (not the launcher, which would stop them first) print their threads' stacks.
+            for p in process_tree(run.pid)[1:]:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(p, signal.SIGABRT)
+            time.sleep(5)
+            signal_tree(run.pid, signal.SIGKILL)
+            stdout, stderr = run.communicate()
+            raise RuntimeError(
+                f"timed out after {timeout:g} s; where the ranks waited (SIGABRT):\n{stderr[-20000:]}"
+            ) from None
+    if run.returncode != 0:
+        raise RuntimeError(f"{' '.join(command)} failed:\n{stdout[-2000:]}\n{stderr[-4000:]}")
+    return stdout, stderr, time.perf_counter() - started
 
 
 def run_point(gpus: int, team: str, mode: str, args: argparse.Namespace) -> dict:
@@ -105,20 +139,10 @@ def run_point(gpus: int, team: str, mode: str, args: argparse.Namespace) -> dict
         "cpu" if args.device == "cpu" else "cuda",
     ]
     for key, value in MODES[mode].items():
-        command += ["--set", f"train.{key}={'true' if value else 'false'}"]
+        command += ["--set", f"train.{key}={str(value).lower()}"]
     env = {**os.environ, "NCCL_NVLS_ENABLE": "0", "OMP_NUM_THREADS": "1"}
     env.pop("WORLD_SIZE", None)
-    started = time.perf_counter()
-    with subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) as run:
-        try:
-            stdout, stderr = run.communicate(timeout=args.timeout)
-        except subprocess.TimeoutExpired:
-            kill_tree(run.pid)
-            run.communicate()
-            raise
-    wall = time.perf_counter() - started
-    if run.returncode != 0:
-        raise RuntimeError(f"{' '.join(command)} failed:\n{stdout[-2000:]}\n{stderr[-4000:]}")
+    stdout, stderr, wall = run_ranks(command, env, args.timeout)
     name = "progress.csv" if team != "both" else "progress_prey.csv"
     with open(os.path.join(log_dir, name), newline="", encoding="utf-8") as f:
         rows = list(csv.DictReader(f))
@@ -224,11 +248,12 @@ def main(argv: list[str] | None = None) -> int:
     points = record["points"]
     for team in teams:
         for g in gpus:
-            for mode in (m for m in modes if m != "eager" or g == 1 or not cuda):
+            # one GPU: no eager point beside graphs, and no all-reduce to capture (whole-update = graphs)
+            for mode in (m for m in modes if (m != "eager" or g == 1 or not cuda) and (m != "whole-update" or g > 1)):
                 try:
                     point = run_point(g, team, mode, args)
-                except (RuntimeError, subprocess.TimeoutExpired) as error:  # reported, not fatal
-                    point = {"gpus": g, "team": team, "mode": mode, "error": str(error)[-6000:]}
+                except RuntimeError as error:  # reported, not fatal
+                    point = {"gpus": g, "team": team, "mode": mode, "error": str(error)[-20000:]}
                     print(f"{team:>5} {g} GPU{'s' if g > 1 else ' '} {mode:>12} failed:\n{point['error']}", flush=True)
                 else:
                     print(

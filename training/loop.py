@@ -23,20 +23,22 @@ it overwrites them with the next ones, so the storage receives exactly what rsl-
 
 On the CPU (or where a graph cannot serve: recurrent models, RND, symmetry) the same functions run
 eagerly; recurrent models are updated by rsl-rl's own `PPO.update`. With the adaptive learning-rate
-schedule (which reads the KL on the host), several processes talking through gloo (which waits on the
-host), several processes talking through NCCL (torchrun on GPUs) unless `graph_update=True`, or
-`graph_update=False` (`train.graph_update`; its default "auto" captures the update in one process
-only), the rollout replays its graphs and the update runs eagerly between rollouts. With
-`graph_update=True` NCCL ranks capture the update with its gradient all-reduce, as one process does
-(experimental: on 2 x H100 at commit 8535669 such a run never finished): NCCL's collectives join a
-stream capture, and every rank captures and replays the same collectives in the same order (the
-graphs are captured at the same iteration on every rank, after the parameters' broadcast has set up
-the communicator). Their captures use CUDA's thread-local capture mode: NCCL's proxy threads and
-torch's watchdog make CUDA calls of their own while this thread captures, which the global mode would
-count against the capture. A capture that fails raises, naming the learner and the way out
-(`train.graph_update=false`); there is no silent fallback (a failed capture of a collective may leave
-the communicator unusable). On the CPU this loop and `OnPolicyRunner.learn` produce the same
-parameters bit for bit (`tests/training/test_training_loop.py`), so `train.loop = "rsl-rl"` (rsl-rl's
+schedule (which reads the KL on the host) or `graph_update=False` (`train.graph_update`), the rollout
+replays its graphs and the update runs eagerly between rollouts.
+
+Several processes (torchrun): a rank's update all-reduces its gradients after every mini-batch. By
+default ("auto") the update is captured as a `SplitGraph`: CUDA graphs cut at each all-reduce, which
+runs eagerly between two replays, so the collectives never enter a graph and any backend serves (NCCL,
+or gloo's host-side wait). `graph_update=True` instead captures the whole update, NCCL's all-reduce
+inside its graph (experimental: on 2 x H100 at commit 8535669 such a run never finished): every rank
+captures and replays the same collectives in the same order (the graphs are captured at the same
+iteration on every rank, after the parameters' broadcast has set up the communicator). Captures on
+several ranks use CUDA's thread-local capture mode: NCCL's proxy threads and torch's watchdog make CUDA
+calls of their own while this thread captures, which the global mode would count against the capture.
+A capture that fails raises, naming the learner and the way out (`train.graph_update=false`); there is
+no silent fallback (a failed capture of a collective may leave the communicator unusable). On the CPU
+this loop and `OnPolicyRunner.learn` produce the same parameters bit for bit
+(`tests/training/test_training_loop.py`), so `train.loop = "rsl-rl"` (rsl-rl's
 own runner) remains as the reference and for the benchmark's before/after.
 
 Several learners (`train.team = "both"`: one PPO learner per team, acting in the same worlds): `act[t]`
@@ -54,12 +56,15 @@ they replay the same memory addresses, which is why every buffer they touch is a
 from __future__ import annotations
 
 import contextlib
+import functools
 import gc
 import time
 from collections.abc import Callable
 
 import torch
+import torch.distributed as dist
 
+from . import distributed
 from .vec_env import AquariumVecEnv
 
 
@@ -77,6 +82,72 @@ def collection_paused():
     finally:
         if enabled:
             gc.enable()
+
+
+class SplitGraph:
+    """Work that calls `torch.distributed.all_reduce`, captured as CUDA graphs cut at each call.
+
+    `capture(fn)` runs `fn` with every stream-ordered GPU operation captured (nothing executes): the
+    work up to its first all-reduce becomes one graph, the all-reduce a call to repeat on the same
+    tensor (which stays allocated in the graphs' memory pool), the work up to the next all-reduce the
+    next graph, and so on. `replay()` replays the graphs and runs the all-reduces between them, in the
+    captured order, with the same arguments. The collectives thus run eagerly from the host, as in an
+    eager update, while everything between them replays: no collective is captured (the whole-update
+    capture with NCCL's all-reduce inside hung), and gloo's host-side wait serves too.
+
+    rsl-rl's gradient average (`reduce_gradients_in_buckets`) calls `torch.distributed.all_reduce`
+    directly; the cut replaces that function for the capture only (the capturing thread is the only
+    one that calls it) and puts it back afterwards. An asynchronous all-reduce cannot be cut (its
+    handle would be waited on inside a graph) and raises. Every graph shares `pool`, in capture order,
+    which is also replay order, as torch asks of graphs that share a pool."""
+
+    def __init__(self, pool, stream: torch.cuda.Stream, capture_error_mode: str = "global"):
+        self.pool = pool
+        self.stream = stream
+        self.capture_error_mode = capture_error_mode
+        self.steps: list[Callable[[], object]] = []  # graph replays and all-reduces, in order
+        self._open: torch.cuda.CUDAGraph | None = None  # the graph being captured
+
+    @property
+    def collectives(self) -> int:
+        """How many all-reduces run between the graphs."""
+        return sum(isinstance(step, functools.partial) for step in self.steps)
+
+    def _begin(self) -> None:
+        self._open = torch.cuda.CUDAGraph()
+        self._open.capture_begin(pool=self.pool, capture_error_mode=self.capture_error_mode)
+
+    def _end(self) -> None:
+        graph, self._open = self._open, None
+        if graph is not None:
+            graph.capture_end()
+            self.steps.append(graph.replay)
+
+    def capture(self, fn: Callable[[], object]):
+        """Capture `fn()` (see the class doc); its result (tensors written by the graphs)."""
+        if self.steps:
+            raise RuntimeError("a SplitGraph is captured once")
+        all_reduce = dist.all_reduce
+
+        def cut(tensor, op=dist.ReduceOp.SUM, group=None, async_op=False):
+            if async_op:
+                raise RuntimeError("an asynchronous all-reduce cannot be cut out of a captured update")
+            self._end()
+            self.steps.append(functools.partial(all_reduce, tensor, op=op, group=group))
+            self._begin()
+
+        with torch.cuda.stream(self.stream):
+            self._begin()
+            dist.all_reduce = cut
+            try:
+                return fn()
+            finally:
+                dist.all_reduce = all_reduce
+                self._end()
+
+    def replay(self) -> None:
+        for step in self.steps:
+            step()
 
 
 class IterationRecord:
@@ -120,16 +191,29 @@ class IterationRecord:
         return self._host.tolist(), times
 
 
-def graph_plan(algs, cuda: bool, graph_update: bool | str = "auto") -> tuple[bool, list[bool]]:
+def graph_plan(algs, cuda: bool, graph_update: bool | str = "auto") -> tuple[bool, list[bool | str]]:
     """Which CUDA graphs a loop over `algs` captures (`cuda`: graphs asked for on a CUDA device): the
-    rollout's, where every algorithm allows it (`rollout_graphable`), and per learner its update's,
-    where the rollout is captured, its algorithm allows it (`graphable`) and `graph_update` asks for
-    it: True, or "auto" in one process (several NCCL ranks capturing the update hung; see the module doc)."""
+    rollout's, where every algorithm allows it (`rollout_graphable`), and per learner how its update is
+    captured, where the rollout is and its algorithm allows it (`graphable`): False (eager), True (one
+    graph) or "split" (a `SplitGraph`, cut at its all-reduces). `graph_update` "auto": one graph in one
+    process, split on several ranks; True: one graph, on several ranks with the all-reduce inside (NCCL
+    only; see the module doc); False: eager."""
     rollout = cuda and all(alg.rollout_graphable for alg in algs)
-    updates = [
-        rollout and alg.graphable and (graph_update is True or (graph_update == "auto" and not alg.is_multi_gpu))
-        for alg in algs
-    ]
+    updates: list[bool | str] = []
+    for alg in algs:
+        if not (rollout and alg.graphable) or graph_update is False:
+            updates.append(False)
+        elif not alg.is_multi_gpu:
+            updates.append(True)
+        elif graph_update is True:
+            if not distributed.collectives_capturable():
+                raise ValueError(
+                    "train.graph_update=true captures the gradient all-reduce inside the update's graph, which "
+                    "only NCCL's collectives allow; 'auto' replays the update in graphs cut at each all-reduce"
+                )
+            updates.append(True)
+        else:
+            updates.append("split")
     if not all(getattr(alg, "capturable_optimizer", False) for alg, u in zip(algs, updates) if u):
         raise ValueError("CUDA graphs need the algorithms built with capturable_optimizer=True")
     return rollout, updates
@@ -143,11 +227,11 @@ class TrainingLoop:
     The first adapter steps the worlds; the other learners' actions reach it through its opponent
     (`LearnerActions`). `pool`: an `OpponentPool` whose snapshots play some worlds. `graphs=True`
     captures the rollout's CUDA graphs where the device is CUDA and every algorithm allows it
-    (`alg.rollout_graphable`), and as `graph_update` asks ("auto": in one process; True: on NCCL ranks
-    too; False: never) a learner's update graph where its algorithm allows that too (`alg.graphable`;
-    else the update runs eagerly between the replayed rollouts: ranks talking through gloo, the
-    adaptive schedule); `self.graphs` says whether graphs are in use, `self.update_graphs` per learner
-    (see `graph_plan`).
+    (`alg.rollout_graphable`), and as `graph_update` asks ("auto": one graph in one process, graphs cut at
+    the all-reduces on several ranks; True: one graph, on NCCL ranks with the all-reduce inside; False:
+    never) a learner's update graphs where its algorithm allows that too (`alg.graphable`; else the update
+    runs eagerly between the replayed rollouts: the adaptive schedule); `self.graphs` says whether graphs
+    are in use, `self.update_graphs` per learner how its update is captured (see `graph_plan`).
     `reduce`: applied in place to each iteration's values (losses and statistics, on the device) before
     they are copied to the host; a torchrun run sums them over the ranks there, in stream order (the
     record's learn time then includes waiting for the slowest rank's sum).
@@ -384,22 +468,34 @@ class TrainingLoop:
 
     def _capture_learn(self, i: int, size: int) -> None:
         """Record learner `i`'s update (GAE, every mini-batch of every epoch; with several ranks, the
-        gradients' all-reduce of each) without running it; the indices are drawn before each replay
-        (capturing must not draw: it would shift the stream). A failed capture raises, saying so."""
+        gradients' all-reduce of each: inside the graph, or between the graphs of a `SplitGraph`)
+        without running it; the indices are drawn before each replay (capturing must not draw: it would
+        shift the stream). A failed capture raises, saying so."""
         alg = self.algs[i]
         torch.cuda.synchronize(self.device)
         self._indices[i] = torch.arange(size * alg.num_mini_batches, device=self.device)
-        graph = torch.cuda.CUDAGraph()
+        split = self.update_graphs[i] == "split"
         try:
-            with (
-                collection_paused(),
-                torch.cuda.graph(
-                    graph, pool=self._pool_handle, stream=self._capture_stream, capture_error_mode=self._capture_mode
-                ),
-            ):
-                self._losses[i] = self._learn(i, self._indices[i], size)
+            with collection_paused():
+                if split:
+                    graph = SplitGraph(self._pool_handle, self._capture_stream, self._capture_mode)
+                    self._losses[i] = graph.capture(lambda: self._learn(i, self._indices[i], size))
+                else:
+                    graph = torch.cuda.CUDAGraph()
+                    with torch.cuda.graph(
+                        graph,
+                        pool=self._pool_handle,
+                        stream=self._capture_stream,
+                        capture_error_mode=self._capture_mode,
+                    ):
+                        self._losses[i] = self._learn(i, self._indices[i], size)
         except Exception as error:  # name what failed and the way out; no silent fallback
-            where = f"rank {alg.gpu_global_rank}, with its NCCL all-reduce" if alg.is_multi_gpu else "one process"
+            if not alg.is_multi_gpu:
+                where = "one process"
+            elif split:
+                where = f"rank {alg.gpu_global_rank}, cut at its all-reduces"
+            else:
+                where = f"rank {alg.gpu_global_rank}, with its NCCL all-reduce"
             raise RuntimeError(
                 f"capturing the PPO update of learner {i} ({self.envs[i].team}; {where}) as a CUDA graph "
                 f"failed: {error}. train.graph_update=false runs the update eagerly"

@@ -15,8 +15,8 @@
    the same order (with several ranks, its gradient all-reduce and rank 0's adaptive learning rate),
    with the mini-batch indices drawn beforehand (`mini_batch_indices()`, the same random
    draw as the storage's generator) and the mean losses kept on the device instead of `.item()` after
-   every mini-batch. Without host synchronisation the whole update (fixed learning-rate schedule;
-   with several ranks, NCCL's all-reduce inside) can be captured as one CUDA graph (`training/loop.py`);
+   every mini-batch. Without host synchronisation the whole update (fixed learning-rate schedule) can
+   be captured as one CUDA graph, or with several ranks as graphs cut at its all-reduces (`training/loop.py`);
    `capturable_optimizer=True` builds the optimizer with `capturable=True` for that. On the CPU the
    parameters it produces equal rsl-rl's bit for bit (`tests/training/test_training_loop.py`).
 """
@@ -31,10 +31,7 @@ from rsl_rl.algorithms import PPO
 from rsl_rl.storage import RolloutStorage
 from rsl_rl.utils import resolve_optimizer
 
-from . import (
-    _rsl,  # noqa: F401
-    distributed,
-)
+from . import _rsl  # noqa: F401
 
 
 def _scaled_optimizer_class(base: type) -> type:
@@ -210,17 +207,12 @@ class AquariumPPO(PPO):
 
     @property
     def graphable(self) -> bool:
-        """Whether `update_on_device` can be captured too: a rollout that can, a fixed learning-rate
-        schedule (the adaptive one reads the KL on the host every mini-batch), and with several ranks a
-        process group whose collectives a CUDA graph captures (NCCL; gloo's wait on the host). The
+        """Whether `update_on_device` can be captured too: a rollout that can, and a fixed learning-rate
+        schedule (the adaptive one reads the KL on the host every mini-batch). With several ranks the
         gradients' average over the ranks (rsl-rl's `reduce_parameters`: the gradients concatenated
-        into buckets, each all-reduced, divided and copied back) has the same shapes every call and
-        no host work, so a graph replays it."""
-        return (
-            self.rollout_graphable
-            and (not self.is_multi_gpu or distributed.collectives_capturable())
-            and not (self.desired_kl is not None and self.schedule == "adaptive")
-        )
+        into buckets, each all-reduced, divided and copied back) has the same shapes every call and no
+        host work, so graphs replay the rest of the update around it (`loop.graph_plan` says how)."""
+        return self.rollout_graphable and not (self.desired_kl is not None and self.schedule == "adaptive")
 
     def mini_batch_indices(self) -> tuple[torch.Tensor, int]:
         """The indices of the next update (see `mini_batch_indices`); call once per update."""

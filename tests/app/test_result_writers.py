@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -197,3 +199,17 @@ def test_bench_fused_update_compile_only_times_the_build_and_no_point(tmp_path, 
     out = tmp_path / "fused.json"
     assert bench.main(["--device", "cpu", "--compile-only", "--out", str(out)]) == 0
     assert json.loads(out.read_text())["points"] == []
+
+
+def test_bench_multi_gpu_names_where_a_run_past_its_time_waited():
+    """A run past its time: its ranks (the launcher's children) print their stacks on SIGABRT, the whole
+    tree is killed, and the error says so with those stacks; a failed run names its output."""
+    bench = _script("bench_multi_gpu")
+    rank = "import time\ndef waiting_for_peers():\n    time.sleep(600)\nwaiting_for_peers()"
+    launcher = f"import subprocess, sys; subprocess.run([sys.executable, '-c', {rank!r}])"
+    started = time.perf_counter()
+    with pytest.raises(RuntimeError, match=r"(?s)timed out after 2 s; where the ranks waited.*waiting_for_peers"):
+        bench.run_ranks([sys.executable, "-c", launcher], dict(os.environ), timeout=2)
+    assert time.perf_counter() - started < 30
+    with pytest.raises(RuntimeError, match=r"(?s)failed:.*exit seven"):
+        bench.run_ranks([sys.executable, "-c", "import sys; sys.exit('exit seven')"], dict(os.environ), timeout=30)

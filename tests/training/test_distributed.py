@@ -86,8 +86,8 @@ def test_two_ranks_agree_log_sums_and_keep_their_states(tmp_path):
     assert sorted(records[0]["params"]) == ["0", "1", "2"]
     assert records[0]["params"] == records[1]["params"]
     assert records[0]["final_sim"] != records[1]["final_sim"]
-    # on CUDA the rollout would replay graphs; the update, with its all-reduce, stays eager
-    assert [r["graphable"] for r in records] == [{"prey": [True, False]}] * 2
+    # on CUDA the rollout would replay graphs, and the update too (cut at its all-reduces: loop.graph_plan)
+    assert [r["graphable"] for r in records] == [{"prey": [True, True]}] * 2
     assert check_reduced_logs(run_dir, records, "prey", "progress.csv") >= 1
     # one file holds both ranks' simulations (each with its own seed)
     state = torch.load(os.path.join(run_dir, "model_2.pt"), weights_only=False)["infos"]["aquarium"]
@@ -224,20 +224,30 @@ def test_torchrun_needs_a_log_dir(monkeypatch, capsys):
 
 
 @pytest.mark.usefixtures("cuda_device")  # the ranks share GPU 0
-@pytest.mark.parametrize("team,updates", [("prey", [False]), ("both", [False, False])])
-def test_ranks_on_a_gpu_replay_their_rollouts_and_update_eagerly(tmp_path, team, updates):
+@pytest.mark.parametrize("team", ["prey", "both"])
+def test_ranks_on_a_gpu_replay_their_rollouts_and_their_update_cut_at_its_all_reduces(tmp_path, team):
     """Two ranks on CUDA (sharing one GPU, through gloo): each replays its rollout from CUDA graphs and
-    runs its update, with the gradients' all-reduce, eagerly; the ranks hold the same parameters after
-    every update and rank 0 logs the statistics summed over both. (gloo waits on the host for its
-    sums; NCCL's in-stream sum needs a GPU per rank, which this test does not have.)"""
-    records = torchrun(str(tmp_path), team, 3, "gpu", gpu="shared")
-    assert [r["graphs"] for r in records] == [[True, updates]] * 2
-    assert sorted(records[0]["params"]) == ["0", "1", "2"]
-    assert records[0]["params"] == records[1]["params"]
-    assert records[0]["final_sim"] != records[1]["final_sim"]
-    for name in ["prey", "predator"] if team == "both" else ["prey"]:
-        csv_name = f"progress_{name}.csv" if team == "both" else "progress.csv"
-        assert check_reduced_logs(os.path.join(tmp_path, "run"), records, name, csv_name) >= 1
+    its update from graphs cut at the gradients' all-reduces, which run eagerly between them (gloo waits
+    on the host for its sums; NCCL's in-stream sum needs a GPU per rank, which this test does not have).
+    The ranks hold the same parameters after every update, rank 0 logs the statistics summed over both,
+    and the parameters equal those of the eager update (`train.graph_update=false`) bit for bit."""
+    learners = 2 if team == "both" else 1
+    runs = {}
+    for graph_update in ("auto", False):
+        out = str(tmp_path / str(graph_update))
+        os.makedirs(out)
+        records = torchrun(out, team, 3, "gpu", gpu="shared", train={"graph_update": graph_update})
+        split = "split" if graph_update == "auto" else False
+        assert [r["graphs"] for r in records] == [[True, [split] * learners]] * 2
+        assert sorted(records[0]["params"]) == ["0", "1", "2"]
+        assert records[0]["params"] == records[1]["params"]
+        assert records[0]["final_sim"] != records[1]["final_sim"]
+        for name in ["prey", "predator"] if team == "both" else ["prey"]:
+            csv_name = f"progress_{name}.csv" if team == "both" else "progress.csv"
+            assert check_reduced_logs(os.path.join(out, "run"), records, name, csv_name) >= 1
+        runs[graph_update] = records
+    assert runs["auto"][0]["params"] == runs[False][0]["params"]
+    assert runs["auto"][0]["final_params"] == runs[False][0]["final_params"]
 
 
 def check_nccl_run(out: str, team: str, pool_every: int, graph_update) -> list[dict]:
@@ -245,7 +255,7 @@ def check_nccl_run(out: str, team: str, pool_every: int, graph_update) -> list[d
     rollouts and capture their updates as asked, hold the same parameters after every update, and rank
     0 logs the statistics summed over both; each rank's record."""
     teams = ["prey", "predator"] if team == "both" else ["prey"]
-    captured = graph_update is True
+    captured = {True: True, "auto": "split", False: False}[graph_update]
     os.makedirs(out)
     records = torchrun(out, team, 3, "nccl", gpu="own", train={"pool_every": pool_every, "graph_update": graph_update})
     assert [r["graphs"] for r in records] == [[True, [captured] * len(teams)]] * 2
@@ -266,11 +276,17 @@ def needs_two_gpus() -> None:
 
 @pytest.mark.usefixtures("cuda_device")
 @pytest.mark.parametrize("team,pool_every", [("prey", 0), ("both", 1)], ids=["prey", "both+pool"])
-def test_ranks_on_their_own_gpus_update_eagerly_by_default(tmp_path, team, pool_every):
-    """Two ranks on GPUs 0 and 1 (NCCL), default settings (`train.graph_update="auto"`): each replays
-    its rollout from CUDA graphs and runs its update, with its all-reduce, eagerly."""
+def test_ranks_on_their_own_gpus_replay_the_update_cut_at_its_all_reduces_by_default(tmp_path, team, pool_every):
+    """Two ranks on GPUs 0 and 1 (NCCL), default settings (`train.graph_update="auto"`): each replays its
+    rollout from CUDA graphs and its update from graphs cut at the all-reduces, which run eagerly between
+    them; the parameters equal those of the eager update bit for bit (two ranks' sum is one rounding)."""
     needs_two_gpus()
-    check_nccl_run(str(tmp_path / "auto"), team, pool_every, "auto")
+    runs = {
+        graph_update: check_nccl_run(str(tmp_path / f"graph_update_{graph_update}"), team, pool_every, graph_update)
+        for graph_update in ("auto", False)
+    }
+    assert runs["auto"][0]["params"] == runs[False][0]["params"]
+    assert runs["auto"][0]["final_params"] == runs[False][0]["final_params"]
 
 
 @pytest.mark.skipif(

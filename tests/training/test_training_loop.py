@@ -165,21 +165,38 @@ def test_graph_plan_without_graph_update_keeps_the_rollout_graphs(algs, plan):
 
 
 @pytest.mark.parametrize(
-    "graph_update,plan",
-    [("auto", (True, [True, False])), (True, (True, [True, True])), (False, (True, [False, False]))],
+    "graph_update,backend,plan",
+    [
+        ("auto", "nccl", (True, [True, "split"])),
+        ("auto", "gloo", (True, [True, "split"])),
+        (True, "nccl", (True, [True, True])),
+        (False, "nccl", (True, [False, False])),
+    ],
 )
-def test_graph_plan_captures_the_update_of_several_ranks_only_when_asked(graph_update, plan):
-    """One process captures its update by default; a rank of several (NCCL: its update all-reduces)
-    runs it eagerly unless `train.graph_update=true` (that capture hung on 2 x H100 at 8535669)."""
+def test_graph_plan_splits_the_update_of_several_ranks_at_its_all_reduces(monkeypatch, graph_update, backend, plan):
+    """One process captures its update as one graph; a rank of several (its update all-reduces) as
+    graphs cut at each all-reduce by default, with any backend, and as one graph with NCCL's all-reduce
+    inside only when `train.graph_update=true` (that capture hung on 2 x H100 at 8535669)."""
+    from aquarium_warp.training import distributed
     from aquarium_warp.training.loop import graph_plan
 
+    monkeypatch.setattr(distributed, "collectives_capturable", lambda: backend == "nccl")
     assert graph_plan([_Alg(True, True), _Alg(True, True, ranks=True)], True, graph_update) == plan
+
+
+def test_graph_plan_refuses_to_capture_a_gloo_all_reduce(monkeypatch):
+    from aquarium_warp.training import distributed
+    from aquarium_warp.training.loop import graph_plan
+
+    monkeypatch.setattr(distributed, "collectives_capturable", lambda: False)
+    with pytest.raises(ValueError, match=r"^train.graph_update=true captures the gradient all-reduce .* only NCCL"):
+        graph_plan([_Alg(True, True, ranks=True)], True, True)
 
 
 def _learners(monkeypatch, ranks: int, backend: str | None, *changes: dict, team: str = "prey"):
     """The algorithms of a CPU trainer built as for CUDA graphs (capturable optimizer), made to believe
     they are one of `ranks` ranks whose process group runs `backend` (NCCL's capture cannot be
-    exercised on the CPU; what `graphable` reads of it can)."""
+    exercised on the CPU; what `graph_plan` reads of it can)."""
     from aquarium_warp.training import distributed
 
     monkeypatch.setattr(distributed, "collectives_capturable", lambda: backend == "nccl")
@@ -199,15 +216,15 @@ def _learners(monkeypatch, ranks: int, backend: str | None, *changes: dict, team
         (1, None, "prey", {}, True, (True, [True])),
         (1, None, "prey", {}, "auto", (True, [True])),
         (1, None, "prey", {}, False, (True, [False])),
-        # torchrun on GPUs: the update runs eagerly by default, for one team and for both
-        (2, "nccl", "prey", {}, "auto", (True, [False])),
-        (2, "nccl", "both", {}, "auto", (True, [False, False])),
+        # torchrun on GPUs: the update replays graphs cut at its all-reduces by default, any backend
+        (2, "nccl", "prey", {}, "auto", (True, ["split"])),
+        (2, "nccl", "both", {}, "auto", (True, ["split", "split"])),
+        (2, "gloo", "both", {}, "auto", (True, ["split", "split"])),
         # train.graph_update=true: the update with its all-reduce is captured, for one team and for both
         (2, "nccl", "prey", {}, True, (True, [True])),
         (2, "nccl", "both", {}, True, (True, [True, True])),
         (2, "nccl", "both", {}, False, (True, [False, False])),
-        # gloo waits on the host: eager update; the adaptive schedule reads the KL on the host
-        (2, "gloo", "both", {}, True, (True, [False, False])),
+        # the adaptive schedule reads the KL on the host: eager update
         (2, "nccl", "prey", CASES[2][1], True, (True, [False])),
         # a recurrent model: nothing captured
         (2, "nccl", "prey", CASES[5][1], True, (False, [False])),
@@ -218,10 +235,10 @@ def _learners(monkeypatch, ranks: int, backend: str | None, *changes: dict, team
         "one-eager-update",
         "nccl-auto",
         "nccl-both-auto",
+        "gloo-both-auto",
         "nccl-opted-in",
         "nccl-both-opted-in",
         "nccl-both-eager-update",
-        "gloo",
         "nccl-adaptive",
         "rnn",
     ],
@@ -341,3 +358,75 @@ def test_graph_captures_pause_the_garbage_collector():
     with pytest.raises(RuntimeError), collection_paused():
         raise RuntimeError("capture failed")
     assert gc.isenabled()
+
+
+class _FakeGraph:
+    """A stand-in for `torch.cuda.CUDAGraph` on the CPU: it records when its capture opens and closes
+    (in `log`) and when it is replayed."""
+
+    def __init__(self, log: list):
+        self.log, self.number = log, sum(entry[0] == "begin" for entry in log)
+
+    def capture_begin(self, pool=None, capture_error_mode="global"):
+        self.log.append(("begin", self.number, pool, capture_error_mode))
+
+    def capture_end(self):
+        self.log.append(("end", self.number))
+
+    def replay(self):
+        self.log.append(("replay", self.number))
+
+
+def test_split_graph_cuts_at_each_all_reduce_and_replays_them_in_order(monkeypatch):
+    """`SplitGraph` captures the work between all-reduces as graphs and repeats the all-reduces (same
+    tensors, same arguments) between their replays; `torch.distributed.all_reduce` is itself again
+    after the capture, also after a capture that raised. (CUDA graphs need a GPU: a recording stand-in
+    takes their place; the GPU tests of tests/training/test_distributed.py run real ones.)"""
+    import torch.distributed as dist
+
+    from aquarium_warp.training import loop
+
+    log: list = []
+    reduced: list = []
+
+    def all_reduce(tensor, op=dist.ReduceOp.SUM, group=None, async_op=False):
+        reduced.append((tensor, op, group))
+        log.append(("all_reduce", len(reduced) - 1))
+
+    monkeypatch.setattr(dist, "all_reduce", all_reduce)
+    monkeypatch.setattr(loop.torch.cuda, "CUDAGraph", lambda: _FakeGraph(log))
+    a, b = torch.zeros(3), torch.ones(2)
+
+    def update():
+        dist.all_reduce(a)
+        dist.all_reduce(b, op=dist.ReduceOp.MAX)
+        return "losses"
+
+    graph = loop.SplitGraph("pool", None, "thread_local")
+    assert graph.capture(update) == "losses"
+    assert dist.all_reduce is all_reduce and reduced == []  # capturing runs no collective
+    assert log == [
+        ("begin", 0, "pool", "thread_local"),
+        ("end", 0),
+        ("begin", 1, "pool", "thread_local"),
+        ("end", 1),
+        ("begin", 2, "pool", "thread_local"),
+        ("end", 2),
+    ]
+    assert graph.collectives == 2
+    log.clear()
+    graph.replay()
+    assert log == [("replay", 0), ("all_reduce", 0), ("replay", 1), ("all_reduce", 1), ("replay", 2)]
+    assert reduced[0][0] is a and reduced[0][1] == dist.ReduceOp.SUM and reduced[1][0] is b
+    assert reduced[1][1] == dist.ReduceOp.MAX
+    with pytest.raises(RuntimeError, match="captured once"):
+        graph.capture(update)
+
+    def asynchronous():
+        dist.all_reduce(a, async_op=True)
+
+    log.clear()
+    with pytest.raises(RuntimeError, match="asynchronous all-reduce cannot be cut"):
+        loop.SplitGraph("pool", None).capture(asynchronous)
+    assert dist.all_reduce is all_reduce
+    assert log == [("begin", 0, "pool", "global"), ("end", 0)]  # the open capture was closed
