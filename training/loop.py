@@ -447,6 +447,15 @@ class TrainingLoop:
             times[phase] += a.elapsed_time(b) / 1e3 if cuda else b - a
         return times
 
+    def release_graphs(self) -> None:
+        """Free every captured graph, once the GPU has finished with them (a later iteration captures
+        anew). Before its process group is destroyed: a graph that holds NCCL's kernels keeps the
+        communicator busy, and destroying the group then waited forever (4 x H200, commit b717c38)."""
+        if self.graphs:
+            torch.cuda.synchronize(self.device)
+        self._act_graphs, self._after_graphs = [], []
+        self._learn_graphs = [None] * len(self.learners)
+
     def _capture_rollout(self) -> None:
         """Record `act[t]` and `after[t]` in replay order, from the loop's memory pool. Capturing runs
         nothing: the storages' step counters advance as if it had and are reset afterwards."""

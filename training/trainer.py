@@ -380,5 +380,7 @@ class Trainer:
         if self.video is not None:
             self.video.close()
         self.vec_env.close()
+        if self.runner.loop is not None:
+            self.runner.loop.release_graphs()  # before the process group goes (see release_graphs)
         if self.world_size > 1:
             distributed.close()
