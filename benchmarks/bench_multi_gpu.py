@@ -9,8 +9,8 @@ the iterations after the first two (Warp compilation, warm-up). `--modes` picks 
 - `graphs`: rollout and update replayed from CUDA graphs, the defaults (`train.graph_update="auto"`:
   one GPU captures the update as one graph, several GPUs as graphs cut at its all-reduces, which run
   eagerly between them);
-- `whole-update`: on several GPUs the experimental capture of the update with its NCCL all-reduce
-  inside one graph (`train.graph_update=true`), which hung on 2 x H100 at commit 8535669;
+- `whole-update`: on several GPUs the update captured as one graph with its NCCL all-reduce inside
+  (`train.graph_update=true`);
 - `eager-update`: the rollout from CUDA graphs, the update eager (`train.graph_update=false`) - with
   `graphs`, the gain of capturing the update;
 - `eager`: no graphs (`train.cuda_graphs=false`), on one GPU only (the loop before any graphs).

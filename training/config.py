@@ -60,8 +60,9 @@ TRAIN_DEFAULTS: dict[str, Any] = {
     "quiet": False,  # tqdm progress bar instead of the per-iteration line
     "loop": "fast",  # "fast": training/loop.py (no host syncs; CUDA graphs); "rsl-rl": its runner's loop
     "cuda_graphs": True,  # the fast loop replays CUDA graphs on CUDA devices where the model allows
-    # with cuda_graphs, the PPO update too: "auto" (one process captures it, several ranks run it eagerly),
-    # true (several NCCL ranks capture it with its all-reduce too: experimental, hung on 2 x H100) or false (eager)
+    # with cuda_graphs, the PPO update too: "auto" (one graph in one process; on several ranks graphs cut at each
+    # gradient all-reduce, which runs eagerly between them), true (one graph; several NCCL ranks capture the
+    # all-reduce inside it) or false (eager)
     "graph_update": "auto",
     "metrics_every": 10,  # swarm metrics (Swarm/* in the log) sampled every N steps; 0: none
     "tf32": False,  # CUDA matrix products in TF32 (faster for large batches, ~1e-3 relative error)

@@ -30,9 +30,12 @@ Several processes (torchrun): a rank's update all-reduces its gradients after ev
 default ("auto") the update is captured as a `SplitGraph`: CUDA graphs cut at each all-reduce, which
 runs eagerly between two replays, so the collectives never enter a graph and any backend serves (NCCL,
 or gloo's host-side wait). `graph_update=True` instead captures the whole update, NCCL's all-reduce
-inside its graph (experimental: on 2 x H100 at commit 8535669 such a run never finished): every rank
-captures and replays the same collectives in the same order (the graphs are captured at the same
-iteration on every rank, after the parameters' broadcast has set up the communicator). Captures on
+inside its graph: every rank captures and replays the same collectives in the same order (the graphs
+are captured at the same iteration on every rank, after the parameters' broadcast has set up the
+communicator). Both run at the same speed on 2 and 4 H200s (benchmarks/results/multi_gpu_h200x4_c6239ee/).
+A graph that holds NCCL's kernels must be freed before the process group is destroyed
+(`release_graphs`, called by the trainer's `close`): otherwise `destroy_process_group` waits forever,
+which is why such runs once seemed to hang (2 x H100 at 8535669; found on 4 x H200 at b717c38). Captures on
 several ranks use CUDA's thread-local capture mode: NCCL's proxy threads and torch's watchdog make CUDA
 calls of their own while this thread captures, which the global mode would count against the capture.
 A capture that fails raises, naming the learner and the way out (`train.graph_update=false`); there is
@@ -92,8 +95,8 @@ class SplitGraph:
     tensor (which stays allocated in the graphs' memory pool), the work up to the next all-reduce the
     next graph, and so on. `replay()` replays the graphs and runs the all-reduces between them, in the
     captured order, with the same arguments. The collectives thus run eagerly from the host, as in an
-    eager update, while everything between them replays: no collective is captured (the whole-update
-    capture with NCCL's all-reduce inside hung), and gloo's host-side wait serves too.
+    eager update, while everything between them replays: no collective is captured, so any backend
+    serves, gloo's host-side wait included.
 
     rsl-rl's gradient average (`reduce_gradients_in_buckets`) calls `torch.distributed.all_reduce`
     directly; the cut replaces that function for the capture only (the capturing thread is the only

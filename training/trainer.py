@@ -33,9 +33,9 @@ seed `train.seed + RANK` (listed in `config.json` under `distributed`); rank 0 l
 statistics and swarm metrics summed over all ranks (losses: their mean) and writes the checkpoints,
 which hold rank 0's state as above plus `world_size` and the other ranks' states under `ranks`; on
 resume each rank restores its own (the same number of processes is required). On CUDA (NCCL) each
-rank replays its rollout from CUDA graphs and runs its update, with its all-reduce, eagerly;
-`train.graph_update=true` captures that update too, as one process does (experimental: it hung on
-2 x H100 at commit 8535669).
+rank replays its rollout from CUDA graphs and its update from graphs cut at each gradient all-reduce
+(`loop.SplitGraph`); `train.graph_update=true` captures the update as one graph with the all-reduce
+inside, as one process does.
 """
 
 from __future__ import annotations

@@ -289,11 +289,6 @@ def test_ranks_on_their_own_gpus_replay_the_update_cut_at_its_all_reduces_by_def
     assert runs["auto"][0]["final_params"] == runs[False][0]["final_params"]
 
 
-@pytest.mark.skipif(
-    os.environ.get("AQUARIUM_TEST_NCCL_CAPTURE") != "1",
-    reason="the update captured with its NCCL all-reduce hung on 2 x H100 at 8535669 (train.graph_update=true "
-    "is experimental): AQUARIUM_TEST_NCCL_CAPTURE=1 runs it",
-)
 @pytest.mark.usefixtures("cuda_device")
 @pytest.mark.parametrize("team,pool_every", [("prey", 0), ("both", 0), ("both", 1)], ids=["prey", "both", "both+pool"])
 def test_ranks_on_their_own_gpus_capture_the_update_with_its_all_reduce(tmp_path, team, pool_every):

@@ -176,7 +176,7 @@ def test_graph_plan_without_graph_update_keeps_the_rollout_graphs(algs, plan):
 def test_graph_plan_splits_the_update_of_several_ranks_at_its_all_reduces(monkeypatch, graph_update, backend, plan):
     """One process captures its update as one graph; a rank of several (its update all-reduces) as
     graphs cut at each all-reduce by default, with any backend, and as one graph with NCCL's all-reduce
-    inside only when `train.graph_update=true` (that capture hung on 2 x H100 at 8535669)."""
+    inside only when `train.graph_update=true`."""
     from aquarium_warp.training import distributed
     from aquarium_warp.training.loop import graph_plan
 
