@@ -1,7 +1,7 @@
 """The fused MLPs against torch's, on the CPU: the Warp backend (`training/fused_mlp.py`; the same kernels
 run on CUDA) and the Triton backend (`training/triton_mlp.py`) through Triton's interpreter, which runs
-its kernels on CPU tensors (`TRITON_INTERPRET=1`, set below before the backend is imported; with
-AQUARIUM_TEST_DEVICE=cuda:N the interpreter stays off and the Triton tests here skip, the CUDA one runs).
+its kernels on CPU tensors (`TRITON_INTERPRET=1`, which tests/conftest.py sets before triton is imported;
+with AQUARIUM_TEST_DEVICE=cuda:N the interpreter stays off and the Triton tests here skip, the CUDA ones run).
 
 Errors are relative to the largest magnitude of the float64 reference (torch's MLP in float64).
 Measured on the CPU over WARP_SHAPES (warp 1.19): forward <= 4.7e-7 (torch's float32: 3.8e-7), parameter
@@ -21,8 +21,6 @@ import sys
 from pathlib import Path
 
 os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
-if not os.environ.get("AQUARIUM_TEST_DEVICE", "cpu").startswith("cuda"):
-    os.environ.setdefault("TRITON_INTERPRET", "1")  # read when triton_mlp's kernels are defined
 
 import pytest
 import torch
@@ -67,15 +65,21 @@ TRITON_SHAPES = [
 COMMON_HIDDEN = [32, 32]
 
 
+def _triton_mlp():
+    """training/triton_mlp.py, where its kernels take CPU tensors (Triton's interpreter); else the test skips."""
+    pytest.importorskip("triton")
+    from aquarium_warp.training import triton_mlp
+
+    if not triton_mlp.INTERPRETED:
+        pytest.skip("Triton's interpreter is off (AQUARIUM_TEST_DEVICE=cuda): see test_triton_on_cuda_*")
+    return triton_mlp
+
+
 @pytest.fixture(params=FUSED_BACKENDS)
 def backend(request) -> str:
-    """Each backend; Triton's through its interpreter on CPU tensors (skipped where it is off)."""
+    """Each backend; Triton's through its interpreter on CPU tensors."""
     if request.param == "triton":
-        pytest.importorskip("triton")
-        from aquarium_warp.training import triton_mlp
-
-        if not triton_mlp.INTERPRETED:
-            pytest.skip("Triton's interpreter is off (AQUARIUM_TEST_DEVICE=cuda): see test_triton_on_cuda")
+        _triton_mlp()
     return request.param
 
 
@@ -128,11 +132,7 @@ def test_forward_and_gradients_match_torch_within_float32_rounding(n_in, hidden,
 
 @pytest.mark.parametrize("n_in,hidden,n_out,activation,rows", TRITON_SHAPES)
 def test_triton_forward_and_gradients_match_torch_within_float32_rounding(n_in, hidden, n_out, activation, rows):
-    pytest.importorskip("triton")
-    from aquarium_warp.training import triton_mlp
-
-    if not triton_mlp.INTERPRETED:
-        pytest.skip("Triton's interpreter is off (AQUARIUM_TEST_DEVICE=cuda): see test_triton_on_cuda")
+    _triton_mlp()
     mlp, fused = _mlps(n_in, hidden, n_out, activation, backend="triton")
     gen = torch.Generator().manual_seed(1)
     x = 2 * torch.randn(rows, n_in, generator=gen)  # (tanh's range: its series below 1/16 and exp above)
@@ -142,11 +142,7 @@ def test_triton_forward_and_gradients_match_torch_within_float32_rounding(n_in, 
 def test_triton_kernels_really_run_under_the_interpreter():
     """A weight changed in the call alone (not in the module) changes the output as torch's MLP
     with that weight does: the kernels compute it, not torch's modules."""
-    pytest.importorskip("triton")
-    from aquarium_warp.training import triton_mlp
-
-    if not triton_mlp.INTERPRETED:
-        pytest.skip("Triton's interpreter is off (AQUARIUM_TEST_DEVICE=cuda): see test_triton_on_cuda")
+    triton_mlp = _triton_mlp()
     mlp, fused = _mlps(29, [64, 64], 9, "tanh", backend="triton")
     x = torch.randn(70, 29)
     params = [p.detach().clone() for layer in list(mlp)[0::2] for p in (layer.weight, layer.bias)]
@@ -283,7 +279,7 @@ def test_checkpoints_interchangeable_and_same_initial_parameters(backend):
 
 
 def test_checkpoints_interchangeable_between_the_backends():
-    pytest.importorskip("triton")
+    _triton_mlp()
     warp_model, obs = _models(backend="warp")
     triton_model, _ = _models(backend="triton", seed=5)
     triton_model.load_state_dict(warp_model.state_dict())
