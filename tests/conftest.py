@@ -10,6 +10,11 @@ wp.config.quiet = True
 wp.config.log_level = getattr(wp, "LOG_WARNING", wp.config.log_level)
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
 os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
+# Triton's interpreter runs the fused MLP's Triton kernels on CPU tensors (tests/training/test_fused_mlp.py). Triton
+# reads it when it is first imported, which any module may do (torch's compiler does), so here, before them all;
+# a GPU run (AQUARIUM_TEST_DEVICE=cuda:N) compiles the kernels instead.
+if not os.environ.get("AQUARIUM_TEST_DEVICE", "cpu").startswith("cuda"):
+    os.environ.setdefault("TRITON_INTERPRET", "1")
 
 
 @pytest.fixture(scope="session")

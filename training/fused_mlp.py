@@ -1,17 +1,21 @@
-"""A fused MLP for rsl-rl's `MLPModel`: the whole network's forward in one Warp tile kernel, and its
-backward, which recomputes the hidden activations from the input, in one more (plus a small sum).
+"""A fused MLP for rsl-rl's `MLPModel`: the whole network's forward in one kernel, and its backward,
+which recomputes the hidden activations from the input, in one more (plus a small sum). Two backends
+make the kernels: "warp", this module's Warp tile kernels (`FusedMLPFunction`), and "triton",
+`triton_mlp.TritonMLPFunction` (training/triton_mlp.py; the same design in Triton).
 
-`FusedMLPModel` is rsl-rl's `MLPModel` whose `mlp` is a `FusedMLP`: the same `nn.Linear` and
-activation modules (so the same parameters, initialisation and state_dict keys: checkpoints load
-into either), whose forward runs `FusedMLPFunction` for float32 inputs on the CPU or CUDA.
-`train.fused_mlp` (config.py) switches it on for the actor and the critic of parameter sharing;
-Individual Learning keeps its `BatchedMLP`.
+`FusedMLPModel` is rsl-rl's `MLPModel` whose `mlp` is a `FusedMLP` of one backend: the same
+`nn.Linear` and activation modules (so the same parameters, initialisation and state_dict keys:
+checkpoints load into either model and either backend), whose forward runs the backend's autograd
+function for float32 inputs on the backend's devices (`backend_function`). `train.fused_mlp`
+(config.py: false, "warp" or "triton") switches it on for the actor and the critic of parameter
+sharing; Individual Learning keeps its `BatchedMLP`. `MLPSpec`, `mlp_spec` and `ACTIVATIONS` serve
+both backends.
 
-The kernels (made per architecture by `mlp_kernels`):
+The Warp kernels (made per architecture by `mlp_kernel`):
 
 - forward: each block takes row tiles of `spec.rows` rows and runs every layer (`tile_matmul`, bias, activation)
   with the weights read from one flat parameter vector, and writes only the output rows.
-- backward: a fixed number of blocks (`backward_blocks`), each taking every `blocks`-th row tile:
+- backward: a fixed number of blocks (`launch_blocks`), each taking every `blocks`-th row tile:
   it recomputes the tile's hidden activations (kept in one shared tile), then walks the layers back,
   adding the tile's weight and bias gradients into the block's own row of a `[blocks, parameters]`
   buffer (read, add, write back), and writes the input gradient only when the input requires one;
@@ -36,7 +40,8 @@ default actor (29-64-64-9, 64-row tiles) takes 125,744 bytes in the backward ker
 forward (`MLPSpec.shared_bytes` estimates 133,156): one backward block per H100/H200 multiprocessor.
 Smaller `TILE_ROWS` trade that occupancy against per-tile overhead (not measured). Speed, measured on one
 H100 (benchmarks/results/fused_update_h100_5b61039/): the PPO update with these kernels takes 3.2x torch's
-at 65,536 worlds and 2.1x at 1,024, which is why `train.fused_mlp` is off by default.
+at 65,536 worlds and 2.1x at 1,024, which is why `train.fused_mlp` is off by default (the Triton
+backend is not measured yet).
 
 Arithmetic: float32, with Warp's matrix products and sums in their own order, so the results equal
 torch's within float32 rounding, not bit for bit (tests/training/test_fused_mlp.py states the
@@ -56,6 +61,7 @@ from rsl_rl.models import MLPModel
 from rsl_rl.modules import MLP
 
 from . import _rsl  # noqa: F401
+from .config import FUSED_BACKENDS
 
 TILE_ROWS = (64, 32, 16)  # rows per tile: the most whose tiles fit SHARED_BUDGET (MLPSpec.rows)
 SHARED_BUDGET = 200 * 1024  # bytes of a block's shared memory for its tiles (H100/H200: 227 KB a block)
@@ -414,9 +420,9 @@ def _run(
     _launch(kernel, blocks, inputs, x.device)
 
 
-def mlp_spec(mlp: nn.Sequential) -> MLPSpec:
+def mlp_spec(mlp: nn.Sequential, backend: str) -> MLPSpec:
     """The `MLPSpec` of an rsl-rl `MLP` (Linear, activation, ..., Linear); a one-line ValueError
-    names what the fused kernels do not cover."""
+    names what the fused kernels of `backend` do not cover."""
     modules = list(mlp)
     linears = [m for m in modules[0::2] if isinstance(m, nn.Linear)]
     activations = modules[1::2]
@@ -435,7 +441,11 @@ def mlp_spec(mlp: nn.Sequential) -> MLPSpec:
     if any(not 1 <= d <= MAX_WIDTH for d in dims[1:]):
         raise ValueError(f"fused MLP: layer widths {list(dims[1:])} must be in [1, {MAX_WIDTH}]")
     spec = MLPSpec(dims, ACTIVATIONS[next(iter(kinds))])
-    if not spec.rows:
+    if backend == "triton":
+        from .triton_mlp import check_spec  # (an optional dependency, whose module imports this one)
+
+        check_spec(spec)
+    elif not spec.rows:
         raise ValueError(
             f"fused MLP: layers {list(dims)} need {spec.shared_bytes(TILE_ROWS[-1])} bytes of shared memory "
             f"at {TILE_ROWS[-1]} rows per tile, over the {SHARED_BUDGET} a block has here"
@@ -443,14 +453,30 @@ def mlp_spec(mlp: nn.Sequential) -> MLPSpec:
     return spec
 
 
+@functools.cache
+def backend_function(backend: str) -> tuple[type[torch.autograd.Function], tuple[str, ...]]:
+    """The autograd function of `backend` ("warp": `FusedMLPFunction`; "triton":
+    `triton_mlp.TritonMLPFunction`) and the device types whose tensors it takes."""
+    if backend == "warp":
+        return FusedMLPFunction, ("cpu", "cuda")
+    from .triton_mlp import DEVICES, TritonMLPFunction  # (an optional dependency, whose module imports this one)
+
+    return TritonMLPFunction, DEVICES
+
+
 class FusedMLP(MLP):
     """An rsl-rl `MLP` (the same modules, adopted from `mlp`, so the same parameters and state_dict
-    keys) whose forward runs `FusedMLPFunction` where it can: float32 on the CPU or CUDA, outside
-    autocast, TorchScript, tracing and export; elsewhere the modules one after another."""
+    keys) whose forward runs the fused kernels of `backend` (one of `FUSED_BACKENDS`) where they serve:
+    float32 on a device of the backend's (Warp: the CPU or CUDA; Triton: CUDA, or the CPU under
+    Triton's interpreter), outside autocast, TorchScript, tracing and export; elsewhere the modules
+    one after another."""
 
-    def __init__(self, mlp: MLP) -> None:
+    def __init__(self, mlp: MLP, backend: str) -> None:
+        if backend not in FUSED_BACKENDS:
+            raise ValueError(f"FusedMLP: backend={backend!r} must be one of {list(FUSED_BACKENDS)}")
         nn.Sequential.__init__(self, *mlp)  # not MLP.__init__: no new layers, no random draws
-        self.spec = mlp_spec(self)
+        self.backend = backend
+        self.spec = mlp_spec(self, backend)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if torch.jit.is_scripting() or not self._fusable(x):
@@ -463,7 +489,7 @@ class FusedMLP(MLP):
     def _fusable(self, x: torch.Tensor) -> bool:
         return (
             x.dtype == torch.float32
-            and x.device.type in ("cpu", "cuda")
+            and x.device.type in backend_function(self.backend)[1]
             and self[0].weight.dtype == torch.float32
             and not torch.is_autocast_enabled(x.device.type)
             and not torch.jit.is_tracing()
@@ -478,15 +504,16 @@ class FusedMLP(MLP):
             raise ValueError(f"FusedMLP: input of {x.shape[-1]} features, the first layer takes {self.spec.dims[0]}")
         rows = x.reshape(-1, x.shape[-1]).contiguous()
         params = [p for layer in list(self)[0::2] for p in (layer.weight, layer.bias)]
-        out = FusedMLPFunction.apply(self.spec, rows, *params)
+        out = backend_function(self.backend)[0].apply(self.spec, rows, *params)
         return out.reshape(*x.shape[:-1], out.shape[-1])
 
 
 class FusedMLPModel(MLPModel):
-    """rsl-rl's `MLPModel` with a `FusedMLP` (see the module doc); its arguments are `MLPModel`'s."""
+    """rsl-rl's `MLPModel` with a `FusedMLP` of `backend` (see the module doc); its other arguments
+    are `MLPModel`'s."""
 
     mlp: MLP  # declared: rsl-rl's class sets it in __init__, where type inference does not follow
 
-    def __init__(self, *args, **kwargs) -> None:
+    def __init__(self, *args, backend: str, **kwargs) -> None:
         super().__init__(*args, **kwargs)
-        self.mlp = FusedMLP(self.mlp)
+        self.mlp = FusedMLP(self.mlp, backend)

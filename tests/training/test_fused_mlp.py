@@ -1,10 +1,17 @@
-"""The fused Warp MLP (`training/fused_mlp.py`) against torch's, on the CPU (the same kernels run on CUDA).
+"""The fused MLPs against torch's, on the CPU: the Warp backend (`training/fused_mlp.py`; the same kernels
+run on CUDA) and the Triton backend (`training/triton_mlp.py`) through Triton's interpreter, which runs
+its kernels on CPU tensors (`TRITON_INTERPRET=1`, which tests/conftest.py sets before triton is imported;
+with AQUARIUM_TEST_DEVICE=cuda:N the interpreter stays off and the Triton tests here skip, the CUDA ones run).
 
 Errors are relative to the largest magnitude of the float64 reference (torch's MLP in float64).
-Measured on the CPU over SHAPES (warp 1.19): forward <= 4.7e-7 (torch's float32: 3.8e-7), parameter
+Measured on the CPU over WARP_SHAPES (warp 1.19): forward <= 4.7e-7 (torch's float32: 3.8e-7), parameter
 and input gradients <= 4.8e-7 (torch's: 6.7e-7); after one full PPO update from the same state,
 every parameter within 5.7e-6 of the torch update's (Adam divides each gradient by its running RMS,
-so a rounding difference in a tiny gradient becomes a difference in a step).
+so a rounding difference in a tiny gradient becomes a difference in a step). Triton (3.9.0's
+interpreter, whose products are numpy's) over TRITON_SHAPES: forward <= 4.5e-7 (torch's: 4.5e-7),
+gradients <= 4.1e-7 (torch's: 7.4e-7); its tanh alone within 8.6e-7 relative (9.3e-8 absolute) of
+float64's; after one PPO update every parameter within 8.4e-6 of the torch update's. The same
+tolerances hold both backends.
 """
 
 import copy
@@ -22,7 +29,7 @@ from rsl_rl.modules import MLP
 from tensordict import TensorDict
 
 from aquarium_warp.training import make_config
-from aquarium_warp.training.config import FUSED_MODEL, runner_config
+from aquarium_warp.training.config import FUSED_BACKENDS, FUSED_MODEL, runner_config
 from aquarium_warp.training.fused_mlp import FusedMLP, FusedMLPModel, MLPSpec
 
 BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
@@ -30,6 +37,7 @@ BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
 FORWARD_TOLERANCE = 2e-6  # relative to the reference's largest magnitude; measured <= 4.7e-7
 GRADIENT_TOLERANCE = 2e-6  # measured <= 4.8e-7
 UPDATE_TOLERANCE = 5e-5  # one PPO update, per parameter tensor; measured <= 5.7e-6
+TF32_TOLERANCE = 1e-2  # Triton's TF32 products on CUDA (10-bit mantissas): about 1e-3
 
 ROWS = 64  # rows per tile of the nets below but the last (MLPSpec.rows), which takes 16
 
@@ -43,25 +51,57 @@ SHAPES = [
     (29, [128], 5, "tanh", 2 * ROWS),
     (29, [128, 128], 5, "tanh", 3 * 16 + 5),
 ]
+# Triton's (its tiles: 64 rows, 32 for width 128): the default actor with a tail; an input of 100
+# columns (padded to 128) with elu; one relu layer of 16 with an output of 1 (padded to 16); 128 wide
+# in whole tiles; three elu layers of 128 with an output of 128 and a tail.
+TRITON_SHAPES = [
+    (29, [64, 64], 9, "tanh", 3 * ROWS + 8),
+    (100, [32, 32], 3, "elu", 2 * ROWS + 2),
+    (7, [16], 1, "relu", ROWS + 1),
+    (29, [128], 5, "tanh", 2 * 32),
+    (13, [128, 128, 128], 128, "elu", 3 * 32 + 5),
+]
+# A net each backend covers, for the tests of what does not depend on the shape.
+COMMON_HIDDEN = [32, 32]
+
+
+def _triton_mlp():
+    """training/triton_mlp.py, where its kernels take CPU tensors (Triton's interpreter); else the test skips."""
+    pytest.importorskip("triton")
+    from aquarium_warp.training import triton_mlp
+
+    if not triton_mlp.INTERPRETED:
+        pytest.skip("Triton's interpreter is off (AQUARIUM_TEST_DEVICE=cuda): see test_triton_on_cuda_*")
+    return triton_mlp
+
+
+@pytest.fixture(params=FUSED_BACKENDS)
+def backend(request) -> str:
+    """Each backend; Triton's through its interpreter on CPU tensors."""
+    if request.param == "triton":
+        _triton_mlp()
+    return request.param
 
 
 def relative_error(value: torch.Tensor, reference: torch.Tensor) -> float:
     return float((value.detach().double() - reference).abs().max() / reference.abs().max())
 
 
-def _mlps(n_in, hidden, n_out, activation, seed=0):
+def _mlps(n_in, hidden, n_out, activation, seed=0, backend="warp"):
     torch.manual_seed(seed)
     mlp = MLP(n_in, n_out, hidden, activation)
-    return mlp, FusedMLP(copy.deepcopy(mlp))
+    return mlp, FusedMLP(copy.deepcopy(mlp), backend)
 
 
-@pytest.mark.parametrize("n_in,hidden,n_out,activation,rows", SHAPES)
-def test_forward_and_gradients_match_torch_within_float32_rounding(n_in, hidden, n_out, activation, rows):
-    mlp, fused = _mlps(n_in, hidden, n_out, activation)
+def _ran_fused(y: torch.Tensor, backend: str) -> bool:
+    """Whether `y` came out of `backend`'s autograd function (behind FusedMLP's reshape), not torch's modules."""
+    function = {"warp": "FusedMLPFunction", "triton": "TritonMLPFunction"}[backend]
+    return type(y.grad_fn.next_functions[0][0]).__name__ == f"{function}Backward"
+
+
+def _compare_to_torch(mlp, fused, x, grad, backend):
+    """The fused MLP's output and gradients (x's included) against torch's float32 and float64 MLPs."""
     reference = copy.deepcopy(mlp).double()
-    gen = torch.Generator().manual_seed(1)
-    x = torch.randn(rows, n_in, generator=gen)
-    grad = torch.randn(rows, n_out, generator=gen)
     x_fused, x_torch, x_ref = x.clone().requires_grad_(), x.clone().requires_grad_(), x.double().requires_grad_()
 
     y_ref = reference(x_ref)
@@ -71,7 +111,8 @@ def test_forward_and_gradients_match_torch_within_float32_rounding(n_in, hidden,
     y = fused(x_fused)
     y.backward(grad)
 
-    assert y.shape == (rows, n_out) and y.dtype == torch.float32
+    assert _ran_fused(y, backend)
+    assert y.shape == (x.shape[0], grad.shape[1]) and y.dtype == torch.float32
     torch_error = relative_error(y_torch, y_ref.detach())
     assert relative_error(y.detach(), y_ref.detach()) <= max(FORWARD_TOLERANCE, 4 * torch_error)
     for (name, p), p_torch, p_ref in zip(fused.named_parameters(), mlp.parameters(), reference.parameters()):
@@ -81,8 +122,41 @@ def test_forward_and_gradients_match_torch_within_float32_rounding(n_in, hidden,
     assert relative_error(x_fused.grad, x_ref.grad) <= GRADIENT_TOLERANCE
 
 
-def test_parameter_gradients_without_input_gradient_and_the_tail_rows_add_nothing():
-    mlp, fused = _mlps(29, [64, 64], 9, "tanh")
+@pytest.mark.parametrize("n_in,hidden,n_out,activation,rows", SHAPES)
+def test_forward_and_gradients_match_torch_within_float32_rounding(n_in, hidden, n_out, activation, rows):
+    mlp, fused = _mlps(n_in, hidden, n_out, activation)
+    gen = torch.Generator().manual_seed(1)
+    x = torch.randn(rows, n_in, generator=gen)
+    _compare_to_torch(mlp, fused, x, torch.randn(rows, n_out, generator=gen), "warp")
+
+
+@pytest.mark.parametrize("n_in,hidden,n_out,activation,rows", TRITON_SHAPES)
+def test_triton_forward_and_gradients_match_torch_within_float32_rounding(n_in, hidden, n_out, activation, rows):
+    _triton_mlp()
+    mlp, fused = _mlps(n_in, hidden, n_out, activation, backend="triton")
+    gen = torch.Generator().manual_seed(1)
+    x = 2 * torch.randn(rows, n_in, generator=gen)  # (tanh's range: its series below 1/16 and exp above)
+    _compare_to_torch(mlp, fused, x, torch.randn(rows, n_out, generator=gen), "triton")
+
+
+def test_triton_kernels_really_run_under_the_interpreter():
+    """A weight changed in the call alone (not in the module) changes the output as torch's MLP
+    with that weight does: the kernels compute it, not torch's modules."""
+    triton_mlp = _triton_mlp()
+    mlp, fused = _mlps(29, [64, 64], 9, "tanh", backend="triton")
+    x = torch.randn(70, 29)
+    params = [p.detach().clone() for layer in list(mlp)[0::2] for p in (layer.weight, layer.bias)]
+    params[2][3, 5] += 1.0  # the second layer's weight
+    with torch.no_grad():
+        out = triton_mlp.TritonMLPFunction.apply(fused.spec, x, *params)
+        mlp[2].weight[3, 5] += 1.0
+        expected = mlp(x)
+        assert relative_error(out, expected.double()) <= FORWARD_TOLERANCE
+        assert relative_error(fused(x), expected.double()) > 1e-3  # the module's weight is unchanged
+
+
+def test_parameter_gradients_without_input_gradient_and_the_tail_rows_add_nothing(backend):
+    mlp, fused = _mlps(29, [64, 64], 9, "tanh", backend=backend)
     x = torch.randn(ROWS + 5, 29)
     fused(x).square().sum().backward()  # x needs no gradient: the kernel without the input gradient
     mlp(x).square().sum().backward()
@@ -98,11 +172,11 @@ def test_parameter_gradients_without_input_gradient_and_the_tail_rows_add_nothin
         assert relative_error(g, p_torch.grad.double()) <= GRADIENT_TOLERANCE
 
 
-def test_bit_exact_on_the_cpu():
+def test_bit_exact_on_the_cpu(backend):
     """Same inputs twice -> identical outputs and gradients. On the CPU blocks run one after another;
-    on a GPU each block adds into its own row of partial gradients in a fixed order, so this holds
-    there by construction too (not tested here)."""
-    _, fused = _mlps(100, [32, 48], 3, "elu")
+    on a GPU each block (Triton: program) adds into its own row of partial gradients in a fixed order,
+    so this holds there by construction too (not tested here)."""
+    _, fused = _mlps(100, [32, 48] if backend == "warp" else COMMON_HIDDEN, 3, "elu", backend=backend)
     x = torch.randn(3 * ROWS + 7, 100)
     runs = []
     for _ in range(2):
@@ -115,16 +189,16 @@ def test_bit_exact_on_the_cpu():
         assert torch.equal(a, b)
 
 
-def test_empty_batch_and_leading_dimensions():
-    mlp, fused = _mlps(7, [16], 2, "relu")
+def test_empty_batch_and_leading_dimensions(backend):
+    mlp, fused = _mlps(7, [16], 2, "relu", backend=backend)
     assert fused(torch.zeros(0, 7)).shape == (0, 2)
     x = torch.randn(3, 5, 7)
     assert relative_error(fused(x).detach(), mlp(x).detach().double()) <= FORWARD_TOLERANCE
 
 
 @pytest.mark.parametrize("features", [6, 8])
-def test_input_of_the_wrong_width_is_refused_as_by_torch(features):
-    mlp, fused = _mlps(7, [16], 2, "tanh")
+def test_input_of_the_wrong_width_is_refused_as_by_torch(features, backend):
+    mlp, fused = _mlps(7, [16], 2, "tanh", backend=backend)
     x = torch.randn(4, features)
     with pytest.raises(RuntimeError):  # torch's Linear
         mlp(x)
@@ -133,8 +207,8 @@ def test_input_of_the_wrong_width_is_refused_as_by_torch(features):
     assert "\n" not in str(info.value)
 
 
-def test_torch_path_where_the_kernels_do_not_serve():
-    mlp, fused = _mlps(7, [16], 2, "tanh")
+def test_torch_path_where_the_kernels_do_not_serve(backend):
+    mlp, fused = _mlps(7, [16], 2, "tanh", backend=backend)
     x = torch.randn(10, 7, dtype=torch.float64)
     assert torch.equal(copy.deepcopy(fused).double()(x), copy.deepcopy(mlp).double()(x))  # float64: torch's
     scripted = torch.jit.script(copy.deepcopy(fused))  # TorchScript (policy export): torch's modules
@@ -142,17 +216,25 @@ def test_torch_path_where_the_kernels_do_not_serve():
 
 
 @pytest.mark.parametrize(
-    "hidden,activation,message",
+    "backend_name,hidden,activation,message",
     [
-        ([64], "selu", "activation"),
-        ([256], "tanh", "widths"),
-        ([64], "lrelu", "activation"),
-        ([128, 128, 128], "tanh", "shared memory"),
+        ("warp", [64], "selu", "activation"),
+        ("warp", [256], "tanh", "widths"),
+        ("warp", [64], "lrelu", "activation"),
+        ("warp", [128, 128, 128], "tanh", "shared memory"),
+        ("triton", [64], "selu", "activation"),
+        ("triton", [256], "tanh", "widths"),
+        ("triton", [32, 64], "tanh", r"hidden layers \[32, 64\] must be 1 to 3 layers of one width"),
+        ("triton", [48], "tanh", r"hidden layers \[48\] must be 1 to 3 layers of one width in \[16, 32, 64, 128\]"),
+        ("triton", [16] * 4, "tanh", "must be 1 to 3 layers"),
+        ("nvfuser", [64], "tanh", r"backend='nvfuser' must be one of \['warp', 'triton'\]"),
     ],
 )
-def test_unsupported_mlp_is_one_line_error(hidden, activation, message):
+def test_unsupported_mlp_is_one_line_error(backend_name, hidden, activation, message):
+    if backend_name == "triton":
+        pytest.importorskip("triton")
     with pytest.raises(ValueError, match=message) as info:
-        FusedMLP(MLP(8, 4, hidden, activation))
+        FusedMLP(MLP(8, 4, hidden, activation), backend_name)
     assert "\n" not in str(info.value)
 
 
@@ -167,24 +249,27 @@ def test_spec_flat_layout_round_trip():
         assert torch.equal(a, b)
 
 
-def _models(obs_dim=29, actions=9, fused=True, seed=0):
+def _models(obs_dim=29, actions=9, backend=None, seed=0):
+    """rsl-rl's actor model, with the fused MLP of `backend` (None: torch's `MLPModel`)."""
     obs = TensorDict({"policy": torch.zeros(4, obs_dim)}, batch_size=[4])
     groups = {"actor": ["policy"], "critic": ["policy"]}
     torch.manual_seed(seed)
-    model_class = FusedMLPModel if fused else MLPModel
-    return model_class(obs, groups, "actor", actions, hidden_dims=[64, 64], activation="tanh"), obs
+    kwargs = {"hidden_dims": [64, 64], "activation": "tanh"}
+    if backend is None:
+        return MLPModel(obs, groups, "actor", actions, **kwargs), obs
+    return FusedMLPModel(obs, groups, "actor", actions, backend=backend, **kwargs), obs
 
 
-def test_checkpoints_interchangeable_and_same_initial_parameters():
-    fused, obs = _models(fused=True)
-    plain, _ = _models(fused=False)
+def test_checkpoints_interchangeable_and_same_initial_parameters(backend):
+    fused, obs = _models(backend=backend)
+    plain, _ = _models()
     assert isinstance(fused.mlp, FusedMLP) and type(plain.mlp) is MLP
     fused_state, plain_state = fused.state_dict(), plain.state_dict()
     assert list(fused_state) == list(plain_state)
     for key in plain_state:  # the same seed gives the same parameters: FusedMLP draws nothing
         assert torch.equal(fused_state[key], plain_state[key]), key
-    other_fused, _ = _models(fused=True, seed=5)
-    other_plain, _ = _models(fused=False, seed=6)
+    other_fused, _ = _models(backend=backend, seed=5)
+    other_plain, _ = _models(seed=6)
     other_fused.load_state_dict(plain_state)  # torch checkpoint -> fused model
     other_plain.load_state_dict(fused_state)  # fused checkpoint -> torch model
     obs["policy"] = torch.randn(4, 29)
@@ -193,17 +278,33 @@ def test_checkpoints_interchangeable_and_same_initial_parameters():
     assert torch.equal(other_plain(obs), plain(obs))
 
 
-def test_config_switch_and_its_errors():
-    config = make_config("tiny", {"train": {"fused_mlp": True}})
+def test_checkpoints_interchangeable_between_the_backends():
+    _triton_mlp()
+    warp_model, obs = _models(backend="warp")
+    triton_model, _ = _models(backend="triton", seed=5)
+    triton_model.load_state_dict(warp_model.state_dict())
+    obs["policy"] = torch.randn(4, 29)
+    warp_out = warp_model.mlp(obs["policy"]).detach().double()
+    assert relative_error(triton_model.mlp(obs["policy"]), warp_out) <= FORWARD_TOLERANCE
+
+
+@pytest.mark.parametrize("backend_name", FUSED_BACKENDS)
+def test_config_switch_and_its_errors(backend_name):
+    config = make_config("tiny", {"train": {"fused_mlp": backend_name}})
     runner = runner_config(config, slots=4, action_count=9)
     assert runner["actor"]["class_name"] == runner["critic"]["class_name"] == FUSED_MODEL
+    assert runner["actor"]["backend"] == runner["critic"]["backend"] == backend_name
     assert runner_config(make_config("tiny"), slots=4, action_count=9)["actor"]["class_name"] == "MLPModel"
     for changes, message in (
-        ({"train": {"fused_mlp": "yes"}}, "train.fused_mlp='yes' must be true or false"),
-        ({"train": {"fused_mlp": True, "sharing": "individual"}}, "train.fused_mlp=true serves parameter sharing"),
+        ({"train": {"fused_mlp": "yes"}}, r"train.fused_mlp='yes' must be false or one of \['warp', 'triton'\]"),
+        ({"train": {"fused_mlp": True}}, r"train.fused_mlp=True must be false or one of \['warp', 'triton'\]"),
         (
-            {"train": {"fused_mlp": True}, "runner": {"critic": {"class_name": "RNNModel"}}},
-            "train.fused_mlp=true serves parameter sharing",
+            {"train": {"fused_mlp": backend_name, "sharing": "individual"}},
+            f"train.fused_mlp='{backend_name}' serves parameter sharing",
+        ),
+        (
+            {"train": {"fused_mlp": backend_name}, "runner": {"critic": {"class_name": "RNNModel"}}},
+            f"train.fused_mlp='{backend_name}' serves parameter sharing",
         ),
     ):
         with pytest.raises(ValueError, match=message) as info:
@@ -219,13 +320,13 @@ def _bench():
 
 
 @pytest.mark.slow
-def test_ppo_update_on_device_fused_equals_torch_within_tolerance():
+def test_ppo_update_on_device_fused_equals_torch_within_tolerance(backend):
     """A full `AquariumPPO.update_on_device` (tiny preset: 4 epochs x 4 mini-batches) from the same
     state and samples, with torch's MLPs and with the fused ones."""
     bench = _bench()
     alg = bench.build("tiny", 4, "cpu")
     bench.fill_storage(alg)
-    differences = bench.update_difference(bench.MLPSwitch(alg))
+    differences = bench.update_difference(bench.MLPSwitch(alg, (backend,)), backend)
     assert len(differences) == 12  # 3 weights and 3 biases per network
     assert max(differences.values()) <= UPDATE_TOLERANCE, differences
 
@@ -243,18 +344,19 @@ def test_bench_fused_update_runs_on_the_cpu(tmp_path):
     )
     data = json.loads(out.read_text())
     assert data["git"] == {"commit": "abc123", "dirty": None, "source": "given"}
+    assert data["backends"] == ["warp"]  # triton: no CPU backend
     point = data["points"][0]
-    assert set(point["seconds"]) == {"torch eager", "fused eager"}
+    assert set(point["seconds"]) == {"torch eager", "warp eager"}
     assert point["floor"]["update_flops"] > 0 and point["floor"]["seconds"] is None  # no peak rates for a CPU
-    assert max(point["max_relative_difference"].values()) <= UPDATE_TOLERANCE
+    assert max(point["max_relative_difference"]["warp"].values()) <= UPDATE_TOLERANCE
 
 
 @pytest.mark.slow
-def test_fused_actor_exports_to_torchscript_and_onnx(tmp_path):
+def test_fused_actor_exports_to_torchscript_and_onnx(tmp_path, backend):
     """Exports take torch's path through the same modules: the policies' logits equal the actor's."""
     from aquarium_warp.training.export import export_policy, load_policy, policy_meta
 
-    actor, obs = _models(fused=True)
+    actor, obs = _models(backend=backend)
     meta = policy_meta(make_config("tiny"), 4, 29, 9)
     paths = export_policy(actor, meta, str(tmp_path))
     x = torch.randn(8, 29)
@@ -262,3 +364,54 @@ def test_fused_actor_exports_to_torchscript_and_onnx(tmp_path):
     logits = actor.mlp(actor.get_latent(obs)).detach().double()
     for path in paths.values():
         assert relative_error(load_policy(path).logits(x), logits) <= FORWARD_TOLERANCE
+
+
+@pytest.mark.parametrize("tf32", [False, True])
+def test_triton_on_cuda_matches_torch_and_is_captured_in_a_cuda_graph(cuda_device, tf32):
+    """On CUDA: outputs and gradients against torch's float64 MLP (float32 products, or TF32 ones
+    where torch's float32 products may use TF32), and a forward and backward captured in a CUDA graph
+    after one eager call give, replayed on new inputs, what an eager call gives."""
+    pytest.importorskip("triton")
+    device = torch.device(cuda_device)
+    mlp, fused = _mlps(29, [64, 64], 9, "tanh", backend="triton")
+    mlp, fused = mlp.to(device), fused.to(device)
+    allow_tf32 = torch.backends.cuda.matmul.allow_tf32
+    torch.backends.cuda.matmul.allow_tf32 = tf32
+    try:
+        reference = copy.deepcopy(mlp).double()
+        x = torch.randn(3 * ROWS + 8, 29, device=device).requires_grad_()
+        grad = torch.randn(x.shape[0], 9, device=device)
+        y = fused(x)
+        y.backward(grad)
+        assert _ran_fused(y, "triton")
+        x_ref = x.detach().double().requires_grad_()
+        y_ref = reference(x_ref)
+        y_ref.backward(grad.double())
+        tolerance = TF32_TOLERANCE if tf32 else FORWARD_TOLERANCE
+        assert relative_error(y, y_ref.detach()) <= tolerance
+        for p, p_ref in zip(fused.parameters(), reference.parameters()):
+            assert relative_error(p.grad, p_ref.grad) <= (TF32_TOLERANCE if tf32 else GRADIENT_TOLERANCE)
+        assert relative_error(x.grad, x_ref.grad) <= (TF32_TOLERANCE if tf32 else GRADIENT_TOLERANCE)
+
+        static_x = torch.zeros_like(x).requires_grad_()
+        params = list(fused.parameters())
+        side = torch.cuda.Stream(device)
+        side.wait_stream(torch.cuda.current_stream(device))
+        with torch.cuda.stream(side):  # the eager call (compiles the kernels), on the capturing stream
+            torch.autograd.grad(fused(static_x), [static_x, *params], grad)
+        torch.cuda.current_stream(device).wait_stream(side)
+        graph = torch.cuda.CUDAGraph()
+        with torch.cuda.graph(graph, stream=side):
+            static_y = fused(static_x)
+            static_grads = torch.autograd.grad(static_y, [static_x, *params], grad)
+        new_x = torch.randn_like(x)
+        static_x.detach().copy_(new_x)
+        graph.replay()
+        eager_x = new_x.clone().requires_grad_()
+        eager_y = fused(eager_x)
+        eager_grads = torch.autograd.grad(eager_y, [eager_x, *params], grad)
+        assert torch.equal(static_y, eager_y)  # the same kernels on the same inputs: deterministic
+        for a, b in zip(static_grads, eager_grads):
+            assert torch.equal(a, b)
+    finally:
+        torch.backends.cuda.matmul.allow_tf32 = allow_tf32
