@@ -33,6 +33,7 @@ was measured.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import copy
 import json
 import os
@@ -155,15 +156,9 @@ def time_update(switch: MLPSwitch, path: str, repeats: int, graph: bool) -> floa
     if not graph:
         alg.update_on_device(indices, size)  # warm-up: kernels compiled and loaded, optimizer state made
         return statistics.median(timer(lambda: alg.update_on_device(indices, size)) for _ in range(repeats))
-    side = torch.cuda.Stream(alg.device)
-    side.wait_stream(torch.cuda.current_stream(alg.device))
-    with torch.cuda.stream(side):  # warm-up on the capturing stream, as torch asks
-        alg.update_on_device(indices, size)
-    torch.cuda.current_stream(alg.device).wait_stream(side)
+    alg.update_on_device(indices, size)  # warm-up on the capturing stream (the current one), as torch asks
     cuda_graph = torch.cuda.CUDAGraph()
-    # Captured on the warm-up stream: the Warp backend's stream for it exists then, and making one
-    # inside a capture fails (H100, 5b61039: "would make the legacy stream depend on a capturing stream").
-    with collection_paused(), torch.cuda.graph(cuda_graph, stream=side):
+    with collection_paused(), torch.cuda.graph(cuda_graph, stream=torch.cuda.current_stream(alg.device)):
         alg.update_on_device(indices, size)
     cuda_graph.replay()
     return statistics.median(timer(cuda_graph.replay) for _ in range(repeats))
@@ -220,15 +215,24 @@ def measure(preset: str, worlds: int, device: str, repeats: int, backends: tuple
     print(f"{worlds} worlds: {floor.describe()}", flush=True)
     point: dict = {"worlds": worlds, "seconds": {}}
     graphs = (False, True) if torch_device.type == "cuda" else (False,)
-    for graph in graphs:
-        for path in ("torch", *backends):
-            key = f"{path} {'graph' if graph else 'eager'}"
-            seconds = point["seconds"][key] = time_update(switch, path, repeats, graph)
-            reached = floor.fraction(seconds)
-            print(
-                f"  {key:12s} {seconds * 1e3:10.2f} ms{'' if reached is None else f'  {reached:6.1%} of floor'}",
-                flush=True,
-            )
+    # Every update of the point runs on one side stream, where the graphs are captured too: the actor
+    # keeps its last forward's autograd graph (its distribution), whose gradient accumulators belong to
+    # the stream that made them, and a capture on another stream fails when it meets them (H200, 8d0272d).
+    side = torch.cuda.Stream(torch_device) if torch_device.type == "cuda" else None
+    if side is not None:
+        side.wait_stream(torch.cuda.current_stream(torch_device))
+    with torch.cuda.stream(side) if side is not None else contextlib.nullcontext():
+        for graph in graphs:
+            for path in ("torch", *backends):
+                key = f"{path} {'graph' if graph else 'eager'}"
+                seconds = point["seconds"][key] = time_update(switch, path, repeats, graph)
+                reached = floor.fraction(seconds)
+                print(
+                    f"  {key:12s} {seconds * 1e3:10.2f} ms{'' if reached is None else f'  {reached:6.1%} of floor'}",
+                    flush=True,
+                )
+    if side is not None:
+        torch.cuda.current_stream(torch_device).wait_stream(side)
     point["max_relative_difference"] = {}
     for backend in backends:
         differences = point["max_relative_difference"][backend] = update_difference(switch, backend)

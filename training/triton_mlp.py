@@ -24,9 +24,13 @@ tanh, relu and elu (alpha 1), whose derivatives are taken from the activation's 
 Warp kernels do. tanh is made of `exp` (no libdevice function), in a form without overflow and,
 for small inputs, a series: accurate in float32.
 
-Precision: float32 products (`input_precision="ieee"`), so the results equal torch's within float32
-rounding; where torch's own float32 products may use TF32 (`torch.backends.cuda.matmul.allow_tf32`,
-which `train.tf32` sets), the kernels use TF32 too (`input_precision="tf32"`, about 1e-3 relative).
+Precision: on CUDA, float32 products as `FLOAT32_PRECISION` says: "tf32x3" (three TF32 products on the
+tensor cores whose sum carries float32's precision; on one H200 at 8d0272d the PPO update with
+"ieee", one float32 multiply-add per term, took 2,691 ms at 65,536 worlds against torch's 424 ms) or
+"ieee"; the tests on CUDA hold both to torch's float32 tolerance. Where torch's own float32 products
+may use TF32 (`torch.backends.cuda.matmul.allow_tf32`, which `train.tf32` sets), the kernels use one
+TF32 product too (`input_precision="tf32"`, about 1e-3 relative). Triton's interpreter (the CPU)
+computes "ieee".
 
 CUDA graphs: the kernels allocate nothing, read nothing back and launch on torch's current stream;
 the row count is not a specialisation of the compiled kernel, so after a first eager call (which
@@ -52,6 +56,7 @@ MAX_OUTPUT = MAX_WIDTH  # widest output (padded to a power of two >= 16)
 PROGRAMS_PER_SM = 2  # persistent backward programs per multiprocessor
 INTERPRETER_PROGRAMS = 4  # the interpreter runs programs one after another; a few exercise the partial sums
 NUM_WARPS = 4
+FLOAT32_PRECISION = "tf32x3"  # tl.dot's input_precision for float32 on CUDA (see the module doc)
 
 
 @triton.jit
@@ -323,7 +328,10 @@ class TritonMLPFunction(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, spec: MLPSpec, x: torch.Tensor, *params: torch.Tensor) -> torch.Tensor:
-        precision = "tf32" if x.device.type == "cuda" and torch.backends.cuda.matmul.allow_tf32 else "ieee"
+        if x.device.type != "cuda" or INTERPRETED:
+            precision = "ieee"
+        else:
+            precision = "tf32" if torch.backends.cuda.matmul.allow_tf32 else FLOAT32_PRECISION
         ctx.spec, ctx.precision = spec, precision
         ctx.save_for_backward(x, *params)
         n_rows = x.shape[0]
