@@ -430,3 +430,18 @@ def test_split_graph_cuts_at_each_all_reduce_and_replays_them_in_order(monkeypat
         loop.SplitGraph("pool", None).capture(asynchronous)
     assert dist.all_reduce is all_reduce
     assert log == [("begin", 0, "pool", "global"), ("end", 0)]  # the open capture was closed
+
+
+def test_close_frees_the_graphs_before_the_process_group(monkeypatch):
+    """A CUDA graph holding NCCL's kernels keeps the communicator busy: destroying the process group
+    first waited forever (4 x H200, b717c38). The trainer frees the loop's graphs, then leaves the group."""
+    from aquarium_warp.training import distributed
+
+    trainer = Trainer(make_config("tiny", {"train": {"num_worlds": 4, "quiet": True, "export": []}}))
+    trainer.train(1)
+    order: list[str] = []
+    monkeypatch.setattr(trainer.runner.loop, "release_graphs", lambda: order.append("graphs"))
+    monkeypatch.setattr(distributed, "close", lambda: order.append("process group"))
+    trainer.world_size = 2  # as a torchrun rank's trainer
+    trainer.close()
+    assert order == ["graphs", "process group"]
