@@ -1,13 +1,14 @@
-"""The PPO update with torch's MLP against the fused MLPs (`training/fused_mlp.py`: `--backends` warp,
-its Warp tile kernels, and triton, `training/triton_mlp.py`'s Triton kernels), on one device.
+"""The PPO update with torch's MLP against the fused MLP (`training/fused_mlp.py`, Triton kernels), on
+one device.
 
 For each `--worlds`: the trainer of `--preset` (default: the default preset, 32 steps per
 iteration, 5 epochs x 4 mini-batches, actor and critic 2 x 64 tanh) is built, its rollout storage
 filled with random samples, and `AquariumPPO.update_on_device` timed with the actor's and critic's
-`mlp` as torch's modules and as `FusedMLP` of each backend (the same parameters): eagerly, and on
-CUDA also replayed from a CUDA graph. One update from the same state with each backend then gives
-the largest relative difference per parameter tensor (max |fused - torch| / max |torch|) under
-`max_relative_difference[backend]`. Triton has no CPU backend: on the CPU only warp runs.
+`mlp` as torch's modules and as `FusedMLP` (the same parameters): eagerly, and on CUDA also replayed
+from a CUDA graph. One update from the same state with each then gives the largest relative difference
+per parameter tensor (max |fused - torch| / max |torch|) under `max_relative_difference`. The fused
+kernels run on CUDA, and on the CPU only under Triton's interpreter (`TRITON_INTERPRET=1`, slow: the
+tests use it); elsewhere the script refuses the device.
 
 Beside each time: the update's floor on the device (`aquarium_warp.training.floors`: the MLPs'
 matrix products forward and backward at the card's float32 peak, the least bytes at its bandwidth;
@@ -15,15 +16,13 @@ the fused backward also recomputes the forward, which the floor does not count),
 the fraction of it reached.
 
 First, before any timing, the trainer of the first `--worlds` is built (the simulation's kernels
-compiled or loaded) and each backend's kernels are built and loaded by one forward and backward of
-the actor's and critic's MLP, each step's seconds printed as it ends and recorded under
-`build_seconds` (`--compile-only` stops there): a fresh machine compiles Warp's tile kernels, which
-can take long.
+compiled or loaded) and the fused kernels are built and loaded by one forward and backward of the
+actor's and critic's MLP, each step's seconds printed as it ends and recorded under `build_seconds`
+(`--compile-only` stops there).
 
     python benchmarks/bench_fused_update.py --device cuda:0 --worlds 1024,65536
-    python benchmarks/bench_fused_update.py --device cuda:0 --backends triton
     python benchmarks/bench_fused_update.py --device cuda:0 --compile-only
-    python benchmarks/bench_fused_update.py --device cpu --worlds 4 --preset tiny --repeats 1
+    TRITON_INTERPRET=1 python benchmarks/bench_fused_update.py --device cpu --worlds 4 --preset tiny --repeats 1
 
 Prints each time as it is measured (flushed) and writes JSON (atomically) to `--out` (default
 `fused_update_<device>.json`) after the build step and after every point, so a time limit keeps what
@@ -52,9 +51,8 @@ from aquarium_warp.bench import parse_counts
 from aquarium_warp.bench.timing import torch_timer
 from aquarium_warp.records import command_line, provenance
 from aquarium_warp.training import Trainer, make_config
-from aquarium_warp.training.config import FUSED_BACKENDS
 from aquarium_warp.training.floors import UpdateFloor, card_peaks, update_work
-from aquarium_warp.training.fused_mlp import FusedMLP
+from aquarium_warp.training.fused_mlp import DEVICES, FusedMLP
 from aquarium_warp.training.loop import collection_paused
 
 
@@ -90,15 +88,14 @@ def fill_storage(alg, seed: int = 0) -> None:
 
 
 class MLPSwitch:
-    """Switches the actor's and critic's `mlp` between torch's modules ("torch") and the `FusedMLP` of
-    each of `backends` (the same parameter objects), and restores the learner's state for updates
-    from the same start."""
+    """Switches the actor's and critic's `mlp` between torch's modules ("torch") and `FusedMLP`
+    ("fused", the same parameter objects), and restores the learner's state for updates from the same
+    start."""
 
-    def __init__(self, alg, backends: tuple[str, ...]) -> None:
+    def __init__(self, alg) -> None:
         self.alg = alg
         self.models = (alg.actor, alg.critic)
-        self.mlps = {"torch": [m.mlp for m in self.models]}
-        self.mlps.update({backend: [FusedMLP(m.mlp, backend) for m in self.models] for backend in backends})
+        self.mlps = {"torch": [m.mlp for m in self.models], "fused": [FusedMLP(m.mlp) for m in self.models]}
         self.start = self.state()
 
     def use(self, path: str) -> None:
@@ -133,14 +130,14 @@ def parameters_after_update(switch: MLPSwitch, path: str, indices: torch.Tensor,
     }
 
 
-def update_difference(switch: MLPSwitch, backend: str, seed: int = 0) -> dict[str, float]:
+def update_difference(switch: MLPSwitch, seed: int = 0) -> dict[str, float]:
     """Per parameter tensor, max |fused - torch| / max |torch| after one update from the same state
-    with `backend`'s MLPs and with torch's."""
+    with the fused MLPs and with torch's."""
     torch.manual_seed(seed)
     indices, size = switch.alg.mini_batch_indices()
-    after = {path: parameters_after_update(switch, path, indices, size) for path in ("torch", backend)}
+    after = {path: parameters_after_update(switch, path, indices, size) for path in ("torch", "fused")}
     return {
-        name: float((after[backend][name] - ref).abs().max() / ref.abs().max().clamp_min(1e-30))
+        name: float((after["fused"][name] - ref).abs().max() / ref.abs().max().clamp_min(1e-30))
         for name, ref in after["torch"].items()
     }
 
@@ -176,40 +173,39 @@ def sync(device: torch.device) -> None:
         torch.cuda.synchronize(device)
 
 
-def build_seconds(preset: str, worlds: int, device: str, backends: tuple[str, ...]) -> dict[str, float]:
+def build_seconds(preset: str, worlds: int, device: str) -> dict[str, float]:
     """Seconds to build the trainer of `preset` at `worlds` worlds (the simulation's kernels compiled
-    or loaded from Warp's cache), then per backend of the first fused forward and backward of the
-    actor's and critic's MLP on one row (each kernel is built or loaded at its first launch, and
-    Triton's do not specialise on the row count); each printed as it ends."""
+    or loaded from Warp's cache), then of the first fused forward and backward of the actor's and
+    critic's MLP on one row (each kernel is compiled or loaded at its first launch, and does not
+    specialise on the row count); each printed as it ends."""
     seconds = {}
     started = time.perf_counter()
-    switch = MLPSwitch(build(preset, worlds, device), backends)
+    switch = MLPSwitch(build(preset, worlds, device))
     seconds["trainer"] = time.perf_counter() - started
     print(f"trainer built in {seconds['trainer']:.1f} s", flush=True)
     torch_device = torch.device(switch.alg.device)
-    for backend in backends:
-        for name, mlp in zip(("actor", "critic"), switch.mlps[backend]):
-            params = list(mlp.parameters())
-            key = f"{backend} {name}"
-            started = time.perf_counter()
-            out = mlp(torch.zeros(1, mlp.spec.dims[0], device=torch_device))
-            sync(torch_device)
-            seconds[f"{key} forward"] = time.perf_counter() - started
-            print(f"{key} forward kernel built and loaded in {seconds[f'{key} forward']:.1f} s", flush=True)
-            started = time.perf_counter()
-            torch.autograd.grad(out.sum(), params)  # not into .grad: the update's state stays untouched
-            sync(torch_device)
-            seconds[f"{key} backward"] = time.perf_counter() - started
-            print(f"{key} backward kernel built and loaded in {seconds[f'{key} backward']:.1f} s", flush=True)
+    for name, mlp in zip(("actor", "critic"), switch.mlps["fused"]):
+        params = list(mlp.parameters())
+        key = f"fused {name}"
+        started = time.perf_counter()
+        out = mlp(torch.zeros(1, mlp.spec.dims[0], device=torch_device))
+        sync(torch_device)
+        seconds[f"{key} forward"] = time.perf_counter() - started
+        print(f"{key} forward kernel built and loaded in {seconds[f'{key} forward']:.1f} s", flush=True)
+        started = time.perf_counter()
+        torch.autograd.grad(out.sum(), params)  # not into .grad: the update's state stays untouched
+        sync(torch_device)
+        seconds[f"{key} backward"] = time.perf_counter() - started
+        print(f"{key} backward kernel built and loaded in {seconds[f'{key} backward']:.1f} s", flush=True)
     return seconds
 
 
-def measure(preset: str, worlds: int, device: str, repeats: int, backends: tuple[str, ...]) -> dict:
-    """One point: the update's time with torch's MLPs and each backend's at `worlds` worlds (printed
-    as each is measured), each backend's largest relative difference after one update, and the floor."""
+def measure(preset: str, worlds: int, device: str, repeats: int) -> dict:
+    """One point: the update's time with torch's MLPs and the fused ones at `worlds` worlds (printed
+    as each is measured), the largest relative difference after one update, and the floor."""
     alg = build(preset, worlds, device)
     fill_storage(alg)
-    switch = MLPSwitch(alg, backends)
+    switch = MLPSwitch(alg)
     torch_device = torch.device(alg.device)
     floor = update_floor(alg, torch_device)
     print(f"{worlds} worlds: {floor.describe()}", flush=True)
@@ -223,7 +219,7 @@ def measure(preset: str, worlds: int, device: str, repeats: int, backends: tuple
         side.wait_stream(torch.cuda.current_stream(torch_device))
     with torch.cuda.stream(side) if side is not None else contextlib.nullcontext():
         for graph in graphs:
-            for path in ("torch", *backends):
+            for path in ("torch", "fused"):
                 key = f"{path} {'graph' if graph else 'eager'}"
                 seconds = point["seconds"][key] = time_update(switch, path, repeats, graph)
                 reached = floor.fraction(seconds)
@@ -233,11 +229,9 @@ def measure(preset: str, worlds: int, device: str, repeats: int, backends: tuple
                 )
     if side is not None:
         torch.cuda.current_stream(torch_device).wait_stream(side)
-    point["max_relative_difference"] = {}
-    for backend in backends:
-        differences = point["max_relative_difference"][backend] = update_difference(switch, backend)
-        worst = max(differences.items(), key=lambda kv: kv[1])
-        print(f"  one update, {backend} vs torch: max relative difference {worst[1]:.2e} ({worst[0]})", flush=True)
+    differences = point["max_relative_difference"] = update_difference(switch)
+    worst = max(differences.items(), key=lambda kv: kv[1])
+    print(f"  one update, fused vs torch: max relative difference {worst[1]:.2e} ({worst[0]})", flush=True)
     point["floor"] = floor.record(point["seconds"])
     point["floor_text"] = floor.describe()
     return point
@@ -249,11 +243,6 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--worlds", default="1024,65536", help="comma-separated world counts")
     parser.add_argument("--preset", default="default")
     parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument(
-        "--backends",
-        default=",".join(FUSED_BACKENDS),
-        help="comma-separated fused MLP backends (warp, triton); triton is skipped on the CPU",
-    )
     parser.add_argument("--out", type=Path, default=None, help="JSON path (default fused_update_<device>.json)")
     parser.add_argument("--commit", default=None, help="the commit measured, for a copy without git history")
     parser.add_argument(
@@ -263,18 +252,16 @@ def main(argv: list[str] | None = None) -> int:
     if args.repeats < 1:
         parser.error(f"--repeats={args.repeats} must be an integer >= 1")
     worlds = parse_counts(args.worlds, "--worlds")
-    backends = tuple(b.strip() for b in args.backends.split(","))
-    if not backends or any(b not in FUSED_BACKENDS for b in backends):
-        parser.error(f"--backends={args.backends!r} must be a comma-separated subset of {list(FUSED_BACKENDS)}")
-    if torch.device(args.device).type == "cpu" and "triton" in backends:
-        print("triton: no CPU backend, skipped", flush=True)
-        backends = tuple(b for b in backends if b != "triton")
+    if torch.device(args.device).type not in DEVICES:
+        parser.error(
+            f"--device={args.device!r}: the fused kernels take {list(DEVICES)} here "
+            "(the CPU only under Triton's interpreter, TRITON_INTERPRET=1)"
+        )
     out = args.out or Path(f"fused_update_{args.device.replace(':', '')}.json")
     record = {
         **provenance(args.device, command_line(argv, "benchmarks/bench_fused_update.py"), args.commit),
         "preset": args.preset,
         "repeats": args.repeats,
-        "backends": list(backends),
         "points": [],
     }
 
@@ -282,11 +269,11 @@ def main(argv: list[str] | None = None) -> int:
         with atomic_open(out) as f:
             json.dump(record, f, indent=1)
 
-    record["build_seconds"] = build_seconds(args.preset, worlds[0], args.device, backends)
+    record["build_seconds"] = build_seconds(args.preset, worlds[0], args.device)
     write()
     if not args.compile_only:
         for w in worlds:
-            record["points"].append(measure(args.preset, w, args.device, args.repeats, backends))
+            record["points"].append(measure(args.preset, w, args.device, args.repeats))
             write()  # after every point: a time limit keeps what was measured
     print(f"wrote {out}", flush=True)
     return 0

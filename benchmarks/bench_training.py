@@ -56,7 +56,7 @@ def sync(device: torch.device) -> None:
 
 # Options measured beside the default (`--variants`): TF32 matrix products, rsl-rl's own
 # `torch_compile_mode` (torch.compile of the actor and critic, fusing their elementwise work), no CUDA
-# graphs, the fused MLPs (`train.fused_mlp`: Warp's kernels, Triton's, Triton's with TF32 products), and
+# graphs, the fused MLP (`train.fused_mlp`: float32 products, and with `tf32` TF32 products), and
 # the adaptive learning-rate schedule (its update runs eagerly between replayed rollouts, as a torchrun
 # run's does).
 ADAPTIVE = {"runner": {"algorithm": {"schedule": "adaptive", "desired_kl": 0.01}}}
@@ -66,9 +66,8 @@ VARIANTS = {
     "compile": {"runner": {"torch_compile_mode": "default"}},
     "tf32+compile": {"train": {"tf32": True}, "runner": {"torch_compile_mode": "default"}},
     "eager": {"train": {"cuda_graphs": False}},
-    "fused-warp": {"train": {"fused_mlp": "warp"}},
-    "fused-triton": {"train": {"fused_mlp": "triton"}},
-    "fused-triton-tf32": {"train": {"fused_mlp": "triton", "tf32": True}},
+    "fused": {"train": {"fused_mlp": True}},
+    "fused-tf32": {"train": {"fused_mlp": True, "tf32": True}},
     "adaptive": ADAPTIVE,
     "adaptive+eager": {**ADAPTIVE, "train": {"cuda_graphs": False}},
 }

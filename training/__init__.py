@@ -3,8 +3,7 @@
 - `vec_env.AquariumVecEnv`: the rsl-rl VecEnv adapter (one learning team, the other driven inside `step()`).
 - `distribution.CategoricalDistribution`: discrete actions for rsl-rl's `MLPModel`.
 - `models.IndividualMLPModel`: Individual Learning, per-slot parameters in one batched network.
-- `fused_mlp.FusedMLPModel`: the MLP as fused kernels (`train.fused_mlp`): Warp tile kernels, or
-  Triton's (`triton_mlp.TritonMLPFunction`).
+- `fused_mlp.FusedMLPModel`: the MLP as fused Triton kernels (`train.fused_mlp`).
 - `ppo.AquariumPPO`: separate actor/critic learning rates, grouped mini-batches.
 - `config`: presets (`default`, `paper`, `tiny`) and the rsl-rl runner config.
 - `trainer.Trainer`: training, checkpoints, bit-exact resume, export (`runner.AquariumRunner`, rsl-rl's

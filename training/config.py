@@ -40,7 +40,6 @@ PPO_CLASS = "aquarium_warp.training.ppo:AquariumPPO"
 MLP_MODEL = "MLPModel"
 IL_MODEL = "aquarium_warp.training.models:IndividualMLPModel"
 FUSED_MODEL = "aquarium_warp.training.fused_mlp:FusedMLPModel"
-FUSED_BACKENDS = ("warp", "triton")  # train.fused_mlp's kernels: fused_mlp.py's (Warp) or triton_mlp.py's
 SHARING = ("parameter", "individual")
 
 TRAIN_DEFAULTS: dict[str, Any] = {
@@ -67,7 +66,7 @@ TRAIN_DEFAULTS: dict[str, Any] = {
     "graph_update": "auto",
     "metrics_every": 10,  # swarm metrics (Swarm/* in the log) sampled every N steps; 0: none
     "tf32": False,  # CUDA matrix products in TF32 (faster for large batches, ~1e-3 relative error)
-    "fused_mlp": False,  # actor and critic MLPs as fused kernels (parameter sharing): false, "warp" or "triton"
+    "fused_mlp": False,  # actor and critic MLPs as the fused Triton kernels (parameter sharing; fused_mlp.py)
     "critic": "local",  # the critic's input (MAPPO): "local", "team" or "world" (see CRITICS)
     # Both teams learning (team "both"):
     "update_schedule": "simultaneous",  # "simultaneous", or "alternating": one team learns, the other is frozen
@@ -396,11 +395,9 @@ def validate(config: dict) -> None:
     ):
         if not is_int(train[name]) or not low <= train[name] <= 2**31 - 1:
             raise ValueError(f"train.{name}={train[name]!r} must be an integer in [{low}, 2**31 - 1]{meaning}")
-    for name in ("tf32", "cuda_graphs"):
+    for name in ("tf32", "cuda_graphs", "fused_mlp"):
         if not isinstance(train[name], bool):
             raise ValueError(f"train.{name}={train[name]!r} must be true or false")
-    if train["fused_mlp"] is not False and train["fused_mlp"] not in FUSED_BACKENDS:
-        raise ValueError(f"train.fused_mlp={train['fused_mlp']!r} must be false or one of {list(FUSED_BACKENDS)}")
     if not (isinstance(train["graph_update"], bool) or train["graph_update"] == "auto"):
         raise ValueError(
             f"train.graph_update={train['graph_update']!r} must be true or false, or 'auto' "
@@ -464,7 +461,7 @@ def _validate_team_models(config: dict, team: str) -> None:
         class_name = runner.get(part, {}).get("class_name", MLP_MODEL)
         if fused and (settings["sharing"] == "individual" or class_name not in (MLP_MODEL, "rsl_rl.models:MLPModel")):
             raise ValueError(
-                f"train.fused_mlp={fused!r} serves parameter sharing with rsl-rl's MLPModel, not "
+                "train.fused_mlp serves parameter sharing with rsl-rl's MLPModel, not "
                 f"sharing={settings['sharing']!r} with {part} class_name={class_name!r}"
             )
         if not _is_recurrent_model(class_name):
@@ -552,7 +549,6 @@ def runner_config(
     dist["num_categories"] = int(action_count)
     if train["fused_mlp"]:
         actor["class_name"] = critic["class_name"] = FUSED_MODEL
-        actor["backend"] = critic["backend"] = train["fused_mlp"]
     if train["sharing"] == "individual":
         for model in (actor, critic):
             if model.get("class_name", MLP_MODEL) in (MLP_MODEL, "rsl_rl.models:MLPModel"):

@@ -1,116 +1,95 @@
-"""A fused MLP for rsl-rl's `MLPModel`: the whole network's forward in one kernel, and its backward,
-which recomputes the hidden activations from the input, in one more (plus a small sum). Two backends
-make the kernels: "warp", this module's Warp tile kernels (`FusedMLPFunction`), and "triton",
-`triton_mlp.TritonMLPFunction` (training/triton_mlp.py; the same design in Triton).
+"""The fused MLP: rsl-rl's `MLP` (Linear, activation, ..., Linear) as Triton kernels, its whole forward
+in one kernel and its backward, which recomputes the hidden activations from the input, in one more
+(plus a small sum in torch).
 
-`FusedMLPModel` is rsl-rl's `MLPModel` whose `mlp` is a `FusedMLP` of one backend: the same
-`nn.Linear` and activation modules (so the same parameters, initialisation and state_dict keys:
-checkpoints load into either model and either backend), whose forward runs the backend's autograd
-function for float32 inputs on the backend's devices (`backend_function`). `train.fused_mlp`
-(config.py: false, "warp" or "triton") switches it on for the actor and the critic of parameter
-sharing; Individual Learning keeps its `BatchedMLP`. `MLPSpec`, `mlp_spec` and `ACTIVATIONS` serve
-both backends.
+`FusedMLPModel` is rsl-rl's `MLPModel` whose `mlp` is a `FusedMLP`: the same `nn.Linear` and activation
+modules (so the same parameters, initialisation and state_dict keys: checkpoints load into either
+model), whose forward runs `TritonMLPFunction` for float32 inputs on the devices the kernels take
+(`DEVICES`). `train.fused_mlp` (config.py, true or false) switches it on for the actor and the critic
+of parameter sharing; Individual Learning keeps its `BatchedMLP`.
 
-The Warp kernels (made per architecture by `mlp_kernel`):
+- forward: one program per `BLOCK_M`-row tile of the input. It loads the tile (its columns padded to
+  a power of two of at least 16 and masked), runs every layer in registers (`tl.dot`, bias,
+  activation) with the weights read from torch's own `[out, in]` parameters, and stores only the
+  output rows.
+- backward: a fixed number of persistent programs (`backward_programs`: a few per multiprocessor),
+  each taking every `programs`-th row tile. For each tile it recomputes the hidden activations (the
+  forward saved only the input: recomputing a few small products costs less than storing and
+  reading back every layer's activations of millions of rows), walks the layers back and adds the
+  tile's weight and bias gradients into accumulators held in registers across its tiles; at the end
+  it writes them as ONE row of a `[programs, parameters]` buffer, which torch sums. One row per
+  program keeps that buffer small and needs no atomics: the sum's order is fixed, so the gradients
+  are deterministic. It writes the input gradient only where the input requires one (a kernel
+  compiled without that store otherwise). Rows past the end of the input read as zero, so they add
+  nothing to the gradients.
 
-- forward: each block takes row tiles of `spec.rows` rows and runs every layer (`tile_matmul`, bias, activation)
-  with the weights read from one flat parameter vector, and writes only the output rows.
-- backward: a fixed number of blocks (`launch_blocks`), each taking every `blocks`-th row tile:
-  it recomputes the tile's hidden activations (kept in one shared tile), then walks the layers back,
-  adding the tile's weight and bias gradients into the block's own row of a `[blocks, parameters]`
-  buffer (read, add, write back), and writes the input gradient only when the input requires one;
-  torch sums the rows afterwards. One row per block instead of one per tile keeps that buffer small
-  (a few MB on a GPU); the atomics touch addresses no other block touches (no contention), and as
-  each element's additions come from one thread in program order, the sum does not depend on
-  scheduling: the gradients are deterministic on the CPU and, by construction, on a GPU.
+Architectures (`mlp_spec`): 1 to 3 hidden layers of one width in `HIDDEN_WIDTHS` (the matrix
+products' tiles are powers of two of at least 16), an output of at most `MAX_WIDTH` (padded), any
+input width; tanh, relu and elu (alpha 1), whose derivatives are taken from the activation's output.
+tanh is made of `exp` (no libdevice function), in a form without overflow and, for small inputs, a
+series: accurate in float32.
 
-The first layer reads its input in column chunks of at most `INPUT_CHUNK`, so any input width fits
-shared memory (its weight is stored chunk by chunk, zero-padded, in the flat vector for that).
-Hidden and output widths up to `MAX_WIDTH`; activations tanh, relu and elu (alpha 1), whose
-derivatives are taken from the activation's output. Rows past the end of the input read as zero:
-they add nothing to the gradients, and their outputs are not stored.
+Precision: on CUDA, float32 products as `FLOAT32_PRECISION` says: "tf32x3" (three TF32 products on the
+tensor cores whose sum carries float32's precision) or "ieee" (one float32 multiply-add per term: on
+one H200 at 8d0272d the PPO update took 2,691 ms at 65,536 worlds against torch's 424 ms, which is why
+the default is "tf32x3"). Where torch's own float32 products may use TF32
+(`torch.backends.cuda.matmul.allow_tf32`, which `train.tf32` sets), the kernels use one TF32 product
+too (`input_precision="tf32"`, about 1e-3 relative). Triton's interpreter (the CPU) computes "ieee".
+Autocast, other dtypes, TorchScript and ONNX export take the plain torch path.
 
-CUDA graphs: Warp allocates nothing here (outputs and scratch are torch tensors, shared zero-copy
-with `wp.from_torch`), launches on torch's current stream and reads nothing back, so a forward or
-backward inside `torch.cuda.graph` is captured. A capture cannot load a kernel module, so each
-kernel is loaded at its first, eager, call (`FusedMLPFunction` refuses a first call in a capture).
+Measured on one H200 at commit 48ee313 (benchmarks/results/fused_triton_h200_48ee313/):
 
-Shared memory: compiled ahead of time for sm_90 (`wp.compile_aot_module`, no GPU at hand), the
-default actor (29-64-64-9, 64-row tiles) takes 125,744 bytes in the backward kernel and 69,168 in the
-forward (`MLPSpec.shared_bytes` estimates 133,156): one backward block per H100/H200 multiprocessor.
-Smaller `TILE_ROWS` trade that occupancy against per-tile overhead (not measured). Speed, measured on one
-H100 (benchmarks/results/fused_update_h100_5b61039/): the PPO update with these kernels takes 3.2x torch's
-at 65,536 worlds and 2.1x at 1,024, which is why `train.fused_mlp` is off by default (the Triton
-backend is not measured yet).
+- training (`bench_training.py --worlds 65536 --sharing parameter --loops fast`): torch 474.8
+  ms/iteration (2.65e7 agent-steps/s); fused with float32 (tf32x3) products 500.0 ms (2.52e7); fused
+  with TF32 products 263.7 ms (4.77e7), its update 230 ms against 423 ms. At 1,024 worlds: torch
+  26.6 ms (7.40e6), fused TF32 19.8 ms (9.92e6).
+- errors against float64 on 1,000,003 rows (29-64-64-9 tanh): tf32x3 forward 4.1e-7, gradients 4.9e-7
+  (torch's float32: 3.9e-7, 2.0e-6); "ieee" forward 4.1e-7, gradients 1.5e-6; TF32 1.8e-3 / 1.9e-3
+  (torch with TF32: 3.9e-4 / 4.2e-4).
+- one full PPO update (`bench_fused_update.py`, default preset, 65,536 worlds), fused tf32x3 against
+  torch: largest relative difference per parameter 1.13e-4 (actor.mlp.4.weight); the update, replayed
+  from a CUDA graph, 1,221 ms against torch's 1,098 ms.
 
-Arithmetic: float32, with Warp's matrix products and sums in their own order, so the results equal
-torch's within float32 rounding, not bit for bit (tests/training/test_fused_mlp.py states the
-measured errors). Autocast, other dtypes, TorchScript and ONNX export take the plain torch path.
+(An earlier backend of Warp tile kernels took 3.2x torch's update time on one H100,
+benchmarks/results/fused_update_h100_5b61039/, and 242 s to compile for sm_90: it was removed.)
+
+CUDA graphs: the kernels allocate nothing, read nothing back and launch on torch's current stream;
+the row count is not a specialisation of the compiled kernel, so after a first eager call (which
+compiles them) a forward and backward are captured in a CUDA graph.
+
+On the CPU there are no Triton kernels: `FusedMLP` keeps torch's modules there, except under Triton's
+interpreter (`TRITON_INTERPRET=1` before this module is imported), which runs these kernels on CPU
+tensors (the tests do that).
 """
 
 # (No `from __future__ import annotations`: TorchScript must resolve FusedMLP's annotations as objects.)
 import functools
-import math
-import typing
 from dataclasses import dataclass
 
 import torch
 import torch.nn as nn
-import warp as wp
+import triton
+import triton.language as tl
 from rsl_rl.models import MLPModel
 from rsl_rl.modules import MLP
+from triton.runtime.interpreter import InterpretedFunction
 
 from . import _rsl  # noqa: F401
-from .config import FUSED_BACKENDS
 
-TILE_ROWS = (64, 32, 16)  # rows per tile: the most whose tiles fit SHARED_BUDGET (MLPSpec.rows)
-SHARED_BUDGET = 200 * 1024  # bytes of a block's shared memory for its tiles (H100/H200: 227 KB a block)
-BLOCK_DIM = 128  # CUDA threads per block (the CPU runs a block on one thread)
-INPUT_CHUNK = 64  # input columns the first layer reads at once
-MAX_WIDTH = 128  # widest hidden or output layer
-BLOCKS_PER_SM = 4  # blocks per multiprocessor: enough resident warps to hide latency
-CPU_BLOCKS = 4  # the CPU runs blocks one after another; a few exercise the partial sums
+HIDDEN_WIDTHS = (16, 32, 64, 128)  # allowed hidden widths (tl.dot's tiles: powers of two >= 16)
+MAX_HIDDEN_LAYERS = 3  # the kernels spell out each layer (Triton has no lists of tensors)
+MAX_WIDTH = 128  # widest hidden or output layer (the output padded to a power of two >= 16)
+PROGRAMS_PER_SM = 2  # persistent backward programs per multiprocessor
+INTERPRETER_PROGRAMS = 4  # the interpreter runs programs one after another; a few exercise the partial sums
+NUM_WARPS = 4
+FLOAT32_PRECISION = "tf32x3"  # tl.dot's input_precision for float32 on CUDA (see the module doc)
 ACTIVATIONS = {nn.Tanh: "tanh", nn.ReLU: "relu", nn.ELU: "elu"}
-
-
-@wp.func
-def _tanh(x: float) -> float:
-    return wp.tanh(x)
-
-
-@wp.func
-def _tanh_slope(y: float) -> float:
-    return 1.0 - y * y
-
-
-@wp.func
-def _relu(x: float) -> float:
-    return wp.max(x, 0.0)
-
-
-@wp.func
-def _relu_slope(y: float) -> float:
-    return wp.where(y > 0.0, 1.0, 0.0)  # as torch's: the gradient passes where the output is > 0
-
-
-@wp.func
-def _elu(x: float) -> float:
-    return wp.where(x > 0.0, x, wp.exp(x) - 1.0)
-
-
-@wp.func
-def _elu_slope(y: float) -> float:
-    return wp.where(y > 0.0, 1.0, y + 1.0)  # exp(x) = y + 1 where x <= 0
-
-
-# activation name -> (the activation, its derivative as a function of its output)
-_ACTIVATION_FUNCS = {"tanh": (_tanh, _tanh_slope), "relu": (_relu, _relu_slope), "elu": (_elu, _elu_slope)}
 
 
 @dataclass(frozen=True)
 class MLPSpec:
     """An MLP's architecture as the kernels see it: the layer widths `dims` (input, hidden...,
-    output) and the activation's name; and the layout of its flat parameter vector."""
+    output) and the activation's name."""
 
     dims: tuple[int, ...]
     activation: str
@@ -119,310 +98,10 @@ class MLPSpec:
     def layers(self) -> int:
         return len(self.dims) - 1
 
-    @property
-    def chunk(self) -> int:
-        """Input columns per chunk of the first layer (the whole input where it fits one)."""
-        return min(self.dims[0], INPUT_CHUNK)
 
-    @property
-    def chunks(self) -> int:
-        return math.ceil(self.dims[0] / self.chunk)
-
-    @property
-    def offsets(self) -> tuple[tuple[int, int], ...]:
-        """Per layer, where its weight and its bias start in the flat vector. The first weight is
-        stored as `[chunks, out, chunk]` (columns zero-padded to whole chunks), the others `[out, in]`."""
-        result, offset = [], 0
-        for layer in range(self.layers):
-            n_in = self.chunks * self.chunk if layer == 0 else self.dims[layer]
-            n_out = self.dims[layer + 1]
-            result.append((offset, offset + n_out * n_in))
-            offset += n_out * n_in + n_out
-        return tuple(result)
-
-    @property
-    def resident_start(self) -> int:
-        """Start of the part of the flat vector that the kernels keep in shared memory: all of it,
-        unless the first weight is read in several chunks (then from the first bias on)."""
-        return 0 if self.chunks == 1 else self.offsets[0][1]
-
-    @property
-    def size(self) -> int:
-        """Length of the flat parameter vector."""
-        return self.offsets[-1][1] + self.dims[-1]
-
-    def shared_bytes(self, rows: int) -> int:
-        """The shared memory the backward kernel's tiles take with `rows` rows per tile (the forward
-        takes less): the resident parameters, the hidden activations and output gradients of a row
-        tile, one weight gradient, two input chunks and the input gradient's chunk."""
-        hidden, dims = sum(self.dims[1:-1]), self.dims
-        scratch = max(dims[1] * self.chunk, *(dims[l + 1] * dims[l] for l in range(1, self.layers)))
-        return 4 * (self.size - self.resident_start + rows * (2 * hidden + dims[-1] + 3 * self.chunk) + scratch)
-
-    @property
-    def rows(self) -> int:
-        """Rows per tile: the most of `TILE_ROWS` that fit `SHARED_BUDGET` (0: none fits)."""
-        return next((rows for rows in TILE_ROWS if self.shared_bytes(rows) <= SHARED_BUDGET), 0)
-
-    def flat(self, params: tuple[torch.Tensor, ...]) -> torch.Tensor:
-        """The flat vector of `params` (`weight0, bias0, weight1, ...`, torch's `[out, in]` weights)."""
-        padded = nn.functional.pad(params[0], (0, self.chunks * self.chunk - self.dims[0]))
-        parts = [padded.view(self.dims[1], self.chunks, self.chunk).transpose(0, 1).reshape(-1)]
-        parts += [p.reshape(-1) for p in params[1:]]
-        return torch.cat(parts)
-
-    def unflat(self, vector: torch.Tensor) -> list[torch.Tensor]:
-        """`[weight0, bias0, weight1, ...]` of a flat vector (the inverse of `flat`)."""
-        out: list[torch.Tensor] = []
-        for layer, (w, b) in enumerate(self.offsets):
-            n_out = self.dims[layer + 1]
-            if layer == 0:
-                chunked = vector[w:b].view(self.chunks, n_out, self.chunk).transpose(0, 1)
-                out.append(chunked.reshape(n_out, self.chunks * self.chunk)[:, : self.dims[0]])
-            else:
-                out.append(vector[w:b].view(n_out, self.dims[layer]))
-            out.append(vector[b : b + n_out])
-        return out
-
-
-@functools.cache
-def mlp_kernel(spec: MLPSpec, backward_pass: bool, input_grad: bool = False) -> wp.Kernel:
-    """The forward (`backward_pass=False`) or backward tile kernel of `spec`; the backward writes the
-    input gradient only with `input_grad`. Both share one argument list and one body (the backward
-    recomputes the forward), specialised at compile time: every tile shape is a constant, and the
-    loops over layers unroll.
-
-    Warp reserves shared memory for every tile expression, live or not, so the body writes into
-    views of a few tiles made once per block instead of making new ones: `weights` (the resident
-    parameters), `hidden` (the activations of a row tile, layer by layer side by side), `grads` (the
-    gradients of every layer's output, likewise) and `scratch` (one weight gradient at a time)."""
-    L, dims, R, K = spec.layers, spec.dims, spec.rows, spec.chunk
-    C, H1, size, start = spec.chunks, dims[1], spec.size, spec.resident_start
-    weight_at = [w for w, _ in spec.offsets]  # where each layer's weight and bias start in the flat
-    bias_at = [b for _, b in spec.offsets]  # vector (minus `start` in the resident tile)
-    activate, slope = _ACTIVATION_FUNCS[spec.activation]
-    # Column of layer l's output (l = 1 .. L) in `hidden` (hidden layers) and `grads` (all).
-    column = [0, 0] + [sum(dims[1:l]) for l in range(2, L + 1)]
-    hidden_width = max(1, sum(dims[1:L]))
-    scratch_size = max(dims[1] * K, *(dims[l + 1] * dims[l] for l in range(1, L)))
-
-    @wp.func
-    def add_and_activate(z: float, b: float) -> float:
-        return activate(z + b)
-
-    @wp.func
-    def times_slope(g: float, y: float) -> float:
-        return g * slope(y)
-
-    @typing.no_type_check  # Warp's kernel language, which mypy reads as Python and misjudges
-    def kernel(
-        x: wp.array2d[float],
-        params: wp.array[float],
-        grad_out: wp.array2d[float],
-        chunks: int,
-        tiles: int,
-        blocks: int,
-        out: wp.array2d[float],
-        partial: wp.array[float],
-        grad_x: wp.array2d[float],
-    ):
-        block = wp.tid()
-        # The parameters stay in shared memory for all the block's row tiles (all but a first-layer
-        # weight of several input chunks, which is read chunk by chunk).
-        weights = wp.tile_load(params, shape=wp.static(size - start), offset=start, storage="shared")
-        hidden = wp.tile_zeros(shape=(R, hidden_width), dtype=float, storage="shared")
-        if wp.static(backward_pass):
-            grads = wp.tile_zeros(shape=(R, wp.static(column[L] + dims[L])), dtype=float, storage="shared")
-            scratch = wp.tile_zeros(shape=scratch_size, dtype=float, storage="shared")
-        for tile in range(block, tiles, blocks):
-            row = tile * R
-            # First layer, input chunk by chunk, summed into layer 1's columns of `hidden` (`chunks`
-            # is a launch argument so that this stays a loop: unrolled, every chunk's tiles would
-            # take shared memory of their own).
-            h = wp.tile_view(hidden, offset=(0, 0), shape=(R, H1))
-            wp.tile_assign(h, wp.tile_zeros(shape=(R, H1), dtype=float))
-            for c in range(chunks):
-                xc = wp.tile_load(x, shape=(R, K), offset=(row, c * K), storage="shared")
-                if wp.static(C == 1):
-                    wc = wp.tile_view(weights, offset=(0,), shape=(wp.static(H1 * K),))
-                else:
-                    wc = wp.tile_load(params, shape=wp.static(H1 * K), offset=c * wp.static(H1 * K), storage="shared")
-                wp.tile_matmul(xc, wp.tile_transpose(wp.tile_reshape(wc, shape=(H1, K))), h)
-            b = wp.tile_view(weights, offset=(wp.static(bias_at[0] - start),), shape=(H1,))
-            wp.tile_assign(h, wp.tile_map(add_and_activate, h, wp.tile_broadcast(b, shape=(R, H1))))
-            # The other hidden layers, each into its columns of `hidden`.
-            for l in range(1, wp.static(L - 1)):
-                a = wp.tile_view(hidden, offset=(0, wp.static(column[l])), shape=(R, wp.static(dims[l])))
-                w = wp.tile_view(
-                    weights, offset=(wp.static(weight_at[l] - start),), shape=(wp.static(dims[l + 1] * dims[l]),)
-                )
-                w = wp.tile_reshape(w, shape=(wp.static(dims[l + 1]), wp.static(dims[l])))
-                b = wp.tile_view(weights, offset=(wp.static(bias_at[l] - start),), shape=(wp.static(dims[l + 1]),))
-                h = wp.tile_view(hidden, offset=(0, wp.static(column[l + 1])), shape=(R, wp.static(dims[l + 1])))
-                wp.tile_matmul(a, wp.tile_transpose(w), h, beta=0.0)
-                wp.tile_assign(
-                    h, wp.tile_map(add_and_activate, h, wp.tile_broadcast(b, shape=(R, wp.static(dims[l + 1]))))
-                )
-            if wp.static(not backward_pass):  # the output layer (the backward needs only its gradient)
-                a = wp.tile_view(hidden, offset=(0, wp.static(column[L - 1])), shape=(R, wp.static(dims[L - 1])))
-                w = wp.tile_view(
-                    weights, offset=(wp.static(weight_at[L - 1] - start),), shape=(wp.static(dims[L] * dims[L - 1]),)
-                )
-                w = wp.tile_reshape(w, shape=(wp.static(dims[L]), wp.static(dims[L - 1])))
-                b = wp.tile_view(weights, offset=(wp.static(bias_at[L - 1] - start),), shape=(wp.static(dims[L]),))
-                y = wp.tile_matmul(a, wp.tile_transpose(w)) + wp.tile_broadcast(b, shape=(R, wp.static(dims[L])))
-                wp.tile_store(out, y, offset=(row, 0))
-            else:
-                # Backward, last layer first; `g` is the gradient of a layer's output (before its
-                # activation). Each weight and bias gradient of the tile is added to this block's
-                # row of `partial` (read, add, write: every element by the same thread each time).
-                mine = block * size
-                g = wp.tile_view(grads, offset=(0, wp.static(column[L])), shape=(R, wp.static(dims[L])))
-                wp.tile_assign(g, wp.tile_load(grad_out, shape=(R, wp.static(dims[L])), offset=(row, 0)))
-                # (Views are made afresh, never assigned from one name to another: Warp would copy
-                # the view into a tile of another layout.)
-                for l in range(wp.static(L - 1), 0, -1):
-                    n = wp.static(dims[l + 1] * dims[l])
-                    g_out = wp.tile_view(grads, offset=(0, wp.static(column[l + 1])), shape=(R, wp.static(dims[l + 1])))
-                    a_in = wp.tile_view(hidden, offset=(0, wp.static(column[l])), shape=(R, wp.static(dims[l])))
-                    dw = wp.tile_view(scratch, offset=(0,), shape=(n,))
-                    wp.tile_matmul(
-                        wp.tile_transpose(g_out),
-                        a_in,
-                        wp.tile_reshape(dw, shape=(wp.static(dims[l + 1]), wp.static(dims[l]))),
-                        beta=0.0,
-                    )
-                    at = mine + wp.static(weight_at[l])
-                    wp.tile_store(partial, wp.tile_load(partial, shape=n, offset=at) + dw, offset=at)
-                    at = mine + wp.static(bias_at[l])
-                    db = wp.tile_load(partial, shape=wp.static(dims[l + 1]), offset=at) + wp.tile_sum(g_out, axis=0)
-                    wp.tile_store(partial, db, offset=at)
-                    w = wp.tile_view(weights, offset=(wp.static(weight_at[l] - start),), shape=(n,))
-                    g_in = wp.tile_view(grads, offset=(0, wp.static(column[l])), shape=(R, wp.static(dims[l])))
-                    wp.tile_matmul(
-                        g_out, wp.tile_reshape(w, shape=(wp.static(dims[l + 1]), wp.static(dims[l]))), g_in, beta=0.0
-                    )
-                    wp.tile_assign(g_in, wp.tile_map(times_slope, g_in, a_in))
-                g1 = wp.tile_view(grads, offset=(0, 0), shape=(R, H1))
-                at = mine + wp.static(bias_at[0])
-                wp.tile_store(partial, wp.tile_load(partial, shape=H1, offset=at) + wp.tile_sum(g1, axis=0), offset=at)
-                for c in range(chunks):
-                    xc = wp.tile_load(x, shape=(R, K), offset=(row, c * K), storage="shared")
-                    dw0 = wp.tile_view(scratch, offset=(0,), shape=(wp.static(H1 * K),))
-                    wp.tile_matmul(wp.tile_transpose(g1), xc, wp.tile_reshape(dw0, shape=(H1, K)), beta=0.0)
-                    at = mine + c * wp.static(H1 * K)
-                    wp.tile_store(partial, wp.tile_load(partial, shape=wp.static(H1 * K), offset=at) + dw0, offset=at)
-                    if wp.static(input_grad):
-                        if wp.static(C == 1):
-                            wc = wp.tile_view(weights, offset=(0,), shape=(wp.static(H1 * K),))
-                        else:
-                            wc = wp.tile_load(
-                                params, shape=wp.static(H1 * K), offset=c * wp.static(H1 * K), storage="shared"
-                            )
-                        gx = wp.tile_matmul(g1, wp.tile_reshape(wc, shape=(H1, K)))
-                        wp.tile_store(grad_x, gx, offset=(row, c * K))
-
-    # The backward is ours: Warp's adjoints would only cost compile time.
-    return wp.kernel(kernel, module="unique", module_options={"enable_backward": False})
-
-
-def launch_blocks(device: torch.device, tiles: int) -> int:
-    """Blocks of a launch over `tiles` row tiles: a few per multiprocessor on CUDA (each block loads
-    the parameters once, then takes every `blocks`-th tile)."""
-    if device.type == "cuda":
-        return min(tiles, BLOCKS_PER_SM * torch.cuda.get_device_properties(device).multi_processor_count)
-    return min(tiles, CPU_BLOCKS)
-
-
-class _Launcher:
-    """Launches on torch's current stream (one Warp stream per torch stream, as making one costs host
-    time), loading each kernel's module at its first use, which must be eager."""
-
-    def __init__(self) -> None:
-        self._streams: dict[int, wp.Stream] = {}
-        self._loaded: set[tuple[str, str]] = set()
-
-    def __call__(self, kernel: wp.Kernel, blocks: int, inputs: list, device: torch.device) -> None:
-        """Launch `blocks` blocks of `kernel` on `inputs` (torch tensors are shared zero-copy)."""
-        wp.init()
-        wp_device = wp.device_from_torch(device)
-        key = (kernel.key, str(wp_device))
-        if key not in self._loaded:
-            if device.type == "cuda" and torch.cuda.is_current_stream_capturing():
-                raise RuntimeError(
-                    "FusedMLP: run the model once eagerly (forward and backward) before a CUDA graph capture"
-                )
-            wp.load_module(kernel.module, device=wp_device, block_dim=BLOCK_DIM)
-            self._loaded.add(key)
-        stream = None
-        if device.type == "cuda":
-            current = torch.cuda.current_stream(device)
-            stream = self._streams.get(current.cuda_stream)
-            if stream is None:
-                stream = self._streams[current.cuda_stream] = wp.stream_from_torch(current)
-        arrays = [wp.from_torch(a, requires_grad=False) if isinstance(a, torch.Tensor) else a for a in inputs]
-        wp.launch_tiled(kernel, dim=blocks, inputs=arrays, block_dim=BLOCK_DIM, device=wp_device, stream=stream)
-
-
-_launch = _Launcher()
-
-
-class FusedMLPFunction(torch.autograd.Function):
-    """`apply(spec, x, weight0, bias0, weight1, ...)`: the MLP `spec` of `x` `[N, in]` (float32,
-    contiguous) with torch's `nn.Linear` parameters; saves only `x` and the parameters for its backward."""
-
-    @staticmethod
-    def forward(ctx, spec: MLPSpec, x: torch.Tensor, *params: torch.Tensor) -> torch.Tensor:
-        ctx.spec = spec
-        ctx.save_for_backward(x, *params)
-        out = torch.empty(x.shape[0], spec.dims[-1], dtype=x.dtype, device=x.device)
-        _run(mlp_kernel(spec, backward_pass=False), spec, x, params, out=out)
-        return out
-
-    @staticmethod
-    def backward(ctx, grad_out: torch.Tensor):
-        x, *params = ctx.saved_tensors
-        spec: MLPSpec = ctx.spec
-        input_grad = bool(ctx.needs_input_grad[1])
-        blocks = launch_blocks(x.device, math.ceil(x.shape[0] / spec.rows))
-        partial = torch.zeros(blocks, spec.size, dtype=x.dtype, device=x.device)
-        grad_x = torch.empty_like(x) if input_grad else None
-        kernel = mlp_kernel(spec, backward_pass=True, input_grad=input_grad)
-        _run(kernel, spec, x, tuple(params), grad_out=grad_out.contiguous(), partial=partial, grad_x=grad_x)
-        return (None, grad_x, *spec.unflat(partial.sum(dim=0)))
-
-
-def _run(
-    kernel: wp.Kernel,
-    spec: MLPSpec,
-    x: torch.Tensor,
-    params: tuple[torch.Tensor, ...],
-    grad_out: torch.Tensor | None = None,
-    out: torch.Tensor | None = None,
-    partial: torch.Tensor | None = None,
-    grad_x: torch.Tensor | None = None,
-) -> None:
-    """One launch of `kernel` over the rows of `x` (absent outputs: empty tensors)."""
-    tiles = math.ceil(x.shape[0] / spec.rows)
-    blocks = launch_blocks(x.device, tiles) if partial is None else partial.shape[0]
-    unused = torch.empty(0, dtype=x.dtype, device=x.device)
-    inputs = [
-        x,
-        spec.flat(params),
-        unused.view(0, 1) if grad_out is None else grad_out,
-        spec.chunks,
-        tiles,
-        blocks,
-        unused.view(0, 1) if out is None else out,
-        unused if partial is None else partial.view(-1),
-        unused.view(0, 1) if grad_x is None else grad_x,
-    ]
-    _launch(kernel, blocks, inputs, x.device)
-
-
-def mlp_spec(mlp: nn.Sequential, backend: str) -> MLPSpec:
+def mlp_spec(mlp: nn.Sequential) -> MLPSpec:
     """The `MLPSpec` of an rsl-rl `MLP` (Linear, activation, ..., Linear); a one-line ValueError
-    names what the fused kernels of `backend` do not cover."""
+    names what the kernels do not cover."""
     modules = list(mlp)
     linears = [m for m in modules[0::2] if isinstance(m, nn.Linear)]
     activations = modules[1::2]
@@ -440,43 +119,321 @@ def mlp_spec(mlp: nn.Sequential, backend: str) -> MLPSpec:
     dims = (linears[0].in_features,) + tuple(m.out_features for m in linears)
     if any(not 1 <= d <= MAX_WIDTH for d in dims[1:]):
         raise ValueError(f"fused MLP: layer widths {list(dims[1:])} must be in [1, {MAX_WIDTH}]")
-    spec = MLPSpec(dims, ACTIVATIONS[next(iter(kinds))])
-    if backend == "triton":
-        from .triton_mlp import check_spec  # (an optional dependency, whose module imports this one)
-
-        check_spec(spec)
-    elif not spec.rows:
+    hidden = dims[1:-1]
+    if len(hidden) > MAX_HIDDEN_LAYERS or len(set(hidden)) != 1 or hidden[0] not in HIDDEN_WIDTHS:
         raise ValueError(
-            f"fused MLP: layers {list(dims)} need {spec.shared_bytes(TILE_ROWS[-1])} bytes of shared memory "
-            f"at {TILE_ROWS[-1]} rows per tile, over the {SHARED_BUDGET} a block has here"
+            f"fused MLP: hidden layers {list(hidden)} must be 1 to {MAX_HIDDEN_LAYERS} layers "
+            f"of one width in {list(HIDDEN_WIDTHS)}"
         )
-    return spec
+    return MLPSpec(dims, ACTIVATIONS[next(iter(kinds))])
+
+
+@triton.jit
+def _activate(z, ACTIVATION: tl.constexpr):
+    if ACTIVATION == "tanh":
+        # 1 - 2 / (exp(2|z|) + 1) as (1 - e) / (1 + e), e = exp(-2|z|) <= 1: no overflow; below
+        # |z| = 1/16, where 1 - e would lose digits, the series z - z^3/3 + 2z^5/15 (next term < 1e-8 z).
+        a = tl.abs(z)
+        e = tl.exp(-2.0 * a)
+        t = (1.0 - e) / (1.0 + e)
+        z2 = z * z
+        series = a * (1.0 + z2 * (-1.0 / 3.0 + z2 * (2.0 / 15.0)))
+        t = tl.where(a < 0.0625, series, t)
+        return tl.where(z < 0.0, -t, t)
+    elif ACTIVATION == "relu":
+        return tl.maximum(z, 0.0)
+    else:  # elu, alpha 1
+        return tl.where(z > 0.0, z, tl.exp(tl.minimum(z, 0.0)) - 1.0)  # (no overflow where unused)
+
+
+@triton.jit
+def _slope(y, ACTIVATION: tl.constexpr):
+    """The activation's derivative, from its output `y`."""
+    if ACTIVATION == "tanh":
+        return 1.0 - y * y
+    elif ACTIVATION == "relu":
+        return tl.where(y > 0.0, 1.0, 0.0)  # as torch's: the gradient passes where the output is > 0
+    else:
+        return tl.where(y > 0.0, 1.0, y + 1.0)  # exp(z) = y + 1 where z <= 0
+
+
+@triton.jit
+def _load_matrix(ptr, ROWS: tl.constexpr, ROWS_P: tl.constexpr, COLS: tl.constexpr, COLS_P: tl.constexpr):
+    """A row-major `[ROWS, COLS]` matrix as a `[ROWS_P, COLS_P]` tile, zero-padded."""
+    r = tl.arange(0, ROWS_P)
+    c = tl.arange(0, COLS_P)
+    return tl.load(ptr + r[:, None] * COLS + c[None, :], mask=(r[:, None] < ROWS) & (c[None, :] < COLS), other=0.0)
+
+
+@triton.jit
+def _load_vector(ptr, N: tl.constexpr, N_P: tl.constexpr):
+    i = tl.arange(0, N_P)
+    return tl.load(ptr + i, mask=i < N, other=0.0)
+
+
+@triton.jit
+def _store_matrix(ptr, m, ROWS: tl.constexpr, ROWS_P: tl.constexpr, COLS: tl.constexpr, COLS_P: tl.constexpr):
+    r = tl.arange(0, ROWS_P)
+    c = tl.arange(0, COLS_P)
+    tl.store(ptr + r[:, None] * COLS + c[None, :], m, mask=(r[:, None] < ROWS) & (c[None, :] < COLS))
+
+
+@triton.jit
+def _store_vector(ptr, v, N: tl.constexpr, N_P: tl.constexpr):
+    i = tl.arange(0, N_P)
+    tl.store(ptr + i, v, mask=i < N)
+
+
+@triton.jit
+def _rows(ptr, rows, n_rows, COLS: tl.constexpr, COLS_P: tl.constexpr):
+    """Rows `rows` of a row-major `[n_rows, COLS]` matrix, zero past its end and in the padding."""
+    c = tl.arange(0, COLS_P)
+    mask = (rows[:, None] < n_rows) & (c[None, :] < COLS)
+    return tl.load(ptr + rows[:, None] * COLS + c[None, :], mask=mask, other=0.0)
+
+
+@triton.jit
+def _layer(
+    a,
+    w_ptr,
+    b_ptr,
+    N_IN: tl.constexpr,
+    N_IN_P: tl.constexpr,
+    N_OUT: tl.constexpr,
+    N_OUT_P: tl.constexpr,
+    PRECISION: tl.constexpr,
+):
+    """`a @ W^T + b` for torch's `[N_OUT, N_IN]` weight `W` (zero-padded)."""
+    w = _load_matrix(w_ptr, N_OUT, N_OUT_P, N_IN, N_IN_P)
+    b = _load_vector(b_ptr, N_OUT, N_OUT_P)
+    return tl.dot(a, tl.trans(w), input_precision=PRECISION) + b[None, :]
+
+
+@triton.jit(do_not_specialize=["n_rows"])
+def _forward_kernel(
+    x_ptr, out_ptr, n_rows,
+    w0, b0, w1, b1, w2, b2, w3, b3,
+    IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
+    HIDDEN: tl.constexpr, ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, BLOCK_M: tl.constexpr,
+):  # fmt: skip
+    # Layer l's weight and bias are w<l>, b<l>; the output layer is layer HIDDEN (later pointers unused).
+    rows = (tl.program_id(0) * BLOCK_M + tl.arange(0, BLOCK_M)).to(tl.int64)  # (rows x width may pass 2**31)
+    a = _rows(x_ptr, rows, n_rows, IN, IN_P)
+    a = _activate(_layer(a, w0, b0, IN, IN_P, H, H, PRECISION), ACTIVATION)
+    if HIDDEN >= 2:
+        a = _activate(_layer(a, w1, b1, H, H, H, H, PRECISION), ACTIVATION)
+    if HIDDEN >= 3:
+        a = _activate(_layer(a, w2, b2, H, H, H, H, PRECISION), ACTIVATION)
+    if HIDDEN == 1:
+        y = _layer(a, w1, b1, H, H, OUT, OUT_P, PRECISION)
+    elif HIDDEN == 2:
+        y = _layer(a, w2, b2, H, H, OUT, OUT_P, PRECISION)
+    else:
+        y = _layer(a, w3, b3, H, H, OUT, OUT_P, PRECISION)
+    c = tl.arange(0, OUT_P)
+    tl.store(out_ptr + rows[:, None] * OUT + c[None, :], y, mask=(rows[:, None] < n_rows) & (c[None, :] < OUT))
+
+
+@triton.jit
+def _back(
+    g,
+    a,
+    w_ptr,
+    ROWS: tl.constexpr,
+    ROWS_P: tl.constexpr,
+    COLS: tl.constexpr,
+    COLS_P: tl.constexpr,
+    PRECISION: tl.constexpr,
+):
+    """For a layer of weight `[ROWS, COLS]` at `w_ptr`, input `a` and output gradient `g`: the
+    weight's gradient `g^T a`, the bias's (the column sums of `g`) and the input's, `g W`."""
+    w = _load_matrix(w_ptr, ROWS, ROWS_P, COLS, COLS_P)
+    dw = tl.dot(tl.trans(g), a, input_precision=PRECISION)
+    return dw, tl.sum(g, axis=0), tl.dot(g, w, input_precision=PRECISION)
+
+
+@triton.jit(do_not_specialize=["n_rows"])
+def _backward_kernel(
+    x_ptr, grad_out_ptr, grad_x_ptr, partial_ptr, n_rows,
+    w0, b0, w1, b1, w2, b2, w3, b3,
+    IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
+    HIDDEN: tl.constexpr, ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, BLOCK_M: tl.constexpr,
+    GRAD_X: tl.constexpr,
+):  # fmt: skip
+    # Gradient accumulators, in registers across this program's tiles: d<l> for layer l's weight
+    # ([out, in], padded), e<l> for its bias; the output layer's are d_out, e_out.
+    d0 = tl.zeros((H, IN_P), dtype=tl.float32)
+    e0 = tl.zeros((H,), dtype=tl.float32)
+    if HIDDEN >= 2:
+        d1 = tl.zeros((H, H), dtype=tl.float32)
+        e1 = tl.zeros((H,), dtype=tl.float32)
+    if HIDDEN >= 3:
+        d2 = tl.zeros((H, H), dtype=tl.float32)
+        e2 = tl.zeros((H,), dtype=tl.float32)
+    d_out = tl.zeros((OUT_P, H), dtype=tl.float32)
+    e_out = tl.zeros((OUT_P,), dtype=tl.float32)
+    if HIDDEN == 1:
+        w_out = w1
+    elif HIDDEN == 2:
+        w_out = w2
+    else:
+        w_out = w3
+    program = tl.program_id(0)
+    programs = tl.num_programs(0)
+    for tile in range(program, tl.cdiv(n_rows, BLOCK_M), programs):
+        rows = (tile * BLOCK_M + tl.arange(0, BLOCK_M)).to(tl.int64)  # (int64: rows x width may pass 2**31)
+        # Recompute the hidden activations a1 (.. a3) of the tile.
+        x = _rows(x_ptr, rows, n_rows, IN, IN_P)
+        a1 = _activate(_layer(x, w0, b0, IN, IN_P, H, H, PRECISION), ACTIVATION)
+        last = a1
+        if HIDDEN >= 2:
+            a2 = _activate(_layer(a1, w1, b1, H, H, H, H, PRECISION), ACTIVATION)
+            last = a2
+        if HIDDEN >= 3:
+            a3 = _activate(_layer(a2, w2, b2, H, H, H, H, PRECISION), ACTIVATION)
+            last = a3
+        # Back through the layers; g is the gradient of a layer's output (zero in rows past the end).
+        g = _rows(grad_out_ptr, rows, n_rows, OUT, OUT_P)
+        dw, db, g = _back(g, last, w_out, OUT, OUT_P, H, H, PRECISION)
+        d_out += dw
+        e_out += db
+        g = g * _slope(last, ACTIVATION)
+        if HIDDEN >= 3:
+            dw, db, g = _back(g, a2, w2, H, H, H, H, PRECISION)
+            d2 += dw
+            e2 += db
+            g = g * _slope(a2, ACTIVATION)
+        if HIDDEN >= 2:
+            dw, db, g = _back(g, a1, w1, H, H, H, H, PRECISION)
+            d1 += dw
+            e1 += db
+            g = g * _slope(a1, ACTIVATION)
+        dw, db, gx = _back(g, x, w0, H, H, IN, IN_P, PRECISION)
+        d0 += dw
+        e0 += db
+        if GRAD_X:
+            c = tl.arange(0, IN_P)
+            mask = (rows[:, None] < n_rows) & (c[None, :] < IN)
+            tl.store(grad_x_ptr + rows[:, None] * IN + c[None, :], gx, mask=mask)
+    # This program's row of partial sums, in the order of the parameters (weight0, bias0, weight1, ...).
+    row = partial_ptr + program.to(tl.int64) * (H * IN + H + (HIDDEN - 1) * (H * H + H) + OUT * H + OUT)
+    _store_matrix(row, d0, H, H, IN, IN_P)
+    _store_vector(row + H * IN, e0, H, H)
+    row += H * IN + H
+    if HIDDEN >= 2:
+        _store_matrix(row, d1, H, H, H, H)
+        _store_vector(row + H * H, e1, H, H)
+        row += H * H + H
+    if HIDDEN >= 3:
+        _store_matrix(row, d2, H, H, H, H)
+        _store_vector(row + H * H, e2, H, H)
+        row += H * H + H
+    _store_matrix(row, d_out, OUT, OUT_P, H, H)
+    _store_vector(row + OUT * H, e_out, OUT, OUT_P)
+
+
+INTERPRETED = isinstance(_forward_kernel, InterpretedFunction)  # TRITON_INTERPRET=1 at import
+DEVICES = ("cpu", "cuda") if INTERPRETED else ("cuda",)  # the devices whose tensors the kernels take
+
+
+def _padded(width: int) -> int:
+    """A width as a tile's: the power of two >= 16 at or above it (tl.dot's smallest tile is 16)."""
+    return max(16, triton.next_power_of_2(width))
+
+
+def block_rows(spec: MLPSpec) -> int:
+    """Rows per tile: fewer for the widest layers, whose tiles take the most registers."""
+    return 32 if spec.dims[1] > 64 else 64
 
 
 @functools.cache
-def backend_function(backend: str) -> tuple[type[torch.autograd.Function], tuple[str, ...]]:
-    """The autograd function of `backend` ("warp": `FusedMLPFunction`; "triton":
-    `triton_mlp.TritonMLPFunction`) and the device types whose tensors it takes."""
-    if backend == "warp":
-        return FusedMLPFunction, ("cpu", "cuda")
-    from .triton_mlp import DEVICES, TritonMLPFunction  # (an optional dependency, whose module imports this one)
+def _multiprocessors(device: torch.device) -> int:
+    return torch.cuda.get_device_properties(device).multi_processor_count
 
-    return TritonMLPFunction, DEVICES
+
+def backward_programs(device: torch.device, tiles: int) -> int:
+    """Persistent programs of a backward over `tiles` row tiles: a few per multiprocessor on CUDA."""
+    if device.type == "cuda" and not INTERPRETED:
+        return min(tiles, PROGRAMS_PER_SM * _multiprocessors(device))
+    return min(tiles, INTERPRETER_PROGRAMS)
+
+
+def _constants(spec: MLPSpec, precision: str) -> dict:
+    """The kernels' compile-time arguments for `spec`."""
+    return {
+        "IN": spec.dims[0],
+        "IN_P": _padded(spec.dims[0]),
+        "H": spec.dims[1],
+        "OUT": spec.dims[-1],
+        "OUT_P": _padded(spec.dims[-1]),
+        "HIDDEN": spec.layers - 1,
+        "ACTIVATION": spec.activation,
+        "PRECISION": precision,
+        "BLOCK_M": block_rows(spec),
+    }
+
+
+def _layer_pointers(params: tuple[torch.Tensor, ...]) -> list[torch.Tensor]:
+    """w0, b0, .. w3, b3 for the kernels: the parameters, then the first ones again for unused slots."""
+    return [*params, *params[: 2 * (MAX_HIDDEN_LAYERS + 1) - len(params)]]
+
+
+class TritonMLPFunction(torch.autograd.Function):
+    """`apply(spec, x, weight0, bias0, weight1, ...)`: the MLP `spec` of `x` `[N, in]` (float32,
+    contiguous) with torch's `nn.Linear` parameters (contiguous); saves only `x` and the parameters
+    for its backward. `spec` comes from `mlp_spec` (an architecture the kernels cover)."""
+
+    @staticmethod
+    def forward(ctx, spec: MLPSpec, x: torch.Tensor, *params: torch.Tensor) -> torch.Tensor:
+        if x.device.type != "cuda" or INTERPRETED:
+            precision = "ieee"
+        else:
+            precision = "tf32" if torch.backends.cuda.matmul.allow_tf32 else FLOAT32_PRECISION
+        ctx.spec, ctx.precision = spec, precision
+        ctx.save_for_backward(x, *params)
+        n_rows = x.shape[0]
+        out = torch.empty(n_rows, spec.dims[-1], dtype=x.dtype, device=x.device)
+        if n_rows:
+            constants = _constants(spec, precision)
+            grid = (triton.cdiv(n_rows, constants["BLOCK_M"]),)
+            _forward_kernel[grid](x, out, n_rows, *_layer_pointers(params), **constants, num_warps=NUM_WARPS)
+        return out
+
+    @staticmethod
+    def backward(ctx, grad_out: torch.Tensor):
+        x, *params = ctx.saved_tensors
+        spec: MLPSpec = ctx.spec
+        constants = _constants(spec, ctx.precision)
+        n_rows = x.shape[0]
+        programs = backward_programs(x.device, triton.cdiv(n_rows, constants["BLOCK_M"]))
+        partial = torch.empty(programs, sum(p.numel() for p in params), dtype=x.dtype, device=x.device)
+        input_grad = bool(ctx.needs_input_grad[1])
+        grad_x = torch.empty_like(x) if input_grad else None
+        if programs:
+            _backward_kernel[(programs,)](
+                x,
+                grad_out.contiguous(),
+                x if grad_x is None else grad_x,  # not written without GRAD_X
+                partial,
+                n_rows,
+                *_layer_pointers(tuple(params)),
+                **constants,
+                GRAD_X=input_grad,
+                num_warps=NUM_WARPS,
+            )
+        sums = partial.sum(dim=0).split([p.numel() for p in params])
+        return (None, grad_x, *(s.view_as(p) for s, p in zip(sums, params)))
 
 
 class FusedMLP(MLP):
     """An rsl-rl `MLP` (the same modules, adopted from `mlp`, so the same parameters and state_dict
-    keys) whose forward runs the fused kernels of `backend` (one of `FUSED_BACKENDS`) where they serve:
-    float32 on a device of the backend's (Warp: the CPU or CUDA; Triton: CUDA, or the CPU under
-    Triton's interpreter), outside autocast, TorchScript, tracing and export; elsewhere the modules
-    one after another."""
+    keys) whose forward runs the fused kernels where they serve: float32 on a device of `DEVICES`
+    (CUDA, or the CPU under Triton's interpreter), outside autocast, TorchScript, tracing and export;
+    elsewhere the modules one after another."""
 
-    def __init__(self, mlp: MLP, backend: str) -> None:
-        if backend not in FUSED_BACKENDS:
-            raise ValueError(f"FusedMLP: backend={backend!r} must be one of {list(FUSED_BACKENDS)}")
+    def __init__(self, mlp: MLP) -> None:
         nn.Sequential.__init__(self, *mlp)  # not MLP.__init__: no new layers, no random draws
-        self.backend = backend
-        self.spec = mlp_spec(self, backend)
+        self.spec = mlp_spec(self)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if torch.jit.is_scripting() or not self._fusable(x):
@@ -489,7 +446,7 @@ class FusedMLP(MLP):
     def _fusable(self, x: torch.Tensor) -> bool:
         return (
             x.dtype == torch.float32
-            and x.device.type in backend_function(self.backend)[1]
+            and x.device.type in DEVICES
             and self[0].weight.dtype == torch.float32
             and not torch.is_autocast_enabled(x.device.type)
             and not torch.jit.is_tracing()
@@ -504,16 +461,15 @@ class FusedMLP(MLP):
             raise ValueError(f"FusedMLP: input of {x.shape[-1]} features, the first layer takes {self.spec.dims[0]}")
         rows = x.reshape(-1, x.shape[-1]).contiguous()
         params = [p for layer in list(self)[0::2] for p in (layer.weight, layer.bias)]
-        out = backend_function(self.backend)[0].apply(self.spec, rows, *params)
+        out = TritonMLPFunction.apply(self.spec, rows, *params)
         return out.reshape(*x.shape[:-1], out.shape[-1])
 
 
 class FusedMLPModel(MLPModel):
-    """rsl-rl's `MLPModel` with a `FusedMLP` of `backend` (see the module doc); its other arguments
-    are `MLPModel`'s."""
+    """rsl-rl's `MLPModel` with a `FusedMLP` (see the module doc); its arguments are `MLPModel`'s."""
 
     mlp: MLP  # declared: rsl-rl's class sets it in __init__, where type inference does not follow
 
-    def __init__(self, *args, backend: str, **kwargs) -> None:
+    def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
-        self.mlp = FusedMLP(self.mlp, backend)
+        self.mlp = FusedMLP(self.mlp)

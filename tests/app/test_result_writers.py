@@ -173,13 +173,14 @@ def test_bench_training_keeps_the_points_measured_before_a_limit(tmp_path, monke
 
 def test_bench_fused_update_keeps_the_points_measured_before_a_limit(tmp_path, monkeypatch):
     pytest.importorskip("rsl_rl")
+    pytest.importorskip("triton")  # the fused MLP's kernels
     bench = _script("bench_fused_update")
-    monkeypatch.setattr(bench, "build_seconds", lambda preset, worlds, device, backends: {"trainer": 1.0})
+    monkeypatch.setattr(bench, "build_seconds", lambda preset, worlds, device: {"trainer": 1.0})
     monkeypatch.setattr(
         bench,
         "measure",
         _second_point_ends_the_script(
-            lambda preset, w, device, repeats, backends: {"worlds": w, "seconds": {"torch eager": 0.5}}
+            lambda preset, w, device, repeats: {"worlds": w, "seconds": {"torch eager": 0.5}}
         ),
     )
     out = tmp_path / "fused.json"
@@ -193,8 +194,9 @@ def test_bench_fused_update_keeps_the_points_measured_before_a_limit(tmp_path, m
 
 def test_bench_fused_update_compile_only_times_the_build_and_no_point(tmp_path, monkeypatch, capsys):
     pytest.importorskip("rsl_rl")
+    pytest.importorskip("triton")  # the fused MLP's kernels
     bench = _script("bench_fused_update")
-    monkeypatch.setattr(bench, "build_seconds", lambda preset, worlds, device, backends: {"trainer": 1.0})
+    monkeypatch.setattr(bench, "build_seconds", lambda preset, worlds, device: {"trainer": 1.0})
     monkeypatch.setattr(bench, "measure", lambda *args: pytest.fail("--compile-only measured a point"))
     out = tmp_path / "fused.json"
     assert bench.main(["--device", "cpu", "--compile-only", "--out", str(out)]) == 0

@@ -1,17 +1,14 @@
-"""The fused MLPs against torch's, on the CPU: the Warp backend (`training/fused_mlp.py`; the same kernels
-run on CUDA) and the Triton backend (`training/triton_mlp.py`) through Triton's interpreter, which runs
-its kernels on CPU tensors (`TRITON_INTERPRET=1`, which tests/conftest.py sets before triton is imported;
-with AQUARIUM_TEST_DEVICE=cuda:N the interpreter stays off and the Triton tests here skip, the CUDA ones run).
+"""The fused MLP (`training/fused_mlp.py`) against torch's, on the CPU through Triton's interpreter, which
+runs its kernels on CPU tensors (`TRITON_INTERPRET=1`, which tests/conftest.py sets before triton is
+imported; with AQUARIUM_TEST_DEVICE=cuda:N the interpreter stays off and the tests that need the kernels
+on the CPU skip, the CUDA one runs).
 
 Errors are relative to the largest magnitude of the float64 reference (torch's MLP in float64).
-Measured on the CPU over WARP_SHAPES (warp 1.19): forward <= 4.7e-7 (torch's float32: 3.8e-7), parameter
-and input gradients <= 4.8e-7 (torch's: 6.7e-7); after one full PPO update from the same state,
-every parameter within 5.7e-6 of the torch update's (Adam divides each gradient by its running RMS,
-so a rounding difference in a tiny gradient becomes a difference in a step). Triton (3.9.0's
-interpreter, whose products are numpy's) over TRITON_SHAPES: forward <= 4.5e-7 (torch's: 4.5e-7),
-gradients <= 4.1e-7 (torch's: 7.4e-7); its tanh alone within 8.6e-7 relative (9.3e-8 absolute) of
-float64's; after one PPO update every parameter within 8.4e-6 of the torch update's. The same
-tolerances hold both backends.
+Measured on the CPU over SHAPES (Triton 3.9.0's interpreter, whose products are numpy's): forward
+<= 4.5e-7 (torch's float32: 4.5e-7), gradients <= 4.1e-7 (torch's: 7.4e-7); its tanh alone within
+8.6e-7 relative (9.3e-8 absolute) of float64's; after one full PPO update from the same state, every
+parameter within 8.4e-6 of the torch update's (Adam divides each gradient by its running RMS, so a
+rounding difference in a tiny gradient becomes a difference in a step).
 """
 
 import copy
@@ -23,83 +20,62 @@ from pathlib import Path
 os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
 
 import pytest
+
+pytest.importorskip("triton")  # the fused MLP's kernels (the `fused` extra)
+
 import torch
 from rsl_rl.models import MLPModel
 from rsl_rl.modules import MLP
 from tensordict import TensorDict
 
-from aquarium_warp.training import make_config
-from aquarium_warp.training.config import FUSED_BACKENDS, FUSED_MODEL, runner_config
-from aquarium_warp.training.fused_mlp import FusedMLP, FusedMLPModel, MLPSpec
+from aquarium_warp.training import fused_mlp, make_config
+from aquarium_warp.training.config import FUSED_MODEL, runner_config
+from aquarium_warp.training.fused_mlp import FusedMLP, FusedMLPModel
 
 BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
 
-FORWARD_TOLERANCE = 2e-6  # relative to the reference's largest magnitude; measured <= 4.7e-7
-GRADIENT_TOLERANCE = 2e-6  # measured <= 4.8e-7
-UPDATE_TOLERANCE = 5e-5  # one PPO update, per parameter tensor; measured <= 5.7e-6
-TF32_TOLERANCE = 1e-2  # Triton's TF32 products on CUDA (10-bit mantissas): about 1e-3
+FORWARD_TOLERANCE = 2e-6  # relative to the reference's largest magnitude; measured <= 4.5e-7
+GRADIENT_TOLERANCE = 2e-6  # measured <= 4.1e-7
+UPDATE_TOLERANCE = 5e-5  # one PPO update, per parameter tensor; measured <= 8.4e-6
+TF32_TOLERANCE = 1e-2  # TF32 products on CUDA (10-bit mantissas): about 1e-3
 
-ROWS = 64  # rows per tile of the nets below but the last (MLPSpec.rows), which takes 16
+ROWS = 64  # rows per tile of the nets below up to width 64 (fused_mlp.block_rows); 32 for width 128
 
-# (input, hidden, output, activation, rows): the default actor; a two-chunk input (100 > 64 columns,
-# the second chunk zero-padded) with elu; one relu layer; 128 wide, in whole tiles; two layers of
-# 128 (tiles of 16 rows), with a tail.
+# (input, hidden, output, activation, rows): the default actor with a tail; an input of 100 columns
+# (padded to 128) with elu; one relu layer of 16 with an output of 1 (padded to 16); 128 wide in whole
+# tiles; three elu layers of 128 with an output of 128 and a tail.
 SHAPES = [
-    (29, [64, 64], 9, "tanh", 3 * ROWS + 8),
-    (100, [32, 48], 3, "elu", 2 * ROWS + 2),
-    (7, [16], 1, "relu", ROWS + 1),
-    (29, [128], 5, "tanh", 2 * ROWS),
-    (29, [128, 128], 5, "tanh", 3 * 16 + 5),
-]
-# Triton's (its tiles: 64 rows, 32 for width 128): the default actor with a tail; an input of 100
-# columns (padded to 128) with elu; one relu layer of 16 with an output of 1 (padded to 16); 128 wide
-# in whole tiles; three elu layers of 128 with an output of 128 and a tail.
-TRITON_SHAPES = [
     (29, [64, 64], 9, "tanh", 3 * ROWS + 8),
     (100, [32, 32], 3, "elu", 2 * ROWS + 2),
     (7, [16], 1, "relu", ROWS + 1),
     (29, [128], 5, "tanh", 2 * 32),
     (13, [128, 128, 128], 128, "elu", 3 * 32 + 5),
 ]
-# A net each backend covers, for the tests of what does not depend on the shape.
-COMMON_HIDDEN = [32, 32]
 
 
-def _triton_mlp():
-    """training/triton_mlp.py, where its kernels take CPU tensors (Triton's interpreter); else the test skips."""
-    pytest.importorskip("triton")
-    from aquarium_warp.training import triton_mlp
-
-    if not triton_mlp.INTERPRETED:
+@pytest.fixture
+def interpreter() -> None:
+    """Skips unless the kernels take CPU tensors (Triton's interpreter)."""
+    if not fused_mlp.INTERPRETED:
         pytest.skip("Triton's interpreter is off (AQUARIUM_TEST_DEVICE=cuda): see test_triton_on_cuda_*")
-    return triton_mlp
-
-
-@pytest.fixture(params=FUSED_BACKENDS)
-def backend(request) -> str:
-    """Each backend; Triton's through its interpreter on CPU tensors."""
-    if request.param == "triton":
-        _triton_mlp()
-    return request.param
 
 
 def relative_error(value: torch.Tensor, reference: torch.Tensor) -> float:
     return float((value.detach().double() - reference).abs().max() / reference.abs().max())
 
 
-def _mlps(n_in, hidden, n_out, activation, seed=0, backend="warp"):
+def _mlps(n_in, hidden, n_out, activation, seed=0):
     torch.manual_seed(seed)
     mlp = MLP(n_in, n_out, hidden, activation)
-    return mlp, FusedMLP(copy.deepcopy(mlp), backend)
+    return mlp, FusedMLP(copy.deepcopy(mlp))
 
 
-def _ran_fused(y: torch.Tensor, backend: str) -> bool:
-    """Whether `y` came out of `backend`'s autograd function (behind FusedMLP's reshape), not torch's modules."""
-    function = {"warp": "FusedMLPFunction", "triton": "TritonMLPFunction"}[backend]
-    return type(y.grad_fn.next_functions[0][0]).__name__ == f"{function}Backward"
+def _ran_fused(y: torch.Tensor) -> bool:
+    """Whether `y` came out of the kernels' autograd function (behind FusedMLP's reshape), not torch's modules."""
+    return type(y.grad_fn.next_functions[0][0]).__name__ == "TritonMLPFunctionBackward"
 
 
-def _compare_to_torch(mlp, fused, x, grad, backend):
+def _compare_to_torch(mlp, fused, x, grad):
     """The fused MLP's output and gradients (x's included) against torch's float32 and float64 MLPs."""
     reference = copy.deepcopy(mlp).double()
     x_fused, x_torch, x_ref = x.clone().requires_grad_(), x.clone().requires_grad_(), x.double().requires_grad_()
@@ -111,7 +87,7 @@ def _compare_to_torch(mlp, fused, x, grad, backend):
     y = fused(x_fused)
     y.backward(grad)
 
-    assert _ran_fused(y, backend)
+    assert _ran_fused(y)
     assert y.shape == (x.shape[0], grad.shape[1]) and y.dtype == torch.float32
     torch_error = relative_error(y_torch, y_ref.detach())
     assert relative_error(y.detach(), y_ref.detach()) <= max(FORWARD_TOLERANCE, 4 * torch_error)
@@ -123,40 +99,30 @@ def _compare_to_torch(mlp, fused, x, grad, backend):
 
 
 @pytest.mark.parametrize("n_in,hidden,n_out,activation,rows", SHAPES)
-def test_forward_and_gradients_match_torch_within_float32_rounding(n_in, hidden, n_out, activation, rows):
+def test_forward_and_gradients_match_torch_within_float32_rounding(n_in, hidden, n_out, activation, rows, interpreter):
     mlp, fused = _mlps(n_in, hidden, n_out, activation)
     gen = torch.Generator().manual_seed(1)
-    x = torch.randn(rows, n_in, generator=gen)
-    _compare_to_torch(mlp, fused, x, torch.randn(rows, n_out, generator=gen), "warp")
-
-
-@pytest.mark.parametrize("n_in,hidden,n_out,activation,rows", TRITON_SHAPES)
-def test_triton_forward_and_gradients_match_torch_within_float32_rounding(n_in, hidden, n_out, activation, rows):
-    _triton_mlp()
-    mlp, fused = _mlps(n_in, hidden, n_out, activation, backend="triton")
-    gen = torch.Generator().manual_seed(1)
     x = 2 * torch.randn(rows, n_in, generator=gen)  # (tanh's range: its series below 1/16 and exp above)
-    _compare_to_torch(mlp, fused, x, torch.randn(rows, n_out, generator=gen), "triton")
+    _compare_to_torch(mlp, fused, x, torch.randn(rows, n_out, generator=gen))
 
 
-def test_triton_kernels_really_run_under_the_interpreter():
+def test_triton_kernels_really_run_under_the_interpreter(interpreter):
     """A weight changed in the call alone (not in the module) changes the output as torch's MLP
     with that weight does: the kernels compute it, not torch's modules."""
-    triton_mlp = _triton_mlp()
-    mlp, fused = _mlps(29, [64, 64], 9, "tanh", backend="triton")
+    mlp, fused = _mlps(29, [64, 64], 9, "tanh")
     x = torch.randn(70, 29)
     params = [p.detach().clone() for layer in list(mlp)[0::2] for p in (layer.weight, layer.bias)]
     params[2][3, 5] += 1.0  # the second layer's weight
     with torch.no_grad():
-        out = triton_mlp.TritonMLPFunction.apply(fused.spec, x, *params)
+        out = fused_mlp.TritonMLPFunction.apply(fused.spec, x, *params)
         mlp[2].weight[3, 5] += 1.0
         expected = mlp(x)
         assert relative_error(out, expected.double()) <= FORWARD_TOLERANCE
         assert relative_error(fused(x), expected.double()) > 1e-3  # the module's weight is unchanged
 
 
-def test_parameter_gradients_without_input_gradient_and_the_tail_rows_add_nothing(backend):
-    mlp, fused = _mlps(29, [64, 64], 9, "tanh", backend=backend)
+def test_parameter_gradients_without_input_gradient_and_the_tail_rows_add_nothing(interpreter):
+    mlp, fused = _mlps(29, [64, 64], 9, "tanh")
     x = torch.randn(ROWS + 5, 29)
     fused(x).square().sum().backward()  # x needs no gradient: the kernel without the input gradient
     mlp(x).square().sum().backward()
@@ -172,11 +138,11 @@ def test_parameter_gradients_without_input_gradient_and_the_tail_rows_add_nothin
         assert relative_error(g, p_torch.grad.double()) <= GRADIENT_TOLERANCE
 
 
-def test_bit_exact_on_the_cpu(backend):
-    """Same inputs twice -> identical outputs and gradients. On the CPU blocks run one after another;
-    on a GPU each block (Triton: program) adds into its own row of partial gradients in a fixed order,
-    so this holds there by construction too (not tested here)."""
-    _, fused = _mlps(100, [32, 48] if backend == "warp" else COMMON_HIDDEN, 3, "elu", backend=backend)
+def test_bit_exact_on_the_cpu(interpreter):
+    """Same inputs twice -> identical outputs and gradients. On the CPU programs run one after another;
+    on a GPU each program adds into its own row of partial gradients in a fixed order, so this holds
+    there by construction too (test_triton_on_cuda_* replays a graph against an eager call)."""
+    _, fused = _mlps(100, [32, 32], 3, "elu")
     x = torch.randn(3 * ROWS + 7, 100)
     runs = []
     for _ in range(2):
@@ -189,16 +155,16 @@ def test_bit_exact_on_the_cpu(backend):
         assert torch.equal(a, b)
 
 
-def test_empty_batch_and_leading_dimensions(backend):
-    mlp, fused = _mlps(7, [16], 2, "relu", backend=backend)
+def test_empty_batch_and_leading_dimensions(interpreter):
+    mlp, fused = _mlps(7, [16], 2, "relu")
     assert fused(torch.zeros(0, 7)).shape == (0, 2)
     x = torch.randn(3, 5, 7)
     assert relative_error(fused(x).detach(), mlp(x).detach().double()) <= FORWARD_TOLERANCE
 
 
 @pytest.mark.parametrize("features", [6, 8])
-def test_input_of_the_wrong_width_is_refused_as_by_torch(features, backend):
-    mlp, fused = _mlps(7, [16], 2, "tanh", backend=backend)
+def test_input_of_the_wrong_width_is_refused_as_by_torch(features, interpreter):
+    mlp, fused = _mlps(7, [16], 2, "tanh")
     x = torch.randn(4, features)
     with pytest.raises(RuntimeError):  # torch's Linear
         mlp(x)
@@ -207,8 +173,8 @@ def test_input_of_the_wrong_width_is_refused_as_by_torch(features, backend):
     assert "\n" not in str(info.value)
 
 
-def test_torch_path_where_the_kernels_do_not_serve(backend):
-    mlp, fused = _mlps(7, [16], 2, "tanh", backend=backend)
+def test_torch_path_where_the_kernels_do_not_serve():
+    mlp, fused = _mlps(7, [16], 2, "tanh")
     x = torch.randn(10, 7, dtype=torch.float64)
     assert torch.equal(copy.deepcopy(fused).double()(x), copy.deepcopy(mlp).double()(x))  # float64: torch's
     scripted = torch.jit.script(copy.deepcopy(fused))  # TorchScript (policy export): torch's modules
@@ -216,59 +182,42 @@ def test_torch_path_where_the_kernels_do_not_serve(backend):
 
 
 @pytest.mark.parametrize(
-    "backend_name,hidden,activation,message",
+    "hidden,activation,message",
     [
-        ("warp", [64], "selu", "activation"),
-        ("warp", [256], "tanh", "widths"),
-        ("warp", [64], "lrelu", "activation"),
-        ("warp", [128, 128, 128], "tanh", "shared memory"),
-        ("triton", [64], "selu", "activation"),
-        ("triton", [256], "tanh", "widths"),
-        ("triton", [32, 64], "tanh", r"hidden layers \[32, 64\] must be 1 to 3 layers of one width"),
-        ("triton", [48], "tanh", r"hidden layers \[48\] must be 1 to 3 layers of one width in \[16, 32, 64, 128\]"),
-        ("triton", [16] * 4, "tanh", "must be 1 to 3 layers"),
-        ("nvfuser", [64], "tanh", r"backend='nvfuser' must be one of \['warp', 'triton'\]"),
+        ([64], "selu", "activation"),
+        ([256], "tanh", "widths"),
+        ([64], "lrelu", "activation"),
+        ([32, 64], "tanh", r"hidden layers \[32, 64\] must be 1 to 3 layers of one width"),
+        ([48], "tanh", r"hidden layers \[48\] must be 1 to 3 layers of one width in \[16, 32, 64, 128\]"),
+        ([16] * 4, "tanh", "must be 1 to 3 layers"),
     ],
 )
-def test_unsupported_mlp_is_one_line_error(backend_name, hidden, activation, message):
-    if backend_name == "triton":
-        pytest.importorskip("triton")
+def test_unsupported_mlp_is_one_line_error(hidden, activation, message):
     with pytest.raises(ValueError, match=message) as info:
-        FusedMLP(MLP(8, 4, hidden, activation), backend_name)
+        FusedMLP(MLP(8, 4, hidden, activation))
     assert "\n" not in str(info.value)
 
 
-def test_spec_flat_layout_round_trip():
-    spec = MLPSpec((100, 32, 48, 3), "elu")
-    assert MLPSpec((29, 64, 64, 9), "tanh").rows == ROWS
-    params = [torch.randn(32, 100), torch.randn(32), torch.randn(48, 32), torch.randn(48), torch.randn(3, 48)]
-    params.append(torch.randn(3))
-    flat = spec.flat(tuple(params))
-    assert flat.numel() == spec.size == 2 * 32 * 64 + 32 + 48 * 32 + 48 + 3 * 48 + 3
-    for a, b in zip(spec.unflat(flat), params):
-        assert torch.equal(a, b)
-
-
-def _models(obs_dim=29, actions=9, backend=None, seed=0):
-    """rsl-rl's actor model, with the fused MLP of `backend` (None: torch's `MLPModel`)."""
+def _models(obs_dim=29, actions=9, fused=False, seed=0):
+    """rsl-rl's actor model, with the fused MLP (`fused`) or torch's `MLPModel`."""
     obs = TensorDict({"policy": torch.zeros(4, obs_dim)}, batch_size=[4])
     groups = {"actor": ["policy"], "critic": ["policy"]}
     torch.manual_seed(seed)
     kwargs = {"hidden_dims": [64, 64], "activation": "tanh"}
-    if backend is None:
+    if not fused:
         return MLPModel(obs, groups, "actor", actions, **kwargs), obs
-    return FusedMLPModel(obs, groups, "actor", actions, backend=backend, **kwargs), obs
+    return FusedMLPModel(obs, groups, "actor", actions, **kwargs), obs
 
 
-def test_checkpoints_interchangeable_and_same_initial_parameters(backend):
-    fused, obs = _models(backend=backend)
+def test_checkpoints_interchangeable_and_same_initial_parameters():
+    fused, obs = _models(fused=True)
     plain, _ = _models()
     assert isinstance(fused.mlp, FusedMLP) and type(plain.mlp) is MLP
     fused_state, plain_state = fused.state_dict(), plain.state_dict()
     assert list(fused_state) == list(plain_state)
     for key in plain_state:  # the same seed gives the same parameters: FusedMLP draws nothing
         assert torch.equal(fused_state[key], plain_state[key]), key
-    other_fused, _ = _models(backend=backend, seed=5)
+    other_fused, _ = _models(fused=True, seed=5)
     other_plain, _ = _models(seed=6)
     other_fused.load_state_dict(plain_state)  # torch checkpoint -> fused model
     other_plain.load_state_dict(fused_state)  # fused checkpoint -> torch model
@@ -278,33 +227,18 @@ def test_checkpoints_interchangeable_and_same_initial_parameters(backend):
     assert torch.equal(other_plain(obs), plain(obs))
 
 
-def test_checkpoints_interchangeable_between_the_backends():
-    _triton_mlp()
-    warp_model, obs = _models(backend="warp")
-    triton_model, _ = _models(backend="triton", seed=5)
-    triton_model.load_state_dict(warp_model.state_dict())
-    obs["policy"] = torch.randn(4, 29)
-    warp_out = warp_model.mlp(obs["policy"]).detach().double()
-    assert relative_error(triton_model.mlp(obs["policy"]), warp_out) <= FORWARD_TOLERANCE
-
-
-@pytest.mark.parametrize("backend_name", FUSED_BACKENDS)
-def test_config_switch_and_its_errors(backend_name):
-    config = make_config("tiny", {"train": {"fused_mlp": backend_name}})
+def test_config_switch_and_its_errors():
+    config = make_config("tiny", {"train": {"fused_mlp": True}})
     runner = runner_config(config, slots=4, action_count=9)
     assert runner["actor"]["class_name"] == runner["critic"]["class_name"] == FUSED_MODEL
-    assert runner["actor"]["backend"] == runner["critic"]["backend"] == backend_name
     assert runner_config(make_config("tiny"), slots=4, action_count=9)["actor"]["class_name"] == "MLPModel"
     for changes, message in (
-        ({"train": {"fused_mlp": "yes"}}, r"train.fused_mlp='yes' must be false or one of \['warp', 'triton'\]"),
-        ({"train": {"fused_mlp": True}}, r"train.fused_mlp=True must be false or one of \['warp', 'triton'\]"),
+        ({"train": {"fused_mlp": "yes"}}, r"train.fused_mlp='yes' must be true or false"),
+        ({"train": {"fused_mlp": "triton"}}, r"train.fused_mlp='triton' must be true or false"),
+        ({"train": {"fused_mlp": True, "sharing": "individual"}}, "train.fused_mlp serves parameter sharing"),
         (
-            {"train": {"fused_mlp": backend_name, "sharing": "individual"}},
-            f"train.fused_mlp='{backend_name}' serves parameter sharing",
-        ),
-        (
-            {"train": {"fused_mlp": backend_name}, "runner": {"critic": {"class_name": "RNNModel"}}},
-            f"train.fused_mlp='{backend_name}' serves parameter sharing",
+            {"train": {"fused_mlp": True}, "runner": {"critic": {"class_name": "RNNModel"}}},
+            "train.fused_mlp serves parameter sharing",
         ),
     ):
         with pytest.raises(ValueError, match=message) as info:
@@ -320,19 +254,19 @@ def _bench():
 
 
 @pytest.mark.slow
-def test_ppo_update_on_device_fused_equals_torch_within_tolerance(backend):
+def test_ppo_update_on_device_fused_equals_torch_within_tolerance(interpreter):
     """A full `AquariumPPO.update_on_device` (tiny preset: 4 epochs x 4 mini-batches) from the same
     state and samples, with torch's MLPs and with the fused ones."""
     bench = _bench()
     alg = bench.build("tiny", 4, "cpu")
     bench.fill_storage(alg)
-    differences = bench.update_difference(bench.MLPSwitch(alg, (backend,)), backend)
+    differences = bench.update_difference(bench.MLPSwitch(alg))
     assert len(differences) == 12  # 3 weights and 3 biases per network
     assert max(differences.values()) <= UPDATE_TOLERANCE, differences
 
 
 @pytest.mark.slow
-def test_bench_fused_update_runs_on_the_cpu(tmp_path):
+def test_bench_fused_update_runs_on_the_cpu(tmp_path, interpreter):
     bench = _bench()
     out = tmp_path / "fused.json"
     assert (
@@ -344,19 +278,18 @@ def test_bench_fused_update_runs_on_the_cpu(tmp_path):
     )
     data = json.loads(out.read_text())
     assert data["git"] == {"commit": "abc123", "dirty": None, "source": "given"}
-    assert data["backends"] == ["warp"]  # triton: no CPU backend
     point = data["points"][0]
-    assert set(point["seconds"]) == {"torch eager", "warp eager"}
+    assert set(point["seconds"]) == {"torch eager", "fused eager"}
     assert point["floor"]["update_flops"] > 0 and point["floor"]["seconds"] is None  # no peak rates for a CPU
-    assert max(point["max_relative_difference"]["warp"].values()) <= UPDATE_TOLERANCE
+    assert max(point["max_relative_difference"].values()) <= UPDATE_TOLERANCE
 
 
 @pytest.mark.slow
-def test_fused_actor_exports_to_torchscript_and_onnx(tmp_path, backend):
+def test_fused_actor_exports_to_torchscript_and_onnx(tmp_path):
     """Exports take torch's path through the same modules: the policies' logits equal the actor's."""
     from aquarium_warp.training.export import export_policy, load_policy, policy_meta
 
-    actor, obs = _models(backend=backend)
+    actor, obs = _models(fused=True)
     meta = policy_meta(make_config("tiny"), 4, 29, 9)
     paths = export_policy(actor, meta, str(tmp_path))
     x = torch.randn(8, 29)
@@ -374,12 +307,9 @@ def test_triton_on_cuda_matches_torch_and_is_captured_in_a_cuda_graph(
     products or as float32 multiply-adds, or one TF32 product where torch's float32 products may use
     TF32), and a forward and backward captured in a CUDA graph after one eager call give, replayed on
     new inputs, what an eager call gives."""
-    pytest.importorskip("triton")
-    from aquarium_warp.training import triton_mlp
-
-    monkeypatch.setattr(triton_mlp, "FLOAT32_PRECISION", float32_precision)
+    monkeypatch.setattr(fused_mlp, "FLOAT32_PRECISION", float32_precision)
     device = torch.device(cuda_device)
-    mlp, fused = _mlps(29, [64, 64], 9, "tanh", backend="triton")
+    mlp, fused = _mlps(29, [64, 64], 9, "tanh")
     mlp, fused = mlp.to(device), fused.to(device)
     allow_tf32 = torch.backends.cuda.matmul.allow_tf32
     torch.backends.cuda.matmul.allow_tf32 = tf32
@@ -389,7 +319,7 @@ def test_triton_on_cuda_matches_torch_and_is_captured_in_a_cuda_graph(
         grad = torch.randn(x.shape[0], 9, device=device)
         y = fused(x)
         y.backward(grad)
-        assert _ran_fused(y, "triton")
+        assert _ran_fused(y)
         x_ref = x.detach().double().requires_grad_()
         y_ref = reference(x_ref)
         y_ref.backward(grad.double())
