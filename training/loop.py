@@ -104,7 +104,7 @@ class SplitGraph:
     handle would be waited on inside a graph) and raises. Every graph shares `pool`, in capture order,
     which is also replay order, as torch asks of graphs that share a pool."""
 
-    def __init__(self, pool, stream: torch.cuda.Stream, capture_error_mode: str = "global"):
+    def __init__(self, pool, stream: torch.cuda.Stream | None, capture_error_mode: str = "global"):
         self.pool = pool
         self.stream = stream
         self.capture_error_mode = capture_error_mode
@@ -489,13 +489,15 @@ class TrainingLoop:
         split = self.update_graphs[i] == "split"
         try:
             with collection_paused():
+                graph: SplitGraph | torch.cuda.CUDAGraph
                 if split:
-                    graph = SplitGraph(self._pool_handle, self._capture_stream, self._capture_mode)
-                    self._losses[i] = graph.capture(lambda: self._learn(i, self._indices[i], size))
+                    split_graph = SplitGraph(self._pool_handle, self._capture_stream, self._capture_mode)
+                    self._losses[i] = split_graph.capture(lambda: self._learn(i, self._indices[i], size))
+                    graph = split_graph
                 else:
-                    graph = torch.cuda.CUDAGraph()
+                    graph = cuda_graph = torch.cuda.CUDAGraph()
                     with torch.cuda.graph(
-                        graph,
+                        cuda_graph,
                         pool=self._pool_handle,
                         stream=self._capture_stream,
                         capture_error_mode=self._capture_mode,

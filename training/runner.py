@@ -91,9 +91,9 @@ class AquariumRunner(OnPolicyRunner):
         self.graph_update = train.get("graph_update", "auto")
         self.loop: TrainingLoop | None = None
 
-    def graph_plan(self) -> tuple[bool, list[bool]]:
-        """The CUDA graphs the training loop captures: the rollout's, and per learner its update's
-        (`loop.graph_plan`, from `train.loop`, `train.cuda_graphs`, `train.graph_update` and the device)."""
+    def graph_plan(self) -> tuple[bool, list[bool | str]]:
+        """The CUDA graphs the training loop captures: the rollout's, and per learner how its update is
+        captured (`loop.graph_plan`, from `train.loop`, `train.cuda_graphs`, `train.graph_update` and the device)."""
         cuda = self.loop_kind == "fast" and self.cuda_graphs and torch.device(self.device).type == "cuda"
         return graph_plan([learner.alg for learner in self.learners], cuda, self.graph_update)
 
