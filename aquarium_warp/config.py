@@ -599,27 +599,9 @@ class AquariumConfig:
             )
         _normalise(
             self,
-            (
-                "prey_count",
-                "predator_count",
-                "action_count",
-                "max_steps",
-                "predator_starvation_steps",
-                "prey_replication_age",
-                "max_prey",
-            ),
-            (
-                "width",
-                "height",
-                "prey_reward",
-                "prey_capture_penalty",
-                "predator_reward",
-                "catch_share_radius",
-                "capture_probability",
-                "capture_confusion",
-                "confusion_radius",
-                "grid_cell_size",
-            ),
+            (*INTEGER_FIELDS, "action_count", "max_steps", "max_prey"),
+            # the per-world fields that are numbers and not integers (the flow is a record)
+            ("width", "height", *(n for n in PER_WORLD_FIELDS if n not in (*INTEGER_FIELDS, "flow")), "grid_cell_size"),
             ("fov_enabled", "respawn_captured_prey", "prey_reproduction", "observe_flow"),
         )
 

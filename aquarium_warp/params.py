@@ -24,7 +24,7 @@ import warp as wp
 
 from .config import AquariumConfig, FlowConfig
 from .kernels.common import FLOW_GRID, FLOW_NONE, FLOW_UNIFORM, FLOW_VORTEX, PREDATOR, PREY, AgentType, WorldValues
-from .per_world import PER_WORLD_TYPE_FIELDS, per_world
+from .per_world import PER_WORLD_FIELDS, PER_WORLD_TYPE_FIELDS, per_world
 
 # `FlowConfig.kind` -> the kernels' code of the current.
 _FLOW_CODES = {"none": int(FLOW_NONE), "uniform": int(FLOW_UNIFORM), "vortex": int(FLOW_VORTEX), "grid": int(FLOW_GRID)}
@@ -76,19 +76,9 @@ def flow_grids(flows: list[FlowConfig]) -> tuple[np.ndarray, list[int]]:
 def world_rows(cfg: AquariumConfig, num_worlds: int, grid_index: list[int]) -> np.ndarray:
     """`[W]` rows of `WorldValues` (numpy structured)."""
     rows = np.zeros(num_worlds, dtype=WorldValues.numpy_dtype())
-    for name in (
-        "prey_count",
-        "predator_count",
-        "prey_reward",
-        "prey_capture_penalty",
-        "predator_reward",
-        "catch_share_radius",
-        "capture_probability",
-        "capture_confusion",
-        "confusion_radius",
-        "predator_starvation_steps",
-    ):
-        rows[name] = per_world(getattr(cfg, name), num_worlds)
+    for name in PER_WORLD_FIELDS:
+        if name in rows.dtype.names:  # stored as configured; the replication age and the flow: below
+            rows[name] = per_world(getattr(cfg, name), num_worlds)
     ages = per_world(cfg.prey_replication_age, num_worlds)
     rows["replication_age_min"] = [math.ceil(0.75 * r) for r in ages]
     rows["replication_age_max"] = [math.floor(1.25 * r) for r in ages]

@@ -404,3 +404,19 @@ def test_world_state_scales_velocities_by_each_worlds_max_speed():
     for w, (prey_speed, predator_speed) in enumerate(((6.0, 10.0), (8.0, 12.0))):
         assert velocity(w, C - Pc) == pytest.approx((t.velocity[w, 0] / prey_speed).tolist(), abs=1e-6)
         assert velocity(w, 0) == pytest.approx((t.velocity[w, Pc] / predator_speed).tolist(), abs=1e-6)
+
+
+def test_every_world_field_reaches_the_kernels_by_one_list():
+    """`params.world_rows` copies each per-world field that `WorldValues` stores as configured, and
+    derives the others (the replication-age window, the flow's columns): a new field in
+    `per_world.PER_WORLD_FIELDS` needs a column of its own, or it would never reach the kernels."""
+    from aquarium_warp.params import WorldValues, world_rows
+    from aquarium_warp.per_world import PER_WORLD_FIELDS
+
+    columns = np.zeros(1, dtype=WorldValues.numpy_dtype()).dtype.names
+    derived = {"prey_replication_age": "replication_age_min", "flow": "flow_kind"}
+    assert all(name in columns or derived.get(name) in columns for name in PER_WORLD_FIELDS)
+    cfg = AquariumConfig(prey_count=(3, 5), capture_confusion=(0.0, 16.0), confusion_radius=(50.0, 80.0))
+    rows = world_rows(cfg, 2, [0, 0])
+    assert list(rows["prey_count"]) == [3, 5]
+    assert list(rows["capture_confusion"]) == [0.0, 16.0] and list(rows["confusion_radius"]) == [50.0, 80.0]
