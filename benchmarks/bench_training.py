@@ -120,7 +120,7 @@ def measure(
         phases = trainer.runner.loop.phase_times()
         point["phase_ms"] = {k: 1e3 * v for k, v in phases.items()}
         measured["update"] = phases["update"]
-    floor = UpdateFloor(update_work(trainer.runner.alg), card_peaks(device_name(dev)))
+    floor = UpdateFloor(update_work(trainer.runner.alg), card_peaks(device_name(dev)), tf32=cfg["train"]["tf32"])
     point["floor"] = floor.record(measured)
     point["floor_text"] = floor.describe()
     trainer.close()

@@ -1,6 +1,7 @@
 """The hardware floor of the PPO update: the least time a card could spend on it, from its arithmetic
-at the card's float32 peak and from its bytes at the card's memory bandwidth, so that a benchmark
-prints the floor beside what it measured and the fraction of the floor reached.
+at the card's float32 peak (its TF32 tensor-core peak for a run with TF32 products, `train.tf32`) and
+from its bytes at the card's memory bandwidth, so that a benchmark prints the floor beside what it
+measured and the fraction of the floor reached.
 
 ```python
 from aquarium_warp.training.floors import UpdateFloor, card_peaks, update_work
@@ -34,21 +35,25 @@ import torch.nn as nn
 
 @dataclass(frozen=True)
 class CardPeaks:
-    """A card's datasheet peaks: `fp32_flops` (FLOP/s, float32 on the CUDA cores, no tensor cores)
-    and `bandwidth` (bytes/s of device memory)."""
+    """A card's datasheet peaks: `fp32_flops` (FLOP/s, float32 on the CUDA cores, no tensor cores),
+    `tf32_flops` (FLOP/s, TF32 on the tensor cores, dense: the datasheets' figure is with sparsity, twice
+    this) and `bandwidth` (bytes/s of device memory)."""
 
     name: str
     fp32_flops: float
+    tf32_flops: float
     bandwidth: float
 
 
 # torch.cuda.get_device_name (and Warp's device name) -> the card's peaks. Exact names: the PCIe and
 # NVL versions of these cards report other names and have other peaks.
 CARD_PEAKS = {
-    # NVIDIA H100 Tensor Core GPU datasheet, H100 SXM: FP32 67 TFLOPS, GPU memory bandwidth 3.35 TB/s
-    "NVIDIA H100 80GB HBM3": CardPeaks("H100 SXM", 67e12, 3.35e12),
-    # NVIDIA H200 Tensor Core GPU datasheet, H200 SXM: FP32 67 TFLOPS, GPU memory bandwidth 4.8 TB/s
-    "NVIDIA H200": CardPeaks("H200 SXM", 67e12, 4.8e12),
+    # NVIDIA H100 Tensor Core GPU datasheet, H100 SXM: FP32 67 TFLOPS, TF32 Tensor Core 989 TFLOPS with
+    # sparsity, GPU memory bandwidth 3.35 TB/s
+    "NVIDIA H100 80GB HBM3": CardPeaks("H100 SXM", 67e12, 494.5e12, 3.35e12),
+    # NVIDIA H200 Tensor Core GPU datasheet, H200 SXM: FP32 67 TFLOPS, TF32 Tensor Core 989 TFLOPS with
+    # sparsity, GPU memory bandwidth 4.8 TB/s
+    "NVIDIA H200": CardPeaks("H200 SXM", 67e12, 494.5e12, 4.8e12),
 }
 
 
@@ -154,14 +159,24 @@ def _tensors(field) -> list:
 @dataclass(frozen=True)
 class UpdateFloor:
     """The update's floor on a card (`peaks` None: unknown card, no floor). `seconds` is the larger of
-    `flop_seconds` (arithmetic at the float32 peak) and `byte_seconds` (bytes at the bandwidth)."""
+    `flop_seconds` (arithmetic at the float32 peak, or with `tf32` at the TF32 tensor-core peak) and
+    `byte_seconds` (bytes at the bandwidth)."""
 
     work: UpdateWork
     peaks: CardPeaks | None
+    tf32: bool = False
+
+    @property
+    def flops_peak(self) -> float | None:
+        """The arithmetic peak the floor assumes (FLOP/s)."""
+        if self.peaks is None:
+            return None
+        return self.peaks.tf32_flops if self.tf32 else self.peaks.fp32_flops
 
     @property
     def flop_seconds(self) -> float | None:
-        return None if self.peaks is None else self.work.flops / self.peaks.fp32_flops
+        peak = self.flops_peak
+        return None if peak is None else self.work.flops / peak
 
     @property
     def byte_seconds(self) -> float | None:
@@ -191,11 +206,12 @@ class UpdateFloor:
         reached = None if measured_seconds is None else self.fraction(measured_seconds)
         work = f"{self.work.flops / 1e12:.3g} TFLOP, {self.work.bytes / 1e9:.3g} GB"
         peaks, flop_seconds, byte_seconds, seconds = self.peaks, self.flop_seconds, self.byte_seconds, self.seconds
-        if peaks is None or flop_seconds is None or byte_seconds is None or seconds is None:
+        peak = self.flops_peak
+        if peaks is None or peak is None or flop_seconds is None or byte_seconds is None or seconds is None:
             return f"floor n/a (no peaks for this card; {work})"
         text = (
             f"floor {1e3 * seconds:.3g} ms on {peaks.name} ({self.bound}: {work}; "
-            f"{1e3 * flop_seconds:.3g} ms at {peaks.fp32_flops / 1e12:.3g} TFLOP/s fp32, "
+            f"{1e3 * flop_seconds:.3g} ms at {peak / 1e12:.4g} TFLOP/s {'tf32' if self.tf32 else 'fp32'}, "
             f"{1e3 * byte_seconds:.3g} ms at {peaks.bandwidth / 1e12:.3g} TB/s)"
         )
         if reached is not None:
@@ -208,6 +224,8 @@ class UpdateFloor:
         out = {
             "card": None if self.peaks is None else self.peaks.name,
             "fp32_flops_peak": None if self.peaks is None else self.peaks.fp32_flops,
+            "tf32": self.tf32,
+            "flops_peak": self.flops_peak,
             "bandwidth_peak": None if self.peaks is None else self.peaks.bandwidth,
             "update_flops": self.work.flops,
             "update_bytes": self.work.bytes,

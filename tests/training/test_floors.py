@@ -30,11 +30,11 @@ def test_mlp_flops_count_forward_weight_and_input_gradients():
 
 
 def test_cards_are_looked_up_by_their_exact_name():
-    assert card_peaks("NVIDIA H100 80GB HBM3") == CardPeaks("H100 SXM", 67e12, 3.35e12)
-    assert card_peaks("NVIDIA H200") == CardPeaks("H200 SXM", 67e12, 4.8e12)
+    assert card_peaks("NVIDIA H100 80GB HBM3") == CardPeaks("H100 SXM", 67e12, 494.5e12, 3.35e12)
+    assert card_peaks("NVIDIA H200") == CardPeaks("H200 SXM", 67e12, 494.5e12, 4.8e12)
     for other in ("NVIDIA H100 PCIe", "NVIDIA H200 NVL", "cpu", "x86_64"):
         assert card_peaks(other) is None
-    assert all(p.fp32_flops > 0 and p.bandwidth > 0 for p in CARD_PEAKS.values())
+    assert all(0 < p.fp32_flops < p.tf32_flops and p.bandwidth > 0 for p in CARD_PEAKS.values())
 
 
 def test_update_work_and_its_floor():
@@ -42,7 +42,9 @@ def test_update_work_and_its_floor():
     work = ppo_update_work(shapes, samples=100, epochs=5, mini_batches=4, sample_bytes=40, parameter_bytes=200)
     assert work.flops == 5 * 100 * (mlp_flops(shapes[0]) + mlp_flops(shapes[1]))
     assert work.bytes == 5 * 100 * 40 + 5 * 4 * 9 * 200
-    peaks = CardPeaks("card", fp32_flops=work.flops / 0.002, bandwidth=work.bytes / 0.001)
+    peaks = CardPeaks(
+        "card", fp32_flops=work.flops / 0.002, tf32_flops=work.flops / 0.0005, bandwidth=work.bytes / 0.001
+    )
     floor = UpdateFloor(work, peaks)
     assert floor.flop_seconds == pytest.approx(0.002) and floor.byte_seconds == pytest.approx(0.001)
     assert floor.seconds == pytest.approx(0.002) and floor.bound == "arithmetic"
@@ -50,7 +52,12 @@ def test_update_work_and_its_floor():
     assert "floor 2 ms on card (arithmetic" in floor.describe(0.008) and "25% reached" in floor.describe(0.008)
     record = floor.record({"update": 0.004, "iteration": 0.008})
     assert record["fraction_of_update"] == pytest.approx(0.5) and record["fraction_of_iteration"] == pytest.approx(0.25)
-    memory = UpdateFloor(work, CardPeaks("slow memory", work.flops / 0.001, work.bytes / 0.003))
+    assert record["tf32"] is False and record["flops_peak"] == peaks.fp32_flops
+    # TF32 products (train.tf32): the arithmetic at the tensor cores' peak, here under the bytes' time
+    tf32 = UpdateFloor(work, peaks, tf32=True)
+    assert tf32.flop_seconds == pytest.approx(0.0005) and tf32.bound == "memory"
+    assert tf32.seconds == pytest.approx(0.001) and "tf32" in tf32.describe() and tf32.record()["tf32"] is True
+    memory = UpdateFloor(work, CardPeaks("slow memory", work.flops / 0.001, work.flops / 0.0001, work.bytes / 0.003))
     assert memory.bound == "memory" and memory.seconds == pytest.approx(0.003)
     with pytest.raises(ValueError, match="epochs=0 must be >= 1"):
         ppo_update_work(shapes, samples=100, epochs=0, mini_batches=4, sample_bytes=40, parameter_bytes=200)
