@@ -354,34 +354,3 @@ def test_triton_on_cuda_matches_torch_and_is_captured_in_a_cuda_graph(
             assert torch.equal(a, b)
     finally:
         torch.backends.cuda.matmul.allow_tf32 = allow_tf32
-
-
-@pytest.mark.slow
-@pytest.mark.usefixtures("interpreter")
-def test_a_resumed_fused_run_continues_bit_for_bit(tmp_path):
-    """Training with the fused MLP, stopped after 2 iterations and resumed to 4, ends where 4 straight
-    iterations end: parameters and Adam's state, bit for bit (the kernels' sums have a fixed order)."""
-    from aquarium_warp.training import Trainer
-
-    config = make_config(
-        "tiny",
-        {
-            "train": {"num_worlds": 4, "iterations": 4, "quiet": True, "export": [], "fused_mlp": True},
-            "env": {"max_steps": 20},
-            "runner": {"num_steps_per_env": 8, "save_interval": 2},
-        },
-    )
-    full = Trainer(config, str(tmp_path / "full"))
-    full.train()
-    mlp = full.runner.alg.actor.mlp
-    assert isinstance(mlp, FusedMLP) and _ran_fused(mlp(torch.zeros(2, mlp.spec.dims[0])))  # the kernels serve
-    part = Trainer(config, str(tmp_path / "part"))
-    part.train(2)
-    resumed = Trainer.resume(str(tmp_path / "part"))
-    resumed.train()
-    a, b = full.runner.alg.save(), resumed.runner.alg.save()
-    for key in ("actor_state_dict", "critic_state_dict"):
-        assert all(torch.equal(a[key][name], b[key][name]) for name in a[key]), key
-    for index, state in a["optimizer_state_dict"]["state"].items():
-        assert all(torch.equal(v, b["optimizer_state_dict"]["state"][index][n]) for n, v in state.items())
-    assert isinstance(resumed.runner.alg.actor.mlp, FusedMLP)

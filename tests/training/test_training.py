@@ -341,12 +341,24 @@ def _same_state(a: Trainer, b: Trainer) -> None:
     assert a.iteration == b.iteration
 
 
-@pytest.mark.parametrize("sharing", ["parameter", "individual"])
+@pytest.mark.parametrize(
+    "sharing,fused", [("parameter", False), ("individual", False), ("parameter", True)], ids=["PS", "IL", "PS-fused"]
+)
 @pytest.mark.slow
-def test_resume_is_bit_exact(tmp_path, one_thread, sharing):
-    config = tiny_config(sharing=sharing)
+def test_resume_is_bit_exact(tmp_path, one_thread, sharing, fused):
+    """Stopped after 2 iterations and resumed to 4, a run ends where 4 straight iterations end; also with the
+    fused MLP (its kernels' sums have a fixed order), where its kernels take CPU tensors (Triton's interpreter)."""
+    if fused:
+        fused_mlp = pytest.importorskip("aquarium_warp.training.fused_mlp")  # the `fused` extra (triton)
+        if not fused_mlp.INTERPRETED:
+            pytest.skip("the fused MLP's kernels take CPU tensors under Triton's interpreter only")
+    config = tiny_config(sharing=sharing, fused_mlp=fused)
     full = Trainer(config, str(tmp_path / "full"))
     full.train()
+    if fused:  # the kernels served, not torch's modules
+        mlp = full.runner.alg.actor.mlp
+        out = mlp(torch.zeros(2, mlp.spec.dims[0]))
+        assert type(out.grad_fn.next_functions[0][0]).__name__ == "TritonMLPFunctionBackward"
     assert full.iteration == 4
     saved = set(os.listdir(tmp_path / "full"))
     assert {"config.json", "progress.csv", "model_0.pt", "model_2.pt", "model_3.pt"} <= saved
