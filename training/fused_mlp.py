@@ -447,6 +447,9 @@ class FusedMLP(MLP):
         return (
             x.dtype == torch.float32
             and x.device.type in DEVICES
+            # parameters elsewhere than the input: torch's modules raise its one-line error, where the
+            # kernels would read another device's addresses
+            and all(p.device == x.device for p in self.parameters())
             and self[0].weight.dtype == torch.float32
             and not torch.is_autocast_enabled(x.device.type)
             and not torch.jit.is_tracing()
@@ -460,7 +463,8 @@ class FusedMLP(MLP):
         if x.shape[-1] != self.spec.dims[0]:
             raise ValueError(f"FusedMLP: input of {x.shape[-1]} features, the first layer takes {self.spec.dims[0]}")
         rows = x.reshape(-1, x.shape[-1]).contiguous()
-        params = [p for layer in list(self)[0::2] for p in (layer.weight, layer.bias)]
+        # The kernels read row-major parameters (a no-op for nn.Linear's own; a copy, in autograd, otherwise).
+        params = [p.contiguous() for layer in list(self)[0::2] for p in (layer.weight, layer.bias)]
         out = TritonMLPFunction.apply(self.spec, rows, *params)
         return out.reshape(*x.shape[:-1], out.shape[-1])
 

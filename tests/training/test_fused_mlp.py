@@ -24,6 +24,7 @@ import pytest
 pytest.importorskip("triton")  # the fused MLP's kernels (the `fused` extra)
 
 import torch
+import torch.nn as nn
 from rsl_rl.models import MLPModel
 from rsl_rl.modules import MLP
 from tensordict import TensorDict
@@ -354,3 +355,22 @@ def test_triton_on_cuda_matches_torch_and_is_captured_in_a_cuda_graph(
             assert torch.equal(a, b)
     finally:
         torch.backends.cuda.matmul.allow_tf32 = allow_tf32
+
+
+def test_parameters_that_are_not_row_major_are_read_as_torch_reads_them(interpreter):
+    """A weight stored transposed (a non-contiguous view): the kernels get a row-major copy, and its
+    gradient still reaches the parameter."""
+    mlp, fused = _mlps(13, [32], 5, "tanh")
+    for model in (mlp, fused):
+        weight = model[0].weight.detach()
+        model[0].weight = nn.Parameter(weight.t().contiguous().t())  # the same values, column-major
+        assert not model[0].weight.is_contiguous()
+    x, grad = torch.randn(70, 13), torch.randn(70, 5)
+    _compare_to_torch(mlp, fused, x, grad)
+
+
+def test_input_on_another_device_than_the_parameters_is_torch_error(cuda_device):
+    """Parameters on the CPU, input on CUDA: torch's own error, not the kernels reading CPU addresses."""
+    _, fused = _mlps(29, [64, 64], 9, "tanh")
+    with pytest.raises(RuntimeError, match="same device|Expected all tensors"):
+        fused(torch.randn(8, 29, device=cuda_device))
