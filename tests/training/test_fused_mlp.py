@@ -285,6 +285,24 @@ def test_bench_fused_update_runs_on_the_cpu(tmp_path, interpreter):
     assert max(point["max_relative_difference"].values()) <= UPDATE_TOLERANCE
 
 
+def test_fused_mlp_precision_runs_on_the_cpu(tmp_path, interpreter):
+    """benchmarks/fused_mlp_precision.py under the interpreter (whose products are float32 whatever is
+    asked): every case's errors against float64 are within the float32 tolerances, and recorded."""
+    sys.path.insert(0, str(BENCHMARKS))
+    import fused_mlp_precision
+
+    assert (
+        fused_mlp_precision.main(["--device", "cpu", "--rows", "100", "--commit", "abc123", "--out-dir", str(tmp_path)])
+        == 0
+    )
+    data = json.loads((tmp_path / "fused_mlp_precision_cpu.json").read_text())
+    assert data["git"]["commit"] == "abc123" and data["interpreted"] is True
+    assert [case["precision"] for case in data["cases"]] == ["ieee", "tf32x3", "tf32"]
+    for case in data["cases"]:
+        assert 0 < case["fused_forward"] <= FORWARD_TOLERANCE and 0 < case["fused_gradients"] <= GRADIENT_TOLERANCE
+    assert fused_mlp.FLOAT32_PRECISION == "tf32x3" and not torch.backends.cuda.matmul.allow_tf32  # restored
+
+
 @pytest.mark.slow
 def test_fused_actor_exports_to_torchscript_and_onnx(tmp_path):
     """Exports take torch's path through the same modules: the policies' logits equal the actor's."""
