@@ -164,8 +164,33 @@ def time_update(switch: MLPSwitch, path: str, repeats: int, graph: bool) -> floa
 def update_floor(alg, device: torch.device) -> UpdateFloor:
     """The update's floor on `device`'s card (`training.floors`; None peaks: no floor)."""
     return UpdateFloor(
-        update_work(alg), card_peaks(torch.cuda.get_device_name(device)) if device.type == "cuda" else None
+        update_work(alg),
+        card_peaks(torch.cuda.get_device_name(device)) if device.type == "cuda" else None,
+        tf32=torch.backends.cuda.matmul.allow_tf32,
     )
+
+
+def kernel_profile(switch: MLPSwitch, path: str, top: int = 20) -> list[dict]:
+    """The kernels of one eager update with `path`'s MLPs (after a warm-up update), under
+    torch.profiler: the `top` kernels by device time, each with its launches and milliseconds, and a
+    last row "all kernels" with the totals."""
+    alg = switch.alg
+    switch.restore()
+    switch.use(path)
+    indices, size = alg.mini_batch_indices()
+    alg.update_on_device(indices, size)
+    sync(torch.device(alg.device))
+    activities = [torch.profiler.ProfilerActivity.CUDA]
+    with torch.profiler.profile(activities=activities) as prof:
+        alg.update_on_device(indices, size)
+        sync(torch.device(alg.device))
+    events = [e for e in prof.key_averages() if e.device_type == torch.autograd.DeviceType.CUDA]
+    rows = sorted(
+        ({"kernel": e.key[:100], "launches": e.count, "ms": e.device_time_total / 1e3} for e in events),
+        key=lambda r: -r["ms"],
+    )
+    total = {"kernel": "all kernels", "launches": sum(r["launches"] for r in rows), "ms": sum(r["ms"] for r in rows)}
+    return rows[:top] + [total]
 
 
 def sync(device: torch.device) -> None:
@@ -200,9 +225,10 @@ def build_seconds(preset: str, worlds: int, device: str) -> dict[str, float]:
     return seconds
 
 
-def measure(preset: str, worlds: int, device: str, repeats: int) -> dict:
+def measure(preset: str, worlds: int, device: str, repeats: int, profile: bool = False) -> dict:
     """One point: the update's time with torch's MLPs and the fused ones at `worlds` worlds (printed
-    as each is measured), the largest relative difference after one update, and the floor."""
+    as each is measured), the largest relative difference after one update, and the floor; with
+    `profile`, each path's kernels (`kernel_profile`) under "profile"."""
     alg = build(preset, worlds, device)
     fill_storage(alg)
     switch = MLPSwitch(alg)
@@ -227,6 +253,12 @@ def measure(preset: str, worlds: int, device: str, repeats: int) -> dict:
                     f"  {key:12s} {seconds * 1e3:10.2f} ms{'' if reached is None else f'  {reached:6.1%} of floor'}",
                     flush=True,
                 )
+        if profile and torch_device.type == "cuda":
+            point["profile"] = {path: kernel_profile(switch, path) for path in ("torch", "fused")}
+            for path, rows in point["profile"].items():
+                print(f"  kernels of one eager update, {path}:", flush=True)
+                for r in rows:
+                    print(f"    {r['ms']:9.2f} ms {r['launches']:6d}x  {r['kernel']}", flush=True)
     if side is not None:
         torch.cuda.current_stream(torch_device).wait_stream(side)
     differences = point["max_relative_difference"] = update_difference(switch)
@@ -248,7 +280,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--compile-only", action="store_true", help="stop after building the trainer and the fused kernels"
     )
+    parser.add_argument("--tf32", action="store_true", help="TF32 matrix products (train.tf32), in torch and the kernels")
+    parser.add_argument("--profile", action="store_true", help="also each path's kernels in one eager update (CUDA)")
     args = parser.parse_args(argv)
+    torch.backends.cuda.matmul.allow_tf32 = args.tf32
     if args.repeats < 1:
         parser.error(f"--repeats={args.repeats} must be an integer >= 1")
     worlds = parse_counts(args.worlds, "--worlds")
@@ -262,6 +297,7 @@ def main(argv: list[str] | None = None) -> int:
         **provenance(args.device, command_line(argv, "benchmarks/bench_fused_update.py"), args.commit),
         "preset": args.preset,
         "repeats": args.repeats,
+        "tf32": args.tf32,
         "points": [],
     }
 
@@ -273,7 +309,7 @@ def main(argv: list[str] | None = None) -> int:
     write()
     if not args.compile_only:
         for w in worlds:
-            record["points"].append(measure(args.preset, w, args.device, args.repeats))
+            record["points"].append(measure(args.preset, w, args.device, args.repeats, args.profile))
             write()  # after every point: a time limit keeps what was measured
     print(f"wrote {out}", flush=True)
     return 0
