@@ -3,10 +3,13 @@ one device.
 
 For each `--worlds`: the trainer of `--preset` (default: the default preset, 32 steps per
 iteration, 5 epochs x 4 mini-batches, actor and critic 2 x 64 tanh) is built, its rollout storage
-filled with random samples, and `AquariumPPO.update_on_device` timed with the actor's and critic's
-`mlp` as torch's modules and as `FusedMLP` (the same parameters): eagerly, and on CUDA also replayed
-from a CUDA graph. One update from the same state with each then gives the largest relative difference
-per parameter tensor (max |fused - torch| / max |torch|) under `max_relative_difference`. The fused
+filled with random samples, and `AquariumPPO.update_on_device` timed on three paths (`MLPSwitch`, the same
+parameters): "torch" (torch's modules), "fused-mlp" (the actor's and critic's `mlp` as `FusedMLP`,
+the loss through autograd) and "fused" (the fused MLPs and the fused loss of `fused_ppo.py`): eagerly,
+and on CUDA also replayed from a CUDA graph. One update from the same state with each then gives, for
+each fused path, the largest relative difference per parameter tensor (max |fused - torch| / max
+|torch|) under `max_relative_difference`. With `--tf32` torch's products and the kernels' are TF32;
+with `--profile` (CUDA) each path's kernels in one eager update are listed (torch.profiler). The fused
 kernels run on CUDA, and on the CPU only under Triton's interpreter (`TRITON_INTERPRET=1`, slow: the
 tests use it); elsewhere the script refuses the device.
 
@@ -53,6 +56,7 @@ from aquarium_warp.records import command_line, provenance
 from aquarium_warp.training import Trainer, make_config
 from aquarium_warp.training.floors import UpdateFloor, card_peaks, update_work
 from aquarium_warp.training.fused_mlp import DEVICES, FusedMLP
+from aquarium_warp.training.fused_ppo import FusedPPOLoss
 from aquarium_warp.training.loop import collection_paused
 
 
@@ -63,8 +67,10 @@ def build(preset: str, worlds: int, device: str):
 
 
 def fill_storage(alg, seed: int = 0) -> None:
-    """Random samples in every storage field the update reads (observations, actions in range,
-    values, returns, advantages, log-probabilities, logits)."""
+    """Samples in every storage field the update reads, as a rollout would leave them: random
+    observations, actions (in range), returns and advantages; the actor's log-probabilities of those
+    actions and its distribution parameters, and the critic's values, on those observations (so that
+    the ratios start at 1, and the clipping acts as it does in training)."""
     gen = torch.Generator(device=alg.device).manual_seed(seed)
     storage = alg.storage
 
@@ -73,34 +79,46 @@ def fill_storage(alg, seed: int = 0) -> None:
 
     for key in storage.observations.keys():
         normal(storage.observations[key])
-    if storage.distribution_params is None:  # made by the storage's first transition otherwise
-        with torch.no_grad():
-            alg.actor(storage.observations[0], stochastic_output=True)
-        storage.distribution_params = tuple(
-            torch.zeros(storage.num_transitions_per_env, *p.shape, device=alg.device)
-            for p in alg.actor.output_distribution_params
-        )
     categories = alg.actor.distribution.input_dim
     storage.actions.copy_(torch.randint(0, categories, storage.actions.shape, generator=gen, device=alg.device))
-    for t in (storage.values, storage.returns, storage.advantages, *storage.distribution_params):
+    for t in (storage.returns, storage.advantages):
         normal(t)
-    storage.actions_log_prob.copy_(-torch.rand(storage.actions_log_prob.shape, generator=gen, device=alg.device))
+    obs = storage.observations.flatten(0, 1)
+    with torch.no_grad():
+        alg.actor(obs, stochastic_output=True)
+        log_prob = alg.actor.get_output_log_prob(storage.actions.flatten(0, 1))
+        params = alg.actor.output_distribution_params
+        values = alg.critic(obs)
+    storage.actions_log_prob.copy_(log_prob.view_as(storage.actions_log_prob))
+    storage.values.copy_(values.view_as(storage.values))
+    storage.distribution_params = tuple(p.view(*storage.actions.shape[:2], *p.shape[1:]).clone() for p in params)
+
+
+PATHS = ("torch", "fused-mlp", "fused")  # see MLPSwitch
 
 
 class MLPSwitch:
-    """Switches the actor's and critic's `mlp` between torch's modules ("torch") and `FusedMLP`
-    ("fused", the same parameter objects), and restores the learner's state for updates from the same
-    start."""
+    """Switches the learner's update between three paths, on the same parameter objects: "torch"
+    (torch's modules), "fused-mlp" (the actor's and critic's `mlp` as `FusedMLP`, the loss through
+    autograd) and "fused" (the fused MLPs and the fused loss, `fused_ppo.FusedPPOLoss`); and restores
+    the learner's state for updates from the same start."""
 
     def __init__(self, alg) -> None:
         self.alg = alg
         self.models = (alg.actor, alg.critic)
-        self.mlps = {"torch": [m.mlp for m in self.models], "fused": [FusedMLP(m.mlp) for m in self.models]}
+        torch_mlps = [m.mlp for m in self.models]
+        fused_mlps = [FusedMLP(m.mlp) for m in self.models]
+        self.mlps = {"torch": torch_mlps, "fused-mlp": fused_mlps, "fused": fused_mlps}
+        for model, mlp in zip(self.models, fused_mlps):
+            model.mlp = mlp
+        self.fused_loss = FusedPPOLoss(alg)  # (its one-line error where the learner is not covered)
+        self.use("torch")
         self.start = self.state()
 
     def use(self, path: str) -> None:
         for model, mlp in zip(self.models, self.mlps[path]):
             model.mlp = mlp
+        self.alg.fused_loss = self.fused_loss if path == "fused" else None
 
     def state(self) -> dict:
         alg = self.alg
@@ -130,15 +148,18 @@ def parameters_after_update(switch: MLPSwitch, path: str, indices: torch.Tensor,
     }
 
 
-def update_difference(switch: MLPSwitch, seed: int = 0) -> dict[str, float]:
-    """Per parameter tensor, max |fused - torch| / max |torch| after one update from the same state
-    with the fused MLPs and with torch's."""
+def update_difference(switch: MLPSwitch, seed: int = 0) -> dict[str, dict[str, float]]:
+    """Per fused path and parameter tensor, max |fused - torch| / max |torch| after one update from the
+    same state with that path and with torch's."""
     torch.manual_seed(seed)
     indices, size = switch.alg.mini_batch_indices()
-    after = {path: parameters_after_update(switch, path, indices, size) for path in ("torch", "fused")}
+    after = {path: parameters_after_update(switch, path, indices, size) for path in PATHS}
     return {
-        name: float((after["fused"][name] - ref).abs().max() / ref.abs().max().clamp_min(1e-30))
-        for name, ref in after["torch"].items()
+        path: {
+            name: float((after[path][name] - ref).abs().max() / ref.abs().max().clamp_min(1e-30))
+            for name, ref in after["torch"].items()
+        }
+        for path in PATHS[1:]
     }
 
 
@@ -245,7 +266,7 @@ def measure(preset: str, worlds: int, device: str, repeats: int, profile: bool =
         side.wait_stream(torch.cuda.current_stream(torch_device))
     with torch.cuda.stream(side) if side is not None else contextlib.nullcontext():
         for graph in graphs:
-            for path in ("torch", "fused"):
+            for path in PATHS:
                 key = f"{path} {'graph' if graph else 'eager'}"
                 seconds = point["seconds"][key] = time_update(switch, path, repeats, graph)
                 reached = floor.fraction(seconds)
@@ -254,7 +275,7 @@ def measure(preset: str, worlds: int, device: str, repeats: int, profile: bool =
                     flush=True,
                 )
         if profile and torch_device.type == "cuda":
-            point["profile"] = {path: kernel_profile(switch, path) for path in ("torch", "fused")}
+            point["profile"] = {path: kernel_profile(switch, path) for path in PATHS}
             for path, rows in point["profile"].items():
                 print(f"  kernels of one eager update, {path}:", flush=True)
                 for r in rows:
@@ -262,8 +283,9 @@ def measure(preset: str, worlds: int, device: str, repeats: int, profile: bool =
     if side is not None:
         torch.cuda.current_stream(torch_device).wait_stream(side)
     differences = point["max_relative_difference"] = update_difference(switch)
-    worst = max(differences.items(), key=lambda kv: kv[1])
-    print(f"  one update, fused vs torch: max relative difference {worst[1]:.2e} ({worst[0]})", flush=True)
+    for path, by_name in differences.items():
+        worst = max(by_name.items(), key=lambda kv: kv[1])
+        print(f"  one update, {path} vs torch: max relative difference {worst[1]:.2e} ({worst[0]})", flush=True)
     point["floor"] = floor.record(point["seconds"])
     point["floor_text"] = floor.describe()
     return point

@@ -209,31 +209,6 @@ def _layer(
     return tl.dot(a, tl.trans(w), input_precision=PRECISION) + b[None, :]
 
 
-@triton.jit(do_not_specialize=["n_rows"])
-def _forward_kernel(
-    x_ptr, out_ptr, n_rows,
-    w0, b0, w1, b1, w2, b2, w3, b3,
-    IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
-    HIDDEN: tl.constexpr, ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, BLOCK_M: tl.constexpr,
-):  # fmt: skip
-    # Layer l's weight and bias are w<l>, b<l>; the output layer is layer HIDDEN (later pointers unused).
-    rows = (tl.program_id(0) * BLOCK_M + tl.arange(0, BLOCK_M)).to(tl.int64)  # (rows x width may pass 2**31)
-    a = _rows(x_ptr, rows, n_rows, IN, IN_P)
-    a = _activate(_layer(a, w0, b0, IN, IN_P, H, H, PRECISION), ACTIVATION)
-    if HIDDEN >= 2:
-        a = _activate(_layer(a, w1, b1, H, H, H, H, PRECISION), ACTIVATION)
-    if HIDDEN >= 3:
-        a = _activate(_layer(a, w2, b2, H, H, H, H, PRECISION), ACTIVATION)
-    if HIDDEN == 1:
-        y = _layer(a, w1, b1, H, H, OUT, OUT_P, PRECISION)
-    elif HIDDEN == 2:
-        y = _layer(a, w2, b2, H, H, OUT, OUT_P, PRECISION)
-    else:
-        y = _layer(a, w3, b3, H, H, OUT, OUT_P, PRECISION)
-    c = tl.arange(0, OUT_P)
-    tl.store(out_ptr + rows[:, None] * OUT + c[None, :], y, mask=(rows[:, None] < n_rows) & (c[None, :] < OUT))
-
-
 @triton.jit
 def _back(
     g,
@@ -252,71 +227,89 @@ def _back(
     return dw, tl.sum(g, axis=0), tl.dot(g, w, input_precision=PRECISION)
 
 
-@triton.jit(do_not_specialize=["n_rows"])
-def _backward_kernel(
-    x_ptr, grad_out_ptr, grad_x_ptr, partial_ptr, n_rows,
-    w0, b0, w1, b1, w2, b2, w3, b3,
-    IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
-    HIDDEN: tl.constexpr, ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, BLOCK_M: tl.constexpr,
-    GRAD_X: tl.constexpr,
+@triton.jit
+def _hidden(
+    x, w0, b0, w1, b1, w2, b2,
+    IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, HIDDEN: tl.constexpr,
+    ACTIVATION: tl.constexpr, PRECISION: tl.constexpr,
 ):  # fmt: skip
-    # Gradient accumulators, in registers across this program's tiles: d<l> for layer l's weight
-    # ([out, in], padded), e<l> for its bias; the output layer's are d_out, e_out.
-    d0 = tl.zeros((H, IN_P), dtype=tl.float32)
-    e0 = tl.zeros((H,), dtype=tl.float32)
+    """The hidden activations `(a1, a2, a3)` of the input tile `x`; past the `HIDDEN`-th layer each
+    repeats the last (so `a3` is always the last hidden layer's)."""
+    a1 = _activate(_layer(x, w0, b0, IN, IN_P, H, H, PRECISION), ACTIVATION)
+    a2 = a1
     if HIDDEN >= 2:
-        d1 = tl.zeros((H, H), dtype=tl.float32)
-        e1 = tl.zeros((H,), dtype=tl.float32)
+        a2 = _activate(_layer(a1, w1, b1, H, H, H, H, PRECISION), ACTIVATION)
+    a3 = a2
     if HIDDEN >= 3:
-        d2 = tl.zeros((H, H), dtype=tl.float32)
-        e2 = tl.zeros((H,), dtype=tl.float32)
-    d_out = tl.zeros((OUT_P, H), dtype=tl.float32)
-    e_out = tl.zeros((OUT_P,), dtype=tl.float32)
+        a3 = _activate(_layer(a2, w2, b2, H, H, H, H, PRECISION), ACTIVATION)
+    return a1, a2, a3
+
+
+@triton.jit
+def _output_layer(w1, b1, w2, b2, w3, b3, HIDDEN: tl.constexpr):
+    """The output layer's weight and bias pointers: layer `HIDDEN`'s."""
     if HIDDEN == 1:
-        w_out = w1
+        return w1, b1
     elif HIDDEN == 2:
-        w_out = w2
+        return w2, b2
     else:
-        w_out = w3
-    program = tl.program_id(0)
-    programs = tl.num_programs(0)
-    for tile in range(program, tl.cdiv(n_rows, BLOCK_M), programs):
-        rows = (tile * BLOCK_M + tl.arange(0, BLOCK_M)).to(tl.int64)  # (int64: rows x width may pass 2**31)
-        # Recompute the hidden activations a1 (.. a3) of the tile.
-        x = _rows(x_ptr, rows, n_rows, IN, IN_P)
-        a1 = _activate(_layer(x, w0, b0, IN, IN_P, H, H, PRECISION), ACTIVATION)
-        last = a1
-        if HIDDEN >= 2:
-            a2 = _activate(_layer(a1, w1, b1, H, H, H, H, PRECISION), ACTIVATION)
-            last = a2
-        if HIDDEN >= 3:
-            a3 = _activate(_layer(a2, w2, b2, H, H, H, H, PRECISION), ACTIVATION)
-            last = a3
-        # Back through the layers; g is the gradient of a layer's output (zero in rows past the end).
-        g = _rows(grad_out_ptr, rows, n_rows, OUT, OUT_P)
-        dw, db, g = _back(g, last, w_out, OUT, OUT_P, H, H, PRECISION)
-        d_out += dw
-        e_out += db
-        g = g * _slope(last, ACTIVATION)
-        if HIDDEN >= 3:
-            dw, db, g = _back(g, a2, w2, H, H, H, H, PRECISION)
-            d2 += dw
-            e2 += db
-            g = g * _slope(a2, ACTIVATION)
-        if HIDDEN >= 2:
-            dw, db, g = _back(g, a1, w1, H, H, H, H, PRECISION)
-            d1 += dw
-            e1 += db
-            g = g * _slope(a1, ACTIVATION)
-        dw, db, gx = _back(g, x, w0, H, H, IN, IN_P, PRECISION)
-        d0 += dw
-        e0 += db
-        if GRAD_X:
-            c = tl.arange(0, IN_P)
-            mask = (rows[:, None] < n_rows) & (c[None, :] < IN)
-            tl.store(grad_x_ptr + rows[:, None] * IN + c[None, :], gx, mask=mask)
-    # This program's row of partial sums, in the order of the parameters (weight0, bias0, weight1, ...).
-    row = partial_ptr + program.to(tl.int64) * (H * IN + H + (HIDDEN - 1) * (H * H + H) + OUT * H + OUT)
+        return w3, b3
+
+
+@triton.jit
+def _zero_gradients(IN_P: tl.constexpr, H: tl.constexpr, OUT_P: tl.constexpr):
+    """Gradient accumulators `(d0, e0, d1, e1, d2, e2, d_out, e_out)`: d<l> for hidden layer l's weight
+    ([out, in], padded), e<l> for its bias; the output layer's d_out, e_out. (Those of hidden layers
+    the MLP lacks are never stored, and compiled away.)"""
+    return (
+        tl.zeros((H, IN_P), dtype=tl.float32),
+        tl.zeros((H,), dtype=tl.float32),
+        tl.zeros((H, H), dtype=tl.float32),
+        tl.zeros((H,), dtype=tl.float32),
+        tl.zeros((H, H), dtype=tl.float32),
+        tl.zeros((H,), dtype=tl.float32),
+        tl.zeros((OUT_P, H), dtype=tl.float32),
+        tl.zeros((OUT_P,), dtype=tl.float32),
+    )
+
+
+@triton.jit
+def _backward_tile(
+    g, x, a1, a2, a3, w0, w1, w2, w_out, d0, e0, d1, e1, d2, e2, d_out, e_out,
+    IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
+    HIDDEN: tl.constexpr, ACTIVATION: tl.constexpr, PRECISION: tl.constexpr,
+):  # fmt: skip
+    """Back through the layers of one tile from `g`, the gradient of its output (zero in rows that
+    must add nothing): the accumulators with the tile's weight and bias gradients added, and the
+    input's gradient `gx`."""
+    dw, db, g = _back(g, a3, w_out, OUT, OUT_P, H, H, PRECISION)
+    d_out += dw
+    e_out += db
+    g = g * _slope(a3, ACTIVATION)
+    if HIDDEN >= 3:
+        dw, db, g = _back(g, a2, w2, H, H, H, H, PRECISION)
+        d2 += dw
+        e2 += db
+        g = g * _slope(a2, ACTIVATION)
+    if HIDDEN >= 2:
+        dw, db, g = _back(g, a1, w1, H, H, H, H, PRECISION)
+        d1 += dw
+        e1 += db
+        g = g * _slope(a1, ACTIVATION)
+    dw, db, gx = _back(g, x, w0, H, H, IN, IN_P, PRECISION)
+    d0 += dw
+    e0 += db
+    return d0, e0, d1, e1, d2, e2, d_out, e_out, gx
+
+
+@triton.jit
+def _store_gradients(
+    row, d0, e0, d1, e1, d2, e2, d_out, e_out,
+    IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
+    HIDDEN: tl.constexpr,
+):  # fmt: skip
+    """The accumulators at `row` in the order of the parameters (weight0, bias0, weight1, ...);
+    returns the pointer past them."""
     _store_matrix(row, d0, H, H, IN, IN_P)
     _store_vector(row + H * IN, e0, H, H)
     row += H * IN + H
@@ -330,6 +323,54 @@ def _backward_kernel(
         row += H * H + H
     _store_matrix(row, d_out, OUT, OUT_P, H, H)
     _store_vector(row + OUT * H, e_out, OUT, OUT_P)
+    return row + OUT * H + OUT
+
+
+@triton.jit(do_not_specialize=["n_rows"])
+def _forward_kernel(
+    x_ptr, out_ptr, n_rows,
+    w0, b0, w1, b1, w2, b2, w3, b3,
+    IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
+    HIDDEN: tl.constexpr, ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, BLOCK_M: tl.constexpr,
+):  # fmt: skip
+    # Layer l's weight and bias are w<l>, b<l>; the output layer is layer HIDDEN (later pointers unused).
+    rows = (tl.program_id(0) * BLOCK_M + tl.arange(0, BLOCK_M)).to(tl.int64)  # (rows x width may pass 2**31)
+    x = _rows(x_ptr, rows, n_rows, IN, IN_P)
+    _, _, last = _hidden(x, w0, b0, w1, b1, w2, b2, IN, IN_P, H, HIDDEN, ACTIVATION, PRECISION)
+    w_out, b_out = _output_layer(w1, b1, w2, b2, w3, b3, HIDDEN)
+    y = _layer(last, w_out, b_out, H, H, OUT, OUT_P, PRECISION)
+    c = tl.arange(0, OUT_P)
+    tl.store(out_ptr + rows[:, None] * OUT + c[None, :], y, mask=(rows[:, None] < n_rows) & (c[None, :] < OUT))
+
+
+@triton.jit(do_not_specialize=["n_rows"])
+def _backward_kernel(
+    x_ptr, grad_out_ptr, grad_x_ptr, partial_ptr, n_rows,
+    w0, b0, w1, b1, w2, b2, w3, b3,
+    IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
+    HIDDEN: tl.constexpr, ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, BLOCK_M: tl.constexpr,
+    GRAD_X: tl.constexpr,
+):  # fmt: skip
+    # Gradient accumulators, in registers across this program's tiles.
+    d0, e0, d1, e1, d2, e2, d_out, e_out = _zero_gradients(IN_P, H, OUT_P)
+    w_out, _ = _output_layer(w1, b1, w2, b2, w3, b3, HIDDEN)
+    program = tl.program_id(0)
+    for tile in range(program, tl.cdiv(n_rows, BLOCK_M), tl.num_programs(0)):
+        rows = (tile * BLOCK_M + tl.arange(0, BLOCK_M)).to(tl.int64)  # (int64: rows x width may pass 2**31)
+        x = _rows(x_ptr, rows, n_rows, IN, IN_P)
+        a1, a2, a3 = _hidden(x, w0, b0, w1, b1, w2, b2, IN, IN_P, H, HIDDEN, ACTIVATION, PRECISION)
+        g = _rows(grad_out_ptr, rows, n_rows, OUT, OUT_P)  # zero in rows past the end
+        d0, e0, d1, e1, d2, e2, d_out, e_out, gx = _backward_tile(
+            g, x, a1, a2, a3, w0, w1, w2, w_out, d0, e0, d1, e1, d2, e2, d_out, e_out,
+            IN, IN_P, H, OUT, OUT_P, HIDDEN, ACTIVATION, PRECISION,
+        )  # fmt: skip
+        if GRAD_X:
+            c = tl.arange(0, IN_P)
+            mask = (rows[:, None] < n_rows) & (c[None, :] < IN)
+            tl.store(grad_x_ptr + rows[:, None] * IN + c[None, :], gx, mask=mask)
+    # This program's row of partial sums, in the order of the parameters (weight0, bias0, weight1, ...).
+    row = partial_ptr + program.to(tl.int64) * (H * IN + H + (HIDDEN - 1) * (H * H + H) + OUT * H + OUT)
+    _store_gradients(row, d0, e0, d1, e1, d2, e2, d_out, e_out, IN, IN_P, H, OUT, OUT_P, HIDDEN)
 
 
 INTERPRETED = isinstance(_forward_kernel, InterpretedFunction)  # TRITON_INTERPRET=1 at import
@@ -378,6 +419,14 @@ def _layer_pointers(params: tuple[torch.Tensor, ...]) -> list[torch.Tensor]:
     return [*params, *params[: 2 * (MAX_HIDDEN_LAYERS + 1) - len(params)]]
 
 
+def kernel_precision(device: torch.device) -> str:
+    """`tl.dot`'s input precision for float32 tensors on `device`: "ieee" on the CPU (the
+    interpreter), "tf32" where torch's own float32 products may use TF32, `FLOAT32_PRECISION` otherwise."""
+    if device.type != "cuda" or INTERPRETED:
+        return "ieee"
+    return "tf32" if torch.backends.cuda.matmul.allow_tf32 else FLOAT32_PRECISION
+
+
 class TritonMLPFunction(torch.autograd.Function):
     """`apply(spec, x, weight0, bias0, weight1, ...)`: the MLP `spec` of `x` `[N, in]` (float32,
     contiguous) with torch's `nn.Linear` parameters (contiguous); saves only `x` and the parameters
@@ -385,10 +434,7 @@ class TritonMLPFunction(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, spec: MLPSpec, x: torch.Tensor, *params: torch.Tensor) -> torch.Tensor:
-        if x.device.type != "cuda" or INTERPRETED:
-            precision = "ieee"
-        else:
-            precision = "tf32" if torch.backends.cuda.matmul.allow_tf32 else FLOAT32_PRECISION
+        precision = kernel_precision(x.device)
         ctx.spec, ctx.precision = spec, precision
         ctx.save_for_backward(x, *params)
         n_rows = x.shape[0]
@@ -470,9 +516,11 @@ class FusedMLP(MLP):
 
 
 class FusedMLPModel(MLPModel):
-    """rsl-rl's `MLPModel` with a `FusedMLP` (see the module doc); its arguments are `MLPModel`'s."""
+    """rsl-rl's `MLPModel` with a `FusedMLP` (see the module doc); its arguments are `MLPModel`'s.
+    `fused = True` tells `AquariumPPO` to try the fused loss (`fused_ppo.FusedPPOLoss`) with it."""
 
     mlp: MLP  # declared: rsl-rl's class sets it in __init__, where type inference does not follow
+    fused = True
 
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)

@@ -170,6 +170,9 @@ class AquariumPPO(PPO):
             **(_capturable_options(optimizer) if capturable_optimizer else {}),
         )
         self.capturable_optimizer = bool(capturable_optimizer)
+        # The fused loss (fused_ppo.py) where it serves; for FusedMLPModel actor and critic, why not otherwise.
+        self.fused_loss = None
+        self.fused_loss_unsupported: str | None = None
         if minibatch_group_size > 1:
             old = self.storage
             self.storage = GroupedRolloutStorage(
@@ -181,6 +184,12 @@ class AquariumPPO(PPO):
                 old.actions_shape,
                 old.device,
             )
+        if all(getattr(model, "fused", False) for model in (self.actor, self.critic)):
+            from .fused_ppo import FusedPPOLoss  # (triton: present wherever the models are fused)
+
+            self.fused_loss_unsupported = FusedPPOLoss.unsupported(self)
+            if self.fused_loss_unsupported is None:
+                self.fused_loss = FusedPPOLoss(self)
 
     def load(self, loaded_dict: dict, load_cfg: dict | None, strict: bool) -> bool:
         loaded = super().load(loaded_dict, load_cfg, strict)
@@ -231,6 +240,10 @@ class AquariumPPO(PPO):
         losses = torch.zeros(3, dtype=torch.float64, device=self.device)
         for _ in range(self.num_learning_epochs):
             for i in range(self.num_mini_batches):
+                if self.fused_loss is not None:
+                    losses += self.fused_loss.step(indices, i * mini_batch_size, mini_batch_size)
+                    self._apply_gradients()
+                    continue
                 batch_idx = indices[i * mini_batch_size : (i + 1) * mini_batch_size]
                 losses += self._mini_batch_step(
                     observations[batch_idx],
@@ -309,9 +322,14 @@ class AquariumPPO(PPO):
             loss = surrogate_loss + self.value_loss_coef * value_loss - self.entropy_coef * entropy_mean
         self.optimizer.zero_grad()
         loss.backward()
-        if self.is_multi_gpu:  # rsl-rl's average of the gradients over the ranks
+        self._apply_gradients()
+        return torch.stack([value_loss.detach(), surrogate_loss.detach(), entropy_mean.detach()]).double()
+
+    def _apply_gradients(self) -> None:
+        """The end of rsl-rl's mini-batch step, from the parameters' gradients: their average over the
+        ranks (several), the clipping of each network's gradient norm, the optimizer step."""
+        if self.is_multi_gpu:
             self.reduce_parameters()
         nn.utils.clip_grad_norm_(self.actor.parameters(), self.max_grad_norm)
         nn.utils.clip_grad_norm_(self.critic.parameters(), self.max_grad_norm)
         self.optimizer.step()
-        return torch.stack([value_loss.detach(), surrogate_loss.detach(), entropy_mean.detach()]).double()

@@ -1,0 +1,277 @@
+"""PPO's mini-batch loss and its gradients as two Triton kernels: one for the actor, one for the critic.
+
+rsl-rl's mini-batch step (`AquariumPPO._mini_batch_step`) gathers the mini-batch's rows from the
+rollout storage, runs the actor (which also draws a sample the loss never reads) and the critic, builds
+the clipped surrogate, the value loss and the entropy from some twenty elementwise and reduction
+kernels, and back-propagates through all of them. With fused MLPs (`fused_mlp.FusedMLP`) and a
+categorical actor, `FusedPPOLoss` computes the same loss and the same gradients in two persistent
+kernels that each read only the mini-batch's own rows of the storage (through its indices) and write
+one row of partial sums per program:
+
+- actor: per tile of `BLOCK_M` rows, the observations gathered by index, the hidden activations and
+  the logits, their log-softmax, the taken action's log-probability, the entropy, the ratio and the
+  clipped surrogate; then the gradient of `surrogate_loss - entropy_coef * entropy` with respect to
+  the logits, back through the MLP into gradient accumulators held in registers (as
+  `fused_mlp._backward_kernel` does).
+- critic: the value, the (clipped, `use_clipped_value_loss`) squared error against the return, and
+  `value_loss_coef` times its gradient, back through the critic's MLP.
+
+Where torch's `max` (of the two surrogates, of the two value losses) meets a tie it splits the
+gradient in halves, and `clamp` passes it at its bounds; the kernels do the same. The sums of the
+partial rows (in a fixed order, so the gradients are deterministic) become the parameters' `.grad`,
+and the loss means come with them; what follows, the gradient all-reduce of several ranks, the
+clipping of the gradient norms and the optimizer step, is rsl-rl's (`AquariumPPO._apply_gradients`).
+
+`FusedPPOLoss.unsupported(alg)` says why a learner cannot use it (it then keeps the autograd path
+through the fused MLPs): the kernels cover a `FusedMLPModel` actor with `CategoricalDistribution` and
+a `FusedMLPModel` critic of one output, each on one observation group without normalisation, float32
+without autocast, and the fixed learning-rate schedule (the adaptive one reads the KL divergence of
+every mini-batch, which these kernels do not compute).
+
+Unlike the autograd path, no action is sampled during the update: torch's random generator is not
+advanced there (a fused run's later draws differ from an unfused one's, as they already did).
+"""
+
+from __future__ import annotations
+
+import torch
+import triton
+import triton.language as tl
+
+from . import fused_mlp
+from .distribution import CategoricalDistribution
+from .fused_mlp import (
+    NUM_WARPS,
+    FusedMLP,
+    _backward_tile,
+    _constants,
+    _hidden,
+    _layer,
+    _layer_pointers,
+    _output_layer,
+    _store_gradients,
+    _zero_gradients,
+    backward_programs,
+    kernel_precision,
+)
+
+ACTOR_SUMS = 2  # the actor's partial rows end with the sums of the clipped surrogate and the entropy
+CRITIC_SUMS = 1  # the critic's with the sum of the value loss
+
+
+@triton.jit
+def _gather(ptr, samples, valid, COLS: tl.constexpr, COLS_P: tl.constexpr):
+    """Rows `samples` of a row-major `[*, COLS]` matrix, zero where not `valid` and in the padding."""
+    c = tl.arange(0, COLS_P)
+    mask = valid[:, None] & (c[None, :] < COLS)
+    return tl.load(ptr + samples[:, None] * COLS + c[None, :], mask=mask, other=0.0)
+
+
+@triton.jit
+def _max_weights(a, b):
+    """The shares of the gradient of `max(a, b)` that go to `a` and to `b`: all to the larger, halves
+    at a tie (torch's `maximum`)."""
+    to_a = tl.where(a > b, 1.0, tl.where(a == b, 0.5, 0.0))
+    return to_a, 1.0 - to_a
+
+
+@triton.jit(do_not_specialize=["offset", "n_rows"])
+def _actor_loss_kernel(
+    obs_ptr, index_ptr, offset, n_rows, action_ptr, old_log_prob_ptr, advantage_ptr, advantage_stats_ptr,
+    partial_ptr, clip, entropy_coef, inv_rows,
+    w0, b0, w1, b1, w2, b2, w3, b3,
+    IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
+    HIDDEN: tl.constexpr, ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, BLOCK_M: tl.constexpr,
+    NORMALIZE_ADVANTAGES: tl.constexpr,
+):  # fmt: skip
+    # Mini-batch row r is sample index_ptr[offset + r] of the flattened storage.
+    d0, e0, d1, e1, d2, e2, d_out, e_out = _zero_gradients(IN_P, H, OUT_P)
+    surrogate_sum = tl.zeros((BLOCK_M,), dtype=tl.float32)
+    entropy_sum = tl.zeros((BLOCK_M,), dtype=tl.float32)
+    w_out, b_out = _output_layer(w1, b1, w2, b2, w3, b3, HIDDEN)
+    columns = tl.arange(0, OUT_P)
+    category = columns[None, :] < OUT
+    if NORMALIZE_ADVANTAGES:  # the mini-batch's mean and std (+ 1e-8), computed beforehand
+        advantage_mean = tl.load(advantage_stats_ptr)
+        advantage_scale = tl.load(advantage_stats_ptr + 1)
+    program = tl.program_id(0)
+    for tile in range(program, tl.cdiv(n_rows, BLOCK_M), tl.num_programs(0)):
+        rows = tile * BLOCK_M + tl.arange(0, BLOCK_M)
+        valid = rows < n_rows
+        samples = tl.load(index_ptr + offset + rows, mask=valid, other=0).to(tl.int64)
+        x = _gather(obs_ptr, samples, valid, IN, IN_P)
+        a1, a2, a3 = _hidden(x, w0, b0, w1, b1, w2, b2, IN, IN_P, H, HIDDEN, ACTIVATION, PRECISION)
+        logits = tl.where(category, _layer(a3, w_out, b_out, H, H, OUT, OUT_P, PRECISION), float("-inf"))
+        # log-softmax, as torch's: the logits less their log-sum-exp; probabilities its exp
+        top = tl.max(logits, axis=1)
+        log_sum = top + tl.log(tl.sum(tl.exp(logits - top[:, None]), axis=1))
+        log_probs = logits - log_sum[:, None]
+        probs = tl.exp(log_probs)
+        plogp = tl.where(category, probs * log_probs, 0.0)
+        entropy = -tl.sum(plogp, axis=1)
+        action = tl.load(action_ptr + samples, mask=valid, other=0.0).to(tl.int32)
+        taken = columns[None, :] == action[:, None]
+        log_prob = tl.sum(tl.where(taken, log_probs, 0.0), axis=1)
+        advantage = tl.load(advantage_ptr + samples, mask=valid, other=0.0)
+        if NORMALIZE_ADVANTAGES:
+            advantage = (advantage - advantage_mean) / advantage_scale
+        ratio = tl.exp(log_prob - tl.load(old_log_prob_ptr + samples, mask=valid, other=0.0))
+        low = 1.0 - clip
+        high = 1.0 + clip
+        surrogate = -advantage * ratio
+        surrogate_clipped = -advantage * tl.minimum(tl.maximum(ratio, low), high)
+        surrogate_sum += tl.where(valid, tl.maximum(surrogate, surrogate_clipped), 0.0)
+        entropy_sum += tl.where(valid, entropy, 0.0)
+        # d loss / d log_prob, through max(surrogate, clipped): the clamp passes within [low, high]
+        to_plain, to_clipped = _max_weights(surrogate, surrogate_clipped)
+        passes = tl.where((ratio >= low) & (ratio <= high), 1.0, 0.0)
+        grad_log_prob = inv_rows * ratio * (-advantage) * (to_plain + to_clipped * passes)
+        # d / d logits: log_prob's is onehot - probs; -entropy_coef * entropy's is entropy_coef * p (log p + H)
+        grad = grad_log_prob[:, None] * (tl.where(taken, 1.0, 0.0) - probs)
+        grad += (entropy_coef * inv_rows) * probs * (log_probs + entropy[:, None])
+        grad = tl.where(category & valid[:, None], grad, 0.0)
+        d0, e0, d1, e1, d2, e2, d_out, e_out, _ = _backward_tile(
+            grad, x, a1, a2, a3, w0, w1, w2, w_out, d0, e0, d1, e1, d2, e2, d_out, e_out,
+            IN, IN_P, H, OUT, OUT_P, HIDDEN, ACTIVATION, PRECISION,
+        )  # fmt: skip
+    width = H * IN + H + (HIDDEN - 1) * (H * H + H) + OUT * H + OUT + 2
+    row = partial_ptr + program.to(tl.int64) * width
+    row = _store_gradients(row, d0, e0, d1, e1, d2, e2, d_out, e_out, IN, IN_P, H, OUT, OUT_P, HIDDEN)
+    tl.store(row, tl.sum(surrogate_sum, axis=0))
+    tl.store(row + 1, tl.sum(entropy_sum, axis=0))
+
+
+@triton.jit(do_not_specialize=["offset", "n_rows"])
+def _critic_loss_kernel(
+    obs_ptr, index_ptr, offset, n_rows, value_ptr, return_ptr, partial_ptr, clip, value_coef, inv_rows,
+    w0, b0, w1, b1, w2, b2, w3, b3,
+    IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
+    HIDDEN: tl.constexpr, ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, BLOCK_M: tl.constexpr,
+    CLIPPED: tl.constexpr,
+):  # fmt: skip
+    d0, e0, d1, e1, d2, e2, d_out, e_out = _zero_gradients(IN_P, H, OUT_P)
+    loss_sum = tl.zeros((BLOCK_M,), dtype=tl.float32)
+    w_out, b_out = _output_layer(w1, b1, w2, b2, w3, b3, HIDDEN)
+    first = tl.arange(0, OUT_P)[None, :] == 0
+    program = tl.program_id(0)
+    for tile in range(program, tl.cdiv(n_rows, BLOCK_M), tl.num_programs(0)):
+        rows = tile * BLOCK_M + tl.arange(0, BLOCK_M)
+        valid = rows < n_rows
+        samples = tl.load(index_ptr + offset + rows, mask=valid, other=0).to(tl.int64)
+        x = _gather(obs_ptr, samples, valid, IN, IN_P)
+        a1, a2, a3 = _hidden(x, w0, b0, w1, b1, w2, b2, IN, IN_P, H, HIDDEN, ACTIVATION, PRECISION)
+        value = tl.sum(tl.where(first, _layer(a3, w_out, b_out, H, H, OUT, OUT_P, PRECISION), 0.0), axis=1)
+        target = tl.load(return_ptr + samples, mask=valid, other=0.0)
+        if CLIPPED:  # rsl-rl's clipped value loss: the larger of the two squared errors
+            old = tl.load(value_ptr + samples, mask=valid, other=0.0)
+            change = value - old
+            clipped = old + tl.minimum(tl.maximum(change, -clip), clip)
+            plain_loss = (value - target) * (value - target)
+            clipped_loss = (clipped - target) * (clipped - target)
+            loss = tl.maximum(plain_loss, clipped_loss)
+            to_plain, to_clipped = _max_weights(plain_loss, clipped_loss)
+            passes = tl.where((change >= -clip) & (change <= clip), 1.0, 0.0)
+            slope = 2.0 * (to_plain * (value - target) + to_clipped * passes * (clipped - target))
+        else:
+            loss = (target - value) * (target - value)
+            slope = 2.0 * (value - target)
+        loss_sum += tl.where(valid, loss, 0.0)
+        grad = tl.where(first & valid[:, None], (value_coef * inv_rows * slope)[:, None], 0.0)
+        d0, e0, d1, e1, d2, e2, d_out, e_out, _ = _backward_tile(
+            grad, x, a1, a2, a3, w0, w1, w2, w_out, d0, e0, d1, e1, d2, e2, d_out, e_out,
+            IN, IN_P, H, OUT, OUT_P, HIDDEN, ACTIVATION, PRECISION,
+        )  # fmt: skip
+    width = H * IN + H + (HIDDEN - 1) * (H * H + H) + OUT * H + OUT + 1
+    row = partial_ptr + program.to(tl.int64) * width
+    row = _store_gradients(row, d0, e0, d1, e1, d2, e2, d_out, e_out, IN, IN_P, H, OUT, OUT_P, HIDDEN)
+    tl.store(row, tl.sum(loss_sum, axis=0))
+
+
+def _single_group(model) -> str | None:
+    """The one observation group a model reads, or None."""
+    groups = list(getattr(model, "obs_groups", []))
+    return groups[0] if len(groups) == 1 else None
+
+
+class FusedPPOLoss:
+    """The loss and gradients of `AquariumPPO`'s mini-batches from the two kernels (see the module doc).
+
+    `step(indices, offset, size)` sets every actor and critic parameter's `.grad` to the gradient of
+    rsl-rl's loss over mini-batch rows `indices[offset:offset + size]` of the learner's rollout
+    storage, and returns the detached `[value loss, surrogate loss, entropy]` means (float64)."""
+
+    def __init__(self, alg) -> None:
+        reason = self.unsupported(alg)
+        if reason is not None:
+            raise ValueError(f"FusedPPOLoss: {reason}")
+        self.alg = alg
+
+    @staticmethod
+    def unsupported(alg) -> str | None:
+        """Why `alg` (an `AquariumPPO`) cannot use the fused loss; None when it can."""
+        actor, critic = alg.actor, alg.critic
+        if not (isinstance(getattr(actor, "mlp", None), FusedMLP) and isinstance(getattr(critic, "mlp", None), FusedMLP)):
+            return "the actor and the critic must be FusedMLPModel (train.fused_mlp)"
+        if not isinstance(actor.distribution, CategoricalDistribution):
+            return "the actor's distribution must be CategoricalDistribution"
+        if critic.mlp.spec.dims[-1] != 1:
+            return f"the critic must have one output, not {critic.mlp.spec.dims[-1]}"
+        for name, model in (("actor", actor), ("critic", critic)):
+            if _single_group(model) is None:
+                return f"the {name} must read one observation group, not {list(model.obs_groups)}"
+            if getattr(model, "obs_normalization", False):
+                return f"the {name}'s observation normalisation is not fused"
+        if alg.use_mixed_precision:
+            return "mixed precision (autocast) is not fused"
+        if alg.desired_kl is not None and alg.schedule == "adaptive":
+            return "the adaptive learning-rate schedule reads each mini-batch's KL divergence"
+        if torch.device(alg.device).type not in fused_mlp.DEVICES:
+            return f"the kernels do not take {alg.device} tensors here"
+        return None
+
+    def _launch(self, kernel, model, indices, offset: int, size: int, sums: int, inputs, scalars, flags):
+        """One model's kernel over the mini-batch (`inputs`: its storage tensors, `scalars` its loss
+        constants, `flags` its compile-time switches): its gradients into the parameters' `.grad`;
+        returns the `sums` loss sums."""
+        mlp: FusedMLP = model.mlp
+        params = [p for layer in list(mlp)[0::2] for p in (layer.weight, layer.bias)]
+        obs = self.alg.storage.observations[_single_group(model)].flatten(0, 1).contiguous()
+        constants = _constants(mlp.spec, kernel_precision(obs.device))
+        programs = backward_programs(obs.device, triton.cdiv(size, constants["BLOCK_M"]))
+        counts = [p.numel() for p in params]
+        partial = torch.empty(programs, sum(counts) + sums, dtype=torch.float32, device=obs.device)
+        kernel[(programs,)](
+            obs, indices, offset, size, *inputs, partial, *scalars,
+            *_layer_pointers(tuple(p.contiguous() for p in params)),
+            **constants, **flags, num_warps=NUM_WARPS,
+        )  # fmt: skip
+        total = partial.sum(dim=0)
+        for p, g in zip(params, total[: sum(counts)].split(counts)):
+            p.grad = g.view_as(p)
+        return total[sum(counts) :]
+
+    def step(self, indices: torch.Tensor, offset: int, size: int) -> torch.Tensor:
+        alg = self.alg
+        storage = alg.storage
+        flat = {name: getattr(storage, name).flatten(0, 1).contiguous() for name in
+                ("actions", "actions_log_prob", "advantages", "values", "returns")}  # fmt: skip
+        if alg.normalize_advantage_per_mini_batch:
+            with torch.no_grad():
+                advantages = flat["advantages"][indices[offset : offset + size]]
+                advantage_stats = torch.stack([advantages.mean(), advantages.std() + 1e-8])
+        else:
+            advantage_stats = flat["advantages"]  # not read
+        rate = 1.0 / size
+        surrogate_sum, entropy_sum = self._launch(
+            _actor_loss_kernel, alg.actor, indices, offset, size, ACTOR_SUMS,
+            (flat["actions"], flat["actions_log_prob"], flat["advantages"], advantage_stats),
+            (float(alg.clip_param), float(alg.entropy_coef), rate),
+            {"NORMALIZE_ADVANTAGES": bool(alg.normalize_advantage_per_mini_batch)},
+        )  # fmt: skip
+        (value_sum,) = self._launch(
+            _critic_loss_kernel, alg.critic, indices, offset, size, CRITIC_SUMS,
+            (flat["values"], flat["returns"]),
+            (float(alg.clip_param), float(alg.value_loss_coef), rate),
+            {"CLIPPED": bool(alg.use_clipped_value_loss)},
+        )  # fmt: skip
+        return (torch.stack([value_sum, surrogate_sum, entropy_sum]) / size).double()
