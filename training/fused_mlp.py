@@ -83,6 +83,7 @@ PROGRAMS_PER_SM = 2  # persistent backward programs per multiprocessor
 INTERPRETER_PROGRAMS = 4  # the interpreter runs programs one after another; a few exercise the partial sums
 NUM_WARPS = 4
 FLOAT32_PRECISION = "tf32x3"  # tl.dot's input_precision for float32 on CUDA (see the module doc)
+FAST_TANH_WITH_TF32 = True  # with TF32 products, tanh as the multiprocessor's approximation (see the module doc)
 ACTIVATIONS = {nn.Tanh: "tanh", nn.ReLU: "relu", nn.ELU: "elu"}
 
 
@@ -129,8 +130,10 @@ def mlp_spec(mlp: nn.Sequential) -> MLPSpec:
 
 
 @triton.jit
-def _activate(z, ACTIVATION: tl.constexpr):
-    if ACTIVATION == "tanh":
+def _activate(z, ACTIVATION: tl.constexpr, FAST_TANH: tl.constexpr):
+    if ACTIVATION == "tanh" and FAST_TANH:  # the multiprocessor's tanh: 2**-11 relative, TF32's rounding
+        return tl.inline_asm_elementwise("tanh.approx.f32 $0, $1;", "=f,f", [z], dtype=tl.float32, is_pure=True, pack=1)
+    elif ACTIVATION == "tanh":
         # 1 - 2 / (exp(2|z|) + 1) as (1 - e) / (1 + e), e = exp(-2|z|) <= 1: no overflow; below
         # |z| = 1/16, where 1 - e would lose digits, the series z - z^3/3 + 2z^5/15 (next term < 1e-8 z).
         a = tl.abs(z)
@@ -231,17 +234,17 @@ def _back(
 def _hidden(
     x, w0, b0, w1, b1, w2, b2,
     IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, HIDDEN: tl.constexpr,
-    ACTIVATION: tl.constexpr, PRECISION: tl.constexpr,
+    ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, FAST_TANH: tl.constexpr,
 ):  # fmt: skip
     """The hidden activations `(a1, a2, a3)` of the input tile `x`; past the `HIDDEN`-th layer each
     repeats the last (so `a3` is always the last hidden layer's)."""
-    a1 = _activate(_layer(x, w0, b0, IN, IN_P, H, H, PRECISION), ACTIVATION)
+    a1 = _activate(_layer(x, w0, b0, IN, IN_P, H, H, PRECISION), ACTIVATION, FAST_TANH)
     a2 = a1
     if HIDDEN >= 2:
-        a2 = _activate(_layer(a1, w1, b1, H, H, H, H, PRECISION), ACTIVATION)
+        a2 = _activate(_layer(a1, w1, b1, H, H, H, H, PRECISION), ACTIVATION, FAST_TANH)
     a3 = a2
     if HIDDEN >= 3:
-        a3 = _activate(_layer(a2, w2, b2, H, H, H, H, PRECISION), ACTIVATION)
+        a3 = _activate(_layer(a2, w2, b2, H, H, H, H, PRECISION), ACTIVATION, FAST_TANH)
     return a1, a2, a3
 
 
@@ -332,11 +335,12 @@ def _forward_kernel(
     w0, b0, w1, b1, w2, b2, w3, b3,
     IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
     HIDDEN: tl.constexpr, ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, BLOCK_M: tl.constexpr,
+    FAST_TANH: tl.constexpr,
 ):  # fmt: skip
     # Layer l's weight and bias are w<l>, b<l>; the output layer is layer HIDDEN (later pointers unused).
     rows = (tl.program_id(0) * BLOCK_M + tl.arange(0, BLOCK_M)).to(tl.int64)  # (rows x width may pass 2**31)
     x = _rows(x_ptr, rows, n_rows, IN, IN_P)
-    _, _, last = _hidden(x, w0, b0, w1, b1, w2, b2, IN, IN_P, H, HIDDEN, ACTIVATION, PRECISION)
+    _, _, last = _hidden(x, w0, b0, w1, b1, w2, b2, IN, IN_P, H, HIDDEN, ACTIVATION, PRECISION, FAST_TANH)
     w_out, b_out = _output_layer(w1, b1, w2, b2, w3, b3, HIDDEN)
     y = _layer(last, w_out, b_out, H, H, OUT, OUT_P, PRECISION)
     c = tl.arange(0, OUT_P)
@@ -349,6 +353,7 @@ def _backward_kernel(
     w0, b0, w1, b1, w2, b2, w3, b3,
     IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
     HIDDEN: tl.constexpr, ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, BLOCK_M: tl.constexpr,
+    FAST_TANH: tl.constexpr,
     GRAD_X: tl.constexpr,
 ):  # fmt: skip
     # Gradient accumulators, in registers across this program's tiles.
@@ -358,7 +363,7 @@ def _backward_kernel(
     for tile in range(program, tl.cdiv(n_rows, BLOCK_M), tl.num_programs(0)):
         rows = (tile * BLOCK_M + tl.arange(0, BLOCK_M)).to(tl.int64)  # (int64: rows x width may pass 2**31)
         x = _rows(x_ptr, rows, n_rows, IN, IN_P)
-        a1, a2, a3 = _hidden(x, w0, b0, w1, b1, w2, b2, IN, IN_P, H, HIDDEN, ACTIVATION, PRECISION)
+        a1, a2, a3 = _hidden(x, w0, b0, w1, b1, w2, b2, IN, IN_P, H, HIDDEN, ACTIVATION, PRECISION, FAST_TANH)
         g = _rows(grad_out_ptr, rows, n_rows, OUT, OUT_P)  # zero in rows past the end
         d0, e0, d1, e1, d2, e2, d_out, e_out, gx = _backward_tile(
             g, x, a1, a2, a3, w0, w1, w2, w_out, d0, e0, d1, e1, d2, e2, d_out, e_out,
@@ -411,6 +416,7 @@ def _constants(spec: MLPSpec, precision: str) -> dict:
         "ACTIVATION": spec.activation,
         "PRECISION": precision,
         "BLOCK_M": block_rows(spec),
+        "FAST_TANH": precision == "tf32" and FAST_TANH_WITH_TF32,
     }
 
 

@@ -82,6 +82,7 @@ def _actor_loss_kernel(
     w0, b0, w1, b1, w2, b2, w3, b3,
     IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
     HIDDEN: tl.constexpr, ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, BLOCK_M: tl.constexpr,
+    FAST_TANH: tl.constexpr,
     NORMALIZE_ADVANTAGES: tl.constexpr,
 ):  # fmt: skip
     # Mini-batch row r is sample index_ptr[offset + r] of the flattened storage.
@@ -100,7 +101,7 @@ def _actor_loss_kernel(
         valid = rows < n_rows
         samples = tl.load(index_ptr + offset + rows, mask=valid, other=0).to(tl.int64)
         x = _gather(obs_ptr, samples, valid, IN, IN_P)
-        a1, a2, a3 = _hidden(x, w0, b0, w1, b1, w2, b2, IN, IN_P, H, HIDDEN, ACTIVATION, PRECISION)
+        a1, a2, a3 = _hidden(x, w0, b0, w1, b1, w2, b2, IN, IN_P, H, HIDDEN, ACTIVATION, PRECISION, FAST_TANH)
         logits = tl.where(category, _layer(a3, w_out, b_out, H, H, OUT, OUT_P, PRECISION), float("-inf"))
         # log-softmax, as torch's: the logits less their log-sum-exp; probabilities its exp
         top = tl.max(logits, axis=1)
@@ -147,6 +148,7 @@ def _critic_loss_kernel(
     w0, b0, w1, b1, w2, b2, w3, b3,
     IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
     HIDDEN: tl.constexpr, ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, BLOCK_M: tl.constexpr,
+    FAST_TANH: tl.constexpr,
     CLIPPED: tl.constexpr,
 ):  # fmt: skip
     d0, e0, d1, e1, d2, e2, d_out, e_out = _zero_gradients(IN_P, H, OUT_P)
@@ -159,7 +161,7 @@ def _critic_loss_kernel(
         valid = rows < n_rows
         samples = tl.load(index_ptr + offset + rows, mask=valid, other=0).to(tl.int64)
         x = _gather(obs_ptr, samples, valid, IN, IN_P)
-        a1, a2, a3 = _hidden(x, w0, b0, w1, b1, w2, b2, IN, IN_P, H, HIDDEN, ACTIVATION, PRECISION)
+        a1, a2, a3 = _hidden(x, w0, b0, w1, b1, w2, b2, IN, IN_P, H, HIDDEN, ACTIVATION, PRECISION, FAST_TANH)
         value = tl.sum(tl.where(first, _layer(a3, w_out, b_out, H, H, OUT, OUT_P, PRECISION), 0.0), axis=1)
         target = tl.load(return_ptr + samples, mask=valid, other=0.0)
         if CLIPPED:  # rsl-rl's clipped value loss: the larger of the two squared errors
