@@ -4,7 +4,9 @@ multi-GPU path), one learning team and both teams, with the update captured in C
 Each point is `python -m torch.distributed.run --standalone --nproc_per_node=G -m aquarium_warp train
 ...` with `--num-worlds` worlds per rank, run for `--iterations` iterations; its speed is the median of
 the `fps` column (agent-steps of every rank per second of the iteration) of rank 0's progress CSV over
-the iterations after the first two (Warp compilation, warm-up). `--modes` picks the loops measured:
+the iterations after the first two (Warp compilation, warm-up). `--set KEY=VALUE` (repeatable) passes a
+run setting to every point, e.g. `--set train.fused_mlp=true --set train.tf32=true`. `--modes` picks
+the loops measured:
 
 - `graphs`: rollout and update replayed from CUDA graphs, the defaults (`train.graph_update="auto"`:
   one GPU captures the update as one graph, several GPUs as graphs cut at its all-reduces, which run
@@ -140,6 +142,8 @@ def run_point(gpus: int, team: str, mode: str, args: argparse.Namespace) -> dict
     ]
     for key, value in MODES[mode].items():
         command += ["--set", f"train.{key}={str(value).lower()}"]
+    for setting in args.set:  # the same settings at every point (e.g. train.fused_mlp=true)
+        command += ["--set", setting]
     env = {**os.environ, "NCCL_NVLS_ENABLE": "0", "OMP_NUM_THREADS": "1"}
     env.pop("WORLD_SIZE", None)
     stdout, stderr, wall = run_ranks(command, env, args.timeout)
@@ -147,7 +151,8 @@ def run_point(gpus: int, team: str, mode: str, args: argparse.Namespace) -> dict
     with open(os.path.join(log_dir, name), newline="", encoding="utf-8") as f:
         rows = list(csv.DictReader(f))
     with open(os.path.join(log_dir, "config.json"), encoding="utf-8") as f:
-        captured = json.load(f)["cuda_graphs"]
+        saved = json.load(f)
+    captured = saved["cuda_graphs"]
     fps = [float(r["fps"]) for r in rows[2:]] or [float(r["fps"]) for r in rows]
     return {
         "gpus": gpus,
@@ -155,6 +160,7 @@ def run_point(gpus: int, team: str, mode: str, args: argparse.Namespace) -> dict
         "mode": mode,
         "settings": MODES[mode],
         "captured": captured,
+        "fused_loss": saved.get("fused_loss"),
         "iterations": len(rows),
         "agent_steps_per_s": statistics.median(fps),
         "wall_seconds": wall,
@@ -214,6 +220,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--iterations", type=int, default=12, help="training iterations per point")
     p.add_argument("--device", default="cuda", help="'cuda' (rank r on cuda:r) or 'cpu' (gloo)")
     p.add_argument("--timeout", type=float, default=300, help="seconds per point")
+    p.add_argument(
+        "--set", action="append", default=[], metavar="KEY=VALUE", help="a run setting for every point (repeatable)"
+    )
     p.add_argument("--commit", default=None, help="commit to record where git is not available")
     p.add_argument("--out-dir", default=".", help="where the JSON goes")
     args = p.parse_args(argv)

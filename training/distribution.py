@@ -26,7 +26,7 @@ from . import _rsl  # noqa: F401  (sets GIT_PYTHON_REFRESH before rsl_rl is impo
 class CategoricalDistribution(Distribution):
     """Categorical distribution over `num_categories` actions for a single discrete action (`output_dim=1`).
 
-    - `sample()` -> `[N, 1]` float category indices (drawn with `torch.multinomial`, global RNG).
+    - `sample()` -> `[N, 1]` float category indices (`torch.multinomial`'s draw, global RNG).
     - `deterministic_output(logits)` -> `[N, 1]` float argmax (ties: the lower index).
     - `log_prob(actions [N, 1])`, `entropy`, `kl_divergence(old, new)` -> `[N]` (natural log).
     - `params` -> `(log_probs [N, K],)`: log-softmax of the logits.
@@ -66,7 +66,10 @@ class CategoricalDistribution(Distribution):
     def sample(self) -> torch.Tensor:
         _, probs = self._current()
         flat = probs.reshape(-1, self.num_categories)
-        index = torch.multinomial(flat, 1, replacement=True)
+        # torch.multinomial's own draw for one sample, argmax(p / Exp(1)), in three kernels instead of its
+        # dozen (it first checks the probabilities on the device: softmax's always pass): the same
+        # indices from the same generator state, which it leaves where multinomial leaves it.
+        index = torch.argmax(flat / torch.empty_like(flat).exponential_(1), dim=-1, keepdim=True)
         return index.reshape(*probs.shape[:-1], 1).to(probs.dtype)
 
     def deterministic_output(self, mlp_output: torch.Tensor) -> torch.Tensor:

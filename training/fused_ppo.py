@@ -238,7 +238,7 @@ class FusedPPOLoss:
         mlp: FusedMLP = model.mlp
         params = [p for layer in list(mlp)[0::2] for p in (layer.weight, layer.bias)]
         obs = self.alg.storage.observations[_single_group(model)].flatten(0, 1).contiguous()
-        constants = _constants(mlp.spec, kernel_precision(obs.device))
+        constants = _constants(mlp.spec, kernel_precision(obs.device), backward=True)
         programs = backward_programs(obs.device, triton.cdiv(size, constants["BLOCK_M"]))
         counts = [p.numel() for p in params]
         partial = torch.empty(programs, sum(counts) + sums, dtype=torch.float32, device=obs.device)

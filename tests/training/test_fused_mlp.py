@@ -38,7 +38,8 @@ FORWARD_TOLERANCE = 2e-6  # relative to the reference's largest magnitude; measu
 GRADIENT_TOLERANCE = 2e-6  # measured <= 4.1e-7
 TF32_TOLERANCE = 1e-2  # TF32 products on CUDA (10-bit mantissas): about 1e-3
 
-ROWS = 64  # rows per tile of the nets below up to width 64 (fused_mlp.block_rows); 32 for width 128
+ROWS = 64  # forward rows per tile of the nets below up to width 64 (fused_mlp.block_rows; backward: 32):
+# the counts below leave a partial last tile for both
 
 # (input, hidden, output, activation, rows): the default actor with a tail; an input of 100 columns
 # (padded to 128) with elu; one relu layer of 16 with an output of 1 (padded to 16); 128 wide in whole

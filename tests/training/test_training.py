@@ -214,6 +214,26 @@ def test_categorical_distribution_matches_torch():
         CategoricalDistribution(2, num_categories=3)
 
 
+def test_categorical_sample_is_torch_multinomial_bit_for_bit(device):
+    """The sampler's three kernels draw what torch.multinomial draws from the same generator state, and
+    leave the generator where it leaves it (a batch with a leading dimension)."""
+    dist = CategoricalDistribution(1, num_categories=16)
+    logits = torch.randn(3, 1000, 16, device=device) * 2
+    dist.update(logits)
+
+    def rng_state():
+        return torch.cuda.get_rng_state(device) if device.startswith("cuda") else torch.get_rng_state()
+
+    torch.manual_seed(7)
+    ours = dist.sample()
+    after = rng_state().clone()
+    torch.manual_seed(7)
+    reference = torch.multinomial(dist._current()[1].reshape(-1, 16), 1, replacement=True)
+    assert ours.shape == (3, 1000, 1) and ours.dtype == torch.float32
+    assert torch.equal(ours.reshape(-1, 1).long(), reference)
+    assert torch.equal(after, rng_state())
+
+
 # ------------------------------------------------------------------------------------ Individual Learning
 def test_individual_model_equals_independent_mlps():
     from rsl_rl.modules import MLP
