@@ -393,6 +393,21 @@ def test_resume_is_bit_exact(tmp_path, one_thread, sharing, fused):
     assert [int(r["iteration"]) for r in rows] == [0, 1, 2, 3]
 
 
+def test_fused_resume_is_bit_exact_on_cuda(tmp_path, cuda_device):
+    """On CUDA, with the fused MLP and the fused loss replayed from CUDA graphs: stopped after 2
+    iterations and resumed to 4, the run ends where 4 straight iterations end, bit for bit."""
+    pytest.importorskip("aquarium_warp.training.fused_mlp")  # the `fused` extra (triton)
+    config = tiny_config(fused_mlp=True, device=cuda_device)
+    full = Trainer(config, str(tmp_path / "full"))
+    assert full.runner.alg.fused_loss is not None
+    full.train()
+    part = Trainer(config, str(tmp_path / "part"))
+    part.train(2)
+    resumed = Trainer.resume(str(tmp_path / "part"))
+    resumed.train()
+    _same_state(full, resumed)
+
+
 @pytest.mark.slow
 def test_resume_with_randomize_is_bit_exact(tmp_path, one_thread):
     """Domain randomisation: the draws' generator and every world's current values travel in the
