@@ -10,8 +10,10 @@ trainer.export()                   # runs/paper_ps_s0/exported/policy.pt, policy
 Trainer.resume("runs/paper_ps_s0").train()     # continues from the newest checkpoint
 ```
 
-The log directory receives rsl-rl's TensorBoard events, `config.json` (the config, and under
-`cuda_graphs` what the training loop captures: the rollout, each learner's update), `progress.csv` (one row per
+The log directory receives rsl-rl's TensorBoard events, `config.json` (the config; the command, commit,
+machine and library versions (`aquarium_warp.records.provenance`); under `cuda_graphs` what the training
+loop captures: the rollout, each learner's update; with `train.fused_mlp`, under `fused_loss`, whether
+each learner's update runs the fused loss or why not), `progress.csv` (one row per
 iteration: episode statistics, losses, speed) and checkpoints `model_<i>.pt`, which hold the state
 after iteration i (0-based; the runner's `iter` entry is the next iteration, `i + 1`).
 
@@ -52,6 +54,7 @@ from ..atomic import atomic_open
 from ..device import resolve_device
 from ..drivers import make_driver
 from ..env import BatchedAquarium
+from ..records import provenance
 from ..seeding import rank_seed, seed_process
 from . import (
     _rsl,  # noqa: F401
@@ -159,6 +162,7 @@ class Trainer:
                 "config": config,
                 "runner_cfg": self.runner_cfg if not both else self.runner_cfgs,
                 "total_iterations": self.total_iterations,
+                **provenance(str(self.device)),  # the command, commit, machine and versions of the run
             }
             if self.world_size > 1:  # rank r simulates with seed rank_seed(train.seed, r)
                 record["distributed"] = {

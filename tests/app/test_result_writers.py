@@ -215,3 +215,51 @@ def test_bench_multi_gpu_names_where_a_run_past_its_time_waited():
     assert time.perf_counter() - started < 30
     with pytest.raises(RuntimeError, match=r"(?s)failed:.*exit seven"):
         bench.run_ranks([sys.executable, "-c", "import sys; sys.exit('exit seven')"], dict(os.environ), timeout=30)
+
+
+def test_training_run_config_records_provenance(tmp_path):
+    """A training run's config.json (the result file of `aquarium-warp train`) records its command,
+    commit, machine and versions."""
+    from aquarium_warp.training import Trainer, make_config
+
+    changes = {"train": {"num_worlds": 2, "iterations": 1, "quiet": True, "export": []}}
+    Trainer(make_config("tiny", changes), log_dir=str(tmp_path)).close()
+    written = json.loads((tmp_path / "config.json").read_text())
+    assert missing(written) == ()
+    assert written["config"]["train"]["num_worlds"] == 2
+
+
+def _progress(path: Path, captures: list[float]) -> None:
+    """A run folder whose progress.csv has one row per iteration (NaN: no episode ended)."""
+    path.mkdir(parents=True)
+    rows = ["iteration,world_episodes,captures_per_prey,reward_per_agent"]
+    rows += [f"{i},{i},{'' if c != c else c},{'' if c != c else -c}" for i, c in enumerate(captures)]
+    (path / "progress.csv").write_text("\n".join(rows) + "\n")
+
+
+def test_compare_curves_hand_made_runs(tmp_path):
+    """benchmarks/compare_curves.py on hand-made curves: the final means, the difference and its
+    interval, equivalence within the margin and the envelope fraction, as computed by hand."""
+    compare_curves = _script("compare_curves")
+    nan = float("nan")
+    for seed, level in enumerate((4.0, 5.0, 6.0)):  # reference: flat curves at 4, 5, 6 (mean 5)
+        _progress(tmp_path / f"ref-s{seed}", [nan] + [level] * 9)
+    for seed, level in enumerate((5.0, 5.2, 4.8)):  # close: mean 5, inside [4, 6] everywhere
+        _progress(tmp_path / f"close-s{seed}", [nan] + [level] * 9)
+    for seed, level in enumerate((9.0, 9.1, 8.9)):  # far: mean 9, outside [4, 6] everywhere
+        _progress(tmp_path / f"far-s{seed}", [nan] + [level] * 9)
+    out = tmp_path / "cmp.json"
+    argv = ["--reference", f"ref={tmp_path}/ref-s*", "--variant", f"close={tmp_path}/close-s*", f"far={tmp_path}/far-s*"]
+    assert compare_curves.main(argv + ["--final-fraction", "0.2", "--margin", "0.2", "--smooth", "1", "--out", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert missing(data) == ()
+    ref, close, far = (data["conditions"][k] for k in ("ref", "close", "far"))
+    assert ref["final"]["mean"] == pytest.approx(5.0) and ref["final"]["seeds"] == [4.0, 5.0, 6.0]
+    assert close["difference"]["difference"] == pytest.approx(0.0, abs=1e-12)
+    assert far["difference"]["difference"] == pytest.approx(4.0)
+    assert far["difference"]["low"] > 0  # the interval excludes zero
+    assert close["equivalence"]["margin"] == pytest.approx(1.0)  # 20% of the reference's mean
+    assert far["equivalence"]["equivalent"] is False
+    assert close["inside_envelope"] == 1.0 and far["inside_envelope"] == 0.0
+    with pytest.raises(SystemExit):
+        compare_curves.main(["--reference", f"ref={tmp_path}/none-*", "--variant", f"far={tmp_path}/far-s*"])

@@ -265,3 +265,22 @@ def test_cuda_gradients_and_graph_replay(cuda_device, tf32):
         assert all(torch.equal(a, b) for a, b in zip(eager, replayed))
     finally:
         torch.backends.cuda.matmul.allow_tf32 = allow_tf32
+
+
+@pytest.mark.slow
+def test_tune_fused_kernels_runs_on_the_cpu(tmp_path, interpreter):
+    """benchmarks/tune_fused_kernels.py under the interpreter: one shape timed and recorded with its
+    provenance, the module settings restored after."""
+    import tune_fused_kernels
+
+    settings = (fused_mlp.block_rows, fused_mlp.NUM_WARPS, fused_mlp.PROGRAMS_PER_SM, fused_mlp.FAST_TANH_WITH_TF32)
+    out = tmp_path / "tune.json"
+    argv = ["--device", "cpu", "--preset", "tiny", "--worlds", "2", "--rows", "16,32", "--warps", "4"]
+    assert tune_fused_kernels.main(argv + ["--programs", "2", "--repeats", "1", "--out", str(out), "--commit", "abc123"]) == 0
+    data = json.loads(out.read_text())
+    assert data["git"]["commit"] == "abc123" and data["worlds"] == 2 and data["tf32"] is False
+    assert [(s["rows"], s["warps"], s["programs_per_sm"]) for s in data["shapes"]] == [(16, 4, 2), (32, 4, 2)]
+    assert all(s["ms"] > 0 for s in data["shapes"])
+    assert (fused_mlp.block_rows, fused_mlp.NUM_WARPS, fused_mlp.PROGRAMS_PER_SM, fused_mlp.FAST_TANH_WITH_TF32) == settings
+    with pytest.raises(SystemExit):
+        tune_fused_kernels.main(["--device", "cpu", "--rows", "48"])  # not a power of two

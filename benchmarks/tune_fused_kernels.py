@@ -1,0 +1,140 @@
+"""The fused PPO update's time per kernel shape: rows per tile of the backward and loss kernels, warps
+per program, persistent programs per multiprocessor, and (with TF32 products) tanh as the
+multiprocessor's approximation or as the float32 formula. What `training/fused_mlp.py`'s choices
+(`block_rows`, `NUM_WARPS`, `PROGRAMS_PER_SM`, `FAST_TANH_WITH_TF32`) rest on; rerun it on a new card.
+
+The learner of `--preset` at `--worlds` worlds is built, its storage filled as a rollout leaves it
+(`bench_fused_update.fill_storage`), and for each shape the whole update with the fused loss
+(`bench_fused_update.MLPSwitch`, path "fused") is timed: on CUDA the median of `--repeats` replays of
+a CUDA graph of one update, on the CPU (Triton's interpreter, a smoke test) eagerly. Each shape sets
+the module settings above for the run; the compiled kernels' registers and spills (CUDA) come with
+the table.
+
+    python benchmarks/tune_fused_kernels.py --device cuda:0 --worlds 65536 --tf32
+    TRITON_INTERPRET=1 python benchmarks/tune_fused_kernels.py --device cpu --preset tiny --worlds 2 \
+        --rows 32 --warps 4 --programs 2 --repeats 1
+
+Prints each shape's time as it is measured and writes JSON (atomically, after every shape) with the
+command, the commit (`--commit` where git is not available), the machine and the library versions.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import itertools
+import json
+import sys
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+import bench_fused_update as bench
+
+from aquarium_warp.arguments import parse_list
+from aquarium_warp.atomic import atomic_open
+from aquarium_warp.records import command_line, provenance
+from aquarium_warp.training import fused_mlp, fused_ppo
+
+
+@contextlib.contextmanager
+def kernel_shape(rows: int, warps: int, programs: int, fast_tanh: bool):
+    """The fused kernels' shape settings for the duration (restored after)."""
+    saved = (fused_mlp.block_rows, fused_mlp.NUM_WARPS, fused_ppo.NUM_WARPS, fused_mlp.PROGRAMS_PER_SM,
+             fused_mlp.FAST_TANH_WITH_TF32)  # fmt: skip
+    forward_rows = fused_mlp.block_rows
+    fused_mlp.block_rows = lambda spec, backward=False: rows if backward else forward_rows(spec)
+    fused_mlp.NUM_WARPS = fused_ppo.NUM_WARPS = warps
+    fused_mlp.PROGRAMS_PER_SM = programs
+    fused_mlp.FAST_TANH_WITH_TF32 = fast_tanh
+    try:
+        yield
+    finally:
+        (fused_mlp.block_rows, fused_mlp.NUM_WARPS, fused_ppo.NUM_WARPS, fused_mlp.PROGRAMS_PER_SM,
+         fused_mlp.FAST_TANH_WITH_TF32) = saved  # fmt: skip
+
+
+def compiled_kernels() -> list[dict]:
+    """Registers and spills of every compiled loss kernel (CUDA; none under the interpreter)."""
+    out = []
+    for kernel in (fused_ppo._actor_loss_kernel, fused_ppo._critic_loss_kernel):
+        for cache in getattr(kernel, "device_caches", {}).values():
+            for compiled in cache[0].values():
+                out.append(
+                    {
+                        "kernel": kernel.fn.__name__,
+                        "num_warps": compiled.metadata.num_warps,
+                        "registers": compiled.n_regs,
+                        "spills": compiled.n_spills,
+                    }
+                )
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--device", default="cuda:0")
+    parser.add_argument("--preset", default="paper")
+    parser.add_argument("--worlds", type=int, default=65536)
+    parser.add_argument("--rows", default="32,64,128", help="rows per tile of the backward and loss kernels")
+    parser.add_argument("--warps", default="4,8", help="warps per program")
+    parser.add_argument("--programs", default="1,2,4", help="persistent programs per multiprocessor")
+    parser.add_argument("--tf32", action="store_true", help="TF32 products; then each shape also without fast tanh")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--out", type=Path, default=None, help="JSON path (default tune_fused_<device>.json)")
+    parser.add_argument("--commit", default=None, help="the commit measured, for a copy without git history")
+    args = parser.parse_args(argv)
+    try:
+        rows = parse_list(args.rows, int, name="--rows", minimum=16)
+        warps = parse_list(args.warps, int, name="--warps", minimum=1)
+        programs = parse_list(args.programs, int, name="--programs", minimum=1)
+    except ValueError as error:
+        parser.error(str(error))
+    if bad := [r for r in rows if r & (r - 1)]:
+        parser.error(f"--rows: {bad} are not powers of two (tl.dot's tiles)")
+    if args.worlds < 1 or args.repeats < 1:
+        parser.error("--worlds and --repeats must be integers >= 1")
+    device = torch.device(args.device)
+    if device.type not in fused_mlp.DEVICES:
+        parser.error(f"--device={args.device!r}: the fused kernels take {list(fused_mlp.DEVICES)} here")
+    torch.backends.cuda.matmul.allow_tf32 = args.tf32
+    out = args.out or Path(f"tune_fused_{args.device.replace(':', '')}.json")
+    record = {
+        **provenance(args.device, command_line(argv, "benchmarks/tune_fused_kernels.py"), args.commit),
+        "preset": args.preset,
+        "worlds": args.worlds,
+        "tf32": args.tf32,
+        "shapes": [],
+    }
+    alg = bench.build(args.preset, args.worlds, args.device)
+    bench.fill_storage(alg)
+    switch = bench.MLPSwitch(alg)
+    cuda = device.type == "cuda"
+    side = torch.cuda.Stream(device) if cuda else None  # one stream for every capture (see bench_fused_update)
+    for r, w, p, fast in itertools.product(rows, warps, programs, (True, False) if args.tf32 else (True,)):
+        shape = {"rows": r, "warps": w, "programs_per_sm": p, "fast_tanh": fast if args.tf32 else None}
+        with kernel_shape(r, w, p, fast), torch.cuda.stream(side) if cuda else contextlib.nullcontext():
+            try:
+                shape["ms"] = 1e3 * bench.time_update(switch, "fused", args.repeats, graph=cuda)
+            except Exception as error:  # a shape the compiler refuses (registers, shared memory): recorded
+                shape["error"] = f"{type(error).__name__}: {str(error)[:300]}"
+        record["shapes"].append(shape)
+        shown = f"{shape['ms']:9.2f} ms" if "ms" in shape else shape["error"]
+        print(f"rows {r:4d} warps {w} programs/SM {p} fast tanh {shape['fast_tanh']}: {shown}", flush=True)
+        with atomic_open(out) as f:
+            json.dump(record, f, indent=1)
+    record["kernels"] = compiled_kernels()
+    with atomic_open(out) as f:
+        json.dump(record, f, indent=1)
+    timed = [s for s in record["shapes"] if "ms" in s]
+    if timed:
+        best = min(timed, key=lambda s: s["ms"])
+        print(f"fastest: {best}")
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
