@@ -8,6 +8,11 @@ model), whose forward runs `TritonMLPFunction` for float32 inputs on the devices
 (`DEVICES`). `train.fused_mlp` (config.py, true or false) switches it on for the actor and the critic
 of parameter sharing; Individual Learning keeps its `BatchedMLP`.
 
+In training, the PPO update of two such models also fuses rsl-rl's loss into kernels built from the
+pieces below (`fused_ppo.FusedPPOLoss`: per mini-batch one kernel for the actor, one for the critic);
+this module's `TritonMLPFunction` then serves the rollout's forward, and the update where the fused
+loss does not serve.
+
 - forward: one program per `BLOCK_M`-row tile of the input. It loads the tile (its columns padded to
   a power of two of at least 16 and masked), runs every layer in registers (`tl.dot`, bias,
   activation) with the weights read from torch's own `[out, in]` parameters, and stores only the
@@ -34,7 +39,9 @@ tensor cores whose sum carries float32's precision) or "ieee" (one float32 multi
 one H200 at 8d0272d the PPO update took 2,691 ms at 65,536 worlds against torch's 424 ms, which is why
 the default is "tf32x3"). Where torch's own float32 products may use TF32
 (`torch.backends.cuda.matmul.allow_tf32`, which `train.tf32` sets), the kernels use one TF32 product
-too (`input_precision="tf32"`, about 1e-3 relative). Triton's interpreter (the CPU) computes "ieee".
+too (`input_precision="tf32"`, about 1e-3 relative), and tanh as the multiprocessor's approximation
+(`tanh.approx.f32`, 2^-11 relative: TF32's own rounding; `FAST_TANH_WITH_TF32`), which made the fused
+update 1.21x as fast on one H100 (benchmarks/results/fused_tuning_h100_27fb357/). Triton's interpreter (the CPU) computes "ieee".
 Autocast, other dtypes, TorchScript and ONNX export take the plain torch path.
 
 Measured on one H200 at commit 48ee313 (benchmarks/results/fused_triton_h200_48ee313/):
@@ -391,8 +398,8 @@ def block_rows(spec: MLPSpec, backward: bool = False) -> int:
     """Rows per tile. The backward kernels (and the fused loss's) keep every hidden layer's activations
     and the gradient accumulators in registers: 32 rows; on one H100 at 27fb357 (paper preset, 65,536
     worlds, TF32) the fused update took 73.6 ms with 32 rows, 86.5 ms with 64 and 167 ms with 128 (4
-    warps, 2 programs per multiprocessor; 8 warps were slower at every size). The forward: 64 rows,
-    32 for the widest layers."""
+    warps, 2 programs per multiprocessor; 8 warps were slower at every size:
+    benchmarks/results/fused_tuning_h100_27fb357/). The forward: 64 rows, 32 for the widest layers."""
     if backward:
         return 32
     return 32 if spec.dims[1] > 64 else 64
