@@ -1,4 +1,4 @@
-"""`AquariumPPO`: rsl-rl's PPO with two small additions, plugged in by `algorithm.class_name`.
+"""`AquariumPPO`: rsl-rl's PPO with a few additions, plugged in by `algorithm.class_name`.
 
 1. Separate actor and critic learning rates (the paper's "Actor alpha" 0.001 and "Critic alpha" 0.003).
    rsl-rl builds ONE optimizer with ONE learning rate for both networks, and scaling the value-loss
@@ -19,6 +19,9 @@
    be captured as one CUDA graph, or with several ranks as graphs cut at its all-reduces (`training/loop.py`);
    `capturable_optimizer=True` builds the optimizer with `capturable=True` for that. On the CPU the
    parameters it produces equal rsl-rl's bit for bit (`tests/training/test_training_loop.py`).
+4. With `FusedMLPModel` actor and critic (`train.fused_mlp`), `update_on_device` takes each mini-batch's
+   loss and gradients from `fused_ppo.FusedPPOLoss` (`fused_loss`) where it serves, then clips and
+   steps as rsl-rl does (`_apply_gradients`); `fused_loss_unsupported` says why it does not serve.
 """
 
 from __future__ import annotations
