@@ -210,6 +210,19 @@ def test_unsupported_learners_keep_the_autograd_path(change, reason, interpreter
         FusedPPOLoss(alg)
 
 
+@pytest.mark.slow
+def test_both_teams_use_the_fused_loss(tmp_path, interpreter):
+    """Both teams learning with `train.fused_mlp`: each learner's update runs the fused loss."""
+    from aquarium_warp.training import make_config
+
+    changes = {"train": {"num_worlds": 2, "iterations": 1, "fused_mlp": True, "team": "both", "quiet": True, "export": []}}
+    trainer = Trainer(make_config("tiny", changes), log_dir=str(tmp_path))
+    assert all(isinstance(learner.alg.fused_loss, FusedPPOLoss) for learner in trainer.runner.learners)
+    trainer.train(1)
+    trainer.close()
+    assert json.loads((tmp_path / "config.json").read_text())["fused_loss"] == {"prey": True, "predator": True}
+
+
 def test_trainer_uses_the_fused_loss_and_records_it(tmp_path, interpreter):
     """`train.fused_mlp` on: the learner's update runs the fused loss, and config.json says so; with the
     adaptive schedule it keeps autograd through the fused MLPs, and config.json says why."""
