@@ -180,7 +180,7 @@ def test_bench_fused_update_keeps_the_points_measured_before_a_limit(tmp_path, m
         bench,
         "measure",
         _second_point_ends_the_script(
-            lambda preset, w, device, repeats: {"worlds": w, "seconds": {"torch eager": 0.5}}
+            lambda preset, w, device, repeats, profile: {"worlds": w, "seconds": {"torch eager": 0.5}}
         ),
     )
     out = tmp_path / "fused.json"
