@@ -313,6 +313,14 @@ def _backward_tile(
 
 
 @triton.jit
+def _partial_row(partial_ptr, program, SUMS: tl.constexpr, IN: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr,
+                 HIDDEN: tl.constexpr):  # fmt: skip
+    """Where `program`'s row of a `[programs, parameters + SUMS]` buffer of partial sums starts."""
+    width = H * IN + H + (HIDDEN - 1) * (H * H + H) + OUT * H + OUT + SUMS
+    return partial_ptr + program.to(tl.int64) * width
+
+
+@triton.jit
 def _store_gradients(
     row, d0, e0, d1, e1, d2, e2, d_out, e_out,
     IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
@@ -381,7 +389,7 @@ def _backward_kernel(
             mask = (rows[:, None] < n_rows) & (c[None, :] < IN)
             tl.store(grad_x_ptr + rows[:, None] * IN + c[None, :], gx, mask=mask)
     # This program's row of partial sums, in the order of the parameters (weight0, bias0, weight1, ...).
-    row = partial_ptr + program.to(tl.int64) * (H * IN + H + (HIDDEN - 1) * (H * H + H) + OUT * H + OUT)
+    row = _partial_row(partial_ptr, program, 0, IN, H, OUT, HIDDEN)
     _store_gradients(row, d0, e0, d1, e1, d2, e2, d_out, e_out, IN, IN_P, H, OUT, OUT_P, HIDDEN)
 
 

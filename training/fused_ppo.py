@@ -49,6 +49,7 @@ from .fused_mlp import (
     _layer,
     _layer_pointers,
     _output_layer,
+    _partial_row,
     _store_gradients,
     _zero_gradients,
     backward_programs,
@@ -68,6 +69,24 @@ def _gather(ptr, samples, valid, COLS: tl.constexpr, COLS_P: tl.constexpr):
 
 
 @triton.jit
+def _tile_forward(
+    obs_ptr, index_ptr, offset, n_rows, tile, w0, b0, w1, b1, w2, b2, w_out, b_out,
+    IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
+    HIDDEN: tl.constexpr, ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, BLOCK_M: tl.constexpr,
+    FAST_TANH: tl.constexpr,
+):  # fmt: skip
+    """Mini-batch rows `tile * BLOCK_M ...` (row r is sample `index_ptr[offset + r]` of the flattened
+    storage): which are `valid`, their `samples`, the gathered input `x`, the hidden activations and the
+    MLP's output `y` (padded)."""
+    rows = tile * BLOCK_M + tl.arange(0, BLOCK_M)
+    valid = rows < n_rows
+    samples = tl.load(index_ptr + offset + rows, mask=valid, other=0).to(tl.int64)
+    x = _gather(obs_ptr, samples, valid, IN, IN_P)
+    a1, a2, a3 = _hidden(x, w0, b0, w1, b1, w2, b2, IN, IN_P, H, HIDDEN, ACTIVATION, PRECISION, FAST_TANH)
+    return valid, samples, x, a1, a2, a3, _layer(a3, w_out, b_out, H, H, OUT, OUT_P, PRECISION)
+
+
+@triton.jit
 def _max_weights(a, b):
     """The shares of the gradient of `max(a, b)` that go to `a` and to `b`: all to the larger, halves
     at a tie (torch's `maximum`)."""
@@ -82,7 +101,7 @@ def _actor_loss_kernel(
     w0, b0, w1, b1, w2, b2, w3, b3,
     IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
     HIDDEN: tl.constexpr, ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, BLOCK_M: tl.constexpr,
-    FAST_TANH: tl.constexpr,
+    FAST_TANH: tl.constexpr, SUMS: tl.constexpr,
     NORMALIZE_ADVANTAGES: tl.constexpr,
 ):  # fmt: skip
     # Mini-batch row r is sample index_ptr[offset + r] of the flattened storage.
@@ -97,12 +116,11 @@ def _actor_loss_kernel(
         advantage_scale = tl.load(advantage_stats_ptr + 1)
     program = tl.program_id(0)
     for tile in range(program, tl.cdiv(n_rows, BLOCK_M), tl.num_programs(0)):
-        rows = tile * BLOCK_M + tl.arange(0, BLOCK_M)
-        valid = rows < n_rows
-        samples = tl.load(index_ptr + offset + rows, mask=valid, other=0).to(tl.int64)
-        x = _gather(obs_ptr, samples, valid, IN, IN_P)
-        a1, a2, a3 = _hidden(x, w0, b0, w1, b1, w2, b2, IN, IN_P, H, HIDDEN, ACTIVATION, PRECISION, FAST_TANH)
-        logits = tl.where(category, _layer(a3, w_out, b_out, H, H, OUT, OUT_P, PRECISION), float("-inf"))
+        valid, samples, x, a1, a2, a3, y = _tile_forward(
+            obs_ptr, index_ptr, offset, n_rows, tile, w0, b0, w1, b1, w2, b2, w_out, b_out,
+            IN, IN_P, H, OUT, OUT_P, HIDDEN, ACTIVATION, PRECISION, BLOCK_M, FAST_TANH,
+        )  # fmt: skip
+        logits = tl.where(category, y, float("-inf"))
         # log-softmax, as torch's: the logits less their log-sum-exp; probabilities its exp
         top = tl.max(logits, axis=1)
         log_sum = top + tl.log(tl.sum(tl.exp(logits - top[:, None]), axis=1))
@@ -135,8 +153,7 @@ def _actor_loss_kernel(
             grad, x, a1, a2, a3, w0, w1, w2, w_out, d0, e0, d1, e1, d2, e2, d_out, e_out,
             IN, IN_P, H, OUT, OUT_P, HIDDEN, ACTIVATION, PRECISION,
         )  # fmt: skip
-    width = H * IN + H + (HIDDEN - 1) * (H * H + H) + OUT * H + OUT + 2
-    row = partial_ptr + program.to(tl.int64) * width
+    row = _partial_row(partial_ptr, program, SUMS, IN, H, OUT, HIDDEN)
     row = _store_gradients(row, d0, e0, d1, e1, d2, e2, d_out, e_out, IN, IN_P, H, OUT, OUT_P, HIDDEN)
     tl.store(row, tl.sum(surrogate_sum, axis=0))
     tl.store(row + 1, tl.sum(entropy_sum, axis=0))
@@ -148,7 +165,7 @@ def _critic_loss_kernel(
     w0, b0, w1, b1, w2, b2, w3, b3,
     IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
     HIDDEN: tl.constexpr, ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, BLOCK_M: tl.constexpr,
-    FAST_TANH: tl.constexpr,
+    FAST_TANH: tl.constexpr, SUMS: tl.constexpr,
     CLIPPED: tl.constexpr,
 ):  # fmt: skip
     d0, e0, d1, e1, d2, e2, d_out, e_out = _zero_gradients(IN_P, H, OUT_P)
@@ -157,12 +174,11 @@ def _critic_loss_kernel(
     first = tl.arange(0, OUT_P)[None, :] == 0
     program = tl.program_id(0)
     for tile in range(program, tl.cdiv(n_rows, BLOCK_M), tl.num_programs(0)):
-        rows = tile * BLOCK_M + tl.arange(0, BLOCK_M)
-        valid = rows < n_rows
-        samples = tl.load(index_ptr + offset + rows, mask=valid, other=0).to(tl.int64)
-        x = _gather(obs_ptr, samples, valid, IN, IN_P)
-        a1, a2, a3 = _hidden(x, w0, b0, w1, b1, w2, b2, IN, IN_P, H, HIDDEN, ACTIVATION, PRECISION, FAST_TANH)
-        value = tl.sum(tl.where(first, _layer(a3, w_out, b_out, H, H, OUT, OUT_P, PRECISION), 0.0), axis=1)
+        valid, samples, x, a1, a2, a3, y = _tile_forward(
+            obs_ptr, index_ptr, offset, n_rows, tile, w0, b0, w1, b1, w2, b2, w_out, b_out,
+            IN, IN_P, H, OUT, OUT_P, HIDDEN, ACTIVATION, PRECISION, BLOCK_M, FAST_TANH,
+        )  # fmt: skip
+        value = tl.sum(tl.where(first, y, 0.0), axis=1)
         target = tl.load(return_ptr + samples, mask=valid, other=0.0)
         if CLIPPED:  # rsl-rl's clipped value loss: the larger of the two squared errors
             old = tl.load(value_ptr + samples, mask=valid, other=0.0)
@@ -183,8 +199,7 @@ def _critic_loss_kernel(
             grad, x, a1, a2, a3, w0, w1, w2, w_out, d0, e0, d1, e1, d2, e2, d_out, e_out,
             IN, IN_P, H, OUT, OUT_P, HIDDEN, ACTIVATION, PRECISION,
         )  # fmt: skip
-    width = H * IN + H + (HIDDEN - 1) * (H * H + H) + OUT * H + OUT + 1
-    row = partial_ptr + program.to(tl.int64) * width
+    row = _partial_row(partial_ptr, program, SUMS, IN, H, OUT, HIDDEN)
     row = _store_gradients(row, d0, e0, d1, e1, d2, e2, d_out, e_out, IN, IN_P, H, OUT, OUT_P, HIDDEN)
     tl.store(row, tl.sum(loss_sum, axis=0))
 
@@ -245,7 +260,7 @@ class FusedPPOLoss:
         kernel[(programs,)](
             obs, indices, offset, size, *inputs, partial, *scalars,
             *_layer_pointers(tuple(p.contiguous() for p in params)),
-            **constants, **flags, num_warps=NUM_WARPS,
+            **constants, **flags, SUMS=sums, num_warps=NUM_WARPS,
         )  # fmt: skip
         total = partial.sum(dim=0)
         for p, g in zip(params, total[: sum(counts)].split(counts)):

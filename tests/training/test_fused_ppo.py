@@ -297,3 +297,17 @@ def test_tune_fused_kernels_runs_on_the_cpu(tmp_path, interpreter):
     assert (fused_mlp.block_rows, fused_mlp.NUM_WARPS, fused_mlp.PROGRAMS_PER_SM, fused_mlp.FAST_TANH_WITH_TF32) == settings
     with pytest.raises(SystemExit):
         tune_fused_kernels.main(["--device", "cpu", "--rows", "48"])  # not a power of two
+
+
+@pytest.mark.slow
+def test_every_fused_kernel_compiles_for_cuda_without_a_gpu():
+    """Triton's code generator and ptxas take every fused kernel (float32 and TF32 with the inline tanh)
+    for sm_90: what the interpreter runs, the GPU can compile."""
+    import subprocess
+
+    env = {k: v for k, v in os.environ.items() if k != "TRITON_INTERPRET"}
+    script = Path(__file__).with_name("compile_fused_kernels.py")
+    done = subprocess.run([sys.executable, str(script), "90"], env=env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    lines = [line for line in done.stdout.splitlines() if "bytes of cubin" in line]
+    assert len(lines) == 8, done.stdout

@@ -393,19 +393,25 @@ def test_resume_is_bit_exact(tmp_path, one_thread, sharing, fused):
     assert [int(r["iteration"]) for r in rows] == [0, 1, 2, 3]
 
 
-def test_fused_resume_is_bit_exact_on_cuda(tmp_path, cuda_device):
-    """On CUDA, with the fused MLP and the fused loss replayed from CUDA graphs: stopped after 2
-    iterations and resumed to 4, the run ends where 4 straight iterations end, bit for bit."""
-    pytest.importorskip("aquarium_warp.training.fused_mlp")  # the `fused` extra (triton)
-    config = tiny_config(fused_mlp=True, device=cuda_device)
+def _straight_and_resumed(tmp_path, config) -> tuple[Trainer, Trainer]:
+    """The config's run straight through, and the same run stopped after 2 iterations and resumed to the
+    end; asserts that both end in the same state (bit for bit)."""
     full = Trainer(config, str(tmp_path / "full"))
-    assert full.runner.alg.fused_loss is not None
     full.train()
     part = Trainer(config, str(tmp_path / "part"))
     part.train(2)
     resumed = Trainer.resume(str(tmp_path / "part"))
     resumed.train()
     _same_state(full, resumed)
+    return full, resumed
+
+
+def test_fused_resume_is_bit_exact_on_cuda(tmp_path, cuda_device):
+    """On CUDA, with the fused MLP and the fused loss replayed from CUDA graphs: stopped after 2
+    iterations and resumed to 4, the run ends where 4 straight iterations end, bit for bit."""
+    pytest.importorskip("aquarium_warp.training.fused_mlp")  # the `fused` extra (triton)
+    full, _ = _straight_and_resumed(tmp_path, tiny_config(fused_mlp=True, device=cuda_device))
+    assert full.runner.alg.fused_loss is not None
 
 
 @pytest.mark.slow
@@ -422,13 +428,7 @@ def test_resume_with_randomize_is_bit_exact(tmp_path, one_thread):
             "runner": {"num_steps_per_env": 12, "save_interval": 2},
         },
     )
-    full = Trainer(config, str(tmp_path / "full"))
-    full.train()
-    part = Trainer(config, str(tmp_path / "part"))
-    part.train(2)
-    resumed = Trainer.resume(str(tmp_path / "part"))
-    resumed.train()
-    _same_state(full, resumed)
+    full, resumed = _straight_and_resumed(tmp_path, config)
     drawn, again = full.vec_env.randomizer.values, resumed.vec_env.randomizer.values
     assert all(np.array_equal(drawn[f], again[f]) for f in randomize)
     assert len(set(drawn["prey_max_speed"].tolist())) == 6  # the worlds do differ
