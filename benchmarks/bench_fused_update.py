@@ -302,7 +302,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--compile-only", action="store_true", help="stop after building the trainer and the fused kernels"
     )
-    parser.add_argument("--tf32", action="store_true", help="TF32 matrix products (train.tf32), in torch and the kernels")
+    parser.add_argument(
+        "--tf32", action="store_true", help="TF32 matrix products (train.tf32), in torch and the kernels"
+    )
     parser.add_argument("--profile", action="store_true", help="also each path's kernels in one eager update (CUDA)")
     args = parser.parse_args(argv)
     torch.backends.cuda.matmul.allow_tf32 = args.tf32

@@ -41,7 +41,8 @@ the default is "tf32x3"). Where torch's own float32 products may use TF32
 (`torch.backends.cuda.matmul.allow_tf32`, which `train.tf32` sets), the kernels use one TF32 product
 too (`input_precision="tf32"`, about 1e-3 relative), and tanh as the multiprocessor's approximation
 (`tanh.approx.f32`, 2^-11 relative: TF32's own rounding; `FAST_TANH_WITH_TF32`), which made the fused
-update 1.21x as fast on one H100 (benchmarks/results/fused_tuning_h100_27fb357/). Triton's interpreter (the CPU) computes "ieee".
+update 1.21x as fast on one H100 (benchmarks/results/fused_tuning_h100_27fb357/). Triton's
+interpreter (the CPU) computes "ieee".
 Autocast, other dtypes, TorchScript and ONNX export take the plain torch path.
 
 Measured on one H200 at commit 48ee313 (benchmarks/results/fused_triton_h200_48ee313/):

@@ -227,7 +227,9 @@ class FusedPPOLoss:
     def unsupported(alg) -> str | None:
         """Why `alg` (an `AquariumPPO`) cannot use the fused loss; None when it can."""
         actor, critic = alg.actor, alg.critic
-        if not (isinstance(getattr(actor, "mlp", None), FusedMLP) and isinstance(getattr(critic, "mlp", None), FusedMLP)):
+        if not (
+            isinstance(getattr(actor, "mlp", None), FusedMLP) and isinstance(getattr(critic, "mlp", None), FusedMLP)
+        ):
             return "the actor and the critic must be FusedMLPModel (train.fused_mlp)"
         if not isinstance(actor.distribution, CategoricalDistribution):
             return "the actor's distribution must be CategoricalDistribution"

@@ -249,8 +249,17 @@ def test_compare_curves_hand_made_runs(tmp_path):
     for seed, level in enumerate((9.0, 9.1, 8.9)):  # far: mean 9, outside [4, 6] everywhere
         _progress(tmp_path / f"far-s{seed}", [nan] + [level] * 9)
     out = tmp_path / "cmp.json"
-    argv = ["--reference", f"ref={tmp_path}/ref-s*", "--variant", f"close={tmp_path}/close-s*", f"far={tmp_path}/far-s*"]
-    assert compare_curves.main(argv + ["--final-fraction", "0.2", "--margin", "0.2", "--smooth", "1", "--out", str(out)]) == 0
+    argv = [
+        "--reference",
+        f"ref={tmp_path}/ref-s*",
+        "--variant",
+        f"close={tmp_path}/close-s*",
+        f"far={tmp_path}/far-s*",
+    ]
+    assert (
+        compare_curves.main(argv + ["--final-fraction", "0.2", "--margin", "0.2", "--smooth", "1", "--out", str(out)])
+        == 0
+    )
     data = json.loads(out.read_text())
     assert missing(data) == ()
     ref, close, far = (data["conditions"][k] for k in ("ref", "close", "far"))

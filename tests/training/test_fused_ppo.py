@@ -215,7 +215,9 @@ def test_both_teams_use_the_fused_loss(tmp_path, interpreter):
     """Both teams learning with `train.fused_mlp`: each learner's update runs the fused loss."""
     from aquarium_warp.training import make_config
 
-    changes = {"train": {"num_worlds": 2, "iterations": 1, "fused_mlp": True, "team": "both", "quiet": True, "export": []}}
+    changes = {
+        "train": {"num_worlds": 2, "iterations": 1, "fused_mlp": True, "team": "both", "quiet": True, "export": []}
+    }
     trainer = Trainer(make_config("tiny", changes), log_dir=str(tmp_path))
     assert all(isinstance(learner.alg.fused_loss, FusedPPOLoss) for learner in trainer.runner.learners)
     trainer.train(1)
@@ -289,12 +291,20 @@ def test_tune_fused_kernels_runs_on_the_cpu(tmp_path, interpreter):
     settings = (fused_mlp.block_rows, fused_mlp.NUM_WARPS, fused_mlp.PROGRAMS_PER_SM, fused_mlp.FAST_TANH_WITH_TF32)
     out = tmp_path / "tune.json"
     argv = ["--device", "cpu", "--preset", "tiny", "--worlds", "2", "--rows", "16,32", "--warps", "4"]
-    assert tune_fused_kernels.main(argv + ["--programs", "2", "--repeats", "1", "--out", str(out), "--commit", "abc123"]) == 0
+    assert (
+        tune_fused_kernels.main(argv + ["--programs", "2", "--repeats", "1", "--out", str(out), "--commit", "abc123"])
+        == 0
+    )
     data = json.loads(out.read_text())
     assert data["git"]["commit"] == "abc123" and data["worlds"] == 2 and data["tf32"] is False
     assert [(s["rows"], s["warps"], s["programs_per_sm"]) for s in data["shapes"]] == [(16, 4, 2), (32, 4, 2)]
     assert all(s["ms"] > 0 for s in data["shapes"])
-    assert (fused_mlp.block_rows, fused_mlp.NUM_WARPS, fused_mlp.PROGRAMS_PER_SM, fused_mlp.FAST_TANH_WITH_TF32) == settings
+    assert (
+        fused_mlp.block_rows,
+        fused_mlp.NUM_WARPS,
+        fused_mlp.PROGRAMS_PER_SM,
+        fused_mlp.FAST_TANH_WITH_TF32,
+    ) == settings
     with pytest.raises(SystemExit):
         tune_fused_kernels.main(["--device", "cpu", "--rows", "48"])  # not a power of two
 
