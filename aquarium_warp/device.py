@@ -95,3 +95,19 @@ def resolve_cpu_threads(cpu_threads) -> int:
     if isinstance(cpu_threads, bool) or not isinstance(cpu_threads, int) or cpu_threads < 1:
         raise ValueError(f"cpu_threads={cpu_threads!r} must be None or an integer >= 1")
     return cpu_threads
+
+
+_TORCH_STREAMS: dict[int, wp.Stream] = {}
+
+
+def torch_stream(device: torch.device) -> wp.Stream | None:
+    """Torch's current stream on a CUDA `device` as a Warp stream (None on the CPU): Warp work launched
+    there is ordered with torch's and is captured with it into torch's CUDA graphs. Made once per torch
+    stream (making one, with the event it synchronises through, every step costs host time)."""
+    if device.type != "cuda":
+        return None
+    current = torch.cuda.current_stream(device)
+    stream = _TORCH_STREAMS.get(current.cuda_stream)
+    if stream is None:
+        stream = _TORCH_STREAMS[current.cuda_stream] = wp.stream_from_torch(current)
+    return stream

@@ -53,6 +53,7 @@ from collections.abc import Iterable, Mapping
 import torch
 import warp as wp
 
+from .device import torch_stream
 from .env import BatchedAquarium, StepResult
 from .kernels import metrics as kernels
 from .per_world import per_world
@@ -254,6 +255,9 @@ class EpisodeMetrics(Observer):
         self._done_sum, self._done_count = zeros(W, K), zeros(W, K)
         self._done_hist = zeros(W, B)
         self._done_captures, self._done_length, self._episodes = zeros(W), zeros(W), zeros(W)
+        self.ended_values = torch.full((W, K), math.nan, device=dev, dtype=torch.float64)  # see close_episodes
+        self._close_launch: wp.Launch | None = None  # close_episodes' recorded launch, and the info buffers it reads
+        self._close_key: tuple = ()
         self._steps = 0
         self._trace: list[torch.Tensor] = []
         self.trace_steps: list[int] = []
@@ -302,26 +306,34 @@ class EpisodeMetrics(Observer):
         self.advance()
 
     def close_episodes(self, info: Mapping) -> None:
-        """The first half of `update()`: tensor work only (no host sync, no allocation outside torch's
-        allocator), so it can be captured in a CUDA graph; `advance()` must follow it."""
-        ended = info["episode_ended"]
-        done = ended.unsqueeze(1)
-        mean = self._sum / self._count  # NaN where no valid sample
-        # [W, len(EPISODE_METRICS)]: the episode values of the worlds whose episode just ended (NaN
-        # elsewhere), for callers that record every episode.
-        self.ended_values = torch.where(done, mean, math.nan)
-        has = done & (self._count > 0)
-        self._done_sum += torch.where(has, mean, 0.0)
-        self._done_count += has
-        hist_total = self._hist.sum(dim=1, keepdim=True)
-        self._done_hist += torch.where(done & (hist_total > 0), self._hist / hist_total, 0.0)
-        self._done_captures += torch.where(ended, info["episode_captures"].double(), 0.0)
-        self._done_length += torch.where(ended, info["episode_length"].double(), 0.0)
-        self._episodes += ended
-        keep = (~done).double()
-        self._sum *= keep
-        self._count *= keep
-        self._hist *= keep
+        """The first half of `update()`: device work only (one launch on torch's current stream: no host
+        sync, no allocation), so it can be captured in a CUDA graph; `advance()` must follow it. Sets
+        `ended_values` `[W, len(EPISODE_METRICS)]`: the episode values of the worlds whose episode just
+        ended (NaN elsewhere), for callers that record every episode."""
+        inputs = (info["episode_ended"], info["episode_captures"], info["episode_length"])
+        key = tuple(t.data_ptr() for t in inputs)
+        launch = self._close_launch
+        if launch is None or self._close_key != key:  # recorded once per set of info buffers
+            arrays = [wp.from_torch(t) for t in inputs] + [
+                wp.from_torch(t)
+                for t in (
+                    self._sum,
+                    self._count,
+                    self._hist,
+                    self._done_sum,
+                    self._done_count,
+                    self._done_hist,
+                    self._done_captures,
+                    self._done_length,
+                    self._episodes,
+                    self.ended_values,
+                )
+            ]
+            launch = self._close_launch = wp.launch(
+                kernels.close_episodes, dim=self.env.num_worlds, inputs=arrays, device=self.env.device, record_cmd=True
+            )
+            self._close_key = key
+        launch.launch(stream=torch_stream(self.env.torch_device))
 
     def advance(self) -> None:
         """The second half of `update()`: count the step and sample the state every `every` steps."""

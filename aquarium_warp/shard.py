@@ -25,6 +25,7 @@ import warp as wp
 
 from .config import AquariumConfig
 from .device import WARP_SETUP_LOCK
+from .device import torch_stream as torch_stream_of
 from .kernels import capture, motion, observation, population, spawn, world_step
 from .kernels import grid as grid_kernels
 from .kernels.common import PREDATOR, PREY, WorldParams
@@ -456,7 +457,6 @@ class ShardSet:
             for k, (w0, w1) in enumerate(zip(bounds[:-1], bounds[1:]))
         )
         self._pool = ThreadPoolExecutor(max_workers=shards) if shards > 1 else None
-        self._torch_streams: dict[int, wp.Stream] = {}  # torch stream handle -> the same stream in Warp
         self.programs = {
             "step": self.record(WorldShard.step_program, graph=True),
             "observe": self.record(WorldShard.observe_program),
@@ -483,7 +483,8 @@ class ShardSet:
                 for shard in self.shards:
                     work(shard)
             return
-        torch_stream = self._torch_stream()
+        torch_stream = torch_stream_of(torch.device(self.device))
+        assert torch_stream is not None  # (a CUDA device)
         stream = wp.get_stream(self.device)
         stream.wait_stream(torch_stream)
         with wp.ScopedStream(stream):
@@ -491,19 +492,9 @@ class ShardSet:
                 work(shard)
         torch_stream.wait_stream(stream)
 
-    def _torch_stream(self) -> wp.Stream:
-        """Torch's current stream on this device as a Warp stream, made once per torch stream (making
-        one, with the event it synchronises through, every step costs host time)."""
-        current = torch.cuda.current_stream(torch.device(self.device))
-        stream = self._torch_streams.get(current.cuda_stream)
-        if stream is None:
-            stream = self._torch_streams[current.cuda_stream] = wp.stream_from_torch(current)
-        return stream
-
     def close(self) -> None:
         """Release the CUDA graph and the worker threads."""
         self.programs["step"].close()
-        self._torch_streams.clear()
         pool, self._pool = self._pool, None
         if pool is not None:
             pool.shutdown(wait=False)

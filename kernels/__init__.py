@@ -10,6 +10,7 @@
 - `observation`: step 10 (field-of-view observations)
 - `world_step`: steps 1-10 of a small world in one launch (the fused step)
 - `heuristics`: the paper's baseline policies (Random, TurnAway, NaivChase)
-- `metrics`: swarm metrics (polarization, cohesion, nearest neighbours, groups)
+- `metrics`: swarm metrics (polarization, cohesion, nearest neighbours, groups) and their per-episode totals
+- `adapter`: the training adapter's per-step rows' outcomes and episode statistics
 - `render`: the rasteriser behind `aquarium_warp.render`
 """

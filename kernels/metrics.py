@@ -475,3 +475,50 @@ def finish_cohesion(swarm: SwarmArrays):
     else:
         swarm.values[w, COHESION] = wp.nan
         swarm.values[w, MILLING] = wp.nan
+
+
+@wp.kernel
+def close_episodes(
+    ended: wp.array(dtype=wp.bool),
+    ended_captures: wp.array(dtype=wp.int32),
+    ended_length: wp.array(dtype=wp.int32),
+    sums: wp.array2d(dtype=wp.float64),
+    counts: wp.array2d(dtype=wp.float64),
+    hist: wp.array2d(dtype=wp.float64),
+    done_sum: wp.array2d(dtype=wp.float64),
+    done_count: wp.array2d(dtype=wp.float64),
+    done_hist: wp.array2d(dtype=wp.float64),
+    done_captures: wp.array(dtype=wp.float64),
+    done_length: wp.array(dtype=wp.float64),
+    episodes: wp.array(dtype=wp.float64),
+    ended_values: wp.array2d(dtype=wp.float64),
+):
+    """One world per thread (`aquarium_warp.metrics.EpisodeMetrics.close_episodes`): where its episode
+    ended, the episode's value of each metric (the mean of its samples; NaN without any) into
+    `ended_values` and, if it has samples, the completed totals; its nearest-neighbour histogram,
+    normalised, into the completed histogram; its captures and length; then the current episode's
+    sums cleared. Elsewhere `ended_values` is NaN and nothing else changes."""
+    w = wp.tid()
+    nan = wp.float64(wp.nan)
+    if not ended[w]:
+        for k in range(sums.shape[1]):
+            ended_values[w, k] = nan
+        return
+    for k in range(sums.shape[1]):
+        mean = sums[w, k] / counts[w, k]  # 0 / 0: NaN, no sample
+        ended_values[w, k] = mean
+        if counts[w, k] > wp.float64(0.0):
+            done_sum[w, k] = done_sum[w, k] + mean
+            done_count[w, k] = done_count[w, k] + wp.float64(1.0)
+        sums[w, k] = wp.float64(0.0)
+        counts[w, k] = wp.float64(0.0)
+    total = wp.float64(0.0)
+    for b in range(hist.shape[1]):
+        total = total + hist[w, b]
+    for b in range(hist.shape[1]):
+        if total > wp.float64(0.0):
+            done_hist[w, b] = done_hist[w, b] + hist[w, b] / total
+        hist[w, b] = wp.float64(0.0)
+    done_captures[w] = done_captures[w] + wp.float64(ended_captures[w])
+    done_length[w] = done_length[w] + wp.float64(ended_length[w])
+    episodes[w] = episodes[w] + wp.float64(1.0)

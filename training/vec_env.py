@@ -54,10 +54,13 @@ from __future__ import annotations
 
 import numpy as np
 import torch
+import warp as wp
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
+from ..device import torch_stream
 from ..env import TYPES, BatchedAquarium
+from ..kernels import adapter as adapter_kernels
 from ..metrics import EPISODE_METRICS, EpisodeMetrics
 from ..world_state import WorldState
 from . import _rsl  # noqa: F401
@@ -166,9 +169,6 @@ class AquariumVecEnv(VecEnv):
         self._time_outs = torch.zeros(W * S, dtype=torch.bool, device=dev)
         self._actions = torch.zeros(W, S, dtype=torch.int32, device=dev)
         self._active = torch.zeros(W, S, dtype=torch.bool, device=dev)
-        self._ended = torch.zeros(W, S, dtype=torch.bool, device=dev)
-        self._done_bool = torch.zeros(W, S, dtype=torch.bool, device=dev)
-        self._scratch = torch.zeros(W, S, dtype=torch.bool, device=dev)
         # Worlds whose team this learner drives (`set_driven`; None: all) and the rows live in them.
         self.driven: torch.Tensor | None = None
         self._live = torch.zeros(W, S, dtype=torch.bool, device=dev)
@@ -184,11 +184,16 @@ class AquariumVecEnv(VecEnv):
         self.device_stats = False
         self._full = torch.zeros(W, dtype=torch.bool, device=dev)
         self._stat_names = EPISODE_KEYS + ([f"Swarm/{n}" for n in EPISODE_METRICS] if self.swarm else [])
-        self._stat_sum = torch.zeros(len(self._stat_names), dtype=torch.float64, device=dev)
-        self._stat_count = torch.zeros(len(self._stat_names), dtype=torch.float64, device=dev)
-        # Rows' running reward sums and, over the row episodes (agent lives) that ended, their total and count.
+        # The running sums `episode_stats_snapshot()` takes: per logged value its sum and count, then,
+        # over the row episodes (agent lives) that ended, their reward total and count.
+        C = len(self._stat_names)
+        self._stats = torch.zeros(2 * C + 2, dtype=torch.float64, device=dev)
+        self._stat_sum, self._stat_count, self._row_stats = self._stats.split([C, C, 2])
+        self._stat_terms = torch.zeros(W, 2 * C + 2, dtype=torch.float64, device=dev)  # each world's terms
+        # Rows' running reward sums.
         self._row_return = torch.zeros(W * S, dtype=torch.float32, device=dev)
-        self._row_stats = torch.zeros(2, dtype=torch.float64, device=dev)
+        self._no_swarm = torch.zeros(W, 0, dtype=torch.float64, device=dev)  # the statistics' swarm columns
+        self._kernels: dict = {}  # the recorded launches of kernels/adapter.py (see `_launch`)
         self.sync_from_env()
 
     # ------------------------------------------------------------------ internal state
@@ -284,27 +289,54 @@ class AquariumVecEnv(VecEnv):
         return self._info
 
     def row_outcomes(self) -> None:
-        """Rows' rewards, dones and time-outs of the last simulation step (see the module doc)."""
-        W, S = self.num_worlds, self.slots
-        # Life ends: captured (prey), terminated (removed or starved), truncated (world episode end).
-        ended, active, alive, scratch = self._ended, self._active, self._live_rows(), self._scratch
-        if self._captured_in is not None:
-            torch.logical_or(self._terminated_in, self._captured_in, out=scratch)
-        else:
-            scratch.copy_(self._terminated_in)
-        torch.logical_or(scratch, self._truncated_in, out=ended)
-        # Active rows end with their life; inactive rows end when their slot is filled again.
-        torch.where(active, ended, alive, out=self._done_bool)
-        self._dones.copy_(self._done_bool.view(-1))
-        # Time-outs: active rows truncated by the world's end and not terminated/captured that step.
-        scratch.logical_not_().logical_and_(self._truncated_in).logical_and_(active)
-        self._time_outs.copy_(scratch.view(-1))
-        # Into the [W, S] view of the flat output: the env's rewards are a strided slice, which
-        # reshape(-1) would copy every step.
-        torch.mul(self._rewards_in, active, out=self._rewards.view(W, S))
-        if self.reward_scale != 1.0:
-            self._rewards.mul_(self.reward_scale)
-        active.copy_(alive)
+        """Rows' rewards, dones and time-outs of the last simulation step (see the module doc): one
+        launch of `kernels.adapter.row_outcomes` on torch's current stream."""
+        self._launch("row_outcomes", self._live_rows())
+
+    def _launch(self, name: str, live: torch.Tensor | None = None) -> None:
+        """Launch a kernel of `kernels/adapter.py` on torch's current stream, recorded once for the
+        buffers it reads (`row_outcomes`: once per buffer of the rows' liveness, which `set_driven`
+        changes)."""
+        key = (name, None if live is None else live.data_ptr())
+        launch = self._kernels.get(key)
+        if launch is None:
+            W, S = self.num_worlds, self.slots
+            arrays = wp.from_torch
+            if live is not None:  # row_outcomes
+                captured = self._captured_in if self._captured_in is not None else self._terminated_in
+                inputs = [
+                    arrays(self._terminated_in),
+                    arrays(captured),
+                    arrays(self._truncated_in),
+                    arrays(live),
+                    arrays(self._rewards_in),
+                    float(self.reward_scale),
+                    arrays(self._active),
+                    arrays(self._dones.view(W, S)),
+                    arrays(self._time_outs.view(W, S)),
+                    arrays(self._rewards.view(W, S)),
+                ]
+                dim = (W, S)
+            else:
+                swarm = self.swarm.ended_values if self.swarm is not None else self._no_swarm
+                inputs = [
+                    arrays(self._episode_ended),
+                    arrays(self._full),
+                    arrays(self._ended_captures),
+                    arrays(self._ended_return),
+                    arrays(self._ended_return_other),
+                    arrays(self._ended_length),
+                    arrays(swarm),
+                    arrays(self._rewards.view(W, S)),
+                    arrays(self._dones.view(W, S)),
+                    arrays(self._row_return.view(W, S)),
+                    arrays(self._stat_terms),
+                ]
+                dim = W
+            kernel = getattr(adapter_kernels, name)
+            launch = wp.launch(kernel, dim=dim, inputs=inputs, device=self.env.device, record_cmd=True)
+            self._kernels[key] = launch
+        launch.launch(stream=torch_stream(self.device))
 
     def copy_observations(self) -> None:
         """The learning team's observations after the last step into the current buffer (and the
@@ -322,44 +354,18 @@ class AquariumVecEnv(VecEnv):
     def accumulate_episode_stats(self) -> None:
         """Device-side counterpart of the `extras["log"]` statistics (no host sync): adds the world
         episodes that ended in the last step (those that started at step 0) and the rows' ended lives
-        to running sums, which `episode_stats_snapshot()` takes and clears. Few kernels: it runs in
-        every step's graph, though episodes end rarely. Sums are of the raw per-world values; the
-        divisions by team sizes happen in `decode_episode_stats`."""
-        ended = self._episode_ended
-        report = (ended & self._full).to(torch.float64)  # [W]
-        self._full |= ended
-        values = torch.stack(
-            [
-                self._ended_captures.to(torch.float32),
-                self._ended_return,
-                self._ended_return_other,
-                self._ended_length.to(torch.float32),
-            ],
-            dim=1,
-        )
-        k = values.shape[1]
-        self._stat_sum[:k] += report @ values.to(torch.float64)
-        self._stat_count[:k] += report.sum()
-        if self.swarm is not None:  # a swarm value is NaN where its episode had no valid sample
-            swarm = self.swarm.ended_values  # [W, M] float64, NaN outside ended worlds
-            counted = report.unsqueeze(1) * (~torch.isnan(swarm))
-            self._stat_sum[k:] += torch.nansum(swarm * counted, dim=0)
-            self._stat_count[k:] += counted.sum(dim=0)
-        # Row episodes, as rsl-rl's logger counts them (its "Mean reward"): reward sums up to a done.
-        self._row_return += self._rewards
-        done = self._dones.to(torch.float32)
-        self._row_stats += torch.stack(
-            [(self._row_return * done).sum(dtype=torch.float64), done.sum(dtype=torch.float64)]
-        )
-        self._row_return *= 1.0 - done
+        to running sums, which `episode_stats_snapshot()` takes and clears. Every step's graph runs it,
+        though episodes end rarely: one launch of `kernels.adapter.episode_statistics` (each world's
+        terms), then their sum over the worlds. Sums are of the raw per-world values; the divisions by
+        team sizes happen in `decode_episode_stats`."""
+        self._launch("episode_statistics")
+        self._stats += self._stat_terms.sum(dim=0)
 
     def episode_stats_snapshot(self) -> torch.Tensor:
         """The running sums of `accumulate_episode_stats` as one new device tensor (for
         `decode_episode_stats`), then cleared: device work only, no host sync."""
-        snapshot = torch.cat([self._stat_sum, self._stat_count, self._row_stats])
-        self._stat_sum.zero_()
-        self._stat_count.zero_()
-        self._row_stats.zero_()
+        snapshot = self._stats.clone()
+        self._stats.zero_()
         return snapshot
 
     def decode_episode_stats(self, snapshot) -> tuple[dict[str, float], int, float]:
