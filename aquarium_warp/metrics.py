@@ -262,9 +262,11 @@ class EpisodeMetrics(Observer):
         self._trace: list[torch.Tensor] = []
         self.trace_steps: list[int] = []
 
-    def begin(self) -> None:
-        """Forget everything and sample the current state as step 0 (call right after `env.reset()`)."""
-        for t in (
+    def _totals(self) -> tuple[torch.Tensor, ...]:
+        """The running totals, in `kernels.metrics.close_episodes`' order: the current episode's sums,
+        counts and histogram, then the completed episodes' sums, counts, histogram, captures, lengths
+        and number."""
+        return (
             self._sum,
             self._count,
             self._hist,
@@ -274,7 +276,11 @@ class EpisodeMetrics(Observer):
             self._done_captures,
             self._done_length,
             self._episodes,
-        ):
+        )
+
+    def begin(self) -> None:
+        """Forget everything and sample the current state as step 0 (call right after `env.reset()`)."""
+        for t in self._totals():
             t.zero_()
         self._trace.clear()
         self.trace_steps.clear()
@@ -314,21 +320,7 @@ class EpisodeMetrics(Observer):
         key = tuple(t.data_ptr() for t in inputs)
         launch = self._close_launch
         if launch is None or self._close_key != key:  # recorded once per set of info buffers
-            arrays = [wp.from_torch(t) for t in inputs] + [
-                wp.from_torch(t)
-                for t in (
-                    self._sum,
-                    self._count,
-                    self._hist,
-                    self._done_sum,
-                    self._done_count,
-                    self._done_hist,
-                    self._done_captures,
-                    self._done_length,
-                    self._episodes,
-                    self.ended_values,
-                )
-            ]
+            arrays = [wp.from_torch(t) for t in (*inputs, *self._totals(), self.ended_values)]
             launch = self._close_launch = wp.launch(
                 kernels.close_episodes, dim=self.env.num_worlds, inputs=arrays, device=self.env.device, record_cmd=True
             )
