@@ -6,6 +6,7 @@ import os
 import sys
 import tempfile
 import threading
+from collections.abc import Callable
 
 import torch
 import warp as wp
@@ -111,3 +112,24 @@ def torch_stream(device: torch.device) -> wp.Stream | None:
     if stream is None:
         stream = _TORCH_STREAMS[current.cuda_stream] = wp.stream_from_torch(current)
     return stream
+
+
+class TorchStreamLaunches:
+    """Warp kernel launches on torch's current stream (ordered with torch's work, and captured with it
+    in torch's CUDA graphs), each recorded once per key: a key names the buffers a launch reads, so a
+    caller whose buffers change (another tensor, another liveness mask) gets a new recording. Recording
+    converts the tensors to Warp arrays; replaying costs only the launch."""
+
+    def __init__(self, device: str):
+        self.device = device
+        self._torch_device = torch.device(device)
+        self._recorded: dict = {}
+
+    def run(self, key, kernel, dim, inputs: Callable[[], list]) -> None:
+        """Launch `kernel` over `dim` threads with `inputs()` (tensors become Warp arrays; other values
+        pass as they are), recorded under `key` on its first run."""
+        launch = self._recorded.get(key)
+        if launch is None:
+            args = [wp.from_torch(x) if isinstance(x, torch.Tensor) else x for x in inputs()]
+            launch = self._recorded[key] = wp.launch(kernel, dim=dim, inputs=args, device=self.device, record_cmd=True)
+        launch.launch(stream=torch_stream(self._torch_device))

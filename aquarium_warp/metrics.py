@@ -53,7 +53,7 @@ from collections.abc import Iterable, Mapping
 import torch
 import warp as wp
 
-from .device import torch_stream
+from .device import TorchStreamLaunches
 from .env import BatchedAquarium, StepResult
 from .kernels import metrics as kernels
 from .per_world import per_world
@@ -256,8 +256,7 @@ class EpisodeMetrics(Observer):
         self._done_hist = zeros(W, B)
         self._done_captures, self._done_length, self._episodes = zeros(W), zeros(W), zeros(W)
         self.ended_values = torch.full((W, K), math.nan, device=dev, dtype=torch.float64)  # see close_episodes
-        self._close_launch: wp.Launch | None = None  # close_episodes' recorded launch, and the info buffers it reads
-        self._close_key: tuple = ()
+        self._launches = TorchStreamLaunches(env.device)  # close_episodes' launch
         self._steps = 0
         self._trace: list[torch.Tensor] = []
         self.trace_steps: list[int] = []
@@ -317,15 +316,12 @@ class EpisodeMetrics(Observer):
         `ended_values` `[W, len(EPISODE_METRICS)]`: the episode values of the worlds whose episode just
         ended (NaN elsewhere), for callers that record every episode."""
         inputs = (info["episode_ended"], info["episode_captures"], info["episode_length"])
-        key = tuple(t.data_ptr() for t in inputs)
-        launch = self._close_launch
-        if launch is None or self._close_key != key:  # recorded once per set of info buffers
-            arrays = [wp.from_torch(t) for t in (*inputs, *self._totals(), self.ended_values)]
-            launch = self._close_launch = wp.launch(
-                kernels.close_episodes, dim=self.env.num_worlds, inputs=arrays, device=self.env.device, record_cmd=True
-            )
-            self._close_key = key
-        launch.launch(stream=torch_stream(self.env.torch_device))
+        self._launches.run(
+            tuple(t.data_ptr() for t in inputs),  # recorded once per set of info buffers
+            kernels.close_episodes,
+            self.env.num_worlds,
+            lambda: [*inputs, *self._totals(), self.ended_values],
+        )
 
     def advance(self) -> None:
         """The second half of `update()`: count the step and sample the state every `every` steps."""

@@ -21,7 +21,7 @@
    parameters it produces equal rsl-rl's bit for bit (`tests/training/test_training_loop.py`).
 4. With `FusedMLPModel` actor and critic (`train.fused_mlp`), `update_on_device` takes each mini-batch's
    loss and gradients from `fused_ppo.FusedPPOLoss` (`fused_loss`) where it serves, then clips and
-   steps as rsl-rl does (`_apply_gradients`); `fused_loss_unsupported` says why it does not serve.
+   steps as rsl-rl does (`_apply_gradients`); `FusedPPOLoss.unsupported` says why it does not serve.
 """
 
 from __future__ import annotations
@@ -173,9 +173,7 @@ class AquariumPPO(PPO):
             **(_capturable_options(optimizer) if capturable_optimizer else {}),
         )
         self.capturable_optimizer = bool(capturable_optimizer)
-        # The fused loss (fused_ppo.py) where it serves; for FusedMLPModel actor and critic, why not otherwise.
-        self.fused_loss = None
-        self.fused_loss_unsupported: str | None = None
+        self.fused_loss = None  # the fused loss (fused_ppo.py), where it serves (set below)
         if minibatch_group_size > 1:
             old = self.storage
             self.storage = GroupedRolloutStorage(
@@ -190,8 +188,7 @@ class AquariumPPO(PPO):
         if all(getattr(model, "fused", False) for model in (self.actor, self.critic)):
             from .fused_ppo import FusedPPOLoss  # (triton: present wherever the models are fused)
 
-            self.fused_loss_unsupported = FusedPPOLoss.unsupported(self)
-            if self.fused_loss_unsupported is None:
+            if FusedPPOLoss.unsupported(self) is None:
                 self.fused_loss = FusedPPOLoss(self)
 
     def load(self, loaded_dict: dict, load_cfg: dict | None, strict: bool) -> bool:

@@ -172,9 +172,10 @@ class Trainer:
             rollout_graphs, update_graphs = self.runner.graph_plan()  # what the training loop will capture
             record["cuda_graphs"] = {"rollout": rollout_graphs, "update": dict(zip(self.teams, update_graphs))}
             if train["fused_mlp"]:  # each learner's update: the fused loss (True), or why autograd's
+                from .fused_ppo import FusedPPOLoss
+
                 record["fused_loss"] = {
-                    learner.team: learner.alg.fused_loss is not None or learner.alg.fused_loss_unsupported
-                    for learner in self.runner.learners
+                    learner.team: FusedPPOLoss.unsupported(learner.alg) or True for learner in self.runner.learners
                 }
             with atomic_open(os.path.join(log_dir, "config.json")) as f:
                 json.dump(record, f, indent=1, default=str)

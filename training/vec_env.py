@@ -54,11 +54,10 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-import warp as wp
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
-from ..device import torch_stream
+from ..device import TorchStreamLaunches
 from ..env import TYPES, BatchedAquarium
 from ..kernels import adapter as adapter_kernels
 from ..metrics import EPISODE_METRICS, EpisodeMetrics
@@ -184,16 +183,15 @@ class AquariumVecEnv(VecEnv):
         self.device_stats = False
         self._full = torch.zeros(W, dtype=torch.bool, device=dev)
         self._stat_names = EPISODE_KEYS + ([f"Swarm/{n}" for n in EPISODE_METRICS] if self.swarm else [])
-        # The running sums `episode_stats_snapshot()` takes: per logged value its sum and count, then,
-        # over the row episodes (agent lives) that ended, their reward total and count.
+        # The running sums `episode_stats_snapshot()` takes: per logged value its sum (C), then its count
+        # (C), then, over the row episodes (agent lives) that ended, their reward total and count.
         C = len(self._stat_names)
         self._stats = torch.zeros(2 * C + 2, dtype=torch.float64, device=dev)
-        self._stat_sum, self._stat_count, self._row_stats = self._stats.split([C, C, 2])
         self._stat_terms = torch.zeros(W, 2 * C + 2, dtype=torch.float64, device=dev)  # each world's terms
         # Rows' running reward sums.
         self._row_return = torch.zeros(W * S, dtype=torch.float32, device=dev)
         self._no_swarm = torch.zeros(W, 0, dtype=torch.float64, device=dev)  # the statistics' swarm columns
-        self._kernels: dict = {}  # the recorded launches of kernels/adapter.py (see `_launch`)
+        self._launches = TorchStreamLaunches(env.device)  # those of kernels/adapter.py
         self.sync_from_env()
 
     # ------------------------------------------------------------------ internal state
@@ -291,52 +289,26 @@ class AquariumVecEnv(VecEnv):
     def row_outcomes(self) -> None:
         """Rows' rewards, dones and time-outs of the last simulation step (see the module doc): one
         launch of `kernels.adapter.row_outcomes` on torch's current stream."""
-        self._launch("row_outcomes", self._live_rows())
-
-    def _launch(self, name: str, live: torch.Tensor | None = None) -> None:
-        """Launch a kernel of `kernels/adapter.py` on torch's current stream, recorded once for the
-        buffers it reads (`row_outcomes`: once per buffer of the rows' liveness, which `set_driven`
-        changes)."""
-        key = (name, None if live is None else live.data_ptr())
-        launch = self._kernels.get(key)
-        if launch is None:
-            W, S = self.num_worlds, self.slots
-            arrays = wp.from_torch
-            if live is not None:  # row_outcomes
-                captured = self._captured_in if self._captured_in is not None else self._terminated_in
-                inputs = [
-                    arrays(self._terminated_in),
-                    arrays(captured),
-                    arrays(self._truncated_in),
-                    arrays(live),
-                    arrays(self._rewards_in),
-                    float(self.reward_scale),
-                    arrays(self._active),
-                    arrays(self._dones.view(W, S)),
-                    arrays(self._time_outs.view(W, S)),
-                    arrays(self._rewards.view(W, S)),
-                ]
-                dim = (W, S)
-            else:
-                swarm = self.swarm.ended_values if self.swarm is not None else self._no_swarm
-                inputs = [
-                    arrays(self._episode_ended),
-                    arrays(self._full),
-                    arrays(self._ended_captures),
-                    arrays(self._ended_return),
-                    arrays(self._ended_return_other),
-                    arrays(self._ended_length),
-                    arrays(swarm),
-                    arrays(self._rewards.view(W, S)),
-                    arrays(self._dones.view(W, S)),
-                    arrays(self._row_return.view(W, S)),
-                    arrays(self._stat_terms),
-                ]
-                dim = W
-            kernel = getattr(adapter_kernels, name)
-            launch = wp.launch(kernel, dim=dim, inputs=inputs, device=self.env.device, record_cmd=True)
-            self._kernels[key] = launch
-        launch.launch(stream=torch_stream(self.device))
+        W, S = self.num_worlds, self.slots
+        live = self._live_rows()  # (recorded once per liveness buffer: `set_driven` changes it)
+        captured = self._captured_in if self._captured_in is not None else self._terminated_in
+        self._launches.run(
+            ("row_outcomes", live.data_ptr()),
+            adapter_kernels.row_outcomes,
+            (W, S),
+            lambda: [
+                self._terminated_in,
+                captured,
+                self._truncated_in,
+                live,
+                self._rewards_in,
+                float(self.reward_scale),
+                self._active,
+                self._dones.view(W, S),
+                self._time_outs.view(W, S),
+                self._rewards.view(W, S),
+            ],
+        )
 
     def copy_observations(self) -> None:
         """The learning team's observations after the last step into the current buffer (and the
@@ -358,7 +330,25 @@ class AquariumVecEnv(VecEnv):
         though episodes end rarely: one launch of `kernels.adapter.episode_statistics` (each world's
         terms), then their sum over the worlds. Sums are of the raw per-world values; the divisions by
         team sizes happen in `decode_episode_stats`."""
-        self._launch("episode_statistics")
+        W, S = self.num_worlds, self.slots
+        self._launches.run(
+            "episode_statistics",
+            adapter_kernels.episode_statistics,
+            W,
+            lambda: [
+                self._episode_ended,
+                self._full,
+                self._ended_captures,
+                self._ended_return,
+                self._ended_return_other,
+                self._ended_length,
+                self.swarm.ended_values if self.swarm is not None else self._no_swarm,
+                self._rewards.view(W, S),
+                self._dones.view(W, S),
+                self._row_return.view(W, S),
+                self._stat_terms,
+            ],
+        )
         self._stats += self._stat_terms.sum(dim=0)
 
     def episode_stats_snapshot(self) -> torch.Tensor:
