@@ -47,6 +47,8 @@ class HeuristicPolicy:
     allocated once (so the next call overwrites it).
     """
 
+    capturable = True  # a call is device work only (one Warp launch, no host state): a CUDA graph may hold it
+
     def __init__(
         self, name: str, env: BatchedAquarium, agent_type: str, seed: int | None = None, confusion: bool | None = None
     ):

@@ -257,7 +257,7 @@ class EpisodeMetrics(Observer):
         self._done_captures, self._done_length, self._episodes = zeros(W), zeros(W), zeros(W)
         self.ended_values = torch.full((W, K), math.nan, device=dev, dtype=torch.float64)  # see close_episodes
         self._launches = TorchStreamLaunches(env.device)  # close_episodes' launch
-        self._steps = 0
+        self.steps = 0  # steps counted since `begin()` (`advance`, `count_replayed`)
         self._trace: list[torch.Tensor] = []
         self.trace_steps: list[int] = []
 
@@ -283,7 +283,7 @@ class EpisodeMetrics(Observer):
             t.zero_()
         self._trace.clear()
         self.trace_steps.clear()
-        self._steps = 0
+        self.steps = 0
         self._sample()
 
     def _sample(self) -> None:
@@ -295,7 +295,7 @@ class EpisodeMetrics(Observer):
         self._hist += values["nn_histogram"]
         if self._trace_columns:
             self._trace.append(self.metrics.values[:, self._trace_columns].clone())
-            self.trace_steps.append(self._steps)
+            self.trace_steps.append(self.steps)
 
     def on_start(self, env: BatchedAquarium) -> None:
         self.begin()
@@ -325,9 +325,22 @@ class EpisodeMetrics(Observer):
 
     def advance(self) -> None:
         """The second half of `update()`: count the step and sample the state every `every` steps."""
-        self._steps += 1
-        if self._steps % self.every == 0:
+        self.steps += 1
+        if self.steps % self.every == 0:
             self._sample()
+
+    @property
+    def phase(self) -> int:
+        """Steps since the last sample (`steps % every`): which of the next steps sample the state."""
+        return self.steps % self.every
+
+    def count_replayed(self, steps: int) -> None:
+        """Count `steps` steps whose `close_episodes` and `advance` ran in a replayed CUDA graph (captured
+        when the counter stood at the same `phase`): their samples were taken there. Refused with a
+        trace, whose samples are host lists that a graph cannot append to."""
+        if self.trace_names:
+            raise ValueError("EpisodeMetrics with a trace records its samples on the host: it cannot run in a graph")
+        self.steps += steps
 
     def result(self) -> dict[str, torch.Tensor]:
         """Per world, the mean over its completed episodes (NaN where none): `[W]` float64 tensors for
@@ -401,13 +414,13 @@ class EpisodeMetrics(Observer):
     def state_dict(self) -> dict:
         """The accumulators (CPU copies), so that a resumed run reports the same episode values."""
         state = {name: getattr(self, name).cpu().clone() for name in self._STATE}
-        state["steps"] = self._steps
+        state["steps"] = self.steps
         return state
 
     def load_state_dict(self, state: dict) -> None:
         for name in self._STATE:
             getattr(self, name).copy_(state[name])
-        self._steps = int(state["steps"])
+        self.steps = int(state["steps"])
 
     def traces(self) -> dict[str, torch.Tensor]:
         """`{name: [samples, W]}` of the metrics named in `trace` (float32), at steps `trace_steps`."""

@@ -378,7 +378,9 @@ class Program:
         self._graph = None
 
     def run(self) -> None:
-        if not self.graph:
+        # Inside a capture of torch's (a training loop's whole rollout) the launches themselves join it:
+        # no graph of Warp's is captured or launched inside another graph.
+        if not self.graph or self.shards.torch_capturing():
             commands = self.commands
             self.shards.run(lambda shard: [command() for command in commands[shard.index]])
             return
@@ -485,12 +487,22 @@ class ShardSet:
             return
         torch_stream = torch_stream_of(torch.device(self.device))
         assert torch_stream is not None  # (a CUDA device)
+        if self.torch_capturing():  # recorded into torch's capture, on its stream (no fork to Warp's)
+            with wp.ScopedStream(torch_stream, sync_enter=False):
+                for shard in self.shards:
+                    work(shard)
+            return
         stream = wp.get_stream(self.device)
         stream.wait_stream(torch_stream)
         with wp.ScopedStream(stream):
             for shard in self.shards:
                 work(shard)
         torch_stream.wait_stream(stream)
+
+    def torch_capturing(self) -> bool:
+        """Whether torch's current stream on this GPU is capturing a CUDA graph (then `run` records its
+        launches into that capture, on torch's stream)."""
+        return self.cuda and torch.cuda.is_current_stream_capturing()
 
     def close(self) -> None:
         """Release the CUDA graph and the worker threads."""

@@ -6,7 +6,8 @@ The task is the paper preset's (6 prey learning against one NaivChase predator, 
 trainer is built, `--warmup` iterations run (the first of the fast loop on CUDA is eager, the second
 captures its graphs), then `--iterations` timed iterations (synchronised at the end). Agent-steps are
 learning-team rows x steps, as the paper counts prey-steps. The fast loop's time is then split into
-policy / env / storage / update by one more iteration bracketed by CUDA events (or host timers).
+policy / env / storage / update (rollout / update where one CUDA graph replays the whole rollout) by
+one more iteration bracketed by CUDA events (or host timers).
 
 Beside each point: the update's floor on this card (`aquarium_warp.training.floors`: the actor's and
 critic's matrix products forward and backward over every sample of the 5 epochs at the card's float32

@@ -78,6 +78,8 @@ class LearnerActions:
     adapter (`vec_env`, set once both adapters exist), which the training loop fills before the
     first adapter steps the worlds."""
 
+    capturable = True  # a call only returns the buffer: a CUDA graph may hold it
+
     def __init__(self, vec_env: AquariumVecEnv | None = None):
         self.vec_env = vec_env
 

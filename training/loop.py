@@ -7,11 +7,20 @@ back after every mini-batch. This loop makes the same calls in the same order, a
 them as CUDA graphs (the adapter's own host reads, where its settings need them, are listed in
 `vec_env.py`: episodes that can end otherwise than by truncation, domain randomisation):
 
-- step `t` of a rollout is graph `act[t]` (`PPO.act`: actor, sampling, critic, log-probabilities,
-  and the actions into the adapter's int32 buffer), then the Warp work outside any torch graph (the
-  other team's policy and the simulation step, itself one CUDA graph), then graph `after[t]` (rows'
+- the whole rollout is one graph: for each of its steps `PPO.act` (actor, sampling, critic,
+  log-probabilities, and the actions into the adapter's int32 buffer), the other team's policy and the
+  simulation step (Warp launches recorded into torch's capture: `shard.ShardSet.run`), then the rows'
   rewards, dones and time-outs, `PPO.process_env_step` into the storage, per-world episode statistics
-  on the device, the next observations);
+  on the device, the next observations, and the swarm metrics' sample where one falls. Which steps
+  sample depends on the step count the rollout starts at, so there is one such graph per starting
+  phase (`every / gcd(every, num_steps)` of them: 5 for the paper's 32 steps and a sample every 10),
+  all captured together. One replay per rollout leaves the host nothing to do
+  per step: replaying `act[t]` and `after[t]` per step with the simulation launched between them
+  took 8.1 ms of host time per paper-preset iteration on one H100, about as long as the GPU's work
+  (`benchmarks/results/rollout_graphs_h100_*`);
+- where an adapter's simulation step needs the host (a domain randomiser, a loaded or recurrent
+  opponent: `AquariumVecEnv.step_capturable`), step `t` is graph `act[t]`, then the simulation
+  step outside any torch graph (itself one CUDA graph of Warp's), then graph `after[t]`;
 - after the rollout, graph `learn`: `PPO.compute_returns` (GAE) and `AquariumPPO.update_on_device`
   (every mini-batch of every epoch: forward, losses, backward, gradient clipping, Adam), reading the
   mini-batch indices drawn just before it by the same `randperm` as rsl-rl's generator;
@@ -61,6 +70,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import gc
+import itertools
 import time
 from collections.abc import Callable
 
@@ -275,6 +285,10 @@ class TrainingLoop:
         self._warm = False
         self._capture_stream = torch.cuda.Stream(self.device) if self.graphs else None
         self._pool_handle = torch.cuda.graph_pool_handle() if self.graphs else None  # the graphs' memory pool
+        # The rollout as one graph per sampling phase of the swarm metrics (`_rollout_key`), where every
+        # adapter's simulation step is device work only; otherwise graphs `act[t]` and `after[t]`.
+        self.whole_rollout = self.graphs and all(env.step_capturable for env in self.envs)
+        self._rollout_graphs: dict[tuple[int, ...], torch.cuda.CUDAGraph] = {}
         self._act_graphs: list = []
         self._after_graphs: list = []
         n = len(self.learners)
@@ -312,6 +326,14 @@ class TrainingLoop:
             if env.swarm is not None:
                 env.swarm.advance()
 
+    def _swarms(self) -> list:
+        return [env.swarm for env in self.envs if env.swarm is not None]
+
+    def _rollout_key(self) -> tuple[int, ...]:
+        """Which whole-rollout graph serves the next rollout: the swarm metrics' sampling phases (the
+        steps of a rollout that sample the state differ with the phase it starts at)."""
+        return tuple(swarm.phase for swarm in self._swarms())
+
     def _learn(self, i: int, indices: torch.Tensor | None, mini_batch_size: int) -> torch.Tensor:
         alg = self.algs[i]
         with torch.inference_mode():
@@ -335,7 +357,7 @@ class TrainingLoop:
         learning = [True] * len(self.learners) if learning is None else [bool(x) for x in learning]
         if len(learning) != len(self.learners):
             raise ValueError(f"learning has {len(learning)} flags for {len(self.learners)} learners")
-        if self.graphs and self._warm and not self._act_graphs:
+        if self.graphs and self._warm:
             self._capture_rollout()
         if self.graphs and not self._warm:
             # Warm-up on the side stream that will capture, as torch asks: lazy initialisations (cuBLAS
@@ -371,11 +393,17 @@ class TrainingLoop:
 
     def _run(self, record: IterationRecord, learning: list[bool], mark=lambda phase: None) -> IterationRecord:
         """One rollout and update, eagerly or by replaying the captured graphs; `mark(phase)` is called
-        after each stage ("policy", "env", "storage", "update") for `phase_times`."""
+        after each stage for `phase_times`: "policy", "env", "storage" per step, or "rollout" for a
+        whole-rollout graph, then "update"."""
         graphs = bool(self._act_graphs)
         record.mark(0)
         with torch.inference_mode():
-            for t in range(self.num_steps):
+            if self._rollout_graphs:
+                self._rollout_graphs[self._rollout_key()].replay()
+                for swarm in self._swarms():
+                    swarm.count_replayed(self.num_steps)
+                mark("rollout")
+            for t in range(0 if self._rollout_graphs else self.num_steps):
                 self._act_graphs[t].replay() if graphs else self._act()
                 mark("policy")
                 self.env.step_simulation()
@@ -423,10 +451,11 @@ class TrainingLoop:
     def phase_times(self) -> dict[str, float]:
         """One more iteration (it trains like any other, every learner learning), timed stage by stage:
         seconds spent in the policy (`act`), the env (other team + simulation), the storage (`after`:
-        outcomes, storage writes, statistics) and the update (returns + mini-batches). For the
-        benchmark: on CUDA the stages are bracketed by events, which adds no synchronisation."""
+        outcomes, storage writes, statistics), or in the rollout where one graph replays it whole, and
+        the update (returns + mini-batches). For the benchmark: on CUDA the stages are bracketed by
+        events, which adds no synchronisation."""
         while self.graphs and not (
-            self._act_graphs
+            (self._act_graphs or self._rollout_key() in self._rollout_graphs)
             and all(g is not None for g, graphed in zip(self._learn_graphs, self.update_graphs) if graphed)
         ):
             self.iteration()  # warm-up, then capture
@@ -445,9 +474,9 @@ class TrainingLoop:
         self._run(self._record(), [True] * len(self.learners), mark)
         if cuda:
             marks[-1][1].synchronize()
-        times = dict.fromkeys(("policy", "env", "storage", "update"), 0.0)
+        times: dict[str, float] = {}
         for (_, a), (phase, b) in zip(marks[:-1], marks[1:]):
-            times[phase] += a.elapsed_time(b) / 1e3 if cuda else b - a
+            times[phase] = times.get(phase, 0.0) + (a.elapsed_time(b) / 1e3 if cuda else b - a)
         return times
 
     def release_graphs(self) -> None:
@@ -457,24 +486,54 @@ class TrainingLoop:
         if self.graphs:
             torch.cuda.synchronize(self.device)
         self._act_graphs, self._after_graphs = [], []
+        self._rollout_graphs = {}
         self._learn_graphs = [None] * len(self.learners)
 
+    def _graph_capture(self, graph: torch.cuda.CUDAGraph):
+        return torch.cuda.graph(
+            graph, pool=self._pool_handle, stream=self._capture_stream, capture_error_mode=self._capture_mode
+        )
+
     def _capture_rollout(self) -> None:
-        """Record `act[t]` and `after[t]` in replay order, from the loop's memory pool. Capturing runs
-        nothing: the storages' step counters advance as if it had and are reset afterwards."""
+        """Record the rollout's graphs not yet recorded, from the loop's memory pool: the whole rollout
+        (every step's act, simulation step, after and sampling) for each sampling phase the coming
+        rollouts start at, or else `act[t]` and `after[t]` in replay order (once). Capturing runs
+        nothing: the storages' step counters and the swarm metrics' step counts advance as if it had
+        and are put back after each capture."""
+        if self._rollout_key() in self._rollout_graphs if self.whole_rollout else bool(self._act_graphs):
+            return
         torch.cuda.synchronize(self.device)
+        swarms = self._swarms()
+        steps = [swarm.steps for swarm in swarms]
         with torch.inference_mode(), collection_paused():
-            for _ in range(self.num_steps):
-                for stage, graphs in ((self._act, self._act_graphs), (self._after_step, self._after_graphs)):
-                    graph = torch.cuda.CUDAGraph()
-                    with torch.cuda.graph(
-                        graph,
-                        pool=self._pool_handle,
-                        stream=self._capture_stream,
-                        capture_error_mode=self._capture_mode,
-                    ):
-                        stage()
-                    graphs.append(graph)
+            if self.whole_rollout:
+                # Every phase the coming rollouts start at, so that none is captured mid-run.
+                for k in itertools.count():
+                    for swarm, count in zip(swarms, steps):
+                        swarm.steps = count + k * self.num_steps
+                    key = self._rollout_key()
+                    if key in self._rollout_graphs:
+                        break
+                    graph = self._rollout_graphs[key] = torch.cuda.CUDAGraph()
+                    with self._graph_capture(graph):
+                        for _ in range(self.num_steps):
+                            self._act()
+                            self.env.step_simulation()
+                            self._after_step()
+                            self._advance_metrics()
+                    self._clear_storages()
+            else:
+                for _ in range(self.num_steps):
+                    for stage, graphs in ((self._act, self._act_graphs), (self._after_step, self._after_graphs)):
+                        graph = torch.cuda.CUDAGraph()
+                        with self._graph_capture(graph):
+                            stage()
+                        graphs.append(graph)
+                self._clear_storages()
+        for swarm, count in zip(swarms, steps):
+            swarm.steps = count
+
+    def _clear_storages(self) -> None:
         for alg in self.algs:
             alg.storage.clear()
 
@@ -496,12 +555,7 @@ class TrainingLoop:
                     graph = split_graph
                 else:
                     graph = cuda_graph = torch.cuda.CUDAGraph()
-                    with torch.cuda.graph(
-                        cuda_graph,
-                        pool=self._pool_handle,
-                        stream=self._capture_stream,
-                        capture_error_mode=self._capture_mode,
-                    ):
+                    with self._graph_capture(cuda_graph):
                         self._losses[i] = self._learn(i, self._indices[i], size)
         except Exception as error:  # name what failed and the way out; no silent fallback
             if not alg.is_multi_gpu:

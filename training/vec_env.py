@@ -260,7 +260,7 @@ class AquariumVecEnv(VecEnv):
 
     # The parts of `step()`, which the training loop of `loop.py` calls separately: the tensor-only
     # parts (`row_outcomes`, `copy_observations`, `accumulate_episode_stats`) can be captured in a CUDA
-    # graph; `step_simulation` launches Warp work (the env's own graph) and stays outside.
+    # graph; `step_simulation` too where `step_capturable` says so.
     def step_simulation(self, actions: torch.Tensor | None = None) -> None:
         """The other team acts and every world steps; `actions [N, 1]` (float category indices) are
         the learning team's, or None when they were already written into `actions_buffer`."""
@@ -270,6 +270,14 @@ class AquariumVecEnv(VecEnv):
         self.env.step({self.team: self._actions, self.other: other_actions}, validate=False)
         if self.randomizer is not None:
             self.randomizer.update(self._episode_ended)
+
+    @property
+    def step_capturable(self) -> bool:
+        """Whether `step_simulation(None)` is device work only, so a CUDA graph may hold it: an opponent
+        marked `capturable` (a heuristic, the other learner's buffer; a loaded policy's own random
+        stream and a recurrent one's host state are not) and no domain randomisation (it reads the
+        ended worlds on the host)."""
+        return self.randomizer is None and bool(getattr(self.opponent, "capturable", False))
 
     @property
     def actions_buffer(self) -> torch.Tensor:

@@ -262,3 +262,49 @@ def test_load_state_dict_refuses_other_config(device):
     finally:
         env.close()
         other.close()
+
+
+# Worlds of one cell (the fused step), cell lists built by rank (at most RANK_SORT_MAX_CAPACITY slots)
+# and by counts and their prefix sum (more slots: `wp.utils.array_scan`, which allocates its scratch).
+CAPTURED_STEP_CASES = {
+    "fused": (CFG, {}),
+    "stages, rank-sorted cells": (CFG.replace(grid_cell_size=100.0), {}),
+    "stages, counted cells": (
+        AquariumConfig(width=900.0, height=900.0, prey_count=150, predator_count=4, max_steps=50, grid_cell_size=150.0),
+        {},
+    ),
+}
+
+
+@pytest.mark.parametrize("case", CAPTURED_STEP_CASES)
+def test_steps_recorded_in_a_torch_graph_equal_eager_steps(cuda_device, case):
+    """A training loop captures whole rollouts, simulation steps and heuristic opponents included, in
+    one torch CUDA graph (`ShardSet.run` records the launches into torch's capture instead of launching
+    Warp's own graph): 20 replays of a graph of 3 steps give the trajectory of 60 eager steps."""
+    from aquarium_warp.heuristics import heuristic_actions
+
+    cfg, kw = CAPTURED_STEP_CASES[case]
+
+    def steps(env, n):
+        for _ in range(n):
+            env.step(heuristic_actions(env, seed=5), validate=False)
+
+    eager = make(cuda_device, cfg, num_worlds=6, **kw)
+    steps(eager, 1)  # (the graphed env's warm-up step)
+    want = [snapshot(eager)]
+    for _ in range(20):
+        steps(eager, 3)
+        want.append(snapshot(eager))
+    graphed = make(cuda_device, cfg, num_worlds=6, **kw)
+    steps(graphed, 1)  # loads the modules and captures Warp's own step graph, as the loop's warm-up does
+    got = [snapshot(graphed)]
+    stream = torch.cuda.Stream(cuda_device)
+    graph = torch.cuda.CUDAGraph()
+    torch.cuda.synchronize(cuda_device)
+    with torch.cuda.graph(graph, stream=stream):
+        steps(graphed, 3)
+    for _ in range(20):
+        graph.replay()
+        got.append(snapshot(graphed))
+    assert_identical(want, got)
+    assert bool((graphed.state.torch.episode > 0).all())  # the replays reset worlds (max_steps 50) too

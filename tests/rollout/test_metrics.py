@@ -361,6 +361,29 @@ def test_episode_metrics_average_each_episode(device):
     assert logged["swarm/episodes"] == 9 and episodes.log_values() == {}
 
 
+def test_episode_metrics_phase_and_replayed_steps(device):
+    """The sampling phase (steps since the last sample) that selects a training loop's whole-rollout
+    graph, and `count_replayed`, which counts the steps such a graph ran without sampling again;
+    refused with a trace (host lists a graph cannot append to)."""
+    env = make_env(device, prey_count=4, num_worlds=2, max_steps=50)
+    episodes = EpisodeMetrics(env, every=10)
+    env.reset()
+    episodes.begin()
+    hist = episodes._hist.clone()
+    assert episodes.phase == 0
+    for step in range(1, 14):
+        episodes.update(env.step(heuristic_actions(env), validate=False).info)
+        assert (episodes.steps, episodes.phase) == (step, step % 10)
+    sampled = episodes._hist.clone()
+    assert sampled.sum() == 2 * hist.sum()  # step 0 and step 10 sampled
+    episodes.count_replayed(32)
+    assert (episodes.steps, episodes.phase) == (45, 5)
+    assert torch.equal(episodes._hist, sampled)  # counting samples nothing
+    traced = EpisodeMetrics(env, every=10, trace=("prey_alive",))
+    with pytest.raises(ValueError, match="trace"):
+        traced.count_replayed(32)
+
+
 def test_rollout_metrics_population_traces(device):
     # Respawn off: captured prey are gone, so the prey population never grows within the episode.
     env = make_env(device, prey_count=16, num_worlds=4, max_steps=40, respawn_captured_prey=False)

@@ -24,8 +24,11 @@ def _train(loop: str, log_dir=None, device="cpu", plan: list | None = None, **ch
     trainer = Trainer(cfg, log_dir=log_dir)
     trainer.train()
     alg = trainer.runner.alg
-    if plan is not None:  # the graphs the fast loop used: (rollout, [update per learner])
-        plan.append((trainer.runner.loop.graphs, trainer.runner.loop.update_graphs))
+    if plan is not None:  # the graphs the fast loop used: (rollout, [update per learner], whole rollout)
+        loop = trainer.runner.loop
+        plan.append((loop.graphs, loop.update_graphs, loop.whole_rollout))
+        swarm = trainer.runner.env.swarm  # the swarm metrics' totals: their samples ran in the graphs too
+        plan.append(swarm.state_dict() if swarm is not None else {})
     params = {f"actor.{k}": v.clone() for k, v in alg.actor.state_dict().items()}
     params.update({f"critic.{k}": v.clone() for k, v in alg.critic.state_dict().items()})
     params.update(
@@ -300,29 +303,79 @@ def test_algorithms_say_which_graphs_they_allow():
 ADAPTIVE = CASES[2][1]
 
 
+def test_adapters_say_whether_their_step_can_be_captured(tmp_path):
+    """A heuristic opponent and the other learner's buffer are device work only; a domain randomiser
+    (host reads of the ended worlds) and a loaded policy (its own random stream) are not: the loop then
+    replays a graph per stage instead of the whole rollout."""
+    common = {"num_worlds": 4, "quiet": True, "export": []}
+    for changes, want in [
+        ({}, [True]),
+        ({"train": {"team": "both"}}, [True, True]),
+        ({"train": {"randomize": {"prey_max_speed": "3:5"}}}, [False]),
+    ]:
+        trainer = Trainer(make_config("tiny", {"train": {**common, **changes.get("train", {})}}))
+        assert [learner.vec_env.step_capturable for learner in trainer.runner.learners] == want, changes
+        assert trainer.runner.loop is None or not trainer.runner.loop.whole_rollout  # (no graphs on the CPU)
+        trainer.close()
+    trainer = Trainer(make_config("tiny", {"train": common}), log_dir=str(tmp_path / "run"))
+    trainer.train(1)
+    policy = trainer.export(formats=["jit"])["jit"]
+    trainer.close()
+    loaded = Trainer(make_config("tiny", {"train": {**common, "opponent": policy, "team": "predator"}}))
+    assert not loaded.runner.env.step_capturable
+    loaded.close()
+
+
+RANDOMISED = {"train": {"randomize": {"prey_max_speed": "3:5"}}}
+
+
 @pytest.mark.parametrize(
     "changes",
-    [{}, NORMALISED, ADAPTIVE],
-    ids=["plain", "observation normalisation", "adaptive schedule (eager update)"],
+    [{}, NORMALISED, ADAPTIVE, RANDOMISED],
+    ids=[
+        "plain",
+        "observation normalisation",
+        "adaptive schedule (eager update)",
+        "domain randomisation (a graph per step)",
+    ],
 )
 def test_cuda_graph_loop_matches_eager_loop(changes, cuda_device):
     """Replayed graphs run the eager loop's kernels, and torch's generator gives a replayed kernel the
-    offset the eager call would have had: the same parameters after iterations 2-4 (graphs). With
-    observation normalisation the graphs must see the statistics updated after every iteration. With
-    the adaptive schedule only the rollout is replayed (as in a torchrun run), and the eager update
-    between the replays must see what the eager loop's saw."""
+    offset the eager call would have had: the same parameters and swarm-metric totals after iterations
+    2-7 (graphs). The whole-rollout graphs of the 5 sampling phases of 32 steps with a sample every 10
+    come at iterations 2-6 (and the first again at 7). With observation normalisation the graphs must
+    see the statistics updated after every iteration. With the adaptive schedule only the rollout is
+    replayed (as in a torchrun run), and the eager update between the replays must see what the eager
+    loop's saw. A domain randomiser reads the ended worlds on the host every step, so its rollout
+    replays a graph per stage and launches the simulation step between them."""
     import copy
 
+    iterations = 7
+    eager_plan: list = []
     eager, _ = _train(
-        "fast", device=cuda_device, train={"cuda_graphs": False, "iterations": 4}, **copy.deepcopy(changes)
+        "fast",
+        device=cuda_device,
+        plan=eager_plan,
+        train={"cuda_graphs": False, "iterations": iterations},
+        **copy.deepcopy(changes),
     )
     plan: list = []
     graphed, _ = _train(
-        "fast", device=cuda_device, plan=plan, train={"cuda_graphs": True, "iterations": 4}, **copy.deepcopy(changes)
+        "fast",
+        device=cuda_device,
+        plan=plan,
+        train={"cuda_graphs": True, "iterations": iterations},
+        **copy.deepcopy(changes),
     )
-    assert plan == [(True, [changes is not ADAPTIVE])]
+    assert plan[0] == (True, [changes is not ADAPTIVE], changes is not RANDOMISED)
     differing = {k: float((eager[k] - graphed[k]).abs().max()) for k in eager if not torch.equal(eager[k], graphed[k])}
     assert not differing, differing
+    swarm_eager, swarm_graphed = eager_plan[1], plan[1]
+    assert swarm_graphed["steps"] == iterations * 32
+    assert swarm_eager.keys() == swarm_graphed.keys()
+    for key, value in swarm_eager.items():
+        same = value == swarm_graphed[key] if key == "steps" else torch.equal(value, swarm_graphed[key])
+        assert same, key
 
 
 def test_a_failed_update_capture_says_so(cuda_device, monkeypatch):
