@@ -161,6 +161,7 @@ def run_point(gpus: int, team: str, mode: str, args: argparse.Namespace) -> dict
         "settings": MODES[mode],
         "captured": captured,
         "fused_loss": saved.get("fused_loss"),
+        "fused_act": saved.get("fused_act"),
         "iterations": len(rows),
         "agent_steps_per_s": statistics.median(fps),
         "wall_seconds": wall,

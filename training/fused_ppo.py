@@ -30,6 +30,18 @@ every mini-batch, which these kernels do not compute).
 
 Unlike the autograd path, no action is sampled during the update: torch's random generator is not
 advanced there (a fused run's later draws differ from an unfused one's, as they already did).
+
+The rollout's side of PPO, `FusedAct`: rsl-rl's `PPO.act` runs the actor, its log-softmax, the
+sampler, the log-probability and the critic, about a dozen kernels, then `process_env_step` and
+`add_transition` copy the step's observations, actions, values, log-probabilities, distribution
+parameters, rewards (bootstrapped on time-outs) and dones into the storage one tensor at a time, some
+ten kernels more. `FusedAct` draws the sampler's `Exp(1)` noise as `CategoricalDistribution.sample`
+does (one torch kernel, the same generator draws), then one kernel (`_act_kernel`) computes both MLPs
+per tile of rows and writes every field of the storage's current step once, and the learning team's
+int32 actions for the simulation; after the step one `addcmul` writes the bootstrapped rewards and one
+copy the dones. The sampled action is `argmax(p / noise)` as there, with the probabilities from the
+in-kernel log-softmax of the loss kernels (Triton's `exp` and `log`, not torch's: the values agree to
+float32 rounding, the bits need not).
 """
 
 from __future__ import annotations
@@ -50,9 +62,11 @@ from .fused_mlp import (
     _layer_pointers,
     _output_layer,
     _partial_row,
+    _rows,
     _store_gradients,
     _zero_gradients,
     backward_programs,
+    block_rows,
     kernel_precision,
 )
 
@@ -204,6 +218,49 @@ def _critic_loss_kernel(
     tl.store(row, tl.sum(loss_sum, axis=0))
 
 
+@triton.jit(do_not_specialize=["n_rows"])
+def _act_kernel(
+    obs_ptr, noise_ptr, n_rows,
+    obs_out_ptr, action_out_ptr, value_out_ptr, log_prob_out_ptr, log_probs_out_ptr, env_action_ptr,
+    w0, b0, w1, b1, w2, b2, w3, b3,
+    cw0, cb0, cw1, cb1, cw2, cb2, cw3, cb3,
+    IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
+    HIDDEN: tl.constexpr, ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, BLOCK_M: tl.constexpr,
+    FAST_TANH: tl.constexpr,
+    CRITIC_H: tl.constexpr, CRITIC_HIDDEN: tl.constexpr, CRITIC_ACTIVATION: tl.constexpr,
+):  # fmt: skip
+    # The actor's layers are w<l>, b<l>, the critic's cw<l>, cb<l>; both read the same observations.
+    rows = (tl.program_id(0) * BLOCK_M + tl.arange(0, BLOCK_M)).to(tl.int64)
+    valid = rows < n_rows
+    x = _rows(obs_ptr, rows, n_rows, IN, IN_P)
+    _, _, last = _hidden(x, w0, b0, w1, b1, w2, b2, IN, IN_P, H, HIDDEN, ACTIVATION, PRECISION, FAST_TANH)
+    w_out, b_out = _output_layer(w1, b1, w2, b2, w3, b3, HIDDEN)
+    y = _layer(last, w_out, b_out, H, H, OUT, OUT_P, PRECISION)
+    columns = tl.arange(0, OUT_P)
+    category = columns[None, :] < OUT
+    logits = tl.where(category, y, float("-inf"))
+    top = tl.max(logits, axis=1)  # log-softmax as the actor's loss kernel computes it
+    log_sum = top + tl.log(tl.sum(tl.exp(logits - top[:, None]), axis=1))
+    log_probs = logits - log_sum[:, None]
+    noise = tl.where(category, _rows(noise_ptr, rows, n_rows, OUT, OUT_P), 1.0)  # (1: no division by 0 in the padding)
+    # torch.multinomial's draw of one sample: argmax(p / Exp(1)), the lowest category at a tie
+    score = tl.where(category & valid[:, None], tl.exp(log_probs) / noise, -1.0)
+    action = tl.argmax(score, axis=1, tie_break_left=True)
+    log_prob = tl.sum(tl.where(columns[None, :] == action[:, None], log_probs, 0.0), axis=1)
+    _, _, critic_last = _hidden(
+        x, cw0, cb0, cw1, cb1, cw2, cb2, IN, IN_P, CRITIC_H, CRITIC_HIDDEN, CRITIC_ACTIVATION, PRECISION, FAST_TANH
+    )
+    cw_out, cb_out = _output_layer(cw1, cb1, cw2, cb2, cw3, cb3, CRITIC_HIDDEN)
+    value = tl.sum(_layer(critic_last, cw_out, cb_out, CRITIC_H, CRITIC_H, 1, 16, PRECISION), axis=1)  # (one column)
+    inputs = tl.arange(0, IN_P)
+    tl.store(obs_out_ptr + rows[:, None] * IN + inputs[None, :], x, mask=valid[:, None] & (inputs[None, :] < IN))
+    tl.store(action_out_ptr + rows, action.to(tl.float32), mask=valid)
+    tl.store(env_action_ptr + rows, action.to(tl.int32), mask=valid)
+    tl.store(value_out_ptr + rows, value, mask=valid)
+    tl.store(log_prob_out_ptr + rows, log_prob, mask=valid)
+    tl.store(log_probs_out_ptr + rows[:, None] * OUT + columns[None, :], log_probs, mask=valid[:, None] & category)
+
+
 def _single_group(model) -> str | None:
     """The one observation group a model reads, or None."""
     groups = list(getattr(model, "obs_groups", []))
@@ -294,3 +351,84 @@ class FusedPPOLoss:
             {"CLIPPED": bool(alg.use_clipped_value_loss)},
         )  # fmt: skip
         return (torch.stack([value_sum, surrogate_sum, entropy_sum]) / size).double()
+
+
+class FusedAct:
+    """`AquariumPPO`'s rollout step from `_act_kernel` (see the module doc): `act(obs, env_actions)`
+    samples the actions of `obs` (a TensorDict of the rollout) and writes the storage's current step
+    (observations, actions, values, log-probabilities, distribution parameters) and the int32
+    `env_actions`; `store(rewards, dones, time_outs)` adds the step's rewards, bootstrapped on
+    time-outs as rsl-rl's `process_env_step` does, and dones, and moves the storage to its next step.
+    `unsupported(alg)` says why a learner cannot use it."""
+
+    def __init__(self, alg) -> None:
+        reason = self.unsupported(alg)
+        if reason is not None:
+            raise ValueError(f"FusedAct: {reason}")
+        self.alg = alg
+        self.group = _single_group(alg.actor)
+        storage = alg.storage
+        # The int32 actions of a caller that gives no buffer of its own (rsl-rl's runner loop).
+        self._env_actions = torch.zeros(storage.num_envs, dtype=torch.int32, device=storage.device)
+        if storage.distribution_params is None:  # as rsl-rl's first `add_transition` makes them
+            T, N, K = storage.num_transitions_per_env, storage.num_envs, alg.actor.mlp.spec.dims[-1]
+            storage.distribution_params = (torch.zeros(T, N, K, device=storage.device),)
+
+    @staticmethod
+    def unsupported(alg) -> str | None:
+        """Why `alg` cannot use the fused rollout step; None when it can: where the fused loss serves
+        (`FusedPPOLoss.unsupported`), with the actor and the critic reading the one observation group
+        the storage keeps, and no RND or symmetry (which read the transition)."""
+        reason = FusedPPOLoss.unsupported(alg)
+        if reason is not None:
+            return reason
+        groups = {_single_group(alg.actor), _single_group(alg.critic)}
+        if len(groups) != 1 or set(alg.storage.observations.keys()) != groups:
+            return f"the actor and the critic must read the storage's one observation group, not {sorted(groups)}"
+        if alg.rnd is not None or alg.symmetry is not None:
+            return "RND and symmetry read rsl-rl's transition"
+        return None
+
+    def act(self, obs, env_actions: torch.Tensor | None = None) -> torch.Tensor:
+        """Sample and store step `storage.step` (see the class doc); returns the stored actions `[N, 1]`."""
+        alg, storage = self.alg, self.alg.storage
+        if storage.step >= storage.num_transitions_per_env:
+            raise OverflowError("Rollout buffer overflow! You should call clear() before adding new transitions.")
+        t = storage.step
+        x = obs[self.group].contiguous()
+        actor, critic = alg.actor.mlp, alg.critic.mlp
+        n_rows, categories = x.shape[0], actor.spec.dims[-1]
+        noise = torch.empty(n_rows, categories, dtype=x.dtype, device=x.device).exponential_(1)
+        precision = kernel_precision(x.device)
+        constants = _constants(actor.spec, precision)
+        constants["BLOCK_M"] = min(block_rows(actor.spec), block_rows(critic.spec))
+        actions = storage.actions[t]
+        _act_kernel[(triton.cdiv(n_rows, constants["BLOCK_M"]),)](
+            x, noise, n_rows,
+            storage.observations[self.group][t], actions, storage.values[t], storage.actions_log_prob[t],
+            storage.distribution_params[0][t], self._env_actions if env_actions is None else env_actions,
+            *_layer_pointers(_parameters(actor)), *_layer_pointers(_parameters(critic)),
+            **constants, CRITIC_H=critic.spec.dims[1], CRITIC_HIDDEN=critic.spec.layers - 1,
+            CRITIC_ACTIVATION=critic.spec.activation, num_warps=NUM_WARPS,
+        )  # fmt: skip
+        return actions
+
+    def store(self, rewards: torch.Tensor, dones: torch.Tensor, time_outs: torch.Tensor | None) -> None:
+        """The step's rewards (`[N]`; plus gamma times the stored value where `time_outs`) and dones."""
+        alg, storage = self.alg, self.alg.storage
+        t = storage.step
+        if time_outs is None:
+            storage.rewards[t].copy_(rewards.view(-1, 1))
+        else:
+            # rsl-rl: rewards + gamma * (values * time_outs); with time_outs 0 or 1 the products are
+            # exact in either order, so this is its float32 result.
+            torch.addcmul(
+                rewards.view(-1, 1), storage.values[t], time_outs.view(-1, 1), value=alg.gamma, out=storage.rewards[t]
+            )
+        storage.dones[t].copy_(dones.view(-1, 1))
+        storage.step += 1
+
+
+def _parameters(mlp: FusedMLP) -> tuple[torch.Tensor, ...]:
+    """The MLP's weights and biases in layer order, as the kernels read them."""
+    return tuple(p.contiguous() for layer in list(mlp)[0::2] for p in (layer.weight, layer.bias))

@@ -22,6 +22,8 @@
 4. With `FusedMLPModel` actor and critic (`train.fused_mlp`), `update_on_device` takes each mini-batch's
    loss and gradients from `fused_ppo.FusedPPOLoss` (`fused_loss`) where it serves, then clips and
    steps as rsl-rl does (`_apply_gradients`); `FusedPPOLoss.unsupported` says why it does not serve.
+   Where it serves, the rollout's `act` and `process_env_step` run `fused_ppo.FusedAct` (`fused_act`):
+   one kernel samples and writes the storage's step, whose rewards and dones follow in two more.
 """
 
 from __future__ import annotations
@@ -185,11 +187,14 @@ class AquariumPPO(PPO):
                 old.actions_shape,
                 old.device,
             )
+        self.fused_act = None  # the fused rollout step (fused_ppo.py), where it serves (set below)
         if all(getattr(model, "fused", False) for model in (self.actor, self.critic)):
-            from .fused_ppo import FusedPPOLoss  # (triton: present wherever the models are fused)
+            from .fused_ppo import FusedAct, FusedPPOLoss  # (triton: present wherever the models are fused)
 
             if FusedPPOLoss.unsupported(self) is None:
                 self.fused_loss = FusedPPOLoss(self)
+            if FusedAct.unsupported(self) is None:
+                self.fused_act = FusedAct(self)
 
     def load(self, loaded_dict: dict, load_cfg: dict | None, strict: bool) -> bool:
         loaded = super().load(loaded_dict, load_cfg, strict)
@@ -200,6 +205,29 @@ class AquariumPPO(PPO):
                 if "step" in state and isinstance(state["step"], torch.Tensor):
                     state["step"] = state["step"].to(self.device, torch.float32)
         return loaded
+
+    # ------------------------------------------------------------------ the rollout step
+    def act(self, obs):
+        """rsl-rl's `PPO.act`; with `fused_act`, the fused step, which writes the storage's step itself
+        (and returns the stored actions)."""
+        if self.fused_act is None:
+            return super().act(obs)
+        return self.fused_act.act(obs)
+
+    def act_into(self, obs, env_actions: torch.Tensor) -> None:
+        """`act(obs)` with the actions written into `env_actions` (the adapter's int32 `[W, S]` buffer)."""
+        if self.fused_act is None:
+            env_actions.copy_(self.act(obs).view(env_actions.shape))  # float -> int32 (exact)
+        else:
+            self.fused_act.act(obs, env_actions)
+
+    def process_env_step(self, obs, rewards, dones, extras) -> None:
+        """rsl-rl's `PPO.process_env_step`; with `fused_act`, the step's rewards and dones into the
+        storage (its other fields were written by `act`)."""
+        if self.fused_act is None:
+            super().process_env_step(obs, rewards, dones, extras)
+        else:
+            self.fused_act.store(rewards, dones, extras.get("time_outs"))
 
     # ------------------------------------------------------------------ update without host syncs
     @property

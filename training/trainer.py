@@ -12,8 +12,9 @@ Trainer.resume("runs/paper_ps_s0").train()     # continues from the newest check
 
 The log directory receives rsl-rl's TensorBoard events, `config.json` (the config; the command, commit,
 machine and library versions (`aquarium_warp.records.provenance`); under `cuda_graphs` what the training
-loop captures: the rollout, each learner's update; with `train.fused_mlp`, under `fused_loss`, whether
-each learner's update runs the fused loss or why not), `progress.csv` (one row per
+loop captures: the rollout, each learner's update; with `train.fused_mlp`, under `fused_loss` and
+`fused_act`, whether each learner's update runs the fused loss and its rollout the fused step, or why
+not), `progress.csv` (one row per
 iteration: episode statistics, losses, speed) and checkpoints `model_<i>.pt`, which hold the state
 after iteration i (0-based; the runner's `iter` entry is the next iteration, `i + 1`).
 
@@ -171,12 +172,15 @@ class Trainer:
                 }
             rollout_graphs, update_graphs = self.runner.graph_plan()  # what the training loop will capture
             record["cuda_graphs"] = {"rollout": rollout_graphs, "update": dict(zip(self.teams, update_graphs))}
-            if train["fused_mlp"]:  # each learner's update: the fused loss (True), or why autograd's
-                from .fused_ppo import FusedPPOLoss
+            if train[
+                "fused_mlp"
+            ]:  # per learner: its update's fused loss and its rollout's fused step (True) or why not
+                from .fused_ppo import FusedAct, FusedPPOLoss
 
-                record["fused_loss"] = {
-                    learner.team: FusedPPOLoss.unsupported(learner.alg) or True for learner in self.runner.learners
-                }
+                for key, fused in (("fused_loss", FusedPPOLoss), ("fused_act", FusedAct)):
+                    record[key] = {
+                        learner.team: fused.unsupported(learner.alg) or True for learner in self.runner.learners
+                    }
             with atomic_open(os.path.join(log_dir, "config.json")) as f:
                 json.dump(record, f, indent=1, default=str)
         self.pool = None

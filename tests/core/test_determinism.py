@@ -296,11 +296,13 @@ def test_steps_recorded_in_a_torch_graph_equal_eager_steps(cuda_device, case):
         steps(eager, 3)
         want.append(snapshot(eager))
     graphed = make(cuda_device, cfg, num_worlds=6, **kw)
-    steps(graphed, 1)  # loads the modules and captures Warp's own step graph, as the loop's warm-up does
-    got = [snapshot(graphed)]
     stream = torch.cuda.Stream(cuda_device)
-    graph = torch.cuda.CUDAGraph()
+    stream.wait_stream(torch.cuda.current_stream(cuda_device))
+    with torch.cuda.stream(stream):  # the warm-up on the capturing stream, as the loop's (and torch) do
+        steps(graphed, 1)  # (it loads the modules and captures Warp's own step graph)
     torch.cuda.synchronize(cuda_device)
+    got = [snapshot(graphed)]
+    graph = torch.cuda.CUDAGraph()
     with torch.cuda.graph(graph, stream=stream):
         steps(graphed, 3)
     for _ in range(20):

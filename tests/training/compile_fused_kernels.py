@@ -25,6 +25,8 @@ KERNELS = [  # (kernel, its own compile-time arguments, integer and float runtim
      {"clip", "entropy_coef", "inv_rows"}),
     (fused_ppo._critic_loss_kernel, {"OUT": 1, "SUMS": 1, "CLIPPED": True}, {"offset", "n_rows"},
      {"clip", "value_coef", "inv_rows"}),
+    (fused_ppo._act_kernel, {"BLOCK_M": 64, "CRITIC_H": 64, "CRITIC_HIDDEN": 2, "CRITIC_ACTIVATION": "tanh"},
+     {"n_rows"}, set()),
 ]  # fmt: skip
 
 
@@ -38,7 +40,7 @@ def compile_kernel(kernel, constants: dict, ints: set, floats: set, capability: 
         elif name in floats:
             signature[name] = "fp32"
         else:
-            signature[name] = "*i64" if name == "index_ptr" else "*fp32"
+            signature[name] = {"index_ptr": "*i64", "env_action_ptr": "*i32"}.get(name, "*fp32")
     constexprs = {(kernel.arg_names.index(n),): v for n, v in constants.items()}
     source = ASTSource(fn=kernel, signature=signature, constexprs=constexprs)
     return triton.compile(source, target=GPUTarget("cuda", capability, 32), options={"num_warps": fused_mlp.NUM_WARPS})

@@ -23,7 +23,7 @@ import torch
 
 from aquarium_warp.training import Trainer, fused_mlp
 from aquarium_warp.training.fused_mlp import FusedMLP
-from aquarium_warp.training.fused_ppo import FusedPPOLoss
+from aquarium_warp.training.fused_ppo import FusedAct, FusedPPOLoss
 from aquarium_warp.training.ppo import flat_samples
 
 BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
@@ -210,6 +210,105 @@ def test_unsupported_learners_keep_the_autograd_path(change, reason, interpreter
         FusedPPOLoss(alg)
 
 
+def acting_learner(device: str, worlds: int = 4):
+    """The tiny preset's learner with fused MLPs and the fused rollout step, its storage empty."""
+    alg = bench.build("tiny", worlds, device)
+    use_fused(alg)
+    alg.fused_act = FusedAct(alg)
+    return alg
+
+
+ACT_TOLERANCE = 1e-5  # float32 log-probabilities and values of one MLP forward against float64
+
+
+def check_fused_act(alg, tf32: bool = False) -> None:
+    """One step of `FusedAct` against rsl-rl's `act` and `process_env_step` on the same observations:
+    the generator advances as rsl-rl's sampler advances it; the stored observations, dones and
+    bootstrapped rewards are rsl-rl's bit for bit; the log-probabilities, values and the chosen
+    log-probability are float64's within float32 rounding (TF32's, with `tf32`); the action is the
+    argmax of the float64 probabilities over the same Exp(1) noise (wherever the top two scores are
+    not within rounding of each other), also in the adapter's int32 buffer."""
+    from tensordict import TensorDict
+
+    device = torch.device(alg.device)
+    storage = alg.storage
+    N, K = storage.num_envs, alg.actor.mlp.spec.dims[-1]
+    gen = torch.Generator(device=device).manual_seed(3)
+    obs = TensorDict({"policy": 2 * torch.randn(N, storage.observations["policy"].shape[-1], generator=gen,
+                                                 device=device)}, batch_size=[N])  # fmt: skip
+    rng = torch.cuda.get_rng_state(device) if device.type == "cuda" else torch.get_rng_state()
+    set_rng = (lambda s: torch.cuda.set_rng_state(s, device)) if device.type == "cuda" else torch.set_rng_state
+    draw = (lambda: torch.cuda.get_rng_state(device)) if device.type == "cuda" else torch.get_rng_state
+    noise = torch.empty(N, K, device=device).exponential_(1)
+    env_actions = torch.full((N // 2, 2), -1, dtype=torch.int32, device=device)
+    set_rng(rng)
+    with torch.inference_mode():
+        alg.act_into(obs, env_actions)
+    after_fused = draw()
+    set_rng(rng)
+    with torch.inference_mode():
+        super(type(alg), alg).act(obs)  # rsl-rl's own act: its sampler's draws
+    assert torch.equal(draw(), after_fused)
+    t = storage.step
+    assert t == 0
+    actor64, critic64 = copy.deepcopy(alg.actor.mlp).double(), copy.deepcopy(alg.critic.mlp).double()
+    x64 = obs["policy"].double()
+    with torch.no_grad():
+        log_probs = torch.log_softmax(actor64(x64), dim=-1)
+        values = critic64(x64)
+    tolerance = 1e-2 if tf32 else ACT_TOLERANCE
+    assert torch.equal(storage.observations["policy"][t], obs["policy"])
+    stored_log_probs = storage.distribution_params[0][t].double()
+    assert float((stored_log_probs - log_probs).abs().max()) <= tolerance * float(log_probs.abs().max())
+    assert float((storage.values[t].double() - values).abs().max()) <= tolerance * float(values.abs().max())
+    scores = log_probs.exp() / noise.double()
+    top2 = scores.topk(2, dim=-1).values
+    clear = (top2[:, 0] - top2[:, 1]) > 1e-4 * top2[:, 0]
+    assert int(clear.sum()) > N // 2
+    actions = storage.actions[t].view(-1)
+    assert torch.equal(actions[clear].long(), scores.argmax(dim=-1)[clear])
+    assert torch.equal(env_actions.view(-1), actions.to(torch.int32))
+    chosen = stored_log_probs.gather(1, actions.long().view(-1, 1)).view(-1)
+    assert torch.equal(storage.actions_log_prob[t].view(-1).double(), chosen)
+    rewards = torch.randn(N, generator=gen, device=device)
+    dones = (torch.rand(N, generator=gen, device=device) < 0.3).long()
+    time_outs = torch.rand(N, generator=gen, device=device) < 0.5
+    alg.process_env_step(obs, rewards, dones, {"time_outs": time_outs})
+    want = rewards.clone()
+    want += alg.gamma * torch.squeeze(storage.values[t] * time_outs.unsqueeze(1), 1)  # rsl-rl's bootstrap
+    assert torch.equal(storage.rewards[t].view(-1), want)
+    assert torch.equal(storage.dones[t].view(-1), dones)
+    assert storage.step == 1
+
+
+def test_fused_act_equals_rsl_rl_act(interpreter):
+    check_fused_act(acting_learner("cpu"))
+
+
+@pytest.mark.parametrize("tf32", [False, True])
+def test_cuda_fused_act_equals_rsl_rl_act(cuda_device, tf32):
+    allow_tf32 = torch.backends.cuda.matmul.allow_tf32
+    torch.backends.cuda.matmul.allow_tf32 = tf32
+    try:
+        check_fused_act(acting_learner(cuda_device, worlds=256), tf32)
+    finally:
+        torch.backends.cuda.matmul.allow_tf32 = allow_tf32
+
+
+def test_fused_act_unsupported_learners(interpreter):
+    """Where the fused loss does not serve, nor does the fused step; nor with a critic of another
+    observation group than the actor's."""
+    alg = acting_learner("cpu")
+    assert FusedAct.unsupported(alg) is None
+    alg.critic.obs_groups = ["team"]
+    assert "one observation group" in FusedAct.unsupported(alg)
+    alg = acting_learner("cpu")
+    alg.schedule, alg.desired_kl = "adaptive", 0.01
+    assert FusedAct.unsupported(alg) == FusedPPOLoss.unsupported(alg)
+    with pytest.raises(ValueError, match="^FusedAct: .*adaptive"):
+        FusedAct(alg)
+
+
 @pytest.mark.slow
 def test_both_teams_use_the_fused_loss(tmp_path, interpreter):
     """Both teams learning with `train.fused_mlp`: each learner's update runs the fused loss."""
@@ -222,7 +321,8 @@ def test_both_teams_use_the_fused_loss(tmp_path, interpreter):
     assert all(isinstance(learner.alg.fused_loss, FusedPPOLoss) for learner in trainer.runner.learners)
     trainer.train(1)
     trainer.close()
-    assert json.loads((tmp_path / "config.json").read_text())["fused_loss"] == {"prey": True, "predator": True}
+    record = json.loads((tmp_path / "config.json").read_text())
+    assert record["fused_loss"] == record["fused_act"] == {"prey": True, "predator": True}
 
 
 def test_trainer_uses_the_fused_loss_and_records_it(tmp_path, interpreter):
@@ -236,10 +336,10 @@ def test_trainer_uses_the_fused_loss_and_records_it(tmp_path, interpreter):
     trainer.train(1)
     trainer.close()
     record = json.loads((tmp_path / "fused" / "config.json").read_text())
-    assert record["fused_loss"] == {"prey": True}
+    assert record["fused_loss"] == record["fused_act"] == {"prey": True}
     adaptive = {"runner": {"algorithm": {"schedule": "adaptive", "desired_kl": 0.01}}}
     trainer = Trainer(make_config("tiny", changes, adaptive), log_dir=str(tmp_path / "adaptive"))
-    assert trainer.runner.alg.fused_loss is None
+    assert trainer.runner.alg.fused_loss is None and trainer.runner.alg.fused_act is None
     trainer.close()
     record = json.loads((tmp_path / "adaptive" / "config.json").read_text())
     assert "adaptive learning-rate schedule" in record["fused_loss"]["prey"]
