@@ -384,7 +384,8 @@ class FusedAct:
             return reason
         groups = {_single_group(alg.actor), _single_group(alg.critic)}
         if len(groups) != 1 or set(alg.storage.observations.keys()) != groups:
-            return f"the actor and the critic must read the storage's one observation group, not {sorted(map(str, groups))}"
+            names = sorted(map(str, groups))
+            return f"the actor and the critic must read the storage's one observation group, not {names}"
         if alg.rnd is not None or alg.symmetry is not None:
             return "RND and symmetry read rsl-rl's transition"
         return None
