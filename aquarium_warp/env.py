@@ -288,6 +288,13 @@ class BatchedAquarium:
         """[action_count] vec2: unit desired direction of each action."""
         return self._action_direction
 
+    @property
+    def step_capturable(self) -> bool:
+        """Whether `step()` may run inside a torch CUDA graph capture, its launches recorded into it (a
+        training loop's whole-rollout graph): on the CPU and for worlds whose cell lists are not built
+        by counts and a prefix sum (more slots than `shard.RANK_SORT_MAX_CAPACITY` with several cells)."""
+        return self._shards.capturable
+
     def _run(self, program: str) -> None:
         """Run one of the env's programs: "step", "observe" or "reset"."""
         self._shards.programs[program].run()

@@ -452,6 +452,10 @@ class ShardSet:
                 cfg.action_frame == "ego",
             )
         self.step_path = "fused" if fused is not None else "stages"
+        # Whether the programs may be recorded into a capture of torch's (`run`): every command a kernel
+        # launch. The cell lists built by counts run `wp.utils.array_scan`, whose scratch allocation
+        # invalidated such a capture on an H100 (only Warp's own capture of the step serves there).
+        self.capturable = not self.cuda or grid_build(cfg, dims, self.cuda) != "count"
         self.shards = tuple(
             WorldShard(
                 cfg, state, k, w0, w1, dims, params, action_direction, observe_kernels, device, auto_reset, fused
@@ -488,6 +492,11 @@ class ShardSet:
         torch_stream = torch_stream_of(torch.device(self.device))
         assert torch_stream is not None  # (a CUDA device)
         if self.torch_capturing():  # recorded into torch's capture, on its stream (no fork to Warp's)
+            if not self.capturable:
+                raise RuntimeError(
+                    "these worlds' cell lists are built by counts and a prefix sum, which cannot be recorded "
+                    "into a torch CUDA graph capture (env.step_capturable is False): step them outside it"
+                )
             with wp.ScopedStream(torch_stream, sync_enter=False):
                 for shard in self.shards:
                     work(shard)

@@ -38,10 +38,11 @@ parameters, rewards (bootstrapped on time-outs) and dones into the storage one t
 ten kernels more. `FusedAct` draws the sampler's `Exp(1)` noise as `CategoricalDistribution.sample`
 does (one torch kernel, the same generator draws), then one kernel (`_act_kernel`) computes both MLPs
 per tile of rows and writes every field of the storage's current step once, and the learning team's
-int32 actions for the simulation; after the step one `addcmul` writes the bootstrapped rewards and one
-copy the dones. The sampled action is `argmax(p / noise)` as there, with the probabilities from the
-in-kernel log-softmax of the loss kernels (Triton's `exp` and `log`, not torch's: the values agree to
-float32 rounding, the bits need not).
+int32 actions for the simulation; after the step three elementwise kernels write the rewards,
+bootstrapped on time-outs as rsl-rl rounds them, and one copy the dones. The sampled action is
+`argmax(p / noise)` as there, with the probabilities from the in-kernel log-softmax of the loss
+kernels (Triton's `exp` and `log`, not torch's: the values agree to float32 rounding, the bits need
+not, so a fused run's trajectory is its own, as the fused update's already was).
 """
 
 from __future__ import annotations
@@ -370,6 +371,7 @@ class FusedAct:
         storage = alg.storage
         # The int32 actions of a caller that gives no buffer of its own (rsl-rl's runner loop).
         self._env_actions = torch.zeros(storage.num_envs, dtype=torch.int32, device=storage.device)
+        self._bootstrap = torch.zeros(storage.num_envs, 1, device=storage.device)  # gamma * values at time-outs
         if storage.distribution_params is None:  # as rsl-rl's first `add_transition` makes them
             T, N, K = storage.num_transitions_per_env, storage.num_envs, alg.actor.mlp.spec.dims[-1]
             storage.distribution_params = (torch.zeros(T, N, K, device=storage.device),)
@@ -421,11 +423,10 @@ class FusedAct:
         if time_outs is None:
             storage.rewards[t].copy_(rewards.view(-1, 1))
         else:
-            # rsl-rl: rewards + gamma * (values * time_outs); with time_outs 0 or 1 the products are
-            # exact in either order, so this is its float32 result.
-            torch.addcmul(
-                rewards.view(-1, 1), storage.values[t], time_outs.view(-1, 1), value=alg.gamma, out=storage.rewards[t]
-            )
+            # rsl-rl's rewards + gamma * (values * time_outs), rounded as it rounds: one fused kernel
+            # (addcmul) gave other bits on an H100, its multiply-add contracted into one FMA.
+            bootstrap = torch.mul(storage.values[t], time_outs.view(-1, 1), out=self._bootstrap)
+            torch.add(rewards.view(-1, 1), bootstrap.mul_(alg.gamma), out=storage.rewards[t])
         storage.dones[t].copy_(dones.view(-1, 1))
         storage.step += 1
 

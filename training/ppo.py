@@ -23,7 +23,7 @@
    loss and gradients from `fused_ppo.FusedPPOLoss` (`fused_loss`) where it serves, then clips and
    steps as rsl-rl does (`_apply_gradients`); `FusedPPOLoss.unsupported` says why it does not serve.
    Where it serves, the rollout's `act` and `process_env_step` run `fused_ppo.FusedAct` (`fused_act`):
-   one kernel samples and writes the storage's step, whose rewards and dones follow in two more.
+   one kernel samples and writes the storage's step, whose rewards and dones follow in four more.
 """
 
 from __future__ import annotations

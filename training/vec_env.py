@@ -275,9 +275,11 @@ class AquariumVecEnv(VecEnv):
     def step_capturable(self) -> bool:
         """Whether `step_simulation(None)` is device work only, so a CUDA graph may hold it: an opponent
         marked `capturable` (a heuristic, the other learner's buffer; a loaded policy's own random
-        stream and a recurrent one's host state are not) and no domain randomisation (it reads the
-        ended worlds on the host)."""
-        return self.randomizer is None and bool(getattr(self.opponent, "capturable", False))
+        stream and a recurrent one's host state are not), no domain randomisation (it reads the
+        ended worlds on the host) and worlds whose step can be recorded (`env.step_capturable`)."""
+        return (
+            self.randomizer is None and bool(getattr(self.opponent, "capturable", False)) and self.env.step_capturable
+        )
 
     @property
     def actions_buffer(self) -> torch.Tensor:

@@ -264,16 +264,25 @@ def test_load_state_dict_refuses_other_config(device):
         other.close()
 
 
-# Worlds of one cell (the fused step), cell lists built by rank (at most RANK_SORT_MAX_CAPACITY slots)
-# and by counts and their prefix sum (more slots: `wp.utils.array_scan`, which allocates its scratch).
+# Worlds of one cell (the fused step) and cell lists built by rank (at most RANK_SORT_MAX_CAPACITY slots).
 CAPTURED_STEP_CASES = {
     "fused": (CFG, {}),
     "stages, rank-sorted cells": (CFG.replace(grid_cell_size=100.0), {}),
-    "stages, counted cells": (
-        AquariumConfig(width=900.0, height=900.0, prey_count=150, predator_count=4, max_steps=50, grid_cell_size=150.0),
-        {},
-    ),
 }
+# More slots: cell lists built by counts and a prefix sum (`wp.utils.array_scan`, whose scratch allocation
+# a torch capture refuses).
+COUNTED_CELLS = AquariumConfig(
+    width=900.0, height=900.0, prey_count=150, predator_count=4, max_steps=50, grid_cell_size=150.0
+)
+
+
+def test_which_steps_a_torch_graph_can_record(device):
+    """`step_capturable`: every step but that of worlds whose cell lists are built by counts on a GPU
+    (the CPU records no graph at all: vacuously capturable)."""
+    for cfg, on_gpu in [*((c, True) for c, _ in CAPTURED_STEP_CASES.values()), (COUNTED_CELLS, False)]:
+        env = make(device, cfg, num_worlds=2)
+        assert env.step_capturable == (on_gpu or not device.startswith("cuda"))
+        env.close()
 
 
 @pytest.mark.parametrize("case", CAPTURED_STEP_CASES)
