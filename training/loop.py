@@ -13,14 +13,15 @@ them as CUDA graphs (the adapter's own host reads, where its settings need them,
   rewards, dones and time-outs, `PPO.process_env_step` into the storage, per-world episode statistics
   on the device, the next observations, and the swarm metrics' sample where one falls. Which steps
   sample depends on the step count the rollout starts at, so there is one such graph per starting
-  phase (`every / gcd(every, num_steps)` of them: 5 for the paper's 32 steps and a sample every 10),
-  all captured together. One replay per rollout leaves the host nothing to do
+  phase (`every / gcd(every, num_steps)` of them: 5 for the paper's 32 steps and a sample every 10;
+  at most `MAX_ROLLOUT_GRAPHS`), all captured together. One replay per rollout leaves the host nothing to do
   per step and the GPU no gap between graphs: on one H100 the paper preset's rollout (1,024 worlds,
   fused MLP and TF32) took 4.41 ms as one graph against 8.85 ms as `act[t]` and `after[t]` per step
   with the simulation launched between them (`benchmarks/results/rollout_fusion_h100_e968e81/`);
 - where an adapter's simulation step needs the host (a domain randomiser, a loaded or recurrent
-  opponent: `AquariumVecEnv.step_capturable`), step `t` is graph `act[t]`, then the simulation
-  step outside any torch graph (itself one CUDA graph of Warp's), then graph `after[t]`;
+  opponent: `AquariumVecEnv.step_capturable`), or the sampling phases would need more than
+  `MAX_ROLLOUT_GRAPHS` graphs, step `t` is graph `act[t]`, then the simulation step outside any
+  torch graph (itself one CUDA graph of Warp's), then graph `after[t]`;
 - after the rollout, graph `learn`: `PPO.compute_returns` (GAE) and `AquariumPPO.update_on_device`
   (every mini-batch of every epoch: forward, losses, backward, gradient clipping, Adam), reading the
   mini-batch indices drawn just before it by the same `randperm` as rsl-rl's generator;
@@ -71,6 +72,7 @@ import contextlib
 import functools
 import gc
 import itertools
+import math
 import time
 from collections.abc import Callable
 
@@ -233,6 +235,16 @@ def graph_plan(algs, cuda: bool, graph_update: bool | str = "auto") -> tuple[boo
     return rollout, updates
 
 
+MAX_ROLLOUT_GRAPHS = 10  # whole-rollout graphs at most (one per sampling phase); more: a graph per stage
+
+
+def rollout_phases(num_steps: int, every: list[int]) -> int:
+    """How many whole-rollout graphs a loop of `num_steps` steps per rollout needs with swarm metrics
+    sampled every `every[i]` steps: the phases the rollouts start at repeat after `every / gcd(every,
+    num_steps)` rollouts for each, after their least common multiple for all."""
+    return math.lcm(*(e // math.gcd(e, num_steps) for e in every)) if every else 1
+
+
 class TrainingLoop:
     """Runs iterations of rollout + PPO update for one or more learners over the same worlds; see the
     module doc.
@@ -287,8 +299,12 @@ class TrainingLoop:
         self._capture_stream = torch.cuda.Stream(self.device) if self.graphs else None
         self._pool_handle = torch.cuda.graph_pool_handle() if self.graphs else None  # the graphs' memory pool
         # The rollout as one graph per sampling phase of the swarm metrics (`_rollout_key`), where every
-        # adapter's simulation step is device work only; otherwise graphs `act[t]` and `after[t]`.
-        self.whole_rollout = self.graphs and all(env.step_capturable for env in self.envs)
+        # adapter's simulation step is device work only and the phases are few; otherwise graphs
+        # `act[t]` and `after[t]`.
+        phases = rollout_phases(self.num_steps, [swarm.every for swarm in self._swarms()])
+        self.whole_rollout = (
+            self.graphs and phases <= MAX_ROLLOUT_GRAPHS and all(env.step_capturable for env in self.envs)
+        )
         self._rollout_graphs: dict[tuple[int, ...], torch.cuda.CUDAGraph] = {}
         self._act_graphs: list = []
         self._after_graphs: list = []

@@ -303,6 +303,19 @@ def test_algorithms_say_which_graphs_they_allow():
 ADAPTIVE = CASES[2][1]
 
 
+@pytest.mark.parametrize(
+    "num_steps,every,phases",
+    [(32, [], 1), (32, [10], 5), (30, [10], 1), (32, [8], 1), (24, [10], 5), (32, [10, 4], 5), (7, [3, 5], 15)],
+)
+def test_rollout_phases(num_steps, every, phases):
+    """Whole-rollout graphs needed: by hand, 32 steps and a sample every 10 start rollouts at steps 0, 2,
+    4, 6, 8 (mod 10), then repeat; 30 steps always at 0; 7 steps with samples every 3 and every 5 start
+    at (0, 0), (1, 2), (2, 4), ... and repeat after lcm(3, 5) rollouts."""
+    from aquarium_warp.training.loop import rollout_phases
+
+    assert rollout_phases(num_steps, every) == phases
+
+
 def test_adapters_say_whether_their_step_can_be_captured(tmp_path):
     """A heuristic opponent and the other learner's buffer are device work only; a domain randomiser
     (host reads of the ended worlds) and a loaded policy (its own random stream) are not: the loop then
