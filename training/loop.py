@@ -342,6 +342,18 @@ class TrainingLoop:
             if env.swarm is not None:
                 env.swarm.advance()
 
+    def _rollout_step(self, t: int | None = None, mark=lambda phase: None) -> None:
+        """One step of a rollout: act, the other team and the simulation step, then after (outcomes,
+        storage, statistics) and the swarm metrics' sample; `act[t]` and `after[t]` replayed where `t`
+        is given. `mark` as in `_run`."""
+        self._act_graphs[t].replay() if t is not None else self._act()
+        mark("policy")
+        self.env.step_simulation()
+        mark("env")
+        self._after_graphs[t].replay() if t is not None else self._after_step()
+        self._advance_metrics()
+        mark("storage")
+
     def _swarms(self) -> list:
         return [env.swarm for env in self.envs if env.swarm is not None]
 
@@ -419,14 +431,9 @@ class TrainingLoop:
                 for swarm in self._swarms():
                     swarm.count_replayed(self.num_steps)
                 mark("rollout")
-            for t in range(0 if self._rollout_graphs else self.num_steps):
-                self._act_graphs[t].replay() if graphs else self._act()
-                mark("policy")
-                self.env.step_simulation()
-                mark("env")
-                self._after_graphs[t].replay() if graphs else self._after_step()
-                self._advance_metrics()
-                mark("storage")
+            else:
+                for t in range(self.num_steps):
+                    self._rollout_step(t if graphs else None, mark)
         record.mark(1)
         parts = []
         for i, alg in enumerate(self.algs):
@@ -533,10 +540,7 @@ class TrainingLoop:
                     graph = self._rollout_graphs[key] = torch.cuda.CUDAGraph()
                     with self._graph_capture(graph):
                         for _ in range(self.num_steps):
-                            self._act()
-                            self.env.step_simulation()
-                            self._after_step()
-                            self._advance_metrics()
+                            self._rollout_step()
                     self._clear_storages()
             else:
                 for _ in range(self.num_steps):
