@@ -40,6 +40,7 @@ PPO_CLASS = "aquarium_warp.training.ppo:AquariumPPO"
 MLP_MODEL = "MLPModel"
 IL_MODEL = "aquarium_warp.training.models:IndividualMLPModel"
 FUSED_MODEL = "aquarium_warp.training.fused_mlp:FusedMLPModel"
+FUSED_IL_MODEL = "aquarium_warp.training.fused_mlp:FusedIndividualMLPModel"
 SHARING = ("parameter", "individual")
 
 TRAIN_DEFAULTS: dict[str, Any] = {
@@ -66,7 +67,7 @@ TRAIN_DEFAULTS: dict[str, Any] = {
     "graph_update": "auto",
     "metrics_every": 10,  # swarm metrics (Swarm/* in the log) sampled every N steps; 0: none
     "tf32": False,  # CUDA matrix products in TF32 (faster for large batches, ~1e-3 relative error)
-    "fused_mlp": False,  # actor and critic MLPs as the fused Triton kernels (parameter sharing; fused_mlp.py)
+    "fused_mlp": False,  # actor and critic MLPs as the fused Triton kernels (fused_mlp.py, fused_ppo.py)
     "critic": "local",  # the critic's input (MAPPO): "local", "team" or "world" (see CRITICS)
     # Both teams learning (team "both"):
     "update_schedule": "simultaneous",  # "simultaneous", or "alternating": one team learns, the other is frozen
@@ -459,10 +460,10 @@ def _validate_team_models(config: dict, team: str) -> None:
     fused = config["train"]["fused_mlp"]
     for part in ("actor", "critic"):
         class_name = runner.get(part, {}).get("class_name", MLP_MODEL)
-        if fused and (settings["sharing"] == "individual" or class_name not in (MLP_MODEL, "rsl_rl.models:MLPModel")):
+        if fused and class_name not in (MLP_MODEL, "rsl_rl.models:MLPModel"):
             raise ValueError(
-                "train.fused_mlp serves parameter sharing with rsl-rl's MLPModel, not "
-                f"sharing={settings['sharing']!r} with {part} class_name={class_name!r}"
+                "train.fused_mlp serves rsl-rl's MLPModel (parameter sharing or Individual Learning), not "
+                f"{part} class_name={class_name!r}"
             )
         if not _is_recurrent_model(class_name):
             continue
@@ -547,9 +548,10 @@ def runner_config(
     dist = actor.setdefault("distribution_cfg", {"class_name": DISTRIBUTION})
     dist.setdefault("class_name", DISTRIBUTION)
     dist["num_categories"] = int(action_count)
+    individual = train["sharing"] == "individual"
     if train["fused_mlp"]:
-        actor["class_name"] = critic["class_name"] = FUSED_MODEL
-    if train["sharing"] == "individual":
+        actor["class_name"] = critic["class_name"] = FUSED_IL_MODEL if individual else FUSED_MODEL
+    if individual:
         for model in (actor, critic):
             if model.get("class_name", MLP_MODEL) in (MLP_MODEL, "rsl_rl.models:MLPModel"):
                 model["class_name"] = IL_MODEL

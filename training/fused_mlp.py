@@ -6,7 +6,9 @@ in one kernel and its backward, which recomputes the hidden activations from the
 modules (so the same parameters, initialisation and state_dict keys: checkpoints load into either
 model), whose forward runs `TritonMLPFunction` for float32 inputs on the devices the kernels take
 (`DEVICES`). `train.fused_mlp` (config.py, true or false) switches it on for the actor and the critic
-of parameter sharing; Individual Learning keeps its `BatchedMLP`.
+of parameter sharing; for Individual Learning it makes them `FusedIndividualMLPModel`, whose
+`BatchedMLP` keeps torch's forward and whose rollout step and loss run in fused_ppo.py's kernels,
+which read each network's slice of its stacked parameters (`MLPSpec.stacked`, `_group_layers`).
 
 In training, the PPO update of two such models also fuses rsl-rl's loss into kernels built from the
 pieces below (`fused_ppo.FusedPPOLoss`: per mini-batch one kernel for the actor, one for the critic);
@@ -73,6 +75,7 @@ tensors (the tests do that).
 # (No `from __future__ import annotations`: TorchScript must resolve FusedMLP's annotations as objects.)
 import functools
 from dataclasses import dataclass
+from typing import cast
 
 import torch
 import torch.nn as nn
@@ -83,6 +86,7 @@ from rsl_rl.modules import MLP
 from triton.runtime.interpreter import InterpretedFunction
 
 from . import _rsl  # noqa: F401
+from .models import BatchedLinear, BatchedMLP, IndividualMLPModel
 
 HIDDEN_WIDTHS = (16, 32, 64, 128)  # allowed hidden widths (tl.dot's tiles: powers of two >= 16)
 MAX_HIDDEN_LAYERS = 3  # the kernels spell out each layer (Triton has no lists of tensors)
@@ -98,14 +102,22 @@ ACTIVATIONS = {nn.Tanh: "tanh", nn.ReLU: "relu", nn.ELU: "elu"}
 @dataclass(frozen=True)
 class MLPSpec:
     """An MLP's architecture as the kernels see it: the layer widths `dims` (input, hidden...,
-    output) and the activation's name."""
+    output), the activation's name, and for Individual Learning's `models.BatchedMLP` (`stacked`) the
+    number of networks `groups` whose parameters it stacks (weights `[groups, in, out]`, biases
+    `[groups, out]`; row `k` of a batch is network `k % groups`'s)."""
 
     dims: tuple[int, ...]
     activation: str
+    groups: int = 1
+    stacked: bool = False
 
     @property
     def layers(self) -> int:
         return len(self.dims) - 1
+
+    def kernel_constants(self) -> dict:
+        """The compile-time arguments of the PPO kernels that take stacked networks (fused_ppo.py)."""
+        return {"GROUPS": self.groups, "TRANSPOSED": self.stacked}
 
 
 def mlp_spec(mlp: nn.Sequential) -> MLPSpec:
@@ -113,11 +125,26 @@ def mlp_spec(mlp: nn.Sequential) -> MLPSpec:
     names what the kernels do not cover."""
     modules = list(mlp)
     linears = [m for m in modules[0::2] if isinstance(m, nn.Linear)]
-    activations = modules[1::2]
     if len(modules) < 3 or len(modules) % 2 == 0 or len(linears) != len(modules[0::2]):
         raise ValueError(
             f"fused MLP: expected Linear, activation, ..., Linear modules, got {[type(m).__name__ for m in modules]}"
         )
+    dims = (linears[0].in_features,) + tuple(m.out_features for m in linears)
+    return MLPSpec(dims, _activation_name(modules[1::2], dims))
+
+
+def stacked_mlp_spec(mlp: BatchedMLP) -> MLPSpec:
+    """The `MLPSpec` of Individual Learning's `models.BatchedMLP` (one activation module between its
+    `BatchedLinear` layers); a one-line ValueError names what the kernels do not cover."""
+    layers = cast(list[BatchedLinear], list(mlp.layers))
+    dims = (layers[0].in_features,) + tuple(layer.out_features for layer in layers)
+    if len(layers) < 2:
+        raise ValueError(f"fused MLP: Individual Learning's networks need a hidden layer, got widths {list(dims)}")
+    return MLPSpec(dims, _activation_name([mlp.activation] * (len(layers) - 1), dims), mlp.groups, True)
+
+
+def _activation_name(activations: list, dims: tuple[int, ...]) -> str:
+    """The kernels' name of the MLP's activation modules, its widths checked (see `mlp_spec`)."""
     kinds = {type(m) for m in activations}
     if len(kinds) != 1 or next(iter(kinds)) not in ACTIVATIONS:
         raise ValueError(
@@ -125,7 +152,6 @@ def mlp_spec(mlp: nn.Sequential) -> MLPSpec:
         )
     if any(isinstance(m, nn.ELU) and m.alpha != 1.0 for m in activations):
         raise ValueError("fused MLP: elu must have alpha 1.0")
-    dims = (linears[0].in_features,) + tuple(m.out_features for m in linears)
     if any(not 1 <= d <= MAX_WIDTH for d in dims[1:]):
         raise ValueError(f"fused MLP: layer widths {list(dims[1:])} must be in [1, {MAX_WIDTH}]")
     hidden = dims[1:-1]
@@ -134,7 +160,7 @@ def mlp_spec(mlp: nn.Sequential) -> MLPSpec:
             f"fused MLP: hidden layers {list(hidden)} must be 1 to {MAX_HIDDEN_LAYERS} layers "
             f"of one width in {list(HIDDEN_WIDTHS)}"
         )
-    return MLPSpec(dims, ACTIVATIONS[next(iter(kinds))])
+    return ACTIVATIONS[next(iter(kinds))]
 
 
 @triton.jit
@@ -169,11 +195,22 @@ def _slope(y, ACTIVATION: tl.constexpr):
 
 
 @triton.jit
-def _load_matrix(ptr, ROWS: tl.constexpr, ROWS_P: tl.constexpr, COLS: tl.constexpr, COLS_P: tl.constexpr):
-    """A row-major `[ROWS, COLS]` matrix as a `[ROWS_P, COLS_P]` tile, zero-padded."""
+def _matrix_offsets(ROWS: tl.constexpr, ROWS_P: tl.constexpr, COLS: tl.constexpr, COLS_P: tl.constexpr,
+                    TRANSPOSED: tl.constexpr):  # fmt: skip
+    """Offsets and mask of a `[ROWS, COLS]` matrix's `[ROWS_P, COLS_P]` tile: row-major, or stored as
+    its transpose (`[COLS, ROWS]` row-major: the weights of `models.BatchedLinear`) with TRANSPOSED."""
     r = tl.arange(0, ROWS_P)
     c = tl.arange(0, COLS_P)
-    return tl.load(ptr + r[:, None] * COLS + c[None, :], mask=(r[:, None] < ROWS) & (c[None, :] < COLS), other=0.0)
+    offsets = c[None, :] * ROWS + r[:, None] if TRANSPOSED else r[:, None] * COLS + c[None, :]
+    return offsets, (r[:, None] < ROWS) & (c[None, :] < COLS)
+
+
+@triton.jit
+def _load_matrix(ptr, ROWS: tl.constexpr, ROWS_P: tl.constexpr, COLS: tl.constexpr, COLS_P: tl.constexpr,
+                 TRANSPOSED: tl.constexpr = False):  # fmt: skip
+    """A `[ROWS, COLS]` matrix (see `_matrix_offsets`) as a `[ROWS_P, COLS_P]` tile, zero-padded."""
+    offsets, mask = _matrix_offsets(ROWS, ROWS_P, COLS, COLS_P, TRANSPOSED)
+    return tl.load(ptr + offsets, mask=mask, other=0.0)
 
 
 @triton.jit
@@ -183,10 +220,10 @@ def _load_vector(ptr, N: tl.constexpr, N_P: tl.constexpr):
 
 
 @triton.jit
-def _store_matrix(ptr, m, ROWS: tl.constexpr, ROWS_P: tl.constexpr, COLS: tl.constexpr, COLS_P: tl.constexpr):
-    r = tl.arange(0, ROWS_P)
-    c = tl.arange(0, COLS_P)
-    tl.store(ptr + r[:, None] * COLS + c[None, :], m, mask=(r[:, None] < ROWS) & (c[None, :] < COLS))
+def _store_matrix(ptr, m, ROWS: tl.constexpr, ROWS_P: tl.constexpr, COLS: tl.constexpr, COLS_P: tl.constexpr,
+                  TRANSPOSED: tl.constexpr = False):  # fmt: skip
+    offsets, mask = _matrix_offsets(ROWS, ROWS_P, COLS, COLS_P, TRANSPOSED)
+    tl.store(ptr + offsets, m, mask=mask)
 
 
 @triton.jit
@@ -213,9 +250,10 @@ def _layer(
     N_OUT: tl.constexpr,
     N_OUT_P: tl.constexpr,
     PRECISION: tl.constexpr,
+    TRANSPOSED: tl.constexpr = False,
 ):
-    """`a @ W^T + b` for torch's `[N_OUT, N_IN]` weight `W` (zero-padded)."""
-    w = _load_matrix(w_ptr, N_OUT, N_OUT_P, N_IN, N_IN_P)
+    """`a @ W^T + b` for torch's `[N_OUT, N_IN]` weight `W` (zero-padded; stored as `W^T` with TRANSPOSED)."""
+    w = _load_matrix(w_ptr, N_OUT, N_OUT_P, N_IN, N_IN_P, TRANSPOSED)
     b = _load_vector(b_ptr, N_OUT, N_OUT_P)
     return tl.dot(a, tl.trans(w), input_precision=PRECISION) + b[None, :]
 
@@ -230,10 +268,12 @@ def _back(
     COLS: tl.constexpr,
     COLS_P: tl.constexpr,
     PRECISION: tl.constexpr,
+    TRANSPOSED: tl.constexpr = False,
 ):
-    """For a layer of weight `[ROWS, COLS]` at `w_ptr`, input `a` and output gradient `g`: the
-    weight's gradient `g^T a`, the bias's (the column sums of `g`) and the input's, `g W`."""
-    w = _load_matrix(w_ptr, ROWS, ROWS_P, COLS, COLS_P)
+    """For a layer of weight `[ROWS, COLS]` at `w_ptr` (stored as its transpose with TRANSPOSED), input
+    `a` and output gradient `g`: the weight's gradient `g^T a`, the bias's (the column sums of `g`)
+    and the input's, `g W`."""
+    w = _load_matrix(w_ptr, ROWS, ROWS_P, COLS, COLS_P, TRANSPOSED)
     dw = tl.dot(tl.trans(g), a, input_precision=PRECISION)
     return dw, tl.sum(g, axis=0), tl.dot(g, w, input_precision=PRECISION)
 
@@ -242,17 +282,17 @@ def _back(
 def _hidden(
     x, w0, b0, w1, b1, w2, b2,
     IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, HIDDEN: tl.constexpr,
-    ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, FAST_TANH: tl.constexpr,
+    ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, FAST_TANH: tl.constexpr, TRANSPOSED: tl.constexpr = False,
 ):  # fmt: skip
     """The hidden activations `(a1, a2, a3)` of the input tile `x`; past the `HIDDEN`-th layer each
     repeats the last (so `a3` is always the last hidden layer's)."""
-    a1 = _activate(_layer(x, w0, b0, IN, IN_P, H, H, PRECISION), ACTIVATION, FAST_TANH)
+    a1 = _activate(_layer(x, w0, b0, IN, IN_P, H, H, PRECISION, TRANSPOSED), ACTIVATION, FAST_TANH)
     a2 = a1
     if HIDDEN >= 2:
-        a2 = _activate(_layer(a1, w1, b1, H, H, H, H, PRECISION), ACTIVATION, FAST_TANH)
+        a2 = _activate(_layer(a1, w1, b1, H, H, H, H, PRECISION, TRANSPOSED), ACTIVATION, FAST_TANH)
     a3 = a2
     if HIDDEN >= 3:
-        a3 = _activate(_layer(a2, w2, b2, H, H, H, H, PRECISION), ACTIVATION, FAST_TANH)
+        a3 = _activate(_layer(a2, w2, b2, H, H, H, H, PRECISION, TRANSPOSED), ACTIVATION, FAST_TANH)
     return a1, a2, a3
 
 
@@ -265,6 +305,33 @@ def _output_layer(w1, b1, w2, b2, w3, b3, HIDDEN: tl.constexpr):
         return w2, b2
     else:
         return w3, b3
+
+
+@triton.jit
+def _group_layers(
+    g, w0, b0, w1, b1, w2, b2, w3, b3,
+    IN: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, HIDDEN: tl.constexpr,
+):  # fmt: skip
+    """Network `g`'s layer pointers in parameters stacked over networks (`models.BatchedMLP`: weights
+    `[groups, in, out]`, biases `[groups, out]`); layer `HIDDEN` is the output layer."""
+    g = g.to(tl.int64)
+    w0 += g * (IN * H)
+    b0 += g * H
+    if HIDDEN == 1:
+        w1 += g * (H * OUT)
+        b1 += g * OUT
+    else:
+        w1 += g * (H * H)
+        b1 += g * H
+    if HIDDEN == 2:
+        w2 += g * (H * OUT)
+        b2 += g * OUT
+    elif HIDDEN == 3:
+        w2 += g * (H * H)
+        b2 += g * H
+        w3 += g * (H * OUT)
+        b3 += g * OUT
+    return w0, b0, w1, b1, w2, b2, w3, b3
 
 
 @triton.jit
@@ -288,26 +355,26 @@ def _zero_gradients(IN_P: tl.constexpr, H: tl.constexpr, OUT_P: tl.constexpr):
 def _backward_tile(
     g, x, a1, a2, a3, w0, w1, w2, w_out, d0, e0, d1, e1, d2, e2, d_out, e_out,
     IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
-    HIDDEN: tl.constexpr, ACTIVATION: tl.constexpr, PRECISION: tl.constexpr,
+    HIDDEN: tl.constexpr, ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, TRANSPOSED: tl.constexpr = False,
 ):  # fmt: skip
     """Back through the layers of one tile from `g`, the gradient of its output (zero in rows that
     must add nothing): the accumulators with the tile's weight and bias gradients added, and the
     input's gradient `gx`."""
-    dw, db, g = _back(g, a3, w_out, OUT, OUT_P, H, H, PRECISION)
+    dw, db, g = _back(g, a3, w_out, OUT, OUT_P, H, H, PRECISION, TRANSPOSED)
     d_out += dw
     e_out += db
     g = g * _slope(a3, ACTIVATION)
     if HIDDEN >= 3:
-        dw, db, g = _back(g, a2, w2, H, H, H, H, PRECISION)
+        dw, db, g = _back(g, a2, w2, H, H, H, H, PRECISION, TRANSPOSED)
         d2 += dw
         e2 += db
         g = g * _slope(a2, ACTIVATION)
     if HIDDEN >= 2:
-        dw, db, g = _back(g, a1, w1, H, H, H, H, PRECISION)
+        dw, db, g = _back(g, a1, w1, H, H, H, H, PRECISION, TRANSPOSED)
         d1 += dw
         e1 += db
         g = g * _slope(a1, ACTIVATION)
-    dw, db, gx = _back(g, x, w0, H, H, IN, IN_P, PRECISION)
+    dw, db, gx = _back(g, x, w0, H, H, IN, IN_P, PRECISION, TRANSPOSED)
     d0 += dw
     e0 += db
     return d0, e0, d1, e1, d2, e2, d_out, e_out, gx
@@ -325,22 +392,22 @@ def _partial_row(partial_ptr, program, SUMS: tl.constexpr, IN: tl.constexpr, H: 
 def _store_gradients(
     row, d0, e0, d1, e1, d2, e2, d_out, e_out,
     IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
-    HIDDEN: tl.constexpr,
+    HIDDEN: tl.constexpr, TRANSPOSED: tl.constexpr = False,
 ):  # fmt: skip
-    """The accumulators at `row` in the order of the parameters (weight0, bias0, weight1, ...);
-    returns the pointer past them."""
-    _store_matrix(row, d0, H, H, IN, IN_P)
+    """The accumulators at `row` in the order of the parameters (weight0, bias0, weight1, ...), each
+    weight's as it is stored (transposed with TRANSPOSED); returns the pointer past them."""
+    _store_matrix(row, d0, H, H, IN, IN_P, TRANSPOSED)
     _store_vector(row + H * IN, e0, H, H)
     row += H * IN + H
     if HIDDEN >= 2:
-        _store_matrix(row, d1, H, H, H, H)
+        _store_matrix(row, d1, H, H, H, H, TRANSPOSED)
         _store_vector(row + H * H, e1, H, H)
         row += H * H + H
     if HIDDEN >= 3:
-        _store_matrix(row, d2, H, H, H, H)
+        _store_matrix(row, d2, H, H, H, H, TRANSPOSED)
         _store_vector(row + H * H, e2, H, H)
         row += H * H + H
-    _store_matrix(row, d_out, OUT, OUT_P, H, H)
+    _store_matrix(row, d_out, OUT, OUT_P, H, H, TRANSPOSED)
     _store_vector(row + OUT * H, e_out, OUT, OUT_P)
     return row + OUT * H + OUT
 
@@ -543,6 +610,18 @@ class FusedMLP(MLP):
         return out.reshape(*x.shape[:-1], out.shape[-1])
 
 
+def kernel_view(mlp: nn.Module | None) -> tuple[MLPSpec, list[torch.Tensor]] | None:
+    """What the PPO kernels (fused_ppo.py) read of a `FusedMLP`, or of Individual Learning's `BatchedMLP`
+    with a spec (`FusedIndividualMLPModel`): its `MLPSpec` and parameters (weight0, bias0, weight1, ...);
+    None for any other MLP."""
+    if isinstance(mlp, FusedMLP):
+        return mlp.spec, [p for layer in list(mlp)[0::2] for p in (layer.weight, layer.bias)]
+    if isinstance(mlp, BatchedMLP) and isinstance(mlp.spec, MLPSpec):
+        layers = cast(list[BatchedLinear], list(mlp.layers))
+        return mlp.spec, [p for layer in layers for p in (layer.weight, layer.bias)]
+    return None
+
+
 class FusedMLPModel(MLPModel):
     """rsl-rl's `MLPModel` with a `FusedMLP` (see the module doc); its arguments are `MLPModel`'s.
     `fused = True` tells `AquariumPPO` to try the fused loss (`fused_ppo.FusedPPOLoss`) with it."""
@@ -553,3 +632,18 @@ class FusedMLPModel(MLPModel):
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self.mlp = FusedMLP(self.mlp)
+
+
+class FusedIndividualMLPModel(IndividualMLPModel):
+    """Individual Learning's `IndividualMLPModel` for the fused PPO kernels (`train.fused_mlp` with
+    `sharing = "individual"`): the same `BatchedMLP` (parameters, state_dict, torch's forward), its
+    `MLPSpec` (`stacked_mlp_spec`) checked when it is built; `AquariumPPO` runs its rollout step and its
+    loss in fused_ppo.py's kernels, one program per network's rows."""
+
+    fused = True
+
+    mlp: BatchedMLP  # declared: IndividualMLPModel sets it in __init__
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.mlp.spec = stacked_mlp_spec(self.mlp)

@@ -55,9 +55,10 @@ from . import fused_mlp
 from .distribution import CategoricalDistribution
 from .fused_mlp import (
     NUM_WARPS,
-    FusedMLP,
+    MLPSpec,
     _backward_tile,
     _constants,
+    _group_layers,
     _hidden,
     _layer,
     _layer_pointers,
@@ -69,6 +70,7 @@ from .fused_mlp import (
     backward_programs,
     block_rows,
     kernel_precision,
+    kernel_view,
 )
 
 ACTOR_SUMS = 2  # the actor's partial rows end with the sums of the clipped surrogate and the entropy
@@ -85,20 +87,21 @@ def _gather(ptr, samples, valid, COLS: tl.constexpr, COLS_P: tl.constexpr):
 
 @triton.jit
 def _tile_forward(
-    obs_ptr, index_ptr, offset, n_rows, tile, w0, b0, w1, b1, w2, b2, w_out, b_out,
+    obs_ptr, index_ptr, offset, n_rows, tile, group, w0, b0, w1, b1, w2, b2, w_out, b_out,
     IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
     HIDDEN: tl.constexpr, ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, BLOCK_M: tl.constexpr,
-    FAST_TANH: tl.constexpr,
+    FAST_TANH: tl.constexpr, GROUPS: tl.constexpr, TRANSPOSED: tl.constexpr,
 ):  # fmt: skip
-    """Mini-batch rows `tile * BLOCK_M ...` (row r is sample `index_ptr[offset + r]` of the flattened
-    storage): which are `valid`, their `samples`, the gathered input `x`, the hidden activations and the
-    MLP's output `y` (padded)."""
-    rows = tile * BLOCK_M + tl.arange(0, BLOCK_M)
+    """Network `group`'s mini-batch rows of tile `tile`: rows `(tile * BLOCK_M + i) * GROUPS + group`
+    (row r is sample `index_ptr[offset + r]` of the flattened storage; one network: every row): which
+    are `valid`, their `samples`, the gathered input `x`, the hidden activations and the MLP's output
+    `y` (padded)."""
+    rows = (tile * BLOCK_M + tl.arange(0, BLOCK_M)) * GROUPS + group
     valid = rows < n_rows
     samples = tl.load(index_ptr + offset + rows, mask=valid, other=0).to(tl.int64)
     x = _gather(obs_ptr, samples, valid, IN, IN_P)
-    a1, a2, a3 = _hidden(x, w0, b0, w1, b1, w2, b2, IN, IN_P, H, HIDDEN, ACTIVATION, PRECISION, FAST_TANH)
-    return valid, samples, x, a1, a2, a3, _layer(a3, w_out, b_out, H, H, OUT, OUT_P, PRECISION)
+    a1, a2, a3 = _hidden(x, w0, b0, w1, b1, w2, b2, IN, IN_P, H, HIDDEN, ACTIVATION, PRECISION, FAST_TANH, TRANSPOSED)
+    return valid, samples, x, a1, a2, a3, _layer(a3, w_out, b_out, H, H, OUT, OUT_P, PRECISION, TRANSPOSED)
 
 
 @triton.jit
@@ -116,10 +119,14 @@ def _actor_loss_kernel(
     w0, b0, w1, b1, w2, b2, w3, b3,
     IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
     HIDDEN: tl.constexpr, ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, BLOCK_M: tl.constexpr,
-    FAST_TANH: tl.constexpr, SUMS: tl.constexpr,
+    FAST_TANH: tl.constexpr, SUMS: tl.constexpr, GROUPS: tl.constexpr, TRANSPOSED: tl.constexpr,
     NORMALIZE_ADVANTAGES: tl.constexpr,
 ):  # fmt: skip
-    # Mini-batch row r is sample index_ptr[offset + r] of the flattened storage.
+    # Mini-batch row r is sample index_ptr[offset + r] of the flattened storage; program (p, g) takes
+    # network g's rows (see `_tile_forward`).
+    group = tl.program_id(1)
+    if GROUPS > 1:
+        w0, b0, w1, b1, w2, b2, w3, b3 = _group_layers(group, w0, b0, w1, b1, w2, b2, w3, b3, IN, H, OUT, HIDDEN)
     d0, e0, d1, e1, d2, e2, d_out, e_out = _zero_gradients(IN_P, H, OUT_P)
     surrogate_sum = tl.zeros((BLOCK_M,), dtype=tl.float32)
     entropy_sum = tl.zeros((BLOCK_M,), dtype=tl.float32)
@@ -130,10 +137,10 @@ def _actor_loss_kernel(
         advantage_mean = tl.load(advantage_stats_ptr)
         advantage_scale = tl.load(advantage_stats_ptr + 1)
     program = tl.program_id(0)
-    for tile in range(program, tl.cdiv(n_rows, BLOCK_M), tl.num_programs(0)):
+    for tile in range(program, tl.cdiv(n_rows // GROUPS, BLOCK_M), tl.num_programs(0)):
         valid, samples, x, a1, a2, a3, y = _tile_forward(
-            obs_ptr, index_ptr, offset, n_rows, tile, w0, b0, w1, b1, w2, b2, w_out, b_out,
-            IN, IN_P, H, OUT, OUT_P, HIDDEN, ACTIVATION, PRECISION, BLOCK_M, FAST_TANH,
+            obs_ptr, index_ptr, offset, n_rows, tile, group, w0, b0, w1, b1, w2, b2, w_out, b_out,
+            IN, IN_P, H, OUT, OUT_P, HIDDEN, ACTIVATION, PRECISION, BLOCK_M, FAST_TANH, GROUPS, TRANSPOSED,
         )  # fmt: skip
         logits = tl.where(category, y, float("-inf"))
         # log-softmax, as torch's: the logits less their log-sum-exp; probabilities its exp
@@ -166,10 +173,10 @@ def _actor_loss_kernel(
         grad = tl.where(category & valid[:, None], grad, 0.0)
         d0, e0, d1, e1, d2, e2, d_out, e_out, _ = _backward_tile(
             grad, x, a1, a2, a3, w0, w1, w2, w_out, d0, e0, d1, e1, d2, e2, d_out, e_out,
-            IN, IN_P, H, OUT, OUT_P, HIDDEN, ACTIVATION, PRECISION,
+            IN, IN_P, H, OUT, OUT_P, HIDDEN, ACTIVATION, PRECISION, TRANSPOSED,
         )  # fmt: skip
-    row = _partial_row(partial_ptr, program, SUMS, IN, H, OUT, HIDDEN)
-    row = _store_gradients(row, d0, e0, d1, e1, d2, e2, d_out, e_out, IN, IN_P, H, OUT, OUT_P, HIDDEN)
+    row = _partial_row(partial_ptr, program * GROUPS + group, SUMS, IN, H, OUT, HIDDEN)
+    row = _store_gradients(row, d0, e0, d1, e1, d2, e2, d_out, e_out, IN, IN_P, H, OUT, OUT_P, HIDDEN, TRANSPOSED)
     tl.store(row, tl.sum(surrogate_sum, axis=0))
     tl.store(row + 1, tl.sum(entropy_sum, axis=0))
 
@@ -180,18 +187,21 @@ def _critic_loss_kernel(
     w0, b0, w1, b1, w2, b2, w3, b3,
     IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
     HIDDEN: tl.constexpr, ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, BLOCK_M: tl.constexpr,
-    FAST_TANH: tl.constexpr, SUMS: tl.constexpr,
+    FAST_TANH: tl.constexpr, SUMS: tl.constexpr, GROUPS: tl.constexpr, TRANSPOSED: tl.constexpr,
     CLIPPED: tl.constexpr,
 ):  # fmt: skip
+    group = tl.program_id(1)  # (as in the actor's kernel)
+    if GROUPS > 1:
+        w0, b0, w1, b1, w2, b2, w3, b3 = _group_layers(group, w0, b0, w1, b1, w2, b2, w3, b3, IN, H, OUT, HIDDEN)
     d0, e0, d1, e1, d2, e2, d_out, e_out = _zero_gradients(IN_P, H, OUT_P)
     loss_sum = tl.zeros((BLOCK_M,), dtype=tl.float32)
     w_out, b_out = _output_layer(w1, b1, w2, b2, w3, b3, HIDDEN)
     first = tl.arange(0, OUT_P)[None, :] == 0
     program = tl.program_id(0)
-    for tile in range(program, tl.cdiv(n_rows, BLOCK_M), tl.num_programs(0)):
+    for tile in range(program, tl.cdiv(n_rows // GROUPS, BLOCK_M), tl.num_programs(0)):
         valid, samples, x, a1, a2, a3, y = _tile_forward(
-            obs_ptr, index_ptr, offset, n_rows, tile, w0, b0, w1, b1, w2, b2, w_out, b_out,
-            IN, IN_P, H, OUT, OUT_P, HIDDEN, ACTIVATION, PRECISION, BLOCK_M, FAST_TANH,
+            obs_ptr, index_ptr, offset, n_rows, tile, group, w0, b0, w1, b1, w2, b2, w_out, b_out,
+            IN, IN_P, H, OUT, OUT_P, HIDDEN, ACTIVATION, PRECISION, BLOCK_M, FAST_TANH, GROUPS, TRANSPOSED,
         )  # fmt: skip
         value = tl.sum(tl.where(first, y, 0.0), axis=1)
         target = tl.load(return_ptr + samples, mask=valid, other=0.0)
@@ -212,10 +222,10 @@ def _critic_loss_kernel(
         grad = tl.where(first & valid[:, None], (value_coef * inv_rows * slope)[:, None], 0.0)
         d0, e0, d1, e1, d2, e2, d_out, e_out, _ = _backward_tile(
             grad, x, a1, a2, a3, w0, w1, w2, w_out, d0, e0, d1, e1, d2, e2, d_out, e_out,
-            IN, IN_P, H, OUT, OUT_P, HIDDEN, ACTIVATION, PRECISION,
+            IN, IN_P, H, OUT, OUT_P, HIDDEN, ACTIVATION, PRECISION, TRANSPOSED,
         )  # fmt: skip
-    row = _partial_row(partial_ptr, program, SUMS, IN, H, OUT, HIDDEN)
-    row = _store_gradients(row, d0, e0, d1, e1, d2, e2, d_out, e_out, IN, IN_P, H, OUT, OUT_P, HIDDEN)
+    row = _partial_row(partial_ptr, program * GROUPS + group, SUMS, IN, H, OUT, HIDDEN)
+    row = _store_gradients(row, d0, e0, d1, e1, d2, e2, d_out, e_out, IN, IN_P, H, OUT, OUT_P, HIDDEN, TRANSPOSED)
     tl.store(row, tl.sum(loss_sum, axis=0))
 
 
@@ -227,32 +237,43 @@ def _act_kernel(
     cw0, cb0, cw1, cb1, cw2, cb2, cw3, cb3,
     IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
     HIDDEN: tl.constexpr, ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, BLOCK_M: tl.constexpr,
-    FAST_TANH: tl.constexpr,
+    FAST_TANH: tl.constexpr, GROUPS: tl.constexpr, TRANSPOSED: tl.constexpr,
     CRITIC_H: tl.constexpr, CRITIC_HIDDEN: tl.constexpr, CRITIC_ACTIVATION: tl.constexpr,
 ):  # fmt: skip
     # The actor's layers are w<l>, b<l>, the critic's cw<l>, cb<l>; both read the same observations.
-    rows = (tl.program_id(0) * BLOCK_M + tl.arange(0, BLOCK_M)).to(tl.int64)
+    # Program (p, g) takes network g's rows of tile p, `(p * BLOCK_M + i) * GROUPS + g` (one network:
+    # every row).
+    group = tl.program_id(1)
+    if GROUPS > 1:
+        w0, b0, w1, b1, w2, b2, w3, b3 = _group_layers(group, w0, b0, w1, b1, w2, b2, w3, b3, IN, H, OUT, HIDDEN)
+        cw0, cb0, cw1, cb1, cw2, cb2, cw3, cb3 = _group_layers(
+            group, cw0, cb0, cw1, cb1, cw2, cb2, cw3, cb3, IN, CRITIC_H, 1, CRITIC_HIDDEN
+        )
+    rows = ((tl.program_id(0) * BLOCK_M + tl.arange(0, BLOCK_M)) * GROUPS + group).to(tl.int64)
     valid = rows < n_rows
     x = _rows(obs_ptr, rows, n_rows, IN, IN_P)
-    _, _, last = _hidden(x, w0, b0, w1, b1, w2, b2, IN, IN_P, H, HIDDEN, ACTIVATION, PRECISION, FAST_TANH)
+    _, _, last = _hidden(x, w0, b0, w1, b1, w2, b2, IN, IN_P, H, HIDDEN, ACTIVATION, PRECISION, FAST_TANH, TRANSPOSED)
     w_out, b_out = _output_layer(w1, b1, w2, b2, w3, b3, HIDDEN)
-    y = _layer(last, w_out, b_out, H, H, OUT, OUT_P, PRECISION)
+    y = _layer(last, w_out, b_out, H, H, OUT, OUT_P, PRECISION, TRANSPOSED)
     columns = tl.arange(0, OUT_P)
     category = columns[None, :] < OUT
     logits = tl.where(category, y, float("-inf"))
     top = tl.max(logits, axis=1)  # log-softmax as the actor's loss kernel computes it
     log_sum = top + tl.log(tl.sum(tl.exp(logits - top[:, None]), axis=1))
     log_probs = logits - log_sum[:, None]
-    noise = tl.where(category, _rows(noise_ptr, rows, n_rows, OUT, OUT_P), 1.0)  # (1: no division by 0 in the padding)
+    noise = _rows(noise_ptr, rows, n_rows, OUT, OUT_P)
+    noise = tl.where(category & valid[:, None], noise, 1.0)  # (1: no division by 0 in the padding)
     # torch.multinomial's draw of one sample: argmax(p / Exp(1)), the lowest category at a tie
     score = tl.where(category & valid[:, None], tl.exp(log_probs) / noise, -1.0)
     action = tl.argmax(score, axis=1, tie_break_left=True)
     log_prob = tl.sum(tl.where(columns[None, :] == action[:, None], log_probs, 0.0), axis=1)
     _, _, critic_last = _hidden(
-        x, cw0, cb0, cw1, cb1, cw2, cb2, IN, IN_P, CRITIC_H, CRITIC_HIDDEN, CRITIC_ACTIVATION, PRECISION, FAST_TANH
-    )
+        x, cw0, cb0, cw1, cb1, cw2, cb2, IN, IN_P, CRITIC_H, CRITIC_HIDDEN, CRITIC_ACTIVATION, PRECISION, FAST_TANH,
+        TRANSPOSED,
+    )  # fmt: skip
     cw_out, cb_out = _output_layer(cw1, cb1, cw2, cb2, cw3, cb3, CRITIC_HIDDEN)
-    value = tl.sum(_layer(critic_last, cw_out, cb_out, CRITIC_H, CRITIC_H, 1, 16, PRECISION), axis=1)  # (one column)
+    critic_out = _layer(critic_last, cw_out, cb_out, CRITIC_H, CRITIC_H, 1, 16, PRECISION, TRANSPOSED)
+    value = tl.sum(critic_out, axis=1)  # (one column)
     inputs = tl.arange(0, IN_P)
     tl.store(obs_out_ptr + rows[:, None] * IN + inputs[None, :], x, mask=valid[:, None] & (inputs[None, :] < IN))
     tl.store(action_out_ptr + rows, action.to(tl.float32), mask=valid)
@@ -260,6 +281,17 @@ def _act_kernel(
     tl.store(value_out_ptr + rows, value, mask=valid)
     tl.store(log_prob_out_ptr + rows, log_prob, mask=valid)
     tl.store(log_probs_out_ptr + rows[:, None] * OUT + columns[None, :], log_probs, mask=valid[:, None] & category)
+
+
+def _kernel_view(model) -> tuple[MLPSpec, list[torch.Tensor]]:
+    """`fused_mlp.kernel_view` of a model that `FusedPPOLoss.unsupported` accepted."""
+    view = kernel_view(model.mlp)
+    assert view is not None, "a fused model (FusedPPOLoss.unsupported)"
+    return view
+
+
+def _spec(model) -> MLPSpec:
+    return _kernel_view(model)[0]
 
 
 def _single_group(model) -> str | None:
@@ -285,14 +317,16 @@ class FusedPPOLoss:
     def unsupported(alg) -> str | None:
         """Why `alg` (an `AquariumPPO`) cannot use the fused loss; None when it can."""
         actor, critic = alg.actor, alg.critic
-        if not (
-            isinstance(getattr(actor, "mlp", None), FusedMLP) and isinstance(getattr(critic, "mlp", None), FusedMLP)
-        ):
-            return "the actor and the critic must be FusedMLPModel (train.fused_mlp)"
+        actor_view, critic_view = (kernel_view(getattr(model, "mlp", None)) for model in (actor, critic))
+        if actor_view is None or critic_view is None:
+            return "the actor and the critic must be FusedMLPModel or FusedIndividualMLPModel (train.fused_mlp)"
         if not isinstance(actor.distribution, CategoricalDistribution):
             return "the actor's distribution must be CategoricalDistribution"
-        if critic.mlp.spec.dims[-1] != 1:
-            return f"the critic must have one output, not {critic.mlp.spec.dims[-1]}"
+        if critic_view[0].dims[-1] != 1:
+            return f"the critic must have one output, not {critic_view[0].dims[-1]}"
+        groups = max(actor_view[0].groups, critic_view[0].groups)
+        if groups > 1 and getattr(alg, "minibatch_group_size", 1) % groups:
+            return f"mini-batches must hold whole worlds of the {groups} networks (minibatch_group_size)"
         for name, model in (("actor", actor), ("critic", critic)):
             if _single_group(model) is None:
                 return f"the {name} must read one observation group, not {list(model.obs_groups)}"
@@ -310,22 +344,24 @@ class FusedPPOLoss:
         """One model's kernel over the mini-batch (`inputs`: its storage tensors, `scalars` its loss
         constants, `flags` its compile-time switches): its gradients into the parameters' `.grad`;
         returns the `sums` loss sums."""
-        mlp: FusedMLP = model.mlp
-        params = [p for layer in list(mlp)[0::2] for p in (layer.weight, layer.bias)]
+        spec, params = _kernel_view(model)
+        groups = spec.groups
         obs = self.alg.storage.observations[_single_group(model)].flatten(0, 1).contiguous()
-        constants = _constants(mlp.spec, kernel_precision(obs.device), backward=True)
-        programs = backward_programs(obs.device, triton.cdiv(size, constants["BLOCK_M"]))
-        counts = [p.numel() for p in params]
-        partial = torch.empty(programs, sum(counts) + sums, dtype=torch.float32, device=obs.device)
-        kernel[(programs,)](
+        constants = _constants(spec, kernel_precision(obs.device), backward=True)
+        # Persistent programs per network (one network: `backward_programs`; S networks share the card).
+        programs = backward_programs(obs.device, triton.cdiv(size // groups, constants["BLOCK_M"]) * groups)
+        programs = max(1, programs // groups)
+        counts = [p.numel() // groups for p in params]  # each network's share of each parameter
+        partial = torch.empty(programs * groups, sum(counts) + sums, dtype=torch.float32, device=obs.device)
+        kernel[(programs, groups)](
             obs, indices, offset, size, *inputs, partial, *scalars,
             *_layer_pointers(tuple(p.contiguous() for p in params)),
-            **constants, **flags, SUMS=sums, num_warps=NUM_WARPS,
+            **constants, **spec.kernel_constants(), **flags, SUMS=sums, num_warps=NUM_WARPS,
         )  # fmt: skip
-        total = partial.sum(dim=0)
-        for p, g in zip(params, total[: sum(counts)].split(counts)):
-            p.grad = g.view_as(p)
-        return total[sum(counts) :]
+        total = partial.view(programs, groups, -1).sum(dim=0)  # [networks, parameters + sums]
+        for p, g in zip(params, total[:, : sum(counts)].split(counts, dim=1)):
+            p.grad = g.reshape(p.shape)
+        return total[:, sum(counts) :].sum(dim=0)
 
     def step(self, indices: torch.Tensor, offset: int, size: int) -> torch.Tensor:
         alg = self.alg
@@ -372,8 +408,9 @@ class FusedAct:
         # The int32 actions of a caller that gives no buffer of its own (rsl-rl's runner loop).
         self._env_actions = torch.zeros(storage.num_envs, dtype=torch.int32, device=storage.device)
         self._bootstrap = torch.zeros(storage.num_envs, 1, device=storage.device)  # gamma * values at time-outs
+        self._actor, self._critic = _kernel_view(alg.actor), _kernel_view(alg.critic)
         if storage.distribution_params is None:  # as rsl-rl's first `add_transition` makes them
-            T, N, K = storage.num_transitions_per_env, storage.num_envs, alg.actor.mlp.spec.dims[-1]
+            T, N, K = storage.num_transitions_per_env, storage.num_envs, self._actor[0].dims[-1]
             storage.distribution_params = (torch.zeros(T, N, K, device=storage.device),)
 
     @staticmethod
@@ -390,29 +427,34 @@ class FusedAct:
             return f"the actor and the critic must read the storage's one observation group, not {names}"
         if alg.rnd is not None or alg.symmetry is not None:
             return "RND and symmetry read rsl-rl's transition"
+        actor, critic = (_spec(model) for model in (alg.actor, alg.critic))
+        if (actor.groups, actor.stacked) != (critic.groups, critic.stacked):
+            return "the actor and the critic must both share their parameters or both be Individual Learning's"
         return None
 
     def act(self, obs, env_actions: torch.Tensor | None = None) -> torch.Tensor:
         """Sample and store step `storage.step` (see the class doc); returns the stored actions `[N, 1]`."""
-        alg, storage = self.alg, self.alg.storage
+        storage = self.alg.storage
         if storage.step >= storage.num_transitions_per_env:
             raise OverflowError("Rollout buffer overflow! You should call clear() before adding new transitions.")
         t = storage.step
         x = obs[self.group].contiguous()
-        actor, critic = alg.actor.mlp, alg.critic.mlp
-        n_rows, categories = x.shape[0], actor.spec.dims[-1]
+        (actor, actor_params), (critic, critic_params) = self._actor, self._critic
+        n_rows, categories = x.shape[0], actor.dims[-1]
         noise = torch.empty(n_rows, categories, dtype=x.dtype, device=x.device).exponential_(1)
         precision = kernel_precision(x.device)
-        constants = _constants(actor.spec, precision)
-        constants["BLOCK_M"] = min(block_rows(actor.spec), block_rows(critic.spec))
+        constants = _constants(actor, precision)
+        constants["BLOCK_M"] = min(block_rows(actor), block_rows(critic))
         actions = storage.actions[t]
-        _act_kernel[(triton.cdiv(n_rows, constants["BLOCK_M"]),)](
+        # Rows `k * groups + g` are network g's (world-major slot order): a program per tile and network.
+        _act_kernel[(triton.cdiv(n_rows // actor.groups, constants["BLOCK_M"]), actor.groups)](
             x, noise, n_rows,
             storage.observations[self.group][t], actions, storage.values[t], storage.actions_log_prob[t],
             storage.distribution_params[0][t], self._env_actions if env_actions is None else env_actions,
-            *_layer_pointers(_parameters(actor)), *_layer_pointers(_parameters(critic)),
-            **constants, CRITIC_H=critic.spec.dims[1], CRITIC_HIDDEN=critic.spec.layers - 1,
-            CRITIC_ACTIVATION=critic.spec.activation, num_warps=NUM_WARPS,
+            *_layer_pointers(tuple(p.contiguous() for p in actor_params)),
+            *_layer_pointers(tuple(p.contiguous() for p in critic_params)),
+            **constants, **actor.kernel_constants(), CRITIC_H=critic.dims[1], CRITIC_HIDDEN=critic.layers - 1,
+            CRITIC_ACTIVATION=critic.activation, num_warps=NUM_WARPS,
         )  # fmt: skip
         return actions
 
@@ -429,8 +471,3 @@ class FusedAct:
             torch.add(rewards.view(-1, 1), bootstrap.mul_(alg.gamma), out=storage.rewards[t])
         storage.dones[t].copy_(dones.view(-1, 1))
         storage.step += 1
-
-
-def _parameters(mlp: FusedMLP) -> tuple[torch.Tensor, ...]:
-    """The MLP's weights and biases in layer order, as the kernels read them."""
-    return tuple(p.contiguous() for layer in list(mlp)[0::2] for p in (layer.weight, layer.bias))

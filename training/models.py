@@ -19,6 +19,7 @@ The observation normaliser (if enabled) stays shared across slots.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import torch
 import torch.nn as nn
@@ -89,6 +90,8 @@ class BatchedLinear(nn.Module):
 class BatchedMLP(nn.Module):
     """S MLPs of identical shape evaluated at once. Input `[B, L]` with `B = G * S` rows in world-major
     slot order (row `k` uses network `k % S`); output `[B, out]` (or `[B, *out]` for a shaped output)."""
+
+    spec: Any = None  # the fused kernels' `MLPSpec` of it, where `fused_mlp.FusedIndividualMLPModel` set one
 
     def __init__(self, groups: int, input_dim: int, output_dim, hidden_dims, activation: str = "elu") -> None:
         super().__init__()

@@ -18,15 +18,22 @@ from triton.compiler import ASTSource
 from aquarium_warp.training import fused_mlp, fused_ppo
 
 ACTOR = {"IN": 29, "IN_P": 32, "H": 64, "OUT": 9, "OUT_P": 16, "HIDDEN": 2, "ACTIVATION": "tanh", "BLOCK_M": 32}
+SHARED = {"GROUPS": 1, "TRANSPOSED": False}  # parameter sharing's one network
+STACKED = {"GROUPS": 6, "TRANSPOSED": True}  # Individual Learning's networks (models.BatchedMLP)
 KERNELS = [  # (kernel, its own compile-time arguments, integer and float runtime arguments)
     (fused_mlp._forward_kernel, {"BLOCK_M": 64}, {"n_rows"}, set()),
     (fused_mlp._backward_kernel, {"GRAD_X": True}, {"n_rows"}, set()),
-    (fused_ppo._actor_loss_kernel, {"SUMS": 2, "NORMALIZE_ADVANTAGES": True}, {"offset", "n_rows"},
-     {"clip", "entropy_coef", "inv_rows"}),
-    (fused_ppo._critic_loss_kernel, {"OUT": 1, "SUMS": 1, "CLIPPED": True}, {"offset", "n_rows"},
-     {"clip", "value_coef", "inv_rows"}),
-    (fused_ppo._act_kernel, {"BLOCK_M": 64, "CRITIC_H": 64, "CRITIC_HIDDEN": 2, "CRITIC_ACTIVATION": "tanh"},
-     {"n_rows"}, set()),
+] + [
+    (kernel, {**own, **networks}, ints, floats)
+    for networks in (SHARED, STACKED)
+    for kernel, own, ints, floats in [
+        (fused_ppo._actor_loss_kernel, {"SUMS": 2, "NORMALIZE_ADVANTAGES": True}, {"offset", "n_rows"},
+         {"clip", "entropy_coef", "inv_rows"}),
+        (fused_ppo._critic_loss_kernel, {"OUT": 1, "SUMS": 1, "CLIPPED": True}, {"offset", "n_rows"},
+         {"clip", "value_coef", "inv_rows"}),
+        (fused_ppo._act_kernel, {"BLOCK_M": 64, "CRITIC_H": 64, "CRITIC_HIDDEN": 2, "CRITIC_ACTIVATION": "tanh"},
+         {"n_rows"}, set()),
+    ]
 ]  # fmt: skip
 
 
@@ -51,7 +58,9 @@ def main(capability: int) -> int:
         for kernel, own, ints, floats in KERNELS:
             constants = {**ACTOR, "PRECISION": precision, "FAST_TANH": fast_tanh, **own}
             compiled = compile_kernel(kernel, constants, ints, floats, capability)
-            print(f"{kernel.fn.__name__} {precision} sm_{capability}: {len(compiled.asm['cubin'])} bytes of cubin")
+            networks = f" x{own['GROUPS']}" if own.get("GROUPS", 1) > 1 else ""
+            size = len(compiled.asm["cubin"])
+            print(f"{kernel.fn.__name__}{networks} {precision} sm_{capability}: {size} bytes of cubin")
     return 0
 
 

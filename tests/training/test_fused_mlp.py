@@ -29,7 +29,7 @@ from rsl_rl.modules import MLP
 from tensordict import TensorDict
 
 from aquarium_warp.training import fused_mlp, make_config
-from aquarium_warp.training.config import FUSED_MODEL, runner_config
+from aquarium_warp.training.config import FUSED_IL_MODEL, FUSED_MODEL, runner_config
 from aquarium_warp.training.fused_mlp import FusedMLP, FusedMLPModel
 
 BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
@@ -232,13 +232,15 @@ def test_config_switch_and_its_errors():
     runner = runner_config(config, slots=4, action_count=9)
     assert runner["actor"]["class_name"] == runner["critic"]["class_name"] == FUSED_MODEL
     assert runner_config(make_config("tiny"), slots=4, action_count=9)["actor"]["class_name"] == "MLPModel"
+    individual = runner_config(make_config("tiny", {"train": {"fused_mlp": True, "sharing": "individual"}}), 4, 9)
+    assert individual["actor"]["class_name"] == individual["critic"]["class_name"] == FUSED_IL_MODEL
+    assert individual["actor"]["num_agents"] == 4 and individual["algorithm"]["minibatch_group_size"] == 4
     for changes, message in (
         ({"train": {"fused_mlp": "yes"}}, r"train.fused_mlp='yes' must be true or false"),
         ({"train": {"fused_mlp": "triton"}}, r"train.fused_mlp='triton' must be true or false"),
-        ({"train": {"fused_mlp": True, "sharing": "individual"}}, "train.fused_mlp serves parameter sharing"),
         (
             {"train": {"fused_mlp": True}, "runner": {"critic": {"class_name": "RNNModel"}}},
-            "train.fused_mlp serves parameter sharing",
+            "train.fused_mlp serves rsl-rl's MLPModel",
         ),
     ):
         with pytest.raises(ValueError, match=message) as info:

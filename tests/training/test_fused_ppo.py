@@ -22,7 +22,7 @@ pytest.importorskip("triton")  # the fused kernels (the `fused` extra)
 import torch
 
 from aquarium_warp.training import Trainer, fused_mlp
-from aquarium_warp.training.fused_mlp import FusedMLP
+from aquarium_warp.training.fused_mlp import FusedMLP, stacked_mlp_spec
 from aquarium_warp.training.fused_ppo import FusedAct, FusedPPOLoss
 from aquarium_warp.training.ppo import flat_samples
 
@@ -210,6 +210,59 @@ def test_unsupported_learners_keep_the_autograd_path(change, reason, interpreter
         FusedPPOLoss(alg)
 
 
+def individual_learner(device: str = "cpu", worlds: int = 4, spread: float = 0.1, seed: int = 0):
+    """`learner()` with Individual Learning: the tiny preset's 4 prey slots, so 4 networks per model
+    (torch's `BatchedMLP`; `use_fused_individual` gives them the kernels' spec)."""
+    from aquarium_warp.training import make_config
+
+    changes = {"train": {"num_worlds": worlds, "device": device, "quiet": True, "export": [], "fused_mlp": False,
+                         "sharing": "individual"}}  # fmt: skip
+    alg = Trainer(make_config("tiny", changes)).runner.alg
+    bench.fill_storage(alg, seed)
+    gen = torch.Generator(device=alg.device).manual_seed(seed + 1)
+    noise = torch.randn(alg.storage.actions_log_prob.shape, generator=gen, device=alg.device)
+    alg.storage.actions_log_prob.add_(spread * noise)
+    return alg
+
+
+def use_fused_individual(alg) -> None:
+    for model in (alg.actor, alg.critic):
+        model.mlp.spec = stacked_mlp_spec(model.mlp)
+    alg.fused_loss = FusedPPOLoss(alg)
+
+
+@pytest.mark.parametrize("clipped_value,normalize,spread", CASES)
+def test_individual_learning_gradients_equal_rsl_rl_loss(clipped_value, normalize, spread, interpreter):
+    """The fused loss of Individual Learning's stacked networks (a program per network's rows; weights
+    stored `[networks, in, out]`) against rsl-rl's loss through torch's `BatchedMLP` in float64: every
+    network's every parameter within float32 rounding, as for parameter sharing."""
+    alg = individual_learner(spread=spread)
+    alg.use_clipped_value_loss, alg.normalize_advantage_per_mini_batch = clipped_value, normalize
+    assert alg.actor.mlp.groups == 4 and alg.minibatch_group_size == 4
+    torch.manual_seed(0)
+    indices, size = alg.mini_batch_indices()
+    reference_losses, reference = gradients(as_float64(alg), indices, size)
+    _, torch_grads = gradients(alg, indices, size)
+    use_fused_individual(alg)
+    losses, fused_grads = gradients(alg, indices, size)
+    assert len(fused_grads) == 12
+    for name, ref in reference.items():
+        assert fused_grads[name].shape == ref.shape
+        for network in range(4):  # (each network's gradient is its own rows')
+            assert ref[network].abs().max() > 0, (name, network)
+            bound = max(GRADIENT_TOLERANCE, 4 * relative(torch_grads[name][network], ref[network]))
+            assert relative(fused_grads[name][network], ref[network]) <= bound, (name, network)
+    assert torch.allclose(losses, reference_losses, rtol=1e-5, atol=1e-7)
+
+
+def test_individual_learning_fused_step_equals_rsl_rl_act(interpreter):
+    alg = individual_learner(worlds=6)
+    alg.storage.clear()
+    use_fused_individual(alg)
+    alg.fused_act = FusedAct(alg)
+    check_fused_act(alg)
+
+
 def acting_learner(device: str, worlds: int = 4):
     """The tiny preset's learner with fused MLPs and the fused rollout step, its storage empty."""
     alg = bench.build("tiny", worlds, device)
@@ -286,13 +339,35 @@ def test_fused_act_equals_rsl_rl_act(interpreter):
 
 
 @pytest.mark.parametrize("tf32", [False, True])
-def test_cuda_fused_act_equals_rsl_rl_act(cuda_device, tf32):
+@pytest.mark.parametrize("sharing", ["parameter", "individual"])
+def test_cuda_fused_act_equals_rsl_rl_act(cuda_device, tf32, sharing):
     allow_tf32 = torch.backends.cuda.matmul.allow_tf32
     torch.backends.cuda.matmul.allow_tf32 = tf32
     try:
-        check_fused_act(acting_learner(cuda_device, worlds=256), tf32)
+        if sharing == "parameter":
+            alg = acting_learner(cuda_device, worlds=256)
+        else:
+            alg = individual_learner(cuda_device, worlds=256)
+            alg.storage.clear()
+            use_fused_individual(alg)
+            alg.fused_act = FusedAct(alg)
+        check_fused_act(alg, tf32)
     finally:
         torch.backends.cuda.matmul.allow_tf32 = allow_tf32
+
+
+def test_cuda_individual_learning_gradients(cuda_device):
+    """On CUDA (float32 products as three TF32 products): Individual Learning's fused gradients against
+    rsl-rl's loss through `BatchedMLP` in float64, network by network."""
+    alg = individual_learner(cuda_device, worlds=64)
+    torch.manual_seed(0)
+    indices, size = alg.mini_batch_indices()
+    _, reference = gradients(as_float64(alg), indices, size)
+    use_fused_individual(alg)
+    _, fused_grads = gradients(alg, indices, size)
+    for name, ref in reference.items():
+        for network in range(alg.actor.mlp.groups):
+            assert relative(fused_grads[name][network], ref[network]) <= GRADIENT_TOLERANCE, (name, network)
 
 
 def test_fused_act_unsupported_learners(interpreter):
@@ -307,6 +382,30 @@ def test_fused_act_unsupported_learners(interpreter):
     assert FusedAct.unsupported(alg) == FusedPPOLoss.unsupported(alg)
     with pytest.raises(ValueError, match="^FusedAct: .*adaptive"):
         FusedAct(alg)
+
+
+def test_individual_learning_trains_fused_and_records_it(tmp_path, interpreter):
+    """`train.fused_mlp` with `sharing = "individual"`: the learner's models are
+    `FusedIndividualMLPModel`, its update runs the fused loss and its rollout the fused step, and
+    config.json says so; a checkpoint of it loads into the unfused Individual Learning models."""
+    from aquarium_warp.training import make_config
+    from aquarium_warp.training.models import IndividualMLPModel
+
+    changes = {"train": {"num_worlds": 4, "iterations": 1, "fused_mlp": True, "sharing": "individual",
+                         "quiet": True, "export": []}}  # fmt: skip
+    trainer = Trainer(make_config("tiny", changes), log_dir=str(tmp_path / "fused"))
+    alg = trainer.runner.alg
+    assert type(alg.actor).__name__ == "FusedIndividualMLPModel" and alg.actor.mlp.spec.groups == 4
+    assert isinstance(alg.fused_loss, FusedPPOLoss) and isinstance(alg.fused_act, FusedAct)
+    trainer.train(1)
+    trainer.close()
+    record = json.loads((tmp_path / "fused" / "config.json").read_text())
+    assert record["fused_loss"] == record["fused_act"] == {"prey": True}
+    checkpoint = torch.load(tmp_path / "fused" / "model_0.pt", weights_only=False)
+    plain = Trainer(make_config("tiny", {"train": {**changes["train"], "fused_mlp": False}}))
+    assert type(plain.runner.alg.actor) is IndividualMLPModel
+    plain.runner.alg.actor.load_state_dict(checkpoint["actor_state_dict"])
+    plain.close()
 
 
 @pytest.mark.slow
@@ -420,4 +519,4 @@ def test_every_fused_kernel_compiles_for_cuda_without_a_gpu():
     done = subprocess.run([sys.executable, str(script), "90"], env=env, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
     lines = [line for line in done.stdout.splitlines() if "bytes of cubin" in line]
-    assert len(lines) == 10, done.stdout  # five kernels, two precisions
+    assert len(lines) == 16, done.stdout  # two MLP kernels, three PPO kernels for one and for 6 networks; 2 precisions
