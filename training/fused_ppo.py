@@ -360,7 +360,9 @@ class FusedPPOLoss:
         )  # fmt: skip
         total = partial.view(programs, groups, -1).sum(dim=0)  # [networks, parameters + sums]
         for p, g in zip(params, total[:, : sum(counts)].split(counts, dim=1)):
-            p.grad = g.reshape(p.shape)
+            # The parameter's own strides, as CUDA's fused Adam asks (a copy only for stacked networks,
+            # whose slices of `total` are strided; it refused them on an H100 at 853dcd1).
+            p.grad = g.reshape(p.shape).contiguous()
         return total[:, sum(counts) :].sum(dim=0)
 
     def step(self, indices: torch.Tensor, offset: int, size: int) -> torch.Tensor:

@@ -246,6 +246,8 @@ def test_individual_learning_gradients_equal_rsl_rl_loss(clipped_value, normaliz
     use_fused_individual(alg)
     losses, fused_grads = gradients(alg, indices, size)
     assert len(fused_grads) == 12
+    # every gradient laid out as its parameter (CUDA's fused Adam refuses other strides)
+    assert all(p.grad.stride() == p.stride() for m in (alg.actor, alg.critic) for p in m.parameters())
     for name, ref in reference.items():
         assert fused_grads[name].shape == ref.shape
         for network in range(4):  # (each network's gradient is its own rows')
