@@ -24,9 +24,12 @@ clipping of the gradient norms and the optimizer step, is rsl-rl's (`AquariumPPO
 
 `FusedPPOLoss.unsupported(alg)` says why a learner cannot use it (it then keeps the autograd path
 through the fused MLPs): the kernels cover a `FusedMLPModel` actor with `CategoricalDistribution` and
-a `FusedMLPModel` critic of one output, each on one observation group without normalisation, float32
-without autocast, and the fixed learning-rate schedule (the adaptive one reads the KL divergence of
-every mini-batch, which these kernels do not compute).
+a `FusedMLPModel` critic of one output, or Individual Learning's `FusedIndividualMLPModel` pair (its
+`BatchedMLP`'s networks stacked in each parameter: program `(p, g)` takes network g's rows, those of
+slot g of every world, and reads its slice of the `[slots, in, out]` weights), each on one
+observation group without normalisation, float32 without autocast, and the fixed learning-rate
+schedule (the adaptive one reads the KL divergence of every mini-batch, which these kernels do not
+compute).
 
 Unlike the autograd path, no action is sampled during the update: torch's random generator is not
 advanced there (a fused run's later draws differ from an unfused one's, as they already did).

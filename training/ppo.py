@@ -19,7 +19,8 @@
    be captured as one CUDA graph, or with several ranks as graphs cut at its all-reduces (`training/loop.py`);
    `capturable_optimizer=True` builds the optimizer with `capturable=True` for that. On the CPU the
    parameters it produces equal rsl-rl's bit for bit (`tests/training/test_training_loop.py`).
-4. With `FusedMLPModel` actor and critic (`train.fused_mlp`), `update_on_device` takes each mini-batch's
+4. With fused actor and critic (`train.fused_mlp`: `FusedMLPModel`, or Individual Learning's
+   `FusedIndividualMLPModel`), `update_on_device` takes each mini-batch's
    loss and gradients from `fused_ppo.FusedPPOLoss` (`fused_loss`) where it serves, then clips and
    steps as rsl-rl does (`_apply_gradients`); `FusedPPOLoss.unsupported` says why it does not serve.
    Where it serves, the rollout's `act` and `process_env_step` run `fused_ppo.FusedAct` (`fused_act`):

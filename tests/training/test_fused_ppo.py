@@ -24,6 +24,7 @@ import torch
 from aquarium_warp.training import Trainer, fused_mlp
 from aquarium_warp.training.fused_mlp import FusedMLP, stacked_mlp_spec
 from aquarium_warp.training.fused_ppo import FusedAct, FusedPPOLoss
+from aquarium_warp.training.models import BatchedMLP
 from aquarium_warp.training.ppo import flat_samples
 
 BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
@@ -44,10 +45,15 @@ def interpreter() -> None:
         pytest.skip("Triton's interpreter is off (AQUARIUM_TEST_DEVICE=cuda): see the cuda tests")
 
 
-def learner(device: str = "cpu", worlds: int = 4, spread: float = 0.1, seed: int = 0):
-    """The tiny preset's learner with a filled storage; old log-probabilities spread around the
-    current policy's by `spread` (normal noise)."""
-    alg = bench.build("tiny", worlds, device)
+def learner(device: str = "cpu", worlds: int = 4, spread: float = 0.1, seed: int = 0, sharing: str = "parameter"):
+    """The tiny preset's learner (torch's MLPs) with a filled storage; old log-probabilities spread
+    around the current policy's by `spread` (normal noise). `sharing="individual"`: Individual
+    Learning's 4 prey slots, so 4 networks per model (`BatchedMLP`)."""
+    from aquarium_warp.training import make_config
+
+    changes = {"train": {"num_worlds": worlds, "device": device, "quiet": True, "export": [], "fused_mlp": False,
+                         "sharing": sharing}}  # fmt: skip
+    alg = Trainer(make_config("tiny", changes)).runner.alg
     bench.fill_storage(alg, seed)
     gen = torch.Generator(device=alg.device).manual_seed(seed + 1)
     noise = torch.randn(alg.storage.actions_log_prob.shape, generator=gen, device=alg.device)
@@ -56,8 +62,13 @@ def learner(device: str = "cpu", worlds: int = 4, spread: float = 0.1, seed: int
 
 
 def use_fused(alg) -> None:
+    """The learner's models as the fused kernels see them (Individual Learning's `BatchedMLP` keeps
+    its modules and gets their spec) and its fused loss."""
     for model in (alg.actor, alg.critic):
-        model.mlp = FusedMLP(model.mlp)
+        if isinstance(model.mlp, BatchedMLP):
+            model.mlp.spec = stacked_mlp_spec(model.mlp)
+        else:
+            model.mlp = FusedMLP(model.mlp)
     alg.fused_loss = FusedPPOLoss(alg)
 
 
@@ -122,9 +133,13 @@ def relative(a: torch.Tensor, ref: torch.Tensor) -> float:
     return float((a - ref).abs().max() / ref.abs().max())
 
 
+@pytest.mark.parametrize("sharing", ["parameter", "individual"])
 @pytest.mark.parametrize("clipped_value,normalize,spread", CASES)
-def test_gradients_equal_rsl_rl_loss_within_float32_rounding(clipped_value, normalize, spread, interpreter):
-    alg = learner(spread=spread)
+def test_gradients_equal_rsl_rl_loss_within_float32_rounding(clipped_value, normalize, spread, sharing, interpreter):
+    """Every parameter's gradient within float32 rounding of rsl-rl's loss in float64; for Individual
+    Learning's stacked networks (a program per network's rows, weights stored `[networks, in, out]`)
+    network by network, each gradient laid out as its parameter (CUDA's fused Adam refuses others)."""
+    alg = learner(spread=spread, sharing=sharing)
     alg.use_clipped_value_loss, alg.normalize_advantage_per_mini_batch = clipped_value, normalize
     torch.manual_seed(0)
     indices, size = alg.mini_batch_indices()
@@ -133,9 +148,18 @@ def test_gradients_equal_rsl_rl_loss_within_float32_rounding(clipped_value, norm
     use_fused(alg)
     losses, fused_grads = gradients(alg, indices, size)
     assert len(fused_grads) == 12
+    assert all(p.grad.stride() == p.stride() for m in (alg.actor, alg.critic) for p in m.parameters())
+    networks = 4 if sharing == "individual" else 1  # (the tiny preset's prey slots)
+    assert alg.minibatch_group_size == networks
+
+    def parts(t: torch.Tensor):
+        return t.unbind(0) if networks > 1 else (t,)
+
     for name, ref in reference.items():
-        assert ref.abs().max() > 0, name  # every parameter takes part
-        assert relative(fused_grads[name], ref) <= max(GRADIENT_TOLERANCE, 4 * relative(torch_grads[name], ref)), name
+        assert fused_grads[name].shape == ref.shape
+        for fused, part, torch_part in zip(parts(fused_grads[name]), parts(ref), parts(torch_grads[name])):
+            assert part.abs().max() > 0, name  # every parameter (of every network) takes part
+            assert relative(fused, part) <= max(GRADIENT_TOLERANCE, 4 * relative(torch_part, part)), name
     assert torch.allclose(losses, reference_losses, rtol=1e-5, atol=1e-7)
     assert torch.allclose(torch_losses, reference_losses, rtol=1e-5, atol=1e-7)
 
@@ -210,57 +234,10 @@ def test_unsupported_learners_keep_the_autograd_path(change, reason, interpreter
         FusedPPOLoss(alg)
 
 
-def individual_learner(device: str = "cpu", worlds: int = 4, spread: float = 0.1, seed: int = 0):
-    """`learner()` with Individual Learning: the tiny preset's 4 prey slots, so 4 networks per model
-    (torch's `BatchedMLP`; `use_fused_individual` gives them the kernels' spec)."""
-    from aquarium_warp.training import make_config
-
-    changes = {"train": {"num_worlds": worlds, "device": device, "quiet": True, "export": [], "fused_mlp": False,
-                         "sharing": "individual"}}  # fmt: skip
-    alg = Trainer(make_config("tiny", changes)).runner.alg
-    bench.fill_storage(alg, seed)
-    gen = torch.Generator(device=alg.device).manual_seed(seed + 1)
-    noise = torch.randn(alg.storage.actions_log_prob.shape, generator=gen, device=alg.device)
-    alg.storage.actions_log_prob.add_(spread * noise)
-    return alg
-
-
-def use_fused_individual(alg) -> None:
-    for model in (alg.actor, alg.critic):
-        model.mlp.spec = stacked_mlp_spec(model.mlp)
-    alg.fused_loss = FusedPPOLoss(alg)
-
-
-@pytest.mark.parametrize("clipped_value,normalize,spread", CASES)
-def test_individual_learning_gradients_equal_rsl_rl_loss(clipped_value, normalize, spread, interpreter):
-    """The fused loss of Individual Learning's stacked networks (a program per network's rows; weights
-    stored `[networks, in, out]`) against rsl-rl's loss through torch's `BatchedMLP` in float64: every
-    network's every parameter within float32 rounding, as for parameter sharing."""
-    alg = individual_learner(spread=spread)
-    alg.use_clipped_value_loss, alg.normalize_advantage_per_mini_batch = clipped_value, normalize
-    assert alg.actor.mlp.groups == 4 and alg.minibatch_group_size == 4
-    torch.manual_seed(0)
-    indices, size = alg.mini_batch_indices()
-    reference_losses, reference = gradients(as_float64(alg), indices, size)
-    _, torch_grads = gradients(alg, indices, size)
-    use_fused_individual(alg)
-    losses, fused_grads = gradients(alg, indices, size)
-    assert len(fused_grads) == 12
-    # every gradient laid out as its parameter (CUDA's fused Adam refuses other strides)
-    assert all(p.grad.stride() == p.stride() for m in (alg.actor, alg.critic) for p in m.parameters())
-    for name, ref in reference.items():
-        assert fused_grads[name].shape == ref.shape
-        for network in range(4):  # (each network's gradient is its own rows')
-            assert ref[network].abs().max() > 0, (name, network)
-            bound = max(GRADIENT_TOLERANCE, 4 * relative(torch_grads[name][network], ref[network]))
-            assert relative(fused_grads[name][network], ref[network]) <= bound, (name, network)
-    assert torch.allclose(losses, reference_losses, rtol=1e-5, atol=1e-7)
-
-
 def test_individual_learning_fused_step_equals_rsl_rl_act(interpreter):
-    alg = individual_learner(worlds=6)
+    alg = learner(worlds=6, sharing="individual")
     alg.storage.clear()
-    use_fused_individual(alg)
+    use_fused(alg)
     alg.fused_act = FusedAct(alg)
     check_fused_act(alg)
 
@@ -349,9 +326,9 @@ def test_cuda_fused_act_equals_rsl_rl_act(cuda_device, tf32, sharing):
         if sharing == "parameter":
             alg = acting_learner(cuda_device, worlds=256)
         else:
-            alg = individual_learner(cuda_device, worlds=256)
+            alg = learner(cuda_device, worlds=256, sharing="individual")
             alg.storage.clear()
-            use_fused_individual(alg)
+            use_fused(alg)
             alg.fused_act = FusedAct(alg)
         check_fused_act(alg, tf32)
     finally:
@@ -361,11 +338,11 @@ def test_cuda_fused_act_equals_rsl_rl_act(cuda_device, tf32, sharing):
 def test_cuda_individual_learning_gradients(cuda_device):
     """On CUDA (float32 products as three TF32 products): Individual Learning's fused gradients against
     rsl-rl's loss through `BatchedMLP` in float64, network by network."""
-    alg = individual_learner(cuda_device, worlds=64)
+    alg = learner(cuda_device, worlds=64, sharing="individual")
     torch.manual_seed(0)
     indices, size = alg.mini_batch_indices()
     _, reference = gradients(as_float64(alg), indices, size)
-    use_fused_individual(alg)
+    use_fused(alg)
     _, fused_grads = gradients(alg, indices, size)
     for name, ref in reference.items():
         for network in range(alg.actor.mlp.groups):
