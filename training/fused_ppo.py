@@ -293,10 +293,6 @@ def _kernel_view(model) -> tuple[MLPSpec, list[torch.Tensor]]:
     return view
 
 
-def _spec(model) -> MLPSpec:
-    return _kernel_view(model)[0]
-
-
 def _single_group(model) -> str | None:
     """The one observation group a model reads, or None."""
     groups = list(getattr(model, "obs_groups", []))
@@ -432,7 +428,7 @@ class FusedAct:
             return f"the actor and the critic must read the storage's one observation group, not {names}"
         if alg.rnd is not None or alg.symmetry is not None:
             return "RND and symmetry read rsl-rl's transition"
-        actor, critic = (_spec(model) for model in (alg.actor, alg.critic))
+        actor, critic = (_kernel_view(model)[0] for model in (alg.actor, alg.critic))
         if (actor.groups, actor.stacked) != (critic.groups, critic.stacked):
             return "the actor and the critic must both share their parameters or both be Individual Learning's"
         return None
