@@ -92,6 +92,7 @@ class BatchedMLP(nn.Module):
     slot order (row `k` uses network `k % S`); output `[B, out]` (or `[B, *out]` for a shaped output)."""
 
     spec: Any = None  # the fused kernels' `MLPSpec` of it, where `fused_mlp.FusedIndividualMLPModel` set one
+    __jit_ignored_attributes__ = ["spec"]  # (TorchScript types no `Any` attribute: exports leave it out)
 
     def __init__(self, groups: int, input_dim: int, output_dim, hidden_dims, activation: str = "elu") -> None:
         super().__init__()

@@ -377,7 +377,9 @@ def test_individual_learning_trains_fused_and_records_it(tmp_path, interpreter):
     assert type(alg.actor).__name__ == "FusedIndividualMLPModel" and alg.actor.mlp.spec.groups == 4
     assert isinstance(alg.fused_loss, FusedPPOLoss) and isinstance(alg.fused_act, FusedAct)
     trainer.train(1)
+    exported = trainer.export(formats=["jit"])["jit"]  # TorchScript leaves the kernels' spec out
     trainer.close()
+    assert os.path.getsize(exported) > 0
     record = json.loads((tmp_path / "fused" / "config.json").read_text())
     assert record["fused_loss"] == record["fused_act"] == {"prey": True}
     checkpoint = torch.load(tmp_path / "fused" / "model_0.pt", weights_only=False)
