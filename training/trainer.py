@@ -172,9 +172,8 @@ class Trainer:
                 }
             rollout_graphs, update_graphs = self.runner.graph_plan()  # what the training loop will capture
             record["cuda_graphs"] = {"rollout": rollout_graphs, "update": dict(zip(self.teams, update_graphs))}
-            if train[
-                "fused_mlp"
-            ]:  # per learner: its update's fused loss and its rollout's fused step (True) or why not
+            if train["fused_mlp"]:
+                # per learner: its update's fused loss and its rollout's fused step (True), or why not
                 from .fused_ppo import FusedAct, FusedPPOLoss
 
                 for key, fused in (("fused_loss", FusedPPOLoss), ("fused_act", FusedAct)):
