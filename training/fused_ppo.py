@@ -442,6 +442,13 @@ class FusedAct:
         x = obs[self.group].contiguous()
         (actor, actor_params), (critic, critic_params) = self._actor, self._critic
         n_rows, categories = x.shape[0], actor.dims[-1]
+        # The kernel reads and writes by these sizes: refused here, not read past an array on the device.
+        if x.dim() != 2 or x.shape[1] != actor.dims[0] or n_rows != storage.num_envs:
+            raise ValueError(
+                f"FusedAct: observations {tuple(x.shape)}, the storage takes [{storage.num_envs}, {actor.dims[0]}]"
+            )
+        if env_actions is not None and env_actions.numel() != n_rows:
+            raise ValueError(f"FusedAct: env_actions of {env_actions.numel()} elements for {n_rows} rows")
         noise = torch.empty(n_rows, categories, dtype=x.dtype, device=x.device).exponential_(1)
         precision = kernel_precision(x.device)
         constants = _constants(actor, precision)

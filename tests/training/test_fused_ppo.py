@@ -349,6 +349,25 @@ def test_cuda_individual_learning_gradients(cuda_device):
             assert relative(fused_grads[name][network], ref[network]) <= GRADIENT_TOLERANCE, (name, network)
 
 
+def test_fused_act_refuses_mismatched_buffers(interpreter):
+    """Observations or an action buffer of another size than the storage's rows: a one-line error
+    before the kernel (which would read or write past them), and the learner still acts after."""
+    from tensordict import TensorDict
+
+    alg = acting_learner("cpu")
+    N, L = alg.storage.num_envs, alg.storage.observations["policy"].shape[-1]
+    for obs, buffer, message in [
+        (torch.zeros(N - 1, L), None, "observations"),
+        (torch.zeros(N, L + 1), None, "observations"),
+        (torch.zeros(N, L), torch.zeros(N - 2, dtype=torch.int32), "env_actions"),
+    ]:
+        with pytest.raises(ValueError, match=f"^FusedAct: {message}") as info:
+            alg.fused_act.act(TensorDict({"policy": obs}, batch_size=[obs.shape[0]]), buffer)
+        assert "\n" not in str(info.value)
+    assert alg.storage.step == 0
+    alg.fused_act.act(TensorDict({"policy": torch.zeros(N, L)}, batch_size=[N]))
+
+
 def test_fused_act_unsupported_learners(interpreter):
     """Where the fused loss does not serve, nor does the fused step; nor with a critic of another
     observation group than the actor's."""
