@@ -54,7 +54,7 @@ from aquarium_warp.bench import parse_counts
 from aquarium_warp.bench.timing import torch_timer
 from aquarium_warp.records import command_line, provenance
 from aquarium_warp.training import Trainer, make_config
-from aquarium_warp.training.floors import UpdateFloor, card_peaks, update_work
+from aquarium_warp.training.floors import Floor, card_peaks, update_work
 from aquarium_warp.training.fused_mlp import DEVICES, FusedMLP
 from aquarium_warp.training.fused_ppo import FusedPPOLoss
 from aquarium_warp.training.loop import collection_paused
@@ -182,9 +182,9 @@ def time_update(switch: MLPSwitch, path: str, repeats: int, graph: bool) -> floa
     return statistics.median(timer(cuda_graph.replay) for _ in range(repeats))
 
 
-def update_floor(alg, device: torch.device) -> UpdateFloor:
+def update_floor(alg, device: torch.device) -> Floor:
     """The update's floor on `device`'s card (`training.floors`; None peaks: no floor)."""
-    return UpdateFloor(
+    return Floor(
         update_work(alg),
         card_peaks(torch.cuda.get_device_name(device)) if device.type == "cuda" else None,
         tf32=torch.backends.cuda.matmul.allow_tf32,

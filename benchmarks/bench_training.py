@@ -13,7 +13,9 @@ Beside each point: the update's floor on this card (`aquarium_warp.training.floo
 critic's matrix products forward and backward over every sample of the 5 epochs at the card's float32
 peak, or the bytes no update can avoid at its memory bandwidth, whichever is longer; "n/a" for a card
 without peaks in its table, the CPU included) and the fraction of it reached by the update's time and by
-the whole iteration's (the rollout's own floor is a small part of it: one forward per sample).
+the whole iteration's; then the rollout's floor (the actor's and critic's forward for every sample,
+or the bytes the simulation, the policy and the storage must move every step) and the fraction of it
+reached by the rollout's time (policy, env and storage together).
 
     python benchmarks/bench_training.py --device cuda:0 --worlds 256,1024,4096,16384,65536
     python benchmarks/bench_training.py --device cpu --worlds 64,256 --iterations 3
@@ -43,7 +45,7 @@ from aquarium_warp.atomic import atomic_open
 from aquarium_warp.bench import parse_counts
 from aquarium_warp.records import command_line, provenance
 from aquarium_warp.training import Trainer, make_config
-from aquarium_warp.training.floors import UpdateFloor, card_peaks, update_work
+from aquarium_warp.training.floors import Floor, card_peaks, rollout_work, update_work
 
 
 def device_name(device: torch.device) -> str:
@@ -117,13 +119,19 @@ def measure(
         "agent_steps_per_s": rows * steps * iterations / elapsed,
     }
     measured = {"iteration": elapsed / iterations}
+    rollout_measured = {}
     if loop == "fast":
         phases = trainer.runner.loop.phase_times()
         point["phase_ms"] = {k: 1e3 * v for k, v in phases.items()}
         measured["update"] = phases["update"]
-    floor = UpdateFloor(update_work(trainer.runner.alg), card_peaks(device_name(dev)), tf32=cfg["train"]["tf32"])
+        rollout_measured["rollout"] = sum(v for k, v in phases.items() if k != "update")
+    peaks, tf32 = card_peaks(device_name(dev)), cfg["train"]["tf32"]
+    floor = Floor(update_work(trainer.runner.alg), peaks, tf32=tf32)
     point["floor"] = floor.record(measured)
     point["floor_text"] = floor.describe()
+    rollout = Floor(rollout_work(trainer.runner.alg, trainer.env.state), peaks, tf32=tf32)
+    point["rollout_floor"] = rollout.record(rollout_measured)
+    point["rollout_floor_text"] = rollout.describe()
     trainer.close()
     del trainer
     if dev.type == "cuda":
@@ -254,7 +262,7 @@ def main(argv=None) -> int:
     points = result["points"]
     header = (
         f"{'worlds':>7} {'rows':>8} {'sharing':>10} {'loop':>7} {'variant':>12} {'ms/it':>9} "
-        f"{'agent-steps/s':>14} {'floor ms':>9} {'% it':>6} {'% upd':>6}  phases (ms)"
+        f"{'agent-steps/s':>14} {'floor ms':>9} {'% it':>6} {'% upd':>6} {'roll fl':>8} {'% roll':>6}  phases (ms)"
     )
     print(header, flush=True)
     for w in worlds:
@@ -276,13 +284,13 @@ def main(argv=None) -> int:
                     }
                 else:
                     phases = " ".join(f"{k} {v:.2f}" for k, v in pt.get("phase_ms", {}).items())
-                    floor = pt["floor"]
+                    floor, rollout = pt["floor"], pt["rollout_floor"]
                     reached = [floor.get(f"fraction_of_{k}") for k in ("iteration", "update")]
                     print(
                         f"{w:>7} {pt['rows']:>8} {sharing:>10} {loop:>7} {variant:>12} {pt['iteration_ms']:>9.2f} "
-                        f"{pt['agent_steps_per_s']:>14.3e} "
-                        f"{'n/a' if floor['seconds'] is None else format(1e3 * floor['seconds'], '.2f'):>9} "
-                        + " ".join(f"{'-' if r is None else format(100 * r, '.1f'):>6}" for r in reached)
+                        f"{pt['agent_steps_per_s']:>14.3e} {milliseconds(floor['seconds']):>9} "
+                        + " ".join(f"{percent(r):>6}" for r in reached)
+                        + f" {milliseconds(rollout['seconds']):>8} {percent(rollout.get('fraction_of_rollout')):>6}"
                         + f"  {phases}",
                         flush=True,
                     )
@@ -295,10 +303,19 @@ def main(argv=None) -> int:
     points_ok = [q for q in points if "error" not in q]
     if points_ok:
         print(f"floor of the update ({points_ok[-1]['worlds']} worlds): {points_ok[-1]['floor_text']}")
+        print(f"floor of the rollout ({points_ok[-1]['worlds']} worlds): {points_ok[-1]['rollout_floor_text']}")
     print(f"wrote {out_dir / (stem + '.json')}")
     if args.plot:
         plot(result, out_dir / f"{stem}.png")
     return 0
+
+
+def milliseconds(seconds: float | None) -> str:
+    return "n/a" if seconds is None else format(1e3 * seconds, ".2f")
+
+
+def percent(fraction: float | None) -> str:
+    return "-" if fraction is None else format(100 * fraction, ".1f")
 
 
 def plot(result: dict, path: Path) -> None:

@@ -79,15 +79,16 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     if args.reps < 1:
         raise SystemExit(f"--reps={args.reps} must be >= 1")
-    sys.path.insert(0, os.path.abspath(args.after))
-    from aquarium_warp.atomic import atomic_open
-    from aquarium_warp.records import provenance
-
     work = tempfile.mkdtemp()
     trees = {
         "before": stage(args.before, os.path.join(work, "before")),
         "after": stage(args.after, os.path.join(work, "after")),
     }
+    # The staged tree, not the source: a source tree holds `kernels/` beside `aquarium_warp/`, not in it.
+    sys.path.insert(0, trees["after"])
+    from aquarium_warp.atomic import atomic_open
+    from aquarium_warp.records import provenance
+
     for path in trees.values():
         measure(path)  # compiles the tree's kernels (untimed)
     runs: dict[str, list[dict]] = {name: [] for name in trees}

@@ -1,28 +1,39 @@
-"""The hardware floor of the PPO update: the least time a card could spend on it, from its arithmetic
-at the card's float32 peak (its TF32 tensor-core peak for a run with TF32 products, `train.tf32`) and
-from its bytes at the card's memory bandwidth, so that a benchmark prints the floor beside what it
-measured and the fraction of the floor reached.
+"""The hardware floors of PPO training: the least time a card could spend on the update and on the
+rollout, from their arithmetic at the card's float32 peak (its TF32 tensor-core peak for a run with
+TF32 products, `train.tf32`) and from their bytes at the card's memory bandwidth, so that a benchmark
+prints the floor beside what it measured and the fraction of the floor reached.
 
 ```python
-from aquarium_warp.training.floors import UpdateFloor, card_peaks, update_work
+from aquarium_warp.training.floors import Floor, card_peaks, rollout_work, update_work
 
-floor = UpdateFloor(update_work(trainer.runner.alg), card_peaks(torch.cuda.get_device_name()))
+peaks = card_peaks(torch.cuda.get_device_name())
+floor = Floor(update_work(trainer.runner.alg), peaks)
 print(floor.describe(seconds))     # "floor 80.1 ms on H200 SXM (arithmetic: ...), 21% reached" or "floor n/a (...)"
 record["floor"] = floor.record({"update": seconds})   # the floor, and the fraction reached per time
+rollout = Floor(rollout_work(trainer.runner.alg, trainer.env.state), peaks)
 ```
 
 Several GPUs: `linear_scaling` gives the ideal (linear) speed-up and the fraction of it reached.
 
-The arithmetic counts the matrix products of the actor's and critic's MLPs, forward and backward, for
-every sample in every epoch: a layer of `in x out` weights costs a sample `2 in out` FLOPs forward,
-as much again for its weights' gradient, and as much again for its input's gradient (except the first
-layer: the observations need none). Biases, activations, losses and the optimizer are left out (a
-few FLOPs per parameter or activation). The bytes are those no implementation can avoid: every
-epoch reads each sample's stored fields once (observations, action, old value, return, old
-log-probability, advantage, old distribution parameters; activations kept on chip for backward), and
-every mini-batch reads the parameters for the forward, writes their gradients and has Adam read
-parameter, gradient and both moments and write parameter and moments. The floor is the larger of
-the two times; an update that keeps each layer's activations in memory for backward moves far more.
+**The update** (`update_work`). The arithmetic counts the matrix products of the actor's and critic's
+MLPs, forward and backward, for every sample in every epoch: a layer of `in x out` weights costs a
+sample `2 in out` FLOPs forward, as much again for its weights' gradient, and as much again for its
+input's gradient (except the first layer: the observations need none). Biases, activations, losses
+and the optimizer are left out (a few FLOPs per parameter or activation). The bytes are those no
+implementation can avoid: every epoch reads each sample's stored fields once (observations, action,
+old value, return, old log-probability, advantage, old distribution parameters; activations kept on
+chip for backward), and every mini-batch reads the parameters for the forward, writes their gradients
+and has Adam read parameter, gradient and both moments and write parameter and moments. The floor is
+the larger of the two times; an update that keeps each layer's activations in memory for backward
+moves far more.
+
+**The rollout** (`rollout_work`): every step of the rollout, the actor's and critic's forward for
+every learning row (their matrix products); and the bytes every step must move: the simulation reads
+and writes each slot's agent state and each world's counters once, reads the actions and writes the
+observations and the step's outputs (rewards, dones) once; the policy reads each row's observation
+once and the parameters once; the storage is written once per row (observation, action, value,
+log-probability, distribution parameters, reward, done). Neighbour search, the other team's policy
+and the statistics are left out (reads of data already counted, or a few bytes per world).
 """
 
 from __future__ import annotations
@@ -97,6 +108,32 @@ class UpdateWork:
     epochs: int
     mini_batches: int
 
+    def fields(self) -> dict:
+        """The work as JSON values (`Floor.record`)."""
+        return {
+            "update_flops": self.flops,
+            "update_bytes": self.bytes,
+            "samples": self.samples,
+            "epochs": self.epochs,
+            "mini_batches": self.mini_batches,
+        }
+
+
+@dataclass(frozen=True)
+class RolloutWork:
+    """What one rollout must do: `flops` (the actor's and critic's forward matrix products for every
+    sample) and `bytes` (the simulation's state, the policy's reads and the storage's writes, every
+    step) over `samples` learning rows x `steps` steps."""
+
+    flops: float
+    bytes: float
+    samples: int
+    steps: int
+
+    def fields(self) -> dict:
+        """The work as JSON values (`Floor.record`)."""
+        return {"rollout_flops": self.flops, "rollout_bytes": self.bytes, "samples": self.samples, "steps": self.steps}
+
 
 def ppo_update_work(
     mlps: Sequence[Sequence[tuple[int, int]]],
@@ -147,6 +184,76 @@ def update_work(alg) -> UpdateWork:
     )
 
 
+def ppo_rollout_work(
+    mlps: Sequence[Sequence[tuple[int, int]]],
+    rows: int,
+    steps: int,
+    simulation_bytes: int,
+    observation_bytes: int,
+    stored_bytes: int,
+    parameter_bytes: int,
+) -> RolloutWork:
+    """The work of a rollout of `steps` steps of `rows` learning rows through the MLPs whose layers are
+    `mlps` (`matmul_shapes` of each; their parameters take `parameter_bytes`): per step the simulation
+    moves `simulation_bytes`, each row's observation (`observation_bytes`) is read by the policy and
+    `stored_bytes` per row are written to the storage."""
+    for name, value in (("rows", rows), ("steps", steps)):
+        if value < 1:
+            raise ValueError(f"{name}={value!r} must be >= 1")
+    samples = rows * steps
+    flops = samples * sum(mlp_flops(shapes, backward=False) for shapes in mlps)
+    data = steps * (simulation_bytes + parameter_bytes) + samples * (observation_bytes + stored_bytes)
+    return RolloutWork(float(flops), float(data), samples, steps)
+
+
+def simulation_bytes(state) -> int:
+    """Bytes one simulation step of `state` (a `SimulationState`) cannot avoid moving: every agent field
+    and world counter read and written, the actions read, the observations and outputs written."""
+
+    import warp as wp
+
+    from ..state import GROUPS
+
+    def group_bytes(name: str) -> int:
+        group = getattr(state, name)
+        arrays = (getattr(group, field) for field in GROUPS[name].vars)
+        return sum(a.size * wp.types.type_size_in_bytes(a.dtype) for a in arrays)
+
+    read_write = group_bytes("agents") + group_bytes("worlds")
+    return 2 * read_write + group_bytes("actions") + group_bytes("observations") + group_bytes("outputs")
+
+
+def rollout_work(alg, state) -> RolloutWork:
+    """The work of a rollout of `alg` (an `AquariumPPO` that has collected a rollout) in the worlds of
+    `state` (the trainer's `SimulationState`; the learning team's rows are the storage's envs)."""
+    storage = alg.storage
+    if storage.distribution_params is None:
+        raise ValueError("rollout_work needs an algorithm that has collected a rollout (its storage is not filled yet)")
+    rows, steps = storage.num_envs, storage.num_transitions_per_env
+    fields = (
+        storage.observations,
+        storage.actions,
+        storage.values,
+        storage.actions_log_prob,
+        storage.distribution_params,
+        storage.rewards,
+        storage.dones,
+    )
+    stored = sum(t.element_size() * t.numel() for field in fields for t in _tensors(field)) // (rows * steps)
+    observation = sum(t.element_size() * t.numel() for t in _tensors(storage.observations)) // (rows * steps)
+    models = (alg.actor, alg.critic)
+    parameter_bytes = sum(p.element_size() * p.numel() for model in models for p in model.parameters())
+    return ppo_rollout_work(
+        [matmul_shapes(model) for model in models],
+        rows,
+        steps,
+        simulation_bytes(state),
+        observation,
+        stored,
+        parameter_bytes,
+    )
+
+
 def _tensors(field) -> list:
     """The tensors of one stored field: a tensor, a tuple of them, or a TensorDict of observation groups."""
     if isinstance(field, tuple):
@@ -157,12 +264,12 @@ def _tensors(field) -> list:
 
 
 @dataclass(frozen=True)
-class UpdateFloor:
-    """The update's floor on a card (`peaks` None: unknown card, no floor). `seconds` is the larger of
-    `flop_seconds` (arithmetic at the float32 peak, or with `tf32` at the TF32 tensor-core peak) and
-    `byte_seconds` (bytes at the bandwidth)."""
+class Floor:
+    """The floor of a work (`UpdateWork` or `RolloutWork`) on a card (`peaks` None: unknown card, no
+    floor). `seconds` is the larger of `flop_seconds` (arithmetic at the float32 peak, or with `tf32`
+    at the TF32 tensor-core peak) and `byte_seconds` (bytes at the bandwidth)."""
 
-    work: UpdateWork
+    work: UpdateWork | RolloutWork
     peaks: CardPeaks | None
     tf32: bool = False
 
@@ -227,11 +334,7 @@ class UpdateFloor:
             "tf32": self.tf32,
             "flops_peak": self.flops_peak,
             "bandwidth_peak": None if self.peaks is None else self.peaks.bandwidth,
-            "update_flops": self.work.flops,
-            "update_bytes": self.work.bytes,
-            "samples": self.work.samples,
-            "epochs": self.work.epochs,
-            "mini_batches": self.work.mini_batches,
+            **self.work.fields(),
             "flop_seconds": self.flop_seconds,
             "byte_seconds": self.byte_seconds,
             "seconds": self.seconds,

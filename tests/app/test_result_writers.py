@@ -88,7 +88,16 @@ def test_bench_training_records_provenance_and_the_floor(tmp_path, monkeypatch, 
     pytest.importorskip("rsl_rl")
     bench = _script("bench_training")
     floor = {"seconds": None, "fraction_of_iteration": None, "fraction_of_update": None}
-    point = {"rows": 6, "iteration_ms": 1.0, "agent_steps_per_s": 1.0, "floor": floor, "floor_text": "floor n/a (...)"}
+    rollout = {"seconds": None, "fraction_of_rollout": None}
+    point = {
+        "rows": 6,
+        "iteration_ms": 1.0,
+        "agent_steps_per_s": 1.0,
+        "floor": floor,
+        "floor_text": "floor n/a (...)",
+        "rollout_floor": rollout,
+        "rollout_floor_text": "floor n/a (rollout)",
+    }
     monkeypatch.setattr(
         bench,
         "measure_in_subprocess",
@@ -105,8 +114,23 @@ def test_bench_training_records_provenance_and_the_floor(tmp_path, monkeypatch, 
     data = json.loads((tmp_path / "training_cpu.json").read_text())
     assert missing(data) == ()
     assert data["git"] == {"commit": "abc1234", "dirty": None, "source": "given"}
-    assert data["points"][0]["floor"] == floor
-    assert "floor n/a" in capsys.readouterr().out
+    assert data["points"][0]["floor"] == floor and data["points"][0]["rollout_floor"] == rollout
+    out = capsys.readouterr().out
+    assert "floor n/a (...)" in out and "floor n/a (rollout)" in out
+
+
+def test_profile_training_records_provenance_and_every_kernel(tmp_path):
+    pytest.importorskip("rsl_rl")
+    profile = _script("profile_training")
+    argv = ["--device", "cpu", "--worlds", "2", "--variant", "default", "--warmup", "1", "--top", "3"]
+    profile.main([*argv, "--commit", "abc1234", "--out-dir", str(tmp_path)])
+    data = json.loads((tmp_path / "profile_training_cpu_2.json").read_text())
+    assert missing(data) == ()
+    assert data["git"] == {"commit": "abc1234", "dirty": None, "source": "given"}
+    assert data["time"] == "self CPU time" and set(data["phase_ms"]) == {"policy", "env", "storage", "update"}
+    names = {k["name"] for k in data["kernels"]}
+    assert "aten::addmm" in names and all(k["ms"] > 0 and k["launches"] >= 1 for k in data["kernels"])
+    assert data["ms"] == pytest.approx(sum(k["ms"] for k in data["kernels"]))
 
 
 class _LimitReached(BaseException):
@@ -160,6 +184,8 @@ def test_bench_training_keeps_the_points_measured_before_a_limit(tmp_path, monke
                 "agent_steps_per_s": 2.0,
                 "floor": floor,
                 "floor_text": "floor n/a (...)",
+                "rollout_floor": {"seconds": None, "fraction_of_rollout": None},
+                "rollout_floor_text": "floor n/a (rollout)",
             }
         ),
     )

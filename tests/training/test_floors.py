@@ -1,5 +1,6 @@
-"""The PPO update's hardware floor (`training/floors.py`): the arithmetic and bytes counted by hand
-for small networks, the card table, and the floor's reading (unknown card: n/a)."""
+"""The hardware floors of PPO training (`training/floors.py`): the update's and the rollout's
+arithmetic and bytes counted by hand for small networks and small worlds, the card table, and the
+floor's reading (unknown card: n/a)."""
 
 from __future__ import annotations
 
@@ -12,12 +13,15 @@ import pytest
 from aquarium_warp.training.floors import (
     CARD_PEAKS,
     CardPeaks,
-    UpdateFloor,
+    Floor,
     card_peaks,
     linear_scaling,
     matmul_shapes,
     mlp_flops,
+    ppo_rollout_work,
     ppo_update_work,
+    rollout_work,
+    simulation_bytes,
     update_work,
 )
 
@@ -45,7 +49,7 @@ def test_update_work_and_its_floor():
     peaks = CardPeaks(
         "card", fp32_flops=work.flops / 0.002, tf32_flops=work.flops / 0.0005, bandwidth=work.bytes / 0.001
     )
-    floor = UpdateFloor(work, peaks)
+    floor = Floor(work, peaks)
     assert floor.flop_seconds == pytest.approx(0.002) and floor.byte_seconds == pytest.approx(0.001)
     assert floor.seconds == pytest.approx(0.002) and floor.bound == "arithmetic"
     assert floor.fraction(0.008) == pytest.approx(0.25)
@@ -54,10 +58,10 @@ def test_update_work_and_its_floor():
     assert record["fraction_of_update"] == pytest.approx(0.5) and record["fraction_of_iteration"] == pytest.approx(0.25)
     assert record["tf32"] is False and record["flops_peak"] == peaks.fp32_flops
     # TF32 products (train.tf32): the arithmetic at the tensor cores' peak, here under the bytes' time
-    tf32 = UpdateFloor(work, peaks, tf32=True)
+    tf32 = Floor(work, peaks, tf32=True)
     assert tf32.flop_seconds == pytest.approx(0.0005) and tf32.bound == "memory"
     assert tf32.seconds == pytest.approx(0.001) and "tf32" in tf32.describe() and tf32.record()["tf32"] is True
-    memory = UpdateFloor(work, CardPeaks("slow memory", work.flops / 0.001, work.flops / 0.0001, work.bytes / 0.003))
+    memory = Floor(work, CardPeaks("slow memory", work.flops / 0.001, work.flops / 0.0001, work.bytes / 0.003))
     assert memory.bound == "memory" and memory.seconds == pytest.approx(0.003)
     with pytest.raises(ValueError, match="epochs=0 must be >= 1"):
         ppo_update_work(shapes, samples=100, epochs=0, mini_batches=4, sample_bytes=40, parameter_bytes=200)
@@ -65,7 +69,7 @@ def test_update_work_and_its_floor():
 
 def test_an_unknown_card_has_no_floor():
     work = ppo_update_work([[(3, 4)]], samples=10, epochs=1, mini_batches=1, sample_bytes=4, parameter_bytes=4)
-    floor = UpdateFloor(work, card_peaks("cpu"))
+    floor = Floor(work, card_peaks("cpu"))
     assert floor.seconds is None and floor.fraction(1.0) is None
     assert floor.describe(1.0).startswith("floor n/a")
     assert floor.record({"iteration": 1.0})["fraction_of_iteration"] is None
@@ -88,8 +92,9 @@ def test_update_work_of_a_training_run(sharing):
     )
     trainer = Trainer(config)
     alg = trainer.runner.alg
-    with pytest.raises(ValueError, match="collected a rollout"):
-        update_work(alg)
+    for work_of in (lambda: update_work(alg), lambda: rollout_work(alg, trainer.env.state)):
+        with pytest.raises(ValueError, match="collected a rollout"):
+            work_of()
     trainer.train(1)
     actor, critic = matmul_shapes(alg.actor), matmul_shapes(alg.critic)
     obs = actor[0][0]
@@ -102,4 +107,61 @@ def test_update_work_of_a_training_run(sharing):
     assert work.flops == epochs * samples * (mlp_flops(actor) + mlp_flops(critic))
     parameters = sum(p.numel() for model in (alg.actor, alg.critic) for p in model.parameters())
     assert work.bytes == epochs * samples * 4 * (obs + 5 + actions) + epochs * batches * 9 * 4 * parameters
+    # the rollout: forward only; per row the observation read, then stored with the action, value,
+    # log-probability, logits, reward (float32 each) and done (bool)
+    rows, steps = trainer.vec_env.num_envs, trainer.runner_cfg["num_steps_per_env"]
+    rollout = rollout_work(alg, trainer.env.state)
+    assert (rollout.samples, rollout.steps) == (samples, steps)
+    assert rollout.flops == samples * (mlp_flops(actor, backward=False) + mlp_flops(critic, backward=False))
+    stored = 4 * (obs + 4 + actions) + alg.storage.dones.element_size()
+    per_step = simulation_bytes(trainer.env.state) + 4 * parameters
+    assert rollout.bytes == steps * per_step + rows * steps * (4 * obs + stored)
     trainer.close()
+
+
+def test_rollout_work_and_its_floor():
+    shapes = [[(3, 4), (4, 2)], [(3, 4), (4, 1)]]
+    work = ppo_rollout_work(
+        shapes, rows=10, steps=8, simulation_bytes=500, observation_bytes=12, stored_bytes=40, parameter_bytes=200
+    )
+    # forward only, every row of every step; the simulation and the parameters once per step
+    assert work.flops == 8 * 10 * (2 * (12 + 8) + 2 * (12 + 4))
+    assert work.bytes == 8 * (500 + 200) + 8 * 10 * (12 + 40)
+    assert (work.samples, work.steps) == (80, 8)
+    peaks = CardPeaks(
+        "card", fp32_flops=work.flops / 0.001, tf32_flops=work.flops / 0.0001, bandwidth=work.bytes / 0.002
+    )
+    floor = Floor(work, peaks)
+    assert floor.bound == "memory" and floor.seconds == pytest.approx(0.002)
+    record = floor.record({"rollout": 0.004})
+    assert record["fraction_of_rollout"] == pytest.approx(0.5)
+    assert (record["rollout_flops"], record["rollout_bytes"], record["steps"]) == (work.flops, work.bytes, 8)
+    assert "update_flops" not in record
+    with pytest.raises(ValueError, match="steps=0 must be >= 1"):
+        ppo_rollout_work(
+            shapes, rows=10, steps=0, simulation_bytes=0, observation_bytes=0, stored_bytes=0, parameter_bytes=0
+        )
+
+
+def test_simulation_bytes_of_small_worlds():
+    """Counted by hand from the field docs of `kernels/state.py` for 3 worlds of the default config."""
+    from aquarium_warp import AquariumConfig, BatchedAquarium
+
+    env = BatchedAquarium(AquariumConfig(), num_worlds=3, device="cpu", seed=0)
+    W, C, Pc, P = 3, env.capacity, env.prey_capacity, env.predator_capacity
+    L_prey, L_pred = env.state.observations.obs_prey.shape[2], env.state.observations.obs_predator.shape[2]
+    K_prey, K_pred = env.state.observations.mask_prey.shape[2], env.state.observations.mask_predator.shape[2]
+    # position, velocity, acceleration, heading (vec2 float32), alive (bool), age, replication_age,
+    # starvation (int32)
+    agents = W * C * (4 * 8 + 1 + 3 * 4)
+    # world_step, episode, episode_captures, prey and predator alive counts, seed ([W] 4 bytes) and
+    # episode_return ([W, C] float32)
+    worlds = W * 6 * 4 + W * C * 4
+    actions = W * Pc * 4 + W * P * 4
+    # obs (float32), masks (bool), neighbour slots (int32) per observer type
+    observations = W * Pc * (4 * L_prey + K_prey + 4 * K_prey) + W * P * (4 * L_pred + K_pred + 4 * K_pred)
+    # reward (float32), terminated, truncated (bool) per slot; captures (int32), episode_ended (bool),
+    # ended_length, ended_captures (int32) per world; ended_return ([W, 2] float32)
+    outputs = W * C * (4 + 1 + 1) + W * (4 + 1 + 4 + 4) + W * 2 * 4
+    assert simulation_bytes(env.state) == 2 * (agents + worlds) + actions + observations + outputs
+    env.close()
