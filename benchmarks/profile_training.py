@@ -50,9 +50,12 @@ def profile(device: str, worlds: int, variant: str, warmup: int) -> tuple[list[d
             torch.cuda.synchronize(trainer.device)
     trainer.close()
     cuda = trainer.device.type == "cuda"
+    # On CUDA the device's own events (kernels, copies), not the CPU ops that launched them: an op's
+    # device time is its kernels', counted once.
     kernels = [
         {"name": e.key, "launches": e.count, "ms": (e.device_time_total if cuda else e.self_cpu_time_total) / 1e3}
         for e in prof.key_averages()
+        if (e.device_type == torch.autograd.DeviceType.CUDA) == cuda
     ]
     kernels = [k for k in kernels if k["ms"] > 0]
     return sorted(kernels, key=lambda k: -k["ms"]), {k: 1e3 * v for k, v in phases.items()}

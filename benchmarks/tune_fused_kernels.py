@@ -8,9 +8,13 @@ The learner of `--preset` at `--worlds` worlds is built, its storage filled as a
 (`bench_fused_update.MLPSwitch`, path "fused") is timed: on CUDA the median of `--repeats` replays of
 a CUDA graph of one update, on the CPU (Triton's interpreter, a smoke test) eagerly. Each shape sets
 the module settings above for the run; the compiled kernels' registers and spills (CUDA) come with
-the table.
+the table. `--act-rows` also times the fused rollout step (`fused_ppo.FusedAct.act`: actor, sampler,
+critic and storage writes for every row of one step) per rows per tile of `_act_kernel` and warps
+(`--act-warps`), the median of `--repeats` runs of 20 steps.
 
     python benchmarks/tune_fused_kernels.py --device cuda:0 --worlds 65536 --tf32
+    python benchmarks/tune_fused_kernels.py --device cuda:0 --worlds 65536 --tf32 --rows 32 --warps 4 \
+        --programs 2 --act-rows 32,64,128,256 --act-warps 4,8
     TRITON_INTERPRET=1 python benchmarks/tune_fused_kernels.py --device cpu --preset tiny --worlds 2 \
         --rows 32 --warps 4 --programs 2 --repeats 1
 
@@ -24,7 +28,9 @@ import argparse
 import contextlib
 import itertools
 import json
+import statistics
 import sys
+import time
 from pathlib import Path
 
 import torch
@@ -56,6 +62,36 @@ def kernel_shape(rows: int, warps: int, programs: int, fast_tanh: bool):
          fused_mlp.FAST_TANH_WITH_TF32) = saved  # fmt: skip
 
 
+@contextlib.contextmanager
+def act_shape(rows: int, warps: int):
+    """The fused rollout step's rows per tile and warps for the duration (restored after)."""
+    saved = fused_ppo.block_rows, fused_ppo.NUM_WARPS
+    fused_ppo.block_rows = lambda spec, backward=False: rows
+    fused_ppo.NUM_WARPS = warps
+    try:
+        yield
+    finally:
+        fused_ppo.block_rows, fused_ppo.NUM_WARPS = saved
+
+
+def time_act(alg, repeats: int, steps: int = 20) -> float:
+    """Median seconds of one fused rollout step over the learner's storage rows (each run: `steps`
+    steps into the storage's first step, on the observations stored there)."""
+    act = fused_ppo.FusedAct(alg)
+    obs = {act.group: alg.storage.observations[act.group][0].clone()}
+    times = []
+    for _ in range(repeats + 1):  # the first run compiles the kernel: untimed
+        bench.sync(torch.device(alg.device))
+        started = time.perf_counter()
+        for _ in range(steps):
+            alg.storage.step = 0
+            act.act(obs)
+        bench.sync(torch.device(alg.device))
+        times.append((time.perf_counter() - started) / steps)
+    alg.storage.step = 0
+    return statistics.median(times[1:])
+
+
 def compiled_kernels() -> list[dict]:
     """Registers and spills of every compiled loss kernel (CUDA; none under the interpreter)."""
     out = []
@@ -81,6 +117,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rows", default="32,64,128", help="rows per tile of the backward and loss kernels")
     parser.add_argument("--warps", default="4,8", help="warps per program")
     parser.add_argument("--programs", default="1,2,4", help="persistent programs per multiprocessor")
+    parser.add_argument("--act-rows", default="", help="rows per tile of the fused rollout step (none: not timed)")
+    parser.add_argument("--act-warps", default="4", help="warps per program of the fused rollout step")
     parser.add_argument("--tf32", action="store_true", help="TF32 products; then each shape also without fast tanh")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--out", type=Path, default=None, help="JSON path (default tune_fused_<device>.json)")
@@ -90,10 +128,13 @@ def main(argv: list[str] | None = None) -> int:
         rows = parse_list(args.rows, int, name="--rows", minimum=16)
         warps = parse_list(args.warps, int, name="--warps", minimum=1)
         programs = parse_list(args.programs, int, name="--programs", minimum=1)
+        act_rows = parse_list(args.act_rows, int, name="--act-rows", minimum=16) if args.act_rows else []
+        act_warps = parse_list(args.act_warps, int, name="--act-warps", minimum=1)
     except ValueError as error:
         parser.error(str(error))
-    if bad := [r for r in rows if r & (r - 1)]:
-        parser.error(f"--rows: {bad} are not powers of two (tl.dot's tiles)")
+    for name, values in (("--rows", rows), ("--act-rows", act_rows)):
+        if bad := [r for r in values if r & (r - 1)]:
+            parser.error(f"{name}: {bad} are not powers of two (tl.dot's tiles)")
     if args.worlds < 1 or args.repeats < 1:
         parser.error("--worlds and --repeats must be integers >= 1")
     device = torch.device(args.device)
@@ -107,6 +148,7 @@ def main(argv: list[str] | None = None) -> int:
         "worlds": args.worlds,
         "tf32": args.tf32,
         "shapes": [],
+        "act_shapes": [],
     }
     alg = bench.build(args.preset, args.worlds, args.device)
     bench.fill_storage(alg)
@@ -123,6 +165,19 @@ def main(argv: list[str] | None = None) -> int:
         record["shapes"].append(shape)
         shown = f"{shape['ms']:9.2f} ms" if "ms" in shape else shape["error"]
         print(f"rows {r:4d} warps {w} programs/SM {p} fast tanh {shape['fast_tanh']}: {shown}", flush=True)
+        with atomic_open(out) as f:
+            json.dump(record, f, indent=1)
+    switch.use("fused")
+    for r, w in itertools.product(act_rows, act_warps):
+        shape = {"rows": r, "warps": w}
+        with act_shape(r, w):
+            try:
+                shape["ms"] = 1e3 * time_act(switch.alg, args.repeats)
+            except Exception as error:  # noqa: BLE001 (recorded, as above)
+                shape["error"] = f"{type(error).__name__}: {str(error)[:300]}"
+        record["act_shapes"].append(shape)
+        shown = f"{shape['ms']:9.3f} ms" if "ms" in shape else shape["error"]
+        print(f"rollout step: rows {r:4d} warps {w}: {shown}", flush=True)
         with atomic_open(out) as f:
             json.dump(record, f, indent=1)
     record["kernels"] = compiled_kernels()

@@ -21,7 +21,7 @@ pytest.importorskip("triton")  # the fused kernels (the `fused` extra)
 
 import torch
 
-from aquarium_warp.training import Trainer, fused_mlp
+from aquarium_warp.training import Trainer, fused_mlp, fused_ppo
 from aquarium_warp.training.fused_mlp import FusedMLP, stacked_mlp_spec
 from aquarium_warp.training.fused_ppo import FusedAct, FusedPPOLoss
 from aquarium_warp.training.models import BatchedMLP
@@ -489,7 +489,9 @@ def test_tune_fused_kernels_runs_on_the_cpu(tmp_path, interpreter):
 
     settings = (fused_mlp.block_rows, fused_mlp.NUM_WARPS, fused_mlp.PROGRAMS_PER_SM, fused_mlp.FAST_TANH_WITH_TF32)
     out = tmp_path / "tune.json"
+    act_settings = (fused_ppo.block_rows, fused_ppo.NUM_WARPS)
     argv = ["--device", "cpu", "--preset", "tiny", "--worlds", "2", "--rows", "16,32", "--warps", "4"]
+    argv += ["--act-rows", "16,32", "--act-warps", "4"]
     assert (
         tune_fused_kernels.main(argv + ["--programs", "2", "--repeats", "1", "--out", str(out), "--commit", "abc123"])
         == 0
@@ -498,12 +500,15 @@ def test_tune_fused_kernels_runs_on_the_cpu(tmp_path, interpreter):
     assert data["git"]["commit"] == "abc123" and data["worlds"] == 2 and data["tf32"] is False
     assert [(s["rows"], s["warps"], s["programs_per_sm"]) for s in data["shapes"]] == [(16, 4, 2), (32, 4, 2)]
     assert all(s["ms"] > 0 for s in data["shapes"])
+    assert [(s["rows"], s["warps"]) for s in data["act_shapes"]] == [(16, 4), (32, 4)]
+    assert all(s["ms"] > 0 for s in data["act_shapes"])
     assert (
         fused_mlp.block_rows,
         fused_mlp.NUM_WARPS,
         fused_mlp.PROGRAMS_PER_SM,
         fused_mlp.FAST_TANH_WITH_TF32,
     ) == settings
+    assert (fused_ppo.block_rows, fused_ppo.NUM_WARPS) == act_settings
     with pytest.raises(SystemExit):
         tune_fused_kernels.main(["--device", "cpu", "--rows", "48"])  # not a power of two
 
