@@ -50,12 +50,13 @@ def profile(device: str, worlds: int, variant: str, warmup: int) -> tuple[list[d
             torch.cuda.synchronize(trainer.device)
     trainer.close()
     cuda = trainer.device.type == "cuda"
-    # On CUDA the device's own events (kernels, copies), not the CPU ops that launched them: an op's
-    # device time is its kernels', counted once.
+    # On CUDA the device's own events (kernels, copies), not the CPU ops that launched them, nor the
+    # ranges annotated on the GPU's timeline (`record_function`, e.g. the optimizer's step): each
+    # kernel's time counted once.
     kernels = [
         {"name": e.key, "launches": e.count, "ms": (e.device_time_total if cuda else e.self_cpu_time_total) / 1e3}
         for e in prof.key_averages()
-        if (e.device_type == torch.autograd.DeviceType.CUDA) == cuda
+        if (e.device_type == torch.autograd.DeviceType.CUDA) == cuda and not e.is_user_annotation
     ]
     kernels = [k for k in kernels if k["ms"] > 0]
     return sorted(kernels, key=lambda k: -k["ms"]), {k: 1e3 * v for k, v in phases.items()}
