@@ -276,9 +276,13 @@ class AquariumVecEnv(VecEnv):
         """Whether `step_simulation(None)` is device work only, so a CUDA graph may hold it: an opponent
         marked `capturable` (a heuristic, the other learner's buffer; a loaded policy's own random
         stream and a recurrent one's host state are not), no domain randomisation (it reads the
-        ended worlds on the host) and worlds whose step can be recorded (`env.step_capturable`)."""
+        ended worlds on the host), swarm metrics without a trace (its samples are host lists) and
+        worlds whose step can be recorded (`env.step_capturable`)."""
         return (
-            self.randomizer is None and bool(getattr(self.opponent, "capturable", False)) and self.env.step_capturable
+            self.randomizer is None
+            and bool(getattr(self.opponent, "capturable", False))
+            and (self.swarm is None or not self.swarm.trace_names)
+            and self.env.step_capturable
         )
 
     @property

@@ -318,8 +318,8 @@ def test_rollout_phases(num_steps, every, phases):
 
 def test_adapters_say_whether_their_step_can_be_captured(tmp_path):
     """A heuristic opponent and the other learner's buffer are device work only; a domain randomiser
-    (host reads of the ended worlds) and a loaded policy (its own random stream) are not: the loop then
-    replays a graph per stage instead of the whole rollout."""
+    (host reads of the ended worlds), swarm metrics with a trace and a loaded policy (its own random
+    stream) are not: the loop then replays a graph per stage instead of the whole rollout."""
     common = {"num_worlds": 4, "quiet": True, "export": []}
     for changes, want in [
         ({}, [True]),
@@ -330,6 +330,15 @@ def test_adapters_say_whether_their_step_can_be_captured(tmp_path):
         assert [learner.vec_env.step_capturable for learner in trainer.runner.learners] == want, changes
         assert trainer.runner.loop is None or not trainer.runner.loop.whole_rollout  # (no graphs on the CPU)
         trainer.close()
+    # swarm metrics with a trace append each sample to host lists: not in a graph
+    from aquarium_warp.metrics import EpisodeMetrics
+
+    trainer = Trainer(make_config("tiny", {"train": common}))
+    vec_env = trainer.runner.env
+    assert vec_env.swarm is not None and vec_env.step_capturable
+    vec_env.swarm = EpisodeMetrics(vec_env.env, every=vec_env.swarm.every, trace=("prey_alive",))
+    assert not vec_env.step_capturable
+    trainer.close()
     trainer = Trainer(make_config("tiny", {"train": common}), log_dir=str(tmp_path / "run"))
     trainer.train(1)
     policy = trainer.export(formats=["jit"])["jit"]
