@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import itertools
 import json
 import statistics
@@ -155,31 +156,31 @@ def main(argv: list[str] | None = None) -> int:
     switch = bench.MLPSwitch(alg)
     cuda = device.type == "cuda"
     side = torch.cuda.Stream(device) if cuda else None  # one stream for every capture (see bench_fused_update)
-    for r, w, p, fast in itertools.product(rows, warps, programs, (True, False) if args.tf32 else (True,)):
-        shape = {"rows": r, "warps": w, "programs_per_sm": p, "fast_tanh": fast if args.tf32 else None}
-        with kernel_shape(r, w, p, fast), torch.cuda.stream(side) if cuda else contextlib.nullcontext():
+
+    def measure(table: str, shape: dict, contexts: list, seconds, label: str) -> None:
+        """Time one shape (`seconds()` within `contexts`) into `record[table]`, print it, rewrite the JSON."""
+        with contextlib.ExitStack() as stack:
+            for context in contexts:
+                stack.enter_context(context)
             try:
-                shape["ms"] = 1e3 * bench.time_update(switch, "fused", args.repeats, graph=cuda)
+                shape["ms"] = 1e3 * seconds()
             except Exception as error:  # noqa: BLE001 (a shape the compiler refuses, e.g. out of shared memory: recorded)
                 shape["error"] = f"{type(error).__name__}: {str(error)[:300]}"
-        record["shapes"].append(shape)
-        shown = f"{shape['ms']:9.2f} ms" if "ms" in shape else shape["error"]
-        print(f"rows {r:4d} warps {w} programs/SM {p} fast tanh {shape['fast_tanh']}: {shown}", flush=True)
+        record[table].append(shape)
+        print(f"{label}: {shape['ms']:9.3f} ms" if "ms" in shape else f"{label}: {shape['error']}", flush=True)
         with atomic_open(out) as f:
             json.dump(record, f, indent=1)
+
+    update = functools.partial(bench.time_update, switch, "fused", args.repeats, graph=cuda)
+    for r, w, p, fast in itertools.product(rows, warps, programs, (True, False) if args.tf32 else (True,)):
+        shape = {"rows": r, "warps": w, "programs_per_sm": p, "fast_tanh": fast if args.tf32 else None}
+        on_side = torch.cuda.stream(side) if cuda else contextlib.nullcontext()
+        label = f"rows {r:4d} warps {w} programs/SM {p} fast tanh {shape['fast_tanh']}"
+        measure("shapes", shape, [kernel_shape(r, w, p, fast), on_side], update, label)
     switch.use("fused")
+    act = functools.partial(time_act, switch.alg, args.repeats)
     for r, w in itertools.product(act_rows, act_warps):
-        shape = {"rows": r, "warps": w}
-        with act_shape(r, w):
-            try:
-                shape["ms"] = 1e3 * time_act(switch.alg, args.repeats)
-            except Exception as error:  # noqa: BLE001 (recorded, as above)
-                shape["error"] = f"{type(error).__name__}: {str(error)[:300]}"
-        record["act_shapes"].append(shape)
-        shown = f"{shape['ms']:9.3f} ms" if "ms" in shape else shape["error"]
-        print(f"rollout step: rows {r:4d} warps {w}: {shown}", flush=True)
-        with atomic_open(out) as f:
-            json.dump(record, f, indent=1)
+        measure("act_shapes", {"rows": r, "warps": w}, [act_shape(r, w)], act, f"rollout step: rows {r:4d} warps {w}")
     record["kernels"] = compiled_kernels()
     with atomic_open(out) as f:
         json.dump(record, f, indent=1)

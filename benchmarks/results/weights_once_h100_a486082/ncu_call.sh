@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 set -uo pipefail
 bash .gpu/b/install.sh
-rm -rf /tmp/aw && mkdir -p /tmp/aw && cp -r aquarium_warp benchmarks tests pyproject.toml /tmp/aw/ && cp -r kernels training /tmp/aw/aquarium_warp/ && cp .gpu/b/lossprobe.py /tmp/aw/
+rm -rf /tmp/aw && mkdir -p /tmp/aw && cp -r aquarium_warp benchmarks tests pyproject.toml /tmp/aw/ && cp -r kernels training /tmp/aw/aquarium_warp/ && cp .gpu/b/lossprobe.py /tmp/aw/  # (this folder's ncu_probe.py)
 export PYTHONPATH=/tmp/site:/tmp/aw GIT_PYTHON_REFRESH=quiet NCCL_NVLS_ENABLE=0 PYTHONUNBUFFERED=1
 R=/tmp/p13 && rm -rf $R && mkdir -p $R && cd /tmp/aw
 trap 'tar czf $OUT/p13.tgz -C /tmp p13; ls -la $OUT' EXIT

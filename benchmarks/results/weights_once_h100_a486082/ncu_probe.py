@@ -1,9 +1,15 @@
-"""#32 probe (not committed): one fused update at 65,536 worlds (TF32) whose loss kernels ncu profiles."""
+"""The probe that `ncu_call.sh` ran under Nsight Compute (#32): one fused update of the paper task at
+65,536 worlds with TF32 products, twice (the first compiles the kernels), then the loss kernels'
+registers and spills. Run from the repository root of a staged tree."""
+
 import sys
+
 sys.path.insert(0, "benchmarks")
-import torch
+
 import bench_fused_update as bench
+import torch
 import tune_fused_kernels as tune
+
 torch.backends.cuda.matmul.allow_tf32 = True
 alg = bench.build("paper", 65536, "cuda:0")
 bench.fill_storage(alg)
