@@ -133,13 +133,15 @@ def test_a_huge_run_is_refused_before_anything_is_allocated(tmp_path, capsys):
 
 # ------------------------------------------------------------------------------------------ signals
 def test_a_second_signal_stops_at_once():
+    # The handlers before (Python's default; SIG_IGN where a shell started the tests in the background)
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
     stop = StopRequest()
     with stop.catching():
         os.kill(os.getpid(), signal.SIGTERM)
         assert stop.name == "SIGTERM"
         with pytest.raises(KeyboardInterrupt):
             os.kill(os.getpid(), signal.SIGINT)
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
+    assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before  # restored
 
 
 @pytest.mark.slow
@@ -147,6 +149,7 @@ def test_ctrl_c_stops_at_an_iteration_boundary_and_the_resume_continues_bit_for_
     tmp_path, capsys, monkeypatch, one_thread
 ):
     stopped, reference = str(tmp_path / "stopped"), str(tmp_path / "reference")
+    handler = signal.getsignal(signal.SIGINT)
     assert main(["train", *TINY, "--iterations", "5", "--log-dir", reference]) == 0
     after = Trainer.after_iteration
 
@@ -166,7 +169,7 @@ def test_ctrl_c_stops_at_an_iteration_boundary_and_the_resume_continues_bit_for_
     )
     assert "2 iterations in" in captured.out and os.path.isfile(os.path.join(stopped, "exported", "policy.pt"))
     assert sorted(n for n in os.listdir(stopped) if n.startswith("model_")) == ["model_0.pt", "model_1.pt"]
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    assert signal.getsignal(signal.SIGINT) is handler  # restored
     monkeypatch.undo()
     assert main(["train", "--resume", stopped, "--quiet", "--export", "none"]) == 0
     assert "3 iterations in" in capsys.readouterr().out.splitlines()[-1]
