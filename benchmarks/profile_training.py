@@ -72,9 +72,15 @@ def main(argv=None) -> int:
     p.add_argument("--commit", default=None, help="commit to record where git is not available")
     p.add_argument("--out-dir", default=".", help="where the JSON goes")
     args = p.parse_args(argv)
+    try:
+        counts = parse_counts(args.worlds, "--worlds")
+    except ValueError as error:
+        p.error(str(error))
+    if args.warmup < 0 or args.top < 0:
+        p.error(f"--warmup={args.warmup} and --top={args.top} must be >= 0")
     out_dir = Path(args.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    for worlds in parse_counts(args.worlds, "--worlds"):
+    for worlds in counts:
         kernels, phases = profile(args.device, worlds, args.variant, args.warmup)
         total = sum(k["ms"] for k in kernels)
         print(

@@ -605,9 +605,14 @@ class FusedMLP(MLP):
             raise ValueError(f"FusedMLP: input of {x.shape[-1]} features, the first layer takes {self.spec.dims[0]}")
         rows = x.reshape(-1, x.shape[-1]).contiguous()
         # The kernels read row-major parameters (a no-op for nn.Linear's own; a copy, in autograd, otherwise).
-        params = [p.contiguous() for layer in list(self)[0::2] for p in (layer.weight, layer.bias)]
+        params = [p.contiguous() for p in self.layer_parameters()]
         out = TritonMLPFunction.apply(self.spec, rows, *params)
         return out.reshape(*x.shape[:-1], out.shape[-1])
+
+    @torch.jit.unused
+    def layer_parameters(self) -> list[torch.Tensor]:
+        """The parameters in the order the kernels take them: weight0, bias0, weight1, ..."""
+        return [p for layer in list(self)[0::2] for p in (layer.weight, layer.bias)]
 
 
 def kernel_view(mlp: nn.Module | None) -> tuple[MLPSpec, list[torch.Tensor]] | None:
@@ -615,7 +620,7 @@ def kernel_view(mlp: nn.Module | None) -> tuple[MLPSpec, list[torch.Tensor]] | N
     with a spec (`FusedIndividualMLPModel`): its `MLPSpec` and parameters (weight0, bias0, weight1, ...);
     None for any other MLP."""
     if isinstance(mlp, FusedMLP):
-        return mlp.spec, [p for layer in list(mlp)[0::2] for p in (layer.weight, layer.bias)]
+        return mlp.spec, mlp.layer_parameters()
     if isinstance(mlp, BatchedMLP) and isinstance(mlp.spec, MLPSpec):
         layers = cast(list[BatchedLinear], list(mlp.layers))
         return mlp.spec, [p for layer in layers for p in (layer.weight, layer.bias)]

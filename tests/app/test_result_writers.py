@@ -119,7 +119,7 @@ def test_bench_training_records_provenance_and_the_floor(tmp_path, monkeypatch, 
     assert "floor n/a (...)" in out and "floor n/a (rollout)" in out
 
 
-def test_profile_training_records_provenance_and_every_kernel(tmp_path):
+def test_profile_training_records_provenance_and_every_kernel(tmp_path, capsys):
     pytest.importorskip("rsl_rl")
     profile = _script("profile_training")
     argv = ["--device", "cpu", "--worlds", "2", "--variant", "default", "--warmup", "1", "--top", "3"]
@@ -131,6 +131,11 @@ def test_profile_training_records_provenance_and_every_kernel(tmp_path):
     names = {k["name"] for k in data["kernels"]}
     assert "aten::addmm" in names and all(k["ms"] > 0 and k["launches"] >= 1 for k in data["kernels"])
     assert data["ms"] == pytest.approx(sum(k["ms"] for k in data["kernels"]))
+    for bad, named in ((["--worlds", "0"], "--worlds"), (["--warmup", "-1"], "--warmup")):
+        with pytest.raises(SystemExit):
+            profile.main(["--device", "cpu", *bad, "--out-dir", str(tmp_path / "bad")])
+        assert named in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()  # refused before anything is written
 
 
 class _LimitReached(BaseException):
