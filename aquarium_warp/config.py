@@ -406,15 +406,19 @@ class AquariumConfig:
             raise ValueError("a config with samplers has no world values yet: draw them first (`draw`)")
         return self.with_values({n: _world_value(self._field(n), index) for n in self.per_world_fields})
 
-    def draw(self, num_worlds: int, seed: int = 0) -> AquariumConfig:
+    def draw(self, num_worlds: int, seed: int | tuple[int, ...] = 0) -> AquariumConfig:
         """A copy whose samplers are replaced by `num_worlds` drawn values (`seeding.config_stream(seed)`,
-        fields in `per_world_fields` order)."""
-        rng = config_stream(seed)
-        values = {}
-        for name in self.per_world_fields:
-            value = self._field(name)
-            if isinstance(value, SAMPLERS):
-                values[name] = tuple(value.draw(rng, num_worlds, name in INTEGER_FIELDS))
+        fields in `per_world_fields` order). A tuple of K seeds draws each of K equal groups of worlds
+        from its own seed, as a batch of `num_worlds / K` worlds with that seed draws (`env.seed_groups`)."""
+        seeds = seed if isinstance(seed, tuple) else (seed,)
+        group = num_worlds // len(seeds)
+        values: dict[str, tuple] = {}
+        for s in seeds:
+            rng = config_stream(s)
+            for name in self.per_world_fields:
+                value = self._field(name)
+                if isinstance(value, SAMPLERS):
+                    values[name] = values.get(name, ()) + tuple(value.draw(rng, group, name in INTEGER_FIELDS))
         return self.with_values(values) if values else self
 
     def _validate_worlds(self) -> None:

@@ -9,7 +9,7 @@ clone what you keep.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -42,6 +42,32 @@ def seed_key(seed) -> int:
         seed >>= 32
         if seed == 0:
             return key
+
+
+def seeds_value(seeds: tuple[int, ...]) -> int | tuple[int, ...]:
+    """`env.seed`: the one seed, or the tuple of the groups' seeds."""
+    return seeds[0] if len(seeds) == 1 else seeds
+
+
+def seed_groups(seed, num_worlds: int) -> tuple[int, ...]:
+    """The seeds of a batch's equal groups of consecutive worlds. An integer seeds every world (one
+    group). A sequence of K seeds splits the `num_worlds` worlds into K groups of `num_worlds / K`;
+    group k's random streams are keyed by seed k and count its worlds from 0, so it draws exactly what
+    a batch of `num_worlds / K` worlds seeded with seed k draws (a population's runs, each trained as
+    if alone: `training/population.py`)."""
+    if isinstance(seed, (list, tuple)):
+        if not seed:
+            raise ValueError("seed=[] must hold at least one seed")
+        for s in seed:
+            seed_key(s)
+        if num_worlds % len(seed):
+            raise ValueError(
+                f"seed gives {len(seed)} seeds for {num_worlds} worlds: the number of worlds must be a "
+                "multiple of the number of seeds (equal groups of worlds)"
+            )
+        return tuple(int(s) for s in seed)
+    seed_key(seed)
+    return (int(seed),)
 
 
 def grid_dims(cfg: AquariumConfig) -> tuple[int, int]:
@@ -119,7 +145,7 @@ class BatchedAquarium:
         config: AquariumConfig | None = None,
         num_worlds: int = 1,
         device=None,
-        seed: int = 0,
+        seed: int | Sequence[int] = 0,
         cpu_threads: int | None = None,
         auto_reset: bool = True,
         step_kernel: str = "auto",
@@ -133,18 +159,18 @@ class BatchedAquarium:
         if not isinstance(auto_reset, bool):
             raise ValueError(f"auto_reset={auto_reset!r} must be True or False")
         self.auto_reset = auto_reset
-        seed_key(seed)  # the seed's checks, before anything is drawn from it
+        seeds = seed_groups(seed, int(num_worlds))  # the seed's checks, before anything is drawn from it
         if config.num_worlds is not None and config.num_worlds != num_worlds:
             raise ValueError(
                 f"the config gives per-world values for {config.num_worlds} worlds "
                 f"({list(config.per_world_fields)}), but num_worlds={num_worlds}"
             )
         # Samplers are drawn once, from the seed: the env's config holds every world's values.
-        self.config = cfg = config.draw(int(num_worlds), seed) if config.has_samplers else config
+        self.config = cfg = config.draw(int(num_worlds), seeds_value(seeds)) if config.has_samplers else config
         self.num_worlds = W = int(num_worlds)
         self.device = resolve_device(device)
         self.torch_device = torch.device(self.device)
-        self.seed = int(seed)
+        self.seed = seeds_value(seeds)
         self._param_rng = set_params_stream(self.seed)  # `set_params`' samplers draw from it by default
         self.prey_capacity = cfg.prey_capacity
         self.predator_capacity = cfg.predator_capacity  # predator slots per world
@@ -186,7 +212,7 @@ class BatchedAquarium:
                 self.observed_slots["predator"],
                 self.device,
             )
-            self.state.worlds.seed.fill_(seed_key(seed))
+            self._write_seed(seeds)
             self._shards = ShardSet(
                 cfg,
                 self.state,
@@ -295,6 +321,15 @@ class BatchedAquarium:
         by counts and a prefix sum (more slots than `shard.RANK_SORT_MAX_CAPACITY` with several cells)."""
         return self._shards.capturable
 
+    def _write_seed(self, seeds: tuple[int, ...]) -> None:
+        """Every world's stream key and stream index from the seeds of its group (`seed_groups`)."""
+        group = self.num_worlds // len(seeds)
+        keys = np.repeat(np.array([seed_key(s) for s in seeds], dtype=np.uint32), group)
+        worlds = np.tile(np.arange(group, dtype=np.int32), len(seeds))
+        counters = self.state.worlds
+        wp.copy(counters.seed, wp.array(keys, dtype=wp.uint32, device=self.device))
+        wp.copy(counters.stream_world, wp.array(worlds, dtype=wp.int32, device=self.device))
+
     def _run(self, program: str) -> None:
         """Run one of the env's programs: "step", "observe" or "reset"."""
         self._shards.programs[program].run()
@@ -304,10 +339,10 @@ class BatchedAquarium:
         """Start a new episode in every world; with `seed`, reseed first (a write of the seed's key into
         the device counters: nothing is rebuilt or recorded again). Returns the observations."""
         if seed is not None:
-            key = seed_key(seed)
-            self.seed = int(seed)
+            seeds = seed_groups(seed, self.num_worlds)
+            self.seed = seeds_value(seeds)
             self._param_rng = set_params_stream(self.seed)
-            self.state.worlds.seed.fill_(key)
+            self._write_seed(seeds)
         self._run("reset")
         return self.observations
 
@@ -469,13 +504,13 @@ class BatchedAquarium:
         if state["config"] != self.config.to_dict() or state["num_worlds"] != self.num_worlds:
             raise ValueError("state_dict was taken from an env with another config or num_worlds")
         try:
-            key = seed_key(state["seed"])
+            seeds = seed_groups(state["seed"], self.num_worlds)
         except ValueError as error:
             raise ValueError(f"state_dict {error}") from None
         staged = checks.checked_state_tensors(self, state["tensors"])
         t = self.state.torch
-        self.seed = int(state["seed"])
-        self.state.worlds.seed.fill_(key)
+        self.seed = seeds_value(seeds)
+        self._write_seed(seeds)
         for name, value in staged.items():
             getattr(t, name).copy_(value.to(self.torch_device))
         self._run("observe")

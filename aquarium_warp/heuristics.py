@@ -25,7 +25,7 @@ import numpy as np
 import torch
 import warp as wp
 
-from .env import TYPES, BatchedAquarium, action_directions, seed_key
+from .env import TYPES, BatchedAquarium, action_directions, seed_groups, seed_key
 from .kernels import heuristics as kernels
 
 # Policies allowed for each agent type.
@@ -63,7 +63,7 @@ class HeuristicPolicy:
             raise ValueError(f"confusion={confusion!r} applies only to 'naivchase', not {key!r}")
         if confusion is not None and not isinstance(confusion, bool):
             raise ValueError(f"confusion={confusion!r} must be True or False")
-        own_seed = None if seed is None else seed_key(seed)  # validates
+        own_seeds = None if seed is None else seed_groups(seed, env.num_worlds)  # validates
         # A weak reference: the policies cached by `heuristic_actions` must not keep their env alive.
         self._env = weakref.ref(env)
         self.name, self.agent_type, self.seed = key, agent_type, seed
@@ -83,10 +83,12 @@ class HeuristicPolicy:
         self._buffer = wp.zeros((env.num_worlds, slots), dtype=wp.int32, device=env.device)
         self.actions = wp.to_torch(self._buffer)
         # The streams' keys: the env's seed (device data, so a reseed reaches the recorded launches),
-        # or the policy's own.
+        # or the policy's own (several: one per equal group of worlds, as the env's own seeds).
         seeds = env.state.worlds.seed
-        if own_seed is not None:
-            seeds = wp.full(env.num_worlds, own_seed, dtype=wp.uint32, device=env.device)
+        if own_seeds is not None:
+            group = env.num_worlds // len(own_seeds)
+            keys = np.repeat(np.array([seed_key(s) for s in own_seeds], dtype=np.uint32), group)
+            seeds = wp.array(keys, dtype=wp.uint32, device=env.device)
         self._program = env.record_program(
             lambda shard: [
                 shard.record(

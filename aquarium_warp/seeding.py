@@ -45,9 +45,10 @@ def config_stream(seed: int) -> np.random.Generator:
     return np.random.default_rng(seed)
 
 
-def set_params_stream(seed: int) -> np.random.Generator:
-    """The generator `BatchedAquarium.set_params` draws sampler values from by default."""
-    return np.random.default_rng((int(seed), 1))
+def set_params_stream(seed: int | tuple[int, ...]) -> np.random.Generator:
+    """The generator `BatchedAquarium.set_params` draws sampler values from by default (an env seeded
+    with several seeds: from all of them)."""
+    return np.random.default_rng((*seed, 1) if isinstance(seed, tuple) else (int(seed), 1))
 
 
 def randomiser_stream(seed: int) -> np.random.Generator:

@@ -55,10 +55,9 @@ AUTO_FUSED_GPU_MAX_SLOTS = 131_072
 
 
 def world_params(
-    cfg: AquariumConfig, world_offset: int, auto_reset: bool, values: wp.array, flow_grid: wp.array
+    cfg: AquariumConfig, auto_reset: bool, values: wp.array, flow_grid: wp.array
 ) -> WorldParams:
-    """The `WorldParams` of worlds of `cfg` whose first global index is `world_offset`, with their
-    per-world `values` (a view of the batch's `WorldValues` for these worlds) and the batch's flow grids."""
+    """The `WorldParams` of worlds of `cfg`, with their per-world `values` (a view of the batch's `WorldValues` for these worlds) and the batch's flow grids."""
     p = WorldParams()
     p.width = cfg.width
     p.height = cfg.height
@@ -73,7 +72,6 @@ def world_params(
     p.signed_observations = int(cfg.observation_range == "-1..1")
     p.ego_actions = int(cfg.action_frame == "ego")
     p.random_spawn_heading = int(cfg.spawn_heading == "random")
-    p.world_offset = world_offset
     p.auto_reset = int(auto_reset)
     p.values = values
     p.flow_grid = flow_grid
@@ -196,7 +194,7 @@ class WorldShard:
         self.index = index
         self.w0, self.w1 = w0, w1
         self.num_worlds = w1 - w0
-        self.world = world_params(cfg, w0, auto_reset, params.values[w0:w1], params.flow_grid)
+        self.world = world_params(cfg, auto_reset, params.values[w0:w1], params.flow_grid)
         self.types = params.types[w0:w1]  # [worlds, 2] AgentType of these worlds
         self.action_direction = action_direction
         self.observe_kernels = observe_kernels  # {"prey": kernel, "predator": kernel}

@@ -23,9 +23,10 @@ GROUPS = {
     "observations": Observations,
 }
 # The agent fields a user may read and set (`BatchedAquarium.set_state`), and the tensors of
-# `state_dict()`: the whole simulation state (the seed travels as an integer).
+# `state_dict()`: the whole simulation state (the seed travels as an integer, or a tuple of them, from
+# which every world's stream key and index follow).
 AGENT_FIELDS = tuple(Agents.vars)
-STATE_DICT_FIELDS = AGENT_FIELDS + tuple(name for name in WorldCounters.vars if name != "seed")
+STATE_DICT_FIELDS = AGENT_FIELDS + tuple(n for n in WorldCounters.vars if n not in ("seed", "stream_world"))
 
 
 def group_rows(group_type, group, w0: int, w1: int):

@@ -93,7 +93,6 @@ class WorldParams:
     ego_actions: int  # 1: action_frame "ego" (read by the heuristics; motion is compiled per frame)
     random_spawn_heading: int  # 1: spawn_heading "random" (fresh agents face a uniform direction)
     auto_reset: int  # 1: a world whose episode ended starts the next one inside the same step
-    world_offset: int  # global index of this batch's world 0 (batches of worlds may run on threads)
     values: wp.array(dtype=WorldValues)  # [shard's worlds]
     flow_grid: wp.array3d(dtype=wp.vec2)  # [grids, rows, cols] currents at cell centres, px/step
 

@@ -14,7 +14,7 @@ def finishing_step_stream(world: WorldParams, counters: WorldCounters, w: int, s
     """Random stream of `slot` in world w for a draw made while finishing the step being taken (a
     capture, a respawn, a newborn): keyed by the step's new counter, t + 1 (docs/model.md, Randomness)."""
     return random_stream(
-        counters.seed[w], world.world_offset + w, counters.episode[w], counters.world_step[w] + 1, slot, purpose
+        counters.seed[w], counters.stream_world[w], counters.episode[w], counters.world_step[w] + 1, slot, purpose
     )
 
 
@@ -93,7 +93,7 @@ def spawn_slot(world: WorldParams, counters: WorldCounters, w: int, i: int, epis
     moving west, predators uniform anywhere moving north (or both along a random heading:
     `fresh_heading`), at speed 1, zero acceleration; prey slots past
     the world's `prey_count` and predator slots past its `predator_count` empty."""
-    rng = random_stream(counters.seed[w], world.world_offset + w, episode, 0, i, PURPOSE_SPAWN)
+    rng = random_stream(counters.seed[w], counters.stream_world[w], episode, 0, i, PURPOSE_SPAWN)
     values = world.values[w]
     if slot_type(world, i) == PREY:
         if i < values.prey_count:

@@ -5,6 +5,8 @@ deterministic sort), except the CPU thread-split test, which only exists on the 
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 import torch
 
@@ -319,3 +321,59 @@ def test_steps_recorded_in_a_torch_graph_equal_eager_steps(cuda_device, case):
         got.append(snapshot(graphed))
     assert_identical(want, got)
     assert bool((graphed.state.torch.episode > 0).all())  # the replays reset worlds (max_steps 50) too
+
+
+def _group(snap: dict, k: int, worlds: int) -> dict:
+    """Worlds `[k * worlds, (k + 1) * worlds)` of a snapshot."""
+    return {name: value[k * worlds : (k + 1) * worlds] for name, value in snap.items()}
+
+
+@pytest.mark.parametrize("cfg", [CFG, CFG_EARLY_ENDS], ids=["default_like", "early_ends"])
+def test_groups_of_seeds_draw_as_batches_of_their_own(device, cfg):
+    """A batch seeded with K seeds is K batches: group k (its worlds, a heuristic keyed per group, its
+    samplers) steps bit for bit as a batch of its own seeded with seed k, auto-resets and reseeds included."""
+    from aquarium_warp.heuristics import make_policy
+    from aquarium_warp.per_world import Uniform
+
+    seeds, worlds = (5, 0, 11), 4
+    cfg = cfg.replace(prey=dataclasses.replace(cfg.prey, max_speed=Uniform(1.5, 3.0)))
+    together = make(device, cfg, num_worlds=len(seeds) * worlds, seed=seeds, cpu_threads=2)
+    alone = [make(device, cfg, num_worlds=worlds, seed=s) for s in seeds]
+    chase = make_policy("naivchase", together, "predator", seed=[s + 1 for s in seeds])
+    chase_alone = [make_policy("naivchase", env, "predator", seed=s + 1) for env, s in zip(alone, seeds)]
+    try:
+        assert together.seed == seeds and alone[0].seed == 5
+        prey = action_sequence(together, 120, seed=3)
+        for k, env in enumerate(alone):  # the samplers: each group's draws are its seed's
+            assert together.config.prey.max_speed[k * worlds : (k + 1) * worlds] == env.config.prey.max_speed
+        ends = 0
+        for t, step in enumerate(prey):
+            if t == 60:  # a reseed keeps the groups
+                together.reset(seed=[s + 7 for s in seeds])
+                for env, s in zip(alone, seeds):
+                    env.reset(seed=s + 7)
+            step = {"prey": step["prey"], "predator": chase()}
+            snap = snapshot(together, together.step(step))
+            ends += int(snap["episode_ended"].sum())
+            for k, (env, policy) in enumerate(zip(alone, chase_alone)):
+                one = {"prey": step["prey"][k * worlds : (k + 1) * worlds], "predator": policy()}
+                assert_identical(_group(snap, k, worlds), snapshot(env, env.step(one)), f"group {k}, step {t}: ")
+        assert ends >= 2 * len(seeds) * worlds  # auto-resets happened, before and after the reseed
+        # the state dict carries the seeds; a copy continues the same trajectory
+        state = together.state_dict()
+        assert state["seed"] == tuple(s + 7 for s in seeds)
+        copy = make(device, together.config, num_worlds=len(seeds) * worlds, seed=0)
+        copy.load_state_dict(together.state_dict())
+        assert_state_dicts_identical(copy.state_dict(), together.state_dict())
+    finally:
+        for env in (together, *alone):
+            env.close()
+
+
+def test_groups_of_seeds_refuse_unequal_groups():
+    with pytest.raises(ValueError, match="multiple of the number of seeds"):
+        make("cpu", num_worlds=5, seed=[1, 2])
+    with pytest.raises(ValueError, match=r"seed=-1 must be a non-negative integer"):
+        make("cpu", num_worlds=4, seed=[1, -1])
+    with pytest.raises(ValueError, match="at least one seed"):
+        make("cpu", num_worlds=4, seed=[])

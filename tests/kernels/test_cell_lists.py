@@ -25,7 +25,7 @@ def build(method: str, cfg, dims, position, alive, device):
     W, C = alive.shape
     g = cell_lists(cfg, W, dims, device, build=method)
     params = BatchParams(cfg, W, device)
-    world = world_params(cfg, 0, True, params.values, params.flow_grid)
+    world = world_params(cfg, True, params.values, params.flow_grid)
     agents = Agents()  # only the fields the builds read
     agents.position = wp.array(position, dtype=wp.vec2, device=device)
     agents.alive = wp.array(alive, dtype=wp.bool, device=device)
