@@ -130,7 +130,8 @@ def heuristic_policy(
         action[w, a] = 0
         return
     action_count = world.action_count
-    rng = random_stream(seed[w], counters.stream_world[w], counters.episode[w], counters.world_step[w], i, PURPOSE_POLICY)
+    step = counters.world_step[w]
+    rng = random_stream(seed[w], counters.stream_world[w], counters.episode[w], step, i, PURPOSE_POLICY)
     if policy == POLICY_RANDOM:
         action[w, a] = wp.randi(rng, 0, action_count)
         return
