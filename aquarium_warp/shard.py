@@ -54,9 +54,7 @@ STEP_KERNELS = ("auto", "fused", "stages")
 AUTO_FUSED_GPU_MAX_SLOTS = 131_072
 
 
-def world_params(
-    cfg: AquariumConfig, auto_reset: bool, values: wp.array, flow_grid: wp.array
-) -> WorldParams:
+def world_params(cfg: AquariumConfig, auto_reset: bool, values: wp.array, flow_grid: wp.array) -> WorldParams:
     """The `WorldParams` of worlds of `cfg`, with their per-world `values` (a view of the batch's
     `WorldValues` for these worlds) and the batch's flow grids."""
     p = WorldParams()
