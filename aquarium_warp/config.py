@@ -400,6 +400,31 @@ class AquariumConfig:
                 world[t] = replace(getattr(self, t), **own)
         return replace(self, **world)
 
+    @classmethod
+    def stack(cls, configs: list[AquariumConfig], worlds: int) -> AquariumConfig:
+        """The config of `len(configs)` equal groups of `worlds` worlds, group k with the values of
+        `configs[k]` (samplers drawn first: `draw`). The configs may differ only in what may differ per
+        world; a one-line ValueError names the first other difference."""
+        names = PER_WORLD_FIELDS + tuple(f"{t}.{n}" for t in ("prey", "predator") for n in PER_WORLD_TYPE_FIELDS)
+        base = configs[0]
+        if any(c.has_samplers for c in configs):
+            raise ValueError("stack: draw the configs' samplers first (AquariumConfig.draw)")
+        fixed = base.to_dict()
+        for k, config in enumerate(configs):
+            other = config.with_values({n: base._field(n) for n in names}, validate=False).to_dict()
+            for key in fixed:
+                if other[key] != fixed[key]:
+                    raise ValueError(
+                        f"env configs 0 and {k} differ in {key} ({fixed[key]!r} and {other[key]!r}), which "
+                        "cannot differ between the worlds of one batch"
+                    )
+        values = {}
+        for name in names:
+            each = [config._field(name) for config in configs]
+            if any(isinstance(v, tuple) for v in each) or len({repr(v) for v in each}) > 1:
+                values[name] = tuple(x for v in each for x in (v if isinstance(v, tuple) else (v,) * worlds))
+        return base.with_values(values) if values else base
+
     def world(self, index: int) -> AquariumConfig:
         """The config of world `index` alone: every per-world tuple replaced by its value there."""
         if self.has_samplers:

@@ -86,7 +86,7 @@ from rsl_rl.modules import MLP
 from triton.runtime.interpreter import InterpretedFunction
 
 from . import _rsl  # noqa: F401
-from .models import BatchedLinear, BatchedMLP, IndividualMLPModel
+from .models import BatchedLinear, BatchedMLP, IndividualMLPModel, StackedMLP, StackedMLPModel
 
 HIDDEN_WIDTHS = (16, 32, 64, 128)  # allowed hidden widths (tl.dot's tiles: powers of two >= 16)
 MAX_HIDDEN_LAYERS = 3  # the kernels spell out each layer (Triton has no lists of tensors)
@@ -110,6 +110,7 @@ class MLPSpec:
     activation: str
     groups: int = 1
     stacked: bool = False
+    blocked: bool = False  # a population's `models.StackedMLP`: `[groups, out, in]`, each network's rows contiguous
 
     @property
     def layers(self) -> int:
@@ -117,7 +118,7 @@ class MLPSpec:
 
     def kernel_constants(self) -> dict:
         """The compile-time arguments of the PPO kernels that take stacked networks (fused_ppo.py)."""
-        return {"GROUPS": self.groups, "TRANSPOSED": self.stacked}
+        return {"GROUPS": self.groups, "TRANSPOSED": self.stacked, "BLOCKED": self.blocked}
 
 
 def mlp_spec(mlp: nn.Sequential) -> MLPSpec:
@@ -141,6 +142,17 @@ def stacked_mlp_spec(mlp: BatchedMLP) -> MLPSpec:
     if len(layers) < 2:
         raise ValueError(f"fused MLP: Individual Learning's networks need a hidden layer, got widths {list(dims)}")
     return MLPSpec(dims, _activation_name([mlp.activation] * (len(layers) - 1), dims), mlp.groups, True)
+
+
+def population_mlp_spec(mlp: StackedMLP) -> MLPSpec:
+    """The `MLPSpec` of a population's `models.StackedMLP` (torch's `[out, in]` weights per network,
+    network k's rows the k-th of K equal consecutive blocks); a one-line ValueError names what the
+    kernels do not cover."""
+    dims = (mlp.weights[0].shape[2],) + tuple(w.shape[1] for w in mlp.weights)
+    if len(mlp.weights) < 2:
+        raise ValueError(f"fused MLP: a population's networks need a hidden layer, got widths {list(dims)}")
+    activations = [mlp.activation] * (len(mlp.weights) - 1)
+    return MLPSpec(dims, _activation_name(activations, dims), mlp.runs, stacked=False, blocked=True)
 
 
 def _activation_name(activations: list, dims: tuple[int, ...]) -> str:
@@ -621,6 +633,8 @@ def kernel_view(mlp: nn.Module | None) -> tuple[MLPSpec, list[torch.Tensor]] | N
     None for any other MLP."""
     if isinstance(mlp, FusedMLP):
         return mlp.spec, mlp.layer_parameters()
+    if isinstance(mlp, StackedMLP) and isinstance(mlp.spec, MLPSpec):
+        return mlp.spec, mlp.layer_parameters()
     if isinstance(mlp, BatchedMLP) and isinstance(mlp.spec, MLPSpec):
         layers = cast(list[BatchedLinear], list(mlp.layers))
         return mlp.spec, [p for layer in layers for p in (layer.weight, layer.bias)]
@@ -652,3 +666,17 @@ class FusedIndividualMLPModel(IndividualMLPModel):
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self.mlp.spec = stacked_mlp_spec(self.mlp)
+
+
+class FusedStackedMLPModel(StackedMLPModel):
+    """A population's `StackedMLPModel` for the fused PPO kernels (`train.fused_mlp`): torch's forward,
+    its `MLPSpec` (`population_mlp_spec`) checked when it is built; `AquariumPPO` runs its rollout step
+    and its loss in fused_ppo.py's kernels, one program per run's rows."""
+
+    fused = True
+
+    mlp: StackedMLP  # declared: StackedMLPModel sets it in __init__
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.mlp.spec = population_mlp_spec(self.mlp)

@@ -89,18 +89,31 @@ def _gather(ptr, samples, valid, COLS: tl.constexpr, COLS_P: tl.constexpr):
 
 
 @triton.jit
+def _group_rows(tile, group, n_rows, BLOCK_M: tl.constexpr, GROUPS: tl.constexpr, BLOCKED: tl.constexpr):
+    """Network `group`'s rows of tile `tile` and which are valid: interleaved (row `k` is network
+    `k % GROUPS`'s: Individual Learning's slots) or, with BLOCKED, in GROUPS equal consecutive blocks
+    (a population's runs)."""
+    local = tile * BLOCK_M + tl.arange(0, BLOCK_M)
+    if BLOCKED:
+        per_group = n_rows // GROUPS
+        return (group * per_group + local).to(tl.int64), local < per_group
+    rows = (local * GROUPS + group).to(tl.int64)
+    return rows, rows < n_rows
+
+
+@triton.jit
 def _tile_forward(
     obs_ptr, index_ptr, offset, n_rows, tile, group, w0, b0, w1, b1, w2, b2, w_out, b_out,
     IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
     HIDDEN: tl.constexpr, ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, BLOCK_M: tl.constexpr,
-    FAST_TANH: tl.constexpr, GROUPS: tl.constexpr, TRANSPOSED: tl.constexpr,
+    FAST_TANH: tl.constexpr, GROUPS: tl.constexpr, TRANSPOSED: tl.constexpr, BLOCKED: tl.constexpr,
 ):  # fmt: skip
-    """Network `group`'s mini-batch rows of tile `tile`: rows `(tile * BLOCK_M + i) * GROUPS + group`
-    (row r is sample `index_ptr[offset + r]` of the flattened storage; one network: every row): which
-    are `valid`, their `samples`, the gathered input `x`, the hidden activations and the MLP's output
-    `y` (padded)."""
-    rows = (tile * BLOCK_M + tl.arange(0, BLOCK_M)) * GROUPS + group
-    valid = rows < n_rows
+    """Network `group`'s mini-batch rows of tile `tile`: rows `(tile * BLOCK_M + i) * GROUPS + group`,
+    or with BLOCKED (a population's runs) `group * n_rows / GROUPS + tile * BLOCK_M + i` (row r is
+    sample `index_ptr[offset + r]` of the flattened storage; one network: every row): which are
+    `valid`, their `samples`, the gathered input `x`, the hidden activations and the MLP's output `y`
+    (padded)."""
+    rows, valid = _group_rows(tile, group, n_rows, BLOCK_M, GROUPS, BLOCKED)
     samples = tl.load(index_ptr + offset + rows, mask=valid, other=0).to(tl.int64)
     x = _gather(obs_ptr, samples, valid, IN, IN_P)
     a1, a2, a3 = _hidden(x, w0, b0, w1, b1, w2, b2, IN, IN_P, H, HIDDEN, ACTIVATION, PRECISION, FAST_TANH, TRANSPOSED)
@@ -123,7 +136,7 @@ def _actor_loss_kernel(
     IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
     HIDDEN: tl.constexpr, ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, BLOCK_M: tl.constexpr,
     FAST_TANH: tl.constexpr, SUMS: tl.constexpr, GROUPS: tl.constexpr, TRANSPOSED: tl.constexpr,
-    NORMALIZE_ADVANTAGES: tl.constexpr,
+    BLOCKED: tl.constexpr, NORMALIZE_ADVANTAGES: tl.constexpr,
 ):  # fmt: skip
     # Mini-batch row r is sample index_ptr[offset + r] of the flattened storage; program (p, g) takes
     # network g's rows (see `_tile_forward`).
@@ -144,6 +157,7 @@ def _actor_loss_kernel(
         valid, samples, x, a1, a2, a3, y = _tile_forward(
             obs_ptr, index_ptr, offset, n_rows, tile, group, w0, b0, w1, b1, w2, b2, w_out, b_out,
             IN, IN_P, H, OUT, OUT_P, HIDDEN, ACTIVATION, PRECISION, BLOCK_M, FAST_TANH, GROUPS, TRANSPOSED,
+            BLOCKED,
         )  # fmt: skip
         logits = tl.where(category, y, float("-inf"))
         # log-softmax, as torch's: the logits less their log-sum-exp; probabilities its exp
@@ -191,7 +205,7 @@ def _critic_loss_kernel(
     IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
     HIDDEN: tl.constexpr, ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, BLOCK_M: tl.constexpr,
     FAST_TANH: tl.constexpr, SUMS: tl.constexpr, GROUPS: tl.constexpr, TRANSPOSED: tl.constexpr,
-    CLIPPED: tl.constexpr,
+    BLOCKED: tl.constexpr, CLIPPED: tl.constexpr,
 ):  # fmt: skip
     group = tl.program_id(1)  # (as in the actor's kernel)
     if GROUPS > 1:
@@ -205,6 +219,7 @@ def _critic_loss_kernel(
         valid, samples, x, a1, a2, a3, y = _tile_forward(
             obs_ptr, index_ptr, offset, n_rows, tile, group, w0, b0, w1, b1, w2, b2, w_out, b_out,
             IN, IN_P, H, OUT, OUT_P, HIDDEN, ACTIVATION, PRECISION, BLOCK_M, FAST_TANH, GROUPS, TRANSPOSED,
+            BLOCKED,
         )  # fmt: skip
         value = tl.sum(tl.where(first, y, 0.0), axis=1)
         target = tl.load(return_ptr + samples, mask=valid, other=0.0)
@@ -240,20 +255,18 @@ def _act_kernel(
     cw0, cb0, cw1, cb1, cw2, cb2, cw3, cb3,
     IN: tl.constexpr, IN_P: tl.constexpr, H: tl.constexpr, OUT: tl.constexpr, OUT_P: tl.constexpr,
     HIDDEN: tl.constexpr, ACTIVATION: tl.constexpr, PRECISION: tl.constexpr, BLOCK_M: tl.constexpr,
-    FAST_TANH: tl.constexpr, GROUPS: tl.constexpr, TRANSPOSED: tl.constexpr,
+    FAST_TANH: tl.constexpr, GROUPS: tl.constexpr, TRANSPOSED: tl.constexpr, BLOCKED: tl.constexpr,
     CRITIC_H: tl.constexpr, CRITIC_HIDDEN: tl.constexpr, CRITIC_ACTIVATION: tl.constexpr,
 ):  # fmt: skip
     # The actor's layers are w<l>, b<l>, the critic's cw<l>, cb<l>; both read the same observations.
-    # Program (p, g) takes network g's rows of tile p, `(p * BLOCK_M + i) * GROUPS + g` (one network:
-    # every row).
+    # Program (p, g) takes network g's rows of tile p (`_group_rows`; one network: every row).
     group = tl.program_id(1)
     if GROUPS > 1:
         w0, b0, w1, b1, w2, b2, w3, b3 = _group_layers(group, w0, b0, w1, b1, w2, b2, w3, b3, IN, H, OUT, HIDDEN)
         cw0, cb0, cw1, cb1, cw2, cb2, cw3, cb3 = _group_layers(
             group, cw0, cb0, cw1, cb1, cw2, cb2, cw3, cb3, IN, CRITIC_H, 1, CRITIC_HIDDEN
         )
-    rows = ((tl.program_id(0) * BLOCK_M + tl.arange(0, BLOCK_M)) * GROUPS + group).to(tl.int64)
-    valid = rows < n_rows
+    rows, valid = _group_rows(tl.program_id(0), group, n_rows, BLOCK_M, GROUPS, BLOCKED)
     x = _rows(obs_ptr, rows, n_rows, IN, IN_P)
     _, _, last = _hidden(x, w0, b0, w1, b1, w2, b2, IN, IN_P, H, HIDDEN, ACTIVATION, PRECISION, FAST_TANH, TRANSPOSED)
     w_out, b_out = _output_layer(w1, b1, w2, b2, w3, b3, HIDDEN)
@@ -324,7 +337,9 @@ class FusedPPOLoss:
         if critic_view[0].dims[-1] != 1:
             return f"the critic must have one output, not {critic_view[0].dims[-1]}"
         groups = max(actor_view[0].groups, critic_view[0].groups)
-        if groups > 1 and getattr(alg, "minibatch_group_size", 1) % groups:
+        if actor_view[0].blocked != critic_view[0].blocked or actor_view[0].groups != critic_view[0].groups:
+            return "the actor and the critic must stack the same networks"
+        if groups > 1 and not actor_view[0].blocked and getattr(alg, "minibatch_group_size", 1) % groups:
             return f"mini-batches must hold whole worlds of the {groups} networks (minibatch_group_size)"
         for name, model in (("actor", actor), ("critic", critic)):
             if _single_group(model) is None:
@@ -342,7 +357,7 @@ class FusedPPOLoss:
     def _launch(self, kernel, model, indices, offset: int, size: int, sums: int, inputs, scalars, flags):
         """One model's kernel over the mini-batch (`inputs`: its storage tensors, `scalars` its loss
         constants, `flags` its compile-time switches): its gradients into the parameters' `.grad`;
-        returns the `sums` loss sums."""
+        returns the `sums` loss sums per network, `[networks, sums]`."""
         spec, params = _kernel_view(model)
         groups = spec.groups
         obs = self.alg.storage.observations[_single_group(model)].flatten(0, 1).contiguous()
@@ -362,9 +377,12 @@ class FusedPPOLoss:
             # The parameter's own strides, as CUDA's fused Adam asks (a copy only for stacked networks,
             # whose slices of `total` are strided; it refused them on an H100 at 853dcd1).
             p.grad = g.reshape(p.shape).contiguous()
-        return total[:, sum(counts) :].sum(dim=0)
+        return total[:, sum(counts) :]
 
     def step(self, indices: torch.Tensor, offset: int, size: int) -> torch.Tensor:
+        """The mini-batch's gradients into `.grad`; returns the `[value, surrogate, entropy]` means, or
+        for a population's networks (`MLPSpec.blocked`) each run's, `[runs, 3]`: each run's loss is the
+        mean over its own rows, as if it trained alone."""
         alg = self.alg
         storage = alg.storage
         flat = {name: getattr(storage, name).flatten(0, 1).contiguous() for name in
@@ -375,20 +393,28 @@ class FusedPPOLoss:
                 advantage_stats = torch.stack([advantages.mean(), advantages.std() + 1e-8])
         else:
             advantage_stats = flat["advantages"]  # not read
-        rate = 1.0 / size
-        surrogate_sum, entropy_sum = self._launch(
+        spec = _kernel_view(alg.actor)[0]
+        runs = spec.groups if spec.blocked else 1
+        if runs > 1 and alg.normalize_advantage_per_mini_batch:
+            raise ValueError("FusedPPOLoss: a population's runs normalise their advantages per run, not per mini-batch")
+        rows = size // runs  # each loss is a mean over one run's rows (all rows: one network or slots)
+        rate = 1.0 / rows
+        actor_sums = self._launch(
             _actor_loss_kernel, alg.actor, indices, offset, size, ACTOR_SUMS,
             (flat["actions"], flat["actions_log_prob"], flat["advantages"], advantage_stats),
             (float(alg.clip_param), float(alg.entropy_coef), rate),
             {"NORMALIZE_ADVANTAGES": bool(alg.normalize_advantage_per_mini_batch)},
         )  # fmt: skip
-        (value_sum,) = self._launch(
+        critic_sums = self._launch(
             _critic_loss_kernel, alg.critic, indices, offset, size, CRITIC_SUMS,
             (flat["values"], flat["returns"]),
             (float(alg.clip_param), float(alg.value_loss_coef), rate),
             {"CLIPPED": bool(alg.use_clipped_value_loss)},
         )  # fmt: skip
-        return (torch.stack([value_sum, surrogate_sum, entropy_sum]) / size).double()
+        sums = torch.cat([critic_sums, actor_sums], dim=1)  # [networks, (value, surrogate, entropy)]
+        if runs > 1:
+            return (sums / rows).double()
+        return (sums.sum(dim=0) / rows).double()
 
 
 class FusedAct:
@@ -429,7 +455,7 @@ class FusedAct:
         if alg.rnd is not None or alg.symmetry is not None:
             return "RND and symmetry read rsl-rl's transition"
         actor, critic = (_kernel_view(model)[0] for model in (alg.actor, alg.critic))
-        if (actor.groups, actor.stacked) != (critic.groups, critic.stacked):
+        if (actor.groups, actor.stacked, actor.blocked) != (critic.groups, critic.stacked, critic.blocked):
             return "the actor and the critic must both share their parameters or both be Individual Learning's"
         return None
 
@@ -454,7 +480,7 @@ class FusedAct:
         constants = _constants(actor, precision)
         constants["BLOCK_M"] = min(block_rows(actor), block_rows(critic))
         actions = storage.actions[t]
-        # Rows `k * groups + g` are network g's (world-major slot order): a program per tile and network.
+        # Network g's rows (`_group_rows`: slots interleaved, or runs in blocks): a program per tile and network.
         _act_kernel[(triton.cdiv(n_rows // actor.groups, constants["BLOCK_M"]), actor.groups)](
             x, noise, n_rows,
             storage.observations[self.group][t], actions, storage.values[t], storage.actions_log_prob[t],

@@ -170,3 +170,75 @@ def hidden_state_to(hidden, device):
     if isinstance(hidden, (tuple, list)):
         return tuple(h.detach().to(device, copy=True) for h in hidden)
     return hidden.detach().to(device, copy=True)
+
+
+class StackedMLP(nn.Module):
+    """The MLPs of K runs (a population, `population.py`) evaluated at once. Layer `l` holds weights
+    `[K, out, in]` and biases `[K, out]`: network k's slices are an `nn.Linear`'s own parameters, so
+    each run's rsl-rl `MLP` can view them (`population.share_parameters`). Input `[B, L]` with
+    `B = K * R` rows in run-major order (rows `[k * R, (k + 1) * R)` are run k's); one batched
+    product per layer (`baddbmm`)."""
+
+    spec: Any = None  # the fused kernels' `MLPSpec` of it, where a fused model set one
+    __jit_ignored_attributes__ = ["spec"]
+
+    def __init__(self, runs: int, input_dim: int, output_dim, hidden_dims, activation: str = "elu") -> None:
+        super().__init__()
+        if isinstance(runs, bool) or not isinstance(runs, int) or runs < 1:
+            raise ValueError(f"runs={runs!r} must be an integer >= 1")
+        self.runs = runs
+        hidden = [input_dim if d == -1 else int(d) for d in hidden_dims]
+        self.output_shape = [int(output_dim)] if isinstance(output_dim, int) else [int(d) for d in output_dim]
+        dims = [input_dim, *hidden, math.prod(self.output_shape)]
+        # Values come from the runs' own networks (`share_parameters`); zeros until then.
+        self.weights = nn.ParameterList([nn.Parameter(torch.zeros(runs, b, a)) for a, b in zip(dims[:-1], dims[1:])])
+        self.biases = nn.ParameterList([nn.Parameter(torch.zeros(runs, b)) for b in dims[1:]])
+        self.activation = resolve_nn_activation(activation)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        rows = x.shape[0]
+        if rows % self.runs != 0:
+            raise ValueError(f"population model: a batch of {rows} rows is not {self.runs} runs' equal shares")
+        h = x.reshape(self.runs, rows // self.runs, x.shape[-1])
+        last = len(self.weights) - 1
+        for i, (weight, bias) in enumerate(zip(self.weights, self.biases)):
+            h = torch.baddbmm(bias.unsqueeze(1), h, weight.transpose(1, 2))
+            if i < last:
+                h = self.activation(h)
+        return h.reshape([rows] + self.output_shape)
+
+    def layer_parameters(self) -> list[torch.Tensor]:
+        """The parameters in the order the kernels take them: weight0, bias0, weight1, ..."""
+        return [p for pair in zip(self.weights, self.biases) for p in pair]
+
+
+class StackedMLPModel(MLPModel):
+    """rsl-rl `MLPModel` over a `StackedMLP`: the actor or critic of every run of a population (see
+    `population.py`). Extra argument `runs` (K). Observation normalisation is not stacked (each run
+    would need its own normaliser): a population refuses it before building this."""
+
+    def __init__(
+        self,
+        obs: TensorDict,
+        obs_groups: dict[str, list[str]],
+        obs_set: str,
+        output_dim: int,
+        runs: int = 1,
+        hidden_dims=(256, 256, 256),
+        activation: str = "elu",
+        obs_normalization: bool = False,
+        distribution_cfg: dict | None = None,
+    ) -> None:
+        super().__init__(
+            obs,
+            obs_groups,
+            obs_set,
+            output_dim,
+            hidden_dims=hidden_dims,
+            activation=activation,
+            obs_normalization=obs_normalization,
+            distribution_cfg=distribution_cfg,
+        )
+        self.runs = runs
+        head = self.distribution.input_dim if self.distribution is not None else output_dim
+        self.mlp = StackedMLP(runs, self._get_latent_dim(), head, hidden_dims, activation)

@@ -102,6 +102,7 @@ class AquariumVecEnv(VecEnv):
         critic: str = "local",
         randomize=None,
         randomize_seed: int = 0,
+        runs: int = 1,
     ):
         if not isinstance(env, BatchedAquarium):
             raise ValueError(f"env must be a BatchedAquarium, got {type(env).__name__}")
@@ -117,7 +118,17 @@ class AquariumVecEnv(VecEnv):
         # Domain randomisation (`randomize.py`): new per-world values at every world's reset.
         self.randomizer = ParamRandomizer(env, randomize, randomize_seed) if randomize else None
         self.opponent = opponent
-        self.reward_scale = float(reward_scale)
+        # A population (`population.py`): `runs` equal blocks of worlds, each with its own reward scale
+        # and episode statistics.
+        if isinstance(runs, bool) or not isinstance(runs, int) or runs < 1 or env.num_worlds % runs:
+            raise ValueError(f"runs={runs!r} must be an integer >= 1 that divides the {env.num_worlds} worlds")
+        self.runs = runs
+        scales = [float(x) for x in reward_scale] if isinstance(reward_scale, (list, tuple)) else [float(reward_scale)]
+        if len(scales) not in (1, runs):
+            raise ValueError(f"reward_scale gives {len(scales)} values for {runs} runs")
+        # One scale is applied by the outcome kernel; the runs' own scales after it (`row_outcomes`).
+        self.reward_scale = scales[0] if len(set(scales)) == 1 else 1.0
+        self._run_scales = None if len(set(scales)) == 1 else torch.tensor(scales, device=env.torch_device)
         ecfg = env.config
         self.cfg = RunConfig(cfg if cfg is not None else {"env": ecfg.to_dict()})
         self.num_worlds = W = env.num_worlds
@@ -186,7 +197,7 @@ class AquariumVecEnv(VecEnv):
         # The running sums `episode_stats_snapshot()` takes: per logged value its sum (C), then its count
         # (C), then, over the row episodes (agent lives) that ended, their reward total and count.
         C = len(self._stat_names)
-        self._stats = torch.zeros(2 * C + 2, dtype=torch.float64, device=dev)
+        self._stats = torch.zeros(runs * (2 * C + 2), dtype=torch.float64, device=dev)  # run by run
         self._stat_terms = torch.zeros(W, 2 * C + 2, dtype=torch.float64, device=dev)  # each world's terms
         # Rows' running reward sums.
         self._row_return = torch.zeros(W * S, dtype=torch.float32, device=dev)
@@ -222,8 +233,8 @@ class AquariumVecEnv(VecEnv):
 
     @property
     def episode_stats_size(self) -> int:
-        """Length of `episode_stats_snapshot()`."""
-        return 2 * len(self._stat_names) + 2
+        """Length of `episode_stats_snapshot()` (each run's statistics, one after another)."""
+        return self.runs * (2 * len(self._stat_names) + 2)
 
     # ------------------------------------------------------------------ VecEnv API
     def get_observations(self) -> TensorDict:
@@ -323,6 +334,8 @@ class AquariumVecEnv(VecEnv):
                 self._rewards.view(W, S),
             ],
         )
+        if self._run_scales is not None:
+            self._rewards.view(self.runs, -1).mul_(self._run_scales.unsqueeze(1))
 
     def copy_observations(self) -> None:
         """The learning team's observations after the last step into the current buffer (and the
@@ -363,7 +376,10 @@ class AquariumVecEnv(VecEnv):
                 self._stat_terms,
             ],
         )
-        self._stats += self._stat_terms.sum(dim=0)
+        if self.runs == 1:
+            self._stats += self._stat_terms.sum(dim=0)
+        else:  # each run's worlds summed apart
+            self._stats += self._stat_terms.view(self.runs, W // self.runs, -1).sum(dim=1).view(-1)
 
     def episode_stats_snapshot(self) -> torch.Tensor:
         """The running sums of `accumulate_episode_stats` as one new device tensor (for
