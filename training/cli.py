@@ -18,6 +18,7 @@ from ..arguments import int_at_least, number, positive_float
 from ..atomic import check_output_dir
 from ..cli import Interrupted, plural
 from .config import ALGORITHM_RANGES, PRESETS
+from .population import is_population
 
 PRESET_NAMES = tuple(PRESETS)
 
@@ -85,6 +86,14 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--num-worlds", type=int_at_least(1), default=None, help="worlds stepped in parallel (default 1024)")
     g.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
     g.add_argument("--seed", type=int_at_least(0), default=None, help="seed of the worlds and the networks")
+    g.add_argument(
+        "--runs",
+        type=int_at_least(1),
+        default=1,
+        metavar="K",
+        help="train K runs in one process, seeded --seed, --seed + 1, ...: each writes <log-dir>/run-<k>/ as if "
+        "trained alone (checkpoints, progress.csv, TensorBoard, export); default 1",
+    )
     g.add_argument("--iterations", type=int_at_least(0), default=None, help="total PPO iterations of the run")
     g.add_argument(
         "--episodes",
@@ -328,6 +337,8 @@ def run_train(args) -> int:
     sets = [parse_assignment(s) for s in args.set]
     if args.resume and args.overwrite:
         raise ValueError("--overwrite starts a new run; --resume continues one: give one of them")
+    if args.runs > 1 or (args.resume and os.path.isdir(args.resume) and is_population(args.resume)):
+        return run_population(args, changes, sets)
     # torchrun: rank 0 owns the run directory (the other ranks write nothing there)
     owner = int(os.environ.get("RANK", "0")) == 0
     run_dir = None
@@ -382,6 +393,88 @@ def run_train(args) -> int:
         trainer.close()
         if run_dir is not None:
             run_dir.release()
+    return 0
+
+
+def run_population(args, changes: dict, sets: list) -> int:
+    """`train --runs K` (K > 1), or `--resume` of a population's directory (`population.py`)."""
+    from .population import Population, resume_population, run_configs
+    from .run_dir import claim_run_directory
+
+    if int(os.environ.get("WORLD_SIZE", "1")) > 1:
+        raise ValueError("--runs trains a population in one process; torchrun's several processes train one run")
+    if args.resume:
+        given_train = {k for k in changes.get("train", {}) if k not in ("iterations", "episodes", "export", "quiet")}
+        if (
+            args.runs > 1
+            or given_train
+            or sets
+            or args.config
+            or args.preset
+            or args.prey_policy
+            or args.predator_policy
+        ):
+            raise ValueError(
+                "--resume continues a population with its saved configs: only --iterations, --episodes, --export "
+                "and --quiet may be given with it"
+            )
+        log_dir = args.log_dir or args.resume
+        if os.path.abspath(log_dir) != os.path.abspath(args.resume):
+            raise ValueError(f"--log-dir {log_dir!r}: a population resumes in its own directory {args.resume!r}")
+        run_dir = claim_run_directory(log_dir, resume=True)
+        try:
+            population = resume_population(log_dir, {"train": changes.get("train", {})})
+        except BaseException:
+            run_dir.release()
+            raise
+        print(
+            f"aquarium-warp train: resumed the population in {log_dir} at iteration {population.iteration} "
+            f"({plural(sum(population.active), 'run')} training)"
+        )
+    else:
+        config = train_config(args)
+        log_dir = args.log_dir or os.path.join(
+            "runs",
+            f"{config['train']['team']}_{config['train']['sharing']}_x{args.runs}_{time.strftime('%Y%m%d-%H%M%S')}",
+        )
+        run_dir = claim_run_directory(log_dir, overwrite=args.overwrite)
+        try:
+            population = Population(run_configs(config, args.runs), log_dir=log_dir)
+        except BaseException:
+            run_dir.release()
+            raise
+        v = population.vec_env
+        print(
+            f"aquarium-warp train: {plural(population.K, 'run')} of {config['train']['team']} ({v.slots} slots) vs "
+            f"{population.configs[0]['train']['opponent']} on {population.env.device}, seeds "
+            f"{population.seeds[0]}..{population.seeds[-1]}, {population.env.num_worlds // population.K} worlds "
+            f"each, {max(population.totals)} iterations, {'stacked' if population.stacked else 'one run after another'}"
+            f" -> {log_dir}/run-<k>"
+        )
+    try:
+        start, first = time.perf_counter(), population.iteration
+        population.train()
+        print(
+            f"aquarium-warp train: {plural(population.iteration - first, 'iteration')} of "
+            f"{plural(population.K, 'run')} in {time.perf_counter() - start:.1f} s; each run's files in "
+            f"{log_dir}/run-<k>"
+        )
+        for k, why in sorted(population.stopped.items()):
+            print(f"  run {k} stopped early: {why}")
+        if population.configs[0]["train"]["export"]:
+            for k in range(population.K):
+                if k not in population.stopped:
+                    population.export(k)
+            print(f"  exported: {log_dir}/run-<k>/exported/")
+        if population.stop.signum is not None:
+            raise Interrupted(
+                f"stopped by {population.stop.name} after iteration {population.iteration}; continue with: "
+                f"aquarium-warp train --resume {log_dir}",
+                population.stop.signum,
+            )
+    finally:
+        population.close()
+        run_dir.release()
     return 0
 
 

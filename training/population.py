@@ -47,6 +47,7 @@ import io
 import json
 import math
 import os
+import re
 from collections.abc import Iterator
 
 import torch
@@ -61,7 +62,7 @@ from ..env import BatchedAquarium
 from ..records import provenance
 from ..seeding import seed_process
 from . import _rsl  # noqa: F401
-from .checkpoints import global_rng_state, newest_readable_checkpoint, write_checkpoint
+from .checkpoints import global_rng_state, read_checkpoint, restore_global_rng_state, write_checkpoint
 from .config import default_opponent, env_config, runner_config, team_settings, total_iterations, validate
 from .export import export_policy, policy_meta
 from .logger import AquariumLogger
@@ -98,7 +99,6 @@ def unsupported(config: dict) -> str | None:
         (train["loop"] != "fast", "train.loop='rsl-rl' (rsl-rl's runner trains one learner)"),
         (bool(train["randomize"]), "domain randomisation (its draws are keyed by one run's seed)"),
         (bool(train["video_every"]), "training videos (one world's episode per run is not recorded yet)"),
-        (bool(train["init_at_random_ep_len"]), "init_at_random_ep_len (one draw for all worlds)"),
         (train["sharing"] != "parameter", "Individual Learning (a population stacks one network per run)"),
         (train["critic"] != "local", "a centralised critic (its observation group is not stacked)"),
         (bool(team_blocks), "per-team blocks (teams.*)"),
@@ -532,12 +532,7 @@ class Population:
         self.active = [True] * K  # runs still training (not stopped, budget not spent)
         self.stopped: dict[int, str] = {}  # run -> why it stopped early
         self.last_checkpoint: list[str | None] = [None] * K
-        self.loop = TrainingLoop(
-            [(self.learner, v)],
-            self.runner_cfgs[0]["num_steps_per_env"],
-            graphs=bool(train["cuda_graphs"]),
-            graph_update=train["graph_update"],
-        )
+        self.loop: TrainingLoop | None = None  # made by `train`, after the episodes' starts are spread
         self.loggers = [self._logger(k) for k in range(K)]
         if log_dir is not None:
             self._write_records()
@@ -669,8 +664,16 @@ class Population:
     def export(self, k: int, formats=None) -> dict:
         """Run k's policy into `run-<k>/exported/` (the config's formats)."""
         formats = self.configs[k]["train"]["export"] if formats is None else formats
-        actor = copy.deepcopy(self.runs[k].get_policy())  # (a copy's parameters own their memory: this run's only)
-        return export_policy(actor, self.policy_meta(k), os.path.join(self.run_dir(k), "exported"), formats)
+        actor = self.runs[k].get_policy()
+        # Parameters that own their memory meanwhile: the files must hold this run's network, not its view of all.
+        views = [(p, p.data) for p in actor.parameters()]
+        for p, data in views:
+            p.data = data.clone()
+        try:
+            return export_policy(actor, self.policy_meta(k), os.path.join(self.run_dir(k), "exported"), formats)
+        finally:
+            for p, data in views:
+                p.data = data
 
     # ------------------------------------------------------------------ training
     def train(self) -> None:
@@ -683,6 +686,16 @@ class Population:
             for logger in self.loggers:
                 with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl reports storing git state
                     logger.init_logging_writer()
+        if self.loop is None:
+            train = self.configs[0]["train"]
+            if self.iteration == 0 and train["init_at_random_ep_len"]:
+                self._spread_episode_starts()
+            self.loop = TrainingLoop(
+                [(self.learner, self.vec_env)],
+                self.runner_cfgs[0]["num_steps_per_env"],
+                graphs=bool(train["cuda_graphs"]),
+                graph_update=train["graph_update"],
+            )
         self.learner.train_mode()
         pending = None  # the previous iteration's record, logged while this one runs
         with self.stop.catching():
@@ -714,6 +727,21 @@ class Population:
         for logger in self.loggers:
             if logger.writer is not None:
                 logger.stop_logging_writer()
+
+    def _spread_episode_starts(self) -> None:
+        """rsl-rl's `init_at_random_ep_len` (the worlds' step counters drawn, which spreads their
+        truncations), each run drawing for its own rows from its own generator where it has one."""
+        v, n = self.vec_env, self.rows
+        rows = v.episode_length_buf
+        high = int(v.max_episode_length)
+        if isinstance(self.learner, RunLoop):
+            parts = []
+            for k in range(self.K):
+                with self.learner.run(k):
+                    parts.append(torch.randint_like(rows[k * n : (k + 1) * n], high=high))
+            v.episode_length_buf = torch.cat(parts)
+        else:
+            v.episode_length_buf = torch.randint_like(rows, high=high)
 
     def _finish(self, it: int, record) -> None:
         """Log iteration `it` (waiting for it) and stop the runs whose losses are no longer finite."""
@@ -766,8 +794,37 @@ class Population:
         parts.append(f"{steps / max(1e-9, sum(times)):.3g} agent-steps/s")
         print(" | ".join(parts), flush=True)
 
+    def load(self, states: list[dict], going: list[int], stopped: dict[int, str]) -> None:
+        """Restore every run from its checkpoint (`run_state`'s format): runs `going` continue (all at
+        one iteration), the others are finished, or `stopped` (failed, and why)."""
+        v = self.vec_env
+        sizes = {self.env.num_worlds, v.num_envs}
+        for k, state in enumerate(states):
+            self.runs[k].load(state, None, True)  # in place: the stacked parameters too
+            self.learner.sync_run_optimizer(k, to_run=False)
+            own = state["infos"]["aquarium"]
+            self.loggers[k].load_state_dict(own["logger"])
+            self.learner.set_run_rng_state(k, own["rng"]["torch"])
+        vec = _join_states([s["infos"]["aquarium"]["vec_env"] for s in states], sizes)
+        vec["env"].update(config=self.env.config.to_dict(), num_worlds=self.env.num_worlds, seed=self.seeds)
+        v.load_state_dict(vec)
+        self.iteration = int(states[going[0]]["iter"]) if going else max(int(s["iter"]) for s in states)
+        if going:  # the global generators (numpy, Python, CUDA) as the running runs left them
+            restore_global_rng_state({**states[going[0]]["infos"]["aquarium"]["rng"], "torch": torch.get_rng_state()},
+                                     self.device)  # fmt: skip
+        for k in range(self.K):
+            if k not in going:
+                self.active[k] = False
+                self.learner.freeze(k)
+                if k in stopped:
+                    self.stopped[k] = stopped[k]
+        if self.log_dir is not None:
+            for k in going:
+                self.loggers[k].keep_rows_before(self.iteration)
+
     def close(self) -> None:
-        self.loop.release_graphs()
+        if self.loop is not None:
+            self.loop.release_graphs()
         self.vec_env.close()
 
 
@@ -781,8 +838,53 @@ class _RowsView:
         return self._obs
 
 
-def run_checkpoints(log_dir: str) -> list[tuple[str, dict]]:
-    """`(path, checkpoint)` of each run's newest readable checkpoint in a population's directory."""
+def is_population(path: str) -> bool:
+    """Whether `path` is a population's directory (`population.json`)."""
+    return os.path.isfile(os.path.join(path, "population.json"))
+
+
+def _iterations(run_dir: str) -> dict[int, str]:
+    """Run directory's checkpoints: `{i: path of model_<i>.pt}`."""
+    found = {}
+    for name in os.listdir(run_dir) if os.path.isdir(run_dir) else []:
+        match = re.fullmatch(r"model_(\d+)\.pt", name)
+        if match:
+            found[int(match.group(1))] = os.path.join(run_dir, name)
+    return found
+
+
+def resume_population(log_dir: str, changes: dict | None = None) -> Population:
+    """A population restored from its directory: every run still training continues from the newest
+    iteration that all of them have a readable checkpoint of; a finished or stopped run is restored
+    from its last checkpoint and stays stopped. `changes` may alter `train.iterations`, `episodes`,
+    `quiet` and `export` of every run (as `Trainer.resume`)."""
     with open(os.path.join(log_dir, "population.json"), encoding="utf-8") as f:
-        runs = int(json.load(f)["runs"])
-    return [newest_readable_checkpoint(os.path.join(log_dir, f"run-{k}")) for k in range(runs)]
+        record = json.load(f)
+    K, stopped = int(record["runs"]), {int(k): why for k, why in (record.get("stopped") or {}).items()}
+    found = [_iterations(os.path.join(log_dir, f"run-{k}")) for k in range(K)]
+    newest = [read_checkpoint(f[max(f)]) if f else None for f in found]
+    if any(c is None for c in newest):
+        missing = [k for k, c in enumerate(newest) if c is None]
+        raise ValueError(f"{log_dir}: run(s) {missing} have no checkpoint model_<i>.pt to resume from")
+    configs = [copy.deepcopy(c["infos"]["aquarium"]["config"]) for c in newest]
+    allowed = {"iterations", "episodes", "quiet", "export"}
+    bad = sorted(set((changes or {}).get("train", {})) - allowed)
+    if bad or set(changes or {}) - {"train"}:
+        raise ValueError(f"a resumed population keeps its config; only train.{sorted(allowed)} may change, not {bad}")
+    for config in configs:
+        config["train"].update((changes or {}).get("train", {}))
+    totals = [total_iterations(c) for c in configs]
+    # Runs still training: the newest iteration each of them has (a run's model_<i> holds i + 1 iterations).
+    going = [k for k in range(K) if k not in stopped and max(found[k]) + 1 < totals[k]]
+    common = set.intersection(*(set(found[k]) for k in going)) if going else set()
+    if going and not common:
+        raise ValueError(f"{log_dir}: runs {going} have no checkpoint of one iteration in common to resume from")
+    at = max(common) if common else None
+    population = Population(configs, log_dir=log_dir)
+    states = []
+    for k in range(K):
+        path = found[k][at] if k in going and at is not None else found[k][max(found[k])]
+        states.append(read_checkpoint(path) if path != found[k][max(found[k])] else newest[k])
+        population.last_checkpoint[k] = path
+    population.load(states, going, stopped)
+    return population

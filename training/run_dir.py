@@ -26,6 +26,8 @@ RUN_OUTPUTS = (
     "events.out.tfevents.*",
     "exported",
     "git",
+    "population.json",  # a population's (`population.py`), with its runs' directories
+    "run-*",
 )
 
 
