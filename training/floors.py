@@ -77,13 +77,16 @@ def card_peaks(device_name: str) -> CardPeaks | None:
 def matmul_shapes(model: nn.Module) -> list[tuple[int, int]]:
     """`(in, out)` of each matrix product one sample passes through in `model`, in order: its
     `nn.Linear` layers, and the per-slot layers of Individual Learning (`BatchedLinear`: a sample
-    uses its own slot's weights)."""
-    from .models import BatchedLinear
+    uses its own slot's weights), and a population's stacked layers (`StackedMLP`: a sample uses its
+    own run's)."""
+    from .models import BatchedLinear, StackedMLP
 
     shapes = []
     for module in model.modules():
         if isinstance(module, (nn.Linear, BatchedLinear)):
             shapes.append((int(module.in_features), int(module.out_features)))
+        elif isinstance(module, StackedMLP):
+            shapes.extend((int(w.shape[2]), int(w.shape[1])) for w in module.weights)
     return shapes
 
 

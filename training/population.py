@@ -473,7 +473,7 @@ class Population:
     def __init__(self, configs: list[dict], log_dir: str | None = None, stacked: bool | None = None):
         configs = [copy.deepcopy(c) for c in configs]
         for config in configs:
-            if config["train"]["opponent"] is None:
+            if config["train"]["opponent"] is None and config["train"]["team"] != "both":
                 config["train"]["opponent"] = default_opponent(config["train"]["team"])
         check_runs(configs)
         self.configs, self.log_dir, self.stop = configs, log_dir, StopRequest()
@@ -487,7 +487,15 @@ class Population:
         whole = copy.deepcopy(base)
         whole["train"]["num_worlds"] = K * W
         check_training_memory(whole, device)  # every run's worlds and rows, before anything is allocated
-        env_cfg = AquariumConfig.stack([env_config(c).draw(W, s) for c, s in zip(configs, self.seeds)], W)
+        envs = [env_config(c).draw(W, s) for c, s in zip(configs, self.seeds)]
+        for k, env in enumerate(envs):
+            for name in ("prey_count", "predator_count", "prey_capacity", "predator_capacity"):
+                if getattr(env, name) != getattr(envs[0], name):
+                    raise ValueError(
+                        f"runs 0 and {k} differ in {name} ({getattr(envs[0], name)!r} and {getattr(env, name)!r}): "
+                        "a population's runs share their agents' slots (train them apart, --runs 1)"
+                    )
+        env_cfg = AquariumConfig.stack(envs, W)
         self.env = BatchedAquarium(env_cfg, num_worlds=K * W, device=device, seed=self.seeds)
         self.device = self.env.torch_device
         if train["tf32"] and self.device.type == "cuda":
@@ -676,11 +684,11 @@ class Population:
                 p.data = data
 
     # ------------------------------------------------------------------ training
-    def train(self) -> None:
-        """Train every run up to its budget, or until SIGINT or SIGTERM (`stop.py`), after which every
-        running run's state of the last completed iteration is saved. Iteration `i` is logged while the
-        device runs `i + 1`, as `Trainer` does."""
-        total = max(self.totals)
+    def train(self, iterations: int | None = None) -> None:
+        """Train every run up to its budget (or `iterations` more iterations at most), or until SIGINT
+        or SIGTERM (`stop.py`); every running run's state of the last completed iteration is saved at
+        the end. Iteration `i` is logged while the device runs `i + 1`, as `Trainer` does."""
+        total = max(self.totals) if iterations is None else min(max(self.totals), self.iteration + iterations)
         save_every = int(self.runner_cfgs[0]["save_interval"])
         if self.log_dir is not None:
             for logger in self.loggers:

@@ -1,0 +1,279 @@
+"""Populations (`training/population.py`): run k of a population trains as the same config alone (bit
+for bit on the CPU), resumes bit for bit, stops alone when it fails, and the stacked learner (one
+batched update of every run) computes each run's own update."""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from aquarium_warp.training import Trainer, make_config
+from aquarium_warp.training.population import Population, StackedPPO, resume_population, run_configs
+
+# A population small enough for the CPU: 4 worlds of 4 prey per run, 8 steps per rollout.
+CHANGES = {
+    "train": {"num_worlds": 4, "iterations": 3, "quiet": True, "export": [], "metrics_every": 0},
+    "runner": {"num_steps_per_env": 8, "save_interval": 2},
+}
+
+
+def base_config(**train) -> dict:
+    config = make_config("tiny", copy.deepcopy(CHANGES))
+    config["train"].update(train)
+    return config
+
+
+def conditions() -> list[dict]:
+    """Three runs that differ in all a population lets differ: seed, reward scale, a per-world
+    parameter (run 1's prey see farther) and the budget (run 2 trains 2 iterations, the others 3)."""
+    configs = run_configs(base_config(), 3)
+    configs[1]["env"]["prey"] = {"view_distance": 150.0}
+    configs[1]["train"]["reward_scale"] = 0.02
+    configs[2]["train"]["iterations"] = 2
+    return configs
+
+
+def parameters(alg) -> dict[str, torch.Tensor]:
+    return {f"{part}.{name}": p.detach().clone() for part in ("actor", "critic")
+            for name, p in getattr(alg, part).named_parameters()}  # fmt: skip
+
+
+def optimizer_state(alg) -> list[torch.Tensor]:
+    state = alg.optimizer.state_dict()["state"]
+    return [v for i in sorted(state) for v in state[i].values() if isinstance(v, torch.Tensor)]
+
+
+def assert_same(a: dict, b: dict, where: str) -> None:
+    assert a.keys() == b.keys()
+    for name in a:
+        assert torch.equal(a[name], b[name]), (
+            f"{where}: {name} differs (largest {float((a[name] - b[name]).abs().max())})"
+        )
+
+
+def alone(config: dict, log_dir=None) -> Trainer:
+    trainer = Trainer(config, log_dir=log_dir)
+    trainer.train()
+    return trainer
+
+
+@pytest.mark.slow
+def test_each_run_trains_bit_for_bit_as_it_would_alone(tmp_path):
+    configs = conditions()
+    population = Population(configs, log_dir=str(tmp_path / "pop"), stacked=False)
+    population.train()
+    assert population.iteration == 3 and population.active == [False] * 3 and not population.stopped
+    for k, config in enumerate(configs):
+        trainer = alone(config, log_dir=str(tmp_path / f"alone-{k}"))
+        run = population.runs[k]
+        assert_same(parameters(trainer.runner.alg), parameters(run), f"run {k}")
+        for x, y in zip(optimizer_state(trainer.runner.alg), optimizer_state(run)):
+            assert torch.equal(x, y), f"run {k}: optimizer state differs"
+        # its files are those of the run alone: the same checkpoints, and the same parameters in them
+        own = sorted(n for n in os.listdir(tmp_path / "pop" / f"run-{k}") if n.startswith("model_"))
+        assert own == sorted(n for n in os.listdir(tmp_path / f"alone-{k}") if n.startswith("model_"))
+        last = torch.load(tmp_path / "pop" / f"run-{k}" / own[-1], weights_only=False)
+        reference = torch.load(tmp_path / f"alone-{k}" / own[-1], weights_only=False)
+        assert last["iter"] == reference["iter"] == config["train"]["iterations"]
+        assert_same(last["actor_state_dict"], reference["actor_state_dict"], f"run {k}'s checkpoint")
+        assert last["infos"]["aquarium"]["config"] == reference["infos"]["aquarium"]["config"]
+        ours = last["infos"]["aquarium"]["vec_env"]["env"]
+        theirs = reference["infos"]["aquarium"]["vec_env"]["env"]
+        assert ours["seed"] == theirs["seed"] and ours["config"] == theirs["config"]
+        assert_same(ours["tensors"], theirs["tensors"], f"run {k}'s worlds")
+        trainer.close()
+    population.close()
+
+
+@pytest.mark.slow
+def test_a_population_resumes_bit_for_bit_and_its_runs_resume_alone(tmp_path):
+    configs = run_configs(base_config(iterations=4), 2)
+    whole = Population(configs, stacked=False)
+    whole.train()
+    first = Population(configs, log_dir=str(tmp_path / "pop"), stacked=False)
+    for config in first.configs:
+        config["train"]["iterations"] = 2  # stop after 2, then resume with the budget of 4
+    first.totals = [2, 2]
+    first.train()
+    first.close()
+    resumed = resume_population(str(tmp_path / "pop"), {"train": {"iterations": 4}})
+    assert resumed.iteration == 2 and resumed.active == [True, True]
+    resumed.train()
+    for k in range(2):
+        assert_same(parameters(whole.runs[k]), parameters(resumed.runs[k]), f"resumed run {k}")
+    # a run's checkpoint is a run's own: Trainer resumes it alone, bit for bit
+    trainer = Trainer.resume(str(tmp_path / "pop" / "run-1" / "model_1.pt"), log_dir=str(tmp_path / "r1"),
+                             changes={"train": {"iterations": 4}})  # fmt: skip
+    trainer.train()
+    assert_same(parameters(whole.runs[1]), parameters(trainer.runner.alg), "run 1 resumed alone")
+    trainer.close()
+    resumed.close()
+    whole.close()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("stacked", [False, True], ids=["per-run", "stacked"])
+def test_a_failing_run_stops_alone(tmp_path, stacked):
+    """Run 1's parameters poisoned with NaN after its first checkpoint: it stops, is reported, goes back
+    to that checkpoint's parameters; runs 0 and 2 train exactly as in an unpoisoned population."""
+    configs = run_configs(base_config(iterations=4), 3)
+    clean = Population(configs, stacked=stacked)
+    clean.train()
+    poisoned = Population(configs, log_dir=str(tmp_path / "pop"), stacked=stacked)
+    save = poisoned.save
+
+    def poison_after_first_save(k):
+        path = save(k)
+        if k == 1 and poisoned.iteration == 1:
+            with torch.no_grad():
+                next(poisoned.runs[1].actor.parameters()).fill_(float("nan"))
+        return path
+
+    poisoned.save = poison_after_first_save
+    poisoned.train()
+    assert poisoned.active == [False] * 3 and list(poisoned.stopped) == [1]
+    assert "non-finite" in poisoned.stopped[1] and "iteration 1" in poisoned.stopped[1]
+    for k in (0, 2):
+        assert_same(parameters(clean.runs[k]), parameters(poisoned.runs[k]), f"run {k} beside the failed one")
+    first = torch.load(tmp_path / "pop" / "run-1" / "model_0.pt", weights_only=False)
+    assert_same(first["actor_state_dict"], {k: v for k, v in poisoned.runs[1].actor.state_dict().items()},
+                "the failed run's parameters")  # fmt: skip
+    assert sorted(os.listdir(tmp_path / "pop" / "run-1")).count("model_3.pt") == 0
+    with open(tmp_path / "pop" / "population.json") as f:
+        assert "1" in json.load(f)["stopped"]
+    clean.close()
+    poisoned.close()
+
+
+def test_the_stacked_update_is_each_runs_own():
+    """One update of a `StackedPPO` over the rollouts of 3 runs (the same rollouts, permutations and
+    parameters as each run's own learner has) gives each run the parameters its own `AquariumPPO`
+    update gives (float32: to rounding)."""
+    configs = run_configs(base_config(), 3)
+    per_run = Population(configs, stacked=False)
+    stacked = Population(configs, stacked=True)
+    assert isinstance(stacked.learner, StackedPPO)
+    for k in range(3):  # the same networks to start from
+        assert_same(parameters(per_run.runs[k]), parameters(stacked.runs[k]), f"run {k} at the start")
+    # One rollout of the per-run learners; the stacked storage gets the same samples.
+    per_run.loop = None
+    from aquarium_warp.training.loop import TrainingLoop
+
+    loop = TrainingLoop([(per_run.learner, per_run.vec_env)], 8, graphs=False)
+    with torch.inference_mode():
+        for _ in range(8):
+            loop._rollout_step()
+        per_run.learner.compute_returns(loop.obs[0])
+    big, n = stacked.learner.storage, per_run.rows
+    for k, alg in enumerate(per_run.runs):
+        own = alg.storage
+        for name in ("actions", "rewards", "dones", "values", "actions_log_prob", "returns"):
+            getattr(big, name)[:, k * n : (k + 1) * n] = getattr(own, name)
+        big.observations["policy"][:, k * n : (k + 1) * n] = own.observations["policy"]
+    big.advantages = torch.cat([alg.storage.advantages for alg in per_run.runs], dim=1)  # normalised per run
+    big.distribution_params = (torch.cat([alg.storage.distribution_params[0] for alg in per_run.runs], dim=1),)
+    big.step = 8
+    indices, size = per_run.learner.mini_batch_indices()
+    losses_per_run = per_run.learner.update_on_device(indices, size).view(3, 3)
+    losses_stacked = stacked.learner.update_on_device(indices, size).view(3, 3)
+    torch.testing.assert_close(losses_stacked, losses_per_run, rtol=1e-5, atol=1e-6)
+    for k in range(3):
+        a, b = parameters(per_run.runs[k]), parameters(stacked.runs[k])
+        for name in a:
+            torch.testing.assert_close(b[name], a[name], rtol=1e-4, atol=1e-6, msg=f"run {k}: {name}")
+    per_run.close()
+    stacked.close()
+
+
+def test_stacked_advantages_are_normalised_per_run():
+    configs = run_configs(base_config(), 2)
+    population = Population(configs, stacked=True)
+    st = population.learner.storage
+    gen = torch.Generator().manual_seed(0)
+    st.values.copy_(torch.randn(st.values.shape, generator=gen))
+    st.rewards.copy_(torch.randn(st.rewards.shape, generator=gen))
+    st.rewards[:, : population.rows] *= 10.0  # run 0's rewards on another scale than run 1's
+    st.dones.zero_()
+    with torch.inference_mode():
+        population.learner.compute_returns(population.vec_env.get_observations())
+    adv = st.advantages.view(st.num_transitions_per_env, 2, -1)
+    for k in range(2):
+        run = adv[:, k]
+        assert abs(float(run.mean())) < 1e-5 and abs(float(run.std()) - 1.0) < 1e-4
+    population.close()
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"train": {"team": "both"}}, "both teams learning"),
+        ({"train": {"video_every": 2}}, "training videos"),
+        ({"train": {"sharing": "individual"}}, "Individual Learning"),
+        ({"train": {"critic": "team"}}, "centralised critic"),
+        ({"runner": {"actor": {"class_name": "RNNModel"}, "critic": {"class_name": "RNNModel"}}}, "recurrent"),
+        ({"runner": {"actor": {"obs_normalization": True}}}, "observation normalisation"),
+        ({"train": {"randomize": {"prey_max_speed": "1:2"}}}, "domain randomisation"),
+    ],
+)
+def test_what_a_population_does_not_train_is_refused_in_one_line(change, message):
+    config = make_config("tiny", copy.deepcopy(CHANGES))
+    from aquarium_warp.training.config import deep_update
+
+    deep_update(config, change)
+    with pytest.raises(ValueError, match=message) as error:
+        Population(run_configs(config, 2))
+    assert "\n" not in str(error.value) and "--runs 1" in str(error.value)
+
+
+def test_runs_that_cannot_share_a_process_are_refused():
+    configs = run_configs(base_config(), 2)
+    configs[1]["env"]["prey_count"] = 8  # another slot count
+    with pytest.raises(ValueError, match="differ in prey_count"):
+        Population(configs)
+    configs = run_configs(base_config(), 2)
+    configs[1]["runner"]["algorithm"]["entropy_coef"] = 0.5
+    with pytest.raises(ValueError, match=r"runs 0 and 1 differ in runner.algorithm"):
+        Population(configs)
+    configs = run_configs(base_config(), 2)
+    configs[1]["train"]["seed"] = configs[0]["train"]["seed"]
+    with pytest.raises(ValueError, match="share a seed"):
+        Population(configs)
+
+
+@pytest.mark.slow
+def test_train_runs_through_the_cli_writes_each_run_and_resumes(tmp_path):
+    out = tmp_path / "pop"
+    command = [sys.executable, "-m", "aquarium_warp", "train", "--preset", "tiny", "--runs", "2", "--num-worlds", "4",
+               "--iterations", "2", "--log-dir", str(out), "--set", "runner.num_steps_per_env=8", "--quiet"]  # fmt: skip
+    done = subprocess.run(command, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert "2 runs of prey" in done.stdout
+    for k in range(2):
+        files = os.listdir(out / f"run-{k}")
+        assert {"config.json", "progress.csv", "model_1.pt", "exported"} <= set(files)
+        with open(out / f"run-{k}" / "config.json") as f:
+            assert json.load(f)["config"]["train"]["seed"] == k
+    resume = [sys.executable, "-m", "aquarium_warp", "train", "--resume", str(out), "--iterations", "3", "--quiet"]
+    done = subprocess.run(resume, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert "resumed the population" in done.stdout and os.path.exists(out / "run-1" / "model_2.pt")
+    with open(out / "run-0" / "progress.csv") as f:
+        assert [line.split(",")[0] for line in f.read().splitlines()[1:]] == ["0", "1", "2"]
+
+
+def test_groups_of_conditions_stack_into_one_env():
+    from aquarium_warp import AquariumConfig
+
+    a = AquariumConfig()
+    b = dataclasses.replace(a, prey=dataclasses.replace(a.prey, view_distance=300.0))
+    stacked = AquariumConfig.stack([a, b], 2)
+    assert stacked.prey.view_distance == (a.prey.view_distance,) * 2 + (300.0, 300.0)
+    with pytest.raises(ValueError, match="differ in width"):
+        AquariumConfig.stack([a, dataclasses.replace(a, width=500.0)], 2)
