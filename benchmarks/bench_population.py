@@ -41,6 +41,8 @@ os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from bench_training import device_name, milliseconds, percent, sync  # (benchmarks/ is on the path)
+
 from aquarium_warp.atomic import atomic_open
 from aquarium_warp.bench import parse_counts
 from aquarium_warp.records import command_line, provenance
@@ -48,8 +50,6 @@ from aquarium_warp.training import Trainer, make_config
 from aquarium_warp.training.config import parse_assignment, total_iterations
 from aquarium_warp.training.floors import Floor, card_peaks, rollout_work, update_work
 from aquarium_warp.training.population import Population, run_configs
-
-from bench_training import device_name, milliseconds, percent, sync  # noqa: E402  (benchmarks/ is on the path)
 
 
 def config_of(preset: str, device: str, worlds: int, sets: list[str], iterations: int) -> dict:
@@ -227,17 +227,25 @@ def main(argv=None) -> int:
             result["points"].append(pt)
             write()
             sep = pt.get("separate_batches_seconds", [])
-            print(f"{k:>5} {pt['population_seconds']:>13.1f} {pt['population_runs_per_hour']:>9.0f} "
-                  f"{' '.join(f'{s:.1f}' for s in sep):>24} {pt.get('separate_runs_per_hour', 0):>9.0f}", flush=True)  # fmt: skip
+            print(
+                f"{k:>5} {pt['population_seconds']:>13.1f} {pt['population_runs_per_hour']:>9.0f} "
+                f"{' '.join(f'{s:.1f}' for s in sep):>24} {pt.get('separate_runs_per_hour', 0):>9.0f}",
+                flush=True,
+            )
         return 0
     if args.separate:
         result["separate"] = separate_rates(args)
         write()
         sep = result["separate"]
-        print(f"separate: {sep['processes']} processes at a time, {sep['agent_steps_per_s']:.3e} agent-steps/s, "
-              f"{sep['runs_per_hour']:.0f} runs/h (budget {total_iterations(make_config(args.preset))} iterations)")  # fmt: skip
-    print(f"{'runs':>5} {'rows':>9} {'ms/it':>9} {'agent-steps/s':>14} {'runs/h':>9} {'x sep':>6} {'floor ms':>9} "
-          f"{'% it':>6} {'% upd':>6} {'roll fl':>8} {'% roll':>6}", flush=True)  # fmt: skip
+        print(
+            f"separate: {sep['processes']} processes at a time, {sep['agent_steps_per_s']:.3e} agent-steps/s, "
+            f"{sep['runs_per_hour']:.0f} runs/h (budget {total_iterations(make_config(args.preset))} iterations)"
+        )
+    print(
+        f"{'runs':>5} {'rows':>9} {'ms/it':>9} {'agent-steps/s':>14} {'runs/h':>9} {'x sep':>6} {'floor ms':>9} "
+        f"{'% it':>6} {'% upd':>6} {'roll fl':>8} {'% roll':>6}",
+        flush=True,
+    )
     for k in counts:
         try:
             pt = population_rate(args, k)
@@ -247,10 +255,13 @@ def main(argv=None) -> int:
         else:
             floor, roll = pt.get("floor", {}), pt.get("rollout_floor", {})
             ratio = pt["agent_steps_per_s"] / result["separate"]["agent_steps_per_s"] if args.separate else float("nan")
-            print(f"{k:>5} {pt['rows']:>9} {pt['iteration_ms']:>9.2f} {pt['agent_steps_per_s']:>14.3e} "
-                  f"{pt['runs_per_hour']:>9.0f} {ratio:>6.2f} {milliseconds(floor.get('seconds')):>9} "
-                  f"{percent(floor.get('fraction_of_iteration')):>6} {percent(floor.get('fraction_of_update')):>6} "
-                  f"{milliseconds(roll.get('seconds')):>8} {percent(roll.get('fraction_of_rollout')):>6}", flush=True)  # fmt: skip
+            print(
+                f"{k:>5} {pt['rows']:>9} {pt['iteration_ms']:>9.2f} {pt['agent_steps_per_s']:>14.3e} "
+                f"{pt['runs_per_hour']:>9.0f} {ratio:>6.2f} {milliseconds(floor.get('seconds')):>9} "
+                f"{percent(floor.get('fraction_of_iteration')):>6} {percent(floor.get('fraction_of_update')):>6} "
+                f"{milliseconds(roll.get('seconds')):>8} {percent(roll.get('fraction_of_rollout')):>6}",
+                flush=True,
+            )
         result["points"].append(pt)
         write()
     return 0

@@ -143,7 +143,7 @@ def test_a_failing_run_stops_alone(tmp_path, stacked):
     for k in (0, 2):
         assert_same(parameters(clean.runs[k]), parameters(poisoned.runs[k]), f"run {k} beside the failed one")
     first = torch.load(tmp_path / "pop" / "run-1" / "model_0.pt", weights_only=False)
-    assert_same(first["actor_state_dict"], {k: v for k, v in poisoned.runs[1].actor.state_dict().items()},
+    assert_same(first["actor_state_dict"], dict(poisoned.runs[1].actor.state_dict()),
                 "the failed run's parameters")  # fmt: skip
     assert sorted(os.listdir(tmp_path / "pop" / "run-1")).count("model_3.pt") == 0
     with open(tmp_path / "pop" / "population.json") as f:
@@ -250,8 +250,25 @@ def test_runs_that_cannot_share_a_process_are_refused():
 @pytest.mark.slow
 def test_train_runs_through_the_cli_writes_each_run_and_resumes(tmp_path):
     out = tmp_path / "pop"
-    command = [sys.executable, "-m", "aquarium_warp", "train", "--preset", "tiny", "--runs", "2", "--num-worlds", "4",
-               "--iterations", "2", "--log-dir", str(out), "--set", "runner.num_steps_per_env=8", "--quiet"]  # fmt: skip
+    command = [
+        sys.executable,
+        "-m",
+        "aquarium_warp",
+        "train",
+        "--preset",
+        "tiny",
+        "--runs",
+        "2",
+        "--num-worlds",
+        "4",
+        "--iterations",
+        "2",
+        "--log-dir",
+        str(out),
+        "--set",
+        "runner.num_steps_per_env=8",
+        "--quiet",
+    ]
     done = subprocess.run(command, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr
     assert "2 runs of prey" in done.stdout
