@@ -320,41 +320,23 @@ def _silent(*args, **kwargs) -> None:
 
 
 def run_train(args) -> int:
-    from .config import parse_assignment, team_settings, total_iterations
     from .run_dir import claim_run_directory
-    from .trainer import Trainer
 
     changes = _train_changes(args)
-    sets = [parse_assignment(s) for s in args.set]
     if args.resume and args.overwrite:
         raise ValueError("--overwrite starts a new run; --resume continues one: give one of them")
+    if args.log_dir is not None:
+        check_output_dir(args.log_dir, "--log-dir")
     # torchrun: rank 0 owns the run directory (the other ranks write nothing there)
     owner = int(os.environ.get("RANK", "0")) == 0
     run_dir = None
     if args.resume:
-        given = {k: v for k, v in changes.items() if k != "train"}
-        given_train = {
-            k
-            for k in changes.get("train", {})
-            if k not in ("iterations", "episodes", "export", "quiet", "video_every", "video_steps")
-        }
-        if given or given_train or sets or args.config or args.preset or args.prey_policy or args.predator_policy:
-            raise ValueError(
-                "--resume continues a run with its saved config: only --iterations, --episodes, "
-                "--export, --quiet, --video-every and --video-steps may be given with it"
-            )
         log_dir = args.log_dir
         if log_dir is None and os.path.exists(args.resume):  # the checkpoint's run (Trainer.resume's default)
             log_dir = args.resume if os.path.isdir(args.resume) else os.path.dirname(os.path.abspath(args.resume))
+        _check_resume_options(args, changes)
         if owner and log_dir is not None:
             run_dir = claim_run_directory(log_dir, resume=True)
-        trainer = Trainer.resume(args.resume, log_dir=log_dir, changes={"train": changes.get("train", {})})
-        _check_logger_package(trainer.config["runner"]["logger"])
-        say = print if trainer.rank == 0 else _silent
-        say(
-            f"aquarium-warp train: resumed {args.resume} at iteration {trainer.iteration} of "
-            f"{trainer.total_iterations} (log dir {trainer.log_dir})"
-        )
     else:
         config = train_config(args)
         if args.log_dir is None and int(os.environ.get("WORLD_SIZE", "1")) > 1:
@@ -364,25 +346,67 @@ def run_train(args) -> int:
         )
         if owner:
             run_dir = claim_run_directory(log_dir, overwrite=args.overwrite)
-        trainer = Trainer(config, log_dir=log_dir)
-        learners = " and ".join(
-            f"{t} ({team_settings(config, t)['sharing']} sharing, {trainer.vec_envs[t].slots} slots)"
-            for t in trainer.teams
-        )
-        against = "" if trainer.opponent is None else f" vs {trainer.config['train']['opponent']}"
+    try:  # every refusal from here on releases the claimed directory
+        trainer = _resumed(args, changes, log_dir) if args.resume else _new_run(config, log_dir)
         say = print if trainer.rank == 0 else _silent
-        ranks = f" (x{trainer.world_size} processes)" if trainer.world_size > 1 else ""
-        say(
-            f"aquarium-warp train: {learners}{against} on {trainer.env.device}, {trainer.env.num_worlds} "
-            f"worlds{ranks}, {total_iterations(config)} iterations -> {log_dir}"
-        )
-    try:
-        finish_training(trainer, say)
+        try:
+            finish_training(trainer, say)
+        finally:
+            trainer.close()
     finally:
-        trainer.close()
         if run_dir is not None:
             run_dir.release()
     return 0
+
+
+def _check_resume_options(args, changes: dict) -> None:
+    """A resumed run keeps its saved config: the flags that would change it are refused."""
+    given = {k: v for k, v in changes.items() if k != "train"}
+    given_train = {
+        k
+        for k in changes.get("train", {})
+        if k not in ("iterations", "episodes", "export", "quiet", "video_every", "video_steps")
+    }
+    if given or given_train or args.set or args.config or args.preset or args.prey_policy or args.predator_policy:
+        raise ValueError(
+            "--resume continues a run with its saved config: only --iterations, --episodes, "
+            "--export, --quiet, --video-every and --video-steps may be given with it"
+        )
+
+
+def _resumed(args, changes: dict, log_dir: str | None):
+    """`train --resume`'s trainer, announced."""
+    from .trainer import Trainer
+
+    trainer = Trainer.resume(args.resume, log_dir=log_dir, changes={"train": changes.get("train", {})})
+    _check_logger_package(trainer.config["runner"]["logger"])
+    if trainer.rank == 0:
+        print(
+            f"aquarium-warp train: resumed {args.resume} at iteration {trainer.iteration} of "
+            f"{trainer.total_iterations} (log dir {trainer.log_dir})"
+        )
+    return trainer
+
+
+def _new_run(config: dict, log_dir: str):
+    """A new run's trainer, announced."""
+    from .config import team_settings, total_iterations
+    from .trainer import Trainer
+
+    trainer = Trainer(config, log_dir=log_dir)
+    if trainer.rank == 0:
+        learners = " and ".join(
+            f"{t} ({team_settings(config, t)['sharing']} sharing, {plural(trainer.vec_envs[t].slots, 'slot')})"
+            for t in trainer.teams
+        )
+        against = "" if trainer.opponent is None else f" vs {trainer.config['train']['opponent']}"
+        ranks = f" (x{trainer.world_size} processes)" if trainer.world_size > 1 else ""
+        print(
+            f"aquarium-warp train: {learners}{against} on {trainer.env.device}, "
+            f"{plural(trainer.env.num_worlds, 'world')}{ranks}, {plural(total_iterations(config), 'iteration')} "
+            f"-> {log_dir}"
+        )
+    return trainer
 
 
 def train_config(args, sets: Sequence[str] = ()) -> dict:
