@@ -21,6 +21,9 @@ class Interrupted(KeyboardInterrupt):
         super().__init__(message)
         self.exit_code = 128 + signum
 
+    def __reduce__(self):  # from a study's worker process to the main one
+        return type(self), (str(self), self.exit_code - 128)
+
 
 def _terminated(signum, frame) -> None:
     """SIGTERM as Ctrl-C: the command unwinds (partial files removed) instead of vanishing."""
