@@ -226,6 +226,8 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
 
 def _train_changes(args) -> dict:
     """The config changes given by flags (None where a flag was not given)."""
+    if args.iterations is not None and args.episodes is not None:
+        raise ValueError("--iterations and --episodes both set the run's length: give one of them")
     train = {
         "team": args.team,
         "sharing": args.sharing,
@@ -288,7 +290,7 @@ def _train_changes(args) -> dict:
         "env": {k: v for k, v in env.items() if v is not None},
         "runner": {k: v for k, v in runner.items() if v not in (None, {})},
     }
-    if args.iterations is not None and args.episodes is None:
+    if args.iterations is not None:
         changes["train"]["episodes"] = None  # an explicit iteration count wins over a preset's episodes
     return {k: v for k, v in changes.items() if v}
 
@@ -416,8 +418,10 @@ def train_config(args, sets: Sequence[str] = ()) -> dict:
     from .config import deep_update, make_config, parse_assignment
 
     file_cfg = _read_config_file(args.config) if args.config else {}
-    # Popped whether or not --preset overrides it: "preset" is no config section.
+    # Popped and checked whether or not --preset overrides it: "preset" is no config section.
     file_preset = file_cfg.pop("preset", None)
+    if file_preset is not None and (not isinstance(file_preset, str) or file_preset not in PRESETS):
+        raise ValueError(f"--config {args.config}: preset {file_preset!r} is unknown: choose one of {sorted(PRESETS)}")
     preset = args.preset or file_preset or "default"
     merged = deep_update(deep_update({}, file_cfg), _train_changes(args))
     for s in [*args.set, *sets]:
@@ -533,7 +537,7 @@ def add_eval_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--smooth",
-        type=int,
+        type=int_at_least(1),
         default=1,
         metavar="N",
         help="training curves: moving average over N iterations (default 1: none)",
@@ -552,14 +556,18 @@ def run_eval(args) -> int:
     from .evaluate import evaluate_policies, write_results
     from .plots import plot_distributions, plot_training_curves
 
+    if args.cross_play and args.curves:
+        raise ValueError("--curves is not drawn with --cross-play: run eval --curves on its own")
+    curves = _curves(args.curves)
+    _blind(args.blind)  # a malformed one is refused before anything is written
+    if curves and args.no_figures:
+        raise ValueError(
+            "--curves draws a figure (training_curves.png), which --no-figures leaves out: give one of them"
+        )
     os.makedirs(check_output_dir(args.out, "--out"), exist_ok=True)  # before any episode runs
     if args.cross_play:
         return run_cross_play(args)
     outputs = []
-    curves: dict[str, list[str]] = {}
-    for item in args.curves:
-        label, _, pattern = item.partition("=") if "=" in item else (os.path.basename(item.rstrip("/")), "", item)
-        curves.setdefault(label, []).append(pattern)
     evaluate = (
         args.prey != [] and args.predator != [] and not (args.curves and args.prey is None and args.predator is None)
     )
@@ -597,7 +605,7 @@ def run_eval(args) -> int:
         print(f"  ({time.perf_counter() - start:.1f} s; mean +- std over seeds of the per-seed means)")
         if not args.no_figures:
             outputs.append(plot_distributions(result, os.path.join(args.out, "distributions.png")))
-    if curves and not args.no_figures:
+    if curves:
         with warnings.catch_warnings(record=True) as notes:  # e.g. why a curve is empty
             warnings.simplefilter("always")
             outputs.append(
@@ -608,6 +616,22 @@ def run_eval(args) -> int:
     for path in outputs:
         print(f"  wrote {path}")
     return 0
+
+
+def _curves(items: list[str]) -> dict[str, list[str]]:
+    """`--curves [LABEL=]PATTERN` options as `{label: [patterns]}`, refused in one line where a pattern
+    matches no run directory or progress CSV (`plots.plot_training_curves` reads them)."""
+    import glob
+
+    curves: dict[str, list[str]] = {}
+    for item in items:
+        label, _, pattern = item.partition("=") if "=" in item else (os.path.basename(item.rstrip("/")), "", item)
+        if not any(
+            os.path.isdir(d) or (d.endswith(".csv") and os.path.isfile(d)) for d in (glob.glob(pattern) or [pattern])
+        ):
+            raise ValueError(f"--curves {item!r}: no run directory or progress CSV matches {pattern!r}")
+        curves.setdefault(label, []).append(pattern)
+    return curves
 
 
 def _blind(items: list[str]) -> dict[str, str]:
@@ -653,8 +677,6 @@ def run_cross_play(args) -> int:
     from .cross_play import cross_play, expand_specs, write_cross_play
     from .plots import plot_cross_play
 
-    if args.curves:
-        raise ValueError("--curves is not drawn with --cross-play: run eval --curves on its own")
     prey = expand_specs(args.prey or ["random", "turnaway"])
     predator = expand_specs(args.predator or ["naivchase", NO_CONFUSION, "random"])
     env = _eval_world(args, prey + predator)
@@ -673,6 +695,7 @@ def run_cross_play(args) -> int:
         device=args.device,
         max_worlds=args.max_worlds,
         deterministic=not args.stochastic,
+        blind_to=_blind(args.blind),
     )
     outputs = list(write_cross_play(result, args.out).values())
     cp = result["cross_play"]
