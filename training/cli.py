@@ -14,7 +14,7 @@ import warnings
 from collections.abc import Sequence
 from typing import Any
 
-from ..arguments import int_at_least, number, positive_float
+from ..arguments import POLICY_SPECS, int_at_least, number, positive_float
 from ..atomic import check_output_dir
 from ..cli import Interrupted, plural
 from .config import ALGORITHM_RANGES, PRESETS
@@ -69,12 +69,12 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--predator-policy",
         default=None,
-        help="predators when training prey: 'naivchase' (default), 'random' or a policy file",
+        help=f"predators when training prey: {POLICY_SPECS['predator']} (default naivchase)",
     )
     g.add_argument(
         "--prey-policy",
         default=None,
-        help="prey when training predators: 'random' (default), 'turnaway' or a policy file",
+        help=f"prey when training predators: {POLICY_SPECS['prey']} (default random)",
     )
     g.add_argument(
         "--sharing",
@@ -492,19 +492,24 @@ def add_eval_arguments(p: argparse.ArgumentParser) -> None:
         nargs="*",
         default=None,
         metavar="SPEC",
-        help="prey policies: 'random', 'turnaway', or policy files (exported or checkpoints), "
-        "optionally LABEL=SPEC; specs sharing a label are pooled (default: random turnaway)",
+        help=f"prey policies: {POLICY_SPECS['prey']} (exported or a checkpoint), each optionally LABEL=SPEC; "
+        "specs sharing a label are pooled (default: random turnaway)",
     )
     p.add_argument(
         "--predator",
         nargs="*",
         default=None,
         metavar="SPEC",
-        help="predator policies: 'naivchase', 'naivchase-noconfusion' (chases the nearest prey), "
-        "'random' or policy files (default: naivchase)",
+        help=f"predator policies: {POLICY_SPECS['predator']} (default: naivchase)",
     )
     p.add_argument("--episodes", type=int, default=200, help="episodes per seed (paper: 200)")
-    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="evaluation seeds (paper: 5)")
+    p.add_argument(
+        "--seeds",
+        type=int,
+        nargs="+",
+        default=[0, 1, 2, 3, 4],
+        help="evaluation seeds, a list such as 0 1 2 (paper: 5)",
+    )
     p.add_argument(
         "--preset",
         choices=PRESET_NAMES,
@@ -576,9 +581,9 @@ def run_eval(args) -> int:
         predator = args.predator if args.predator is not None else ["naivchase"]
         env = _eval_world(args, prey + predator)
         print(
-            f"aquarium-warp eval: {len(prey)} prey x {len(predator)} predator policies, {args.episodes} episodes "
-            f"x {len(args.seeds)} seeds, {env.prey_count} prey, {plural(env.predator_count, 'predator')}, "
-            f"{env.max_steps} steps"
+            f"aquarium-warp eval: {len(prey)} prey x {len(predator)} predator policies, "
+            f"{plural(args.episodes, 'episode')} x {plural(len(args.seeds), 'seed')}, {env.prey_count} prey, "
+            f"{plural(env.predator_count, 'predator')}, {plural(env.max_steps, 'step')}"
         )
         start = time.perf_counter()
         result = evaluate_policies(
@@ -682,8 +687,8 @@ def run_cross_play(args) -> int:
     env = _eval_world(args, prey + predator)
     print(
         f"aquarium-warp eval --cross-play: {len(prey)} prey x {len(predator)} predator policies, "
-        f"{args.episodes} episodes x {len(args.seeds)} seeds, {env.prey_count} prey, "
-        f"{plural(env.predator_count, 'predator')}, {env.max_steps} steps"
+        f"{plural(args.episodes, 'episode')} x {plural(len(args.seeds), 'seed')}, {env.prey_count} prey, "
+        f"{plural(env.predator_count, 'predator')}, {plural(env.max_steps, 'step')}"
     )
     start = time.perf_counter()
     result = cross_play(
