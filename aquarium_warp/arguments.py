@@ -17,6 +17,16 @@ import math
 from collections.abc import Callable, Sequence
 from typing import Literal
 
+# What a policy option of each team takes (its help text): the heuristics (`drivers.HEURISTICS`), the
+# shipped trained policies (`pretrained.names()`) and policy files; written out, so that `--help` imports
+# neither (tests/app/test_cli.py checks them against both).
+POLICY_SPECS = {
+    "prey": "'turnaway', 'boids', 'random', 'constant' (heuristics), 'prey-a', 'prey-b', 'prey-c' (shipped "
+    "trained policies) or a policy file",
+    "predator": "'naivchase', 'naivchase-noconfusion' (chases the nearest prey), 'random', 'constant' "
+    "(heuristics) or a policy file",
+}
+
 
 # ---------------------------------------------------------------------------------------------- argparse types
 def number(allowed: str, ok: Callable[[float], bool]) -> Callable[[str], float]:

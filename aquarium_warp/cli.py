@@ -9,7 +9,7 @@ import sys
 import threading
 import time
 
-from .arguments import non_negative_int, positive_float, positive_int
+from .arguments import POLICY_SPECS, non_negative_int, positive_float, positive_int
 from .atomic import check_output_file
 
 
@@ -20,6 +20,9 @@ class Interrupted(KeyboardInterrupt):
     def __init__(self, message: str, signum: int):
         super().__init__(message)
         self.exit_code = 128 + signum
+
+    def __reduce__(self):  # from a study's worker process to the main one
+        return type(self), (str(self), self.exit_code - 128)
 
 
 def _terminated(signum, frame) -> None:
@@ -44,8 +47,8 @@ def _demo(args) -> int:
     gen = torch.Generator(device=env.torch_device).manual_seed(seed_key(args.seed))
     shapes = {"prey": (args.worlds, env.prey_capacity), "predator": (args.worlds, env.predator_capacity)}
     print(
-        f"aquarium-warp demo: {args.worlds} worlds x {cfg.capacity} agents on {env.device}, "
-        f"random actions, {args.steps} steps"
+        f"aquarium-warp demo: {plural(args.worlds, 'world')} x {cfg.capacity} agents on {env.device}, "
+        f"random actions, {plural(args.steps, 'step')}"
     )
     env.reset()
     actions = {t: torch.empty(s, dtype=torch.int32, device=env.torch_device) for t, s in shapes.items()}
@@ -125,8 +128,8 @@ def _video(args) -> int:
     drivers = make_drivers({"prey": args.prey_policy, "predator": args.predator_policy}, env, seed=args.seed)
     print(
         f"aquarium-warp video: {cfg.prey_count} prey ({args.prey_policy}) and "
-        f"{plural(cfg.predator_count, 'predator')} ({args.predator_policy}) on {env.device}, {args.steps} steps "
-        f"-> {args.out}"
+        f"{plural(cfg.predator_count, 'predator')} ({args.predator_policy}) on {env.device}, "
+        f"{plural(args.steps, 'step')} -> {args.out}"
     )
     start = time.perf_counter()
     frames = record(
@@ -247,8 +250,8 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--seed", type=non_negative_int, default=0, help="seed of the worlds and the random actions")
     demo.set_defaults(run=_demo)
     video = sub.add_parser("video", help="record one world driven by heuristic or trained policies as an MP4 video")
-    video.add_argument("--prey-policy", default="turnaway", help="'turnaway', 'random' or a trained policy file")
-    video.add_argument("--predator-policy", default="naivchase", help="'naivchase', 'random' or a trained policy file")
+    video.add_argument("--prey-policy", default="turnaway", help=f"{POLICY_SPECS['prey']} (default turnaway)")
+    video.add_argument("--predator-policy", default="naivchase", help=f"{POLICY_SPECS['predator']} (default naivchase)")
     video.add_argument("--steps", type=non_negative_int, default=600, help="steps to record (frames: steps + 1)")
     video.add_argument("--out", default="aquarium.mp4", help="output MP4 file (name ending in .mp4)")
     video.add_argument(

@@ -14,7 +14,7 @@ import warnings
 from collections.abc import Sequence
 from typing import Any
 
-from ..arguments import int_at_least, number, positive_float
+from ..arguments import POLICY_SPECS, int_at_least, number, positive_float
 from ..atomic import check_output_dir
 from ..cli import Interrupted, plural
 from .config import ALGORITHM_RANGES, PRESETS
@@ -70,12 +70,12 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--predator-policy",
         default=None,
-        help="predators when training prey: 'naivchase' (default), 'random' or a policy file",
+        help=f"predators when training prey: {POLICY_SPECS['predator']} (default naivchase)",
     )
     g.add_argument(
         "--prey-policy",
         default=None,
-        help="prey when training predators: 'random' (default), 'turnaway' or a policy file",
+        help=f"prey when training predators: {POLICY_SPECS['prey']} (default random)",
     )
     g.add_argument(
         "--sharing",
@@ -235,6 +235,8 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
 
 def _train_changes(args) -> dict:
     """The config changes given by flags (None where a flag was not given)."""
+    if args.iterations is not None and args.episodes is not None:
+        raise ValueError("--iterations and --episodes both set the run's length: give one of them")
     train = {
         "team": args.team,
         "sharing": args.sharing,
@@ -297,7 +299,7 @@ def _train_changes(args) -> dict:
         "env": {k: v for k, v in env.items() if v is not None},
         "runner": {k: v for k, v in runner.items() if v not in (None, {})},
     }
-    if args.iterations is not None and args.episodes is None:
+    if args.iterations is not None:
         changes["train"]["episodes"] = None  # an explicit iteration count wins over a preset's episodes
     return {k: v for k, v in changes.items() if v}
 
@@ -329,43 +331,25 @@ def _silent(*args, **kwargs) -> None:
 
 
 def run_train(args) -> int:
-    from .config import parse_assignment, team_settings, total_iterations
     from .run_dir import claim_run_directory
-    from .trainer import Trainer
 
     changes = _train_changes(args)
-    sets = [parse_assignment(s) for s in args.set]
     if args.resume and args.overwrite:
         raise ValueError("--overwrite starts a new run; --resume continues one: give one of them")
+    if args.log_dir is not None:
+        check_output_dir(args.log_dir, "--log-dir")
     if args.runs > 1 or (args.resume and os.path.isdir(args.resume) and is_population(args.resume)):
-        return run_population(args, changes, sets)
+        return run_population(args, changes)
     # torchrun: rank 0 owns the run directory (the other ranks write nothing there)
     owner = int(os.environ.get("RANK", "0")) == 0
     run_dir = None
     if args.resume:
-        given = {k: v for k, v in changes.items() if k != "train"}
-        given_train = {
-            k
-            for k in changes.get("train", {})
-            if k not in ("iterations", "episodes", "export", "quiet", "video_every", "video_steps")
-        }
-        if given or given_train or sets or args.config or args.preset or args.prey_policy or args.predator_policy:
-            raise ValueError(
-                "--resume continues a run with its saved config: only --iterations, --episodes, "
-                "--export, --quiet, --video-every and --video-steps may be given with it"
-            )
         log_dir = args.log_dir
         if log_dir is None and os.path.exists(args.resume):  # the checkpoint's run (Trainer.resume's default)
             log_dir = args.resume if os.path.isdir(args.resume) else os.path.dirname(os.path.abspath(args.resume))
+        _check_resume_options(args, changes)
         if owner and log_dir is not None:
             run_dir = claim_run_directory(log_dir, resume=True)
-        trainer = Trainer.resume(args.resume, log_dir=log_dir, changes={"train": changes.get("train", {})})
-        _check_logger_package(trainer.config["runner"]["logger"])
-        say = print if trainer.rank == 0 else _silent
-        say(
-            f"aquarium-warp train: resumed {args.resume} at iteration {trainer.iteration} of "
-            f"{trainer.total_iterations} (log dir {trainer.log_dir})"
-        )
     else:
         config = train_config(args)
         if args.log_dir is None and int(os.environ.get("WORLD_SIZE", "1")) > 1:
@@ -375,28 +359,20 @@ def run_train(args) -> int:
         )
         if owner:
             run_dir = claim_run_directory(log_dir, overwrite=args.overwrite)
-        trainer = Trainer(config, log_dir=log_dir)
-        learners = " and ".join(
-            f"{t} ({team_settings(config, t)['sharing']} sharing, {trainer.vec_envs[t].slots} slots)"
-            for t in trainer.teams
-        )
-        against = "" if trainer.opponent is None else f" vs {trainer.config['train']['opponent']}"
+    try:  # every refusal from here on releases the claimed directory
+        trainer = _resumed(args, changes, log_dir) if args.resume else _new_run(config, log_dir)
         say = print if trainer.rank == 0 else _silent
-        ranks = f" (x{trainer.world_size} processes)" if trainer.world_size > 1 else ""
-        say(
-            f"aquarium-warp train: {learners}{against} on {trainer.env.device}, {trainer.env.num_worlds} "
-            f"worlds{ranks}, {total_iterations(config)} iterations -> {log_dir}"
-        )
-    try:
-        finish_training(trainer, say)
+        try:
+            finish_training(trainer, say)
+        finally:
+            trainer.close()
     finally:
-        trainer.close()
         if run_dir is not None:
             run_dir.release()
     return 0
 
 
-def run_population(args, changes: dict, sets: list) -> int:
+def run_population(args, changes: dict) -> int:
     """`train --runs K` (K > 1), or `--resume` of a population's directory (`population.py`)."""
     from .population import Population, resume_population, run_configs
     from .run_dir import claim_run_directory
@@ -408,7 +384,7 @@ def run_population(args, changes: dict, sets: list) -> int:
         if (
             args.runs > 1
             or given_train
-            or sets
+            or args.set
             or args.config
             or args.preset
             or args.prey_policy
@@ -478,6 +454,56 @@ def run_population(args, changes: dict, sets: list) -> int:
     return 0
 
 
+def _check_resume_options(args, changes: dict) -> None:
+    """A resumed run keeps its saved config: the flags that would change it are refused."""
+    given = {k: v for k, v in changes.items() if k != "train"}
+    given_train = {
+        k
+        for k in changes.get("train", {})
+        if k not in ("iterations", "episodes", "export", "quiet", "video_every", "video_steps")
+    }
+    if given or given_train or args.set or args.config or args.preset or args.prey_policy or args.predator_policy:
+        raise ValueError(
+            "--resume continues a run with its saved config: only --iterations, --episodes, "
+            "--export, --quiet, --video-every and --video-steps may be given with it"
+        )
+
+
+def _resumed(args, changes: dict, log_dir: str | None):
+    """`train --resume`'s trainer, announced."""
+    from .trainer import Trainer
+
+    trainer = Trainer.resume(args.resume, log_dir=log_dir, changes={"train": changes.get("train", {})})
+    _check_logger_package(trainer.config["runner"]["logger"])
+    if trainer.rank == 0:
+        print(
+            f"aquarium-warp train: resumed {args.resume} at iteration {trainer.iteration} of "
+            f"{trainer.total_iterations} (log dir {trainer.log_dir})"
+        )
+    return trainer
+
+
+def _new_run(config: dict, log_dir: str):
+    """A new run's trainer, announced."""
+    from .config import team_settings, total_iterations
+    from .trainer import Trainer
+
+    trainer = Trainer(config, log_dir=log_dir)
+    if trainer.rank == 0:
+        learners = " and ".join(
+            f"{t} ({team_settings(config, t)['sharing']} sharing, {plural(trainer.vec_envs[t].slots, 'slot')})"
+            for t in trainer.teams
+        )
+        against = "" if trainer.opponent is None else f" vs {trainer.config['train']['opponent']}"
+        ranks = f" (x{trainer.world_size} processes)" if trainer.world_size > 1 else ""
+        print(
+            f"aquarium-warp train: {learners}{against} on {trainer.env.device}, "
+            f"{plural(trainer.env.num_worlds, 'world')}{ranks}, {plural(total_iterations(config), 'iteration')} "
+            f"-> {log_dir}"
+        )
+    return trainer
+
+
 def train_config(args, sets: Sequence[str] = ()) -> dict:
     """The run config of `aquarium-warp train`'s options `args` (a new run, not --resume): the preset,
     --config's file, the flags, the --set assignments, then `sets` (a sweep's settings), and the
@@ -485,8 +511,10 @@ def train_config(args, sets: Sequence[str] = ()) -> dict:
     from .config import deep_update, make_config, parse_assignment
 
     file_cfg = _read_config_file(args.config) if args.config else {}
-    # Popped whether or not --preset overrides it: "preset" is no config section.
+    # Popped and checked whether or not --preset overrides it: "preset" is no config section.
     file_preset = file_cfg.pop("preset", None)
+    if file_preset is not None and (not isinstance(file_preset, str) or file_preset not in PRESETS):
+        raise ValueError(f"--config {args.config}: preset {file_preset!r} is unknown: choose one of {sorted(PRESETS)}")
     preset = args.preset or file_preset or "default"
     merged = deep_update(deep_update({}, file_cfg), _train_changes(args))
     for s in [*args.set, *sets]:
@@ -557,19 +585,24 @@ def add_eval_arguments(p: argparse.ArgumentParser) -> None:
         nargs="*",
         default=None,
         metavar="SPEC",
-        help="prey policies: 'random', 'turnaway', or policy files (exported or checkpoints), "
-        "optionally LABEL=SPEC; specs sharing a label are pooled (default: random turnaway)",
+        help=f"prey policies: {POLICY_SPECS['prey']} (exported or a checkpoint), each optionally LABEL=SPEC; "
+        "specs sharing a label are pooled (default: random turnaway)",
     )
     p.add_argument(
         "--predator",
         nargs="*",
         default=None,
         metavar="SPEC",
-        help="predator policies: 'naivchase', 'naivchase-noconfusion' (chases the nearest prey), "
-        "'random' or policy files (default: naivchase)",
+        help=f"predator policies: {POLICY_SPECS['predator']} (default: naivchase)",
     )
     p.add_argument("--episodes", type=int, default=200, help="episodes per seed (paper: 200)")
-    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="evaluation seeds (paper: 5)")
+    p.add_argument(
+        "--seeds",
+        type=int,
+        nargs="+",
+        default=[0, 1, 2, 3, 4],
+        help="evaluation seeds, a list such as 0 1 2 (paper: 5)",
+    )
     p.add_argument(
         "--preset",
         choices=PRESET_NAMES,
@@ -602,7 +635,7 @@ def add_eval_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--smooth",
-        type=int,
+        type=int_at_least(1),
         default=1,
         metavar="N",
         help="training curves: moving average over N iterations (default 1: none)",
@@ -621,14 +654,18 @@ def run_eval(args) -> int:
     from .evaluate import evaluate_policies, write_results
     from .plots import plot_distributions, plot_training_curves
 
+    if args.cross_play and args.curves:
+        raise ValueError("--curves is not drawn with --cross-play: run eval --curves on its own")
+    curves = _curves(args.curves)
+    _blind(args.blind)  # a malformed one is refused before anything is written
+    if curves and args.no_figures:
+        raise ValueError(
+            "--curves draws a figure (training_curves.png), which --no-figures leaves out: give one of them"
+        )
     os.makedirs(check_output_dir(args.out, "--out"), exist_ok=True)  # before any episode runs
     if args.cross_play:
         return run_cross_play(args)
     outputs = []
-    curves: dict[str, list[str]] = {}
-    for item in args.curves:
-        label, _, pattern = item.partition("=") if "=" in item else (os.path.basename(item.rstrip("/")), "", item)
-        curves.setdefault(label, []).append(pattern)
     evaluate = (
         args.prey != [] and args.predator != [] and not (args.curves and args.prey is None and args.predator is None)
     )
@@ -637,9 +674,9 @@ def run_eval(args) -> int:
         predator = args.predator if args.predator is not None else ["naivchase"]
         env = _eval_world(args, prey + predator)
         print(
-            f"aquarium-warp eval: {len(prey)} prey x {len(predator)} predator policies, {args.episodes} episodes "
-            f"x {len(args.seeds)} seeds, {env.prey_count} prey, {plural(env.predator_count, 'predator')}, "
-            f"{env.max_steps} steps"
+            f"aquarium-warp eval: {len(prey)} prey x {len(predator)} predator policies, "
+            f"{plural(args.episodes, 'episode')} x {plural(len(args.seeds), 'seed')}, {env.prey_count} prey, "
+            f"{plural(env.predator_count, 'predator')}, {plural(env.max_steps, 'step')}"
         )
         start = time.perf_counter()
         result = evaluate_policies(
@@ -666,7 +703,7 @@ def run_eval(args) -> int:
         print(f"  ({time.perf_counter() - start:.1f} s; mean +- std over seeds of the per-seed means)")
         if not args.no_figures:
             outputs.append(plot_distributions(result, os.path.join(args.out, "distributions.png")))
-    if curves and not args.no_figures:
+    if curves:
         with warnings.catch_warnings(record=True) as notes:  # e.g. why a curve is empty
             warnings.simplefilter("always")
             outputs.append(
@@ -677,6 +714,22 @@ def run_eval(args) -> int:
     for path in outputs:
         print(f"  wrote {path}")
     return 0
+
+
+def _curves(items: list[str]) -> dict[str, list[str]]:
+    """`--curves [LABEL=]PATTERN` options as `{label: [patterns]}`, refused in one line where a pattern
+    matches no run directory or progress CSV (`plots.plot_training_curves` reads them)."""
+    import glob
+
+    curves: dict[str, list[str]] = {}
+    for item in items:
+        label, _, pattern = item.partition("=") if "=" in item else (os.path.basename(item.rstrip("/")), "", item)
+        if not any(
+            os.path.isdir(d) or (d.endswith(".csv") and os.path.isfile(d)) for d in (glob.glob(pattern) or [pattern])
+        ):
+            raise ValueError(f"--curves {item!r}: no run directory or progress CSV matches {pattern!r}")
+        curves.setdefault(label, []).append(pattern)
+    return curves
 
 
 def _blind(items: list[str]) -> dict[str, str]:
@@ -722,15 +775,13 @@ def run_cross_play(args) -> int:
     from .cross_play import cross_play, expand_specs, write_cross_play
     from .plots import plot_cross_play
 
-    if args.curves:
-        raise ValueError("--curves is not drawn with --cross-play: run eval --curves on its own")
     prey = expand_specs(args.prey or ["random", "turnaway"])
     predator = expand_specs(args.predator or ["naivchase", NO_CONFUSION, "random"])
     env = _eval_world(args, prey + predator)
     print(
         f"aquarium-warp eval --cross-play: {len(prey)} prey x {len(predator)} predator policies, "
-        f"{args.episodes} episodes x {len(args.seeds)} seeds, {env.prey_count} prey, "
-        f"{plural(env.predator_count, 'predator')}, {env.max_steps} steps"
+        f"{plural(args.episodes, 'episode')} x {plural(len(args.seeds), 'seed')}, {env.prey_count} prey, "
+        f"{plural(env.predator_count, 'predator')}, {plural(env.max_steps, 'step')}"
     )
     start = time.perf_counter()
     result = cross_play(
@@ -742,6 +793,7 @@ def run_cross_play(args) -> int:
         device=args.device,
         max_worlds=args.max_worlds,
         deterministic=not args.stochastic,
+        blind_to=_blind(args.blind),
     )
     outputs = list(write_cross_play(result, args.out).values())
     cp = result["cross_play"]

@@ -509,6 +509,46 @@ ALGORITHM_RANGES = {
 }
 
 
+# The train settings a resumed run may change (`Trainer.resume`): how long it runs, what it prints and
+# exports, and how its iterations are computed, none of which is in the state it continues.
+RESUMABLE_SETTINGS = (
+    "iterations",
+    "episodes",
+    "quiet",
+    "export",
+    "loop",
+    "cuda_graphs",
+    "graph_update",
+    "tf32",
+    "fused_mlp",
+    "video_every",
+    "video_steps",
+)
+
+
+def config_difference(a: dict, b: dict, ignore: tuple[str, ...] = ()) -> str | None:
+    """The first dotted key whose value differs between the run configs `a` and `b` (compared as JSON
+    writes them: a config read back from config.json equals its run's), or None; the train settings
+    `ignore` are left out."""
+
+    def flat(config: dict) -> dict:
+        out: dict = {}
+
+        def walk(value, prefix: str) -> None:
+            if isinstance(value, dict) and value:
+                for k, v in value.items():
+                    walk(v, f"{prefix}.{k}" if prefix else str(k))
+            else:
+                out[prefix] = value
+
+        walk(json.loads(json.dumps(config, default=str)), "")
+        return {k: v for k, v in out.items() if not (k.startswith("train.") and k[len("train.") :] in ignore)}
+
+    fa, fb = flat(a), flat(b)
+    missing = object()
+    return next((k for k in sorted(fa.keys() | fb.keys()) if fa.get(k, missing) != fb.get(k, missing)), None)
+
+
 def default_opponent(team: str) -> str:
     return "naivchase" if team == "prey" else "random"
 

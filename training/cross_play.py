@@ -60,6 +60,7 @@ def cross_play(
     deterministic: bool = True,
     progress=None,
     rating: bool = True,
+    blind_to: dict[str, str] | None = None,
 ) -> dict:
     """Every prey spec against every predator spec (globs expanded by `expand_specs`) under the
     evaluation protocol of `evaluate_policies` (which plays the pairs). `env=None`: the common world of
@@ -68,7 +69,8 @@ def cross_play(
     Returns `evaluate_policies`' result plus `"cross_play"`: the row (prey) and column (predator)
     labels and, per metric of `CROSS_PLAY_METRICS`, `[prey][predator]` matrices of the mean and std over
     seeds of the per-seed means. `prey_survival` is the fraction of the `prey_count` first prey slots
-    not captured in an episode. With `rating`, `"rating"`: `elo_ratings` of that survival matrix."""
+    not captured in an episode. With `rating`, `"rating"`: `elo_ratings` of that survival matrix.
+    `blind_to`: the neighbour ablation of `evaluate_policies`."""
     prey, predator = (
         expand_specs([prey] if isinstance(prey, str) else prey),
         expand_specs([predator] if isinstance(predator, str) else predator),
@@ -85,6 +87,7 @@ def cross_play(
         max_worlds=max_worlds,
         deterministic=deterministic,
         progress=progress,
+        blind_to=blind_to,
     )
     rows = list(dict.fromkeys(parse_spec(p)[0] for p in prey))
     cols = list(dict.fromkeys(parse_spec(p)[0] for p in predator))

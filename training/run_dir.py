@@ -1,15 +1,18 @@
 """A run directory owned by one run at a time (`aquarium-warp train --log-dir`).
 
 A new run refuses a directory that already holds files unless told to replace the earlier run's
-outputs (`--overwrite`); a resumed run continues its own. While a run trains, `<dir>/.lock` holds an
-exclusive `flock` and the owner's process id: a second run on the directory is refused. The kernel
-drops the lock of a process that dies, so a lock file left by a killed run is taken over, saying so.
+outputs (`--overwrite`); a resumed run continues its own, and is refused a directory whose config.json
+or newest checkpoint is of another run (`check_same_run`: the run id, or for files from before run
+ids, the config). While a run trains, `<dir>/.lock` holds an exclusive `flock` and the owner's
+process id: a second run on the directory is refused. The kernel drops the lock of a process that
+dies, so a lock file left by a killed run is taken over, saying what it held.
 """
 
 from __future__ import annotations
 
 import contextlib
 import glob
+import json
 import os
 import shutil
 
@@ -70,7 +73,7 @@ def claim_run_directory(path: str, resume: bool = False, overwrite: bool = False
     handle.seek(0)
     previous = handle.read().strip()
     if previous and previous != str(os.getpid()):
-        say(f"aquarium-warp train: {path} was locked by process {previous}, which no longer runs; taking it over")
+        say(f"aquarium-warp train: {_left_lock(path, previous)}; taking it over")
     handle.truncate(0)
     handle.write(str(os.getpid()))
     handle.flush()
@@ -82,6 +85,23 @@ def claim_run_directory(path: str, resume: bool = False, overwrite: bool = False
         claimed.release()
         raise
     return claimed
+
+
+def _left_lock(path: str, content: str) -> str:
+    """What the unheld lock file of the directory `path` says by its `content`: a dead owner's pid, a
+    live process's (which holds no lock on it: a reused pid, or a process that never locked it), or no
+    process id at all."""
+    pid = int(content) if content.isdigit() else 0
+    if not 0 < pid < 2**31:  # 0 would signal our own process group below
+        shown = content if len(content) <= 40 else content[:40] + "..."
+        return f"the lock file of {path} holds {shown!r}, not a process id"
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return f"{path} was locked by process {pid}, which no longer runs"
+    except PermissionError:  # another user's process: it runs
+        pass
+    return f"the lock file of {path} names process {pid}, which runs but holds no lock on it (a reused process id?)"
 
 
 def _check_new_run(path: str, overwrite: bool) -> None:
@@ -101,3 +121,47 @@ def _check_new_run(path: str, overwrite: bool) -> None:
             else:
                 with contextlib.suppress(FileNotFoundError):
                     os.remove(item)
+
+
+def check_same_run(log_dir: str, checkpoint_path: str, state: dict) -> str | None:
+    """Refuse (a one-line ValueError) to continue the checkpoint `checkpoint_path`, whose
+    `infos["aquarium"]` is `state`, in `log_dir` when the directory holds another run: its config.json
+    or its newest checkpoint has another run id, or where either has none (files from before run ids),
+    another config (the settings a resume may change aside). Returns the run id the resumed run keeps:
+    the checkpoint's, else the directory's (None: neither has one)."""
+    from .checkpoints import newest_readable_checkpoint
+    from .config import RESUMABLE_SETTINGS, config_difference
+
+    run_id = state.get("run_id")
+    found = []  # (file, its run id, its config)
+    record_path = os.path.join(log_dir, "config.json")
+    if os.path.isfile(record_path):
+        try:
+            with open(record_path, encoding="utf-8") as f:
+                record = json.load(f)
+            found.append(("config.json", record.get("run_id"), record["config"]))
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            raise ValueError(
+                f"{record_path} is not a run's config.json: cannot tell which run {log_dir} holds"
+            ) from None
+    if glob.glob(os.path.join(glob.escape(log_dir), "model_*.pt")):
+        try:
+            newest_path, newest = newest_readable_checkpoint(log_dir)
+        except ValueError:  # none readable: no other run's state to continue from by mistake
+            newest_path = None
+        if newest_path is not None and not os.path.samefile(newest_path, checkpoint_path):
+            other = newest["infos"]["aquarium"]
+            found.append((os.path.basename(newest_path), other.get("run_id"), other["config"]))
+    for name, other_id, other_config in found:
+        if run_id and other_id:
+            reason = None if other_id == run_id else f"run {other_id}, the checkpoint's is {run_id}"
+        else:
+            key = config_difference(state["config"], other_config, RESUMABLE_SETTINGS)
+            reason = None if key is None else f"{key} differs from the checkpoint's"
+        if reason is not None:
+            raise ValueError(
+                f"{checkpoint_path} cannot continue in {log_dir}: its {name} is of another run ({reason}); "
+                "resume into the checkpoint's own run directory or an empty one"
+            )
+        run_id = run_id or other_id
+    return run_id

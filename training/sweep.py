@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 from ..arguments import parse_list
 from ..atomic import atomic_open
+from ..cli import plural
 from ..studies.jobs import RayOptions, add_ray_arguments, placement, ray_options, run_ray_tasks
 
 RUN_RECORD = "sweep_run.json"
@@ -268,7 +269,7 @@ def run(args: argparse.Namespace) -> int:
     sweep.validate()
     ray = ray_options(args)
     print(
-        f"aquarium-warp sweep train: {len(sweep.runs())} runs ({len(sweep.seeds)} seeds"
+        f"aquarium-warp sweep train: {plural(len(sweep.runs()), 'run')} ({plural(len(sweep.seeds), 'seed')}"
         f"{''.join(f' x {len(v)} {k}' for k, v in sweep.vary)}) {'as Ray tasks' if ray else 'one after another'} "
         f"-> {sweep.out}"
     )

@@ -10,7 +10,8 @@ trainer.export()                   # runs/paper_ps_s0/exported/policy.pt, policy
 Trainer.resume("runs/paper_ps_s0").train()     # continues from the newest checkpoint
 ```
 
-The log directory receives rsl-rl's TensorBoard events, `config.json` (the config; the command, commit,
+The log directory receives rsl-rl's TensorBoard events, `config.json` (the config; the run id, which its
+checkpoints carry too, so that a resume never continues one run in another's directory; the command, commit,
 machine and library versions (`aquarium_warp.records.provenance`); under `cuda_graphs` what the training
 loop captures: the rollout, each learner's update; with `train.fused_mlp`, under `fused_loss` and
 `fused_act`, whether each learner's update runs the fused loss and its rollout the fused step, or why
@@ -19,7 +20,7 @@ iteration: episode statistics, losses, speed) and checkpoints `model_<i>.pt`, wh
 after iteration i (0-based; the runner's `iter` entry is the next iteration, `i + 1`).
 
 A checkpoint holds, besides rsl-rl's (actor, critic, optimizer, iteration), under `infos["aquarium"]`:
-the run config, the simulation's `state_dict` (every world's agents and step counters, i.e. the
+the run config and id, the simulation's `state_dict` (every world's agents and step counters, i.e. the
 adapter's `episode_length_buf`), the adapter's row activity and statistics mask, the opponent's own
 state (a heuristic's random streams are keyed by the simulation state and its seed), the torch (CPU
 and CUDA), numpy and Python RNG states, and the logger's running sums. Resuming on the CPU continues
@@ -48,6 +49,7 @@ import copy
 import io
 import json
 import os
+import uuid
 
 import torch
 
@@ -63,6 +65,7 @@ from . import (
 )
 from .checkpoints import global_rng_state, newest_readable_checkpoint, read_checkpoint, restore_global_rng_state
 from .config import (
+    RESUMABLE_SETTINGS,
     TEAMS,
     default_opponent,
     env_config,
@@ -75,26 +78,37 @@ from .config import (
 from .drivers import LearnerActions, policy_driver
 from .export import export_policy, policy_from_actor, policy_meta
 from .memory import check_training_memory
+from .run_dir import check_same_run
 from .runner import AquariumRunner, Learner
 from .stop import StopRequest
 from .vec_env import OTHER, AquariumVecEnv
 
 
+def run_config(config: dict) -> dict:
+    """`config` as a run holds it (`Trainer.config`, its checkpoints' config): a validated copy, a
+    one-team run's default opponent filled in."""
+    config = copy.deepcopy(config)
+    validate(config)
+    train = config["train"]
+    if train["opponent"] is None and len(learning_teams(config)) == 1:
+        train["opponent"] = default_opponent(train["team"])
+    return config
+
+
 class Trainer:
     """Builds the simulator, the opponent (or, with `train.team = "both"`, a learner per team and the
     opponent pool), the adapters and the rsl-rl runner of a run config; trains, checkpoints, resumes
-    and exports. `log_dir=None`: no TensorBoard, CSV or checkpoints."""
+    and exports. `log_dir=None`: no TensorBoard, CSV or checkpoints. `run_id`: the run this one
+    continues (`resume`); None: a new run, with a new id."""
 
-    def __init__(self, config: dict, log_dir: str | None = None):
-        config = copy.deepcopy(config)
-        validate(config)
+    def __init__(self, config: dict, log_dir: str | None = None, run_id: str | None = None):
+        config = run_config(config)
         train = config["train"]
         self.teams = learning_teams(config)
         both = len(self.teams) == 2
-        if train["opponent"] is None and not both:
-            train["opponent"] = default_opponent(train["team"])
         self.config = config
         self.log_dir = log_dir
+        self.run_id = run_id or uuid.uuid4().hex[:16]
         self.stop = StopRequest()
         # torchrun: one process (rank) per GPU or CPU share, each with its own worlds and seed.
         self.rank, local_rank, self.world_size = distributed.world()
@@ -160,6 +174,7 @@ class Trainer:
         if log_dir is not None and self.rank == 0:
             os.makedirs(log_dir, exist_ok=True)
             record = {
+                "run_id": self.run_id,
                 "config": config,
                 "runner_cfg": self.runner_cfg if not both else self.runner_cfgs,
                 "total_iterations": self.total_iterations,
@@ -207,33 +222,27 @@ class Trainer:
     def resume(cls, path: str, log_dir: str | None = None, changes: dict | None = None) -> Trainer:
         """A trainer restored from a checkpoint, or from the newest checkpoint of a run directory.
         `changes` may alter train settings that do not affect the state (iterations, episodes,
-        quiet, export, videos); the log directory defaults to the checkpoint's."""
+        quiet, export, videos); the log directory defaults to the checkpoint's and must not hold
+        another run (`run_dir.check_same_run`)."""
         if os.path.isdir(path):
             checkpoint_path, checkpoint = newest_readable_checkpoint(path)
         else:
             checkpoint_path, checkpoint = path, read_checkpoint(path)
-        config = copy.deepcopy(checkpoint["infos"]["aquarium"]["config"])
+        state = checkpoint["infos"]["aquarium"]
+        config = copy.deepcopy(state["config"])
         if changes:
-            allowed = {
-                "iterations",
-                "episodes",
-                "quiet",
-                "export",
-                "loop",
-                "cuda_graphs",
-                "graph_update",
-                "tf32",
-                "fused_mlp",
-                "video_every",
-                "video_steps",
-            }
-            bad = [k for k in changes.get("train", {}) if k not in allowed] + [k for k in changes if k != "train"]
+            bad = [k for k in changes.get("train", {}) if k not in RESUMABLE_SETTINGS]
+            bad += [k for k in changes if k != "train"]
             if bad:
-                raise ValueError(f"a resumed run keeps its config; only train.{sorted(allowed)} may change, not {bad}")
+                raise ValueError(
+                    f"a resumed run keeps its config; only train.{sorted(RESUMABLE_SETTINGS)} may change, not {bad}"
+                )
             config["train"].update(changes.get("train", {}))
-        trainer = cls(
-            config, log_dir=log_dir if log_dir is not None else os.path.dirname(os.path.abspath(checkpoint_path))
-        )
+        if log_dir is None:
+            log_dir = os.path.dirname(os.path.abspath(checkpoint_path))
+        # before the trainer rewrites the directory's config.json
+        run_id = check_same_run(log_dir, checkpoint_path, state)
+        trainer = cls(config, log_dir=log_dir, run_id=run_id)
         trainer.load(checkpoint_path)
         return trainer
 
@@ -266,7 +275,12 @@ class Trainer:
     def extra_state(self) -> dict:
         """The trainer's part of a checkpoint: run config, RNG states and, per learner, its adapter
         (the simulation once), logger and hidden states; both teams: under `teams`, with the pool."""
-        state = {"config": self.config, "seed": self.seed, "rng": global_rng_state(self.device)}
+        state = {
+            "config": self.config,
+            "run_id": self.run_id,
+            "seed": self.seed,
+            "rng": global_rng_state(self.device),
+        }
         learners = self.runner.learners
         if len(learners) == 1:
             return {**state, **self._learner_state(learners[0], with_env=True)}

@@ -70,23 +70,86 @@ def training_config(
     )
 
 
-def train_and_export(config: dict, out_dir: str, log_dir: str | None = None) -> tuple[dict[str, str], float]:
-    """Train one run in this process (`Trainer`; with `log_dir`, its config, logs and checkpoints there)
-    and export its policies (TorchScript) into `out_dir` (both teams: `out_dir/<team>/`). Returns
-    `{team: policy file}` and the training's wall time in seconds (construction and export not included)."""
-    from ..training import Trainer
+# The checkpoint that an interrupted training without a log directory leaves in its policy folder.
+INTERRUPTED = "interrupted.pt"
 
-    trainer = Trainer(copy.deepcopy(config), log_dir=log_dir)
+
+def train_and_export(config: dict, out_dir: str, log_dir: str | None = None) -> tuple[dict[str, str], float]:
+    """Train one run in this process (`Trainer`; with `log_dir`, its config, logs and checkpoints there,
+    the directory claimed meanwhile) and export its policies (TorchScript) into `out_dir` (both teams:
+    `out_dir/<team>/`). Returns `{team: policy file}` and the training's wall time in seconds in this
+    call (construction and export not included).
+
+    A training stopped by SIGINT or SIGTERM (`Trainer.stop`) is not finished: nothing is exported, its
+    state is kept (the last checkpoint in `log_dir`, else `<out_dir>/interrupted.pt`) and
+    `cli.Interrupted` raised; the next call with the same config continues it from there. A kept state
+    of another config is replaced by a new run."""
+    from ..cli import Interrupted
+    from ..training import Trainer
+    from ..training.run_dir import claim_run_directory
+
+    saved = _saved_training(config, out_dir, log_dir)
+    claimed = (
+        None if log_dir is None else claim_run_directory(log_dir, resume=saved is not None, overwrite=saved is None)
+    )
     try:
-        start = time.perf_counter()
-        trainer.train()
-        seconds = time.perf_counter() - start
-        exported = trainer.export(out_dir, formats=["jit"])
+        if saved is None:
+            trainer = Trainer(copy.deepcopy(config), log_dir=log_dir)
+        elif log_dir is not None:
+            trainer = Trainer.resume(saved[0], log_dir=log_dir)
+        else:
+            trainer = Trainer(copy.deepcopy(config), run_id=saved[1])
+            trainer.load(saved[0])
+        if saved is not None:
+            print(f"  continuing {saved[0]} at iteration {trainer.iteration} of {trainer.total_iterations}", flush=True)
+        try:
+            start = time.perf_counter()
+            trainer.train()
+            seconds = time.perf_counter() - start
+            if trainer.stop.signum is not None:
+                kept = log_dir  # the runner checkpointed the last iteration there
+                if kept is None:
+                    os.makedirs(out_dir, exist_ok=True)
+                    kept = os.path.join(out_dir, INTERRUPTED)
+                    trainer.save(kept)
+                raise Interrupted(
+                    f"stopped by {trainer.stop.name} after iteration {trainer.iteration} of "
+                    f"{trainer.total_iterations} of a training run, kept in {kept}: rerun the same command to "
+                    "continue it",
+                    trainer.stop.signum,
+                )
+            exported = trainer.export(out_dir, formats=["jit"])
+        finally:
+            trainer.close()
     finally:
-        trainer.close()
+        if claimed is not None:
+            claimed.release()
+    if log_dir is None and saved is not None:
+        os.remove(saved[0])  # finished: nothing left to continue
     if len(trainer.teams) == 1:
         return {trainer.teams[0]: exported["jit"]}, seconds
     return {team: paths["jit"] for team, paths in exported.items()}, seconds
+
+
+def _saved_training(config: dict, out_dir: str, log_dir: str | None) -> tuple[str, str | None] | None:
+    """The checkpoint that an interrupted training of `config` left (`log_dir`'s newest, else
+    `<out_dir>/interrupted.pt`) and its run id; None where there is none or it is of another config."""
+    from ..training.checkpoints import newest_readable_checkpoint, read_checkpoint
+    from ..training.config import config_difference
+    from ..training.trainer import run_config
+
+    try:
+        if log_dir is not None:
+            path, checkpoint = newest_readable_checkpoint(log_dir)
+        else:
+            path = os.path.join(out_dir, INTERRUPTED)
+            checkpoint = read_checkpoint(path)
+    except ValueError:  # none, or none readable
+        return None
+    state = checkpoint["infos"]["aquarium"]
+    if config_difference(state["config"], run_config(config)) is not None:
+        return None
+    return path, state.get("run_id")
 
 
 def policy_path(run: str) -> str:
@@ -97,16 +160,11 @@ def policy_path(run: str) -> str:
 def run_training_task(task: dict, device: str) -> dict:
     """A job (`jobs.run_jobs` with `devices`): train the run config `task["config"]` on `device` in this
     process into the folder `task["run_dir"]` (config, progress CSV, TensorBoard log, the last
-    checkpoint, the exported policy: `policy_path`), replacing an earlier run's outputs there."""
-    from ..training.run_dir import claim_run_directory
-
+    checkpoint, the exported policy: `policy_path`), continuing an interrupted training of the same
+    config there, else replacing an earlier run's outputs."""
     config = copy.deepcopy(task["config"])
     config["train"]["device"] = device
-    claimed = claim_run_directory(task["run_dir"], overwrite=True)
-    try:
-        _, seconds = train_and_export(config, os.path.dirname(policy_path(task["run_dir"])), log_dir=task["run_dir"])
-    finally:
-        claimed.release()
+    _, seconds = train_and_export(config, os.path.dirname(policy_path(task["run_dir"])), log_dir=task["run_dir"])
     return {"seconds": round(seconds, 1)}
 
 

@@ -42,6 +42,7 @@ import numpy as np
 import torch
 
 from ..arguments import (
+    POLICY_SPECS,
     check_distinct,
     check_int,
     check_number,
@@ -53,6 +54,7 @@ from ..arguments import (
     positive_int,
 )
 from ..atomic import check_output_dir, write_figure
+from ..cli import plural
 from ..config import AquariumConfig, FlowConfig
 from ..device import resolve_device
 from ..drivers import check_spec
@@ -398,11 +400,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--episode-steps", type=int_at_least(2), default=3000, help="steps per episode (default 3000)")
     p.add_argument("--prey", type=positive_int, default=16, help="prey per world (default 16)")
     p.add_argument("--predators", type=positive_int, default=1, help="predators per world (default 1)")
-    p.add_argument("--prey-policy", default="turnaway", help="'turnaway', 'random' or a trained policy file")
+    p.add_argument("--prey-policy", default="turnaway", help=f"{POLICY_SPECS['prey']} (default turnaway)")
     p.add_argument(
         "--predator-policy",
         default="naivchase",
-        help="'naivchase', 'naivchase-noconfusion', 'random' or a trained policy file",
+        help=f"{POLICY_SPECS['predator']} (default naivchase)",
     )
     p.add_argument(
         "--flee-angle",
@@ -443,8 +445,9 @@ def run(args: argparse.Namespace) -> int:
         figures=not args.no_figures,
     )
     print(
-        f"aquarium-warp study flow: {study.kinds} x strengths {study.strengths} px/step, {study.seeds} seeds x "
-        f"{study.episodes_per_seed} episodes of {study.episode_steps} steps -> {study.out}"
+        f"aquarium-warp study flow: {study.kinds} x strengths {study.strengths} px/step, "
+        f"{plural(study.seeds, 'seed')} x {plural(study.episodes_per_seed, 'episode')} of "
+        f"{plural(study.episode_steps, 'step')} -> {study.out}"
     )
     check_output_dir(study.out, "--out")
     summary = run_flow(study, command_line(args.argv))

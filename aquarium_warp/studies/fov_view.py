@@ -9,6 +9,7 @@ import os
 
 from ..arguments import number_list, positive_int
 from ..atomic import check_output_dir
+from ..cli import plural
 from ..records import command_line
 from .swarm_size import SwarmSizeStudy, add_run_arguments, run_settings, run_swarm_size_study
 
@@ -40,8 +41,8 @@ def run(args: argparse.Namespace) -> int:
         **run_settings(args),
     )
     print(
-        f"aquarium-warp study fov-view: {study.prey[0]} prey, FOV {fovs} x view {views}, {study.seeds} seeds, "
-        f"episodes of {study.episode_steps} steps -> {study.out}"
+        f"aquarium-warp study fov-view: {study.prey[0]} prey, FOV {fovs} x view {views}, "
+        f"{plural(study.seeds, 'seed')}, episodes of {plural(study.episode_steps, 'step')} -> {study.out}"
     )
     check_output_dir(study.out, "--out")
     summary = run_swarm_size_study(study, progress=not args.no_progress, command=command_line(args.argv))

@@ -62,6 +62,7 @@ import torch
 
 from ..arguments import check_distinct, check_int, check_number, int_at_least, number_list, positive_float, positive_int
 from ..atomic import check_output_dir
+from ..cli import plural
 from ..config import AquariumConfig
 from ..records import command_line
 from ..rollout import StepView
@@ -610,8 +611,8 @@ def run(args: argparse.Namespace) -> int:
     )
     print(
         f"aquarium-warp study group-hunting: predators {study.predators}, {study.prey} prey "
-        f"({', '.join(study.prey_conditions)}), catch_share_radius {study.share_radii}, {study.seeds} seeds -> "
-        f"{study.out}"
+        f"({', '.join(study.prey_conditions)}), catch_share_radius {study.share_radii}, "
+        f"{plural(study.seeds, 'seed')} -> {study.out}"
     )
     check_output_dir(study.out, "--out")
     summary = run_group_hunting(study, command_line(args.argv), ray_options(args))

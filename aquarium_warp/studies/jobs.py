@@ -5,7 +5,9 @@ in task order. Training sweeps (`aquarium_warp.training.sweep`) run on Ray throu
 
 Finished tasks: each result is written to `<out>/finished/<name>.json` with its `task_key` (the task
 and the study's settings) as it comes, so a rerun of the same study (after it was stopped at a time
-limit, say, or with more `--seeds`) runs only the tasks it has no result for.
+limit, say, or with more `--seeds`) runs only the tasks it has no result for. A task that raises is not
+finished: a training stopped by SIGINT or SIGTERM raises `cli.Interrupted` with its state kept
+(`common.train_and_export`), which ends the run with the signal's exit code; the rerun continues it.
 
 Several devices of one machine (`devices`): worker processes, each bound to one device, run `jobs`
 tasks at a time on each; a task takes the next free device, which its function is given and its key

@@ -67,6 +67,7 @@ from ..arguments import (
     positive_int,
 )
 from ..atomic import check_output_dir
+from ..cli import plural
 from ..records import command_line
 from ..rollout import StepView
 from ..seeding import evaluation_seed
@@ -580,7 +581,7 @@ def run(args: argparse.Namespace) -> int:
     )
     print(
         f"aquarium-warp study many-eyes: group sizes {study.group_sizes} x FOV {study.fov_angles}, "
-        f"{study.seeds} seeds -> {study.out}"
+        f"{plural(study.seeds, 'seed')} -> {study.out}"
     )
     check_output_dir(study.out, "--out")
     summary = run_many_eyes(study, command_line(args.argv), ray_options(args))

@@ -86,6 +86,7 @@ from collections.abc import Callable, Sequence
 
 from ..arguments import check_distinct, check_int, number_list
 from ..checks import LARGEST
+from ..cli import plural
 from ..records import command_line, json_safe, provenance
 from .common import policy_path, run_training_task
 from .jobs import read_finished, run_jobs, task_devices
@@ -203,7 +204,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="screen: capture confusion strengths c (docs/model.md step 5; confusion_radius 100 px), e.g. 0,1,4",
     )
     parser.add_argument("--conditions", default=",".join(CONDITIONS), help="learned: conditions to train")
-    parser.add_argument("--seeds", type=int, default=5, help="learned: training seeds per condition (>= 2)")
+    parser.add_argument(
+        "--seeds", type=int, default=5, help="learned: training runs per condition, a count N: seeds 0 to N-1 (>= 2)"
+    )
     parser.add_argument("--iterations", type=int, default=500, help="learned: PPO iterations per run")
     parser.add_argument(
         "--train-worlds",
@@ -212,7 +215,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="learned: worlds per training run (default: TRAIN_AGENT_STEPS / (prey x 32 x iterations))",
     )
     parser.add_argument("--episodes", type=int, default=64, help="evaluation episodes per evaluation seed")
-    parser.add_argument("--eval-seeds", type=int, default=2, help="evaluation seeds")
+    parser.add_argument(
+        "--eval-seeds",
+        type=int,
+        default=2,
+        help="evaluation seeds, a count N: seeds 0 to N-1 (default 2; eval --seeds takes a list of seeds)",
+    )
     parser.add_argument("--max-steps", type=int, default=3000, help="episode length (docs/model.md: 3000)")
     parser.add_argument("--gpus", type=int, default=None, help="GPUs to spread tasks over (default: all; 0: CPU)")
     parser.add_argument("--per-gpu", type=int, default=4, help="tasks at a time per GPU")
@@ -633,7 +641,7 @@ def run(args) -> int:
         summary["screen"] = summarize_screen(tasks, records)
     if trainings:
         trained = run_part(
-            f"training {len(args.condition_list)} conditions x {args.seeds} seeds",
+            f"training {plural(len(args.condition_list), 'condition')} x {plural(args.seeds, 'seed')}",
             run_training_task,
             trainings,
             args,

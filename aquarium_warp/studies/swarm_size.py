@@ -48,8 +48,9 @@ from dataclasses import dataclass, field
 
 import torch
 
-from ..arguments import check_distinct, check_int, non_negative_int, parse_list, positive_int
+from ..arguments import POLICY_SPECS, check_distinct, check_int, non_negative_int, parse_list, positive_int
 from ..atomic import atomic_open, check_output_dir
+from ..cli import plural
 from ..config import AquariumConfig
 from ..device import resolve_device
 from ..drivers import check_spec, is_heuristic, make_driver
@@ -652,8 +653,8 @@ def add_run_arguments(p: argparse.ArgumentParser, out: str) -> None:
     p.add_argument("--seeds", type=int, default=5, help="independent runs per setting (default 5)")
     p.add_argument("--episodes-per-seed", type=int, default=1, help="episodes per seed, run as more worlds")
     p.add_argument("--episode-steps", type=int, default=3000, help="steps per episode (default 3000, the paper's)")
-    p.add_argument("--prey-policy", default="turnaway", help="'turnaway', 'random' or a trained policy file")
-    p.add_argument("--predator-policy", default="naivchase", help="'naivchase', 'random' or a trained policy file")
+    p.add_argument("--prey-policy", default="turnaway", help=f"{POLICY_SPECS['prey']} (default turnaway)")
+    p.add_argument("--predator-policy", default="naivchase", help=f"{POLICY_SPECS['predator']} (default naivchase)")
     p.add_argument(
         "--no-confusion",
         action="store_true",
@@ -768,8 +769,9 @@ def run(args: argparse.Namespace) -> int:
         **run_settings(args),
     )
     print(
-        f"aquarium-warp study swarm-size: prey {study.prey}, {study.seeds} seeds x {study.episodes_per_seed} "
-        f"episode(s) of {study.episode_steps} steps, {study.prey_policy} vs {study.predator_policy} -> {study.out}"
+        f"aquarium-warp study swarm-size: prey {study.prey}, {plural(study.seeds, 'seed')} x "
+        f"{plural(study.episodes_per_seed, 'episode')} of {plural(study.episode_steps, 'step')}, "
+        f"{study.prey_policy} vs {study.predator_policy} -> {study.out}"
     )
     check_output_dir(study.out, "--out")
     summary = run_swarm_size_study(study, progress=not args.no_progress, ray=ray, command=command_line(args.argv))

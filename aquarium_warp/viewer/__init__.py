@@ -12,8 +12,10 @@ draws them on a canvas: `server.py` (Starlette app, uvicorn), `simulation.py` (t
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import re
+import socket
 
 
 def _port(text: str) -> int:
@@ -46,7 +48,7 @@ def _fps(text: str) -> float:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from ..arguments import non_negative_int, positive_float
+    from ..arguments import POLICY_SPECS, non_negative_int, positive_float
 
     p.add_argument(
         "--host",
@@ -57,12 +59,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--prey-policy",
         default="turnaway",
-        help="heuristic (turnaway, random, constant), shipped policy name (prey-a, ...) or policy file",
+        help=f"{POLICY_SPECS['prey']} (default turnaway)",
     )
     p.add_argument(
         "--predator-policy",
         default="naivchase",
-        help="heuristic (naivchase, naivchase-noconfusion, random, constant), shipped name or file",
+        help=f"{POLICY_SPECS['predator']} (default naivchase)",
     )
     p.add_argument(
         "--policy-dir", default=None, help="policy files (.pt, .onnx) under this folder may be chosen on the page"
@@ -124,12 +126,10 @@ def run(args) -> int:
         print(f"aquarium-warp view: wrote {args.out}, a page that plays {args.replay}")
         return 0
     try:
-        import uvicorn
+        import uvicorn  # noqa: F401 - checked before anything else; `_serve` runs it
     except ImportError as error:  # an optional dependency
         raise ValueError(f"view needs the viewer extra: pip install 'aquarium-warp[viewer]' ({error})") from None
     from ..video import check_video_path
-    from .server import Viewer, make_app
-    from .simulation import Simulation, ViewOptions
 
     if args.record is not None:
         check_video_path(args.record)
@@ -139,6 +139,17 @@ def run(args) -> int:
         raise ValueError(f"--record-dir {args.record_dir}: not a folder")
     if args.policy_dir is not None and not os.path.isdir(args.policy_dir):
         raise ValueError(f"--policy-dir {args.policy_dir}: not a folder")
+    return _serve(args)
+
+
+def _serve(args) -> int:
+    """Build the world and serve it until Ctrl-C."""
+    import uvicorn
+
+    from ..cli import plural
+    from .server import Viewer, make_app
+    from .simulation import Simulation, ViewOptions
+
     options = ViewOptions(
         prey_policy=args.prey_policy,
         predator_policy=args.predator_policy,
@@ -158,11 +169,21 @@ def run(args) -> int:
     )
     env = simulation.env
     assert env is not None
+    # Bound before anything is printed: a port in use is refused in one line, not after "open http://...".
+    try:
+        listening = socket.create_server(
+            (args.host, args.port), family=socket.AF_INET6 if ":" in args.host else socket.AF_INET
+        )
+    except OSError as error:
+        cause = os.strerror(error.errno) if error.errno else str(error)  # not create_server's address suffix
+        raise ValueError(f"--port {args.port}: cannot serve on {args.host}:{args.port} ({cause})") from None
     print(
-        f"aquarium-warp view: {env.num_worlds} world(s) of {env.config.prey_count} prey "
-        f"({simulation.specs['prey']}) and {env.config.predator_count} predators ({simulation.specs['predator']}) "
-        f"on {env.device}"
+        f"aquarium-warp view: {plural(env.num_worlds, 'world')} of {env.config.prey_count} prey "
+        f"({simulation.specs['prey']}) and {plural(env.config.predator_count, 'predator')} "
+        f"({simulation.specs['predator']}) on {env.device}"
     )
     print(f"aquarium-warp view: open http://{args.host}:{args.port}/  (Ctrl-C stops)", flush=True)
-    uvicorn.run(make_app(viewer), host=args.host, port=args.port, log_level="warning", ws="websockets-sansio")
+    config = uvicorn.Config(make_app(viewer), log_level="warning", ws="websockets-sansio")
+    with listening, contextlib.suppress(KeyboardInterrupt):  # Ctrl-C: the server has shut down (as uvicorn.run)
+        uvicorn.Server(config).run(sockets=[listening])
     return 0

@@ -55,6 +55,26 @@ def test_every_option_of_every_subcommand_has_help():
     assert not missing, f"options without a help text: {missing}"
 
 
+def test_the_policy_options_name_every_heuristic_and_shipped_policy():
+    """Issue 49: `--help` named neither the shipped policies nor the constant and boids heuristics."""
+    from aquarium_warp import pretrained
+    from aquarium_warp.drivers import HEURISTICS
+
+    names = {"prey": [*HEURISTICS["prey"], *pretrained.names()], "predator": list(HEURISTICS["predator"])}
+    found = {" ".join(path): p for path, p in subparsers(build_parser())}
+    options = [
+        (command, option, team)
+        for command in ("video", "view", "study flow", "study swarm-size")
+        for option, team in (("--prey-policy", "prey"), ("--predator-policy", "predator"))
+    ]
+    options += [("eval", "--prey", "prey"), ("eval", "--predator", "predator")]
+    options += [("train", "--prey-policy", "prey"), ("train", "--predator-policy", "predator")]
+    for command, option, team in options:
+        action = next(a for a in found[f"aquarium-warp {command}"]._actions if option in a.option_strings)
+        missing = [name for name in names[team] if f"'{name}'" not in action.help]
+        assert not missing, f"{command} {option}: {missing} not in {action.help!r}"
+
+
 def test_version_matches_the_installed_distribution(capsys):
     with pytest.raises(SystemExit) as exit_info:
         main(["--version"])

@@ -319,8 +319,10 @@ def test_counts_are_pluralised(tmp_path, capsys):
     ]
     assert main(argv) == 0
     out = capsys.readouterr().out
-    assert ", 2 prey, 1 predator, 5 steps" in out, out
+    assert "1 episode x 1 seed, 2 prey, 1 predator, 5 steps" in out, out
     json.loads((tmp_path / "summary.json").read_text())
+    assert main(["demo", "--worlds", "1", "--steps", "1", "--device", "cpu"]) == 0
+    assert "demo: 1 world x 17 agents on cpu, random actions, 1 step" in capsys.readouterr().out
 
 
 @pytest.mark.slow

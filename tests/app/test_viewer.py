@@ -247,6 +247,17 @@ def test_view_options_are_checked_in_one_line(argv, says, capsys):
     assert code == 2 and says in err
 
 
+def test_a_port_in_use_is_refused_before_the_address_is_printed(capsys):
+    with socket.create_server(("127.0.0.1", 0)) as taken:
+        port = taken.getsockname()[1]
+        assert main(["view", "--port", str(port), "--device", "cpu"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""  # neither the world nor "open http://..."
+    assert captured.err.strip() == (
+        f"aquarium-warp view: --port {port}: cannot serve on 127.0.0.1:{port} (Address already in use)"
+    )
+
+
 # ---------------------------------------------------------------------- a real browser
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 CHROMEDRIVER = shutil.which("chromedriver")

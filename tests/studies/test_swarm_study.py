@@ -354,7 +354,7 @@ def test_the_learned_part_end_to_end_and_a_rerun_runs_nothing(tmp_path, capsys, 
     out = tmp_path / "swarm"
     assert main(LEARNED + ["--out", str(out)]) == 0
     printed = capsys.readouterr().out
-    assert "training 1 conditions x 2 seeds (2 to run)" in printed and "evaluating 2 policies (2 to run)" in printed
+    assert "training 1 condition x 2 seeds (2 to run)" in printed and "evaluating 2 policies (2 to run)" in printed
     summary = json.loads((out / "summary.json").read_text())
     entry = summary["learned"]["conditions"]["no-neighbours"]
     assert entry["seeds"] == [0, 1] and "blind" not in entry  # no prey slots to empty

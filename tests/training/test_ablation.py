@@ -4,6 +4,7 @@ they are, heuristics are refused (they read the state), and `eval --blind` parse
 
 from __future__ import annotations
 
+import json
 import os
 
 import pytest
@@ -101,3 +102,21 @@ def test_eval_blind_option_is_parsed_strictly(tmp_path, capsys, value, message):
     )
     err = capsys.readouterr().err
     assert message in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.slow
+def test_cross_play_applies_blind(tmp_path):
+    """Issue 49: `eval --cross-play --blind` ablates the trained policies as `eval --blind` does (it was
+    ignored in silence)."""
+
+    def cross_play(*blind: str):
+        out = tmp_path / ("blind" if blind else "seeing")
+        argv = ["eval", "--cross-play", "--prey", "prey-a", "--predator", "naivchase", "--episodes", "2"]
+        argv += ["--seeds", "0", "--max-steps", "300", "--device", "cpu", "--no-figures", "--out", str(out)]
+        assert main([*argv, *blind]) == 0
+        saved = json.loads((out / "cross_play.json").read_text())
+        return saved["protocol"]["blind_to"], saved["matrices"]["captures_per_prey"]["mean"]
+
+    seeing, blind = cross_play(), cross_play("--blind", "prey=prey")
+    assert seeing[0] == {} and blind[0] == {"prey": "prey"}
+    assert blind[1] != seeing[1]  # prey-a that see no other prey are caught at another rate

@@ -128,6 +128,8 @@ CLI_MISUSE = [
     (["train", "--entropy", "nan"], "--entropy", "a finite number >= 0"),
     (["train", "--learning-rate", "inf"], "--learning-rate", "a finite number > 0"),
     (["train", "--num-worlds", "0"], "--num-worlds", "an integer >= 1"),
+    (["eval", "--smooth", "0"], "--smooth", "an integer >= 1"),
+    (["eval", "--smooth", "-1"], "--smooth", "an integer >= 1"),
 ]
 
 
@@ -159,13 +161,38 @@ def test_cli_option_out_of_range_is_an_argparse_error(capsys, argv, option, allo
             "train.seed=99999999999999999999 must be an integer in [0, 2**63",
         ),
         (["video", "--out", "noext", "--steps", "1", "--device", "cpu", "--no-progress"], "must end in .mp4"),
+        # Issue 49: flags that another flag overrode in silence
+        (
+            ["train", "--preset", "paper", "--iterations", "1", "--episodes", "2", "--log-dir", "{tmp}/run"],
+            "--iterations and --episodes both set the run's length: give one of them",
+        ),
+        (["train", "--log-dir", ""], "--log-dir is empty: give a folder"),
+        (
+            ["train", "--preset", "tiny", "--config", "{tmp}/bogus.yaml", "--log-dir", "{tmp}/run"],
+            "--config {tmp}/bogus.yaml: preset 'bogus' is unknown: choose one of ['default', ",
+        ),
+        (
+            ["eval", "--curves", "X=nowhere*", "--no-figures", "--out", "{tmp}/out"],
+            "--curves 'X=nowhere*': no run directory or progress CSV matches 'nowhere*'",
+        ),
+        (
+            ["eval", "--curves", "{tmp}", "--no-figures", "--out", "{tmp}/out"],
+            "--curves draws a figure (training_curves.png), which --no-figures leaves out: give one of them",
+        ),
+        (
+            ["eval", "--cross-play", "--blind", "prey=fish", "--out", "{tmp}/out"],
+            "--blind 'prey=fish': expected TEAM=TYPE",
+        ),
     ],
 )
-def test_cli_value_errors_are_one_line(capsys, argv, expected):
+def test_cli_value_errors_are_one_line(capsys, argv, expected, tmp_path):
+    (tmp_path / "bogus.yaml").write_text("preset: bogus\n")
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert "Traceback" not in err and len(err.splitlines()) == 1, err
-    assert expected in err, err
+    assert expected.replace("{tmp}", str(tmp_path)) in err, err
+    assert sorted(os.listdir(tmp_path)) == ["bogus.yaml"]  # refused before anything is written
 
 
 def test_demo_seed_beyond_64_bits(capsys):

@@ -5,7 +5,9 @@ message says what ran."""
 
 from __future__ import annotations
 
+import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -19,7 +21,7 @@ import torch
 from aquarium_warp.cli import main
 from aquarium_warp.training import memory
 from aquarium_warp.training.config import make_config
-from aquarium_warp.training.run_dir import LOCK_NAME, claim_run_directory
+from aquarium_warp.training.run_dir import LOCK_NAME, check_same_run, claim_run_directory
 from aquarium_warp.training.stop import StopRequest
 from aquarium_warp.training.trainer import Trainer
 
@@ -91,6 +93,87 @@ def test_a_locked_run_directory_is_refused_and_a_dead_owners_lock_taken_over(tmp
     assert said == [f"aquarium-warp train: {run} was locked by process {dead}, which no longer runs; taking it over"]
     assert open(os.path.join(run, LOCK_NAME)).read() == str(os.getpid())
     claimed.release()
+    # A lock file that names a live process which holds no lock on it, or no process at all
+    for content, found in (
+        (str(os.getppid()), f"names process {os.getppid()}, which runs but holds no lock on it (a reused process id?)"),
+        ("0", "holds '0', not a process id"),
+        ("half-written junk", "holds 'half-written junk', not a process id"),
+    ):
+        with open(os.path.join(run, LOCK_NAME), "w") as f:
+            f.write(content)
+        said.clear()
+        claim_run_directory(run, say=said.append).release()
+        assert said == [f"aquarium-warp train: the lock file of {run} {found}; taking it over"]
+
+
+def test_a_refused_run_releases_its_lock(tmp_path, capsys, one_thread):
+    """Refusals after the directory is claimed (the network's activation, the opponent's policy file)
+    leave no pid in the lock: the corrected retry takes over no dead run."""
+    run = tmp_path / "run"
+    junk = tmp_path / "junk.pt"
+    junk.write_text("not a policy")
+    for bad, said in (
+        (["--activation", "bogus"], "Invalid activation function 'bogus'"),
+        (["--predator-policy", str(junk)], str(junk)),
+    ):
+        assert main(["train", *TINY, "--iterations", "1", "--log-dir", str(run), *bad]) == 2
+        assert said in one_line(capsys, "aquarium-warp train: ")
+        assert (run / LOCK_NAME).read_text() == ""
+    assert main(["train", *TINY, "--iterations", "1", "--log-dir", str(run)]) == 0
+    assert "taking it over" not in capsys.readouterr().out
+
+
+# ------------------------------------------------------------------------------------------ run ids
+def run_id(path) -> str:
+    if str(path).endswith(".pt"):
+        return torch.load(path, weights_only=False)["infos"]["aquarium"]["run_id"]
+    with open(os.path.join(path, "config.json")) as f:
+        return json.load(f)["run_id"]
+
+
+def test_a_resume_into_another_runs_directory_is_refused(tmp_path, capsys, one_thread):
+    """Issue 49: a checkpoint continues only in a directory of its own run (config.json's and the newest
+    checkpoint's run id), or in an empty one, which then takes the run's id."""
+    a, b, c = (tmp_path / name for name in "abc")
+    for run in (a, b):  # two runs of one config: only their ids tell them apart
+        assert main(["train", *TINY, "--iterations", "2", "--log-dir", str(run)]) == 0
+    assert run_id(a) != run_id(b) and run_id(a / "model_1.pt") == run_id(a)
+    before = {name: (a / name).read_bytes() for name in os.listdir(a) if os.path.isfile(a / name)}
+    capsys.readouterr()
+    foreign = b / "model_1.pt"
+    assert main(["train", "--resume", str(foreign), "--log-dir", str(a), "--iterations", "3", "--quiet"]) == 2
+    assert one_line(capsys, "aquarium-warp train: ") == (
+        f"aquarium-warp train: {foreign} cannot continue in {a}: its config.json is of another run (run "
+        f"{run_id(a)}, the checkpoint's is {run_id(b)}); resume into the checkpoint's own run directory or an empty one"
+    )
+    assert {name: (a / name).read_bytes() for name in before} == before  # nothing of a rewritten
+    assert (a / LOCK_NAME).read_text() == ""
+    # The directory's newest checkpoint from another run
+    shutil.copy(foreign, a / "model_5.pt")
+    assert main(["train", "--resume", str(a / "model_1.pt"), "--iterations", "3", "--quiet"]) == 2
+    assert f"its model_5.pt is of another run (run {run_id(b)}, the checkpoint's is {run_id(a)})" in one_line(
+        capsys, "aquarium-warp train: "
+    )
+    assert main(["train", "--resume", str(a), "--iterations", "7", "--quiet"]) == 2  # model_5.pt, into a
+    assert f"its config.json is of another run (run {run_id(a)}, the checkpoint's is {run_id(b)})" in one_line(
+        capsys, "aquarium-warp train: "
+    )
+    # An empty directory continues the run under its id
+    assert main(["train", "--resume", str(foreign), "--log-dir", str(c), "--iterations", "3", "--quiet"]) == 0
+    assert run_id(c) == run_id(c / "model_2.pt") == run_id(b)
+
+
+def test_files_from_before_run_ids_are_told_apart_by_their_config(tmp_path):
+    """A checkpoint or config.json without a run id: the config decides, less what a resume may change."""
+    record = {"config": make_config("tiny", {"train": {"seed": 1, "iterations": 9}})}
+    (tmp_path / "config.json").write_text(json.dumps(record))
+    state = {"config": make_config("tiny", {"train": {"seed": 1, "iterations": 2}}), "run_id": "abc"}
+    assert check_same_run(str(tmp_path), "elsewhere/model_1.pt", state) == "abc"
+    state["config"]["train"]["seed"] = 2
+    with pytest.raises(
+        ValueError, match=r"its config.json is of another run \(train.seed differs from the checkpoint's\)"
+    ):
+        check_same_run(str(tmp_path), "elsewhere/model_1.pt", state)
 
 
 def test_overwrite_replaces_the_earlier_run_only(tmp_path, capsys, one_thread):
@@ -129,6 +212,7 @@ def test_a_huge_run_is_refused_before_anything_is_allocated(tmp_path, capsys):
     assert main(["train", "--num-worlds", "3000000", "--device", "cpu", "--log-dir", str(tmp_path / "run")]) == 2
     err = one_line(capsys, "aquarium-warp train: train.num_worlds=3000000 needs about ")
     assert "rollout storage" in err and "GiB is available" in err
+    assert (tmp_path / "run" / LOCK_NAME).read_text() == ""  # released
 
 
 # ------------------------------------------------------------------------------------------ signals
