@@ -94,12 +94,11 @@ def make_driver(
         from .training.export import load_policy
     except ImportError as error:
         raise ValueError(f"trained policies need aquarium_warp.training (importing it failed: {error})") from error
-    return policy_driver(
-        load_policy(spec, device=env.torch_device, deterministic=deterministic, seed=seed, team=team),
-        env,
-        team,
-        blind_to=blind_to,
-    )
+    policy = load_policy(spec, device=env.torch_device, deterministic=deterministic, seed=seed, team=team)
+    try:
+        return policy_driver(policy, env, team, blind_to=blind_to)
+    except ValueError as error:  # a policy that cannot act in this world: say which one
+        raise ValueError(f"{team} policy {spec}: {error}") from None
 
 
 def make_drivers(

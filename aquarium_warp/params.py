@@ -82,6 +82,8 @@ def world_rows(cfg: AquariumConfig, num_worlds: int, grid_index: list[int]) -> n
     ages = per_world(cfg.prey_replication_age, num_worlds)
     rows["replication_age_min"] = [math.ceil(0.75 * r) for r in ages]
     rows["replication_age_max"] = [math.floor(1.25 * r) for r in ages]
+    rows["prey_spawn_speed"] = [min(1.0, s) for s in per_world(cfg.prey.max_speed, num_worlds)]
+    rows["predator_spawn_speed"] = [min(1.0, s) for s in per_world(cfg.predator.max_speed, num_worlds)]
     flows = per_world(cfg.flow, num_worlds)
     rows["flow_kind"] = [_FLOW_CODES[f.kind] for f in flows]
     rows["flow_vector"] = [f.centre if f.kind == "vortex" else f.velocity for f in flows]

@@ -13,13 +13,19 @@ write_video(list_of_frames, "frames.mp4", fps=30)
 from __future__ import annotations
 
 import contextlib
+import errno
+import fractions
 import math
 import os
+import signal
+import subprocess
+import tempfile
 from collections.abc import Callable, Iterable, Iterator, Sized
+from typing import NoReturn
 
 import numpy as np
 
-from .atomic import atomic_path
+from .atomic import atomic_path, os_error_cause, partial_name
 from .render import Renderer, check_frame
 from .rollout import Drivers, Observer, rollout
 
@@ -48,10 +54,24 @@ def _check_frame(frame, expected_shape) -> np.ndarray:
 
 
 def check_video_path(path) -> None:
-    """ffmpeg picks the container from the file name's extension, and fails only after it started
-    without one: refuse a name that does not end in .mp4 up front."""
+    """ffmpeg picks the container from the file name's extension, and tells that it cannot write the file
+    only after it started: refuse a name that does not end in .mp4, and a file that cannot be created,
+    up front (one `ValueError`). Creating it is the test: a folder's permissions may allow what its file
+    system refuses (a read-only mount, /proc)."""
     if os.path.splitext(str(path))[1].lower() != ".mp4":
         raise ValueError(f"cannot write {path}: the file name must end in .mp4 (an H.264 MP4 video)")
+    folder = os.path.dirname(os.path.abspath(str(path)))
+    if not os.path.isdir(folder):
+        raise ValueError(f"cannot write {path}: folder {folder} does not exist")
+    if os.path.isdir(path):
+        raise ValueError(f"cannot write {path}: it is a folder")
+    probe = partial_name(path)
+    try:
+        with open(probe, "wb"):
+            pass
+        os.remove(probe)
+    except OSError as error:
+        raise ValueError(f"cannot write {path}: {os_error_cause(error)}") from None
 
 
 def write_video(
@@ -101,9 +121,6 @@ def video_file(
     ):
         raise ValueError(f"quality={quality!r} must be None or a number in [1, 10]")
     check_video_path(path)
-    folder = os.path.dirname(os.path.abspath(str(path)))
-    if not os.path.isdir(folder):
-        raise ValueError(f"cannot write {path}: folder {folder} does not exist")
     bar = None
     if progress:
         try:
@@ -112,45 +129,95 @@ def video_file(
             bar = tqdm(total=total, unit="frame", desc=os.path.basename(str(path)))
         except ImportError:
             pass
-    writer = None
+    ffmpeg: _Ffmpeg | None = None
     shape = None
     count = 0
     # ffmpeg writes a partial file, renamed when the video is whole (a kill or a full disk leaves none)
     with atomic_path(path) as partial:
 
         def add(frame: np.ndarray) -> None:
-            nonlocal writer, shape, count
+            nonlocal ffmpeg, shape, count
             frame = _check_frame(frame, shape)
             shape = frame.shape
             h, w = shape[:2]
-            if writer is None:
-                writer = imageio_ffmpeg.write_frames(
-                    partial,
-                    (w + w % 2, h + h % 2),
-                    fps=fps,
-                    quality=quality,
-                    codec="libx264",
-                    pix_fmt_in="rgb24",
-                    pix_fmt_out="yuv420p",
-                    macro_block_size=1,
-                )
-                writer.send(None)  # start ffmpeg
+            if ffmpeg is None:
+                ffmpeg = _Ffmpeg(imageio_ffmpeg.get_ffmpeg_exe(), partial, path, (w + w % 2, h + h % 2), fps, quality)
             if h % 2 or w % 2:
                 frame = np.pad(frame, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
-            writer.send(np.ascontiguousarray(frame).tobytes())
+            ffmpeg.write(np.ascontiguousarray(frame).tobytes())
             count += 1
             if bar is not None:
                 bar.update(1)
 
         try:
             yield add
+        except BaseException:
+            if ffmpeg is not None:  # an error or Ctrl-C: no video, and no complaint of ffmpeg's about a cut frame
+                ffmpeg.kill()
+            raise
         finally:
-            if writer is not None:
-                writer.close()
             if bar is not None:
                 bar.close()
+        if ffmpeg is not None:
+            ffmpeg.finish()
         if count == 0:
             raise ValueError("write_video got no frames")
+
+
+class _Ffmpeg:
+    """imageio-ffmpeg's ffmpeg encoding raw RGB frames from a pipe into `partial` (H.264, yuv420p, as its
+    `write_frames`, whose errors are a "Broken pipe" plus a dump of its command and ffmpeg's own output).
+    ffmpeg's messages go to a temporary file; a failure is one `OSError` naming `path` and ffmpeg's cause.
+    It runs in a session of its own, so that a Ctrl-C reaches only this process, which then kills it."""
+
+    def __init__(self, exe: str, partial: str, path, size: tuple[int, int], fps: float, quality: float | None):
+        # imageio-ffmpeg's quality scale: 10 is crf 0 (lossless), 1 is crf 45
+        crf = [] if quality is None else ["-crf", str(int((1 - quality / 10) * 51))]
+        command = [exe, "-y", "-f", "rawvideo", "-vcodec", "rawvideo", "-s", f"{size[0]}x{size[1]}"]
+        rate = str(fractions.Fraction(fps).limit_denominator())  # as imageio-ffmpeg: 29.97 stays 2997/100
+        command += ["-pix_fmt", "rgb24", "-r", rate, "-i", "-", "-an", "-vcodec", "libx264"]
+        command += ["-pix_fmt", "yuv420p", *crf, "-v", "error", partial]
+        self.path = os.fspath(path)
+        self.log = tempfile.TemporaryFile()
+        self.process = subprocess.Popen(
+            command, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=self.log, start_new_session=True
+        )
+
+    def write(self, data: bytes) -> None:
+        try:
+            self.process.stdin.write(data)  # type: ignore[union-attr]
+        except OSError:  # ffmpeg is gone: its own words say why
+            self.process.wait()
+            self._fail()
+
+    def finish(self) -> None:
+        with contextlib.suppress(OSError):  # a failed flush shows in ffmpeg's exit status
+            self.process.stdin.close()  # type: ignore[union-attr]
+        if self.process.wait() != 0:
+            self._fail()
+        self.log.close()
+
+    def kill(self) -> None:
+        self.process.kill()
+        self.process.wait()
+        with contextlib.suppress(OSError):
+            self.process.stdin.close()  # type: ignore[union-attr]
+        self.log.close()
+
+    def _fail(self) -> NoReturn:
+        self.log.seek(0)
+        lines = [line.strip() for line in self.log.read().decode(errors="replace").splitlines() if line.strip()]
+        self.log.close()
+        code = self.process.returncode
+        if any("No space left" in line for line in lines):
+            raise OSError(errno.ENOSPC, "no space left on device", self.path)
+        # the last message is ffmpeg's conclusion; a kill (e.g. a file size limit) leaves none
+        cause = (
+            lines[-1]
+            if lines
+            else (f"ffmpeg killed by {signal.Signals(-code).name}" if code < 0 else f"ffmpeg exit status {code}")
+        )
+        raise OSError(errno.EIO, f"ffmpeg could not write the video ({cause})", self.path)
 
 
 class Frames(Observer):

@@ -65,6 +65,8 @@ class WorldValues:
     predator_starvation_steps: int
     replication_age_min: int  # ceil(0.75 * prey_replication_age)
     replication_age_max: int  # floor(1.25 * prey_replication_age)
+    prey_spawn_speed: float  # min(1, prey max_speed), px/step: a fresh prey's speed (docs/model.md "Randomness")
+    predator_spawn_speed: float  # min(1, predator max_speed), px/step: a fresh predator's speed
     flow_kind: int  # FLOW_NONE, FLOW_UNIFORM, FLOW_VORTEX or FLOW_GRID
     flow_vector: wp.vec2  # uniform: the current (px/step); vortex: the centre (px)
     flow_strength: float  # vortex: px/step at the core's edge

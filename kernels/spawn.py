@@ -46,10 +46,10 @@ def make_fresh_prey(
     rng: wp.uint32,
     agents: Agents,
 ):
-    """A prey at `pos` moving at speed 1 along its fresh heading (west in the paper), as at the start
-    of an episode; keeps only its slot."""
+    """A prey at `pos` moving at speed min(1, max_speed) along its fresh heading (west in the paper), as
+    at the start of an episode; keeps only its slot."""
     h = fresh_heading(world, rng, wp.vec2(-1.0, 0.0))
-    set_slot(agents, w, i, True, pos, h, h, draw_replication_age(world, w, rng))
+    set_slot(agents, w, i, True, pos, h * world.values[w].prey_spawn_speed, h, draw_replication_age(world, w, rng))
 
 
 @wp.func
@@ -91,7 +91,7 @@ def uniform_position(world: WorldParams, rng: wp.uint32, margin: float) -> wp.ve
 def spawn_slot(world: WorldParams, counters: WorldCounters, w: int, i: int, episode: int, agents: Agents):
     """Slot i of world w at the start of its episode `episode`: prey uniform 20 px inside the edges
     moving west, predators uniform anywhere moving north (or both along a random heading:
-    `fresh_heading`), at speed 1, zero acceleration; prey slots past
+    `fresh_heading`), at speed min(1, max_speed), zero acceleration; prey slots past
     the world's `prey_count` and predator slots past its `predator_count` empty."""
     rng = random_stream(counters.seed[w], counters.stream_world[w], episode, 0, i, PURPOSE_SPAWN)
     values = world.values[w]
@@ -102,7 +102,7 @@ def spawn_slot(world: WorldParams, counters: WorldCounters, w: int, i: int, epis
             set_slot(agents, w, i, False, wp.vec2(0.0, 0.0), wp.vec2(0.0, 0.0), wp.vec2(-1.0, 0.0), 0)
     elif i - world.prey_capacity < values.predator_count:
         h = fresh_heading(world, rng, wp.vec2(0.0, -1.0))
-        set_slot(agents, w, i, True, uniform_position(world, rng, 0.0), h, h, 0)
+        set_slot(agents, w, i, True, uniform_position(world, rng, 0.0), h * values.predator_spawn_speed, h, 0)
     else:
         set_slot(agents, w, i, False, wp.vec2(0.0, 0.0), wp.vec2(0.0, 0.0), wp.vec2(0.0, -1.0), 0)
 

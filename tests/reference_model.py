@@ -42,10 +42,8 @@ VECTOR_FIELDS = ("position", "velocity", "acceleration", "heading")
 INT_FIELDS = ("age", "replication_age", "starvation")
 FIELDS = VECTOR_FIELDS + ("alive",) + INT_FIELDS
 
-FRESH_PREY_VELOCITY = (-1.0, 0.0)
 FRESH_PREY_HEADING = (-1.0, 0.0)
 NEWBORN_HEADING = (-1.0, 0.0)
-FRESH_PREDATOR_VELOCITY = (0.0, -1.0)
 FRESH_PREDATOR_HEADING = (0.0, -1.0)
 
 
@@ -565,20 +563,24 @@ def _lookup(source, slot: int, what: str):
     return np.asarray(source)[slot]
 
 
+def fresh_speed(cfg, slot: int) -> float:
+    """A fresh agent's speed: 1 (the paper's (-1, 0) and (0, -1)), or its type's max speed if that is less."""
+    return min(1.0, float(type_cfg(cfg, slot).max_speed))
+
+
 def episode_start_velocity_and_heading(cfg, slot: int, heading=None):
     """(velocity, heading) of a fresh agent at the start of an episode (or a respawned prey).
-    "paper": prey west (-1, 0), predators north (0, -1), both at speed 1. "random": the kernel's drawn
-    heading (cos phi, sin phi), passed in as ``heading``, and velocity = heading * 1 for both types."""
+    "paper": prey west (-1, 0), predators north (0, -1). "random": the kernel's drawn heading
+    (cos phi, sin phi), passed in as ``heading``. Both types move along the heading at `fresh_speed`."""
     if spawn_heading(cfg) == "random":
         if heading is None:
             raise ValueError(f"spawn_heading 'random' needs the drawn heading of slot {slot}")
-        h = np.asarray(heading, np.float64)
-        return h.copy(), h.copy()
-    if spawn_heading(cfg) != "paper":
+        h = np.asarray(heading, np.float64).copy()
+    elif spawn_heading(cfg) != "paper":
         raise ValueError(f"unknown spawn_heading {spawn_heading(cfg)!r}")
-    if is_prey(cfg, slot):
-        return np.array(FRESH_PREY_VELOCITY), np.array(FRESH_PREY_HEADING)
-    return np.array(FRESH_PREDATOR_VELOCITY), np.array(FRESH_PREDATOR_HEADING)
+    else:
+        h = np.array(FRESH_PREY_HEADING if is_prey(cfg, slot) else FRESH_PREDATOR_HEADING)
+    return h * fresh_speed(cfg, slot), h
 
 
 def newborn_heading_of(cfg, heading=None) -> np.ndarray:
@@ -590,13 +592,9 @@ def newborn_heading_of(cfg, heading=None) -> np.ndarray:
     return np.array(NEWBORN_HEADING)
 
 
-def fresh_prey(state: dict, slot: int, position, replication_age: int, cfg=None, heading=None) -> None:
-    """A respawned prey; with ``cfg`` naming spawn_heading "random", ``heading`` is the drawn heading."""
-    velocity, fresh_heading = (
-        (np.array(FRESH_PREY_VELOCITY), np.array(FRESH_PREY_HEADING))
-        if cfg is None
-        else episode_start_velocity_and_heading(cfg, slot, heading)
-    )
+def fresh_prey(cfg, state: dict, slot: int, position, replication_age: int, heading=None) -> None:
+    """A respawned prey; with spawn_heading "random", ``heading`` is the drawn heading."""
+    velocity, fresh_heading = episode_start_velocity_and_heading(cfg, slot, heading)
     state["position"][slot] = np.asarray(position, np.float64)
     state["velocity"][slot] = velocity
     state["acceleration"][slot] = 0.0
@@ -626,7 +624,7 @@ def step(
     ``newborn_replication_age`` (for children), each a mapping slot -> value or an array indexed by slot
     (e.g. the kernel's post-step position / replication_age arrays). Only the needed slots are read; a missing
     one raises ValueError. With spawn_heading "random", the drawn headings are inputs too, the same way:
-    ``respawn_heading`` (respawned prey; their velocity is that heading * 1) and ``newborn_heading``
+    ``respawn_heading`` (respawned prey; their velocity is that heading * `fresh_speed`) and ``newborn_heading``
     (children; their velocity stays zero), e.g. the kernel's post-step heading array. "paper" reads neither.
     Under capture confusion, ``capture_draw`` (prey slot -> u in [0, 1), read the same way) decides each
     contact whose capture chance p is strictly between 0 and 1: captured iff u < p.
@@ -663,7 +661,7 @@ def step(
             pos = np.asarray(_lookup(respawn_position, prey, "a respawn position"), np.float64)
             rep = int(_lookup(respawn_replication_age, prey, "a respawn replication age"))
             heading = _lookup(respawn_heading, prey, "a respawn heading") if spawn_heading(cfg) == "random" else None
-            fresh_prey(new, prey, pos, rep, cfg, heading)
+            fresh_prey(cfg, new, prey, pos, rep, heading)
             respawned.append(prey)
         else:
             new["alive"][prey] = False
@@ -742,6 +740,44 @@ def step(
         "observed_slots": observed,
     }
     return new, rewards, terminated, truncated, captured, info
+
+
+# --------------------------------------------------------------------------------------------------
+# Random spawn headings (docs/model.md "Randomness"): integer hashing, then the one float32 draw
+# --------------------------------------------------------------------------------------------------
+PURPOSE_SPAWN, PURPOSE_RESPAWN, PURPOSE_NEWBORN, PURPOSE_HEADING = 1, 2, 3, 5
+_U32 = 0xFFFFFFFF
+
+
+def mix32(h: int) -> int:
+    """Murmur3's 32-bit finaliser."""
+    h ^= h >> 16
+    h = (h * 0x85EBCA6B) & _U32
+    h ^= h >> 13
+    h = (h * 0xC2B2AE35) & _U32
+    return h ^ (h >> 16)
+
+
+def random_stream(key: int, world: int, episode: int, step: int, slot: int, purpose: int) -> int:
+    """The key of the stream of (seed key, world, episode, step, slot, purpose)."""
+    h = mix32(key ^ 0x9E3779B9)
+    for part in (world, episode, step, slot, purpose):
+        h = mix32(h ^ (part & _U32))
+    return h
+
+
+def pcg(s: int) -> int:
+    """Warp's `rand_pcg`: the next state of a stream, and the 32 bits a draw takes from it."""
+    b = (s * 747796405 + 2891336453) & _U32
+    c = (((b >> ((b >> 28) + 4)) ^ b) * 277803737) & _U32
+    return (c >> 22) ^ c
+
+
+def drawn_heading(rng: int) -> np.ndarray:
+    """The random spawn heading of a fresh agent whose own stream is `rng`, float32 as the kernels draw it."""
+    u = np.float32((pcg(mix32(rng ^ PURPOSE_HEADING)) >> 8) * 2.0**-24)  # exact: 24 bits
+    phi = np.float32(np.float32(2.0 * math.pi) * u)
+    return np.array([np.cos(phi), np.sin(phi)], np.float32)
 
 
 # --------------------------------------------------------------------------------------------------

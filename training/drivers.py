@@ -38,7 +38,7 @@ class TrainedOpponent:
         self._slots, self._obs_size = obs.shape[1], obs.shape[2]
         check = getattr(policy, "check_compatible", None)
         if check is not None:
-            check(agent_type, self._obs_size, env.config.action_count, self._slots)
+            check(agent_type, env.config, self._slots)
         self.actions = torch.zeros(obs.shape[:2], dtype=torch.int32, device=env.torch_device)
         self.blind_to = blind_to
         self._blind = env.config.neighbour_columns(agent_type, blind_to) if blind_to is not None else None

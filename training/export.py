@@ -48,6 +48,7 @@ import torch
 import torch.nn as nn
 
 from ..atomic import atomic_open, atomic_path
+from ..config import AquariumConfig
 from ..pretrained import resolve
 from . import _rsl  # noqa: F401
 
@@ -282,6 +283,24 @@ def _without_torchvision_notes():
         log.removeFilter(keep)
 
 
+def world_interface(env: dict, team: str) -> dict[str, object]:
+    """What `team`'s observation rows and actions mean in worlds of `env` (an `AquariumConfig.to_dict()`,
+    or a run config's `env` section of the fields that differ from the defaults), by each field's
+    `--set` name: the frames, observation range, flow observation and slot split
+    (`AquariumConfig.with_interface_of`'s fields). Worlds that differ in anything else (arena, counts,
+    speeds, views) give a policy observations of the same meaning: cross-play and the studies vary those."""
+    # A field missing from a policy's `env` is AquariumConfig's default: it was left out as the default,
+    # or the policy predates the field, and each of these fields came with the default that keeps the
+    # worlds before it (the shipped prey-a/b/c name no action frame and no flow: "world", off).
+    defaults = AquariumConfig()
+    names = ("observation_frame", "action_frame", "observation_range", "observe_flow")
+    interface = {f"env.{name}": env.get(name, getattr(defaults, name)) for name in names}
+    own = env.get(team) or {}
+    for name in ("predator_slots", "prey_slots"):
+        interface[f"env.{team}.{name}"] = own.get(name, getattr(getattr(defaults, team), name))
+    return interface
+
+
 class LoadedPolicy:
     """A policy loaded by `load_policy`: `policy(obs [N, L]) -> actions [N]` (int64, on obs' device).
 
@@ -318,16 +337,26 @@ class LoadedPolicy:
             f"actions={self.action_count}, group_size={self.group_size}, deterministic={self.deterministic})"
         )
 
-    def check_compatible(self, team: str | None, observation_size: int, action_count: int, slots: int) -> None:
-        """Raise `ValueError` if this policy cannot act for `slots` agents per world of that kind."""
-        if team is not None and self.team is not None and team != self.team:
+    def check_compatible(self, team: str, config: AquariumConfig, slots: int) -> None:
+        """Raise `ValueError` if this policy cannot act for `team`'s `slots` agents per world of `config`:
+        another team, another world interface (`world_interface`) or another observation length."""
+        if self.team is not None and team != self.team:
             raise ValueError(f"policy was trained for {self.team!r}, not {team!r}")
-        if observation_size != self.observation_size:
-            raise ValueError(
-                f"policy expects observations of length {self.observation_size}, env gives {observation_size}"
+        # the action count from the network's output size, which the metadata always records
+        trained = {**world_interface(self.meta.get("env", {}), team), "env.action_count": self.action_count}
+        given = {**world_interface(config.to_dict(), team), "env.action_count": config.action_count}
+        differing = [f"{name} {trained[name]!r} vs {given[name]!r}" for name in trained if trained[name] != given[name]]
+        size = config.observation_size(team)
+        if differing:
+            lengths = (
+                f"; observations of length {self.observation_size} vs {size}" if size != self.observation_size else ""
             )
-        if action_count != self.action_count:
-            raise ValueError(f"policy has {self.action_count} actions, env has {action_count}")
+            raise ValueError(
+                f"policy's world interface differs from the env's (policy's value vs env's): "
+                f"{', '.join(differing)}{lengths}"
+            )
+        if size != self.observation_size:  # the interface agrees: metadata that does not match its own policy
+            raise ValueError(f"policy expects observations of length {self.observation_size}, env gives {size}")
         if self.group_size > 1 and slots != self.group_size:
             raise ValueError(
                 f"Individual-Learning policy has {self.group_size} per-slot networks, "

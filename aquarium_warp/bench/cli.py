@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from ..atomic import describe_os_error
 from .peers import Peers
 from .settings import BenchSettings
 from .suite import replot, run_bench
@@ -141,7 +142,8 @@ def run_from_args(args: argparse.Namespace, peers: Peers | None = None) -> int:
 
 
 def main(argv: list[str] | None = None, peers: Peers | None = None, prog: str = "aquarium-warp bench") -> int:
-    """The command line of the suite: 0 when it ran, 2 on bad options (the message on stderr)."""
+    """The command line of the suite: 0 when it ran, 2 on bad options, 1 when its files could not be
+    written (the message on stderr)."""
     parser = argparse.ArgumentParser(prog=prog, description=DESCRIPTION)
     add_arguments(parser)
     args = parser.parse_args(argv)
@@ -150,3 +152,6 @@ def main(argv: list[str] | None = None, peers: Peers | None = None, prog: str = 
     except ValueError as error:
         print(f"{prog}: {error}", file=sys.stderr)
         return 2
+    except OSError as error:  # a full disk, a file that cannot be written: its path and the cause
+        print(f"{prog}: {describe_os_error(error)}", file=sys.stderr)
+        return 1

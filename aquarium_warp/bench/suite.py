@@ -106,10 +106,13 @@ def run_bench(settings: BenchSettings, peers: Peers | None = None) -> dict:
         "wall_s": None,
     }
     figures: list[Path] = []
+    unwritten: OSError | None = None
     if settings.plots:
         try:
             figures = plot_results(result, out_dir / f"scaling_{tag}")
-        except Exception as error:  # noqa: BLE001
+        except OSError as error:  # a full disk: the run fails, once its measurements are kept in the JSON
+            unwritten = error
+        except Exception as error:  # noqa: BLE001 - a figure that cannot be drawn is no failed run
             log(f"figures failed: {type(error).__name__}: {error}")
     result["figures"] = [Path(f).name for f in figures]  # next to the JSON
     result["wall_s"] = time.perf_counter() - started
@@ -120,6 +123,8 @@ def run_bench(settings: BenchSettings, peers: Peers | None = None) -> dict:
     log("")
     log(format_table(result))
     log(f"wrote {path}" + (f" and {len(figures)} figures" if figures else "") + f" in {result['wall_s']:.0f} s")
+    if unwritten is not None:
+        raise unwritten
     return result
 
 

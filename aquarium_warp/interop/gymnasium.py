@@ -237,6 +237,8 @@ class AquariumRows:
 
     def _check_actions(self, actions) -> torch.Tensor:
         if isinstance(actions, torch.Tensor):
+            if actions.device != self.device:  # as BatchedAquarium.step: no silent copy between devices
+                raise ValueError(f"actions are on {actions.device}, but the env runs on {self.aquarium.device}")
             a = actions
         else:
             try:

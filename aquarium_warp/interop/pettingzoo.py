@@ -35,7 +35,8 @@ an agent name the env never had); entries for agents that have left are ignored.
 
 Episodes: `max_time_steps` (= `max_steps` = `max_cycles`) steps, after which every live agent is
 truncated (marl-aquarium ran `max_time_steps + 2` steps); an episode also ends when no prey or no
-predator is left. A step after the end returns empty dicts (with a warning) until `reset()`.
+predator is left. A step after the end returns empty dicts (with a warning) until `reset()`; a step
+before the first `reset()` is refused (`RuntimeError`), as the AEC env refuses it.
 
 Seeding: `reset(seed=s)` runs the episode that `BatchedAquarium(seed=s)` runs in its world 0, and seeds
 every agent's action and observation space from `s`; later `reset()` calls without a seed continue a
@@ -311,6 +312,7 @@ class AquariumParallelEnv(ParallelEnv):
         self.aquarium = BatchedAquarium(cfg, num_worlds=1, device=options["device"], seed=sim_seed, auto_reset=False)
         self._bind_buffers()
         self._closed = False
+        self._has_reset = False  # PettingZoo's order: reset() before the first step()
         self._start_episode()
 
     # ------------------------------------------------------------------ set-up helpers
@@ -450,6 +452,7 @@ class AquariumParallelEnv(ParallelEnv):
         """Start a new episode (`seed`: a non-negative integer; the same seed gives the same
         episode). `options` is accepted and unused. Returns `(observations, infos)`."""
         self.aquarium.reset(seed=self._next_sim_seed(seed))  # reseeding writes the seed's key: no rebuild
+        self._has_reset = True
         self._start_episode()
         obs_prey, obs_pred = self._host()[:2]
         obs = dict(zip(self._pred_live_names, obs_pred[self._pred_rows]))
@@ -506,6 +509,8 @@ class AquariumParallelEnv(ParallelEnv):
         Returns `(observations, rewards, terminations, truncations, infos)`, each keyed by the agents
         that were live before the step plus the prey born in it. Terminated or truncated agents
         leave `agents`."""
+        if not self._has_reset:
+            raise RuntimeError("step() before reset(): call reset() first, as for every PettingZoo env")
         if not self._names:
             if not self._stepped_after_end:
                 gymnasium.logger.warn("step() called with no live agents (the episode is over); call reset()")

@@ -13,9 +13,13 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import logging
 import os
 import re
+import signal
 import socket
+
+from ..atomic import check_output_dir
 
 
 def _port(text: str) -> int:
@@ -132,11 +136,13 @@ def run(args) -> int:
     from ..video import check_video_path
 
     if args.record is not None:
-        check_video_path(args.record)
-        if not os.path.isdir(os.path.dirname(os.path.abspath(args.record))):
-            raise ValueError(f"--record {args.record}: its folder does not exist")
+        try:  # the MP4 and the trajectory beside it: a folder that cannot take them is refused now
+            check_video_path(args.record)
+        except ValueError as error:
+            raise ValueError(f"--record: {error}") from None
     if not os.path.isdir(args.record_dir):
         raise ValueError(f"--record-dir {args.record_dir}: not a folder")
+    check_output_dir(args.record_dir, "--record-dir")
     if args.policy_dir is not None and not os.path.isdir(args.policy_dir):
         raise ValueError(f"--policy-dir {args.policy_dir}: not a folder")
     return _serve(args)
@@ -184,6 +190,48 @@ def _serve(args) -> int:
     )
     print(f"aquarium-warp view: open http://{args.host}:{args.port}/  (Ctrl-C stops)", flush=True)
     config = uvicorn.Config(make_app(viewer), log_level="warning", ws="websockets-sansio")
-    with listening, contextlib.suppress(KeyboardInterrupt):  # Ctrl-C: the server has shut down (as uvicorn.run)
-        uvicorn.Server(config).run(sockets=[listening])
+    with listening:
+        serve(_server_class()(config), sockets=[listening])
     return 0
+
+
+def _server_class():
+    import uvicorn
+
+    class Server(uvicorn.Server):
+        """uvicorn's server, whose signals `serve` takes: uvicorn raises the ones it caught again once it
+        has shut down, inside asyncio's runner, where a second Ctrl-C ends in a traceback of the cancelled
+        lifespan task (and exit status 0)."""
+
+        @contextlib.contextmanager
+        def capture_signals(self):
+            yield
+
+    return Server
+
+
+def serve(server, sockets=None) -> None:
+    """Run a uvicorn `server` until SIGINT or SIGTERM: the first shuts it down gracefully, a second at
+    once (uvicorn's `handle_exit`); then `Interrupted` with the signal's exit code (130 for Ctrl-C)."""
+    from ..cli import Interrupted
+
+    received: list[int] = []
+    log = logging.getLogger("uvicorn.error")
+    level = log.level
+
+    def stop(signum, frame) -> None:
+        received.append(signum)
+        if len(received) > 1:  # a forced exit cancels the app's lifespan, which logs that as a traceback
+            log.setLevel(logging.CRITICAL)
+        server.handle_exit(signum, frame)
+
+    previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        server.run(sockets=sockets)
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        log.setLevel(level)
+    if received:
+        name = "interrupted" if received[0] == signal.SIGINT else "terminated (SIGTERM)"
+        raise Interrupted(name, received[0])

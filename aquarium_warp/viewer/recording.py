@@ -18,6 +18,7 @@ from importlib import resources
 
 import numpy as np
 
+from ..atomic import atomic_open
 from ..video import check_video_path, write_video
 
 FORMAT = "aquarium-warp-replay"
@@ -107,7 +108,7 @@ class Recorder:
 
 
 def write_trajectory(path: str, meta: dict, frames: list[dict]) -> None:
-    with open(path, "w", encoding="utf-8") as f:
+    with atomic_open(path) as f:
         json.dump({"format": FORMAT, "version": VERSION, "meta": meta, "frames": frames}, f, separators=(",", ":"))
 
 
@@ -150,7 +151,7 @@ def write_replay_page(trajectory_path: str, out: str) -> None:
     if not os.path.isdir(folder):
         raise ValueError(f"--out {out}: folder {folder} does not exist")
     page = replay_page(read_trajectory(trajectory_path))
-    with open(out, "w", encoding="utf-8") as f:
+    with atomic_open(out) as f:
         f.write(page)
 
 

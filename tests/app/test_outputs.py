@@ -130,6 +130,88 @@ def test_bench_checks_its_output_folder_before_measuring(tmp_path, capsys, monke
     assert f"--out-dir {bad}: cannot write there ({tmp_path / 'file'} is a file, not a folder)" in err
 
 
+def test_bench_fails_on_a_full_disk_when_its_figures_cannot_be_written(tmp_path, capsys, monkeypatch):
+    pytest.importorskip("matplotlib")
+    import aquarium_warp.bench.plots as plots
+
+    def no_space(fig, path, **kwargs):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+    monkeypatch.setattr(plots, "write_figure", no_space)
+    argv = ["bench", "--device", "cpu", "--agents", "16", "--worlds", "1", "--seconds", "0.01", "--repeats", "1"]
+    argv += ["--warmup-steps", "1", "--no-original", "--no-heuristics", "--copy-mib", "4", "--quiet"]
+    assert main(argv + ["--out-dir", str(tmp_path)]) == 1
+    err = one_line(capsys, "aquarium-warp bench: ")
+    assert err.endswith(".png: no space left on device") and str(tmp_path) in err, err
+    assert json.loads((tmp_path / "scaling_cpu.json").read_text())["points"]  # the measurements are kept
+
+
+def fake_ffmpeg(tmp_path, monkeypatch, script: str) -> None:
+    """imageio-ffmpeg's ffmpeg replaced by a shell script (which reads a little of the frames, then fails)."""
+    import imageio_ffmpeg
+
+    exe = tmp_path / "ffmpeg"
+    exe.write_text("#!/bin/sh\n" + script)
+    exe.chmod(0o755)
+    monkeypatch.setattr(imageio_ffmpeg, "get_ffmpeg_exe", lambda: str(exe))
+
+
+VIDEO = ["video", "--steps", "30", "--prey", "2", "--device", "cpu", "--no-progress", "--out"]
+
+
+def test_a_full_disk_or_a_dying_ffmpeg_during_video_is_one_line(tmp_path, capsys, monkeypatch):
+    pytest.importorskip("imageio_ffmpeg")
+    out = tmp_path / "v.mp4"
+    # ffmpeg's words on a full disk (its last line, after others), as it writes its errors
+    full = "head -c 100 > /dev/null; echo '[libx264 @ 0x1] frame=1' >&2; "
+    full += "echo '[out#0/mp4 @ 0x2] Error writing trailer: No space left on device' >&2; exit 1\n"
+    fake_ffmpeg(tmp_path, monkeypatch, full)
+    assert main(VIDEO + [str(out)]) == 1
+    assert one_line(capsys, "aquarium-warp video: ") == f"aquarium-warp video: {out}: no space left on device"
+    # a kill (here a file size limit's signal) leaves no words of ffmpeg's: the signal is the cause
+    fake_ffmpeg(tmp_path, monkeypatch, "head -c 100 > /dev/null; kill -XFSZ $$\n")
+    assert main(VIDEO + [str(out)]) == 1
+    err = one_line(capsys, "aquarium-warp video: ")
+    assert err == f"aquarium-warp video: {out}: ffmpeg could not write the video (ffmpeg killed by SIGXFSZ)", err
+    assert os.listdir(tmp_path) == ["ffmpeg"]  # no video, and no partial file
+
+
+@pytest.mark.parametrize("path", ["/proc/v.mp4", "/sys/v.mp4"])
+def test_video_refuses_a_file_its_folders_permissions_allow_but_cannot_be_created(path, capsys):
+    """As root, /proc and /sys pass an access check; creating the file is the test, before any world."""
+    if not os.path.isdir(os.path.dirname(path)):
+        pytest.skip(f"no {os.path.dirname(path)} here")
+    assert main(VIDEO + [path]) == 2
+    one_line(capsys, f"aquarium-warp video: cannot write {path}: ")
+
+
+def test_a_ctrl_c_during_video_leaves_no_file_and_no_ffmpeg_output(tmp_path):
+    """SIGINT to the whole process group, as a terminal's Ctrl-C sends it: ffmpeg (its own session) says
+    nothing about the frame the interrupt cut, and the command ends with 130 and one line."""
+    pytest.importorskip("imageio_ffmpeg")
+    import signal
+    import time
+
+    out = tmp_path / "v.mp4"
+    argv = [sys.executable, "-m", "aquarium_warp", *VIDEO[:2], "3000", *VIDEO[3:], str(out)]
+    proc = subprocess.Popen(
+        argv,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: (os.setpgrp(), signal.signal(signal.SIGINT, signal.SIG_DFL)),
+    )
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and not [n for n in os.listdir(tmp_path) if ".partial" in n]:
+        time.sleep(0.2)  # until ffmpeg writes frames
+    time.sleep(1.0)
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert err.strip() == "aquarium-warp video: interrupted", err
+    assert os.listdir(tmp_path) == []
+
+
 # ------------------------------------------------------------------------------------ damaged inputs
 @pytest.mark.parametrize(
     "name,text,expected",

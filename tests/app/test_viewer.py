@@ -258,6 +258,76 @@ def test_a_port_in_use_is_refused_before_the_address_is_printed(capsys):
     )
 
 
+def test_record_into_a_folder_that_cannot_take_it_is_refused_before_serving(tmp_path, capsys, monkeypatch):
+    folder = tmp_path / "read-only"
+    folder.mkdir()
+    folder.chmod(0o500)
+    path = str(folder / "run.mp4")
+    if os.access(folder, os.W_OK):  # root writes anywhere the permissions say no; /sys refuses even root
+        path = "/sys/run.mp4"
+        if not os.path.isdir("/sys"):
+            pytest.skip("neither a read-only folder nor /sys here")
+
+    def no_server(*args, **kwargs):
+        raise AssertionError("the viewer started serving")
+
+    monkeypatch.setattr(uvicorn.Server, "run", no_server)
+    assert main(["view", "--device", "cpu", "--record", path]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"aquarium-warp view: --record: cannot write {path}: "), err
+    assert "denied" in err[0] or "Read-only" in err[0], err
+
+
+def test_the_trajectory_is_written_atomically(tmp_path, monkeypatch):
+    """A full disk while the trajectory is written leaves the previous file whole and no partial one."""
+    import errno
+
+    from aquarium_warp import atomic
+    from aquarium_warp.viewer.recording import write_trajectory
+
+    path = tmp_path / "run.json"
+    write_trajectory(str(path), {"width": 1.0}, [{"t": 0}])
+    previous = path.read_text()
+
+    def no_space(name):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), name)
+
+    monkeypatch.setattr(atomic, "_fsync", no_space)
+    with pytest.raises(OSError, match="No space left"):
+        write_trajectory(str(path), {"width": 2.0}, [{"t": 0}, {"t": 1}])
+    assert path.read_text() == previous and os.listdir(tmp_path) == ["run.json"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("signals", "code", "says"), [(2, 130, "interrupted"), (1, 143, "terminated (SIGTERM)")])
+def test_one_or_two_signals_end_the_server_in_one_line_with_the_signals_code(signals, code, says):
+    """A double Ctrl-C (or `timeout -s INT`) and SIGTERM: the viewer stops with the shell's code for the
+    signal and one line, not uvicorn's and asyncio's tracebacks."""
+    import signal
+    import subprocess
+    import sys
+
+    signum = signal.SIGINT if code == 130 else signal.SIGTERM
+    argv = [sys.executable, "-m", "aquarium_warp", "view", "--device", "cpu", "--port", str(_free_port())]
+    proc = subprocess.Popen(
+        argv,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # a shell's background jobs ignore it
+    )
+    try:
+        assert "open http://" in proc.stdout.readline() + proc.stdout.readline()
+        time.sleep(1.0)  # serving
+        for _ in range(signals):
+            proc.send_signal(signum)
+            time.sleep(0.05)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == code and err.strip() == f"aquarium-warp view: {says}", err
+
+
 # ---------------------------------------------------------------------- a real browser
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 CHROMEDRIVER = shutil.which("chromedriver")

@@ -413,6 +413,21 @@ def test_unknown_agents_and_bool_actions_refused():
     env.close()
 
 
+def test_a_step_before_reset_is_refused_as_the_aec_env_refuses_it():
+    env = aquarium_v1.parallel_env(prey_count=3)
+    before = env.state().copy()
+    with pytest.raises(RuntimeError, match=r"^step\(\) before reset\(\): call reset\(\) first"):
+        env.step(dict.fromkeys(env.agents, 1))
+    assert np.array_equal(env.state(), before)  # the world did not step
+    aec = aquarium_v1.env(prey_count=3)
+    with pytest.raises(AssertionError, match="reset"):  # PettingZoo's OrderEnforcingWrapper
+        aec.step(1)
+    env.reset(seed=0)
+    assert set(env.step(dict.fromkeys(env.agents, 1))[0]) == set(env.possible_agents)
+    env.close()
+    aec.close()
+
+
 def test_aec_out_of_range_action_names_agent_value_and_range():
     env = aquarium_v1.env(prey_count=3)
     env.reset(seed=0)

@@ -203,6 +203,14 @@ def test_bad_input():
         ]:
             with pytest.raises(ValueError, match=match):
                 vec.step(actions)
+        # a tensor on another device ("meta": one that every machine has) is refused as BatchedAquarium.step
+        # refuses it, before torch would copy it or fail on it; the world does not step
+        before = vec.rows.aquarium.state.torch.position.clone()
+        with pytest.raises(ValueError, match=r"^actions are on meta, but the env runs on cpu$"):
+            vec.step(torch.zeros(n, dtype=torch.int64, device="meta"))
+        with pytest.raises(ValueError, match=r"actions\['prey'\] is on meta, but the env runs on cpu"):
+            vec.aquarium.step({t: a.to("meta") for t, a in vec.aquarium.actions.items()})
+        assert torch.equal(vec.rows.aquarium.state.torch.position, before)
         with pytest.raises(ValueError, match="seed"):
             vec.reset(seed=[1, 2])
         with pytest.raises(ValueError, match="seed"):

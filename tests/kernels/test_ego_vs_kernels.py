@@ -381,6 +381,42 @@ def test_random_spawn_headings_after_auto_reset(device):
     np.testing.assert_array_equal(st["position"], envs[1].state.torch.position.cpu().numpy())
 
 
+def test_drawn_headings_follow_the_documented_formula(device):
+    """docs/model.md "Randomness": a random heading is (cos phi, sin phi), phi = fl32(fl32(2 pi) u) for u the
+    first draw of mix32(rng ^ PURPOSE_HEADING), rng the agent's own stream, keyed by the slot it takes: the
+    spawn stream of its slot at an episode start, and for a newborn the child's slot's newborn stream of
+    the step being finished (t + 1), not its parent's."""
+    from aquarium_warp.env import seed_key
+
+    # replication age 1: every prey of the first step is a parent, its child in a slot free at the start
+    cfg = AquariumConfig(
+        prey_count=3,
+        predator_count=2,
+        prey_reproduction=True,
+        max_prey=6,
+        prey_replication_age=1,
+        spawn_heading="random",
+    )
+    env = BatchedAquarium(cfg, num_worlds=3, device=device, seed=11)
+    env.reset()
+    key = seed_key(11)
+
+    def state():
+        return env.state.torch.heading.cpu().numpy().copy(), env.state.torch.alive.cpu().numpy().copy()
+
+    heading, alive = state()
+    for w, slot in zip(*np.nonzero(alive)):
+        expected = ref.drawn_heading(ref.random_stream(key, int(w), 0, 0, int(slot), ref.PURPOSE_SPAWN))
+        np.testing.assert_allclose(heading[w, slot], expected, rtol=0, atol=2e-7, err_msg=f"world {w} slot {slot}")
+    kernel_step(env, np.zeros((3, env.capacity), np.int64))
+    heading, after = state()
+    births = list(zip(*np.nonzero(after & ~alive)))
+    assert len(births) >= 6, births  # 3 per world unless a prey was caught
+    for w, child in births:
+        expected = ref.drawn_heading(ref.random_stream(key, int(w), 0, 1, int(child), ref.PURPOSE_NEWBORN))
+        np.testing.assert_allclose(heading[w, child], expected, rtol=0, atol=2e-7, err_msg=f"world {w} child {child}")
+
+
 def test_random_spawn_headings_depend_on_the_seed_and_reproduce(device):
     cfg = AquariumConfig(prey_count=8, predator_count=2, spawn_heading="random")
     _, a = _reset_state(cfg, 4, device, seed=1)

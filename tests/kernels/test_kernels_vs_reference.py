@@ -170,6 +170,15 @@ CONFIGS["capture_confusion_per_world"] = make_config(
     capture_confusion=(0.0, 1.5, 4.0, 2.0),
     confusion_radius=(100.0, 60.0, 35.5, 100.0),
 )
+# Types slower than 1 px/step in some worlds: fresh agents (respawned prey here) start at min(1, s), per world.
+CONFIGS["slow_fresh_agents"] = make_config(
+    width=300.0,
+    height=260.0,
+    prey_count=14,
+    predator_count=2,
+    prey=dict(max_speed=(0.5, 4.0, 0.25, 1.0)),
+    predator=dict(max_speed=(0.75, 5.0, 3.0, 0.5)),
+)
 CONFIGS["capture_confusion_per_world_cells"] = dataclasses.replace(
     CONFIGS["capture_confusion_per_world"], grid_cell_size=30.0
 )
@@ -927,6 +936,40 @@ def test_episode_end_truncation_and_auto_reset(device):
     # the reset worlds hold a fresh episode
     for w in range(3):
         assert after[w]["alive"][: cfg.prey_count].all() and after[w]["alive"][cfg.prey_capacity :].all()
+
+
+def test_fresh_agents_start_at_speed_one_or_their_max_speed_if_less(device):
+    """docs/model.md "Spawn headings": at an episode start a live agent moves along its heading at min(1, s)
+    of its type and world, in both spawn modes (a world's prey at 0.5 px/step start at 0.5, not 1; types
+    of s >= 1, as every default, at 1). Dead slots start as "Randomness" says: position and velocity zero,
+    their type's paper heading whatever the spawn mode."""
+    for mode in ("paper", "random"):
+        cfg = make_config(
+            prey_count=(3, 5),
+            predator_count=(2, 1),
+            spawn_heading=mode,
+            prey=dict(max_speed=(0.5, 4.0)),
+            predator=dict(max_speed=(5.0, 0.25)),
+        )
+        env = BatchedAquarium(cfg, num_worlds=2, device=device, seed=3)
+        env.reset()
+        for w, start in enumerate(read_worlds(env)):
+            wcfg = world_config(cfg, w)
+            for slot in range(cfg.capacity):
+                where = f"{mode} world {w} {slot_name(cfg, slot)}"
+                if start["alive"][slot]:
+                    velocity, heading = ref.episode_start_velocity_and_heading(wcfg, slot, start["heading"][slot])
+                    np.testing.assert_array_equal(start["velocity"][slot], velocity, err_msg=where)
+                    np.testing.assert_array_equal(start["heading"][slot], heading, err_msg=where)
+                else:
+                    paper = ref.FRESH_PREY_HEADING if ref.is_prey(cfg, slot) else ref.FRESH_PREDATOR_HEADING
+                    assert start["position"][slot].tolist() == [0.0, 0.0], where
+                    assert start["velocity"][slot].tolist() == [0.0, 0.0], where
+                    assert start["heading"][slot].tolist() == list(paper), where
+        speeds = np.linalg.norm(env.state.torch.velocity.cpu().numpy(), axis=-1)  # a drawn heading: 1 +- 1e-7 long
+        Pc = cfg.prey_capacity
+        np.testing.assert_allclose(speeds[0], [0.5] * 3 + [0.0] * (Pc - 3) + [1.0, 1.0], rtol=1e-6, err_msg=mode)
+        np.testing.assert_allclose(speeds[1], [1.0] * 5 + [0.25, 0.0], rtol=1e-6, err_msg=mode)
 
 
 def test_quarter_turn_actions_are_exact(device):

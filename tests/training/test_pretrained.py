@@ -121,12 +121,72 @@ def test_eval_video_and_study_take_a_name(shipped, tmp_path, capsys):
 
 
 def test_every_shipped_policy_loads_in_its_world():
+    from aquarium_warp import BatchedAquarium
+    from aquarium_warp.drivers import make_driver
+
     for name in pretrained.names():
         policy = load_policy(name)
         world = pretrained.world(name)
         assert env_config({"env": policy_world(name)}).to_dict() == world.to_dict(), name
         assert policy.observation_size == world.observation_size("prey"), name
         assert os.path.getsize(pretrained.resolve(name)) < 2_000_000, name  # small files only
+        # their metadata predates the action frame and the flow: taken as the defaults they were trained with
+        assert "action_frame" not in policy.meta["env"] and "observe_flow" not in policy.meta["env"], name
+        env = BatchedAquarium(world, num_worlds=2, device="cpu")
+        assert make_driver(name, env, "prey")().shape == (2, world.prey_count), name
+
+
+# prey-b reads ego rows with its world heading (world actions), no flow, 1 predator and 3 prey slots, in
+# "0..1": each world below gives its prey rows of that same length, 28, which mean something else there.
+EQUAL_LENGTH_MISMATCHES = [
+    (
+        {"action_frame": "ego", "observe_flow": True},
+        "env.action_frame 'world' vs 'ego', env.observe_flow False vs True",
+    ),
+    ({"prey": {"prey_slots": 2, "predator_slots": 2}}, "env.prey.predator_slots 1 vs 2, env.prey.prey_slots 3 vs 2"),
+    ({"observation_range": "-1..1"}, "env.observation_range '0..1' vs '-1..1'"),
+]
+INTERFACE = "policy's world interface differs from the env's (policy's value vs env's): "
+
+
+@pytest.mark.parametrize("changes, differing", EQUAL_LENGTH_MISMATCHES)
+def test_a_policy_is_refused_in_a_world_of_another_interface_of_equal_length(changes, differing):
+    from aquarium_warp.training.config import deep_update
+
+    policy = load_policy("prey-b")
+    world = env_config({"env": deep_update(policy_world("prey-b"), changes)})
+    assert world.observation_size("prey") == policy.observation_size == 28
+    with pytest.raises(ValueError) as error:
+        policy.check_compatible("prey", world, world.prey_capacity)
+    assert str(error.value) == INTERFACE + differing
+    policy.check_compatible("prey", pretrained.world("prey-b"), 6)  # its own world: no complaint
+
+
+def test_a_policy_of_another_length_is_told_which_fields_differ():
+    policy = load_policy("prey-b")
+    world = pretrained.world("prey-b").replace(observation_frame="world", action_count=8)
+    with pytest.raises(ValueError) as error:
+        policy.check_compatible("prey", world, 6)
+    assert str(error.value) == (
+        INTERFACE + "env.observation_frame 'ego' vs 'world', env.action_count 16 vs 8; observations of length 28 vs 29"
+    )
+
+
+@pytest.mark.slow
+def test_eval_and_train_refuse_a_policy_in_a_world_of_another_interface(tmp_path, capsys):
+    """The issue's cases: the policy's world with the action frame and flow, or the slot split, changed."""
+    eval_args = ["eval", "--prey", "prey-b", "--predator", "naivchase", "--episodes", "6", "--seeds", "0"]
+    eval_args += ["--max-steps", "1000", "--device", "cpu", "--out", str(tmp_path / "eval")]
+    train_args = ["train", "--preset", "tiny", "--team", "predator", "--prey-policy", "prey-b", "--device", "cpu"]
+    train_args += ["--log-dir", str(tmp_path / "run"), "--set", "env.observation_frame=ego"]
+    for command in (eval_args, train_args):
+        for changes, differing in EQUAL_LENGTH_MISMATCHES[:2]:
+            sets = [f"env.{k}.{n}={v}" for k, d in changes.items() if isinstance(d, dict) for n, v in d.items()]
+            sets += [f"env.{k}={str(v).lower()}" for k, v in changes.items() if not isinstance(v, dict)]
+            assert main(command + [arg for s in sets for arg in ("--set", s)]) == 2, (command[0], sets)
+            err = capsys.readouterr().err.strip().splitlines()
+            assert err == [f"aquarium-warp {command[0]}: prey policy prey-b: {INTERFACE}{differing}"], err
+    assert os.listdir(tmp_path / "eval") == []  # refused before any episode: nothing written
 
 
 @pytest.mark.parametrize("world", ["A", "B", "C"])
