@@ -152,44 +152,107 @@ def test_a_failing_run_stops_alone(tmp_path, stacked):
     poisoned.close()
 
 
-def test_the_stacked_update_is_each_runs_own():
-    """One update of a `StackedPPO` over the rollouts of 3 runs (the same rollouts, permutations and
-    parameters as each run's own learner has) gives each run the parameters its own `AquariumPPO`
-    update gives (float32: to rounding)."""
-    configs = run_configs(base_config(), 3)
-    per_run = Population(configs, stacked=False)
-    stacked = Population(configs, stacked=True)
-    assert isinstance(stacked.learner, StackedPPO)
-    for k in range(3):  # the same networks to start from
-        assert_same(parameters(per_run.runs[k]), parameters(stacked.runs[k]), f"run {k} at the start")
-    # One rollout of the per-run learners; the stacked storage gets the same samples.
-    per_run.loop = None
+def rolled_out(configs: list[dict]) -> Population:
+    """A per-run population (the CPU's reference) after one rollout and its returns."""
     from aquarium_warp.training.loop import TrainingLoop
 
-    loop = TrainingLoop([(per_run.learner, per_run.vec_env)], 8, graphs=False)
+    population = Population(configs, stacked=False)
+    loop = TrainingLoop([(population.learner, population.vec_env)], 8, graphs=False)
     with torch.inference_mode():
         for _ in range(8):
             loop._rollout_step()
-        per_run.learner.compute_returns(loop.obs[0])
-    big, n = stacked.learner.storage, per_run.rows
+        population.learner.compute_returns(loop.obs[0])
+    return population
+
+
+def copy_rollouts(per_run: Population, stacked: Population) -> None:
+    """The per-run learners' rollouts into the stacked learner's one storage (its device)."""
+    big, n, dev = stacked.learner.storage, per_run.rows, stacked.device
     for k, alg in enumerate(per_run.runs):
         own = alg.storage
         for name in ("actions", "rewards", "dones", "values", "actions_log_prob", "returns"):
-            getattr(big, name)[:, k * n : (k + 1) * n] = getattr(own, name)
-        big.observations["policy"][:, k * n : (k + 1) * n] = own.observations["policy"]
-    big.advantages = torch.cat([alg.storage.advantages for alg in per_run.runs], dim=1)  # normalised per run
-    big.distribution_params = (torch.cat([alg.storage.distribution_params[0] for alg in per_run.runs], dim=1),)
-    big.step = 8
+            getattr(big, name)[:, k * n : (k + 1) * n] = getattr(own, name).to(dev)
+        big.observations["policy"][:, k * n : (k + 1) * n] = own.observations["policy"].to(dev)
+    big.advantages = torch.cat([alg.storage.advantages for alg in per_run.runs], dim=1).to(dev)  # per run
+    big.distribution_params = (torch.cat([a.storage.distribution_params[0] for a in per_run.runs], dim=1).to(dev),)
+    big.step = big.num_transitions_per_env
+
+
+@pytest.mark.parametrize("fused", [False, True], ids=["torch", "fused"])
+def test_the_stacked_update_is_each_runs_own(device, fused):
+    """One update of a `StackedPPO` (on the test device; torch's autograd or the fused kernels, which
+    the CPU runs under Triton's interpreter) over the rollouts of 3 runs, with the same permutations
+    and parameters as each run's own `AquariumPPO` on the CPU, gives each run the losses and the
+    parameters its own update gives (float32: to rounding)."""
+    if fused:
+        pytest.importorskip("triton")
+        from aquarium_warp.training import fused_mlp
+
+        if device == "cpu" and not fused_mlp.INTERPRETED:
+            pytest.skip("the fused kernels need CUDA or Triton's interpreter")
+    configs = run_configs(base_config(), 3)
+    per_run = rolled_out(configs)
+    stacked = Population([dict(c, train={**c["train"], "device": device, "fused_mlp": fused}) for c in configs],
+                         stacked=True)  # fmt: skip
+    assert isinstance(stacked.learner, StackedPPO) and (stacked.learner.fused_loss is not None) == fused
+    for k in range(3):  # the same networks to start from
+        assert_same(parameters(per_run.runs[k]), {n: p.cpu() for n, p in parameters(stacked.runs[k]).items()},
+                    f"run {k} at the start")  # fmt: skip
+    copy_rollouts(per_run, stacked)
     indices, size = per_run.learner.mini_batch_indices()
     losses_per_run = per_run.learner.update_on_device(indices, size).view(3, 3)
-    losses_stacked = stacked.learner.update_on_device(indices, size).view(3, 3)
-    torch.testing.assert_close(losses_stacked, losses_per_run, rtol=1e-5, atol=1e-6)
+    losses_stacked = stacked.learner.update_on_device(indices.to(stacked.device), size).view(3, 3).cpu()
+    torch.testing.assert_close(losses_stacked, losses_per_run, rtol=1e-4, atol=1e-6)
     for k in range(3):
         a, b = parameters(per_run.runs[k]), parameters(stacked.runs[k])
         for name in a:
-            torch.testing.assert_close(b[name], a[name], rtol=1e-4, atol=1e-6, msg=f"run {k}: {name}")
+            torch.testing.assert_close(b[name].cpu(), a[name], rtol=1e-4, atol=1e-5, msg=f"run {k}: {name}")
     per_run.close()
     stacked.close()
+
+
+@pytest.mark.parametrize("fused", [False, True], ids=["torch", "fused"])
+def test_the_stacked_rollout_step_is_each_runs_own(device, fused):
+    """One rollout step of the stacked learner (torch's forward or the fused kernel over each run's
+    block of rows) stores what each run's own network computes for its rows: values and
+    log-probabilities to rounding, and the same sampled actions from the same noise."""
+    if fused:
+        pytest.importorskip("triton")
+        from aquarium_warp.training import fused_mlp
+
+        if device == "cpu" and not fused_mlp.INTERPRETED:
+            pytest.skip("the fused kernels need CUDA or Triton's interpreter")
+    configs = [
+        dict(c, train={**c["train"], "device": device, "fused_mlp": fused}) for c in run_configs(base_config(), 3)
+    ]
+    population = Population(configs, stacked=True)
+    alg, v = population.learner, population.vec_env
+    obs = v.get_observations()
+    gen_state = torch.get_rng_state() if population.device.type == "cpu" else torch.cuda.get_rng_state()
+    with torch.inference_mode():
+        alg.act_into(obs, v.actions_buffer)
+        rewards, dones, extras = v.outputs
+        alg.process_env_step(obs, rewards, dones, extras)  # (torch's path stores the step here)
+    st, n = alg.storage, population.rows
+    for k, run in enumerate(population.runs):
+        rows = obs["policy"][k * n : (k + 1) * n]
+        with torch.inference_mode():
+            values = run.critic(obs[k * n : (k + 1) * n])
+            logits = run.actor.mlp(rows)
+        torch.testing.assert_close(st.values[0, k * n : (k + 1) * n], values, rtol=1e-4, atol=1e-5)
+        log_probs = torch.log_softmax(logits, dim=-1)
+        taken = st.actions[0, k * n : (k + 1) * n].long()
+        torch.testing.assert_close(st.actions_log_prob[0, k * n : (k + 1) * n], log_probs.gather(1, taken),
+                                   rtol=1e-4, atol=1e-5)  # fmt: skip
+    # the actions are argmax(p / Exp(1)) of the generator's next draw, as rsl-rl's sampler draws it
+    if population.device.type == "cpu":
+        torch.set_rng_state(gen_state)
+    else:
+        torch.cuda.set_rng_state(gen_state)
+    noise = torch.empty(st.num_envs, 16, device=population.device).exponential_(1)
+    expected = torch.argmax(st.distribution_params[0][0].exp() / noise, dim=-1)
+    assert (expected == st.actions[0].squeeze(1).long()).float().mean() > 0.99
+    population.close()
 
 
 def test_stacked_advantages_are_normalised_per_run():
