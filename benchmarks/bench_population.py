@@ -7,9 +7,10 @@ Rate points (the default): for each K of `--runs`, a population of K runs of `--
 `--iterations` timed ones; agent-steps are the learning team's rows x steps of all runs. The update's
 and the rollout's floors on this card (`training/floors.py`, as `bench_training.py` gives them; the
 population's work is K runs' samples) and the fraction reached. Beside them, the separate processes:
-`--separate P` processes of one run each, started together (as `--per-gpu P` runs a study's
-trainings), each timing its own iterations; their summed rate is what P processes at a time reach,
-whatever K. Runs per hour count the preset's whole budget (`total_iterations`) at the measured rates,
+`--separate P` processes of one run each (as `--per-gpu P` runs a study's trainings), each warmed up
+and then training for `--seconds` of wall time in one common window; their summed rate is what P
+processes at a time reach, whatever K. Runs per hour count the preset's whole budget
+(`total_iterations`) at the measured rates,
 without start-up; `--whole` measures whole trainings with it.
 
 Whole points (`--whole`): `aquarium-warp train --preset P --runs K` as a user runs it (start-up,
@@ -106,26 +107,37 @@ def population_rate(args, runs: int) -> dict:
     return point
 
 
-def single_rate(args) -> dict:
-    """One run alone (`Trainer`), as one of the separate processes: its timed iterations."""
-    config = config_of(args.preset, args.device, args.worlds, args.set, args.warmup + args.iterations)
+def single_rate(args, barrier: str, index: int) -> dict:
+    """One run alone (`Trainer`), as one of the separate processes: warm, it waits at the barrier (a
+    folder where each process says it is ready) until all are, then trains `--seconds` of wall time
+    (whole iterations), so the processes' timed windows overlap."""
+    config = config_of(args.preset, args.device, args.worlds, args.set, 10**6)
     trainer = Trainer(config)
     trainer.train(args.warmup)
     sync(trainer.device)
-    start = time.perf_counter()
-    trainer.train(args.iterations)
+    open(os.path.join(barrier, f"ready-{index}"), "w").close()
+    while len(os.listdir(barrier)) < args.separate:
+        time.sleep(0.01)
+    start, done = time.perf_counter(), 0
+    while time.perf_counter() - start < args.seconds:
+        trainer.train(1)
+        done += 1
     sync(trainer.device)
     elapsed = time.perf_counter() - start
     rows, steps = trainer.vec_env.num_envs, trainer.runner_cfg["num_steps_per_env"]
     trainer.close()
-    return {"seconds": elapsed, "agent_steps_per_s": rows * steps * args.iterations / elapsed, "start": start}
+    return {"seconds": elapsed, "iterations": done, "agent_steps_per_s": rows * steps * done / elapsed,
+            "window": [time.time() - elapsed, time.time()]}  # fmt: skip
 
 
 def separate_rates(args) -> dict:
-    """`--separate P` processes of one run each, started together; their summed rate."""
-    point = [sys.executable, __file__, "--single", *sys.argv[1:]]
-    procs = [subprocess.Popen(point, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-             for _ in range(args.separate)]  # fmt: skip
+    """`--separate P` processes of one run each, timed over one common window; their summed rate."""
+    import tempfile
+
+    barrier = tempfile.mkdtemp(prefix="bench-population-")
+    procs = [subprocess.Popen([sys.executable, __file__, "--single", barrier, str(i), *sys.argv[1:]],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for i in range(args.separate)]  # fmt: skip
     results = []
     for proc in procs:
         out, err = proc.communicate()
@@ -135,7 +147,7 @@ def separate_rates(args) -> dict:
         results.append(json.loads(lines[-1][len("SINGLE ") :]))
     budget = total_iterations(make_config(args.preset))
     rate = sum(r["agent_steps_per_s"] for r in results)
-    per_run = sum(r["seconds"] for r in results) / len(results) / args.iterations  # seconds per iteration
+    per_run = sum(r["seconds"] / r["iterations"] for r in results) / len(results)  # seconds per iteration
     return {
         "processes": args.separate,
         "agent_steps_per_s": rate,
@@ -179,7 +191,7 @@ def whole(args, runs: int, out_dir: Path) -> dict:
 
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    single = bool(argv) and argv[0] == "--single"
+    single = bool(argv) and argv[0] == "--single"  # one of the separate processes: --single BARRIER INDEX ...
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--device", default="cuda:0" if torch.cuda.is_available() else "cpu")
     p.add_argument("--preset", default="learned-prey-b", help="each run's preset (default: the learned-prey recipe)")
@@ -193,7 +205,8 @@ def main(argv=None) -> int:
     p.add_argument("--whole-separate", type=int, default=0, help="--whole: separate runs to time, in batches")
     p.add_argument("--commit", default=None, help="commit to record where git is not available")
     p.add_argument("--out-dir", default=".", help="where the JSON goes")
-    args = p.parse_args(argv[1:] if single else argv)
+    p.add_argument("--seconds", type=float, default=20.0, help="wall time the separate processes train, together")
+    args = p.parse_args(argv[3:] if single else argv)
     if args.worlds is None:
         args.worlds = int(make_config(args.preset)["train"]["num_worlds"])
     try:
@@ -201,7 +214,7 @@ def main(argv=None) -> int:
     except ValueError as error:
         p.error(str(error))
     if single:
-        print("SINGLE " + json.dumps(single_rate(args)), flush=True)
+        print("SINGLE " + json.dumps(single_rate(args, argv[1], int(argv[2]))), flush=True)
         return 0
     out_dir = Path(args.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

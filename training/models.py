@@ -201,8 +201,12 @@ class StackedMLP(nn.Module):
             raise ValueError(f"population model: a batch of {rows} rows is not {self.runs} runs' equal shares")
         h = x.reshape(self.runs, rows // self.runs, x.shape[-1])
         last = len(self.weights) - 1
+        chunked = torch.is_grad_enabled() and not torch.jit.is_scripting()
         for i, (weight, bias) in enumerate(zip(self.weights, self.biases)):
-            h = torch.baddbmm(bias.unsqueeze(1), h, weight.transpose(1, 2))
+            if chunked:  # the weight gradient summed over chunks of rows, as Individual Learning's layers
+                h = _BatchedLinearFunction.apply(h, weight.transpose(1, 2), bias)
+            else:
+                h = torch.baddbmm(bias.unsqueeze(1), h, weight.transpose(1, 2))
             if i < last:
                 h = self.activation(h)
         return h.reshape([rows] + self.output_shape)
