@@ -140,9 +140,12 @@ def check_runs(configs: list[dict]) -> None:
                     f"runs 0 and {k} differ in {section}.{keys[0] if keys else '*'}: runs of one population "
                     f"differ only in train.{'/'.join(RUN_SETTINGS)} and per-world env parameters"
                 )
-    seeds = [int(c["train"]["seed"]) for c in configs]
-    if len(set(seeds)) != len(seeds):
-        raise ValueError(f"runs share a seed ({seeds}): each run of a population needs its own train.seed")
+    seen: dict[str, int] = {}
+    for k, config in enumerate(configs):  # the same seed in another condition is another run; twice the same is not
+        key = json.dumps({"seed": config["train"]["seed"], "env": config.get("env")}, sort_keys=True, default=str)
+        if key in seen:
+            raise ValueError(f"runs {seen[key]} and {k} are the same run (seed and world): give each a seed")
+        seen[key] = k
 
 
 def _slice_state(value, runs: int, k: int, sizes: set[int]):

@@ -306,7 +306,7 @@ def test_runs_that_cannot_share_a_process_are_refused():
         Population(configs)
     configs = run_configs(base_config(), 2)
     configs[1]["train"]["seed"] = configs[0]["train"]["seed"]
-    with pytest.raises(ValueError, match="share a seed"):
+    with pytest.raises(ValueError, match="runs 0 and 1 are the same run"):
         Population(configs)
 
 
