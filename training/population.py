@@ -632,14 +632,16 @@ class Population:
                     default=str,
                 )
 
-    def run_state(self, k: int) -> dict:
-        """Run k's checkpoint, as `Trainer` writes one for a run alone (see `trainer.py`)."""
+    def run_state(self, k: int, whole: dict | None = None) -> dict:
+        """Run k's checkpoint, as `Trainer` writes one for a run alone (see `trainer.py`); `whole`: the
+        adapter's `state_dict()` of every run, where the caller saves several runs at once."""
         self.learner.sync_run_optimizer(k)
         alg = self.runs[k]
         saved = _compact(alg.save())
         saved["iter"] = self.iteration
         v, W = self.vec_env, self.env.num_worlds
-        vec = _slice_state(v.state_dict(with_env=True), self.K, k, {W, v.num_envs})
+        whole = v.state_dict(with_env=True) if whole is None else whole
+        vec = _slice_state(whole, self.K, k, {W, v.num_envs})
         env_k = vec["env"]
         env_k.update(config=env_config(self.configs[k]).draw(W // self.K, self.seeds[k]).to_dict(),
                      num_worlds=W // self.K, seed=self.seeds[k])  # fmt: skip
@@ -663,14 +665,16 @@ class Population:
     def _checkpoint_path(self, k: int) -> str | None:
         return None if self.log_dir is None else os.path.join(self.run_dir(k), f"model_{self.iteration - 1}.pt")
 
-    def save(self, k: int) -> str | None:
-        """Run k's checkpoint of the iterations completed (`model_<i>.pt`, i the last one)."""
-        path = self._checkpoint_path(k)
-        if path is None:
-            return None
-        write_checkpoint(self.run_state(k), path)
-        self.last_checkpoint[k] = path
-        return path
+    def save(self, runs: list[int]) -> None:
+        """The checkpoints of `runs` of the iterations completed (`model_<i>.pt`, i the last one); the
+        simulation's state is read once for all of them."""
+        if self.log_dir is None or not runs:
+            return
+        whole = self.vec_env.state_dict(with_env=True)
+        for k in runs:
+            path = self._checkpoint_path(k)
+            write_checkpoint(self.run_state(k, whole), path)
+            self.last_checkpoint[k] = path
 
     def export(self, k: int, formats=None) -> dict:
         """Run k's policy into `run-<k>/exported/` (the config's formats)."""
@@ -722,9 +726,8 @@ class Population:
                 if ending or signalled or it % save_every == 0:
                     self._finish(*pending)  # a checkpoint's progress.csv holds its own iteration
                     pending = None
-                    for k in range(self.K):
-                        if self.active[k] and (k in ending or signalled or it % save_every == 0):
-                            self.save(k)
+                    due = signalled or it % save_every == 0
+                    self.save([k for k in range(self.K) if self.active[k] and (k in ending or due)])
                     for k in ending:
                         if self.active[k]:
                             self._stop_run(k, None)
@@ -732,9 +735,9 @@ class Population:
                     break
             if pending is not None:
                 self._finish(*pending)
-        for k in range(self.K):  # the state of the last iteration, where no checkpoint holds it yet
-            if self.active[k] and self.iteration > 0 and self.last_checkpoint[k] != self._checkpoint_path(k):
-                self.save(k)
+        # the state of the last iteration, where no checkpoint holds it yet
+        unsaved = [k for k in range(self.K) if self.last_checkpoint[k] != self._checkpoint_path(k)]
+        self.save([k for k in unsaved if self.active[k] and self.iteration > 0])
         for logger in self.loggers:
             if logger.writer is not None:
                 logger.stop_logging_writer()

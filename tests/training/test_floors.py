@@ -154,9 +154,9 @@ def test_simulation_bytes_of_small_worlds():
     # position, velocity, acceleration, heading (vec2 float32), alive (bool), age, replication_age,
     # starvation (int32)
     agents = W * C * (4 * 8 + 1 + 3 * 4)
-    # world_step, episode, episode_captures, prey and predator alive counts, seed ([W] 4 bytes) and
-    # episode_return ([W, C] float32)
-    worlds = W * 6 * 4 + W * C * 4
+    # world_step, episode, episode_captures, prey and predator alive counts, seed, stream_world ([W] 4
+    # bytes) and episode_return ([W, C] float32)
+    worlds = W * 7 * 4 + W * C * 4
     actions = W * Pc * 4 + W * P * 4
     # obs (float32), masks (bool), neighbour slots (int32) per observer type
     observations = W * Pc * (4 * L_prey + K_prey + 4 * K_prey) + W * P * (4 * L_pred + K_pred + 4 * K_pred)

@@ -129,12 +129,11 @@ def test_a_failing_run_stops_alone(tmp_path, stacked):
     poisoned = Population(configs, log_dir=str(tmp_path / "pop"), stacked=stacked)
     save = poisoned.save
 
-    def poison_after_first_save(k):
-        path = save(k)
-        if k == 1 and poisoned.iteration == 1:
+    def poison_after_first_save(runs):
+        save(runs)
+        if 1 in runs and poisoned.iteration == 1:
             with torch.no_grad():
                 next(poisoned.runs[1].actor.parameters()).fill_(float("nan"))
-        return path
 
     poisoned.save = poison_after_first_save
     poisoned.train()
