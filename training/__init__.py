@@ -8,6 +8,7 @@
 - `config`: presets (`default`, `paper`, `tiny`) and the rsl-rl runner config.
 - `trainer.Trainer`: training, checkpoints, bit-exact resume, export (`runner.AquariumRunner`, rsl-rl's
   runner; `logger.AquariumLogger`, the CSV and console log; `checkpoints`, finding and reading them).
+- `population.Population`: K runs in one process (`train --runs K`), each as if trained alone.
 - `drivers`: a team driven by a trained policy (`TrainedOpponent`, `RecurrentOpponent`).
 - `export.load_policy`: exported policies (TorchScript, ONNX) or checkpoints -> callable obs -> actions.
 - `evaluate`: the paper's evaluation protocol; `cross_play`: cross play and Elo ratings; `plots`: the figures.
@@ -33,6 +34,9 @@ _EXPORTS = {
     "PRESETS": "config",
     "env_config": "config",
     "Trainer": "trainer",
+    "Population": "population",
+    "run_configs": "population",
+    "resume_population": "population",
     "latest_checkpoint": "checkpoints",
     "export_policy": "export",
     "load_policy": "export",

@@ -295,6 +295,8 @@ class StackedPPO(AquariumPPO):
     advantages normalised per run, each run's own permutation, losses that are means over one run's
     samples, and each run's gradient norm clipped on its own (see the module doc)."""
 
+    normalize_advantage_per_mini_batch: bool  # declared: rsl-rl's PPO sets it
+
     def __init__(self, *args, runs: int, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self.num_runs = runs
@@ -577,11 +579,14 @@ class Population:
         return stacked
 
     # ------------------------------------------------------------------ files
-    def run_dir(self, k: int) -> str | None:
-        return None if self.log_dir is None else os.path.join(self.log_dir, f"run-{k}")
+    def run_dir(self, k: int) -> str:
+        """Run k's directory (a population with a log directory)."""
+        if self.log_dir is None:
+            raise ValueError("this population has no log_dir: its runs write no files")
+        return os.path.join(self.log_dir, f"run-{k}")
 
     def _logger(self, k: int) -> AquariumLogger:
-        path = self.run_dir(k)
+        path = None if self.log_dir is None else self.run_dir(k)
         v = self.vec_env
         logger = AquariumLogger(
             log_dir=path,
@@ -605,6 +610,7 @@ class Population:
         return policy_meta(self.configs[k], v.slots, v.observation_size, v.action_count, team=self.team)
 
     def _write_records(self) -> None:
+        assert self.log_dir is not None
         record = provenance(str(self.device))
         os.makedirs(self.log_dir, exist_ok=True)
         population = {
@@ -672,7 +678,7 @@ class Population:
             return
         whole = self.vec_env.state_dict(with_env=True)
         for k in runs:
-            path = self._checkpoint_path(k)
+            path = os.path.join(self.run_dir(k), f"model_{self.iteration - 1}.pt")
             write_checkpoint(self.run_state(k, whole), path)
             self.last_checkpoint[k] = path
 
@@ -774,8 +780,9 @@ class Population:
         self.learner.freeze(k)
         if why is None:
             return
-        if self.last_checkpoint[k] is not None:
-            saved = torch.load(self.last_checkpoint[k], map_location=str(self.device), weights_only=False)
+        last = self.last_checkpoint[k]
+        if last is not None:
+            saved = torch.load(last, map_location=str(self.device), weights_only=False)
             self.runs[k].actor.load_state_dict(saved["actor_state_dict"])  # in place: the stacked slices too
             self.runs[k].critic.load_state_dict(saved["critic_state_dict"])
         self.stopped[k] = why
@@ -876,10 +883,10 @@ def resume_population(log_dir: str, changes: dict | None = None) -> Population:
         record = json.load(f)
     K, stopped = int(record["runs"]), {int(k): why for k, why in (record.get("stopped") or {}).items()}
     found = [_iterations(os.path.join(log_dir, f"run-{k}")) for k in range(K)]
-    newest = [read_checkpoint(f[max(f)]) if f else None for f in found]
-    if any(c is None for c in newest):
-        missing = [k for k, c in enumerate(newest) if c is None]
+    missing = [k for k, f in enumerate(found) if not f]
+    if missing:
         raise ValueError(f"{log_dir}: run(s) {missing} have no checkpoint model_<i>.pt to resume from")
+    newest = [read_checkpoint(f[max(f)]) for f in found]
     configs = [copy.deepcopy(c["infos"]["aquarium"]["config"]) for c in newest]
     allowed = {"iterations", "episodes", "quiet", "export"}
     bad = sorted(set((changes or {}).get("train", {})) - allowed)

@@ -96,7 +96,7 @@ class AquariumVecEnv(VecEnv):
         env: BatchedAquarium,
         team: str = "prey",
         opponent=None,
-        reward_scale: float = 1.0,
+        reward_scale: float | list[float] = 1.0,
         cfg: dict | None = None,
         metrics_every: int = 10,
         critic: str = "local",
