@@ -148,6 +148,27 @@ def check_runs(configs: list[dict]) -> None:
         seen[key] = k
 
 
+def group_key(config: dict) -> str | None:
+    """What runs that may share a population have in common (None: `config` trains alone): the config
+    without the settings runs may differ in (`RUN_SETTINGS`, per-world env parameters but the agent
+    counts). Runs of one key pass `check_runs` together, but for the same run given twice."""
+    from ..per_world import PER_WORLD_FIELDS, PER_WORLD_TYPE_FIELDS
+
+    if unsupported(config) is not None:
+        return None
+    shared = copy.deepcopy(config)
+    for name in (*RUN_SETTINGS, "quiet", "device"):
+        shared["train"].pop(name, None)
+    env = shared.get("env") or {}
+    for name in PER_WORLD_FIELDS:
+        if name not in ("prey_count", "predator_count"):
+            env.pop(name, None)
+    for team in ("prey", "predator"):
+        for name in PER_WORLD_TYPE_FIELDS:
+            (env.get(team) or {}).pop(name, None)
+    return json.dumps(shared, sort_keys=True, default=str)
+
+
 def _slice_state(value, runs: int, k: int, sizes: set[int]):
     """Run k's part of a state (nested dicts, tensors, numpy arrays): arrays whose first dimension is
     one of `sizes` (worlds or rows of all runs) cut to the k-th of `runs` equal blocks."""
@@ -475,7 +496,16 @@ class Population:
     takes one); `log_dir`: the population's directory, run k's files in `run-<k>/` (None: no files).
     `stacked`: the runs' learners as `StackedPPO` (default on CUDA) or `RunLoop` (default on the CPU)."""
 
-    def __init__(self, configs: list[dict], log_dir: str | None = None, stacked: bool | None = None):
+    def __init__(
+        self,
+        configs: list[dict],
+        log_dir: str | None = None,
+        stacked: bool | None = None,
+        run_dirs: list[str] | None = None,
+    ):
+        if run_dirs is not None and (log_dir is not None or len(run_dirs) != len(configs)):
+            raise ValueError("run_dirs names each run's own directory (one per config), instead of log_dir")
+        self.run_dirs = run_dirs
         configs = [copy.deepcopy(c) for c in configs]
         for config in configs:
             if config["train"]["opponent"] is None and config["train"]["team"] != "both":
@@ -547,7 +577,7 @@ class Population:
         self.last_checkpoint: list[str | None] = [None] * K
         self.loop: TrainingLoop | None = None  # made by `train`, after the episodes' starts are spread
         self.loggers = [self._logger(k) for k in range(K)]
-        if log_dir is not None:
+        if self.writes:
             self._write_records()
 
     def _stacked_learner(self, algs: list[AquariumPPO], observations) -> StackedPPO:
@@ -579,14 +609,21 @@ class Population:
         return stacked
 
     # ------------------------------------------------------------------ files
+    @property
+    def writes(self) -> bool:
+        """Whether the runs write files (a `log_dir`, or each run its own of `run_dirs`)."""
+        return self.log_dir is not None or self.run_dirs is not None
+
     def run_dir(self, k: int) -> str:
-        """Run k's directory (a population with a log directory)."""
+        """Run k's directory: `run_dirs[k]`, or `<log_dir>/run-<k>`."""
+        if self.run_dirs is not None:
+            return self.run_dirs[k]
         if self.log_dir is None:
             raise ValueError("this population has no log_dir: its runs write no files")
         return os.path.join(self.log_dir, f"run-{k}")
 
     def _logger(self, k: int) -> AquariumLogger:
-        path = None if self.log_dir is None else self.run_dir(k)
+        path = self.run_dir(k) if self.writes else None
         v = self.vec_env
         logger = AquariumLogger(
             log_dir=path,
@@ -610,18 +647,18 @@ class Population:
         return policy_meta(self.configs[k], v.slots, v.observation_size, v.action_count, team=self.team)
 
     def _write_records(self) -> None:
-        assert self.log_dir is not None
         record = provenance(str(self.device))
-        os.makedirs(self.log_dir, exist_ok=True)
         population = {
             "runs": self.K,
             "seeds": list(self.seeds),
             "learner": "stacked" if self.stacked else "per-run",
-            "run_dirs": [f"run-{k}" for k in range(self.K)],
+            "run_dirs": [f"run-{k}" for k in range(self.K)] if self.run_dirs is None else self.run_dirs,
             "stopped": {str(k): why for k, why in self.stopped.items()},  # runs that failed, and why
         }
-        with atomic_open(os.path.join(self.log_dir, "population.json")) as f:
-            json.dump({**population, **record}, f, indent=1, default=str)
+        if self.log_dir is not None:
+            os.makedirs(self.log_dir, exist_ok=True)
+            with atomic_open(os.path.join(self.log_dir, "population.json")) as f:
+                json.dump({**population, **record}, f, indent=1, default=str)
         for k in range(self.K):
             os.makedirs(self.run_dir(k), exist_ok=True)
             with atomic_open(os.path.join(self.run_dir(k), "config.json")) as f:
@@ -669,12 +706,12 @@ class Population:
         return saved
 
     def _checkpoint_path(self, k: int) -> str | None:
-        return None if self.log_dir is None else os.path.join(self.run_dir(k), f"model_{self.iteration - 1}.pt")
+        return os.path.join(self.run_dir(k), f"model_{self.iteration - 1}.pt") if self.writes else None
 
     def save(self, runs: list[int]) -> None:
         """The checkpoints of `runs` of the iterations completed (`model_<i>.pt`, i the last one); the
         simulation's state is read once for all of them."""
-        if self.log_dir is None or not runs:
+        if not self.writes or not runs:
             return
         whole = self.vec_env.state_dict(with_env=True)
         for k in runs:
@@ -703,7 +740,7 @@ class Population:
         the end. Iteration `i` is logged while the device runs `i + 1`, as `Trainer` does."""
         total = max(self.totals) if iterations is None else min(max(self.totals), self.iteration + iterations)
         save_every = int(self.runner_cfgs[0]["save_interval"])
-        if self.log_dir is not None:
+        if self.writes:
             for logger in self.loggers:
                 with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl reports storing git state
                     logger.init_logging_writer()
@@ -788,7 +825,7 @@ class Population:
         self.stopped[k] = why
         where = f"; its outputs end with {self.last_checkpoint[k]}" if self.last_checkpoint[k] else ""
         print(f"run {k} (seed {self.seeds[k]}) stopped: {why}{where}", flush=True)
-        if self.log_dir is not None:
+        if self.writes:
             self._write_records()
 
     def _log(self, it: int, stats: list[float], losses: list[list[float]], times) -> None:

@@ -157,6 +157,46 @@ def policy_path(run: str) -> str:
     return os.path.join(run, "exported", "policy.pt")
 
 
+def run_training_population(tasks: list[dict], device: str) -> list[dict]:
+    """Jobs of `run_training_task` trained together, as one population (`training.population`) on
+    `device`: each run into its task's `run_dir` (config, progress CSV, TensorBoard log, checkpoints, the
+    exported policy), as `run_training_task` trains it alone. A training stopped by SIGINT or SIGTERM
+    keeps every run's checkpoint in its folder and raises `cli.Interrupted`; a rerun continues each run
+    there (alone: its checkpoints are `Trainer`'s)."""
+    from ..cli import Interrupted
+    from ..training.population import Population
+    from ..training.run_dir import claim_run_directory
+
+    configs = [copy.deepcopy(task["config"]) for task in tasks]
+    for config in configs:
+        config["train"]["device"] = device
+    claimed = []
+    try:
+        for task in tasks:
+            claimed.append(claim_run_directory(task["run_dir"], overwrite=True))
+        population = Population(configs, run_dirs=[task["run_dir"] for task in tasks])
+        try:
+            start = time.perf_counter()
+            population.train()
+            seconds = time.perf_counter() - start
+            if population.stop.signum is not None:
+                raise Interrupted(
+                    f"stopped by {population.stop.name} after iteration {population.iteration} of a population of "
+                    f"{len(tasks)} training runs, each kept in its folder: rerun the same command to continue them",
+                    population.stop.signum,
+                )
+            for k in range(population.K):
+                if k in population.stopped:
+                    raise RuntimeError(f"training run {tasks[k]['name']} stopped: {population.stopped[k]}")
+                population.export(k, formats=["jit"])
+        finally:
+            population.close()
+    finally:
+        for run_dir in claimed:
+            run_dir.release()
+    return [{"seconds": round(seconds, 1), "population": len(tasks)} for _ in tasks]
+
+
 def run_training_task(task: dict, device: str) -> dict:
     """A job (`jobs.run_jobs` with `devices`): train the run config `task["config"]` on `device` in this
     process into the folder `task["run_dir"]` (config, progress CSV, TensorBoard log, the last

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures as futures
+import copy
 import dataclasses
 import json
 import math
@@ -350,6 +351,7 @@ def run_jobs(
     prepare: Callable[[], None] | None = None,
     on_result: Callable[[int, Any, bool], None] | None = None,
     report: Callable[[str], None] | None = print,
+    runs_per_process: int | None = None,
 ) -> JobsRun:
     """`function(task)` for every task (each a dict with a unique "name", and its "study" where it has
     settings of one): those whose `<out>/finished/<name>.json` holds the same `task_key` are kept, the
@@ -361,7 +363,12 @@ def run_jobs(
     (one device and `jobs=1`, or one task to run: here, on the first device; `prepare` defaults to
     `warm_up` of the first device). With processes or Ray, `function` must be a module-level function
     and the tasks picklable. Each result is written to its file as it comes; `on_result(i, result,
-    kept)` follows (kept ones first), and `report` gets a line per finished task (None: quiet)."""
+    kept)` follows (kept ones first), and `report` gets a line per finished task (None: quiet).
+
+    Training tasks (`function` is `common.run_training_task`, with `devices`) that may share a process
+    train together as populations (`training_groups`: `runs_per_process` runs each, None: as many as
+    the device's memory holds, at most `MAX_POPULATION`, one on the CPU), one population at a time on
+    each device; the choice is reported. A task whose folder holds a checkpoint continues alone."""
     if devices is not None:
         if not devices:
             raise ValueError("devices=[] must name at least one device")
@@ -397,6 +404,23 @@ def run_jobs(
             report(f"  {label} {finished}/{len(tasks)} ({tasks[i]['name']}) after {elapsed:.0f} s, ~{left:.0f} s left")
 
     nodes: set[str] = set()
+    groups = _training_groups(function, tasks, todo, devices, runs_per_process, report)
+    if groups is not None:
+        jobs_each = 1 if any(len(group) > 1 for group in groups) else jobs  # a population fills its GPU
+        if (len(devices or [device]) == 1 and jobs_each <= 1) or len(groups) <= 1:
+            for group in groups:
+                for i, result in zip(group, _training_job([tasks[i] for i in group], device)):
+                    done(i, result)
+        else:
+            (prepare or (lambda: warm_up(device)))()
+
+            def done_group(g: int, group_results: list) -> None:
+                for i, result in zip(groups[g], group_results):
+                    done(i, result)
+
+            _run_on_devices(_training_job, [(g, [tasks[i] for i in group]) for g, group in enumerate(groups)],
+                            devices or [device], jobs_each, done_group)  # fmt: skip
+        return JobsRun(results, kept_count, [])
     if ray is not None:
 
         def finished_on_ray(k: int, result: tuple[Any, str]) -> None:
@@ -424,6 +448,74 @@ def run_jobs(
     return JobsRun(results, kept_count, sorted(nodes))
 
 
+MAX_POPULATION = 64  # runs per process at most: the H200 gained 8% from 64 to 256 (population_h200_6b8873a)
+
+
+def _training_job(tasks: list[dict], device: str) -> list:
+    """A job of `run_jobs`' training groups: one task alone (`run_training_task`), or a population."""
+    from .common import run_training_population, run_training_task
+
+    if len(tasks) == 1:
+        return [run_training_task(tasks[0], device)]
+    return run_training_population(tasks, device)
+
+
+def _training_groups(
+    function: Callable, tasks: Sequence[dict], todo: list[int], devices: Sequence[str] | None,
+    runs_per_process: int | None, report: Callable[[str], None] | None,
+) -> list[list[int]] | None:  # fmt: skip
+    """The pending tasks of `run_jobs` as training groups (lists of task indices, each trained in one
+    process), or None where `function` is no training task's. Tasks of one `population.group_key` form
+    populations of `runs_per_process` (None: `population_size`); a task whose folder holds a
+    checkpoint (an interrupted training), or whose config trains alone, is a group of its own."""
+    from ..training.checkpoints import newest_readable_checkpoint
+    from ..training.population import group_key
+    from .common import run_training_task
+
+    if function is not run_training_task or devices is None or not todo:
+        return None
+    if runs_per_process is not None:
+        check_int("runs_per_process", runs_per_process)
+    keyed: dict[str, list[int]] = {}
+    groups: list[list[int]] = []
+    for i in todo:
+        try:
+            newest_readable_checkpoint(tasks[i]["run_dir"])
+            resumes = True
+        except (ValueError, FileNotFoundError):
+            resumes = False
+        key = None if resumes else group_key(tasks[i]["config"])
+        if key is None:
+            groups.append([i])
+        else:
+            keyed.setdefault(key, []).append(i)
+    for members in keyed.values():
+        size, why = (
+            (runs_per_process, "given")
+            if runs_per_process
+            else population_size(tasks[members[0]]["config"], devices[0])
+        )
+        groups.extend(members[k : k + size] for k in range(0, len(members), size))
+        if report is not None and size > 1:
+            report(f"  trainings: {len(members)} runs in populations of up to {size} ({why}), one process per device")
+    groups.sort(key=len, reverse=True)  # the largest first
+    return groups
+
+
+def population_size(config: dict, device: str) -> tuple[int, str]:
+    """Runs of `config` per process and why: as many as 80% of `device`'s free memory holds
+    (`training.memory`), at most `MAX_POPULATION`; one on the CPU (its runs would take turns)."""
+    from ..training.memory import available_bytes, training_bytes
+
+    if not device.startswith("cuda"):
+        return 1, "the CPU"
+    config = copy.deepcopy(config)
+    config["train"]["device"] = device
+    each, free = training_bytes(config)["total"], available_bytes(device)
+    size = max(1, min(MAX_POPULATION, int(0.8 * free // max(each, 1))))
+    return size, f"{each / 2**30:.2f} GiB per run, {free / 2**30:.0f} GiB free on {device}"
+
+
 def _bind_device(device: str) -> None:
     """A worker process's start: make `device` its current CUDA device, so that code using the current
     device (a CUDA graph's capture, a synchronize) works on it and opens no context on GPU 0."""
@@ -434,8 +526,8 @@ def _bind_device(device: str) -> None:
 
 
 def _run_on_devices(
-    function: Callable[[dict, str], Any],
-    tasks: list[tuple[int, dict]],
+    function: Callable[[Any, str], Any],
+    tasks: Sequence[tuple[int, Any]],
     devices: Sequence[str],
     per_device: int,
     done: Callable[[int, Any], None],

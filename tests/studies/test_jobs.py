@@ -242,3 +242,39 @@ def test_a_rerun_with_more_seeds_trains_only_the_new_seeds(tmp_path, capsys, one
     assert [r for r in rows if r["seed"] == "0"] == first  # the old rows, timings included: nothing rerun
     assert sorted({r["seed"] for r in rows}) == ["0", "1"] and len(rows) == 2 * len(first)
     assert (tmp_path / "policies" / "learned_N1_fov120_seed1").is_dir()
+
+
+@pytest.mark.slow
+def test_training_tasks_train_together_as_populations_each_as_alone(tmp_path):
+    """Training tasks of a study (`run_training_task`) that may share a process become populations:
+    with 2 runs per process, 3 tasks train as a population of 2 and one alone, each into its own folder
+    with the parameters the same config trains alone (bit for bit on the CPU), its policy exported;
+    a rerun keeps all three."""
+    import torch
+
+    from aquarium_warp.studies.common import policy_path, run_training_task
+    from aquarium_warp.training import Trainer, make_config
+
+    def config(seed: int, view: float) -> dict:
+        train = {"num_worlds": 4, "iterations": 2, "quiet": True, "export": [], "metrics_every": 0, "seed": seed}
+        cfg = make_config("tiny", {"train": train, "runner": {"num_steps_per_env": 8}})
+        cfg["env"]["prey"] = {"view_distance": view}
+        return cfg
+
+    tasks = [{"name": f"s{s}-v{v}", "seed": s, "config": config(s, v), "run_dir": str(tmp_path / f"run-{s}-{v}")}
+             for s, v in ((0, 100.0), (1, 100.0), (0, 150.0))]  # fmt: skip
+    lines: list[str] = []
+    run = run_jobs(run_training_task, tasks, str(tmp_path / "out"), devices=["cpu"], runs_per_process=2,
+                   report=lines.append)  # fmt: skip
+    assert sorted(r.get("population", 1) for r in run.results) == [1, 2, 2]  # a population of 2, one alone
+    assert any("populations of up to 2 (given)" in line for line in lines)
+    for task in tasks:
+        assert os.path.isfile(policy_path(task["run_dir"]))
+        saved = torch.load(os.path.join(task["run_dir"], "model_1.pt"), weights_only=False)
+        alone = Trainer(task["config"])
+        alone.train()
+        for name, value in alone.runner.alg.actor.state_dict().items():
+            assert torch.equal(saved["actor_state_dict"][name], value), f"{task['name']}: {name}"
+        alone.close()
+    again = run_jobs(run_training_task, tasks, str(tmp_path / "out"), devices=["cpu"], runs_per_process=2)
+    assert again.kept == 3
