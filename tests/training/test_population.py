@@ -356,3 +356,39 @@ def test_groups_of_conditions_stack_into_one_env():
     assert stacked.prey.view_distance == (a.prey.view_distance,) * 2 + (300.0, 300.0)
     with pytest.raises(ValueError, match="differ in width"):
         AquariumConfig.stack([a, dataclasses.replace(a, width=500.0)], 2)
+
+
+def test_the_fused_stacked_gradients_are_each_runs_float64_gradients(device):
+    """The fused kernels over a population's blocks of rows (Triton's interpreter on the CPU): each run's
+    gradients of one mini-batch against the float64 gradients of its own learner alone on its own
+    samples, within the fused loss's tolerance for one run (`test_fused_ppo.py`)."""
+    pytest.importorskip("triton")
+    from test_fused_ppo import GRADIENT_TOLERANCE, as_float64, gradients, relative
+
+    from aquarium_warp.training import fused_mlp
+
+    if device == "cpu" and not fused_mlp.INTERPRETED:
+        pytest.skip("the fused kernels need CUDA or Triton's interpreter")
+    configs = run_configs(base_config(), 3)
+    per_run = rolled_out(configs)
+    stacked = Population([dict(c, train={**c["train"], "device": device, "fused_mlp": True}) for c in configs],
+                         stacked=True)  # fmt: skip
+    copy_rollouts(per_run, stacked)
+    indices, size = per_run.learner.mini_batch_indices()
+    alg = stacked.learner
+    for p in alg.actor.parameters():
+        p.grad = None
+    alg.fused_loss.step(alg._storage_indices(indices.to(stacked.device), size), 0, size)
+    layers = {"actor": alg.actor.mlp, "critic": alg.critic.mlp}
+    m = size // 3
+    for k, run in enumerate(per_run.runs):
+        own = indices.view(3, -1)[k]
+        _, reference = gradients(as_float64(run), own, m)
+        _, torch_grads = gradients(run, own, m)
+        for name, ref in reference.items():
+            part, _, layer, kind = name.split(".")  # e.g. actor.mlp.2.weight: the run's MLP's module 2
+            stacked_param = (layers[part].weights if kind == "weight" else layers[part].biases)[int(layer) // 2]
+            fused = stacked_param.grad[k].detach().double().cpu()
+            assert relative(fused, ref) <= max(GRADIENT_TOLERANCE, 4 * relative(torch_grads[name], ref)), (k, name)
+    per_run.close()
+    stacked.close()
