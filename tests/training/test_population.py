@@ -8,8 +8,10 @@ import copy
 import dataclasses
 import json
 import os
+import signal
 import subprocess
 import sys
+import time
 
 import pytest
 import torch
@@ -392,3 +394,44 @@ def test_the_fused_stacked_gradients_are_each_runs_float64_gradients(device):
             assert relative(fused, ref) <= max(GRADIENT_TOLERANCE, 4 * relative(torch_grads[name], ref)), (k, name)
     per_run.close()
     stacked.close()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_signal_keeps_every_run_and_resume_continues_them_bit_for_bit(tmp_path, signum):
+    """SIGINT or SIGTERM during `train --runs 2`: the command ends with the signal's code, every run's
+    state of the last iteration is checkpointed, and `--resume` ends where an uninterrupted population
+    ends (the same parameters, bit for bit on the CPU)."""
+    out = tmp_path / "pop"
+    argv = [sys.executable, "-m", "aquarium_warp", "train", "--preset", "tiny", "--runs", "2", "--num-worlds", "4",
+            "--iterations", "400", "--log-dir", str(out), "--set", "runner.num_steps_per_env=8", "--set",
+            "runner.save_interval=1", "--quiet", "--export", "none"]  # fmt: skip
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "GIT_PYTHON_REFRESH": "quiet"}
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # fmt: skip
+    try:
+        deadline = time.monotonic() + 300
+        while not all((out / f"run-{k}" / "model_2.pt").exists() for k in range(2)):
+            assert time.monotonic() < deadline and proc.poll() is None, "no checkpoints"
+            time.sleep(0.05)
+        proc.send_signal(signum)
+        _, err = proc.communicate(timeout=300)
+    finally:
+        proc.kill()
+    assert proc.returncode == 128 + signum, err
+    assert f"train --resume {out}" in err
+    done = [max(int(n[6:-3]) for n in os.listdir(out / f"run-{k}") if n.startswith("model_")) for k in range(2)]
+    assert done[0] == done[1] and done[0] >= 2  # both runs saved at the iteration it stopped after
+    total = done[0] + 3
+    resume = subprocess.run([sys.executable, "-m", "aquarium_warp", "train", "--resume", str(out), "--iterations",
+                             str(total), "--quiet"], capture_output=True, text=True, env=env, timeout=300)  # fmt: skip
+    assert resume.returncode == 0, resume.stderr
+    configs = run_configs(make_config("tiny", {"train": {"num_worlds": 4, "iterations": total, "quiet": True,
+                                                         "export": ["jit", "onnx"]},
+                                               "runner": {"num_steps_per_env": 8, "save_interval": 1}}), 2)  # fmt: skip
+    whole = Population(configs, stacked=False)
+    whole.train()
+    for k in range(2):
+        last = torch.load(out / f"run-{k}" / f"model_{total - 1}.pt", weights_only=False)
+        assert_same(last["actor_state_dict"], dict(whole.runs[k].actor.state_dict()), f"resumed run {k}")
+    whole.close()
