@@ -47,8 +47,8 @@ def train_population(args) -> None:
     from aquarium_warp.training.population import Population
 
     configs = []
-    for world in WORLDS:
-        for seed in SEEDS:
+    for world in args.worlds:
+        for seed in args.seeds:
             config = make_config(f"learned-prey-{world}")
             for s in args.set:
                 deep_update(config, parse_assignment(s))
@@ -63,7 +63,7 @@ def train_population(args) -> None:
 
 def train_alone(args) -> None:
     sets = [x for s in args.set for x in ("--set", s)]
-    pending, running = list(SEEDS), []
+    pending, running = list(args.seeds), []
     while pending or running:
         while pending and len(running) < args.per_gpu:
             seed = pending.pop(0)
@@ -77,13 +77,14 @@ def train_alone(args) -> None:
             raise RuntimeError(f"a training alone failed: {err.strip()[-1500:]}")
 
 
-def policies(out: Path) -> list[dict]:
-    """Every trained policy: cell, world, training seed, path."""
+def policies(out: Path, worlds: list[str], seeds: list[int]) -> list[dict]:
+    """Every trained policy: cell, world, training seed, path (population run `len(seeds) w + i` is world
+    w's i-th seed)."""
     found = [{"cell": "population", "world": w, "seed": s,
-              "path": out / "population" / f"run-{5 * WORLDS.index(w) + s}" / "exported" / "policy.pt"}
-             for w in WORLDS for s in SEEDS]  # fmt: skip
+              "path": out / "population" / f"run-{len(seeds) * worlds.index(w) + i}" / "exported" / "policy.pt"}
+             for w in worlds for i, s in enumerate(seeds)]  # fmt: skip
     found += [{"cell": "alone", "world": "b", "seed": s, "path": out / "alone" / f"s{s}" / "exported" / "policy.pt"}
-              for s in SEEDS]  # fmt: skip
+              for s in seeds]  # fmt: skip
     return found
 
 
@@ -93,9 +94,9 @@ def evaluate(args) -> None:
     from aquarium_warp.training.evaluate import evaluate_policies
 
     rows = []
-    for world in WORLDS:
+    for world in args.worlds:
         env = env_config(make_config(f"learned-prey-{world}")).replace(spawn_heading="paper")
-        mine = [p for p in policies(Path(args.out)) if p["world"] == world]
+        mine = [p for p in policies(Path(args.out), args.worlds, args.seeds) if p["world"] == world]
         specs = [f"{p['cell']}-s{p['seed']}={p['path']}" for p in mine]
         result = evaluate_policies(specs, "naivchase", env=env, episodes=EPISODES, seeds=EVAL_SEEDS, device=args.device)
         means = {r["prey_policy"]: r["captures_per_prey_mean"] for r in result["summary"]}
@@ -135,8 +136,9 @@ def report(args) -> dict:
             "verdict": verdict,
         },  # fmt: skip
         "worlds": {
-            w: {"population": interval(values("population", w)), "committed_alone": COMMITTED[w]} for w in WORLDS
-        },  # fmt: skip
+            w: {"population": interval(values("population", w)), "committed_alone": COMMITTED[w]} for w in args.worlds
+        },
+        "seeds": args.seeds,
     }
     timing = Path(args.out) / "population_seconds.json"
     if timing.exists():
@@ -146,7 +148,7 @@ def report(args) -> dict:
         json.dump(out, f, indent=2)
     print(f"world B, population - alone: {diff['difference']:+.3f} [{diff['low']:+.3f}, {diff['high']:+.3f}] "
           f"(95%), margin {MARGIN}: {verdict}; TOST p {tost['p']:.3g}")  # fmt: skip
-    for w in WORLDS:
+    for w in args.worlds:
         got, (mean, half) = out["worlds"][w]["population"], COMMITTED[w]
         print(f"world {w.upper()}: population {got['mean']:.2f} ± {got['ci95']:.2f}, committed alone "
               f"{mean:.2f} ± {half:.2f}")  # fmt: skip
@@ -160,6 +162,8 @@ def main(argv=None) -> int:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config changes of every training")
     p.add_argument("--steps", default="population,alone,eval,report")
     p.add_argument("--per-gpu", type=int, default=3, help="separate trainings at a time (alone)")
+    p.add_argument("--seeds", type=int, nargs="+", default=list(SEEDS), help="training seeds of each cell")
+    p.add_argument("--worlds", nargs="+", default=list(WORLDS), choices=WORLDS, help="the population's worlds")
     p.add_argument("--commit", default=None, help="commit to record where git is not available")
     args = p.parse_args(argv)
     steps = args.steps.split(",")
@@ -170,17 +174,21 @@ def main(argv=None) -> int:
     if "population" in steps:
         start = time.perf_counter()
         child = [sys.executable, __file__, "--steps", "population-child", "--device", args.device, "--out", args.out,
+                 "--seeds", *map(str, args.seeds), "--worlds", *args.worlds,
                  *[x for s in args.set for x in ("--set", s)]]  # fmt: skip
         done = subprocess.run(child, capture_output=True, text=True)
         seconds = time.perf_counter() - start
         if done.returncode != 0:
             raise RuntimeError(f"the population failed: {done.stderr.strip()[-2000:]}")
-        (Path(args.out) / "population_seconds.json").write_text(json.dumps({"runs": 15, "seconds": seconds}))
-        print(f"population of 15 runs: {seconds:.1f} s from launch to exit", flush=True)
+        runs = len(args.seeds) * len(args.worlds)
+        (Path(args.out) / "population_seconds.json").write_text(json.dumps({"runs": runs, "seconds": seconds}))
+        print(f"population of {runs} runs: {seconds:.1f} s from launch to exit", flush=True)
     if "alone" in steps:
         start = time.perf_counter()
         train_alone(args)
-        print(f"5 runs alone, {args.per_gpu} at a time: {time.perf_counter() - start:.1f} s", flush=True)
+        print(
+            f"{len(args.seeds)} runs alone, {args.per_gpu} at a time: {time.perf_counter() - start:.1f} s", flush=True
+        )
     if "eval" in steps:
         start = time.perf_counter()
         evaluate(args)
