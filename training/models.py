@@ -218,8 +218,8 @@ class StackedMLP(nn.Module):
 
 class StackedMLPModel(MLPModel):
     """rsl-rl `MLPModel` over a `StackedMLP`: the actor or critic of every run of a population (see
-    `population.py`). Extra argument `runs` (K). Observation normalisation is not stacked (each run
-    would need its own normaliser): a population refuses it before building this."""
+    `population.py`). Extra argument `runs` (K). With observation normalisation the population gives it
+    the runs' own normalisers (`RunNormalization`)."""
 
     def __init__(
         self,
@@ -246,3 +246,33 @@ class StackedMLPModel(MLPModel):
         self.runs = runs
         head = self.distribution.input_dim if self.distribution is not None else output_dim
         self.mlp = StackedMLP(runs, self._get_latent_dim(), head, hidden_dims, activation)
+
+
+class RunNormalization(nn.Module):
+    """The observation normalisers of a population's runs as one module of the stacked model
+    (`StackedMLPModel`): each run's own rsl-rl `EmpiricalNormalization` (the run's model's, so its
+    checkpoints hold it) on the run's block of rows. `forward(x [K * R, L])` normalises run k's rows
+    `[k R, (k + 1) R)` with run k's statistics; `update(x)` takes the rollout flattened step-major
+    (`[T * K * n, L]`, `n` rows per run and step) and updates each run's normaliser on its own rows in
+    the order its run alone would see them. Each normaliser's tensors stay the same objects (CUDA
+    graphs read them), though rsl-rl's update rebinds its `_std`."""
+
+    def __init__(self, normalizers: list[nn.Module], rows: int) -> None:
+        super().__init__()
+        self.normalizers = nn.ModuleList(normalizers)
+        self.rows = rows  # each run's rows per step
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        blocks = x.chunk(len(self.normalizers))
+        return torch.cat([normalizer(block) for normalizer, block in zip(self.normalizers, blocks)])
+
+    @torch.jit.unused
+    def update(self, x: torch.Tensor) -> None:
+        K, n = len(self.normalizers), self.rows
+        steps = x.reshape(-1, K, n, x.shape[-1])
+        for k, normalizer in enumerate(self.normalizers):
+            std = normalizer._std
+            normalizer.update(steps[:, k].reshape(-1, x.shape[-1]))
+            if normalizer._std is not std:  # rsl-rl rebinds it; graphs hold the old tensor
+                std.copy_(normalizer._std)
+                normalizer._std = std

@@ -34,9 +34,10 @@ almost idle. A population trains K runs together, each as if it trained alone:
 What may differ between runs: `train.seed`, `train.reward_scale`, the budget (`train.episodes`,
 `train.iterations`) and every env parameter that may differ per world. What cannot share a process
 (another slot count, observation layout or team setup) is refused naming the difference; both teams
-learning, opponent pools, recurrent networks, centralised critics, Individual Learning, observation
-normalisation, domain randomisation, the adaptive learning rate, videos, several processes and
-rsl-rl's runner loop are refused in one line each, saying why.
+learning, opponent pools, recurrent networks, centralised critics, Individual Learning, domain
+randomisation, the adaptive learning rate, videos, several processes and rsl-rl's runner loop are
+refused in one line each, saying why. Observation normalisation is each run's own (`RunNormalization`
+on CUDA; the fused kernels do not take it, so such runs take torch's products).
 """
 
 from __future__ import annotations
@@ -107,7 +108,6 @@ def unsupported(config: dict) -> str | None:
         model = runner.get(part, {})
         name = str(model.get("class_name", "MLPModel"))
         reasons.append(("RNN" in name or "Recurrent" in name, f"recurrent networks ({part}.class_name={name!r})"))
-        reasons.append((bool(model.get("obs_normalization")), f"observation normalisation ({part}, not stacked)"))
     if runner.get("algorithm", {}).get("schedule") == "adaptive":
         reasons.append((True, "the adaptive learning-rate schedule (decided on the host from each run's KL)"))
     for refused, why in reasons:
@@ -595,6 +595,11 @@ class Population:
                 models[part] = model.to(self.device)
         for part in ("actor", "critic"):
             share_parameters(models[part].mlp, [getattr(alg, part) for alg in algs])
+            if models[part].obs_normalization:  # each run's own normaliser, on its own rows
+                from .models import RunNormalization
+
+                normalizers = [getattr(alg, part).obs_normalizer for alg in algs]
+                models[part].obs_normalizer = RunNormalization(normalizers, self.rows).to(self.device)
         alg_cfg = {k: v for k, v in cfg["algorithm"].items() if k != "class_name"}
         storage = RolloutStorage(
             "rl", self.vec_env.num_envs, cfg["num_steps_per_env"], observations, [1], str(self.device)

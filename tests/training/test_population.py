@@ -34,8 +34,11 @@ def base_config(**train) -> dict:
 
 def conditions() -> list[dict]:
     """Three runs that differ in all a population lets differ: seed, reward scale, a per-world
-    parameter (run 1's prey see farther) and the budget (run 2 trains 2 iterations, the others 3)."""
+    parameter (run 1's prey see farther) and the budget (run 2 trains 2 iterations, the others 3); each
+    normalises its observations."""
     configs = run_configs(base_config(), 3)
+    for config in configs:  # each run's own observation normaliser
+        config["runner"]["actor"]["obs_normalization"] = config["runner"]["critic"]["obs_normalization"] = True
     configs[1]["env"]["prey"] = {"view_distance": 150.0}
     configs[1]["train"]["reward_scale"] = 0.02
     configs[2]["train"]["iterations"] = 2
@@ -179,8 +182,9 @@ def copy_rollouts(per_run: Population, stacked: Population) -> None:
     big.step = big.num_transitions_per_env
 
 
-@pytest.mark.parametrize("fused", [False, True], ids=["torch", "fused"])
-def test_the_stacked_update_is_each_runs_own(device, fused):
+@pytest.mark.parametrize("fused, normalised", [(False, False), (True, False), (False, True)],
+                         ids=["torch", "fused", "torch-normalised"])  # fmt: skip
+def test_the_stacked_update_is_each_runs_own(device, fused, normalised):
     """One update of a `StackedPPO` (on the test device; torch's autograd or the fused kernels, which
     the CPU runs under Triton's interpreter) over the rollouts of 3 runs, with the same permutations
     and parameters as each run's own `AquariumPPO` on the CPU, gives each run the losses and the
@@ -192,6 +196,8 @@ def test_the_stacked_update_is_each_runs_own(device, fused):
         if device == "cpu" and not fused_mlp.INTERPRETED:
             pytest.skip("the fused kernels need CUDA or Triton's interpreter")
     configs = run_configs(base_config(), 3)
+    for config in configs:
+        config["runner"]["actor"]["obs_normalization"] = config["runner"]["critic"]["obs_normalization"] = normalised
     per_run = rolled_out(configs)
     stacked = Population([dict(c, train={**c["train"], "device": device, "fused_mlp": fused}) for c in configs],
                          stacked=True)  # fmt: skip
@@ -208,6 +214,15 @@ def test_the_stacked_update_is_each_runs_own(device, fused):
         a, b = parameters(per_run.runs[k]), parameters(stacked.runs[k])
         for name in a:
             torch.testing.assert_close(b[name].cpu(), a[name], rtol=1e-4, atol=1e-5, msg=f"run {k}: {name}")
+    if normalised:  # then each run's normaliser learns from its own rollout
+        per_run.learner.finish_update()
+        stacked.learner.finish_update()
+        for k in range(3):
+            for part in ("actor", "critic"):
+                a, b = (getattr(p.runs[k], part).obs_normalizer for p in (per_run, stacked))
+                assert int(a.count) == int(b.count) > 0
+                torch.testing.assert_close(b._mean.cpu(), a._mean, rtol=1e-5, atol=1e-6)
+                torch.testing.assert_close(b._std.cpu(), a._std, rtol=1e-5, atol=1e-6)
     per_run.close()
     stacked.close()
 
@@ -282,7 +297,6 @@ def test_stacked_advantages_are_normalised_per_run():
         ({"train": {"sharing": "individual"}}, "Individual Learning"),
         ({"train": {"critic": "team"}}, "centralised critic"),
         ({"runner": {"actor": {"class_name": "RNNModel"}, "critic": {"class_name": "RNNModel"}}}, "recurrent"),
-        ({"runner": {"actor": {"obs_normalization": True}}}, "observation normalisation"),
         ({"train": {"randomize": {"prey_max_speed": "1:2"}}}, "domain randomisation"),
     ],
 )
