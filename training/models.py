@@ -271,8 +271,9 @@ class RunNormalization(nn.Module):
         K, n = len(self.normalizers), self.rows
         steps = x.reshape(-1, K, n, x.shape[-1])
         for k, normalizer in enumerate(self.normalizers):
-            std = normalizer._std
-            normalizer.update(steps[:, k].reshape(-1, x.shape[-1]))
-            if normalizer._std is not std:  # rsl-rl rebinds it; graphs hold the old tensor
-                std.copy_(normalizer._std)
-                normalizer._std = std
+            own: Any = normalizer  # an rsl-rl EmpiricalNormalization
+            std = own._std
+            own.update(steps[:, k].reshape(-1, x.shape[-1]))
+            if own._std is not std:  # rsl-rl rebinds it; graphs hold the old tensor
+                std.copy_(own._std)
+                own._std = std
