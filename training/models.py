@@ -126,11 +126,13 @@ class BatchedMLP(nn.Module):
         return out
 
 
-class IndividualMLPModel(MLPModel):
-    """rsl-rl `MLPModel` with separate parameters per agent slot (Individual Learning); see the module doc.
+class GroupedMLPModel(MLPModel):
+    """rsl-rl `MLPModel` whose MLP is several networks of one shape evaluated at once: `make_mlp(groups,
+    input_dim, head, hidden_dims, activation)` builds it (Individual Learning's `BatchedMLP`, a
+    population's `StackedMLP`), their number given by the keyword argument `GROUPS_ARGUMENT`. Everything
+    else (observation groups, normalisation, distribution, export) is `MLPModel`'s."""
 
-    Extra argument: `num_agents` (S, the learning team's slots per world). Everything else (observation
-    groups, normalisation, distribution, export through `as_jit` / `as_onnx`) is `MLPModel`'s."""
+    GROUPS_ARGUMENT = "groups"
 
     def __init__(
         self,
@@ -138,12 +140,15 @@ class IndividualMLPModel(MLPModel):
         obs_groups: dict[str, list[str]],
         obs_set: str,
         output_dim: int,
-        num_agents: int = 1,
         hidden_dims=(256, 256, 256),
         activation: str = "elu",
         obs_normalization: bool = False,
         distribution_cfg: dict | None = None,
+        **groups: int,
     ) -> None:
+        unknown = sorted(set(groups) - {self.GROUPS_ARGUMENT})
+        if unknown:
+            raise TypeError(f"{type(self).__name__} takes no argument {unknown[0]!r}")
         super().__init__(
             obs,
             obs_groups,
@@ -154,12 +159,29 @@ class IndividualMLPModel(MLPModel):
             obs_normalization=obs_normalization,
             distribution_cfg=distribution_cfg,
         )
-        self.num_agents = num_agents
+        count = groups.get(self.GROUPS_ARGUMENT, 1)
+        setattr(self, self.GROUPS_ARGUMENT, count)
         head = self.distribution.input_dim if self.distribution is not None else output_dim
         # Replaces the shared MLP that MLPModel built (its parameters are discarded).
-        self.mlp = BatchedMLP(num_agents, self._get_latent_dim(), head, hidden_dims, activation)
+        self.mlp = self.make_mlp(count, self._get_latent_dim(), head, hidden_dims, activation)
+
+    def make_mlp(self, groups: int, input_dim: int, head: int, hidden_dims, activation: str) -> nn.Module:
+        raise NotImplementedError
+
+
+class IndividualMLPModel(GroupedMLPModel):
+    """rsl-rl `MLPModel` with separate parameters per agent slot (Individual Learning); see the module doc.
+
+    Extra argument: `num_agents` (S, the learning team's slots per world)."""
+
+    GROUPS_ARGUMENT = "num_agents"
+    num_agents: int
+
+    def make_mlp(self, groups: int, input_dim: int, head: int, hidden_dims, activation: str) -> nn.Module:
+        mlp = BatchedMLP(groups, input_dim, head, hidden_dims, activation)
         if self.distribution is not None:
-            self.distribution.init_mlp_weights(self.mlp)
+            self.distribution.init_mlp_weights(mlp)
+        return mlp
 
 
 def hidden_state_to(hidden, device):
@@ -216,36 +238,16 @@ class StackedMLP(nn.Module):
         return [p for pair in zip(self.weights, self.biases) for p in pair]
 
 
-class StackedMLPModel(MLPModel):
+class StackedMLPModel(GroupedMLPModel):
     """rsl-rl `MLPModel` over a `StackedMLP`: the actor or critic of every run of a population (see
     `population.py`). Extra argument `runs` (K). With observation normalisation the population gives it
     the runs' own normalisers (`RunNormalization`)."""
 
-    def __init__(
-        self,
-        obs: TensorDict,
-        obs_groups: dict[str, list[str]],
-        obs_set: str,
-        output_dim: int,
-        runs: int = 1,
-        hidden_dims=(256, 256, 256),
-        activation: str = "elu",
-        obs_normalization: bool = False,
-        distribution_cfg: dict | None = None,
-    ) -> None:
-        super().__init__(
-            obs,
-            obs_groups,
-            obs_set,
-            output_dim,
-            hidden_dims=hidden_dims,
-            activation=activation,
-            obs_normalization=obs_normalization,
-            distribution_cfg=distribution_cfg,
-        )
-        self.runs = runs
-        head = self.distribution.input_dim if self.distribution is not None else output_dim
-        self.mlp = StackedMLP(runs, self._get_latent_dim(), head, hidden_dims, activation)
+    GROUPS_ARGUMENT = "runs"
+    runs: int
+
+    def make_mlp(self, groups: int, input_dim: int, head: int, hidden_dims, activation: str) -> nn.Module:
+        return StackedMLP(groups, input_dim, head, hidden_dims, activation)  # values: the runs' own networks
 
 
 class RunNormalization(nn.Module):
