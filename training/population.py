@@ -216,7 +216,6 @@ class RunLoop:
         first = algs[0]
         self.device, self.num_mini_batches = first.device, first.num_mini_batches
         self.storage = self  # the training loop clears "the storage": every run's
-        self.loss_size = 3 * len(algs)
 
     # the interface `TrainingLoop` calls (see `AquariumPPO`)
     feed_forward = True
@@ -321,7 +320,7 @@ class StackedPPO(AquariumPPO):
     def __init__(self, *args, runs: int, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self.num_runs = runs
-        self.loss_size = 3 * runs
+        self.loss_shape = (runs, 3)
         # Runs still learning; a stopped run's gradients are zeroed, so Adam (its state cleared) leaves it.
         self.learning = torch.ones(runs, dtype=torch.bool, device=self.device)
         self.per_run: list[AquariumPPO] = []  # the runs' own learners (views of these parameters), for files
@@ -364,22 +363,9 @@ class StackedPPO(AquariumPPO):
         return flat.transpose(0, 1).reshape(-1)
 
     def update_on_device(self, indices: torch.Tensor, mini_batch_size: int) -> torch.Tensor:
-        """`AquariumPPO.update_on_device` with every run's losses apart: `[K * 3]` float64 means."""
-        (observations, actions, values, returns, old_log_prob, advantages, old_params) = _flat(self.storage)
-        rows = self._storage_indices(indices, mini_batch_size)
-        losses = torch.zeros(self.num_runs, 3, dtype=torch.float64, device=self.device)
-        for _ in range(self.num_learning_epochs):
-            for i in range(self.num_mini_batches):
-                if self.fused_loss is not None:
-                    losses += self.fused_loss.step(rows, i * mini_batch_size, mini_batch_size)
-                    self._apply_gradients()
-                    continue
-                batch = rows[i * mini_batch_size : (i + 1) * mini_batch_size]
-                losses += self._mini_batch_step(
-                    observations[batch], actions[batch], values[batch], advantages[batch], returns[batch],
-                    old_log_prob[batch], tuple(p[batch] for p in old_params),
-                )  # fmt: skip
-        return (losses / (self.num_learning_epochs * self.num_mini_batches)).view(-1)
+        """`AquariumPPO.update_on_device` over each run's own permutation, every run's losses apart:
+        `[K * 3]` float64 means."""
+        return super().update_on_device(self._storage_indices(indices, mini_batch_size), mini_batch_size).view(-1)
 
     def _mini_batch_step(
         self, observations, actions, old_values, advantages, returns, old_actions_log_prob, old_distribution_params
@@ -470,12 +456,6 @@ class StackedPPO(AquariumPPO):
 
     def set_run_rng_state(self, k: int, state: torch.Tensor) -> None:
         torch.set_rng_state(state.cpu())
-
-
-def _flat(storage):
-    from .ppo import flat_samples
-
-    return flat_samples(storage)
 
 
 def share_parameters(stacked, runs: list) -> None:

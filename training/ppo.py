@@ -140,6 +140,7 @@ class AquariumPPO(PPO):
     # Declared: this class rebinds both from their own values, which type inference cannot start from.
     storage: RolloutStorage
     learning_rate: float
+    loss_shape: tuple[int, ...] = (3,)  # [value, surrogate, entropy] (a population's learner: per run)
 
     def __init__(
         self,
@@ -266,7 +267,7 @@ class AquariumPPO(PPO):
         (observations, actions, values, returns, old_actions_log_prob, advantages, old_distribution_params) = (
             flat_samples(self.storage)
         )
-        losses = torch.zeros(3, dtype=torch.float64, device=self.device)
+        losses = torch.zeros(self.loss_shape, dtype=torch.float64, device=self.device)
         for _ in range(self.num_learning_epochs):
             for i in range(self.num_mini_batches):
                 if self.fused_loss is not None:
