@@ -85,10 +85,24 @@ def common_policy_env(specs, fallback: AquariumConfig) -> AquariumConfig:
         if first is None:
             first = (spec, world)
         elif world.to_dict() != first[1].to_dict():
-            a, b = first[1].to_dict(), world.to_dict()
-            differ = ", ".join(f"{k} {a[k]!r} vs {b[k]!r}" for k in a if a[k] != b[k])
-            raise ValueError(f"policies {first[0]!r} and {spec!r} were trained in different worlds ({differ})")
+            a, b = _leaves(first[1].to_dict()), _leaves(world.to_dict())
+            differ = ", ".join(f"{k} {a[k]!r} vs {b[k]!r}" for k in a if a[k] != b.get(k))
+            raise ValueError(
+                f"policies {first[0]!r} and {spec!r} were trained in different worlds ({differ}): evaluate each "
+                "in its own world, one command per policy"
+            )
     return first[1] if first is not None else fallback
+
+
+def _leaves(config: dict, prefix: str = "") -> dict:
+    """A nested config as `{"prey.view_distance": value, ...}`."""
+    out = {}
+    for key, value in config.items():
+        if isinstance(value, dict):
+            out.update(_leaves(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
 
 
 class EpisodeRecords(Observer):
