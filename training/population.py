@@ -49,6 +49,7 @@ import json
 import math
 import os
 import re
+import uuid
 from collections.abc import Iterator
 
 import torch
@@ -70,6 +71,7 @@ from .logger import AquariumLogger
 from .loop import TrainingLoop
 from .memory import check_training_memory
 from .ppo import AquariumPPO
+from .run_dir import check_same_run
 from .stop import StopRequest
 from .vec_env import OTHER, AquariumVecEnv
 
@@ -482,10 +484,13 @@ class Population:
         log_dir: str | None = None,
         stacked: bool | None = None,
         run_dirs: list[str] | None = None,
+        run_ids: list[str | None] | None = None,
     ):
         if run_dirs is not None and (log_dir is not None or len(run_dirs) != len(configs)):
             raise ValueError("run_dirs names each run's own directory (one per config), instead of log_dir")
         self.run_dirs = run_dirs
+        # Each run's id (as `Trainer`'s): in its config.json and checkpoints, so that a resume can tell it.
+        self.run_ids = [i or uuid.uuid4().hex[:16] for i in (run_ids or [None] * len(configs))]
         configs = [copy.deepcopy(c) for c in configs]
         for config in configs:
             if config["train"]["opponent"] is None and config["train"]["team"] != "both":
@@ -650,6 +655,7 @@ class Population:
                 json.dump(
                     {
                         "config": self.configs[k],
+                        "run_id": self.run_ids[k],
                         "runner_cfg": self.runner_cfgs[k],
                         "total_iterations": self.totals[k],
                         "population": {**population, "run": k},
@@ -678,6 +684,7 @@ class Population:
         saved["infos"] = {
             "aquarium": {
                 "config": self.configs[k],
+                "run_id": self.run_ids[k],
                 "seed": self.seeds[k],
                 "rng": rng,
                 "runner_cfg": self.runner_cfgs[k],
@@ -923,11 +930,13 @@ def resume_population(log_dir: str, changes: dict | None = None) -> Population:
     if going and not common:
         raise ValueError(f"{log_dir}: runs {going} have no checkpoint of one iteration in common to resume from")
     at = max(common) if common else None
-    population = Population(configs, log_dir=log_dir)
-    states = []
-    for k in range(K):
-        path = found[k][at] if k in going and at is not None else found[k][max(found[k])]
-        states.append(read_checkpoint(path) if path != found[k][max(found[k])] else newest[k])
+    paths = [found[k][at] if k in going and at is not None else found[k][max(found[k])] for k in range(K)]
+    states = [read_checkpoint(path) if path != found[k][max(found[k])] else newest[k] for k, path in enumerate(paths)]
+    # Each run's checkpoint is of the run its folder holds (its config.json, its newest checkpoint).
+    run_ids = [check_same_run(os.path.join(log_dir, f"run-{k}"), paths[k], states[k]["infos"]["aquarium"])
+               for k in range(K)]  # fmt: skip
+    population = Population(configs, log_dir=log_dir, run_ids=run_ids)
+    for k, path in enumerate(paths):
         population.last_checkpoint[k] = path
     population.load(states, going, stopped)
     return population

@@ -449,3 +449,21 @@ def test_a_signal_keeps_every_run_and_resume_continues_them_bit_for_bit(tmp_path
         last = torch.load(out / f"run-{k}" / f"model_{total - 1}.pt", weights_only=False)
         assert_same(last["actor_state_dict"], dict(whole.runs[k].actor.state_dict()), f"resumed run {k}")
     whole.close()
+
+
+def test_a_resume_refuses_a_run_folder_holding_another_runs_checkpoint(tmp_path):
+    """A checkpoint of another population's run copied into run 1's folder is not continued."""
+    import shutil
+
+    ours = Population(run_configs(base_config(iterations=2), 2), log_dir=str(tmp_path / "ours"), stacked=False)
+    ours.train()
+    ours.close()
+    theirs = Population(run_configs(base_config(iterations=2), 2), log_dir=str(tmp_path / "theirs"), stacked=False)
+    theirs.train()
+    theirs.close()
+    with open(tmp_path / "ours" / "run-1" / "config.json") as f:
+        assert json.load(f)["run_id"] != ours.run_ids[0]  # each run its own id
+    shutil.copy(tmp_path / "theirs" / "run-1" / "model_1.pt", tmp_path / "ours" / "run-1" / "model_7.pt")
+    with pytest.raises(ValueError, match="is of another run") as error:
+        resume_population(str(tmp_path / "ours"), {"train": {"iterations": 10}})
+    assert "\n" not in str(error.value)
