@@ -8,9 +8,10 @@ A: the paper's (120 degrees, 100 px); B: 360 degrees, 200 px; C: 360 degrees, un
 Every condition is the `paper` preset (or another preset) plus config assignments (`train --set`'s
 form; `CONDITIONS`); a plan (`PLANS`) names the (condition, world, seeds) to run. Trainings and
 evaluations are tasks of the studies' job runner (`aquarium_warp.studies.jobs.run_jobs`): `--per-gpu`
-at a time on each of `--gpus` GPUs (0: one at a time on the CPU), each training in-process (`Trainer`)
-into `runs/<condition>-<world>-s<seed>/`. Finished tasks are kept in `--out` (`finished/`), so a rerun
-runs only what is missing.
+at a time on each of `--gpus` GPUs (0: one at a time on the CPU), each training into
+`runs/<condition>-<world>-s<seed>/`; on GPUs the trainings that may share a process train together as
+populations (`training/population.py`), one at a time per GPU, each run as if alone. Finished tasks
+are kept in `--out` (`finished/`), so a rerun runs only what is missing.
 
 Evaluation: per (condition, world), one task evaluates the condition's policies (one label per
 training seed) and the three baselines in the condition's own world (so its action frame), with the
@@ -272,7 +273,12 @@ def main(argv=None) -> int:
     p.add_argument("--plan", choices=sorted(PLANS), default="screen")
     p.add_argument("--out", default="runs/learned_prey")
     p.add_argument("--gpus", type=int, default=1, help="GPUs to spread the tasks over (0: the CPU)")
-    p.add_argument("--per-gpu", type=int, default=2, help="tasks (trainings, evaluations) at once per GPU")
+    p.add_argument(
+        "--per-gpu",
+        type=int,
+        default=2,
+        help="evaluations at once per GPU (trainings that may share a process run as one population per GPU)",
+    )
     p.add_argument("--episodes", type=int, default=50, help="evaluation episodes per evaluation seed")
     p.add_argument("--eval-seeds", type=int, nargs="+", default=[0, 1])
     p.add_argument("--commit", default=None, help="the commit to record (default: git rev-parse HEAD)")

@@ -223,7 +223,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--max-steps", type=int, default=3000, help="episode length (docs/model.md: 3000)")
     parser.add_argument("--gpus", type=int, default=None, help="GPUs to spread tasks over (default: all; 0: CPU)")
-    parser.add_argument("--per-gpu", type=int, default=4, help="tasks at a time per GPU")
+    parser.add_argument(
+        "--per-gpu",
+        type=int,
+        default=4,
+        help="evaluations at a time per GPU (trainings that may share a process run as one population per GPU)",
+    )
     parser.add_argument("--train-preset", default="paper", help="learned: the preset trained from")
     parser.add_argument(
         "--train-set",
