@@ -711,16 +711,18 @@ class Population:
             write_checkpoint(self.run_state(k, whole), path)
             self.last_checkpoint[k] = path
 
-    def export(self, k: int, formats=None) -> dict:
-        """Run k's policy into `run-<k>/exported/` (the config's formats)."""
+    def export(self, k: int, formats=None, out_dir: str | None = None) -> dict:
+        """Run k's policy into `out_dir` (default: its run directory's `exported/`), in `formats` (default:
+        the config's)."""
         formats = self.configs[k]["train"]["export"] if formats is None else formats
+        out_dir = os.path.join(self.run_dir(k), "exported") if out_dir is None else out_dir
         actor = self.runs[k].get_policy()
         # Parameters that own their memory meanwhile: the files must hold this run's network, not its view of all.
         views = [(p, p.data) for p in actor.parameters()]
         for p, data in views:
             p.data = data.clone()
         try:
-            return export_policy(actor, self.policy_meta(k), os.path.join(self.run_dir(k), "exported"), formats)
+            return export_policy(actor, self.policy_meta(k), out_dir, formats)
         finally:
             for p, data in views:
                 p.data = data

@@ -12,6 +12,7 @@ import argparse
 import copy
 import csv
 import dataclasses
+import json
 import math
 import os
 import time
@@ -72,6 +73,9 @@ def training_config(
 
 # The checkpoint that an interrupted training without a log directory leaves in its policy folder.
 INTERRUPTED = "interrupted.pt"
+# A training that a population trained before its task ran (`pretrain_populations`): its config, policies
+# and time, in the task's policy folder, which `train_and_export` then returns instead of training.
+TRAINED = "trained.json"
 
 
 def train_and_export(config: dict, out_dir: str, log_dir: str | None = None) -> tuple[dict[str, str], float]:
@@ -88,6 +92,9 @@ def train_and_export(config: dict, out_dir: str, log_dir: str | None = None) -> 
     from ..training import Trainer
     from ..training.run_dir import claim_run_directory
 
+    trained = _trained_before(config, out_dir) if log_dir is None else None
+    if trained is not None:
+        return trained
     saved = _saved_training(config, out_dir, log_dir)
     claimed = (
         None if log_dir is None else claim_run_directory(log_dir, resume=saved is not None, overwrite=saved is None)
@@ -129,6 +136,78 @@ def train_and_export(config: dict, out_dir: str, log_dir: str | None = None) -> 
     if len(trainer.teams) == 1:
         return {trainer.teams[0]: exported["jit"]}, seconds
     return {team: paths["jit"] for team, paths in exported.items()}, seconds
+
+
+def _trained_before(config: dict, out_dir: str) -> tuple[dict[str, str], float] | None:
+    """`train_and_export`'s result for `config` where a population trained it into `out_dir` already
+    (`TRAINED`, of the same config, its policies present); else None."""
+    from ..training.config import config_difference
+    from ..training.trainer import run_config
+
+    try:
+        with open(os.path.join(out_dir, TRAINED), encoding="utf-8") as f:
+            record = json.load(f)
+    except (OSError, ValueError):
+        return None
+    same = config_difference(record.get("config"), run_config(config)) is None
+    if not same or not all(os.path.isfile(p) for p in record.get("policies", {}).values()):
+        return None
+    return dict(record["policies"]), float(record["seconds"])
+
+
+def pretrain_populations(
+    trainings: list[tuple[dict, str]], device: str, runs_per_process: int | None = None, report=print
+) -> None:
+    """Train the `(config, out_dir)` trainings of a study's pending tasks that may share a process as
+    populations (`training/population.py`), before the tasks run: each run's policy exported into its
+    `out_dir` with `TRAINED`, so that the task's `train_and_export` returns it. Populations hold
+    `runs_per_process` runs (None: `jobs.population_size`, one on the CPU: nothing is trained here);
+    trainings that would be alone, or that have a kept state to continue, are left to their tasks. A
+    signal stops every run of a population; each keeps its state as `<out_dir>/interrupted.pt`, which the
+    rerun's task continues, and `cli.Interrupted` is raised."""
+    from ..cli import Interrupted
+    from ..training.checkpoints import write_checkpoint
+    from ..training.population import Population, group_key
+    from ..training.trainer import run_config
+    from .jobs import population_size
+
+    keyed: dict[str, list[tuple[dict, str]]] = {}
+    for config, out_dir in trainings:
+        kept = _trained_before(config, out_dir) is not None or _saved_training(config, out_dir, None) is not None
+        key = None if kept else group_key(config)
+        if key is not None:
+            keyed.setdefault(key, []).append((config, out_dir))
+    for members in keyed.values():
+        size, why = (runs_per_process, "given") if runs_per_process else population_size(members[0][0], device)
+        for start in range(0, len(members), size):
+            group = members[start : start + size]
+            if len(group) < 2:
+                continue
+            if report is not None:
+                report(f"  training {len(group)} runs as one population on {device} (up to {size}: {why})")
+            configs = [dict(c, train={**c["train"], "device": device}) for c, _ in group]
+            population = Population(configs, run_dirs=[os.path.join(d, "population-run") for _, d in group])
+            try:
+                start_time = time.perf_counter()
+                population.train()
+                seconds = time.perf_counter() - start_time
+                if population.stop.signum is not None:
+                    for k, (_, out_dir) in enumerate(group):
+                        write_checkpoint(population.run_state(k), os.path.join(out_dir, INTERRUPTED))
+                    raise Interrupted(
+                        f"stopped by {population.stop.name} after iteration {population.iteration} of a population "
+                        f"of {len(group)} training runs, each kept in its folder: rerun the same command to continue",
+                        population.stop.signum,
+                    )
+                for k, (config, out_dir) in enumerate(group):
+                    if k in population.stopped:
+                        raise RuntimeError(f"a training in {out_dir} stopped: {population.stopped[k]}")
+                    path = population.export(k, formats=["jit"], out_dir=out_dir)["jit"]
+                    with atomic_open(os.path.join(out_dir, TRAINED)) as f:
+                        json.dump({"config": run_config(config), "seconds": seconds,
+                                   "policies": {population.team: path}}, f)  # fmt: skip
+            finally:
+                population.close()
 
 
 def _saved_training(config: dict, out_dir: str, log_dir: str | None) -> tuple[str, str | None] | None:

@@ -326,6 +326,26 @@ class HuntMeasures:
 
 
 # ---------------------------------------------------------------------------------------------- one task
+def task_training(task: dict) -> dict | None:
+    """The run config a task trains (None: a baseline trains nothing)."""
+    if not task["train"]:
+        return None
+    study: GroupHuntingStudy = task["study"]
+    both = task["condition"] == "cotrained"
+    config = common.training_config(
+        study.env(task["predators"], task["share_radius"], study.train_steps),
+        "both" if both else "predator",
+        None if both else "turnaway",
+        study.worlds,
+        study.iterations,
+        task["seed"],
+        task["device"],
+    )
+    if study.recipe:
+        deep_update(config, {"runner": LEARNED_PREY_RECIPE["runner"]})
+    return config
+
+
 def run_task(task: dict) -> dict:
     """Train (unless a baseline) and evaluate one (condition, team size, seed); a worker's job."""
     start = time.perf_counter()
@@ -333,19 +353,8 @@ def run_task(task: dict) -> dict:
     n, seed, device = task["predators"], task["seed"], task["device"]
     train_s = 0.0
     prey, predator = "turnaway", task["condition"]  # a baseline's condition names its heuristic predator
-    if task["train"]:
-        both = task["condition"] == "cotrained"
-        config = common.training_config(
-            study.env(n, task["share_radius"], study.train_steps),
-            "both" if both else "predator",
-            None if both else "turnaway",
-            study.worlds,
-            study.iterations,
-            seed,
-            device,
-        )
-        if study.recipe:
-            deep_update(config, {"runner": LEARNED_PREY_RECIPE["runner"]})
+    config = task_training(task)
+    if config is not None:
         policies, train_s = common.train_and_export(config, task["policy_dir"])
         predator = policies["predator"]
         prey = policies.get("prey", "turnaway")
@@ -374,11 +383,18 @@ def condition_label(condition: str, share_radius: float) -> str:
     return f"learned vs {prey}, reward {reward}"
 
 
-def run_group_hunting(study: GroupHuntingStudy, command: str | None = None, ray: RayOptions | None = None) -> dict:
+def run_group_hunting(
+    study: GroupHuntingStudy,
+    command: str | None = None,
+    ray: RayOptions | None = None,
+    runs_per_process: int | None = None,
+) -> dict:
     """Run every task (`study.jobs` at once), write the CSV, JSON and figure; return the JSON's content.
     `command`: the command line recorded in the JSON (default: this process's, `records.command_line`).
-    `ray`: run each training run as a Ray task instead (`jobs`); the JSON then has a "ray" entry."""
-    run = run_tasks(study, run_task, "group-hunting", ray)
+    `ray`: run each training run as a Ray task instead (`jobs`); the JSON then has a "ray" entry. Without
+    it, trainings that may share a process train first as populations (`jobs.run_tasks`;
+    `runs_per_process`, None: as many as the device holds)."""
+    run = run_tasks(study, run_task, "group-hunting", ray, training=task_training, runs_per_process=runs_per_process)
     results = run.results
     rows = [{k: v for k, v in r.items() if k != "name"} for r in results]
     groups = common.group_rows(results, ("condition", "share_radius", "predators"))

@@ -594,10 +594,20 @@ class TaskRun:
         return record
 
 
-def run_tasks(study, function: Callable[[dict], dict], label: str, ray: RayOptions | None = None) -> TaskRun:
+def run_tasks(
+    study,
+    function: Callable[[dict], dict],
+    label: str,
+    ray: RayOptions | None = None,
+    training: Callable[[dict], dict | None] | None = None,
+    runs_per_process: int | None = None,
+) -> TaskRun:
     """Check `study`'s settings, resolve its device and jobs, and run its tasks (`study.tasks(device)`)
     with `run_jobs` in worker processes, timed: here, or with `ray` each task a Ray task on the device
-    Ray assigns it."""
+    Ray assigns it. `training(task)`: the run config a task trains (None: it trains nothing), whose
+    pending trainings that may share a process train first as populations
+    (`common.pretrain_populations`, `runs_per_process` runs each; None: as many as the device holds),
+    each task then taking its trained policy."""
     study.validate()
     if ray is not None and study.jobs is not None:
         raise ValueError(
@@ -614,6 +624,12 @@ def run_tasks(study, function: Callable[[dict], dict], label: str, ray: RayOptio
     if ray is not None:  # workers write the trained policies themselves, wherever Ray starts them
         tasks = [dict(t, policy_dir=os.path.abspath(t["policy_dir"])) if "policy_dir" in t else t for t in tasks]
     start = time.perf_counter()
+    if training is not None and ray is None:
+        from .common import pretrain_populations
+
+        pending = [t for t in tasks if not read_finished(study.out, t)[0]]
+        trainings = [(config, t["policy_dir"]) for t in pending if (config := training(t)) is not None]
+        pretrain_populations(trainings, device, runs_per_process, report=lambda line: print(line, flush=True))
     run = run_jobs(
         function,
         tasks,

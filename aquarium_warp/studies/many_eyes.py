@@ -273,6 +273,26 @@ def dilution_expectation(group_sizes, captures_per_prey) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------------- one task
+def task_training(task: dict) -> dict | None:
+    """The run config a task trains (None: TurnAway's trains nothing)."""
+    if task["policy"] == "turnaway":
+        return None
+    study: ManyEyesStudy = task["study"]
+    n, slots = task["group_size"], 0 if task["policy"] == "no-neighbours" else None
+    config = common.training_config(
+        study.env(n, task["fov_angle"], study.train_steps, slots),
+        "prey",
+        "naivchase",
+        max(1, study.rows // n),
+        study.iterations,
+        task["seed"],
+        task["device"],
+    )
+    if study.recipe:
+        deep_update(config, {"runner": LEARNED_PREY_RECIPE["runner"]})
+    return config
+
+
 def run_task(task: dict) -> list[dict]:
     """Train (learned prey) and evaluate one (N, FOV, seed) against both predators; a worker's job."""
     start = time.perf_counter()
@@ -280,18 +300,8 @@ def run_task(task: dict) -> list[dict]:
     n, fov, seed, device = task["group_size"], task["fov_angle"], task["seed"], task["device"]
     train_s, prey = 0.0, "turnaway"
     slots = 0 if task["policy"] == "no-neighbours" else None
-    if task["policy"] != "turnaway":
-        config = common.training_config(
-            study.env(n, fov, study.train_steps, slots),
-            "prey",
-            "naivchase",
-            max(1, study.rows // n),
-            study.iterations,
-            seed,
-            device,
-        )
-        if study.recipe:
-            deep_update(config, {"runner": LEARNED_PREY_RECIPE["runner"]})
+    config = task_training(task)
+    if config is not None:
         policies, train_s = common.train_and_export(config, task["policy_dir"])
         prey = policies["prey"]
     cfg = env_config({"env": study.env(n, fov, study.eval_steps, slots)})
@@ -330,11 +340,18 @@ def run_task(task: dict) -> list[dict]:
     return rows
 
 
-def run_many_eyes(study: ManyEyesStudy, command: str | None = None, ray: RayOptions | None = None) -> dict:
+def run_many_eyes(
+    study: ManyEyesStudy,
+    command: str | None = None,
+    ray: RayOptions | None = None,
+    runs_per_process: int | None = None,
+) -> dict:
     """Run every task (`study.jobs` at once), write the CSV, JSON and figure; return the JSON's content.
     `command`: the command line recorded in the JSON (default: this process's, `records.command_line`).
-    `ray`: run each training run as a Ray task instead (`jobs`); the JSON then has a "ray" entry."""
-    run = run_tasks(study, _task_rows, "many-eyes", ray)
+    `ray`: run each training run as a Ray task instead (`jobs`); the JSON then has a "ray" entry. Without
+    it, trainings that may share a process train first as populations (`jobs.run_tasks`;
+    `runs_per_process`, None: as many as the device holds)."""
+    run = run_tasks(study, _task_rows, "many-eyes", ray, training=task_training, runs_per_process=runs_per_process)
     results = [row for rows in run.results for row in rows["rows"]]
     groups = common.group_rows(results, ("policy", "predator", "fov_angle", "group_size"))
     entries = [

@@ -504,3 +504,39 @@ def test_a_rerun_keeps_finished_tasks(tmp_path, capsys, one_thread):
     assert main(argv + ["--eval-steps", "40"]) == 0  # the last value of an option counts
     assert "kept" not in capsys.readouterr().out
     assert read_json(tmp_path / "many_eyes.json")["tasks_kept"] == 0
+
+
+@pytest.mark.slow
+def test_the_open_questions_trainings_train_as_populations_with_the_same_results(tmp_path, capsys, one_thread):
+    """Group hunting's and many eyes' trainings that may share a process train first as populations
+    (2 runs per process here; on a GPU as many as it holds), then each task takes its trained policy:
+    the results equal those of the trainings alone (bit for bit on the CPU)."""
+    import os
+    from pathlib import Path
+
+    from aquarium_warp.studies.group_hunting import GroupHuntingStudy, run_group_hunting
+    from aquarium_warp.studies.many_eyes import ManyEyesStudy, run_many_eyes
+
+    hunting = {"predators": [2], "prey": 3, "prey_conditions": ["turnaway"], "share_radii": [0.0], "seeds": 2,
+               "worlds": 4, "iterations": 2, "train_steps": 40, "eval_worlds": 2, "eval_steps": 60, "baseline": False,
+               "device": "cpu", "figures": False}  # fmt: skip
+    eyes = {"group_sizes": [4], "fov_angles": [120.0, 360.0], "seeds": 1, "rows": 16, "iterations": 2,
+            "train_steps": 40, "eval_rows": 8, "eval_steps": 60, "turnaway": False, "device": "cpu",
+            "figures": False}  # fmt: skip
+    for study_class, run, settings, file in (
+        (GroupHuntingStudy, run_group_hunting, hunting, "group_hunting.csv"),
+        (ManyEyesStudy, run_many_eyes, eyes, "many_eyes.csv"),
+    ):
+        together = study_class(**settings, out=str(tmp_path / f"{file}-together"))
+        run(together, runs_per_process=2)
+        assert "training 2 runs as one population on cpu (up to 2: given)" in capsys.readouterr().out
+        trained = [p for p, _, names in os.walk(tmp_path / f"{file}-together") if "trained.json" in names]
+        assert len(trained) == 2
+        alone = study_class(**settings, out=str(tmp_path / f"{file}-alone"))
+        run(alone)
+        assert "as one population" not in capsys.readouterr().out
+
+        def measures(path):  # (the times differ)
+            return [{k: v for k, v in row.items() if k not in ("train_s", "job_s")} for row in read_csv(path)]
+
+        assert measures(Path(together.out) / file) == measures(Path(alone.out) / file)
