@@ -45,13 +45,21 @@ def group_rows(rows: list[dict], keys: Sequence[str]) -> dict[tuple, list[dict]]
 
 # ---------------------------------------------------------------------------------------------- training
 def training_config(
-    env: dict, team: str, opponent: str | None, worlds: int, iterations: int, seed: int, device: str
+    env: dict,
+    team: str,
+    opponent: str | None,
+    worlds: int,
+    iterations: int,
+    seed: int,
+    device: str,
+    recipe: bool = False,
 ) -> dict:
-    """A run config: the `paper` preset's PPO settings (parameter sharing), the world `env` (AquariumConfig
-    fields), `iterations` PPO iterations of `worlds` worlds, no logging, checkpoints or swarm metrics."""
-    from ..training.config import make_config
+    """A run config: the `paper` preset's PPO settings (parameter sharing; with `recipe` the learned-prey
+    recipe's), the world `env` (AquariumConfig fields), `iterations` PPO iterations of `worlds` worlds, no
+    logging, checkpoints or swarm metrics."""
+    from ..training.config import LEARNED_PREY_RECIPE, deep_update, make_config
 
-    return make_config(
+    config = make_config(
         "paper",
         {
             "env": env,
@@ -69,6 +77,9 @@ def training_config(
             },
         },
     )
+    if recipe:
+        deep_update(config, {"runner": LEARNED_PREY_RECIPE["runner"]})
+    return config
 
 
 # The checkpoint that an interrupted training without a log directory leaves in its policy folder.

@@ -67,7 +67,7 @@ from ..config import AquariumConfig
 from ..records import command_line
 from ..rollout import StepView
 from ..seeding import evaluation_seed
-from ..training.config import LEARNED_PREY_RECIPE, deep_update, env_config
+from ..training.config import LEARNED_PREY_RECIPE, env_config
 from . import common
 from .jobs import RayOptions, add_ray_arguments, ray_options, run_tasks
 from .statistics import compare, equivalence, finite, seed_stats
@@ -332,7 +332,7 @@ def task_training(task: dict) -> dict | None:
         return None
     study: GroupHuntingStudy = task["study"]
     both = task["condition"] == "cotrained"
-    config = common.training_config(
+    return common.training_config(
         study.env(task["predators"], task["share_radius"], study.train_steps),
         "both" if both else "predator",
         None if both else "turnaway",
@@ -340,10 +340,8 @@ def task_training(task: dict) -> dict | None:
         study.iterations,
         task["seed"],
         task["device"],
+        study.recipe,
     )
-    if study.recipe:
-        deep_update(config, {"runner": LEARNED_PREY_RECIPE["runner"]})
-    return config
 
 
 def run_task(task: dict) -> dict:

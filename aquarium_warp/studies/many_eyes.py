@@ -71,7 +71,7 @@ from ..cli import plural
 from ..records import command_line
 from ..rollout import StepView
 from ..seeding import evaluation_seed
-from ..training.config import LEARNED_PREY_RECIPE, deep_update, env_config
+from ..training.config import LEARNED_PREY_RECIPE, env_config
 from . import common
 from .jobs import RayOptions, add_ray_arguments, ray_options, run_tasks
 from .statistics import compare, equivalence, finite, seed_stats
@@ -279,7 +279,7 @@ def task_training(task: dict) -> dict | None:
         return None
     study: ManyEyesStudy = task["study"]
     n, slots = task["group_size"], 0 if task["policy"] == "no-neighbours" else None
-    config = common.training_config(
+    return common.training_config(
         study.env(n, task["fov_angle"], study.train_steps, slots),
         "prey",
         "naivchase",
@@ -287,10 +287,8 @@ def task_training(task: dict) -> dict | None:
         study.iterations,
         task["seed"],
         task["device"],
+        study.recipe,
     )
-    if study.recipe:
-        deep_update(config, {"runner": LEARNED_PREY_RECIPE["runner"]})
-    return config
 
 
 def run_task(task: dict) -> list[dict]:
