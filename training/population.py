@@ -52,6 +52,7 @@ import re
 import uuid
 from collections.abc import Iterator
 
+import numpy as np
 import torch
 from rsl_rl.storage import RolloutStorage
 from rsl_rl.utils import resolve_callable
@@ -193,8 +194,6 @@ def _join_states(parts: list, sizes: set[int]):
     if shape and len(shape) > 0 and shape[0] * len(parts) in sizes:
         if isinstance(first, torch.Tensor):
             return torch.cat(parts)
-        import numpy as np
-
         return np.concatenate(parts)
     return first
 
