@@ -70,6 +70,11 @@ def seed_groups(seed, num_worlds: int) -> tuple[int, ...]:
     return (int(seed),)
 
 
+def seed_keys(seeds: tuple[int, ...], num_worlds: int) -> np.ndarray:
+    """`[num_worlds]` uint32: each world's stream key, that of its group's seed (`seed_groups`)."""
+    return np.repeat(np.array([seed_key(s) for s in seeds], dtype=np.uint32), num_worlds // len(seeds))
+
+
 def grid_dims(cfg: AquariumConfig) -> tuple[int, int]:
     """Cells per axis. A world of at most SINGLE_CELL_CAPACITY slots is one cell: checking every
     agent of the world costs less than building cell lists and visiting the cells around each agent.
@@ -323,11 +328,9 @@ class BatchedAquarium:
 
     def _write_seed(self, seeds: tuple[int, ...]) -> None:
         """Every world's stream key and stream index from the seeds of its group (`seed_groups`)."""
-        group = self.num_worlds // len(seeds)
-        keys = np.repeat(np.array([seed_key(s) for s in seeds], dtype=np.uint32), group)
-        worlds = np.tile(np.arange(group, dtype=np.int32), len(seeds))
+        worlds = np.tile(np.arange(self.num_worlds // len(seeds), dtype=np.int32), len(seeds))
         counters = self.state.worlds
-        wp.copy(counters.seed, wp.array(keys, dtype=wp.uint32, device=self.device))
+        wp.copy(counters.seed, wp.array(seed_keys(seeds, self.num_worlds), dtype=wp.uint32, device=self.device))
         wp.copy(counters.stream_world, wp.array(worlds, dtype=wp.int32, device=self.device))
 
     def _run(self, program: str) -> None:

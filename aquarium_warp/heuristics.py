@@ -25,7 +25,7 @@ import numpy as np
 import torch
 import warp as wp
 
-from .env import TYPES, BatchedAquarium, action_directions, seed_groups, seed_key
+from .env import TYPES, BatchedAquarium, action_directions, seed_groups, seed_keys
 from .kernels import heuristics as kernels
 
 # Policies allowed for each agent type.
@@ -86,9 +86,7 @@ class HeuristicPolicy:
         # or the policy's own (several: one per equal group of worlds, as the env's own seeds).
         seeds = env.state.worlds.seed
         if own_seeds is not None:
-            group = env.num_worlds // len(own_seeds)
-            keys = np.repeat(np.array([seed_key(s) for s in own_seeds], dtype=np.uint32), group)
-            seeds = wp.array(keys, dtype=wp.uint32, device=env.device)
+            seeds = wp.array(seed_keys(own_seeds, env.num_worlds), dtype=wp.uint32, device=env.device)
         self._program = env.record_program(
             lambda shard: [
                 shard.record(

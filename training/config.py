@@ -526,23 +526,28 @@ RESUMABLE_SETTINGS = (
 )
 
 
+def flat_config(config: dict) -> dict:
+    """A nested config as `{"env.prey.view_distance": value, ...}`, its values as JSON writes them (a
+    config read back from config.json equals its run's)."""
+    out: dict = {}
+
+    def walk(value, prefix: str) -> None:
+        if isinstance(value, dict) and value:
+            for k, v in value.items():
+                walk(v, f"{prefix}.{k}" if prefix else str(k))
+        else:
+            out[prefix] = value
+
+    walk(json.loads(json.dumps(config, default=str)), "")
+    return out
+
+
 def config_difference(a: dict, b: dict, ignore: tuple[str, ...] = ()) -> str | None:
-    """The first dotted key whose value differs between the run configs `a` and `b` (compared as JSON
-    writes them: a config read back from config.json equals its run's), or None; the train settings
-    `ignore` are left out."""
+    """The first dotted key whose value differs between the run configs `a` and `b` (`flat_config`), or
+    None; the train settings `ignore` are left out."""
 
     def flat(config: dict) -> dict:
-        out: dict = {}
-
-        def walk(value, prefix: str) -> None:
-            if isinstance(value, dict) and value:
-                for k, v in value.items():
-                    walk(v, f"{prefix}.{k}" if prefix else str(k))
-            else:
-                out[prefix] = value
-
-        walk(json.loads(json.dumps(config, default=str)), "")
-        return {k: v for k, v in out.items() if not (k.startswith("train.") and k[len("train.") :] in ignore)}
+        return {k: v for k, v in flat_config(config).items() if not (k.startswith("train.") and k[6:] in ignore)}
 
     fa, fb = flat(a), flat(b)
     missing = object()

@@ -73,7 +73,7 @@ def parse_spec(spec: str) -> tuple[str, str]:
 def common_policy_env(specs, fallback: AquariumConfig) -> AquariumConfig:
     """The world every trained policy among `specs` was trained in (`fallback` if none is trained);
     a `ValueError` names two specs whose worlds differ."""
-    from .config import env_config
+    from .config import env_config, flat_config
     from .export import policy_world
 
     first = None
@@ -85,24 +85,13 @@ def common_policy_env(specs, fallback: AquariumConfig) -> AquariumConfig:
         if first is None:
             first = (spec, world)
         elif world.to_dict() != first[1].to_dict():
-            a, b = _leaves(first[1].to_dict()), _leaves(world.to_dict())
+            a, b = flat_config(first[1].to_dict()), flat_config(world.to_dict())
             differ = ", ".join(f"{k} {a[k]!r} vs {b[k]!r}" for k in a if a[k] != b.get(k))
             raise ValueError(
                 f"policies {first[0]!r} and {spec!r} were trained in different worlds ({differ}): evaluate each "
                 "in its own world, one command per policy"
             )
     return first[1] if first is not None else fallback
-
-
-def _leaves(config: dict, prefix: str = "") -> dict:
-    """A nested config as `{"prey.view_distance": value, ...}`."""
-    out = {}
-    for key, value in config.items():
-        if isinstance(value, dict):
-            out.update(_leaves(value, f"{prefix}{key}."))
-        else:
-            out[f"{prefix}{key}"] = value
-    return out
 
 
 class EpisodeRecords(Observer):

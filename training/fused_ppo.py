@@ -280,7 +280,10 @@ def _act_kernel(
     noise = _rows(noise_ptr, rows, n_rows, OUT, OUT_P)
     noise = tl.where(category & valid[:, None], noise, 1.0)  # (1: no division by 0 in the padding)
     # torch.multinomial's draw of one sample: argmax(p / Exp(1)), the lowest category at a tie
-    score = tl.where(category & valid[:, None], tl.exp(log_probs) / noise, -1.0)
+    score = tl.exp(log_probs) / noise
+    # A network gone NaN (a failed run of a population, until it is stopped) still samples a category:
+    # its scores count as 0, above the padding's -1, so no action index leaves [0, OUT).
+    score = tl.where(category & valid[:, None], tl.where(score == score, score, 0.0), -1.0)
     action = tl.argmax(score, axis=1, tie_break_left=True)
     log_prob = tl.sum(tl.where(columns[None, :] == action[:, None], log_probs, 0.0), axis=1)
     _, _, critic_last = _hidden(

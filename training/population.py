@@ -60,13 +60,21 @@ from rsl_rl.utils import resolve_callable
 from ..atomic import atomic_open
 from ..config import AquariumConfig
 from ..device import resolve_device
-from ..drivers import make_driver
+from ..drivers import is_heuristic, make_driver
 from ..env import BatchedAquarium
 from ..records import provenance
 from ..seeding import seed_process
 from . import _rsl  # noqa: F401
 from .checkpoints import global_rng_state, read_checkpoint, restore_global_rng_state, write_checkpoint
-from .config import default_opponent, env_config, runner_config, team_settings, total_iterations, validate
+from .config import (
+    config_difference,
+    default_opponent,
+    env_config,
+    runner_config,
+    team_settings,
+    total_iterations,
+    validate,
+)
 from .export import export_policy, policy_meta
 from .logger import AquariumLogger
 from .loop import TrainingLoop
@@ -106,6 +114,10 @@ def unsupported(config: dict) -> str | None:
         (train["sharing"] != "parameter", "Individual Learning (a population stacks one network per run)"),
         (train["critic"] != "local", "a centralised critic (its observation group is not stacked)"),
         (bool(team_blocks), "per-team blocks (teams.*)"),
+        (
+            not train["opponent_deterministic"] and not is_heuristic(train["opponent"], OTHER[train["team"]]),
+            "a trained opponent that samples its actions (its draws would come from one generator for all runs)",
+        ),
     ]
     for part in ("actor", "critic"):
         model = runner.get(part, {})
@@ -128,26 +140,23 @@ def check_runs(configs: list[dict]) -> None:
         why = unsupported(config)
         if why is not None:
             raise ValueError(f"run {k}: a population does not train {why}; train it alone (--runs 1)")
-    base = configs[0]
+    # The env is checked by AquariumConfig.stack, which knows what may differ per world.
+    base = {section: value for section, value in configs[0].items() if section != "env"}
     for k, config in enumerate(configs[1:], start=1):
-        for section in sorted(set(base) | set(config)):
-            if section == "env":
-                continue  # checked by AquariumConfig.stack, which knows what may differ per world
-            a, b = base.get(section), config.get(section)
-            if section == "train":
-                a = {key: v for key, v in (a or {}).items() if key not in RUN_SETTINGS + ("quiet",)}
-                b = {key: v for key, v in (b or {}).items() if key not in RUN_SETTINGS + ("quiet",)}
-            if a != b:
-                keys = sorted(key for key in set(a or {}) | set(b or {}) if (a or {}).get(key) != (b or {}).get(key))
-                raise ValueError(
-                    f"runs 0 and {k} differ in {section}.{keys[0] if keys else '*'}: runs of one population "
-                    f"differ only in train.{'/'.join(RUN_SETTINGS)} and per-world env parameters"
-                )
+        other = {section: value for section, value in config.items() if section != "env"}
+        key = config_difference(base, other, RUN_SETTINGS + ("quiet",))
+        if key is not None:
+            raise ValueError(
+                f"runs 0 and {k} differ in {key}: runs of one population differ only in "
+                f"train.{'/'.join(RUN_SETTINGS)} and per-world env parameters"
+            )
     seen: dict[str, int] = {}
-    for k, config in enumerate(configs):  # the same seed in another condition is another run; twice the same is not
-        key = json.dumps({"seed": config["train"]["seed"], "env": config.get("env")}, sort_keys=True, default=str)
+    for k, config in enumerate(configs):  # one seed in another condition is another run; twice the same is not
+        same = copy.deepcopy(config)
+        same["train"].pop("quiet", None)
+        key = json.dumps(same, sort_keys=True, default=str)
         if key in seen:
-            raise ValueError(f"runs {seen[key]} and {k} are the same run (seed and world): give each a seed")
+            raise ValueError(f"runs {seen[key]} and {k} are the same run (the same config): give each its own seed")
         seen[key] = k
 
 
@@ -520,8 +529,10 @@ class Population:
         if train["tf32"] and self.device.type == "cuda":
             torch.backends.cuda.matmul.allow_tf32 = True
         other = OTHER[team]
+        # A heuristic's streams keyed per run, as alone; a trained opponent acts by argmax (`unsupported`).
+        seeds = list(self.seeds) if is_heuristic(train["opponent"], other) else self.seeds[0]
         self.opponent = make_driver(
-            train["opponent"], self.env, other, deterministic=train["opponent_deterministic"], seed=list(self.seeds)
+            train["opponent"], self.env, other, deterministic=train["opponent_deterministic"], seed=seeds
         )
         scales = [float(team_settings(c, team)["reward_scale"]) for c in configs]
         self.vec_env = AquariumVecEnv(

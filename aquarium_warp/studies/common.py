@@ -9,6 +9,7 @@ band of mean ± 1 s.e.m.; the JSON files give the 95% interval of the mean too (
 from __future__ import annotations
 
 import argparse
+import contextlib
 import copy
 import csv
 import dataclasses
@@ -178,47 +179,50 @@ def pretrain_populations(
     rerun's task continues, and `cli.Interrupted` is raised."""
     from ..cli import Interrupted
     from ..training.checkpoints import write_checkpoint
-    from ..training.population import Population, group_key
+    from ..training.population import Population
+    from ..training.run_dir import claim_run_directory
     from ..training.trainer import run_config
-    from .jobs import population_size
+    from .jobs import population_groups
 
-    keyed: dict[str, list[tuple[dict, str]]] = {}
-    for config, out_dir in trainings:
-        kept = _trained_before(config, out_dir) is not None or _saved_training(config, out_dir, None) is not None
-        key = None if kept else group_key(config)
-        if key is not None:
-            keyed.setdefault(key, []).append((config, out_dir))
-    for members in keyed.values():
-        size, why = (runs_per_process, "given") if runs_per_process else population_size(members[0][0], device)
-        for start in range(0, len(members), size):
-            group = members[start : start + size]
-            if len(group) < 2:
-                continue
-            if report is not None:
-                report(f"  training {len(group)} runs as one population on {device} (up to {size}: {why})")
-            configs = [dict(c, train={**c["train"], "device": device}) for c, _ in group]
-            population = Population(configs, run_dirs=[os.path.join(d, "population-run") for _, d in group])
-            try:
-                start_time = time.perf_counter()
-                population.train()
-                seconds = time.perf_counter() - start_time
-                if population.stop.signum is not None:
-                    for k, (_, out_dir) in enumerate(group):
-                        write_checkpoint(population.run_state(k), os.path.join(out_dir, INTERRUPTED))
-                    raise Interrupted(
-                        f"stopped by {population.stop.name} after iteration {population.iteration} of a population "
-                        f"of {len(group)} training runs, each kept in its folder: rerun the same command to continue",
-                        population.stop.signum,
-                    )
-                for k, (config, out_dir) in enumerate(group):
-                    if k in population.stopped:
-                        raise RuntimeError(f"a training in {out_dir} stopped: {population.stopped[k]}")
+    kept = [
+        _trained_before(config, out_dir) is not None or _saved_training(config, out_dir, None) is not None
+        for config, out_dir in trainings
+    ]
+    configs_all = [config for config, _ in trainings]
+    for indices, why in population_groups(configs_all, kept, device, runs_per_process, report):
+        if len(indices) < 2:
+            continue  # trained by its own task
+        group = [trainings[i] for i in indices]
+        if report is not None:
+            report(f"  training {len(group)} runs as one population on {device} ({why})")
+        configs = [dict(c, train={**c["train"], "device": device}) for c, _ in group]
+        run_dirs = [os.path.join(d, "population-run") for _, d in group]
+        with contextlib.ExitStack() as held:
+            # Each run's log folder replaced, as a training alone replaces its own: no earlier rows mixed in.
+            for run_dir in run_dirs:
+                held.callback(claim_run_directory(run_dir, overwrite=True).release)
+            population = Population(configs, run_dirs=run_dirs)
+            held.callback(population.close)
+            start_time = time.perf_counter()
+            population.train()
+            seconds = time.perf_counter() - start_time
+            if population.stop.signum is not None:
+                for k, (_, out_dir) in enumerate(group):
+                    write_checkpoint(population.run_state(k), os.path.join(out_dir, INTERRUPTED))
+                raise Interrupted(
+                    f"stopped by {population.stop.name} after iteration {population.iteration} of a population "
+                    f"of {len(group)} training runs, each kept in its folder: rerun the same command to continue",
+                    population.stop.signum,
+                )
+            for k, (config, out_dir) in enumerate(group):
+                if k not in population.stopped:
                     path = population.export(k, formats=["jit"], out_dir=out_dir)["jit"]
                     with atomic_open(os.path.join(out_dir, TRAINED)) as f:
                         json.dump({"config": run_config(config), "seconds": seconds,
                                    "policies": {population.team: path}}, f)  # fmt: skip
-            finally:
-                population.close()
+            if population.stopped:  # reported after the other runs' policies are kept
+                failed = ", ".join(f"{group[k][1]} ({why})" for k, why in population.stopped.items())
+                raise RuntimeError(f"trainings stopped early: {failed}")
 
 
 def _saved_training(config: dict, out_dir: str, log_dir: str | None) -> tuple[str, str | None] | None:

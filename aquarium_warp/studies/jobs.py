@@ -469,36 +469,48 @@ def _training_groups(
     populations of `runs_per_process` (None: `population_size`); a task whose folder holds a
     checkpoint (an interrupted training), or whose config trains alone, is a group of its own."""
     from ..training.checkpoints import newest_readable_checkpoint
-    from ..training.population import group_key
     from .common import run_training_task
 
     if function is not run_training_task or devices is None or not todo:
         return None
-    if runs_per_process is not None:
-        check_int("runs_per_process", runs_per_process)
-    keyed: dict[str, list[int]] = {}
-    groups: list[list[int]] = []
+    resumes = []
     for i in todo:
         try:
             newest_readable_checkpoint(tasks[i]["run_dir"])
-            resumes = True
+            resumes.append(True)
         except (ValueError, FileNotFoundError):
-            resumes = False
-        key = None if resumes else group_key(tasks[i]["config"])
+            resumes.append(False)
+    groups = population_groups([tasks[i]["config"] for i in todo], resumes, devices[0], runs_per_process, report)
+    return [[todo[k] for k in group] for group, _ in groups]
+
+
+def population_groups(
+    configs: Sequence[dict], alone: Sequence[bool], device: str, runs_per_process: int | None,
+    report: Callable[[str], None] | None,
+) -> list[tuple[list[int], str]]:  # fmt: skip
+    """Indices of `configs` (the trainings of a study's pending tasks) in the groups that train together,
+    the largest first, each with why its size ("up to 8: given"; "" alone): configs of one
+    `population.group_key` in populations of `runs_per_process` (None: `population_size` on
+    `device`), each config flagged in `alone` (it continues a kept state) or that trains alone in a group
+    of its own. The choice is reported."""
+    from ..training.population import group_key
+
+    if runs_per_process is not None:
+        check_int("runs_per_process", runs_per_process)
+    keyed: dict[str, list[int]] = {}
+    groups: list[tuple[list[int], str]] = []
+    for k, config in enumerate(configs):
+        key = None if alone[k] else group_key(config)
         if key is None:
-            groups.append([i])
+            groups.append(([k], ""))
         else:
-            keyed.setdefault(key, []).append(i)
+            keyed.setdefault(key, []).append(k)
     for members in keyed.values():
-        size, why = (
-            (runs_per_process, "given")
-            if runs_per_process
-            else population_size(tasks[members[0]]["config"], devices[0])
-        )
-        groups.extend(members[k : k + size] for k in range(0, len(members), size))
+        size, why = (runs_per_process, "given") if runs_per_process else population_size(configs[members[0]], device)
+        groups.extend((members[j : j + size], f"up to {size}: {why}") for j in range(0, len(members), size))
         if report is not None and size > 1:
             report(f"  trainings: {len(members)} runs in populations of up to {size} ({why}), one process per device")
-    groups.sort(key=len, reverse=True)  # the largest first
+    groups.sort(key=lambda group: len(group[0]), reverse=True)
     return groups
 
 

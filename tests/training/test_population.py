@@ -298,6 +298,7 @@ def test_stacked_advantages_are_normalised_per_run():
         ({"train": {"critic": "team"}}, "centralised critic"),
         ({"runner": {"actor": {"class_name": "RNNModel"}, "critic": {"class_name": "RNNModel"}}}, "recurrent"),
         ({"train": {"randomize": {"prey_max_speed": "1:2"}}}, "domain randomisation"),
+        ({"train": {"team": "predator", "opponent": "prey-a", "opponent_deterministic": False}}, "samples its actions"),
     ],
 )
 def test_what_a_population_does_not_train_is_refused_in_one_line(change, message):
@@ -323,6 +324,8 @@ def test_runs_that_cannot_share_a_process_are_refused():
     configs[1]["train"]["seed"] = configs[0]["train"]["seed"]
     with pytest.raises(ValueError, match="runs 0 and 1 are the same run"):
         Population(configs)
+    configs[1]["train"]["reward_scale"] = 0.02  # one seed under another condition is another run
+    Population(configs).close()
 
 
 @pytest.mark.slow
@@ -467,3 +470,28 @@ def test_a_resume_refuses_a_run_folder_holding_another_runs_checkpoint(tmp_path)
     with pytest.raises(ValueError, match="is of another run") as error:
         resume_population(str(tmp_path / "ours"), {"train": {"iterations": 10}})
     assert "\n" not in str(error.value)
+
+
+def test_a_failed_runs_actions_stay_in_range(device):
+    """A run whose network went NaN (before the population stops it) still acts within the action set,
+    through torch's sampler and the fused kernel (9 actions: the kernel pads them to 16 columns)."""
+    pytest.importorskip("triton")
+    from aquarium_warp.training import fused_mlp
+
+    for fused in (False, True):
+        if fused and device == "cpu" and not fused_mlp.INTERPRETED:
+            continue
+        configs = run_configs(base_config(), 2)
+        for config in configs:
+            config["env"]["action_count"] = 9
+            config["train"].update(device=device, fused_mlp=fused)
+        population = Population(configs, stacked=True)
+        with torch.no_grad():
+            for p in population.runs[1].actor.parameters():
+                p.fill_(float("nan"))
+        v = population.vec_env
+        with torch.inference_mode():
+            population.learner.act_into(v.get_observations(), v.actions_buffer)
+        actions = v.actions_buffer
+        assert int(actions.min()) >= 0 and int(actions.max()) < 9, (fused, actions)
+        population.close()
