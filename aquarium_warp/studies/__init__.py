@@ -9,7 +9,9 @@
   initiation distance and flights started with the predator unseen;
 - `flow`: currents of growing strength: captures, swarm metrics and escape direction against the current;
 - `swarm`: can collective behaviour pay, and does it emerge in learned prey: a heuristic screen over
-  density, view distance and predator speed, then learned prey with their controls (aggregation index).
+  density, view distance and predator speed, then learned prey with their controls (aggregation index);
+- `phase`: the pre-registered phase diagram of learned prey over capture rule, density, view and
+  predator, with controls in every cell and regimes named by declared thresholds.
 
 What they share: `jobs` (the job runner: finished-task cache, threads, worker processes, Ray tasks),
 `statistics` (over seeds: means with 95% intervals, Welch differences, TOST equivalence) and `common`
@@ -20,7 +22,7 @@ from __future__ import annotations
 
 from types import ModuleType
 
-from . import flow, fov_view, group_hunting, many_eyes, swarm, swarm_size
+from . import flow, fov_view, group_hunting, many_eyes, phase, swarm, swarm_size
 
 STUDIES: dict[str, ModuleType] = {
     "swarm-size": swarm_size,
@@ -29,6 +31,7 @@ STUDIES: dict[str, ModuleType] = {
     "many-eyes": many_eyes,
     "flow": flow,
     "swarm": swarm,
+    "phase": phase,
 }
 
 __all__ = ["STUDIES"]

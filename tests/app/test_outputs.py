@@ -319,7 +319,7 @@ def test_studies_write_to_the_current_directory_by_default():
     from aquarium_warp.cli import build_parser
 
     parser = build_parser()
-    for kind in ("swarm-size", "fov-view", "group-hunting", "many-eyes", "flow", "swarm"):
+    for kind in ("swarm-size", "fov-view", "group-hunting", "many-eyes", "flow", "swarm", "phase"):
         out = parser.parse_args(["study", kind]).out
         assert not os.path.isabs(out) and os.path.dirname(out) == "" and "results" not in out, (kind, out)
 

@@ -1,0 +1,101 @@
+"""`aquarium-warp study phase`: the pre-registered design, the regimes its thresholds name and the
+verdicts of its contrasts, checked on hand-made seed values; and a tiny end-to-end run on the CPU."""
+
+import argparse
+
+import pytest
+
+from aquarium_warp.studies import STUDIES, phase
+
+
+def parse(*argv: str) -> argparse.Namespace:
+    parser = argparse.ArgumentParser()
+    phase.add_arguments(parser)
+    args = parser.parse_args(list(argv))
+    args.argv = ["study", "phase", *argv]
+    return args
+
+
+def test_the_study_is_registered_with_its_declared_cells():
+    assert STUDIES["phase"] is phase
+    assert len(phase.CELLS) == 20
+    slices = {c.slice for c in phase.CELLS.values()}
+    assert slices == {"rule", "density-view", "fov", "predator-speed", "coevolving"}
+    # The density x view slice is a full 3 x 3 grid with the swarm preset's world at its centre.
+    grid = {(c.prey, c.view) for c in phase.CELLS.values() if c.slice == "density-view"}
+    assert grid | {(32, 200.0)} == {(n, v) for n in (8, 32, 128) for v in (100.0, 200.0, 400.0)}
+    centre = phase.CELLS["dilution-c64"]
+    assert (centre.prey, centre.view, centre.fov, centre.strength) == (32, 200.0, 360.0, 64.0)
+    # c = 0 is one cell; its mediation partner is dilution at c = 64, the others' is c = 0.
+    assert phase.CELLS["c0"].other_strength() == ("dilution", 64.0)
+    assert phase.CELLS["confusion-c1"].other_strength() == ("confusion", 0.0)
+    assert phase.controls_of(phase.CELLS["coevolving-c0"]) == ("learned", "no-slots")
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (("--cells", "c0,nowhere"), "--cells='c0,nowhere': choose from"),
+        (("--cells", "c0,c0"), "--cells"),
+        (("--seeds", "1"), "--seeds"),
+        (("--episodes", "0"), "--episodes"),
+        (("--gpus", "-1"), "--gpus"),
+    ],
+)
+def test_bad_options_are_refused_by_name(argv, message):
+    with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        phase.check(parse(*argv))
+
+
+def test_regimes_follow_the_declared_thresholds():
+    tight = lambda m: [m - 0.01, m, m + 0.01, m - 0.005, m + 0.005]  # noqa: E731
+    # The primary's interval must lie wholly beyond a threshold.
+    assert phase.regime(tight(1.3), tight(0.1), tight(0.1)) == "dispersed"
+    assert phase.regime(tight(1.0), tight(0.9), tight(0.1)) == "no structure"
+    assert phase.regime([0.80, 0.95, 0.70, 0.99, 0.85], tight(0.9), tight(0.1)) == "no structure"  # reaches 0.9
+    assert phase.regime(tight(0.6), tight(0.8), tight(0.2)) == "polarized school"
+    assert phase.regime(tight(0.6), tight(0.2), tight(0.8)) == "mill"
+    assert phase.regime(tight(0.6), tight(0.5), tight(0.5)) == "swarm"
+    assert phase.regime(tight(0.6), tight(0.7), tight(0.4)) == "swarm"  # ordered but rotating too much
+    assert phase.regime([0.6], [0.8], [0.1]) == "no structure"  # one seed: no interval
+
+
+def test_contrast_verdicts_use_the_margins_and_the_direction():
+    a = [0.60, 0.61, 0.59, 0.60, 0.60]
+    far = [0.90, 0.91, 0.89, 0.90, 0.90]
+    near = [0.605, 0.60, 0.595, 0.60, 0.60]
+    effect = phase.contrast(a, far, phase.PRIMARY, paired=False, direction=-1)
+    assert effect["verdict"] == "effect" and effect["difference"] == pytest.approx(-0.3)
+    # The same difference in the other direction is not the regime's effect, nor equivalence.
+    assert phase.contrast(a, far, phase.PRIMARY, paired=False, direction=1)["verdict"] == "undecided"
+    assert phase.contrast(a, near, phase.PRIMARY, paired=False, direction=-1)["verdict"] == "none"
+    # A difference inside the margin whose interval is too wide to show equivalence.
+    wide = [0.50, 0.70, 0.45, 0.75, 0.62]
+    assert phase.contrast(a, wide, phase.PRIMARY, paired=False)["verdict"] == "undecided"
+    # Captures: a margin of 10% of the control's mean.
+    captures = phase.contrast([1.0, 1.02, 0.98, 1.0], [2.0, 2.02, 1.98, 2.0], "captures_per_prey", paired=True)
+    assert captures["margin"] == pytest.approx(0.2) and captures["verdict"] == "effect"
+
+
+def test_readings_credit_an_aggregate_to_interaction_and_predation():
+    def values(primary, polarization=0.3, rotation=0.2, captures=1.0):
+        spread = (-0.01, 0.0, 0.01, -0.005, 0.005)
+        return {
+            phase.PRIMARY: [primary + s for s in spread],
+            "group_polarization": [polarization + s for s in spread],
+            "group_rotation": [rotation + s for s in spread],
+            "captures_per_prey": [captures + s for s in spread],
+        }
+
+    per = {
+        "learned": {"own": values(0.6, captures=0.5), "blind": values(0.9, captures=1.0)},
+        "no-slots": {"own": values(0.9, captures=1.0)},
+        "no-predation": {"own": values(0.61)},
+    }
+    out = phase.readings(per)
+    assert out["regime"] == "swarm"
+    verdicts = {(c["contrast"], c["measure"]): c["verdict"] for c in out["contrasts"]}
+    assert verdicts[("learned - no prey slots", phase.PRIMARY)] == "effect"
+    assert verdicts[("learned - no predation", phase.PRIMARY)] == "none"
+    assert verdicts[("learned - its slots emptied (paired)", "captures_per_prey")] == "effect"
+    assert verdicts[("learned - no prey slots", "group_polarization")] == "none"
