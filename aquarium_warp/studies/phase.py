@@ -5,8 +5,8 @@ The design below (`CELLS`, `CONTROLS`, `EVALUATIONS`, `PRIMARY`, `THRESHOLDS`, `
 pre-registration of docs/studies/phase.md: it was committed on its own before the first run, and a
 change to it after that is stated where the results are quoted.
 
-A cell is a world and a predator. Each cell is trained `--seeds` times (10) under each of its controls
-(`CONTROLS`):
+A cell is a world and a predator. Each cell's learned prey are trained with `--seeds` seeds (10), and
+each of its other controls (`CONTROLS`) with `--control-seeds` (5):
 - `learned`: the learned-prey recipe in the cell's world;
 - `no-slots`: the same with 0 prey slots (the prey cannot see each other: structure without interaction);
 - `no-predation`: contacts never capture (`capture_probability` 0) and each contact step costs the prey
@@ -104,24 +104,26 @@ def declared_cells() -> dict[str, Cell]:
     """The cells, by slice: `rule` (both capture rules over c at N = 32, 360 deg / 200 px), `density-view`
     (N x view distance under dilution at c = 64, the swarm preset's world at its centre), `fov` and
     `predator-speed` (one step each from that centre) and `coevolving` (learning predators: c = 0 is
-    Li et al. 2023's condition)."""
+    Li et al. 2023's condition). In the order they run: the first tier (`FIRST_TIER`), then the rest."""
     cells = {"c0": Cell("rule")}
-    for rule in ("dilution", "confusion"):
-        for c in (1.0, 8.0, 64.0):
-            cells[f"{rule}-c{c:g}"] = Cell("rule", rule=rule, strength=c)
-    for n in (8, 32, 128):
-        for view in (100.0, 200.0, 400.0):
-            if (n, view) != (32, 200.0):  # the centre is `dilution-c64`
-                cells[f"n{n}-v{view:g}"] = Cell("density-view", prey=n, view=view, strength=64.0)
-    cells["fov240"] = Cell("fov", fov=240.0, strength=64.0)
-    for speed in (4.0, 6.0):
-        cells[f"predator{speed:g}"] = Cell("predator-speed", predator_speed=speed, strength=64.0)
+    for rule, c in (("dilution", 1.0), ("dilution", 64.0), ("confusion", 1.0), ("confusion", 8.0), ("confusion", 64.0)):
+        cells[f"{rule}-c{c:g}"] = Cell("rule", rule=rule, strength=c)
+    for n, view in ((8, 200.0), (128, 200.0), (32, 100.0), (32, 400.0)):
+        cells[f"n{n}-v{view:g}"] = Cell("density-view", prey=n, view=view, strength=64.0)
     cells["coevolving-c0"] = Cell("coevolving", coevolving=True)
+    # The second tier, run in this order as far as the device time allows.
+    cells["fov240"] = Cell("fov", fov=240.0, strength=64.0)
+    cells["predator4"] = Cell("predator-speed", predator_speed=4.0, strength=64.0)
     cells["coevolving-dilution-c64"] = Cell("coevolving", strength=64.0, coevolving=True)
+    cells["dilution-c8"] = Cell("rule", rule="dilution", strength=8.0)
+    cells["predator6"] = Cell("predator-speed", predator_speed=6.0, strength=64.0)
+    for n, view in ((8, 100.0), (8, 400.0), (128, 100.0), (128, 400.0)):
+        cells[f"n{n}-v{view:g}"] = Cell("density-view", prey=n, view=view, strength=64.0)
     return cells
 
 
 CELLS = declared_cells()
+FIRST_TIER = tuple(CELLS)[:11]
 CONTROLS: dict[str, tuple[str, ...]] = {
     "learned": (),
     "no-slots": ("env.prey.prey_slots=0",),
@@ -166,8 +168,11 @@ FAST = ("train.fused_mlp=true", "train.tf32=true")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--cells", default=",".join(CELLS), help="cells to run (default: every declared cell)")
-    parser.add_argument("--seeds", type=int, default=10, help="training seeds per cell and control: 0 to N-1 (>= 2)")
+    parser.add_argument("--cells", default=",".join(FIRST_TIER), help="cells to run (default: the first tier)")
+    parser.add_argument("--seeds", type=int, default=10, help="training seeds of the learned prey per cell: 0 to N-1")
+    parser.add_argument(
+        "--control-seeds", type=int, default=5, help="training seeds of each trained control per cell: 0 to N-1"
+    )
     parser.add_argument("--iterations", type=int, default=ITERATIONS, help="PPO iterations per run")
     parser.add_argument(
         "--train-worlds",
@@ -203,6 +208,7 @@ def check(args) -> None:
     check_distinct("--cells", cells)
     for name, value, low in (
         ("--seeds", args.seeds, 2),
+        ("--control-seeds", args.control_seeds, 2),
         ("--iterations", args.iterations, 1),
         ("--episodes", args.episodes, 1),
         ("--eval-seeds", args.eval_seeds, 1),
@@ -273,7 +279,7 @@ def training_tasks(args) -> list[dict]:
     tasks = []
     for name in args.cell_list:
         for control in controls_of(CELLS[name]):
-            for seed in range(args.seeds):
+            for seed in range(args.seeds if control == "learned" else args.control_seeds):
                 tasks.append(
                     {
                         "name": f"train-{name}-{control}-s{seed}",
@@ -618,6 +624,7 @@ def run(args) -> int:
             "train_agent_steps": TRAIN_AGENT_STEPS,
             "iterations": args.iterations,
             "seeds": args.seeds,
+            "control_seeds": args.control_seeds,
             "episodes": args.episodes,
             "eval_seeds": args.eval_seeds,
             "max_steps": args.max_steps,

@@ -30,6 +30,10 @@ def test_the_study_is_registered_with_its_declared_cells():
     assert phase.CELLS["c0"].other_strength() == ("dilution", 64.0)
     assert phase.CELLS["confusion-c1"].other_strength() == ("confusion", 0.0)
     assert phase.controls_of(phase.CELLS["coevolving-c0"]) == ("learned", "no-slots")
+    # The first tier runs by default: the rule slice, the density-view cross and Li et al.'s condition.
+    assert parse().cells.split(",") == list(phase.FIRST_TIER)
+    assert phase.FIRST_TIER[-1] == "coevolving-c0" and "dilution-c64" in phase.FIRST_TIER
+    assert {phase.CELLS[c].slice for c in phase.FIRST_TIER} == {"rule", "density-view", "coevolving"}
 
 
 @pytest.mark.parametrize(
@@ -38,6 +42,7 @@ def test_the_study_is_registered_with_its_declared_cells():
         (("--cells", "c0,nowhere"), "--cells='c0,nowhere': choose from"),
         (("--cells", "c0,c0"), "--cells"),
         (("--seeds", "1"), "--seeds"),
+        (("--control-seeds", "1"), "--control-seeds"),
         (("--episodes", "0"), "--episodes"),
         (("--gpus", "-1"), "--gpus"),
     ],
