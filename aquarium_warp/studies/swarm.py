@@ -237,7 +237,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="KEY=VALUE",
         help="learned: extra `train --set` assignments (tiny smoke runs)",
     )
-    parser.add_argument("--commit", default=None, help="the commit to record (a copy without git history)")
+    parser.add_argument(
+        "--commit", default=None, help="the commit of a copy without git history (a checkout's own is read from git)"
+    )
     parser.add_argument("--no-figures", action="store_true", help="no matplotlib figures")
     parser.add_argument("--out", default="swarm_study", help="output directory")
 
