@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-# git runs here: in a source checkout it finds the repository of this code, in an installed
-# package (no repository) it reports "git failed".
+# git runs here: in a source checkout it finds the repository of this code; an installed or staged
+# copy (no repository, or files it does not track) has none.
 PACKAGE_DIR = Path(__file__).resolve().parent
 
 
@@ -45,26 +45,42 @@ def command_line(argv: Sequence[str] | None = None, program: str = "aquarium-war
     return shlex.join([program, *argv])
 
 
-def git_info(commit: str | None = None) -> dict:
-    """The repository's commit and whether tracked files differ from it (`commit`, else the environment's
-    `AQUARIUM_WARP_COMMIT`, overrides: a copy without git history, e.g. on a lent GPU machine, names it)."""
-    commit = commit or os.environ.get("AQUARIUM_WARP_COMMIT")
-    if commit:
-        return {"commit": commit, "dirty": None, "source": "given"}
+def git_info(commit: str | None = None, repository: str | Path | None = None) -> dict:
+    """Where a result's code came from, read from git at run time: the commit of the checkout holding
+    `repository` (default: this package), `dirty` whether tracked files differ from it and `modified`
+    which (`source: "git"`). A supplied commit is taken only where git cannot read a checkout (a staged
+    copy without `.git`, as on a lent GPU machine): `commit` (`source: "argument"`), else the environment's
+    `AQUARIUM_WARP_COMMIT` (`source: "environment"`); whether that copy matched the commit is then unknown
+    (`dirty` and `modified` None). A supplied commit that git contradicts is kept as `supplied`."""
+    supplied, source = (commit, "argument") if commit else (os.environ.get("AQUARIUM_WARP_COMMIT"), "environment")
+    read = read_checkout(PACKAGE_DIR if repository is None else Path(repository))
+    if read is not None:
+        if supplied and not read["commit"].startswith(supplied):
+            read["supplied"] = supplied
+        return read
+    if supplied:
+        return {"commit": supplied, "dirty": None, "modified": None, "source": source}
+    return {"commit": "unknown", "dirty": None, "modified": None, "source": "no git"}
+
+
+def read_checkout(directory: Path) -> dict | None:
+    """`git_info`'s record of the git checkout whose tracked files include `directory`'s, None where git
+    cannot tell (no git, no repository, or `directory` not tracked in it: an installed copy)."""
+
+    def git(*args: str) -> str | None:
+        run = subprocess.run(["git", *args], capture_output=True, text=True, cwd=directory, timeout=30)
+        return run.stdout if run.returncode == 0 else None
+
     try:
-        head = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, cwd=PACKAGE_DIR, timeout=30)
-        if head.returncode != 0:
-            return {"commit": "unknown", "dirty": None, "source": "git failed"}
-        status = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
-            capture_output=True,
-            text=True,
-            cwd=PACKAGE_DIR,
-            timeout=30,
-        )
-        return {"commit": head.stdout.strip(), "dirty": bool(status.stdout.strip()), "source": "git"}
+        head, tracked = git("rev-parse", "HEAD"), git("ls-files", "--", ".")
+        status = git("status", "--porcelain=v1", "--untracked-files=no") if head and tracked else None
     except (OSError, subprocess.SubprocessError):
-        return {"commit": "unknown", "dirty": None, "source": "no git"}
+        return None
+    if head is None or status is None:
+        return None
+    # Porcelain v1: two status letters and a space, then the path ("old -> new" for a rename).
+    modified = sorted(line[3:] for line in status.splitlines() if line.strip())
+    return {"commit": head.strip(), "dirty": bool(modified), "modified": modified, "source": "git"}
 
 
 def machine_info(device: str) -> dict:
@@ -108,8 +124,8 @@ def machine_info(device: str) -> dict:
 
 
 def provenance(device: str, command: str | None = None, commit: str | None = None) -> dict:
-    """`command` (default `command_line()`), `git` (`commit` overrides, for a copy without git history)
-    and `machine`: what a result file records of the run that made it on `device`."""
+    """`command` (default `command_line()`), `git` (`git_info`: read from git; `commit` names a copy
+    without git history) and `machine`: what a result file records of the run that made it on `device`."""
     return {
         "command": command if command is not None else command_line(),
         "git": git_info(commit),

@@ -310,7 +310,7 @@ def main(argv=None) -> int:
         "benchmark": "aquarium_v1 PettingZoo env vs original marl-aquarium 0.1.10, CPU, default config, "
         "random actions, no rendering",
         "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-        "git_commit": git_info()["commit"],
+        "git": git_info(),
         "command": command_line(argv, Path(__file__).name),
         "method": {
             "seconds": args.seconds,

@@ -189,7 +189,7 @@ def main(argv=None) -> int:
         "python": platform.python_version(),
         "warp": wp.__version__,
         "torch": torch.__version__,
-        "git_commit": git_info()["commit"],
+        "git": git_info(),
         "command": command_line(argv, Path(__file__).name),
         "seconds": args.seconds,
         "repeats": args.repeats,

@@ -19,7 +19,7 @@ import time
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests"))
 from test_viewer import _browser, serve  # the tests' server thread and browser
 
-from aquarium_warp.records import command_line, machine_info
+from aquarium_warp.records import command_line, git_info, machine_info
 from aquarium_warp.viewer.server import Viewer, pack_frame
 from aquarium_warp.viewer.simulation import Simulation, ViewOptions
 
@@ -74,11 +74,10 @@ def main() -> int:
     args = parser.parse_args()
     rows = [measure(n, args.seconds, args.max_agents, args.device) for n in args.agents]
     chromium = subprocess.run([shutil.which("chromium") or "chromium", "--version"], capture_output=True, text=True)
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
     info = machine_info(args.device)
     result = {
         "command": command_line(sys.argv, "python"),
-        "commit": commit,
+        "git": git_info(),
         "device": args.device,
         "device_name": info["device_name"],
         "versions": {k: info[k] for k in ("python", "warp", "torch")},

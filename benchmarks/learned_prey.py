@@ -30,7 +30,6 @@ import argparse
 import csv
 import json
 import os
-import subprocess
 import sys
 import time
 
@@ -198,7 +197,7 @@ def run_eval_task(task: dict, device: str) -> dict:
     """The record of `eval/<condition>-<world>.json`: each policy's and baseline's captures and reward
     per prey, per evaluation seed too, with the protocol and provenance."""
     from aquarium_warp.config import AquariumConfig
-    from aquarium_warp.records import json_safe
+    from aquarium_warp.records import git_info, json_safe
     from aquarium_warp.training.evaluate import common_policy_env, evaluate_policies
 
     learned = [f"s{s}={policy_path(run)}" for s, run in zip(task["seeds"], task["run_dirs"], strict=True)]
@@ -226,7 +225,6 @@ def run_eval_task(task: dict, device: str) -> dict:
             ],
             "episodes": len(values),
         }
-    commit = task["commit"]
     return json_safe(
         {
             "condition": task["condition"],
@@ -234,8 +232,8 @@ def run_eval_task(task: dict, device: str) -> dict:
             "policies": per_seed,
             "protocol": result["protocol"],
             "command": result["command"],
-            # The plan's --commit where given: a lent machine's copy may have no git history.
-            "git": {"commit": commit, "source": "--commit"} if commit else result["git"],
+            # Read from git; the plan's --commit only names a lent machine's copy without git history.
+            "git": git_info(task["commit"]),
             "machine": result["machine"],
         }
     )
@@ -281,7 +279,9 @@ def main(argv=None) -> int:
     )
     p.add_argument("--episodes", type=int, default=50, help="evaluation episodes per evaluation seed")
     p.add_argument("--eval-seeds", type=int, nargs="+", default=[0, 1])
-    p.add_argument("--commit", default=None, help="the commit to record (default: git rev-parse HEAD)")
+    p.add_argument(
+        "--commit", default=None, help="the commit of a copy without git history (a checkout's own is read from git)"
+    )
     p.add_argument(
         "--report",
         metavar="RESULTS",
@@ -335,20 +335,14 @@ def main(argv=None) -> int:
         report=lambda line: print(line, flush=True),
     )
     rows = summarize(args.out, plan)
-    commit = (
-        args.commit
-        or subprocess.run(
-            ["git", "rev-parse", "HEAD"], capture_output=True, text=True, cwd=os.path.dirname(os.path.abspath(__file__))
-        ).stdout.strip()
-    )
-    from aquarium_warp.records import command_line, machine_info
+    from aquarium_warp.records import command_line, git_info, machine_info
 
     record = {
         "command": command_line(
             ["benchmarks/learned_prey.py", *(argv if argv is not None else sys.argv[1:])],
             os.path.basename(sys.executable),
         ),
-        "commit": commit,
+        "git": git_info(args.commit),
         "machine": machine_info(devices[0]),
         "gpus": args.gpus,
         "per_gpu": args.per_gpu,

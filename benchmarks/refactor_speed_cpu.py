@@ -87,7 +87,7 @@ def main(argv=None) -> int:
     # The staged tree, not the source: a source tree holds `kernels/` beside `aquarium_warp/`, not in it.
     sys.path.insert(0, trees["after"])
     from aquarium_warp.atomic import atomic_open
-    from aquarium_warp.records import provenance
+    from aquarium_warp.records import command_line, git_info, machine_info
 
     for path in trees.values():
         measure(path)  # compiles the tree's kernels (untimed)
@@ -106,8 +106,11 @@ def main(argv=None) -> int:
         "minima": minima,
         "after_over_before": {k: medians["after"][k] / medians["before"][k] for k in keys},
         "after_over_before_minima": {k: minima["after"][k] / minima["before"][k] for k in keys},
-        "commits": {name: git_info_of(path) for name, path in (("before", args.before), ("after", args.after))},
-        **provenance("cpu", commit=git_info_of(args.after)),
+        # Each tree's checkout, read from git (the staged copies that ran have none).
+        "commits": {name: git_info(repository=path) for name, path in (("before", args.before), ("after", args.after))},
+        "command": command_line(),
+        "git": git_info(repository=args.after),
+        "machine": machine_info("cpu"),
     }
     print(
         json.dumps({key: result[key] for key in ("medians", "minima", "after_over_before", "after_over_before_minima")})
@@ -116,11 +119,6 @@ def main(argv=None) -> int:
         with atomic_open(args.out) as f:
             json.dump(result, f, indent=1)
     return 0
-
-
-def git_info_of(tree: str) -> str | None:
-    run = subprocess.run(["git", "-C", tree, "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
-    return run.stdout.strip() or None
 
 
 if __name__ == "__main__":

@@ -46,3 +46,16 @@ def one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+@pytest.fixture
+def staged_copy(tmp_path, monkeypatch):
+    """The package as a staged copy without git history (as on a lent GPU machine): `records.git_info`
+    finds no checkout, so only a supplied commit names the code."""
+    from aquarium_warp import records
+
+    staged = tmp_path / "staged-copy"
+    staged.mkdir()
+    monkeypatch.setattr(records, "PACKAGE_DIR", staged)
+    monkeypatch.delenv("AQUARIUM_WARP_COMMIT", raising=False)
+    return staged

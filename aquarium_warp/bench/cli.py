@@ -87,7 +87,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "directory; the committed results are in benchmarks/results)",
     )
     parser.add_argument("--no-plots", action="store_true", help="write the JSON only, no figures")
-    parser.add_argument("--git-commit", default=None, help="commit to record (default: git rev-parse HEAD)")
+    parser.add_argument(
+        "--git-commit", default=None, help="the commit of a copy without git history (a checkout's is read from git)"
+    )
     parser.add_argument("--copy-mib", type=int, default=None, help="MiB of the copy-bandwidth test")
     parser.add_argument("--cpu-threads", type=int, default=None, help="CPU threads of the env (default: all cores)")
     parser.add_argument("--quiet", action="store_true", help="print nothing (the JSON and figures are still written)")

@@ -46,7 +46,7 @@ class BenchSettings:
     budget_s: float | None = None  # skip the remaining points (with a note) once the suite ran this long
     out_dir: str = "."
     plots: bool = True
-    git_commit: str | None = None  # default: `git rev-parse HEAD` of the repository
+    git_commit: str | None = None  # names a copy without git history; a checkout's commit is read from git
     copy_bytes: int | None = None  # buffer size of the copy-bandwidth test (default 1 GiB CUDA, 256 MiB CPU)
     cpu_threads: int | None = None
     quiet: bool = False

@@ -27,7 +27,7 @@ in the scenario world, `--seeds` training seeds per condition:
 | `slow-predator-no-neighbours` | the same, 0 prey slots | its neighbour control |
 | `confusion` | capture confusion c = 16 within 100 px (`CONFUSION`), NaivChase without target confusion | |
 | `confusion-no-neighbours` | the same, 0 prey slots | structure without interaction |
-| `confusion-no-predation` | the same, capture_probability 0 (it never captures) | grouping not induced by predation |
+| `confusion-no-predation` | the same, capture_probability 0 (never captures) | an untrained policy's grouping |
 | `confusion-mild` | the same with c = 4 | the dose of capture confusion |
 | `confusion-strong` | the same with c = 64 | the dose above |
 | `confusion-strong-no-neighbours` | c = 64, 0 prey slots | its neighbour control |
@@ -37,8 +37,9 @@ in the scenario world, `--seeds` training seeds per condition:
 zero penalty, turned out not to remove predation, since training ends a captured prey's life. The two
 `slow-predator` conditions were added after the screen's results, at 1d9a73b. The four `confusion`
 conditions were added after all of these had run: capture confusion (docs/model.md step 5) makes a
-prey among many others harder to catch (Olson et al. 2013; Ioannou et al. 2012), which the first run
-found missing for aggregation to pay. Their contrasts: `confusion` minus each of its controls and
+prey with others within 100 px harder to catch, a density-dependent capture rule (density dilution in
+the sense of Olson, Knoester & Adami 2016, not Olson et al. 2013's perceptual confusion), which the
+first run found missing for aggregation to pay. Their contrasts: `confusion` minus each of its controls and
 minus `no-confusion`, the same world and predator without capture confusion.)
 
 The design of the `confusion` conditions is declared here before any GPU run of them, from a CPU
@@ -237,7 +238,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="KEY=VALUE",
         help="learned: extra `train --set` assignments (tiny smoke runs)",
     )
-    parser.add_argument("--commit", default=None, help="the commit to record (a copy without git history)")
+    parser.add_argument(
+        "--commit", default=None, help="the commit of a copy without git history (a checkout's own is read from git)"
+    )
     parser.add_argument("--no-figures", action="store_true", help="no matplotlib figures")
     parser.add_argument("--out", default="swarm_study", help="output directory")
 

@@ -363,7 +363,7 @@ def test_peers_are_measured_by_the_harnesses_passed_in(tmp_path):
         assert not (tmp_path / flag).exists()
 
 
-def test_cli_bench(tmp_path):
+def test_cli_bench(tmp_path, staged_copy):
     from aquarium_warp.cli import main
 
     out = tmp_path / "cli"
@@ -398,7 +398,7 @@ def test_cli_bench(tmp_path):
         == 0
     )
     data = json.loads((out / "scaling_cpu.json").read_text())
-    assert data["git"] == {"commit": "abc123", "dirty": None, "source": "given"}
+    assert data["git"] == {"commit": "abc123", "dirty": None, "modified": None, "source": "argument"}
     assert all(p["status"] == "ok" for p in data["points"])
     assert bench.main(["--agents", "a,b", "--quiet"]) == 2
 

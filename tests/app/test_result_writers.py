@@ -84,7 +84,7 @@ def test_bench_multi_gpu_records_provenance(tmp_path, monkeypatch):
     assert data["command"].endswith("--device cpu --gpus 1 --teams prey --out-dir " + str(tmp_path))
 
 
-def test_bench_training_records_provenance_and_the_floor(tmp_path, monkeypatch, capsys):
+def test_bench_training_records_provenance_and_the_floor(tmp_path, monkeypatch, capsys, staged_copy):
     pytest.importorskip("rsl_rl")
     bench = _script("bench_training")
     floor = {"seconds": None, "fraction_of_iteration": None, "fraction_of_update": None}
@@ -113,20 +113,20 @@ def test_bench_training_records_provenance_and_the_floor(tmp_path, monkeypatch, 
     bench.main([*argv, "--commit", "abc1234", "--out-dir", str(tmp_path)])
     data = json.loads((tmp_path / "training_cpu.json").read_text())
     assert missing(data) == ()
-    assert data["git"] == {"commit": "abc1234", "dirty": None, "source": "given"}
+    assert data["git"] == {"commit": "abc1234", "dirty": None, "modified": None, "source": "argument"}
     assert data["points"][0]["floor"] == floor and data["points"][0]["rollout_floor"] == rollout
     out = capsys.readouterr().out
     assert "floor n/a (...)" in out and "floor n/a (rollout)" in out
 
 
-def test_profile_training_records_provenance_and_every_kernel(tmp_path, capsys):
+def test_profile_training_records_provenance_and_every_kernel(tmp_path, capsys, staged_copy):
     pytest.importorskip("rsl_rl")
     profile = _script("profile_training")
     argv = ["--device", "cpu", "--worlds", "2", "--variant", "default", "--warmup", "1", "--top", "3"]
     profile.main([*argv, "--commit", "abc1234", "--out-dir", str(tmp_path)])
     data = json.loads((tmp_path / "profile_training_cpu_2.json").read_text())
     assert missing(data) == ()
-    assert data["git"] == {"commit": "abc1234", "dirty": None, "source": "given"}
+    assert data["git"] == {"commit": "abc1234", "dirty": None, "modified": None, "source": "argument"}
     assert data["time"] == "self CPU time" and set(data["phase_ms"]) == {"policy", "env", "storage", "update"}
     names = {k["name"] for k in data["kernels"]}
     assert "aten::addmm" in names and all(k["ms"] > 0 and k["launches"] >= 1 for k in data["kernels"])
@@ -202,7 +202,7 @@ def test_bench_training_keeps_the_points_measured_before_a_limit(tmp_path, monke
     assert missing(data) == ()
 
 
-def test_bench_fused_update_keeps_the_points_measured_before_a_limit(tmp_path, monkeypatch):
+def test_bench_fused_update_keeps_the_points_measured_before_a_limit(tmp_path, monkeypatch, staged_copy):
     pytest.importorskip("rsl_rl")
     pytest.importorskip("triton")  # the fused MLP's kernels
     bench = _script("bench_fused_update")

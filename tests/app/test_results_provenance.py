@@ -5,15 +5,22 @@ writers use (listed below), or in a `provenance` object added from the repositor
 (`benchmarks/results/README.md` says how). A file whose provenance is genuinely unknown in part is
 listed in INCOMPLETE with the fields it lacks and why, and the README's "Incomplete provenance" list
 names the same files: a new result file without provenance fails here.
+
+The writers' commit comes from `aquarium_warp.records.git_info`, checked here on temporary git checkouts:
+read from git with the modified tracked files listed, a supplied commit taken only for a copy without git
+and recorded as supplied.
 """
 
 from __future__ import annotations
 
 import json
 import re
+import subprocess
 from pathlib import Path
 
 import pytest
+
+from aquarium_warp.records import git_info
 
 RESULTS = Path(__file__).resolve().parents[2] / "benchmarks" / "results"
 INDEX = RESULTS / "README.md"
@@ -22,8 +29,8 @@ FIELDS = ("commit", "command", "device", "versions")
 # Where the project's writers put each field (a key path into the JSON), besides `provenance`.
 COMMIT_KEYS = (
     ("git_commit",),  # benchmarks/bench_step.py, bench_pettingzoo.py (before the `git` object)
-    ("commit",),  # benchmarks/learned_prey.py
-    ("git", "commit"),  # aquarium_warp.records.git_info: bench suite, profile_step, bench_training, ...
+    ("commit",),  # benchmarks/learned_prey.py, bench_viewer.py (before the `git` object)
+    ("git", "commit"),  # aquarium_warp.records.git_info: every writer now
 )
 COMMAND_KEYS = (
     ("command",),  # bench suite, profile_step, bench_training, learned_prey, studies' run_record
@@ -191,6 +198,85 @@ def test_provenance_rules_on_examples():
         }
     ) == ("commit",)
     assert missing({**full, "machine": {"device_name": "CPU", "torch": "2"}}) == ("versions",)
+
+
+def _git(repo: Path, *args: str) -> str:
+    command = ["git", "-c", "user.name=t", "-c", "user.email=t@t", "-c", "init.defaultBranch=main", *args]
+    return subprocess.run(command, cwd=repo, check=True, capture_output=True, text=True).stdout
+
+
+@pytest.fixture
+def checkout(tmp_path, monkeypatch):
+    """A temporary git checkout of two committed files, `a.txt` and `pkg/b.txt`."""
+    monkeypatch.delenv("AQUARIUM_WARP_COMMIT", raising=False)
+    repo = tmp_path / "repo"
+    (repo / "pkg").mkdir(parents=True)
+    (repo / "a.txt").write_text("a\n")
+    (repo / "pkg" / "b.txt").write_text("b\n")
+    _git(repo, "init", "-q")
+    _git(repo, "add", "a.txt", "pkg/b.txt")
+    _git(repo, "commit", "-q", "-m", "first")
+    return repo
+
+
+def test_a_clean_checkout_is_read_from_git(checkout):
+    head = _git(checkout, "rev-parse", "HEAD").strip()
+    expected = {"commit": head, "dirty": False, "modified": [], "source": "git"}
+    assert git_info(repository=checkout / "pkg") == expected
+    (checkout / "new.txt").write_text("untracked\n")  # an untracked file (a result being written) is no change
+    assert git_info(repository=checkout) == expected
+
+
+def test_a_dirty_checkout_records_its_modified_tracked_files(checkout):
+    head = _git(checkout, "rev-parse", "HEAD").strip()
+    (checkout / "pkg" / "b.txt").write_text("changed\n")
+    (checkout / "a.txt").unlink()
+    assert git_info(repository=checkout / "pkg") == {
+        "commit": head,
+        "dirty": True,
+        "modified": ["a.txt", "pkg/b.txt"],  # the whole checkout's, named from its root
+        "source": "git",
+    }
+    _git(checkout, "checkout", "--", "a.txt", "pkg/b.txt")
+    _git(checkout, "commit", "-q", "--allow-empty", "-m", "second")
+    assert git_info(repository=checkout)["commit"] == _git(checkout, "rev-parse", "HEAD").strip() != head
+
+
+def test_a_supplied_commit_does_not_override_the_checkout(checkout, monkeypatch):
+    head = _git(checkout, "rev-parse", "HEAD").strip()
+    assert git_info(head[:7], repository=checkout) == {"commit": head, "dirty": False, "modified": [], "source": "git"}
+    assert git_info("abc1234", repository=checkout)["supplied"] == "abc1234"  # git's commit is kept, the claim shown
+    monkeypatch.setenv("AQUARIUM_WARP_COMMIT", "def5678")
+    assert git_info(repository=checkout) == {
+        "commit": head,
+        "dirty": False,
+        "modified": [],
+        "source": "git",
+        "supplied": "def5678",
+    }
+
+
+def test_a_copy_without_git_records_that_its_commit_was_supplied(tmp_path, checkout, monkeypatch):
+    staged = tmp_path / "staged"  # outside any repository
+    staged.mkdir()
+    unknown = {"dirty": None, "modified": None}
+    assert git_info("abc1234", repository=staged) == {"commit": "abc1234", **unknown, "source": "argument"}
+    monkeypatch.setenv("AQUARIUM_WARP_COMMIT", "def5678")
+    assert git_info(repository=staged) == {"commit": "def5678", **unknown, "source": "environment"}
+    assert git_info("abc1234", repository=staged)["commit"] == "abc1234"  # an explicit commit wins
+    monkeypatch.delenv("AQUARIUM_WARP_COMMIT")
+    assert git_info(repository=staged) == {"commit": "unknown", **unknown, "source": "no git"}
+    # A folder inside a checkout that git does not track (an installed or copied package) is no checkout.
+    (checkout / "site").mkdir()
+    assert git_info("abc1234", repository=checkout / "site")["source"] == "argument"
+
+
+def test_this_package_is_read_from_its_checkout(monkeypatch):
+    monkeypatch.delenv("AQUARIUM_WARP_COMMIT", raising=False)
+    info = git_info()
+    assert info["source"] in ("git", "no git")  # no git: an installed copy
+    if info["source"] == "git":
+        assert len(info["commit"]) == 40 and info["dirty"] == bool(info["modified"])
 
 
 def _reject_constant(name: str):

@@ -85,7 +85,7 @@ def test_each_condition_trains_with_the_config_of_its_train_command():
 
 
 @pytest.mark.slow
-def test_the_tiny_plan_end_to_end(tmp_path):
+def test_the_tiny_plan_end_to_end(tmp_path, staged_copy):
     out = str(tmp_path / "lp")
     argv = [
         "--plan",
@@ -104,7 +104,7 @@ def test_the_tiny_plan_end_to_end(tmp_path):
     assert learned_prey.main(argv) == 0
     with open(os.path.join(out, "learned_prey_tiny.json"), encoding="utf-8") as f:
         record = json.load(f)
-    assert record["commit"] == "abc1234" and "device_name" in record["machine"]
+    assert record["git"]["commit"] == "abc1234" and "device_name" in record["machine"]
     assert "learned_prey.py" in record["command"]
     rows = {(r["condition"], r["world"]): r for r in record["rows"]}
     assert set(rows) == {("tiny-ego", "A"), ("tiny-world", "B")}

@@ -256,7 +256,7 @@ def _bench():
 
 
 @pytest.mark.slow
-def test_bench_fused_update_runs_on_the_cpu(tmp_path, interpreter):
+def test_bench_fused_update_runs_on_the_cpu(tmp_path, interpreter, staged_copy):
     bench = _bench()
     out = tmp_path / "fused.json"
     assert (
@@ -267,7 +267,7 @@ def test_bench_fused_update_runs_on_the_cpu(tmp_path, interpreter):
         == 0
     )
     data = json.loads(out.read_text())
-    assert data["git"] == {"commit": "abc123", "dirty": None, "source": "given"}
+    assert data["git"] == {"commit": "abc123", "dirty": None, "modified": None, "source": "argument"}
     point = data["points"][0]
     assert set(point["seconds"]) == {"torch eager", "fused-mlp eager", "fused eager"}
     assert point["floor"]["update_flops"] > 0 and point["floor"]["seconds"] is None  # no peak rates for a CPU
@@ -275,7 +275,7 @@ def test_bench_fused_update_runs_on_the_cpu(tmp_path, interpreter):
         assert len(point["max_relative_difference"][path]) == 12
 
 
-def test_fused_mlp_precision_runs_on_the_cpu(tmp_path, interpreter):
+def test_fused_mlp_precision_runs_on_the_cpu(tmp_path, interpreter, staged_copy):
     """benchmarks/fused_mlp_precision.py under the interpreter (whose products are float32 whatever is
     asked): every case's errors against float64 are within the float32 tolerances, and recorded."""
     sys.path.insert(0, str(BENCHMARKS))

@@ -482,7 +482,7 @@ def test_cuda_gradients_and_graph_replay(cuda_device, tf32):
 
 
 @pytest.mark.slow
-def test_tune_fused_kernels_runs_on_the_cpu(tmp_path, interpreter):
+def test_tune_fused_kernels_runs_on_the_cpu(tmp_path, interpreter, staged_copy):
     """benchmarks/tune_fused_kernels.py under the interpreter: one shape timed and recorded with its
     provenance, the module settings restored after."""
     import tune_fused_kernels
