@@ -150,32 +150,15 @@ def run(args) -> int:
 
 def _serve(args) -> int:
     """Build the world and serve it until Ctrl-C."""
+    import torch
     import uvicorn
 
     from ..cli import plural
     from .server import Viewer, make_app
     from .simulation import Simulation, ViewOptions
 
-    options = ViewOptions(
-        prey_policy=args.prey_policy,
-        predator_policy=args.predator_policy,
-        prey=args.prey,
-        predators=args.predators,
-        width=args.width,
-        height=args.height,
-        worlds=args.worlds,
-        seed=args.seed,
-        device=args.device,
-        policy_dir=args.policy_dir,
-        human=args.human,
-    )
-    simulation = Simulation(options)
-    viewer = Viewer(
-        simulation, fps=args.fps, max_agents=args.max_agents, record=args.record, record_dir=args.record_dir
-    )
-    env = simulation.env
-    assert env is not None
-    # Bound before anything is printed: a port in use is refused in one line, not after "open http://...".
+    # Bound before anything else: a port in use is refused at once in one line, before the world is built
+    # or "open http://..." printed.
     try:
         listening = socket.create_server(
             (args.host, args.port), family=socket.AF_INET6 if ":" in args.host else socket.AF_INET
@@ -183,14 +166,37 @@ def _serve(args) -> int:
     except OSError as error:
         cause = os.strerror(error.errno) if error.errno else str(error)  # not create_server's address suffix
         raise ValueError(f"--port {args.port}: cannot serve on {args.host}:{args.port} ({cause})") from None
-    print(
-        f"aquarium-warp view: {plural(env.num_worlds, 'world')} of {env.config.prey_count} prey "
-        f"({simulation.specs['prey']}) and {plural(env.config.predator_count, 'predator')} "
-        f"({simulation.specs['predator']}) on {env.device}"
-    )
-    print(f"aquarium-warp view: open http://{args.host}:{args.port}/  (Ctrl-C stops)", flush=True)
-    config = uvicorn.Config(make_app(viewer), log_level="warning", ws="websockets-sansio")
     with listening:
+        options = ViewOptions(
+            prey_policy=args.prey_policy,
+            predator_policy=args.predator_policy,
+            prey=args.prey,
+            predators=args.predators,
+            width=args.width,
+            height=args.height,
+            worlds=args.worlds,
+            seed=args.seed,
+            device=args.device,
+            policy_dir=args.policy_dir,
+            human=args.human,
+        )
+        simulation = Simulation(options)
+        env = simulation.env
+        assert env is not None
+        if env.torch_device.type == "cpu":
+            # Warp's CPU shards take every core already; torch's own pool on top (a trained policy's
+            # inference) would fight them and the browser for the same cores.
+            torch.set_num_threads(1)
+        viewer = Viewer(
+            simulation, fps=args.fps, max_agents=args.max_agents, record=args.record, record_dir=args.record_dir
+        )
+        print(
+            f"aquarium-warp view: {plural(env.num_worlds, 'world')} of {env.config.prey_count} prey "
+            f"({simulation.specs['prey']}) and {plural(env.config.predator_count, 'predator')} "
+            f"({simulation.specs['predator']}) on {env.device}"
+        )
+        print(f"aquarium-warp view: open http://{args.host}:{args.port}/  (Ctrl-C stops)", flush=True)
+        config = uvicorn.Config(make_app(viewer), log_level="warning", ws="websockets-sansio")
         serve(_server_class()(config), sockets=[listening])
     return 0
 

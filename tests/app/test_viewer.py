@@ -47,6 +47,11 @@ BAD_MESSAGES = [
     ('{"type": "keys", "dx": 2, "dy": 0}', "dx=2 must be -1, 0 or 1"),
     ('{"type": "keys", "dx": 1.0, "dy": 0}', "dx=1.0"),
     ('{"type": "record", "on": "yes"}', "true or false"),
+    ('{"type": "inspect", "slot": 17}', "slot=17 must be an integer in [0, 16]"),
+    ('{"type": "inspect", "slot": true}', "slot=True must be an integer in [0, 16]"),
+    ('{"type": "move", "slot": -1, "x": 0, "y": 0}', "slot=-1 must be an integer in [0, 16]"),
+    ('{"type": "move", "slot": 0, "x": "left", "y": 0}', "x='left' must be a finite number"),
+    ('{"type": "move", "slot": 0, "x": 1}', "missing fields ['y']"),
     ("[" * 100000, "characters"),
 ]
 
@@ -54,15 +59,19 @@ BAD_MESSAGES = [
 @pytest.mark.parametrize(("text", "says"), BAD_MESSAGES)
 def test_bad_messages_are_refused_with_a_reason(text, says):
     with pytest.raises(MessageError, match=None) as error:
-        parse_message(text, num_worlds=2)
+        parse_message(text, num_worlds=2, capacity=17)
     assert says in str(error.value)
 
 
 def test_good_messages_are_checked_and_kept():
-    assert parse_message('{"type": "keys", "dx": -1, "dy": 1}', 1) == {"type": "keys", "dx": -1, "dy": 1}
-    assert parse_message('{"type": "view", "rect": [0, 0, 1.5, 2]}', 1)["rect"] == (0.0, 0.0, 1.5, 2.0)
-    assert parse_message('{"type": "policy", "team": "prey", "spec": " prey-a "}', 1)["spec"] == "prey-a"
-    assert parse_message('{"type": "human", "team": null}', 1)["team"] is None
+    assert parse_message('{"type": "keys", "dx": -1, "dy": 1}', 1, 17) == {"type": "keys", "dx": -1, "dy": 1}
+    assert parse_message('{"type": "view", "rect": [0, 0, 1.5, 2]}', 1, 17)["rect"] == (0.0, 0.0, 1.5, 2.0)
+    assert parse_message('{"type": "policy", "team": "prey", "spec": " prey-a "}', 1, 17)["spec"] == "prey-a"
+    assert parse_message('{"type": "human", "team": null}', 1, 17)["team"] is None
+    assert parse_message('{"type": "inspect", "slot": 16}', 1, 17) == {"type": "inspect", "slot": 16}
+    assert parse_message('{"type": "inspect", "slot": null}', 1, 17)["slot"] is None
+    move = parse_message('{"type": "move", "slot": 3, "x": 1, "y": 2.5}', 1, 17)
+    assert move == {"type": "move", "slot": 3, "x": 1.0, "y": 2.5}
 
 
 @pytest.fixture
@@ -123,13 +132,18 @@ def test_select_agents_thins_prey_and_keeps_predators_and_the_human():
     snapshot = {
         "alive": np.ones(n, bool),
         "position": rng.uniform(0, 100, (n, 2)).astype(np.float32),
-        "header": {"prey_capacity": prey},
+        "header": {"prey_capacity": prey, "width": 100.0, "height": 100.0},
     }
     slots = select_agents(snapshot, None, 100, human=5)
     assert len(slots) <= 101 and set(range(prey, n)) <= set(slots.tolist()) and 5 in slots
     inside = select_agents(snapshot, (0, 0, 50, 50), 10**6, human=None)
     p = snapshot["position"][inside]
     assert len(inside) > 100 and (p <= 50).all()
+    # a view reaching past the seam (x < 0, y > 100) also gets the agents across it
+    across = select_agents(snapshot, (-10, 60, 30, 110), 10**6, human=None)
+    x, y = snapshot["position"].T
+    want = ((x <= 30) | (x >= 90)) & ((y >= 60) | (y <= 10))
+    assert sorted(across.tolist()) == np.flatnonzero(want).tolist()
 
 
 def _free_port() -> int:
