@@ -176,8 +176,11 @@ class Viewer:
         return True
 
     def _stop_recording(self) -> tuple[str, str] | None:
-        recorder, self.recorder, self.recording = self.recorder, None, "off"
-        return None if recorder is None else recorder.close()
+        recorder, self.recorder = self.recorder, None
+        try:
+            return None if recorder is None else recorder.close()
+        finally:
+            self.recording = "off"  # once the files are written
 
     def _apply(self, message: dict) -> str | None:
         """A checked simulation message, on the simulation thread; returns a notice for the page, if any."""

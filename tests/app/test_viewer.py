@@ -4,6 +4,7 @@ system's chromium through Selenium; CI installs it, elsewhere those tests skip).
 
 import contextlib
 import json
+import logging
 import os
 import shutil
 import socket
@@ -153,9 +154,9 @@ def _free_port() -> int:
 
 
 @contextlib.contextmanager
-def serve(viewer):
-    """The viewer's app on uvicorn on a free port, on a thread; yields the port."""
-    port = _free_port()
+def serve(viewer, port=None):
+    """The viewer's app on uvicorn on `port` (default: a free one), on a thread; yields the port."""
+    port = port or _free_port()
     server = uvicorn.Server(
         uvicorn.Config(make_app(viewer), host="127.0.0.1", port=port, log_level="warning", ws="websockets-sansio")
     )
@@ -261,7 +262,11 @@ def test_view_options_are_checked_in_one_line(argv, says, capsys):
     assert code == 2 and says in err
 
 
-def test_a_port_in_use_is_refused_before_the_address_is_printed(capsys):
+def test_a_port_in_use_is_refused_before_the_address_is_printed(capsys, monkeypatch):
+    def no_world(*args, **kwargs):
+        raise AssertionError("the world was built before the port was checked")
+
+    monkeypatch.setattr("aquarium_warp.viewer.simulation.Simulation.__init__", no_world)
     with socket.create_server(("127.0.0.1", 0)) as taken:
         port = taken.getsockname()[1]
         assert main(["view", "--port", str(port), "--device", "cpu"]) == 2
@@ -474,3 +479,288 @@ def test_two_pages_at_once(page, browser_server):
     finally:
         second.quit()
     _until(lambda: len(browser_server[0].pages) == 1)
+
+
+def _pixel(page, x, y):
+    """RGB of the canvas pixel under world point (x, y)."""
+    return page.execute_script(
+        "const v = window.aquarium.view, c = document.getElementById('world').getContext('2d');"
+        "return Array.from(c.getImageData(Math.round((arguments[0] - v.x) * v.scale),"
+        " Math.round((arguments[1] - v.y) * v.scale), 1, 1).data).slice(0, 3);",
+        x,
+        y,
+    )
+
+
+def _close(rgb, want, tolerance=4):
+    return all(abs(a - b) <= tolerance for a, b in zip(rgb, want, strict=True))
+
+
+def _place(viewer, positions, headings=None):
+    """Pause the shown world and put its agents at `positions` ({slot: (x, y)}; the others in a row at
+    the bottom) on the simulation thread."""
+    import torch
+
+    def place():
+        sim = viewer.simulation
+        sim.apply({"type": "pause"})
+        sim.apply({"type": "human", "team": None})
+        env, w = sim.env, sim.world
+        position = torch.stack([torch.tensor([100.0 + 30.0 * i, 740.0]) for i in range(env.capacity)])
+        heading = env.state.torch.heading[w].clone()
+        alive = torch.ones(env.capacity, dtype=torch.bool)
+        for slot, xy in positions.items():
+            position[slot] = torch.tensor(xy)
+        for slot, h in (headings or {}).items():
+            heading[slot] = torch.tensor(h)
+        env.set_state(w, position=position, heading=heading, alive=alive)
+        return w
+
+    return viewer.on_simulation_thread(place)
+
+
+def _shows(page, slot, x, y):
+    """The page's frame has `slot` at (x, y)."""
+    return page.execute_script(
+        "const f = window.aquarium.frame; const i = Array.from(f.slots).indexOf(arguments[0]);"
+        "return i >= 0 && Math.abs(f.agents[i * 6] - arguments[1]) < 0.01"
+        " && Math.abs(f.agents[i * 6 + 1] - arguments[2]) < 0.01 && window.aquarium.framesDrawn > 0;",
+        slot,
+        x,
+        y,
+    )
+
+
+SEA, SHARK_BODY = (172, 206, 231), (92, 112, 135)
+
+
+@browser_only
+@pytest.mark.slow
+def test_a_shark_at_the_edge_is_drawn_across_the_seam_with_its_cone(page, browser_server):
+    """A predator at x = 795 facing +x in the 800 x 800 world: its snout (30 px radius, nose at 0.9 r)
+    and its view cone (200 px, 150 degrees) continue at the left edge, as the MP4 draws them."""
+    viewer = browser_server[0]
+    predator = viewer.simulation.env.prey_capacity
+    _place(viewer, {predator: (795.0, 400.0)}, {predator: (1.0, 0.0)})
+    box = page.find_element("id", "ov-view_cones")
+    if not box.is_selected():
+        box.click()
+    _until(lambda: _shows(page, predator, 795.0, 400.0))
+    time.sleep(0.3)  # drawn with the overlay
+    assert _close(_pixel(page, 10.0, 400.0), SHARK_BODY), _pixel(page, 10.0, 400.0)  # the snout, 15 px across
+    # inside the cone across the seam: the sea under the predator's cone colour (230, 40, 40) at alpha 0.25
+    cone = [round(0.75 * s + 0.25 * c) for s, c in zip(SEA, (230, 40, 40), strict=True)]
+    assert _close(_pixel(page, 60.0, 400.0), cone), _pixel(page, 60.0, 400.0)
+    assert _close(_pixel(page, 60.0, 150.0), SEA)  # outside it: the plain sea
+    box.click()  # overlays off again for the other tests
+    viewer.simulation.playing = True
+
+
+@browser_only
+@pytest.mark.slow
+def test_the_legend_shows_fish_and_sharks(page):
+    legend = page.find_element("id", "legend").text
+    assert "fish: prey" in legend and "shark: predator" in legend and "predator (zoomed out)" in legend
+    coloured = page.execute_script(
+        "return Array.from(document.querySelectorAll('canvas.icon')).map((c) => {"
+        " const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data; let n = 0;"
+        " for (let i = 0; i < d.length; i += 4) if (d[i + 3] > 0) n++; return n; });"
+    )
+    assert len(coloured) == 8 and min(coloured) > 10  # every icon drawn
+
+
+def _canvas_point(page, x, y):
+    """Offsets from the canvas' centre (Selenium's origin) of world point (x, y)."""
+    return page.execute_script(
+        "const v = window.aquarium.view, c = document.getElementById('world'), r = c.getBoundingClientRect();"
+        "const ratio = window.devicePixelRatio || 1;"
+        "return [(arguments[0] - v.x) * v.scale / ratio - r.width / 2,"
+        " (arguments[1] - v.y) * v.scale / ratio - r.height / 2];",
+        x,
+        y,
+    )
+
+
+@browser_only
+@pytest.mark.slow
+def test_click_inspects_an_agent_and_drag_moves_it(page, browser_server):
+    import torch
+    from selenium.webdriver.common.action_chains import ActionChains
+
+    viewer = browser_server[0]
+    world = _place(viewer, {3: (300.0, 300.0)})
+    canvas = page.find_element("id", "world")
+    _until(lambda: _shows(page, 3, 300.0, 300.0))
+    dx, dy = _canvas_point(page, 300.0, 300.0)
+    ActionChains(page).move_to_element_with_offset(canvas, round(dx), round(dy)).click().perform()
+    _until(lambda: _header(page)["inspect"] is not None)
+    info = _header(page)["inspect"]
+    env = viewer.simulation.env
+    want = viewer.on_simulation_thread(lambda: env.outputs.observations["prey"][world, 3].tolist())
+    assert info["slot"] == 3 and info["team"] == "prey" and info["alive"]
+    np.testing.assert_allclose(info["observation"], want, atol=1e-4)  # set_state's observations of slot 3
+    assert "prey (slot 3)" in page.find_element("id", "inspect").text
+    # drag it 200 px right and 100 px down (world px): the server puts it there, nothing else moves
+    before = viewer.on_simulation_thread(lambda: env.state.torch.position[world].clone())
+    tx, ty = _canvas_point(page, 500.0, 400.0)
+    chain = ActionChains(page).move_to_element_with_offset(canvas, round(dx), round(dy)).click_and_hold()
+    for k in range(1, 6):
+        chain = chain.move_to_element_with_offset(canvas, round(dx + (tx - dx) * k / 5), round(dy + (ty - dy) * k / 5))
+    chain.release().perform()
+    after = before.clone()
+    pixel = 1.0 / page.execute_script("return window.aquarium.view.scale")  # one canvas pixel, world px
+
+    def moved():
+        now = viewer.on_simulation_thread(lambda: env.state.torch.position[world].clone())
+        after.copy_(now)
+        return float(torch.linalg.vector_norm(now[3] - torch.tensor([500.0, 400.0]))) <= 2 * pixel
+
+    _until(moved)
+    others = [i for i in range(env.capacity) if i != 3]
+    assert torch.equal(after[others], before[others])
+    viewer.simulation.playing = True
+
+
+@browser_only
+@pytest.mark.slow
+def test_a_drag_outside_the_world_is_refused_by_the_state_api(browser_server):
+    viewer, url = browser_server
+    port = int(url.rsplit(":", 1)[1].strip("/"))
+    with connect(f"ws://127.0.0.1:{port}/ws", max_size=None) as ws:
+        ws.send(json.dumps({"type": "move", "slot": 0, "x": 900.0, "y": 10.0}))
+        while isinstance(reply := ws.recv(timeout=10), bytes) or json.loads(reply)["type"] != "error":
+            pass
+    assert "position must lie in [0, 800.0) x [0, 800.0)" in json.loads(reply)["message"]
+
+
+@browser_only
+@pytest.mark.slow
+def test_the_timeline_shows_past_frames_and_returns_to_live(page, browser_server):
+    _until(lambda: page.execute_script("return window.aquarium.history.length") > 20)
+    page.execute_script(
+        "const t = document.getElementById('timeline'); t.value = t.min; t.dispatchEvent(new Event('input'));"
+    )
+    _until(lambda: page.execute_script("return window.aquarium.scrubbing"))
+    shown = _header(page)["step"]
+    first = page.execute_script("return window.aquarium.history[0].frame.header.step")
+    assert shown <= first + 2  # the oldest kept frame (or one after it, if it just fell out)
+    received = page.execute_script("return window.aquarium.framesReceived")
+    _until(lambda: page.execute_script("return window.aquarium.framesReceived") > received + 5)
+    assert _header(page)["step"] == shown  # the run goes on, the page keeps the past frame
+    assert "timeline: past frame" in page.find_element("id", "step-label").text
+    page.find_element("id", "live").click()
+    _until(lambda: not page.execute_script("return window.aquarium.scrubbing") and _header(page)["step"] > shown)
+
+
+@browser_only
+@pytest.mark.slow
+def test_each_page_has_its_own_overlays(page, browser_server):
+    viewer = browser_server[0]
+    second = _browser()
+    try:
+        second.get(browser_server[1])
+        _until(lambda: second.execute_script("return window.aquarium.framesDrawn") > 2)
+        second.find_element("id", "ov-flow").click()
+        _until(lambda: second.execute_script("return window.aquarium.frame.flow !== null"))
+        time.sleep(0.5)
+        assert page.execute_script("return window.aquarium.frame.flow") is None  # the first page's frames
+        assert not page.find_element("id", "ov-flow").is_selected()
+        assert sorted(p.overlays["flow"] for p in viewer.pages) == [False, True]
+    finally:
+        second.quit()
+
+
+class _GatedRenderer:
+    """The Renderer, built only once `gate` is set (a first build's kernel compilation, made slow)."""
+
+    def __init__(self, gate):
+        self.gate = gate
+
+    def __call__(self, env):
+        from aquarium_warp.render import Renderer
+
+        assert self.gate.wait(60)
+        return Renderer(env)
+
+
+@browser_only
+@pytest.mark.slow
+def test_record_waits_for_the_renderer_without_stopping_the_page_and_ends_with_its_page(tmp_path, monkeypatch):
+    gate = threading.Event()
+    monkeypatch.setattr("aquarium_warp.viewer.server.Renderer", _GatedRenderer(gate))
+    viewer = Viewer(Simulation(ViewOptions(device="cpu")), record_dir=str(tmp_path))
+    with serve(viewer) as port:
+        driver = _browser()
+        try:
+            driver.get(f"http://127.0.0.1:{port}/")
+            _until(lambda: driver.execute_script("return window.aquarium.framesDrawn") > 2)
+            record = driver.find_element("id", "record")
+            record.click()
+            _until(lambda: _header(driver)["recording"] == "preparing")
+            assert not record.is_enabled() and "Preparing" in record.text
+            step = _header(driver)["step"]
+            _until(lambda: _header(driver)["step"] > step + 10)  # the run and the page go on meanwhile
+            gate.set()
+            _until(lambda: _header(driver)["recording"] == "on" and record.is_enabled())
+            assert record.text == "Stop recording"
+            frames = viewer.frames
+            _until(lambda: viewer.frames > frames + 10)
+        finally:
+            driver.quit()
+        _until(lambda: viewer.recording == "off")  # the page that started it closed
+        videos = list(tmp_path.glob("*.mp4"))
+        assert len(videos) == 1 and videos[0].stat().st_size > 1000
+        assert len(read_trajectory(str(videos[0].with_suffix(".json")))["frames"]) >= 10
+
+
+class _Errors(logging.Handler):
+    def __init__(self):
+        super().__init__(logging.ERROR)
+        self.records = []
+
+    def emit(self, record):
+        self.records.append(record)
+
+
+@pytest.mark.slow
+def test_a_page_closed_while_the_recorder_is_prepared_leaves_no_traceback_and_no_recording(tmp_path, monkeypatch):
+    gate = threading.Event()
+    monkeypatch.setattr("aquarium_warp.viewer.server.Renderer", _GatedRenderer(gate))
+    errors = _Errors()
+    for name in ("uvicorn.error", "asyncio"):
+        logging.getLogger(name).addHandler(errors)
+    try:
+        viewer = Viewer(Simulation(ViewOptions(device="cpu")), record_dir=str(tmp_path))
+        with serve(viewer) as port:
+            with connect(f"ws://127.0.0.1:{port}/ws", max_size=None) as ws:
+                ws.recv(timeout=10)
+                ws.send('{"type": "record", "on": true}')
+                _until(lambda: viewer.recording == "preparing")
+            _until(lambda: not viewer.pages)
+            gate.set()  # ready after the page has gone: its notice has nowhere to go
+            _until(lambda: viewer.recording == "off")
+            frames = viewer.frames
+            _until(lambda: viewer.frames > frames + 5)
+    finally:
+        for name in ("uvicorn.error", "asyncio"):
+            logging.getLogger(name).removeHandler(errors)
+    assert errors.records == [] and list(tmp_path.iterdir()) == []
+
+
+@browser_only
+@pytest.mark.slow
+def test_the_page_reconnects_when_the_server_restarts():
+    viewer = Viewer(Simulation(ViewOptions(device="cpu")))
+    with serve(viewer) as port:
+        driver = _browser()
+        driver.get(f"http://127.0.0.1:{port}/")
+        _until(lambda: driver.execute_script("return window.aquarium.framesDrawn") > 2)
+    try:
+        _until(lambda: not driver.execute_script("return window.aquarium.connected"))
+        assert "reconnecting" in driver.find_element("id", "step-label").text
+        again = Viewer(Simulation(ViewOptions(device="cpu", worlds=2)))
+        with serve(again, port):
+            _until(lambda: driver.execute_script("return window.aquarium.connections") == 2, timeout=30)
+            _until(lambda: _header(driver)["num_worlds"] == 2)  # frames of the new server
+    finally:
+        driver.quit()
