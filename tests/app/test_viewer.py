@@ -764,3 +764,140 @@ def test_the_page_reconnects_when_the_server_restarts():
             _until(lambda: _header(driver)["num_worlds"] == 2)  # frames of the new server
     finally:
         driver.quit()
+
+
+# ---------------------------------------------------------------------- attach(env), the widget, train --view
+def _env_and_drivers(seed=0):
+    from aquarium_warp.config import AquariumConfig
+    from aquarium_warp.drivers import make_drivers
+    from aquarium_warp.env import BatchedAquarium
+
+    env = BatchedAquarium(AquariumConfig(), num_worlds=2, device="cpu", seed=seed)
+    return env, make_drivers({"prey": "turnaway", "predator": "naivchase"}, env, seed=seed)
+
+
+def _frame_of(ws) -> tuple[dict, np.ndarray, np.ndarray]:
+    while True:
+        data = ws.recv(timeout=10)
+        if isinstance(data, bytes):
+            n = int(np.frombuffer(data[:4], "<u4")[0])
+            header = json.loads(data[4 : 4 + n])
+            agents = np.frombuffer(data, "<f4", header["n"] * 6, 4 + n).reshape(-1, 6)
+            slots = np.frombuffer(data, "<u4", header["n"], 4 + n + agents.nbytes)
+            return header, agents, slots
+
+
+def test_attach_serves_the_env_as_the_script_steps_it():
+    from aquarium_warp.viewer import attach
+
+    env, drivers = _env_and_drivers()
+    seen: dict[int, np.ndarray] = {}  # world 1's positions after each step, by step
+    with attach(env, world=1) as viewer, connect(viewer.url.replace("http", "ws") + "ws", max_size=None) as ws:
+        headers = []
+        for _ in range(60):
+            env.step({team: driver() for team, driver in drivers.items()})
+            seen[int(env.state.torch.world_step[1])] = env.state.torch.position[1].numpy().copy()
+            time.sleep(0.02)
+            header, agents, slots = _frame_of(ws)
+            headers.append(header)
+            if header["step"] in seen:  # the frame shows world 1 exactly as it was after that step
+                np.testing.assert_array_equal(agents[:, :2], seen[header["step"]][slots])
+        steps = [h["step"] for h in headers]
+        assert steps == sorted(steps) and steps[-1] > 30 and not headers[-1]["controls"]
+        assert {h["world"] for h in headers} == {1}
+        ws.send('{"type": "play"}')  # the script steps the env: the page's controls are refused
+        while isinstance(reply := ws.recv(timeout=10), bytes):
+            pass
+        assert "stepped by its own code" in json.loads(reply)["message"]
+    assert "step" not in env.__dict__  # detached: the env's own method again
+
+
+def test_a_drag_on_an_attached_env_moves_the_agent_before_the_next_step():
+    """The attached env after the drag and a step equals a twin env moved by `set_state` and stepped."""
+    from aquarium_warp.viewer import attach
+    from aquarium_warp.viewer.simulation import move_agent
+
+    env, drivers = _env_and_drivers(seed=3)
+    twin, twin_drivers = _env_and_drivers(seed=3)
+    with attach(env) as viewer, connect(viewer.url.replace("http", "ws") + "ws", max_size=None) as ws:
+        _frame_of(ws)
+        ws.send('{"type": "move", "slot": 2, "x": 123.5, "y": 456.25}')
+        _until(lambda: viewer.run._moves)  # checked and queued for the next step
+        env.step({team: driver() for team, driver in drivers.items()})
+    move_agent(twin, 0, 2, 123.5, 456.25)
+    twin.step({team: driver() for team, driver in twin_drivers.items()})
+    assert torch_equal(env.state.torch.position, twin.state.torch.position)
+    assert torch_equal(env.state.torch.velocity, twin.state.torch.velocity)
+
+
+def torch_equal(a, b) -> bool:
+    import torch
+
+    return bool(torch.equal(a, b))
+
+
+def test_attach_refuses_a_port_in_use_and_bad_options():
+    from aquarium_warp.viewer import attach
+
+    env, _ = _env_and_drivers()
+    with socket.create_server(("127.0.0.1", 0)) as taken:
+        port = taken.getsockname()[1]
+        with pytest.raises(
+            ValueError, match=f"port {port}: cannot serve on 127.0.0.1:{port} \\(Address already in use\\)"
+        ):
+            attach(env, port=port)
+    with pytest.raises(ValueError, match=r"world=2 must be an integer in \[0, 1\]"):
+        attach(env, world=2)
+    with pytest.raises(ValueError, match=r"port=70000 must be an integer in \[0, 65535\]"):
+        attach(env, port=70000)
+    assert "step" not in env.__dict__
+
+
+def test_the_notebook_widget_shows_the_attached_page():
+    pytest.importorskip("anywidget", reason="the notebook extra: pip install 'aquarium-warp[notebook]'")
+    import urllib.request
+
+    from aquarium_warp.viewer.widget import ViewerWidget
+
+    env, _ = _env_and_drivers()
+    view = ViewerWidget(env, height=500)
+    try:
+        state = view.get_state()
+        assert state["url"] == view.attached.url and state["height"] == 500
+        assert 'id="world"' in urllib.request.urlopen(state["url"], timeout=10).read().decode()
+    finally:
+        view.close()
+    with pytest.raises(ValueError, match=r"height=50 must be an integer in \[200, 4000\]"):
+        ViewerWidget(env, height=50)
+
+
+@pytest.mark.slow
+def test_the_notebook_example_runs_headless():
+    """docs/notebooks/viewer.ipynb's code cells, run in order as a kernel would."""
+    pytest.importorskip("anywidget", reason="the notebook extra: pip install 'aquarium-warp[notebook]'")
+    path = os.path.join(os.path.dirname(__file__), "..", "..", "docs", "notebooks", "viewer.ipynb")
+    with open(path, encoding="utf-8") as f:
+        notebook = json.load(f)
+    namespace: dict = {}
+    cells = ["".join(cell["source"]) for cell in notebook["cells"] if cell["cell_type"] == "code"]
+    for source in cells[:-1]:
+        exec(compile(source, path, "exec"), namespace)
+    view = namespace["view"]
+    try:
+        assert int(namespace["env"].state.torch.world_step[0]) == 300
+        with connect(view.url.replace("http", "ws") + "ws", max_size=None) as ws:
+            _until(lambda: _frame_of(ws)[0]["step"] == 300)  # the script has stopped: its last state is shown
+    finally:
+        exec(compile(cells[-1], path, "exec"), namespace)
+    assert not view.attached._thread.is_alive()
+
+
+@pytest.mark.slow
+def test_train_view_serves_the_training_worlds(tmp_path, capsys):
+    pytest.importorskip("rsl_rl", reason="the training extra")
+    code = main(
+        ["train", "--preset", "tiny", "--team", "prey", "--device", "cpu", "--iterations", "1", "--view", "0"]
+        + ["--log-dir", str(tmp_path / "run"), "--export", "none", "--quiet"]
+    )
+    out = capsys.readouterr().out
+    assert code == 0 and "aquarium-warp train: the training worlds are on http://127.0.0.1:" in out, out
