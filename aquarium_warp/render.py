@@ -184,6 +184,22 @@ class Renderer:
         if isinstance(world, bool) or not isinstance(world, (int, np.integer)) or not 0 <= world < n:
             raise ValueError(f"world={world!r} must be an integer in [0, {n - 1}]")
 
+    def freeze(self, world: int = 0) -> FrozenWorld:
+        """A device copy of `world`'s agents and step counter now, which `render(frozen=...)` draws later
+        (on any thread) while the env steps on: a recorder draws frames beside the simulation."""
+        self.check_world(world)
+        env = self.env
+        agents, shard = env.state.agents, next(s for s in env.shards if s.w0 <= world < s.w1)
+        copy = FrozenWorld(world, world - shard.w0)
+        copy.agents = rk.Agents()
+        for name in ("position", "velocity", "heading", "alive"):
+            row = getattr(agents, name)[world : world + 1]
+            setattr(copy.agents, name, wp.clone(row))
+        # the step counter at the shard's own index (the flow kernel reads it there); the rest stays 0
+        copy.world_step = wp.zeros(copy.shard_index + 1, dtype=wp.int32, device=self.device)
+        wp.copy(copy.world_step, shard.state.worlds.world_step, copy.shard_index, copy.shard_index, 1)
+        return copy
+
     def render_device(
         self,
         world: int = 0,
@@ -192,16 +208,20 @@ class Renderer:
         hit_boxes: bool = False,
         velocities: bool = False,
         draw_flow: bool = False,
+        frozen: FrozenWorld | None = None,
     ) -> wp.array:
-        """Draw `world` into the renderer's device image and return it: a Warp array
-        `[height_px, width_px, 3]` uint8 on the env's device, overwritten by the next frame."""
+        """Draw `world` (or the copy `frozen` of one taken by `freeze`) into the renderer's device image
+        and return it: a Warp array `[height_px, width_px, 3]` uint8 on the env's device, overwritten by
+        the next frame."""
+        if frozen is not None:
+            world = frozen.world
         self.check_world(world)
         env = self.env
         p = self._params
-        p.world = int(world)
+        p.world = 0 if frozen is not None else int(world)  # a frozen copy holds its world at row 0
         self._set_world_types(world)
         p.view_cones, p.hit_boxes, p.velocities = int(bool(view_cones)), int(bool(hit_boxes)), int(bool(velocities))
-        agents = env.state.agents
+        agents = env.state.agents if frozen is None else frozen.agents
         if wp.get_device(self.device).is_cuda:
             # The state may have been written by torch on its current stream: order the frame after it
             # (the env's own steps already run on this Warp stream).
@@ -215,7 +235,8 @@ class Renderer:
         rk.launch_splat(p, agents, self._body_key, self._cone_count, self._overlay, env.capacity, self.device)
         if draw_flow:
             shard = next(s for s in env.shards if s.w0 <= world < s.w1)
-            rk.launch_flow(p, shard.world, world - shard.w0, shard.state.worlds.world_step, self._overlay, self.device)
+            world_step = shard.state.worlds.world_step if frozen is None else frozen.world_step
+            rk.launch_flow(p, shard.world, world - shard.w0, world_step, self._overlay, self.device)
         rk.launch_compose(
             p, self._palette, agents, self._body_key, self._cone_count, self._overlay, self._image, self.device
         )
@@ -229,13 +250,25 @@ class Renderer:
         hit_boxes: bool = False,
         velocities: bool = False,
         draw_flow: bool = False,
+        frozen: FrozenWorld | None = None,
     ) -> np.ndarray:
-        """Draw `world`; returns a new numpy uint8 array `[height_px, width_px, 3]` (RGB)."""
+        """Draw `world` (or `frozen`, see `render_device`); returns a new numpy uint8 array
+        `[height_px, width_px, 3]` (RGB)."""
         image = self.render_device(
-            world, view_cones=view_cones, hit_boxes=hit_boxes, velocities=velocities, draw_flow=draw_flow
+            world, view_cones=view_cones, hit_boxes=hit_boxes, velocities=velocities, draw_flow=draw_flow, frozen=frozen
         )
         frame = image.numpy()  # a copy on CUDA (synchronises), a view of the buffer on CPU
         return frame.copy() if not wp.get_device(self.device).is_cuda else frame
+
+
+class FrozenWorld:
+    """One world's agents (position, velocity, heading, alive as `[1, C]` device arrays) and step counter
+    at one moment: `Renderer.freeze`'s copy. `shard_index`: the world's index in its shard."""
+
+    def __init__(self, world: int, shard_index: int):
+        self.world, self.shard_index = world, shard_index
+        self.agents: Any = None
+        self.world_step: Any = None
 
 
 _renderers: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()

@@ -3,6 +3,7 @@ the page's received and drawn frames per second (headless system chromium throug
 same machine), for worlds of 1,000 and 100,000 agents at the density of docs/model.md's world.
 
     python benchmarks/bench_viewer.py --agents 1000 100000 --seconds 8 --out benchmarks/results/viewer_cpu
+    python benchmarks/bench_viewer.py --agents 1000 --record --out /tmp/viewer   # also while recording
 """
 
 from __future__ import annotations
@@ -14,9 +15,10 @@ import platform
 import shutil
 import subprocess
 import sys
+import tempfile
 import time
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests"))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests", "app"))
 from test_viewer import _browser, serve  # the tests' server thread and browser
 
 from aquarium_warp.records import command_line, git_info, machine_info
@@ -24,11 +26,11 @@ from aquarium_warp.viewer.server import Viewer, pack_frame
 from aquarium_warp.viewer.simulation import Simulation, ViewOptions
 
 
-def measure(agents: int, seconds: float, max_agents: int, device: str) -> dict:
+def measure(agents: int, seconds: float, max_agents: int, device: str, record: str | None = None) -> dict:
     predators = max(1, agents // 100)
     side = 800.0 * (agents / 17) ** 0.5  # docs/model.md's density: 17 agents on 800 x 800 px
     options = ViewOptions(prey=agents - predators, predators=predators, width=side, height=side, device=device)
-    viewer = Viewer(Simulation(options), max_agents=max_agents)
+    viewer = Viewer(Simulation(options), max_agents=max_agents, record=record)
     with serve(viewer) as port:
         page = _browser()
         try:
@@ -50,6 +52,7 @@ def measure(agents: int, seconds: float, max_agents: int, device: str) -> dict:
     elapsed = t1 - t0
     return {
         "agents": agents,
+        "recording": record is not None,
         "prey": agents - predators,
         "predators": predators,
         "world_px": round(side),
@@ -71,8 +74,13 @@ def main() -> int:
     parser.add_argument("--max-agents", type=int, default=20000)
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--out", default=os.path.join("benchmarks", "results", "viewer_cpu"))
+    parser.add_argument("--record", action="store_true", help="also measure each size while recording an MP4")
     args = parser.parse_args()
     rows = [measure(n, args.seconds, args.max_agents, args.device) for n in args.agents]
+    if args.record:
+        with tempfile.TemporaryDirectory() as folder:
+            for n in args.agents:
+                rows.append(measure(n, args.seconds, args.max_agents, args.device, os.path.join(folder, f"{n}.mp4")))
     chromium = subprocess.run([shutil.which("chromium") or "chromium", "--version"], capture_output=True, text=True)
     info = machine_info(args.device)
     result = {

@@ -148,6 +148,16 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
         "(TensorBoard Video/episode; default 0: none)",
     )
     g.add_argument("--video-steps", type=int_at_least(1), default=None, help="steps of that episode (default 200)")
+    g.add_argument(
+        "--view",
+        nargs="?",
+        const=8765,
+        default=None,
+        type=int_at_least(0),
+        metavar="PORT",
+        help="show the training worlds in the browser while training (aquarium-warp view's page, "
+        "served on 127.0.0.1:PORT, default 8765; needs the viewer extra)",
+    )
     b = p.add_argument_group("both teams learning (--team both)")
     b.add_argument(
         "--update-schedule",
@@ -362,9 +372,17 @@ def run_train(args) -> int:
     try:  # every refusal from here on releases the claimed directory
         trainer = _resumed(args, changes, log_dir) if args.resume else _new_run(config, log_dir)
         say = print if trainer.rank == 0 else _silent
+        viewer = None
         try:
+            if args.view is not None and trainer.rank == 0:
+                from ..viewer import attach
+
+                viewer = attach(trainer.env, port=args.view)
+                say(f"aquarium-warp train: the training worlds are on {viewer.url}")
             finish_training(trainer, say)
         finally:
+            if viewer is not None:
+                viewer.close()
             trainer.close()
     finally:
         if run_dir is not None:

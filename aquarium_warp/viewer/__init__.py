@@ -4,6 +4,9 @@ and static replay pages (docs/viewer.md). Needs the `viewer` extra: `pip install
     aquarium-warp view --prey-policy prey-a --human predator        # prints the URL to open
     aquarium-warp view --replay run.json --out run.html             # a page that plays a recording
 
+From Python, `attach(env)` serves your own env while your code steps it (`attached.py`), and
+`widget.ViewerWidget` shows it in a notebook.
+
 The server streams agent states (positions, headings, velocities) of one world to the page, which
 draws them on a canvas: `server.py` (Starlette app, uvicorn), `simulation.py` (the env and teams),
 `messages.py` (what a page may send), `recording.py` (MP4, trajectory, replay page), `static/` (the page).
@@ -150,49 +153,65 @@ def run(args) -> int:
 
 def _serve(args) -> int:
     """Build the world and serve it until Ctrl-C."""
+    import torch
     import uvicorn
 
     from ..cli import plural
     from .server import Viewer, make_app
     from .simulation import Simulation, ViewOptions
 
-    options = ViewOptions(
-        prey_policy=args.prey_policy,
-        predator_policy=args.predator_policy,
-        prey=args.prey,
-        predators=args.predators,
-        width=args.width,
-        height=args.height,
-        worlds=args.worlds,
-        seed=args.seed,
-        device=args.device,
-        policy_dir=args.policy_dir,
-        human=args.human,
-    )
-    simulation = Simulation(options)
-    viewer = Viewer(
-        simulation, fps=args.fps, max_agents=args.max_agents, record=args.record, record_dir=args.record_dir
-    )
-    env = simulation.env
-    assert env is not None
-    # Bound before anything is printed: a port in use is refused in one line, not after "open http://...".
-    try:
-        listening = socket.create_server(
-            (args.host, args.port), family=socket.AF_INET6 if ":" in args.host else socket.AF_INET
-        )
-    except OSError as error:
-        cause = os.strerror(error.errno) if error.errno else str(error)  # not create_server's address suffix
-        raise ValueError(f"--port {args.port}: cannot serve on {args.host}:{args.port} ({cause})") from None
-    print(
-        f"aquarium-warp view: {plural(env.num_worlds, 'world')} of {env.config.prey_count} prey "
-        f"({simulation.specs['prey']}) and {plural(env.config.predator_count, 'predator')} "
-        f"({simulation.specs['predator']}) on {env.device}"
-    )
-    print(f"aquarium-warp view: open http://{args.host}:{args.port}/  (Ctrl-C stops)", flush=True)
-    config = uvicorn.Config(make_app(viewer), log_level="warning", ws="websockets-sansio")
+    # Bound before anything else: a port in use is refused at once in one line, before the world is built
+    # or "open http://..." printed.
+    listening = bind(args.host, args.port, "--port")
     with listening:
+        options = ViewOptions(
+            prey_policy=args.prey_policy,
+            predator_policy=args.predator_policy,
+            prey=args.prey,
+            predators=args.predators,
+            width=args.width,
+            height=args.height,
+            worlds=args.worlds,
+            seed=args.seed,
+            device=args.device,
+            policy_dir=args.policy_dir,
+            human=args.human,
+        )
+        simulation = Simulation(options)
+        env = simulation.env
+        assert env is not None
+        if env.torch_device.type == "cpu":
+            # Warp's CPU shards take every core already; torch's own pool on top (a trained policy's
+            # inference) would fight them and the browser for the same cores.
+            torch.set_num_threads(1)
+        viewer = Viewer(
+            simulation, fps=args.fps, max_agents=args.max_agents, record=args.record, record_dir=args.record_dir
+        )
+        print(
+            f"aquarium-warp view: {plural(env.num_worlds, 'world')} of {env.config.prey_count} prey "
+            f"({simulation.specs['prey']}) and {plural(env.config.predator_count, 'predator')} "
+            f"({simulation.specs['predator']}) on {env.device}"
+        )
+        print(f"aquarium-warp view: open http://{args.host}:{args.port}/  (Ctrl-C stops)", flush=True)
+        config = uvicorn.Config(make_app(viewer), log_level="warning", ws="websockets-sansio")
         serve(_server_class()(config), sockets=[listening])
     return 0
+
+
+def bind(host: str, port: int, name: str) -> socket.socket:
+    """A listening socket on `host`:`port`; ValueError naming `name` when that address cannot be served."""
+    try:
+        return socket.create_server((host, port), family=socket.AF_INET6 if ":" in host else socket.AF_INET)
+    except OSError as error:
+        cause = os.strerror(error.errno) if error.errno else str(error)  # not create_server's address suffix
+        raise ValueError(f"{name} {port}: cannot serve on {host}:{port} ({cause})") from None
+
+
+def attach(env, **options):
+    """Serve `env` in the browser while your code steps it (`attached.attach`: returns at once)."""
+    from .attached import attach as serve_env
+
+    return serve_env(env, **options)
 
 
 def _server_class():

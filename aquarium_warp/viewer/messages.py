@@ -11,10 +11,13 @@ A message is a JSON object with a `type` and that type's fields, nothing else:
     {"type": "human", "team": "prey"|"predator"|null}
     {"type": "keys", "dx": -1|0|1, "dy": -1|0|1}              the held arrow keys (screen axes)
     {"type": "record", "on": b}
+    {"type": "inspect", "slot": 0..capacity-1 | null}         the agent whose observation the page shows
+    {"type": "move", "slot": 0..capacity-1, "x": px, "y": px} put a live agent there (the page's drag)
 
 `parse_message` returns the checked dict or raises `MessageError` naming what is wrong; the server
 answers that with an error message and keeps going. Policy specs are checked against the allowed
-policies by the simulation (`Simulation.allowed_spec`), which knows them.
+policies by the simulation (`Simulation.allowed_spec`), which knows them; a move's position and the
+slot's life by the env's state API (`env.set_state`).
 """
 
 from __future__ import annotations
@@ -66,11 +69,22 @@ FIELDS: dict[str, tuple[str, ...]] = {
     "human": ("team",),
     "keys": ("dx", "dy"),
     "record": ("on",),
+    "inspect": ("slot",),
+    "move": ("slot", "x", "y"),
 }
 
 
-def parse_message(text, num_worlds: int) -> dict:
-    """The checked message of the page's text `text` (see the module's list); `MessageError` otherwise."""
+def _slot(value, capacity: int, allow_none: bool = False):
+    if value is None and allow_none:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < capacity:
+        raise MessageError(f"slot={value!r} must be an integer in [0, {capacity - 1}]")
+    return value
+
+
+def parse_message(text, num_worlds: int, capacity: int) -> dict:
+    """The checked message of the page's text `text` (see the module's list) for an env of `num_worlds`
+    worlds of `capacity` agent slots each; `MessageError` otherwise."""
     if not isinstance(text, str):
         raise MessageError("messages must be JSON text, not binary")
     if len(text) > MAX_MESSAGE_CHARS:
@@ -122,6 +136,11 @@ def parse_message(text, num_worlds: int) -> dict:
         out["dx"], out["dy"] = _unit_step(message["dx"], "dx"), _unit_step(message["dy"], "dy")
     elif kind == "record":
         out["on"] = _boolean(message, "on")
+    elif kind == "inspect":
+        out["slot"] = _slot(message["slot"], capacity, allow_none=True)
+    elif kind == "move":
+        out["slot"] = _slot(message["slot"], capacity)
+        out["x"], out["y"] = _number(message["x"], "x"), _number(message["y"], "y")
     return out
 
 

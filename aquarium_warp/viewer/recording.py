@@ -54,8 +54,9 @@ def trajectory_meta(snapshot: dict) -> dict:
 class Recorder:
     """Writes `path` (MP4) and `path` with `.json` (the trajectory) from the snapshots it is given.
 
-    The MP4 is encoded on a thread of its own (ffmpeg through `write_video`), so the simulation does
-    not wait for it; `close()` finishes both files and returns their paths.
+    The MP4's frames are drawn and encoded on a thread of its own (from `Renderer.freeze` copies of the
+    world, through `write_video`), so the simulation goes on meanwhile; it waits only when that thread
+    falls 16 frames behind. `close()` finishes both files and returns their paths.
     """
 
     def __init__(self, path: str, renderer, fps: float = 30):
@@ -65,7 +66,7 @@ class Recorder:
             raise ValueError(f"cannot record to {path}: folder {folder} does not exist")
         self.path, self.json_path = path, os.path.splitext(path)[0] + ".json"
         self._renderer = renderer
-        self._frames: queue.Queue = queue.Queue(maxsize=64)  # the simulation waits when ffmpeg falls behind
+        self._frames: queue.Queue = queue.Queue(maxsize=16)  # the simulation waits when this thread falls behind
         self._trajectory: list[dict] = []
         self._meta: dict | None = None
         self._error: BaseException | None = None
@@ -74,8 +75,15 @@ class Recorder:
 
     def _encode(self, fps: float) -> None:
         def frames():
-            while (frame := self._frames.get()) is not None:  # not iter(get, None): it compares arrays with ==
-                yield frame
+            while (item := self._frames.get()) is not None:
+                frozen, overlays = item
+                yield self._renderer.render(
+                    frozen=frozen,
+                    view_cones=overlays["view_cones"],
+                    hit_boxes=overlays["hit_boxes"],
+                    velocities=overlays["velocities"],
+                    draw_flow=overlays["flow"],
+                )
 
         try:
             write_video(frames(), self.path, fps=fps, progress=False)
@@ -85,18 +93,11 @@ class Recorder:
                 pass
 
     def add(self, snapshot: dict, overlays: dict) -> None:
-        """One frame: the displayed world drawn now with the page's overlays, and its trajectory frame."""
+        """One frame: the displayed world as it is now, drawn with `overlays`, and its trajectory frame."""
         if self._meta is None:
             self._meta = trajectory_meta(snapshot)
         self._trajectory.append(trajectory_frame(snapshot))
-        frame = self._renderer.render(
-            snapshot["header"]["world"],
-            view_cones=overlays["view_cones"],
-            hit_boxes=overlays["hit_boxes"],
-            velocities=overlays["velocities"],
-            draw_flow=overlays["flow"],
-        )
-        self._frames.put(frame)
+        self._frames.put((self._renderer.freeze(snapshot["header"]["world"]), dict(overlays)))
 
     def close(self) -> tuple[str, str]:
         self._frames.put(None)
@@ -159,13 +160,10 @@ def record_trajectory(simulation, steps: int, path: str) -> int:
     """Step `simulation` (a `viewer.simulation.Simulation`) `steps` times without a server and write the
     trajectory of its displayed world to `path` (the current state, then one frame per step); returns
     the frame count. The docs' replays of the shipped policies are made with it (docs/viewer.md)."""
-    from ..metrics import SwarmMetrics
-
-    metrics = SwarmMetrics(simulation.env)
-    snapshot = simulation.snapshot(metrics)
+    snapshot = simulation.snapshot()
     frames = [trajectory_frame(snapshot)]
     for _ in range(steps):
         simulation.step()
-        frames.append(trajectory_frame(simulation.snapshot(metrics)))
+        frames.append(trajectory_frame(simulation.snapshot()))
     write_trajectory(path, trajectory_meta(snapshot), frames)
     return len(frames)

@@ -4,12 +4,20 @@ WebSocket per page.
 One loop advances the simulation on a thread of its own (a one-thread executor: the simulation is
 never touched from two threads, and the event loop stays free to answer pages while a large world
 steps) and publishes a snapshot of the displayed world at up to `fps` per second. Each page has a
-sender that packs the newest snapshot for that page (its view rectangle, at most `max_agents` agents)
-whenever the previous frame has gone out: a slow page gets fewer frames, never a backlog.
+sender that packs the newest snapshot for that page (its view rectangle, overlays and inspected agent,
+at most `max_agents` agents) whenever the previous frame has gone out: a slow page gets fewer frames,
+never a backlog. Overlays and the inspected agent are each page's own; the simulation's controls are
+shared by all pages.
+
+Recording: the renderer is built (its kernels compiled, seconds the first time) on a worker thread, from
+start-up on; a record click while it is not ready shows the button busy ("preparing") and starts once it
+is. Frames are drawn and encoded beside the simulation (`recording.Recorder`). A recording started from a
+page ends when that page closes.
 
 Frame (binary, little-endian): uint32 n_header, the header's JSON (n_header bytes, padded with spaces
 to a multiple of 4), then float32 [n, 6] (x, y, heading x, heading y, velocity x, velocity y), uint32
-[n] slots, then, when the flow overlay is on, float32 [rows, cols, 2] currents (rows, cols in the header).
+[n] slots, then, when the page's flow overlay is on, float32 [rows, cols, 2] currents (rows, cols in
+the header). The header's `inspect` holds `simulation.inspect_agent` of the page's inspected agent.
 """
 
 from __future__ import annotations
@@ -20,33 +28,45 @@ import contextlib
 import json
 import os
 import time
+import weakref
 
 import numpy as np
 from starlette.applications import Starlette
 from starlette.responses import HTMLResponse
 from starlette.routing import Mount, Route, WebSocketRoute
 from starlette.staticfiles import StaticFiles
-from starlette.websockets import WebSocket, WebSocketDisconnect
+from starlette.websockets import WebSocket, WebSocketDisconnect, WebSocketDisconnected
+from uvicorn.protocols.utils import ClientDisconnected
 
-from ..metrics import SwarmMetrics
 from ..render import Renderer
-from .messages import MessageError, parse_message
+from .messages import OVERLAYS, MessageError, parse_message
 from .recording import Recorder, asset
-from .simulation import Simulation
 
 STATIC = os.path.join(os.path.dirname(os.path.abspath(__file__)), "static")
+# what sending to or receiving from a page that has gone raises: Starlette's after the close message,
+# uvicorn's when the connection dropped first
+GONE = (WebSocketDisconnect, WebSocketDisconnected, ClientDisconnected)
+
+
+def _in_span(c: np.ndarray, low: float, high: float, size: float) -> np.ndarray:
+    """Whether coordinate `c`, or one of its copies a world size `size` away (the torus), lies in [low, high]."""
+    return (
+        ((c >= low) & (c <= high)) | ((c + size >= low) & (c + size <= high)) | ((c - size >= low) & (c - size <= high))
+    )
 
 
 def select_agents(snapshot: dict, rect, max_agents: int, human: int | None) -> np.ndarray:
-    """The slots a page is sent: live agents inside `rect` (x0, y0, x1, y1; None: all), every predator
-    and the human's agent always, prey thinned by a fixed stride down to `max_agents` in all."""
+    """The slots a page is sent: live agents inside `rect` (x0, y0, x1, y1, counting their copies
+    across the torus' seams; None: all), every predator and the human's agent always, prey thinned by
+    a fixed stride down to `max_agents` in all."""
     alive = snapshot["alive"]
     position = snapshot["position"]
-    prey_capacity = snapshot["header"]["prey_capacity"]
+    header = snapshot["header"]
+    prey_capacity = header["prey_capacity"]
     keep = alive.copy()
     if rect is not None:
         x0, y0, x1, y1 = rect
-        keep &= (position[:, 0] >= x0) & (position[:, 0] <= x1) & (position[:, 1] >= y0) & (position[:, 1] <= y1)
+        keep &= _in_span(position[:, 0], x0, x1, header["width"]) & _in_span(position[:, 1], y0, y1, header["height"])
     slots = np.flatnonzero(keep)
     if len(slots) > max_agents:
         predators = slots[slots >= prey_capacity][:max_agents]
@@ -59,45 +79,52 @@ def select_agents(snapshot: dict, rect, max_agents: int, human: int | None) -> n
     return slots.astype(np.uint32)
 
 
-def pack_frame(snapshot: dict, rect, max_agents: int) -> bytes:
+def pack_frame(snapshot: dict, rect, max_agents: int, *, flow: bool = True, inspect: int | None = None) -> bytes:
+    """The binary frame of `snapshot` for a page showing `rect`, with the flow's grid when `flow` (and
+    the snapshot has one) and the inspection of slot `inspect` (when the snapshot has it)."""
     header = snapshot["header"]
     human = header["human"]["slot"] if header["human"] else None
     slots = select_agents(snapshot, rect, max_agents, human)
     agents = np.concatenate(
         [snapshot["position"][slots], snapshot["heading"][slots], snapshot["velocity"][slots]], axis=1
     ).astype("<f4")
-    flow = snapshot["flow"]
+    grid = snapshot["flow"] if flow else None
     header = {
         **header,
         "type": "frame",
         "n": len(slots),
         "alive_total": int(snapshot["alive"].sum()),
-        "flow_shape": None if flow is None else list(flow.shape[:2]),
+        "flow_shape": None if grid is None else list(grid.shape[:2]),
+        "inspect": snapshot["inspect"].get(inspect),
         "sent_at": time.time(),
     }
     text = json.dumps(header).encode()
     text += b" " * (-len(text) % 4)
     parts = [np.uint32(len(text)).astype("<u4").tobytes(), text, agents.tobytes(), slots.astype("<u4").tobytes()]
-    if flow is not None:
-        parts.append(flow.astype("<f4").tobytes())
+    if grid is not None:
+        parts.append(grid.astype("<f4").tobytes())
     return b"".join(parts)
 
 
 class _Page:
-    """One connected page: its socket, view rectangle and a flag that a newer snapshot is waiting."""
+    """One connected page: its socket, view rectangle, overlays, inspected agent and a flag that a newer
+    snapshot is waiting."""
 
     def __init__(self, socket: WebSocket):
         self.socket = socket
         self.rect: tuple[float, float, float, float] | None = None
+        self.overlays = dict.fromkeys(OVERLAYS, False)
+        self.inspect: int | None = None
         self.fresh = asyncio.Event()
 
 
 class Viewer:
-    """The server's state: the simulation, its thread, the pages and the recording."""
+    """The server's state: the simulation (a `simulation.Simulation`, or `attach`'s run), its thread,
+    the pages and the recording."""
 
     def __init__(
         self,
-        simulation: Simulation,
+        simulation,
         *,
         fps: float = 30,
         max_agents: int = 20000,
@@ -110,9 +137,11 @@ class Viewer:
         self.pages: set[_Page] = set()
         self.snapshot: dict | None = None
         self.recorder: Recorder | None = None
+        self.recording = "off"  # "preparing" (the renderer is being built), "on"
+        self._recording_page: _Page | None = None  # the page that started the recording (None: --record)
         self._record_path = record
-        self._metrics: SwarmMetrics | None = None
-        self._renderer: Renderer | None = None
+        self._renderer: tuple[weakref.ref, asyncio.Future] | None = None  # (its env, the Renderer)
+        self._tasks: set[asyncio.Task] = set()  # record requests waiting for the renderer
         self.frames = 0  # snapshots published (tests and the benchmark read it)
         self.tick_seconds = 0.0  # time of the last tick on the simulation thread
 
@@ -120,42 +149,41 @@ class Viewer:
         """Run `function(*args)` on the simulation thread."""
         return await asyncio.get_running_loop().run_in_executor(self._thread, function, *args)
 
+    def on_simulation_thread(self, function, *args):
+        """Run `function(*args)` on the simulation thread and return its result (from any other thread:
+        scripts and tests that change the state while the viewer runs)."""
+        return self._thread.submit(function, *args).result()
+
     # ------------------------------------------------------------------ simulation thread
-    def _tick(self) -> dict:
+    def _tick(self, flow: bool, inspect: list[int], overlays: dict) -> dict:
         start = time.perf_counter()
         sim = self.simulation
         stepped = sim.advance()
-        assert sim.env is not None  # built with the simulation
-        if self._metrics is None or self._metrics.env is not sim.env:
-            self._metrics = SwarmMetrics(sim.env)
-        snapshot = sim.snapshot(self._metrics)
-        snapshot["header"]["recording"] = self.recorder is not None
+        snapshot = sim.snapshot(flow, inspect)
+        snapshot["header"]["recording"] = self.recording
         if self.recorder is not None and stepped:
-            self.recorder.add(snapshot, sim.overlays)
+            self.recorder.add(snapshot, overlays)
         self.tick_seconds = time.perf_counter() - start
         return snapshot
 
-    def _start_recording(self, path: str | None = None) -> str:
-        if self.recorder is not None:
-            return self.recorder.path
-        if path is None:
-            path = os.path.join(self.record_dir, time.strftime("aquarium-%Y%m%d-%H%M%S.mp4"))
-        if self._renderer is None or self._renderer.env is not self.simulation.env:
-            self._renderer = Renderer(self.simulation.env)
-        self.recorder = Recorder(path, self._renderer, fps=self.fps)
-        return path
+    def _start_recording(self, renderer: Renderer, path: str) -> bool:
+        """Start recording with `renderer`, if it still draws the simulation's env (a policy switch may
+        have changed it meanwhile)."""
+        if renderer.env is not self.simulation.env:
+            return False
+        self.recorder = Recorder(path, renderer, fps=self.fps)
+        self.recording = "on"
+        return True
 
     def _stop_recording(self) -> tuple[str, str] | None:
         recorder, self.recorder = self.recorder, None
-        return None if recorder is None else recorder.close()
+        try:
+            return None if recorder is None else recorder.close()
+        finally:
+            self.recording = "off"  # once the files are written
 
     def _apply(self, message: dict) -> str | None:
-        """A checked message, on the simulation thread; returns a notice for the page, if any."""
-        if message["type"] == "record":
-            if message["on"]:
-                return f"recording to {self._start_recording()}"
-            paths = self._stop_recording()
-            return None if paths is None else f"wrote {paths[0]} and {paths[1]}"
+        """A checked simulation message, on the simulation thread; returns a notice for the page, if any."""
         env = self.simulation.env
         self.simulation.apply(message)
         if self.recorder is not None and self.simulation.env is not env:  # a new world: a new recording
@@ -163,15 +191,58 @@ class Viewer:
             return f"the teams' world changed: wrote {paths[0]} and {paths[1]}" if paths else None
         return None
 
+    # ------------------------------------------------------------------ recording (event loop)
+    def _renderer_for(self, env) -> asyncio.Future:
+        """The renderer of `env`, built on a worker thread (compiling its kernels takes seconds the first
+        time: the simulation and the pages go on meanwhile)."""
+        if self._renderer is None or self._renderer[0]() is not env:
+            future = asyncio.get_running_loop().run_in_executor(None, Renderer, env)
+            future.add_done_callback(lambda f: f.cancelled() or f.exception())  # failures: reported by `record`
+            self._renderer = (weakref.ref(env), future)
+        return self._renderer[1]
+
+    async def record(self, on: bool, page: _Page | None = None, path: str | None = None) -> str | None:
+        """Start (once the renderer is ready) or stop recording; returns a notice. `page`: the page that
+        asked (the recording ends when it closes)."""
+        if not on:
+            self._recording_page = None
+            paths = await self.call(self._stop_recording)
+            return None if paths is None else f"wrote {paths[0]} and {paths[1]}"
+        if self.recording != "off":
+            return None
+        if path is None:
+            path = os.path.join(self.record_dir, time.strftime("aquarium-%Y%m%d-%H%M%S.mp4"))
+        self.recording = "preparing"
+        try:
+            while True:
+                renderer = await self._renderer_for(self.simulation.env)
+                if page is not None and page not in self.pages:
+                    return None  # it closed while the renderer was built
+                if await self.call(self._start_recording, renderer, path):
+                    self._recording_page = page
+                    return f"recording to {path}"
+        finally:
+            if self.recorder is None:
+                self.recording = "off"
+
+    def _recording_overlays(self) -> dict:
+        """The overlays a recording draws: its page's (with --record: the first page's, else none)."""
+        page = self._recording_page or next(iter(self.pages), None)
+        return dict(page.overlays) if page is not None else dict.fromkeys(OVERLAYS, False)
+
     # ------------------------------------------------------------------ event loop
     async def run(self) -> None:
         """Tick at up to `fps` per second while the server runs and publish each snapshot to the pages."""
         if self._record_path is not None:
-            await self.call(self._start_recording, self._record_path)
+            await self.record(True, path=self._record_path)
+        elif self.simulation.records:
+            self._renderer_for(self.simulation.env)  # ready before the first click
         period = 1.0 / self.fps
         while True:
             start = time.perf_counter()
-            self.snapshot = await self.call(self._tick)
+            flow = any(page.overlays["flow"] for page in self.pages)
+            inspect = sorted({page.inspect for page in self.pages if page.inspect is not None})
+            self.snapshot = await self.call(self._tick, flow, inspect, self._recording_overlays())
             self.frames += 1
             for page in self.pages:
                 page.fresh.set()
@@ -191,51 +262,76 @@ class Viewer:
             await page.fresh.wait()
             page.fresh.clear()
             if self.snapshot is not None:
-                await page.socket.send_bytes(pack_frame(self.snapshot, page.rect, self.max_agents))
+                frame = pack_frame(
+                    self.snapshot, page.rect, self.max_agents, flow=page.overlays["flow"], inspect=page.inspect
+                )
+                await page.socket.send_bytes(frame)
+
+    async def _hello(self, page: _Page) -> None:
+        choices = await self.call(self.simulation.policy_choices)
+        await page.socket.send_text(json.dumps({"type": "hello", "choices": choices, "max_agents": self.max_agents}))
+
+    async def _tell(self, page: _Page, kind: str, text: str | None) -> None:
+        if text and page in self.pages:
+            with contextlib.suppress(*GONE):
+                await page.socket.send_text(json.dumps({"type": kind, "message": text}))
+
+    async def _record_for(self, page: _Page, on: bool) -> None:
+        try:
+            await self._tell(page, "notice", await self.record(on, page))
+        except ValueError as error:
+            await self._tell(page, "error", str(error))
+
+    async def _handle(self, page: _Page, text) -> None:
+        """One message of `page`: its own settings here, the simulation's on the simulation thread."""
+        env = self.simulation.env
+        message = parse_message(text, env.num_worlds, env.capacity)
+        kind = message["type"]
+        if kind == "view":
+            page.rect = message["rect"]
+        elif kind == "overlays":
+            page.overlays = {name: message[name] for name in OVERLAYS}
+        elif kind == "inspect":
+            page.inspect = message["slot"]
+        elif kind == "record":  # waits for the renderer: a task of its own, the page's messages go on
+            self._tasks.add(task := asyncio.create_task(self._record_for(page, message["on"])))
+            task.add_done_callback(self._tasks.discard)
+        else:
+            await self._tell(page, "notice", await self.call(self._apply, message))
+            if kind == "policy":  # the page's lists may show a new file
+                await self._hello(page)
 
     async def page_socket(self, socket: WebSocket) -> None:
         """One page: send it the choices, then frames; answer its messages (errors go back to it)."""
         await socket.accept()
         page = _Page(socket)
-        sim = self.simulation
-        await socket.send_text(
-            json.dumps({"type": "hello", "choices": await self.call(sim.policy_choices), "max_agents": self.max_agents})
-        )
-        self.pages.add(page)
-        sender = asyncio.create_task(self._send_frames(page))
+        sender = None
         try:
+            await self._hello(page)
+            self.pages.add(page)
+            sender = asyncio.create_task(self._send_frames(page))
             while True:
                 received = await socket.receive()
                 if received["type"] == "websocket.disconnect":
                     break
                 try:
-                    message = parse_message(received.get("text"), sim.env.num_worlds)  # type: ignore[union-attr]
-                    if message["type"] == "view":
-                        page.rect = message["rect"]
-                        continue
-                    notice = await self.call(self._apply, message)
+                    await self._handle(page, received.get("text"))
                 except (MessageError, ValueError) as error:  # the page's mistake: tell it, keep serving
                     await socket.send_text(json.dumps({"type": "error", "message": str(error)}))
-                    continue
-                if notice:
-                    await socket.send_text(json.dumps({"type": "notice", "message": notice}))
-                if message["type"] == "policy":  # the page's lists may show a new file
-                    await socket.send_text(
-                        json.dumps(
-                            {
-                                "type": "hello",
-                                "choices": await self.call(sim.policy_choices),
-                                "max_agents": self.max_agents,
-                            }
-                        )
-                    )
-        except WebSocketDisconnect:
+        except GONE:
             pass
         finally:
             self.pages.discard(page)
-            sender.cancel()
-            with contextlib.suppress(asyncio.CancelledError, WebSocketDisconnect, RuntimeError):
-                await sender
+            if sender is not None:
+                sender.cancel()
+                with contextlib.suppress(asyncio.CancelledError, *GONE):
+                    await sender
+            if self._recording_page is page and self.recording == "on":
+                try:
+                    notice = await self.record(False)
+                    print(f"aquarium-warp view: the recording's page closed: {notice}")
+                except ValueError as error:  # a failed recording: the page that would show it is gone
+                    print(f"aquarium-warp view: {error}")
 
 
 def make_app(viewer: Viewer) -> Starlette:

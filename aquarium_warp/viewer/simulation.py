@@ -1,5 +1,6 @@
 """The viewer's simulation: a `BatchedAquarium`, the two teams' drivers, the human's agent and the
-snapshots of the displayed world that the server streams. No web code here (the tests drive it directly).
+snapshots of the displayed world that the server streams (`WorldView`, shared with `attach`). No web code
+here (the tests drive it directly).
 
 Every method runs on one thread (the server's simulation thread), so no locking is needed.
 """
@@ -17,8 +18,8 @@ from .. import pretrained
 from ..config import AquariumConfig
 from ..drivers import HEURISTICS, is_heuristic, make_drivers
 from ..env import BatchedAquarium, action_directions
+from ..metrics import SwarmMetrics
 from .flow import FlowSampler
-from .messages import OVERLAYS
 
 TYPE_PREY, TYPE_PREDATOR = 1, 0  # the codes the page and replay files use (kernels.common's PREY / PREDATOR)
 
@@ -42,7 +43,9 @@ class ViewOptions:
 
 class Simulation:
     """The worlds on view. `apply(message)` acts on a checked page message (`messages.parse_message`);
-    `tick()` advances by the speed (when playing) and returns the snapshot of the displayed world."""
+    `advance()` steps by the speed (when playing), `snapshot()` returns the displayed world."""
+
+    records = True  # the viewer offers recording (an attached run does not: see `attach`)
 
     def __init__(self, options: ViewOptions):
         self.options = options
@@ -60,13 +63,10 @@ class Simulation:
         self.speed = 1.0
         self._step_credit = 0.0  # fractional steps owed at speeds below 1
         self._single_steps = 0
-        self.overlays = dict.fromkeys(OVERLAYS, False)
         self.human: str | None = None
         self.human_slot = 0
         self._human_action = 0
         self.human_stats = {"captures": 0, "reward": 0.0, "steps": 0}
-        self._metrics_values: tuple | None = None  # (the SwarmMetrics, its values of the displayed world)
-        self._metrics_due = 0.0
         if options.human is not None:
             self.set_human(options.human)
 
@@ -148,7 +148,7 @@ class Simulation:
                 self.env.close()
             self.env = env
             self._directions = torch.from_numpy(action_directions(config.action_count))
-            self.flow = FlowSampler(env)
+            self.view = WorldView(env)
             self.world = min(getattr(self, "world", 0), env.num_worlds - 1)
             self.human_slot = 0
         self.drivers, self.specs = drivers, dict(specs)
@@ -207,17 +207,17 @@ class Simulation:
             self.speed = message["value"]
         elif kind == "world":
             self.world = message["index"]
-            self._metrics_values = None  # the other world's values
+            self.view.forget_metrics()  # the other world's values
             if self.human is not None:
                 self.set_human(self.human)
-        elif kind == "overlays":
-            self.overlays = {name: message[name] for name in OVERLAYS}
         elif kind == "policy":
             self.set_policy(message["team"], message["spec"])
         elif kind == "human":
             self.set_human(message["team"])
         elif kind == "keys":
             self.set_keys(message["dx"], message["dy"])
+        elif kind == "move":
+            move_agent(self._env, self.world, message["slot"], message["x"], message["y"])
 
     def step(self) -> None:
         """One step of every world: the drivers' actions, the human's for its agent."""
@@ -250,25 +250,53 @@ class Simulation:
             self.step()
         return count
 
-    def snapshot(self, metrics) -> dict:
-        """The displayed world now: numpy arrays of every slot and the header values the page shows.
-        `metrics`: a `SwarmMetrics` of the env (the caller keeps one per env)."""
-        env, w = self._env, self.world
+    def snapshot(self, flow: bool = False, inspect=()) -> dict:
+        """The displayed world now (`WorldView.snapshot`) with the header values of the controls."""
+        snap = self.view.snapshot(self.world, flow, inspect)
+        snap["header"].update(
+            controls=True,
+            playing=self.playing,
+            speed=self.speed,
+            specs=dict(self.specs),
+            human=None if self.human is None else {"team": self.human, "slot": self.human_agent(), **self.human_stats},
+        )
+        return snap
+
+
+class WorldView:
+    """Snapshots of one world of `env` for the pages: its agents, the swarm metrics, the flow and the
+    agents the pages inspect. Call from the thread that steps `env`."""
+
+    def __init__(self, env: BatchedAquarium):
+        self.env = env
+        self.metrics = SwarmMetrics(env)
+        self.flow = FlowSampler(env)
+        self._values: tuple[int, dict] | None = None  # (world, its swarm metrics)
+        self._due = 0.0
+
+    def forget_metrics(self) -> None:
+        self._values = None
+
+    def snapshot(self, world: int, flow: bool = False, inspect=()) -> dict:
+        """World `world` now: numpy arrays of every slot, the header values the page shows, the flow
+        (with `flow`) and `inspect_agent` of each slot in `inspect`."""
+        env, w = self.env, world
         s = env.state.torch
         # The swarm metrics (groups: a connected-components pass) cost more than a step in a large world:
         # recomputed when the last result is older than 4x its own cost, they take at most a fifth of the time.
         now = time.perf_counter()
-        if self._metrics_values is None or self._metrics_values[0] is not metrics or now >= self._metrics_due:
-            values = metrics.compute()
-            self._metrics_values = (metrics, {k: float(values[k][w]) for k in ("polarization", "groups")})
-            self._metrics_due = time.perf_counter() + 4 * (time.perf_counter() - now)
-        values = self._metrics_values[1]
+        if self._values is None or self._values[0] != w or now >= self._due:
+            values = self.metrics.compute()
+            self._values = (w, {k: float(values[k][w]) for k in ("polarization", "groups")})
+            self._due = time.perf_counter() + 4 * (time.perf_counter() - now)
+        values = self._values[1]
         snap = {
             "position": s.position[w].cpu().numpy().copy(),
             "heading": s.heading[w].cpu().numpy().copy(),
             "velocity": s.velocity[w].cpu().numpy().copy(),
             "alive": s.alive[w].cpu().numpy().copy(),
-            "flow": self.flow.sample(w) if self.overlays["flow"] else None,
+            "flow": self.flow.sample(w) if flow else None,
+            "inspect": {slot: inspect_agent(env, w, slot) for slot in inspect},
         }
         cfg = env.config.world(w) if env.config.per_world_fields else env.config
         snap["header"] = {
@@ -285,15 +313,44 @@ class Simulation:
             "groups": _finite(values["groups"]),
             "prey_alive": int(s.prey_alive_count[w]),
             "predator_alive": int(s.predator_alive_count[w]),
-            "playing": self.playing,
-            "speed": self.speed,
-            "specs": dict(self.specs),
-            "overlays": dict(self.overlays),
-            "human": None
-            if self.human is None
-            else {"team": self.human, "slot": self.human_agent(), **self.human_stats},
+            "controls": False,
+            "playing": True,
+            "speed": 1.0,
+            "specs": None,
+            "human": None,
         }
         return snap
+
+
+def _team_of(env: BatchedAquarium, slot: int) -> tuple[str, int]:
+    """(team, index within the team) of an env slot."""
+    return ("prey", slot) if slot < env.prey_capacity else ("predator", slot - env.prey_capacity)
+
+
+def inspect_agent(env: BatchedAquarium, world: int, slot: int) -> dict:
+    """What agent `slot` of `world` saw, did and got in the last step: its observation (`env.outputs`,
+    the policy's input for the next action), the action it took, its reward and episode return."""
+    team, index = _team_of(env, slot)
+    s, out = env.state.torch, env.outputs
+    return {
+        "slot": slot,
+        "team": team,
+        "alive": bool(s.alive[world, slot]),
+        "observation": [round(float(v), 4) for v in out.observations[team][world, index].cpu()],
+        "action": int(env.actions[team][world, index]),
+        "reward": _finite(out.rewards[team][world, index]),
+        "episode_return": _finite(s.episode_return[world, slot]),
+    }
+
+
+def move_agent(env: BatchedAquarium, world: int, slot: int, x: float, y: float) -> None:
+    """Put live agent `slot` of `world` at (x, y) through `env.set_state` (which checks the position:
+    ValueError, nothing changed, when it lies outside the world)."""
+    if not bool(env.state.torch.alive[world, slot]):
+        raise ValueError(f"slot {slot} of world {world} holds no live agent")
+    position = env.state.torch.position[world].cpu().clone()
+    position[slot] = torch.tensor([x, y], dtype=torch.float32)
+    env.set_state(world, position=position)
 
 
 def _finite(value) -> float | None:

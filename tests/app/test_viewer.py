@@ -4,6 +4,7 @@ system's chromium through Selenium; CI installs it, elsewhere those tests skip).
 
 import contextlib
 import json
+import logging
 import os
 import shutil
 import socket
@@ -47,6 +48,11 @@ BAD_MESSAGES = [
     ('{"type": "keys", "dx": 2, "dy": 0}', "dx=2 must be -1, 0 or 1"),
     ('{"type": "keys", "dx": 1.0, "dy": 0}', "dx=1.0"),
     ('{"type": "record", "on": "yes"}', "true or false"),
+    ('{"type": "inspect", "slot": 17}', "slot=17 must be an integer in [0, 16]"),
+    ('{"type": "inspect", "slot": true}', "slot=True must be an integer in [0, 16]"),
+    ('{"type": "move", "slot": -1, "x": 0, "y": 0}', "slot=-1 must be an integer in [0, 16]"),
+    ('{"type": "move", "slot": 0, "x": "left", "y": 0}', "x='left' must be a finite number"),
+    ('{"type": "move", "slot": 0, "x": 1}', "missing fields ['y']"),
     ("[" * 100000, "characters"),
 ]
 
@@ -54,15 +60,19 @@ BAD_MESSAGES = [
 @pytest.mark.parametrize(("text", "says"), BAD_MESSAGES)
 def test_bad_messages_are_refused_with_a_reason(text, says):
     with pytest.raises(MessageError, match=None) as error:
-        parse_message(text, num_worlds=2)
+        parse_message(text, num_worlds=2, capacity=17)
     assert says in str(error.value)
 
 
 def test_good_messages_are_checked_and_kept():
-    assert parse_message('{"type": "keys", "dx": -1, "dy": 1}', 1) == {"type": "keys", "dx": -1, "dy": 1}
-    assert parse_message('{"type": "view", "rect": [0, 0, 1.5, 2]}', 1)["rect"] == (0.0, 0.0, 1.5, 2.0)
-    assert parse_message('{"type": "policy", "team": "prey", "spec": " prey-a "}', 1)["spec"] == "prey-a"
-    assert parse_message('{"type": "human", "team": null}', 1)["team"] is None
+    assert parse_message('{"type": "keys", "dx": -1, "dy": 1}', 1, 17) == {"type": "keys", "dx": -1, "dy": 1}
+    assert parse_message('{"type": "view", "rect": [0, 0, 1.5, 2]}', 1, 17)["rect"] == (0.0, 0.0, 1.5, 2.0)
+    assert parse_message('{"type": "policy", "team": "prey", "spec": " prey-a "}', 1, 17)["spec"] == "prey-a"
+    assert parse_message('{"type": "human", "team": null}', 1, 17)["team"] is None
+    assert parse_message('{"type": "inspect", "slot": 16}', 1, 17) == {"type": "inspect", "slot": 16}
+    assert parse_message('{"type": "inspect", "slot": null}', 1, 17)["slot"] is None
+    move = parse_message('{"type": "move", "slot": 3, "x": 1, "y": 2.5}', 1, 17)
+    assert move == {"type": "move", "slot": 3, "x": 1.0, "y": 2.5}
 
 
 @pytest.fixture
@@ -123,13 +133,18 @@ def test_select_agents_thins_prey_and_keeps_predators_and_the_human():
     snapshot = {
         "alive": np.ones(n, bool),
         "position": rng.uniform(0, 100, (n, 2)).astype(np.float32),
-        "header": {"prey_capacity": prey},
+        "header": {"prey_capacity": prey, "width": 100.0, "height": 100.0},
     }
     slots = select_agents(snapshot, None, 100, human=5)
     assert len(slots) <= 101 and set(range(prey, n)) <= set(slots.tolist()) and 5 in slots
     inside = select_agents(snapshot, (0, 0, 50, 50), 10**6, human=None)
     p = snapshot["position"][inside]
     assert len(inside) > 100 and (p <= 50).all()
+    # a view reaching past the seam (x < 0, y > 100) also gets the agents across it
+    across = select_agents(snapshot, (-10, 60, 30, 110), 10**6, human=None)
+    x, y = snapshot["position"].T
+    want = ((x <= 30) | (x >= 90)) & ((y >= 60) | (y <= 10))
+    assert sorted(across.tolist()) == np.flatnonzero(want).tolist()
 
 
 def _free_port() -> int:
@@ -139,9 +154,9 @@ def _free_port() -> int:
 
 
 @contextlib.contextmanager
-def serve(viewer):
-    """The viewer's app on uvicorn on a free port, on a thread; yields the port."""
-    port = _free_port()
+def serve(viewer, port=None):
+    """The viewer's app on uvicorn on `port` (default: a free one), on a thread; yields the port."""
+    port = port or _free_port()
     server = uvicorn.Server(
         uvicorn.Config(make_app(viewer), host="127.0.0.1", port=port, log_level="warning", ws="websockets-sansio")
     )
@@ -247,7 +262,11 @@ def test_view_options_are_checked_in_one_line(argv, says, capsys):
     assert code == 2 and says in err
 
 
-def test_a_port_in_use_is_refused_before_the_address_is_printed(capsys):
+def test_a_port_in_use_is_refused_before_the_address_is_printed(capsys, monkeypatch):
+    def no_world(*args, **kwargs):
+        raise AssertionError("the world was built before the port was checked")
+
+    monkeypatch.setattr("aquarium_warp.viewer.simulation.Simulation.__init__", no_world)
     with socket.create_server(("127.0.0.1", 0)) as taken:
         port = taken.getsockname()[1]
         assert main(["view", "--port", str(port), "--device", "cpu"]) == 2
@@ -460,3 +479,425 @@ def test_two_pages_at_once(page, browser_server):
     finally:
         second.quit()
     _until(lambda: len(browser_server[0].pages) == 1)
+
+
+def _pixel(page, x, y):
+    """RGB of the canvas pixel under world point (x, y)."""
+    return page.execute_script(
+        "const v = window.aquarium.view, c = document.getElementById('world').getContext('2d');"
+        "return Array.from(c.getImageData(Math.round((arguments[0] - v.x) * v.scale),"
+        " Math.round((arguments[1] - v.y) * v.scale), 1, 1).data).slice(0, 3);",
+        x,
+        y,
+    )
+
+
+def _close(rgb, want, tolerance=4):
+    return all(abs(a - b) <= tolerance for a, b in zip(rgb, want, strict=True))
+
+
+def _place(viewer, positions, headings=None):
+    """Pause the shown world and put its agents at `positions` ({slot: (x, y)}; the others in a row at
+    the bottom) on the simulation thread."""
+    import torch
+
+    def place():
+        sim = viewer.simulation
+        sim.apply({"type": "pause"})
+        sim.apply({"type": "human", "team": None})
+        env, w = sim.env, sim.world
+        position = torch.stack([torch.tensor([100.0 + 30.0 * i, 740.0]) for i in range(env.capacity)])
+        heading = env.state.torch.heading[w].clone()
+        alive = torch.ones(env.capacity, dtype=torch.bool)
+        for slot, xy in positions.items():
+            position[slot] = torch.tensor(xy)
+        for slot, h in (headings or {}).items():
+            heading[slot] = torch.tensor(h)
+        env.set_state(w, position=position, heading=heading, alive=alive)
+        return w
+
+    return viewer.on_simulation_thread(place)
+
+
+def _shows(page, slot, x, y):
+    """The page's frame has `slot` at (x, y)."""
+    return page.execute_script(
+        "const f = window.aquarium.frame; const i = Array.from(f.slots).indexOf(arguments[0]);"
+        "return i >= 0 && Math.abs(f.agents[i * 6] - arguments[1]) < 0.01"
+        " && Math.abs(f.agents[i * 6 + 1] - arguments[2]) < 0.01 && window.aquarium.framesDrawn > 0;",
+        slot,
+        x,
+        y,
+    )
+
+
+SEA, SHARK_BODY = (172, 206, 231), (92, 112, 135)
+
+
+@browser_only
+@pytest.mark.slow
+def test_a_shark_at_the_edge_is_drawn_across_the_seam_with_its_cone(page, browser_server):
+    """A predator at x = 795 facing +x in the 800 x 800 world: its snout (30 px radius, nose at 0.9 r)
+    and its view cone (200 px, 150 degrees) continue at the left edge, as the MP4 draws them."""
+    viewer = browser_server[0]
+    predator = viewer.simulation.env.prey_capacity
+    _place(viewer, {predator: (795.0, 400.0)}, {predator: (1.0, 0.0)})
+    box = page.find_element("id", "ov-view_cones")
+    if not box.is_selected():
+        box.click()
+    _until(lambda: _shows(page, predator, 795.0, 400.0))
+    time.sleep(0.3)  # drawn with the overlay
+    assert _close(_pixel(page, 10.0, 400.0), SHARK_BODY), _pixel(page, 10.0, 400.0)  # the snout, 15 px across
+    # inside the cone across the seam: the sea under the predator's cone colour (230, 40, 40) at alpha 0.25
+    cone = [round(0.75 * s + 0.25 * c) for s, c in zip(SEA, (230, 40, 40), strict=True)]
+    assert _close(_pixel(page, 60.0, 400.0), cone), _pixel(page, 60.0, 400.0)
+    assert _close(_pixel(page, 60.0, 150.0), SEA)  # outside it: the plain sea
+    box.click()  # overlays off again for the other tests
+    viewer.simulation.playing = True
+
+
+@browser_only
+@pytest.mark.slow
+def test_the_legend_shows_fish_and_sharks(page):
+    legend = page.find_element("id", "legend").text
+    assert "fish: prey" in legend and "shark: predator" in legend and "predator (zoomed out)" in legend
+    coloured = page.execute_script(
+        "return Array.from(document.querySelectorAll('canvas.icon')).map((c) => {"
+        " const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data; let n = 0;"
+        " for (let i = 0; i < d.length; i += 4) if (d[i + 3] > 0) n++; return n; });"
+    )
+    assert len(coloured) == 8 and min(coloured) > 10  # every icon drawn
+
+
+def _canvas_point(page, x, y):
+    """Offsets from the canvas' centre (Selenium's origin) of world point (x, y)."""
+    return page.execute_script(
+        "const v = window.aquarium.view, c = document.getElementById('world'), r = c.getBoundingClientRect();"
+        "const ratio = window.devicePixelRatio || 1;"
+        "return [(arguments[0] - v.x) * v.scale / ratio - r.width / 2,"
+        " (arguments[1] - v.y) * v.scale / ratio - r.height / 2];",
+        x,
+        y,
+    )
+
+
+@browser_only
+@pytest.mark.slow
+def test_click_inspects_an_agent_and_drag_moves_it(page, browser_server):
+    import torch
+    from selenium.webdriver.common.action_chains import ActionChains
+
+    viewer = browser_server[0]
+    world = _place(viewer, {3: (300.0, 300.0)})
+    canvas = page.find_element("id", "world")
+    _until(lambda: _shows(page, 3, 300.0, 300.0))
+    dx, dy = _canvas_point(page, 300.0, 300.0)
+    ActionChains(page).move_to_element_with_offset(canvas, round(dx), round(dy)).click().perform()
+    _until(lambda: _header(page)["inspect"] is not None)
+    info = _header(page)["inspect"]
+    env = viewer.simulation.env
+    want = viewer.on_simulation_thread(lambda: env.outputs.observations["prey"][world, 3].tolist())
+    assert info["slot"] == 3 and info["team"] == "prey" and info["alive"]
+    np.testing.assert_allclose(info["observation"], want, atol=1e-4)  # set_state's observations of slot 3
+    assert "prey (slot 3)" in page.find_element("id", "inspect").text
+    # drag it 200 px right and 100 px down (world px): the server puts it there, nothing else moves
+    before = viewer.on_simulation_thread(lambda: env.state.torch.position[world].clone())
+    tx, ty = _canvas_point(page, 500.0, 400.0)
+    chain = ActionChains(page).move_to_element_with_offset(canvas, round(dx), round(dy)).click_and_hold()
+    for k in range(1, 6):
+        chain = chain.move_to_element_with_offset(canvas, round(dx + (tx - dx) * k / 5), round(dy + (ty - dy) * k / 5))
+    chain.release().perform()
+    after = before.clone()
+    pixel = 1.0 / page.execute_script("return window.aquarium.view.scale")  # one canvas pixel, world px
+
+    def moved():
+        now = viewer.on_simulation_thread(lambda: env.state.torch.position[world].clone())
+        after.copy_(now)
+        return float(torch.linalg.vector_norm(now[3] - torch.tensor([500.0, 400.0]))) <= 2 * pixel
+
+    _until(moved)
+    others = [i for i in range(env.capacity) if i != 3]
+    assert torch.equal(after[others], before[others])
+    viewer.simulation.playing = True
+
+
+@browser_only
+@pytest.mark.slow
+def test_a_drag_outside_the_world_is_refused_by_the_state_api(browser_server):
+    viewer, url = browser_server
+    port = int(url.rsplit(":", 1)[1].strip("/"))
+    with connect(f"ws://127.0.0.1:{port}/ws", max_size=None) as ws:
+        ws.send(json.dumps({"type": "move", "slot": 0, "x": 900.0, "y": 10.0}))
+        while isinstance(reply := ws.recv(timeout=10), bytes) or json.loads(reply)["type"] != "error":
+            pass
+    assert "position must lie in [0, 800.0) x [0, 800.0)" in json.loads(reply)["message"]
+
+
+@browser_only
+@pytest.mark.slow
+def test_the_timeline_shows_past_frames_and_returns_to_live(page, browser_server):
+    _until(lambda: page.execute_script("return window.aquarium.history.length") > 20)
+    page.execute_script(
+        "const t = document.getElementById('timeline'); t.value = t.min; t.dispatchEvent(new Event('input'));"
+    )
+    _until(lambda: page.execute_script("return window.aquarium.scrubbing"))
+    shown = _header(page)["step"]
+    first = page.execute_script("return window.aquarium.history[0].frame.header.step")
+    assert shown <= first + 2  # the oldest kept frame (or one after it, if it just fell out)
+    received = page.execute_script("return window.aquarium.framesReceived")
+    _until(lambda: page.execute_script("return window.aquarium.framesReceived") > received + 5)
+    assert _header(page)["step"] == shown  # the run goes on, the page keeps the past frame
+    assert "timeline: past frame" in page.find_element("id", "step-label").text
+    page.find_element("id", "live").click()
+    _until(lambda: not page.execute_script("return window.aquarium.scrubbing") and _header(page)["step"] > shown)
+
+
+@browser_only
+@pytest.mark.slow
+def test_each_page_has_its_own_overlays(page, browser_server):
+    viewer = browser_server[0]
+    second = _browser()
+    try:
+        second.get(browser_server[1])
+        _until(lambda: second.execute_script("return window.aquarium.framesDrawn") > 2)
+        second.find_element("id", "ov-flow").click()
+        _until(lambda: second.execute_script("return window.aquarium.frame.flow !== null"))
+        time.sleep(0.5)
+        assert page.execute_script("return window.aquarium.frame.flow") is None  # the first page's frames
+        assert not page.find_element("id", "ov-flow").is_selected()
+        assert sorted(p.overlays["flow"] for p in viewer.pages) == [False, True]
+    finally:
+        second.quit()
+
+
+class _GatedRenderer:
+    """The Renderer, built only once `gate` is set (a first build's kernel compilation, made slow)."""
+
+    def __init__(self, gate):
+        self.gate = gate
+
+    def __call__(self, env):
+        from aquarium_warp.render import Renderer
+
+        assert self.gate.wait(60)
+        return Renderer(env)
+
+
+@browser_only
+@pytest.mark.slow
+def test_record_waits_for_the_renderer_without_stopping_the_page_and_ends_with_its_page(tmp_path, monkeypatch):
+    gate = threading.Event()
+    monkeypatch.setattr("aquarium_warp.viewer.server.Renderer", _GatedRenderer(gate))
+    viewer = Viewer(Simulation(ViewOptions(device="cpu")), record_dir=str(tmp_path))
+    with serve(viewer) as port:
+        driver = _browser()
+        try:
+            driver.get(f"http://127.0.0.1:{port}/")
+            _until(lambda: driver.execute_script("return window.aquarium.framesDrawn") > 2)
+            record = driver.find_element("id", "record")
+            record.click()
+            _until(lambda: _header(driver)["recording"] == "preparing")
+            assert not record.is_enabled() and "Preparing" in record.text
+            step = _header(driver)["step"]
+            _until(lambda: _header(driver)["step"] > step + 10)  # the run and the page go on meanwhile
+            gate.set()
+            _until(lambda: _header(driver)["recording"] == "on" and record.is_enabled())
+            assert record.text == "Stop recording"
+            frames = viewer.frames
+            _until(lambda: viewer.frames > frames + 10)
+        finally:
+            driver.quit()
+        _until(lambda: viewer.recording == "off")  # the page that started it closed
+        videos = list(tmp_path.glob("*.mp4"))
+        assert len(videos) == 1 and videos[0].stat().st_size > 1000
+        assert len(read_trajectory(str(videos[0].with_suffix(".json")))["frames"]) >= 10
+
+
+class _Errors(logging.Handler):
+    def __init__(self):
+        super().__init__(logging.ERROR)
+        self.records = []
+
+    def emit(self, record):
+        self.records.append(record)
+
+
+@pytest.mark.slow
+def test_a_page_closed_while_the_recorder_is_prepared_leaves_no_traceback_and_no_recording(tmp_path, monkeypatch):
+    gate = threading.Event()
+    monkeypatch.setattr("aquarium_warp.viewer.server.Renderer", _GatedRenderer(gate))
+    errors = _Errors()
+    for name in ("uvicorn.error", "asyncio"):
+        logging.getLogger(name).addHandler(errors)
+    try:
+        viewer = Viewer(Simulation(ViewOptions(device="cpu")), record_dir=str(tmp_path))
+        with serve(viewer) as port:
+            with connect(f"ws://127.0.0.1:{port}/ws", max_size=None) as ws:
+                ws.recv(timeout=10)
+                ws.send('{"type": "record", "on": true}')
+                _until(lambda: viewer.recording == "preparing")
+            _until(lambda: not viewer.pages)
+            gate.set()  # ready after the page has gone: its notice has nowhere to go
+            _until(lambda: viewer.recording == "off")
+            frames = viewer.frames
+            _until(lambda: viewer.frames > frames + 5)
+    finally:
+        for name in ("uvicorn.error", "asyncio"):
+            logging.getLogger(name).removeHandler(errors)
+    assert errors.records == [] and list(tmp_path.iterdir()) == []
+
+
+@browser_only
+@pytest.mark.slow
+def test_the_page_reconnects_when_the_server_restarts():
+    viewer = Viewer(Simulation(ViewOptions(device="cpu")))
+    with serve(viewer) as port:
+        driver = _browser()
+        driver.get(f"http://127.0.0.1:{port}/")
+        _until(lambda: driver.execute_script("return window.aquarium.framesDrawn") > 2)
+    try:
+        _until(lambda: not driver.execute_script("return window.aquarium.connected"))
+        assert "reconnecting" in driver.find_element("id", "step-label").text
+        again = Viewer(Simulation(ViewOptions(device="cpu", worlds=2)))
+        with serve(again, port):
+            _until(lambda: driver.execute_script("return window.aquarium.connections") == 2, timeout=30)
+            _until(lambda: _header(driver)["num_worlds"] == 2)  # frames of the new server
+    finally:
+        driver.quit()
+
+
+# ---------------------------------------------------------------------- attach(env), the widget, train --view
+def _env_and_drivers(seed=0):
+    from aquarium_warp.config import AquariumConfig
+    from aquarium_warp.drivers import make_drivers
+    from aquarium_warp.env import BatchedAquarium
+
+    env = BatchedAquarium(AquariumConfig(), num_worlds=2, device="cpu", seed=seed)
+    return env, make_drivers({"prey": "turnaway", "predator": "naivchase"}, env, seed=seed)
+
+
+def _frame_of(ws) -> tuple[dict, np.ndarray, np.ndarray]:
+    while True:
+        data = ws.recv(timeout=10)
+        if isinstance(data, bytes):
+            n = int(np.frombuffer(data[:4], "<u4")[0])
+            header = json.loads(data[4 : 4 + n])
+            agents = np.frombuffer(data, "<f4", header["n"] * 6, 4 + n).reshape(-1, 6)
+            slots = np.frombuffer(data, "<u4", header["n"], 4 + n + agents.nbytes)
+            return header, agents, slots
+
+
+def test_attach_serves_the_env_as_the_script_steps_it():
+    from aquarium_warp.viewer import attach
+
+    env, drivers = _env_and_drivers()
+    seen: dict[int, np.ndarray] = {}  # world 1's positions after each step, by step
+    with attach(env, world=1) as viewer, connect(viewer.url.replace("http", "ws") + "ws", max_size=None) as ws:
+        headers = []
+        for _ in range(60):
+            env.step({team: driver() for team, driver in drivers.items()})
+            seen[int(env.state.torch.world_step[1])] = env.state.torch.position[1].numpy().copy()
+            time.sleep(0.02)
+            header, agents, slots = _frame_of(ws)
+            headers.append(header)
+            if header["step"] in seen:  # the frame shows world 1 exactly as it was after that step
+                np.testing.assert_array_equal(agents[:, :2], seen[header["step"]][slots])
+        steps = [h["step"] for h in headers]
+        assert steps == sorted(steps) and steps[-1] > 30 and not headers[-1]["controls"]
+        assert {h["world"] for h in headers} == {1}
+        ws.send('{"type": "play"}')  # the script steps the env: the page's controls are refused
+        while isinstance(reply := ws.recv(timeout=10), bytes):
+            pass
+        assert "stepped by its own code" in json.loads(reply)["message"]
+    assert "step" not in env.__dict__  # detached: the env's own method again
+
+
+def test_a_drag_on_an_attached_env_moves_the_agent_before_the_next_step():
+    """The attached env after the drag and a step equals a twin env moved by `set_state` and stepped."""
+    from aquarium_warp.viewer import attach
+    from aquarium_warp.viewer.simulation import move_agent
+
+    env, drivers = _env_and_drivers(seed=3)
+    twin, twin_drivers = _env_and_drivers(seed=3)
+    with attach(env) as viewer, connect(viewer.url.replace("http", "ws") + "ws", max_size=None) as ws:
+        _frame_of(ws)
+        ws.send('{"type": "move", "slot": 2, "x": 123.5, "y": 456.25}')
+        _until(lambda: viewer.run._moves)  # checked and queued for the next step
+        env.step({team: driver() for team, driver in drivers.items()})
+    move_agent(twin, 0, 2, 123.5, 456.25)
+    twin.step({team: driver() for team, driver in twin_drivers.items()})
+    assert torch_equal(env.state.torch.position, twin.state.torch.position)
+    assert torch_equal(env.state.torch.velocity, twin.state.torch.velocity)
+
+
+def torch_equal(a, b) -> bool:
+    import torch
+
+    return bool(torch.equal(a, b))
+
+
+def test_attach_refuses_a_port_in_use_and_bad_options():
+    from aquarium_warp.viewer import attach
+
+    env, _ = _env_and_drivers()
+    with socket.create_server(("127.0.0.1", 0)) as taken:
+        port = taken.getsockname()[1]
+        with pytest.raises(
+            ValueError, match=f"port {port}: cannot serve on 127.0.0.1:{port} \\(Address already in use\\)"
+        ):
+            attach(env, port=port)
+    with pytest.raises(ValueError, match=r"world=2 must be an integer in \[0, 1\]"):
+        attach(env, world=2)
+    with pytest.raises(ValueError, match=r"port=70000 must be an integer in \[0, 65535\]"):
+        attach(env, port=70000)
+    assert "step" not in env.__dict__
+
+
+def test_the_notebook_widget_shows_the_attached_page():
+    pytest.importorskip("anywidget", reason="the notebook extra: pip install 'aquarium-warp[notebook]'")
+    import urllib.request
+
+    from aquarium_warp.viewer.widget import ViewerWidget
+
+    env, _ = _env_and_drivers()
+    view = ViewerWidget(env, height=500)
+    try:
+        state = view.get_state()
+        assert state["url"] == view.attached.url and state["height"] == 500
+        assert 'id="world"' in urllib.request.urlopen(state["url"], timeout=10).read().decode()
+    finally:
+        view.close()
+    with pytest.raises(ValueError, match=r"height=50 must be an integer in \[200, 4000\]"):
+        ViewerWidget(env, height=50)
+
+
+@pytest.mark.slow
+def test_the_notebook_example_runs_headless():
+    """docs/notebooks/viewer.ipynb's code cells, run in order as a kernel would."""
+    pytest.importorskip("anywidget", reason="the notebook extra: pip install 'aquarium-warp[notebook]'")
+    path = os.path.join(os.path.dirname(__file__), "..", "..", "docs", "notebooks", "viewer.ipynb")
+    with open(path, encoding="utf-8") as f:
+        notebook = json.load(f)
+    namespace: dict = {}
+    cells = ["".join(cell["source"]) for cell in notebook["cells"] if cell["cell_type"] == "code"]
+    for source in cells[:-1]:
+        exec(compile(source, path, "exec"), namespace)
+    view = namespace["view"]
+    try:
+        assert int(namespace["env"].state.torch.world_step[0]) == 300
+        with connect(view.url.replace("http", "ws") + "ws", max_size=None) as ws:
+            _until(lambda: _frame_of(ws)[0]["step"] == 300)  # the script has stopped: its last state is shown
+    finally:
+        exec(compile(cells[-1], path, "exec"), namespace)
+    assert not view.attached._thread.is_alive()
+
+
+@pytest.mark.slow
+def test_train_view_serves_the_training_worlds(tmp_path, capsys):
+    pytest.importorskip("rsl_rl", reason="the training extra")
+    code = main(
+        ["train", "--preset", "tiny", "--team", "prey", "--device", "cpu", "--iterations", "1", "--view", "0"]
+        + ["--log-dir", str(tmp_path / "run"), "--export", "none", "--quiet"]
+    )
+    out = capsys.readouterr().out
+    assert code == 0 and "aquarium-warp train: the training worlds are on http://127.0.0.1:" in out, out

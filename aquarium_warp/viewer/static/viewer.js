@@ -6,19 +6,26 @@
   const $ = (id) => document.getElementById(id);
   const canvas = $("world");
   const ctx = canvas.getContext("2d");
+  // the MP4's palette (aquarium_warp/render.py DEFAULT_PALETTE)
   const COLOURS = {
-    sea: "#acceE7", prey: "#ff8c00", preyEdge: "#8c3e00", predator: "#5c7087", predatorEdge: "#222c3a",
-    preyCone: "rgba(255,225,80,0.30)", predatorCone: "rgba(230,40,40,0.20)", hit: "#c81e1e",
-    velocity: "#005a1e", flow: "rgba(60,110,165,0.8)", human: "#ffe000",
+    sea: "#acceE7", prey: "#ff8c00", preyFin: "#e66400", preyEdge: "#8c3e00", preyEye: "#19140f",
+    predator: "#5c7087", predatorFin: "#425468", predatorEdge: "#222c3a", predatorEye: "#0a0c10",
+    predatorStripe: "#3e4e62", predatorMarkEdge: "#0a0c10",
+    preyCone: "rgba(255,225,80,0.35)", predatorCone: "rgba(230,40,40,0.25)", preyHit: "#c81e1e",
+    predatorHit: "#780a3c", velocity: "#005a1e", flow: "rgba(60,110,165,0.8)", human: "#ffe000",
+    inspected: "#ffffff",
   };
   const PLOT_POINTS = 400;
   // Everything the page knows; the browser tests read it through window.aquarium.
   const state = {
-    frame: null, framesReceived: 0, framesDrawn: 0, fps: 0, lastError: "", connected: false,
+    frame: null, inspected: null, framesReceived: 0, framesDrawn: 0, fps: 0, lastError: "", connected: false,
     overlays: { view_cones: false, hit_boxes: false, velocities: false, flow: false },
     view: null, // {x, y, scale}: the world point at the canvas's top-left, canvas pixels per world px
     plots: { captures: [], polarization: [], groups: [] }, lastStep: null,
+    connections: 0, // sockets opened: more than one after a reconnect
+    history: [], historyBytes: 0, scrubbing: false, // the timeline: recent live frames, oldest first
   };
+  const HISTORY_FRAMES = 1800, HISTORY_BYTES = 64 * 1024 * 1024;  // a minute at 30 fps, at most 64 MB
   window.aquarium = state;
   const replayData = $("replay-data");
   let socket = null;
@@ -43,7 +50,7 @@
     const slots = new Uint32Array(buffer, offset, header.n);
     offset += header.n * 4;
     const flow = header.flow_shape ? new Float32Array(buffer, offset, header.flow_shape[0] * header.flow_shape[1] * 2) : null;
-    return { header, agents, slots, flow };
+    return { header, agents, slots, flow, bytes: buffer.byteLength };
   }
 
   function replayFrame(meta, f) {
@@ -57,13 +64,14 @@
     return { header, agents, slots: Uint32Array.from(f.slot), flow: null };
   }
 
+  let latest = null;  // the header of the newest frame received
+  // a new frame of the run: plotted, kept in the timeline and shown unless the timeline is scrubbed
   function receive(frame) {
     const h = frame.header;
-    const first = state.frame === null || state.frame.header.width !== h.width || state.frame.header.height !== h.height;
-    if (state.frame && (state.frame.header.world !== h.world || h.step < state.lastStep)) {
+    if (latest && (latest.world !== h.world || h.step < state.lastStep)) {
       for (const key in state.plots) state.plots[key] = [];  // another world or a new episode
     }
-    state.frame = frame;
+    latest = h;
     state.framesReceived += 1;
     if (h.step !== state.lastStep) {
       state.lastStep = h.step;
@@ -71,9 +79,55 @@
       push("polarization", h.polarization);
       push("groups", h.groups);
     }
+    if (!replayData) remember(frame);
+    if (!state.scrubbing) show(frame);
+  }
+
+  function show(frame) {
+    const h = frame.header;
+    const first = state.frame === null || state.frame.header.width !== h.width || state.frame.header.height !== h.height;
+    state.frame = frame;
     if (first) fit();
     updatePanel(h);
     dirty = true;
+  }
+
+  // ---------------------------------------------------------------- timeline of the live run
+  let sequence = 0;
+  function remember(frame) {
+    state.history.push({ seq: sequence++, frame });
+    state.historyBytes += frame.bytes;
+    while (state.history.length > HISTORY_FRAMES || state.historyBytes > HISTORY_BYTES) {
+      state.historyBytes -= state.history.shift().frame.bytes;
+    }
+    const slider = $("timeline");
+    slider.min = state.history[0].seq;
+    slider.max = sequence - 1;
+    if (!state.scrubbing) slider.value = sequence - 1;
+    timelineLabel();
+  }
+
+  function timelineLabel() {
+    const shown = state.frame ? state.frame.header.step : "-";
+    $("timeline-label").textContent = state.scrubbing ? `step ${shown} (${state.history.length} kept)` : "live";
+    $("live").disabled = !state.scrubbing;
+  }
+
+  // show the kept frame `seq` (the oldest kept if it is gone); the run goes on meanwhile
+  function scrubTo(seq) {
+    if (!state.history.length) return;
+    const first = state.history[0].seq;
+    const entry = state.history[Math.min(Math.max(seq - first, 0), state.history.length - 1)];
+    state.scrubbing = true;
+    show(entry.frame);
+    timelineLabel();
+  }
+
+  function goLive() {
+    state.scrubbing = false;
+    if (state.history.length) show(state.history[state.history.length - 1].frame);
+    $("timeline").value = $("timeline").max;
+    timelineLabel();
   }
 
   function push(name, value) {
@@ -85,19 +139,23 @@
   const fmt = (v, digits) => (v === null || v === undefined ? "-" : Number(v).toFixed(digits));
 
   function updatePanel(h) {
-    $("step-label").textContent = `world ${h.world}, episode ${h.episode}, step ${h.step}`;
+    $("step-label").textContent = `world ${h.world}, episode ${h.episode}, step ${h.step}`
+      + (state.scrubbing ? " (timeline: past frame)" : "");
     $("captures").textContent = h.episode_captures;
     $("polarization").textContent = fmt(h.polarization, 3);
     $("groups").textContent = fmt(h.groups, 0);
     $("agents").textContent = `${h.n} / ${h.alive_total}`;
     if (h.specs) $("teams").textContent = `${short(h.specs.prey)} vs ${short(h.specs.predator)}`;
     if (replayData) return;
+    document.body.classList.toggle("attached", !h.controls);
+    showInspection(h.inspect);
     $("play").textContent = h.playing ? "Pause" : "Play";
     $("world-count").textContent = `of ${h.num_worlds}`;
     $("world-index").max = h.num_worlds - 1;
     if (document.activeElement !== $("world-index")) $("world-index").value = h.world;
-    $("record").textContent = h.recording ? "Stop recording" : "Record";
-    $("record").classList.toggle("on", !!h.recording);
+    $("record").textContent = { off: "Record", preparing: "Preparing the recorder...", on: "Stop recording" }[h.recording];
+    $("record").disabled = h.recording === "preparing";  // busy until the renderer is ready
+    $("record").classList.toggle("on", h.recording === "on");
     for (const team of ["prey", "predator"]) {
       const select = $(`${team}-choice`);
       if (document.activeElement !== select && h.specs) select.value = h.specs[team];
@@ -109,6 +167,17 @@
   }
 
   const short = (spec) => String(spec).split("/").pop();
+
+  function showInspection(info) {
+    if (!info) {
+      $("inspect").textContent = state.inspected === null ? "click an agent to inspect it; drag it to move it" : "";
+      return;
+    }
+    const fmtNumber = (v) => (v === null ? "-" : Number(v).toFixed(3));
+    $("inspect").textContent = `${info.team} (slot ${info.slot})${info.alive ? "" : ", dead"}\n`
+      + `action ${info.action}, reward ${fmtNumber(info.reward)}, episode return ${fmtNumber(info.episode_return)}\n`
+      + `observation (${info.observation.length}): ${info.observation.map((v) => v.toFixed(2)).join(" ")}`;
+  }
 
   // ---------------------------------------------------------------- view: zoom and pan
   function resize() {
@@ -132,9 +201,17 @@
     if (replayData || rectTimer) return;
     rectTimer = setTimeout(() => {  // at most ten view messages a second while dragging
       rectTimer = null;
-      const v = state.view;
-      send({ type: "view", rect: [v.x, v.y, v.x + canvas.width / v.scale, v.y + canvas.height / v.scale] });
+      sendView();
     }, 100);
+  }
+
+  // the part of the world shown, widened by the longest reach of a cone or body into it
+  function sendView() {
+    const v = state.view;
+    if (!v || !state.frame) return;
+    const types = Object.values(state.frame.header.types);
+    const pad = Math.max(...types.map((t) => Math.max(t.view_distance, 2 * t.radius)));
+    send({ type: "view", rect: [v.x - pad, v.y - pad, v.x + canvas.width / v.scale + pad, v.y + canvas.height / v.scale + pad] });
   }
 
   canvas.addEventListener("wheel", (event) => {
@@ -150,21 +227,169 @@
     v.y = wy - py / v.scale;
     viewChanged();
   }, { passive: false });
-  let drag = null;
-  canvas.addEventListener("mousedown", (event) => { drag = { x: event.clientX, y: event.clientY }; canvas.focus(); });
-  window.addEventListener("mouseup", () => { drag = null; });
+  // the world point under a mouse event, and the agent there (its slot), nearest first, torus-aware
+  function worldPoint(event) {
+    const ratio = window.devicePixelRatio || 1, v = state.view;
+    const rect = canvas.getBoundingClientRect();
+    return [v.x + (event.clientX - rect.left) * ratio / v.scale, v.y + (event.clientY - rect.top) * ratio / v.scale];
+  }
+  function agentAt(x, y) {
+    const f = state.frame, h = f.header, a = f.agents;
+    const wrap = (d, size) => d - size * Math.round(d / size);
+    let best = null, bestDistance = Infinity;
+    for (let i = 0; i < h.n; i++) {
+      const type = f.slots[i] < h.prey_capacity ? "prey" : "predator";
+      const reach = Math.max(h.types[type].radius, 6 / state.view.scale);  // small agents: six canvas pixels
+      const d = Math.hypot(wrap(a[i * 6] - x, h.width), wrap(a[i * 6 + 1] - y, h.height));
+      if (d <= reach && d < bestDistance) { best = f.slots[i]; bestDistance = d; }
+    }
+    return best;
+  }
+  function inspect(slot) {
+    state.inspected = slot;
+    send({ type: "inspect", slot });
+    showInspection(null);
+    dirty = true;
+  }
+
+  // drag on an agent: moves it (live); drag elsewhere: pans; a click: inspects the agent under it
+  let drag = null, moveSentAt = 0;
+  canvas.addEventListener("mousedown", (event) => {
+    canvas.focus();
+    if (!state.view || !state.frame) return;
+    const [x, y] = worldPoint(event);
+    const slot = replayData || state.scrubbing ? null : agentAt(x, y);
+    drag = { x: event.clientX, y: event.clientY, slot, moved: false };
+  });
+  window.addEventListener("mouseup", (event) => {
+    if (drag && !drag.moved && !replayData) {
+      inspect(drag.slot);
+    } else if (drag && drag.slot !== null) {
+      sendMove(event, true);
+    }
+    drag = null;
+  });
+  function sendMove(event, last) {
+    const now = performance.now();
+    if (!last && now - moveSentAt < 50) return;  // at most twenty moves a second
+    moveSentAt = now;
+    const h = state.frame.header, [x, y] = worldPoint(event);
+    const wrap = (c, size) => Math.min(((c % size) + size) % size, size * (1 - 1e-6));  // into [0, size)
+    send({ type: "move", slot: drag.slot, x: wrap(x, h.width), y: wrap(y, h.height) });
+  }
   window.addEventListener("mousemove", (event) => {
     if (!drag || !state.view) return;
+    if (Math.abs(event.clientX - drag.x) + Math.abs(event.clientY - drag.y) > 3) drag.moved = true;
+    if (!drag.moved) return;
+    if (drag.slot !== null) { sendMove(event, false); return; }
     const ratio = window.devicePixelRatio || 1;
     state.view.x -= (event.clientX - drag.x) * ratio / state.view.scale;
     state.view.y -= (event.clientY - drag.y) * ratio / state.view.scale;
-    drag = { x: event.clientX, y: event.clientY };
+    drag.x = event.clientX;
+    drag.y = event.clientY;
     viewChanged();
   });
   canvas.addEventListener("dblclick", fit);
   window.addEventListener("resize", () => { resize(); fit(); });
 
   // ---------------------------------------------------------------- drawing
+  // Fish (prey) and sharks (predators) seen from above, nose along +u, in units of the hit-box radius:
+  // the shapes of the MP4's rasteriser (kernels/render.py prey_part, predator_part).
+  function ellipse(path, cu, a, b) { path.ellipse(cu, 0, a, b, 0, 0, 2 * Math.PI); }
+  function mirrored(path, points) {  // a polygon and its mirror image across the u axis
+    for (const sign of [1, -1]) {
+      path.moveTo(points[0][0], sign * points[0][1]);
+      for (const [u, v] of points.slice(1)) path.lineTo(u, sign * v);
+      path.closePath();
+    }
+  }
+  const SHAPES = { prey: {}, predator: {} };
+  (function buildShapes() {
+    const fish = SHAPES.prey;
+    fish.fins = new Path2D();
+    mirrored(fish.fins, [[-0.6, 0], [-0.95, 0.34], [-0.96, 0.14], [-0.82, 0]]);  // forked tail
+    mirrored(fish.fins, [[0.18, 0.24], [-0.06, 0.27], [-0.16, 0.46]]);  // pectoral fins
+    fish.body = new Path2D();
+    ellipse(fish.body, 0.14, 0.56, 0.3);
+    fish.stalk = new Path2D();
+    mirrored(fish.stalk, [[-0.25, 0], [-0.3, 0.17], [-0.66, 0.07], [-0.66, 0]]);
+    fish.stripe = null;
+    fish.eyes = new Path2D();
+    for (const v of [0.14, -0.14]) { fish.eyes.moveTo(0.47, v); fish.eyes.arc(0.4, v, 0.07, 0, 2 * Math.PI); }
+    const shark = SHAPES.predator;
+    shark.fins = new Path2D();
+    mirrored(shark.fins, [[0.34, 0.15], [-0.06, 0.2], [-0.2, 0.6]]);  // pectoral fins
+    mirrored(shark.fins, [[-0.6, 0.07], [-0.96, 0.28], [-0.8, 0]]);  // crescent tail
+    shark.body = new Path2D();  // an ellipse narrowed ahead of u = 0.3 into a pointed snout
+    const outline = [];
+    for (let k = 0; k <= 48; k++) {
+      const angle = Math.PI * (k / 48), u = 0.05 + 0.85 * Math.cos(angle);
+      const narrow = u > 0.3 ? 1 - (0.45 * (u - 0.3)) / 0.6 : 1;
+      outline.push([u, 0.23 * narrow * Math.sin(angle)]);
+    }
+    shark.body.moveTo(outline[0][0], 0);
+    for (const [u, v] of outline) shark.body.lineTo(u, v);
+    for (const [u, v] of outline.slice().reverse()) shark.body.lineTo(u, -v);
+    shark.body.closePath();
+    shark.stalk = null;
+    shark.stripe = new Path2D();  // the dorsal fin seen from above: a dark wedge on the spine
+    mirrored(shark.stripe, [[0.18, 0], [-0.12, 0.07], [-0.3, 0]]);
+    shark.eyes = new Path2D();
+    for (const v of [0.1, -0.1]) { shark.eyes.moveTo(0.595, v); shark.eyes.arc(0.56, v, 0.035, 0, 2 * Math.PI); }
+  })();
+
+  // one detailed agent: the canvas transform maps (u, v) to the world around (x, y); outline `edge` world px
+  function drawShape(c, type, x, y, hx, hy, r, base, edge) {
+    const s = SHAPES[type];
+    c.setTransform(base.a * r * hx, base.a * r * hy, -base.a * r * hy, base.a * r * hx,
+      base.e + base.a * x, base.f + base.a * y);
+    c.fillStyle = COLOURS[type + "Fin"];
+    c.fill(s.fins);
+    c.fillStyle = COLOURS[type];
+    if (s.stalk) c.fill(s.stalk);
+    c.fill(s.body);
+    c.lineWidth = edge / r;
+    c.strokeStyle = COLOURS[type + "Edge"];
+    c.stroke(s.body);
+    if (s.stripe) { c.fillStyle = COLOURS[type + "Stripe"]; c.fill(s.stripe); }
+    c.fillStyle = COLOURS[type + "Eye"];
+    c.fill(s.eyes);
+  }
+
+  // Zoomed out, shapes turn into marks that stay distinct: a plain oval along the heading below
+  // DETAIL_PX canvas pixels of radius (as the MP4 does below 3 image pixels), and below DOT_PX a square
+  // dot for a prey and a larger outlined diamond for a predator.
+  const DETAIL_PX = 3, DOT_PX = 1.5;
+  function markOf(type, r, px) {
+    if (r / px >= DETAIL_PX) return "shape";
+    return r / px >= DOT_PX ? "oval" : type === "prey" ? "dot" : "diamond";
+  }
+  function traceMark(c, mark, x, y, hx, hy, r, px) {
+    if (mark === "oval") {
+      c.moveTo(x + hx * 0.8 * r, y + hy * 0.8 * r);
+      c.ellipse(x - 0.1 * r * hx, y - 0.1 * r * hy, 0.9 * r, 0.4 * r, Math.atan2(hy, hx), 0, 2 * Math.PI);
+    } else if (mark === "dot") {
+      c.rect(x - 1.5 * px, y - 1.5 * px, 3 * px, 3 * px);
+    } else {
+      const d = 4 * px;
+      c.moveTo(x, y - d); c.lineTo(x + d, y); c.lineTo(x, y + d); c.lineTo(x - d, y); c.closePath();
+    }
+  }
+
+  // The world is a torus: `fn(x', y')` for each copy of the point (x, y) shifted by whole world sizes
+  // whose disc of radius `reach` touches the world's rectangle (one copy, more near an edge).
+  function copies(x, y, reach, w, h, fn) {
+    for (let ox = -w; ox <= w; ox += w) {
+      const cx = x + ox;
+      if (cx + reach < 0 || cx - reach > w) continue;
+      for (let oy = -h; oy <= h; oy += h) {
+        const cy = y + oy;
+        if (cy + reach < 0 || cy - reach > h) continue;
+        fn(cx, cy);
+      }
+    }
+  }
+
   function draw() {
     const frame = state.frame;
     const v = state.view;
@@ -173,87 +398,138 @@
     ctx.fillRect(0, 0, canvas.width, canvas.height);
     if (!frame || !v) return;
     const h = frame.header, a = frame.agents, slots = frame.slots, n = h.n;
-    ctx.setTransform(v.scale, 0, 0, v.scale, -v.x * v.scale, -v.y * v.scale);
+    const W = h.width, H = h.height;
+    const base = { a: v.scale, e: -v.x * v.scale, f: -v.y * v.scale };
+    const world = () => ctx.setTransform(base.a, 0, 0, base.a, base.e, base.f);
+    world();
     ctx.fillStyle = COLOURS.sea;
-    ctx.fillRect(0, 0, h.width, h.height);
+    ctx.fillRect(0, 0, W, H);
     ctx.save();
     ctx.beginPath();
-    ctx.rect(0, 0, h.width, h.height);
-    ctx.clip();  // cones and arrows stop at the world's edge
+    ctx.rect(0, 0, W, H);
+    ctx.clip();  // the world's rectangle; what reaches past an edge is drawn again across the seam
     const px = 1 / v.scale;  // one canvas pixel in world px
     const ov = state.overlays;
     if (ov.flow && frame.flow) drawFlow(frame, px);
     const typeOf = (i) => (slots[i] < h.prey_capacity ? "prey" : "predator");
+    const halfDiagonal = 0.5 * Math.hypot(W, H);
     if (ov.view_cones) {
-      for (let i = 0; i < n; i++) {
-        const t = h.types[typeOf(i)], x = a[i * 6], y = a[i * 6 + 1];
-        const angle = Math.atan2(a[i * 6 + 3], a[i * 6 + 2]), half = (t.fov / 2) * Math.PI / 180;
-        ctx.fillStyle = typeOf(i) === "prey" ? COLOURS.preyCone : COLOURS.predatorCone;
+      for (const type of ["prey", "predator"]) {
+        const t = h.types[type], half = (t.fov / 2) * Math.PI / 180;
+        const reach = Math.min(t.view_distance, halfDiagonal);  // beyond it the cone covers the world
+        ctx.fillStyle = type === "prey" ? COLOURS.preyCone : COLOURS.predatorCone;
         ctx.beginPath();
-        if (t.fov < 360) ctx.moveTo(x, y);
-        ctx.arc(x, y, t.view_distance, angle - half, angle + half);
-        ctx.closePath();
+        for (let i = 0; i < n; i++) {
+          if (typeOf(i) !== type) continue;
+          const angle = Math.atan2(a[i * 6 + 3], a[i * 6 + 2]);
+          copies(a[i * 6], a[i * 6 + 1], reach, W, H, (x, y) => {
+            if (t.fov < 360) ctx.moveTo(x, y); else ctx.moveTo(x + reach, y);
+            ctx.arc(x, y, reach, angle - half, angle + half);
+            ctx.closePath();
+          });
+        }
         ctx.fill();
       }
     }
-    // bodies: a path per type; below ~1.5 canvas pixels of radius a square dot (large swarms stay fast)
+    // bodies: batched paths of marks when small (large swarms stay fast), the full shapes when large
     for (const type of ["prey", "predator"]) {
-      const r = h.types[type].radius;
-      const dots = r / px < 1.5;
+      const r = h.types[type].radius, mark = markOf(type, r, px);
+      const reach = Math.max(r, 4 * px);
+      if (mark === "shape") {
+        for (let i = 0; i < n; i++) {
+          if (typeOf(i) !== type) continue;
+          let hx = a[i * 6 + 2], hy = a[i * 6 + 3];
+          if (hx * hx + hy * hy < 1e-12) { hx = 0; hy = -1; }  // no heading recorded: point up
+          copies(a[i * 6], a[i * 6 + 1], reach, W, H, (x, y) => drawShape(ctx, type, x, y, hx, hy, r, base, px));
+        }
+        world();
+        continue;
+      }
       ctx.beginPath();
       for (let i = 0; i < n; i++) {
         if (typeOf(i) !== type) continue;
-        const x = a[i * 6], y = a[i * 6 + 1], hx = a[i * 6 + 2], hy = a[i * 6 + 3];
-        if (dots) {
-          ctx.rect(x - 1.5 * px, y - 1.5 * px, 3 * px, 3 * px);
-        } else {  // a body pointing along the heading: nose, two flanks, tail notch
-          const sx = -hy, sy = hx;
-          ctx.moveTo(x + hx * r, y + hy * r);
-          ctx.lineTo(x - hx * r * 0.6 + sx * r * 0.55, y - hy * r * 0.6 + sy * r * 0.55);
-          ctx.lineTo(x - hx * r * 0.3, y - hy * r * 0.3);
-          ctx.lineTo(x - hx * r * 0.6 - sx * r * 0.55, y - hy * r * 0.6 - sy * r * 0.55);
-          ctx.closePath();
-        }
+        const hx = a[i * 6 + 2], hy = a[i * 6 + 3];
+        copies(a[i * 6], a[i * 6 + 1], reach, W, H, (x, y) => traceMark(ctx, mark, x, y, hx, hy, r, px));
       }
       ctx.fillStyle = COLOURS[type];
       ctx.fill();
-      if (!dots) {
+      if (mark === "diamond") {
         ctx.lineWidth = px;
-        ctx.strokeStyle = COLOURS[type + "Edge"];
+        ctx.strokeStyle = COLOURS.predatorMarkEdge;
         ctx.stroke();
       }
     }
     ctx.lineWidth = px;
     if (ov.hit_boxes) {
-      ctx.strokeStyle = COLOURS.hit;
-      ctx.beginPath();
-      for (let i = 0; i < n; i++) {
-        const r = h.types[typeOf(i)].radius;
-        ctx.moveTo(a[i * 6] + r, a[i * 6 + 1]);
-        ctx.arc(a[i * 6], a[i * 6 + 1], r, 0, 2 * Math.PI);
+      for (const type of ["prey", "predator"]) {
+        const r = h.types[type].radius;
+        ctx.strokeStyle = COLOURS[type + "Hit"];
+        ctx.beginPath();
+        for (let i = 0; i < n; i++) {
+          if (typeOf(i) !== type) continue;
+          copies(a[i * 6], a[i * 6 + 1], r, W, H, (x, y) => { ctx.moveTo(x + r, y); ctx.arc(x, y, r, 0, 2 * Math.PI); });
+        }
+        ctx.stroke();
       }
-      ctx.stroke();
     }
     if (ov.velocities) {  // the move of ten steps, as the rasteriser draws it
       ctx.strokeStyle = COLOURS.velocity;
       ctx.beginPath();
       for (let i = 0; i < n; i++) {
-        ctx.moveTo(a[i * 6], a[i * 6 + 1]);
-        ctx.lineTo(a[i * 6] + 10 * a[i * 6 + 4], a[i * 6 + 1] + 10 * a[i * 6 + 5]);
+        const dx = 10 * a[i * 6 + 4], dy = 10 * a[i * 6 + 5];
+        copies(a[i * 6], a[i * 6 + 1], Math.hypot(dx, dy), W, H, (x, y) => { ctx.moveTo(x, y); ctx.lineTo(x + dx, y + dy); });
       }
       ctx.stroke();
     }
-    if (h.human) {
+    const rings = [];  // the human's agent (yellow) and the inspected one (white)
+    if (h.human) rings.push([h.human.slot, COLOURS.human]);
+    if (state.inspected !== null) rings.push([state.inspected, COLOURS.inspected]);
+    for (const [slot, colour] of rings) {
       for (let i = 0; i < n; i++) {
-        if (slots[i] !== h.human.slot) continue;
-        ctx.strokeStyle = COLOURS.human;
+        if (slots[i] !== slot) continue;
+        const r = h.types[typeOf(i)].radius * 1.6 + 4 * px;
+        ctx.strokeStyle = colour;
         ctx.lineWidth = 3 * px;
         ctx.beginPath();
-        ctx.arc(a[i * 6], a[i * 6 + 1], h.types[typeOf(i)].radius * 1.6 + 4 * px, 0, 2 * Math.PI);
+        copies(a[i * 6], a[i * 6 + 1], r + 3 * px, W, H, (x, y) => { ctx.moveTo(x + r, y); ctx.arc(x, y, r, 0, 2 * Math.PI); });
         ctx.stroke();
       }
     }
     ctx.restore();
+  }
+
+  // the legend's icons, drawn with the world's own marks and colours
+  function drawLegend() {
+    const ratio = window.devicePixelRatio || 1;
+    document.querySelectorAll("canvas.icon").forEach((icon) => {
+      icon.width = icon.clientWidth * ratio;
+      icon.height = icon.clientHeight * ratio;
+      const c = icon.getContext("2d"), w = icon.width, h = icon.height, r = 0.45 * w;
+      const [type, kind] = icon.dataset.icon.split("-");
+      const base = { a: 1, e: 0, f: 0 };
+      if (type === "human" || type === "inspected") {
+        c.strokeStyle = COLOURS[type];
+        c.lineWidth = 2 * ratio;
+        c.beginPath();
+        c.arc(w / 2, h / 2, 0.4 * h, 0, 2 * Math.PI);
+        c.stroke();
+      } else if (kind === "cone") {
+        c.fillStyle = COLOURS[type + "Cone"];
+        c.beginPath();
+        c.moveTo(0.1 * w, h / 2);
+        c.arc(0.1 * w, h / 2, 0.85 * w, -0.5, 0.5);
+        c.closePath();
+        c.fill();
+      } else if (kind) {
+        c.beginPath();
+        traceMark(c, kind, w / 2, h / 2, 1, 0, r, ratio);
+        c.fillStyle = COLOURS[type];
+        c.fill();
+        if (kind === "diamond") { c.lineWidth = ratio; c.strokeStyle = COLOURS.predatorMarkEdge; c.stroke(); }
+      } else {
+        drawShape(c, type, w / 2, h / 2, 1, 0, r, base, ratio);
+      }
+    });
   }
 
   function drawFlow(frame, px) {
@@ -361,11 +637,27 @@
     keysChanged();
   });
 
-  function setupLive() {
-    socket = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`);
+  // The socket, opened again after it closes (a server restarted, a network blip): at 0.25 s, then
+  // twice as long each time up to 4 s; the page's own settings (overlays, view, inspected agent) go again.
+  let retryMs = 250;
+  function connect() {
+    socket = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}${location.pathname.replace(/[^/]*$/, "")}ws`);
     socket.binaryType = "arraybuffer";
-    socket.onopen = () => { state.connected = true; send(Object.assign({ type: "overlays" }, state.overlays)); };
-    socket.onclose = () => { state.connected = false; $("step-label").textContent = "disconnected from the server"; };
+    socket.onopen = () => {
+      retryMs = 250;
+      state.connected = true;
+      state.connections += 1;
+      send(Object.assign({ type: "overlays" }, state.overlays));
+      if (state.inspected !== null) send({ type: "inspect", slot: state.inspected });
+      sendView();
+    };
+    socket.onclose = () => {
+      const wasConnected = state.connected;
+      state.connected = false;
+      $("step-label").textContent = `disconnected from the server: reconnecting in ${(retryMs / 1000).toFixed(2)} s`;
+      setTimeout(connect, retryMs);
+      if (!wasConnected) retryMs = Math.min(2 * retryMs, 4000);
+    };
     socket.onmessage = (event) => {
       if (event.data instanceof ArrayBuffer) { receive(decode(event.data)); return; }
       const message = JSON.parse(event.data);
@@ -373,6 +665,12 @@
       else if (message.type === "notice") $("notice").textContent = message.message;
       else if (message.type === "hello") fillChoices(message.choices);
     };
+  }
+
+  function setupLive() {
+    connect();
+    $("timeline").addEventListener("input", (event) => scrubTo(Number(event.target.value)));
+    $("live").addEventListener("click", goLive);
     $("play").addEventListener("click", () => {
       send({ type: state.frame && state.frame.header.playing ? "pause" : "play" });
     });
@@ -381,7 +679,7 @@
     $("speed").addEventListener("change", (event) => send({ type: "speed", value: Number(event.target.value) }));
     $("world-index").addEventListener("change", (event) => send({ type: "world", index: Number(event.target.value) }));
     $("human").addEventListener("change", (event) => { send({ type: "human", team: event.target.value || null }); canvas.focus(); });
-    $("record").addEventListener("click", () => send({ type: "record", on: !(state.frame && state.frame.header.recording) }));
+    $("record").addEventListener("click", () => send({ type: "record", on: !(state.frame && state.frame.header.recording === "on") }));
     for (const team of ["prey", "predator"]) {
       $(`${team}-choice`).addEventListener("change", (event) => { showError(""); send({ type: "policy", team, spec: event.target.value }); });
       $(`${team}-apply`).addEventListener("click", () => { showError(""); send({ type: "policy", team, spec: $(`${team}-spec`).value }); });
@@ -427,6 +725,7 @@
   }
 
   resize();
+  drawLegend();
   if (replayData) setupReplay(); else setupLive();
   requestAnimationFrame(animate);
 })();
