@@ -538,16 +538,13 @@ class GroupArrays:
     predecessor's."""
     before_time: wp.array2d(dtype=wp.int32)
     last_label: wp.array2d(dtype=wp.int32)
-    """[W, Pc] int32, the group labels at the last call's state (-1: dead); `before_label`: at its
-    predecessor."""
+    """[W, Pc] int32, the measured groups' labels at the last call's state (-1: dead or in a smaller
+    group); `before_label`: at its predecessor."""
     before_label: wp.array2d(dtype=wp.int32)
     last_birth: wp.array2d(dtype=wp.int32)
-    """[W, Pc] int32, per root: the world step at which the group was first seen; `before_birth`: at
-    the predecessor."""
+    """[W, Pc] int32, per measured root: the world step at which the group was first seen; `before_birth`:
+    at the predecessor."""
     before_birth: wp.array2d(dtype=wp.int32)
-    last_peak: wp.array2d(dtype=wp.int32)
-    """[W, Pc] int32, per root: the most members the group has had; `before_peak`: at the predecessor."""
-    before_peak: wp.array2d(dtype=wp.int32)
     point_null: wp.array2d(dtype=float)
     """[W, Pc + 1] float32, px: expected mean nearest-neighbour distance of n uniform points (`nulls.py`),
     NaN for n < 2; `hard_disk_null`: of n non-overlapping prey hit boxes."""
@@ -564,7 +561,8 @@ def track_groups(
     groups: GroupArrays,
 ):
     """One thread per world `w`, in slot order (integer work only, so deterministic): the member lists,
-    the groups per size, and each group's identity across calls (`aquarium_warp.metrics` defines it).
+    the groups per size, and each measured group's identity across calls (`aquarium_warp.metrics`
+    defines it).
 
     The predecessor state is the last call's, unless this is the same state again (the same episode
     and step), which is then measured against the same predecessor as before: calls are idempotent.
@@ -583,7 +581,6 @@ def track_groups(
         for i in range(capacity):
             groups.before_label[w, i] = groups.last_label[w, i]
             groups.before_birth[w, i] = groups.last_birth[w, i]
-            groups.before_peak[w, i] = groups.last_peak[w, i]
     before_step = groups.before_time[w, 2]
     linked = groups.before_time[w, 0] != 0 and groups.before_time[w, 1] == episode and before_step <= step
     elapsed = step - before_step
@@ -606,10 +603,11 @@ def track_groups(
     for i in range(capacity):
         groups.votes[w, i] = 0
 
-    # Each group's predecessor: the previous group holding a strict majority of its members; a
-    # previous group is continued by the group that took most of its members (ties: the lower label).
+    # Each measured group's predecessor: the previous measured group holding a strict majority of its
+    # members; a previous group is continued by the group that took most of its members (ties: the
+    # lower label).
     for g in range(capacity):
-        if swarm.group_label[w, g] == g:
+        if swarm.group_label[w, g] == g and int(swarm.group_size[w, g]) >= min_group_size:
             size = int(swarm.group_size[w, g])
             start = int(groups.group_start[w, g])
             best = int(-1)
@@ -635,7 +633,7 @@ def track_groups(
                     groups.claim_votes[w, best] = wp.int32(best_votes)
                     groups.claim_group[w, best] = wp.int32(g)
 
-    # Births, peaks, sizes and ages of the current groups (ages and shares summed in slot order).
+    # Sizes, and births and ages of the measured groups (ages and shares summed in slot order).
     n = int(0)
     grouped = int(0)
     measured = int(0)
@@ -643,33 +641,33 @@ def track_groups(
     for g in range(capacity):
         if swarm.group_label[w, g] == g:
             size = int(swarm.group_size[w, g])
-            p = int(groups.predecessor[w, g])
-            birth = step
-            peak = size
-            if p >= 0:
-                if groups.claim_group[w, p] == g:
-                    birth = int(groups.before_birth[w, p])
-                    peak = wp.max(size, int(groups.before_peak[w, p]))
-            groups.last_birth[w, g] = wp.int32(birth)
-            groups.last_peak[w, g] = wp.int32(peak)
             groups.size_counts[w, size - 1] = groups.size_counts[w, size - 1] + 1
             n += size
             if size >= 2:
                 grouped += size
             if size >= min_group_size:
+                p = int(groups.predecessor[w, g])
+                birth = step
+                if p >= 0:
+                    if groups.claim_group[w, p] == g:
+                        birth = int(groups.before_birth[w, p])
+                groups.last_birth[w, g] = wp.int32(birth)
                 measured += size
                 age_sum += wp.float64(size) * wp.float64(step - birth)
-    # The predecessor's groups that nobody continues ended; counted if they ever were measured groups.
+    # The predecessor's measured groups that nobody continues ended.
     ended = int(0)
     lifetimes = wp.float64(0.0)
     if linked:
         for p in range(capacity):
             if groups.before_label[w, p] == p and groups.claim_group[w, p] < 0:
-                if groups.before_peak[w, p] >= min_group_size:
-                    ended += 1
-                    lifetimes += wp.float64(before_step - groups.before_birth[w, p])
+                ended += 1
+                lifetimes += wp.float64(before_step - groups.before_birth[w, p])
     for i in range(capacity):
-        groups.last_label[w, i] = swarm.group_label[w, i]
+        root = int(swarm.group_label[w, i])
+        groups.last_label[w, i] = -1
+        if root >= 0:
+            if int(swarm.group_size[w, root]) >= min_group_size:
+                groups.last_label[w, i] = wp.int32(root)
     last[w, 0] = 1
     last[w, 1] = episode
     last[w, 2] = step
