@@ -5,6 +5,7 @@ from aquarium_warp.metrics import SwarmMetrics, EpisodeMetrics, rollout_metrics
 
 metrics = SwarmMetrics(env, linking_distance=50.0)
 values = metrics.compute()          # {"polarization": [W], "groups": [W], ..., "nn_histogram": [W, bins]}
+values["group_rotation"]            # per-group measures; identities carry over to the next compute()
 
 episodes = EpisodeMetrics(env, every=10)    # per-episode means, for training logs and evaluation
 env.reset(); episodes.begin()
@@ -35,13 +36,50 @@ Definitions (all over the live prey of a world; distances are torus-shortest, in
   1 when every prey circles the centroid the same way (a mill); about `0.886 / sqrt(n)` for random
   headings. About the swarm's one centroid: meaningful where the prey form one group.
 - `prey_alive`, `predator_alive`: populations; `captures`: captures in the last step.
+
+The groups' measures (`GROUP_METRICS`; a "measured group" has at least `min_group_size` prey, default 3):
+- `group_sizes` `[W, prey_capacity]` int32: the number of groups of each size (column s - 1 for s
+  members: the full distribution, no bins); `mean_group_size`: live prey / groups;
+  `grouped_share`: the share of the live prey in groups of >= 2 (those with a linked neighbour);
+  `measured_share`: in measured groups.
+- Per measured group (Tunstrøm et al. 2013; Li et al. 2023), about the group's own torus centroid
+  (the circular mean per axis over its members, as the swarm's): polarization |mean unit heading|,
+  rotation |mean over members of (r / |r|) x heading| (r the member's offset from that centroid; a
+  member at the centroid adds 0: a mill is 1, a line heading along itself 0) and speed |mean
+  velocity| (px/step). `group_polarization`, `group_rotation`, `group_speed`: their means over the
+  measured groups weighted by members (what the average prey in a measured group sees; NaN without one).
+- Identity across calls: a measured group continues the measured group of the predecessor state that
+  holds a strict majority of its members, counting only prey that are the same individuals (live
+  there, and their age grew by the steps between: a respawned or newborn prey restarts at age 0, and
+  so does a parent that reproduced). When several groups take a majority from one group (a split),
+  the one with most of its members continues it (the lower label on ties); any other group is new.
+  The predecessor state is the previous call's, in the same episode (a new episode, an earlier step or
+  `restart_tracking()` starts over; calling twice on one state gives the same values). `group_age`:
+  the member-weighted mean over measured groups of the steps since each was first seen (NaN without
+  one). A group that nobody continues ended: `groups_ended` counts those since the predecessor state
+  and `ended_lifetime_total` sums their lifetimes (steps from the first to the last state that saw
+  them, so with every k-th step computed a lifetime is a multiple of k). Groups alive at an episode's
+  end are not counted (censored): short episodes undercount long lifetimes.
+  `EpisodeMetrics` reports `group_lifetime`, their ratio: the mean completed lifetime.
+- `nn_ratio_point`, `nn_ratio_hard_disk`: `nn_mean` over its expectation for the same number of live
+  prey placed at random on the torus: uniform points (the aggregation index R against the point
+  null), or disks of the prey hit-box diameter 2 r that may touch but not overlap (random sequential
+  addition, a seeded Monte Carlo, see `aquarium_warp.nulls`): contact pushes keep prey about 2 r apart, so
+  R cannot fall far below 2 r / E[point NN] (about 0.57 at 32 prey of radius 20 in 800 x 800), while
+  the hard-disk null is 1 for prey as spread as non-overlapping random disks. NaN with fewer than 2
+  prey and, for the hard-disk null, in arenas too crowded for the disks (the tables are made for
+  the config at construction).
+- `confusion_neighbour_share`: the share of live prey with another live prey strictly within the
+  world's `confusion_radius` (k >= 1 in capture confusion's 1 / (1 + c k), docs/model.md step 5).
+
 Undefined values (no live prey) are NaN.
 
 `compute()` launches the kernels of `kernels/metrics.py` on every shard (threads on the CPU, Warp's
 stream ordered with torch's on GPU) and returns views of buffers that the next `compute()`
 overwrites; the per-prey arrays behind them are `nearest_neighbour`, `nearest_predator` and
 `group_label` (`[W, prey_capacity]`, -1 for dead slots). Results are deterministic: float sums run
-in a fixed order, group labels are the smallest prey slot of each group.
+in a fixed order, group labels are the smallest prey slot of each group. The groups' measures add
+about a third to the cost of `compute()` (64 worlds of 32 prey on one CPU thread).
 """
 
 from __future__ import annotations

@@ -1,6 +1,7 @@
 """Swarm metrics of every world on the device: polarization, local alignment, milling, cohesion,
 nearest-neighbour distances, groups (connected components), distance to the nearest predator,
-populations.
+populations; and the groups' measures: sizes, per-group order, identities across calls, the
+nearest-neighbour ratios to their nulls and the share of prey with a capture-confusion neighbour.
 
 All metrics are about the live prey of a world; distances are torus-shortest, in px. Neighbour
 queries read the cell lists that the observation pass built on the current state, so no metric does
@@ -16,11 +17,15 @@ all-pairs work:
 
 Sums over the prey of a world run in two deterministic stages (no float atomics): per chunk of
 `CHUNK` slots in slot order, then over the chunks in order. Integer counters (histogram bins,
-group sizes) use integer atomics, whose result does not depend on the order.
+group sizes) use integer atomics, whose result does not depend on the order. The groups' passes
+(`track_groups`, `finish_groups`) take one thread per world and walk its slots in order (integer
+bookkeeping, O(prey capacity)); `group_order` takes one thread per group and sums its members in
+slot order.
 
 Launch order per shard (see `aquarium_warp.metrics.SwarmMetrics`): zero the integer counters,
 `prey_distances`, `link_groups`, `local_alignment`, `resolve_groups`, `prey_partial_sums`,
-`finish_prey_sums`, `centroid_partial_sums`, `finish_cohesion`.
+`finish_prey_sums`, `centroid_partial_sums`, `finish_cohesion`, `track_groups`, `group_order`,
+`finish_groups`.
 """
 
 import warp as wp

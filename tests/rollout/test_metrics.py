@@ -773,3 +773,53 @@ def test_hard_disk_null_matches_brute_force():
     assert (np.abs(tiny[0][2:] - point[2:]) < 4 * tiny[1][2:]).all()
     crowded = hard_disk_nn_means(12, 200.0, 200.0, 100.0)[0]
     assert np.isfinite(crowded[2]) and np.isnan(crowded[-1]) and np.isnan(crowded[:2]).all()
+
+
+def test_episode_metrics_group_lifetimes_sizes_and_traces(device):
+    """Per episode: the mean completed group lifetime (the ended groups' lifetimes over their number,
+    from the sampled values), the share of the sampled prey in groups of each size, and traces of
+    chosen worlds (group measures included)."""
+    env = make_env(device, prey_count=24, num_worlds=3, max_steps=30, width=400.0, height=400.0)
+    metrics = SwarmMetrics(env, linking_distance=80.0)
+    episodes = EpisodeMetrics(env, metrics=metrics, every=3, trace=("group_age", "groups_ended"), trace_worlds=[2, 0])
+    env.reset()
+    episodes.begin()
+    sizes = torch.arange(1, env.prey_capacity + 1, dtype=torch.float64)
+    samples = [{k: v.double().clone() for k, v in metrics.compute().items()}]
+    ends = []
+    for step in range(1, 61):
+        _, _, _, _, info = env.step(heuristic_actions(env), validate=False)
+        if bool(info["episode_ended"].all()):
+            ends.append(len(samples))
+        episodes.update(info)
+        if step % 3 == 0:
+            samples.append({k: v.double().clone() for k, v in metrics.compute().items()})
+    assert len(ends) == 2
+    result = episodes.result()
+    bounds = [0] + ends
+    lifetimes, ended, shares = [], [], []
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        lifetimes.append(sum(samples[i]["ended_lifetime_total"] for i in range(a, b)))
+        ended.append(sum(samples[i]["groups_ended"] for i in range(a, b)))
+        prey = sum(samples[i]["group_sizes"] * sizes for i in range(a, b))
+        shares.append(prey / prey.sum(dim=1, keepdim=True))
+    assert float(torch.stack(ended).sum()) > 0
+    torch.testing.assert_close(result["group_lifetime"], torch.stack(lifetimes).sum(0) / torch.stack(ended).sum(0))
+    torch.testing.assert_close(result["group_size_distribution"], torch.stack(shares).mean(0))
+    traces = episodes.traces()
+    want = torch.stack([s["group_age"][[2, 0]] for s in samples]).float()
+    assert traces["group_age"].shape == (len(samples), 2)
+    torch.testing.assert_close(traces["group_age"], want, equal_nan=True)
+    summary = episodes.summary()
+    assert summary["group_lifetime"] == pytest.approx(
+        float(torch.stack(lifetimes).sum()) / float(torch.stack(ended).sum())
+    )
+    assert episodes.log_values()["swarm/group_lifetime"] == summary["group_lifetime"]
+
+
+def test_bad_group_arguments(device):
+    env = make_env(device, prey_count=4, num_worlds=2)
+    with pytest.raises(ValueError, match="min_group_size"):
+        SwarmMetrics(env, min_group_size=1)
+    with pytest.raises(ValueError, match="trace_worlds"):
+        EpisodeMetrics(env, trace=("group_age",), trace_worlds=[2])
