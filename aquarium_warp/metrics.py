@@ -5,6 +5,7 @@ from aquarium_warp.metrics import SwarmMetrics, EpisodeMetrics, rollout_metrics
 
 metrics = SwarmMetrics(env, linking_distance=50.0)
 values = metrics.compute()          # {"polarization": [W], "groups": [W], ..., "nn_histogram": [W, bins]}
+values["group_rotation"]            # per-group measures; identities carry over to the next compute()
 
 episodes = EpisodeMetrics(env, every=10)    # per-episode means, for training logs and evaluation
 env.reset(); episodes.begin()
@@ -35,13 +36,50 @@ Definitions (all over the live prey of a world; distances are torus-shortest, in
   1 when every prey circles the centroid the same way (a mill); about `0.886 / sqrt(n)` for random
   headings. About the swarm's one centroid: meaningful where the prey form one group.
 - `prey_alive`, `predator_alive`: populations; `captures`: captures in the last step.
+
+The groups' measures (`GROUP_METRICS`; a "measured group" has at least `min_group_size` prey, default 3):
+- `group_sizes` `[W, prey_capacity]` int32: the number of groups of each size (column s - 1 for s
+  members: the full distribution, no bins); `mean_group_size`: live prey / groups;
+  `grouped_share`: the share of the live prey in groups of >= 2 (those with a linked neighbour);
+  `measured_share`: in measured groups.
+- Per measured group (Tunstrøm et al. 2013; Li et al. 2023), about the group's own torus centroid
+  (the circular mean per axis over its members, as the swarm's): polarization |mean unit heading|,
+  rotation |mean over members of (r / |r|) x heading| (r the member's offset from that centroid; a
+  member at the centroid adds 0: a mill is 1, a line heading along itself 0) and speed |mean
+  velocity| (px/step). `group_polarization`, `group_rotation`, `group_speed`: their means over the
+  measured groups weighted by members (what the average prey in a measured group sees; NaN without one).
+- Identity across calls: a measured group continues the measured group of the predecessor state that
+  holds a strict majority of its members, counting only prey that are the same individuals (live
+  there, and their age grew by the steps between: a respawned or newborn prey restarts at age 0, and
+  so does a parent that reproduced). When several groups take a majority from one group (a split),
+  the one with most of its members continues it (the lower label on ties); any other group is new.
+  The predecessor state is the previous call's, in the same episode (a new episode, an earlier step or
+  `restart_tracking()` starts over; calling twice on one state gives the same values). `group_age`:
+  the member-weighted mean over measured groups of the steps since each was first seen (NaN without
+  one). A group that nobody continues ended: `groups_ended` counts those since the predecessor state
+  and `ended_lifetime_total` sums their lifetimes (steps from the first to the last state that saw
+  them, so with every k-th step computed a lifetime is a multiple of k). Groups alive at an episode's
+  end are not counted (censored): short episodes undercount long lifetimes.
+  `EpisodeMetrics` reports `group_lifetime`, their ratio: the mean completed lifetime.
+- `nn_ratio_point`, `nn_ratio_hard_disk`: `nn_mean` over its expectation for the same number of live
+  prey placed at random on the torus: uniform points (the aggregation index R against the point
+  null), or disks of the prey hit-box diameter 2 r that may touch but not overlap (random sequential
+  addition, a seeded Monte Carlo, see `aquarium_warp.nulls`): contact pushes keep prey about 2 r apart, so
+  R cannot fall far below 2 r / E[point NN] (about 0.56 at 32 prey of radius 20 in 800 x 800), while
+  the hard-disk null is 1 for prey as spread as non-overlapping random disks. NaN with fewer than 2
+  prey and, for the hard-disk null, in arenas too crowded for the disks (the tables are made for
+  the config at construction).
+- `confusion_neighbour_share`: the share of live prey with another live prey strictly within the
+  world's `confusion_radius` (k >= 1 in capture confusion's 1 / (1 + c k), docs/model.md step 5).
+
 Undefined values (no live prey) are NaN.
 
 `compute()` launches the kernels of `kernels/metrics.py` on every shard (threads on the CPU, Warp's
 stream ordered with torch's on GPU) and returns views of buffers that the next `compute()`
 overwrites; the per-prey arrays behind them are `nearest_neighbour`, `nearest_predator` and
 `group_label` (`[W, prey_capacity]`, -1 for dead slots). Results are deterministic: float sums run
-in a fixed order, group labels are the smallest prey slot of each group.
+in a fixed order, group labels are the smallest prey slot of each group. The groups' passes add
+about a fifth to the time of `compute()` (0.19 ms to 1.0 ms for 64 worlds of 32 prey on one CPU thread).
 """
 
 from __future__ import annotations
@@ -50,16 +88,20 @@ import functools
 import math
 from collections.abc import Iterable, Mapping
 
+import numpy as np
 import torch
 import warp as wp
 
 from .device import TorchStreamLaunches
 from .env import BatchedAquarium, StepResult
 from .kernels import metrics as kernels
+from .nulls import hard_disk_nn_means, point_nn_means
 from .per_world import per_world
 from .rollout import Drivers, Observer, Progress, rollout
 
-SCALAR_METRICS = kernels.VALUE_NAMES
+# compute()'s [W] values: the swarm's measures, then the groups' (both columns of `SwarmMetrics.values`).
+SCALAR_METRICS = kernels.VALUE_NAMES[: kernels.NUM_SWARM_VALUES]
+GROUP_METRICS = kernels.VALUE_NAMES[kernels.NUM_SWARM_VALUES :]
 # Metrics averaged over the sampled states of an episode by `EpisodeMetrics` (the centroid is not:
 # its average over time means nothing on a torus; captures come from the env's episode counters).
 EPISODE_METRICS = (
@@ -73,7 +115,7 @@ EPISODE_METRICS = (
     "predator_alive",
     "local_alignment",
     "milling",
-)
+) + tuple(GROUP_METRICS)
 
 
 def default_linking_distance(env: BatchedAquarium) -> float | tuple[float, ...]:
@@ -94,6 +136,9 @@ class SwarmMetrics:
         nn_range: px covered by the histogram's bins, shared by the worlds (default: 2 x the prey view
             distance, the largest over the worlds, or the largest torus distance if smaller or the view
             is unlimited).
+        min_group_size: the fewest members of a measured group, whose order, age and lifetime are
+            measured (default 3: two prey's polarization and rotation say little, about 0.64 on average for
+            two random headings).
     """
 
     def __init__(
@@ -102,6 +147,7 @@ class SwarmMetrics:
         linking_distance: float | tuple[float, ...] | None = None,
         nn_bins: int = 50,
         nn_range: float | None = None,
+        min_group_size: int = 3,
     ):
         if not isinstance(env, BatchedAquarium):
             raise ValueError(f"env must be a BatchedAquarium, got {type(env).__name__}")
@@ -129,6 +175,8 @@ class SwarmMetrics:
             or nn_range <= 0
         ):
             raise ValueError(f"nn_range={nn_range!r} must be a finite number > 0 (px)")
+        if isinstance(min_group_size, bool) or not isinstance(min_group_size, int) or min_group_size < 2:
+            raise ValueError(f"min_group_size={min_group_size!r} must be an integer >= 2")
         self._env = env
         # One float where every world links at the same distance, else one per world.
         self.linking_distance: float | tuple[float, ...] = (
@@ -138,6 +186,7 @@ class SwarmMetrics:
         self.nn_bins = nn_bins
         self.nn_range = float(nn_range)
         self.bin_width = self.nn_range / nn_bins
+        self.min_group_size = min_group_size
         Pc, P = env.prey_capacity, env.predator_capacity
         dev = env.device
         # A lone predator (or a few) is found faster by looping over the predator slots than by a ring
@@ -148,20 +197,31 @@ class SwarmMetrics:
         a.nearest_prey = wp.zeros((W, Pc), dtype=float, device=dev)
         a.nearest_predator = wp.zeros((W, Pc), dtype=float, device=dev)
         a.nn_histogram = wp.zeros((W, nn_bins), dtype=wp.int32, device=dev)
+        a.confusion_neighbour = wp.zeros((W, Pc), dtype=wp.bool, device=dev)
         a.parent = wp.zeros(W * Pc, dtype=wp.int32, device=dev)
         a.group_label = wp.zeros((W, Pc), dtype=wp.int32, device=dev)
         a.group_size = wp.zeros((W, Pc), dtype=wp.int32, device=dev)
         a.local_alignment = wp.zeros((W, Pc), dtype=float, device=dev)
         a.partial = wp.zeros((W, self._chunks, kernels.NUM_PARTIALS), dtype=float, device=dev)
         a.values = wp.zeros((W, kernels.NUM_VALUES), dtype=float, device=dev)
+        g = self._groups = kernels.GroupArrays()
+        for name in kernels.GroupArrays.vars:
+            shape = {"order": (W, Pc, 3), "last_time": (W, 3), "before_time": (W, 3)}.get(name, (W, Pc))
+            if name in ("point_null", "hard_disk_null"):
+                setattr(g, name, wp.array(self._nn_nulls(name), dtype=float, device=dev))
+            else:
+                setattr(g, name, wp.zeros(shape, dtype=wp.int32 if name != "order" else float, device=dev))
+        self._tracked_times = (wp.to_torch(g.last_time), wp.to_torch(g.before_time))
         values = wp.to_torch(a.values)
-        self.values = values  # [W, len(SCALAR_METRICS)] float32, columns in SCALAR_METRICS order
+        self.values = values  # [W, len(SCALAR_METRICS + GROUP_METRICS)] float32, columns in that order
         self.nn_histogram = wp.to_torch(a.nn_histogram)
+        self.group_sizes = wp.to_torch(g.size_counts)
         self.nearest_neighbour = wp.to_torch(a.nearest_prey)
         self.nearest_predator = wp.to_torch(a.nearest_predator)
         self.group_label = wp.to_torch(a.group_label)
-        self._result = {name: values[:, k] for k, name in enumerate(SCALAR_METRICS)}
+        self._result = {name: values[:, k] for k, name in enumerate(kernels.VALUE_NAMES)}
         self._result["nn_histogram"] = self.nn_histogram
+        self._result["group_sizes"] = self.group_sizes
         self._program = env.record_program(self._shard_commands)
 
     @property
@@ -173,6 +233,25 @@ class SwarmMetrics:
         """`[bins + 1]` px: edges of the histogram's bins (the last bin also counts distances beyond)."""
         return torch.linspace(0.0, self.nn_range, self.nn_bins + 1)
 
+    def _nn_nulls(self, name: str) -> np.ndarray:
+        """`[W, prey_capacity + 1]` float32: each world's expected mean nearest-neighbour distance of n
+        uniform points ("point_null") or of n prey hit boxes that do not overlap ("hard_disk_null"),
+        at index n (`nulls.py`; NaN where undefined)."""
+        cfg, env = self._env.config, self._env
+        Pc = env.prey_capacity
+        if name == "point_null":
+            rows = [point_nn_means(Pc, cfg.width, cfg.height)] * env.num_worlds
+        else:
+            radii = per_world(cfg.prey.radius, env.num_worlds)
+            rows = [hard_disk_nn_means(Pc, cfg.width, cfg.height, 2.0 * float(r))[0] for r in radii]
+        return np.stack(rows).astype(np.float32)
+
+    def restart_tracking(self) -> None:
+        """Forget the groups of earlier calls: the next `compute()` sees every group as new (device work,
+        no sync; `EpisodeMetrics.begin()` calls it)."""
+        for times in self._tracked_times:
+            times.zero_()
+
     def _shard_commands(self, shard) -> list:
         s, g, world, Pc = shard.state, shard.grid, shard.world, self._env.prey_capacity
         W, w0, w1 = shard.num_worlds, shard.w0, shard.w1
@@ -180,6 +259,10 @@ class SwarmMetrics:
         for name in kernels.SwarmArrays.vars:
             rows = slice(w0 * Pc, w1 * Pc) if name == "parent" else slice(w0, w1)  # parent: [W * Pc]
             setattr(arrays, name, getattr(self._arrays, name)[rows])
+        groups = kernels.GroupArrays()
+        for name in kernels.GroupArrays.vars:
+            setattr(groups, name, getattr(self._groups, name)[w0:w1])
+        smallest = self.min_group_size
         return [
             arrays.nn_histogram.zero_,
             arrays.group_size.zero_,
@@ -195,12 +278,17 @@ class SwarmMetrics:
             shard.record(kernels.finish_prey_sums, W, [world, s.worlds, s.outputs], [arrays]),
             shard.record(kernels.centroid_partial_sums, (W, self._chunks), [world, s.agents], [arrays]),
             shard.record(kernels.finish_cohesion, W, [], [arrays]),
+            shard.record(kernels.track_groups, W, [world, s.agents, s.worlds, smallest], [arrays, groups]),
+            shard.record(kernels.group_order, (W, Pc), [world, s.agents, smallest], [arrays, groups]),
+            shard.record(kernels.finish_groups, W, [world, s.agents, smallest], [arrays, groups]),
         ]
 
     def compute(self) -> dict[str, torch.Tensor]:
         """Metrics of the current state of every world: `{name: [W] float32}` for the names in
-        `SCALAR_METRICS`, plus `"nn_histogram"` `[W, bins]` int32; on the env's device, no host sync.
-        The tensors are views overwritten by the next `compute()`: clone what you keep."""
+        `SCALAR_METRICS` and `GROUP_METRICS`, plus `"nn_histogram"` `[W, bins]` int32 and
+        `"group_sizes"` `[W, prey_capacity]` int32; on the env's device, no host sync. The tensors are
+        views overwritten by the next `compute()`: clone what you keep. Group identities carry over to
+        the next call (see the module's definitions)."""
         self._program.run()
         return self._result
 
@@ -217,9 +305,11 @@ class EpisodeMetrics(Observer):
     prey) and `episode_length` are added to the completed totals. Nothing synchronises with the host
     but `log_values()`/`summary()`.
 
-    `trace` names metrics of `SCALAR_METRICS` to record at every sample (e.g. `("prey_alive",
-    "predator_alive")` for population dynamics with reproduction and starvation): `traces()` returns
-    them as `[samples, W]` tensors, with `trace_steps` the step count of each sample.
+    `trace` names metrics of `SCALAR_METRICS` or `GROUP_METRICS` to record at every sample (e.g.
+    `("prey_alive", "predator_alive")` for population dynamics with reproduction and starvation,
+    `("group_rotation", "group_age")` for the groups' course within episodes): `traces()` returns them
+    as `[samples, worlds]` tensors, with `trace_steps` the step count of each sample; `trace_worlds`
+    picks the worlds (default: all).
     """
 
     def __init__(
@@ -228,6 +318,7 @@ class EpisodeMetrics(Observer):
         metrics: SwarmMetrics | None = None,
         every: int = 1,
         trace: Iterable[str] = (),
+        trace_worlds: Iterable[int] | None = None,
         **metric_kwargs,
     ):
         if metrics is None:
@@ -239,21 +330,28 @@ class EpisodeMetrics(Observer):
         if isinstance(every, bool) or not isinstance(every, int) or every < 1:
             raise ValueError(f"every={every!r} must be an integer >= 1")
         trace = tuple(trace)
-        unknown = [name for name in trace if name not in SCALAR_METRICS]
+        names = kernels.VALUE_NAMES
+        unknown = [name for name in trace if name not in names]
         if unknown:
-            raise ValueError(f"unknown trace metrics {unknown}; choose from {SCALAR_METRICS}")
-        self.env, self.metrics, self.every, self.trace_names = env, metrics, every, trace
+            raise ValueError(f"unknown trace metrics {unknown}; choose from {names}")
         W, dev = env.num_worlds, env.torch_device
-        self._columns = torch.tensor([SCALAR_METRICS.index(n) for n in EPISODE_METRICS], device=dev)
-        self._trace_columns = [SCALAR_METRICS.index(n) for n in trace]
-        K, B = len(EPISODE_METRICS), metrics.nn_bins
+        worlds = list(range(W)) if trace_worlds is None else list(trace_worlds)
+        if not worlds or any(isinstance(w, bool) or not isinstance(w, int) or not 0 <= w < W for w in worlds):
+            raise ValueError(f"trace_worlds={trace_worlds!r} must be world indices in [0, {W - 1}]")
+        self.env, self.metrics, self.every, self.trace_names = env, metrics, every, trace
+        self.trace_worlds = worlds
+        self._columns = torch.tensor([names.index(n) for n in EPISODE_METRICS], device=dev)
+        self._trace_columns = torch.tensor([names.index(n) for n in trace], device=dev)
+        self._trace_rows = torch.tensor(worlds, device=dev)
+        K, B, Pc = len(EPISODE_METRICS), metrics.nn_bins, env.prey_capacity
         zeros = functools.partial(torch.zeros, device=dev, dtype=torch.float64)
-        # Current episode: sums over samples, and how many samples were not NaN.
+        self._group_members = torch.arange(1, Pc + 1, device=dev, dtype=torch.float64)  # the size of each column
+        # Current episode: sums over samples, and how many samples were not NaN; the histograms.
         self._sum, self._count = zeros(W, K), zeros(W, K)
-        self._hist = zeros(W, B)
+        self._hist, self._group_hist = zeros(W, B), zeros(W, Pc)
         # Completed episodes: sums of episode values and how many episodes gave a value.
         self._done_sum, self._done_count = zeros(W, K), zeros(W, K)
-        self._done_hist = zeros(W, B)
+        self._done_hist, self._done_group_hist = zeros(W, B), zeros(W, Pc)
         self._done_captures, self._done_length, self._episodes = zeros(W), zeros(W), zeros(W)
         self.ended_values = torch.full((W, K), math.nan, device=dev, dtype=torch.float64)  # see close_episodes
         self._launches = TorchStreamLaunches(env.device)  # close_episodes' launch
@@ -263,27 +361,31 @@ class EpisodeMetrics(Observer):
 
     def _totals(self) -> tuple[torch.Tensor, ...]:
         """The running totals, in `kernels.metrics.close_episodes`' order: the current episode's sums,
-        counts and histogram, then the completed episodes' sums, counts, histogram, captures, lengths
+        counts and histograms, then the completed episodes' sums, counts, histograms, captures, lengths
         and number."""
         return (
             self._sum,
             self._count,
             self._hist,
+            self._group_hist,
             self._done_sum,
             self._done_count,
             self._done_hist,
+            self._done_group_hist,
             self._done_captures,
             self._done_length,
             self._episodes,
         )
 
     def begin(self) -> None:
-        """Forget everything and sample the current state as step 0 (call right after `env.reset()`)."""
+        """Forget everything (the groups tracked too) and sample the current state as step 0 (call right
+        after `env.reset()`)."""
         for t in self._totals():
             t.zero_()
         self._trace.clear()
         self.trace_steps.clear()
         self.steps = 0
+        self.metrics.restart_tracking()
         self._sample()
 
     def _sample(self) -> None:
@@ -293,8 +395,9 @@ class EpisodeMetrics(Observer):
         self._sum += torch.where(valid, x, 0.0)
         self._count += valid
         self._hist += values["nn_histogram"]
-        if self._trace_columns:
-            self._trace.append(self.metrics.values[:, self._trace_columns].clone())
+        self._group_hist += values["group_sizes"] * self._group_members  # prey in groups of each size
+        if self.trace_names:
+            self._trace.append(self.metrics.values[self._trace_rows][:, self._trace_columns])
             self.trace_steps.append(self.steps)
 
     def on_start(self, env: BatchedAquarium) -> None:
@@ -344,15 +447,20 @@ class EpisodeMetrics(Observer):
 
     def result(self) -> dict[str, torch.Tensor]:
         """Per world, the mean over its completed episodes (NaN where none): `[W]` float64 tensors for
-        `EPISODE_METRICS`, `captures`, `captures_per_prey`, `episode_length`, plus `episodes` (count)
-        and `nn_distribution` `[W, bins]` (the histogram normalised per episode, then averaged)."""
+        `EPISODE_METRICS`, `captures`, `captures_per_prey`, `episode_length`, plus `episodes` (count),
+        `group_lifetime` (the mean lifetime of the groups that ended in those episodes, steps),
+        `nn_distribution` `[W, bins]` (the histogram normalised per episode, then averaged) and
+        `group_size_distribution` `[W, prey_capacity]` (the share of the sampled prey in groups of each
+        size, column s - 1 for size s, per episode, then averaged)."""
         episodes = self._episodes
         out = {name: self._done_sum[:, k] / self._done_count[:, k] for k, name in enumerate(EPISODE_METRICS)}
+        out["group_lifetime"] = out["ended_lifetime_total"] / out["groups_ended"]
         out["captures"] = self._done_captures / episodes
         out["captures_per_prey"] = out["captures"] / self._prey_counts()
         out["episode_length"] = self._done_length / episodes
         out["episodes"] = episodes.clone()
         out["nn_distribution"] = self._done_hist / episodes.unsqueeze(1)
+        out["group_size_distribution"] = self._done_group_hist / episodes.unsqueeze(1)
         return out
 
     def _prey_counts(self) -> torch.Tensor:
@@ -370,6 +478,7 @@ class EpisodeMetrics(Observer):
         for k, name in enumerate(EPISODE_METRICS):
             n = float(self._done_count[:, k].sum())
             out[name] = float(self._done_sum[:, k].sum()) / n if n else math.nan
+        out["group_lifetime"] = out["ended_lifetime_total"] / out["groups_ended"] if out["groups_ended"] else math.nan
         out["captures"] = float(self._done_captures.sum()) / episodes if episodes else math.nan
         prey = self.env.config.prey_count
         if isinstance(prey, tuple):  # each world's captures over its own prey count
@@ -390,6 +499,7 @@ class EpisodeMetrics(Observer):
             self._done_sum,
             self._done_count,
             self._done_hist,
+            self._done_group_hist,
             self._done_captures,
             self._done_length,
             self._episodes,
@@ -403,9 +513,11 @@ class EpisodeMetrics(Observer):
         "_sum",
         "_count",
         "_hist",
+        "_group_hist",
         "_done_sum",
         "_done_count",
         "_done_hist",
+        "_done_group_hist",
         "_done_captures",
         "_done_length",
         "_episodes",
@@ -423,9 +535,10 @@ class EpisodeMetrics(Observer):
         self.steps = int(state["steps"])
 
     def traces(self) -> dict[str, torch.Tensor]:
-        """`{name: [samples, W]}` of the metrics named in `trace` (float32), at steps `trace_steps`."""
+        """`{name: [samples, worlds]}` of the metrics named in `trace` (float32) in `trace_worlds`, at steps
+        `trace_steps`."""
         if not self._trace:
-            return {name: torch.zeros(0, self.env.num_worlds) for name in self.trace_names}
+            return {name: torch.zeros(0, len(self.trace_worlds)) for name in self.trace_names}
         stacked = torch.stack(self._trace)
         return {name: stacked[:, :, k] for k, name in enumerate(self.trace_names)}
 
@@ -437,18 +550,20 @@ def rollout_metrics(
     every: int = 1,
     reset: bool = True,
     trace: Iterable[str] = (),
+    trace_worlds: Iterable[int] | None = None,
     progress: bool = False,
     **metric_kwargs,
 ) -> dict[str, torch.Tensor]:
     """Run `steps` steps of `env` (`rollout.rollout`) with the actions of `act` (`{team: driver}`, or a
     function of the observations returning every team's actions) and return `EpisodeMetrics.result()`
-    (per world, means over the episodes completed in the run), plus the traces when `trace` names some.
+    (per world, means over the episodes completed in the run), plus the traces when `trace` names some
+    (`trace_<name>` `[samples, worlds]` of the worlds `trace_worlds`, default all, and `trace_steps`).
 
     For evaluation: `rollout_metrics(env, lambda obs: heuristic_actions(env), steps=env.config.max_steps)`
     gives one episode per world. `metric_kwargs` go to `SwarmMetrics` (e.g. `linking_distance`)."""
     if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
         raise ValueError(f"steps={steps!r} must be an integer >= 1")
-    episodes = EpisodeMetrics(env, every=every, trace=trace, **metric_kwargs)
+    episodes = EpisodeMetrics(env, every=every, trace=trace, trace_worlds=trace_worlds, **metric_kwargs)
     observers: list[Observer] = [episodes]
     bar = None
     if progress:

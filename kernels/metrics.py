@@ -1,6 +1,7 @@
 """Swarm metrics of every world on the device: polarization, local alignment, milling, cohesion,
 nearest-neighbour distances, groups (connected components), distance to the nearest predator,
-populations.
+populations; and the groups' measures: sizes, per-group order, identities across calls, the
+nearest-neighbour ratios to their nulls and the share of prey with a capture-confusion neighbour.
 
 All metrics are about the live prey of a world; distances are torus-shortest, in px. Neighbour
 queries read the cell lists that the observation pass built on the current state, so no metric does
@@ -16,11 +17,15 @@ all-pairs work:
 
 Sums over the prey of a world run in two deterministic stages (no float atomics): per chunk of
 `CHUNK` slots in slot order, then over the chunks in order. Integer counters (histogram bins,
-group sizes) use integer atomics, whose result does not depend on the order.
+group sizes) use integer atomics, whose result does not depend on the order. The groups' passes
+(`track_groups`, `finish_groups`) take one thread per world and walk its slots in order (integer
+bookkeeping, O(prey capacity)); `group_order` takes one thread per group and sums its members in
+slot order.
 
 Launch order per shard (see `aquarium_warp.metrics.SwarmMetrics`): zero the integer counters,
 `prey_distances`, `link_groups`, `local_alignment`, `resolve_groups`, `prey_partial_sums`,
-`finish_prey_sums`, `centroid_partial_sums`, `finish_cohesion`.
+`finish_prey_sums`, `centroid_partial_sums`, `finish_cohesion`, `track_groups`, `group_order`,
+`finish_groups`.
 """
 
 import warp as wp
@@ -63,7 +68,20 @@ LOCAL_ALIGNMENT = wp.constant(11)
 # |mean over live prey of (r / |r|) x heading|, r the prey's torus offset from the centroid, in [0, 1]:
 # 1 for prey circling the centroid all one way (a mill), about 1 / sqrt(n) for random headings.
 MILLING = wp.constant(12)
-NUM_VALUES = wp.constant(13)
+# The groups' measures (`finish_groups` and `track_groups`; "measured groups": at least `min_group_size` prey).
+MEAN_GROUP_SIZE = wp.constant(13)  # live prey / groups
+GROUPED_SHARE = wp.constant(14)  # share of live prey in groups of >= 2 (with a linked neighbour)
+MEASURED_SHARE = wp.constant(15)  # share of live prey in measured groups
+GROUP_POLARIZATION = wp.constant(16)  # member-weighted mean over measured groups of |mean unit heading|
+GROUP_ROTATION = wp.constant(17)  # the same of |mean (r / |r|) x heading|, r from the group's centroid
+GROUP_SPEED = wp.constant(18)  # the same of |mean velocity|, px/step
+GROUP_AGE = wp.constant(19)  # member-weighted mean age (steps) of the measured groups
+GROUPS_ENDED = wp.constant(20)  # tracked groups that ended since the previous state
+ENDED_LIFETIME_TOTAL = wp.constant(21)  # their lifetimes summed, steps
+NN_RATIO_POINT = wp.constant(22)  # NN_MEAN / the expected one of uniform points
+NN_RATIO_HARD_DISK = wp.constant(23)  # NN_MEAN / the expected one of non-overlapping disks
+CONFUSION_NEIGHBOUR_SHARE = wp.constant(24)  # share of live prey with another within confusion_radius
+NUM_VALUES = wp.constant(25)
 VALUE_NAMES = (
     "polarization",
     "cohesion",
@@ -78,7 +96,21 @@ VALUE_NAMES = (
     "captures",
     "local_alignment",
     "milling",
+    "mean_group_size",
+    "grouped_share",
+    "measured_share",
+    "group_polarization",
+    "group_rotation",
+    "group_speed",
+    "group_age",
+    "groups_ended",
+    "ended_lifetime_total",
+    "nn_ratio_point",
+    "nn_ratio_hard_disk",
+    "confusion_neighbour_share",
 )
+# The first columns, the swarm's measures; the rest, the groups' (`aquarium_warp.metrics.GROUP_METRICS`).
+NUM_SWARM_VALUES = 13
 
 # Columns of the first-stage partial sums [W, chunks, NUM_PARTIALS].
 _P_COUNT = wp.constant(0)  # live prey
@@ -109,6 +141,8 @@ class SwarmArrays:
     """[W, Pc] float32, px, torus distance of each live prey to the nearest other live prey; -1: none."""
     nearest_predator: wp.array2d(dtype=float)
     """[W, Pc] float32, px, to the nearest live predator; -1: none."""
+    confusion_neighbour: wp.array2d(dtype=wp.bool)
+    """[W, Pc] bool, another live prey is strictly within `confusion_radius` (k >= 1 of the capture rule)."""
     nn_histogram: wp.array2d(dtype=wp.int32)
     """[W, bins] int32, nearest-prey distances per bin (the last bin also counts those beyond)."""
     parent: wp.array(dtype=wp.int32)
@@ -168,13 +202,15 @@ def prey_distances(
     swarm: SwarmArrays,
 ):
     """Per prey slot `(w, i)`, i < prey_capacity: torus distance (px) to the nearest other live prey
-    and to the nearest live predator (-1 where there is none, or the slot is dead); the nearest-prey
+    and to the nearest live predator (-1 where there is none, or the slot is dead), and whether that
+    prey is strictly within the world's `confusion_radius` (`confusion_neighbour`); the nearest-prey
     distance is counted in `nn_histogram[w, bin]` (bin = floor(d / bin_width), the last bin also
     holds everything beyond). Also starts the union-find: `parent[w * prey_capacity + i] = i`.
     `predators_by_grid` 1: ring search for the nearest predator, 0: loop over the predator slots.
     `grid` must hold the cell lists of `agents.position`; `nn_histogram` must be zero."""
     w, i = wp.tid()
     swarm.parent[w * world.prey_capacity + i] = wp.int32(i)
+    swarm.confusion_neighbour[w, i] = False
     if not agents.alive[w, i]:
         swarm.nearest_prey[w, i] = -1.0
         swarm.nearest_predator[w, i] = -1.0
@@ -222,6 +258,8 @@ def prey_distances(
 
     swarm.nearest_prey[w, i] = -1.0
     if prey_found:
+        confusion_radius = world.values[w].confusion_radius
+        swarm.confusion_neighbour[w, i] = prey_d2 < confusion_radius * confusion_radius  # as capture.confusing_prey
         dist = wp.sqrt(prey_d2)
         swarm.nearest_prey[w, i] = dist
         bins = swarm.nn_histogram.shape[1]
@@ -477,6 +515,281 @@ def finish_cohesion(swarm: SwarmArrays):
         swarm.values[w, MILLING] = wp.nan
 
 
+@wp.struct
+class GroupArrays:
+    """The groups' device buffers (allocated by `aquarium_warp.metrics.SwarmMetrics`). Groups are indexed
+    by their label (root slot). "Last" is the state of the last call, "before" the one before it (the
+    predecessor state, whose groups the current ones continue)."""
+
+    members: wp.array2d(dtype=wp.int32)
+    """[W, Pc] int32, the live prey slots by group label, then slot (a group's members are contiguous)."""
+    group_start: wp.array2d(dtype=wp.int32)
+    """[W, Pc] int32, index in `members` of the root's first member (valid at roots)."""
+    size_counts: wp.array2d(dtype=wp.int32)
+    """[W, Pc] int32, groups of s members at column s - 1."""
+    order: wp.array3d(dtype=float)
+    """[W, Pc, 3] float32, per measured group's root: polarization, rotation, speed (px/step)."""
+    votes: wp.array2d(dtype=wp.int32)
+    """[W, Pc] int32 scratch: members of the current group from each predecessor group (zero between
+    uses); also the filling cursor of `members`."""
+    predecessor: wp.array2d(dtype=wp.int32)
+    """[W, Pc] int32, per current root: the predecessor group that holds a majority of its members, or -1."""
+    claim_votes: wp.array2d(dtype=wp.int32)
+    """[W, Pc] int32, per predecessor root: the most members it gave a current group that it is the
+    majority of; `claim_group`: that group (the lower label on ties), or -1."""
+    claim_group: wp.array2d(dtype=wp.int32)
+    last_time: wp.array2d(dtype=wp.int32)
+    """[W, 3] int32: (1 if set, episode, world_step) of the last call's state; `before_time`: its
+    predecessor's."""
+    before_time: wp.array2d(dtype=wp.int32)
+    last_label: wp.array2d(dtype=wp.int32)
+    """[W, Pc] int32, the measured groups' labels at the last call's state (-1: dead or in a smaller
+    group); `before_label`: at its predecessor."""
+    before_label: wp.array2d(dtype=wp.int32)
+    last_birth: wp.array2d(dtype=wp.int32)
+    """[W, Pc] int32, per measured root: the world step at which the group was first seen; `before_birth`:
+    at the predecessor."""
+    before_birth: wp.array2d(dtype=wp.int32)
+    point_null: wp.array2d(dtype=float)
+    """[W, Pc + 1] float32, px: expected mean nearest-neighbour distance of n uniform points (`nulls.py`),
+    NaN for n < 2; `hard_disk_null`: of n non-overlapping prey hit boxes."""
+    hard_disk_null: wp.array2d(dtype=float)
+
+
+@wp.kernel
+def track_groups(
+    world: WorldParams,
+    agents: Agents,
+    counters: WorldCounters,
+    min_group_size: int,
+    swarm: SwarmArrays,
+    groups: GroupArrays,
+):
+    """One thread per world `w`, in slot order (integer work only, so deterministic): the member lists,
+    the groups per size, and each measured group's identity across calls (`aquarium_warp.metrics`
+    defines it).
+
+    The predecessor state is the last call's, unless this is the same state again (the same episode
+    and step), which is then measured against the same predecessor as before: calls are idempotent.
+    It links to the current state only within the same episode and at an earlier or equal step. A
+    prey continues its predecessor slot if it was live there and its age grew by the steps between
+    (a respawned or newborn prey restarts at age 0). Writes GROUPED_SHARE, MEASURED_SHARE, GROUP_AGE,
+    GROUPS_ENDED and ENDED_LIFETIME_TOTAL of `swarm.values[w]`; `resolve_groups` must have run."""
+    w = wp.tid()
+    capacity = world.prey_capacity
+    episode = counters.episode[w]
+    step = counters.world_step[w]
+    last = groups.last_time
+    if not (last[w, 0] != 0 and last[w, 1] == episode and last[w, 2] == step):
+        for k in range(3):
+            groups.before_time[w, k] = last[w, k]
+        for i in range(capacity):
+            groups.before_label[w, i] = groups.last_label[w, i]
+            groups.before_birth[w, i] = groups.last_birth[w, i]
+    before_step = groups.before_time[w, 2]
+    linked = groups.before_time[w, 0] != 0 and groups.before_time[w, 1] == episode and before_step <= step
+    elapsed = step - before_step
+
+    # Member lists: roots' offsets in slot order, then each member in slot order.
+    offset = int(0)
+    for i in range(capacity):
+        groups.claim_votes[w, i] = 0
+        groups.claim_group[w, i] = -1
+        groups.size_counts[w, i] = 0
+        groups.votes[w, i] = 0
+        if swarm.group_label[w, i] == i:
+            groups.group_start[w, i] = offset
+            offset += int(swarm.group_size[w, i])
+    for i in range(capacity):
+        root = int(swarm.group_label[w, i])
+        if root >= 0:
+            groups.members[w, groups.group_start[w, root] + groups.votes[w, root]] = wp.int32(i)
+            groups.votes[w, root] = groups.votes[w, root] + 1
+    for i in range(capacity):
+        groups.votes[w, i] = 0
+
+    # Each measured group's predecessor: the previous measured group holding a strict majority of its
+    # members; a previous group is continued by the group that took most of its members (ties: the
+    # lower label).
+    for g in range(capacity):
+        if swarm.group_label[w, g] == g and int(swarm.group_size[w, g]) >= min_group_size:
+            size = int(swarm.group_size[w, g])
+            start = int(groups.group_start[w, g])
+            best = int(-1)
+            best_votes = int(0)
+            if linked:
+                for k in range(start, start + size):
+                    j = int(groups.members[w, k])
+                    p = int(groups.before_label[w, j])
+                    if p >= 0 and agents.age[w, j] >= elapsed:
+                        v = groups.votes[w, p] + 1
+                        groups.votes[w, p] = v
+                        if v > best_votes:
+                            best_votes = v
+                            best = p
+                for k in range(start, start + size):
+                    p = int(groups.before_label[w, groups.members[w, k]])
+                    if p >= 0:
+                        groups.votes[w, p] = 0
+            groups.predecessor[w, g] = -1
+            if 2 * best_votes > size:
+                groups.predecessor[w, g] = wp.int32(best)
+                if best_votes > groups.claim_votes[w, best]:
+                    groups.claim_votes[w, best] = wp.int32(best_votes)
+                    groups.claim_group[w, best] = wp.int32(g)
+
+    # Sizes, and births and ages of the measured groups (ages and shares summed in slot order).
+    n = int(0)
+    grouped = int(0)
+    measured = int(0)
+    age_sum = wp.float64(0.0)
+    for g in range(capacity):
+        if swarm.group_label[w, g] == g:
+            size = int(swarm.group_size[w, g])
+            groups.size_counts[w, size - 1] = groups.size_counts[w, size - 1] + 1
+            n += size
+            if size >= 2:
+                grouped += size
+            if size >= min_group_size:
+                p = int(groups.predecessor[w, g])
+                birth = step
+                if p >= 0:
+                    if groups.claim_group[w, p] == g:
+                        birth = int(groups.before_birth[w, p])
+                groups.last_birth[w, g] = wp.int32(birth)
+                measured += size
+                age_sum += wp.float64(size) * wp.float64(step - birth)
+    # The predecessor's measured groups that nobody continues ended.
+    ended = int(0)
+    lifetimes = wp.float64(0.0)
+    if linked:
+        for p in range(capacity):
+            if groups.before_label[w, p] == p and groups.claim_group[w, p] < 0:
+                ended += 1
+                lifetimes += wp.float64(before_step - groups.before_birth[w, p])
+    for i in range(capacity):
+        root = int(swarm.group_label[w, i])
+        groups.last_label[w, i] = -1
+        if root >= 0:
+            if int(swarm.group_size[w, root]) >= min_group_size:
+                groups.last_label[w, i] = wp.int32(root)
+    last[w, 0] = 1
+    last[w, 1] = episode
+    last[w, 2] = step
+
+    nan = wp.nan
+    swarm.values[w, GROUPED_SHARE] = nan
+    swarm.values[w, MEASURED_SHARE] = nan
+    if n > 0:
+        swarm.values[w, GROUPED_SHARE] = float(grouped) / float(n)
+        swarm.values[w, MEASURED_SHARE] = float(measured) / float(n)
+    swarm.values[w, GROUP_AGE] = nan
+    if measured > 0:
+        swarm.values[w, GROUP_AGE] = float(age_sum / wp.float64(measured))
+    swarm.values[w, GROUPS_ENDED] = float(ended)
+    swarm.values[w, ENDED_LIFETIME_TOTAL] = float(lifetimes)
+
+
+@wp.kernel
+def group_order(world: WorldParams, agents: Agents, min_group_size: int, swarm: SwarmArrays, groups: GroupArrays):
+    """Per prey slot `(w, g)` that is the root of a group of at least `min_group_size` members: its
+    polarization |mean unit heading|, rotation |mean (r / |r|) x heading| (r the member's torus offset
+    from the group's centroid, a circular mean per axis as for the swarm's) and speed |mean velocity|
+    (px/step) into `groups.order[w, g]`, summed over the members in slot order."""
+    w, g = wp.tid()
+    if swarm.group_label[w, g] != g:
+        return
+    size = int(swarm.group_size[w, g])
+    if size < min_group_size:
+        return
+    start = int(groups.group_start[w, g])
+    head = wp.vec2(0.0, 0.0)
+    velocity = wp.vec2(0.0, 0.0)
+    cos_x = float(0.0)
+    sin_x = float(0.0)
+    cos_y = float(0.0)
+    sin_y = float(0.0)
+    for k in range(start, start + size):
+        j = int(groups.members[w, k])
+        head = head + agents.heading[w, j]
+        velocity = velocity + agents.velocity[w, j]
+        p = agents.position[w, j]
+        ax = TWO_PI * p[0] / world.width
+        ay = TWO_PI * p[1] / world.height
+        cos_x += wp.cos(ax)
+        sin_x += wp.sin(ax)
+        cos_y += wp.cos(ay)
+        sin_y += wp.sin(ay)
+    centroid = wp.vec2(circular_mean(cos_x, sin_x, world.width), circular_mean(cos_y, sin_y, world.height))
+    turn = float(0.0)
+    for k in range(start, start + size):
+        j = int(groups.members[w, k])
+        r = torus_displacement(world, centroid, agents.position[w, j])
+        distance = wp.length(r)
+        if distance > 0.0:
+            h = agents.heading[w, j]
+            turn += (r[0] * h[1] - r[1] * h[0]) / distance
+    m = float(size)
+    groups.order[w, g, 0] = wp.length(head) / m
+    groups.order[w, g, 1] = wp.abs(turn) / m
+    groups.order[w, g, 2] = wp.length(velocity) / m
+
+
+@wp.kernel
+def finish_groups(world: WorldParams, agents: Agents, min_group_size: int, swarm: SwarmArrays, groups: GroupArrays):
+    """Per world `w`, in slot order: MEAN_GROUP_SIZE, the member-weighted means of `groups.order` over
+    the measured groups (GROUP_POLARIZATION, GROUP_ROTATION, GROUP_SPEED; NaN without one),
+    CONFUSION_NEIGHBOUR_SHARE and the nearest-neighbour ratios (NaN where undefined); after
+    `finish_prey_sums` and `group_order`."""
+    w = wp.tid()
+    polarization = float(0.0)
+    rotation = float(0.0)
+    speed = float(0.0)
+    weight = float(0.0)
+    neighboured = float(0.0)
+    for i in range(world.prey_capacity):
+        if agents.alive[w, i]:
+            if swarm.confusion_neighbour[w, i]:
+                neighboured += 1.0
+            if swarm.group_label[w, i] == i and int(swarm.group_size[w, i]) >= min_group_size:
+                m = float(swarm.group_size[w, i])
+                polarization += m * groups.order[w, i, 0]
+                rotation += m * groups.order[w, i, 1]
+                speed += m * groups.order[w, i, 2]
+                weight += m
+    nan = wp.nan
+    n = swarm.values[w, PREY_ALIVE]
+    swarm.values[w, MEAN_GROUP_SIZE] = nan
+    swarm.values[w, CONFUSION_NEIGHBOUR_SHARE] = nan
+    if n > 0.0:
+        swarm.values[w, MEAN_GROUP_SIZE] = n / swarm.values[w, GROUPS]
+        swarm.values[w, CONFUSION_NEIGHBOUR_SHARE] = neighboured / n
+    swarm.values[w, GROUP_POLARIZATION] = nan
+    swarm.values[w, GROUP_ROTATION] = nan
+    swarm.values[w, GROUP_SPEED] = nan
+    if weight > 0.0:
+        swarm.values[w, GROUP_POLARIZATION] = polarization / weight
+        swarm.values[w, GROUP_ROTATION] = rotation / weight
+        swarm.values[w, GROUP_SPEED] = speed / weight
+    count = int(n)  # NaN tables at n < 2 and past the hard-disk null's reach
+    nn_mean = swarm.values[w, NN_MEAN]
+    swarm.values[w, NN_RATIO_POINT] = nn_mean / groups.point_null[w, count]
+    swarm.values[w, NN_RATIO_HARD_DISK] = nn_mean / groups.hard_disk_null[w, count]
+
+
+@wp.func
+def close_histogram(hist: wp.array2d(dtype=wp.float64), done_hist: wp.array2d(dtype=wp.float64), w: int):
+    """World w's episode histogram, normalised, added to the completed one (if it counted anything); then
+    cleared."""
+    total = wp.float64(0.0)
+    for b in range(hist.shape[1]):
+        total = total + hist[w, b]
+    for b in range(hist.shape[1]):
+        if total > wp.float64(0.0):
+            done_hist[w, b] = done_hist[w, b] + hist[w, b] / total
+        hist[w, b] = wp.float64(0.0)
+
+
 @wp.kernel
 def close_episodes(
     ended: wp.array(dtype=wp.bool),
@@ -485,9 +798,11 @@ def close_episodes(
     sums: wp.array2d(dtype=wp.float64),
     counts: wp.array2d(dtype=wp.float64),
     hist: wp.array2d(dtype=wp.float64),
+    group_hist: wp.array2d(dtype=wp.float64),
     done_sum: wp.array2d(dtype=wp.float64),
     done_count: wp.array2d(dtype=wp.float64),
     done_hist: wp.array2d(dtype=wp.float64),
+    done_group_hist: wp.array2d(dtype=wp.float64),
     done_captures: wp.array(dtype=wp.float64),
     done_length: wp.array(dtype=wp.float64),
     episodes: wp.array(dtype=wp.float64),
@@ -495,9 +810,9 @@ def close_episodes(
 ):
     """One world per thread (`aquarium_warp.metrics.EpisodeMetrics.close_episodes`): where its episode
     ended, the episode's value of each metric (the mean of its samples; NaN without any) into
-    `ended_values` and, if it has samples, the completed totals; its nearest-neighbour histogram,
-    normalised, into the completed histogram; its captures and length; then the current episode's
-    sums cleared. Elsewhere `ended_values` is NaN and nothing else changes."""
+    `ended_values` and, if it has samples, the completed totals; its nearest-neighbour and group-size
+    histograms, normalised, into the completed ones; its captures and length; then the current
+    episode's sums cleared. Elsewhere `ended_values` is NaN and nothing else changes."""
     w = wp.tid()
     nan = wp.float64(wp.nan)
     if not ended[w]:
@@ -512,13 +827,8 @@ def close_episodes(
             done_count[w, k] = done_count[w, k] + wp.float64(1.0)
         sums[w, k] = wp.float64(0.0)
         counts[w, k] = wp.float64(0.0)
-    total = wp.float64(0.0)
-    for b in range(hist.shape[1]):
-        total = total + hist[w, b]
-    for b in range(hist.shape[1]):
-        if total > wp.float64(0.0):
-            done_hist[w, b] = done_hist[w, b] + hist[w, b] / total
-        hist[w, b] = wp.float64(0.0)
+    close_histogram(hist, done_hist, w)
+    close_histogram(group_hist, done_group_hist, w)
     done_captures[w] = done_captures[w] + wp.float64(ended_captures[w])
     done_length[w] = done_length[w] + wp.float64(ended_length[w])
     episodes[w] = episodes[w] + wp.float64(1.0)

@@ -14,6 +14,8 @@ import torch
 from aquarium_warp import AquariumConfig, BatchedAquarium
 from aquarium_warp.heuristics import heuristic_actions
 from aquarium_warp.metrics import EPISODE_METRICS, SCALAR_METRICS, EpisodeMetrics, SwarmMetrics, rollout_metrics
+from aquarium_warp.nulls import hard_disk_nn_means, point_nn_means
+from aquarium_warp.per_world import per_world
 
 
 def make_env(device, prey_count, predator_count=1, num_worlds=1, **kw) -> BatchedAquarium:
@@ -345,7 +347,7 @@ def test_episode_metrics_average_each_episode(device):
         per_episode = [
             torch.stack([samples[i][name] for i in range(a, b)]).nanmean(dim=0) for a, b in zip(bounds[:-1], bounds[1:])
         ]
-        want = torch.stack(per_episode).mean(dim=0)
+        want = torch.stack(per_episode).nanmean(dim=0)  # an episode without a value (no measured group) is skipped
         torch.testing.assert_close(result[name], want, rtol=1e-6, atol=1e-6)
     torch.testing.assert_close(result["captures"], torch.stack(captures).mean(dim=0))
     torch.testing.assert_close(result["captures_per_prey"], result["captures"] / 24)
@@ -414,3 +416,410 @@ def test_bad_arguments(device):
         EpisodeMetrics(env, every=0)
     with pytest.raises(ValueError, match="trace"):
         EpisodeMetrics(env, trace=("nope",))
+
+
+# --------------------------------------------------------------------------------------------------
+# The groups' measures against a numpy reference (float64, all pairs)
+# --------------------------------------------------------------------------------------------------
+def group_reference(pos, head, velocity, alive, labels, Pc, size, min_size, confusion_radius):
+    """The per-state group measures of one world (no tracking) from its state arrays and the group
+    labels (`reference`'s breadth-first search)."""
+    pos, head, velocity = pos.astype(np.float64), head.astype(np.float64), velocity.astype(np.float64)
+    prey = np.flatnonzero(alive[:Pc])
+    n = len(prey)
+    counts = np.zeros(Pc, np.int64)
+    out = {"group_sizes": counts}
+    roots, sizes = np.unique(labels[prey], return_counts=True)
+    for s in sizes:
+        counts[s - 1] += 1
+    nan = math.nan
+    out["mean_group_size"] = n / len(roots) if n else nan
+    out["grouped_share"] = sizes[sizes >= 2].sum() / n if n else nan
+    out["measured_share"] = sizes[sizes >= min_size].sum() / n if n else nan
+    order, weights = [], []
+    for root, s in zip(roots, sizes):
+        if s < min_size:
+            continue
+        members = prey[labels[prey] == root]
+        p = pos[members]
+        centroid = []
+        for axis in range(2):
+            ang = 2 * np.pi * p[:, axis] / size[axis]
+            c = math.atan2(np.sin(ang).sum(), np.cos(ang).sum()) * size[axis] / (2 * np.pi)
+            centroid.append(c % size[axis])
+        r = torus(p - np.array(centroid), size)
+        radius = np.linalg.norm(r, axis=1)
+        h = head[members]
+        cross = np.where(radius > 0, (r[:, 0] * h[:, 1] - r[:, 1] * h[:, 0]) / np.where(radius > 0, radius, 1), 0.0)
+        order.append(
+            [
+                np.linalg.norm(h.mean(axis=0)),
+                abs(cross.sum()) / s,
+                np.linalg.norm(velocity[members].mean(axis=0)),
+            ]
+        )
+        weights.append(s)
+    for k, name in enumerate(("group_polarization", "group_rotation", "group_speed")):
+        out[name] = float(np.average([o[k] for o in order], weights=weights)) if weights else nan
+    if n:
+        d = np.linalg.norm(torus(pos[prey][:, None, :] - pos[prey][None, :, :], size), axis=-1)
+        np.fill_diagonal(d, np.inf)
+        out["confusion_neighbour_share"] = (d < confusion_radius).any(axis=1).mean()
+    else:
+        out["confusion_neighbour_share"] = nan
+    return out
+
+
+class TrackedGroups:
+    """The measured groups' identities across calls, as `aquarium_warp.metrics` defines them, with
+    dicts: per call the group ages, and the groups that ended since the predecessor state."""
+
+    def __init__(self, min_size):
+        self.min_size = min_size
+        self.last = None  # (episode, step, {slot: measured group}, {measured group: birth step})
+        self.before = None
+
+    def update(self, labels, alive, age, episode, step):
+        if self.last is None or self.last[:2] != (episode, step):
+            self.before = self.last
+        before = self.before
+        linked = before is not None and before[0] == episode and before[1] <= step
+        prey = np.flatnonzero(alive)
+        groups = {int(g): prey[labels[prey] == g] for g in np.unique(labels[prey])}
+        groups = {g: m for g, m in groups.items() if len(m) >= self.min_size}
+        predecessor, claims = {}, {}  # claims: previous root -> (votes, current root)
+        for g in sorted(groups):
+            votes = {}
+            if linked:
+                for j in groups[g]:
+                    p = before[2].get(int(j))
+                    if p is not None and age[j] >= step - before[1]:
+                        votes[p] = votes.get(p, 0) + 1
+            if votes:
+                p, v = max(votes.items(), key=lambda item: (item[1], -item[0]))
+                if 2 * v > len(groups[g]):
+                    predecessor[g] = p
+                    if p not in claims or v > claims[p][0]:
+                        claims[p] = (v, g)
+        birth = {}
+        for g in groups:
+            p = predecessor.get(g)
+            birth[g] = before[3][p] if p is not None and claims[p][1] == g else step
+        ended = [before[1] - b for p, b in before[3].items() if p not in claims] if linked else []
+        measured = [(len(m), step - birth[g]) for g, m in groups.items()]
+        self.last = (episode, step, {int(j): g for g, m in groups.items() for j in m}, birth)
+        age_mean = np.average([a for _, a in measured], weights=[s for s, _ in measured]) if measured else math.nan
+        return {"group_age": age_mean, "groups_ended": len(ended), "ended_lifetime_total": float(sum(ended))}
+
+
+def check_groups(metrics: SwarmMetrics, w: int, tracked: TrackedGroups | None = None, values=None):
+    """compute() (or `values` from it) of world w against `group_reference` and, with `tracked`, the
+    tracking reference (updated here with the same state)."""
+    env = metrics.env
+    t = env.state.torch
+    values = metrics.compute() if values is None else values
+    size = np.array([env.config.width, env.config.height])
+    Pc = env.prey_capacity
+    alive = t.alive[w].cpu().numpy()
+    labels = metrics.group_label[w].cpu().numpy()
+    base = reference(
+        t.position[w].cpu().numpy(),
+        t.heading[w].cpu().numpy(),
+        alive,
+        Pc,
+        size,
+        metrics.linking_distance,
+        metrics.nn_bins,
+        metrics.bin_width,
+    )
+    np.testing.assert_array_equal(labels, base["labels"])  # the components the measures are over
+    confusion_radius = per_world(env.config.confusion_radius, env.num_worlds)[w]
+    want = group_reference(
+        t.position[w].cpu().numpy(),
+        t.heading[w].cpu().numpy(),
+        t.velocity[w].cpu().numpy(),
+        alive,
+        labels,
+        Pc,
+        size,
+        metrics.min_group_size,
+        confusion_radius,
+    )
+    n = base["prey_alive"]
+    radius = per_world(env.config.prey.radius, env.num_worlds)[w]
+    want["nn_ratio_point"] = base["nn_mean"] / point_nn_means(Pc, *size)[n]
+    want["nn_ratio_hard_disk"] = base["nn_mean"] / hard_disk_nn_means(Pc, *size, 2.0 * radius)[0][n]
+    if tracked is not None:
+        want.update(
+            tracked.update(labels, alive[:Pc], t.age[w, :Pc].cpu().numpy(), int(t.episode[w]), int(t.world_step[w]))
+        )
+    np.testing.assert_array_equal(values["group_sizes"][w].cpu().numpy(), want.pop("group_sizes"))
+    for name, expected in want.items():
+        got = float(values[name][w])
+        if math.isnan(expected):
+            assert math.isnan(got), (name, w, got)
+        else:
+            assert got == pytest.approx(expected, rel=2e-5, abs=2e-5), (name, w, got, expected)
+    return values
+
+
+def set_world(env, pos, head, alive=None, world=0, age=None, step=None, episode=None, speed=2.0):
+    """`set_prey`, then the prey's ages (default 1000: no respawn between the states a test sets), the
+    world's step and episode."""
+    set_prey(env, pos, head, world=world, prey_alive=alive)
+    fields = {}
+    ages = np.full(env.capacity, 1000, np.int32)
+    if age is not None:
+        ages[: len(age)] = age
+    fields["age"] = ages
+    fields["velocity"] = env.state.torch.heading[world].cpu().numpy() * speed
+    if step is not None:
+        fields["world_step"] = step
+    if episode is not None:
+        fields["episode"] = episode
+    env.set_state(world=world, **fields)
+
+
+def test_mill_across_the_seam_and_a_line(device):
+    """4 prey on a circle round (795, 5) (across both seams) heading tangentially: a mill (rotation 1,
+    polarization 0, speed 0); 3 prey in a row heading along it: polarization 1, rotation 0, speed 2.
+    Member-weighted over the two groups; a pair and a lone prey are not measured."""
+    env = make_env(device, prey_count=10)
+    metrics = SwarmMetrics(env, linking_distance=50.0)
+    phi = np.pi / 4 + np.pi / 2 * np.arange(4)
+    ring = np.stack([795.0 + 15.0 * np.cos(phi), 5.0 + 15.0 * np.sin(phi)], axis=1)
+    line = [[300.0, 300.0], [330.0, 300.0], [360.0, 300.0]]
+    pair = [[500.0, 600.0], [520.0, 600.0]]
+    lone = [[100.0, 500.0]]
+    heads = np.concatenate([unit(phi + np.pi / 2), unit([0.0] * 3), unit([1.0, 2.0, 3.0])])
+    set_world(env, np.concatenate([ring, line, pair, lone]), heads)
+    values = check_groups(metrics, 0)
+    assert values["group_sizes"][0].tolist()[:5] == [1, 1, 1, 1, 0]
+    assert float(values["group_polarization"][0]) == pytest.approx(3 / 7, abs=1e-6)
+    assert float(values["group_rotation"][0]) == pytest.approx(4 / 7, abs=1e-6)
+    assert float(values["group_speed"][0]) == pytest.approx(2.0 * 3 / 7, abs=1e-6)
+    assert float(values["mean_group_size"][0]) == pytest.approx(10 / 4)
+    assert float(values["grouped_share"][0]) == pytest.approx(0.9)
+    assert float(values["measured_share"][0]) == pytest.approx(0.7)
+    # The lone prey is 180 px from the pair: within the default 100 px of nobody.
+    assert float(values["confusion_neighbour_share"][0]) == pytest.approx(0.9)
+    set_world(env, ring, unit(phi + np.pi / 2), alive=[True] * 4)
+    values = check_groups(metrics, 0)
+    assert float(values["group_rotation"][0]) == pytest.approx(1.0, abs=1e-6)
+    assert float(values["group_polarization"][0]) == pytest.approx(0.0, abs=1e-6)
+    assert float(values["group_speed"][0]) == pytest.approx(0.0, abs=1e-5)
+    # Heading out of the circle: no rotation; measured from 5 members on, no group qualifies.
+    set_world(env, ring, unit(phi), alive=[True] * 4)
+    assert float(check_groups(metrics, 0)["group_rotation"][0]) == pytest.approx(0.0, abs=1e-6)
+    values = check_groups(SwarmMetrics(env, linking_distance=50.0, min_group_size=5), 0)
+    assert math.isnan(float(values["group_rotation"][0])) and float(values["measured_share"][0]) == 0.0
+
+
+def test_group_measures_of_empty_and_single_prey_worlds(device):
+    env = make_env(device, prey_count=4, num_worlds=3)
+    pos = [[100.0, 100.0], [200.0, 100.0], [300.0, 100.0], [400.0, 100.0]]
+    set_world(env, pos, unit([0.0] * 4), world=0, alive=[False] * 4)
+    set_world(env, pos, unit([0.0] * 4), world=1, alive=[False, True, False, False])
+    metrics = SwarmMetrics(env)
+    values = metrics.compute()
+    for w in range(3):
+        check_groups(metrics, w, values=values)
+    for name in ("mean_group_size", "group_polarization", "nn_ratio_point", "confusion_neighbour_share"):
+        assert math.isnan(float(values[name][0])), name
+    assert float(values["mean_group_size"][1]) == 1.0 and float(values["grouped_share"][1]) == 0.0
+    assert math.isnan(float(values["group_age"][1])) and math.isnan(float(values["nn_ratio_hard_disk"][1]))
+    assert values["group_sizes"][0].sum() == 0 and values["group_sizes"][1].tolist() == [1, 0, 0, 0]
+    assert float(values["groups_ended"][0]) == 0.0
+
+
+@pytest.mark.parametrize("prey_count,link,worlds,min_size", [(60, 50.0, 8, 3), (150, 35.0, 6, 2), (700, 30.0, 2, 4)])
+def test_group_measures_of_random_states(device, prey_count, link, worlds, min_size):
+    """Random and clustered states (groups across the seam, dead slots): every group measure of every
+    world; 700 prey span three chunks."""
+    env = make_env(device, prey_count=prey_count, num_worlds=worlds)
+    rng = np.random.default_rng(prey_count + 1)
+    metrics = SwarmMetrics(env, linking_distance=link, min_group_size=min_size)
+    for clustered in (False, True):
+        random_state(env, rng, clustered)
+        values = metrics.compute()
+        assert float(values["measured_share"].nan_to_num(0).max()) > 0  # some groups are measured
+        for w in range(env.num_worlds):
+            check_groups(metrics, w, values=values)
+
+
+def test_group_identity_by_hand(device):
+    """Ages and lifetimes over set states: a measured group (>= 3 prey) continues the previous one
+    holding a strict majority of its members (the largest such fragment of it; ties to the lower
+    label), a respawned prey (its age restarted) is a new individual, a group ends when nobody
+    continues it, and a new episode starts over without ending anything."""
+    env = make_env(device, prey_count=9, max_steps=1000)
+    metrics = SwarmMetrics(env, linking_distance=50.0)
+    tracked = TrackedGroups(3)
+    head = unit([0.0] * 9)
+    # Uneven spacings: no member sits at its group's centroid, where r / |r| is undefined.
+    a = [[x, 100.0] for x in (100.0, 120.0, 150.0, 170.0, 190.0)]  # slots 0-4
+    b = [[x, 400.0] for x in (400.0, 430.0, 450.0)]  # slots 5-7
+    lone = [[700.0, 700.0]]  # slot 8
+
+    def state(pos, step, age=None, episode=0):
+        set_world(env, pos, head, step=step, age=age, episode=episode)
+        return check_groups(metrics, 0, tracked)
+
+    values = state(a + b + lone, step=10)
+    assert float(values["group_age"][0]) == 0.0 and float(values["groups_ended"][0]) == 0.0
+    values = state(a + b + lone, step=10)  # the same state again: the same values
+    assert float(values["group_age"][0]) == 0.0
+    values = state(a + b + lone, step=30)
+    assert float(values["group_age"][0]) == 20.0
+    # A splits 3 + 2: the 3 (slots 0-2) continue it; the pair (3-4) is new. B drifts off intact.
+    split = a[:3] + [[100.0, 300.0], [120.0, 300.0]] + b + lone
+    values = state(split, step=40)
+    assert float(values["group_age"][0]) == pytest.approx(30.0)  # (3 x 30 + 3 x 30) / 6
+    assert float(values["groups_ended"][0]) == 0.0
+    # The lone prey joins B (4 members, 3 from B: it continues); A's 3 scatter: it ended, lived 30 steps.
+    scattered = [[100.0, 100.0], [100.0, 200.0], [100.0, 600.0]] + split[3:5] + b + [[490.0, 400.0]]
+    values = state(scattered, step=45)
+    assert float(values["group_age"][0]) == pytest.approx(35.0)
+    assert float(values["groups_ended"][0]) == 1.0 and float(values["ended_lifetime_total"][0]) == 30.0
+    # Two of B's members respawned in place (ages below the 5 steps elapsed): 2 of 4 is no majority,
+    # so B (first seen at step 10, last at 45) ended.
+    values = state(scattered, step=50, age=[1000] * 5 + [1000, 3, 4, 1000])
+    assert float(values["group_age"][0]) == 0.0
+    assert float(values["groups_ended"][0]) == 1.0 and float(values["ended_lifetime_total"][0]) == 35.0
+    # A new episode: every group is new, nothing ended.
+    values = state(scattered, step=5, episode=1)
+    assert float(values["group_age"][0]) == 0.0 and float(values["groups_ended"][0]) == 0.0
+    # A group of 6 splits into two triples, each all its: the lower label continues it (a tie), the
+    # other is new; then one triple falls apart into a pair and a lone prey: too small, it ended.
+    six = [[x, 500.0] for x in (100.0, 130.0, 150.0, 180.0, 200.0, 230.0)]
+    rest = [[600.0, 100.0], [600.0, 200.0], [600.0, 300.0]]
+    values = state(six + rest, step=7, episode=1)  # (B, seen at step 5 only, ended: 1 of 6 is no majority)
+    assert float(values["group_age"][0]) == 0.0
+    assert float(values["groups_ended"][0]) == 1.0 and float(values["ended_lifetime_total"][0]) == 0.0
+    triples = six[:3] + [[x, 700.0] for x in (180.0, 200.0, 230.0)] + rest
+    values = state(triples, step=9, episode=1)
+    assert float(values["group_age"][0]) == pytest.approx((3 * 2 + 3 * 0) / 6)
+    assert float(values["groups_ended"][0]) == 0.0
+    values = state(triples[:5] + [[400.0, 700.0]] + rest, step=12, episode=1)
+    assert float(values["group_age"][0]) == pytest.approx(5.0)  # the triple of slots 0-2, since step 7
+    assert float(values["groups_ended"][0]) == 1.0 and float(values["ended_lifetime_total"][0]) == 0.0
+
+
+def test_group_identity_in_rollouts_match_the_reference(device):
+    """Heuristic rollouts with respawns and episode ends, sampled every 3 steps (twice per state, which
+    changes nothing): ages and lifetimes against the tracking reference, in every world."""
+    env = make_env(device, prey_count=24, num_worlds=3, max_steps=40, width=400.0, height=400.0)
+    metrics = SwarmMetrics(env, linking_distance=80.0)
+    tracked = [TrackedGroups(3) for _ in range(env.num_worlds)]
+    env.reset()
+    metrics.restart_tracking()
+    ended = respawned = 0
+    for step in range(100):
+        if step % 3 == 0:
+            for repeat in range(2):
+                values = metrics.compute()
+                for w in range(env.num_worlds):
+                    check_groups(metrics, w, tracked[w] if repeat == 0 else None, values=values)
+            ended += int(values["groups_ended"].sum())
+        env.step(heuristic_actions(env), validate=False)
+        respawned += int(env.state.torch.captured[:, : env.prey_capacity].sum())
+    assert ended > 0 and respawned > 0  # the cases the test is about happened
+
+
+# --------------------------------------------------------------------------------------------------
+# The nearest-neighbour nulls
+# --------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("width,height", [(800.0, 800.0), (600.0, 300.0)])
+def test_point_null_matches_uniform_points(width, height):
+    rng = np.random.default_rng(7)
+    table = point_nn_means(32, width, height)
+    assert np.isnan(table[:2]).all()
+    for n in (2, 5, 32):
+        samples = 40000 // n
+        p = rng.uniform(0, 1, (samples, n, 2)) * [width, height]
+        d = np.linalg.norm(torus(p[:, :, None] - p[:, None], np.array([width, height])), axis=-1)
+        d[:, np.arange(n), np.arange(n)] = np.inf
+        per = d.min(axis=2).mean(axis=1)
+        assert abs(table[n] - per.mean()) < 4 * per.std(ddof=1) / math.sqrt(samples), n
+
+
+def test_hard_disk_null_matches_brute_force():
+    """Random sequential addition written plainly (one arrangement at a time), other seeds; tiny disks
+    give the point null; a crowded arena is NaN past what the disks can fill."""
+    width, height, diameter = 400.0, 300.0, 60.0
+    means, errors = hard_disk_nn_means(8, width, height, diameter)
+    rng = np.random.default_rng(11)
+    size = np.array([width, height])
+    samples = 1500
+    per = np.zeros((samples, 9))
+    for s in range(samples):
+        placed = []
+        while len(placed) < 8:
+            c = rng.uniform(0, 1, 2) * size
+            if all(np.linalg.norm(torus(c - q, size)) >= diameter for q in placed):
+                placed.append(c)
+        p = np.array(placed)
+        for n in range(2, 9):
+            d = np.linalg.norm(torus(p[:n, None] - p[None, :n], size), axis=-1)
+            np.fill_diagonal(d, np.inf)
+            per[s, n] = d.min(axis=1).mean()
+    for n in range(2, 9):
+        se = math.hypot(errors[n], per[:, n].std(ddof=1) / math.sqrt(samples))
+        assert abs(means[n] - per[:, n].mean()) < 4 * se, n
+        assert means[n] > point_nn_means(8, width, height)[n]  # hard cores spread the prey
+    assert errors[8] < 0.01 * means[8]
+    tiny = hard_disk_nn_means(32, 800.0, 800.0, 1e-3)
+    point = point_nn_means(32, 800.0, 800.0)
+    assert (np.abs(tiny[0][2:] - point[2:]) < 4 * tiny[1][2:]).all()
+    crowded = hard_disk_nn_means(12, 200.0, 200.0, 100.0)[0]
+    assert np.isfinite(crowded[2]) and np.isnan(crowded[-1]) and np.isnan(crowded[:2]).all()
+
+
+def test_episode_metrics_group_lifetimes_sizes_and_traces(device):
+    """Per episode: the mean completed group lifetime (the ended groups' lifetimes over their number,
+    from the sampled values), the share of the sampled prey in groups of each size, and traces of
+    chosen worlds (group measures included)."""
+    env = make_env(device, prey_count=24, num_worlds=3, max_steps=30, width=400.0, height=400.0)
+    metrics = SwarmMetrics(env, linking_distance=80.0)
+    episodes = EpisodeMetrics(env, metrics=metrics, every=3, trace=("group_age", "groups_ended"), trace_worlds=[2, 0])
+    env.reset()
+    episodes.begin()
+    sizes = torch.arange(1, env.prey_capacity + 1, dtype=torch.float64)
+    samples = [{k: v.double().clone() for k, v in metrics.compute().items()}]
+    ends = []
+    for step in range(1, 61):
+        _, _, _, _, info = env.step(heuristic_actions(env), validate=False)
+        if bool(info["episode_ended"].all()):
+            ends.append(len(samples))
+        episodes.update(info)
+        if step % 3 == 0:
+            samples.append({k: v.double().clone() for k, v in metrics.compute().items()})
+    assert len(ends) == 2
+    result = episodes.result()
+    bounds = [0] + ends
+    lifetimes, ended, shares = [], [], []
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        lifetimes.append(sum(samples[i]["ended_lifetime_total"] for i in range(a, b)))
+        ended.append(sum(samples[i]["groups_ended"] for i in range(a, b)))
+        prey = sum(samples[i]["group_sizes"] * sizes for i in range(a, b))
+        shares.append(prey / prey.sum(dim=1, keepdim=True))
+    assert float(torch.stack(ended).sum()) > 0
+    torch.testing.assert_close(result["group_lifetime"], torch.stack(lifetimes).sum(0) / torch.stack(ended).sum(0))
+    torch.testing.assert_close(result["group_size_distribution"], torch.stack(shares).mean(0))
+    traces = episodes.traces()
+    want = torch.stack([s["group_age"][[2, 0]] for s in samples]).float()
+    assert traces["group_age"].shape == (len(samples), 2)
+    torch.testing.assert_close(traces["group_age"], want, equal_nan=True)
+    summary = episodes.summary()
+    assert summary["group_lifetime"] == pytest.approx(
+        float(torch.stack(lifetimes).sum()) / float(torch.stack(ended).sum())
+    )
+    assert episodes.log_values()["swarm/group_lifetime"] == summary["group_lifetime"]
+
+
+def test_bad_group_arguments(device):
+    env = make_env(device, prey_count=4, num_worlds=2)
+    with pytest.raises(ValueError, match="min_group_size"):
+        SwarmMetrics(env, min_group_size=1)
+    with pytest.raises(ValueError, match="trace_worlds"):
+        EpisodeMetrics(env, trace=("group_age",), trace_worlds=[2])
