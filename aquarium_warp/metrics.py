@@ -530,8 +530,20 @@ class EpisodeMetrics(Observer):
         return state
 
     def load_state_dict(self, state: dict) -> None:
+        """Restore `state_dict()`. A state saved before the group measures existed (fewer metric columns,
+        no group-size histograms) restores the metrics it holds; the newer ones count from here on."""
         for name in self._STATE:
-            getattr(self, name).copy_(state[name])
+            target = getattr(self, name)
+            saved = state.get(name)
+            target.zero_()
+            if saved is None:
+                continue
+            if saved.shape[0] != target.shape[0] or saved.shape[1] > target.shape[1]:
+                raise ValueError(
+                    f"episode metrics state {name!r} has shape {tuple(saved.shape)}: expected {tuple(target.shape)} "
+                    "(a checkpoint of another world count or metric set)"
+                )
+            target[:, : saved.shape[1]].copy_(saved)
         self.steps = int(state["steps"])
 
     def traces(self) -> dict[str, torch.Tensor]:

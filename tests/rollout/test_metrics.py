@@ -823,3 +823,30 @@ def test_bad_group_arguments(device):
         SwarmMetrics(env, min_group_size=1)
     with pytest.raises(ValueError, match="trace_worlds"):
         EpisodeMetrics(env, trace=("group_age",), trace_worlds=[2])
+
+
+def test_episode_metrics_resume_a_state_saved_before_the_group_measures(device):
+    """A checkpoint's episode-metric state from before the group measures (the first 10 metric columns,
+    no group-size histograms) restores those metrics exactly; the group measures count from the resume.
+    A state of another world count is refused with one line."""
+    env = make_env(device, prey_count=24, num_worlds=3, max_steps=7)
+    episodes = EpisodeMetrics(env, every=2)
+    env.reset()
+    episodes.begin()
+    for _ in range(10):
+        _, _, _, _, info = env.step(heuristic_actions(env), validate=False)
+        episodes.update(info)
+    state = episodes.state_dict()
+    old = {
+        name: v[:, :10].clone() for name, v in state.items() if name in ("_sum", "_count", "_done_sum", "_done_count")
+    }
+    old |= {"_hist": state["_hist"], "_done_hist": state["_done_hist"], "steps": state["steps"]}
+    resumed = EpisodeMetrics(env, every=2)
+    resumed.load_state_dict(old)
+    after = resumed.state_dict()
+    for name in ("_sum", "_count", "_done_sum", "_done_count"):
+        torch.testing.assert_close(after[name][:, :10], state[name][:, :10], rtol=0, atol=0)
+        assert not after[name][:, 10:].any()
+    assert not after["_group_hist"].any() and after["steps"] == state["steps"]
+    with pytest.raises(ValueError, match="episode metrics state '_sum' has shape"):
+        resumed.load_state_dict({**old, "_sum": old["_sum"][:2]})
