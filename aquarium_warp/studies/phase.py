@@ -138,12 +138,12 @@ PRIMARY = "nn_ratio_hard_disk"
 SECONDARY = (
     "nn_ratio_point",
     "largest_group",
-    "grouped_share",
+    "measured_share",  # the share of prey in groups of at least 3
     "group_polarization",
     "group_rotation",
     "group_speed",
     "group_lifetime",
-    "neighbour_share",
+    "confusion_neighbour_share",  # the share of prey with another within the dilution radius
     "captures_per_prey",
 )
 # Regimes from the `learned` prey's seed values in their own world (95% t intervals over 10 seeds):
@@ -330,10 +330,16 @@ def episode_values(result: dict, prey_label: str, predator_label: str) -> dict[s
     out: dict[str, list[float]] = {}
     rows = [r for r in result["episodes"] if r["prey_policy"] == prey_label and r["predator_policy"] == predator_label]
     for m in (PRIMARY,) + SECONDARY:
-        key = m if m == "captures_per_prey" else f"swarm_{m}"
         out[m] = []
         for s in seeds:
-            values = [r[key] for r in rows if r["seed"] == s and not math.isnan(r[key])]
+            episodes = [r for r in rows if r["seed"] == s]
+            if m == "group_lifetime":  # completed groups' lifetimes over the seed's episodes (steps)
+                ended = sum(r["swarm_groups_ended"] for r in episodes)
+                total = sum(r["swarm_ended_lifetime_total"] for r in episodes)
+                out[m].append(total / ended if ended > 0 else float("nan"))
+                continue
+            key = m if m == "captures_per_prey" else f"swarm_{m}"
+            values = [r[key] for r in episodes if not math.isnan(r[key])]
             out[m].append(sum(values) / len(values) if values else float("nan"))
     return out
 
