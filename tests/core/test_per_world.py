@@ -414,7 +414,7 @@ def test_every_world_field_reaches_the_kernels_by_one_list():
     from aquarium_warp.per_world import PER_WORLD_FIELDS
 
     columns = np.zeros(1, dtype=WorldValues.numpy_dtype()).dtype.names
-    derived = {"prey_replication_age": "replication_age_min", "flow": "flow_kind"}
+    derived = {"prey_replication_age": "replication_age_min", "flow": "flow_kind", "confusion_angle": "confusion_cos"}
     assert all(name in columns or derived.get(name) in columns for name in PER_WORLD_FIELDS)
     cfg = AquariumConfig(prey_count=(3, 5), capture_confusion=(0.0, 16.0), confusion_radius=(50.0, 80.0))
     rows = world_rows(cfg, 2, [0, 0])
