@@ -741,9 +741,7 @@ def confusion_events(cfg, infos: list) -> dict:
         if ref.capture_rule(own) != "confusion":
             continue
         moved = info["moved"]
-        events["handling"] += sum(
-            1 for p in ref.predator_slots(own) if start["alive"][p] and start["handling"][p] > 0
-        )
+        events["handling"] += sum(1 for p in ref.predator_slots(own) if start["alive"][p] and start["handling"][p] > 0)
         for p, (target, captured) in info["attacks"].items():
             events["captures" if captured else "failures"] += 1
             raw = np.abs(moved["position"][target] - moved["position"][p])
@@ -772,7 +770,9 @@ def test_predator_confusion_rollout_covers_every_event(name, device):
     set_worlds(env, starts)
     starts = read_worlds(env)
     for k in range(12):
-        starts = check_step(name, cfg, env, starts, random_actions(rng, cfg, env.num_worlds), errors, f" step {k}", infos)
+        starts = check_step(
+            name, cfg, env, starts, random_actions(rng, cfg, env.num_worlds), errors, f" step {k}", infos
+        )
         if errors:
             break
     fail_if(errors, name)
@@ -874,7 +874,8 @@ def test_rewards_and_episode_returns_bit_for_bit_with_newborns(name, step_kernel
 
 
 def _world_from_agents(cfg, prey, predators, world_step=0):
-    """Hand-built world: lists of dicts with pos, vel, acc, heading, age, rep, starve (None = dead slot)."""
+    """Hand-built world: lists of dicts with pos, vel, acc, heading, age, rep, starve, handling (None = dead
+    slot)."""
     C, Pc = cfg.capacity, cfg.prey_capacity
     st = {
         "position": np.zeros((C, 2), np.float32),
@@ -885,6 +886,7 @@ def _world_from_agents(cfg, prey, predators, world_step=0):
         "age": np.zeros(C, np.int32),
         "replication_age": np.zeros(C, np.int32),
         "starvation": np.zeros(C, np.int32),
+        "handling": np.zeros(C, np.int32),
         "world_step": world_step,
     }
     for slot, a in [(i, a) for i, a in enumerate(prey)] + [(Pc + i, a) for i, a in enumerate(predators)]:
@@ -900,6 +902,7 @@ def _world_from_agents(cfg, prey, predators, world_step=0):
         st["age"][slot] = a.get("age", 0)
         st["replication_age"][slot] = a.get("rep", 200 if slot < Pc else 0)
         st["starvation"][slot] = a.get("starve", 0)
+        st["handling"][slot] = a.get("handling", 0)
     return st
 
 

@@ -55,7 +55,13 @@ def confusion_env(path: str, device: str, num_worlds: int = WORLDS, **world) -> 
 # name -> (offset of prey 1, confusion_angle, predator fov_angle, predator view_distance, captured)
 HAND_CASES = {
     "a prey ahead, seen, in the window: counted": (bearing_offset(0.0, 50.0), 15.0, 150.0, 200.0, False),
-    "a prey behind the predator, outside its FOV: not counted": (bearing_offset(180.0, 60.0), 180.0, 150.0, 200.0, True),
+    "a prey behind the predator, outside its FOV: not counted": (
+        bearing_offset(180.0, 60.0),
+        180.0,
+        150.0,
+        200.0,
+        True,
+    ),
     "the same prey with a 360-degree FOV: counted": (bearing_offset(180.0, 60.0), 180.0, 360.0, 200.0, False),
     "a prey beyond the view distance: not counted": (bearing_offset(0.0, 205.0), 15.0, 150.0, 200.0, True),
     "a prey just inside the view distance: counted": (bearing_offset(0.0, 195.0), 15.0, 150.0, 200.0, False),
