@@ -221,3 +221,41 @@ def test_same_seed_same_actions_same_trajectory(device):
             else:
                 torch.testing.assert_close(x[name], y[name])
     assert not torch.equal(a[-1]["position"], other[-1]["position"])
+
+
+def test_the_handling_counter_is_state_like_the_others():
+    """The handling counter travels in `state_dict` and comes back with `load_state_dict` (the next steps
+    then equal the saved env's, bit for bit); `set_state` refuses a counter outside [0, 1e6] in one line;
+    an episode's start clears it."""
+    cfg = AquariumConfig(
+        width=260.0, height=240.0, prey_count=12, predator_count=3, capture_rule="confusion", capture_confusion=2.0
+    )
+    env = BatchedAquarium(cfg, num_worlds=4, device="cpu", seed=2)
+    gen = torch.Generator().manual_seed(4)
+
+    def actions():
+        return {
+            t: torch.randint(0, 16, (4, getattr(env, f"{t}_capacity")), generator=gen) for t in ("prey", "predator")
+        }
+
+    while not env.state.torch.handling.any():
+        env.step(actions())
+    saved = env.state_dict()
+    assert torch.equal(saved["tensors"]["handling"], env.state.torch.handling)
+    plan = [actions() for _ in range(20)]
+    for a in plan:
+        env.step(a)
+    after = {name: getattr(env.state.torch, name).clone() for name in ("position", "handling", "alive")}
+    env.load_state_dict(saved)
+    assert torch.equal(env.state.torch.handling, saved["tensors"]["handling"])
+    for a in plan:
+        env.step(a)
+    for name, value in after.items():
+        assert torch.equal(getattr(env.state.torch, name), value), name
+    for bad in (-1, 10**6 + 1):
+        handling = env.state.torch.handling.clone()
+        handling[0, -1] = bad
+        with pytest.raises(ValueError, match=r"^handling holds .* must be >= 0 and <= 1000000"):
+            env.set_state(world=None, handling=handling)
+    env.reset(seed=2)
+    assert not env.state.torch.handling.any()
