@@ -34,6 +34,8 @@ LARGEST = 1e15
 RETURN_LIMIT = 1e38
 # Counters (steps, ages, starvation) are int32 on the device.
 INT32_MAX = 2**31 - 1
+# The largest handling time (`AquariumConfig.handling_steps`): far beyond any episode of the studies.
+MAX_HANDLING_STEPS = 10**6
 
 
 def require(name: str, value, ok: bool, allowed: str) -> None:
@@ -139,6 +141,7 @@ def integer_ranges(env: BatchedAquarium) -> dict[str, tuple[int, int, str]]:
         ),
         "replication_age": (0, INT32_MAX, "int32"),
         "starvation": (0, INT32_MAX - 1, "int32, grows by one per step"),
+        "handling": (0, MAX_HANDLING_STEPS, f"steps left of a handling time, at most {MAX_HANDLING_STEPS}"),
         "world_step": (0, steps - 1, f"below max_steps={steps}"),
         "episode": (0, INT32_MAX - 1, "int32, grows by one per episode"),
         "episode_captures": (0, INT32_MAX, "int32"),

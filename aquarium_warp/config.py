@@ -14,13 +14,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .checks import INT32_MAX, LARGEST, RETURN_LIMIT, SMALLEST, is_int, is_real, require
+from .checks import INT32_MAX, LARGEST, MAX_HANDLING_STEPS, RETURN_LIMIT, SMALLEST, is_int, is_real, require
 from .per_world import INTEGER_FIELDS, PER_WORLD_FIELDS, PER_WORLD_TYPE_FIELDS, SAMPLERS, Choice, Uniform, largest
 from .seeding import config_stream
 
 OBSERVATION_RANGES = ("0..1", "-1..1")
 FRAMES = ("world", "ego")
 SPAWN_HEADINGS = ("paper", "random")
+CAPTURE_RULES = ("dilution", "confusion")
 
 # Slots per observation block are unrolled in registers by the observation kernel; 16 per block is
 # far beyond any setting in the paper and keeps the kernel small.
@@ -306,10 +307,15 @@ class AquariumConfig:
     most 2**30 agent slots per world; `action_count` in [1, 65536]; `max_steps` in [1, 2**31 - 1] and
     `predator_starvation_steps` in [0, 2**31 - 2] (int32 counters on the device);
     `prey_replication_age` in [1, 1717986917] (its 1.25x drawn ages must fit in int32);
-    `catch_share_radius` 0 or in [1e-15, 1e15]; `capture_probability` in [0, 1], `capture_confusion`
-    in [0, 1e15] and `confusion_radius` in [1e-15, 1e15] px (capture confusion, docs/model.md step 5:
-    a contact captures with probability `capture_probability / (1 + capture_confusion k)`, k the
-    other prey within `confusion_radius`); the three rewards finite with
+    `catch_share_radius` 0 or in [1e-15, 1e15]; the capture rule (docs/model.md step 5)
+    `capture_rule` "dilution" (density dilution: a contact captures with probability
+    `capture_probability / (1 + capture_confusion k)`, k the other prey within `confusion_radius` of
+    the prey) or "confusion" (predator confusion: each predator attacks the nearest prey it overlaps,
+    captured with that probability for k the other prey it sees within `confusion_angle` of its
+    target's bearing, and after a failed attack cannot attack for `handling_steps` steps), with
+    `capture_probability` in [0, 1], `capture_confusion` (the rule's strength c) in [0, 1e15],
+    `confusion_radius` in [1e-15, 1e15] px, `confusion_angle` in (0, 180] degrees and `handling_steps`
+    an integer in [0, 1e6]; the three rewards finite with
     |reward| x max_steps x prey slots at most 1e38, so that episode returns (float32 sums over an
     episode) stay finite; `grid_cell_size` None or a finite number > 0. Per-type ranges: see
     `AgentTypeConfig`.
@@ -339,6 +345,9 @@ class AquariumConfig:
     capture_probability: float = 1.0
     capture_confusion: float = 0.0
     confusion_radius: float = 100.0
+    capture_rule: str = "dilution"
+    confusion_angle: float = 15.0
+    handling_steps: int = 10
     predator_starvation_steps: int = 3000
     prey_reproduction: bool = False
     prey_replication_age: int = 200
@@ -542,19 +551,32 @@ class AquariumConfig:
             "capture_probability",
             self.capture_probability,
             _in_range(self.capture_probability, 0.0, 1.0),
-            "a number in [0, 1] (the chance that a contact captures a lone prey)",
+            "a number in [0, 1] (the chance that a contact, or an attack, captures a lone prey)",
         )
         require(
             "capture_confusion",
             self.capture_confusion,
             _in_range(self.capture_confusion, 0.0, LARGEST),
-            f"a finite number >= 0, in [0, {LARGEST:g}] (0: no confusion)",
+            f"a finite number >= 0, in [0, {LARGEST:g}] (the capture rule's strength; 0: none)",
         )
         require(
             "confusion_radius",
             self.confusion_radius,
             _in_range(self.confusion_radius, SMALLEST, LARGEST),
             f"a finite number > 0, in [{SMALLEST:g}, {LARGEST:g}] px (float32-safe)",
+        )
+        require("capture_rule", self.capture_rule, self.capture_rule in CAPTURE_RULES, f"one of {CAPTURE_RULES}")
+        require(
+            "confusion_angle",
+            self.confusion_angle,
+            is_real(self.confusion_angle) and 0 < self.confusion_angle <= 180,
+            "in (0, 180] degrees (the half-width of the window around the target's bearing)",
+        )
+        require(
+            "handling_steps",
+            self.handling_steps,
+            is_int(self.handling_steps) and 0 <= self.handling_steps <= MAX_HANDLING_STEPS,
+            f"an integer in [0, {MAX_HANDLING_STEPS}] (steps a predator cannot attack after a failed attack)",
         )
         # A starving predator's counter reaches predator_starvation_steps + 1 (int32).
         require(
@@ -629,8 +651,13 @@ class AquariumConfig:
         _normalise(
             self,
             (*INTEGER_FIELDS, "action_count", "max_steps", "max_prey"),
-            # the per-world fields that are numbers and not integers (the flow is a record)
-            ("width", "height", *(n for n in PER_WORLD_FIELDS if n not in (*INTEGER_FIELDS, "flow")), "grid_cell_size"),
+            # the per-world fields that are numbers and not integers (the flow is a record, the rule a word)
+            (
+                "width",
+                "height",
+                *(n for n in PER_WORLD_FIELDS if n not in (*INTEGER_FIELDS, "flow", "capture_rule")),
+                "grid_cell_size",
+            ),
             ("fov_enabled", "respawn_captured_prey", "prey_reproduction", "observe_flow"),
         )
 

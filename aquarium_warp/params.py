@@ -23,11 +23,24 @@ import torch
 import warp as wp
 
 from .config import AquariumConfig, FlowConfig
-from .kernels.common import FLOW_GRID, FLOW_NONE, FLOW_UNIFORM, FLOW_VORTEX, PREDATOR, PREY, AgentType, WorldValues
+from .kernels.common import (
+    CAPTURE_CONFUSION,
+    CAPTURE_DILUTION,
+    FLOW_GRID,
+    FLOW_NONE,
+    FLOW_UNIFORM,
+    FLOW_VORTEX,
+    PREDATOR,
+    PREY,
+    AgentType,
+    WorldValues,
+)
 from .per_world import PER_WORLD_FIELDS, PER_WORLD_TYPE_FIELDS, per_world
 
 # `FlowConfig.kind` -> the kernels' code of the current.
 _FLOW_CODES = {"none": int(FLOW_NONE), "uniform": int(FLOW_UNIFORM), "vortex": int(FLOW_VORTEX), "grid": int(FLOW_GRID)}
+# `AquariumConfig.capture_rule` -> the kernels' code of the rule.
+_CAPTURE_RULE_CODES = {"dilution": int(CAPTURE_DILUTION), "confusion": int(CAPTURE_CONFUSION)}
 
 
 def cos_half_fov(fov_angle: float) -> float:
@@ -77,8 +90,12 @@ def world_rows(cfg: AquariumConfig, num_worlds: int, grid_index: list[int]) -> n
     """`[W]` rows of `WorldValues` (numpy structured)."""
     rows = np.zeros(num_worlds, dtype=WorldValues.numpy_dtype())
     for name in PER_WORLD_FIELDS:
-        if name in rows.dtype.names:  # stored as configured; the replication age and the flow: below
+        # stored as configured; the capture rule, the confusion angle, the replication age and the flow: below
+        if name in rows.dtype.names and name != "capture_rule":
             rows[name] = per_world(getattr(cfg, name), num_worlds)
+    rows["capture_rule"] = [_CAPTURE_RULE_CODES[r] for r in per_world(cfg.capture_rule, num_worlds)]
+    # The window around the target's bearing is a cone of full angle 2 A: cos A, as the field of view's.
+    rows["confusion_cos"] = [cos_half_fov(2.0 * a) for a in per_world(cfg.confusion_angle, num_worlds)]
     ages = per_world(cfg.prey_replication_age, num_worlds)
     rows["replication_age_min"] = [math.ceil(0.75 * r) for r in ages]
     rows["replication_age_max"] = [math.floor(1.25 * r) for r in ages]

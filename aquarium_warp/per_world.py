@@ -39,11 +39,14 @@ PER_WORLD_FIELDS = (
     "capture_probability",
     "capture_confusion",
     "confusion_radius",
+    "capture_rule",
+    "confusion_angle",
+    "handling_steps",
     "predator_starvation_steps",
     "prey_replication_age",
     "flow",
 )
-INTEGER_FIELDS = ("prey_count", "predator_count", "predator_starvation_steps", "prey_replication_age")
+INTEGER_FIELDS = ("prey_count", "predator_count", "handling_steps", "predator_starvation_steps", "prey_replication_age")
 # Every per-world field by its flat name: the world fields, then `prey_<field>` and `predator_<field>`.
 FLAT_NAMES = PER_WORLD_FIELDS + tuple(f"{t}_{n}" for t in ("prey", "predator") for n in PER_WORLD_TYPE_FIELDS)
 

@@ -339,7 +339,10 @@ class WorldShard:
         row_threads = 1 if g.whole_world else capture.CAPTURE_ROW_THREADS
         program += [
             self.record(
-                capture.detect_contacts, (W, P, row_threads), [world, types, g, s.agents, row_threads], [s.scratch]
+                capture.detect_contacts,
+                (W, P, row_threads),
+                [world, types, g, s.worlds, row_threads],
+                [s.agents, s.scratch],
             ),
             self.record(
                 capture.resolve_captures, (W, Pc), [world, types, g, s.worlds], [s.agents, s.scratch, s.outputs]

@@ -134,7 +134,7 @@ def estimate_bytes(cfg, num_worlds: int, cells_per_world: int) -> int:
 
 def bytes_per_slot(prey_obs_size: int, mask_size: int) -> int:
     """Device bytes per agent slot: state, outputs, cell lists and observations (an estimate)."""
-    state = 4 * 8 + 1 + 3 * 4  # vec2 fields, alive, int fields
-    outputs = 4 + 1 + 1 + 1 + 4 + 4 + 4  # reward, flags, share count, episode return, action
+    state = 4 * 8 + 1 + 4 * 4  # vec2 fields, alive, int fields
+    outputs = 4 + 1 + 1 + 1 + 4 + 4 + 4 + 4  # reward, flags, share count, caught prey, episode return, action
     grid = 2 * 4 + 2 * 4 + 8  # keys (with arrival orders), agents (with scratch), sorted position
     return state + outputs + grid + 4 * prey_obs_size + mask_size

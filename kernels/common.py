@@ -22,7 +22,12 @@ PURPOSE_RESPAWN = wp.constant(2)
 PURPOSE_NEWBORN = wp.constant(3)
 PURPOSE_POLICY = wp.constant(4)
 PURPOSE_HEADING = wp.constant(5)  # a fresh agent's random heading, derived from its spawn stream
-PURPOSE_CAPTURE = wp.constant(6)  # whether a contact captures, under capture confusion
+PURPOSE_CAPTURE = wp.constant(6)  # whether a contact captures, under density dilution
+PURPOSE_ATTACK = wp.constant(7)  # whether a predator's attack captures, under predator confusion
+
+# Capture rules (`WorldValues.capture_rule`, docs/model.md step 5).
+CAPTURE_DILUTION = wp.constant(0)  # every contact may capture: p0 / (1 + c k), k prey near the prey
+CAPTURE_CONFUSION = wp.constant(1)  # one attack per predator: p0 / (1 + c k), k prey it sees near its target
 
 
 @wp.struct
@@ -59,9 +64,13 @@ class WorldValues:
     prey_capture_penalty: float
     predator_reward: float
     catch_share_radius: float  # px
-    capture_probability: float  # p0: the chance that a contact captures a lone prey
-    capture_confusion: float  # c: p0 / (1 + c k) with k other prey within confusion_radius
-    confusion_radius: float  # px
+    capture_rule: int  # CAPTURE_DILUTION or CAPTURE_CONFUSION
+    capture_probability: float  # p0: the chance that a contact (an attack) captures a lone prey
+    capture_confusion: float  # c, the rule's strength: p0 / (1 + c k)
+    confusion_radius: float  # px: dilution's k counts the other prey this close to the prey
+    confusion_cos: float  # cos(confusion_angle), -2 at 180 degrees: confusion's k counts the seen prey
+    # whose bearing is within confusion_angle of the target's
+    handling_steps: int  # H: steps a predator cannot attack after a failed attack (confusion rule)
     predator_starvation_steps: int
     replication_age_min: int  # ceil(0.75 * prey_replication_age)
     replication_age_max: int  # floor(1.25 * prey_replication_age)
@@ -129,6 +138,12 @@ def in_view(world: WorldParams, heading: wp.vec2, d: wp.vec2, d2: float, v2: flo
     if visible and world.fov_enabled != 0 and d2 > 0.0:
         visible = wp.dot(heading, d) >= wp.sqrt(d2) * cos_half_fov
     return visible
+
+
+@wp.func
+def ranks_before(d2: float, slot: int, other_d2: float, other_slot: int) -> bool:
+    """Neighbour order: nearer first, ties to the lower slot."""
+    return d2 < other_d2 or (d2 == other_d2 and slot < other_slot)
 
 
 @wp.func

@@ -40,6 +40,7 @@ from .common import (
     current,
     ego_components,
     in_view,
+    ranks_before,
     slot_type,
     torus_displacement,
 )
@@ -63,12 +64,6 @@ def scaled(x: float, signed: int) -> float:
     if signed != 0:
         return 2.0 * x - 1.0
     return x
-
-
-@wp.func
-def ranks_before(d2: float, slot: int, other_d2: float, other_slot: int) -> bool:
-    """Neighbour order: nearer first, ties to the lower slot."""
-    return d2 < other_d2 or (d2 == other_d2 and slot < other_slot)
 
 
 @wp.func

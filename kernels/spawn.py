@@ -63,7 +63,8 @@ def set_slot(
     heading: wp.vec2,
     replication_age: int,
 ):
-    """Slot i of world w as a fresh agent (or an empty slot): zero acceleration, age and starvation."""
+    """Slot i of world w as a fresh agent (or an empty slot): zero acceleration, age, starvation and
+    handling time."""
     agents.alive[w, i] = alive
     agents.position[w, i] = position
     agents.velocity[w, i] = velocity
@@ -72,6 +73,7 @@ def set_slot(
     agents.age[w, i] = 0
     agents.replication_age[w, i] = replication_age
     agents.starvation[w, i] = 0
+    agents.handling[w, i] = 0
 
 
 @wp.func

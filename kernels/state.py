@@ -35,6 +35,9 @@ class Agents:
     """[W, C] int32, steps; prey: the age at which it reproduces."""
     starvation: wp.array2d(dtype=wp.int32)
     """[W, C] int32, steps; predators: since the last capture."""
+    handling: wp.array2d(dtype=wp.int32)
+    """[W, C] int32, steps; predators under the confusion capture rule: left of the handling time after a
+    failed attack, during which the predator cannot attack (0: it may attack); 0 under density dilution."""
 
 
 @wp.struct
@@ -119,6 +122,9 @@ class Scratch:
     """[W, C] bool, prey captured in this step."""
     share_count: wp.array2d(dtype=wp.int32)
     """[W, C] int32, predators sharing the capture of each captured prey."""
+    caught_prey: wp.array2d(dtype=wp.int32)
+    """[W, C] int32, predator slots under the confusion capture rule: the prey slot its attack captured in
+    this step, or -1 (written by every live predator of such a world; unused under density dilution)."""
     contact_partner: wp.array2d(dtype=wp.int32)
     """[W, C] int32, slot of the overlapping same-type agent (docs/model.md step 3), or -1; found by the
     observation pass for the next step's motion."""

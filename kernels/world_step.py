@@ -5,8 +5,8 @@ The staged step (`WorldShard.step_program`) launches a kernel per stage, about t
 over every world's slots of one type. For small worlds those launches cost more than their work: a
 GPU is launch-bound below some thousands of worlds, and on the CPU each launch walks the whole batch
 again, out of cache. Here each world goes through the whole step in one launch, and each stage calls
-the very function that the stage's own kernel calls (`move_agent`, `mark_contacts`, ..., `observe_row`),
-with the same arguments, so the fused step computes what the staged one does.
+the very function that the stage's own kernel calls (`move_agent`, `contacts_or_attack`, ...,
+`observe_row`), with the same arguments, so the fused step computes what the staged one does.
 
 Lanes: where a world's slots fit a block of several lanes, `block_dim // capacity` consecutive worlds
 are packed into a block, a lane per slot (lane t takes slot `t % capacity` of the block's world
@@ -48,7 +48,7 @@ import functools
 
 import warp as wp
 
-from .capture import mark_contacts, resolve_capture, respawn_or_remove, share_rewards
+from .capture import contacts_or_attack, resolve_capture, respawn_or_remove, share_rewards
 from .common import PREDATOR, PREY, AgentType, WorldParams
 from .grid import CellLists
 from .motion import motion_stage
@@ -196,7 +196,7 @@ def _world_step_kernel(
         # 5-6: captures, sharers, shares and starvation, respawn or removal (and 8: the rewards of every
         # predator and prey slot, in the share and respawn passes).
         for p in range(first, predators, wp.static(lanes)):
-            mark_contacts(world, types, grid, agents, scratch, w, p, 0, 1)
+            contacts_or_attack(world, types, grid, agents, scratch, counters, w, p, 0, 1)
         if wp.static(block_dim > 1):
             barrier[lane] += 0
         for i in range(first, prey, wp.static(lanes)):

@@ -12,8 +12,9 @@ Conventions (see docs/model.md and the project's decisions):
   observation_range, prey_capacity, capacity, and per type (cfg.prey / cfg.predator): max_speed,
   max_steering_force, max_acceleration, mass, radius, view_distance, fov_angle (degrees),
   bounce_strength, predator_slots, prey_slots; optionally `flow` (an `aquarium_warp.config.FlowConfig`) and
-  `observe_flow` (absent: False); capture confusion's `capture_probability` (absent: 1.0),
-  `capture_confusion` (absent: 0.0) and `confusion_radius`; the ego-spec options `observation_frame`
+  `observe_flow` (absent: False); the capture rule's `capture_rule` ("dilution" | "confusion", absent:
+  "dilution"), `capture_probability` (absent: 1.0), `capture_confusion` (absent: 0.0), `confusion_radius`
+  (dilution), `confusion_angle` and `handling_steps` (confusion); the ego-spec options `observation_frame`
   ("world" | "ego", absent: "world"), `action_frame` ("world" | "ego", absent: "world") and
   `spawn_heading` ("paper" | "random", absent: "paper"), so configs written before those options keep
   their meaning.
@@ -39,7 +40,7 @@ EGO_OWN_SIZE = 2  # [type, speed]
 TUPLE_SIZE = 6  # both layouts: world [type, x, y, distance, bearing, speed], ego [present, distance, f, r, vf, vr]
 
 VECTOR_FIELDS = ("position", "velocity", "acceleration", "heading")
-INT_FIELDS = ("age", "replication_age", "starvation")
+INT_FIELDS = ("age", "replication_age", "starvation", "handling")
 FIELDS = VECTOR_FIELDS + ("alive",) + INT_FIELDS
 
 FRESH_PREY_HEADING = (-1.0, 0.0)
@@ -120,6 +121,7 @@ def empty_state(cfg) -> dict:
         "age": np.zeros(c, np.int64),
         "replication_age": np.zeros(c, np.int64),
         "starvation": np.zeros(c, np.int64),
+        "handling": np.zeros(c, np.int64),
     }
 
 
@@ -523,9 +525,13 @@ def find_contacts(cfg, state: Mapping[str, np.ndarray]) -> dict:
     return out
 
 
+def capture_rule(cfg) -> str:
+    return str(getattr(cfg, "capture_rule", "dilution"))
+
+
 def capture_chance(cfg, state: Mapping[str, np.ndarray], prey: int) -> float:
-    """The chance that a contact captures ``prey``: capture_probability / (1 + capture_confusion * k), k the
-    other live prey strictly within confusion_radius of it."""
+    """Density dilution: the chance that a contact captures ``prey``, capture_probability / (1 +
+    capture_confusion * k), k the other live prey strictly within confusion_radius of it."""
     p0 = float(getattr(cfg, "capture_probability", 1.0))
     c = float(getattr(cfg, "capture_confusion", 0.0))
     if c == 0.0:
@@ -538,6 +544,77 @@ def capture_chance(cfg, state: Mapping[str, np.ndarray], prey: int) -> float:
         and torus_distance(cfg, state["position"][prey], state["position"][j]) < float(cfg.confusion_radius)
     )
     return p0 / (1.0 + c * k)
+
+
+def attack_target(cfg, state: Mapping[str, np.ndarray], predator: int):
+    """Predator confusion: the prey that ``predator`` attacks, the nearest live prey strictly within
+    r_prey + r_predator of it (ties: lower slot); None if none."""
+    reach = float(cfg.prey.radius) + float(cfg.predator.radius)
+    near = [
+        (torus_distance(cfg, state["position"][predator], state["position"][q]), q)
+        for q in prey_slots(cfg)
+        if state["alive"][q]
+    ]
+    near = [(d, q) for d, q in near if d < reach]
+    return min(near)[1] if near else None
+
+
+def bearing_angle(u, v) -> float:
+    """The angle in degrees, in [0, 180], between the directions of ``u`` and ``v``; 0 where either is zero
+    (no direction: within every window)."""
+    cross = float(u[0]) * float(v[1]) - float(u[1]) * float(v[0])
+    dot = float(u[0]) * float(v[0]) + float(u[1]) * float(v[1])
+    if norm(u) == 0.0 or norm(v) == 0.0:
+        return 0.0
+    return math.degrees(math.atan2(abs(cross), dot))
+
+
+def prey_seen_near_target(cfg, state: Mapping[str, np.ndarray], predator: int, target: int) -> list:
+    """Predator confusion's k: the other live prey that ``predator`` sees (`is_visible`, its heading after
+    the move) whose bearing from it lies within confusion_angle of the target's (inclusive)."""
+    to_target = torus_delta(cfg, state["position"][predator], state["position"][target])
+    return [
+        q
+        for q in prey_slots(cfg)
+        if q != target
+        and is_visible(cfg, state, predator, q)
+        and bearing_angle(to_target, torus_delta(cfg, state["position"][predator], state["position"][q]))
+        <= float(cfg.confusion_angle)
+    ]
+
+
+def attack_chance(cfg, state: Mapping[str, np.ndarray], predator: int, target: int) -> float:
+    """Predator confusion: the chance that ``predator``'s attack on ``target`` captures it,
+    capture_probability / (1 + capture_confusion * k), k = len(prey_seen_near_target)."""
+    p0 = float(getattr(cfg, "capture_probability", 1.0))
+    c = float(getattr(cfg, "capture_confusion", 0.0))
+    return p0 / (1.0 + c * len(prey_seen_near_target(cfg, state, predator, target)))
+
+
+def attacks(cfg, state: Mapping[str, np.ndarray], moved: dict, new: dict, attack_draw) -> tuple[dict, dict]:
+    """Predator confusion's attacks at the moved positions: ({prey: [predators whose attack captured it]},
+    {predator: (target, captured)} of every attack). A handling predator (``state``'s counter > 0) counts
+    down in ``new`` and does not attack; an attack that fails (draw u >= its chance) sets ``new``'s
+    counter to handling_steps."""
+    captures: dict = {}
+    outcomes: dict = {}
+    for p in predator_slots(cfg):
+        if not moved["alive"][p]:
+            continue
+        if state["handling"][p] > 0:
+            new["handling"][p] = state["handling"][p] - 1
+            continue
+        target = attack_target(cfg, moved, p)
+        if target is None:
+            continue
+        chance = attack_chance(cfg, moved, p, target)
+        captured = chance >= 1.0 or (chance > 0.0 and float(_lookup(attack_draw, p, "an attack draw")) < chance)
+        outcomes[p] = (target, captured)
+        if captured:
+            captures.setdefault(target, []).append(p)
+        else:
+            new["handling"][p] = int(cfg.handling_steps)
+    return captures, outcomes
 
 
 def capture_sharers(cfg, state: Mapping[str, np.ndarray], prey: int, capturers) -> list:
@@ -603,6 +680,7 @@ def fresh_prey(cfg, state: dict, slot: int, position, replication_age: int, head
     state["age"][slot] = 0
     state["replication_age"][slot] = int(replication_age)
     state["starvation"][slot] = 0
+    state["handling"][slot] = 0
 
 
 def step(
@@ -616,6 +694,7 @@ def step(
     respawn_heading=None,
     newborn_heading=None,
     capture_draw=None,
+    attack_draw=None,
 ):
     """One full step of one world.
 
@@ -626,8 +705,9 @@ def step(
     one raises ValueError. With spawn_heading "random", the drawn headings are inputs too, the same way:
     ``respawn_heading`` (respawned prey; their velocity is that heading * `fresh_speed`) and ``newborn_heading``
     (children; their velocity stays zero), e.g. the kernel's post-step heading array. "paper" reads neither.
-    Under capture confusion, ``capture_draw`` (prey slot -> u in [0, 1), read the same way) decides each
-    contact whose capture chance p is strictly between 0 and 1: captured iff u < p.
+    Under density dilution, ``capture_draw`` (prey slot -> u in [0, 1), read the same way) decides each
+    contact whose capture chance p is strictly between 0 and 1: captured iff u < p; under predator
+    confusion ``attack_draw`` (predator slot -> u) decides each attack the same way.
 
     Returns (new_state, rewards (C,), terminated (C,), truncated (C,), captured (C,), info)."""
     start = as_state(cfg, state)
@@ -639,12 +719,19 @@ def step(
     terminated = np.zeros(c, bool)
     captured = np.zeros(c, bool)
 
-    # 5. capture (positions after the move): a contact captures with its chance
-    captures = {}
-    for prey, capturers in find_contacts(cfg, moved).items():
-        chance = capture_chance(cfg, moved, prey)
-        if chance >= 1.0 or (chance > 0.0 and float(_lookup(capture_draw, prey, "a capture draw")) < chance):
-            captures[prey] = capturers
+    # 5. capture (positions after the move): under density dilution a contact captures with its chance, its
+    # capturers every predator in contact; under predator confusion each attack does, its capturers the
+    # predators whose attack captured it
+    captures, attack_outcomes = {}, {}
+    if capture_rule(cfg) == "confusion":
+        captures, attack_outcomes = attacks(cfg, start, moved, new, attack_draw)
+    elif capture_rule(cfg) != "dilution":
+        raise ValueError(f"unknown capture_rule {capture_rule(cfg)!r}")
+    else:
+        for prey, capturers in find_contacts(cfg, moved).items():
+            chance = capture_chance(cfg, moved, prey)
+            if chance >= 1.0 or (chance > 0.0 and float(_lookup(capture_draw, prey, "a capture draw")) < chance):
+                captures[prey] = capturers
     all_capturers = set()
     sharers_of = {}
     for prey, capturers in captures.items():
@@ -708,6 +795,7 @@ def step(
             new["age"][child] = 0
             new["replication_age"][child] = rep
             new["starvation"][child] = 0
+            new["handling"][child] = 0
             new["age"][parent] = 0
             births.append((parent, child))
 
@@ -730,6 +818,7 @@ def step(
         "episode_over": episode_over,
         "captures": len(captures),
         "capturers": {k: list(v) for k, v in captures.items()},
+        "attacks": attack_outcomes,
         "sharers": sharers_of,
         "respawned": respawned,
         "births": births,

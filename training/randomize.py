@@ -2,7 +2,8 @@
 
 `--randomize prey_max_speed=2:6` draws each world's value uniformly from [2, 6] (integers for integer
 fields), `--randomize prey_count=4,8,12` from the listed values; names are `env.set_params`'s (world
-fields such as `prey_reward`, per-type ones as `prey_<field>` / `predator_<field>`; not `flow`).
+fields such as `prey_reward`, per-type ones as `prey_<field>` / `predator_<field>`; numbers only, not
+`flow` or `capture_rule`).
 
 Every world gets a draw when the randomiser is made and a new one each time its episode ends (the
 env has then already started the next episode, whose steps use the new values; a live count takes
@@ -24,7 +25,7 @@ import torch
 from ..per_world import FLAT_NAMES, INTEGER_FIELDS, Choice, Uniform
 from ..seeding import randomiser_stream
 
-FIELDS = tuple(n for n in FLAT_NAMES if n != "flow")
+FIELDS = tuple(n for n in FLAT_NAMES if n not in ("flow", "capture_rule"))
 
 
 def _number(field: str, text: str, integer: bool):

@@ -66,6 +66,12 @@ for _v in (-1.0, -1e-9, NAN, INF, True, "4", None):
     WORLD_CASES.append(("capture_confusion", _v, ">= 0"))
 for _v in (0.0, -1.0, NAN, INF, True, "100", None):
     WORLD_CASES.append(("confusion_radius", _v, "> 0"))
+for _v in ("Confusion", "olson", "", 1, None, True):
+    WORLD_CASES.append(("capture_rule", _v, "one of ('dilution', 'confusion')"))
+for _v in (0.0, -15.0, 180.5, 360.0, NAN, INF, True, "15", None):
+    WORLD_CASES.append(("confusion_angle", _v, "in (0, 180] degrees"))
+for _v in (-1, 10**6 + 1, 10.0, 2.5, True, NAN, "10", None):
+    WORLD_CASES.append(("handling_steps", _v, "an integer in [0, 1000000]"))
 for _v in (-1, 1.5, 3000.0, True, NAN, None):
     WORLD_CASES.append(("predator_starvation_steps", _v, "an integer >= 0"))
 for _v in (0, -1, 200.0, True, NAN, None):
@@ -195,6 +201,12 @@ VALID_CASES = [
     ("capture_confusion", 0),
     ("capture_confusion", 4.0),
     ("confusion_radius", 1e9),
+    ("capture_rule", "dilution"),
+    ("capture_rule", "confusion"),
+    ("confusion_angle", 180.0),
+    ("confusion_angle", 1e-9),
+    ("handling_steps", 0),
+    ("handling_steps", 10**6),
     ("predator_starvation_steps", 0),
     ("prey_replication_age", 1),
     ("max_prey", 1),

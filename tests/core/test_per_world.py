@@ -414,9 +414,37 @@ def test_every_world_field_reaches_the_kernels_by_one_list():
     from aquarium_warp.per_world import PER_WORLD_FIELDS
 
     columns = np.zeros(1, dtype=WorldValues.numpy_dtype()).dtype.names
-    derived = {"prey_replication_age": "replication_age_min", "flow": "flow_kind"}
+    derived = {"prey_replication_age": "replication_age_min", "flow": "flow_kind", "confusion_angle": "confusion_cos"}
     assert all(name in columns or derived.get(name) in columns for name in PER_WORLD_FIELDS)
     cfg = AquariumConfig(prey_count=(3, 5), capture_confusion=(0.0, 16.0), confusion_radius=(50.0, 80.0))
     rows = world_rows(cfg, 2, [0, 0])
     assert list(rows["prey_count"]) == [3, 5]
     assert list(rows["capture_confusion"]) == [0.0, 16.0] and list(rows["confusion_radius"]) == [50.0, 80.0]
+
+
+def test_the_capture_rule_is_a_world_option_like_the_others():
+    """`capture_rule`, `confusion_angle` and `handling_steps` go where `capture_confusion` goes: `train
+    --set env.capture_rule=confusion`, a tuple per world, `AquariumConfig.stack` of conditions and
+    `set_params` between steps (each world's value reaching the kernels' `WorldValues`); a bad value is
+    one line naming the field and the world. `--randomize` takes numbers only, so not the rule."""
+    from aquarium_warp.training.config import env_config, make_config, parse_assignment
+    from aquarium_warp.training.randomize import parse_spec
+
+    sets = [parse_assignment(a) for a in ("env.capture_rule=confusion", "env.handling_steps=3")]
+    cfg = env_config(make_config("default", *sets))
+    assert (cfg.capture_rule, cfg.handling_steps, cfg.confusion_angle) == ("confusion", 3, 15.0)
+    stacked = AquariumConfig.stack([AquariumConfig(), cfg], 2)
+    assert stacked.capture_rule == ("dilution", "dilution", "confusion", "confusion")
+    assert stacked.handling_steps == (10, 10, 3, 3)
+    env = BatchedAquarium(stacked, num_worlds=4, device="cpu")
+    values = env.world_values.numpy()
+    assert values["capture_rule"].tolist() == [0, 0, 1, 1] and values["handling_steps"].tolist() == [10, 10, 3, 3]
+    env.set_params(world=[0, 3], capture_rule=["confusion", "dilution"], confusion_angle=90.0)
+    values = env.world_values.numpy()
+    assert values["capture_rule"].tolist() == [1, 0, 1, 0]
+    cos15 = pytest.approx(math.cos(math.radians(15.0)))
+    assert values["confusion_cos"].tolist() == [0.0, cos15, cos15, 0.0]  # 90 degrees: exactly 0, as the FOV's
+    with pytest.raises(ValueError, match=r"^world 1: capture_rule='olson' is out of range: must be one of"):
+        env.set_params(world=1, capture_rule="olson")
+    with pytest.raises(ValueError, match="unknown field"):
+        parse_spec("capture_rule=dilution,confusion")

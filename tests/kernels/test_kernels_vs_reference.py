@@ -7,7 +7,8 @@ edge cases: exact overlaps, agents across the seams, zero velocities, exact dist
 contact distance and at view distance, displacements of exactly half the world. The kernel's float32 inputs
 are fed to the reference as float64. Random draws (respawn positions, replication ages of respawned and
 newborn prey) belong to the kernels: the reference reads them from the kernel's post-step state, and the
-capture draws of capture confusion from the kernels' own draw function (`capture_draws`, before the step).
+capture draws of density dilution and the attack draws of predator confusion from the kernels' own draw
+functions (`capture_draws`, `attack_draws`, before the step).
 
 Tolerances: 1e-5 for positions (as fractions of width/height, torus-aware), velocities, accelerations,
 headings and observation values; angle values (own heading, bearing) are compared on the circle, because
@@ -38,7 +39,7 @@ import warp as wp  # noqa: E402
 
 from aquarium_warp import AquariumConfig, BatchedAquarium  # noqa: E402
 from aquarium_warp.config import FlowConfig  # noqa: E402
-from aquarium_warp.kernels.capture import capture_draw  # noqa: E402
+from aquarium_warp.kernels.capture import attack_draw, capture_draw  # noqa: E402
 from aquarium_warp.kernels.common import WorldParams  # noqa: E402
 from aquarium_warp.kernels.state import WorldCounters  # noqa: E402
 
@@ -181,6 +182,25 @@ CONFIGS["slow_fresh_agents"] = make_config(
 )
 CONFIGS["capture_confusion_per_world_cells"] = dataclasses.replace(
     CONFIGS["capture_confusion_per_world"], grid_cell_size=30.0
+)
+# Predator confusion (docs/model.md step 5, capture rule "confusion"), per world: Olson's strength c = 1
+# in a narrow window, a lower base chance with no handling time, every prey in view (360 degrees,
+# unlimited view, the whole window) and a density-dilution world in the same batch; in worlds of one
+# cell and of cells smaller than the predators' views (the visibility search across many cells).
+CONFIGS["predator_confusion_per_world"] = make_config(
+    width=240.0,
+    height=220.0,
+    prey_count=14,
+    predator_count=3,
+    capture_rule=("confusion", "confusion", "confusion", "dilution"),
+    capture_probability=(1.0, 0.8, 1.0, 0.7),
+    capture_confusion=(1.0, 2.0, 4.0, 4.0),
+    confusion_angle=(15.0, 45.0, 180.0, 15.0),
+    handling_steps=(3, 0, 2, 3),
+    predator=dict(view_distance=(200.0, 120.0, math.inf, 200.0), fov_angle=(150.0, 90.0, 360.0, 150.0)),
+)
+CONFIGS["predator_confusion_per_world_cells"] = dataclasses.replace(
+    CONFIGS["predator_confusion_per_world"], grid_cell_size=30.0
 )
 
 
@@ -333,7 +353,12 @@ def random_world(rng, cfg, world_step_range=(0, 40)) -> dict:
     starvation[:Pc] = 0
     rep[Pc:] = 0
     age[Pc:] = 0
-    for arr in (vel, acc, age, rep, starvation):
+    # Handling times (drawn last, so that the other configs' states stay as they were).
+    handling = np.zeros(C, np.int64)
+    if ref.capture_rule(cfg) == "confusion":
+        H = int(cfg.handling_steps)
+        handling[Pc:] = np.where(rng.random(C - Pc) < 0.4, rng.integers(0, H + 1, C - Pc), 0)
+    for arr in (vel, acc, age, rep, starvation, handling):
         arr[~alive] = 0
     return {
         "position": _f32(pos),
@@ -344,6 +369,7 @@ def random_world(rng, cfg, world_step_range=(0, 40)) -> dict:
         "age": age.astype(np.int32),
         "replication_age": rep.astype(np.int32),
         "starvation": starvation.astype(np.int32),
+        "handling": handling.astype(np.int32),
         "world_step": int(rng.integers(*world_step_range)),
     }
 
@@ -385,17 +411,31 @@ def read_capture_draws(world: WorldParams, counters: WorldCounters, draws: wp.ar
     draws[w, i] = capture_draw(world, counters, w, i)
 
 
-def capture_draws(env) -> np.ndarray:
-    """``[W, prey_capacity]``: the draws that decide each prey's contact in the env's next step, by the
-    kernels' own draw function (read before the step: they are keyed by its step counter)."""
+@wp.kernel
+def read_attack_draws(world: WorldParams, counters: WorldCounters, draws: wp.array2d(dtype=float)):
+    w, i = wp.tid()
+    draws[w, i] = attack_draw(world, counters, w, i)
+
+
+def kernel_draws(env, kernel, slots: int) -> np.ndarray:
+    """``[W, slots]``: the draws of ``kernel`` for each slot in the env's next step, by the kernels' own
+    draw function (read before the step: they are keyed by its step counter)."""
     out = []
     for shard in env.shards:
-        draws = wp.zeros((shard.num_worlds, env.prey_capacity), dtype=float, device=env.device)
-        wp.launch(
-            read_capture_draws, dim=draws.shape, inputs=[shard.world, shard.state.worlds, draws], device=env.device
-        )
+        draws = wp.zeros((shard.num_worlds, slots), dtype=float, device=env.device)
+        wp.launch(kernel, dim=draws.shape, inputs=[shard.world, shard.state.worlds, draws], device=env.device)
         out.append(draws.numpy())
     return np.concatenate(out)
+
+
+def capture_draws(env) -> np.ndarray:
+    """``[W, prey_capacity]``: the draws that decide each prey's contact (density dilution)."""
+    return kernel_draws(env, read_capture_draws, env.prey_capacity)
+
+
+def attack_draws(env) -> np.ndarray:
+    """``[W, capacity]``: the draws that decide each predator slot's attack (predator confusion)."""
+    return kernel_draws(env, read_attack_draws, env.capacity)
 
 
 def kernel_step(env, actions: np.ndarray):
@@ -471,7 +511,7 @@ def compare_state(cfg, where: str, kernel: dict, reference: dict, errors: list) 
             r = reference[name][i]
             if np.any(np.abs(k - r) > tol):
                 errors.append(f"{where} {slot_name(cfg, i)} {name}: kernel={fmt(k)} reference={fmt(r)}")
-        names = ("age", "replication_age") if i < cfg.prey_capacity else ("starvation",)
+        names = ("age", "replication_age") if i < cfg.prey_capacity else ("starvation", "handling")
         for name in names:
             if int(kernel[name][i]) != int(reference[name][i]):
                 errors.append(
@@ -540,10 +580,14 @@ def compare_flags(cfg, where, name, kernel: dict, reference: np.ndarray, errors,
             errors.append(f"{where} {slot_name(cfg, i)} {name}: kernel={k[i]} reference={reference[i]}")
 
 
-def check_step(name: str, cfg, env, starts: list, actions: np.ndarray, errors: list, step_label: str = "") -> list:
-    """Step the kernel env (already holding ``starts``) and compare every world with the reference.
-    Returns the kernel's post-step worlds."""
+def check_step(
+    name: str, cfg, env, starts: list, actions: np.ndarray, errors: list, step_label: str = "", infos=None
+) -> list:
+    """Step the kernel env (already holding ``starts``) and compare every world with the reference
+    (whose per-world info dicts are appended to ``infos``, if given). Returns the kernel's post-step
+    worlds."""
     draws = capture_draws(env)
+    attack = attack_draws(env)
     obs, rewards, terminated, truncated, info = kernel_step(env, actions)
     k_obs = {k: v.detach().cpu().numpy().copy() for k, v in obs.items()}
     k_mask = {k: v.detach().cpu().numpy().copy() for k, v in env.observation_mask.items()}
@@ -568,7 +612,10 @@ def check_step(name: str, cfg, env, starts: list, actions: np.ndarray, errors: l
             respawn_heading=after[w]["heading"],  # read only with spawn_heading "random" (the kernel's draw)
             newborn_heading=after[w]["heading"],
             capture_draw=draws[w],
+            attack_draw=attack[w],
         )
+        if infos is not None:
+            infos.append((w, start, r_info))
         n_before = len(errors)
         pick = lambda d, w=w: {k: v[w] for k, v in d.items()}  # noqa: E731
         compare_flags(cfg, where, "reward", pick(k_rew), r_rew, errors, tol=1e-6)
@@ -684,6 +731,55 @@ def test_rollout_resynced_each_step(name, step_kernel, device):
     fail_if(errors, name)
 
 
+def confusion_events(cfg, infos: list) -> dict:
+    """Counts, over the reference's steps of predator-confusion worlds, of what the rule can do: attacks
+    that capture or fail, predators skipping a step while handling, attacks across the torus seam, and
+    attacks whose predator had a prey within its view distance but outside its field of view."""
+    events = dict.fromkeys(("captures", "failures", "handling", "across the seam", "prey outside the FOV"), 0)
+    for w, start, info in infos:
+        own = world_config(cfg, w)
+        if ref.capture_rule(own) != "confusion":
+            continue
+        moved = info["moved"]
+        events["handling"] += sum(1 for p in ref.predator_slots(own) if start["alive"][p] and start["handling"][p] > 0)
+        for p, (target, captured) in info["attacks"].items():
+            events["captures" if captured else "failures"] += 1
+            raw = np.abs(moved["position"][target] - moved["position"][p])
+            events["across the seam"] += int(raw[0] > own.width / 2 or raw[1] > own.height / 2)
+            behind = [
+                q
+                for q in ref.prey_slots(own)
+                if q != target
+                and moved["alive"][q]
+                and ref.torus_distance(own, moved["position"][p], moved["position"][q]) <= own.predator.view_distance
+                and not ref.is_visible(own, moved, p, q)
+            ]
+            events["prey outside the FOV"] += int(bool(behind))
+    return events
+
+
+@pytest.mark.parametrize("name", ["predator_confusion_per_world", "predator_confusion_per_world_cells"])
+def test_predator_confusion_rollout_covers_every_event(name, device):
+    """Twelve steps of predator confusion against the reference (each step from the kernel's state), in
+    which attacks capture and fail, predators wait out handling times, attacks reach across the seam and
+    predators with a field of view below 360 degrees leave prey out of their count."""
+    cfg, env = CONFIGS[name], get_env(name, device)
+    rng = np.random.default_rng(5000)
+    errors, infos = [], []
+    starts = [random_world(rng, world_config(cfg, w)) for w in range(env.num_worlds)]
+    set_worlds(env, starts)
+    starts = read_worlds(env)
+    for k in range(12):
+        starts = check_step(
+            name, cfg, env, starts, random_actions(rng, cfg, env.num_worlds), errors, f" step {k}", infos
+        )
+        if errors:
+            break
+    fail_if(errors, name)
+    events = confusion_events(cfg, infos)
+    assert all(n > 0 for n in events.values()), events
+
+
 @pytest.mark.parametrize(
     "name, step_kernel", [("reproduction", "auto"), ("reproduction", "stages"), ("reproduction_cells", "auto")]
 )
@@ -778,7 +874,8 @@ def test_rewards_and_episode_returns_bit_for_bit_with_newborns(name, step_kernel
 
 
 def _world_from_agents(cfg, prey, predators, world_step=0):
-    """Hand-built world: lists of dicts with pos, vel, acc, heading, age, rep, starve (None = dead slot)."""
+    """Hand-built world: lists of dicts with pos, vel, acc, heading, age, rep, starve, handling (None = dead
+    slot)."""
     C, Pc = cfg.capacity, cfg.prey_capacity
     st = {
         "position": np.zeros((C, 2), np.float32),
@@ -789,6 +886,7 @@ def _world_from_agents(cfg, prey, predators, world_step=0):
         "age": np.zeros(C, np.int32),
         "replication_age": np.zeros(C, np.int32),
         "starvation": np.zeros(C, np.int32),
+        "handling": np.zeros(C, np.int32),
         "world_step": world_step,
     }
     for slot, a in [(i, a) for i, a in enumerate(prey)] + [(Pc + i, a) for i, a in enumerate(predators)]:
@@ -804,6 +902,7 @@ def _world_from_agents(cfg, prey, predators, world_step=0):
         st["age"][slot] = a.get("age", 0)
         st["replication_age"][slot] = a.get("rep", 200 if slot < Pc else 0)
         st["starvation"][slot] = a.get("starve", 0)
+        st["handling"][slot] = a.get("handling", 0)
     return st
 
 

@@ -828,3 +828,130 @@ def test_step_observations_use_the_end_of_step_state():
     # within the predator's view 200 and 1.4 deg off its heading
     assert mask["predator"][0].tolist() == [False, True, False, False]
     assert obs["prey"][0][3] == 0.0  # heading (-1, 0): -atan2(0, -1) = -180 -> 0
+
+
+# --------------------------------------------------------------------------------------------------
+# Predator confusion (docs/model.md step 5, capture_rule "confusion")
+# --------------------------------------------------------------------------------------------------
+def confusion_cfg(**world):
+    base = dict(
+        prey_count=3, capture_rule="confusion", capture_probability=1.0, capture_confusion=1.0, confusion_angle=15.0
+    )
+    return make_cfg(**{**base, "handling_steps": 4, **world})
+
+
+def confusion_world(cfg, others, predator_starve=0, handling=0):
+    """Prey 0 at (400, 400), the predator 2 px south of it, all cruising north: after the move the
+    predator is 1 px south of prey 0, heading north. ``others``: positions of prey 1.. (None: dead)."""
+    prey = [cruise_prey((400.0, 400.0))] + [None if p is None else cruise_prey(p) for p in others]
+    st = make_world(cfg, prey, [cruise_pred((400.0, 402.0), starve=predator_starve)])
+    st["handling"][cfg.prey_capacity] = handling
+    return st
+
+
+@pytest.mark.parametrize(
+    "others, fov, expected_k",
+    [
+        ([(400.0, 350.0), (400.0, 300.0)], 150.0, 2),  # both ahead, seen, in the window
+        ([(400.0, 350.0), (400.0, 461.0)], 150.0, 1),  # one 60 px behind: outside the FOV
+        ([(400.0, 350.0), (400.0, 461.0)], 360.0, 1),  # seen now, but 180 degrees off the target's bearing
+        ([(400.0, 350.0), (400.0, 196.0)], 150.0, 1),  # one 205 px ahead: beyond the view distance
+        # 100 px from the predator at 14 and 16 degrees from north: in and out of the 15-degree window
+        ([(400.0 + 100 * math.sin(math.radians(14)), 401.0 - 100 * math.cos(math.radians(14))), None], 150.0, 1),
+        ([(400.0 + 100 * math.sin(math.radians(16)), 401.0 - 100 * math.cos(math.radians(16))), None], 150.0, 0),
+        ([(400.0, 350.0), None], 150.0, 1),  # a dead prey does not count
+    ],
+)
+def test_confusion_counts_only_the_prey_the_predator_sees_near_its_target(others, fov, expected_k):
+    cfg = confusion_cfg(predator=dict(fov_angle=fov))
+    moved = ref.motion(cfg, confusion_world(cfg, others), zeros_actions(cfg))
+    p = cfg.prey_capacity
+    assert ref.attack_target(cfg, moved, p) == 0
+    assert len(ref.prey_seen_near_target(cfg, moved, p, 0)) == expected_k
+    assert ref.attack_chance(cfg, moved, p, 0) == pytest.approx(1.0 / (1.0 + expected_k))
+
+
+def test_confusion_window_across_the_seam():
+    """The target's bearing and a neighbour's across the top seam: 51 px north of the predator."""
+    cfg = confusion_cfg()
+    prey = [cruise_prey((400.0, 10.0)), cruise_prey((400.0, 760.0))]
+    st = make_world(cfg, prey + [None], [cruise_pred((400.0, 12.0))])
+    moved = ref.motion(cfg, st, zeros_actions(cfg))
+    assert ref.prey_seen_near_target(cfg, moved, cfg.prey_capacity, 0) == [1]
+
+
+def test_one_draw_per_attack_then_the_handling_time():
+    """A failed attack (u = 0.9 >= 1 / 2) starts H = 4 steps without attacks though the prey stays in
+    contact (draws then would capture: u = 0); the counter falls 4, 3, 2, 1, 0, then the attack captures.
+    Under density dilution the same draws of the prey would have captured at once."""
+    cfg = confusion_cfg()
+    st = confusion_world(cfg, [(400.0, 350.0), None])
+    p = cfg.prey_capacity
+    counters, captures = [], []
+    for t in range(6):
+        draw = {p: 0.9 if t == 0 else 0.0}
+        st, _, _, _, captured, info = ref.step(
+            cfg,
+            st,
+            zeros_actions(cfg),
+            t,
+            respawn_position={0: (100.0, 100.0)},
+            respawn_replication_age={0: 200},
+            attack_draw=draw,
+        )
+        counters.append(int(st["handling"][p]))
+        captures.append(info["captures"])
+    assert counters == [4, 3, 2, 1, 0, 0] and captures == [0, 0, 0, 0, 0, 1]
+    assert info["capturers"] == {0: [p]}
+
+
+def test_no_handling_time_and_no_confusion():
+    """H = 0: a failed attack attacks again in the next step. c = 0, p0 = 1: the first attack captures
+    with no draw given, whatever the predator sees."""
+    cfg = confusion_cfg(handling_steps=0)
+    st = confusion_world(cfg, [(400.0, 350.0), None])
+    p = cfg.prey_capacity
+    st, *_, info = ref.step(cfg, st, zeros_actions(cfg), 0, attack_draw={p: 0.5})
+    assert info["attacks"] == {p: (0, False)} and st["handling"][p] == 0
+    st, *_, info = ref.step(
+        cfg,
+        st,
+        zeros_actions(cfg),
+        1,
+        respawn_position={0: (100.0, 100.0)},
+        respawn_replication_age={0: 200},
+        attack_draw={p: 0.25},
+    )
+    assert info["attacks"] == {p: (0, True)}
+    cfg = confusion_cfg(capture_confusion=0.0)
+    st = confusion_world(cfg, [(400.0, 350.0), (400.0, 300.0)], predator_starve=9)
+    new, rewards, *_, info = ref.step(
+        cfg, st, zeros_actions(cfg), 0, respawn_position={0: (100.0, 100.0)}, respawn_replication_age={0: 200}
+    )
+    assert info["capturers"] == {0: [p]} and new["starvation"][p] == 1 and rewards[p] == 10.0
+
+
+def test_a_handling_predator_is_no_capturer():
+    """Two predators overlap prey 0; the handling one does not attack: the other captures alone, and
+    with catch_share_radius 0 the reward is its alone (under density dilution both would share it)."""
+    cfg = confusion_cfg(predator_count=2, capture_confusion=0.0, catch_share_radius=0.0)
+    prey = [cruise_prey((400.0, 400.0)), None, None]
+    st = make_world(cfg, prey, [cruise_pred((400.0, 402.0), starve=7), cruise_pred((430.0, 402.0), starve=7)])
+    a, b = cfg.prey_capacity, cfg.prey_capacity + 1
+    st["handling"][b] = 2
+    new, rewards, *_, info = ref.step(
+        cfg, st, zeros_actions(cfg), 0, respawn_position={0: (100.0, 100.0)}, respawn_replication_age={0: 200}
+    )
+    assert info["capturers"] == {0: [a]} and info["sharers"] == {0: [a]}
+    assert rewards[a] == 10.0 and rewards[b] == 0.0
+    assert new["starvation"][[a, b]].tolist() == [1, 8] and new["handling"][[a, b]].tolist() == [0, 1]
+    dilution = make_cfg(prey_count=3, predator_count=2, catch_share_radius=0.0)
+    _, rewards, *_, info = ref.step(
+        dilution,
+        st,
+        zeros_actions(dilution),
+        0,
+        respawn_position={0: (100.0, 100.0)},
+        respawn_replication_age={0: 200},
+    )
+    assert info["capturers"] == {0: [a, b]} and rewards[a] == rewards[b] == 5.0

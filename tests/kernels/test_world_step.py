@@ -98,6 +98,20 @@ CASES = {
         300,
         {},
     ),
+    "predator confusion, per world": (
+        dataclasses.replace(
+            SMALL,
+            capture_rule=("confusion", "confusion", "dilution", "confusion"),
+            capture_probability=(1.0, 0.8, 0.8, 1.0),
+            capture_confusion=(1.0, 3.0, 1.0, 0.0),
+            confusion_angle=(15.0, 60.0, 15.0, 180.0),
+            handling_steps=(10, 0, 10, 4),
+            predator=dataclasses.replace(SMALL.predator, view_distance=(200.0, math.inf, 200.0, 120.0)),
+        ),
+        4,
+        300,
+        {},
+    ),
 }
 
 
