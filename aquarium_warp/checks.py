@@ -230,6 +230,11 @@ def checked_state_fields(env: BatchedAquarium, world, fields: Mapping) -> dict[s
     return staged
 
 
+# State fields added after states were first saved, with the value every agent starts with (zero):
+# `handling`, the predator's handling time of the confusion capture rule.
+LATER_STATE_FIELDS = ("handling",)
+
+
 def checked_state_tensors(env: BatchedAquarium, tensors) -> dict[str, torch.Tensor]:
     """The `"tensors"` of a `state_dict()` for `env`, checked: exactly `STATE_DICT_FIELDS`, each a tensor
     of the field's shape, dtype and values, live counts matching the alive flags; returned as CPU
@@ -237,6 +242,10 @@ def checked_state_tensors(env: BatchedAquarium, tensors) -> dict[str, torch.Tens
     views = env.state.torch
     if not isinstance(tensors, Mapping):
         raise ValueError(f"state_dict tensors must be a dict of tensors, got {type(tensors).__name__}")
+    # A state saved before a field existed holds no tensor of it: the field's initial value, zero.
+    tensors = {n: torch.zeros_like(getattr(views, n)).cpu() for n in LATER_STATE_FIELDS if n not in tensors} | dict(
+        tensors
+    )
     missing = [n for n in STATE_DICT_FIELDS if n not in tensors]
     unknown = [n for n in tensors if n not in STATE_DICT_FIELDS]
     if missing or unknown:

@@ -504,7 +504,11 @@ class BatchedAquarium:
         missing = [k for k in ("config", "num_worlds", "seed", "tensors") if k not in state]
         if missing:
             raise ValueError(f"state_dict lacks {missing}; expected a BatchedAquarium.state_dict()")
-        if state["config"] != self.config.to_dict() or state["num_worlds"] != self.num_worlds:
+        try:  # a config saved before a field existed holds that field's default
+            saved = AquariumConfig.from_dict(state["config"]).to_dict()
+        except (TypeError, ValueError):
+            saved = None
+        if saved != self.config.to_dict() or state["num_worlds"] != self.num_worlds:
             raise ValueError("state_dict was taken from an env with another config or num_worlds")
         try:
             seeds = seed_groups(state["seed"], self.num_worlds)

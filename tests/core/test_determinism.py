@@ -5,6 +5,7 @@ deterministic sort), except the CPU thread-split test, which only exists on the 
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 
 import pytest
@@ -264,6 +265,28 @@ def test_load_state_dict_refuses_other_config(device):
     finally:
         env.close()
         other.close()
+
+
+def test_a_state_saved_before_the_capture_rule_existed_resumes_bit_identically(device):
+    """A state_dict from before the confusion capture rule (no `handling` tensor; a config without
+    `capture_rule`, `confusion_angle` and `handling_steps`) loads with those at their defaults and zero
+    handling, and the run continues as from the full state."""
+    env = make(device, num_worlds=3, seed=5)
+    try:
+        actions = action_sequence(env, 20, seed=6)
+        rollout(env, actions[:10])
+        saved = env.state_dict()
+        assert not saved["tensors"]["handling"].any()  # the default rule never handles
+        old = copy.deepcopy(saved)
+        del old["tensors"]["handling"]
+        for name in ("capture_rule", "confusion_angle", "handling_steps"):
+            del old["config"][name]
+        first = rollout(env, actions[10:])
+        env.load_state_dict(old)
+        assert_state_dicts_identical(saved, env.state_dict())
+        assert_identical(rollout(env, actions[10:]), first)
+    finally:
+        env.close()
 
 
 # Worlds of one cell (the fused step) and cell lists built by rank (at most RANK_SORT_MAX_CAPACITY slots).
