@@ -315,7 +315,9 @@ class AquariumConfig:
     target's bearing, and after a failed attack cannot attack for `handling_steps` steps), with
     `capture_probability` in [0, 1], `capture_confusion` (the rule's strength c) in [0, 1e15],
     `confusion_radius` in [1e-15, 1e15] px, `confusion_angle` in (0, 180] degrees and `handling_steps`
-    an integer in [0, 1e6]; the three rewards finite with
+    an integer in [0, 1e6]; the rewards (`prey_reward`, `prey_capture_penalty`, `prey_contact_penalty`:
+    a live prey's cost of each step it is in contact with a predator without being captured, and
+    `predator_reward`) finite with
     |reward| x max_steps x prey slots at most 1e38, so that episode returns (float32 sums over an
     episode) stay finite; `grid_cell_size` None or a finite number > 0. Per-type ranges: see
     `AgentTypeConfig`.
@@ -340,6 +342,7 @@ class AquariumConfig:
     respawn_captured_prey: bool = True
     prey_reward: float = 1.0
     prey_capture_penalty: float = 1000.0
+    prey_contact_penalty: float = 0.0
     predator_reward: float = 10.0
     catch_share_radius: float = 100.0
     capture_probability: float = 1.0
@@ -488,7 +491,7 @@ class AquariumConfig:
         # What the batch shares: the slot count and the episode returns' float32 range.
         require("capacity", self.capacity, self.capacity <= 2**30, "at most 2**30 agent slots per world")
         reward_limit = RETURN_LIMIT / (self.max_steps * self.prey_capacity)
-        for name in ("prey_reward", "prey_capture_penalty", "predator_reward"):
+        for name in ("prey_reward", "prey_capture_penalty", "prey_contact_penalty", "predator_reward"):
             value = self._field(name)
             extremes = (
                 value
@@ -639,7 +642,7 @@ class AquariumConfig:
             "+ predator_count",
         )
         reward_limit = RETURN_LIMIT / (self.max_steps * self.prey_capacity)
-        for name in ("prey_reward", "prey_capture_penalty", "predator_reward"):
+        for name in ("prey_reward", "prey_capture_penalty", "prey_contact_penalty", "predator_reward"):
             value = getattr(self, name)
             require(
                 name,

@@ -34,6 +34,7 @@ PER_WORLD_FIELDS = (
     "predator_count",
     "prey_reward",
     "prey_capture_penalty",
+    "prey_contact_penalty",
     "predator_reward",
     "catch_share_radius",
     "capture_probability",

@@ -266,6 +266,28 @@ def contacts_or_attack(
 
 
 @wp.func
+def touches_predator(
+    world: WorldParams, types: wp.array2d(dtype=AgentType), grid: CellLists, agents: Agents, w: int, i: int
+) -> bool:
+    """Whether a live predator overlaps prey slot i of world w (torus distance < r_prey + r_predator at
+    the moved positions), whatever the capture rule: the contact that `prey_contact_penalty` costs."""
+    pos = agents.position[w, i]
+    contact = types[w, PREY].radius + types[w, PREDATOR].radius
+    walk = square_walk(
+        grid, w, world.capacity, pos, start_of_step_radius(world, w, contact, types[w, PREDATOR].max_speed), 0, 1
+    )
+    touched = bool(False)
+    while next_run(grid, walk):
+        for n in range(run_length(walk.runs)):
+            j = listed_slot(grid, run_entry(walk.runs, n), walk.base)
+            if j >= 0 and slot_type(world, j) == PREDATOR and agents.alive[w, j]:
+                d = torus_displacement(world, pos, agents.position[w, j])
+                if wp.dot(d, d) < contact * contact:
+                    touched = True
+    return touched
+
+
+@wp.func
 def resolve_capture(
     world: WorldParams,
     types: wp.array2d(dtype=AgentType),
@@ -296,6 +318,8 @@ def resolve_capture(
             scratch.captured[w, i] = False
     if not scratch.captured[w, i]:
         agents.age[w, i] = agents.age[w, i] + 1
+        if values.prey_contact_penalty != 0.0 and touches_predator(world, types, grid, agents, w, i):
+            outputs.reward[w, i] = -values.prey_contact_penalty
         return
     pos = agents.position[w, i]
     contact = types[w, PREY].radius + types[w, PREDATOR].radius

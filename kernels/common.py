@@ -62,6 +62,7 @@ class WorldValues:
     predator_count: int  # live predators at the start of an episode (at most predator_capacity)
     prey_reward: float
     prey_capture_penalty: float
+    prey_contact_penalty: float  # a live prey's cost of a step in contact with a predator that does not capture it
     predator_reward: float
     catch_share_radius: float  # px
     capture_rule: int  # CAPTURE_DILUTION or CAPTURE_CONFUSION

@@ -732,6 +732,10 @@ def step(
             chance = capture_chance(cfg, moved, prey)
             if chance >= 1.0 or (chance > 0.0 and float(_lookup(capture_draw, prey, "a capture draw")) < chance):
                 captures[prey] = capturers
+    # a contact that does not capture costs the prey `prey_contact_penalty` (whatever the rule)
+    for prey in find_contacts(cfg, moved):
+        if prey not in captures:
+            rewards[prey] -= float(getattr(cfg, "prey_contact_penalty", 0.0))
     all_capturers = set()
     sharers_of = {}
     for prey, capturers in captures.items():

@@ -132,6 +132,21 @@ def test_failed_attempt_is_no_capture(path, device):
     assert t.starvation[:, 2].tolist() == [8] * WORLDS
 
 
+@pytest.mark.parametrize("rule", ["dilution", "confusion"])
+@pytest.mark.parametrize("path", list(PATHS))
+def test_a_contact_that_does_not_capture_costs_the_contact_penalty(rule, path, device):
+    """With `prey_contact_penalty`, the prey in contact that is not captured (p0 = 0: predation removed)
+    gets its survival reward minus the penalty, in every step of the contact (under confusion also while
+    the predator handles); a prey out of contact (the other one, 40 px from the predator's hit box)
+    gets the survival reward alone, and nothing else changes."""
+    env = make_env(path, device, prey_count=2, capture_probability=0.0, capture_rule=rule, prey_contact_penalty=7.5)
+    set_every_world(env, [X, (X[0] + 60.0, X[1] + 2.0)], [(X[0], X[1] + 2.0)])
+    for _ in range(3):  # all cruise north together: the contact holds
+        out = step_up(env)
+        assert out.rewards["prey"].tolist() == [[1.0 - 7.5, 1.0]] * WORLDS
+        assert out.info["captures"].tolist() == [0] * WORLDS and env.state.torch.alive.all()
+
+
 # The captured fraction of prey 0 over many worlds: (p0, c, k neighbours within the radius) -> p.
 STATISTICS = {
     "c = 1, k = 3": (1.0, 1.0, 3, 0.25),

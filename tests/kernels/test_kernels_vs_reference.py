@@ -170,6 +170,8 @@ CONFIGS["capture_confusion_per_world"] = make_config(
     capture_probability=(1.0, 1.0, 0.7, 0.0),
     capture_confusion=(0.0, 1.5, 4.0, 2.0),
     confusion_radius=(100.0, 60.0, 35.5, 100.0),
+    # a contact that does not capture costs the prey this much (world 3's predator never captures)
+    prey_contact_penalty=(0.0, 5.0, 0.0, 7.5),
 )
 # Types slower than 1 px/step in some worlds: fresh agents (respawned prey here) start at min(1, s), per world.
 CONFIGS["slow_fresh_agents"] = make_config(
@@ -197,6 +199,7 @@ CONFIGS["predator_confusion_per_world"] = make_config(
     capture_confusion=(1.0, 2.0, 4.0, 4.0),
     confusion_angle=(15.0, 45.0, 180.0, 15.0),
     handling_steps=(3, 0, 2, 3),
+    prey_contact_penalty=(2.0, 0.0, 3.0, 0.5),  # a contact under handling or a failed attack costs the prey
     predator=dict(view_distance=(200.0, 120.0, math.inf, 200.0), fov_angle=(150.0, 90.0, 360.0, 150.0)),
 )
 CONFIGS["predator_confusion_per_world_cells"] = dataclasses.replace(
