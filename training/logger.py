@@ -1,5 +1,7 @@
 """The training log: rsl-rl's logger (TensorBoard) plus one CSV row per iteration (`progress.csv`, or
-`progress_<team>.csv` when both teams learn; columns `CSV_FIELDS`) and a tqdm bar or a console line."""
+`progress_<team>.csv` when both teams learn; columns `CSV_FIELDS`), the swarm metrics' time series over
+training (`swarm.csv` beside it: the iteration and `SWARM_FIELDS`, in iterations where episodes ended)
+and a tqdm bar or a console line."""
 
 from __future__ import annotations
 
@@ -16,6 +18,7 @@ import torch
 from rsl_rl.utils.logger import Logger
 
 from ..atomic import atomic_open
+from ..metrics import EPISODE_METRICS
 from . import _rsl  # noqa: F401
 
 if TYPE_CHECKING:
@@ -41,6 +44,7 @@ CSV_FIELDS = [
     "collect_time",
     "learn_time",
 ]
+SWARM_FIELDS = ["iteration"] + [f"Swarm/{name}" for name in EPISODE_METRICS]
 
 
 class AquariumLogger(Logger):
@@ -138,11 +142,19 @@ class AquariumLogger(Logger):
         if self.quiet:
             self._progress(it, total_it, row)
 
+    @property
+    def swarm_path(self) -> str | None:
+        return None if self.csv_path is None else os.path.join(os.path.dirname(self.csv_path), "swarm.csv")
+
     def _write_row(self, row: dict) -> None:
-        if self.csv_path is not None:
-            new = not os.path.isfile(self.csv_path)
-            with open(self.csv_path, "a", newline="", encoding="utf-8") as f:
-                writer = csv.DictWriter(f, fieldnames=CSV_FIELDS)
+        self._append(self.csv_path, CSV_FIELDS, row)
+
+    @staticmethod
+    def _append(path: str | None, fields: list[str], row: dict) -> None:
+        if path is not None:
+            new = not os.path.isfile(path)
+            with open(path, "a", newline="", encoding="utf-8") as f:
+                writer = csv.DictWriter(f, fieldnames=fields)
                 if new:
                     writer.writeheader()
                 writer.writerow(row)
@@ -202,6 +214,9 @@ class AquariumLogger(Logger):
             row[field] = episode_means.get(f"Episode/{field}", "")
         row["episode_length"] = episode_means.get("Episode/length", "")
         self._write_row(row)
+        swarm = {k: v for k, v in episode_means.items() if k in SWARM_FIELDS}
+        if swarm:
+            self._append(self.swarm_path, SWARM_FIELDS, {"iteration": it, **swarm})
         if self.quiet:
             if self.bar:
                 self._progress(it, total_it, row)
@@ -262,11 +277,12 @@ class AquariumLogger(Logger):
     def keep_rows_before(self, iteration: int) -> None:
         """Drop the CSV rows of iterations `iteration` and later (logged after the checkpoint a run
         resumes from)."""
-        if self.csv_path is None or not os.path.isfile(self.csv_path):
-            return
-        with open(self.csv_path, newline="", encoding="utf-8") as f:
-            rows = [r for r in csv.DictReader(f) if int(r["iteration"]) < iteration]
-        with atomic_open(self.csv_path, newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=CSV_FIELDS)
-            writer.writeheader()
-            writer.writerows(rows)
+        for path, fields in ((self.csv_path, CSV_FIELDS), (self.swarm_path, SWARM_FIELDS)):
+            if path is None or not os.path.isfile(path):
+                continue
+            with open(path, newline="", encoding="utf-8") as f:
+                rows = [r for r in csv.DictReader(f) if int(r["iteration"]) < iteration]
+            with atomic_open(path, newline="") as f:
+                writer = csv.DictWriter(f, fieldnames=fields)
+                writer.writeheader()
+                writer.writerows(rows)

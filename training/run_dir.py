@@ -25,6 +25,7 @@ RUN_OUTPUTS = (
     "config.json",
     "progress.csv",
     "progress_*.csv",
+    "swarm.csv",
     "model_*.pt",
     "events.out.tfevents.*",
     "exported",

@@ -249,7 +249,7 @@ def run_config(args, name: str, control: str, seed: int) -> dict:
             "num_worlds": worlds,
             "iterations": args.iterations,
             "episodes": None,
-            **(POOL if cell.coevolving else {"opponent": FIXED_PREDATOR}),
+            **({"opponent": None, **POOL} if cell.coevolving else {"opponent": FIXED_PREDATOR}),
         },
         "env": {"prey_count": cell.prey},
         "runner": {"save_interval": args.iterations},
@@ -529,23 +529,21 @@ def summarize(evaluations: Sequence[tuple[dict, dict]], baselines: Sequence[tupl
     return cells
 
 
-def training_series(trainings: Sequence[dict], every: int = 10) -> list[dict]:
-    """Swarm measures over training: per cell, control and iteration (every `every`-th), the mean over
-    seeds of each `Swarm/<measure>` column of the runs' progress.csv files (mean nearest-neighbour
-    distance, largest group, per-group polarization and rotation)."""
+def training_series(trainings: Sequence[dict]) -> list[dict]:
+    """Swarm measures over training: per cell, control and iteration (those where episodes ended), the mean over
+    seeds of each `Swarm/<measure>` column of the runs' swarm.csv files (the primary measure, largest
+    group, per-group polarization and rotation)."""
     import csv
 
-    columns = ("nn_mean", "largest_group", "group_polarization", "group_rotation")
+    columns = (PRIMARY, "largest_group", "group_polarization", "group_rotation")
     sums: dict[tuple[str, str, int], dict[str, list[float]]] = {}
     for t in trainings:
-        path = os.path.join(t["run_dir"], "progress.csv")
+        path = os.path.join(t["run_dir"], "swarm.csv")
         if not os.path.exists(path):
             continue
         with open(path, newline="") as f:
             for row in csv.DictReader(f):
-                iteration = int(float(row.get("iteration", 0) or 0))
-                if iteration % every:
-                    continue
+                iteration = int(row["iteration"])
                 key = (t["cell"], t["control"], iteration)
                 for c in columns:
                     value = row.get(f"Swarm/{c}")
@@ -667,8 +665,8 @@ def plot(out: str, summary: dict) -> None:
     """`phase_density_view.png`: heatmaps over prey count x view distance of the primary measure and the
     largest group (learned prey and their no-slot control), each cell with its mean, 95% half-width and
     regime; `phase_rule.png`: the primary measure and captures against c for both rules with 95% bands
-    (learned, no slots, no predation, Boids, TurnAway); `phase_series.png`: the primary's numerator over
-    training per cell."""
+    (learned, no slots, no predation, Boids, TurnAway); `phase_series.png`: the primary over training
+    per cell."""
     from .common import band, pyplot, save_figure
 
     plt = pyplot()
@@ -727,10 +725,10 @@ def plot(out: str, summary: dict) -> None:
     if series:
         fig, ax = plt.subplots(figsize=(7, 4))
         for name in sorted({r["cell"] for r in series}):
-            rows = [r for r in series if r["cell"] == name and r["control"] == "learned" and "nn_mean" in r]
+            rows = [r for r in series if r["cell"] == name and r["control"] == "learned" and PRIMARY in r]
             if rows:
-                ax.plot([r["iteration"] for r in rows], [r["nn_mean"] for r in rows], label=name, lw=1)
+                ax.plot([r["iteration"] for r in rows], [r[PRIMARY] for r in rows], label=name, lw=1)
         ax.set_xlabel("PPO iteration")
-        ax.set_ylabel("mean nearest-neighbour distance (px)")
+        ax.set_ylabel(PRIMARY)
         ax.legend(fontsize=6, ncol=2)
         save_figure(fig, out, "phase_series.png", "Learned prey over training (mean over seeds)")

@@ -122,6 +122,21 @@ def test_device_episode_statistics_equal_rsl_rl_logger(tmp_path, metrics_every):
     tags = EventAccumulator(str(tmp_path / "fast")).Reload().Tags()["scalars"]
     assert any(t.startswith("Swarm/") for t in tags) == (metrics_every > 0), tags
     assert "captures_per_prey" in header
+    # The swarm metrics' series over training, in swarm.csv: the TensorBoard values of the iterations
+    # where episodes ended, each measure a column.
+    swarm_csv = tmp_path / "fast" / "swarm.csv"
+    assert swarm_csv.exists() == (metrics_every > 0)
+    if metrics_every:
+        events = EventAccumulator(str(tmp_path / "fast")).Reload()
+        rows = _rows(swarm_csv)
+        assert [int(r["iteration"]) for r in rows] == [e.step for e in events.Scalars("Swarm/nn_ratio_hard_disk")]
+        for tag in ("Swarm/nn_mean", "Swarm/nn_ratio_hard_disk", "Swarm/group_polarization"):
+            logged = {e.step: e.value for e in events.Scalars(tag)}
+            for row in rows:  # a measure without a value in an iteration's episodes is logged in neither
+                if row[tag] == "":
+                    assert int(row["iteration"]) not in logged, tag
+                else:
+                    assert float(row[tag]) == pytest.approx(logged[int(row["iteration"])], rel=1e-6), tag
 
 
 class _Alg:
