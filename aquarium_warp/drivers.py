@@ -15,8 +15,9 @@ drivers = make_drivers({"prey": "turnaway", "predator": "runs/x/exported/policy.
 Heuristic names (`HEURISTICS`; case, "_" and "-" are ignored): those of `aquarium_warp.heuristics`,
 plus "naivchase-noconfusion" (NaivChase chasing the nearest visible prey) and "naivchase-mixed"
 (NaivChase with target confusion in the even worlds, chasing the nearest prey in the odd ones: a
-training opponent of both kinds, `WorldMix`). Heuristics draw from the env's seed. Trained policies act by argmax unless `deterministic=False`, then sample with their own
-`seed` (`make_drivers`: `seeding.team_seed`, the run's seed for the prey, the next one for the predators).
+training opponent of both kinds, `WorldMix`). Heuristics draw from the env's seed. Trained policies
+act by argmax unless `deterministic=False`, then sample with their own `seed` (`make_drivers`:
+`seeding.team_seed`, the run's seed for the prey, the next one for the predators).
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ import warnings
 from collections.abc import Sequence
 from typing import Any
 
-from ..arguments import POLICY_SPECS, int_at_least, policy_spec, number, positive_float
+from ..arguments import POLICY_SPECS, int_at_least, number, policy_spec, positive_float
 from ..atomic import check_output_dir
 from ..cli import Interrupted, plural
 from .config import ALGORITHM_RANGES, PRESETS

@@ -258,9 +258,7 @@ def check_targets(
         shared = sorted(set(a) & set(b))
         if not shared:
             return
-        failing = [
-            f"{cells[c].label}: {a[c]:.3f} vs {b[c]:.3f}" for c in shared if not ok(a[c], b[c], cells[c])
-        ]
+        failing = [f"{cells[c].label}: {a[c]:.3f} vs {b[c]:.3f}" for c in shared if not ok(a[c], b[c], cells[c])]
         out.append({"target": name, "what": what, "cells": len(shared), "met": not failing, "failing": failing})
 
     for predator in NAIVCHASE:

@@ -103,7 +103,10 @@ def test_eval_grid_writes_the_tables_and_per_seed_values(tmp_path, capsys, one_t
     args += ["--grid-speeds", "5", "--max-steps", "30", "--set", "env.width=300", "--set", "env.height=300"]
     assert main(args + ["--device", "cpu", "--out", out]) == 0
     printed = capsys.readouterr().out
-    assert "captures per prey per episode against naivchase" in printed and "5 prey, unlimited, 360 deg, speed 5" in printed
+    assert (
+        "captures per prey per episode against naivchase" in printed
+        and "5 prey, unlimited, 360 deg, speed 5" in printed
+    )
     with open(os.path.join(out, "grid.json"), encoding="utf-8") as f:
         record = json.load(f)
     assert [c["label"] for c in record["cells"]] == [
