@@ -22,7 +22,7 @@ act by argmax unless `deterministic=False`, then sample with their own `seed` (`
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 
 import torch
 
@@ -46,7 +46,7 @@ class WorldMix:
     the state as it would alone; so drivers without state of their own: heuristics, feed-forward
     policies) and their actions are merged on the device."""
 
-    def __init__(self, drivers: list[Driver], choice) -> None:
+    def __init__(self, drivers: Sequence[Driver], choice) -> None:
         self.drivers = list(drivers)
         first = self.drivers[0]()
         self.choice = torch.as_tensor(choice, device=first.device).long().view(-1, 1)

@@ -46,7 +46,10 @@ class Simulation:
 
     def __init__(self, options: ViewOptions):
         self.options = options
-        self.specs = {"prey": options.prey_policy, "predator": options.predator_policy}
+        self.specs = {
+            "prey": pretrained.for_team(options.prey_policy, "prey"),
+            "predator": pretrained.for_team(options.predator_policy, "predator"),
+        }
         # Policy files the command line named may be chosen again on the page, wherever they are.
         self._given_files = {
             os.path.realpath(pretrained.resolve(spec)) for spec in self.specs.values() if not is_heuristic(spec)

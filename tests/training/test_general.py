@@ -4,6 +4,8 @@ recipe over the declared ranges, one observation interface, trainable on the CPU
 
 from __future__ import annotations
 
+import os
+
 import pytest
 import torch
 
@@ -102,3 +104,69 @@ def test_naivchase_mixed_chases_with_confusion_in_even_worlds_and_the_nearest_pr
     assert mixed.capturable
     with pytest.raises(ValueError, match="policy"):
         make_driver("naivchase-mixed", env, "prey")
+
+
+@pytest.fixture
+def general_policies(tmp_path, monkeypatch, one_thread):
+    """Tiny `prey-any` and `predator-any`, trained on the CPU by the general presets and installed by
+    benchmarks/general_policies.py's `install` into a policy folder of their own."""
+    import sys
+
+    from aquarium_warp import pretrained
+
+    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "benchmarks"))
+    try:
+        import general_policies as gp
+    finally:
+        sys.path.pop(0)
+    out, folder = str(tmp_path / "out"), str(tmp_path / "policies")
+    small = {
+        "train": {"num_worlds": 4, "iterations": 1, "device": "cpu", "quiet": True, "export": ["jit", "onnx"]},
+        "env": {"max_steps": 12},
+        "runner": {"num_steps_per_env": 4},
+    }
+    for preset, name, team in ((gp.PREY, "prey-any", "prey"), (gp.PREDATOR, "predator-any", "predator")):
+        trainer = Trainer(make_config(preset, small), gp.run_dir(out, preset, 0))
+        trainer.train()
+        trainer.export()
+        trainer.close()
+        gp.install(folder, name, out, preset, 0, team, {"description": f"a tiny {name}"})
+    monkeypatch.setattr(pretrained, "DIRECTORY", folder)
+    pretrained.index.cache_clear()
+    yield folder
+    pretrained.index.cache_clear()
+
+
+def test_installed_general_policies_are_taken_by_name_and_as_learned(general_policies, tmp_path, capsys):
+    from aquarium_warp import pretrained
+    from aquarium_warp.cli import main
+    from aquarium_warp.drivers import check_spec
+    from aquarium_warp.viewer.simulation import Simulation, ViewOptions
+
+    assert pretrained.names("prey") == ["prey-any"] and pretrained.names("predator") == ["predator-any"]
+    assert sorted(os.listdir(general_policies)) == [
+        "index.json", "predator_any.onnx", "predator_any.pt", "prey_any.onnx", "prey_any.pt"
+    ]  # fmt: skip
+    for name, team in (("prey-any", "prey"), ("predator-any", "predator")):
+        entry = pretrained.index()[name]
+        assert entry["team"] == team and entry["training_range"] == GENERAL_RANGES
+        assert pretrained.for_team("learned", team) == pretrained.for_team("LEARNED", team) == name
+        jit, onnx = load_policy(name), load_policy(os.path.join(general_policies, entry["onnx"]))
+        obs = torch.rand(7, jit.observation_size)
+        assert jit.team == onnx.team == team and torch.equal(jit(obs), onnx(obs))
+        check_spec("learned", team)
+    # The worlds the policies act in: any of the range; the learned ones by name and as "learned".
+    world = env_config(make_config("general-prey")).with_values({"prey_count": (5, 64)})
+    env = BatchedAquarium(world, num_worlds=2, device="cpu")
+    with pytest.raises(ValueError, match="trained for 'prey', not 'predator'"):
+        make_driver("prey-any", env, "predator")
+    assert make_driver("learned", env, "prey")().shape == (2, 64)
+    assert make_driver("learned", env, "predator")().shape == (2, 1)
+    out = str(tmp_path / "eval")
+    args = ["eval", "--prey", "learned", "--predator", "learned", "naivchase", "--episodes", "1", "--seeds", "0"]
+    assert main(args + ["--max-steps", "5", "--no-figures", "--device", "cpu", "--out", out]) == 0
+    assert "prey-any" in capsys.readouterr().out
+    simulation = Simulation(ViewOptions(prey_policy="learned", predator_policy="learned", device="cpu"))
+    assert simulation.specs == {"prey": "prey-any", "predator": "predator-any"}
+    choices = simulation.policy_choices()
+    assert "predator-any" in choices["predator"] and "prey-any" not in choices["predator"]
