@@ -21,14 +21,27 @@ from typing import Literal
 # shipped trained policies (`pretrained.names()`) and policy files; written out, so that `--help` imports
 # neither (tests/app/test_cli.py checks them against both).
 POLICY_SPECS = {
-    "prey": "'turnaway', 'boids', 'random', 'constant' (heuristics), 'prey-a', 'prey-b', 'prey-c' (shipped "
-    "trained policies) or a policy file",
-    "predator": "'naivchase', 'naivchase-noconfusion' (chases the nearest prey), 'random', 'constant' "
-    "(heuristics) or a policy file",
+    "prey": "'turnaway', 'boids', 'random', 'constant' (heuristics), 'prey-a', 'prey-b', 'prey-c', 'prey-any' "
+    "(shipped trained policies; 'learned': 'prey-any') or a policy file",
+    "predator": "'naivchase', 'naivchase-noconfusion' (chases the nearest prey), 'naivchase-mixed' (either, "
+    "by world), 'random', 'constant' (heuristics), 'predator-any' (shipped; 'learned': 'predator-any') or a "
+    "policy file",
 }
 
 
 # ---------------------------------------------------------------------------------------------- argparse types
+def policy_spec(team: str) -> Callable[[str], str]:
+    """argparse type of a `team` policy option: the spec, "learned" read as the team's general policy
+    (`pretrained.for_team`); whether it exists is checked where the policy is loaded."""
+
+    def parse(text: str) -> str:
+        from .pretrained import for_team
+
+        return for_team(text, team)
+
+    return parse
+
+
 def number(allowed: str, ok: Callable[[float], bool]) -> Callable[[str], float]:
     """argparse type: a float for which `ok(value)` holds (NaN never does); `allowed` names the range."""
 

@@ -9,7 +9,7 @@ import sys
 import threading
 import time
 
-from .arguments import POLICY_SPECS, non_negative_int, positive_float, positive_int
+from .arguments import POLICY_SPECS, non_negative_int, policy_spec, positive_float, positive_int
 from .atomic import check_output_file
 
 
@@ -250,8 +250,15 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--seed", type=non_negative_int, default=0, help="seed of the worlds and the random actions")
     demo.set_defaults(run=_demo)
     video = sub.add_parser("video", help="record one world driven by heuristic or trained policies as an MP4 video")
-    video.add_argument("--prey-policy", default="turnaway", help=f"{POLICY_SPECS['prey']} (default turnaway)")
-    video.add_argument("--predator-policy", default="naivchase", help=f"{POLICY_SPECS['predator']} (default naivchase)")
+    video.add_argument(
+        "--prey-policy", default="turnaway", type=policy_spec("prey"), help=f"{POLICY_SPECS['prey']} (default turnaway)"
+    )
+    video.add_argument(
+        "--predator-policy",
+        default="naivchase",
+        type=policy_spec("predator"),
+        help=f"{POLICY_SPECS['predator']} (default naivchase)",
+    )
     video.add_argument("--steps", type=non_negative_int, default=600, help="steps to record (frames: steps + 1)")
     video.add_argument("--out", default="aquarium.mp4", help="output MP4 file (name ending in .mp4)")
     video.add_argument(

@@ -13,28 +13,56 @@ drivers = make_drivers({"prey": "turnaway", "predator": "runs/x/exported/policy.
 ```
 
 Heuristic names (`HEURISTICS`; case, "_" and "-" are ignored): those of `aquarium_warp.heuristics`,
-plus "naivchase-noconfusion" (NaivChase chasing the nearest visible prey). Heuristics draw from the
-env's seed. Trained policies act by argmax unless `deterministic=False`, then sample with their own
-`seed` (`make_drivers`: `seeding.team_seed`, the run's seed for the prey, the next one for the predators).
+plus "naivchase-noconfusion" (NaivChase chasing the nearest visible prey) and "naivchase-mixed"
+(NaivChase with target confusion in the even worlds, chasing the nearest prey in the odd ones: a
+training opponent of both kinds, `WorldMix`). Heuristics draw from the env's seed. Trained policies
+act by argmax unless `deterministic=False`, then sample with their own `seed` (`make_drivers`:
+`seeding.team_seed`, the run's seed for the prey, the next one for the predators).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 
 import torch
 
 from .env import TYPES, BatchedAquarium
 from .heuristics import POLICIES, make_policy, normalise_name
-from .pretrained import is_policy_file
+from .pretrained import for_team, is_policy_file
 from .pretrained import names as pretrained_names
 from .seeding import team_seed
 
 NO_CONFUSION = "naivchase-noconfusion"
+MIXED_CONFUSION = "naivchase-mixed"
 # Heuristic names by team (compared after `normalise_name`).
-HEURISTICS = {"prey": POLICIES["prey"], "predator": POLICIES["predator"] + (NO_CONFUSION,)}
+HEURISTICS = {"prey": POLICIES["prey"], "predator": POLICIES["predator"] + (NO_CONFUSION, MIXED_CONFUSION)}
 
 Driver = Callable[[], torch.Tensor]
+
+
+class WorldMix:
+    """One team driven by several drivers, each in its own worlds: `drivers[k]` acts in the worlds where
+    `choice` (`[num_worlds]` integers) is k. Every driver is called at every step (each decides from
+    the state as it would alone; so drivers without state of their own: heuristics, feed-forward
+    policies) and their actions are merged on the device."""
+
+    def __init__(self, drivers: Sequence[Driver], choice) -> None:
+        self.drivers = list(drivers)
+        first = self.drivers[0]()
+        self.choice = torch.as_tensor(choice, device=first.device).long().view(-1, 1)
+        if self.choice.shape[0] != first.shape[0] or not bool(
+            ((self.choice >= 0) & (self.choice < len(self.drivers))).all()
+        ):
+            raise ValueError(f"choice must give each of the {first.shape[0]} worlds a driver in [0, {len(drivers)})")
+        self.actions = torch.empty_like(first)
+        # a call is device work only if every driver's is
+        self.capturable = all(bool(getattr(d, "capturable", False)) for d in self.drivers)
+
+    def __call__(self) -> torch.Tensor:
+        self.actions.copy_(self.drivers[0]())
+        for k, driver in enumerate(self.drivers[1:], start=1):
+            torch.where(self.choice == k, driver(), self.actions, out=self.actions)
+        return self.actions
 
 
 def is_heuristic(spec, team: str | None = None) -> bool:
@@ -47,14 +75,16 @@ def is_heuristic(spec, team: str | None = None) -> bool:
 
 def check_spec(spec, team: str, option: str | None = None) -> None:
     """A one-line ValueError (naming `option`, e.g. "--prey-policy", else the team) unless `spec` is a
-    heuristic of `team`, an existing policy file or a shipped policy's name."""
+    heuristic of `team`, an existing policy file or a shipped policy's name ("learned": the team's
+    general policy, `pretrained.for_team`)."""
+    spec = for_team(spec, team)
     if is_heuristic(spec, team) or is_policy_file(spec):
         return
     name = option or f"{team} policy"
     raise ValueError(
         f"{name}={spec!r} is neither a heuristic (a {team} heuristic: {', '.join(HEURISTICS[team])}) "
         f"nor an existing policy file (exported .pt/.onnx or a training checkpoint) nor a shipped "
-        f"policy ({', '.join(pretrained_names()) or 'none'})"
+        f"policy ({', '.join(pretrained_names(team)) or 'none'})"
     )
 
 
@@ -78,6 +108,7 @@ def make_driver(
         raise ValueError(f"team={team!r} must be one of {TYPES}")
     if blind_to is not None and blind_to not in TYPES:
         raise ValueError(f"blind_to={blind_to!r} must be None or one of {TYPES}")
+    spec = for_team(spec, team)
     check_spec(spec, team)
     if blind_to is not None and is_heuristic(spec, team):
         raise ValueError(
@@ -88,6 +119,9 @@ def make_driver(
         key = normalise_name(spec)
         if key == normalise_name(NO_CONFUSION):
             return make_policy("naivchase", env, team, confusion=False)
+        if key == normalise_name(MIXED_CONFUSION):
+            chasers = [make_policy("naivchase", env, team, confusion=c) for c in (True, False)]
+            return WorldMix(chasers, torch.arange(env.num_worlds) % 2)
         return make_policy(spec, env, team, confusion=confusion if key == "naivchase" else None)
     try:  # the training extra is optional
         from .training.drivers import policy_driver

@@ -6,8 +6,14 @@ config to build it with, and the loaded policy maps its observations to actions)
     aquarium-warp eval --prey turnaway constant prey-b --predator naivchase --episodes 50
     aquarium-warp video --prey-policy prey-b --out prey-b.mp4
 
-`policies/index.json` lists each name with its file, the world it was trained in and how it was made
-(the command, commit, device and its evaluation, also in `benchmarks/results/learned_prey_*`).
+`policies/index.json` lists each name with its team, its file (TorchScript; `onnx`: the same policy as
+ONNX), the world it was trained in (`env`; a policy of randomised worlds: `training_range`, the ranges
+its worlds were drawn from) and how it was made (the command, commit, device and its evaluation).
+
+The general policies `prey-any` and `predator-any` (trained over randomised worlds,
+docs/general-policies.md) are what a policy option means by "learned" (`for_team`):
+
+    aquarium-warp view --prey-policy learned --predator-policy learned
 """
 
 from __future__ import annotations
@@ -29,8 +35,21 @@ def index() -> dict[str, dict]:
         return json.load(f)["policies"]
 
 
-def names() -> list[str]:
-    return sorted(index())
+# The shipped policy of each team that acts in any world of its training range: the default learned one.
+LEARNED = "learned"
+GENERAL = {"prey": "prey-any", "predator": "predator-any"}
+
+
+def names(team: str | None = None) -> list[str]:
+    """The shipped policies' names (of `team` only, if given; an entry without a team is a prey's)."""
+    return sorted(n for n, e in index().items() if team is None or e.get("team", "prey") == team)
+
+
+def for_team(spec, team: str):
+    """`spec`, or for "learned" (any case; an existing file of that name wins) `team`'s general policy."""
+    if isinstance(spec, str) and spec.lower() == LEARNED and not os.path.exists(spec):
+        return GENERAL[team]
+    return spec
 
 
 def resolve(spec):

@@ -14,7 +14,7 @@ import warnings
 from collections.abc import Sequence
 from typing import Any
 
-from ..arguments import POLICY_SPECS, int_at_least, number, positive_float
+from ..arguments import POLICY_SPECS, int_at_least, number, policy_spec, positive_float
 from ..atomic import check_output_dir
 from ..cli import Interrupted, plural
 from .config import ALGORITHM_RANGES, PRESETS
@@ -70,11 +70,13 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--predator-policy",
         default=None,
+        type=policy_spec("predator"),
         help=f"predators when training prey: {POLICY_SPECS['predator']} (default naivchase)",
     )
     g.add_argument(
         "--prey-policy",
         default=None,
+        type=policy_spec("prey"),
         help=f"prey when training predators: {POLICY_SPECS['prey']} (default random)",
     )
     g.add_argument(
@@ -602,6 +604,7 @@ def add_eval_arguments(p: argparse.ArgumentParser) -> None:
         "--prey",
         nargs="*",
         default=None,
+        type=policy_spec("prey"),
         metavar="SPEC",
         help=f"prey policies: {POLICY_SPECS['prey']} (exported or a checkpoint), each optionally LABEL=SPEC; "
         "specs sharing a label are pooled (default: random turnaway)",
@@ -610,16 +613,19 @@ def add_eval_arguments(p: argparse.ArgumentParser) -> None:
         "--predator",
         nargs="*",
         default=None,
+        type=policy_spec("predator"),
         metavar="SPEC",
         help=f"predator policies: {POLICY_SPECS['predator']} (default: naivchase)",
     )
-    p.add_argument("--episodes", type=int, default=200, help="episodes per seed (paper: 200)")
+    p.add_argument(
+        "--episodes", type=int, default=None, help="episodes per seed (default 200, the paper's; --grid: 50 per cell)"
+    )
     p.add_argument(
         "--seeds",
         type=int,
         nargs="+",
-        default=[0, 1, 2, 3, 4],
-        help="evaluation seeds, a list such as 0 1 2 (paper: 5)",
+        default=None,
+        help="evaluation seeds, a list such as 0 1 2 (default 0 1 2 3 4, the paper's 5; --grid: 0 1 2)",
     )
     p.add_argument(
         "--preset",
@@ -659,6 +665,23 @@ def add_eval_arguments(p: argparse.ArgumentParser) -> None:
         help="training curves: moving average over N iterations (default 1: none)",
     )
     p.add_argument("--no-figures", action="store_true", help="no matplotlib figures")
+    g = p.add_argument_group("grid (--grid)")
+    g.add_argument(
+        "--grid",
+        action="store_true",
+        help="every prey x predator pairing over a grid of worlds, each pairing one batch of per-world "
+        "values (default prey: turnaway boids constant random; predators: naivchase naivchase-noconfusion): "
+        "grid.json, grid.csv and the general policies' targets (docs/general-policies.md)",
+    )
+    g.add_argument("--grid-prey-counts", default="6,16,32,64", metavar="N,N,...", help="grid: prey counts")
+    g.add_argument(
+        "--grid-views",
+        default="100,200,10000",
+        metavar="PX,PX,...",
+        help="grid: prey view distances in px (10000: unlimited on the default torus)",
+    )
+    g.add_argument("--grid-fovs", default="120,240,360", metavar="DEG,...", help="grid: prey fields of view")
+    g.add_argument("--grid-speeds", default="4.5,5,6", metavar="V,V,...", help="grid: predator top speeds")
     p.add_argument(
         "--cross-play",
         action="store_true",
@@ -671,6 +694,15 @@ def add_eval_arguments(p: argparse.ArgumentParser) -> None:
 def run_eval(args) -> int:
     from .evaluate import evaluate_policies, write_results
     from .plots import plot_distributions, plot_training_curves
+
+    if args.grid and (args.cross_play or args.curves):
+        raise ValueError("--grid runs on its own: without --cross-play and --curves")
+    if args.episodes is None:
+        args.episodes = 50 if args.grid else 200
+    if args.seeds is None:
+        args.seeds = [0, 1, 2] if args.grid else [0, 1, 2, 3, 4]
+    if args.grid:
+        return run_grid(args)
 
     if args.cross_play and args.curves:
         raise ValueError("--curves is not drawn with --cross-play: run eval --curves on its own")
@@ -785,6 +817,59 @@ def _eval_world(args, specs):
         if value is not None:
             changes[key] = value
     return env_config({"env": deep_update(base.to_dict(), changes)})
+
+
+def _grid_cells(args):
+    from ..arguments import number_list
+    from .grid import grid_cells
+
+    return grid_cells(
+        number_list(args.grid_prey_counts, int, "--grid-prey-counts", 1),
+        number_list(args.grid_views, float, "--grid-views", 0.0, low_open=True),
+        number_list(args.grid_fovs, float, "--grid-fovs", 0.0, 360.0, low_open=True),
+        number_list(args.grid_speeds, float, "--grid-speeds", 0.0, low_open=True),
+    )
+
+
+def run_grid(args) -> int:
+    """`aquarium-warp eval --grid`: every pairing over the grid's cells, its tables, files and targets."""
+    from ..drivers import NO_CONFUSION
+    from ..pretrained import GENERAL, names, world
+    from .grid import BASELINES, cell_of, check_targets, evaluate_grid, format_tables, grid_base, write_grid
+
+    if args.episodes < 1:
+        raise ValueError(f"--episodes={args.episodes} must be an integer >= 1")
+    if args.stochastic or args.blind:
+        raise ValueError("--grid evaluates argmax actions of whole observations: without --stochastic and --blind")
+    if args.prey_count is not None or args.predator_count is not None:
+        raise ValueError("--grid takes its prey counts from --grid-prey-counts and the predator count from the world")
+    cells = _grid_cells(args)
+    prey = args.prey or list(BASELINES)
+    predator = args.predator or ["naivchase", NO_CONFUSION]
+    base = grid_base(prey + predator, _eval_world(args, []) if args.preset or args.set or args.max_steps else None)
+    worlds = len(cells) * len(args.seeds) * args.episodes
+    print(
+        f"aquarium-warp eval --grid: {len(prey)} prey x {len(predator)} predator policies, {len(cells)} cells x "
+        f"{plural(len(args.seeds), 'seed')} x {plural(args.episodes, 'episode')} ({worlds} worlds per pairing), "
+        f"{plural(base.max_steps, 'step')}"
+    )
+    os.makedirs(check_output_dir(args.out, "--out"), exist_ok=True)
+    start = time.perf_counter()
+    result = evaluate_grid(
+        prey, predator, base, cells, args.episodes, args.seeds, args.device, progress=lambda m: print("  " + m)
+    )
+    specialists = {n: cell_of(world(n)) for n in names("prey") if n != GENERAL["prey"]}
+    targets = check_targets(result, specialists=specialists)
+    for line in format_tables(result):
+        print(line)
+    for t in targets:
+        print(f"  target {t['target']}: {'met' if t['met'] else 'FAILED'} ({t['cells']} cells)")
+        for failing in t["failing"]:
+            print(f"    fails in {failing}")
+    print(f"  ({time.perf_counter() - start:.1f} s; mean ± 95% interval per cell)")
+    for path in write_grid(result, args.out, targets).values():
+        print(f"  wrote {path}")
+    return 0
 
 
 def run_cross_play(args) -> int:

@@ -15,7 +15,9 @@ A run configuration is a dict with three sections:
 
 Presets (`PRESETS`): `default`, `paper` (section 5 of the paper), `tiny` (small CPU runs and tests),
 `learned-prey-a`, `learned-prey-b`, `learned-prey-c` (the learned-prey recipe in worlds A, B and C),
-`swarm` (the swarm scenario, where learned prey aggregate: docs/studies/swarm.md).
+`swarm` (the swarm scenario, where learned prey aggregate: docs/studies/swarm.md), `general-prey`,
+`general-predator` and `general` (both teams): policies for any world of `GENERAL_RANGES`, drawn per
+world at every episode end (docs/general-policies.md).
 Every preset is the default config deep-updated with the preset's entries.
 
 The paper's two learning rates. rsl-rl has one optimizer and one learning rate. `train.actor_lr` is
@@ -220,6 +222,45 @@ PRESETS["swarm"] = deep_update(
         "train": {"opponent": "naivchase-noconfusion", "num_worlds": 256, "iterations": 500, "episodes": None},
     },
 )
+
+
+# Randomised worlds (docs/general-policies.md): prey and predators for any world of these ranges, drawn
+# per world at every episode end (`train.randomize`) on the learned-prey recipe (ego observations, world
+# actions, random spawn headings, entropy 0.01), so every world shares one observation interface: the
+# same 1 predator slot and 3 prey slots in a world of 4 prey as in one of 64. The batch holds the
+# largest prey count (64 slots); a world's live count is its draw. Prey views are listed values: a
+# geometric series 100-400 px (what matters is the view against the predator's approach) plus
+# "unlimited", 10,000 px: on the 800 x 800 torus no agent is farther than the half diagonal (566 px),
+# and the observed distances are normalised by min(view, half diagonal), so every view of 566 px or more
+# is this same world. FOV in 60-degree steps and capture confusion c in {0, 16} (within 100 px) are
+# listed too, so that the evaluation grid's values (100, 200 px, unlimited; 120, 240, 360 degrees) are
+# trained worlds and not the edge of a range; predator speed is drawn uniformly.
+GENERAL_RANGES = {
+    "prey_count": "4:64",
+    "prey_view_distance": "100,141,200,283,400,10000",
+    "prey_fov_angle": "120,180,240,300,360",
+    "predator_max_speed": "4.5:6",
+    "capture_confusion": "0,16",
+}
+# The budget: 500 iterations of 256 worlds x 32 steps (~140 M live prey-steps for the prey, half the
+# learned-prey recipe's 288 M, in a third of its 1,465 updates; its curves flatten after ~500 iterations),
+# so that 5 seeds of each preset train beside each other on one GPU in a few minutes.
+_GENERAL = deep_update(
+    copy.deepcopy(PRESETS["learned-prey-a"]),
+    {
+        "env": {"prey_count": 64, "confusion_radius": 100.0},
+        "train": {"num_worlds": 256, "iterations": 500, "episodes": None, "randomize": GENERAL_RANGES},
+    },
+)
+# Prey against NaivChase with and without target confusion (half the worlds each).
+PRESETS["general-prey"] = deep_update(copy.deepcopy(_GENERAL), {"train": {"opponent": "naivchase-mixed"}})
+# One predator against TurnAway prey; 1,024 worlds, since a world gives one predator row per step.
+PRESETS["general-predator"] = deep_update(
+    copy.deepcopy(_GENERAL), {"train": {"team": "predator", "opponent": "turnaway", "num_worlds": 1024}}
+)
+# Both teams learning in the same randomised worlds (co-evolution, one learner per team).
+PRESETS["general"] = deep_update(copy.deepcopy(_GENERAL), {"train": {"team": "both", "opponent": None}})
+GENERAL_PRESETS = ("general-prey", "general-predator", "general")
 
 
 def default_config() -> dict:

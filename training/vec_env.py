@@ -28,8 +28,9 @@ Outputs of `step(actions [N, 1])`:
   started its episode at step 0; see `episode_length_buf`): `Episode/captures` (captures in the
   world's episode), `Episode/captures_per_prey` (that / prey_count), `Episode/reward_per_agent` (the
   learning team's undiscounted, unscaled episode reward summed over its slots / the team's initial
-  agent count), `Episode/opponent_reward_per_agent`, `Episode/length`. rsl-rl's logger concatenates
-  every such entry of an iteration and averages: the mean over the episodes that ended.
+  agent count; where counts differ per world or are randomised, the largest: per slot),
+  `Episode/opponent_reward_per_agent`, `Episode/length`. rsl-rl's logger concatenates every such
+  entry of an iteration and averages: the mean over the episodes that ended.
 
 The other team acts inside `step()` through `opponent()`, a callable returning its int actions
 `[W, slots]` on the env's device, decided from the state before the step (a heuristic from
@@ -61,6 +62,7 @@ from ..device import TorchStreamLaunches
 from ..env import TYPES, BatchedAquarium
 from ..kernels import adapter as adapter_kernels
 from ..metrics import EPISODE_METRICS, EpisodeMetrics
+from ..per_world import largest
 from ..world_state import WorldState
 from . import _rsl  # noqa: F401
 from .randomize import ParamRandomizer
@@ -133,8 +135,11 @@ class AquariumVecEnv(VecEnv):
         self.cfg = RunConfig(cfg if cfg is not None else {"env": ecfg.to_dict()})
         self.num_worlds = W = env.num_worlds
         self.slots = S = env.prey_capacity if team == "prey" else env.predator_capacity
-        self.team_count = ecfg.prey_count if team == "prey" else ecfg.predator_count
-        self.other_count = ecfg.predator_count if team == "prey" else ecfg.prey_count
+        # Per-agent logs divide by the team's count; where counts differ per world (or are randomised),
+        # by the largest (the slots per world): the worlds' own counts change at resets the log does not see.
+        prey_count, predator_count = largest(ecfg.prey_count), largest(ecfg.predator_count)
+        self.team_count = prey_count if team == "prey" else predator_count
+        self.other_count = predator_count if team == "prey" else prey_count
         self.num_envs = W * S
         self.num_actions = 1
         self.action_count = ecfg.action_count

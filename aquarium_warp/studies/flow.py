@@ -50,6 +50,7 @@ from ..arguments import (
     non_negative_float,
     non_negative_int,
     number_list,
+    policy_spec,
     positive_float,
     positive_int,
 )
@@ -400,10 +401,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--episode-steps", type=int_at_least(2), default=3000, help="steps per episode (default 3000)")
     p.add_argument("--prey", type=positive_int, default=16, help="prey per world (default 16)")
     p.add_argument("--predators", type=positive_int, default=1, help="predators per world (default 1)")
-    p.add_argument("--prey-policy", default="turnaway", help=f"{POLICY_SPECS['prey']} (default turnaway)")
+    p.add_argument(
+        "--prey-policy", default="turnaway", type=policy_spec("prey"), help=f"{POLICY_SPECS['prey']} (default turnaway)"
+    )
     p.add_argument(
         "--predator-policy",
         default="naivchase",
+        type=policy_spec("predator"),
         help=f"{POLICY_SPECS['predator']} (default naivchase)",
     )
     p.add_argument(

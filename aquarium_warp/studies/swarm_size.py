@@ -48,7 +48,7 @@ from dataclasses import dataclass, field
 
 import torch
 
-from ..arguments import POLICY_SPECS, check_distinct, check_int, non_negative_int, parse_list, positive_int
+from ..arguments import POLICY_SPECS, check_distinct, check_int, non_negative_int, parse_list, policy_spec, positive_int
 from ..atomic import atomic_open, check_output_dir
 from ..cli import plural
 from ..config import AquariumConfig
@@ -653,8 +653,15 @@ def add_run_arguments(p: argparse.ArgumentParser, out: str) -> None:
     p.add_argument("--seeds", type=int, default=5, help="independent runs per setting (default 5)")
     p.add_argument("--episodes-per-seed", type=int, default=1, help="episodes per seed, run as more worlds")
     p.add_argument("--episode-steps", type=int, default=3000, help="steps per episode (default 3000, the paper's)")
-    p.add_argument("--prey-policy", default="turnaway", help=f"{POLICY_SPECS['prey']} (default turnaway)")
-    p.add_argument("--predator-policy", default="naivchase", help=f"{POLICY_SPECS['predator']} (default naivchase)")
+    p.add_argument(
+        "--prey-policy", default="turnaway", type=policy_spec("prey"), help=f"{POLICY_SPECS['prey']} (default turnaway)"
+    )
+    p.add_argument(
+        "--predator-policy",
+        default="naivchase",
+        type=policy_spec("predator"),
+        help=f"{POLICY_SPECS['predator']} (default naivchase)",
+    )
     p.add_argument(
         "--no-confusion",
         action="store_true",

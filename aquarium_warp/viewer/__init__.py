@@ -55,7 +55,7 @@ def _fps(text: str) -> float:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from ..arguments import POLICY_SPECS, non_negative_int, positive_float
+    from ..arguments import POLICY_SPECS, non_negative_int, policy_spec, positive_float
 
     p.add_argument(
         "--host",
@@ -66,11 +66,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--prey-policy",
         default="turnaway",
+        type=policy_spec("prey"),
         help=f"{POLICY_SPECS['prey']} (default turnaway)",
     )
     p.add_argument(
         "--predator-policy",
         default="naivchase",
+        type=policy_spec("predator"),
         help=f"{POLICY_SPECS['predator']} (default naivchase)",
     )
     p.add_argument(

@@ -49,7 +49,10 @@ class Simulation:
 
     def __init__(self, options: ViewOptions):
         self.options = options
-        self.specs = {"prey": options.prey_policy, "predator": options.predator_policy}
+        self.specs = {
+            "prey": pretrained.for_team(options.prey_policy, "prey"),
+            "predator": pretrained.for_team(options.predator_policy, "predator"),
+        }
         # Policy files the command line named may be chosen again on the page, wherever they are.
         self._given_files = {
             os.path.realpath(pretrained.resolve(spec)) for spec in self.specs.values() if not is_heuristic(spec)
@@ -79,15 +82,16 @@ class Simulation:
         if directory:
             for root, _, names in os.walk(directory):
                 files += sorted(os.path.join(root, n) for n in names if n.endswith((".pt", ".onnx")))
-        return {team: list(HEURISTICS[team]) + pretrained.names() + sorted(set(files)) for team in self.specs}
+        return {team: list(HEURISTICS[team]) + pretrained.names(team) + sorted(set(files)) for team in self.specs}
 
     def allowed_spec(self, team: str, spec: str) -> str:
         """`spec` if a page may choose it for `team`: a heuristic of the team, a shipped policy's name,
         or a file under --policy-dir or given on the command line; ValueError otherwise (so nothing a
-        page sends opens any other file)."""
+        page sends opens any other file). "learned" is the team's general policy (`pretrained.for_team`)."""
+        spec = pretrained.for_team(spec, team)
         if is_heuristic(spec, team):
             return spec
-        if spec.lower() in pretrained.names():
+        if spec.lower() in pretrained.names(team):
             return spec.lower()
         path = os.path.realpath(spec)
         directory = self.options.policy_dir
@@ -98,7 +102,7 @@ class Simulation:
             where = f"under --policy-dir {directory}" if directory else "(no --policy-dir was given)"
             raise ValueError(
                 f"{team} policy {spec!r} is not allowed: choose a heuristic {list(HEURISTICS[team])}, a "
-                f"shipped policy {pretrained.names()}, a file given on the command line or a file {where}"
+                f"shipped policy {pretrained.names(team)}, a file given on the command line or a file {where}"
             )
         if not os.path.isfile(path):
             raise ValueError(f"{team} policy file {spec!r} does not exist")

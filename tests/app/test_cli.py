@@ -60,7 +60,7 @@ def test_the_policy_options_name_every_heuristic_and_shipped_policy():
     from aquarium_warp import pretrained
     from aquarium_warp.drivers import HEURISTICS
 
-    names = {"prey": [*HEURISTICS["prey"], *pretrained.names()], "predator": list(HEURISTICS["predator"])}
+    names = {team: [*HEURISTICS[team], *pretrained.names(team)] for team in ("prey", "predator")}
     found = {" ".join(path): p for path, p in subparsers(build_parser())}
     options = [
         (command, option, team)

@@ -1230,3 +1230,107 @@ def test_reproduction_cap_counts_prey_after_captures(device):
         cfg, worlds[1], np.zeros(cfg.capacity, np.int64), 0, newborn_replication_age=after[1]["replication_age"]
     )
     assert r1[5]["births"] == [(0, 3), (1, 4)] and r1[0]["age"][:3].tolist() == [0, 0, 4]
+
+
+# Live counts per world (docs/model.md "World and agents"): worlds of 12, 5, 1 and 9 prey and 2, 1, 3
+# and 2 predators in one batch of capacity 12 + 3, respawn off (so that a world may lose every prey).
+LIVE_COUNTS = make_config(
+    width=220.0,
+    height=200.0,
+    prey_count=(12, 5, 1, 9),
+    predator_count=(2, 1, 3, 2),
+    respawn_captured_prey=False,
+    max_steps=30,
+    prey=dict(radius=24.0),
+    predator=dict(radius=36.0),
+)
+
+
+def live_slots(batch_cfg, w: int) -> np.ndarray:
+    """The batch's slots of world `w`'s own agents, in order: its prey slots, then its predator slots."""
+    own = batch_cfg.world(w)
+    return np.r_[np.arange(own.prey_count), batch_cfg.prey_capacity + np.arange(own.predator_count)]
+
+
+def alone(world: dict, slots: np.ndarray) -> dict:
+    """A batch world's state on `slots` only: the state of that world in a batch of its own counts."""
+    return {**{name: world[name][slots] for name in ref.FIELDS}, "world_step": world["world_step"]}
+
+
+@pytest.mark.parametrize("step_kernel", ["auto", "stages"])
+def test_worlds_of_their_own_live_counts_step_as_each_world_alone(step_kernel, device):
+    """Each world starts every episode with its own prey and predator counts (slots past them dead) and
+    then steps as the reference steps that world alone, in a world of exactly its own slots: the dead
+    slots of a larger batch take part in nothing (moves, contacts, captures, rewards, observations,
+    the episode's end). The reference's input is the kernel's state each step (on the world's own
+    slots), its random draws the kernel's, as in the other rollouts."""
+    cfg = LIVE_COUNTS
+    env = BatchedAquarium(cfg, num_worlds=4, device=device, seed=5, step_kernel=step_kernel)
+    rng = np.random.default_rng(77)
+    errors: list = []
+    captures = resets = 0
+
+    def check_live_counts(worlds: list, where: str, which=range(4)) -> None:
+        for w in which:
+            expected = np.zeros(cfg.capacity, bool)
+            expected[live_slots(cfg, w)] = True
+            if not np.array_equal(worlds[w]["alive"], expected):
+                errors.append(f"[{where} world {w}] alive {worlds[w]['alive'].astype(int).tolist()}")
+
+    starts = read_worlds(env)
+    check_live_counts(starts, "episode start")
+    for k in range(30):
+        actions = random_actions(rng, cfg, env.num_worlds)
+        draws = capture_draws(env)
+        obs, rewards, _, _, info = kernel_step(env, actions)
+        k_obs = {t: v.detach().cpu().numpy().copy() for t, v in obs.items()}
+        k_mask = {t: v.detach().cpu().numpy().copy() for t, v in env.observation_mask.items()}
+        k_rew = np.concatenate([rewards[t].detach().cpu().numpy() for t in ("prey", "predator")], axis=1)
+        k_caps = info["captures"].detach().cpu().numpy().copy()
+        after = read_worlds(env)
+        for w in range(env.num_worlds):
+            own, slots = cfg.world(w), live_slots(cfg, w)
+            assert (own.prey_capacity, own.capacity) == (own.prey_count, len(slots))
+            where = f"[step {k} world {w}]"
+            r_new, r_rew, _, _, _, r_info = ref.step(
+                own,
+                alone(starts[w], slots),
+                actions[w][slots],
+                starts[w]["world_step"],
+                capture_draw=draws[w][slots[: own.prey_count]],
+            )
+            captures += r_info["captures"]
+            if int(k_caps[w]) != r_info["captures"]:
+                errors.append(f"{where} captures: kernel={int(k_caps[w])} reference={r_info['captures']}")
+            rest = np.ones(cfg.capacity, bool)
+            rest[slots] = False
+            if np.any(k_rew[w][rest] != 0.0):
+                errors.append(f"{where} a slot past the world's counts has a reward: {k_rew[w].tolist()}")
+            if np.any(np.abs(k_rew[w][slots] - r_rew) > 1e-6 * np.maximum(1.0, np.abs(r_rew))):
+                errors.append(f"{where} rewards: kernel={k_rew[w][slots].tolist()} reference={r_rew.tolist()}")
+            if r_info["episode_over"]:  # the next episode starts with the world's own counts again
+                resets += 1
+                check_live_counts(after, f"step {k} auto-reset", [w])
+                continue
+            compare_state(own, where, alone(after[w], slots), r_new, errors)
+            if np.any(after[w]["alive"][rest]):
+                errors.append(f"{where} a slot past the world's counts came alive")
+            r_obs, r_mask, r_slots = ref.observe(
+                own, alone(after[w], slots), with_slots=True, world_step=after[w]["world_step"]
+            )
+            rows = {"prey": slice(0, own.prey_count), "predator": slice(0, own.predator_count)}
+            compare_observations(
+                own,
+                where,
+                {t: k_obs[t][w][rows[t]] for t in rows},
+                {t: k_mask[t][w][rows[t]] for t in rows},
+                r_obs,
+                r_mask,
+                r_slots,
+                errors,
+            )
+        starts = after
+        if errors:
+            break
+    fail_if(errors, "live counts per world")
+    assert captures > 0 and resets > 0  # the worlds captured prey, and a world lost all of its prey

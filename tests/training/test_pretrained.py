@@ -125,15 +125,16 @@ def test_every_shipped_policy_loads_in_its_world():
     from aquarium_warp.drivers import make_driver
 
     for name in pretrained.names():
-        policy = load_policy(name)
+        policy, team = load_policy(name), pretrained.index()[name]["team"]
         world = pretrained.world(name)
         assert env_config({"env": policy_world(name)}).to_dict() == world.to_dict(), name
-        assert policy.observation_size == world.observation_size("prey"), name
+        assert policy.team == team and policy.observation_size == world.observation_size(team), name
         assert os.path.getsize(pretrained.resolve(name)) < 2_000_000, name  # small files only
         # their metadata predates the action frame and the flow: taken as the defaults they were trained with
         assert "action_frame" not in policy.meta["env"] and "observe_flow" not in policy.meta["env"], name
         env = BatchedAquarium(world, num_worlds=2, device="cpu")
-        assert make_driver(name, env, "prey")().shape == (2, world.prey_count), name
+        slots = world.prey_capacity if team == "prey" else world.predator_capacity
+        assert make_driver(name, env, team)().shape == (2, slots), name
 
 
 # prey-b reads ego rows with its world heading (world actions), no flow, 1 predator and 3 prey slots, in

@@ -1,0 +1,305 @@
+"""Policies for any world: train K seeds of `--preset general-prey` and `general-predator` (and, with
+`--coevolved`, `general`: both teams), evaluate them on the evaluation grid (`training/grid.py`), pick
+the shipped seed of each team by the declared rule, and install it into a policy folder as `prey-any`
+and `predator-any` (TorchScript and ONNX, with its training range in the index entry).
+
+Phases (all in one call; finished trainings are kept, so a rerun trains only what is missing):
+
+1. Trainings: one `aquarium-warp train` process per (preset, seed), all at once (`--jobs` at most),
+   each into `<out>/runs/<preset>-s<seed>/`. A population cannot train them (`train.randomize` draws per
+   run), so they share the GPU as separate processes.
+2. Prey grid (`grid_prey.json`, `.csv`): TurnAway, Boids, constant, random and every `general-prey`
+   seed (label `prey-any`; with `--coevolved` also the co-evolved prey, label `general-prey-coevolved`)
+   against NaivChase with and without target confusion, on every cell; the shipped specialists
+   (`prey-a`, `-b`, `-c`) on their own world's cell only.
+3. Pick the shipped prey: the seed whose largest ratio to TurnAway over the cells (both NaivChase
+   kinds, means over evaluation seeds) is smallest, since the target holds in every cell.
+4. Predator grid (`grid_predator.json`, `.csv`): NaivChase and every `general-predator` seed (label
+   `predator-any`; `--coevolved`: `general-predator-coevolved`) against TurnAway and the picked prey.
+5. Pick the shipped predator: the seed whose smallest ratio to NaivChase against TurnAway is largest.
+6. Install both (`--install DIR`, default the package's `aquarium_warp/policies/`), write
+   `general_policies.json` (commands, times, picks, targets) and print the tables.
+
+    python benchmarks/general_policies.py --device cuda:0 --seeds 0 1 2 3 4 --out runs/general
+    python benchmarks/general_policies.py --device cpu --seeds 0 1 --out /tmp/gp --set train.iterations=2 \\
+        --set train.num_worlds=4 --set env.max_steps=20 --set runner.num_steps_per_env=8 --max-steps 20 \\
+        --episodes 2 --eval-seeds 0 --grid-prey-counts 4,8 --install /tmp/gp/policies     # a CPU smoke run
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from typing import IO
+
+PREY, PREDATOR, BOTH = "general-prey", "general-predator", "general"
+SPECIALISTS = ("prey-a", "prey-b", "prey-c")
+
+
+def run_dir(out: str, preset: str, seed: int) -> str:
+    return os.path.join(out, "runs", f"{preset}-s{seed}")
+
+
+def exported(out: str, preset: str, seed: int, team: str, kind: str = "pt") -> str:
+    """A training's exported policy file (`kind` "pt" or "onnx"); both teams: `exported/<team>/`."""
+    folder = os.path.join(run_dir(out, preset, seed), "exported")
+    return os.path.join(folder, team if preset == BOTH else "", f"policy.{kind}")
+
+
+def train_command(out: str, preset: str, seed: int, device: str, sets: list[str]) -> list[str]:
+    command = [sys.executable, "-m", "aquarium_warp", "train", "--preset", preset, "--seed", str(seed)]
+    command += ["--device", device, "--quiet", "--export", "jit,onnx", "--log-dir", run_dir(out, preset, seed)]
+    return command + [arg for s in sets for arg in ("--set", s)]
+
+
+def train_all(out: str, presets: list[str], seeds: list[int], device: str, sets: list[str], jobs: int) -> list[dict]:
+    """Every (preset, seed) training not finished yet, `jobs` processes at a time (each one's output in
+    `<out>/logs/`); their records. A failed training stops the others."""
+    team = {PREY: "prey", PREDATOR: "predator", BOTH: "prey"}
+    pending = [(p, s) for p in presets for s in seeds if not os.path.isfile(exported(out, p, s, team[p]))]
+    running: list[tuple[dict, subprocess.Popen, IO[str]]] = []
+    records: list[dict] = []
+    os.makedirs(os.path.join(out, "logs"), exist_ok=True)
+    try:
+        while pending or running:
+            while pending and len(running) < jobs:
+                preset, seed = pending.pop(0)
+                command = train_command(out, preset, seed, device, sets)
+                log = open(os.path.join(out, "logs", f"{preset}-s{seed}.log"), "w", encoding="utf-8")
+                record = {"preset": preset, "seed": seed, "command": " ".join(command[1:]), "start": time.time()}
+                running.append((record, subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT), log))
+            time.sleep(0.5)
+            for entry in [r for r in running if r[1].poll() is not None]:
+                record, process, log = entry
+                log.close()
+                running.remove(entry)
+                record.update(rc=process.returncode, seconds=round(time.time() - record.pop("start"), 1))
+                records.append(record)
+                print(f"  trained {record['preset']} seed {record['seed']}: rc {record['rc']}, {record['seconds']} s")
+                if process.returncode != 0:
+                    raise RuntimeError(f"{record['command']} failed: see {log.name}")
+    finally:
+        for _, process, log in running:  # only the trainings this call started
+            process.terminate()
+            process.wait()
+            log.close()
+    return records
+
+
+def ratios(result: dict, prey: str, predator: str, against: tuple[str, str], run: int) -> list[float]:
+    """Run `run` of the (prey, predator) pairing over the `against` pairing's means, per shared cell
+    (each the mean over evaluation seeds)."""
+    import numpy as np
+
+    entry = next(p for p in result["pairings"] if (p["prey"], p["predator"]) == (prey, predator))
+    other = next(p for p in result["pairings"] if (p["prey"], p["predator"]) == against)
+    base = {c: s["mean"] for c, s in zip(other["cells"], other["stats"])}
+    values = np.asarray(entry["runs"][run]["values"]).mean(axis=1)
+    return [float(v) / base[c] for c, v in zip(entry["cells"], values) if c in base and base[c] > 0]
+
+
+def pick_prey(result: dict, label: str = "prey-any") -> int:
+    """The run (seed index) whose largest ratio to TurnAway over the cells (against both NaivChase kinds) is
+    smallest."""
+    predators = [p["predator"] for p in result["pairings"] if p["prey"] == label]
+    runs = len(next(p for p in result["pairings"] if p["prey"] == label)["runs"])
+    worst = [
+        max(max(ratios(result, label, b, ("turnaway", b), k), default=0.0) for b in predators) for k in range(runs)
+    ]
+    return min(range(runs), key=lambda k: worst[k])
+
+
+def pick_predator(result: dict, label: str = "predator-any") -> int:
+    """The run whose smallest ratio to NaivChase against TurnAway over the cells is largest."""
+    runs = len(next(p for p in result["pairings"] if p["predator"] == label)["runs"])
+    worst = [min(ratios(result, "turnaway", label, ("turnaway", "naivchase"), k), default=0.0) for k in range(runs)]
+    return max(range(runs), key=lambda k: worst[k])
+
+
+def install(folder: str, name: str, out: str, preset: str, seed: int, team: str, entry: dict) -> dict:
+    """Copy the training's TorchScript and ONNX files into `folder` as `<name>.pt` / `.onnx` and add its
+    index entry (its team, files, world, training range and `entry`'s provenance and evaluation)."""
+    from aquarium_warp.atomic import atomic_open
+    from aquarium_warp.training.export import policy_world
+
+    os.makedirs(folder, exist_ok=True)
+    stem = name.replace("-", "_")
+    for kind in ("pt", "onnx"):
+        shutil.copyfile(exported(out, preset, seed, team, kind), os.path.join(folder, f"{stem}.{kind}"))
+    with open(os.path.join(run_dir(out, preset, seed), "config.json"), encoding="utf-8") as f:
+        config = json.load(f)["config"]
+    from aquarium_warp.training.config import env_config
+
+    world = env_config({"env": policy_world(os.path.join(folder, f"{stem}.pt"))}).to_dict()
+    index_path = os.path.join(folder, "index.json")
+    index = {"policies": {}}
+    if os.path.isfile(index_path):
+        with open(index_path, encoding="utf-8") as f:
+            index = json.load(f)
+    index["policies"][name] = {
+        "team": team,
+        "file": f"{stem}.pt",
+        "onnx": f"{stem}.onnx",
+        **entry,
+        "env": world,
+        "training_range": dict(config["train"]["randomize"]),
+    }
+    with atomic_open(index_path) as f:
+        json.dump(index, f, indent=1)
+        f.write("\n")
+    return index["policies"][name]
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--out", default="runs/general")
+    p.add_argument("--device", default="cuda:0")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="training seeds of each preset")
+    p.add_argument("--coevolved", action="store_true", help="also train and evaluate --preset general (both teams)")
+    p.add_argument("--jobs", type=int, default=16, help="training processes at once")
+    p.add_argument("--set", action="append", default=[], help="a train --set assignment for every training")
+    p.add_argument("--episodes", type=int, default=50, help="grid: episodes per cell and evaluation seed")
+    p.add_argument("--eval-seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--grid-prey-counts", default="6,16,32,64", help="grid: prey counts (eval --grid's option)")
+    p.add_argument("--max-steps", type=int, default=3000, help="grid: steps per episode")
+    p.add_argument("--install", default=None, help="policy folder to install into (default: the package's)")
+    p.add_argument("--commit", default=None, help="the commit of a copy without git history")
+    args = p.parse_args(argv)
+
+    from aquarium_warp import pretrained
+    from aquarium_warp.arguments import number_list
+    from aquarium_warp.atomic import atomic_open
+    from aquarium_warp.drivers import NO_CONFUSION
+    from aquarium_warp.records import command_line, git_info, json_safe, machine_info
+    from aquarium_warp.training.grid import (
+        BASELINES,
+        FOVS,
+        SPEEDS,
+        VIEWS,
+        cell_of,
+        check_targets,
+        evaluate_grid,
+        format_tables,
+        grid_base,
+        grid_cells,
+        write_grid,
+    )
+
+    start = time.time()
+    presets = [PREY, PREDATOR] + ([BOTH] if args.coevolved else [])
+    trainings = train_all(args.out, presets, args.seeds, args.device, args.set, args.jobs)
+    train_s = time.time() - start
+    cells = grid_cells(number_list(args.grid_prey_counts, int, "--grid-prey-counts", 1), VIEWS, FOVS, SPEEDS)
+    prey_any = [f"prey-any={exported(args.out, PREY, s, 'prey')}" for s in args.seeds]
+    coevolved_prey = [f"general-prey-coevolved={exported(args.out, BOTH, s, 'prey')}" for s in args.seeds]
+    base = grid_base(prey_any).replace(max_steps=args.max_steps)
+    specialists = {n: cell_of(pretrained.world(n)) for n in SPECIALISTS if n in pretrained.names("prey")}
+    own = {n: [c] for n, c in specialists.items() if c in cells}
+    report = lambda line: print("  " + line, flush=True)  # noqa: E731
+    grid_start = time.time()
+    prey_grid = evaluate_grid(
+        list(BASELINES) + prey_any + (coevolved_prey if args.coevolved else []) + list(own),
+        ["naivchase", NO_CONFUSION],
+        base,
+        cells,
+        args.episodes,
+        args.eval_seeds,
+        args.device,
+        report,
+        only=own,
+    )
+    prey_targets = check_targets(prey_grid, specialists=specialists)
+    write_grid(prey_grid, os.path.join(args.out, "grid_prey"), prey_targets)
+    shipped_prey = args.seeds[pick_prey(prey_grid)]
+    picked = f"prey-any={exported(args.out, PREY, shipped_prey, 'prey')}"
+    predator_any = [f"predator-any={exported(args.out, PREDATOR, s, 'predator')}" for s in args.seeds]
+    coevolved_predator = [f"general-predator-coevolved={exported(args.out, BOTH, s, 'predator')}" for s in args.seeds]
+    predator_grid = evaluate_grid(
+        ["turnaway", picked],
+        ["naivchase"] + predator_any + (coevolved_predator if args.coevolved else []),
+        base,
+        cells,
+        args.episodes,
+        args.eval_seeds,
+        args.device,
+        report,
+    )
+    predator_targets = check_targets(predator_grid)
+    write_grid(predator_grid, os.path.join(args.out, "grid_predator"), predator_targets)
+    shipped_predator = args.seeds[pick_predator(predator_grid)]
+    grid_s = time.time() - grid_start
+    for line in format_tables(prey_grid) + format_tables(predator_grid):
+        print(line)
+    for t in prey_targets + predator_targets:
+        print(f"target {t['target']}: {'met' if t['met'] else 'FAILED'} ({t['cells']} cells)")
+        for failing in t["failing"]:
+            print(f"  fails in {failing}")
+    git = git_info(args.commit)
+    device = machine_info(args.device)
+    folder = args.install or pretrained.DIRECTORY
+    protocol = (
+        f"captures per prey per episode on the evaluation grid ({len(cells)} cells), {args.episodes} episodes x "
+        f"evaluation seeds {' '.join(map(str, args.eval_seeds))}, argmax actions, spawn_heading 'paper'"
+    )
+    entries = {}
+    for name, preset, seed, team, rule in (
+        ("prey-any", PREY, shipped_prey, "prey", pick_prey.__doc__),
+        ("predator-any", PREDATOR, shipped_predator, "predator", pick_predator.__doc__),
+    ):
+        entries[name] = install(
+            folder,
+            name,
+            args.out,
+            preset,
+            seed,
+            team,
+            {
+                "description": f"PPO {team} (parameter sharing) for any world of its training range (the "
+                f"learned-prey recipe over randomised worlds, --preset {preset}); training seed {seed} of "
+                f"{len(args.seeds)}, picked by the rule: {rule}",
+                "train_command": "aquarium-warp "
+                + " ".join(train_command(args.out, preset, seed, args.device, args.set)[3:]),
+                "commit": git.get("commit"),
+                "device": device.get("device_name"),
+                "evaluation": {
+                    "protocol": protocol,
+                    "targets": [
+                        t
+                        for t in (prey_targets if team == "prey" else predator_targets)
+                        if t["target"].startswith(name)
+                    ],
+                    "results": os.path.join(args.out, f"grid_{team}"),
+                },
+            },
+        )
+    record = {
+        "command": command_line(
+            ["benchmarks/general_policies.py", *(argv if argv is not None else sys.argv[1:])],
+            os.path.basename(sys.executable),
+        ),  # fmt: skip
+        "git": git,
+        "machine": device,
+        "train_wall_s": round(train_s, 1),
+        "grid_wall_s": round(grid_s, 1),
+        "wall_s": round(time.time() - start, 1),
+        "trainings": trainings,
+        "shipped": {"prey-any": shipped_prey, "predator-any": shipped_predator},
+        "targets": prey_targets + predator_targets,
+        "installed": {name: os.path.join(folder, e["file"]) for name, e in entries.items()},
+    }
+    with atomic_open(os.path.join(args.out, "general_policies.json")) as f:
+        json.dump(json_safe(record), f, indent=1)
+    print(
+        f"trainings {train_s:.0f} s, grid {grid_s:.0f} s, all {time.time() - start:.0f} s; shipped prey seed "
+        f"{shipped_prey}, predator seed {shipped_predator} into {folder}"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
