@@ -101,6 +101,7 @@ import torch
 import warp as wp
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
 
 from ..config import AquariumConfig
 from ..drivers import make_driver
@@ -497,10 +498,8 @@ class AquariumVectorEnv(VectorEnv):
         self.num_envs = rows.num_rows
         self.single_observation_space = rows.single_observation_space
         self.single_action_space = rows.single_action_space
-        self.observation_space = spaces.Box(
-            rows.single_observation_space.low[0], 1.0, (self.num_envs, rows.observation_size), np.float32
-        )
-        self.action_space = spaces.MultiDiscrete(np.full(self.num_envs, rows.action_count, dtype=np.int64))
+        self.observation_space = batch_space(rows.single_observation_space, self.num_envs)
+        self.action_space = batch_space(rows.single_action_space, self.num_envs)
         # numpy views of the observation buffers (zero copy on the CPU)
         self._host = rows.device.type == "cpu"
         self._obs_np = [o.view(self.num_envs, -1).numpy() for o in rows._obs] if self._host else None
