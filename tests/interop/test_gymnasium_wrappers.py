@@ -281,7 +281,7 @@ def _(tmp_path):
 
     wrapped = vw.RecordVideo(
         env(render_mode="rgb_array"),
-        str(tmp_path),
+        str(tmp_path / "videos"),
         record_first_only=True,
         episode_trigger=lambda episode: episode == 0,
         video_length=8,
@@ -291,7 +291,7 @@ def _(tmp_path):
         check_equal_except(out, ref)
         if len(frames) < 9:
             frames.append(render_world(wrapped.unwrapped.aquarium, 0))
-    videos = list(tmp_path.glob("*.mp4"))
+    videos = list((tmp_path / "videos").glob("*.mp4"))
     assert len(videos) == 1
     video = np.stack(list(imageio.get_reader(str(videos[0])).iter_data()))
     assert video.shape == (9, *frames[0].shape)  # the reset's frame and 8 steps', of world 0
