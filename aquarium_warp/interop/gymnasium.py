@@ -114,6 +114,7 @@ ARRAY_TYPES = ("numpy", "torch")
 OTHER = {"prey": "predator", "predator": "prey"}
 AUTORESET_MODES = {"next_step": AutoresetMode.NEXT_STEP, "same_step": AutoresetMode.SAME_STEP}
 RENDER_MODES = ("rgb_array",)
+RENDER_FPS = 30  # a frame per step
 
 
 def _check_seed(seed, name: str = "seed") -> int | None:
@@ -250,15 +251,17 @@ class AquariumRows:
         self._restart = wp.to_torch(restart)
         self._restart_due = False  # next-step: worlds ended in the last step, flagged in `_restart`
         self._restart_program = env.record_program(
-            lambda shard: [
-                shard.record(
-                    population.restart_worlds,
-                    shard.num_worlds,
-                    [shard.world, restart[shard.w0 : shard.w1]],
-                    [shard.state.worlds, shard.state.agents],
-                )
-            ]
-            + shard.observe_program()
+            lambda shard: (
+                [
+                    shard.record(
+                        population.restart_worlds,
+                        shard.num_worlds,
+                        [shard.world, restart[shard.w0 : shard.w1]],
+                        [shard.state.worlds, shard.state.agents],
+                    )
+                ]
+                + shard.observe_program()
+            )
         )
         out, captured = env.outputs, env.state.torch.captured[:, : env.prey_capacity]
         self._in = {
@@ -442,7 +445,7 @@ class RowFrames(Sequence):
     def __len__(self) -> int:
         return self._rows.num_rows
 
-    def __getitem__(self, row):  # type: ignore[override]
+    def __getitem__(self, row):
         if isinstance(row, slice):
             return [self[i] for i in range(*row.indices(len(self)))]
         if not -len(self) <= row < len(self):
@@ -464,7 +467,7 @@ class AquariumVectorEnv(VectorEnv):
     metadata: dict[str, Any] = {
         "autoreset_mode": AutoresetMode.NEXT_STEP,
         "render_modes": list(RENDER_MODES),
-        "render_fps": 30,
+        "render_fps": RENDER_FPS,
     }
 
     def __init__(
@@ -566,7 +569,7 @@ class AquariumVectorEnv(VectorEnv):
             self._infos(),
         )
 
-    def render(self) -> RowFrames | None:
+    def render(self) -> RowFrames | None:  # type: ignore[override]  # a lazy sequence, not a tuple
         """`render_mode="rgb_array"`: one frame per row, the frame of its world (drawn when read)."""
         if self.render_mode is None:
             return None
@@ -592,7 +595,12 @@ def make_vector_env(num_envs: int = 1, config: AquariumConfig | None = None, **k
     slots = {"all": config.capacity, "prey": config.prey_capacity, "predator": config.predator_capacity}.get(team)
     if slots is None:
         raise ValueError(f"team={team!r} must be one of {TEAMS}")
-    if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < slots or num_envs % slots:
+    if (
+        isinstance(num_envs, bool)
+        or not isinstance(num_envs, (int, np.integer))
+        or num_envs < slots
+        or num_envs % slots
+    ):
         raise ValueError(
             f"num_envs={num_envs!r} must be a positive multiple of {slots} (the rows of one world: its "
             f"{'agent slots' if team == 'all' else team + ' slots'})"

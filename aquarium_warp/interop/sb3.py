@@ -53,7 +53,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices
 
 from ..config import AquariumConfig
 from ..device import resolve_cpu_threads
-from .gymnasium import AquariumRows, check_render_mode
+from .gymnasium import RENDER_FPS, AquariumRows, RowFrames, check_render_mode
 
 SMALL_CPU_CORES = 4  # "auto" gives torch one thread on CPUs of at most this many cores
 
@@ -90,7 +90,9 @@ class AquariumSB3VecEnv(VecEnv):
         **kwargs: Any,
     ):
         if "autoreset_mode" in kwargs:
-            raise ValueError("autoreset_mode: SB3's VecEnv is same-step (a done row returns its next episode's first observation)")
+            raise ValueError(
+                "autoreset_mode: SB3's VecEnv is same-step (a done row returns its next episode's first observation)"
+            )
         self.render_mode = check_render_mode(render_mode)
         self.rows = rows = AquariumRows(
             config,
@@ -112,7 +114,7 @@ class AquariumSB3VecEnv(VecEnv):
         self._obs_np = [o.view(rows.num_rows, -1).numpy() for o in rows._obs] if self._host else None
         self._actions: Any = None
         super().__init__(rows.num_rows, rows.single_observation_space, rows.single_action_space)
-        self.metadata["render_fps"] = 30
+        self.metadata["render_fps"] = RENDER_FPS  # type: ignore[assignment]  # SB3 types metadata as lists only
 
     @property
     def aquarium(self):
@@ -166,8 +168,6 @@ class AquariumSB3VecEnv(VecEnv):
         """One frame per row: its world's (each world drawn once)."""
         if self.render_mode is None:
             return [None] * self.num_envs
-        from .gymnasium import RowFrames
-
         return list(RowFrames(self.rows))
 
     def close(self) -> None:

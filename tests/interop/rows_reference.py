@@ -66,7 +66,10 @@ class RowsReference:
             self.active = self._alive(self.ref)
             return dict(out, obs=self.observations(), active=self.active.copy())
         a = actions.reshape(self.W, self.S)
-        step_actions = {"predator": torch.from_numpy(a[:, : self.P].copy()), "prey": torch.from_numpy(a[:, self.P :].copy())}
+        step_actions = {
+            "predator": torch.from_numpy(a[:, : self.P].copy()),
+            "prey": torch.from_numpy(a[:, self.P :].copy()),
+        }
         for env in (self.ref, self.last):
             env.step(step_actions)
         _, rew, term, trunc, info = self.last.outputs

@@ -417,7 +417,10 @@ def test_make_vec():
     prey.close()
     assert gym.spec("aquarium/Aquarium-v1").entry_point is None  # multi-agent: no single-agent gym.make
     for kwargs, match in [
-        (dict(num_envs=5), r"^num_envs=5 must be a positive multiple of 17 \(the rows of one world: its agent slots\)$"),
+        (
+            dict(num_envs=5),
+            r"^num_envs=5 must be a positive multiple of 17 \(the rows of one world: its agent slots\)$",
+        ),
         (dict(num_envs=0), "num_envs=0 must be a positive multiple"),
         (dict(num_envs=34, num_worlds=2), "num_envs"),
         (dict(num_envs=34, config="default"), "config must be an AquariumConfig"),

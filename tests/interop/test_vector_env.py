@@ -112,7 +112,7 @@ def test_next_step_reset_steps_by_hand():
         for vec in envs:
             vec.reset(seed=0)
         zeros = np.zeros(envs[0].num_envs, int)
-        for step in range(2):
+        for _ in range(2):
             outs = [vec.step(zeros) for vec in envs]
             assert not outs[0][3].any()
         ends = [vec.step(zeros) for vec in envs]  # step 3 = max_steps: every agent's episode ends
@@ -121,13 +121,17 @@ def test_next_step_reset_steps_by_hand():
         assert np.array_equal(ends[0][0], ends[1][0])
         last = ends[0][0].copy()
         reset = [vec.step(np.full(vec.num_envs, a)) for vec, a in zip(envs, (0, 9))]  # the reset step
-        for obs, rewards, terminations, truncations, infos in reset:
+        for _, rewards, terminations, truncations, infos in reset:
             assert not rewards.any() and not terminations.any() and not truncations.any() and infos["active"].all()
         assert np.array_equal(reset[0][0], reset[1][0]) and not np.array_equal(reset[0][0], last)
-        fresh = BatchedAquarium(cfg, num_worlds=2, seed=0)  # the next episode's first state, as its auto-reset spawns it
+        fresh = BatchedAquarium(
+            cfg, num_worlds=2, seed=0
+        )  # the next episode's first state, as its auto-reset spawns it
         for _ in range(3):
             fresh.step({t: torch.zeros_like(a) for t, a in fresh.actions.items()})
-        first = torch.cat([fresh.observations["predator"], fresh.observations["prey"]], dim=1).reshape(envs[0].num_envs, -1)
+        first = torch.cat([fresh.observations["predator"], fresh.observations["prey"]], dim=1).reshape(
+            envs[0].num_envs, -1
+        )
         assert np.array_equal(reset[0][0], first.numpy())
         fresh.close()
     finally:
@@ -169,7 +173,9 @@ def test_team_rows_match_the_rsl_rl_adapter():
     vec_env = pytest.importorskip("aquarium_warp.training.vec_env", reason="needs the training extra (rsl-rl)")
     from aquarium_warp.heuristics import make_policy
 
-    vec = AquariumVectorEnv(DYNAMIC, num_worlds=2, seed=8, team="prey", opponent="naivchase", autoreset_mode="same_step")
+    vec = AquariumVectorEnv(
+        DYNAMIC, num_worlds=2, seed=8, team="prey", opponent="naivchase", autoreset_mode="same_step"
+    )
     ref_env = BatchedAquarium(DYNAMIC, num_worlds=2, seed=8)
     ref = vec_env.AquariumVecEnv(
         ref_env, team="prey", opponent=make_policy("naivchase", ref_env, "predator"), metrics_every=0
