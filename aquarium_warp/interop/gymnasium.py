@@ -106,7 +106,7 @@ from gymnasium.vector.utils import batch_space
 from ..config import AquariumConfig
 from ..drivers import make_driver
 from ..env import TYPES, BatchedAquarium
-from ..kernels import population
+from ..kernels import population, vector_rows
 from ..seeding import next_reset_seed, reset_seeds
 
 TEAMS = ("all", "prey", "predator")
@@ -233,72 +233,126 @@ class AquariumRows:
         self.single_observation_space = spaces.Box(low, 1.0, (L,), np.float32)
         self.single_action_space = spaces.Discrete(cfg.action_count)
 
-        self._obs = [torch.zeros(W, S, L, dtype=torch.float32, device=dev) for _ in range(2)]
-        self._current = 0
-        self._final_obs = torch.zeros(W, S, L, dtype=torch.float32, device=dev)
-        self._actions = torch.zeros(W, S, dtype=torch.int32, device=dev)
-        self._rewards = torch.zeros(W, S, dtype=torch.float32, device=dev)
-        self._terminated = torch.zeros(W, S, dtype=torch.bool, device=dev)
-        self._truncated = torch.zeros(W, S, dtype=torch.bool, device=dev)
-        self._ended = torch.zeros(W, S, dtype=torch.bool, device=dev)
-        self._active = torch.zeros(W, S, dtype=torch.bool, device=dev)
-        self._alive = torch.zeros(W, S, dtype=torch.bool, device=dev)
-        self._ended_worlds = torch.zeros(W, dtype=torch.bool, device=dev)
-        self.ended_rows = 0  # rows whose episode ended in the last step (read from the device)
-        # Worlds whose next episode the restart program starts (`restart_worlds`), then every
-        # observation again (the restarted worlds' first ones).
-        restart = wp.zeros(W, dtype=wp.bool, device=env.device)
-        self._restart = wp.to_torch(restart)
-        self._restart_due = False  # next-step: worlds ended in the last step, flagged in `_restart`
-        self._restart_program = env.record_program(
-            lambda shard: (
-                [
-                    shard.record(
-                        population.restart_worlds,
-                        shard.num_worlds,
-                        [shard.world, restart[shard.w0 : shard.w1]],
-                        [shard.state.worlds, shard.state.agents],
-                    )
-                ]
-                + shard.observe_program()
-            )
+        # The rows' buffers: Warp arrays (the row kernels' arguments, sliced per shard) and their torch views.
+        def buffer(shape, dtype):
+            array = wp.zeros(shape, dtype=dtype, device=env.device)
+            return array, wp.to_torch(array)
+
+        obs = [buffer((W, S, L), wp.float32) for _ in range(2)]  # alternating between steps
+        final_obs = buffer((W, S, L), wp.float32)
+        rewards, terminated, truncated, ended, active, no_row = (
+            buffer((W, S), dtype) for dtype in (wp.float32, wp.bool, wp.bool, wp.bool, wp.bool, wp.bool)
         )
-        out, captured = env.outputs, env.state.torch.captured[:, : env.prey_capacity]
-        self._in = {
-            typ: (
-                out.rewards[typ],
-                out.terminated[typ],
-                out.truncated[typ],
-                env.alive[typ],
-                captured if typ == "prey" else None,
+        # Worlds that ended in a step (`ended_worlds[i]`, alternating: next-step restarts them at the next
+        # step, reading one while the step notes the next in the other), and no world.
+        ended_worlds = [buffer(W, wp.bool) for _ in range(2)]
+        no_world = buffer(W, wp.bool)
+        self._obs = [o[1] for o in obs]
+        self._current = 0
+        self._final_obs = final_obs[1]
+        self._actions = torch.zeros(W, S, dtype=torch.int32, device=dev)
+        self._rewards, self._terminated, self._truncated, self._ended, self._active = (
+            x[1] for x in (rewards, terminated, truncated, ended, active)
+        )
+        self._ended_worlds = [x[1] for x in ended_worlds]
+        self.ended_rows = 0  # rows whose episode ended in the last step (read from the device)
+        self._restart_due = False  # next-step: worlds ended in the last step, to restart at this one
+        next_step = int(self.autoreset_mode is AutoresetMode.NEXT_STEP)
+        first_slot = {"prey": 0, "predator": env.prey_capacity}  # the state's slot order: prey, then predators
+        row_slot = np.concatenate([first_slot[t] + np.arange(slots[t]) for t in self.types]).astype(np.int32)
+        row_slot = wp.array(row_slot, dtype=wp.int32, device=env.device)
+
+        def rows(shard, array):
+            return array[0][shard.w0 : shard.w1]
+
+        def outcomes(shard, restarting, noted):
+            s = shard.state
+            return shard.record(
+                vector_rows.row_outcomes,
+                (shard.num_worlds, S),
+                [
+                    row_slot,
+                    s.outputs.terminated,
+                    s.scratch.captured,
+                    s.outputs.truncated,
+                    s.outputs.reward,
+                    s.outputs.episode_ended,
+                    rows(shard, restarting),
+                    rows(shard, active),
+                ],
+                [rows(shard, x) for x in (rewards, terminated, truncated, ended, noted)],
             )
-            for typ in self.types
-        }
+
+        def observations(shard, zero, out):
+            o = shard.state.observations
+            return shard.record(
+                vector_rows.row_observations,
+                (shard.num_worlds, S),
+                [env.prey_capacity, row_slot, o.obs_prey, o.obs_predator, rows(shard, zero)],
+                [rows(shard, out)],
+            )
+
+        def activity(shard, noted):
+            return shard.record(
+                vector_rows.row_activity,
+                (shard.num_worlds, S),
+                [next_step, row_slot, shard.state.agents.alive, rows(shard, ended), rows(shard, noted)],
+                [rows(shard, active)],
+            )
+
+        def restart(shard, worlds):
+            return [
+                shard.record(
+                    population.restart_worlds,
+                    shard.num_worlds,
+                    [shard.world, rows(shard, worlds)],
+                    [shard.state.worlds, shard.state.agents],
+                )
+            ] + shard.observe_program()
+
+        record = env.record_program
+        if next_step:
+            # Step i (of buffer i) restarts the worlds noted by the step before (in ended_worlds[1 - i])
+            # first, then takes the rows' outcomes and notes the worlds that ended (in ended_worlds[i]).
+            self._restart_programs = [record(lambda shard, i=i: restart(shard, ended_worlds[1 - i])) for i in range(2)]
+            self._row_programs = [
+                record(
+                    lambda shard, i=i: [
+                        outcomes(shard, ended_worlds[1 - i], ended_worlds[i]),
+                        observations(shard, terminated, obs[i]),
+                        activity(shard, ended_worlds[i]),
+                    ]
+                )
+                for i in range(2)
+            ]
+        else:
+            # Outcomes and last observations; then, where some world ended, its restart; then the
+            # observations and rows' activity of the state after it.
+            self._outcome_program = record(
+                lambda shard: [
+                    outcomes(shard, no_world, ended_worlds[0]),
+                    observations(shard, terminated, final_obs),
+                ]
+            )
+            self._restart_programs = [record(lambda shard: restart(shard, ended_worlds[0]))]
+            self._row_programs = [
+                record(lambda shard, i=i: [observations(shard, no_row, obs[i]), activity(shard, no_world)])
+                for i in range(2)
+            ]
         self._step_actions = {typ: self._actions[:, self.slices[typ]] for typ in self.types}
         self._start()
 
     # ------------------------------------------------------------------ internals
-    def _read_alive(self) -> torch.Tensor:
-        for typ, sl in self.slices.items():
-            self._alive[:, sl] = self._in[typ][3]
-        return self._alive
-
     def _start(self) -> None:
         """Rows after a reset: every live agent starts its row's episode."""
-        self._active.copy_(self._read_alive())
+        env = self.aquarium
+        for typ, sl in self.slices.items():
+            self._active[:, sl] = env.alive[typ]
+            self._obs[self._current][:, sl] = env.observations[typ]
+        for worlds in self._ended_worlds:
+            worlds.zero_()
         self._restart_due = False
         self.ended_rows = 0
-        self._copy_observations()
-
-    def _copy_observations(self) -> None:
-        obs = self._obs[self._current]
-        for typ, sl in self.slices.items():
-            obs[:, sl] = self.aquarium.observations[typ]
-
-    def _restart_ended_worlds(self, worlds: torch.Tensor) -> None:
-        """Start the next episode of `worlds` ([W] bool, ended) and observe every world again."""
-        self._restart.copy_(worlds)
-        self._restart_program.run()
 
     @property
     def observations(self) -> torch.Tensor:
@@ -365,43 +419,20 @@ class AquariumRows:
         if self.opponent is not None:
             step_actions[OTHER[self.team]] = self.opponent()
         self.aquarium.step(step_actions, validate=False)
-        self._outcomes()
-        ended_worlds = self._ended_worlds
-        ended_worlds.copy_(self.aquarium.outputs.info["episode_ended"])
-        if self._restart_due:  # next-step: the worlds that ended in the last step start their next episode
-            ended_worlds &= ~self._restart  # (the step just made moved them in their ended state: discarded)
-            self._restart_program.run()
         self._current ^= 1
-        self._copy_observations()
-        obs, ended = self._obs[self._current], self._ended
-        any_world_ended = bool(ended_worlds.any())  # the step's one read from the device
+        i = self._current
         if self.autoreset_mode is AutoresetMode.NEXT_STEP:
-            obs[self._terminated] = 0.0  # a dead agent's last observation (the slot may hold a respawned prey)
-            torch.logical_and(self._read_alive(), ~ended, out=self._active)
-            self._active &= ~ended_worlds[:, None]  # their next step is their reset step
-            self._restart.copy_(ended_worlds)
-            self._restart_due = any_world_ended
-        else:
-            self._final_obs.copy_(obs)
-            self._final_obs[self._terminated] = 0.0
-            if any_world_ended:
-                self._restart_ended_worlds(ended_worlds)
-                self._copy_observations()
-            self._active.copy_(self._read_alive())
-        self.ended_rows = int(ended.sum())
-
-    def _outcomes(self) -> None:
-        """Rows' rewards and flags of the last simulation step: rows whose agent acted in it (`active`
-        before the step) take their slot's reward and end with their agent's death (terminated) or
-        its world's end (truncated); others take 0 and no flag."""
-        for typ, sl in self.slices.items():
-            reward, terminated, truncated, _, captured = self._in[typ]
-            acted = self._active[:, sl]
-            died = terminated if captured is None else terminated | captured
-            torch.logical_and(died, acted, out=self._terminated[:, sl])
-            torch.logical_and(truncated & acted, ~died, out=self._truncated[:, sl])
-            torch.mul(reward, acted, out=self._rewards[:, sl])
-        torch.logical_or(self._terminated, self._truncated, out=self._ended)
+            if self._restart_due:  # the worlds that ended in the last step start their next episode
+                self._restart_programs[i].run()
+            self._row_programs[i].run()
+            self._restart_due = bool(self._ended_worlds[i].any())  # the step's reads from the device
+            self.ended_rows = int(self._ended.sum())
+            return
+        self._outcome_program.run()
+        self.ended_rows = int(self._ended.sum())
+        if bool(self._ended_worlds[0].any()):
+            self._restart_programs[0].run()
+        self._row_programs[i].run()
 
     @property
     def rewards(self) -> torch.Tensor:
