@@ -65,9 +65,11 @@ empty one. The env runs its `BatchedAquarium` without auto-reset: an ended world
   value is never bootstrapped from).
 - Cost: the spawn of an ended world and one more observation pass over the batch (for the worlds'
   new first observations) in each step after which (next-step) or in which (same-step) some world
-  ended; a world ends once per `max_steps` steps at most, so at the default 3,000 that is under 0.1%
-  more observation passes. Same-step builds `final_obs` (one Python object per ended row) only in steps
-  where some row ended. Both modes read one flag per step from the device (whether a world ended).
+  ended (a world that lasts its `max_steps`, 3,000 by default, ends once in that many steps; worlds
+  stepped together end together). Same-step also copies every row's observation once more per step
+  (the last observations) and builds `final_obs` (one Python object per ended row) in steps where some
+  row ended. The rows' outcomes, observations and activity take a few launches
+  (`kernels/vector_rows.py`); each step reads two numbers from the device (rows ended, worlds ended).
 
 Infos follow Gymnasium's vector convention: every key `k` comes with a boolean mask `_k` (which rows
 have it; all of them for `"active"`).
