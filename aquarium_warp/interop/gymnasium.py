@@ -261,8 +261,9 @@ class AquariumRows:
         self._restart_due = False  # next-step: worlds ended in the last step, to restart at this one
         next_step = int(self.autoreset_mode is AutoresetMode.NEXT_STEP)
         first_slot = {"prey": 0, "predator": env.prey_capacity}  # the state's slot order: prey, then predators
-        row_slot = np.concatenate([first_slot[t] + np.arange(slots[t]) for t in self.types]).astype(np.int32)
-        row_slot = wp.array(row_slot, dtype=wp.int32, device=env.device)
+        row_slot: wp.array = wp.array(
+            np.concatenate([first_slot[t] + np.arange(slots[t]) for t in self.types]), dtype=wp.int32, device=env.device
+        )
 
         def rows(shard, array):
             return array[0][shard.w0 : shard.w1]
