@@ -364,8 +364,9 @@ class AquariumRows:
 
     @property
     def final_observations(self) -> torch.Tensor:
-        """`[N, L]` float32, same-step mode: the last observations of the episodes that ended in the last
-        step, in the rows of `ended` (other rows hold stale values; overwritten by the next step)."""
+        """`[N, L]` float32, same-step mode: the observations of the state the last step ended in (before
+        any world's restart), zeros for terminated rows: in the rows of `ended`, their episodes' last
+        observations (overwritten by the next step)."""
         return self._final_obs.view(self.num_rows, -1)
 
     @property
@@ -582,7 +583,10 @@ class AquariumVectorEnv(VectorEnv):
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """`(observations [N, L], infos)`: every world's new episode (see the module doc's seeding).
-        `options` is accepted and unused."""
+        `options` is accepted and unused, but for Gymnasium's `reset_mask`, refused: rows share worlds,
+        so none is reset alone."""
+        if options and "reset_mask" in options:
+            raise ValueError("options['reset_mask'] is not supported: rows share worlds; reset() resets every world")
         seed = _check_seed(seed)
         self.rows.reset(seed)
         if seed is not None:

@@ -271,6 +271,9 @@ def test_bad_input():
             with pytest.raises(ValueError, match=r"^seed=.* must be None or an integer in \[0, 2\*\*63 - 1\]"):
                 vec.reset(seed=seed)
         assert torch.equal(vec.rows.aquarium.state.torch.position, before)
+        with pytest.raises(ValueError, match=r"^options\['reset_mask'\] is not supported: rows share worlds"):
+            vec.reset(options={"reset_mask": np.ones(n, bool)})
+        assert torch.equal(vec.rows.aquarium.state.torch.position, before)
     finally:
         vec.close()
     for kwargs, match in [
