@@ -35,7 +35,7 @@ first), with SB3's conventions:
   project's renderer, `render.render_world`), so `VecVideoRecorder` records it (it needs `moviepy`);
   `get_images()` returns one frame per row, its world's.
 - Threads: on the CPU the simulation's worker threads (one per core) and torch's (as many) take turns
-  and get in each other's way: on 2 cores PPO ran 4x slower than with one torch thread. So
+  and get in each other's way: on 2 cores PPO ran several times slower than with one torch thread. So
   `torch_threads="auto"` (default) sets `torch.set_num_threads(1)` (process-wide) when the simulation
   runs on a CPU of at most `SMALL_CPU_CORES` cores; an integer sets that many, None leaves torch alone.
 `get_attr`, `set_attr` and `env_method` act on this object (one simulation for every row) and return
@@ -104,9 +104,11 @@ class AquariumSB3VecEnv(VecEnv):
             autoreset_mode=AutoresetMode.SAME_STEP,
             **kwargs,
         )
-        if isinstance(render_world, bool) or not isinstance(render_world, (int, np.integer)):
-            raise ValueError(f"render_world={render_world!r} must be an integer in [0, {rows.num_worlds - 1}]")
-        if not 0 <= render_world < rows.num_worlds:
+        if (
+            isinstance(render_world, bool)
+            or not isinstance(render_world, (int, np.integer))
+            or not 0 <= render_world < rows.num_worlds
+        ):
             raise ValueError(f"render_world={render_world!r} must be an integer in [0, {rows.num_worlds - 1}]")
         self.render_world = int(render_world)
         set_torch_threads(torch_threads, rows.device.type == "cpu")
