@@ -26,7 +26,7 @@ parameter-shared policy; both types must then have the same observation size). `
 a policy spec (`drivers.make_driver`: a heuristic name, a policy file or a shipped policy's name; files
 need the training extra) or a callable returning its int actions `[W, slots]` on the env's device,
 decided from the state before the step (e.g. `drivers.make_driver("runs/x/exported/policy.pt",
-aquarium, "predator")`, with `aquarium=` the `BatchedAquarium` given to this env).
+aquarium, "predator")`, with `aquarium=` the `BatchedAquarium(..., auto_reset=False)` given to this env).
 
 Episodes. A row's episode is the life of one agent in its slot: it ends with a termination when the
 agent dies (a caught prey, whether a fresh prey respawns in its slot or it is removed; a starved
