@@ -3,8 +3,10 @@
 from .config import AgentTypeConfig, AquariumConfig
 from .env import BatchedAquarium
 from .interop.pettingzoo_registry import register as _register_pettingzoo
+from .interop.pettingzoo_registry import register_gymnasium as _register_gymnasium
 
 _register_pettingzoo()  # pettingzoo.make("parallel" | "aec", "aquarium/Aquarium-v1"): see interop.pettingzoo_registry
+_register_gymnasium()  # gym.make_vec("aquarium/Aquarium-v1", num_envs=...): the same module
 
 __all__ = ["AgentTypeConfig", "AquariumConfig", "BatchedAquarium", "aquarium_v1"]
 __version__ = "0.1.0"

@@ -6,11 +6,12 @@
 - `spawn`: reset, initial state, respawn and newborn agents
 - `motion`: steps 1-4 (steering, acceleration with memory, contact, clamp, wrap)
 - `capture`: steps 5-6 (captures, reward sharing, starvation, respawn/removal)
-- `population`: steps 7-9 (reproduction, rewards, episode end)
+- `population`: steps 7-9 (reproduction, rewards, episode end; `restart_worlds` for worlds without auto-reset)
 - `observation`: step 10 (field-of-view observations)
 - `world_step`: steps 1-10 of a small world in one launch (the fused step)
 - `heuristics`: the paper's baseline policies (Random, TurnAway, NaivChase)
 - `metrics`: swarm metrics (polarization, cohesion, nearest neighbours, groups) and their per-episode totals
 - `adapter`: the training adapter's per-step rows' outcomes and episode statistics
+- `vector_rows`: the native vector envs' per-step rows (outcomes, observations, activity)
 - `render`: the rasteriser behind `aquarium_warp.render`
 """

@@ -51,6 +51,17 @@ def reproduce(
 
 
 @wp.func
+def start_next_episode(world: WorldParams, counters: WorldCounters, w: int):
+    """World w's counters at the start of its next episode (its slots are spawned by `spawn_slot` with
+    the new episode number)."""
+    counters.world_step[w] = 0
+    counters.episode[w] = counters.episode[w] + 1
+    counters.episode_captures[w] = 0
+    counters.prey_alive_count[w] = world.values[w].prey_count
+    counters.predator_alive_count[w] = world.values[w].predator_count
+
+
+@wp.func
 def finish_step(world: WorldParams, counters: WorldCounters, outputs: StepOutputs, w: int):
     """Advance world w's step counter; end the episode at `max_steps` or when a type is extinct,
     report its statistics, and start the counters of the next episode (one thread per world)."""
@@ -74,15 +85,11 @@ def finish_step(world: WorldParams, counters: WorldCounters, outputs: StepOutput
     outputs.ended_return[w, 0] = predator_sum
     outputs.ended_return[w, 1] = prey_sum
     if world.auto_reset == 0:
-        # The world stays as it ended (an explicit reset starts the next episode).
+        # The world stays as it ended (an explicit reset, or `restart_worlds`, starts the next episode).
         counters.world_step[w] = step
         counters.episode_captures[w] = total_captures
         return
-    counters.world_step[w] = 0
-    counters.episode[w] = counters.episode[w] + 1
-    counters.episode_captures[w] = 0
-    counters.prey_alive_count[w] = world.values[w].prey_count
-    counters.predator_alive_count[w] = world.values[w].predator_count
+    start_next_episode(world, counters, w)
 
 
 @wp.func
@@ -111,6 +118,19 @@ def reproduce_prey(world: WorldParams, scratch: Scratch, agents: Agents, outputs
 def finish_world_step(world: WorldParams, counters: WorldCounters, outputs: StepOutputs):
     """`finish_step`, one thread per world."""
     finish_step(world, counters, outputs, wp.tid())
+
+
+@wp.kernel
+def restart_worlds(world: WorldParams, restart: wp.array(dtype=wp.bool), counters: WorldCounters, agents: Agents):
+    """The worlds flagged in `restart` (ended, without auto-reset) start their next episode as auto-reset
+    starts it inside the step (`finish_step`, `close_episode`): the same counters and spawns, so the
+    same trajectory follows; one thread per world (its slots in order, after the counters)."""
+    w = wp.tid()
+    if not restart[w]:
+        return
+    start_next_episode(world, counters, w)
+    for i in range(world.capacity):
+        spawn_slot(world, counters, w, i, counters.episode[w], agents)
 
 
 @wp.kernel

@@ -8,7 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from gymnasium.wrappers.vector import RecordEpisodeStatistics
+from gymnasium.vector import AutoresetMode
+from rows_reference import RowsReference
 
 from aquarium_warp import AquariumConfig, BatchedAquarium
 from aquarium_warp.interop.gymnasium import AquariumRows, AquariumVectorEnv
@@ -30,76 +31,117 @@ DYNAMIC = AquariumConfig(
 RESPAWN = AquariumConfig(width=200.0, height=200.0, prey_count=6, predator_count=2, max_steps=25)
 
 
-def expected_rows(env: BatchedAquarium, active: np.ndarray):
-    """Rows (predators, then prey slots, per world) of the step `env` just made, from its outputs with a
-    per-row loop; `active` (rows live before the step) is updated in place."""
-    obs, rew, term, trunc, _ = env.outputs
-    captured = env.state.torch.captured[:, : env.prey_capacity].numpy()
-    out = {k: [] for k in ("obs", "reward", "terminated", "truncated")}
-    row = 0
-    for w in range(env.num_worlds):
-        for t in ("predator", "prey"):
-            alive = env.alive[t][w].numpy()
-            for s in range(alive.shape[0]):
-                died = bool(term[t][w, s]) or (t == "prey" and bool(captured[w, s]))
-                if active[row]:
-                    out["terminated"].append(died)
-                    out["truncated"].append(bool(trunc[t][w, s]) and not died)
-                    out["reward"].append(float(rew[t][w, s]))
-                else:  # an empty slot: its row ends (a termination) when the slot is filled again
-                    out["terminated"].append(bool(alive[s]))
-                    out["truncated"].append(False)
-                    out["reward"].append(0.0)
-                out["obs"].append(obs[t][w, s].numpy())
-                active[row] = bool(alive[s])
-                row += 1
-    return {k: np.array(v) for k, v in out.items()}
+def check_rows(vec: AquariumVectorEnv, ref: RowsReference, steps: int, seed: int) -> dict:
+    """Step `vec` and `ref` with the same random actions; every output equal. Returns counts of what
+    happened, for the caller to check the case was covered."""
+    obs, infos = vec.reset(seed=seed)
+    assert np.array_equal(obs, ref.observations()) and np.array_equal(infos["active"], ref.active)
+    assert infos["_active"].all() and infos["_active"].shape == (vec.num_envs,)
+    rng = np.random.default_rng(seed)
+    seen = dict(empty=0, filled=0, died=0, truncated=0)
+    active = ref.active.copy()
+    for step in range(steps):
+        actions = rng.integers(0, 16, vec.num_envs)
+        exp = ref.step(actions)
+        obs, rewards, terminations, truncations, infos = vec.step(actions)
+        assert np.array_equal(obs, exp["obs"]), f"step {step}"
+        assert np.array_equal(rewards, exp["reward"]), f"step {step}"
+        assert np.array_equal(terminations, exp["terminated"]), f"step {step}"
+        assert np.array_equal(truncations, exp["truncated"]), f"step {step}"
+        assert np.array_equal(infos["active"], exp["active"]), f"step {step}"
+        ended = terminations | truncations
+        if vec.metadata["autoreset_mode"] is AutoresetMode.SAME_STEP and ended.any():
+            assert np.array_equal(infos["_final_obs"], ended) and np.array_equal(infos["_final_info"], ended)
+            for i in range(vec.num_envs):
+                assert (infos["final_obs"][i] is None) == (exp["final_obs"][i] is None), f"step {step} row {i}"
+                if exp["final_obs"][i] is not None:
+                    assert np.array_equal(infos["final_obs"][i], exp["final_obs"][i]), f"step {step} row {i}"
+            assert np.array_equal(infos["final_info"]["active"][ended], truncations[ended])
+        else:
+            assert "final_obs" not in infos and "final_info" not in infos
+        # Independent of the reference: rows that did not act take no reward and no flag; empty rows see zeros.
+        assert not (rewards[~active] != 0).any() and not ended[~active].any() and not (terminations & truncations).any()
+        assert not obs[terminations].any() or vec.metadata["autoreset_mode"] is AutoresetMode.SAME_STEP
+        seen["empty"] += int((~active & ~infos["active"]).sum())
+        seen["filled"] += int((~active & infos["active"]).sum())
+        seen["died"] += int(terminations.sum())
+        seen["truncated"] += int(truncations.sum())
+        active = infos["active"]
+    return seen
 
 
-def test_rows_match_batched_aquarium_with_dead_slots_and_refills():
-    vec = AquariumVectorEnv(DYNAMIC, num_worlds=3)
-    ref = BatchedAquarium(DYNAMIC, num_worlds=3, seed=21)
+def test_same_step_rows_match_the_reference_with_dead_slots_and_births():
+    vec = AquariumVectorEnv(DYNAMIC, num_worlds=3, autoreset_mode="same_step")
+    ref = RowsReference(DYNAMIC, 3, 21, "same_step")
     try:
-        S = 2 + DYNAMIC.prey_capacity
-        assert vec.num_envs == 3 * S and vec.single_observation_space.shape == (DYNAMIC.observation_size("prey"),)
-        obs, infos = vec.reset(seed=21)
-        active = np.concatenate(
-            [np.concatenate([ref.alive["predator"][w].numpy(), ref.alive["prey"][w].numpy()]) for w in range(3)]
-        )
-        assert np.array_equal(infos["active"], active) and not active.all()  # reproduction slots start empty
-        assert np.array_equal(
-            obs[active],
-            np.concatenate([ref.observations["predator"], ref.observations["prey"]], axis=1).reshape(3 * S, -1)[active],
-        )
-        rng = np.random.default_rng(0)
-        seen = dict(empty=0, refilled=0, died=0, truncated=0)
-        for step in range(90):  # past two world episodes
-            actions = rng.integers(0, 16, vec.num_envs)
-            a = actions.reshape(3, S)
-            ref.step({"predator": torch.from_numpy(a[:, :2].copy()), "prey": torch.from_numpy(a[:, 2:].copy())})
-            was_active = active.copy()
-            exp = expected_rows(ref, active)
-            obs, rewards, terminations, truncations, infos = vec.step(actions)
-            assert np.array_equal(obs, np.stack(exp["obs"])), f"step {step}"
-            assert np.array_equal(rewards, exp["reward"].astype(np.float32)), f"step {step}"
-            assert np.array_equal(terminations, exp["terminated"]), f"step {step}"
-            assert np.array_equal(truncations, exp["truncated"]), f"step {step}"
-            assert np.array_equal(infos["active"], active), f"step {step}"
-            # Independent of the formula: empty rows show zeros, never both flags.
-            assert not obs[~active].any() and not (terminations & truncations).any()
-            seen["empty"] += int((~was_active & ~active).sum())
-            seen["refilled"] += int((~was_active & active).sum())
-            seen["died"] += int((was_active & terminations).sum())
-            seen["truncated"] += int(truncations.sum())
-        assert all(v > 0 for v in seen.values()), seen
+        assert vec.num_envs == 3 * (2 + DYNAMIC.prey_capacity)
+        assert vec.single_observation_space.shape == (DYNAMIC.observation_size("prey"),)
+        assert vec.metadata["autoreset_mode"] is AutoresetMode.SAME_STEP
+        assert type(vec).metadata["autoreset_mode"] is AutoresetMode.NEXT_STEP  # the class default untouched
+        seen = check_rows(vec, ref, 90, seed=21)  # past two world episodes
+        assert all(seen[k] > 0 for k in ("empty", "filled", "died", "truncated")), seen
+        # The simulation's trajectory is BatchedAquarium's own (with its auto-reset), bit for bit.
+        assert torch.equal(vec.aquarium.state.torch.position, ref.ref.state.torch.position)
     finally:
         vec.close()
         ref.close()
 
 
+@pytest.mark.parametrize("config, seed", [(DYNAMIC, 21), (DYNAMIC, 4), (RESPAWN, 5)])
+def test_next_step_rows_match_the_reference(config, seed):
+    vec = AquariumVectorEnv(config, num_worlds=1)  # next-step: the default
+    ref = RowsReference(config, 1, seed, "next_step")
+    try:
+        assert vec.metadata["autoreset_mode"] is AutoresetMode.NEXT_STEP
+        seen = check_rows(vec, ref, 3 * config.max_steps, seed=seed)
+        assert seen["died"] > 0 and seen["truncated"] > 0, seen
+        # After the last world end's reset step, the env's world is `ref`'s (BatchedAquarium's auto-reset).
+        if not ref.reset_step:
+            assert torch.equal(vec.aquarium.state.torch.position, ref.ref.state.torch.position)
+    finally:
+        vec.close()
+        ref.close()
+
+
+def test_next_step_reset_steps_by_hand():
+    """Hand-checked next-step semantics: a world's end, then its reset step (reward 0, no flags, the
+    action ignored: two different actions give the same next first observation)."""
+    cfg = RESPAWN.replace(max_steps=3, capture_probability=0.0)  # no capture: every agent lives to the end
+    envs = [AquariumVectorEnv(cfg, num_worlds=2) for _ in range(2)]
+    try:
+        for vec in envs:
+            vec.reset(seed=0)
+        zeros = np.zeros(envs[0].num_envs, int)
+        for _ in range(2):
+            outs = [vec.step(zeros) for vec in envs]
+            assert not outs[0][3].any()
+        ends = [vec.step(zeros) for vec in envs]  # step 3 = max_steps: every agent's episode ends
+        _, rewards, terminations, truncations, infos = ends[0]
+        assert truncations.all() and not terminations.any() and not infos["active"].any()
+        assert np.array_equal(ends[0][0], ends[1][0])
+        last = ends[0][0].copy()
+        reset = [vec.step(np.full(vec.num_envs, a)) for vec, a in zip(envs, (0, 9))]  # the reset step
+        for _, rewards, terminations, truncations, infos in reset:
+            assert not rewards.any() and not terminations.any() and not truncations.any() and infos["active"].all()
+        assert np.array_equal(reset[0][0], reset[1][0]) and not np.array_equal(reset[0][0], last)
+        fresh = BatchedAquarium(
+            cfg, num_worlds=2, seed=0
+        )  # the next episode's first state, as its auto-reset spawns it
+        for _ in range(3):
+            fresh.step({t: torch.zeros_like(a) for t, a in fresh.actions.items()})
+        first = torch.cat([fresh.observations["predator"], fresh.observations["prey"]], dim=1).reshape(
+            envs[0].num_envs, -1
+        )
+        assert np.array_equal(reset[0][0], first.numpy())
+        fresh.close()
+    finally:
+        for vec in envs:
+            vec.close()
+
+
 def test_respawns_and_world_ends_with_respawn_on():
     W = 16
-    vec = AquariumVectorEnv(RESPAWN, num_worlds=W, seed=5, array_type="torch")
+    vec = AquariumVectorEnv(RESPAWN, num_worlds=W, seed=5, array_type="torch", autoreset_mode="same_step")
     try:
         obs, _ = vec.reset()
         assert isinstance(obs, torch.Tensor) and obs.shape == (W * 8, RESPAWN.observation_size("prey"))
@@ -107,7 +149,7 @@ def test_respawns_and_world_ends_with_respawn_on():
         captures = prey_terminations = caught_at_the_end = 0
         for step in range(1, 4 * RESPAWN.max_steps + 1):
             obs, rewards, terminations, truncations, infos = vec.step(torch.from_numpy(rng.integers(0, 16, W * 8)))
-            assert bool(infos["active"].all())  # respawn on: no slot is ever empty
+            assert bool(infos["active"].all())  # respawn on, same-step: no slot is ever empty
             t, tr = terminations.view(W, 8), truncations.view(W, 8)
             # Every capture ends one prey row (the prey respawns: a new episode in the same row); nothing else ends.
             captures += int(vec.aquarium.outputs.info["captures"].sum())
@@ -118,6 +160,7 @@ def test_respawns_and_world_ends_with_respawn_on():
             if step % RESPAWN.max_steps == 0:
                 assert bool((t | tr).all()), f"step {step}"
                 caught_at_the_end += int(t.sum())
+                assert all(isinstance(x, torch.Tensor) for x in infos["final_obs"])
             else:
                 assert not tr.any(), f"step {step}"
         assert captures > 0 and prey_terminations == captures and caught_at_the_end > 0
@@ -130,7 +173,9 @@ def test_team_rows_match_the_rsl_rl_adapter():
     vec_env = pytest.importorskip("aquarium_warp.training.vec_env", reason="needs the training extra (rsl-rl)")
     from aquarium_warp.heuristics import make_policy
 
-    vec = AquariumVectorEnv(DYNAMIC, num_worlds=2, seed=8, team="prey", opponent="naivchase")
+    vec = AquariumVectorEnv(
+        DYNAMIC, num_worlds=2, seed=8, team="prey", opponent="naivchase", autoreset_mode="same_step"
+    )
     ref_env = BatchedAquarium(DYNAMIC, num_worlds=2, seed=8)
     ref = vec_env.AquariumVecEnv(
         ref_env, team="prey", opponent=make_policy("naivchase", ref_env, "predator"), metrics_every=0
@@ -140,17 +185,22 @@ def test_team_rows_match_the_rsl_rl_adapter():
         obs, _ = vec.reset(seed=8)
         assert np.array_equal(obs, ref.get_observations()["policy"].numpy())
         rng = np.random.default_rng(2)
-        ended = 0
+        ended = refills = 0
         for step in range(60):
             actions = rng.integers(0, 16, vec.num_envs)
+            acted = vec.rows.active.numpy().copy()
             obs, rewards, terminations, truncations, _ = vec.step(actions)
             ref_obs, ref_rewards, ref_dones, extras = ref.step(torch.from_numpy(actions).float().unsqueeze(1))
             assert np.array_equal(obs, ref_obs["policy"].numpy()), f"step {step}"
             assert np.array_equal(rewards, ref_rewards.numpy()), f"step {step}"
-            assert np.array_equal(terminations | truncations, ref_dones.numpy().astype(bool)), f"step {step}"
+            # rsl-rl's adapter also ends an empty row's stretch when its slot is filled; these rows have
+            # no episode there.
+            ref_dones = ref_dones.numpy().astype(bool)
+            assert np.array_equal(terminations | truncations, ref_dones & acted), f"step {step}"
+            refills += int((ref_dones & ~acted).sum())
             assert np.array_equal(truncations, extras["time_outs"].numpy()), f"step {step}"
             ended += int(terminations.sum())
-        assert ended > 0
+        assert ended > 0 and refills > 0
     finally:
         vec.close()
         ref_env.close()
@@ -174,6 +224,11 @@ def test_seeding_and_alternating_buffers():
         a = vec.action_space.sample()
         vec.reset(seed=9)
         assert np.array_equal(a, vec.action_space.sample())
+        # NumPy integers are seeds as the same Python integers are (simulation and spaces).
+        for numpy_seed in (np.int64(9), np.uint32(9), np.int8(9)):
+            assert np.array_equal(vec.reset(seed=numpy_seed)[0], vec.reset(seed=9)[0])
+            vec.reset(seed=numpy_seed)
+            assert np.array_equal(a, vec.action_space.sample())
         # Zero copy on the CPU: observations are views of the two buffers, alternating between steps.
         obs1 = vec.step(a)[0]
         kept = obs1.copy()
@@ -182,8 +237,8 @@ def test_seeding_and_alternating_buffers():
         assert not np.shares_memory(obs1, obs2) and np.array_equal(obs1, kept)  # valid until the step after next
     finally:
         vec.close()
-    # The constructor's seed fixes the sequence of unseeded resets.
-    x, y = AquariumVectorEnv(RESPAWN, seed=7), AquariumVectorEnv(RESPAWN, seed=7)
+    # The constructor's seed fixes the sequence of unseeded resets (a NumPy integer too).
+    x, y = AquariumVectorEnv(RESPAWN, seed=7), AquariumVectorEnv(RESPAWN, seed=np.int64(7))
     assert np.array_equal(x.reset()[0], y.reset()[0])
     x.close()
     y.close()
@@ -211,10 +266,14 @@ def test_bad_input():
         with pytest.raises(ValueError, match=r"actions\['prey'\] is on meta, but the env runs on cpu"):
             vec.aquarium.step({t: a.to("meta") for t, a in vec.aquarium.actions.items()})
         assert torch.equal(vec.rows.aquarium.state.torch.position, before)
-        with pytest.raises(ValueError, match="seed"):
-            vec.reset(seed=[1, 2])
-        with pytest.raises(ValueError, match="seed"):
-            vec.reset(seed=-1)
+        # A bad seed: one line naming it and the range, and nothing reset.
+        for seed in ([1, 2], -1, np.int64(-1), 2**63, 1.0, True):
+            with pytest.raises(ValueError, match=r"^seed=.* must be None or an integer in \[0, 2\*\*63 - 1\]"):
+                vec.reset(seed=seed)
+        assert torch.equal(vec.rows.aquarium.state.torch.position, before)
+        with pytest.raises(ValueError, match=r"^options\['reset_mask'\] is not supported: rows share worlds"):
+            vec.reset(options={"reset_mask": np.ones(n, bool)})
+        assert torch.equal(vec.rows.aquarium.state.torch.position, before)
     finally:
         vec.close()
     for kwargs, match in [
@@ -227,77 +286,15 @@ def test_bad_input():
     ]:
         with pytest.raises(ValueError, match=match):
             AquariumVectorEnv(RESPAWN, **kwargs)
-    with pytest.raises(ValueError, match="auto_reset"):
-        AquariumRows(aquarium=BatchedAquarium(RESPAWN, auto_reset=False))
+    for kwargs, match in [
+        (dict(autoreset_mode="disabled"), r"^autoreset_mode='disabled' must be AutoresetMode.NEXT_STEP or"),
+        (dict(autoreset_mode=AutoresetMode.DISABLED), "autoreset_mode"),
+        (dict(render_mode="human"), r"^render_mode='human' must be None or one of \('rgb_array',\)$"),
+        (dict(seed=np.float64(1)), "seed"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            AquariumVectorEnv(RESPAWN, **kwargs)
+    with pytest.raises(ValueError, match="auto_reset=False"):
+        AquariumRows(aquarium=BatchedAquarium(RESPAWN))
     with pytest.raises(ValueError, match="aquarium="):
-        AquariumRows(RESPAWN, aquarium=BatchedAquarium(RESPAWN))
-
-
-def test_gymnasium_episode_statistics_count_row_episodes():
-    vec = RecordEpisodeStatistics(AquariumVectorEnv(RESPAWN, num_worlds=2, seed=0))
-    try:
-        vec.reset()
-        lengths = []
-        for _ in range(RESPAWN.max_steps):
-            *_, infos = vec.step(vec.action_space.sample())
-            if "episode" in infos:
-                lengths += infos["episode"]["l"][infos["_episode"]].tolist()
-        # Every row's episode ended by step max_steps (a capture or the world's end); the longest lasted it all.
-        assert len(lengths) >= vec.num_envs and max(lengths) == RESPAWN.max_steps
-    finally:
-        vec.close()
-
-
-@pytest.mark.slow
-def test_stable_baselines3_ppo_trains_and_seeds(tmp_path):
-    sb3 = pytest.importorskip("stable_baselines3", reason="needs the interop extra: pip install -e '.[interop]'")
-    from aquarium_warp.interop.sb3 import AquariumSB3VecEnv
-
-    def train(seed):
-        vec = AquariumSB3VecEnv(RESPAWN, num_worlds=4)
-        model = sb3.PPO("MlpPolicy", vec, n_steps=32, batch_size=256, n_epochs=1, device="cpu", seed=seed)
-        model.set_logger(sb3.common.logger.configure(str(tmp_path), []))
-        before = [p.detach().clone() for p in model.policy.parameters()]
-        model.learn(total_timesteps=2 * 32 * vec.num_envs)  # 2,048 env steps: two PPO iterations
-        assert model.num_timesteps == 2 * 32 * vec.num_envs == 2048
-        after = [p.detach().clone() for p in model.policy.parameters()]
-        assert any(not torch.equal(a, b) for a, b in zip(before, after))
-        obs = vec.reset()
-        actions, _ = model.predict(obs, deterministic=True)
-        assert actions.shape == (vec.num_envs,) and ((0 <= actions) & (actions < 16)).all()
-        first = model.rollout_buffer.observations[0].copy()
-        vec.close()
-        return after, first
-
-    a, first_a = train(0)
-    b, first_b = train(0)
-    c, first_c = train(1)
-    # PPO(seed=...) seeds the env too: the same seed gives the same rollouts and weights, another seed not.
-    assert np.array_equal(first_a, first_b) and all(torch.equal(x, y) for x, y in zip(a, b))
-    assert not np.array_equal(first_a, first_c)
-
-
-def test_sb3_vec_env_dones_and_infos():
-    pytest.importorskip("stable_baselines3", reason="needs the interop extra: pip install -e '.[interop]'")
-    from aquarium_warp.interop.sb3 import AquariumSB3VecEnv
-
-    vec = AquariumSB3VecEnv(DYNAMIC, num_worlds=2)
-    gym_vec = AquariumVectorEnv(DYNAMIC, num_worlds=2)
-    try:
-        vec.seed(4)  # what PPO(seed=4) does
-        assert np.array_equal(vec.reset(), gym_vec.reset(seed=4)[0])
-        assert vec.get_attr("render_mode") == [None] * vec.num_envs
-        assert vec.env_is_wrapped(object, [0, 1]) == [False] * 2
-        rng = np.random.default_rng(3)
-        for step in range(45):
-            actions = rng.integers(0, 16, vec.num_envs)
-            obs, rewards, dones, infos = vec.step(actions)
-            g_obs, g_rewards, term, trunc, _ = gym_vec.step(actions)
-            assert np.array_equal(obs, g_obs) and np.array_equal(rewards, g_rewards), f"step {step}"
-            assert np.array_equal(dones, term | trunc) and len(infos) == vec.num_envs
-            assert [i for i, info in enumerate(infos) if info] == np.flatnonzero(dones).tolist()
-            assert all(infos[i]["TimeLimit.truncated"] == bool(trunc[i]) for i in np.flatnonzero(dones))
-            assert np.array_equal(vec.active, gym_vec.rows.active.numpy())
-    finally:
-        vec.close()
-        gym_vec.close()
+        AquariumRows(RESPAWN, aquarium=BatchedAquarium(RESPAWN, auto_reset=False))
