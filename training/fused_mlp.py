@@ -608,6 +608,9 @@ class FusedMLP(MLP):
             and not torch.jit.is_tracing()
             and not torch.compiler.is_compiling()
             and not torch.compiler.is_exporting()
+            # vmap and the other functorch transforms (the opponent pool's snapshots act through vmap):
+            # the kernels' autograd function has no batching rule
+            and not torch._C._are_functorch_transforms_active()
         )
 
     @torch.jit.unused
