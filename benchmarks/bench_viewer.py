@@ -22,11 +22,33 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 from test_viewer import _browser, serve  # the tests' server thread and browser
 
 from aquarium_warp.records import command_line, git_info, machine_info
-from aquarium_warp.viewer.server import Viewer, pack_frame
+from aquarium_warp.viewer.server import Viewer
 from aquarium_warp.viewer.simulation import Simulation, ViewOptions
 
 
-def measure(agents: int, seconds: float, max_agents: int, device: str, record: str | None = None) -> dict:
+def _rates(page, viewer, seconds: float) -> dict:
+    """Per-second rates over `seconds`: frames the server published, steps of world 0, frames the page
+    received and drew, and the mean size of the frames received."""
+    read = "const a = window.aquarium; return [a.framesReceived, a.framesDrawn, a.bytesReceived]"
+    frames0, (received0, drawn0, bytes0), t0 = viewer.frames, page.execute_script(read), time.perf_counter()
+    steps0 = int(viewer.simulation.env.state.torch.world_step[0])
+    time.sleep(seconds)
+    frames1, (received1, drawn1, bytes1), t1 = viewer.frames, page.execute_script(read), time.perf_counter()
+    steps1 = int(viewer.simulation.env.state.torch.world_step[0])
+    elapsed = t1 - t0
+    return {
+        "server_frames_per_s": round((frames1 - frames0) / elapsed, 2),
+        "steps_per_s": round((steps1 - steps0) / elapsed, 2),
+        "page_frames_received_per_s": round((received1 - received0) / elapsed, 2),
+        "page_frames_drawn_per_s": round((drawn1 - drawn0) / elapsed, 2),
+        "received_bytes_per_frame": round((bytes1 - bytes0) / max(1, received1 - received0)),
+    }
+
+
+def measure(agents: int, seconds: float, max_agents: int, device: str, record: str | None = None, query: str = "") -> dict:
+    """The rates of a world of `agents` at docs/model.md's density: while it runs (and records, with
+    `record`), then (not recording) paused with the page drawing at every animation frame: how fast the
+    page draws that many agents, and the server's send rate of frames that need no step."""
     predators = max(1, agents // 100)
     side = 800.0 * (agents / 17) ** 0.5  # docs/model.md's density: 17 agents on 800 x 800 px
     options = ViewOptions(prey=agents - predators, predators=predators, width=side, height=side, device=device)
@@ -34,37 +56,42 @@ def measure(agents: int, seconds: float, max_agents: int, device: str, record: s
     with serve(viewer) as port:
         page = _browser()
         try:
-            page.get(f"http://127.0.0.1:{port}/")
+            page.get(f"http://127.0.0.1:{port}/{query}")
             deadline = time.time() + 60
             while page.execute_script("return window.aquarium.framesDrawn") < 3:
                 assert time.time() < deadline, "no frame reached the page"
                 time.sleep(0.1)
-            read = "return [window.aquarium.framesReceived, window.aquarium.framesDrawn]"
-            frames0, (received0, drawn0), t0 = viewer.frames, page.execute_script(read), time.perf_counter()
-            steps0 = int(viewer.simulation.env.state.torch.world_step[0])
-            time.sleep(seconds)
-            frames1, (received1, drawn1), t1 = viewer.frames, page.execute_script(read), time.perf_counter()
-            steps1 = int(viewer.simulation.env.state.torch.world_step[0])
+            running = _rates(page, viewer, seconds)
+            paused = None
+            if record is None:
+                viewer.on_simulation_thread(viewer.simulation.apply, {"type": "pause"})
+                page.execute_script("window.aquarium.redrawAlways = true")
+                time.sleep(1.0)
+                paused = _rates(page, viewer, seconds)
             sent = page.execute_script("return window.aquarium.frame.header.n")
+            renderer = page.execute_script("return window.aquarium.renderer || 'canvas2d'")
         finally:
             page.quit()
-        frame_bytes = len(pack_frame(viewer.snapshot, None, max_agents))
-    elapsed = t1 - t0
-    return {
+    row = {
         "agents": agents,
         "recording": record is not None,
+        "renderer": renderer,
         "prey": agents - predators,
         "predators": predators,
         "world_px": round(side),
         "max_agents": max_agents,
         "agents_sent_per_frame": sent,
-        "frame_bytes": frame_bytes,
-        "server_frames_per_s": round((frames1 - frames0) / elapsed, 2),
-        "steps_per_s": round((steps1 - steps0) / elapsed, 2),
-        "page_frames_received_per_s": round((received1 - received0) / elapsed, 2),
-        "page_frames_drawn_per_s": round((drawn1 - drawn0) / elapsed, 2),
+        **running,
         "last_tick_ms": round(viewer.tick_seconds * 1e3, 2),
     }
+    if paused is not None:
+        row.update(
+            paused_page_draws_per_s=paused["page_frames_drawn_per_s"],
+            paused_server_frames_per_s=paused["server_frames_per_s"],
+            paused_page_frames_received_per_s=paused["page_frames_received_per_s"],
+            paused_send_mb_per_s=round(paused["page_frames_received_per_s"] * paused["received_bytes_per_frame"] / 1e6, 2),
+        )
+    return row
 
 
 def main() -> int:
@@ -100,8 +127,21 @@ def main() -> int:
     os.makedirs(args.out, exist_ok=True)
     with open(os.path.join(args.out, "viewer.json"), "w", encoding="utf-8") as f:
         json.dump(result, f, indent=1)
+    columns = [
+        ("agents", "agents"),
+        ("recording", "rec"),
+        ("renderer", "renderer"),
+        ("agents_sent_per_frame", "sent"),
+        ("received_bytes_per_frame", "bytes/frame"),
+        ("server_frames_per_s", "server fps"),
+        ("page_frames_drawn_per_s", "page fps"),
+        ("paused_page_draws_per_s", "paused: draws/s"),
+        ("paused_server_frames_per_s", "paused: sent/s"),
+        ("paused_send_mb_per_s", "paused: MB/s"),
+    ]
+    print(" | ".join(title for _, title in columns))
     for row in rows:
-        print(row)
+        print(" | ".join(str(row.get(key, "-")) for key, _ in columns))
     return 0
 
 

@@ -18,12 +18,13 @@
   const PLOT_POINTS = 400;
   // Everything the page knows; the browser tests read it through window.aquarium.
   const state = {
-    frame: null, inspected: null, framesReceived: 0, framesDrawn: 0, fps: 0, lastError: "", connected: false,
+    frame: null, inspected: null, framesReceived: 0, framesDrawn: 0, bytesReceived: 0, fps: 0, lastError: "", connected: false,
     overlays: { view_cones: false, hit_boxes: false, velocities: false, flow: false },
     view: null, // {x, y, scale}: the world point at the canvas's top-left, canvas pixels per world px
     plots: { captures: [], polarization: [], groups: [] }, lastStep: null,
     connections: 0, // sockets opened: more than one after a reconnect
     history: [], historyBytes: 0, scrubbing: false, // the timeline: recent live frames, oldest first
+    redrawAlways: false, // draw at every animation frame, new frame or not (the benchmark's draw rate)
   };
   const HISTORY_FRAMES = 1800, HISTORY_BYTES = 64 * 1024 * 1024;  // a minute at 30 fps, at most 64 MB
   window.aquarium = state;
@@ -73,6 +74,7 @@
     }
     latest = h;
     state.framesReceived += 1;
+    state.bytesReceived += frame.bytes || 0;
     if (h.step !== state.lastStep) {
       state.lastStep = h.step;
       push("captures", h.episode_captures);
@@ -584,7 +586,7 @@
   let fpsCount = 0, fpsSince = performance.now(), plotsAt = 0;
   function animate(now) {
     if (replayData) replayTick(now);
-    if (dirty) {
+    if (dirty || state.redrawAlways) {
       dirty = false;
       draw();
       state.framesDrawn += 1;
