@@ -27,25 +27,32 @@ from aquarium_warp.viewer.simulation import Simulation, ViewOptions
 
 
 def _rates(page, viewer, seconds: float) -> dict:
-    """Per-second rates over `seconds`: frames the server published, steps of world 0, frames the page
-    received and drew, and the mean size of the frames received."""
-    read = "const a = window.aquarium; return [a.framesReceived, a.framesDrawn, a.bytesReceived]"
-    frames0, (received0, drawn0, bytes0), t0 = viewer.frames, page.execute_script(read), time.perf_counter()
-    steps0 = int(viewer.simulation.env.state.torch.world_step[0])
+    """Per-second rates over `seconds`: frames the server published and sent (and MB sent), steps of
+    world 0, frames the page received and drew, and the mean size of the frames sent."""
+    read = "const a = window.aquarium; return [a.framesReceived, a.framesDrawn]"
+
+    def counts():
+        sent = viewer.frames_sent, viewer.bytes_sent
+        return viewer.frames, sent, int(viewer.simulation.env.state.torch.world_step[0]), page.execute_script(read)
+
+    (frames0, (sent0, bytes0), steps0, (received0, drawn0)), t0 = counts(), time.perf_counter()
     time.sleep(seconds)
-    frames1, (received1, drawn1, bytes1), t1 = viewer.frames, page.execute_script(read), time.perf_counter()
-    steps1 = int(viewer.simulation.env.state.torch.world_step[0])
+    (frames1, (sent1, bytes1), steps1, (received1, drawn1)), t1 = counts(), time.perf_counter()
     elapsed = t1 - t0
     return {
         "server_frames_per_s": round((frames1 - frames0) / elapsed, 2),
+        "sent_frames_per_s": round((sent1 - sent0) / elapsed, 2),
+        "sent_mb_per_s": round((bytes1 - bytes0) / elapsed / 1e6, 2),
+        "bytes_per_frame": round((bytes1 - bytes0) / max(1, sent1 - sent0)),
         "steps_per_s": round((steps1 - steps0) / elapsed, 2),
         "page_frames_received_per_s": round((received1 - received0) / elapsed, 2),
         "page_frames_drawn_per_s": round((drawn1 - drawn0) / elapsed, 2),
-        "received_bytes_per_frame": round((bytes1 - bytes0) / max(1, received1 - received0)),
     }
 
 
-def measure(agents: int, seconds: float, max_agents: int, device: str, record: str | None = None, query: str = "") -> dict:
+def measure(
+    agents: int, seconds: float, max_agents: int, device: str, record: str | None = None, query: str = ""
+) -> dict:
     """The rates of a world of `agents` at docs/model.md's density: while it runs (and records, with
     `record`), then (not recording) paused with the page drawing at every animation frame: how fast the
     page draws that many agents, and the server's send rate of frames that need no step."""
@@ -69,13 +76,15 @@ def measure(agents: int, seconds: float, max_agents: int, device: str, record: s
                 time.sleep(1.0)
                 paused = _rates(page, viewer, seconds)
             sent = page.execute_script("return window.aquarium.frame.header.n")
-            renderer = page.execute_script("return window.aquarium.renderer || 'canvas2d'")
+            renderer = page.execute_script("return window.aquarium.renderer")
+            gpu = page.execute_script("return window.aquarium.glName")
         finally:
             page.quit()
     row = {
         "agents": agents,
         "recording": record is not None,
         "renderer": renderer,
+        "gl_renderer": gpu,
         "prey": agents - predators,
         "predators": predators,
         "world_px": round(side),
@@ -87,9 +96,9 @@ def measure(agents: int, seconds: float, max_agents: int, device: str, record: s
     if paused is not None:
         row.update(
             paused_page_draws_per_s=paused["page_frames_drawn_per_s"],
-            paused_server_frames_per_s=paused["server_frames_per_s"],
+            paused_sent_frames_per_s=paused["sent_frames_per_s"],
+            paused_sent_mb_per_s=paused["sent_mb_per_s"],
             paused_page_frames_received_per_s=paused["page_frames_received_per_s"],
-            paused_send_mb_per_s=round(paused["page_frames_received_per_s"] * paused["received_bytes_per_frame"] / 1e6, 2),
         )
     return row
 
@@ -98,16 +107,24 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--agents", type=int, nargs="+", default=[1000, 100000])
     parser.add_argument("--seconds", type=float, default=8.0)
-    parser.add_argument("--max-agents", type=int, default=20000)
+    parser.add_argument("--max-agents", type=int, default=100000)
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--out", default=os.path.join("benchmarks", "results", "viewer_cpu"))
     parser.add_argument("--record", action="store_true", help="also measure each size while recording an MP4")
+    parser.add_argument(
+        "--renderer",
+        choices=("auto", "webgl2", "canvas2d"),
+        default="auto",
+        help="the page's ?renderer= (auto: WebGL2 from 2,000 agents when offered)",
+    )
     args = parser.parse_args()
-    rows = [measure(n, args.seconds, args.max_agents, args.device) for n in args.agents]
+    query = f"?renderer={args.renderer}"
+    rows = [measure(n, args.seconds, args.max_agents, args.device, query=query) for n in args.agents]
     if args.record:
         with tempfile.TemporaryDirectory() as folder:
             for n in args.agents:
-                rows.append(measure(n, args.seconds, args.max_agents, args.device, os.path.join(folder, f"{n}.mp4")))
+                path = os.path.join(folder, f"{n}.mp4")
+                rows.append(measure(n, args.seconds, args.max_agents, args.device, path, query))
     chromium = subprocess.run([shutil.which("chromium") or "chromium", "--version"], capture_output=True, text=True)
     info = machine_info(args.device)
     result = {
@@ -132,12 +149,13 @@ def main() -> int:
         ("recording", "rec"),
         ("renderer", "renderer"),
         ("agents_sent_per_frame", "sent"),
-        ("received_bytes_per_frame", "bytes/frame"),
+        ("bytes_per_frame", "bytes/frame"),
         ("server_frames_per_s", "server fps"),
+        ("sent_frames_per_s", "sent fps"),
         ("page_frames_drawn_per_s", "page fps"),
         ("paused_page_draws_per_s", "paused: draws/s"),
-        ("paused_server_frames_per_s", "paused: sent/s"),
-        ("paused_send_mb_per_s", "paused: MB/s"),
+        ("paused_sent_frames_per_s", "paused: sent/s"),
+        ("paused_sent_mb_per_s", "paused: MB/s"),
     ]
     print(" | ".join(title for _, title in columns))
     for row in rows:

@@ -110,8 +110,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--max-agents",
         type=_int_in(100, 1_000_000),
-        default=20000,
-        help="agents sent per frame, in [100, 1000000]: more are thinned (default 20000)",
+        default=100_000,
+        help="agents sent per frame, in [100, 1000000]: more are thinned (default 100000)",
     )
     p.add_argument(
         "--replay",

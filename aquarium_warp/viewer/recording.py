@@ -139,9 +139,10 @@ def replay_page(trajectory: dict) -> str:
     page = asset("index.html")
     page = page.replace('<link rel="stylesheet" href="static/viewer.css">', f"<style>{asset('viewer.css')}</style>")
     page = page.replace(
-        '<script src="static/viewer.js"></script>',
-        f'<script id="replay-data" type="application/json">{data}</script>\n<script>{asset("viewer.js")}</script>',
+        '<script src="static/webgl.js"></script>',
+        f'<script id="replay-data" type="application/json">{data}</script>\n<script>{asset("webgl.js")}</script>',
     )
+    page = page.replace('<script src="static/viewer.js"></script>', f"<script>{asset('viewer.js')}</script>")
     return page
 
 
