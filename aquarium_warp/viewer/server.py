@@ -11,8 +11,10 @@ shared by all pages.
 
 Recording: the renderer is built (its kernels compiled, seconds the first time) on a worker thread, from
 start-up on; a record click while it is not ready shows the button busy ("preparing") and starts once it
-is. Frames are drawn and encoded beside the simulation (`recording.Recorder`). A recording started from a
-page ends when that page closes.
+is. Frames are drawn and encoded beside the simulation (`recording.Recorder`), `record_size` pixels on the
+long side (768 by default: drawing and encoding a 1024 px frame take about 55 ms of CPU, which on a small
+CPU takes the live rate below 30 frames a second). A recording started from a page ends when that page
+closes.
 
 Frame (binary, little-endian; about 10 bytes an agent): uint32 n_header, the header's JSON (n_header
 bytes, padded with spaces to a multiple of 4), then for the header's `n` agents: uint32 [n] slots, uint16
@@ -29,6 +31,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import contextlib
+import functools
 import json
 import os
 import time
@@ -187,9 +190,10 @@ class Viewer:
         max_agents: int = 100_000,
         record: str | None = None,
         record_dir: str = ".",
+        record_size: int = 768,
     ):
         self.simulation = simulation
-        self.fps, self.max_agents, self.record_dir = fps, max_agents, record_dir
+        self.fps, self.max_agents, self.record_dir, self.record_size = fps, max_agents, record_dir, record_size
         self._thread = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="aquarium-view")
         self.pages: set[_Page] = set()
         self.snapshot: dict | None = None
@@ -254,7 +258,8 @@ class Viewer:
         """The renderer of `env`, built on a worker thread (compiling its kernels takes seconds the first
         time: the simulation and the pages go on meanwhile)."""
         if self._renderer is None or self._renderer[0]() is not env:
-            future = asyncio.get_running_loop().run_in_executor(None, Renderer, env)
+            build = functools.partial(Renderer, env, max_size=self.record_size)
+            future = asyncio.get_running_loop().run_in_executor(None, build)
             future.add_done_callback(lambda f: f.cancelled() or f.exception())  # failures: reported by `record`
             self._renderer = (weakref.ref(env), future)
         return self._renderer[1]

@@ -266,6 +266,8 @@ def test_record_writes_an_mp4_and_a_replay_page_plays_it(tmp_path):
             assert time.time() < deadline
             time.sleep(0.05)
     assert video.stat().st_size > 1000
+    imageio = pytest.importorskip("imageio.v2")
+    assert imageio.get_reader(str(video)).get_data(0).shape == (768, 768, 3)  # the 800 px world at 768 px
     trajectory = read_trajectory(str(tmp_path / "run.json"))
     assert len(trajectory["frames"]) >= 19 and trajectory["meta"]["prey_capacity"] == 16
     assert main(["view", "--replay", str(tmp_path / "run.json"), "--out", str(tmp_path / "run.html")]) == 0
@@ -281,6 +283,7 @@ def test_record_writes_an_mp4_and_a_replay_page_plays_it(tmp_path):
         (["--prey", "-3"], "--prey: invalid value '-3'"),
         (["--human", "shark"], "--human: invalid choice"),
         (["--fps", "500"], "--fps: invalid value '500': must be a number in [1, 120]"),
+        (["--record-size", "10"], "--record-size: invalid value '10': must be an integer in [64, 4096]"),
         (["--record", "out.avi"], "must end in .mp4"),
         (["--replay", "nothing.json", "--out", "x.html"], "--replay nothing.json: cannot read"),
         (["--replay", "x.json"], "--replay FILE.json and --out PAGE.html go together"),
@@ -803,11 +806,11 @@ class _GatedRenderer:
     def __init__(self, gate):
         self.gate = gate
 
-    def __call__(self, env):
+    def __call__(self, env, **options):
         from aquarium_warp.render import Renderer
 
         assert self.gate.wait(60)
-        return Renderer(env)
+        return Renderer(env, **options)
 
 
 @browser_only
