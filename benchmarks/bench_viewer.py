@@ -1,9 +1,12 @@
-"""Frame rates of `aquarium-warp view` with a real page: the server's published frames per second and
-the page's received and drawn frames per second (headless system chromium through Selenium, on the
-same machine), for worlds of 1,000 and 100,000 agents at the density of docs/model.md's world.
+"""Frame rates of `aquarium-warp view` with a real page (headless system chromium through Selenium, on
+the same machine; its WebGL2 runs on SwiftShader there), for worlds at the density of docs/model.md's
+world: the server's published and sent frames per second (and bytes per frame, MB/s), the page's received
+and drawn frames per second, then with the world paused and the page drawing at every animation frame
+(its draw rate for that many agents). Prints a table and writes viewer.json.
 
-    python benchmarks/bench_viewer.py --agents 1000 100000 --seconds 8 --out benchmarks/results/viewer_cpu
+    python benchmarks/bench_viewer.py --agents 1000 20000 100000 --seconds 8 --out benchmarks/results/viewer_cpu
     python benchmarks/bench_viewer.py --agents 1000 --record --out /tmp/viewer   # also while recording
+    python benchmarks/bench_viewer.py --agents 20000 --renderer canvas2d         # the page's ?renderer=
 """
 
 from __future__ import annotations
