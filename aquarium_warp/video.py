@@ -29,6 +29,9 @@ from .atomic import atomic_path, os_error_cause, partial_name
 from .render import Renderer, check_frame
 from .rollout import Drivers, Observer, rollout
 
+# x264's presets, fastest first
+PRESETS = ("ultrafast", "superfast", "veryfast", "faster", "fast", "medium", "slow", "slower", "veryslow")
+
 
 def _frame_iter(frames, num_frames):
     if callable(frames):
@@ -81,6 +84,7 @@ def write_video(
     progress: bool = True,
     num_frames: int | None = None,
     quality: float = 7,
+    preset: str | None = None,
 ) -> int:
     """Write RGB uint8 frames `[H, W, 3]` to an H.264 MP4 file at `path`; returns the frame count.
 
@@ -88,13 +92,14 @@ def write_video(
     return None to stop early). `num_frames` also caps an iterable and sizes the progress bar (tqdm,
     when installed and `progress`). Frames of odd width or height are padded by one edge pixel (the
     yuv420p format most players need works on 2 x 2 blocks). `quality`: 1 (smallest) to 10 (best), or
-    None for ffmpeg's default.
+    None for ffmpeg's default. `preset`: x264's speed for size trade (one of `PRESETS`, "ultrafast" the
+    fastest and largest file), None for its default ("medium").
     """
     if num_frames is not None and (isinstance(num_frames, bool) or not isinstance(num_frames, int) or num_frames < 0):
         raise ValueError(f"num_frames={num_frames!r} must be None or an integer >= 0")
     total = num_frames if num_frames is not None else (len(frames) if isinstance(frames, Sized) else None)
     count = 0
-    with video_file(path, fps=fps, progress=progress, total=total, quality=quality) as add:
+    with video_file(path, fps=fps, progress=progress, total=total, quality=quality, preset=preset) as add:
         for frame in _frame_iter(frames, num_frames):
             add(frame)
             count += 1
@@ -103,7 +108,12 @@ def write_video(
 
 @contextlib.contextmanager
 def video_file(
-    path, fps: float = 30, progress: bool = True, total: int | None = None, quality: float = 7
+    path,
+    fps: float = 30,
+    progress: bool = True,
+    total: int | None = None,
+    quality: float = 7,
+    preset: str | None = None,
 ) -> Iterator[Callable[[np.ndarray], None]]:
     """An H.264 MP4 file at `path` written one frame at a time: `with video_file(path) as add: add(frame)`.
     Checks the arguments before ffmpeg starts; the file appears whole when the block ends (a kill or a
@@ -120,6 +130,8 @@ def video_file(
         isinstance(quality, (int, float)) and not isinstance(quality, bool) and 1 <= quality <= 10
     ):
         raise ValueError(f"quality={quality!r} must be None or a number in [1, 10]")
+    if preset is not None and preset not in PRESETS:
+        raise ValueError(f"preset={preset!r} must be None or one of {list(PRESETS)}")
     check_video_path(path)
     bar = None
     if progress:
@@ -141,7 +153,8 @@ def video_file(
             shape = frame.shape
             h, w = shape[:2]
             if ffmpeg is None:
-                ffmpeg = _Ffmpeg(imageio_ffmpeg.get_ffmpeg_exe(), partial, path, (w + w % 2, h + h % 2), fps, quality)
+                size = (w + w % 2, h + h % 2)
+                ffmpeg = _Ffmpeg(imageio_ffmpeg.get_ffmpeg_exe(), partial, path, size, fps, quality, preset)
             if h % 2 or w % 2:
                 frame = np.pad(frame, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
             ffmpeg.write(np.ascontiguousarray(frame).tobytes())
@@ -170,9 +183,12 @@ class _Ffmpeg:
     ffmpeg's messages go to a temporary file; a failure is one `OSError` naming `path` and ffmpeg's cause.
     It runs in a session of its own, so that a Ctrl-C reaches only this process, which then kills it."""
 
-    def __init__(self, exe: str, partial: str, path, size: tuple[int, int], fps: float, quality: float | None):
+    def __init__(
+        self, exe: str, partial: str, path, size: tuple[int, int], fps: float, quality: float | None, preset: str | None
+    ):
         # imageio-ffmpeg's quality scale: 10 is crf 0 (lossless), 1 is crf 45
         crf = [] if quality is None else ["-crf", str(int((1 - quality / 10) * 51))]
+        crf += [] if preset is None else ["-preset", preset]
         command = [exe, "-y", "-f", "rawvideo", "-vcodec", "rawvideo", "-s", f"{size[0]}x{size[1]}"]
         rate = str(fractions.Fraction(fps).limit_denominator())  # as imageio-ffmpeg: 29.97 stays 2997/100
         command += ["-pix_fmt", "rgb24", "-r", rate, "-i", "-", "-an", "-vcodec", "libx264"]

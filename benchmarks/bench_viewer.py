@@ -1,9 +1,12 @@
-"""Frame rates of `aquarium-warp view` with a real page: the server's published frames per second and
-the page's received and drawn frames per second (headless system chromium through Selenium, on the
-same machine), for worlds of 1,000 and 100,000 agents at the density of docs/model.md's world.
+"""Frame rates of `aquarium-warp view` with a real page (headless system chromium through Selenium, on
+the same machine; its WebGL2 runs on SwiftShader there), for worlds at the density of docs/model.md's
+world: the server's published and sent frames per second (and bytes per frame, MB/s), the page's received
+and drawn frames per second, then with the world paused and the page drawing at every animation frame
+(its draw rate for that many agents). Prints a table and writes viewer.json.
 
-    python benchmarks/bench_viewer.py --agents 1000 100000 --seconds 8 --out benchmarks/results/viewer_cpu
+    python benchmarks/bench_viewer.py --agents 1000 20000 100000 --seconds 8 --out benchmarks/results/viewer_cpu
     python benchmarks/bench_viewer.py --agents 1000 --record --out /tmp/viewer   # also while recording
+    python benchmarks/bench_viewer.py --agents 20000 --renderer canvas2d         # the page's ?renderer=
 """
 
 from __future__ import annotations
@@ -22,11 +25,40 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 from test_viewer import _browser, serve  # the tests' server thread and browser
 
 from aquarium_warp.records import command_line, git_info, machine_info
-from aquarium_warp.viewer.server import Viewer, pack_frame
+from aquarium_warp.viewer.server import Viewer
 from aquarium_warp.viewer.simulation import Simulation, ViewOptions
 
 
-def measure(agents: int, seconds: float, max_agents: int, device: str, record: str | None = None) -> dict:
+def _rates(page, viewer, seconds: float) -> dict:
+    """Per-second rates over `seconds`: frames the server published and sent (and MB sent), steps of
+    world 0, frames the page received and drew, and the mean size of the frames sent."""
+    read = "const a = window.aquarium; return [a.framesReceived, a.framesDrawn]"
+
+    def counts():
+        sent = viewer.frames_sent, viewer.bytes_sent
+        return viewer.frames, sent, int(viewer.simulation.env.state.torch.world_step[0]), page.execute_script(read)
+
+    (frames0, (sent0, bytes0), steps0, (received0, drawn0)), t0 = counts(), time.perf_counter()
+    time.sleep(seconds)
+    (frames1, (sent1, bytes1), steps1, (received1, drawn1)), t1 = counts(), time.perf_counter()
+    elapsed = t1 - t0
+    return {
+        "server_frames_per_s": round((frames1 - frames0) / elapsed, 2),
+        "sent_frames_per_s": round((sent1 - sent0) / elapsed, 2),
+        "sent_mb_per_s": round((bytes1 - bytes0) / elapsed / 1e6, 2),
+        "bytes_per_frame": round((bytes1 - bytes0) / max(1, sent1 - sent0)),
+        "steps_per_s": round((steps1 - steps0) / elapsed, 2),
+        "page_frames_received_per_s": round((received1 - received0) / elapsed, 2),
+        "page_frames_drawn_per_s": round((drawn1 - drawn0) / elapsed, 2),
+    }
+
+
+def measure(
+    agents: int, seconds: float, max_agents: int, device: str, record: str | None = None, query: str = ""
+) -> dict:
+    """The rates of a world of `agents` at docs/model.md's density: while it runs (and records, with
+    `record`), then (not recording) paused with the page drawing at every animation frame: how fast the
+    page draws that many agents, and the server's send rate of frames that need no step."""
     predators = max(1, agents // 100)
     side = 800.0 * (agents / 17) ** 0.5  # docs/model.md's density: 17 agents on 800 x 800 px
     options = ViewOptions(prey=agents - predators, predators=predators, width=side, height=side, device=device)
@@ -34,53 +66,68 @@ def measure(agents: int, seconds: float, max_agents: int, device: str, record: s
     with serve(viewer) as port:
         page = _browser()
         try:
-            page.get(f"http://127.0.0.1:{port}/")
+            page.get(f"http://127.0.0.1:{port}/{query}")
             deadline = time.time() + 60
             while page.execute_script("return window.aquarium.framesDrawn") < 3:
                 assert time.time() < deadline, "no frame reached the page"
                 time.sleep(0.1)
-            read = "return [window.aquarium.framesReceived, window.aquarium.framesDrawn]"
-            frames0, (received0, drawn0), t0 = viewer.frames, page.execute_script(read), time.perf_counter()
-            steps0 = int(viewer.simulation.env.state.torch.world_step[0])
-            time.sleep(seconds)
-            frames1, (received1, drawn1), t1 = viewer.frames, page.execute_script(read), time.perf_counter()
-            steps1 = int(viewer.simulation.env.state.torch.world_step[0])
+            running = _rates(page, viewer, seconds)
+            paused = None
+            if record is None:
+                viewer.on_simulation_thread(viewer.simulation.apply, {"type": "pause"})
+                page.execute_script("window.aquarium.redrawAlways = true")
+                time.sleep(1.0)
+                paused = _rates(page, viewer, seconds)
             sent = page.execute_script("return window.aquarium.frame.header.n")
+            renderer = page.execute_script("return window.aquarium.renderer")
+            gpu = page.execute_script("return window.aquarium.glName")
         finally:
             page.quit()
-        frame_bytes = len(pack_frame(viewer.snapshot, None, max_agents))
-    elapsed = t1 - t0
-    return {
+    row = {
         "agents": agents,
         "recording": record is not None,
+        "renderer": renderer,
+        "gl_renderer": gpu,
         "prey": agents - predators,
         "predators": predators,
         "world_px": round(side),
         "max_agents": max_agents,
         "agents_sent_per_frame": sent,
-        "frame_bytes": frame_bytes,
-        "server_frames_per_s": round((frames1 - frames0) / elapsed, 2),
-        "steps_per_s": round((steps1 - steps0) / elapsed, 2),
-        "page_frames_received_per_s": round((received1 - received0) / elapsed, 2),
-        "page_frames_drawn_per_s": round((drawn1 - drawn0) / elapsed, 2),
+        **running,
         "last_tick_ms": round(viewer.tick_seconds * 1e3, 2),
     }
+    if paused is not None:
+        row.update(
+            paused_page_draws_per_s=paused["page_frames_drawn_per_s"],
+            paused_sent_frames_per_s=paused["sent_frames_per_s"],
+            paused_sent_mb_per_s=paused["sent_mb_per_s"],
+            paused_page_frames_received_per_s=paused["page_frames_received_per_s"],
+        )
+    return row
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--agents", type=int, nargs="+", default=[1000, 100000])
     parser.add_argument("--seconds", type=float, default=8.0)
-    parser.add_argument("--max-agents", type=int, default=20000)
+    parser.add_argument("--max-agents", type=int, default=100000)
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--out", default=os.path.join("benchmarks", "results", "viewer_cpu"))
     parser.add_argument("--record", action="store_true", help="also measure each size while recording an MP4")
+    parser.add_argument(
+        "--renderer",
+        choices=("auto", "webgl2", "canvas2d"),
+        default="auto",
+        help="the page's ?renderer= (auto: WebGL2 from 2,000 agents when offered)",
+    )
     args = parser.parse_args()
-    rows = [measure(n, args.seconds, args.max_agents, args.device) for n in args.agents]
+    query = f"?renderer={args.renderer}"
+    rows = [measure(n, args.seconds, args.max_agents, args.device, query=query) for n in args.agents]
     if args.record:
         with tempfile.TemporaryDirectory() as folder:
             for n in args.agents:
-                rows.append(measure(n, args.seconds, args.max_agents, args.device, os.path.join(folder, f"{n}.mp4")))
+                path = os.path.join(folder, f"{n}.mp4")
+                rows.append(measure(n, args.seconds, args.max_agents, args.device, path, query))
     chromium = subprocess.run([shutil.which("chromium") or "chromium", "--version"], capture_output=True, text=True)
     info = machine_info(args.device)
     result = {
@@ -100,8 +147,22 @@ def main() -> int:
     os.makedirs(args.out, exist_ok=True)
     with open(os.path.join(args.out, "viewer.json"), "w", encoding="utf-8") as f:
         json.dump(result, f, indent=1)
+    columns = [
+        ("agents", "agents"),
+        ("recording", "rec"),
+        ("renderer", "renderer"),
+        ("agents_sent_per_frame", "sent"),
+        ("bytes_per_frame", "bytes/frame"),
+        ("server_frames_per_s", "server fps"),
+        ("sent_frames_per_s", "sent fps"),
+        ("page_frames_drawn_per_s", "page fps"),
+        ("paused_page_draws_per_s", "paused: draws/s"),
+        ("paused_sent_frames_per_s", "paused: sent/s"),
+        ("paused_sent_mb_per_s", "paused: MB/s"),
+    ]
+    print(" | ".join(title for _, title in columns))
     for row in rows:
-        print(row)
+        print(" | ".join(str(row.get(key, "-")) for key, _ in columns))
     return 0
 
 

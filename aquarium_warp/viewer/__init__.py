@@ -108,12 +108,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="record from the start: the MP4 and OUT.json (the trajectory); stops with the record button or the server",
     )
     p.add_argument("--record-dir", default=".", help="folder of the record button's files (default: here)")
+    p.add_argument(
+        "--record-size",
+        type=_int_in(64, 4096),
+        default=768,
+        help="the recording's long side in pixels, in [64, 4096] (default 768)",
+    )
     p.add_argument("--fps", type=_fps, default=30.0, help="frames per second, in [1, 120] (default 30)")
     p.add_argument(
         "--max-agents",
         type=_int_in(100, 1_000_000),
-        default=20000,
-        help="agents sent per frame, in [100, 1000000]: more are thinned (default 20000)",
+        default=100_000,
+        help="agents sent per frame, in [100, 1000000]: more are thinned (default 100000)",
     )
     p.add_argument(
         "--replay",
@@ -187,7 +193,12 @@ def _serve(args) -> int:
             # inference) would fight them and the browser for the same cores.
             torch.set_num_threads(1)
         viewer = Viewer(
-            simulation, fps=args.fps, max_agents=args.max_agents, record=args.record, record_dir=args.record_dir
+            simulation,
+            fps=args.fps,
+            max_agents=args.max_agents,
+            record=args.record,
+            record_dir=args.record_dir,
+            record_size=args.record_size,
         )
         print(
             f"aquarium-warp view: {plural(env.num_worlds, 'world')} of {env.config.prey_count} prey "

@@ -140,7 +140,7 @@ class Attached:
 
 
 def attach(
-    env, *, host: str = "127.0.0.1", port: int = 0, world: int = 0, fps: float = 30, max_agents: int = 20000
+    env, *, host: str = "127.0.0.1", port: int = 0, world: int = 0, fps: float = 30, max_agents: int = 100_000
 ) -> Attached:
     """Serve `env` (a `BatchedAquarium`) in the browser while your code steps it; returns at once.
     `port`: 0 picks a free one (see `.url`); a port in use is refused at once (ValueError).

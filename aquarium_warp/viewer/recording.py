@@ -55,8 +55,9 @@ class Recorder:
     """Writes `path` (MP4) and `path` with `.json` (the trajectory) from the snapshots it is given.
 
     The MP4's frames are drawn and encoded on a thread of its own (from `Renderer.freeze` copies of the
-    world, through `write_video`), so the simulation goes on meanwhile; it waits only when that thread
-    falls 16 frames behind. `close()` finishes both files and returns their paths.
+    world, through `write_video` with x264's "veryfast" preset: a third of the default's CPU time for a
+    file about 30% larger), so the simulation goes on meanwhile; it waits only when that thread falls 16
+    frames behind. `close()` finishes both files and returns their paths.
     """
 
     def __init__(self, path: str, renderer, fps: float = 30):
@@ -86,7 +87,7 @@ class Recorder:
                 )
 
         try:
-            write_video(frames(), self.path, fps=fps, progress=False)
+            write_video(frames(), self.path, fps=fps, progress=False, preset="veryfast")
         except (ValueError, OSError, RuntimeError) as error:  # reported by close(), not lost with the thread
             self._error = error
             while self._frames.get() is not None:  # let the simulation thread go on
@@ -139,9 +140,10 @@ def replay_page(trajectory: dict) -> str:
     page = asset("index.html")
     page = page.replace('<link rel="stylesheet" href="static/viewer.css">', f"<style>{asset('viewer.css')}</style>")
     page = page.replace(
-        '<script src="static/viewer.js"></script>',
-        f'<script id="replay-data" type="application/json">{data}</script>\n<script>{asset("viewer.js")}</script>',
+        '<script src="static/webgl.js"></script>',
+        f'<script id="replay-data" type="application/json">{data}</script>\n<script>{asset("webgl.js")}</script>',
     )
+    page = page.replace('<script src="static/viewer.js"></script>', f"<script>{asset('viewer.js')}</script>")
     return page
 
 

@@ -11,13 +11,19 @@ shared by all pages.
 
 Recording: the renderer is built (its kernels compiled, seconds the first time) on a worker thread, from
 start-up on; a record click while it is not ready shows the button busy ("preparing") and starts once it
-is. Frames are drawn and encoded beside the simulation (`recording.Recorder`). A recording started from a
-page ends when that page closes.
+is. Frames are drawn and encoded beside the simulation (`recording.Recorder`), `record_size` pixels on the
+long side (768 by default: drawing and encoding a 1024 px frame take about 55 ms of CPU, which on a small
+CPU takes the live rate below 30 frames a second). A recording started from a page ends when that page
+closes.
 
-Frame (binary, little-endian): uint32 n_header, the header's JSON (n_header bytes, padded with spaces
-to a multiple of 4), then float32 [n, 6] (x, y, heading x, heading y, velocity x, velocity y), uint32
-[n] slots, then, when the page's flow overlay is on, float32 [rows, cols, 2] currents (rows, cols in
-the header). The header's `inspect` holds `simulation.inspect_agent` of the page's inspected agent.
+Frame (binary, little-endian; about 10 bytes an agent): uint32 n_header, the header's JSON (n_header
+bytes, padded with spaces to a multiple of 4), then for the header's `n` agents: uint32 [n] slots, uint16
+[n, 2] positions as fractions of the world's size (x = q / 65536 * width: steps of width / 65536 px,
+wrapping at the seam as the torus does), uint16 [n] headings as angles (atan2(hy, hx) = q / 65536 * 2 pi),
+two bytes of padding when n is odd; when the page's velocity overlay is on (header `velocities`), float16
+[n, 2] velocities (px/step); when its flow overlay is on, float32 [rows, cols, 2] currents (rows, cols in
+the header's `flow_shape`). `unpack_frame` reads it back. The header's `inspect` holds
+`simulation.inspect_agent` of the page's inspected agent.
 """
 
 from __future__ import annotations
@@ -25,6 +31,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import contextlib
+import functools
 import json
 import os
 import time
@@ -79,31 +86,84 @@ def select_agents(snapshot: dict, rect, max_agents: int, human: int | None) -> n
     return slots.astype(np.uint32)
 
 
-def pack_frame(snapshot: dict, rect, max_agents: int, *, flow: bool = True, inspect: int | None = None) -> bytes:
-    """The binary frame of `snapshot` for a page showing `rect`, with the flow's grid when `flow` (and
-    the snapshot has one) and the inspection of slot `inspect` (when the snapshot has it)."""
+QUANTA = 65536  # steps of a position across the world and of a heading around the circle
+
+
+def pack_frame(
+    snapshot: dict,
+    rect,
+    max_agents: int,
+    *,
+    flow: bool = True,
+    velocities: bool = True,
+    inspect: int | None = None,
+) -> bytes:
+    """The binary frame of `snapshot` for a page showing `rect` (layout: the module's docstring), with
+    the velocities when `velocities`, the flow's grid when `flow` (and the snapshot has one) and the
+    inspection of slot `inspect` (when the snapshot has it)."""
     header = snapshot["header"]
     human = header["human"]["slot"] if header["human"] else None
     slots = select_agents(snapshot, rect, max_agents, human)
-    agents = np.concatenate(
-        [snapshot["position"][slots], snapshot["heading"][slots], snapshot["velocity"][slots]], axis=1
-    ).astype("<f4")
+    size = np.array([header["width"], header["height"]])
+    position = np.rint(snapshot["position"][slots] * (QUANTA / size)).astype(np.int64) % QUANTA
+    heading = snapshot["heading"][slots]
+    angle = np.rint(np.arctan2(heading[:, 1], heading[:, 0]) * (QUANTA / (2 * np.pi))).astype(np.int64) % QUANTA
     grid = snapshot["flow"] if flow else None
     header = {
         **header,
         "type": "frame",
         "n": len(slots),
         "alive_total": int(snapshot["alive"].sum()),
+        "velocities": velocities,
         "flow_shape": None if grid is None else list(grid.shape[:2]),
         "inspect": snapshot["inspect"].get(inspect),
         "sent_at": time.time(),
     }
     text = json.dumps(header).encode()
     text += b" " * (-len(text) % 4)
-    parts = [np.uint32(len(text)).astype("<u4").tobytes(), text, agents.tobytes(), slots.astype("<u4").tobytes()]
+    parts = [
+        np.uint32(len(text)).astype("<u4").tobytes(),
+        text,
+        slots.astype("<u4").tobytes(),
+        position.astype("<u2").tobytes(),
+        angle.astype("<u2").tobytes(),
+        b"\0\0" * (len(slots) % 2),
+    ]
+    if velocities:
+        parts.append(snapshot["velocity"][slots].astype("<f2").tobytes())
     if grid is not None:
         parts.append(grid.astype("<f4").tobytes())
     return b"".join(parts)
+
+
+def unpack_frame(data: bytes) -> tuple[dict, dict]:
+    """(header, arrays) of a frame of `pack_frame`: `slots`, `position` [n, 2] and `heading` [n, 2]
+    (float64, as the quanta give them), `velocity` [n, 2] (float32, or None) and `flow` (or None)."""
+    length = int(np.frombuffer(data, "<u4", 1)[0])
+    header = json.loads(data[4 : 4 + length])
+    n, offset = header["n"], 4 + length
+    slots = np.frombuffer(data, "<u4", n, offset)
+    offset += 4 * n
+    quanta = np.frombuffer(data, "<u2", 2 * n, offset).reshape(n, 2)
+    offset += 4 * n
+    angle = np.frombuffer(data, "<u2", n, offset) * (2 * np.pi / QUANTA)
+    offset += 2 * n + 2 * (n % 2)
+    velocity = None
+    if header["velocities"]:
+        velocity = np.frombuffer(data, "<f2", 2 * n, offset).reshape(n, 2).astype(np.float32)
+        offset += 4 * n
+    flow = None
+    if header["flow_shape"] is not None:
+        rows, cols = header["flow_shape"]
+        flow = np.frombuffer(data, "<f4", rows * cols * 2, offset).reshape(rows, cols, 2)
+    arrays = {
+        "slots": slots,
+        "position": quanta * (np.array([header["width"], header["height"]]) / QUANTA),
+        "heading": np.stack([np.cos(angle), np.sin(angle)], axis=1),
+        "velocity": velocity,
+        "flow": flow,
+    }
+    return header, arrays
 
 
 class _Page:
@@ -127,12 +187,13 @@ class Viewer:
         simulation,
         *,
         fps: float = 30,
-        max_agents: int = 20000,
+        max_agents: int = 100_000,
         record: str | None = None,
         record_dir: str = ".",
+        record_size: int = 768,
     ):
         self.simulation = simulation
-        self.fps, self.max_agents, self.record_dir = fps, max_agents, record_dir
+        self.fps, self.max_agents, self.record_dir, self.record_size = fps, max_agents, record_dir, record_size
         self._thread = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="aquarium-view")
         self.pages: set[_Page] = set()
         self.snapshot: dict | None = None
@@ -143,6 +204,7 @@ class Viewer:
         self._renderer: tuple[weakref.ref, asyncio.Future] | None = None  # (its env, the Renderer)
         self._tasks: set[asyncio.Task] = set()  # record requests waiting for the renderer
         self.frames = 0  # snapshots published (tests and the benchmark read it)
+        self.frames_sent, self.bytes_sent = 0, 0  # to all pages (the benchmark's send rate)
         self.tick_seconds = 0.0  # time of the last tick on the simulation thread
 
     async def call(self, function, *args):
@@ -196,7 +258,8 @@ class Viewer:
         """The renderer of `env`, built on a worker thread (compiling its kernels takes seconds the first
         time: the simulation and the pages go on meanwhile)."""
         if self._renderer is None or self._renderer[0]() is not env:
-            future = asyncio.get_running_loop().run_in_executor(None, Renderer, env)
+            build = functools.partial(Renderer, env, max_size=self.record_size)
+            future = asyncio.get_running_loop().run_in_executor(None, build)
             future.add_done_callback(lambda f: f.cancelled() or f.exception())  # failures: reported by `record`
             self._renderer = (weakref.ref(env), future)
         return self._renderer[1]
@@ -263,9 +326,16 @@ class Viewer:
             page.fresh.clear()
             if self.snapshot is not None:
                 frame = pack_frame(
-                    self.snapshot, page.rect, self.max_agents, flow=page.overlays["flow"], inspect=page.inspect
+                    self.snapshot,
+                    page.rect,
+                    self.max_agents,
+                    flow=page.overlays["flow"],
+                    velocities=page.overlays["velocities"],
+                    inspect=page.inspect,
                 )
                 await page.socket.send_bytes(frame)
+                self.frames_sent += 1
+                self.bytes_sent += len(frame)
 
     async def _hello(self, page: _Page) -> None:
         choices = await self.call(self.simulation.policy_choices)

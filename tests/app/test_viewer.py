@@ -21,7 +21,7 @@ from websockets.sync.client import connect  # noqa: E402 - after the extra's che
 from aquarium_warp.cli import main  # noqa: E402
 from aquarium_warp.viewer.messages import MessageError, parse_message  # noqa: E402
 from aquarium_warp.viewer.recording import read_trajectory, replay_page  # noqa: E402
-from aquarium_warp.viewer.server import Viewer, make_app, pack_frame, select_agents  # noqa: E402
+from aquarium_warp.viewer.server import Viewer, make_app, pack_frame, select_agents, unpack_frame  # noqa: E402
 from aquarium_warp.viewer.simulation import Simulation, ViewOptions  # noqa: E402
 
 BAD_MESSAGES = [
@@ -213,13 +213,47 @@ def test_the_server_answers_bad_messages_and_keeps_serving(server, text, says):
 
 def test_frames_decode(server):
     snapshot = server[0].snapshot  # once: the server publishes a new one every frame
-    frame = pack_frame(snapshot, None, 1000)
-    n = int(np.frombuffer(frame[:4], "<u4")[0])
-    header = json.loads(frame[4 : 4 + n])
-    agents = np.frombuffer(frame, "<f4", header["n"] * 6, 4 + n).reshape(-1, 6)
-    slots = np.frombuffer(frame, "<u4", header["n"], 4 + n + agents.nbytes)
+    header, agents = unpack_frame(pack_frame(snapshot, None, 1000, velocities=False))
+    slots = agents["slots"]
     assert header["n"] == header["alive_total"] == 17 and sorted(slots) == list(range(17))
-    np.testing.assert_allclose(agents[:, :2], snapshot["position"][slots])
+    # positions to half a step of 800 / 65536 px, headings to half a step of 2 pi / 65536
+    off = (agents["position"] - snapshot["position"][slots] + 400.0) % 800.0 - 400.0  # on the torus
+    assert np.abs(off).max() <= 800 / 131072
+    np.testing.assert_allclose(agents["heading"], snapshot["heading"][slots], rtol=0, atol=np.pi / 65536 + 1e-6)
+    assert agents["velocity"] is None and agents["flow"] is None
+
+
+def test_a_frame_is_ten_bytes_an_agent_in_quanta_of_the_world_and_the_circle():
+    """Three agents of a 800 x 400 world, by hand: x = q / 65536 * 800, y = q / 65536 * 400, the
+    heading's angle = q / 65536 * 2 pi; a position at the far edge wraps to 0 (the torus)."""
+    snapshot = {
+        "alive": np.array([True, True, False, True]),
+        "position": np.array([[0.0, 0.0], [400.0, 100.0], [1.0, 1.0], [799.999, 200.00305]], np.float32),
+        "heading": np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 0.0], [0.0, -1.0]], np.float32),
+        "velocity": np.array([[0.5, -2.0], [0.0, 0.0], [0.0, 0.0], [3.0, 0.25]], np.float32),
+        "flow": np.arange(2 * 3 * 2, dtype=np.float32).reshape(2, 3, 2),
+        "inspect": {},
+        "header": {"width": 800.0, "height": 400.0, "prey_capacity": 2, "human": None},
+    }
+    frame = pack_frame(snapshot, None, 100, flow=True, velocities=True)
+    length = int(np.frombuffer(frame, "<u4", 1)[0])
+    body = frame[4 + length :]
+    # slots, positions, angles (+ 2 bytes: n = 3 is odd), float16 velocities, float32 flow
+    assert len(body) == 3 * 4 + 3 * 4 + 3 * 2 + 2 + 3 * 4 + 2 * 3 * 2 * 4
+    assert np.frombuffer(body, "<u4", 3).tolist() == [0, 1, 3]
+    assert np.frombuffer(body, "<u2", 6, 12).tolist() == [0, 0, 32768, 16384, 0, 32768]
+    assert np.frombuffer(body, "<u2", 3, 24).tolist() == [0, 16384, 49152]
+    header, agents = unpack_frame(frame)
+    assert header["velocities"] and header["flow_shape"] == [2, 3]
+    np.testing.assert_allclose(agents["position"], [[0, 0], [400, 100], [0, 200]])
+    np.testing.assert_allclose(agents["heading"], [[1, 0], [0, 1], [0, -1]], atol=1e-12)
+    np.testing.assert_array_equal(agents["velocity"], [[0.5, -2.0], [0.0, 0.0], [3.0, 0.25]])
+    np.testing.assert_array_equal(agents["flow"], snapshot["flow"])
+    without = pack_frame(snapshot, None, 100, flow=False, velocities=False)
+    length = int(np.frombuffer(without, "<u4", 1)[0])
+    assert len(without) - 4 - length == 3 * 4 + 3 * 4 + 3 * 2 + 2  # ten bytes an agent, and the padding
+    header, agents = unpack_frame(without)
+    assert not header["velocities"] and agents["velocity"] is None and agents["flow"] is None
 
 
 @pytest.mark.slow
@@ -232,6 +266,8 @@ def test_record_writes_an_mp4_and_a_replay_page_plays_it(tmp_path):
             assert time.time() < deadline
             time.sleep(0.05)
     assert video.stat().st_size > 1000
+    imageio = pytest.importorskip("imageio.v2")
+    assert imageio.get_reader(str(video)).get_data(0).shape == (768, 768, 3)  # the 800 px world at 768 px
     trajectory = read_trajectory(str(tmp_path / "run.json"))
     assert len(trajectory["frames"]) >= 19 and trajectory["meta"]["prey_capacity"] == 16
     assert main(["view", "--replay", str(tmp_path / "run.json"), "--out", str(tmp_path / "run.html")]) == 0
@@ -247,6 +283,7 @@ def test_record_writes_an_mp4_and_a_replay_page_plays_it(tmp_path):
         (["--prey", "-3"], "--prey: invalid value '-3'"),
         (["--human", "shark"], "--human: invalid choice"),
         (["--fps", "500"], "--fps: invalid value '500': must be a number in [1, 120]"),
+        (["--record-size", "10"], "--record-size: invalid value '10': must be an integer in [64, 4096]"),
         (["--record", "out.avi"], "must end in .mp4"),
         (["--replay", "nothing.json", "--out", "x.html"], "--replay nothing.json: cannot read"),
         (["--replay", "x.json"], "--replay FILE.json and --out PAGE.html go together"),
@@ -364,12 +401,13 @@ def browser_server():
         yield viewer, f"http://127.0.0.1:{port}/"
 
 
-def _browser():
+def _browser(*flags: str):
+    """Headless chromium (WebGL2 on SwiftShader, its software GPU, unless `flags` take it away)."""
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
 
     options = webdriver.ChromeOptions()
-    for argument in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--window-size=1280,800"):
+    for argument in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--window-size=1280,800", *flags):
         options.add_argument(argument)
     options.binary_location = CHROMIUM
     return webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
@@ -401,6 +439,11 @@ def test_page_loads_and_frames_arrive_and_change(page):
     first = page.execute_script("return Array.from(window.aquarium.frame.agents.slice(0, 2))")
     _until(lambda: page.execute_script("return Array.from(window.aquarium.frame.agents.slice(0, 2))") != first)
     assert page.find_element("id", "agents").text == "17 / 17"
+    # WebGL2 is offered (SwiftShader), but 17 agents are drawn with Canvas 2D (?renderer=auto: from 2,000)
+    assert page.execute_script("return [window.aquarium.renderer, window.aquarium.glName !== null]") == [
+        "canvas2d",
+        True,
+    ]
     assert "turnaway" in page.find_element("id", "prey-choice").get_attribute("innerHTML")
 
 
@@ -482,11 +525,11 @@ def test_two_pages_at_once(page, browser_server):
 
 
 def _pixel(page, x, y):
-    """RGB of the canvas pixel under world point (x, y)."""
+    """RGB that the page shows at the canvas pixel under world point (x, y) (both canvases)."""
     return page.execute_script(
-        "const v = window.aquarium.view, c = document.getElementById('world').getContext('2d');"
-        "return Array.from(c.getImageData(Math.round((arguments[0] - v.x) * v.scale),"
-        " Math.round((arguments[1] - v.y) * v.scale), 1, 1).data).slice(0, 3);",
+        "const v = window.aquarium.view;"
+        "return window.aquarium.pixel(Math.floor((arguments[0] - v.x) * v.scale),"
+        " Math.floor((arguments[1] - v.y) * v.scale));",
         x,
         y,
     )
@@ -532,14 +575,81 @@ def _shows(page, slot, x, y):
 
 
 SEA, SHARK_BODY = (172, 206, 231), (92, 112, 135)
+PREY_BODY, BACKGROUND = (255, 140, 0), (29, 39, 51)
+NO_WEBGL = ("--disable-gpu", "--disable-software-rasterizer")  # chromium then offers no WebGL at all
+
+
+@pytest.fixture(params=["webgl2", "canvas2d"])
+def any_page(request, browser_server):
+    """The page asked to draw with WebGL2 at any count: in chromium (SwiftShader, its software GPU), and
+    in a chromium without WebGL (the fallback to Canvas 2D)."""
+    driver = _browser() if request.param == "webgl2" else _browser(*NO_WEBGL)
+    driver.get(browser_server[1] + "?renderer=webgl2")
+    _until(lambda: driver.execute_script("return window.aquarium.framesDrawn") > 2)
+    assert driver.execute_script("return window.aquarium.renderer") == request.param
+    assert (driver.execute_script("return window.aquarium.glName") is not None) == (request.param == "webgl2")
+    assert driver.find_element("id", "world-gl").is_displayed() == (request.param == "webgl2")
+    yield driver
+    driver.quit()
 
 
 @browser_only
 @pytest.mark.slow
-def test_a_shark_at_the_edge_is_drawn_across_the_seam_with_its_cone(page, browser_server):
+def test_each_agent_is_drawn_at_its_pixel_across_the_seam_zoomed_out(any_page, browser_server):
+    """At 0.04 canvas pixels per world px with the world's corner at canvas pixel (4, 4), the centre of
+    canvas pixel (k, m) is world point (25 k - 87.5, 25 m - 87.5). Prey (radius 20: 0.8 pixels) are
+    3 x 3 pixel dots, predators (30: 1.2 pixels) diamonds; a prey at x = 787.5 (pixel 35, the world's
+    last column) shows again in pixel 4 (its first) across the seam, and pixel 36 is outside the world."""
+    page, viewer = any_page, browser_server[0]
+    predator = viewer.simulation.env.prey_capacity
+
+    def centre(k):  # of pixel k, world px
+        return 25.0 * k - 87.5
+
+    def pixel(k, m):
+        return page.execute_script("return window.aquarium.pixel(arguments[0], arguments[1])", k, m)
+
+    places = {
+        slot: (centre(k), centre(m))
+        for slot, (k, m) in {0: (8, 10), 1: (16, 10), 2: (35, 20), predator: (24, 16)}.items()
+    }
+    _place(viewer, places)
+    saved = page.execute_script("return window.aquarium.view")
+    page.execute_script("window.aquarium.setView({x: -100, y: -100, scale: 0.04})")
+    _until(lambda: all(_shows(page, slot, *xy) for slot, xy in places.items()))
+    try:
+        for k, m in ((8, 10), (7, 9), (9, 11), (16, 10), (35, 20), (34, 20), (4, 20)):
+            assert _close(pixel(k, m), PREY_BODY), (k, m, pixel(k, m))
+        for k, m in ((11, 10), (12, 10), (19, 10), (5, 20), (33, 20), (24, 22)):
+            assert _close(pixel(k, m), SEA), (k, m, pixel(k, m))
+        assert _close(pixel(24, 16), SHARK_BODY) and _close(pixel(36, 20), BACKGROUND), (pixel(24, 16), pixel(36, 20))
+    finally:
+        page.execute_script("window.aquarium.setView(arguments[0])", saved)
+        viewer.simulation.playing = True
+
+
+@browser_only
+@pytest.mark.slow
+def test_fish_and_sharks_turn_with_their_heading(any_page, browser_server):
+    """A prey heading down (+y) covers the point 0.5 r ahead of it (its body) but not 0.5 r to its side;
+    a shark heading left (-x) covers 0.6 r ahead (its snout), not 0.6 r across (r: 20 and 30 px)."""
+    page, viewer = any_page, browser_server[0]
+    predator = viewer.simulation.env.prey_capacity
+    _place(viewer, {0: (300.0, 300.0), predator: (500.0, 300.0)}, {0: (0.0, 1.0), predator: (-1.0, 0.0)})
+    _until(lambda: _shows(page, 0, 300.0, 300.0) and _shows(page, predator, 500.0, 300.0))
+    try:
+        assert _close(_pixel(page, 300.0, 310.0), PREY_BODY) and _close(_pixel(page, 310.0, 300.0), SEA)
+        assert _close(_pixel(page, 482.0, 300.0), SHARK_BODY) and _close(_pixel(page, 500.0, 318.0), SEA)
+    finally:
+        viewer.simulation.playing = True
+
+
+@browser_only
+@pytest.mark.slow
+def test_a_shark_at_the_edge_is_drawn_across_the_seam_with_its_cone(any_page, browser_server):
     """A predator at x = 795 facing +x in the 800 x 800 world: its snout (30 px radius, nose at 0.9 r)
     and its view cone (200 px, 150 degrees) continue at the left edge, as the MP4 draws them."""
-    viewer = browser_server[0]
+    page, viewer = any_page, browser_server[0]
     predator = viewer.simulation.env.prey_capacity
     _place(viewer, {predator: (795.0, 400.0)}, {predator: (1.0, 0.0)})
     box = page.find_element("id", "ov-view_cones")
@@ -558,15 +668,35 @@ def test_a_shark_at_the_edge_is_drawn_across_the_seam_with_its_cone(page, browse
 
 @browser_only
 @pytest.mark.slow
-def test_the_legend_shows_fish_and_sharks(page):
+def test_the_legend_shows_fish_and_sharks_in_the_worlds_colours(any_page, browser_server):
+    """Each agent icon's most common opaque colour is what the world draws for that mark: a fish's and
+    a shark's body 0.5 r ahead of its centre zoomed in, a prey's dot and a predator's diamond at their
+    centres zoomed out (0.04 canvas pixels per world px)."""
+    page, viewer = any_page, browser_server[0]
     legend = page.find_element("id", "legend").text
     assert "fish: prey" in legend and "shark: predator" in legend and "predator (zoomed out)" in legend
-    coloured = page.execute_script(
-        "return Array.from(document.querySelectorAll('canvas.icon')).map((c) => {"
-        " const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data; let n = 0;"
-        " for (let i = 0; i < d.length; i += 4) if (d[i + 3] > 0) n++; return n; });"
+    icons = page.execute_script(
+        "const out = {}; document.querySelectorAll('canvas.icon').forEach((c) => {"
+        " const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data, counts = {};"
+        " for (let i = 0; i < d.length; i += 4) if (d[i + 3] === 255) {"
+        "  const key = `${d[i]},${d[i + 1]},${d[i + 2]}`; counts[key] = (counts[key] || 0) + 1; }"
+        " const top = Object.keys(counts).sort((a, b) => counts[b] - counts[a])[0];"
+        " out[c.dataset.icon] = top ? top.split(',').map(Number) : null; }); return out;"
     )
-    assert len(coloured) == 8 and min(coloured) > 10  # every icon drawn
+    assert len(icons) == 8 and all(icons[name] is not None for name in ("prey", "predator", "prey-dot"))
+    predator = viewer.simulation.env.prey_capacity
+    _place(viewer, {0: (300.0, 300.0), predator: (500.0, 300.0)}, {0: (1.0, 0.0), predator: (1.0, 0.0)})
+    _until(lambda: _shows(page, 0, 300.0, 300.0) and _shows(page, predator, 500.0, 300.0))
+    saved = page.execute_script("return window.aquarium.view")
+    try:
+        assert icons["prey"] == _pixel(page, 310.0, 300.0) == list(PREY_BODY)
+        assert icons["predator"] == _pixel(page, 515.0, 300.0) == list(SHARK_BODY)
+        page.execute_script("window.aquarium.setView({x: 0, y: 0, scale: 0.04})")
+        assert icons["prey-dot"] == _pixel(page, 300.0, 300.0) == list(PREY_BODY)
+        assert icons["predator-diamond"] == _pixel(page, 500.0, 300.0) == list(SHARK_BODY)
+    finally:
+        page.execute_script("window.aquarium.setView(arguments[0])", saved)
+        viewer.simulation.playing = True
 
 
 def _canvas_point(page, x, y):
@@ -676,11 +806,11 @@ class _GatedRenderer:
     def __init__(self, gate):
         self.gate = gate
 
-    def __call__(self, env):
+    def __call__(self, env, **options):
         from aquarium_warp.render import Renderer
 
         assert self.gate.wait(60)
-        return Renderer(env)
+        return Renderer(env, **options)
 
 
 @browser_only
@@ -777,14 +907,12 @@ def _env_and_drivers(seed=0):
 
 
 def _frame_of(ws) -> tuple[dict, np.ndarray, np.ndarray]:
+    """(header, positions, slots) of the next frame."""
     while True:
         data = ws.recv(timeout=10)
         if isinstance(data, bytes):
-            n = int(np.frombuffer(data[:4], "<u4")[0])
-            header = json.loads(data[4 : 4 + n])
-            agents = np.frombuffer(data, "<f4", header["n"] * 6, 4 + n).reshape(-1, 6)
-            slots = np.frombuffer(data, "<u4", header["n"], 4 + n + agents.nbytes)
-            return header, agents, slots
+            header, agents = unpack_frame(data)
+            return header, agents["position"], agents["slots"]
 
 
 def test_attach_serves_the_env_as_the_script_steps_it():
@@ -798,10 +926,11 @@ def test_attach_serves_the_env_as_the_script_steps_it():
             env.step({team: driver() for team, driver in drivers.items()})
             seen[int(env.state.torch.world_step[1])] = env.state.torch.position[1].numpy().copy()
             time.sleep(0.02)
-            header, agents, slots = _frame_of(ws)
+            header, position, slots = _frame_of(ws)
             headers.append(header)
-            if header["step"] in seen:  # the frame shows world 1 exactly as it was after that step
-                np.testing.assert_array_equal(agents[:, :2], seen[header["step"]][slots])
+            if header["step"] in seen:  # world 1 as it was after that step, to half a quantum (on the torus)
+                off = (position - seen[header["step"]][slots] + 400.0) % 800.0 - 400.0
+                assert np.abs(off).max() <= 800 / 131072
         steps = [h["step"] for h in headers]
         assert steps == sorted(steps) and steps[-1] > 30 and not headers[-1]["controls"]
         assert {h["world"] for h in headers} == {1}

@@ -225,6 +225,20 @@ def test_write_video_reads_back(tmp_path):
         write_video([frames[0], frames[0][:10]], tmp_path / "bad.mp4", progress=False)
 
 
+def test_write_video_takes_an_x264_preset_and_refuses_others(tmp_path):
+    imageio = pytest.importorskip("imageio.v2")
+    pytest.importorskip("imageio_ffmpeg")
+    from aquarium_warp.video import write_video
+
+    frames = [np.full((32, 48, 3), 40 * i, dtype=np.uint8) for i in range(4)]
+    assert write_video(frames, tmp_path / "fast.mp4", fps=10, progress=False, preset="ultrafast") == 4
+    read = list(imageio.get_reader(str(tmp_path / "fast.mp4")).iter_data())
+    assert len(read) == 4 and abs(int(read[3].mean()) - 120) <= 3  # the last frame's grey, through yuv420p
+    with pytest.raises(ValueError, match=r"preset='quick' must be None or one of \['ultrafast'"):
+        write_video(frames, tmp_path / "bad.mp4", progress=False, preset="quick")
+    assert not (tmp_path / "bad.mp4").exists()
+
+
 def test_record_and_cli_video(device, tmp_path):
     imageio = pytest.importorskip("imageio.v2")
     pytest.importorskip("imageio_ffmpeg")

@@ -4,11 +4,12 @@
 "use strict";
 (function () {
   const $ = (id) => document.getElementById(id);
-  const canvas = $("world");
+  const canvas = $("world");  // Canvas 2D: everything, or with WebGL2 the overlays above the agents
   const ctx = canvas.getContext("2d");
+  const glCanvas = $("world-gl");  // WebGL2 (when offered): the sea, view cones and agents
   // the MP4's palette (aquarium_warp/render.py DEFAULT_PALETTE)
   const COLOURS = {
-    sea: "#acceE7", prey: "#ff8c00", preyFin: "#e66400", preyEdge: "#8c3e00", preyEye: "#19140f",
+    background: "#1d2733", sea: "#acceE7", prey: "#ff8c00", preyFin: "#e66400", preyEdge: "#8c3e00", preyEye: "#19140f",
     predator: "#5c7087", predatorFin: "#425468", predatorEdge: "#222c3a", predatorEye: "#0a0c10",
     predatorStripe: "#3e4e62", predatorMarkEdge: "#0a0c10",
     preyCone: "rgba(255,225,80,0.35)", predatorCone: "rgba(230,40,40,0.25)", preyHit: "#c81e1e",
@@ -18,15 +19,26 @@
   const PLOT_POINTS = 400;
   // Everything the page knows; the browser tests read it through window.aquarium.
   const state = {
-    frame: null, inspected: null, framesReceived: 0, framesDrawn: 0, fps: 0, lastError: "", connected: false,
+    frame: null, inspected: null, framesReceived: 0, framesDrawn: 0, bytesReceived: 0, fps: 0, lastError: "", connected: false,
     overlays: { view_cones: false, hit_boxes: false, velocities: false, flow: false },
     view: null, // {x, y, scale}: the world point at the canvas's top-left, canvas pixels per world px
     plots: { captures: [], polarization: [], groups: [] }, lastStep: null,
     connections: 0, // sockets opened: more than one after a reconnect
     history: [], historyBytes: 0, scrubbing: false, // the timeline: recent live frames, oldest first
+    redrawAlways: false, // draw at every animation frame, new frame or not (the benchmark's draw rate)
+    renderer: "canvas2d", glName: null, // "webgl2" when the agents are drawn by WebGL2 (its GPU's name)
   };
   const HISTORY_FRAMES = 1800, HISTORY_BYTES = 64 * 1024 * 1024;  // a minute at 30 fps, at most 64 MB
   window.aquarium = state;
+  // Who draws the agents. ?renderer=auto (the default): WebGL2 when the browser offers it and a frame
+  // holds at least GL_MIN_AGENTS agents, else Canvas 2D, which draws few agents faster where WebGL2 runs
+  // on a software GPU (its fixed cost a frame); ?renderer=webgl2: WebGL2 whenever offered;
+  // ?renderer=canvas2d: never.
+  const GL_MIN_AGENTS = 2000;
+  const asked = new URLSearchParams(location.search).get("renderer") || "auto";
+  let gl = asked !== "canvas2d" && window.AquariumGL ? window.AquariumGL.create(glCanvas, COLOURS) : null;
+  state.glName = gl ? gl.name : null;  // the GPU's name, when WebGL2 is offered
+  let useGL = false;  // the last frame was drawn with WebGL2
   const replayData = $("replay-data");
   let socket = null;
   let dirty = false;
@@ -41,27 +53,73 @@
   }
 
   // ---------------------------------------------------------------- frames
+  // A frame: its header, and per agent its slot, position (uint16 quanta of the world's size), heading
+  // (uint16 quanta of the circle) and velocity (float32 px/step, or null); `agents` unpacks them into
+  // [x, y, heading x, heading y, velocity x, velocity y] floats per agent, for the Canvas 2D drawing.
+  class Frame {
+    constructor(header, slots, position, angle, velocity, flow, bytes) {
+      Object.assign(this, { header, slots, position, angle, velocity, flow, bytes });
+    }
+
+    get agents() {
+      const n = this.header.n, out = new Float32Array(n * 6), p = this.position, v = this.velocity;
+      const sx = this.header.width / QUANTA, sy = this.header.height / QUANTA, sa = (2 * Math.PI) / QUANTA;
+      for (let i = 0; i < n; i++) {
+        const angle = this.angle[i] * sa;
+        out[i * 6] = p[2 * i] * sx;
+        out[i * 6 + 1] = p[2 * i + 1] * sy;
+        out[i * 6 + 2] = Math.cos(angle);
+        out[i * 6 + 3] = Math.sin(angle);
+        if (v) { out[i * 6 + 4] = v[2 * i]; out[i * 6 + 5] = v[2 * i + 1]; }
+      }
+      return out;
+    }
+  }
+  const QUANTA = 65536;
+
+  function half(bits) {  // an IEEE float16 as a number
+    const sign = bits & 0x8000 ? -1 : 1, exponent = (bits >> 10) & 31, mantissa = bits & 1023;
+    if (exponent === 0) return sign * mantissa * 2 ** -24;
+    if (exponent === 31) return mantissa ? NaN : sign * Infinity;
+    return sign * (1 + mantissa / 1024) * 2 ** (exponent - 15);
+  }
+
+  // a frame of the server (layout in aquarium_warp/viewer/server.py)
   function decode(buffer) {
     const headerLength = new DataView(buffer).getUint32(0, true);
     const header = JSON.parse(new TextDecoder().decode(new Uint8Array(buffer, 4, headerLength)));
+    const n = header.n;
     let offset = 4 + headerLength;
-    const agents = new Float32Array(buffer, offset, header.n * 6);
-    offset += header.n * 24;
-    const slots = new Uint32Array(buffer, offset, header.n);
-    offset += header.n * 4;
+    const slots = new Uint32Array(buffer, offset, n);
+    offset += 4 * n;
+    const position = new Uint16Array(buffer, offset, 2 * n);
+    offset += 4 * n;
+    const angle = new Uint16Array(buffer, offset, n);
+    offset += 2 * n + 2 * (n % 2);
+    let velocity = null;
+    if (header.velocities) {
+      velocity = Float32Array.from(new Uint16Array(buffer, offset, 2 * n), half);
+      offset += 4 * n;
+    }
     const flow = header.flow_shape ? new Float32Array(buffer, offset, header.flow_shape[0] * header.flow_shape[1] * 2) : null;
-    return { header, agents, slots, flow, bytes: buffer.byteLength };
+    return new Frame(header, slots, position, angle, velocity, flow, buffer.byteLength);
   }
 
+  // a frame of a replay's trajectory (aquarium_warp/viewer/recording.py), quantised as the server's
   function replayFrame(meta, f) {
-    const n = f.slot.length;
-    const agents = new Float32Array(n * 6);
+    const n = f.slot.length, position = new Uint16Array(2 * n), angle = new Uint16Array(n);
+    const velocity = new Float32Array(2 * n);
+    const quantum = (value, size) => ((Math.round((value / size) * QUANTA) % QUANTA) + QUANTA) % QUANTA;
     for (let i = 0; i < n; i++) {
-      agents.set([f.x[i], f.y[i], f.hx[i], f.hy[i], f.vx[i], f.vy[i]], i * 6);
+      position[2 * i] = quantum(f.x[i], meta.width);
+      position[2 * i + 1] = quantum(f.y[i], meta.height);
+      angle[i] = quantum(Math.atan2(f.hy[i], f.hx[i]), 2 * Math.PI);
+      velocity[2 * i] = f.vx[i];
+      velocity[2 * i + 1] = f.vy[i];
     }
     const header = Object.assign({}, meta, f, { n, alive_total: n, human: f.human === null ? null : { slot: f.human },
-      num_worlds: 1, overlays: state.overlays });
-    return { header, agents, slots: Uint32Array.from(f.slot), flow: null };
+      num_worlds: 1, overlays: state.overlays, velocities: true });
+    return new Frame(header, Uint32Array.from(f.slot), position, angle, velocity, null, 0);
   }
 
   let latest = null;  // the header of the newest frame received
@@ -73,6 +131,7 @@
     }
     latest = h;
     state.framesReceived += 1;
+    state.bytesReceived += frame.bytes;
     if (h.step !== state.lastStep) {
       state.lastStep = h.step;
       push("captures", h.episode_captures);
@@ -182,8 +241,8 @@
   // ---------------------------------------------------------------- view: zoom and pan
   function resize() {
     const ratio = window.devicePixelRatio || 1;
-    canvas.width = Math.max(1, Math.round(canvas.clientWidth * ratio));
-    canvas.height = Math.max(1, Math.round(canvas.clientHeight * ratio));
+    canvas.width = glCanvas.width = Math.max(1, Math.round(canvas.clientWidth * ratio));
+    canvas.height = glCanvas.height = Math.max(1, Math.round(canvas.clientHeight * ratio));
     dirty = true;
   }
 
@@ -390,30 +449,12 @@
     }
   }
 
-  function draw() {
-    const frame = state.frame;
-    const v = state.view;
-    ctx.setTransform(1, 0, 0, 1, 0, 0);
-    ctx.fillStyle = "#1d2733";
-    ctx.fillRect(0, 0, canvas.width, canvas.height);
-    if (!frame || !v) return;
-    const h = frame.header, a = frame.agents, slots = frame.slots, n = h.n;
-    const W = h.width, H = h.height;
-    const base = { a: v.scale, e: -v.x * v.scale, f: -v.y * v.scale };
-    const world = () => ctx.setTransform(base.a, 0, 0, base.a, base.e, base.f);
-    world();
-    ctx.fillStyle = COLOURS.sea;
-    ctx.fillRect(0, 0, W, H);
-    ctx.save();
-    ctx.beginPath();
-    ctx.rect(0, 0, W, H);
-    ctx.clip();  // the world's rectangle; what reaches past an edge is drawn again across the seam
-    const px = 1 / v.scale;  // one canvas pixel in world px
-    const ov = state.overlays;
-    if (ov.flow && frame.flow) drawFlow(frame, px);
+  // Canvas 2D: the view cones and the bodies (`a`: frame.agents)
+  function drawAgents(frame, a, px, base, world) {
+    const h = frame.header, slots = frame.slots, n = h.n, W = h.width, H = h.height;
     const typeOf = (i) => (slots[i] < h.prey_capacity ? "prey" : "predator");
     const halfDiagonal = 0.5 * Math.hypot(W, H);
-    if (ov.view_cones) {
+    if (state.overlays.view_cones) {
       for (const type of ["prey", "predator"]) {
         const t = h.types[type], half = (t.fov / 2) * Math.PI / 180;
         const reach = Math.min(t.view_distance, halfDiagonal);  // beyond it the cone covers the world
@@ -459,6 +500,44 @@
         ctx.stroke();
       }
     }
+  }
+
+  // With WebGL2 the GL canvas draws the sea, the view cones and the agents, and the Canvas 2D one above
+  // it the other overlays; without, Canvas 2D draws everything.
+  function draw() {
+    const frame = state.frame;
+    const v = state.view;
+    const ov = state.overlays;
+    ctx.setTransform(1, 0, 0, 1, 0, 0);
+    useGL = gl !== null && frame !== null && (asked === "webgl2" || frame.header.n >= GL_MIN_AGENTS);
+    state.renderer = useGL ? "webgl2" : "canvas2d";
+    glCanvas.hidden = !useGL;
+    if (useGL) {
+      gl.draw(frame, v, ov.view_cones, markOf);
+      ctx.clearRect(0, 0, canvas.width, canvas.height);
+    } else {
+      ctx.fillStyle = COLOURS.background;
+      ctx.fillRect(0, 0, canvas.width, canvas.height);
+    }
+    if (!frame || !v) return;
+    const h = frame.header, slots = frame.slots, n = h.n;
+    const a = !useGL || ov.hit_boxes || (ov.velocities && frame.velocity) ? frame.agents : null;
+    const W = h.width, H = h.height;
+    const base = { a: v.scale, e: -v.x * v.scale, f: -v.y * v.scale };
+    const world = () => ctx.setTransform(base.a, 0, 0, base.a, base.e, base.f);
+    world();
+    if (!useGL) {
+      ctx.fillStyle = COLOURS.sea;
+      ctx.fillRect(0, 0, W, H);
+    }
+    ctx.save();
+    ctx.beginPath();
+    ctx.rect(0, 0, W, H);
+    ctx.clip();  // the world's rectangle; what reaches past an edge is drawn again across the seam
+    const px = 1 / v.scale;  // one canvas pixel in world px
+    if (ov.flow && frame.flow) drawFlow(frame, px);
+    const typeOf = (i) => (slots[i] < h.prey_capacity ? "prey" : "predator");
+    if (!useGL) drawAgents(frame, a, px, base, world);
     ctx.lineWidth = px;
     if (ov.hit_boxes) {
       for (const type of ["prey", "predator"]) {
@@ -472,7 +551,7 @@
         ctx.stroke();
       }
     }
-    if (ov.velocities) {  // the move of ten steps, as the rasteriser draws it
+    if (ov.velocities && frame.velocity) {  // the move of ten steps, as the rasteriser draws it
       ctx.strokeStyle = COLOURS.velocity;
       ctx.beginPath();
       for (let i = 0; i < n; i++) {
@@ -491,7 +570,8 @@
         ctx.strokeStyle = colour;
         ctx.lineWidth = 3 * px;
         ctx.beginPath();
-        copies(a[i * 6], a[i * 6 + 1], r + 3 * px, W, H, (x, y) => { ctx.moveTo(x + r, y); ctx.arc(x, y, r, 0, 2 * Math.PI); });
+        const x = (frame.position[2 * i] * W) / QUANTA, y = (frame.position[2 * i + 1] * H) / QUANTA;
+        copies(x, y, r + 3 * px, W, H, (cx, cy) => { ctx.moveTo(cx + r, cy); ctx.arc(cx, cy, r, 0, 2 * Math.PI); });
         ctx.stroke();
       }
     }
@@ -581,10 +661,26 @@
       + `  [${Number(low).toFixed(2)}, ${Number(high).toFixed(2)}]`, 4, 12 * ratio);
   }
 
+  // RGB of canvas pixel (column, row) as the page shows it (the tests read it): drawn now, the Canvas 2D
+  // overlays over the WebGL2 canvas
+  state.pixel = (column, row) => {
+    draw();
+    const top = ctx.getImageData(column, row, 1, 1).data;
+    if (!useGL) return Array.from(top.slice(0, 3));
+    const alpha = top[3] / 255;
+    return gl.pixel(column, row).map((c, k) => Math.round(top[k] * alpha + c * (1 - alpha)));
+  };
+  state.setView = (view) => { state.view = Object.assign({}, view); viewChanged(); };
+
   let fpsCount = 0, fpsSince = performance.now(), plotsAt = 0;
   function animate(now) {
+    if (gl && gl.lost()) {  // the GPU was taken away: Canvas 2D from now on
+      gl = null;
+      state.glName = null;
+      dirty = true;
+    }
     if (replayData) replayTick(now);
-    if (dirty) {
+    if (dirty || state.redrawAlways) {
       dirty = false;
       draw();
       state.framesDrawn += 1;
@@ -594,7 +690,7 @@
       state.fps = (fpsCount * 1000) / (now - fpsSince);
       fpsCount = 0;
       fpsSince = now;
-      $("fps-label").textContent = `${state.fps.toFixed(1)} fps`;
+      $("fps-label").textContent = `${state.fps.toFixed(1)} fps (${useGL ? "WebGL2" : "Canvas 2D"})`;
     }
     if (now - plotsAt > 250) {  // plots four times a second: they need not keep up with the world
       plotsAt = now;
