@@ -52,8 +52,8 @@ DESCRIPTION = (
     "removed, contact penalised), evaluate them in their world, with their prey slots emptied and at the other "
     "capture strength, beside random, constant, TurnAway and Boids prey, and name each cell's collective state "
     "by the declared thresholds (docs/studies/phase.md). Tasks keep their results in --out (finished/); a "
-    "rerun runs only what is missing. Writes summary.json, cells.csv, per_seed.csv, training_series.csv and "
-    "figures."
+    "rerun runs only what is missing. Writes summary.json, cells.csv, per_seed.csv, readings.csv, "
+    "training_series.csv and figures."
 )
 
 # ---- the pre-registered design (docs/studies/phase.md) ------------------------------------------------
@@ -557,7 +557,8 @@ def training_series(trainings: Sequence[dict]) -> list[dict]:
 
 def write_tables(out: str, summary: dict) -> None:
     """`cells.csv` (a row per cell, control and evaluation: means and 95% half-widths, with the regime),
-    `per_seed.csv` (a row per cell, control, evaluation and training seed) and `training_series.csv`."""
+    `per_seed.csv` (a row per cell, control, evaluation and training seed), `readings.csv` (a row per
+    cell and declared contrast: difference, 95% interval, margin, verdict) and `training_series.csv`."""
     from .common import write_csv
 
     rows, per_seed = [], []
@@ -580,6 +581,14 @@ def write_tables(out: str, summary: dict) -> None:
             rows.append(row)
     write_csv(os.path.join(out, "cells.csv"), rows)
     write_csv(os.path.join(out, "per_seed.csv"), per_seed)
+    write_csv(
+        os.path.join(out, "readings.csv"),
+        [
+            {"cell": name, "regime": entry["regime"], **contrast}
+            for name, entry in summary["cells"].items()
+            for contrast in entry.get("contrasts", [])
+        ],
+    )
     if summary.get("training_series"):
         write_csv(os.path.join(out, "training_series.csv"), summary["training_series"])
 
