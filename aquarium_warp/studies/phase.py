@@ -723,7 +723,7 @@ def plot(out: str, summary: dict) -> None:
                 x = [strengths.index(rule_cells[n].strength) for n in names]
                 for control in ("learned", "no-slots", "no-predation"):
                     points = [p for n in names if (p := stats(n, control, measure)) is not None]
-                    if len(points) == len(names):
+                    if names and len(points) == len(names):
                         band(ax, x, points, label=f"{rule}: {control}")
             ax.set_xticks(range(len(strengths)), [f"{c:g}" for c in strengths])
             ax.set_xlabel("capture strength c")
