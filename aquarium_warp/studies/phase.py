@@ -555,7 +555,7 @@ def training_series(trainings: Sequence[dict]) -> list[dict]:
     ]
 
 
-def write_tables(out: str, summary: dict) -> None:
+def write_tables(out: str, summary: dict, series: list[dict]) -> None:
     """`cells.csv` (a row per cell, control and evaluation: means and 95% half-widths, with the regime),
     `per_seed.csv` (a row per cell, control, evaluation and training seed), `readings.csv` (a row per
     cell and declared contrast: difference, 95% interval, margin, verdict) and `training_series.csv`."""
@@ -589,8 +589,8 @@ def write_tables(out: str, summary: dict) -> None:
             for contrast in entry.get("contrasts", [])
         ],
     )
-    if summary.get("training_series"):
-        write_csv(os.path.join(out, "training_series.csv"), summary["training_series"])
+    if series:
+        write_csv(os.path.join(out, "training_series.csv"), series)
 
 
 def run(args) -> int:
@@ -650,15 +650,15 @@ def run(args) -> int:
         "cells": summarize(
             list(zip(evaluations, evaluated, strict=True)), list(zip(baselines, heuristics, strict=True))
         ),
-        "training_series": training_series(trainings),
     }
+    series = training_series(trainings)  # written to training_series.csv only: it is most of the data
     summary.update(provenance(devices[0], command_line(args.argv), commit=args.commit))
     summary["wall_s"] = round(time.perf_counter() - start, 1)
     with atomic_open(os.path.join(args.out, "summary.json")) as f:
         json.dump(json_safe(summary), f, indent=1)
-    write_tables(args.out, summary)
+    write_tables(args.out, summary, series)
     if not args.no_figures:
-        plot(args.out, summary)
+        plot(args.out, summary, series)
     print(f"study phase: wrote {os.path.join(args.out, 'summary.json')} ({summary['wall_s']} s)")
     for name, entry in summary["cells"].items():
         if "regime" in entry:
@@ -670,7 +670,7 @@ def run(args) -> int:
 # ---- figures ------------------------------------------------------------------------------------------
 
 
-def plot(out: str, summary: dict) -> None:
+def plot(out: str, summary: dict, series: list[dict]) -> None:
     """`phase_density_view.png`: heatmaps over prey count x view distance of the primary measure and the
     largest group (learned prey and their no-slot control), each cell with its mean, 95% half-width and
     regime; `phase_rule.png`: the primary measure and captures against c for both rules with 95% bands
@@ -730,7 +730,6 @@ def plot(out: str, summary: dict) -> None:
             ax.set_ylabel(measure)
         axes[0].legend(fontsize=7)
         save_figure(fig, out, "phase_rule.png", "N = 32, 360 degrees / 200 px, NaivChase (nearest target)")
-    series = summary.get("training_series") or []
     if series:
         fig, ax = plt.subplots(figsize=(7, 4))
         for name in sorted({r["cell"] for r in series}):
