@@ -152,8 +152,8 @@ def test_simulation_bytes_of_small_worlds():
     L_prey, L_pred = env.state.observations.obs_prey.shape[2], env.state.observations.obs_predator.shape[2]
     K_prey, K_pred = env.state.observations.mask_prey.shape[2], env.state.observations.mask_predator.shape[2]
     # position, velocity, acceleration, heading (vec2 float32), alive (bool), age, replication_age,
-    # starvation (int32)
-    agents = W * C * (4 * 8 + 1 + 3 * 4)
+    # starvation, handling (int32)
+    agents = W * C * (4 * 8 + 1 + 4 * 4)
     # world_step, episode, episode_captures, prey and predator alive counts, seed, stream_world ([W] 4
     # bytes) and episode_return ([W, C] float32)
     worlds = W * 7 * 4 + W * C * 4
