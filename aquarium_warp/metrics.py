@@ -538,12 +538,19 @@ class EpisodeMetrics(Observer):
             target.zero_()
             if saved is None:
                 continue
-            if saved.shape[0] != target.shape[0] or saved.shape[1] > target.shape[1]:
+            if saved.shape == target.shape:
+                target.copy_(saved)
+            elif (
+                saved.dim() == target.dim() == 2
+                and saved.shape[0] == target.shape[0]
+                and (saved.shape[1] < target.shape[1])
+            ):  # fewer metric columns: a state from before the group measures
+                target[:, : saved.shape[1]].copy_(saved)
+            else:
                 raise ValueError(
                     f"episode metrics state {name!r} has shape {tuple(saved.shape)}: expected {tuple(target.shape)} "
                     "(a checkpoint of another world count or metric set)"
                 )
-            target[:, : saved.shape[1]].copy_(saved)
         self.steps = int(state["steps"])
 
     def traces(self) -> dict[str, torch.Tensor]:
