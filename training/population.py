@@ -57,6 +57,7 @@ import torch
 from rsl_rl.storage import RolloutStorage
 from rsl_rl.utils import resolve_callable
 
+from ..agent_types import OTHER, TYPES
 from ..atomic import atomic_open
 from ..config import AquariumConfig
 from ..device import resolve_device
@@ -82,7 +83,7 @@ from .memory import check_training_memory
 from .ppo import AquariumPPO
 from .run_dir import check_same_run
 from .stop import StopRequest
-from .vec_env import OTHER, AquariumVecEnv
+from .vec_env import AquariumVecEnv
 
 # The train settings that may differ between a population's runs (everything else is the same).
 RUN_SETTINGS = ("seed", "reward_scale", "episodes", "iterations")
@@ -175,7 +176,7 @@ def group_key(config: dict) -> str | None:
     for name in PER_WORLD_FIELDS:
         if name not in ("prey_count", "predator_count"):
             env.pop(name, None)
-    for team in ("prey", "predator"):
+    for team in TYPES:
         for name in PER_WORLD_TYPE_FIELDS:
             (env.get(team) or {}).pop(name, None)
     return json.dumps(shared, sort_keys=True, default=str)

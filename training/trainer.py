@@ -53,6 +53,7 @@ import uuid
 
 import torch
 
+from ..agent_types import OTHER, TYPES
 from ..atomic import atomic_open
 from ..device import resolve_device
 from ..drivers import make_driver
@@ -66,7 +67,6 @@ from . import (
 from .checkpoints import global_rng_state, newest_readable_checkpoint, read_checkpoint, restore_global_rng_state
 from .config import (
     RESUMABLE_SETTINGS,
-    TEAMS,
     default_opponent,
     env_config,
     learning_teams,
@@ -81,7 +81,7 @@ from .memory import check_training_memory
 from .run_dir import check_same_run
 from .runner import AquariumRunner, Learner
 from .stop import StopRequest
-from .vec_env import OTHER, AquariumVecEnv
+from .vec_env import AquariumVecEnv
 
 
 def run_config(config: dict) -> dict:
@@ -125,7 +125,7 @@ class Trainer:
             torch.backends.cuda.matmul.allow_tf32 = True  # a process-wide switch of torch's
         if both:  # each team's opponent is the other learner, whose actions the training loop writes
             self.opponent = None
-            opponents = {team: LearnerActions() for team in TEAMS}
+            opponents = {team: LearnerActions() for team in TYPES}
         else:
             self.opponent = make_driver(
                 train["opponent"],
@@ -151,7 +151,7 @@ class Trainer:
             for i, team in enumerate(self.teams)
         }
         if both:
-            for team in TEAMS:
+            for team in TYPES:
                 opponents[team].vec_env = self.vec_envs[OTHER[team]]
         self.vec_env = self.vec_envs[self.teams[0]]
         self.runner_cfgs = {
@@ -205,7 +205,7 @@ class Trainer:
                 {t: (l.alg.get_policy(), l.vec_env) for t, l in self.learners.items()},
                 size=int(train["pool_size"]),
                 sampling=train["pool_sampling"],
-                fractions={t: float(team_settings(config, t)["pool_fraction"]) for t in TEAMS},
+                fractions={t: float(team_settings(config, t)["pool_fraction"]) for t in TYPES},
             )
         self.video = None
         if train["video_every"]:

@@ -507,3 +507,11 @@ def add_common_arguments(p: argparse.ArgumentParser, out: str, jobs: bool = True
         )
     p.add_argument("--out", default=out, help=f"output directory (default {out})")
     p.add_argument("--no-figures", action="store_true", help="write CSV/JSON only, no figures")
+
+
+def study_options(argv: Sequence[str], name: str) -> list[str]:
+    """The options of `aquarium-warp study <name> ...` (`args.argv`, the command as given): the words after
+    the study's name, for a study whose own `main(argv)` parses them (the one parser of its script and
+    of `aquarium-warp study`)."""
+    words = list(argv)
+    return words[words.index(name) + 1 :]
