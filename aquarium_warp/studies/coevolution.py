@@ -84,7 +84,7 @@ import numpy as np
 import torch
 
 from ..arguments import check_distinct, check_int
-from ..device import resolve_device
+from ..device import resolve_device, synchronize
 from ..records import command_line, json_safe, machine_info, provenance
 from ..seeding import EVALUATION_STRIDE, evaluation_seed
 from ..training import Trainer, make_config
@@ -101,11 +101,6 @@ CURVE_PREFIXES = ("prey/Episode", "predator/Episode", "Swarm/")
 PREY_BASELINES = ("random", "turnaway")
 PREDATOR_BASELINES = ("random", "naivchase")
 PRIMARY = "captures_per_prey"
-
-
-def sync(device: torch.device) -> None:
-    if device.type == "cuda":
-        torch.cuda.synchronize(device)
 
 
 def settings(args, seed: int) -> dict:
@@ -194,10 +189,10 @@ def measure_speed(args, name: str, *changes: dict) -> dict:
     trainer = Trainer(config)
     device = trainer.device
     trainer.train(2)
-    sync(device)
+    synchronize(device)
     start = time.perf_counter()
     trainer.train(args.speed_iterations)
-    sync(device)
+    synchronize(device)
     seconds = time.perf_counter() - start
     steps = args.steps * args.speed_iterations
     agents = trainer.env.num_worlds * (args.prey + args.predators)
@@ -273,7 +268,7 @@ def run_seed(task: dict, device: str, keep_checkpoints: bool = False) -> dict:
     torch_device = trainer.device
     start = time.perf_counter()
     train_generations(trainer, task["generation_iterations"])
-    sync(torch_device)
+    synchronize(torch_device)
     train_seconds = time.perf_counter() - start
     trainer.export()
     train = config["train"]

@@ -1,6 +1,15 @@
-"""What the studies share besides their job runner (`jobs`) and statistics (`statistics`): rows grouped
-by setting, training runs through the `Trainer` API, evaluation rollouts that see every step's state,
-the geometry of fleeing, the output files, the record of a run and the error-band plots.
+"""What the studies share besides their job runner (`jobs`) and statistics (`statistics`), in sections:
+
+- **rows**: `group_rows` (a study's rows grouped by setting; a group's rows are the seeds);
+- **training**: run configs (`training_config`), training runs through the `Trainer` API
+  (`train_and_export`, `run_training_task`, `run_training_population`, `pretrain_populations`) and the
+  policies they export (`policy_path`);
+- **rollouts**: evaluation episodes that see every step's state (`rollout`);
+- **geometry**: the torus and fleeing (`torus_delta`, `nearest_predator`, `cosine`, `fleeing`);
+- **outputs**: the files (`write_outputs`, `write_csv`), the record of a run (`run_record`), the closing
+  line (`written`) and the error-band figures (`pyplot`, `band`, `save_figure`);
+- **command line**: the options every open-question study takes (`add_common_arguments`) and a
+  study's own options in `aquarium-warp study <name>` (`study_options`).
 
 Figures give the mean over seeds and its standard error (`sem`, std over seeds / sqrt(n)), drawn as a
 band of mean ± 1 s.e.m.; the JSON files give the 95% interval of the mean too (`statistics.seed_stats`).

@@ -275,8 +275,14 @@ DESCRIPTION = " ".join(__doc__.split("\n\n")[0].split(": ", 1)[1].split())
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--plan", choices=sorted(PLANS), default="screen")
-    p.add_argument("--out", default="runs/learned_prey")
+    p.add_argument(
+        "--plan", choices=sorted(PLANS), default="screen", help="the (condition, world, seeds) to run (default screen)"
+    )
+    p.add_argument(
+        "--out",
+        default="runs/learned_prey",
+        help="output folder: runs, evaluations, summaries (default runs/learned_prey)",
+    )
     p.add_argument("--gpus", type=int, default=1, help="GPUs to spread the tasks over (0: the CPU)")
     p.add_argument(
         "--per-gpu",
@@ -285,7 +291,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="evaluations at once per GPU (trainings that may share a process run as one population per GPU)",
     )
     p.add_argument("--episodes", type=int, default=50, help="evaluation episodes per evaluation seed")
-    p.add_argument("--eval-seeds", type=int, nargs="+", default=[0, 1])
+    p.add_argument("--eval-seeds", type=int, nargs="+", default=[0, 1], help="evaluation seeds (default 0 1)")
     p.add_argument(
         "--commit", default=None, help="the commit of a copy without git history (a checkout's own is read from git)"
     )
