@@ -447,7 +447,7 @@ class AquariumConfig:
     def draw(self, num_worlds: int, seed: int | tuple[int, ...] = 0) -> AquariumConfig:
         """A copy whose samplers are replaced by `num_worlds` drawn values (`seeding.config_stream(seed)`,
         fields in `per_world_fields` order). A tuple of K seeds draws each of K equal groups of worlds
-        from its own seed, as a batch of `num_worlds / K` worlds with that seed draws (`env.seed_groups`)."""
+        from its own seed, as a batch of `num_worlds / K` worlds with that seed draws (`seeding.seed_groups`)."""
         seeds = seed if isinstance(seed, tuple) else (seed,)
         group = num_worlds // len(seeds)
         values: dict[str, tuple] = {}

@@ -3,7 +3,7 @@
 A study needs many trainings (seeds, conditions, controls), and one small training leaves a GPU
 almost idle. A population trains K runs together, each as if it trained alone:
 
-- **Worlds.** One `BatchedAquarium` of K x W worlds, seeded with the K runs' seeds (`env.seed_groups`):
+- **Worlds.** One `BatchedAquarium` of K x W worlds, seeded with the K runs' seeds (`seeding.seed_groups`):
   run k owns worlds `[k W, (k + 1) W)`, whose random streams are those of a batch of W worlds seeded
   with its seed, and its condition is its worlds' per-world parameters (`AquariumConfig.stack`). The
   opponent heuristic is keyed per run the same way.
