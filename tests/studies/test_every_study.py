@@ -56,7 +56,19 @@ TINY: dict[str, tuple[list[str], str, str]] = {
         "learned_prey_tiny.json",
     ),
     "coevolution": (
-        ["--tiny", "--worlds", "4", "--max-steps", "40", "--agent-steps", "4000", "--speed-iterations", "1"]
+        [
+            "--tiny",
+            "--worlds",
+            "4",
+            "--max-steps",
+            "40",
+            "--steps",
+            "8",
+            "--agent-steps",
+            "1000",
+            "--speed-iterations",
+            "1",
+        ]
         + ["--eval-episodes", "1", "--eval-seeds", "0", "--no-figures"],
         "--out-dir",
         "summary.json",
