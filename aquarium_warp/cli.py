@@ -39,7 +39,7 @@ def _demo(args) -> int:
     import torch
 
     from . import AquariumConfig, BatchedAquarium
-    from .env import seed_key
+    from .seeding import seed_key
 
     cfg = AquariumConfig(prey_count=args.prey, predator_count=args.predators, max_steps=args.max_steps)
     env = BatchedAquarium(cfg, num_worlds=args.worlds, device=args.device, seed=args.seed)

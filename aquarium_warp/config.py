@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .agent_types import TYPES
 from .checks import INT32_MAX, LARGEST, MAX_HANDLING_STEPS, RETURN_LIMIT, SMALLEST, is_int, is_real, require
 from .per_world import INTEGER_FIELDS, PER_WORLD_FIELDS, PER_WORLD_TYPE_FIELDS, SAMPLERS, Choice, Uniform, largest
 from .seeding import config_stream
@@ -370,7 +371,7 @@ class AquariumConfig:
             object.__setattr__(self, name, _per_world_value(name, getattr(self, name)))
         if isinstance(self.flow, dict):
             object.__setattr__(self, "flow", _flow_from_dict(self.flow, "flow."))
-        for name in ("prey", "predator"):
+        for name in TYPES:
             value = getattr(self, name)
             if not isinstance(value, AgentTypeConfig):
                 raise ValueError(f"{name} must be an AgentTypeConfig, got {type(value).__name__}")
@@ -384,7 +385,7 @@ class AquariumConfig:
     def per_world_fields(self) -> tuple[str, ...]:
         """Names of the fields given per world (`prey.max_speed` for a type's), as tuples or samplers."""
         own = tuple(n for n in PER_WORLD_FIELDS if isinstance(getattr(self, n), (tuple,) + SAMPLERS))
-        return own + tuple(f"{t}.{n}" for t in ("prey", "predator") for n in getattr(self, t).per_world_fields)
+        return own + tuple(f"{t}.{n}" for t in TYPES for n in getattr(self, t).per_world_fields)
 
     def _field(self, name: str):
         owner, _, leaf = name.rpartition(".")
@@ -406,7 +407,7 @@ class AquariumConfig:
         the checks cost about 70 us per world)."""
         replace = dataclasses.replace if validate else _replace_unchecked
         world = {n: v for n, v in values.items() if "." not in n}
-        for t in ("prey", "predator"):
+        for t in TYPES:
             own = {n.split(".", 1)[1]: v for n, v in values.items() if n.startswith(t + ".")}
             if own:
                 world[t] = replace(getattr(self, t), **own)
@@ -417,7 +418,7 @@ class AquariumConfig:
         """The config of `len(configs)` equal groups of `worlds` worlds, group k with the values of
         `configs[k]` (samplers drawn first: `draw`). The configs may differ only in what may differ per
         world; a one-line ValueError names the first other difference."""
-        names = PER_WORLD_FIELDS + tuple(f"{t}.{n}" for t in ("prey", "predator") for n in PER_WORLD_TYPE_FIELDS)
+        names = PER_WORLD_FIELDS + tuple(f"{t}.{n}" for t in TYPES for n in PER_WORLD_TYPE_FIELDS)
         base = configs[0]
         if any(c.has_samplers for c in configs):
             raise ValueError("stack: draw the configs' samplers first (AquariumConfig.draw)")
@@ -446,7 +447,7 @@ class AquariumConfig:
     def draw(self, num_worlds: int, seed: int | tuple[int, ...] = 0) -> AquariumConfig:
         """A copy whose samplers are replaced by `num_worlds` drawn values (`seeding.config_stream(seed)`,
         fields in `per_world_fields` order). A tuple of K seeds draws each of K equal groups of worlds
-        from its own seed, as a batch of `num_worlds / K` worlds with that seed draws (`env.seed_groups`)."""
+        from its own seed, as a batch of `num_worlds / K` worlds with that seed draws (`seeding.seed_groups`)."""
         seeds = seed if isinstance(seed, tuple) else (seed,)
         group = num_worlds // len(seeds)
         values: dict[str, tuple] = {}
@@ -622,7 +623,7 @@ class AquariumConfig:
             require(name, value, isinstance(value, str) and value in allowed, f"one of {allowed}")
         # One move (speed plus drift) stays shorter than half the world, so a wrap is one add or subtract.
         drift = self.flow.reach
-        for name in ("prey", "predator"):
+        for name in TYPES:
             speed = getattr(self, name).max_speed
             require(
                 f"{name}.max_speed",
@@ -742,7 +743,7 @@ class AquariumConfig:
             raise ValueError(f"an AquariumConfig dict must be a dict, got {type(data).__name__}")
         data = dict(data)
         _check_keys(data, cls, "")
-        for name in ("prey", "predator"):
+        for name in TYPES:
             if isinstance(data.get(name), dict):
                 _check_keys(data[name], AgentTypeConfig, f"{name}.")
                 data[name] = AgentTypeConfig(**data[name])

@@ -101,6 +101,14 @@ def resolve_cpu_threads(cpu_threads) -> int:
 _TORCH_STREAMS: dict[int, wp.Stream] = {}
 
 
+def synchronize(device: str | torch.device) -> None:
+    """Wait for torch's work on `device` (a CUDA device; nothing to wait for on the CPU), so that a host
+    clock read next counts it."""
+    device = torch.device(device)
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
 def torch_stream(device: torch.device) -> wp.Stream | None:
     """Torch's current stream on a CUDA `device` as a Warp stream (None on the CPU): Warp work launched
     there is ordered with torch's and is captured with it into torch's CUDA graphs. Made once per torch

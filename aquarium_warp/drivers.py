@@ -26,7 +26,8 @@ from collections.abc import Callable, Mapping, Sequence
 
 import torch
 
-from .env import TYPES, BatchedAquarium
+from .agent_types import TYPES
+from .env import BatchedAquarium
 from .heuristics import POLICIES, make_policy, normalise_name
 from .pretrained import for_team, is_policy_file
 from .pretrained import names as pretrained_names

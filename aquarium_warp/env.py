@@ -17,62 +17,18 @@ import torch
 import warp as wp
 
 from . import checks
+from .agent_types import TYPES
 from .config import AquariumConfig
 from .device import WARP_SETUP_LOCK, free_bytes, resolve_cpu_threads, resolve_device
 from .params import BatchParams
-from .per_world import INTEGER_FIELDS, SAMPLERS, dotted_name, largest, per_world
-from .seeding import set_params_stream
+from .per_world import check_live_counts, largest, merged_values, per_world, selected_worlds
+from .seeding import seed_groups, seed_keys, seeds_value, set_params_stream
 from .shard import Program, ShardSet, fused_step
 from .state import STATE_DICT_FIELDS, SimulationState, estimate_bytes
 
-TYPES = ("prey", "predator")
 # Worlds of at most this many slots are one cell, whose fixed whole-world lists need no build per step
 # (H200, ~1M agents in flight: worlds of 64 stepped 14% faster with cells than as one cell).
 SINGLE_CELL_CAPACITY = 32
-
-
-def seed_key(seed) -> int:
-    """The 32-bit key of the random streams for a non-negative integer `seed`."""
-    if isinstance(seed, (bool, float)) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"seed={seed!r} must be a non-negative integer")
-    seed = int(seed)
-    key = 0
-    while True:  # fold every 32-bit word of the seed into the key
-        key = (key * 0x9E3779B1 + (seed & 0xFFFFFFFF)) & 0xFFFFFFFF
-        seed >>= 32
-        if seed == 0:
-            return key
-
-
-def seeds_value(seeds: tuple[int, ...]) -> int | tuple[int, ...]:
-    """`env.seed`: the one seed, or the tuple of the groups' seeds."""
-    return seeds[0] if len(seeds) == 1 else seeds
-
-
-def seed_groups(seed, num_worlds: int) -> tuple[int, ...]:
-    """The seeds of a batch's equal groups of consecutive worlds. An integer seeds every world (one
-    group). A sequence of K seeds splits the `num_worlds` worlds into K groups of `num_worlds / K`;
-    group k's random streams are keyed by seed k and count its worlds from 0, so it draws exactly what
-    a batch of `num_worlds / K` worlds seeded with seed k draws (a population's runs, each trained as
-    if alone: `training/population.py`)."""
-    if isinstance(seed, (list, tuple)):
-        if not seed:
-            raise ValueError("seed=[] must hold at least one seed")
-        for s in seed:
-            seed_key(s)
-        if num_worlds % len(seed):
-            raise ValueError(
-                f"seed gives {len(seed)} seeds for {num_worlds} worlds: the number of worlds must be a "
-                "multiple of the number of seeds (equal groups of worlds)"
-            )
-        return tuple(int(s) for s in seed)
-    seed_key(seed)
-    return (int(seed),)
-
-
-def seed_keys(seeds: tuple[int, ...], num_worlds: int) -> np.ndarray:
-    """`[num_worlds]` uint32: each world's stream key, that of its group's seed (`seed_groups`)."""
-    return np.repeat(np.array([seed_key(s) for s in seeds], dtype=np.uint32), num_worlds // len(seeds))
 
 
 def grid_dims(cfg: AquariumConfig) -> tuple[int, int]:
@@ -412,51 +368,14 @@ class BatchedAquarium:
         Nothing is rebuilt or recorded again. Returns the new `config`. `validate=False` skips the
         per-world checks of the values (about 70 us per world; the live counts' limits stay checked):
         for values already known to be valid, such as draws from a range checked once."""
-        names = {key: dotted_name(key) for key in fields}
-        W = self.num_worlds
-        if world is None:
-            worlds = list(range(W))
-        else:
-            single = isinstance(world, (int, np.integer, bool))
-            indices = [world] if single else list(world) if isinstance(world, (list, tuple, range, np.ndarray)) else []
-            # Repeated worlds would leave it to the order which of their values holds: refused.
-            if (
-                not indices
-                or any(isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k < W for k in indices)
-                or len(set(map(int, indices))) < len(indices)
-            ):
-                raise ValueError(f"world={world!r} must be None, an integer or distinct integers in [0, {W - 1}]")
-            worlds = [int(k) for k in indices]
+        worlds = selected_worlds(world, self.num_worlds)
         if rng is None:
             rng = self._param_rng
         elif not isinstance(rng, np.random.Generator):
             raise ValueError(f"rng={rng!r} must be a numpy.random.Generator or None")
-        cfg = self.config
-        values = {}
-        for key, name in names.items():
-            value = fields[key]
-            if isinstance(value, SAMPLERS):
-                value.check(key)
-                value = value.draw(rng, len(worlds), name in INTEGER_FIELDS)
-            elif hasattr(value, "tolist"):
-                value = value.tolist()
-            given = list(value) if isinstance(value, (list, tuple)) else [value] * len(worlds)
-            if len(given) != len(worlds):
-                raise ValueError(f"{key} gives {len(given)} values for {len(worlds)} worlds")
-            column = per_world(cfg._field(name), W)
-            for k, v in zip(worlds, given):
-                column[k] = v
-            # A value every world shares stays a scalar (as a config would give it).
-            values[name] = column[0] if all(v == column[0] for v in column) else tuple(column)
-        new = cfg.with_values(values, validate)  # checks every world (an error names the world)
-        for name, limit in (("prey_count", self.prey_capacity), ("predator_count", self.predator_capacity)):
-            counts = per_world(new._field(name), W)
-            over = [k for k, n in enumerate(counts) if n > limit]
-            if over:
-                raise ValueError(
-                    f"world {over[0]}: {name}={counts[over[0]]} is out of range: must be an integer in "
-                    f"[1, {limit}] (the batch's slots)"
-                )
+        values = merged_values(self.config._field, self.num_worlds, worlds, fields, rng)
+        new = self.config.with_values(values, validate)  # checks every world (an error names the world)
+        check_live_counts(new._field, self.num_worlds, {"prey": self.prey_capacity, "predator": self.predator_capacity})
         self._params.write(new)
         self.config = new
         return new

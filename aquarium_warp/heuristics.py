@@ -25,8 +25,10 @@ import numpy as np
 import torch
 import warp as wp
 
-from .env import TYPES, BatchedAquarium, action_directions, seed_groups, seed_keys
+from .agent_types import TYPES
+from .env import BatchedAquarium, action_directions
 from .kernels import heuristics as kernels
+from .seeding import seed_groups, seed_keys
 
 # Policies allowed for each agent type.
 POLICIES = {"prey": ("random", "constant", "turnaway", "boids"), "predator": ("random", "constant", "naivchase")}

@@ -10,10 +10,12 @@ world), a tuple (one value per world) or a sampler (`Uniform`, `LogUniform`, `Ch
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
+from .agent_types import TYPES
 from .checks import is_real, require
 
 # Per-type fields that may differ between the worlds of a batch (observation slots change array sizes).
@@ -49,7 +51,7 @@ PER_WORLD_FIELDS = (
 )
 INTEGER_FIELDS = ("prey_count", "predator_count", "handling_steps", "predator_starvation_steps", "prey_replication_age")
 # Every per-world field by its flat name: the world fields, then `prey_<field>` and `predator_<field>`.
-FLAT_NAMES = PER_WORLD_FIELDS + tuple(f"{t}_{n}" for t in ("prey", "predator") for n in PER_WORLD_TYPE_FIELDS)
+FLAT_NAMES = PER_WORLD_FIELDS + tuple(f"{t}_{n}" for t in TYPES for n in PER_WORLD_TYPE_FIELDS)
 
 
 def dotted_name(flat: str) -> str:
@@ -57,7 +59,7 @@ def dotted_name(flat: str) -> str:
     field keeps its name."""
     if flat not in FLAT_NAMES:
         raise ValueError(f"unknown per-world parameter {flat!r}; settable: {list(FLAT_NAMES)}")
-    for t in ("prey", "predator"):
+    for t in TYPES:
         if flat.startswith(t + "_") and flat[len(t) + 1 :] in PER_WORLD_TYPE_FIELDS:
             return f"{t}.{flat[len(t) + 1 :]}"
     return flat
@@ -131,3 +133,64 @@ def largest(value) -> float:
     if isinstance(value, Uniform):
         return value.high
     return value
+
+
+# ---------------------------------------------------------------------------------------------- set_params
+def selected_worlds(world, num_worlds: int) -> list[int]:
+    """The worlds `BatchedAquarium.set_params(world=...)` names: None (every world), an index or a
+    sequence of distinct indices in [0, `num_worlds`)."""
+    if world is None:
+        return list(range(num_worlds))
+    single = isinstance(world, (int, np.integer, bool))
+    indices = [world] if single else list(world) if isinstance(world, (list, tuple, range, np.ndarray)) else []
+    # Repeated worlds would leave it to the order which of their values holds: refused.
+    if (
+        not indices
+        or any(isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k < num_worlds for k in indices)
+        or len(set(map(int, indices))) < len(indices)
+    ):
+        raise ValueError(f"world={world!r} must be None, an integer or distinct integers in [0, {num_worlds - 1}]")
+    return [int(k) for k in indices]
+
+
+def merged_values(
+    current: Callable[[str], object],
+    num_worlds: int,
+    worlds: list[int],
+    fields: Mapping[str, object],
+    rng: np.random.Generator,
+) -> dict[str, object]:
+    """`set_params`' `fields` (flat or dotted names; a scalar, one value per world of `worlds` or a
+    sampler drawn from `rng`) merged into each field's `current(dotted name)` values of the other worlds:
+    `{dotted name: value}`, a scalar where every world shares the value (as a config gives it), else a
+    tuple of one value per world."""
+    values: dict[str, object] = {}
+    for key, value in fields.items():
+        name = dotted_name(key)
+        if isinstance(value, SAMPLERS):
+            value.check(key)
+            value = value.draw(rng, len(worlds), name in INTEGER_FIELDS)
+        elif hasattr(value, "tolist"):
+            value = value.tolist()
+        given = list(value) if isinstance(value, (list, tuple)) else [value] * len(worlds)
+        if len(given) != len(worlds):
+            raise ValueError(f"{key} gives {len(given)} values for {len(worlds)} worlds")
+        column = per_world(current(name), num_worlds)
+        for k, v in zip(worlds, given):
+            column[k] = v
+        values[name] = column[0] if all(v == column[0] for v in column) else tuple(column)
+    return values
+
+
+def check_live_counts(current: Callable[[str], object], num_worlds: int, capacity: Mapping[str, int]) -> None:
+    """A one-line ValueError unless every world's `<type>_count` (`current(name)`) fits its type's
+    `capacity`, the batch's slots."""
+    for t, limit in capacity.items():
+        name = f"{t}_count"
+        counts = per_world(current(name), num_worlds)
+        over = [k for k, n in enumerate(counts) if n > limit]
+        if over:
+            raise ValueError(
+                f"world {over[0]}: {name}={counts[over[0]]} is out of range: must be an integer in "
+                f"[1, {limit}] (the batch's slots)"
+            )

@@ -3,7 +3,7 @@ streams coincide by accident and a reader finds where a number came from.
 
 | function | rule | the stream of |
 |---|---|---|
-| `env.seed_key(seed)` | a 32-bit key of device streams (1) | the kernels: spawns, respawns, headings, heuristics |
+| `seed_key(seed)` | a 32-bit key of device streams (1) | the kernels: spawns, respawns, headings, heuristics |
 | `config_stream(seed)` | numpy `default_rng(seed)` | `AquariumConfig.draw`: the config's per-world samplers |
 | `set_params_stream(seed)` | numpy `default_rng((seed, 1))` | `BatchedAquarium.set_params`' samplers |
 | `randomiser_stream(seed)` | numpy `default_rng((seed, 2))` | training's per-world randomiser (`ParamRandomizer`) |
@@ -37,7 +37,53 @@ import zlib
 import numpy as np
 import torch
 
+from .agent_types import TYPES
+
 EVALUATION_STRIDE = 1_000_003  # a prime far above the seeds a study numbers its runs with
+
+
+def seed_key(seed) -> int:
+    """The 32-bit key of the random streams for a non-negative integer `seed`."""
+    if isinstance(seed, (bool, float)) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed={seed!r} must be a non-negative integer")
+    seed = int(seed)
+    key = 0
+    while True:  # fold every 32-bit word of the seed into the key
+        key = (key * 0x9E3779B1 + (seed & 0xFFFFFFFF)) & 0xFFFFFFFF
+        seed >>= 32
+        if seed == 0:
+            return key
+
+
+def seeds_value(seeds: tuple[int, ...]) -> int | tuple[int, ...]:
+    """`env.seed`: the one seed, or the tuple of the groups' seeds."""
+    return seeds[0] if len(seeds) == 1 else seeds
+
+
+def seed_groups(seed, num_worlds: int) -> tuple[int, ...]:
+    """The seeds of a batch's equal groups of consecutive worlds. An integer seeds every world (one
+    group). A sequence of K seeds splits the `num_worlds` worlds into K groups of `num_worlds / K`;
+    group k's random streams are keyed by seed k and count its worlds from 0, so it draws exactly what
+    a batch of `num_worlds / K` worlds seeded with seed k draws (a population's runs, each trained as
+    if alone: `training/population.py`)."""
+    if isinstance(seed, (list, tuple)):
+        if not seed:
+            raise ValueError("seed=[] must hold at least one seed")
+        for s in seed:
+            seed_key(s)
+        if num_worlds % len(seed):
+            raise ValueError(
+                f"seed gives {len(seed)} seeds for {num_worlds} worlds: the number of worlds must be a "
+                "multiple of the number of seeds (equal groups of worlds)"
+            )
+        return tuple(int(s) for s in seed)
+    seed_key(seed)
+    return (int(seed),)
+
+
+def seed_keys(seeds: tuple[int, ...], num_worlds: int) -> np.ndarray:
+    """`[num_worlds]` uint32: each world's stream key, that of its group's seed (`seed_groups`)."""
+    return np.repeat(np.array([seed_key(s) for s in seeds], dtype=np.uint32), num_worlds // len(seeds))
 
 
 def config_stream(seed: int) -> np.random.Generator:
@@ -59,8 +105,6 @@ def randomiser_stream(seed: int) -> np.random.Generator:
 def team_seed(seed: int, team: str) -> int:
     """The sampling seed of `team`'s trained policy in a run of seed `seed`: the prey's is `seed`, the
     predators' `seed + 1`, so the two teams' draws are independent."""
-    from .env import TYPES  # here: the env imports this module
-
     if team not in TYPES:
         raise ValueError(f"team={team!r} must be one of {TYPES}")
     return int(seed) + TYPES.index(team)

@@ -23,6 +23,7 @@ import numpy as np
 import torch
 import warp as wp
 
+from .agent_types import TYPES
 from .config import AquariumConfig
 from .device import WARP_SETUP_LOCK
 from .device import torch_stream as torch_stream_of
@@ -256,7 +257,7 @@ class WorldShard:
         W, cfg = self.num_worlds, self.cfg
         rows = {"prey": W * cfg.prey_capacity, "predator": W * cfg.predator_capacity}
         kernels = self.observe_kernels
-        groups = [("prey", "predator")] if kernels["prey"] is kernels["predator"] else [("prey",), ("predator",)]
+        groups = [TYPES] if kernels["prey"] is kernels["predator"] else [("prey",), ("predator",)]
         commands = []
         for group in groups:
             kernel, block = kernels[group[0]], kernels[group[0]].block_dim
@@ -437,7 +438,7 @@ class ShardSet:
                 bool(cfg.observe_flow),
                 cfg.observation_layout,
             )
-            for t in ("prey", "predator")
+            for t in TYPES
         }
         # The step of worlds of one cell in one launch (`fused_step`), with their observers' slot counts.
         fused = None

@@ -13,7 +13,7 @@ with `--profile` (CUDA) each path's kernels in one eager update are listed (torc
 kernels run on CUDA, and on the CPU only under Triton's interpreter (`TRITON_INTERPRET=1`, slow: the
 tests use it); elsewhere the script refuses the device.
 
-Beside each time: the update's floor on the device (`aquarium_warp.training.floors`: the MLPs'
+Beside each time: the update's floor on the device (`aquarium_warp.bench.floors`: the MLPs'
 matrix products forward and backward at the card's float32 peak, the least bytes at its bandwidth;
 the fused backward also recomputes the forward, which the floor does not count), and "of floor"
 the fraction of it reached.
@@ -51,10 +51,11 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from aquarium_warp.atomic import atomic_open
 from aquarium_warp.bench import parse_counts
+from aquarium_warp.bench.floors import Floor, card_peaks, update_work
 from aquarium_warp.bench.timing import torch_timer
+from aquarium_warp.device import synchronize
 from aquarium_warp.records import command_line, provenance
 from aquarium_warp.training import Trainer, make_config
-from aquarium_warp.training.floors import Floor, card_peaks, update_work
 from aquarium_warp.training.fused_mlp import DEVICES, FusedMLP
 from aquarium_warp.training.fused_ppo import FusedPPOLoss
 from aquarium_warp.training.loop import collection_paused
@@ -183,7 +184,7 @@ def time_update(switch: MLPSwitch, path: str, repeats: int, graph: bool) -> floa
 
 
 def update_floor(alg, device: torch.device) -> Floor:
-    """The update's floor on `device`'s card (`training.floors`; None peaks: no floor)."""
+    """The update's floor on `device`'s card (`bench.floors`; None peaks: no floor)."""
     return Floor(
         update_work(alg),
         card_peaks(torch.cuda.get_device_name(device)) if device.type == "cuda" else None,
@@ -200,11 +201,11 @@ def kernel_profile(switch: MLPSwitch, path: str, top: int = 20) -> list[dict]:
     switch.use(path)
     indices, size = alg.mini_batch_indices()
     alg.update_on_device(indices, size)
-    sync(torch.device(alg.device))
+    synchronize(torch.device(alg.device))
     activities = [torch.profiler.ProfilerActivity.CUDA]
     with torch.profiler.profile(activities=activities) as prof:
         alg.update_on_device(indices, size)
-        sync(torch.device(alg.device))
+        synchronize(torch.device(alg.device))
     events = [e for e in prof.key_averages() if e.device_type == torch.autograd.DeviceType.CUDA]
     rows = sorted(
         ({"kernel": e.key[:100], "launches": e.count, "ms": e.device_time_total / 1e3} for e in events),
@@ -212,11 +213,6 @@ def kernel_profile(switch: MLPSwitch, path: str, top: int = 20) -> list[dict]:
     )
     total = {"kernel": "all kernels", "launches": sum(r["launches"] for r in rows), "ms": sum(r["ms"] for r in rows)}
     return rows[:top] + [total]
-
-
-def sync(device: torch.device) -> None:
-    if device.type == "cuda":
-        torch.cuda.synchronize(device)
 
 
 def build_seconds(preset: str, worlds: int, device: str) -> dict[str, float]:
@@ -235,12 +231,12 @@ def build_seconds(preset: str, worlds: int, device: str) -> dict[str, float]:
         key = f"fused {name}"
         started = time.perf_counter()
         out = mlp(torch.zeros(1, mlp.spec.dims[0], device=torch_device))
-        sync(torch_device)
+        synchronize(torch_device)
         seconds[f"{key} forward"] = time.perf_counter() - started
         print(f"{key} forward kernel built and loaded in {seconds[f'{key} forward']:.1f} s", flush=True)
         started = time.perf_counter()
         torch.autograd.grad(out.sum(), params)  # not into .grad: the update's state stays untouched
-        sync(torch_device)
+        synchronize(torch_device)
         seconds[f"{key} backward"] = time.perf_counter() - started
         print(f"{key} backward kernel built and loaded in {seconds[f'{key} backward']:.1f} s", flush=True)
     return seconds

@@ -19,7 +19,7 @@ the loops measured:
 
 Every point records what its run captured (its `config.json`'s `cuda_graphs`), and its speed-up
 against one GPU of the `graphs` mode and of its own mode, with the ideal (linear) speed-up and the
-fraction of it reached (`aquarium_warp.training.floors.linear_scaling`). On the CPU (gloo) only
+fraction of it reached (`aquarium_warp.bench.floors.linear_scaling`). On the CPU (gloo) only
 `eager` runs, at every count.
 
     python benchmarks/bench_multi_gpu.py --gpus 1,2,4 --teams prey,both --out-dir DIR
@@ -51,8 +51,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from aquarium_warp.arguments import parse_list
 from aquarium_warp.atomic import atomic_open
+from aquarium_warp.bench.floors import linear_scaling
 from aquarium_warp.records import command_line, provenance
-from aquarium_warp.training.floors import linear_scaling
 
 # mode -> the train settings of its runs ("graphs" opts in to the captured update on several GPUs)
 MODES = {

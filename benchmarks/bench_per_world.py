@@ -20,13 +20,9 @@ from pathlib import Path
 import torch
 
 from aquarium_warp import AquariumConfig, BatchedAquarium
+from aquarium_warp.device import synchronize
 from aquarium_warp.per_world import Uniform
 from aquarium_warp.records import command_line, git_info, machine_info
-
-
-def sync(device: str) -> None:
-    if device.startswith("cuda"):
-        torch.cuda.synchronize()
 
 
 def step_time(env: BatchedAquarium, steps: int, warmup: int = 10) -> float:
@@ -38,22 +34,22 @@ def step_time(env: BatchedAquarium, steps: int, warmup: int = 10) -> float:
         )
     for _ in range(warmup):
         env.step(validate=False)
-    sync(env.device)
+    synchronize(env.device)
     start = time.perf_counter()
     for _ in range(steps):
         env.step(validate=False)
-    sync(env.device)
+    synchronize(env.device)
     return (time.perf_counter() - start) / steps
 
 
 def run_batch(cfg: AquariumConfig, worlds: int, device: str, steps: int) -> float:
     """Wall time of building a batch and stepping it `steps` times."""
-    sync(device)
+    synchronize(device)
     start = time.perf_counter()
     env = BatchedAquarium(cfg, worlds, device=device, seed=0)
     for _ in range(steps):
         env.step(validate=False)
-    sync(device)
+    synchronize(device)
     elapsed = time.perf_counter() - start
     env.close()
     return elapsed

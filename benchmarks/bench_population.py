@@ -5,7 +5,7 @@ the same run on the same card.
 Rate points (the default): for each K of `--runs`, a population of K runs of `--preset` (each
 `--worlds` worlds) runs `--warmup` untimed iterations (CUDA graphs are captured there), then
 `--iterations` timed ones; agent-steps are the learning team's rows x steps of all runs. The update's
-and the rollout's floors on this card (`training/floors.py`, as `bench_training.py` gives them; the
+and the rollout's floors on this card (`aquarium_warp/bench/floors.py`, as `bench_training.py` gives them; the
 population's work is K runs' samples) and the fraction reached. Beside them, the separate processes:
 `--separate P` processes of one run each (as `--per-gpu P` runs a study's trainings), each warmed up
 and then training for `--seconds` of wall time in one common window; their summed rate is what P
@@ -42,14 +42,15 @@ os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from bench_training import device_name, milliseconds, percent, sync  # (benchmarks/ is on the path)
+from bench_training import device_name, milliseconds, percent  # (benchmarks/ is on the path)
 
 from aquarium_warp.atomic import atomic_open
 from aquarium_warp.bench import parse_counts
+from aquarium_warp.bench.floors import Floor, card_peaks, rollout_work, update_work
+from aquarium_warp.device import synchronize
 from aquarium_warp.records import command_line, provenance
 from aquarium_warp.training import Trainer, make_config
 from aquarium_warp.training.config import parse_assignment, total_iterations
-from aquarium_warp.training.floors import Floor, card_peaks, rollout_work, update_work
 from aquarium_warp.training.population import Population, run_configs
 
 
@@ -72,10 +73,10 @@ def population_rate(args, runs: int) -> dict:
     population = Population(run_configs(config, runs))
     population.train(args.warmup)  # the first iteration eager, the graphs captured in the second
     dev = population.device
-    sync(dev)
+    synchronize(dev)
     start = time.perf_counter()
     population.train(args.iterations)
-    sync(dev)
+    synchronize(dev)
     elapsed = time.perf_counter() - start
     steps = population.runner_cfgs[0]["num_steps_per_env"]
     rows = population.vec_env.num_envs
@@ -114,7 +115,7 @@ def single_rate(args, barrier: str, index: int) -> dict:
     config = config_of(args.preset, args.device, args.worlds, args.set, 10**6)
     trainer = Trainer(config)
     trainer.train(args.warmup)
-    sync(trainer.device)
+    synchronize(trainer.device)
     open(os.path.join(barrier, f"ready-{index}"), "w").close()
     while len(os.listdir(barrier)) < args.separate:
         time.sleep(0.01)
@@ -122,7 +123,7 @@ def single_rate(args, barrier: str, index: int) -> dict:
     while time.perf_counter() - start < args.seconds:
         trainer.train(1)
         done += 1
-    sync(trainer.device)
+    synchronize(trainer.device)
     elapsed = time.perf_counter() - start
     rows, steps = trainer.vec_env.num_envs, trainer.runner_cfg["num_steps_per_env"]
     trainer.close()

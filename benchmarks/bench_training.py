@@ -9,7 +9,7 @@ learning-team rows x steps, as the paper counts prey-steps. The fast loop's time
 policy / env / storage / update (rollout / update where one CUDA graph replays the whole rollout) by
 one more iteration bracketed by CUDA events (or host timers).
 
-Beside each point: the update's floor on this card (`aquarium_warp.training.floors`: the actor's and
+Beside each point: the update's floor on this card (`aquarium_warp.bench.floors`: the actor's and
 critic's matrix products forward and backward over every sample of the 5 epochs at the card's float32
 peak, or the bytes no update can avoid at its memory bandwidth, whichever is longer; "n/a" for a card
 without peaks in its table, the CPU included) and the fraction of it reached by the update's time and by
@@ -43,18 +43,14 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from aquarium_warp.atomic import atomic_open
 from aquarium_warp.bench import parse_counts
+from aquarium_warp.bench.floors import Floor, card_peaks, rollout_work, update_work
+from aquarium_warp.device import synchronize
 from aquarium_warp.records import command_line, provenance
 from aquarium_warp.training import Trainer, make_config
-from aquarium_warp.training.floors import Floor, card_peaks, rollout_work, update_work
 
 
 def device_name(device: torch.device) -> str:
     return torch.cuda.get_device_name(device) if device.type == "cuda" else platform.processor() or platform.machine()
-
-
-def sync(device: torch.device) -> None:
-    if device.type == "cuda":
-        torch.cuda.synchronize(device)
 
 
 # Options measured beside the default (`--variants`): TF32 matrix products, rsl-rl's own
@@ -98,11 +94,11 @@ def measure(
     steps = trainer.runner_cfg["num_steps_per_env"]
     start = time.perf_counter()
     trainer.train(warmup)
-    sync(dev)
+    synchronize(dev)
     warmup_time = time.perf_counter() - start
     start = time.perf_counter()
     trainer.train(iterations)
-    sync(dev)
+    synchronize(dev)
     elapsed = time.perf_counter() - start
     point = {
         "worlds": worlds,

@@ -11,7 +11,7 @@
 - `world_step`: steps 1-10 of a small world in one launch (the fused step)
 - `heuristics`: the paper's baseline policies (Random, TurnAway, NaivChase)
 - `metrics`: swarm metrics (polarization, cohesion, nearest neighbours, groups) and their per-episode totals
-- `adapter`: the training adapter's per-step rows' outcomes and episode statistics
-- `vector_rows`: the native vector envs' per-step rows (outcomes, observations, activity)
+- `rows`: a slot as a row: the rsl-rl adapter's and the native vector envs' per-step rows (outcomes,
+  observations, activity, episode statistics)
 - `render`: the rasteriser behind `aquarium_warp.render`
 """

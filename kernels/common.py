@@ -1,4 +1,13 @@
-"""Shared parameter structs and device functions: agent types, torus geometry, random streams.
+"""Shared parameter structs and device functions, in four sections:
+
+- **codes**: the type codes (`PREDATOR`, `PREY`), the purposes of random draws (`PURPOSE_*`), the capture
+  rules (`CAPTURE_*`) and the flow kinds (`FLOW_*`);
+- **parameters**: `AgentType` (per type and world), `WorldValues` (per world), `WorldParams` (batch-wide),
+  and `slot_type`;
+- **geometry**: the torus (`torus_delta`, `torus_displacement`, `wrap_coordinate`), the field of view
+  (`in_view`, `ranks_before`), the flow (`current`) and the ego frame (`ego_components`, `ego_to_world`,
+  `world_to_ego`, `angle_value`);
+- **random streams**: `mix32`, `random_stream` and the draws from a stream.
 
 Conventions used by every kernel:
 - A world has `capacity` agent slots: prey in `[0, prey_capacity)`, predators after them.
@@ -13,6 +22,7 @@ import warp as wp
 
 wp.set_module_options({"enable_backward": False})
 
+# --------------------------------------------------------------------------------------------------------- codes
 PREDATOR = wp.constant(0)
 PREY = wp.constant(1)
 
@@ -29,7 +39,14 @@ PURPOSE_ATTACK = wp.constant(7)  # whether a predator's attack captures, under p
 CAPTURE_DILUTION = wp.constant(0)  # every contact may capture: p0 / (1 + c k), k prey near the prey
 CAPTURE_CONFUSION = wp.constant(1)  # one attack per predator: p0 / (1 + c k), k prey it sees near its target
 
+# Flow kinds (`WorldValues.flow_kind`).
+FLOW_NONE = wp.constant(0)
+FLOW_UNIFORM = wp.constant(1)
+FLOW_VORTEX = wp.constant(2)
+FLOW_GRID = wp.constant(3)
 
+
+# ---------------------------------------------------------------------------------------------------- parameters
 @wp.struct
 class AgentType:
     """Per-type parameters (docs/model.md's per-type table), with derived values precomputed on the host."""
@@ -45,12 +62,6 @@ class AgentType:
     bounce_strength: float  # b, px/step
     predator_slots: int  # observed predator slots
     prey_slots: int  # observed prey slots
-
-
-FLOW_NONE = wp.constant(0)
-FLOW_UNIFORM = wp.constant(1)
-FLOW_VORTEX = wp.constant(2)
-FLOW_GRID = wp.constant(3)
 
 
 @wp.struct
@@ -116,6 +127,7 @@ def slot_type(world: WorldParams, slot: int) -> int:
     return PREDATOR
 
 
+# ------------------------------------------------------------------------------------------------------ geometry
 @wp.func
 def torus_delta(d: float, length: float) -> float:
     """Shortest signed difference on a circle of `length`, for `d` in (-length, length). Selects, not
@@ -229,6 +241,7 @@ def angle_value(v: wp.vec2) -> float:
 
 _MIX_1 = wp.constant(wp.uint32(0x85EBCA6B))
 _MIX_2 = wp.constant(wp.uint32(0xC2B2AE35))
+# ------------------------------------------------------------------------------------------------ random streams
 _GOLDEN = wp.constant(wp.uint32(0x9E3779B9))
 
 

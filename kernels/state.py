@@ -58,10 +58,10 @@ class WorldCounters:
     episode_return: wp.array2d(dtype=float)
     """[W, C] float32, reward summed over the current episode, per slot."""
     seed: wp.array(dtype=wp.uint32)
-    """[W] uint32, key of the world's random streams (`env.seed_key` of the seed of its group of worlds)."""
+    """[W] uint32, key of the world's random streams (`seeding.seed_key` of the seed of its group of worlds)."""
     stream_world: wp.array(dtype=wp.int32)
     """[W] int32, the world's index in its random streams: its index within its seed's group of worlds
-    (the batch, or one of the equal groups of a batch given several seeds: `env.seed_groups`)."""
+    (the batch, or one of the equal groups of a batch given several seeds: `seeding.seed_groups`)."""
 
 
 @wp.struct

@@ -12,7 +12,6 @@
 - `drivers`: a team driven by a trained policy (`TrainedOpponent`, `RecurrentOpponent`).
 - `export.load_policy`: exported policies (TorchScript, ONNX) or checkpoints -> callable obs -> actions.
 - `evaluate`: the paper's evaluation protocol; `cross_play`: cross play and Elo ratings; `plots`: the figures.
-- `floors`: the PPO update's hardware floor on a card (FLOPs at its float32 peak, bytes at its bandwidth).
 
 Submodules import rsl_rl lazily; this package's names resolve on first use.
 """

@@ -14,6 +14,7 @@ import warnings
 from collections.abc import Sequence
 from typing import Any
 
+from ..agent_types import TYPES
 from ..arguments import POLICY_SPECS, int_at_least, number, policy_spec, positive_float
 from ..atomic import check_output_dir
 from ..cli import Interrupted, plural
@@ -787,7 +788,7 @@ def _blind(items: list[str]) -> dict[str, str]:
     out: dict[str, str] = {}
     for item in items:
         team, _, kind = item.partition("=")
-        if team not in ("prey", "predator") or kind not in ("prey", "predator"):
+        if team not in TYPES or kind not in TYPES:
             raise ValueError(f"--blind {item!r}: expected TEAM=TYPE with TEAM and TYPE each 'prey' or 'predator'")
         if team in out:
             raise ValueError(f"--blind names {team!r} twice")

@@ -33,6 +33,7 @@ import json
 import math
 from typing import Any
 
+from ..agent_types import TYPES
 from ..checks import is_int, is_real
 from ..config import AquariumConfig
 from .randomize import parse_spec
@@ -83,7 +84,6 @@ TRAIN_DEFAULTS: dict[str, Any] = {
     "randomize": {},  # {field: "low:high" or "a,b,c"}: per-world values drawn at every world's reset
 }
 LOOPS = ("fast", "rsl-rl")
-TEAMS = ("prey", "predator")
 # What the critic sees besides the agent's own observation (rsl-rl's "critic" observation set):
 # "local": nothing (the actor's input); "team": the team's joint observation (every slot of the
 # world, slot order); "world": the world state (`world_state.WorldState`). Actors stay local.
@@ -328,7 +328,7 @@ def env_config(config: dict) -> AquariumConfig:
 def learning_teams(config: dict) -> tuple[str, ...]:
     """The teams that learn: `("prey", "predator")` for `train.team = "both"`, else the one team."""
     team = config["train"]["team"]
-    return TEAMS if team == "both" else (team,)
+    return TYPES if team == "both" else (team,)
 
 
 def team_settings(config: dict, team: str) -> dict:
@@ -386,8 +386,8 @@ def _validate_teams_section(config: dict) -> None:
     teams = config.get("teams")
     if teams is None:
         return
-    if not isinstance(teams, dict) or any(t not in TEAMS for t in teams):
-        raise ValueError(f"teams={teams!r} must map team names {TEAMS} to settings blocks")
+    if not isinstance(teams, dict) or any(t not in TYPES for t in teams):
+        raise ValueError(f"teams={teams!r} must map team names {TYPES} to settings blocks")
     for team, block in teams.items():
         if block is None:
             continue
@@ -413,7 +413,7 @@ def validate(config: dict) -> None:
     if unknown:
         raise ValueError(f"unknown train settings {unknown}; known: {sorted(TRAIN_DEFAULTS)}")
     env_config(config)  # validates the env section
-    if train["team"] not in TEAMS + ("both",):
+    if train["team"] not in TYPES + ("both",):
         raise ValueError(f"train.team={train['team']!r} must be 'prey', 'predator' or 'both'")
     _validate_team_settings(train, "train")
     for name in ("num_worlds", "iterations"):

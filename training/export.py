@@ -47,6 +47,7 @@ import numpy as np
 import torch
 import torch.nn as nn
 
+from ..agent_types import TYPES
 from ..atomic import atomic_open, atomic_path
 from ..config import AquariumConfig
 from ..pretrained import resolve
@@ -463,7 +464,7 @@ def load_policy(
     path = resolve(path)
     if not os.path.isfile(path):
         raise ValueError(f"policy file {path!r} does not exist")
-    if team is not None and team not in ("prey", "predator"):
+    if team is not None and team not in TYPES:
         raise ValueError(f"team={team!r} must be 'prey', 'predator' or None")
     device = torch.device(device)
     if path.endswith(".onnx"):

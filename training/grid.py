@@ -6,7 +6,7 @@ speed (`PREY_COUNTS`, `VIEWS`, `FOVS`, `SPEEDS`: 4 x 3 x 3 x 3 = 108 cells); eve
 base world (docs/model.md's, with the trained policies' observation interface and the paper's spawn
 headings). A pairing's batch holds, for
 every cell and every evaluation seed, a block of `episodes` worlds with the cell's values, seeded with
-that evaluation seed (`env.seed_groups`): each block draws exactly what a batch of `episodes` worlds of
+that evaluation seed (`seeding.seed_groups`): each block draws exactly what a batch of `episodes` worlds of
 that seed draws. Every world plays one episode. The measure: captures per prey per episode, its mean
 over a block's episodes (one value per cell and evaluation seed).
 

@@ -30,8 +30,9 @@ import torch
 import torch.nn as nn
 from torch.func import functional_call
 
+from ..agent_types import OTHER, TYPES
 from .config import POOL_SAMPLING
-from .vec_env import OTHER, AquariumVecEnv
+from .vec_env import AquariumVecEnv
 
 # The actor's parts that a snapshot keeps: its observation normaliser, then its MLP (logits).
 ACTOR_PARTS = ("obs_normalizer", "mlp")
@@ -47,13 +48,13 @@ class OpponentPool:
             raise ValueError(f"sampling={sampling!r} must be one of {POOL_SAMPLING}")
         if isinstance(size, bool) or not isinstance(size, int) or size < 1:
             raise ValueError(f"size={size!r} must be an integer >= 1")
-        if set(learners) != {"prey", "predator"} or set(fractions) != set(learners):
+        if set(learners) != set(TYPES) or set(fractions) != set(learners):
             raise ValueError("an opponent pool needs both teams' learners and pool fractions")
         if any(not 0 <= f <= 1 for f in fractions.values()) or sum(fractions.values()) > 1:
             raise ValueError(f"pool fractions {fractions} must be in [0, 1] and add up to at most 1")
         self.size, self.sampling = size, sampling
         self.count = 0  # snapshots taken so far (the ring holds the last min(count, size))
-        self.teams = ("prey", "predator")
+        self.teams = TYPES
         self.actors = {t: learners[t][0] for t in self.teams}
         self.envs: dict[str, AquariumVecEnv] = {t: learners[t][1] for t in self.teams}
         env = self.envs["prey"]

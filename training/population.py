@@ -3,7 +3,7 @@
 A study needs many trainings (seeds, conditions, controls), and one small training leaves a GPU
 almost idle. A population trains K runs together, each as if it trained alone:
 
-- **Worlds.** One `BatchedAquarium` of K x W worlds, seeded with the K runs' seeds (`env.seed_groups`):
+- **Worlds.** One `BatchedAquarium` of K x W worlds, seeded with the K runs' seeds (`seeding.seed_groups`):
   run k owns worlds `[k W, (k + 1) W)`, whose random streams are those of a batch of W worlds seeded
   with its seed, and its condition is its worlds' per-world parameters (`AquariumConfig.stack`). The
   opponent heuristic is keyed per run the same way.
@@ -57,6 +57,7 @@ import torch
 from rsl_rl.storage import RolloutStorage
 from rsl_rl.utils import resolve_callable
 
+from ..agent_types import OTHER, TYPES
 from ..atomic import atomic_open
 from ..config import AquariumConfig
 from ..device import resolve_device
@@ -82,7 +83,7 @@ from .memory import check_training_memory
 from .ppo import AquariumPPO
 from .run_dir import check_same_run
 from .stop import StopRequest
-from .vec_env import OTHER, AquariumVecEnv
+from .vec_env import AquariumVecEnv
 
 # The train settings that may differ between a population's runs (everything else is the same).
 RUN_SETTINGS = ("seed", "reward_scale", "episodes", "iterations")
@@ -175,7 +176,7 @@ def group_key(config: dict) -> str | None:
     for name in PER_WORLD_FIELDS:
         if name not in ("prey_count", "predator_count"):
             env.pop(name, None)
-    for team in ("prey", "predator"):
+    for team in TYPES:
         for name in PER_WORLD_TYPE_FIELDS:
             (env.get(team) or {}).pop(name, None)
     return json.dumps(shared, sort_keys=True, default=str)

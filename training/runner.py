@@ -7,7 +7,7 @@ from __future__ import annotations
 import contextlib
 import io
 import os
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import torch
 from rsl_rl.runners import OnPolicyRunner
@@ -23,7 +23,26 @@ from .loop import TrainingLoop, graph_plan
 from .vec_env import AquariumVecEnv
 
 if TYPE_CHECKING:
-    from .trainer import Trainer
+    from .pool import OpponentPool
+    from .stop import StopRequest
+
+
+class RunOwner(Protocol):
+    """What the runner asks of the run that drives it (`trainer.Trainer`): its config, its stop request and
+    opponent pool, which learners update in an iteration, the work between iterations, and its part of
+    a checkpoint."""
+
+    config: dict
+    stop: StopRequest
+    pool: OpponentPool | None
+
+    def learning(self, iteration: int) -> list[bool] | None: ...
+
+    def after_iteration(self, iteration: int) -> None: ...
+
+    def extra_state(self) -> dict: ...
+
+    def load_extra_state(self, state: dict) -> None: ...
 
 
 class Learner:
@@ -50,7 +69,7 @@ class AquariumRunner(OnPolicyRunner):
         train_cfg: dict,
         log_dir: str | None = None,
         device: str = "cpu",
-        trainer: Trainer | None = None,
+        trainer: RunOwner | None = None,
         quiet: bool = False,
         others=(),
     ):

@@ -53,6 +53,7 @@ import uuid
 
 import torch
 
+from ..agent_types import OTHER, TYPES
 from ..atomic import atomic_open
 from ..device import resolve_device
 from ..drivers import make_driver
@@ -66,7 +67,6 @@ from . import (
 from .checkpoints import global_rng_state, newest_readable_checkpoint, read_checkpoint, restore_global_rng_state
 from .config import (
     RESUMABLE_SETTINGS,
-    TEAMS,
     default_opponent,
     env_config,
     learning_teams,
@@ -81,7 +81,7 @@ from .memory import check_training_memory
 from .run_dir import check_same_run
 from .runner import AquariumRunner, Learner
 from .stop import StopRequest
-from .vec_env import OTHER, AquariumVecEnv
+from .vec_env import AquariumVecEnv
 
 
 def run_config(config: dict) -> dict:
@@ -102,40 +102,68 @@ class Trainer:
     continues (`resume`); None: a new run, with a new id."""
 
     def __init__(self, config: dict, log_dir: str | None = None, run_id: str | None = None):
-        config = run_config(config)
-        train = config["train"]
+        self.config = config = run_config(config)
         self.teams = learning_teams(config)
-        both = len(self.teams) == 2
-        self.config = config
         self.log_dir = log_dir
         self.run_id = run_id or uuid.uuid4().hex[:16]
         self.stop = StopRequest()
-        # torchrun: one process (rank) per GPU or CPU share, each with its own worlds and seed.
+        device = self._setup_process()
+        self._setup_env(device)
+        opponents = self._setup_opponents()
+        self._setup_adapters(opponents)
+        self._setup_runner()
+        if log_dir is not None and self.rank == 0:
+            self._write_run_record()
+        self._setup_pool()
+        self._setup_video()
+        if log_dir is not None:
+            import aquarium_warp
+
+            self.runner.add_git_repo_to_log(aquarium_warp.__file__)
+
+    def _setup_process(self) -> str:
+        """This process's rank, the run's processes (torchrun: one per GPU or CPU share, each with its own
+        worlds and seed) and the seed of its draws, global generators seeded; returns its device."""
+        train = self.config["train"]
         self.rank, local_rank, self.world_size = distributed.world()
         if self.world_size > 1 and train["loop"] == "rsl-rl":
             raise ValueError("train.loop='rsl-rl' runs in one process; a torchrun run needs train.loop='fast'")
         device = distributed.rank_device(train["device"], local_rank) if self.world_size > 1 else train["device"]
         self.seed = rank_seed(train["seed"], self.rank)
         seed_process(self.seed)
+        return device
 
-        check_training_memory(config, resolve_device(device))  # the whole run, before anything is allocated
-        self.env = BatchedAquarium(env_config(config), num_worlds=train["num_worlds"], device=device, seed=self.seed)
+    def _setup_env(self, device: str) -> None:
+        """The simulator, once the whole run's memory is known to fit (before anything is allocated)."""
+        train = self.config["train"]
+        check_training_memory(self.config, resolve_device(device))
+        self.env = BatchedAquarium(
+            env_config(self.config), num_worlds=train["num_worlds"], device=device, seed=self.seed
+        )
         self.device = self.env.torch_device
         if train["tf32"] and self.device.type == "cuda":
             torch.backends.cuda.matmul.allow_tf32 = True  # a process-wide switch of torch's
-        if both:  # each team's opponent is the other learner, whose actions the training loop writes
+
+    def _setup_opponents(self) -> dict:
+        """Each learning team's opponent: the other learner (both teams learn; the training loop writes its
+        actions) or the run's opponent policy (`self.opponent`)."""
+        train = self.config["train"]
+        if len(self.teams) == 2:
             self.opponent = None
-            opponents = {team: LearnerActions() for team in TEAMS}
-        else:
-            self.opponent = make_driver(
-                train["opponent"],
-                self.env,
-                OTHER[train["team"]],
-                deterministic=train["opponent_deterministic"],
-                seed=self.seed,
-            )
-            opponents = {train["team"]: self.opponent}
-        # The first team's adapter steps the worlds and samples the swarm metrics (one per world is enough).
+            return {team: LearnerActions() for team in TYPES}
+        self.opponent = make_driver(
+            train["opponent"],
+            self.env,
+            OTHER[train["team"]],
+            deterministic=train["opponent_deterministic"],
+            seed=self.seed,
+        )
+        return {train["team"]: self.opponent}
+
+    def _setup_adapters(self, opponents: dict) -> None:
+        """An adapter per learning team over the one simulator (`self.vec_envs`; the first, `self.vec_env`,
+        steps the worlds and samples the swarm metrics: one per world is enough) and its runner config."""
+        config, train = self.config, self.config["train"]
         self.vec_envs = {
             team: AquariumVecEnv(
                 self.env,
@@ -150,8 +178,8 @@ class Trainer:
             )
             for i, team in enumerate(self.teams)
         }
-        if both:
-            for team in TEAMS:
+        if len(self.teams) == 2:
+            for team in TYPES:
                 opponents[team].vec_env = self.vec_envs[OTHER[team]]
         self.vec_env = self.vec_envs[self.teams[0]]
         self.runner_cfgs = {
@@ -160,62 +188,72 @@ class Trainer:
         }
         self.runner_cfg = self.runner_cfgs[self.teams[0]]
         self.total_iterations = total_iterations(config)
+
+    def _setup_runner(self) -> None:
+        """The rsl-rl runner of every learner (`self.learners`), driven by this trainer (`runner.RunOwner`)."""
         with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints the networks (config.json has them)
             self.runner = AquariumRunner(
                 self.vec_env,
                 copy.deepcopy(self.runner_cfg),
-                log_dir=log_dir,
+                log_dir=self.log_dir,
                 device=str(self.device),
                 trainer=self,
-                quiet=train["quiet"],
+                quiet=self.config["train"]["quiet"],
                 others=[(self.vec_envs[t], copy.deepcopy(self.runner_cfgs[t])) for t in self.teams[1:]],
             )
         self.learners = {learner.team: learner for learner in self.runner.learners}
-        if log_dir is not None and self.rank == 0:
-            os.makedirs(log_dir, exist_ok=True)
-            record = {
-                "run_id": self.run_id,
-                "config": config,
-                "runner_cfg": self.runner_cfg if not both else self.runner_cfgs,
-                "total_iterations": self.total_iterations,
-                **provenance(str(self.device)),  # the command, commit, machine and versions of the run
-            }
-            if self.world_size > 1:  # rank r simulates with seed rank_seed(train.seed, r)
-                record["distributed"] = {
-                    "world_size": self.world_size,
-                    "seeds": [rank_seed(train["seed"], r) for r in range(self.world_size)],
-                }
-            rollout_graphs, update_graphs = self.runner.graph_plan()  # what the training loop will capture
-            record["cuda_graphs"] = {"rollout": rollout_graphs, "update": dict(zip(self.teams, update_graphs))}
-            if train["fused_mlp"]:
-                # per learner: its update's fused loss and its rollout's fused step (True), or why not
-                from .fused_ppo import FusedAct, FusedPPOLoss
 
-                for key, fused in (("fused_loss", FusedPPOLoss), ("fused_act", FusedAct)):
-                    record[key] = {
-                        learner.team: fused.unsupported(learner.alg) or True for learner in self.runner.learners
-                    }
-            with atomic_open(os.path.join(log_dir, "config.json")) as f:
-                json.dump(record, f, indent=1, default=str)
+    def _write_run_record(self) -> None:
+        """`config.json` in the log directory: the run's id, config, runner configs and provenance, its
+        processes' seeds, the CUDA graphs the training loop will capture and the fused paths it takes."""
+        assert self.log_dir is not None
+        config, train = self.config, self.config["train"]
+        os.makedirs(self.log_dir, exist_ok=True)
+        record = {
+            "run_id": self.run_id,
+            "config": config,
+            "runner_cfg": self.runner_cfg if len(self.teams) == 1 else self.runner_cfgs,
+            "total_iterations": self.total_iterations,
+            **provenance(str(self.device)),  # the command, commit, machine and versions of the run
+        }
+        if self.world_size > 1:  # rank r simulates with seed rank_seed(train.seed, r)
+            record["distributed"] = {
+                "world_size": self.world_size,
+                "seeds": [rank_seed(train["seed"], r) for r in range(self.world_size)],
+            }
+        rollout_graphs, update_graphs = self.runner.graph_plan()  # what the training loop will capture
+        record["cuda_graphs"] = {"rollout": rollout_graphs, "update": dict(zip(self.teams, update_graphs))}
+        if train["fused_mlp"]:
+            # per learner: its update's fused loss and its rollout's fused step (True), or why not
+            from .fused_ppo import FusedAct, FusedPPOLoss
+
+            for key, fused in (("fused_loss", FusedPPOLoss), ("fused_act", FusedAct)):
+                record[key] = {learner.team: fused.unsupported(learner.alg) or True for learner in self.runner.learners}
+        with atomic_open(os.path.join(self.log_dir, "config.json")) as f:
+            json.dump(record, f, indent=1, default=str)
+
+    def _setup_pool(self) -> None:
+        """The opponent pool (`train.pool_every`; both teams learn), else None."""
+        train = self.config["train"]
         self.pool = None
         if train["pool_every"]:
             from .pool import OpponentPool
 
             self.pool = OpponentPool(
-                {t: (l.alg.get_policy(), l.vec_env) for t, l in self.learners.items()},
+                {t: (learner.alg.get_policy(), learner.vec_env) for t, learner in self.learners.items()},
                 size=int(train["pool_size"]),
                 sampling=train["pool_sampling"],
-                fractions={t: float(team_settings(config, t)["pool_fraction"]) for t in TEAMS},
+                fractions={t: float(team_settings(self.config, t)["pool_fraction"]) for t in TYPES},
             )
+
+    def _setup_video(self) -> None:
+        """The training video's recorder (`train.video_every`), else None."""
+        train = self.config["train"]
         self.video = None
         if train["video_every"]:
             from .episode_video import EpisodeVideo
 
-            self.video = EpisodeVideo(env_config(config), self.device, self.seed, int(train["video_steps"]))
-        if log_dir is not None:
-            import aquarium_warp
-
-            self.runner.add_git_repo_to_log(aquarium_warp.__file__)
+            self.video = EpisodeVideo(env_config(self.config), self.device, self.seed, int(train["video_steps"]))
 
     # ------------------------------------------------------------------ construction from checkpoints
     @classmethod

@@ -58,16 +58,16 @@ import torch
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
+from ..agent_types import OTHER, TYPES
 from ..device import TorchStreamLaunches
-from ..env import TYPES, BatchedAquarium
-from ..kernels import adapter as adapter_kernels
+from ..env import BatchedAquarium
+from ..kernels import rows as row_kernels
 from ..metrics import EPISODE_METRICS, EpisodeMetrics
 from ..per_world import largest
 from ..world_state import WorldState
 from . import _rsl  # noqa: F401
 from .randomize import ParamRandomizer
 
-OTHER = {"prey": "predator", "predator": "prey"}
 # The device-side sums' columns (`accumulate_episode_stats`); captures per prey is derived on the host.
 EPISODE_KEYS = ["Episode/captures", "Episode/reward_per_agent", "Episode/opponent_reward_per_agent", "Episode/length"]
 
@@ -207,7 +207,7 @@ class AquariumVecEnv(VecEnv):
         # Rows' running reward sums.
         self._row_return = torch.zeros(W * S, dtype=torch.float32, device=dev)
         self._no_swarm = torch.zeros(W, 0, dtype=torch.float64, device=dev)  # the statistics' swarm columns
-        self._launches = TorchStreamLaunches(env.device)  # those of kernels/adapter.py
+        self._launches = TorchStreamLaunches(env.device)  # those of kernels/rows.py
         self.sync_from_env()
 
     # ------------------------------------------------------------------ internal state
@@ -318,13 +318,13 @@ class AquariumVecEnv(VecEnv):
 
     def row_outcomes(self) -> None:
         """Rows' rewards, dones and time-outs of the last simulation step (see the module doc): one
-        launch of `kernels.adapter.row_outcomes` on torch's current stream."""
+        launch of `kernels.rows.learner_row_outcomes` on torch's current stream."""
         W, S = self.num_worlds, self.slots
         live = self._live_rows()  # (recorded once per liveness buffer: `set_driven` changes it)
         captured = self._captured_in if self._captured_in is not None else self._terminated_in
         self._launches.run(
             ("row_outcomes", live.data_ptr()),
-            adapter_kernels.row_outcomes,
+            row_kernels.learner_row_outcomes,
             (W, S),
             lambda: [
                 self._terminated_in,
@@ -359,13 +359,13 @@ class AquariumVecEnv(VecEnv):
         """Device-side counterpart of the `extras["log"]` statistics (no host sync): adds the world
         episodes that ended in the last step (those that started at step 0) and the rows' ended lives
         to running sums, which `episode_stats_snapshot()` takes and clears. Every step's graph runs it,
-        though episodes end rarely: one launch of `kernels.adapter.episode_statistics` (each world's
+        though episodes end rarely: one launch of `kernels.rows.episode_statistics` (each world's
         terms), then their sum over the worlds. Sums are of the raw per-world values; the divisions by
         team sizes happen in `decode_episode_stats`."""
         W, S = self.num_worlds, self.slots
         self._launches.run(
             "episode_statistics",
-            adapter_kernels.episode_statistics,
+            row_kernels.episode_statistics,
             W,
             lambda: [
                 self._episode_ended,

@@ -44,7 +44,11 @@ One module a job: `settings` (what a run measures), `sweeps` (configurations and
 `point` (one point measured), `timing` (timers), `stages` (the step's stages, timed command by
 command), `byte_model`, `bandwidth` (the copy bandwidth), `machine` (commit, device, versions),
 `peers` (the peers' results and ratios), `summary`, `table`, `plots`, `suite` (`run_bench`) and
-`cli` (the options and `main`).
+`cli` (the options and `main`); `floors` (the hardware floors of PPO training).
+
+This package is the one home of timing code: the scripts in `benchmarks/` (each a measurement whose
+results and provenance are committed under `benchmarks/results/`) import their timers and floors from
+here (and `aquarium_warp.device.synchronize`).
 """
 
 from .bandwidth import copy_bandwidth

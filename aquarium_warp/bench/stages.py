@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 import torch
 import warp as wp
 
+from ..agent_types import TYPES
 from .settings import BenchSettings
 from .timing import DeviceTimer, repeats_within, torch_timer
 
@@ -72,7 +73,7 @@ def command_stage(command: Callable[[], object]) -> str:
 
 def copy_actions_in(actions: dict[str, torch.Tensor], chosen: dict[str, torch.Tensor]) -> None:
     """The step's first stage: both teams' actions copied into the env's action arrays."""
-    for t in ("prey", "predator"):
+    for t in TYPES:
         actions[t].copy_(chosen[t])
 
 

@@ -69,7 +69,7 @@ empty one. The env runs its `BatchedAquarium` without auto-reset: an ended world
   stepped together end together). Same-step also copies every row's observation once more per step
   (the last observations) and builds `final_obs` (one Python object per ended row) in steps where some
   row ended. The rows' outcomes, observations and activity take a few launches
-  (`kernels/vector_rows.py`); each step reads two numbers from the device (rows ended, worlds ended).
+  (`kernels/rows.py`); each step reads two numbers from the device (rows ended, worlds ended).
 
 Infos follow Gymnasium's vector convention: every key `k` comes with a boolean mask `_k` (which rows
 have it; all of them for `"active"`).
@@ -105,15 +105,16 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from ..agent_types import OTHER, TYPES
 from ..config import AquariumConfig
 from ..drivers import make_driver
-from ..env import TYPES, BatchedAquarium
-from ..kernels import population, vector_rows
+from ..env import BatchedAquarium
+from ..kernels import population
+from ..kernels import rows as row_kernels
 from ..seeding import next_reset_seed, reset_seeds
 
 TEAMS = ("all", "prey", "predator")
 ARRAY_TYPES = ("numpy", "torch")
-OTHER = {"prey": "predator", "predator": "prey"}
 AUTORESET_MODES = {"next_step": AutoresetMode.NEXT_STEP, "same_step": AutoresetMode.SAME_STEP}
 RENDER_MODES = ("rgb_array",)
 RENDER_FPS = 30  # a frame per step
@@ -271,7 +272,7 @@ class AquariumRows:
         def outcomes(shard, restarting, noted):
             s = shard.state
             return shard.record(
-                vector_rows.row_outcomes,
+                row_kernels.vector_row_outcomes,
                 (shard.num_worlds, S),
                 [
                     row_slot,
@@ -289,7 +290,7 @@ class AquariumRows:
         def observations(shard, zero, out):
             o = shard.state.observations
             return shard.record(
-                vector_rows.row_observations,
+                row_kernels.row_observations,
                 (shard.num_worlds, S),
                 [env.prey_capacity, row_slot, o.obs_prey, o.obs_predator, rows(shard, zero)],
                 [rows(shard, out)],
@@ -297,7 +298,7 @@ class AquariumRows:
 
         def activity(shard, noted):
             return shard.record(
-                vector_rows.row_activity,
+                row_kernels.row_activity,
                 (shard.num_worlds, S),
                 [next_step, row_slot, shard.state.agents.alive, rows(shard, ended), rows(shard, noted)],
                 [rows(shard, active)],

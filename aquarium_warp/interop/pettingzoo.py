@@ -67,8 +67,9 @@ import torch
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
+from ..agent_types import TYPES
 from ..config import AgentTypeConfig, AquariumConfig
-from ..env import TYPES, BatchedAquarium
+from ..env import BatchedAquarium
 from ..seeding import next_reset_seed, reset_seeds, space_seed
 from ..world_state import STATE_FIELDS, WorldState
 

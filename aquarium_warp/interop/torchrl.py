@@ -41,8 +41,9 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
+from ..agent_types import TYPES
 from ..config import AquariumConfig
-from ..env import TYPES, BatchedAquarium
+from ..env import BatchedAquarium
 
 
 class AquariumTorchRLEnv(EnvBase):

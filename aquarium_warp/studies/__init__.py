@@ -11,7 +11,11 @@
 - `swarm`: can collective behaviour pay, and does it emerge in learned prey: a heuristic screen over
   density, view distance and predator speed, then learned prey with their controls (aggregation index);
 - `phase`: the pre-registered phase diagram of learned prey over capture rule, density, view and
-  predator, with controls in every cell and regimes named by declared thresholds.
+  predator, with controls in every cell and regimes named by declared thresholds;
+- `learned_prey`: learned prey under named training conditions in worlds A, B and C against the
+  random, constant-heading and TurnAway baselines (the recipe behind the `learned-prey-*` presets);
+- `coevolution`: both teams learning with an opponent pool, cross-play of their generations over
+  training seeds, and the two-learner path's speed.
 
 What they share: `jobs` (the job runner: finished-task cache, threads, worker processes, Ray tasks),
 `statistics` (over seeds: means with 95% intervals, Welch differences, TOST equivalence) and `common`
@@ -22,7 +26,7 @@ from __future__ import annotations
 
 from types import ModuleType
 
-from . import flow, fov_view, group_hunting, many_eyes, phase, swarm, swarm_size
+from . import coevolution, flow, fov_view, group_hunting, learned_prey, many_eyes, phase, swarm, swarm_size
 
 STUDIES: dict[str, ModuleType] = {
     "swarm-size": swarm_size,
@@ -32,6 +36,8 @@ STUDIES: dict[str, ModuleType] = {
     "flow": flow,
     "swarm": swarm,
     "phase": phase,
+    "learned-prey": learned_prey,
+    "coevolution": coevolution,
 }
 
 __all__ = ["STUDIES"]

@@ -1,6 +1,15 @@
-"""What the studies share besides their job runner (`jobs`) and statistics (`statistics`): rows grouped
-by setting, training runs through the `Trainer` API, evaluation rollouts that see every step's state,
-the geometry of fleeing, the output files, the record of a run and the error-band plots.
+"""What the studies share besides their job runner (`jobs`) and statistics (`statistics`), in sections:
+
+- **rows**: `group_rows` (a study's rows grouped by setting; a group's rows are the seeds);
+- **training**: run configs (`training_config`), training runs through the `Trainer` API
+  (`train_and_export`, `run_training_task`, `run_training_population`, `pretrain_populations`) and the
+  policies they export (`policy_path`);
+- **rollouts**: evaluation episodes that see every step's state (`rollout`);
+- **geometry**: the torus and fleeing (`torus_delta`, `nearest_predator`, `cosine`, `fleeing`);
+- **outputs**: the files (`write_outputs`, `write_csv`), the record of a run (`run_record`), the closing
+  line (`written`) and the error-band figures (`pyplot`, `band`, `save_figure`);
+- **command line**: the options every open-question study takes (`add_common_arguments`) and a
+  study's own options in `aquarium-warp study <name>` (`study_options`).
 
 Figures give the mean over seeds and its standard error (`sem`, std over seeds / sqrt(n)), drawn as a
 band of mean ± 1 s.e.m.; the JSON files give the 95% interval of the mean too (`statistics.seed_stats`).
@@ -507,3 +516,11 @@ def add_common_arguments(p: argparse.ArgumentParser, out: str, jobs: bool = True
         )
     p.add_argument("--out", default=out, help=f"output directory (default {out})")
     p.add_argument("--no-figures", action="store_true", help="write CSV/JSON only, no figures")
+
+
+def study_options(argv: Sequence[str], name: str) -> list[str]:
+    """The options of `aquarium-warp study <name> ...` (`args.argv`, the command as given): the words after
+    the study's name, for a study whose own `main(argv)` parses them (the one parser of its script and
+    of `aquarium-warp study`)."""
+    words = list(argv)
+    return words[words.index(name) + 1 :]

@@ -22,6 +22,7 @@ import re
 import signal
 import socket
 
+from ..agent_types import TYPES
 from ..atomic import check_output_dir
 
 
@@ -97,7 +98,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
     p.add_argument(
         "--human",
-        choices=("prey", "predator"),
+        choices=TYPES,
         default=None,
         help="hand one agent of this team to the keyboard from the start (also on the page)",
     )

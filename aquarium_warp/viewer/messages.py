@@ -25,10 +25,11 @@ from __future__ import annotations
 import json
 import math
 
+from ..agent_types import TYPES
+
 MAX_MESSAGE_CHARS = 8192
 MAX_SPEC_CHARS = 1024
 SPEED_RANGE = (0.1, 16.0)
-TEAMS = ("prey", "predator")
 OVERLAYS = ("view_cones", "hit_boxes", "velocities", "flow")
 
 
@@ -147,6 +148,6 @@ def parse_message(text, num_worlds: int, capacity: int) -> dict:
 def _team(value, allow_none: bool):
     if value is None and allow_none:
         return None
-    if value not in TEAMS:
-        raise MessageError(f"team={value!r} must be one of {list(TEAMS) + ([None] if allow_none else [])}")
+    if value not in TYPES:
+        raise MessageError(f"team={value!r} must be one of {list(TYPES) + ([None] if allow_none else [])}")
     return value

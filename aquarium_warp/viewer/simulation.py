@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from .. import pretrained
+from ..agent_types import TYPES
 from ..config import AquariumConfig
 from ..drivers import HEURISTICS, is_heuristic, make_drivers
 from ..env import BatchedAquarium, action_directions
@@ -311,7 +312,7 @@ class WorldView:
             "width": float(cfg.width),
             "height": float(cfg.height),
             "prey_capacity": env.prey_capacity,
-            "types": {t: _type_info(getattr(cfg, t), cfg.fov_enabled) for t in ("prey", "predator")},
+            "types": {t: _type_info(getattr(cfg, t), cfg.fov_enabled) for t in TYPES},
             "episode_captures": int(s.episode_captures[w]),
             "polarization": _finite(values["polarization"]),
             "groups": _finite(values["groups"]),

@@ -386,7 +386,7 @@ def test_drawn_headings_follow_the_documented_formula(device):
     first draw of mix32(rng ^ PURPOSE_HEADING), rng the agent's own stream, keyed by the slot it takes: the
     spawn stream of its slot at an episode start, and for a newborn the child's slot's newborn stream of
     the step being finished (t + 1), not its parent's."""
-    from aquarium_warp.env import seed_key
+    from aquarium_warp.seeding import seed_key
 
     # replication age 1: every prey of the first step is a parent, its child in a slot free at the start
     cfg = AquariumConfig(

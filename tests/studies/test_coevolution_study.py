@@ -1,7 +1,7 @@
-"""`benchmarks/coevolution.py` on the CPU: the generations' iterations by hand (and the committed run's
-uneven choice they replace), training in stretches equals one run, the aggregation over training seeds
-and the declared comparisons against values computed by hand, the option checks, a rerun that runs
-nothing (and more seeds that run only the new one), and a two-seed run end to end."""
+"""`aquarium-warp study coevolution` (`benchmarks/coevolution.py`) on the CPU: the generations' iterations by hand (and
+the committed run's uneven choice they replace), training in stretches equals one run, the aggregation over training
+seeds and the declared comparisons against values computed by hand, the option checks, a rerun that runs nothing
+(and more seeds that run only the new one), and a two-seed run end to end."""
 
 from __future__ import annotations
 
@@ -9,17 +9,13 @@ import csv
 import json
 import math
 import os
-import sys
 
 import numpy as np
 import pytest
 
 os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
 pytest.importorskip("rsl_rl")
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "benchmarks"))
-import coevolution
-
-sys.path.pop(0)
+from aquarium_warp.studies import coevolution
 
 T2 = 4.302653  # t(0.975) with 2 degrees of freedom: three seeds
 

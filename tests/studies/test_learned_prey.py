@@ -1,7 +1,7 @@
-"""`benchmarks/learned_prey.py` on the CPU: every training's config against the `aquarium-warp train`
-command line that trained it before its trainings ran in-process, and the tiny plan end to end
-(trainings, evaluations with the baselines, the record with per-seed values and provenance; a rerun
-runs nothing again, and a report keeps result files it finds)."""
+"""`aquarium-warp study learned-prey` (`benchmarks/learned_prey.py`) on the CPU: every training's config against the
+`aquarium-warp train` command line that trained it before its trainings ran in-process, and the tiny plan end to end
+(trainings, evaluations with the baselines, the record with per-seed values and provenance; a rerun runs nothing
+again, and a report keeps result files it finds)."""
 
 from __future__ import annotations
 
@@ -9,17 +9,12 @@ import glob
 import json
 import os
 import shlex
-import sys
 
 import pytest
 
 os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
 pytest.importorskip("rsl_rl")
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "benchmarks"))
-import learned_prey
-
-sys.path.pop(0)
-
+from aquarium_warp.studies import learned_prey
 
 RESULTS = os.path.join(os.path.dirname(__file__), "..", "..", "benchmarks", "results", "learned_prey_ego")
 # The conditions that no committed plan trained, as `CONDITIONS` gave them before the trainings ran

@@ -192,17 +192,11 @@ def test_eval_and_train_refuse_a_policy_in_a_world_of_another_interface(tmp_path
 
 @pytest.mark.parametrize("world", ["A", "B", "C"])
 def test_the_recipe_presets_are_the_benchmarked_recipe(world):
-    """`train --preset learned-prey-<w>` trains what benchmarks/learned_prey.py ran as "recipe": the paper
+    """`train --preset learned-prey-<w>` trains what `study learned-prey` ran as "recipe": the paper
     preset with its world's and its assignments."""
-    import sys
-
+    from aquarium_warp.studies import learned_prey
     from aquarium_warp.training.config import deep_update, make_config, parse_assignment
 
-    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "benchmarks"))
-    try:
-        import learned_prey
-    finally:
-        sys.path.pop(0)
     preset, assignments = learned_prey.CONDITIONS["recipe"]
     changes: dict = {}
     for assignment in learned_prey.WORLDS[world] + assignments:

@@ -4,7 +4,7 @@ TF32 products, `train.tf32`) and from their bytes at the card's memory bandwidth
 prints the floor beside what it measured and the fraction of the floor reached.
 
 ```python
-from aquarium_warp.training.floors import Floor, card_peaks, rollout_work, update_work
+from aquarium_warp.bench.floors import Floor, card_peaks, rollout_work, update_work
 
 peaks = card_peaks(torch.cuda.get_device_name())
 floor = Floor(update_work(trainer.runner.alg), peaks)
@@ -79,7 +79,7 @@ def matmul_shapes(model: nn.Module) -> list[tuple[int, int]]:
     `nn.Linear` layers, and the per-slot layers of Individual Learning (`BatchedLinear`: a sample
     uses its own slot's weights), and a population's stacked layers (`StackedMLP`: a sample uses its
     own run's)."""
-    from .models import BatchedLinear, StackedMLP
+    from ..training.models import BatchedLinear, StackedMLP
 
     shapes = []
     for module in model.modules():
@@ -163,7 +163,7 @@ def update_work(alg) -> UpdateWork:
     """The work of an update of `alg` (an `AquariumPPO` that has collected a rollout: its storage
     allocates some fields at the first step), from its actor's and critic's layers and parameters and
     its rollout storage's fields."""
-    from .ppo import flat_samples, mini_batch_size
+    from ..training.ppo import flat_samples, mini_batch_size
 
     storage = alg.storage
     if storage.distribution_params is None:

@@ -1,4 +1,4 @@
-"""The hardware floors of PPO training (`training/floors.py`): the update's and the rollout's
+"""The hardware floors of PPO training (`aquarium_warp/bench/floors.py`): the update's and the rollout's
 arithmetic and bytes counted by hand for small networks and small worlds, the card table, and the
 floor's reading (unknown card: n/a)."""
 
@@ -10,7 +10,7 @@ os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
 
 import pytest
 
-from aquarium_warp.training.floors import (
+from aquarium_warp.bench.floors import (
     CARD_PEAKS,
     CardPeaks,
     Floor,
