@@ -55,7 +55,7 @@ import torch
 
 from ..atomic import atomic_open
 from ..device import resolve_device
-from ..drivers import make_driver
+from ..drivers import Driver, make_driver
 from ..env import BatchedAquarium
 from ..records import provenance
 from ..seeding import rank_seed, seed_process
@@ -123,9 +123,11 @@ class Trainer:
         self.device = self.env.torch_device
         if train["tf32"] and self.device.type == "cuda":
             torch.backends.cuda.matmul.allow_tf32 = True  # a process-wide switch of torch's
-        if both:  # each team's opponent is the other learner, whose actions the training loop writes
+        # with both teams, each team's opponent is the other learner, whose actions the training loop writes
+        learner_actions = {team: LearnerActions() for team in TEAMS} if both else {}
+        if both:
             self.opponent = None
-            opponents = {team: LearnerActions() for team in TEAMS}
+            opponents: dict[str, Driver] = dict(learner_actions)
         else:
             self.opponent = make_driver(
                 train["opponent"],
@@ -150,9 +152,8 @@ class Trainer:
             )
             for i, team in enumerate(self.teams)
         }
-        if both:
-            for team in TEAMS:
-                opponents[team].vec_env = self.vec_envs[OTHER[team]]
+        for team, actions in learner_actions.items():
+            actions.vec_env = self.vec_envs[OTHER[team]]
         self.vec_env = self.vec_envs[self.teams[0]]
         self.runner_cfgs = {
             team: runner_config(config, v.slots, v.action_count, self.device.type, team=team)
