@@ -119,6 +119,7 @@ def test_bench_training_records_provenance_and_the_floor(tmp_path, monkeypatch, 
     assert "floor n/a (...)" in out and "floor n/a (rollout)" in out
 
 
+@pytest.mark.slow
 def test_profile_training_records_provenance_and_every_kernel(tmp_path, capsys, staged_copy):
     pytest.importorskip("rsl_rl")
     profile = _script("profile_training")
