@@ -82,7 +82,6 @@ INCOMPLETE: dict[str, tuple[tuple[str, ...], str]] = {
         "round 1 did not run the README's command (its rows stop at 100,000 agents)",
     ),
     "swarm_size/swarm_size.json": (("commit",), "the commit it ran at is not recorded anywhere"),
-    "viewer_cpu/viewer.json": (("versions",), "only the browser's version recorded, not warp's"),
 }
 
 
