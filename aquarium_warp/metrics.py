@@ -98,6 +98,7 @@ from .kernels import metrics as kernels
 from .nulls import hard_disk_nn_means, point_nn_means
 from .per_world import per_world
 from .rollout import Drivers, Observer, Progress, rollout
+from .state import struct_type
 
 # compute()'s [W] values: the swarm's measures, then the groups' (both columns of `SwarmMetrics.values`).
 SCALAR_METRICS = kernels.VALUE_NAMES[: kernels.NUM_SWARM_VALUES]
@@ -205,7 +206,7 @@ class SwarmMetrics:
         a.partial = wp.zeros((W, self._chunks, kernels.NUM_PARTIALS), dtype=float, device=dev)
         a.values = wp.zeros((W, kernels.NUM_VALUES), dtype=float, device=dev)
         g = self._groups = kernels.GroupArrays()
-        for name in kernels.GroupArrays.vars:
+        for name in struct_type(kernels.GroupArrays).vars:
             shape = {"order": (W, Pc, 3), "last_time": (W, 3), "before_time": (W, 3)}.get(name, (W, Pc))
             if name in ("point_null", "hard_disk_null"):
                 setattr(g, name, wp.array(self._nn_nulls(name), dtype=float, device=dev))
@@ -256,11 +257,11 @@ class SwarmMetrics:
         s, g, world, Pc = shard.state, shard.grid, shard.world, self._env.prey_capacity
         W, w0, w1 = shard.num_worlds, shard.w0, shard.w1
         arrays = kernels.SwarmArrays()  # the shard's worlds of every buffer
-        for name in kernels.SwarmArrays.vars:
+        for name in struct_type(kernels.SwarmArrays).vars:
             rows = slice(w0 * Pc, w1 * Pc) if name == "parent" else slice(w0, w1)  # parent: [W * Pc]
             setattr(arrays, name, getattr(self._arrays, name)[rows])
         groups = kernels.GroupArrays()
-        for name in kernels.GroupArrays.vars:
+        for name in struct_type(kernels.GroupArrays).vars:
             setattr(groups, name, getattr(self._groups, name)[w0:w1])
         smallest = self.min_group_size
         return [

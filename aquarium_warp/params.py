@@ -36,6 +36,7 @@ from .kernels.common import (
     WorldValues,
 )
 from .per_world import PER_WORLD_FIELDS, PER_WORLD_TYPE_FIELDS, per_world
+from .state import struct_type
 
 # `FlowConfig.kind` -> the kernels' code of the current.
 _FLOW_CODES = {"none": int(FLOW_NONE), "uniform": int(FLOW_UNIFORM), "vortex": int(FLOW_VORTEX), "grid": int(FLOW_GRID)}
@@ -52,7 +53,7 @@ def cos_half_fov(fov_angle: float) -> float:
 
 def type_rows(cfg: AquariumConfig, num_worlds: int) -> np.ndarray:
     """`[W, 2]` rows of `AgentType` (numpy structured), column = type code."""
-    rows = np.zeros((num_worlds, 2), dtype=AgentType.numpy_dtype())
+    rows = np.zeros((num_worlds, 2), dtype=struct_type(AgentType).numpy_dtype())
     for code, t in ((PREDATOR, cfg.predator), (PREY, cfg.prey)):
         column = rows[:, int(code)]
         for name in PER_WORLD_TYPE_FIELDS:
@@ -88,7 +89,7 @@ def flow_grids(flows: list[FlowConfig]) -> tuple[np.ndarray, list[int]]:
 
 def world_rows(cfg: AquariumConfig, num_worlds: int, grid_index: list[int]) -> np.ndarray:
     """`[W]` rows of `WorldValues` (numpy structured)."""
-    rows = np.zeros(num_worlds, dtype=WorldValues.numpy_dtype())
+    rows = np.zeros(num_worlds, dtype=struct_type(WorldValues).numpy_dtype())
     for name in PER_WORLD_FIELDS:
         # stored as configured; the capture rule, the confusion angle, the replication age and the flow: below
         if name in rows.dtype.names and name != "capture_rule":

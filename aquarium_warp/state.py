@@ -8,10 +8,22 @@ the groups of worlds `[w0, w1)`, which is what a `WorldShard` runs on.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, cast
+
 import torch
 import warp as wp
 
 from .kernels.state import Actions, Agents, Observations, Scratch, StepOutputs, WorldCounters
+
+if TYPE_CHECKING:
+    from warp._src.codegen import Struct
+
+
+def struct_type(cls) -> Struct:
+    """A `@wp.struct` class as what Warp made of it, a `Struct` (its fields `vars`, `numpy_dtype()`):
+    mypy ignores class decorators and would type it as the plain class."""
+    return cls
+
 
 # Attribute name -> group type, in the order kernels take them (inputs before outputs).
 GROUPS = {
@@ -25,14 +37,16 @@ GROUPS = {
 # The agent fields a user may read and set (`BatchedAquarium.set_state`), and the tensors of
 # `state_dict()`: the whole simulation state (the seed travels as an integer, or a tuple of them, from
 # which every world's stream key and index follow).
-AGENT_FIELDS = tuple(Agents.vars)
-STATE_DICT_FIELDS = AGENT_FIELDS + tuple(n for n in WorldCounters.vars if n not in ("seed", "stream_world"))
+AGENT_FIELDS = tuple(struct_type(Agents).vars)
+STATE_DICT_FIELDS = AGENT_FIELDS + tuple(
+    n for n in struct_type(WorldCounters).vars if n not in ("seed", "stream_world")
+)
 
 
 def group_rows(group_type, group, w0: int, w1: int):
     """A new `group_type` instance whose arrays view worlds `[w0, w1)` of `group`'s."""
     view = group_type()
-    for name in group_type.vars:
+    for name in struct_type(group_type).vars:
         setattr(view, name, getattr(group, name)[w0:w1])
     return view
 
@@ -89,9 +103,10 @@ class SimulationState:
         groups = {}
         for group_name, group_type in GROUPS.items():
             group = group_type()
-            for name, var in group_type.vars.items():
-                shape = shapes.get(name, (W, C) if var.type.ndim == 2 else W)
-                setattr(group, name, wp.zeros(shape, dtype=var.type.dtype, device=device))
+            for name, var in struct_type(group_type).vars.items():
+                field = cast(wp.array, var.type)  # every field of a group is declared as a `wp.array[...]`
+                shape = shapes.get(name, (W, C) if field.ndim == 2 else W)
+                setattr(group, name, wp.zeros(shape, dtype=field.dtype, device=device))
             groups[group_name] = group
         state = cls(**groups)
         state._torch = TorchViews(state)
@@ -102,7 +117,7 @@ class SimulationState:
         return {
             name: getattr(getattr(self, group), name)
             for group, group_type in GROUPS.items()
-            for name in group_type.vars
+            for name in struct_type(group_type).vars
         }
 
     def rows(self, w0: int, w1: int) -> SimulationState:

@@ -32,9 +32,12 @@ def cuda_device(device: str) -> str:
 
 
 def pytest_itemcollected(item: pytest.Item) -> None:
-    """`gpu` marks the tests that run on AQUARIUM_TEST_DEVICE, read from the fixtures they take."""
+    """`gpu` marks the tests that run on AQUARIUM_TEST_DEVICE, read from the fixtures they take; a
+    `learning` test (it trains for tens of seconds) is `slow` too, so the fast loop leaves it out."""
     if "device" in getattr(item, "fixturenames", ()):
         item.add_marker(pytest.mark.gpu)
+    if item.get_closest_marker("learning") is not None and item.get_closest_marker("slow") is None:
+        item.add_marker(pytest.mark.slow)
 
 
 @pytest.fixture

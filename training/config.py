@@ -180,7 +180,7 @@ PRESETS: dict[str, dict[str, Any]] = {  # name -> changes to the defaults (a nes
 # The learned-prey recipe's changes to a run config (docs/learned-prey.md): egocentric observations
 # (world actions), random spawn headings and entropy weight 0.01. The learned-prey presets, the swarm
 # study and the many-eyes and group-hunting studies' `--recipe` take it from here.
-LEARNED_PREY_RECIPE = {
+LEARNED_PREY_RECIPE: dict[str, dict[str, Any]] = {
     "env": {"observation_frame": "ego", "spawn_heading": "random"},
     "runner": {"algorithm": {"entropy_coef": 0.01}},
 }

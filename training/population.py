@@ -530,10 +530,10 @@ class Population:
         if train["tf32"] and self.device.type == "cuda":
             torch.backends.cuda.matmul.allow_tf32 = True
         other = OTHER[team]
-        # A heuristic's streams keyed per run, as alone; a trained opponent acts by argmax (`unsupported`).
-        seeds = list(self.seeds) if is_heuristic(train["opponent"], other) else self.seeds[0]
+        # A heuristic draws from the env's streams, keyed per run as alone; a trained opponent acts by argmax
+        # (`unsupported`), so the seed goes unused.
         self.opponent = make_driver(
-            train["opponent"], self.env, other, deterministic=train["opponent_deterministic"], seed=seeds
+            train["opponent"], self.env, other, deterministic=train["opponent_deterministic"], seed=self.seeds[0]
         )
         scales = [float(team_settings(c, team)["reward_scale"]) for c in configs]
         self.vec_env = AquariumVecEnv(

@@ -215,11 +215,11 @@ def simulation_bytes(state) -> int:
 
     import warp as wp
 
-    from ..state import GROUPS
+    from ..state import GROUPS, struct_type
 
     def group_bytes(name: str) -> int:
         group = getattr(state, name)
-        arrays = (getattr(group, field) for field in GROUPS[name].vars)
+        arrays = (getattr(group, field) for field in struct_type(GROUPS[name]).vars)
         return sum(a.size * wp.types.type_size_in_bytes(a.dtype) for a in arrays)
 
     read_write = group_bytes("agents") + group_bytes("worlds")

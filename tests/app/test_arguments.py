@@ -1,4 +1,4 @@
-"""The argparse types and value checks of `aquarium_warp.arguments` (the lists have test_number_lists.py):
+"""The argparse types and value checks of `aquarium_warp.arguments` (the lists have test_argument_lists.py):
 each accepts its range and refuses the rest in one line that names the value or parameter and the range."""
 
 from __future__ import annotations

@@ -185,6 +185,7 @@ def test_video_refuses_a_file_its_folders_permissions_allow_but_cannot_be_create
     one_line(capsys, f"aquarium-warp video: cannot write {path}: ")
 
 
+@pytest.mark.slow
 def test_a_ctrl_c_during_video_leaves_no_file_and_no_ffmpeg_output(tmp_path):
     """SIGINT to the whole process group, as a terminal's Ctrl-C sends it: ffmpeg (its own session) says
     nothing about the frame the interrupt cut, and the command ends with 130 and one line."""

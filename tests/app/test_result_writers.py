@@ -119,6 +119,7 @@ def test_bench_training_records_provenance_and_the_floor(tmp_path, monkeypatch, 
     assert "floor n/a (...)" in out and "floor n/a (rollout)" in out
 
 
+@pytest.mark.slow
 def test_profile_training_records_provenance_and_every_kernel(tmp_path, capsys, staged_copy):
     pytest.importorskip("rsl_rl")
     profile = _script("profile_training")
@@ -234,6 +235,7 @@ def test_bench_fused_update_compile_only_times_the_build_and_no_point(tmp_path, 
     assert json.loads(out.read_text())["points"] == []
 
 
+@pytest.mark.slow
 def test_bench_multi_gpu_names_where_a_run_past_its_time_waited():
     """A run past its time: its ranks (the launcher's children) print their stacks on SIGABRT, the whole
     tree is killed, and the error says so with those stacks; a failed run names its output."""

@@ -1030,3 +1030,55 @@ def test_train_view_serves_the_training_worlds(tmp_path, capsys):
     )
     out = capsys.readouterr().out
     assert code == 0 and "aquarium-warp train: the training worlds are on http://127.0.0.1:" in out, out
+
+
+REPO = os.path.join(os.path.dirname(__file__), "..", "..")
+
+
+def _docs_replay_pages(site_dir) -> dict[str, str]:
+    """The replay pages of the docs site, as its build makes them (mkdocs.yml's hooks), by site path."""
+    from mkdocs.config import load_config
+    from mkdocs.structure.files import get_files
+
+    config = load_config(os.path.join(REPO, "mkdocs.yml"), site_dir=str(site_dir))
+    files = config.plugins.on_files(get_files(config), config=config)
+    return {f.src_uri: f.content_string for f in files if f.src_uri.startswith("replays/") and f.generated_by}
+
+
+@pytest.mark.slow
+def test_the_docs_build_generates_each_replay_page_from_the_viewer(tmp_path):
+    pages = _docs_replay_pages(tmp_path)
+    trajectories = sorted(name for name in os.listdir(os.path.join(REPO, "docs", "replays")) if name.endswith(".json"))
+    assert trajectories and sorted(pages) == [f"replays/{name[:-5]}.html" for name in trajectories]
+    for name in trajectories:
+        out = tmp_path / f"{name[:-5]}.html"  # what `aquarium-warp view --replay NAME.json --out NAME.html` writes
+        assert main(["view", "--replay", os.path.join(REPO, "docs", "replays", name), "--out", str(out)]) == 0
+        assert pages[f"replays/{name[:-5]}.html"] == out.read_text()
+
+
+@browser_only
+@pytest.mark.slow
+def test_a_docs_replay_page_plays_pauses_and_steps_through_its_trajectory(tmp_path):
+    page_path = tmp_path / "prey-b.html"
+    page_path.write_text(_docs_replay_pages(tmp_path / "site")["replays/prey-b.html"], encoding="utf-8")
+    frames = read_trajectory(os.path.join(REPO, "docs", "replays", "prey-b.json"))["frames"]
+    driver = _browser()
+    try:
+        driver.get(page_path.as_uri())  # from disk, no server
+        _until(lambda: driver.execute_script("return window.aquarium.framesDrawn") > 5)
+        _until(lambda: _header(driver)["step"] > 2)  # it plays
+        driver.find_element("id", "play").click()
+        paused = _header(driver)["step"]
+        time.sleep(0.3)
+        assert _header(driver)["step"] == paused
+        driver.find_element("id", "step").click()
+        _until(lambda: _header(driver)["step"] == paused + 1)
+        shown = frames[paused + 1]
+        header = _header(driver)
+        assert header["n"] == len(shown["slot"]) and header["episode_captures"] == shown["episode_captures"]
+        agents = np.array(driver.execute_script("return Array.from(window.aquarium.frame.agents)")).reshape(-1, 6)
+        # positions quantised to 800 px / 65536, as the server's frames
+        np.testing.assert_allclose(agents[:, 0], shown["x"], atol=800 / 65536)
+        np.testing.assert_allclose(agents[:, 1], shown["y"], atol=800 / 65536)
+    finally:
+        driver.quit()

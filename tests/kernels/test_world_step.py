@@ -207,7 +207,13 @@ FIBER_BLOCKS = {
 }
 
 
-@pytest.mark.parametrize("case", list(FIBER_BLOCKS))
+# The fast loop runs one case (packed worlds, a partial last block), the full run every case.
+FIBER_FAST = "3 packed, partial last block"
+
+
+@pytest.mark.parametrize(
+    "case", [pytest.param(c, marks=() if c == FIBER_FAST else pytest.mark.slow) for c in FIBER_BLOCKS]
+)
 def test_blocks_of_several_lanes_wait_between_stages(case, monkeypatch):
     """Blocks of several lanes (Warp runs CPU blocks as fibers that switch only at a barrier): a
     missing barrier lets a lane run a stage before the others have finished the stage before it,

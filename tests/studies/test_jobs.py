@@ -173,6 +173,7 @@ def test_one_device_runs_here_and_gives_each_task_the_device(tmp_path):
     )
 
 
+@pytest.mark.slow
 def test_two_devices_run_in_a_worker_process_each_and_a_rerun_keeps_all(tmp_path):
     tasks = Study(seeds=2).tasks()
     run = run_jobs(on_device, tasks, str(tmp_path), devices=["cpu", "cpu"], report=None, prepare=lambda: None)

@@ -350,6 +350,7 @@ def test_the_confusion_conditions_end_to_end(tmp_path, capsys, one_thread):
     assert (out / "learned.png").stat().st_size > 0 and (out / "confusion_dose.png").stat().st_size > 0
 
 
+@pytest.mark.slow
 def test_the_learned_part_end_to_end_and_a_rerun_runs_nothing(tmp_path, capsys, one_thread):
     out = tmp_path / "swarm"
     assert main(LEARNED + ["--out", str(out)]) == 0

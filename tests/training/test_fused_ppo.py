@@ -382,6 +382,7 @@ def test_fused_act_unsupported_learners(interpreter):
         FusedAct(alg)
 
 
+@pytest.mark.slow
 def test_individual_learning_trains_fused_and_records_it(tmp_path, interpreter):
     """`train.fused_mlp` with `sharing = "individual"`: the learner's models are
     `FusedIndividualMLPModel`, its update runs the fused loss and its rollout the fused step, and
@@ -424,6 +425,7 @@ def test_both_teams_use_the_fused_loss(tmp_path, interpreter):
     assert record["fused_loss"] == record["fused_act"] == {"prey": True, "predator": True}
 
 
+@pytest.mark.slow
 def test_trainer_uses_the_fused_loss_and_records_it(tmp_path, interpreter):
     """`train.fused_mlp` on: the learner's update runs the fused loss, and config.json says so; with the
     adaptive schedule it keeps autograd through the fused MLPs, and config.json says why."""
