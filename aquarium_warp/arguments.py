@@ -30,6 +30,23 @@ POLICY_SPECS = {
 
 
 # ---------------------------------------------------------------------------------------------- argparse types
+class Interrupted(KeyboardInterrupt):
+    """A signal that ended a command early: the message to print and the shell's exit code for it
+    (128 + the signal's number)."""
+
+    def __init__(self, message: str, signum: int):
+        super().__init__(message)
+        self.exit_code = 128 + signum
+
+    def __reduce__(self):  # from a study's worker process to the main one
+        return type(self), (str(self), self.exit_code - 128)
+
+
+def plural(count: int, noun: str) -> str:
+    """ "1 predator", "3 predators" (nouns with a plain -s plural)."""
+    return f"{count} {noun}{'' if count == 1 else 's'}"
+
+
 def policy_spec(team: str) -> Callable[[str], str]:
     """argparse type of a `team` policy option: the spec, "learned" read as the team's general policy
     (`pretrained.for_team`); whether it exists is checked where the policy is loaded."""

@@ -4,35 +4,19 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import signal
 import sys
 import threading
 import time
 
-from .arguments import POLICY_SPECS, non_negative_int, policy_spec, positive_float, positive_int
+from .arguments import POLICY_SPECS, Interrupted, non_negative_int, plural, policy_spec, positive_float, positive_int
 from .atomic import check_output_file
-
-
-class Interrupted(KeyboardInterrupt):
-    """A signal that ended a command early: the message to print and the shell's exit code for it
-    (128 + the signal's number)."""
-
-    def __init__(self, message: str, signum: int):
-        super().__init__(message)
-        self.exit_code = 128 + signum
-
-    def __reduce__(self):  # from a study's worker process to the main one
-        return type(self), (str(self), self.exit_code - 128)
 
 
 def _terminated(signum, frame) -> None:
     """SIGTERM as Ctrl-C: the command unwinds (partial files removed) instead of vanishing."""
     raise Interrupted("terminated (SIGTERM)", signum)
-
-
-def plural(count: int, noun: str) -> str:
-    """ "1 predator", "3 predators" (nouns with a plain -s plural)."""
-    return f"{count} {noun}{'' if count == 1 else 's'}"
 
 
 def _demo(args) -> int:
@@ -156,7 +140,14 @@ def _add_train(sub) -> None:
 
     train = sub.add_parser("train", help="train one team with PPO (rsl-rl) against heuristic or trained opponents")
     add_train_arguments(train)
-    train.set_defaults(run=run_train)
+    train.set_defaults(run=functools.partial(run_train, attach=_attach_viewer))
+
+
+def _attach_viewer(env, port: int):
+    """`train --view`: the viewer's page on the training worlds (the viewer extra, imported when asked)."""
+    from .viewer import attach
+
+    return attach(env, port=port)
 
 
 def _add_eval(sub) -> None:

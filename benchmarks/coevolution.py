@@ -47,7 +47,7 @@ difference of two cells of one seed's matrix, oriented so that > 0 is a gain of 
   against the previous ones, facing the previous predators (a cycle shows as gains that come and go).
 The 8G - 4 intervals are each at 95%, not adjusted for their number.
 
-The speed points and each seed are tasks of the studies' job runner (`aquarium_warp.studies.jobs`):
+The speed points and each seed are tasks of the studies' job runner (`aquarium_warp.jobs`):
 each result is kept in `--out-dir/finished/`, and a rerun (after a time limit, or with more `--seeds`,
 or `--speed-only` first and the rest in a later call) runs only what is missing.
 
@@ -83,10 +83,10 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from aquarium_warp.arguments import check_distinct, check_int
 from aquarium_warp.device import resolve_device
+from aquarium_warp.jobs import run_jobs
 from aquarium_warp.records import command_line, json_safe, machine_info, provenance
 from aquarium_warp.seeding import EVALUATION_STRIDE, evaluation_seed
-from aquarium_warp.studies.jobs import run_jobs
-from aquarium_warp.studies.statistics import difference, mean_interval
+from aquarium_warp.statistics import difference, mean_interval
 from aquarium_warp.training import Trainer, make_config
 from aquarium_warp.training.config import env_config
 from aquarium_warp.training.cross_play import CROSS_PLAY_METRICS, cross_play, write_cross_play

@@ -7,7 +7,7 @@ A: the paper's (120 degrees, 100 px); B: 360 degrees, 200 px; C: 360 degrees, un
 
 Every condition is the `paper` preset (or another preset) plus config assignments (`train --set`'s
 form; `CONDITIONS`); a plan (`PLANS`) names the (condition, world, seeds) to run. Trainings and
-evaluations are tasks of the studies' job runner (`aquarium_warp.studies.jobs.run_jobs`): `--per-gpu`
+evaluations are tasks of the studies' job runner (`aquarium_warp.jobs.run_jobs`): `--per-gpu`
 at a time on each of `--gpus` GPUs (0: one at a time on the CPU), each training into
 `runs/<condition>-<world>-s<seed>/`; on GPUs the trainings that may share a process train together as
 populations (`training/population.py`), one at a time per GPU, each run as if alone. Finished tasks
@@ -33,9 +33,9 @@ import os
 import sys
 import time
 
+from aquarium_warp.jobs import read_finished, run_jobs, task_devices
+from aquarium_warp.statistics import interval
 from aquarium_warp.studies.common import policy_path, run_training_task
-from aquarium_warp.studies.jobs import read_finished, run_jobs, task_devices
-from aquarium_warp.studies.statistics import interval
 
 WORLDS = {
     "A": [],

@@ -11,12 +11,11 @@ import importlib.util
 import os
 import time
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
-from ..arguments import POLICY_SPECS, int_at_least, number, policy_spec, positive_float
+from ..arguments import POLICY_SPECS, Interrupted, int_at_least, number, plural, policy_spec, positive_float
 from ..atomic import check_output_dir
-from ..cli import Interrupted, plural
 from .config import ALGORITHM_RANGES, PRESETS
 from .population import is_population
 
@@ -342,7 +341,10 @@ def _silent(*args, **kwargs) -> None:
     """`print` on the ranks other than 0 of a torchrun run."""
 
 
-def run_train(args) -> int:
+def run_train(args, *, attach: Callable[..., Any]) -> int:
+    """`aquarium-warp train`. `attach(env, port=PORT)` shows the training worlds in the browser (the
+    viewer's `attach`, which the command line passes in: training does not import the viewer) for
+    `--view`."""
     from .run_dir import claim_run_directory
 
     changes = _train_changes(args)
@@ -377,8 +379,6 @@ def run_train(args) -> int:
         viewer = None
         try:
             if args.view is not None and trainer.rank == 0:
-                from ..viewer import attach
-
                 viewer = attach(trainer.env, port=args.view)
                 say(f"aquarium-warp train: the training worlds are on {viewer.url}")
             finish_training(trainer, say)

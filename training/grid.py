@@ -43,7 +43,7 @@ from ..drivers import is_heuristic, make_drivers
 from ..env import BatchedAquarium
 from ..records import json_safe, provenance
 from ..rollout import Observer, rollout
-from ..studies.statistics import interval
+from ..statistics import interval
 from .evaluate import parse_spec
 
 UNLIMITED = 10000.0  # px: past the half diagonal of the default 800 x 800 torus (566 px), the whole world

@@ -212,10 +212,8 @@ class Trainer:
             from .episode_video import EpisodeVideo
 
             self.video = EpisodeVideo(env_config(config), self.device, self.seed, int(train["video_steps"]))
-        if log_dir is not None:
-            import aquarium_warp
-
-            self.runner.add_git_repo_to_log(aquarium_warp.__file__)
+        if log_dir is not None:  # the git state of the repository holding this source (rsl-rl searches upward)
+            self.runner.add_git_repo_to_log(__file__)
 
     # ------------------------------------------------------------------ construction from checkpoints
     @classmethod

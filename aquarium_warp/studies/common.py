@@ -1,4 +1,4 @@
-"""What the studies share besides their job runner (`jobs`) and statistics (`statistics`): rows grouped
+"""What the studies share besides the job runner (`aquarium_warp.jobs`) and statistics (`statistics`): rows grouped
 by setting, training runs through the `Trainer` API, evaluation rollouts that see every step's state,
 the geometry of fleeing, the output files, the record of a run and the error-band plots.
 
@@ -98,9 +98,9 @@ def train_and_export(config: dict, out_dir: str, log_dir: str | None = None) -> 
 
     A training stopped by SIGINT or SIGTERM (`Trainer.stop`) is not finished: nothing is exported, its
     state is kept (the last checkpoint in `log_dir`, else `<out_dir>/interrupted.pt`) and
-    `cli.Interrupted` raised; the next call with the same config continues it from there. A kept state
+    `arguments.Interrupted` raised; the next call with the same config continues it from there. A kept state
     of another config is replaced by a new run."""
-    from ..cli import Interrupted
+    from ..arguments import Interrupted
     from ..training import Trainer
     from ..training.run_dir import claim_run_directory
 
@@ -173,16 +173,15 @@ def pretrain_populations(
     """Train the `(config, out_dir)` trainings of a study's pending tasks that may share a process as
     populations (`training/population.py`), before the tasks run: each run's policy exported into its
     `out_dir` with `TRAINED`, so that the task's `train_and_export` returns it. Populations hold
-    `runs_per_process` runs (None: `jobs.population_size`, one on the CPU: nothing is trained here);
+    `runs_per_process` runs (None: `population.population_size`, one on the CPU: nothing is trained here);
     trainings that would be alone, or that have a kept state to continue, are left to their tasks. A
     signal stops every run of a population; each keeps its state as `<out_dir>/interrupted.pt`, which the
-    rerun's task continues, and `cli.Interrupted` is raised."""
-    from ..cli import Interrupted
+    rerun's task continues, and `arguments.Interrupted` is raised."""
+    from ..arguments import Interrupted
     from ..training.checkpoints import write_checkpoint
-    from ..training.population import Population
+    from ..training.population import Population, population_groups
     from ..training.run_dir import claim_run_directory
     from ..training.trainer import run_config
-    from .jobs import population_groups
 
     kept = [
         _trained_before(config, out_dir) is not None or _saved_training(config, out_dir, None) is not None
@@ -255,9 +254,9 @@ def run_training_population(tasks: list[dict], device: str) -> list[dict]:
     """Jobs of `run_training_task` trained together, as one population (`training.population`) on
     `device`: each run into its task's `run_dir` (config, progress CSV, TensorBoard log, checkpoints, the
     exported policy), as `run_training_task` trains it alone. A training stopped by SIGINT or SIGTERM
-    keeps every run's checkpoint in its folder and raises `cli.Interrupted`; a rerun continues each run
+    keeps every run's checkpoint in its folder and raises `arguments.Interrupted`; a rerun continues each run
     there (alone: its checkpoints are `Trainer`'s)."""
-    from ..cli import Interrupted
+    from ..arguments import Interrupted
     from ..training.population import Population
     from ..training.run_dir import claim_run_directory
 
@@ -291,15 +290,46 @@ def run_training_population(tasks: list[dict], device: str) -> list[dict]:
     return [{"seconds": round(seconds, 1), "population": len(tasks)} for _ in tasks]
 
 
-def run_training_task(task: dict, device: str) -> dict:
-    """A job (`jobs.run_jobs` with `devices`): train the run config `task["config"]` on `device` in this
-    process into the folder `task["run_dir"]` (config, progress CSV, TensorBoard log, the last
-    checkpoint, the exported policy: `policy_path`), continuing an interrupted training of the same
-    config there, else replacing an earlier run's outputs."""
-    config = copy.deepcopy(task["config"])
-    config["train"]["device"] = device
-    _, seconds = train_and_export(config, os.path.dirname(policy_path(task["run_dir"])), log_dir=task["run_dir"])
-    return {"seconds": round(seconds, 1)}
+class TrainingTask:
+    """The job of a study's training run (`jobs.run_jobs` with `devices`, a `jobs.GroupedJob`): train
+    the run config `task["config"]` on `device` in this process into the folder `task["run_dir"]`
+    (config, progress CSV, TensorBoard log, the last checkpoint, the exported policy: `policy_path`),
+    continuing an interrupted training of the same config there, else replacing an earlier run's
+    outputs. Pending tasks that may share a process train together as populations."""
+
+    def __call__(self, task: dict, device: str) -> dict:
+        config = copy.deepcopy(task["config"])
+        config["train"]["device"] = device
+        _, seconds = train_and_export(config, os.path.dirname(policy_path(task["run_dir"])), log_dir=task["run_dir"])
+        return {"seconds": round(seconds, 1)}
+
+    def groups(
+        self, tasks: Sequence[dict], device: str, runs_per_process: int | None, report: Callable[[str], None] | None
+    ) -> list[list[int]]:
+        """`tasks` in the groups that train in one process: those of one `population.group_key` in
+        populations of `runs_per_process` (None: `population.population_size`); a task whose folder
+        holds a checkpoint (an interrupted training), or whose config trains alone, is a group of its own."""
+        from ..training.checkpoints import newest_readable_checkpoint
+        from ..training.population import population_groups
+
+        resumes = []
+        for task in tasks:
+            try:
+                newest_readable_checkpoint(task["run_dir"])
+                resumes.append(True)
+            except (ValueError, FileNotFoundError):
+                resumes.append(False)
+        groups = population_groups([task["config"] for task in tasks], resumes, device, runs_per_process, report)
+        return [group for group, _ in groups]
+
+    def run_group(self, tasks: list[dict], device: str) -> list:
+        """One group of `groups`: a task alone, or a population (`run_training_population`)."""
+        if len(tasks) == 1:
+            return [self(tasks[0], device)]
+        return run_training_population(tasks, device)
+
+
+run_training_task = TrainingTask()
 
 
 # ---------------------------------------------------------------------------------------------- rollouts

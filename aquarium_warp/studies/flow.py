@@ -50,19 +50,19 @@ from ..arguments import (
     non_negative_float,
     non_negative_int,
     number_list,
+    plural,
     policy_spec,
     positive_float,
     positive_int,
 )
 from ..atomic import check_output_dir, write_figure
-from ..cli import plural
 from ..config import AquariumConfig, FlowConfig
 from ..device import resolve_device
 from ..drivers import check_spec
 from ..records import command_line
 from ..rollout import StepView
+from ..statistics import compare, seed_stats
 from . import common
-from .statistics import compare, seed_stats
 
 KINDS = ("uniform", "vortex")
 ANGLE_BINS = 18

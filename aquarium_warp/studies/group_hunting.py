@@ -60,17 +60,26 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..arguments import check_distinct, check_int, check_number, int_at_least, number_list, positive_float, positive_int
+from ..arguments import (
+    check_distinct,
+    check_int,
+    check_number,
+    int_at_least,
+    number_list,
+    plural,
+    positive_float,
+    positive_int,
+)
 from ..atomic import check_output_dir
-from ..cli import plural
 from ..config import AquariumConfig
+from ..jobs import RayOptions, add_ray_arguments, ray_options
 from ..records import command_line
 from ..rollout import StepView
 from ..seeding import evaluation_seed
+from ..statistics import compare, equivalence, finite, seed_stats
 from ..training.config import LEARNED_PREY_RECIPE, env_config
 from . import common
-from .jobs import RayOptions, add_ray_arguments, ray_options, run_tasks
-from .statistics import compare, equivalence, finite, seed_stats
+from .jobs import run_tasks
 
 PREY_CONDITIONS = ("turnaway", "cotrained")
 # Heuristic predator teams of the baselines (their condition names) -> how the labels name them.

@@ -63,18 +63,19 @@ from ..arguments import (
     int_at_least,
     non_negative_float,
     number_list,
+    plural,
     positive_float,
     positive_int,
 )
 from ..atomic import check_output_dir
-from ..cli import plural
+from ..jobs import RayOptions, add_ray_arguments, ray_options
 from ..records import command_line
 from ..rollout import StepView
 from ..seeding import evaluation_seed
+from ..statistics import compare, equivalence, finite, seed_stats
 from ..training.config import LEARNED_PREY_RECIPE, env_config
 from . import common
-from .jobs import RayOptions, add_ray_arguments, ray_options, run_tasks
-from .statistics import compare, equivalence, finite, seed_stats
+from .jobs import run_tasks
 
 PREDATORS = ("naivchase", "naivchase-noconfusion")
 MEASURES = ("captures_per_prey", "fid", "blind_fraction", "onsets_per_prey")

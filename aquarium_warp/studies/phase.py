@@ -41,10 +41,10 @@ import time
 from collections.abc import Sequence
 
 from ..arguments import check_int
+from ..jobs import read_finished, run_jobs, task_devices
 from ..records import command_line, json_safe, provenance
+from ..statistics import difference, equivalence, interval, mean_interval
 from .common import policy_path, run_training_task
-from .jobs import read_finished, run_jobs, task_devices
-from .statistics import difference, equivalence, interval, mean_interval
 
 HELP = "the phase diagram of learned prey: collective state over capture rule, density, view and predator"
 DESCRIPTION = (
@@ -585,8 +585,8 @@ def write_tables(out: str, summary: dict) -> None:
 
 
 def run(args) -> int:
+    from ..arguments import plural
     from ..atomic import atomic_open, check_output_dir
-    from ..cli import plural
 
     check(args)
     devices = task_devices(args.gpus)

@@ -85,13 +85,12 @@ import os
 import time
 from collections.abc import Callable, Sequence
 
-from ..arguments import check_distinct, check_int, number_list
+from ..arguments import check_distinct, check_int, number_list, plural
 from ..checks import LARGEST
-from ..cli import plural
+from ..jobs import read_finished, run_jobs, task_devices
 from ..records import command_line, json_safe, provenance
+from ..statistics import difference, equivalence, finite, interval, mean_interval
 from .common import policy_path, run_training_task
-from .jobs import read_finished, run_jobs, task_devices
-from .statistics import difference, equivalence, finite, interval, mean_interval
 
 # The scenario: prey see all around, 200 px (reacting pays only with rear vision and range, see
 # docs/learned-prey.md); everything else is the paper's world.
