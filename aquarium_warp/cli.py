@@ -61,42 +61,26 @@ def _video_config(args):
     """The world to film: the trained policies' own (from their metadata, as `eval` takes it; prey and
     predator files must agree), else docs/model.md's (16 prey, 1 predator, 800 x 800); `--prey`,
     `--predators`, `--width`, `--height`, `--flow` override either."""
-    from . import AquariumConfig
     from .config import FlowConfig
-    from .drivers import check_spec, is_heuristic
+    from .drivers import check_spec, teams_world
 
-    for spec, agent_type in ((args.prey_policy, "prey"), (args.predator_policy, "predator")):
+    specs = {"prey": args.prey_policy, "predator": args.predator_policy}
+    for agent_type, spec in specs.items():
         check_spec(spec, agent_type, f"--{agent_type}-policy")
-    files = [
-        spec
-        for spec, agent_type in ((args.prey_policy, "prey"), (args.predator_policy, "predator"))
-        if not is_heuristic(spec, agent_type)
-    ]
-    data = AquariumConfig().to_dict()
-    if files:
-        try:
-            from .training.evaluate import common_policy_env
-        except ImportError as error:
-            raise ValueError(
-                f"policies {files} are not heuristics; trained policy files need the training extra ({error})"
-            ) from error
-        data = common_policy_env(files, AquariumConfig()).to_dict()
-    for key, value in (
-        ("prey_count", args.prey),
-        ("predator_count", args.predators),
-        ("width", args.width),
-        ("height", args.height),
-    ):
-        if value is not None:
-            data[key] = value
-    width, height = float(data["width"]), float(data["height"])
+    cfg = teams_world(specs, prey_count=args.prey, predator_count=args.predators, width=args.width, height=args.height)
+    width, height = float(cfg.width), float(cfg.height)
     if args.flow == "uniform":
-        data["flow"] = FlowConfig("uniform", velocity=(args.flow_strength, 0.0))
+        cfg = cfg.replace(flow=FlowConfig("uniform", velocity=(args.flow_strength, 0.0)))
     elif args.flow == "vortex":  # centred, its core radius a sixth of the shorter side
-        data["flow"] = FlowConfig(
-            "vortex", centre=(width / 2, height / 2), strength=args.flow_strength, core_radius=min(width, height) / 6
+        cfg = cfg.replace(
+            flow=FlowConfig(
+                "vortex",
+                centre=(width / 2, height / 2),
+                strength=args.flow_strength,
+                core_radius=min(width, height) / 6,
+            )
         )
-    return AquariumConfig.from_dict(data)
+    return cfg
 
 
 def _video(args) -> int:

@@ -197,11 +197,12 @@ def run_eval_task(task: dict, device: str) -> dict:
     """The record of `eval/<condition>-<world>.json`: each policy's and baseline's captures and reward
     per prey, per evaluation seed too, with the protocol and provenance."""
     from aquarium_warp.config import AquariumConfig
+    from aquarium_warp.drivers import common_world
     from aquarium_warp.records import git_info, json_safe
-    from aquarium_warp.training.evaluate import common_policy_env, evaluate_policies
+    from aquarium_warp.training.evaluate import evaluate_policies
 
     learned = [f"s{s}={policy_path(run)}" for s, run in zip(task["seeds"], task["run_dirs"], strict=True)]
-    env = common_policy_env(learned, AquariumConfig()).replace(spawn_heading="paper")
+    env = common_world(learned, AquariumConfig()).replace(spawn_heading="paper")
     episodes, eval_seeds = task["episodes"], task["eval_seeds"]
     result = evaluate_policies(
         learned + list(BASELINES), ["naivchase"], env, episodes=episodes, seeds=eval_seeds, device=device

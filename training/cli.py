@@ -796,13 +796,13 @@ def _blind(items: list[str]) -> dict[str, str]:
 
 
 def _eval_world(args, specs):
-    """`eval`'s world: `--preset`, else the policies' (`common_policy_env`), with `--set` and the count
+    """`eval`'s world: `--preset`, else the policies' (`drivers.common_world`), with `--set` and the count
     options applied."""
     from ..config import AquariumConfig
+    from ..drivers import common_world
     from .config import deep_update, env_config, make_config, parse_assignment
-    from .evaluate import common_policy_env
 
-    base = env_config(make_config(args.preset)) if args.preset else common_policy_env(specs, AquariumConfig())
+    base = env_config(make_config(args.preset)) if args.preset else common_world(specs, AquariumConfig())
     changes: dict[str, Any] = {}
     for s in args.set:
         change = parse_assignment(s)

@@ -61,7 +61,7 @@ from ..arguments import (
 from ..atomic import atomic_open, check_output_dir
 from ..config import AquariumConfig
 from ..device import resolve_device
-from ..drivers import check_spec, is_heuristic, make_driver
+from ..drivers import check_spec, is_heuristic, make_driver, trained_world
 from ..env import BatchedAquarium
 from ..jobs import (
     FINISHED_DIR,
@@ -182,7 +182,7 @@ class SwarmSizeStudy:
         base = AquariumConfig()
         for agent_type, name in (("prey", self.prey_policy), ("predator", self.predator_policy)):
             if not is_heuristic(name, agent_type) and is_policy_file(name):
-                base = base.with_interface_of(trained_policy_world(name))
+                base = base.with_interface_of(trained_world(name))
         fovs = self.fov_angles or [base.prey.fov_angle]
         views = self.view_distances or [base.prey.view_distance]
         out = []
@@ -232,16 +232,6 @@ class SwarmSizeStudy:
 # --------------------------------------------------------------------------------------------------
 # Policies
 # --------------------------------------------------------------------------------------------------
-def trained_policy_world(path: str) -> AquariumConfig:
-    """The world the policy file at `path` was trained in (from its metadata)."""
-    try:  # the training extra is optional
-        from ..training.config import env_config
-        from ..training.export import policy_world
-    except ImportError as error:
-        raise ValueError(f"trained policies need aquarium_warp.training (importing it failed: {error})") from error
-    return env_config({"env": policy_world(path)})
-
-
 def check_policies(study: SwarmSizeStudy) -> None:
     """Fail early (before any simulation) on policy names that are neither heuristics nor files."""
     for agent_type, name in (("prey", study.prey_policy), ("predator", study.predator_policy)):
