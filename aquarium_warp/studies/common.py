@@ -537,3 +537,9 @@ def add_common_arguments(p: argparse.ArgumentParser, out: str, jobs: bool = True
         )
     p.add_argument("--out", default=out, help=f"output directory (default {out})")
     p.add_argument("--no-figures", action="store_true", help="write CSV/JSON only, no figures")
+
+
+def common_settings(args: argparse.Namespace, jobs: bool = True) -> dict:
+    """The settings of `add_common_arguments`' options (with `jobs` as it was given), by field name."""
+    settings = {"seeds": args.seeds, "device": args.device, "out": args.out, "figures": not args.no_figures}
+    return dict(settings, jobs=args.jobs) if jobs else settings
