@@ -22,7 +22,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import torch
 
-from ..arguments import positive_int
+from ..arguments import int_at_least, non_negative_float, option, positive_float, positive_int
 from ..atomic import atomic_open, write_figure
 from ..config import AquariumConfig
 from ..env import BatchedAquarium
@@ -31,6 +31,15 @@ from ..rollout import Observer, StepView, StepViews
 from ..rollout import rollout as run_rollout
 
 BAND = "mean ± 1 s.e.m. over seeds"
+# Options that mean the same in several studies: their settings fields' `field(metadata=...)`.
+ITERATIONS = option("PPO iterations per run, 32 steps each", type=positive_int)
+TRAIN_STEPS = option("episode length in training", type=int_at_least(2))
+EVAL_STEPS = option("evaluation episode length", type=int_at_least(2))
+FLEE_ANGLE = option(
+    "degrees: fleeing = velocity within this of straight away from the predator", type=non_negative_float
+)
+FLEE_DISTANCE = option("px: fleeing needs the nearest predator this close", type=positive_float)
+
 FIGURE_BAND = "bands: the 95% Student-t interval of the mean over seeds"
 
 

@@ -49,13 +49,11 @@ from ..arguments import (
     check_number,
     from_options,
     int_at_least,
-    non_negative_float,
     non_negative_int,
     number_list,
     option,
     plural,
     policy_spec,
-    positive_float,
     positive_int,
     word_list,
 )
@@ -108,15 +106,8 @@ class FlowStudy:
             type=float,
         ),
     )
-    flee_angle: float = field(
-        default=45.0,
-        metadata=option(
-            "degrees: fleeing = velocity within this of straight away from the predator", type=non_negative_float
-        ),
-    )
-    flee_distance: float = field(
-        default=200.0, metadata=option("px: fleeing needs the nearest predator this close", type=positive_float)
-    )
+    flee_angle: float = field(default=45.0, metadata=common.FLEE_ANGLE)
+    flee_distance: float = field(default=200.0, metadata=common.FLEE_DISTANCE)
     metrics_every: int = field(default=10, metadata=option("sample the swarm metrics every K steps", type=positive_int))
     seed: int = field(default=0, metadata=option("seed of the batched worlds", type=non_negative_int))
     device: str | None = None

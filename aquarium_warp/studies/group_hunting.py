@@ -135,10 +135,10 @@ class GroupHuntingStudy:
     )
     seeds: int = 5
     worlds: int = field(default=1024, metadata=option("training worlds per run", type=positive_int))
-    iterations: int = field(default=100, metadata=option("PPO iterations per run, 32 steps each", type=positive_int))
-    train_steps: int = field(default=500, metadata=option("episode length in training", type=int_at_least(2)))
+    iterations: int = field(default=100, metadata=common.ITERATIONS)
+    train_steps: int = field(default=500, metadata=common.TRAIN_STEPS)
     eval_worlds: int = field(default=32, metadata=option("evaluation episodes (worlds) per seed", type=positive_int))
-    eval_steps: int = field(default=1000, metadata=option("evaluation episode length", type=int_at_least(2)))
+    eval_steps: int = field(default=1000, metadata=common.EVAL_STEPS)
     hunt_radius: float = field(
         default=200.0,
         metadata=option(

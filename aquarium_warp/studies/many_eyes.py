@@ -62,7 +62,6 @@ from ..arguments import (
     check_int,
     check_number,
     from_options,
-    int_at_least,
     non_negative_float,
     number_list,
     option,
@@ -111,26 +110,18 @@ class ManyEyesStudy:
         default=4096,
         metadata=option("learning prey per iteration: --rows // N worlds of N prey", type=positive_int),
     )
-    iterations: int = field(default=120, metadata=option("PPO iterations per run, 32 steps each", type=positive_int))
-    train_steps: int = field(default=500, metadata=option("episode length in training", type=int_at_least(2)))
+    iterations: int = field(default=120, metadata=common.ITERATIONS)
+    train_steps: int = field(default=500, metadata=common.TRAIN_STEPS)
     eval_rows: int = field(
         default=512,
         metadata=option("evaluation prey per seed: --eval-rows // N worlds, at least 2", type=positive_int),
     )
-    eval_steps: int = field(default=1000, metadata=option("evaluation episode length", type=int_at_least(2)))
+    eval_steps: int = field(default=1000, metadata=common.EVAL_STEPS)
     view_distance: float = field(
         default=100.0, metadata=option("prey view distance, px (docs/model.md's)", type=positive_float)
     )
-    flee_angle: float = field(
-        default=45.0,
-        metadata=option(
-            "degrees: fleeing = velocity within this of straight away from the predator", type=non_negative_float
-        ),
-    )
-    flee_distance: float = field(
-        default=200.0,
-        metadata=option("px: fleeing needs the nearest predator this close", type=positive_float),
-    )
+    flee_angle: float = field(default=45.0, metadata=common.FLEE_ANGLE)
+    flee_distance: float = field(default=200.0, metadata=common.FLEE_DISTANCE)
     turn_angle: float = field(
         default=30.0,
         metadata=option("degrees the prey must turn over --lag steps for a flight onset", type=non_negative_float),
