@@ -13,6 +13,7 @@ Comma lists of numbers with `...` progressions (`parse_list`):
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from typing import Literal
@@ -30,6 +31,23 @@ POLICY_SPECS = {
 
 
 # ---------------------------------------------------------------------------------------------- argparse types
+class Interrupted(KeyboardInterrupt):
+    """A signal that ended a command early: the message to print and the shell's exit code for it
+    (128 + the signal's number)."""
+
+    def __init__(self, message: str, signum: int):
+        super().__init__(message)
+        self.exit_code = 128 + signum
+
+    def __reduce__(self):  # from a study's worker process to the main one
+        return type(self), (str(self), self.exit_code - 128)
+
+
+def plural(count: int, noun: str) -> str:
+    """ "1 predator", "3 predators" (nouns with a plain -s plural)."""
+    return f"{count} {noun}{'' if count == 1 else 's'}"
+
+
 def policy_spec(team: str) -> Callable[[str], str]:
     """argparse type of a `team` policy option: the spec, "learned" read as the team's general policy
     (`pretrained.for_team`); whether it exists is checked where the policy is loaded."""
@@ -200,3 +218,84 @@ def number_list(text, kind: type, name: str, low: float, high: float | None = No
             allowed = f"{'(' if low_open else '['}{low:g}, {'inf)' if high is None else f'{high:g}]'}"
             raise ValueError(f"{name}={text!r}: {v!r} is out of range: every value must be in {allowed}")
     return values
+
+
+# ---------------------------------------------------------------------------------------------- settings options
+# A settings dataclass (a study's) declares each command-line option once, on its field:
+#
+#     worlds: int = field(default=1024, metadata=option("training worlds per run", type=positive_int))
+#
+# `add_options(parser, Settings)` adds `--worlds` (help "training worlds per run (default 1024)") and
+# `from_options(Settings, args)` builds the settings from the parsed options.
+def option(
+    help: str,
+    *,
+    type: Callable[[str], object] | None = None,
+    parse: Callable[[str, str], object] | None = None,
+    flag: str | None = None,
+    negated: bool = False,
+    shown: str | None = None,
+) -> dict:
+    """The `field(metadata=...)` of a settings field that is a command-line option `flag` (default the
+    field's name as `--a-name`): `type` converts and checks the option's text (an argparse type);
+    `parse(text, flag)` reads a list option's text instead (its default written as text); a `negated`
+    bool is `--no-<name>` (True unless given), another bool `--<name>` (False unless given). The help
+    ends with the default (`shown`, else the field's own; none for a bool or None)."""
+    return {"option": {"help": help, "type": type, "parse": parse, "flag": flag, "negated": negated, "shown": shown}}
+
+
+def list_text(values) -> str:
+    """A list default as its option's text: `[100.0, 0.0]` -> "100,0"."""
+    return ",".join(f"{v:g}" if isinstance(v, float) else str(v) for v in values)
+
+
+def word_list(text: str, flag: str) -> list[str]:
+    """A comma list of names ("uniform,vortex"), blanks dropped (the settings check the names)."""
+    return [word.strip() for word in text.split(",") if word.strip()]
+
+
+def _options(settings: type) -> list[tuple[dataclasses.Field, dict, str, str]]:
+    """`(field, option, flag, dest)` of each field of the `settings` dataclass that is a command-line
+    option (`dest`: argparse's attribute of the flag)."""
+    out = []
+    for f in dataclasses.fields(settings):
+        opt = f.metadata.get("option")
+        if opt is not None:
+            flag = opt["flag"] or ("--no-" if opt["negated"] else "--") + f.name.replace("_", "-")
+            out.append((f, opt, flag, flag[2:].replace("-", "_")))
+    return out
+
+
+def _default(f: dataclasses.Field):
+    return f.default_factory() if f.default is dataclasses.MISSING else f.default  # type: ignore[operator]
+
+
+def add_options(parser: argparse.ArgumentParser, settings: type) -> None:
+    """An option for each field of `settings` declared with `option(...)`, in field order."""
+    for f, opt, flag, _ in _options(settings):
+        default = _default(f)
+        if isinstance(default, bool):
+            parser.add_argument(flag, action="store_true", help=opt["help"])
+            continue
+        shown = opt["shown"] or (list_text(default) if isinstance(default, list) else default)
+        shown = f"{shown:g}" if isinstance(shown, float) else shown
+        parser.add_argument(
+            flag,
+            type=opt["type"],
+            default=None if opt["parse"] else default,
+            help=opt["help"] if default is None else f"{opt['help']} (default {shown})",
+        )
+
+
+def from_options(settings: type, args: argparse.Namespace, **given):
+    """`settings(...)` from the options `add_options` added (a list option parsed, its default the
+    field's), with the fields in `given` (options added elsewhere: seeds, device, output)."""
+    values = dict(given)
+    for f, opt, flag, dest in _options(settings):
+        value = getattr(args, dest)
+        if opt["negated"]:
+            value = not value
+        elif opt["parse"] is not None:
+            value = _default(f) if value is None else opt["parse"](value, flag)
+        values[f.name] = value
+    return settings(**values)

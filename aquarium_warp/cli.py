@@ -4,35 +4,19 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import signal
 import sys
 import threading
 import time
 
-from .arguments import POLICY_SPECS, non_negative_int, policy_spec, positive_float, positive_int
+from .arguments import POLICY_SPECS, Interrupted, non_negative_int, plural, policy_spec, positive_float, positive_int
 from .atomic import check_output_file
-
-
-class Interrupted(KeyboardInterrupt):
-    """A signal that ended a command early: the message to print and the shell's exit code for it
-    (128 + the signal's number)."""
-
-    def __init__(self, message: str, signum: int):
-        super().__init__(message)
-        self.exit_code = 128 + signum
-
-    def __reduce__(self):  # from a study's worker process to the main one
-        return type(self), (str(self), self.exit_code - 128)
 
 
 def _terminated(signum, frame) -> None:
     """SIGTERM as Ctrl-C: the command unwinds (partial files removed) instead of vanishing."""
     raise Interrupted("terminated (SIGTERM)", signum)
-
-
-def plural(count: int, noun: str) -> str:
-    """ "1 predator", "3 predators" (nouns with a plain -s plural)."""
-    return f"{count} {noun}{'' if count == 1 else 's'}"
 
 
 def _demo(args) -> int:
@@ -77,42 +61,26 @@ def _video_config(args):
     """The world to film: the trained policies' own (from their metadata, as `eval` takes it; prey and
     predator files must agree), else docs/model.md's (16 prey, 1 predator, 800 x 800); `--prey`,
     `--predators`, `--width`, `--height`, `--flow` override either."""
-    from . import AquariumConfig
     from .config import FlowConfig
-    from .drivers import check_spec, is_heuristic
+    from .drivers import check_spec, teams_world
 
-    for spec, agent_type in ((args.prey_policy, "prey"), (args.predator_policy, "predator")):
+    specs = {"prey": args.prey_policy, "predator": args.predator_policy}
+    for agent_type, spec in specs.items():
         check_spec(spec, agent_type, f"--{agent_type}-policy")
-    files = [
-        spec
-        for spec, agent_type in ((args.prey_policy, "prey"), (args.predator_policy, "predator"))
-        if not is_heuristic(spec, agent_type)
-    ]
-    data = AquariumConfig().to_dict()
-    if files:
-        try:
-            from .training.evaluate import common_policy_env
-        except ImportError as error:
-            raise ValueError(
-                f"policies {files} are not heuristics; trained policy files need the training extra ({error})"
-            ) from error
-        data = common_policy_env(files, AquariumConfig()).to_dict()
-    for key, value in (
-        ("prey_count", args.prey),
-        ("predator_count", args.predators),
-        ("width", args.width),
-        ("height", args.height),
-    ):
-        if value is not None:
-            data[key] = value
-    width, height = float(data["width"]), float(data["height"])
+    cfg = teams_world(specs, prey_count=args.prey, predator_count=args.predators, width=args.width, height=args.height)
+    width, height = float(cfg.width), float(cfg.height)
     if args.flow == "uniform":
-        data["flow"] = FlowConfig("uniform", velocity=(args.flow_strength, 0.0))
+        cfg = cfg.replace(flow=FlowConfig("uniform", velocity=(args.flow_strength, 0.0)))
     elif args.flow == "vortex":  # centred, its core radius a sixth of the shorter side
-        data["flow"] = FlowConfig(
-            "vortex", centre=(width / 2, height / 2), strength=args.flow_strength, core_radius=min(width, height) / 6
+        cfg = cfg.replace(
+            flow=FlowConfig(
+                "vortex",
+                centre=(width / 2, height / 2),
+                strength=args.flow_strength,
+                core_radius=min(width, height) / 6,
+            )
         )
-    return AquariumConfig.from_dict(data)
+    return cfg
 
 
 def _video(args) -> int:
@@ -156,7 +124,14 @@ def _add_train(sub) -> None:
 
     train = sub.add_parser("train", help="train one team with PPO (rsl-rl) against heuristic or trained opponents")
     add_train_arguments(train)
-    train.set_defaults(run=run_train)
+    train.set_defaults(run=functools.partial(run_train, attach=_attach_viewer))
+
+
+def _attach_viewer(env, port: int):
+    """`train --view`: the viewer's page on the training worlds (the viewer extra, imported when asked)."""
+    from .viewer import attach
+
+    return attach(env, port=port)
 
 
 def _add_eval(sub) -> None:

@@ -22,11 +22,14 @@ act by argmax unless `deterministic=False`, then sample with their own `seed` (`
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+import os
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from typing import TypeVar
 
 import torch
 
 from .agent_types import TYPES
+from .config import AquariumConfig
 from .env import BatchedAquarium
 from .heuristics import POLICIES, make_policy, normalise_name
 from .pretrained import for_team, is_policy_file
@@ -39,6 +42,7 @@ MIXED_CONFUSION = "naivchase-mixed"
 HEURISTICS = {"prey": POLICIES["prey"], "predator": POLICIES["predator"] + (NO_CONFUSION, MIXED_CONFUSION)}
 
 Driver = Callable[[], torch.Tensor]
+Fallback = TypeVar("Fallback", AquariumConfig, None)
 
 
 class WorldMix:
@@ -134,6 +138,67 @@ def make_driver(
         return policy_driver(policy, env, team, blind_to=blind_to)
     except ValueError as error:  # a policy that cannot act in this world: say which one
         raise ValueError(f"{team} policy {spec}: {error}") from None
+
+
+def parse_spec(spec: str) -> tuple[str, str]:
+    """`"LABEL=SPEC"` -> `(label, spec)`; a bare spec is its own label (a file: its run directory's name)."""
+    if "=" in spec and not os.path.exists(spec):
+        label, value = spec.split("=", 1)
+        return label, value
+    if is_heuristic(spec):
+        return spec.lower(), spec
+    path = os.path.normpath(spec)
+    parts = path.split(os.sep)
+    if len(parts) >= 3 and parts[-2] == "exported":  # run/exported/policy.pt: the run's name
+        label = parts[-3]
+    elif len(parts) >= 4 and parts[-3] == "exported":  # run/exported/<team>/policy.pt (both teams learned)
+        label = f"{parts[-4]}-{parts[-2]}"
+    else:
+        label = os.path.splitext(parts[-1])[0]
+    return label, spec
+
+
+def trained_world(spec: str) -> AquariumConfig:
+    """The world the trained policy `spec` (an exported file, a training checkpoint or a shipped name)
+    was trained in: its run config's `env` section (the training extra reads it)."""
+    try:  # the training extra is optional
+        from .training.config import env_config
+        from .training.export import policy_world
+    except ImportError as error:
+        raise ValueError(f"trained policies need aquarium_warp.training (importing it failed: {error})") from error
+    return env_config({"env": policy_world(spec)})
+
+
+def common_world(specs: Iterable[str], fallback: Fallback) -> AquariumConfig | Fallback:
+    """The world every trained policy among `specs` (policy specs, `LABEL=SPEC` allowed; heuristics
+    are skipped) was trained in, `fallback` where none is trained; a ValueError names two specs whose
+    worlds differ."""
+    first: tuple[str, AquariumConfig] | None = None
+    for spec in specs:
+        _, value = parse_spec(spec)
+        if is_heuristic(value):
+            continue
+        world = trained_world(value)
+        if first is None:
+            first = (spec, world)
+        elif world.to_dict() != first[1].to_dict():
+            from .training.config import flat_config
+
+            a, b = flat_config(first[1].to_dict()), flat_config(world.to_dict())
+            differ = ", ".join(f"{k} {a[k]!r} vs {b[k]!r}" for k in a if a[k] != b.get(k))
+            raise ValueError(
+                f"policies {first[0]!r} and {spec!r} were trained in different worlds ({differ}): evaluate each "
+                "in its own world, one command per policy"
+            )
+    return first[1] if first is not None else fallback
+
+
+def teams_world(specs: Mapping[str, str], **changes: float | None) -> AquariumConfig:
+    """The world of `{team: spec}`: the trained policies' (`common_world`), else docs/model.md's, with
+    the `changes` that are not None (the counts and sizes a command line gives) replaced."""
+    files = [spec for team, spec in specs.items() if not is_heuristic(spec, team)]
+    world = common_world(files, None) if files else None
+    return (world or AquariumConfig()).replace(**{key: value for key, value in changes.items() if value is not None})
 
 
 def make_drivers(

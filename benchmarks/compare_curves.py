@@ -31,7 +31,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from aquarium_warp.atomic import atomic_open
 from aquarium_warp.records import command_line, provenance
-from aquarium_warp.studies.statistics import difference, equivalence, seed_stats
+from aquarium_warp.statistics import difference, equivalence, seed_stats
 from aquarium_warp.training.plots import _moving_average, read_run_curve
 
 

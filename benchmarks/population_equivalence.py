@@ -30,7 +30,7 @@ os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from aquarium_warp.atomic import atomic_open
 from aquarium_warp.records import command_line, provenance
-from aquarium_warp.studies.statistics import difference, equivalence, interval
+from aquarium_warp.statistics import difference, equivalence, interval
 
 WORLDS = ("a", "b", "c")
 SEEDS = (0, 1, 2, 3, 4)

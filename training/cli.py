@@ -11,14 +11,13 @@ import importlib.util
 import os
 import time
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from ..agent_types import TYPES
-from ..arguments import POLICY_SPECS, int_at_least, number, policy_spec, positive_float
+from ..arguments import POLICY_SPECS, Interrupted, int_at_least, number, plural, policy_spec, positive_float
 from ..atomic import check_output_dir
-from ..cli import Interrupted, plural
-from .config import ALGORITHM_RANGES, PRESETS
+from .config import ALGORITHM_RANGES, CRITICS, POOL_SAMPLING, PRESETS, SHARING, TRAIN_DEFAULTS, UPDATE_SCHEDULES
 from .population import is_population
 
 PRESET_NAMES = tuple(PRESETS)
@@ -40,6 +39,184 @@ def _algorithm(name: str):
 
 
 # --------------------------------------------------------------------------------------------- train
+# The flags that each set one config entry as given, by group: (flag, the entry's dotted key, argparse
+# settings, help). The parser and `_train_changes` are built from this table; a train.* flag's help ends
+# with its `TRAIN_DEFAULTS` value (the default preset's), and a choice flag takes training/config.py's list.
+CONFIG_FLAGS: dict[str, tuple[tuple[str, str, dict, str], ...]] = {
+    "run": (
+        (
+            "--team",
+            "train.team",
+            {"choices": (*TYPES, "both")},
+            "the learning team; 'both': one PPO learner per team in the same worlds",
+        ),
+        (
+            "--sharing",
+            "train.sharing",
+            {"choices": SHARING},
+            "Parameter Sharing (one network) or Individual Learning (one per slot)",
+        ),
+        ("--num-worlds", "train.num_worlds", {"type": int_at_least(1)}, "worlds stepped in parallel"),
+        ("--device", "train.device", {}, "'cpu', 'cuda:0'; default: CUDA when present"),
+        ("--seed", "train.seed", {"type": int_at_least(0)}, "seed of the worlds and the networks"),
+        ("--iterations", "train.iterations", {"type": int_at_least(0)}, "total PPO iterations of the run"),
+        (
+            "--episodes",
+            "train.episodes",
+            {"type": positive_float},
+            "total world episodes instead of --iterations (the paper: 4000)",
+        ),
+        ("--export", "train.export", {}, "formats exported after training: 'jit,onnx', 'none'"),
+        (
+            "--quiet",
+            "train.quiet",
+            {"action": "store_true", "default": None},
+            "a progress bar instead of rsl-rl's per-iteration report",
+        ),
+        (
+            "--critic",
+            "train.critic",
+            {"choices": CRITICS},
+            "what each learner's critic sees besides the agent's observation (MAPPO's centralised critic; actors "
+            "stay local): nothing (local), the team's joint observation (team) or the world state (world)",
+        ),
+        (
+            "--video-every",
+            "train.video_every",
+            {"type": int_at_least(0), "metavar": "N"},
+            "every N iterations a rendered evaluation episode of one world into the log (TensorBoard Video/episode; "
+            "0: none)",
+        ),
+        ("--video-steps", "train.video_steps", {"type": int_at_least(1)}, "steps of that episode"),
+    ),
+    "both teams learning (--team both)": (
+        (
+            "--update-schedule",
+            "train.update_schedule",
+            {"choices": UPDATE_SCHEDULES},
+            "both learners update every iteration (simultaneous), or take turns while the other is frozen "
+            "(alternating)",
+        ),
+        (
+            "--alternate-every",
+            "train.alternate_every",
+            {"type": int_at_least(1), "metavar": "K"},
+            "alternating: iterations per turn, prey first",
+        ),
+        (
+            "--pool-every",
+            "train.pool_every",
+            {"type": int_at_least(0), "metavar": "N"},
+            "snapshot each team's actor into its opponent pool every N iterations (fictitious self-play; 0: no pool)",
+        ),
+        ("--pool-size", "train.pool_size", {"type": int_at_least(1)}, "snapshots kept per team"),
+        (
+            "--pool-sampling",
+            "train.pool_sampling",
+            {"choices": POOL_SAMPLING},
+            "which snapshot a world draws when its episode ends: uniform, or latest-biased (weights 1..n from the "
+            "oldest to the newest)",
+        ),
+        (
+            "--pool-fraction",
+            "train.pool_fraction",
+            {"type": number("a number in [0, 0.5]", lambda v: 0 <= v <= 0.5)},
+            "fraction of worlds in which each team plays against the other team's snapshots (per team: --set "
+            "teams.<team>.pool_fraction=F, both at most 1)",
+        ),
+    ),
+    "environment": (
+        ("--prey", "env.prey_count", {"type": int}, "prey per world"),
+        ("--predators", "env.predator_count", {"type": int}, "predators per world"),
+        ("--max-steps", "env.max_steps", {"type": int}, "episode length"),
+        ("--width", "env.width", {"type": float}, "world width, px"),
+        ("--height", "env.height", {"type": float}, "world height, px"),
+    ),
+    "PPO": (
+        ("--num-steps-per-env", "runner.num_steps_per_env", {"type": int_at_least(1)}, "rollout length per iteration"),
+        ("--save-interval", "runner.save_interval", {"type": int_at_least(1)}, "checkpoint every N iterations"),
+        (
+            "--learning-rate",
+            "train.actor_lr",
+            {"type": positive_float, "aliases": ("--actor-lr",), "dest": "actor_lr"},
+            "actor learning rate (rsl-rl's learning_rate)",
+        ),
+        (
+            "--critic-lr",
+            "train.critic_lr",
+            {"type": positive_float},
+            "critic learning rate (applied as a factor critic_lr/actor_lr on the critic's group)",
+        ),
+        ("--gamma", "runner.algorithm.gamma", {"type": _algorithm("gamma")}, "discount factor, in [0, 1]"),
+        ("--lam", "runner.algorithm.lam", {"type": _algorithm("lam")}, "GAE lambda, in [0, 1]"),
+        ("--clip", "runner.algorithm.clip_param", {"type": _algorithm("clip_param")}, "PPO clip parameter, in (0, 1]"),
+        (
+            "--entropy",
+            "runner.algorithm.entropy_coef",
+            {"type": _algorithm("entropy_coef")},
+            "entropy coefficient, >= 0",
+        ),
+        (
+            "--value-loss-coef",
+            "runner.algorithm.value_loss_coef",
+            {"type": _algorithm("value_loss_coef")},
+            "weight of the value loss",
+        ),
+        (
+            "--epochs",
+            "runner.algorithm.num_learning_epochs",
+            {"type": int_at_least(1)},
+            "learning epochs per iteration",
+        ),
+        ("--minibatches", "runner.algorithm.num_mini_batches", {"type": int_at_least(1)}, "mini-batches per epoch"),
+        (
+            "--max-grad-norm",
+            "runner.algorithm.max_grad_norm",
+            {"type": _algorithm("max_grad_norm")},
+            "gradient norm clip",
+        ),
+        (
+            "--schedule",
+            "runner.algorithm.schedule",
+            {"choices": ("fixed", "adaptive")},
+            "learning rate: fixed, or adapted to keep the KL near --desired-kl",
+        ),
+        (
+            "--desired-kl",
+            "runner.algorithm.desired_kl",
+            {"type": _algorithm("desired_kl")},
+            "KL target of the adaptive schedule",
+        ),
+        ("--reward-scale", "train.reward_scale", {"type": positive_float}, "factor on the rewards PPO sees"),
+    ),
+}
+
+
+def _flag_help(key: str, text: str) -> str:
+    """`text`, ending with the train setting's default where it has one to show."""
+    section, _, name = key.partition(".")
+    default = TRAIN_DEFAULTS.get(name) if section == "train" else None
+    if default is None or isinstance(default, bool):
+        return text
+    shown = (
+        ",".join(default) if isinstance(default, list) else f"{default:g}" if isinstance(default, float) else default
+    )
+    return f"{text} (default {shown})"
+
+
+def _dest(flag: str, settings: dict) -> str:
+    """The attribute of a `CONFIG_FLAGS` flag in the parsed arguments."""
+    return settings.get("dest") or flag[2:].replace("-", "_")
+
+
+def _add_config_flags(group, name: str) -> None:
+    """The `CONFIG_FLAGS` of group `name`."""
+    for flag, key, settings, text in CONFIG_FLAGS[name]:
+        settings = {"default": None, **settings, "dest": _dest(flag, settings)}
+        aliases = settings.pop("aliases", ())
+        group.add_argument(flag, *aliases, help=_flag_help(key, text), **settings)
+
+
 def add_train_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--preset",
@@ -63,12 +240,6 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     )
     g = p.add_argument_group("run")
     g.add_argument(
-        "--team",
-        choices=("prey", "predator", "both"),
-        default=None,
-        help="the learning team; 'both': one PPO learner per team in the same worlds",
-    )
-    g.add_argument(
         "--predator-policy",
         default=None,
         type=policy_spec("predator"),
@@ -81,28 +252,12 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
         help=f"prey when training predators: {POLICY_SPECS['prey']} (default random)",
     )
     g.add_argument(
-        "--sharing",
-        choices=("parameter", "individual"),
-        default=None,
-        help="Parameter Sharing (one network, default) or Individual Learning (one per slot)",
-    )
-    g.add_argument("--num-worlds", type=int_at_least(1), default=None, help="worlds stepped in parallel (default 1024)")
-    g.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
-    g.add_argument("--seed", type=int_at_least(0), default=None, help="seed of the worlds and the networks")
-    g.add_argument(
         "--runs",
         type=int_at_least(1),
         default=1,
         metavar="K",
         help="train K runs in one process, seeded --seed, --seed + 1, ...: each writes <log-dir>/run-<k>/ as if "
         "trained alone (checkpoints, progress.csv, TensorBoard, export); default 1",
-    )
-    g.add_argument("--iterations", type=int_at_least(0), default=None, help="total PPO iterations of the run")
-    g.add_argument(
-        "--episodes",
-        type=positive_float,
-        default=None,
-        help="total world episodes instead of --iterations (the paper: 4000)",
     )
     g.add_argument("--log-dir", default=None, help="run directory (default: runs/<team>_<sharing>_<time>)")
     g.add_argument(
@@ -116,10 +271,6 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="start a new run in a --log-dir that holds an earlier one, removing its checkpoints, logs "
         "and exports (default: such a directory is refused)",
-    )
-    g.add_argument("--export", default=None, help="formats exported after training: 'jit,onnx' (default), 'none'")
-    g.add_argument(
-        "--quiet", action="store_true", default=None, help="a progress bar instead of rsl-rl's per-iteration report"
     )
     g.add_argument(
         "--randomize",
@@ -135,23 +286,6 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
         help="start every world at step 0 (default: spread the worlds' truncations)",
     )
     g.add_argument(
-        "--critic",
-        choices=("local", "team", "world"),
-        default=None,
-        help="what each learner's critic sees besides the agent's observation (MAPPO's centralised "
-        "critic; actors stay local): nothing (local, default), the team's joint observation "
-        "(team) or the world state (world)",
-    )
-    g.add_argument(
-        "--video-every",
-        type=int_at_least(0),
-        default=None,
-        metavar="N",
-        help="every N iterations a rendered evaluation episode of one world into the log "
-        "(TensorBoard Video/episode; default 0: none)",
-    )
-    g.add_argument("--video-steps", type=int_at_least(1), default=None, help="steps of that episode (default 200)")
-    g.add_argument(
         "--view",
         nargs="?",
         const=8765,
@@ -161,159 +295,41 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
         help="show the training worlds in the browser while training (aquarium-warp view's page, "
         "served on 127.0.0.1:PORT, default 8765; needs the viewer extra)",
     )
-    b = p.add_argument_group("both teams learning (--team both)")
-    b.add_argument(
-        "--update-schedule",
-        choices=("simultaneous", "alternating"),
-        default=None,
-        help="both learners update every iteration (simultaneous, default), or take turns while "
-        "the other is frozen (alternating)",
-    )
-    b.add_argument(
-        "--alternate-every",
-        type=int_at_least(1),
-        default=None,
-        metavar="K",
-        help="alternating: iterations per turn, prey first (default 10)",
-    )
-    b.add_argument(
-        "--pool-every",
-        type=int_at_least(0),
-        default=None,
-        metavar="N",
-        help="snapshot each team's actor into its opponent pool every N iterations "
-        "(fictitious self-play; default 0: no pool)",
-    )
-    b.add_argument("--pool-size", type=int_at_least(1), default=None, help="snapshots kept per team (default 8)")
-    b.add_argument(
-        "--pool-sampling",
-        choices=("uniform", "latest"),
-        default=None,
-        help="which snapshot a world draws when its episode ends: uniform, or latest-biased "
-        "(weights 1..n from the oldest to the newest)",
-    )
-    b.add_argument(
-        "--pool-fraction",
-        type=number("a number in [0, 0.5]", lambda v: 0 <= v <= 0.5),
-        default=None,
-        help="fraction of worlds in which each team plays against the other team's snapshots "
-        "(default 0.2; per team: --set teams.<team>.pool_fraction=F, both at most 1)",
-    )
-    e = p.add_argument_group("environment")
-    e.add_argument("--prey", type=int, default=None, help="prey per world")
-    e.add_argument("--predators", type=int, default=None, help="predators per world")
-    e.add_argument("--max-steps", type=int, default=None, help="episode length")
-    e.add_argument("--width", type=float, default=None, help="world width, px")
-    e.add_argument("--height", type=float, default=None, help="world height, px")
+    _add_config_flags(g, "run")
+    _add_config_flags(p.add_argument_group("both teams learning (--team both)"), "both teams learning (--team both)")
+    _add_config_flags(p.add_argument_group("environment"), "environment")
     a = p.add_argument_group("PPO")
-    a.add_argument("--num-steps-per-env", type=int_at_least(1), default=None, help="rollout length per iteration")
-    a.add_argument("--save-interval", type=int_at_least(1), default=None, help="checkpoint every N iterations")
-    a.add_argument(
-        "--learning-rate",
-        "--actor-lr",
-        dest="actor_lr",
-        type=positive_float,
-        default=None,
-        help="actor learning rate (rsl-rl's learning_rate)",
-    )
-    a.add_argument(
-        "--critic-lr",
-        type=positive_float,
-        default=None,
-        help="critic learning rate (applied as a factor critic_lr/actor_lr on the critic's group)",
-    )
-    a.add_argument("--gamma", type=_algorithm("gamma"), default=None, help="discount factor, in [0, 1]")
-    a.add_argument("--lam", type=_algorithm("lam"), default=None, help="GAE lambda, in [0, 1]")
-    a.add_argument("--clip", type=_algorithm("clip_param"), default=None, help="PPO clip parameter, in (0, 1]")
-    a.add_argument("--entropy", type=_algorithm("entropy_coef"), default=None, help="entropy coefficient, >= 0")
-    a.add_argument(
-        "--value-loss-coef", type=_algorithm("value_loss_coef"), default=None, help="weight of the value loss"
-    )
-    a.add_argument("--epochs", type=int_at_least(1), default=None, help="learning epochs per iteration")
-    a.add_argument("--minibatches", type=int_at_least(1), default=None, help="mini-batches per epoch")
-    a.add_argument("--max-grad-norm", type=_algorithm("max_grad_norm"), default=None, help="gradient norm clip")
-    a.add_argument(
-        "--schedule",
-        choices=("fixed", "adaptive"),
-        default=None,
-        help="learning rate: fixed, or adapted to keep the KL near --desired-kl",
-    )
-    a.add_argument(
-        "--desired-kl", type=_algorithm("desired_kl"), default=None, help="KL target of the adaptive schedule"
-    )
+    _add_config_flags(a, "PPO")
     a.add_argument("--hidden-dims", type=_hidden_dims, default=None, help="e.g. 64,64 (actor and critic)")
     a.add_argument("--activation", default=None, help="e.g. tanh, elu, relu")
-    a.add_argument("--reward-scale", type=positive_float, default=None, help="factor on the rewards PPO sees")
 
 
 def _train_changes(args) -> dict:
     """The config changes given by flags (None where a flag was not given)."""
     if args.iterations is not None and args.episodes is not None:
         raise ValueError("--iterations and --episodes both set the run's length: give one of them")
-    train = {
-        "team": args.team,
-        "sharing": args.sharing,
-        "num_worlds": args.num_worlds,
-        "device": args.device,
-        "seed": args.seed,
-        "iterations": args.iterations,
-        "episodes": args.episodes,
-        "actor_lr": args.actor_lr,
-        "critic_lr": args.critic_lr,
-        "reward_scale": args.reward_scale,
-        "export": args.export,
-        "quiet": args.quiet,
-        "critic": args.critic,
-        "video_every": args.video_every,
-        "video_steps": args.video_steps,
-        "update_schedule": args.update_schedule,
-        "alternate_every": args.alternate_every,
-        "pool_every": args.pool_every,
-        "pool_size": args.pool_size,
-        "pool_sampling": args.pool_sampling,
-        "pool_fraction": args.pool_fraction,
-    }
+    changes: dict = {"train": {}, "env": {}, "runner": {}}
+    for flags in CONFIG_FLAGS.values():
+        for flag, key, settings, _ in flags:
+            value = getattr(args, _dest(flag, settings))
+            if value is not None:
+                *path, name = key.split(".")
+                section = changes
+                for part in path:
+                    section = section.setdefault(part, {})
+                section[name] = value
+    train = changes["train"]
     if args.no_random_ep_len:
         train["init_at_random_ep_len"] = False
     if args.randomize:
         train["randomize"] = dict(s.partition("=")[::2] for s in args.randomize)  # checked by validate()
-    env = {
-        "prey_count": args.prey,
-        "predator_count": args.predators,
-        "max_steps": args.max_steps,
-        "width": args.width,
-        "height": args.height,
-    }
-    alg = {
-        "gamma": args.gamma,
-        "lam": args.lam,
-        "clip_param": args.clip,
-        "entropy_coef": args.entropy,
-        "value_loss_coef": args.value_loss_coef,
-        "num_learning_epochs": args.epochs,
-        "num_mini_batches": args.minibatches,
-        "max_grad_norm": args.max_grad_norm,
-        "schedule": args.schedule,
-        "desired_kl": args.desired_kl,
-    }
-    runner = {
-        "num_steps_per_env": args.num_steps_per_env,
-        "save_interval": args.save_interval,
-        "algorithm": {k: v for k, v in alg.items() if v is not None},
-    }
     models = {
         k: v for k, v in {"hidden_dims": args.hidden_dims, "activation": args.activation}.items() if v is not None
     }
     if models:
-        runner["actor"] = dict(models)
-        runner["critic"] = dict(models)
-    changes = {
-        "train": {k: v for k, v in train.items() if v is not None},
-        "env": {k: v for k, v in env.items() if v is not None},
-        "runner": {k: v for k, v in runner.items() if v not in (None, {})},
-    }
+        changes["runner"].update(actor=dict(models), critic=dict(models))
     if args.iterations is not None:
-        changes["train"]["episodes"] = None  # an explicit iteration count wins over a preset's episodes
+        train["episodes"] = None  # an explicit iteration count wins over a preset's episodes
     return {k: v for k, v in changes.items() if v}
 
 
@@ -343,7 +359,10 @@ def _silent(*args, **kwargs) -> None:
     """`print` on the ranks other than 0 of a torchrun run."""
 
 
-def run_train(args) -> int:
+def run_train(args, *, attach: Callable[..., Any]) -> int:
+    """`aquarium-warp train`. `attach(env, port=PORT)` shows the training worlds in the browser (the
+    viewer's `attach`, which the command line passes in: training does not import the viewer) for
+    `--view`."""
     from .run_dir import claim_run_directory
 
     changes = _train_changes(args)
@@ -378,8 +397,6 @@ def run_train(args) -> int:
         viewer = None
         try:
             if args.view is not None and trainer.rank == 0:
-                from ..viewer import attach
-
                 viewer = attach(trainer.env, port=args.view)
                 say(f"aquarium-warp train: the training worlds are on {viewer.url}")
             finish_training(trainer, say)
@@ -797,13 +814,13 @@ def _blind(items: list[str]) -> dict[str, str]:
 
 
 def _eval_world(args, specs):
-    """`eval`'s world: `--preset`, else the policies' (`common_policy_env`), with `--set` and the count
+    """`eval`'s world: `--preset`, else the policies' (`drivers.common_world`), with `--set` and the count
     options applied."""
     from ..config import AquariumConfig
+    from ..drivers import common_world
     from .config import deep_update, env_config, make_config, parse_assignment
-    from .evaluate import common_policy_env
 
-    base = env_config(make_config(args.preset)) if args.preset else common_policy_env(specs, AquariumConfig())
+    base = env_config(make_config(args.preset)) if args.preset else common_world(specs, AquariumConfig())
     changes: dict[str, Any] = {}
     for s in args.set:
         change = parse_assignment(s)

@@ -19,9 +19,9 @@ import numpy as np
 
 from ..atomic import atomic_open
 from ..config import AquariumConfig
-from ..drivers import is_heuristic
+from ..drivers import common_world, is_heuristic
 from ..records import json_safe
-from .evaluate import PROVENANCE_KEYS, common_policy_env, evaluate_policies, parse_spec, summarize, write_results
+from .evaluate import PROVENANCE_KEYS, evaluate_policies, parse_spec, summarize, write_results
 
 CROSS_PLAY_METRICS = ("captures_per_prey", "reward_per_prey", "reward_per_predator", "prey_survival")
 
@@ -64,7 +64,7 @@ def cross_play(
 ) -> dict:
     """Every prey spec against every predator spec (globs expanded by `expand_specs`) under the
     evaluation protocol of `evaluate_policies` (which plays the pairs). `env=None`: the common world of
-    the trained policies (`common_policy_env`), else docs/model.md's.
+    the trained policies (`drivers.common_world`), else docs/model.md's.
 
     Returns `evaluate_policies`' result plus `"cross_play"`: the row (prey) and column (predator)
     labels and, per metric of `CROSS_PLAY_METRICS`, `[prey][predator]` matrices of the mean and std over
@@ -76,7 +76,7 @@ def cross_play(
         expand_specs([predator] if isinstance(predator, str) else predator),
     )
     if env is None:
-        env = common_policy_env(prey + predator, AquariumConfig())
+        env = common_world(prey + predator, AquariumConfig())
     result = evaluate_policies(
         prey,
         predator,

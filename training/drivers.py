@@ -14,7 +14,8 @@ from typing import TYPE_CHECKING
 
 import torch
 
-from ..env import TYPES, BatchedAquarium
+from ..agent_types import TYPES
+from ..env import BatchedAquarium
 
 if TYPE_CHECKING:
     from .export import LoadedPolicy

@@ -41,7 +41,7 @@ from ..atomic import atomic_open
 from ..checks import is_int
 from ..config import AquariumConfig
 from ..device import resolve_device
-from ..drivers import is_heuristic, make_drivers
+from ..drivers import is_heuristic, make_drivers, parse_spec
 from ..env import BatchedAquarium, StepResult
 from ..metrics import EPISODE_METRICS, EpisodeMetrics
 from ..records import json_safe, provenance
@@ -50,48 +50,6 @@ from ..rollout import Observer, rollout
 METRICS = ("captures_per_prey", "reward_per_prey", "reward_per_predator") + tuple(
     f"swarm_{name}" for name in EPISODE_METRICS
 )
-
-
-def parse_spec(spec: str) -> tuple[str, str]:
-    """`"LABEL=SPEC"` -> `(label, spec)`; a bare spec is its own label (a file: its run directory's name)."""
-    if "=" in spec and not os.path.exists(spec):
-        label, value = spec.split("=", 1)
-        return label, value
-    if is_heuristic(spec):
-        return spec.lower(), spec
-    path = os.path.normpath(spec)
-    parts = path.split(os.sep)
-    if len(parts) >= 3 and parts[-2] == "exported":  # run/exported/policy.pt: the run's name
-        label = parts[-3]
-    elif len(parts) >= 4 and parts[-3] == "exported":  # run/exported/<team>/policy.pt (both teams learned)
-        label = f"{parts[-4]}-{parts[-2]}"
-    else:
-        label = os.path.splitext(parts[-1])[0]
-    return label, spec
-
-
-def common_policy_env(specs, fallback: AquariumConfig) -> AquariumConfig:
-    """The world every trained policy among `specs` was trained in (`fallback` if none is trained);
-    a `ValueError` names two specs whose worlds differ."""
-    from .config import env_config, flat_config
-    from .export import policy_world
-
-    first = None
-    for spec in specs:
-        _, value = parse_spec(spec)
-        if is_heuristic(value):
-            continue
-        world = env_config({"env": policy_world(value)})
-        if first is None:
-            first = (spec, world)
-        elif world.to_dict() != first[1].to_dict():
-            a, b = flat_config(first[1].to_dict()), flat_config(world.to_dict())
-            differ = ", ".join(f"{k} {a[k]!r} vs {b[k]!r}" for k in a if a[k] != b.get(k))
-            raise ValueError(
-                f"policies {first[0]!r} and {spec!r} were trained in different worlds ({differ}): evaluate each "
-                "in its own world, one command per policy"
-            )
-    return first[1] if first is not None else fallback
 
 
 class EpisodeRecords(Observer):

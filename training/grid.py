@@ -39,11 +39,11 @@ import torch
 from ..atomic import atomic_open
 from ..config import AquariumConfig
 from ..device import resolve_device
-from ..drivers import is_heuristic, make_drivers
+from ..drivers import is_heuristic, make_drivers, trained_world
 from ..env import BatchedAquarium
 from ..records import json_safe, provenance
 from ..rollout import Observer, rollout
-from ..studies.statistics import interval
+from ..statistics import interval
 from .evaluate import parse_spec
 
 UNLIMITED = 10000.0  # px: past the half diagonal of the default 800 x 800 torus (566 px), the whole world
@@ -161,14 +161,11 @@ def run_pairing(
 def grid_base(specs: Sequence[str], base: AquariumConfig | None = None) -> AquariumConfig:
     """The grid's base world: `base` (default docs/model.md's, with the paper's spawn headings), taking
     the observation interface of the first trained policy among `specs` (the others must share it)."""
-    from .config import env_config
-    from .export import policy_world
-
     world = base if base is not None else AquariumConfig(spawn_heading="paper")
     for spec in specs:
         _, value = parse_spec(spec)
         if not is_heuristic(value):
-            return world.with_interface_of(env_config({"env": policy_world(value)}))
+            return world.with_interface_of(trained_world(value))
     return world
 
 

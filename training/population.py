@@ -50,7 +50,7 @@ import math
 import os
 import re
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
 
 import numpy as np
 import torch
@@ -58,6 +58,7 @@ from rsl_rl.storage import RolloutStorage
 from rsl_rl.utils import resolve_callable
 
 from ..agent_types import OTHER, TYPES
+from ..arguments import check_int
 from ..atomic import atomic_open
 from ..config import AquariumConfig
 from ..device import resolve_device
@@ -180,6 +181,51 @@ def group_key(config: dict) -> str | None:
         for name in PER_WORLD_TYPE_FIELDS:
             (env.get(team) or {}).pop(name, None)
     return json.dumps(shared, sort_keys=True, default=str)
+
+
+MAX_POPULATION = 64  # runs per process at most: the H200 gained 8% from 64 to 256 (population_h200_6b8873a)
+
+
+def population_groups(
+    configs: Sequence[dict], alone: Sequence[bool], device: str, runs_per_process: int | None,
+    report: Callable[[str], None] | None,
+) -> list[tuple[list[int], str]]:  # fmt: skip
+    """Indices of `configs` (the trainings of a study's pending tasks) in the groups that train together,
+    the largest first, each with why its size ("up to 8: given"; "" alone): configs of one
+    `population.group_key` in populations of `runs_per_process` (None: `population_size` on
+    `device`), each config flagged in `alone` (it continues a kept state) or that trains alone in a group
+    of its own. The choice is reported."""
+    if runs_per_process is not None:
+        check_int("runs_per_process", runs_per_process)
+    keyed: dict[str, list[int]] = {}
+    groups: list[tuple[list[int], str]] = []
+    for k, config in enumerate(configs):
+        key = None if alone[k] else group_key(config)
+        if key is None:
+            groups.append(([k], ""))
+        else:
+            keyed.setdefault(key, []).append(k)
+    for members in keyed.values():
+        size, why = (runs_per_process, "given") if runs_per_process else population_size(configs[members[0]], device)
+        groups.extend((members[j : j + size], f"up to {size}: {why}") for j in range(0, len(members), size))
+        if report is not None and size > 1:
+            report(f"  trainings: {len(members)} runs in populations of up to {size} ({why}), one process per device")
+    groups.sort(key=lambda group: len(group[0]), reverse=True)
+    return groups
+
+
+def population_size(config: dict, device: str) -> tuple[int, str]:
+    """Runs of `config` per process and why: as many as 80% of `device`'s free memory holds
+    (`training.memory`), at most `MAX_POPULATION`; one on the CPU (its runs would take turns)."""
+    from .memory import available_bytes, training_bytes
+
+    if not device.startswith("cuda"):
+        return 1, "the CPU"
+    config = copy.deepcopy(config)
+    config["train"]["device"] = device
+    each, free = training_bytes(config)["total"], available_bytes(device)
+    size = max(1, min(MAX_POPULATION, int(0.8 * free // max(each, 1))))
+    return size, f"{each / 2**30:.2f} GiB per run, {free / 2**30:.0f} GiB free on {device}"
 
 
 def _slice_state(value, runs: int, k: int, sizes: set[int]):

@@ -1,5 +1,5 @@
 """Ctrl-C and SIGTERM during training: the run stops at the next iteration boundary, where the trainer
-writes a checkpoint (and the export) and says how to resume (`aquarium_warp.cli.Interrupted`); a
+writes a checkpoint (and the export) and says how to resume (`aquarium_warp.arguments.Interrupted`); a
 second signal stops at once.
 
 Signal handlers can only be set from the main thread: elsewhere (a Ray worker's thread, a study's

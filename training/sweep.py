@@ -1,5 +1,5 @@
 """Training sweeps: one training run per seed and setting, one after another on this machine or as Ray
-tasks (`aquarium_warp.studies.jobs`).
+tasks (`aquarium_warp.jobs`).
 
     aquarium-warp sweep train --seeds 0,1,2 --vary train.sharing=parameter,individual --out runs/grid \\
         [--ray [ADDRESS]] [any option of aquarium-warp train]
@@ -26,10 +26,9 @@ import shutil
 import time
 from dataclasses import dataclass
 
-from ..arguments import parse_list
+from ..arguments import parse_list, plural
 from ..atomic import atomic_open
-from ..cli import plural
-from ..studies.jobs import RayOptions, add_ray_arguments, placement, ray_options, run_ray_tasks
+from ..jobs import RayOptions, add_ray_arguments, placement, ray_options, run_ray_tasks
 
 RUN_RECORD = "sweep_run.json"
 # Train options that do not change what a run computes: a kept run is one whatever their values.

@@ -116,10 +116,8 @@ class Trainer:
             self._write_run_record()
         self._setup_pool()
         self._setup_video()
-        if log_dir is not None:
-            import aquarium_warp
-
-            self.runner.add_git_repo_to_log(aquarium_warp.__file__)
+        if log_dir is not None:  # the git state of the repository holding this source (rsl-rl searches upward)
+            self.runner.add_git_repo_to_log(__file__)
 
     def _setup_process(self) -> str:
         """This process's rank, the run's processes (torchrun: one per GPU or CPU share, each with its own

@@ -49,7 +49,7 @@ difference of two cells of one seed's matrix, oriented so that > 0 is a gain of 
   against the previous ones, facing the previous predators (a cycle shows as gains that come and go).
 The 8G - 4 intervals are each at 95%, not adjusted for their number.
 
-The speed points and each seed are tasks of the studies' job runner (`aquarium_warp.studies.jobs`):
+The speed points and each seed are tasks of the studies' job runner (`aquarium_warp.jobs`):
 each result is kept in `--out-dir/finished/`, and a rerun (after a time limit, or with more `--seeds`,
 or `--speed-only` first and the rest in a later call) runs only what is missing.
 
@@ -85,16 +85,16 @@ import torch
 
 from ..arguments import check_distinct, check_int
 from ..device import resolve_device, synchronize
+from ..jobs import run_jobs
 from ..records import command_line, json_safe, machine_info, provenance
 from ..seeding import EVALUATION_STRIDE, evaluation_seed
+from ..statistics import difference, mean_interval
 from ..training import Trainer, make_config
 from ..training.config import env_config
 from ..training.cross_play import CROSS_PLAY_METRICS, cross_play, write_cross_play
 from ..training.episode_video import EpisodeVideo, gif_bytes
 from ..training.plots import plot_cross_play
 from .common import study_options
-from .jobs import run_jobs
-from .statistics import difference, mean_interval
 
 SWARM = ("polarization", "groups", "cohesion", "nn_mean")
 CURVE_PREFIXES = ("prey/Episode", "predator/Episode", "Swarm/")

@@ -1,4 +1,4 @@
-"""What the studies share besides their job runner (`jobs`) and statistics (`statistics`), in sections:
+"""What the studies share besides the job runner (`aquarium_warp.jobs`) and statistics (`statistics`), in sections:
 
 - **rows**: `group_rows` (a study's rows grouped by setting; a group's rows are the seeds);
 - **training**: run configs (`training_config`), training runs through the `Trainer` API
@@ -31,7 +31,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import torch
 
-from ..arguments import positive_int
+from ..arguments import int_at_least, non_negative_float, option, positive_float, positive_int
 from ..atomic import atomic_open, write_figure
 from ..config import AquariumConfig
 from ..env import BatchedAquarium
@@ -40,6 +40,15 @@ from ..rollout import Observer, StepView, StepViews
 from ..rollout import rollout as run_rollout
 
 BAND = "mean ± 1 s.e.m. over seeds"
+# Options that mean the same in several studies: their settings fields' `field(metadata=...)`.
+ITERATIONS = option("PPO iterations per run, 32 steps each", type=positive_int)
+TRAIN_STEPS = option("episode length in training", type=int_at_least(2))
+EVAL_STEPS = option("evaluation episode length", type=int_at_least(2))
+FLEE_ANGLE = option(
+    "degrees: fleeing = velocity within this of straight away from the predator", type=non_negative_float
+)
+FLEE_DISTANCE = option("px: fleeing needs the nearest predator this close", type=positive_float)
+
 FIGURE_BAND = "bands: the 95% Student-t interval of the mean over seeds"
 
 
@@ -107,9 +116,9 @@ def train_and_export(config: dict, out_dir: str, log_dir: str | None = None) -> 
 
     A training stopped by SIGINT or SIGTERM (`Trainer.stop`) is not finished: nothing is exported, its
     state is kept (the last checkpoint in `log_dir`, else `<out_dir>/interrupted.pt`) and
-    `cli.Interrupted` raised; the next call with the same config continues it from there. A kept state
+    `arguments.Interrupted` raised; the next call with the same config continues it from there. A kept state
     of another config is replaced by a new run."""
-    from ..cli import Interrupted
+    from ..arguments import Interrupted
     from ..training import Trainer
     from ..training.run_dir import claim_run_directory
 
@@ -182,16 +191,15 @@ def pretrain_populations(
     """Train the `(config, out_dir)` trainings of a study's pending tasks that may share a process as
     populations (`training/population.py`), before the tasks run: each run's policy exported into its
     `out_dir` with `TRAINED`, so that the task's `train_and_export` returns it. Populations hold
-    `runs_per_process` runs (None: `jobs.population_size`, one on the CPU: nothing is trained here);
+    `runs_per_process` runs (None: `population.population_size`, one on the CPU: nothing is trained here);
     trainings that would be alone, or that have a kept state to continue, are left to their tasks. A
     signal stops every run of a population; each keeps its state as `<out_dir>/interrupted.pt`, which the
-    rerun's task continues, and `cli.Interrupted` is raised."""
-    from ..cli import Interrupted
+    rerun's task continues, and `arguments.Interrupted` is raised."""
+    from ..arguments import Interrupted
     from ..training.checkpoints import write_checkpoint
-    from ..training.population import Population
+    from ..training.population import Population, population_groups
     from ..training.run_dir import claim_run_directory
     from ..training.trainer import run_config
-    from .jobs import population_groups
 
     kept = [
         _trained_before(config, out_dir) is not None or _saved_training(config, out_dir, None) is not None
@@ -264,9 +272,9 @@ def run_training_population(tasks: list[dict], device: str) -> list[dict]:
     """Jobs of `run_training_task` trained together, as one population (`training.population`) on
     `device`: each run into its task's `run_dir` (config, progress CSV, TensorBoard log, checkpoints, the
     exported policy), as `run_training_task` trains it alone. A training stopped by SIGINT or SIGTERM
-    keeps every run's checkpoint in its folder and raises `cli.Interrupted`; a rerun continues each run
+    keeps every run's checkpoint in its folder and raises `arguments.Interrupted`; a rerun continues each run
     there (alone: its checkpoints are `Trainer`'s)."""
-    from ..cli import Interrupted
+    from ..arguments import Interrupted
     from ..training.population import Population
     from ..training.run_dir import claim_run_directory
 
@@ -300,15 +308,46 @@ def run_training_population(tasks: list[dict], device: str) -> list[dict]:
     return [{"seconds": round(seconds, 1), "population": len(tasks)} for _ in tasks]
 
 
-def run_training_task(task: dict, device: str) -> dict:
-    """A job (`jobs.run_jobs` with `devices`): train the run config `task["config"]` on `device` in this
-    process into the folder `task["run_dir"]` (config, progress CSV, TensorBoard log, the last
-    checkpoint, the exported policy: `policy_path`), continuing an interrupted training of the same
-    config there, else replacing an earlier run's outputs."""
-    config = copy.deepcopy(task["config"])
-    config["train"]["device"] = device
-    _, seconds = train_and_export(config, os.path.dirname(policy_path(task["run_dir"])), log_dir=task["run_dir"])
-    return {"seconds": round(seconds, 1)}
+class TrainingTask:
+    """The job of a study's training run (`jobs.run_jobs` with `devices`, a `jobs.GroupedJob`): train
+    the run config `task["config"]` on `device` in this process into the folder `task["run_dir"]`
+    (config, progress CSV, TensorBoard log, the last checkpoint, the exported policy: `policy_path`),
+    continuing an interrupted training of the same config there, else replacing an earlier run's
+    outputs. Pending tasks that may share a process train together as populations."""
+
+    def __call__(self, task: dict, device: str) -> dict:
+        config = copy.deepcopy(task["config"])
+        config["train"]["device"] = device
+        _, seconds = train_and_export(config, os.path.dirname(policy_path(task["run_dir"])), log_dir=task["run_dir"])
+        return {"seconds": round(seconds, 1)}
+
+    def groups(
+        self, tasks: Sequence[dict], device: str, runs_per_process: int | None, report: Callable[[str], None] | None
+    ) -> list[list[int]]:
+        """`tasks` in the groups that train in one process: those of one `population.group_key` in
+        populations of `runs_per_process` (None: `population.population_size`); a task whose folder
+        holds a checkpoint (an interrupted training), or whose config trains alone, is a group of its own."""
+        from ..training.checkpoints import newest_readable_checkpoint
+        from ..training.population import population_groups
+
+        resumes = []
+        for task in tasks:
+            try:
+                newest_readable_checkpoint(task["run_dir"])
+                resumes.append(True)
+            except (ValueError, FileNotFoundError):
+                resumes.append(False)
+        groups = population_groups([task["config"] for task in tasks], resumes, device, runs_per_process, report)
+        return [group for group, _ in groups]
+
+    def run_group(self, tasks: list[dict], device: str) -> list:
+        """One group of `groups`: a task alone, or a population (`run_training_population`)."""
+        if len(tasks) == 1:
+            return [self(tasks[0], device)]
+        return run_training_population(tasks, device)
+
+
+run_training_task = TrainingTask()
 
 
 # ---------------------------------------------------------------------------------------------- rollouts
@@ -524,3 +563,9 @@ def study_options(argv: Sequence[str], name: str) -> list[str]:
     of `aquarium-warp study`)."""
     words = list(argv)
     return words[words.index(name) + 1 :]
+
+
+def common_settings(args: argparse.Namespace, jobs: bool = True) -> dict:
+    """The settings of `add_common_arguments`' options (with `jobs` as it was given), by field name."""
+    settings = {"seeds": args.seeds, "device": args.device, "out": args.out, "figures": not args.no_figures}
+    return dict(settings, jobs=args.jobs) if jobs else settings

@@ -43,26 +43,28 @@ import torch
 
 from ..arguments import (
     POLICY_SPECS,
+    add_options,
     check_distinct,
     check_int,
     check_number,
+    from_options,
     int_at_least,
-    non_negative_float,
     non_negative_int,
     number_list,
+    option,
+    plural,
     policy_spec,
-    positive_float,
     positive_int,
+    word_list,
 )
 from ..atomic import check_output_dir, write_figure
-from ..cli import plural
 from ..config import AquariumConfig, FlowConfig
 from ..device import resolve_device
 from ..drivers import check_spec
 from ..records import command_line
 from ..rollout import StepView
+from ..statistics import compare, seed_stats
 from . import common
-from .statistics import compare, seed_stats
 
 KINDS = ("uniform", "vortex")
 ANGLE_BINS = 18
@@ -74,21 +76,40 @@ MEASURES = ("captures_per_prey",) + SWARM + ("escape_cosine", "cruise_cosine", "
 class FlowStudy:
     """Settings of the flow study (the CLI's options)."""
 
-    kinds: list[str] = field(default_factory=lambda: list(KINDS))
-    strengths: list[float] = field(default_factory=lambda: [0.0, 0.5, 1.0, 2.0, 3.0])
+    kinds: list[str] = field(
+        default_factory=lambda: list(KINDS),
+        metadata=option(
+            "flow kinds: 'uniform' (along --uniform-angle), 'vortex' (centred, clockwise)", parse=word_list
+        ),
+    )
+    strengths: list[float] = field(
+        default_factory=lambda: [0.0, 0.5, 1.0, 2.0, 3.0],
+        metadata=option(
+            "px per step (the vortex's at its core's edge; list)",
+            parse=lambda text, flag: number_list(text, float, flag, 0.0, 100.0),
+        ),
+    )
     seeds: int = 5
-    episodes_per_seed: int = 10
-    episode_steps: int = 3000
-    prey: int = 16
-    predators: int = 1
-    prey_policy: str = "turnaway"
-    predator_policy: str = "naivchase"
+    episodes_per_seed: int = field(default=10, metadata=option("episodes (worlds) per seed", type=positive_int))
+    episode_steps: int = field(default=3000, metadata=option("steps per episode", type=int_at_least(2)))
+    prey: int = field(default=16, metadata=option("prey per world", type=positive_int))
+    predators: int = field(default=1, metadata=option("predators per world", type=positive_int))
+    prey_policy: str = field(default="turnaway", metadata=option(POLICY_SPECS["prey"], type=policy_spec("prey")))
+    predator_policy: str = field(
+        default="naivchase", metadata=option(POLICY_SPECS["predator"], type=policy_spec("predator"))
+    )
     world_size: float = 800.0
-    uniform_angle: float = 90.0  # degrees from +x towards +y
-    flee_angle: float = 45.0
-    flee_distance: float = 200.0
-    metrics_every: int = 10
-    seed: int = 0
+    uniform_angle: float = field(
+        default=90.0,
+        metadata=option(
+            "direction of the uniform current, degrees from +x towards +y (90: +y, across the prey's spawn heading -x)",
+            type=float,
+        ),
+    )
+    flee_angle: float = field(default=45.0, metadata=common.FLEE_ANGLE)
+    flee_distance: float = field(default=200.0, metadata=common.FLEE_DISTANCE)
+    metrics_every: int = field(default=10, metadata=option("sample the swarm metrics every K steps", type=positive_int))
+    seed: int = field(default=0, metadata=option("seed of the batched worlds", type=non_negative_int))
     device: str | None = None
     out: str = "flow_study"
     figures: bool = True
@@ -380,74 +401,13 @@ DESCRIPTION = (
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--kinds",
-        default="uniform,vortex",
-        help="flow kinds: 'uniform' (along --uniform-angle), 'vortex' (centred, clockwise)",
-    )
-    p.add_argument(
-        "--uniform-angle",
-        type=float,
-        default=90.0,
-        help="direction of the uniform current, degrees from +x towards +y (default 90: +y, across the "
-        "prey's spawn heading -x)",
-    )
-    p.add_argument(
-        "--strengths",
-        default="0,0.5,1,2,3",
-        help="px per step (the vortex's at its core's edge; list; default 0,0.5,1,2,3)",
-    )
-    p.add_argument("--episodes-per-seed", type=positive_int, default=10, help="episodes (worlds) per seed (default 10)")
-    p.add_argument("--episode-steps", type=int_at_least(2), default=3000, help="steps per episode (default 3000)")
-    p.add_argument("--prey", type=positive_int, default=16, help="prey per world (default 16)")
-    p.add_argument("--predators", type=positive_int, default=1, help="predators per world (default 1)")
-    p.add_argument(
-        "--prey-policy", default="turnaway", type=policy_spec("prey"), help=f"{POLICY_SPECS['prey']} (default turnaway)"
-    )
-    p.add_argument(
-        "--predator-policy",
-        default="naivchase",
-        type=policy_spec("predator"),
-        help=f"{POLICY_SPECS['predator']} (default naivchase)",
-    )
-    p.add_argument(
-        "--flee-angle",
-        type=non_negative_float,
-        default=45.0,
-        help="degrees: fleeing = velocity within this of straight away from the predator (default 45)",
-    )
-    p.add_argument(
-        "--flee-distance",
-        type=positive_float,
-        default=200.0,
-        help="px: fleeing needs the nearest predator this close (default 200)",
-    )
-    p.add_argument("--metrics-every", type=positive_int, default=10, help="sample the swarm metrics every K steps")
-    p.add_argument("--seed", type=non_negative_int, default=0, help="seed of the batched worlds")
+    add_options(p, FlowStudy)
     common.add_common_arguments(p, "flow_study", jobs=False)
 
 
 def run(args: argparse.Namespace) -> int:
     """`aquarium-warp study flow`: captures, swarm metrics and escape directions in currents."""
-    study = FlowStudy(
-        kinds=[k.strip() for k in args.kinds.split(",") if k.strip()],
-        strengths=number_list(args.strengths, float, "--strengths", 0.0, 100.0),
-        seeds=args.seeds,
-        episodes_per_seed=args.episodes_per_seed,
-        episode_steps=args.episode_steps,
-        prey=args.prey,
-        uniform_angle=args.uniform_angle,
-        predators=args.predators,
-        prey_policy=args.prey_policy,
-        predator_policy=args.predator_policy,
-        flee_angle=args.flee_angle,
-        flee_distance=args.flee_distance,
-        metrics_every=args.metrics_every,
-        seed=args.seed,
-        device=args.device,
-        out=args.out,
-        figures=not args.no_figures,
-    )
+    study = from_options(FlowStudy, args, **common.common_settings(args, jobs=False))
     print(
         f"aquarium-warp study flow: {study.kinds} x strengths {study.strengths} px/step, "
         f"{plural(study.seeds, 'seed')} x {plural(study.episodes_per_seed, 'episode')} of "

@@ -7,9 +7,8 @@ from __future__ import annotations
 import argparse
 import os
 
-from ..arguments import number_list, positive_int
+from ..arguments import number_list, plural, positive_int
 from ..atomic import check_output_dir
-from ..cli import plural
 from ..records import command_line
 from .swarm_size import SwarmSizeStudy, add_run_arguments, run_settings, run_swarm_size_study
 

@@ -60,17 +60,30 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..arguments import check_distinct, check_int, check_number, int_at_least, number_list, positive_float, positive_int
+from ..arguments import (
+    add_options,
+    check_distinct,
+    check_int,
+    check_number,
+    from_options,
+    int_at_least,
+    number_list,
+    option,
+    plural,
+    positive_float,
+    positive_int,
+    word_list,
+)
 from ..atomic import check_output_dir
-from ..cli import plural
 from ..config import AquariumConfig
+from ..jobs import RayOptions, add_ray_arguments, ray_options
 from ..records import command_line
 from ..rollout import StepView
 from ..seeding import evaluation_seed
+from ..statistics import compare, equivalence, finite, seed_stats
 from ..training.config import LEARNED_PREY_RECIPE, env_config
 from . import common
-from .jobs import RayOptions, add_ray_arguments, ray_options, run_tasks
-from .statistics import compare, equivalence, finite, seed_stats
+from .jobs import run_tasks
 
 PREY_CONDITIONS = ("turnaway", "cotrained")
 # Heuristic predator teams of the baselines (their condition names) -> how the labels name them.
@@ -98,28 +111,72 @@ class GroupHuntingStudy:
     # Settings that only list which tasks exist (jobs.task_key): a run over fewer keeps the rest.
     TASK_AXES = ("predators", "prey_conditions", "share_radii", "baseline", "random_baseline")
 
-    predators: list[int] = field(default_factory=lambda: [1, 2, 3, 4])
-    prey: int = 6
-    prey_conditions: list[str] = field(default_factory=lambda: list(PREY_CONDITIONS))
-    share_radii: list[float] = field(default_factory=lambda: [100.0, 0.0])
+    predators: list[int] = field(
+        default_factory=lambda: [1, 2, 3, 4],
+        metadata=option("predator team sizes (list)", parse=lambda text, flag: number_list(text, int, flag, 1, 64)),
+    )
+    prey: int = field(
+        default=6, metadata=option("prey per world, the same at every team size (the paper's)", type=positive_int)
+    )
+    prey_conditions: list[str] = field(
+        default_factory=lambda: list(PREY_CONDITIONS),
+        metadata=option(
+            "comma list of 'turnaway' (predators learn against TurnAway) and 'cotrained' (both teams learn; team both)",
+            parse=word_list,
+        ),
+    )
+    share_radii: list[float] = field(
+        default_factory=lambda: [100.0, 0.0],
+        metadata=option(
+            "catch_share_radius values, px (list; 0: the capturer alone)",
+            parse=lambda text, flag: number_list(text, float, flag, 0.0, 1e6),
+            flag="--share-radius",
+        ),
+    )
     seeds: int = 5
-    worlds: int = 1024  # training worlds per run
-    iterations: int = 100  # PPO iterations per run (32 steps each)
-    train_steps: int = 500  # episode length in training
-    eval_worlds: int = 32  # evaluation episodes per seed (worlds)
-    eval_steps: int = 1000
-    hunt_radius: float = 200.0
-    sample_every: int = 10
-    baseline: bool = True
-    random_baseline: bool = False  # random predator teams against TurnAway prey too
+    worlds: int = field(default=1024, metadata=option("training worlds per run", type=positive_int))
+    iterations: int = field(default=100, metadata=common.ITERATIONS)
+    train_steps: int = field(default=500, metadata=common.TRAIN_STEPS)
+    eval_worlds: int = field(default=32, metadata=option("evaluation episodes (worlds) per seed", type=positive_int))
+    eval_steps: int = field(default=1000, metadata=common.EVAL_STEPS)
+    hunt_radius: float = field(
+        default=200.0,
+        metadata=option(
+            "px; predators this close to a capture take part in it (the predator's view)", type=positive_float
+        ),
+    )
+    sample_every: int = field(
+        default=10, metadata=option("steps between the random-time states of the baselines", type=positive_int)
+    )
+    baseline: bool = field(default=True, metadata=option("no NaivChase teams", negated=True))
+    random_baseline: bool = field(
+        default=False,
+        metadata=option("also random predator teams against TurnAway prey (the floor a learned team must beat)"),
+    )
     world_size: float = 800.0
     # The redesign (issue #30): predators that cannot win alone (`predator_speed`, None: docs/model.md's 5;
     # the prey's is 4), predators that see their teammates (`predator_slots` predator slots, None: 1),
     # and the learned-prey recipe for both teams (`recipe`: ego observations, random spawn headings,
     # entropy 0.01).
-    predator_speed: float | None = None
-    predator_slots: int | None = None
-    recipe: bool = False
+    predator_speed: float | None = field(
+        default=None,
+        metadata=option(
+            "predator max speed (default docs/model.md's 5; the prey's is 4: 4 or less and a lone predator "
+            "cannot simply outrun its prey)",
+            type=positive_float,
+        ),
+    )
+    predator_slots: int | None = field(
+        default=None,
+        metadata=option(
+            "predator slots each agent observes (default 1: a predator sees at most one teammate)",
+            type=int_at_least(0),
+        ),
+    )
+    recipe: bool = field(
+        default=False,
+        metadata=option("train with the learned-prey recipe: ego observations, random spawn headings, entropy 0.01"),
+    )
     device: str | None = None
     jobs: int | None = None
     out: str = "group_hunting"
@@ -533,96 +590,14 @@ DESCRIPTION = (
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--predators", default="1,2,3,4", help="predator team sizes (list; default 1,2,3,4)")
-    p.add_argument(
-        "--prey",
-        type=positive_int,
-        default=6,
-        help="prey per world, the same at every team size (default 6, the paper's)",
-    )
-    p.add_argument(
-        "--prey-conditions",
-        default="turnaway,cotrained",
-        help="comma list of 'turnaway' (predators learn against TurnAway) and 'cotrained' (both teams "
-        "learn; team both)",
-    )
-    p.add_argument(
-        "--share-radius",
-        default="100,0",
-        help="catch_share_radius values, px (list; default 100,0: shared within 100 px, and the capturer alone)",
-    )
-    p.add_argument("--worlds", type=positive_int, default=1024, help="training worlds per run (default 1024)")
-    p.add_argument(
-        "--iterations", type=positive_int, default=100, help="PPO iterations per run, 32 steps each (default 100)"
-    )
-    p.add_argument("--train-steps", type=int_at_least(2), default=500, help="episode length in training (default 500)")
-    p.add_argument("--eval-worlds", type=positive_int, default=32, help="evaluation episodes per seed (default 32)")
-    p.add_argument("--eval-steps", type=int_at_least(2), default=1000, help="evaluation episode length (default 1000)")
-    p.add_argument(
-        "--hunt-radius",
-        type=positive_float,
-        default=200.0,
-        help="px; predators this close to a capture take part in it (default 200, the predator's view)",
-    )
-    p.add_argument(
-        "--sample-every",
-        type=positive_int,
-        default=10,
-        help="steps between the random-time states of the baselines (default 10)",
-    )
-    p.add_argument("--no-baseline", action="store_true", help="no NaivChase teams")
-    p.add_argument(
-        "--random-baseline",
-        action="store_true",
-        help="also random predator teams against TurnAway prey (the floor a learned team must beat)",
-    )
-    p.add_argument(
-        "--predator-speed",
-        type=positive_float,
-        default=None,
-        help="predator max speed (default docs/model.md's 5; the prey's is 4: 4 or less and a lone "
-        "predator cannot simply outrun its prey)",
-    )
-    p.add_argument(
-        "--predator-slots",
-        type=int_at_least(0),
-        default=None,
-        help="predator slots each agent observes (default 1: a predator sees at most one teammate)",
-    )
-    p.add_argument(
-        "--recipe",
-        action="store_true",
-        help="train with the learned-prey recipe: ego observations, random spawn headings, entropy 0.01",
-    )
+    add_options(p, GroupHuntingStudy)
     common.add_common_arguments(p, "group_hunting")
     add_ray_arguments(p, "training run (with its evaluations) or NaivChase baseline")
 
 
 def run(args: argparse.Namespace) -> int:
     """`aquarium-warp study group-hunting`: learning predator teams, with and without shared catch rewards."""
-    study = GroupHuntingStudy(
-        predators=number_list(args.predators, int, "--predators", 1, 64),
-        prey=args.prey,
-        prey_conditions=[c.strip() for c in args.prey_conditions.split(",") if c.strip()],
-        share_radii=number_list(args.share_radius, float, "--share-radius", 0.0, 1e6),
-        seeds=args.seeds,
-        worlds=args.worlds,
-        iterations=args.iterations,
-        train_steps=args.train_steps,
-        eval_worlds=args.eval_worlds,
-        eval_steps=args.eval_steps,
-        hunt_radius=args.hunt_radius,
-        sample_every=args.sample_every,
-        baseline=not args.no_baseline,
-        random_baseline=args.random_baseline,
-        predator_speed=args.predator_speed,
-        predator_slots=args.predator_slots,
-        recipe=args.recipe,
-        device=args.device,
-        jobs=args.jobs,
-        out=args.out,
-        figures=not args.no_figures,
-    )
+    study = from_options(GroupHuntingStudy, args, **common.common_settings(args))
     print(
         f"aquarium-warp study group-hunting: predators {study.predators}, {study.prey} prey "
         f"({', '.join(study.prey_conditions)}), catch_share_radius {study.share_radii}, "

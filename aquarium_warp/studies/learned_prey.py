@@ -7,7 +7,7 @@ A: the paper's (120 degrees, 100 px); B: 360 degrees, 200 px; C: 360 degrees, un
 
 Every condition is the `paper` preset (or another preset) plus config assignments (`train --set`'s
 form; `CONDITIONS`); a plan (`PLANS`) names the (condition, world, seeds) to run. Trainings and
-evaluations are tasks of the studies' job runner (`aquarium_warp.studies.jobs.run_jobs`): `--per-gpu`
+evaluations are tasks of the studies' job runner (`aquarium_warp.jobs.run_jobs`): `--per-gpu`
 at a time on each of `--gpus` GPUs (0: one at a time on the CPU), each training into
 `runs/<condition>-<world>-s<seed>/`; on GPUs the trainings that may share a process train together as
 populations (`training/population.py`), one at a time per GPU, each run as if alone. Finished tasks
@@ -36,10 +36,10 @@ import sys
 import time
 
 from ..atomic import atomic_open
+from ..jobs import read_finished, run_jobs, task_devices
 from ..records import command_line, git_info, machine_info
+from ..statistics import interval
 from .common import policy_path, run_training_task, study_options
-from .jobs import read_finished, run_jobs, task_devices
-from .statistics import interval
 
 WORLDS = {
     "A": [],
@@ -201,11 +201,12 @@ def run_eval_task(task: dict, device: str) -> dict:
     """The record of `eval/<condition>-<world>.json`: each policy's and baseline's captures and reward
     per prey, per evaluation seed too, with the protocol and provenance."""
     from ..config import AquariumConfig
+    from ..drivers import common_world
     from ..records import json_safe
-    from ..training.evaluate import common_policy_env, evaluate_policies
+    from ..training.evaluate import evaluate_policies
 
     learned = [f"s{s}={policy_path(run)}" for s, run in zip(task["seeds"], task["run_dirs"], strict=True)]
-    env = common_policy_env(learned, AquariumConfig()).replace(spawn_heading="paper")
+    env = common_world(learned, AquariumConfig()).replace(spawn_heading="paper")
     episodes, eval_seeds = task["episodes"], task["eval_seeds"]
     result = evaluate_policies(
         learned + list(BASELINES), ["naivchase"], env, episodes=episodes, seeds=eval_seeds, device=device

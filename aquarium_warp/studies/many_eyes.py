@@ -57,24 +57,27 @@ import numpy as np
 import torch
 
 from ..arguments import (
+    add_options,
     check_distinct,
     check_int,
     check_number,
-    int_at_least,
+    from_options,
     non_negative_float,
     number_list,
+    option,
+    plural,
     positive_float,
     positive_int,
 )
 from ..atomic import check_output_dir
-from ..cli import plural
+from ..jobs import RayOptions, add_ray_arguments, ray_options
 from ..records import command_line
 from ..rollout import StepView
 from ..seeding import evaluation_seed
+from ..statistics import compare, equivalence, finite, seed_stats
 from ..training.config import LEARNED_PREY_RECIPE, env_config
 from . import common
-from .jobs import RayOptions, add_ray_arguments, ray_options, run_tasks
-from .statistics import compare, equivalence, finite, seed_stats
+from .jobs import run_tasks
 
 PREDATORS = ("naivchase", "naivchase-noconfusion")
 MEASURES = ("captures_per_prey", "fid", "blind_fraction", "onsets_per_prey")
@@ -90,27 +93,64 @@ class ManyEyesStudy:
     # Settings that only list which tasks exist (jobs.task_key): a run over fewer keeps the rest.
     TASK_AXES = ("group_sizes", "fov_angles", "turnaway", "neighbour_control")
 
-    group_sizes: list[int] = field(default_factory=lambda: [1, 4, 16, 64])
-    fov_angles: list[float] = field(default_factory=lambda: [60.0, 120.0, 240.0, 360.0])
+    group_sizes: list[int] = field(
+        default_factory=lambda: [1, 4, 16, 64],
+        metadata=option("prey per world (list)", parse=lambda text, flag: number_list(text, int, flag, 1, 4096)),
+    )
+    fov_angles: list[float] = field(
+        default_factory=lambda: [60.0, 120.0, 240.0, 360.0],
+        metadata=option(
+            "prey field-of-view angles, degrees in (0, 360] (list)",
+            parse=lambda text, flag: number_list(text, float, flag, 0.0, 360.0, low_open=True),
+            flag="--fov",
+        ),
+    )
     seeds: int = 5
-    rows: int = 4096  # learning prey rows per iteration: rows // N worlds of N prey
-    iterations: int = 120  # PPO iterations per run (32 steps each)
-    train_steps: int = 500  # episode length in training
-    eval_rows: int = 512  # evaluation prey per seed: eval_rows // N worlds (at least 2)
-    eval_steps: int = 1000
-    view_distance: float = 100.0  # the prey's, px (docs/model.md's)
-    flee_angle: float = 45.0
-    flee_distance: float = 200.0
-    turn_angle: float = 30.0
-    lag: int = 5
-    turnaway: bool = True
+    rows: int = field(
+        default=4096,
+        metadata=option("learning prey per iteration: --rows // N worlds of N prey", type=positive_int),
+    )
+    iterations: int = field(default=120, metadata=common.ITERATIONS)
+    train_steps: int = field(default=500, metadata=common.TRAIN_STEPS)
+    eval_rows: int = field(
+        default=512,
+        metadata=option("evaluation prey per seed: --eval-rows // N worlds, at least 2", type=positive_int),
+    )
+    eval_steps: int = field(default=1000, metadata=common.EVAL_STEPS)
+    view_distance: float = field(
+        default=100.0, metadata=option("prey view distance, px (docs/model.md's)", type=positive_float)
+    )
+    flee_angle: float = field(default=45.0, metadata=common.FLEE_ANGLE)
+    flee_distance: float = field(default=200.0, metadata=common.FLEE_DISTANCE)
+    turn_angle: float = field(
+        default=30.0,
+        metadata=option("degrees the prey must turn over --lag steps for a flight onset", type=non_negative_float),
+    )
+    lag: int = field(default=5, metadata=option("steps of a flight onset's turn", type=positive_int))
+    turnaway: bool = field(default=True, metadata=option("no TurnAway reference", negated=True))
     # The redesign (issue #30): `area_per_prey` px^2 fixes the density (a square arena of side
     # sqrt(N * area_per_prey); None: docs/model.md's 800 x 800 at every N); `recipe`: the learned-prey
     # recipe (ego observations, which carry each neighbour's relative velocity, random spawn headings,
     # entropy 0.01); `neighbour_control`: also train prey without prey slots at every N > 1.
-    area_per_prey: float | None = None
-    recipe: bool = False
-    neighbour_control: bool = False
+    area_per_prey: float | None = field(
+        default=None,
+        metadata=option(
+            "px^2 per prey: a square arena of side sqrt(N x this), the same density at every N "
+            "(default: 800 x 800 at every N; 40000 is 16 prey in 800 x 800)",
+            type=positive_float,
+        ),
+    )
+    recipe: bool = field(
+        default=False,
+        metadata=option(
+            "train with the learned-prey recipe: ego observations (neighbours' relative velocity), "
+            "random spawn headings, entropy 0.01"
+        ),
+    )
+    neighbour_control: bool = field(
+        default=False,
+        metadata=option("also train prey without prey slots at every N > 1 (the neighbour ablation)"),
+    )
     device: str | None = None
     jobs: int | None = None
     out: str = "many_eyes"
@@ -507,93 +547,14 @@ DESCRIPTION = (
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--group-sizes", default="1,4,16,64", help="prey per world (list; default 1,4,16,64)")
-    p.add_argument("--fov", default="60,120,240,360", help="prey field-of-view angles, degrees in (0, 360] (list)")
-    p.add_argument(
-        "--rows",
-        type=positive_int,
-        default=4096,
-        help="learning prey per iteration: --rows // N worlds of N prey (default 4096)",
-    )
-    p.add_argument(
-        "--iterations", type=positive_int, default=120, help="PPO iterations per run, 32 steps each (default 120)"
-    )
-    p.add_argument("--train-steps", type=int_at_least(2), default=500, help="episode length in training (default 500)")
-    p.add_argument(
-        "--eval-rows",
-        type=positive_int,
-        default=512,
-        help="evaluation prey per seed: --eval-rows // N worlds, at least 2 (default 512)",
-    )
-    p.add_argument("--eval-steps", type=int_at_least(2), default=1000, help="evaluation episode length (default 1000)")
-    p.add_argument("--view-distance", type=positive_float, default=100.0, help="prey view distance, px (default 100)")
-    p.add_argument(
-        "--flee-angle",
-        type=non_negative_float,
-        default=45.0,
-        help="degrees: fleeing = velocity within this of straight away from the predator (default 45)",
-    )
-    p.add_argument(
-        "--flee-distance",
-        type=positive_float,
-        default=200.0,
-        help="px: fleeing needs the nearest predator this close (default 200)",
-    )
-    p.add_argument(
-        "--turn-angle",
-        type=non_negative_float,
-        default=30.0,
-        help="degrees the prey must turn over --lag steps for a flight onset (default 30)",
-    )
-    p.add_argument("--lag", type=positive_int, default=5, help="steps of a flight onset's turn (default 5)")
-    p.add_argument("--no-turnaway", action="store_true", help="no TurnAway reference")
-    p.add_argument(
-        "--area-per-prey",
-        type=positive_float,
-        default=None,
-        help="px^2 per prey: a square arena of side sqrt(N x this), the same density at every N "
-        "(default: 800 x 800 at every N; 40000 is 16 prey in 800 x 800)",
-    )
-    p.add_argument(
-        "--recipe",
-        action="store_true",
-        help="train with the learned-prey recipe: ego observations (neighbours' relative velocity), "
-        "random spawn headings, entropy 0.01",
-    )
-    p.add_argument(
-        "--neighbour-control",
-        action="store_true",
-        help="also train prey without prey slots at every N > 1 (the neighbour ablation)",
-    )
+    add_options(p, ManyEyesStudy)
     common.add_common_arguments(p, "many_eyes")
     add_ray_arguments(p, "training run (with its evaluations)")
 
 
 def run(args: argparse.Namespace) -> int:
     """`aquarium-warp study many-eyes`: learned prey groups, dilution vs detection."""
-    study = ManyEyesStudy(
-        group_sizes=number_list(args.group_sizes, int, "--group-sizes", 1, 4096),
-        fov_angles=number_list(args.fov, float, "--fov", 0.0, 360.0, low_open=True),
-        seeds=args.seeds,
-        rows=args.rows,
-        iterations=args.iterations,
-        train_steps=args.train_steps,
-        eval_rows=args.eval_rows,
-        eval_steps=args.eval_steps,
-        view_distance=args.view_distance,
-        flee_angle=args.flee_angle,
-        flee_distance=args.flee_distance,
-        turn_angle=args.turn_angle,
-        lag=args.lag,
-        turnaway=not args.no_turnaway,
-        area_per_prey=args.area_per_prey,
-        recipe=args.recipe,
-        neighbour_control=args.neighbour_control,
-        device=args.device,
-        jobs=args.jobs,
-        out=args.out,
-        figures=not args.no_figures,
-    )
+    study = from_options(ManyEyesStudy, args, **common.common_settings(args))
     print(
         f"aquarium-warp study many-eyes: group sizes {study.group_sizes} x FOV {study.fov_angles}, "
         f"{plural(study.seeds, 'seed')} -> {study.out}"

@@ -41,10 +41,11 @@ import time
 from collections.abc import Sequence
 
 from ..arguments import check_int
+from ..drivers import trained_world
+from ..jobs import read_finished, run_jobs, task_devices
 from ..records import command_line, json_safe, provenance
+from ..statistics import difference, equivalence, interval, mean_interval
 from .common import policy_path, run_training_task
-from .jobs import read_finished, run_jobs, task_devices
-from .statistics import difference, equivalence, interval, mean_interval
 
 HELP = "the phase diagram of learned prey: collective state over capture rule, density, view and predator"
 DESCRIPTION = (
@@ -300,10 +301,7 @@ def training_tasks(args) -> list[dict]:
 def world_of(task: dict, rule: str | None = None, strength: float | None = None):
     """The world a trained prey policy plays: its training world with the task's episode length, and
     the capture rule and strength replaced where given."""
-    from ..config import AquariumConfig
-    from ..training.evaluate import common_policy_env
-
-    cfg = common_policy_env([prey_policy(task)], AquariumConfig()).replace(max_steps=task["max_steps"])
+    cfg = trained_world(prey_policy(task)).replace(max_steps=task["max_steps"])
     if rule is not None:
         cfg = cfg.replace(capture_rule=rule, capture_confusion=strength)
     return cfg
@@ -594,8 +592,8 @@ def write_tables(out: str, summary: dict, series: list[dict]) -> None:
 
 
 def run(args) -> int:
+    from ..arguments import plural
     from ..atomic import atomic_open, check_output_dir
-    from ..cli import plural
 
     check(args)
     devices = task_devices(args.gpus)

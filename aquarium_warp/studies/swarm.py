@@ -85,13 +85,13 @@ import os
 import time
 from collections.abc import Callable, Sequence
 
-from ..arguments import check_distinct, check_int, number_list
+from ..arguments import check_distinct, check_int, number_list, plural
 from ..checks import LARGEST
-from ..cli import plural
+from ..drivers import trained_world
+from ..jobs import read_finished, run_jobs, task_devices
 from ..records import command_line, json_safe, provenance
+from ..statistics import difference, equivalence, finite, interval, mean_interval
 from .common import policy_path, run_training_task
-from .jobs import read_finished, run_jobs, task_devices
-from .statistics import difference, equivalence, finite, interval, mean_interval
 
 # The scenario: prey see all around, 200 px (reacting pays only with rear vision and range, see
 # docs/learned-prey.md); everything else is the paper's world.
@@ -370,10 +370,7 @@ def run_screen_task(task: dict, device: str) -> dict:
 
 def policy_world(task: dict):
     """The world of the policy that `task`'s training run exported, with the task's episode length."""
-    from ..config import AquariumConfig
-    from ..training.evaluate import common_policy_env
-
-    return common_policy_env([policy_path(task["run_dir"])], AquariumConfig()).replace(max_steps=task["max_steps"])
+    return trained_world(policy_path(task["run_dir"])).replace(max_steps=task["max_steps"])
 
 
 def run_eval_task(task: dict, device: str) -> dict:

@@ -28,7 +28,7 @@ from aquarium_warp.studies.swarm_size import SwarmSizeStudy, run_swarm_size_stud
 results = run_swarm_size_study(SwarmSizeStudy(prey=[4, 8, 16], seeds=2, episode_steps=200, out="out"))
 ```
 
-Each setting is a task of the studies' job runner (`aquarium_warp.studies.jobs`): here on threads
+Each setting is a task of the job runner (`aquarium_warp.jobs`): here on threads
 (`jobs`), or with `ray=RayOptions(...)` (`--ray` on the command line) as Ray tasks calling the same
 `run_setting`; the files are the same. Finished settings are kept in `out/finished/` until the JSON is
 written: a rerun after an interruption runs only the others.
@@ -48,20 +48,22 @@ from dataclasses import dataclass, field
 
 import torch
 
-from ..arguments import POLICY_SPECS, check_distinct, check_int, non_negative_int, parse_list, policy_spec, positive_int
+from ..arguments import (
+    POLICY_SPECS,
+    check_distinct,
+    check_int,
+    non_negative_int,
+    parse_list,
+    plural,
+    policy_spec,
+    positive_int,
+)
 from ..atomic import atomic_open, check_output_dir
-from ..cli import plural
 from ..config import AquariumConfig
 from ..device import resolve_device
-from ..drivers import check_spec, is_heuristic, make_driver
+from ..drivers import check_spec, is_heuristic, make_driver, trained_world
 from ..env import BatchedAquarium
-from ..metrics import EPISODE_METRICS, EpisodeMetrics, SwarmMetrics
-from ..pretrained import is_policy_file
-from ..records import command_line, git_info, json_safe, machine_info
-from ..rollout import Observer, Progress, rollout
-from ..seeding import baseline_seed
-from .common import write_csv
-from .jobs import (
+from ..jobs import (
     FINISHED_DIR,
     RayOptions,
     add_ray_arguments,
@@ -72,7 +74,13 @@ from .jobs import (
     run_ray_tasks,
     warm_up,
 )
-from .statistics import seed_stats
+from ..metrics import EPISODE_METRICS, EpisodeMetrics, SwarmMetrics
+from ..pretrained import is_policy_file
+from ..records import command_line, git_info, json_safe, machine_info
+from ..rollout import Observer, Progress, rollout
+from ..seeding import baseline_seed
+from ..statistics import seed_stats
+from .common import write_csv
 from .swarm_size_plots import plot_study
 
 # Per-seed columns of the CSV, in order.
@@ -174,7 +182,7 @@ class SwarmSizeStudy:
         base = AquariumConfig()
         for agent_type, name in (("prey", self.prey_policy), ("predator", self.predator_policy)):
             if not is_heuristic(name, agent_type) and is_policy_file(name):
-                base = base.with_interface_of(trained_policy_world(name))
+                base = base.with_interface_of(trained_world(name))
         fovs = self.fov_angles or [base.prey.fov_angle]
         views = self.view_distances or [base.prey.view_distance]
         out = []
@@ -224,16 +232,6 @@ class SwarmSizeStudy:
 # --------------------------------------------------------------------------------------------------
 # Policies
 # --------------------------------------------------------------------------------------------------
-def trained_policy_world(path: str) -> AquariumConfig:
-    """The world the policy file at `path` was trained in (from its metadata)."""
-    try:  # the training extra is optional
-        from ..training.config import env_config
-        from ..training.export import policy_world
-    except ImportError as error:
-        raise ValueError(f"trained policies need aquarium_warp.training (importing it failed: {error})") from error
-    return env_config({"env": policy_world(path)})
-
-
 def check_policies(study: SwarmSizeStudy) -> None:
     """Fail early (before any simulation) on policy names that are neither heuristics nor files."""
     for agent_type, name in (("prey", study.prey_policy), ("predator", study.predator_policy)):

@@ -165,7 +165,7 @@ def _serve(args) -> int:
     import torch
     import uvicorn
 
-    from ..cli import plural
+    from ..arguments import plural
     from .server import Viewer, make_app
     from .simulation import Simulation, ViewOptions
 
@@ -246,7 +246,7 @@ def _server_class():
 def serve(server, sockets=None) -> None:
     """Run a uvicorn `server` until SIGINT or SIGTERM: the first shuts it down gracefully, a second at
     once (uvicorn's `handle_exit`); then `Interrupted` with the signal's exit code (130 for Ctrl-C)."""
-    from ..cli import Interrupted
+    from ..arguments import Interrupted
 
     received: list[int] = []
     log = logging.getLogger("uvicorn.error")

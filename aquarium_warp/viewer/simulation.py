@@ -17,7 +17,7 @@ import torch
 from .. import pretrained
 from ..agent_types import TYPES
 from ..config import AquariumConfig
-from ..drivers import HEURISTICS, is_heuristic, make_drivers
+from ..drivers import HEURISTICS, is_heuristic, make_drivers, teams_world
 from ..env import BatchedAquarium, action_directions
 from ..metrics import SwarmMetrics
 from .flow import FlowSampler
@@ -112,22 +112,8 @@ class Simulation:
     def _config(self, specs: dict[str, str]) -> AquariumConfig:
         """The trained policies' world (their metadata, as `video` takes it), else docs/model.md's; the
         command line's counts and sizes override it."""
-        files = [spec for team, spec in specs.items() if not is_heuristic(spec, team)]
-        data = AquariumConfig().to_dict()
-        if files:
-            from ..training.evaluate import common_policy_env
-
-            data = common_policy_env(files, AquariumConfig()).to_dict()
         o = self.options
-        for key, value in (
-            ("prey_count", o.prey),
-            ("predator_count", o.predators),
-            ("width", o.width),
-            ("height", o.height),
-        ):
-            if value is not None:
-                data[key] = value
-        return AquariumConfig.from_dict(data)
+        return teams_world(specs, prey_count=o.prey, predator_count=o.predators, width=o.width, height=o.height)
 
     def _build(self, specs: dict[str, str]) -> None:
         """Drivers for `specs` (and a new env when their world differs from the current one's); the

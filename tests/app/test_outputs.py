@@ -379,7 +379,7 @@ def test_an_empty_training_curve_says_why(tmp_path, capsys):
 
 def test_counts_are_pluralised(tmp_path, capsys):
     pytest.importorskip("rsl_rl")
-    from aquarium_warp.cli import plural
+    from aquarium_warp.arguments import plural
 
     assert [plural(n, "predator") for n in (0, 1, 2)] == ["0 predators", "1 predator", "2 predators"]
     argv = [

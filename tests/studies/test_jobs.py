@@ -1,4 +1,4 @@
-"""The studies' job runner (`aquarium_warp.studies.jobs.run_jobs`): finished tasks are kept under
+"""The studies' job runner (`aquarium_warp.jobs.run_jobs`): finished tasks are kept under
 `out/finished/` keyed on the task and the study's settings, so that a rerun with more seeds runs only
 the new (setting, seed) tasks and keeps the old rows, while a changed setting runs afresh; threads return
 the results in task order; tasks spread over several devices get one each, which their keys do not
@@ -16,7 +16,7 @@ import threading
 import pytest
 
 from aquarium_warp.cli import main
-from aquarium_warp.studies.jobs import FINISHED_DIR, read_finished, run_jobs, task_key
+from aquarium_warp.jobs import FINISHED_DIR, read_finished, run_jobs, task_key
 
 
 @dataclasses.dataclass

@@ -1,4 +1,4 @@
-"""Sweeps on Ray (aquarium_warp/studies/jobs.py) on a local two-CPU cluster: a tiny study equals the run on this
+"""Sweeps on Ray (aquarium_warp/jobs.py) on a local two-CPU cluster: a tiny study equals the run on this
 machine; a setting whose worker dies is rerun (Ray's max_retries) and, once the retries are spent, a rerun
 of the study keeps the settings that finished; a training sweep equals the runs here and a rerun keeps
 them; a started training run resumes from its newest checkpoint; without Ray, --ray names the extra."""
@@ -15,8 +15,8 @@ import pytest
 import torch
 
 from aquarium_warp.cli import main
+from aquarium_warp.jobs import FINISHED_DIR, RayOptions
 from aquarium_warp.records import json_safe
-from aquarium_warp.studies.jobs import FINISHED_DIR, RayOptions
 from aquarium_warp.studies.swarm_size import SwarmSizeStudy, run_swarm_size_study
 
 TINY_TRAIN = [

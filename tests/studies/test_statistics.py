@@ -1,4 +1,4 @@
-"""Statistics over seeds (`aquarium_warp.studies.statistics`) against values computed by hand: Student-t
+"""Statistics over seeds (`aquarium_warp.statistics`) against values computed by hand: Student-t
 quantiles from the printed tables, the mean's 95% interval, Welch's interval of a difference and the
 TOST equivalence test; the flow study's differences against still water."""
 
@@ -11,7 +11,7 @@ import math
 import pytest
 
 from aquarium_warp.cli import main
-from aquarium_warp.studies.statistics import (
+from aquarium_warp.statistics import (
     compare,
     difference,
     equivalence,

@@ -14,9 +14,9 @@ import math
 import pytest
 
 from aquarium_warp.cli import build_parser, main
+from aquarium_warp.jobs import FINISHED_DIR, task_devices
+from aquarium_warp.statistics import interval
 from aquarium_warp.studies import STUDIES, swarm
-from aquarium_warp.studies.jobs import FINISHED_DIR, task_devices
-from aquarium_warp.studies.statistics import interval
 
 SCREEN = [
     "study",

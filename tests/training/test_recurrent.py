@@ -134,9 +134,10 @@ def test_recurrent_export_reload_and_evaluate(tmp_path, one_thread, rnn_type):
 
     if rnn_type == "gru":
         return  # the evaluation below does not depend on the RNN type
-    from aquarium_warp.training.evaluate import common_policy_env, evaluate_policies
+    from aquarium_warp.drivers import common_world
+    from aquarium_warp.training.evaluate import evaluate_policies
 
-    env = common_policy_env([paths["jit"]], None)
+    env = common_world([paths["jit"]], None)
     runs = {
         kind: evaluate_policies(
             prey=[f"{kind}={path}"], predator=["naivchase"], env=env, episodes=2, seeds=[0], device="cpu"
