@@ -380,34 +380,28 @@ def run_baseline_task(task: dict, device: str) -> dict:
     )
 
 
+def evaluation_task(args, name: str, training: dict) -> dict:
+    """A task that plays the policy of `training` (a training task): its training config is part of the
+    task, so that a run trained again with other settings is evaluated again."""
+    return {
+        "name": name,
+        **{k: training[k] for k in ("cell", "control", "seed", "coevolving", "run_dir")},
+        "training": training["config"],
+        "episodes": args.episodes,
+        "eval_seeds": args.eval_seeds,
+        "max_steps": args.max_steps,
+    }
+
+
 def eval_tasks(args, trainings: Sequence[dict]) -> list[dict]:
-    """An evaluation per trained policy; its training config is part of the task, so that a run trained
-    again with other settings is evaluated again."""
-    keep = ("cell", "control", "seed", "coevolving", "run_dir")
-    return [
-        {
-            "name": f"eval-{t['cell']}-{t['control']}-s{t['seed']}",
-            **{k: t[k] for k in keep},
-            "training": t["config"],
-            "episodes": args.episodes,
-            "eval_seeds": args.eval_seeds,
-            "max_steps": args.max_steps,
-        }
-        for t in trainings
-    ]
+    """An evaluation per trained policy."""
+    return [evaluation_task(args, f"eval-{t['cell']}-{t['control']}-s{t['seed']}", t) for t in trainings]
 
 
 def baseline_tasks(args, trainings: Sequence[dict]) -> list[dict]:
-    keep = ("cell", "control", "seed", "coevolving", "run_dir")
+    """The heuristics of each cell, in the world of its first learned run."""
     return [
-        {
-            "name": f"baseline-{t['cell']}",
-            **{k: t[k] for k in keep},
-            "training": t["config"],
-            "episodes": args.episodes,
-            "eval_seeds": args.eval_seeds,
-            "max_steps": args.max_steps,
-        }
+        evaluation_task(args, f"baseline-{t['cell']}", t)
         for t in trainings
         if t["control"] == "learned" and t["seed"] == 0
     ]
