@@ -445,8 +445,10 @@ def aggregate_curves(seed_results: list[dict]) -> dict[str, dict[int, tuple[floa
 
 
 def write_csv(rows: list[dict], path: str) -> str:
+    """`rows` as CSV, a column for every key of any row (in first-seen order; a measure without a value in
+    a row, e.g. group measures in an iteration without groups, is left empty)."""
     with open(path, "w", newline="", encoding="utf-8") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer = csv.DictWriter(f, fieldnames=list(dict.fromkeys(k for row in rows for k in row)), restval="")
         writer.writeheader()
         writer.writerows(rows)
     return path
