@@ -42,6 +42,7 @@ import bench_fused_update as bench
 
 from aquarium_warp.arguments import parse_list
 from aquarium_warp.atomic import atomic_open
+from aquarium_warp.device import synchronize
 from aquarium_warp.records import command_line, provenance
 from aquarium_warp.training import fused_mlp, fused_ppo
 
@@ -82,12 +83,12 @@ def time_act(alg, repeats: int, steps: int = 20) -> float:
     obs = {act.group: alg.storage.observations[act.group][0].clone()}
     times = []
     for _ in range(repeats + 1):  # the first run compiles the kernel: untimed
-        bench.sync(torch.device(alg.device))
+        synchronize(torch.device(alg.device))
         started = time.perf_counter()
         for _ in range(steps):
             alg.storage.step = 0
             act.act(obs)
-        bench.sync(torch.device(alg.device))
+        synchronize(torch.device(alg.device))
         times.append((time.perf_counter() - started) / steps)
     alg.storage.step = 0
     return statistics.median(times[1:])
