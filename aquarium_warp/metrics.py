@@ -126,6 +126,10 @@ def default_linking_distance(env: BatchedAquarium) -> float | tuple[float, ...]:
     return tuple(2.5 * r for r in radius) if isinstance(radius, tuple) else 2.5 * radius
 
 
+# The group-tracking buffers of `kernels.metrics.GroupArrays` that a resumed run restores.
+TRACKING = ("last_time", "before_time", "last_label", "before_label", "last_birth", "before_birth")
+
+
 class SwarmMetrics:
     """Per-world swarm metrics of `env`'s current state (the one its last observations show).
 
@@ -213,6 +217,9 @@ class SwarmMetrics:
             else:
                 setattr(g, name, wp.zeros(shape, dtype=wp.int32 if name != "order" else float, device=dev))
         self._tracked_times = (wp.to_torch(g.last_time), wp.to_torch(g.before_time))
+        # What the group identities carry from one `compute()` to the next (the last state's and its
+        # predecessor's times, labels and births): a resumed run needs them to continue its groups.
+        self._tracking = {name: wp.to_torch(getattr(g, name)) for name in TRACKING}
         values = wp.to_torch(a.values)
         self.values = values  # [W, len(SCALAR_METRICS + GROUP_METRICS)] float32, columns in that order
         self.nn_histogram = wp.to_torch(a.nn_histogram)
@@ -246,6 +253,14 @@ class SwarmMetrics:
             radii = per_world(cfg.prey.radius, env.num_worlds)
             rows = [hard_disk_nn_means(Pc, cfg.width, cfg.height, 2.0 * float(r))[0] for r in radii]
         return np.stack(rows).astype(np.float32)
+
+    def tracking_state(self) -> dict[str, torch.Tensor]:
+        """The group identities' state (CPU copies), for `load_tracking_state`."""
+        return {name: t.cpu().clone() for name, t in self._tracking.items()}
+
+    def load_tracking_state(self, state: dict[str, torch.Tensor]) -> None:
+        for name, t in self._tracking.items():
+            t.copy_(state[name].to(t.device))
 
     def restart_tracking(self) -> None:
         """Forget the groups of earlier calls: the next `compute()` sees every group as new (device work,
@@ -528,6 +543,7 @@ class EpisodeMetrics(Observer):
         """The accumulators (CPU copies), so that a resumed run reports the same episode values."""
         state = {name: getattr(self, name).cpu().clone() for name in self._STATE}
         state["steps"] = self.steps
+        state["tracking"] = self.metrics.tracking_state()
         return state
 
     def load_state_dict(self, state: dict) -> None:
@@ -553,6 +569,10 @@ class EpisodeMetrics(Observer):
                     "(a checkpoint of another world count or metric set)"
                 )
         self.steps = int(state["steps"])
+        if "tracking" in state:
+            self.metrics.load_tracking_state(state["tracking"])
+        else:  # a state from before group tracking: groups count as new from here on
+            self.metrics.restart_tracking()
 
     def traces(self) -> dict[str, torch.Tensor]:
         """`{name: [samples, worlds]}` of the metrics named in `trace` (float32) in `trace_worlds`, at steps

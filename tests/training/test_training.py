@@ -357,7 +357,9 @@ def _same_state(a: Trainer, b: Trainer) -> None:
     ta, tb = a.env.state_dict()["tensors"], b.env.state_dict()["tensors"]
     assert all(torch.equal(ta[n], tb[n]) for n in ta)
     ma, mb = a.vec_env.swarm.state_dict(), b.vec_env.swarm.state_dict()  # swarm-metric accumulators too
-    assert ma["steps"] == mb["steps"] and all(torch.equal(ma[n], mb[n]) for n in ma if n != "steps")
+    differ = [n for n in ma if n not in ("steps", "tracking") and not torch.equal(ma[n], mb[n])]
+    differ += [f"tracking.{n}" for n in ma["tracking"] if not torch.equal(ma["tracking"][n], mb["tracking"][n])]
+    assert ma["steps"] == mb["steps"] and not differ, f"swarm-metric state {differ} differs after resume"
     assert a.iteration == b.iteration
 
 
