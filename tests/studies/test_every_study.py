@@ -44,7 +44,8 @@ TINY: dict[str, tuple[list[str], str, str]] = {
         "summary.json",
     ),
     "phase": (
-        ["--cells", "c0", "--seeds", "2", "--control-seeds", "2", "--iterations", "1", "--train-worlds", "2"]
+        # the co-evolving cell: both teams and the opponent pool (a fixed-predator cell: test_phase_study.py)
+        ["--cells", "coevolving-c0", "--seeds", "2", "--control-seeds", "2", "--iterations", "1", "--train-worlds", "2"]
         + ["--episodes", "1", "--eval-seeds", "2", "--max-steps", "20", "--gpus", "0", "--no-figures"]
         + ["--train-set", "runner.num_steps_per_env=8"],
         "--out",
