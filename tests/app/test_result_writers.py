@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 import os
@@ -305,3 +306,31 @@ def test_compare_curves_hand_made_runs(tmp_path):
     assert close["inside_envelope"] == 1.0 and far["inside_envelope"] == 0.0
     with pytest.raises(SystemExit):
         compare_curves.main(["--reference", f"ref={tmp_path}/none-*", "--variant", f"far={tmp_path}/far-s*"])
+
+
+def test_fused_default_verdicts_by_hand():
+    """benchmarks/fused_default.py's report on hand-made seed values: margins (absolute and relative to
+    torch's mean), the Welch difference, the three verdicts and the all-or-nothing decision."""
+    fused_default = _script("fused_default")
+    torch_seeds = [1.0, 1.02, 0.98, 1.0, 1.0]  # mean 1.0
+    rows = []
+
+    def add(setup, path, measure, values):
+        rows.extend({"setup": setup, "path": path, "seed": s, "measure": measure, "value": v}
+                    for s, v in enumerate(values))  # fmt: skip
+
+    for setup, measure in (("recipe", "prey_vs_naivchase"), ("both", "prey_vs_naivchase"), ("recipe", "curve")):
+        add(setup, "torch", measure, torch_seeds)
+        add(setup, "fused", measure, [v + 0.01 for v in torch_seeds])  # shifted by 0.01: equivalent
+    add("both", "torch", "predator_vs_turnaway", torch_seeds)
+    add("both", "fused", "predator_vs_turnaway", [v + 0.5 for v in torch_seeds])  # far beyond 10%: different
+    add("both", "torch", "curve", torch_seeds)
+    add("both", "fused", "curve", [0.6, 1.6, 0.8, 1.3, 0.95])  # mean 1.05, wide: inconclusive
+    out = fused_default.report(argparse.Namespace(seeds=[0, 1, 2, 3, 4]), rows)
+    m = out["measures"]
+    assert m["E1"]["margin"] == pytest.approx(0.20) and m["E2"]["margin"] == pytest.approx(0.10)
+    assert m["E1"]["difference_95"]["difference"] == pytest.approx(0.01)
+    assert (m["E1"]["verdict"], m["E2"]["verdict"], m["C1"]["verdict"]) == ("equivalent",) * 3
+    assert m["E3"]["verdict"] == "different" and m["E3"]["difference_95"]["low"] > 0.10
+    assert m["C2"]["verdict"] == "inconclusive"
+    assert out["decision"] == "the default stays torch's float32 path"
