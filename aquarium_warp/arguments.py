@@ -240,6 +240,7 @@ def option(
     shown: str | None = None,
     choices: Sequence[str] | None = None,
     repeated: bool = False,
+    nargs: str | None = None,
     metavar: str | None = None,
 ) -> dict:
     """The `field(metadata=...)` of a settings field that is a command-line option `flag` (default the
@@ -247,8 +248,9 @@ def option(
     `parse(text, flag)` reads a list option's text instead (its default written as text: the list's,
     else `shown`); a `negated` bool is `--no-<name>` (True unless given), another bool `--<name>` (False
     unless given); `choices` lists the values allowed; a `repeated` option is given once per value
-    (`metavar` each). The help ends with the default (`shown`, else the field's own; none for a bool, a
-    repeated option or None)."""
+    (`metavar` each), one with `nargs` takes several values at once (argparse's "*" or "+", each
+    converted by `type`). The help ends with the default (`shown`, else the field's own; none for a bool,
+    a repeated option, None or an empty list)."""
     return {
         "option": {
             "help": help,
@@ -259,6 +261,7 @@ def option(
             "shown": shown,
             "choices": choices,
             "repeated": repeated,
+            "nargs": nargs,
             "metavar": metavar,
         }
     }
@@ -309,7 +312,11 @@ def _default(f: dataclasses.Field):
     return f.default_factory() if f.default is dataclasses.MISSING else f.default  # type: ignore[operator]
 
 
-def add_options(parser: argparse.ArgumentParser, settings: type, only: Sequence[str] | None = None) -> None:
+def add_options(
+    parser: argparse._ActionsContainer,  # a parser or one of its argument groups
+    settings: type,
+    only: Sequence[str] | None = None,
+) -> None:
     """An option for each field of `settings` declared with `option(...)` (each named in `only`, where
     given), in field order."""
     for f, opt, flag, _ in _options(settings, only):
@@ -328,9 +335,10 @@ def add_options(parser: argparse.ArgumentParser, settings: type, only: Sequence[
             flag,
             type=opt["type"],
             choices=opt["choices"],
+            nargs=opt["nargs"],
             default=default,
             metavar=opt["metavar"],
-            help=opt["help"] if default is None else f"{opt['help']} (default {shown})",
+            help=opt["help"] if default is None or default == [] else f"{opt['help']} (default {shown})",
         )
 
 

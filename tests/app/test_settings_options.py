@@ -158,3 +158,29 @@ def test_swarm_size_and_fov_view_without_options_are_their_defaults():
         kind="fov-view",
         out="fov_view",
     )
+
+
+def test_eval_options_take_the_paper_protocol_and_the_grid_its_own():
+    """`aquarium-warp eval` without options: the paper's 200 episodes x 5 seeds, random and TurnAway prey
+    against NaivChase; --grid: 50 episodes x 3 seeds per cell over the grid's cells; --cross-play: the
+    paper's protocol against three predators."""
+    from aquarium_warp.cli import build_parser
+    from aquarium_warp.training.cli import EVAL_RUNS, EvalOptions, GridCells
+
+    def parse(*argv):
+        args = build_parser().parse_args(["eval", *argv])
+        return from_options(EvalOptions, args), from_options(GridCells, args)
+
+    options, grid = parse()
+    assert (options.kind, options.episodes_per_seed, options.evaluation_seeds) == ("eval", 200, [0, 1, 2, 3, 4])
+    assert (options.prey, options.predator, options.sets, options.figures) == (None, None, [], True)
+    assert EVAL_RUNS["eval"]["prey"] == ("random", "turnaway") and EVAL_RUNS["eval"]["predator"] == ("naivchase",)
+    options, grid = parse("--grid")
+    assert (options.kind, options.episodes_per_seed, options.evaluation_seeds) == ("grid", 50, [0, 1, 2])
+    assert len(grid.cells()) == 4 * 3 * 3 * 3 and grid.grid_views == [100.0, 200.0, 10000.0]
+    options, _ = parse("--cross-play", "--episodes", "3", "--seeds", "7", "8", "--set", "env.a=1", "--no-figures")
+    assert (options.kind, options.episodes_per_seed, options.evaluation_seeds) == ("cross-play", 3, [7, 8])
+    assert (options.sets, options.figures) == (["env.a=1"], False)
+    assert EVAL_RUNS["cross-play"]["predator"] == ("naivchase", "naivchase-noconfusion", "random")
+    with pytest.raises(ValueError, match=r"^--grid-fovs='90,\.\.\.': write at least two terms"):
+        parse("--grid-fovs", "90,...")
