@@ -31,7 +31,16 @@ from ..arguments import (
     positive_float,
 )
 from ..atomic import check_output_dir
-from .config import ALGORITHM_RANGES, CRITICS, POOL_SAMPLING, PRESETS, SHARING, TRAIN_DEFAULTS, UPDATE_SCHEDULES
+from .config import (
+    ALGORITHM_RANGES,
+    CRITICS,
+    LR_SCHEDULES,
+    POOL_SAMPLING,
+    PRESETS,
+    SHARING,
+    TRAIN_DEFAULTS,
+    UPDATE_SCHEDULES,
+)
 from .grid import BASELINES, FOVS, NAIVCHASE, PREY_COUNTS, SPEEDS, UNLIMITED, VIEWS, Cell, grid_cells
 from .population import is_population
 
@@ -193,7 +202,7 @@ CONFIG_FLAGS: dict[str, tuple[tuple[str, str, dict, str], ...]] = {
         (
             "--schedule",
             "runner.algorithm.schedule",
-            {"choices": ("fixed", "adaptive")},
+            {"choices": LR_SCHEDULES},
             "learning rate: fixed, or adapted to keep the KL near --desired-kl",
         ),
         (

@@ -111,10 +111,6 @@ def parse_world_size(text) -> tuple[float, float]:
     return values[0], values[1]
 
 
-def _parse_world_size(text: str, flag: str) -> tuple[float, float]:
-    return parse_world_size(text)
-
-
 @dataclass
 class SwarmSizeStudy:
     """Settings of a swarm-size study (the CLI's options: every option of `study swarm-size`, those
@@ -157,7 +153,8 @@ class SwarmSizeStudy:
         ),
     )
     world_size: tuple[float, float] = field(
-        default=(800.0, 800.0), metadata=option("arena WIDTHxHEIGHT px", parse=_parse_world_size, shown="800x800")
+        default=(800.0, 800.0),
+        metadata=option("arena WIDTHxHEIGHT px", parse=lambda text, flag: parse_world_size(text), shown="800x800"),
     )
     constant_density: bool = field(  # scale the arena with N so that N / area stays that of reference_prey
         default=False,
