@@ -29,6 +29,9 @@ POLICY_SPECS = {
     "policy file",
 }
 
+# The help of every `--device` option.
+DEVICE_HELP = "'cpu', 'cuda:0'; default: CUDA when present"
+
 
 # ---------------------------------------------------------------------------------------------- argparse types
 class Interrupted(KeyboardInterrupt):
@@ -235,18 +238,43 @@ def option(
     flag: str | None = None,
     negated: bool = False,
     shown: str | None = None,
+    choices: Sequence[str] | None = None,
+    repeated: bool = False,
+    nargs: str | None = None,
+    metavar: str | None = None,
 ) -> dict:
     """The `field(metadata=...)` of a settings field that is a command-line option `flag` (default the
     field's name as `--a-name`): `type` converts and checks the option's text (an argparse type);
-    `parse(text, flag)` reads a list option's text instead (its default written as text); a `negated`
-    bool is `--no-<name>` (True unless given), another bool `--<name>` (False unless given). The help
-    ends with the default (`shown`, else the field's own; none for a bool or None)."""
-    return {"option": {"help": help, "type": type, "parse": parse, "flag": flag, "negated": negated, "shown": shown}}
+    `parse(text, flag)` reads a list option's text instead (its default written as text: the list's,
+    else `shown`); a `negated` bool is `--no-<name>` (True unless given), another bool `--<name>` (False
+    unless given); `choices` lists the values allowed; a `repeated` option is given once per value
+    (`metavar` each), one with `nargs` takes several values at once (argparse's "*" or "+", each
+    converted by `type`). The help ends with the default (`shown`, else the field's own; none for a bool,
+    a repeated option, None or an empty list)."""
+    return {
+        "option": {
+            "help": help,
+            "type": type,
+            "parse": parse,
+            "flag": flag,
+            "negated": negated,
+            "shown": shown,
+            "choices": choices,
+            "repeated": repeated,
+            "nargs": nargs,
+            "metavar": metavar,
+        }
+    }
 
 
 def list_text(values) -> str:
-    """A list default as its option's text: `[100.0, 0.0]` -> "100,0"."""
-    return ",".join(f"{v:g}" if isinstance(v, float) else str(v) for v in values)
+    """A list default as its option's text: `[100.0, 0.0]` -> "100,0" (a float that `:g` would round
+    keeps every digit, so that the text reads back as the list)."""
+    return ",".join(_number_text(v) if isinstance(v, float) else str(v) for v in values)
+
+
+def _number_text(value: float) -> str:
+    return f"{value:g}" if float(f"{value:g}") == value else repr(value)
 
 
 def word_list(text: str, flag: str) -> list[str]:
@@ -254,13 +282,27 @@ def word_list(text: str, flag: str) -> list[str]:
     return [word.strip() for word in text.split(",") if word.strip()]
 
 
-def _options(settings: type) -> list[tuple[dataclasses.Field, dict, str, str]]:
+def choice_list(choices: Sequence[str]) -> Callable[[str, str], list[str]]:
+    """`parse` of an option that lists names, each one of `choices` and none twice: a one-line
+    `ValueError` naming the option and the choices otherwise."""
+
+    def parse(text: str, flag: str) -> list[str]:
+        names = word_list(text, flag)
+        if not names or any(name not in choices for name in names):
+            raise ValueError(f"{flag}={text!r}: choose from {', '.join(choices)}")
+        check_distinct(flag, names)
+        return names
+
+    return parse
+
+
+def _options(settings: type, only: Sequence[str] | None = None) -> list[tuple[dataclasses.Field, dict, str, str]]:
     """`(field, option, flag, dest)` of each field of the `settings` dataclass that is a command-line
-    option (`dest`: argparse's attribute of the flag)."""
+    option (of the fields named in `only`, where given; `dest`: argparse's attribute of the flag)."""
     out = []
     for f in dataclasses.fields(settings):
         opt = f.metadata.get("option")
-        if opt is not None:
+        if opt is not None and (only is None or f.name in only):
             flag = opt["flag"] or ("--no-" if opt["negated"] else "--") + f.name.replace("_", "-")
             out.append((f, opt, flag, flag[2:].replace("-", "_")))
     return out
@@ -270,32 +312,45 @@ def _default(f: dataclasses.Field):
     return f.default_factory() if f.default is dataclasses.MISSING else f.default  # type: ignore[operator]
 
 
-def add_options(parser: argparse.ArgumentParser, settings: type) -> None:
-    """An option for each field of `settings` declared with `option(...)`, in field order."""
-    for f, opt, flag, _ in _options(settings):
+def add_options(
+    parser: argparse._ActionsContainer,  # a parser or one of its argument groups
+    settings: type,
+    only: Sequence[str] | None = None,
+) -> None:
+    """An option for each field of `settings` declared with `option(...)` (each named in `only`, where
+    given), in field order."""
+    for f, opt, flag, _ in _options(settings, only):
         default = _default(f)
         if isinstance(default, bool):
             parser.add_argument(flag, action="store_true", help=opt["help"])
             continue
-        shown = opt["shown"] or (list_text(default) if isinstance(default, list) else default)
-        shown = f"{shown:g}" if isinstance(shown, float) else shown
+        if opt["repeated"]:
+            parser.add_argument(flag, action="append", default=list(default), metavar=opt["metavar"], help=opt["help"])
+            continue
+        text = list_text(default) if isinstance(default, list) else default
+        shown = opt["shown"] or (f"{text:g}" if isinstance(text, float) else text)
+        if opt["parse"] is not None and default is not None:
+            default = text if isinstance(default, list) else shown  # the text that `parse` reads
         parser.add_argument(
             flag,
             type=opt["type"],
-            default=None if opt["parse"] else default,
-            help=opt["help"] if default is None else f"{opt['help']} (default {shown})",
+            choices=opt["choices"],
+            nargs=opt["nargs"],
+            default=default,
+            metavar=opt["metavar"],
+            help=opt["help"] if default is None or default == [] else f"{opt['help']} (default {shown})",
         )
 
 
-def from_options(settings: type, args: argparse.Namespace, **given):
-    """`settings(...)` from the options `add_options` added (a list option parsed, its default the
-    field's), with the fields in `given` (options added elsewhere: seeds, device, output)."""
+def from_options(settings: type, args: argparse.Namespace, only: Sequence[str] | None = None, **given):
+    """`settings(...)` from the options `add_options(..., only)` added (a list option's text parsed), with
+    the fields in `given` (options added elsewhere: seeds, device, output)."""
     values = dict(given)
-    for f, opt, flag, dest in _options(settings):
+    for f, opt, flag, dest in _options(settings, only):
         value = getattr(args, dest)
         if opt["negated"]:
             value = not value
-        elif opt["parse"] is not None:
-            value = _default(f) if value is None else opt["parse"](value, flag)
+        elif opt["parse"] is not None and value is not None:
+            value = opt["parse"](value, flag)
         values[f.name] = value
     return settings(**values)

@@ -9,15 +9,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 import torch
 
-from .state import AGENT_FIELDS, STATE_DICT_FIELDS
-
-if TYPE_CHECKING:
-    from .env import BatchedAquarium
+from .state import AGENT_FIELDS, STATE_DICT_FIELDS, SimulationState
 
 # The counters `set_state` may set besides the agent fields.
 SETTABLE_COUNTERS = ("world_step", "episode")
@@ -58,6 +55,41 @@ def is_real(value) -> bool:
     )
 
 
+# ---------------------------------------------------------------------------------------------- the env
+# What the checks read of a `BatchedAquarium` and its config, as protocols: the env and the config import
+# this module, so it imports neither.
+class WorldConfig(Protocol):
+    @property
+    def width(self) -> float: ...
+    @property
+    def height(self) -> float: ...
+    @property
+    def max_steps(self) -> int: ...
+    @property
+    def action_count(self) -> int: ...
+
+
+class Env(Protocol):
+    @property
+    def config(self) -> WorldConfig: ...
+    @property
+    def device(self) -> str: ...
+    @property
+    def torch_device(self) -> torch.device: ...
+    @property
+    def num_worlds(self) -> int: ...
+    @property
+    def prey_capacity(self) -> int: ...
+    @property
+    def predator_capacity(self) -> int: ...
+    @property
+    def state(self) -> SimulationState: ...
+    @property
+    def actions(self) -> Mapping[str, torch.Tensor]: ...
+    @property
+    def alive(self) -> Mapping[str, torch.Tensor]: ...
+
+
 # ---------------------------------------------------------------------------------------------- actions
 def action_tensor(actions) -> torch.Tensor:
     """Actions as a tensor; numpy arrays of the other byte order are converted first (torch reads only
@@ -67,7 +99,7 @@ def action_tensor(actions) -> torch.Tensor:
     return actions if isinstance(actions, torch.Tensor) else torch.as_tensor(actions)
 
 
-def check_actions(env: BatchedAquarium, actions) -> None:
+def check_actions(env: Env, actions) -> None:
     """`actions` fits `env`'s action buffers (keys, integer dtype, shape, device), and every live
     agent's action is in [0, action_count - 1]."""
     types = tuple(env.actions)
@@ -129,7 +161,7 @@ def cpu_tensor(name: str, value) -> torch.Tensor:
         ) from None
 
 
-def integer_ranges(env: BatchedAquarium) -> dict[str, tuple[int, int, str]]:
+def integer_ranges(env: Env) -> dict[str, tuple[int, int, str]]:
     """`{field: (lowest, highest, why)}` of `env`'s integer state fields."""
     steps = env.config.max_steps
     return {
@@ -150,7 +182,7 @@ def integer_ranges(env: BatchedAquarium) -> dict[str, tuple[int, int, str]]:
     }
 
 
-def state_value_ranges(env: BatchedAquarium) -> dict[str, str]:
+def state_value_ranges(env: Env) -> dict[str, str]:
     """The values `env`'s state fields may take, per field, in words (`BatchedAquarium.state_value_ranges`)."""
     config = env.config
     return {name: text for name, (_, _, text) in integer_ranges(env).items()} | {
@@ -163,7 +195,7 @@ def state_value_ranges(env: BatchedAquarium) -> dict[str, str]:
     }
 
 
-def checked_state_value(env: BatchedAquarium, name: str, value: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
+def checked_state_value(env: Env, name: str, value: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
     """`value` (a CPU tensor of the field's shape) as `dtype`, after checking that it holds values the
     field may take in `env`; the range check runs on the given values, before a cast could wrap them."""
     config = env.config
@@ -206,7 +238,7 @@ def checked_state_value(env: BatchedAquarium, name: str, value: torch.Tensor, dt
     return value
 
 
-def checked_state_fields(env: BatchedAquarium, world, fields: Mapping) -> dict[str, torch.Tensor]:
+def checked_state_fields(env: Env, world, fields: Mapping) -> dict[str, torch.Tensor]:
     """`env.set_state`'s `fields` for `world` (None: every world), checked: names, the world index,
     shapes and values; returned as CPU tensors of the fields' dtypes."""
     views, num_worlds = env.state.torch, env.num_worlds
@@ -235,7 +267,7 @@ def checked_state_fields(env: BatchedAquarium, world, fields: Mapping) -> dict[s
 LATER_STATE_FIELDS = ("handling",)
 
 
-def checked_state_tensors(env: BatchedAquarium, tensors) -> dict[str, torch.Tensor]:
+def checked_state_tensors(env: Env, tensors) -> dict[str, torch.Tensor]:
     """The `"tensors"` of a `state_dict()` for `env`, checked: exactly `STATE_DICT_FIELDS`, each a tensor
     of the field's shape, dtype and values, live counts matching the alive flags; returned as CPU
     tensors."""

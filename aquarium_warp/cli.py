@@ -10,7 +10,16 @@ import sys
 import threading
 import time
 
-from .arguments import POLICY_SPECS, Interrupted, non_negative_int, plural, policy_spec, positive_float, positive_int
+from .arguments import (
+    DEVICE_HELP,
+    POLICY_SPECS,
+    Interrupted,
+    non_negative_int,
+    plural,
+    policy_spec,
+    positive_float,
+    positive_int,
+)
 from .atomic import check_output_file
 
 
@@ -221,7 +230,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--prey", type=int, default=16, help="prey per world (default 16)")
     demo.add_argument("--predators", type=int, default=1, help="predators per world (default 1)")
     demo.add_argument("--max-steps", type=int, default=3000, help="episode length")
-    demo.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
+    demo.add_argument("--device", default=None, help=DEVICE_HELP)
     demo.add_argument("--seed", type=non_negative_int, default=0, help="seed of the worlds and the random actions")
     demo.set_defaults(run=_demo)
     video = sub.add_parser("video", help="record one world driven by heuristic or trained policies as an MP4 video")
@@ -257,7 +266,7 @@ def build_parser() -> argparse.ArgumentParser:
     video.add_argument("--frame-height", type=int, default=None, help="frame height in pixels")
     video.add_argument("--fps", type=positive_float, default=30.0, help="frames per second of the video (default 30)")
     video.add_argument("--seed", type=non_negative_int, default=0, help="seed of the world and the policies")
-    video.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
+    video.add_argument("--device", default=None, help=DEVICE_HELP)
     video.add_argument("--view-cones", action="store_true", help="draw each agent's field of view")
     video.add_argument("--hit-boxes", action="store_true", help="draw each agent's hit-box circle")
     video.add_argument("--velocities", action="store_true", help="draw velocity arrows (10 steps long)")

@@ -7,6 +7,7 @@ stays fast and works without the training extras.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib.util
 import os
 import time
@@ -15,9 +16,32 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from ..agent_types import TYPES
-from ..arguments import POLICY_SPECS, Interrupted, int_at_least, number, plural, policy_spec, positive_float
+from ..arguments import (
+    DEVICE_HELP,
+    POLICY_SPECS,
+    Interrupted,
+    add_options,
+    from_options,
+    int_at_least,
+    number,
+    number_list,
+    option,
+    plural,
+    policy_spec,
+    positive_float,
+)
 from ..atomic import check_output_dir
-from .config import ALGORITHM_RANGES, CRITICS, POOL_SAMPLING, PRESETS, SHARING, TRAIN_DEFAULTS, UPDATE_SCHEDULES
+from .config import (
+    ALGORITHM_RANGES,
+    CRITICS,
+    LR_SCHEDULES,
+    POOL_SAMPLING,
+    PRESETS,
+    SHARING,
+    TRAIN_DEFAULTS,
+    UPDATE_SCHEDULES,
+)
+from .grid import BASELINES, FOVS, NAIVCHASE, PREY_COUNTS, SPEEDS, UNLIMITED, VIEWS, Cell, grid_cells
 from .population import is_population
 
 PRESET_NAMES = tuple(PRESETS)
@@ -57,7 +81,7 @@ CONFIG_FLAGS: dict[str, tuple[tuple[str, str, dict, str], ...]] = {
             "Parameter Sharing (one network) or Individual Learning (one per slot)",
         ),
         ("--num-worlds", "train.num_worlds", {"type": int_at_least(1)}, "worlds stepped in parallel"),
-        ("--device", "train.device", {}, "'cpu', 'cuda:0'; default: CUDA when present"),
+        ("--device", "train.device", {}, DEVICE_HELP),
         ("--seed", "train.seed", {"type": int_at_least(0)}, "seed of the worlds and the networks"),
         ("--iterations", "train.iterations", {"type": int_at_least(0)}, "total PPO iterations of the run"),
         (
@@ -178,7 +202,7 @@ CONFIG_FLAGS: dict[str, tuple[tuple[str, str, dict, str], ...]] = {
         (
             "--schedule",
             "runner.algorithm.schedule",
-            {"choices": ("fixed", "adaptive")},
+            {"choices": LR_SCHEDULES},
             "learning rate: fixed, or adapted to keep the KL near --desired-kl",
         ),
         (
@@ -617,149 +641,235 @@ def _read_config_file(path: str) -> dict:
 
 
 # ---------------------------------------------------------------------------------------------- eval
-def add_eval_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--prey",
-        nargs="*",
+# What each kind of `eval` run plays where --prey, --predator, --episodes and --seeds are not given (the
+# help texts are written from it): eval and cross-play the paper's protocol, the grid its baselines.
+PAPER_PROTOCOL = {"episodes": 200, "seeds": (0, 1, 2, 3, 4)}
+EVAL_RUNS: dict[str, dict] = {
+    "eval": {"prey": ("random", "turnaway"), "predator": ("naivchase",), **PAPER_PROTOCOL},
+    "cross-play": {"prey": ("random", "turnaway"), "predator": (*NAIVCHASE, "random"), **PAPER_PROTOCOL},
+    "grid": {"prey": BASELINES, "predator": NAIVCHASE, "episodes": 50, "seeds": (0, 1, 2)},
+}
+
+
+def _words(values) -> str:
+    return " ".join(map(str, values))
+
+
+@dataclasses.dataclass
+class EvalOptions:
+    """The options of `aquarium-warp eval` (each written once, on its field; None: the kind of run's
+    `EVAL_RUNS` entry)."""
+
+    prey: list[str] | None = dataclasses.field(
         default=None,
-        type=policy_spec("prey"),
-        metavar="SPEC",
-        help=f"prey policies: {POLICY_SPECS['prey']} (exported or a checkpoint), each optionally LABEL=SPEC; "
-        "specs sharing a label are pooled (default: random turnaway)",
+        metadata=option(
+            f"prey policies: {POLICY_SPECS['prey']} (exported or a checkpoint), each optionally LABEL=SPEC; "
+            f"specs sharing a label are pooled (default: {_words(EVAL_RUNS['eval']['prey'])})",
+            type=policy_spec("prey"),
+            nargs="*",
+            metavar="SPEC",
+        ),
     )
-    p.add_argument(
-        "--predator",
-        nargs="*",
+    predator: list[str] | None = dataclasses.field(
         default=None,
-        type=policy_spec("predator"),
-        metavar="SPEC",
-        help=f"predator policies: {POLICY_SPECS['predator']} (default: naivchase)",
+        metadata=option(
+            f"predator policies: {POLICY_SPECS['predator']} (default: {_words(EVAL_RUNS['eval']['predator'])})",
+            type=policy_spec("predator"),
+            nargs="*",
+            metavar="SPEC",
+        ),
     )
-    p.add_argument(
-        "--episodes", type=int, default=None, help="episodes per seed (default 200, the paper's; --grid: 50 per cell)"
-    )
-    p.add_argument(
-        "--seeds",
-        type=int,
-        nargs="+",
+    episodes: int | None = dataclasses.field(
         default=None,
-        help="evaluation seeds, a list such as 0 1 2 (default 0 1 2 3 4, the paper's 5; --grid: 0 1 2)",
+        metadata=option(
+            f"episodes per seed (default {EVAL_RUNS['eval']['episodes']}, the paper's; --grid: "
+            f"{EVAL_RUNS['grid']['episodes']} per cell)",
+            type=int,
+        ),
     )
-    p.add_argument(
-        "--preset",
-        choices=PRESET_NAMES,
+    seeds: list[int] | None = dataclasses.field(
         default=None,
-        help="take the world from a preset (default: a trained policy's own world, else docs/model.md's)",
+        metadata=option(
+            f"evaluation seeds, a list such as 0 1 2 (default {_words(EVAL_RUNS['eval']['seeds'])}, the paper's "
+            f"{len(EVAL_RUNS['eval']['seeds'])}; --grid: {_words(EVAL_RUNS['grid']['seeds'])})",
+            type=int,
+            nargs="+",
+        ),
     )
-    p.add_argument("--set", action="append", default=[], metavar="env.KEY=VALUE", help="override a world setting")
-    p.add_argument("--prey-count", type=int, default=None, help="prey per world (default: the world's)")
-    p.add_argument("--predator-count", type=int, default=None, help="predators per world (default: the world's)")
-    p.add_argument("--max-steps", type=int, default=None, help="episode length (paper: 3000)")
-    p.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
-    p.add_argument("--max-worlds", type=int, default=1024, help="episodes run in parallel at most")
-    p.add_argument("--stochastic", action="store_true", help="trained policies sample actions (default: argmax)")
-    p.add_argument(
-        "--blind",
-        action="append",
-        default=[],
-        metavar="TEAM=TYPE",
-        help="neighbour ablation: TEAM's trained policies act with their TYPE slots empty (e.g. "
-        "prey=prey: learned prey that see no other prey); heuristics are unaffected",
+    preset: str | None = dataclasses.field(
+        default=None,
+        metadata=option(
+            "take the world from a preset (default: a trained policy's own world, else docs/model.md's)",
+            choices=PRESET_NAMES,
+        ),
     )
-    p.add_argument("--out", default="eval_results", help="output directory (CSV, JSON, figures)")
-    p.add_argument(
-        "--curves",
-        nargs="*",
-        default=[],
-        metavar="LABEL=RUNDIR_GLOB",
-        help="also plot training curves of these runs (mean and std band over runs per label); a run "
-        "of both teams: its run/progress_prey.csv or run/progress_predator.csv",
+    sets: list[str] = dataclasses.field(
+        default_factory=list,
+        metadata=option("override a world setting", flag="--set", repeated=True, metavar="env.KEY=VALUE"),
     )
-    p.add_argument(
-        "--smooth",
-        type=int_at_least(1),
+    prey_count: int | None = dataclasses.field(
+        default=None, metadata=option("prey per world (default: the world's)", type=int)
+    )
+    predator_count: int | None = dataclasses.field(
+        default=None, metadata=option("predators per world (default: the world's)", type=int)
+    )
+    max_steps: int | None = dataclasses.field(default=None, metadata=option("episode length (paper: 3000)", type=int))
+    device: str | None = dataclasses.field(default=None, metadata=option(DEVICE_HELP))
+    max_worlds: int = dataclasses.field(default=1024, metadata=option("episodes run in parallel at most", type=int))
+    stochastic: bool = dataclasses.field(
+        default=False, metadata=option("trained policies sample actions (default: argmax)")
+    )
+    blind: list[str] = dataclasses.field(
+        default_factory=list,
+        metadata=option(
+            "neighbour ablation: TEAM's trained policies act with their TYPE slots empty (e.g. prey=prey: "
+            "learned prey that see no other prey); heuristics are unaffected",
+            repeated=True,
+            metavar="TEAM=TYPE",
+        ),
+    )
+    out: str = dataclasses.field(default="eval_results", metadata=option("output directory (CSV, JSON, figures)"))
+    curves: list[str] = dataclasses.field(
+        default_factory=list,
+        metadata=option(
+            "also plot training curves of these runs (mean and std band over runs per label); a run of both "
+            "teams: its run/progress_prey.csv or run/progress_predator.csv",
+            nargs="*",
+            metavar="LABEL=RUNDIR_GLOB",
+        ),
+    )
+    smooth: int = dataclasses.field(
         default=1,
-        metavar="N",
-        help="training curves: moving average over N iterations (default 1: none)",
+        metadata=option(
+            "training curves: moving average over N iterations", type=int_at_least(1), metavar="N", shown="1: none"
+        ),
     )
-    p.add_argument("--no-figures", action="store_true", help="no matplotlib figures")
-    g = p.add_argument_group("grid (--grid)")
-    g.add_argument(
-        "--grid",
-        action="store_true",
-        help="every prey x predator pairing over a grid of worlds, each pairing one batch of per-world "
-        "values (default prey: turnaway boids constant random; predators: naivchase naivchase-noconfusion): "
-        "grid.json, grid.csv and the general policies' targets (docs/general-policies.md)",
+    figures: bool = dataclasses.field(default=True, metadata=option("no matplotlib figures", negated=True))
+    grid: bool = dataclasses.field(
+        default=False,
+        metadata=option(
+            "every prey x predator pairing over a grid of worlds, each pairing one batch of per-world values "
+            f"(default prey: {_words(EVAL_RUNS['grid']['prey'])}; predators: {_words(EVAL_RUNS['grid']['predator'])}): "
+            "grid.json, grid.csv and the general policies' targets (docs/general-policies.md)"
+        ),
     )
-    g.add_argument("--grid-prey-counts", default="6,16,32,64", metavar="N,N,...", help="grid: prey counts")
-    g.add_argument(
-        "--grid-views",
-        default="100,200,10000",
-        metavar="PX,PX,...",
-        help="grid: prey view distances in px (10000: unlimited on the default torus)",
+    cross_play: bool = dataclasses.field(
+        default=False,
+        metadata=option(
+            "every prey policy against every predator policy (globs such as 'run/model_*.pt' expand to every "
+            f"checkpoint; default predators: {_words(EVAL_RUNS['cross-play']['predator'])}): "
+            "cross_play.csv/json, an Elo rating and heatmaps"
+        ),
     )
-    g.add_argument("--grid-fovs", default="120,240,360", metavar="DEG,...", help="grid: prey fields of view")
-    g.add_argument("--grid-speeds", default="4.5,5,6", metavar="V,V,...", help="grid: predator top speeds")
-    p.add_argument(
-        "--cross-play",
-        action="store_true",
-        help="every prey policy against every predator policy (globs such as 'run/model_*.pt' "
-        "expand to every checkpoint; default predators: naivchase naivchase-noconfusion "
-        "random): cross_play.csv/json, an Elo rating and heatmaps",
+
+    @property
+    def kind(self) -> str:
+        """The kind of run: "grid", "cross-play" or "eval" (`EVAL_RUNS`)."""
+        return "grid" if self.grid else "cross-play" if self.cross_play else "eval"
+
+    @property
+    def episodes_per_seed(self) -> int:
+        return EVAL_RUNS[self.kind]["episodes"] if self.episodes is None else self.episodes
+
+    @property
+    def evaluation_seeds(self) -> list[int]:
+        return list(EVAL_RUNS[self.kind]["seeds"]) if self.seeds is None else self.seeds
+
+
+@dataclasses.dataclass
+class GridCells:
+    """The options of `aquarium-warp eval --grid`'s cells (`grid.grid_cells`)."""
+
+    grid_prey_counts: list[int] = dataclasses.field(
+        default_factory=lambda: list(PREY_COUNTS),
+        metadata=option(
+            "grid: prey counts", parse=lambda text, flag: number_list(text, int, flag, 1), metavar="N,N,..."
+        ),
     )
+    grid_views: list[float] = dataclasses.field(
+        default_factory=lambda: list(VIEWS),
+        metadata=option(
+            f"grid: prey view distances in px ({UNLIMITED:g}: unlimited on the default torus)",
+            parse=lambda text, flag: number_list(text, float, flag, 0.0, low_open=True),
+            metavar="PX,PX,...",
+        ),
+    )
+    grid_fovs: list[float] = dataclasses.field(
+        default_factory=lambda: list(FOVS),
+        metadata=option(
+            "grid: prey fields of view",
+            parse=lambda text, flag: number_list(text, float, flag, 0.0, 360.0, low_open=True),
+            metavar="DEG,...",
+        ),
+    )
+    grid_speeds: list[float] = dataclasses.field(
+        default_factory=lambda: list(SPEEDS),
+        metadata=option(
+            "grid: predator top speeds",
+            parse=lambda text, flag: number_list(text, float, flag, 0.0, low_open=True),
+            metavar="V,V,...",
+        ),
+    )
+
+    def cells(self) -> list[Cell]:
+        return grid_cells(self.grid_prey_counts, self.grid_views, self.grid_fovs, self.grid_speeds)
+
+
+def add_eval_arguments(p: argparse.ArgumentParser) -> None:
+    add_options(p, EvalOptions)
+    add_options(p.add_argument_group("grid (--grid)"), GridCells)
 
 
 def run_eval(args) -> int:
     from .evaluate import evaluate_policies, write_results
     from .plots import plot_distributions, plot_training_curves
 
-    if args.grid and (args.cross_play or args.curves):
+    options = from_options(EvalOptions, args)
+    if options.grid and (options.cross_play or options.curves):
         raise ValueError("--grid runs on its own: without --cross-play and --curves")
-    if args.episodes is None:
-        args.episodes = 50 if args.grid else 200
-    if args.seeds is None:
-        args.seeds = [0, 1, 2] if args.grid else [0, 1, 2, 3, 4]
-    if args.grid:
-        return run_grid(args)
+    if options.grid:
+        return run_grid(options, from_options(GridCells, args))
 
-    if args.cross_play and args.curves:
+    if options.cross_play and options.curves:
         raise ValueError("--curves is not drawn with --cross-play: run eval --curves on its own")
-    curves = _curves(args.curves)
-    _blind(args.blind)  # a malformed one is refused before anything is written
-    if curves and args.no_figures:
+    curves = _curves(options.curves)
+    _blind(options.blind)  # a malformed one is refused before anything is written
+    if curves and not options.figures:
         raise ValueError(
             "--curves draws a figure (training_curves.png), which --no-figures leaves out: give one of them"
         )
-    os.makedirs(check_output_dir(args.out, "--out"), exist_ok=True)  # before any episode runs
-    if args.cross_play:
-        return run_cross_play(args)
+    os.makedirs(check_output_dir(options.out, "--out"), exist_ok=True)  # before any episode runs
+    if options.cross_play:
+        return run_cross_play(options)
     outputs = []
     evaluate = (
-        args.prey != [] and args.predator != [] and not (args.curves and args.prey is None and args.predator is None)
+        options.prey != []
+        and options.predator != []
+        and not (options.curves and options.prey is None and options.predator is None)
     )
     if evaluate:
-        prey = args.prey if args.prey is not None else ["random", "turnaway"]
-        predator = args.predator if args.predator is not None else ["naivchase"]
-        env = _eval_world(args, prey + predator)
+        prey = options.prey if options.prey is not None else list(EVAL_RUNS["eval"]["prey"])
+        predator = options.predator if options.predator is not None else list(EVAL_RUNS["eval"]["predator"])
+        env = _eval_world(options, prey + predator)
         print(
             f"aquarium-warp eval: {len(prey)} prey x {len(predator)} predator policies, "
-            f"{plural(args.episodes, 'episode')} x {plural(len(args.seeds), 'seed')}, {env.prey_count} prey, "
-            f"{plural(env.predator_count, 'predator')}, {plural(env.max_steps, 'step')}"
+            f"{plural(options.episodes_per_seed, 'episode')} x {plural(len(options.evaluation_seeds), 'seed')}, "
+            f"{env.prey_count} prey, {plural(env.predator_count, 'predator')}, {plural(env.max_steps, 'step')}"
         )
         start = time.perf_counter()
         result = evaluate_policies(
             prey,
             predator,
             env,
-            episodes=args.episodes,
-            seeds=args.seeds,
-            device=args.device,
-            max_worlds=args.max_worlds,
-            deterministic=not args.stochastic,
+            episodes=options.episodes_per_seed,
+            seeds=options.evaluation_seeds,
+            device=options.device,
+            max_worlds=options.max_worlds,
+            deterministic=not options.stochastic,
             progress=lambda m: print("  " + m),
-            blind_to=_blind(args.blind),
+            blind_to=_blind(options.blind),
         )
-        paths = write_results(result, args.out)
+        paths = write_results(result, options.out)
         outputs += list(paths.values())
         print(f"{'prey':>16} {'predator':>12} {'captures/prey':>20} {'reward/prey':>22}")
         for row in result["summary"]:
@@ -769,13 +879,13 @@ def run_eval(args) -> int:
                 f"{row['reward_per_prey_mean']:12.1f} +- {row['reward_per_prey_std']:6.1f}"
             )
         print(f"  ({time.perf_counter() - start:.1f} s; mean +- std over seeds of the per-seed means)")
-        if not args.no_figures:
-            outputs.append(plot_distributions(result, os.path.join(args.out, "distributions.png")))
+        if options.figures:
+            outputs.append(plot_distributions(result, os.path.join(options.out, "distributions.png")))
     if curves:
         with warnings.catch_warnings(record=True) as notes:  # e.g. why a curve is empty
             warnings.simplefilter("always")
             outputs.append(
-                plot_training_curves(curves, os.path.join(args.out, "training_curves.png"), smooth=args.smooth)
+                plot_training_curves(curves, os.path.join(options.out, "training_curves.png"), smooth=options.smooth)
             )
         for note in notes:
             print(f"  note: {note.message}")
@@ -806,75 +916,73 @@ def _blind(items: list[str]) -> dict[str, str]:
     for item in items:
         team, _, kind = item.partition("=")
         if team not in TYPES or kind not in TYPES:
-            raise ValueError(f"--blind {item!r}: expected TEAM=TYPE with TEAM and TYPE each 'prey' or 'predator'")
+            raise ValueError(
+                f"--blind {item!r}: expected TEAM=TYPE with TEAM and TYPE each {' or '.join(map(repr, TYPES))}"
+            )
         if team in out:
             raise ValueError(f"--blind names {team!r} twice")
         out[team] = kind
     return out
 
 
-def _eval_world(args, specs):
+def _eval_world(options: EvalOptions, specs):
     """`eval`'s world: `--preset`, else the policies' (`drivers.common_world`), with `--set` and the count
     options applied."""
     from ..config import AquariumConfig
     from ..drivers import common_world
     from .config import deep_update, env_config, make_config, parse_assignment
 
-    base = env_config(make_config(args.preset)) if args.preset else common_world(specs, AquariumConfig())
+    base = env_config(make_config(options.preset)) if options.preset else common_world(specs, AquariumConfig())
     changes: dict[str, Any] = {}
-    for s in args.set:
+    for s in options.sets:
         change = parse_assignment(s)
         if set(change) != {"env"}:
             raise ValueError(f"--set {s!r}: eval takes env.* settings only")
         deep_update(changes, change["env"])
     for key, value in (
-        ("prey_count", args.prey_count),
-        ("predator_count", args.predator_count),
-        ("max_steps", args.max_steps),
+        ("prey_count", options.prey_count),
+        ("predator_count", options.predator_count),
+        ("max_steps", options.max_steps),
     ):
         if value is not None:
             changes[key] = value
     return env_config({"env": deep_update(base.to_dict(), changes)})
 
 
-def _grid_cells(args):
-    from ..arguments import number_list
-    from .grid import grid_cells
-
-    return grid_cells(
-        number_list(args.grid_prey_counts, int, "--grid-prey-counts", 1),
-        number_list(args.grid_views, float, "--grid-views", 0.0, low_open=True),
-        number_list(args.grid_fovs, float, "--grid-fovs", 0.0, 360.0, low_open=True),
-        number_list(args.grid_speeds, float, "--grid-speeds", 0.0, low_open=True),
-    )
-
-
-def run_grid(args) -> int:
+def run_grid(options: EvalOptions, grid: GridCells) -> int:
     """`aquarium-warp eval --grid`: every pairing over the grid's cells, its tables, files and targets."""
-    from ..drivers import NO_CONFUSION
     from ..pretrained import GENERAL, names, world
-    from .grid import BASELINES, cell_of, check_targets, evaluate_grid, format_tables, grid_base, write_grid
+    from .grid import cell_of, check_targets, evaluate_grid, format_tables, grid_base, write_grid
 
-    if args.episodes < 1:
-        raise ValueError(f"--episodes={args.episodes} must be an integer >= 1")
-    if args.stochastic or args.blind:
+    if options.episodes_per_seed < 1:
+        raise ValueError(f"--episodes={options.episodes_per_seed} must be an integer >= 1")
+    if options.stochastic or options.blind:
         raise ValueError("--grid evaluates argmax actions of whole observations: without --stochastic and --blind")
-    if args.prey_count is not None or args.predator_count is not None:
+    if options.prey_count is not None or options.predator_count is not None:
         raise ValueError("--grid takes its prey counts from --grid-prey-counts and the predator count from the world")
-    cells = _grid_cells(args)
-    prey = args.prey or list(BASELINES)
-    predator = args.predator or ["naivchase", NO_CONFUSION]
-    base = grid_base(prey + predator, _eval_world(args, []) if args.preset or args.set or args.max_steps else None)
-    worlds = len(cells) * len(args.seeds) * args.episodes
+    cells = grid.cells()
+    prey = options.prey or list(EVAL_RUNS["grid"]["prey"])
+    predator = options.predator or list(EVAL_RUNS["grid"]["predator"])
+    base = grid_base(
+        prey + predator, _eval_world(options, []) if options.preset or options.sets or options.max_steps else None
+    )
+    worlds = len(cells) * len(options.evaluation_seeds) * options.episodes_per_seed
     print(
         f"aquarium-warp eval --grid: {len(prey)} prey x {len(predator)} predator policies, {len(cells)} cells x "
-        f"{plural(len(args.seeds), 'seed')} x {plural(args.episodes, 'episode')} ({worlds} worlds per pairing), "
-        f"{plural(base.max_steps, 'step')}"
+        f"{plural(len(options.evaluation_seeds), 'seed')} x {plural(options.episodes_per_seed, 'episode')} "
+        f"({worlds} worlds per pairing), {plural(base.max_steps, 'step')}"
     )
-    os.makedirs(check_output_dir(args.out, "--out"), exist_ok=True)
+    os.makedirs(check_output_dir(options.out, "--out"), exist_ok=True)
     start = time.perf_counter()
     result = evaluate_grid(
-        prey, predator, base, cells, args.episodes, args.seeds, args.device, progress=lambda m: print("  " + m)
+        prey,
+        predator,
+        base,
+        cells,
+        options.episodes_per_seed,
+        options.evaluation_seeds,
+        options.device,
+        progress=lambda m: print("  " + m),
     )
     specialists = {n: cell_of(world(n)) for n in names("prey") if n != GENERAL["prey"]}
     targets = check_targets(result, specialists=specialists)
@@ -885,38 +993,37 @@ def run_grid(args) -> int:
         for failing in t["failing"]:
             print(f"    fails in {failing}")
     print(f"  ({time.perf_counter() - start:.1f} s; mean ± 95% interval per cell)")
-    for path in write_grid(result, args.out, targets).values():
+    for path in write_grid(result, options.out, targets).values():
         print(f"  wrote {path}")
     return 0
 
 
-def run_cross_play(args) -> int:
+def run_cross_play(options: EvalOptions) -> int:
     """`aquarium-warp eval --cross-play`: the matrix, its files, rating and heatmaps."""
-    from ..drivers import NO_CONFUSION
     from .cross_play import cross_play, expand_specs, write_cross_play
     from .plots import plot_cross_play
 
-    prey = expand_specs(args.prey or ["random", "turnaway"])
-    predator = expand_specs(args.predator or ["naivchase", NO_CONFUSION, "random"])
-    env = _eval_world(args, prey + predator)
+    prey = expand_specs(options.prey or list(EVAL_RUNS["cross-play"]["prey"]))
+    predator = expand_specs(options.predator or list(EVAL_RUNS["cross-play"]["predator"]))
+    env = _eval_world(options, prey + predator)
     print(
         f"aquarium-warp eval --cross-play: {len(prey)} prey x {len(predator)} predator policies, "
-        f"{plural(args.episodes, 'episode')} x {plural(len(args.seeds), 'seed')}, {env.prey_count} prey, "
-        f"{plural(env.predator_count, 'predator')}, {plural(env.max_steps, 'step')}"
+        f"{plural(options.episodes_per_seed, 'episode')} x {plural(len(options.evaluation_seeds), 'seed')}, "
+        f"{env.prey_count} prey, {plural(env.predator_count, 'predator')}, {plural(env.max_steps, 'step')}"
     )
     start = time.perf_counter()
     result = cross_play(
         prey,
         predator,
         env,
-        episodes=args.episodes,
-        seeds=args.seeds,
-        device=args.device,
-        max_worlds=args.max_worlds,
-        deterministic=not args.stochastic,
-        blind_to=_blind(args.blind),
+        episodes=options.episodes_per_seed,
+        seeds=options.evaluation_seeds,
+        device=options.device,
+        max_worlds=options.max_worlds,
+        deterministic=not options.stochastic,
+        blind_to=_blind(options.blind),
     )
-    outputs = list(write_cross_play(result, args.out).values())
+    outputs = list(write_cross_play(result, options.out).values())
     cp = result["cross_play"]
     print("captures per prey per episode (mean over seeds; rows: prey, columns: predators)")
     first = max(len(a) for a in cp["prey"] + ["rating"])
@@ -930,9 +1037,9 @@ def run_cross_play(args) -> int:
         + "".join(f"{result['rating']['predator'][b]:{w}.0f}" for b, w in zip(cp["predator"], widths))
     )
     print(f"  ({time.perf_counter() - start:.1f} s; Elo ratings from the prey survival matrix)")
-    if not args.no_figures:
+    if options.figures:
         for metric in ("captures_per_prey", "prey_survival"):
-            outputs.append(plot_cross_play(result, os.path.join(args.out, f"cross_play_{metric}.png"), metric))
+            outputs.append(plot_cross_play(result, os.path.join(options.out, f"cross_play_{metric}.png"), metric))
     for path in outputs:
         print(f"  wrote {path}")
     return 0

@@ -90,6 +90,8 @@ LOOPS = ("fast", "rsl-rl")
 CRITICS = ("local", "team", "world")
 UPDATE_SCHEDULES = ("simultaneous", "alternating")
 POOL_SAMPLING = ("uniform", "latest")
+# The PPO learning-rate schedules (runner.algorithm.schedule): fixed, or adapted to a KL target (rsl-rl's).
+LR_SCHEDULES = ("fixed", "adaptive")
 # `train` settings a `teams.<team>` block may override for that team's learner, and its runner entries.
 TEAM_KEYS = ("sharing", "actor_lr", "critic_lr", "reward_scale", "critic", "pool_fraction", "runner")
 TEAM_RUNNER_KEYS = ("algorithm", "actor", "critic")

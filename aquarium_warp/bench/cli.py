@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from ..arguments import DEVICE_HELP
 from ..atomic import describe_os_error
 from .peers import Peers
 from .settings import BenchSettings
@@ -15,7 +16,7 @@ DESCRIPTION = "`aquarium-warp bench`: the scaling benchmark suite (library and c
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The suite's options (`settings_from_args` turns them into `BenchSettings`)."""
-    parser.add_argument("--device", default=None, help="'cpu' or 'cuda:0' (default: CUDA when present)")
+    parser.add_argument("--device", default=None, help=DEVICE_HELP)
     parser.add_argument(
         "--agents",
         default="16,64,...,1000000",

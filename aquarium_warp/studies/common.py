@@ -31,7 +31,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import torch
 
-from ..arguments import int_at_least, non_negative_float, option, positive_float, positive_int
+from ..arguments import DEVICE_HELP, int_at_least, non_negative_float, option, positive_float, positive_int
 from ..atomic import atomic_open, write_figure
 from ..config import AquariumConfig
 from ..env import BatchedAquarium
@@ -48,6 +48,14 @@ FLEE_ANGLE = option(
     "degrees: fleeing = velocity within this of straight away from the predator", type=non_negative_float
 )
 FLEE_DISTANCE = option("px: fleeing needs the nearest predator this close", type=positive_float)
+# ... and in the studies whose tasks run on GPUs with their results kept (swarm, phase), checked by the
+# study's own rules (its error names the option).
+TASK_GPUS = option("GPUs to spread tasks over (default: all; 0: CPU)", type=int)
+TRAIN_WORLDS = option("worlds per training run (default: TRAIN_AGENT_STEPS / (prey x 32 x iterations))", type=int)
+EVAL_EPISODES = option("evaluation episodes per evaluation seed", type=int)
+EVAL_SEEDS = option("evaluation seeds, a count N: seeds 0 to N-1 (eval --seeds takes a list of seeds)", type=int)
+MAX_STEPS = option("episode length (docs/model.md's)", type=int)
+COMMIT = option("the commit to record, of a copy without git history (a checkout's own is read from git)")
 
 FIGURE_BAND = "bands: the 95% Student-t interval of the mean over seeds"
 
@@ -544,7 +552,7 @@ def save_figure(fig, out: str, name: str, title: str) -> str:
 def add_common_arguments(p: argparse.ArgumentParser, out: str, jobs: bool = True) -> None:
     """The options of every open-question study: seeds, device, workers (`jobs`), output."""
     p.add_argument("--seeds", type=positive_int, default=5, help="independent runs per setting (default 5)")
-    p.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
+    p.add_argument("--device", default=None, help=DEVICE_HELP)
     if jobs:
         p.add_argument(
             "--jobs",

@@ -6,11 +6,12 @@ from __future__ import annotations
 
 import argparse
 import os
+from dataclasses import dataclass, field
 
-from ..arguments import number_list, plural, positive_int
+from ..arguments import add_options, from_options, number_list, option, plural, positive_int
 from ..atomic import check_output_dir
 from ..records import command_line
-from .swarm_size import SwarmSizeStudy, add_run_arguments, run_settings, run_swarm_size_study
+from .swarm_size import RUN_OPTIONS, SwarmSizeStudy, add_output_arguments, run_swarm_size_study
 
 HELP = "captures per prey over prey field of view x view distance"
 DESCRIPTION = (
@@ -19,29 +20,57 @@ DESCRIPTION = (
 )
 
 
+@dataclass
+class FovView:
+    """The options in which `study fov-view` differs from `study swarm-size` (the others: `RUN_OPTIONS`)."""
+
+    fov_angles: list[float] = field(
+        default_factory=lambda: [60.0, 120.0, 240.0, 360.0],
+        metadata=option(
+            "prey field-of-view angles, degrees (list)",
+            parse=lambda text, flag: number_list(text, float, flag, 0.0, 360.0, low_open=True),
+            flag="--fov",
+        ),
+    )
+    view_distances: list[float] = field(
+        default_factory=lambda: [50.0, 100.0, 200.0, 400.0],
+        metadata=option(
+            "prey view distances, px (list)",
+            parse=lambda text, flag: number_list(text, float, flag, 0.0, low_open=True),
+            flag="--view",
+        ),
+    )
+    prey: int = field(default=32, metadata=option("prey per world", type=positive_int))
+    per_setting: bool = field(default=False, metadata=option("one batch per setting instead (for timing)"))
+
+    def study(self, args: argparse.Namespace) -> SwarmSizeStudy:
+        """The swarm-size study of this sweep, with the shared options of `args`."""
+        return from_options(
+            SwarmSizeStudy,
+            args,
+            RUN_OPTIONS,
+            prey=[self.prey],
+            fov_angles=self.fov_angles,
+            view_distances=self.view_distances,
+            one_batch=not self.per_setting,
+            kind="fov-view",
+            out=args.out,
+        )
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--fov", default="60,120,240,360", help="prey field-of-view angles, degrees (list)")
-    p.add_argument("--view", default="50,100,200,400", help="prey view distances, px (list)")
-    p.add_argument("--prey", type=positive_int, default=32, help="prey per world (default 32)")
-    p.add_argument("--per-setting", action="store_true", help="one batch per setting instead (for timing)")
-    add_run_arguments(p, "fov_view")
+    add_options(p, FovView)
+    add_options(p, SwarmSizeStudy, RUN_OPTIONS)
+    add_output_arguments(p, "fov_view")
 
 
 def run(args: argparse.Namespace) -> int:
     """`aquarium-warp study fov-view`: captures per prey over prey FOV angle x view distance."""
-    fovs = number_list(args.fov, float, "--fov", 0.0, 360.0, low_open=True)
-    views = number_list(args.view, float, "--view", 0.0, low_open=True)
-    study = SwarmSizeStudy(
-        prey=[args.prey],
-        fov_angles=fovs,
-        view_distances=views,
-        one_batch=not args.per_setting,
-        kind="fov-view",
-        **run_settings(args),
-    )
+    study = from_options(FovView, args).study(args)
     print(
-        f"aquarium-warp study fov-view: {study.prey[0]} prey, FOV {fovs} x view {views}, "
-        f"{plural(study.seeds, 'seed')}, episodes of {plural(study.episode_steps, 'step')} -> {study.out}"
+        f"aquarium-warp study fov-view: {study.prey[0]} prey, FOV {study.fov_angles} x view "
+        f"{study.view_distances}, {plural(study.seeds, 'seed')}, episodes of "
+        f"{plural(study.episode_steps, 'step')} -> {study.out}"
     )
     check_output_dir(study.out, "--out")
     summary = run_swarm_size_study(study, progress=not args.no_progress, command=command_line(args.argv))

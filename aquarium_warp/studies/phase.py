@@ -40,11 +40,12 @@ import os
 import time
 from collections.abc import Sequence
 
-from ..arguments import check_int
+from ..arguments import add_options, check_int, choice_list, from_options, option
 from ..drivers import trained_world
 from ..jobs import read_finished, run_jobs, task_devices
 from ..records import command_line, json_safe, provenance
 from ..statistics import difference, equivalence, interval, mean_interval
+from . import common
 from .common import policy_path, run_training_task
 
 HELP = "the phase diagram of learned prey: collective state over capture rule, density, view and predator"
@@ -168,60 +169,67 @@ FAST = ("train.fused_mlp=true", "train.tf32=true")
 # ---- command line -------------------------------------------------------------------------------------
 
 
+@dataclasses.dataclass
+class PhaseStudy:
+    """Settings of a run of the phase study (the CLI's options; the design is the constants above)."""
+
+    cells: list[str] = dataclasses.field(
+        default_factory=lambda: list(FIRST_TIER),
+        metadata=option("cells to run", parse=choice_list(tuple(CELLS)), shown="the first tier"),
+    )
+    seeds: int = dataclasses.field(
+        default=10, metadata=option("training seeds of the learned prey per cell: 0 to N-1", type=int)
+    )
+    control_seeds: int = dataclasses.field(
+        default=5, metadata=option("training seeds of each trained control per cell: 0 to N-1", type=int)
+    )
+    iterations: int = dataclasses.field(default=ITERATIONS, metadata=option("PPO iterations per run", type=int))
+    train_worlds: int | None = dataclasses.field(default=None, metadata=common.TRAIN_WORLDS)
+    episodes: int = dataclasses.field(default=64, metadata=common.EVAL_EPISODES)
+    eval_seeds: int = dataclasses.field(default=2, metadata=common.EVAL_SEEDS)
+    max_steps: int = dataclasses.field(default=3000, metadata=common.MAX_STEPS)
+    gpus: int | None = dataclasses.field(default=None, metadata=common.TASK_GPUS)
+    per_gpu: int = dataclasses.field(default=4, metadata=option("evaluations at a time per GPU", type=int))
+    train_set: list[str] = dataclasses.field(
+        default_factory=list,
+        metadata=option(
+            "extra `train --set` assignments (tiny smoke runs; recorded in the summary)",
+            repeated=True,
+            metavar="KEY=VALUE",
+        ),
+    )
+    commit: str | None = dataclasses.field(default=None, metadata=common.COMMIT)
+    figures: bool = dataclasses.field(default=True, metadata=option("no matplotlib figures", negated=True))
+    out: str = dataclasses.field(default="phase_study", metadata=option("output directory"))
+
+    def validate(self) -> None:
+        """A one-line `ValueError` naming the option unless every setting is in range."""
+        for name, value, low in (
+            ("--seeds", self.seeds, 2),
+            ("--control-seeds", self.control_seeds, 2),
+            ("--iterations", self.iterations, 1),
+            ("--episodes", self.episodes, 1),
+            ("--eval-seeds", self.eval_seeds, 1),
+            ("--max-steps", self.max_steps, 1),
+            ("--per-gpu", self.per_gpu, 1),
+        ):
+            check_int(name, value, low)
+        if self.train_worlds is not None:
+            check_int("--train-worlds", self.train_worlds, 1)
+        if self.gpus is not None:
+            check_int("--gpus", self.gpus, 0)
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--cells", default=",".join(FIRST_TIER), help="cells to run (default: the first tier)")
-    parser.add_argument("--seeds", type=int, default=10, help="training seeds of the learned prey per cell: 0 to N-1")
-    parser.add_argument(
-        "--control-seeds", type=int, default=5, help="training seeds of each trained control per cell: 0 to N-1"
-    )
-    parser.add_argument("--iterations", type=int, default=ITERATIONS, help="PPO iterations per run")
-    parser.add_argument(
-        "--train-worlds",
-        type=int,
-        default=None,
-        help="worlds per training run (default: TRAIN_AGENT_STEPS / (prey x 32 x iterations))",
-    )
-    parser.add_argument("--episodes", type=int, default=64, help="evaluation episodes per evaluation seed")
-    parser.add_argument("--eval-seeds", type=int, default=2, help="evaluation seeds, a count N: 0 to N-1")
-    parser.add_argument("--max-steps", type=int, default=3000, help="episode length (docs/model.md: 3000)")
-    parser.add_argument("--gpus", type=int, default=None, help="GPUs to spread tasks over (default: all; 0: CPU)")
-    parser.add_argument("--per-gpu", type=int, default=4, help="evaluations at a time per GPU")
-    parser.add_argument(
-        "--train-set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="extra `train --set` assignments (tiny smoke runs; recorded in the summary)",
-    )
-    parser.add_argument("--commit", default=None, help="the commit to record (a copy without git history)")
-    parser.add_argument("--no-figures", action="store_true", help="no matplotlib figures")
-    parser.add_argument("--out", default="phase_study", help="output directory")
+    add_options(parser, PhaseStudy)
 
 
-def check(args) -> None:
-    """A one-line `ValueError` naming the option unless every option is in range; sets `cell_list`."""
-    from ..arguments import check_distinct
-
-    cells = [c for c in args.cells.split(",") if c]
-    unknown = [c for c in cells if c not in CELLS]
-    if unknown or not cells:
-        raise ValueError(f"--cells={args.cells!r}: choose from {', '.join(CELLS)}")
-    check_distinct("--cells", cells)
-    for name, value, low in (
-        ("--seeds", args.seeds, 2),
-        ("--control-seeds", args.control_seeds, 2),
-        ("--iterations", args.iterations, 1),
-        ("--episodes", args.episodes, 1),
-        ("--eval-seeds", args.eval_seeds, 1),
-        ("--max-steps", args.max_steps, 1),
-        ("--per-gpu", args.per_gpu, 1),
-    ):
-        check_int(name, value, low)
-    if args.train_worlds is not None:
-        check_int("--train-worlds", args.train_worlds, 1)
-    if args.gpus is not None:
-        check_int("--gpus", args.gpus, 0)
-    args.cell_list = cells
+def check(args: argparse.Namespace) -> PhaseStudy:
+    """The study of the parsed options; a one-line `ValueError` naming the option unless every option is
+    in range."""
+    study = from_options(PhaseStudy, args)
+    study.validate()
+    return study
 
 
 # ---- training -----------------------------------------------------------------------------------------
@@ -231,7 +239,7 @@ def controls_of(cell: Cell) -> tuple[str, ...]:
     return tuple(c for c in CONTROLS if not (cell.coevolving and c == "no-predation"))
 
 
-def run_config(args, name: str, control: str, seed: int) -> dict:
+def run_config(study: PhaseStudy, name: str, control: str, seed: int) -> dict:
     """The Trainer config of `name`'s `control` run with `seed`: `train --preset paper --team prey
     --seed S --prey N --num-worlds W --iterations I --opponent naivchase-noconfusion` with the learned-prey
     recipe, `FAST`, the cell's and the control's `--set` assignments and `--train-set`'s (co-evolving
@@ -239,7 +247,7 @@ def run_config(args, name: str, control: str, seed: int) -> dict:
     from ..training.config import LEARNED_PREY_RECIPE, deep_update, make_config, parse_assignment
 
     cell = CELLS[name]
-    worlds = args.train_worlds or max(1, TRAIN_AGENT_STEPS // (cell.prey * 32 * args.iterations))
+    worlds = study.train_worlds or max(1, TRAIN_AGENT_STEPS // (cell.prey * 32 * study.iterations))
     changes: dict = {
         "train": {
             "team": "both" if cell.coevolving else "prey",
@@ -248,15 +256,15 @@ def run_config(args, name: str, control: str, seed: int) -> dict:
             "quiet": True,
             "export": "jit",
             "num_worlds": worlds,
-            "iterations": args.iterations,
+            "iterations": study.iterations,
             "episodes": None,
             **({"opponent": None, **POOL} if cell.coevolving else {"opponent": FIXED_PREDATOR}),
         },
         "env": {"prey_count": cell.prey},
-        "runner": {"save_interval": args.iterations},
+        "runner": {"save_interval": study.iterations},
     }
     deep_update(changes, LEARNED_PREY_RECIPE)
-    for assignment in FAST + cell.sets() + CONTROLS[control] + tuple(args.train_set):
+    for assignment in FAST + cell.sets() + CONTROLS[control] + tuple(study.train_set):
         deep_update(changes, parse_assignment(assignment))
     return make_config("paper", changes)
 
@@ -276,11 +284,11 @@ def predator_policy(task: dict) -> str:
     return os.path.join(task["run_dir"], "exported", "predator", "policy.pt")
 
 
-def training_tasks(args) -> list[dict]:
+def training_tasks(study: PhaseStudy) -> list[dict]:
     tasks = []
-    for name in args.cell_list:
+    for name in study.cells:
         for control in controls_of(CELLS[name]):
-            for seed in range(args.seeds if control == "learned" else args.control_seeds):
+            for seed in range(study.seeds if control == "learned" else study.control_seeds):
                 tasks.append(
                     {
                         "name": f"train-{name}-{control}-s{seed}",
@@ -288,8 +296,8 @@ def training_tasks(args) -> list[dict]:
                         "control": control,
                         "seed": seed,
                         "coevolving": CELLS[name].coevolving,
-                        "config": run_config(args, name, control, seed),
-                        "run_dir": run_dir(args.out, name, control, seed),
+                        "config": run_config(study, name, control, seed),
+                        "run_dir": run_dir(study.out, name, control, seed),
                     }
                 )
     return tasks
@@ -380,28 +388,28 @@ def run_baseline_task(task: dict, device: str) -> dict:
     )
 
 
-def evaluation_task(args, name: str, training: dict) -> dict:
+def evaluation_task(study: PhaseStudy, name: str, training: dict) -> dict:
     """A task that plays the policy of `training` (a training task): its training config is part of the
     task, so that a run trained again with other settings is evaluated again."""
     return {
         "name": name,
         **{k: training[k] for k in ("cell", "control", "seed", "coevolving", "run_dir")},
         "training": training["config"],
-        "episodes": args.episodes,
-        "eval_seeds": args.eval_seeds,
-        "max_steps": args.max_steps,
+        "episodes": study.episodes,
+        "eval_seeds": study.eval_seeds,
+        "max_steps": study.max_steps,
     }
 
 
-def eval_tasks(args, trainings: Sequence[dict]) -> list[dict]:
+def eval_tasks(study: PhaseStudy, trainings: Sequence[dict]) -> list[dict]:
     """An evaluation per trained policy."""
-    return [evaluation_task(args, f"eval-{t['cell']}-{t['control']}-s{t['seed']}", t) for t in trainings]
+    return [evaluation_task(study, f"eval-{t['cell']}-{t['control']}-s{t['seed']}", t) for t in trainings]
 
 
-def baseline_tasks(args, trainings: Sequence[dict]) -> list[dict]:
+def baseline_tasks(study: PhaseStudy, trainings: Sequence[dict]) -> list[dict]:
     """The heuristics of each cell, in the world of its first learned run."""
     return [
-        evaluation_task(args, f"baseline-{t['cell']}", t)
+        evaluation_task(study, f"baseline-{t['cell']}", t)
         for t in trainings
         if t["control"] == "learned" and t["seed"] == 0
     ]
@@ -589,33 +597,33 @@ def run(args) -> int:
     from ..arguments import plural
     from ..atomic import atomic_open, check_output_dir
 
-    check(args)
-    devices = task_devices(args.gpus)
-    trainings = training_tasks(args)  # their configs checked before anything runs
-    check_output_dir(args.out, "--out")
-    os.makedirs(args.out, exist_ok=True)
+    study = check(args)
+    devices = task_devices(study.gpus)
+    trainings = training_tasks(study)  # their configs checked before anything runs
+    check_output_dir(study.out, "--out")
+    os.makedirs(study.out, exist_ok=True)
     start = time.perf_counter()
 
     def part(heading: str, function, tasks: list[dict], label: str) -> list:
-        todo = sum(not read_finished(args.out, task)[0] for task in tasks)
+        todo = sum(not read_finished(study.out, task)[0] for task in tasks)
         print(f"study phase: {heading} ({todo} to run)", flush=True)
-        jobs = args.per_gpu if devices[0] != "cpu" else 1
+        jobs = study.per_gpu if devices[0] != "cpu" else 1
         report = lambda line: print(line, flush=True)  # noqa: E731
-        return run_jobs(function, tasks, args.out, jobs=jobs, devices=devices, label=label, report=report).results
+        return run_jobs(function, tasks, study.out, jobs=jobs, devices=devices, label=label, report=report).results
 
     trained = part(
-        f"training {plural(len(args.cell_list), 'cell')} x controls x {plural(args.seeds, 'seed')}",
+        f"training {plural(len(study.cells), 'cell')} x controls x {plural(study.seeds, 'seed')}",
         run_training_task,
         trainings,
         "train",
     )
-    evaluations = eval_tasks(args, trainings)
+    evaluations = eval_tasks(study, trainings)
     evaluated = part(f"evaluating {len(evaluations)} policies", run_eval_task, evaluations, "eval")
-    baselines = baseline_tasks(args, trainings)
+    baselines = baseline_tasks(study, trainings)
     heuristics = part(f"heuristic prey in {len(baselines)} cells", run_baseline_task, baselines, "baselines")
     summary: dict = {
         "design": {
-            "cells": {name: dataclasses.asdict(CELLS[name]) for name in args.cell_list},
+            "cells": {name: dataclasses.asdict(CELLS[name]) for name in study.cells},
             "controls": CONTROLS,
             "evaluations": EVALUATIONS,
             "primary": PRIMARY,
@@ -627,13 +635,13 @@ def run(args) -> int:
             "pool": POOL,
             "fast": FAST,
             "train_agent_steps": TRAIN_AGENT_STEPS,
-            "iterations": args.iterations,
-            "seeds": args.seeds,
-            "control_seeds": args.control_seeds,
-            "episodes": args.episodes,
-            "eval_seeds": args.eval_seeds,
-            "max_steps": args.max_steps,
-            "train_set": args.train_set,
+            "iterations": study.iterations,
+            "seeds": study.seeds,
+            "control_seeds": study.control_seeds,
+            "episodes": study.episodes,
+            "eval_seeds": study.eval_seeds,
+            "max_steps": study.max_steps,
+            "train_set": study.train_set,
         },
         "trainings": [
             {k: t[k] for k in ("cell", "control", "seed", "run_dir")} | r
@@ -644,14 +652,14 @@ def run(args) -> int:
         ),
     }
     series = training_series(trainings)  # written to training_series.csv only: it is most of the data
-    summary.update(provenance(devices[0], command_line(args.argv), commit=args.commit))
+    summary.update(provenance(devices[0], command_line(args.argv), commit=study.commit))
     summary["wall_s"] = round(time.perf_counter() - start, 1)
-    with atomic_open(os.path.join(args.out, "summary.json")) as f:
+    with atomic_open(os.path.join(study.out, "summary.json")) as f:
         json.dump(json_safe(summary), f, indent=1)
-    write_tables(args.out, summary, series)
-    if not args.no_figures:
-        plot(args.out, summary, series)
-    print(f"study phase: wrote {os.path.join(args.out, 'summary.json')} ({summary['wall_s']} s)")
+    write_tables(study.out, summary, series)
+    if study.figures:
+        plot(study.out, summary, series)
+    print(f"study phase: wrote {os.path.join(study.out, 'summary.json')} ({summary['wall_s']} s)")
     for name, entry in summary["cells"].items():
         if "regime" in entry:
             stats = entry["controls"]["learned"]["own"][PRIMARY]

@@ -84,13 +84,15 @@ import math
 import os
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 
-from ..arguments import check_distinct, check_int, number_list, plural
+from ..arguments import add_options, check_distinct, check_int, choice_list, from_options, number_list, option, plural
 from ..checks import LARGEST
 from ..drivers import trained_world
 from ..jobs import read_finished, run_jobs, task_devices
 from ..records import command_line, json_safe, provenance
 from ..statistics import difference, equivalence, finite, interval, mean_interval
+from . import common
 from .common import policy_path, run_training_task
 
 # The scenario: prey see all around, 200 px (reacting pays only with rear vision and range, see
@@ -187,113 +189,129 @@ DESCRIPTION = (
 )
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--part",
-        choices=("screen", "learned", "all"),
+# The parts of the study a run takes (`--part`).
+PARTS = ("screen", "learned", "all")
+
+
+@dataclass
+class SwarmStudy:
+    """Settings of the swarm study (the CLI's options)."""
+
+    part: str = field(
         default="all",
-        help="the heuristic scenario screen, the learned prey with their controls, or both",
+        metadata=option("the heuristic scenario screen, the learned prey with their controls, or both", choices=PARTS),
     )
-    parser.add_argument("--prey-counts", default="8,16,32,64", help="screen: prey per world (density)")
-    parser.add_argument("--view-distances", default="100,200,400", help="screen: prey view distances, px (360 deg)")
-    parser.add_argument(
-        "--predator-speeds", default="5,4.5,4,3.5", help="screen: predator max speeds (the prey's is 4)"
+    prey_counts: list[int] = field(
+        default_factory=lambda: [8, 16, 32, 64],
+        metadata=option("screen: prey per world (density)", parse=lambda text, flag: number_list(text, int, flag, 2)),
     )
-    parser.add_argument(
-        "--capture-confusion",
-        default="0",
-        help="screen: capture confusion strengths c (docs/model.md step 5; confusion_radius 100 px), e.g. 0,1,4",
+    view_distances: list[float] = field(
+        default_factory=lambda: [100.0, 200.0, 400.0],
+        metadata=option(
+            "screen: prey view distances, px (360 deg)", parse=lambda text, flag: number_list(text, float, flag, 1)
+        ),
     )
-    parser.add_argument("--conditions", default=",".join(CONDITIONS), help="learned: conditions to train")
-    parser.add_argument(
-        "--seeds", type=int, default=5, help="learned: training runs per condition, a count N: seeds 0 to N-1 (>= 2)"
+    predator_speeds: list[float] = field(
+        default_factory=lambda: [5.0, 4.5, 4.0, 3.5],
+        metadata=option(
+            "screen: predator max speeds (the prey's is 4)",
+            parse=lambda text, flag: number_list(text, float, flag, 0, low_open=True),
+        ),
     )
-    parser.add_argument("--iterations", type=int, default=500, help="learned: PPO iterations per run")
-    parser.add_argument(
-        "--train-worlds",
-        type=int,
-        default=None,
-        help="learned: worlds per training run (default: TRAIN_AGENT_STEPS / (prey x 32 x iterations))",
+    capture_confusion: list[float] = field(
+        default_factory=lambda: [0.0],
+        metadata=option(
+            "screen: capture confusion strengths c (docs/model.md step 5; confusion_radius 100 px), e.g. 0,1,4",
+            parse=lambda text, flag: number_list(text, float, flag, 0, LARGEST),
+        ),
     )
-    parser.add_argument("--episodes", type=int, default=64, help="evaluation episodes per evaluation seed")
-    parser.add_argument(
-        "--eval-seeds",
-        type=int,
-        default=2,
-        help="evaluation seeds, a count N: seeds 0 to N-1 (default 2; eval --seeds takes a list of seeds)",
+    conditions: list[str] = field(
+        default_factory=lambda: list(CONDITIONS),
+        metadata=option("learned: conditions to train", parse=choice_list(tuple(CONDITIONS)), shown="every condition"),
     )
-    parser.add_argument("--max-steps", type=int, default=3000, help="episode length (docs/model.md: 3000)")
-    parser.add_argument("--gpus", type=int, default=None, help="GPUs to spread tasks over (default: all; 0: CPU)")
-    parser.add_argument(
-        "--per-gpu",
-        type=int,
+    seeds: int = field(
+        default=5,
+        metadata=option("learned: training runs per condition, a count N: seeds 0 to N-1 (>= 2)", type=int),
+    )
+    iterations: int = field(default=500, metadata=option("learned: PPO iterations per run", type=int))
+    train_worlds: int | None = field(default=None, metadata=common.TRAIN_WORLDS)
+    episodes: int = field(default=64, metadata=common.EVAL_EPISODES)
+    eval_seeds: int = field(default=2, metadata=common.EVAL_SEEDS)
+    max_steps: int = field(default=3000, metadata=common.MAX_STEPS)
+    gpus: int | None = field(default=None, metadata=common.TASK_GPUS)
+    per_gpu: int = field(
         default=4,
-        help="evaluations at a time per GPU (trainings that may share a process run as one population per GPU)",
+        metadata=option(
+            "evaluations at a time per GPU (trainings that may share a process run as one population per GPU)",
+            type=int,
+        ),
     )
-    parser.add_argument("--train-preset", default="paper", help="learned: the preset trained from")
-    parser.add_argument(
-        "--train-set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="learned: extra `train --set` assignments (tiny smoke runs)",
+    train_preset: str = field(default="paper", metadata=option("learned: the preset trained from"))
+    train_set: list[str] = field(
+        default_factory=list,
+        metadata=option(
+            "learned: extra `train --set` assignments (tiny smoke runs)", repeated=True, metavar="KEY=VALUE"
+        ),
     )
-    parser.add_argument(
-        "--commit", default=None, help="the commit of a copy without git history (a checkout's own is read from git)"
-    )
-    parser.add_argument("--no-figures", action="store_true", help="no matplotlib figures")
-    parser.add_argument("--out", default="swarm_study", help="output directory")
+    commit: str | None = field(default=None, metadata=common.COMMIT)
+    figures: bool = field(default=True, metadata=option("no matplotlib figures", negated=True))
+    out: str = field(default="swarm_study", metadata=option("output directory"))
+
+    def validate(self) -> None:
+        """A one-line `ValueError` naming the option unless every setting is in range."""
+        for name, value, low in (
+            ("--seeds", self.seeds, 2),
+            ("--iterations", self.iterations, 1),
+            ("--episodes", self.episodes, 1),
+            ("--eval-seeds", self.eval_seeds, 1),
+            ("--max-steps", self.max_steps, 1),
+            ("--per-gpu", self.per_gpu, 1),
+        ):
+            check_int(name, value, low)
+        if self.train_worlds is not None:
+            check_int("--train-worlds", self.train_worlds, 1)
+        if self.gpus is not None:
+            check_int("--gpus", self.gpus, 0)
+        for name, values in (
+            ("--prey-counts", self.prey_counts),
+            ("--view-distances", self.view_distances),
+            ("--predator-speeds", self.predator_speeds),
+            ("--capture-confusion", self.capture_confusion),
+        ):
+            check_distinct(name, values)  # a repeated value would name one task twice
 
 
-def check(args) -> None:
-    """A one-line `ValueError` naming the option unless every option is in range; sets the parsed lists
-    (`prey_count_list`, `view_list`, `speed_list`, `confusion_list`, `condition_list`)."""
-    conditions = [c for c in args.conditions.split(",") if c]
-    unknown = [c for c in conditions if c not in CONDITIONS]
-    if unknown or not conditions:
-        raise ValueError(f"--conditions={args.conditions!r}: choose from {', '.join(CONDITIONS)}")
-    check_distinct("--conditions", conditions)
-    for name, value, low in (
-        ("--seeds", args.seeds, 2),
-        ("--iterations", args.iterations, 1),
-        ("--episodes", args.episodes, 1),
-        ("--eval-seeds", args.eval_seeds, 1),
-        ("--max-steps", args.max_steps, 1),
-        ("--per-gpu", args.per_gpu, 1),
-    ):
-        check_int(name, value, low)
-    if args.train_worlds is not None:
-        check_int("--train-worlds", args.train_worlds, 1)
-    if args.gpus is not None:
-        check_int("--gpus", args.gpus, 0)
-    args.prey_count_list = number_list(args.prey_counts, int, "--prey-counts", 2)
-    args.view_list = number_list(args.view_distances, float, "--view-distances", 1)
-    args.speed_list = number_list(args.predator_speeds, float, "--predator-speeds", 0, low_open=True)
-    args.confusion_list = number_list(args.capture_confusion, float, "--capture-confusion", 0, LARGEST)
-    for name, values in (
-        ("--prey-counts", args.prey_count_list),
-        ("--view-distances", args.view_list),
-        ("--predator-speeds", args.speed_list),
-        ("--capture-confusion", args.confusion_list),
-    ):
-        check_distinct(name, values)  # a repeated value would name one task twice
-    args.condition_list = conditions
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_options(parser, SwarmStudy)
+
+
+def check(args: argparse.Namespace) -> SwarmStudy:
+    """The study of the parsed options; a one-line `ValueError` naming the option unless every option is
+    in range."""
+    study = from_options(SwarmStudy, args)
+    study.validate()
+    return study
 
 
 # ---- the tasks (`jobs.run_jobs`: kept in <out>/finished/, spread over the GPUs) -----------------------
 
 
 def run_part(
-    heading: str, function: Callable[[dict, str], dict], tasks: list[dict], args, devices: Sequence[str], label: str
+    heading: str,
+    function: Callable[[dict, str], dict],
+    tasks: list[dict],
+    study: SwarmStudy,
+    devices: Sequence[str],
+    label: str,
 ) -> list[dict]:
     """The results of `tasks` (`function(task, device)`) in task order, the kept ones read back: on the
     GPUs `--per-gpu` at a time on each, on the CPU one at a time here (Warp's CPU kernels take one
     thread each)."""
-    todo = sum(not read_finished(args.out, task)[0] for task in tasks)
+    todo = sum(not read_finished(study.out, task)[0] for task in tasks)
     print(f"study swarm: {heading} ({todo} to run)", flush=True)
-    jobs = args.per_gpu if devices[0] != "cpu" else 1
+    jobs = study.per_gpu if devices[0] != "cpu" else 1
     return run_jobs(
-        function, tasks, args.out, jobs=jobs, devices=devices, label=label, report=lambda line: print(line, flush=True)
+        function, tasks, study.out, jobs=jobs, devices=devices, label=label, report=lambda line: print(line, flush=True)
     ).results
 
 
@@ -410,7 +428,7 @@ def run_dir(out: str, condition: str, seed: int) -> str:
     return os.path.join(out, "runs", f"{condition}-s{seed}")
 
 
-def run_config(args, condition: str, seed: int) -> dict:
+def run_config(study: SwarmStudy, condition: str, seed: int) -> dict:
     """The Trainer config of `condition`'s training run with `seed`, without a device (its task is
     given one): what `aquarium-warp train --preset <--train-preset> --seed <seed> --quiet --export jit
     --save-interval I --prey N --num-worlds W --iterations I --entropy 0.01 --predator-policy <opponent>`
@@ -420,8 +438,8 @@ def run_config(args, condition: str, seed: int) -> dict:
     from ..training.config import LEARNED_PREY_RECIPE, deep_update, make_config, parse_assignment
 
     spec = CONDITIONS[condition]
-    worlds = args.train_worlds or max(1, TRAIN_AGENT_STEPS // (spec["prey"] * 32 * args.iterations))
-    iterations = args.iterations * spec.get("budget", 1)
+    worlds = study.train_worlds or max(1, TRAIN_AGENT_STEPS // (spec["prey"] * 32 * study.iterations))
+    iterations = study.iterations * spec.get("budget", 1)
     changes = {
         "train": {
             "team": "prey",
@@ -437,9 +455,9 @@ def run_config(args, condition: str, seed: int) -> dict:
         "runner": {"save_interval": iterations},
     }
     deep_update(changes, LEARNED_PREY_RECIPE)
-    for assignment in SCENARIO + tuple(spec["sets"]) + tuple(args.train_set):
+    for assignment in SCENARIO + tuple(spec["sets"]) + tuple(study.train_set):
         deep_update(changes, parse_assignment(assignment))
-    return make_config(args.train_preset, deep_update(changes, {"train": {"opponent": spec["opponent"]}}))
+    return make_config(study.train_preset, deep_update(changes, {"train": {"opponent": spec["opponent"]}}))
 
 
 # ---- statistics (statistics.py: Student-t intervals, Welch or paired differences, TOST) ---------------
@@ -541,22 +559,22 @@ def summarize_learned(evaluations: Sequence[tuple[dict, dict]], baselines: Seque
     return {"conditions": per, "comparisons": comparisons}
 
 
-def screen_tasks(args) -> list[dict]:
+def screen_tasks(study: SwarmStudy) -> list[dict]:
     """A task per screen world. A world without capture confusion (c = 0) is the task of the screen as
     first run, with its name and without a `capture_confusion` key, so that its kept results stay valid."""
     tasks = []
-    for n in args.prey_count_list:
-        for v in args.view_list:
-            for s in args.speed_list:
-                for c in args.confusion_list:
+    for n in study.prey_counts:
+        for v in study.view_distances:
+            for s in study.predator_speeds:
+                for c in study.capture_confusion:
                     task = {
                         "name": f"screen-n{n}-v{int(v)}-p{s:g}" + (f"-c{c:g}" if c else ""),
                         "prey": n,
                         "view": v,
                         "predator_speed": s,
-                        "episodes": args.episodes,
-                        "eval_seeds": args.eval_seeds,
-                        "max_steps": args.max_steps,
+                        "episodes": study.episodes,
+                        "eval_seeds": study.eval_seeds,
+                        "max_steps": study.max_steps,
                     }
                     if c:
                         task["capture_confusion"] = c
@@ -564,21 +582,21 @@ def screen_tasks(args) -> list[dict]:
     return tasks
 
 
-def training_tasks(args) -> list[dict]:
+def training_tasks(study: SwarmStudy) -> list[dict]:
     return [
         {
             "name": f"train-{c}-s{s}",
             "condition": c,
             "seed": s,
-            "config": run_config(args, c, s),
-            "run_dir": run_dir(args.out, c, s),
+            "config": run_config(study, c, s),
+            "run_dir": run_dir(study.out, c, s),
         }
-        for c in args.condition_list
-        for s in range(args.seeds)
+        for c in study.conditions
+        for s in range(study.seeds)
     ]
 
 
-def eval_tasks(args, trainings: Sequence[dict]) -> list[dict]:
+def eval_tasks(study: SwarmStudy, trainings: Sequence[dict]) -> list[dict]:
     """An evaluation of each training run's policy; its config is part of the task, so that a run
     trained again with other settings is evaluated again."""
     return [
@@ -588,15 +606,15 @@ def eval_tasks(args, trainings: Sequence[dict]) -> list[dict]:
             "seed": t["seed"],
             "training": t["config"],
             "run_dir": t["run_dir"],
-            "episodes": args.episodes,
-            "eval_seeds": args.eval_seeds,
-            "max_steps": args.max_steps,
+            "episodes": study.episodes,
+            "eval_seeds": study.eval_seeds,
+            "max_steps": study.max_steps,
         }
         for t in trainings
     ]
 
 
-def baseline_tasks(args, trainings: Sequence[dict]) -> list[dict]:
+def baseline_tasks(study: SwarmStudy, trainings: Sequence[dict]) -> list[dict]:
     """The heuristics in each condition's world, that of its first seed's run."""
     return [
         {
@@ -604,9 +622,9 @@ def baseline_tasks(args, trainings: Sequence[dict]) -> list[dict]:
             "condition": t["condition"],
             "training": t["config"],
             "run_dir": t["run_dir"],
-            "episodes": args.episodes,
-            "eval_seeds": args.eval_seeds,
-            "max_steps": args.max_steps,
+            "episodes": study.episodes,
+            "eval_seeds": study.eval_seeds,
+            "max_steps": study.max_steps,
         }
         for t in trainings
         if t["seed"] == 0
@@ -617,11 +635,11 @@ def run(args) -> int:
     from ..atomic import atomic_open, check_output_dir
     from ..training.config import LEARNED_PREY_RECIPE
 
-    check(args)
-    devices = task_devices(args.gpus)
-    trainings = training_tasks(args) if args.part in ("learned", "all") else []  # their configs checked first
-    check_output_dir(args.out, "--out")
-    os.makedirs(args.out, exist_ok=True)
+    study = check(args)
+    devices = task_devices(study.gpus)
+    trainings = training_tasks(study) if study.part != "screen" else []  # their configs checked first
+    check_output_dir(study.out, "--out")
+    os.makedirs(study.out, exist_ok=True)
     start = time.perf_counter()
     summary: dict = {
         "design": {
@@ -633,23 +651,23 @@ def run(args) -> int:
             "primary": PRIMARY,
             "margins": MARGINS,
             "train_agent_steps": TRAIN_AGENT_STEPS,
-            "iterations": args.iterations,
-            "episodes": args.episodes,
-            "eval_seeds": args.eval_seeds,
-            "max_steps": args.max_steps,
-            "seeds": args.seeds,
+            "iterations": study.iterations,
+            "episodes": study.episodes,
+            "eval_seeds": study.eval_seeds,
+            "max_steps": study.max_steps,
+            "seeds": study.seeds,
         }
     }
-    if args.part in ("screen", "all"):
-        tasks = screen_tasks(args)
-        records = run_part(f"screen, {len(tasks)} worlds", run_screen_task, tasks, args, devices, "screen")
+    if study.part != "learned":
+        tasks = screen_tasks(study)
+        records = run_part(f"screen, {len(tasks)} worlds", run_screen_task, tasks, study, devices, "screen")
         summary["screen"] = summarize_screen(tasks, records)
     if trainings:
         trained = run_part(
-            f"training {plural(len(args.condition_list), 'condition')} x {plural(args.seeds, 'seed')}",
+            f"training {plural(len(study.conditions), 'condition')} x {plural(study.seeds, 'seed')}",
             run_training_task,
             trainings,
-            args,
+            study,
             devices,
             "train",
         )
@@ -657,16 +675,16 @@ def run(args) -> int:
             {"condition": t["condition"], "seed": t["seed"], "run_dir": t["run_dir"], **r}
             for t, r in zip(trainings, trained, strict=True)
         ]
-        evaluations = eval_tasks(args, trainings)
+        evaluations = eval_tasks(study, trainings)
         evaluated = run_part(
-            f"evaluating {len(evaluations)} policies", run_eval_task, evaluations, args, devices, "eval"
+            f"evaluating {len(evaluations)} policies", run_eval_task, evaluations, study, devices, "eval"
         )
-        baselines = baseline_tasks(args, trainings)
+        baselines = baseline_tasks(study, trainings)
         heuristics = run_part(
             f"heuristic prey in {len(baselines)} conditions' worlds",
             run_baseline_task,
             baselines,
-            args,
+            study,
             devices,
             "baselines",
         )
@@ -674,15 +692,15 @@ def run(args) -> int:
             list(zip(evaluations, evaluated, strict=True)), list(zip(baselines, heuristics, strict=True))
         )
     summary.update(
-        provenance(devices[0], command_line(args.argv), commit=args.commit),
+        provenance(devices[0], command_line(args.argv), commit=study.commit),
         wall_s=round(time.perf_counter() - start, 1),
     )
-    with atomic_open(os.path.join(args.out, "summary.json")) as f:
+    with atomic_open(os.path.join(study.out, "summary.json")) as f:
         json.dump(json_safe(summary), f, indent=1)
-    write_tables(args.out, summary)
-    if not args.no_figures:
-        plot(args.out, summary)
-    print(f"study swarm: wrote {os.path.join(args.out, 'summary.json')} ({summary['wall_s']} s)")
+    write_tables(study.out, summary)
+    if study.figures:
+        plot(study.out, summary)
+    print(f"study swarm: wrote {os.path.join(study.out, 'summary.json')} ({summary['wall_s']} s)")
     return 0
 
 

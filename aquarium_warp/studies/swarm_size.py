@@ -49,10 +49,14 @@ from dataclasses import dataclass, field
 import torch
 
 from ..arguments import (
+    DEVICE_HELP,
     POLICY_SPECS,
+    add_options,
     check_distinct,
     check_int,
+    from_options,
     non_negative_int,
+    option,
     parse_list,
     plural,
     policy_spec,
@@ -109,33 +113,92 @@ def parse_world_size(text) -> tuple[float, float]:
 
 @dataclass
 class SwarmSizeStudy:
-    """Settings of a swarm-size study (the CLI's options)."""
+    """Settings of a swarm-size study (the CLI's options: every option of `study swarm-size`, those
+    named in `RUN_OPTIONS` also `study fov-view`'s)."""
 
-    prey: list[int] = field(default_factory=lambda: [4 * 2**k for k in range(11)])  # 4 .. 4096
-    seeds: int = 5
-    episodes_per_seed: int = 1
-    episode_steps: int = 3000
-    prey_policy: str = "turnaway"
-    predator_policy: str = "naivchase"
-    confusion: bool = True  # NaivChase: a random visible prey each step (False: the nearest)
-    predators: int = 1
-    fov_angles: list[float] | None = None  # prey field of view, degrees (None: the config's, 120)
-    view_distances: list[float] | None = None  # prey view distance, px (None: the config's, 100)
-    world_size: tuple[float, float] = (800.0, 800.0)
-    constant_density: bool = False  # scale the arena with N so that N / area stays that of reference_prey
-    reference_prey: int = 16
-    linking_distance: float | None = None  # px (None: 2.5 prey radii)
-    metrics_every: int = 10
-    respawn: bool = True
-    reproduction: bool = False
+    prey: list[int] = field(  # 4 .. 4096
+        default_factory=lambda: [4 * 2**k for k in range(11)],
+        metadata=option(
+            "prey counts: a comma list; '...' continues the progression",
+            parse=lambda text, flag: parse_list(text, int, flag),
+            shown="4,8,...,4096",
+        ),
+    )
+    seeds: int = field(default=5, metadata=option("independent runs per setting", type=int))
+    episodes_per_seed: int = field(default=1, metadata=option("episodes per seed, run as more worlds", type=int))
+    episode_steps: int = field(default=3000, metadata=option("steps per episode (the paper's)", type=int))
+    prey_policy: str = field(default="turnaway", metadata=option(POLICY_SPECS["prey"], type=policy_spec("prey")))
+    predator_policy: str = field(
+        default="naivchase", metadata=option(POLICY_SPECS["predator"], type=policy_spec("predator"))
+    )
+    confusion: bool = field(  # NaivChase: a random visible prey each step (False: the nearest)
+        default=True,
+        metadata=option("NaivChase chases the nearest visible prey instead of a random one each step", negated=True),
+    )
+    predators: int = field(default=1, metadata=option("predators per world", type=int))
+    fov_angles: list[float] | None = field(  # None: the config's, 120
+        default=None,
+        metadata=option(
+            "prey field-of-view angles to sweep, degrees (list; default 120)",
+            parse=lambda text, flag: parse_list(text, float, flag),
+            flag="--fov-angle",
+        ),
+    )
+    view_distances: list[float] | None = field(  # None: the config's, 100
+        default=None,
+        metadata=option(
+            "prey view distances to sweep, px (list; default 100)",
+            parse=lambda text, flag: parse_list(text, float, flag),
+            flag="--view-distance",
+        ),
+    )
+    world_size: tuple[float, float] = field(
+        default=(800.0, 800.0),
+        metadata=option("arena WIDTHxHEIGHT px", parse=lambda text, flag: parse_world_size(text), shown="800x800"),
+    )
+    constant_density: bool = field(  # scale the arena with N so that N / area stays that of reference_prey
+        default=False,
+        metadata=option(
+            "scale the arena with N instead of a fixed --world-size, keeping the density of --reference-prey "
+            "prey in --world-size"
+        ),
+    )
+    reference_prey: int = field(
+        default=16,
+        metadata=option("with --constant-density: the prey count that --world-size is sized for", type=int),
+    )
+    linking_distance: float | None = field(  # None: 2.5 prey radii
+        default=None,
+        metadata=option("px; prey closer than this form one group (default 2.5 prey radii = 50)", type=float),
+    )
+    metrics_every: int = field(default=10, metadata=option("sample the swarm metrics every K steps", type=int))
+    respawn: bool = field(default=True, metadata=option("captured prey are removed (populations shrink)", negated=True))
+    reproduction: bool = field(default=False, metadata=option("prey reproduce (up to 2 N)"))
     max_prey_factor: float = 2.0  # with reproduction: max_prey = factor x N
-    starvation_steps: int | None = None  # None: the config's (3000)
-    device: str | None = None
-    seed: int = 0
-    jobs: int | None = None  # settings run at once on the CPU (threads); None: the CPU's cores; GPU: 1
+    starvation_steps: int | None = field(  # None: the config's (3000)
+        default=None, metadata=option("predator starvation limit (default 3000)", type=int)
+    )
+    device: str | None = field(default=None, metadata=option(DEVICE_HELP))
+    seed: int = field(
+        default=0,
+        metadata=option("seed of the batched worlds (the --seeds runs are worlds of one env)", type=non_negative_int),
+    )
+    jobs: int | None = field(  # settings run at once on the CPU (threads); None: the CPU's cores; GPU: 1
+        default=None,
+        metadata=option(
+            "settings run at once in threads, one batch per setting (default: CPU cores on the CPU, 1 on a GPU)",
+            type=positive_int,
+        ),
+    )
     out: str = "swarm_size"
-    figures: bool = True
-    one_batch: bool = False  # every setting in one batch (worlds of setting i: its prey count, FOV and view)
+    figures: bool = field(default=True, metadata=option("write CSV/JSON only, no figures", negated=True))
+    one_batch: bool = field(  # every setting in one batch (worlds of setting i: its prey count, FOV and view)
+        default=False,
+        metadata=option(
+            "every setting in one batch (per-world prey counts; every world has the slots of the largest count) "
+            "instead of one batch per setting"
+        ),
+    )
     kind: str = "swarm-size"  # "swarm-size" or "fov-view": names the output files and figures
 
     @property
@@ -157,9 +220,9 @@ class SwarmSizeStudy:
             if values is not None and not values:
                 raise ValueError(f"{name} must list at least one value")
         # One rule for every study: a repeated setting would run twice and pool its seeds with its twin's.
-        options = ("--fov", "--view") if self.kind == "fov-view" else ("--fov-angle", "--view-distance")
-        for option, values in zip(("--prey", *options), (self.prey, self.fov_angles, self.view_distances)):
-            check_distinct(option, values or [])
+        flags = ("--fov", "--view") if self.kind == "fov-view" else ("--fov-angle", "--view-distance")
+        for flag, values in zip(("--prey", *flags), (self.prey, self.fov_angles, self.view_distances)):
+            check_distinct(flag, values or [])
         if self.max_prey_factor < 1:
             raise ValueError(f"max_prey_factor={self.max_prey_factor!r} must be >= 1")
         if self.kind not in ("swarm-size", "fov-view"):
@@ -646,103 +709,34 @@ DESCRIPTION = (
 )
 
 
-def add_run_arguments(p: argparse.ArgumentParser, out: str) -> None:
-    """The options of both swarm-size subcommands (`run_settings` reads them)."""
-    p.add_argument("--seeds", type=int, default=5, help="independent runs per setting (default 5)")
-    p.add_argument("--episodes-per-seed", type=int, default=1, help="episodes per seed, run as more worlds")
-    p.add_argument("--episode-steps", type=int, default=3000, help="steps per episode (default 3000, the paper's)")
-    p.add_argument(
-        "--prey-policy", default="turnaway", type=policy_spec("prey"), help=f"{POLICY_SPECS['prey']} (default turnaway)"
-    )
-    p.add_argument(
-        "--predator-policy",
-        default="naivchase",
-        type=policy_spec("predator"),
-        help=f"{POLICY_SPECS['predator']} (default naivchase)",
-    )
-    p.add_argument(
-        "--no-confusion",
-        action="store_true",
-        help="NaivChase chases the nearest visible prey instead of a random one each step",
-    )
-    p.add_argument("--predators", type=int, default=1, help="predators per world (default 1)")
-    p.add_argument("--world-size", default="800x800", help="arena WIDTHxHEIGHT px (default 800x800)")
-    p.add_argument(
-        "--linking-distance",
-        type=float,
-        default=None,
-        help="px; prey closer than this form one group (default 2.5 prey radii = 50)",
-    )
-    p.add_argument("--metrics-every", type=int, default=10, help="sample the swarm metrics every K steps")
-    p.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
-    p.add_argument(
-        "--seed",
-        type=non_negative_int,
-        default=0,
-        help="seed of the batched worlds (the --seeds runs are worlds of one env)",
-    )
-    p.add_argument(
-        "--jobs",
-        type=positive_int,
-        default=None,
-        help="settings run at once in threads, one batch per setting (default: CPU cores on the CPU, 1 on a GPU)",
-    )
+# The options of `study swarm-size` that `study fov-view` takes too (its own sweep in `fov_view.FovView`).
+RUN_OPTIONS = (
+    "seeds",
+    "episodes_per_seed",
+    "episode_steps",
+    "prey_policy",
+    "predator_policy",
+    "confusion",
+    "predators",
+    "world_size",
+    "linking_distance",
+    "metrics_every",
+    "device",
+    "seed",
+    "jobs",
+    "figures",
+)
+
+
+def add_output_arguments(p: argparse.ArgumentParser, out: str) -> None:
+    """The output options of both swarm-size subcommands (not settings of the study's results)."""
     p.add_argument("--out", default=out, help=f"output directory (default {out})")
-    p.add_argument("--no-figures", action="store_true", help="write CSV/JSON only, no figures")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
-def run_settings(args: argparse.Namespace) -> dict:
-    """The `SwarmSizeStudy` settings of `add_run_arguments`' options."""
-    return dict(
-        seeds=args.seeds,
-        episodes_per_seed=args.episodes_per_seed,
-        episode_steps=args.episode_steps,
-        prey_policy=args.prey_policy,
-        predator_policy=args.predator_policy,
-        confusion=not args.no_confusion,
-        predators=args.predators,
-        world_size=parse_world_size(args.world_size),
-        linking_distance=args.linking_distance,
-        metrics_every=args.metrics_every,
-        device=args.device,
-        seed=args.seed,
-        jobs=args.jobs,
-        out=args.out,
-        figures=not args.no_figures,
-    )
-
-
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--prey",
-        default="4,8,...,4096",
-        help="prey counts: a comma list; '...' continues the progression (default 4,8,...,4096)",
-    )
-    p.add_argument("--fov-angle", default=None, help="prey field-of-view angles to sweep, degrees (list; default 120)")
-    p.add_argument("--view-distance", default=None, help="prey view distances to sweep, px (list; default 100)")
-    p.add_argument(
-        "--constant-density",
-        action="store_true",
-        help="scale the arena with N instead of a fixed "
-        "--world-size, keeping the density of --reference-prey prey in --world-size",
-    )
-    p.add_argument(
-        "--reference-prey",
-        type=int,
-        default=16,
-        help="with --constant-density: the prey count that --world-size is sized for (default 16)",
-    )
-    p.add_argument("--no-respawn", action="store_true", help="captured prey are removed (populations shrink)")
-    p.add_argument("--reproduction", action="store_true", help="prey reproduce (up to 2 N)")
-    p.add_argument("--starvation-steps", type=int, default=None, help="predator starvation limit (default 3000)")
-    p.add_argument(
-        "--one-batch",
-        action="store_true",
-        help="every setting in one batch (per-world prey counts; "
-        "every world has the slots of the largest count) instead of one batch per setting",
-    )
-    add_run_arguments(p, "swarm_size")
+    add_options(p, SwarmSizeStudy)
+    add_output_arguments(p, "swarm_size")
     p.add_argument("--replot", action="store_true", help="only redraw the figures from --out's swarm_size.json")
     add_ray_arguments(p, "setting (prey count, FOV angle and view distance)")
 
@@ -761,18 +755,7 @@ def run(args: argparse.Namespace) -> int:
         )
     if ray is not None and args.one_batch:
         raise ValueError("--one-batch runs every setting in one batch on this machine: not with --ray")
-    study = SwarmSizeStudy(
-        prey=[int(n) for n in parse_list(args.prey, int, "--prey")],
-        fov_angles=parse_list(args.fov_angle, float, "--fov-angle") if args.fov_angle else None,
-        view_distances=parse_list(args.view_distance, float, "--view-distance") if args.view_distance else None,
-        constant_density=args.constant_density,
-        reference_prey=args.reference_prey,
-        respawn=not args.no_respawn,
-        reproduction=args.reproduction,
-        starvation_steps=args.starvation_steps,
-        one_batch=args.one_batch,
-        **run_settings(args),
-    )
+    study = from_options(SwarmSizeStudy, args, out=args.out)
     print(
         f"aquarium-warp study swarm-size: prey {study.prey}, {plural(study.seeds, 'seed')} x "
         f"{plural(study.episodes_per_seed, 'episode')} of {plural(study.episode_steps, 'step')}, "

@@ -56,7 +56,7 @@ def _fps(text: str) -> float:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from ..arguments import POLICY_SPECS, non_negative_int, policy_spec, positive_float
+    from ..arguments import DEVICE_HELP, POLICY_SPECS, non_negative_int, policy_spec, positive_float
 
     p.add_argument(
         "--host",
@@ -95,7 +95,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--height", type=positive_float, default=None, help="world height, px (default: the policy's, 800)")
     p.add_argument("--worlds", type=_int_in(1, 65536), default=1, help="worlds, in [1, 65536]; the page shows one")
     p.add_argument("--seed", type=non_negative_int, default=0, help="seed of the worlds and the policies")
-    p.add_argument("--device", default=None, help="'cpu', 'cuda:0'; default: CUDA when present")
+    p.add_argument("--device", default=None, help=DEVICE_HELP)
     p.add_argument(
         "--human",
         choices=TYPES,

@@ -1,7 +1,8 @@
 """The package's layering, read from the source (nothing imported, imports inside functions included):
 every module sits in one room of `LAYERS` and imports only its own room and the layers below (the
 core nothing built on it; the core and training none of the app layers: studies, viewer, bench, the
-command line), and no module imports a private name (`_name`) of another package."""
+command line), the core imports without a circle, and no module imports a private name (`_name`) of
+another package."""
 
 from __future__ import annotations
 
@@ -184,3 +185,24 @@ def test_no_module_imports_a_private_name_of_another_package():
                 if name.startswith("_") and package_of(target, known) != own:
                     bad.append(f"{os.path.relpath(path, ROOT)}:{line} imports {name} from {target}")
     assert not bad, "\n".join(bad)
+
+
+def test_the_core_imports_without_a_circle():
+    """No module of the core imports, even for types only (`if TYPE_CHECKING:`), a module that imports it
+    back, directly or through others."""
+    known = modules()
+    core = {m: path for m, path in known.items() if room_of(m)[1] == "core"}
+    graph = {
+        m: {target for target, _ in imported_modules(m, path, known) if target in core and target != m}
+        for m, path in core.items()
+    }
+
+    def reached(start: str) -> set[str]:
+        seen, todo = set(), [start]
+        while todo:
+            for target in graph[todo.pop()] - seen:
+                seen.add(target)
+                todo.append(target)
+        return seen
+
+    assert [m for m in sorted(core) if m in reached(m)] == []

@@ -36,6 +36,29 @@ def test_the_study_is_registered_with_its_declared_cells():
     assert {phase.CELLS[c].slice for c in phase.FIRST_TIER} == {"rule", "density-view", "coevolving"}
 
 
+def test_the_committed_first_tier_finds_every_kept_task(tmp_path):
+    """The tasks the default command builds are the ones whose results the first tier kept
+    (benchmarks/results/phase_h200_9e8c35c/finished.tgz): a rerun with the same options runs nothing
+    again, so any change to a task's key (a training config, an evaluation's settings) fails here."""
+    import os
+    import pathlib
+    import tarfile
+
+    from aquarium_warp.jobs import read_finished
+
+    results = pathlib.Path(__file__).parents[2] / "benchmarks" / "results" / "phase_h200_9e8c35c"
+    (tmp_path / "finished").mkdir()
+    with tarfile.open(results / "finished.tgz") as archive:
+        for member in archive.getmembers():
+            if member.isfile():  # each finished/<task>.json
+                (tmp_path / "finished" / os.path.basename(member.name)).write_bytes(archive.extractfile(member).read())
+    study = phase.check(parse("--out", str(tmp_path)))
+    trainings = phase.training_tasks(study)
+    tasks = trainings + phase.eval_tasks(study, trainings) + phase.baseline_tasks(study, trainings)
+    assert len(tasks) == 441 == len(list((tmp_path / "finished").iterdir()))
+    assert [t["name"] for t in tasks if not read_finished(str(tmp_path), t)[0]] == []
+
+
 @pytest.mark.parametrize(
     "argv, message",
     [

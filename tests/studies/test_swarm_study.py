@@ -133,11 +133,10 @@ def test_check_refuses_bad_options_naming_them(changes, option):
 
 
 def test_check_accepts_the_defaults_and_parses_the_lists():
-    args = options()
-    swarm.check(args)
-    assert args.prey_count_list == [8, 16, 32, 64] and args.view_list == [100.0, 200.0, 400.0]
-    assert args.speed_list == [5.0, 4.5, 4.0, 3.5] and args.condition_list == list(swarm.CONDITIONS)
-    assert args.confusion_list == [0.0]
+    study = swarm.check(options())
+    assert study.prey_counts == [8, 16, 32, 64] and study.view_distances == [100.0, 200.0, 400.0]
+    assert study.predator_speeds == [5.0, 4.5, 4.0, 3.5] and study.conditions == list(swarm.CONDITIONS)
+    assert study.capture_confusion == [0.0]
 
 
 def test_a_bad_option_is_one_line_and_writes_nothing(tmp_path, capsys):
@@ -220,10 +219,10 @@ def test_each_condition_trains_with_the_config_of_its_train_command(changes):
     from aquarium_warp.training.cli import train_config
 
     args = options(**changes)
-    swarm.check(args)
+    study = swarm.check(args)
     for condition in swarm.CONDITIONS:
         for seed, device in ((0, "cpu"), (3, "cuda:0")):
-            config = swarm.run_config(args, condition, seed)
+            config = swarm.run_config(study, condition, seed)
             assert config["train"]["device"] is None  # the task is given its device
             config["train"]["device"] = device
             assert config == train_config(build_parser().parse_args(old_train_argv(args, condition, seed, device)))
@@ -271,9 +270,8 @@ def test_the_confusion_conditions_train_in_their_worlds():
     c = 0 control), each control with its one change, compared on that predator's evaluation."""
     from aquarium_warp.training.config import env_config
 
-    args = options()
-    swarm.check(args)
-    configs = {c: swarm.run_config(args, c, 0) for c in swarm.CONDITIONS if c.startswith("confusion")}
+    study = swarm.check(options())
+    configs = {c: swarm.run_config(study, c, 0) for c in swarm.CONDITIONS if c.startswith("confusion")}
     worlds = {c: env_config(config) for c, config in configs.items()}
     assert set(worlds) == {
         "confusion",
@@ -283,7 +281,7 @@ def test_the_confusion_conditions_train_in_their_worlds():
         "confusion-strong",
         "confusion-strong-no-neighbours",
     }
-    control = env_config(swarm.run_config(args, "no-confusion", 0))
+    control = env_config(swarm.run_config(study, "no-confusion", 0))
     base = worlds["confusion"]
     assert base == control.replace(capture_confusion=16.0, confusion_radius=100.0)
     assert (base.prey_count, base.prey.fov_angle, base.prey.view_distance) == (32, 360.0, 200.0)
@@ -298,7 +296,7 @@ def test_the_confusion_conditions_train_in_their_worlds():
         assert config["train"]["opponent"] == "naivchase-noconfusion", c
         assert swarm.CONDITIONS[c]["evaluated"] == "noconfusion"
     # The dose figure's c of each condition is the c its world trains with.
-    swarm_world = env_config(swarm.run_config(args, "swarm", 0))
+    swarm_world = env_config(swarm.run_config(study, "swarm", 0))
     for c, world in {**worlds, "no-confusion": control, "swarm": swarm_world}.items():
         assert swarm.capture_confusion_of(c) == world.capture_confusion, c
     for control_condition in ("no-confusion", "confusion-no-neighbours", "confusion-no-predation", "confusion-mild"):
@@ -376,9 +374,7 @@ def test_the_swarm_preset_is_the_confusion_strong_condition():
     `confusion-strong` condition (the scenario where learned prey aggregate)."""
     from aquarium_warp.training.config import env_config, make_config
 
-    args = options()
-    swarm.check(args)
-    study = swarm.run_config(args, "confusion-strong", 0)
+    study = swarm.run_config(swarm.check(options()), "confusion-strong", 0)
     preset = make_config("swarm")
     assert env_config(preset) == env_config(study)
     assert env_config(preset).capture_confusion == 64.0 and env_config(preset).prey_count == 32
