@@ -57,11 +57,15 @@ def train_command(out: str, preset: str, seed: int, device: str, sets: list[str]
     return command + [arg for s in sets for arg in ("--set", s)]
 
 
-def train_all(out: str, presets: list[str], seeds: list[int], device: str, sets: list[str], jobs: int) -> list[dict]:
+def train_all(
+    out: str, presets: list[str], seeds: list[int], devices: list[str], sets: list[str], jobs: int
+) -> list[dict]:
     """Every (preset, seed) training not finished yet, `jobs` processes at a time (each one's output in
-    `<out>/logs/`); their records. A failed training stops the others."""
+    `<out>/logs/`), the k-th on `devices[k % len(devices)]`; their records. A failed training stops the
+    others."""
     team = {PREY: "prey", PREDATOR: "predator", BOTH: "prey"}
     pending = [(p, s) for p in presets for s in seeds if not os.path.isfile(exported(out, p, s, team[p]))]
+    device_of = {job: devices[k % len(devices)] for k, job in enumerate(pending)}
     running: list[tuple[dict, subprocess.Popen, IO[str]]] = []
     records: list[dict] = []
     os.makedirs(os.path.join(out, "logs"), exist_ok=True)
@@ -69,7 +73,7 @@ def train_all(out: str, presets: list[str], seeds: list[int], device: str, sets:
         while pending or running:
             while pending and len(running) < jobs:
                 preset, seed = pending.pop(0)
-                command = train_command(out, preset, seed, device, sets)
+                command = train_command(out, preset, seed, device_of[(preset, seed)], sets)
                 log = open(os.path.join(out, "logs", f"{preset}-s{seed}.log"), "w", encoding="utf-8")
                 record = {"preset": preset, "seed": seed, "command": " ".join(command[1:]), "start": time.time()}
                 running.append((record, subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT), log))
@@ -158,7 +162,9 @@ def install(folder: str, name: str, out: str, preset: str, seed: int, team: str,
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", default="runs/general")
-    p.add_argument("--device", default="cuda:0")
+    p.add_argument(
+        "--device", default="cuda:0", help="device, or a comma list the trainings take in turn (the grid: the first)"
+    )
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="training seeds of each preset")
     p.add_argument("--coevolved", action="store_true", help="also train and evaluate --preset general (both teams)")
     p.add_argument("--jobs", type=int, default=16, help="training processes at once")
@@ -170,6 +176,8 @@ def main(argv=None) -> int:
     p.add_argument("--install", default=None, help="policy folder to install into (default: the package's)")
     p.add_argument("--commit", default=None, help="the commit of a copy without git history")
     args = p.parse_args(argv)
+    devices = args.device.split(",")
+    args.device = devices[0]
 
     from aquarium_warp import pretrained
     from aquarium_warp.arguments import number_list
@@ -192,7 +200,7 @@ def main(argv=None) -> int:
 
     start = time.time()
     presets = [PREY, PREDATOR] + ([BOTH] if args.coevolved else [])
-    trainings = train_all(args.out, presets, args.seeds, args.device, args.set, args.jobs)
+    trainings = train_all(args.out, presets, args.seeds, devices, args.set, args.jobs)
     train_s = time.time() - start
     cells = grid_cells(number_list(args.grid_prey_counts, int, "--grid-prey-counts", 1), VIEWS, FOVS, SPEEDS)
     prey_any = [f"prey-any={exported(args.out, PREY, s, 'prey')}" for s in args.seeds]
