@@ -81,6 +81,14 @@ def resolve_device(device) -> str:
     return device
 
 
+def make_current(device: torch.device) -> None:
+    """Make a CUDA `device` torch's current one in this process (a process-wide switch, like TF32), so
+    that what torch places on the current device (timing events, pinned copies, Triton launches) is on
+    the run's card and not on cuda:0; the CPU changes nothing."""
+    if device.type == "cuda":
+        torch.cuda.set_device(device)
+
+
 def free_bytes(device: str) -> int:
     """Bytes free on a resolved Warp `device`: the GPU's free memory, or the host's available pages."""
     dev = wp.get_device(device)

@@ -61,7 +61,7 @@ from ..agent_types import OTHER, TYPES
 from ..arguments import check_int
 from ..atomic import atomic_open
 from ..config import AquariumConfig
-from ..device import resolve_device
+from ..device import make_current, resolve_device
 from ..drivers import is_heuristic, make_driver
 from ..env import BatchedAquarium
 from ..records import provenance
@@ -573,6 +573,7 @@ class Population:
         env_cfg = AquariumConfig.stack(envs, W)
         self.env = BatchedAquarium(env_cfg, num_worlds=K * W, device=device, seed=self.seeds)
         self.device = self.env.torch_device
+        make_current(self.device)
         if train["tf32"] and self.device.type == "cuda":
             torch.backends.cuda.matmul.allow_tf32 = True
         other = OTHER[team]

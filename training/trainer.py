@@ -55,7 +55,7 @@ import torch
 
 from ..agent_types import OTHER, TYPES
 from ..atomic import atomic_open
-from ..device import resolve_device
+from ..device import make_current, resolve_device
 from ..drivers import make_driver
 from ..env import BatchedAquarium
 from ..records import provenance
@@ -139,6 +139,7 @@ class Trainer:
             env_config(self.config), num_worlds=train["num_worlds"], device=device, seed=self.seed
         )
         self.device = self.env.torch_device
+        make_current(self.device)
         if train["tf32"] and self.device.type == "cuda":
             torch.backends.cuda.matmul.allow_tf32 = True  # a process-wide switch of torch's
 

@@ -630,3 +630,16 @@ def test_learning_trained_prey_evade_naivchase(tmp_path, one_thread):
     print(f"captures per prey per episode: {captures}")
     assert captures["random"] > 1.4  # the baseline itself (1.65 measured)
     assert captures["trained"] < 0.8 * captures["random"], captures
+
+
+def test_a_run_on_a_cuda_card_makes_it_torchs_current_device(monkeypatch):
+    """`--device cuda:2` alone in a process: torch's implicit device (timing events, pinned copies, Triton
+    launches) must be that card, not cuda:0 (a run on cuda:2 failed in its first iteration's timing
+    events before); the CPU leaves torch's current device alone."""
+    from aquarium_warp import device as device_module
+
+    calls = []
+    monkeypatch.setattr(torch.cuda, "set_device", calls.append)
+    device_module.make_current(torch.device("cuda:2"))
+    device_module.make_current(torch.device("cpu"))
+    assert calls == [torch.device("cuda:2")]
