@@ -18,7 +18,6 @@ from ..agent_types import TYPES
 from ..arguments import POLICY_SPECS, Interrupted, int_at_least, number, plural, policy_spec, positive_float
 from ..atomic import check_output_dir
 from .config import ALGORITHM_RANGES, CRITICS, POOL_SAMPLING, PRESETS, SHARING, TRAIN_DEFAULTS, UPDATE_SCHEDULES
-from .population import is_population
 
 PRESET_NAMES = tuple(PRESETS)
 
@@ -363,6 +362,7 @@ def run_train(args, *, attach: Callable[..., Any]) -> int:
     """`aquarium-warp train`. `attach(env, port=PORT)` shows the training worlds in the browser (the
     viewer's `attach`, which the command line passes in: training does not import the viewer) for
     `--view`."""
+    from .population import is_population
     from .run_dir import claim_run_directory
 
     changes = _train_changes(args)
@@ -441,6 +441,7 @@ def run_population(args, changes: dict) -> int:
         except BaseException:
             run_dir.release()
             raise
+        print(f"aquarium-warp train: {population.path.line()}")
         print(
             f"aquarium-warp train: resumed the population in {log_dir} at iteration {population.iteration} "
             f"({plural(sum(population.active), 'run')} training)"
@@ -458,6 +459,7 @@ def run_population(args, changes: dict) -> int:
             run_dir.release()
             raise
         v = population.vec_env
+        print(f"aquarium-warp train: {population.path.line()}")
         print(
             f"aquarium-warp train: {plural(population.K, 'run')} of {config['train']['team']} ({v.slots} slots) vs "
             f"{population.configs[0]['train']['opponent']} on {population.env.device}, seeds "
@@ -514,6 +516,7 @@ def _resumed(args, changes: dict, log_dir: str | None):
     trainer = Trainer.resume(args.resume, log_dir=log_dir, changes={"train": changes.get("train", {})})
     _check_logger_package(trainer.config["runner"]["logger"])
     if trainer.rank == 0:
+        print(f"aquarium-warp train: {trainer.path.line()}")
         print(
             f"aquarium-warp train: resumed {args.resume} at iteration {trainer.iteration} of "
             f"{trainer.total_iterations} (log dir {trainer.log_dir})"
@@ -534,6 +537,7 @@ def _new_run(config: dict, log_dir: str):
         )
         against = "" if trainer.opponent is None else f" vs {trainer.config['train']['opponent']}"
         ranks = f" (x{trainer.world_size} processes)" if trainer.world_size > 1 else ""
+        print(f"aquarium-warp train: {trainer.path.line()}")
         print(
             f"aquarium-warp train: {learners}{against} on {trainer.env.device}, "
             f"{plural(trainer.env.num_worlds, 'world')}{ranks}, {plural(total_iterations(config), 'iteration')} "

@@ -12,8 +12,10 @@ Trainer.resume("runs/paper_ps_s0").train()     # continues from the newest check
 
 The log directory receives rsl-rl's TensorBoard events, `config.json` (the config; the run id, which its
 checkpoints carry too, so that a resume never continues one run in another's directory; the command, commit,
-machine and library versions (`aquarium_warp.records.provenance`); under `cuda_graphs` what the training
-loop captures: the rollout, each learner's update; with `train.fused_mlp`, under `fused_loss` and
+machine and library versions (`aquarium_warp.records.provenance`); under `path` the matrix path
+(`fast_path.FastPath.record`: `train.fused_mlp` and `train.tf32` as requested and as resolved, and
+why); under `cuda_graphs` what the training
+loop captures: the rollout, each learner's update; with the fused MLP, under `fused_loss` and
 `fused_act`, whether each learner's update runs the fused loss and its rollout the fused step, or why
 not), `progress.csv` (one row per
 iteration: episode statistics, losses, speed) and checkpoints `model_<i>.pt`, which hold the state
@@ -77,6 +79,7 @@ from .config import (
 )
 from .drivers import LearnerActions, policy_driver
 from .export import export_policy, policy_from_actor, policy_meta
+from .fast_path import resolve_fast_path
 from .memory import check_training_memory
 from .run_dir import check_same_run
 from .runner import AquariumRunner, Learner
@@ -139,7 +142,8 @@ class Trainer:
             env_config(self.config), num_worlds=train["num_worlds"], device=device, seed=self.seed
         )
         self.device = self.env.torch_device
-        if train["tf32"] and self.device.type == "cuda":
+        self.path = resolve_fast_path(self.config, self.device.type)  # train.fused_mlp and train.tf32 resolved
+        if self.path.tf32:
             torch.backends.cuda.matmul.allow_tf32 = True  # a process-wide switch of torch's
 
     def _setup_opponents(self) -> dict:
@@ -221,7 +225,8 @@ class Trainer:
             }
         rollout_graphs, update_graphs = self.runner.graph_plan()  # what the training loop will capture
         record["cuda_graphs"] = {"rollout": rollout_graphs, "update": dict(zip(self.teams, update_graphs))}
-        if train["fused_mlp"]:
+        record["path"] = self.path.record()
+        if self.path.fused_mlp:
             # per learner: its update's fused loss and its rollout's fused step (True), or why not
             from .fused_ppo import FusedAct, FusedPPOLoss
 
