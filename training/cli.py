@@ -294,6 +294,12 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
         help="show the training worlds in the browser while training (aquarium-warp view's page, "
         "served on 127.0.0.1:PORT, default 8765; needs the viewer extra)",
     )
+    g.add_argument(
+        "--verbose",
+        action="store_true",
+        help="print where the start-up went: imports, config, env build, policy and runner, first iteration, "
+        "graph capture",
+    )
     _add_config_flags(g, "run")
     _add_config_flags(p.add_argument_group("both teams learning (--team both)"), "both teams learning (--team both)")
     _add_config_flags(p.add_argument_group("environment"), "environment")
@@ -361,10 +367,14 @@ def _silent(*args, **kwargs) -> None:
 def run_train(args, *, attach: Callable[..., Any]) -> int:
     """`aquarium-warp train`. `attach(env, port=PORT)` shows the training worlds in the browser (the
     viewer's `attach`, which the command line passes in: training does not import the viewer) for
-    `--view`."""
+    `--view`. `--verbose`: the start-up's stages and their seconds, printed after the run."""
+    began = start = time.perf_counter()
+    from . import trainer as _  # noqa: F401  (torch, Warp, rsl-rl: the start-up's imports)
     from .population import is_population
     from .run_dir import claim_run_directory
 
+    startup = {"imports": time.perf_counter() - start}
+    start = time.perf_counter()
     changes = _train_changes(args)
     if args.resume and args.overwrite:
         raise ValueError("--overwrite starts a new run; --resume continues one: give one of them")
@@ -391,6 +401,7 @@ def run_train(args, *, attach: Callable[..., Any]) -> int:
         )
         if owner:
             run_dir = claim_run_directory(log_dir, overwrite=args.overwrite)
+    startup["config"] = time.perf_counter() - start
     try:  # every refusal from here on releases the claimed directory
         trainer = _resumed(args, changes, log_dir) if args.resume else _new_run(config, log_dir)
         say = print if trainer.rank == 0 else _silent
@@ -400,6 +411,8 @@ def run_train(args, *, attach: Callable[..., Any]) -> int:
                 viewer = attach(trainer.env, port=args.view)
                 say(f"aquarium-warp train: the training worlds are on {viewer.url}")
             finish_training(trainer, say)
+            if args.verbose:
+                say(f"aquarium-warp train: start-up {_breakdown(startup, trainer, time.perf_counter() - began)}")
         finally:
             if viewer is not None:
                 viewer.close()
@@ -408,6 +421,20 @@ def run_train(args, *, attach: Callable[..., Any]) -> int:
         if run_dir is not None:
             run_dir.release()
     return 0
+
+
+def _breakdown(startup: dict[str, float], trainer, whole: float) -> str:
+    """`--verbose`'s line: the start-up stages of the CLI (`startup`) and the trainer (`Trainer.startup`; the
+    first iteration's includes the training loop's and the logger's set-up), their sum, the host time of
+    the CUDA graph captures (in the iterations after the first), and the `whole` run's seconds (from the
+    imports to the export)."""
+    stages = {**startup, **trainer.startup}
+    total = sum(stages.values())
+    loop = trainer.runner.loop
+    if loop is not None and loop.graphs:
+        stages["graph capture"] = loop.capture_seconds
+    listed = ", ".join(f"{k} {v:.2f} s" for k, v in stages.items())
+    return f"{total:.2f} s to the first iteration's end ({listed}); the whole run {whole:.2f} s"
 
 
 def run_population(args, changes: dict) -> int:

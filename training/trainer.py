@@ -51,13 +51,14 @@ import copy
 import io
 import json
 import os
+import time
 import uuid
 
 import torch
 
 from ..agent_types import OTHER, TYPES
 from ..atomic import atomic_open
-from ..device import resolve_device
+from ..device import resolve_device, synchronize
 from ..drivers import make_driver
 from ..env import BatchedAquarium
 from ..records import provenance
@@ -110,8 +111,14 @@ class Trainer:
         self.log_dir = log_dir
         self.run_id = run_id or uuid.uuid4().hex[:16]
         self.stop = StopRequest()
+        # Seconds of each start-up stage (`train --verbose`): the build's here, the first iteration's and the
+        # graph captures' added by `train`.
+        self.startup: dict[str, float] = {}
+        start = time.perf_counter()
         device = self._setup_process()
         self._setup_env(device)
+        self.startup["env build (Warp modules loaded)"] = time.perf_counter() - start
+        start = time.perf_counter()
         opponents = self._setup_opponents()
         self._setup_adapters(opponents)
         self._setup_runner()
@@ -121,6 +128,8 @@ class Trainer:
         self._setup_video()
         if log_dir is not None:  # the git state of the repository holding this source (rsl-rl searches upward)
             self.runner.add_git_repo_to_log(__file__)
+        self.startup["opponent, adapters, policy and runner"] = time.perf_counter() - start
+        self._first_iteration: float | None = None  # when the first `train` call began, until its first iteration ends
 
     def _setup_process(self) -> str:
         """This process's rank, the run's processes (torchrun: one per GPU or CPU share, each with its own
@@ -370,6 +379,8 @@ class Trainer:
         if iterations is None:
             iterations = self.total_iterations - self.iteration
         fresh = self.iteration == 0
+        if "first iteration" not in self.startup:
+            self._first_iteration = time.perf_counter()
         # Our loop stops at an iteration boundary on SIGINT or SIGTERM (`stop.py`); rsl-rl's cannot, and
         # torchrun's ranks could see a signal at different iterations (their all-reduces would wait forever).
         graceful = self.runner.loop_kind == "fast" and self.world_size == 1
@@ -391,6 +402,10 @@ class Trainer:
     def after_iteration(self, iteration: int) -> None:
         """Between iterations (`iteration` done): the pool's snapshots and the log's video, when due."""
         train = self.config["train"]
+        if self._first_iteration is not None:
+            synchronize(self.device)  # (once: the first iteration's work done)
+            self.startup["first iteration"] = time.perf_counter() - self._first_iteration
+            self._first_iteration = None
         if self.pool is not None and (iteration + 1) % int(train["pool_every"]) == 0:
             self.pool.snapshot()
         writer = self.runner.logger.writer
