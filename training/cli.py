@@ -297,8 +297,8 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--verbose",
         action="store_true",
-        help="print where the start-up went: imports, config, env build, policy and runner, first iteration, "
-        "graph capture",
+        help="print where the start-up of a run went (not with --runs): imports, config, env build, policy and "
+        "runner, first iteration, graph capture",
     )
     _add_config_flags(g, "run")
     _add_config_flags(p.add_argument_group("both teams learning (--team both)"), "both teams learning (--team both)")
