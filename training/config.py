@@ -623,7 +623,10 @@ def runner_config(
 ) -> dict:
     """rsl-rl's runner config of `team`'s learner (default: the one learning team) for a run config,
     given that team's slots per world, the number of discrete actions and the device type ("cpu" or
-    "cuda")."""
+    "cuda"); the actor and critic are the fused kernels' models where `fast_path.resolve_fast_path` takes
+    the fused MLP."""
+    from .fast_path import resolve_fast_path  # (it imports this module)
+
     team = config["train"]["team"] if team is None else team
     train = team_settings(config, team)
     runner = team_runner(config, team)
@@ -643,8 +646,6 @@ def runner_config(
     dist = actor.setdefault("distribution_cfg", {"class_name": DISTRIBUTION})
     dist.setdefault("class_name", DISTRIBUTION)
     dist["num_categories"] = int(action_count)
-    from .fast_path import resolve_fast_path
-
     individual = train["sharing"] == "individual"
     if resolve_fast_path(config, device_type).fused_mlp:
         actor["class_name"] = critic["class_name"] = FUSED_IL_MODEL if individual else FUSED_MODEL

@@ -13,13 +13,12 @@ Trainer.resume("runs/paper_ps_s0").train()     # continues from the newest check
 The log directory receives rsl-rl's TensorBoard events, `config.json` (the config; the run id, which its
 checkpoints carry too, so that a resume never continues one run in another's directory; the command, commit,
 machine and library versions (`aquarium_warp.records.provenance`); under `path` the matrix path
-(`fast_path.FastPath.record`: `train.fused_mlp` and `train.tf32` as requested and as resolved, and
-why); under `cuda_graphs` what the training
-loop captures: the rollout, each learner's update; with the fused MLP, under `fused_loss` and
-`fused_act`, whether each learner's update runs the fused loss and its rollout the fused step, or why
-not), `progress.csv` (one row per
-iteration: episode statistics, losses, speed) and checkpoints `model_<i>.pt`, which hold the state
-after iteration i (0-based; the runner's `iter` entry is the next iteration, `i + 1`).
+(`fast_path.FastPath.record`: `train.fused_mlp` and `train.tf32` as requested and as resolved, and why);
+under `cuda_graphs` what the training loop captures: the rollout, each learner's update; with the fused
+MLP, under `fused_loss` and `fused_act`, whether each learner's update runs the fused loss and its rollout
+the fused step, or why not), `progress.csv` (one row per iteration: episode statistics, losses, speed)
+and checkpoints `model_<i>.pt`, which hold the state after iteration i (0-based; the runner's `iter`
+entry is the next iteration, `i + 1`).
 
 A checkpoint holds, besides rsl-rl's (actor, critic, optimizer, iteration), under `infos["aquarium"]`:
 the run config and id, the simulation's `state_dict` (every world's agents and step counters, i.e. the
