@@ -9,12 +9,17 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
-import torch
 
-from .state import AGENT_FIELDS, STATE_DICT_FIELDS, SimulationState
+if TYPE_CHECKING:
+    import torch
+
+    from .state import SimulationState
+
+# torch and the state's Warp groups are imported where a check needs them: the config's checks run in
+# light processes too (`aquarium-warp --help`, config validation).
 
 # The counters `set_state` may set besides the agent fields.
 SETTABLE_COUNTERS = ("world_step", "episode")
@@ -94,6 +99,8 @@ class Env(Protocol):
 def action_tensor(actions) -> torch.Tensor:
     """Actions as a tensor; numpy arrays of the other byte order are converted first (torch reads only
     native ones)."""
+    import torch
+
     if isinstance(actions, np.ndarray) and not actions.dtype.isnative:
         actions = actions.astype(actions.dtype.newbyteorder("="))
     return actions if isinstance(actions, torch.Tensor) else torch.as_tensor(actions)
@@ -102,6 +109,8 @@ def action_tensor(actions) -> torch.Tensor:
 def check_actions(env: Env, actions) -> None:
     """`actions` fits `env`'s action buffers (keys, integer dtype, shape, device), and every live
     agent's action is in [0, action_count - 1]."""
+    import torch
+
     types = tuple(env.actions)
     if not isinstance(actions, Mapping):
         raise ValueError(f"actions must be a dict with keys {types}, got {type(actions).__name__}")
@@ -146,6 +155,8 @@ def check_actions(env: Env, actions) -> None:
 def cpu_tensor(name: str, value) -> torch.Tensor:
     """`value` (a tensor, array, number or nested list) as a CPU tensor; a clear error naming `name`
     for what torch cannot hold (strings, objects, mixed types)."""
+    import torch
+
     try:
         if not isinstance(value, torch.Tensor):
             value = np.asarray(value)
@@ -198,6 +209,8 @@ def state_value_ranges(env: Env) -> dict[str, str]:
 def checked_state_value(env: Env, name: str, value: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
     """`value` (a CPU tensor of the field's shape) as `dtype`, after checking that it holds values the
     field may take in `env`; the range check runs on the given values, before a cast could wrap them."""
+    import torch
+
     config = env.config
     if value.dtype.is_complex:
         raise ValueError(f"{name} has dtype {value.dtype}; expected real numbers ({dtype})")
@@ -241,6 +254,8 @@ def checked_state_value(env: Env, name: str, value: torch.Tensor, dtype: torch.d
 def checked_state_fields(env: Env, world, fields: Mapping) -> dict[str, torch.Tensor]:
     """`env.set_state`'s `fields` for `world` (None: every world), checked: names, the world index,
     shapes and values; returned as CPU tensors of the fields' dtypes."""
+    from .state import AGENT_FIELDS
+
     views, num_worlds = env.state.torch, env.num_worlds
     unknown = [k for k in fields if k not in AGENT_FIELDS and k not in SETTABLE_COUNTERS]
     if unknown:
@@ -271,6 +286,10 @@ def checked_state_tensors(env: Env, tensors) -> dict[str, torch.Tensor]:
     """The `"tensors"` of a `state_dict()` for `env`, checked: exactly `STATE_DICT_FIELDS`, each a tensor
     of the field's shape, dtype and values, live counts matching the alive flags; returned as CPU
     tensors."""
+    import torch
+
+    from .state import STATE_DICT_FIELDS
+
     views = env.state.torch
     if not isinstance(tensors, Mapping):
         raise ValueError(f"state_dict tensors must be a dict of tensors, got {type(tensors).__name__}")

@@ -9,6 +9,7 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Callable
 
 from .arguments import (
     DEVICE_HELP,
@@ -21,6 +22,30 @@ from .arguments import (
     positive_int,
 )
 from .atomic import check_output_file
+
+
+class _DeferredParser(argparse.ArgumentParser):
+    """A subcommand's parser whose options `add_options(parser)` adds on its first use (parsing it or
+    its help): adding them imports the modules that own them (the studies, the benchmark suite:
+    torch and Warp), which `aquarium-warp --help` and the other subcommands do without."""
+
+    def __init__(self, *args, add_options: Callable[[argparse.ArgumentParser], None] | None = None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._add_options = add_options
+
+    def complete(self) -> None:
+        """Add the options now (once)."""
+        add_options, self._add_options = self._add_options, None
+        if add_options is not None:
+            add_options(self)
+
+    def parse_known_args(self, args=None, namespace=None):
+        self.complete()
+        return super().parse_known_args(args, namespace)
+
+    def format_help(self) -> str:
+        self.complete()
+        return super().format_help()
 
 
 def _terminated(signum, frame) -> None:
@@ -156,14 +181,19 @@ def _add_eval(sub) -> None:
 
 def _add_study(sub) -> None:
     """`aquarium-warp study <name>`: each study of `aquarium_warp.studies.STUDIES` owns its options and handler."""
-    from .studies import STUDIES
-
-    study = sub.add_parser(
+    sub.add_parser(
         "study",
         help="parameter studies of collective behaviour (swarm-size, fov-view), the "
         "paper's open questions (group-hunting, many-eyes, flow) and the swarm "
         "study (swarm)",
+        add_options=_study_options,
     )
+
+
+def _study_options(study) -> None:
+    """`study`'s subcommands, one a study (importing every study's module)."""
+    from .studies import STUDIES
+
     kinds = study.add_subparsers(dest="study", required=True)
     for name, module in STUDIES.items():
         p = kinds.add_parser(name, help=module.HELP, description=module.DESCRIPTION)
@@ -184,16 +214,21 @@ def _add_sweep(sub) -> None:
 
 def _add_bench(sub) -> None:
     """`aquarium-warp bench`: the scaling benchmark suite (code in `aquarium_warp/bench/`)."""
-    from .bench import add_arguments, run_from_args
-
-    bench = sub.add_parser(
+    sub.add_parser(
         "bench",
         help="scaling benchmark: agent-steps/s, stage times, memory and bandwidth vs agents and worlds",
         description="Sweep agents per world and worlds; print a table and write "
         "scaling_<device>.json and log-log figures into --out-dir. The peers "
         "(--original, --vmas) are measured by the source tree's "
         "benchmarks/bench_scaling.py (same options).",
+        add_options=_bench_options,
     )
+
+
+def _bench_options(bench) -> None:
+    """`bench`'s options (importing the suite)."""
+    from .bench import add_arguments, run_from_args
+
     add_arguments(bench)
     bench.set_defaults(run=run_from_args)
 
@@ -213,13 +248,14 @@ def _add_view(sub) -> None:
     view.set_defaults(run=run)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The `aquarium-warp` parser with every subcommand (`python -m aquarium_warp` is the same)."""
+def build_parser(deferred: bool = False) -> argparse.ArgumentParser:
+    """The `aquarium-warp` parser with every subcommand (`python -m aquarium_warp` is the same).
+    `deferred` (the command line's): the study and bench subcommands add their options when used."""
     from . import __version__
 
     parser = argparse.ArgumentParser(prog="aquarium-warp", description="Aquarium predator-prey worlds on Warp")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True)
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_DeferredParser)
     demo = sub.add_parser(
         "demo",
         help="step a batch of worlds with random actions and report speed and captures",
@@ -292,11 +328,14 @@ def build_parser() -> argparse.ArgumentParser:
     _add_sweep(sub)
     _add_bench(sub)
     _add_view(sub)
+    if not deferred:
+        for command in sub.choices.values():
+            command.complete()
     return parser
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
+    parser = build_parser(deferred=True)
     args = parser.parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)  # the command as given (the studies record it)
     main_thread = threading.current_thread() is threading.main_thread()

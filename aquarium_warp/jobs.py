@@ -49,7 +49,6 @@ import numpy as np
 from .arguments import check_int, non_negative_float, non_negative_int, positive_float
 from .atomic import atomic_open
 from .config import AquariumConfig
-from .env import BatchedAquarium
 
 INSTALL = "pip install 'aquarium-warp[distributed]'"
 # Finished tasks, one JSON file each under the study's `out`.
@@ -249,6 +248,7 @@ def warm_up(
     model's world) with the `prey` and `predator` drivers and the swarm metrics, once, before tasks run
     at once: worker processes must not all compile them, nor threads load them together."""
     from .drivers import make_drivers
+    from .env import BatchedAquarium
     from .metrics import SwarmMetrics
 
     cfg = (config or AquariumConfig()).replace(prey_count=2, max_steps=2)

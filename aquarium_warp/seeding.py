@@ -35,7 +35,6 @@ import random
 import zlib
 
 import numpy as np
-import torch
 
 from .agent_types import TYPES
 
@@ -117,6 +116,8 @@ def rank_seed(seed: int, rank: int) -> int:
 
 def seed_process(seed: int) -> None:
     """Seed torch's, numpy's and Python's global generators from `seed` (numpy's takes 32 bits)."""
+    import torch  # (here: the config's draws need only numpy)
+
     torch.manual_seed(seed)
     np.random.seed(seed % 2**32)
     random.seed(seed)

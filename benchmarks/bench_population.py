@@ -95,7 +95,7 @@ def population_rate(args, runs: int) -> dict:
     if population.stacked:
         phases = population.loop.phase_times()
         point["phase_ms"] = {k: 1e3 * v for k, v in phases.items()}
-        peaks, tf32 = card_peaks(device_name(dev)), bool(config["train"]["tf32"])
+        peaks, tf32 = card_peaks(device_name(dev)), population.path.tf32
         alg = population.learner
         floor = Floor(update_work(alg), peaks, tf32=tf32)
         point["floor"] = floor.record({"iteration": elapsed / args.iterations, "update": phases["update"]})

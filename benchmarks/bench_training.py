@@ -47,20 +47,23 @@ from aquarium_warp.bench.floors import Floor, card_peaks, rollout_work, update_w
 from aquarium_warp.device import synchronize
 from aquarium_warp.records import command_line, provenance
 from aquarium_warp.training import Trainer, make_config
+from aquarium_warp.training.fast_path import TORCH_FLOAT32
 
 
 def device_name(device: torch.device) -> str:
     return torch.cuda.get_device_name(device) if device.type == "cuda" else platform.processor() or platform.machine()
 
 
-# Options measured beside the default (`--variants`): TF32 matrix products, rsl-rl's own
-# `torch_compile_mode` (torch.compile of the actor and critic, fusing their elementwise work), no CUDA
-# graphs, the fused MLP (`train.fused_mlp`: float32 products, and with `tf32` TF32 products), and
-# the adaptive learning-rate schedule (its update runs eagerly between replayed rollouts, as a torchrun
-# run's does).
+# Options measured beside the default (`--variants`; "default": the run config's defaults, the fused path
+# with TF32 on CUDA where Triton serves it, `training/fast_path.py`). The others start from torch's MLP in
+# float32 (`TORCH_FLOAT32`, "torch"): TF32 matrix products, rsl-rl's own `torch_compile_mode` (torch.compile
+# of the actor and critic, fusing their elementwise work), no CUDA graphs, the fused MLP (`train.fused_mlp`:
+# float32 products, and with `tf32` TF32 products), and the adaptive learning-rate schedule (its update runs
+# eagerly between replayed rollouts, as a torchrun run's does).
 ADAPTIVE = {"runner": {"algorithm": {"schedule": "adaptive", "desired_kl": 0.01}}}
 VARIANTS = {
     "default": {},
+    "torch": {},
     "tf32": {"train": {"tf32": True}},
     "compile": {"runner": {"torch_compile_mode": "default"}},
     "tf32+compile": {"train": {"tf32": True}, "runner": {"torch_compile_mode": "default"}},
@@ -70,6 +73,11 @@ VARIANTS = {
     "adaptive": ADAPTIVE,
     "adaptive+eager": {**ADAPTIVE, "train": {"cuda_graphs": False}},
 }
+
+
+def variant_changes(variant: str) -> tuple[dict, ...]:
+    """The run config changes of a variant (see `VARIANTS`)."""
+    return ({}, {}) if variant == "default" else ({"train": TORCH_FLOAT32}, VARIANTS[variant])
 
 
 def measure(
@@ -86,7 +94,7 @@ def measure(
             "iterations": warmup + iterations + 1,
         }
     }
-    cfg = make_config("paper", changes, VARIANTS[variant])
+    cfg = make_config("paper", changes, *variant_changes(variant))
     torch.backends.cuda.matmul.allow_tf32 = False  # process-wide: a TF32 variant must not leak into the next
     trainer = Trainer(cfg)
     dev = trainer.device
@@ -121,7 +129,7 @@ def measure(
         point["phase_ms"] = {k: 1e3 * v for k, v in phases.items()}
         measured["update"] = phases["update"]
         rollout_measured["rollout"] = sum(v for k, v in phases.items() if k != "update")
-    peaks, tf32 = card_peaks(device_name(dev)), cfg["train"]["tf32"]
+    peaks, tf32 = card_peaks(device_name(dev)), trainer.path.tf32
     floor = Floor(update_work(trainer.runner.alg), peaks, tf32=tf32)
     point["floor"] = floor.record(measured)
     point["floor_text"] = floor.describe()

@@ -184,19 +184,8 @@ def main(argv=None) -> int:
     from aquarium_warp.atomic import atomic_open
     from aquarium_warp.drivers import NO_CONFUSION
     from aquarium_warp.records import command_line, git_info, json_safe, machine_info
-    from aquarium_warp.training.grid import (
-        BASELINES,
-        FOVS,
-        SPEEDS,
-        VIEWS,
-        cell_of,
-        check_targets,
-        evaluate_grid,
-        format_tables,
-        grid_base,
-        grid_cells,
-        write_grid,
-    )
+    from aquarium_warp.training.grid import check_targets, evaluate_grid, format_tables, grid_base, write_grid
+    from aquarium_warp.training.grid_cells import BASELINES, FOVS, SPEEDS, VIEWS, cell_of, grid_cells
 
     start = time.time()
     presets = [PREY, PREDATOR] + ([BOTH] if args.coevolved else [])

@@ -24,7 +24,7 @@ os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from bench_training import VARIANTS
+from bench_training import VARIANTS, variant_changes
 
 from aquarium_warp.atomic import atomic_open
 from aquarium_warp.bench import parse_counts
@@ -37,7 +37,7 @@ def profile(device: str, worlds: int, variant: str, warmup: int) -> tuple[list[d
     time on CUDA, the op's own CPU time on the CPU), longest first, and the iteration's phase times
     (ms, CUDA events or host timers)."""
     changes = {"train": {"num_worlds": worlds, "device": device, "quiet": True, "export": [], "iterations": warmup + 1}}
-    cfg = make_config("paper", VARIANTS[variant], changes, {"train": {"cuda_graphs": False}})
+    cfg = make_config("paper", *variant_changes(variant), changes, {"train": {"cuda_graphs": False}})
     trainer = Trainer(cfg)
     trainer.train(warmup)
     activities = [torch.profiler.ProfilerActivity.CPU]

@@ -41,8 +41,7 @@ from .config import (
     TRAIN_DEFAULTS,
     UPDATE_SCHEDULES,
 )
-from .grid import BASELINES, FOVS, NAIVCHASE, PREY_COUNTS, SPEEDS, UNLIMITED, VIEWS, Cell, grid_cells
-from .population import is_population
+from .grid_cells import BASELINES, FOVS, NAIVCHASE, PREY_COUNTS, SPEEDS, UNLIMITED, VIEWS, Cell, grid_cells
 
 PRESET_NAMES = tuple(PRESETS)
 
@@ -319,6 +318,12 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
         help="show the training worlds in the browser while training (aquarium-warp view's page, "
         "served on 127.0.0.1:PORT, default 8765; needs the viewer extra)",
     )
+    g.add_argument(
+        "--verbose",
+        action="store_true",
+        help="print where the start-up of a run went (not with --runs): imports, config, env build, policy and "
+        "runner, first iteration, graph capture",
+    )
     _add_config_flags(g, "run")
     _add_config_flags(p.add_argument_group("both teams learning (--team both)"), "both teams learning (--team both)")
     _add_config_flags(p.add_argument_group("environment"), "environment")
@@ -386,9 +391,14 @@ def _silent(*args, **kwargs) -> None:
 def run_train(args, *, attach: Callable[..., Any]) -> int:
     """`aquarium-warp train`. `attach(env, port=PORT)` shows the training worlds in the browser (the
     viewer's `attach`, which the command line passes in: training does not import the viewer) for
-    `--view`."""
+    `--view`. `--verbose`: the start-up's stages and their seconds, printed after the run."""
+    began = start = time.perf_counter()
+    from . import trainer as _  # noqa: F401  (torch, Warp, rsl-rl: the start-up's imports)
+    from .population import is_population
     from .run_dir import claim_run_directory
 
+    startup = {"imports": time.perf_counter() - start}
+    start = time.perf_counter()
     changes = _train_changes(args)
     if args.resume and args.overwrite:
         raise ValueError("--overwrite starts a new run; --resume continues one: give one of them")
@@ -415,6 +425,7 @@ def run_train(args, *, attach: Callable[..., Any]) -> int:
         )
         if owner:
             run_dir = claim_run_directory(log_dir, overwrite=args.overwrite)
+    startup["config"] = time.perf_counter() - start
     try:  # every refusal from here on releases the claimed directory
         trainer = _resumed(args, changes, log_dir) if args.resume else _new_run(config, log_dir)
         say = print if trainer.rank == 0 else _silent
@@ -424,6 +435,8 @@ def run_train(args, *, attach: Callable[..., Any]) -> int:
                 viewer = attach(trainer.env, port=args.view)
                 say(f"aquarium-warp train: the training worlds are on {viewer.url}")
             finish_training(trainer, say)
+            if args.verbose:
+                say(f"aquarium-warp train: start-up {_breakdown(startup, trainer, time.perf_counter() - began)}")
         finally:
             if viewer is not None:
                 viewer.close()
@@ -432,6 +445,20 @@ def run_train(args, *, attach: Callable[..., Any]) -> int:
         if run_dir is not None:
             run_dir.release()
     return 0
+
+
+def _breakdown(startup: dict[str, float], trainer, whole: float) -> str:
+    """`--verbose`'s line: the start-up stages of the CLI (`startup`) and the trainer (`Trainer.startup`; the
+    first iteration's includes the training loop's and the logger's set-up), their sum, the host time of
+    the CUDA graph captures (in the iterations after the first), and the `whole` run's seconds (from the
+    imports to the export)."""
+    stages = {**startup, **trainer.startup}
+    total = sum(stages.values())
+    loop = trainer.runner.loop
+    if loop is not None and loop.graphs:
+        stages["graph capture"] = loop.capture_seconds
+    listed = ", ".join(f"{k} {v:.2f} s" for k, v in stages.items())
+    return f"{total:.2f} s to the first iteration's end ({listed}); the whole run {whole:.2f} s"
 
 
 def run_population(args, changes: dict) -> int:
@@ -465,6 +492,7 @@ def run_population(args, changes: dict) -> int:
         except BaseException:
             run_dir.release()
             raise
+        print(f"aquarium-warp train: {population.path.line()}")
         print(
             f"aquarium-warp train: resumed the population in {log_dir} at iteration {population.iteration} "
             f"({plural(sum(population.active), 'run')} training)"
@@ -482,6 +510,7 @@ def run_population(args, changes: dict) -> int:
             run_dir.release()
             raise
         v = population.vec_env
+        print(f"aquarium-warp train: {population.path.line()}")
         print(
             f"aquarium-warp train: {plural(population.K, 'run')} of {config['train']['team']} ({v.slots} slots) vs "
             f"{population.configs[0]['train']['opponent']} on {population.env.device}, seeds "
@@ -538,6 +567,7 @@ def _resumed(args, changes: dict, log_dir: str | None):
     trainer = Trainer.resume(args.resume, log_dir=log_dir, changes={"train": changes.get("train", {})})
     _check_logger_package(trainer.config["runner"]["logger"])
     if trainer.rank == 0:
+        print(f"aquarium-warp train: {trainer.path.line()}")
         print(
             f"aquarium-warp train: resumed {args.resume} at iteration {trainer.iteration} of "
             f"{trainer.total_iterations} (log dir {trainer.log_dir})"
@@ -558,6 +588,7 @@ def _new_run(config: dict, log_dir: str):
         )
         against = "" if trainer.opponent is None else f" vs {trainer.config['train']['opponent']}"
         ranks = f" (x{trainer.world_size} processes)" if trainer.world_size > 1 else ""
+        print(f"aquarium-warp train: {trainer.path.line()}")
         print(
             f"aquarium-warp train: {learners}{against} on {trainer.env.device}, "
             f"{plural(trainer.env.num_worlds, 'world')}{ranks}, {plural(total_iterations(config), 'iteration')} "
@@ -778,7 +809,7 @@ class EvalOptions:
 
 @dataclasses.dataclass
 class GridCells:
-    """The options of `aquarium-warp eval --grid`'s cells (`grid.grid_cells`)."""
+    """The options of `aquarium-warp eval --grid`'s cells (`grid_cells.grid_cells`)."""
 
     grid_prey_counts: list[int] = dataclasses.field(
         default_factory=lambda: list(PREY_COUNTS),
@@ -952,7 +983,8 @@ def _eval_world(options: EvalOptions, specs):
 def run_grid(options: EvalOptions, grid: GridCells) -> int:
     """`aquarium-warp eval --grid`: every pairing over the grid's cells, its tables, files and targets."""
     from ..pretrained import GENERAL, names, world
-    from .grid import cell_of, check_targets, evaluate_grid, format_tables, grid_base, write_grid
+    from .grid import check_targets, evaluate_grid, format_tables, grid_base, write_grid
+    from .grid_cells import cell_of
 
     if options.episodes_per_seed < 1:
         raise ValueError(f"--episodes={options.episodes_per_seed} must be an integer >= 1")

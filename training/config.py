@@ -44,6 +44,7 @@ MLP_MODEL = "MLPModel"
 IL_MODEL = "aquarium_warp.training.models:IndividualMLPModel"
 FUSED_MODEL = "aquarium_warp.training.fused_mlp:FusedMLPModel"
 FUSED_IL_MODEL = "aquarium_warp.training.fused_mlp:FusedIndividualMLPModel"
+TORCH_MLP_MODELS = (MLP_MODEL, "rsl_rl.models:MLPModel")  # rsl-rl's MLP model, by either of its names
 SHARING = ("parameter", "individual")
 
 TRAIN_DEFAULTS: dict[str, Any] = {
@@ -69,8 +70,13 @@ TRAIN_DEFAULTS: dict[str, Any] = {
     # all-reduce inside it) or false (eager)
     "graph_update": "auto",
     "metrics_every": 10,  # swarm metrics (Swarm/* in the log) sampled every N steps; 0: none
-    "tf32": False,  # CUDA matrix products in TF32 (faster for large batches, ~1e-3 relative error)
-    "fused_mlp": False,  # actor and critic MLPs as the fused Triton kernels (fused_mlp.py, fused_ppo.py)
+    # The matrix path (fast_path.py): true, false or "auto". fused_mlp: actor and critic MLPs, the PPO loss and the
+    # rollout step as the fused Triton kernels (fused_mlp.py, fused_ppo.py); "auto": on CUDA where Triton imports
+    # and the kernels serve the config. tf32: CUDA matrix products in TF32 (~1e-3 relative error); "auto": with
+    # the fused MLP on CUDA. The default stays torch's float32 path: the pre-registered check of the fused path
+    # as the CUDA default (benchmarks/fused_default.md) found its both-teams predators different (better).
+    "tf32": False,
+    "fused_mlp": False,
     "critic": "local",  # the critic's input (MAPPO): "local", "team" or "world" (see CRITICS)
     # Both teams learning (team "both"):
     "update_schedule": "simultaneous",  # "simultaneous", or "alternating": one team learns, the other is frozen
@@ -439,9 +445,13 @@ def validate(config: dict) -> None:
     ):
         if not is_int(train[name]) or not low <= train[name] <= 2**31 - 1:
             raise ValueError(f"train.{name}={train[name]!r} must be an integer in [{low}, 2**31 - 1]{meaning}")
-    for name in ("tf32", "cuda_graphs", "fused_mlp"):
-        if not isinstance(train[name], bool):
-            raise ValueError(f"train.{name}={train[name]!r} must be true or false")
+    if not isinstance(train["cuda_graphs"], bool):
+        raise ValueError(f"train.cuda_graphs={train['cuda_graphs']!r} must be true or false")
+    for name in ("fused_mlp", "tf32"):
+        if not (isinstance(train[name], bool) or train[name] == "auto"):
+            raise ValueError(
+                f"train.{name}={train[name]!r} must be true, false or 'auto' (the fused path on CUDA with Triton)"
+            )
     if not (isinstance(train["graph_update"], bool) or train["graph_update"] == "auto"):
         raise ValueError(
             f"train.graph_update={train['graph_update']!r} must be true or false, or 'auto' "
@@ -500,10 +510,10 @@ def _validate_team_models(config: dict, team: str) -> None:
     block = (config.get("teams") or {}).get(team) or {}
     runner = team_runner(config, team)
     settings = team_settings(config, team)
-    fused = config["train"]["fused_mlp"]
+    fused = config["train"]["fused_mlp"] is True  # ("auto" takes torch's path for other models)
     for part in ("actor", "critic"):
         class_name = runner.get(part, {}).get("class_name", MLP_MODEL)
-        if fused and class_name not in (MLP_MODEL, "rsl_rl.models:MLPModel"):
+        if fused and class_name not in TORCH_MLP_MODELS:
             raise ValueError(
                 "train.fused_mlp serves rsl-rl's MLPModel (parameter sharing or Individual Learning), not "
                 f"{part} class_name={class_name!r}"
@@ -616,7 +626,10 @@ def runner_config(
 ) -> dict:
     """rsl-rl's runner config of `team`'s learner (default: the one learning team) for a run config,
     given that team's slots per world, the number of discrete actions and the device type ("cpu" or
-    "cuda")."""
+    "cuda"); the actor and critic are the fused kernels' models where `fast_path.resolve_fast_path` takes
+    the fused MLP."""
+    from .fast_path import resolve_fast_path  # (it imports this module)
+
     team = config["train"]["team"] if team is None else team
     train = team_settings(config, team)
     runner = team_runner(config, team)
@@ -637,11 +650,11 @@ def runner_config(
     dist.setdefault("class_name", DISTRIBUTION)
     dist["num_categories"] = int(action_count)
     individual = train["sharing"] == "individual"
-    if train["fused_mlp"]:
+    if resolve_fast_path(config, device_type).fused_mlp:
         actor["class_name"] = critic["class_name"] = FUSED_IL_MODEL if individual else FUSED_MODEL
     if individual:
         for model in (actor, critic):
-            if model.get("class_name", MLP_MODEL) in (MLP_MODEL, "rsl_rl.models:MLPModel"):
+            if model.get("class_name", MLP_MODEL) in TORCH_MLP_MODELS:
                 model["class_name"] = IL_MODEL
             model["num_agents"] = int(slots)
         alg["minibatch_group_size"] = int(slots)

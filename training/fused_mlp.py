@@ -164,15 +164,22 @@ def _activation_name(activations: list, dims: tuple[int, ...]) -> str:
         )
     if any(isinstance(m, nn.ELU) and m.alpha != 1.0 for m in activations):
         raise ValueError("fused MLP: elu must have alpha 1.0")
-    if any(not 1 <= d <= MAX_WIDTH for d in dims[1:]):
-        raise ValueError(f"fused MLP: layer widths {list(dims[1:])} must be in [1, {MAX_WIDTH}]")
-    hidden = dims[1:-1]
-    if len(hidden) > MAX_HIDDEN_LAYERS or len(set(hidden)) != 1 or hidden[0] not in HIDDEN_WIDTHS:
-        raise ValueError(
-            f"fused MLP: hidden layers {list(hidden)} must be 1 to {MAX_HIDDEN_LAYERS} layers "
-            f"of one width in {list(HIDDEN_WIDTHS)}"
-        )
+    problem = widths_problem(dims[1:])
+    if problem is not None:
+        raise ValueError(f"fused MLP: {problem}")
     return ACTIVATIONS[next(iter(kinds))]
+
+
+def widths_problem(widths: tuple[int, ...] | list[int]) -> str | None:
+    """Why the kernels do not cover an MLP of these layer widths (hidden layers, then the output; the
+    input's is free); None when they do."""
+    if any(not 1 <= d <= MAX_WIDTH for d in widths):
+        return f"layer widths {list(widths)} must be in [1, {MAX_WIDTH}]"
+    hidden = widths[:-1]
+    if len(hidden) > MAX_HIDDEN_LAYERS or len(set(hidden)) != 1 or hidden[0] not in HIDDEN_WIDTHS:
+        layers = f"1 to {MAX_HIDDEN_LAYERS} layers of one width in {list(HIDDEN_WIDTHS)}"
+        return f"hidden layers {list(hidden)} must be {layers}"
+    return None
 
 
 @triton.jit

@@ -45,50 +45,12 @@ from ..records import json_safe, provenance
 from ..rollout import Observer, rollout
 from ..statistics import interval
 from .evaluate import parse_spec
+from .grid_cells import NAIVCHASE, Cell
 
-UNLIMITED = 10000.0  # px: past the half diagonal of the default 800 x 800 torus (566 px), the whole world
-PREY_COUNTS: tuple[int, ...] = (6, 16, 32, 64)
-VIEWS: tuple[float, ...] = (100.0, 200.0, UNLIMITED)
-FOVS: tuple[float, ...] = (120.0, 240.0, 360.0)
-SPEEDS: tuple[float, ...] = (4.5, 5.0, 6.0)
-BASELINES = ("turnaway", "boids", "constant", "random")
-NAIVCHASE = ("naivchase", "naivchase-noconfusion")
 # The targets (docs/general-policies.md): prey-any at most 0.6x TurnAway's captures where prey see 360
 # degrees and below TurnAway everywhere; predator-any at least 1.3x NaivChase's against TurnAway and
 # above it against prey-any; a specialist's own world: prey-any at most 10% above the specialist.
 FULL_VIEW_RATIO, PREDATOR_RATIO, SPECIALIST_MARGIN = 0.6, 1.3, 0.1
-
-
-@dataclasses.dataclass(frozen=True)
-class Cell:
-    """One world of the grid."""
-
-    prey_count: int
-    prey_view_distance: float
-    prey_fov_angle: float
-    predator_max_speed: float
-
-    @property
-    def label(self) -> str:
-        view = "unlimited" if self.prey_view_distance >= UNLIMITED else f"{self.prey_view_distance:g} px"
-        return f"{self.prey_count} prey, {view}, {self.prey_fov_angle:g} deg, speed {self.predator_max_speed:g}"
-
-
-def grid_cells(
-    prey_counts: Sequence[int] = PREY_COUNTS,
-    views: Sequence[float] = VIEWS,
-    fovs: Sequence[float] = FOVS,
-    speeds: Sequence[float] = SPEEDS,
-) -> list[Cell]:
-    """Every combination, prey count slowest, predator speed fastest."""
-    return [
-        Cell(int(n), float(v), float(f), float(s)) for n, v, f, s in itertools.product(prey_counts, views, fovs, speeds)
-    ]
-
-
-def cell_of(world: AquariumConfig) -> Cell:
-    """The cell of a world (a shipped specialist's own world, for its target)."""
-    return Cell(world.prey_count, world.prey.view_distance, world.prey.fov_angle, world.predator.max_speed)
 
 
 def grid_config(base: AquariumConfig, cells: Sequence[Cell], episodes: int, seeds: Sequence[int]):

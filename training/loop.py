@@ -296,6 +296,7 @@ class TrainingLoop:
         self._records = [IterationRecord(self.device), IterationRecord(self.device)]
         self._record_index = 0
         self._warm = False
+        self.capture_seconds = 0.0  # host time spent capturing CUDA graphs (`train --verbose`'s start-up)
         self._capture_stream = torch.cuda.Stream(self.device) if self.graphs else None
         self._pool_handle = torch.cuda.graph_pool_handle() if self.graphs else None  # the graphs' memory pool
         # The rollout as one graph per sampling phase of the swarm metrics (`_rollout_key`), where every
@@ -525,6 +526,7 @@ class TrainingLoop:
         and are put back after each capture."""
         if self._rollout_key() in self._rollout_graphs if self.whole_rollout else bool(self._act_graphs):
             return
+        start = time.perf_counter()
         torch.cuda.synchronize(self.device)
         swarms = self._swarms()
         steps = [swarm.steps for swarm in swarms]
@@ -552,6 +554,7 @@ class TrainingLoop:
                 self._clear_storages()
         for swarm, count in zip(swarms, steps):
             swarm.steps = count
+        self.capture_seconds += time.perf_counter() - start
 
     def _clear_storages(self) -> None:
         for alg in self.algs:
@@ -563,6 +566,7 @@ class TrainingLoop:
         without running it; the indices are drawn before each replay (capturing must not draw: it would
         shift the stream). A failed capture raises, saying so."""
         alg = self.algs[i]
+        start = time.perf_counter()
         torch.cuda.synchronize(self.device)
         self._indices[i] = torch.arange(size * alg.num_mini_batches, device=self.device)
         split = self.update_graphs[i] == "split"
@@ -589,3 +593,4 @@ class TrainingLoop:
                 f"failed: {error}. train.graph_update=false runs the update eagerly"
             ) from error
         self._learn_graphs[i] = graph
+        self.capture_seconds += time.perf_counter() - start

@@ -78,6 +78,7 @@ from .config import (
     validate,
 )
 from .export import export_policy, policy_meta
+from .fast_path import resolve_fast_path
 from .logger import AquariumLogger
 from .loop import TrainingLoop
 from .memory import check_training_memory
@@ -574,7 +575,8 @@ class Population:
         self.env = BatchedAquarium(env_cfg, num_worlds=K * W, device=device, seed=self.seeds)
         self.device = self.env.torch_device
         make_current(self.device)
-        if train["tf32"] and self.device.type == "cuda":
+        self.path = resolve_fast_path(base, self.device.type)  # the runs' one path (`check_runs`: same settings)
+        if self.path.tf32:
             torch.backends.cuda.matmul.allow_tf32 = True
         other = OTHER[team]
         # A heuristic draws from the env's streams, keyed per run as alone; a trained opponent acts by argmax
@@ -627,8 +629,7 @@ class Population:
         """The runs' learners stacked (`StackedPPO`): built from run 0's rsl-rl config with each model's
         class replaced by its stacked twin, the runs' networks copied in and then viewing it."""
         cfg = self.runner_cfgs[0]
-        fused = bool(self.configs[0]["train"]["fused_mlp"])
-        model_class = "aquarium_warp.training.fused_mlp:FusedStackedMLPModel" if fused else (
+        model_class = "aquarium_warp.training.fused_mlp:FusedStackedMLPModel" if self.path.fused_mlp else (
             "aquarium_warp.training.models:StackedMLPModel")  # fmt: skip
         models = {}
         with torch.random.fork_rng(devices=[]):  # its own initial draws are overwritten below
@@ -717,6 +718,7 @@ class Population:
                         "runner_cfg": self.runner_cfgs[k],
                         "total_iterations": self.totals[k],
                         "population": {**population, "run": k},
+                        "path": self.path.record(),
                         **record,
                     },
                     f,

@@ -18,12 +18,15 @@ step.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
 from ..per_world import FLAT_NAMES, INTEGER_FIELDS, Choice, Uniform
 from ..seeding import randomiser_stream
+
+if TYPE_CHECKING:  # (torch where the draws are applied: the config's checks parse the specs without it)
+    import torch
 
 FIELDS = tuple(n for n in FLAT_NAMES if n not in ("flow", "capture_rule"))
 
@@ -108,6 +111,6 @@ class ParamRandomizer:
 
     def update(self, episode_ended: torch.Tensor) -> None:
         """New draws for the worlds whose episode ended (`[W]` bool, the env's `info["episode_ended"]`)."""
-        worlds = torch.nonzero(episode_ended).flatten().tolist()  # the host sync
+        worlds = episode_ended.nonzero().flatten().tolist()  # the host sync
         if worlds:
             self._draw(worlds)

@@ -12,12 +12,13 @@ Trainer.resume("runs/paper_ps_s0").train()     # continues from the newest check
 
 The log directory receives rsl-rl's TensorBoard events, `config.json` (the config; the run id, which its
 checkpoints carry too, so that a resume never continues one run in another's directory; the command, commit,
-machine and library versions (`aquarium_warp.records.provenance`); under `cuda_graphs` what the training
-loop captures: the rollout, each learner's update; with `train.fused_mlp`, under `fused_loss` and
-`fused_act`, whether each learner's update runs the fused loss and its rollout the fused step, or why
-not), `progress.csv` (one row per
-iteration: episode statistics, losses, speed) and checkpoints `model_<i>.pt`, which hold the state
-after iteration i (0-based; the runner's `iter` entry is the next iteration, `i + 1`).
+machine and library versions (`aquarium_warp.records.provenance`); under `path` the matrix path
+(`fast_path.FastPath.record`: `train.fused_mlp` and `train.tf32` as requested and as resolved, and why);
+under `cuda_graphs` what the training loop captures: the rollout, each learner's update; with the fused
+MLP, under `fused_loss` and `fused_act`, whether each learner's update runs the fused loss and its rollout
+the fused step, or why not), `progress.csv` (one row per iteration: episode statistics, losses, speed)
+and checkpoints `model_<i>.pt`, which hold the state after iteration i (0-based; the runner's `iter`
+entry is the next iteration, `i + 1`).
 
 A checkpoint holds, besides rsl-rl's (actor, critic, optimizer, iteration), under `infos["aquarium"]`:
 the run config and id, the simulation's `state_dict` (every world's agents and step counters, i.e. the
@@ -49,13 +50,14 @@ import copy
 import io
 import json
 import os
+import time
 import uuid
 
 import torch
 
 from ..agent_types import OTHER, TYPES
 from ..atomic import atomic_open
-from ..device import make_current, resolve_device
+from ..device import make_current, resolve_device, synchronize
 from ..drivers import make_driver
 from ..env import BatchedAquarium
 from ..records import provenance
@@ -77,6 +79,7 @@ from .config import (
 )
 from .drivers import LearnerActions, policy_driver
 from .export import export_policy, policy_from_actor, policy_meta
+from .fast_path import resolve_fast_path
 from .memory import check_training_memory
 from .run_dir import check_same_run
 from .runner import AquariumRunner, Learner
@@ -107,8 +110,14 @@ class Trainer:
         self.log_dir = log_dir
         self.run_id = run_id or uuid.uuid4().hex[:16]
         self.stop = StopRequest()
+        # Seconds of each start-up stage (`train --verbose`): the build's here, the first iteration's and the
+        # graph captures' added by `train`.
+        self.startup: dict[str, float] = {}
+        start = time.perf_counter()
         device = self._setup_process()
         self._setup_env(device)
+        self.startup["env build (Warp modules loaded)"] = time.perf_counter() - start
+        start = time.perf_counter()
         opponents = self._setup_opponents()
         self._setup_adapters(opponents)
         self._setup_runner()
@@ -118,6 +127,8 @@ class Trainer:
         self._setup_video()
         if log_dir is not None:  # the git state of the repository holding this source (rsl-rl searches upward)
             self.runner.add_git_repo_to_log(__file__)
+        self.startup["opponent, adapters, policy and runner"] = time.perf_counter() - start
+        self._first_iteration: float | None = None  # when the first `train` call began, until its first iteration ends
 
     def _setup_process(self) -> str:
         """This process's rank, the run's processes (torchrun: one per GPU or CPU share, each with its own
@@ -140,7 +151,8 @@ class Trainer:
         )
         self.device = self.env.torch_device
         make_current(self.device)
-        if train["tf32"] and self.device.type == "cuda":
+        self.path = resolve_fast_path(self.config, self.device.type)  # train.fused_mlp and train.tf32 resolved
+        if self.path.tf32:
             torch.backends.cuda.matmul.allow_tf32 = True  # a process-wide switch of torch's
 
     def _setup_opponents(self) -> dict:
@@ -222,7 +234,8 @@ class Trainer:
             }
         rollout_graphs, update_graphs = self.runner.graph_plan()  # what the training loop will capture
         record["cuda_graphs"] = {"rollout": rollout_graphs, "update": dict(zip(self.teams, update_graphs))}
-        if train["fused_mlp"]:
+        record["path"] = self.path.record()
+        if self.path.fused_mlp:
             # per learner: its update's fused loss and its rollout's fused step (True), or why not
             from .fused_ppo import FusedAct, FusedPPOLoss
 
@@ -366,6 +379,8 @@ class Trainer:
         if iterations is None:
             iterations = self.total_iterations - self.iteration
         fresh = self.iteration == 0
+        if "first iteration" not in self.startup:
+            self._first_iteration = time.perf_counter()
         # Our loop stops at an iteration boundary on SIGINT or SIGTERM (`stop.py`); rsl-rl's cannot, and
         # torchrun's ranks could see a signal at different iterations (their all-reduces would wait forever).
         graceful = self.runner.loop_kind == "fast" and self.world_size == 1
@@ -387,6 +402,10 @@ class Trainer:
     def after_iteration(self, iteration: int) -> None:
         """Between iterations (`iteration` done): the pool's snapshots and the log's video, when due."""
         train = self.config["train"]
+        if self._first_iteration is not None:
+            synchronize(self.device)  # (once: the first iteration's work done)
+            self.startup["first iteration"] = time.perf_counter() - self._first_iteration
+            self._first_iteration = None
         if self.pool is not None and (iteration + 1) % int(train["pool_every"]) == 0:
             self.pool.snapshot()
         writer = self.runner.logger.writer

@@ -93,6 +93,7 @@ from ..training import Trainer, make_config
 from ..training.config import env_config
 from ..training.cross_play import CROSS_PLAY_METRICS, cross_play, write_cross_play
 from ..training.episode_video import EpisodeVideo, gif_bytes
+from ..training.fast_path import TORCH_FLOAT32
 from ..training.plots import plot_cross_play
 from .common import study_options
 
@@ -113,7 +114,14 @@ def settings(args, seed: int) -> dict:
             "max_steps": args.max_steps,
             **({"width": 400.0, "height": 400.0} if args.tiny else {}),
         },
-        "train": {"num_worlds": args.worlds, "seed": seed, "quiet": True, "export": ["jit"], "metrics_every": 10},
+        "train": {
+            "num_worlds": args.worlds,
+            "seed": seed,
+            "quiet": True,
+            "export": ["jit"],
+            "metrics_every": 10,
+            **TORCH_FLOAT32,
+        },
         "runner": {"num_steps_per_env": args.steps},
     }
 

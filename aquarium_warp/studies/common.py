@@ -85,6 +85,7 @@ def training_config(
     recipe's), the world `env` (AquariumConfig fields), `iterations` PPO iterations of `worlds` worlds, no
     logging, checkpoints or swarm metrics."""
     from ..training.config import LEARNED_PREY_RECIPE, deep_update, make_config
+    from ..training.fast_path import TORCH_FLOAT32
 
     config = make_config(
         "paper",
@@ -101,6 +102,7 @@ def training_config(
                 "quiet": True,
                 "metrics_every": 0,
                 "export": ["jit"],
+                **TORCH_FLOAT32,
             },
         },
     )

@@ -140,11 +140,13 @@ def run_dir(out: str, condition: str, world: str, seed: int) -> str:
 def run_config(condition: str, world: str, seed: int) -> dict:
     """The Trainer config of `condition`'s training run in `world` with `seed`, without a device (its
     task is given one): what `aquarium-warp train --preset <preset> --seed <seed> --quiet --export jit`
-    with `--set` of the world's and the condition's assignments builds."""
+    with `--set` of torch's float32 path (`TORCH_FLOAT32`, the committed results'), the world's and the
+    condition's assignments builds."""
     from ..training.config import deep_update, make_config, parse_assignment
+    from ..training.fast_path import TORCH_FLOAT32
 
     preset, assignments = CONDITIONS[condition]
-    changes = {"train": {"device": None, "seed": seed, "quiet": True, "export": "jit"}}
+    changes = {"train": {"device": None, "seed": seed, "quiet": True, "export": "jit", **TORCH_FLOAT32}}
     for assignment in WORLDS[world] + assignments:
         deep_update(changes, parse_assignment(assignment))
     return make_config(preset, changes)

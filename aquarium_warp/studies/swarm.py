@@ -432,10 +432,12 @@ def run_config(study: SwarmStudy, condition: str, seed: int) -> dict:
     """The Trainer config of `condition`'s training run with `seed`, without a device (its task is
     given one): what `aquarium-warp train --preset <--train-preset> --seed <seed> --quiet --export jit
     --save-interval I --prey N --num-worlds W --iterations I --entropy 0.01 --predator-policy <opponent>`
-    with `--set` of `SCENARIO`, the recipe's (`LEARNED_PREY_RECIPE`), the condition's and `--train-set`'s
+    with `--set` of torch's float32 path (`TORCH_FLOAT32`), `SCENARIO`, the recipe's (`LEARNED_PREY_RECIPE`),
+    the condition's and `--train-set`'s
     assignments builds, the command that trained the committed results. W: `--train-worlds`, else
     `TRAIN_AGENT_STEPS` / (N x 32 steps x `--iterations`); I: `--iterations` x the condition's budget."""
     from ..training.config import LEARNED_PREY_RECIPE, deep_update, make_config, parse_assignment
+    from ..training.fast_path import TORCH_FLOAT32
 
     spec = CONDITIONS[condition]
     worlds = study.train_worlds or max(1, TRAIN_AGENT_STEPS // (spec["prey"] * 32 * study.iterations))
@@ -450,6 +452,7 @@ def run_config(study: SwarmStudy, condition: str, seed: int) -> dict:
             "num_worlds": worlds,
             "iterations": iterations,
             "episodes": None,
+            **TORCH_FLOAT32,
         },
         "env": {"prey_count": spec["prey"]},
         "runner": {"save_interval": iterations},

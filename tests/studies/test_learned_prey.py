@@ -76,6 +76,8 @@ def test_each_condition_trains_with_the_config_of_its_train_command():
         config = learned_prey.run_config(condition, world, seed)
         assert config["train"]["device"] is None  # the task is given its device
         config["train"]["device"] = argv[argv.index("--device") + 1]
+        # (the commands ran when torch's float32 path was the default; today it takes the two --set)
+        argv = argv + ["--set", "train.fused_mlp=false", "--set", "train.tf32=false"]
         assert config == train_config(build_parser().parse_args(argv)), (condition, world, seed)
 
 

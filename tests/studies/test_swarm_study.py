@@ -206,7 +206,9 @@ def old_train_argv(args, condition: str, seed: int, device: str) -> list[str]:
         spec["opponent"],
     ]
     recipe = ("env.observation_frame=ego", "env.spawn_heading=random")  # the recipe's part of those commands
-    for s in swarm.SCENARIO + recipe + tuple(spec["sets"]) + tuple(args.train_set):
+    # (the commands ran when torch's float32 path was the default; today it takes the two --set)
+    torch_path = ("train.fused_mlp=false", "train.tf32=false")
+    for s in torch_path + swarm.SCENARIO + recipe + tuple(spec["sets"]) + tuple(args.train_set):
         argv += ["--set", s]
     return argv
 

@@ -236,8 +236,8 @@ def test_config_switch_and_its_errors():
     assert individual["actor"]["class_name"] == individual["critic"]["class_name"] == FUSED_IL_MODEL
     assert individual["actor"]["num_agents"] == 4 and individual["algorithm"]["minibatch_group_size"] == 4
     for changes, message in (
-        ({"train": {"fused_mlp": "yes"}}, r"train.fused_mlp='yes' must be true or false"),
-        ({"train": {"fused_mlp": "triton"}}, r"train.fused_mlp='triton' must be true or false"),
+        ({"train": {"fused_mlp": "yes"}}, r"train.fused_mlp='yes' must be true, false or 'auto'"),
+        ({"train": {"fused_mlp": "triton"}}, r"train.fused_mlp='triton' must be true, false or 'auto'"),
         (
             {"train": {"fused_mlp": True}, "runner": {"critic": {"class_name": "RNNModel"}}},
             "train.fused_mlp serves rsl-rl's MLPModel",

@@ -15,7 +15,8 @@ pytest.importorskip("rsl_rl")
 from aquarium_warp import AquariumConfig
 from aquarium_warp.cli import main
 from aquarium_warp.training.evaluate import run_episodes
-from aquarium_warp.training.grid import Cell, check_targets, grid_cells, run_pairing
+from aquarium_warp.training.grid import check_targets, run_pairing
+from aquarium_warp.training.grid_cells import Cell, grid_cells
 
 # A small, crowded torus so that short episodes have captures.
 BASE = AquariumConfig(width=300.0, height=300.0, predator_count=1, max_steps=40, spawn_heading="paper")
