@@ -54,9 +54,9 @@ def device_name(device: torch.device) -> str:
     return torch.cuda.get_device_name(device) if device.type == "cuda" else platform.processor() or platform.machine()
 
 
-# Options measured beside the default (`--variants`; "default": the run config's defaults, the fused path
-# with TF32 on CUDA where Triton serves it, `training/fast_path.py`). The others start from torch's MLP in
-# float32 (`TORCH_FLOAT32`, "torch"): TF32 matrix products, rsl-rl's own `torch_compile_mode` (torch.compile
+# Options measured beside the default (`--variants`; "default": the run config's defaults, `train.fused_mlp`
+# and `train.tf32` as `training/fast_path.py` resolves them). The others start from torch's MLP in float32
+# (`TORCH_FLOAT32`, "torch"): TF32 matrix products, rsl-rl's own `torch_compile_mode` (torch.compile
 # of the actor and critic, fusing their elementwise work), no CUDA graphs, the fused MLP (`train.fused_mlp`:
 # float32 products, and with `tf32` TF32 products), and the adaptive learning-rate schedule (its update runs
 # eagerly between replayed rollouts, as a torchrun run's does).
