@@ -250,14 +250,14 @@ GENERAL_RANGES = {
     "predator_max_speed": "4.5:6",
     "capture_confusion": "0,16",
 }
-# The budget: 500 iterations of 256 worlds x 32 steps (~140 M live prey-steps for the prey, half the
-# learned-prey recipe's 288 M, in a third of its 1,465 updates; its curves flatten after ~500 iterations),
-# so that 5 seeds of each preset train beside each other on one GPU in a few minutes.
+# The budget: 1,000 iterations of 256 worlds x 32 steps (~280 M live prey-steps for the prey, the learned-prey
+# recipe's, in two thirds of its 1,465 updates). A first run at 500 iterations left the prey's curves still
+# falling and both teams further from their targets (docs/general-policies.md).
 _GENERAL = deep_update(
     copy.deepcopy(PRESETS["learned-prey-a"]),
     {
         "env": {"prey_count": 64, "confusion_radius": 100.0},
-        "train": {"num_worlds": 256, "iterations": 500, "episodes": None, "randomize": GENERAL_RANGES},
+        "train": {"num_worlds": 256, "iterations": 1000, "episodes": None, "randomize": GENERAL_RANGES},
     },
 )
 # Prey against NaivChase with and without target confusion (half the worlds each).
