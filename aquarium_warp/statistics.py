@@ -221,3 +221,15 @@ def equivalence(
         "n_a": na,
         "n_b": nb,
     }
+
+
+def interval_verdict(difference_interval: dict, margin: float) -> str:
+    """The reading of a difference's interval (`difference`'s `low` and `high`) against an equivalence
+    `margin`: "equivalent" when it lies inside (-margin, margin), "different" when it excludes 0 (and does
+    not lie inside), else "inconclusive"."""
+    low, high = difference_interval["low"], difference_interval["high"]
+    if -margin < low and high < margin:
+        return "equivalent"
+    if low > 0 or high < 0:
+        return "different"
+    return "inconclusive"

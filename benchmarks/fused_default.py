@@ -30,7 +30,7 @@ os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from aquarium_warp.atomic import atomic_open
 from aquarium_warp.records import command_line, provenance
-from aquarium_warp.statistics import difference, equivalence, interval
+from aquarium_warp.statistics import difference, equivalence, interval, interval_verdict
 
 SEEDS = (0, 1, 2, 3, 4)
 PATHS = {  # declared in fused_default.md
@@ -136,12 +136,7 @@ def report(args, rows: list[dict]) -> dict:
         if relative:
             margin *= abs(interval(torch_)["mean"])
         d = difference(fused, torch_, confidence=0.95)
-        if -margin < d["low"] and d["high"] < margin:
-            verdict = "equivalent"
-        elif d["low"] > 0 or d["high"] < 0:
-            verdict = "different"
-        else:
-            verdict = "inconclusive"
+        verdict = interval_verdict(d, margin)
         out["measures"][name] = {"setup": setup, "measure": what, "margin": margin, "fused": interval(fused),
                                  "torch": interval(torch_), "difference_95": d,
                                  "tost": equivalence(fused, torch_, margin) if margin > 0 else None,

@@ -30,7 +30,7 @@ os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from aquarium_warp.atomic import atomic_open
 from aquarium_warp.records import command_line, provenance
-from aquarium_warp.statistics import difference, equivalence, interval
+from aquarium_warp.statistics import difference, equivalence, interval, interval_verdict
 
 WORLDS = ("a", "b", "c")
 SEEDS = (0, 1, 2, 3, 4)
@@ -119,12 +119,7 @@ def report(args) -> dict:
     population_b, alone_b = values("population", "b"), values("alone", "b")
     diff = difference(population_b, alone_b, confidence=0.95)
     tost = equivalence(population_b, alone_b, MARGIN)
-    if -MARGIN < diff["low"] and diff["high"] < MARGIN:
-        verdict = "equivalent"
-    elif diff["low"] > 0 or diff["high"] < 0:
-        verdict = "different"
-    else:
-        verdict = "inconclusive"
+    verdict = interval_verdict(diff, MARGIN)
     out = {
         "plan": "benchmarks/population_equivalence.md",
         "margin": MARGIN,

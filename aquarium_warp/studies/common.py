@@ -60,6 +60,29 @@ COMMIT = option("the commit to record, of a copy without git history (a checkout
 FIGURE_BAND = "bands: the 95% Student-t interval of the mean over seeds"
 
 
+def check_task_options(settings, *more: tuple[str, object, int]) -> None:
+    """A one-line `ValueError` naming the option unless the run options the swarm and phase studies share
+    (`--seeds` >= 2, `--iterations`, `--episodes`, `--eval-seeds`, `--max-steps`, `--per-gpu` >= 1,
+    `--train-worlds` >= 1 where given, `--gpus` >= 0 where given) and `more` (name, value, lowest) are in
+    range."""
+    from ..arguments import check_int
+
+    for name, value, low in (
+        ("--seeds", settings.seeds, 2),
+        *more,
+        ("--iterations", settings.iterations, 1),
+        ("--episodes", settings.episodes, 1),
+        ("--eval-seeds", settings.eval_seeds, 1),
+        ("--max-steps", settings.max_steps, 1),
+        ("--per-gpu", settings.per_gpu, 1),
+    ):
+        check_int(name, value, low)
+    if settings.train_worlds is not None:
+        check_int("--train-worlds", settings.train_worlds, 1)
+    if settings.gpus is not None:
+        check_int("--gpus", settings.gpus, 0)
+
+
 # ---------------------------------------------------------------------------------------------- rows
 def group_rows(rows: list[dict], keys: Sequence[str]) -> dict[tuple, list[dict]]:
     """`rows` grouped by their values of `keys` (one group per setting; its rows are the seeds), in

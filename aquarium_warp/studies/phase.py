@@ -40,7 +40,7 @@ import os
 import time
 from collections.abc import Sequence
 
-from ..arguments import add_options, check_int, choice_list, from_options, option
+from ..arguments import add_options, choice_list, from_options, option
 from ..drivers import trained_world
 from ..jobs import read_finished, run_jobs, task_devices
 from ..records import command_line, json_safe, provenance
@@ -204,20 +204,7 @@ class PhaseStudy:
 
     def validate(self) -> None:
         """A one-line `ValueError` naming the option unless every setting is in range."""
-        for name, value, low in (
-            ("--seeds", self.seeds, 2),
-            ("--control-seeds", self.control_seeds, 2),
-            ("--iterations", self.iterations, 1),
-            ("--episodes", self.episodes, 1),
-            ("--eval-seeds", self.eval_seeds, 1),
-            ("--max-steps", self.max_steps, 1),
-            ("--per-gpu", self.per_gpu, 1),
-        ):
-            check_int(name, value, low)
-        if self.train_worlds is not None:
-            check_int("--train-worlds", self.train_worlds, 1)
-        if self.gpus is not None:
-            check_int("--gpus", self.gpus, 0)
+        common.check_task_options(self, ("--control-seeds", self.control_seeds, 2))
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -86,7 +86,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-from ..arguments import add_options, check_distinct, check_int, choice_list, from_options, number_list, option, plural
+from ..arguments import add_options, check_distinct, choice_list, from_options, number_list, option, plural
 from ..checks import LARGEST
 from ..drivers import trained_world
 from ..jobs import read_finished, run_jobs, task_devices
@@ -259,19 +259,7 @@ class SwarmStudy:
 
     def validate(self) -> None:
         """A one-line `ValueError` naming the option unless every setting is in range."""
-        for name, value, low in (
-            ("--seeds", self.seeds, 2),
-            ("--iterations", self.iterations, 1),
-            ("--episodes", self.episodes, 1),
-            ("--eval-seeds", self.eval_seeds, 1),
-            ("--max-steps", self.max_steps, 1),
-            ("--per-gpu", self.per_gpu, 1),
-        ):
-            check_int(name, value, low)
-        if self.train_worlds is not None:
-            check_int("--train-worlds", self.train_worlds, 1)
-        if self.gpus is not None:
-            check_int("--gpus", self.gpus, 0)
+        common.check_task_options(self)
         for name, values in (
             ("--prey-counts", self.prey_counts),
             ("--view-distances", self.view_distances),

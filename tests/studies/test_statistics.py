@@ -165,3 +165,16 @@ def test_the_flow_study_reports_each_current_against_still_water(tmp_path, one_t
     got = effects[0]["differences"]["captures_per_prey"]
     assert got["difference"] == pytest.approx(expected["difference"], rel=1e-4, abs=1e-6)
     assert (got["n_a"], got["n_b"]) == (3, 3)
+
+
+def test_interval_verdict_by_hand():
+    """Inside (-margin, margin): equivalent; excluding 0 otherwise: different; else inconclusive (the
+    boundaries belong to the next reading)."""
+    from aquarium_warp.statistics import interval_verdict
+
+    assert interval_verdict({"low": -0.19, "high": 0.19}, 0.2) == "equivalent"
+    assert interval_verdict({"low": 0.01, "high": 0.15}, 0.2) == "equivalent"  # inside wins over excluding 0
+    assert interval_verdict({"low": 0.15, "high": 0.79}, 0.37) == "different"
+    assert interval_verdict({"low": -0.5, "high": -0.01}, 0.2) == "different"
+    assert interval_verdict({"low": -0.2, "high": 0.1}, 0.2) == "inconclusive"  # touches the margin
+    assert interval_verdict({"low": -0.25, "high": 0.3}, 0.2) == "inconclusive"
