@@ -209,6 +209,7 @@ def main(argv=None) -> int:
         args.device,
         report,
         only=own,
+        commit=args.commit,
     )
     prey_targets = check_targets(prey_grid, specialists=specialists)
     write_grid(prey_grid, os.path.join(args.out, "grid_prey"), prey_targets)
@@ -225,6 +226,7 @@ def main(argv=None) -> int:
         args.eval_seeds,
         args.device,
         report,
+        commit=args.commit,
     )
     predator_targets = check_targets(predator_grid)
     write_grid(predator_grid, os.path.join(args.out, "grid_predator"), predator_targets)

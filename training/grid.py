@@ -141,10 +141,12 @@ def evaluate_grid(
     device=None,
     progress: Callable[[str], None] | None = None,
     only: dict[str, Sequence[Cell]] | None = None,
+    commit: str | None = None,
 ) -> dict:
     """Every (prey spec, predator spec) pairing on the grid. `only`: {prey label: cells} evaluates that
-    label in those cells alone (a specialist in its own world). Returns the record `write_grid` writes:
-    cells, per-pairing values per spec, evaluation seed and cell, statistics per cell, protocol."""
+    label in those cells alone (a specialist in its own world); `commit` names a copy without git
+    history. Returns the record `write_grid` writes: cells, per-pairing values per spec, evaluation seed
+    and cell, statistics per cell, protocol."""
     cells = list(cells)
     pairings: dict[tuple[str, str], dict] = {}
     for prey_spec, predator_spec in itertools.product(prey, predator):
@@ -177,7 +179,7 @@ def evaluate_grid(
             "deterministic": True,
             "base": base.to_dict(),
         },
-        **provenance(resolve_device(device)),
+        **provenance(resolve_device(device), commit=commit),
     }
 
 
