@@ -40,7 +40,7 @@ def test_the_general_presets_are_the_recipe_over_the_declared_ranges():
         # the batch holds the largest drawn prey count; a live count is a world's draw
         assert world.prey_capacity == parse_spec(f"prey_count={GENERAL_RANGES['prey_count']}")[1].high == 64
         assert world.confusion_radius == 100.0 and world.predator_count == 1
-        assert config["train"]["iterations"] == 500 and config["train"]["episodes"] is None
+        assert config["train"]["iterations"] == 1000 and config["train"]["episodes"] is None
     # one observation interface for every world of the range, and for every preset
     for team in ("prey", "predator"):
         interfaces = {str(world_interface(c["env"], team)) for c in configs.values()}
