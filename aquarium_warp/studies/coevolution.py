@@ -77,25 +77,24 @@ import sys
 import time
 from collections.abc import Mapping
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
 
 import numpy as np
-import torch
 
 from ..arguments import check_distinct, check_int
-from ..device import resolve_device, synchronize
-from ..jobs import run_jobs
 from ..records import command_line, json_safe, machine_info, provenance
 from ..seeding import EVALUATION_STRIDE, evaluation_seed
 from ..statistics import difference, mean_interval
-from ..training import Trainer, make_config
-from ..training.config import env_config
-from ..training.cross_play import CROSS_PLAY_METRICS, cross_play, write_cross_play
-from ..training.episode_video import EpisodeVideo, gif_bytes
+from ..training.config import env_config, make_config
 from ..training.fast_path import TORCH_FLOAT32
-from ..training.plots import plot_cross_play
 from .common import study_options
+
+if TYPE_CHECKING:
+    from ..training import Trainer
+
+# torch, the simulator and the trainer are imported where a task runs: `aquarium-warp study --help` stays light.
 
 SWARM = ("polarization", "groups", "cohesion", "nn_mean")
 CURVE_PREFIXES = ("prey/Episode", "predator/Episode", "Swarm/")
@@ -193,6 +192,9 @@ def measure_speed_in_subprocess(key: str, argv: list[str]) -> dict:
 
 def measure_speed(args, name: str, *changes: dict) -> dict:
     """Agent-steps per second of `--speed-iterations` iterations after 2 untimed ones."""
+    from ..device import synchronize
+    from ..training import Trainer
+
     config = make_config("default", settings(args, args.seeds[0]), {"train": {"device": args.device}}, *changes)
     trainer = Trainer(config)
     device = trainer.device
@@ -267,6 +269,12 @@ def read_scalars(run_dir: str) -> dict[str, list[tuple[int, float]]]:
 def run_seed(task: dict, device: str, keep_checkpoints: bool = False) -> dict:
     """One training seed: train to each generation, a video of the final policies, cross-play of the
     generations and the heuristics; writes its files beside its run and returns its per-seed values."""
+    from ..device import synchronize
+    from ..training import Trainer
+    from ..training.cross_play import CROSS_PLAY_METRICS, cross_play, write_cross_play
+    from ..training.episode_video import EpisodeVideo, gif_bytes
+    from ..training.plots import plot_cross_play
+
     run_dir = task["run_dir"]
     folder = os.path.dirname(run_dir)
     if os.path.isdir(run_dir):  # a run stopped before it finished: a finished seed is kept, not rerun
@@ -706,6 +714,11 @@ def run(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None, command: str | None = None) -> int:
     """Run the study with the options `argv` (default: this process's), recording `command` (default:
     `benchmarks/coevolution.py` and `argv`, the script the committed results name)."""
+    import torch
+
+    from ..device import resolve_device
+    from ..jobs import run_jobs
+
     p = argparse.ArgumentParser(description=DESCRIPTION)
     add_arguments(p)
     argv = sys.argv[1:] if argv is None else list(argv)

@@ -27,17 +27,21 @@ import math
 import os
 import time
 from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
 from ..arguments import DEVICE_HELP, int_at_least, non_negative_float, option, positive_float, positive_int
 from ..atomic import atomic_open, write_figure
-from ..config import AquariumConfig
-from ..env import BatchedAquarium
 from ..records import json_safe, provenance
-from ..rollout import Observer, StepView, StepViews
-from ..rollout import rollout as run_rollout
+
+if TYPE_CHECKING:
+    import torch
+
+    from ..config import AquariumConfig
+    from ..rollout import Observer, StepView
+
+# torch and the simulator are imported where a study runs: the studies' options (`study --help`) stay light.
 
 BAND = "mean ± 1 s.e.m. over seeds"
 # Options that mean the same in several studies: their settings fields' `field(metadata=...)`.
@@ -401,7 +405,10 @@ def rollout(
     reset themselves). Returns per-world numpy arrays: `captures` (the episode's),
     `length` and, with `metrics_every`, the episode means of the swarm metrics (`EPISODE_METRICS`)."""
     from ..drivers import make_drivers
+    from ..env import BatchedAquarium
     from ..metrics import EpisodeMetrics
+    from ..rollout import StepViews
+    from ..rollout import rollout as run_rollout
 
     env = BatchedAquarium(cfg, num_worlds=worlds, device=device, seed=seed)
     drivers = make_drivers({"prey": prey, "predator": predator}, env, seed=seed)
@@ -430,6 +437,8 @@ def rollout(
 # ---------------------------------------------------------------------------------------------- geometry
 def torus_delta(delta: torch.Tensor, width: float, height: float) -> torch.Tensor:
     """The torus-shortest form of displacements `delta` `[..., 2]` in a `width` x `height` world."""
+    import torch
+
     size = torch.tensor([width, height], dtype=delta.dtype, device=delta.device)
     return delta - size * torch.round(delta / size)
 
@@ -444,6 +453,8 @@ def nearest_predator(
     """For prey `[W, N, 2]` and predators `[W, P, 2]` (`predator_alive` `[W, P]`): the displacement from
     each prey's nearest live predator to the prey (`[W, N, 2]`, the direction of escape) and its
     length (`[W, N]`, inf without a live predator)."""
+    import torch
+
     away = torus_delta(prey_position[:, :, None, :] - predator_position[:, None, :, :], width, height)
     distance = torch.linalg.vector_norm(away, dim=-1).masked_fill(~predator_alive[:, None, :], math.inf)
     nearest = distance.argmin(dim=-1, keepdim=True)
@@ -455,6 +466,8 @@ def nearest_predator(
 
 def cosine(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """Cosine of the angle between vectors `[..., 2]` (0 where either is zero)."""
+    import torch
+
     norm = torch.linalg.vector_norm(a, dim=-1) * torch.linalg.vector_norm(b, dim=-1)
     return torch.where(norm > 0, (a * b).sum(-1) / norm.clamp_min(1e-12), torch.zeros_like(norm))
 
@@ -470,6 +483,8 @@ def fleeing(
     """Whether each prey flees its nearest predator: the predator is within `flee_distance` px, the
     prey moves at least half its `max_speed`, and its velocity points away from the predator within
     `flee_angle` degrees (`away`: displacement from the predator to the prey)."""
+    import torch
+
     speed = torch.linalg.vector_norm(velocity, dim=-1)
     return (
         (distance <= flee_distance)
