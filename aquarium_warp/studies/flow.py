@@ -37,9 +37,9 @@ import math
 import os
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
 from ..arguments import (
     POLICY_SPECS,
@@ -59,12 +59,13 @@ from ..arguments import (
 )
 from ..atomic import check_output_dir, write_figure
 from ..config import AquariumConfig, FlowConfig
-from ..device import resolve_device
-from ..drivers import check_spec
 from ..records import command_line
-from ..rollout import StepView
 from ..statistics import compare, seed_stats
 from . import common
+
+if TYPE_CHECKING:
+    from ..rollout import StepView
+
 
 KINDS = ("uniform", "vortex")
 ANGLE_BINS = 18
@@ -115,6 +116,8 @@ class FlowStudy:
     figures: bool = True
 
     def validate(self) -> None:
+        from ..drivers import check_spec
+
         bad = [k for k in self.kinds if k not in KINDS]
         if bad or not self.kinds:
             raise ValueError(f"flow kinds {self.kinds!r} must be a non-empty list of {KINDS}")
@@ -177,6 +180,8 @@ class EscapeMeasures:
         width: float,
         height: float,
     ):
+        import torch
+
         self.flee_angle, self.flee_distance, self.max_speed = flee_angle, flee_distance, max_speed
         self.width, self.height = width, height
         zeros = {"dtype": torch.float64, "device": device}
@@ -187,6 +192,8 @@ class EscapeMeasures:
 
     def update(self, before_position, position, velocity, alive, predator_position, predator_alive) -> None:
         """One step of the prey (`[W, N, ...]`; `alive`: alive before and after, not captured)."""
+        import torch
+
         current = common.torus_delta(position - before_position, self.width, self.height) - velocity
         moving = alive & (torch.linalg.vector_norm(current, dim=-1) > 0.01)
         away, distance = common.nearest_predator(position, predator_position, predator_alive, self.width, self.height)
@@ -228,6 +235,10 @@ class EscapeMeasures:
 def run_flow(study: FlowStudy, command: str | None = None) -> dict:
     """Run every setting in one batch, write the CSV, JSON and figures; return the JSON's content.
     `command`: the command line recorded in the JSON (default: this process's, `records.command_line`)."""
+    import torch
+
+    from ..device import resolve_device
+
     study.validate()
     device = resolve_device(study.device)
     cfg = study.config()

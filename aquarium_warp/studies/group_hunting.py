@@ -56,9 +56,9 @@ import math
 import os
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
 from ..arguments import (
     add_options,
@@ -78,12 +78,17 @@ from ..atomic import check_output_dir
 from ..config import AquariumConfig
 from ..jobs import RayOptions, add_ray_arguments, ray_options
 from ..records import command_line
-from ..rollout import StepView
 from ..seeding import evaluation_seed
 from ..statistics import compare, equivalence, finite, seed_stats
 from ..training.config import LEARNED_PREY_RECIPE, env_config
 from . import common
 from .jobs import run_tasks
+
+if TYPE_CHECKING:
+    import torch
+
+    from ..rollout import StepView
+
 
 PREY_CONDITIONS = ("turnaway", "cotrained")
 # Heuristic predator teams of the baselines (their condition names) -> how the labels name them.
@@ -291,6 +296,8 @@ def encirclement(
     within `radius` px (torus), the circular variance of their bearings from the centre (1 - |mean unit
     bearing|) and the largest angular gap between the bearings (degrees); the last two NaN where fewer
     than two predators are within `radius`."""
+    import torch
+
     delta = common.torus_delta(predators - centre[:, None, :], width, height).double()
     near = alive & (torch.linalg.vector_norm(delta, dim=-1) < radius)
     count = near.sum(dim=1)
@@ -312,6 +319,8 @@ def encirclement(
 
 def pair_distances(predators: torch.Tensor, alive: torch.Tensor, width: float, height: float) -> torch.Tensor:
     """Torus distances between every pair of live predators of each world (`[W, P, 2]`): a flat tensor."""
+    import torch
+
     P = predators.shape[1]
     i, j = torch.triu_indices(P, P, offset=1, device=predators.device)
     d = torch.linalg.vector_norm(common.torus_delta(predators[:, i] - predators[:, j], width, height), dim=-1)
@@ -337,6 +346,8 @@ class HuntMeasures:
         }
 
     def __call__(self, view: StepView) -> None:
+        import torch
+
         Pc = view.captured.shape[1]
         predators, alive = view.position[:, Pc:], view.alive[:, Pc:]
         if view.step % self.every == 0:  # around every live prey (row w * Pc + i: world w's predators)
@@ -361,6 +372,8 @@ class HuntMeasures:
         self.values["pair_capture"].append(pair_distances(predators[world], alive[world], self.width, self.height))
 
     def result(self) -> dict[str, float]:
+        import torch
+
         def mean(name: str, where=None) -> float:
             parts = self.values[name]
             if not parts:

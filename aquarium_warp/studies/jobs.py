@@ -8,9 +8,12 @@ import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-from ..env import resolve_device
 from ..jobs import RayOptions, placement, read_finished, resolve_jobs, run_jobs
+
+if TYPE_CHECKING:
+    pass
 
 
 @dataclass
@@ -60,6 +63,8 @@ def run_tasks(
     pending trainings that may share a process train first as populations
     (`common.pretrain_populations`, `runs_per_process` runs each; None: as many as the device holds),
     each task then taking its trained policy."""
+    from ..env import resolve_device
+
     study.validate()
     if ray is not None and study.jobs is not None:
         raise ValueError(

@@ -52,9 +52,9 @@ import os
 import time
 from collections import deque
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
 from ..arguments import (
     add_options,
@@ -72,12 +72,17 @@ from ..arguments import (
 from ..atomic import check_output_dir
 from ..jobs import RayOptions, add_ray_arguments, ray_options
 from ..records import command_line
-from ..rollout import StepView
 from ..seeding import evaluation_seed
 from ..statistics import compare, equivalence, finite, seed_stats
 from ..training.config import LEARNED_PREY_RECIPE, env_config
 from . import common
 from .jobs import run_tasks
+
+if TYPE_CHECKING:
+    import torch
+
+    from ..rollout import StepView
+
 
 PREDATORS = ("naivchase", "naivchase-noconfusion")
 MEASURES = ("captures_per_prey", "fid", "blind_fraction", "onsets_per_prey")
@@ -253,6 +258,8 @@ class FlightOnsets:
         """One step's state (prey `position`, `velocity`, `heading` `[W, N, 2]`, `alive` `[W, N]`, the
         predators', the prey `respawned` in this step `[W, N]` and, optionally, the prey that a same-type
         neighbour pushes in the next step's move `[W, N]`); returns this step's onsets `[W, N]`."""
+        import torch
+
         away, distance = common.nearest_predator(position, predator_position, predator_alive, self.width, self.height)
         flees = common.fleeing(velocity, away, distance, self.max_speed, self.flee_angle, self.flee_distance) & alive
         visible = (distance <= self.view_distance) & (common.cosine(heading, -away) >= self.cos_half_fov)

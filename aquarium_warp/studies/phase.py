@@ -39,14 +39,18 @@ import math
 import os
 import time
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 from ..arguments import add_options, choice_list, from_options, option
-from ..drivers import trained_world
 from ..jobs import read_finished, run_jobs, task_devices
 from ..records import command_line, json_safe, provenance
 from ..statistics import difference, equivalence, interval, mean_interval
 from . import common
 from .common import policy_path, run_training_task
+
+if TYPE_CHECKING:
+    pass
+
 
 HELP = "the phase diagram of learned prey: collective state over capture rule, density, view and predator"
 DESCRIPTION = (
@@ -296,6 +300,8 @@ def training_tasks(study: PhaseStudy) -> list[dict]:
 def world_of(task: dict, rule: str | None = None, strength: float | None = None):
     """The world a trained prey policy plays: its training world with the task's episode length, and
     the capture rule and strength replaced where given."""
+    from ..drivers import trained_world
+
     cfg = trained_world(prey_policy(task)).replace(max_steps=task["max_steps"])
     if rule is not None:
         cfg = cfg.replace(capture_rule=rule, capture_confusion=strength)

@@ -85,15 +85,19 @@ import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from ..arguments import add_options, check_distinct, choice_list, from_options, number_list, option, plural
 from ..checks import LARGEST
-from ..drivers import trained_world
 from ..jobs import read_finished, run_jobs, task_devices
 from ..records import command_line, json_safe, provenance
 from ..statistics import difference, equivalence, finite, interval, mean_interval
 from . import common
 from .common import policy_path, run_training_task
+
+if TYPE_CHECKING:
+    pass
+
 
 # The scenario: prey see all around, 200 px (reacting pays only with rear vision and range, see
 # docs/learned-prey.md); everything else is the paper's world.
@@ -376,6 +380,8 @@ def run_screen_task(task: dict, device: str) -> dict:
 
 def policy_world(task: dict):
     """The world of the policy that `task`'s training run exported, with the task's episode length."""
+    from ..drivers import trained_world
+
     return trained_world(policy_path(task["run_dir"])).replace(max_steps=task["max_steps"])
 
 

@@ -45,8 +45,7 @@ import shutil
 import threading
 import time
 from dataclasses import dataclass, field
-
-import torch
+from typing import TYPE_CHECKING
 
 from ..arguments import (
     DEVICE_HELP,
@@ -64,9 +63,6 @@ from ..arguments import (
 )
 from ..atomic import atomic_open, check_output_dir
 from ..config import AquariumConfig
-from ..device import resolve_device
-from ..drivers import check_spec, is_heuristic, make_driver, trained_world
-from ..env import BatchedAquarium
 from ..jobs import (
     FINISHED_DIR,
     RayOptions,
@@ -78,17 +74,24 @@ from ..jobs import (
     run_ray_tasks,
     warm_up,
 )
-from ..metrics import EPISODE_METRICS, EpisodeMetrics, SwarmMetrics
 from ..pretrained import is_policy_file
 from ..records import command_line, git_info, json_safe, machine_info
-from ..rollout import Observer, Progress, rollout
 from ..seeding import baseline_seed
 from ..statistics import seed_stats
 from .common import write_csv
 from .swarm_size_plots import plot_study
 
-# Per-seed columns of the CSV, in order.
-RESULT_METRICS = ("captures", "captures_per_prey") + EPISODE_METRICS + ("episode_length",)
+if TYPE_CHECKING:
+    from ..rollout import Observer
+
+
+def result_metrics() -> tuple[str, ...]:
+    """Per-seed columns of the CSV, in order (the metrics module loads the simulator: read when a study runs)."""
+    from ..metrics import EPISODE_METRICS
+
+    return ("captures", "captures_per_prey") + EPISODE_METRICS + ("episode_length",)
+
+
 POPULATION_TRACES = ("prey_alive", "predator_alive")
 # The "definitions" entry of swarm_size.json for the baselines (written by the study and by replot).
 UNIFORM_BASELINE_DEFINITION = (
@@ -242,6 +245,8 @@ class SwarmSizeStudy:
     def settings(self) -> list[dict]:
         """One dict per (fov angle, view distance, prey count), with its `AquariumConfig` (where a team is a
         trained policy, its agents observe and act as in the policy's world)."""
+        from ..drivers import is_heuristic, trained_world
+
         base = AquariumConfig()
         for agent_type, name in (("prey", self.prey_policy), ("predator", self.predator_policy)):
             if not is_heuristic(name, agent_type) and is_policy_file(name):
@@ -297,6 +302,8 @@ class SwarmSizeStudy:
 # --------------------------------------------------------------------------------------------------
 def check_policies(study: SwarmSizeStudy) -> None:
     """Fail early (before any simulation) on policy names that are neither heuristics nor files."""
+    from ..drivers import check_spec
+
     for agent_type, name in (("prey", study.prey_policy), ("predator", study.predator_policy)):
         check_spec(name, agent_type)
 
@@ -309,6 +316,11 @@ def _run_batch(study: SwarmSizeStudy, cfg: AquariumConfig, worlds: int, device: 
     per-world episode statistics (numpy `[W]`, `nn_distribution` `[W, bins]`), the population traces
     (`[samples, W]` tensors, the last sample dropped: it is the next episode's first state) and the batch's
     wall time and agent-steps."""
+    from ..drivers import make_driver
+    from ..env import BatchedAquarium
+    from ..metrics import EpisodeMetrics, SwarmMetrics
+    from ..rollout import Progress, rollout
+
     start = time.perf_counter()
     env = BatchedAquarium(cfg, num_worlds=worlds, device=device, seed=study.seed)
     prey = make_driver(study.prey_policy, env, "prey", confusion=study.confusion)
@@ -346,7 +358,7 @@ def _setting_result(study: SwarmSizeStudy, batch: dict, first_world: int, label:
     # (then it restarts, and the restarted episode, unfinished, is not counted).
     if (result["episodes"] < 1).any():
         raise RuntimeError(f"{label}: a world finished no episode ({result['episodes']})")
-    per_seed = {name: result[name].reshape(study.seeds, E).mean(axis=1) for name in RESULT_METRICS}
+    per_seed = {name: result[name].reshape(study.seeds, E).mean(axis=1) for name in result_metrics()}
     out = {
         "per_seed": per_seed,
         "nn_distribution": result["nn_distribution"].mean(axis=0),
@@ -413,6 +425,11 @@ def uniform_baseline(
     """The metrics of `worlds` snapshots of uniformly random prey and predators with uniformly random
     headings (prey that ignore each other and the predator), in `cfg`'s arena, by the same kernels:
     the reference each measured curve is read against. Means over the snapshots."""
+    import torch
+
+    from ..env import BatchedAquarium
+    from ..metrics import SwarmMetrics
+
     cfg = cfg.replace(prey_reproduction=False) if cfg.prey_reproduction else cfg
     env = BatchedAquarium(cfg, num_worlds=worlds, device=device, seed=0)
     W, C = env.num_worlds, env.capacity
@@ -554,6 +571,8 @@ def run_swarm_size_study(
     """Run every setting of `study`, write the CSV, JSON and figures into `study.out`, and return the
     JSON's content. `ray`: run each setting as a Ray task (`_run_settings`) instead of on this machine.
     `command`: the command recorded in the JSON (default: this process's, as `aquarium-warp ...`)."""
+    from ..device import resolve_device
+
     study.validate()
     if study.one_batch and ray is not None:
         raise ValueError("one batch runs on this machine: not with Ray (whose tasks are settings)")
@@ -607,7 +626,7 @@ def run_swarm_size_study(
                 "seed": seed,
                 "episodes": study.episodes_per_seed,
             }
-            row.update({name: float(r["per_seed"][name][seed]) for name in RESULT_METRICS})
+            row.update({name: float(r["per_seed"][name][seed]) for name in result_metrics()})
             rows.append(row)
         entry = {
             "prey": s["prey"],
@@ -618,7 +637,7 @@ def run_swarm_size_study(
             "worlds": study.seeds * study.episodes_per_seed,
             "wall_s": round(r["wall_s"], 3),
             "agent_steps_per_s": r["agent_steps"] / r["wall_s"],
-            "metrics": {name: seed_stats(r["per_seed"][name]) for name in RESULT_METRICS},
+            "metrics": {name: seed_stats(r["per_seed"][name]) for name in result_metrics()},
             "nn_distribution": [round(float(x), 6) for x in r["nn_distribution"]],
         }
         if "population" in r:
@@ -684,6 +703,8 @@ def study_from_config(config: dict) -> SwarmSizeStudy:
 def replot_study(out: str, device=None) -> dict:
     """Redraw the figures of the study in `out` from its `swarm_size.json` (no simulation), first adding
     the uniform-random baselines if the file lacks them. Returns the summary."""
+    from ..device import resolve_device
+
     path = os.path.join(out, "swarm_size.json")
     if not os.path.isfile(path):
         raise ValueError(f"{path} does not exist: run the study first")

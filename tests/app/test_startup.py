@@ -27,7 +27,28 @@ def imported_after(code: str) -> list[str]:
     return json.loads(done.stdout.strip().splitlines()[-1].replace("'", '"'))
 
 
-@pytest.mark.parametrize("command", ["", "train", "eval", "demo", "video", "view", "sweep train"])
+@pytest.mark.parametrize(
+    "command",
+    [
+        "",
+        "train",
+        "eval",
+        "demo",
+        "video",
+        "view",
+        "sweep train",
+        "study",
+        "study phase",
+        "study swarm",
+        "study swarm-size",
+        "study fov-view",
+        "study flow",
+        "study group-hunting",
+        "study many-eyes",
+        "study coevolution",
+        "study learned-prey",
+    ],
+)
 def test_help_imports_neither_torch_nor_warp(command):
     argv = [*command.split(), "--help"]
     code = "\n".join(
