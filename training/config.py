@@ -452,6 +452,14 @@ def validate(config: dict) -> None:
             raise ValueError(
                 f"train.{name}={train[name]!r} must be true, false or 'auto' (the fused path on CUDA with Triton)"
             )
+    if train["fused_mlp"] is True:
+        from .fast_path import triton_imports  # (it imports this module)
+
+        if not triton_imports():
+            raise ValueError(
+                "train.fused_mlp=true needs Triton, which does not import here (the fused extra: "
+                "pip install -e \".[fused]\"; CUDA builds of torch bring it); false or 'auto' train without it"
+            )
     if not (isinstance(train["graph_update"], bool) or train["graph_update"] == "auto"):
         raise ValueError(
             f"train.graph_update={train['graph_update']!r} must be true or false, or 'auto' "

@@ -191,3 +191,14 @@ def test_auto_on_the_cpu_is_torch_float32_bit_for_bit(one_thread):
     auto = parameters()
     explicit = parameters({"train": {"fused_mlp": False, "tf32": False}})
     assert auto.keys() == explicit.keys() and all(torch.equal(auto[k], explicit[k]) for k in auto)
+
+
+def test_fused_true_without_triton_is_refused_in_one_line(monkeypatch):
+    """`train.fused_mlp=true` where Triton does not import: a one-line error naming the setting and the
+    extra, not an import traceback when the models are built; "auto" and false need no Triton."""
+    monkeypatch.setattr(fast_path, "triton_imports", lambda: False)
+    with pytest.raises(ValueError, match=r"^train\.fused_mlp=true needs Triton") as info:
+        config({"train": {"fused_mlp": True}})
+    assert "\n" not in str(info.value) and ".[fused]" in str(info.value)
+    config({"train": {"fused_mlp": False}})
+    config()  # "auto"
