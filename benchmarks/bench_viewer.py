@@ -7,6 +7,8 @@ and drawn frames per second, then with the world paused and the page drawing at 
     python benchmarks/bench_viewer.py --agents 1000 20000 100000 --seconds 8 --out benchmarks/results/viewer_cpu
     python benchmarks/bench_viewer.py --agents 1000 --record --out /tmp/viewer   # also while recording
     python benchmarks/bench_viewer.py --agents 20000 --renderer canvas2d         # the page's ?renderer=
+    python benchmarks/bench_viewer.py --device cuda:0 --browser-flag=--use-angle=vulkan \
+        --browser-flag=--enable-features=Vulkan --browser-flag=--disable-vulkan-surface   # a GPU host's GPU
 """
 
 from __future__ import annotations
@@ -54,7 +56,13 @@ def _rates(page, viewer, seconds: float) -> dict:
 
 
 def measure(
-    agents: int, seconds: float, max_agents: int, device: str, record: str | None = None, query: str = ""
+    agents: int,
+    seconds: float,
+    max_agents: int,
+    device: str,
+    record: str | None = None,
+    query: str = "",
+    flags: tuple[str, ...] = (),
 ) -> dict:
     """The rates of a world of `agents` at docs/model.md's density: while it runs (and records, with
     `record`), then (not recording) paused with the page drawing at every animation frame: how fast the
@@ -64,7 +72,7 @@ def measure(
     options = ViewOptions(prey=agents - predators, predators=predators, width=side, height=side, device=device)
     viewer = Viewer(Simulation(options), max_agents=max_agents, record=record)
     with serve(viewer) as port:
-        page = _browser()
+        page = _browser(*flags)
         try:
             page.get(f"http://127.0.0.1:{port}/{query}")
             deadline = time.time() + 60
@@ -120,14 +128,21 @@ def main() -> int:
         default="auto",
         help="the page's ?renderer= (auto: WebGL2 from 2,000 agents when offered)",
     )
+    parser.add_argument(
+        "--browser-flag",
+        action="append",
+        default=[],
+        help="a chromium command-line flag (repeat the option); e.g. ANGLE on Vulkan for a GPU host's GPU",
+    )
     args = parser.parse_args()
     query = f"?renderer={args.renderer}"
-    rows = [measure(n, args.seconds, args.max_agents, args.device, query=query) for n in args.agents]
+    flags = tuple(args.browser_flag)
+    rows = [measure(n, args.seconds, args.max_agents, args.device, query=query, flags=flags) for n in args.agents]
     if args.record:
         with tempfile.TemporaryDirectory() as folder:
             for n in args.agents:
                 path = os.path.join(folder, f"{n}.mp4")
-                rows.append(measure(n, args.seconds, args.max_agents, args.device, path, query))
+                rows.append(measure(n, args.seconds, args.max_agents, args.device, path, query, flags))
     chromium = subprocess.run([shutil.which("chromium") or "chromium", "--version"], capture_output=True, text=True)
     info = machine_info(args.device)
     result = {
@@ -141,6 +156,7 @@ def main() -> int:
             "cores": os.cpu_count(),
             "system": platform.platform(),
             "browser": chromium.stdout.strip(),
+            "browser_flags": list(flags),
         },
         "rows": rows,
     }

@@ -3,7 +3,8 @@
 the shipped seed of each team by the declared rule, and install it into a policy folder as `prey-any`
 and `predator-any` (TorchScript and ONNX, with its training range in the index entry).
 
-Phases (all in one call; finished trainings are kept, so a rerun trains only what is missing):
+Phases (all in one call; finished trainings are kept, so a rerun trains only what is missing, and an
+interrupted training, which checkpoints where it stopped, continues from its newest checkpoint):
 
 1. Trainings: one `aquarium-warp train` process per (preset, seed), all at once (`--jobs` at most),
    each into `<out>/runs/<preset>-s<seed>/`. A population cannot train them (`train.randomize` draws per
@@ -29,6 +30,7 @@ Phases (all in one call; finished trainings are kept, so a rerun trains only wha
 from __future__ import annotations
 
 import argparse
+import glob
 import json
 import os
 import shutil
@@ -57,14 +59,44 @@ def train_command(out: str, preset: str, seed: int, device: str, sets: list[str]
     return command + [arg for s in sets for arg in ("--set", s)]
 
 
+def total_iterations(out: str, preset: str, seed: int) -> int | None:
+    """The iterations a training was started for (its `config.json`), None before it started."""
+    try:
+        with open(os.path.join(run_dir(out, preset, seed), "config.json"), encoding="utf-8") as f:
+            return int(json.load(f)["total_iterations"])
+    except (OSError, ValueError, KeyError):
+        return None
+
+
+def finished(out: str, preset: str, seed: int) -> bool:
+    """A training that ran all its iterations: its export and its last checkpoint exist. (A stopped
+    training, by a signal or a time limit, also checkpoints and exports, at the iteration it stopped.)"""
+    total = total_iterations(out, preset, seed)
+    team = "predator" if preset == PREDATOR else "prey"
+    last = os.path.join(run_dir(out, preset, seed), f"model_{total - 1}.pt") if total else ""
+    return total is not None and os.path.isfile(exported(out, preset, seed, team)) and os.path.isfile(last)
+
+
+def pending_command(out: str, preset: str, seed: int, device: str, sets: list[str]) -> tuple[list[str], str]:
+    """The command for a training not finished yet, and how it starts: "new"; "resume" from the newest
+    checkpoint of an interrupted one (on the device and with the config it was started with); or
+    "restart" (`--overwrite`) of one stopped before its first checkpoint."""
+    folder = run_dir(out, preset, seed)
+    if glob.glob(os.path.join(folder, "model_*.pt")):
+        return [sys.executable, "-m", "aquarium_warp", "train", "--resume", folder, "--quiet"], "resume"
+    command = train_command(out, preset, seed, device, sets)
+    if os.path.isdir(folder) and os.listdir(folder):
+        return command + ["--overwrite"], "restart"
+    return command, "new"
+
+
 def train_all(
     out: str, presets: list[str], seeds: list[int], devices: list[str], sets: list[str], jobs: int
 ) -> list[dict]:
     """Every (preset, seed) training not finished yet, `jobs` processes at a time (each one's output in
-    `<out>/logs/`), the k-th on `devices[k % len(devices)]`; their records. A failed training stops the
-    others."""
-    team = {PREY: "prey", PREDATOR: "predator", BOTH: "prey"}
-    pending = [(p, s) for p in presets for s in seeds if not os.path.isfile(exported(out, p, s, team[p]))]
+    `<out>/logs/`), the k-th on `devices[k % len(devices)]`; their records, which are also appended to
+    `<out>/trainings.jsonl` (the trainings of every call on `out`). A failed training stops the others."""
+    pending = [(p, s) for p in presets for s in seeds if not finished(out, p, s)]
     device_of = {job: devices[k % len(devices)] for k, job in enumerate(pending)}
     running: list[tuple[dict, subprocess.Popen, IO[str]]] = []
     records: list[dict] = []
@@ -73,9 +105,10 @@ def train_all(
         while pending or running:
             while pending and len(running) < jobs:
                 preset, seed = pending.pop(0)
-                command = train_command(out, preset, seed, device_of[(preset, seed)], sets)
-                log = open(os.path.join(out, "logs", f"{preset}-s{seed}.log"), "w", encoding="utf-8")
-                record = {"preset": preset, "seed": seed, "command": " ".join(command[1:]), "start": time.time()}
+                command, start = pending_command(out, preset, seed, device_of[(preset, seed)], sets)
+                log = open(os.path.join(out, "logs", f"{preset}-s{seed}.log"), "a", encoding="utf-8")
+                record = {"preset": preset, "seed": seed, "command": " ".join(command[1:]), "how": start}
+                record["start"] = time.time()
                 running.append((record, subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT), log))
             time.sleep(0.5)
             for entry in [r for r in running if r[1].poll() is not None]:
@@ -84,6 +117,8 @@ def train_all(
                 running.remove(entry)
                 record.update(rc=process.returncode, seconds=round(time.time() - record.pop("start"), 1))
                 records.append(record)
+                with open(os.path.join(out, "trainings.jsonl"), "a", encoding="utf-8") as f:  # every call's
+                    f.write(json.dumps(record) + "\n")
                 print(f"  trained {record['preset']} seed {record['seed']}: rc {record['rc']}, {record['seconds']} s")
                 if process.returncode != 0:
                     raise RuntimeError(f"{record['command']} failed: see {log.name}")
@@ -189,8 +224,10 @@ def main(argv=None) -> int:
 
     start = time.time()
     presets = [PREY, PREDATOR] + ([BOTH] if args.coevolved else [])
-    trainings = train_all(args.out, presets, args.seeds, devices, args.set, args.jobs)
+    train_all(args.out, presets, args.seeds, devices, args.set, args.jobs)
     train_s = time.time() - start
+    with open(os.path.join(args.out, "trainings.jsonl"), encoding="utf-8") as f:
+        trainings = [json.loads(line) for line in f]
     cells = grid_cells(number_list(args.grid_prey_counts, int, "--grid-prey-counts", 1), VIEWS, FOVS, SPEEDS)
     prey_any = [f"prey-any={exported(args.out, PREY, s, 'prey')}" for s in args.seeds]
     coevolved_prey = [f"general-prey-coevolved={exported(args.out, BOTH, s, 'prey')}" for s in args.seeds]

@@ -98,11 +98,11 @@ class Tree:
     """A tree the commands run from: its label, its `PYTHONPATH` entry (None: the installed package) and
     its warm caches."""
 
-    def __init__(self, label: str, path: Path | None, scratch: Path):
+    def __init__(self, label: str, path: Path | None, scratch: Path, commit: str | None = None):
         self.label, self.path = label, path
         self.pythonpath = None if path is None else str(stage_tree(path, scratch / f"tree-{label}"))
         self.warm = {name: str(scratch / f"warm-{label}" / name) for name in ("warp", "triton")}
-        self.git = git_info(repository=path) if path is not None else git_info()
+        self.git = git_info(commit, repository=path) if path is not None else git_info(commit)
 
     def env(self, caches: dict[str, str]) -> dict[str, str]:
         env = dict(os.environ, WARP_CACHE_PATH=caches["warp"], TRITON_CACHE_DIR=caches["triton"])
@@ -163,6 +163,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="a source tree to run the commands from (repeatable; the runs alternate between them); "
         "default: the installed package",
     )
+    p.add_argument(
+        "--tree-commit",
+        action="append",
+        default=[],
+        metavar="COMMIT",
+        help="the commit of each --tree, in order, for copies without git history (a lent GPU machine's)",
+    )
     p.add_argument("--timeout", type=float, default=600.0, help="seconds one run may take (default 600)")
     p.add_argument("--out-dir", default=".", help="folder of startup_<device>.json (default: the current one)")
 
@@ -179,12 +186,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         p.error(f"--caches={args.caches!r}: choose from {', '.join(CACHES)}")
     if args.repeats < 1:
         p.error(f"--repeats={args.repeats}: must be an integer >= 1")
+    if args.tree_commit and len(args.tree_commit) != len(args.tree or [None]):
+        p.error(f"--tree-commit: {len(args.tree_commit)} given, one per --tree needed ({len(args.tree)})")
     check_output_dir(args.out_dir, "--out-dir")
     with tempfile.TemporaryDirectory(prefix="aquarium-startup-") as scratch:
         try:
             paths: list[Path | None] = [Path(t) for t in args.tree] or [None]
             labels = [f"tree{i}" for i in range(len(paths))] if args.tree else ["installed"]
-            trees = [Tree(label, path, Path(scratch)) for label, path in zip(labels, paths)]
+            commits = args.tree_commit or [None] * len(paths)
+            trees = [Tree(label, path, Path(scratch), c) for label, path, c in zip(labels, paths, commits)]
         except ValueError as error:
             p.error(str(error))
         rows = measure(commands, trees, args.device, args.repeats, Path(scratch), args.timeout, caches)

@@ -126,6 +126,23 @@ def test_start_up_benchmark_times_a_staged_tree(tmp_path):
     assert all(len(s) == 1 and 0 < s[0] < 60 for s in rows.values())
 
 
+def test_a_copy_without_git_is_recorded_at_the_commit_given(tmp_path, capsys):
+    from aquarium_warp.bench import startup
+
+    copy = tmp_path / "copy"  # a tree outside any git checkout, as staged on a lent GPU machine
+    copy.mkdir()
+    for name in ("aquarium_warp", "kernels", "training"):
+        (copy / name).symlink_to(REPO / name, target_is_directory=True)
+    out = tmp_path / "out"
+    argv = ["--commands", "import", "--caches", "warm", "--repeats", "1", "--tree", str(copy), "--out-dir", str(out)]
+    assert startup.main([*argv, "--tree-commit", "abc1234"]) == 0
+    git = json.loads((out / "startup_cpu.json").read_text())["trees"][0]["git"]
+    assert git == {"commit": "abc1234", "dirty": None, "modified": None, "source": "argument"}
+    with pytest.raises(SystemExit):
+        startup.main([*argv, "--tree-commit", "abc1234", "--tree-commit", "def5678"])
+    assert "--tree-commit: 2 given, one per --tree needed (1)" in capsys.readouterr().err
+
+
 def test_a_staged_tree_imports_its_own_code(tmp_path):
     from aquarium_warp.bench.startup import stage_tree
 

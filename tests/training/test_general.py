@@ -4,6 +4,7 @@ recipe over the declared ranges, one observation interface, trainable on the CPU
 
 from __future__ import annotations
 
+import json
 import os
 
 import pytest
@@ -106,19 +107,58 @@ def test_naivchase_mixed_chases_with_confusion_in_even_worlds_and_the_nearest_pr
         make_driver("naivchase-mixed", env, "prey")
 
 
-@pytest.fixture
-def general_policies(tmp_path, monkeypatch, one_thread):
-    """Tiny `prey-any` and `predator-any`, trained on the CPU by the general presets and installed by
-    benchmarks/general_policies.py's `install` into a policy folder of their own."""
+def _benchmark_module():
     import sys
-
-    from aquarium_warp import pretrained
 
     sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "benchmarks"))
     try:
         import general_policies as gp
     finally:
         sys.path.pop(0)
+    return gp
+
+
+def test_an_interrupted_general_training_continues_from_its_checkpoint(tmp_path, one_thread):
+    gp = _benchmark_module()
+    out = str(tmp_path / "out")
+    small = {
+        "train": {"num_worlds": 2, "iterations": 3, "device": "cpu", "quiet": True, "export": ["jit", "onnx"]},
+        "env": {"max_steps": 12},
+        "runner": {"num_steps_per_env": 4, "save_interval": 1},
+    }
+    folder = gp.run_dir(out, gp.PREY, 0)
+    trainer = Trainer(make_config(gp.PREY, small), folder)
+    trainer.train()
+    trainer.export()
+    trainer.close()
+    assert gp.finished(out, gp.PREY, 0)
+    # a run stopped after its second iteration: checkpoints 0 and 1 and an export, not the last checkpoint
+    os.remove(os.path.join(folder, "model_2.pt"))
+    assert not gp.finished(out, gp.PREY, 0)
+    command, how = gp.pending_command(out, gp.PREY, 0, "cpu", [])
+    assert how == "resume" and command[3:] == ["train", "--resume", folder, "--quiet"]
+    gp.train_all(out, [gp.PREY], [0], ["cpu"], [], jobs=1)
+    assert gp.finished(out, gp.PREY, 0)
+    with open(os.path.join(out, "trainings.jsonl"), encoding="utf-8") as f:
+        (record,) = [json.loads(line) for line in f]
+    assert record["how"] == "resume" and record["rc"] == 0
+    # one stopped before its first checkpoint starts again, over what it left; one never started is new
+    other = gp.run_dir(out, gp.PREY, 1)
+    os.makedirs(other)
+    with open(os.path.join(other, "config.json"), "w", encoding="utf-8") as f:
+        f.write("{}")
+    command, how = gp.pending_command(out, gp.PREY, 1, "cpu", ["train.num_worlds=2"])
+    assert how == "restart" and command[-3:] == ["--set", "train.num_worlds=2", "--overwrite"]
+    assert gp.pending_command(out, gp.PREY, 2, "cpu", [])[1] == "new" and not gp.finished(out, gp.PREY, 2)
+
+
+@pytest.fixture
+def general_policies(tmp_path, monkeypatch, one_thread):
+    """Tiny `prey-any` and `predator-any`, trained on the CPU by the general presets and installed by
+    benchmarks/general_policies.py's `install` into a policy folder of their own."""
+    from aquarium_warp import pretrained
+
+    gp = _benchmark_module()
     out, folder = str(tmp_path / "out"), str(tmp_path / "policies")
     small = {
         "train": {"num_worlds": 4, "iterations": 1, "device": "cpu", "quiet": True, "export": ["jit", "onnx"]},
