@@ -70,15 +70,20 @@ def measure(
     predators = max(1, agents // 100)
     side = 800.0 * (agents / 17) ** 0.5  # docs/model.md's density: 17 agents on 800 x 800 px
     options = ViewOptions(prey=agents - predators, predators=predators, width=side, height=side, device=device)
+    start = time.perf_counter()
+    say = lambda what: print(f"  {agents} agents: {what} at {time.perf_counter() - start:.1f} s", flush=True)  # noqa: E731
     viewer = Viewer(Simulation(options), max_agents=max_agents, record=record)
+    say("simulation built")
     with serve(viewer) as port:
         page = _browser(*flags)
+        say("browser started")
         try:
             page.get(f"http://127.0.0.1:{port}/{query}")
             deadline = time.time() + 60
             while page.execute_script("return window.aquarium.framesDrawn") < 3:
                 assert time.time() < deadline, "no frame reached the page"
                 time.sleep(0.1)
+            say("frames drawn")
             running = _rates(page, viewer, seconds)
             paused = None
             if record is None:
@@ -137,7 +142,10 @@ def main() -> int:
     args = parser.parse_args()
     query = f"?renderer={args.renderer}"
     flags = tuple(args.browser_flag)
-    rows = [measure(n, args.seconds, args.max_agents, args.device, query=query, flags=flags) for n in args.agents]
+    rows = []
+    for n in args.agents:
+        rows.append(measure(n, args.seconds, args.max_agents, args.device, query=query, flags=flags))
+        print(f"  {n} agents: {json.dumps(rows[-1])}", flush=True)
     if args.record:
         with tempfile.TemporaryDirectory() as folder:
             for n in args.agents:
