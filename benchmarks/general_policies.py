@@ -194,49 +194,16 @@ def install(folder: str, name: str, out: str, preset: str, seed: int, team: str,
     return index["policies"][name]
 
 
-def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--out", default="runs/general")
-    p.add_argument(
-        "--device", default="cuda:0", help="device, or a comma list the trainings take in turn (the grid: the first)"
-    )
-    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="training seeds of each preset")
-    p.add_argument("--coevolved", action="store_true", help="also train and evaluate --preset general (both teams)")
-    p.add_argument("--jobs", type=int, default=16, help="training processes at once")
-    p.add_argument("--set", action="append", default=[], help="a train --set assignment for every training")
-    p.add_argument("--episodes", type=int, default=50, help="grid: episodes per cell and evaluation seed")
-    p.add_argument("--eval-seeds", type=int, nargs="+", default=[0, 1, 2])
-    p.add_argument("--grid-prey-counts", default="6,16,32,64", help="grid: prey counts (eval --grid's option)")
-    p.add_argument("--max-steps", type=int, default=3000, help="grid: steps per episode")
-    p.add_argument("--install", default=None, help="policy folder to install into (default: the package's)")
-    p.add_argument("--commit", default=None, help="the commit of a copy without git history")
-    args = p.parse_args(argv)
-    devices = args.device.split(",")
-    args.device = devices[0]
-
+def prey_phase(args, prey_any: list[str], coevolved_prey: list[str], base, cells, report) -> tuple:
+    """The prey grid (written to `<out>/grid_prey/`), its targets, the shipped seed and its spec."""
     from aquarium_warp import pretrained
-    from aquarium_warp.arguments import number_list
-    from aquarium_warp.atomic import atomic_open
     from aquarium_warp.drivers import NO_CONFUSION
-    from aquarium_warp.records import command_line, git_info, json_safe, machine_info
-    from aquarium_warp.training.grid import check_targets, evaluate_grid, format_tables, grid_base, write_grid
-    from aquarium_warp.training.grid_cells import BASELINES, FOVS, SPEEDS, VIEWS, cell_of, grid_cells
+    from aquarium_warp.training.grid import check_targets, evaluate_grid, write_grid
+    from aquarium_warp.training.grid_cells import BASELINES, cell_of
 
-    start = time.time()
-    presets = [PREY, PREDATOR] + ([BOTH] if args.coevolved else [])
-    train_all(args.out, presets, args.seeds, devices, args.set, args.jobs)
-    train_s = time.time() - start
-    with open(os.path.join(args.out, "trainings.jsonl"), encoding="utf-8") as f:
-        trainings = [json.loads(line) for line in f]
-    cells = grid_cells(number_list(args.grid_prey_counts, int, "--grid-prey-counts", 1), VIEWS, FOVS, SPEEDS)
-    prey_any = [f"prey-any={exported(args.out, PREY, s, 'prey')}" for s in args.seeds]
-    coevolved_prey = [f"general-prey-coevolved={exported(args.out, BOTH, s, 'prey')}" for s in args.seeds]
-    base = grid_base(prey_any).replace(max_steps=args.max_steps)
     specialists = {n: cell_of(pretrained.world(n)) for n in SPECIALISTS if n in pretrained.names("prey")}
     own = {n: [c] for n, c in specialists.items() if c in cells}
-    report = lambda line: print("  " + line, flush=True)  # noqa: E731
-    grid_start = time.time()
-    prey_grid = evaluate_grid(
+    grid = evaluate_grid(
         list(BASELINES) + prey_any + (coevolved_prey if args.coevolved else []) + list(own),
         ["naivchase", NO_CONFUSION],
         base,
@@ -248,15 +215,22 @@ def main(argv=None) -> int:
         only=own,
         commit=args.commit,
     )
-    prey_targets = check_targets(prey_grid, specialists=specialists)
-    write_grid(prey_grid, os.path.join(args.out, "grid_prey"), prey_targets)
-    shipped_prey = args.seeds[pick_prey(prey_grid)]
-    picked = f"prey-any={exported(args.out, PREY, shipped_prey, 'prey')}"
+    targets = check_targets(grid, specialists=specialists)
+    write_grid(grid, os.path.join(args.out, "grid_prey"), targets)
+    shipped = args.seeds[pick_prey(grid)]
+    return grid, targets, shipped, f"prey-any={exported(args.out, PREY, shipped, 'prey')}"
+
+
+def predator_phase(args, picked: str, base, cells, report) -> tuple:
+    """The predator grid against TurnAway and `picked` (written to `<out>/grid_predator/`), its targets and
+    the shipped seed."""
+    from aquarium_warp.training.grid import check_targets, evaluate_grid, write_grid
+
     predator_any = [f"predator-any={exported(args.out, PREDATOR, s, 'predator')}" for s in args.seeds]
-    coevolved_predator = [f"general-predator-coevolved={exported(args.out, BOTH, s, 'predator')}" for s in args.seeds]
-    predator_grid = evaluate_grid(
+    coevolved = [f"general-predator-coevolved={exported(args.out, BOTH, s, 'predator')}" for s in args.seeds]
+    grid = evaluate_grid(
         ["turnaway", picked],
-        ["naivchase"] + predator_any + (coevolved_predator if args.coevolved else []),
+        ["naivchase"] + predator_any + (coevolved if args.coevolved else []),
         base,
         cells,
         args.episodes,
@@ -265,12 +239,78 @@ def main(argv=None) -> int:
         report,
         commit=args.commit,
     )
-    predator_targets = check_targets(predator_grid)
-    write_grid(predator_grid, os.path.join(args.out, "grid_predator"), predator_targets)
-    shipped_predator = args.seeds[pick_predator(predator_grid)]
+    targets = check_targets(grid)
+    write_grid(grid, os.path.join(args.out, "grid_predator"), targets)
+    return grid, targets, args.seeds[pick_predator(grid)]
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--out", default="runs/general")
+    p.add_argument(
+        "--device", default="cuda:0", help="device, or a comma list the trainings take in turn (the grid: the first)"
+    )
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="training seeds of each preset")
+    p.add_argument("--coevolved", action="store_true", help="also train and evaluate --preset general (both teams)")
+    p.add_argument(
+        "--teams",
+        default="prey,predator",
+        help="teams to train, evaluate and install: prey, predator or both (a comma list; default both)",
+    )
+    p.add_argument(
+        "--prey-any",
+        default="prey-any",
+        help="without the prey team: the prey policy the predator grid plays as prey-any (a shipped name or "
+        "a file; default the shipped prey-any)",
+    )
+    p.add_argument("--jobs", type=int, default=16, help="training processes at once")
+    p.add_argument("--set", action="append", default=[], help="a train --set assignment for every training")
+    p.add_argument("--episodes", type=int, default=50, help="grid: episodes per cell and evaluation seed")
+    p.add_argument("--eval-seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--grid-prey-counts", default="6,16,32,64", help="grid: prey counts (eval --grid's option)")
+    p.add_argument("--max-steps", type=int, default=3000, help="grid: steps per episode")
+    p.add_argument("--install", default=None, help="policy folder to install into (default: the package's)")
+    p.add_argument("--commit", default=None, help="the commit of a copy without git history")
+    args = p.parse_args(argv)
+    teams = [t for t in args.teams.split(",") if t]
+    if not teams or not set(teams) <= {"prey", "predator"}:
+        p.error(f"--teams={args.teams!r}: a comma list of prey and predator")
+    devices = args.device.split(",")
+    args.device = devices[0]
+
+    from aquarium_warp import pretrained
+    from aquarium_warp.arguments import number_list
+    from aquarium_warp.atomic import atomic_open
+    from aquarium_warp.records import command_line, git_info, json_safe, machine_info
+    from aquarium_warp.training.grid import format_tables, grid_base
+    from aquarium_warp.training.grid_cells import FOVS, SPEEDS, VIEWS, grid_cells
+
+    start = time.time()
+    presets = [preset for preset, team in ((PREY, "prey"), (PREDATOR, "predator")) if team in teams]
+    presets += [BOTH] if args.coevolved else []
+    train_all(args.out, presets, args.seeds, devices, args.set, args.jobs)
+    train_s = time.time() - start
+    trainings = []
+    if os.path.isfile(os.path.join(args.out, "trainings.jsonl")):
+        with open(os.path.join(args.out, "trainings.jsonl"), encoding="utf-8") as f:
+            trainings = [json.loads(line) for line in f]
+    cells = grid_cells(number_list(args.grid_prey_counts, int, "--grid-prey-counts", 1), VIEWS, FOVS, SPEEDS)
+    prey_any = [f"prey-any={exported(args.out, PREY, s, 'prey')}" for s in args.seeds]
+    coevolved_prey = [f"general-prey-coevolved={exported(args.out, BOTH, s, 'prey')}" for s in args.seeds]
+    base = grid_base(prey_any if "prey" in teams else [f"prey-any={args.prey_any}"]).replace(max_steps=args.max_steps)
+    report = lambda line: print("  " + line, flush=True)  # noqa: E731
+    grid_start = time.time()
+    prey_grid, prey_targets, shipped_prey = None, [], None
+    picked = f"prey-any={args.prey_any}"
+    if "prey" in teams:
+        prey_grid, prey_targets, shipped_prey, picked = prey_phase(args, prey_any, coevolved_prey, base, cells, report)
+    predator_grid, predator_targets, shipped_predator = None, [], None
+    if "predator" in teams:
+        predator_grid, predator_targets, shipped_predator = predator_phase(args, picked, base, cells, report)
     grid_s = time.time() - grid_start
-    for line in format_tables(prey_grid) + format_tables(predator_grid):
-        print(line)
+    for grid in (prey_grid, predator_grid):
+        for line in format_tables(grid) if grid else []:
+            print(line)
     for t in prey_targets + predator_targets:
         print(f"target {t['target']}: {'met' if t['met'] else 'FAILED'} ({t['cells']} cells)")
         for failing in t["failing"]:
@@ -287,6 +327,8 @@ def main(argv=None) -> int:
         ("prey-any", PREY, shipped_prey, "prey", pick_prey.__doc__),
         ("predator-any", PREDATOR, shipped_predator, "predator", pick_predator.__doc__),
     ):
+        if team not in teams:
+            continue
         entries[name] = install(
             folder,
             name,
@@ -332,7 +374,7 @@ def main(argv=None) -> int:
         json.dump(json_safe(record), f, indent=1)
     print(
         f"trainings {train_s:.0f} s, grid {grid_s:.0f} s, all {time.time() - start:.0f} s; shipped prey seed "
-        f"{shipped_prey}, predator seed {shipped_predator} into {folder}"
+        f"{shipped_prey}, predator seed {shipped_predator} (None: not trained here) into {folder}"
     )
     return 0
 

@@ -250,24 +250,27 @@ GENERAL_RANGES = {
     "predator_max_speed": "4.5:6",
     "capture_confusion": "0,16",
 }
-# The budget: 1,000 iterations of 512 worlds x 32 steps (~560 M live prey-steps for the prey), with two tanh
-# layers of 128 for actor and critic: one policy for the whole range has more to represent than a
-# specialist's 64 x 64, and more worlds per update average over more of the range. Earlier runs with 64 x 64
-# networks and 256 worlds (the predator 1,024) plateaued: the prey's captures stopped falling after about 600
-# of 1,000 iterations, and 500 iterations met fewer targets (docs/general-policies.md).
+# The budget: 1,000 iterations of 256 worlds x 32 steps (~280 M live prey-steps for the prey, the learned-prey
+# recipe's, in two thirds of its 1,465 updates). A first run at 500 iterations left the prey's curves still
+# falling and both teams further from their targets (docs/general-policies.md). (512 worlds with 128 x 128
+# networks did not lower the prey's training captures: benchmarks/results/general_policies_h200x4_30a80e4/.)
 _GENERAL = deep_update(
     copy.deepcopy(PRESETS["learned-prey-a"]),
     {
         "env": {"prey_count": 64, "confusion_radius": 100.0},
-        "train": {"num_worlds": 512, "iterations": 1000, "episodes": None, "randomize": GENERAL_RANGES},
-        "runner": {"actor": {"hidden_dims": [128, 128]}, "critic": {"hidden_dims": [128, 128]}},
+        "train": {"num_worlds": 256, "iterations": 1000, "episodes": None, "randomize": GENERAL_RANGES},
     },
 )
 # Prey against NaivChase with and without target confusion (half the worlds each).
 PRESETS["general-prey"] = deep_update(copy.deepcopy(_GENERAL), {"train": {"opponent": "naivchase-mixed"}})
-# One predator against TurnAway prey; 4,096 worlds, since a world gives one predator row per step.
+# One predator against TurnAway prey: 4,096 worlds, since a world gives one predator row per step, and two
+# tanh layers of 128 for actor and critic (the 1,024-world 64 x 64 predator learned more slowly).
 PRESETS["general-predator"] = deep_update(
-    copy.deepcopy(_GENERAL), {"train": {"team": "predator", "opponent": "turnaway", "num_worlds": 4096}}
+    copy.deepcopy(_GENERAL),
+    {
+        "train": {"team": "predator", "opponent": "turnaway", "num_worlds": 4096},
+        "runner": {"actor": {"hidden_dims": [128, 128]}, "critic": {"hidden_dims": [128, 128]}},
+    },
 )
 # Both teams learning in the same randomised worlds (co-evolution, one learner per team).
 PRESETS["general"] = deep_update(copy.deepcopy(_GENERAL), {"train": {"team": "both", "opponent": None}})
