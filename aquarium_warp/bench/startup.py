@@ -113,9 +113,10 @@ class Tree:
 
 def measure(
     commands: Sequence[str], trees: list[Tree], device: str, repeats: int, scratch: Path, timeout: float,
-    caches: Sequence[str] = CACHES, progress=print,
+    caches: Sequence[str] = CACHES, progress=print, measured=lambda rows: None,
 ) -> list[dict]:  # fmt: skip
-    """Every run's seconds: one row per command, cache and tree (`seconds`: the repeats in order)."""
+    """Every run's seconds: one row per command, cache and tree (`seconds`: the repeats in order);
+    `measured(rows)` gets the rows so far after every timed run (so that a time limit keeps them)."""
     rows: dict[tuple[str, str, str], list[float]] = {
         (c, k, t.label): [] for c in commands for k in caches for t in trees
     }
@@ -136,7 +137,12 @@ def measure(
                     seconds = run_once(argv, tree.env(fresh if cache == "cold" else tree.warm), timeout, scratch)
                     rows[(command, cache, tree.label)].append(seconds)
                     progress(f"  {command:>17} {cache:>4} {tree.label:>10} {seconds:8.2f} s")
-    return [{"command": c, "cache": k, "tree": t, "seconds": s} for (c, k, t), s in rows.items()]
+                    measured(_listed(rows))
+    return _listed(rows)
+
+
+def _listed(rows: dict[tuple[str, str, str], list[float]]) -> list[dict]:
+    return [{"command": c, "cache": k, "tree": t, "seconds": list(s)} for (c, k, t), s in rows.items() if s]
 
 
 def format_table(rows: list[dict]) -> str:
@@ -197,17 +203,20 @@ def main(argv: Sequence[str] | None = None) -> int:
             trees = [Tree(label, path, Path(scratch), c) for label, path, c in zip(labels, paths, commits)]
         except ValueError as error:
             p.error(str(error))
-        rows = measure(commands, trees, args.device, args.repeats, Path(scratch), args.timeout, caches)
+        record = {
+            **provenance(args.device, command=command_line(list(sys.argv[1:] if argv is None else argv), p.prog)),
+            "trees": [{"label": t.label, "path": str(t.path) if t.path else None, "git": t.git} for t in trees],
+            "repeats": args.repeats,
+            "rows": [],
+        }
+        os.makedirs(args.out_dir, exist_ok=True)
+        path = os.path.join(args.out_dir, f"startup_{args.device.replace(':', '')}.json")
+
+        def write(rows: list[dict]) -> None:
+            with atomic_open(path) as f:
+                json.dump(json_safe({**record, "rows": rows}), f, indent=1)
+
+        rows = measure(commands, trees, args.device, args.repeats, Path(scratch), args.timeout, caches, measured=write)
     print(format_table(rows))
-    record = {
-        **provenance(args.device, command=command_line(list(sys.argv[1:] if argv is None else argv), program=p.prog)),
-        "trees": [{"label": t.label, "path": str(t.path) if t.path else None, "git": t.git} for t in trees],
-        "repeats": args.repeats,
-        "rows": rows,
-    }
-    os.makedirs(args.out_dir, exist_ok=True)
-    path = os.path.join(args.out_dir, f"startup_{args.device.replace(':', '')}.json")
-    with atomic_open(path) as f:
-        json.dump(json_safe(record), f, indent=1)
     print(f"wrote {path}")
     return 0

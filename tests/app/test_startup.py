@@ -143,6 +143,16 @@ def test_a_copy_without_git_is_recorded_at_the_commit_given(tmp_path, capsys):
     assert "--tree-commit: 2 given, one per --tree needed (1)" in capsys.readouterr().err
 
 
+def test_every_timed_run_is_kept_as_it_is_measured(tmp_path):
+    """A time limit that stops the benchmark keeps the runs measured so far: the rows go out after each."""
+    from aquarium_warp.bench import startup
+
+    tree = startup.Tree("tree0", REPO, tmp_path)
+    seen: list[list[dict]] = []
+    rows = startup.measure(["import"], [tree], "cpu", 2, tmp_path, 300, ["warm"], lambda line: None, seen.append)
+    assert [len(r[0]["seconds"]) for r in seen] == [1, 2] and seen[-1] == rows
+
+
 def test_a_staged_tree_imports_its_own_code(tmp_path):
     from aquarium_warp.bench.startup import stage_tree
 

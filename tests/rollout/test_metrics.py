@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 
-from aquarium_warp import AquariumConfig, BatchedAquarium
+from aquarium_warp import AquariumConfig, BatchedAquarium, nulls
 from aquarium_warp.heuristics import heuristic_actions
 from aquarium_warp.metrics import EPISODE_METRICS, SCALAR_METRICS, EpisodeMetrics, SwarmMetrics, rollout_metrics
 from aquarium_warp.nulls import hard_disk_nn_means, point_nn_means
@@ -773,6 +773,30 @@ def test_hard_disk_null_matches_brute_force():
     assert (np.abs(tiny[0][2:] - point[2:]) < 4 * tiny[1][2:]).all()
     crowded = hard_disk_nn_means(12, 200.0, 200.0, 100.0)[0]
     assert np.isfinite(crowded[2]) and np.isnan(crowded[-1]) and np.isnan(crowded[:2]).all()
+
+
+@pytest.mark.parametrize("width,height", [(61357.0, 61357.0), (6000.0, 1500.0)])
+def test_large_point_nulls_take_the_closed_form_where_clipping_cannot_matter(width, height):
+    """Above POINT_QUADRATURE_MAX the unclipped disk's integral, sqrt(W H) / 2 * Gamma(n) / Gamma(n + 1/2):
+    the same numbers as the quadrature it replaces (computed here as the small counts are)."""
+    n = nulls.POINT_QUADRATURE_MAX + 5
+    table = point_nn_means(n, width, height)
+    r = np.linspace(0.0, math.hypot(width, height) / 2.0, nulls.POINT_GRID)
+    free = 1.0 - nulls.torus_disk_area(r, width, height) / (width * height)
+    quadrature = np.trapezoid(np.maximum(free, 0.0) ** (n - 1), r)
+    assert table[n] == pytest.approx(quadrature, rel=1e-10)
+    assert table[n] == 0.5 * math.sqrt(width * height) * math.exp(math.lgamma(n) - math.lgamma(n + 0.5))
+    below = point_nn_means(nulls.POINT_QUADRATURE_MAX, width, height)
+    assert np.array_equal(table[: nulls.POINT_QUADRATURE_MAX + 1], below, equal_nan=True)
+
+
+def test_hard_disk_null_is_not_drawn_above_its_largest_count():
+    largest = nulls.HARD_DISK_MAX_PREY
+    means, errors = hard_disk_nn_means(largest + 3, 20000.0, 20000.0, 10.0)
+    small = hard_disk_nn_means(largest, 20000.0, 20000.0, 10.0)
+    assert np.array_equal(means[: largest + 1], small[0], equal_nan=True)
+    assert np.array_equal(errors[: largest + 1], small[1], equal_nan=True)
+    assert np.isnan(means[largest + 1 :]).all() and np.isnan(errors[largest + 1 :]).all()
 
 
 def test_episode_metrics_group_lifetimes_sizes_and_traces(device):
