@@ -94,6 +94,7 @@ def measure(
             sent = page.execute_script("return window.aquarium.frame.header.n")
             renderer = page.execute_script("return window.aquarium.renderer")
             gpu = page.execute_script("return window.aquarium.glName")
+            console = [e["message"][:300] for e in page.get_log("browser") if e["level"] in ("WARNING", "SEVERE")]
         finally:
             page.quit()
     row = {
@@ -108,6 +109,7 @@ def measure(
         "agents_sent_per_frame": sent,
         **running,
         "last_tick_ms": round(viewer.tick_seconds * 1e3, 2),
+        "console": console[:5],  # the page's first warnings and errors (why WebGL2 was not used, say)
     }
     if paused is not None:
         row.update(

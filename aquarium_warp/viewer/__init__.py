@@ -163,10 +163,9 @@ def run(args) -> int:
 def _serve(args) -> int:
     """Build the world and serve it until Ctrl-C."""
     import torch
-    import uvicorn
 
     from ..arguments import plural
-    from .server import Viewer, make_app
+    from .server import Viewer, server_config
     from .simulation import Simulation, ViewOptions
 
     # Bound before anything else: a port in use is refused at once in one line, before the world is built
@@ -207,8 +206,7 @@ def _serve(args) -> int:
             f"({simulation.specs['predator']}) on {env.device}"
         )
         print(f"aquarium-warp view: open http://{args.host}:{args.port}/  (Ctrl-C stops)", flush=True)
-        config = uvicorn.Config(make_app(viewer), log_level="warning", ws="websockets-sansio")
-        serve(_server_class()(config), sockets=[listening])
+        serve(_server_class()(server_config(viewer)), sockets=[listening])
     return 0
 
 

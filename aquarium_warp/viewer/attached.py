@@ -148,7 +148,7 @@ def attach(
     import uvicorn
 
     from . import bind
-    from .server import Viewer, make_app
+    from .server import Viewer, server_config
 
     if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
         raise ValueError(f"port={port!r} must be an integer in [0, 65535] (0: a free one)")
@@ -161,7 +161,7 @@ def attach(
         listening.close()
         raise
     viewer = Viewer(run, fps=fps, max_agents=max_agents)
-    server = uvicorn.Server(uvicorn.Config(make_app(viewer), log_level="warning", ws="websockets-sansio"))
+    server = uvicorn.Server(server_config(viewer))
 
     def serve() -> None:
         with listening:

@@ -38,6 +38,7 @@ import time
 import weakref
 
 import numpy as np
+import uvicorn
 from starlette.applications import Starlette
 from starlette.responses import HTMLResponse
 from starlette.routing import Mount, Route, WebSocketRoute
@@ -428,4 +429,13 @@ def make_app(viewer: Viewer) -> Starlette:
             WebSocketRoute("/ws", viewer.page_socket),
         ],
         lifespan=lifespan,
+    )
+
+
+def server_config(viewer: Viewer, **options) -> uvicorn.Config:
+    """uvicorn's settings for `viewer`'s app (`options`: host, port and the like). Per-message deflate is
+    off: the frames are quantized binary that it shrinks by a fifth at about 70 ms a megabyte, which at
+    100,000 agents held the send rate to 8 frames a second."""
+    return uvicorn.Config(
+        make_app(viewer), log_level="warning", ws="websockets-sansio", ws_per_message_deflate=False, **options
     )
