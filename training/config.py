@@ -252,8 +252,8 @@ GENERAL_RANGES = {
 }
 # The budget: 1,000 iterations of 256 worlds x 32 steps (~280 M live prey-steps for the prey, the learned-prey
 # recipe's, in two thirds of its 1,465 updates). A first run at 500 iterations left the prey's curves still
-# falling and both teams further from their targets (docs/general-policies.md). (512 worlds with 128 x 128
-# networks did not lower the prey's training captures: benchmarks/results/general_policies_h200x4_30a80e4/.)
+# falling and both teams further from their targets; wider networks (128 x 128) with 2x the prey's worlds or
+# 4x the predator's did no better (docs/general-policies.md, benchmarks/results/general_recipe_pilots_h200x4/).
 _GENERAL = deep_update(
     copy.deepcopy(PRESETS["learned-prey-a"]),
     {
@@ -263,14 +263,9 @@ _GENERAL = deep_update(
 )
 # Prey against NaivChase with and without target confusion (half the worlds each).
 PRESETS["general-prey"] = deep_update(copy.deepcopy(_GENERAL), {"train": {"opponent": "naivchase-mixed"}})
-# One predator against TurnAway prey: 4,096 worlds, since a world gives one predator row per step, and two
-# tanh layers of 128 for actor and critic (the 1,024-world 64 x 64 predator learned more slowly).
+# One predator against TurnAway prey; 1,024 worlds, since a world gives one predator row per step.
 PRESETS["general-predator"] = deep_update(
-    copy.deepcopy(_GENERAL),
-    {
-        "train": {"team": "predator", "opponent": "turnaway", "num_worlds": 4096},
-        "runner": {"actor": {"hidden_dims": [128, 128]}, "critic": {"hidden_dims": [128, 128]}},
-    },
+    copy.deepcopy(_GENERAL), {"train": {"team": "predator", "opponent": "turnaway", "num_worlds": 1024}}
 )
 # Both teams learning in the same randomised worlds (co-evolution, one learner per team).
 PRESETS["general"] = deep_update(copy.deepcopy(_GENERAL), {"train": {"team": "both", "opponent": None}})
