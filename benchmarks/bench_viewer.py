@@ -7,8 +7,9 @@ and drawn frames per second, then with the world paused and the page drawing at 
     python benchmarks/bench_viewer.py --agents 1000 20000 100000 --seconds 8 --out benchmarks/results/viewer_cpu
     python benchmarks/bench_viewer.py --agents 1000 --record --out /tmp/viewer   # also while recording
     python benchmarks/bench_viewer.py --agents 20000 --renderer canvas2d         # the page's ?renderer=
-    python benchmarks/bench_viewer.py --device cuda:0 --browser-flag=--use-angle=vulkan \
-        --browser-flag=--enable-features=Vulkan --browser-flag=--disable-vulkan-surface   # a GPU host's GPU
+    python benchmarks/bench_viewer.py --device cuda:0 --browser-flag=--use-gl=angle \
+        --browser-flag=--use-angle=gl-egl --browser-flag=--ignore-gpu-blocklist   # a GPU host's GPU (NVIDIA)
+    python benchmarks/bench_viewer.py --agents 100000 --page socket   # the server alone: a client that reads
 """
 
 from __future__ import annotations
@@ -121,6 +122,54 @@ def measure(
     return row
 
 
+def measure_server(agents: int, seconds: float, max_agents: int, device: str) -> dict:
+    """The server's rates for one page that is a websockets client reading every frame (no browser, so
+    no drawing competes for the CPU): running, then paused (frames that need no step)."""
+    import threading
+
+    from websockets.sync.client import connect
+
+    predators = max(1, agents // 100)
+    side = 800.0 * (agents / 17) ** 0.5
+    options = ViewOptions(prey=agents - predators, predators=predators, width=side, height=side, device=device)
+    viewer = Viewer(Simulation(options), max_agents=max_agents)
+    received, stop = [0], threading.Event()
+    with serve(viewer) as port, connect(f"ws://127.0.0.1:{port}/ws", max_size=None) as socket:
+
+        def read() -> None:  # as a page does, offering per-message deflate (websockets' default)
+            while not stop.is_set():
+                if isinstance(socket.recv(timeout=10), bytes):
+                    received[0] += 1
+
+        reader = threading.Thread(target=read, daemon=True)
+        reader.start()
+        time.sleep(2.0)
+        rates = []
+        for paused in (False, True):
+            if paused:
+                viewer.on_simulation_thread(viewer.simulation.apply, {"type": "pause"})
+                time.sleep(1.0)
+            frames0, sent0, bytes0, got0, t0 = (
+                viewer.frames,
+                viewer.frames_sent,
+                viewer.bytes_sent,
+                received[0],
+                time.perf_counter(),
+            )
+            time.sleep(seconds)
+            elapsed = time.perf_counter() - t0
+            rates.append({
+                "server_frames_per_s": round((viewer.frames - frames0) / elapsed, 2),
+                "sent_frames_per_s": round((viewer.frames_sent - sent0) / elapsed, 2),
+                "sent_mb_per_s": round((viewer.bytes_sent - bytes0) / elapsed / 1e6, 2),
+                "client_frames_per_s": round((received[0] - got0) / elapsed, 2),
+            })  # fmt: skip
+        stop.set()
+        reader.join()
+    row = {"agents": agents, "page": "socket", "prey": agents - predators, "predators": predators, **rates[0]}
+    return row | {f"paused_{key}": value for key, value in rates[1].items()}
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--agents", type=int, nargs="+", default=[1000, 100000])
@@ -141,14 +190,24 @@ def main() -> int:
         default=[],
         help="a chromium command-line flag (repeat the option); e.g. ANGLE on Vulkan for a GPU host's GPU",
     )
+    parser.add_argument(
+        "--page",
+        choices=("chromium", "socket"),
+        default="chromium",
+        help="who reads the frames: headless chromium drawing them (default), or a websockets client that "
+        "only reads them (the server's own rates)",
+    )
     args = parser.parse_args()
     query = f"?renderer={args.renderer}"
     flags = tuple(args.browser_flag)
     rows = []
     for n in args.agents:
-        rows.append(measure(n, args.seconds, args.max_agents, args.device, query=query, flags=flags))
+        if args.page == "socket":
+            rows.append(measure_server(n, args.seconds, args.max_agents, args.device))
+        else:
+            rows.append(measure(n, args.seconds, args.max_agents, args.device, query=query, flags=flags))
         print(f"  {n} agents: {json.dumps(rows[-1])}", flush=True)
-    if args.record:
+    if args.record and args.page == "chromium":
         with tempfile.TemporaryDirectory() as folder:
             for n in args.agents:
                 path = os.path.join(folder, f"{n}.mp4")

@@ -302,15 +302,20 @@ class Viewer:
         elif self.simulation.records:
             self._renderer_for(self.simulation.env)  # ready before the first click
         period = 1.0 / self.fps
+        due = time.perf_counter()
         while True:
-            start = time.perf_counter()
             flow = any(page.overlays["flow"] for page in self.pages)
             inspect = sorted({page.inspect for page in self.pages if page.inspect is not None})
             self.snapshot = await self.call(self._tick, flow, inspect, self._recording_overlays())
             self.frames += 1
             for page in self.pages:
                 page.fresh.set()
-            await asyncio.sleep(max(0.0, period - (time.perf_counter() - start)))
+            # Ticks keep to a schedule of `fps` a second: a late wake-up (the pages' sending shares this
+            # loop) is made up at the next tick instead of adding to every interval; a tick that ran
+            # over a whole period starts the schedule again from now.
+            now = time.perf_counter()
+            due = max(due + period, now)
+            await asyncio.sleep(due - now)
 
     async def close(self) -> None:
         try:

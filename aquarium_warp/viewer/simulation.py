@@ -194,6 +194,7 @@ class Simulation:
             self._single_steps += 1
         elif kind == "reset":
             self._env.reset()
+            self.view.forget_metrics()  # a new state at the same step count
         elif kind == "speed":
             self.speed = message["value"]
         elif kind == "world":
@@ -209,6 +210,7 @@ class Simulation:
             self.set_keys(message["dx"], message["dy"])
         elif kind == "move":
             move_agent(self._env, self.world, message["slot"], message["x"], message["y"])
+            self.view.forget_metrics()
 
     def step(self) -> None:
         """One step of every world: the drivers' actions, the human's for its agent."""
@@ -262,7 +264,7 @@ class WorldView:
         self.env = env
         self.metrics = SwarmMetrics(env)
         self.flow = FlowSampler(env)
-        self._values: tuple[int, dict] | None = None  # (world, its swarm metrics)
+        self._values: tuple[tuple[int, int, int], dict] | None = None  # ((world, episode, step), its metrics)
         self._due = 0.0
 
     def forget_metrics(self) -> None:
@@ -273,13 +275,17 @@ class WorldView:
         (with `flow`) and `inspect_agent` of each slot in `inspect`."""
         env, w = self.env, world
         s = env.state.torch
-        # The swarm metrics (groups: a connected-components pass) cost more than a step in a large world:
-        # recomputed when the last result is older than 4x its own cost, they take at most a fifth of the time.
+        # The swarm metrics (groups: a connected-components pass) cost more than a step in a large world,
+        # and a tick that computes them is a late frame: recomputed only for a new state (not while paused)
+        # and when the last result is older than 19x its own cost, they take at most a twentieth of the
+        # time (a frame late in every 20 in the largest worlds; the plots update less often there).
         now = time.perf_counter()
-        if self._values is None or self._values[0] != w or now >= self._due:
+        state = (w, int(s.episode[w]), int(s.world_step[w]))
+        fresh = self._values is not None and self._values[0] == state
+        if self._values is None or (not fresh and (self._values[0][0] != w or now >= self._due)):
             values = self.metrics.compute()
-            self._values = (w, {k: float(values[k][w]) for k in ("polarization", "groups")})
-            self._due = time.perf_counter() + 4 * (time.perf_counter() - now)
+            self._values = (state, {k: float(values[k][w]) for k in ("polarization", "groups")})
+            self._due = time.perf_counter() + 19 * (time.perf_counter() - now)
         values = self._values[1]
         snap = {
             "position": s.position[w].cpu().numpy().copy(),

@@ -215,6 +215,27 @@ def test_the_server_answers_bad_messages_and_keeps_serving(server, text, says):
             assert time.time() < deadline
 
 
+def test_swarm_metrics_are_computed_once_per_state(monkeypatch):
+    """A tick that computes the swarm metrics is a late frame: an unchanged state (paused) reuses them,
+    a step, a drag or a reset gives a new state."""
+    sim = Simulation(ViewOptions(device="cpu"))
+    compute, calls = sim.view.metrics.compute, []
+    monkeypatch.setattr(sim.view.metrics, "compute", lambda: calls.append(1) or compute())
+    for _ in range(3):
+        sim.snapshot()
+        sim.view._due = 0.0  # and however old the result
+    assert len(calls) == 1
+    sim.apply({"type": "step"})
+    assert sim.advance() == 1
+    sim.snapshot()
+    assert len(calls) == 2
+    sim.apply({"type": "move", "slot": 0, "x": 10.0, "y": 10.0})
+    sim.snapshot()
+    sim.apply({"type": "reset"})
+    sim.snapshot()
+    assert len(calls) == 4
+
+
 def test_frames_go_out_uncompressed(server):
     """The client offers per-message deflate (websockets' default); the server declines it: deflating a
     megabyte frame of 100,000 agents took about 70 ms, the send rate's limit."""
