@@ -194,29 +194,32 @@ def install(folder: str, name: str, out: str, preset: str, seed: int, team: str,
     return index["policies"][name]
 
 
+def grid_phase(args, prey: list[str], predators: list[str], base, cells, report, folder: str, **options) -> tuple:
+    """The grid of `prey` against `predators` (`options`: evaluate_grid's `only`, check_targets'
+    `specialists`), written to `<out>/<folder>/` with its targets; `(grid, targets)`."""
+    from aquarium_warp.training.grid import check_targets, evaluate_grid, write_grid
+
+    only, specialists = options.get("only"), options.get("specialists")
+    grid = evaluate_grid(
+        prey, predators, base, cells, args.episodes, args.eval_seeds, args.device, report, only=only, commit=args.commit
+    )
+    targets = check_targets(grid, specialists=specialists)
+    write_grid(grid, os.path.join(args.out, folder), targets)
+    return grid, targets
+
+
 def prey_phase(args, prey_any: list[str], coevolved_prey: list[str], base, cells, report) -> tuple:
     """The prey grid (written to `<out>/grid_prey/`), its targets, the shipped seed and its spec."""
     from aquarium_warp import pretrained
     from aquarium_warp.drivers import NO_CONFUSION
-    from aquarium_warp.training.grid import check_targets, evaluate_grid, write_grid
     from aquarium_warp.training.grid_cells import BASELINES, cell_of
 
     specialists = {n: cell_of(pretrained.world(n)) for n in SPECIALISTS if n in pretrained.names("prey")}
     own = {n: [c] for n, c in specialists.items() if c in cells}
-    grid = evaluate_grid(
-        list(BASELINES) + prey_any + (coevolved_prey if args.coevolved else []) + list(own),
-        ["naivchase", NO_CONFUSION],
-        base,
-        cells,
-        args.episodes,
-        args.eval_seeds,
-        args.device,
-        report,
-        only=own,
-        commit=args.commit,
+    prey = list(BASELINES) + prey_any + (coevolved_prey if args.coevolved else []) + list(own)
+    grid, targets = grid_phase(
+        args, prey, ["naivchase", NO_CONFUSION], base, cells, report, "grid_prey", only=own, specialists=specialists
     )
-    targets = check_targets(grid, specialists=specialists)
-    write_grid(grid, os.path.join(args.out, "grid_prey"), targets)
     shipped = args.seeds[pick_prey(grid)]
     return grid, targets, shipped, f"prey-any={exported(args.out, PREY, shipped, 'prey')}"
 
@@ -224,23 +227,10 @@ def prey_phase(args, prey_any: list[str], coevolved_prey: list[str], base, cells
 def predator_phase(args, picked: str, base, cells, report) -> tuple:
     """The predator grid against TurnAway and `picked` (written to `<out>/grid_predator/`), its targets and
     the shipped seed."""
-    from aquarium_warp.training.grid import check_targets, evaluate_grid, write_grid
-
     predator_any = [f"predator-any={exported(args.out, PREDATOR, s, 'predator')}" for s in args.seeds]
     coevolved = [f"general-predator-coevolved={exported(args.out, BOTH, s, 'predator')}" for s in args.seeds]
-    grid = evaluate_grid(
-        ["turnaway", picked],
-        ["naivchase"] + predator_any + (coevolved if args.coevolved else []),
-        base,
-        cells,
-        args.episodes,
-        args.eval_seeds,
-        args.device,
-        report,
-        commit=args.commit,
-    )
-    targets = check_targets(grid)
-    write_grid(grid, os.path.join(args.out, "grid_predator"), targets)
+    predators = ["naivchase"] + predator_any + (coevolved if args.coevolved else [])
+    grid, targets = grid_phase(args, ["turnaway", picked], predators, base, cells, report, "grid_predator")
     return grid, targets, args.seeds[pick_predator(grid)]
 
 
