@@ -51,20 +51,27 @@ results and provenance are committed under `benchmarks/results/`) import their t
 here (and `aquarium_warp.device.synchronize`).
 """
 
-from .bandwidth import copy_bandwidth
-from .byte_model import GRID_PATHS, step_byte_model
-from .cli import add_arguments, main, run_from_args, settings_from_args
-from .machine import available_bytes
-from .peers import OriginalHarness, Peers, VmasHarness, add_ratios, measure_original_peer, measure_vmas_peer
-from .plots import plot_results
-from .point import array_bytes, estimate_bytes, measure_point
+import importlib
+from typing import TYPE_CHECKING
+
+# Light modules, imported at once: `summary` is also its module's name, which a lazy import of the
+# function would leave bound to the module.
 from .settings import BenchSettings, parse_counts
-from .stages import KERNEL_STAGES, STAGE_LABELS, STAGES, command_name, command_stage, copy_actions_in, stage_times
-from .suite import replot, run_bench
 from .summary import RATIO_FROM_AGENTS_PER_WORLD, SERIES, per_agent_time_ratio, summary
-from .sweeps import density_config, load_worlds, split_agents, sweep_points
-from .table import format_row, format_table
-from .timing import DeviceTimer, repeats_within, timed_runs, torch_timer, wall_clock
+
+if TYPE_CHECKING:
+    from .bandwidth import copy_bandwidth
+    from .byte_model import GRID_PATHS, step_byte_model
+    from .cli import add_arguments, main, run_from_args, settings_from_args
+    from .machine import available_bytes
+    from .peers import OriginalHarness, Peers, VmasHarness, add_ratios, measure_original_peer, measure_vmas_peer
+    from .plots import plot_results
+    from .point import array_bytes, estimate_bytes, measure_point
+    from .stages import KERNEL_STAGES, STAGE_LABELS, STAGES, command_name, command_stage, copy_actions_in, stage_times
+    from .suite import replot, run_bench
+    from .sweeps import density_config, load_worlds, split_agents, sweep_points
+    from .table import format_row, format_table
+    from .timing import DeviceTimer, repeats_within, timed_runs, torch_timer, wall_clock
 
 __all__ = [
     "GRID_PATHS",
@@ -112,3 +119,54 @@ __all__ = [
     "torch_timer",
     "wall_clock",
 ]
+
+# Imported on first use, so that `aquarium-warp bench --help` and `aquarium_warp.bench.startup` load
+# neither torch nor Warp (the suite's modules do).
+_LAZY = {
+    "copy_bandwidth": ".bandwidth",
+    "GRID_PATHS": ".byte_model",
+    "step_byte_model": ".byte_model",
+    "add_arguments": ".cli",
+    "main": ".cli",
+    "run_from_args": ".cli",
+    "settings_from_args": ".cli",
+    "available_bytes": ".machine",
+    "OriginalHarness": ".peers",
+    "Peers": ".peers",
+    "VmasHarness": ".peers",
+    "add_ratios": ".peers",
+    "measure_original_peer": ".peers",
+    "measure_vmas_peer": ".peers",
+    "plot_results": ".plots",
+    "array_bytes": ".point",
+    "estimate_bytes": ".point",
+    "measure_point": ".point",
+    "KERNEL_STAGES": ".stages",
+    "STAGE_LABELS": ".stages",
+    "STAGES": ".stages",
+    "command_name": ".stages",
+    "command_stage": ".stages",
+    "copy_actions_in": ".stages",
+    "stage_times": ".stages",
+    "replot": ".suite",
+    "run_bench": ".suite",
+    "density_config": ".sweeps",
+    "load_worlds": ".sweeps",
+    "split_agents": ".sweeps",
+    "sweep_points": ".sweeps",
+    "format_row": ".table",
+    "format_table": ".table",
+    "DeviceTimer": ".timing",
+    "repeats_within": ".timing",
+    "timed_runs": ".timing",
+    "torch_timer": ".timing",
+    "wall_clock": ".timing",
+}
+
+
+def __getattr__(name: str):
+    if name not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(_LAZY[name], __name__), name)
+    globals()[name] = value
+    return value

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import TYPE_CHECKING
 
 from ..arguments import DEVICE_HELP
 from ..atomic import describe_os_error
-from .peers import Peers
 from .settings import BenchSettings
-from .suite import replot, run_bench
+
+if TYPE_CHECKING:
+    from .peers import Peers
 
 DESCRIPTION = "`aquarium-warp bench`: the scaling benchmark suite (library and command line)."
 
@@ -136,6 +138,8 @@ def settings_from_args(args: argparse.Namespace) -> BenchSettings:
 
 def run_from_args(args: argparse.Namespace, peers: Peers | None = None) -> int:
     """Run the suite (or `--replot`) for parsed options; `peers`: as `run_bench` takes them."""
+    from .suite import replot, run_bench  # torch and Warp: not for `--help`
+
     if args.replot:
         figures = replot(args.replot)
         print(f"redrew {', '.join(str(f) for f in figures)}")

@@ -47,6 +47,7 @@ def imported_after(code: str) -> list[str]:
         "study many-eyes",
         "study coevolution",
         "study learned-prey",
+        "bench",
     ],
 )
 def test_help_imports_neither_torch_nor_warp(command):
