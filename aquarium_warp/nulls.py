@@ -70,11 +70,12 @@ def point_nn_means(max_count: int, width: float, height: float) -> np.ndarray:
     # beyond the inscribed radius the disk is clipped: its share of the integral is below this bound
     inscribed = 1.0 - math.pi * (min(width, height) / 2.0) ** 2 / (width * height)
     for n in range(2, max_count + 1):
-        closed = 0.5 * math.sqrt(width * height) * math.exp(math.lgamma(n) - math.lgamma(n + 0.5))
-        if n > POINT_QUADRATURE_MAX and half_diagonal * inscribed ** (n - 1) < 1e-12 * closed:
-            out[n] = closed
-        else:
-            out[n] = np.trapezoid(np.exp((n - 1) * log_free), r)
+        if n > POINT_QUADRATURE_MAX:
+            closed = 0.5 * math.sqrt(width * height) * math.exp(math.lgamma(n) - math.lgamma(n + 0.5))
+            if half_diagonal * inscribed ** (n - 1) < 1e-12 * closed:
+                out[n] = closed
+                continue
+        out[n] = np.trapezoid(np.exp((n - 1) * log_free), r)
     out.setflags(write=False)
     return out
 

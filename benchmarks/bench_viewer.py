@@ -56,6 +56,13 @@ def _rates(page, viewer, seconds: float) -> dict:
     }
 
 
+def world_options(agents: int, device: str) -> ViewOptions:
+    """A world of `agents` (one predator per 100) at docs/model.md's density: 17 agents on 800 x 800 px."""
+    predators = max(1, agents // 100)
+    side = 800.0 * (agents / 17) ** 0.5
+    return ViewOptions(prey=agents - predators, predators=predators, width=side, height=side, device=device)
+
+
 def measure(
     agents: int,
     seconds: float,
@@ -68,9 +75,8 @@ def measure(
     """The rates of a world of `agents` at docs/model.md's density: while it runs (and records, with
     `record`), then (not recording) paused with the page drawing at every animation frame: how fast the
     page draws that many agents, and the server's send rate of frames that need no step."""
-    predators = max(1, agents // 100)
-    side = 800.0 * (agents / 17) ** 0.5  # docs/model.md's density: 17 agents on 800 x 800 px
-    options = ViewOptions(prey=agents - predators, predators=predators, width=side, height=side, device=device)
+    options = world_options(agents, device)
+    predators, side = options.predators, options.width
     start = time.perf_counter()
     say = lambda what: print(f"  {agents} agents: {what} at {time.perf_counter() - start:.1f} s", flush=True)  # noqa: E731
     viewer = Viewer(Simulation(options), max_agents=max_agents, record=record)
@@ -129,9 +135,7 @@ def measure_server(agents: int, seconds: float, max_agents: int, device: str) ->
 
     from websockets.sync.client import connect
 
-    predators = max(1, agents // 100)
-    side = 800.0 * (agents / 17) ** 0.5
-    options = ViewOptions(prey=agents - predators, predators=predators, width=side, height=side, device=device)
+    options = world_options(agents, device)
     viewer = Viewer(Simulation(options), max_agents=max_agents)
     received, stop = [0], threading.Event()
     with serve(viewer) as port, connect(f"ws://127.0.0.1:{port}/ws", max_size=None) as socket:
@@ -166,7 +170,7 @@ def measure_server(agents: int, seconds: float, max_agents: int, device: str) ->
             })  # fmt: skip
         stop.set()
         reader.join()
-    row = {"agents": agents, "page": "socket", "prey": agents - predators, "predators": predators, **rates[0]}
+    row = {"agents": agents, "page": "socket", "prey": options.prey, "predators": options.predators, **rates[0]}
     return row | {f"paused_{key}": value for key, value in rates[1].items()}
 
 

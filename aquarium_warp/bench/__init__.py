@@ -120,8 +120,8 @@ __all__ = [
     "wall_clock",
 ]
 
-# Imported on first use, so that `aquarium-warp bench --help` and `aquarium_warp.bench.startup` load
-# neither torch nor Warp (the suite's modules do).
+# Imported on first use, so that `aquarium-warp bench --help` loads neither torch nor Warp (the suite's
+# modules do).
 _LAZY = {
     "copy_bandwidth": ".bandwidth",
     "GRID_PATHS": ".byte_model",

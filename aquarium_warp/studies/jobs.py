@@ -8,12 +8,8 @@ import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 from ..jobs import RayOptions, placement, read_finished, resolve_jobs, run_jobs
-
-if TYPE_CHECKING:
-    pass
 
 
 @dataclass

@@ -39,7 +39,6 @@ import math
 import os
 import time
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
 from ..arguments import add_options, choice_list, from_options, option
 from ..jobs import read_finished, run_jobs, task_devices
@@ -47,10 +46,6 @@ from ..records import command_line, json_safe, provenance
 from ..statistics import difference, equivalence, interval, mean_interval
 from . import common
 from .common import policy_path, run_training_task
-
-if TYPE_CHECKING:
-    pass
-
 
 HELP = "the phase diagram of learned prey: collective state over capture rule, density, view and predator"
 DESCRIPTION = (

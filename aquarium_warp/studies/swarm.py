@@ -85,7 +85,6 @@ import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 from ..arguments import add_options, check_distinct, choice_list, from_options, number_list, option, plural
 from ..checks import LARGEST
@@ -94,10 +93,6 @@ from ..records import command_line, json_safe, provenance
 from ..statistics import difference, equivalence, finite, interval, mean_interval
 from . import common
 from .common import policy_path, run_training_task
-
-if TYPE_CHECKING:
-    pass
-
 
 # The scenario: prey see all around, 200 px (reacting pays only with rear vision and range, see
 # docs/learned-prey.md); everything else is the paper's world.

@@ -280,9 +280,9 @@ class WorldView:
         # and when the last result is older than 19x its own cost, they take at most a twentieth of the
         # time (a frame late in every 20 in the largest worlds; the plots update less often there).
         now = time.perf_counter()
-        state = (w, int(s.episode[w]), int(s.world_step[w]))
-        fresh = self._values is not None and self._values[0] == state
-        if self._values is None or (not fresh and (self._values[0][0] != w or now >= self._due)):
+        episode, step = torch.stack([s.episode[w], s.world_step[w]]).tolist()  # one read of the device
+        state = (w, episode, step)
+        if self._values is None or (self._values[0] != state and (self._values[0][0] != w or now >= self._due)):
             values = self.metrics.compute()
             self._values = (state, {k: float(values[k][w]) for k in ("polarization", "groups")})
             self._due = time.perf_counter() + 19 * (time.perf_counter() - now)
@@ -297,8 +297,8 @@ class WorldView:
         }
         cfg = env.config.world(w) if env.config.per_world_fields else env.config
         snap["header"] = {
-            "step": int(s.world_step[w]),
-            "episode": int(s.episode[w]),
+            "step": step,
+            "episode": episode,
             "world": w,
             "num_worlds": env.num_worlds,
             "width": float(cfg.width),
