@@ -91,8 +91,9 @@ def pending_command(out: str, preset: str, seed: int, device: str, sets: list[st
 
 
 def train_all(
-    out: str, presets: list[str], seeds: list[int], devices: list[str], sets: list[str], jobs: int
-) -> list[dict]:
+    out: str, presets: list[str], seeds: list[int], devices: list[str], sets: list[str], jobs: int,
+    commit: str | None = None,
+) -> list[dict]:  # fmt: skip
     """Every (preset, seed) training not finished yet, `jobs` processes at a time (each one's output in
     `<out>/logs/`), the k-th on `devices[k % len(devices)]`; their records, which are also appended to
     `<out>/trainings.jsonl` (the trainings of every call on `out`). A failed training stops the others."""
@@ -109,7 +110,10 @@ def train_all(
                 log = open(os.path.join(out, "logs", f"{preset}-s{seed}.log"), "a", encoding="utf-8")
                 record = {"preset": preset, "seed": seed, "command": " ".join(command[1:]), "how": start}
                 record["start"] = time.time()
-                running.append((record, subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT), log))
+                # a copy without git history: the trainings record `commit` (`records.git_info`)
+                env = dict(os.environ, AQUARIUM_WARP_COMMIT=commit) if commit else None
+                process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=env)
+                running.append((record, process, log))
             time.sleep(0.5)
             for entry in [r for r in running if r[1].poll() is not None]:
                 record, process, log = entry
@@ -278,7 +282,7 @@ def main(argv=None) -> int:
     start = time.time()
     presets = [preset for preset, team in ((PREY, "prey"), (PREDATOR, "predator")) if team in teams]
     presets += [BOTH] if args.coevolved else []
-    train_all(args.out, presets, args.seeds, devices, args.set, args.jobs)
+    train_all(args.out, presets, args.seeds, devices, args.set, args.jobs, args.commit)
     train_s = time.time() - start
     trainings = []
     if os.path.isfile(os.path.join(args.out, "trainings.jsonl")):

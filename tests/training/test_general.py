@@ -137,8 +137,11 @@ def test_an_interrupted_general_training_continues_from_its_checkpoint(tmp_path,
     assert not gp.finished(out, gp.PREY, 0)
     command, how = gp.pending_command(out, gp.PREY, 0, "cpu", [])
     assert how == "resume" and command[3:] == ["train", "--resume", folder, "--quiet"]
-    gp.train_all(out, [gp.PREY], [0], ["cpu"], [], jobs=1)
+    gp.train_all(out, [gp.PREY], [0], ["cpu"], [], jobs=1, commit="0000000")
     assert gp.finished(out, gp.PREY, 0)
+    # the training records the commit it was given (here beside this checkout's own, which git reads)
+    with open(os.path.join(folder, "config.json"), encoding="utf-8") as f:
+        assert json.load(f)["git"]["supplied"] == "0000000"
     with open(os.path.join(out, "trainings.jsonl"), encoding="utf-8") as f:
         (record,) = [json.loads(line) for line in f]
     assert record["how"] == "resume" and record["rc"] == 0
