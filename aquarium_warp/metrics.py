@@ -144,6 +144,10 @@ class SwarmMetrics:
         min_group_size: the fewest members of a measured group, whose order, age and lifetime are
             measured (default 3: two prey's polarization and rotation say little, about 0.64 on average for
             two random headings).
+        group_metrics: compute `GROUP_METRICS` (and `group_sizes`). False computes only
+            `SCALAR_METRICS` (the group columns stay NaN, `group_sizes` zero): the group passes run one
+            thread per world, which on a GPU takes tens of milliseconds in a world of 100,000 prey (the
+            viewer shows only the swarm's measures).
     """
 
     def __init__(
@@ -153,6 +157,7 @@ class SwarmMetrics:
         nn_bins: int = 50,
         nn_range: float | None = None,
         min_group_size: int = 3,
+        group_metrics: bool = True,
     ):
         if not isinstance(env, BatchedAquarium):
             raise ValueError(f"env must be a BatchedAquarium, got {type(env).__name__}")
@@ -182,7 +187,10 @@ class SwarmMetrics:
             raise ValueError(f"nn_range={nn_range!r} must be a finite number > 0 (px)")
         if isinstance(min_group_size, bool) or not isinstance(min_group_size, int) or min_group_size < 2:
             raise ValueError(f"min_group_size={min_group_size!r} must be an integer >= 2")
+        if not isinstance(group_metrics, bool):
+            raise ValueError(f"group_metrics={group_metrics!r} must be True or False")
         self._env = env
+        self.group_metrics = group_metrics
         # One float where every world links at the same distance, else one per world.
         self.linking_distance: float | tuple[float, ...] = (
             float(links[0]) if len(set(links)) == 1 else tuple(float(d) for d in links)
@@ -212,8 +220,9 @@ class SwarmMetrics:
         g = self._groups = kernels.GroupArrays()
         for name in struct_type(kernels.GroupArrays).vars:
             shape = {"order": (W, Pc, 3), "last_time": (W, 3), "before_time": (W, 3)}.get(name, (W, Pc))
-            if name in ("point_null", "hard_disk_null"):
-                setattr(g, name, wp.array(self._nn_nulls(name), dtype=float, device=dev))
+            if name in ("point_null", "hard_disk_null"):  # read by the group passes only
+                nulls = self._nn_nulls(name) if group_metrics else np.full((W, Pc + 1), np.nan, np.float32)
+                setattr(g, name, wp.array(nulls, dtype=float, device=dev))
             else:
                 setattr(g, name, wp.zeros(shape, dtype=wp.int32 if name != "order" else float, device=dev))
         self._tracked_times = (wp.to_torch(g.last_time), wp.to_torch(g.before_time))
@@ -221,6 +230,8 @@ class SwarmMetrics:
         # predecessor's times, labels and births): a resumed run needs them to continue its groups.
         self._tracking = {name: wp.to_torch(getattr(g, name)) for name in TRACKING}
         values = wp.to_torch(a.values)
+        if not group_metrics:  # no pass writes them
+            values[:, kernels.NUM_SWARM_VALUES :] = float("nan")
         self.values = values  # [W, len(SCALAR_METRICS + GROUP_METRICS)] float32, columns in that order
         self.nn_histogram = wp.to_torch(a.nn_histogram)
         self.group_sizes = wp.to_torch(g.size_counts)
@@ -279,7 +290,7 @@ class SwarmMetrics:
         for name in struct_type(kernels.GroupArrays).vars:
             setattr(groups, name, getattr(self._groups, name)[w0:w1])
         smallest = self.min_group_size
-        return [
+        commands = [
             arrays.nn_histogram.zero_,
             arrays.group_size.zero_,
             shard.record(
@@ -294,6 +305,10 @@ class SwarmMetrics:
             shard.record(kernels.finish_prey_sums, W, [world, s.worlds, s.outputs], [arrays]),
             shard.record(kernels.centroid_partial_sums, (W, self._chunks), [world, s.agents], [arrays]),
             shard.record(kernels.finish_cohesion, W, [], [arrays]),
+        ]
+        if not self.group_metrics:
+            return commands
+        return commands + [
             shard.record(kernels.track_groups, W, [world, s.agents, s.worlds, smallest], [arrays, groups]),
             shard.record(kernels.group_order, (W, Pc), [world, s.agents, smallest], [arrays, groups]),
             shard.record(kernels.finish_groups, W, [world, s.agents, smallest], [arrays, groups]),

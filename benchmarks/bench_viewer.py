@@ -34,7 +34,8 @@ from aquarium_warp.viewer.simulation import Simulation, ViewOptions
 
 def _rates(page, viewer, seconds: float) -> dict:
     """Per-second rates over `seconds`: frames the server published and sent (and MB sent), steps of
-    world 0, frames the page received and drew, and the mean size of the frames sent."""
+    world 0, frames the page received and drew, the mean size of the frames sent, and the server's
+    milliseconds per frame in each stage (`_stage_ms`)."""
     read = "const a = window.aquarium; return [a.framesReceived, a.framesDrawn]"
 
     def counts():
@@ -42,6 +43,7 @@ def _rates(page, viewer, seconds: float) -> dict:
         return viewer.frames, sent, int(viewer.simulation.env.state.torch.world_step[0]), page.execute_script(read)
 
     (frames0, (sent0, bytes0), steps0, (received0, drawn0)), t0 = counts(), time.perf_counter()
+    stages0 = dict(viewer.seconds)
     time.sleep(seconds)
     (frames1, (sent1, bytes1), steps1, (received1, drawn1)), t1 = counts(), time.perf_counter()
     elapsed = t1 - t0
@@ -53,7 +55,15 @@ def _rates(page, viewer, seconds: float) -> dict:
         "steps_per_s": round((steps1 - steps0) / elapsed, 2),
         "page_frames_received_per_s": round((received1 - received0) / elapsed, 2),
         "page_frames_drawn_per_s": round((drawn1 - drawn0) / elapsed, 2),
+        **_stage_ms(viewer, stages0, frames1 - frames0, sent1 - sent0),
     }
+
+
+def _stage_ms(viewer, before: dict, frames: int, sent: int) -> dict:
+    """The server's mean milliseconds per frame in each stage since `before` (`Viewer.seconds`): step,
+    snapshot and record per published frame, pack and send per sent frame."""
+    per = {"step": frames, "snapshot": frames, "record": frames, "pack": sent, "send": sent}
+    return {f"{k}_ms": round((viewer.seconds[k] - before[k]) * 1e3 / max(1, per[k]), 2) for k in per}
 
 
 def world_options(agents: int, device: str) -> ViewOptions:
@@ -115,7 +125,6 @@ def measure(
         "max_agents": max_agents,
         "agents_sent_per_frame": sent,
         **running,
-        "last_tick_ms": round(viewer.tick_seconds * 1e3, 2),
         "console": console[:5],  # the page's first warnings and errors (why WebGL2 was not used, say)
     }
     if paused is not None:
@@ -160,6 +169,7 @@ def measure_server(agents: int, seconds: float, max_agents: int, device: str) ->
                 received[0],
                 time.perf_counter(),
             )
+            stages0 = dict(viewer.seconds)
             time.sleep(seconds)
             elapsed = time.perf_counter() - t0
             rates.append({
@@ -167,6 +177,7 @@ def measure_server(agents: int, seconds: float, max_agents: int, device: str) ->
                 "sent_frames_per_s": round((viewer.frames_sent - sent0) / elapsed, 2),
                 "sent_mb_per_s": round((viewer.bytes_sent - bytes0) / elapsed / 1e6, 2),
                 "client_frames_per_s": round((received[0] - got0) / elapsed, 2),
+                **_stage_ms(viewer, stages0, viewer.frames - frames0, viewer.frames_sent - sent0),
             })  # fmt: skip
         stop.set()
         reader.join()
@@ -248,6 +259,11 @@ def main() -> int:
         ("paused_page_draws_per_s", "paused: draws/s"),
         ("paused_sent_frames_per_s", "paused: sent/s"),
         ("paused_sent_mb_per_s", "paused: MB/s"),
+        ("step_ms", "step ms"),
+        ("snapshot_ms", "snapshot ms"),
+        ("record_ms", "record ms"),
+        ("pack_ms", "pack ms"),
+        ("send_ms", "send ms"),
     ]
     print(" | ".join(title for _, title in columns))
     for row in rows:

@@ -206,7 +206,10 @@ class Viewer:
         self._tasks: set[asyncio.Task] = set()  # record requests waiting for the renderer
         self.frames = 0  # snapshots published (tests and the benchmark read it)
         self.frames_sent, self.bytes_sent = 0, 0  # to all pages (the benchmark's send rate)
-        self.tick_seconds = 0.0  # time of the last tick on the simulation thread
+        # Seconds spent in each stage of a frame, summed since start-up (the benchmark's breakdown): on the
+        # simulation thread "step", "snapshot" (with the swarm metrics) and "record"; on the event loop
+        # "pack" and "send" (over all pages).
+        self.seconds = dict.fromkeys(("step", "snapshot", "record", "pack", "send"), 0.0)
 
     async def call(self, function, *args):
         """Run `function(*args)` on the simulation thread."""
@@ -219,14 +222,18 @@ class Viewer:
 
     # ------------------------------------------------------------------ simulation thread
     def _tick(self, flow: bool, inspect: list[int], overlays: dict) -> dict:
-        start = time.perf_counter()
-        sim = self.simulation
+        sim, seconds = self.simulation, self.seconds
+        t0 = time.perf_counter()
         stepped = sim.advance()
+        t1 = time.perf_counter()
         snapshot = sim.snapshot(flow, inspect)
         snapshot["header"]["recording"] = self.recording
+        t2 = time.perf_counter()
         if self.recorder is not None and stepped:
             self.recorder.add(snapshot, overlays)
-        self.tick_seconds = time.perf_counter() - start
+        seconds["step"] += t1 - t0
+        seconds["snapshot"] += t2 - t1
+        seconds["record"] += time.perf_counter() - t2
         return snapshot
 
     def _start_recording(self, renderer: Renderer, path: str) -> bool:
@@ -331,6 +338,7 @@ class Viewer:
             await page.fresh.wait()
             page.fresh.clear()
             if self.snapshot is not None:
+                t0 = time.perf_counter()
                 frame = pack_frame(
                     self.snapshot,
                     page.rect,
@@ -339,7 +347,10 @@ class Viewer:
                     velocities=page.overlays["velocities"],
                     inspect=page.inspect,
                 )
+                t1 = time.perf_counter()
                 await page.socket.send_bytes(frame)
+                self.seconds["pack"] += t1 - t0
+                self.seconds["send"] += time.perf_counter() - t1
                 self.frames_sent += 1
                 self.bytes_sent += len(frame)
 

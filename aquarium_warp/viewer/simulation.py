@@ -262,7 +262,7 @@ class WorldView:
 
     def __init__(self, env: BatchedAquarium):
         self.env = env
-        self.metrics = SwarmMetrics(env)
+        self.metrics = SwarmMetrics(env, group_metrics=False)  # the page shows the swarm's measures only
         self.flow = FlowSampler(env)
         self._values: tuple[tuple[int, int, int], dict] | None = None  # ((world, episode, step), its metrics)
         self._due = 0.0
@@ -275,7 +275,7 @@ class WorldView:
         (with `flow`) and `inspect_agent` of each slot in `inspect`."""
         env, w = self.env, world
         s = env.state.torch
-        # The swarm metrics (groups: a connected-components pass) cost more than a step in a large world,
+        # The swarm metrics (groups: a connected-components pass) may cost more than a step in a large world,
         # and a tick that computes them is a late frame: recomputed only for a new state (not while paused)
         # and when the last result is older than 19x its own cost, they take at most a twentieth of the
         # time (a frame late in every 20 in the largest worlds; the plots update less often there).

@@ -13,7 +13,14 @@ import torch
 
 from aquarium_warp import AquariumConfig, BatchedAquarium, nulls
 from aquarium_warp.heuristics import heuristic_actions
-from aquarium_warp.metrics import EPISODE_METRICS, SCALAR_METRICS, EpisodeMetrics, SwarmMetrics, rollout_metrics
+from aquarium_warp.metrics import (
+    EPISODE_METRICS,
+    GROUP_METRICS,
+    SCALAR_METRICS,
+    EpisodeMetrics,
+    SwarmMetrics,
+    rollout_metrics,
+)
 from aquarium_warp.nulls import hard_disk_nn_means, point_nn_means
 from aquarium_warp.per_world import per_world
 
@@ -216,6 +223,27 @@ def test_two_clusters_across_the_seam(device):
     set_prey(env, [[x, (x + 400.0) % 800.0] for x in xs], unit([0.0] * 8))
     values = check_world(metrics, 0)
     assert float(values["groups"][0]) == 2
+
+
+def test_swarm_measures_only(device):
+    """`group_metrics=False` (the viewer's): the swarm's measures as the float64 reference and the full
+    computation give them, bit for bit with the latter; the group measures NaN and no group sizes."""
+    env = make_env(device, prey_count=24, num_worlds=3)
+    env.reset(seed=5)
+    for _ in range(6):
+        env.step(heuristic_actions(env, "turnaway", "naivchase"))
+    light = SwarmMetrics(env, linking_distance=50.0, group_metrics=False)
+    full = SwarmMetrics(env, linking_distance=50.0).compute()
+    for w in range(3):
+        values = check_world(light, w)
+    for name in SCALAR_METRICS:
+        torch.testing.assert_close(values[name], full[name], rtol=0, atol=0, equal_nan=True)
+    for name in GROUP_METRICS:
+        assert torch.isnan(values[name]).all(), name
+    assert not torch.isnan(full["mean_group_size"]).any()  # defined wherever prey live
+    assert int(values["group_sizes"].sum()) == 0 and int(full["group_sizes"].sum()) > 0
+    with pytest.raises(ValueError, match="group_metrics=1 must be True or False"):
+        SwarmMetrics(env, group_metrics=1)
 
 
 @pytest.mark.parametrize("center", [(400.0, 400.0), (790.0, 10.0)])
