@@ -334,3 +334,38 @@ def test_fused_default_verdicts_by_hand():
     assert m["E3"]["verdict"] == "different" and m["E3"]["difference_95"]["low"] > 0.10
     assert m["C2"]["verdict"] == "inconclusive"
     assert out["decision"] == "the default stays torch's float32 path"
+
+
+def test_fused_default_followup_decisions_by_hand():
+    """The follow-up's report (`fused_default_followup.md`) on hand-made seed values: each candidate
+    against torch, `fused` pooled with the first check's both-teams rows, and the three decisions."""
+    fused_default = _script("fused_default")
+    torch_seeds = [1.0, 1.02, 0.98, 1.0, 1.0, 1.01, 0.99, 1.0, 1.0, 1.0]  # mean 1.0
+    measures = ("prey_vs_naivchase", "predator_vs_turnaway", "curve")
+
+    def rows_of(shift: dict, seeds=range(5, 15), spread=torch_seeds) -> list[dict]:
+        return [{"setup": "both", "path": path, "seed": s, "measure": m, "value": v + shift.get((path, m), 0.0)}
+                for path in ("torch", "fused", "fused_fp32") for m in measures
+                for s, v in zip(seeds, spread)]  # fmt: skip
+
+    prior = rows_of({}, range(5), torch_seeds[:5]) + [{"setup": "recipe", "path": "fused", "seed": 0,
+                                                       "measure": "curve", "value": 9.0}]  # fmt: skip
+    args = argparse.Namespace(seeds=list(range(5, 15)))
+    out = fused_default.report_followup(args, rows_of({}), prior)
+    assert out["decision"] == "the fused path with TF32 products becomes the CUDA default"
+    assert out["prior_seeds"] == [0, 1, 2, 3, 4]
+    assert out["pooled"]["E3"]["torch"]["n"] == 15 and out["pooled"]["E3"]["margin"] == pytest.approx(0.10)
+    # fused's predators far off (as in the first check); fused_fp32 alike torch: the float32 default
+    out = fused_default.report_followup(args, rows_of({("fused", "predator_vs_turnaway"): 0.5}), prior)
+    assert out["candidates"]["fused"]["E3"]["verdict"] == "different"
+    assert out["candidates"]["fused_fp32"]["E3"]["verdict"] == "equivalent"
+    assert out["decision"] == "the fused path with float32 products becomes the CUDA default"
+    # the new seeds alike, but the first check's fused predators far off: the pooled test refuses TF32
+    far_prior = [dict(r, value=r["value"] + (3.0 if (r["path"], r["measure"]) == ("fused", "predator_vs_turnaway")
+                                             else 0.0)) for r in prior]  # fmt: skip
+    out = fused_default.report_followup(args, rows_of({}), far_prior)
+    assert out["candidates"]["fused"]["E3"]["verdict"] == "equivalent"
+    assert out["pooled"]["E3"]["verdict"] != "equivalent"
+    assert out["decision"] == "the fused path with float32 products becomes the CUDA default"
+    out = fused_default.report_followup(args, rows_of({("fused", "curve"): 0.5, ("fused_fp32", "curve"): 0.5}), prior)
+    assert out["decision"] == "the default stays torch's float32 path"
