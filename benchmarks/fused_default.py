@@ -170,6 +170,7 @@ def report(args, rows: list[dict]) -> dict:
 def _compare(rows: list[dict], setup: str, what: str, candidate: str, margin_fraction: float) -> dict:
     """`candidate` minus torch on one measure: Welch's 95% interval against a margin of `margin_fraction`
     of torch's mean, its verdict and TOST."""
+
     def values(path: str) -> list[float]:
         return [float(r["value"]) for r in rows if (r["setup"], r["path"], r["measure"]) == (setup, path, what)]
 
