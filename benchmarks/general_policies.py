@@ -54,9 +54,13 @@ def exported(out: str, preset: str, seed: int, team: str, kind: str = "pt") -> s
 
 
 def train_command(out: str, preset: str, seed: int, device: str, sets: list[str]) -> list[str]:
+    from aquarium_warp.training.fast_path import TORCH_FLOAT32
+
     command = [sys.executable, "-m", "aquarium_warp", "train", "--preset", preset, "--seed", str(seed)]
     command += ["--device", device, "--quiet", "--export", "jit,onnx", "--log-dir", run_dir(out, preset, seed)]
-    return command + [arg for s in sets for arg in ("--set", s)]
+    # torch's float32 path, the shipped policies' (trained before the fused default); `--set` may change it
+    pinned = [f"train.{name}={str(value).lower()}" for name, value in TORCH_FLOAT32.items()]
+    return command + [arg for s in pinned + sets for arg in ("--set", s)]
 
 
 def total_iterations(out: str, preset: str, seed: int) -> int | None:

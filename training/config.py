@@ -73,10 +73,10 @@ TRAIN_DEFAULTS: dict[str, Any] = {
     # The matrix path (fast_path.py): true, false or "auto". fused_mlp: actor and critic MLPs, the PPO loss and the
     # rollout step as the fused Triton kernels (fused_mlp.py, fused_ppo.py); "auto": on CUDA where Triton imports
     # and the kernels serve the config. tf32: CUDA matrix products in TF32 (~1e-3 relative error); "auto": with
-    # the fused MLP on CUDA. The default stays torch's float32 path: the pre-registered check of the fused path
-    # as the CUDA default (benchmarks/fused_default.md) found its both-teams predators different (better).
-    "tf32": False,
-    "fused_mlp": False,
+    # the fused MLP on CUDA. "auto" is the default: the declared follow-up (benchmarks/fused_default_followup.md)
+    # found the fused path with TF32 equivalent to torch's float32 on new seeds and pooled with the first check.
+    "tf32": "auto",
+    "fused_mlp": "auto",
     "critic": "local",  # the critic's input (MAPPO): "local", "team" or "world" (see CRITICS)
     # Both teams learning (team "both"):
     "update_schedule": "simultaneous",  # "simultaneous", or "alternating": one team learns, the other is frozen

@@ -1,9 +1,9 @@
 """Which matrix path a run takes: torch's MLP in float32, or the fused Triton MLP, loss and rollout step
 (`fused_mlp.py`, `fused_ppo.py`) with TF32 products, from `train.fused_mlp` and `train.tf32`.
 
-Each of the two settings is true, false (the default: `benchmarks/fused_default.md`'s check did not
-clear the fused path as the CUDA default) or "auto". `resolve_fast_path(config, device_type)`
-decides:
+Each of the two settings is true, false or "auto" (the default: the follow-up declared in
+`benchmarks/fused_default_followup.md` found the fused path with TF32 products equivalent to torch's
+float32 path). `resolve_fast_path(config, device_type)` decides:
 
 - `train.fused_mlp="auto"`: the fused path on a CUDA device where Triton imports and the fused kernels
   serve every learning team's config (`fused_config_problem`); torch's MLP everywhere else (the CPU, no

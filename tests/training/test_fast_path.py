@@ -14,7 +14,8 @@ import torch
 from aquarium_warp.training import Trainer, fast_path, make_config
 from aquarium_warp.training.fast_path import fused_config_problem, resolve_fast_path
 
-# "auto" asked for explicitly: the default is torch's float32 path (benchmarks/fused_default.md's check).
+# "auto" asked for explicitly (the default since benchmarks/fused_default_followup.md's check), so these
+# tests keep meaning what they say if the default changes again.
 TINY = {"train": {"num_worlds": 2, "iterations": 1, "quiet": True, "export": [], "fused_mlp": "auto", "tf32": "auto"}}
 
 
@@ -22,13 +23,16 @@ def config(*changes: dict) -> dict:
     return make_config("tiny", TINY, *changes)
 
 
-def test_the_default_is_torch_float32_on_every_device(monkeypatch):
+def test_the_default_is_auto_fused_on_cuda_and_torch_float32_on_the_cpu(monkeypatch):
     train = make_config("default")["train"]
-    assert train["fused_mlp"] is False and train["tf32"] is False
+    assert train["fused_mlp"] == "auto" and train["tf32"] == "auto"
     monkeypatch.setattr(fast_path, "triton_imports", lambda: True)
-    for device in ("cuda", "cpu"):
-        path = resolve_fast_path(make_config("tiny"), device)
-        assert path.line() == "path: torch float32 (train.fused_mlp=false; train.tf32=false)"
+    assert (
+        resolve_fast_path(make_config("tiny"), "cuda").line() == "path: fused MLP + loss, TF32 (auto: cuda with triton)"
+    )
+    assert resolve_fast_path(make_config("tiny"), "cpu").line() == "path: torch float32 (auto: cpu)"
+    pinned = make_config("tiny", {"train": fast_path.TORCH_FLOAT32})  # one flag away: torch's path on CUDA
+    assert resolve_fast_path(pinned, "cuda").line() == "path: torch float32 (train.fused_mlp=false; train.tf32=false)"
 
 
 def test_auto_on_cuda_with_triton_takes_the_fused_path(monkeypatch):
