@@ -18,10 +18,13 @@ interrupted training, which checkpoints where it stopped, continues from its new
 4. Predator grid (`grid_predator.json`, `.csv`): NaivChase and every `general-predator` seed (label
    `predator-any`; `--coevolved`: `general-predator-coevolved`) against TurnAway and the picked prey.
 5. Pick the shipped predator: the seed whose smallest ratio to NaivChase against TurnAway is largest.
+   With `--teams none --coevolved` only `general` trains, and the grids show the co-evolved pair beside
+   `--prey-any` and `--predator-any` (the shipped ones by default); nothing is picked or installed.
 6. Install both (`--install DIR`, default the package's `aquarium_warp/policies/`), write
    `general_policies.json` (commands, times, picks, targets) and print the tables.
 
     python benchmarks/general_policies.py --device cuda:0 --seeds 0 1 2 3 4 --out runs/general
+    python benchmarks/general_policies.py --teams none --coevolved --out runs/coevolved  # beside the shipped
     python benchmarks/general_policies.py --device cpu --seeds 0 1 --out /tmp/gp --set train.iterations=2 \\
         --set train.num_worlds=4 --set env.max_steps=20 --set runner.num_steps_per_env=8 --max-steps 20 \\
         --episodes 2 --eval-seeds 0 --grid-prey-counts 4,8 --install /tmp/gp/policies     # a CPU smoke run
@@ -217,7 +220,8 @@ def grid_phase(args, prey: list[str], predators: list[str], base, cells, report,
 
 
 def prey_phase(args, prey_any: list[str], coevolved_prey: list[str], base, cells, report) -> tuple:
-    """The prey grid (written to `<out>/grid_prey/`), its targets, the shipped seed and its spec."""
+    """The prey grid (written to `<out>/grid_prey/`), its targets, the shipped seed and its spec (with the
+    prey team not trained here: `prey_any` is the given `--prey-any`, no seed, and that spec)."""
     from aquarium_warp import pretrained
     from aquarium_warp.drivers import NO_CONFUSION
     from aquarium_warp.training.grid_cells import BASELINES, cell_of
@@ -228,6 +232,8 @@ def prey_phase(args, prey_any: list[str], coevolved_prey: list[str], base, cells
     grid, targets = grid_phase(
         args, prey, ["naivchase", NO_CONFUSION], base, cells, report, "grid_prey", only=own, specialists=specialists
     )
+    if "prey" not in args.teams:
+        return grid, targets, None, prey_any[0]
     shipped = args.seeds[pick_prey(grid)]
     return grid, targets, shipped, f"prey-any={exported(args.out, PREY, shipped, 'prey')}"
 
@@ -235,11 +241,16 @@ def prey_phase(args, prey_any: list[str], coevolved_prey: list[str], base, cells
 def predator_phase(args, picked: str, base, cells, report) -> tuple:
     """The predator grid against TurnAway and `picked` (written to `<out>/grid_predator/`), its targets and
     the shipped seed."""
-    predator_any = [f"predator-any={exported(args.out, PREDATOR, s, 'predator')}" for s in args.seeds]
+    trained = "predator" in args.teams
+    predator_any = (
+        [f"predator-any={exported(args.out, PREDATOR, s, 'predator')}" for s in args.seeds]
+        if trained
+        else [f"predator-any={args.predator_any}"]
+    )
     coevolved = [f"general-predator-coevolved={exported(args.out, BOTH, s, 'predator')}" for s in args.seeds]
     predators = ["naivchase"] + predator_any + (coevolved if args.coevolved else [])
     grid, targets = grid_phase(args, ["turnaway", picked], predators, base, cells, report, "grid_predator")
-    return grid, targets, args.seeds[pick_predator(grid)]
+    return grid, targets, args.seeds[pick_predator(grid)] if trained else None
 
 
 def main(argv=None) -> int:
@@ -253,13 +264,20 @@ def main(argv=None) -> int:
     p.add_argument(
         "--teams",
         default="prey,predator",
-        help="teams to train, evaluate and install: prey, predator or both (a comma list; default both)",
+        help="teams to train, evaluate and install: prey, predator or both (a comma list; default both), or "
+        "none with --coevolved (the co-evolved pair alone, beside --prey-any and --predator-any)",
     )
     p.add_argument(
         "--prey-any",
         default="prey-any",
         help="without the prey team: the prey policy the predator grid plays as prey-any (a shipped name or "
         "a file; default the shipped prey-any)",
+    )
+    p.add_argument(
+        "--predator-any",
+        default="predator-any",
+        help="without the predator team: the predator the co-evolved predators are shown beside on the predator "
+        "grid, labelled predator-any (a shipped name or a file; default the shipped predator-any)",
     )
     p.add_argument("--jobs", type=int, default=16, help="training processes at once")
     p.add_argument("--set", action="append", default=[], help="a train --set assignment for every training")
@@ -270,9 +288,10 @@ def main(argv=None) -> int:
     p.add_argument("--install", default=None, help="policy folder to install into (default: the package's)")
     p.add_argument("--commit", default=None, help="the commit of a copy without git history")
     args = p.parse_args(argv)
-    teams = [t for t in args.teams.split(",") if t]
-    if not teams or not set(teams) <= {"prey", "predator"}:
-        p.error(f"--teams={args.teams!r}: a comma list of prey and predator")
+    teams = [] if args.teams == "none" else [t for t in args.teams.split(",") if t]
+    if not set(teams) <= {"prey", "predator"} or not (teams or args.coevolved):
+        p.error(f"--teams={args.teams!r}: a comma list of prey and predator, or none with --coevolved")
+    args.teams = teams
     devices = args.device.split(",")
     args.device = devices[0]
 
@@ -300,10 +319,11 @@ def main(argv=None) -> int:
     grid_start = time.time()
     prey_grid, prey_targets, shipped_prey = None, [], None
     picked = f"prey-any={args.prey_any}"
-    if "prey" in teams:
-        prey_grid, prey_targets, shipped_prey, picked = prey_phase(args, prey_any, coevolved_prey, base, cells, report)
+    if "prey" in teams or args.coevolved:
+        given = prey_any if "prey" in teams else [picked]
+        prey_grid, prey_targets, shipped_prey, picked = prey_phase(args, given, coevolved_prey, base, cells, report)
     predator_grid, predator_targets, shipped_predator = None, [], None
-    if "predator" in teams:
+    if "predator" in teams or args.coevolved:
         predator_grid, predator_targets, shipped_predator = predator_phase(args, picked, base, cells, report)
     grid_s = time.time() - grid_start
     for grid in (prey_grid, predator_grid):

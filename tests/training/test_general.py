@@ -213,3 +213,28 @@ def test_installed_general_policies_are_taken_by_name_and_as_learned(general_pol
     assert simulation.specs == {"prey": "prey-any", "predator": "predator-any"}
     choices = simulation.policy_choices()
     assert "predator-any" in choices["predator"] and "prey-any" not in choices["predator"]
+
+
+def test_the_coevolved_pair_alone_is_evaluated_beside_the_shipped_policies(tmp_path, one_thread):
+    """`--teams none --coevolved`: only `--preset general` trains; its prey and predator go on the grids
+    beside the shipped `prey-any` and `predator-any`, and nothing is picked or installed."""
+    gp = _benchmark_module()
+    out, folder = str(tmp_path / "out"), str(tmp_path / "policies")
+    sets = ["train.iterations=1", "train.num_worlds=2", "env.max_steps=8", "runner.num_steps_per_env=4"]
+    argv = ["--device", "cpu", "--seeds", "0", "--out", out, "--teams", "none", "--coevolved", "--max-steps", "8"]
+    argv += ["--episodes", "1", "--eval-seeds", "0", "--grid-prey-counts", "4", "--install", folder]
+    assert gp.main(argv + [arg for s in sets for arg in ("--set", s)]) == 0
+    assert sorted(os.listdir(os.path.join(out, "runs"))) == ["general-s0"] and not os.path.exists(folder)
+    pairs = {}
+    for grid in ("grid_prey", "grid_predator"):
+        with open(os.path.join(out, grid, "grid.json"), encoding="utf-8") as f:
+            pairs[grid] = {(p["prey"], p["predator"]): p for p in json.load(f)["pairings"]}
+    prey_any = pairs["grid_prey"][("prey-any", "naivchase")]
+    assert [run["prey_spec"] for run in prey_any["runs"]] == ["prey-any"]  # the shipped one, by name
+    assert ("general-prey-coevolved", "naivchase") in pairs["grid_prey"]
+    assert {("turnaway", "predator-any"), ("prey-any", "general-predator-coevolved")} <= set(pairs["grid_predator"])
+    with open(os.path.join(out, "general_policies.json"), encoding="utf-8") as f:
+        record = json.load(f)
+    assert record["shipped"] == {"prey-any": None, "predator-any": None} and record["installed"] == {}
+    with pytest.raises(SystemExit):
+        gp.main(["--teams", "none", "--out", out])  # nothing to train
