@@ -369,3 +369,46 @@ def test_fused_default_followup_decisions_by_hand():
     assert out["decision"] == "the fused path with float32 products becomes the CUDA default"
     out = fused_default.report_followup(args, rows_of({("fused", "curve"): 0.5, ("fused_fp32", "curve"): 0.5}), prior)
     assert out["decision"] == "the default stays torch's float32 path"
+
+
+def test_grid_ratios_by_hand(tmp_path, capsys):
+    """benchmarks/grid_ratios.py on a hand-made grid: per-cell ratios with evaluation seeds and runs pooled,
+    per field of view and in all; the 0.6x and 1.3x counts; --by-run splits a label by its run folder."""
+    grid_ratios = _script("grid_ratios")
+    header = "prey,predator,prey_spec,predator_spec," + ",".join(grid_ratios.CELL) + ",seed,value"
+    rows = []
+    for fov, turnaway, learned in (("120.0", 2.0, (3.0, 1.0)), ("360.0", 2.0, (0.8, 1.2))):
+        for seed in (0, 1):  # evaluation seeds: pooled
+            rows.append(f"turnaway,naivchase,turnaway,naivchase,6,100.0,{fov},5.0,{seed},{turnaway}")
+            for run, value in zip((0, 1), learned, strict=True):  # two runs of one label: pooled
+                spec = f"/o/runs/general-prey-s{run}/exported/prey/policy.pt"
+                rows.append(f"prey-any,naivchase,{spec},naivchase,6,100.0,{fov},5.0,{seed},{value}")
+    (tmp_path / "grid_prey").mkdir()
+    (tmp_path / "grid_prey" / "grid.csv").write_text("\n".join([header, *rows]) + "\n")
+    assert grid_ratios.main([str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    # 120 deg: (3 + 1) / 2 / 2 = 1.0; 360 deg: (0.8 + 1.2) / 2 / 2 = 0.5, at most 0.6x
+    assert "prey prey-any vs naivchase, 120 deg: cells   1, mean ratio 1.000, at most 0.6x   0, below 1x   0" in out
+    assert "prey prey-any vs naivchase, 360 deg: cells   1, mean ratio 0.500, at most 0.6x   1, below 1x   1" in out
+    assert "prey prey-any vs naivchase, all: cells   2, mean ratio 0.750, at most 0.6x   1, below 1x   1" in out
+    assert grid_ratios.main([str(tmp_path), "--by-run", "--fov", "360"]) == 0
+    out = capsys.readouterr().out
+    assert "prey prey-any:general-prey-s0 vs naivchase, 360 deg: cells   1, mean ratio 0.400" in out
+    assert "prey prey-any:general-prey-s1 vs naivchase, 360 deg: cells   1, mean ratio 0.600, at most 0.6x   1" in out
+    (tmp_path / "grid_predator").mkdir()
+    (tmp_path / "grid_predator" / "grid.csv").write_text(
+        "\n".join(
+            [
+                header,
+                "turnaway,naivchase,turnaway,naivchase,6,100.0,360.0,5.0,0,2.0",
+                "turnaway,predator-any,turnaway,p.pt,6,100.0,360.0,5.0,0,2.6",
+            ]
+        )
+        + "\n"  # fmt: skip
+    )
+    assert grid_ratios.main([str(tmp_path)]) == 0
+    assert "predator predator-any vs turnaway: cells   1, mean ratio 1.300, at least 1.3x   1, above 1x   1" in (
+        capsys.readouterr().out
+    )
+    with pytest.raises(SystemExit):
+        grid_ratios.main([str(tmp_path / "none")])
