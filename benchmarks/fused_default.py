@@ -12,7 +12,7 @@ third path with float32 products) (cells, measures, margins, decision), run in s
   printed.
 
     python benchmarks/fused_default.py --out runs/fused_default --gpus 4 --per-gpu 5
-    python benchmarks/fused_default.py --plan followup --out runs/followup --gpus 4 --per-gpu 8 \
+    python benchmarks/fused_default.py --plan followup --out runs/followup --gpus 4 --per-gpu 8 \\
         --prior benchmarks/results/fused_default_h200x4_36f30d5/per_seed.csv
     python benchmarks/fused_default.py --out /tmp/fd --gpus 0 --seeds 0 1 --episodes 2 --eval-seeds 0 \\
         --set train.episodes=null --set train.iterations=2 --set train.num_worlds=4 --set env.max_steps=30 \\
