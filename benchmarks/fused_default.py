@@ -143,21 +143,26 @@ def curve_rows(args, trainings: list[dict]) -> list[dict]:
     return rows
 
 
-def report(args, rows: list[dict]) -> dict:
-    def values(setup: str, path: str, what: str) -> list[float]:
+def compare(rows: list[dict], measure: str, candidate: str) -> dict:
+    """`candidate` minus torch on `measure` (`MEASURES`: its setup, margin, and whether the margin is a
+    fraction of torch's mean): Welch's 95% interval against the margin, its verdict and TOST."""
+    setup, what, margin, relative = MEASURES[measure]
+
+    def values(path: str) -> list[float]:
         return [float(r["value"]) for r in rows if (r["setup"], r["path"], r["measure"]) == (setup, path, what)]
 
-    out: dict = {"plan": "benchmarks/fused_default.md", "measures": {}}
-    for name, (setup, what, margin, relative) in MEASURES.items():
-        fused, torch_ = values(setup, "fused", what), values(setup, "torch", what)
-        if relative:
-            margin *= abs(interval(torch_)["mean"])
-        d = difference(fused, torch_, confidence=0.95)
-        verdict = interval_verdict(d, margin)
-        out["measures"][name] = {"setup": setup, "measure": what, "margin": margin, "fused": interval(fused),
-                                 "torch": interval(torch_), "difference_95": d,
-                                 "tost": equivalence(fused, torch_, margin) if margin > 0 else None,
-                                 "verdict": verdict}  # fmt: skip
+    cand, ref = values(candidate), values("torch")
+    if relative:
+        margin *= abs(interval(ref)["mean"])
+    d = difference(cand, ref, confidence=0.95)
+    tost = equivalence(cand, ref, margin) if margin > 0 else None
+    return {"setup": setup, "measure": what, "margin": margin, candidate: interval(cand), "torch": interval(ref),
+            "difference_95": d, "tost": tost, "verdict": interval_verdict(d, margin)}  # fmt: skip
+
+
+def report(args, rows: list[dict]) -> dict:
+    """The first check's comparisons (`fused_default.md`) and its all-or-nothing decision."""
+    out: dict = {"plan": PLANS["first"][0], "measures": {name: compare(rows, name, "fused") for name in MEASURES}}
     out["decision"] = (
         "fused path fit to be the CUDA default"
         if all(m["verdict"] == "equivalent" for m in out["measures"].values())
@@ -167,31 +172,15 @@ def report(args, rows: list[dict]) -> dict:
     return out
 
 
-def _compare(rows: list[dict], setup: str, what: str, candidate: str, margin_fraction: float) -> dict:
-    """`candidate` minus torch on one measure: Welch's 95% interval against a margin of `margin_fraction`
-    of torch's mean, its verdict and TOST."""
-
-    def values(path: str) -> list[float]:
-        return [float(r["value"]) for r in rows if (r["setup"], r["path"], r["measure"]) == (setup, path, what)]
-
-    cand, ref = values(candidate), values("torch")
-    margin = margin_fraction * abs(interval(ref)["mean"])
-    d = difference(cand, ref, confidence=0.95)
-    tost = equivalence(cand, ref, margin) if margin > 0 else None
-    return {"setup": setup, "measure": what, "margin": margin, candidate: interval(cand), "torch": interval(ref),
-            "difference_95": d, "tost": tost, "verdict": interval_verdict(d, margin)}  # fmt: skip
-
-
 def report_followup(args, rows: list[dict], prior: list[dict]) -> dict:
     """The follow-up's comparisons (`fused_default_followup.md`): each candidate against torch on the new
     seeds, `fused` also pooled with the first check's `prior` rows, and the declared decision."""
     out: dict = {"plan": PLANS["followup"][0], "candidates": {}, "pooled": {}}
     both = [r for r in prior if r["setup"] == "both"]
     for name in FOLLOWUP_MEASURES:
-        setup, what, margin, _ = MEASURES[name]
         for candidate in ("fused", "fused_fp32"):
-            out["candidates"].setdefault(candidate, {})[name] = _compare(rows, setup, what, candidate, margin)
-        out["pooled"][name] = _compare(rows + both, setup, what, "fused", margin)
+            out["candidates"].setdefault(candidate, {})[name] = compare(rows, name, candidate)
+        out["pooled"][name] = compare(rows + both, name, "fused")
 
     def all_equivalent(measures: dict) -> bool:
         return all(m["verdict"] == "equivalent" for m in measures.values())

@@ -314,13 +314,13 @@ def main(argv=None) -> int:
     cells = grid_cells(number_list(args.grid_prey_counts, int, "--grid-prey-counts", 1), VIEWS, FOVS, SPEEDS)
     prey_any = [f"prey-any={exported(args.out, PREY, s, 'prey')}" for s in args.seeds]
     coevolved_prey = [f"general-prey-coevolved={exported(args.out, BOTH, s, 'prey')}" for s in args.seeds]
-    base = grid_base(prey_any if "prey" in teams else [f"prey-any={args.prey_any}"]).replace(max_steps=args.max_steps)
+    given = prey_any if "prey" in teams else [f"prey-any={args.prey_any}"]  # trained here, or given
+    base = grid_base(given).replace(max_steps=args.max_steps)
     report = lambda line: print("  " + line, flush=True)  # noqa: E731
     grid_start = time.time()
     prey_grid, prey_targets, shipped_prey = None, [], None
     picked = f"prey-any={args.prey_any}"
     if "prey" in teams or args.coevolved:
-        given = prey_any if "prey" in teams else [picked]
         prey_grid, prey_targets, shipped_prey, picked = prey_phase(args, given, coevolved_prey, base, cells, report)
     predator_grid, predator_targets, shipped_predator = None, [], None
     if "predator" in teams or args.coevolved:

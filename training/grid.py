@@ -196,7 +196,7 @@ def cell_stats(entry: dict) -> list[dict]:
     return out
 
 
-def _means(result: dict) -> dict[tuple[str, str], dict[int, float]]:
+def pairing_means(result: dict) -> dict[tuple[str, str], dict[int, float]]:
     """{(prey, predator): {cell index: mean}}."""
     return {
         (p["prey"], p["predator"]): {c: s["mean"] for c, s in zip(p["cells"], p["stats"])} for p in result["pairings"]
@@ -211,7 +211,7 @@ def check_targets(
 ) -> list[dict]:
     """The general policies' targets, one entry per target and pairing present: `{"target", "met",
     "failing": [cell labels with their values]}` (at the means over seeds)."""
-    means, cells = _means(result), [Cell(**{k: v for k, v in c.items() if k != "label"}) for c in result["cells"]]
+    means, cells = pairing_means(result), [Cell(**{k: v for k, v in c.items() if k != "label"}) for c in result["cells"]]
     out = []
 
     def check(name: str, a: dict[int, float], b: dict[int, float], ok: Callable[[float, float, Cell], bool], what):

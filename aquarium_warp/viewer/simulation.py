@@ -280,7 +280,8 @@ class WorldView:
         # and when the last result is older than 19x its own cost, they take at most a twentieth of the
         # time (a frame late in every 20 in the largest worlds; the plots update less often there).
         now = time.perf_counter()
-        episode, step = torch.stack([s.episode[w], s.world_step[w]]).tolist()  # one read of the device
+        counters = (s.episode, s.world_step, s.episode_captures, s.prey_alive_count, s.predator_alive_count)
+        episode, step, captures, prey_alive, predator_alive = torch.stack([c[w] for c in counters]).tolist()  # one read
         state = (w, episode, step)
         if self._values is None or (self._values[0] != state and (self._values[0][0] != w or now >= self._due)):
             values = self.metrics.compute()
@@ -305,11 +306,11 @@ class WorldView:
             "height": float(cfg.height),
             "prey_capacity": env.prey_capacity,
             "types": {t: _type_info(getattr(cfg, t), cfg.fov_enabled) for t in TYPES},
-            "episode_captures": int(s.episode_captures[w]),
+            "episode_captures": captures,
             "polarization": _finite(values["polarization"]),
             "groups": _finite(values["groups"]),
-            "prey_alive": int(s.prey_alive_count[w]),
-            "predator_alive": int(s.predator_alive_count[w]),
+            "prey_alive": prey_alive,
+            "predator_alive": predator_alive,
             "controls": False,
             "playing": True,
             "speed": 1.0,

@@ -372,19 +372,29 @@ def test_fused_default_followup_decisions_by_hand():
 
 
 def test_grid_ratios_by_hand(tmp_path, capsys):
-    """benchmarks/grid_ratios.py on a hand-made grid: per-cell ratios with evaluation seeds and runs pooled,
-    per field of view and in all; the 0.6x and 1.3x counts; --by-run splits a label by its run folder."""
+    """benchmarks/grid_ratios.py on a hand-made grid: per-cell ratios at the pairing's mean (evaluation seeds
+    and runs pooled), per field of view and in all; the 0.6x and 1.3x counts; --by-run splits a label by its
+    run folder."""
     grid_ratios = _script("grid_ratios")
-    header = "prey,predator,prey_spec,predator_spec," + ",".join(grid_ratios.CELL) + ",seed,value"
-    rows = []
-    for fov, turnaway, learned in (("120.0", 2.0, (3.0, 1.0)), ("360.0", 2.0, (0.8, 1.2))):
-        for seed in (0, 1):  # evaluation seeds: pooled
-            rows.append(f"turnaway,naivchase,turnaway,naivchase,6,100.0,{fov},5.0,{seed},{turnaway}")
-            for run, value in zip((0, 1), learned, strict=True):  # two runs of one label: pooled
-                spec = f"/o/runs/general-prey-s{run}/exported/prey/policy.pt"
-                rows.append(f"prey-any,naivchase,{spec},naivchase,6,100.0,{fov},5.0,{seed},{value}")
-    (tmp_path / "grid_prey").mkdir()
-    (tmp_path / "grid_prey" / "grid.csv").write_text("\n".join([header, *rows]) + "\n")
+    cells = [{"prey_count": 6, "prey_view_distance": 100.0, "prey_fov_angle": fov, "predator_max_speed": 5.0}
+             for fov in (120.0, 360.0)]  # fmt: skip
+
+    def pairing(prey, predator, runs: dict[str, list[float]], side: str = "prey") -> dict:
+        """`runs`: the `side`'s file -> its value per cell (the same at both evaluation seeds)."""
+        count = len(next(iter(runs.values())))  # the grid's first cells
+        pooled = [sum(v[c] for v in runs.values()) / len(runs) for c in range(count)]
+        return {"prey": prey, "predator": predator, "cells": list(range(count)), "stats": [{"mean": m} for m in pooled],
+                "runs": [{"prey_spec": prey, "predator_spec": predator, f"{side}_spec": spec,
+                          "values": [[v, v] for v in per_cell]} for spec, per_cell in runs.items()]}  # fmt: skip
+
+    def write(side: str, pairings: list[dict]) -> None:
+        (tmp_path / f"grid_{side}").mkdir()
+        (tmp_path / f"grid_{side}" / "grid.json").write_text(json.dumps({"cells": cells, "pairings": pairings}))
+
+    run = "/o/runs/general-prey-s{}/exported/prey/policy.pt".format
+    # 120 deg: TurnAway 2, the runs 3 and 1; 360 deg: TurnAway 2, the runs 0.8 and 1.2
+    write("prey", [pairing("turnaway", "naivchase", {"turnaway": [2.0, 2.0]}),
+                   pairing("prey-any", "naivchase", {run(0): [3.0, 0.8], run(1): [1.0, 1.2]})])  # fmt: skip
     assert grid_ratios.main([str(tmp_path)]) == 0
     out = capsys.readouterr().out
     # 120 deg: (3 + 1) / 2 / 2 = 1.0; 360 deg: (0.8 + 1.2) / 2 / 2 = 0.5, at most 0.6x
@@ -395,17 +405,8 @@ def test_grid_ratios_by_hand(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "prey prey-any:general-prey-s0 vs naivchase, 360 deg: cells   1, mean ratio 0.400" in out
     assert "prey prey-any:general-prey-s1 vs naivchase, 360 deg: cells   1, mean ratio 0.600, at most 0.6x   1" in out
-    (tmp_path / "grid_predator").mkdir()
-    (tmp_path / "grid_predator" / "grid.csv").write_text(
-        "\n".join(
-            [
-                header,
-                "turnaway,naivchase,turnaway,naivchase,6,100.0,360.0,5.0,0,2.0",
-                "turnaway,predator-any,turnaway,p.pt,6,100.0,360.0,5.0,0,2.6",
-            ]
-        )
-        + "\n"  # fmt: skip
-    )
+    write("predator", [pairing("turnaway", "naivchase", {"naivchase": [2.0]}, "predator"),
+                       pairing("turnaway", "predator-any", {"p.pt": [2.6]}, "predator")])  # fmt: skip
     assert grid_ratios.main([str(tmp_path)]) == 0
     assert "predator predator-any vs turnaway: cells   1, mean ratio 1.300, at least 1.3x   1, above 1x   1" in (
         capsys.readouterr().out
