@@ -215,6 +215,14 @@ def main(argv=None) -> int:
         args.seeds = list(PLANS[args.plan][3])
     if args.plan == "followup" and "report" in args.steps.split(",") and args.prior is None:
         p.error("--plan followup's report needs --prior (the first check's per_seed.csv)")
+    if "report" in args.steps.split(",") and len(set(args.seeds)) < 2:
+        p.error(f"--seeds {args.seeds}: the report compares at least 2 distinct training seeds per cell")
+    if args.prior is not None and not os.path.isfile(args.prior):
+        p.error(f"--prior {args.prior!r} is not a file (the first check's per_seed.csv)")
+    # One plan per --out: the plans write the same per_seed.csv and report.json.
+    marker = Path(args.out) / "plan.txt"
+    if marker.is_file() and marker.read_text().strip() != args.plan:
+        p.error(f"--out {args.out!r} holds the {marker.read_text().strip()!r} plan's runs: give another folder")
 
     from aquarium_warp.jobs import run_jobs, task_devices
     from aquarium_warp.studies.common import run_training_task
@@ -223,6 +231,7 @@ def main(argv=None) -> int:
     devices = task_devices(args.gpus)
     trainings = training_tasks(args)
     os.makedirs(args.out, exist_ok=True)
+    marker.write_text(args.plan + "\n")
     start = time.perf_counter()
     if "train" in steps:
         jobs = args.per_gpu if devices[0] != "cpu" else 1

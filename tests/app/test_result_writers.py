@@ -413,3 +413,22 @@ def test_grid_ratios_by_hand(tmp_path, capsys):
     )
     with pytest.raises(SystemExit):
         grid_ratios.main([str(tmp_path / "none")])
+
+
+def test_fused_default_refuses_a_missing_prior_and_another_plans_folder(tmp_path, capsys):
+    """fused_default.py checks its --prior and its seeds and keeps one plan per --out (the plans' files share
+    names), before anything trains."""
+    fused_default = _script("fused_default")
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit):
+        fused_default.main(["--plan", "followup", "--out", str(out), "--prior", str(tmp_path / "none.csv")])
+    assert "--prior" in capsys.readouterr().err and not out.exists()
+    with pytest.raises(SystemExit):
+        fused_default.main(["--out", str(out), "--seeds", "3"])
+    assert "at least 2 distinct training seeds" in capsys.readouterr().err and not out.exists()
+    out.mkdir()
+    (out / "plan.txt").write_text("first\n")
+    with pytest.raises(SystemExit):
+        fused_default.main(["--plan", "followup", "--out", str(out), "--steps", "eval"])
+    assert "holds the 'first' plan's runs" in capsys.readouterr().err
+    assert (out / "plan.txt").read_text() == "first\n"
