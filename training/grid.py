@@ -211,7 +211,8 @@ def check_targets(
 ) -> list[dict]:
     """The general policies' targets, one entry per target and pairing present: `{"target", "met",
     "failing": [cell labels with their values]}` (at the means over seeds)."""
-    means, cells = pairing_means(result), [Cell(**{k: v for k, v in c.items() if k != "label"}) for c in result["cells"]]
+    means = pairing_means(result)
+    cells = [Cell(**{k: v for k, v in c.items() if k != "label"}) for c in result["cells"]]
     out = []
 
     def check(name: str, a: dict[int, float], b: dict[int, float], ok: Callable[[float, float, Cell], bool], what):
